@@ -1,0 +1,94 @@
+"""The ``rover`` command line: one entry point, subcommands plugged in by each package.
+
+Each package registers its subcommands under the entry-point group ``rover.commands``
+(see ``pyproject.toml``). An entry point names a function ``register(subparsers)`` that
+adds one ``argparse`` subparser and sets ``func`` on it; ``func(args)`` returns the exit
+status. Register functions must import nothing heavy at module level, so that
+``rover --help`` stays fast; the handler imports what it needs.
+
+This module lives in :mod:`firmware_proto` because that package sits at the bottom of
+the dependency graph: it discovers the others by entry point and never imports them.
+
+Exit status: 0 success, 1 the command failed (message on stderr), 2 usage error,
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
+from typing import Any
+
+__all__ = ["ENTRY_POINT_GROUP", "build_parser", "main"]
+
+logger = logging.getLogger(__name__)
+
+ENTRY_POINT_GROUP = "rover.commands"
+
+RegisterFn = Callable[[Any], None]
+
+
+def _load_registrations() -> list[tuple[str, RegisterFn]]:
+    found = []
+    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        try:
+            found.append((ep.name, ep.load()))
+        except Exception as exc:  # a broken plugin must not take the whole CLI down
+            logger.warning("rover: subcommand %r unavailable: %s", ep.name, exc)
+    return found
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full ``rover`` parser with every installed subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="rover",
+        description=(
+            "Hardware-in-the-loop stack of a RASSOR-class rover: wire protocol tools, "
+            "controller emulator, ROS 2 bridge, simulation gate and ground station."
+        ),
+        epilog="Run 'rover COMMAND --help' for the options of one command.",
+    )
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="more log output (-v info, -vv debug with per-frame traffic)",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for _name, register in _load_registrations():
+        register(sub)
+    return parser
+
+
+def _configure_logging(verbosity: int) -> None:
+    level = logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
+    logging.basicConfig(
+        level=level, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``rover`` command line; returns the process exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _configure_logging(args.verbose)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return int(func(args) or 0)
+    except KeyboardInterrupt:
+        print("rover: interrupted", file=sys.stderr)
+        return 130
+    except (OSError, ValueError, RuntimeError, TimeoutError) as exc:
+        if args.verbose >= 2:
+            logger.exception("rover %s failed", args.command)
+        print(f"rover {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""``rover frame``: protocol tools (list, encode, decode, generate, dbc)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+__all__ = ["register"]
+
+
+def register(subparsers: Any) -> None:
+    """Add ``rover frame`` and its sub-subcommands."""
+    parser = subparsers.add_parser(
+        "frame",
+        help="wire protocol tools: list, encode, decode, generate, dbc",
+        description="Tools for the rover motor-controller wire protocol (docs/protocol.md).",
+    )
+    sub = parser.add_subparsers(dest="frame_command", metavar="ACTION")
+    sub.required = True
+
+    p = sub.add_parser("list", help="print the message table")
+    p.set_defaults(func=_cmd_list)
+
+    p = sub.add_parser(
+        "encode",
+        help="encode one message to wire bytes",
+        description="Encode one message; prints serial frame bytes (or CAN id and data) in hex.",
+        epilog="example: rover frame encode MOTION seq=1 command=FWD speed=30 distance=23000",
+    )
+    p.add_argument("name", help="message name, e.g. MOTION (see 'rover frame list')")
+    p.add_argument(
+        "fields",
+        nargs="*",
+        metavar="FIELD=VALUE",
+        help="field values; enum fields take names or numbers",
+    )
+    p.add_argument("--seq", type=int, default=0, help="serial frame counter (default 0)")
+    p.add_argument(
+        "--can",
+        type=int,
+        metavar="NODE",
+        help="encode as a CAN frame for this node id instead of a serial frame",
+    )
+    p.add_argument(
+        "--loose",
+        action="store_true",
+        help="only enforce wire ranges, not semantic limits (to test NACKs)",
+    )
+    p.set_defaults(func=_cmd_encode)
+
+    p = sub.add_parser(
+        "decode",
+        help="decode serial bytes or a CAN frame",
+        description="Decode hex serial stream bytes, or the data of one CAN frame with --can-id.",
+    )
+    p.add_argument("hex", nargs="+", help="hex bytes; spaces and ':' are ignored")
+    p.add_argument(
+        "--can-id",
+        type=lambda s: int(s, 0),
+        metavar="ID",
+        help="decode the bytes as the data of one CAN frame with this identifier",
+    )
+    p.set_defaults(func=_cmd_decode)
+
+    p = sub.add_parser("generate", help="regenerate the files derived from protocol.toml")
+    p.add_argument(
+        "--check", action="store_true", help="write nothing; exit 1 if any generated file is stale"
+    )
+    p.set_defaults(func=_cmd_generate)
+
+    p = sub.add_parser("dbc", help="print the CAN database for one node id")
+    p.add_argument("--node", type=int, default=None, help="controller node id (default 1)")
+    p.set_defaults(func=_cmd_dbc)
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from firmware_proto.messages import MESSAGE_TYPES, PROTOCOL_VERSION, SCHEMA_HASH
+
+    print(f"protocol version {PROTOCOL_VERSION}, schema hash 0x{SCHEMA_HASH:04X}")
+    for msg_id, cls in sorted(MESSAGE_TYPES.items()):
+        arrow = "host->ctrl" if cls.DIRECTION == "host_to_controller" else "ctrl->host"
+        print(
+            f"{msg_id:4d}  {cls.NAME:<15} {arrow}  {cls.PRIORITY:<9} {cls.LENGTH} B  "
+            f"{' '.join(cls.FIELDS)}"
+        )
+    return 0
+
+
+def _parse_fields(cls: Any, items: list[str]) -> dict[str, int]:
+    values: dict[str, int] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or name not in cls.FIELDS:
+            raise ValueError(
+                f"{item!r}: expected FIELD=VALUE with FIELD in {', '.join(cls.FIELDS)}"
+            )
+        enum = cls.ENUMS.get(name)
+        if enum is not None and text in enum.__members__:
+            values[name] = int(enum[text])
+        else:
+            try:
+                values[name] = int(text, 0)
+            except ValueError:
+                raise ValueError(
+                    f"{name}: {text!r} is not an integer"
+                    + (f" or one of {', '.join(enum.__members__)}" if enum else "")
+                ) from None
+    missing = [f for f in cls.FIELDS if f not in values]
+    if missing:
+        raise ValueError(f"{cls.NAME} needs {', '.join(f + '=' for f in missing)}")
+    return values
+
+
+def _cmd_encode(args: argparse.Namespace) -> int:
+    from firmware_proto.canmap import encode_can
+    from firmware_proto.framing import encode_frame
+    from firmware_proto.messages import BY_NAME
+
+    cls = BY_NAME.get(args.name.upper())
+    if cls is None:
+        raise ValueError(f"unknown message {args.name!r}; known: {', '.join(sorted(BY_NAME))}")
+    msg = cls(**_parse_fields(cls, args.fields))
+    if args.can is not None:
+        arb, data = encode_can(msg, args.can, strict=not args.loose)
+        print(f"{arb:03X}#{data.hex().upper()}")
+    else:
+        print(encode_frame(msg, args.seq, strict=not args.loose).hex(" "))
+    return 0
+
+
+def _cmd_decode(args: argparse.Namespace) -> int:
+    from firmware_proto.canmap import CanDecoder
+    from firmware_proto.framing import FrameDecoder
+
+    text = "".join(args.hex).replace(" ", "").replace(":", "")
+    try:
+        data = bytes.fromhex(text)
+    except ValueError as exc:
+        raise ValueError(f"not hex: {exc}") from None
+    if args.can_id is not None:
+        can = CanDecoder()
+        can_frame = can.decode(args.can_id, data)
+        if can_frame is None:
+            bad = {k: v for k, v in can.counters.as_dict().items() if v}
+            print(f"dropped: {bad}")
+            return 1
+        print(f"node {can_frame.node}: {can_frame.message.describe()}")
+        return 0
+    decoder = FrameDecoder()
+    for frame in decoder.feed(data):
+        print(f"seq {frame.seq:3d}: {frame.message.describe()}")
+    dropped = {
+        k: v for k, v in decoder.counters.as_dict().items() if v and k not in ("frames", "bytes")
+    }
+    if dropped:
+        print(f"dropped: {dropped}")
+    return 0 if decoder.counters.frames else 1
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from firmware_proto import codegen
+
+    if args.check:
+        stale = codegen.stale()
+        for path in stale:
+            print(f"stale: {path.relative_to(codegen.REPO_ROOT)}")
+        return 1 if stale else 0
+    for path in codegen.generate():
+        print(f"wrote {path.relative_to(codegen.REPO_ROOT)}")
+    return 0
+
+
+def _cmd_dbc(args: argparse.Namespace) -> int:
+    from firmware_proto.codegen.dbc import render_dbc
+    from firmware_proto.spec import load_spec
+
+    sys.stdout.write(render_dbc(load_spec(), args.node))
+    return 0

@@ -1,0 +1,53 @@
+"""Code generators: the protocol spec rendered into every artefact that speaks it.
+
+:data:`TARGETS` maps each generated file (relative to the repository root) to the
+function that renders it from the spec model. :func:`generate` writes them all;
+:func:`stale` lists the files whose content differs from what the spec renders, which
+the test suite asserts is empty. Generated files are never edited by hand.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from firmware_proto.codegen.dbc import render_dbc
+from firmware_proto.codegen.markdown import render_markdown
+from firmware_proto.codegen.python import render_python
+from firmware_proto.spec import ProtocolSpec, load_spec
+
+__all__ = ["REPO_ROOT", "TARGETS", "generate", "render_all", "stale"]
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+TARGETS: dict[str, Callable[[ProtocolSpec], str]] = {
+    "firmware_proto/messages.py": render_python,
+    "firmware_proto/rover.dbc": render_dbc,
+    "docs/protocol.md": render_markdown,
+}
+
+
+def render_all(spec: ProtocolSpec | None = None) -> dict[Path, str]:
+    """Every generated file's path (under :data:`REPO_ROOT`) and its expected text."""
+    spec = spec or load_spec()
+    return {REPO_ROOT / rel: render(spec) for rel, render in TARGETS.items()}
+
+
+def generate(spec: ProtocolSpec | None = None) -> list[Path]:
+    """Write every generated file; returns the paths whose content changed."""
+    changed = []
+    for path, text in render_all(spec).items():
+        if not path.exists() or path.read_text(encoding="utf-8") != text:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text, encoding="utf-8")
+            changed.append(path)
+    return changed
+
+
+def stale(spec: ProtocolSpec | None = None) -> list[Path]:
+    """Generated files that are missing or differ from what the spec renders."""
+    return [
+        path
+        for path, text in render_all(spec).items()
+        if not path.exists() or path.read_text(encoding="utf-8") != text
+    ]

@@ -1,0 +1,67 @@
+"""Exceptions raised by :mod:`firmware_proto`.
+
+Everything this package raises derives from :class:`ProtoError`::
+
+    ProtoError
+     +-- SpecError          the declarative message spec is malformed (a build-time error)
+     +-- EncodeError        a field value cannot be encoded (names the field); also ValueError
+     +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
+     +-- DescriptionError   the rover description file is missing or invalid; also ValueError
+     +-- PlanError          a command plan fails its JSON schema; also ValueError
+
+Stream decoders never raise on bad input: they count it (see ``framing.FrameDecoder``).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "DecodeError",
+    "DescriptionError",
+    "EncodeError",
+    "PlanError",
+    "ProtoError",
+    "SpecError",
+]
+
+
+class ProtoError(Exception):
+    """Root of every exception raised by firmware_proto."""
+
+
+class SpecError(ProtoError):
+    """The declarative protocol spec is malformed."""
+
+
+class EncodeError(ProtoError, ValueError):
+    """A message cannot be encoded; the message names the offending field.
+
+    Attributes:
+        message: name of the message type.
+        field: name of the field, or ``""`` when the problem is not one field.
+    """
+
+    def __init__(self, text: str, *, message: str = "", field: str = "") -> None:
+        super().__init__(text)
+        self.message = message
+        self.field = field
+
+
+class DecodeError(ProtoError, ValueError):
+    """A payload or frame cannot be decoded (raised by strict, non-streaming APIs)."""
+
+
+class DescriptionError(ProtoError, ValueError):
+    """The rover description is missing, malformed or out of range."""
+
+
+class PlanError(ProtoError, ValueError):
+    """A command plan fails the plan schema.
+
+    Attributes:
+        violations: ``(json_pointer, message)`` pairs, one per schema violation.
+    """
+
+    def __init__(self, violations: list[tuple[str, str]]) -> None:
+        self.violations = violations
+        text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in violations)
+        super().__init__(f"plan fails schema: {text}")

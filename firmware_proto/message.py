@@ -1,0 +1,84 @@
+"""The base class of every protocol message.
+
+Concrete classes are generated into :mod:`firmware_proto.messages` from
+``protocol.toml``. They are frozen, slotted dataclasses whose fields hold raw integers
+(units in the field names, e.g. ``yaw_rate_mrad_s``); enum-typed fields hold plain
+``int`` values that compare equal to the generated ``IntEnum`` members.
+
+A subclass provides :meth:`Message.pack` (payload bytes, checked) and
+:meth:`Message.unpack` (strict decode). Framing lives in :mod:`firmware_proto.framing`
+(serial) and :mod:`firmware_proto.canmap` (CAN).
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+from typing import Any, ClassVar
+
+from firmware_proto.errors import EncodeError
+
+__all__ = ["Message", "field_error"]
+
+
+class Message:
+    """A protocol message. Subclasses are generated; do not subclass by hand.
+
+    Class attributes:
+        MSG_ID: message id (serial frame id; CAN identifier ``MSG_ID << 4 | node``).
+        NAME: upper-case protocol name, e.g. ``"MOTION"``.
+        LENGTH: payload length in bytes (fixed per type, at most 8).
+        DIRECTION: ``"host_to_controller"`` or ``"controller_to_host"``.
+        PRIORITY: priority class name (``"emergency"`` ... ``"config"``).
+        FIELDS: public field names in wire order.
+        ENUMS: field name -> enum class, for fields that hold enum codes.
+    """
+
+    __slots__ = ()
+
+    MSG_ID: ClassVar[int]
+    NAME: ClassVar[str]
+    LENGTH: ClassVar[int]
+    DIRECTION: ClassVar[str]
+    PRIORITY: ClassVar[str]
+    FIELDS: ClassVar[tuple[str, ...]]
+    ENUMS: ClassVar[dict[str, type[IntEnum]]]
+
+    def pack(self, strict: bool = True) -> bytes:
+        """Encode the payload.
+
+        Args:
+            strict: also enforce semantic limits (e.g. MOTION speed 0..60); with
+                ``False`` only the wire range is enforced, so a test host can send a
+                value the controller must refuse.
+
+        Raises:
+            EncodeError: a field is not an int or is out of range; names the field.
+        """
+        raise NotImplementedError
+
+    def to_dict(self) -> dict[str, int]:
+        """Field values by name, in wire order."""
+        return {name: getattr(self, name) for name in self.FIELDS}
+
+    def describe(self) -> str:
+        """One human-readable line, enum codes shown by name: ``MOTION seq=1 command=FWD``."""
+        parts = [self.NAME]
+        for name in self.FIELDS:
+            value = getattr(self, name)
+            enum = self.ENUMS.get(name)
+            if enum is not None and value in enum._value2member_map_:
+                value = enum(value).name
+            parts.append(f"{name}={value}")
+        return " ".join(parts)
+
+
+def field_error(
+    message: str, field: str, value: Any, lo: int, hi: int, *, limit: bool = False
+) -> EncodeError:
+    """Build the :class:`EncodeError` for a bad field value (used by generated code)."""
+    if not isinstance(value, int):
+        text = f"{message}.{field} must be an int, got {type(value).__name__} {value!r}"
+    else:
+        kind = "limit" if limit else "range"
+        text = f"{message}.{field}={value} outside its {kind} {lo}..{hi}"
+    return EncodeError(text, message=message, field=field)

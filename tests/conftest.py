@@ -1,0 +1,87 @@
+"""Fixtures shared by the whole suite.
+
+Every test is guarded against leaks: a test that leaves a thread running, a child
+process alive or a file descriptor (pty, socket, serial port, bus) open fails. Parts
+that legitimately keep process-wide resources mark the test ``allow_leaks``.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+# Seeded and reproducible: the same examples on every run and every machine.
+settings.register_profile(
+    "ci",
+    derandomize=True,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+LEAK_GRACE_S = 3.0
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "allow_leaks: the test may leave process-wide resources (named in a comment)"
+    )
+
+
+def _children() -> set[int]:
+    pids: set[int] = set()
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            pids.update(int(p) for p in (task / "children").read_text().split())
+        except OSError:
+            continue
+    return pids
+
+
+def _fds() -> set[int]:
+    return {int(name) for name in os.listdir("/proc/self/fd")}
+
+
+def _fd_target(fd: int) -> str:
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}")
+    except OSError:
+        return "?"
+
+
+@pytest.fixture(autouse=True)
+def _no_leaks(request: pytest.FixtureRequest) -> Iterator[None]:
+    if request.node.get_closest_marker("allow_leaks"):
+        yield
+        return
+    threads_before = set(threading.enumerate())
+    children_before = _children()
+    fds_before = _fds()
+    yield
+    deadline = time.monotonic() + LEAK_GRACE_S
+    while True:
+        threads = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
+        children = _children() - children_before
+        fds = _fds() - fds_before
+        if not (threads or children or fds) or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    problems = []
+    if threads:
+        problems.append("threads still running: " + ", ".join(t.name for t in threads))
+    if children:
+        problems.append(f"child processes still alive: {sorted(children)}")
+    if fds:
+        problems.append(
+            "file descriptors left open: "
+            + ", ".join(f"{fd}->{_fd_target(fd)}" for fd in sorted(fds))
+        )
+    if problems:
+        pytest.fail("leak: " + "; ".join(problems), pytrace=False)
