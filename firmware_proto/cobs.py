@@ -35,8 +35,22 @@ def encode(data: bytes) -> bytes:
 
 def decode(data: bytes) -> bytes | None:
     """Decode one COBS block (no delimiters); ``None`` if it is not valid COBS."""
+    n = len(data)
+    if n < 255:
+        # Short blocks (every protocol frame) cannot hold a 0xFF run: each code is
+        # followed by (code - 1) data bytes and, unless it ends the block, a zero.
+        pieces = []
+        i = 0
+        while i < n:
+            code = data[i]
+            end = i + code
+            if code == 0 or end > n:
+                return None
+            pieces.append(data[i + 1 : end])
+            i = end
+        return b"\x00".join(pieces)
     out = bytearray()
-    i, n = 0, len(data)
+    i = 0
     while i < n:
         code = data[i]
         end = i + code

@@ -1,7 +1,8 @@
 """Protocol messages, GENERATED from ``firmware_proto/protocol.toml``. Do not edit.
 
-Regenerate with ``rover frame generate``. Every class is a frozen dataclass of raw
-integer fields; ``pack()`` checks each field and ``unpack()`` is the strict decoder.
+Regenerate with ``rover frame generate``. Every class is an immutable named tuple of
+raw integer fields (see :mod:`firmware_proto.message` for why); ``pack()`` checks each
+field and ``unpack()`` is the strict decoder.
 The stream decoders use :data:`DECODERS`, which return ``None`` for out-of-range data.
 """
 
@@ -9,9 +10,8 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass
 from enum import IntEnum
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 from firmware_proto.errors import DecodeError
 from firmware_proto.message import Message, field_error
@@ -78,6 +78,8 @@ MAX_PAYLOAD_BYTES = 8
 CAN_NODE_BITS = 4
 BROADCAST_NODE = 0
 DEFAULT_NODE = 1
+
+_new = tuple.__new__
 
 HOST_HEARTBEAT_PERIOD_MS = 100
 CONTROLLER_HEARTBEAT_PERIOD_MS = 100
@@ -206,8 +208,12 @@ class ParamResult(IntEnum):
 _S_STOP = struct.Struct("<HB")
 
 
-@dataclass(frozen=True, slots=True)
-class Stop(Message):
+class _StopFields(NamedTuple):
+    stop_id: int
+    source: int
+
+
+class Stop(Message, _StopFields):
     """STOP (id 0, host to controller, emergency). Emergency stop: preempts everything, purges
     the queue, latches until CLEAR_STOP. Idempotent.
 
@@ -219,6 +225,7 @@ class Stop(Message):
         source: u8 (StopSource) range 0..4. who asked.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 0
     NAME: ClassVar[str] = "STOP"
     LENGTH: ClassVar[int] = 3
@@ -226,9 +233,6 @@ class Stop(Message):
     PRIORITY: ClassVar[str] = "emergency"
     FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "source")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"source": StopSource}
-
-    stop_id: int
-    source: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -256,17 +260,23 @@ class Stop(Message):
 
 
 def _decode_stop(payload: bytes) -> Stop | None:
-    stop_id, source = _S_STOP.unpack(payload)
+    values = _S_STOP.unpack(payload)
+    stop_id = values[0]
+    source = values[1]
     if not (1 <= stop_id <= 65535 and 0 <= source <= 4):
         return None
-    return Stop(stop_id, source)
+    return _new(Stop, values)
 
 
 _S_STOP_ACK = struct.Struct("<HB")
 
 
-@dataclass(frozen=True, slots=True)
-class StopAck(Message):
+class _StopAckFields(NamedTuple):
+    stop_id: int
+    state: int
+
+
+class StopAck(Message, _StopAckFields):
     """STOP_ACK (id 1, controller to host, emergency). STOP received; wheel targets are already
     zero and the queue purged.
 
@@ -277,6 +287,7 @@ class StopAck(Message):
         state: u8 (ControllerState) range 0..4. state after the STOP (STOP_LATCHED, or FAULT).
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 1
     NAME: ClassVar[str] = "STOP_ACK"
     LENGTH: ClassVar[int] = 3
@@ -284,9 +295,6 @@ class StopAck(Message):
     PRIORITY: ClassVar[str] = "emergency"
     FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "state")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"state": ControllerState}
-
-    stop_id: int
-    state: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -314,17 +322,21 @@ class StopAck(Message):
 
 
 def _decode_stop_ack(payload: bytes) -> StopAck | None:
-    stop_id, state = _S_STOP_ACK.unpack(payload)
+    values = _S_STOP_ACK.unpack(payload)
+    state = values[1]
     if not (0 <= state <= 4):
         return None
-    return StopAck(stop_id, state)
+    return _new(StopAck, values)
 
 
 _S_CLEAR_STOP = struct.Struct("<H")
 
 
-@dataclass(frozen=True, slots=True)
-class ClearStop(Message):
+class _ClearStopFields(NamedTuple):
+    stop_id: int
+
+
+class ClearStop(Message, _ClearStopFields):
     """CLEAR_STOP (id 2, host to controller, emergency). Explicit unlatch of a STOP and
     acknowledgement of cleared faults.
 
@@ -334,6 +346,7 @@ class ClearStop(Message):
         stop_id: u16 range 1..65535. host's request id, echoed in CLEAR_ACK.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 2
     NAME: ClassVar[str] = "CLEAR_STOP"
     LENGTH: ClassVar[int] = 2
@@ -341,8 +354,6 @@ class ClearStop(Message):
     PRIORITY: ClassVar[str] = "emergency"
     FIELDS: ClassVar[tuple[str, ...]] = ("stop_id",)
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    stop_id: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -367,17 +378,22 @@ class ClearStop(Message):
 
 
 def _decode_clear_stop(payload: bytes) -> ClearStop | None:
-    stop_id, = _S_CLEAR_STOP.unpack(payload)
+    values = _S_CLEAR_STOP.unpack(payload)
+    stop_id = values[0]
     if not (1 <= stop_id <= 65535):
         return None
-    return ClearStop(stop_id)
+    return _new(ClearStop, values)
 
 
 _S_CLEAR_ACK = struct.Struct("<HB")
 
 
-@dataclass(frozen=True, slots=True)
-class ClearAck(Message):
+class _ClearAckFields(NamedTuple):
+    stop_id: int
+    result: int
+
+
+class ClearAck(Message, _ClearAckFields):
     """CLEAR_ACK (id 3, controller to host, emergency). Answer to CLEAR_STOP.
 
     Sent: once per CLEAR_STOP received.
@@ -387,6 +403,7 @@ class ClearAck(Message):
         result: u8 (ClearResult) range 0..3.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 3
     NAME: ClassVar[str] = "CLEAR_ACK"
     LENGTH: ClassVar[int] = 3
@@ -394,9 +411,6 @@ class ClearAck(Message):
     PRIORITY: ClassVar[str] = "emergency"
     FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "result")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"result": ClearResult}
-
-    stop_id: int
-    result: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -424,17 +438,24 @@ class ClearAck(Message):
 
 
 def _decode_clear_ack(payload: bytes) -> ClearAck | None:
-    stop_id, result = _S_CLEAR_ACK.unpack(payload)
+    values = _S_CLEAR_ACK.unpack(payload)
+    result = values[1]
     if not (0 <= result <= 3):
         return None
-    return ClearAck(stop_id, result)
+    return _new(ClearAck, values)
 
 
 _S_MOTION = struct.Struct("<HBBH")
 
 
-@dataclass(frozen=True, slots=True)
-class Motion(Message):
+class _MotionFields(NamedTuple):
+    seq: int
+    command: int
+    speed: int
+    distance: int
+
+
+class Motion(Message, _MotionFields):
     """MOTION (id 8, host to controller, motion). Queue one motion step. The controller answers
     ACK; a repeated seq is acknowledged DUPLICATE and never executed twice.
 
@@ -449,6 +470,7 @@ class Motion(Message):
             metre).
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 8
     NAME: ClassVar[str] = "MOTION"
     LENGTH: ClassVar[int] = 6
@@ -456,11 +478,6 @@ class Motion(Message):
     PRIORITY: ClassVar[str] = "motion"
     FIELDS: ClassVar[tuple[str, ...]] = ("seq", "command", "speed", "distance")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"command": Command}
-
-    seq: int
-    command: int
-    speed: int
-    distance: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -501,15 +518,20 @@ class Motion(Message):
 
 
 def _decode_motion(payload: bytes) -> Motion | None:
-    seq, command, speed, distance = _S_MOTION.unpack(payload)
-    return Motion(seq, command, speed, distance)
+    return _new(Motion, _S_MOTION.unpack(payload))
 
 
 _S_ACK = struct.Struct("<HBBB")
 
 
-@dataclass(frozen=True, slots=True)
-class Ack(Message):
+class _AckFields(NamedTuple):
+    seq: int
+    result: int
+    field: int
+    queue_depth: int
+
+
+class Ack(Message, _AckFields):
     """ACK (id 9, controller to host, motion). Acknowledgement (result ACCEPTED or DUPLICATE) or
     refusal (any other result) of a MOTION.
 
@@ -522,6 +544,7 @@ class Ack(Message):
         queue_depth: u8. steps queued after this request, the running one included.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 9
     NAME: ClassVar[str] = "ACK"
     LENGTH: ClassVar[int] = 5
@@ -529,11 +552,6 @@ class Ack(Message):
     PRIORITY: ClassVar[str] = "motion"
     FIELDS: ClassVar[tuple[str, ...]] = ("seq", "result", "field", "queue_depth")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"result": AckResult, "field": AckField}
-
-    seq: int
-    result: int
-    field: int
-    queue_depth: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -567,17 +585,25 @@ class Ack(Message):
 
 
 def _decode_ack(payload: bytes) -> Ack | None:
-    seq, result, field, queue_depth = _S_ACK.unpack(payload)
+    values = _S_ACK.unpack(payload)
+    result = values[1]
+    field = values[2]
     if not (0 <= result <= 6 and 0 <= field <= 3):
         return None
-    return Ack(seq, result, field, queue_depth)
+    return _new(Ack, values)
 
 
 _S_STATUS = struct.Struct("<HBBH")
 
 
-@dataclass(frozen=True, slots=True)
-class Status(Message):
+class _StatusFields(NamedTuple):
+    seq: int
+    state: int
+    reason: int
+    travel: int
+
+
+class Status(Message, _StatusFields):
     """STATUS (id 32, controller to host, status). Progress of one step: STARTED, then COMPLETED
     when both sides' encoder travel reached the distance, or ABORTED with a reason.
 
@@ -590,6 +616,7 @@ class Status(Message):
         travel: u16. distance units travelled so far, mean of both sides' encoders.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 32
     NAME: ClassVar[str] = "STATUS"
     LENGTH: ClassVar[int] = 6
@@ -597,11 +624,6 @@ class Status(Message):
     PRIORITY: ClassVar[str] = "status"
     FIELDS: ClassVar[tuple[str, ...]] = ("seq", "state", "reason", "travel")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"state": StepState, "reason": AbortReason}
-
-    seq: int
-    state: int
-    reason: int
-    travel: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -635,17 +657,24 @@ class Status(Message):
 
 
 def _decode_status(payload: bytes) -> Status | None:
-    seq, state, reason, travel = _S_STATUS.unpack(payload)
+    values = _S_STATUS.unpack(payload)
+    state = values[1]
+    reason = values[2]
     if not (0 <= state <= 2 and 0 <= reason <= 5):
         return None
-    return Status(seq, state, reason, travel)
+    return _new(Status, values)
 
 
 _S_STOPPED = struct.Struct("<HHH")
 
 
-@dataclass(frozen=True, slots=True)
-class Stopped(Message):
+class _StoppedFields(NamedTuple):
+    stop_id: int
+    distance_mm: int
+    duration_ms: int
+
+
+class Stopped(Message, _StoppedFields):
     """STOPPED (id 33, controller to host, status). The wheels are at rest after a STOP (or a
     stop the controller started itself, stop_id 0).
 
@@ -657,6 +686,7 @@ class Stopped(Message):
         duration_ms: u16 ms. time from STOP arrival to rest.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 33
     NAME: ClassVar[str] = "STOPPED"
     LENGTH: ClassVar[int] = 6
@@ -664,10 +694,6 @@ class Stopped(Message):
     PRIORITY: ClassVar[str] = "status"
     FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "distance_mm", "duration_ms")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    stop_id: int
-    distance_mm: int
-    duration_ms: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -698,12 +724,16 @@ class Stopped(Message):
 
 
 def _decode_stopped(payload: bytes) -> Stopped | None:
-    stop_id, distance_mm, duration_ms = _S_STOPPED.unpack(payload)
-    return Stopped(stop_id, distance_mm, duration_ms)
+    return _new(Stopped, _S_STOPPED.unpack(payload))
 
 
-@dataclass(frozen=True, slots=True)
-class Fault(Message):
+class _FaultFields(NamedTuple):
+    code: int
+    active: int
+    detail: int
+
+
+class Fault(Message, _FaultFields):
     """FAULT (id 34, controller to host, status). A fault was raised (active = 1) or its
     condition went away (active = 0).
 
@@ -716,6 +746,7 @@ class Fault(Message):
             units short.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 34
     NAME: ClassVar[str] = "FAULT"
     LENGTH: ClassVar[int] = 4
@@ -723,10 +754,6 @@ class Fault(Message):
     PRIORITY: ClassVar[str] = "status"
     FIELDS: ClassVar[tuple[str, ...]] = ("code", "active", "detail")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"code": FaultCode}
-
-    code: int
-    active: int
-    detail: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -765,14 +792,23 @@ def _decode_fault(payload: bytes) -> Fault | None:
     value = int.from_bytes(payload, "little")
     code = value & 0xFF
     active = (value >> 8) & 0x1
-    detail = (value >> 16) & 0xFFFF
+    detail = value >> 16
     if not (1 <= code <= 8):
         return None
-    return Fault(code, active, detail)
+    return _new(Fault, (code, active, detail))
 
 
-@dataclass(frozen=True, slots=True)
-class Heartbeat(Message):
+class _HeartbeatFields(NamedTuple):
+    state: int
+    stop_latched: int
+    handshake_ok: int
+    fault_bits: int
+    queue_depth: int
+    boot_nonce: int
+    rx_errors: int
+
+
+class Heartbeat(Message, _HeartbeatFields):
     """HEARTBEAT (id 64, controller to host, telemetry). Controller liveness and summary state.
     A changed boot_nonce means the controller rebooted.
 
@@ -788,6 +824,7 @@ class Heartbeat(Message):
         rx_errors: u16. frames the controller dropped (CRC, framing, length, range), wrapping.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 64
     NAME: ClassVar[str] = "HEARTBEAT"
     LENGTH: ClassVar[int] = 8
@@ -795,14 +832,6 @@ class Heartbeat(Message):
     PRIORITY: ClassVar[str] = "telemetry"
     FIELDS: ClassVar[tuple[str, ...]] = ("state", "stop_latched", "handshake_ok", "fault_bits", "queue_depth", "boot_nonce", "rx_errors")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"state": ControllerState}
-
-    state: int
-    stop_latched: int
-    handshake_ok: int
-    fault_bits: int
-    queue_depth: int
-    boot_nonce: int
-    rx_errors: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -861,17 +890,20 @@ def _decode_heartbeat(payload: bytes) -> Heartbeat | None:
     fault_bits = (value >> 16) & 0xFF
     queue_depth = (value >> 24) & 0xFF
     boot_nonce = (value >> 32) & 0xFFFF
-    rx_errors = (value >> 48) & 0xFFFF
+    rx_errors = value >> 48
     if not (0 <= state <= 4):
         return None
-    return Heartbeat(state, stop_latched, handshake_ok, fault_bits, queue_depth, boot_nonce, rx_errors)
+    return _new(Heartbeat, (state, stop_latched, handshake_ok, fault_bits, queue_depth, boot_nonce, rx_errors))
 
 
 _S_HOST_HEARTBEAT = struct.Struct("<H")
 
 
-@dataclass(frozen=True, slots=True)
-class HostHeartbeat(Message):
+class _HostHeartbeatFields(NamedTuple):
+    counter: int
+
+
+class HostHeartbeat(Message, _HostHeartbeatFields):
     """HOST_HEARTBEAT (id 65, host to controller, telemetry). Host liveness; any valid frame
     feeds the controller's watchdog, this one when nothing else is sent.
 
@@ -881,6 +913,7 @@ class HostHeartbeat(Message):
         counter: u16. increments per heartbeat, wraps.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 65
     NAME: ClassVar[str] = "HOST_HEARTBEAT"
     LENGTH: ClassVar[int] = 2
@@ -888,8 +921,6 @@ class HostHeartbeat(Message):
     PRIORITY: ClassVar[str] = "telemetry"
     FIELDS: ClassVar[tuple[str, ...]] = ("counter",)
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    counter: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -914,12 +945,16 @@ class HostHeartbeat(Message):
 
 
 def _decode_host_heartbeat(payload: bytes) -> HostHeartbeat | None:
-    counter, = _S_HOST_HEARTBEAT.unpack(payload)
-    return HostHeartbeat(counter)
+    return _new(HostHeartbeat, _S_HOST_HEARTBEAT.unpack(payload))
 
 
-@dataclass(frozen=True, slots=True)
-class Encoders(Message):
+class _EncodersFields(NamedTuple):
+    t_ms: int
+    left: int
+    right: int
+
+
+class Encoders(Message, _EncodersFields):
     """ENCODERS (id 66, controller to host, telemetry). Absolute wheel encoder counts since
     boot, polarity applied (forward positive on both sides), wrapping modulo 2^24; the host
     unwraps.
@@ -932,6 +967,7 @@ class Encoders(Message):
         right: i24. right side counts (distance units).
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 66
     NAME: ClassVar[str] = "ENCODERS"
     LENGTH: ClassVar[int] = 8
@@ -939,10 +975,6 @@ class Encoders(Message):
     PRIORITY: ClassVar[str] = "telemetry"
     FIELDS: ClassVar[tuple[str, ...]] = ("t_ms", "left", "right")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    t_ms: int
-    left: int
-    right: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -980,17 +1012,20 @@ class Encoders(Message):
 def _decode_encoders(payload: bytes) -> Encoders | None:
     value = int.from_bytes(payload, "little")
     t_ms = value & 0xFFFF
-    left = (value >> 16) & 0xFFFFFF
-    if left & 0x800000:
-        left -= 0x1000000
-    right = (value >> 40) & 0xFFFFFF
-    if right & 0x800000:
-        right -= 0x1000000
-    return Encoders(t_ms, left, right)
+    left = (((value >> 16) & 0xFFFFFF) ^ 0x800000) - 0x800000
+    right = ((value >> 40) ^ 0x800000) - 0x800000
+    return _new(Encoders, (t_ms, left, right))
 
 
-@dataclass(frozen=True, slots=True)
-class WheelSpeeds(Message):
+class _WheelSpeedsFields(NamedTuple):
+    t_ms: int
+    left_mm_s: int
+    right_mm_s: int
+    left_target_mm_s: int
+    right_target_mm_s: int
+
+
+class WheelSpeeds(Message, _WheelSpeedsFields):
     """WHEEL_SPEEDS (id 67, controller to host, telemetry). Measured and target wheel surface
     speeds, polarity applied.
 
@@ -1004,6 +1039,7 @@ class WheelSpeeds(Message):
         right_target_mm_s: i12 mm/s.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 67
     NAME: ClassVar[str] = "WHEEL_SPEEDS"
     LENGTH: ClassVar[int] = 8
@@ -1011,12 +1047,6 @@ class WheelSpeeds(Message):
     PRIORITY: ClassVar[str] = "telemetry"
     FIELDS: ClassVar[tuple[str, ...]] = ("t_ms", "left_mm_s", "right_mm_s", "left_target_mm_s", "right_target_mm_s")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    t_ms: int
-    left_mm_s: int
-    right_mm_s: int
-    left_target_mm_s: int
-    right_target_mm_s: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1062,26 +1092,24 @@ class WheelSpeeds(Message):
 def _decode_wheel_speeds(payload: bytes) -> WheelSpeeds | None:
     value = int.from_bytes(payload, "little")
     t_ms = value & 0xFFFF
-    left_mm_s = (value >> 16) & 0xFFF
-    if left_mm_s & 0x800:
-        left_mm_s -= 0x1000
-    right_mm_s = (value >> 28) & 0xFFF
-    if right_mm_s & 0x800:
-        right_mm_s -= 0x1000
-    left_target_mm_s = (value >> 40) & 0xFFF
-    if left_target_mm_s & 0x800:
-        left_target_mm_s -= 0x1000
-    right_target_mm_s = (value >> 52) & 0xFFF
-    if right_target_mm_s & 0x800:
-        right_target_mm_s -= 0x1000
-    return WheelSpeeds(t_ms, left_mm_s, right_mm_s, left_target_mm_s, right_target_mm_s)
+    left_mm_s = (((value >> 16) & 0xFFF) ^ 0x800) - 0x800
+    right_mm_s = (((value >> 28) & 0xFFF) ^ 0x800) - 0x800
+    left_target_mm_s = (((value >> 40) & 0xFFF) ^ 0x800) - 0x800
+    right_target_mm_s = ((value >> 52) ^ 0x800) - 0x800
+    return _new(WheelSpeeds, (t_ms, left_mm_s, right_mm_s, left_target_mm_s, right_target_mm_s))
 
 
 _S_IMU = struct.Struct("<Hhhh")
 
 
-@dataclass(frozen=True, slots=True)
-class Imu(Message):
+class _ImuFields(NamedTuple):
+    t_ms: int
+    yaw_rate_mrad_s: int
+    accel_x_mm_s2: int
+    accel_y_mm_s2: int
+
+
+class Imu(Message, _ImuFields):
     """IMU (id 68, controller to host, telemetry). Body yaw rate (counter-clockwise positive)
     and planar acceleration in the body frame.
 
@@ -1094,6 +1122,7 @@ class Imu(Message):
         accel_y_mm_s2: i16 x0.001 m/s^2.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 68
     NAME: ClassVar[str] = "IMU"
     LENGTH: ClassVar[int] = 8
@@ -1101,11 +1130,6 @@ class Imu(Message):
     PRIORITY: ClassVar[str] = "telemetry"
     FIELDS: ClassVar[tuple[str, ...]] = ("t_ms", "yaw_rate_mrad_s", "accel_x_mm_s2", "accel_y_mm_s2")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    t_ms: int
-    yaw_rate_mrad_s: int
-    accel_x_mm_s2: int
-    accel_y_mm_s2: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1139,12 +1163,18 @@ class Imu(Message):
 
 
 def _decode_imu(payload: bytes) -> Imu | None:
-    t_ms, yaw_rate_mrad_s, accel_x_mm_s2, accel_y_mm_s2 = _S_IMU.unpack(payload)
-    return Imu(t_ms, yaw_rate_mrad_s, accel_x_mm_s2, accel_y_mm_s2)
+    return _new(Imu, _S_IMU.unpack(payload))
 
 
-@dataclass(frozen=True, slots=True)
-class Pose(Message):
+class _PoseFields(NamedTuple):
+    x_mm: int
+    y_mm: int
+    yaw_ddeg: int
+    sigma_cm: int
+    age_4ms: int
+
+
+class Pose(Message, _PoseFields):
     """POSE (id 69, controller to host, telemetry). Pose from a sensor that sees the ground
     (visual odometry or lab tracking) in the map frame; unlike the encoders it shows slip.
 
@@ -1159,6 +1189,7 @@ class Pose(Message):
         age_4ms: u8 x4 ms. age of the measurement when sent.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 69
     NAME: ClassVar[str] = "POSE"
     LENGTH: ClassVar[int] = 8
@@ -1166,12 +1197,6 @@ class Pose(Message):
     PRIORITY: ClassVar[str] = "telemetry"
     FIELDS: ClassVar[tuple[str, ...]] = ("x_mm", "y_mm", "yaw_ddeg", "sigma_cm", "age_4ms")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    x_mm: int
-    y_mm: int
-    yaw_ddeg: int
-    sigma_cm: int
-    age_4ms: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1216,27 +1241,25 @@ class Pose(Message):
 
 def _decode_pose(payload: bytes) -> Pose | None:
     value = int.from_bytes(payload, "little")
-    x_mm = value & 0xFFFFF
-    if x_mm & 0x80000:
-        x_mm -= 0x100000
-    y_mm = (value >> 20) & 0xFFFFF
-    if y_mm & 0x80000:
-        y_mm -= 0x100000
-    yaw_ddeg = (value >> 40) & 0xFFF
-    if yaw_ddeg & 0x800:
-        yaw_ddeg -= 0x1000
+    x_mm = ((value & 0xFFFFF) ^ 0x80000) - 0x80000
+    y_mm = (((value >> 20) & 0xFFFFF) ^ 0x80000) - 0x80000
+    yaw_ddeg = (((value >> 40) & 0xFFF) ^ 0x800) - 0x800
     sigma_cm = (value >> 52) & 0xF
-    age_4ms = (value >> 56) & 0xFF
+    age_4ms = value >> 56
     if not (-1800 <= yaw_ddeg <= 1800):
         return None
-    return Pose(x_mm, y_mm, yaw_ddeg, sigma_cm, age_4ms)
+    return _new(Pose, (x_mm, y_mm, yaw_ddeg, sigma_cm, age_4ms))
 
 
 _S_HELLO = struct.Struct("<BH")
 
 
-@dataclass(frozen=True, slots=True)
-class Hello(Message):
+class _HelloFields(NamedTuple):
+    protocol_version: int
+    schema_hash: int
+
+
+class Hello(Message, _HelloFields):
     """HELLO (id 96, host to controller, config). Handshake: the host's protocol version and
     schema hash. The controller answers IDENT and accepts MOTION only after a matching HELLO.
 
@@ -1247,6 +1270,7 @@ class Hello(Message):
         schema_hash: u16.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 96
     NAME: ClassVar[str] = "HELLO"
     LENGTH: ClassVar[int] = 3
@@ -1254,9 +1278,6 @@ class Hello(Message):
     PRIORITY: ClassVar[str] = "config"
     FIELDS: ClassVar[tuple[str, ...]] = ("protocol_version", "schema_hash")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    protocol_version: int
-    schema_hash: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1284,15 +1305,22 @@ class Hello(Message):
 
 
 def _decode_hello(payload: bytes) -> Hello | None:
-    protocol_version, schema_hash = _S_HELLO.unpack(payload)
-    return Hello(protocol_version, schema_hash)
+    return _new(Hello, _S_HELLO.unpack(payload))
 
 
 _S_IDENT = struct.Struct("<BBBBHH")
 
 
-@dataclass(frozen=True, slots=True)
-class Ident(Message):
+class _IdentFields(NamedTuple):
+    protocol_version: int
+    firmware_major: int
+    firmware_minor: int
+    firmware_patch: int
+    schema_hash: int
+    boot_nonce: int
+
+
+class Ident(Message, _IdentFields):
     """IDENT (id 97, controller to host, config). Controller identity: protocol version and
     schema hash (compare with the host's), firmware version and a random boot nonce.
 
@@ -1307,6 +1335,7 @@ class Ident(Message):
         boot_nonce: u16.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 97
     NAME: ClassVar[str] = "IDENT"
     LENGTH: ClassVar[int] = 8
@@ -1314,13 +1343,6 @@ class Ident(Message):
     PRIORITY: ClassVar[str] = "config"
     FIELDS: ClassVar[tuple[str, ...]] = ("protocol_version", "firmware_major", "firmware_minor", "firmware_patch", "schema_hash", "boot_nonce")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
-
-    protocol_version: int
-    firmware_major: int
-    firmware_minor: int
-    firmware_patch: int
-    schema_hash: int
-    boot_nonce: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1360,15 +1382,18 @@ class Ident(Message):
 
 
 def _decode_ident(payload: bytes) -> Ident | None:
-    protocol_version, firmware_major, firmware_minor, firmware_patch, schema_hash, boot_nonce = _S_IDENT.unpack(payload)
-    return Ident(protocol_version, firmware_major, firmware_minor, firmware_patch, schema_hash, boot_nonce)
+    return _new(Ident, _S_IDENT.unpack(payload))
 
 
 _S_SET_PARAM = struct.Struct("<Bi")
 
 
-@dataclass(frozen=True, slots=True)
-class SetParam(Message):
+class _SetParamFields(NamedTuple):
+    param: int
+    value: int
+
+
+class SetParam(Message, _SetParamFields):
     """SET_PARAM (id 98, host to controller, config). Set a run-time parameter; the controller
     answers PARAM_VALUE.
 
@@ -1379,6 +1404,7 @@ class SetParam(Message):
         value: i32.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 98
     NAME: ClassVar[str] = "SET_PARAM"
     LENGTH: ClassVar[int] = 5
@@ -1386,9 +1412,6 @@ class SetParam(Message):
     PRIORITY: ClassVar[str] = "config"
     FIELDS: ClassVar[tuple[str, ...]] = ("param", "value")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"param": Param}
-
-    param: int
-    value: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1416,15 +1439,19 @@ class SetParam(Message):
 
 
 def _decode_set_param(payload: bytes) -> SetParam | None:
-    param, value = _S_SET_PARAM.unpack(payload)
-    return SetParam(param, value)
+    return _new(SetParam, _S_SET_PARAM.unpack(payload))
 
 
 _S_PARAM_VALUE = struct.Struct("<BBi")
 
 
-@dataclass(frozen=True, slots=True)
-class ParamValue(Message):
+class _ParamValueFields(NamedTuple):
+    param: int
+    result: int
+    value: int
+
+
+class ParamValue(Message, _ParamValueFields):
     """PARAM_VALUE (id 99, controller to host, config). Answer to SET_PARAM with the value now
     in force.
 
@@ -1436,6 +1463,7 @@ class ParamValue(Message):
         value: i32.
     """
 
+    __slots__ = ()
     MSG_ID: ClassVar[int] = 99
     NAME: ClassVar[str] = "PARAM_VALUE"
     LENGTH: ClassVar[int] = 6
@@ -1443,10 +1471,6 @@ class ParamValue(Message):
     PRIORITY: ClassVar[str] = "config"
     FIELDS: ClassVar[tuple[str, ...]] = ("param", "result", "value")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"result": ParamResult}
-
-    param: int
-    result: int
-    value: int
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
@@ -1477,10 +1501,11 @@ class ParamValue(Message):
 
 
 def _decode_param_value(payload: bytes) -> ParamValue | None:
-    param, result, value = _S_PARAM_VALUE.unpack(payload)
+    values = _S_PARAM_VALUE.unpack(payload)
+    result = values[1]
     if not (0 <= result <= 2):
         return None
-    return ParamValue(param, result, value)
+    return _new(ParamValue, values)
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {

@@ -123,25 +123,39 @@ def _render_decode(msg: MessageSpec, fmt: str | None) -> list[str]:
     if not pub:
         out.append(f"    return {msg.class_name}()")
         return out
+    checked = [f for f in pub if f.checks_range]
+    if fmt is not None and not checked:
+        out.append(f"    return _new({msg.class_name}, _S_{msg.name}.unpack(payload))")
+        return out
     if fmt is not None:
-        names = ", ".join(f.name for f in pub)
-        trailing = "," if len(pub) == 1 else ""
-        out.append(f"    {names}{trailing} = _S_{msg.name}.unpack(payload)")
+        out.append(f"    values = _S_{msg.name}.unpack(payload)")
+        for f in checked:
+            out.append(f"    {f.name} = values[{pub.index(f)}]")
     else:
         out.append('    value = int.from_bytes(payload, "little")')
+        total = 8 * msg.length
         for f in pub:
-            shifted = f"(value >> {f.start_bit})" if f.start_bit else "value"
-            out.append(f"    {f.name} = {shifted} & 0x{(1 << f.bits) - 1:X}")
-            if f.signed:
-                out.append(f"    if {f.name} & 0x{1 << (f.bits - 1):X}:")
-                out.append(f"        {f.name} -= 0x{1 << f.bits:X}")
-    checked = [f for f in pub if f.checks_range]
+            mask = f"0x{(1 << f.bits) - 1:X}" if f.start_bit + f.bits < total else ""
+            if f.start_bit and mask:
+                expr = f"(value >> {f.start_bit}) & {mask}"
+            elif f.start_bit:
+                expr = f"value >> {f.start_bit}"
+            else:
+                expr = f"value & {mask}" if mask else "value"
+            if f.signed:  # branch-free sign extension
+                sign = f"0x{1 << (f.bits - 1):X}"
+                expr = f"(({expr}) ^ {sign}) - {sign}"
+            out.append(f"    {f.name} = {expr}")
     if checked:
         cond = " and ".join(f"{f.min} <= {f.name} <= {f.max}" for f in checked)
         out.append(f"    if not ({cond}):")
         out.append("        return None")
-    args = ", ".join(f.name for f in pub)
-    out.append(f"    return {msg.class_name}({args})")
+    if fmt is not None:
+        out.append(f"    return _new({msg.class_name}, values)")
+    else:
+        args = ", ".join(f.name for f in pub)
+        trailing = "," if len(pub) == 1 else ""
+        out.append(f"    return _new({msg.class_name}, ({args}{trailing}))")
     return out
 
 
@@ -149,7 +163,12 @@ def _render_message(msg: MessageSpec, fmt: str | None) -> list[str]:
     out = ["", ""]
     if fmt is not None:
         out += [f'_S_{msg.name} = struct.Struct("{fmt}")', "", ""]
-    out += ["@dataclass(frozen=True, slots=True)", f"class {msg.class_name}(Message):"]
+    out += [f"class _{msg.class_name}Fields(NamedTuple):"]
+    if msg.public_fields:
+        out += [f"    {f.name}: int" for f in msg.public_fields]
+    else:
+        out += ["    pass"]
+    out += ["", "", f"class {msg.class_name}(Message, _{msg.class_name}Fields):"]
     doc_lines = _wrap_doc(
         f"{msg.name} (id {msg.id}, {msg.direction.replace('_', ' ')}, {msg.priority}). {msg.doc}",
         "    ",
@@ -166,6 +185,7 @@ def _render_message(msg: MessageSpec, fmt: str | None) -> list[str]:
             out += _wrap_doc(_field_doc(f), "        ", hanging="    ")
     out.append('    """')
     out.append("")
+    out.append("    __slots__ = ()")
     out.append(f"    MSG_ID: ClassVar[int] = {msg.id}")
     out.append(f'    NAME: ClassVar[str] = "{msg.name}"')
     out.append(f"    LENGTH: ClassVar[int] = {msg.length}")
@@ -176,9 +196,6 @@ def _render_message(msg: MessageSpec, fmt: str | None) -> list[str]:
     out.append(f"    FIELDS: ClassVar[tuple[str, ...]] = ({names}{trailing})")
     enums = ", ".join(f'"{f.name}": {f.enum}' for f in msg.public_fields if f.enum)
     out.append(f"    ENUMS: ClassVar[dict[str, type[IntEnum]]] = {{{enums}}}")
-    out.append("")
-    for f in msg.public_fields:
-        out.append(f"    {f.name}: int")
     out.append("")
     out += _render_pack(msg, fmt)
     out.append("")
@@ -228,8 +245,9 @@ def render_python(spec: ProtocolSpec) -> str:
     out = [
         '"""Protocol messages, GENERATED from ``firmware_proto/protocol.toml``. Do not edit.',
         "",
-        "Regenerate with ``rover frame generate``. Every class is a frozen dataclass of raw",
-        "integer fields; ``pack()`` checks each field and ``unpack()`` is the strict decoder.",
+        "Regenerate with ``rover frame generate``. Every class is an immutable named tuple of",
+        "raw integer fields (see :mod:`firmware_proto.message` for why); ``pack()`` checks each",
+        "field and ``unpack()`` is the strict decoder.",
         "The stream decoders use :data:`DECODERS`, which return ``None`` for out-of-range data.",
         '"""',
         "",
@@ -237,9 +255,8 @@ def render_python(spec: ProtocolSpec) -> str:
         "",
         "import struct",
         "from collections.abc import Callable",
-        "from dataclasses import dataclass",
         "from enum import IntEnum",
-        "from typing import ClassVar",
+        "from typing import ClassVar, NamedTuple",
         "",
         "from firmware_proto.errors import DecodeError",
         "from firmware_proto.message import Message, field_error",
@@ -256,6 +273,8 @@ def render_python(spec: ProtocolSpec) -> str:
         f"CAN_NODE_BITS = {spec.framing['can_node_bits']}",
         f"BROADCAST_NODE = {spec.framing['broadcast_node']}",
         f"DEFAULT_NODE = {spec.framing['default_node']}",
+        "",
+        "_new = tuple.__new__",
         "",
     ]
     out += [f"{key.upper()} = {spec.timing[key]}" for key in spec.timing]
