@@ -207,9 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     our_dec = min(v for (c, o), v in by.items() if c.startswith("ours") and o.startswith("decode"))
     print("\nRatio against pymavlink's faster message (target >= 3x):")
     for what, our, peer in (("encode", our_enc, mav_enc), ("decode", our_dec, mav_dec)):
-        print(
-            f"- {what}: our slowest {our:,.0f} / pymavlink's fastest {peer:,.0f} = {our / peer:.1f}x"
-        )
+        ratio = our / peer
+        print(f"- {what}: our slowest {our:,.0f} / pymavlink's fastest {peer:,.0f} = {ratio:.1f}x")
 
     rec = recovery(20_000 if args.quick else 200_000, 0.01, seed=1)
     print("\nRecovery from a stream with 1% corrupted frames (one flipped bit each):\n")
