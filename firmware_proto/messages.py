@@ -73,7 +73,7 @@ __all__ = [
 ]
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x77F0
+SCHEMA_HASH = 0xA838
 MAX_PAYLOAD_BYTES = 8
 CAN_NODE_BITS = 4
 BROADCAST_NODE = 0
@@ -172,11 +172,10 @@ class ClearResult(IntEnum):
     CLEARED = 0
     NOT_LATCHED = 1
     FAULT_PERSISTS = 2
-    NOT_READY = 3
 
 
 class FaultCode(IntEnum):
-    """Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while a fault is active."""
+    """Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while a fault is active. WATCHDOG, STALL_*, ENCODER, DRIVER and INTERNAL stop the rover; IMU and POSE only report."""
 
     WATCHDOG = 1
     STALL_LEFT = 2
@@ -400,7 +399,7 @@ class ClearAck(Message, _ClearAckFields):
 
     Attributes:
         stop_id: u16. echo of CLEAR_STOP.stop_id.
-        result: u8 (ClearResult) range 0..3.
+        result: u8 (ClearResult) range 0..2.
     """
 
     __slots__ = ()
@@ -418,8 +417,8 @@ class ClearAck(Message, _ClearAckFields):
         result = self.result
         if not (isinstance(stop_id, int) and 0 <= stop_id <= 65535):
             raise field_error("CLEAR_ACK", "stop_id", stop_id, 0, 65535)
-        if not (isinstance(result, int) and 0 <= result <= 3):
-            raise field_error("CLEAR_ACK", "result", result, 0, 3)
+        if not (isinstance(result, int) and 0 <= result <= 2):
+            raise field_error("CLEAR_ACK", "result", result, 0, 2)
         return _S_CLEAR_ACK.pack(stop_id, result)
 
     @classmethod
@@ -440,7 +439,7 @@ class ClearAck(Message, _ClearAckFields):
 def _decode_clear_ack(payload: bytes) -> ClearAck | None:
     values = _S_CLEAR_ACK.unpack(payload)
     result = values[1]
-    if not (0 <= result <= 3):
+    if not (0 <= result <= 2):
         return None
     return _new(ClearAck, values)
 
