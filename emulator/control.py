@@ -1,0 +1,136 @@
+"""The emulator's local control interface: one command per line over TCP, JSON answers.
+
+Listens on 127.0.0.1 only. Commands (``help`` lists them)::
+
+    status                  the emulator's state, pose, wheels, faults, counters
+    inject FAULT            apply or schedule a fault (see emulator.injection), e.g.
+                            inject slip:left=0.3   inject reboot   inject stall:right@t=4
+    injections              every injection applied so far
+    unplug [SECONDS]        the serial device disappears (and returns after SECONDS)
+    replug                  the serial device returns
+    help
+
+Each answer is one JSON line: ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``.
+Bad commands get an error answer; the connection and the emulator carry on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import socketserver
+import threading
+from typing import Any
+
+from emulator.engine import Emulator
+from emulator.errors import EmulatorError
+from emulator.serial_frontend import SerialFrontEnd
+
+__all__ = ["ControlServer"]
+
+logger = logging.getLogger(__name__)
+
+_HELP = "commands: status | inject FAULT | injections | unplug [SECONDS] | replug | help"
+
+
+class _Handler(socketserver.StreamRequestHandler):
+    server: _Server
+
+    def handle(self) -> None:
+        for raw in self.rfile:
+            line = raw.decode("utf-8", "replace").strip()
+            if not line:
+                continue
+            answer = self.server.control.execute(line)
+            self.wfile.write((json.dumps(answer) + "\n").encode())
+            self.wfile.flush()
+
+
+class _Server(socketserver.ThreadingTCPServer):
+    daemon_threads = True
+    allow_reuse_address = True
+    block_on_close = True
+    control: ControlServer
+
+
+class ControlServer:
+    """Serves the control interface of one :class:`Emulator` on 127.0.0.1."""
+
+    def __init__(self, emulator: Emulator, port: int = 0) -> None:
+        """Args:
+        emulator: the running emulator to control.
+        port: TCP port on 127.0.0.1; 0 picks a free one (see :attr:`port`).
+        """
+        self.emulator = emulator
+        self._server = _Server(("127.0.0.1", port), _Handler)
+        self._server.control = self
+        self.port: int = self._server.server_address[1]
+        self._thread = threading.Thread(target=self._server.serve_forever, name="emulator-ctl", daemon=True)
+        self._timers: list[threading.Timer] = []
+        self._lock = threading.Lock()
+        self._closed = False
+
+    def start(self) -> ControlServer:
+        """Start serving in a background thread."""
+        self._thread.start()
+        logger.info("control interface on 127.0.0.1:%d", self.port)
+        return self
+
+    def close(self) -> None:
+        """Stop serving, cancel pending replugs, join threads (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            timers, self._timers = self._timers, []
+        for timer in timers:
+            timer.cancel()
+            timer.join(timeout=5.0)
+        if self._thread.is_alive():
+            self._server.shutdown()
+            self._thread.join(timeout=5.0)
+        self._server.server_close()
+
+    def execute(self, line: str) -> dict[str, Any]:
+        """Run one command line; never raises."""
+        verb, _, arg = line.partition(" ")
+        arg = arg.strip()
+        try:
+            if verb == "status":
+                return {"ok": True, "status": dataclasses.asdict(self.emulator.status())}
+            if verb == "inject":
+                if not arg:
+                    raise ValueError("inject needs a fault, e.g. inject slip:left=0.3")
+                self.emulator.inject(arg, source="control")
+                return {"ok": True}
+            if verb == "injections":
+                return {"ok": True, "injections": [dataclasses.asdict(r) for r in self.emulator.injections]}
+            if verb in ("unplug", "replug"):
+                return self._plug(verb, arg)
+            if verb == "help":
+                return {"ok": True, "help": _HELP}
+            raise ValueError(f"unknown command {verb!r}; {_HELP}")
+        except (EmulatorError, ValueError, RuntimeError, TimeoutError) as exc:
+            return {"ok": False, "error": str(exc)}
+
+    def _plug(self, verb: str, arg: str) -> dict[str, Any]:
+        frontend = self.emulator.frontend
+        if not isinstance(frontend, SerialFrontEnd):
+            raise ValueError(f"{verb} applies to the serial front end only")
+        if verb == "replug":
+            frontend.replug()
+            return {"ok": True, "device": frontend.device}
+        frontend.unplug()
+        if arg:
+            seconds = float(arg)
+            if not 0 < seconds <= 3600:
+                raise ValueError("unplug SECONDS must be in (0, 3600]")
+            timer = threading.Timer(seconds, frontend.replug)
+            timer.daemon = True
+            with self._lock:
+                if self._closed:
+                    raise RuntimeError("control interface closed")
+                self._timers = [t for t in self._timers if t.is_alive()] + [timer]
+            timer.start()
+        return {"ok": True}

@@ -1,0 +1,580 @@
+"""The motor controller's firmware behaviour, driving the physics twin.
+
+:class:`ControllerModel` implements the controller side of docs/protocol.md: the state
+machine (BOOT, IDLE, EXECUTING, STOP_LATCHED, FAULT), the bounded MOTION queue with
+acknowledgement and deduplication, STOP that zeroes the wheel targets in the call that
+receives it and latches until CLEAR_STOP, the watchdog, stall detection, and telemetry
+(ENCODERS, WHEEL_SPEEDS, IMU, POSE, HEARTBEAT) at configurable rates.
+
+It is pure logic over the twin: no I/O, no threads, no wall clock. Time is the twin's.
+A front end feeds it with :meth:`ControllerModel.handle` (each received message, answered
+at once) and :meth:`ControllerModel.tick` (one control period: step logic, one physics
+step, telemetry due), and sends whatever messages they return. The same model runs in
+real time behind a pty or a CAN bus (:mod:`emulator.engine`) and in lockstep in tests.
+
+Time-outs (watchdog, stall) are in twin seconds multiplied by ``timeout_scale``: when
+the twin runs ``k`` times faster than the host's clock, ``timeout_scale = k`` keeps them
+right in the host's time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+from collections import deque
+from dataclasses import dataclass, field
+
+from emulator.drive import StepProfile, motor_omegas, ramp
+from emulator.sensors import EncoderModel, ImuModel, PoseSensor, SensorConfig
+from emulator.twin import Twin
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    CONTROLLER_HEARTBEAT_PERIOD_MS,
+    ENCODERS_RATE_HZ,
+    MOTION_QUEUE_DEPTH,
+    POSE_RATE_HZ,
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    STALL_TIMEOUT_MS,
+    WATCHDOG_MS,
+    AbortReason,
+    Ack,
+    AckField,
+    AckResult,
+    ClearAck,
+    ClearResult,
+    ClearStop,
+    Command,
+    ControllerState,
+    Encoders,
+    Fault,
+    FaultCode,
+    Heartbeat,
+    Hello,
+    HostHeartbeat,
+    Ident,
+    Imu,
+    Motion,
+    Param,
+    ParamResult,
+    ParamValue,
+    Pose,
+    SetParam,
+    Status,
+    StepState,
+    Stop,
+    StopAck,
+    Stopped,
+    WheelSpeeds,
+)
+from firmware_proto.rover import RoverDescription
+
+__all__ = ["DEDUP_WINDOW", "PARAM_RANGES", "STOPPING_FAULTS", "ControllerConfig", "ControllerModel"]
+
+logger = logging.getLogger(__name__)
+
+DEDUP_WINDOW = 64
+"""Accepted MOTION seqs remembered per session (docs/protocol.md)."""
+
+STOPPING_FAULTS = frozenset(
+    {FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT, FaultCode.ENCODER,
+     FaultCode.DRIVER, FaultCode.INTERNAL}
+)
+"""Faults that stop the rover and hold FAULT until CLEAR_STOP; IMU and POSE only report."""
+
+PARAM_RANGES: dict[int, tuple[int, int]] = {
+    Param.WATCHDOG_MS: (50, 10_000),
+    Param.TELEMETRY_HZ: (1, 200),
+    Param.POSE_HZ: (1, 50),
+    Param.HEARTBEAT_HZ: (1, 50),
+}
+"""Accepted SET_PARAM values, inclusive."""
+
+_REST_MPS = 1e-4
+"""Wheel speed below which a side counts as at rest, m/s."""
+_STALL_MIN_TARGET_MPS = 0.01
+"""Stall detection only watches a side whose commanded speed is above this, m/s."""
+_STALL_MIN_PROGRESS_UNITS = 1.0
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Firmware settings; defaults are the protocol's (docs/protocol.md, Timing)."""
+
+    firmware_version: tuple[int, int, int] = (1, 0, 0)
+    watchdog_ms: int = WATCHDOG_MS
+    telemetry_hz: int = ENCODERS_RATE_HZ
+    pose_hz: int = POSE_RATE_HZ
+    heartbeat_hz: int = 1000 // CONTROLLER_HEARTBEAT_PERIOD_MS
+    queue_depth: int = MOTION_QUEUE_DEPTH
+    stall_timeout_ms: int = STALL_TIMEOUT_MS
+    timeout_scale: float = 1.0
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+
+
+@dataclass
+class _Running:
+    motion: Motion
+    profile: StepProfile
+    start_travel: tuple[float, float]
+
+
+@dataclass
+class _PendingStop:
+    stop_id: int
+    arrived_s: float
+    travel_at_arrival: tuple[float, float]
+
+
+class ControllerModel:
+    """Firmware behaviour of the motor controller over a :class:`Twin`.
+
+    Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
+    """
+
+    def __init__(
+        self,
+        rover: RoverDescription,
+        twin: Twin,
+        config: ControllerConfig | None = None,
+        *,
+        seed: int = 0,
+        protocol_version: int = PROTOCOL_VERSION,
+        schema_hash: int = SCHEMA_HASH,
+    ) -> None:
+        """Args:
+        rover: the rover description (speed scale, units, limits).
+        twin: the plant; the model steps it once per :meth:`tick`.
+        config: firmware settings.
+        seed: seeds the boot nonces and every sensor's noise.
+        protocol_version, schema_hash: what this firmware was built from (change them
+            to impersonate a mismatched firmware).
+        """
+        self.rover = rover
+        self.twin = twin
+        self.config = config or ControllerConfig()
+        self.protocol_version = protocol_version
+        self.schema_hash = schema_hash
+        self._rng = random.Random(seed)
+        sensors = self.config.sensors
+        self.encoders = EncoderModel(rover, twin, random.Random(self._rng.random()), sensors.encoder_noise_units)
+        self.imu = ImuModel(twin, random.Random(self._rng.random()), sensors)
+        self.pose_sensor = PoseSensor(twin, random.Random(self._rng.random()), sensors)
+        self.watchdog_ms = self.config.watchdog_ms
+        self.telemetry_hz = self.config.telemetry_hz
+        self.pose_hz = self.config.pose_hz
+        self.heartbeat_hz = self.config.heartbeat_hz
+        self.rx_errors = 0
+        self.boots = 0
+        self._init_state()
+
+    # -- state ------------------------------------------------------------------------
+    def _init_state(self) -> None:
+        self.state = ControllerState.BOOT
+        self.boot_nonce = self._rng.randrange(1 << 16)
+        self.boot_s = self.twin.time_s
+        self.handshake_ok = False
+        self.stop_latched = False
+        self.faults: set[int] = set()
+        self._fault_conditions: set[int] = set()
+        self._queue: deque[Motion] = deque()
+        self._running: _Running | None = None
+        self._accepted: deque[int] = deque(maxlen=DEDUP_WINDOW)
+        self._accepted_set: set[int] = set()
+        self._setpoint = (0.0, 0.0)
+        self._commanded = (0.0, 0.0)
+        self._pending_stops: list[_PendingStop] = []
+        self._last_rx_s: float | None = None
+        self._watchdog_tripped = False
+        self._stall_since: list[float | None] = [None, None]
+        self._stall_ref = [0.0, 0.0]
+        now = self.twin.time_s
+        self._next_telemetry = now
+        self._next_pose = now
+        self._next_heartbeat = now
+
+    @property
+    def now_s(self) -> float:
+        """Twin time, s."""
+        return self.twin.time_s
+
+    @property
+    def queue_depth(self) -> int:
+        """Steps queued, the running one included."""
+        return len(self._queue) + (self._running is not None)
+
+    @property
+    def wheel_setpoints_mps(self) -> tuple[float, float]:
+        """Wheel speed targets (rover frame): zero from the moment a STOP is handled."""
+        return self._setpoint
+
+    @property
+    def wheel_commands_mps(self) -> tuple[float, float]:
+        """Speeds commanded to the motors: the setpoints, ramped at the accel limit."""
+        return self._commanded
+
+    @property
+    def running_seq(self) -> int | None:
+        """Sequence number of the step being executed, if any."""
+        return self._running.motion.seq if self._running else None
+
+    @property
+    def at_rest(self) -> bool:
+        """Both sides commanded to zero and measured at rest."""
+        left, right = self.twin.wheel_surface_speeds_mps
+        return self._commanded == (0.0, 0.0) and abs(left) < _REST_MPS and abs(right) < _REST_MPS
+
+    def _clock_ms(self) -> int:
+        return int((self.now_s - self.boot_s) * 1000.0) & 0xFFFF
+
+    def _scaled_s(self, ms: float) -> float:
+        return ms / 1000.0 * self.config.timeout_scale
+
+    # -- boot ---------------------------------------------------------------------------
+    def boot(self) -> list[Message]:
+        """Power-on: the IDENT the firmware sends unsolicited."""
+        self.boots += 1
+        logger.info("controller boot %d, nonce 0x%04X", self.boots, self.boot_nonce)
+        return [self._ident()]
+
+    def reboot(self) -> list[Message]:
+        """A reset: state, queue, latch, session and counts are lost; the motors stop at
+        once (no braking ramp); a new boot nonce; IDENT again."""
+        self._init_state()
+        self.encoders.reset()
+        self.pose_sensor.clear()
+        return self.boot()
+
+    def _ident(self) -> Ident:
+        major, minor, patch = self.config.firmware_version
+        return Ident(self.protocol_version, major, minor, patch, self.schema_hash, self.boot_nonce)
+
+    # -- receive ------------------------------------------------------------------------
+    def rx_error(self, count: int = 1) -> None:
+        """The front end dropped ``count`` bad frames (reported in HEARTBEAT)."""
+        self.rx_errors += count
+
+    def handle(self, msg: Message) -> list[Message]:
+        """Process one message from the host; returns the immediate answers.
+
+        A STOP has zeroed the wheel targets and purged the queue when this returns.
+        Messages the controller does not accept (controller-to-host types) are ignored.
+        """
+        out: list[Message] = []
+        self._feed_watchdog(out)
+        if isinstance(msg, Stop):
+            aborted: list[Message] = []
+            self._stop(msg.stop_id, AbortReason.STOP, aborted)
+            # The acknowledgement goes first: it is what the host is timing.
+            out.insert(0, StopAck(msg.stop_id, self.state))
+            out += aborted
+        elif isinstance(msg, Motion):
+            out += self._motion(msg)
+        elif isinstance(msg, ClearStop):
+            out.append(ClearAck(msg.stop_id, self._clear()))
+        elif isinstance(msg, Hello):
+            self._hello(msg, out)
+        elif isinstance(msg, SetParam):
+            out.append(self._set_param(msg))
+        elif isinstance(msg, HostHeartbeat):
+            pass
+        else:
+            logger.debug("ignored %s (not for the controller)", msg.NAME)
+        return out
+
+    def _feed_watchdog(self, out: list[Message]) -> None:
+        self._last_rx_s = self.now_s
+        if self._watchdog_tripped:
+            self._watchdog_tripped = False
+            self._fault_conditions.discard(FaultCode.WATCHDOG)
+            out.append(Fault(FaultCode.WATCHDOG, 0, 0))
+
+    def _hello(self, msg: Hello, out: list[Message]) -> None:
+        match = msg.protocol_version == self.protocol_version and msg.schema_hash == self.schema_hash
+        # A new session: the previous host's steps and seqs are gone.
+        self._abort_all(AbortReason.SESSION, out)
+        self._setpoint = (0.0, 0.0)
+        self._accepted.clear()
+        self._accepted_set.clear()
+        self.handshake_ok = match
+        if match and self.state == ControllerState.BOOT:
+            self.state = ControllerState.IDLE
+        elif not match and self.state in (ControllerState.IDLE, ControllerState.EXECUTING):
+            self.state = ControllerState.BOOT
+        if not match:
+            logger.warning(
+                "HELLO mismatch: host v%d/0x%04X, firmware v%d/0x%04X",
+                msg.protocol_version, msg.schema_hash, self.protocol_version, self.schema_hash,
+            )
+        out.append(self._ident())
+
+    def _motion(self, msg: Motion) -> list[Message]:
+        def ack(result: int, fld: int = AckField.NONE) -> list[Message]:
+            return [Ack(msg.seq, result, fld, self.queue_depth)]
+
+        if not self.handshake_ok:
+            return ack(AckResult.NOT_READY)
+        if msg.seq in self._accepted_set:
+            return ack(AckResult.DUPLICATE)
+        limits = self.rover.drive
+        if msg.command > max(Command):
+            return ack(AckResult.OUT_OF_RANGE, AckField.COMMAND)
+        if msg.speed > limits.max_speed:
+            return ack(AckResult.OUT_OF_RANGE, AckField.SPEED)
+        if msg.distance > limits.max_distance:
+            return ack(AckResult.OUT_OF_RANGE, AckField.DISTANCE)
+        if msg.command == Command.STOP:
+            self._remember(msg.seq)
+            out: list[Message] = []
+            self._stop(0, AbortReason.STOP, out)
+            return ack(AckResult.ACCEPTED) + out
+        if self.state == ControllerState.FAULT:
+            return ack(AckResult.FAULT_ACTIVE)
+        if self.stop_latched:
+            return ack(AckResult.STOP_LATCHED)
+        if self.queue_depth >= self.config.queue_depth:
+            return ack(AckResult.QUEUE_FULL)
+        self._remember(msg.seq)
+        self._queue.append(msg)
+        return ack(AckResult.ACCEPTED)
+
+    def _remember(self, seq: int) -> None:
+        if len(self._accepted) == self._accepted.maxlen:
+            self._accepted_set.discard(self._accepted[0])
+        self._accepted.append(seq)
+        self._accepted_set.add(seq)
+
+    def _stop(self, stop_id: int, reason: int, out: list[Message]) -> None:
+        """Zero the targets now, purge, latch; STOPPED follows when at rest."""
+        self._setpoint = (0.0, 0.0)
+        self._abort_all(reason, out)
+        self.stop_latched = True
+        if self.state != ControllerState.FAULT:
+            self.state = ControllerState.STOP_LATCHED
+        if all(p.stop_id != stop_id for p in self._pending_stops):
+            self._pending_stops.append(_PendingStop(stop_id, self.now_s, self.encoders.travel()))
+
+    def _abort_all(self, reason: int, out: list[Message]) -> None:
+        if self._running is not None:
+            out.append(Status(self._running.motion.seq, StepState.ABORTED, reason, self._step_travel()))
+            self._running = None
+        while self._queue:
+            out.append(Status(self._queue.popleft().seq, StepState.ABORTED, reason, 0))
+        if self.state == ControllerState.EXECUTING:
+            self.state = ControllerState.IDLE
+
+    def _step_travel(self) -> int:
+        if self._running is None:
+            return 0
+        left, right = self.encoders.travel()
+        l0, r0 = self._running.start_travel
+        return min(0xFFFF, round((abs(left - l0) + abs(right - r0)) / 2.0))
+
+    def _clear(self) -> int:
+        if not self.stop_latched and self.state != ControllerState.FAULT:
+            return ClearResult.NOT_LATCHED
+        if self._fault_conditions & STOPPING_FAULTS:
+            return ClearResult.FAULT_PERSISTS
+        self.stop_latched = False
+        self.faults -= STOPPING_FAULTS - self._fault_conditions
+        self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
+        return ClearResult.CLEARED
+
+    def _set_param(self, msg: SetParam) -> ParamValue:
+        rng = PARAM_RANGES.get(msg.param)
+        if rng is None:
+            return ParamValue(msg.param, ParamResult.UNKNOWN_PARAM, 0)
+        attr = {
+            Param.WATCHDOG_MS: "watchdog_ms",
+            Param.TELEMETRY_HZ: "telemetry_hz",
+            Param.POSE_HZ: "pose_hz",
+            Param.HEARTBEAT_HZ: "heartbeat_hz",
+        }[Param(msg.param)]
+        if not rng[0] <= msg.value <= rng[1]:
+            return ParamValue(msg.param, ParamResult.OUT_OF_RANGE, getattr(self, attr))
+        setattr(self, attr, msg.value)
+        return ParamValue(msg.param, ParamResult.OK, msg.value)
+
+    # -- faults -------------------------------------------------------------------------
+    def raise_fault(self, code: int, detail: int = 0, *, condition: bool = False) -> list[Message]:
+        """Raise a fault; a stopping fault stops the rover and enters FAULT.
+
+        Args:
+            code: a :class:`FaultCode`.
+            detail: code-specific detail for the FAULT message.
+            condition: the fault's cause persists until :meth:`clear_fault_condition`
+                (CLEAR_STOP answers FAULT_PERSISTS meanwhile).
+        """
+        out: list[Message] = []
+        if condition:
+            self._fault_conditions.add(code)
+        if code in self.faults:
+            return out
+        self.faults.add(code)
+        out.append(Fault(code, 1, min(detail, 0xFFFF)))
+        if code in STOPPING_FAULTS:
+            reason = AbortReason.WATCHDOG if code == FaultCode.WATCHDOG else (
+                AbortReason.STALL if code in (FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT)
+                else AbortReason.FAULT
+            )
+            self._stop(0, reason, out)
+            self.state = ControllerState.FAULT
+        logger.info("fault %s raised (detail %d)", FaultCode(code).name, detail)
+        return out
+
+    def clear_fault_condition(self, code: int) -> list[Message]:
+        """The cause of a fault went away: FAULT active = 0. A stopping fault still holds
+        FAULT until CLEAR_STOP; a reporting fault (IMU, POSE) is gone at once."""
+        self._fault_conditions.discard(code)
+        if code not in self.faults:
+            return []
+        if code not in STOPPING_FAULTS:
+            self.faults.discard(code)
+        return [Fault(code, 0, 0)]
+
+    # -- tick ---------------------------------------------------------------------------
+    def tick(self) -> list[Message]:
+        """One control period: watchdog, step logic, one physics step, telemetry due."""
+        out: list[Message] = []
+        dt = self.twin.dt_s
+        self._check_watchdog(out)
+        travel = self.encoders.travel()
+        if self._running is None and self._queue and not self.stop_latched:
+            self._start_next(travel, out)
+        if self._running is not None:
+            run = self._running
+            self._setpoint = run.profile.update(travel[0] - run.start_travel[0], travel[1] - run.start_travel[1], dt)
+            if run.profile.done:
+                out.append(Status(run.motion.seq, StepState.COMPLETED, AbortReason.NONE, self._step_travel()))
+                self._running = None
+                if self._queue:
+                    self._start_next(travel, out)
+                else:
+                    self.state = ControllerState.IDLE
+        dv = self.rover.drive.wheel_accel_limit_mps2 * dt
+        self._commanded = (ramp(self._commanded[0], self._setpoint[0], dv),
+                           ramp(self._commanded[1], self._setpoint[1], dv))
+        self.twin.set_motor_omegas(*motor_omegas(self.rover, *self._commanded))
+        self.twin.step()
+        travel_after = self.encoders.travel()
+        self._check_stall(travel_after, out)
+        self._check_stopped(travel_after, out)
+        self._telemetry(out)
+        return out
+
+    def _start_next(self, travel: tuple[float, float], out: list[Message]) -> None:
+        motion = self._queue.popleft()
+        profile = StepProfile(self.rover, motion.command, motion.speed, motion.distance,
+                              initial_left_mps=self._commanded[0], initial_right_mps=self._commanded[1])
+        self._running = _Running(motion, profile, travel)
+        self._stall_since = [None, None]
+        self._stall_ref = list(travel)
+        self.state = ControllerState.EXECUTING
+        out.append(Status(motion.seq, StepState.STARTED, AbortReason.NONE, 0))
+
+    def _check_watchdog(self, out: list[Message]) -> None:
+        if self._last_rx_s is None or self._watchdog_tripped:
+            return
+        silent_s = self.now_s - self._last_rx_s
+        if silent_s > self._scaled_s(self.watchdog_ms):
+            self._watchdog_tripped = True
+            detail = round(silent_s / self.config.timeout_scale * 1000.0)
+            logger.warning("watchdog: no valid frame for %.0f ms", detail)
+            out += self.raise_fault(FaultCode.WATCHDOG, detail, condition=True)
+
+    def _check_stall(self, travel: tuple[float, float], out: list[Message]) -> None:
+        if self._running is None:
+            self._stall_since = [None, None]
+            return
+        now = self.now_s
+        for side, code in ((0, FaultCode.STALL_LEFT), (1, FaultCode.STALL_RIGHT)):
+            if abs(self._commanded[side]) < _STALL_MIN_TARGET_MPS or (
+                abs(travel[side] - self._stall_ref[side]) >= _STALL_MIN_PROGRESS_UNITS
+            ):
+                self._stall_since[side] = None
+                self._stall_ref[side] = travel[side]
+                continue
+            since = self._stall_since[side]
+            if since is None:
+                self._stall_since[side] = now
+            elif now - since > self._scaled_s(self.config.stall_timeout_ms):
+                expected = self._running.profile.remaining_units(
+                    travel[0] - self._running.start_travel[0], travel[1] - self._running.start_travel[1]
+                )[side]
+                out += self.raise_fault(code, max(0, round(expected)))
+                return
+
+    def _check_stopped(self, travel: tuple[float, float], out: list[Message]) -> None:
+        if not self._pending_stops or not self.at_rest:
+            return
+        for pending in self._pending_stops:
+            moved_m = (abs(travel[0] - pending.travel_at_arrival[0])
+                       + abs(travel[1] - pending.travel_at_arrival[1])) / 2.0 / self.rover.drive.distance_units_per_m
+            duration_ms = (self.now_s - pending.arrived_s) / self.config.timeout_scale * 1000.0
+            out.append(Stopped(pending.stop_id, min(0xFFFF, round(moved_m * 1000.0)), min(0xFFFF, round(duration_ms))))
+        self._pending_stops.clear()
+
+    # -- telemetry ----------------------------------------------------------------------
+    def _telemetry(self, out: list[Message]) -> None:
+        now = self.now_s
+        eps = 1e-9
+        if now + eps >= self._next_telemetry:
+            self._next_telemetry = max(self._next_telemetry + 1.0 / self.telemetry_hz, now)
+            out += self._fast_telemetry()
+        if now + eps >= self._next_pose:
+            self._next_pose = max(self._next_pose + 1.0 / self.pose_hz, now)
+            self.pose_sensor.sample()
+        for m in self.pose_sensor.due():
+            out.append(self._pose_message(m.pose.x_m, m.pose.y_m, m.pose.yaw_rad, m.sigma_m, now - m.taken_s))
+        if now + eps >= self._next_heartbeat:
+            self._next_heartbeat = max(self._next_heartbeat + 1.0 / self.heartbeat_hz, now)
+            out.append(self.heartbeat())
+
+    def _fast_telemetry(self) -> list[Message]:
+        t_ms = self._clock_ms()
+        left, right = self.encoders.counts()
+        ml, mr = self.twin.wheel_surface_speeds_mps
+        sl, sr = self._setpoint
+        out: list[Message] = [
+            Encoders(t_ms, _wrap24(left), _wrap24(right)),
+            WheelSpeeds(t_ms, _mm12(ml), _mm12(mr), _mm12(sl), _mm12(sr)),
+        ]
+        reading = self.imu.read()
+        if reading is not None:
+            out.append(Imu(t_ms, _clamp16(reading.yaw_rate_rad_s * 1000.0),
+                           _clamp16(reading.accel_x_mps2 * 1000.0), _clamp16(reading.accel_y_mps2 * 1000.0)))
+        return out
+
+    @staticmethod
+    def _pose_message(x_m: float, y_m: float, yaw_rad: float, sigma_m: float, age_s: float) -> Pose:
+        limit = (1 << 19) - 1
+        x_mm = max(-limit - 1, min(limit, round(x_m * 1000.0)))
+        y_mm = max(-limit - 1, min(limit, round(y_m * 1000.0)))
+        yaw = round(math.degrees(yaw_rad) * 10.0)
+        yaw = (yaw + 1800) % 3600 - 1800
+        sigma_cm = 0 if sigma_m <= 0.0 else max(1, min(15, round(sigma_m * 100.0)))
+        return Pose(x_mm, y_mm, yaw, sigma_cm, max(0, min(255, round(age_s * 1000.0 / 4.0))))
+
+    def heartbeat(self) -> Heartbeat:
+        """The HEARTBEAT for the current state."""
+        bits = 0
+        for code in self.faults:
+            bits |= 1 << (code - 1)
+        return Heartbeat(
+            self.state, int(self.stop_latched or self.state == ControllerState.FAULT),
+            int(self.handshake_ok), bits, min(255, self.queue_depth), self.boot_nonce,
+            self.rx_errors & 0xFFFF,
+        )
+
+
+def _wrap24(value: int) -> int:
+    return ((value + (1 << 23)) & 0xFFFFFF) - (1 << 23)
+
+
+def _mm12(speed_mps: float) -> int:
+    return max(-2048, min(2047, round(speed_mps * 1000.0)))
+
+
+def _clamp16(value: float) -> int:
+    return max(-32768, min(32767, round(value)))

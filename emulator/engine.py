@@ -1,0 +1,298 @@
+"""The emulator: a controller model served over a front end, in real time.
+
+:class:`Emulator` owns one control thread that alone touches the model: it runs one
+:meth:`~emulator.controller.ControllerModel.tick` per twin step, paced so that twin
+time runs ``speed_factor`` times as fast as the wall clock, and between ticks it waits
+on the inbox. A message from the host is handled as soon as it arrives, not at the
+next tick: a STOP has zeroed the wheel targets within tens of microseconds of its
+frame's arrival (:attr:`Emulator.stop_reactions`), well inside the tick it arrived in.
+
+Commands from other threads (fault injection, status, unplug) go through
+:meth:`Emulator.call`, which runs a function on the control thread and returns its
+result. :meth:`Emulator.close` is idempotent and joins every thread it started.
+
+Lockstep runs (tests, the gate) use the model directly without this class.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, TypeVar
+
+from emulator.controller import ControllerModel
+from emulator.frontend import FrontEnd
+from emulator.injection import FaultSchedule, FaultSpec, Injector, InjectionRecord, parse_fault
+from firmware_proto.message import Message
+from firmware_proto.messages import ControllerState, FaultCode, Stop
+
+__all__ = ["Emulator", "EmulatorStatus", "MAX_BACKLOG_S"]
+
+logger = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+MAX_BACKLOG_S = 0.1
+"""When the control loop falls this far behind the wall clock (CPU starved), it drops
+the backlog and lets twin time slip rather than running in a burst."""
+
+
+@dataclass(frozen=True)
+class EmulatorStatus:
+    """A snapshot of the emulator, taken on the control thread."""
+
+    time_s: float
+    state: str
+    x_m: float
+    y_m: float
+    yaw_deg: float
+    wheel_mps: tuple[float, float]
+    setpoints_mps: tuple[float, float]
+    queue_depth: int
+    stop_latched: bool
+    faults: tuple[str, ...]
+    boot_nonce: int
+    device: str
+    rx_frames: int
+    rx_errors: int
+    tx_frames: int
+    tx_dropped: int
+    overruns: int
+    collision: str | None
+
+    def line(self) -> str:
+        """One status line for a terminal."""
+        faults = ",".join(self.faults) or "none"
+        hit = f" HIT {self.collision}" if self.collision else ""
+        return (
+            f"t={self.time_s:8.2f}s {self.state:<12} x={self.x_m:+7.3f} y={self.y_m:+7.3f} "
+            f"yaw={self.yaw_deg:+7.1f} wheels={self.wheel_mps[0]:+.2f}/{self.wheel_mps[1]:+.2f} m/s "
+            f"q={self.queue_depth} faults={faults} rx={self.rx_frames} err={self.rx_errors}{hit}"
+        )
+
+
+class Emulator:
+    """A :class:`ControllerModel` served in real time over a :class:`FrontEnd`."""
+
+    def __init__(
+        self,
+        model: ControllerModel,
+        frontend: FrontEnd,
+        *,
+        speed_factor: float = 1.0,
+        faults: list[FaultSpec] | None = None,
+    ) -> None:
+        """Args:
+        model: the controller over its twin (the engine steps it).
+        frontend: the pty or CAN front end (the engine starts and closes it).
+        speed_factor: twin seconds per wall second (> 0). Set the model's
+            ``timeout_scale`` to the same value so its watchdog keeps host time.
+        faults: faults to schedule (each fires when its trigger is met).
+
+        Raises:
+            ValueError: speed factor not positive and finite.
+            InjectionError: a scheduled fault names a region the map lacks.
+        """
+        if not (math.isfinite(speed_factor) and speed_factor > 0):
+            raise ValueError(f"speed factor must be > 0, got {speed_factor}")
+        self.model = model
+        self.frontend = frontend
+        self.speed_factor = speed_factor
+        self.injector = Injector(model, frontend)
+        self.schedule = FaultSchedule(self.injector, faults)
+        self.stop_reactions: list[float] = []
+        """Seconds from each STOP frame's arrival to its targets being zero."""
+        self.overruns = 0
+        self._inbox: queue.SimpleQueue[tuple[Message, float] | tuple[Callable[[], Any], Future[Any]]] = (
+            queue.SimpleQueue()
+        )
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._rx_errors_seen = 0
+        self._status: EmulatorStatus | None = None
+        self._closed = False
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def start(self) -> None:
+        """Open the front end, boot the controller and start the control thread."""
+        if self._thread is not None:
+            raise RuntimeError("emulator already started")
+        self.frontend.start(self._on_message)
+        self._thread = threading.Thread(target=self._run, name="emulator-control", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop the control thread and close the front end (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            if self._thread.is_alive():
+                logger.error("control thread did not stop within 5 s")
+        self.frontend.close()
+
+    def __enter__(self) -> Emulator:
+        self.start()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # -- cross-thread calls ---------------------------------------------------------------
+    def call(self, fn: Callable[[], T], timeout_s: float = 5.0) -> T:
+        """Run ``fn`` on the control thread and return its result (or raise its error).
+
+        Raises:
+            TimeoutError: the control thread did not run it within ``timeout_s``.
+        """
+        if self._thread is None or not self._thread.is_alive():
+            raise RuntimeError("emulator is not running")
+        future: Future[T] = Future()
+        self._inbox.put((fn, future))
+        return future.result(timeout=timeout_s)
+
+    def inject(self, fault: str | FaultSpec, source: str = "api") -> None:
+        """Apply a fault now, or schedule it if it has a trigger.
+
+        Raises:
+            InjectionError: the fault is malformed or cannot be applied.
+        """
+        spec = parse_fault(fault) if isinstance(fault, str) else fault
+        if spec.trigger.at_s is None and spec.trigger.after_m is None and spec.trigger.region is None:
+            self.call(lambda: self._send(self.injector.apply(spec, source)))
+        else:
+            self.call(lambda: self.schedule.add(spec))
+
+    @property
+    def injections(self) -> list[InjectionRecord]:
+        """Every injection applied so far."""
+        return list(self.injector.log)
+
+    def status(self) -> EmulatorStatus:
+        """A fresh snapshot (taken on the control thread)."""
+        return self.call(self._snapshot)
+
+    # -- control loop ---------------------------------------------------------------------
+    def _on_message(self, msg: Message, arrived: float) -> None:
+        self._inbox.put((msg, arrived))
+
+    def _send(self, messages: list[Message]) -> None:
+        if messages:
+            self.frontend.send(messages)
+
+    def _drain(self, first: tuple[Any, Any] | None) -> None:
+        item = first
+        while True:
+            if item is None:
+                try:
+                    item = self._inbox.get_nowait()
+                except queue.Empty:
+                    return
+            head, tail = item
+            if isinstance(tail, Future):
+                if tail.set_running_or_notify_cancel():
+                    try:
+                        tail.set_result(head())
+                    except BaseException as exc:
+                        tail.set_exception(exc)
+            else:
+                out = self.model.handle(head)
+                if isinstance(head, Stop):
+                    self.stop_reactions.append(time.monotonic() - tail)
+                self._send(out)
+            item = None
+
+    def _run(self) -> None:
+        model = self.model
+        tick_wall = model.twin.dt_s / self.speed_factor
+        self._send(model.boot())
+        t0 = time.monotonic()
+        ticks = 0
+        next_status = 0
+        try:
+            while not self._stop.is_set():
+                due = int((time.monotonic() - t0) / tick_wall) - ticks
+                if due * tick_wall > MAX_BACKLOG_S:
+                    self.overruns += 1
+                    if self.overruns == 1 or self.overruns % 100 == 0:
+                        logger.warning("control loop %.0f ms behind; twin time slips", due * tick_wall * 1e3)
+                    t0 += (due - 1) * tick_wall
+                    due = 1
+                for _ in range(due):
+                    self._drain(None)
+                    out = model.tick()
+                    out += self.schedule.poll()
+                    ticks += 1
+                    errors = self.frontend.rx_errors
+                    if errors != self._rx_errors_seen:
+                        model.rx_error(errors - self._rx_errors_seen)
+                        self._rx_errors_seen = errors
+                    self._send(out)
+                if ticks >= next_status:
+                    self._status = self._snapshot()
+                    next_status = ticks + max(1, round(0.05 / model.twin.dt_s))
+                self.frontend.flush_due()
+                timeout = t0 + (ticks + 1) * tick_wall - time.monotonic()
+                try:
+                    item = self._inbox.get(timeout=timeout) if timeout > 0 else None
+                except queue.Empty:
+                    item = None
+                if item is not None:
+                    self._drain(item)
+        except Exception:
+            logger.exception("control loop crashed; the controller stops")
+            raise
+        finally:
+            self._fail_pending_calls()
+
+    def _fail_pending_calls(self) -> None:
+        while True:
+            try:
+                _, tail = self._inbox.get_nowait()
+            except queue.Empty:
+                return
+            if isinstance(tail, Future) and tail.set_running_or_notify_cancel():
+                tail.set_exception(RuntimeError("emulator stopped"))
+
+    def _snapshot(self) -> EmulatorStatus:
+        m = self.model
+        pose = m.twin.pose
+        hit = m.twin.first_collision
+        stats = self.frontend.stats
+        return EmulatorStatus(
+            time_s=m.now_s,
+            state=ControllerState(m.state).name,
+            x_m=pose.x_m,
+            y_m=pose.y_m,
+            yaw_deg=pose.yaw_deg,
+            wheel_mps=m.twin.wheel_surface_speeds_mps,
+            setpoints_mps=m.wheel_setpoints_mps,
+            queue_depth=m.queue_depth,
+            stop_latched=m.stop_latched,
+            faults=tuple(sorted(FaultCode(c).name for c in m.faults)),
+            boot_nonce=m.boot_nonce,
+            device=getattr(self.frontend, "device", ""),
+            rx_frames=stats.rx_messages,
+            rx_errors=self.frontend.rx_errors,
+            tx_frames=stats.tx_messages,
+            tx_dropped=stats.tx_dropped,
+            overruns=self.overruns,
+            collision=hit.obstacle_id if hit else None,
+        )
+
+    @property
+    def last_status(self) -> EmulatorStatus | None:
+        """The snapshot taken most recently by the control loop (every ~50 ms twin
+        time), without a round trip to the control thread."""
+        return self._status

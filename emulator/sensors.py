@@ -1,0 +1,187 @@
+"""Sensor models of the controller: wheel encoders, IMU, and a ground-seeing pose sensor.
+
+Encoders count wheel rotation and cannot see slip; the IMU's yaw rate and the POSE
+sensor (visual odometry or lab tracking) see the ground, which is what lets a host
+detect slip (DESIGN.md contract 7). All three read the twin's ground truth and add
+seeded noise, bias, latency and dropout, each injectable. Pure: no I/O, no threads, no
+wall clock; every random draw comes from a ``random.Random`` seeded by the caller, so a
+run is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from dataclasses import dataclass
+
+from emulator.drive import travel_units
+from emulator.twin import Pose2D, Twin, wrap_angle_rad
+from firmware_proto.rover import RoverDescription
+
+__all__ = [
+    "EncoderModel",
+    "ImuModel",
+    "ImuReading",
+    "PoseMeasurement",
+    "PoseSensor",
+    "SensorConfig",
+]
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Noise and timing of the sensors (defaults: a MEMS gyro and lab tracking).
+
+    Attributes:
+        encoder_noise_units: 1-sigma noise added to each reported count, distance units.
+        imu_noise_rad_s: 1-sigma white noise on the yaw rate, rad/s.
+        imu_bias_rad_s: constant yaw-rate bias, rad/s.
+        accel_noise_mps2: 1-sigma noise on each acceleration axis, m/s^2.
+        pose_noise_m: 1-sigma noise on each pose coordinate, m.
+        pose_yaw_noise_rad: 1-sigma noise on the pose yaw, rad.
+        pose_latency_s: age of a pose measurement when it is reported, s.
+    """
+
+    encoder_noise_units: float = 0.0
+    imu_noise_rad_s: float = 0.003
+    imu_bias_rad_s: float = 0.0
+    accel_noise_mps2: float = 0.02
+    pose_noise_m: float = 0.01
+    pose_yaw_noise_rad: float = math.radians(0.5)
+    pose_latency_s: float = 0.1
+
+
+class EncoderModel:
+    """Absolute wheel counts since boot, polarity applied (forward positive), in distance
+    units, from the twin's motor angles. Injectable per side: extra noise and dropout (the
+    encoder stops counting and flags a signal error)."""
+
+    def __init__(self, rover: RoverDescription, twin: Twin, rng: random.Random, noise_units: float) -> None:
+        self._rover = rover
+        self._twin = twin
+        self._rng = rng
+        self.noise_units = [noise_units, noise_units]
+        self.dropout = [False, False]
+        self._offset = travel_units(rover, *twin.motor_angles_rad)
+        self._held = [0.0, 0.0]
+
+    def reset(self) -> None:
+        """Counts restart from zero (a reboot)."""
+        self._offset = travel_units(self._rover, *self._twin.motor_angles_rad)
+        self._held = [0.0, 0.0]
+
+    def travel(self) -> tuple[float, float]:
+        """Counts since boot as floats, without noise (what the step logic integrates);
+        a side in dropout holds its last value."""
+        left, right = travel_units(self._rover, *self._twin.motor_angles_rad)
+        raw = [left - self._offset[0], right - self._offset[1]]
+        for side in (0, 1):
+            if self.dropout[side]:
+                raw[side] = self._held[side]
+            else:
+                self._held[side] = raw[side]
+        return raw[0], raw[1]
+
+    def counts(self) -> tuple[int, int]:
+        """Reported counts: travel plus noise, rounded (not yet wrapped to 24 bits)."""
+        left, right = self.travel()
+        out = []
+        for side, value in enumerate((left, right)):
+            sigma = self.noise_units[side]
+            if sigma > 0.0 and not self.dropout[side]:
+                value += self._rng.gauss(0.0, sigma)
+            out.append(round(value))
+        return out[0], out[1]
+
+
+@dataclass(frozen=True)
+class ImuReading:
+    """One IMU sample: yaw rate (rad/s, counter-clockwise) and body-frame acceleration."""
+
+    yaw_rate_rad_s: float
+    accel_x_mps2: float
+    accel_y_mps2: float
+
+
+class ImuModel:
+    """Yaw rate and planar acceleration from the twin, with white noise and a bias."""
+
+    def __init__(self, twin: Twin, rng: random.Random, config: SensorConfig) -> None:
+        self._twin = twin
+        self._rng = rng
+        self.noise_rad_s = config.imu_noise_rad_s
+        self.bias_rad_s = config.imu_bias_rad_s
+        self.accel_noise_mps2 = config.accel_noise_mps2
+        self.dropout = False
+
+    def read(self) -> ImuReading | None:
+        """A sample, or ``None`` while the IMU is dropped out."""
+        if self.dropout:
+            return None
+        vel = self._twin.body_velocity
+        acc = self._twin.body_acceleration
+        gauss = self._rng.gauss
+        return ImuReading(
+            vel.yaw_rate_rad_s + self.bias_rad_s + gauss(0.0, self.noise_rad_s),
+            acc.ax_mps2 + gauss(0.0, self.accel_noise_mps2),
+            acc.ay_mps2 + gauss(0.0, self.accel_noise_mps2),
+        )
+
+
+@dataclass(frozen=True)
+class PoseMeasurement:
+    """A pose from the ground-seeing sensor: the noisy pose, its 1-sigma position error
+    (m; 0 means no fix) and when it was taken (twin time, s)."""
+
+    pose: Pose2D
+    sigma_m: float
+    taken_s: float
+
+
+class PoseSensor:
+    """Ground-truth pose with noise, reported ``latency_s`` after it was taken.
+
+    :meth:`sample` takes a measurement now; :meth:`due` returns the measurements whose
+    latency has elapsed, oldest first. During a dropout, samples carry ``sigma_m = 0``
+    (no fix) and the pose of the last fix.
+    """
+
+    def __init__(self, twin: Twin, rng: random.Random, config: SensorConfig) -> None:
+        self._twin = twin
+        self._rng = rng
+        self.noise_m = config.pose_noise_m
+        self.yaw_noise_rad = config.pose_yaw_noise_rad
+        self.latency_s = config.pose_latency_s
+        self.dropout = False
+        self._pending: deque[PoseMeasurement] = deque()
+        self._last = twin.pose
+
+    def sample(self) -> None:
+        """Take a measurement at the twin's current time."""
+        now = self._twin.time_s
+        if self.dropout:
+            self._pending.append(PoseMeasurement(self._last, 0.0, now))
+            return
+        truth = self._twin.pose
+        gauss = self._rng.gauss
+        pose = Pose2D(
+            truth.x_m + gauss(0.0, self.noise_m),
+            truth.y_m + gauss(0.0, self.noise_m),
+            wrap_angle_rad(truth.yaw_rad + gauss(0.0, self.yaw_noise_rad)),
+        )
+        self._last = pose
+        # A perfect sensor still reports 1 cm: zero is reserved for "no fix".
+        self._pending.append(PoseMeasurement(pose, max(self.noise_m, 0.01), now))
+
+    def due(self) -> list[PoseMeasurement]:
+        """Measurements whose latency has elapsed, oldest first (removed from the queue)."""
+        now = self._twin.time_s
+        out = []
+        while self._pending and self._pending[0].taken_s + self.latency_s <= now + 1e-9:
+            out.append(self._pending.popleft())
+        return out
+
+    def clear(self) -> None:
+        """Drop measurements not yet reported (a reboot)."""
+        self._pending.clear()

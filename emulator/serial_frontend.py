@@ -1,0 +1,200 @@
+"""Serial front end: the controller on a pty, as a host sees a USB-serial device.
+
+The emulator holds the pty's controller end; a host opens :attr:`SerialFrontEnd.device`
+(``/dev/pts/N``, or the stable symlink given as ``link``) with pyserial or any terminal
+program. Frames are those of docs/protocol.md, byte for byte.
+
+- A pty has no baud rate. With ``baud`` set, frames to the host leave at that rate
+  (10 bits per byte) from a transmit thread that always sends the most urgent frame
+  first (STOP lane, then motion, status, telemetry, config), as firmware with a
+  prioritised UART queue would.
+- The host may close and reopen the device at any time; while nobody reads, frames to
+  the host are dropped (counted), never blocking the controller.
+- :meth:`SerialFrontEnd.unplug` makes the device disappear (pty closed, symlink gone) and
+  :meth:`SerialFrontEnd.replug` brings a new one back under the same link, like a USB
+  cable pulled and plugged in again.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import heapq
+import itertools
+import logging
+import os
+import select
+import threading
+import time
+from pathlib import Path
+
+from emulator.frontend import FrontEnd
+from emulator.ptypair import PtyPair
+from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.message import Message
+
+__all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
+
+logger = logging.getLogger(__name__)
+
+PRIORITY_ORDER = {"emergency": 0, "motion": 1, "status": 2, "telemetry": 3, "config": 4}
+"""Transmit order of the priority classes when the line is paced."""
+
+
+class SerialFrontEnd(FrontEnd):
+    """The controller's end of a pty pair. See the module docstring."""
+
+    name = "pty"
+
+    def __init__(self, *, link: str | Path | None = None, baud: int | None = None, seed: int = 0) -> None:
+        """Args:
+        link: path of a stable symlink to the device (e.g. /tmp/rover-motor).
+        baud: pace frames to the host at this rate (bits/s); ``None``: no pacing.
+        seed: seeds the link-fault generators.
+
+        Raises:
+            ValueError: baud not positive.
+        """
+        super().__init__(seed=seed)
+        if baud is not None and baud <= 0:
+            raise ValueError(f"baud must be > 0, got {baud}")
+        self.link = Path(link) if link is not None else None
+        self.baud = baud
+        self.decoder = FrameDecoder()
+        self._encoder = FrameEncoder()
+        self._pair: PtyPair | None = None
+        self._plug_request: str | None = None
+        self._plug_done = threading.Event()
+        self.device = ""
+        self._tx_heap: list[tuple[int, int, bytes]] = []
+        self._tx_order = itertools.count()
+        self._tx_ready = threading.Condition()
+        self._tx_thread: threading.Thread | None = None
+
+    # -- medium -------------------------------------------------------------------------
+    def _open(self) -> None:
+        self._pair = PtyPair(self.link)
+        os.set_blocking(self._pair.master_fd, False)
+        self.device = self._pair.device
+        logger.info("serving on %s%s", self.device, f" (link {self.link})" if self.link else "")
+        if self.baud is not None:
+            self._tx_thread = threading.Thread(target=self._paced_writer, name="pty-tx", daemon=True)
+            self._tx_thread.start()
+
+    def _close(self) -> None:
+        with self._tx_ready:
+            self._tx_ready.notify_all()
+        if self._tx_thread is not None and self._tx_thread is not threading.current_thread():
+            self._tx_thread.join(timeout=5.0)
+        self._tx_thread = None
+        if self._pair is not None:
+            self._pair.close()
+            self._pair = None
+
+    def _decoder_rejects(self) -> int:
+        return self.decoder.counters.rejected
+
+    # -- unplug / replug ----------------------------------------------------------------
+    def unplug(self, timeout_s: float = 2.0) -> None:
+        """Make the device disappear (done by the reader thread; waits for it)."""
+        self._request_plug("unplug", timeout_s)
+
+    def replug(self, timeout_s: float = 2.0) -> None:
+        """Bring a new device back under the same link (a new /dev/pts/N)."""
+        self._request_plug("replug", timeout_s)
+
+    def _request_plug(self, what: str, timeout_s: float) -> None:
+        self._plug_done.clear()
+        self._plug_request = what
+        if not self._plug_done.wait(timeout_s):
+            raise TimeoutError(f"{what} not done within {timeout_s} s")
+
+    def _handle_plug(self) -> None:
+        what, self._plug_request = self._plug_request, None
+        with self._write_lock:
+            if what == "unplug" and self._pair is not None:
+                self._pair.close()
+                self._pair = None
+                self.device = ""
+                logger.warning("unplugged: device gone")
+            elif what == "replug" and self._pair is None:
+                self._pair = PtyPair(self.link)
+                os.set_blocking(self._pair.master_fd, False)
+                self.device = self._pair.device
+                self.decoder.reset()
+                logger.warning("replugged: serving on %s", self.device)
+        self._plug_done.set()
+
+    @property
+    def plugged(self) -> bool:
+        """Whether the device exists."""
+        return self._pair is not None
+
+    # -- I/O ----------------------------------------------------------------------------
+    def _read(self, timeout_s: float) -> list[Message]:
+        if self._plug_request is not None:
+            self._handle_plug()
+        pair = self._pair
+        if pair is None:
+            self._stop.wait(timeout_s)
+            return []
+        ready, _, _ = select.select([pair.master_fd], [], [], timeout_s)
+        if not ready:
+            return []
+        try:
+            data = os.read(pair.master_fd, 4096)
+        except BlockingIOError:
+            return []
+        except OSError as exc:
+            if exc.errno == errno.EIO:  # no host has the device open
+                self._stop.wait(timeout_s)
+                return []
+            raise
+        return [frame.message for frame in self.decoder.feed(data)]
+
+    def _write(self, message: Message, corrupt: bool) -> bool:
+        wire = self._encoder.encode(message)
+        if corrupt:
+            damaged = bytearray(wire)
+            damaged[self._rng_tx.randrange(len(damaged))] ^= 1 << self._rng_tx.randrange(8)
+            wire = bytes(damaged)
+        if self.baud is not None:
+            with self._tx_ready:
+                heapq.heappush(self._tx_heap, (PRIORITY_ORDER[message.PRIORITY], next(self._tx_order), wire))
+                self._tx_ready.notify()
+            return True
+        return self._write_now(wire)
+
+    def _write_now(self, wire: bytes) -> bool:
+        pair = self._pair
+        if pair is None:
+            return False
+        try:
+            written = os.write(pair.master_fd, wire)
+        except (BlockingIOError, InterruptedError):
+            return False  # nobody reads: the bytes go nowhere, as on an open UART line
+        except OSError as exc:
+            if exc.errno in (errno.EIO, errno.EBADF):
+                return False
+            raise
+        return written == len(wire)
+
+    def _paced_writer(self) -> None:
+        assert self.baud is not None
+        seconds_per_byte = 10.0 / self.baud
+        line_free = time.monotonic()
+        while not self._stop.is_set():
+            with self._tx_ready:
+                while not self._tx_heap and not self._stop.is_set():
+                    self._tx_ready.wait(0.1)
+                if self._stop.is_set():
+                    return
+                _, _, wire = heapq.heappop(self._tx_heap)
+            wait = line_free - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            with self._write_lock:
+                ok = self._write_now(wire)
+            if not ok:
+                self.stats.tx_dropped += 1
+            line_free = max(line_free, time.monotonic()) + len(wire) * seconds_per_byte
