@@ -1,4 +1,69 @@
 """Rover motor-controller emulator: the pymunk twin, the controller model, fault
-injection, and front ends serving it over a pty or a python-can bus."""
+injection, and front ends serving it over a pty or a python-can bus.
 
-__all__: list[str] = []
+The twin part (what the gate imports): :class:`Twin` (physics), :func:`load_map`
+(maps), :class:`StepProfile` (step semantics) and :func:`play` (lockstep playback).
+See docs/twin.md.
+"""
+
+from emulator.drive import (
+    StepProfile,
+    brake,
+    motor_omegas,
+    side_directions,
+    travel_units,
+    turn_units_for_yaw,
+    yaw_for_turn_units,
+)
+from emulator.errors import CommandError, ConfigError, EmulatorError, InjectionError, MapError
+from emulator.playback import (
+    PlaybackResult,
+    Stall,
+    StepResult,
+    TimedPose,
+    measure_turn_efficiency,
+    play,
+)
+from emulator.traction import TractionModel
+from emulator.twin import (
+    GATE_DT_S,
+    BodyAcceleration,
+    BodyVelocity,
+    Collision,
+    Pose2D,
+    Twin,
+)
+from emulator.worldmap import MapGoal, MapPose, WorldMap, list_maps, load_map
+
+__all__ = [
+    "GATE_DT_S",
+    "BodyAcceleration",
+    "BodyVelocity",
+    "Collision",
+    "CommandError",
+    "ConfigError",
+    "EmulatorError",
+    "InjectionError",
+    "MapError",
+    "MapGoal",
+    "MapPose",
+    "PlaybackResult",
+    "Pose2D",
+    "Stall",
+    "StepProfile",
+    "StepResult",
+    "TimedPose",
+    "TractionModel",
+    "Twin",
+    "WorldMap",
+    "brake",
+    "list_maps",
+    "load_map",
+    "measure_turn_efficiency",
+    "motor_omegas",
+    "play",
+    "side_directions",
+    "travel_units",
+    "turn_units_for_yaw",
+    "yaw_for_turn_units",
+]

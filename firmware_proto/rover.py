@@ -77,6 +77,9 @@ class Traction:
     mu_longitudinal: float
     mu_lateral: float
     slip_saturation_mps: float
+    slip_saturation_ratio: float
+    rolling_resistance: float
+    turn_efficiency: float
 
 
 @dataclass(frozen=True)
@@ -196,6 +199,9 @@ def _check(rover: RoverDescription, source: str) -> None:
         "traction.mu_longitudinal": t.mu_longitudinal,
         "traction.mu_lateral": t.mu_lateral,
         "traction.slip_saturation_mps": t.slip_saturation_mps,
+        "traction.slip_saturation_ratio": t.slip_saturation_ratio,
+        "traction.rolling_resistance": t.rolling_resistance,
+        "traction.turn_efficiency": t.turn_efficiency,
         "environment.gravity_mps2": rover.environment.gravity_mps2,
         "safety.drift_linear_m": rover.safety.drift_linear_m,
         "safety.drift_angular_deg": rover.safety.drift_angular_deg,
@@ -204,6 +210,10 @@ def _check(rover: RoverDescription, source: str) -> None:
     for key, value in positive.items():
         if value <= 0:
             raise DescriptionError(f"{source}: {key} must be > 0, got {value}")
+    if t.turn_efficiency > 1:
+        raise DescriptionError(
+            f"{source}: traction.turn_efficiency must be <= 1, got {t.turn_efficiency}"
+        )
     for key, sign in (
         ("left_wheel_sign", d.left_wheel_sign),
         ("right_wheel_sign", d.right_wheel_sign),

@@ -1,0 +1,51 @@
+"""Exceptions raised by :mod:`emulator`.
+
+Everything this package raises on purpose derives from :class:`EmulatorError`::
+
+    EmulatorError
+     +-- MapError         a map file is missing, not JSON, or invalid; also ValueError.
+     |                    ``violations`` lists ``(json_pointer, message)`` pairs.
+     +-- CommandError     a step's command, speed or distance is out of range; also ValueError
+     +-- InjectionError   a fault or traction change the twin cannot apply is refused;
+     |                    also ValueError (never silently accepted)
+     +-- ConfigError      a twin or playback parameter is out of range (time step,
+                          safety margin, sample period); also ValueError
+
+Programming errors (wrong types, calling a closed object) raise the usual built-ins.
+"""
+
+from __future__ import annotations
+
+__all__ = ["CommandError", "ConfigError", "EmulatorError", "InjectionError", "MapError"]
+
+
+class EmulatorError(Exception):
+    """Root of every exception raised on purpose by the emulator package."""
+
+
+class MapError(EmulatorError, ValueError):
+    """A map file cannot be used.
+
+    Attributes:
+        source: the file (or map name) that was read.
+        violations: ``(json_pointer, message)`` pairs, sorted by pointer; the pointer is
+            ``""`` for a problem with the whole document (unreadable, not JSON).
+    """
+
+    def __init__(self, source: str, violations: list[tuple[str, str]]) -> None:
+        self.source = source
+        self.violations = list(violations)
+        lines = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in self.violations)
+        super().__init__(f"{source}: invalid map: {lines}")
+
+
+class CommandError(EmulatorError, ValueError):
+    """A motion step cannot be executed as given (unknown command, value out of range)."""
+
+
+class InjectionError(EmulatorError, ValueError):
+    """An injection (traction scale, locked wheel, fault) was refused as inapplicable."""
+
+
+class ConfigError(EmulatorError, ValueError):
+    """A twin or playback parameter is out of range (time step, margin, period)."""

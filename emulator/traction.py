@@ -1,0 +1,309 @@
+"""Wheel-ground force model of the twin: pure functions, no physics engine.
+
+Each of the four wheels touches the ground at a point fixed in the body frame
+(``x`` forward, ``y`` left, origin at the centre of mass). With body velocity
+``(vx, vy)`` and yaw rate ``w``, the ground velocity of the contact point of a wheel at
+``(x_i, y_i)`` is ``g = (vx - w*y_i, vy + w*x_i)``. The wheel's surface moves at ``u``
+(forward, m/s, set by its motor), so the *slip velocity* is::
+
+    s_long = u - g_x            (wheel surface faster than the ground: positive)
+    s_lat  = -g_y               (a wheel does not roll sideways)
+
+The ground's force on the wheel follows the slip and saturates at the friction limit,
+as a combined-slip friction ellipse with a smooth ``tanh`` saturation::
+
+    S      = s0 + kappa * |u|                       saturation slip speed, m/s
+    sigma  = hypot(s_long, s_lat) / S
+    F_long = mu_long * N * tanh(sigma) / sigma * s_long / S  -  Crr * N * tanh(g_x / v_rr)
+    F_lat  = mu_lat  * N * tanh(sigma) / sigma * s_lat  / S
+
+``N = m * g / 4`` (lunar gravity, load shared equally). ``S`` grows with the wheel
+speed: at speed the force follows the slip *ratio* (as terramechanics has it, so the
+steady slip is a fixed fraction of the speed), near standstill the floor ``s0`` keeps it
+finite. ``Crr`` is the rolling (terrain) resistance, faded out below ``v_rr`` so that it
+vanishes at rest: the wheels must push against it, so the weaker the friction, the
+larger the steady slip, down to a stall when ``mu <= Crr``.
+
+Because the slip *vector* saturates, not each component alone, a wheel sliding sideways
+in a skid-steer spin still drives along its rolling direction. This is what lets the
+model turn; per-axis clamping (the naive model) barely turns.
+
+The force is stiff near zero slip (about 2000 N per m/s per wheel at rest), so a plain
+explicit step would ring at coarse time steps. :meth:`TractionModel.step_wrench`
+integrates it linearly-implicitly on the diagonal: each body-frame component of the
+force is divided by ``1 + dt * C / M`` where ``C`` is the model's damping (force per
+unit velocity) along that component and ``M`` the mass or inertia. Steady states are
+unchanged (a zero force stays zero) and any time step up to the twin's limit is stable.
+
+docs/twin.md gives the parameter values and the calibration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from firmware_proto.rover import RoverDescription
+
+__all__ = [
+    "ROLLING_SPEED_SCALE_MPS",
+    "WHEEL_COUNT",
+    "TractionModel",
+    "ideal_spin_yaw_rad",
+    "saturation_slip_mps",
+    "steady_slip_mps",
+    "wheel_force",
+    "wheel_load_n",
+]
+
+WHEEL_COUNT = 4
+"""Wheels on the ground, in the order front-left, rear-left, front-right, rear-right."""
+
+ROLLING_SPEED_SCALE_MPS = 0.005
+"""Ground speed below which rolling resistance fades out (``tanh(g_x / v_rr)``), m/s.
+
+Speed unit 1 is 0.005 m/s: this only removes the discontinuity at rest, which would
+make the force chatter."""
+
+_TINY_SIGMA = 1e-9
+
+
+def wheel_load_n(mass_kg: float, gravity_mps2: float, wheels: int = WHEEL_COUNT) -> float:
+    """Normal force on one wheel, N, with the weight shared equally."""
+    return mass_kg * gravity_mps2 / wheels
+
+
+def saturation_slip_mps(wheel_speed_mps: float, floor_mps: float, ratio: float) -> float:
+    """Slip speed scale of the saturation for a wheel turning at ``wheel_speed_mps``:
+    ``S = s0 + kappa * |u|``, m/s."""
+    return floor_mps + ratio * abs(wheel_speed_mps)
+
+
+def wheel_force(
+    slip_long_mps: float,
+    slip_lat_mps: float,
+    ground_long_mps: float,
+    *,
+    normal_n: float,
+    mu_long: float,
+    mu_lat: float,
+    saturation_mps: float,
+    rolling_resistance: float,
+    rolling_speed_scale_mps: float = ROLLING_SPEED_SCALE_MPS,
+) -> tuple[float, float]:
+    """Force of the ground on one wheel in the wheel frame, ``(F_long, F_lat)`` in N.
+
+    Args:
+        slip_long_mps: wheel surface speed minus ground speed along the wheel.
+        slip_lat_mps: minus the ground speed across the wheel.
+        ground_long_mps: ground speed of the contact along the wheel (the rolling
+            resistance opposes it).
+        normal_n: wheel load, N.
+        mu_long, mu_lat: friction coefficients along and across the wheel (already
+            multiplied by any traction scale).
+        saturation_mps: ``S`` of :func:`saturation_slip_mps` for this wheel.
+        rolling_resistance: rolling resistance coefficient ``Crr`` (force / load).
+        rolling_speed_scale_mps: speed below which rolling resistance fades out.
+
+    This is the reference form of the model; :meth:`TractionModel.wrench` evaluates the
+    same equations for the four wheels at once (a test holds them equal).
+    """
+    sx = slip_long_mps / saturation_mps
+    sy = slip_lat_mps / saturation_mps
+    sigma = math.sqrt(sx * sx + sy * sy)
+    gain = math.tanh(sigma) / sigma if sigma > _TINY_SIGMA else 1.0
+    rolling = rolling_resistance * normal_n * math.tanh(ground_long_mps / rolling_speed_scale_mps)
+    return mu_long * normal_n * gain * sx - rolling, mu_lat * normal_n * gain * sy
+
+
+def ideal_spin_yaw_rad(arc_travel_m: float, track_width_m: float) -> float:
+    """Yaw of an in-place spin without slip when each side travels ``arc_travel_m``."""
+    return 2.0 * arc_travel_m / track_width_m
+
+
+def steady_slip_mps(mu: float, rolling_resistance: float, saturation_mps: float) -> float:
+    """Steady longitudinal slip speed, m/s, when cruising straight on level ground.
+
+    Each wheel's traction balances its rolling resistance,
+    ``mu * N * tanh(s / S) = Crr * N``, so ``s = S * atanh(Crr / mu)``. Returns ``inf``
+    when ``mu <= Crr``: the wheels cannot overcome the resistance and just spin.
+    """
+    ratio = rolling_resistance / mu
+    if ratio >= 1.0:
+        return math.inf
+    return saturation_mps * math.atanh(ratio)
+
+
+@dataclass(frozen=True)
+class TractionModel:
+    """The force model's parameters for one rover, SI units.
+
+    Wheel contact points are at ``(+-half_wheelbase_m, +-half_track_m)``. Build it from
+    the rover description with :meth:`from_rover`.
+    """
+
+    normal_n: float
+    mu_longitudinal: float
+    mu_lateral: float
+    slip_saturation_mps: float
+    slip_saturation_ratio: float
+    rolling_resistance: float
+    half_track_m: float
+    half_wheelbase_m: float
+    mass_kg: float
+    inertia_kg_m2: float
+    rolling_speed_scale_mps: float = ROLLING_SPEED_SCALE_MPS
+
+    @classmethod
+    def from_rover(cls, rover: RoverDescription) -> TractionModel:
+        """Parameters from the rover description (geometry, mass, gravity, traction).
+
+        The yaw inertia is that of a uniform box with the chassis footprint."""
+        g, t, m = rover.geometry, rover.traction, rover.mass.mass_kg
+        return cls(
+            normal_n=wheel_load_n(m, rover.environment.gravity_mps2),
+            mu_longitudinal=t.mu_longitudinal,
+            mu_lateral=t.mu_lateral,
+            slip_saturation_mps=t.slip_saturation_mps,
+            slip_saturation_ratio=t.slip_saturation_ratio,
+            rolling_resistance=t.rolling_resistance,
+            half_track_m=g.track_width_m / 2.0,
+            half_wheelbase_m=g.wheelbase_m / 2.0,
+            mass_kg=m,
+            inertia_kg_m2=m * (g.chassis_length_m**2 + g.chassis_width_m**2) / 12.0,
+        )
+
+    @property
+    def wheel_positions_m(self) -> tuple[tuple[float, float], ...]:
+        """Contact points in the body frame, in wheel order FL, RL, FR, RR."""
+        hx, hy = self.half_wheelbase_m, self.half_track_m
+        return ((hx, hy), (-hx, hy), (hx, -hy), (-hx, -hy))
+
+    def friction_limits_n(self, mu_scales: tuple[float, ...]) -> tuple[float, ...]:
+        """``(mu_long*N, mu_lat*N)`` per wheel (FL, RL, FR, RR), flattened to 8 floats,
+        for :meth:`wrench`.
+
+        Args:
+            mu_scales: one friction scale per wheel, in wheel order.
+        """
+        n = self.normal_n
+        out: list[float] = []
+        for scale in mu_scales:
+            out += [self.mu_longitudinal * n * scale, self.mu_lateral * n * scale]
+        return tuple(out)
+
+    def wrench(  # noqa: PLR0917 - once per physics step: positional is cheapest
+        self,
+        vx_mps: float,
+        vy_mps: float,
+        yaw_rate_rad_s: float,
+        left_mps: float,
+        right_mps: float,
+        limits_n: tuple[float, ...],
+    ) -> tuple[float, float, float, float, float, float]:
+        """Total ground force and torque on the body and their damping, body frame.
+
+        Args:
+            vx_mps, vy_mps, yaw_rate_rad_s: body velocity in the body frame.
+            left_mps, right_mps: wheel surface speed of each side, forward positive.
+            limits_n: :meth:`friction_limits_n` for the current friction scales.
+
+        Returns:
+            ``(Fx, Fy, Tz, Cx, Cy, Cz)``: force (N), torque (N*m) and, for each, the
+            damping it exerts (N per m/s, N*m per rad/s: the secant stiffness of each
+            wheel's friction and the slope of the rolling resistance), used by
+            :meth:`step_wrench`.
+
+        Plain float arithmetic, unrolled: it runs once per physics step.
+        """
+        hx = self.half_wheelbase_m
+        hy = self.half_track_m
+        s0 = self.slip_saturation_mps
+        kappa = self.slip_saturation_ratio
+        rr = self.rolling_resistance * self.normal_n
+        inv_vrr = 1.0 / self.rolling_speed_scale_mps
+        tanh = math.tanh
+        sqrt = math.sqrt
+        inv_sl = 1.0 / (s0 + kappa * (left_mps if left_mps >= 0.0 else -left_mps))
+        inv_sr = 1.0 / (s0 + kappa * (right_mps if right_mps >= 0.0 else -right_mps))
+        # Ground speed along each side's wheels; lateral slip at the front and rear axle.
+        gl = vx_mps - yaw_rate_rad_s * hy
+        gr = vx_mps + yaw_rate_rad_s * hy
+        lat_f = -(vy_mps + yaw_rate_rad_s * hx)
+        lat_b = -(vy_mps - yaw_rate_rad_s * hx)
+        sl = (left_mps - gl) * inv_sl
+        sr = (right_mps - gr) * inv_sr
+        lxf, lyf, lxb, lyb, rxf, ryf, rxb, ryb = limits_n
+
+        # left wheels (front, rear): k = tanh(sigma)/sigma / S, so F = mu*N * k * slip
+        sy = lat_f * inv_sl
+        sig = sqrt(sl * sl + sy * sy)
+        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sl
+        cx_l = lxf * k
+        cy_f = lyf * k
+        fy_f = cy_f * lat_f
+        sy = lat_b * inv_sl
+        sig = sqrt(sl * sl + sy * sy)
+        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sl
+        cx_l += lxb * k
+        cy_b = lyb * k
+        fy_b = cy_b * lat_b
+        # right wheels (front, rear)
+        sy = lat_f * inv_sr
+        sig = sqrt(sr * sr + sy * sy)
+        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sr
+        cx_r = rxf * k
+        c = ryf * k
+        cy_f += c
+        fy_f += c * lat_f
+        sy = lat_b * inv_sr
+        sig = sqrt(sr * sr + sy * sy)
+        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sr
+        cx_r += rxb * k
+        c = ryb * k
+        cy_b += c
+        fy_b += c * lat_b
+
+        tl = tanh(gl * inv_vrr)
+        tr = tanh(gr * inv_vrr)
+        fx_l = cx_l * (left_mps - gl) - 2.0 * rr * tl
+        fx_r = cx_r * (right_mps - gr) - 2.0 * rr * tr
+        cx_l += 2.0 * rr * inv_vrr * (1.0 - tl * tl)
+        cx_r += 2.0 * rr * inv_vrr * (1.0 - tr * tr)
+        cx = cx_l + cx_r
+        cy = cy_f + cy_b
+        return (
+            fx_l + fx_r,
+            fy_f + fy_b,
+            hy * (fx_r - fx_l) + hx * (fy_f - fy_b),
+            cx,
+            cy,
+            hy * hy * cx + hx * hx * cy,
+        )
+
+    def step_wrench(  # noqa: PLR0917 - once per physics step: positional is cheapest
+        self,
+        vx_mps: float,
+        vy_mps: float,
+        yaw_rate_rad_s: float,
+        left_mps: float,
+        right_mps: float,
+        limits_n: tuple[float, ...],
+        dt_s: float,
+    ) -> tuple[float, float, float]:
+        """Force and torque to apply for one step of ``dt_s``, body frame (N, N, N*m).
+
+        :meth:`wrench` made linearly implicit on the diagonal: each component divided by
+        ``1 + dt * C / M`` (``M`` = mass, mass, yaw inertia). Exact in steady state,
+        stable at any step the twin accepts.
+        """
+        fx, fy, tz, cx, cy, cz = self.wrench(
+            vx_mps, vy_mps, yaw_rate_rad_s, left_mps, right_mps, limits_n
+        )
+        m = self.mass_kg
+        inertia = self.inertia_kg_m2
+        return (
+            fx * m / (m + dt_s * cx),
+            fy * m / (m + dt_s * cy),
+            tz * inertia / (inertia + dt_s * cz),
+        )
