@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from firmware_proto.codegen.c import render_c_header, render_c_source
 from firmware_proto.codegen.dbc import render_dbc
 from firmware_proto.codegen.markdown import render_markdown
 from firmware_proto.codegen.python import render_python
@@ -24,6 +25,8 @@ TARGETS: dict[str, Callable[[ProtocolSpec], str]] = {
     "firmware_proto/messages.py": render_python,
     "firmware_proto/rover.dbc": render_dbc,
     "docs/protocol.md": render_markdown,
+    "firmware_proto/c/rover_msgs.h": render_c_header,
+    "firmware_proto/c/rover_msgs.c": render_c_source,
 }
 
 
