@@ -373,10 +373,11 @@ def _pack_fn(m: MessageSpec) -> list[str]:
         "    if (msg == NULL || out == NULL) {",
         "        return RP_ERR_NULL;",
         "    }",
-        f"    if (cap < {m.length}u) {{",
-        "        return RP_ERR_BUFFER;",
-        "    }",
     ]
+    if m.length:
+        out += [f"    if (cap < {m.length}u) {{", "        return RP_ERR_BUFFER;", "    }"]
+    else:
+        out.append("    (void)cap;")
     for i, f in enumerate(pub):
         conds = _range_conds(f"msg->{f.name}", f, f.min, f.max)
         if conds:
