@@ -158,7 +158,7 @@ int rp_clear_ack_pack(const rp_clear_ack_t *msg, bool strict, uint8_t *out, size
     if (cap < 3u) {
         return RP_ERR_BUFFER;
     }
-    if (msg->result > INT32_C(3)) {
+    if (msg->result > INT32_C(2)) {
         return RP_ERR_FIELD(1);
     }
     uint64_t w = 0;
@@ -184,7 +184,7 @@ int rp_clear_ack_unpack(rp_clear_ack_t *msg, const uint8_t *payload, size_t len)
     w |= (uint64_t)payload[2] << 16;
     const int64_t f_stop_id = (int64_t)(w & UINT64_C(0xFFFF));
     const int64_t f_result = (int64_t)((w >> 16) & UINT64_C(0xFF));
-    if (f_result > 3) {
+    if (f_result > 2) {
         return RP_ERR_FIELD(1);
     }
     msg->stop_id = (uint16_t)f_stop_id;
@@ -1027,7 +1027,7 @@ static const rp_field_info_t fields_clear_stop[] = {
 
 static const rp_field_info_t fields_clear_ack[] = {
     {"stop_id", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
-    {"result", 8u, false, INT64_C(0), INT64_C(3), false, INT64_C(0), INT64_C(0)},
+    {"result", 8u, false, INT64_C(0), INT64_C(2), false, INT64_C(0), INT64_C(0)},
 };
 
 static const rp_field_info_t fields_motion[] = {

@@ -25,7 +25,7 @@ extern "C" {
 /* ------------------------------------------------------------ protocol constants */
 
 #define RP_PROTOCOL_VERSION 1u /**< sent in HELLO and IDENT */
-#define RP_SCHEMA_HASH 0x77F0u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
+#define RP_SCHEMA_HASH 0xA838u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
 #define RP_MAX_PAYLOAD_BYTES 8u /**< largest payload (one classic CAN frame) */
 #define RP_DELIMITER 0x00u /**< serial frame delimiter */
 #define RP_CAN_NODE_BITS 4u /**< CAN identifier = id << RP_CAN_NODE_BITS | node */
@@ -154,13 +154,13 @@ typedef enum {
 typedef enum {
     RP_CLEAR_RESULT_CLEARED = 0,
     RP_CLEAR_RESULT_NOT_LATCHED = 1,
-    RP_CLEAR_RESULT_FAULT_PERSISTS = 2,
-    RP_CLEAR_RESULT_NOT_READY = 3
+    RP_CLEAR_RESULT_FAULT_PERSISTS = 2
 } rp_clear_result_t;
 
 /**
  * FaultCode: Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while a fault is
- * active.
+ * active. WATCHDOG, STALL_*, ENCODER, DRIVER and INTERNAL stop the rover; IMU and POSE only
+ * report.
  */
 typedef enum {
     RP_FAULT_CODE_WATCHDOG = 1,
@@ -302,7 +302,7 @@ int rp_clear_stop_unpack(rp_clear_stop_t *msg, const uint8_t *payload, size_t le
 typedef struct {
     /** u16. echo of CLEAR_STOP.stop_id. */
     uint16_t stop_id;
-    /** u8 (rp_clear_result_t) range 0..3. */
+    /** u8 (rp_clear_result_t) range 0..2. */
     uint8_t result;
 } rp_clear_ack_t;
 

@@ -251,12 +251,13 @@ def _can_entry(spec: ProtocolSpec, msg: MessageSpec, node: int, payload: bytes) 
     return {"node": node, "can_id": can_id, "data": payload.hex()}
 
 
-def _message_vectors(spec: ProtocolSpec, rng: random.Random) -> list[dict[str, Any]]:
+def _message_vectors(spec: ProtocolSpec) -> list[dict[str, Any]]:
     out = []
     broadcast = int(spec.framing["broadcast_node"])
     default = int(spec.framing["default_node"])
     max_node = (1 << int(spec.framing["can_node_bits"])) - 1
     for msg in spec.messages:
+        rng = _rng(f"messages:{msg.name}")  # per message: an edit changes its vectors only
         for label, values in _instances(msg, rng):
             seq = rng.choice((0, 255, rng.randrange(256)))
             payload = pack_fields(msg, values)
@@ -302,11 +303,12 @@ def _error(
     return entry
 
 
-def _encode_errors(spec: ProtocolSpec, rng: random.Random) -> list[dict[str, Any]]:
+def _encode_errors(spec: ProtocolSpec) -> list[dict[str, Any]]:
     out = []
     default = int(spec.framing["default_node"])
     max_node = (1 << int(spec.framing["can_node_bits"])) - 1
     for msg in spec.messages:
+        rng = _rng(f"errors:{msg.name}")
         pub = msg.public_fields
         valid = {f.name: rng.randint(*_bounds(f, True)) for f in pub}
         for i, f in enumerate(pub):
@@ -697,8 +699,8 @@ def render_message_vectors(spec: ProtocolSpec) -> str:
     return _document(
         spec,
         {
-            "messages": _message_vectors(spec, _rng("messages")),
-            "encode_errors": _encode_errors(spec, _rng("errors")),
+            "messages": _message_vectors(spec),
+            "encode_errors": _encode_errors(spec),
         },
     )
 
