@@ -136,8 +136,9 @@ typedef struct {
 } rp_frame_t;
 
 /**
- * Incremental serial stream decoder. Treat as opaque except counters; 36 bytes of state
- * plus the counters. Initialise with rp_decoder_init.
+ * Incremental serial stream decoder: the counters, a RP_MAX_ENCODED_BYTES buffer and a
+ * few words of state (80 bytes on LP64, 68 on 32-bit targets). Treat as opaque except
+ * counters. Initialise with rp_decoder_init.
  */
 typedef struct {
     rp_counters_t counters;           /**< read freely; only ever grows */
