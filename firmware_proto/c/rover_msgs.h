@@ -199,11 +199,11 @@ typedef enum {
  */
 typedef struct {
     /**
-     * u16 range 1..65535. host's request id, echoed in STOP_ACK and STOPPED; 0 is reserved
+     * u16 range 1..65535: host's request id, echoed in STOP_ACK and STOPPED; 0 is reserved
      * for stops the controller starts itself.
      */
     uint16_t stop_id;
-    /** u8 (rp_stop_source_t) range 0..4. who asked. */
+    /** u8 (rp_stop_source_t) range 0..4: who asked. */
     uint8_t source;
 } rp_stop_t;
 
@@ -234,10 +234,10 @@ int rp_stop_unpack(rp_stop_t *msg, const uint8_t *payload, size_t len);
  * targets are already zero and the queue purged. Sent: once per STOP received.
  */
 typedef struct {
-    /** u16. echo of STOP.stop_id. */
+    /** u16: echo of STOP.stop_id. */
     uint16_t stop_id;
     /**
-     * u8 (rp_controller_state_t) range 0..4. state after the STOP (STOP_LATCHED, or FAULT).
+     * u8 (rp_controller_state_t) range 0..4: state after the STOP (STOP_LATCHED, or FAULT).
      */
     uint8_t state;
 } rp_stop_ack_t;
@@ -270,7 +270,7 @@ int rp_stop_ack_unpack(rp_stop_ack_t *msg, const uint8_t *payload, size_t len);
  * stop_repeat_ms until CLEAR_ACK.
  */
 typedef struct {
-    /** u16 range 1..65535. host's request id, echoed in CLEAR_ACK. */
+    /** u16 range 1..65535: host's request id, echoed in CLEAR_ACK. */
     uint16_t stop_id;
 } rp_clear_stop_t;
 
@@ -300,7 +300,7 @@ int rp_clear_stop_unpack(rp_clear_stop_t *msg, const uint8_t *payload, size_t le
  * Sent: once per CLEAR_STOP received.
  */
 typedef struct {
-    /** u16. echo of CLEAR_STOP.stop_id. */
+    /** u16: echo of CLEAR_STOP.stop_id. */
     uint16_t stop_id;
     /** u8 (rp_clear_result_t) range 0..2. */
     uint8_t result;
@@ -335,16 +335,16 @@ int rp_clear_ack_unpack(rp_clear_ack_t *msg, const uint8_t *payload, size_t len)
  * motion_retries times.
  */
 typedef struct {
-    /** u16. host step sequence number, wraps; new per step, kept across retransmissions. */
+    /** u16: host step sequence number, wraps; new per step, kept across retransmissions. */
     uint16_t seq;
     /**
-     * u8 (rp_command_t) limit 0..4. STOP/FWD/REV/LEFT/RIGHT; STOP here acts as an emergency
+     * u8 (rp_command_t) limit 0..4: STOP/FWD/REV/LEFT/RIGHT; STOP here acts as an emergency
      * stop.
      */
     uint8_t command;
-    /** u8 limit 0..60. speed units; wheel speed = speed * k rad/s (rover description). */
+    /** u8 limit 0..60: speed units; wheel speed = speed * k rad/s (rover description). */
     uint8_t speed;
-    /** u16 limit 0..30000. distance units of encoder travel per side (23000 per metre). */
+    /** u16 limit 0..30000: distance units of encoder travel per side (23000 per metre). */
     uint16_t distance;
 } rp_motion_t;
 
@@ -377,13 +377,13 @@ int rp_motion_unpack(rp_motion_t *msg, const uint8_t *payload, size_t len);
  * or DUPLICATE) or refusal (any other result) of a MOTION. Sent: once per MOTION received.
  */
 typedef struct {
-    /** u16. echo of MOTION.seq. */
+    /** u16: echo of MOTION.seq. */
     uint16_t seq;
     /** u8 (rp_ack_result_t) range 0..6. */
     uint8_t result;
-    /** u8 (rp_ack_field_t) range 0..3. for OUT_OF_RANGE: the offending field. */
+    /** u8 (rp_ack_field_t) range 0..3: for OUT_OF_RANGE: the offending field. */
     uint8_t field;
-    /** u8. steps queued after this request, the running one included. */
+    /** u8: steps queued after this request, the running one included. */
     uint8_t queue_depth;
 } rp_ack_t;
 
@@ -417,13 +417,13 @@ int rp_ack_unpack(rp_ack_t *msg, const uint8_t *payload, size_t len);
  * reason. Sent: when a step starts and when it ends.
  */
 typedef struct {
-    /** u16. MOTION.seq of the step. */
+    /** u16: MOTION.seq of the step. */
     uint16_t seq;
     /** u8 (rp_step_state_t) range 0..2. */
     uint8_t state;
     /** u8 (rp_abort_reason_t) range 0..5. */
     uint8_t reason;
-    /** u16. distance units travelled so far, mean of both sides' encoders. */
+    /** u16: distance units travelled so far, mean of both sides' encoders. */
     uint16_t travel;
 } rp_status_t;
 
@@ -457,11 +457,11 @@ int rp_status_unpack(rp_status_t *msg, const uint8_t *payload, size_t len);
  * both wheels have come to rest.
  */
 typedef struct {
-    /** u16. the STOP being reported; 0 for watchdog and fault stops. */
+    /** u16: the STOP being reported; 0 for watchdog and fault stops. */
     uint16_t stop_id;
-    /** u16 mm. wheel travel from STOP arrival to rest, mean of both sides. */
+    /** u16 mm: wheel travel from STOP arrival to rest, mean of both sides. */
     uint16_t distance_mm;
-    /** u16 ms. time from STOP arrival to rest. */
+    /** u16 ms: time from STOP arrival to rest. */
     uint16_t duration_ms;
 } rp_stopped_t;
 
@@ -498,7 +498,7 @@ typedef struct {
     /** u1. */
     uint8_t active;
     /**
-     * u16. code-specific: WATCHDOG ms since the last valid frame; STALL_* distance units
+     * u16: code-specific: WATCHDOG ms since the last valid frame; STALL_* distance units
      * short.
      */
     uint16_t detail;
@@ -535,17 +535,17 @@ int rp_fault_unpack(rp_fault_t *msg, const uint8_t *payload, size_t len);
 typedef struct {
     /** u8 (rp_controller_state_t) range 0..4. */
     uint8_t state;
-    /** u1. motion inhibited until CLEAR_STOP. */
+    /** u1: motion inhibited until CLEAR_STOP. */
     uint8_t stop_latched;
-    /** u1. a HELLO with matching version and schema hash was received since boot. */
+    /** u1: a HELLO with matching version and schema hash was received since boot. */
     uint8_t handshake_ok;
-    /** u8. bit (FaultCode - 1) set while that fault is active. */
+    /** u8: bit (FaultCode - 1) set while that fault is active. */
     uint8_t fault_bits;
-    /** u8. steps queued, the running one included. */
+    /** u8: steps queued, the running one included. */
     uint8_t queue_depth;
-    /** u16. random per boot, as in IDENT. */
+    /** u16: random per boot, as in IDENT. */
     uint16_t boot_nonce;
-    /** u16. frames the controller dropped (CRC, framing, length, range), wrapping. */
+    /** u16: frames the controller dropped (CRC, framing, length, range), wrapping. */
     uint16_t rx_errors;
 } rp_heartbeat_t;
 
@@ -582,7 +582,7 @@ int rp_heartbeat_unpack(rp_heartbeat_t *msg, const uint8_t *payload, size_t len)
  * every host_heartbeat_period_ms.
  */
 typedef struct {
-    /** u16. increments per heartbeat, wraps. */
+    /** u16: increments per heartbeat, wraps. */
     uint16_t counter;
 } rp_host_heartbeat_t;
 
@@ -613,11 +613,11 @@ int rp_host_heartbeat_unpack(rp_host_heartbeat_t *msg, const uint8_t *payload, s
  * 2^24; the host unwraps. Sent: encoders_rate_hz.
  */
 typedef struct {
-    /** u16 ms. controller clock, wraps every 65.536 s. */
+    /** u16 ms: controller clock, wraps every 65.536 s. */
     uint16_t t_ms;
-    /** i24. left side counts (distance units). */
+    /** i24: left side counts (distance units). */
     int32_t left;
-    /** i24. right side counts (distance units). */
+    /** i24: right side counts (distance units). */
     int32_t right;
 } rp_encoders_t;
 
@@ -735,13 +735,13 @@ typedef struct {
     int32_t x_mm;
     /** i20 x0.001 m. */
     int32_t y_mm;
-    /** i12 x0.1 deg range -1800..1800. counter-clockwise from the map x axis. */
+    /** i12 x0.1 deg range -1800..1800: counter-clockwise from the map x axis. */
     int16_t yaw_ddeg;
     /**
-     * u4 x0.01 m. 1-sigma position error; 0 = no fix, ignore the pose; 15 = 15 cm or worse.
+     * u4 x0.01 m: 1-sigma position error; 0 = no fix, ignore the pose; 15 = 15 cm or worse.
      */
     uint8_t sigma_cm;
-    /** u8 x4 ms. age of the measurement when sent. */
+    /** u8 x4 ms: age of the measurement when sent. */
     uint8_t age_4ms;
 } rp_pose_t;
 

@@ -174,7 +174,8 @@ void rp_decoder_reset(rp_decoder_t *dec);
  * Invalid frames are dropped and counted, never delivered. *frame is only written
  * when true is returned. Any chunk size works, including 0 and 1.
  *
- * @return true if *frame holds a new valid frame.
+ * @return true if *frame holds a new valid frame; false when the chunk is used up, or
+ *         at once, consuming nothing, if an argument is NULL (*data only if *len > 0).
  */
 bool rp_decoder_feed(rp_decoder_t *dec, const uint8_t **data, size_t *len, rp_frame_t *frame);
 

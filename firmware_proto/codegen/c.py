@@ -94,10 +94,8 @@ def _field_summary(f: FieldSpec) -> str:
         parts.append(f"range {f.min}..{f.max}")
     if f.limit:
         parts.append(f"limit {f.limit[0]}..{f.limit[1]}")
-    text = " ".join(parts) + "."
-    if f.doc:
-        text += " " + f.doc.rstrip(".") + "."
-    return text
+    head = " ".join(parts)
+    return f"{head}: {f.doc.rstrip('.')}." if f.doc else f"{head}."
 
 
 def _check_names(spec: ProtocolSpec) -> None:
