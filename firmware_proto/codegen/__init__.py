@@ -11,9 +11,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from firmware_proto.codegen.c import render_c_header, render_c_source
 from firmware_proto.codegen.dbc import render_dbc
 from firmware_proto.codegen.markdown import render_markdown
 from firmware_proto.codegen.python import render_python
+from firmware_proto.codegen.vectors import VECTOR_TARGETS
 from firmware_proto.spec import ProtocolSpec, load_spec
 
 __all__ = ["REPO_ROOT", "TARGETS", "generate", "render_all", "stale"]
@@ -24,6 +26,9 @@ TARGETS: dict[str, Callable[[ProtocolSpec], str]] = {
     "firmware_proto/messages.py": render_python,
     "firmware_proto/rover.dbc": render_dbc,
     "docs/protocol.md": render_markdown,
+    "firmware_proto/c/rover_msgs.h": render_c_header,
+    "firmware_proto/c/rover_msgs.c": render_c_source,
+    **VECTOR_TARGETS,
 }
 
 
