@@ -142,9 +142,10 @@ class FrameDecoder:
         parts = (self._buf + data).split(DELIMITER) if self._buf else data.split(DELIMITER)
         tail = parts.pop()
         if parts and self._discarding:
-            # The end of a run that was already counted as oversize.
+            # The end of a run already counted as oversize, and its closing delimiter, so
+            # that the count does not depend on how the stream was chunked.
             self._discarding = False
-            counters.dropped_bytes += len(parts[0])
+            counters.dropped_bytes += len(parts[0]) + 1
             parts[0] = b""
         frames: list[Frame] = []
         last_seq = self._last_seq

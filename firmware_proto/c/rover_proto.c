@@ -286,9 +286,10 @@ bool rp_decoder_feed(rp_decoder_t *dec, const uint8_t **data, size_t *len, rp_fr
             continue;
         }
         if (dec->discarding) {
-            /* The end of a run already counted as oversize: its delimiter is not counted. */
+            /* The end of a run already counted as oversize, and its closing delimiter, so
+             * that the count does not depend on how the stream was chunked. */
             dec->discarding = false;
-            dec->counters.dropped_bytes += (uint32_t)dec->run;
+            dec->counters.dropped_bytes += (uint32_t)(dec->run + 1u);
         } else if (dec->run > RP_MAX_ENCODED_BYTES) {
             reject(dec, &dec->counters.oversize);
         } else if (dec->run > 0u) {

@@ -115,7 +115,7 @@ class ReferenceDecoder:
     a rejected candidate drops its bytes and its closing delimiter. A run that grows
     beyond ``max_run`` inside one chunk is rejected as oversize when its delimiter
     arrives; one still open at the end of a chunk is dropped there (oversize, counted
-    once) and the rest of it, up to its delimiter, is discarded without its delimiter.
+    once) and the rest of it, up to and including its delimiter, is discarded.
     Empty runs are ignored. Gaps in seq count as lost.
     """
 
@@ -140,7 +140,7 @@ class ReferenceDecoder:
             run, self._run = bytes(self._run), bytearray()
             if self._discarding:
                 self._discarding = False
-                c["dropped_bytes"] += len(run)
+                c["dropped_bytes"] += len(run) + 1
             elif len(run) > self.max_run:
                 self._drop(run, "oversize")
             elif run:
