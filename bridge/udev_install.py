@@ -252,16 +252,17 @@ def plan_install(
                 raise InstallError(str(exc)) from None
             parsed = parse_rules(text, str(src.path))
             problems.extend(str(issue) for issue in parsed.issues)
-            left = [p for p in (PLACEHOLDER_SERIAL, PLACEHOLDER_USB_PORT) if p in text]
-            if left:
-                flags = " or ".join(
-                    "--serial SERIAL" if p == PLACEHOLDER_SERIAL else "--usb-port PORT"
-                    for p in left
-                )
+            if PLACEHOLDER_SERIAL in text:
                 notes.append(
-                    f"{src.name} still has {', '.join(left)}: those rules match nothing "
-                    f"until you set them (edit {src.path}, or pass {flags}; "
-                    "'rover devices' shows the values)"
+                    f"{src.name} still has {PLACEHOLDER_SERIAL}: its rules pinned by serial "
+                    f"number match nothing until it is set (edit {src.path}, or pass "
+                    "--serial SERIAL; 'rover devices' shows it)"
+                )
+            if PLACEHOLDER_USB_PORT in text:
+                notes.append(
+                    f"{src.name} still has {PLACEHOLDER_USB_PORT}: its rules pinned by USB "
+                    "port (for chips without a serial number) match nothing; fine unless the "
+                    "controller is on such a chip, then pass --usb-port PORT"
                 )
             if src.variant is not None:
                 partner = target_dir / _bench_partner(src.name)

@@ -31,8 +31,7 @@ description of the device can answer (``ACTION``, ``KERNEL``, ``SUBSYSTEM``,
 Exceptions::
 
     UdevError (RuntimeError)        root of the udev tooling in bridge
-     +-- RulesCheckError            rules failed the check; .issues lists why
-     +-- bridge.udev_install.InstallError
+     +-- bridge.udev_install.InstallError   install refused or failed
 """
 
 from __future__ import annotations
@@ -57,7 +56,6 @@ __all__ = [
     "Outcome",
     "Rule",
     "RuleHit",
-    "RulesCheckError",
     "RulesFile",
     "Token",
     "UdevError",
@@ -76,16 +74,6 @@ MAX_LINE_CHARS = 16384
 
 class UdevError(RuntimeError):
     """Root of the errors of the udev tooling (rules, devices, install)."""
-
-
-class RulesCheckError(UdevError, ValueError):
-    """Rules files failed the check; :attr:`issues` says where and why."""
-
-    def __init__(self, issues: Sequence[Issue]) -> None:
-        self.issues = tuple(issues)
-        shown = "\n".join(f"  {issue}" for issue in self.issues[:20])
-        more = f"\n  ... and {len(self.issues) - 20} more" if len(self.issues) > 20 else ""
-        super().__init__(f"{len(self.issues)} problem(s) in udev rules:\n{shown}{more}")
 
 
 class Op(enum.Enum):
@@ -364,10 +352,6 @@ class Rule:
     def goto(self) -> str | None:
         return next((t.value for t in self.tokens if t.key == "GOTO"), None)
 
-    def placeholders(self, marker: str = "REPLACE_ME") -> list[Token]:
-        """Tokens whose value still holds a placeholder for the lab to edit."""
-        return [t for t in self.tokens if marker in t.value]
-
 
 @dataclass(frozen=True)
 class RulesFile:
@@ -380,10 +364,6 @@ class RulesFile:
     @property
     def errors(self) -> tuple[Issue, ...]:
         return tuple(i for i in self.issues if i.severity == "error")
-
-    @property
-    def name(self) -> str:
-        return Path(self.path).name
 
 
 # --------------------------------------------------------------------------- parsing

@@ -75,6 +75,7 @@ def test_dry_run_prints_the_plan_and_writes_nothing(
     assert f"would install {network_dir / '80-rovercan0.network'}" in out
     assert f"would create directory {rules_dir}" in out
     assert "bench" not in out.replace("--bench", "")
+    assert "note: 99-rover-motor.rules still has REPLACE_ME_WITH_SERIAL" in out
     # udevadm is not on PATH: the real install would fail, and the dry run says so.
     assert status == 1
     assert "udevadm not found" in err
@@ -135,6 +136,8 @@ def test_install_with_no_reload_installs_and_reports_the_reload_skipped(
     assert f"install {installed} from" in out
     assert "reload skipped (--no-reload)" in out
     assert "networkctl not found" not in out  # only looked for when reloading
+    assert "still has REPLACE_ME_WITH_SERIAL" not in out
+    assert "still has REPLACE_ME_WITH_USB_PORT" in out  # the CH340 rules: said, not fatal
     assert not [p for p in files_under(rules_dir, network_dir) if p.name.endswith(".tmp")]
 
 
