@@ -43,8 +43,14 @@ class CanFrontEnd(FrontEnd):
     name = "can"
 
     def __init__(
-        self, *, interface: str = "virtual", channel: str = "rover", node: int = DEFAULT_NODE,
-        bus: can.BusABC | None = None, seed: int = 0, **bus_options: Any,
+        self,
+        *,
+        interface: str = "virtual",
+        channel: str = "rover",
+        node: int = DEFAULT_NODE,
+        bus: can.BusABC | None = None,
+        seed: int = 0,
+        **bus_options: Any,
     ) -> None:
         """Args:
         interface, channel: python-can interface name and channel (e.g. ``socketcan``,
@@ -96,12 +102,17 @@ class CanFrontEnd(FrontEnd):
         if frame is None or frame.is_error_frame:
             return []
         decoded = self.decoder.decode(
-            frame.arbitration_id, bytes(frame.data), is_extended=frame.is_extended_id,
+            frame.arbitration_id,
+            bytes(frame.data),
+            is_extended=frame.is_extended_id,
             is_remote=frame.is_remote_frame,
         )
         if decoded is None:
             return []
-        if decoded.node not in (self.node, BROADCAST_NODE) or decoded.message.DIRECTION != "host_to_controller":
+        if (
+            decoded.node not in (self.node, BROADCAST_NODE)
+            or decoded.message.DIRECTION != "host_to_controller"
+        ):
             self.foreign += 1  # another node's traffic, or our own kind echoed back
             return []
         return [decoded.message]
@@ -112,7 +123,10 @@ class CanFrontEnd(FrontEnd):
             return False
         arbitration_id, data = encode_can(message, self.node)
         try:
-            bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False), timeout=0.05)
+            bus.send(
+                can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
+                timeout=0.05,
+            )
         except can.CanError as exc:
             logger.debug("CAN send failed: %s", exc)
             return False

@@ -39,24 +39,57 @@ def register(subparsers: Any) -> None:
     )
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--serial", action="store_true", help="serve on a new pty")
-    where.add_argument("--can", metavar="INTERFACE:CHANNEL", help="serve on a python-can bus, e.g. socketcan:vcan0")
+    where.add_argument(
+        "--can", metavar="INTERFACE:CHANNEL", help="serve on a python-can bus, e.g. socketcan:vcan0"
+    )
     p.add_argument("--link", metavar="PATH", help="with --serial: stable symlink to the pty device")
-    p.add_argument("--baud", type=int, help="with --serial: pace frames to the host at this bit rate")
+    p.add_argument(
+        "--baud", type=int, help="with --serial: pace frames to the host at this bit rate"
+    )
     p.add_argument("--node", type=int, default=1, help="with --can: node id 1..15 (default 1)")
     p.add_argument("--map", default="lab", help="map name or JSON file (default: lab)")
     p.add_argument("--rover", metavar="TOML", help="rover description (default: the packaged one)")
-    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, boot nonces, link faults")
-    p.add_argument("--dt", type=float, default=0.001, help="physics and control step, s (default 0.001)")
-    p.add_argument("--speed-factor", type=float, default=1.0,
-                   help="twin seconds per wall second; timeouts scale with it (default 1)")
-    p.add_argument("--inject", action="append", default=[], metavar="FAULT", help="schedule a fault (see below)")
-    p.add_argument("--control-port", type=int, metavar="PORT",
-                   help="serve the control interface on 127.0.0.1:PORT (0 picks one)")
-    p.add_argument("--status", type=float, default=0.0, metavar="SECONDS",
-                   help="print a status line to stderr every SECONDS")
-    p.add_argument("--duration", type=float, default=0.0, metavar="SECONDS", help="exit after SECONDS (wall)")
-    p.add_argument("--schema-hash", type=lambda s: int(s, 0), metavar="HASH",
-                   help="claim this schema hash in IDENT (to test a host's mismatch handling)")
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of sensor noise, boot nonces, link faults"
+    )
+    p.add_argument(
+        "--dt", type=float, default=0.001, help="physics and control step, s (default 0.001)"
+    )
+    p.add_argument(
+        "--speed-factor",
+        type=float,
+        default=1.0,
+        help="twin seconds per wall second; timeouts scale with it (default 1)",
+    )
+    p.add_argument(
+        "--inject",
+        action="append",
+        default=[],
+        metavar="FAULT",
+        help="schedule a fault (see below)",
+    )
+    p.add_argument(
+        "--control-port",
+        type=int,
+        metavar="PORT",
+        help="serve the control interface on 127.0.0.1:PORT (0 picks one)",
+    )
+    p.add_argument(
+        "--status",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="print a status line to stderr every SECONDS",
+    )
+    p.add_argument(
+        "--duration", type=float, default=0.0, metavar="SECONDS", help="exit after SECONDS (wall)"
+    )
+    p.add_argument(
+        "--schema-hash",
+        type=lambda s: int(s, 0),
+        metavar="HASH",
+        help="claim this schema hash in IDENT (to test a host's mismatch handling)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -80,7 +113,10 @@ def _run(args: argparse.Namespace) -> int:
     faults = [parse_fault(text) for text in args.inject]
     twin = Twin(rover, world, dt_s=args.dt)
     model = ControllerModel(
-        rover, twin, ControllerConfig(timeout_scale=args.speed_factor), seed=args.seed,
+        rover,
+        twin,
+        ControllerConfig(timeout_scale=args.speed_factor),
+        seed=args.seed,
         schema_hash=SCHEMA_HASH if args.schema_hash is None else args.schema_hash,
     )
     frontend: FrontEnd
@@ -89,7 +125,9 @@ def _run(args: argparse.Namespace) -> int:
     else:
         interface, sep, channel = args.can.partition(":")
         if not sep or not interface or not channel:
-            raise ValueError(f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}")
+            raise ValueError(
+                f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
+            )
         frontend = CanFrontEnd(interface=interface, channel=channel, node=args.node, seed=args.seed)
 
     done = threading.Event()
@@ -99,7 +137,10 @@ def _run(args: argparse.Namespace) -> int:
     control: ControlServer | None = None
     with emulator:
         if isinstance(frontend, SerialFrontEnd):
-            print(f"DEVICE {frontend.device}" + (f" LINK {frontend.link}" if frontend.link else ""), flush=True)
+            print(
+                f"DEVICE {frontend.device}" + (f" LINK {frontend.link}" if frontend.link else ""),
+                flush=True,
+            )
         else:
             print(f"CAN {frontend.device} node {args.node}", flush=True)
         try:

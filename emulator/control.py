@@ -66,7 +66,9 @@ class ControlServer:
         self._server = _Server(("127.0.0.1", port), _Handler)
         self._server.control = self
         self.port: int = self._server.server_address[1]
-        self._thread = threading.Thread(target=self._server.serve_forever, name="emulator-ctl", daemon=True)
+        self._thread = threading.Thread(
+            target=self._server.serve_forever, name="emulator-ctl", daemon=True
+        )
         self._timers: list[threading.Timer] = []
         self._lock = threading.Lock()
         self._closed = False
@@ -105,7 +107,10 @@ class ControlServer:
                 self.emulator.inject(arg, source="control")
                 return {"ok": True}
             if verb == "injections":
-                return {"ok": True, "injections": [dataclasses.asdict(r) for r in self.emulator.injections]}
+                return {
+                    "ok": True,
+                    "injections": [dataclasses.asdict(r) for r in self.emulator.injections],
+                }
             if verb in ("unplug", "replug"):
                 return self._plug(verb, arg)
             if verb == "help":

@@ -78,8 +78,14 @@ DEDUP_WINDOW = 64
 """Accepted MOTION seqs remembered per session (docs/protocol.md)."""
 
 STOPPING_FAULTS = frozenset(
-    {FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT, FaultCode.ENCODER,
-     FaultCode.DRIVER, FaultCode.INTERNAL}
+    {
+        FaultCode.WATCHDOG,
+        FaultCode.STALL_LEFT,
+        FaultCode.STALL_RIGHT,
+        FaultCode.ENCODER,
+        FaultCode.DRIVER,
+        FaultCode.INTERNAL,
+    }
 )
 """Faults that stop the rover and hold FAULT until CLEAR_STOP; IMU and POSE only report."""
 
@@ -158,7 +164,9 @@ class ControllerModel:
         self.schema_hash = schema_hash
         self._rng = random.Random(seed)
         sensors = self.config.sensors
-        self.encoders = EncoderModel(rover, twin, random.Random(self._rng.random()), sensors.encoder_noise_units)
+        self.encoders = EncoderModel(
+            rover, twin, random.Random(self._rng.random()), sensors.encoder_noise_units
+        )
         self.imu = ImuModel(twin, random.Random(self._rng.random()), sensors)
         self.pose_sensor = PoseSensor(twin, random.Random(self._rng.random()), sensors)
         self.watchdog_ms = self.config.watchdog_ms
@@ -171,7 +179,8 @@ class ControllerModel:
 
     # -- state ------------------------------------------------------------------------
     def _init_state(self) -> None:
-        self.state = ControllerState.BOOT
+        self.state: int = ControllerState.BOOT
+        """The :class:`ControllerState` code."""
         self.boot_nonce = self._rng.randrange(1 << 16)
         self.boot_s = self.twin.time_s
         self.handshake_ok = False
@@ -291,7 +300,9 @@ class ControllerModel:
             out.append(Fault(FaultCode.WATCHDOG, 0, 0))
 
     def _hello(self, msg: Hello, out: list[Message]) -> None:
-        match = msg.protocol_version == self.protocol_version and msg.schema_hash == self.schema_hash
+        match = (
+            msg.protocol_version == self.protocol_version and msg.schema_hash == self.schema_hash
+        )
         # A new session: the previous host's steps and seqs are gone.
         self._abort_all(AbortReason.SESSION, out)
         self._setpoint = (0.0, 0.0)
@@ -305,7 +316,10 @@ class ControllerModel:
         if not match:
             logger.warning(
                 "HELLO mismatch: host v%d/0x%04X, firmware v%d/0x%04X",
-                msg.protocol_version, msg.schema_hash, self.protocol_version, self.schema_hash,
+                msg.protocol_version,
+                msg.schema_hash,
+                self.protocol_version,
+                self.schema_hash,
             )
         out.append(self._ident())
 
@@ -357,7 +371,9 @@ class ControllerModel:
 
     def _abort_all(self, reason: int, out: list[Message]) -> None:
         if self._running is not None:
-            out.append(Status(self._running.motion.seq, StepState.ABORTED, reason, self._step_travel()))
+            out.append(
+                Status(self._running.motion.seq, StepState.ABORTED, reason, self._step_travel())
+            )
             self._running = None
         while self._queue:
             out.append(Status(self._queue.popleft().seq, StepState.ABORTED, reason, 0))
@@ -414,9 +430,14 @@ class ControllerModel:
         self.faults.add(code)
         out.append(Fault(code, 1, min(detail, 0xFFFF)))
         if code in STOPPING_FAULTS:
-            reason = AbortReason.WATCHDOG if code == FaultCode.WATCHDOG else (
-                AbortReason.STALL if code in (FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT)
-                else AbortReason.FAULT
+            reason = (
+                AbortReason.WATCHDOG
+                if code == FaultCode.WATCHDOG
+                else (
+                    AbortReason.STALL
+                    if code in (FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT)
+                    else AbortReason.FAULT
+                )
             )
             self._stop(0, reason, out)
             self.state = ControllerState.FAULT
@@ -444,17 +465,25 @@ class ControllerModel:
             self._start_next(travel, out)
         if self._running is not None:
             run = self._running
-            self._setpoint = run.profile.update(travel[0] - run.start_travel[0], travel[1] - run.start_travel[1], dt)
+            self._setpoint = run.profile.update(
+                travel[0] - run.start_travel[0], travel[1] - run.start_travel[1], dt
+            )
             if run.profile.done:
-                out.append(Status(run.motion.seq, StepState.COMPLETED, AbortReason.NONE, self._step_travel()))
+                out.append(
+                    Status(
+                        run.motion.seq, StepState.COMPLETED, AbortReason.NONE, self._step_travel()
+                    )
+                )
                 self._running = None
                 if self._queue:
                     self._start_next(travel, out)
                 else:
                     self.state = ControllerState.IDLE
         dv = self.rover.drive.wheel_accel_limit_mps2 * dt
-        self._commanded = (ramp(self._commanded[0], self._setpoint[0], dv),
-                           ramp(self._commanded[1], self._setpoint[1], dv))
+        self._commanded = (
+            ramp(self._commanded[0], self._setpoint[0], dv),
+            ramp(self._commanded[1], self._setpoint[1], dv),
+        )
         self.twin.set_motor_omegas(*motor_omegas(self.rover, *self._commanded))
         self.twin.step()
         travel_after = self.encoders.travel()
@@ -465,8 +494,14 @@ class ControllerModel:
 
     def _start_next(self, travel: tuple[float, float], out: list[Message]) -> None:
         motion = self._queue.popleft()
-        profile = StepProfile(self.rover, motion.command, motion.speed, motion.distance,
-                              initial_left_mps=self._commanded[0], initial_right_mps=self._commanded[1])
+        profile = StepProfile(
+            self.rover,
+            motion.command,
+            motion.speed,
+            motion.distance,
+            initial_left_mps=self._commanded[0],
+            initial_right_mps=self._commanded[1],
+        )
         self._running = _Running(motion, profile, travel)
         self._stall_since = [None, None]
         self._stall_ref = list(travel)
@@ -500,7 +535,8 @@ class ControllerModel:
                 self._stall_since[side] = now
             elif now - since > self._scaled_s(self.config.stall_timeout_ms):
                 expected = self._running.profile.remaining_units(
-                    travel[0] - self._running.start_travel[0], travel[1] - self._running.start_travel[1]
+                    travel[0] - self._running.start_travel[0],
+                    travel[1] - self._running.start_travel[1],
                 )[side]
                 out += self.raise_fault(code, max(0, round(expected)))
                 return
@@ -509,10 +545,22 @@ class ControllerModel:
         if not self._pending_stops or not self.at_rest:
             return
         for pending in self._pending_stops:
-            moved_m = (abs(travel[0] - pending.travel_at_arrival[0])
-                       + abs(travel[1] - pending.travel_at_arrival[1])) / 2.0 / self.rover.drive.distance_units_per_m
+            moved_m = (
+                (
+                    abs(travel[0] - pending.travel_at_arrival[0])
+                    + abs(travel[1] - pending.travel_at_arrival[1])
+                )
+                / 2.0
+                / self.rover.drive.distance_units_per_m
+            )
             duration_ms = (self.now_s - pending.arrived_s) / self.config.timeout_scale * 1000.0
-            out.append(Stopped(pending.stop_id, min(0xFFFF, round(moved_m * 1000.0)), min(0xFFFF, round(duration_ms))))
+            out.append(
+                Stopped(
+                    pending.stop_id,
+                    min(0xFFFF, round(moved_m * 1000.0)),
+                    min(0xFFFF, round(duration_ms)),
+                )
+            )
         self._pending_stops.clear()
 
     # -- telemetry ----------------------------------------------------------------------
@@ -526,7 +574,11 @@ class ControllerModel:
             self._next_pose = max(self._next_pose + 1.0 / self.pose_hz, now)
             self.pose_sensor.sample()
         for m in self.pose_sensor.due():
-            out.append(self._pose_message(m.pose.x_m, m.pose.y_m, m.pose.yaw_rad, m.sigma_m, now - m.taken_s))
+            out.append(
+                self._pose_message(
+                    m.pose.x_m, m.pose.y_m, m.pose.yaw_rad, m.sigma_m, now - m.taken_s
+                )
+            )
         if now + eps >= self._next_heartbeat:
             self._next_heartbeat = max(self._next_heartbeat + 1.0 / self.heartbeat_hz, now)
             out.append(self.heartbeat())
@@ -542,8 +594,14 @@ class ControllerModel:
         ]
         reading = self.imu.read()
         if reading is not None:
-            out.append(Imu(t_ms, _clamp16(reading.yaw_rate_rad_s * 1000.0),
-                           _clamp16(reading.accel_x_mps2 * 1000.0), _clamp16(reading.accel_y_mps2 * 1000.0)))
+            out.append(
+                Imu(
+                    t_ms,
+                    _clamp16(reading.yaw_rate_rad_s * 1000.0),
+                    _clamp16(reading.accel_x_mps2 * 1000.0),
+                    _clamp16(reading.accel_y_mps2 * 1000.0),
+                )
+            )
         return out
 
     @staticmethod
@@ -562,8 +620,12 @@ class ControllerModel:
         for code in self.faults:
             bits |= 1 << (code - 1)
         return Heartbeat(
-            self.state, int(self.stop_latched or self.state == ControllerState.FAULT),
-            int(self.handshake_ok), bits, min(255, self.queue_depth), self.boot_nonce,
+            self.state,
+            int(self.stop_latched or self.state == ControllerState.FAULT),
+            int(self.handshake_ok),
+            bits,
+            min(255, self.queue_depth),
+            self.boot_nonce,
             self.rx_errors & 0xFFFF,
         )
 

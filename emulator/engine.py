@@ -29,11 +29,11 @@ from typing import Any, TypeVar
 
 from emulator.controller import ControllerModel
 from emulator.frontend import FrontEnd
-from emulator.injection import FaultSchedule, FaultSpec, Injector, InjectionRecord, parse_fault
+from emulator.injection import FaultSchedule, FaultSpec, InjectionRecord, Injector, parse_fault
 from firmware_proto.message import Message
 from firmware_proto.messages import ControllerState, FaultCode, Stop
 
-__all__ = ["Emulator", "EmulatorStatus", "MAX_BACKLOG_S"]
+__all__ = ["MAX_BACKLOG_S", "Emulator", "EmulatorStatus"]
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +42,22 @@ T = TypeVar("T")
 MAX_BACKLOG_S = 0.1
 """When the control loop falls this far behind the wall clock (CPU starved), it drops
 the backlog and lets twin time slip rather than running in a burst."""
+
+
+@dataclass(frozen=True)
+class _Received:
+    """A message from the host and its arrival time (``time.monotonic()``)."""
+
+    message: Message
+    arrived: float
+
+
+@dataclass(frozen=True)
+class _Call:
+    """A function to run on the control thread and the future of its result."""
+
+    fn: Callable[[], Any]
+    future: Future[Any]
 
 
 @dataclass(frozen=True)
@@ -71,9 +87,10 @@ class EmulatorStatus:
         """One status line for a terminal."""
         faults = ",".join(self.faults) or "none"
         hit = f" HIT {self.collision}" if self.collision else ""
+        left, right = self.wheel_mps
         return (
             f"t={self.time_s:8.2f}s {self.state:<12} x={self.x_m:+7.3f} y={self.y_m:+7.3f} "
-            f"yaw={self.yaw_deg:+7.1f} wheels={self.wheel_mps[0]:+.2f}/{self.wheel_mps[1]:+.2f} m/s "
+            f"yaw={self.yaw_deg:+7.1f} wheels={left:+.2f}/{right:+.2f} m/s "
             f"q={self.queue_depth} faults={faults} rx={self.rx_frames} err={self.rx_errors}{hit}"
         )
 
@@ -110,9 +127,7 @@ class Emulator:
         self.stop_reactions: list[float] = []
         """Seconds from each STOP frame's arrival to its targets being zero."""
         self.overruns = 0
-        self._inbox: queue.SimpleQueue[tuple[Message, float] | tuple[Callable[[], Any], Future[Any]]] = (
-            queue.SimpleQueue()
-        )
+        self._inbox: queue.SimpleQueue[_Received | _Call] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._rx_errors_seen = 0
@@ -145,7 +160,10 @@ class Emulator:
         return self
 
     def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
     ) -> None:
         self.close()
 
@@ -159,7 +177,7 @@ class Emulator:
         if self._thread is None or not self._thread.is_alive():
             raise RuntimeError("emulator is not running")
         future: Future[T] = Future()
-        self._inbox.put((fn, future))
+        self._inbox.put(_Call(fn, future))
         return future.result(timeout=timeout_s)
 
     def inject(self, fault: str | FaultSpec, source: str = "api") -> None:
@@ -169,7 +187,11 @@ class Emulator:
             InjectionError: the fault is malformed or cannot be applied.
         """
         spec = parse_fault(fault) if isinstance(fault, str) else fault
-        if spec.trigger.at_s is None and spec.trigger.after_m is None and spec.trigger.region is None:
+        if (
+            spec.trigger.at_s is None
+            and spec.trigger.after_m is None
+            and spec.trigger.region is None
+        ):
             self.call(lambda: self._send(self.injector.apply(spec, source)))
         else:
             self.call(lambda: self.schedule.add(spec))
@@ -185,13 +207,13 @@ class Emulator:
 
     # -- control loop ---------------------------------------------------------------------
     def _on_message(self, msg: Message, arrived: float) -> None:
-        self._inbox.put((msg, arrived))
+        self._inbox.put(_Received(msg, arrived))
 
     def _send(self, messages: list[Message]) -> None:
         if messages:
             self.frontend.send(messages)
 
-    def _drain(self, first: tuple[Any, Any] | None) -> None:
+    def _drain(self, first: _Received | _Call | None) -> None:
         item = first
         while True:
             if item is None:
@@ -199,17 +221,16 @@ class Emulator:
                     item = self._inbox.get_nowait()
                 except queue.Empty:
                     return
-            head, tail = item
-            if isinstance(tail, Future):
-                if tail.set_running_or_notify_cancel():
+            if isinstance(item, _Call):
+                if item.future.set_running_or_notify_cancel():
                     try:
-                        tail.set_result(head())
+                        item.future.set_result(item.fn())
                     except BaseException as exc:
-                        tail.set_exception(exc)
+                        item.future.set_exception(exc)
             else:
-                out = self.model.handle(head)
-                if isinstance(head, Stop):
-                    self.stop_reactions.append(time.monotonic() - tail)
+                out = self.model.handle(item.message)
+                if isinstance(item.message, Stop):
+                    self.stop_reactions.append(time.monotonic() - item.arrived)
                 self._send(out)
             item = None
 
@@ -226,7 +247,9 @@ class Emulator:
                 if due * tick_wall > MAX_BACKLOG_S:
                     self.overruns += 1
                     if self.overruns == 1 or self.overruns % 100 == 0:
-                        logger.warning("control loop %.0f ms behind; twin time slips", due * tick_wall * 1e3)
+                        logger.warning(
+                            "control loop %.0f ms behind; twin time slips", due * tick_wall * 1e3
+                        )
                     t0 += (due - 1) * tick_wall
                     due = 1
                 for _ in range(due):
@@ -259,11 +282,11 @@ class Emulator:
     def _fail_pending_calls(self) -> None:
         while True:
             try:
-                _, tail = self._inbox.get_nowait()
+                item = self._inbox.get_nowait()
             except queue.Empty:
                 return
-            if isinstance(tail, Future) and tail.set_running_or_notify_cancel():
-                tail.set_exception(RuntimeError("emulator stopped"))
+            if isinstance(item, _Call) and item.future.set_running_or_notify_cancel():
+                item.future.set_exception(RuntimeError("emulator stopped"))
 
     def _snapshot(self) -> EmulatorStatus:
         m = self.model

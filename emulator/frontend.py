@@ -33,7 +33,7 @@ from types import TracebackType
 from emulator.errors import InjectionError
 from firmware_proto.message import Message
 
-__all__ = ["FrontEnd", "FrontEndStats", "Deliver"]
+__all__ = ["Deliver", "FrontEnd", "FrontEndStats"]
 
 logger = logging.getLogger(__name__)
 
@@ -121,7 +121,9 @@ class FrontEnd(ABC):
             raise RuntimeError(f"{self.name} already started")
         self._deliver = deliver
         self._open()
-        self._thread = threading.Thread(target=self._reader, name=f"{self.name}-reader", daemon=True)
+        self._thread = threading.Thread(
+            target=self._reader, name=f"{self.name}-reader", daemon=True
+        )
         self._thread.start()
 
     def close(self) -> None:
@@ -141,13 +143,20 @@ class FrontEnd(ABC):
         return self
 
     def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
     ) -> None:
         self.close()
 
     # -- link faults --------------------------------------------------------------------
     def set_link_faults(
-        self, *, drop: float | None = None, corrupt: float | None = None, delay_s: float | None = None
+        self,
+        *,
+        drop: float | None = None,
+        corrupt: float | None = None,
+        delay_s: float | None = None,
     ) -> None:
         """Set injected link faults; ``None`` leaves a level unchanged.
 
@@ -184,7 +193,9 @@ class FrontEnd(ABC):
                 self.stats.fault_dropped += 1
                 continue
             if self._delay_s > 0.0:
-                heapq.heappush(self._delayed_out, (time.monotonic() + self._delay_s, next(self._counter), msg))
+                heapq.heappush(
+                    self._delayed_out, (time.monotonic() + self._delay_s, next(self._counter), msg)
+                )
                 continue
             self._transmit(msg, corrupt)
 
@@ -232,7 +243,9 @@ class FrontEnd(ABC):
                     self._rx_corrupted += corrupt
                     continue
                 if self._delay_s > 0.0:
-                    heapq.heappush(self._delayed_in, (now + self._delay_s, next(self._counter), msg))
+                    heapq.heappush(
+                        self._delayed_in, (now + self._delay_s, next(self._counter), msg)
+                    )
                     continue
                 self.stats.rx_messages += 1
                 deliver(msg, now)

@@ -166,7 +166,9 @@ def parse_fault(text: str) -> FaultSpec:
         try:
             value = float(value_text)
         except ValueError:
-            raise InjectionError(f"{kind} needs a number: {kind}{':' + side if side else ''}=VALUE") from None
+            raise InjectionError(
+                f"{kind} needs a number: {kind}{':' + side if side else ''}=VALUE"
+            ) from None
         if not math.isfinite(value):
             raise InjectionError(f"{kind}: value must be finite")
     elif value_text:
@@ -177,8 +179,13 @@ def parse_fault(text: str) -> FaultSpec:
 class LinkFaultTarget(Protocol):
     """What a front end exposes for link faults."""
 
-    def set_link_faults(self, *, drop: float | None = None, corrupt: float | None = None,
-                        delay_s: float | None = None) -> None:
+    def set_link_faults(
+        self,
+        *,
+        drop: float | None = None,
+        corrupt: float | None = None,
+        delay_s: float | None = None,
+    ) -> None:
         """Set any of the link fault levels; raise InjectionError if one cannot apply."""
 
 

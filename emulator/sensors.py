@@ -57,7 +57,9 @@ class EncoderModel:
     units, from the twin's motor angles. Injectable per side: extra noise and dropout (the
     encoder stops counting and flags a signal error)."""
 
-    def __init__(self, rover: RoverDescription, twin: Twin, rng: random.Random, noise_units: float) -> None:
+    def __init__(
+        self, rover: RoverDescription, twin: Twin, rng: random.Random, noise_units: float
+    ) -> None:
         self._rover = rover
         self._twin = twin
         self._rng = rng
@@ -89,9 +91,8 @@ class EncoderModel:
         out = []
         for side, value in enumerate((left, right)):
             sigma = self.noise_units[side]
-            if sigma > 0.0 and not self.dropout[side]:
-                value += self._rng.gauss(0.0, sigma)
-            out.append(round(value))
+            noise = self._rng.gauss(0.0, sigma) if sigma > 0.0 and not self.dropout[side] else 0.0
+            out.append(round(value + noise))
         return out[0], out[1]
 
 

@@ -18,7 +18,6 @@ program. Frames are those of docs/protocol.md, byte for byte.
 from __future__ import annotations
 
 import errno
-import fcntl
 import heapq
 import itertools
 import logging
@@ -46,7 +45,9 @@ class SerialFrontEnd(FrontEnd):
 
     name = "pty"
 
-    def __init__(self, *, link: str | Path | None = None, baud: int | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, *, link: str | Path | None = None, baud: int | None = None, seed: int = 0
+    ) -> None:
         """Args:
         link: path of a stable symlink to the device (e.g. /tmp/rover-motor).
         baud: pace frames to the host at this rate (bits/s); ``None``: no pacing.
@@ -78,7 +79,9 @@ class SerialFrontEnd(FrontEnd):
         self.device = self._pair.device
         logger.info("serving on %s%s", self.device, f" (link {self.link})" if self.link else "")
         if self.baud is not None:
-            self._tx_thread = threading.Thread(target=self._paced_writer, name="pty-tx", daemon=True)
+            self._tx_thread = threading.Thread(
+                target=self._paced_writer, name="pty-tx", daemon=True
+            )
             self._tx_thread.start()
 
     def _close(self) -> None:
@@ -160,7 +163,9 @@ class SerialFrontEnd(FrontEnd):
             wire = bytes(damaged)
         if self.baud is not None:
             with self._tx_ready:
-                heapq.heappush(self._tx_heap, (PRIORITY_ORDER[message.PRIORITY], next(self._tx_order), wire))
+                heapq.heappush(
+                    self._tx_heap, (PRIORITY_ORDER[message.PRIORITY], next(self._tx_order), wire)
+                )
                 self._tx_ready.notify()
             return True
         return self._write_now(wire)

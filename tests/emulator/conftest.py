@@ -9,6 +9,7 @@ import pytest
 
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
+from emulator.injection import FaultSpec
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from emulator.worldmap import WorldMap, load_map
@@ -45,11 +46,19 @@ def serial_emulator(rover: RoverDescription) -> Iterator[Callable[..., Emulator]
     """Factory of emulators served on a real pty at SPEED x real time; all closed after."""
     started: list[Emulator] = []
 
-    def make(world: WorldMap | None = None, *, seed: int = 1, baud: int | None = None,
-             faults: list[object] | None = None) -> Emulator:
-        model = ControllerModel(rover, Twin(rover, world), ControllerConfig(timeout_scale=SPEED), seed=seed)
-        emu = Emulator(model, SerialFrontEnd(baud=baud, seed=seed), speed_factor=SPEED,
-                       faults=faults)  # type: ignore[arg-type]
+    def make(
+        world: WorldMap | None = None,
+        *,
+        seed: int = 1,
+        baud: int | None = None,
+        faults: list[FaultSpec] | None = None,
+    ) -> Emulator:
+        model = ControllerModel(
+            rover, Twin(rover, world), ControllerConfig(timeout_scale=SPEED), seed=seed
+        )
+        emu = Emulator(
+            model, SerialFrontEnd(baud=baud, seed=seed), speed_factor=SPEED, faults=faults
+        )
         emu.start()
         started.append(emu)
         return emu

@@ -71,8 +71,12 @@ class Host:
     def __enter__(self: H) -> H:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
     # -- queries ------------------------------------------------------------------------
@@ -85,8 +89,14 @@ class Host:
         with self._cond:
             return [m for _, m in self.received[since:] if isinstance(m, kind)]
 
-    def wait_for(self, kind: type[M], pred: Callable[[M], bool] = lambda m: True, *,
-                 since: int = 0, timeout: float = 10.0) -> M:
+    def wait_for(
+        self,
+        kind: type[M],
+        pred: Callable[[M], bool] = lambda m: True,
+        *,
+        since: int = 0,
+        timeout: float = 10.0,
+    ) -> M:
         """The first message of ``kind`` after index ``since`` satisfying ``pred``.
 
         Raises:
@@ -166,7 +176,15 @@ class CanHost(Host):
             frame = self.bus.recv(timeout=0.05)
             if frame is None:
                 continue
-            decoded = self.decoder.decode(frame.arbitration_id, bytes(frame.data),
-                                          is_extended=frame.is_extended_id, is_remote=frame.is_remote_frame)
-            if decoded is not None and decoded.node == self.node and decoded.message.DIRECTION == "controller_to_host":
+            decoded = self.decoder.decode(
+                frame.arbitration_id,
+                bytes(frame.data),
+                is_extended=frame.is_extended_id,
+                is_remote=frame.is_remote_frame,
+            )
+            if (
+                decoded is not None
+                and decoded.node == self.node
+                and decoded.message.DIRECTION == "controller_to_host"
+            ):
                 self._record(decoded.message)

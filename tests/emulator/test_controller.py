@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any, TypeVar
 
 import pytest
 
@@ -56,8 +57,12 @@ from firmware_proto.rover import RoverDescription
 Make = Callable[..., ControllerModel]
 
 
-def run(model: ControllerModel, seconds: float, until: Callable[[Message], bool] | None = None,
-        heartbeat_s: float | None = 0.05) -> list[Message]:
+def run(
+    model: ControllerModel,
+    seconds: float,
+    until: Callable[[Message], bool] | None = None,
+    heartbeat_s: float | None = 0.05,
+) -> list[Message]:
     """Tick for ``seconds`` of twin time (or until a message matches), feeding the
     watchdog like a host would."""
     out: list[Message] = []
@@ -71,6 +76,17 @@ def run(model: ControllerModel, seconds: float, until: Callable[[Message], bool]
         if until is not None and any(until(m) for m in new):
             break
     return out
+
+
+M = TypeVar("M", bound=Message)
+
+
+def one(out: list[Message], kind: type[M] | None = None) -> Any:
+    """The first message of ``out`` (of ``kind`` if given), typed for attribute access."""
+    for msg in out:
+        if kind is None or isinstance(msg, kind):
+            return msg
+    raise AssertionError(f"no {kind.__name__ if kind else 'message'} in {out}")
 
 
 def ready(make: Make, world: WorldMap | None = None, **kw: object) -> ControllerModel:
@@ -99,10 +115,10 @@ def test_boot_sends_ident_and_motion_needs_a_handshake(make_model: Make) -> None
 def test_schema_mismatch_at_hello_refuses_motion(make_model: Make) -> None:
     model = make_model()
     model.boot()
-    (ident,) = model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH ^ 0x1))
+    ident = one(model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH ^ 0x1)), Ident)
     assert ident.schema_hash == SCHEMA_HASH  # the host sees the firmware's own hash
     assert not model.handshake_ok
-    assert model.handle(Motion(1, Command.FWD, 30, 1000))[0].result == AckResult.NOT_READY
+    assert one(model.handle(Motion(1, Command.FWD, 30, 1000))).result == AckResult.NOT_READY
 
 
 def test_fwd_one_metre_without_slip(make_model: Make) -> None:
@@ -126,8 +142,9 @@ def test_rev_goes_backwards(make_model: Make) -> None:
 
 
 @pytest.mark.parametrize(("command", "sign"), [(Command.LEFT, 1), (Command.RIGHT, -1)])
-def test_turns_match_the_calibrated_model(make_model: Make, rover: RoverDescription,
-                                          command: int, sign: int) -> None:
+def test_turns_match_the_calibrated_model(
+    make_model: Make, rover: RoverDescription, command: int, sign: int
+) -> None:
     model = ready(make_model)
     units = turn_units_for_yaw(rover, math.pi / 2)
     model.handle(Motion(1, command, 30, units))
@@ -141,9 +158,13 @@ def test_slip_makes_ground_travel_fall_short_while_encoders_count_it_all(make_mo
     Injector(model).apply(parse_fault("slip:both=0.1"))
     model.handle(Motion(1, Command.FWD, 60, 23000))
     out = run(model, 20.0, until=completed(1))
-    assert [m for m in out if isinstance(m, Status)][-1] == Status(1, StepState.COMPLETED, AbortReason.NONE, 23000)
+    assert [m for m in out if isinstance(m, Status)][-1] == Status(
+        1, StepState.COMPLETED, AbortReason.NONE, 23000
+    )
     encoders = [m for m in out if isinstance(m, Encoders)][-1]
-    assert encoders.left == pytest.approx(23000, abs=2) and encoders.right == pytest.approx(23000, abs=2)
+    assert encoders.left == pytest.approx(23000, abs=2) and encoders.right == pytest.approx(
+        23000, abs=2
+    )
     assert model.twin.pose.x_m < 0.95  # the ground saw less than the encoders
 
 
@@ -175,11 +196,11 @@ def test_stop_zeroes_targets_in_the_call_purges_latches_and_clear_resumes(make_m
     assert 40 <= stopped[0].distance_mm <= 70  # v^2/2a = 0.3^2/1.6 = 56 mm
     assert model.at_rest
     # Latched: motion refused; a repeated STOP is harmless.
-    assert model.handle(Motion(4, Command.FWD, 60, 100))[0].result == AckResult.STOP_LATCHED
+    assert one(model.handle(Motion(4, Command.FWD, 60, 100))).result == AckResult.STOP_LATCHED
     assert model.handle(Stop(9, 0))[0] == StopAck(9, ControllerState.STOP_LATCHED)
     assert model.handle(ClearStop(10)) == [ClearAck(10, ClearResult.CLEARED)]
     assert model.handle(ClearStop(11)) == [ClearAck(11, ClearResult.NOT_LATCHED)]
-    assert model.handle(Motion(4, Command.FWD, 60, 100))[0].result == AckResult.ACCEPTED
+    assert one(model.handle(Motion(4, Command.FWD, 60, 100))).result == AckResult.ACCEPTED
     run(model, 3.0, until=completed(4))
     assert model.state == ControllerState.IDLE
 
@@ -189,7 +210,7 @@ def test_stop_step_in_motion_is_an_emergency_stop(make_model: Make) -> None:
     model.handle(Motion(1, Command.FWD, 60, 30000))
     run(model, 1.0)
     out = model.handle(Motion(2, Command.STOP, 0, 0))
-    assert out[0].result == AckResult.ACCEPTED  # type: ignore[attr-defined]
+    assert one(out, Ack).result == AckResult.ACCEPTED
     assert model.wheel_setpoints_mps == (0.0, 0.0)
     assert model.stop_latched
 
@@ -198,8 +219,8 @@ def test_retransmission_is_acknowledged_but_executed_once(make_model: Make) -> N
     model = ready(make_model)
     first = model.handle(Motion(5, Command.FWD, 60, 2300))
     again = model.handle(Motion(5, Command.FWD, 60, 2300))
-    assert first[0].result == AckResult.ACCEPTED  # type: ignore[attr-defined]
-    assert again[0].result == AckResult.DUPLICATE  # type: ignore[attr-defined]
+    assert one(first).result == AckResult.ACCEPTED
+    assert one(again).result == AckResult.DUPLICATE
     out = run(model, 3.0)
     out += model.handle(Motion(5, Command.FWD, 60, 2300))  # late retransmission
     out += run(model, 2.0)
@@ -216,18 +237,20 @@ def test_retransmission_is_acknowledged_but_executed_once(make_model: Make) -> N
         (Motion(1, Command.FWD, 10, 30001), AckField.DISTANCE),
     ],
 )
-def test_out_of_range_gets_nack_with_the_field(make_model: Make, motion: Motion, field: int) -> None:
+def test_out_of_range_gets_nack_with_the_field(
+    make_model: Make, motion: Motion, field: int
+) -> None:
     model = ready(make_model)
-    (ack,) = model.handle(motion)
-    assert (ack.result, ack.field) == (AckResult.OUT_OF_RANGE, field)  # type: ignore[attr-defined]
+    ack = one(model.handle(motion), Ack)
+    assert (ack.result, ack.field) == (AckResult.OUT_OF_RANGE, field)
     assert model.queue_depth == 0
     # A refused seq is not remembered: the corrected step with the same seq is taken.
-    assert model.handle(Motion(1, Command.FWD, 10, 10))[0].result == AckResult.ACCEPTED  # type: ignore[attr-defined]
+    assert one(model.handle(Motion(1, Command.FWD, 10, 10))).result == AckResult.ACCEPTED
 
 
 def test_queue_is_bounded(make_model: Make) -> None:
     model = ready(make_model, queue_depth=3)
-    results = [model.handle(Motion(i, Command.FWD, 10, 100))[0].result for i in range(5)]  # type: ignore[attr-defined]
+    results = [one(model.handle(Motion(i, Command.FWD, 10, 100))).result for i in range(5)]
     assert results == [AckResult.ACCEPTED] * 3 + [AckResult.QUEUE_FULL] * 2
 
 
@@ -245,7 +268,7 @@ def test_watchdog_stops_and_faults_then_recovers_on_clear(make_model: Make) -> N
     # Frames again: the condition clears, but FAULT holds until CLEAR_STOP.
     back = model.handle(HostHeartbeat(1))
     assert back == [Fault(FaultCode.WATCHDOG, 0, 0)]
-    assert model.handle(Motion(2, Command.FWD, 10, 10))[0].result == AckResult.FAULT_ACTIVE  # type: ignore[attr-defined]
+    assert one(model.handle(Motion(2, Command.FWD, 10, 10))).result == AckResult.FAULT_ACTIVE
     assert model.handle(ClearStop(3))[0] == ClearAck(3, ClearResult.CLEARED)
     assert model.state == ControllerState.IDLE
 
@@ -301,20 +324,30 @@ def test_hello_starts_a_new_session(make_model: Make) -> None:
     model.handle(Motion(1, Command.FWD, 60, 30000))
     run(model, 0.5)
     out = model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-    assert Status(1, StepState.ABORTED, AbortReason.SESSION, out[0].travel) == out[0]  # type: ignore[attr-defined]
+    aborted = one(out, Status)
+    assert (aborted.seq, aborted.state, aborted.reason) == (
+        1,
+        StepState.ABORTED,
+        AbortReason.SESSION,
+    )
     # The new session may reuse seq 1: it is a new step, not a duplicate.
-    assert model.handle(Motion(1, Command.FWD, 10, 10))[0].result == AckResult.ACCEPTED  # type: ignore[attr-defined]
+    assert one(model.handle(Motion(1, Command.FWD, 10, 10))).result == AckResult.ACCEPTED
 
 
 def test_telemetry_rates_and_set_param(make_model: Make) -> None:
     model = ready(make_model)
     run(model, 0.5)
     out = run(model, 1.0)  # one second after a warm-up: rates are exact
-    count = {kind: sum(isinstance(m, kind) for m in out) for kind in (Encoders, WheelSpeeds, Imu, Pose, Heartbeat)}
+    count = {
+        kind: sum(isinstance(m, kind) for m in out)
+        for kind in (Encoders, WheelSpeeds, Imu, Pose, Heartbeat)
+    }
     assert count == {Encoders: 50, WheelSpeeds: 50, Imu: 50, Pose: 10, Heartbeat: 10}
-    assert model.handle(SetParam(Param.TELEMETRY_HZ, 100)) == [ParamValue(Param.TELEMETRY_HZ, ParamResult.OK, 100)]
-    assert model.handle(SetParam(Param.TELEMETRY_HZ, 500))[0].result == ParamResult.OUT_OF_RANGE  # type: ignore[attr-defined]
-    assert model.handle(SetParam(200, 1))[0].result == ParamResult.UNKNOWN_PARAM  # type: ignore[attr-defined]
+    assert model.handle(SetParam(Param.TELEMETRY_HZ, 100)) == [
+        ParamValue(Param.TELEMETRY_HZ, ParamResult.OK, 100)
+    ]
+    assert one(model.handle(SetParam(Param.TELEMETRY_HZ, 500))).result == ParamResult.OUT_OF_RANGE
+    assert one(model.handle(SetParam(200, 1))).result == ParamResult.UNKNOWN_PARAM
     run(model, 0.1)
     assert sum(isinstance(m, Encoders) for m in run(model, 1.0)) == 100
 
@@ -336,7 +369,9 @@ def test_sensors_see_the_ground_encoders_do_not(make_model: Make) -> None:
 def test_the_same_run_twice_gives_the_same_trajectory(make_model: Make, lab: WorldMap) -> None:
     def trace() -> list[tuple[float, float, float]]:
         model = ready(make_model, lab, seed=3)
-        for seq, (cmd, dist) in enumerate([(Command.FWD, 9000), (Command.LEFT, 5000), (Command.FWD, 5000)]):
+        for seq, (cmd, dist) in enumerate(
+            [(Command.FWD, 9000), (Command.LEFT, 5000), (Command.FWD, 5000)]
+        ):
             model.handle(Motion(seq, cmd, 45, dist))
         poses = []
         for _ in range(200):
@@ -348,14 +383,17 @@ def test_the_same_run_twice_gives_the_same_trajectory(make_model: Make, lab: Wor
     assert trace() == trace()
 
 
-def test_driving_into_an_obstacle_stops_the_body_against_it(make_model: Make, lab: WorldMap,
-                                                            rover: RoverDescription) -> None:
+def test_driving_into_an_obstacle_stops_the_body_against_it(
+    make_model: Make, lab: WorldMap, rover: RoverDescription
+) -> None:
     goal = next(g for g in lab.goals if "collide" in g.note.lower() or "behind" in g.note.lower())
     model = ready(make_model, lab)
     start = model.twin.pose
     bearing = math.atan2(goal.y - start.y_m, goal.x - start.x_m)
     turn = wrap_angle_rad(bearing - start.yaw_rad)
-    model.handle(Motion(1, Command.LEFT if turn > 0 else Command.RIGHT, 20, turn_units_for_yaw(rover, turn)))
+    model.handle(
+        Motion(1, Command.LEFT if turn > 0 else Command.RIGHT, 20, turn_units_for_yaw(rover, turn))
+    )
     model.handle(Motion(2, Command.FWD, 60, 30000))
     model.handle(Motion(3, Command.FWD, 60, 30000))
     run(model, 25.0)

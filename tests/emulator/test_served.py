@@ -9,7 +9,7 @@ import random
 import signal
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
@@ -21,6 +21,7 @@ from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.errors import InjectionError
 from emulator.twin import Twin
+from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.messages import (
     AckResult,
     ClearAck,
@@ -38,7 +39,6 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
-from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.rover import RoverDescription
 
 from .conftest import SPEED
@@ -52,7 +52,9 @@ def drive_one_metre(host: SerialHost | CanHost, seq: int = 1) -> Status:
     host.send(Motion(seq, Command.FWD, 60, 23000))
     ack = host.wait_for(AckMsg, lambda a: a.seq == seq, since=since)
     assert ack.result == AckResult.ACCEPTED
-    return host.wait_for(Status, lambda s: s.seq == seq and s.state != StepState.STARTED, since=since, timeout=15)
+    return host.wait_for(
+        Status, lambda s: s.seq == seq and s.state != StepState.STARTED, since=since, timeout=15
+    )
 
 
 def test_fwd_one_metre_over_a_pty(serial_emulator: Factory) -> None:
@@ -89,7 +91,9 @@ def test_stop_over_a_pty_zeroes_targets_latches_and_clear_resumes(serial_emulato
         host.wait_for(WheelSpeeds, lambda w: w.left_mm_s == 0 and w.right_mm_s == 0, since=since)
         mark = host.mark()
         host.send(Motion(3, Command.FWD, 30, 100))
-        assert host.wait_for(AckMsg, lambda a: a.seq == 3, since=mark).result == AckResult.STOP_LATCHED
+        assert (
+            host.wait_for(AckMsg, lambda a: a.seq == 3, since=mark).result == AckResult.STOP_LATCHED
+        )
         host.send(ClearStop(78))
         assert host.wait_for(ClearAck, since=mark) == ClearAck(78, ClearResult.CLEARED)
         assert drive_one_metre(host, seq=4).state == StepState.COMPLETED
@@ -101,7 +105,11 @@ def test_garbage_bytes_are_ignored_and_counted(serial_emulator: Factory) -> None
     rng = random.Random(5)
     with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
         host.handshake()
-        host.write_raw(b"\x00" + bytes(rng.randrange(1, 256) for _ in range(200)) + b"\x00garbage\x00\x01\x02\x00")
+        host.write_raw(
+            b"\x00"
+            + bytes(rng.randrange(1, 256) for _ in range(200))
+            + b"\x00garbage\x00\x01\x02\x00"
+        )
         assert drive_one_metre(host).state == StepState.COMPLETED
         beat = host.wait_for(Heartbeat, lambda h: h.rx_errors > 0, since=host.mark())
         assert beat.rx_errors >= 2
@@ -126,7 +134,12 @@ def test_corrupted_link_is_survived(serial_emulator: Factory) -> None:
         host.wait_for(Encoders, since=host.mark())
         # The host's decoder drops the damaged frames; the rest come through.
         host.wait_for(Heartbeat, since=host.mark())
-        assert host.decoder.counters.crc + host.decoder.counters.framing + host.decoder.counters.oversize > 0
+        assert (
+            host.decoder.counters.crc
+            + host.decoder.counters.framing
+            + host.decoder.counters.oversize
+            > 0
+        )
         emu.inject("clear:link-corrupt")
         assert drive_one_metre(host).state == StepState.COMPLETED
 
@@ -162,7 +175,9 @@ def test_watchdog_trips_when_the_host_goes_quiet(serial_emulator: Factory) -> No
         assert any(s.state == StepState.ABORTED for s in host.messages(Status, since))
 
 
-def test_unplug_and_replug_keeps_the_link_name(serial_emulator: Factory, tmp_path: Path, rover: RoverDescription) -> None:
+def test_unplug_and_replug_keeps_the_link_name(
+    serial_emulator: Factory, tmp_path: Path, rover: RoverDescription
+) -> None:
     from emulator.serial_frontend import SerialFrontEnd
 
     link = tmp_path / "rover-motor"
@@ -193,22 +208,28 @@ def test_paced_line_still_carries_everything(serial_emulator: Factory) -> None:
 
 
 @pytest.fixture
-def can_emulator(rover: RoverDescription, can_channel: str) -> Callable[..., Emulator]:
+def can_emulator(rover: RoverDescription, can_channel: str) -> Iterator[Callable[..., Emulator]]:
     started: list[Emulator] = []
 
     def make(node: int = 1) -> Emulator:
         model = ControllerModel(rover, Twin(rover), ControllerConfig(timeout_scale=SPEED), seed=1)
-        emu = Emulator(model, CanFrontEnd(interface="virtual", channel=can_channel, node=node), speed_factor=SPEED)
+        emu = Emulator(
+            model,
+            CanFrontEnd(interface="virtual", channel=can_channel, node=node),
+            speed_factor=SPEED,
+        )
         emu.start()
         started.append(emu)
         return emu
 
-    yield make  # type: ignore[misc]
+    yield make
     for emu in started:
         emu.close()
 
 
-def test_fwd_and_stop_over_a_virtual_can_bus(can_emulator: Callable[..., Emulator], can_channel: str) -> None:
+def test_fwd_and_stop_over_a_virtual_can_bus(
+    can_emulator: Callable[..., Emulator], can_channel: str
+) -> None:
     emu = can_emulator(node=3)
     with can.Bus(interface="virtual", channel=can_channel) as bus, CanHost(bus, node=3) as host:
         host.handshake()
@@ -222,12 +243,16 @@ def test_fwd_and_stop_over_a_virtual_can_bus(can_emulator: Callable[..., Emulato
     assert emu.status().stop_latched
 
 
-def test_can_node_ignores_other_nodes_and_refuses_corruption(can_emulator: Callable[..., Emulator],
-                                                             can_channel: str) -> None:
+def test_can_node_ignores_other_nodes_and_refuses_corruption(
+    can_emulator: Callable[..., Emulator], can_channel: str
+) -> None:
     emu = can_emulator(node=2)
-    with can.Bus(interface="virtual", channel=can_channel) as bus_a, \
-            can.Bus(interface="virtual", channel=can_channel) as bus_b, \
-            CanHost(bus_a, node=5, heartbeat_s=None) as other, CanHost(bus_b, node=2) as host:
+    with (
+        can.Bus(interface="virtual", channel=can_channel) as bus_a,
+        can.Bus(interface="virtual", channel=can_channel) as bus_b,
+        CanHost(bus_a, node=5, heartbeat_s=None) as other,
+        CanHost(bus_b, node=2) as host,
+    ):
         other.send(Motion(1, Command.FWD, 10, 10))  # addressed to node 5: not ours
         host.handshake()
         host.send(Motion(1, Command.FWD, 10, 10))
@@ -243,9 +268,24 @@ def test_can_node_ignores_other_nodes_and_refuses_corruption(can_emulator: Calla
 
 def test_rover_emulate_cli_serves_and_stops_on_sigterm(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "firmware_proto.cli", "emulate", "--serial", "--speed-factor", "4",
-         "--control-port", "0", "--seed", "7", "--inject", "slip:left=0.5@t=100"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "emulate",
+            "--serial",
+            "--speed-factor",
+            "4",
+            "--control-port",
+            "0",
+            "--seed",
+            "7",
+            "--inject",
+            "slip:left=0.5@t=100",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         assert proc.stdout is not None
@@ -267,8 +307,19 @@ def test_rover_emulate_cli_serves_and_stops_on_sigterm(tmp_path: Path) -> None:
 
 def test_rover_emulate_cli_rejects_bad_faults_clearly() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", "emulate", "--serial", "--inject", "warp:left"],
-        capture_output=True, text=True, timeout=30, check=False,
+        [
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "emulate",
+            "--serial",
+            "--inject",
+            "warp:left",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
     )
     assert out.returncode == 1
     assert "unknown fault 'warp'" in out.stderr and "Traceback" not in out.stderr
