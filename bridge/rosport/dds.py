@@ -86,6 +86,8 @@ WRITE_BLOCK_S: Final = 1.0
 _TAKE_BATCH: Final = 64
 #: Waitset timeout: the loop re-checks ``_stopping`` at least this often.
 _WAIT_S: Final = 1.0
+#: Encapsulation identifiers of plain CDR (XCDR1): big and little endian.
+_XCDR1_IDS: Final = (b"\x00\x00", b"\x00\x01")
 #: rosidl's name for the one member of an empty message.
 _EMPTY_MEMBER: Final = "structure_needs_at_least_one_member"
 
@@ -234,10 +236,17 @@ def cdr_encode(msg: Message) -> bytes:
 def cdr_decode(msg_type: type[Message], data: bytes) -> Message:
     """Decode a CDR sample (with its 4-byte encapsulation header) as ``msg_type``.
 
+    Trailing bytes (Cyclone pads samples to a multiple of 4) are ignored.
+
     Raises:
-        MessageError: the bytes are not a valid ``msg_type`` sample.
+        MessageError: the bytes are not a plain-CDR ``msg_type`` sample.
     """
     codec = _codec(msg_type)
+    if bytes(data[:2]) not in _XCDR1_IDS:
+        raise MessageError(
+            f"cannot decode {msg_type.ROS_TYPE} from CDR: encapsulation "
+            f"{bytes(data[:2]).hex() or 'missing'} is not plain CDR (0000 or 0001)"
+        )
     try:
         obj = codec.idl.deserialize(bytes(data), has_header=True)
         return codec.from_idl(obj)

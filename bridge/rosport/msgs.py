@@ -14,7 +14,8 @@ Every class carries three class constants that the backends read:
 - ``ROS_HASH``: the REP-2011 type hash ``RIHS01_<sha256 hex>`` that ROS 2 Jazzy puts in
   the endpoints' USER_DATA (a test recomputes every one with rosbags).
 
-Construction normalises and checks every field: sequences become tuples, integers given
+Construction normalises and checks every field: sequences (annotated ``Sequence``, any
+iterable accepted) are stored as tuples, so messages stay immutable and hashable; integers given
 for float fields become floats, and a value that cannot go on the ROS wire (an int16 out
 of range, a covariance of 35 values, a string with a NUL) raises :class:`MessageError`
 naming the field. So every backend refuses the same bad messages, at the same place.
@@ -24,7 +25,7 @@ from __future__ import annotations
 
 import math
 import operator
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, Final
 
@@ -228,7 +229,7 @@ class MultiArrayLayout(Message):
         "RIHS01_4c66e6f78e740ac103a94cf63259f968e48c617e7699e829b63c21a5cb50dac6"
     )
 
-    dim: tuple[MultiArrayDimension, ...] = ()
+    dim: Sequence[MultiArrayDimension] = ()
     data_offset: int = 0
 
 
@@ -246,7 +247,7 @@ class Int16MultiArray(Message):
     )
 
     layout: MultiArrayLayout = field(default_factory=MultiArrayLayout)
-    data: tuple[int, ...] = ()
+    data: Sequence[int] = ()
 
 
 # ---------------------------------------------------------------------------------------
@@ -337,7 +338,7 @@ class PoseWithCovariance(Message):
     )
 
     pose: Pose = field(default_factory=Pose)
-    covariance: tuple[float, ...] = _ZERO_COVARIANCE
+    covariance: Sequence[float] = _ZERO_COVARIANCE
 
 
 @dataclass(frozen=True, slots=True)
@@ -386,7 +387,7 @@ class TwistWithCovariance(Message):
     )
 
     twist: Twist = field(default_factory=Twist)
-    covariance: tuple[float, ...] = _ZERO_COVARIANCE
+    covariance: Sequence[float] = _ZERO_COVARIANCE
 
 
 @dataclass(frozen=True, slots=True)
@@ -458,7 +459,7 @@ class DiagnosticStatus(Message):
     name: str = ""
     message: str = ""
     hardware_id: str = ""
-    values: tuple[KeyValue, ...] = ()
+    values: Sequence[KeyValue] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -475,7 +476,7 @@ class DiagnosticArray(Message):
     )
 
     header: Header = field(default_factory=Header)
-    status: tuple[DiagnosticStatus, ...] = ()
+    status: Sequence[DiagnosticStatus] = ()
 
 
 #: Every message type, by ROS interface name.
