@@ -503,11 +503,13 @@ class DdsPort(RosPort):
                     self._participant, self._announcer_topic, _discovery_qos()
                 )
                 self._announce()
-        except DDSException as exc:
-            self._release()
-            raise RosPortError(
-                f"cannot open a DDS participant on domain {self.domain_id}: {exc}"
-            ) from exc
+        except Exception as exc:
+            self._release()  # gives the domain back, so a failed port leaves nothing
+            if isinstance(exc, DDSException):
+                raise RosPortError(
+                    f"cannot open a DDS participant on domain {self.domain_id}: {exc}"
+                ) from exc
+            raise
         self._start()
 
     # -- RosPort hooks ------------------------------------------------------------------

@@ -234,6 +234,7 @@ class RclpyPort(RosPort):
         subscription = self._node.create_subscription(
             converter.ros_class, sub.topic, on_message, self._qos
         )
+        self._guard.trigger()  # the executor rebuilds its wait set with the new subscription
         return _RclpyReader(self, subscription)
 
     def _run(self) -> None:

@@ -272,3 +272,13 @@ def test_the_last_port_leaves_nothing_of_cyclone_behind(make_port: PortFactory) 
     assert native_threads() > before[0]  # Cyclone's own threads, invisible to threading
     port.close()
     assert (native_threads(), len(os.listdir("/proc/self/fd"))) == before
+
+
+def test_an_invalid_config_is_a_clear_error_and_leaves_nothing(make_port: PortFactory) -> None:
+    from bridge.rosport import RosPortError
+
+    fds = len(os.listdir("/proc/self/fd"))
+    with pytest.raises(RosPortError, match="cannot create DDS domain 0"):
+        make_port("dds", config="<CycloneDDS><Domain><NoSuchSetting/></Domain></CycloneDDS>")
+    assert len(os.listdir("/proc/self/fd")) == fds
+    make_port("dds", node_name="after")  # the domain slot was given back
