@@ -38,10 +38,15 @@ def _values(diag: LinkDiagnostics, names: list[str]) -> list[KeyValue]:
     return [KeyValue(key=name, value=_fmt(getattr(diag, name))) for name in names]
 
 
-def diagnostic_array(diag: LinkDiagnostics, stamp: Time, hardware_id: str = "rover-motor") -> DiagnosticArray:
+def diagnostic_array(
+    diag: LinkDiagnostics, stamp: Time, hardware_id: str = "rover-motor"
+) -> DiagnosticArray:
     """The DiagnosticArray for one snapshot."""
     if diag.state in ("disconnected", "lost", "mismatch"):
-        link_level, link_msg = ERROR, f"link {diag.state}" + (f": {diag.last_error}" if diag.last_error else "")
+        link_level, link_msg = (
+            ERROR,
+            f"link {diag.state}" + (f": {diag.last_error}" if diag.last_error else ""),
+        )
     elif diag.state == "handshake":
         link_level, link_msg = WARN, "handshaking"
     elif diag.no_ack_faults:
@@ -49,12 +54,33 @@ def diagnostic_array(diag: LinkDiagnostics, stamp: Time, hardware_id: str = "rov
     else:
         link_level, link_msg = OK, "ready"
     link = DiagnosticStatus(
-        level=link_level, name="rover_bridge: link", message=link_msg, hardware_id=hardware_id,
-        values=_values(diag, [
-            "state", "url", "connected", "rtt_ms", "rtt_median_ms", "heartbeat_age_s", "rx_frames",
-            "tx_frames", "crc_errors", "resyncs", "rx_dropped", "lost_frames", "retries",
-            "no_ack_faults", "stop_repeats", "reconnects", "last_stop_latency_ms", "last_error",
-        ]),
+        level=link_level,
+        name="rover_bridge: link",
+        message=link_msg,
+        hardware_id=hardware_id,
+        values=_values(
+            diag,
+            [
+                "state",
+                "url",
+                "connected",
+                "rtt_ms",
+                "rtt_median_ms",
+                "heartbeat_age_s",
+                "rx_frames",
+                "tx_frames",
+                "crc_errors",
+                "resyncs",
+                "rx_dropped",
+                "lost_frames",
+                "retries",
+                "no_ack_faults",
+                "stop_repeats",
+                "reconnects",
+                "last_stop_latency_ms",
+                "last_error",
+            ],
+        ),
     )
     faults = set(diag.faults)
     if faults & _STOPPING:
@@ -68,12 +94,30 @@ def diagnostic_array(diag: LinkDiagnostics, stamp: Time, hardware_id: str = "rov
     else:
         ctl_level, ctl_msg = OK, diag.controller_state.lower()
     controller = DiagnosticStatus(
-        level=ctl_level, name="rover_bridge: controller", message=ctl_msg, hardware_id=hardware_id,
-        values=_values(diag, [
-            "controller_state", "stop_latched", "estop_requested", "faults", "watchdog_trips",
-            "controller_queue", "firmware", "schema_hash", "host_schema_hash", "boot_nonce",
-            "reboots", "last_stopping_distance_mm", "steps_sent", "steps_completed",
-            "steps_rejected", "steps_aborted",
-        ]),
+        level=ctl_level,
+        name="rover_bridge: controller",
+        message=ctl_msg,
+        hardware_id=hardware_id,
+        values=_values(
+            diag,
+            [
+                "controller_state",
+                "stop_latched",
+                "estop_requested",
+                "faults",
+                "watchdog_trips",
+                "controller_queue",
+                "firmware",
+                "schema_hash",
+                "host_schema_hash",
+                "boot_nonce",
+                "reboots",
+                "last_stopping_distance_mm",
+                "steps_sent",
+                "steps_completed",
+                "steps_rejected",
+                "steps_aborted",
+            ],
+        ),
     )
     return DiagnosticArray(header=Header(stamp=stamp, frame_id=""), status=(link, controller))

@@ -35,12 +35,13 @@ import threading
 import time
 from collections import Counter
 from types import TracebackType
+from typing import Any
 
 from bridge.diagnostics import diagnostic_array
 from bridge.link import ControllerLink, LinkDiagnostics, StepRequest
 from bridge.odometry import OdometryEstimator, ground_pose
 from bridge.params import BridgeParams
-from bridge.rosport import RosPort
+from bridge.rosport import RosPort, Subscription
 from bridge.rosport.msgs import (
     Bool,
     DiagnosticArray,
@@ -108,7 +109,11 @@ class BridgeNode:
     """The bridge: a ROS port on one side, the controller link on the other."""
 
     def __init__(
-        self, params: BridgeParams, port: RosPort, *, rover: RoverDescription | None = None,
+        self,
+        params: BridgeParams,
+        port: RosPort,
+        *,
+        rover: RoverDescription | None = None,
         link: ControllerLink | None = None,
     ) -> None:
         """Args:
@@ -133,9 +138,13 @@ class BridgeNode:
         )
         self._odom_lock = threading.Lock()
         self._stop = threading.Event()
-        self._diag_thread = threading.Thread(target=self._diagnostics_loop, name="bridge-diag", daemon=True)
-        self._subs = [
-            port.subscribe(params.topic_wheel_instructions, Int16MultiArray, self._on_wheel_instructions),
+        self._diag_thread = threading.Thread(
+            target=self._diagnostics_loop, name="bridge-diag", daemon=True
+        )
+        self._subs: list[Subscription[Any]] = [
+            port.subscribe(
+                params.topic_wheel_instructions, Int16MultiArray, self._on_wheel_instructions
+            ),
             port.subscribe(params.topic_emergency_stop, Bool, self._on_emergency_stop),
             port.subscribe(params.topic_clear_stop, Empty, self._on_clear),
         ]
@@ -163,7 +172,10 @@ class BridgeNode:
         return self.start()
 
     def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
     ) -> None:
         self.close()
 
@@ -192,18 +204,25 @@ class BridgeNode:
         if isinstance(msg, Encoders):
             with self._odom_lock:
                 est = self.odometry.update_encoders(msg)
-            self._odom_pub.publish(Odometry(
-                header=Header(stamp=_stamp(), frame_id=self.params.odom_frame),
-                child_frame_id=self.params.base_frame,
-                pose=PoseWithCovariance(
-                    pose=Pose(position=Point(x=est.x_m, y=est.y_m, z=0.0), orientation=_quaternion(est.yaw_rad)),
-                    covariance=_covariance(est.var_xy_m2, est.var_yaw_rad2),
-                ),
-                twist=TwistWithCovariance(
-                    twist=Twist(linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)),
-                    covariance=_covariance(1e-4, 1e-4),
-                ),
-            ))
+            self._odom_pub.publish(
+                Odometry(
+                    header=Header(stamp=_stamp(), frame_id=self.params.odom_frame),
+                    child_frame_id=self.params.base_frame,
+                    pose=PoseWithCovariance(
+                        pose=Pose(
+                            position=Point(x=est.x_m, y=est.y_m, z=0.0),
+                            orientation=_quaternion(est.yaw_rad),
+                        ),
+                        covariance=_covariance(est.var_xy_m2, est.var_yaw_rad2),
+                    ),
+                    twist=TwistWithCovariance(
+                        twist=Twist(
+                            linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)
+                        ),
+                        covariance=_covariance(1e-4, 1e-4),
+                    ),
+                )
+            )
         elif isinstance(msg, Imu):
             with self._odom_lock:
                 self.odometry.update_imu(msg)
@@ -215,14 +234,21 @@ class BridgeNode:
             if pose is None:
                 return  # no fix: nothing to report
             var = pose.sigma_m**2
-            self._ground_pub.publish(Odometry(
-                header=Header(stamp=_stamp(time.time() - pose.age_s), frame_id=self.params.map_frame),
-                child_frame_id=self.params.base_frame,
-                pose=PoseWithCovariance(
-                    pose=Pose(position=Point(x=pose.x_m, y=pose.y_m, z=0.0), orientation=_quaternion(pose.yaw_rad)),
-                    covariance=_covariance(var, (var / 0.25) if var else 1e-4),
-                ),
-            ))
+            self._ground_pub.publish(
+                Odometry(
+                    header=Header(
+                        stamp=_stamp(time.time() - pose.age_s), frame_id=self.params.map_frame
+                    ),
+                    child_frame_id=self.params.base_frame,
+                    pose=PoseWithCovariance(
+                        pose=Pose(
+                            position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
+                            orientation=_quaternion(pose.yaw_rad),
+                        ),
+                        covariance=_covariance(var, (var / 0.25) if var else 1e-4),
+                    ),
+                )
+            )
 
     def diagnostics(self) -> LinkDiagnostics:
         """The link's diagnostics snapshot."""

@@ -154,8 +154,15 @@ class OdometryEstimator:
         # Heading error turns into cross-track error along the path.
         var_xy = sigma_d**2 + var_yaw * self._distance**2 + 1e-6
         return OdometryEstimate(
-            self._x, self._y, self._yaw, self._v, self._yaw_rate, self._distance,
-            var_xy, var_yaw + 1e-6, self._source,
+            self._x,
+            self._y,
+            self._yaw,
+            self._v,
+            self._yaw_rate,
+            self._distance,
+            var_xy,
+            var_yaw + 1e-6,
+            self._source,
         )
 
 
@@ -181,6 +188,9 @@ def ground_pose(msg: Pose) -> GroundPose | None:
     if msg.sigma_cm == 0:
         return None
     return GroundPose(
-        msg.x_mm / 1000.0, msg.y_mm / 1000.0, math.radians(msg.yaw_ddeg / 10.0),
-        msg.sigma_cm / 100.0, msg.age_4ms * 4 / 1000.0,
+        msg.x_mm / 1000.0,
+        msg.y_mm / 1000.0,
+        math.radians(msg.yaw_ddeg / 10.0),
+        msg.sigma_cm / 100.0,
+        msg.age_4ms * 4 / 1000.0,
     )

@@ -134,7 +134,9 @@ def _coerce(name: str, value: Any, source: str) -> Any:
             raise ValueError(value)
         return value
     except (TypeError, ValueError):
-        raise ParameterError(f"parameter {name} ({source}): {value!r} is not a valid {kind}") from None
+        raise ParameterError(
+            f"parameter {name} ({source}): {value!r} is not a valid {kind}"
+        ) from None
 
 
 def _check(params: BridgeParams) -> None:
@@ -145,7 +147,9 @@ def _check(params: BridgeParams) -> None:
     if params.reconnect_max_s < params.reconnect_min_s:
         raise ParameterError("parameter reconnect_max_s must be >= reconnect_min_s")
     if params.ros_backend not in _BACKENDS:
-        raise ParameterError(f"parameter ros_backend: {params.ros_backend!r}; known: {', '.join(_BACKENDS)}")
+        raise ParameterError(
+            f"parameter ros_backend: {params.ros_backend!r}; known: {', '.join(_BACKENDS)}"
+        )
     if not params.can_interface and not params.device:
         raise ParameterError("parameter device: empty (or set can_interface for CAN)")
     if params.can_interface and not params.can_channel:
@@ -193,9 +197,16 @@ def load_params(
     layers: list[tuple[str, Mapping[str, Any]]] = []
     if file is not None:
         layers.append((f"file {file}", _read_file(Path(file))))
-    layers.append(("environment", {
-        key[len(ENV_PREFIX):].lower(): value for key, value in env.items() if key.startswith(ENV_PREFIX)
-    }))
+    layers.append(
+        (
+            "environment",
+            {
+                key[len(ENV_PREFIX) :].lower(): value
+                for key, value in env.items()
+                if key.startswith(ENV_PREFIX)
+            },
+        )
+    )
     layers.append(("override", {k: v for k, v in (overrides or {}).items() if v is not None}))
     for source, layer in layers:
         for name, value in layer.items():
