@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 import statistics
 import threading
 import time
@@ -71,6 +72,7 @@ from firmware_proto.messages import (
     HostHeartbeat,
     Ident,
     Motion,
+    Progress,
     Status,
     StepState,
     Stop,
@@ -255,7 +257,6 @@ class ControllerLink:
         self._pending_clear: _Pending | None = None
         self._estop_requested = False
         self._estop_source: int = StopSource.OPERATOR
-        self._auto_clear = False
         self._boot_nonce: int | None = None
         self._ident: Ident | None = None
         self._last_hb_rx: float | None = None
@@ -272,6 +273,9 @@ class ControllerLink:
         self._failure: tuple[Transport, Exception] | None = None
         self._ctrl_latched = False
         self._ctrl_state: int | None = None
+        self._ended_seen = 0
+        self._last_auto_clear = -math.inf
+        self._hello_sent = False  # a HELLO went out in the current handshake
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self) -> None:
@@ -367,7 +371,6 @@ class ControllerLink:
             stop_id = self._stop_counter
             self._estop_requested = True
             self._estop_source = source
-            self._auto_clear = False
             self._pending_clear = None
             self._pending_stop = _Pending(stop_id, now, now, 0)
             transport = (
@@ -442,6 +445,7 @@ class ControllerLink:
             self._transport = transport
             self._backoff = self.config.reconnect_min_s
             self._state = LinkState.HANDSHAKE
+            self._hello_sent = False
             self._last_hello = 0.0
             self._last_hb_rx = None
             logger.info("connected to %s; handshaking", self.config.url)
@@ -484,6 +488,7 @@ class ControllerLink:
             and now - self._last_hello >= cfg.heartbeat_s
         ):
             self._last_hello = now
+            self._hello_sent = True
             out.append(Hello(self.protocol_version, self.schema_hash))
         if now - self._last_hb_tx >= cfg.heartbeat_s:
             self._last_hb_tx = now
@@ -570,6 +575,7 @@ class ControllerLink:
         logger.warning("link lost: %s", why)
         self._last_error = why
         self._state = LinkState.LOST
+        self._hello_sent = False
         self._drop_all("fault:link_lost")
         self._emit("fault:link_lost")
 
@@ -625,6 +631,8 @@ class ControllerLink:
             self._last_stopping_mm = msg.distance_mm
         elif isinstance(msg, Fault):
             self._on_fault(msg)
+        elif isinstance(msg, Progress):
+            self._on_progress(msg)
 
     def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
         self._last_hb_rx = t
@@ -633,12 +641,40 @@ class ControllerLink:
         self._ctrl_state = hb.state
         if self._check_reboot(hb.boot_nonce):
             return
+        if self._state is LinkState.READY and not hb.handshake_ok:
+            logger.warning("controller has no session with us; handshaking again")
+            self._drop_all("fault:link_lost")
+            self._emit("fault:link_lost")
+            self._state = LinkState.HANDSHAKE
+            self._hello_sent = False
+            self._last_hello = 0.0
         if self._state is LinkState.LOST:
             logger.info("controller heartbeats again; new session")
             self._state = LinkState.HANDSHAKE
+            self._hello_sent = False
             self._last_hello = 0.0
         if hb.fault_bits & (1 << (FaultCode.WATCHDOG - 1)):
             self._faults.add(FaultCode.WATCHDOG)
+        self._maybe_clear_watchdog(t)
+
+    def _maybe_clear_watchdog(self, now: float) -> None:
+        """A latch whose only cause is the controller's watchdog (the link was down) is
+        cleared once the link is back, unless the operator asked for a stop."""
+        hb = self._heartbeat
+        if (
+            self.config.auto_clear_watchdog
+            and hb is not None
+            and self._state is LinkState.READY
+            and hb.state == ControllerState.FAULT
+            and hb.fault_bits == 1 << (FaultCode.WATCHDOG - 1)
+            and not self._estop_requested
+            and self._pending_clear is None
+            and now - self._last_auto_clear >= 1.0
+        ):
+            self._last_auto_clear = now
+            self._stop_counter = self._stop_counter % 0xFFFF + 1
+            self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
+            logger.info("link back: clearing the controller's watchdog latch")
 
     def _check_reboot(self, nonce: int) -> bool:
         if self._boot_nonce is None or nonce == self._boot_nonce:
@@ -649,6 +685,7 @@ class ControllerLink:
         self._drop_all("aborted:controller_reboot")
         self._emit("fault:controller_reboot")
         self._state = LinkState.HANDSHAKE
+        self._hello_sent = False
         self._last_hello = 0.0
         self._faults.clear()
         self._ctrl_latched = False
@@ -685,8 +722,11 @@ class ControllerLink:
             ours = f"v{self.protocol_version}/0x{self.schema_hash:04X}"
             self._last_error = f"protocol/schema mismatch: controller {theirs}, host {ours}"
             return
+        if not self._hello_sent:
+            return  # unsolicited (a boot IDENT): the session starts with our HELLO's answer
         if self._state in (LinkState.HANDSHAKE, LinkState.MISMATCH, LinkState.LOST):
             self._state = LinkState.READY
+            self._ended_seen = 0  # the controller counts per session
             self._last_hb_rx = time.monotonic()
             logger.info(
                 "handshake done: firmware %d.%d.%d, boot nonce 0x%04X",
@@ -699,12 +739,6 @@ class ControllerLink:
             if self._estop_requested and self._pending_stop is None and not self._ctrl_latched:
                 now = time.monotonic()
                 self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)
-            elif (
-                not self._estop_requested
-                and self.config.auto_clear_watchdog
-                and FaultCode.WATCHDOG in self._faults
-            ):
-                self._auto_clear = True
 
     def _on_clear_ack(self, ack: ClearAck) -> None:
         clear = self._pending_clear
@@ -738,16 +772,41 @@ class ControllerLink:
         self._pump(t)
 
     def _on_status_msg(self, status: Status) -> None:
-        step = self._in_controller.get(status.seq)
-        if step is None or status.state == StepState.STARTED:
+        if status.state == StepState.STARTED:
             return
-        del self._in_controller[status.seq]
-        if status.state == StepState.COMPLETED:
-            self._counters.steps_completed += 1
-            self._emit("completed")
-        else:
-            self._counters.steps_aborted += 1
-            self._emit(f"aborted:{AbortReason(status.reason).name.lower()}")
+        self._ended_seen = (self._ended_seen + 1) & 0xFFFF
+        if status.seq in self._in_controller:
+            self._settle_through(status.seq, status.state, status.reason)
+            self._pump(time.monotonic())
+
+    def _settle_through(self, seq: int, state: int, reason: int) -> None:
+        """Step ``seq`` ended with this outcome; steps sent before it ended too (steps end
+        in order), so any still open lost their STATUS and get the same outcome."""
+        for open_seq in list(self._in_controller):
+            del self._in_controller[open_seq]
+            if state == StepState.COMPLETED:
+                self._counters.steps_completed += 1
+                self._emit("completed")
+            else:
+                self._counters.steps_aborted += 1
+                self._emit(f"aborted:{AbortReason(reason).name.lower()}")
+            if open_seq == seq:
+                return
+
+    def _on_progress(self, progress: Progress) -> None:
+        """Settle steps whose STATUS was lost (docs/protocol.md, MOTION)."""
+        missed = (progress.ended_count - self._ended_seen) & 0xFFFF
+        if missed == 0 or missed >= 0x8000 or self._state is not LinkState.READY:
+            return
+        self._ended_seen = progress.ended_count
+        if progress.ended_seq not in self._in_controller:
+            return  # its ending was seen; steps before it were settled with it
+        logger.warning(
+            "%d STATUS frame(s) lost; settling through seq %d from PROGRESS",
+            missed,
+            progress.ended_seq,
+        )
+        self._settle_through(progress.ended_seq, progress.ended_state, progress.ended_reason)
         self._pump(time.monotonic())
 
     def _on_fault(self, fault: Fault) -> None:
@@ -763,12 +822,6 @@ class ControllerLink:
             self._emit(f"fault:{name}")
         elif fault.code not in (FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT):
             self._faults.discard(fault.code)
-        if not fault.active and self._auto_clear and fault.code == FaultCode.WATCHDOG:
-            self._auto_clear = False
-            now = time.monotonic()
-            self._stop_counter = self._stop_counter % 0xFFFF + 1
-            self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
-            logger.info("link back: clearing the watchdog latch")
 
     # -- status emission ---------------------------------------------------------------------
     def _emit(self, status: str) -> None:
