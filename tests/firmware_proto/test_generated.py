@@ -35,13 +35,19 @@ def test_schema_hash_ignores_documentation(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("old", "new", "complaint"),
     [
-        ("name = \"STOP_ACK\"\nid = 1", "name = \"STOP_ACK\"\nid = 0", "must be unique"),
-        ("name = \"MOTION\"\nid = 8", "name = \"MOTION\"\nid = 40", "outside class motion"),
+        ('name = "STOP_ACK"\nid = 1', 'name = "STOP_ACK"\nid = 0', "must be unique"),
+        ('name = "MOTION"\nid = 8', 'name = "MOTION"\nid = 40', "outside class motion"),
         ('{ name = "left", type = "i24"', '{ name = "left", type = "i40"', "uN or iN"),
-        ('{ name = "speed", type = "u8", limit = [0, 60]', '{ name = "speed", type = "u8", limit = [0, 300]',
-         "limit"),
-        ('{ name = "t_ms", type = "u16", unit = "ms", doc = "controller clock',
-         '{ name = "t_ms", type = "u32", unit = "ms", doc = "controller clock', "exceed"),
+        (
+            '{ name = "speed", type = "u8", limit = [0, 60]',
+            '{ name = "speed", type = "u8", limit = [0, 300]',
+            "limit",
+        ),
+        (
+            '{ name = "t_ms", type = "u16", unit = "ms", doc = "controller clock',
+            '{ name = "t_ms", type = "u32", unit = "ms", doc = "controller clock',
+            "exceed",
+        ),
         ('enum = "StopSource"', 'enum = "Nope"', "unknown enum"),
     ],
 )
