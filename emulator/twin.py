@@ -90,7 +90,10 @@ _CT_CHASSIS, _CT_SENSOR, _CT_OBSTACLE, _CT_WHEEL, _CT_REGION = 1, 2, 3, 4, 5
 
 
 def wrap_angle_rad(angle_rad: float) -> float:
-    """``angle_rad`` wrapped to ``[-pi, pi)``."""
+    """``angle_rad`` wrapped to ``[-pi, pi)``; returned unchanged (bit for bit) when it
+    is in range already."""
+    if -math.pi <= angle_rad < math.pi:
+        return angle_rad
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
