@@ -434,7 +434,7 @@ class Twin:
             self._limits,
             self.dt_s,
         )
-        body.force = (c * fx - s * fy, s * fx + c * fy)
+        body.apply_force_at_local_point((fx, fy))  # body frame, at the centre of mass
         body.torque = tz
         self._v_prev = (vxw, vyw, w)
         self._space.step(self.dt_s)
