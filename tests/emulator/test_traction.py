@@ -149,3 +149,29 @@ def test_steady_slip_is_infinite_when_friction_cannot_beat_the_resistance() -> N
 
 def test_ideal_spin_yaw() -> None:
     assert ideal_spin_yaw_rad(0.21 * math.pi, 0.42) == pytest.approx(math.pi)
+
+
+@given(
+    v=st.tuples(speeds, speeds, rates),
+    wheels=st.tuples(speeds, speeds),
+    mu=st.tuples(scales, scales, scales, scales),
+)
+def test_damping_is_the_diagonal_of_the_jacobian(
+    rover: RoverDescription,
+    v: tuple[float, float, float],
+    wheels: tuple[float, float],
+    mu: tuple[float, float, float, float],
+) -> None:
+    """C = -dF/dv per component, checked against central differences."""
+    model = TractionModel.from_rover(rover)
+    limits = model.friction_limits_n(mu)
+    damping = model.wrench(*v, *wheels, limits)[3:6]
+    h = 1e-7
+    for axis in range(3):
+        step = tuple(h if i == axis else 0.0 for i in range(3))
+        vx_up, vy_up, w_up = (a + b for a, b in zip(v, step, strict=True))
+        vx_dn, vy_dn, w_dn = (a - b for a, b in zip(v, step, strict=True))
+        up = model.wrench(vx_up, vy_up, w_up, *wheels, limits)[axis]
+        down = model.wrench(vx_dn, vy_dn, w_dn, *wheels, limits)[axis]
+        slope = (up - down) / (2 * h)
+        assert damping[axis] == pytest.approx(max(0.0, -slope), rel=1e-4, abs=1e-3)
