@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     print(header)
     print("-" * len(header))
-    for dt in (0.001, GATE_DT_S, 0.01):
+    for dt in (0.001, 0.005, GATE_DT_S):
         sim, p50, p99, steps = plan_times(rover, dt, repeat if dt > 0.001 else max(3, repeat // 4))
         label = "playback (gate step)" if dt == GATE_DT_S else "playback"
         print(

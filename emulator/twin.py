@@ -70,9 +70,10 @@ MAX_DT_S = 0.02
 stays stable beyond it, but turns drift from the 1 ms reference (0.27 degree over four
 quarter turns at 20 ms) and contacts are checked less often."""
 
-GATE_DT_S = 0.005
-"""Step recommended for plan validation: a 12-step, 55 s plan ends within 2 mm and
-0.1 degree of the 1 ms reference at a fifth of the steps (docs/twin.md)."""
+GATE_DT_S = 0.01
+"""Step recommended for plan validation: a 12-step, 55 s plan ends within 3 mm and
+0.2 degree of the 1 ms reference at a tenth of the steps, so the 500x real-time target
+holds with a factor of two to spare for a loaded machine (docs/twin.md)."""
 
 WALL_THICKNESS_M = 1.0
 """The bounds are built as solid slabs this thick outside the room (cannot be passed)."""
