@@ -168,8 +168,10 @@ def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:
     """
     unit = a_dt * dt_s  # travel of one tick at speed a*dt
     m = math.floor((math.sqrt(1.0 + 8.0 * rem_m / unit) - 1.0) / 2.0)
-    while unit * m * (m + 1) / 2.0 > rem_m:  # guard the float floor
+    while unit * m * (m + 1) / 2.0 > rem_m:  # guard the float floor both ways
         m -= 1
+    while unit * (m + 1) * (m + 2) / 2.0 <= rem_m:
+        m += 1
     return (rem_m / dt_s + a_dt * m * (m + 1) / 2.0) / (m + 1)
 
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import pymunk
 
-from emulator.errors import ConfigError, InjectionError
+from emulator.errors import CommandError, ConfigError, InjectionError
 from emulator.traction import TractionModel
 from emulator.worldmap import (
     BOUNDS_ID,
@@ -379,10 +379,10 @@ class Twin:
         control), unless the side is locked.
 
         Raises:
-            InjectionError: a rate is not finite.
+            CommandError: a rate is not finite.
         """
         if not (math.isfinite(left_rad_s) and math.isfinite(right_rad_s)):
-            raise InjectionError(f"motor rates must be finite, got {left_rad_s}, {right_rad_s}")
+            raise CommandError(f"motor rates must be finite, got {left_rad_s}, {right_rad_s}")
         self._omega[0] = float(left_rad_s)
         self._omega[1] = float(right_rad_s)
         self._update_surface()

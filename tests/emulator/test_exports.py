@@ -46,3 +46,14 @@ def test_exported_members_are_sorted_and_exist() -> None:
     assert emulator.__all__ == sorted(emulator.__all__, key=lambda n: (not n.isupper(), n))
     for name in emulator.__all__:
         assert getattr(emulator, name) is not None
+
+
+def test_one_exception_root() -> None:
+    for cls in (
+        emulator.MapError,
+        emulator.CommandError,
+        emulator.InjectionError,
+        emulator.ConfigError,
+    ):
+        assert issubclass(cls, emulator.EmulatorError)
+        assert issubclass(cls, ValueError)

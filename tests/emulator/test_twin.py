@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from emulator.drive import StepProfile, motor_omegas, travel_units, yaw_for_turn_units
-from emulator.errors import ConfigError, InjectionError
+from emulator.errors import CommandError, ConfigError, InjectionError
 from emulator.playback import measure_turn_efficiency, play
 from emulator.twin import MAX_DT_S, Pose2D, Twin
 from firmware_proto.messages import Command
@@ -433,3 +433,12 @@ def test_settles_without_ringing_at_the_largest_step(rover: RoverDescription) ->
     assert all(s > 0.0 for s in moving)
     assert moving == sorted(moving, reverse=True)
     assert abs(speeds[-1]) < 1e-9
+
+
+def test_non_finite_motor_rates_are_refused(rover: RoverDescription) -> None:
+    twin = Twin(rover)
+    with pytest.raises(CommandError):
+        twin.set_motor_omegas(math.nan, 0.0)
+    with pytest.raises(CommandError):
+        twin.set_motor_omegas(0.0, math.inf)
+    assert twin.motor_omegas_rad_s == (0.0, 0.0)
