@@ -206,7 +206,6 @@ class Twin:
 
         g, d = rover.geometry, rover.drive
         self._model = TractionModel.from_rover(rover)
-        self._radius_m = g.wheel_radius_m
         # Motor rate -> wheel surface speed (rover frame, forward positive), per side.
         self._surface_per_rad = (
             d.left_wheel_sign * g.wheel_radius_m,
