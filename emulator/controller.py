@@ -381,7 +381,9 @@ class ControllerModel:
     def _abort_all(self, reason: int, out: list[Message]) -> None:
         if self._running is not None:
             out.append(
-                self._ended_status(self._running.motion.seq, StepState.ABORTED, reason, self._step_travel())
+                self._ended_status(
+                    self._running.motion.seq, StepState.ABORTED, reason, self._step_travel()
+                )
             )
             self._running = None
         while self._queue:

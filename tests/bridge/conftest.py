@@ -171,6 +171,7 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
         seed: int = 1,
         node: int = 1,
         channel: str | None = None,
+        interface: str = "virtual",
         schema_hash: int = SCHEMA_HASH,
     ) -> Emulator:
         model = ControllerModel(
@@ -185,7 +186,7 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
             frontend = SerialFrontEnd(link=link, seed=seed)
         else:
             frontend = CanFrontEnd(
-                interface="virtual", channel=channel or "bridge", node=node, seed=seed
+                interface=interface, channel=channel or "bridge", node=node, seed=seed
             )
         emu = Emulator(model, frontend, speed_factor=SPEED)
         emu.start()

@@ -1,4 +1,5 @@
-"""ControllerLink against the real emulator, over a real pty and a python-can bus."""
+"""ControllerLink against the real emulator, over a real pty and a python-can bus
+(``virtual`` here; ``socketcan`` on ``vcan0`` where the kernel has it)."""
 
 from __future__ import annotations
 
@@ -13,21 +14,26 @@ from bridge.errors import TransportError
 from bridge.link import ControllerLink, LinkConfig, LinkState, StepRequest
 from bridge.transport import open_transport, parse_can_url
 from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.messages import SCHEMA_HASH, Command, Encoders
+from firmware_proto.rover import RoverDescription
 
 from .conftest import Recorder
 
 Emus = Callable[..., Emulator]
+Links = Callable[..., tuple[ControllerLink, Recorder]]
 FWD = Command.FWD
+HAVE_VCAN0 = os.path.exists("/sys/class/net/vcan0")
+NO_VCAN0 = "no vcan0 here: this kernel has no SocketCAN (udev/vcan-up.sh says why)"
 
 
 @pytest.fixture
-def links() -> Iterator[Callable[..., tuple[ControllerLink, Recorder]]]:
+def links() -> Iterator[Links]:
     started: list[ControllerLink] = []
 
-    def make(url: str, **config: object) -> tuple[ControllerLink, Recorder]:
+    def make(url: str, **config: float) -> tuple[ControllerLink, Recorder]:
         rec = Recorder()
-        link = ControllerLink(LinkConfig(url=url, **config), on_status=rec)  # type: ignore[arg-type]
+        link = ControllerLink(LinkConfig(url, **config), on_status=rec)  # type: ignore[arg-type]
         link.start()
         started.append(link)
         return link, rec
@@ -37,34 +43,54 @@ def links() -> Iterator[Callable[..., tuple[ControllerLink, Recorder]]]:
         link.close()
 
 
-def _url(emu: Emulator, channel: str) -> str:
-    if emu.frontend.name == "pty":
-        return emu.frontend.device  # type: ignore[attr-defined]
-    return f"can://virtual/{channel}?node={emu.frontend.node}"  # type: ignore[attr-defined]
+def _url(emu: Emulator) -> str:
+    front = emu.frontend
+    if isinstance(front, SerialFrontEnd):
+        return front.device
+    return f"can://{front.interface}/{front.channel}?node={front.node}"  # type: ignore[attr-defined]
 
 
-@pytest.mark.parametrize("kind", ["pty", "can"])
+def _serial(emu: Emulator) -> SerialFrontEnd:
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    return emu.frontend
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "pty",
+        "virtual",
+        pytest.param(
+            "socketcan",
+            marks=[pytest.mark.socketcan, pytest.mark.skipif(not HAVE_VCAN0, reason=NO_VCAN0)],
+        ),
+    ],
+)
 def test_steps_complete_once_each_in_order(
-    emulators: Emus, links, kind: str, can_channel: str
-) -> None:  # type: ignore[no-untyped-def]
-    emu = emulators(kind, channel=can_channel, node=3)
-    link, rec = links(_url(emu, can_channel))
+    emulators: Emus, links: Links, kind: str, can_channel: str
+) -> None:
+    if kind == "pty":
+        emu = emulators("pty")
+    else:
+        emu = emulators(
+            "can", interface=kind, channel="vcan0" if kind == "socketcan" else can_channel, node=3
+        )
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     for _ in range(4):
         link.submit_step(StepRequest(FWD, 60, 5750))
     got = rec.wait_count("completed", 4)
-    assert got == ["ready"] + ["accepted"] * 4 + ["completed"] * 4 or (
-        got.count("accepted") == 4 and got.count("completed") == 4 and got[-1] == "completed"
-    )
+    assert got[0] == "ready"
+    assert (got.count("accepted"), got.count("completed"), len(got)) == (4, 4, 9)
     assert emu.status().x_m == pytest.approx(1.0, abs=0.015)
     diag = link.diagnostics()
     assert (diag.steps_sent, diag.steps_completed, diag.retries) == (4, 4, 0)
     assert diag.rtt_median_ms is not None
 
 
-def test_stop_lane_latches_and_clear_resumes(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_stop_lane_latches_and_clear_resumes(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     link.submit_step(StepRequest(FWD, 60, 30000))
     link.submit_step(StepRequest(FWD, 60, 30000))
@@ -76,7 +102,7 @@ def test_stop_lane_latches_and_clear_resumes(emulators: Emus, links) -> None:  #
     assert link.stop_latched
     mark = rec.mark()
     link.submit_step(StepRequest(FWD, 10, 10))
-    assert rec.wait(lambda xs: bool(xs), since=mark) == ["rejected:stop_latched"]
+    assert rec.wait(bool, since=mark) == ["rejected:stop_latched"]
     link.clear_stop()
     rec.wait_count("cleared", 1, since=mark)
     link.submit_step(StepRequest(FWD, 60, 2300))
@@ -85,9 +111,9 @@ def test_stop_lane_latches_and_clear_resumes(emulators: Emus, links) -> None:  #
     assert emu.status().stop_latched is False
 
 
-def test_stop_step_is_an_emergency_stop(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_stop_step_is_an_emergency_stop(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     link.submit_step(StepRequest(FWD, 60, 30000))
     rec.wait_count("accepted", 1)
@@ -97,10 +123,10 @@ def test_stop_step_is_an_emergency_stop(emulators: Emus, links) -> None:  # type
 
 
 def test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing_twice(
-    emulators: Emus, links
-) -> None:  # type: ignore[no-untyped-def]
+    emulators: Emus, links: Links
+) -> None:
     emu = emulators(seed=11)
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     emu.inject("link-corrupt=0.05")
     emu.inject("link-drop=0.05")
@@ -118,9 +144,9 @@ def test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing_twice(
     assert diag.rx_dropped > 0  # the host saw damaged frames and dropped them
 
 
-def test_delayed_acks_are_retransmitted_and_deduplicated(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_delayed_acks_are_retransmitted_and_deduplicated(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""), ack_timeout_s=0.02, motion_retries=10)
+    link, rec = links(_url(emu), ack_timeout_s=0.02, motion_retries=10)
     rec.wait_count("ready", 1)
     emu.inject("link-delay=0.05")  # each way: acks come after 0.1 s, retries every 0.02 s
     mark = rec.mark()
@@ -131,9 +157,9 @@ def test_delayed_acks_are_retransmitted_and_deduplicated(emulators: Emus, links)
     assert emu.status().x_m == pytest.approx(0.5, abs=0.01)  # executed once
 
 
-def test_heartbeat_loss_reports_link_lost_then_recovers(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_heartbeat_loss_reports_link_lost_then_recovers(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     link.submit_step(StepRequest(FWD, 60, 30000))
     rec.wait_count("accepted", 1)
@@ -150,7 +176,9 @@ def test_heartbeat_loss_reports_link_lost_then_recovers(emulators: Emus, links) 
     assert rec.wait_count("completed", 1, since=mark) == ["accepted", "completed"]
 
 
-def test_unplug_and_replug_fault_then_recover(emulators: Emus, links, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_unplug_and_replug_fault_then_recover(
+    emulators: Emus, links: Links, tmp_path: Path
+) -> None:
     path = tmp_path / "rover-motor"
     emu = emulators(link=path)
     link, rec = links(str(path), reconnect_min_s=0.05, reconnect_max_s=0.2)
@@ -158,10 +186,10 @@ def test_unplug_and_replug_fault_then_recover(emulators: Emus, links, tmp_path: 
     link.submit_step(StepRequest(FWD, 60, 30000))
     rec.wait_count("accepted", 1)
     mark = rec.mark()
-    emu.frontend.unplug()  # type: ignore[attr-defined]
+    _serial(emu).unplug()
     rec.wait_count("fault:link_lost", 1, since=mark)
     assert not path.exists()
-    emu.frontend.replug()  # type: ignore[attr-defined]
+    _serial(emu).replug()
     rec.wait_count("ready", 1, since=mark)
     got = rec.since(mark)
     assert "completed" not in got  # the step in flight was dropped, not replayed
@@ -172,9 +200,9 @@ def test_unplug_and_replug_fault_then_recover(emulators: Emus, links, tmp_path: 
     rec.wait_count("completed", 1, since=mark)
 
 
-def test_controller_reboot_is_detected_and_nothing_replayed(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_controller_reboot_is_detected_and_nothing_replayed(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     nonce = link.diagnostics().boot_nonce
     link.submit_step(StepRequest(FWD, 60, 30000))
@@ -193,9 +221,9 @@ def test_controller_reboot_is_detected_and_nothing_replayed(emulators: Emus, lin
     assert emu.status().x_m == pytest.approx(x_before + 0.1, abs=0.01)  # only the new step ran
 
 
-def test_estop_survives_a_reboot(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_estop_survives_a_reboot(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("ready", 1)
     link.emergency_stop()
     rec.wait_count("stopped", 1)
@@ -207,9 +235,9 @@ def test_estop_survives_a_reboot(emulators: Emus, links) -> None:  # type: ignor
     assert emu.status().stop_latched
 
 
-def test_schema_mismatch_refuses_to_drive(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_schema_mismatch_refuses_to_drive(emulators: Emus, links: Links) -> None:
     emu = emulators(schema_hash=SCHEMA_HASH ^ 0x5A5A)
-    link, rec = links(_url(emu, ""))
+    link, rec = links(_url(emu))
     rec.wait_count("fault:schema_mismatch", 1)
     link.submit_step(StepRequest(FWD, 30, 100))
     assert rec.wait(lambda xs: "rejected:schema_mismatch" in xs)
@@ -219,18 +247,18 @@ def test_schema_mismatch_refuses_to_drive(emulators: Emus, links) -> None:  # ty
     assert emu.status().x_m == 0.0
 
 
-def test_steps_while_the_link_is_down_are_rejected(links, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_steps_while_the_link_is_down_are_rejected(links: Links, tmp_path: Path) -> None:
     link, rec = links(str(tmp_path / "no-such-device"), reconnect_min_s=0.05)
     link.submit_step(StepRequest(FWD, 30, 100))
-    assert rec.wait(lambda xs: bool(xs)) == ["rejected:link_down"]
+    assert rec.wait(bool) == ["rejected:link_down"]
     assert "no-such-device" in link.diagnostics().last_error or link.diagnostics().last_error == ""
     stop_id = link.emergency_stop()  # accepted and kept for when the link comes back
     assert stop_id >= 1 and link.stop_latched
 
 
-def test_no_ack_after_retries_is_a_fault(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
+def test_no_ack_after_retries_is_a_fault(emulators: Emus, links: Links) -> None:
     emu = emulators()
-    link, rec = links(_url(emu, ""), ack_timeout_s=0.01, motion_retries=2)
+    link, rec = links(_url(emu), ack_timeout_s=0.01, motion_retries=2)
     rec.wait_count("ready", 1)
     emu.inject("link-delay=0.2")
     link.submit_step(StepRequest(FWD, 30, 100))
@@ -255,7 +283,7 @@ def test_transport_registry() -> None:
     assert transport.kind == "can"
 
 
-def test_odometry_tracks_the_emulator_encoders(emulators: Emus, rover) -> None:  # type: ignore[no-untyped-def]
+def test_odometry_tracks_the_emulator_encoders(emulators: Emus, rover: RoverDescription) -> None:
     from bridge.odometry import OdometryEstimator
 
     estimator = OdometryEstimator(rover)
@@ -268,7 +296,7 @@ def test_odometry_tracks_the_emulator_encoders(emulators: Emus, rover) -> None: 
 
     rec = Recorder()
     with ControllerLink(
-        LinkConfig(url=_url(emu, "")), on_status=rec, on_telemetry=on_telemetry
+        LinkConfig(url=_url(emu)), on_status=rec, on_telemetry=on_telemetry
     ) as link:
         rec.wait_count("ready", 1)
         link.submit_step(StepRequest(FWD, 60, 23000))
@@ -276,11 +304,3 @@ def test_odometry_tracks_the_emulator_encoders(emulators: Emus, rover) -> None: 
         rec.wait(lambda _: len(seen) > 5 and seen[-1] > 0.99, timeout=5)
     assert seen[-1] == pytest.approx(1.0, abs=0.002)
     assert math.hypot(emu.status().x_m, emu.status().y_m) == pytest.approx(seen[-1], abs=0.01)
-
-
-def test_socketcan_vcan0_when_present(emulators: Emus, links) -> None:  # type: ignore[no-untyped-def]
-    if not os.path.exists("/sys/class/net/vcan0"):
-        pytest.skip(
-            "no vcan0 here: this kernel has no SocketCAN (see udev/vcan-up.sh); virtual bus tested above"
-        )
-    pytest.skip("socketcan end-to-end runs in the vcan CI job (tests marked socketcan)")
