@@ -128,18 +128,15 @@ def travel_units(
 
 
 def turn_units_for_yaw(rover: RoverDescription, yaw_rad: float) -> int:
-    """Distance units of a LEFT/RIGHT step to turn the body by ``|yaw_rad|`` on the spot,
-    using the calibrated ``traction.turn_efficiency`` (body yaw / ideal yaw from arc
-    travel): ``|yaw| * (track/2) / efficiency * units_per_m``, rounded."""
-    arc_m = abs(yaw_rad) * rover.geometry.track_width_m / 2.0 / rover.traction.turn_efficiency
-    return rover.m_to_units(arc_m)
+    """Distance units of a LEFT/RIGHT step to turn the body by ``|yaw_rad|`` on the spot
+    (see :meth:`RoverDescription.turn_units_for_yaw`, which every part shares)."""
+    return rover.turn_units_for_yaw(yaw_rad)
 
 
 def yaw_for_turn_units(rover: RoverDescription, distance_units: float) -> float:
-    """Predicted body yaw, rad (unsigned), of a LEFT/RIGHT step of ``distance_units``:
-    the inverse of :func:`turn_units_for_yaw`."""
-    arc_m = rover.units_to_m(distance_units)
-    return rover.traction.turn_efficiency * 2.0 * arc_m / rover.geometry.track_width_m
+    """Predicted body yaw, rad (unsigned), of a LEFT/RIGHT step of ``distance_units``
+    (see :meth:`RoverDescription.yaw_for_turn_units`)."""
+    return rover.yaw_for_turn_units(distance_units)
 
 
 def nominal_step_duration_s(rover: RoverDescription, speed: int, distance: int) -> float:

@@ -136,6 +136,19 @@ class RoverDescription:
         """Unsigned wheel angular speed, rad/s, for a command speed (``speed * k``)."""
         return speed * self.drive.wheel_velocity_scale_rad_s
 
+    def turn_units_for_yaw(self, yaw_rad: float) -> int:
+        """Distance units of a LEFT/RIGHT step that turns the body by ``|yaw_rad|`` on the
+        spot: each side's arc travel for that yaw, divided by the calibrated
+        ``traction.turn_efficiency`` (skid-steer wheels slip in a spin), rounded."""
+        arc_m = abs(yaw_rad) * self.geometry.track_width_m / 2.0 / self.traction.turn_efficiency
+        return self.m_to_units(arc_m)
+
+    def yaw_for_turn_units(self, distance_units: float) -> float:
+        """Body yaw, rad (unsigned), that a LEFT/RIGHT step of ``distance_units`` turns:
+        the inverse of :meth:`turn_units_for_yaw`."""
+        arc_m = self.units_to_m(distance_units)
+        return self.traction.turn_efficiency * 2.0 * arc_m / self.geometry.track_width_m
+
     @property
     def max_speed_mps(self) -> float:
         """Top wheel surface speed, m/s."""
