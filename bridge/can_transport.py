@@ -10,6 +10,7 @@ bus-off, or whose send fails, is reported as a transport error so the link recon
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 import can
@@ -18,6 +19,7 @@ from bridge.transport import Transport, parse_can_url
 from firmware_proto.canmap import CanDecoder, encode_can
 from firmware_proto.message import Message
 from firmware_proto.messages import DEFAULT_NODE
+from firmware_proto.trafficlog import CanRecord, TrafficRecorder
 
 __all__ = ["CanTransport"]
 
@@ -29,8 +31,14 @@ class CanTransport(Transport):
 
     kind = "can"
 
-    def __init__(self, url: str, node: int | None = None, **bus_options: Any) -> None:
-        super().__init__(url)
+    def __init__(
+        self,
+        url: str,
+        node: int | None = None,
+        recorder: TrafficRecorder | None = None,
+        **bus_options: Any,
+    ) -> None:
+        super().__init__(url, recorder)
         self.interface, self.channel, options = parse_can_url(url)
         self.node = int(node if node is not None else options.pop("node", DEFAULT_NODE))
         options.pop("node", None)
@@ -66,6 +74,8 @@ class CanTransport(Transport):
             )
         except can.CanError as exc:
             raise OSError(f"CAN send failed: {exc}") from exc
+        if self.recorder is not None:
+            self._record(CanRecord(time.time(), self.channel, arbitration_id, data, is_rx=False))
 
     def _read(self, timeout_s: float) -> list[Message]:
         bus = self._bus
@@ -77,7 +87,22 @@ class CanTransport(Transport):
             raise OSError(f"CAN receive failed: {exc}") from exc
         if getattr(bus, "state", None) == can.BusState.ERROR:
             raise OSError("CAN bus off")
-        if frame is None or frame.is_error_frame:
+        if frame is None:
+            return []
+        if self.recorder is not None:
+            self._record(
+                CanRecord(
+                    frame.timestamp or time.time(),
+                    self.channel,
+                    frame.arbitration_id,
+                    bytes(frame.data),
+                    is_rx=True,
+                    is_extended_id=frame.is_extended_id,
+                    is_remote_frame=frame.is_remote_frame,
+                    is_error_frame=frame.is_error_frame,
+                )
+            )
+        if frame.is_error_frame:
             return []
         decoded = self._decoder.decode(
             frame.arbitration_id,

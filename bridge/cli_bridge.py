@@ -26,6 +26,13 @@ _OPTIONS: list[tuple[str, str, type, str]] = [
     ("--reconnect-min", "reconnect_min_s", float, "first reconnect delay, s (default 0.1)"),
     ("--reconnect-max", "reconnect_max_s", float, "longest reconnect delay, s (default 2)"),
     ("--rover", "rover_description", str, "rover description TOML (default: the packaged one)"),
+    (
+        "--record",
+        "record",
+        str,
+        "record the link traffic to FILE: a serial frame log on serial, a python-can log "
+        "chosen by suffix on CAN (.log: candump); see docs/traffic-logs.md",
+    ),
 ]
 
 

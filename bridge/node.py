@@ -59,6 +59,8 @@ from bridge.rosport.msgs import (
     TwistWithCovariance,
     Vector3,
 )
+from bridge.traffic import CanLogWriter, SerialLogWriter, open_recorder
+from bridge.transport import Transport, open_transport
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Encoders, Imu, StopSource, WheelSpeeds
 from firmware_proto.messages import Pose as PoseMsg
@@ -123,6 +125,9 @@ class BridgeNode:
         rover: the rover description (default: ``params.rover_description`` or the
             packaged one).
         link: a link to use instead of one built from ``params`` (it is started here).
+
+        With ``params.record`` set (and no ``link`` given), every frame of the link goes to
+        that traffic log, which the node closes with itself.
         """
         self.params = params
         self.port = port
@@ -133,8 +138,24 @@ class BridgeNode:
         self._odom_pub = port.publisher(params.topic_odom, Odometry)
         self._ground_pub = port.publisher(params.topic_ground_pose, Odometry)
         self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray)
+        self.recorder: SerialLogWriter | CanLogWriter | None = None
+        if link is None and params.record:
+            self.recorder = open_recorder(
+                params.record,
+                "can" if params.can_interface else "serial",
+                channel=params.can_channel,
+                metadata={"role": "bridge", "url": params.url},
+            )
+        recorder = self.recorder
+
+        def transport_factory(url: str) -> Transport:
+            return open_transport(url, recorder=recorder)
+
         self.link = link or ControllerLink(
-            params.link_config(), on_status=self._publish_status, on_telemetry=self._on_telemetry
+            params.link_config(),
+            on_status=self._publish_status,
+            on_telemetry=self._on_telemetry,
+            transport_factory=transport_factory,
         )
         self._odom_lock = threading.Lock()
         self._stop = threading.Event()
@@ -167,6 +188,8 @@ class BridgeNode:
             self.link.close()
             self._diag_thread.join(timeout=5.0)
             self._started = False
+        if self.recorder is not None:
+            self.recorder.close()
 
     def __enter__(self) -> BridgeNode:
         return self.start()

@@ -66,6 +66,9 @@ class BridgeParams:
     base_frame: str = "base_link"
     diagnostics_hz: float = 1.0
     rover_description: str = ""
+    record: str = ""
+    """Traffic log file ("" records nothing): a serial frame log on a serial link, a
+    python-can log chosen by suffix on CAN (docs/traffic-logs.md)."""
 
     @property
     def url(self) -> str:

@@ -9,13 +9,15 @@ exclusively where the platform allows, so two bridges cannot share a controller.
 from __future__ import annotations
 
 import logging
+import time
 from urllib.parse import parse_qs, urlsplit, urlunsplit
 
 import serial
 
 from bridge.transport import Transport
-from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.framing import FrameDecoder, FrameEncoder, encode_raw_frame
 from firmware_proto.message import Message
+from firmware_proto.trafficlog import SerialRecord, TrafficRecorder, message_direction
 
 __all__ = ["DEFAULT_BAUD", "SerialTransport"]
 
@@ -29,8 +31,10 @@ class SerialTransport(Transport):
 
     kind = "serial"
 
-    def __init__(self, url: str, baud: int | None = None) -> None:
-        super().__init__(url)
+    def __init__(
+        self, url: str, baud: int | None = None, recorder: TrafficRecorder | None = None
+    ) -> None:
+        super().__init__(url, recorder)
         parts = urlsplit(url)
         query = parse_qs(parts.query)
         self.baud = baud or int(query.pop("baud", [str(DEFAULT_BAUD)])[-1])
@@ -74,10 +78,13 @@ class SerialTransport(Transport):
         port = self._port
         if port is None:
             raise OSError("port closed")
+        wire = self._encoder.encode(message)
         try:
-            port.write(self._encoder.encode(message))
+            port.write(wire)
         except serial.SerialException as exc:
             raise OSError(str(exc)) from exc
+        if self.recorder is not None:
+            self._record(SerialRecord(time.time(), message_direction(message), wire))
 
     def _read(self, timeout_s: float) -> list[Message]:
         port = self._port
@@ -91,4 +98,12 @@ class SerialTransport(Transport):
             raise OSError(str(exc)) from exc
         if not data:
             return []
-        return [frame.message for frame in self._decoder.feed(data)]
+        frames = self._decoder.feed(data)
+        if self.recorder is not None and frames:
+            now = time.time()
+            for frame in frames:
+                msg = frame.message
+                # A valid frame re-encodes to exactly the bytes that carried it.
+                wire = encode_raw_frame(msg.MSG_ID, frame.seq, msg.pack(strict=False))
+                self._record(SerialRecord(now, message_direction(msg), wire))
+        return [frame.message for frame in frames]

@@ -17,7 +17,9 @@ thread under a lock, so a STOP is on the wire without waiting for any queue.
 
 Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
 ``_write`` (one message) and ``_read`` (wait a little, return messages); set
-``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`.
+``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; hand every
+frame written and every frame received to ``_record`` (traffic logs,
+docs/traffic-logs.md), only when :attr:`Transport.recorder` is set.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from urllib.parse import parse_qs, urlsplit
 from bridge.errors import TransportError
 from firmware_proto.counters import RxCounters
 from firmware_proto.message import Message
+from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
 
 __all__ = [
     "TRANSPORTS",
@@ -64,8 +67,15 @@ class Transport(ABC):
 
     kind = "transport"
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, recorder: TrafficRecorder | None = None) -> None:
+        """Args:
+        url: the transport URL (see the module docstring).
+        recorder: where every frame sent and received goes (a traffic log); the caller
+            keeps ownership and closes it after the transport.
+        """
         self.url = url
+        self.recorder = recorder
+        self._record_failed = False
         self.counters = RxCounters()
         self.tx_frames = 0
         self._write_lock = threading.Lock()
@@ -90,6 +100,19 @@ class Transport(ABC):
     def _read(self, timeout_s: float) -> list[Message]:
         """Wait up to ``timeout_s``; return the messages received. Raise OSError when the
         device is gone."""
+
+    def _record(self, entry: TrafficRecord) -> None:
+        """Hand one frame to the recorder, if any. A failing recorder is logged once and
+        never breaks the link."""
+        recorder = self.recorder
+        if recorder is None:
+            return
+        try:
+            recorder.record(entry)
+        except Exception:
+            if not self._record_failed:
+                self._record_failed = True
+                logger.exception("%s: traffic recorder failed; the link carries on", self.url)
 
     # -- API ----------------------------------------------------------------------------
     def open(self, on_message: OnMessage, on_error: OnError) -> None:

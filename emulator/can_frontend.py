@@ -10,6 +10,7 @@ docs/protocol.md; the bus arbitrates by identifier, so the STOP lane wins by its
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 import can
@@ -18,6 +19,7 @@ from emulator.frontend import FrontEnd
 from firmware_proto.canmap import CanDecoder, encode_can
 from firmware_proto.message import Message
 from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
+from firmware_proto.trafficlog import CanRecord, TrafficRecorder
 
 __all__ = ["CanFrontEnd", "open_bus"]
 
@@ -50,6 +52,7 @@ class CanFrontEnd(FrontEnd):
         node: int = DEFAULT_NODE,
         bus: can.BusABC | None = None,
         seed: int = 0,
+        recorder: TrafficRecorder | None = None,
         **bus_options: Any,
     ) -> None:
         """Args:
@@ -58,12 +61,14 @@ class CanFrontEnd(FrontEnd):
         node: this controller's node id, 1..15.
         bus: an already open bus to use (the caller keeps ownership).
         seed: seeds the link-fault generators.
+        recorder: traffic log for every frame sent and received (see FrontEnd); as a
+            bus monitor it sees other nodes' frames too.
         bus_options: passed to ``can.Bus`` (e.g. ``bitrate``).
 
         Raises:
             ValueError: node out of range.
         """
-        super().__init__(seed=seed)
+        super().__init__(seed=seed, recorder=recorder)
         if not 1 <= node <= 15:
             raise ValueError(f"CAN node id must be 1..15, got {node}")
         self.interface, self.channel, self.node = interface, channel, node
@@ -99,7 +104,22 @@ class CanFrontEnd(FrontEnd):
         if bus is None:
             return []
         frame = bus.recv(timeout=timeout_s)
-        if frame is None or frame.is_error_frame:
+        if frame is None:
+            return []
+        if self.recorder is not None:
+            self._record(
+                CanRecord(
+                    frame.timestamp or time.time(),
+                    self.channel,
+                    frame.arbitration_id,
+                    bytes(frame.data),
+                    is_rx=True,
+                    is_extended_id=frame.is_extended_id,
+                    is_remote_frame=frame.is_remote_frame,
+                    is_error_frame=frame.is_error_frame,
+                )
+            )
+        if frame.is_error_frame:
             return []
         decoded = self.decoder.decode(
             frame.arbitration_id,
@@ -130,4 +150,6 @@ class CanFrontEnd(FrontEnd):
         except can.CanError as exc:
             logger.debug("CAN send failed: %s", exc)
             return False
+        if self.recorder is not None:
+            self._record(CanRecord(time.time(), self.channel, arbitration_id, data, is_rx=False))
         return True

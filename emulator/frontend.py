@@ -13,6 +13,10 @@ write lock. An implementation (:mod:`emulator.serial_frontend`,
   bit; a medium that cannot corrupt refuses the fault in ``_can_corrupt``);
 - ``_close()``: release the medium (idempotent).
 
+An implementation also hands every frame it puts on the medium and every frame it
+receives to ``_record`` when :attr:`FrontEnd.recorder` is set (traffic logs,
+docs/traffic-logs.md).
+
 The reader thread does I/O only: it hands each received message, with the monotonic
 time it arrived, to the ``deliver`` callback given to :meth:`FrontEnd.start`.
 """
@@ -32,6 +36,7 @@ from types import TracebackType
 
 from emulator.errors import InjectionError
 from firmware_proto.message import Message
+from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
 
 __all__ = ["Deliver", "FrontEnd", "FrontEndStats"]
 
@@ -66,8 +71,15 @@ class FrontEnd(ABC):
 
     name = "front end"
 
-    def __init__(self, *, seed: int = 0) -> None:
+    def __init__(self, *, seed: int = 0, recorder: TrafficRecorder | None = None) -> None:
+        """Args:
+        seed: seeds the link-fault generators.
+        recorder: where every frame sent and received goes (a traffic log); the caller
+            keeps ownership and closes it after the front end.
+        """
         self.stats = FrontEndStats()
+        self.recorder = recorder
+        self._record_failed = False
         # One generator per direction: each thread draws from its own, reproducibly.
         self._rng_tx = random.Random(f"link-faults-tx-{seed}")
         self._rng_rx = random.Random(f"link-faults-rx-{seed}")
@@ -100,6 +112,19 @@ class FrontEnd(ABC):
     @abstractmethod
     def _close(self) -> None:
         """Release the medium (idempotent)."""
+
+    def _record(self, entry: TrafficRecord) -> None:
+        """Hand one frame to the recorder, if any; a failing recorder is logged once and
+        never stops the controller."""
+        recorder = self.recorder
+        if recorder is None:
+            return
+        try:
+            recorder.record(entry)
+        except Exception:
+            if not self._record_failed:
+                self._record_failed = True
+                logger.exception("%s: traffic recorder failed; serving on", self.name)
 
     def _can_corrupt(self) -> bool:
         """Whether this medium can deliver a damaged frame (CAN's own CRC cannot)."""

@@ -29,8 +29,14 @@ from pathlib import Path
 
 from emulator.frontend import FrontEnd
 from emulator.ptypair import PtyPair
-from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.framing import FrameDecoder, FrameEncoder, encode_raw_frame
 from firmware_proto.message import Message
+from firmware_proto.trafficlog import (
+    CONTROLLER_TO_HOST,
+    SerialRecord,
+    TrafficRecorder,
+    message_direction,
+)
 
 __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
 
@@ -46,17 +52,23 @@ class SerialFrontEnd(FrontEnd):
     name = "pty"
 
     def __init__(
-        self, *, link: str | Path | None = None, baud: int | None = None, seed: int = 0
+        self,
+        *,
+        link: str | Path | None = None,
+        baud: int | None = None,
+        seed: int = 0,
+        recorder: TrafficRecorder | None = None,
     ) -> None:
         """Args:
         link: path of a stable symlink to the device (e.g. /tmp/rover-motor).
         baud: pace frames to the host at this rate (bits/s); ``None``: no pacing.
         seed: seeds the link-fault generators.
+        recorder: traffic log for every frame written and received (see FrontEnd).
 
         Raises:
             ValueError: baud not positive.
         """
-        super().__init__(seed=seed)
+        super().__init__(seed=seed, recorder=recorder)
         if baud is not None and baud <= 0:
             raise ValueError(f"baud must be > 0, got {baud}")
         self.link = Path(link) if link is not None else None
@@ -153,7 +165,15 @@ class SerialFrontEnd(FrontEnd):
                 self._stop.wait(timeout_s)
                 return []
             raise
-        return [frame.message for frame in self.decoder.feed(data)]
+        frames = self.decoder.feed(data)
+        if self.recorder is not None and frames:
+            now = time.time()
+            for frame in frames:
+                msg = frame.message
+                # A valid frame re-encodes to exactly the bytes that carried it.
+                wire = encode_raw_frame(msg.MSG_ID, frame.seq, msg.pack(strict=False))
+                self._record(SerialRecord(now, message_direction(msg), wire))
+        return [frame.message for frame in frames]
 
     def _write(self, message: Message, corrupt: bool) -> bool:
         wire = self._encoder.encode(message)
@@ -182,6 +202,8 @@ class SerialFrontEnd(FrontEnd):
             if exc.errno in (errno.EIO, errno.EBADF):
                 return False
             raise
+        if written == len(wire) and self.recorder is not None:
+            self._record(SerialRecord(time.time(), CONTROLLER_TO_HOST, wire))
         return written == len(wire)
 
     def _paced_writer(self) -> None:
