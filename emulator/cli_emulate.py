@@ -1,42 +1,72 @@
-"""``rover emulate``: serve the controller emulator over a pty or a CAN bus."""
+"""``rover emulate``: serve the controller emulator over a pty or a CAN bus.
+
+Also the ``rover_emulator`` console script that ``ros2 run`` and the HIL launch file
+start (:func:`main`): the same options, then optionally ``--ros-args``, whose
+``--params-file`` section for the node (default name ``rover_emulator``) and ``-p``
+values stand for long options (docs/ros2.md).
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import logging
 import signal
 import sys
 import threading
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["register"]
+if TYPE_CHECKING:
+    from emulator.controller import ControllerModel
+    from emulator.injection import FaultSpec
+    from firmware_proto.trafficlog import TrafficRecorder
+
+__all__ = ["add_arguments", "main", "register"]
+
+NODE_NAME = "rover_emulator"
+"""Node name whose section of a ROS parameters file configures ``rover_emulator``."""
+
+_DESCRIPTION = (
+    "Run the motor-controller emulator: the firmware behaviour of docs/protocol.md "
+    "over the pymunk twin, served on a pty (--serial) or a python-can bus (--can). "
+    "Prints 'DEVICE <path>' (or 'CAN <interface:channel> node <n>') and, with "
+    "--control-port, 'CONTROL 127.0.0.1:<port>' as its first lines. Stops cleanly "
+    "on Ctrl-C or SIGTERM."
+)
+
+
+def _epilog() -> str:
+    from emulator.injection import FAULT_KINDS  # light: no pymunk
+
+    kinds = "\n".join(f"  {k:<16} {v}" for k, v in FAULT_KINDS.items())
+    return (
+        "fault injection (--inject, repeatable; also on the control interface):\n"
+        f"{kinds}\n"
+        "  triggers: @t=SECONDS (twin time), @d=METRES (ground travel), @region=ID\n\n"
+        "examples:\n"
+        "  rover emulate --serial --link /tmp/rover-motor --map lab\n"
+        "  rover emulate --can virtual:rover --node 2 --inject slip:left=0.3@t=5\n"
+        "  rover emulate --can socketcan:vcan0 --control-port 7700\n"
+        "  rover emulate --serial --record session.rlog   (then: rover decode session.rlog)"
+    )
 
 
 def register(subparsers: Any) -> None:
     """Add ``rover emulate``."""
-    from emulator.injection import FAULT_KINDS  # light: no pymunk
-
-    kinds = "\n".join(f"  {k:<16} {v}" for k, v in FAULT_KINDS.items())
     p = subparsers.add_parser(
         "emulate",
         help="impersonate the motor controller over a pty or a CAN bus",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=(
-            "Run the motor-controller emulator: the firmware behaviour of docs/protocol.md "
-            "over the pymunk twin, served on a pty (--serial) or a python-can bus (--can). "
-            "Prints 'DEVICE <path>' (or 'CAN <interface:channel> node <n>') and, with "
-            "--control-port, 'CONTROL 127.0.0.1:<port>' as its first lines. Stops cleanly "
-            "on Ctrl-C or SIGTERM."
-        ),
-        epilog=(
-            "fault injection (--inject, repeatable; also on the control interface):\n"
-            f"{kinds}\n"
-            "  triggers: @t=SECONDS (twin time), @d=METRES (ground travel), @region=ID\n\n"
-            "examples:\n"
-            "  rover emulate --serial --link /tmp/rover-motor --map lab\n"
-            "  rover emulate --can virtual:rover --node 2 --inject slip:left=0.3@t=5\n"
-            "  rover emulate --can socketcan:vcan0 --control-port 7700"
-        ),
+        description=_DESCRIPTION,
+        epilog=_epilog(),
     )
+    add_arguments(p)
+    p.set_defaults(func=_run)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The emulator's options (shared by ``rover emulate`` and ``rover_emulator``)."""
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--serial", action="store_true", help="serve on a new pty")
     where.add_argument(
@@ -90,17 +120,20 @@ def register(subparsers: Any) -> None:
         metavar="HASH",
         help="claim this schema hash in IDENT (to test a host's mismatch handling)",
     )
-    p.set_defaults(func=_run)
+    p.add_argument(
+        "--record",
+        metavar="FILE",
+        help=(
+            "record the link traffic: a serial frame log with --serial, a python-can log "
+            "chosen by suffix with --can (.log: candump); see docs/traffic-logs.md"
+        ),
+    )
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulator.can_frontend import CanFrontEnd
-    from emulator.control import ControlServer
     from emulator.controller import ControllerConfig, ControllerModel
-    from emulator.engine import Emulator
-    from emulator.frontend import FrontEnd
     from emulator.injection import parse_fault
-    from emulator.serial_frontend import SerialFrontEnd
+    from emulator.traffic import CanLogWriter, SerialLogWriter, open_recorder
     from emulator.twin import Twin
     from emulator.worldmap import load_map
     from firmware_proto.messages import SCHEMA_HASH
@@ -119,16 +152,60 @@ def _run(args: argparse.Namespace) -> int:
         seed=args.seed,
         schema_hash=SCHEMA_HASH if args.schema_hash is None else args.schema_hash,
     )
-    frontend: FrontEnd
-    if args.serial:
-        frontend = SerialFrontEnd(link=args.link, baud=args.baud, seed=args.seed)
-    else:
+    interface = channel = ""
+    if not args.serial:
         interface, sep, channel = args.can.partition(":")
         if not sep or not interface or not channel:
             raise ValueError(
                 f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
             )
-        frontend = CanFrontEnd(interface=interface, channel=channel, node=args.node, seed=args.seed)
+    recorder: SerialLogWriter | CanLogWriter | None = None
+    if args.record:
+        recorder = open_recorder(
+            args.record,
+            "serial" if args.serial else "can",
+            channel=channel,
+            metadata={
+                "role": "emulator",
+                "seed": str(args.seed),
+                "speed_factor": str(args.speed_factor),
+                "map": str(args.map),
+                "rover": str(args.rover or ""),
+            },
+        )
+    try:
+        return _serve(args, model, faults, interface=interface, channel=channel, recorder=recorder)
+    finally:
+        if recorder is not None:
+            recorder.close()
+
+
+def _serve(
+    args: argparse.Namespace,
+    model: ControllerModel,
+    faults: list[FaultSpec],
+    *,
+    interface: str,
+    channel: str,
+    recorder: TrafficRecorder | None,
+) -> int:
+    from emulator.can_frontend import CanFrontEnd
+    from emulator.control import ControlServer
+    from emulator.engine import Emulator
+    from emulator.frontend import FrontEnd
+    from emulator.serial_frontend import SerialFrontEnd
+
+    frontend: FrontEnd
+    if args.serial:
+        frontend = SerialFrontEnd(link=args.link, baud=args.baud, seed=args.seed, recorder=recorder)
+    else:
+        frontend = CanFrontEnd(
+            interface=interface,
+            channel=channel,
+            node=args.node,
+            seed=args.seed,
+            recorder=recorder,
+        )
 
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -168,3 +245,49 @@ def _run(args: argparse.Namespace) -> int:
     if final is not None:
         print(f"emulator stopped: {final.line()}", file=sys.stderr)
     return 0
+
+
+def _load_yaml(path: str) -> Any:
+    """A ROS parameters file (YAML; PyYAML comes with every ROS 2 installation)."""
+    try:
+        yaml = importlib.import_module("yaml")
+    except ImportError as exc:
+        raise ValueError(
+            f"reading --params-file {path} needs PyYAML (python3-yaml), which ROS 2 installs"
+        ) from exc
+    with open(path, encoding="utf-8") as f:
+        return yaml.safe_load(f)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
+    ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
+    from firmware_proto.rosargs import argv_from_ros_args, split_ros_args
+
+    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
+    parser = argparse.ArgumentParser(
+        prog="rover_emulator",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=_DESCRIPTION
+        + " Accepts --ros-args: its --params-file section for the node and -p name:=value "
+        "stand for the long options (speed_factor -> --speed-factor).",
+        epilog=_epilog(),
+    )
+    add_arguments(parser)
+    try:
+        from_ros = argv_from_ros_args(ros_args, NODE_NAME, _load_yaml) if ros_args else []
+    except (OSError, ValueError) as exc:
+        parser.error(str(exc))
+    args = parser.parse_args(from_ros + own)
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+    )
+    try:
+        return _run(args)
+    except (OSError, ValueError, RuntimeError) as exc:
+        print(f"rover_emulator: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,209 @@
+"""The ROS 2 part of a command line, for programs that ``ros2 run`` and launch files start.
+
+launch_ros starts every node as ``EXE [arguments...] --ros-args -r __node:=NAME
+[-r __ns:=/NS] [--params-file FILE]... [-p name:=value]...``. The programs of this
+project that are not ROS nodes themselves (the emulator, the gate, the link relay) take
+their settings from their own long options; these pure helpers turn the ROS arguments
+into those options, so that one parameters YAML configures the whole HIL set
+(docs/ros2.md). Reading the YAML file is left to the caller (a loader is passed in), so
+this module does no I/O.
+
+Mapping: the parameter ``speed_factor: 4.0`` becomes ``--speed-factor 4.0``; ``true``
+becomes the bare flag, ``false`` and empty values are left out, a list repeats the
+option. Options given on the command line come after, so they win.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = [
+    "RosArgs",
+    "argv_from_ros_args",
+    "node_parameters",
+    "parameters_to_argv",
+    "parse_ros_args",
+    "split_ros_args",
+]
+
+_FLAGS_WITH_VALUE = {"--log-level", "-e", "--enclave", "--log-config-file", "--log-file-name"}
+"""ROS arguments that take a value we ignore (logging, security enclaves)."""
+
+
+def split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Split a command line into the program's own arguments and the ROS arguments.
+
+    Every ``--ros-args`` block runs to the next ``--`` or to the end, as in rcl; blocks
+    may repeat. The markers themselves are dropped.
+    """
+    own: list[str] = []
+    ros: list[str] = []
+    in_ros = False
+    for arg in argv:
+        if arg == "--ros-args":
+            in_ros = True
+        elif in_ros and arg == "--":
+            in_ros = False
+        elif in_ros:
+            ros.append(arg)
+        else:
+            own.append(arg)
+    return own, ros
+
+
+@dataclass(frozen=True)
+class RosArgs:
+    """What the ROS arguments say about a node.
+
+    Attributes:
+        node_name: from ``-r __node:=NAME`` (``None`` if not remapped).
+        namespace: from ``-r __ns:=/NS`` (``None`` if not set).
+        params_files: every ``--params-file``, in order.
+        params: every ``-p name:=value``, later ones winning; values typed as ROS types
+            them (``true``/``false``, integers, floats, else text).
+    """
+
+    node_name: str | None = None
+    namespace: str | None = None
+    params_files: tuple[str, ...] = ()
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+def _scalar(text: str) -> Any:
+    """A ``-p`` value as ROS types it: YAML booleans, integers, floats, else text."""
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
+        return text[1:-1]
+    return text
+
+
+def parse_ros_args(ros_args: Sequence[str]) -> RosArgs:
+    """Parse the ROS arguments (without the ``--ros-args`` marker).
+
+    Remaps other than the node name and namespace, and logging and enclave options, are
+    accepted and ignored. A ``-p`` or ``-r`` prefixed with another node's name
+    (``other:name:=value``) is ignored too.
+
+    Raises:
+        ValueError: an option lacks its value, or a ``-p``/``-r`` is not ``name:=value``.
+    """
+    node_name: str | None = None
+    namespace: str | None = None
+    files: list[str] = []
+    params: dict[str, Any] = {}
+    remaps: list[str] = []
+    it = iter(ros_args)
+    for arg in it:
+        if arg in ("-p", "--param", "-r", "--remap", "--params-file", *_FLAGS_WITH_VALUE):
+            value = next(it, None)
+            if value is None:
+                raise ValueError(f"ROS argument {arg} needs a value")
+            if arg in ("-p", "--param"):
+                name, sep, text = value.partition(":=")
+                if not sep or not name:
+                    raise ValueError(f"ROS parameter must be name:=value, got {value!r}")
+                if ":" not in name:
+                    params[name] = _scalar(text)
+            elif arg in ("-r", "--remap"):
+                if ":=" not in value:
+                    raise ValueError(f"ROS remap must be from:=to, got {value!r}")
+                remaps.append(value)
+            elif arg == "--params-file":
+                files.append(value)
+        # anything else (--enable-rosout-logs, ...) takes no value and is ignored
+    for remap in remaps:
+        source, _, target = remap.partition(":=")
+        if source == "__node":
+            node_name = target
+        elif source == "__ns":
+            namespace = target
+    return RosArgs(node_name, namespace, tuple(files), params)
+
+
+def _flatten(prefix: str, values: Mapping[str, Any], out: dict[str, Any]) -> None:
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            _flatten(name + ".", value, out)
+        else:
+            out[name] = value
+
+
+def node_parameters(doc: Any, node_name: str, namespace: str = "") -> dict[str, Any]:
+    """The parameters a ROS 2 parameters document gives one node.
+
+    Sections apply in ROS order, later ones winning: ``/**`` (every node), ``/**/NAME``,
+    ``NAME``, then ``/NS/NAME`` (the fully qualified name). Nested mappings under
+    ``ros__parameters`` become dotted names, as ROS does.
+
+    Raises:
+        ValueError: the document is not a mapping of sections.
+    """
+    if doc is None:
+        return {}
+    if not isinstance(doc, Mapping):
+        raise ValueError("a parameters file must be a mapping of node names to sections")
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    fqn = f"{ns}/{node_name}"
+    keys = ["/**", "**", f"/**/{node_name}", node_name, fqn.lstrip("/"), fqn]
+    out: dict[str, Any] = {}
+    seen: set[str] = set()
+    for key in keys:
+        if key in seen:
+            continue
+        seen.add(key)
+        section = doc.get(key)
+        if isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping):
+            _flatten("", section["ros__parameters"], out)
+    return out
+
+
+def parameters_to_argv(params: Mapping[str, Any]) -> list[str]:
+    """Long options for parameters: ``name_x: v`` -> ``--name-x v`` (see the module
+    docstring for booleans, empty values and lists)."""
+    argv: list[str] = []
+    for name, value in params.items():
+        option = "--" + name.replace("_", "-").replace(".", "-")
+        values: Iterable[Any] = value if isinstance(value, (list, tuple)) else [value]
+        for item in values:
+            if item is None or item is False or item == "":
+                continue
+            if item is True:
+                argv.append(option)
+            else:
+                argv += [option, str(item)]
+    return argv
+
+
+def argv_from_ros_args(
+    ros_args: Sequence[str],
+    default_node: str,
+    load: Callable[[str], Any],
+) -> list[str]:
+    """The long options that the ROS arguments of a command line stand for.
+
+    Args:
+        ros_args: the ROS arguments (see :func:`split_ros_args`).
+        default_node: the node name when the arguments do not remap ``__node``.
+        load: reads one parameters file into a document (e.g. ``yaml.safe_load`` of
+            the file's text); called once per ``--params-file``.
+
+    Raises:
+        ValueError: malformed ROS arguments or parameters file.
+    """
+    parsed = parse_ros_args(ros_args)
+    node = parsed.node_name or default_node
+    params: dict[str, Any] = {}
+    for path in parsed.params_files:
+        params.update(node_parameters(load(path), node, parsed.namespace or ""))
+    params.update(parsed.params)
+    return parameters_to_argv(params)
