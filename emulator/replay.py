@@ -1,0 +1,387 @@
+"""Replay a recorded session's host frames into a fresh emulator and compare its answers.
+
+Regression testing of the controller behaviour from traffic logs (docs/traffic-logs.md):
+:func:`replay_into_emulator` starts a seeded emulator on a new pty (serial logs) or a
+python-can bus (CAN logs), re-sends every host-to-controller frame of the log with its
+recorded timing (serial frames byte for byte), collects what the controller answers, and
+compares those answers with the recorded ones through
+:func:`firmware_proto.trafficlog.compare_answers`: type by type, in order, leaving out
+fields that measure continuous time (:data:`~firmware_proto.trafficlog.VOLATILE_FIELDS`)
+unless strict. Periodic telemetry is counted, not compared.
+
+Both sides are cut alike: answers before the first host frame (a boot IDENT) are left
+out, and so are answers later than the settle window after the last host frame.
+
+The emulator must run as it did when the log was recorded: same seed, speed factor,
+map and rover description (an emulator-recorded serial log names them in its header).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from types import TracebackType
+
+import can
+import serial
+
+from emulator.can_frontend import CanFrontEnd
+from emulator.controller import ControllerConfig, ControllerModel
+from emulator.engine import Emulator
+from emulator.frontend import FrontEnd
+from emulator.serial_frontend import SerialFrontEnd
+from emulator.traffic import LogFile
+from emulator.twin import Twin
+from emulator.worldmap import load_map
+from firmware_proto.canmap import CanDecoder
+from firmware_proto.framing import FrameDecoder
+from firmware_proto.message import Message
+from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
+from firmware_proto.rover import load_rover
+from firmware_proto.trafficlog import (
+    CONTROLLER_TO_HOST,
+    HOST_TO_CONTROLLER,
+    CanRecord,
+    DecodedRecord,
+    Difference,
+    SerialRecord,
+    TrafficRecord,
+    TrafficRecorder,
+    compare_answers,
+    decode_records,
+    is_answer,
+)
+
+__all__ = ["MAX_SETTLE_S", "ReplayOptions", "ReplayResult", "replay_into_emulator"]
+
+logger = logging.getLogger(__name__)
+
+MAX_SETTLE_S = 10.0
+"""Longest wait for answers after the last host frame, s (wall)."""
+_FIRST_FRAME_TIMEOUT_S = 5.0
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """How to run the fresh emulator and the comparison.
+
+    Attributes:
+        seed: the emulator's seed (boot nonce, sensor noise).
+        speed_factor: twin seconds per wall second, as when recorded.
+        map_name: map name or JSON file.
+        rover_path: rover description TOML ("" for the packaged one).
+        node: CAN node id of the controller (``None``: the node the log's host addressed).
+        can_interface, can_channel: the python-can bus for a CAN log.
+        strict: compare volatile fields too.
+        settle_s: extra wait for answers after the last host frame, s.
+    """
+
+    seed: int = 0
+    speed_factor: float = 1.0
+    map_name: str = "lab"
+    rover_path: str = ""
+    node: int | None = None
+    can_interface: str = "virtual"
+    can_channel: str = "rover-replay"
+    strict: bool = False
+    settle_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """What a replay found.
+
+    Attributes:
+        medium: ``"serial"`` or ``"can"``.
+        node: the CAN node replayed (``None`` on serial).
+        sent: host frames re-sent.
+        recorded_answers, replayed_answers: answers compared on each side.
+        recorded_telemetry, replayed_telemetry: telemetry frames in the window, by type.
+        differences: every difference; empty when the controller answered alike.
+        duration_s: wall time of the replay.
+    """
+
+    medium: str
+    node: int | None
+    sent: int
+    recorded_answers: int
+    replayed_answers: int
+    recorded_telemetry: dict[str, int]
+    replayed_telemetry: dict[str, int]
+    differences: tuple[Difference, ...]
+    duration_s: float
+
+    @property
+    def ok(self) -> bool:
+        """The controller answered as recorded."""
+        return not self.differences
+
+    def report(self) -> str:
+        """A few lines for a terminal."""
+        where = "serial (pty)" if self.medium == "serial" else f"CAN node {self.node}"
+        lines = [
+            f"replayed {self.sent} host frames into a fresh emulator over {where} "
+            f"in {self.duration_s:.1f} s",
+            f"answers compared: {self.recorded_answers} recorded, {self.replayed_answers} replayed",
+        ]
+        telemetry = sorted(set(self.recorded_telemetry) | set(self.replayed_telemetry))
+        if telemetry:
+            counts = ", ".join(
+                f"{name} {self.recorded_telemetry.get(name, 0)}/"
+                f"{self.replayed_telemetry.get(name, 0)}"
+                for name in telemetry
+            )
+            lines.append(f"telemetry (not compared; recorded/replayed): {counts}")
+        if self.ok:
+            lines.append("same answers")
+        else:
+            lines.append(f"{len(self.differences)} difference(s):")
+            lines += [f"  {d}" for d in self.differences]
+        return "\n".join(lines)
+
+
+class _Host:
+    """The replaying host: sends raw frames, collects the controller's messages with
+    their arrival time on a reader thread."""
+
+    def __init__(self) -> None:
+        self.received: list[tuple[float, Message]] = []
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="replay-host-rx", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            messages = self._read()
+            if messages:
+                now = time.monotonic()
+                with self._cond:
+                    self.received += [(now, m) for m in messages]
+                    self._cond.notify_all()
+
+    def wait_first(self, timeout_s: float) -> bool:
+        """Wait until the controller said anything (so boot frames are in)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: bool(self.received), timeout_s)
+
+    def snapshot(self) -> list[tuple[float, Message]]:
+        """Everything received so far, with arrival times (``time.monotonic()``)."""
+        with self._cond:
+            return list(self.received)
+
+    def send(self, record: TrafficRecord) -> None:
+        raise NotImplementedError
+
+    def _read(self) -> list[Message]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> _Host:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class _SerialHost(_Host):
+    def __init__(self, device: str) -> None:
+        super().__init__()
+        self.port = serial.Serial(device, baudrate=115200, timeout=0.05)
+        self.decoder = FrameDecoder()
+
+    def send(self, record: TrafficRecord) -> None:
+        """Write a recorded frame's bytes, exactly as recorded."""
+        if not isinstance(record, SerialRecord):
+            raise TypeError("a serial replay needs serial records")
+        self.port.write(record.wire)
+
+    def _read(self) -> list[Message]:
+        try:
+            data = self.port.read(self.port.in_waiting or 1)
+        except (serial.SerialException, OSError, TypeError):
+            if not self._stop.is_set():
+                self._stop.wait(0.01)
+            return []
+        return [f.message for f in self.decoder.feed(data)]
+
+    def close(self) -> None:
+        super().close()
+        self.port.close()
+
+
+class _CanHost(_Host):
+    def __init__(self, interface: str, channel: str, node: int) -> None:
+        super().__init__()
+        self.bus = can.Bus(interface=interface, channel=channel)
+        self.node = node
+        self.decoder = CanDecoder()
+
+    def send(self, record: TrafficRecord) -> None:
+        """Put a recorded frame on the bus again."""
+        if not isinstance(record, CanRecord):
+            raise TypeError("a CAN replay needs CAN records")
+        self.bus.send(
+            can.Message(
+                arbitration_id=record.arbitration_id,
+                data=record.data,
+                is_extended_id=record.is_extended_id,
+                is_remote_frame=record.is_remote_frame,
+            )
+        )
+
+    def _read(self) -> list[Message]:
+        frame = self.bus.recv(timeout=0.05)
+        if frame is None or frame.is_error_frame:
+            return []
+        decoded = self.decoder.decode(
+            frame.arbitration_id,
+            bytes(frame.data),
+            is_extended=frame.is_extended_id,
+            is_remote=frame.is_remote_frame,
+        )
+        if decoded is None or decoded.node != self.node:
+            return []
+        if decoded.message.DIRECTION != "controller_to_host":
+            return []
+        return [decoded.message]
+
+    def close(self) -> None:
+        super().close()
+        self.bus.shutdown()
+
+
+def _log_node(decoded: list[DecodedRecord]) -> int:
+    """The node the log's host talked to: the most common non-broadcast node of its
+    host-to-controller frames."""
+    nodes = Counter(
+        d.node
+        for d in decoded
+        if d.message is not None
+        and d.direction == HOST_TO_CONTROLLER
+        and d.node not in (None, BROADCAST_NODE)
+    )
+    return int(nodes.most_common(1)[0][0]) if nodes else DEFAULT_NODE
+
+
+def _telemetry_counts(messages: list[Message]) -> dict[str, int]:
+    return dict(
+        Counter(
+            m.NAME
+            for m in messages
+            if m.DIRECTION == "controller_to_host" and m.PRIORITY == "telemetry"
+        )
+    )
+
+
+def replay_into_emulator(
+    log: LogFile,
+    options: ReplayOptions | None = None,
+    *,
+    recorder: TrafficRecorder | None = None,
+) -> ReplayResult:
+    """Replay ``log``'s host frames into a fresh emulator; see the module docstring.
+
+    Args:
+        log: a traffic log (serial or CAN) from :func:`emulator.traffic.read_log`.
+        options: emulator and comparison settings.
+        recorder: records the replay session itself (optional).
+
+    Raises:
+        ValueError: the log holds no host-to-controller frame.
+        OSError: the pty or bus cannot be opened.
+        TimeoutError: the fresh emulator said nothing within 5 s.
+    """
+    opts = options or ReplayOptions()
+    decoded = decode_records(log.records)
+    node = (opts.node or _log_node(decoded)) if log.kind == "can" else None
+    host_records = [rec for rec in log.records if rec.direction == HOST_TO_CONTROLLER]
+    if not host_records:
+        raise ValueError(f"{log.path}: no host-to-controller frame to replay")
+    t_first = host_records[0].time_s
+    t_last = host_records[-1].time_s
+    ours = [
+        d
+        for d in decoded
+        if d.message is not None
+        and d.direction == CONTROLLER_TO_HOST
+        and (node is None or d.node == node)
+        and d.time_s >= t_first
+    ]
+    tail = max((d.time_s for d in ours), default=t_last) - t_last
+    settle = min(MAX_SETTLE_S, max(0.0, tail)) + opts.settle_s
+    recorded = [d.message for d in ours if d.time_s <= t_last + settle and d.message is not None]
+
+    rover = load_rover(opts.rover_path or None)
+    model = ControllerModel(
+        rover,
+        Twin(rover, load_map(opts.map_name)),
+        ControllerConfig(timeout_scale=opts.speed_factor),
+        seed=opts.seed,
+    )
+    frontend: FrontEnd
+    host: _SerialHost | _CanHost
+    started = time.monotonic()
+    if log.kind == "serial":
+        frontend = SerialFrontEnd(seed=opts.seed, recorder=recorder)
+    else:
+        assert node is not None
+        frontend = CanFrontEnd(
+            interface=opts.can_interface,
+            channel=opts.can_channel,
+            node=node,
+            seed=opts.seed,
+            recorder=recorder,
+        )
+    emulator = Emulator(model, frontend, speed_factor=opts.speed_factor)
+    try:
+        if isinstance(frontend, CanFrontEnd):
+            assert node is not None
+            host = _CanHost(opts.can_interface, opts.can_channel, node)  # before boot
+            emulator.start()
+        else:
+            emulator.start()
+            host = _SerialHost(frontend.device)
+        with host:
+            host.start()
+            if not host.wait_first(_FIRST_FRAME_TIMEOUT_S):
+                raise TimeoutError("the fresh emulator sent nothing within 5 s")
+            t0 = time.monotonic()
+            for rec in host_records:
+                delay = t0 + (rec.time_s - t_first) - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)  # replaying the recorded timing is the point
+                host.send(rec)
+            end = time.monotonic() + settle
+            while (left := end - time.monotonic()) > 0:
+                time.sleep(min(left, 0.05))
+            received = host.snapshot()
+    finally:
+        emulator.close()
+    replayed = [m for t, m in received if t >= t0]
+    differences = compare_answers(recorded, replayed, strict=opts.strict)
+    return ReplayResult(
+        medium=log.kind,
+        node=node,
+        sent=len(host_records),
+        recorded_answers=sum(1 for m in recorded if is_answer(m)),
+        replayed_answers=sum(1 for m in replayed if is_answer(m)),
+        recorded_telemetry=_telemetry_counts(recorded),
+        replayed_telemetry=_telemetry_counts(replayed),
+        differences=tuple(differences),
+        duration_s=time.monotonic() - started,
+    )
