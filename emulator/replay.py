@@ -9,8 +9,12 @@ compares those answers with the recorded ones through
 fields that measure continuous time (:data:`~firmware_proto.trafficlog.VOLATILE_FIELDS`)
 unless strict. Periodic telemetry is counted, not compared.
 
-Both sides are cut alike: answers before the first host frame (a boot IDENT) are left
-out, and so are answers later than the settle window after the last host frame.
+Both sides are cut alike. Answers before the first host frame (a boot IDENT) are left
+out. The recording's window ends with its last controller frame (at most
+:data:`MAX_SETTLE_S` after the last host frame); the replay's window is as long after
+its own last host frame. Answers that arrive up to ``settle_s`` later than that still
+count, but only to match recorded answers the window lacks (an answer sent just as the
+recording ended lands on either side of the cut by chance).
 
 The emulator must run as it did when the log was recorded: same seed, speed factor,
 map and rover description (an emulator-recorded serial log names them in its header).
@@ -76,7 +80,7 @@ class ReplayOptions:
         node: CAN node id of the controller (``None``: the node the log's host addressed).
         can_interface, can_channel: the python-can bus for a CAN log.
         strict: compare volatile fields too.
-        settle_s: extra wait for answers after the last host frame, s.
+        settle_s: grace for answers just after the window, s (see the module docstring).
     """
 
     seed: int = 0
@@ -87,7 +91,7 @@ class ReplayOptions:
     can_interface: str = "virtual"
     can_channel: str = "rover-replay"
     strict: bool = False
-    settle_s: float = 0.5
+    settle_s: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -288,6 +292,25 @@ def _telemetry_counts(messages: list[Message]) -> dict[str, int]:
     )
 
 
+def _within(
+    received: list[tuple[float, Message]],
+    start: float,
+    boundary: float,
+    recorded: list[Message],
+) -> list[Message]:
+    """The replayed messages of the window ``[start, boundary]``, plus late answers
+    (after ``boundary``) of a type only as far as the recording has more of that type."""
+    inside = [m for t, m in received if start <= t <= boundary]
+    late = [m for t, m in received if t > boundary and is_answer(m)]
+    wanted = Counter(m.NAME for m in recorded if is_answer(m))
+    wanted.subtract(Counter(m.NAME for m in inside if is_answer(m)))
+    for message in late:
+        if wanted[message.NAME] > 0:
+            wanted[message.NAME] -= 1
+            inside.append(message)
+    return inside
+
+
 def replay_into_emulator(
     log: LogFile,
     options: ReplayOptions | None = None,
@@ -323,8 +346,8 @@ def replay_into_emulator(
         and d.time_s >= t_first
     ]
     tail = max((d.time_s for d in ours), default=t_last) - t_last
-    settle = min(MAX_SETTLE_S, max(0.0, tail)) + opts.settle_s
-    recorded = [d.message for d in ours if d.time_s <= t_last + settle and d.message is not None]
+    window = min(MAX_SETTLE_S, max(0.0, tail))
+    recorded = [d.message for d in ours if d.time_s <= t_last + window and d.message is not None]
 
     rover = load_rover(opts.rover_path or None)
     model = ControllerModel(
@@ -366,13 +389,14 @@ def replay_into_emulator(
                 if delay > 0:
                     time.sleep(delay)  # replaying the recorded timing is the point
                 host.send(rec)
-            end = time.monotonic() + settle
+            boundary = t0 + (t_last - t_first) + window
+            end = boundary + opts.settle_s
             while (left := end - time.monotonic()) > 0:
                 time.sleep(min(left, 0.05))
             received = host.snapshot()
     finally:
         emulator.close()
-    replayed = [m for t, m in received if t >= t0]
+    replayed = _within(received, t0, boundary, recorded)
     differences = compare_answers(recorded, replayed, strict=opts.strict)
     return ReplayResult(
         medium=log.kind,

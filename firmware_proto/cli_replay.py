@@ -88,9 +88,9 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--settle",
         type=float,
-        default=0.5,
+        default=0.2,
         metavar="SECONDS",
-        help="extra wait for answers after the last frame (default 0.5)",
+        help="grace for answers just after the recorded window (default 0.2)",
     )
     p.add_argument("--record", metavar="FILE", help="record the replay session too")
     p.set_defaults(func=_run, into=None)
