@@ -1,0 +1,74 @@
+"""Build glue for ROS 2: colcon builds an ament_python package by running this file.
+
+Everything about the Python distribution (name, version, dependencies, packages, console
+scripts, entry points) lives in pyproject.toml, which setuptools reads by itself. This
+file only adds the ROS 2 data files (docs/ros2.md):
+
+- the package marker for the ament index (``bridge/ros/resource/rover_hil``), so that
+  ``ros2 run`` and ``ros2 launch`` find the package;
+- ``package.xml``, the launch files (``bridge/ros/launch/*_launch.py``) and the
+  parameter files (``bridge/ros/config/*.yaml``) under ``share/rover_hil``.
+
+Under ``colcon build --symlink-install`` colcon runs this file from the build directory,
+next to symlinks of setup.py, setup.cfg, the packages and the data files but without
+pyproject.toml; the metadata is then read from the source tree's pyproject.toml and given
+to ``setup()`` directly.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+from setuptools import find_namespace_packages, setup
+
+PACKAGE = "rover_hil"
+SOURCE = Path(__file__).resolve().parent  # the source tree, even through a symlink
+ROS_DIR = Path("bridge") / "ros"
+
+
+def _files(subdir: str, pattern: str) -> list[str]:
+    """Data files under bridge/ros/<subdir>, relative to the source tree, sorted."""
+    return sorted(
+        str(path.relative_to(SOURCE)) for path in (SOURCE / ROS_DIR / subdir).glob(pattern)
+    )
+
+
+DATA_FILES = [
+    ("share/ament_index/resource_index/packages", [str(ROS_DIR / "resource" / PACKAGE)]),
+    (f"share/{PACKAGE}", ["package.xml"]),
+    (f"share/{PACKAGE}/launch", _files("launch", "*_launch.py")),
+    (f"share/{PACKAGE}/config", _files("config", "*.yaml")),
+]
+
+
+def _metadata_from_pyproject() -> dict[str, Any]:
+    """setup() arguments from the source tree's pyproject.toml (symlink-install only)."""
+    # Imported here: only this path needs it, and tomli only exists where pyproject asks.
+    if sys.version_info >= (3, 11):
+        import tomllib  # noqa: PLC0415
+    else:  # pragma: no cover
+        import tomli as tomllib  # noqa: PLC0415
+
+    doc = tomllib.loads((SOURCE / "pyproject.toml").read_text(encoding="utf-8"))
+    project = doc["project"]
+    tool = doc["tool"]["setuptools"]
+    entry_points = {"console_scripts": [f"{k} = {v}" for k, v in project["scripts"].items()]}
+    for group, items in project.get("entry-points", {}).items():
+        entry_points[group] = [f"{k} = {v}" for k, v in items.items()]
+    return {
+        "name": project["name"],
+        "version": project["version"],
+        "description": project["description"],
+        "python_requires": project["requires-python"],
+        "packages": find_namespace_packages(where=".", include=tool["packages"]["find"]["include"]),
+        "package_data": tool.get("package-data", {}),
+        "entry_points": entry_points,
+    }
+
+
+setup(
+    data_files=DATA_FILES,
+    **({} if Path("pyproject.toml").exists() else _metadata_from_pyproject()),
+)
