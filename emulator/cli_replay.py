@@ -36,10 +36,10 @@ def run(args: argparse.Namespace) -> int:
         can_interface=interface,
         can_channel=channel,
         strict=args.strict,
-        settle_s=args.settle,
+        edge_s=args.edge,
     )
-    if options.speed_factor <= 0 or args.settle < 0:
-        raise ValueError("--speed-factor must be > 0 and --settle >= 0")
+    if options.speed_factor <= 0 or args.edge < 0:
+        raise ValueError("--speed-factor must be > 0 and --edge >= 0")
     recorder = (
         open_recorder(args.record, log.kind, channel=channel, metadata={"role": "replay"})
         if args.record

@@ -12,9 +12,13 @@ unless strict. Periodic telemetry is counted, not compared.
 Both sides are cut alike. Answers before the first host frame (a boot IDENT) are left
 out. The recording's window ends with its last controller frame (at most
 :data:`MAX_SETTLE_S` after the last host frame); the replay's window is as long after
-its own last host frame. Answers that arrive up to ``settle_s`` later than that still
-count, but only to match recorded answers the window lacks (an answer sent just as the
-recording ended lands on either side of the cut by chance).
+its own last host frame. An answer sent within ``edge_s`` of the end of either window
+may fall on either side of the cut by chance (the recording stopped mid-answer, or the
+replay ran a millisecond ahead), so such answers count only where they pair up: for
+each message type the longest agreeing run is kept, and nothing inside the windows is
+ever dropped. Behaviour that hangs on sub-millisecond timing (a STOP sent in the same
+millisecond as a step starts) cannot replay alike; drive recorded sessions so it does
+not.
 
 The emulator must run as it did when the log was recorded: same seed, speed factor,
 map and rover description (an emulator-recorded serial log names them in its header).
@@ -54,6 +58,7 @@ from firmware_proto.trafficlog import (
     SerialRecord,
     TrafficRecord,
     TrafficRecorder,
+    answer_key,
     compare_answers,
     decode_records,
     is_answer,
@@ -80,7 +85,8 @@ class ReplayOptions:
         node: CAN node id of the controller (``None``: the node the log's host addressed).
         can_interface, can_channel: the python-can bus for a CAN log.
         strict: compare volatile fields too.
-        settle_s: grace for answers just after the window, s (see the module docstring).
+        edge_s: answers this close to the end of a window may fall on either side of it,
+            s (see the module docstring).
     """
 
     seed: int = 0
@@ -91,7 +97,7 @@ class ReplayOptions:
     can_interface: str = "virtual"
     can_channel: str = "rover-replay"
     strict: bool = False
-    settle_s: float = 0.2
+    edge_s: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -292,23 +298,36 @@ def _telemetry_counts(messages: list[Message]) -> dict[str, int]:
     )
 
 
-def _within(
-    received: list[tuple[float, Message]],
-    start: float,
-    boundary: float,
-    recorded: list[Message],
-) -> list[Message]:
-    """The replayed messages of the window ``[start, boundary]``, plus late answers
-    (after ``boundary``) of a type only as far as the recording has more of that type."""
-    inside = [m for t, m in received if start <= t <= boundary]
-    late = [m for t, m in received if t > boundary and is_answer(m)]
-    wanted = Counter(m.NAME for m in recorded if is_answer(m))
-    wanted.subtract(Counter(m.NAME for m in inside if is_answer(m)))
-    for message in late:
-        if wanted[message.NAME] > 0:
-            wanted[message.NAME] -= 1
-            inside.append(message)
-    return inside
+def _pair_at_the_edges(
+    recorded: list[tuple[float, Message]],
+    replayed: list[tuple[float, Message]],
+    ends: tuple[float, float],
+    edge_s: float,
+    strict: bool,
+) -> tuple[list[Message], list[Message]]:
+    """The answers to compare on each side: per type, every answer inside its window's
+    core, and edge answers (within ``edge_s`` of the end) as far as both sides agree."""
+    rec_end, rep_end = ends
+    out_recorded: list[Message] = []
+    out_replayed: list[Message] = []
+    names = {m.NAME for _, m in recorded + replayed if is_answer(m)}
+    for name in sorted(names):
+        r = [(t, m) for t, m in recorded if name == m.NAME and t <= rec_end]
+        p = [(t, m) for t, m in replayed if name == m.NAME and t <= rep_end + edge_s]
+        r_core = sum(t <= rec_end - edge_s for t, _ in r)
+        p_core = sum(t <= rep_end - edge_s for t, _ in p)
+        keys_r = [answer_key(m, strict) for _, m in r]
+        keys_p = [answer_key(m, strict) for _, m in p]
+        low, high = max(r_core, p_core), min(len(r), len(p))
+        agreeing = [n for n in range(low, high + 1) if keys_r[:n] == keys_p[:n]]
+        if agreeing:
+            n_r = n_p = agreeing[-1]
+        else:  # they differ inside: keep the cores and what pairs beyond them
+            n_r = max(r_core, min(len(r), low))
+            n_p = max(p_core, min(len(p), low))
+        out_recorded += [m for _, m in r[:n_r]]
+        out_replayed += [m for _, m in p[:n_p]]
+    return out_recorded, out_replayed
 
 
 def replay_into_emulator(
@@ -347,7 +366,11 @@ def replay_into_emulator(
     ]
     tail = max((d.time_s for d in ours), default=t_last) - t_last
     window = min(MAX_SETTLE_S, max(0.0, tail))
-    recorded = [d.message for d in ours if d.time_s <= t_last + window and d.message is not None]
+    recorded_timed = [
+        (d.time_s - t_first, d.message)
+        for d in ours
+        if d.time_s <= t_last + window and d.message is not None
+    ]
 
     rover = load_rover(opts.rover_path or None)
     model = ControllerModel(
@@ -390,13 +413,17 @@ def replay_into_emulator(
                     time.sleep(delay)  # replaying the recorded timing is the point
                 host.send(rec)
             boundary = t0 + (t_last - t_first) + window
-            end = boundary + opts.settle_s
+            end = boundary + opts.edge_s
             while (left := end - time.monotonic()) > 0:
                 time.sleep(min(left, 0.05))
             received = host.snapshot()
     finally:
         emulator.close()
-    replayed = _within(received, t0, boundary, recorded)
+    replayed_timed = [(t - t0, m) for t, m in received if t >= t0]
+    end_offset = t_last - t_first + window
+    recorded, replayed = _pair_at_the_edges(
+        recorded_timed, replayed_timed, (end_offset, end_offset), opts.edge_s, opts.strict
+    )
     differences = compare_answers(recorded, replayed, strict=opts.strict)
     return ReplayResult(
         medium=log.kind,
@@ -404,8 +431,8 @@ def replay_into_emulator(
         sent=len(host_records),
         recorded_answers=sum(1 for m in recorded if is_answer(m)),
         replayed_answers=sum(1 for m in replayed if is_answer(m)),
-        recorded_telemetry=_telemetry_counts(recorded),
-        replayed_telemetry=_telemetry_counts(replayed),
+        recorded_telemetry=_telemetry_counts([m for _, m in recorded_timed]),
+        replayed_telemetry=_telemetry_counts([m for t, m in replayed_timed if t <= end_offset]),
         differences=tuple(differences),
         duration_s=time.monotonic() - started,
     )

@@ -86,11 +86,14 @@ def register(subparsers: Any) -> None:
         "--strict", action="store_true", help="also compare measured fields (travel, ...)"
     )
     p.add_argument(
-        "--settle",
+        "--edge",
         type=float,
-        default=0.2,
+        default=0.05,
         metavar="SECONDS",
-        help="grace for answers just after the recorded window (default 0.2)",
+        help=(
+            "answers this close to the end of the recording may fall on either side of it "
+            "(default 0.05)"
+        ),
     )
     p.add_argument("--record", metavar="FILE", help="record the replay session too")
     p.set_defaults(func=_run, into=None)

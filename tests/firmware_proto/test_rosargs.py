@@ -1,0 +1,138 @@
+"""ROS arguments to long options: what launch_ros appends to our programs' command lines
+becomes the options they already understand."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from firmware_proto.rosargs import (
+    RosArgs,
+    argv_from_ros_args,
+    node_parameters,
+    parameters_to_argv,
+    parse_ros_args,
+    split_ros_args,
+)
+
+LAUNCH_ROS_TAIL = [
+    "--ros-args",
+    "--log-level",
+    "info",
+    "-r",
+    "__node:=rover_emulator",
+    "-r",
+    "__ns:=/rover1",
+    "--params-file",
+    "/tmp/hil.yaml",
+    "-p",
+    "seed:=7",
+    "-r",
+    "odom:=odom_raw",
+    "--enable-rosout-logs",
+]
+
+
+def test_the_ros_block_is_split_off_wherever_it_is() -> None:
+    own, ros = split_ros_args(["--serial", *LAUNCH_ROS_TAIL])
+    assert own == ["--serial"]
+    assert ros == LAUNCH_ROS_TAIL[1:]
+    own, ros = split_ros_args(["--ros-args", "-p", "a:=1", "--", "--serial", "--ros-args", "-p"])
+    assert (own, ros) == (["--serial"], ["-p", "a:=1", "-p"])
+    assert split_ros_args(["--map", "lab"]) == (["--map", "lab"], [])
+
+
+def test_node_name_namespace_files_and_typed_parameters_are_read() -> None:
+    parsed = parse_ros_args(
+        [*LAUNCH_ROS_TAIL[1:], "-p", "serial:=true", "-p", "map:='lab'", "-p", "dt:=0.002"]
+    )
+    assert parsed == RosArgs(
+        node_name="rover_emulator",
+        namespace="/rover1",
+        params_files=("/tmp/hil.yaml",),
+        params={"seed": 7, "serial": True, "map": "lab", "dt": 0.002},
+    )
+    assert parse_ros_args(["-p", "other_node:seed:=3"]).params == {}  # another node's
+
+
+@pytest.mark.parametrize(
+    ("args", "error"),
+    [
+        (["-p"], "needs a value"),
+        (["--params-file"], "needs a value"),
+        (["-p", "seed=3"], "name:=value"),
+        (["-r", "a"], "from:=to"),
+    ],
+)
+def test_malformed_ros_arguments_are_refused(args: list[str], error: str) -> None:
+    with pytest.raises(ValueError, match=error):
+        parse_ros_args(args)
+
+
+DOC: dict[str, Any] = {
+    "/**": {"ros__parameters": {"seed": 1, "map": "lab"}},
+    "/**/rover_emulator": {"ros__parameters": {"seed": 2, "serial": True}},
+    "rover_emulator": {"ros__parameters": {"seed": 3}},
+    "/rover1/rover_emulator": {"ros__parameters": {"seed": 4, "twin": {"dt": 0.002}}},
+    "rover_bridge": {"ros__parameters": {"device": "/tmp/x"}},
+}
+
+
+def test_sections_apply_from_general_to_specific_as_in_ros() -> None:
+    assert node_parameters(DOC, "rover_emulator", "/rover1") == {
+        "seed": 4,
+        "map": "lab",
+        "serial": True,
+        "twin.dt": 0.002,
+    }
+    assert node_parameters(DOC, "rover_emulator") == {"seed": 3, "map": "lab", "serial": True}
+    assert node_parameters(DOC, "rover_gate") == {"seed": 1, "map": "lab"}
+    assert node_parameters(None, "x") == {}
+    with pytest.raises(ValueError, match="mapping"):
+        node_parameters(["not", "a", "mapping"], "x")
+
+
+def test_parameters_become_long_options() -> None:
+    assert parameters_to_argv(
+        {
+            "serial": True,
+            "speed_factor": 4.0,
+            "inject": ["slip:left=0.3", "reboot@t=5"],
+            "link": "",
+            "record": None,
+            "verbose": False,
+            "twin.dt": 0.002,
+        }
+    ) == [
+        "--serial",
+        "--speed-factor",
+        "4.0",
+        "--inject",
+        "slip:left=0.3",
+        "--inject",
+        "reboot@t=5",
+        "--twin-dt",
+        "0.002",
+    ]
+
+
+def test_files_then_command_line_parameters_make_the_options() -> None:
+    loaded: list[str] = []
+
+    def load(path: str) -> Any:
+        loaded.append(path)
+        return DOC
+
+    argv = argv_from_ros_args(LAUNCH_ROS_TAIL[1:], "default_name", load)
+    assert loaded == ["/tmp/hil.yaml"]
+    assert argv == ["--seed", "7", "--map", "lab", "--serial", "--twin-dt", "0.002"]
+    # Without a __node remap the default name picks the section.
+    assert argv_from_ros_args(["--params-file", "f"], "rover_bridge", load) == [
+        "--seed",
+        "1",
+        "--map",
+        "lab",
+        "--device",
+        "/tmp/x",
+    ]
