@@ -134,11 +134,20 @@ def _record_session(
     return Session(kind, channel, node, host_log, controller_log, rec.items)
 
 
+@pytest.fixture(scope="module")
+def sessions(
+    rover: RoverDescription, tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, Session]:
+    """One recorded session per medium, shared by the tests of this module (read only)."""
+    return {
+        kind: _record_session(rover, tmp_path_factory.mktemp(kind), kind, f"traffic-{kind}")
+        for kind in ("serial", "can")
+    }
+
+
 @pytest.fixture(params=["serial", "can"])
-def session(
-    request: pytest.FixtureRequest, rover: RoverDescription, tmp_path: Path, can_channel: str
-) -> Session:
-    return _record_session(rover, tmp_path, request.param, can_channel)
+def session(request: pytest.FixtureRequest, sessions: dict[str, Session]) -> Session:
+    return sessions[request.param]
 
 
 def _options(s: Session, **kw: object) -> ReplayOptions:
@@ -175,8 +184,8 @@ def test_both_ends_record_the_same_conversation(session: Session) -> None:
     assert all(d.message is not None for d in decode_records(host.records))
 
 
-def test_serial_logs_keep_the_exact_wire_bytes(rover: RoverDescription, tmp_path: Path) -> None:
-    s = _record_session(rover, tmp_path, "serial", "unused")
+def test_serial_logs_keep_the_exact_wire_bytes(sessions: dict[str, Session]) -> None:
+    s = sessions["serial"]
     text = s.host_log.read_text(encoding="ascii").splitlines()
     assert text[0] == "# rover-hil serial frame log v1"
     lines = [line for line in text if not line.startswith("#")]
@@ -188,10 +197,9 @@ def test_serial_logs_keep_the_exact_wire_bytes(rover: RoverDescription, tmp_path
     assert first_host.raw == encode_frame(first_host.message, first_host.seq or 0).hex()
 
 
-def test_can_logs_are_candump_logs_python_can_reads(
-    rover: RoverDescription, tmp_path: Path, can_channel: str
-) -> None:
-    s = _record_session(rover, tmp_path, "can", can_channel)
+def test_can_logs_are_candump_logs_python_can_reads(sessions: dict[str, Session]) -> None:
+    s = sessions["can"]
+    can_channel = s.channel
     lines = s.host_log.read_text(encoding="ascii").splitlines()
     pattern = rf"\(\d+\.\d{{6}}\) {re.escape(can_channel)} [0-9A-F]{{3}}#[0-9A-F]* [RT]"
     assert all(re.fullmatch(pattern, line) for line in lines), lines[:3]
@@ -292,9 +300,9 @@ def test_a_changed_request_changes_the_answer(session: Session, tmp_path: Path) 
 
 
 def test_rover_replay_takes_its_defaults_from_an_emulator_log(
-    rover: RoverDescription, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    sessions: dict[str, Session], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    s = _record_session(rover, tmp_path, "serial", "unused")
+    s = sessions["serial"]
     assert rover_cli(["replay", str(s.controller_log)]) == 0
     out = capsys.readouterr().out
     assert f"emulator seed {SEED}, speed factor {SPEED:g}, map lab" in out

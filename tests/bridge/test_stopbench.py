@@ -1,0 +1,204 @@
+"""The STOP bench against the real emulator, over a pty and a python-can bus (``virtual``
+here; ``socketcan`` on ``vcan0`` where the kernel has it): every trial measures, latches
+and clears; the reports are written and readable; a bad controller is refused."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from bridge.benchreport import format_table, summarize, write_reports
+from bridge.errors import TransportError
+from bridge.stopbench import BenchConfig, BenchError, BenchRun, FloodConfig, StopBench, TrialResult
+from bridge.traffic import read_log
+from emulator.engine import Emulator
+from firmware_proto.cli import main as rover_cli
+from firmware_proto.messages import SCHEMA_HASH, Param
+from firmware_proto.trafficlog import decode_records
+
+Emus = Callable[..., Emulator]
+HAVE_VCAN0 = os.path.exists("/sys/class/net/vcan0")
+NO_VCAN0 = "no vcan0 here: this kernel has no SocketCAN (udev/vcan-up.sh says why)"
+
+
+def _check_run(run: BenchRun, trials: int) -> None:
+    assert len(run.trials) == trials
+    assert run.passed == trials, format_table(run)
+    for t in run.trials:
+        assert t.ok
+        assert t.ack_ms is not None
+        assert t.stopped_ms is not None
+        assert t.zero_ms is not None
+        # The acknowledgement comes long before the rover is at rest.
+        assert 0 < t.ack_ms < t.stopped_ms
+        assert t.zero_ms > t.ack_ms
+        assert t.queued == t.purged == 8  # MOTION_QUEUE_DEPTH: the queue was full
+        assert t.speed_mm_s is not None
+        assert t.speed_mm_s >= 10  # STOP caught a moving rover
+        assert t.controller_duration_ms is not None
+        assert t.controller_distance_mm is not None
+        assert t.clear_result == "CLEARED"
+    assert len({t.stop_id for t in run.trials}) == trials
+    assert run.telemetry_hz_set == 100
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "pty",
+        "virtual",
+        pytest.param(
+            "socketcan",
+            marks=[pytest.mark.socketcan, pytest.mark.skipif(not HAVE_VCAN0, reason=NO_VCAN0)],
+        ),
+    ],
+)
+def test_stop_is_acknowledged_stops_latches_and_clears_under_load(
+    emulators: Emus, kind: str, can_channel: str, tmp_path: Path
+) -> None:
+    flood = None
+    if kind == "pty":
+        emu = emulators("pty")
+        url = emu.frontend.device  # type: ignore[attr-defined]
+    else:
+        channel = "vcan0" if kind == "socketcan" else can_channel
+        emu = emulators("can", interface=kind, channel=channel, node=3)
+        url = f"can://{kind}/{channel}?node=3"
+        flood = FloodConfig(kind, channel, rate_hz=1000)
+    config = BenchConfig(url=url, trials=3, seed=4, max_delay_s=0.1, flood=flood)
+    seen: list[TrialResult] = []
+    with StopBench(config) as bench:
+        run = bench.run(seen.append)
+    _check_run(run, 3)
+    assert seen == list(run.trials)
+    assert len(emu.stop_reactions) == 3  # every STOP reached the controller once
+    assert emu.status().stop_latched is False  # the bench leaves it released
+    if kind == "pty":
+        assert run.flood is None
+        assert "ahead of anything the host has queued" in run.arbitration_note
+    else:
+        assert run.flood is not None
+        assert run.flood.sent > 0
+        assert "no arbitration" in run.arbitration_note
+        assert "CAN flood 0x63F" in run.load  # PARAM_VALUE of node 15: lowest priority
+
+
+def test_the_stop_moments_follow_the_seed(emulators: Emus) -> None:
+    delays = []
+    for _ in range(2):
+        emu = emulators("pty")
+        config = BenchConfig(url=emu.frontend.device, trials=2, seed=11, max_delay_s=0.05)  # type: ignore[attr-defined]
+        with StopBench(config) as bench:
+            delays.append([t.delay_s for t in bench.run().trials])
+    assert delays[0] == delays[1]
+    assert len(set(delays[0])) == 2
+
+
+def test_reports_table_csv_json_and_histogram(emulators: Emus, tmp_path: Path) -> None:
+    emu = emulators("pty")
+    config = BenchConfig(url=emu.frontend.device, trials=2, seed=1, max_delay_s=0.05)  # type: ignore[attr-defined]
+    with StopBench(config) as bench:
+        run = bench.run()
+    table = format_table(run)
+    for text in (
+        "STOP -> STOP_ACK",
+        "STOP -> STOPPED",
+        "STOP -> wheels at zero",
+        "p50",
+        "p99",
+        "latch held (MOTION refused STOP_LATCHED): 2/2",
+        "CLEAR_STOP released (CLEARED): 2/2",
+        "trials passed: 2/2",
+    ):
+        assert text in table
+    csv_path, json_path, png_path = write_reports(run, tmp_path / "out")
+    with csv_path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["trial"]) for r in rows] == [1, 2]
+    assert all(r["ok"] == "True" for r in rows)
+    doc = json.loads(json_path.read_text())
+    assert doc["passed"] == 2
+    assert doc["config"]["url"] == config.url
+    assert set(doc["summary"]) == {"ack_ms", "stopped_ms", "zero_ms"}
+    assert doc["summary"]["ack_ms"]["n"] == 2
+    assert doc["summary"]["ack_ms"]["max"] == max(t.ack_ms for t in run.trials if t.ack_ms)
+    with Image.open(png_path) as image:
+        assert image.format == "PNG"
+        assert image.size == (900, 40 + 3 * 230)
+
+
+def test_summary_percentiles_and_missing_measures() -> None:
+    def trial(n: int, ack: float | None) -> TrialResult:
+        return TrialResult(
+            n, n, 0.0, 100.0, 8, ack, None, None, None, None, 0, 8, True, True, "CLEARED", True
+        )
+
+    summary = summarize([trial(i, float(i)) for i in range(1, 101)])
+    ack, stopped, _zero = summary
+    assert (ack.n, ack.p50, ack.p95, ack.p99, ack.max) == (100, 50.5, 95.05, 99.01, 100.0)
+    assert stopped.n == 0
+    assert math.isnan(stopped.p50)
+    assert not trial(1, 1.0).ok  # STOPPED never seen
+
+
+def test_a_mismatched_controller_is_refused(emulators: Emus) -> None:
+    emu = emulators("pty", schema_hash=SCHEMA_HASH ^ 0x1111)
+    config = BenchConfig(url=emu.frontend.device, trials=1, timeout_s=2.0)  # type: ignore[attr-defined]
+    with StopBench(config) as bench, pytest.raises(BenchError, match="refusing to drive"):
+        bench.run()
+    assert emu.status().x_m == 0.0
+
+
+def test_nobody_there_says_so(tmp_path: Path) -> None:
+    config = BenchConfig(url=str(tmp_path / "no-such-device"), trials=1)
+    with StopBench(config) as bench, pytest.raises(TransportError, match="no-such-device"):
+        bench.run()
+
+
+def test_rover_bench_stop_cli_records_and_reports(
+    emulators: Emus, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    emu = emulators("pty")
+    out = tmp_path / "bench"
+    log = tmp_path / "bench.rlog"
+    argv = ["bench", "stop", "--serial", emu.frontend.device, "--trials", "2"]  # type: ignore[attr-defined]
+    argv += ["--max-delay", "0.05", "--out", str(out), "--record", str(log)]
+    assert rover_cli(argv) == 0
+    captured = capsys.readouterr()
+    assert "trials passed: 2/2" in captured.out
+    assert f"wrote {out / 'stop_trials.csv'}" in captured.out
+    assert captured.err.count(" ok") == 2  # one progress line per trial
+    assert sorted(p.name for p in out.iterdir()) == [
+        "stop_hist.png",
+        "stop_trials.csv",
+        "stop_trials.json",
+    ]
+    names = [d.message.NAME for d in decode_records(read_log(log).records) if d.message]
+    assert names.count("STOP") >= 2
+    assert names.count("STOPPED") == 2
+    # The telemetry rate was raised for the run and put back afterwards.
+    set_params = [
+        d.message
+        for d in decode_records(read_log(log).records)
+        if d.message is not None and d.message.NAME == "SET_PARAM"
+    ]
+    assert [(m.param, m.value) for m in set_params] == [  # type: ignore[attr-defined]
+        (Param.TELEMETRY_HZ, 100),
+        (Param.TELEMETRY_HZ, 50),
+    ]
+
+
+def test_bench_config_is_checked() -> None:
+    with pytest.raises(ValueError, match="trials"):
+        BenchConfig(url="x", trials=0)
+    with pytest.raises(ValueError, match="speed"):
+        BenchConfig(url="x", speed=61)
+    with pytest.raises(ValueError, match="telemetry"):
+        BenchConfig(url="x", telemetry_hz=500)
