@@ -1,0 +1,399 @@
+"""The ROS 2 package: manifest, colcon glue, launch files and parameter files are well
+formed and agree with each other and with pyproject.toml. No ROS here: the launch files
+run against stand-ins of ``launch``/``launch_ros`` that record what they are given; the
+real launch runs in CI (tests/bridge/launch_hil.py)."""
+
+from __future__ import annotations
+
+import configparser
+import importlib
+import io
+import re
+import runpy
+import sys
+import types
+import xml.etree.ElementTree as ET
+from contextlib import redirect_stdout
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+from bridge.params import BridgeParams
+from emulator.cli_emulate import add_arguments as emulator_arguments
+
+ROOT = Path(__file__).resolve().parents[2]
+ROS_DIR = ROOT / "bridge" / "ros"
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+SCRIPTS: dict[str, str] = PYPROJECT["project"]["scripts"]
+PACKAGE = "rover_hil"
+LAUNCH_FILES = sorted((ROS_DIR / "launch").glob("*_launch.py"))
+
+ROS_PACKAGES = {
+    "rclpy",
+    "builtin_interfaces",
+    "std_msgs",
+    "geometry_msgs",
+    "nav_msgs",
+    "diagnostic_msgs",
+    "launch",
+    "launch_ros",
+    "launch_testing",
+    "launch_testing_ros",
+}
+"""ROS 2 packages of every Jazzy installation (ros_base)."""
+ROSDEP_KEYS = {
+    "python3-can",
+    "python3-jsonschema",
+    "python3-numpy",
+    "python3-pil",
+    "python3-pytest",
+    "python3-serial",
+    "python3-yaml",
+}
+"""rosdep keys checked against ros/rosdistro rosdep/python.yaml (each has an ubuntu entry)."""
+PYTHON_DEPENDENCY_KEYS = {
+    "pyserial": "python3-serial",
+    "python-can": "python3-can",
+    "numpy": "python3-numpy",
+    "jsonschema": "python3-jsonschema",
+    "pillow": "python3-pil",
+    "pymunk": None,  # no rosdep key: pip install pymunk (docs/ros2.md)
+    "tomli": None,  # Python < 3.11 only; Jazzy has 3.12
+}
+"""pyproject dependency -> rosdep key in package.xml (None: documented exception)."""
+
+NOT_ON_THIS_BRANCH = {
+    "gate.cli_gate:main": "rover_gate: gate.cli_gate has no main() yet (branch gate)",
+    "planner.cli_link:main": "rover_link: planner.cli_link is built on main (integrator)",
+    "planner.cli_go:main": "rover_executor: planner.cli_go is built on main (integrator)",
+}
+
+
+# -- package.xml -------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def manifest() -> ET.Element:
+    return ET.parse(ROOT / "package.xml").getroot()
+
+
+def test_manifest_is_format_3_ament_python_named_and_versioned(manifest: ET.Element) -> None:
+    assert manifest.tag == "package"
+    assert manifest.get("format") == "3"
+    assert manifest.findtext("name") == PACKAGE
+    assert manifest.findtext("version") == PYPROJECT["project"]["version"]
+    assert manifest.findtext("export/build_type") == "ament_python"
+    assert (manifest.findtext("description") or "").strip()
+    assert manifest.findtext("license") == "Apache-2.0"
+    maintainer = manifest.find("maintainer")
+    assert maintainer is not None
+    assert re.fullmatch(r"[^@\s]+@[^@\s]+\.[a-z]+", maintainer.get("email", ""))
+    assert "package_format3.xsd" in (ROOT / "package.xml").read_text(encoding="utf-8")
+
+
+def test_every_dependency_is_a_ros_package_or_a_known_rosdep_key(manifest: ET.Element) -> None:
+    exec_depends = [e.text or "" for e in manifest.findall("exec_depend")]
+    test_depends = [e.text or "" for e in manifest.findall("test_depend")]
+    for key in exec_depends + test_depends:
+        assert key in ROS_PACKAGES | ROSDEP_KEYS, f"{key}: not a ROS package or a checked key"
+    assert len(set(exec_depends)) == len(exec_depends)
+    assert {"rclpy", "std_msgs", "nav_msgs", "diagnostic_msgs", "geometry_msgs"} <= set(
+        exec_depends
+    )
+    assert {"launch", "launch_ros"} <= set(exec_depends)
+
+
+def test_every_python_dependency_has_its_rosdep_key(manifest: ET.Element) -> None:
+    exec_depends = {e.text for e in manifest.findall("exec_depend")}
+    for requirement in PYPROJECT["project"]["dependencies"]:
+        name = re.split(r"[<>=;\[ ]", requirement, maxsplit=1)[0].lower()
+        assert name in PYTHON_DEPENDENCY_KEYS, f"{name}: add its rosdep key to package.xml"
+        key = PYTHON_DEPENDENCY_KEYS[name]
+        assert key is None or key in exec_depends
+
+
+# -- setup.py and setup.cfg -------------------------------------------------------------
+
+
+def _run_setup_py(monkeypatch: pytest.MonkeyPatch, cwd: Path) -> dict[str, Any]:
+    """What setup.py gives setup(), as colcon reads it."""
+    captured: dict[str, Any] = {}
+    setuptools = importlib.import_module("setuptools")
+    monkeypatch.setattr(setuptools, "setup", lambda **kw: captured.update(kw))
+    monkeypatch.chdir(cwd)
+    runpy.run_path(str(cwd / "setup.py"), run_name="__main__")
+    return captured
+
+
+def test_setup_py_installs_the_marker_manifest_launch_and_config_files(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    kwargs = _run_setup_py(monkeypatch, ROOT)
+    assert set(kwargs) == {"data_files"}  # metadata comes from pyproject.toml
+    installed = {
+        f"{dest}/{Path(src).name}": src for dest, sources in kwargs["data_files"] for src in sources
+    }
+    for src in installed.values():
+        assert not Path(src).is_absolute()
+        assert (ROOT / src).is_file(), src
+    assert installed[f"share/ament_index/resource_index/packages/{PACKAGE}"]
+    assert installed[f"share/{PACKAGE}/package.xml"] == "package.xml"
+    launch = {k for k in installed if k.startswith(f"share/{PACKAGE}/launch/")}
+    assert launch == {f"share/{PACKAGE}/launch/{p.name}" for p in LAUNCH_FILES}
+    assert {f"share/{PACKAGE}/config/hil.yaml", f"share/{PACKAGE}/config/bridge.yaml"} <= set(
+        installed
+    )
+
+
+def test_symlink_install_gets_the_metadata_from_the_source_tree(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """colcon --symlink-install runs setup.py in the build directory, among symlinks and
+    without pyproject.toml."""
+    for name in ("setup.py", "setup.cfg", "package.xml", "firmware_proto", "bridge", "emulator"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    kwargs = _run_setup_py(monkeypatch, tmp_path)
+    assert kwargs["name"] == PYPROJECT["project"]["name"]
+    assert kwargs["version"] == PYPROJECT["project"]["version"]
+    assert sorted(kwargs["entry_points"]["console_scripts"]) == sorted(
+        f"{k} = {v}" for k, v in SCRIPTS.items()
+    )
+    assert {"firmware_proto", "bridge", "emulator", "bridge.rosport"} <= set(kwargs["packages"])
+    assert kwargs["data_files"][0][1] == [f"bridge/ros/resource/{PACKAGE}"]
+
+
+def test_setup_cfg_puts_executables_where_ros2_run_looks() -> None:
+    config = configparser.ConfigParser()
+    config.read(ROOT / "setup.cfg")
+    assert config["develop"]["script_dir"] == f"$base/lib/{PACKAGE}"
+    assert config["install"]["install_scripts"] == f"$base/lib/{PACKAGE}"
+    assert "metadata" not in config  # else colcon reads options from here, not setup.py
+
+
+# -- console scripts -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("script", "target"), sorted(SCRIPTS.items()))
+def test_console_scripts_that_exist_answer_help(
+    script: str, target: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    module_name, _, func_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError:
+        if target in NOT_ON_THIS_BRANCH:
+            pytest.skip(f"not implemented on this branch: {NOT_ON_THIS_BRANCH[target]}")
+        raise
+    main = getattr(module, func_name)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    assert "usage:" in capsys.readouterr().out
+
+
+# -- launch files ------------------------------------------------------------------------
+
+
+class _Stub:
+    """A stand-in for a launch class: keeps its arguments."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args = args
+        self.kwargs = kwargs
+
+
+def _stub_modules() -> dict[str, types.ModuleType]:
+    classes = {
+        "launch": ["LaunchDescription"],
+        "launch.actions": ["DeclareLaunchArgument", "IncludeLaunchDescription"],
+        "launch.conditions": ["IfCondition", "UnlessCondition"],
+        "launch.substitutions": ["LaunchConfiguration", "PathJoinSubstitution"],
+        "launch_ros": [],
+        "launch_ros.actions": ["Node"],
+        "launch_ros.parameter_descriptions": ["ParameterValue"],
+        "launch_ros.substitutions": ["FindPackageShare"],
+    }
+    modules = {}
+    for name, class_names in classes.items():
+        module = types.ModuleType(name)
+        for class_name in class_names:
+            setattr(module, class_name, type(class_name, (_Stub,), {}))
+        modules[name] = module
+    return modules
+
+
+def _walk(value: Any) -> list[_Stub]:
+    """Every stub reachable from ``value`` (arguments, lists, dicts)."""
+    found: list[_Stub] = []
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, _Stub):
+            found.append(item)
+            stack += [*item.args, *item.kwargs.values()]
+        elif isinstance(item, (list, tuple)):
+            stack += list(item)
+        elif isinstance(item, dict):
+            stack += [*item.keys(), *item.values()]
+    return found
+
+
+def _load(path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """Run a launch file's module against the stand-ins; its namespace."""
+    for name, module in _stub_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    return runpy.run_path(str(path), run_name="launch_file")
+
+
+@pytest.fixture(params=LAUNCH_FILES, ids=lambda p: p.name)
+def launched(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> list[_Stub]:
+    """Everything one launch file's description holds, run against the stand-ins."""
+    path: Path = request.param
+    compile(path.read_text(encoding="utf-8"), str(path), "exec")
+    namespace = _load(path, monkeypatch)
+    description = namespace["generate_launch_description"]()
+    assert type(description).__name__ == "LaunchDescription"
+    return _walk(description)
+
+
+def _of(stubs: list[_Stub], kind: str) -> list[_Stub]:
+    return [s for s in stubs if type(s).__name__ == kind]
+
+
+def test_launch_arguments_carry_descriptions(launched: list[_Stub]) -> None:
+    declared = _of(launched, "DeclareLaunchArgument")
+    assert declared
+    for arg in declared:
+        assert len(arg.kwargs.get("description", "")) > 10, arg.args
+        assert "default_value" in arg.kwargs, arg.args
+    names = {a.args[0] for a in declared}
+    used = {c.args[0] for c in _of(launched, "LaunchConfiguration")}
+    assert used <= names, f"used but not declared: {used - names}"
+
+
+def test_launched_executables_are_declared_console_scripts(launched: list[_Stub]) -> None:
+    nodes = _of(launched, "Node")
+    assert nodes
+    for node in nodes:
+        assert node.kwargs["package"] == PACKAGE
+        assert node.kwargs["executable"] in SCRIPTS
+        assert node.kwargs["name"] == node.kwargs["executable"]
+        assert node.kwargs.get("output") == "screen"
+
+
+def test_launch_files_name_parameter_files_that_exist(launched: list[_Stub]) -> None:
+    shares = _of(launched, "PathJoinSubstitution")
+    assert shares
+    for join in shares:
+        find, *parts = join.args[0]
+        assert type(find).__name__ == "FindPackageShare"
+        assert find.args == (PACKAGE,)
+        assert (ROS_DIR / Path(*parts)).is_file(), parts
+
+
+def test_the_hil_launch_starts_the_whole_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    namespace = _load(ROS_DIR / "launch" / "hil_launch.py", monkeypatch)
+    executables = {executable for _, executable, _, _ in namespace["NODES"]}
+    assert executables == {
+        "rover_emulator",
+        "rover_bridge",
+        "rover_gate",
+        "rover_link",
+        "rover_executor",
+    }
+
+
+def test_the_ci_launch_test_names_a_launch_file_that_exists() -> None:
+    source = (ROOT / "tests" / "bridge" / "launch_hil.py").read_text(encoding="utf-8")
+    compile(source, "launch_hil.py", "exec")
+    match = re.search(r'LAUNCH_FILE = \("rover_hil", "launch", "(\w+\.py)"\)', source)
+    assert match is not None
+    assert (ROS_DIR / "launch" / match.group(1)).is_file()
+
+
+# -- parameter files -----------------------------------------------------------------------
+
+
+def _sections(path: Path) -> dict[str, dict[str, str]]:
+    """``section -> {parameter: value}`` of our simple parameter files (no PyYAML here):
+    top-level keys, ``ros__parameters``, then one ``name: value`` per line."""
+    sections: dict[str, dict[str, str]] = {}
+    current: dict[str, str] = {}
+    for raw in path.read_text(encoding="utf-8").splitlines():
+        line = raw.split(" #", 1)[0].rstrip()
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        indent = len(line) - len(line.lstrip())
+        key, _, value = line.strip().partition(":")
+        if indent == 0:
+            current = sections.setdefault(key, {})
+        elif indent == 2:
+            assert key == "ros__parameters", raw
+        else:
+            assert indent == 4, raw
+            current[key] = value.strip()
+    return sections
+
+
+def _emulator_options() -> set[str]:
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    emulator_arguments(parser)
+    return {
+        option[2:].replace("-", "_")
+        for action in parser._actions
+        for option in action.option_strings
+        if option.startswith("--")
+    }
+
+
+def test_the_hil_parameters_are_options_or_parameters_of_their_nodes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    sections = _sections(ROS_DIR / "config" / "hil.yaml")
+    namespace = _load(ROS_DIR / "launch" / "hil_launch.py", monkeypatch)
+    assert set(sections) == {f"/**/{name}" for name, _, _, _ in namespace["NODES"]}
+    emulator = sections["/**/rover_emulator"]
+    assert set(emulator) <= _emulator_options()
+    bridge = sections["/**/rover_bridge"]
+    assert set(bridge) <= set(BridgeParams.__dataclass_fields__)
+    assert bridge["device"] == emulator["link"]  # the bridge opens the emulator's pty
+
+
+def test_the_bridge_parameters_are_bridge_parameters_and_floats_stay_floats() -> None:
+    sections = _sections(ROS_DIR / "config" / "bridge.yaml")
+    assert set(sections) == {"/**/rover_bridge"}
+    params = sections["/**/rover_bridge"]
+    fields = BridgeParams.__dataclass_fields__
+    assert set(params) <= set(fields)
+    for name, value in params.items():
+        if fields[name].type == "float":
+            assert "." in value, f"{name}: {value} would be an integer to ROS"
+    # The link comes from the launch arguments, not from this file.
+    assert not set(params) & {"device", "baud", "can_interface", "can_channel", "node_id"}
+
+
+def test_the_emulator_takes_its_hil_section_as_options() -> None:
+    """What rover_emulator makes of the hil.yaml section (as PyYAML would load it)."""
+    from firmware_proto.rosargs import argv_from_ros_args
+
+    section = _sections(ROS_DIR / "config" / "hil.yaml")["/**/rover_emulator"]
+    typed = {k: True if v == "true" else v for k, v in section.items()}
+    doc = {"/**/rover_emulator": {"ros__parameters": typed}}
+    argv = argv_from_ros_args(["--params-file", "hil.yaml"], "rover_emulator", lambda _p: doc)
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    emulator_arguments(parser)
+    with redirect_stdout(io.StringIO()):
+        args = parser.parse_args(argv)
+    assert args.serial is True
+    assert args.link == section["link"]
+    assert args.speed_factor == float(section["speed_factor"])
