@@ -3,6 +3,10 @@
 Every test is guarded against leaks: a test that leaves a thread running, a child
 process alive or a file descriptor (pty, socket, serial port, bus) open fails. Parts
 that legitimately keep process-wide resources mark the test ``allow_leaks``.
+
+Tests marked ``socketcan`` skip, saying why, where there is no ``vcan0``. With
+``ROVER_REQUIRE_SOCKETCAN=1`` in the environment (the CI job that brings ``vcan0`` up)
+such a skip is an error instead, so that a missing interface fails loudly.
 """
 
 from __future__ import annotations
@@ -27,12 +31,38 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 LEAK_GRACE_S = 3.0
+REQUIRE_SOCKETCAN_ENV = "ROVER_REQUIRE_SOCKETCAN"
 
 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", "allow_leaks: the test may leave process-wide resources (named in a comment)"
     )
+
+
+def socketcan_required() -> bool:
+    """Whether SocketCAN tests must run here (``ROVER_REQUIRE_SOCKETCAN=1``)."""
+    return os.environ.get(REQUIRE_SOCKETCAN_ENV, "") == "1"
+
+
+def _skip_reason(report: pytest.TestReport) -> str:
+    longrepr = report.longrepr
+    if isinstance(longrepr, tuple) and len(longrepr) == 3:
+        return str(longrepr[2]).removeprefix("Skipped: ")
+    return str(longrepr)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """Turn the skip of a ``socketcan`` test into an error when SocketCAN is required."""
+    outcome = yield
+    report: pytest.TestReport = outcome.get_result()  # type: ignore[attr-defined]
+    if report.skipped and item.get_closest_marker("socketcan") and socketcan_required():
+        report.outcome = "failed"
+        report.longrepr = (
+            f"{REQUIRE_SOCKETCAN_ENV}=1: this SocketCAN test must run here, but it would "
+            f"have been skipped: {_skip_reason(report)}"
+        )
 
 
 def _children() -> set[int]:
