@@ -67,6 +67,7 @@ class CanTransport(Transport):
         if bus is None:
             raise OSError("bus closed")
         arbitration_id, data = encode_can(message, self.node)
+        sent_at = time.time()  # before the send: an answer cannot be logged earlier
         try:
             bus.send(
                 can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
@@ -75,7 +76,7 @@ class CanTransport(Transport):
         except can.CanError as exc:
             raise OSError(f"CAN send failed: {exc}") from exc
         if self.recorder is not None:
-            self._record(CanRecord(time.time(), self.channel, arbitration_id, data, is_rx=False))
+            self._record(CanRecord(sent_at, self.channel, arbitration_id, data, is_rx=False))
 
     def _read(self, timeout_s: float) -> list[Message]:
         bus = self._bus

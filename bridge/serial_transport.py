@@ -79,12 +79,13 @@ class SerialTransport(Transport):
         if port is None:
             raise OSError("port closed")
         wire = self._encoder.encode(message)
+        sent_at = time.time()  # before the write: an answer cannot be logged earlier
         try:
             port.write(wire)
         except serial.SerialException as exc:
             raise OSError(str(exc)) from exc
         if self.recorder is not None:
-            self._record(SerialRecord(time.time(), message_direction(message), wire))
+            self._record(SerialRecord(sent_at, message_direction(message), wire))
 
     def _read(self, timeout_s: float) -> list[Message]:
         port = self._port

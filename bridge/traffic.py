@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -185,9 +186,15 @@ class LogFile:
     metadata: dict[str, str] = field(default_factory=dict)
 
 
+def _in_time_order(records: Iterable[TrafficRecord]) -> tuple[TrafficRecord, ...]:
+    return tuple(sorted(records, key=lambda r: r.time_s))  # stable: ties keep file order
+
+
 def read_log(path: str | Path) -> LogFile:
     """Read a serial frame log or any CAN log python-can reads, told apart by content
-    (the serial log's first line) and then by suffix.
+    (the serial log's first line) and then by suffix. Records come in time order: a
+    recorder writes a sent frame once its send returned, so the answer to it may come
+    first in the file (its time, taken before the send, is earlier).
 
     Raises:
         OSError: the file cannot be read.
@@ -200,7 +207,7 @@ def read_log(path: str | Path) -> LogFile:
     if head.startswith(SERIAL_LOG_MAGIC.encode()):
         with path.open(encoding="ascii") as f:
             parsed = parse_serial_log(f)
-        return LogFile(path, "serial", parsed.records, parsed.metadata)
+        return LogFile(path, "serial", _in_time_order(parsed.records), parsed.metadata)
     try:
         reader: Any = can.LogReader(str(path))
     except ValueError as exc:
@@ -227,4 +234,4 @@ def read_log(path: str | Path) -> LogFile:
         raise ValueError(f"{path}: malformed CAN log: {exc}") from exc
     finally:
         reader.stop()
-    return LogFile(path, "can", tuple(records))
+    return LogFile(path, "can", _in_time_order(records))

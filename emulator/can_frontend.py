@@ -142,6 +142,7 @@ class CanFrontEnd(FrontEnd):
         if bus is None:
             return False
         arbitration_id, data = encode_can(message, self.node)
+        sent_at = time.time()  # before the send: an answer cannot be logged earlier
         try:
             bus.send(
                 can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
@@ -151,5 +152,5 @@ class CanFrontEnd(FrontEnd):
             logger.debug("CAN send failed: %s", exc)
             return False
         if self.recorder is not None:
-            self._record(CanRecord(time.time(), self.channel, arbitration_id, data, is_rx=False))
+            self._record(CanRecord(sent_at, self.channel, arbitration_id, data, is_rx=False))
         return True

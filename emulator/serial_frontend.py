@@ -194,6 +194,7 @@ class SerialFrontEnd(FrontEnd):
         pair = self._pair
         if pair is None:
             return False
+        sent_at = time.time()  # before the write: an answer cannot be logged earlier
         try:
             written = os.write(pair.master_fd, wire)
         except (BlockingIOError, InterruptedError):
@@ -203,7 +204,7 @@ class SerialFrontEnd(FrontEnd):
                 return False
             raise
         if written == len(wire) and self.recorder is not None:
-            self._record(SerialRecord(time.time(), CONTROLLER_TO_HOST, wire))
+            self._record(SerialRecord(sent_at, CONTROLLER_TO_HOST, wire))
         return written == len(wire)
 
     def _paced_writer(self) -> None:
