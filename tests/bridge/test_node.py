@@ -76,8 +76,10 @@ def bridged(
     params = load_params(
         {"device": emu.frontend.device, "ros_backend": "inprocess", "diagnostics_hz": 5.0}, env={}
     )
+    # The client subscribes first: the bridge publishes "ready" once, as soon as it has
+    # shaken hands, which over a pty can be before a later subscriber exists.
+    client = Client(make_port("inprocess", node_name="executor"))
     with BridgeNode(params, make_port("inprocess", node_name="rover_bridge")) as node:
-        client = Client(make_port("inprocess", node_name="executor"))
         client.status.wait_count("ready", 1)
         yield emu, node, client
 

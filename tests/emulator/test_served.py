@@ -148,6 +148,9 @@ def test_reboot_injection_gives_a_new_ident(serial_emulator: Factory) -> None:
     emu = serial_emulator()
     with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
         first = host.handshake()
+        # handshake() may have returned on the boot IDENT; once a heartbeat says the
+        # handshake is done, the IDENT answering our HELLO is in too.
+        host.wait_for(Heartbeat, lambda h: h.handshake_ok == 1, since=host.mark())
         since = host.mark()
         control = ControlServer(emu).start()
         try:
