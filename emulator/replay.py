@@ -9,16 +9,24 @@ compares those answers with the recorded ones through
 fields that measure continuous time (:data:`~firmware_proto.trafficlog.VOLATILE_FIELDS`)
 unless strict. Periodic telemetry is counted, not compared.
 
+The recorded host reacted to the controller: it sent a step after an ACK, a STOP after a
+STATUS. So the replay keeps causality as well as timing: a host frame goes out at its
+recorded time, and not before the replayed controller has given every answer (counted by
+type) that came before it in the recording, waiting at most ``gate_s`` longer (0.1 s:
+well inside the controller's 250 ms watchdog, since the recorded heartbeats, which keep
+their own time, end where the recording ended). Without
+that, a step sent 0.2 ms after the previous one completed could reach the fresh
+controller just before it completes, and be refused QUEUE_FULL instead of accepted.
+
 Both sides are cut alike. Answers before the first host frame (a boot IDENT) are left
 out. The recording's window ends with its last controller frame (at most
 :data:`MAX_SETTLE_S` after the last host frame); the replay's window is as long after
-its own last host frame. An answer sent within ``edge_s`` of the end of either window
+its own last host frame (as sent). An answer sent within ``edge_s`` of the end of either window
 may fall on either side of the cut by chance (the recording stopped mid-answer, or the
 replay ran a millisecond ahead), so such answers count only where they pair up: for
 each message type the longest agreeing run is kept, and nothing inside the windows is
-ever dropped. Behaviour that hangs on sub-millisecond timing (a STOP sent in the same
-millisecond as a step starts) cannot replay alike; drive recorded sessions so it does
-not.
+ever dropped. Behaviour that hangs on sub-millisecond timing that no answer marks (a
+STOP sent in the same millisecond as a queued step starts) can still replay differently.
 
 The emulator must run as it did when the log was recorded: same seed, speed factor,
 map and rover description (an emulator-recorded serial log names them in its header).
@@ -87,6 +95,8 @@ class ReplayOptions:
         strict: compare volatile fields too.
         edge_s: answers this close to the end of a window may fall on either side of it,
             s (see the module docstring).
+        gate_s: longest wait, past a host frame's recorded time, for the answers that
+            came before it in the recording, s (see the module docstring).
     """
 
     seed: int = 0
@@ -98,6 +108,7 @@ class ReplayOptions:
     can_channel: str = "rover-replay"
     strict: bool = False
     edge_s: float = 0.05
+    gate_s: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -159,9 +170,12 @@ class _Host:
 
     def __init__(self) -> None:
         self.received: list[tuple[float, Message]] = []
+        self._start = float("inf")
+        self._answers: Counter[str] = Counter()
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="replay-host-rx", daemon=True)
+        self._write_lock = threading.Lock()
 
     def start(self) -> None:
         self._thread.start()
@@ -173,12 +187,30 @@ class _Host:
                 now = time.monotonic()
                 with self._cond:
                     self.received += [(now, m) for m in messages]
+                    if now >= self._start:
+                        self._answers.update(m.NAME for m in messages if is_answer(m))
                     self._cond.notify_all()
 
     def wait_first(self, timeout_s: float) -> bool:
         """Wait until the controller said anything (so boot frames are in)."""
         with self._cond:
             return self._cond.wait_for(lambda: bool(self.received), timeout_s)
+
+    def count_from(self, start: float) -> None:
+        """Count answers by type from ``start`` (``time.monotonic()``) on."""
+        with self._cond:
+            self._start = start
+            self._answers = Counter(m.NAME for t, m in self.received if t >= start and is_answer(m))
+
+    def wait_answers(self, need: Counter[str], deadline: float) -> bool:
+        """Wait until the answers counted (see :meth:`count_from`) reach every count in
+        ``need``, or until ``deadline`` (``time.monotonic()``); whether they did."""
+
+        def reached() -> bool:
+            return all(self._answers[name] >= n for name, n in need.items())
+
+        with self._cond:
+            return self._cond.wait_for(reached, max(0.0, deadline - time.monotonic()))
 
     def snapshot(self) -> list[tuple[float, Message]]:
         """Everything received so far, with arrival times (``time.monotonic()``)."""
@@ -218,7 +250,8 @@ class _SerialHost(_Host):
         """Write a recorded frame's bytes, exactly as recorded."""
         if not isinstance(record, SerialRecord):
             raise TypeError("a serial replay needs serial records")
-        self.port.write(record.wire)
+        with self._write_lock:
+            self.port.write(record.wire)
 
     def _read(self) -> list[Message]:
         try:
@@ -245,6 +278,10 @@ class _CanHost(_Host):
         """Put a recorded frame on the bus again."""
         if not isinstance(record, CanRecord):
             raise TypeError("a CAN replay needs CAN records")
+        with self._write_lock:
+            self._send_can(record)
+
+    def _send_can(self, record: CanRecord) -> None:
         self.bus.send(
             can.Message(
                 arbitration_id=record.arbitration_id,
@@ -296,6 +333,43 @@ def _telemetry_counts(messages: list[Message]) -> dict[str, int]:
             if m.DIRECTION == "controller_to_host" and m.PRIORITY == "telemetry"
         )
     )
+
+
+def _is_heartbeat(record: TrafficRecord) -> bool:
+    """A host frame that answers nothing and that nothing answers (HOST_HEARTBEAT)."""
+    decoded = decode_records([record])
+    return bool(decoded) and all(
+        d.message is not None and d.message.PRIORITY == "telemetry" for d in decoded
+    )
+
+
+def _send_on_time(host: _Host, records: list[TrafficRecord], offset: float) -> None:
+    """Send each record at its recorded time plus ``offset`` (``time.monotonic()``)."""
+    for rec in records:
+        delay = rec.time_s + offset - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        host.send(rec)
+
+
+def _answers_before(
+    host_records: list[TrafficRecord], ours: list[DecodedRecord], t_first: float
+) -> list[Counter[str]]:
+    """For each host frame, the recorded answers (by type, from ``t_first``) that came
+    before it: what the replay waits for before sending it."""
+    answers = sorted(
+        (d.time_s, d.message.NAME) for d in ours if d.message is not None and is_answer(d.message)
+    )
+    needs: list[Counter[str]] = []
+    seen: Counter[str] = Counter()
+    i = 0
+    for rec in host_records:
+        while i < len(answers) and answers[i][0] < rec.time_s:
+            if answers[i][0] >= t_first:
+                seen[answers[i][1]] += 1
+            i += 1
+        needs.append(Counter(seen))
+    return needs
 
 
 def _pair_at_the_edges(
@@ -366,6 +440,8 @@ def replay_into_emulator(
     ]
     tail = max((d.time_s for d in ours), default=t_last) - t_last
     window = min(MAX_SETTLE_S, max(0.0, tail))
+    needs = _answers_before(host_records, ours, t_first)
+    is_beat = [_is_heartbeat(rec) for rec in host_records]
     recorded_timed = [
         (d.time_s - t_first, d.message)
         for d in ours
@@ -407,12 +483,38 @@ def replay_into_emulator(
             if not host.wait_first(_FIRST_FRAME_TIMEOUT_S):
                 raise TimeoutError("the fresh emulator sent nothing within 5 s")
             t0 = time.monotonic()
-            for rec in host_records:
-                delay = t0 + (rec.time_s - t_first) - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)  # replaying the recorded timing is the point
-                host.send(rec)
-            boundary = t0 + (t_last - t_first) + window
+            host.count_from(t0)
+            # Heartbeats keep their own time: held behind a gated request, they would
+            # starve the controller's watchdog.
+            heartbeats = [r for r, beat in zip(host_records, is_beat, strict=True) if beat]
+            pacer = threading.Thread(
+                target=_send_on_time,
+                args=(host, heartbeats, t0 - t_first),
+                name="replay-heartbeats",
+                daemon=True,
+            )
+            pacer.start()
+            late = 0
+            last_sent = t0
+            try:
+                for rec, need, beat in zip(host_records, needs, is_beat, strict=True):
+                    if beat:
+                        continue
+                    due = t0 + (rec.time_s - t_first)
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)  # replaying the recorded timing is the point
+                    if need and not host.wait_answers(need, due + opts.gate_s):
+                        late += 1
+                    host.send(rec)
+                    last_sent = time.monotonic()
+            finally:
+                pacer.join()
+            if heartbeats:
+                last_sent = max(last_sent, t0 + heartbeats[-1].time_s - t_first)
+            if late:
+                logger.info("%d host frame(s) sent without all the answers before them", late)
+            boundary = last_sent + window
             end = boundary + opts.edge_s
             while (left := end - time.monotonic()) > 0:
                 time.sleep(min(left, 0.05))
@@ -420,9 +522,10 @@ def replay_into_emulator(
     finally:
         emulator.close()
     replayed_timed = [(t - t0, m) for t, m in received if t >= t0]
-    end_offset = t_last - t_first + window
+    recorded_end = t_last - t_first + window
+    replayed_end = boundary - t0
     recorded, replayed = _pair_at_the_edges(
-        recorded_timed, replayed_timed, (end_offset, end_offset), opts.edge_s, opts.strict
+        recorded_timed, replayed_timed, (recorded_end, replayed_end), opts.edge_s, opts.strict
     )
     differences = compare_answers(recorded, replayed, strict=opts.strict)
     return ReplayResult(
@@ -432,7 +535,7 @@ def replay_into_emulator(
         recorded_answers=sum(1 for m in recorded if is_answer(m)),
         replayed_answers=sum(1 for m in replayed if is_answer(m)),
         recorded_telemetry=_telemetry_counts([m for _, m in recorded_timed]),
-        replayed_telemetry=_telemetry_counts([m for t, m in replayed_timed if t <= end_offset]),
+        replayed_telemetry=_telemetry_counts([m for t, m in replayed_timed if t <= replayed_end]),
         differences=tuple(differences),
         duration_s=time.monotonic() - started,
     )
