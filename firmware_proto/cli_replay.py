@@ -48,14 +48,18 @@ def register(subparsers: Any) -> None:
             "are compared type by type with the recorded ones, leaving out measured fields "
             "(travel, stopping distance and time, boot nonce) unless --strict. The emulator "
             "must run as when the log was recorded: an emulator-recorded serial log names "
-            "its seed, speed factor and map, which become the defaults here. "
-            "See docs/traffic-logs.md."
+            "its seed, speed factor and map, which become the defaults here. With --bridge "
+            "the controller's frames are played to a fresh bridge link (ControllerLink) "
+            "that is given the recorded operator inputs (steps, stops, clears), and the "
+            "requests it sends are compared with the recorded ones; the /command_status it "
+            "reports is printed. See docs/traffic-logs.md."
         ),
         epilog=(
             "examples:\n"
             "  rover emulate --serial --seed 3 --record session.rlog   (drive it, stop it)\n"
             "  rover replay session.rlog\n"
-            "  rover replay bus.log --can virtual:replay --strict"
+            "  rover replay bus.log --can virtual:replay --strict\n"
+            "  rover replay bridge.rlog --bridge"
         ),
     )
     p.add_argument("log", metavar="LOG", help="serial frame log or CAN log (.log candump)")

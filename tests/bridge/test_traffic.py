@@ -16,6 +16,7 @@ import can
 import pytest
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
+from bridge.replay import BridgeReplayOptions, replay_into_bridge
 from bridge.traffic import CanLogWriter, SerialLogWriter, open_recorder, read_log
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
@@ -31,7 +32,7 @@ from firmware_proto.canmap import encode_can
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.framing import encode_frame
 from firmware_proto.message import Message
-from firmware_proto.messages import Command, Motion, WheelSpeeds
+from firmware_proto.messages import Command, Ident, Motion, WheelSpeeds
 from firmware_proto.rover import RoverDescription
 from firmware_proto.trafficlog import (
     CanRecord,
@@ -365,3 +366,43 @@ def _body(path: Path) -> str:
 def test_the_bridge_and_emulator_twins_of_the_log_io_stay_alike() -> None:
     root = Path(__file__).resolve().parents[2]
     assert _body(root / "bridge" / "traffic.py") == _body(root / "emulator" / "traffic.py")
+
+
+def test_the_controller_side_replays_into_a_fresh_bridge(session: Session) -> None:
+    result = replay_into_bridge(
+        read_log(session.host_log), BridgeReplayOptions(can_channel=f"{session.channel}-bridge")
+    )
+    assert result.ok, result.report()
+    assert result.inputs == 8  # six steps sent, a stop, a clear (the refused step never left)
+    assert result.recorded_requests == result.replayed_requests
+    assert result.statuses.count("completed") == 4
+    assert "stopped" in result.statuses
+    assert "cleared" in result.statuses
+
+
+def test_a_controller_of_another_schema_makes_the_bridge_refuse(
+    session: Session, tmp_path: Path
+) -> None:
+    def other_schema(r: TrafficRecord) -> TrafficRecord:
+        message = decode_records([r])[0].message
+        if not isinstance(message, Ident):
+            return r
+        other = message._replace(schema_hash=message.schema_hash ^ 0x0F0F)
+        if isinstance(r, SerialRecord):
+            seq = decode_records([r])[0].seq or 0
+            return SerialRecord(r.time_s, r.direction, encode_frame(other, seq))
+        assert isinstance(r, CanRecord)
+        arb, data = encode_can(other, session.node)
+        return CanRecord(r.time_s, r.channel, arb, data, r.is_rx)
+
+    altered = _rewrite(
+        session.host_log, tmp_path / f"schema.{session.host_log.suffix}", other_schema
+    )
+    result = replay_into_bridge(
+        read_log(altered), BridgeReplayOptions(can_channel=f"{session.channel}-schema")
+    )
+    assert not result.ok
+    assert "fault:schema_mismatch" in result.statuses
+    assert "rejected:schema_mismatch" in result.statuses
+    missing = [d.expected for d in result.differences if d.actual is None]
+    assert "MOTION seq=1 command=FWD speed=60 distance=3000" in missing

@@ -1,0 +1,513 @@
+"""Replay a recorded session's controller side into a fresh bridge link and compare the
+bridge's requests (docs/traffic-logs.md).
+
+The counterpart of :mod:`emulator.replay`: a regression test of the host side.
+:func:`replay_into_bridge` plays the controller on a new pty (serial logs) or a
+python-can bus (CAN logs) and drives a fresh :class:`~bridge.link.ControllerLink` with
+the operator's inputs recovered from the recorded host frames: a step for each new
+MOTION seq, an emergency stop for each new STOP id, a clear for each new CLEAR_STOP id,
+each at its recorded time. The recorded controller frames go back to it at their
+recorded times, each not before the fresh link has sent the requests (counted by type)
+that preceded it in the recording, waiting at most ``gate_s`` longer; controller
+telemetry (heartbeats included) keeps its own time, except PROGRESS, which stays in order
+with the STATUS frames it sums up.
+
+What the link sends is compared with what the recorded host sent: requests (everything
+host-to-controller but HOST_HEARTBEAT), in time order, with consecutive repeats of one
+request (HELLO until IDENT, STOP until STOP_ACK, MOTION retransmissions) counted once, so
+that a millisecond more or less of latency does not show as a difference. The
+``/command_status`` strings the link reported are returned for reading.
+
+The log should come from a bridge (``rover bridge --record``): another host (the STOP
+bench, a test script) speaks the protocol differently, and the differences will say so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import difflib
+import logging
+import os
+import select
+import threading
+import time
+import tty
+from collections import Counter
+from dataclasses import dataclass
+from types import TracebackType
+
+import can
+
+from bridge.link import ControllerLink, LinkConfig, StepRequest
+from bridge.traffic import LogFile
+from bridge.transport import Transport, open_transport
+from firmware_proto.canmap import CanDecoder
+from firmware_proto.framing import FrameDecoder
+from firmware_proto.message import Message
+from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE, ClearStop, Motion, Stop
+from firmware_proto.trafficlog import (
+    CONTROLLER_TO_HOST,
+    HOST_TO_CONTROLLER,
+    CanRecord,
+    DecodedRecord,
+    Difference,
+    SerialRecord,
+    TrafficRecord,
+    decode_records,
+)
+
+__all__ = ["BridgeReplayOptions", "BridgeReplayResult", "replay_into_bridge"]
+
+logger = logging.getLogger(__name__)
+
+_TAIL_S = 0.3
+"""Wait after the last frame for the link's last requests, s."""
+
+
+@dataclass(frozen=True)
+class BridgeReplayOptions:
+    """How to replay.
+
+    Attributes:
+        node: CAN node id (``None``: the node the log's host addressed).
+        can_interface, can_channel: the python-can bus for a CAN log.
+        gate_s: longest wait past a controller frame's recorded time for the requests
+            that preceded it, s.
+    """
+
+    node: int | None = None
+    can_interface: str = "virtual"
+    can_channel: str = "rover-bridge-replay"
+    gate_s: float = 0.1
+
+
+@dataclass(frozen=True)
+class BridgeReplayResult:
+    """What a bridge replay found.
+
+    Attributes:
+        medium: ``"serial"`` or ``"can"``.
+        inputs: operator inputs replayed (steps, stops, clears).
+        played: controller frames played back.
+        recorded_requests, replayed_requests: requests compared on each side.
+        statuses: what the link reported on ``/command_status``, in order.
+        differences: every difference; empty when the bridge asked alike.
+        duration_s: wall time of the replay.
+    """
+
+    medium: str
+    inputs: int
+    played: int
+    recorded_requests: int
+    replayed_requests: int
+    statuses: tuple[str, ...]
+    differences: tuple[Difference, ...]
+    duration_s: float
+
+    @property
+    def ok(self) -> bool:
+        """The bridge sent the recorded requests."""
+        return not self.differences
+
+    def report(self) -> str:
+        """A few lines for a terminal."""
+        lines = [
+            f"replayed {self.played} controller frames and {self.inputs} operator inputs "
+            f"into a fresh bridge link over {self.medium} in {self.duration_s:.1f} s",
+            f"requests compared: {self.recorded_requests} recorded, "
+            f"{self.replayed_requests} replayed",
+            f"/command_status: {', '.join(self.statuses) or 'nothing'}",
+        ]
+        if self.ok:
+            lines.append("same requests")
+        else:
+            lines.append(f"{len(self.differences)} difference(s):")
+            lines += [f"  {d}" for d in self.differences]
+        return "\n".join(lines)
+
+
+def _requests(messages: list[Message]) -> list[str]:
+    """Host requests (no heartbeats), consecutive repeats counted once."""
+    out: list[str] = []
+    for message in messages:
+        if message.DIRECTION != "host_to_controller" or message.PRIORITY == "telemetry":
+            continue
+        text = message.describe()
+        if not out or out[-1] != text:
+            out.append(text)
+    return out
+
+
+def _compare(recorded: list[str], replayed: list[str]) -> list[Difference]:
+    matcher = difflib.SequenceMatcher(a=recorded, b=replayed, autojunk=False)
+    differences: list[Difference] = []
+    for tag, i1, i2, j1, j2 in matcher.get_opcodes():
+        if tag == "equal":
+            continue
+        for k in range(max(i2 - i1, j2 - j1)):
+            exp = recorded[i1 + k] if i1 + k < i2 else None
+            act = replayed[j1 + k] if j1 + k < j2 else None
+            name = (exp or act or "?").split(" ", 1)[0]
+            differences.append(Difference(name, min(i1 + k, len(recorded)), exp, act))
+    return differences
+
+
+class _Controller:
+    """The controller's end: writes recorded frames, reads the link's frames."""
+
+    def __init__(self) -> None:
+        self.requests: list[tuple[float, Message]] = []
+        self._counts: Counter[str] = Counter()
+        self._cond = threading.Condition()
+        self._write_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="bridge-replay-rx", daemon=True)
+
+    @property
+    def url(self) -> str:
+        raise NotImplementedError
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            messages = self._read()
+            if messages:
+                now = time.monotonic()
+                with self._cond:
+                    self.requests += [(now, m) for m in messages]
+                    self._counts.update(m.NAME for m in messages if m.PRIORITY != "telemetry")
+                    self._cond.notify_all()
+
+    def wait_requests(self, need: Counter[str], deadline: float) -> bool:
+        def reached() -> bool:
+            return all(self._counts[name] >= n for name, n in need.items())
+
+        with self._cond:
+            return self._cond.wait_for(reached, max(0.0, deadline - time.monotonic()))
+
+    def play(self, record: TrafficRecord) -> None:
+        with self._write_lock:
+            self._write(record)
+
+    def _write(self, record: TrafficRecord) -> None:
+        raise NotImplementedError
+
+    def _read(self) -> list[Message]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> _Controller:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class _PtyController(_Controller):
+    def __init__(self) -> None:
+        super().__init__()
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.device = os.ttyname(self._slave)
+        self._decoder = FrameDecoder()
+
+    @property
+    def url(self) -> str:
+        return self.device
+
+    def _write(self, record: TrafficRecord) -> None:
+        if not isinstance(record, SerialRecord):
+            raise TypeError("a serial replay needs serial records")
+        try:
+            os.write(self._master, record.wire)
+        except (BlockingIOError, OSError) as exc:
+            logger.debug("controller frame not delivered: %s", exc)
+
+    def _read(self) -> list[Message]:
+        ready, _, _ = select.select([self._master], [], [], 0.05)
+        if not ready:
+            return []
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, OSError):
+            self._stop.wait(0.01)
+            return []
+        return [f.message for f in self._decoder.feed(data)]
+
+    def close(self) -> None:
+        super().close()
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+class _CanController(_Controller):
+    def __init__(self, interface: str, channel: str, node: int) -> None:
+        super().__init__()
+        self.interface, self.channel, self.node = interface, channel, node
+        self._bus = can.Bus(interface=interface, channel=channel)
+        self._decoder = CanDecoder()
+
+    @property
+    def url(self) -> str:
+        return f"can://{self.interface}/{self.channel}?node={self.node}"
+
+    def _write(self, record: TrafficRecord) -> None:
+        if not isinstance(record, CanRecord):
+            raise TypeError("a CAN replay needs CAN records")
+        self._bus.send(
+            can.Message(
+                arbitration_id=record.arbitration_id, data=record.data, is_extended_id=False
+            )
+        )
+
+    def _read(self) -> list[Message]:
+        frame = self._bus.recv(timeout=0.05)
+        if frame is None or frame.is_error_frame:
+            return []
+        decoded = self._decoder.decode(frame.arbitration_id, bytes(frame.data))
+        if decoded is None or decoded.node not in (self.node, BROADCAST_NODE):
+            return []
+        if decoded.message.DIRECTION != "host_to_controller":
+            return []
+        return [decoded.message]
+
+    def close(self) -> None:
+        super().close()
+        self._bus.shutdown()
+
+
+class _Processed:
+    """Counts, by type, the controller answers the link has processed (its
+    ``on_telemetry`` callback runs after each message is handled)."""
+
+    def __init__(self) -> None:
+        self._counts: Counter[str] = Counter()
+        self._cond = threading.Condition()
+
+    def __call__(self, message: Message, arrived: float) -> None:
+        if message.PRIORITY == "telemetry":
+            return
+        with self._cond:
+            self._counts[message.NAME] += 1
+            self._cond.notify_all()
+
+    def wait(self, need: Counter[str], deadline: float) -> bool:
+        def reached() -> bool:
+            return all(self._counts[name] >= n for name, n in need.items())
+
+        with self._cond:
+            return self._cond.wait_for(reached, max(0.0, deadline - time.monotonic()))
+
+
+def _own_time(message: Message) -> bool:
+    """Periodic controller telemetry, played on its recorded time alone (PROGRESS is not:
+    it must not overtake the STATUS frames it sums up)."""
+    return message.PRIORITY == "telemetry" and message.NAME != "PROGRESS"
+
+
+def _play_on_time(controller: _Controller, records: list[TrafficRecord], offset: float) -> None:
+    for record in records:
+        delay = record.time_s + offset - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        controller.play(record)
+
+
+def _node(decoded: list[DecodedRecord]) -> int:
+    nodes = Counter(
+        d.node
+        for d in decoded
+        if d.message is not None
+        and d.direction == HOST_TO_CONTROLLER
+        and d.node not in (None, BROADCAST_NODE)
+    )
+    return int(nodes.most_common(1)[0][0]) if nodes else DEFAULT_NODE
+
+
+def replay_into_bridge(
+    log: LogFile, options: BridgeReplayOptions | None = None
+) -> BridgeReplayResult:
+    """Replay ``log``'s controller side into a fresh bridge link; see the module
+    docstring.
+
+    Raises:
+        ValueError: the log holds no controller frame or no host request.
+        OSError: the pty or bus cannot be opened.
+    """
+    opts = options or BridgeReplayOptions()
+    decoded = decode_records(log.records)
+    node = (opts.node or _node(decoded)) if log.kind == "can" else None
+    pairs = [
+        (rec, d)
+        for rec, d in zip(log.records, decoded, strict=False)
+        if d.message is not None and (node is None or d.node in (node, BROADCAST_NODE))
+    ]
+    host = [(rec, d) for rec, d in pairs if d.direction == HOST_TO_CONTROLLER]
+    ctrl = [(rec, d) for rec, d in pairs if d.direction == CONTROLLER_TO_HOST]
+    recorded_requests = _requests([d.message for _, d in host if d.message is not None])
+    if not ctrl or not recorded_requests:
+        raise ValueError(f"{log.path}: needs controller frames and host requests to replay")
+    t_first = min(host[0][0].time_s, ctrl[0][0].time_s)
+    t_last = max(host[-1][0].time_s, ctrl[-1][0].time_s)
+
+    # Operator inputs: the first appearance of each step, stop and clear.
+    inputs: list[tuple[float, Message]] = []
+    seen: set[tuple[str, int]] = set()
+    for rec, d in host:
+        m = d.message
+        key = (
+            ("MOTION", m.seq)
+            if isinstance(m, Motion)
+            else ("STOP", m.stop_id)
+            if isinstance(m, Stop)
+            else ("CLEAR", m.stop_id)
+            if isinstance(m, ClearStop)
+            else None
+        )
+        if key is not None and key not in seen:
+            seen.add(key)
+            inputs.append((rec.time_s, m))  # type: ignore[arg-type]
+
+    # What the operator had seen before each input: answers by type.
+    answers_timed = sorted(
+        (rec.time_s, d.message.NAME)
+        for rec, d in ctrl
+        if d.message is not None and d.message.PRIORITY != "telemetry"
+    )
+    input_needs: list[Counter[str]] = []
+    seen_answers: Counter[str] = Counter()
+    j = 0
+    for t, _ in inputs:
+        while j < len(answers_timed) and answers_timed[j][0] < t:
+            seen_answers[answers_timed[j][1]] += 1
+            j += 1
+        input_needs.append(Counter(seen_answers))
+
+    # What the controller waited for before each of its frames: requests by type.
+    needs: list[Counter[str]] = []
+    count: Counter[str] = Counter()
+    requests_timed = sorted(
+        (rec.time_s, d.message.NAME)
+        for rec, d in host
+        if d.message is not None and d.message.PRIORITY != "telemetry"
+    )
+    i = 0
+    # PROGRESS sums up the STATUS frames before it: it goes in their lane, in order.
+    answers = [(rec, d) for rec, d in ctrl if d.message and not _own_time(d.message)]
+    telemetry = [rec for rec, d in ctrl if d.message and _own_time(d.message)]
+    for rec, _ in answers:
+        while i < len(requests_timed) and requests_timed[i][0] < rec.time_s:
+            count[requests_timed[i][1]] += 1
+            i += 1
+        needs.append(Counter(count))
+
+    started = time.monotonic()
+    statuses: list[str] = []
+    controller: _Controller = (
+        _PtyController()
+        if log.kind == "serial"
+        else _CanController(opts.can_interface, opts.can_channel, node or DEFAULT_NODE)
+    )
+    sent: list[Message] = []
+    with controller:
+        controller.start()
+        t0 = time.monotonic()
+
+        def factory(url: str) -> Transport:
+            return open_transport(url)
+
+        processed = _Processed()
+        link = ControllerLink(
+            LinkConfig(controller.url, reconnect_min_s=0.01),
+            on_status=statuses.append,
+            on_telemetry=processed,
+            transport_factory=factory,
+        )
+        beats = threading.Thread(
+            target=_play_on_time,
+            args=(controller, telemetry, t0 - t_first),
+            name="bridge-replay-telemetry",
+            daemon=True,
+        )
+        operator = threading.Thread(
+            target=_operate,
+            args=(link,),
+            kwargs={
+                "inputs": inputs,
+                "needs": input_needs,
+                "processed": processed,
+                "offset": t0 - t_first,
+                "gate_s": opts.gate_s,
+            },
+            name="bridge-replay-operator",
+        )
+        with link:
+            beats.start()
+            operator.start()
+            try:
+                for (rec, _), need in zip(answers, needs, strict=True):
+                    due = t0 + rec.time_s - t_first
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)  # replaying the recorded timing is the point
+                    if need:
+                        controller.wait_requests(need, due + opts.gate_s)
+                    controller.play(rec)
+            finally:
+                operator.join()
+                beats.join()
+            end = t0 + (t_last - t_first) + _TAIL_S
+            while (left := end - time.monotonic()) > 0:
+                time.sleep(min(left, 0.05))
+        with controller._cond:
+            sent = [m for _, m in controller.requests]
+    replayed_requests = _requests(sent)
+    return BridgeReplayResult(
+        medium=log.kind,
+        inputs=len(inputs),
+        played=len(answers) + len(telemetry),
+        recorded_requests=len(recorded_requests),
+        replayed_requests=len(replayed_requests),
+        statuses=tuple(statuses),
+        differences=tuple(_compare(recorded_requests, replayed_requests)),
+        duration_s=time.monotonic() - started,
+    )
+
+
+def _operate(
+    link: ControllerLink,
+    *,
+    inputs: list[tuple[float, Message]],
+    needs: list[Counter[str]],
+    processed: _Processed,
+    offset: float,
+    gate_s: float,
+) -> None:
+    """Give the link the operator's inputs at their recorded times, each once the link
+    has handled the answers that came before it in the recording."""
+    for (t, message), need in zip(inputs, needs, strict=True):
+        due = t + offset
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        if need:
+            processed.wait(need, due + gate_s)
+        if isinstance(message, Motion):
+            link.submit_step(StepRequest(message.command, message.speed, message.distance))
+        elif isinstance(message, Stop):
+            link.emergency_stop(message.source)
+        elif isinstance(message, ClearStop):
+            link.clear_stop()
