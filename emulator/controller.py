@@ -60,6 +60,7 @@ from firmware_proto.messages import (
     ParamResult,
     ParamValue,
     Pose,
+    Progress,
     SetParam,
     Status,
     StepState,
@@ -194,6 +195,7 @@ class ControllerModel:
         self._setpoint = (0.0, 0.0)
         self._commanded = (0.0, 0.0)
         self._pending_stops: list[_PendingStop] = []
+        self._ended = Progress(0, StepState.STARTED, AbortReason.NONE, 0, 0)
         self._last_rx_s: float | None = None
         self._watchdog_tripped = False
         self._stall_since: list[float | None] = [None, None]
@@ -308,6 +310,7 @@ class ControllerModel:
         self._setpoint = (0.0, 0.0)
         self._accepted.clear()
         self._accepted_set.clear()
+        self._ended = Progress(0, StepState.STARTED, AbortReason.NONE, 0, 0)
         self.handshake_ok = match
         if match and self.state == ControllerState.BOOT:
             self.state = ControllerState.IDLE
@@ -369,14 +372,22 @@ class ControllerModel:
         if all(p.stop_id != stop_id for p in self._pending_stops):
             self._pending_stops.append(_PendingStop(stop_id, self.now_s, self.encoders.travel()))
 
+    def _ended_status(self, seq: int, state: int, reason: int, travel: int) -> Status:
+        """STATUS for a step that ended, remembered for PROGRESS."""
+        count = (self._ended.ended_count + 1) & 0xFFFF
+        self._ended = Progress(seq, state, reason, count, travel)
+        return Status(seq, state, reason, travel)
+
     def _abort_all(self, reason: int, out: list[Message]) -> None:
         if self._running is not None:
             out.append(
-                Status(self._running.motion.seq, StepState.ABORTED, reason, self._step_travel())
+                self._ended_status(
+                    self._running.motion.seq, StepState.ABORTED, reason, self._step_travel()
+                )
             )
             self._running = None
         while self._queue:
-            out.append(Status(self._queue.popleft().seq, StepState.ABORTED, reason, 0))
+            out.append(self._ended_status(self._queue.popleft().seq, StepState.ABORTED, reason, 0))
         if self.state == ControllerState.EXECUTING:
             self.state = ControllerState.IDLE
 
@@ -470,7 +481,7 @@ class ControllerModel:
             )
             if run.profile.done:
                 out.append(
-                    Status(
+                    self._ended_status(
                         run.motion.seq, StepState.COMPLETED, AbortReason.NONE, self._step_travel()
                     )
                 )
@@ -582,6 +593,7 @@ class ControllerModel:
         if now + eps >= self._next_heartbeat:
             self._next_heartbeat = max(self._next_heartbeat + 1.0 / self.heartbeat_hz, now)
             out.append(self.heartbeat())
+            out.append(self._ended)
 
     def _fast_telemetry(self) -> list[Message]:
         t_ms = self._clock_ms()

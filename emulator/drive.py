@@ -168,8 +168,10 @@ def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:
     """
     unit = a_dt * dt_s  # travel of one tick at speed a*dt
     m = math.floor((math.sqrt(1.0 + 8.0 * rem_m / unit) - 1.0) / 2.0)
-    while unit * m * (m + 1) / 2.0 > rem_m:  # guard the float floor
+    while unit * m * (m + 1) / 2.0 > rem_m:  # guard the float floor both ways
         m -= 1
+    while unit * (m + 1) * (m + 2) / 2.0 <= rem_m:
+        m += 1
     return (rem_m / dt_s + a_dt * m * (m + 1) / 2.0) / (m + 1)
 
 
@@ -275,18 +277,36 @@ class StepProfile:
             self._u = [ramp(left, 0.0, a_dt), ramp(right, 0.0, a_dt)]
             self._done = self._u == [0.0, 0.0]
             return (self._u[0], self._u[1])
-        rem_l, rem_r = self.remaining_units(left_travel_units, right_travel_units)
-        self._u[0], self._arrived[0] = self._side(self._u[0], rem_l, a_dt, dt_s)
-        self._u[1], self._arrived[1] = self._side(self._u[1], rem_r, a_dt, dt_s)
-        self._done = self._arrived[0] and self._arrived[1] and self._u == [0.0, 0.0]
-        return self._signed()
+        dl, dr = self.directions
+        goal = self._goal_units
+        # Beyond this distance the braking curve allows more than cruise speed.
+        vmax = self._vmax
+        cruise_m = vmax * vmax / (2.0 * self._accel) + vmax * dt_s + a_dt * dt_s
+        u = self._u
+        u[0], self._arrived[0] = self._side(
+            u[0], goal - dl * left_travel_units, a_dt, dt_s, cruise_m
+        )
+        u[1], self._arrived[1] = self._side(
+            u[1], goal - dr * right_travel_units, a_dt, dt_s, cruise_m
+        )
+        self._done = self._arrived[0] and self._arrived[1] and u[0] == 0.0 and u[1] == 0.0
+        return (dl * u[0], dr * u[1])
 
-    def _side(self, u: float, rem_units: float, a_dt: float, dt_s: float) -> tuple[float, bool]:
+    def _side(
+        self, u: float, rem_units: float, a_dt: float, dt_s: float, cruise_m: float
+    ) -> tuple[float, bool]:
         """Next target along the direction of travel, and whether the side has arrived."""
         if rem_units <= DONE_TOLERANCE_UNITS:
-            return ramp(u, 0.0, a_dt), True
-        want = min(self._vmax, _braking_speed(rem_units / self._units_per_m, a_dt, dt_s))
-        return max(u - a_dt, min(u + a_dt, want)), False
+            return (u - a_dt if u > a_dt else (u + a_dt if u < -a_dt else 0.0)), True
+        rem_m = rem_units / self._units_per_m
+        want = (
+            self._vmax if rem_m > cruise_m else min(self._vmax, _braking_speed(rem_m, a_dt, dt_s))
+        )
+        if want > u + a_dt:
+            return u + a_dt, False
+        if want < u - a_dt:
+            return u - a_dt, False
+        return want, False
 
     def _signed(self) -> tuple[float, float]:
         if self.command == Command.STOP:

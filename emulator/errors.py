@@ -5,7 +5,8 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
     EmulatorError
      +-- MapError         a map file is missing, not JSON, or invalid; also ValueError.
      |                    ``violations`` lists ``(json_pointer, message)`` pairs.
-     +-- CommandError     a step's command, speed or distance is out of range; also ValueError
+     +-- CommandError     a motion command cannot be executed (unknown command, speed or
+     |                    distance out of range, non-finite motor rate); also ValueError
      +-- InjectionError   a fault or traction change the twin cannot apply is refused;
      |                    also ValueError (never silently accepted)
      +-- ConfigError      a twin or playback parameter is out of range (time step,
@@ -40,7 +41,8 @@ class MapError(EmulatorError, ValueError):
 
 
 class CommandError(EmulatorError, ValueError):
-    """A motion step cannot be executed as given (unknown command, value out of range)."""
+    """A motion command cannot be executed as given (unknown command, speed or distance
+    out of range, non-finite motor rate)."""
 
 
 class InjectionError(EmulatorError, ValueError):

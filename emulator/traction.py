@@ -31,9 +31,10 @@ model turn; per-axis clamping (the naive model) barely turns.
 The force is stiff near zero slip (about 2000 N per m/s per wheel at rest), so a plain
 explicit step would ring at coarse time steps. :meth:`TractionModel.step_wrench`
 integrates it linearly-implicitly on the diagonal: each body-frame component of the
-force is divided by ``1 + dt * C / M`` where ``C`` is the model's damping (force per
-unit velocity) along that component and ``M`` the mass or inertia. Steady states are
-unchanged (a zero force stays zero) and any time step up to the twin's limit is stable.
+force is divided by ``1 + dt * C / M`` where ``C = -dF/dv`` is the exact diagonal of the
+model's Jacobian along that component and ``M`` the mass or inertia. Steady states are
+unchanged (a zero force stays zero), any step up to the twin's limit is stable, and the
+result barely depends on the step (docs/twin.md).
 
 docs/twin.md gives the parameter values and the calibration.
 """
@@ -134,6 +135,45 @@ def steady_slip_mps(mu: float, rolling_resistance: float, saturation_mps: float)
     return saturation_mps * math.atanh(ratio)
 
 
+def _wheel(
+    nx: float, ny: float, limit_x: float, limit_y: float, inv_s: float
+) -> tuple[float, float, float, float, float, float]:
+    """One wheel's friction force and its slip derivatives.
+
+    Args:
+        nx, ny: slip velocity divided by the saturation slip speed ``S``.
+        limit_x, limit_y: ``mu_long * N`` and ``mu_lat * N``.
+        inv_s: ``1 / S``.
+
+    Returns:
+        ``(Fx, Fy, dFx/dsx, dFy/dsy, dFx/dsy + dFy/dsx, a/S)`` with ``s`` in m/s. With
+        ``a = tanh(sigma)/sigma`` (secant) and ``b = sech(sigma)^2`` (tangent along the
+        slip), the derivative along an axis blends them by the slip direction;
+        ``mu*N * a/S`` is the secant stiffness ``F/s`` of either axis.
+    """
+    sig2 = nx * nx + ny * ny
+    if sig2 > _TINY_SIGMA * _TINY_SIGMA:
+        sig = math.sqrt(sig2)
+        th = math.tanh(sig)
+        a = th / sig
+        b = 1.0 - th * th
+        cx2 = nx * nx / sig2
+        cxy = nx * ny / sig2
+    else:
+        a = b = 1.0
+        cx2 = 1.0
+        cxy = 0.0
+    cy2 = 1.0 - cx2
+    return (
+        limit_x * a * nx,
+        limit_y * a * ny,
+        limit_x * inv_s * (a * cy2 + b * cx2),
+        limit_y * inv_s * (a * cx2 + b * cy2),
+        (limit_x + limit_y) * inv_s * (b - a) * cxy,
+        a * inv_s,
+    )
+
+
 @dataclass(frozen=True)
 class TractionModel:
     """The force model's parameters for one rover, SI units.
@@ -200,7 +240,7 @@ class TractionModel:
         left_mps: float,
         right_mps: float,
         limits_n: tuple[float, ...],
-    ) -> tuple[float, float, float, float, float, float]:
+    ) -> tuple[float, float, float, float, float, float, float, float, float]:
         """Total ground force and torque on the body and their damping, body frame.
 
         Args:
@@ -209,12 +249,11 @@ class TractionModel:
             limits_n: :meth:`friction_limits_n` for the current friction scales.
 
         Returns:
-            ``(Fx, Fy, Tz, Cx, Cy, Cz)``: force (N), torque (N*m) and, for each, the
-            damping it exerts (N per m/s, N*m per rad/s: the secant stiffness of each
-            wheel's friction and the slope of the rolling resistance), used by
-            :meth:`step_wrench`.
-
-        Plain float arithmetic, unrolled: it runs once per physics step.
+            ``(Fx, Fy, Tz, Cx, Cy, Cz, Kx, Ky, Kz)``: force (N), torque (N*m); the
+            damping each exerts, ``C = -dF/dv`` along its own velocity component
+            (N per m/s, N*m per rad/s: the diagonal of the model's Jacobian); and the
+            secant stiffness ``K`` (force per unit slip, summed over the wheels), used
+            by :meth:`step_wrench` to keep a step from overshooting the zero-slip point.
         """
         hx = self.half_wheelbase_m
         hy = self.half_track_m
@@ -222,8 +261,6 @@ class TractionModel:
         kappa = self.slip_saturation_ratio
         rr = self.rolling_resistance * self.normal_n
         inv_vrr = 1.0 / self.rolling_speed_scale_mps
-        tanh = math.tanh
-        sqrt = math.sqrt
         inv_sl = 1.0 / (s0 + kappa * (left_mps if left_mps >= 0.0 else -left_mps))
         inv_sr = 1.0 / (s0 + kappa * (right_mps if right_mps >= 0.0 else -right_mps))
         # Ground speed along each side's wheels; lateral slip at the front and rear axle.
@@ -231,54 +268,43 @@ class TractionModel:
         gr = vx_mps + yaw_rate_rad_s * hy
         lat_f = -(vy_mps + yaw_rate_rad_s * hx)
         lat_b = -(vy_mps - yaw_rate_rad_s * hx)
-        sl = (left_mps - gl) * inv_sl
-        sr = (right_mps - gr) * inv_sr
         lxf, lyf, lxb, lyb, rxf, ryf, rxb, ryb = limits_n
-
-        # left wheels (front, rear): k = tanh(sigma)/sigma / S, so F = mu*N * k * slip
-        sy = lat_f * inv_sl
-        sig = sqrt(sl * sl + sy * sy)
-        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sl
-        cx_l = lxf * k
-        cy_f = lyf * k
-        fy_f = cy_f * lat_f
-        sy = lat_b * inv_sl
-        sig = sqrt(sl * sl + sy * sy)
-        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sl
-        cx_l += lxb * k
-        cy_b = lyb * k
-        fy_b = cy_b * lat_b
-        # right wheels (front, rear)
-        sy = lat_f * inv_sr
-        sig = sqrt(sr * sr + sy * sy)
-        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sr
-        cx_r = rxf * k
-        c = ryf * k
-        cy_f += c
-        fy_f += c * lat_f
-        sy = lat_b * inv_sr
-        sig = sqrt(sr * sr + sy * sy)
-        k = (tanh(sig) / sig if sig > _TINY_SIGMA else 1.0) * inv_sr
-        cx_r += rxb * k
-        c = ryb * k
-        cy_b += c
-        fy_b += c * lat_b
-
-        tl = tanh(gl * inv_vrr)
-        tr = tanh(gr * inv_vrr)
-        fx_l = cx_l * (left_mps - gl) - 2.0 * rr * tl
-        fx_r = cx_r * (right_mps - gr) - 2.0 * rr * tr
-        cx_l += 2.0 * rr * inv_vrr * (1.0 - tl * tl)
-        cx_r += 2.0 * rr * inv_vrr * (1.0 - tr * tr)
-        cx = cx_l + cx_r
-        cy = cy_f + cy_b
+        fl = _wheel((left_mps - gl) * inv_sl, lat_f * inv_sl, lxf, lyf, inv_sl)
+        bl = _wheel((left_mps - gl) * inv_sl, lat_b * inv_sl, lxb, lyb, inv_sl)
+        fr = _wheel((right_mps - gr) * inv_sr, lat_f * inv_sr, rxf, ryf, inv_sr)
+        br = _wheel((right_mps - gr) * inv_sr, lat_b * inv_sr, rxb, ryb, inv_sr)
+        xl = gl * inv_vrr
+        xr = gr * inv_vrr
+        tl = math.tanh(xl)
+        tr = math.tanh(xr)
+        fx_l = fl[0] + bl[0] - 2.0 * rr * tl
+        fx_r = fr[0] + br[0] - 2.0 * rr * tr
+        fy_f = fl[1] + fr[1]
+        fy_b = bl[1] + br[1]
+        rr_slope = 2.0 * rr * inv_vrr
+        cx = fl[2] + bl[2] + fr[2] + br[2] + rr_slope * ((1.0 - tl * tl) + (1.0 - tr * tr))
+        cy = fl[3] + bl[3] + fr[3] + br[3]
+        # Wheel (x_i, y_i): dT/dw = -(y_i^2 kx + x_i^2 ky) + x_i*y_i*kxy; the cross terms
+        # have the sign of x_i*y_i: + for FL and RR, - for RL and FR.
+        cross = fl[4] + br[4] - bl[4] - fr[4]
+        cz = hy * hy * cx + hx * hx * cy - hx * hy * cross
+        # Secant stiffness F/v (what an explicit step would apply), for the overshoot guard.
+        kx = lxf * fl[5] + lxb * bl[5] + rxf * fr[5] + rxb * br[5]
+        kx += rr_slope * (
+            (tl / xl if abs(xl) > _TINY_SIGMA else 1.0)
+            + (tr / xr if abs(xr) > _TINY_SIGMA else 1.0)
+        )
+        ky = lyf * fl[5] + lyb * bl[5] + ryf * fr[5] + ryb * br[5]
         return (
             fx_l + fx_r,
             fy_f + fy_b,
             hy * (fx_r - fx_l) + hx * (fy_f - fy_b),
             cx,
             cy,
-            hy * hy * cx + hx * hx * cy,
+            cz if cz > 0.0 else 0.0,
+            kx,
+            ky,
+            hy * hy * kx + hx * hx * ky,
         )
 
     def step_wrench(  # noqa: PLR0917 - once per physics step: positional is cheapest
@@ -294,14 +320,22 @@ class TractionModel:
         """Force and torque to apply for one step of ``dt_s``, body frame (N, N, N*m).
 
         :meth:`wrench` made linearly implicit on the diagonal: each component divided by
-        ``1 + dt * C / M`` (``M`` = mass, mass, yaw inertia). Exact in steady state,
-        stable at any step the twin accepts.
+        ``1 + dt * C / M`` (``M`` = mass, mass, yaw inertia). Where an explicit step
+        with the secant stiffness would carry the slip past zero (``dt * K > M``, a
+        wheel leaving saturation within one step), ``C`` is raised to ``K - M/dt``,
+        which lands the slip on zero instead. Exact in steady state; stable and
+        monotone at any step the twin accepts.
         """
-        fx, fy, tz, cx, cy, cz = self.wrench(
+        fx, fy, tz, cx, cy, cz, kx, ky, kz = self.wrench(
             vx_mps, vy_mps, yaw_rate_rad_s, left_mps, right_mps, limits_n
         )
         m = self.mass_kg
         inertia = self.inertia_kg_m2
+        m_dt = m / dt_s
+        i_dt = inertia / dt_s
+        cx = max(cx, kx - m_dt)
+        cy = max(cy, ky - m_dt)
+        cz = max(cz, kz - i_dt)
         return (
             fx * m / (m + dt_s * cx),
             fy * m / (m + dt_s * cy),

@@ -415,16 +415,17 @@ def _polygon_violations(raw: list[list[float]], ptr: str) -> list[tuple[str, str
     pts = [(float(p[0]), float(p[1])) for p in raw]
     n = len(pts)
     for i in range(n):
-        if pts[i] == pts[(i + 1) % n]:
-            j = (i + 1) % n
-            what = "repeats the first point (do not close polygons)" if j == 0 else "repeated"
-            return [(f"{ptr}/{j}", f"point {what}")]
-    if abs(_signed_area(pts)) < _EPS:
-        return [(ptr, "polygon has zero area")]
+        j = (i + 1) % n
+        if pts[i] == pts[j]:
+            if j == 0:
+                return [(f"{ptr}/{i}", "repeats the first point (do not close polygons)")]
+            return [(f"{ptr}/{j}", "repeats the previous point")]
     crossing = _self_intersection(pts)
     if crossing is not None:
         i, j = crossing
         return [(ptr, f"polygon is not simple: edge {i} crosses edge {j}")]
+    if abs(_signed_area(pts)) < _EPS:
+        return [(ptr, "polygon has zero area")]
     return []
 
 

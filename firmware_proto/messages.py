@@ -62,6 +62,7 @@ __all__ = [
     "ParamResult",
     "ParamValue",
     "Pose",
+    "Progress",
     "SetParam",
     "Status",
     "StepState",
@@ -73,7 +74,7 @@ __all__ = [
 ]
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0xA838
+SCHEMA_HASH = 0x9F24
 MAX_PAYLOAD_BYTES = 8
 CAN_NODE_BITS = 4
 BROADCAST_NODE = 0
@@ -1250,6 +1251,85 @@ def _decode_pose(payload: bytes) -> Pose | None:
     return _new(Pose, (x_mm, y_mm, yaw_ddeg, sigma_cm, age_4ms))
 
 
+_S_PROGRESS = struct.Struct("<HBBHH")
+
+
+class _ProgressFields(NamedTuple):
+    ended_seq: int
+    ended_state: int
+    ended_reason: int
+    ended_count: int
+    travel: int
+
+
+class Progress(Message, _ProgressFields):
+    """PROGRESS (id 70, controller to host, telemetry). The last step that ended in this session
+    and how many have ended, so a host that lost a STATUS frame on a noisy link can still
+    settle every step.
+
+    Sent: with every HEARTBEAT.
+
+    Attributes:
+        ended_seq: u16. MOTION.seq of the last step that ended (meaningless while ended_count is
+            0).
+        ended_state: u8 (StepState) range 0..2. COMPLETED or ABORTED.
+        ended_reason: u8 (AbortReason) range 0..5.
+        ended_count: u16. steps ended in this session, wrapping; 0 after HELLO.
+        travel: u16. distance units the last ended step travelled.
+    """
+
+    __slots__ = ()
+    MSG_ID: ClassVar[int] = 70
+    NAME: ClassVar[str] = "PROGRESS"
+    LENGTH: ClassVar[int] = 8
+    DIRECTION: ClassVar[str] = "controller_to_host"
+    PRIORITY: ClassVar[str] = "telemetry"
+    FIELDS: ClassVar[tuple[str, ...]] = ("ended_seq", "ended_state", "ended_reason", "ended_count", "travel")
+    ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"ended_state": StepState, "ended_reason": AbortReason}
+
+    def pack(self, strict: bool = True) -> bytes:
+        """Encode the payload; see :meth:`Message.pack`."""
+        ended_seq = self.ended_seq
+        ended_state = self.ended_state
+        ended_reason = self.ended_reason
+        ended_count = self.ended_count
+        travel = self.travel
+        if not (isinstance(ended_seq, int) and 0 <= ended_seq <= 65535):
+            raise field_error("PROGRESS", "ended_seq", ended_seq, 0, 65535)
+        if not (isinstance(ended_state, int) and 0 <= ended_state <= 2):
+            raise field_error("PROGRESS", "ended_state", ended_state, 0, 2)
+        if not (isinstance(ended_reason, int) and 0 <= ended_reason <= 5):
+            raise field_error("PROGRESS", "ended_reason", ended_reason, 0, 5)
+        if not (isinstance(ended_count, int) and 0 <= ended_count <= 65535):
+            raise field_error("PROGRESS", "ended_count", ended_count, 0, 65535)
+        if not (isinstance(travel, int) and 0 <= travel <= 65535):
+            raise field_error("PROGRESS", "travel", travel, 0, 65535)
+        return _S_PROGRESS.pack(ended_seq, ended_state, ended_reason, ended_count, travel)
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Progress:
+        """Strict decode of one payload.
+
+        Raises:
+            DecodeError: wrong length, or a value outside the wire range.
+        """
+        if len(payload) != 8:
+            raise DecodeError(f"PROGRESS payload is {len(payload)} bytes, expected 8")
+        decoded = _decode_progress(bytes(payload))
+        if decoded is None:
+            raise DecodeError("PROGRESS payload has a value outside its range")
+        return decoded
+
+
+def _decode_progress(payload: bytes) -> Progress | None:
+    values = _S_PROGRESS.unpack(payload)
+    ended_state = values[1]
+    ended_reason = values[2]
+    if not (0 <= ended_state <= 2 and 0 <= ended_reason <= 5):
+        return None
+    return _new(Progress, values)
+
+
 _S_HELLO = struct.Struct("<BH")
 
 
@@ -1523,6 +1603,7 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
     67: WheelSpeeds,
     68: Imu,
     69: Pose,
+    70: Progress,
     96: Hello,
     97: Ident,
     98: SetParam,
@@ -1549,6 +1630,7 @@ LENGTHS: dict[int, int] = {
     67: 8,
     68: 8,
     69: 8,
+    70: 8,
     96: 3,
     97: 8,
     98: 5,
@@ -1572,6 +1654,7 @@ DECODERS: dict[int, Callable[[bytes], Message | None]] = {
     67: _decode_wheel_speeds,
     68: _decode_imu,
     69: _decode_pose,
+    70: _decode_progress,
     96: _decode_hello,
     97: _decode_ident,
     98: _decode_set_param,

@@ -72,7 +72,16 @@ class Drive:
 
 @dataclass(frozen=True)
 class Traction:
-    """Wheel-ground friction model parameters (see docs/twin.md)."""
+    """Wheel-ground friction model parameters (see docs/twin.md).
+
+    Attributes:
+        mu_longitudinal, mu_lateral: friction coefficients along and across a wheel.
+        slip_saturation_mps: floor of the saturation slip speed (near standstill), m/s.
+        slip_saturation_ratio: saturation slip speed per m/s of wheel speed.
+        rolling_resistance: rolling resistance force / wheel load.
+        turn_efficiency: body yaw / ideal yaw from wheel arc travel of an in-place
+            spin, calibrated on the twin; planners turn by ``yaw * (track/2) / this``.
+    """
 
     mu_longitudinal: float
     mu_lateral: float

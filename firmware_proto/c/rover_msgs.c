@@ -822,6 +822,74 @@ int rp_pose_unpack(rp_pose_t *msg, const uint8_t *payload, size_t len)
     return RP_OK;
 }
 
+int rp_progress_pack(const rp_progress_t *msg, bool strict, uint8_t *out, size_t cap)
+{
+    (void)strict;
+    if (msg == NULL || out == NULL) {
+        return RP_ERR_NULL;
+    }
+    if (cap < 8u) {
+        return RP_ERR_BUFFER;
+    }
+    if (msg->ended_state > INT32_C(2)) {
+        return RP_ERR_FIELD(1);
+    }
+    if (msg->ended_reason > INT32_C(5)) {
+        return RP_ERR_FIELD(2);
+    }
+    uint64_t w = 0;
+    w |= ((uint64_t)msg->ended_seq & UINT64_C(0xFFFF));
+    w |= ((uint64_t)msg->ended_state & UINT64_C(0xFF)) << 16;
+    w |= ((uint64_t)msg->ended_reason & UINT64_C(0xFF)) << 24;
+    w |= ((uint64_t)msg->ended_count & UINT64_C(0xFFFF)) << 32;
+    w |= ((uint64_t)msg->travel & UINT64_C(0xFFFF)) << 48;
+    out[0] = (uint8_t)(w);
+    out[1] = (uint8_t)(w >> 8);
+    out[2] = (uint8_t)(w >> 16);
+    out[3] = (uint8_t)(w >> 24);
+    out[4] = (uint8_t)(w >> 32);
+    out[5] = (uint8_t)(w >> 40);
+    out[6] = (uint8_t)(w >> 48);
+    out[7] = (uint8_t)(w >> 56);
+    return 8;
+}
+
+int rp_progress_unpack(rp_progress_t *msg, const uint8_t *payload, size_t len)
+{
+    if (msg == NULL || (payload == NULL && len > 0u)) {
+        return RP_ERR_NULL;
+    }
+    if (len != 8u) {
+        return RP_ERR_LENGTH;
+    }
+    uint64_t w = 0;
+    w |= (uint64_t)payload[0];
+    w |= (uint64_t)payload[1] << 8;
+    w |= (uint64_t)payload[2] << 16;
+    w |= (uint64_t)payload[3] << 24;
+    w |= (uint64_t)payload[4] << 32;
+    w |= (uint64_t)payload[5] << 40;
+    w |= (uint64_t)payload[6] << 48;
+    w |= (uint64_t)payload[7] << 56;
+    const int64_t f_ended_seq = (int64_t)(w & UINT64_C(0xFFFF));
+    const int64_t f_ended_state = (int64_t)((w >> 16) & UINT64_C(0xFF));
+    const int64_t f_ended_reason = (int64_t)((w >> 24) & UINT64_C(0xFF));
+    const int64_t f_ended_count = (int64_t)((w >> 32) & UINT64_C(0xFFFF));
+    const int64_t f_travel = (int64_t)((w >> 48) & UINT64_C(0xFFFF));
+    if (f_ended_state > 2) {
+        return RP_ERR_FIELD(1);
+    }
+    if (f_ended_reason > 5) {
+        return RP_ERR_FIELD(2);
+    }
+    msg->ended_seq = (uint16_t)f_ended_seq;
+    msg->ended_state = (uint8_t)f_ended_state;
+    msg->ended_reason = (uint8_t)f_ended_reason;
+    msg->ended_count = (uint16_t)f_ended_count;
+    msg->travel = (uint16_t)f_travel;
+    return RP_OK;
+}
+
 int rp_hello_pack(const rp_hello_t *msg, bool strict, uint8_t *out, size_t cap)
 {
     (void)strict;
@@ -1106,6 +1174,14 @@ static const rp_field_info_t fields_pose[] = {
     {"age_4ms", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
 };
 
+static const rp_field_info_t fields_progress[] = {
+    {"ended_seq", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
+    {"ended_state", 8u, false, INT64_C(0), INT64_C(2), false, INT64_C(0), INT64_C(0)},
+    {"ended_reason", 8u, false, INT64_C(0), INT64_C(5), false, INT64_C(0), INT64_C(0)},
+    {"ended_count", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
+    {"travel", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
+};
+
 static const rp_field_info_t fields_hello[] = {
     {"protocol_version", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
     {"schema_hash", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
@@ -1147,6 +1223,7 @@ const rp_msg_info_t rp_msg_table[RP_MSG_COUNT] = {
     {RP_MSG_WHEEL_SPEEDS, RP_MSG_WHEEL_SPEEDS_LEN, RP_DIR_CONTROLLER_TO_HOST, "WHEEL_SPEEDS", 5u, fields_wheel_speeds},
     {RP_MSG_IMU, RP_MSG_IMU_LEN, RP_DIR_CONTROLLER_TO_HOST, "IMU", 4u, fields_imu},
     {RP_MSG_POSE, RP_MSG_POSE_LEN, RP_DIR_CONTROLLER_TO_HOST, "POSE", 5u, fields_pose},
+    {RP_MSG_PROGRESS, RP_MSG_PROGRESS_LEN, RP_DIR_CONTROLLER_TO_HOST, "PROGRESS", 5u, fields_progress},
     {RP_MSG_HELLO, RP_MSG_HELLO_LEN, RP_DIR_HOST_TO_CONTROLLER, "HELLO", 2u, fields_hello},
     {RP_MSG_IDENT, RP_MSG_IDENT_LEN, RP_DIR_CONTROLLER_TO_HOST, "IDENT", 6u, fields_ident},
     {RP_MSG_SET_PARAM, RP_MSG_SET_PARAM_LEN, RP_DIR_HOST_TO_CONTROLLER, "SET_PARAM", 2u, fields_set_param},
@@ -1159,9 +1236,9 @@ static const uint8_t table_index[128] = {
     0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
     6, 7, 8, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
     0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
-    9, 10, 11, 12, 13, 14, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
+    9, 10, 11, 12, 13, 14, 15, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
     0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
-    15, 16, 17, 18, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
+    16, 17, 18, 19, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
     0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF,
 };
 
@@ -1228,6 +1305,8 @@ int rp_msg_pack(const rp_msg_t *msg, bool strict, uint8_t *out, size_t cap)
         return rp_imu_pack(&msg->body.imu, strict, out, cap);
     case RP_MSG_POSE:
         return rp_pose_pack(&msg->body.pose, strict, out, cap);
+    case RP_MSG_PROGRESS:
+        return rp_progress_pack(&msg->body.progress, strict, out, cap);
     case RP_MSG_HELLO:
         return rp_hello_pack(&msg->body.hello, strict, out, cap);
     case RP_MSG_IDENT:
@@ -1292,6 +1371,9 @@ int rp_msg_unpack(rp_msg_t *msg, uint32_t id, const uint8_t *payload, size_t len
         break;
     case RP_MSG_POSE:
         rc = rp_pose_unpack(&msg->body.pose, payload, len);
+        break;
+    case RP_MSG_PROGRESS:
+        rc = rp_progress_unpack(&msg->body.progress, payload, len);
         break;
     case RP_MSG_HELLO:
         rc = rp_hello_unpack(&msg->body.hello, payload, len);
@@ -1428,6 +1510,15 @@ int rp_msg_get_field(const rp_msg_t *msg, unsigned index, int64_t *value)
         case 2u: *value = (int64_t)msg->body.pose.yaw_ddeg; return RP_OK;
         case 3u: *value = (int64_t)msg->body.pose.sigma_cm; return RP_OK;
         case 4u: *value = (int64_t)msg->body.pose.age_4ms; return RP_OK;
+        default: return RP_ERR_FIELD(index);
+        }
+    case RP_MSG_PROGRESS:
+        switch (index) {
+        case 0u: *value = (int64_t)msg->body.progress.ended_seq; return RP_OK;
+        case 1u: *value = (int64_t)msg->body.progress.ended_state; return RP_OK;
+        case 2u: *value = (int64_t)msg->body.progress.ended_reason; return RP_OK;
+        case 3u: *value = (int64_t)msg->body.progress.ended_count; return RP_OK;
+        case 4u: *value = (int64_t)msg->body.progress.travel; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_HELLO:
@@ -1827,6 +1918,40 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
                 return RP_ERR_FIELD(4);
             }
             msg->body.pose.age_4ms = (uint8_t)value;
+            return RP_OK;
+        default: return RP_ERR_FIELD(index);
+        }
+    case RP_MSG_PROGRESS:
+        switch (index) {
+        case 0u:
+            if (value < INT64_C(0) || value > INT64_C(65535)) {
+                return RP_ERR_FIELD(0);
+            }
+            msg->body.progress.ended_seq = (uint16_t)value;
+            return RP_OK;
+        case 1u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(1);
+            }
+            msg->body.progress.ended_state = (uint8_t)value;
+            return RP_OK;
+        case 2u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(2);
+            }
+            msg->body.progress.ended_reason = (uint8_t)value;
+            return RP_OK;
+        case 3u:
+            if (value < INT64_C(0) || value > INT64_C(65535)) {
+                return RP_ERR_FIELD(3);
+            }
+            msg->body.progress.ended_count = (uint16_t)value;
+            return RP_OK;
+        case 4u:
+            if (value < INT64_C(0) || value > INT64_C(65535)) {
+                return RP_ERR_FIELD(4);
+            }
+            msg->body.progress.travel = (uint16_t)value;
             return RP_OK;
         default: return RP_ERR_FIELD(index);
         }

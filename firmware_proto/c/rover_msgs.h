@@ -25,13 +25,13 @@ extern "C" {
 /* ------------------------------------------------------------ protocol constants */
 
 #define RP_PROTOCOL_VERSION 1u /**< sent in HELLO and IDENT */
-#define RP_SCHEMA_HASH 0xA838u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
+#define RP_SCHEMA_HASH 0x9F24u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
 #define RP_MAX_PAYLOAD_BYTES 8u /**< largest payload (one classic CAN frame) */
 #define RP_DELIMITER 0x00u /**< serial frame delimiter */
 #define RP_CAN_NODE_BITS 4u /**< CAN identifier = id << RP_CAN_NODE_BITS | node */
 #define RP_BROADCAST_NODE 0u /**< CAN node of host-to-controller broadcasts */
 #define RP_DEFAULT_NODE 1u /**< default controller node id */
-#define RP_MSG_COUNT 19u /**< number of message types */
+#define RP_MSG_COUNT 20u /**< number of message types */
 
 /* Timing (docs/protocol.md, 'Timing'). */
 #define RP_HOST_HEARTBEAT_PERIOD_MS 100u
@@ -768,6 +768,49 @@ int rp_pose_pack(const rp_pose_t *msg, bool strict, uint8_t *out, size_t cap);
  */
 int rp_pose_unpack(rp_pose_t *msg, const uint8_t *payload, size_t len);
 
+/* -------- PROGRESS ---------------------------------------------------------------------- */
+
+/**
+ * PROGRESS (id 70, controller to host, class telemetry, 8 bytes). The last step that ended
+ * in this session and how many have ended, so a host that lost a STATUS frame on a noisy
+ * link can still settle every step. Sent: with every HEARTBEAT.
+ */
+typedef struct {
+    /** u16: MOTION.seq of the last step that ended (meaningless while ended_count is 0). */
+    uint16_t ended_seq;
+    /** u8 (rp_step_state_t) range 0..2: COMPLETED or ABORTED. */
+    uint8_t ended_state;
+    /** u8 (rp_abort_reason_t) range 0..5. */
+    uint8_t ended_reason;
+    /** u16: steps ended in this session, wrapping; 0 after HELLO. */
+    uint16_t ended_count;
+    /** u16: distance units the last ended step travelled. */
+    uint16_t travel;
+} rp_progress_t;
+
+#define RP_MSG_PROGRESS 70u /**< message id of PROGRESS */
+#define RP_MSG_PROGRESS_LEN 8u /**< payload bytes of PROGRESS */
+#define RP_MSG_PROGRESS_NAME "PROGRESS"
+#define RP_F_PROGRESS_ENDED_SEQ 0 /**< field index of ended_seq */
+#define RP_F_PROGRESS_ENDED_STATE 1 /**< field index of ended_state */
+#define RP_F_PROGRESS_ENDED_REASON 2 /**< field index of ended_reason */
+#define RP_F_PROGRESS_ENDED_COUNT 3 /**< field index of ended_count */
+#define RP_F_PROGRESS_TRAVEL 4 /**< field index of travel */
+
+/**
+ * Pack a PROGRESS payload into out[0..8). Checks every field's wire range in wire order,
+ * then, if strict, every semantic limit. Returns the payload length (8) or RP_ERR_NULL,
+ * RP_ERR_BUFFER (cap < 8), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
+ * index i (RP_F_PROGRESS_*); out is untouched on error.
+ */
+int rp_progress_pack(const rp_progress_t *msg, bool strict, uint8_t *out, size_t cap);
+/**
+ * Unpack a PROGRESS payload of exactly 8 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
+ * RP_ERR_LENGTH, or RP_ERR_FIELD(i) for the first field outside its wire range (the frame
+ * must then be dropped); *msg is untouched on error.
+ */
+int rp_progress_unpack(rp_progress_t *msg, const uint8_t *payload, size_t len);
+
 /* -------- HELLO ------------------------------------------------------------------------- */
 
 /**
@@ -939,6 +982,7 @@ typedef struct {
         rp_wheel_speeds_t wheel_speeds;
         rp_imu_t imu;
         rp_pose_t pose;
+        rp_progress_t progress;
         rp_hello_t hello;
         rp_ident_t ident;
         rp_set_param_t set_param;

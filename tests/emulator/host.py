@@ -143,7 +143,7 @@ class SerialHost(Host):
     def _read_loop(self) -> None:
         while not self._stop.is_set():
             try:
-                data = self.port.read(4096)
+                data = self.port.read(self.port.in_waiting or 1)
             except (serial.SerialException, OSError, TypeError):
                 if self._stop.is_set():
                     return

@@ -1,0 +1,454 @@
+"""ROS port benchmark: message latency and sustained rate, ours beside raw Cyclone DDS.
+
+Run it in a private network namespace with only loopback (as the tests run)::
+
+    unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
+        exec .venv/bin/python -m benchmarks.bench_rosport'
+
+Cases, two of them between two processes (the publisher here, the subscriber in a child
+process started with the same loopback-only Cyclone DDS config):
+
+- ``rosport dds``: our ``dds`` backend on both sides (dataclass -> CDR -> dataclass,
+  callback on the port's thread);
+- ``raw cyclonedds``: the cyclonedds binding alone, with the same wire types, QoS and
+  topic, taking on a waitset: the peer, so the table shows what our wrapper costs;
+- ``rosport inprocess``: our in-process backend (one process, nothing serialised).
+
+Latency is one way, from just before ``publish`` to the subscriber's callback (or
+take), on CLOCK_MONOTONIC, which all processes of a machine share; messages are paced
+at 500/s so it measures latency, not queueing. The sustained rate is messages/s with
+nothing lost: the subscriber acknowledges every 5th message and the publisher keeps at
+most 10 (the keep-last depth) unacknowledged, as fast as that goes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import functools
+import json
+import os
+import socket
+import statistics
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from bridge.rosport import Int16MultiArray, Message, String, loopback_config, open_port
+
+REPO = Path(__file__).resolve().parents[1]
+LATENCY_COUNT = 2000
+LATENCY_RATE_HZ = 500.0
+RATE_COUNT = 20000
+#: The publisher keeps at most this many messages unacknowledged (the keep-last depth).
+WINDOW = 10
+#: The subscriber acknowledges every ACK_EVERY-th message.
+ACK_EVERY = 5
+TOPIC = "/bench"
+ACK_TOPIC = "/bench_ack"
+CHILD_TIMEOUT_S = 120.0
+
+_SIOCGIFFLAGS = 0x8913
+_IFF_UP = 0x1
+_IFF_MULTICAST = 0x1000
+NETNS_HELP = (
+    "bench_rosport must run in a private network namespace with only loopback, e.g.:\n"
+    "  unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on && "
+    "exec .venv/bin/python -m benchmarks.bench_rosport'\n"
+    "(Cyclone DDS multicasts when it starts; nothing may leave this machine.)"
+)
+
+
+def in_private_loopback_namespace() -> tuple[bool, str]:
+    """True when this network namespace has only lo, up and multicast-capable.
+
+    Asks the kernel for this namespace's interfaces (``/sys/class/net`` may show the
+    host's: sysfs belongs to the namespace that mounted it).
+    """
+    interfaces = sorted(name for _, name in socket.if_nameindex())
+    if interfaces != ["lo"]:
+        return False, f"network interfaces present: {', '.join(interfaces)}"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        request = struct.pack("16sH14s", b"lo", 0, b"")
+        flags = struct.unpack("16sH14s", fcntl.ioctl(sock.fileno(), _SIOCGIFFLAGS, request))[1]
+    if not flags & _IFF_UP:
+        return False, "lo is down"
+    if not flags & _IFF_MULTICAST:
+        return False, "lo has multicast off"
+    return True, "only lo, up, multicast on"
+
+
+# -- messages -------------------------------------------------------------------------
+
+#: kind -> (our type, our message for seq, seq of a received message, ours or raw)
+KINDS: dict[str, tuple[type[Message], Callable[[int], Message], Callable[[Any], int]]] = {
+    "Int16MultiArray[3]": (
+        Int16MultiArray,
+        lambda seq: Int16MultiArray(data=(seq, 30, 23000)),
+        lambda msg: int(msg.data[0]),
+    ),
+    "String": (
+        String,
+        lambda seq: String(f"accepted:{seq}"),
+        lambda msg: int(msg.data.rsplit(":", 1)[1]),
+    ),
+}
+
+
+@functools.cache
+def raw_types() -> dict[str, tuple[Any, Callable[[int], Any]]]:
+    """The wire types written directly against the cyclonedds binding (none of our code)."""
+    from cyclonedds.idl import make_idl_struct
+    from cyclonedds.idl import types as idl_types
+
+    t: Any = idl_types
+    dimension = make_idl_struct(
+        "MultiArrayDimension",
+        "std_msgs::msg::dds_::MultiArrayDimension_",
+        {"label": str, "size": t.uint32, "stride": t.uint32},
+    )
+    layout: Any = make_idl_struct(
+        "MultiArrayLayout",
+        "std_msgs::msg::dds_::MultiArrayLayout_",
+        {"dim": t.sequence[dimension], "data_offset": t.uint32},
+    )
+    int16_array: Any = make_idl_struct(
+        "Int16MultiArray",
+        "std_msgs::msg::dds_::Int16MultiArray_",
+        {"layout": layout, "data": t.sequence[t.int16]},
+    )
+    string: Any = make_idl_struct("String", "std_msgs::msg::dds_::String_", {"data": str})
+    return {
+        "Int16MultiArray[3]": (
+            int16_array,
+            lambda seq: int16_array(layout([], 0), [seq, 30, 23000]),
+        ),
+        "String": (string, lambda seq: string(f"accepted:{seq}")),
+    }
+
+
+# -- endpoints per case: a sender (publish + acks in) and a receiver (records + acks out)
+
+
+class Link:
+    """One side of one case: send or receive messages of one kind on TOPIC."""
+
+    def send(self, seq: int) -> None:
+        raise NotImplementedError
+
+    def ack(self, count: int) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class RosportLink(Link):
+    def __init__(
+        self, backend: str, kind: str, role: str, on_message: Callable[[Any], None]
+    ) -> None:
+        msg_type, make, _ = KINDS[kind]
+        options: dict[str, Any] = {"bus": "bench"} if backend == "inprocess" else {}
+        self.port = open_port(backend, node_name=f"bench_{role}", **options)
+        self._make = make
+        if role == "sender":
+            self._pub = self.port.publisher(TOPIC, msg_type)
+            self.port.subscribe(ACK_TOPIC, Int16MultiArray, on_message)
+            self._messages: list[Message] = []
+        else:
+            self._ack = self.port.publisher(ACK_TOPIC, Int16MultiArray)
+            self.port.subscribe(TOPIC, msg_type, on_message)
+
+    def prepare(self, count: int) -> None:
+        self._messages = [self._make(seq) for seq in range(count)]
+
+    def wait_matched(self) -> bool:
+        return self._pub.wait_for_subscribers(1, timeout_s=30.0)
+
+    def send(self, seq: int) -> None:
+        self._pub.publish(self._messages[seq])
+
+    def ack(self, count: int) -> None:
+        self._ack.publish(Int16MultiArray(data=(count,)))
+
+    def close(self) -> None:
+        self.port.close()
+
+
+class RawLink(Link):
+    def __init__(self, kind: str, role: str, on_message: Callable[[Any], None]) -> None:
+        from cyclonedds.core import (
+            InstanceState,
+            Policy,
+            Qos,
+            ReadCondition,
+            SampleState,
+            ViewState,
+            WaitSet,
+        )
+        from cyclonedds.domain import DomainParticipant
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.sub import DataReader
+        from cyclonedds.topic import Topic
+        from cyclonedds.util import duration
+
+        types = raw_types()
+        msg_class, self._make = types[kind]
+        ack_class, self._make_ack = types["Int16MultiArray[3]"]
+        qos = Qos(
+            Policy.Reliability.Reliable(duration(seconds=1)),
+            Policy.Durability.Volatile,
+            Policy.History.KeepLast(10),
+            Policy.DataRepresentation(use_cdrv0_representation=True),
+        )
+        self._participant = DomainParticipant(0)
+        topic = Topic(self._participant, "rt" + TOPIC, msg_class)
+        ack_topic = Topic(self._participant, "rt" + ACK_TOPIC, ack_class)
+        if role == "sender":
+            self._writer = DataWriter(self._participant, topic, qos)
+            self._reader = DataReader(self._participant, ack_topic, qos)
+        else:
+            self._writer = DataWriter(self._participant, ack_topic, qos)
+            self._reader = DataReader(self._participant, topic, qos)
+        self._entities = [self._writer, self._reader, topic, ack_topic]
+        self._on_message = on_message
+        self._samples: list[Any] = []
+        self._stop = threading.Event()
+        waitset = WaitSet(self._participant)
+        condition = ReadCondition(self._reader, SampleState.Any | ViewState.Any | InstanceState.Any)
+        waitset.attach(condition)
+        self._entities[:0] = [condition, waitset]
+
+        def take_loop() -> None:
+            while not self._stop.is_set():
+                waitset.wait(duration(milliseconds=100))
+                for sample in self._reader.take(N=64):
+                    if sample.sample_info.valid_data:
+                        self._on_message(sample)
+
+        self._thread = threading.Thread(target=take_loop, name="raw-take", daemon=True)
+        self._thread.start()
+
+    def prepare(self, count: int) -> None:
+        self._samples = [self._make(seq) for seq in range(count)]
+
+    def wait_matched(self) -> bool:
+        deadline = time.monotonic() + 30.0
+        while self._writer.get_publication_matched_status().current_count < 1:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def send(self, seq: int) -> None:
+        self._writer.write(self._samples[seq])
+
+    def ack(self, count: int) -> None:
+        self._writer.write(self._make_ack(count))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        for entity in [*self._entities, self._participant]:
+            entity.__del__()  # the binding deletes on garbage collection; now is better
+
+
+def make_link(backend: str, kind: str, role: str, on_message: Callable[[Any], None]) -> Any:
+    if backend == "raw":
+        return RawLink(kind, role, on_message)
+    return RosportLink("dds" if backend == "rosport" else backend, kind, role, on_message)
+
+
+# -- the receiving side ---------------------------------------------------------------------
+
+
+class Receiver:
+    """Records each message's arrival; acknowledges every ACK_EVERY-th when asked to."""
+
+    def __init__(self, backend: str, kind: str, count: int, acks: bool) -> None:
+        self._seq_of = KINDS[kind][2]
+        self._count = count
+        self._acks = acks
+        self.times: dict[int, int] = {}
+        self.done = threading.Event()
+        self.link = make_link(backend, kind, "receiver", self._record)
+
+    def _record(self, msg: Any) -> None:
+        self.times[self._seq_of(msg)] = time.monotonic_ns()
+        got = len(self.times)
+        if self._acks and (got % ACK_EVERY == 0 or got == self._count):
+            self.link.ack(got)
+        if got >= self._count:
+            self.done.set()
+
+
+def child(backend: str, kind: str, count: int, acks: bool) -> int:
+    """The subscriber process: print ``ready``, then the arrival times as JSON."""
+    receiver = Receiver(backend, kind, count, acks)
+    try:
+        print("ready", flush=True)
+        receiver.done.wait(CHILD_TIMEOUT_S)
+    finally:
+        receiver.link.close()
+    print(json.dumps(receiver.times), flush=True)
+    return 0
+
+
+# -- the sending side -----------------------------------------------------------------------
+
+
+class Sender:
+    def __init__(self, backend: str, kind: str) -> None:
+        self._acked = 0
+        self._cond = threading.Condition()
+        self.link = make_link(backend, kind, "sender", self._on_ack)
+
+    def _on_ack(self, msg: Any) -> None:
+        with self._cond:
+            self._acked = max(self._acked, int(msg.data[0]))
+            self._cond.notify_all()
+
+    def _room(self, seq: int) -> bool:
+        return seq - self._acked < WINDOW
+
+    def run(self, count: int, rate_hz: float | None) -> dict[int, int]:
+        """Send ``count``: paced at ``rate_hz``, or windowed by acks when None."""
+        self.link.prepare(count)
+        if not self.link.wait_matched():
+            raise RuntimeError("the subscriber never matched")
+        sent: dict[int, int] = {}
+        period_ns = int(1e9 / rate_hz) if rate_hz else 0
+        next_ns = time.monotonic_ns()
+        for seq in range(count):
+            if period_ns:
+                next_ns += period_ns
+                delay = next_ns - time.monotonic_ns()
+                if delay > 0:
+                    time.sleep(delay / 1e9)
+            else:
+                with self._cond:
+                    if not self._cond.wait_for(functools.partial(self._room, seq), 10.0):
+                        raise RuntimeError(f"no acknowledgement after message {seq}")
+            sent[seq] = time.monotonic_ns()
+            self.link.send(seq)
+        return sent
+
+
+def run_case(
+    backend: str, kind: str, count: int, rate_hz: float | None
+) -> tuple[dict[int, int], dict[int, int]]:
+    """Send and receive one case; return send and arrival times by sequence number."""
+    acks = rate_hz is None
+    if backend == "inprocess":
+        receiver = Receiver(backend, kind, count, acks)
+        sender = Sender(backend, kind)
+        try:
+            sent = sender.run(count, rate_hz)
+            receiver.done.wait(30.0)
+        finally:
+            sender.link.close()
+            receiver.link.close()
+        return sent, receiver.times
+    proc = subprocess.Popen(
+        [
+            sys.executable, "-m", "benchmarks.bench_rosport",
+            "--child", backend, kind, str(count), "acks" if acks else "noacks",
+        ],
+        cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        if proc.stdout.readline().strip() != "ready":
+            raise RuntimeError(f"the {backend} subscriber did not start")
+        sender = Sender(backend, kind)
+        try:
+            sent = sender.run(count, rate_hz)
+            out, _ = proc.communicate(timeout=CHILD_TIMEOUT_S)
+        finally:
+            sender.link.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    arrived = {int(k): v for k, v in json.loads(out.strip().splitlines()[-1]).items()}
+    return sent, arrived
+
+
+# -- report ----------------------------------------------------------------------------------
+
+CASES = (
+    ("rosport dds (2 processes)", "rosport"),
+    ("raw cyclonedds (2 processes)", "raw"),
+    ("rosport inprocess (1 process)", "inprocess"),
+)
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
+    parser.add_argument("--latency-count", type=int, default=LATENCY_COUNT)
+    parser.add_argument("--rate-count", type=int, default=RATE_COUNT)
+    args = parser.parse_args(argv)
+    if max(args.rate_count, args.latency_count) > 32767:
+        parser.error("counts must fit an int16 sequence number (<= 32767)")
+
+    ok, why = in_private_loopback_namespace()
+    if not ok:
+        print(f"{NETNS_HELP}\nhere: {why}", file=sys.stderr)
+        return 2
+    os.environ["CYCLONEDDS_URI"] = loopback_config()
+    if args.child:
+        backend, kind, count, acks = args.child
+        return child(backend, kind, int(count), acks == "acks")
+
+    print(f"ROS port benchmark: Python {sys.version.split()[0]}, {os.cpu_count()} CPUs, loopback")
+    print()
+    print(
+        f"Latency, publish -> subscriber callback, one way: {args.latency_count} messages "
+        f"paced at {LATENCY_RATE_HZ:.0f}/s"
+    )
+    header = f"{'case':31} {'message':19} {'p50 us':>7} {'p99 us':>7} {'max us':>7} {'lost':>5}"
+    print(header)
+    print("-" * len(header))
+    for kind in KINDS:
+        for label, backend in CASES:
+            sent, arrived = run_case(backend, kind, args.latency_count, LATENCY_RATE_HZ)
+            lat = [(arrived[s] - sent[s]) / 1000 for s in sent if s in arrived]
+            print(
+                f"{label:31} {kind:19} {statistics.median(lat):7.0f} "
+                f"{percentile(lat, 0.99):7.0f} {max(lat):7.0f} {len(sent) - len(lat):5d}"
+            )
+    print()
+    print(
+        f"Sustained rate, nothing lost: {args.rate_count} messages, at most {WINDOW} "
+        f"unacknowledged (ack every {ACK_EVERY})"
+    )
+    header = f"{'case':31} {'message':19} {'msgs/s':>8} {'lost':>5}"
+    print(header)
+    print("-" * len(header))
+    for kind in KINDS:
+        for label, backend in CASES:
+            sent, arrived = run_case(backend, kind, args.rate_count, None)
+            seconds = (max(arrived.values()) - min(sent.values())) / 1e9
+            print(
+                f"{label:31} {kind:19} {len(arrived) / seconds:8.0f} {len(sent) - len(arrived):5d}"
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

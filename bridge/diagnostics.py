@@ -1,0 +1,123 @@
+"""``/diagnostics`` for the bridge: the link and the controller, as ROS 2 expects them.
+
+:func:`diagnostic_array` turns a :class:`~bridge.link.LinkDiagnostics` snapshot into a
+``diagnostic_msgs/DiagnosticArray`` with two statuses:
+
+- ``rover_bridge: link``: state, device, round-trip time, CRC/resync/drop/retry counts,
+  heartbeat age, reconnects, last STOP latency (sent -> acknowledged). ERROR when the
+  link is down, lost or mismatched; WARN while handshaking or after no-ack faults.
+- ``rover_bridge: controller``: controller state, latch, faults, watchdog trips, queue,
+  firmware, schema hashes, boot nonce, stopping distance. ERROR on a stopping fault,
+  WARN while latched or on a reporting fault.
+
+Pure: builds messages, publishes nothing.
+"""
+
+from __future__ import annotations
+
+from bridge.link import LinkDiagnostics
+from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time
+
+__all__ = ["diagnostic_array"]
+
+OK, WARN, ERROR = 0, 1, 2
+_STOPPING = {"WATCHDOG", "STALL_LEFT", "STALL_RIGHT", "ENCODER", "DRIVER", "INTERNAL"}
+
+
+def _fmt(value: object) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, float):
+        return f"{value:.3f}"
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value) or "none"
+    return str(value)
+
+
+def _values(diag: LinkDiagnostics, names: list[str]) -> list[KeyValue]:
+    return [KeyValue(key=name, value=_fmt(getattr(diag, name))) for name in names]
+
+
+def diagnostic_array(
+    diag: LinkDiagnostics, stamp: Time, hardware_id: str = "rover-motor"
+) -> DiagnosticArray:
+    """The DiagnosticArray for one snapshot."""
+    if diag.state in ("disconnected", "lost", "mismatch"):
+        link_level, link_msg = (
+            ERROR,
+            f"link {diag.state}" + (f": {diag.last_error}" if diag.last_error else ""),
+        )
+    elif diag.state == "handshake":
+        link_level, link_msg = WARN, "handshaking"
+    elif diag.no_ack_faults:
+        link_level, link_msg = WARN, f"ready; {diag.no_ack_faults} no-ack fault(s) so far"
+    else:
+        link_level, link_msg = OK, "ready"
+    link = DiagnosticStatus(
+        level=link_level,
+        name="rover_bridge: link",
+        message=link_msg,
+        hardware_id=hardware_id,
+        values=_values(
+            diag,
+            [
+                "state",
+                "url",
+                "connected",
+                "rtt_ms",
+                "rtt_median_ms",
+                "heartbeat_age_s",
+                "rx_frames",
+                "tx_frames",
+                "crc_errors",
+                "resyncs",
+                "rx_dropped",
+                "lost_frames",
+                "retries",
+                "no_ack_faults",
+                "stop_repeats",
+                "reconnects",
+                "last_stop_latency_ms",
+                "last_error",
+            ],
+        ),
+    )
+    faults = set(diag.faults)
+    if faults & _STOPPING:
+        ctl_level, ctl_msg = ERROR, "fault: " + ",".join(sorted(faults))
+    elif diag.stop_latched:
+        ctl_level, ctl_msg = WARN, "emergency stop latched"
+    elif faults:
+        ctl_level, ctl_msg = WARN, "reporting fault: " + ",".join(sorted(faults))
+    elif diag.state != "ready":
+        ctl_level, ctl_msg = ERROR, "controller not reachable"
+    else:
+        ctl_level, ctl_msg = OK, diag.controller_state.lower()
+    controller = DiagnosticStatus(
+        level=ctl_level,
+        name="rover_bridge: controller",
+        message=ctl_msg,
+        hardware_id=hardware_id,
+        values=_values(
+            diag,
+            [
+                "controller_state",
+                "stop_latched",
+                "estop_requested",
+                "faults",
+                "watchdog_trips",
+                "controller_queue",
+                "firmware",
+                "schema_hash",
+                "host_schema_hash",
+                "boot_nonce",
+                "reboots",
+                "last_stopping_distance_mm",
+                "steps_sent",
+                "steps_completed",
+                "steps_rejected",
+                "steps_aborted",
+            ],
+        ),
+    )
+    return DiagnosticArray(header=Header(stamp=stamp, frame_id=""), status=(link, controller))

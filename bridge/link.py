@@ -1,0 +1,895 @@
+"""The host side of the controller protocol: handshake, two send lanes, acknowledgements,
+heartbeats, link supervision and reconnects (docs/protocol.md).
+
+:class:`ControllerLink` is what the bridge node drives; it knows nothing of ROS. It
+reports every step's fate as a ``/command_status`` string through ``on_status`` and
+hands telemetry to ``on_telemetry``.
+
+**STOP lane.** :meth:`ControllerLink.emergency_stop` writes STOP on the calling thread at
+once, ahead of anything queued, then repeats it every ``stop_repeat_s`` until STOP_ACK
+with its id. The operator's intent is remembered: if the controller reboots or the link
+comes back, STOP is sent again right after the handshake. Only :meth:`clear_stop`
+(CLEAR_STOP, repeated until CLEAR_ACK) releases it.
+
+**MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
+after ``ack_timeout_s`` without ACK, at most ``motion_retries`` times, and the next is
+sent only after its ACK, so the controller can never receive them out of order. The
+controller deduplicates retransmissions, so no step runs twice. At most
+``controller_queue`` steps are outstanding in the controller. Retries exhausted:
+``fault:no_ack`` and the link is declared lost.
+
+**Supervision.** HELLO is repeated until IDENT; a protocol or schema-hash mismatch
+refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
+``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``.
+A changed boot nonce -> ``fault:controller_reboot``. A transport error -> reconnect with
+exponential backoff. In every one of these cases the steps in flight are reported
+(``fault:...`` or ``aborted:...``) and dropped: no stale motion is ever replayed.
+
+Threads: the transport's reader calls in with messages; one timer thread runs the
+periodic work; any thread may call the API. State is guarded by one lock; callbacks run
+outside it.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from types import TracebackType
+
+from bridge.errors import TransportError
+from bridge.transport import Transport, open_transport
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    ACK_TIMEOUT_MS,
+    CONTROLLER_HEARTBEAT_PERIOD_MS,
+    HOST_HEARTBEAT_PERIOD_MS,
+    LINK_LOST_HEARTBEATS,
+    MOTION_QUEUE_DEPTH,
+    MOTION_RETRIES,
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    STOP_REPEAT_MS,
+    AbortReason,
+    Ack,
+    AckField,
+    AckResult,
+    ClearAck,
+    ClearResult,
+    ClearStop,
+    Command,
+    ControllerState,
+    Fault,
+    FaultCode,
+    Heartbeat,
+    Hello,
+    HostHeartbeat,
+    Ident,
+    Motion,
+    Progress,
+    Status,
+    StepState,
+    Stop,
+    StopAck,
+    Stopped,
+    StopSource,
+)
+
+__all__ = ["ControllerLink", "LinkConfig", "LinkDiagnostics", "LinkState", "StepRequest"]
+
+logger = logging.getLogger(__name__)
+
+OnStatus = Callable[[str], None]
+OnTelemetry = Callable[[Message, float], None]
+
+_ACK_REASONS = {
+    AckResult.OUT_OF_RANGE: "out_of_range",
+    AckResult.QUEUE_FULL: "queue_full",
+    AckResult.STOP_LATCHED: "stop_latched",
+    AckResult.NOT_READY: "not_ready",
+    AckResult.FAULT_ACTIVE: "fault_active",
+}
+
+
+class LinkState(enum.Enum):
+    """Where the link to the controller stands."""
+
+    DISCONNECTED = "disconnected"
+    HANDSHAKE = "handshake"
+    READY = "ready"
+    MISMATCH = "mismatch"
+    LOST = "lost"
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Link parameters; defaults are the protocol's (docs/protocol.md, Timing).
+
+    Attributes:
+        url: transport URL (see :mod:`bridge.transport`).
+        ack_timeout_s: wait for ACK before retransmitting a MOTION, s.
+        motion_retries: retransmissions of one MOTION before ``fault:no_ack``.
+        stop_repeat_s: STOP and CLEAR_STOP are repeated this often until acknowledged, s.
+        heartbeat_s: HOST_HEARTBEAT period, s (also the HELLO repeat period).
+        controller_heartbeat_s: the controller's heartbeat period, s.
+        link_lost_beats: controller heartbeats missed before the link is lost.
+        reconnect_min_s, reconnect_max_s: reconnect backoff bounds, s (doubling).
+        controller_queue: steps allowed outstanding in the controller.
+        lane_limit: steps the bridge holds waiting to be sent; more are rejected.
+        auto_clear_watchdog: after the link comes back, clear a latch whose only cause
+            is the controller's watchdog (never one from an emergency stop).
+    """
+
+    url: str
+    ack_timeout_s: float = ACK_TIMEOUT_MS / 1000.0
+    motion_retries: int = MOTION_RETRIES
+    stop_repeat_s: float = STOP_REPEAT_MS / 1000.0
+    heartbeat_s: float = HOST_HEARTBEAT_PERIOD_MS / 1000.0
+    controller_heartbeat_s: float = CONTROLLER_HEARTBEAT_PERIOD_MS / 1000.0
+    link_lost_beats: int = LINK_LOST_HEARTBEATS
+    reconnect_min_s: float = 0.1
+    reconnect_max_s: float = 2.0
+    controller_queue: int = MOTION_QUEUE_DEPTH
+    lane_limit: int = 64
+    auto_clear_watchdog: bool = True
+
+
+@dataclass(frozen=True)
+class StepRequest:
+    """A validated motion step: command code, speed units, distance units."""
+
+    command: int
+    speed: int
+    distance: int
+
+
+@dataclass
+class _Step:
+    request: StepRequest
+    seq: int = -1
+    sends: int = 0
+    first_sent: float = 0.0
+    last_sent: float = 0.0
+
+
+@dataclass
+class _Pending:
+    stop_id: int
+    first_sent: float = 0.0
+    last_sent: float = 0.0
+    sends: int = 0
+
+
+@dataclass(frozen=True)
+class LinkDiagnostics:
+    """Everything ``/diagnostics`` reports about the link and the controller."""
+
+    state: str
+    url: str
+    connected: bool
+    reconnects: int
+    reboots: int
+    rtt_ms: float | None
+    rtt_median_ms: float | None
+    heartbeat_age_s: float | None
+    rx_frames: int
+    tx_frames: int
+    crc_errors: int
+    resyncs: int
+    rx_dropped: int
+    lost_frames: int
+    retries: int
+    no_ack_faults: int
+    stop_repeats: int
+    watchdog_trips: int
+    last_stop_latency_ms: float | None
+    last_stopping_distance_mm: int | None
+    controller_state: str
+    stop_latched: bool
+    estop_requested: bool
+    faults: tuple[str, ...]
+    controller_queue: int
+    boot_nonce: int | None
+    firmware: str
+    schema_hash: str
+    host_schema_hash: str
+    steps_sent: int
+    steps_completed: int
+    steps_rejected: int
+    steps_aborted: int
+    last_error: str
+
+
+@dataclass
+class _Counters:
+    reconnects: int = 0
+    reboots: int = 0
+    retries: int = 0
+    no_ack_faults: int = 0
+    stop_repeats: int = 0
+    watchdog_trips: int = 0
+    steps_sent: int = 0
+    steps_completed: int = 0
+    steps_rejected: int = 0
+    steps_aborted: int = 0
+    rtts: deque[float] = field(default_factory=lambda: deque(maxlen=100))
+
+
+class ControllerLink:
+    """Host end of the controller protocol; see the module docstring."""
+
+    def __init__(
+        self,
+        config: LinkConfig,
+        *,
+        on_status: OnStatus,
+        on_telemetry: OnTelemetry | None = None,
+        transport_factory: Callable[[str], Transport] = open_transport,
+        protocol_version: int = PROTOCOL_VERSION,
+        schema_hash: int = SCHEMA_HASH,
+    ) -> None:
+        self.config = config
+        self._on_status = on_status
+        self._on_telemetry = on_telemetry
+        self._factory = transport_factory
+        self.protocol_version = protocol_version
+        self.schema_hash = schema_hash
+        self._lock = threading.RLock()
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._transport: Transport | None = None
+        self._state = LinkState.DISCONNECTED
+        self._reconnect_at = 0.0
+        self._backoff = config.reconnect_min_s
+        self._seq = 0
+        self._stop_counter = 0
+        self._lane: deque[_Step] = deque()
+        self._inflight: _Step | None = None
+        self._in_controller: dict[int, _Step] = {}
+        self._pending_stop: _Pending | None = None
+        self._pending_clear: _Pending | None = None
+        self._estop_requested = False
+        self._estop_source: int = StopSource.OPERATOR
+        self._boot_nonce: int | None = None
+        self._ident: Ident | None = None
+        self._last_hb_rx: float | None = None
+        self._last_hello = 0.0
+        self._last_hb_tx = 0.0
+        self._heartbeat: Heartbeat | None = None
+        self._faults: set[int] = set()
+        self._hb_counter = 0
+        self._last_stop_latency: float | None = None
+        self._last_stopping_mm: int | None = None
+        self._last_error = ""
+        self._counters = _Counters()
+        self._outbox: list[str] = []
+        self._failure: tuple[Transport, Exception] | None = None
+        self._ctrl_latched = False
+        self._ctrl_state: int | None = None
+        self._ended_seen = 0
+        self._last_auto_clear = -math.inf
+        self._hello_sent = False  # a HELLO went out in the current handshake
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the timer thread; it connects (and reconnects) on its own."""
+        if self._thread is not None:
+            raise RuntimeError("link already started")
+        self._thread = threading.Thread(target=self._timer, name="link-timer", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop every thread and close the transport (idempotent)."""
+        self._stopping.set()
+        self._wake.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        self._thread = None
+        with self._lock:
+            transport, self._transport = self._transport, None
+        if transport is not None:
+            transport.close()
+
+    def __enter__(self) -> ControllerLink:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- properties -----------------------------------------------------------------------
+    @property
+    def state(self) -> LinkState:
+        """The link state."""
+        return self._state
+
+    @property
+    def ready(self) -> bool:
+        """Handshake done with a matching controller, link alive."""
+        return self._state is LinkState.READY
+
+    @property
+    def stop_latched(self) -> bool:
+        """An emergency stop is requested, or the controller's motion is latched (STOP or
+        fault) as its last STOP_ACK, CLEAR_ACK or HEARTBEAT said."""
+        return self._estop_requested or self._ctrl_latched
+
+    # -- API: steps ------------------------------------------------------------------------
+    def submit_step(self, step: StepRequest) -> None:
+        """Queue a validated motion step. Its fate comes through ``on_status``:
+        ``accepted`` then ``completed``, or ``rejected:<reason>``, ``aborted:<reason>``,
+        ``fault:<reason>``. A STOP command is an emergency stop."""
+        if step.command == Command.STOP:
+            self.emergency_stop(StopSource.PLAN_STEP)
+            return
+        with self._lock:
+            reason = self._refusal()
+            if reason is None and len(self._lane) >= self.config.lane_limit:
+                reason = "queue_full"
+            if reason is not None:
+                self._counters.steps_rejected += 1
+                self._emit(f"rejected:{reason}")
+                logger.info("step %s rejected: %s", step, reason)
+            else:
+                self._lane.append(_Step(step))
+                self._pump(time.monotonic())
+        self._flush()
+
+    def _refusal(self) -> str | None:
+        if self._state is LinkState.MISMATCH:
+            return "schema_mismatch"
+        if self._state is not LinkState.READY:
+            return "link_down"
+        if self._ctrl_state == ControllerState.FAULT:
+            return "fault_active"
+        if self.stop_latched:
+            return "stop_latched"
+        return None
+
+    # -- API: STOP lane --------------------------------------------------------------------
+    def emergency_stop(self, source: int = StopSource.OPERATOR) -> int:
+        """Send STOP now (repeated until acknowledged) and purge every pending step.
+
+        Returns the stop id. Works in any link state: if the link is down the STOP goes
+        out first thing after the next handshake.
+        """
+        now = time.monotonic()
+        with self._lock:
+            self._stop_counter = self._stop_counter % 0xFFFF + 1
+            stop_id = self._stop_counter
+            self._estop_requested = True
+            self._estop_source = source
+            self._pending_clear = None
+            self._pending_stop = _Pending(stop_id, now, now, 0)
+            transport = (
+                self._transport
+                if self._state
+                in (LinkState.READY, LinkState.LOST, LinkState.HANDSHAKE, LinkState.MISMATCH)
+                else None
+            )
+        if transport is not None:
+            self._send_stop(transport, stop_id, source)
+        with self._lock:
+            self._purge("aborted:stop")
+        self._flush()
+        logger.info("emergency stop %d (source %s)", stop_id, StopSource(source).name)
+        return stop_id
+
+    def _send_stop(self, transport: Transport, stop_id: int, source: int) -> None:
+        try:
+            transport.send(Stop(stop_id, source))
+        except TransportError as exc:
+            self._report_failure(transport, exc)
+            return
+        with self._lock:
+            if self._pending_stop is not None and self._pending_stop.stop_id == stop_id:
+                self._pending_stop.sends += 1
+                self._pending_stop.last_sent = time.monotonic()
+
+    def clear_stop(self) -> int:
+        """Ask the controller to release its latch (CLEAR_STOP, repeated until CLEAR_ACK).
+        Returns the request id; the answer comes as ``cleared`` or ``fault:<reason>``."""
+        now = time.monotonic()
+        with self._lock:
+            self._stop_counter = self._stop_counter % 0xFFFF + 1
+            clear_id = self._stop_counter
+            self._estop_requested = False
+            self._pending_stop = None
+            self._pending_clear = _Pending(clear_id, now, 0.0, 0)
+            self._wake.set()
+        return clear_id
+
+    # -- supervision, on the timer thread -----------------------------------------------------
+    def _timer(self) -> None:
+        while not self._stopping.is_set():
+            if self._failure is not None:
+                self._handle_failure()
+            now = time.monotonic()
+            if self._transport is None:
+                if now >= self._reconnect_at:
+                    self._connect()
+            else:
+                with self._lock:
+                    self._periodic(now)
+                self._flush()
+            self._wake.wait(0.005)
+            self._wake.clear()
+
+    def _connect(self) -> None:
+        try:
+            transport = self._factory(self.config.url)
+            transport.open(self._on_message, lambda exc: self._report_failure(transport, exc))
+        except TransportError as exc:
+            with self._lock:
+                self._last_error = str(exc)
+                self._reconnect_at = time.monotonic() + self._backoff
+                logger.info("connect failed (%s); retry in %.1f s", exc, self._backoff)
+                self._backoff = min(self.config.reconnect_max_s, self._backoff * 2)
+            return
+        with self._lock:
+            if self._stopping.is_set():
+                transport.close()
+                return
+            self._transport = transport
+            self._backoff = self.config.reconnect_min_s
+            self._state = LinkState.HANDSHAKE
+            self._hello_sent = False
+            self._last_hello = 0.0
+            self._last_hb_rx = None
+            logger.info("connected to %s; handshaking", self.config.url)
+
+    def _report_failure(self, transport: Transport, exc: Exception) -> None:
+        """Any thread: the transport failed. The timer thread handles it (it may have to
+        join the reader thread, which must never happen with the state lock held)."""
+        with self._lock:
+            if self._transport is transport and self._failure is None:
+                self._failure = (transport, exc)
+        self._wake.set()
+
+    def _handle_failure(self) -> None:
+        """Timer thread: close the failed transport, report, schedule the reconnect."""
+        with self._lock:
+            failure, self._failure = self._failure, None
+            if failure is None or self._transport is not failure[0]:
+                return
+            transport, exc = failure
+            self._transport = None
+            self._last_error = str(exc)
+            self._counters.reconnects += 1
+            self._state = LinkState.DISCONNECTED
+            self._heartbeat = None
+            self._reconnect_at = time.monotonic() + self.config.reconnect_min_s
+            self._drop_all("fault:link_lost")
+            self._emit("fault:link_lost")
+            logger.warning("link to %s failed: %s; reconnecting", self.config.url, exc)
+        transport.close()
+        self._flush()
+
+    def _periodic(self, now: float) -> None:
+        cfg = self.config
+        transport = self._transport
+        if transport is None:
+            return
+        out: list[Message] = []
+        if (
+            self._state in (LinkState.HANDSHAKE, LinkState.LOST)
+            and now - self._last_hello >= cfg.heartbeat_s
+        ):
+            self._last_hello = now
+            self._hello_sent = True
+            out.append(Hello(self.protocol_version, self.schema_hash))
+        if now - self._last_hb_tx >= cfg.heartbeat_s:
+            self._last_hb_tx = now
+            self._hb_counter = (self._hb_counter + 1) & 0xFFFF
+            out.append(HostHeartbeat(self._hb_counter))
+        stop = self._pending_stop
+        if (
+            stop is not None
+            and self._state is not LinkState.DISCONNECTED
+            and (stop.sends == 0 or now - stop.last_sent >= cfg.stop_repeat_s)
+        ):
+            if stop.sends:
+                self._counters.stop_repeats += 1
+            stop.sends += 1
+            stop.last_sent = now
+            out.insert(0, Stop(stop.stop_id, self._estop_source))
+        clear = self._pending_clear
+        if (
+            clear is not None
+            and self._state in (LinkState.READY, LinkState.LOST)
+            and (clear.sends == 0 or now - clear.last_sent >= cfg.stop_repeat_s)
+        ):
+            clear.sends += 1
+            clear.last_sent = now
+            out.insert(0, ClearStop(clear.stop_id))
+        if self._state is LinkState.READY:
+            lost_after = (
+                cfg.link_lost_beats * cfg.controller_heartbeat_s + cfg.controller_heartbeat_s / 2
+            )
+            if self._last_hb_rx is not None and now - self._last_hb_rx > lost_after:
+                self._lose(f"no controller heartbeat for {now - self._last_hb_rx:.2f} s")
+            else:
+                self._pump(now, out)
+        for msg in out:
+            if not self._send(transport, msg):
+                return
+
+    def _send(self, transport: Transport, msg: Message) -> bool:
+        try:
+            transport.send(msg)
+        except TransportError as exc:
+            self._report_failure(transport, exc)
+            return False
+        return True
+
+    def _pump(self, now: float, out: list[Message] | None = None) -> None:
+        """Send the lane's head, retransmit on ack timeout (lock held)."""
+        step = self._inflight
+        direct = out is None
+        batch: list[Message] = [] if out is None else out
+        if step is not None:
+            if now - step.last_sent < self.config.ack_timeout_s:
+                return
+            if step.sends > self.config.motion_retries:
+                self._inflight = None
+                self._counters.no_ack_faults += 1
+                self._emit("fault:no_ack")
+                self._lose(f"MOTION seq {step.seq} not acknowledged after {step.sends} tries")
+                return
+            self._counters.retries += 1
+            step.sends += 1
+            step.last_sent = now
+            batch.append(self._motion(step))
+        elif self._lane and len(self._in_controller) < self.config.controller_queue and self.ready:
+            step = self._lane.popleft()
+            self._seq = (self._seq + 1) & 0xFFFF
+            step.seq = self._seq
+            step.sends = 1
+            step.first_sent = step.last_sent = now
+            self._inflight = step
+            self._counters.steps_sent += 1
+            batch.append(self._motion(step))
+        if direct and batch and self._transport is not None:
+            for msg in batch:
+                self._send(self._transport, msg)
+
+    @staticmethod
+    def _motion(step: _Step) -> Motion:
+        r = step.request
+        return Motion(step.seq, r.command, r.speed, r.distance)
+
+    def _lose(self, why: str) -> None:
+        """The controller stopped answering: report, drop every step, re-handshake."""
+        logger.warning("link lost: %s", why)
+        self._last_error = why
+        self._state = LinkState.LOST
+        self._hello_sent = False
+        self._drop_all("fault:link_lost")
+        self._emit("fault:link_lost")
+
+    def _drop_all(self, status: str) -> None:
+        dropped = (
+            list(self._in_controller.values())
+            + ([self._inflight] if self._inflight else [])
+            + list(self._lane)
+        )
+        self._in_controller.clear()
+        self._inflight = None
+        self._lane.clear()
+        if dropped:
+            logger.info("%d step(s) dropped (%s); none will be replayed", len(dropped), status)
+
+    def _purge(self, status: str) -> None:
+        """Drop steps not yet in the controller (it reports its own ABORTED)."""
+        pending = ([self._inflight] if self._inflight else []) + list(self._lane)
+        self._inflight = None
+        self._lane.clear()
+        for _ in pending:
+            self._counters.steps_aborted += 1
+            self._emit(status)
+
+    # -- receive, on the reader thread ------------------------------------------------------
+    def _on_message(self, msg: Message, arrived: float) -> None:
+        with self._lock:
+            self._dispatch(msg, arrived)
+        self._flush()
+        if self._on_telemetry is not None:
+            self._on_telemetry(msg, arrived)
+
+    def _dispatch(self, msg: Message, t: float) -> None:
+        if isinstance(msg, Heartbeat):
+            self._on_heartbeat(msg, t)
+        elif isinstance(msg, Ident):
+            self._on_ident(msg)
+        elif isinstance(msg, StopAck):
+            stop = self._pending_stop
+            self._ctrl_latched = True
+            self._ctrl_state = msg.state
+            if stop is not None and msg.stop_id == stop.stop_id:
+                self._last_stop_latency = t - stop.first_sent
+                self._pending_stop = None
+                self._emit("stopped")
+        elif isinstance(msg, ClearAck):
+            self._on_clear_ack(msg)
+        elif isinstance(msg, Ack):
+            self._on_ack(msg, t)
+        elif isinstance(msg, Status):
+            self._on_status_msg(msg)
+        elif isinstance(msg, Stopped):
+            self._last_stopping_mm = msg.distance_mm
+        elif isinstance(msg, Fault):
+            self._on_fault(msg)
+        elif isinstance(msg, Progress):
+            self._on_progress(msg)
+
+    def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
+        self._last_hb_rx = t
+        self._heartbeat = hb
+        self._ctrl_latched = bool(hb.stop_latched)
+        self._ctrl_state = hb.state
+        if self._check_reboot(hb.boot_nonce):
+            return
+        if self._state is LinkState.READY and not hb.handshake_ok:
+            logger.warning("controller has no session with us; handshaking again")
+            self._drop_all("fault:link_lost")
+            self._emit("fault:link_lost")
+            self._state = LinkState.HANDSHAKE
+            self._hello_sent = False
+            self._last_hello = 0.0
+        if self._state is LinkState.LOST:
+            logger.info("controller heartbeats again; new session")
+            self._state = LinkState.HANDSHAKE
+            self._hello_sent = False
+            self._last_hello = 0.0
+        if hb.fault_bits & (1 << (FaultCode.WATCHDOG - 1)):
+            self._faults.add(FaultCode.WATCHDOG)
+        self._maybe_clear_watchdog(t)
+
+    def _maybe_clear_watchdog(self, now: float) -> None:
+        """A latch whose only cause is the controller's watchdog (the link was down) is
+        cleared once the link is back, unless the operator asked for a stop."""
+        hb = self._heartbeat
+        if (
+            self.config.auto_clear_watchdog
+            and hb is not None
+            and self._state is LinkState.READY
+            and hb.state == ControllerState.FAULT
+            and hb.fault_bits == 1 << (FaultCode.WATCHDOG - 1)
+            and not self._estop_requested
+            and self._pending_clear is None
+            and now - self._last_auto_clear >= 1.0
+        ):
+            self._last_auto_clear = now
+            self._stop_counter = self._stop_counter % 0xFFFF + 1
+            self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
+            logger.info("link back: clearing the controller's watchdog latch")
+
+    def _check_reboot(self, nonce: int) -> bool:
+        if self._boot_nonce is None or nonce == self._boot_nonce:
+            return False
+        self._boot_nonce = nonce
+        self._counters.reboots += 1
+        logger.warning("controller rebooted (boot nonce 0x%04X); steps in flight dropped", nonce)
+        self._drop_all("aborted:controller_reboot")
+        self._emit("fault:controller_reboot")
+        self._state = LinkState.HANDSHAKE
+        self._hello_sent = False
+        self._last_hello = 0.0
+        self._faults.clear()
+        self._ctrl_latched = False
+        self._ctrl_state = ControllerState.BOOT
+        if self._estop_requested:
+            now = time.monotonic()
+            self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)  # re-latch at once
+        return True
+
+    def _on_ident(self, ident: Ident) -> None:
+        self._ident = ident
+        if self._boot_nonce is None:
+            self._boot_nonce = ident.boot_nonce
+        else:
+            self._check_reboot(ident.boot_nonce)
+        match = (
+            ident.protocol_version == self.protocol_version
+            and ident.schema_hash == self.schema_hash
+        )
+        if not match:
+            if self._state is not LinkState.MISMATCH:
+                logger.error(
+                    "controller speaks protocol v%d schema 0x%04X, we speak v%d schema 0x%04X: "
+                    "refusing to drive",
+                    ident.protocol_version,
+                    ident.schema_hash,
+                    self.protocol_version,
+                    self.schema_hash,
+                )
+                self._drop_all("rejected:schema_mismatch")
+                self._emit("fault:schema_mismatch")
+            self._state = LinkState.MISMATCH
+            theirs = f"v{ident.protocol_version}/0x{ident.schema_hash:04X}"
+            ours = f"v{self.protocol_version}/0x{self.schema_hash:04X}"
+            self._last_error = f"protocol/schema mismatch: controller {theirs}, host {ours}"
+            return
+        if not self._hello_sent:
+            return  # unsolicited (a boot IDENT): the session starts with our HELLO's answer
+        if self._state in (LinkState.HANDSHAKE, LinkState.MISMATCH, LinkState.LOST):
+            self._state = LinkState.READY
+            self._ended_seen = 0  # the controller counts per session
+            self._last_hb_rx = time.monotonic()
+            logger.info(
+                "handshake done: firmware %d.%d.%d, boot nonce 0x%04X",
+                ident.firmware_major,
+                ident.firmware_minor,
+                ident.firmware_patch,
+                ident.boot_nonce,
+            )
+            self._emit("ready")
+            if self._estop_requested and self._pending_stop is None and not self._ctrl_latched:
+                now = time.monotonic()
+                self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)
+
+    def _on_clear_ack(self, ack: ClearAck) -> None:
+        clear = self._pending_clear
+        if clear is None or ack.stop_id != clear.stop_id:
+            return
+        self._pending_clear = None
+        if ack.result == ClearResult.FAULT_PERSISTS:
+            self._emit("fault:fault_persists")
+        else:
+            self._ctrl_latched = False
+            self._ctrl_state = ControllerState.IDLE
+            self._faults -= {FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT}
+            self._emit("cleared")
+
+    def _on_ack(self, ack: Ack, t: float) -> None:
+        step = self._inflight
+        if step is None or ack.seq != step.seq:
+            return  # a late duplicate ACK of a step already settled
+        self._inflight = None
+        if step.sends == 1:
+            self._counters.rtts.append(t - step.first_sent)
+        if ack.result in (AckResult.ACCEPTED, AckResult.DUPLICATE):
+            self._in_controller[step.seq] = step
+            self._emit("accepted")
+        else:
+            self._counters.steps_rejected += 1
+            reason = _ACK_REASONS.get(AckResult(ack.result), f"nack_{ack.result}")
+            if ack.result == AckResult.OUT_OF_RANGE and ack.field != AckField.NONE:
+                reason += f":{AckField(ack.field).name.lower()}"
+            self._emit(f"rejected:{reason}")
+        self._pump(t)
+
+    def _on_status_msg(self, status: Status) -> None:
+        if status.state == StepState.STARTED:
+            return
+        self._ended_seen = (self._ended_seen + 1) & 0xFFFF
+        if status.seq in self._in_controller:
+            self._settle_through(status.seq, status.state, status.reason)
+            self._pump(time.monotonic())
+
+    def _settle_through(self, seq: int, state: int, reason: int) -> None:
+        """Step ``seq`` ended with this outcome; steps sent before it ended too (steps end
+        in order), so any still open lost their STATUS and get the same outcome."""
+        for open_seq in list(self._in_controller):
+            del self._in_controller[open_seq]
+            if state == StepState.COMPLETED:
+                self._counters.steps_completed += 1
+                self._emit("completed")
+            else:
+                self._counters.steps_aborted += 1
+                self._emit(f"aborted:{AbortReason(reason).name.lower()}")
+            if open_seq == seq:
+                return
+
+    def _on_progress(self, progress: Progress) -> None:
+        """Settle steps whose STATUS was lost (docs/protocol.md, MOTION)."""
+        missed = (progress.ended_count - self._ended_seen) & 0xFFFF
+        if missed == 0 or missed >= 0x8000 or self._state is not LinkState.READY:
+            return
+        self._ended_seen = progress.ended_count
+        if progress.ended_seq not in self._in_controller:
+            return  # its ending was seen; steps before it were settled with it
+        logger.warning(
+            "%d STATUS frame(s) lost; settling through seq %d from PROGRESS",
+            missed,
+            progress.ended_seq,
+        )
+        self._settle_through(progress.ended_seq, progress.ended_state, progress.ended_reason)
+        self._pump(time.monotonic())
+
+    def _on_fault(self, fault: Fault) -> None:
+        name = (
+            FaultCode(fault.code).name.lower()
+            if fault.code in FaultCode._value2member_map_
+            else str(fault.code)
+        )
+        if fault.active:
+            self._faults.add(fault.code)
+            if fault.code == FaultCode.WATCHDOG:
+                self._counters.watchdog_trips += 1
+            self._emit(f"fault:{name}")
+        elif fault.code not in (FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT):
+            self._faults.discard(fault.code)
+
+    # -- status emission ---------------------------------------------------------------------
+    def _emit(self, status: str) -> None:
+        self._outbox.append(status)
+
+    def _flush(self) -> None:
+        with self._lock:
+            out, self._outbox = self._outbox, []
+        for status in out:
+            try:
+                self._on_status(status)
+            except Exception:
+                logger.exception("status callback failed for %r", status)
+
+    # -- diagnostics ---------------------------------------------------------------------------
+    def diagnostics(self) -> LinkDiagnostics:
+        """A consistent snapshot for ``/diagnostics``."""
+        with self._lock:
+            transport = self._transport
+            counters = transport.counters if transport is not None else None
+            hb = self._heartbeat
+            ident = self._ident
+            rtts = list(self._counters.rtts)
+            c = self._counters
+            now = time.monotonic()
+            return LinkDiagnostics(
+                state=self._state.value,
+                url=self.config.url,
+                connected=transport is not None,
+                reconnects=c.reconnects,
+                reboots=c.reboots,
+                rtt_ms=rtts[-1] * 1e3 if rtts else None,
+                rtt_median_ms=statistics.median(rtts) * 1e3 if rtts else None,
+                heartbeat_age_s=now - self._last_hb_rx if self._last_hb_rx is not None else None,
+                rx_frames=counters.frames if counters else 0,
+                tx_frames=transport.tx_frames if transport else 0,
+                crc_errors=counters.crc if counters else 0,
+                resyncs=(counters.framing + counters.oversize) if counters else 0,
+                rx_dropped=counters.rejected if counters else 0,
+                lost_frames=counters.lost if counters else 0,
+                retries=c.retries,
+                no_ack_faults=c.no_ack_faults,
+                stop_repeats=c.stop_repeats,
+                watchdog_trips=c.watchdog_trips,
+                last_stop_latency_ms=self._last_stop_latency * 1e3
+                if self._last_stop_latency is not None
+                else None,
+                last_stopping_distance_mm=self._last_stopping_mm,
+                controller_state=ControllerState(hb.state).name if hb else "UNKNOWN",
+                stop_latched=self.stop_latched,
+                estop_requested=self._estop_requested,
+                faults=tuple(
+                    sorted(
+                        FaultCode(f).name for f in self._faults if f in FaultCode._value2member_map_
+                    )
+                ),
+                controller_queue=hb.queue_depth if hb else 0,
+                boot_nonce=self._boot_nonce,
+                firmware=(
+                    f"{ident.firmware_major}.{ident.firmware_minor}.{ident.firmware_patch}"
+                    if ident
+                    else ""
+                ),
+                schema_hash=f"0x{ident.schema_hash:04X}" if ident else "",
+                host_schema_hash=f"0x{self.schema_hash:04X}",
+                steps_sent=c.steps_sent,
+                steps_completed=c.steps_completed,
+                steps_rejected=c.steps_rejected,
+                steps_aborted=c.steps_aborted,
+                last_error=self._last_error,
+            )

@@ -1,0 +1,263 @@
+"""The rover-side ROS 2 node: ``/wheel_instructions`` in, frames out; telemetry back.
+
+:class:`BridgeNode` joins a ROS port (:mod:`bridge.rosport`: rclpy in production, Cyclone
+DDS speaking the ROS 2 wire format, or in-process) to a :class:`~bridge.link.ControllerLink`.
+
+Subscribes (names relative to the namespace unless absolute):
+
+- ``wheel_instructions`` ``std_msgs/Int16MultiArray`` ``[command, speed, distance]``:
+  each valid step is queued on the link; a STOP step (command 0) is an emergency stop.
+  Invalid input is answered ``rejected:<reason>`` and never sent: ``bad_length``,
+  ``unknown_command``, ``speed_out_of_range``, ``distance_out_of_range``; the link adds
+  ``stop_latched``, ``link_down``, ``schema_mismatch``, ``fault_active``, ``queue_full``.
+- ``emergency_stop`` ``std_msgs/Bool``: ``true`` sends STOP on the STOP lane; ``false``
+  does nothing (a pressed-then-released button must not resume the rover).
+- ``clear_emergency_stop`` ``std_msgs/Empty``: the only way to resume after a STOP.
+
+Publishes:
+
+- ``command_status`` ``std_msgs/String``: exactly ``completed`` when the controller
+  finished a step; otherwise ``accepted``, ``rejected:<reason>``, ``aborted:<reason>``,
+  ``fault:<reason>``, and ``ready``, ``stopped``, ``cleared`` for the link and latch.
+- ``odom`` ``nav_msgs/Odometry`` (frame ``odom`` -> ``base_link``): encoders fused with
+  the IMU yaw rate, with covariance, on every ENCODERS frame.
+- ``odom_ground`` ``nav_msgs/Odometry`` (frame ``map`` -> ``base_link``): the
+  controller's POSE from a sensor that sees the ground, stamped with the measurement's
+  time; what drift control must use, because encoders cannot see slip.
+- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz`` (1 Hz).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import Counter
+from types import TracebackType
+from typing import Any
+
+from bridge.diagnostics import diagnostic_array
+from bridge.link import ControllerLink, LinkDiagnostics, StepRequest
+from bridge.odometry import OdometryEstimator, ground_pose
+from bridge.params import BridgeParams
+from bridge.rosport import RosPort, Subscription
+from bridge.rosport.msgs import (
+    Bool,
+    DiagnosticArray,
+    Empty,
+    Header,
+    Int16MultiArray,
+    Odometry,
+    Point,
+    Pose,
+    PoseWithCovariance,
+    Quaternion,
+    String,
+    Time,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+)
+from firmware_proto.message import Message
+from firmware_proto.messages import Command, Encoders, Imu, StopSource, WheelSpeeds
+from firmware_proto.messages import Pose as PoseMsg
+from firmware_proto.rover import RoverDescription, load_rover
+
+__all__ = ["BridgeNode", "validate_step"]
+
+logger = logging.getLogger(__name__)
+
+
+def validate_step(data: object, rover: RoverDescription) -> StepRequest | str:
+    """A ``wheel_instructions`` payload as a step, or the rejection reason."""
+    if not isinstance(data, (list, tuple)) or len(data) != 3:
+        return "bad_length"
+    command, speed, distance = data
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in data):
+        return "bad_type"
+    if command not in Command._value2member_map_:
+        return "unknown_command"
+    if command == Command.STOP:
+        return StepRequest(command, 0, 0)
+    if not 0 <= speed <= rover.drive.max_speed:
+        return "speed_out_of_range"
+    if not 0 <= distance <= rover.drive.max_distance:
+        return "distance_out_of_range"
+    return StepRequest(command, speed, distance)
+
+
+def _stamp(t: float | None = None) -> Time:
+    t = time.time() if t is None else t
+    sec = math.floor(t)
+    return Time(sec=sec, nanosec=min(999_999_999, round((t - sec) * 1e9)))
+
+
+def _quaternion(yaw: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
+
+
+def _covariance(var_xy: float, var_yaw: float) -> tuple[float, ...]:
+    cov = [0.0] * 36
+    cov[0] = cov[7] = var_xy
+    cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane
+    cov[35] = var_yaw
+    return tuple(cov)
+
+
+class BridgeNode:
+    """The bridge: a ROS port on one side, the controller link on the other."""
+
+    def __init__(
+        self,
+        params: BridgeParams,
+        port: RosPort,
+        *,
+        rover: RoverDescription | None = None,
+        link: ControllerLink | None = None,
+    ) -> None:
+        """Args:
+        params: validated parameters (see :func:`bridge.params.load_params`).
+        port: an open ROS port; the node publishes and subscribes on it but does not
+            close it.
+        rover: the rover description (default: ``params.rover_description`` or the
+            packaged one).
+        link: a link to use instead of one built from ``params`` (it is started here).
+        """
+        self.params = params
+        self.port = port
+        self.rover = rover or load_rover(params.rover_description or None)
+        self.rejected: Counter[str] = Counter()
+        self.odometry = OdometryEstimator(self.rover)
+        self._status_pub = port.publisher(params.topic_command_status, String)
+        self._odom_pub = port.publisher(params.topic_odom, Odometry)
+        self._ground_pub = port.publisher(params.topic_ground_pose, Odometry)
+        self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray)
+        self.link = link or ControllerLink(
+            params.link_config(), on_status=self._publish_status, on_telemetry=self._on_telemetry
+        )
+        self._odom_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._diag_thread = threading.Thread(
+            target=self._diagnostics_loop, name="bridge-diag", daemon=True
+        )
+        self._subs: list[Subscription[Any]] = [
+            port.subscribe(
+                params.topic_wheel_instructions, Int16MultiArray, self._on_wheel_instructions
+            ),
+            port.subscribe(params.topic_emergency_stop, Bool, self._on_emergency_stop),
+            port.subscribe(params.topic_clear_stop, Empty, self._on_clear),
+        ]
+        self._started = False
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def start(self) -> BridgeNode:
+        """Start the link and the diagnostics timer."""
+        self._started = True
+        self.link.start()
+        self._diag_thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop everything this node started (idempotent); the port stays open."""
+        self._stop.set()
+        for sub in self._subs:
+            sub.close()
+        if self._started:
+            self.link.close()
+            self._diag_thread.join(timeout=5.0)
+            self._started = False
+
+    def __enter__(self) -> BridgeNode:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- ROS inputs --------------------------------------------------------------------------
+    def _on_wheel_instructions(self, msg: Int16MultiArray) -> None:
+        step = validate_step(tuple(msg.data), self.rover)
+        if isinstance(step, str):
+            self.rejected[step] += 1
+            logger.warning("wheel_instructions %s rejected: %s", list(msg.data), step)
+            self._publish_status(f"rejected:{step}")
+            return
+        self.link.submit_step(step)
+
+    def _on_emergency_stop(self, msg: Bool) -> None:
+        if msg.data:
+            self.link.emergency_stop(StopSource.OPERATOR)
+
+    def _on_clear(self, msg: Empty) -> None:
+        self.link.clear_stop()
+
+    # -- outputs -------------------------------------------------------------------------------
+    def _publish_status(self, text: str) -> None:
+        self._status_pub.publish(String(data=text))
+
+    def _on_telemetry(self, msg: Message, arrived: float) -> None:
+        if isinstance(msg, Encoders):
+            with self._odom_lock:
+                est = self.odometry.update_encoders(msg)
+            self._odom_pub.publish(
+                Odometry(
+                    header=Header(stamp=_stamp(), frame_id=self.params.odom_frame),
+                    child_frame_id=self.params.base_frame,
+                    pose=PoseWithCovariance(
+                        pose=Pose(
+                            position=Point(x=est.x_m, y=est.y_m, z=0.0),
+                            orientation=_quaternion(est.yaw_rad),
+                        ),
+                        covariance=_covariance(est.var_xy_m2, est.var_yaw_rad2),
+                    ),
+                    twist=TwistWithCovariance(
+                        twist=Twist(
+                            linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)
+                        ),
+                        covariance=_covariance(1e-4, 1e-4),
+                    ),
+                )
+            )
+        elif isinstance(msg, Imu):
+            with self._odom_lock:
+                self.odometry.update_imu(msg)
+        elif isinstance(msg, WheelSpeeds):
+            with self._odom_lock:
+                self.odometry.update_speeds(msg)
+        elif isinstance(msg, PoseMsg):
+            pose = ground_pose(msg)
+            if pose is None:
+                return  # no fix: nothing to report
+            var = pose.sigma_m**2
+            self._ground_pub.publish(
+                Odometry(
+                    header=Header(
+                        stamp=_stamp(time.time() - pose.age_s), frame_id=self.params.map_frame
+                    ),
+                    child_frame_id=self.params.base_frame,
+                    pose=PoseWithCovariance(
+                        pose=Pose(
+                            position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
+                            orientation=_quaternion(pose.yaw_rad),
+                        ),
+                        covariance=_covariance(var, (var / 0.25) if var else 1e-4),
+                    ),
+                )
+            )
+
+    def diagnostics(self) -> LinkDiagnostics:
+        """The link's diagnostics snapshot."""
+        return self.link.diagnostics()
+
+    def _diagnostics_loop(self) -> None:
+        period = 1.0 / self.params.diagnostics_hz
+        while not self._stop.wait(period):
+            try:
+                self._diag_pub.publish(diagnostic_array(self.link.diagnostics(), _stamp()))
+            except Exception:
+                logger.exception("publishing diagnostics failed")

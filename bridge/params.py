@@ -1,0 +1,219 @@
+"""Bridge parameters: defaults, validation, and one place that decides precedence.
+
+:func:`load_params` merges, highest first: explicit overrides (command-line options or
+ROS parameters), environment variables ``ROVER_BRIDGE_<NAME>`` (upper case), a
+parameters file (TOML or JSON, flat ``name = value``; a ROS-style
+``[rover_bridge.ros__parameters]`` table is accepted too), then the defaults held in
+:class:`BridgeParams`. Every value is checked; a bad one raises
+:class:`~bridge.errors.ParameterError` naming the parameter and what it must be.
+
+The link goes to CAN when ``can_interface`` is set (``can://<interface>/<channel>`` with
+``node_id``), else to ``device`` (a device path or any pyserial URL).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+from bridge.errors import ParameterError
+from bridge.link import LinkConfig
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["ENV_PREFIX", "BridgeParams", "load_params"]
+
+ENV_PREFIX = "ROVER_BRIDGE_"
+
+
+@dataclass(frozen=True)
+class BridgeParams:
+    """Everything the bridge node can be told. Topic names without a leading slash are
+    relative to ``namespace`` (ROS 2 rules); ``/diagnostics`` stays global by convention.
+    """
+
+    device: str = "/dev/rover-motor"
+    baud: int = 115200
+    can_interface: str = ""
+    can_channel: str = "can0"
+    node_id: int = 1
+    heartbeat_hz: float = 10.0
+    ack_timeout_s: float = 0.05
+    motion_retries: int = 3
+    reconnect_min_s: float = 0.1
+    reconnect_max_s: float = 2.0
+    auto_clear_watchdog: bool = True
+    namespace: str = ""
+    ros_backend: str = "dds"
+    topic_wheel_instructions: str = "wheel_instructions"
+    topic_command_status: str = "command_status"
+    topic_emergency_stop: str = "emergency_stop"
+    topic_clear_stop: str = "clear_emergency_stop"
+    topic_odom: str = "odom"
+    topic_ground_pose: str = "odom_ground"
+    topic_diagnostics: str = "/diagnostics"
+    odom_frame: str = "odom"
+    map_frame: str = "map"
+    base_frame: str = "base_link"
+    diagnostics_hz: float = 1.0
+    rover_description: str = ""
+
+    @property
+    def url(self) -> str:
+        """The transport URL (see :mod:`bridge.transport`)."""
+        if self.can_interface:
+            return f"can://{self.can_interface}/{self.can_channel}?node={self.node_id}"
+        if "://" in self.device or self.baud == 115200:
+            return self.device
+        return f"{self.device}?baud={self.baud}"
+
+    def link_config(self) -> LinkConfig:
+        """The :class:`LinkConfig` these parameters describe."""
+        return LinkConfig(
+            url=self.url,
+            ack_timeout_s=self.ack_timeout_s,
+            motion_retries=self.motion_retries,
+            heartbeat_s=1.0 / self.heartbeat_hz,
+            reconnect_min_s=self.reconnect_min_s,
+            reconnect_max_s=self.reconnect_max_s,
+            auto_clear_watchdog=self.auto_clear_watchdog,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """All values by name."""
+        return asdict(self)
+
+
+_TYPES = {f.name: f.type for f in fields(BridgeParams)}
+_RANGES: dict[str, tuple[float, float]] = {
+    "baud": (300, 12_000_000),
+    "node_id": (1, 15),
+    "heartbeat_hz": (1.0, 100.0),
+    "ack_timeout_s": (0.001, 10.0),
+    "motion_retries": (0, 20),
+    "reconnect_min_s": (0.01, 60.0),
+    "reconnect_max_s": (0.01, 600.0),
+    "diagnostics_hz": (0.1, 50.0),
+}
+_BACKENDS = ("dds", "rclpy", "inprocess")
+
+
+def _coerce(name: str, value: Any, source: str) -> Any:
+    kind = _TYPES[name]
+    try:
+        if kind == "bool":
+            if isinstance(value, str):
+                lowered = value.strip().lower()
+                if lowered not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(value)
+                return lowered in ("1", "true", "yes", "on")
+            if not isinstance(value, bool):
+                raise ValueError(value)
+            return value
+        if kind == "int":
+            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                raise ValueError(value)
+            return int(value, 0) if isinstance(value, str) else int(value)
+        if kind == "float":
+            if isinstance(value, bool):
+                raise ValueError(value)
+            number = float(value)
+            if not math.isfinite(number):
+                raise ValueError(value)
+            return number
+        if not isinstance(value, str):
+            raise ValueError(value)
+        return value
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"parameter {name} ({source}): {value!r} is not a valid {kind}"
+        ) from None
+
+
+def _check(params: BridgeParams) -> None:
+    for name, (lo, hi) in _RANGES.items():
+        value = getattr(params, name)
+        if not lo <= value <= hi:
+            raise ParameterError(f"parameter {name}: {value} is outside {lo:g}..{hi:g}")
+    if params.reconnect_max_s < params.reconnect_min_s:
+        raise ParameterError("parameter reconnect_max_s must be >= reconnect_min_s")
+    if params.ros_backend not in _BACKENDS:
+        raise ParameterError(
+            f"parameter ros_backend: {params.ros_backend!r}; known: {', '.join(_BACKENDS)}"
+        )
+    if not params.can_interface and not params.device:
+        raise ParameterError("parameter device: empty (or set can_interface for CAN)")
+    if params.can_interface and not params.can_channel:
+        raise ParameterError("parameter can_channel: required with can_interface")
+    for name in _TYPES:
+        if name.startswith("topic_") and not getattr(params, name):
+            raise ParameterError(f"parameter {name}: empty topic name")
+
+
+def _read_file(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ParameterError(f"cannot read parameters file {path}: {exc}") from exc
+    try:
+        doc: dict[str, Any] = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+    except (ValueError, tomllib.TOMLDecodeError) as exc:
+        raise ParameterError(f"parameters file {path}: {exc}") from exc
+    for key in ("rover_bridge", "/**"):
+        section = doc.get(key)
+        if isinstance(section, dict) and isinstance(section.get("ros__parameters"), dict):
+            return dict(section["ros__parameters"])
+    return doc
+
+
+def load_params(
+    overrides: Mapping[str, Any] | None = None,
+    *,
+    env: Mapping[str, str] | None = None,
+    file: str | Path | None = None,
+) -> BridgeParams:
+    """Merge overrides > environment > file > defaults, then validate.
+
+    Args:
+        overrides: values from the command line or ROS parameters (``None`` values are
+            ignored, so unset options do not override).
+        env: the environment (default ``os.environ``); only ``ROVER_BRIDGE_*`` is read.
+        file: a TOML or JSON parameters file.
+
+    Raises:
+        ParameterError: unknown parameter, bad type or out of range; names it.
+    """
+    env = os.environ if env is None else env
+    merged: dict[str, Any] = {}
+    layers: list[tuple[str, Mapping[str, Any]]] = []
+    if file is not None:
+        layers.append((f"file {file}", _read_file(Path(file))))
+    layers.append(
+        (
+            "environment",
+            {
+                key[len(ENV_PREFIX) :].lower(): value
+                for key, value in env.items()
+                if key.startswith(ENV_PREFIX)
+            },
+        )
+    )
+    layers.append(("override", {k: v for k, v in (overrides or {}).items() if v is not None}))
+    for source, layer in layers:
+        for name, value in layer.items():
+            if name not in _TYPES:
+                known = ", ".join(sorted(_TYPES))
+                raise ParameterError(f"unknown parameter {name!r} ({source}); known: {known}")
+            merged[name] = _coerce(name, value, source)
+    params = replace(BridgeParams(), **merged)
+    _check(params)
+    return params

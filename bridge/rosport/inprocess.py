@@ -1,0 +1,164 @@
+"""The ``inprocess`` backend: publish/subscribe between ports of one Python process.
+
+Ports opened with the same ``bus`` name (default ``"default"``) see each other's topics,
+as nodes of one ROS domain would; ports on different buses do not. A publisher reaches
+the subscriptions on its bus with the same fully qualified topic and the same message
+type (a different type on the same name never matches, as in DDS).
+
+``publish`` only queues: each subscription keeps the last :data:`HISTORY_DEPTH` messages
+(older ones are dropped and counted in ``stats().dropped``), and each port delivers on
+its own thread, so callbacks never run on the publisher's thread. Messages are immutable,
+so subscribers share the published object; nothing is serialised.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import Final
+
+from bridge.rosport.msgs import Message
+from bridge.rosport.port import DEFAULT_NODE_NAME, HISTORY_DEPTH, RosPort, Subscription
+
+__all__ = ["DEFAULT_BUS", "InProcessPort"]
+
+#: Bus used when ``open_port("inprocess")`` is given none.
+DEFAULT_BUS: Final = "default"
+
+
+class _Slot:
+    """One subscription's queue on the bus."""
+
+    __slots__ = ("port", "queue", "sub")
+
+    def __init__(self, port: InProcessPort, sub: Subscription[Message]) -> None:
+        self.port = port
+        self.sub = sub
+        self.queue: deque[Message] = deque()
+
+
+class _Bus:
+    """Subscriptions by topic; shared by every port on one bus name."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.slots: dict[str, list[_Slot]] = {}
+
+    def add(self, slot: _Slot) -> None:
+        with self.lock:
+            self.slots.setdefault(slot.sub.topic, []).append(slot)
+
+    def remove(self, slot: _Slot) -> None:
+        with self.lock:
+            slots = self.slots.get(slot.sub.topic, [])
+            if slot in slots:
+                slots.remove(slot)
+            if not slots:
+                self.slots.pop(slot.sub.topic, None)
+
+    def matching(self, topic: str, msg_type: type[Message]) -> list[_Slot]:
+        with self.lock:
+            return [s for s in self.slots.get(topic, ()) if s.sub.msg_type is msg_type]
+
+
+_BUSES: dict[str, _Bus] = {}
+_BUSES_LOCK = threading.Lock()
+
+
+def _bus(name: str) -> _Bus:
+    with _BUSES_LOCK:
+        return _BUSES.setdefault(name, _Bus())
+
+
+class _Writer:
+    def __init__(self, port: InProcessPort, topic: str, msg_type: type[Message]) -> None:
+        self._port = port
+        self._topic = topic
+        self._msg_type = msg_type
+
+    def write(self, msg: Message) -> None:
+        for slot in self._port._bus.matching(self._topic, self._msg_type):
+            slot.port._enqueue(slot, msg)
+
+    def matched_count(self) -> int:
+        return len(self._port._bus.matching(self._topic, self._msg_type))
+
+    def close(self) -> None:
+        """Nothing to free: a writer is only a name on the bus."""
+
+
+class _Reader:
+    def __init__(self, port: InProcessPort, slot: _Slot) -> None:
+        self._port = port
+        self._slot = slot
+
+    def close(self) -> None:
+        self._port._bus.remove(self._slot)
+        with self._port._cond:
+            self._slot.queue.clear()
+
+
+class InProcessPort(RosPort):
+    """A port on an in-process bus (``open_port("inprocess", bus=...)``).
+
+    Args:
+        namespace: see :class:`RosPort`.
+        node_name: see :class:`RosPort`.
+        bus: name of the in-process bus to join; ports on one bus see each other.
+    """
+
+    backend = "inprocess"
+
+    def __init__(
+        self, *, namespace: str = "", node_name: str = DEFAULT_NODE_NAME, bus: str = DEFAULT_BUS
+    ) -> None:
+        super().__init__(namespace=namespace, node_name=node_name)
+        self.bus_name = bus
+        self._bus = _bus(bus)
+        self._cond = threading.Condition()
+        self._ready: deque[_Slot] = deque()
+        self._start()
+
+    def _open_writer(self, topic: str, msg_type: type[Message]) -> _Writer:
+        return _Writer(self, topic, msg_type)
+
+    def _open_reader(self, sub: Subscription[Message]) -> _Reader:
+        slot = _Slot(self, sub)
+        self._bus.add(slot)
+        return _Reader(self, slot)
+
+    def _enqueue(self, slot: _Slot, msg: Message) -> None:
+        """Queue ``msg`` for ``slot`` (called on the publisher's thread)."""
+        dropped = False
+        with self._cond:
+            if self._stopping.is_set():
+                return
+            if len(slot.queue) >= HISTORY_DEPTH:
+                # Keep-last: the oldest goes, and its ready mark now stands for this one,
+                # so the ready queue never holds more marks than messages.
+                slot.queue.popleft()
+                dropped = True
+            else:
+                self._ready.append(slot)
+            slot.queue.append(msg)
+            self._cond.notify()
+        if dropped:
+            self._count_dropped()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._ready and not self._stopping.is_set():
+                    self._cond.wait()
+                if self._stopping.is_set():
+                    return
+                slot = self._ready.popleft()
+                if not slot.queue:
+                    # The subscription closed and its queue was cleared.
+                    continue
+                msg = slot.queue.popleft()
+            self._deliver(slot.sub, msg)
+
+    def _wake(self) -> None:
+        with self._cond:
+            self._cond.notify_all()

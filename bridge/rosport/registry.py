@@ -1,0 +1,72 @@
+"""Backends of the ROS port by name, imported only when opened.
+
+=============  =========================================  ==================================
+name           class                                      needs
+=============  =========================================  ==================================
+``dds``        :class:`bridge.rosport.dds.DdsPort`        ``cyclonedds`` (extra ``dds``)
+``inprocess``  :class:`bridge.rosport.inprocess.InProcessPort`  nothing
+``rclpy``      :class:`bridge.rosport.rclpy_backend.RclpyPort`  ROS 2 Jazzy (rclpy) sourced
+=============  =========================================  ==================================
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any, Final
+
+from bridge.rosport.errors import BackendUnavailableError, UnknownBackendError
+from bridge.rosport.port import DEFAULT_NODE_NAME, RosPort
+
+__all__ = ["BACKENDS", "backend_class", "open_port"]
+
+#: Backend name -> (module, class). Modules are imported on first use only.
+BACKENDS: Final[Mapping[str, tuple[str, str]]] = {
+    "dds": ("bridge.rosport.dds", "DdsPort"),
+    "inprocess": ("bridge.rosport.inprocess", "InProcessPort"),
+    "rclpy": ("bridge.rosport.rclpy_backend", "RclpyPort"),
+}
+
+
+def backend_class(backend: str) -> type[RosPort]:
+    """The port class registered as ``backend``, importing its module.
+
+    Raises:
+        UnknownBackendError: no backend has that name (the error lists the known ones).
+        BackendUnavailableError: the backend's module cannot be imported here (e.g.
+            ``cyclonedds`` is not installed).
+    """
+    try:
+        module_name, class_name = BACKENDS[backend]
+    except KeyError:
+        raise UnknownBackendError(backend, BACKENDS) from None
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            f"the {backend!r} ROS port backend cannot be imported: {exc}"
+        ) from exc
+    cls: type[RosPort] = getattr(module, class_name)
+    return cls
+
+
+def open_port(
+    backend: str, *, namespace: str = "", node_name: str = DEFAULT_NODE_NAME, **options: Any
+) -> RosPort:
+    """Open a ROS port on the named backend.
+
+    Args:
+        backend: ``"dds"``, ``"inprocess"`` or ``"rclpy"`` (see :data:`BACKENDS`).
+        namespace: the node's namespace; relative topic names resolve in it.
+        node_name: the node's name.
+        **options: backend options: ``dds``: ``domain_id``, ``config``; ``inprocess``:
+            ``bus``; ``rclpy``: ``domain_id``, ``args``.
+
+    Raises:
+        UnknownBackendError: unknown ``backend`` (the message lists the known ones).
+        BackendUnavailableError: the backend's dependency is not installed.
+        RosNameError: invalid namespace or node name.
+        TypeError: an option the backend does not take.
+        RosPortError: the backend failed to start.
+    """
+    return backend_class(backend)(namespace=namespace, node_name=node_name, **options)

@@ -1,0 +1,201 @@
+"""Transports to the motor controller, chosen by URL through a registry.
+
+``open_transport(url)`` maps a URL to a transport class, imported lazily:
+
+- ``can://INTERFACE/CHANNEL[?node=N&bitrate=B]``: any python-can bus, e.g.
+  ``can://socketcan/vcan0?node=1`` or ``can://virtual/rover``;
+- anything else goes to pyserial's ``serial_for_url``: a device path (``/dev/ttyACM0``,
+  ``/dev/serial/by-id/...``, ``/dev/rover-motor``, a pty path), ``socket://host:port``,
+  ``rfc2217://...``, ``loop://``; query ``?baud=B`` sets the baud rate (default 115200).
+
+A transport moves protocol messages, not bytes: it encodes with
+:mod:`firmware_proto.framing` or :mod:`firmware_proto.canmap` and decodes with their pure
+decoders. Its reader thread does I/O only: it reads, feeds the decoder, and hands each
+message with its arrival time to the callback; an I/O error ends the reader and is
+reported once through ``on_error`` (the link reconnects). Writes happen on the caller's
+thread under a lock, so a STOP is on the wire without waiting for any queue.
+
+Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
+``_write`` (one message) and ``_read`` (wait a little, return messages); set
+``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import threading
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+from bridge.errors import TransportError
+from firmware_proto.counters import RxCounters
+from firmware_proto.message import Message
+
+__all__ = [
+    "TRANSPORTS",
+    "OnError",
+    "OnMessage",
+    "Transport",
+    "open_transport",
+    "parse_can_url",
+]
+
+logger = logging.getLogger(__name__)
+
+OnMessage = Callable[[Message, float], None]
+"""Called on the reader thread with each message and its arrival (``time.monotonic()``)."""
+OnError = Callable[[Exception], None]
+"""Called once, on the reader thread, when the transport fails."""
+
+TRANSPORTS: dict[str, tuple[str, str]] = {
+    "can": ("bridge.can_transport", "CanTransport"),
+    "serial": ("bridge.serial_transport", "SerialTransport"),
+}
+"""Transport kind -> (module, class), imported when first used."""
+
+
+class Transport(ABC):
+    """A connection to the controller that carries protocol messages."""
+
+    kind = "transport"
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.counters = RxCounters()
+        self.tx_frames = 0
+        self._write_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._opened = False
+
+    # -- hooks ------------------------------------------------------------------------
+    @abstractmethod
+    def _open(self) -> None:
+        """Acquire the device or bus. Raise OSError (or a subclass) on failure."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Release it (idempotent)."""
+
+    @abstractmethod
+    def _write(self, message: Message) -> None:
+        """Send one message. Raise OSError on failure."""
+
+    @abstractmethod
+    def _read(self, timeout_s: float) -> list[Message]:
+        """Wait up to ``timeout_s``; return the messages received. Raise OSError when the
+        device is gone."""
+
+    # -- API ----------------------------------------------------------------------------
+    def open(self, on_message: OnMessage, on_error: OnError) -> None:
+        """Open and start reading.
+
+        Raises:
+            TransportError: the device or bus cannot be opened; says which and why.
+        """
+        try:
+            self._open()
+        except (OSError, ValueError) as exc:
+            raise TransportError(f"cannot open {self.url}: {exc}") from exc
+        self._opened = True
+        self._stop.clear()
+        self._thread = threading.Thread(
+            target=self._reader, args=(on_message, on_error), name=f"{self.kind}-rx", daemon=True
+        )
+        self._thread.start()
+
+    def send(self, message: Message) -> None:
+        """Send one message now, on the calling thread.
+
+        Raises:
+            TransportError: not open, or the write failed (device gone, bus off).
+        """
+        with self._write_lock:
+            if not self._opened:
+                raise TransportError(f"{self.url} is not open")
+            try:
+                self._write(message)
+            except (OSError, ValueError) as exc:
+                raise TransportError(f"write to {self.url} failed: {exc}") from exc
+            self.tx_frames += 1
+
+    def close(self) -> None:
+        """Stop the reader and release the device (idempotent; safe from any thread)."""
+        self._stop.set()
+        thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
+            if thread.is_alive():
+                logger.error("%s reader did not stop within 5 s", self.url)
+        self._thread = None
+        with self._write_lock:
+            if self._opened:
+                self._opened = False
+                self._close()
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def _reader(self, on_message: OnMessage, on_error: OnError) -> None:
+        while not self._stop.is_set():
+            try:
+                received = self._read(0.05)
+            except (OSError, ValueError) as exc:
+                if not self._stop.is_set():
+                    logger.warning("%s: read failed: %s", self.url, exc)
+                    on_error(exc)
+                return
+            if received:
+                now = time.monotonic()
+                for message in received:
+                    on_message(message, now)
+
+
+def parse_can_url(url: str) -> tuple[str, str, dict[str, Any]]:
+    """``can://INTERFACE/CHANNEL?node=N&...`` -> (interface, channel, options).
+
+    Options other than ``node`` are passed to ``can.Bus`` (numbers converted).
+
+    Raises:
+        TransportError: malformed URL.
+    """
+    parts = urlsplit(url)
+    interface, channel = parts.netloc, parts.path.lstrip("/")
+    if parts.scheme != "can" or not interface or not channel:
+        raise TransportError(f"CAN URL must be can://INTERFACE/CHANNEL[?node=N], got {url!r}")
+    options: dict[str, Any] = {}
+    for key, values in parse_qs(parts.query).items():
+        text = values[-1]
+        options[key] = int(text, 0) if text.lstrip("-").isdigit() else text
+    return interface, channel, options
+
+
+def open_transport(url: str, **options: Any) -> Transport:
+    """Build (not open) the transport for ``url`` (see the module docstring).
+
+    Raises:
+        TransportError: the URL names no known transport, or is malformed.
+    """
+    kind = "can" if url.startswith("can://") else "serial"
+    if "://" in url and kind == "serial":
+        scheme = url.split("://", 1)[0]
+        if scheme not in ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"):
+            known = ", ".join(["can", "socket", "rfc2217", "loop", "a device path"])
+            raise TransportError(f"unknown transport scheme {scheme!r} in {url!r}; known: {known}")
+    module_name, class_name = TRANSPORTS[kind]
+    cls = getattr(importlib.import_module(module_name), class_name)
+    transport: Transport = cls(url, **options)
+    return transport

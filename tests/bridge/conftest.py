@@ -1,0 +1,203 @@
+"""Fixtures of the bridge tests: ROS port backends, loopback DDS, collecting callbacks,
+and real emulators (pty or python-can bus) with a ``/command_status`` recorder.
+
+DDS tests (marker ``dds``) run only inside the private network namespace that
+``.ci/test`` sets up (``ROVER_PRIVATE_NETNS=1``): Cyclone DDS sends a multicast probe
+when it starts, and nothing may leave this machine. Elsewhere they skip, saying why.
+rclpy tests (marker ``rclpy``) skip where ROS 2 is not installed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bridge.rosport import RosPort, loopback_config, open_port
+from bridge.rosport.rclpy_backend import rclpy_available
+from emulator.can_frontend import CanFrontEnd
+from emulator.controller import ControllerConfig, ControllerModel
+from emulator.engine import Emulator
+from emulator.frontend import FrontEnd
+from emulator.serial_frontend import SerialFrontEnd
+from emulator.twin import Twin
+from firmware_proto.messages import SCHEMA_HASH
+from firmware_proto.rover import RoverDescription, load_rover
+
+IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
+SKIP_DDS_REASON = (
+    "DDS tests run only in the private network namespace of .ci/test "
+    "(ROVER_PRIVATE_NETNS=1 not set): Cyclone DDS multicasts at start"
+)
+SKIP_RCLPY_REASON = "rclpy (ROS 2 Jazzy) is not installed here; source a ROS 2 setup to run"
+
+#: Every backend, with the marks it needs.
+BACKEND_PARAMS = [
+    pytest.param("inprocess", id="inprocess"),
+    pytest.param("dds", id="dds", marks=pytest.mark.dds),
+    pytest.param("rclpy", id="rclpy", marks=pytest.mark.rclpy),
+]
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("dds") and not IN_PRIVATE_NETNS:
+            item.add_marker(pytest.mark.skip(reason=SKIP_DDS_REASON))
+        if item.get_closest_marker("rclpy") and not rclpy_available():
+            item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))
+
+
+@pytest.fixture(scope="session")
+def dds_config() -> str:
+    """Cyclone DDS config that keeps every packet on 127.0.0.1."""
+    return loopback_config()
+
+
+PortFactory = Callable[..., RosPort]
+
+
+@pytest.fixture
+def make_port(request: pytest.FixtureRequest, dds_config: str) -> Iterator[PortFactory]:
+    """``make_port(backend, namespace=..., node_name=...)``; every port closes at teardown.
+
+    In-process ports of one test share a bus private to that test.
+    """
+    ports: list[RosPort] = []
+    bus = f"test-{request.node.nodeid}"
+
+    def make(backend: str, **kwargs: Any) -> RosPort:
+        if backend == "dds":
+            kwargs.setdefault("config", dds_config)
+        elif backend == "inprocess":
+            kwargs.setdefault("bus", bus)
+        port = open_port(backend, **kwargs)
+        ports.append(port)
+        return port
+
+    yield make
+    for port in reversed(ports):
+        port.close()
+
+
+class Inbox:
+    """A callback that keeps what it receives, and lets a test wait for it."""
+
+    def __init__(self) -> None:
+        self.items: list[Any] = []
+        self.threads: set[str] = set()
+        self._cond = threading.Condition()
+
+    def __call__(self, msg: Any) -> None:
+        with self._cond:
+            self.items.append(msg)
+            self.threads.add(threading.current_thread().name)
+            self._cond.notify_all()
+
+    def wait_for(self, count: int, timeout_s: float = 10.0) -> list[Any]:
+        """Wait until ``count`` items arrived; fail the test on timeout."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: len(self.items) >= count, timeout_s):
+                pytest.fail(f"received {len(self.items)} of {count} messages in {timeout_s} s")
+            return list(self.items)
+
+
+# -- emulators and status recording (link and node tests) -------------------------------
+
+SPEED = 4.0
+"""Twin seconds per wall second for served emulators (timeouts scaled to match)."""
+
+_channels = itertools.count()
+
+
+class Recorder:
+    """Collects ``/command_status`` strings; waits on them with timeouts."""
+
+    def __init__(self) -> None:
+        self.items: list[str] = []
+        self._cond = threading.Condition()
+
+    def __call__(self, text: str) -> None:
+        with self._cond:
+            self.items.append(text)
+            self._cond.notify_all()
+
+    def mark(self) -> int:
+        with self._cond:
+            return len(self.items)
+
+    def since(self, mark: int) -> list[str]:
+        with self._cond:
+            return list(self.items[mark:])
+
+    def wait(
+        self, pred: Callable[[list[str]], bool], *, since: int = 0, timeout: float = 15.0
+    ) -> list[str]:
+        """Wait until ``pred(items since mark)`` holds; returns those items."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not pred(self.items[since:]):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(
+                        f"status condition not met in {timeout} s; got {self.items[since:]}"
+                    )
+                self._cond.wait(left)
+            return list(self.items[since:])
+
+    def wait_count(self, text: str, n: int, *, since: int = 0, timeout: float = 15.0) -> list[str]:
+        return self.wait(lambda xs: xs.count(text) >= n, since=since, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def rover() -> RoverDescription:
+    return load_rover()
+
+
+@pytest.fixture
+def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
+    """Factory of running emulators; ``kind`` "pty" or "can"; all closed after the test."""
+    started: list[Emulator] = []
+
+    def make(
+        kind: str = "pty",
+        *,
+        link: Path | None = None,
+        seed: int = 1,
+        node: int = 1,
+        channel: str | None = None,
+        interface: str = "virtual",
+        schema_hash: int = SCHEMA_HASH,
+    ) -> Emulator:
+        model = ControllerModel(
+            rover,
+            Twin(rover),
+            ControllerConfig(timeout_scale=SPEED),
+            seed=seed,
+            schema_hash=schema_hash,
+        )
+        frontend: FrontEnd
+        if kind == "pty":
+            frontend = SerialFrontEnd(link=link, seed=seed)
+        else:
+            frontend = CanFrontEnd(
+                interface=interface, channel=channel or "bridge", node=node, seed=seed
+            )
+        emu = Emulator(model, frontend, speed_factor=SPEED)
+        emu.start()
+        started.append(emu)
+        return emu
+
+    yield make
+    for emu in started:
+        emu.close()
+
+
+@pytest.fixture
+def can_channel() -> str:
+    return f"bridge-test-{next(_channels)}"

@@ -1,0 +1,306 @@
+"""ControllerLink against the real emulator, over a real pty and a python-can bus
+(``virtual`` here; ``socketcan`` on ``vcan0`` where the kernel has it)."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from bridge.errors import TransportError
+from bridge.link import ControllerLink, LinkConfig, LinkState, StepRequest
+from bridge.transport import open_transport, parse_can_url
+from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
+from firmware_proto.messages import SCHEMA_HASH, Command, Encoders
+from firmware_proto.rover import RoverDescription
+
+from .conftest import Recorder
+
+Emus = Callable[..., Emulator]
+Links = Callable[..., tuple[ControllerLink, Recorder]]
+FWD = Command.FWD
+HAVE_VCAN0 = os.path.exists("/sys/class/net/vcan0")
+NO_VCAN0 = "no vcan0 here: this kernel has no SocketCAN (udev/vcan-up.sh says why)"
+
+
+@pytest.fixture
+def links() -> Iterator[Links]:
+    started: list[ControllerLink] = []
+
+    def make(url: str, **config: float) -> tuple[ControllerLink, Recorder]:
+        rec = Recorder()
+        link = ControllerLink(LinkConfig(url, **config), on_status=rec)  # type: ignore[arg-type]
+        link.start()
+        started.append(link)
+        return link, rec
+
+    yield make
+    for link in started:
+        link.close()
+
+
+def _url(emu: Emulator) -> str:
+    front = emu.frontend
+    if isinstance(front, SerialFrontEnd):
+        return front.device
+    return f"can://{front.interface}/{front.channel}?node={front.node}"  # type: ignore[attr-defined]
+
+
+def _serial(emu: Emulator) -> SerialFrontEnd:
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    return emu.frontend
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "pty",
+        "virtual",
+        pytest.param(
+            "socketcan",
+            marks=[pytest.mark.socketcan, pytest.mark.skipif(not HAVE_VCAN0, reason=NO_VCAN0)],
+        ),
+    ],
+)
+def test_steps_complete_once_each_in_order(
+    emulators: Emus, links: Links, kind: str, can_channel: str
+) -> None:
+    if kind == "pty":
+        emu = emulators("pty")
+    else:
+        emu = emulators(
+            "can", interface=kind, channel="vcan0" if kind == "socketcan" else can_channel, node=3
+        )
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    for _ in range(4):
+        link.submit_step(StepRequest(FWD, 60, 5750))
+    got = rec.wait_count("completed", 4)
+    assert got[0] == "ready"
+    assert (got.count("accepted"), got.count("completed"), len(got)) == (4, 4, 9)
+    assert emu.status().x_m == pytest.approx(1.0, abs=0.015)
+    diag = link.diagnostics()
+    assert (diag.steps_sent, diag.steps_completed, diag.retries) == (4, 4, 0)
+    assert diag.rtt_median_ms is not None
+
+
+def test_stop_lane_latches_and_clear_resumes(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    rec.wait_count("accepted", 1)
+    mark = rec.mark()
+    link.emergency_stop()
+    got = rec.wait(lambda xs: "stopped" in xs and xs.count("aborted:stop") >= 2, since=mark)
+    assert "completed" not in got
+    assert link.stop_latched
+    mark = rec.mark()
+    link.submit_step(StepRequest(FWD, 10, 10))
+    assert rec.wait(bool, since=mark) == ["rejected:stop_latched"]
+    link.clear_stop()
+    rec.wait_count("cleared", 1, since=mark)
+    link.submit_step(StepRequest(FWD, 60, 2300))
+    rec.wait_count("completed", 1, since=mark)
+    assert link.diagnostics().last_stop_latency_ms is not None
+    assert emu.status().stop_latched is False
+
+
+def test_stop_step_is_an_emergency_stop(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    rec.wait_count("accepted", 1)
+    link.submit_step(StepRequest(Command.STOP, 0, 0))
+    rec.wait(lambda xs: "stopped" in xs and "aborted:stop" in xs)
+    assert emu.status().stop_latched
+
+
+def test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing_twice(
+    emulators: Emus, links: Links
+) -> None:
+    emu = emulators(seed=11)
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    emu.inject("link-corrupt=0.05")
+    emu.inject("link-drop=0.05")
+    mark = rec.mark()
+    for _ in range(6):
+        link.submit_step(StepRequest(FWD, 60, 3833))  # 6 x 1/6 m
+    got = rec.wait(
+        lambda xs: xs.count("completed") + xs.count("fault:no_ack") >= 6, since=mark, timeout=30
+    )
+    assert got.count("completed") == 6, got
+    assert not any(s.startswith(("rejected", "aborted", "fault")) for s in got), got
+    # Nothing ran twice: the ground distance is exactly six steps.
+    assert emu.status().x_m == pytest.approx(1.0, abs=0.02)
+    diag = link.diagnostics()
+    assert diag.rx_dropped > 0  # the host saw damaged frames and dropped them
+
+
+def test_delayed_acks_are_retransmitted_and_deduplicated(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu), ack_timeout_s=0.02, motion_retries=10)
+    rec.wait_count("ready", 1)
+    emu.inject("link-delay=0.05")  # each way: acks come after 0.1 s, retries every 0.02 s
+    mark = rec.mark()
+    link.submit_step(StepRequest(FWD, 60, 11500))
+    got = rec.wait_count("completed", 1, since=mark, timeout=20)
+    assert got == ["accepted", "completed"]
+    assert link.diagnostics().retries > 0
+    assert emu.status().x_m == pytest.approx(0.5, abs=0.01)  # executed once
+
+
+def test_heartbeat_loss_reports_link_lost_then_recovers(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    rec.wait_count("accepted", 1)
+    mark = rec.mark()
+    emu.inject("link-drop=1.0")
+    rec.wait_count("fault:link_lost", 1, since=mark, timeout=5)
+    assert link.state is LinkState.LOST
+    emu.inject("clear:link-drop")
+    rec.wait_count("ready", 1, since=mark)
+    # The controller's watchdog tripped meanwhile; the bridge clears that latch itself.
+    rec.wait(lambda xs: "cleared" in xs, since=mark)
+    mark = rec.mark()
+    link.submit_step(StepRequest(FWD, 30, 1000))
+    assert rec.wait_count("completed", 1, since=mark) == ["accepted", "completed"]
+
+
+def test_unplug_and_replug_fault_then_recover(
+    emulators: Emus, links: Links, tmp_path: Path
+) -> None:
+    path = tmp_path / "rover-motor"
+    emu = emulators(link=path)
+    link, rec = links(str(path), reconnect_min_s=0.05, reconnect_max_s=0.2)
+    rec.wait_count("ready", 1)
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    rec.wait_count("accepted", 1)
+    mark = rec.mark()
+    _serial(emu).unplug()
+    rec.wait_count("fault:link_lost", 1, since=mark)
+    assert not path.exists()
+    _serial(emu).replug()
+    rec.wait_count("ready", 1, since=mark)
+    got = rec.since(mark)
+    assert "completed" not in got  # the step in flight was dropped, not replayed
+    assert link.diagnostics().reconnects >= 1
+    rec.wait(lambda xs: "cleared" in xs or link.stop_latched is False, since=mark)
+    mark = rec.mark()
+    link.submit_step(StepRequest(FWD, 30, 1000))
+    rec.wait_count("completed", 1, since=mark)
+
+
+def test_controller_reboot_is_detected_and_nothing_replayed(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    nonce = link.diagnostics().boot_nonce
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    rec.wait_count("accepted", 2)
+    mark = rec.mark()
+    emu.inject("reboot")
+    got = rec.wait(lambda xs: "fault:controller_reboot" in xs and "ready" in xs, since=mark)
+    assert "completed" not in got
+    diag = link.diagnostics()
+    assert diag.reboots == 1 and diag.boot_nonce != nonce
+    x_before = emu.status().x_m
+    mark = rec.mark()
+    link.submit_step(StepRequest(FWD, 60, 2300))
+    rec.wait_count("completed", 1, since=mark)
+    assert emu.status().x_m == pytest.approx(x_before + 0.1, abs=0.01)  # only the new step ran
+
+
+def test_estop_survives_a_reboot(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu))
+    rec.wait_count("ready", 1)
+    link.emergency_stop()
+    rec.wait_count("stopped", 1)
+    mark = rec.mark()
+    emu.inject("reboot")  # the controller forgets its latch...
+    rec.wait(
+        lambda xs: "ready" in xs and "stopped" in xs, since=mark
+    )  # ...the bridge re-latches it
+    assert emu.status().stop_latched
+
+
+def test_schema_mismatch_refuses_to_drive(emulators: Emus, links: Links) -> None:
+    emu = emulators(schema_hash=SCHEMA_HASH ^ 0x5A5A)
+    link, rec = links(_url(emu))
+    rec.wait_count("fault:schema_mismatch", 1)
+    link.submit_step(StepRequest(FWD, 30, 100))
+    assert rec.wait(lambda xs: "rejected:schema_mismatch" in xs)
+    diag = link.diagnostics()
+    assert diag.state == "mismatch" and "mismatch" in diag.last_error
+    assert diag.schema_hash == f"0x{SCHEMA_HASH ^ 0x5A5A:04X}"
+    assert emu.status().x_m == 0.0
+
+
+def test_steps_while_the_link_is_down_are_rejected(links: Links, tmp_path: Path) -> None:
+    link, rec = links(str(tmp_path / "no-such-device"), reconnect_min_s=0.05)
+    link.submit_step(StepRequest(FWD, 30, 100))
+    assert rec.wait(bool) == ["rejected:link_down"]
+    assert "no-such-device" in link.diagnostics().last_error or link.diagnostics().last_error == ""
+    stop_id = link.emergency_stop()  # accepted and kept for when the link comes back
+    assert stop_id >= 1 and link.stop_latched
+
+
+def test_no_ack_after_retries_is_a_fault(emulators: Emus, links: Links) -> None:
+    emu = emulators()
+    link, rec = links(_url(emu), ack_timeout_s=0.01, motion_retries=2)
+    rec.wait_count("ready", 1)
+    emu.inject("link-delay=0.2")
+    link.submit_step(StepRequest(FWD, 30, 100))
+    got = rec.wait(lambda xs: "fault:no_ack" in xs)
+    assert "fault:link_lost" in got
+    emu.inject("clear:link-delay")
+
+
+def test_transport_registry() -> None:
+    assert parse_can_url("can://socketcan/vcan0?node=3&bitrate=500000") == (
+        "socketcan",
+        "vcan0",
+        {"node": 3, "bitrate": 500000},
+    )
+    with pytest.raises(TransportError, match="known"):
+        open_transport("warp://x")
+    with pytest.raises(TransportError, match="INTERFACE/CHANNEL"):
+        parse_can_url("can://virtual")
+    transport = open_transport("loop://")
+    assert transport.kind == "serial"
+    transport = open_transport("can://virtual/x?node=2")
+    assert transport.kind == "can"
+
+
+def test_odometry_tracks_the_emulator_encoders(emulators: Emus, rover: RoverDescription) -> None:
+    from bridge.odometry import OdometryEstimator
+
+    estimator = OdometryEstimator(rover)
+    emu = emulators()
+    seen: list[float] = []
+
+    def on_telemetry(msg: object, t: float) -> None:
+        if isinstance(msg, Encoders):
+            seen.append(estimator.update_encoders(msg).x_m)
+
+    rec = Recorder()
+    with ControllerLink(
+        LinkConfig(url=_url(emu)), on_status=rec, on_telemetry=on_telemetry
+    ) as link:
+        rec.wait_count("ready", 1)
+        link.submit_step(StepRequest(FWD, 60, 23000))
+        rec.wait_count("completed", 1)
+        rec.wait(lambda _: len(seen) > 5 and seen[-1] > 0.99, timeout=5)
+    assert seen[-1] == pytest.approx(1.0, abs=0.002)
+    assert math.hypot(emu.status().x_m, emu.status().y_m) == pytest.approx(seen[-1], abs=0.01)
