@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -50,6 +51,10 @@ _go: Any = None  # multiprocessing Event: set once every worker has arrived
 
 def _init_worker(validator: Validator, arrived: Any, go: Any) -> None:
     global _validator, _arrived, _go  # noqa: PLW0603 - per-process state of a pool worker
+    # The server process owns shutdown: a Ctrl-C or SIGTERM sent to the whole process
+    # group must not kill workers under in-flight requests (they exit when it says so).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _validator = validator
     _arrived = arrived
     _go = go

@@ -119,3 +119,28 @@ def test_check_start_json_and_png(tmp_path: Path) -> None:
     assert verdict["start_pose"] == {"x": 2.0, "y": 2.0, "yaw_deg": 0.0}
     assert verdict["replay"]["render"] is True
     assert png.read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
+
+
+def test_ctrl_c_to_the_process_group_drains_cleanly() -> None:
+    import os
+
+    proc = subprocess.Popen(
+        [ROVER, "gate", "--port", "0", "--workers", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as in a terminal
+    )
+    try:
+        assert proc.stdout is not None
+        url = proc.stdout.readline().split()[1]
+        host, port = url.removeprefix("http://").split(":")
+        assert post_plan((host, int(port)), STOP_AT_LAB_START).status == 200
+        os.killpg(proc.pid, signal.SIGINT)  # parent and workers alike
+        _, err = proc.communicate(timeout=WAIT_S)
+        assert proc.returncode == 0, err
+        assert "Traceback" not in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=WAIT_S)
