@@ -237,13 +237,13 @@ def _error(description: str, headers: dict[str, Any] | None = None) -> dict[str,
     return out
 
 
-def _parameters(config: GateConfig, maps: list[str]) -> list[dict[str, Any]]:
+def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[dict[str, Any]]:
     pb = config.playback
     limits = dict(OPTION_LIMITS)
     limits["sample_hz"] = (limits["sample_hz"][0], min(limits["sample_hz"][1], 1.0 / pb.dt_s))
     docs: dict[str, tuple[str, dict[str, Any]]] = {
         "map": (
-            f"Map to play on (default {config.default_map!r}; see GET /maps).",
+            f"Map to play on (default {default_map!r}; see GET /maps).",
             {"type": "string", "enum": maps},
         ),
         "start": (
@@ -290,8 +290,9 @@ def _parameters(config: GateConfig, maps: list[str]) -> list[dict[str, Any]]:
     return out
 
 
-def build_openapi(config: GateConfig, maps: list[str]) -> dict[str, Any]:
-    """The OpenAPI document of a gate with ``config`` serving ``maps`` (names)."""
+def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict[str, Any]:
+    """The OpenAPI document of a gate with ``config`` serving ``maps`` (names), with
+    ``default_map`` for requests that name none."""
     secured = config.token is not None
     overloaded = _error(
         "No capacity: every worker and queue slot is taken, the connection limit is "
@@ -346,7 +347,7 @@ def build_openapi(config: GateConfig, maps: list[str]) -> dict[str, Any]:
                     {"name": "name", "in": "path", "required": True, "schema": {"type": "string"}}
                 ]
             if route.operation == "validate_plan":
-                op["parameters"] = _parameters(config, maps)
+                op["parameters"] = _parameters(config, maps, default_map)
                 op["requestBody"] = {
                     "required": True,
                     "description": (

@@ -173,6 +173,7 @@ class _Handler(BaseHTTPRequestHandler):
         try:
             framing = body_framing(self.headers)
         except HttpError as exc:
+            self._stream_broken = True
             self._reply_error(exc)
             return False
         if framing.length is not None and framing.length > self.gate.config.max_body_bytes:
@@ -424,7 +425,7 @@ class GateServer:
         names = sorted(self.validator.maps)
         self._map_bodies = {n: json_bytes(self.validator.maps[n].to_dict()) for n in names}
         self._maps_body = json_bytes(self._map_list())
-        self._openapi_body = json_bytes(build_openapi(config, names))
+        self._openapi_body = json_bytes(build_openapi(config, names, self.validator.default_map))
 
     # -- life cycle ---------------------------------------------------------------------
     def start(self) -> GateServer:

@@ -8,55 +8,15 @@ import signal
 import socket
 import threading
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future
 
 import pytest
 
-from gate.pool import ThreadWorkerPool
 from gate.server import GateServer
-from gate.validator import Job, Validator
+from gate.validator import Validator
 
 from .client import Client, Reply, call, post_plan
+from .held import WAIT_S, HeldPool
 from .plans import STOP_AT_LAB_START
-
-WAIT_S = 30.0
-
-
-class HeldPool(ThreadWorkerPool):
-    """A thread pool whose jobs, while :attr:`hold` is set, say :attr:`entered` and wait
-    for :attr:`release`."""
-
-    def __init__(self, validator: Validator, workers: int = 1, *, hold: bool = True) -> None:
-        super().__init__(validator, workers)
-        self.hold = threading.Event()
-        if hold:
-            self.hold.set()
-        self.entered = threading.Event()
-        self.release = threading.Event()
-        self._submitted = 0
-        self._cond = threading.Condition()
-
-    def wait_submitted(self, count: int) -> bool:
-        """Wait until ``count`` jobs have been admitted and handed to the pool."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self._submitted >= count, WAIT_S)
-
-    def _submit(self, job: Job) -> Future[bytes]:
-        with self._cond:
-            self._submitted += 1
-            self._cond.notify_all()
-
-        holding = self.hold.is_set()
-
-        def held() -> bytes:
-            if not holding:
-                return self._run(job)
-            self.entered.set()
-            if not self.release.wait(WAIT_S):
-                raise TimeoutError("test never released the held job")
-            return self._run(job)
-
-        return self._executor.submit(held)
 
 
 @pytest.fixture

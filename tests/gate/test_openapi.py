@@ -17,8 +17,8 @@ from gate.server import GateServer
 from gate.validator import Validator
 
 from .client import Reply, call, parse_raw, post_plan, raw_exchange
+from .held import HeldPool
 from .plans import STOP_AT_LAB_START, fwd, plan, step
-from .test_lifecycle import HeldPool
 
 TOKEN = "open-sesame"
 METHODS = ("GET", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
