@@ -68,7 +68,7 @@ def _trials(
     emu: Emulator,
     link: ControllerLink,
     statuses: Statuses,
-    request: Callable[[], None],
+    request: Callable[[], object],
     trials: int,
     load: bool,
     rng: random.Random,
