@@ -107,6 +107,8 @@ class LinkRelay:
         routes: the topics to relay.
         """
         self.profile = profile or LinkProfile()
+        self.received = 0
+        """Messages taken from either side so far (relayed, queued or dropped)."""
         self.forwarded: Counter[str] = Counter()
         self.dropped: Counter[str] = Counter()
         self._heap: list[tuple[float, int, Publisher[Any], Any, str]] = []
@@ -132,6 +134,7 @@ class LinkRelay:
         profile = self.profile
 
         def forward(msg: Any) -> None:
+            self.received += 1
             if profile.loss and rng.random() < profile.loss:
                 self.dropped[key] += 1
                 return
