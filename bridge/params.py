@@ -30,7 +30,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["ENV_PREFIX", "BridgeParams", "load_params"]
+__all__ = ["ENV_PREFIX", "BridgeParams", "load_params", "ros_parameters"]
 
 ENV_PREFIX = "ROVER_BRIDGE_"
 
@@ -217,3 +217,21 @@ def load_params(
     params = replace(BridgeParams(), **merged)
     _check(params)
     return params
+
+
+def ros_parameters(port: Any, current: BridgeParams) -> dict[str, Any]:
+    """ROS parameters set on the node behind ``port`` (rclpy backend), by name.
+
+    Every bridge parameter is declared on the rclpy node with its current value as the
+    default, so ``ros2 param list`` shows them all; only values that differ are returned.
+    Ports without ROS parameters (dds, inprocess) return ``{}``.
+    """
+    node = getattr(port, "node", None)
+    if node is None or not hasattr(node, "declare_parameter"):
+        return {}
+    changed: dict[str, Any] = {}
+    for name, value in current.to_dict().items():
+        declared = node.declare_parameter(name, value).value
+        if declared != value:
+            changed[name] = declared
+    return changed

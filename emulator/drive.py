@@ -128,31 +128,21 @@ def travel_units(
 
 
 def turn_units_for_yaw(rover: RoverDescription, yaw_rad: float) -> int:
-    """Distance units of a LEFT/RIGHT step to turn the body by ``|yaw_rad|`` on the spot,
-    using the calibrated ``traction.turn_efficiency`` (body yaw / ideal yaw from arc
-    travel): ``|yaw| * (track/2) / efficiency * units_per_m``, rounded."""
-    arc_m = abs(yaw_rad) * rover.geometry.track_width_m / 2.0 / rover.traction.turn_efficiency
-    return rover.m_to_units(arc_m)
+    """Distance units of a LEFT/RIGHT step to turn the body by ``|yaw_rad|`` on the spot
+    (see :meth:`RoverDescription.turn_units_for_yaw`, which every part shares)."""
+    return rover.turn_units_for_yaw(yaw_rad)
 
 
 def yaw_for_turn_units(rover: RoverDescription, distance_units: float) -> float:
-    """Predicted body yaw, rad (unsigned), of a LEFT/RIGHT step of ``distance_units``:
-    the inverse of :func:`turn_units_for_yaw`."""
-    arc_m = rover.units_to_m(distance_units)
-    return rover.traction.turn_efficiency * 2.0 * arc_m / rover.geometry.track_width_m
+    """Predicted body yaw, rad (unsigned), of a LEFT/RIGHT step of ``distance_units``
+    (see :meth:`RoverDescription.yaw_for_turn_units`)."""
+    return rover.yaw_for_turn_units(distance_units)
 
 
 def nominal_step_duration_s(rover: RoverDescription, speed: int, distance: int) -> float:
-    """Time, s, of a step's trapezoidal (or triangular) profile without slip, from rest
-    to rest; 0 for a step with nothing to do."""
-    v = rover.speed_to_mps(speed)
-    d = rover.units_to_m(distance)
-    if v <= 0.0 or d <= 0.0:
-        return 0.0
-    a = rover.drive.wheel_accel_limit_mps2
-    if d < v * v / a:  # never reaches cruise
-        return 2.0 * math.sqrt(d / a)
-    return d / v + v / a
+    """Time, s, of a step's speed profile without slip, rest to rest (see
+    :meth:`RoverDescription.step_duration_s`)."""
+    return rover.step_duration_s(speed, distance)
 
 
 def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:

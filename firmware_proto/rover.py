@@ -136,6 +136,31 @@ class RoverDescription:
         """Unsigned wheel angular speed, rad/s, for a command speed (``speed * k``)."""
         return speed * self.drive.wheel_velocity_scale_rad_s
 
+    def turn_units_for_yaw(self, yaw_rad: float) -> int:
+        """Distance units of a LEFT/RIGHT step that turns the body by ``|yaw_rad|`` on the
+        spot: each side's arc travel for that yaw, divided by the calibrated
+        ``traction.turn_efficiency`` (skid-steer wheels slip in a spin), rounded."""
+        arc_m = abs(yaw_rad) * self.geometry.track_width_m / 2.0 / self.traction.turn_efficiency
+        return self.m_to_units(arc_m)
+
+    def yaw_for_turn_units(self, distance_units: float) -> float:
+        """Body yaw, rad (unsigned), that a LEFT/RIGHT step of ``distance_units`` turns:
+        the inverse of :meth:`turn_units_for_yaw`."""
+        arc_m = self.units_to_m(distance_units)
+        return self.traction.turn_efficiency * 2.0 * arc_m / self.geometry.track_width_m
+
+    def step_duration_s(self, speed: int, distance: int) -> float:
+        """Time, s, of a step's trapezoidal (or triangular) speed profile without slip,
+        from rest to rest, at the wheel accel limit; 0 for a step with nothing to do."""
+        v = self.speed_to_mps(speed)
+        d = self.units_to_m(distance)
+        if v <= 0.0 or d <= 0.0:
+            return 0.0
+        a = self.drive.wheel_accel_limit_mps2
+        if d < v * v / a:  # never reaches cruise speed
+            return 2.0 * math.sqrt(d / a)
+        return d / v + v / a
+
     @property
     def max_speed_mps(self) -> float:
         """Top wheel surface speed, m/s."""

@@ -1,0 +1,246 @@
+"""The bridge node end to end: ROS topics in and out, the real emulator behind it.
+
+In-process ROS port for most checks; one test runs ``rover bridge`` as its own process
+and talks to it over Cyclone DDS, as a ROS 2 client on another machine would.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from bridge.node import BridgeNode, validate_step
+from bridge.params import load_params
+from bridge.rosport import (
+    Bool,
+    DiagnosticArray,
+    Empty,
+    Int16MultiArray,
+    Odometry,
+    RosPort,
+    String,
+    loopback_config,
+    open_port,
+)
+from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
+from firmware_proto.rover import RoverDescription
+
+from .conftest import Recorder
+
+Emus = Callable[..., Emulator]
+
+
+class Client:
+    """A ROS client of the bridge: publishes steps and e-stops, records what comes back."""
+
+    def __init__(self, port: RosPort) -> None:
+        self.status = Recorder()
+        self.odom: list[Odometry] = []
+        self.ground: list[Odometry] = []
+        self.diagnostics: list[DiagnosticArray] = []
+        self._lock = threading.Lock()
+        port.subscribe("command_status", String, lambda m: self.status(m.data))
+        port.subscribe("odom", Odometry, self._keep(self.odom))
+        port.subscribe("odom_ground", Odometry, self._keep(self.ground))
+        port.subscribe("/diagnostics", DiagnosticArray, self._keep(self.diagnostics))
+        self.steps = port.publisher("wheel_instructions", Int16MultiArray)
+        self.estop = port.publisher("emergency_stop", Bool)
+        self.clear = port.publisher("clear_emergency_stop", Empty)
+
+    def _keep(self, sink: list[Any]) -> Callable[[Any], None]:
+        def keep(msg: Any) -> None:
+            with self._lock:
+                sink.append(msg)
+
+        return keep
+
+    def step(self, *data: int) -> None:
+        self.steps.publish(Int16MultiArray(data=tuple(data)))
+
+
+@pytest.fixture
+def bridged(
+    emulators: Emus, make_port: Callable[..., RosPort]
+) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
+    emu = emulators()
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    params = load_params(
+        {"device": emu.frontend.device, "ros_backend": "inprocess", "diagnostics_hz": 5.0}, env={}
+    )
+    with BridgeNode(params, make_port("inprocess", node_name="rover_bridge")) as node:
+        client = Client(make_port("inprocess", node_name="executor"))
+        client.status.wait_count("ready", 1)
+        yield emu, node, client
+
+
+def test_steps_complete_in_order_and_odom_tracks_the_encoders(bridged: Any) -> None:
+    emu, _node, client = bridged
+    client.step(1, 60, 11500)
+    client.step(3, 30, 7742)  # ~90 degrees
+    client.step(1, 60, 11500)
+    got = client.status.wait_count("completed", 3)
+    assert got.count("accepted") == 3 and got[-1] == "completed"
+    time.sleep(0.1)  # let the last telemetry frame arrive (not a synchronisation)
+    odom = client.odom[-1]
+    assert odom.header.frame_id == "odom" and odom.child_frame_id == "base_link"
+    truth = emu.status()
+    # Encoders see wheel travel: 1 m of driving (the spin adds none along the path).
+    assert math.hypot(odom.pose.pose.position.x, odom.pose.pose.position.y) == pytest.approx(
+        math.hypot(truth.x_m, truth.y_m), abs=0.05
+    )
+    yaw = 2 * math.atan2(odom.pose.pose.orientation.z, odom.pose.pose.orientation.w)
+    assert math.degrees(yaw) == pytest.approx(truth.yaw_deg, abs=3.0)  # IMU-fused heading
+    assert odom.pose.covariance[0] > 0
+    ground = client.ground[-1]
+    assert ground.header.frame_id == "map"
+    assert ground.pose.pose.position.y == pytest.approx(truth.y_m, abs=0.05)
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        ((1, 30), "bad_length"),
+        ((1, 30, 100, 5), "bad_length"),
+        ((7, 30, 100), "unknown_command"),
+        ((-1, 30, 100), "unknown_command"),
+        ((1, 61, 100), "speed_out_of_range"),
+        ((1, -5, 100), "speed_out_of_range"),
+        ((1, 30, -1), "distance_out_of_range"),
+        ((1, 30, 30001), "distance_out_of_range"),
+    ],
+)
+def test_bad_input_is_rejected_precisely_and_nothing_is_sent(
+    bridged: Any, data: tuple[int, ...], reason: str
+) -> None:
+    emu, node, client = bridged
+    mark = client.status.mark()
+    sent = node.link.diagnostics().tx_frames
+    client.step(*data)
+    assert client.status.wait(bool, since=mark) == [f"rejected:{reason}"]
+    assert node.rejected[reason] == 1
+    assert node.link.diagnostics().steps_sent == 0
+    assert node.link.diagnostics().tx_frames - sent <= 2  # heartbeats only
+    assert emu.status().x_m == 0.0
+
+
+def test_emergency_stop_topic_latches_and_only_clear_resumes(bridged: Any) -> None:
+    _emu, _node, client = bridged
+    client.step(1, 60, 30000)
+    client.status.wait_count("accepted", 1)
+    mark = client.status.mark()
+    client.estop.publish(Bool(data=True))
+    client.status.wait(lambda xs: "stopped" in xs and "aborted:stop" in xs, since=mark)
+    client.estop.publish(Bool(data=False))  # releasing the button resumes nothing
+    client.step(1, 30, 100)
+    assert "rejected:stop_latched" in client.status.wait(
+        lambda xs: any("rejected" in x for x in xs), since=mark
+    )
+    client.clear.publish(Empty())
+    client.status.wait_count("cleared", 1, since=mark)
+    time.sleep(0.05)
+    mark = client.status.mark()
+    client.step(1, 30, 1000)
+    assert client.status.wait_count("completed", 1, since=mark) == ["accepted", "completed"]
+
+
+def test_stop_step_on_wheel_instructions_is_an_emergency_stop(bridged: Any) -> None:
+    emu, _node, client = bridged
+    client.step(1, 60, 30000)
+    client.status.wait_count("accepted", 1)
+    client.step(0, 0, 0)
+    client.status.wait(lambda xs: "stopped" in xs)
+    assert emu.status().stop_latched
+
+
+def test_diagnostics_report_link_and_controller(bridged: Any) -> None:
+    emu, _node, client = bridged
+    client.status.wait(lambda _: len(client.diagnostics) >= 2, timeout=5)
+    link, controller = client.diagnostics[-1].status
+    assert (link.name, link.level, controller.name) == (
+        "rover_bridge: link",
+        0,
+        "rover_bridge: controller",
+    )
+    keys = {kv.key for kv in link.values} | {kv.key for kv in controller.values}
+    assert {
+        "rtt_ms",
+        "crc_errors",
+        "resyncs",
+        "retries",
+        "heartbeat_age_s",
+        "watchdog_trips",
+        "last_stop_latency_ms",
+        "controller_state",
+        "faults",
+    } <= keys
+    emu.inject("link-drop=1.0")
+    client.status.wait(lambda xs: "fault:link_lost" in xs)
+    n = len(client.diagnostics)
+    client.status.wait(lambda _: len(client.diagnostics) > n, timeout=5)
+    assert client.diagnostics[-1].status[0].level == 2  # ERROR
+    emu.inject("clear:link-drop")
+
+
+def test_validate_step_rules(rover: RoverDescription) -> None:
+    assert validate_step((0, 99, -3), rover).command == 0  # type: ignore[union-attr]
+    assert validate_step((True, 1, 1), rover) == "bad_type"
+    assert validate_step("abc", rover) == "bad_length"
+
+
+@pytest.mark.dds
+def test_bridge_process_over_dds(emulators: Emus, dds_config: str) -> None:
+    emu = emulators()
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    env = {**os.environ, "CYCLONEDDS_URI": dds_config}
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "bridge",
+            "--device",
+            emu.frontend.device,
+            "--ros-backend",
+            "dds",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().startswith("BRIDGE ")
+        with open_port("dds", node_name="executor", config=dds_config) as port:
+            client = Client(port)
+            assert client.steps.wait_for_subscribers(1, timeout_s=10)
+            deadline = time.monotonic() + 10
+            while not client.diagnostics and time.monotonic() < deadline:
+                time.sleep(0.05)  # the bridge is up; wait for its first diagnostics sample
+            client.step(1, 60, 11500)
+            client.step(1, 61, 1)
+            got = client.status.wait_count("completed", 1, timeout=20)
+            assert "accepted" in got and "rejected:speed_out_of_range" in got
+            assert client.odom and client.diagnostics
+        proc.terminate()
+        _, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=5)
+    assert emu.status().x_m == pytest.approx(0.5, abs=0.01)
+
+
+def test_loopback_config_is_loopback_only() -> None:
+    config = loopback_config()
+    assert "127.0.0.1" in config and "AllowMulticast" in config

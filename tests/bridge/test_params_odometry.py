@@ -1,0 +1,112 @@
+"""Bridge parameters (precedence, validation) and the odometry estimator (pure)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from bridge.errors import ParameterError
+from bridge.odometry import OdometryEstimator, ground_pose, unwrap24
+from bridge.params import BridgeParams, load_params, ros_parameters
+from firmware_proto.messages import Encoders, Imu, Pose
+from firmware_proto.rover import RoverDescription
+
+
+def test_precedence_overrides_env_file_defaults(tmp_path: Path) -> None:
+    file = tmp_path / "bridge.toml"
+    file.write_text(
+        '[rover_bridge.ros__parameters]\ndevice = "/dev/from-file"\nbaud = 57600\nnode_id = 4\n'
+    )
+    env = {"ROVER_BRIDGE_BAUD": "38400", "ROVER_BRIDGE_NODE_ID": "5", "OTHER": "x"}
+    params = load_params({"node_id": 6, "baud": None}, env=env, file=file)
+    assert (params.device, params.baud, params.node_id) == ("/dev/from-file", 38400, 6)
+    assert params.url == "/dev/from-file?baud=38400"
+    assert load_params(env={}).url == BridgeParams().device
+    can = load_params({"can_interface": "socketcan", "can_channel": "vcan0", "node_id": 3}, env={})
+    assert can.url == "can://socketcan/vcan0?node=3"
+
+
+@pytest.mark.parametrize(
+    ("values", "complaint"),
+    [
+        ({"node_id": 16}, "node_id"),
+        ({"baud": "fast"}, "baud"),
+        ({"ack_timeout_s": float("nan")}, "ack_timeout_s"),
+        ({"ros_backend": "ros1"}, "ros_backend"),
+        ({"speed": 1}, "unknown parameter 'speed'"),
+        ({"reconnect_min_s": 5.0, "reconnect_max_s": 1.0}, "reconnect_max_s"),
+        ({"topic_odom": ""}, "topic_odom"),
+        ({"auto_clear_watchdog": "maybe"}, "auto_clear_watchdog"),
+    ],
+)
+def test_bad_parameters_name_themselves(values: dict[str, object], complaint: str) -> None:
+    with pytest.raises(ParameterError, match=complaint):
+        load_params(values, env={})
+
+
+def test_ros_parameters_come_from_the_rclpy_node_only() -> None:
+    class Param:
+        def __init__(self, value: object) -> None:
+            self.value = value
+
+    class Node:  # the two calls rclpy.node.Node offers for this
+        def declare_parameter(self, name: str, default: object) -> Param:
+            return Param("/dev/ttyACM0" if name == "device" else default)
+
+    class Port:
+        node = Node()
+
+    assert ros_parameters(Port(), BridgeParams()) == {"device": "/dev/ttyACM0"}
+    assert ros_parameters(object(), BridgeParams()) == {}
+
+
+def test_unwrap24_handles_wraparound() -> None:
+    assert unwrap24((1 << 23) - 10, -(1 << 23) + 5) == 15
+    assert unwrap24(-(1 << 23) + 5, (1 << 23) - 10) == -15
+    assert unwrap24(100, 50) == -50
+
+
+def test_estimator_fuses_gyro_heading_with_encoder_distance(rover: RoverDescription) -> None:
+    est = OdometryEstimator(rover)
+    rate = 0.5  # rad/s, counter-clockwise
+    est.update_encoders(Encoders(0, 0, 0))
+    left = right = 0
+    for i in range(1, 101):  # 2 s at 50 Hz, 0.1 m/s forward while turning
+        t = i * 20
+        est.update_imu(Imu(t, round(rate * 1000), 0, 0))
+        left += 46
+        right += 46
+        out = est.update_encoders(Encoders(t, left, right))
+    assert out.heading_source == "imu"
+    assert out.yaw_rad == pytest.approx(1.0, abs=0.02)
+    assert out.distance_m == pytest.approx(0.2, abs=0.001)
+    radius = 0.1 / rate
+    assert out.x_m == pytest.approx(radius * math.sin(1.0), abs=0.01)
+    assert out.y_m == pytest.approx(radius * (1 - math.cos(1.0)), abs=0.01)
+    assert out.var_xy_m2 > 0 and out.var_yaw_rad2 > 0
+
+
+def test_estimator_falls_back_to_encoders_without_imu(rover: RoverDescription) -> None:
+    est = OdometryEstimator(rover)
+    est.update_encoders(Encoders(0, 0, 0))
+    out = est.update_encoders(Encoders(500, -2000, 2000))  # a spin, no gyro for 0.5 s
+    assert out.heading_source == "encoders"
+    expected = (4000 / 23000) / rover.geometry.track_width_m * rover.traction.turn_efficiency
+    assert out.yaw_rad == pytest.approx(expected)
+
+
+def test_estimator_ignores_a_counter_reset(rover: RoverDescription) -> None:
+    est = OdometryEstimator(rover)
+    est.update_encoders(Encoders(0, 100_000, 100_000))
+    out = est.update_encoders(Encoders(20, 0, 0))  # controller rebooted
+    assert out.distance_m == 0 and est.resets == 1
+
+
+def test_ground_pose_conversion_and_no_fix() -> None:
+    pose = ground_pose(Pose(1500, -250, 900, 2, 25))
+    assert pose is not None
+    assert (pose.x_m, pose.y_m, pose.sigma_m, pose.age_s) == (1.5, -0.25, 0.02, 0.1)
+    assert pose.yaw_rad == pytest.approx(math.pi / 2)
+    assert ground_pose(Pose(0, 0, 0, 0, 0)) is None
