@@ -274,10 +274,11 @@ def test_the_last_port_leaves_nothing_of_cyclone_behind(make_port: PortFactory) 
     # Threads and fds of earlier tests may still be winding down, so the counts can only
     # be required not to exceed the baseline (a leak shows as more), after settling.
     deadline = time.monotonic() + 5.0
-    while (
-        native_threads(),
-        len(os.listdir("/proc/self/fd")),
-    ) > before and time.monotonic() < deadline:
+
+    def settled() -> bool:
+        return native_threads() <= before[0] and len(os.listdir("/proc/self/fd")) <= before[1]
+
+    while not settled() and time.monotonic() < deadline:
         time.sleep(0.02)
     assert native_threads() <= before[0]
     assert len(os.listdir("/proc/self/fd")) <= before[1]
