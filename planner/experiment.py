@@ -193,7 +193,7 @@ def _rectangle_hits(world: MapInfo, corners: Sequence[Point], margin_m: float) -
             d = min(o.segment_distance(a, b) for a, b in edges)
             if _inside_convex(o.points[0], corners):
                 d = -1.0
-        if d < margin_m:
+        if d <= margin_m:  # 0: touching or overlapping
             return o.id
     return None
 

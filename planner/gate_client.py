@@ -153,7 +153,8 @@ class GateClient:
         retries: retries after a connection error (so ``retries + 1`` attempts).
         backoff_s, max_backoff_s: first retry delay and its cap, s (doubling).
         environ: environment for the settings (default ``os.environ``).
-        sleep: how to wait between retries (a test may record the delays instead).
+        sleep, clock: how to wait between retries and to read the time budget's clock,
+            s (tests may pass a fake pair).
 
     Raises:
         ValueError: the URL is not ``http://host[:port][/path]``, or a number is out of
@@ -171,6 +172,7 @@ class GateClient:
         max_backoff_s: float = DEFAULT_MAX_BACKOFF_S,
         environ: Mapping[str, str] | None = None,
         sleep: Callable[[float], None] = time.sleep,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         base, self._token = resolve_gate_settings(url, token, environ)
         parts = urlsplit(base)
@@ -189,6 +191,7 @@ class GateClient:
         self.backoff_s = backoff_s
         self.max_backoff_s = max_backoff_s
         self._sleep = sleep
+        self._clock = clock
         self._conn: http.client.HTTPConnection | None = None
         self._conn_used = False
         self._lock = threading.Lock()
@@ -301,11 +304,11 @@ class GateClient:
             return self._call_locked(method, path, body)
 
     def _call_locked(self, method: str, path: str, body: bytes | None) -> bytes:
-        deadline = time.monotonic() + self.timeout_s
+        deadline = self._clock() + self.timeout_s
         failures = 0
         reopened = False
         while True:
-            remaining = deadline - time.monotonic()
+            remaining = deadline - self._clock()
             if remaining <= 0:
                 raise GateTimeoutError(self.url, failures + 1, self.timeout_s)
             try:
@@ -333,7 +336,7 @@ class GateClient:
             if status == 503:
                 wait_s = _retry_after_s(headers.get("retry-after"))
                 text = data.decode("utf-8", "replace")
-                if time.monotonic() + wait_s >= deadline:
+                if self._clock() + wait_s >= deadline:
                     raise GateOverloadedError(
                         status, text, url=self.url + path, retry_after_s=wait_s
                     )
@@ -351,7 +354,7 @@ class GateClient:
         if failures > self.retries:
             return True
         delay = min(self.max_backoff_s, self.backoff_s * 2 ** (failures - 1))
-        if time.monotonic() + delay >= deadline:
+        if self._clock() + delay >= deadline:
             return True
         logger.debug(
             "gate %s unreachable (attempt %d); retrying in %.2f s", self.url, failures, delay

@@ -204,7 +204,8 @@ class PlannerOrchestrator:
         world: the map, if already known; else read from the gate when first needed.
         options: overrides of the gate's tolerances and margin, for every request.
         repair_settings: parameters of the repairs.
-        repairs: replacements or additions to :data:`REPAIRS`, by failure type.
+        repairs: replacements or additions to :data:`REPAIRS`, by failure type
+            (``None`` removes one: that failure type then ends the loop).
 
     Raises:
         ValueError: ``max_attempts`` or ``max_legs`` below 1.
@@ -221,7 +222,7 @@ class PlannerOrchestrator:
         world: MapInfo | None = None,
         options: GateOptions | None = None,
         repair_settings: RepairSettings | None = None,
-        repairs: Mapping[str, RepairFunction] | None = None,
+        repairs: Mapping[str, RepairFunction | None] | None = None,
     ) -> None:
         attempts = (
             planner.rover.safety.max_repair_attempts if max_attempts is None else max_attempts
@@ -237,7 +238,10 @@ class PlannerOrchestrator:
         self.max_legs = max_legs
         self.options = options or GateOptions()
         self.repair_settings = repair_settings or RepairSettings()
-        self.repairs: dict[str, RepairFunction] = {**REPAIRS, **(repairs or {})}
+        merged = {**REPAIRS, **(repairs or {})}
+        self.repairs: dict[str, RepairFunction] = {
+            k: fn for k, fn in merged.items() if fn is not None
+        }
         self._world = world
 
     # -- the map ------------------------------------------------------------------------
@@ -285,8 +289,16 @@ class PlannerOrchestrator:
         return self.plan_route(self._route(goal, start, via))
 
     def plan_route(self, route: Route) -> PlanResult:
-        """:meth:`plan` for a checked route."""
-        leg = self.planner.plan_leg(route)
+        """:meth:`plan` for a checked route (:meth:`HeuristicLowLevelPlanner.route`)."""
+        return self.run_leg(self.planner.plan_leg(route))
+
+    def run_leg(self, leg: LegPlan) -> PlanResult:
+        """Validate a leg and repair it until the gate approves it or the orchestrator
+        gives up: the loop behind :meth:`plan`, for a leg made (or edited) by hand.
+
+        Raises:
+            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+        """
         attempts: list[Attempt] = []
         failures: list[FailureRecord] = []
         history: list[Repair] = []

@@ -14,7 +14,9 @@ Contract of every plan it makes:
   ``max_distance``);
 - no step exceeds ``max_step_units``: longer drives and turns are split into equal
   parts;
-- turns below ``min_turn_deg`` and drives below ``min_drive_m`` are skipped;
+- turns below ``min_turn_deg`` and drives below ``min_drive_m`` are skipped (a turn
+  toward a target only when the drive still passes within ``lateral_tolerance_m`` of
+  it);
 - speeds: drives at ``drive_speed`` (top speed by default: on the twin the slip is
   smallest there, and missions are shortest), the last drive into the goal at
   ``approach_speed``; turns at ``turn_speed``, small ones (below ``fine_turn_deg``) at
@@ -83,6 +85,7 @@ DEFAULT_FINE_TURN_SPEED = 10
 DEFAULT_FINE_TURN_DEG = 15.0
 DEFAULT_MIN_TURN_DEG = 0.25
 DEFAULT_MIN_DRIVE_M = 0.005
+DEFAULT_LATERAL_TOLERANCE_M = 0.005
 _ROUND = 6  # digits of the plan goal's coordinates (micrometres, micro-degrees)
 
 
@@ -255,7 +258,10 @@ class HeuristicLowLevelPlanner:
             the goal.
         turn_speed, fine_turn_speed: speed units of turns, and of turns smaller than
             ``fine_turn_deg``.
-        min_turn_deg, min_drive_m: smaller turns and drives are skipped.
+        min_turn_deg, min_drive_m: smaller turns and drives are skipped (a turn toward
+            a segment's target only if skipping it still passes within
+            ``lateral_tolerance_m`` of the target).
+        lateral_tolerance_m: see ``min_turn_deg``, m.
         max_step_units: the longest step, distance units (at most the description's
             ``max_distance``).
         max_steps: steps per plan (at most 12, the schema's limit).
@@ -277,6 +283,7 @@ class HeuristicLowLevelPlanner:
         fine_turn_deg: float = DEFAULT_FINE_TURN_DEG,
         min_turn_deg: float = DEFAULT_MIN_TURN_DEG,
         min_drive_m: float = DEFAULT_MIN_DRIVE_M,
+        lateral_tolerance_m: float = DEFAULT_LATERAL_TOLERANCE_M,
         max_step_units: int | None = None,
         max_steps: int = MAX_PLAN_STEPS,
     ) -> None:
@@ -295,8 +302,10 @@ class HeuristicLowLevelPlanner:
             raise ValueError(f"max_step_units must be in 1..{limit}, got {max_units}")
         if not 1 <= max_steps <= MAX_PLAN_STEPS:
             raise ValueError(f"max_steps must be in 1..{MAX_PLAN_STEPS}, got {max_steps}")
-        if min_turn_deg < 0 or min_drive_m < 0 or fine_turn_deg < 0:
-            raise ValueError("min_turn_deg, min_drive_m and fine_turn_deg must be >= 0")
+        if min(min_turn_deg, min_drive_m, fine_turn_deg, lateral_tolerance_m) < 0:
+            raise ValueError(
+                "min_turn_deg, min_drive_m, fine_turn_deg and lateral_tolerance_m must be >= 0"
+            )
         self.rover = rover
         self.world = world
         self.drive_speed = drive_speed
@@ -306,6 +315,7 @@ class HeuristicLowLevelPlanner:
         self.fine_turn_deg = fine_turn_deg
         self.min_turn_deg = min_turn_deg
         self.min_drive_m = min_drive_m
+        self.lateral_tolerance_m = lateral_tolerance_m
         self.max_step_units = max_units
         self.max_steps = max_steps
 
@@ -339,12 +349,12 @@ class HeuristicLowLevelPlanner:
 
     # -- steps --------------------------------------------------------------------------
     def turn_steps(
-        self, yaw_change_rad: float, pose: Pose, *, kind: str, segment: int
+        self, yaw_change_rad: float, pose: Pose, *, kind: str, segment: int, force: bool = False
     ) -> list[PlannedStep]:
         """Steps that turn the rover on the spot by ``yaw_change_rad`` (sign: positive
         is LEFT, counter-clockwise), split so that none exceeds ``max_step_units``;
-        empty below ``min_turn_deg``."""
-        if abs(math.degrees(yaw_change_rad)) < self.min_turn_deg:
+        empty below ``min_turn_deg`` unless ``force`` (and below one unit always)."""
+        if abs(math.degrees(yaw_change_rad)) < self.min_turn_deg and not force:
             return []
         command = "LEFT" if yaw_change_rad > 0 else "RIGHT"
         sign = 1.0 if yaw_change_rad > 0 else -1.0
@@ -406,7 +416,11 @@ class HeuristicLowLevelPlanner:
             if dist < self.min_drive_m:
                 continue
             bearing = math.atan2(target[1] - pose.y, target[0] - pose.x)
-            turn = self.turn_steps(wrap_rad(bearing - pose.yaw_rad), pose, kind=TURN, segment=seg)
+            dyaw = wrap_rad(bearing - pose.yaw_rad)
+            # A small turn is skipped only if driving without it still passes within
+            # ``lateral_tolerance_m`` of the target.
+            must = dist * abs(math.sin(dyaw)) > self.lateral_tolerance_m
+            turn = self.turn_steps(dyaw, pose, kind=TURN, segment=seg, force=must)
             if turn:
                 pose = turn[-1].end_pose
             steps += turn
@@ -461,10 +475,15 @@ class HeuristicLowLevelPlanner:
 
         Raises:
             PlanTooLongError: more than ``max_steps`` steps.
+            ValueError: a step longer than ``max_step_units`` or faster than 60.
         """
         steps = list(steps)
         if len(steps) > self.max_steps:
             raise PlanTooLongError(len(steps), self.max_steps)
+        for i, ps in enumerate(steps):
+            st = ps.step
+            if not (0 <= st.distance <= self.max_step_units and 0 <= st.speed <= 60):
+                raise ValueError(f"step {i} {st} is outside the planner's limits")
         if not steps:
             steps = [
                 PlannedStep(
