@@ -114,7 +114,7 @@ def register(subparsers: Any) -> None:
 
 
 def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]:
-    keys = ("safety_margin_m", "position_tolerance_m", "yaw_tolerance_deg", "sample_hz")
+    keys = ("safety_margin_m", "position_tolerance_m", "yaw_tolerance_deg", "sample_hz", "dt_s")
     out = {k: getattr(args, prefix + k, None) for k in keys}
     out["rover_path"] = getattr(args, prefix + "rover_path", None)
     return out

@@ -1,19 +1,20 @@
 """The OpenAPI 3.1 document served at ``/openapi.json``, built from what the server does.
 
 The paths and methods come from :data:`gate.routes.ROUTES` (the table the server
-dispatches on); the request body is the plan schema itself
+dispatches on). The request body is the plan schema itself
 (:func:`firmware_proto.plan.plan_schema`, the one copy of Listing 1) and ``GET
 /maps/{name}`` answers with documents of the map schema
-(:func:`emulator.worldmap.map_schema`); the query parameters and their ranges come from
-:mod:`gate.options`; limits and defaults from the server's configuration, so the
-document states the values this server uses. The 401 responses and the bearer security
-scheme appear only when the server has a token. OpenAPI 3.1 schemas are JSON Schema
-2020-12, so tests validate real responses against ``components.schemas`` directly.
+(:func:`emulator.worldmap.map_schema`), each with its ``$defs`` hoisted into
+``components.schemas`` (``CommandPlan_command_step``, ``Map_polygon``...). The query
+parameters and their ranges come from :mod:`gate.options`; limits and defaults from the
+server's configuration, so the document states the values this server uses. The 401
+responses and the bearer security scheme appear only when the server has a token.
+OpenAPI 3.1 schemas are JSON Schema 2020-12, so tests validate real responses against
+``components.schemas`` directly.
 """
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 from emulator.worldmap import map_schema
@@ -51,15 +52,36 @@ def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
     return {"oneOf": [schema, {"type": "null"}]}
 
 
+def _hoist(schema: dict[str, Any], name: str) -> dict[str, Any]:
+    """An embedded JSON schema as component schemas: the schema itself as ``name`` and
+    each of its ``$defs`` as ``name + "_" + def``, with every ``#/$defs/...`` reference
+    rewritten to point there (references resolve against the OpenAPI document's root).
+    ``$schema`` and ``$id`` are dropped: OpenAPI 3.1 schemas are 2020-12 already."""
+    prefix = "#/$defs/"
+
+    def rewrite(node: Any) -> Any:
+        if isinstance(node, dict):
+            out = {k: rewrite(v) for k, v in node.items() if k not in ("$schema", "$id", "$defs")}
+            ref = out.get("$ref")
+            if isinstance(ref, str) and ref.startswith(prefix):
+                out["$ref"] = f"#/components/schemas/{name}_{ref[len(prefix) :]}"
+            return out
+        if isinstance(node, list):
+            return [rewrite(v) for v in node]
+        return node
+
+    hoisted = {name: rewrite(schema)}
+    for key, sub in schema.get("$defs", {}).items():
+        hoisted[f"{name}_{key}"] = rewrite(sub)
+    return hoisted
+
+
 def _schemas() -> dict[str, Any]:
-    plan = copy.deepcopy(plan_schema())  # has its own $id: its "#/$defs" refs stay inside
-    world = copy.deepcopy(map_schema())
-    world.setdefault("$id", "map.schema.json")
     pose = _obj({"x": _NUM, "y": _NUM, "yaw_deg": _NUM})
     step_index = {"type": "integer", "minimum": 0, "maximum": MAX_PLAN_STEPS - 1}
     return {
-        "CommandPlan": plan,
-        "Map": world,
+        **_hoist(plan_schema(), "CommandPlan"),
+        **_hoist(map_schema(), "Map"),
         "Pose": pose | {"description": "Metres in the map frame; yaw in degrees CCW from +x."},
         "Point": _obj({"x": _NUM, "y": _NUM}),
         "TrajectorySample": _obj(
@@ -215,13 +237,13 @@ def _error(description: str, headers: dict[str, Any] | None = None) -> dict[str,
     return out
 
 
-def _parameters(config: GateConfig, maps: list[str]) -> list[dict[str, Any]]:
+def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[dict[str, Any]]:
     pb = config.playback
     limits = dict(OPTION_LIMITS)
     limits["sample_hz"] = (limits["sample_hz"][0], min(limits["sample_hz"][1], 1.0 / pb.dt_s))
     docs: dict[str, tuple[str, dict[str, Any]]] = {
         "map": (
-            f"Map to play on (default {config.default_map!r}; see GET /maps).",
+            f"Map to play on (default {default_map!r}; see GET /maps).",
             {"type": "string", "enum": maps},
         ),
         "start": (
@@ -268,8 +290,9 @@ def _parameters(config: GateConfig, maps: list[str]) -> list[dict[str, Any]]:
     return out
 
 
-def build_openapi(config: GateConfig, maps: list[str]) -> dict[str, Any]:
-    """The OpenAPI document of a gate with ``config`` serving ``maps`` (names)."""
+def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict[str, Any]:
+    """The OpenAPI document of a gate with ``config`` serving ``maps`` (names), with
+    ``default_map`` for requests that name none."""
     secured = config.token is not None
     overloaded = _error(
         "No capacity: every worker and queue slot is taken, the connection limit is "
@@ -324,7 +347,7 @@ def build_openapi(config: GateConfig, maps: list[str]) -> dict[str, Any]:
                     {"name": "name", "in": "path", "required": True, "schema": {"type": "string"}}
                 ]
             if route.operation == "validate_plan":
-                op["parameters"] = _parameters(config, maps)
+                op["parameters"] = _parameters(config, maps, default_map)
                 op["requestBody"] = {
                     "required": True,
                     "description": (

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -44,19 +45,26 @@ WARM_UP_TIMEOUT_S = 60.0
 """Longest wait for every worker process to start and load the maps."""
 
 _validator: Validator | None = None  # the worker process's own validator
-_barrier: Any = None  # multiprocessing Barrier shared with the warm-up jobs
+_arrived: Any = None  # multiprocessing Semaphore: released once by each warm-up job
+_go: Any = None  # multiprocessing Event: set once every worker has arrived
 
 
-def _init_worker(validator: Validator, barrier: Any) -> None:
-    global _validator, _barrier  # noqa: PLW0603 - per-process state of a pool worker
+def _init_worker(validator: Validator, arrived: Any, go: Any) -> None:
+    global _validator, _arrived, _go  # noqa: PLW0603 - per-process state of a pool worker
+    # The server process owns shutdown: a Ctrl-C or SIGTERM sent to the whole process
+    # group must not kill workers under in-flight requests (they exit when it says so).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _validator = validator
-    _barrier = barrier
+    _arrived = arrived
+    _go = go
 
 
 def _warm_up() -> int:
-    """Runs once in each new worker: wait until every worker has started."""
-    if _barrier is not None:
-        _barrier.wait(WARM_UP_TIMEOUT_S)
+    """Runs once in each new worker: check in, then wait until every worker has."""
+    _arrived.release()
+    if not _go.wait(WARM_UP_TIMEOUT_S):
+        raise RuntimeError("not every gate worker started in time")
     return os.getpid()
 
 
@@ -126,6 +134,13 @@ class ThreadWorkerPool(WorkerPool):
     def __init__(self, validator: Validator, workers: int) -> None:
         super().__init__(validator, workers)
         self._executor = ThreadPoolExecutor(workers, thread_name_prefix="gate-worker")
+        # Start every thread now (the executor would add them one job at a time): no
+        # thread can pass the barrier before all exist, so each submit adds one.
+        barrier = threading.Barrier(workers)
+        for future in [
+            self._executor.submit(barrier.wait, WARM_UP_TIMEOUT_S) for _ in range(workers)
+        ]:
+            future.result(timeout=WARM_UP_TIMEOUT_S)
 
     def _submit(self, job: Job) -> Future[bytes]:
         return self._executor.submit(self._run, job)
@@ -148,34 +163,41 @@ class ProcessWorkerPool(WorkerPool):
         self._executor = self._start()
 
     def _start(self) -> ProcessPoolExecutor:
-        barrier = self._context.Barrier(self.workers)
+        # Semaphore and Event, not Barrier: a Barrier's shared counter lives in a
+        # process-wide shared-memory arena that is never released.
+        arrived, go = self._context.Semaphore(0), self._context.Event()
         executor = ProcessPoolExecutor(
             self.workers,
             mp_context=self._context,
             initializer=_init_worker,
-            initargs=(self.validator, barrier),
+            initargs=(self.validator, arrived, go),
         )
         try:
-            self.pids = self.warm_up(executor)
+            self.pids = self.warm_up(executor, arrived, go)
         except BaseException:
             executor.shutdown(wait=True, cancel_futures=True)
             raise
         logger.info("started %d worker processes: %s", self.workers, self.pids)
         return executor
 
-    def warm_up(self, executor: ProcessPoolExecutor) -> list[int]:
+    def warm_up(self, executor: ProcessPoolExecutor, arrived: Any, go: Any) -> list[int]:
         """Start every worker now (the executor would start them one job at a time) and
         wait until each has loaded the validator; the workers' process ids.
 
         Raises:
             RuntimeError: a worker did not come up in time.
         """
-        # No worker can finish its warm-up job before all have started (the barrier),
-        # so each submit finds no idle worker and starts a new process.
+        # No warm-up job can finish before all workers have checked in, so each submit
+        # finds no idle worker and starts a new process.
         futures = [executor.submit(_warm_up) for _ in range(self.workers)]
         try:
+            for _ in range(self.workers):
+                if not arrived.acquire(timeout=WARM_UP_TIMEOUT_S):
+                    raise RuntimeError("timed out")
+            go.set()
             pids = sorted(f.result(timeout=WARM_UP_TIMEOUT_S) for f in futures)
         except Exception as exc:
+            go.set()
             raise RuntimeError(f"gate worker processes did not start: {exc}") from exc
         return pids
 
@@ -188,7 +210,7 @@ class ProcessWorkerPool(WorkerPool):
             logger.warning("a worker process died; restarting the pool")
             with self._lock:
                 if self._executor is executor:
-                    executor.shutdown(wait=False, cancel_futures=True)
+                    executor.shutdown(wait=True, cancel_futures=True)  # reaps the dead
                     self._executor = self._start()
                 executor = self._executor
             return executor.submit(run_job, job)

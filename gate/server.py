@@ -33,6 +33,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import CancelledError
 from concurrent.futures import TimeoutError as FutureTimeoutError
 from concurrent.futures.process import BrokenProcessPool
 from http import HTTPStatus
@@ -172,6 +173,7 @@ class _Handler(BaseHTTPRequestHandler):
         try:
             framing = body_framing(self.headers)
         except HttpError as exc:
+            self._stream_broken = True
             self._reply_error(exc)
             return False
         if framing.length is not None and framing.length > self.gate.config.max_body_bytes:
@@ -220,7 +222,11 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _dispatch(self) -> None:
         try:
-            self._framing = body_framing(self.headers)
+            try:
+                self._framing = body_framing(self.headers)
+            except HttpError:
+                self._stream_broken = True  # where this request ends is unknown
+                raise
             self.gate._authorise(self.headers.get("Authorization"))
             if self.gate.draining:
                 raise OverloadedError(
@@ -407,6 +413,8 @@ class GateServer:
         self._httpd: _HTTPServer | None = None
         self._thread: threading.Thread | None = None
         self._draining = threading.Event()
+        self.stopped_accepting = threading.Event()
+        """Set once :meth:`close` has closed the listener (new connections refused)."""
         self._closed = False
         self._close_lock = threading.Lock()
         self._slots = threading.BoundedSemaphore(config.capacity)
@@ -417,7 +425,7 @@ class GateServer:
         names = sorted(self.validator.maps)
         self._map_bodies = {n: json_bytes(self.validator.maps[n].to_dict()) for n in names}
         self._maps_body = json_bytes(self._map_list())
-        self._openapi_body = json_bytes(build_openapi(config, names))
+        self._openapi_body = json_bytes(build_openapi(config, names, self.validator.default_map))
 
     # -- life cycle ---------------------------------------------------------------------
     def start(self) -> GateServer:
@@ -496,6 +504,7 @@ class GateServer:
                 httpd.shutdown()
                 self._thread.join()
             httpd.socket.close()
+            self.stopped_accepting.set()
             self._close_idle()
             deadline = time.monotonic() + self.config.drain_timeout_s
             with self._conn_cond:
@@ -558,7 +567,13 @@ class GateServer:
             )
 
     def _run(self, job: Job) -> bytes:
-        """Admit ``job`` (or 503), run it in the pool, wait for its verdict bytes."""
+        """Admit ``job`` (or 503), run it in the pool, wait for its verdict bytes.
+
+        The admission slot is held until the job has finished in its worker, even when
+        the wait times out, so no more than ``capacity`` validations ever run or wait. A
+        job whose worker process died is retried once on a fresh worker (playback is
+        pure, so a retry is safe); a second death is a 500.
+        """
         if not self._slots.acquire(blocking=False):
             raise OverloadedError(
                 f"all {self.pool.workers} workers busy and {self.config.queue_depth} "
@@ -567,22 +582,38 @@ class GateServer:
             )
         with self._conn_cond:
             self._in_flight += 1
+        release_now = True
         try:
-            future = self.pool.submit(job)
-        except BaseException:
-            self._release()
-            raise
-        future.add_done_callback(lambda _f: self._release())
-        try:
-            return future.result(timeout=self.config.request_timeout_s)
-        except FutureTimeoutError as exc:
-            raise OverloadedError(
-                f"no verdict within {self.config.request_timeout_s:g} s",
-                code="timeout",
-                retry_after_s=RETRY_AFTER_S,
-            ) from exc
-        except BrokenProcessPool as exc:
-            raise HttpError("a worker process died during validation", code="worker_lost") from exc
+            for attempt in (1, 2):
+                try:
+                    future = self.pool.submit(job)
+                    return future.result(timeout=self.config.request_timeout_s)
+                except FutureTimeoutError as exc:
+                    release_now = False
+                    future.add_done_callback(lambda _f: self._release())
+                    raise OverloadedError(
+                        f"no verdict within {self.config.request_timeout_s:g} s",
+                        code="timeout",
+                        retry_after_s=RETRY_AFTER_S,
+                    ) from exc
+                except BrokenProcessPool as exc:
+                    if attempt == 2:
+                        raise HttpError(
+                            "a worker process died twice on this plan", code="worker_lost"
+                        ) from exc
+                    logger.warning("a worker process died during a validation; retrying once")
+                except (CancelledError, RuntimeError) as exc:
+                    if not self.draining:
+                        raise
+                    raise OverloadedError(
+                        "the gate is shutting down",
+                        code="shutting_down",
+                        retry_after_s=RETRY_AFTER_S,
+                    ) from exc
+            raise AssertionError("unreachable")  # pragma: no cover
+        finally:
+            if release_now:
+                self._release()
 
     def _release(self) -> None:
         with self._conn_cond:

@@ -42,7 +42,7 @@ from firmware_proto.plan import COMMAND_NAMES, Plan
 from firmware_proto.rover import RoverDescription, load_rover
 from gate.config import GateConfig, PlaybackSettings
 from gate.errors import ConfigError, OptionError
-from gate.goal import GoalError, approach_heading_rad, goal_error
+from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
 from gate.options import ResolvedOptions
 from gate.trajectory import tag_samples
 from gate.verdict import (
@@ -202,15 +202,9 @@ class Validator:
     def run(self, job: Job) -> Verdict:
         """Play the job's plan and judge it; ``wall_time_s`` is the time this took."""
         t0 = time.perf_counter()
-        opts, start = job.options, job.start
+        opts = job.options
         world = self.maps[opts.map]
-        twin = Twin(
-            self.rover,
-            world,
-            dt_s=self.settings.dt_s,
-            safety_margin_m=opts.safety_margin_m,
-            start=Pose2D.from_deg(start.x, start.y, start.yaw_deg),
-        )
+        twin = self._make_twin(job)
         result = play(twin, job.plan.to_wire(), sample_period_s=1.0 / opts.sample_hz)
         verdict = self._judge(job, result)
         if opts.render:
@@ -227,6 +221,18 @@ class Validator:
             wall * 1e3,
         )
         return replace(verdict, wall_time_s=_r(wall))
+
+    def _make_twin(self, job: Job) -> Twin:
+        """The twin a job plays on: the map's traction, no injected faults. The one hook
+        a subclass may override (e.g. to inject a fault when testing verdicts)."""
+        start = job.start
+        return Twin(
+            self.rover,
+            self.maps[job.options.map],
+            dt_s=self.settings.dt_s,
+            safety_margin_m=job.options.safety_margin_m,
+            start=Pose2D.from_deg(start.x, start.y, start.yaw_deg),
+        )
 
     # -- judgement -----------------------------------------------------------------------
     def _judge(self, job: Job, result: PlaybackResult) -> Verdict:
@@ -287,7 +293,7 @@ class Validator:
             lateral_error_m=_r(err.lateral_m),
             distance_error_m=_r(err.distance_m),
             yaw_error_deg=_r(err.yaw_deg),
-            approach_heading_deg=_r(math.degrees(math.atan2(math.sin(heading), math.cos(heading)))),
+            approach_heading_deg=_r(wrap_deg(math.degrees(heading))),
             collision=collision,
             stall=stall,
             tolerances=tol,
