@@ -345,6 +345,7 @@ class PlannerOrchestrator:
                 history=tuple(history),
                 world=self._world,
                 settings=self.repair_settings,
+                earlier=tuple((a.leg, a.verdict) for a in attempts[:-1]),
             )
             try:
                 repair = repair_fn(context)

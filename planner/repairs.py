@@ -253,6 +253,8 @@ class PlannerContext:
         history: the repairs that produced the leg's earlier attempts, in order.
         world: the map, when known.
         settings: the repair parameters.
+        earlier: the leg's earlier attempts as ``(leg, verdict)``, oldest first (this
+            one excluded).
     """
 
     planner: HeuristicLowLevelPlanner
@@ -263,6 +265,7 @@ class PlannerContext:
     history: tuple[Repair, ...]
     world: MapInfo | None
     settings: RepairSettings
+    earlier: tuple[tuple[LegPlan, Verdict], ...] = ()
 
     @property
     def margin_m(self) -> float:
@@ -389,7 +392,10 @@ def _prior_detour(
         # start of segments ``i + 1..j``.
         inside = i <= step.segment <= j if step.kind != TURN else i < step.segment <= j
         # A screened detour that still collides needs more room; one the map already
-        # showed blocked elsewhere gets a nested dogleg instead.
+        # showed blocked elsewhere gets a nested dogleg instead. An approach is only
+        # repeated for what happens on it: turning at the goal, or driving in.
+        if d.method == "approach" and not (step.kind == GOAL_TURN or step.segment == j):
+            continue
         if d.obstacle_id == obstacle_id or (inside and d.screened):
             return d, i, j
     return None
@@ -920,6 +926,10 @@ def dogleg_repair(ctx: PlannerContext) -> Repair:
     near_goal = contact is not None and math.dist(contact, goal.xy) < ctx.settings.near_goal_m + (
         ctx.planner.rover.footprint_radius_m
     )
+    if ctx.use_map:
+        # On the map, an approach is for a goal with no room to turn, nothing else.
+        assert ctx.world is not None
+        near_goal = near_goal and ctx.world.point_blocked(goal.xy, ctx.turn_radius_m(0)) is not None
     if ps.kind == GOAL_TURN or (
         ps.segment == last_segment
         and leg.reaches_goal
@@ -953,6 +963,44 @@ def dogleg_repair(ctx: PlannerContext) -> Repair:
 
 
 # -- goal, yaw, stall ------------------------------------------------------------------
+def _turn_key(steps: Sequence[PlannedStep], index: int) -> tuple[str, str, int, int] | None:
+    """What identifies a turn across attempts whose plans differ elsewhere: its command,
+    kind, segment and rank among the turns of that kind on that segment."""
+    ps = steps[index]
+    if not ps.is_turn:
+        return None
+    rank = sum(
+        1 for s in steps[:index] if s.is_turn and s.kind == ps.kind and s.segment == ps.segment
+    )
+    return (ps.step.command, ps.kind, ps.segment, rank)
+
+
+def _secant_factor(
+    ctx: PlannerContext, index: int, steps: Sequence[PlannedStep], intended_deg: float
+) -> float | None:
+    """When an earlier attempt ran the same turn (same kind, segment and rank among
+    them) with another distance, the factor on this turn's distance that the line
+    through both outcomes gives for ``intended_deg``: the turn's response is not quite
+    proportional (soft ground, short turns), and a plain ratio can overshoot back and
+    forth."""
+    ps = steps[index]
+    u1 = ps.step.distance
+    a1 = ctx.verdict.steps[index].yaw_change_deg
+    key = _turn_key(steps, index)
+    for leg, verdict in reversed(ctx.earlier):
+        same = [j for j in range(len(leg.steps)) if _turn_key(leg.steps, j) == key]
+        if not same or len(verdict.steps) <= same[0] or not verdict.steps[same[0]].completed:
+            continue
+        j = same[0]
+        u2 = leg.steps[j].step.distance
+        a2 = verdict.steps[j].yaw_change_deg
+        if u2 == u1 or abs(a2 - a1) < 1e-3 or (a2 - a1) * (u2 - u1) * a1 <= 0:
+            continue  # same point, or not a monotone response: no line to follow
+        units = u1 + (intended_deg - a1) * (u2 - u1) / (a2 - a1)
+        return units / u1 if units > 0 else None
+    return None
+
+
 def _recalibrate(
     ctx: PlannerContext,
     steps: list[PlannedStep],
@@ -979,7 +1027,8 @@ def _recalibrate(
                 continue
             if abs(achieved - intended) <= s.turn_calibration_deg:
                 continue
-            new = _scaled_turn(ctx, ps, intended / achieved)
+            factor = _secant_factor(ctx, i, steps, intended) or intended / achieved
+            new = _scaled_turn(ctx, ps, factor)
             if new is None or new.step.distance == ps.step.distance:
                 continue
             steps[i] = replace(new, yaw_change_deg=intended)

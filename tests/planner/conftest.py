@@ -14,7 +14,6 @@ from firmware_proto.rover import RoverDescription, load_rover
 from gate.config import GateConfig
 from gate.server import GateServer
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
@@ -114,5 +113,22 @@ def ring_map(path: Path, center: tuple[float, float], half_side_m: float) -> Pat
     return path
 
 
-def pose(x: float, y: float, yaw_deg: float = 0.0) -> Pose:
-    return Pose(x, y, yaw_deg)
+def slot_map(path: Path) -> Path:
+    """A 10 x 10 m map whose goal (6, 6, 90 deg) lies in a 0.9 m wide slot open to the
+    south: the rover fits lengthwise but cannot turn there."""
+    walls = [
+        {"id": "west", "type": "segment", "a": [5.5, 5.3], "b": [5.5, 7.2], "radius": 0.05},
+        {"id": "east", "type": "segment", "a": [6.5, 5.3], "b": [6.5, 7.2], "radius": 0.05},
+        {"id": "back", "type": "segment", "a": [5.5, 7.2], "b": [6.5, 7.2], "radius": 0.05},
+    ]
+    doc = {
+        "name": "slot",
+        "description": "A goal in a slot the rover cannot turn in.",
+        "bounds": {"min_x": 0.0, "min_y": 0.0, "max_x": 10.0, "max_y": 10.0},
+        "obstacles": walls,
+        "traction_regions": [],
+        "start": {"x": 1.0, "y": 1.0, "yaw_deg": 0.0},
+        "goals": [{"name": "in_the_slot", "x": 6.0, "y": 6.0, "yaw_deg": 90.0}],
+    }
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    return path

@@ -27,7 +27,7 @@ from planner.orchestrator import PlannerOrchestrator
 from planner.planner import DRIVE, HeuristicLowLevelPlanner, LegPlan
 from planner.repairs import PlannerContext, RepairSettings, stall_repair
 from planner.verdict import StallInfo
-from tests.planner.conftest import ring_map, start_gate
+from tests.planner.conftest import ring_map, slot_map, start_gate
 
 Make = Callable[..., PlannerOrchestrator]
 BLIND = RepairSettings(map_aware=False)
@@ -276,3 +276,25 @@ def test_stall_repair_slows_a_turn_and_bypasses_a_drive(
     drive = stall_repair(stalled_at(1))
     assert drive.detour is not None and drive.detour.obstacle_id == "stall"
     assert drive.leg.route.waypoints
+
+
+@pytest.mark.parametrize("settings", [RepairSettings(), BLIND], ids=["map", "blind"])
+def test_approach_into_a_slot(
+    tmp_path: Path, planner: HeuristicLowLevelPlanner, settings: RepairSettings
+) -> None:
+    """A goal the rover cannot turn at gets an approach waypoint on its yaw axis."""
+    with (
+        start_gate(default_map=str(slot_map(tmp_path / "slot.json"))) as gate,
+        GateClient(gate.url) as client,
+    ):
+        orch = PlannerOrchestrator(planner, client, map_name="slot", repair_settings=settings)
+        result = orch.plan(Pose(6.0, 6.0, 90.0))
+    assert result.approved
+    assert result.attempts[0].verdict.failure_type == "collision"
+    names = [a.repair_name for a in result.attempts]
+    assert "approach" in names
+    last = result.attempts[-1].leg
+    wx, wy = last.route.waypoints[-1]
+    assert wx == pytest.approx(6.0, abs=1e-6)
+    assert wy < 5.3  # outside the slot, straight below the goal
+    assert abs(result.verdict.final_pose.x - 6.0) < 0.1
