@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from firmware_proto.plan import Goal, Plan, PlanStep
-from firmware_proto.rover import RoverDescription
+from firmware_proto.rover import RoverDescription, load_rover
 from gate.server import GateServer
 from planner.errors import (
     GateError,
@@ -277,3 +277,24 @@ def test_verdict_parsing(gate: GateServer, rover: RoverDescription) -> None:
     assert err.value.pointers == ("/steps/0/speed",)
     with pytest.raises(GateProtocolError):
         Verdict.from_dict([1, 2])
+
+
+def test_server_error_is_reported_not_retried(planner: HeuristicLowLevelPlanner) -> None:
+    """A gate whose twin breaks (the validator's fault-injection hook) answers 500."""
+    from emulator.twin import Twin
+    from gate.config import GateConfig, PlaybackSettings
+    from gate.validator import Job, Validator, load_maps
+
+    class BrokenValidator(Validator):
+        def _make_twin(self, job: Job) -> Twin:
+            raise RuntimeError("twin on fire")
+
+    maps, default = load_maps("lab")
+    validator = BrokenValidator(load_rover(), maps, PlaybackSettings(), default)
+    config = GateConfig(port=0, pool="thread", workers=1)
+    with GateServer(config, validator=validator) as gate, GateClient(gate.url) as client:
+        with pytest.raises(GateError) as err:
+            client.validate(open_field_plan(planner), map_name="lab")
+        assert client.requests == 1
+    assert err.value.status == 500
+    assert err.value.code == "internal_error"
