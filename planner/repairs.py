@@ -17,10 +17,13 @@ not an if-chain); the orchestrator takes another mapping to add or replace some.
   same obstacle. With the map, the same formula generates candidates (both sides, a
   grid of offsets, anchored at the obstacle's middle, at the contact and at the
   segment's midpoint, and two-waypoint "box" detours that pass the obstacle parallel
-  to the segment), ranked by added length and screened for clearance against every
-  obstacle of the map; the cheapest clear one wins. A collision while turning at the
-  goal (or driving into it at an angle close to the goal) becomes an *approach*
-  waypoint on the goal's yaw axis, so that the rover arrives already aligned.
+  to the segment or to its edges), screened for clearance against every obstacle of
+  the map; a best-first search applies doglegs to the first blocked segment of the
+  most promising route until one is clear (:func:`_search`). A collision on a way the
+  map shows clear first rescales the steps before it to what the twin did. A
+  collision while turning at a goal with no room to turn (or driving into it at an
+  angle) becomes an *approach* waypoint on the goal's yaw axis, so that the rover
+  arrives already aligned.
 - ``goal_not_reached`` -> :func:`goal_repair`: the thesis's goal repair. The
   longitudinal error (``position_error_m``, projected on the approach heading) becomes
   a FWD appended after the last linear step (undershoot) or a shorter last linear step
