@@ -1,0 +1,54 @@
+"""Package hygiene: public names, and the direction of dependencies (DESIGN.md: the
+planner talks to the gate over HTTP and never imports the gate or the emulator)."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+from planner import errors
+
+MODULES = [
+    "planner.errors",
+    "planner.experiment",
+    "planner.gate_client",
+    "planner.geometry",
+    "planner.mapinfo",
+    "planner.orchestrator",
+    "planner.planner",
+    "planner.repairs",
+    "planner.verdict",
+]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_public_names_are_sorted_and_exist(name: str) -> None:
+    module = importlib.import_module(name)
+    names = module.__all__
+    assert names == sorted(names, key=lambda n: (not n.isupper(), n))
+    for n in names:
+        assert getattr(module, n) is not None
+
+
+def test_planner_imports_neither_gate_nor_emulator() -> None:
+    code = (
+        "import sys\n"
+        + "".join(f"import {m}\n" for m in MODULES)
+        + "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('gate', 'emulator'))\n"
+        + "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_one_exception_root() -> None:
+    for name in errors.__all__:
+        cls = getattr(errors, name)
+        assert issubclass(cls, errors.PlannerError)
+    assert issubclass(errors.InvalidPoseError, ValueError)
+    assert issubclass(errors.GateUnavailableError, ConnectionError)
+    assert issubclass(errors.GateTimeoutError, TimeoutError)
+    assert issubclass(errors.GateOverloadedError, errors.GateError)
+    assert issubclass(errors.GoalInObstacleError, errors.InvalidPoseError)
