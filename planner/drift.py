@@ -21,116 +21,27 @@ when the rover runs faster than real time.
 
 from __future__ import annotations
 
-import bisect
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
-__all__ = [
-    "DriftEvent",
-    "DriftMonitor",
-    "DriftSample",
-    "PoseXY",
-    "ReferenceTrajectory",
-    "angle_diff_deg",
-]
+from planner.geometry import Pose, wrap_deg
+from planner.verdict import Verdict
+
+__all__ = ["DriftEvent", "DriftMonitor", "DriftSample", "predicted_pose"]
 
 
-def angle_diff_deg(a_deg: float, b_deg: float) -> float:
-    """``a - b`` wrapped to [-180, 180)."""
-    return (a_deg - b_deg + 180.0) % 360.0 - 180.0
-
-
-@dataclass(frozen=True)
-class PoseXY:
-    """A planar pose in the map frame: metres and degrees (counter-clockwise from +x)."""
-
-    x: float
-    y: float
-    yaw_deg: float
-
-
-@dataclass(frozen=True)
-class _Sample:
-    step_t_s: float
-    pose: PoseXY
-
-
-class ReferenceTrajectory:
-    """The predicted poses of each step of a plan, by time since that step started."""
-
-    def __init__(
-        self,
-        steps: Mapping[int, Sequence[tuple[float, PoseXY]]],
-        durations_s: Mapping[int, float],
-        end_poses: Mapping[int, PoseXY],
-        start_pose: PoseXY,
-    ) -> None:
-        """Args:
-        steps: per step index, ``(step_t_s, pose)`` samples in time order.
-        durations_s: expected duration of each step, twin seconds.
-        end_poses: each step's predicted end pose.
-        start_pose: the plan's start pose.
-        """
-        self._steps = {k: [_Sample(t, p) for t, p in v] for k, v in steps.items()}
-        self._times = {k: [s.step_t_s for s in v] for k, v in self._steps.items()}
-        self.durations_s = dict(durations_s)
-        self.end_poses = dict(end_poses)
-        self.start_pose = start_pose
-
-    @property
-    def step_count(self) -> int:
-        """Number of steps predicted."""
-        return len(self.durations_s)
-
-    @classmethod
-    def from_verdict(cls, verdict: Mapping[str, Any]) -> ReferenceTrajectory:
-        """Build from a gate verdict's JSON (``trajectory.samples`` and ``steps``).
-
-        Raises:
-            ValueError: the verdict carries no trajectory.
-        """
-        trajectory = verdict.get("trajectory") or {}
-        raw_samples = trajectory.get("samples") or []
-        raw_steps = verdict.get("steps") or []
-        if not raw_steps:
-            raise ValueError("the verdict has no predicted steps")
-        steps: dict[int, list[tuple[float, PoseXY]]] = {}
-        for s in raw_samples:
-            steps.setdefault(int(s["step"]), []).append(
-                (float(s["step_t_s"]), PoseXY(float(s["x"]), float(s["y"]), float(s["yaw_deg"])))
-            )
-        durations = {int(s["index"]): float(s["expected_duration_s"]) for s in raw_steps}
-        ends = {int(s["index"]): _pose(s["end_pose"]) for s in raw_steps}
-        start = _pose(raw_steps[0]["start_pose"])
-        return cls(steps, durations, ends, start)
-
-    def pose_at(self, step: int, step_t_s: float) -> PoseXY:
-        """Predicted pose ``step_t_s`` seconds after ``step`` started (interpolated;
-        before the start: the previous step's end; after its end: its end pose)."""
-        samples = self._steps.get(step)
-        if step_t_s <= 0.0 or not samples:
-            if step <= 0:
-                return self.start_pose
-            return self.end_poses.get(step - 1, self.start_pose)
-        times = self._times[step]
-        i = bisect.bisect_right(times, step_t_s)
-        if i >= len(samples):
-            return self.end_poses.get(step, samples[-1].pose)
-        a, b = samples[i - 1], samples[i]
-        span = b.step_t_s - a.step_t_s
-        f = 0.0 if span <= 0 else (step_t_s - a.step_t_s) / span
-        yaw = a.pose.yaw_deg + f * angle_diff_deg(b.pose.yaw_deg, a.pose.yaw_deg)
-        return PoseXY(
-            a.pose.x + f * (b.pose.x - a.pose.x),
-            a.pose.y + f * (b.pose.y - a.pose.y),
-            angle_diff_deg(yaw, 0.0),
-        )
-
-
-def _pose(obj: Mapping[str, Any]) -> PoseXY:
-    return PoseXY(float(obj["x"]), float(obj["y"]), float(obj["yaw_deg"]))
+def predicted_pose(verdict: Verdict, step: int, step_t_s: float) -> Pose:
+    """The gate's predicted pose ``step_t_s`` seconds into ``step`` (before the plan:
+    its start pose; a step without samples: its predicted end pose)."""
+    if step < 0:
+        return verdict.start_pose
+    pose = verdict.trajectory.pose_at(step, step_t_s)
+    if pose is not None:
+        return pose
+    if step < len(verdict.steps):
+        return verdict.steps[step].end_pose
+    return verdict.final_pose
 
 
 @dataclass(frozen=True)
@@ -152,8 +63,8 @@ class DriftEvent:
     step: int
     linear_m: float
     angular_deg: float
-    measured: PoseXY
-    predicted: PoseXY
+    measured: Pose
+    predicted: Pose
     samples_over: int
 
     @property
@@ -166,11 +77,11 @@ class DriftEvent:
 
 
 class DriftMonitor:
-    """Compares reported poses with a :class:`ReferenceTrajectory`; see the module doc."""
+    """Compares reported poses with the gate's prediction; see the module docstring."""
 
     def __init__(
         self,
-        reference: ReferenceTrajectory,
+        verdict: Verdict,
         *,
         linear_limit_m: float = 0.25,
         angular_limit_deg: float = 12.0,
@@ -179,7 +90,7 @@ class DriftMonitor:
         time_scale: float = 1.0,
     ) -> None:
         """Args:
-        reference: the gate's prediction for the plan being executed.
+        verdict: the gate's verdict on the plan being executed (its prediction).
         linear_limit_m, angular_limit_deg: thresholds (DESIGN.md contract 6).
         persistence: consecutive samples over a threshold before a violation counts.
         one_way_delay_s: assumed ground-to-rover delay until a step's ``accepted`` gives
@@ -188,7 +99,7 @@ class DriftMonitor:
         """
         if linear_limit_m <= 0 or angular_limit_deg <= 0 or persistence < 1 or time_scale <= 0:
             raise ValueError("drift limits, persistence and time scale must be positive")
-        self.reference = reference
+        self.verdict = verdict
         self.linear_limit_m = linear_limit_m
         self.angular_limit_deg = angular_limit_deg
         self.persistence = persistence
@@ -216,30 +127,30 @@ class DriftMonitor:
                 self._step_start = self._starts[step]
 
     # -- poses ----------------------------------------------------------------------------
-    def predicted_at(self, stamp_s: float) -> tuple[int, PoseXY]:
+    def predicted_at(self, stamp_s: float) -> tuple[int, Pose]:
         """The step in force at ``stamp_s`` and the predicted pose then."""
         step = self._step
         while step > 0 and stamp_s < self._starts.get(step, math.inf):
             step -= 1  # a pose measured before the current step started
         if step < 0:
-            return -1, self.reference.start_pose
+            return -1, self.verdict.start_pose
         start = self._starts.get(step)
         if start is None or stamp_s < start:
-            return step, self.reference.pose_at(step, 0.0)
-        return step, self.reference.pose_at(step, (stamp_s - start) * self.time_scale)
+            return step, predicted_pose(self.verdict, step, 0.0)
+        return step, predicted_pose(self.verdict, step, (stamp_s - start) * self.time_scale)
 
     def update(self, x: float, y: float, yaw_deg: float, stamp_s: float) -> DriftEvent | None:
         """Compare one reported pose (map frame, measured at ``stamp_s``). Returns the
         :class:`DriftEvent` when this sample confirms a persistent violation (once)."""
         step, predicted = self.predicted_at(stamp_s)
         linear = math.hypot(x - predicted.x, y - predicted.y)
-        angular = abs(angle_diff_deg(yaw_deg, predicted.yaw_deg))
+        angular = abs(wrap_deg(yaw_deg - predicted.yaw_deg))
         exceeded = linear > self.linear_limit_m or angular > self.angular_limit_deg
         self.history.append(DriftSample(stamp_s, step, linear, angular, exceeded))
         self._over = self._over + 1 if exceeded else 0
         if self.event is None and self._over >= self.persistence:
             self.event = DriftEvent(
-                stamp_s, step, linear, angular, PoseXY(x, y, yaw_deg), predicted, self._over
+                stamp_s, step, linear, angular, Pose(x, y, yaw_deg), predicted, self._over
             )
             return self.event
         return None

@@ -25,14 +25,16 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.rosport import Bool, Empty, Int16MultiArray, Odometry, RosPort, String, Subscription
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
-from planner.drift import DriftEvent, DriftMonitor, PoseXY, ReferenceTrajectory
+from planner.drift import DriftEvent, DriftMonitor
+from planner.geometry import Pose
+from planner.verdict import Verdict
 
 __all__ = ["ExecutionResult", "ExecutorConfig", "PlanExecutor", "Progress", "StepOutcome"]
 
@@ -116,7 +118,7 @@ class ExecutionResult:
     stop_latency_s: float | None
     stopped_s: float | None
     elapsed_s: float
-    reported_pose: PoseXY | None
+    reported_pose: Pose | None
     worst_drift: tuple[float, float]
     trace: tuple[tuple[float, float, float], ...] = field(default=())
 
@@ -159,9 +161,9 @@ class PlanExecutor:
         self._drift: DriftEvent | None = None
         self._stop_latency: float | None = None
         self._stop_published: float | None = None
-        self._odom_origin: tuple[PoseXY, PoseXY] | None = None
+        self._odom_origin: tuple[Pose, Pose] | None = None
         self._running = False
-        self.reported_pose: PoseXY | None = None
+        self.reported_pose: Pose | None = None
         self._trace: list[tuple[float, float, float]] = []
         self._subs: list[Subscription[Any]] = [
             port.subscribe("command_status", String, self._on_status),
@@ -194,7 +196,7 @@ class PlanExecutor:
                 self._event.set()
 
     def _on_pose(self, msg: Odometry) -> None:
-        pose = PoseXY(msg.pose.pose.position.x, msg.pose.pose.position.y, _yaw_deg(msg))
+        pose = Pose(msg.pose.pose.position.x, msg.pose.pose.position.y, _yaw_deg(msg))
         if self.config.pose_source == "odom":
             pose = self._odom_to_map(pose)
         stamp = _stamp_s(msg)
@@ -210,14 +212,14 @@ class PlanExecutor:
         if event is not None:
             self._on_drift(event)
 
-    def _odom_to_map(self, pose: PoseXY) -> PoseXY:
+    def _odom_to_map(self, pose: Pose) -> Pose:
         """``odom`` starts at the bridge's start; anchor it on the plan's start pose."""
         if self._odom_origin is None:
             return pose
         odom0, map0 = self._odom_origin
         dyaw = math.radians(map0.yaw_deg - odom0.yaw_deg)
         dx, dy = pose.x - odom0.x, pose.y - odom0.y
-        return PoseXY(
+        return Pose(
             map0.x + dx * math.cos(dyaw) - dy * math.sin(dyaw),
             map0.y + dx * math.sin(dyaw) + dy * math.cos(dyaw),
             (pose.yaw_deg + map0.yaw_deg - odom0.yaw_deg + 180.0) % 360.0 - 180.0,
@@ -269,19 +271,20 @@ class PlanExecutor:
 
     # -- execution -----------------------------------------------------------------------------
     def step_timeout_s(
-        self, index: int, step: tuple[int, int, int], reference: ReferenceTrajectory | None
+        self, index: int, step: tuple[int, int, int], verdict: Verdict | None
     ) -> float:
         """Wall seconds to wait for one step's ``completed``."""
         cfg = self.config
-        predicted = reference.durations_s.get(index) if reference is not None else None
-        if predicted is None:
+        if verdict is not None and index < len(verdict.steps):
+            predicted = verdict.steps[index].expected_duration_s
+        else:
             predicted = self.rover.step_duration_s(step[1], step[2])
         return predicted * cfg.duration_factor / cfg.time_scale + cfg.link_rtt_s + cfg.step_margin_s
 
     def execute(
         self,
         plan: Plan,
-        verdict: Mapping[str, Any] | None = None,
+        verdict: Verdict | None = None,
         *,
         on_progress: Callable[[Progress], None] | None = None,
         cancel: threading.Event | None = None,
@@ -290,17 +293,16 @@ class PlanExecutor:
 
         Args:
             plan: the approved plan.
-            verdict: the gate's verdict JSON for it (its prediction drives drift control
-                and the timeouts); ``None`` runs without drift control.
+            verdict: the gate's verdict on it (its prediction drives drift control and
+                the timeouts); ``None`` runs without drift control.
             on_progress: called on the executing thread after each status.
             cancel: set it to stop the plan from another thread (STOP is sent).
         """
         cfg = self.config
-        reference = ReferenceTrajectory.from_verdict(verdict) if verdict is not None else None
         monitor = None
-        if reference is not None and cfg.drift_control:
+        if verdict is not None and cfg.drift_control:
             monitor = DriftMonitor(
-                reference,
+                verdict,
                 linear_limit_m=cfg.drift_linear_m,
                 angular_limit_deg=cfg.drift_angular_deg,
                 persistence=cfg.drift_persistence,
@@ -316,12 +318,8 @@ class PlanExecutor:
             self._stopped.clear()
             self._running = True
             self._trace = []
-            if (
-                cfg.pose_source == "odom"
-                and self.reported_pose is not None
-                and reference is not None
-            ):
-                self._odom_origin = (self.reported_pose, reference.start_pose)
+            if cfg.pose_source == "odom" and self.reported_pose is not None and verdict is not None:
+                self._odom_origin = (self.reported_pose, verdict.start_pose)
         outcomes: list[StepOutcome] = []
         t_begin = time.monotonic()
         outcome, reason = "completed", "all steps completed"
@@ -330,16 +328,12 @@ class PlanExecutor:
                 if cancel is not None and cancel.is_set():
                     outcome, reason = "cancelled", "cancelled by the operator"
                     break
-                status, published, accepted = self._run_step(
-                    index, step, reference, monitor, cancel
-                )
+                status, published, accepted = self._run_step(index, step, verdict, monitor, cancel)
                 outcomes.append(
                     StepOutcome(index, step, status, published, accepted, time.monotonic())
                 )
                 if on_progress is not None:
-                    on_progress(
-                        self._progress(index, len(steps), status, steps, reference, monitor)
-                    )
+                    on_progress(self._progress(index, len(steps), status, steps, verdict, monitor))
                 if status == "completed":
                     continue
                 outcome, reason = self._classify(status, index)
@@ -380,7 +374,7 @@ class PlanExecutor:
         self,
         index: int,
         step: tuple[int, int, int],
-        reference: ReferenceTrajectory | None,
+        verdict: Verdict | None,
         monitor: DriftMonitor | None,
         cancel: threading.Event | None,
     ) -> tuple[str, float, float | None]:
@@ -396,7 +390,7 @@ class PlanExecutor:
         if monitor is not None:
             monitor.step_published(index, published_wall)
         self._steps_pub.publish(Int16MultiArray(data=step))
-        deadline = published + self.step_timeout_s(index, step, reference)
+        deadline = published + self.step_timeout_s(index, step, verdict)
         accepted_seen = False
         while True:
             left = deadline - time.monotonic()
@@ -442,11 +436,11 @@ class PlanExecutor:
         total: int,
         status: str,
         steps: list[tuple[int, int, int]],
-        reference: ReferenceTrajectory | None,
+        verdict: Verdict | None,
         monitor: DriftMonitor | None,
     ) -> Progress:
         eta = sum(
-            self.step_timeout_s(i, s, reference) - self.config.step_margin_s
+            self.step_timeout_s(i, s, verdict) - self.config.step_margin_s
             for i, s in enumerate(steps)
             if i > index
         )

@@ -56,7 +56,10 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
     pen = ImageDraw.Draw(image)
 
     def px(p: Point) -> tuple[float, float]:
-        return (margin_px + (p[0] - b.min_x) * px_per_m, top + margin_px + (b.max_y - p[1]) * px_per_m)
+        return (
+            margin_px + (p[0] - b.min_x) * px_per_m,
+            top + margin_px + (b.max_y - p[1]) * px_per_m,
+        )
 
     pen.rectangle([px((b.min_x, b.max_y)), px((b.max_x, b.min_y))], outline=_WALL, width=3)
     for ob in picture.world.obstacles:
@@ -65,8 +68,11 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
             r = ob.radius_m * px_per_m
             pen.ellipse([cx - r, cy - r, cx + r, cy + r], fill=_OBSTACLE)
         elif ob.kind == "segment":
-            pen.line([px(ob.points[0]), px(ob.points[1])], fill=_OBSTACLE,
-                     width=max(2, round(2 * ob.radius_m * px_per_m)))
+            pen.line(
+                [px(ob.points[0]), px(ob.points[1])],
+                fill=_OBSTACLE,
+                width=max(2, round(2 * ob.radius_m * px_per_m)),
+            )
         else:
             pen.polygon([px(p) for p in ob.points], fill=_OBSTACLE)
     for i, path in enumerate(picture.predicted):
@@ -82,8 +88,12 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
     _pose_mark(pen, px, picture.goal, _GOAL)
     if picture.title:
         pen.text((margin_px, 4), picture.title, fill=(0, 0, 0))
-    legend = [("predicted (ghost)", _GHOSTS[0]), ("reported by the rover", _ACTUAL),
-              ("drift STOP", _DRIFT), ("goal", _GOAL)]
+    legend = [
+        ("predicted (ghost)", _GHOSTS[0]),
+        ("reported by the rover", _ACTUAL),
+        ("drift STOP", _DRIFT),
+        ("goal", _GOAL),
+    ]
     y = height - margin_px - 12 * len(legend)
     for text, colour in legend:
         pen.rectangle([margin_px + 4, y + 2, margin_px + 14, y + 10], fill=colour)
@@ -92,7 +102,9 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
     return image
 
 
-def _pose_mark(pen: ImageDraw.ImageDraw, px: ToPixels, pose: Pose, colour: tuple[int, int, int]) -> None:
+def _pose_mark(
+    pen: ImageDraw.ImageDraw, px: ToPixels, pose: Pose, colour: tuple[int, int, int]
+) -> None:
     x, y = px((pose.x, pose.y))
     pen.ellipse([x - 6, y - 6, x + 6, y + 6], outline=colour, width=3)
     tip = px((pose.x + 0.3 * math.cos(pose.yaw_rad), pose.y + 0.3 * math.sin(pose.yaw_rad)))

@@ -4,51 +4,80 @@ from __future__ import annotations
 
 import pytest
 
-from planner.drift import DriftMonitor, PoseXY, ReferenceTrajectory, angle_diff_deg
+from planner.drift import DriftMonitor, predicted_pose
+from planner.geometry import Pose
+from planner.verdict import StepPrediction, Tolerances, Trajectory, TrajectorySample, Verdict
 
 
-def straight_then_turn() -> ReferenceTrajectory:
-    """Step 0: 1 m along +x in 4 s; step 1: spin to 90 deg in 2 s."""
-    step0 = [(t / 10, PoseXY(t / 40, 0.0, 0.0)) for t in range(41)]
-    step1 = [(t / 10, PoseXY(1.0, 0.0, 4.5 * t)) for t in range(21)]
-    return ReferenceTrajectory(
-        {0: step0, 1: step1},
-        {0: 4.0, 1: 2.0},
-        {0: PoseXY(1.0, 0.0, 0.0), 1: PoseXY(1.0, 0.0, 90.0)},
-        PoseXY(0.0, 0.0, 0.0),
+def verdict_of(steps: list[list[tuple[float, Pose]]]) -> Verdict:
+    """A verdict as the gate would send it, from per-step ``(step_t_s, pose)`` samples."""
+    samples, predictions, t0 = [], [], 0.0
+    for index, step in enumerate(steps):
+        samples += [TrajectorySample(t0 + t, index, t, pose) for t, pose in step]
+        duration = step[-1][0]
+        predictions.append(
+            StepPrediction(
+                index,
+                "FWD",
+                60,
+                0,
+                t0,
+                t0 + duration,
+                duration,
+                duration,
+                step[0][1],
+                step[-1][1],
+                True,
+                0.0,
+                0.0,
+            )
+        )
+        t0 += duration
+    first, last = steps[0][0][1], steps[-1][-1][1]
+    return Verdict(
+        approved=True,
+        failure_type=None,
+        failure_reason="",
+        failed_step=None,
+        goal=last,
+        start_pose=first,
+        final_pose=last,
+        position_error_m=0.0,
+        lateral_error_m=0.0,
+        distance_error_m=0.0,
+        yaw_error_deg=0.0,
+        approach_heading_deg=0.0,
+        collision=None,
+        stall=None,
+        tolerances=Tolerances(0.1, 3.0, 0.1),
+        steps=tuple(predictions),
+        trajectory=Trajectory(0.1, tuple(samples)),
+        sim_time_s=t0,
+        map_name="test",
+        map_sha256="",
+        rover_sha256="",
+        plan_sha256="",
+        replay_query="",
     )
 
 
-def test_reference_interpolates_and_clamps() -> None:
-    ref = straight_then_turn()
-    assert ref.pose_at(0, 2.05) == PoseXY(pytest.approx(0.5125), 0.0, 0.0)  # type: ignore[arg-type]
-    assert ref.pose_at(0, 99.0) == PoseXY(1.0, 0.0, 0.0)
-    assert ref.pose_at(1, -1.0) == PoseXY(1.0, 0.0, 0.0)  # before step 1: end of step 0
-    assert ref.pose_at(1, 1.0).yaw_deg == pytest.approx(45.0)
+def straight_then_turn() -> Verdict:
+    """Step 0: 1 m along +x in 4 s; step 1: spin to 90 deg in 2 s."""
+    return verdict_of(
+        [
+            [(t / 10, Pose(t / 40, 0.0, 0.0)) for t in range(41)],
+            [(t / 10, Pose(1.0, 0.0, 4.5 * t)) for t in range(21)],
+        ]
+    )
 
 
-def test_reference_from_gate_verdict_json() -> None:
-    verdict = {
-        "trajectory": {
-            "sample_period_s": 0.1,
-            "samples": [
-                {"t_s": 0.0, "step": 0, "step_t_s": 0.0, "x": 0.0, "y": 0.0, "yaw_deg": 0.0},
-                {"t_s": 1.0, "step": 0, "step_t_s": 1.0, "x": 0.3, "y": 0.0, "yaw_deg": 0.0},
-            ],
-        },
-        "steps": [
-            {
-                "index": 0,
-                "expected_duration_s": 1.0,
-                "start_pose": {"x": 0.0, "y": 0.0, "yaw_deg": 0.0},
-                "end_pose": {"x": 0.3, "y": 0.0, "yaw_deg": 0.0},
-            }
-        ],
-    }
-    ref = ReferenceTrajectory.from_verdict(verdict)
-    assert ref.step_count == 1 and ref.pose_at(0, 0.5).x == pytest.approx(0.15)
-    with pytest.raises(ValueError, match="no predicted steps"):
-        ReferenceTrajectory.from_verdict({"steps": []})
+def test_prediction_interpolates_and_holds_at_the_ends() -> None:
+    v = straight_then_turn()
+    assert predicted_pose(v, 0, 2.05).x == pytest.approx(0.5125)
+    assert predicted_pose(v, 0, 99.0) == Pose(1.0, 0.0, 0.0)
+    assert predicted_pose(v, 1, -1.0) == Pose(1.0, 0.0, 0.0)  # before step 1: its start
+    assert predicted_pose(v, 1, 1.0).yaw_deg == pytest.approx(45.0)
+    assert predicted_pose(v, -1, 0.0) == v.start_pose
 
 
 def test_on_track_poses_never_trigger_and_errors_are_measured() -> None:
@@ -103,7 +132,7 @@ def test_poses_measured_before_a_step_started_compare_with_the_previous_end() ->
     mon.step_accepted(0, 0.0, 3.0)
     mon.step_published(1, 10.0)  # rover starts step 1 at ~11.5
     step, predicted = mon.predicted_at(10.5)
-    assert (step, predicted) == (0, PoseXY(1.0, 0.0, 0.0))
+    assert (step, predicted) == (0, Pose(1.0, 0.0, 0.0))
     step, predicted = mon.predicted_at(12.5)
     assert step == 1 and predicted.yaw_deg == pytest.approx(45.0)
 
@@ -112,11 +141,6 @@ def test_time_scale_maps_wall_to_twin_time() -> None:
     mon = DriftMonitor(straight_then_turn(), one_way_delay_s=0.0, time_scale=4.0)
     mon.step_published(0, 0.0)
     assert mon.predicted_at(0.5)[1].x == pytest.approx(0.5)  # 0.5 s wall = 2 s twin
-
-
-def test_angle_diff_wraps() -> None:
-    assert angle_diff_deg(179.0, -179.0) == pytest.approx(-2.0)
-    assert angle_diff_deg(-170.0, 170.0) == pytest.approx(20.0)
 
 
 def test_bad_limits_are_refused() -> None:

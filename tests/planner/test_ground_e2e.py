@@ -7,13 +7,10 @@ the same node wiring is covered in tests/bridge/test_node.py.
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -32,7 +29,9 @@ from emulator.worldmap import WorldMap, load_map
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription, load_rover
 from planner.executor import ExecutorConfig, PlanExecutor
+from planner.gate_client import GateClient
 from planner.relay import LinkProfile, LinkRelay
+from planner.verdict import Verdict
 
 SPEED = 4.0
 ONE_WAY_S = 0.05
@@ -67,18 +66,9 @@ def gate_url() -> Iterator[str]:
         proc.communicate(timeout=15)
 
 
-def validate(url: str, plan: dict[str, Any], map_name: str = "lab") -> dict[str, Any]:
-    request = urllib.request.Request(
-        f"{url}/validate_plan?map={map_name}",
-        data=json.dumps(plan).encode(),
-        headers={"Content-Type": "application/json"},
-    )
-    try:
-        with urllib.request.urlopen(request, timeout=30) as reply:
-            verdict: dict[str, Any] = json.load(reply)
-    except urllib.error.HTTPError as exc:
-        raise AssertionError(f"gate answered {exc.code}: {exc.read()!r}") from exc
-    return verdict
+def validate(url: str, plan: dict[str, Any], map_name: str = "lab") -> Verdict:
+    with GateClient(url) as client:
+        return client.validate(plan, map_name=map_name)
 
 
 @dataclass
@@ -159,7 +149,7 @@ def test_approved_plan_reaches_the_goal_within_tolerance(
     rover, world = load_rover(), load_map("lab")
     plan = _plan(world, rover)
     verdict = validate(gate_url, plan)
-    assert verdict["approved"], verdict.get("failure_type")
+    assert verdict.approved, verdict.summary()
     h = hil()
     result = h.executor.execute(Plan.from_dict(plan), verdict)
     assert result.completed, result.reason
@@ -183,7 +173,7 @@ def test_slip_makes_drift_control_stop_the_rover(gate_url: str, hil: Callable[..
         ],
     }
     verdict = validate(gate_url, plan)
-    assert verdict["approved"]
+    assert verdict.approved
     h = hil(faults=("slip:both=0.1",))  # the encoders still report the full travel
     result = h.executor.execute(Plan.from_dict(plan), verdict)
     assert result.outcome == "drift", result.reason
