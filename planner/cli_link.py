@@ -109,7 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return run(parser.parse_args(argv))
-    except (OSError, ValueError, RuntimeError) as exc:
+    except Exception as exc:  # one clean line for the operator, whatever the package
         print(f"rover_link: error: {exc}", file=sys.stderr)
         return 1
 

@@ -91,6 +91,15 @@ class Progress:
     drift_linear_m: float | None
     drift_angular_deg: float | None
 
+    def line(self, time_scale: float = 1.0) -> str:
+        """``step 3/8 completed, ETA 24 s, drift 0.031 m 1.2 deg`` (ETA in mission time)."""
+        text = (
+            f"step {self.step + 1}/{self.steps} {self.status}, ETA {self.eta_s * time_scale:.0f} s"
+        )
+        if self.drift_linear_m is not None and self.drift_angular_deg is not None:
+            text += f", drift {self.drift_linear_m:.3f} m {self.drift_angular_deg:.1f} deg"
+        return text
+
 
 @dataclass(frozen=True)
 class ExecutionResult:
@@ -157,6 +166,8 @@ class PlanExecutor:
         self._stopped_at: float | None = None
         self._cleared = threading.Event()
         self._stopped = threading.Event()
+        self._pose_cond = threading.Condition(self._lock)
+        self._reported_stamp = -math.inf
         self._monitor: DriftMonitor | None = None
         self._drift: DriftEvent | None = None
         self._stop_latency: float | None = None
@@ -169,6 +180,22 @@ class PlanExecutor:
             port.subscribe("command_status", String, self._on_status),
             port.subscribe(self.config.pose_source, Odometry, self._on_pose),
         ]
+
+    def settled_pose(self, timeout_s: float | None = None) -> Pose | None:
+        """The rover's pose measured after it reported its last status: waits (at most a
+        round trip plus a second) for a pose stamped after the moment the rover must have
+        sent what came back last; returns the latest reported pose either way."""
+        cfg = self.config
+        wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + 1.0
+        since = time.time() - cfg.link_rtt_s / 2.0  # rover time of the last status we heard
+        deadline = time.monotonic() + wait_s
+        with self._pose_cond:
+            while self._reported_stamp < since:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._pose_cond.wait(left)
+            return self.reported_pose
 
     def close(self) -> None:
         """Stop listening (the port stays open)."""
@@ -202,7 +229,9 @@ class PlanExecutor:
         stamp = _stamp_s(msg)
         with self._lock:
             self.reported_pose = pose
+            self._reported_stamp = stamp
             self._trace.append((stamp, pose.x, pose.y))
+            self._pose_cond.notify_all()
             monitor = self._monitor if self._running else None
         if monitor is None or not self.config.drift_control:
             return
@@ -312,6 +341,7 @@ class PlanExecutor:
         steps = plan.to_wire()
         with self._lock:
             self._monitor = monitor
+            self._status = None  # nothing of the previous plan carries over
             self._drift = None
             self._stop_latency = None
             self._stopped_at = None

@@ -17,8 +17,9 @@ from PIL import Image, ImageDraw
 
 from planner.geometry import Pose
 from planner.mapinfo import MapInfo
+from planner.mission import MissionReport
 
-__all__ = ["MissionPicture", "draw", "save"]
+__all__ = ["MissionPicture", "draw", "picture_of", "save"]
 
 Point = tuple[float, float]
 ToPixels = Callable[[Point], tuple[float, float]]
@@ -50,7 +51,13 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
     """Render the picture (y up, like the map)."""
     b = picture.world.bounds
     width = round((b.max_x - b.min_x) * px_per_m) + 2 * margin_px
-    height = round((b.max_y - b.min_y) * px_per_m) + 2 * margin_px + (22 if picture.title else 0)
+    legend_px = 18
+    height = (
+        round((b.max_y - b.min_y) * px_per_m)
+        + 2 * margin_px
+        + (22 if picture.title else 0)
+        + legend_px
+    )
     top = 22 if picture.title else 0
     image = Image.new("RGB", (width, height), _BACKGROUND)
     pen = ImageDraw.Draw(image)
@@ -94,11 +101,11 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
         ("drift STOP", _DRIFT),
         ("goal", _GOAL),
     ]
-    y = height - margin_px - 12 * len(legend)
+    x, y = margin_px, height - legend_px  # a band below the map, never over it
     for text, colour in legend:
-        pen.rectangle([margin_px + 4, y + 2, margin_px + 14, y + 10], fill=colour)
-        pen.text((margin_px + 18, y), text, fill=(0, 0, 0))
-        y += 12
+        pen.rectangle([x, y + 2, x + 10, y + 10], fill=colour)
+        pen.text((x + 14, y), text, fill=(0, 0, 0))
+        x += 14 + round(pen.textlength(text)) + 18
     return image
 
 
@@ -109,6 +116,25 @@ def _pose_mark(
     pen.ellipse([x - 6, y - 6, x + 6, y + 6], outline=colour, width=3)
     tip = px((pose.x + 0.3 * math.cos(pose.yaw_rad), pose.y + 0.3 * math.sin(pose.yaw_rad)))
     pen.line([(x, y), tip], fill=colour, width=3)
+
+
+def picture_of(report: MissionReport, world: MapInfo, title: str) -> MissionPicture:
+    """The picture of a mission: each executed plan's ghost, the reported trace, the
+    drift stops."""
+    ghosts = [
+        [(s.pose.x, s.pose.y) for s in r.verdict.trajectory.samples]
+        for r in report.runs
+        if r.verdict
+    ]
+    return MissionPicture(
+        world,
+        report.goal,
+        report.start,
+        predicted=list(ghosts),
+        actual=[(x, y) for r in report.runs for _, x, y in r.execution.trace],
+        drift_stops=[(e.measured.x, e.measured.y) for e in report.drift_events],
+        title=title,
+    )
 
 
 def save(picture: MissionPicture, path: str | Path) -> Path:
