@@ -12,26 +12,16 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from typing import Any
 
 import pytest
 
-from bridge.node import BridgeNode
-from bridge.params import load_params
-from bridge.rosport import RosPort, open_port
-from emulator.controller import ControllerConfig, ControllerModel
-from emulator.engine import Emulator
-from emulator.injection import parse_fault
-from emulator.serial_frontend import SerialFrontEnd
-from emulator.twin import Twin
 from emulator.worldmap import WorldMap, load_map
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription, load_rover
-from planner.executor import ExecutorConfig, PlanExecutor
 from planner.gate_client import GateClient
-from planner.relay import LinkProfile, LinkRelay
 from planner.verdict import Verdict
+from tests.rig import HilRig
 
 SPEED = 4.0
 ONE_WAY_S = 0.05
@@ -71,56 +61,18 @@ def validate(url: str, plan: dict[str, Any], map_name: str = "lab") -> Verdict:
         return client.validate(plan, map_name=map_name)
 
 
-@dataclass
-class Hil:
-    emulator: Emulator
-    executor: PlanExecutor
-    relay: LinkRelay
-
-
 @pytest.fixture
-def hil(request: pytest.FixtureRequest) -> Iterator[Callable[..., Hil]]:
+def hil() -> Iterator[Callable[..., HilRig]]:
     """Factory: emulator (lab map) + bridge + relay + executor; all closed after."""
-    rover = load_rover()
-    stack: list[Any] = []
+    rigs: list[HilRig] = []
 
-    def make(faults: tuple[str, ...] = ()) -> Hil:
-        world = load_map("lab")
-        model = ControllerModel(
-            rover, Twin(rover, world), ControllerConfig(timeout_scale=SPEED), seed=5
-        )
-        emu = Emulator(
-            model,
-            SerialFrontEnd(seed=5),
-            speed_factor=SPEED,
-            faults=[parse_fault(f) for f in faults],
-        )
-        emu.start()
-        stack.append(emu)
-        assert isinstance(emu.frontend, SerialFrontEnd)
-        bus = f"e2e-{request.node.name}"
-        ports: list[RosPort] = [
-            open_port("inprocess", node_name="rover_bridge", bus=bus),
-            open_port("inprocess", node_name="link_ground", namespace="ground", bus=bus),
-            open_port("inprocess", node_name="link_rover", bus=bus),
-            open_port("inprocess", node_name="executor", namespace="ground", bus=bus),
-        ]
-        stack.extend(ports)
-        params = load_params({"device": emu.frontend.device, "ros_backend": "inprocess"}, env={})
-        node = BridgeNode(params, ports[0]).start()
-        stack.append(node)
-        relay = LinkRelay(ports[1], ports[2], LinkProfile(one_way_delay_s=ONE_WAY_S, seed=1))
-        stack.append(relay)
-        executor = PlanExecutor(
-            ports[3], rover, ExecutorConfig(link_rtt_s=2 * ONE_WAY_S, time_scale=SPEED)
-        )
-        stack.append(executor)
-        _wait(lambda: node.link.ready, "bridge ready")
-        return Hil(emu, executor, relay)
+    def make(faults: tuple[str, ...] = ()) -> HilRig:
+        rigs.append(HilRig("lab", speed=SPEED, rtt_s=2 * ONE_WAY_S * SPEED, seed=5, faults=faults))
+        return rigs[-1]
 
     yield make
-    for item in reversed(stack):
-        item.close()
+    for rig in rigs:
+        rig.close()
 
 
 def _wait(pred: Callable[[], bool], what: str, timeout: float = 10.0) -> None:
@@ -144,7 +96,7 @@ def _plan(world: WorldMap, rover: RoverDescription) -> dict[str, Any]:
 
 
 def test_approved_plan_reaches_the_goal_within_tolerance(
-    gate_url: str, hil: Callable[..., Hil]
+    gate_url: str, hil: Callable[..., HilRig]
 ) -> None:
     rover, world = load_rover(), load_map("lab")
     plan = _plan(world, rover)
@@ -162,7 +114,7 @@ def test_approved_plan_reaches_the_goal_within_tolerance(
     assert result.reported_pose is not None
 
 
-def test_slip_makes_drift_control_stop_the_rover(gate_url: str, hil: Callable[..., Hil]) -> None:
+def test_slip_makes_drift_control_stop_the_rover(gate_url: str, hil: Callable[..., HilRig]) -> None:
     rover, world = load_rover(), load_map("lab")
     s = world.start
     plan = {
@@ -192,7 +144,7 @@ def test_slip_makes_drift_control_stop_the_rover(gate_url: str, hil: Callable[..
     assert len(result.steps) == 1
 
 
-def test_rejected_step_aborts_and_stops(hil: Callable[..., Hil]) -> None:
+def test_rejected_step_aborts_and_stops(hil: Callable[..., HilRig]) -> None:
     h = hil()
     h.emulator.call(lambda: None)
     plan = Plan.from_dict(
@@ -213,7 +165,7 @@ ONE_STEP = {
 }
 
 
-def test_killed_emulator_ends_the_plan_without_hanging(hil: Callable[..., Hil]) -> None:
+def test_killed_emulator_ends_the_plan_without_hanging(hil: Callable[..., HilRig]) -> None:
     h = hil()
     h.emulator.close()  # the controller dies: the bridge loses it
     result = h.executor.execute(Plan.from_dict(ONE_STEP))
@@ -222,7 +174,7 @@ def test_killed_emulator_ends_the_plan_without_hanging(hil: Callable[..., Hil]) 
     assert result.elapsed_s < h.executor.step_timeout_s(0, (1, 60, 23000), None) + 1.0
 
 
-def test_timeout_fires_when_nothing_comes_back(hil: Callable[..., Hil]) -> None:
+def test_timeout_fires_when_nothing_comes_back(hil: Callable[..., HilRig]) -> None:
     h = hil()
     h.relay.close()  # the link goes dark: no status, no confirmation
     timeout = h.executor.step_timeout_s(0, (1, 60, 23000), None)
