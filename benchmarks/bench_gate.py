@@ -34,19 +34,18 @@ import os
 import platform
 import random
 import statistics
-import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager
-from dataclasses import dataclass
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
 import pymunk
 
+from benchmarks.common import Served, gate_process, server_process
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
 from emulator.twin import Twin
@@ -374,40 +373,6 @@ def serve_plain() -> None:
         pass
     finally:
         server.server_close()
-
-
-@dataclass(frozen=True)
-class Served:
-    """A server subprocess: where it listens and its process id."""
-
-    address: tuple[str, int]
-    pid: int
-
-
-@contextmanager
-def server_process(argv: list[str], env: dict[str, str]) -> Iterator[Served]:
-    proc = subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        env=dict(os.environ) | env,
-    )
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().split()
-        if not line or line[0] != "GATE":
-            raise RuntimeError(f"server did not start: {argv}")
-        host, port = line[1].removeprefix("http://").split(":")
-        yield Served((host, int(port)), proc.pid)
-    finally:
-        proc.terminate()
-        proc.wait(60)
-
-
-def gate_process(env: dict[str, str], pool: str = "process") -> AbstractContextManager[Served]:
-    rover_exe = str(Path(sys.executable).with_name("rover"))
-    return server_process([rover_exe, "gate", "--port", "0", "--pool", pool, "--workers", "2"], env)
 
 
 def request_rate(

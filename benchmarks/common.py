@@ -6,14 +6,28 @@ from __future__ import annotations
 import os
 import select
 import statistics
+import subprocess
+import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
+from dataclasses import dataclass
+from pathlib import Path
 
 import serial
 
 from emulator.ptypair import PtyPair
 
-__all__ = ["percentile", "pty_round_trip", "summary", "table"]
+__all__ = [
+    "Served",
+    "gate_process",
+    "percentile",
+    "pty_round_trip",
+    "server_process",
+    "summary",
+    "table",
+]
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -81,3 +95,44 @@ def pty_round_trip(samples: int = 2000, frame: bytes = bytes(15)) -> list[float]
             stop.set()
             thread.join(5.0)
     return out
+
+
+@dataclass(frozen=True)
+class Served:
+    """A server subprocess: where it listens and its process id."""
+
+    address: tuple[str, int]
+    pid: int
+
+
+@contextmanager
+def server_process(argv: list[str], env: dict[str, str]) -> Iterator[Served]:
+    """Start a server that prints ``GATE http://host:port`` when it listens; stop it
+    (SIGTERM) on exit."""
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=dict(os.environ) | env,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().split()
+        if not line or line[0] != "GATE":
+            raise RuntimeError(f"server did not start: {argv}")
+        host, port = line[1].removeprefix("http://").split(":")
+        yield Served((host, int(port)), proc.pid)
+    finally:
+        proc.terminate()
+        proc.wait(60)
+
+
+def gate_process(
+    env: dict[str, str], pool: str = "process", workers: int = 2
+) -> AbstractContextManager[Served]:
+    """A ``rover gate`` subprocess on an ephemeral 127.0.0.1 port."""
+    rover_exe = str(Path(sys.executable).with_name("rover"))
+    return server_process(
+        [rover_exe, "gate", "--port", "0", "--pool", pool, "--workers", str(workers)], env
+    )
