@@ -12,13 +12,20 @@ import pytest
 from planner import errors
 
 MODULES = [
+    "planner",
+    "planner.demo",
+    "planner.drift",
     "planner.errors",
+    "planner.executor",
     "planner.experiment",
     "planner.gate_client",
     "planner.geometry",
     "planner.mapinfo",
+    "planner.mission",
     "planner.orchestrator",
+    "planner.picture",
     "planner.planner",
+    "planner.relay",
     "planner.repairs",
     "planner.verdict",
 ]
@@ -31,6 +38,16 @@ def test_public_names_are_sorted_and_exist(name: str) -> None:
     assert names == sorted(names, key=lambda n: (not n.isupper(), n))
     for n in names:
         assert getattr(module, n) is not None
+
+
+def test_the_package_reexports_the_modules_objects() -> None:
+    import planner
+
+    modules = [importlib.import_module(m) for m in MODULES[1:]]
+    for name in planner.__all__:
+        homes = [m for m in modules if name in m.__all__]
+        assert len(homes) == 1, (name, homes)
+        assert getattr(homes[0], name) is getattr(planner, name), name
 
 
 def test_planner_imports_neither_gate_nor_emulator() -> None:
