@@ -149,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return run(args, ros_args)
-    except (OSError, ValueError, RuntimeError) as exc:
+    except Exception as exc:  # one clean line for the operator, whatever the package
         print(f"rover_bridge: error: {exc}", file=sys.stderr)
         return 1
 

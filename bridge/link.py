@@ -276,6 +276,8 @@ class ControllerLink:
         self._ended_seen = 0
         self._last_auto_clear = -math.inf
         self._hello_sent = False  # a HELLO went out in the current handshake
+        self.last_stop_written: float | None = None
+        """``time.monotonic()`` when the last STOP frame was handed to the OS, whole."""
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self) -> None:
@@ -393,6 +395,7 @@ class ControllerLink:
         except TransportError as exc:
             self._report_failure(transport, exc)
             return
+        self.last_stop_written = time.monotonic()
         with self._lock:
             if self._pending_stop is not None and self._pending_stop.stop_id == stop_id:
                 self._pending_stop.sends += 1

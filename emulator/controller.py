@@ -585,11 +585,10 @@ class ControllerModel:
             self._next_pose = max(self._next_pose + 1.0 / self.pose_hz, now)
             self.pose_sensor.sample()
         for m in self.pose_sensor.due():
-            out.append(
-                self._pose_message(
-                    m.pose.x_m, m.pose.y_m, m.pose.yaw_rad, m.sigma_m, now - m.taken_s
-                )
-            )
+            # The age is in the host's time, like the timeouts: the host subtracts it
+            # from its own clock to stamp the measurement.
+            age_s = (now - m.taken_s) / self.config.timeout_scale
+            out.append(self._pose_message(m.pose.x_m, m.pose.y_m, m.pose.yaw_rad, m.sigma_m, age_s))
         if now + eps >= self._next_heartbeat:
             self._next_heartbeat = max(self._next_heartbeat + 1.0 / self.heartbeat_hz, now)
             out.append(self.heartbeat())

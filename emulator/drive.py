@@ -140,16 +140,9 @@ def yaw_for_turn_units(rover: RoverDescription, distance_units: float) -> float:
 
 
 def nominal_step_duration_s(rover: RoverDescription, speed: int, distance: int) -> float:
-    """Time, s, of a step's trapezoidal (or triangular) profile without slip, from rest
-    to rest; 0 for a step with nothing to do."""
-    v = rover.speed_to_mps(speed)
-    d = rover.units_to_m(distance)
-    if v <= 0.0 or d <= 0.0:
-        return 0.0
-    a = rover.drive.wheel_accel_limit_mps2
-    if d < v * v / a:  # never reaches cruise
-        return 2.0 * math.sqrt(d / a)
-    return d / v + v / a
+    """Time, s, of a step's speed profile without slip, rest to rest (see
+    :meth:`RoverDescription.step_duration_s`)."""
+    return rover.step_duration_s(speed, distance)
 
 
 def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:

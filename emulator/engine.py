@@ -126,6 +126,8 @@ class Emulator:
         self.schedule = FaultSchedule(self.injector, faults)
         self.stop_reactions: list[float] = []
         """Seconds from each STOP frame's arrival to its targets being zero."""
+        self.stop_handled: list[float] = []
+        """``time.monotonic()`` when each STOP had zeroed the targets."""
         self.overruns = 0
         self._inbox: queue.SimpleQueue[_Received | _Call] = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -230,7 +232,9 @@ class Emulator:
             else:
                 out = self.model.handle(item.message)
                 if isinstance(item.message, Stop):
-                    self.stop_reactions.append(time.monotonic() - item.arrived)
+                    handled = time.monotonic()
+                    self.stop_reactions.append(handled - item.arrived)
+                    self.stop_handled.append(handled)
                 self._send(out)
             item = None
 

@@ -5,9 +5,9 @@ The emulator holds the pty's controller end; a host opens :attr:`SerialFrontEnd.
 program. Frames are those of docs/protocol.md, byte for byte.
 
 - A pty has no baud rate. With ``baud`` set, frames to the host leave at that rate
-  (10 bits per byte) from a transmit thread that always sends the most urgent frame
-  first (STOP lane, then motion, status, telemetry, config), as firmware with a
-  prioritised UART queue would.
+  (10 bits per byte) from a transmit thread that sends the STOP lane first, then motion,
+  then everything else in order, dropping telemetry that went stale in the queue (a
+  newer sample is coming), as firmware with a prioritised UART queue would.
 - The host may close and reopen the device at any time; while nobody reads, frames to
   the host are dropped (counted), never blocking the controller.
 - :meth:`SerialFrontEnd.unplug` makes the device disappear (pty closed, symlink gone) and
@@ -42,8 +42,14 @@ __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
 
 logger = logging.getLogger(__name__)
 
-PRIORITY_ORDER = {"emergency": 0, "motion": 1, "status": 2, "telemetry": 3, "config": 4}
-"""Transmit order of the priority classes when the line is paced."""
+PRIORITY_ORDER = {"emergency": 0, "motion": 1, "status": 2, "telemetry": 2, "config": 2}
+"""Transmit order on a paced line: the STOP lane first, then motion, then status,
+telemetry and configuration in the order they were queued. Strict priority for the
+last three would starve configuration (IDENT) behind telemetry on a saturated line."""
+
+STALE_TELEMETRY_S = 0.1
+"""A telemetry frame that waited this long for the paced line is dropped (a newer one is
+coming), so a backlog can never starve the classes behind it."""
 
 
 class SerialFrontEnd(FrontEnd):
@@ -79,7 +85,8 @@ class SerialFrontEnd(FrontEnd):
         self._plug_request: str | None = None
         self._plug_done = threading.Event()
         self.device = ""
-        self._tx_heap: list[tuple[int, int, bytes]] = []
+        self._tx_heap: list[tuple[int, int, float, bool, bytes]] = []
+        self.stale_dropped = 0
         self._tx_order = itertools.count()
         self._tx_ready = threading.Condition()
         self._tx_thread: threading.Thread | None = None
@@ -183,9 +190,15 @@ class SerialFrontEnd(FrontEnd):
             wire = bytes(damaged)
         if self.baud is not None:
             with self._tx_ready:
-                heapq.heappush(
-                    self._tx_heap, (PRIORITY_ORDER[message.PRIORITY], next(self._tx_order), wire)
+                telemetry = message.PRIORITY == "telemetry"
+                entry = (
+                    PRIORITY_ORDER[message.PRIORITY],
+                    next(self._tx_order),
+                    time.monotonic(),
+                    telemetry,
+                    wire,
                 )
+                heapq.heappush(self._tx_heap, entry)
                 self._tx_ready.notify()
             return True
         return self._write_now(wire)
@@ -217,7 +230,10 @@ class SerialFrontEnd(FrontEnd):
                     self._tx_ready.wait(0.1)
                 if self._stop.is_set():
                     return
-                _, _, wire = heapq.heappop(self._tx_heap)
+                _, _, queued, telemetry, wire = heapq.heappop(self._tx_heap)
+            if telemetry and time.monotonic() - queued > STALE_TELEMETRY_S:
+                self.stale_dropped += 1
+                continue
             wait = line_free - time.monotonic()
             if wait > 0:
                 time.sleep(wait)

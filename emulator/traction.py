@@ -232,7 +232,7 @@ class TractionModel:
             out += [self.mu_longitudinal * n * scale, self.mu_lateral * n * scale]
         return tuple(out)
 
-    def wrench(  # noqa: PLR0917 - once per physics step: positional is cheapest
+    def wrench(
         self,
         vx_mps: float,
         vy_mps: float,
@@ -307,7 +307,7 @@ class TractionModel:
             hy * hy * kx + hx * hx * ky,
         )
 
-    def step_wrench(  # noqa: PLR0917 - once per physics step: positional is cheapest
+    def step_wrench(
         self,
         vx_mps: float,
         vy_mps: float,

@@ -9,8 +9,8 @@ status. Register functions must import nothing heavy at module level, so that
 This module lives in :mod:`firmware_proto` because that package sits at the bottom of
 the dependency graph: it discovers the others by entry point and never imports them.
 
-Exit status: 0 success, 1 the command failed (message on stderr), 2 usage error,
-130 interrupted.
+Exit status: 0 success, 1 the command failed (one line on stderr; ``-vv`` adds the
+traceback), 2 usage error, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -90,10 +90,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 0
-    except (OSError, ValueError, RuntimeError, TimeoutError) as exc:
+    except Exception as exc:
+        # Every package raises its own error tree (planner, gate, emulator, bridge); the
+        # operator gets one clean line, and the traceback with -vv.
         if args.verbose >= 2:
             logger.exception("rover %s failed", args.command)
-        print(f"rover {args.command}: error: {exc}", file=sys.stderr)
+        name = (
+            ""
+            if isinstance(exc, (OSError, ValueError, RuntimeError))
+            else f"{type(exc).__name__}: "
+        )
+        hint = "" if args.verbose >= 2 else " (run with -vv for details)"
+        print(f"rover {args.command}: error: {name}{exc}{hint}", file=sys.stderr)
         return 1
 
 

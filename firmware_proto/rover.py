@@ -149,6 +149,18 @@ class RoverDescription:
         arc_m = self.units_to_m(distance_units)
         return self.traction.turn_efficiency * 2.0 * arc_m / self.geometry.track_width_m
 
+    def step_duration_s(self, speed: int, distance: int) -> float:
+        """Time, s, of a step's trapezoidal (or triangular) speed profile without slip,
+        from rest to rest, at the wheel accel limit; 0 for a step with nothing to do."""
+        v = self.speed_to_mps(speed)
+        d = self.units_to_m(distance)
+        if v <= 0.0 or d <= 0.0:
+            return 0.0
+        a = self.drive.wheel_accel_limit_mps2
+        if d < v * v / a:  # never reaches cruise speed
+            return 2.0 * math.sqrt(d / a)
+        return d / v + v / a
+
     @property
     def max_speed_mps(self) -> float:
         """Top wheel surface speed, m/s."""

@@ -1,3 +1,103 @@
-"""Simulation gate: HTTP /validate_plan playing command plans on the pymunk twin."""
+"""Simulation gate: HTTP ``/validate_plan`` playing command plans on the pymunk twin.
 
-__all__: list[str] = []
+The light names (verdict and option data types, errors, configuration) are imported
+here; the ones that pull in the twin (pymunk) or the HTTP server load on first use, so
+that ``from gate import Verdict`` stays cheap for a client. See docs/gate.md.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from gate.config import GateConfig, PlaybackSettings, load_config
+from gate.errors import (
+    BadRequestError,
+    ConfigError,
+    GateError,
+    HttpError,
+    LengthRequiredError,
+    MethodNotAllowedError,
+    NotFoundError,
+    OptionError,
+    OverloadedError,
+    PayloadTooLargeError,
+    PlanSchemaError,
+    UnauthorizedError,
+    UnsupportedMediaError,
+)
+from gate.options import ResolvedOptions, ValidateOptions
+from gate.verdict import (
+    FAILURE_TYPES,
+    CollisionReport,
+    Point,
+    Pose,
+    Replay,
+    StallReport,
+    StepPrediction,
+    Tolerances,
+    Trajectory,
+    TrajectorySample,
+    Verdict,
+)
+
+if TYPE_CHECKING:
+    from gate.pool import ProcessWorkerPool, ThreadWorkerPool, WorkerPool
+    from gate.server import GateServer
+    from gate.validator import Job, Validator
+
+__all__ = [
+    "FAILURE_TYPES",
+    "BadRequestError",
+    "CollisionReport",
+    "ConfigError",
+    "GateConfig",
+    "GateError",
+    "GateServer",
+    "HttpError",
+    "Job",
+    "LengthRequiredError",
+    "MethodNotAllowedError",
+    "NotFoundError",
+    "OptionError",
+    "OverloadedError",
+    "PayloadTooLargeError",
+    "PlanSchemaError",
+    "PlaybackSettings",
+    "Point",
+    "Pose",
+    "ProcessWorkerPool",
+    "Replay",
+    "ResolvedOptions",
+    "StallReport",
+    "StepPrediction",
+    "ThreadWorkerPool",
+    "Tolerances",
+    "Trajectory",
+    "TrajectorySample",
+    "UnauthorizedError",
+    "UnsupportedMediaError",
+    "ValidateOptions",
+    "Validator",
+    "Verdict",
+    "WorkerPool",
+    "load_config",
+]
+
+_LAZY = {
+    "GateServer": "gate.server",
+    "Job": "gate.validator",
+    "ProcessWorkerPool": "gate.pool",
+    "ThreadWorkerPool": "gate.pool",
+    "Validator": "gate.validator",
+    "WorkerPool": "gate.pool",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gate' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

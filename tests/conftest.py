@@ -33,6 +33,25 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 LEAK_GRACE_S = 3.0
 REQUIRE_SOCKETCAN_ENV = "ROVER_REQUIRE_SOCKETCAN"
 
+IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
+SKIP_DDS_REASON = (
+    "DDS tests run only in the private network namespace of .ci/test "
+    "(ROVER_PRIVATE_NETNS=1 not set): Cyclone DDS multicasts at start"
+)
+SKIP_RCLPY_REASON = "rclpy (ROS 2 Jazzy) is not installed here; source a ROS 2 setup to run"
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Skip, saying why, the tests whose environment is missing: DDS outside the private
+    network namespace, rclpy without ROS 2."""
+    from bridge.rosport.rclpy_backend import rclpy_available
+
+    for item in items:
+        if item.get_closest_marker("dds") and not IN_PRIVATE_NETNS:
+            item.add_marker(pytest.mark.skip(reason=SKIP_DDS_REASON))
+        if item.get_closest_marker("rclpy") and not rclpy_available():
+            item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))
+
 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(

@@ -10,7 +10,6 @@ rclpy tests (marker ``rclpy``) skip where ROS 2 is not installed.
 from __future__ import annotations
 
 import itertools
-import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,7 +19,6 @@ from typing import Any
 import pytest
 
 from bridge.rosport import RosPort, loopback_config, open_port
-from bridge.rosport.rclpy_backend import rclpy_available
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
@@ -30,27 +28,12 @@ from emulator.twin import Twin
 from firmware_proto.messages import SCHEMA_HASH
 from firmware_proto.rover import RoverDescription, load_rover
 
-IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
-SKIP_DDS_REASON = (
-    "DDS tests run only in the private network namespace of .ci/test "
-    "(ROVER_PRIVATE_NETNS=1 not set): Cyclone DDS multicasts at start"
-)
-SKIP_RCLPY_REASON = "rclpy (ROS 2 Jazzy) is not installed here; source a ROS 2 setup to run"
-
 #: Every backend, with the marks it needs.
 BACKEND_PARAMS = [
     pytest.param("inprocess", id="inprocess"),
     pytest.param("dds", id="dds", marks=pytest.mark.dds),
     pytest.param("rclpy", id="rclpy", marks=pytest.mark.rclpy),
 ]
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    for item in items:
-        if item.get_closest_marker("dds") and not IN_PRIVATE_NETNS:
-            item.add_marker(pytest.mark.skip(reason=SKIP_DDS_REASON))
-        if item.get_closest_marker("rclpy") and not rclpy_available():
-            item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))
 
 
 @pytest.fixture(scope="session")

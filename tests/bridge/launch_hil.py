@@ -28,8 +28,9 @@ from launch_ros.substitutions import FindPackageShare
 from std_msgs.msg import Int16MultiArray, String
 
 LAUNCH_FILE = ("rover_hil", "launch", "hil_launch.py")
-LAUNCH_ARGUMENTS = {"with_gate": "false", "with_link": "false", "with_executor": "false"}
-"""The emulator and the bridge only: the smallest set that drives a step end to end."""
+LAUNCH_ARGUMENTS = {"with_gate": "false", "with_link": "false"}
+"""The emulator and the bridge only (no goal: no executor): the smallest set that drives
+a step end to end."""
 STEP = [1, 30, 2300]
 """FWD at speed 30 for 0.1 m of wheel travel."""
 

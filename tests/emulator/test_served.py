@@ -20,9 +20,10 @@ from emulator.control import ControlServer
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.errors import InjectionError
+from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.messages import (
+    SCHEMA_HASH,
     AckResult,
     ClearAck,
     ClearResult,
@@ -39,6 +40,7 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
+from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.rover import RoverDescription
 
 from .conftest import SPEED
@@ -326,3 +328,14 @@ def test_rover_emulate_cli_rejects_bad_faults_clearly() -> None:
     )
     assert out.returncode == 1
     assert "unknown fault 'warp'" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_saturated_line_never_starves_the_handshake(serial_emulator: Factory) -> None:
+    # 1200 baud carries ~8 frames/s against ~180/s of telemetry: without dropping stale
+    # telemetry, IDENT (the lowest class) would wait behind it forever.
+    emu = serial_emulator(baud=1200)
+    front = emu.frontend
+    assert isinstance(front, SerialFrontEnd)
+    with SerialHost(front.device) as host:
+        assert host.handshake(timeout=10).schema_hash == SCHEMA_HASH
+    assert front.stale_dropped > 0

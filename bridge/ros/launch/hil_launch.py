@@ -1,20 +1,22 @@
 """Launch the whole hardware-in-the-loop set on one machine (docs/ros2.md).
 
-    ros2 launch rover_hil hil_launch.py
-    ros2 launch rover_hil hil_launch.py params_file:=/path/to/my_hil.yaml
-    ros2 launch rover_hil hil_launch.py with_executor:=false     # drive it yourself
+    ros2 launch rover_hil hil_launch.py                          # rover side, gate, link
+    ros2 launch rover_hil hil_launch.py goal:=2.0,3.0,90         # ... and run a mission
+    ros2 launch rover_hil hil_launch.py params_file:=/path/to/my_hil.yaml rtt:=0.5
 
 Starts the controller emulator on a pty (``rover_emulator``), the rover-side bridge on
 that pty (``rover_bridge``, rclpy backend), the simulation gate (``rover_gate``), the
-emulated Earth-Moon link (``rover_link``) and the plan executor (``rover_executor``).
-Every node reads its section of one parameters YAML (``share/rover_hil/config/hil.yaml``
-by default; sections are keyed ``/**/<node name>`` so that a namespace does not hide
-them). The programs that are not ROS nodes (emulator, gate, link relay) map their
-section to their command-line options (firmware_proto.rosargs): ``speed_factor: 2.0``
-is ``--speed-factor 2.0``.
+emulated Earth-Moon link between the ground namespace and the rover's (``rover_link``)
+and, given a ``goal``, the executor that plans, validates and drives one mission to it
+(``rover_executor``; it exits when the mission ends).
 
-The emulator's ``link`` and the bridge's ``device`` must name the same path; the bridge
-reconnects until the emulator has created it, so start order does not matter.
+The emulator, the bridge and the gate read their sections of one parameters YAML
+(``share/rover_hil/config/hil.yaml`` by default; sections keyed ``/**/<node name>`` so a
+namespace does not hide them). The emulator and the gate are not ROS nodes: they map
+their section to their command-line options (firmware_proto.rosargs), ``speed_factor:
+2.0`` being ``--speed-factor 2.0``. The link relay and the executor take the launch
+arguments below as their options. The emulator's ``link`` and the bridge's ``device``
+must name the same path; the bridge reconnects until the emulator has created it.
 """
 
 from __future__ import annotations
@@ -22,62 +24,114 @@ from __future__ import annotations
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 PACKAGE = "rover_hil"
 
-NODES: tuple[tuple[str, str, str | None, tuple[str, ...]], ...] = (
-    ("rover_emulator", "rover_emulator", None, ()),
-    ("rover_bridge", "rover_bridge", None, ("--ros-backend", "rclpy")),
-    ("rover_gate", "rover_gate", "with_gate", ()),
-    ("rover_link", "rover_link", "with_link", ()),
-    ("rover_executor", "rover_executor", "with_executor", ()),
+NODES: tuple[str, ...] = (
+    "rover_emulator",
+    "rover_bridge",
+    "rover_gate",
+    "rover_link",
+    "rover_executor",
 )
-"""Node name, executable, the launch argument that switches it (None: always on), and
-fixed command-line arguments."""
+"""The executables this file starts; each node is named after its executable."""
+
+
+def _node(executable: str, **kwargs: object) -> Node:
+    return Node(
+        package=PACKAGE,
+        executable=executable,
+        name=executable,
+        ros_arguments=["--log-level", LaunchConfiguration("log_level")],
+        output="screen",
+        emulate_tty=True,
+        **kwargs,
+    )
 
 
 def generate_launch_description() -> LaunchDescription:
     """The HIL set with its launch arguments."""
+    params = LaunchConfiguration("params_file")
+    rover_ns = LaunchConfiguration("namespace")
+    ground_ns = LaunchConfiguration("ground_namespace")
+    rtt = LaunchConfiguration("rtt")
+    goal = LaunchConfiguration("goal")
     arguments = [
         DeclareLaunchArgument(
             "params_file",
             default_value=PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "hil.yaml"]),
-            description="parameters YAML with a /**/<node> section per node",
+            description="parameters YAML with the sections of rover_emulator, rover_bridge, "
+            "rover_gate",
         ),
         DeclareLaunchArgument(
-            "namespace", default_value="", description="ROS namespace of every node and topic"
+            "namespace", default_value="", description="ROS namespace of the rover's topics"
         ),
         DeclareLaunchArgument(
-            "log_level", default_value="info", description="ROS log level (debug, info, warn)"
+            "ground_namespace",
+            default_value="ground",
+            description="ROS namespace of the operator's topics (the far end of the link)",
+        ),
+        DeclareLaunchArgument(
+            "rtt", default_value="3.0", description="round trip of the emulated link, s"
+        ),
+        DeclareLaunchArgument(
+            "goal",
+            default_value="",
+            description="X,Y,YAW (m, m, deg): run one mission to this goal; empty: no executor",
         ),
         DeclareLaunchArgument(
             "with_gate", default_value="true", description="start the simulation gate"
         ),
         DeclareLaunchArgument(
-            "with_link",
-            default_value="true",
-            description="start the link relay (emulated 3 s round trip)",
+            "with_link", default_value="true", description="start the link relay"
         ),
         DeclareLaunchArgument(
-            "with_executor", default_value="true", description="start the plan executor"
+            "log_level", default_value="info", description="ROS log level (debug, info, warn)"
         ),
     ]
     nodes = [
-        Node(
-            package=PACKAGE,
-            executable=executable,
-            name=name,
-            namespace=LaunchConfiguration("namespace"),
-            arguments=list(fixed),
-            parameters=[LaunchConfiguration("params_file")],
-            ros_arguments=["--log-level", LaunchConfiguration("log_level")],
-            condition=IfCondition(LaunchConfiguration(switch)) if switch else None,
-            output="screen",
-            emulate_tty=True,
-        )
-        for name, executable, switch, fixed in NODES
+        _node("rover_emulator", parameters=[params]),
+        _node(
+            "rover_bridge",
+            namespace=rover_ns,
+            arguments=["--ros-backend", "rclpy"],
+            parameters=[params],
+        ),
+        _node(
+            "rover_gate",
+            parameters=[params],
+            condition=IfCondition(LaunchConfiguration("with_gate")),
+        ),
+        _node(
+            "rover_link",
+            arguments=[
+                "--ros-backend",
+                "rclpy",
+                "--rtt",
+                rtt,
+                "--ground-namespace",
+                ground_ns,
+                "--rover-namespace",
+                rover_ns,
+            ],
+            condition=IfCondition(LaunchConfiguration("with_link")),
+        ),
+        _node(
+            "rover_executor",
+            arguments=[
+                "--ros-backend",
+                "rclpy",
+                "--goal",
+                goal,
+                "--namespace",
+                ground_ns,
+                "--rtt",
+                rtt,
+            ],
+            condition=IfCondition(PythonExpression(["'", goal, "' != ''"])),
+        ),
     ]
     return LaunchDescription([*arguments, *nodes])

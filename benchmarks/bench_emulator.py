@@ -1,0 +1,165 @@
+"""The emulator: control-loop rate, CPU share serving in real time, STOP reaction and
+stopping distance, beside the bare twin and the pty round trip measured in the same run.
+
+Run: ``.venv/bin/python -m benchmarks.bench_emulator [--quick]``
+
+- Rates: ticks/s of the controller model driving the twin in lockstep (firmware logic,
+  one physics step, telemetry), beside the twin alone (benchmarks.bench_twin) at the
+  emulator's default 1 ms step; the target is >= 50x real time on one core.
+- CPU share: ``rover emulate --serial`` serving a host that heartbeats and drives, in
+  real time, measured from the process's own CPU counters over a window.
+- STOP reaction: a host on the pty sends STOP while the rover drives; the emulator
+  timestamps the frame's arrival (reader thread) and the moment its control thread has
+  zeroed the wheel targets. The pty round trip is the floor for a host's view of it.
+- Stopping distance: the STOPPED report after STOP at full speed, beside v^2 / 2a.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import subprocess
+import sys
+import time
+
+from benchmarks.bench_twin import twin_rate
+from benchmarks.common import pty_round_trip, summary, table
+from emulator.controller import ControllerConfig, ControllerModel
+from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
+from emulator.twin import Twin
+from firmware_proto.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    ClearAck,
+    ClearStop,
+    Command,
+    Hello,
+    HostHeartbeat,
+    Motion,
+    Stop,
+    Stopped,
+    WheelSpeeds,
+)
+from firmware_proto.rover import RoverDescription, load_rover
+from tests.emulator.host import SerialHost
+
+
+def controller_rate(rover: RoverDescription, seconds: float) -> float:
+    """Lockstep ticks/s of the controller model driving, with telemetry."""
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
+    model.boot()
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+    model.handle(Motion(1, Command.FWD, 60, 30000))
+    ticks = 0
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(100):
+            model.tick()
+        model.handle(HostHeartbeat(ticks & 0xFFFF))
+        ticks += 100
+    return ticks / (time.perf_counter() - t0)
+
+
+def _cpu_seconds(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as stat:
+        fields = stat.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_share(window_s: float) -> float:
+    """Share of one core used by ``rover emulate --serial`` serving a driving host."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "firmware_proto.cli", "emulate", "--serial"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        device = proc.stdout.readline().split()[1]
+        with SerialHost(device) as host:
+            host.handshake()
+            for seq in range(1, 9):
+                host.send(Motion(seq, Command.FWD if seq % 2 else Command.REV, 40, 30000))
+            time.sleep(1.0)  # warm up
+            c0, t0 = _cpu_seconds(proc.pid), time.monotonic()
+            time.sleep(window_s)
+            return (_cpu_seconds(proc.pid) - c0) / (time.monotonic() - t0)
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)
+
+
+def stop_trials(
+    rover: RoverDescription, trials: int, rng: random.Random
+) -> tuple[list[float], list[int]]:
+    """Emulator STOP reactions (s) and stopping distances from full speed (mm)."""
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
+    distances: list[int] = []
+    with Emulator(model, SerialFrontEnd(seed=2)) as emu, SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+        host.handshake()
+        for trial in range(trials):
+            mark = host.mark()
+            host.send(Motion(trial + 1, Command.FWD if trial % 2 == 0 else Command.REV, 60, 30000))
+            host.wait_for(WheelSpeeds, lambda w: abs(w.left_mm_s) >= 299, since=mark, timeout=10)
+            time.sleep(rng.uniform(0.0, 0.2))
+            mark = host.mark()
+            host.send(Stop(trial + 1, 4))
+            distances.append(host.wait_for(Stopped, since=mark, timeout=10).distance_mm)
+            host.send(ClearStop(trial + 1))
+            host.wait_for(ClearAck, since=mark, timeout=10)
+        reactions = list(emu.stop_reactions)
+    return reactions, distances
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="shorter runs (smoke test)")
+    args = parser.parse_args(argv)
+    rover = load_rover()
+    seconds, window, trials = (0.5, 2.0, 10) if args.quick else (3.0, 10.0, 100)
+
+    twin = twin_rate(rover, 0.001, None)
+    ctl = controller_rate(rover, seconds)
+    print("Emulator rates at the default 1 ms step (one core, lockstep)\n")
+    print("| case | steps/s | x real time |")
+    print("|---|---:|---:|")
+    print("| real time (the limit when serving) | 1,000 | 1 |")
+    print(f"| twin alone (bench_twin) | {twin:,.0f} | {twin / 1000:,.0f} |")
+    print(f"| controller model + twin + telemetry | {ctl:,.0f} | {ctl / 1000:,.0f} |")
+    print("\nTarget: >= 50x real time at 1 kHz on one core.\n")
+
+    share = cpu_share(window)
+    print(
+        f"CPU share serving a driving host in real time (rover emulate --serial, 1 kHz): {share * 100:.1f} % of one core\n"
+    )
+
+    rtt = pty_round_trip(2000)
+    reactions, distances = stop_trials(rover, trials, random.Random(1))
+    print(
+        table(
+            "STOP reaction in the emulator",
+            [
+                ("pty round trip (15 B there and back, pyserial)", summary(rtt)),
+                ("STOP frame arrival -> wheel targets zero", summary(reactions)),
+            ],
+            note="The reaction is measured inside the emulator (reader thread timestamp to control thread).",
+        )
+    )
+    v = rover.max_speed_mps
+    ideal_mm = v * v / (2 * rover.drive.wheel_accel_limit_mps2) * 1000
+    distances.sort()
+    print(
+        f"\nStopping distance from full speed ({v:.2f} m/s, {rover.drive.wheel_accel_limit_mps2} m/s^2): "
+        f"p50 {distances[len(distances) // 2]} mm, max {distances[-1]} mm "
+        f"(wheel travel; v^2/2a = {ideal_mm:.0f} mm; n = {len(distances)})"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

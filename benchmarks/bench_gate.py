@@ -1,0 +1,530 @@
+"""Simulation gate: validation speed, collision checks, step-size accuracy, HTTP rates.
+
+Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S]``. Prints four tables:
+
+1. *12-step plan, 10 m of driving and four turns* on scn01 (through a traction region):
+   wall time p50/p99 and the factor over real time, for the twin alone
+   (:func:`emulator.playback.play`), the gate's whole validation in one process
+   (playback, verdict, trajectory tagging, JSON) and end to end over HTTP (a ``rover
+   gate`` subprocess with worker processes), beside the thesis's 60 Hz, about real time.
+2. *Collision checks per physics step* on each scenario map, beside the thesis's
+   12.4 / 18.6 / 24.1 ms per frame: the cost pymunk's contact detection adds to a twin
+   step (the map minus an open plane, same motion), and an explicit overlap query of the
+   margin-inflated footprint against the whole map (pymunk ``shape_query``, what the
+   thesis's ``overlap_mesh`` did).
+3. *Step size against the 1 ms reference* over random 12-step plans: the largest final
+   position and yaw difference, and the factor over real time.
+4. *Requests/s for a trivial plan* with 1 and 4 keep-alive clients: the gate as shipped
+   (one write per response, TCP_NODELAY), the same gate without either (the stdlib
+   server's two writes with Nagle: the ~40 ms stall), with each fix alone, with worker
+   threads, and a plain ``http.server`` handler measured in the same run.
+5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads,
+   with the CPU the gate used per wall second: why the gate runs playback in processes.
+
+Timings are wall clock (``time.perf_counter``) on a shared VM; rates vary between runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.client
+import json
+import math
+import os
+import platform
+import random
+import statistics
+import sys
+import threading
+import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import pymunk
+
+from benchmarks.common import Served, gate_process, server_process
+from emulator.drive import turn_units_for_yaw
+from emulator.playback import play
+from emulator.twin import Twin
+from emulator.worldmap import CircleObstacle, PolygonObstacle, WorldMap, convex_parts, load_map
+from firmware_proto.messages import Command
+from firmware_proto.plan import COMMAND_NAMES, Plan
+from firmware_proto.rover import RoverDescription, load_rover
+from gate.config import DEFAULT_DT_S, DEFAULT_SAFETY_MARGIN_M, GateConfig
+from gate.options import ValidateOptions
+from gate.validator import Validator
+
+THESIS_QUERY_MS = {"scn01": 12.4, "scn02": 18.6, "scn03": 24.1}
+TRIVIAL_PLAN = json.dumps(
+    {
+        "goal": {"x": 1.2, "y": 3.0, "yaw_deg": 0.0},
+        "commands": [{"command": "STOP", "speed": 0, "distance": 0}],
+    }
+).encode()
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, math.ceil(q * len(ordered)) - 1)]
+
+
+def square_plan(rover: RoverDescription) -> list[tuple[int, int, int]]:
+    """12 steps: four sides of 2 x 1.25 m (10 m of driving), each followed by a 90 degree
+    LEFT turn (the plan of benchmarks/bench_twin.py)."""
+    quarter = turn_units_for_yaw(rover, math.pi / 2)
+    side = [
+        (int(Command.FWD), 60, 28750),
+        (int(Command.FWD), 60, 28750),
+        (int(Command.LEFT), 30, quarter),
+    ]
+    return side * 4
+
+
+def as_plan_json(
+    steps: list[tuple[int, int, int]], goal: tuple[float, float, float]
+) -> dict[str, Any]:
+    return {
+        "goal": {"x": goal[0], "y": goal[1], "yaw_deg": goal[2]},
+        "commands": [{"command": COMMAND_NAMES[c], "speed": s, "distance": d} for c, s, d in steps],
+    }
+
+
+# -- 1. the 12-step plan ----------------------------------------------------------------------
+
+
+def bench_plan(rover: RoverDescription, repeat: int) -> None:
+    world = load_map("scn01")
+    steps = square_plan(rover)
+    body = as_plan_json(steps, (1.0, 4.0, 0.0))
+    plan = Plan.from_dict(body)
+    validator = Validator.from_config(GateConfig(pool="thread"))
+    options = ValidateOptions(map="scn01").resolve(validator.settings, "scn01")
+
+    rows: list[tuple[str, float, float, list[float]]] = []
+    for dt in (0.001, DEFAULT_DT_S):
+        walls = []
+        sim = 0.0
+        for _ in range(repeat if dt > 0.001 else max(3, repeat // 5)):
+            t0 = time.perf_counter()
+            result = play(
+                Twin(rover, world, dt_s=dt, safety_margin_m=DEFAULT_SAFETY_MARGIN_M), steps
+            )
+            walls.append(time.perf_counter() - t0)
+            sim = result.sim_time_s
+            assert result.completed, "the benchmark plan must run to the end"
+        rows.append(("twin playback only", dt, sim, walls))
+    walls = []
+    verdict = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        verdict = validator.validate(plan, options)
+        verdict.to_json()
+        walls.append(time.perf_counter() - t0)
+    assert verdict is not None
+    assert verdict.collision is None
+    rows.append(("gate validation, in process", DEFAULT_DT_S, verdict.sim_time_s, walls))
+    with gate_process({}) as served:
+        conn = http.client.HTTPConnection(*served.address, timeout=60)
+        payload = json.dumps(body).encode()
+        walls = []
+        for i in range(repeat + 2):
+            t0 = time.perf_counter()
+            conn.request(
+                "POST", "/validate_plan?map=scn01", payload, {"Content-Type": "application/json"}
+            )
+            response = conn.getresponse()
+            data = response.read()
+            if i >= 2:  # the first two warm each worker process
+                walls.append(time.perf_counter() - t0)
+        conn.close()
+        assert response.status == 200, data[:200]
+        sim = json.loads(data)["sim_time_s"]
+    rows.append(("gate over HTTP, worker processes", DEFAULT_DT_S, sim, walls))
+
+    header = (
+        f"{'12-step plan, 10 m + 4 turns, scn01':<36} {'dt ms':>6} {'sim s':>7} "
+        f"{'wall p50 ms':>12} {'wall p99 ms':>12} {'x real time':>12}"
+    )
+    print(header)
+    print("-" * len(header))
+    peer = "thesis: Isaac Sim at 60 Hz (peer)"
+    print(f"{peer:<36} {16.7:>6.1f} {'':>7} {'':>12} {'':>12} {'~1':>12}")
+    for name, dt, sim, w in rows:
+        p50 = statistics.median(w)
+        print(
+            f"{name:<36} {dt * 1e3:>6.1f} {sim:>7.2f} {p50 * 1e3:>12.1f} "
+            f"{percentile(w, 0.99) * 1e3:>12.1f} {sim / p50:>12,.0f}"
+        )
+    print("target: >= 500x real time for the gate's validation")
+
+
+# -- 2. collision checks ------------------------------------------------------------------------
+
+
+def twin_step_us(
+    rover: RoverDescription, world: WorldMap | None, start: tuple[float, float, float]
+) -> float:
+    """Best-of-5 mean time of one twin step, us, turning slowly in place at ``start``
+    (same motion with and without a map, clear of every obstacle)."""
+    best = math.inf
+    n = 5000
+    for _ in range(5):
+        from emulator.twin import Pose2D
+
+        twin = Twin(
+            rover,
+            world,
+            dt_s=DEFAULT_DT_S,
+            safety_margin_m=DEFAULT_SAFETY_MARGIN_M,
+            start=Pose2D.from_deg(*start),
+        )
+        k = rover.drive.wheel_velocity_scale_rad_s
+        twin.set_motor_omegas(10 * k, 10 * k)  # a slow spin on the spot
+        step = twin.step
+        t0 = time.perf_counter()
+        for _ in range(n):
+            step()
+        best = min(best, (time.perf_counter() - t0) / n)
+        assert twin.first_collision is None
+    return best * 1e6
+
+
+def map_space(world: WorldMap) -> pymunk.Space:
+    """A pymunk space holding the map's obstacles and walls (for the explicit query)."""
+    space = pymunk.Space()
+    static = space.static_body
+    b, t = world.bounds, 1.0
+    shapes: list[pymunk.Shape] = [
+        pymunk.Poly(static, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+        for x0, y0, x1, y1 in (
+            (b.min_x - t, b.min_y - t, b.max_x + t, b.min_y),
+            (b.min_x - t, b.max_y, b.max_x + t, b.max_y + t),
+            (b.min_x - t, b.min_y, b.min_x, b.max_y),
+            (b.max_x, b.min_y, b.max_x + t, b.max_y),
+        )
+    ]
+    for o in world.obstacles:
+        if isinstance(o, PolygonObstacle):
+            shapes += [pymunk.Poly(static, list(part)) for part in convex_parts(o.points)]
+        elif isinstance(o, CircleObstacle):
+            shapes.append(pymunk.Circle(static, o.radius, offset=o.center))
+        else:
+            shapes.append(pymunk.Segment(static, o.a, o.b, o.radius))
+    space.add(*shapes)
+    return space
+
+
+def overlap_query_us(
+    rover: RoverDescription, world: WorldMap, seed: int = 1
+) -> tuple[float, float]:
+    """Mean time of an explicit overlap query of the inflated footprint at random poses
+    in the map, us, and the share of poses that overlap something."""
+    space = map_space(world)
+    body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+    g = rover.geometry
+    half_l, half_w = g.chassis_length_m / 2, g.chassis_width_m / 2
+    box = [(-half_l, -half_w), (half_l, -half_w), (half_l, half_w), (-half_l, half_w)]
+    footprint = pymunk.Poly(body, box, radius=DEFAULT_SAFETY_MARGIN_M)
+    space.add(body, footprint)
+    rng = random.Random(seed)
+    b = world.bounds
+    poses = [
+        (
+            rng.uniform(b.min_x, b.max_x),
+            rng.uniform(b.min_y, b.max_y),
+            rng.uniform(-math.pi, math.pi),
+        )
+        for _ in range(2000)
+    ]
+    hits = 0
+    best = math.inf
+    for _ in range(3):
+        hits = 0
+        t0 = time.perf_counter()
+        for x, y, yaw in poses:
+            body.position = (x, y)
+            body.angle = yaw
+            space.reindex_shapes_for_body(body)
+            if space.shape_query(footprint):
+                hits += 1
+        best = min(best, (time.perf_counter() - t0) / len(poses))
+    return best * 1e6, hits / len(poses)
+
+
+def bench_collision(rover: RoverDescription) -> None:
+    header = (
+        f"{'collision check per step':<18} {'obstacles':>9} {'thesis ms':>10} {'open us':>8} "
+        f"{'map us':>7} {'in-step us':>11} {'query us':>9} {'x faster':>9}"
+    )
+    print(header)
+    print("-" * len(header))
+    twin_step_us(rover, None, (6.0, 4.0, 0.0))  # warm-up
+    for name in ("scn01", "scn02", "scn03"):
+        world = load_map(name)
+        # A clear spot for the spin: scn03's is west of the barrier.
+        spot = {"scn01": (2.0, 4.0, 0.0), "scn02": (1.5, 4.0, 0.0), "scn03": (1.2, 3.2, 0.0)}[name]
+        open_us = map_us = math.inf
+        for _ in range(3):  # interleaved, best of each: the difference is small
+            open_us = min(open_us, twin_step_us(rover, None, spot))
+            map_us = min(map_us, twin_step_us(rover, world, spot))
+        in_step = max(0.0, map_us - open_us)
+        query, _share = overlap_query_us(rover, world)
+        worst = max(in_step, query)
+        print(
+            f"{name:<18} {len(world.obstacles):>9} {THESIS_QUERY_MS[name]:>10.1f} {open_us:>8.2f} "
+            f"{map_us:>7.2f} {in_step:>11.2f} {query:>9.2f} "
+            f"{THESIS_QUERY_MS[name] * 1e3 / worst:>9,.0f}"
+        )
+    print("open/map: one twin step (physics, forces, contacts) at the same spot without/with the")
+    print("map; in-step: what contact detection adds (the difference of the best runs); query: one")
+    print("explicit overlap query of the inflated footprint at a random pose; x faster: the")
+    print("thesis's per-frame query time over the larger of ours.")
+
+
+# -- 3. step size ----------------------------------------------------------------------------------
+
+
+def random_plans(
+    rover: RoverDescription, count: int, seed: int = 7
+) -> list[list[tuple[int, int, int]]]:
+    rng = random.Random(seed)
+    plans = []
+    for _ in range(count):
+        steps: list[tuple[int, int, int]] = []
+        for _ in range(6):
+            angle = rng.uniform(-170, 170)
+            units = min(30000, turn_units_for_yaw(rover, math.radians(abs(angle))))
+            steps.append((3 if angle > 0 else 4, rng.choice([10, 20, 30, 40, 60]), units))
+            steps.append(
+                (
+                    rng.choice([1, 1, 1, 2]),
+                    rng.choice([10, 20, 30, 40, 60]),
+                    rng.randint(2000, 30000),
+                )
+            )
+        plans.append(steps)
+    return plans
+
+
+def bench_step_size(rover: RoverDescription, count: int) -> None:
+    plans = random_plans(rover, count)
+    reference = []
+    header = (
+        f"{'step size vs 1 ms, random 12-step plans':<40} {'dt ms':>6} {'max pos mm':>11} "
+        f"{'max yaw deg':>12} {'x real time':>12}"
+    )
+    print(header)
+    print("-" * len(header))
+    for dt in (0.001, 0.002, 0.005, 0.01, 0.02):
+        wall = sim = 0.0
+        pos_err = yaw_err = 0.0
+        for i, steps in enumerate(plans):
+            t0 = time.perf_counter()
+            result = play(Twin(rover, None, dt_s=dt), steps)
+            wall += time.perf_counter() - t0
+            sim += result.sim_time_s
+            p = result.final_pose
+            if dt == 0.001:
+                reference.append(p)
+                continue
+            q = reference[i]
+            pos_err = max(pos_err, math.hypot(p.x_m - q.x_m, p.y_m - q.y_m))
+            yaw_err = max(yaw_err, abs((p.yaw_deg - q.yaw_deg + 180) % 360 - 180))
+        label = f"{count} plans, {sim / count:.0f} s each" + (
+            " (gate step)" if dt == DEFAULT_DT_S else ""
+        )
+        print(
+            f"{label:<40} {dt * 1e3:>6.0f} {pos_err * 1e3:>11.2f} {yaw_err:>12.3f} "
+            f"{sim / wall:>12,.0f}"
+        )
+
+
+# -- 4. HTTP rates -------------------------------------------------------------------------------
+
+
+class _PlainHandler(BaseHTTPRequestHandler):
+    """The stdlib way: send_response, headers, end_headers, then the body (two writes)."""
+
+    protocol_version = "HTTP/1.1"
+    body = b'{"approved":true}'
+
+    def do_POST(self) -> None:
+        self.rfile.read(int(self.headers.get("Content-Length", 0)))
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(self.body)))
+        self.end_headers()
+        self.wfile.write(self.body)
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
+def serve_plain() -> None:
+    """``--serve-plain``: a plain http.server on a free port (the peer of table 4)."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _PlainHandler)
+    print(f"GATE http://127.0.0.1:{server.server_address[1]}", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+
+
+def request_rate(
+    address: tuple[str, int],
+    clients: int,
+    seconds: float,
+    payload: bytes = TRIVIAL_PLAN,
+    query: str = "",
+) -> tuple[float, float]:
+    """Requests/s and median latency (ms) of ``clients`` keep-alive clients posting
+    ``payload`` (default the trivial plan) for ``seconds``."""
+    latencies: list[float] = []
+    lock = threading.Lock()
+    start = threading.Barrier(clients + 1)
+    stop = threading.Event()
+
+    def client() -> None:
+        conn = http.client.HTTPConnection(*address, timeout=60)
+        mine: list[float] = []
+        start.wait()
+        while not stop.is_set():
+            t0 = time.perf_counter()
+            conn.request(
+                "POST", "/validate_plan" + query, payload, {"Content-Type": "application/json"}
+            )
+            response = conn.getresponse()
+            response.read()
+            mine.append(time.perf_counter() - t0)
+            assert response.status == 200
+        conn.close()
+        with lock:
+            latencies.extend(mine)
+
+    threads = [threading.Thread(target=client) for _ in range(clients)]
+    for t in threads:
+        t.start()
+    start.wait()
+    t0 = time.perf_counter()
+    stop.wait(seconds)
+    stop.set()
+    for t in threads:
+        t.join()
+    elapsed = time.perf_counter() - t0
+    return len(latencies) / elapsed, statistics.median(latencies) * 1e3
+
+
+def bench_http(seconds: float) -> None:
+    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = [
+        ("gate, worker processes (as shipped)", lambda: gate_process({})),
+        ("gate, worker threads", lambda: gate_process({}, pool="thread")),
+        ("gate, one write only (Nagle on)", lambda: gate_process({"ROVER_GATE_TCP_NODELAY": "0"})),
+        (
+            "gate, TCP_NODELAY only (two writes)",
+            lambda: gate_process({"ROVER_GATE_SINGLE_WRITE": "0"}),
+        ),
+        (
+            "gate, neither (stdlib two writes)",
+            lambda: gate_process({"ROVER_GATE_SINGLE_WRITE": "0", "ROVER_GATE_TCP_NODELAY": "0"}),
+        ),
+        (
+            "plain http.server handler (peer)",
+            lambda: server_process(
+                [sys.executable, "-m", "benchmarks.bench_gate", "--serve-plain"], {}
+            ),
+        ),
+    ]
+    header = (
+        f"{'trivial plan, keep-alive':<38} {'1 client req/s':>15} {'p50 ms':>7} "
+        f"{'4 clients req/s':>16} {'p50 ms':>7}"
+    )
+    print(header)
+    print("-" * len(header))
+    for name, start in cases:
+        with start() as served:
+            address = served.address
+            request_rate(address, 1, 0.3)  # warm-up
+            one, one_ms = request_rate(address, 1, seconds)
+            four, four_ms = request_rate(address, 4, seconds)
+        print(f"{name:<38} {one:>15,.0f} {one_ms:>7.2f} {four:>16,.0f} {four_ms:>7.2f}")
+    print("clients are threads of this process on the same 2 cores; the servers are subprocesses.")
+
+
+def tree_cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) of a process and all its descendants, from /proc."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+            for task in Path(f"/proc/{p}/task").iterdir():
+                todo += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return total
+
+
+def bench_pools(rover: RoverDescription, seconds: float) -> None:
+    """Why worker processes: the 12-step plan from 1 and 4 clients, processes vs threads,
+    with the CPU the gate used (its process and its workers) per wall second."""
+    payload = json.dumps(as_plan_json(square_plan(rover), (1.0, 4.0, 0.0))).encode()
+    header = (
+        f"{'12-step plan, keep-alive, 2 workers':<34} {'1 client req/s':>15} {'gate CPU':>9} "
+        f"{'4 clients req/s':>16} {'gate CPU':>9} {'p50 ms':>7}"
+    )
+    print(header)
+    print("-" * len(header))
+    for name, pool in (("worker processes (as shipped)", "process"), ("worker threads", "thread")):
+        with gate_process({}, pool=pool) as served:
+            request_rate(served.address, 2, 0.5, payload, "?map=scn01")  # warm-up
+            cells = []
+            for clients in (1, 4):
+                cpu0, t0 = tree_cpu_s(served.pid), time.perf_counter()
+                rate, p50 = request_rate(served.address, clients, seconds, payload, "?map=scn01")
+                cpu = (tree_cpu_s(served.pid) - cpu0) / (time.perf_counter() - t0)
+                cells.append((rate, cpu, p50))
+        (one, one_cpu, _), (four, four_cpu, four_ms) = cells
+        print(
+            f"{name:<34} {one:>15,.1f} {one_cpu:>8.0%} {four:>16,.1f} {four_cpu:>8.0%} "
+            f"{four_ms:>7.1f}"
+        )
+    print("gate CPU: CPU seconds of the gate and its workers per wall second (200% = both cores).")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--repeat", type=int, default=30, help="plan repetitions (default 30)")
+    parser.add_argument("--seconds", type=float, default=2.0, help="per HTTP case and client count")
+    parser.add_argument("--plans", type=int, default=8, help="random plans for the step-size table")
+    parser.add_argument("--serve-plain", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.serve_plain:
+        serve_plain()
+        return
+    rover = load_rover()
+    print(
+        f"gate benchmark: Python {platform.python_version()}, pymunk {pymunk.version}, "
+        f"{platform.machine()}, {os.cpu_count()} CPUs"
+    )
+    print()
+    bench_plan(rover, max(3, args.repeat))
+    print()
+    bench_collision(rover)
+    print()
+    bench_step_size(rover, max(1, args.plans))
+    print()
+    bench_http(args.seconds)
+    print()
+    bench_pools(rover, 2 * args.seconds)  # slow requests: a longer window
+
+
+if __name__ == "__main__":
+    main()

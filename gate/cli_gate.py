@@ -1,0 +1,223 @@
+"""``rover gate``: serve the simulation gate, or ``rover gate check`` one plan offline."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlencode
+
+__all__ = ["register"]
+
+EXIT_APPROVED = 0
+EXIT_REJECTED = 1
+EXIT_USAGE = 2
+
+
+def _add_playback_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    p.add_argument(
+        "--margin",
+        dest=prefix + "safety_margin_m",
+        type=float,
+        metavar="M",
+        help="safety margin: footprint inflation for collisions, m (default 0.10)",
+    )
+    p.add_argument(
+        "--pos-tol",
+        dest=prefix + "position_tolerance_m",
+        type=float,
+        metavar="M",
+        help="accepted final distance to the goal, m (default 0.10)",
+    )
+    p.add_argument(
+        "--yaw-tol",
+        dest=prefix + "yaw_tolerance_deg",
+        type=float,
+        metavar="DEG",
+        help="accepted final yaw error, degrees (default 3)",
+    )
+    p.add_argument(
+        "--sample-hz",
+        dest=prefix + "sample_hz",
+        type=float,
+        metavar="HZ",
+        help="predicted trajectory rate, Hz (default 10)",
+    )
+    p.add_argument("--rover", dest=prefix + "rover_path", metavar="TOML", help="rover description")
+
+
+def register(subparsers: Any) -> None:
+    """Add ``rover gate`` (serve) and ``rover gate check`` (one plan, offline)."""
+    p = subparsers.add_parser(
+        "gate",
+        help="serve the simulation gate (POST /validate_plan), or check one plan",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Serve the simulation gate over HTTP: plans posted to /validate_plan are "
+            "played on the pymunk twin and answered with a verdict (docs/gate.md). Prints "
+            "'GATE http://HOST:PORT' as its first line once it accepts requests (use "
+            "--port 0 for a free port). Stops gracefully on Ctrl-C or SIGTERM. Settings "
+            "also come from ROVER_GATE_<SETTING> variables and a TOML file (--config)."
+        ),
+        epilog=(
+            "examples:\n"
+            "  rover gate --map lab --port 8080\n"
+            "  rover gate --host 0.0.0.0 --token-file /etc/rover/gate.token --workers 2\n"
+            "  rover gate check plan.json --map scn02 --start 1,4,0 --png verdict.png"
+        ),
+    )
+    p.add_argument(
+        "--map",
+        dest="default_map",
+        metavar="NAME|FILE",
+        help="default map: name or JSON file (lab)",
+    )
+    p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, help="port (default 8080; 0 picks a free one)")
+    p.add_argument("--token", help="bearer token required on every request")
+    p.add_argument("--token-file", metavar="PATH", help="read the token from this file")
+    p.add_argument(
+        "--workers", type=int, metavar="N", help="validations in parallel (default: CPU count)"
+    )
+    p.add_argument("--pool", choices=("process", "thread"), help="worker kind (process)")
+    p.add_argument(
+        "--queue", dest="queue_depth", type=int, metavar="N", help="queued beyond workers (16)"
+    )
+    p.add_argument(
+        "--max-body", dest="max_body_bytes", type=int, metavar="BYTES", help="body limit (65536)"
+    )
+    p.add_argument("--config", metavar="TOML", help="settings file with a [gate] table")
+    _add_playback_options(p)
+    p.set_defaults(func=_serve)
+
+    sub = p.add_subparsers(dest="gate_command", metavar="check")
+    c = sub.add_parser(
+        "check",
+        help="validate one plan file offline and print the verdict",
+        description=(
+            "Play one plan (Listing 1 JSON) on the twin, exactly as the server would, and "
+            "print the verdict. Exit status: 0 approved, 1 rejected, 2 bad plan or usage."
+        ),
+    )
+    c.add_argument("plan", help="plan JSON file ('-' for stdin)")
+    c.add_argument(
+        "--map", dest="check_map", metavar="NAME|FILE", help="map name or JSON file (lab)"
+    )
+    c.add_argument("--start", dest="check_start", metavar="X,Y,YAW", help="start pose")
+    c.add_argument("--png", dest="check_png", metavar="PATH", help="write the picture here")
+    c.add_argument("--json", dest="check_json", action="store_true", help="print the JSON")
+    _add_playback_options(c, "check_")
+    c.set_defaults(func=_check)
+
+
+def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]:
+    keys = ("safety_margin_m", "position_tolerance_m", "yaw_tolerance_deg", "sample_hz", "dt_s")
+    out = {k: getattr(args, prefix + k, None) for k in keys}
+    out["rover_path"] = getattr(args, prefix + "rover_path", None)
+    return out
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from gate.config import load_config
+    from gate.errors import ConfigError
+    from gate.server import GateServer
+
+    token = args.token
+    if args.token_file:
+        try:
+            token = Path(args.token_file).read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigError(f"cannot read --token-file: {exc}") from exc
+    config = load_config(
+        {
+            "default_map": args.default_map,
+            "host": args.host,
+            "port": args.port,
+            "token": token,
+            "workers": args.workers,
+            "pool": args.pool,
+            "queue_depth": args.queue_depth,
+            "max_body_bytes": args.max_body_bytes,
+            **_playback_args(args),
+        },
+        config_path=args.config,
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with GateServer(config) as gate:
+            print(f"GATE {gate.url}", flush=True)
+            while not stop.wait(3600.0):
+                pass
+            print("gate: shutting down", file=sys.stderr, flush=True)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    import base64
+
+    from emulator.errors import EmulatorError
+    from firmware_proto.errors import PlanError
+    from firmware_proto.plan import Plan
+    from firmware_proto.rover import load_rover
+    from gate.config import PlaybackSettings
+    from gate.errors import GateError
+    from gate.options import ValidateOptions
+    from gate.validator import Validator, load_maps
+
+    try:
+        text = sys.stdin.read() if args.plan == "-" else Path(args.plan).read_text(encoding="utf-8")
+        plan = Plan.from_json(text)
+        query = {"start": args.check_start} if args.check_start else {}
+        if args.check_png:
+            query["render"] = "1"
+        options = ValidateOptions.from_query(urlencode(query))
+        given = _playback_args(args, "check_")
+        rover_path = given.pop("rover_path")
+        settings = PlaybackSettings(**{k: v for k, v in given.items() if v is not None})
+        maps, default = load_maps(args.check_map or "lab")
+        validator = Validator(load_rover(rover_path), maps, settings, default)
+        verdict = validator.validate(plan, options.resolve(settings, default))
+    except OSError as exc:
+        print(f"rover gate check: cannot read {args.plan}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except (PlanError, GateError, EmulatorError, ValueError) as exc:
+        print(f"rover gate check: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    if args.check_png and verdict.image_png_base64 is not None:
+        Path(args.check_png).write_bytes(base64.b64decode(verdict.image_png_base64))
+    if args.check_json:
+        print(verdict.to_json())
+    else:
+        _print_summary(verdict, args.check_png)
+    return EXIT_APPROVED if verdict.approved else EXIT_REJECTED
+
+
+def _print_summary(verdict: Any, png: str | None) -> None:
+    v = verdict
+    f = v.final_pose
+    status = "APPROVED" if v.approved else f"REJECTED {v.failure_type} at step {v.failed_step}"
+    print(status)
+    if v.failure_reason:
+        print(f"  {v.failure_reason}")
+    print(f"  final pose     x={f.x:.3f} y={f.y:.3f} yaw={f.yaw_deg:.2f} deg")
+    print(
+        f"  goal error     {v.position_error_m:+.3f} m along, {v.lateral_error_m:+.3f} m "
+        f"across, {v.yaw_error_deg:+.2f} deg (tolerances {v.tolerances.position_m:g} m, "
+        f"{v.tolerances.yaw_deg:g} deg)"
+    )
+    print(f"  steps played   {len(v.steps)}, twin time {v.sim_time_s:.2f} s")
+    r = v.replay
+    print(f"  map            {r.map} sha256 {r.map_sha256[:16]}, rover {r.rover_sha256[:16]}")
+    if png:
+        print(f"  picture        {png}")

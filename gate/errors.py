@@ -1,0 +1,195 @@
+"""Exceptions raised by :mod:`gate`.
+
+Everything this package raises on purpose derives from :class:`GateError`::
+
+    GateError
+     +-- ConfigError            a gate setting is out of range, or the bind policy refuses
+     |                          it (non-loopback address without a token); also ValueError
+     +-- OptionError            a request option (query parameter) is unknown, repeated or
+     |                          out of range; also ValueError. ``parameter`` names it.
+     +-- HttpError              a request cannot be served; carries the HTTP status, a
+          |                     machine-readable ``code`` and extra response headers
+          +-- BadRequestError        400: not JSON, bad option, malformed framing
+          |    +-- PlanSchemaError   400: the plan fails Listing 1; ``violations`` lists
+          |                          ``(json_pointer, message)`` pairs
+          +-- UnauthorizedError      401: missing or wrong bearer token
+          +-- NotFoundError          404: unknown path or map
+          +-- MethodNotAllowedError  405: ``allow`` lists the methods the path takes
+          +-- LengthRequiredError    411: a body without Content-Length or chunked framing
+          +-- PayloadTooLargeError   413: the body exceeds the documented limit
+          +-- UnsupportedMediaError  415: the body is not ``application/json``
+          +-- OverloadedError        503: every worker and queue slot is taken, or the
+                                     server is shutting down; ``retry_after_s`` says when
+                                     to try again
+
+Errors from the twin (:mod:`emulator.errors`) and the plan schema
+(:class:`firmware_proto.errors.PlanError`) are translated at the boundary, chained with
+``raise ... from``.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "BadRequestError",
+    "ConfigError",
+    "GateError",
+    "HttpError",
+    "LengthRequiredError",
+    "MethodNotAllowedError",
+    "NotFoundError",
+    "OptionError",
+    "OverloadedError",
+    "PayloadTooLargeError",
+    "PlanSchemaError",
+    "UnauthorizedError",
+    "UnsupportedMediaError",
+]
+
+
+class GateError(Exception):
+    """Root of every exception raised on purpose by the gate package."""
+
+
+class ConfigError(GateError, ValueError):
+    """A gate setting is out of range or refused by the bind policy."""
+
+
+class OptionError(GateError, ValueError):
+    """A request option is unknown, repeated or out of range.
+
+    Attributes:
+        parameter: the query parameter's name (``""`` for the query string as a whole).
+    """
+
+    def __init__(self, parameter: str, message: str) -> None:
+        self.parameter = parameter
+        self.reason = message
+        super().__init__(f"{parameter}: {message}" if parameter else message)
+
+    def __reduce__(self) -> tuple[type[OptionError], tuple[str, str]]:
+        # Crosses process boundaries (worker pools): rebuild from both arguments.
+        return (type(self), (self.parameter, self.reason))
+
+
+class HttpError(GateError):
+    """A request that gets an error response instead of a verdict.
+
+    Attributes:
+        status: HTTP status code.
+        code: short machine-readable error name (``"not_json"``, ``"plan_schema"``...).
+        message: one human-readable sentence.
+        headers: extra response headers (``Allow``, ``Retry-After``...).
+    """
+
+    status = 500
+    default_code = "internal_error"
+
+    def __init__(
+        self, message: str, *, code: str | None = None, headers: dict[str, str] | None = None
+    ) -> None:
+        super().__init__(message)
+        self.message = message
+        self.code = code or self.default_code
+        self.headers = dict(headers or {})
+
+
+class BadRequestError(HttpError):
+    """400: the request is malformed (not JSON, bad option, bad framing).
+
+    Attributes:
+        parameter: for a bad option, the query parameter's name; else ``""``.
+    """
+
+    status = 400
+    default_code = "bad_request"
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        code: str | None = None,
+        parameter: str = "",
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        super().__init__(message, code=code, headers=headers)
+        self.parameter = parameter
+
+
+class PlanSchemaError(BadRequestError):
+    """400: the plan fails the Listing 1 schema.
+
+    Attributes:
+        violations: ``(json_pointer, message)`` pairs, sorted by pointer.
+    """
+
+    default_code = "plan_schema"
+
+    def __init__(self, violations: list[tuple[str, str]]) -> None:
+        self.violations = list(violations)
+        text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in self.violations)
+        super().__init__(f"plan fails the schema: {text}")
+
+
+class UnauthorizedError(HttpError):
+    """401: the bearer token is missing or wrong."""
+
+    status = 401
+    default_code = "unauthorized"
+
+
+class NotFoundError(HttpError):
+    """404: no such path or map."""
+
+    status = 404
+    default_code = "not_found"
+
+
+class MethodNotAllowedError(HttpError):
+    """405: the path exists but does not take this method.
+
+    Attributes:
+        allow: the methods the path takes, sorted.
+    """
+
+    status = 405
+    default_code = "method_not_allowed"
+
+    def __init__(self, message: str, allow: list[str]) -> None:
+        self.allow = sorted(allow)
+        super().__init__(message, headers={"Allow": ", ".join(self.allow)})
+
+
+class LengthRequiredError(HttpError):
+    """411: a request body without Content-Length and without chunked framing."""
+
+    status = 411
+    default_code = "length_required"
+
+
+class PayloadTooLargeError(HttpError):
+    """413: the body is larger than the limit."""
+
+    status = 413
+    default_code = "payload_too_large"
+
+
+class UnsupportedMediaError(HttpError):
+    """415: the body's Content-Type is not ``application/json``."""
+
+    status = 415
+    default_code = "unsupported_media_type"
+
+
+class OverloadedError(HttpError):
+    """503: no capacity now (all workers and queue slots busy) or shutting down.
+
+    Attributes:
+        retry_after_s: whole seconds the client should wait before retrying.
+    """
+
+    status = 503
+    default_code = "overloaded"
+
+    def __init__(self, message: str, *, code: str | None = None, retry_after_s: int = 1) -> None:
+        self.retry_after_s = retry_after_s
+        super().__init__(message, code=code, headers={"Retry-After": str(retry_after_s)})

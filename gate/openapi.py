@@ -1,0 +1,381 @@
+"""The OpenAPI 3.1 document served at ``/openapi.json``, built from what the server does.
+
+The paths and methods come from :data:`gate.routes.ROUTES` (the table the server
+dispatches on). The request body is the plan schema itself
+(:func:`firmware_proto.plan.plan_schema`, the one copy of Listing 1) and ``GET
+/maps/{name}`` answers with documents of the map schema
+(:func:`emulator.worldmap.map_schema`), each with its ``$defs`` hoisted into
+``components.schemas`` (``CommandPlan_command_step``, ``Map_polygon``...). The query
+parameters and their ranges come from :mod:`gate.options`; limits and defaults from the
+server's configuration, so the document states the values this server uses. The 401
+responses and the bearer security scheme appear only when the server has a token.
+OpenAPI 3.1 schemas are JSON Schema 2020-12, so tests validate real responses against
+``components.schemas`` directly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from emulator.worldmap import map_schema
+from firmware_proto.plan import MAX_PLAN_STEPS, plan_schema
+from gate.config import GateConfig
+from gate.options import OPTION_LIMITS, QUERY_PARAMETERS
+from gate.routes import ROUTES
+from gate.verdict import FAILURE_TYPES
+
+__all__ = ["OPENAPI_VERSION", "build_openapi"]
+
+OPENAPI_VERSION = "3.1.0"
+
+_NUM: dict[str, Any] = {"type": "number"}
+_INT: dict[str, Any] = {"type": "integer"}
+_STR: dict[str, Any] = {"type": "string"}
+_BOOL: dict[str, Any] = {"type": "boolean"}
+_SHA: dict[str, Any] = {"type": "string", "pattern": "^[0-9a-f]{64}$"}
+
+
+def _ref(name: str) -> dict[str, Any]:
+    return {"$ref": f"#/components/schemas/{name}"}
+
+
+def _obj(properties: dict[str, Any], optional: tuple[str, ...] = ()) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "required": [k for k in properties if k not in optional],
+        "additionalProperties": False,
+        "properties": properties,
+    }
+
+
+def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
+    return {"oneOf": [schema, {"type": "null"}]}
+
+
+def _hoist(schema: dict[str, Any], name: str) -> dict[str, Any]:
+    """An embedded JSON schema as component schemas: the schema itself as ``name`` and
+    each of its ``$defs`` as ``name + "_" + def``, with every ``#/$defs/...`` reference
+    rewritten to point there (references resolve against the OpenAPI document's root).
+    ``$schema`` and ``$id`` are dropped: OpenAPI 3.1 schemas are 2020-12 already."""
+    prefix = "#/$defs/"
+
+    def rewrite(node: Any) -> Any:
+        if isinstance(node, dict):
+            out = {k: rewrite(v) for k, v in node.items() if k not in ("$schema", "$id", "$defs")}
+            ref = out.get("$ref")
+            if isinstance(ref, str) and ref.startswith(prefix):
+                out["$ref"] = f"#/components/schemas/{name}_{ref[len(prefix) :]}"
+            return out
+        if isinstance(node, list):
+            return [rewrite(v) for v in node]
+        return node
+
+    hoisted = {name: rewrite(schema)}
+    for key, sub in schema.get("$defs", {}).items():
+        hoisted[f"{name}_{key}"] = rewrite(sub)
+    return hoisted
+
+
+def _schemas() -> dict[str, Any]:
+    pose = _obj({"x": _NUM, "y": _NUM, "yaw_deg": _NUM})
+    step_index = {"type": "integer", "minimum": 0, "maximum": MAX_PLAN_STEPS - 1}
+    return {
+        **_hoist(plan_schema(), "CommandPlan"),
+        **_hoist(map_schema(), "Map"),
+        "Pose": pose | {"description": "Metres in the map frame; yaw in degrees CCW from +x."},
+        "Point": _obj({"x": _NUM, "y": _NUM}),
+        "TrajectorySample": _obj(
+            {
+                "t_s": _NUM | {"description": "Plan time (steps back to back)."},
+                "step": step_index,
+                "step_t_s": _NUM | {"description": "Time since this sample's step started."},
+                "x": _NUM,
+                "y": _NUM,
+                "yaw_deg": _NUM,
+            }
+        ),
+        "Trajectory": _obj(
+            {
+                "sample_period_s": _NUM,
+                "samples": {"type": "array", "items": _ref("TrajectorySample")},
+            }
+        ),
+        "StepPrediction": _obj(
+            {
+                "index": step_index,
+                "command": {"enum": ["STOP", "FWD", "REV", "LEFT", "RIGHT"]},
+                "speed": _INT,
+                "distance": _INT,
+                "start_time_s": _NUM,
+                "end_time_s": _NUM,
+                "expected_duration_s": _NUM,
+                "nominal_duration_s": _NUM,
+                "start_pose": _ref("Pose"),
+                "end_pose": _ref("Pose"),
+                "completed": _BOOL,
+                "left_travel_units": _NUM,
+                "right_travel_units": _NUM,
+            }
+        ),
+        "CollisionReport": _obj(
+            {
+                "obstacle_id": _STR,
+                "contact": _ref("Point"),
+                "pose": _ref("Pose"),
+                "time_s": _NUM,
+                "step": step_index,
+                "step_t_s": _NUM,
+            }
+        ),
+        "StallReport": _obj(
+            {
+                "step": step_index,
+                "reason": {"enum": ["no_encoder_progress", "time_limit"]},
+                "side": {"enum": ["left", "right", "both", ""]},
+                "time_s": _NUM,
+            }
+        ),
+        "Tolerances": _obj({"position_m": _NUM, "yaw_deg": _NUM, "safety_margin_m": _NUM}),
+        "Replay": _obj(
+            {
+                "seed": _INT,
+                "map": _STR,
+                "map_sha256": _SHA,
+                "rover": _STR,
+                "rover_sha256": _SHA,
+                "plan_sha256": _SHA,
+                "start": _ref("Pose"),
+                "dt_s": _NUM,
+                "sample_hz": _NUM,
+                "render": _BOOL,
+                "gate_version": _STR,
+                "pymunk_version": _STR,
+                "query": _STR,
+            }
+        ),
+        "Verdict": _obj(
+            {
+                "approved": _BOOL,
+                "failure_type": _nullable({"enum": list(FAILURE_TYPES)}),
+                "failure_reason": _STR,
+                "failed_step": _nullable(step_index),
+                "goal": _ref("Pose"),
+                "start_pose": _ref("Pose"),
+                "final_pose": _ref("Pose"),
+                "position_error_m": _NUM
+                | {"description": "Signed, along the approach heading: > 0 short of the goal."},
+                "lateral_error_m": _NUM | {"description": "Signed: > 0 the goal lies left."},
+                "distance_error_m": _NUM | {"minimum": 0},
+                "yaw_error_deg": _NUM | {"minimum": -180, "exclusiveMaximum": 180},
+                "approach_heading_deg": _NUM,
+                "collision": _nullable(_ref("CollisionReport")),
+                "stall": _nullable(_ref("StallReport")),
+                "tolerances": _ref("Tolerances"),
+                "steps": {"type": "array", "items": _ref("StepPrediction")},
+                "trajectory": _ref("Trajectory"),
+                "sim_time_s": _NUM,
+                "replay": _ref("Replay"),
+                "image_png_base64": _STR | {"contentEncoding": "base64"},
+                "wall_time_s": _NUM,
+            },
+            optional=("image_png_base64",),
+        ),
+        "Violation": _obj({"pointer": _STR, "message": _STR}),
+        "Error": _obj(
+            {
+                "error": _STR,
+                "status": _INT,
+                "message": _STR,
+                "violations": {"type": "array", "items": _ref("Violation")},
+                "parameter": _STR,
+                "allow": {"type": "array", "items": _STR},
+            },
+            optional=("violations", "parameter", "allow"),
+        ),
+        "Health": _obj(
+            {
+                "status": {"enum": ["ok", "draining"]},
+                "version": _STR,
+                "default_map": _STR,
+                "maps": {"type": "array", "items": _STR},
+                "pool": {"enum": ["process", "thread"]},
+                "workers": _INT,
+                "queue_depth": _INT,
+                "in_flight": _INT,
+                "dt_s": _NUM,
+                "max_body_bytes": _INT,
+                "uptime_s": _NUM,
+            }
+        ),
+        "MapSummary": _obj(
+            {
+                "name": _STR,
+                "description": _STR,
+                "sha256": _SHA,
+                "bounds": _obj({"min_x": _NUM, "min_y": _NUM, "max_x": _NUM, "max_y": _NUM}),
+                "start": _ref("Pose"),
+                "obstacles": _INT,
+                "goals": {
+                    "type": "array",
+                    "items": _obj(
+                        {"name": _STR, "x": _NUM, "y": _NUM, "yaw_deg": _NUM, "note": _STR}
+                    ),
+                },
+            }
+        ),
+        "MapList": _obj({"default": _STR, "maps": {"type": "array", "items": _ref("MapSummary")}}),
+    }
+
+
+def _error(description: str, headers: dict[str, Any] | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "description": description,
+        "content": {"application/json": {"schema": _ref("Error")}},
+    }
+    if headers:
+        out["headers"] = headers
+    return out
+
+
+def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[dict[str, Any]]:
+    pb = config.playback
+    limits = dict(OPTION_LIMITS)
+    limits["sample_hz"] = (limits["sample_hz"][0], min(limits["sample_hz"][1], 1.0 / pb.dt_s))
+    docs: dict[str, tuple[str, dict[str, Any]]] = {
+        "map": (
+            f"Map to play on (default {default_map!r}; see GET /maps).",
+            {"type": "string", "enum": maps},
+        ),
+        "start": (
+            "Start pose 'x,y,yaw_deg' (metres, degrees); default the map's start pose. "
+            "Must lie inside the map's bounds.",
+            {"type": "string", "pattern": r"^[^,]+,[^,]+,[^,]+$"},
+        ),
+        "render": (
+            "1 or true: add a PNG of the top-down view (image_png_base64).",
+            {"type": "string", "enum": ["0", "1", "true", "false"], "default": "0"},
+        ),
+        "margin_m": (
+            "Safety margin: footprint inflation for collision checks, m.",
+            {"default": pb.safety_margin_m},
+        ),
+        "pos_tol_m": (
+            "Accepted distance between the final position and the goal, m.",
+            {"default": pb.position_tolerance_m},
+        ),
+        "yaw_tol_deg": (
+            "Accepted final yaw error, degrees.",
+            {"default": pb.yaw_tolerance_deg},
+        ),
+        "sample_hz": (
+            "Predicted trajectory rate, Hz (the period is rounded to whole twin steps).",
+            {"default": pb.sample_hz},
+        ),
+    }
+    out = []
+    for name in QUERY_PARAMETERS:
+        description, schema = docs[name]
+        if name in limits:
+            low, high = limits[name]
+            schema = {"type": "number", "minimum": low, "maximum": high} | schema
+        out.append(
+            {
+                "name": name,
+                "in": "query",
+                "required": False,
+                "description": description,
+                "schema": schema,
+            }
+        )
+    return out
+
+
+def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict[str, Any]:
+    """The OpenAPI document of a gate with ``config`` serving ``maps`` (names), with
+    ``default_map`` for requests that name none."""
+    secured = config.token is not None
+    overloaded = _error(
+        "No capacity: every worker and queue slot is taken, the connection limit is "
+        "reached, or the server is shutting down. Retry after the given seconds.",
+        {"Retry-After": {"schema": {"type": "integer", "minimum": 0}}},
+    )
+    framing = _error("Malformed request framing (Content-Length / Transfer-Encoding).")
+    common: dict[str, Any] = {"400": framing, "503": overloaded}
+    if secured:
+        common["401"] = _error(
+            "Missing or wrong bearer token.",
+            {"WWW-Authenticate": {"schema": {"type": "string"}}},
+        )
+
+    def ok(schema: dict[str, Any], description: str) -> dict[str, Any]:
+        return {"description": description, "content": {"application/json": {"schema": schema}}}
+
+    responses: dict[str, dict[str, Any]] = {
+        "health": {"200": ok(_ref("Health"), "The gate is up.")},
+        "list_maps": {"200": ok(_ref("MapList"), "Summaries of the served maps.")},
+        "get_map": {
+            "200": ok(_ref("Map"), "The map document (emulator map schema)."),
+            "404": _error("No such map."),
+        },
+        "openapi": {"200": ok({"type": "object"}, "This document.")},
+        "validate_plan": {
+            "200": ok(
+                _ref("Verdict"),
+                "The verdict: approved, or why not, with the predicted trajectory.",
+            ),
+            "400": _error(
+                "Not JSON (error 'not_json'); the plan fails the schema ('plan_schema', "
+                "with the JSON pointer of each violation); a bad query option "
+                "('invalid_option', naming the parameter); or malformed framing."
+            ),
+            "411": _error("A body without Content-Length or chunked Transfer-Encoding."),
+            "413": _error(f"Body over {config.max_body_bytes} bytes."),
+            "415": _error("Content-Type is not application/json (UTF-8)."),
+        },
+    }
+    paths: dict[str, Any] = {}
+    for route in ROUTES:
+        item: dict[str, Any] = {}
+        for method in route.methods:
+            op: dict[str, Any] = {
+                "operationId": route.operation,
+                "summary": route.summary,
+                "responses": common | responses[route.operation],
+            }
+            if route.template == "/maps/{name}":
+                op["parameters"] = [
+                    {"name": "name", "in": "path", "required": True, "schema": {"type": "string"}}
+                ]
+            if route.operation == "validate_plan":
+                op["parameters"] = _parameters(config, maps, default_map)
+                op["requestBody"] = {
+                    "required": True,
+                    "description": (
+                        "Exactly a command plan of the thesis's Listing 1 (strict: no other "
+                        "properties). Options go in the query string."
+                    ),
+                    "content": {"application/json": {"schema": _ref("CommandPlan")}},
+                }
+            item[method.lower()] = dict(sorted(op.items()))
+        paths[route.template] = item
+    doc: dict[str, Any] = {
+        "openapi": OPENAPI_VERSION,
+        "info": {
+            "title": "Rover simulation gate",
+            "version": "1",
+            "description": (
+                "Plays command plans on the pymunk twin of the rover and answers with a "
+                "verdict and the predicted trajectory (docs/gate.md). Every error body is "
+                "JSON (schema Error). Beyond the responses listed per operation, any path "
+                "may answer 404 (unknown path), 405 with an Allow header (method not "
+                "allowed on a known path), 501 (unknown method), 414/431 (request line or "
+                "headers too long) or 505 (HTTP version). HEAD is answered wherever GET is."
+            ),
+        },
+        "paths": paths,
+        "components": {"schemas": _schemas()},
+    }
+    if secured:
+        doc["components"]["securitySchemes"] = {"bearerAuth": {"type": "http", "scheme": "bearer"}}
+        doc["security"] = [{"bearerAuth": []}]
+    return doc

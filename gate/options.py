@@ -1,0 +1,229 @@
+"""Request options of ``POST /validate_plan``, carried in the query string.
+
+The body is exactly a Listing 1 plan (``additionalProperties: false``), so everything
+else rides in the query: ``/validate_plan?map=scn02&start=1.0,2.0,90&render=1``.
+
+==============  ==========================================  ==========================
+parameter       meaning                                     default / range
+==============  ==========================================  ==========================
+``map``         map name (``GET /maps``)                    the server's default map
+``start``       start pose ``x,y,yaw_deg`` (m, m, deg)      the map's start pose
+``render``      ``1``/``true``: add a PNG of the top view   ``0``
+``margin_m``    footprint inflation for collisions, m       server default, 0..1
+``pos_tol_m``   accepted final distance to the goal, m      server default, 0.001..10
+``yaw_tol_deg`` accepted final yaw error, degrees           server default, 0.01..180
+``sample_hz``   predicted trajectory rate, Hz               server default, 0.1..1/dt
+==============  ==========================================  ==========================
+
+Parsing is strict, like the body: an unknown or repeated parameter, an empty value, or
+a number that is not a plain finite decimal is an :class:`~gate.errors.OptionError`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from urllib.parse import parse_qsl, quote
+
+from gate.config import PlaybackSettings
+from gate.errors import OptionError
+from gate.verdict import Pose
+
+__all__ = [
+    "OPTION_LIMITS",
+    "QUERY_PARAMETERS",
+    "ResolvedOptions",
+    "ValidateOptions",
+]
+
+QUERY_PARAMETERS = (
+    "map",
+    "start",
+    "render",
+    "margin_m",
+    "pos_tol_m",
+    "yaw_tol_deg",
+    "sample_hz",
+)
+"""Every query parameter ``/validate_plan`` accepts, in canonical order."""
+
+OPTION_LIMITS: dict[str, tuple[float, float]] = {
+    "margin_m": (0.0, 1.0),
+    "pos_tol_m": (0.001, 10.0),
+    "yaw_tol_deg": (0.01, 180.0),
+    "sample_hz": (0.1, 1000.0),
+}
+"""Inclusive ranges of the numeric options (``sample_hz`` is further capped at 1/dt)."""
+
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+_TRUE = ("1", "true")
+_FALSE = ("0", "false")
+
+
+def _number(name: str, text: str) -> float:
+    if not _NUMBER.fullmatch(text):
+        raise OptionError(name, f"not a decimal number: {text!r}")
+    value = float(text)
+    if not math.isfinite(value):
+        raise OptionError(name, f"not a finite number: {text!r}")
+    return value + 0.0  # no negative zero
+
+
+def _ranged(name: str, text: str) -> float:
+    value = _number(name, text)
+    low, high = OPTION_LIMITS[name]
+    if not low <= value <= high:
+        raise OptionError(name, f"must be in [{low:g}, {high:g}], got {value:g}")
+    return value
+
+
+def _pose(name: str, text: str) -> Pose:
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise OptionError(name, f"expected x,y,yaw_deg (three numbers), got {text!r}")
+    x, y, yaw = (_number(name, p.strip()) for p in parts)
+    return Pose(x, y, yaw)
+
+
+def _fmt(value: float) -> str:
+    return repr(float(value))
+
+
+@dataclass(frozen=True)
+class ValidateOptions:
+    """Options of one validation as the client gave them (``None``: server default).
+
+    Attributes:
+        map: map name.
+        start: start pose; ``None`` for the map's.
+        render: add a PNG of the top-down view to the verdict.
+        safety_margin_m, position_tolerance_m, yaw_tolerance_deg, sample_hz: overrides
+            of the server's playback defaults.
+    """
+
+    map: str | None = None
+    start: Pose | None = None
+    render: bool = False
+    safety_margin_m: float | None = None
+    position_tolerance_m: float | None = None
+    yaw_tolerance_deg: float | None = None
+    sample_hz: float | None = None
+
+    @classmethod
+    def from_query(cls, query: str) -> ValidateOptions:
+        """Parse a query string (without the ``?``).
+
+        Raises:
+            OptionError: unknown, repeated or empty parameter, or a bad value.
+        """
+        if not query:
+            return cls()
+        try:
+            pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=True)
+        except ValueError as exc:
+            raise OptionError("", f"malformed query string: {exc}") from exc
+        seen: dict[str, str] = {}
+        for name, value in pairs:
+            if name not in QUERY_PARAMETERS:
+                raise OptionError(name, f"unknown parameter; known: {', '.join(QUERY_PARAMETERS)}")
+            if name in seen:
+                raise OptionError(name, "given more than once")
+            if value == "":
+                raise OptionError(name, "empty value")
+            seen[name] = value
+        render_text = seen.get("render", "0").lower()
+        if render_text not in _TRUE + _FALSE:
+            raise OptionError("render", f"expected 0, 1, true or false, got {render_text!r}")
+        return cls(
+            map=seen.get("map"),
+            start=_pose("start", seen["start"]) if "start" in seen else None,
+            render=render_text in _TRUE,
+            safety_margin_m=_ranged("margin_m", seen["margin_m"]) if "margin_m" in seen else None,
+            position_tolerance_m=(
+                _ranged("pos_tol_m", seen["pos_tol_m"]) if "pos_tol_m" in seen else None
+            ),
+            yaw_tolerance_deg=(
+                _ranged("yaw_tol_deg", seen["yaw_tol_deg"]) if "yaw_tol_deg" in seen else None
+            ),
+            sample_hz=_ranged("sample_hz", seen["sample_hz"]) if "sample_hz" in seen else None,
+        )
+
+    def to_query(self) -> str:
+        """The query string that :meth:`from_query` parses back to these options (only
+        the options that are set, in canonical order)."""
+        parts: list[str] = []
+        if self.map is not None:
+            parts.append("map=" + quote(self.map, safe=""))
+        if self.start is not None:
+            s = self.start
+            parts.append(f"start={_fmt(s.x)},{_fmt(s.y)},{_fmt(s.yaw_deg)}")
+        if self.render:
+            parts.append("render=1")
+        for name, value in (
+            ("margin_m", self.safety_margin_m),
+            ("pos_tol_m", self.position_tolerance_m),
+            ("yaw_tol_deg", self.yaw_tolerance_deg),
+            ("sample_hz", self.sample_hz),
+        ):
+            if value is not None:
+                parts.append(f"{name}={_fmt(value)}")
+        return "&".join(parts)
+
+    def resolve(self, defaults: PlaybackSettings, default_map: str) -> ResolvedOptions:
+        """Fill what is not set from the server's defaults.
+
+        Raises:
+            OptionError: ``sample_hz`` above the twin's step rate (``1 / dt_s``).
+        """
+        sample_hz = defaults.sample_hz if self.sample_hz is None else self.sample_hz
+        if sample_hz * defaults.dt_s > 1.0 + 1e-9:
+            raise OptionError(
+                "sample_hz", f"must be at most {1.0 / defaults.dt_s:g} (one sample per step)"
+            )
+        return ResolvedOptions(
+            map=default_map if self.map is None else self.map,
+            start=self.start,
+            render=self.render,
+            safety_margin_m=(
+                defaults.safety_margin_m if self.safety_margin_m is None else self.safety_margin_m
+            ),
+            position_tolerance_m=(
+                defaults.position_tolerance_m
+                if self.position_tolerance_m is None
+                else self.position_tolerance_m
+            ),
+            yaw_tolerance_deg=(
+                defaults.yaw_tolerance_deg
+                if self.yaw_tolerance_deg is None
+                else self.yaw_tolerance_deg
+            ),
+            sample_hz=sample_hz,
+        )
+
+
+@dataclass(frozen=True)
+class ResolvedOptions:
+    """Options with every default filled in (``start`` may still be ``None``: the map's
+    start pose, resolved by the validator once the map is known)."""
+
+    map: str
+    start: Pose | None
+    render: bool
+    safety_margin_m: float
+    position_tolerance_m: float
+    yaw_tolerance_deg: float
+    sample_hz: float
+
+    def to_query(self, start: Pose) -> str:
+        """A query string that pins every option (with ``start`` made explicit), so that
+        the same request on a server with other defaults gives the same verdict."""
+        return ValidateOptions(
+            map=self.map,
+            start=start,
+            render=self.render,
+            safety_margin_m=self.safety_margin_m,
+            position_tolerance_m=self.position_tolerance_m,
+            yaw_tolerance_deg=self.yaw_tolerance_deg,
+            sample_hz=self.sample_hz,
+        ).to_query()

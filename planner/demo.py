@@ -1,0 +1,309 @@
+"""The end-to-end demo: every part of the stack, on one machine, driving a mission.
+
+:class:`Demo` starts the parts as the launch file's HIL set does, each its own process:
+the gate (``rover gate``), the motor-controller emulator on a pty with the lab map
+(``rover emulate``), the rover-side bridge on that pty (``rover bridge``) and the
+Earth-Moon link relay (``rover link``, 3 s round trip). ROS topics travel over Cyclone
+DDS with a loopback-only configuration, so no ROS installation is needed and nothing
+leaves the machine. The ground station (planner, orchestrator, executor with drift
+control) runs in this process.
+
+The mission: from the lab's start pose to the goal straight behind the table. The direct
+plan collides with the table; the orchestrator repairs it into a detour; the rover
+drives it. Slip is injected on one leg (one side's traction drops) when a chosen step is
+done; drift control sees the rover leave the predicted trajectory and stops it. The
+operator re-plans from the rover's reported pose (the slip is cleared first: out of the
+sand), and the rover finishes. The demo prints a summary and writes a picture of the
+predicted against the actual trajectory.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+from bridge.rosport import loopback_config, open_port
+from firmware_proto.rover import load_rover
+from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+from planner.gate_client import GateClient
+from planner.geometry import Pose
+from planner.mapinfo import MapInfo
+from planner.mission import MissionReport, MissionRunner
+from planner.orchestrator import PlannerOrchestrator
+from planner.picture import picture_of, save
+from planner.planner import HeuristicLowLevelPlanner
+
+__all__ = ["Demo", "DemoConfig", "DemoResult"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """What the demo runs.
+
+    Attributes:
+        rtt_s: the link's round trip, s of mission time.
+        speed: mission seconds per wall second (the emulator and the link run this much
+            faster; 1 is real time).
+        map_name, goal_name: the lab map and its goal behind the table.
+        slip: the fault injected on one leg, and ``slip_after_step``: once that step
+            (0-based) has completed. ``None`` drives without slip.
+        seed: seeds the emulator (sensor noise, boot nonce) and the link.
+        picture: where to write the PNG.
+        startup_timeout_s: how long each process may take to come up.
+    """
+
+    rtt_s: float = 3.0
+    speed: float = 1.0
+    map_name: str = "lab"
+    goal_name: str = "behind_table"
+    slip: str | None = "slip:left=0.05"
+    slip_after_step: int = 0
+    seed: int = 1
+    picture: Path = Path("demo.png")
+    startup_timeout_s: float = 60.0
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """The mission report, the picture, and whether drift control fired."""
+
+    report: MissionReport
+    picture: Path
+    drift_fired: bool
+
+
+class _Process:
+    """A child process of the demo, started with a ready line on stdout."""
+
+    def __init__(
+        self, name: str, args: list[str], ready: str, timeout_s: float, env: dict[str, str]
+    ) -> None:
+        self.name = name
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "firmware_proto.cli", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        self.lines: list[str] = []
+        self._ready = threading.Event()
+        self._ready_prefix = ready
+        self._reader = threading.Thread(target=self._read, name=f"demo-{name}-out", daemon=True)
+        self._reader.start()
+        self._stderr: list[str] = []
+        self._err_reader = threading.Thread(
+            target=self._read_err, name=f"demo-{name}-err", daemon=True
+        )
+        self._err_reader.start()
+        if not self._ready.wait(timeout_s):
+            self.stop()
+            tail = "".join(self._stderr[-5:]).strip()
+            raise RuntimeError(
+                f"{name} did not come up within {timeout_s:.0f} s" + (f": {tail}" if tail else "")
+            )
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip())
+            if line.startswith(self._ready_prefix):
+                self._ready.set()
+
+    def _read_err(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self._stderr.append(line)
+            if len(self._stderr) > 200:
+                del self._stderr[:100]
+
+    def line(self, prefix: str) -> str:
+        """The first stdout line starting with ``prefix``."""
+        return next(x for x in self.lines if x.startswith(prefix))
+
+    def stop(self) -> None:
+        """SIGTERM, then SIGKILL after 10 s; join the readers."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        for reader in (self._reader, self._err_reader):
+            reader.join(5)
+
+
+def _control(port: int, command: str) -> str:
+    """One command to the emulator's control interface (as the lab's bench would)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+        sock.sendall(command.encode() + b"\n")
+        return sock.makefile().readline().strip()
+
+
+class Demo:
+    """Starts the parts, runs the mission, stops everything (a context manager)."""
+
+    def __init__(
+        self, config: DemoConfig | None = None, say: Callable[[str], None] = print
+    ) -> None:
+        self.config = config or DemoConfig()
+        self._say = say
+        self._t0 = time.monotonic()
+        self._processes: list[_Process] = []
+        self._tmp = tempfile.TemporaryDirectory(prefix="rover-demo-")
+        self._env = {**os.environ, "CYCLONEDDS_URI": loopback_config()}
+
+    def say(self, line: str) -> None:
+        """Print one line with the mission time."""
+        self._say(f"[{(time.monotonic() - self._t0) * self.config.speed:6.1f} s] {line}")
+
+    def _start(self, name: str, args: list[str], ready: str) -> _Process:
+        self.say(f"starting {name}: rover {' '.join(args)}")
+        process = _Process(name, args, ready, self.config.startup_timeout_s, self._env)
+        self._processes.append(process)
+        return process
+
+    def run(self) -> DemoResult:
+        """Start everything, drive the mission, return the result."""
+        cfg = self.config
+        if cfg.speed <= 0 or cfg.rtt_s < 0:
+            raise ValueError("speed must be > 0 and rtt_s >= 0")
+        link = Path(self._tmp.name) / "rover-motor"
+        gate = self._start(
+            "gate",
+            ["gate", "--port", "0", "--map", cfg.map_name, "--workers", "1", "--pool", "thread"],
+            "GATE ",
+        )
+        url = gate.line("GATE ").split()[1]
+        emulator_args = [
+            "emulate",
+            "--serial",
+            "--link",
+            str(link),
+            "--map",
+            cfg.map_name,
+            "--seed",
+            str(cfg.seed),
+            "--speed-factor",
+            f"{cfg.speed:g}",
+            "--control-port",
+            "0",
+        ]
+        emulator = self._start("emulator", emulator_args, "CONTROL ")
+        control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
+        self._start("bridge", ["bridge", "--device", str(link), "--ros-backend", "dds"], "BRIDGE ")
+        self._start(
+            "link",
+            [
+                "link",
+                "--rtt",
+                f"{cfg.rtt_s / cfg.speed:g}",
+                "--seed",
+                str(cfg.seed),
+                "--ros-backend",
+                "dds",
+            ],
+            "LINK ",
+        )
+        rover = load_rover()
+        with (
+            GateClient(url) as client,
+            open_port(
+                "dds",
+                namespace="ground",
+                node_name="rover_executor",
+                config=self._env["CYCLONEDDS_URI"],
+            ) as port,
+        ):
+            world = client.get_map(cfg.map_name)
+            goal = _goal(world, cfg.goal_name)
+            start = world.start
+            orchestrator = PlannerOrchestrator(
+                HeuristicLowLevelPlanner(rover, world=world),
+                client,
+                map_name=cfg.map_name,
+                world=world,
+            )
+            executor = PlanExecutor(
+                port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+            )
+            try:
+                self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
+                if executor.settled_pose(cfg.startup_timeout_s) is None:
+                    raise RuntimeError("the rover never reported its pose through the link")
+                self.say(
+                    f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
+                    f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
+                )
+                slipped = threading.Event()
+
+                def progress(p: Progress) -> None:
+                    self.say(p.line(cfg.speed))
+                    done = p.status == "completed" and p.step == cfg.slip_after_step
+                    if cfg.slip and done and not slipped.is_set():
+                        slipped.set()
+                        answer = _control(control_port, f"inject {cfg.slip}")
+                        self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
+
+                def out_of_the_sand(result: ExecutionResult) -> None:
+                    if cfg.slip:
+                        answer = _control(control_port, "inject clear:slip")
+                        self.say(
+                            f"operator: traction back ({answer}); clearing the stop, re-planning"
+                        )
+
+                runner = MissionRunner(
+                    orchestrator,
+                    executor,
+                    replans=1,
+                    on_progress=progress,
+                    on_drift=out_of_the_sand,
+                    on_event=self.say,
+                )
+                report = runner.run(goal, start=start)
+            finally:
+                executor.close()
+        outcome = "goal reached" if report.reached else "goal not reached"
+        title = (
+            f"rover demo: {outcome}; {len(report.drift_events)} drift STOP(s); RTT {cfg.rtt_s:g} s"
+        )
+        picture = picture_of(report, world, title)
+        path = save(picture, cfg.picture)
+        return DemoResult(report, path, bool(report.drift_events))
+
+    def close(self) -> None:
+        """Stop every process, last started first (idempotent)."""
+        while self._processes:
+            self._processes.pop().stop()
+        self._tmp.cleanup()
+
+    def __enter__(self) -> Demo:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _goal(world: MapInfo, name: str) -> Pose:
+    for goal in world.goals:
+        if goal.name == name:
+            return goal.pose
+    raise ValueError(f"map {world.name!r} has no goal named {name!r}")

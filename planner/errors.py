@@ -1,0 +1,224 @@
+"""Exceptions raised by :mod:`planner`.
+
+Everything this package raises on purpose derives from :class:`PlannerError`::
+
+    PlannerError
+     +-- InvalidPoseError         a start, goal or waypoint has a non-finite coordinate;
+     |    |                       also ValueError. ``name`` says which pose.
+     |    +-- OutOfBoundsError    it lies outside the map's bounds
+     |    +-- GoalInObstacleError it lies inside an obstacle, or so close to one that the
+     |                            rover's body cannot stand there (``obstacle_id``)
+     +-- PlanTooLongError         one plan cannot hold the route (more than 12 steps);
+     |                            plan it leg by leg instead. Also ValueError.
+     +-- RepairError              a repair has nothing to offer for this rejection (the
+     |                            orchestrator then gives up with this reason)
+     +-- UnreachableGoalError     the orchestrator gave up; ``result`` holds every
+     |                            attempt, its plan and its verdict, and the reason
+     +-- GateError                the gate answered with an error status (4xx, 5xx):
+     |    |                       ``status``, ``body``, ``code``, ``message``, and for a
+     |    |                       plan that fails the schema its ``violations`` (pointers)
+     |    +-- GateOverloadedError 503 for longer than the call's time budget;
+     |                            ``retry_after_s`` is the gate's last advice
+     +-- GateUnavailableError     no answer at all from the gate at ``url`` after the
+     |    |                       allowed retries (refused, reset, unreachable); also
+     |    |                       ConnectionError
+     |    +-- GateTimeoutError    connected, but no complete answer within the time
+     |                            budget; also TimeoutError
+     +-- GateProtocolError        a success answer that is not the documented JSON
+
+Programming errors (wrong types, a closed client) raise the usual built-ins. Errors from
+:mod:`firmware_proto` (a plan that fails its own schema) are translated where they
+cross into this package, chained with ``raise ... from``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from planner.orchestrator import MissionResult, PlanResult
+
+__all__ = [
+    "GateError",
+    "GateOverloadedError",
+    "GateProtocolError",
+    "GateTimeoutError",
+    "GateUnavailableError",
+    "GoalInObstacleError",
+    "InvalidPoseError",
+    "OutOfBoundsError",
+    "PlanTooLongError",
+    "PlannerError",
+    "RepairError",
+    "UnreachableGoalError",
+]
+
+
+class PlannerError(Exception):
+    """Root of every exception raised on purpose by the planner package."""
+
+
+class InvalidPoseError(PlannerError, ValueError):
+    """A pose cannot be planned for.
+
+    Attributes:
+        name: which pose (``"goal"``, ``"start"``, ``"via[1]"``...).
+    """
+
+    def __init__(self, name: str, message: str) -> None:
+        self.name = name
+        super().__init__(f"{name}: {message}")
+
+
+class OutOfBoundsError(InvalidPoseError):
+    """A pose lies outside the map's bounds."""
+
+
+class GoalInObstacleError(InvalidPoseError):
+    """A pose lies inside an obstacle, or too close to one for the rover to stand there.
+
+    Attributes:
+        obstacle_id: the obstacle (``"bounds"`` for the walls).
+        clearance_m: distance from the pose to its surface, m (negative inside).
+    """
+
+    def __init__(self, name: str, message: str, obstacle_id: str, clearance_m: float) -> None:
+        self.obstacle_id = obstacle_id
+        self.clearance_m = clearance_m
+        super().__init__(name, message)
+
+
+class PlanTooLongError(PlannerError, ValueError):
+    """The route needs more steps than one plan may hold.
+
+    Attributes:
+        steps: the steps it needs; ``limit``: the most a plan may hold.
+    """
+
+    def __init__(self, steps: int, limit: int) -> None:
+        self.steps = steps
+        self.limit = limit
+        super().__init__(
+            f"the route needs {steps} steps but a plan holds at most {limit}: "
+            "plan it as a mission, leg by leg"
+        )
+
+
+class RepairError(PlannerError):
+    """A repair cannot turn this rejection into a new plan (the message says why)."""
+
+
+class UnreachableGoalError(PlannerError):
+    """The orchestrator gave up on a goal.
+
+    Attributes:
+        result: the :class:`~planner.orchestrator.PlanResult` or
+            :class:`~planner.orchestrator.MissionResult`, with every attempt and verdict.
+    """
+
+    def __init__(self, result: PlanResult | MissionResult) -> None:
+        self.result = result
+        super().__init__(result.reason)
+
+
+def _json_or_none(body: str) -> dict[str, Any] | None:
+    try:
+        obj = json.loads(body)
+    except ValueError:
+        return None
+    return obj if isinstance(obj, dict) else None
+
+
+class GateError(PlannerError):
+    """The gate answered with an error status.
+
+    Attributes:
+        status: the HTTP status code.
+        body: the response body as text.
+        code: the gate's machine-readable error name (``"plan_schema"``,
+            ``"invalid_option"``...), ``""`` when the body is not the gate's error JSON.
+        message: its human-readable sentence (else the body, shortened).
+        violations: for a plan that fails the schema, ``(json_pointer, message)`` pairs.
+        parameter: for a bad query option, its name; else ``""``.
+    """
+
+    def __init__(self, status: int, body: str, *, url: str = "") -> None:
+        self.status = status
+        self.body = body
+        self.url = url
+        obj = _json_or_none(body) or {}
+        self.code = str(obj.get("error", ""))
+        self.message = str(obj.get("message", body[:200]))
+        raw = obj.get("violations")
+        self.violations: tuple[tuple[str, str], ...] = tuple(
+            (str(v.get("pointer", "")), str(v.get("message", "")))
+            for v in (raw if isinstance(raw, list) else [])
+            if isinstance(v, dict)
+        )
+        self.parameter = str(obj.get("parameter", ""))
+        where = f" ({url})" if url else ""
+        what = f"{self.code}: {self.message}" if self.code else self.message
+        super().__init__(f"gate answered {status}{where}: {what}")
+
+    @property
+    def pointers(self) -> tuple[str, ...]:
+        """The JSON pointers of the schema violations, in the gate's order."""
+        return tuple(p for p, _ in self.violations)
+
+
+class GateOverloadedError(GateError):
+    """The gate kept answering 503 (busy or shutting down) past the time budget.
+
+    Attributes:
+        retry_after_s: the gate's last ``Retry-After`` advice, s.
+    """
+
+    def __init__(self, status: int, body: str, *, url: str = "", retry_after_s: float) -> None:
+        self.retry_after_s = retry_after_s
+        super().__init__(status, body, url=url)
+
+
+class GateUnavailableError(PlannerError, ConnectionError):
+    """No answer from the gate.
+
+    Attributes:
+        url: the gate's URL.
+        attempts: connection attempts made.
+        reason: the last low-level error, as text.
+    """
+
+    def __init__(self, url: str, attempts: int, reason: str) -> None:
+        self.url = url
+        self.attempts = attempts
+        self.reason = reason
+        plural = "s" if attempts != 1 else ""
+        super().__init__(
+            f"the gate at {url} is not answering ({attempts} attempt{plural}): {reason}; "
+            "is it running (rover gate)?"
+        )
+
+
+class GateTimeoutError(GateUnavailableError, TimeoutError):
+    """The gate accepted the connection but did not answer in time.
+
+    Attributes:
+        timeout_s: the budget that ran out, s.
+    """
+
+    def __init__(self, url: str, attempts: int, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        super().__init__(url, attempts, f"no complete answer within {timeout_s:g} s")
+
+
+class GateProtocolError(PlannerError):
+    """A success answer that is not the documented JSON.
+
+    Attributes:
+        pointers: where the document departs from the expected shape.
+    """
+
+    def __init__(self, message: str, pointers: Sequence[str] = ()) -> None:
+        self.pointers = tuple(pointers)
+        super().__init__(message)

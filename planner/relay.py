@@ -1,0 +1,195 @@
+"""Link emulation: a relay between the ground's topics and the rover's, with the
+Earth-Moon link's delay, jitter and loss (the thesis's latency injection).
+
+:class:`LinkRelay` subscribes to each route's topic on one side and republishes every
+message on the other after ``one_way_delay_s`` plus jitter, unless the loss draw drops
+it. Routes (relative names, so each side's namespace applies):
+
+- ground -> rover: ``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``
+- rover -> ground: ``command_status``, ``odom``, ``odom_ground``, ``diagnostics``
+
+Messages on one topic keep their order (a space link is a stream; jitter stretches
+gaps, it never reorders). Each route draws delay and loss from its own generator seeded
+from ``seed`` and the topic name, so a run is reproducible whatever the interleaving of
+topics. One scheduler thread releases messages when due; ``close()`` drops what is in
+flight (the link went down) and joins it.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import random
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+from bridge.rosport import (
+    Bool,
+    DiagnosticArray,
+    Empty,
+    Int16MultiArray,
+    Odometry,
+    Publisher,
+    RosPort,
+    String,
+    Subscription,
+)
+
+__all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "Route"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LinkProfile:
+    """The link: one-way delay and jitter (wall seconds), loss ratio, seed.
+
+    A 3 s round trip is ``one_way_delay_s = 1.5``. Jitter is uniform in
+    ``[0, jitter_s]`` added to the delay.
+    """
+
+    one_way_delay_s: float = 1.5
+    jitter_s: float = 0.0
+    loss: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.one_way_delay_s <= 600.0 and 0.0 <= self.jitter_s <= 600.0):
+            raise ValueError("delay and jitter must be in 0..600 s")
+        if not 0.0 <= self.loss < 1.0:
+            raise ValueError("loss must be in [0, 1)")
+
+    @property
+    def rtt_s(self) -> float:
+        """Nominal round trip (no jitter), s."""
+        return 2.0 * self.one_way_delay_s
+
+
+@dataclass(frozen=True)
+class Route:
+    """One relayed topic: name (relative), message type, direction."""
+
+    topic: str
+    msg_type: type[Any]
+    uplink: bool  # ground -> rover
+
+
+DEFAULT_ROUTES: tuple[Route, ...] = (
+    Route("wheel_instructions", Int16MultiArray, True),
+    Route("emergency_stop", Bool, True),
+    Route("clear_emergency_stop", Empty, True),
+    Route("command_status", String, False),
+    Route("odom", Odometry, False),
+    Route("odom_ground", Odometry, False),
+    Route("diagnostics", DiagnosticArray, False),
+)
+
+
+class LinkRelay:
+    """Relays :data:`DEFAULT_ROUTES` between a ground port and a rover port."""
+
+    def __init__(
+        self,
+        ground: RosPort,
+        rover: RosPort,
+        profile: LinkProfile | None = None,
+        routes: tuple[Route, ...] = DEFAULT_ROUTES,
+    ) -> None:
+        """Args:
+        ground: the operator side's port (its namespace applies to ground topics).
+        rover: the rover side's port.
+        profile: delay, jitter, loss, seed.
+        routes: the topics to relay.
+        """
+        self.profile = profile or LinkProfile()
+        self.received = 0
+        """Messages taken from either side so far (relayed, queued or dropped)."""
+        self.forwarded: Counter[str] = Counter()
+        self.dropped: Counter[str] = Counter()
+        self._heap: list[tuple[float, int, Publisher[Any], Any, str]] = []
+        self._order = itertools.count()
+        self._cond = threading.Condition()
+        self._closed = False
+        self._last_due: dict[str, float] = {}
+        self._subs: list[Subscription[Any]] = []
+        for route in routes:
+            src, dst = (ground, rover) if route.uplink else (rover, ground)
+            publisher = dst.publisher(route.topic, route.msg_type)
+            rng = random.Random(f"{self.profile.seed}:{route.topic}:{route.uplink}")
+            self._subs.append(
+                src.subscribe(
+                    route.topic, route.msg_type, self._make_forward(route, publisher, rng)
+                )
+            )
+        self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
+        self._thread.start()
+
+    def _make_forward(self, route: Route, publisher: Publisher[Any], rng: random.Random) -> Any:
+        key = f"{'up' if route.uplink else 'down'}:{route.topic}"
+        profile = self.profile
+
+        def forward(msg: Any) -> None:
+            self.received += 1
+            if profile.loss and rng.random() < profile.loss:
+                self.dropped[key] += 1
+                return
+            delay = profile.one_way_delay_s + (
+                rng.uniform(0.0, profile.jitter_s) if profile.jitter_s else 0.0
+            )
+            with self._cond:
+                if self._closed:
+                    return
+                due = max(time.monotonic() + delay, self._last_due.get(key, 0.0))  # no reordering
+                self._last_due[key] = due
+                heapq.heappush(self._heap, (due, next(self._order), publisher, msg, key))
+                self._cond.notify()
+
+        return forward
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._closed and (not self._heap or self._heap[0][0] > time.monotonic()):
+                    timeout = self._heap[0][0] - time.monotonic() if self._heap else None
+                    self._cond.wait(timeout)
+                if self._closed:
+                    return
+                _, _, publisher, msg, key = heapq.heappop(self._heap)
+            try:
+                publisher.publish(msg)
+                self.forwarded[key] += 1
+            except Exception:
+                logger.exception("relay could not forward %s", key)
+
+    @property
+    def in_flight(self) -> int:
+        """Messages waiting for their delay to pass."""
+        with self._cond:
+            return len(self._heap)
+
+    def close(self) -> None:
+        """Stop relaying; messages in flight are lost (idempotent)."""
+        for sub in self._subs:
+            sub.close()
+        with self._cond:
+            self._closed = True
+            self._heap.clear()
+            self._cond.notify_all()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> LinkRelay:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

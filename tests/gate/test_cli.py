@@ -1,0 +1,146 @@
+"""``rover gate`` as a real subprocess, and ``rover gate check`` (exit codes, PNG, JSON)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from firmware_proto.cli import main
+from firmware_proto.rover import RoverDescription
+
+from .client import call, post_plan
+from .plans import STOP_AT_LAB_START, fwd, plan, step, turn
+
+WAIT_S = 60.0
+ROVER = str(Path(sys.executable).with_name("rover"))
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
+def test_rover_gate_serves_until_a_signal(stop_signal: signal.Signals) -> None:
+    proc = subprocess.Popen(
+        [ROVER, "gate", "--port", "0", "--workers", "1", "--map", "scn01"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline().split()
+        assert first[0] == "GATE"
+        host, port = first[1].removeprefix("http://").split(":")
+        address = (host, int(port))
+        assert host == "127.0.0.1"
+        health = call(address, "GET", "/health").json()
+        assert (health["pool"], health["workers"], health["default_map"]) == ("process", 1, "scn01")
+        verdict = post_plan(address, plan((2.0, 4.0, 0.0), fwd(1.0))).json()
+        assert verdict["approved"] is True
+        assert verdict["replay"]["map"] == "scn01"
+        proc.send_signal(stop_signal)
+        _, err = proc.communicate(timeout=WAIT_S)
+        assert proc.returncode == 0, err
+        assert "shutting down" in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=WAIT_S)
+
+
+def test_rover_gate_refuses_a_public_address_without_a_token() -> None:
+    done = subprocess.run(
+        [ROVER, "gate", "--host", "0.0.0.0", "--port", "0"],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+        check=False,
+    )
+    assert done.returncode == 1
+    assert "without a token" in done.stderr
+
+
+def _check(tmp_path: Path, body: object, *args: str) -> tuple[int, str, str]:
+    plan_file = tmp_path / "plan.json"
+    plan_file.write_text(json.dumps(body) if not isinstance(body, str) else body)
+    return _run_check(["gate", "check", str(plan_file), *args])
+
+
+def _run_check(argv: list[str]) -> tuple[int, str, str]:
+    import contextlib
+    import io
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # argparse usage errors
+            code = int(exc.code or 0)
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_check_exit_codes(tmp_path: Path, rover: RoverDescription) -> None:
+    code, out, _ = _check(tmp_path, STOP_AT_LAB_START)
+    assert code == 0 and out.startswith("APPROVED")
+    code, out, _ = _check(tmp_path, plan((6.2, 3.0, 0.0), *(step("FWD", 60, 30000),) * 3))
+    assert code == 1 and out.startswith("REJECTED collision at step 1")
+    assert "table" in out
+    code, _, err = _check(tmp_path, {"goal": {"x": 0}, "commands": []})
+    assert code == 2 and "/commands" in err
+    code, _, err = _check(tmp_path, "not json")
+    assert code == 2 and "not valid JSON" in err
+    code, _, err = _run_check(["gate", "check", str(tmp_path / "missing.json")])
+    assert code == 2 and "cannot read" in err
+    code, _, err = _check(tmp_path, STOP_AT_LAB_START, "--map", "atlantis")
+    assert code == 2 and "atlantis" in err
+    code, _, err = _check(tmp_path, STOP_AT_LAB_START, "--start", "1,2")
+    assert code == 2 and "start" in err
+    code, _, _ = _check(tmp_path, STOP_AT_LAB_START, "--bogus")
+    assert code == 2
+    code, out, _ = _check(tmp_path, plan((1.2, 3.0, 90.0), turn(rover, 60)), "--yaw-tol", "45")
+    assert code == 0
+
+
+def test_check_start_json_and_png(tmp_path: Path) -> None:
+    png = tmp_path / "verdict.png"
+    code, out, _ = _check(
+        tmp_path,
+        plan((3.0, 2.0, 0.0), fwd(1.0)),
+        "--start",
+        "2,2,0",
+        "--png",
+        str(png),
+        "--json",
+    )
+    assert code == 0
+    verdict = json.loads(out)
+    assert verdict["start_pose"] == {"x": 2.0, "y": 2.0, "yaw_deg": 0.0}
+    assert verdict["replay"]["render"] is True
+    assert png.read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
+
+
+def test_ctrl_c_to_the_process_group_drains_cleanly() -> None:
+    import os
+
+    proc = subprocess.Popen(
+        [ROVER, "gate", "--port", "0", "--workers", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as in a terminal
+    )
+    try:
+        assert proc.stdout is not None
+        url = proc.stdout.readline().split()[1]
+        host, port = url.removeprefix("http://").split(":")
+        assert post_plan((host, int(port)), STOP_AT_LAB_START).status == 200
+        os.killpg(proc.pid, signal.SIGINT)  # parent and workers alike
+        _, err = proc.communicate(timeout=WAIT_S)
+        assert proc.returncode == 0, err
+        assert "Traceback" not in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=WAIT_S)

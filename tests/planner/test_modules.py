@@ -1,0 +1,71 @@
+"""Package hygiene: public names, and the direction of dependencies (DESIGN.md: the
+planner talks to the gate over HTTP and never imports the gate or the emulator)."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+from planner import errors
+
+MODULES = [
+    "planner",
+    "planner.demo",
+    "planner.drift",
+    "planner.errors",
+    "planner.executor",
+    "planner.experiment",
+    "planner.gate_client",
+    "planner.geometry",
+    "planner.mapinfo",
+    "planner.mission",
+    "planner.orchestrator",
+    "planner.picture",
+    "planner.planner",
+    "planner.relay",
+    "planner.repairs",
+    "planner.verdict",
+]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_public_names_are_sorted_and_exist(name: str) -> None:
+    module = importlib.import_module(name)
+    names = module.__all__
+    assert names == sorted(names, key=lambda n: (not n.isupper(), n))
+    for n in names:
+        assert getattr(module, n) is not None
+
+
+def test_the_package_reexports_the_modules_objects() -> None:
+    import planner
+
+    modules = [importlib.import_module(m) for m in MODULES[1:]]
+    for name in planner.__all__:
+        homes = [m for m in modules if name in m.__all__]
+        assert len(homes) == 1, (name, homes)
+        assert getattr(homes[0], name) is getattr(planner, name), name
+
+
+def test_planner_imports_neither_gate_nor_emulator() -> None:
+    code = (
+        "import sys\n"
+        + "".join(f"import {m}\n" for m in MODULES)
+        + "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('gate', 'emulator'))\n"
+        + "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_one_exception_root() -> None:
+    for name in errors.__all__:
+        cls = getattr(errors, name)
+        assert issubclass(cls, errors.PlannerError)
+    assert issubclass(errors.InvalidPoseError, ValueError)
+    assert issubclass(errors.GateUnavailableError, ConnectionError)
+    assert issubclass(errors.GateTimeoutError, TimeoutError)
+    assert issubclass(errors.GateOverloadedError, errors.GateError)
+    assert issubclass(errors.GoalInObstacleError, errors.InvalidPoseError)
