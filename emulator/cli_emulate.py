@@ -9,7 +9,6 @@ values stand for long options (docs/ros2.md).
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import signal
 import sys
@@ -247,24 +246,11 @@ def _serve(
     return 0
 
 
-def _load_yaml(path: str) -> Any:
-    """A ROS parameters file (YAML; PyYAML comes with every ROS 2 installation)."""
-    try:
-        yaml = importlib.import_module("yaml")
-    except ImportError as exc:
-        raise ValueError(
-            f"reading --params-file {path} needs PyYAML (python3-yaml), which ROS 2 installs"
-        ) from exc
-    with open(path, encoding="utf-8") as f:
-        return yaml.safe_load(f)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.rosargs import argv_from_ros_args, split_ros_args
+    from firmware_proto.rosargs import parse_args_with_ros_args
 
-    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     parser = argparse.ArgumentParser(
         prog="rover_emulator",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -274,11 +260,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         epilog=_epilog(),
     )
     add_arguments(parser)
-    try:
-        from_ros = argv_from_ros_args(ros_args, NODE_NAME, _load_yaml) if ros_args else []
-    except (OSError, ValueError) as exc:
-        parser.error(str(exc))
-    args = parser.parse_args(from_ros + own)
+    args = parse_args_with_ros_args(parser, list(sys.argv[1:] if argv is None else argv), NODE_NAME)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
     )

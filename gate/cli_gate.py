@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
 
-__all__ = ["register"]
+__all__ = ["add_arguments", "main", "register"]
 
 EXIT_APPROVED = 0
 EXIT_REJECTED = 1
@@ -49,19 +49,22 @@ def _add_playback_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
     p.add_argument("--rover", dest=prefix + "rover_path", metavar="TOML", help="rover description")
 
 
+_DESCRIPTION = (
+    "Serve the simulation gate over HTTP: plans posted to /validate_plan are played on the "
+    "pymunk twin and answered with a verdict (docs/gate.md). Prints 'GATE http://HOST:PORT' "
+    "as its first line once it accepts requests (use --port 0 for a free port). Stops "
+    "gracefully on Ctrl-C or SIGTERM. Settings also come from ROVER_GATE_<SETTING> "
+    "variables and a TOML file (--config)."
+)
+
+
 def register(subparsers: Any) -> None:
     """Add ``rover gate`` (serve) and ``rover gate check`` (one plan, offline)."""
     p = subparsers.add_parser(
         "gate",
         help="serve the simulation gate (POST /validate_plan), or check one plan",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=(
-            "Serve the simulation gate over HTTP: plans posted to /validate_plan are "
-            "played on the pymunk twin and answered with a verdict (docs/gate.md). Prints "
-            "'GATE http://HOST:PORT' as its first line once it accepts requests (use "
-            "--port 0 for a free port). Stops gracefully on Ctrl-C or SIGTERM. Settings "
-            "also come from ROVER_GATE_<SETTING> variables and a TOML file (--config)."
-        ),
+        description=_DESCRIPTION,
         epilog=(
             "examples:\n"
             "  rover gate --map lab --port 8080\n"
@@ -69,6 +72,13 @@ def register(subparsers: Any) -> None:
             "  rover gate check plan.json --map scn02 --start 1,4,0 --png verdict.png"
         ),
     )
+    add_arguments(p)
+    p.set_defaults(func=_serve)
+    _add_check(p)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of the server (``rover gate`` and ``rover_gate``)."""
     p.add_argument(
         "--map",
         dest="default_map",
@@ -91,8 +101,9 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--config", metavar="TOML", help="settings file with a [gate] table")
     _add_playback_options(p)
-    p.set_defaults(func=_serve)
 
+
+def _add_check(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="gate_command", metavar="check")
     c = sub.add_parser(
         "check",
@@ -221,3 +232,28 @@ def _print_summary(verdict: Any, png: str | None) -> None:
     print(f"  map            {r.map} sha256 {r.map_sha256[:16]}, rover {r.rover_sha256[:16]}")
     if png:
         print(f"  picture        {png}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``rover_gate`` for ``ros2 run`` and launch files: the server's options of ``rover
+    gate``, then optionally ``--ros-args`` (its ``--params-file`` section for the node and
+    ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
+    from firmware_proto.rosargs import parse_args_with_ros_args
+
+    parser = argparse.ArgumentParser(
+        prog="rover_gate",
+        description=_DESCRIPTION + " Accepts --ros-args (see docs/ros2.md).",
+    )
+    add_arguments(parser)
+    args = parse_args_with_ros_args(
+        parser, list(sys.argv[1:] if argv is None else argv), "rover_gate"
+    )
+    try:
+        return _serve(args)
+    except Exception as exc:  # one clean line for the operator, whatever went wrong
+        print(f"rover_gate: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

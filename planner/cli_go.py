@@ -196,10 +196,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``rover_executor`` for ``ros2 run``: the options of ``rover go``."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if "--ros-args" in argv:
-        argv = argv[: argv.index("--ros-args")]
+    """``rover_executor`` for ``ros2 run`` and launch files: the options of ``rover go``,
+    then optionally ``--ros-args`` (its ``--params-file`` section for the node and
+    ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
+    from firmware_proto.rosargs import parse_args_with_ros_args
+
     parser = argparse.ArgumentParser(
         prog="rover_executor", description="Plan, validate and execute a mission."
     )
@@ -207,8 +208,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
     )
+    args = parse_args_with_ros_args(
+        parser, list(sys.argv[1:] if argv is None else argv), "rover_executor"
+    )
     try:
-        return run(parser.parse_args(argv))
+        return run(args)
     except Exception as exc:  # one clean line for the operator, whatever the package
         print(f"rover_executor: error: {exc}", file=sys.stderr)
         return 1

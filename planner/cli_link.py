@@ -98,17 +98,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``rover_link`` for ``ros2 run`` (ROS arguments after ``--ros-args`` are ignored)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if "--ros-args" in argv:
-        argv = argv[: argv.index("--ros-args")]
+    """``rover_link`` for ``ros2 run`` and launch files: the options of ``rover link``,
+    then optionally ``--ros-args`` (its ``--params-file`` section for the node and
+    ``-p name:=value`` stand for the long options: ``rtt`` -> ``--rtt``)."""
+    from firmware_proto.rosargs import parse_args_with_ros_args
+
     parser = argparse.ArgumentParser(prog="rover_link", description="Earth-Moon link relay.")
     add_arguments(parser)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
     )
+    args = parse_args_with_ros_args(
+        parser, list(sys.argv[1:] if argv is None else argv), "rover_link"
+    )
     try:
-        return run(parser.parse_args(argv))
+        return run(args)
     except Exception as exc:  # one clean line for the operator, whatever the package
         print(f"rover_link: error: {exc}", file=sys.stderr)
         return 1

@@ -5,6 +5,7 @@ real launch runs in CI (tests/bridge/launch_hil.py)."""
 
 from __future__ import annotations
 
+import argparse
 import configparser
 import importlib
 import io
@@ -13,6 +14,7 @@ import runpy
 import sys
 import types
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from contextlib import redirect_stdout
 from pathlib import Path
 from typing import Any
@@ -26,6 +28,9 @@ else:  # pragma: no cover
 
 from bridge.params import BridgeParams
 from emulator.cli_emulate import add_arguments as emulator_arguments
+from gate.cli_gate import add_arguments as gate_arguments
+from planner.cli_go import add_arguments as executor_arguments
+from planner.cli_link import add_arguments as link_arguments
 
 ROOT = Path(__file__).resolve().parents[2]
 ROS_DIR = ROOT / "bridge" / "ros"
@@ -67,13 +72,6 @@ PYTHON_DEPENDENCY_KEYS = {
     "tomli": None,  # Python < 3.11 only; Jazzy has 3.12
 }
 """pyproject dependency -> rosdep key in package.xml (None: documented exception)."""
-
-NOT_YET = {
-    "gate.cli_gate:main": "rover_gate: gate/cli_gate.py has no main() yet",
-}
-"""Console scripts declared (and launched by hil_launch.py) whose function is still to
-come; the test skips them, naming why, until it exists."""
-
 
 # -- package.xml -------------------------------------------------------------------------
 
@@ -180,16 +178,11 @@ def test_setup_cfg_puts_executables_where_ros2_run_looks() -> None:
 
 
 @pytest.mark.parametrize(("script", "target"), sorted(SCRIPTS.items()))
-def test_console_scripts_that_exist_answer_help(
+def test_console_scripts_answer_help(
     script: str, target: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     module_name, _, func_name = target.partition(":")
-    try:
-        main = getattr(importlib.import_module(module_name), func_name)
-    except (ModuleNotFoundError, AttributeError):
-        if target in NOT_YET:
-            pytest.skip(f"not implemented yet: {NOT_YET[target]}")
-        raise
+    main = getattr(importlib.import_module(module_name), func_name)
     with pytest.raises(SystemExit) as exit_info:
         main(["--help"])
     assert exit_info.value.code == 0
@@ -349,11 +342,18 @@ def _sections(path: Path) -> dict[str, dict[str, str]]:
     return sections
 
 
-def _emulator_options() -> set[str]:
-    import argparse
+OPTIONS: dict[str, Callable[[argparse.ArgumentParser], None]] = {
+    "rover_emulator": emulator_arguments,
+    "rover_gate": gate_arguments,
+    "rover_link": link_arguments,
+    "rover_executor": executor_arguments,
+}
+"""The nodes that are not ROS nodes: their options, which their parameters stand for."""
 
+
+def _options(add_arguments: Callable[[argparse.ArgumentParser], None]) -> set[str]:
     parser = argparse.ArgumentParser()
-    emulator_arguments(parser)
+    add_arguments(parser)
     return {
         option[2:].replace("-", "_")
         for action in parser._actions
@@ -371,10 +371,11 @@ def test_the_hil_parameters_are_options_or_parameters_of_their_nodes(
     with_params = {
         n.kwargs["name"] for n in _of(_walk(description), "Node") if n.kwargs.get("parameters")
     }
-    assert with_params == {"rover_emulator", "rover_bridge", "rover_gate"}
+    assert with_params == set(namespace["NODES"])
     assert set(sections) == {f"/**/{name}" for name in with_params}
+    for name, add_arguments in OPTIONS.items():
+        assert set(sections[f"/**/{name}"]) <= _options(add_arguments), name
     emulator = sections["/**/rover_emulator"]
-    assert set(emulator) <= _emulator_options()
     bridge = sections["/**/rover_bridge"]
     assert set(bridge) <= set(BridgeParams.__dataclass_fields__)
     assert bridge["device"] == emulator["link"]  # the bridge opens the emulator's pty
@@ -401,8 +402,6 @@ def test_the_emulator_takes_its_hil_section_as_options() -> None:
     typed = {k: True if v == "true" else v for k, v in section.items()}
     doc = {"/**/rover_emulator": {"ros__parameters": typed}}
     argv = argv_from_ros_args(["--params-file", "hil.yaml"], "rover_emulator", lambda _p: doc)
-    import argparse
-
     parser = argparse.ArgumentParser()
     emulator_arguments(parser)
     with redirect_stdout(io.StringIO()):
@@ -410,3 +409,24 @@ def test_the_emulator_takes_its_hil_section_as_options() -> None:
     assert args.serial is True
     assert args.link == section["link"]
     assert args.speed_factor == float(section["speed_factor"])
+
+
+@pytest.mark.parametrize("node", sorted(OPTIONS))
+def test_each_program_reads_its_hil_section_with_pyyaml(node: str) -> None:
+    """The real file through PyYAML, as the launch file hands it over; options given on
+    the command line (what the launch arguments become) win over the file."""
+    pytest.importorskip("yaml", reason="PyYAML (the ros-params extra, or ROS 2) is missing")
+    from firmware_proto.rosargs import parse_args_with_ros_args
+
+    parser = argparse.ArgumentParser()
+    OPTIONS[node](parser)
+    section = _sections(ROS_DIR / "config" / "hil.yaml")[f"/**/{node}"]
+    given = ["--goal", "2,3,90"] if node == "rover_executor" else []
+    argv = [*given, "--ros-args", "--params-file", str(ROS_DIR / "config" / "hil.yaml")]
+    args = parse_args_with_ros_args(parser, argv, node)
+    for key, text in section.items():
+        value = getattr(args, "default_map" if (node, key) == ("rover_gate", "map") else key)
+        assert str(value) == text or value == (text == "true"), (key, value, text)
+    if node == "rover_link":
+        args = parse_args_with_ros_args(parser, ["--seed", "9", *argv], node)
+        assert args.seed == 9

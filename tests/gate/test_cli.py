@@ -50,6 +50,50 @@ def test_rover_gate_serves_until_a_signal(stop_signal: signal.Signals) -> None:
             proc.communicate(timeout=WAIT_S)
 
 
+def test_rover_gate_script_takes_its_options_from_ros_arguments(tmp_path: Path) -> None:
+    """``rover_gate`` as launch_ros starts it: a parameters file section, then ``-p``
+    (which wins), then SIGTERM from the launch system."""
+    pytest.importorskip("yaml", reason="PyYAML (the ros-params extra, or ROS 2) is missing")
+    params = tmp_path / "hil.yaml"
+    params.write_text(
+        "/**/rover_gate:\n  ros__parameters:\n    map: scn01\n    port: 0\n    pool: thread\n",
+        encoding="utf-8",
+    )
+    ros_args = ["--ros-args", "-r", "__node:=rover_gate", "--params-file", str(params)]
+    proc = subprocess.Popen(
+        [str(Path(sys.executable).with_name("rover_gate")), *ros_args, "-p", "map:=scn02"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline().split()
+        assert first and first[0] == "GATE", proc.stderr.read() if proc.stderr else ""
+        host, port = first[1].removeprefix("http://").split(":")
+        health = call((host, int(port)), "GET", "/health").json()
+        assert (health["pool"], health["default_map"]) == ("thread", "scn02")
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=WAIT_S)
+        assert proc.returncode == 0, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=WAIT_S)
+
+
+def test_rover_gate_script_refuses_malformed_ros_arguments() -> None:
+    done = subprocess.run(
+        [str(Path(sys.executable).with_name("rover_gate")), "--ros-args", "-p", "port=1"],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+        check=False,
+    )
+    assert done.returncode == 2
+    assert "name:=value" in done.stderr
+
+
 def test_rover_gate_refuses_a_public_address_without_a_token() -> None:
     done = subprocess.run(
         [ROVER, "gate", "--host", "0.0.0.0", "--port", "0"],

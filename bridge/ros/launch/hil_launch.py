@@ -10,12 +10,13 @@ emulated Earth-Moon link between the ground namespace and the rover's (``rover_l
 and, given a ``goal``, the executor that plans, validates and drives one mission to it
 (``rover_executor``; it exits when the mission ends).
 
-The emulator, the bridge and the gate read their sections of one parameters YAML
+Every node reads its section of one parameters YAML
 (``share/rover_hil/config/hil.yaml`` by default; sections keyed ``/**/<node name>`` so a
-namespace does not hide them). The emulator and the gate are not ROS nodes: they map
-their section to their command-line options (firmware_proto.rosargs), ``speed_factor:
-2.0`` being ``--speed-factor 2.0``. The link relay and the executor take the launch
-arguments below as their options. The emulator's ``link`` and the bridge's ``device``
+namespace does not hide them). The emulator, the gate, the link relay and the executor
+are not ROS nodes: they map their section to their command-line options
+(firmware_proto.rosargs), ``speed_factor: 2.0`` being ``--speed-factor 2.0``. The launch
+arguments below (``rtt``, the namespaces, ``goal``) are passed to the link relay and the
+executor as options, which win over the file. The emulator's ``link`` and the bridge's ``device``
 must name the same path; the bridge reconnects until the emulator has created it.
 """
 
@@ -107,6 +108,7 @@ def generate_launch_description() -> LaunchDescription:
         ),
         _node(
             "rover_link",
+            parameters=[params],
             arguments=[
                 "--ros-backend",
                 "rclpy",
@@ -121,6 +123,7 @@ def generate_launch_description() -> LaunchDescription:
         ),
         _node(
             "rover_executor",
+            parameters=[params],
             arguments=[
                 "--ros-backend",
                 "rclpy",
