@@ -59,12 +59,12 @@ from bridge.rosport.msgs import (
     TwistWithCovariance,
     Vector3,
 )
-from bridge.traffic import CanLogWriter, SerialLogWriter, open_recorder
 from bridge.transport import Transport, open_transport
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Encoders, Imu, StopSource, WheelSpeeds
 from firmware_proto.messages import Pose as PoseMsg
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder
 
 __all__ = ["BridgeNode", "validate_step"]
 

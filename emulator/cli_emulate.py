@@ -132,11 +132,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from emulator.controller import ControllerConfig, ControllerModel
     from emulator.injection import parse_fault
-    from emulator.traffic import CanLogWriter, SerialLogWriter, open_recorder
     from emulator.twin import Twin
     from emulator.worldmap import load_map
     from firmware_proto.messages import SCHEMA_HASH
     from firmware_proto.rover import load_rover
+    from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder
 
     if args.speed_factor <= 0:
         raise ValueError("--speed-factor must be > 0")

@@ -2,8 +2,8 @@
 and the comparison of a replayed session with a recorded one (docs/traffic-logs.md).
 
 Everything here is pure: no files, no clocks, no buses. The bridge and the emulator
-record at their edges (``bridge.traffic``, ``emulator.traffic``) through the
-:class:`TrafficRecorder` interface and read logs back into the records defined here.
+record at their edges through the :class:`TrafficRecorder` interface; the files are
+written and read back into the records defined here by :mod:`firmware_proto.trafficfile`.
 
 **Serial frame log** (text, ASCII), one frame per line::
 

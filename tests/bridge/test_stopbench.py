@@ -17,12 +17,11 @@ from PIL import Image
 from bridge.benchreport import format_table, summarize, write_reports
 from bridge.errors import TransportError
 from bridge.stopbench import BenchConfig, BenchError, BenchRun, FloodConfig, StopBench, TrialResult
-from bridge.traffic import read_log
 from emulator.engine import Emulator
 from emulator.replay import ReplayOptions, replay_into_emulator
-from emulator.traffic import read_log as read_emulator_log
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.messages import SCHEMA_HASH, Param
+from firmware_proto.trafficfile import read_log
 from firmware_proto.trafficlog import decode_records
 
 from .conftest import SPEED
@@ -198,7 +197,7 @@ def test_rover_bench_stop_cli_records_and_reports(
         (Param.TELEMETRY_HZ, 50),
     ]
     # A closed-loop session (every request waits on an answer) replays alike.
-    result = replay_into_emulator(read_emulator_log(log), ReplayOptions(seed=1, speed_factor=SPEED))
+    result = replay_into_emulator(read_log(log), ReplayOptions(seed=1, speed_factor=SPEED))
     assert result.ok, result.report()
     assert result.recorded_answers > 30
 

@@ -4,7 +4,6 @@ emulator with the same answers, and a deliberately altered log shows the differe
 
 from __future__ import annotations
 
-import ast
 import json
 import re
 import threading
@@ -17,7 +16,6 @@ import pytest
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.replay import BridgeReplayOptions, replay_into_bridge
-from bridge.traffic import CanLogWriter, SerialLogWriter, open_recorder, read_log
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
@@ -25,8 +23,6 @@ from emulator.engine import Emulator
 from emulator.frontend import FrontEnd
 from emulator.replay import ReplayOptions, replay_into_emulator
 from emulator.serial_frontend import SerialFrontEnd
-from emulator.traffic import open_recorder as open_emulator_recorder
-from emulator.traffic import read_log as read_emulator_log
 from emulator.twin import Twin
 from firmware_proto.canmap import encode_can
 from firmware_proto.cli import main as rover_cli
@@ -34,6 +30,7 @@ from firmware_proto.framing import encode_frame
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Ident, Motion, WheelSpeeds
 from firmware_proto.rover import RoverDescription
+from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder, read_log
 from firmware_proto.trafficlog import (
     CanRecord,
     SerialRecord,
@@ -92,7 +89,7 @@ def _record_session(
     controller_log = tmp_path / f"controller.{suffix}"
     with (
         open_recorder(host_log, kind, channel=channel, metadata={"role": "bridge"}) as host_rec,
-        open_emulator_recorder(
+        open_recorder(
             controller_log,
             kind,
             channel=channel,
@@ -238,7 +235,7 @@ def test_rover_decode_prints_direction_time_and_messages(
 
 def test_a_recorded_session_replays_with_the_same_answers(session: Session) -> None:
     for path in (session.host_log, session.controller_log):
-        result = replay_into_emulator(read_emulator_log(path), _options(session))
+        result = replay_into_emulator(read_log(path), _options(session))
         assert result.ok, result.report()
         assert result.sent > 10
         assert result.recorded_answers == result.replayed_answers > 20
@@ -268,7 +265,7 @@ def test_an_altered_log_shows_where_behaviour_differs(session: Session, tmp_path
     altered = _rewrite(
         session.host_log, tmp_path / f"no-clear.{session.host_log.suffix}", drop_clear
     )
-    result = replay_into_emulator(read_emulator_log(altered), _options(session))
+    result = replay_into_emulator(read_log(altered), _options(session))
     text = [str(d) for d in result.differences]
     assert not result.ok
     assert "CLEAR_ACK #0: missing in replay: CLEAR_ACK stop_id=2 result=CLEARED" in text
@@ -295,7 +292,7 @@ def test_a_changed_request_changes_the_answer(session: Session, tmp_path: Path) 
         return CanRecord(r.time_s, r.channel, arb, data, r.is_rx)
 
     altered = _rewrite(session.host_log, tmp_path / f"fast.{session.host_log.suffix}", too_fast)
-    result = replay_into_emulator(read_emulator_log(altered), _options(session))
+    result = replay_into_emulator(read_log(altered), _options(session))
     assert (
         "ACK #0: recorded ACK seq=1 result=ACCEPTED field=NONE | "
         "replayed ACK seq=1 result=OUT_OF_RANGE field=SPEED"
@@ -355,17 +352,6 @@ def test_recorders_refuse_the_other_medium(tmp_path: Path) -> None:
     (tmp_path / "d.txt").write_text("hello\n")
     with pytest.raises(ValueError, match="not a serial frame log"):
         read_log(tmp_path / "d.txt")
-
-
-def _body(path: Path) -> str:
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    tree.body = tree.body[1:]  # the module docstring differs on purpose
-    return ast.unparse(tree)
-
-
-def test_the_bridge_and_emulator_twins_of_the_log_io_stay_alike() -> None:
-    root = Path(__file__).resolve().parents[2]
-    assert _body(root / "bridge" / "traffic.py") == _body(root / "emulator" / "traffic.py")
 
 
 def test_the_controller_side_replays_into_a_fresh_bridge(session: Session) -> None:

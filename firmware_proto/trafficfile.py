@@ -1,9 +1,10 @@
-"""Traffic logs at the bridge's edge: recorders that write serial frame logs and candump
-logs, and a reader for both (docs/traffic-logs.md).
+"""Traffic log files: recorders that write serial frame logs and candump logs, and a
+reader for both (docs/traffic-logs.md).
 
 The format and the decoding are pure and live in :mod:`firmware_proto.trafficlog`; this
-module does the file I/O. The emulator has its own twin of this module
-(``emulator.traffic``) because the two packages never import each other.
+module is their file edge, the one place outside the command line where
+``firmware_proto`` touches files. It lives here because both ends of the link record
+(the bridge and the emulator), and those two packages never import each other.
 
 - :class:`SerialLogWriter`: the serial frame log, one frame per line.
 - :class:`CanLogWriter`: any log python-can writes, chosen by the file suffix
