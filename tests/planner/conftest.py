@@ -1,9 +1,12 @@
 """Planner fixtures: a real gate on 127.0.0.1 (its HTTP server in this process, one
-worker thread), clients of it, the planner, maps as the planner reads them."""
+worker thread, or a ``rover gate`` process), clients of it, the planner, maps as the
+planner reads them."""
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -46,6 +49,34 @@ def gate() -> Iterator[GateServer]:
     """A gate shared by a module's tests (they only read from it)."""
     with start_gate() as server:
         yield server
+
+
+@pytest.fixture(scope="module")
+def gate_process_url() -> Iterator[str]:
+    """The URL of a ``rover gate`` process (two worker threads) shared by a module's
+    tests; terminated after them."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "gate",
+            "--port=0",
+            "--pool=thread",
+            "--workers=2",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().split()
+        assert line and line[0] == "GATE", proc.stderr.read() if proc.stderr else ""
+        yield line[1]
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=15)
 
 
 @pytest.fixture

@@ -44,60 +44,40 @@ def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(tmp_path: P
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_rover_go_refuses_a_goal_inside_an_obstacle_cleanly(tmp_path: Path) -> None:
-    gate = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "firmware_proto.cli",
-            "gate",
-            "--port",
-            "0",
-            "--pool",
-            "thread",
-            "--workers",
-            "1",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert gate.stdout is not None
-        url = gate.stdout.readline().split()[1]
-        env = {**os.environ, "CYCLONEDDS_URI": loopback_config()}
-        for goal, complaint in (
-            ("3.9,3.0,0", "obstacle"),
-            ("nan,1,0", "not finite"),
-            ("1,2", "X,Y,YAW_DEG"),
-        ):
-            out = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "firmware_proto.cli",
-                    "go",
-                    "--goal",
-                    goal,
-                    "--start",
-                    "1.2,3.0,0",
-                    "--map",
-                    "lab",
-                    "--gate",
-                    url,
-                    "--rtt",
-                    "0.1",
-                    "--picture",
-                    str(tmp_path / "m.png"),
-                ],
-                capture_output=True,
-                text=True,
-                timeout=60,
-                check=False,
-                env=env,
-            )
-            assert out.returncode == 1, out.stdout + out.stderr
-            assert complaint in out.stderr and "Traceback" not in out.stderr
-    finally:
-        gate.terminate()
-        gate.communicate(timeout=15)
+def test_rover_go_refuses_a_goal_inside_an_obstacle_cleanly(
+    tmp_path: Path, gate_process_url: str
+) -> None:
+    url = gate_process_url
+    env = {**os.environ, "CYCLONEDDS_URI": loopback_config()}
+    for goal, complaint in (
+        ("3.9,3.0,0", "obstacle"),
+        ("nan,1,0", "not finite"),
+        ("1,2", "X,Y,YAW_DEG"),
+    ):
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "firmware_proto.cli",
+                "go",
+                "--goal",
+                goal,
+                "--start",
+                "1.2,3.0,0",
+                "--map",
+                "lab",
+                "--gate",
+                url,
+                "--rtt",
+                "0.1",
+                "--picture",
+                str(tmp_path / "m.png"),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+            env=env,
+        )
+        assert out.returncode == 1, out.stdout + out.stderr
+        assert complaint in out.stderr and "Traceback" not in out.stderr

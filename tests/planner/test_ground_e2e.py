@@ -8,8 +8,6 @@ the same node wiring is covered in tests/bridge/test_node.py.
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -25,35 +23,6 @@ from tests.rig import HilRig
 
 SPEED = 4.0
 ONE_WAY_S = 0.05
-
-
-@pytest.fixture(scope="module")
-def gate_url() -> Iterator[str]:
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "firmware_proto.cli",
-            "gate",
-            "--port",
-            "0",
-            "--pool",
-            "thread",
-            "--workers",
-            "2",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().split()
-        assert line and line[0] == "GATE", proc.stderr.read() if proc.stderr else ""
-        yield line[1]
-    finally:
-        proc.terminate()
-        proc.communicate(timeout=15)
 
 
 def validate(url: str, plan: dict[str, Any], map_name: str = "lab") -> Verdict:
@@ -96,11 +65,11 @@ def _plan(world: WorldMap, rover: RoverDescription) -> dict[str, Any]:
 
 
 def test_approved_plan_reaches_the_goal_within_tolerance(
-    gate_url: str, hil: Callable[..., HilRig]
+    gate_process_url: str, hil: Callable[..., HilRig]
 ) -> None:
     rover, world = load_rover(), load_map("lab")
     plan = _plan(world, rover)
-    verdict = validate(gate_url, plan)
+    verdict = validate(gate_process_url, plan)
     assert verdict.approved, verdict.summary()
     h = hil()
     result = h.executor.execute(Plan.from_dict(plan), verdict)
@@ -114,7 +83,9 @@ def test_approved_plan_reaches_the_goal_within_tolerance(
     assert result.reported_pose is not None
 
 
-def test_slip_makes_drift_control_stop_the_rover(gate_url: str, hil: Callable[..., HilRig]) -> None:
+def test_slip_makes_drift_control_stop_the_rover(
+    gate_process_url: str, hil: Callable[..., HilRig]
+) -> None:
     rover, world = load_rover(), load_map("lab")
     s = world.start
     plan = {
@@ -124,7 +95,7 @@ def test_slip_makes_drift_control_stop_the_rover(gate_url: str, hil: Callable[..
             {"command": "FWD", "speed": 60, "distance": 11500},
         ],
     }
-    verdict = validate(gate_url, plan)
+    verdict = validate(gate_process_url, plan)
     assert verdict.approved
     h = hil(faults=("slip:both=0.1",))  # the encoders still report the full travel
     result = h.executor.execute(Plan.from_dict(plan), verdict)
