@@ -110,7 +110,8 @@ def _add_check(p: argparse.ArgumentParser) -> None:
         help="validate one plan file offline and print the verdict",
         description=(
             "Play one plan (Listing 1 JSON) on the twin, exactly as the server would, and "
-            "print the verdict. Exit status: 0 approved, 1 rejected, 2 bad plan or usage."
+            "print the verdict. Exit status: 0 approved, 1 rejected, 2 bad plan or usage (or "
+            "the picture could not be written)."
         ),
     )
     c.add_argument("plan", help="plan JSON file ('-' for stdin)")
@@ -205,12 +206,19 @@ def _check(args: argparse.Namespace) -> int:
     except (PlanError, GateError, EmulatorError, ValueError) as exc:
         print(f"rover gate check: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    png_error: OSError | None = None
     if args.check_png and verdict.image_png_base64 is not None:
-        Path(args.check_png).write_bytes(base64.b64decode(verdict.image_png_base64))
+        try:
+            Path(args.check_png).write_bytes(base64.b64decode(verdict.image_png_base64))
+        except OSError as exc:
+            png_error = exc
     if args.check_json:
         print(verdict.to_json())
     else:
-        _print_summary(verdict, args.check_png)
+        _print_summary(verdict, None if png_error else args.check_png)
+    if png_error is not None:  # the verdict is printed; the picture is what failed
+        print(f"rover gate check: cannot write {args.check_png}: {png_error}", file=sys.stderr)
+        return EXIT_USAGE
     return EXIT_APPROVED if verdict.approved else EXIT_REJECTED
 
 

@@ -137,6 +137,10 @@ def test_check_exit_codes(tmp_path: Path, rover: RoverDescription) -> None:
     assert code == 2 and "not valid JSON" in err
     code, _, err = _run_check(["gate", "check", str(tmp_path / "missing.json")])
     assert code == 2 and "cannot read" in err
+    unwritable = str(tmp_path / "no-such-dir" / "v.png")
+    code, out, err = _check(tmp_path, STOP_AT_LAB_START, "--png", unwritable)
+    assert code == 2 and out.startswith("APPROVED")  # the verdict is still printed
+    assert "cannot write" in err and "picture" not in out
     code, _, err = _check(tmp_path, STOP_AT_LAB_START, "--map", "atlantis")
     assert code == 2 and "atlantis" in err
     code, _, err = _check(tmp_path, STOP_AT_LAB_START, "--start", "1,2")
