@@ -133,6 +133,13 @@ def test_roundtrip_over_a_real_pty() -> None:
     assert "altered frames delivered: 0" in out.stdout
 
 
+def test_roundtrip_help_prints_its_percent_sign_once() -> None:
+    # argparse %-formats help= strings but not a description without %(prog)s.
+    out = rover("roundtrip", "--help")
+    assert out.returncode == 0
+    assert "1% by default" in " ".join(out.stdout.split()) and "%%" not in out.stdout
+
+
 def test_exported_members_are_pinned() -> None:
     assert firmware_proto.__all__ == sorted(
         firmware_proto.__all__, key=lambda n: (not n.isupper(), n)
