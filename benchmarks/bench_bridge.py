@@ -1,6 +1,6 @@
 """STOP latency through the bridge, beside the pty round trip; sustained steps/s.
 
-Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N]``
+Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick]``
 
 The emulator serves the controller on a real pty in real time; the bridge's
 ControllerLink (and its ROS node on the in-process port) drives it. For every trial
@@ -128,10 +128,19 @@ def main(argv: list[str] | None = None) -> int:
         "--trials", type=int, default=200, help="STOP trials per case (default 200)"
     )
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--quick", action="store_true", help="3 trials per case, fewer samples (smoke test)"
+    )
     args = parser.parse_args(argv)
+    if args.trials < 1:
+        parser.error("--trials must be >= 1")
+    trials, ros_trials = (3, 3) if args.quick else (args.trials, max(20, args.trials // 2))
+    rtt_samples, steps = (200, 30) if args.quick else (2000, 300)
     rng = random.Random(args.seed)
     rover = load_rover()
-    rows = [("pty round trip (15 B there and back, pyserial)", summary(pty_round_trip(2000)))]
+    rows = [
+        ("pty round trip (15 B there and back, pyserial)", summary(pty_round_trip(rtt_samples)))
+    ]
 
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=args.seed)
     with Emulator(model, SerialFrontEnd(seed=args.seed)) as emu:
@@ -142,12 +151,12 @@ def main(argv: list[str] | None = None) -> int:
             statuses.wait("ready", 0)
             for load in (False, True):
                 written, zeroed = _trials(
-                    emu, link, statuses, link.emergency_stop, args.trials, load, rng
+                    emu, link, statuses, link.emergency_stop, trials, load, rng
                 )
                 label = "load: queue full, telemetry 100 Hz" if load else "idle"
                 rows.append((f"API call -> STOP written ({label})", summary(written)))
                 rows.append((f"API call -> wheel targets zero ({label})", summary(zeroed)))
-            rate = steps_per_second(link, statuses, 300)
+            rate = steps_per_second(link, statuses, steps)
 
     # The ROS path: another node publishes on emergency_stop; the bridge node relays.
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=args.seed)
@@ -171,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                         node.link,
                         statuses,
                         lambda: estop.publish(Bool(data=True)),
-                        max(20, args.trials // 2),
+                        ros_trials,
                         load,
                         rng,
                     )

@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="shorter runs (smoke test)")
     args = parser.parse_args(argv)
     rover = load_rover()
-    seconds, window, trials = (0.5, 2.0, 10) if args.quick else (3.0, 10.0, 100)
+    seconds, window, trials = (0.5, 1.0, 4) if args.quick else (3.0, 10.0, 100)
 
     twin = twin_rate(rover, 0.001, None)
     ctl = controller_rate(rover, seconds)

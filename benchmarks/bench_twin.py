@@ -1,6 +1,6 @@
 """Physics twin throughput: steps/s and the factor over real time.
 
-Run: ``python -m benchmarks.bench_twin [--repeat N]``. Prints one table:
+Run: ``python -m benchmarks.bench_twin [--repeat N] [--quick]``. Prints one table:
 
 - *real time*: the reference the factors are relative to (1 s of twin time per s);
 - *bare pymunk body*: the same body and chassis shape stepped with no force code, the
@@ -102,8 +102,12 @@ def plan_times(rover: RoverDescription, dt: float, repeat: int) -> tuple[float, 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--repeat", type=int, default=20, help="plan repetitions (default 20)")
+    parser.add_argument(
+        "--quick", action="store_true", help="one run of each case (smoke test; noisy figures)"
+    )
     args = parser.parse_args(argv)
-    repeat = max(1, args.repeat)
+    repeat = 1 if args.quick else max(1, args.repeat)
+    tries = 1 if args.quick else 5  # best of: the rates
     rover = load_rover()
 
     print(
@@ -122,19 +126,23 @@ def main(argv: list[str] | None = None) -> None:
     row(
         "bare pymunk body, no force code (peer)",
         0.001,
-        best(lambda: bare_pymunk_rate(rover, 0.001), 5),
+        best(lambda: bare_pymunk_rate(rover, 0.001), tries),
     )
-    row("twin driving, open plane", 0.001, best(lambda: twin_rate(rover, 0.001, None), 5))
+    row("twin driving, open plane", 0.001, best(lambda: twin_rate(rover, 0.001, None), tries))
     row(
         "twin driving, scn03 (densest map)",
         0.001,
-        best(lambda: twin_rate(rover, 0.001, "scn03"), 5),
+        best(lambda: twin_rate(rover, 0.001, "scn03"), tries),
     )
-    row("twin driving, open plane", GATE_DT_S, best(lambda: twin_rate(rover, GATE_DT_S, None), 5))
+    row(
+        "twin driving, open plane",
+        GATE_DT_S,
+        best(lambda: twin_rate(rover, GATE_DT_S, None), tries),
+    )
     row(
         "twin driving, scn03 (densest map)",
         GATE_DT_S,
-        best(lambda: twin_rate(rover, GATE_DT_S, "scn03"), 5),
+        best(lambda: twin_rate(rover, GATE_DT_S, "scn03"), tries),
     )
 
     print()
@@ -145,7 +153,9 @@ def main(argv: list[str] | None = None) -> None:
     print(header)
     print("-" * len(header))
     for dt in (0.001, 0.005, GATE_DT_S):
-        sim, p50, p99, steps = plan_times(rover, dt, repeat if dt > 0.001 else max(3, repeat // 4))
+        sim, p50, p99, steps = plan_times(
+            rover, dt, repeat if dt > 0.001 or args.quick else max(3, repeat // 4)
+        )
         label = "playback (gate step)" if dt == GATE_DT_S else "playback"
         print(
             f"{label:<36} {dt * 1e3:>6.1f} {sim:>7.2f} {steps:>7} {p50 * 1e3:>12.1f} "

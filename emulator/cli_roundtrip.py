@@ -14,10 +14,10 @@ def register(subparsers: Any) -> None:
         "roundtrip",
         help="send frames through a real pty with pyserial and decode them back",
         description=(
-            "Open a pty pair, write COUNT mixed protocol frames (1%% of them with a flipped "
-            "bit) through pyserial into one end, decode the other end incrementally, and "
-            "report throughput and what the decoder dropped. Exit 1 unless every intact "
-            "frame came back unaltered."
+            "Open a pty pair, write COUNT mixed protocol frames (a share of them, 1% by "
+            "default, with a flipped bit) through pyserial into one end, decode the other "
+            "end incrementally, and report throughput and what the decoder dropped. Exit 1 "
+            "unless every intact frame came back unaltered."
         ),
     )
     p.add_argument("--count", type=int, default=20000, help="frames to send (default 20000)")

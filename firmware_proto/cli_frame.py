@@ -1,4 +1,9 @@
-"""``rover frame``: protocol tools (list, encode, decode, generate, dbc)."""
+"""``rover frame``: protocol tools (list, encode, decode, generate, dbc).
+
+A number that parses but is out of range (a field value, ``--seq``, a node id, a CAN
+identifier) fails the command with one line on stderr and exit status 1, as the codec's
+own errors do; text that is not a number is a usage error (exit 2, from argparse).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,21 @@ import sys
 from typing import Any
 
 __all__ = ["register"]
+
+_MAX_SEQ = 0xFF
+"""The serial frame counter is one byte."""
+_MAX_CAN_ID = 0x1FFFFFFF
+"""Largest CAN identifier (29-bit extended); classic frames stop at 0x7FF."""
+
+
+def _integer(text: str) -> int:
+    """An integer in any base Python writes (``19``, ``0x13``, ``0b10011``)."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer such as 19 or 0x013, got {text!r}"
+        ) from None
 
 
 def register(subparsers: Any) -> None:
@@ -35,12 +55,17 @@ def register(subparsers: Any) -> None:
         metavar="FIELD=VALUE",
         help="field values; enum fields take names or numbers",
     )
-    p.add_argument("--seq", type=int, default=0, help="serial frame counter (default 0)")
+    p.add_argument(
+        "--seq",
+        type=int,
+        default=None,
+        help=f"serial frame counter, 0..{_MAX_SEQ} (default 0); serial frames only",
+    )
     p.add_argument(
         "--can",
         type=int,
         metavar="NODE",
-        help="encode as a CAN frame for this node id instead of a serial frame",
+        help="encode as a CAN frame for this node id (0..15, 0: broadcast), not a serial frame",
     )
     p.add_argument(
         "--loose",
@@ -57,9 +82,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("hex", nargs="+", help="hex bytes; spaces and ':' are ignored")
     p.add_argument(
         "--can-id",
-        type=lambda s: int(s, 0),
+        type=_integer,
         metavar="ID",
-        help="decode the bytes as the data of one CAN frame with this identifier",
+        help="decode the bytes as the data of one CAN frame with this identifier (0..0x7FF)",
     )
     p.set_defaults(func=_cmd_decode)
 
@@ -70,7 +95,7 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_cmd_generate)
 
     p = sub.add_parser("dbc", help="print the CAN database for one node id")
-    p.add_argument("--node", type=int, default=None, help="controller node id (default 1)")
+    p.add_argument("--node", type=int, default=None, help="controller node id, 1..15 (default 1)")
     p.set_defaults(func=_cmd_dbc)
 
 
@@ -122,10 +147,16 @@ def _cmd_encode(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown message {args.name!r}; known: {', '.join(sorted(BY_NAME))}")
     msg = cls(**_parse_fields(cls, args.fields))
     if args.can is not None:
+        if args.seq is not None:
+            raise ValueError("--seq is the serial frame counter; CAN frames have none")
         arb, data = encode_can(msg, args.can, strict=not args.loose)
         print(f"{arb:03X}#{data.hex().upper()}")
-    else:
-        print(encode_frame(msg, args.seq, strict=not args.loose).hex(" "))
+        return 0
+    seq = 0 if args.seq is None else args.seq
+    if not 0 <= seq <= _MAX_SEQ:
+        # encode_frame would send the low 8 bits: say so rather than print another number
+        raise ValueError(f"--seq {seq} outside 0..{_MAX_SEQ} (the frame counter is one byte)")
+    print(encode_frame(msg, seq, strict=not args.loose).hex(" "))
     return 0
 
 
@@ -139,6 +170,11 @@ def _cmd_decode(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ValueError(f"not hex: {exc}") from None
     if args.can_id is not None:
+        if not 0 <= args.can_id <= _MAX_CAN_ID:
+            raise ValueError(
+                f"--can-id {args.can_id} is not a CAN identifier "
+                f"(0..0x7FF, or up to 0x{_MAX_CAN_ID:X} extended)"
+            )
         can = CanDecoder()
         can_frame = can.decode(args.can_id, data)
         if can_frame is None:

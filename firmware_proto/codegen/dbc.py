@@ -2,12 +2,14 @@
 
 The DBC describes the frames of one controller node (default node id from the spec);
 ``rover frame generate`` writes it for the default node and ``render_dbc(spec, node)``
-for any other. Reserved padding is not a signal. Signal ranges are physical values
-(raw * scale); enum fields carry ``VAL_`` tables.
+for any other controller node (1..15; node 0 is broadcast). Reserved padding is not a
+signal. Signal ranges are physical values (raw * scale); enum fields carry ``VAL_``
+tables.
 """
 
 from __future__ import annotations
 
+from firmware_proto.errors import EncodeError
 from firmware_proto.spec import MessageSpec, ProtocolSpec
 
 __all__ = ["render_dbc"]
@@ -25,9 +27,29 @@ def _frame_id(spec: ProtocolSpec, msg: MessageSpec, node: int) -> int:
     return (msg.id << int(spec.framing["can_node_bits"])) | node
 
 
+def _controller_nodes(spec: ProtocolSpec) -> range:
+    """Node ids a controller may have (docs/protocol.md, "CAN mapping"): every value of
+    the identifier's node bits above the broadcast node (0). Broadcast is host to
+    controller only, so a database for it would list controller frames never sent."""
+    broadcast = int(spec.framing["broadcast_node"])
+    return range(broadcast + 1, 1 << int(spec.framing["can_node_bits"]))
+
+
 def render_dbc(spec: ProtocolSpec, node: int | None = None) -> str:
-    """DBC text for the frames of controller ``node`` (default: the spec's default node)."""
+    """DBC text for the frames of controller ``node`` (default: the spec's default node).
+
+    Raises:
+        EncodeError: ``node`` is not a controller node id (1..15: node 0 is broadcast,
+            and larger ids do not fit the identifier's node bits).
+    """
     node = int(spec.framing["default_node"]) if node is None else node
+    nodes = _controller_nodes(spec)
+    if node not in nodes:
+        raise EncodeError(
+            f"controller node id {node} outside {nodes.start}..{nodes.stop - 1} "
+            f"(node {spec.framing['broadcast_node']} is broadcast)",
+            field="node",
+        )
     lines = [
         f'VERSION "rover-proto-v{spec.protocol_version}-{spec.schema_hash:04X}"',
         "",

@@ -144,3 +144,23 @@ def test_cantools_encodes_what_we_decode(dbc: cantools.database.can.Database) ->
     data = dbc.encode_message("MOTION", motion.to_dict(), scaling=False)
     frame = CanDecoder().decode(dbc.get_message_by_name("MOTION").frame_id, data)
     assert frame is not None and frame.message == motion
+
+
+@pytest.mark.parametrize("node", [0, 16, -1, 2000])
+def test_dbc_render_refuses_a_node_that_is_not_a_controller(node: int) -> None:
+    from firmware_proto.codegen.dbc import render_dbc
+
+    with pytest.raises(EncodeError, match=rf"controller node id {node} outside 1\.\.15") as exc:
+        render_dbc(SPEC, node)
+    assert exc.value.field == "node"
+
+
+@pytest.mark.parametrize("node", [1, 7, 15])
+def test_dbc_for_any_controller_node_decodes_that_nodes_frames(node: int) -> None:
+    from firmware_proto.codegen.dbc import render_dbc
+
+    db = cantools.database.load_string(render_dbc(SPEC, node), database_format="dbc", strict=True)
+    assert isinstance(db, cantools.database.can.Database)
+    motion = Motion(9, 1, 30, 23000)
+    arb, data = encode_can(motion, node)
+    assert db.decode_message(arb, data, decode_choices=False, scaling=False) == motion.to_dict()

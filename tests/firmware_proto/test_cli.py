@@ -5,6 +5,9 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import cantools
+import pytest
+
 import firmware_proto
 from firmware_proto.framing import FrameDecoder
 from firmware_proto.messages import Motion
@@ -68,6 +71,56 @@ def test_decode_of_garbage_reports_drops_and_exits_1() -> None:
     assert bad.returncode == 1 and "not hex" in bad.stderr
 
 
+@pytest.mark.parametrize("node", ["0", "16", "-1", "2000"])
+def test_dbc_refuses_a_node_that_is_not_a_controller(node: str) -> None:
+    out = rover("frame", "dbc", "--node", node)
+    assert out.returncode == 1
+    assert out.stdout == ""
+    assert out.stderr.splitlines() == [
+        f"rover frame: error: controller node id {node} outside 1..15 (node 0 is broadcast)"
+        " (run with -vv for details)"
+    ]
+
+
+@pytest.mark.parametrize("node", [1, 15])
+def test_dbc_for_a_valid_node_loads_in_cantools_with_that_nodes_ids(node: int) -> None:
+    out = rover("frame", "dbc", "--node", str(node))
+    assert out.returncode == 0, out.stderr
+    db = cantools.database.load_string(out.stdout, database_format="dbc")
+    assert isinstance(db, cantools.database.can.Database)
+    ids = [m.frame_id for m in db.messages]
+    assert len(set(ids)) == len(ids)
+    assert all(i & 0xF == node and i <= 0x7FF for i in ids)
+
+
+@pytest.mark.parametrize(
+    ("args", "error"),
+    [
+        (["encode", "--seq", "256", "STOP", "stop_id=1", "source=0"], "--seq 256 outside 0..255"),
+        (["encode", "--seq", "-1", "STOP", "stop_id=1", "source=0"], "--seq -1 outside 0..255"),
+        (["encode", "--can", "1", "--seq", "3", "STOP", "stop_id=1", "source=0"], "--seq is"),
+        (["encode", "--can", "16", "STOP", "stop_id=1", "source=0"], "node id 16 outside 0..15"),
+        (["encode", "--can", "-1", "STOP", "stop_id=1", "source=0"], "node id -1 outside 0..15"),
+        (["decode", "--can-id", "-1", "0001"], "--can-id -1 is not a CAN identifier"),
+        (["decode", "--can-id", "0x20000000", "0001"], "is not a CAN identifier"),
+    ],
+)
+def test_out_of_range_numeric_options_fail_with_one_line(args: list[str], error: str) -> None:
+    out = rover("frame", *args)
+    assert out.returncode == 1
+    assert out.stdout == ""
+    [line] = out.stderr.splitlines()
+    assert line.startswith("rover frame: error: ") and error in line
+
+
+def test_numeric_options_at_their_limits_are_accepted() -> None:
+    enc = rover("frame", "encode", "--seq", "255", "STOP", "stop_id=1", "source=0")
+    assert enc.returncode == 0, enc.stderr
+    assert [f.seq for f in FrameDecoder().feed(bytes.fromhex(enc.stdout))] == [255]
+    bad = rover("frame", "decode", "--can-id", "zz", "0001")
+    assert bad.returncode == 2 and "expected an integer such as 19 or 0x013" in bad.stderr
+
+
 def test_generate_check_passes_on_a_fresh_tree() -> None:
     out = rover("frame", "generate", "--check")
     assert out.returncode == 0, out.stdout
@@ -78,6 +131,13 @@ def test_roundtrip_over_a_real_pty() -> None:
     assert out.returncode == 0, out.stdout + out.stderr
     assert "result: OK" in out.stdout
     assert "altered frames delivered: 0" in out.stdout
+
+
+def test_roundtrip_help_prints_its_percent_sign_once() -> None:
+    # argparse %-formats help= strings but not a description without %(prog)s.
+    out = rover("roundtrip", "--help")
+    assert out.returncode == 0
+    assert "1% by default" in " ".join(out.stdout.split()) and "%%" not in out.stdout
 
 
 def test_exported_members_are_pinned() -> None:

@@ -1,0 +1,97 @@
+"""Every benchmark with a small mode runs to the end and prints its tables.
+
+Smoke tests, not measurements: each script runs as a real subprocess in its ``--quick``
+mode (``bench_rosport`` with small counts), must exit 0 and print the headers of its
+tables. No figure is compared with a limit (a shared 2-core machine makes timings
+noisy), except counts that do not depend on speed: the codec's recovery run must
+deliver no altered frame and recover every intact one.
+
+Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
+and ``bench_mission`` (minutes). ``bench_rosport`` talks DDS, so it runs only in the
+private network namespace of ``.ci/test`` (the ``dds`` marker; tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+TIMEOUT_S = 180.0
+"""Per script; the quick modes take 1-15 s here, the margin is for a loaded machine."""
+
+
+def run_benchmark(name: str, *args: str) -> str:
+    """Run ``python -m benchmarks.<name> args...``; its stdout, after checking it exited 0."""
+    done = subprocess.run(
+        [sys.executable, "-m", f"benchmarks.{name}", *args],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        check=False,
+    )
+    assert done.returncode == 0, f"{name} exited {done.returncode}:\n{done.stderr[-3000:]}"
+    return done.stdout
+
+
+def table_row(text: str, header: str) -> dict[str, str]:
+    """The first data row of the Markdown table whose header line starts with ``header``,
+    as {column: cell}."""
+    lines = text.splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith(header))
+    columns = [c.strip() for c in lines[at].strip("|").split("|")]
+    cells = [c.strip() for c in lines[at + 2].strip("|").split("|")]
+    return dict(zip(columns, cells, strict=True))
+
+
+def test_bench_codec_quick_prints_rates_and_a_clean_recovery() -> None:
+    out = run_benchmark("bench_codec", "--quick")
+    assert "| codec | operation | frames/s |" in out
+    for codec in ("ours serial MOTION", "ours CAN ENCODERS", "pymavlink COMMAND_LONG"):
+        assert f"| {codec} |" in out
+    assert "cantools MOTION" in out
+    assert "Ratio against pymavlink" in out
+    assert "Recovery from a stream with 1% corrupted frames" in out
+    outcome = table_row(out, "| frames | corrupted |")
+    assert outcome["frames"] == "20,000"
+    assert outcome["altered delivered"] == "0"
+    assert outcome["intact recovered"] == outcome["intact"]
+    drops = table_row(out, "| crc | framing |")
+    assert int(drops["rejected (all reasons)"].replace(",", "")) >= int(
+        outcome["corrupted"].replace(",", "")
+    )
+
+
+def test_bench_emulator_quick_prints_its_tables() -> None:
+    out = run_benchmark("bench_emulator", "--quick")
+    assert "| case | steps/s | x real time |" in out
+    assert "CPU share serving a driving host" in out
+    assert "STOP reaction in the emulator" in out
+    assert "Stopping distance from full speed" in out
+
+
+def test_bench_twin_quick_prints_its_table() -> None:
+    out = run_benchmark("bench_twin", "--quick")
+    assert "steps/s" in out and "x real time" in out
+    assert "12-step plan, 10 m + 4 turns, scn01" in out
+    assert "playback (gate step)" in out
+
+
+def test_bench_bridge_quick_prints_its_table() -> None:
+    out = run_benchmark("bench_bridge", "--quick")
+    assert "STOP latency through the bridge" in out
+    assert "| case | n | p50 ms | p95 ms | p99 ms | max ms |" in out
+    assert "ROS message (in-process) -> wheel targets zero (load)" in out
+    assert "Sustained steps through the bridge" in out
+
+
+@pytest.mark.dds
+def test_bench_rosport_small_counts_print_its_tables() -> None:
+    out = run_benchmark("bench_rosport", "--latency-count", "50", "--rate-count", "200")
+    assert "Latency, publish -> subscriber callback" in out
+    assert "Sustained rate, nothing lost" in out
+    assert "raw cyclonedds (2 processes)" in out
