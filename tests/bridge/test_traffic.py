@@ -16,6 +16,7 @@ import pytest
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.replay import BridgeReplayOptions, replay_into_bridge
+from bridge.trafficfile import open_recorder, read_log
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
@@ -30,7 +31,6 @@ from firmware_proto.framing import encode_frame
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Ident, Motion, WheelSpeeds
 from firmware_proto.rover import RoverDescription
-from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder, read_log
 from firmware_proto.trafficlog import (
     CanRecord,
     SerialRecord,
@@ -251,7 +251,7 @@ def _rewrite(path: Path, out: Path, edit: Callable[[TrafficRecord], TrafficRecor
         )
         out.write_text(text, encoding="ascii")
     else:
-        with CanLogWriter(out) as writer:
+        with open_recorder(out, "can") as writer:
             for r in records:
                 writer.record(r)
     return out
@@ -342,13 +342,17 @@ def test_a_failing_recorder_never_stops_the_link(
     assert sum("traffic recorder failed" in r.message for r in caplog.records) == 1
 
 
-def test_recorders_refuse_the_other_medium(tmp_path: Path) -> None:
-    with SerialLogWriter(tmp_path / "a.rlog") as serial_writer, pytest.raises(TypeError):
+def test_recorders_refuse_the_other_medium_and_unknown_formats(tmp_path: Path) -> None:
+    with open_recorder(tmp_path / "a.rlog", "serial") as serial_writer, pytest.raises(TypeError):
         serial_writer.record(CanRecord(1.0, "x", 1, b"", is_rx=True))
-    with CanLogWriter(tmp_path / "b.log") as can_writer, pytest.raises(TypeError):
+    with open_recorder(tmp_path / "b.log", "can") as can_writer, pytest.raises(TypeError):
         can_writer.record(SerialRecord(1.0, "H>C", b"\x00"))
     with pytest.raises(ValueError, match="known: serial, can"):
         open_recorder(tmp_path / "c", "usb")
+    with pytest.raises(ValueError, match=r"known: \.log, \.blf"):
+        open_recorder(tmp_path / "c.asc", "can")
+    assert not (tmp_path / "c").exists()
+    assert not (tmp_path / "c.asc").exists()  # refused before a file was made
     (tmp_path / "d.txt").write_text("hello\n")
     with pytest.raises(ValueError, match="not a serial frame log"):
         read_log(tmp_path / "d.txt")
