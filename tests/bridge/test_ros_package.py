@@ -416,7 +416,7 @@ def test_each_program_reads_its_hil_section_with_pyyaml(node: str) -> None:
     """The real file through PyYAML, as the launch file hands it over; options given on
     the command line (what the launch arguments become) win over the file."""
     pytest.importorskip("yaml", reason="PyYAML (the ros-params extra, or ROS 2) is missing")
-    from firmware_proto.rosargs import parse_args_with_ros_args
+    from firmware_proto.cli_rosargs import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser()
     OPTIONS[node](parser)
