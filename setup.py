@@ -7,7 +7,10 @@ file only adds the ROS 2 data files (docs/ros2.md):
 - the package marker for the ament index (``bridge/ros/resource/rover_hil``), so that
   ``ros2 run`` and ``ros2 launch`` find the package;
 - ``package.xml``, the launch files (``bridge/ros/launch/*_launch.py``) and the
-  parameter files (``bridge/ros/config/*.yaml``) under ``share/rover_hil``.
+  parameter files (``bridge/ros/config/*.yaml``) under ``share/rover_hil``;
+- the ``udev/`` files (rules, networkd file, bring-up scripts, README) under
+  ``share/rover_hil/udev``, where ``rover udev install`` and ``rover devices`` find them
+  in an install (bridge/udev_install.py).
 
 Under ``colcon build --symlink-install`` colcon runs this file from the build directory,
 next to symlinks of setup.py, setup.cfg, the packages and the data files but without
@@ -28,18 +31,21 @@ SOURCE = Path(__file__).resolve().parent  # the source tree, even through a syml
 ROS_DIR = Path("bridge") / "ros"
 
 
-def _files(subdir: str, pattern: str) -> list[str]:
-    """Data files under bridge/ros/<subdir>, relative to the source tree, sorted."""
+def _files(folder: Path, pattern: str) -> list[str]:
+    """Data files in a folder of the source tree, relative to it, sorted."""
     return sorted(
-        str(path.relative_to(SOURCE)) for path in (SOURCE / ROS_DIR / subdir).glob(pattern)
+        str(path.relative_to(SOURCE))
+        for path in (SOURCE / folder).glob(pattern)
+        if path.is_file() and not path.name.startswith(".")
     )
 
 
 DATA_FILES = [
     ("share/ament_index/resource_index/packages", [str(ROS_DIR / "resource" / PACKAGE)]),
     (f"share/{PACKAGE}", ["package.xml"]),
-    (f"share/{PACKAGE}/launch", _files("launch", "*_launch.py")),
-    (f"share/{PACKAGE}/config", _files("config", "*.yaml")),
+    (f"share/{PACKAGE}/launch", _files(ROS_DIR / "launch", "*_launch.py")),
+    (f"share/{PACKAGE}/config", _files(ROS_DIR / "config", "*.yaml")),
+    (f"share/{PACKAGE}/udev", _files(Path("udev"), "*")),
 ]
 
 

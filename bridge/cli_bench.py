@@ -120,7 +120,7 @@ def register(subparsers: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     from bridge.benchreport import format_table, write_reports
     from bridge.stopbench import BenchConfig, FloodConfig, StopBench, TrialResult
-    from firmware_proto.trafficfile import open_recorder
+    from bridge.trafficfile import open_recorder
 
     flood = None
     if args.can:

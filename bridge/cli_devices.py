@@ -58,7 +58,8 @@ def register_udev(subparsers: Any) -> None:
         help="check and install our udev rules and networkd files",
         description=(
             "Our udev rules (stable /dev/rover-motor, rovercan0) and systemd-networkd "
-            "files, in udev/ of the checkout. See udev/README.md."
+            "files, in udev/ of the checkout or share/rover_hil/udev of an install. See "
+            "udev/README.md."
         ),
     )
     sub = parser.add_subparsers(dest="udev_command", metavar="ACTION")
@@ -75,7 +76,11 @@ def register_udev(subparsers: Any) -> None:
         ),
     )
     p.add_argument("files", nargs="*", type=Path, metavar="FILE", help="default: udev/*.rules")
-    p.add_argument("--source", metavar="DIR", help="where our files are (default: udev/)")
+    p.add_argument(
+        "--source",
+        metavar="DIR",
+        help="where our files are (default: the checkout's udev/, else the install's)",
+    )
     p.add_argument("--errors-only", action="store_true", help="ignore warnings")
     p.set_defaults(func=_cmd_check)
 
@@ -133,7 +138,11 @@ def register_udev(subparsers: Any) -> None:
         action="store_true",
         help="install without reloading udev (no udevadm: containers, image builds)",
     )
-    p.add_argument("--source", metavar="DIR", help="where our files are (default: udev/)")
+    p.add_argument(
+        "--source",
+        metavar="DIR",
+        help="where our files are (default: the checkout's udev/, else the install's)",
+    )
     p.set_defaults(func=_cmd_install)
 
 

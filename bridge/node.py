@@ -59,12 +59,13 @@ from bridge.rosport.msgs import (
     TwistWithCovariance,
     Vector3,
 )
+from bridge.trafficfile import open_recorder
 from bridge.transport import Transport, open_transport
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Encoders, Imu, StopSource, WheelSpeeds
 from firmware_proto.messages import Pose as PoseMsg
 from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder
+from firmware_proto.trafficio import LogWriter
 
 __all__ = ["BridgeNode", "validate_step"]
 
@@ -138,7 +139,7 @@ class BridgeNode:
         self._odom_pub = port.publisher(params.topic_odom, Odometry)
         self._ground_pub = port.publisher(params.topic_ground_pose, Odometry)
         self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray)
-        self.recorder: SerialLogWriter | CanLogWriter | None = None
+        self.recorder: LogWriter | None = None
         if link is None and params.record:
             self.recorder = open_recorder(
                 params.record,

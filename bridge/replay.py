@@ -44,7 +44,7 @@ from firmware_proto.canmap import CanDecoder
 from firmware_proto.framing import FrameDecoder
 from firmware_proto.message import Message
 from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE, ClearStop, Motion, Stop
-from firmware_proto.trafficfile import LogFile
+from firmware_proto.trafficio import LogFile
 from firmware_proto.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,

@@ -25,6 +25,7 @@ unless ``reload=False`` (``--no-reload``), which installs and reports the reload
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import os
 import re
@@ -45,6 +46,7 @@ __all__ = [
     "NETWORKD_SUFFIXES",
     "PLACEHOLDER_SERIAL",
     "PLACEHOLDER_USB_PORT",
+    "ROS_PACKAGE",
     "FileAction",
     "InstallError",
     "InstallPlan",
@@ -64,8 +66,10 @@ DEFAULT_RULES_DIR = Path("/etc/udev/rules.d")
 DEFAULT_NETWORK_DIR = Path("/etc/systemd/network")
 NETWORKD_SUFFIXES = (".network", ".link", ".netdev")
 BENCH_SUFFIX = "-bench.rules"
-#: Environment variable naming the source directory (after --source, before the checkout).
+#: Environment variable naming the source directory (after --source, before the defaults).
 ENV_SOURCE_DIR = "ROVER_UDEV_DIR"
+#: The ROS 2 package whose share directory an install puts ``udev/`` in (setup.py).
+ROS_PACKAGE = "rover_hil"
 INSTALLED_MODE = 0o644
 RELOAD_TIMEOUT_S = 30.0
 RELOAD_SKIPPED = (
@@ -94,23 +98,54 @@ class SourceFile:
         return self.path.name
 
 
-def source_dir(explicit: str | Path | None = None) -> Path:
-    """The ``udev/`` source directory: ``explicit``, else ``$ROVER_UDEV_DIR``, else the
-    ``udev/`` of the checkout this package runs from. Raises InstallError if none exists."""
-    candidates: list[tuple[str, Path]] = []
-    if explicit is not None:
-        candidates.append(("--source", Path(explicit)))
-    elif os.environ.get(ENV_SOURCE_DIR):
-        candidates.append((f"${ENV_SOURCE_DIR}", Path(os.environ[ENV_SOURCE_DIR])))
+def _installed_dirs(module_file: Path) -> list[tuple[str, Path]]:
+    """Where an install put ``share/rover_hil/udev`` (setup.py's data files): the ament
+    index's share directory of the package when ROS 2 is sourced, then the nearest
+    ancestor of the installed module that holds one (``<prefix>/lib/pythonX.Y/
+    site-packages/bridge`` -> ``<prefix>/share``: colcon, pip and venv layouts alike)."""
+    found: list[tuple[str, Path]] = []
+    try:
+        packages = importlib.import_module("ament_index_python.packages")
+        share = packages.get_package_share_directory(ROS_PACKAGE)
+    except (ImportError, LookupError, ValueError):  # no ROS 2, or the package not in it
+        pass
     else:
-        candidates.append(("the checkout", Path(__file__).resolve().parent.parent / "udev"))
-    origin, path = candidates[0]
-    if not path.is_dir():
-        raise InstallError(
-            f"udev source directory {path} (from {origin}) does not exist; run from a "
-            f"checkout of rover-hil, or pass --source DIR, or set {ENV_SOURCE_DIR}"
-        )
-    return path
+        found.append(("the ament index", Path(share) / "udev"))
+    for prefix in module_file.parents:
+        share_udev = prefix / "share" / ROS_PACKAGE / "udev"
+        if share_udev.is_dir():
+            found.append(("the install prefix", share_udev))
+            break
+    return found
+
+
+def source_dir(explicit: str | Path | None = None) -> Path:
+    """The ``udev/`` source directory: ``explicit`` (``--source``), else
+    ``$ROVER_UDEV_DIR``, else the first that exists of the ``udev/`` of the checkout this
+    package runs from (colcon ``--symlink-install`` resolves to it too), and the installed
+    ``share/rover_hil/udev`` (see :func:`_installed_dirs`).
+
+    Raises:
+        InstallError: the directory named, or every default, does not exist.
+    """
+    if explicit is not None:
+        candidates = [("--source", Path(explicit))]
+    elif os.environ.get(ENV_SOURCE_DIR):
+        candidates = [(f"${ENV_SOURCE_DIR}", Path(os.environ[ENV_SOURCE_DIR]))]
+    else:
+        here = Path(__file__).resolve()
+        candidates = [("the checkout", here.parent.parent / "udev"), *_installed_dirs(here)]
+    for _origin, path in candidates:
+        if path.is_dir():
+            return path
+    missing = "; ".join(
+        f"udev source directory {path} (from {origin}) does not exist"
+        for origin, path in candidates
+    )
+    raise InstallError(
+        f"{missing}. Run from a checkout of rover-hil or an install of it "
+        f"(share/{ROS_PACKAGE}/udev), or pass --source DIR, or set {ENV_SOURCE_DIR}"
+    )
 
 
 def source_files(directory: Path) -> list[SourceFile]:

@@ -132,11 +132,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from emulator.controller import ControllerConfig, ControllerModel
     from emulator.injection import parse_fault
+    from emulator.trafficfile import open_recorder
     from emulator.twin import Twin
     from emulator.worldmap import load_map
     from firmware_proto.messages import SCHEMA_HASH
     from firmware_proto.rover import load_rover
-    from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder
+    from firmware_proto.trafficio import LogWriter
 
     if args.speed_factor <= 0:
         raise ValueError("--speed-factor must be > 0")
@@ -158,7 +159,7 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
             )
-    recorder: SerialLogWriter | CanLogWriter | None = None
+    recorder: LogWriter | None = None
     if args.record:
         recorder = open_recorder(
             args.record,
@@ -249,7 +250,7 @@ def _serve(
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.rosargs import parse_args_with_ros_args
+    from firmware_proto.cli_rosargs import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser(
         prog="rover_emulator",

@@ -56,7 +56,7 @@ from firmware_proto.framing import FrameDecoder
 from firmware_proto.message import Message
 from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
 from firmware_proto.rover import load_rover
-from firmware_proto.trafficfile import LogFile
+from firmware_proto.trafficio import LogFile
 from firmware_proto.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
@@ -413,7 +413,7 @@ def replay_into_emulator(
     """Replay ``log``'s host frames into a fresh emulator; see the module docstring.
 
     Args:
-        log: a traffic log (serial or CAN) from :func:`firmware_proto.trafficfile.read_log`.
+        log: a traffic log (serial or CAN) from :func:`emulator.trafficfile.read_log`.
         options: emulator and comparison settings.
         recorder: records the replay session itself (optional).
 

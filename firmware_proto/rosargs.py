@@ -5,9 +5,9 @@ launch_ros starts every node as ``EXE [arguments...] --ros-args -r __node:=NAME
 project that are not ROS nodes themselves (the emulator, the gate, the link relay) take
 their settings from their own long options; these pure helpers turn the ROS arguments
 into those options, so that one parameters YAML configures the whole HIL set
-(docs/ros2.md). The parsing functions do no I/O: the file loader is passed in
-(:func:`load_parameters_file` reads YAML), and :func:`parse_args_with_ros_args` puts the
-pieces together for a program's ``main()``.
+(docs/ros2.md). Everything here is pure: the parameters-file loader is passed in. The
+command-line edge, which reads the YAML files and turns bad arguments into usage errors
+for a program's ``main()``, is :mod:`firmware_proto.cli_rosargs`.
 
 Mapping: the parameter ``speed_factor: 4.0`` becomes ``--speed-factor 4.0``; ``true``
 becomes the bare flag, ``false`` and empty values are left out, a list repeats the
@@ -16,8 +16,6 @@ option. Options given on the command line come after, so they win.
 
 from __future__ import annotations
 
-import argparse
-import importlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,10 +23,8 @@ from typing import Any
 __all__ = [
     "RosArgs",
     "argv_from_ros_args",
-    "load_parameters_file",
     "node_parameters",
     "parameters_to_argv",
-    "parse_args_with_ros_args",
     "parse_ros_args",
     "split_ros_args",
 ]
@@ -212,35 +208,3 @@ def argv_from_ros_args(
         params.update(node_parameters(load(path), node, parsed.namespace or ""))
     params.update(parsed.params)
     return parameters_to_argv(params)
-
-
-def load_parameters_file(path: str) -> Any:
-    """A ROS parameters file (YAML; PyYAML comes with every ROS 2 installation).
-
-    Raises:
-        ValueError: PyYAML is missing.
-        OSError: the file cannot be read.
-    """
-    try:
-        yaml = importlib.import_module("yaml")
-    except ImportError as exc:
-        raise ValueError(
-            f"reading --params-file {path} needs PyYAML (python3-yaml), which ROS 2 installs"
-        ) from exc
-    with open(path, encoding="utf-8") as f:
-        return yaml.safe_load(f)
-
-
-def parse_args_with_ros_args(
-    parser: argparse.ArgumentParser, argv: Sequence[str], node_name: str
-) -> argparse.Namespace:
-    """Parse a command line that may end in ``--ros-args``: the node's parameters (its
-    sections of each ``--params-file``, then ``-p``) become long options placed before
-    the program's own, which therefore win. A bad ROS argument or an unreadable file is
-    a usage error (``parser.error``: exit status 2)."""
-    own, ros_args = split_ros_args(argv)
-    try:
-        from_ros = argv_from_ros_args(ros_args, node_name, load_parameters_file) if ros_args else []
-    except (OSError, ValueError) as exc:
-        parser.error(str(exc))
-    return parser.parse_args(from_ros + own)

@@ -2,8 +2,10 @@
 and the comparison of a replayed session with a recorded one (docs/traffic-logs.md).
 
 Everything here is pure: no files, no clocks, no buses. The bridge and the emulator
-record at their edges through the :class:`TrafficRecorder` interface; the files are
-written and read back into the records defined here by :mod:`firmware_proto.trafficfile`.
+record at their edges through the :class:`TrafficRecorder` interface; the log writers
+and the reader of :mod:`firmware_proto.trafficio` turn the records defined here into
+streams and back, and each of those packages opens the files (``bridge.trafficfile``,
+``emulator.trafficfile``).
 
 **Serial frame log** (text, ASCII), one frame per line::
 

@@ -1,7 +1,8 @@
 """.github/workflows/ci.yml, checked as far as possible without running it (no PyYAML,
 no GitHub here): the three jobs exist, every action is pinned by a full commit SHA with
-its release named, every command it runs exists in the repository, and the markers it
-selects are this suite's."""
+its release named, every command it runs exists in the repository, the markers it
+selects are this suite's, and every command of the ros:jazzy job is in that image or
+installed by the job before it runs."""
 
 from __future__ import annotations
 
@@ -135,3 +136,100 @@ def test_the_ros2_job_builds_installs_and_runs_rclpy_and_launch_tests() -> None:
     assert any("pytest -m rclpy" in c for c in commands)
     assert "launch_test src/rover_hil/tests/bridge/launch_hil.py" in commands
     assert "          path: src/rover_hil" in lines
+
+
+# What the ros:jazzy image (ros-base on Ubuntu noble; osrf/docker_images,
+# ros/jazzy/ubuntu/noble/ros-core and ros-base Dockerfiles) has: bash and coreutils,
+# apt-get, git, rosdep (initialised), colcon, python3 and the ROS 2 base (ros2, after
+# sourcing). It runs as root and has no sudo, no pip and no ensurepip (venv).
+ROS_JAZZY_IMAGE = {
+    "apt-get",
+    "cd",
+    "colcon",
+    "git",
+    "grep",
+    "python3",
+    "ros2",
+    "rosdep",
+    "source",
+    "tee",
+    "test",
+}
+FROM_APT = {
+    "pip3": "python3-pip",
+    "python3 -m pip": "python3-pip",
+    "python3 -m venv": "python3-venv",
+}
+"""Commands the image lacks, by the Debian package that brings them."""
+FROM_ROSDEP = {"launch_test": "launch_testing"}
+"""Commands that package.xml's dependencies bring, through ``rosdep install``."""
+
+
+def _simple_commands(command: str) -> list[list[str]]:
+    """The words of each simple command in a shell line (split at ``|``, ``&&``, ``;``),
+    leading ``NAME=value`` assignments dropped."""
+    out = []
+    for part in re.split(r"\|\||&&|;|\|", command):
+        words = part.split()
+        while words and re.fullmatch(r"[A-Za-z_]\w*=\S*", words[0]):
+            words.pop(0)
+        if words:
+            out.append(words)
+    return out
+
+
+def _command_key(words: list[str]) -> str:
+    if words[0].endswith("python3") and words[1:2] == ["-m"] and len(words) > 2:
+        return f"python3 -m {words[2]}"
+    return words[0]
+
+
+def _not_in_image(commands: list[str]) -> list[str]:
+    """The commands of a ros:jazzy job that would not exist when they run: neither in the
+    image nor installed by an earlier ``apt-get install`` or ``rosdep install`` of the job
+    (a venv's commands count once the venv is made)."""
+    depends = set(
+        re.findall(r"<\w*depend>([\w-]+)</\w*depend>", (ROOT / "package.xml").read_text())
+    )
+    installed: set[str] = set()
+    rosdep_ran = venv_made = False
+    problems = []
+    for command in commands:
+        for words in _simple_commands(command):
+            key = _command_key(words)
+            if words[0].startswith(".venv/bin/"):
+                ok, need = venv_made, "a venv made before"
+            elif key in FROM_APT:
+                ok, need = FROM_APT[key] in installed, f"apt-get install {FROM_APT[key]} before"
+            elif key in FROM_ROSDEP:
+                ok = rosdep_ran and FROM_ROSDEP[key] in depends
+                need = f"rosdep install of {FROM_ROSDEP[key]} (package.xml) before"
+            else:
+                ok, need = key in ROS_JAZZY_IMAGE, f"{key}, which ros:jazzy lacks"
+            if not ok:
+                problems.append(f"{command!r} needs {need}")
+            if words[:2] == ["apt-get", "install"]:
+                installed.update(w for w in words[2:] if not w.startswith("-"))
+            rosdep_ran = rosdep_ran or words[:2] == ["rosdep", "install"]
+            venv_made = venv_made or key == "python3 -m venv"
+    return problems
+
+
+def test_the_ros2_job_uses_only_what_the_image_has_or_installs_first() -> None:
+    assert _not_in_image(_run_commands(JOBS["ros2"])) == []
+
+
+def test_the_image_check_catches_what_the_image_lacks() -> None:
+    job = [
+        "      - run: |",
+        "          rosdep install --from-paths src --ignore-src -y",
+        "          apt-get install -y --no-install-recommends python3-pip",
+        "          python3 -m venv --system-site-packages .venv",
+        "          .venv/bin/python -m pytest -m rclpy",
+        "          sudo launch_test x.py",
+        "      - run: ros2 pkg executables rover_hil | grep -q rover_bridge",
+    ]
+    assert _not_in_image(_run_commands(job)) == [
+        "'python3 -m venv --system-site-packages .venv' needs apt-get install python3-venv before",
+        "'sudo launch_test x.py' needs sudo, which ros:jazzy lacks",
+    ]

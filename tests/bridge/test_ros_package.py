@@ -9,8 +9,11 @@ import argparse
 import configparser
 import importlib
 import io
+import os
 import re
 import runpy
+import shutil
+import subprocess
 import sys
 import types
 import xml.etree.ElementTree as ET
@@ -164,6 +167,104 @@ def test_symlink_install_gets_the_metadata_from_the_source_tree(
     )
     assert {"firmware_proto", "bridge", "emulator", "bridge.rosport"} <= set(kwargs["packages"])
     assert kwargs["data_files"][0][1] == [f"bridge/ros/resource/{PACKAGE}"]
+
+
+UDEV_FILES = sorted(p.name for p in (ROOT / "udev").iterdir() if p.is_file())
+TOP_PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner")
+
+
+def _data_files(kwargs: dict[str, Any]) -> dict[str, str]:
+    """Installed path (relative to the install prefix) -> source path, from setup()."""
+    return {
+        f"{dest}/{Path(src).name}": src for dest, sources in kwargs["data_files"] for src in sources
+    }
+
+
+def _colcon_symlink_build(monkeypatch: pytest.MonkeyPatch, build: Path) -> dict[str, Any]:
+    """Lay out a build directory as colcon --symlink-install does (setup.py, setup.cfg,
+    the top-level packages and each data file, as symlinks into the source tree; the data
+    files as setup.py lists them from the source tree), then run setup.py in it."""
+    data = _data_files(_run_setup_py(monkeypatch, ROOT))
+    for item in ("setup.py", "setup.cfg", *TOP_PACKAGES, *data.values()):
+        if not (build / item).exists():  # e.g. bridge/ros/... inside the bridge symlink
+            (build / item).parent.mkdir(parents=True, exist_ok=True)
+            (build / item).symlink_to(ROOT / item)
+    return _run_setup_py(monkeypatch, build)
+
+
+def test_setup_py_installs_the_udev_files_plainly_and_with_symlinks(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    want = {f"share/{PACKAGE}/udev/{name}": f"udev/{name}" for name in UDEV_FILES}
+    assert {"99-rover-motor.rules", "80-rovercan0.network", "can-up.sh"} <= set(UDEV_FILES)
+    plain = _data_files(_run_setup_py(monkeypatch, ROOT))
+    assert {k: v for k, v in plain.items() if "/udev/" in k} == want
+    linked = _data_files(_colcon_symlink_build(monkeypatch, tmp_path))
+    assert {k: v for k, v in linked.items() if "/udev/" in k} == want
+    assert all((tmp_path / src).is_file() for src in want.values())
+
+
+_RUN_INSTALLED = """
+import sys
+sys.path.insert(0, sys.argv[1])
+import bridge.udev_install
+from firmware_proto.cli import main
+print("MODULE", bridge.udev_install.__file__)
+print("SOURCE", bridge.udev_install.source_dir())
+sys.exit(main(["udev", "install", "--dry-run", "--no-reload",
+               "--rules-dir", sys.argv[2], "--network-dir", sys.argv[3]]))
+"""
+
+
+def _rover_udev_install_from(site: Path, tmp_path: Path) -> dict[str, str]:
+    """``rover udev install --dry-run`` run by a Python that imports our packages from
+    ``site``, as ``ros2 run`` does from a colcon install; its MODULE and SOURCE lines."""
+    env = {k: v for k, v in os.environ.items() if k != "ROVER_UDEV_DIR"}
+    etc = tmp_path / "etc"
+    argv = [sys.executable, "-c", _RUN_INSTALLED, str(site), str(etc / "rules.d"), str(etc / "net")]
+    done = subprocess.run(
+        argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert "would install" in done.stdout and "99-rover-motor.rules" in done.stdout
+    return dict(
+        line.split(" ", 1)
+        for line in done.stdout.splitlines()
+        if line.startswith(("MODULE", "SOURCE"))
+    )
+
+
+def test_rover_udev_install_finds_the_files_of_a_plain_install(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A colcon build without --symlink-install copies the packages to the prefix's
+    site-packages and the data files under share/: no checkout's udev/ is in reach, and
+    no --source is needed."""
+    prefix = tmp_path / "install" / PACKAGE
+    site = prefix / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
+    for package in TOP_PACKAGES:
+        shutil.copytree(
+            ROOT / package, site / package, ignore=shutil.ignore_patterns("__pycache__")
+        )
+    for dest, src in _data_files(_run_setup_py(monkeypatch, ROOT)).items():
+        (prefix / dest).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / src, prefix / dest)
+    found = _rover_udev_install_from(site, tmp_path)
+    assert Path(found["MODULE"]).is_relative_to(site)
+    assert Path(found["SOURCE"]) == prefix / "share" / PACKAGE / "udev"
+
+
+def test_rover_udev_install_finds_the_source_udev_of_a_symlink_install(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """With --symlink-install the packages are imported from the build directory, through
+    symlinks into the source tree, whose udev/ is the one found."""
+    build = tmp_path / "build" / PACKAGE
+    build.mkdir(parents=True)
+    _colcon_symlink_build(monkeypatch, build)
+    found = _rover_udev_install_from(build, tmp_path)
+    assert Path(found["MODULE"]).is_relative_to(build)
+    assert Path(found["SOURCE"]) == ROOT / "udev"
 
 
 def test_setup_cfg_puts_executables_where_ros2_run_looks() -> None:
@@ -416,7 +517,7 @@ def test_each_program_reads_its_hil_section_with_pyyaml(node: str) -> None:
     """The real file through PyYAML, as the launch file hands it over; options given on
     the command line (what the launch arguments become) win over the file."""
     pytest.importorskip("yaml", reason="PyYAML (the ros-params extra, or ROS 2) is missing")
-    from firmware_proto.rosargs import parse_args_with_ros_args
+    from firmware_proto.cli_rosargs import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser()
     OPTIONS[node](parser)

@@ -17,11 +17,11 @@ from PIL import Image
 from bridge.benchreport import format_table, summarize, write_reports
 from bridge.errors import TransportError
 from bridge.stopbench import BenchConfig, BenchError, BenchRun, FloodConfig, StopBench, TrialResult
+from bridge.trafficfile import read_log
 from emulator.engine import Emulator
 from emulator.replay import ReplayOptions, replay_into_emulator
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.messages import SCHEMA_HASH, Param
-from firmware_proto.trafficfile import read_log
 from firmware_proto.trafficlog import decode_records
 
 from .conftest import SPEED

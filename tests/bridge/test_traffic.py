@@ -16,6 +16,7 @@ import pytest
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.replay import BridgeReplayOptions, replay_into_bridge
+from bridge.trafficfile import open_recorder, read_log
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
@@ -28,9 +29,8 @@ from firmware_proto.canmap import encode_can
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.framing import encode_frame
 from firmware_proto.message import Message
-from firmware_proto.messages import Command, Ident, Motion, WheelSpeeds
+from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
 from firmware_proto.rover import RoverDescription
-from firmware_proto.trafficfile import CanLogWriter, SerialLogWriter, open_recorder, read_log
 from firmware_proto.trafficlog import (
     CanRecord,
     SerialRecord,
@@ -56,11 +56,15 @@ class Session:
     statuses: list[str]
 
 
-def _drive(link: ControllerLink, rec: Recorder, moving: threading.Event) -> None:
+def _drive(
+    link: ControllerLink, rec: Recorder, moving: threading.Event, halted: threading.Event
+) -> None:
     """Steps that complete, a STOP that aborts two, a refusal while latched, a clear and
     a last step: every kind of answer the controller gives. The STOP waits until the
     wheels move, so that no answer hangs on sub-millisecond timing (a replay keeps the
-    recorded timing only to a fraction of a millisecond)."""
+    recorded timing only to a fraction of a millisecond). The clear waits for the STOPPED
+    report (``halted``), which comes once the wheels stand still, about 0.2 s after the
+    STOP: else the session could end before it and the log would lack it."""
     rec.wait_count("ready", 1)
     for _ in range(3):
         link.submit_step(StepRequest(FWD, 60, 3000))
@@ -73,6 +77,7 @@ def _drive(link: ControllerLink, rec: Recorder, moving: threading.Event) -> None
     mark = rec.mark()
     link.emergency_stop()
     rec.wait(lambda xs: "stopped" in xs and xs.count("aborted:stop") == 2, since=mark)
+    assert halted.wait(10.0), "no STOPPED report"
     link.submit_step(StepRequest(FWD, 60, 100))
     rec.wait_count("rejected:stop_latched", 1, since=mark)
     link.clear_stop()
@@ -113,7 +118,7 @@ def _record_session(
                 else f"can://virtual/{channel}?node={node}"
             )
             rec = Recorder()
-            moving = threading.Event()
+            moving, halted = threading.Event(), threading.Event()
 
             def factory(u: str) -> Transport:
                 return open_transport(u, recorder=host_rec)
@@ -121,6 +126,8 @@ def _record_session(
             def on_telemetry(msg: Message, arrived: float) -> None:
                 if isinstance(msg, WheelSpeeds) and msg.left_mm_s > 50:
                     moving.set()
+                elif isinstance(msg, Stopped):
+                    halted.set()
 
             with ControllerLink(
                 LinkConfig(url),
@@ -128,7 +135,7 @@ def _record_session(
                 on_telemetry=on_telemetry,
                 transport_factory=factory,
             ) as link:
-                _drive(link, rec, moving)
+                _drive(link, rec, moving, halted)
     return Session(kind, channel, node, host_log, controller_log, rec.items)
 
 
@@ -251,7 +258,7 @@ def _rewrite(path: Path, out: Path, edit: Callable[[TrafficRecord], TrafficRecor
         )
         out.write_text(text, encoding="ascii")
     else:
-        with CanLogWriter(out) as writer:
+        with open_recorder(out, "can") as writer:
             for r in records:
                 writer.record(r)
     return out
@@ -342,13 +349,17 @@ def test_a_failing_recorder_never_stops_the_link(
     assert sum("traffic recorder failed" in r.message for r in caplog.records) == 1
 
 
-def test_recorders_refuse_the_other_medium(tmp_path: Path) -> None:
-    with SerialLogWriter(tmp_path / "a.rlog") as serial_writer, pytest.raises(TypeError):
+def test_recorders_refuse_the_other_medium_and_unknown_formats(tmp_path: Path) -> None:
+    with open_recorder(tmp_path / "a.rlog", "serial") as serial_writer, pytest.raises(TypeError):
         serial_writer.record(CanRecord(1.0, "x", 1, b"", is_rx=True))
-    with CanLogWriter(tmp_path / "b.log") as can_writer, pytest.raises(TypeError):
+    with open_recorder(tmp_path / "b.log", "can") as can_writer, pytest.raises(TypeError):
         can_writer.record(SerialRecord(1.0, "H>C", b"\x00"))
     with pytest.raises(ValueError, match="known: serial, can"):
         open_recorder(tmp_path / "c", "usb")
+    with pytest.raises(ValueError, match=r"known: \.log, \.blf"):
+        open_recorder(tmp_path / "c.asc", "can")
+    assert not (tmp_path / "c").exists()
+    assert not (tmp_path / "c.asc").exists()  # refused before a file was made
     (tmp_path / "d.txt").write_text("hello\n")
     with pytest.raises(ValueError, match="not a serial frame log"):
         read_log(tmp_path / "d.txt")

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from emulator.cli_emulate import main
-from firmware_proto.trafficfile import read_log
+from emulator.trafficfile import read_log
 
 
 @pytest.fixture(autouse=True)

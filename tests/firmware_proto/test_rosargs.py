@@ -3,6 +3,8 @@ becomes the options they already understand."""
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -136,3 +138,21 @@ def test_files_then_command_line_parameters_make_the_options() -> None:
         "--device",
         "/tmp/x",
     ]
+
+
+def test_an_unreadable_parameters_file_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The command-line edge (cli_rosargs) reads the files; with or without PyYAML, a
+    file it cannot read ends the program with status 2 and says which file."""
+    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+
+    parser = argparse.ArgumentParser(prog="rover_emulator")
+    parser.add_argument("--seed", type=int, default=0)
+    missing = tmp_path / "missing.yaml"
+    with pytest.raises(SystemExit) as exit_info:
+        parse_args_with_ros_args(parser, ["--ros-args", "--params-file", str(missing)], "x")
+    assert exit_info.value.code == 2
+    assert str(missing) in capsys.readouterr().err
+    args = parse_args_with_ros_args(parser, ["--seed", "4", "--ros-args", "-p", "seed:=3"], "x")
+    assert args.seed == 4  # the program's own options win

@@ -1,0 +1,52 @@
+"""The ROS 2 tail of a program's command line, read: the edge of
+:mod:`firmware_proto.rosargs` for the ``main()`` of every program that ``ros2 run`` and
+the launch files start but that is not a ROS node itself (``rover_emulator``,
+``rover_gate``, ``rover_link``, ``rover_executor``; docs/ros2.md).
+
+It sits with the other ``cli`` modules of :mod:`firmware_proto`, the command-line layer
+that does I/O, because the emulator, the gate and the planner all use it and share no
+other package; :mod:`firmware_proto.rosargs` itself stays pure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from collections.abc import Sequence
+from typing import Any
+
+from firmware_proto.rosargs import argv_from_ros_args, split_ros_args
+
+__all__ = ["load_parameters_file", "parse_args_with_ros_args"]
+
+
+def load_parameters_file(path: str) -> Any:
+    """A ROS parameters file (YAML; PyYAML comes with every ROS 2 installation).
+
+    Raises:
+        ValueError: PyYAML is missing.
+        OSError: the file cannot be read.
+    """
+    try:
+        yaml = importlib.import_module("yaml")
+    except ImportError as exc:
+        raise ValueError(
+            f"reading --params-file {path} needs PyYAML (python3-yaml), which ROS 2 installs"
+        ) from exc
+    with open(path, encoding="utf-8") as f:
+        return yaml.safe_load(f)
+
+
+def parse_args_with_ros_args(
+    parser: argparse.ArgumentParser, argv: Sequence[str], node_name: str
+) -> argparse.Namespace:
+    """Parse a command line that may end in ``--ros-args``: the node's parameters (its
+    sections of each ``--params-file``, then ``-p``) become long options placed before
+    the program's own, which therefore win. A bad ROS argument or an unreadable file is
+    a usage error (``parser.error``: exit status 2)."""
+    own, ros_args = split_ros_args(argv)
+    try:
+        from_ros = argv_from_ros_args(ros_args, node_name, load_parameters_file) if ros_args else []
+    except (OSError, ValueError) as exc:
+        parser.error(str(exc))
+    return parser.parse_args(from_ros + own)

@@ -1,0 +1,362 @@
+"""Traffic log writers and reader on streams the caller opened (docs/traffic-logs.md).
+
+The record types, the serial frame-log format and the decoding live in
+:mod:`firmware_proto.trafficlog`; this module turns records into log streams and back.
+It opens nothing and takes no paths, as ``firmware_proto`` does no I/O of its own: the
+bridge and the emulator (which record at the two ends of the link and never import each
+other) open files by path in their own ``trafficfile`` modules and hand the streams in.
+
+- :class:`LogWriter`: the recorder base (thread-safe :meth:`~LogWriter.record`,
+  idempotent :meth:`~LogWriter.close`); :class:`SerialLogWriter` writes the serial frame
+  log to a text stream, :class:`CanLogWriter` feeds one of python-can's log writers.
+- :data:`CAN_LOG_FORMATS`: the python-can formats recorded and read, by file suffix.
+- :func:`writer_for`: the writer that a medium and a file suffix call for, checked before
+  anything is opened; it is then given the binary stream to write to.
+- :func:`parse_log`: a serial frame log or a CAN log back from a binary stream.
+
+**Streams.** Writers and the reader own the streams they are given, as python-can's
+do: :meth:`LogWriter.close` finishes the log and closes its stream, :func:`parse_log`
+closes its stream once read (or on error). The caller opens; this module closes.
+
+**CAN formats.** ``.log`` (candump ``-L``) keeps everything a frame carries and is
+flushed per frame: the one to use, read by can-utils and cantools too. ``.blf`` (Vector
+BLF) keeps times to the microsecond, identifiers, data and direction, but numbers its
+channels and holds up to 128 KiB in python-can's buffer until it is closed. The other
+suffixes python-can knows are refused: ``.asc`` and ``.trc`` round times to 0.1 ms and
+1 ms (an answer could then sort ahead of its request), ``.csv`` drops the direction,
+``.txt`` cannot be read back, ``.db`` and ``.mf4`` need a path or another library.
+``python -m can.logconvert`` converts a ``.log`` to any of them.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import PurePath
+from types import TracebackType
+from typing import IO, Any, BinaryIO, TextIO
+
+import can
+from can.io.blf import BLFParseError
+
+from firmware_proto.trafficlog import (
+    SERIAL_LOG_MAGIC,
+    CanRecord,
+    SerialRecord,
+    TrafficRecord,
+    format_serial_record,
+    parse_serial_log,
+    serial_log_header,
+)
+
+__all__ = [
+    "CAN_LOG_FORMATS",
+    "MEDIA",
+    "CanLogFormat",
+    "CanLogWriter",
+    "LogFile",
+    "LogWriter",
+    "SerialLogWriter",
+    "parse_log",
+    "writer_for",
+]
+
+MEDIA = ("serial", "can")
+"""The media a link records: a serial frame log, or a CAN log."""
+
+
+class LogWriter(ABC):
+    """A recorder writing one log (a :class:`~firmware_proto.trafficlog.TrafficRecorder`).
+
+    :meth:`record` is thread-safe (transports record from their reader threads and their
+    callers' threads) and checks the record type; an implementation fills :meth:`_write`
+    (one record, under the lock) and :meth:`_close` (finish the log, close the stream,
+    called once). It owns the stream it was given.
+
+    Attributes:
+        frames: records written so far.
+    """
+
+    record_type: type[SerialRecord] | type[CanRecord]
+    """The records this log holds."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._closed = False
+        self.frames = 0
+
+    def record(self, entry: TrafficRecord) -> None:
+        """Append one frame; after :meth:`close`, drop it (a reader thread may still hand
+        one over while its owner shuts down).
+
+        Raises:
+            TypeError: a record of the other medium.
+            OSError: the stream failed (disk full); the transports and front ends log it
+                once and keep the link running.
+        """
+        if not isinstance(entry, self.record_type):
+            raise TypeError(f"a {self.record_type.__name__} log cannot hold {entry!r}")
+        with self._lock:
+            if self._closed:
+                return
+            self._write(entry)
+            self.frames += 1
+
+    def close(self) -> None:
+        """Finish the log and close its stream (idempotent)."""
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                self._close()
+
+    @abstractmethod
+    def _write(self, entry: Any) -> None:
+        """Write one record of :attr:`record_type` and flush it where the format can."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Finish the log and close the stream."""
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class SerialLogWriter(LogWriter):
+    """Writes a serial frame log to a text stream, one line per frame, each flushed as it
+    is written, so that a log survives a crash up to its last frame."""
+
+    record_type = SerialRecord
+
+    def __init__(self, stream: TextIO, metadata: Mapping[str, str] | None = None) -> None:
+        """Args:
+        stream: a writable text stream, at its start; the writer owns it from here on.
+        metadata: ``# key: value`` lines for the header (role, device, ...).
+
+        Raises:
+            OSError: the header cannot be written.
+        """
+        super().__init__()
+        self._stream = stream
+        stream.write(serial_log_header(metadata))
+        stream.flush()
+
+    def _write(self, entry: SerialRecord) -> None:
+        self._stream.write(format_serial_record(entry))
+        self._stream.flush()
+
+    def _close(self) -> None:
+        self._stream.close()
+
+
+class CanLogWriter(LogWriter):
+    """Feeds CAN records to one of python-can's log writers, e.g.
+    ``CanLogWriter(can.CanutilsLogWriter(text_stream, channel="can0"))``; a writer with a
+    ``file`` is flushed after every frame."""
+
+    record_type = CanRecord
+
+    def __init__(self, writer: can.Listener) -> None:
+        """Args:
+        writer: a python-can message writer (``can.io`` classes); this one owns it, and
+            closing this one stops it, which closes its file.
+        """
+        super().__init__()
+        self._writer = writer
+
+    def _write(self, entry: CanRecord) -> None:
+        self._writer.on_message_received(
+            can.Message(
+                timestamp=entry.time_s,
+                arbitration_id=entry.arbitration_id,
+                data=entry.data,
+                is_extended_id=entry.is_extended_id,
+                is_remote_frame=entry.is_remote_frame,
+                is_error_frame=entry.is_error_frame,
+                is_rx=entry.is_rx,
+                channel=entry.channel or None,
+            )
+        )
+        file = getattr(self._writer, "file", None)
+        if file is not None:
+            file.flush()
+
+    def _close(self) -> None:
+        self._writer.stop()
+
+
+@dataclass(frozen=True)
+class CanLogFormat:
+    """A python-can log format that traffic logs are recorded in and read from.
+
+    Attributes:
+        name: what the format is called.
+        binary: its stream is bytes; otherwise ASCII text.
+        writer: python-can's writer on a stream of that kind (:meth:`stream`), given the
+            channel name for frames that carry none.
+        reader: python-can's reader on a stream of that kind.
+    """
+
+    # The stream is Any: BinaryIO or TextIO as ``binary`` says, which no type can say.
+    name: str
+    binary: bool
+    writer: Callable[[Any, str], can.Listener]
+    reader: Callable[[Any], Iterable[can.Message]]
+
+    def stream(self, binary: BinaryIO) -> IO[Any]:
+        """``binary`` as this format's writers and readers want it (ASCII text or as is)."""
+        return binary if self.binary else io.TextIOWrapper(binary, "ascii", newline="\n")
+
+
+CAN_LOG_FORMATS: Mapping[str, CanLogFormat] = {
+    ".log": CanLogFormat(
+        name="candump -L",
+        binary=False,
+        writer=lambda f, ch: can.CanutilsLogWriter(f, channel=ch),
+        reader=can.CanutilsLogReader,
+    ),
+    ".blf": CanLogFormat(
+        name="Vector BLF",
+        binary=True,
+        writer=lambda f, ch: can.BLFWriter(f),
+        reader=can.BLFReader,
+    ),
+}
+"""CAN log formats by file suffix (see the module docstring for those refused)."""
+
+
+def _can_format(suffix: str) -> CanLogFormat:
+    try:
+        return CAN_LOG_FORMATS[suffix.lower()]
+    except KeyError:
+        raise ValueError(
+            f"cannot record CAN traffic to a {suffix or 'suffix-less'!r} file; known: "
+            f"{', '.join(CAN_LOG_FORMATS)} (convert with python -m can.logconvert)"
+        ) from None
+
+
+def writer_for(
+    medium: str,
+    suffix: str,
+    *,
+    channel: str = "",
+    metadata: Mapping[str, str] | None = None,
+) -> Callable[[BinaryIO], LogWriter]:
+    """The writer for a log of ``medium`` in a file with ``suffix``, as a function of the
+    binary stream to write to (which it then owns, closing it if it fails to start).
+
+    Args:
+        medium: ``"serial"`` (any suffix; ``.rlog`` by custom) or ``"can"`` (a suffix of
+            :data:`CAN_LOG_FORMATS`).
+        suffix: the file's suffix, dot included.
+        channel: CAN: the channel name written for frames that carry none (``can0``).
+        metadata: serial: the header's ``# key: value`` lines; CAN logs have no header.
+
+    Raises:
+        ValueError: an unknown medium, or a suffix no CAN format here has; raised before
+            the caller opens anything.
+    """
+    if medium == "serial":
+
+        def serial(binary: BinaryIO) -> LogWriter:
+            return SerialLogWriter(io.TextIOWrapper(binary, "ascii", newline="\n"), metadata)
+
+        return _owning(serial)
+    if medium == "can":
+        fmt = _can_format(suffix)
+
+        def can_log(binary: BinaryIO) -> LogWriter:
+            return CanLogWriter(fmt.writer(fmt.stream(binary), channel or "can0"))
+
+        return _owning(can_log)
+    raise ValueError(f"unknown medium {medium!r}; known: {', '.join(MEDIA)}")
+
+
+def _owning(make: Callable[[BinaryIO], LogWriter]) -> Callable[[BinaryIO], LogWriter]:
+    def start(binary: BinaryIO) -> LogWriter:
+        try:
+            return make(binary)
+        except BaseException:
+            binary.close()
+            raise
+
+    return start
+
+
+@dataclass(frozen=True)
+class LogFile:
+    """A traffic log read back: ``kind`` is ``"serial"`` or ``"can"``; ``path`` names
+    where it came from (for messages)."""
+
+    path: PurePath
+    kind: str
+    records: tuple[TrafficRecord, ...]
+    metadata: dict[str, str] = field(default_factory=dict)
+
+
+def _in_time_order(records: Iterable[TrafficRecord]) -> tuple[TrafficRecord, ...]:
+    return tuple(sorted(records, key=lambda r: r.time_s))  # stable: ties keep file order
+
+
+def _can_record(msg: can.Message) -> CanRecord:
+    return CanRecord(
+        time_s=float(msg.timestamp),
+        channel=str(msg.channel) if msg.channel is not None else "",
+        arbitration_id=msg.arbitration_id,
+        data=bytes(msg.data),
+        is_rx=bool(msg.is_rx),
+        is_extended_id=msg.is_extended_id,
+        is_remote_frame=msg.is_remote_frame,
+        is_error_frame=msg.is_error_frame,
+    )
+
+
+def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
+    """Read a serial frame log or a CAN log of :data:`CAN_LOG_FORMATS`, told apart by
+    content (the serial log's first line) and then by the suffix of ``path``. Records
+    come in time order: a recorder writes a sent frame once its send returned, so the
+    answer to it may come first in the file (its time, taken before the send, is
+    earlier).
+
+    Args:
+        stream: a readable, seekable binary stream at the log's start. Like the writers,
+            the reader owns it: it is closed on return, and on error (python-can's
+            readers close theirs when they are done).
+        path: the log's name, for its suffix and for messages (not opened).
+
+    Raises:
+        OSError: the stream cannot be read.
+        ValueError: neither a serial frame log nor a CAN log of a known suffix, or a
+            malformed line or record (DecodeError, a ValueError, names it).
+    """
+    path = PurePath(path)
+    with stream:
+        head = stream.read(len(SERIAL_LOG_MAGIC) + 2)
+        stream.seek(0)
+        if head.startswith(SERIAL_LOG_MAGIC.encode()):
+            with io.TextIOWrapper(stream, "ascii") as text:
+                parsed = parse_serial_log(text)
+            return LogFile(path, "serial", _in_time_order(parsed.records), parsed.metadata)
+        fmt = CAN_LOG_FORMATS.get(path.suffix.lower())
+        if fmt is None:
+            raise ValueError(
+                f"{path}: not a serial frame log (no {SERIAL_LOG_MAGIC!r} line) and not a "
+                f"CAN log of a known suffix ({', '.join(CAN_LOG_FORMATS)})"
+            )
+        with fmt.stream(stream) as wrapped:
+            try:
+                records = [_can_record(msg) for msg in fmt.reader(wrapped)]
+            except (ValueError, IndexError, struct.error, BLFParseError) as exc:
+                raise ValueError(f"{path}: malformed {fmt.name} log: {exc}") from exc
+    return LogFile(path, "can", _in_time_order(records))
