@@ -17,11 +17,11 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from emulator.controller import ControllerModel
-    from emulator.injection import FaultSpec
-    from firmware_proto.trafficlog import TrafficRecorder
+    from emulator.controller import ControllerConfig, ControllerModel
+    from emulator.frontend import FrontEnd
+    from emulator.injection import FaultSpec, InjectionRecord
 
-__all__ = ["add_arguments", "main", "register"]
+__all__ = ["add_arguments", "controller_config", "main", "register"]
 
 NODE_NAME = "rover_emulator"
 """Node name whose section of a ROS parameters file configures ``rover_emulator``."""
@@ -31,7 +31,9 @@ _DESCRIPTION = (
     "over the pymunk twin, served on a pty (--serial) or a python-can bus (--can). "
     "Prints 'DEVICE <path>' (or 'CAN <interface:channel> node <n>') and, with "
     "--control-port, 'CONTROL 127.0.0.1:<port>' as its first lines. Stops cleanly "
-    "on Ctrl-C or SIGTERM."
+    "on Ctrl-C or SIGTERM. Every fault is checked before serving: one that cannot apply "
+    "(a value out of range, link-corrupt on CAN, an unknown region) is an error, exit 1. "
+    "Each injection prints 'INJECT t=<twin s> <fault> (<source>)' to stderr when it applies."
 )
 
 
@@ -42,7 +44,9 @@ def _epilog() -> str:
     return (
         "fault injection (--inject, repeatable; also on the control interface):\n"
         f"{kinds}\n"
-        "  triggers: @t=SECONDS (twin time), @d=METRES (ground travel), @region=ID\n\n"
+        "  triggers: @t=SECONDS (twin time), @d=METRES (ground travel), @region=ID\n"
+        "  ranges: slip scale (0, 1]; encoder-noise 0..100000 units; |imu-bias| <= 32.767 "
+        "rad/s;\n  link ratios 0..1; link-delay 0..10 s; link-corrupt on serial only\n\n"
         "examples:\n"
         "  rover emulate --serial --link /tmp/rover-motor --map lab\n"
         "  rover emulate --can virtual:rover --node 2 --inject slip:left=0.3@t=5\n"
@@ -91,6 +95,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="twin seconds per wall second; timeouts scale with it (default 1)",
     )
     p.add_argument(
+        "--watchdog-ms",
+        type=int,
+        metavar="MS",
+        help="controller watchdog, host ms, 50..10000 (default: the protocol's 250)",
+    )
+    p.add_argument(
+        "--telemetry-hz",
+        type=int,
+        metavar="HZ",
+        help="ENCODERS, WHEEL_SPEEDS and IMU rate, 1..200 (default: the protocol's 50)",
+    )
+    p.add_argument(
         "--inject",
         action="append",
         default=[],
@@ -129,9 +145,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def controller_config(args: argparse.Namespace) -> ControllerConfig:
+    """The firmware settings the options ask for.
+
+    Raises:
+        ValueError: speed factor not positive, or a watchdog or telemetry rate outside
+            what SET_PARAM accepts (``emulator.controller.PARAM_RANGES``).
+    """
+    from emulator.controller import PARAM_RANGES, ControllerConfig
+    from firmware_proto.messages import Param
+
+    if not args.speed_factor > 0:
+        raise ValueError("--speed-factor must be > 0")
+    settings: dict[str, Any] = {"timeout_scale": args.speed_factor}
+    for option, param, name in (
+        ("--watchdog-ms", Param.WATCHDOG_MS, "watchdog_ms"),
+        ("--telemetry-hz", Param.TELEMETRY_HZ, "telemetry_hz"),
+    ):
+        value = getattr(args, name)
+        if value is None:
+            continue
+        low, high = PARAM_RANGES[param]
+        if not low <= value <= high:
+            raise ValueError(f"{option} must be in {low}..{high}, got {value}")
+        settings[name] = value
+    return ControllerConfig(**settings)
+
+
 def _run(args: argparse.Namespace) -> int:
-    from emulator.controller import ControllerConfig, ControllerModel
-    from emulator.injection import parse_fault
+    from emulator.controller import ControllerModel
+    from emulator.errors import InjectionError
+    from emulator.injection import Injector, parse_fault
     from emulator.trafficfile import open_recorder
     from emulator.twin import Twin
     from emulator.worldmap import load_map
@@ -139,19 +183,13 @@ def _run(args: argparse.Namespace) -> int:
     from firmware_proto.rover import load_rover
     from firmware_proto.trafficio import LogWriter
 
-    if args.speed_factor <= 0:
-        raise ValueError("--speed-factor must be > 0")
-    rover = load_rover(args.rover)
-    world = load_map(args.map)
-    faults = [parse_fault(text) for text in args.inject]
-    twin = Twin(rover, world, dt_s=args.dt)
-    model = ControllerModel(
-        rover,
-        twin,
-        ControllerConfig(timeout_scale=args.speed_factor),
-        seed=args.seed,
-        schema_hash=SCHEMA_HASH if args.schema_hash is None else args.schema_hash,
-    )
+    config = controller_config(args)
+    faults: list[FaultSpec] = []
+    for text in args.inject:
+        try:
+            faults.append(parse_fault(text))
+        except InjectionError as exc:
+            raise InjectionError(f"--inject {text}: {exc}") from None
     interface = channel = ""
     if not args.serial:
         interface, sep, channel = args.can.partition(":")
@@ -159,6 +197,25 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
             )
+    rover = load_rover(args.rover)
+    world = load_map(args.map)
+    twin = Twin(rover, world, dt_s=args.dt)
+    model = ControllerModel(
+        rover,
+        twin,
+        config,
+        seed=args.seed,
+        schema_hash=SCHEMA_HASH if args.schema_hash is None else args.schema_hash,
+    )
+    frontend = _frontend(args, interface, channel)
+    # Refuse what cannot apply before anything is served or written: a fault refused
+    # only when its trigger fires would be a fault silently accepted at start-up.
+    checker = Injector(model, frontend)
+    for text, spec in zip(args.inject, faults, strict=True):
+        try:
+            checker.check(spec)
+        except InjectionError as exc:
+            raise InjectionError(f"--inject {text}: {exc}") from None
     recorder: LogWriter | None = None
     if args.record:
         recorder = open_recorder(
@@ -173,44 +230,50 @@ def _run(args: argparse.Namespace) -> int:
                 "rover": str(args.rover or ""),
             },
         )
+        frontend.recorder = recorder
     try:
-        return _serve(args, model, faults, interface=interface, channel=channel, recorder=recorder)
+        return _serve(args, model, frontend, faults)
     finally:
         if recorder is not None:
             recorder.close()
 
 
+def _frontend(args: argparse.Namespace, interface: str, channel: str) -> FrontEnd:
+    """The front end the options ask for, not yet opened (nothing is served)."""
+    from emulator.can_frontend import CanFrontEnd
+    from emulator.serial_frontend import SerialFrontEnd
+
+    if args.serial:
+        return SerialFrontEnd(link=args.link, baud=args.baud, seed=args.seed)
+    return CanFrontEnd(interface=interface, channel=channel, node=args.node, seed=args.seed)
+
+
+def _print_injection(record: InjectionRecord) -> None:
+    print(record.line(), file=sys.stderr, flush=True)
+
+
 def _serve(
     args: argparse.Namespace,
     model: ControllerModel,
+    frontend: FrontEnd,
     faults: list[FaultSpec],
-    *,
-    interface: str,
-    channel: str,
-    recorder: TrafficRecorder | None,
 ) -> int:
     from emulator.can_frontend import CanFrontEnd
     from emulator.control import ControlServer
     from emulator.engine import Emulator
-    from emulator.frontend import FrontEnd
     from emulator.serial_frontend import SerialFrontEnd
-
-    frontend: FrontEnd
-    if args.serial:
-        frontend = SerialFrontEnd(link=args.link, baud=args.baud, seed=args.seed, recorder=recorder)
-    else:
-        frontend = CanFrontEnd(
-            interface=interface,
-            channel=channel,
-            node=args.node,
-            seed=args.seed,
-            recorder=recorder,
-        )
 
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    emulator = Emulator(model, frontend, speed_factor=args.speed_factor, faults=faults)
+    emulator = Emulator(
+        model,
+        frontend,
+        speed_factor=args.speed_factor,
+        faults=faults,
+        on_injection=_print_injection,
+        fault_source="cli",
+    )
     control: ControlServer | None = None
     with emulator:
         if isinstance(frontend, SerialFrontEnd):
@@ -218,7 +281,7 @@ def _serve(
                 f"DEVICE {frontend.device}" + (f" LINK {frontend.link}" if frontend.link else ""),
                 flush=True,
             )
-        else:
+        elif isinstance(frontend, CanFrontEnd):
             print(f"CAN {frontend.device} node {args.node}", flush=True)
         try:
             if args.control_port is not None:

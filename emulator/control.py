@@ -5,6 +5,7 @@ Listens on 127.0.0.1 only. Commands (``help`` lists them)::
     status                  the emulator's state, pose, wheels, faults, counters
     inject FAULT            apply or schedule a fault (see emulator.injection), e.g.
                             inject slip:left=0.3   inject reboot   inject stall:right@t=4
+                            A fault that cannot apply here is refused at once.
     injections              every injection applied so far
     unplug [SECONDS]        the serial device disappears (and returns after SECONDS)
     replug                  the serial device returns
@@ -12,6 +13,10 @@ Listens on 127.0.0.1 only. Commands (``help`` lists them)::
 
 Each answer is one JSON line: ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``.
 Bad commands get an error answer; the connection and the emulator carry on.
+
+``inject`` answers when the fault applies: at once, ``{"ok": true, "fault": "reboot",
+"applied_s": 12.345}`` (twin time); with a trigger, ``{"ok": true, "fault":
+"stall:right@t=4", "scheduled_s": 1.2, "fires": "at twin time t=4 s"}``.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from typing import Any
 
 from emulator.engine import Emulator
 from emulator.errors import EmulatorError
+from emulator.injection import InjectionRecord
 from emulator.serial_frontend import SerialFrontEnd
 
 __all__ = ["ControlServer"]
@@ -104,8 +110,15 @@ class ControlServer:
             if verb == "inject":
                 if not arg:
                     raise ValueError("inject needs a fault, e.g. inject slip:left=0.3")
-                self.emulator.inject(arg, source="control")
-                return {"ok": True}
+                done = self.emulator.inject(arg, source="control")
+                if isinstance(done, InjectionRecord):
+                    return {"ok": True, "fault": done.fault, "applied_s": round(done.time_s, 6)}
+                return {
+                    "ok": True,
+                    "fault": done.fault,
+                    "scheduled_s": round(done.scheduled_s, 6),
+                    "fires": done.fires,
+                }
             if verb == "injections":
                 return {
                     "ok": True,

@@ -11,6 +11,10 @@ Commands from other threads (fault injection, status, unplug) go through
 :meth:`Emulator.call`, which runs a function on the control thread and returns its
 result. :meth:`Emulator.close` is idempotent and joins every thread it started.
 
+Faults are checked when they are given (:meth:`Emulator.inject`, the ``faults`` of the
+constructor), so one that cannot apply is refused there with an
+:class:`~emulator.errors.InjectionError`, never accepted and refused when it fires.
+
 Lockstep runs (tests, the gate) use the model directly without this class.
 """
 
@@ -28,8 +32,17 @@ from types import TracebackType
 from typing import Any, TypeVar
 
 from emulator.controller import ControllerModel
+from emulator.errors import InjectionError
 from emulator.frontend import FrontEnd
-from emulator.injection import FaultSchedule, FaultSpec, InjectionRecord, Injector, parse_fault
+from emulator.injection import (
+    FaultSchedule,
+    FaultSpec,
+    InjectionListener,
+    InjectionRecord,
+    Injector,
+    ScheduledFault,
+    parse_fault,
+)
 from firmware_proto.message import Message
 from firmware_proto.messages import ControllerState, FaultCode, Stop
 
@@ -82,16 +95,21 @@ class EmulatorStatus:
     tx_dropped: int
     overruns: int
     collision: str | None
+    injected: tuple[str, ...] = ()
+    """Injected faults in force (:meth:`~emulator.injection.Injector.in_force`)."""
 
     def line(self) -> str:
-        """One status line for a terminal."""
+        """One status line for a terminal: controller faults (``faults=``) and the
+        injected faults in force (``injected=``) side by side."""
         faults = ",".join(self.faults) or "none"
+        injected = ",".join(self.injected) or "none"
         hit = f" HIT {self.collision}" if self.collision else ""
         left, right = self.wheel_mps
         return (
             f"t={self.time_s:8.2f}s {self.state:<12} x={self.x_m:+7.3f} y={self.y_m:+7.3f} "
             f"yaw={self.yaw_deg:+7.1f} wheels={left:+.2f}/{right:+.2f} m/s "
-            f"q={self.queue_depth} faults={faults} rx={self.rx_frames} err={self.rx_errors}{hit}"
+            f"q={self.queue_depth} faults={faults} injected={injected} "
+            f"rx={self.rx_frames} err={self.rx_errors}{hit}"
         )
 
 
@@ -105,17 +123,25 @@ class Emulator:
         *,
         speed_factor: float = 1.0,
         faults: list[FaultSpec] | None = None,
+        on_injection: InjectionListener | None = None,
+        fault_source: str = "api",
     ) -> None:
         """Args:
         model: the controller over its twin (the engine steps it).
         frontend: the pty or CAN front end (the engine starts and closes it).
         speed_factor: twin seconds per wall second (> 0). Set the model's
             ``timeout_scale`` to the same value so its watchdog keeps host time.
-        faults: faults to schedule (each fires when its trigger is met).
+        faults: faults to schedule (each fires when its trigger is met; one without a
+            trigger at the first tick).
+        on_injection: told of every injection applied, on the control thread; it
+            must be quick and must not call back into the emulator.
+        fault_source: who asked for ``faults`` (``cli`` from the command line),
+            recorded with each injection.
 
         Raises:
             ValueError: speed factor not positive and finite.
-            InjectionError: a scheduled fault names a region the map lacks.
+            InjectionError: one of ``faults`` cannot apply here (a value out of range,
+                a link fault the front end cannot carry, a region the map lacks).
         """
         if not (math.isfinite(speed_factor) and speed_factor > 0):
             raise ValueError(f"speed factor must be > 0, got {speed_factor}")
@@ -123,7 +149,12 @@ class Emulator:
         self.frontend = frontend
         self.speed_factor = speed_factor
         self.injector = Injector(model, frontend)
-        self.schedule = FaultSchedule(self.injector, faults)
+        if on_injection is not None:
+            self.injector.listeners.append(on_injection)
+        self.schedule = FaultSchedule(self.injector, faults, fault_source)
+        self.refused_injections = 0
+        """Faults refused by :meth:`inject` (malformed or inapplicable)."""
+        self._refused_lock = threading.Lock()
         self.stop_reactions: list[float] = []
         """Seconds from each STOP frame's arrival to its targets being zero."""
         self.stop_handled: list[float] = []
@@ -182,21 +213,36 @@ class Emulator:
         self._inbox.put(_Call(fn, future))
         return future.result(timeout=timeout_s)
 
-    def inject(self, fault: str | FaultSpec, source: str = "api") -> None:
-        """Apply a fault now, or schedule it if it has a trigger.
+    def inject(
+        self, fault: str | FaultSpec, source: str = "api"
+    ) -> InjectionRecord | ScheduledFault:
+        """Apply a fault now, or schedule it if it has a trigger. Either way it is checked
+        first: a fault that cannot apply is refused now, not when its trigger fires.
+
+        Returns:
+            the injection applied (with its twin time), or, for a triggered fault, when
+            it was scheduled and when it will fire.
 
         Raises:
-            InjectionError: the fault is malformed or cannot be applied.
+            InjectionError: the fault is malformed or cannot be applied here; counted in
+                :attr:`refused_injections` and logged.
         """
-        spec = parse_fault(fault) if isinstance(fault, str) else fault
-        if (
-            spec.trigger.at_s is None
-            and spec.trigger.after_m is None
-            and spec.trigger.region is None
-        ):
-            self.call(lambda: self._send(self.injector.apply(spec, source)))
-        else:
-            self.call(lambda: self.schedule.add(spec))
+        try:
+            spec = parse_fault(fault) if isinstance(fault, str) else fault
+            # Reads configuration only (map, front end), so it is safe on this thread.
+            self.injector.check(spec)
+        except InjectionError as exc:
+            with self._refused_lock:
+                self.refused_injections += 1
+            logger.warning("fault %s refused (%s): %s", fault, source, exc)
+            raise
+        if spec.trigger.immediate:
+            return self.call(lambda: self._apply_now(spec, source))
+        return self.call(lambda: self.schedule.add(spec, source))
+
+    def _apply_now(self, spec: FaultSpec, source: str) -> InjectionRecord:
+        self._send(self.injector.apply(spec, source))
+        return self.injector.log[-1]
 
     @property
     def injections(self) -> list[InjectionRecord]:
@@ -316,6 +362,7 @@ class Emulator:
             tx_dropped=stats.tx_dropped,
             overruns=self.overruns,
             collision=hit.obstacle_id if hit else None,
+            injected=self.injector.in_force(),
         )
 
     @property

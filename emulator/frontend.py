@@ -38,9 +38,12 @@ from emulator.errors import InjectionError
 from firmware_proto.message import Message
 from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
 
-__all__ = ["Deliver", "FrontEnd", "FrontEndStats"]
+__all__ = ["MAX_LINK_DELAY_S", "Deliver", "FrontEnd", "FrontEndStats"]
 
 logger = logging.getLogger(__name__)
+
+MAX_LINK_DELAY_S = 10.0
+"""Longest injected link delay, s."""
 
 Deliver = Callable[[Message, float], None]
 """Called by the reader thread with each received message and its arrival time
@@ -176,6 +179,34 @@ class FrontEnd(ABC):
         self.close()
 
     # -- link faults --------------------------------------------------------------------
+    def check_link_faults(
+        self,
+        *,
+        drop: float | None = None,
+        corrupt: float | None = None,
+        delay_s: float | None = None,
+    ) -> None:
+        """Whether these link fault levels can apply; changes nothing. ``None`` is not
+        checked.
+
+        Raises:
+            InjectionError: a ratio outside 0..1, a delay outside
+                0..:data:`MAX_LINK_DELAY_S` s, or corruption on a medium that cannot
+                deliver damaged frames (CAN).
+        """
+        for kind, ratio in (("link-drop", drop), ("link-corrupt", corrupt)):
+            if ratio is not None and not 0.0 <= ratio <= 1.0:
+                raise InjectionError(f"{kind} ratio must be in 0..1, got {ratio:g}")
+        if delay_s is not None and not 0.0 <= delay_s <= MAX_LINK_DELAY_S:
+            raise InjectionError(
+                f"link-delay must be in 0..{MAX_LINK_DELAY_S:g} s, got {delay_s:g}"
+            )
+        if corrupt and not self._can_corrupt():
+            raise InjectionError(
+                f"link-corrupt cannot apply on {self.name}: the medium's own CRC rejects damaged "
+                "frames; use link-drop instead"
+            )
+
     def set_link_faults(
         self,
         *,
@@ -186,13 +217,9 @@ class FrontEnd(ABC):
         """Set injected link faults; ``None`` leaves a level unchanged.
 
         Raises:
-            InjectionError: corruption on a medium that cannot deliver damaged frames.
+            InjectionError: see :meth:`check_link_faults`; nothing is changed then.
         """
-        if corrupt and not self._can_corrupt():
-            raise InjectionError(
-                f"link-corrupt cannot apply on {self.name}: the medium's own CRC rejects damaged "
-                "frames; use link-drop instead"
-            )
+        self.check_link_faults(drop=drop, corrupt=corrupt, delay_s=delay_s)
         if drop is not None:
             self._drop = drop
         if corrupt is not None:

@@ -22,18 +22,21 @@ interface or in code::
     @d=1.5                 after 1.5 m of ground travel
     @region=sand           when the rover's centre enters map region "sand"
 
-:func:`parse_fault` checks the text; :class:`Injector` applies a fault to a controller,
-its twin and its link, refusing (``InjectionError``) what cannot be applied, and logs
-every injection with its time. :class:`FaultSchedule` fires triggered faults from the
-control loop. Everything random (link faults) draws from a seeded generator.
+:func:`parse_fault` checks the text. :meth:`Injector.check` decides whether a parsed
+fault can apply to this emulator (value ranges, what the link can carry, the map's
+regions) without changing anything; :meth:`Injector.apply` checks, then applies it to a
+controller, its twin and its link, and logs it at WARNING with its twin time, trigger and
+source. A fault is checked when it is scheduled (:class:`FaultSchedule`), so a bad one is
+refused up front rather than when its trigger fires. :meth:`Injector.in_force` lists the
+faults in force. Everything random (link faults) draws from a seeded generator.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import random
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Protocol
 
 from emulator.errors import InjectionError
@@ -44,12 +47,16 @@ if TYPE_CHECKING:  # the CLI imports this module for its help text; keep it ligh
     from emulator.controller import ControllerModel
 
 __all__ = [
+    "ENCODER_NOISE_MAX_UNITS",
     "FAULT_KINDS",
+    "IMU_BIAS_MAX_RAD_S",
     "FaultSchedule",
     "FaultSpec",
+    "InjectionListener",
     "InjectionRecord",
     "Injector",
     "LinkFaultTarget",
+    "ScheduledFault",
     "Trigger",
     "parse_fault",
 ]
@@ -72,6 +79,13 @@ FAULT_KINDS: dict[str, str] = {
 }
 """Every fault kind and its argument, for help texts."""
 
+ENCODER_NOISE_MAX_UNITS = 100_000.0
+"""Largest ``encoder-noise`` accepted, distance units (about 4.3 m of travel, 1 sigma)."""
+
+IMU_BIAS_MAX_RAD_S = 32.767
+"""Largest ``imu-bias`` magnitude accepted, rad/s: what the IMU message can carry
+(yaw rate in mrad/s, int16)."""
+
 _SIDED = {"slip", "stall", "encoder-noise", "encoder-dropout"}
 _VALUED = {"slip", "encoder-noise", "imu-bias", "link-drop", "link-corrupt", "link-delay"}
 
@@ -84,6 +98,21 @@ class Trigger:
     at_s: float | None = None
     after_m: float | None = None
     region: str | None = None
+
+    @property
+    def immediate(self) -> bool:
+        """No trigger: the fault applies at once."""
+        return self.at_s is None and self.after_m is None and self.region is None
+
+    def describe(self) -> str:
+        """When it fires, in words (for logs and the control interface's answers)."""
+        if self.at_s is not None:
+            return f"at twin time t={self.at_s:g} s"
+        if self.after_m is not None:
+            return f"when the ground travel reaches {self.after_m:g} m"
+        if self.region is not None:
+            return f"when the rover's centre is inside region {self.region!r}"
+        return "now"
 
     def __str__(self) -> str:
         if self.at_s is not None:
@@ -105,6 +134,11 @@ class FaultSpec:
     value: float | None = None
     target: str | None = None
     trigger: Trigger = field(default_factory=Trigger)
+
+    @property
+    def untriggered(self) -> FaultSpec:
+        """The same fault without its trigger (what is in force once it fired)."""
+        return replace(self, trigger=Trigger())
 
     def __str__(self) -> str:
         text = self.kind
@@ -179,6 +213,16 @@ def parse_fault(text: str) -> FaultSpec:
 class LinkFaultTarget(Protocol):
     """What a front end exposes for link faults."""
 
+    def check_link_faults(
+        self,
+        *,
+        drop: float | None = None,
+        corrupt: float | None = None,
+        delay_s: float | None = None,
+    ) -> None:
+        """Raise InjectionError if a level is out of range or the medium cannot carry it;
+        change nothing."""
+
     def set_link_faults(
         self,
         *,
@@ -191,39 +235,170 @@ class LinkFaultTarget(Protocol):
 
 @dataclass(frozen=True)
 class InjectionRecord:
-    """An applied injection: twin time, the fault, and who asked (cli, control, api,
-    schedule)."""
+    """An applied injection: twin time (s), the fault as asked for (its trigger
+    included), and who asked (cli, control, api, schedule)."""
 
     time_s: float
     fault: str
     source: str
 
+    def line(self) -> str:
+        """One line for a terminal: ``INJECT t=5.001 slip:left=0.3@t=5 (schedule)``."""
+        return f"INJECT t={self.time_s:.3f} {self.fault} ({self.source})"
+
+
+@dataclass(frozen=True)
+class ScheduledFault:
+    """A fault accepted for later: when it was scheduled (twin time, s) and, in words,
+    when it fires (:meth:`Trigger.describe`, with the current value it waits on)."""
+
+    fault: str
+    scheduled_s: float
+    fires: str
+
+
+InjectionListener = Callable[[InjectionRecord], None]
+"""Told of every injection applied, on the thread that applied it."""
+
 
 class Injector:
     """Applies faults to a controller model, its twin and (optionally) its link.
 
-    Call from the thread that owns the model. :attr:`log` lists every injection.
+    :meth:`check` reads configuration only (the map, the link's capabilities) and may be
+    called from any thread; :meth:`apply` must be called from the thread that owns the
+    model. :attr:`log` lists every injection; :attr:`listeners` are told of each one.
     """
 
     def __init__(self, model: ControllerModel, link: LinkFaultTarget | None = None) -> None:
         self.model = model
         self.link = link
         self.log: list[InjectionRecord] = []
+        self.listeners: list[InjectionListener] = []
         self._slip = [1.0, 1.0]
+        self._in_force: dict[tuple[str, int], FaultSpec] = {}
+        world = model.twin.world
+        self.regions: dict[str, tuple[tuple[float, float], ...]] = (
+            {r.id: r.polygon for r in world.traction_regions} if world else {}
+        )
+        """Traction regions of the map by id: what ``@region=`` may name."""
 
-    def apply(self, spec: FaultSpec, source: str = "api") -> list[Message]:
-        """Apply ``spec`` now (its trigger is the caller's business); returns messages the
-        controller sends because of it (FAULT, IDENT).
+    # -- checking -----------------------------------------------------------------------
+    def check(self, spec: FaultSpec) -> None:
+        """Whether ``spec`` can apply here; changes nothing.
 
         Raises:
-            InjectionError: the fault cannot be applied here (e.g. a corrupting link
-                fault on CAN, a scale out of range). Nothing is changed then.
+            InjectionError: a value out of range (slip scale in (0, 1], encoder noise in
+                0..:data:`ENCODER_NOISE_MAX_UNITS` units, IMU bias within
+                +/-:data:`IMU_BIAS_MAX_RAD_S` rad/s, link ratios 0..1, link delay as the
+                link allows), a link fault without a link or one the link cannot carry
+                (corruption on CAN), or a trigger region the map lacks.
         """
+        region = spec.trigger.region
+        if region is not None and region not in self.regions:
+            known = ", ".join(sorted(self.regions)) or "none in this map"
+            raise InjectionError(f"@region: unknown region {region!r} (regions: {known})")
+        kind, value = spec.kind, spec.value
+        if kind == "slip":
+            assert value is not None
+            if not 0.0 < value <= 1.0:
+                raise InjectionError(f"slip scale must be in (0, 1], got {value:g}")
+        elif kind == "encoder-noise":
+            assert value is not None
+            if not 0.0 <= value <= ENCODER_NOISE_MAX_UNITS:
+                raise InjectionError(
+                    f"encoder-noise must be in 0..{ENCODER_NOISE_MAX_UNITS:g} units, got {value:g}"
+                )
+        elif kind == "imu-bias":
+            assert value is not None
+            if not abs(value) <= IMU_BIAS_MAX_RAD_S:
+                raise InjectionError(
+                    f"imu-bias must be within +/-{IMU_BIAS_MAX_RAD_S:g} rad/s (what IMU can "
+                    f"carry), got {value:g}"
+                )
+        elif kind in _LINK_KEYS:
+            assert value is not None
+            self._link_target(kind).check_link_faults(**{_LINK_KEYS[kind]: value})
+        elif kind == "clear" and spec.target in _LINK_KEYS:
+            self._link_target(f"clear:{spec.target}")
+
+    def _link_target(self, what: str) -> LinkFaultTarget:
+        if self.link is None:
+            raise InjectionError(f"{what} needs a link: this emulator has no front end")
+        return self.link
+
+    # -- applying -----------------------------------------------------------------------
+    def apply(self, spec: FaultSpec, source: str = "api") -> list[Message]:
+        """Check ``spec`` and apply it now (its trigger is the caller's business);
+        returns messages the controller sends because of it (FAULT, IDENT).
+
+        The injection is recorded in :attr:`log`, logged at WARNING with its twin time,
+        trigger and source, and handed to every listener.
+
+        Raises:
+            InjectionError: the fault cannot be applied here (see :meth:`check`).
+                Nothing is changed then.
+        """
+        self.check(spec)
         out = self._apply(spec)
+        self._track(spec)
         record = InjectionRecord(self.model.now_s, str(spec), source)
         self.log.append(record)
-        logger.info("injected %s at t=%.3f s (%s)", record.fault, record.time_s, source)
+        trigger = f", trigger {spec.trigger}" if not spec.trigger.immediate else ""
+        if spec.kind == "clear":
+            what = f"{spec.target}" + (f":{spec.side}" if spec.side else "")
+            logger.warning(
+                "fault cleared: %s at t=%.3f s (%s%s)", what, record.time_s, source, trigger
+            )
+        else:
+            logger.warning(
+                "fault injected: %s at t=%.3f s (%s%s)",
+                spec.untriggered,
+                record.time_s,
+                source,
+                trigger,
+            )
+        for listener in list(self.listeners):
+            try:
+                listener(record)
+            except Exception:
+                logger.exception("injection listener failed")
         return out
+
+    def in_force(self) -> tuple[str, ...]:
+        """The injected faults in force now, as fault texts without triggers, sorted
+        (``slip:both=0.1``, ``imu-dropout``...). A reboot is momentary and never in force;
+        a level set back to neutral (slip 1, link ratio or delay 0) is not in force."""
+        texts: list[str] = []
+        kinds = sorted({kind for kind, _ in self._in_force})
+        for kind in kinds:
+            left = self._in_force.get((kind, 0))
+            right = self._in_force.get((kind, 1))
+            if kind not in _SIDED:
+                assert left is not None
+                texts.append(str(left))
+            elif left is not None and right is not None and left.value == right.value:
+                texts.append(str(replace(left, side="both")))
+            else:
+                texts += [str(s) for s in (left, right) if s is not None]
+        return tuple(texts)
+
+    def _track(self, spec: FaultSpec) -> None:
+        """Keep :meth:`in_force` up to date after ``spec`` was applied."""
+        if spec.kind == "reboot":
+            return
+        kind = spec.target if spec.kind == "clear" else spec.kind
+        assert kind is not None
+        keys = [(kind, s) for s in self._sides(spec.side)] if kind in _SIDED else [(kind, 0)]
+        neutral = spec.kind == "clear" or (
+            spec.value == (1.0 if kind == "slip" else 0.0)
+            and kind in ("slip", "link-drop", "link-corrupt", "link-delay")
+        )
+        for key in keys:
+            if neutral:
+                self._in_force.pop(key, None)
+            else:
+                side = ("left", "right")[key[1]] if kind in _SIDED else None
+                self._in_force[key] = replace(spec.untriggered, side=side)
 
     def _sides(self, side: str | None) -> tuple[int, ...]:
         return {"left": (0,), "right": (1,), "both": (0, 1), None: (0, 1)}[side]
@@ -233,8 +408,6 @@ class Injector:
         kind, value = spec.kind, spec.value
         if kind == "slip":
             assert value is not None
-            if not 0.0 < value <= 1.0:
-                raise InjectionError(f"slip scale must be in (0, 1], got {value:g}")
             for s in self._sides(spec.side):
                 self._slip[s] = value
             m.twin.set_traction_scale(self._slip[0], self._slip[1])
@@ -245,8 +418,6 @@ class Injector:
             return []
         if kind == "encoder-noise":
             assert value is not None
-            if value < 0:
-                raise InjectionError("encoder-noise must be >= 0")
             for s in self._sides(spec.side):
                 m.encoders.noise_units[s] = value
             return []
@@ -266,28 +437,13 @@ class Injector:
             return m.raise_fault(FaultCode.POSE, condition=True)
         if kind == "reboot":
             return m.reboot()
-        if kind in ("link-drop", "link-corrupt", "link-delay"):
-            return self._link(kind, value)
+        if kind in _LINK_KEYS:
+            assert value is not None
+            self._link_target(kind).set_link_faults(**{_LINK_KEYS[kind]: value})
+            return []
         if kind == "clear":
             return self._clear(spec)
         raise InjectionError(f"unknown fault {kind!r}")  # pragma: no cover - parse_fault guards
-
-    def _link(self, kind: str, value: float | None) -> list[Message]:
-        assert value is not None
-        if self.link is None:
-            raise InjectionError(f"{kind} needs a link: this emulator has no front end")
-        if kind == "link-delay":
-            if not 0.0 <= value <= 10.0:
-                raise InjectionError(f"link-delay must be in 0..10 s, got {value:g}")
-            self.link.set_link_faults(delay_s=value)
-        else:
-            if not 0.0 <= value <= 1.0:
-                raise InjectionError(f"{kind} ratio must be in 0..1, got {value:g}")
-            if kind == "link-drop":
-                self.link.set_link_faults(drop=value)
-            else:
-                self.link.set_link_faults(corrupt=value)
-        return []
 
     def _clear(self, spec: FaultSpec) -> list[Message]:
         m = self.model
@@ -316,45 +472,74 @@ class Injector:
         elif target == "pose-dropout":
             m.pose_sensor.dropout = False
             return m.clear_fault_condition(FaultCode.POSE)
-        elif target in ("link-drop", "link-corrupt", "link-delay"):
-            if self.link is None:
-                raise InjectionError(f"clear:{target} needs a link")
-            key = {"link-drop": "drop", "link-corrupt": "corrupt", "link-delay": "delay_s"}[target]
-            self.link.set_link_faults(**{key: 0.0})
+        elif target in _LINK_KEYS:
+            self._link_target(f"clear:{target}").set_link_faults(**{_LINK_KEYS[target]: 0.0})
         return []
+
+
+_LINK_KEYS = {"link-drop": "drop", "link-corrupt": "corrupt", "link-delay": "delay_s"}
+"""Link fault kinds and the :meth:`LinkFaultTarget.set_link_faults` argument of each."""
 
 
 class FaultSchedule:
     """Faults waiting for their trigger; :meth:`poll` fires the due ones, in order.
 
-    Ground distance is integrated from the twin's pose at every poll.
+    Every fault is checked (:meth:`Injector.check`) when it is scheduled, so one that
+    could never apply is refused then, not when its trigger fires. Ground distance is
+    integrated from the twin's pose at every poll, from the schedule's creation.
     """
 
-    def __init__(self, injector: Injector, faults: list[FaultSpec] | None = None) -> None:
+    def __init__(
+        self,
+        injector: Injector,
+        faults: list[FaultSpec] | None = None,
+        source: str = "schedule",
+    ) -> None:
+        """Args:
+        injector: applies the faults when they fire.
+        faults: faults to schedule now.
+        source: who asked for ``faults`` (recorded with each injection).
+
+        Raises:
+            InjectionError: one of ``faults`` cannot apply (see :meth:`Injector.check`);
+                nothing is scheduled then.
+        """
         self.injector = injector
-        self.pending: list[FaultSpec] = list(faults or [])
+        for spec in faults or []:
+            injector.check(spec)
+        self._pending: list[tuple[FaultSpec, str]] = [(spec, source) for spec in faults or []]
         twin = injector.model.twin
         self._last_xy = (twin.pose.x_m, twin.pose.y_m)
         self.ground_m = 0.0
-        world = twin.world
-        self._regions = {r.id: r.polygon for r in world.traction_regions} if world else {}
-        for spec in self.pending:
-            self._check_region(spec)
+        """Ground travel of the rover's centre since the schedule was created, m."""
 
-    def _check_region(self, spec: FaultSpec) -> None:
-        region = spec.trigger.region
-        if region is not None and region not in self._regions:
-            known = ", ".join(sorted(self._regions)) or "none in this map"
-            raise InjectionError(f"{spec}: unknown region {region!r} (regions: {known})")
+    @property
+    def pending(self) -> list[FaultSpec]:
+        """Faults waiting for their trigger, in the order they were scheduled."""
+        return [spec for spec, _ in self._pending]
 
-    def add(self, spec: FaultSpec) -> None:
-        """Schedule ``spec``; a spec without trigger fires at the next poll.
+    def add(self, spec: FaultSpec, source: str = "schedule") -> ScheduledFault:
+        """Schedule ``spec``; a spec without trigger fires at the next poll. Call from
+        the thread that owns the model. ``source`` says who asked (recorded with the
+        injection).
+
+        Returns:
+            when it was scheduled and, in words, when it will fire.
 
         Raises:
-            InjectionError: its region does not exist in the map.
+            InjectionError: it cannot apply (see :meth:`Injector.check`).
         """
-        self._check_region(spec)
-        self.pending.append(spec)
+        self.injector.check(spec)
+        self._pending.append((spec, source))
+        now = self.injector.model.now_s
+        fires = spec.trigger.describe()
+        t = spec.trigger
+        if t.at_s is not None and t.at_s <= now:
+            fires += f" (passed: now t={now:.3f} s, so at the next tick)"
+        elif t.after_m is not None:
+            fires += f" (now {self.ground_m:.3f} m)"
+        logger.info("scheduled %s: fires %s", spec, fires)
+        return ScheduledFault(str(spec), now, fires)
 
     def poll(self) -> list[Message]:
         """Fire every fault whose trigger is met; returns the controller's messages."""
@@ -362,19 +547,19 @@ class FaultSchedule:
         pose = twin.pose
         self.ground_m += math.hypot(pose.x_m - self._last_xy[0], pose.y_m - self._last_xy[1])
         self._last_xy = (pose.x_m, pose.y_m)
-        if not self.pending:
+        if not self._pending:
             return []
         out: list[Message] = []
         keep = []
-        for spec in self.pending:
+        for spec, source in self._pending:
             if self._due(spec, twin.time_s, pose.x_m, pose.y_m):
                 try:
-                    out += self.injector.apply(spec, source="schedule")
-                except InjectionError as exc:
+                    out += self.injector.apply(spec, source=source)
+                except InjectionError as exc:  # pragma: no cover - checked when scheduled
                     logger.error("scheduled fault %s refused: %s", spec, exc)
             else:
-                keep.append(spec)
-        self.pending = keep
+                keep.append((spec, source))
+        self._pending = keep
         return out
 
     def _due(self, spec: FaultSpec, now_s: float, x: float, y: float) -> bool:
@@ -384,7 +569,7 @@ class FaultSchedule:
         if t.after_m is not None:
             return self.ground_m >= t.after_m
         if t.region is not None:
-            return _inside(x, y, self._regions[t.region])
+            return _inside(x, y, self.injector.regions[t.region])
         return True
 
 
@@ -397,8 +582,3 @@ def _inside(x: float, y: float, polygon: tuple[tuple[float, float], ...]) -> boo
         if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
             inside = not inside
     return inside
-
-
-def seeded_rng(seed: int) -> random.Random:
-    """The generator link faults draw from, derived from the emulator's seed."""
-    return random.Random(f"link-faults-{seed}")

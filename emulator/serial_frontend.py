@@ -103,6 +103,23 @@ class SerialFrontEnd(FrontEnd):
             )
             self._tx_thread.start()
 
+    def close(self) -> None:
+        """Stop the transmit thread, then as :meth:`FrontEnd.close` (idempotent).
+
+        The transmit thread takes the write lock for each frame, and the base class
+        releases the medium under that lock: it must be gone before, or closing would
+        wait on it for the join timeout.
+        """
+        self._stop.set()
+        with self._tx_ready:
+            self._tx_ready.notify_all()
+        thread = self._tx_thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
+            if thread.is_alive():
+                logger.error("pty transmit thread did not stop within 5 s")
+        super().close()
+
     def _close(self) -> None:
         with self._tx_ready:
             self._tx_ready.notify_all()
@@ -235,8 +252,8 @@ class SerialFrontEnd(FrontEnd):
                 self.stale_dropped += 1
                 continue
             wait = line_free - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+            if wait > 0 and self._stop.wait(wait):
+                return
             with self._write_lock:
                 ok = self._write_now(wire)
             if not ok:

@@ -3,13 +3,14 @@ the options of ``rover emulate``, and launch_ros's ``--ros-args`` standing for t
 
 from __future__ import annotations
 
+import argparse
 import signal
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from emulator.cli_emulate import main
+from emulator.cli_emulate import add_arguments, controller_config, main
 from emulator.trafficfile import read_log
 
 
@@ -73,3 +74,22 @@ def test_a_parameters_file_section_configures_it(
     )
     assert main(["--ros-args", "--params-file", str(params)]) == 0
     assert capsys.readouterr().out.startswith("DEVICE /dev/pts/")
+
+
+def test_watchdog_and_telemetry_rate_options_set_the_firmware() -> None:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(
+        ["--serial", "--speed-factor", "2", "--watchdog-ms", "1000", "--telemetry-hz", "100"]
+    )
+    config = controller_config(args)
+    assert (config.watchdog_ms, config.telemetry_hz, config.timeout_scale) == (1000, 100, 2.0)
+    defaults = controller_config(parser.parse_args(["--serial"]))
+    assert (defaults.watchdog_ms, defaults.telemetry_hz) == (250, 50)
+
+
+def test_a_watchdog_out_of_range_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--serial", "--watchdog-ms", "20000", "--duration", "5"]) == 1
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.strip() == "rover_emulator: error: --watchdog-ms must be in 50..10000, got 20000"
