@@ -42,10 +42,11 @@ from bridge.rosport import Bool, Empty, Int16MultiArray, Odometry, RosPort, Stri
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
 from planner.drift import DriftEvent, DriftMonitor
-from planner.geometry import Pose
+from planner.geometry import Pose, wrap_deg
 from planner.verdict import Verdict
 
 __all__ = [
+    "ANCHOR_GAP_S",
     "POSE_SOURCES",
     "REPORTING_FAULTS",
     "REST_SPEED_MPS",
@@ -66,6 +67,9 @@ ground-seeing POSE only, or encoders + IMU only."""
 REPORTING_FAULTS = frozenset({"fault:pose", "fault:imu"})
 """Statuses of faults the controller only reports (it keeps driving): a lost sensor.
 They do not end a plan; drift control copes with the lost pose (fall-back or blind)."""
+
+ANCHOR_GAP_S = 0.05
+"""``odom`` samples further than this from a POSE's time do not tie ``odom`` to the map."""
 
 REST_SPEED_MPS = 0.01
 REST_YAW_RATE_RAD_S = 0.01
@@ -424,13 +428,32 @@ class PlanExecutor:
             self._on_drift(event)
 
     def _anchor_odom(self, ground: Pose, stamp: float) -> None:
-        """Tie ``odom`` to the map with the ``odom`` sample nearest in time to a POSE
-        (caller holds the lock), so that a fall-back continues where POSE left off."""
-        if not self._odom_history:
+        """Tie ``odom`` to the map with the ``odom`` pose at a POSE's measurement time,
+        interpolated between the two samples around it (caller holds the lock), so that
+        a fall-back continues where POSE left off. No ``odom`` within
+        :data:`ANCHOR_GAP_S` of that time: the anchor stays as it was."""
+        history = self._odom_history
+        after = next((i for i, (t, _) in enumerate(history) if t >= stamp), None)
+        if after is None:  # odom has not caught up with this POSE yet
+            t, raw = history[-1] if history else (-math.inf, ground)
+            if stamp - t <= ANCHOR_GAP_S:
+                self._odom_anchor = (raw, ground)
             return
-        t, raw = min(self._odom_history, key=lambda item: abs(item[0] - stamp))
-        if abs(t - stamp) < 0.25:
-            self._odom_anchor = (raw, ground)
+        t1, p1 = history[after]
+        if after == 0:
+            if t1 - stamp <= ANCHOR_GAP_S:
+                self._odom_anchor = (p1, ground)
+            return
+        t0, p0 = history[after - 1]
+        if t1 - t0 > 2 * ANCHOR_GAP_S:
+            return
+        f = (stamp - t0) / (t1 - t0) if t1 > t0 else 1.0
+        raw = Pose(
+            p0.x + f * (p1.x - p0.x),
+            p0.y + f * (p1.y - p0.y),
+            wrap_deg(p0.yaw_deg + f * wrap_deg(p1.yaw_deg - p0.yaw_deg)),
+        )
+        self._odom_anchor = (raw, ground)
 
     def _odom_to_map(self, pose: Pose) -> Pose:
         """``odom`` starts where the bridge started; express it in the map frame through
