@@ -70,7 +70,8 @@ def _run(args: argparse.Namespace) -> int:
     print(result.report.summary(config.speed))
     print(f"picture: {result.picture}")
     if result.report.cancelled:
-        print("rover demo: cancelled by the operator; the rover was sent STOP", file=sys.stderr)
+        what = "the rover was sent STOP" if result.report.runs else "nothing was sent to the rover"
+        print(f"rover demo: cancelled by the operator; {what}", file=sys.stderr)
         return signals.exit_status
     if config.slip and not result.drift_fired:
         print("note: the injected slip did not make drift control fire this time")

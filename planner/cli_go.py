@@ -330,7 +330,9 @@ def run(args: argparse.Namespace) -> int:
 
     def on_signal(signum: int) -> None:
         cancel.set()
-        say(f"{signal.Signals(signum).name}: cancelling the mission; the rover is sent STOP")
+        say(
+            f"{signal.Signals(signum).name}: cancelling the mission (a running step ends with STOP)"
+        )
 
     with GateClient(args.gate, token=args.token) as gate:
         gated = True
@@ -392,7 +394,8 @@ def run(args: argparse.Namespace) -> int:
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
     print(f"picture: {save(picture, args.picture)}")
     if report.cancelled:
-        print("rover go: cancelled by the operator; the rover was sent STOP", file=sys.stderr)
+        what = "the rover was sent STOP" if report.runs else "nothing was sent to the rover"
+        print(f"rover go: cancelled by the operator; {what}", file=sys.stderr)
         return signals.exit_status
     return 0 if report.reached else 1
 
