@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,8 @@ def register(subparsers: Any) -> None:
             "direct plan collides, the orchestrator repairs it into a detour), drive it, inject "
             "slip on one leg so that drift control stops the rover, re-plan from the rover's "
             "reported pose and finish. Prints a summary and writes a picture of the predicted "
-            "against the actual trajectory. About two minutes in real time (--speed 4: under one)."
+            "against the actual trajectory. About two minutes in real time (--speed 4: under one). "
+            "Ctrl-C or SIGTERM cancels: the rover is sent STOP, the processes are stopped."
         ),
     )
     p.add_argument("--rtt", type=float, default=3.0, help="link round trip, s (default 3)")
@@ -42,7 +44,10 @@ def register(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import signal
+
     from planner.demo import Demo, DemoConfig
+    from planner.interrupt import CancelOnSignal
 
     config = DemoConfig(
         rtt_s=args.rtt,
@@ -52,10 +57,22 @@ def _run(args: argparse.Namespace) -> int:
         picture=args.picture,
     )
     with Demo(config) as demo:
-        result = demo.run()
+
+        def on_signal(signum: int) -> None:
+            if not demo.mission_running:
+                raise KeyboardInterrupt  # nothing to stop yet: end the start-up now
+            demo.cancel()
+            demo.say(f"{signal.Signals(signum).name}: cancelling the mission; sending STOP")
+
+        with CancelOnSignal(on_signal) as signals:
+            result = demo.run()
     print()
     print(result.report.summary(config.speed))
     print(f"picture: {result.picture}")
+    if result.report.cancelled:
+        what = "the rover was sent STOP" if result.report.runs else "nothing was sent to the rover"
+        print(f"rover demo: cancelled by the operator; {what}", file=sys.stderr)
+        return signals.exit_status
     if config.slip and not result.drift_fired:
         print("note: the injected slip did not make drift control fire this time")
     return 0 if result.report.reached else 1

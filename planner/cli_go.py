@@ -7,20 +7,32 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["add_arguments", "main", "parse_pose", "register", "run"]
+__all__ = ["PoseArgumentError", "add_arguments", "main", "parse_pose", "register", "run"]
+
+POSE_WAIT_MARGIN_S = 10.0
+"""Without ``--start``, the rover has the round trip plus this long to report its pose
+(default of ``--pose-wait``: a launch starts the bridge and the link alongside)."""
+
+
+class PoseArgumentError(ValueError, argparse.ArgumentTypeError):
+    """A pose on the command line is not three finite numbers (argparse reports it as a
+    usage error; elsewhere it is a ``ValueError``)."""
 
 
 def parse_pose(text: str) -> Any:
-    """``X,Y,YAW_DEG`` -> :class:`planner.geometry.Pose`.
+    """``X,Y,YAW_DEG`` -> :class:`planner.geometry.Pose` (metres, metres, degrees); an
+    ``argparse`` type.
 
     Raises:
-        ValueError: not three finite numbers.
+        PoseArgumentError: not three finite numbers (a ``ValueError``).
     """
     import math
 
@@ -30,23 +42,79 @@ def parse_pose(text: str) -> Any:
     try:
         x, y, yaw = (float(p) for p in parts)
     except ValueError:
-        raise ValueError(f"expected X,Y,YAW_DEG (three numbers), got {text!r}") from None
+        raise PoseArgumentError(f"expected X,Y,YAW_DEG (three numbers), got {text!r}") from None
     if not all(math.isfinite(v) for v in (x, y, yaw)):
-        raise ValueError(f"pose {text!r} is not finite")
+        raise PoseArgumentError(f"pose {text!r} is not finite")
     return Pose(x, y, yaw)
+
+
+def _number(text: str, *, positive: bool, integer: bool = False) -> float:
+    import math
+
+    try:
+        value = int(text) if integer else float(text)
+    except ValueError:
+        kind = "an integer" if integer else "a number"
+        raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
+    if not math.isfinite(value) or value < 0 or (positive and value == 0):
+        raise argparse.ArgumentTypeError(
+            f"must be finite and {'> 0' if positive else '>= 0'}, got {text!r}"
+        )
+    return value
+
+
+def _positive(text: str) -> float:
+    return _number(text, positive=True)
+
+
+def _non_negative(text: str) -> float:
+    return _number(text, positive=False)
+
+
+def _positive_int(text: str) -> int:
+    return int(_number(text, positive=True, integer=True))
+
+
+def _non_negative_int(text: str) -> int:
+    return int(_number(text, positive=False, integer=True))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options shared by ``rover go`` and ``rover_executor``."""
     p.add_argument(
-        "--goal", required=True, metavar="X,Y,YAW", help="goal pose: metres, metres, degrees"
+        "--goal",
+        required=True,
+        type=parse_pose,
+        metavar="X,Y,YAW",
+        help="goal pose: metres, metres, degrees",
     )
     p.add_argument(
         "--start",
+        type=parse_pose,
         metavar="X,Y,YAW",
-        help="start pose (default: the rover's reported pose, else the map's start)",
+        help=(
+            "start pose (default: the pose the rover reports on odom_ground; if it reports "
+            "none, nothing is sent)"
+        ),
     )
-    p.add_argument("--map", default=None, help="map to validate on (default: the gate's)")
+    p.add_argument(
+        "--pose-wait",
+        type=_positive,
+        default=None,
+        metavar="S",
+        help=(
+            "without --start, how long to wait for the rover to report its pose, s (default: "
+            f"the round trip + {POSE_WAIT_MARGIN_S:g})"
+        ),
+    )
+    p.add_argument(
+        "--map",
+        default=None,
+        help=(
+            "map to validate on (default: the gate's); with --move-and-wait and the gate "
+            "unreachable, a map file (JSON) to plan on"
+        ),
+    )
     p.add_argument(
         "--gate",
         default=None,
@@ -70,33 +138,77 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rtt",
-        type=float,
+        type=_non_negative,
         default=3.0,
         help="link round trip, s, for timeouts and alignment (default 3)",
     )
     p.add_argument(
         "--time-scale",
-        type=float,
+        type=_positive,
         default=1.0,
         help="twin seconds per wall second (an emulator sped up)",
     )
     p.add_argument(
         "--pose-source",
-        choices=("odom_ground", "odom"),
-        default="odom_ground",
-        help="pose drift control compares (default: the ground-seeing odom_ground)",
+        choices=("auto", "odom_ground", "odom"),
+        default="auto",
+        help=(
+            "pose drift control compares: auto (default) uses the ground-seeing odom_ground "
+            "while it is fresh and falls back to odom (warning) when it goes silent"
+        ),
     )
-    p.add_argument("--no-drift", action="store_true", help="do not stop on drift")
+    p.add_argument(
+        "--pose-stale",
+        type=_positive,
+        default=0.5,
+        metavar="S",
+        help=(
+            "with --pose-source auto, odom_ground silent this long (wall s) -> odom (default "
+            "0.5); no pose at all for the round trip plus twice this (at least 1 s) -> STOP"
+        ),
+    )
+    p.add_argument(
+        "--drift-linear",
+        type=_positive,
+        default=0.25,
+        metavar="M",
+        help="drift STOP above this position error, m (default 0.25)",
+    )
+    p.add_argument(
+        "--drift-angular",
+        type=_positive,
+        default=12.0,
+        metavar="DEG",
+        help="drift STOP above this heading error, degrees (default 12)",
+    )
+    p.add_argument(
+        "--drift-samples",
+        type=_positive_int,
+        default=3,
+        metavar="N",
+        help="consecutive samples over a threshold before drift STOP (default 3)",
+    )
+    p.add_argument(
+        "--no-drift",
+        action="store_true",
+        help="no drift control: no drift STOP, and no STOP when drift control hears no pose",
+    )
     p.add_argument(
         "--replan",
-        type=int,
+        type=_non_negative_int,
         default=1,
         help="re-plans after drift STOPs (default 1; 0 stops there)",
     )
     p.add_argument(
         "--move-and-wait",
         action="store_true",
-        help="no gate prediction: short commands, each confirmed through the round trip (baseline)",
+        help=(
+            "the thesis's baseline operator: take the gate-approved route (planned and "
+            "validated as usual; if the gate is unreachable, planned by the heuristic "
+            "planner alone on --map FILE, unvalidated), cut drives into 0.5 m commands and "
+            "send them one at a time, each confirmed through the round trip plus 2 s to "
+            "decide; no prediction, so no drift control and no re-plan"
+        ),
     )
     p.add_argument(
         "--picture",
@@ -115,7 +227,10 @@ def register(subparsers: Any) -> None:
             "Plan a mission to --goal, validate it on the gate (repairing rejected plans, at "
             "most 4 attempts per leg), then execute it step by step over ROS 2 with drift "
             "control, showing progress, and write a picture of the predicted against the actual "
-            "trajectory. Exit 0 when the goal is reached, 1 otherwise."
+            "trajectory. The goal is checked against the map first; without --start the rover "
+            "must report its pose. Ctrl-C or SIGTERM cancels: the rover is sent STOP (a second "
+            "one interrupts at once, after sending STOP). Exit 0 when the goal is reached, 130 "
+            "(143) when cancelled by SIGINT (SIGTERM), 1 otherwise, 2 for bad options."
         ),
         epilog=(
             "example: rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080 "
@@ -126,26 +241,86 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
+def _offline_map(name: str | None, exc: Exception) -> Any:
+    """The map for move-and-wait without a gate: ``--map`` must name a map file."""
+    from planner.mapinfo import MapInfo
+
+    if name is None or not Path(name).is_file():
+        raise RuntimeError(
+            f"{exc}; --move-and-wait can plan without the gate from a map file: --map FILE.json"
+        ) from exc
+    return MapInfo.load(name)
+
+
+def _wait_for_pose(executor: Any, timeout_s: float, cancel: threading.Event) -> Any:
+    """The rover's reported map pose, waiting at most ``timeout_s`` (or until cancel)."""
+    deadline = time.monotonic() + timeout_s
+    while not cancel.is_set():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return None
+        pose = executor.settled_pose(min(left, 0.5))
+        if pose is not None:
+            return pose
+    return None
+
+
+def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event) -> Any:
+    """The pose the rover reports (map frame); ``None`` if cancelled meanwhile.
+
+    Raises:
+        RuntimeError: it reported none in time (or cannot: ``odom`` is not in the map
+            frame).
+    """
+    if args.pose_source == "odom":
+        raise RuntimeError(
+            "with --pose-source odom the rover's pose on the map is unknown (odom starts "
+            "where the bridge started); give --start X,Y,YAW"
+        )
+    wait_s = args.pose_wait if args.pose_wait is not None else args.rtt + POSE_WAIT_MARGIN_S
+    pose = _wait_for_pose(executor, wait_s, cancel)
+    if pose is None and not cancel.is_set():
+        raise RuntimeError(
+            f"the rover reported no pose on {args.namespace}/odom_ground within {wait_s:g} s "
+            "(is the bridge running, the link relaying?); nothing was sent; give --start "
+            "X,Y,YAW to drive from a known pose"
+        )
+    return pose
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run one mission; returns the exit status."""
+    """Run one mission; returns the exit status (0 reached, 128 + the signal number when
+    cancelled by a signal, 1 otherwise)."""
     from bridge.rosport import loopback_config, open_port
     from firmware_proto.rover import load_rover
+    from planner.errors import GateUnavailableError
     from planner.executor import ExecutorConfig, PlanExecutor, Progress
     from planner.gate_client import GateClient
-    from planner.mission import MissionRunner, MoveAndWait
+    from planner.interrupt import CancelOnSignal
+    from planner.mission import MissionReport, MissionRunner, MoveAndWait
     from planner.orchestrator import PlannerOrchestrator
     from planner.picture import picture_of, save
     from planner.planner import HeuristicLowLevelPlanner
 
-    goal = parse_pose(args.goal)
-    start = parse_pose(args.start) if args.start else None
-    if args.rtt < 0 or args.time_scale <= 0:
-        raise ValueError("--rtt must be >= 0 and --time-scale > 0")
+    goal = args.goal
+    start = args.start
+    config = ExecutorConfig(
+        link_rtt_s=args.rtt,
+        time_scale=args.time_scale,
+        pose_source=args.pose_source,
+        pose_stale_s=args.pose_stale,
+        drift_linear_m=args.drift_linear,
+        drift_angular_deg=args.drift_angular,
+        drift_persistence=args.drift_samples,
+        drift_control=not args.no_drift,
+        blind_margin_s=max(1.0, 2.0 * args.pose_stale),
+    )
     rover = load_rover()
     options: dict[str, Any] = {}
     if args.ros_backend == "dds" and args.dds_config:
         options["config"] = loopback_config() if args.dds_config == "loopback" else args.dds_config
     t0 = time.monotonic()
+    cancel = threading.Event()
 
     def say(line: str) -> None:
         print(f"[{time.monotonic() - t0:6.1f} s] {line}", flush=True)
@@ -153,45 +328,75 @@ def run(args: argparse.Namespace) -> int:
     def progress(p: Progress) -> None:
         say(p.line(args.time_scale))
 
-    with (
-        GateClient(args.gate, token=args.token) as gate,
-        open_port(
-            args.ros_backend, namespace=args.namespace, node_name="rover_executor", **options
-        ) as port,
-    ):
-        world = gate.get_map(args.map)
-        orchestrator = PlannerOrchestrator(
-            HeuristicLowLevelPlanner(rover, world=world), gate, map_name=args.map, world=world
+    def on_signal(signum: int) -> None:
+        cancel.set()
+        say(
+            f"{signal.Signals(signum).name}: cancelling the mission (a running step ends with STOP)"
         )
-        config = ExecutorConfig(
-            link_rtt_s=args.rtt,
-            time_scale=args.time_scale,
-            pose_source=args.pose_source,
-            drift_control=not args.no_drift,
-        )
-        executor = PlanExecutor(port, rover, config)
+
+    with GateClient(args.gate, token=args.token) as gate:
+        gated = True
         try:
-            if start is None:
-                start = executor.settled_pose(args.rtt + 2.0) or world.start
+            world = gate.get_map(args.map)
+        except GateUnavailableError as exc:
+            if not args.move_and_wait:
+                raise
+            world = _offline_map(args.map, exc)
+            gated = False
+        planner = HeuristicLowLevelPlanner(rover, world=world)
+        # Bad goals (and starts) end here, before anything waits for the rover.
+        planner.route(start or world.start, goal)
+        with (
+            open_port(
+                args.ros_backend, namespace=args.namespace, node_name="rover_executor", **options
+            ) as port,
+            CancelOnSignal(on_signal) as signals,
+        ):
+            orchestrator = PlannerOrchestrator(planner, gate, map_name=args.map, world=world)
+            executor = PlanExecutor(port, rover, config)
+            try:
+                if start is None:
+                    start = _rover_pose(executor, args, cancel)
+                if cancel.is_set() or start is None:
+                    print("rover go: cancelled; nothing was sent to the rover", file=sys.stderr)
+                    return signals.exit_status
                 say(f"start ({start.x:.2f}, {start.y:.2f}, {start.yaw_deg:.0f} deg)")
-            runner = MissionRunner(
-                orchestrator, executor, replans=args.replan, on_progress=progress, on_event=say
-            )
-            if args.move_and_wait:
-                mission = orchestrator.plan_mission(goal, start=start)
-                if not mission.approved:
-                    raise RuntimeError(f"no route to follow: {mission.reason}")
-                report = MoveAndWait(executor, time_scale=args.time_scale).drive(
-                    goal, start, mission.plans
-                )
-            else:
-                report = runner.run(goal, start=start)
-        finally:
-            executor.close()
+                report: MissionReport
+                if args.move_and_wait:
+                    if gated:
+                        mission = orchestrator.plan_mission(goal, start=start)
+                        if not mission.approved:
+                            raise RuntimeError(f"no route to follow: {mission.reason}")
+                        plans = mission.plans
+                    else:
+                        say(
+                            "WARNING: the gate is unreachable: the route is planned by the "
+                            "heuristic planner alone and NOT validated"
+                        )
+                        plans = tuple(leg.plan for leg in planner.plan_mission(start, goal))
+                    report = MoveAndWait(
+                        executor, time_scale=args.time_scale, on_progress=progress, cancel=cancel
+                    ).drive(goal, start, plans)
+                else:
+                    runner = MissionRunner(
+                        orchestrator,
+                        executor,
+                        replans=args.replan,
+                        on_progress=progress,
+                        on_event=say,
+                        cancel=cancel,
+                    )
+                    report = runner.run(goal, start=start)
+            finally:
+                executor.close()
     print(report.summary(args.time_scale))
-    outcome = "reached" if report.reached else "not reached"
+    outcome = "reached" if report.reached else "cancelled" if report.cancelled else "not reached"
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
     print(f"picture: {save(picture, args.picture)}")
+    if report.cancelled:
+        what = "the rover was sent STOP" if report.runs else "nothing was sent to the rover"
+        print(f"rover go: cancelled by the operator; {what}", file=sys.stderr)
+        return signals.exit_status
     return 0 if report.reached else 1
 
 
@@ -213,6 +418,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return run(args)
+    except KeyboardInterrupt:  # a second signal: the executor sent STOP on its way out
+        print("rover_executor: interrupted", file=sys.stderr)
+        return 130
     except Exception as exc:  # one clean line for the operator, whatever the package
         print(f"rover_executor: error: {exc}", file=sys.stderr)
         return 1

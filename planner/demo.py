@@ -15,11 +15,17 @@ done; drift control sees the rover leave the predicted trajectory and stops it. 
 operator re-plans from the rover's reported pose (the slip is cleared first: out of the
 sand), and the rover finishes. The demo prints a summary and writes a picture of the
 predicted against the actual trajectory.
+
+:meth:`Demo.cancel` (``rover demo`` calls it on SIGINT or SIGTERM) ends the mission
+through the executor's cancel path: the rover is sent STOP and the summary says
+``cancelled``. Before the mission runs there is nothing to stop; the caller then
+interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 import subprocess
@@ -62,6 +68,8 @@ class DemoConfig:
         seed: seeds the emulator (sensor noise, boot nonce) and the link.
         picture: where to write the PNG.
         startup_timeout_s: how long each process may take to come up.
+        progress_every_s: while a step runs, print a progress line at most this often,
+            mission seconds (the ends of steps are always printed).
     """
 
     rtt_s: float = 3.0
@@ -73,6 +81,7 @@ class DemoConfig:
     seed: int = 1
     picture: Path = Path("demo.png")
     startup_timeout_s: float = 60.0
+    progress_every_s: float = 4.0
 
 
 @dataclass(frozen=True)
@@ -100,15 +109,20 @@ class _Process:
         )
         self.lines: list[str] = []
         self._ready = threading.Event()
+        self._stderr: list[str] = []
         self._ready_prefix = ready
         self._reader = threading.Thread(target=self._read, name=f"demo-{name}-out", daemon=True)
         self._reader.start()
-        self._stderr: list[str] = []
         self._err_reader = threading.Thread(
             target=self._read_err, name=f"demo-{name}-err", daemon=True
         )
         self._err_reader.start()
-        if not self._ready.wait(timeout_s):
+        try:
+            came_up = self._ready.wait(timeout_s)
+        except BaseException:  # interrupted while waiting: no orphan child
+            self.stop()
+            raise
+        if not came_up:
             self.stop()
             tail = "".join(self._stderr[-5:]).strip()
             raise RuntimeError(
@@ -165,6 +179,18 @@ class Demo:
         self._processes: list[_Process] = []
         self._tmp = tempfile.TemporaryDirectory(prefix="rover-demo-")
         self._env = {**os.environ, "CYCLONEDDS_URI": loopback_config()}
+        self._cancel = threading.Event()
+        self._mission_running = False
+
+    @property
+    def mission_running(self) -> bool:
+        """The mission has started: :meth:`cancel` now stops the rover."""
+        return self._mission_running
+
+    def cancel(self) -> None:
+        """End the mission (from a signal handler or another thread): the running plan
+        ends with STOP, nothing more is sent, the report says ``cancelled``."""
+        self._cancel.set()
 
     def say(self, line: str) -> None:
         """Print one line with the mission time."""
@@ -249,9 +275,13 @@ class Demo:
                     f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
                 )
                 slipped = threading.Event()
+                last_line = [-math.inf]
 
                 def progress(p: Progress) -> None:
-                    self.say(p.line(cfg.speed))
+                    now = time.monotonic() * cfg.speed
+                    if p.final or now - last_line[0] >= cfg.progress_every_s:
+                        last_line[0] = now
+                        self.say(p.line(cfg.speed))
                     done = p.status == "completed" and p.step == cfg.slip_after_step
                     if cfg.slip and done and not slipped.is_set():
                         slipped.set()
@@ -261,9 +291,7 @@ class Demo:
                 def out_of_the_sand(result: ExecutionResult) -> None:
                     if cfg.slip:
                         answer = _control(control_port, "inject clear:slip")
-                        self.say(
-                            f"operator: traction back ({answer}); clearing the stop, re-planning"
-                        )
+                        self.say(f"operator: traction back ({answer}); re-planning (still latched)")
 
                 runner = MissionRunner(
                     orchestrator,
@@ -272,11 +300,22 @@ class Demo:
                     on_progress=progress,
                     on_drift=out_of_the_sand,
                     on_event=self.say,
+                    cancel=self._cancel,
                 )
-                report = runner.run(goal, start=start)
+                self._mission_running = True
+                try:
+                    report = runner.run(goal, start=start)
+                finally:
+                    self._mission_running = False
             finally:
                 executor.close()
-        outcome = "goal reached" if report.reached else "goal not reached"
+        outcome = (
+            "goal reached"
+            if report.reached
+            else "cancelled"
+            if report.cancelled
+            else "goal not reached"
+        )
         title = (
             f"rover demo: {outcome}; {len(report.drift_events)} drift STOP(s); RTT {cfg.rtt_s:g} s"
         )

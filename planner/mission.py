@@ -4,8 +4,9 @@ move-and-wait operator the thesis compares against.
 :class:`MissionRunner` is what ``rover go`` and ``rover demo`` run: the orchestrator
 plans and validates the whole mission on the gate (repairing rejected plans), the
 executor drives each approved leg against its prediction, and when drift control stops
-the rover the runner (if allowed) clears the latch and re-plans from the rover's reported
-pose, which is the thesis's future-work item 3, kept simple.
+the rover the runner (if allowed) waits for it to come to rest, re-plans from where it
+settled and releases the STOP latch only once the new plan is approved: the thesis's
+future-work item 3, kept simple. A re-plan that fails leaves the rover latched.
 
 :class:`MoveAndWait` is the baseline of the thesis's comparison: no gate and no twin.
 The operator sends one short command, waits for its confirmation through the whole round
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,14 +28,25 @@ from dataclasses import dataclass, field
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan, PlanStep
 from planner.drift import DriftEvent
+from planner.errors import PlannerError
 from planner.executor import ExecutionResult, PlanExecutor, Progress
 from planner.geometry import Pose, wrap_deg
 from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.verdict import Verdict
 
-__all__ = ["LegRun", "MissionReport", "MissionRunner", "MoveAndWait", "split_for_move_and_wait"]
+__all__ = [
+    "CANCELLED",
+    "LegRun",
+    "MissionReport",
+    "MissionRunner",
+    "MoveAndWait",
+    "split_for_move_and_wait",
+]
 
 logger = logging.getLogger(__name__)
+
+CANCELLED = "cancelled by the operator"
+"""The reason of a mission the operator cancelled."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +72,7 @@ class MissionReport:
         position_error_m, yaw_error_deg: final pose against the goal.
         elapsed_s: wall time from the first plan to the end.
         planning_s: wall time spent planning and validating.
+        cancelled: the operator cancelled the mission (the rover was sent STOP).
     """
 
     goal: Pose
@@ -72,6 +86,7 @@ class MissionReport:
     yaw_error_deg: float | None
     elapsed_s: float
     planning_s: float
+    cancelled: bool = False
 
     @property
     def drift_events(self) -> tuple[DriftEvent, ...]:
@@ -103,9 +118,10 @@ class MissionReport:
                 f"{planning.repair_cycles} repair(s); {verdict}"
             )
             for attempt in planning.attempts:
+                # The repair named is the one that produced this attempt's plan.
                 lines.append(
-                    f"    attempt {attempt.index + 1}: {attempt.verdict.summary()}"
-                    + (f" -> {attempt.repair_name}" if attempt.repair_name else "")
+                    f"    attempt {attempt.index + 1} ({attempt.repair_name}): "
+                    f"{attempt.verdict.summary()}"
                 )
         for i, run in enumerate(self.runs):
             ex = run.execution
@@ -120,6 +136,9 @@ class MissionReport:
                     f"{ex.stop_latency_s * 1e3:.3f} ms" if ex.stop_latency_s is not None else "n/a"
                 )
                 lines.append(f"    drift STOP: {ex.drift.reason}; detection to STOP {latency}")
+            elif not ex.completed:
+                lines.append(f"    {ex.outcome}: {ex.reason}")
+            lines.extend(f"    note: {note}" for note in ex.notes)
         if self.final_pose is not None:
             lines.append(
                 f"  final pose ({self.final_pose.x:.3f}, {self.final_pose.y:.3f}, "
@@ -139,10 +158,14 @@ class MissionRunner:
         orchestrator: plans and validates (its gate client and map).
         executor: drives plans over ROS.
         replans: drift STOPs after which the runner re-plans (0: stop there).
-        on_progress: called after each step with the executor's progress.
-        on_drift: called after a drift STOP, before the latch is cleared (the demo uses
-            it to take the rover out of the sand; an operator would look first).
+        on_progress: called with the executor's progress (see
+            :class:`~planner.executor.Progress`: during steps and when each ends).
+        on_drift: called after a drift STOP, before the rover is re-planned for and its
+            latch released (the demo uses it to take the rover out of the sand; an
+            operator would look first).
         on_event: called with one line for each notable event.
+        cancel: set it (from a signal handler, another thread) to end the mission: the
+            running plan is stopped (STOP) and nothing more is planned or sent.
     """
 
     orchestrator: PlannerOrchestrator
@@ -151,9 +174,22 @@ class MissionRunner:
     on_progress: Callable[[Progress], None] | None = None
     on_drift: Callable[[ExecutionResult], None] | None = None
     on_event: Callable[[str], None] = field(default=lambda line: None)
+    cancel: threading.Event | None = None
 
     def run(self, goal: Pose, *, start: Pose | None = None) -> MissionReport:
-        """Plan and drive to ``goal`` from ``start`` (default: the map's start)."""
+        """Plan and drive to ``goal`` from ``start`` (default: the map's start).
+
+        After a drift STOP (at most ``replans`` times): ``on_drift``, wait for the rover
+        to come to rest, re-plan from where it settled, and only when the gate approved
+        the new mission release the latch (CLEAR_STOP) and drive on. If the rover does
+        not report rest, or the re-plan is not approved or fails (the gate down), the
+        mission ends there with the rover still latched, and the reason says so.
+
+        Raises:
+            InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal or start.
+            GateError, GateUnavailableError, GateProtocolError: the gate failed on the
+                first planning (nothing was sent to the rover).
+        """
         t0 = time.monotonic()
         start = start or self.orchestrator.world.start
         plannings: list[MissionResult] = []
@@ -161,9 +197,27 @@ class MissionRunner:
         planning_s = 0.0
         replans = self.replans
         where = start
+        latched = False  # by a drift STOP this runner means to recover from
+
+        def end(reason: str, *, reached: bool = False, cancelled: bool = False) -> MissionReport:
+            if latched:
+                reason += "; the rover stays stopped (STOP latched)"
+            return self._report(
+                goal, start, plannings, runs, reached, reason, t0, planning_s, cancelled
+            )
+
         while True:
+            if self._cancelled():
+                return end(CANCELLED, cancelled=True)
             tp = time.monotonic()
-            mission = self.orchestrator.plan_mission(goal, start=where)
+            try:
+                mission = self.orchestrator.plan_mission(goal, start=where)
+            except PlannerError as exc:
+                if not latched:
+                    raise
+                planning_s += time.monotonic() - tp
+                self.on_event(f"re-planning failed: {exc}")
+                return end(f"re-planning failed: {exc}")
             planning_s += time.monotonic() - tp
             plannings.append(mission)
             outcome = "approved" if mission.approved else "REJECTED"
@@ -172,53 +226,49 @@ class MissionRunner:
                 f"{mission.repair_cycles} repair(s), {outcome}"
             )
             if not mission.approved:
-                return self._report(
-                    goal,
-                    start,
-                    plannings,
-                    runs,
-                    False,
-                    mission.reason or "not approved",
-                    t0,
-                    planning_s,
-                )
+                what = "re-plan not approved" if latched else "not approved"
+                return end(f"{what}: {mission.reason}" if mission.reason else what)
+            if self._cancelled():
+                return end(CANCELLED, cancelled=True)
+            if latched:
+                if not self.executor.clear_stop():
+                    return end("the rover did not confirm CLEAR_STOP")
+                latched = False
+                self.on_event("re-plan approved: STOP latch released")
             replanned = False
             for plan, verdict in zip(mission.plans, mission.verdicts, strict=True):
-                result = self.executor.execute(plan, verdict, on_progress=self.on_progress)
+                result = self.executor.execute(
+                    plan, verdict, on_progress=self.on_progress, cancel=self.cancel
+                )
                 runs.append(LegRun(plan, verdict, result))
                 if result.completed:
                     continue
                 self.on_event(f"execution ended: {result.outcome}: {result.reason}")
+                if result.outcome == "cancelled":
+                    return end(CANCELLED, cancelled=True)
                 if result.outcome == "drift" and replans > 0 and result.reported_pose is not None:
                     replans -= 1
+                    latched = True
                     if self.on_drift is not None:
                         self.on_drift(result)
-                    if not self.executor.clear_stop():
-                        return self._report(
-                            goal,
-                            start,
-                            plannings,
-                            runs,
-                            False,
-                            "the rover did not confirm CLEAR_STOP",
-                            t0,
-                            planning_s,
-                        )
                     # The STOP took half a round trip to reach the rover, which braked
                     # after that: re-plan from where it came to rest, not from where it
                     # was when the drift was seen.
+                    if not self.executor.wait_for_rest():
+                        return end("the rover did not report coming to rest after the drift STOP")
                     where = self.executor.settled_pose() or result.reported_pose
                     self.on_event(
-                        f"re-planning from the reported pose ({where.x:.2f}, {where.y:.2f}, "
-                        f"{where.yaw_deg:.0f} deg)"
+                        f"at rest; re-planning from the reported pose ({where.x:.2f}, "
+                        f"{where.y:.2f}, {where.yaw_deg:.0f} deg), STOP still latched"
                     )
                     replanned = True
                     break
-                return self._report(
-                    goal, start, plannings, runs, False, result.reason, t0, planning_s
-                )
+                return end(result.reason)
             if not replanned:
-                return self._report(goal, start, plannings, runs, True, "", t0, planning_s)
+                return end("", reached=True)
+
+    def _cancelled(self) -> bool:
+        return self.cancel is not None and self.cancel.is_set()
 
     def _report(
         self,
@@ -230,10 +280,20 @@ class MissionRunner:
         reason: str,
         t0: float,
         planning_s: float,
+        cancelled: bool = False,
     ) -> MissionReport:
         final = self.executor.settled_pose()
         return _report(
-            goal, start, plannings, runs, reached, reason, final, time.monotonic() - t0, planning_s
+            goal,
+            start,
+            plannings,
+            runs,
+            reached,
+            reason,
+            final,
+            time.monotonic() - t0,
+            planning_s,
+            cancelled,
         )
 
 
@@ -247,6 +307,7 @@ def _report(
     final: Pose | None,
     elapsed_s: float,
     planning_s: float,
+    cancelled: bool = False,
 ) -> MissionReport:
     err = yaw_err = None
     if final is not None:
@@ -264,6 +325,7 @@ def _report(
         yaw_err,
         elapsed_s,
         planning_s,
+        cancelled,
     )
 
 
@@ -294,12 +356,16 @@ class MoveAndWait:
         decision_s: the operator's time to look at the delayed picture and decide, per
             command, in mission (twin) seconds.
         time_scale: twin seconds per wall second (the benchmark runs sped up).
+        on_progress: called with the executor's progress.
+        cancel: set it to end the drive (STOP is sent).
     """
 
     executor: PlanExecutor
     increment_m: float = 0.5
     decision_s: float = 2.0
     time_scale: float = 1.0
+    on_progress: Callable[[Progress], None] | None = None
+    cancel: threading.Event | None = None
 
     def drive(self, goal: Pose, start: Pose, plans: tuple[Plan, ...]) -> MissionReport:
         """Drive ``plans`` (the same route as the gated mission) one confirmed command at a
@@ -307,32 +373,31 @@ class MoveAndWait:
         t0 = time.monotonic()
         units = self.executor.rover.m_to_units(self.increment_m)
         runs: list[LegRun] = []
+        cancel = self.cancel or threading.Event()
+
+        def end(reached: bool, reason: str) -> MissionReport:
+            return _report(
+                goal,
+                start,
+                [],
+                runs,
+                reached,
+                reason,
+                self.executor.settled_pose(),
+                time.monotonic() - t0,
+                0.0,
+                reason == CANCELLED,
+            )
+
         for plan in plans:
             for step in split_for_move_and_wait(plan, units):
                 single = Plan(plan.goal, (step,))
-                result = self.executor.execute(single, None)
+                result = self.executor.execute(
+                    single, None, on_progress=self.on_progress, cancel=cancel
+                )
                 runs.append(LegRun(single, None, result))
                 if not result.completed:
-                    return _report(
-                        goal,
-                        start,
-                        [],
-                        runs,
-                        False,
-                        result.reason,
-                        self.executor.settled_pose(),
-                        time.monotonic() - t0,
-                        0.0,
-                    )
-                time.sleep(self.decision_s / self.time_scale)
-        return _report(
-            goal,
-            start,
-            [],
-            runs,
-            True,
-            "",
-            self.executor.settled_pose(),
-            time.monotonic() - t0,
-            0.0,
-        )
+                    return end(False, CANCELLED if result.outcome == "cancelled" else result.reason)
+                if cancel.wait(self.decision_s / self.time_scale):
+                    return end(False, CANCELLED)
+        return end(True, "")

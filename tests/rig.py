@@ -25,7 +25,7 @@ from emulator.twin import Twin
 from emulator.worldmap import load_map
 from firmware_proto.rover import RoverDescription, load_rover
 from planner.executor import ExecutorConfig, PlanExecutor
-from planner.relay import LinkProfile, LinkRelay
+from planner.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
 
 __all__ = ["HilRig"]
 
@@ -42,6 +42,7 @@ class HilRig:
         rtt_s: the link's round trip in mission seconds (wall: ``rtt_s / speed``).
         seed: seeds sensor noise, boot nonce and the link.
         faults: emulator faults (``slip:left=0.05``, ``...@t=3``) from the start.
+        routes: the topics the link relays (default all: the rover's and the ground's).
         executor: overrides of the executor's settings.
     """
 
@@ -54,6 +55,7 @@ class HilRig:
         seed: int = 5,
         faults: tuple[str, ...] = (),
         rover: RoverDescription | None = None,
+        routes: tuple[Route, ...] = DEFAULT_ROUTES,
         **executor: Any,
     ) -> None:
         self.rover = rover or load_rover()
@@ -88,7 +90,10 @@ class HilRig:
             self.bridge = BridgeNode(params, ports[0]).start()
             self._stack.append(self.bridge)
             self.relay = LinkRelay(
-                ports[1], ports[2], LinkProfile(one_way_delay_s=rtt_s / speed / 2, seed=seed)
+                ports[1],
+                ports[2],
+                LinkProfile(one_way_delay_s=rtt_s / speed / 2, seed=seed),
+                routes,
             )
             self._stack.append(self.relay)
             config = ExecutorConfig(link_rtt_s=rtt_s / speed, time_scale=speed, **executor)

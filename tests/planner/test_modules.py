@@ -20,6 +20,7 @@ MODULES = [
     "planner.experiment",
     "planner.gate_client",
     "planner.geometry",
+    "planner.interrupt",
     "planner.mapinfo",
     "planner.mission",
     "planner.orchestrator",

@@ -1,0 +1,119 @@
+"""Missions on the real rig and a real gate: after a drift STOP the runner waits for the
+rover to come to rest, re-plans from there, and releases the STOP latch only once the
+new mission is approved; a re-plan that fails leaves the rover latched, and says so."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+import pytest
+
+from firmware_proto.rover import load_rover
+from gate.server import GateServer
+from planner.executor import ExecutionResult
+from planner.gate_client import GateClient
+from planner.geometry import Pose
+from planner.mapinfo import MapInfo
+from planner.mission import MissionRunner
+from planner.orchestrator import PlannerOrchestrator
+from planner.planner import HeuristicLowLevelPlanner
+from tests.planner.conftest import MAPS_DIR, start_gate
+from tests.rig import HilRig
+
+GOAL = Pose(1.2 + 1.5, 3.0, 0.0)  # 1.5 m straight ahead of the lab map's start
+
+
+@pytest.fixture
+def own_gate() -> Iterator[GateServer]:
+    """A gate of this test alone (it may stop it)."""
+    with start_gate() as server:
+        yield server
+
+
+@pytest.fixture
+def slipping_rig() -> Iterator[HilRig]:
+    """The lab rig with both sides slipping from the start: the first run drifts."""
+    with HilRig("lab", speed=4.0, rtt_s=0.4, seed=5, faults=("slip:both=0.1",)) as rig:
+        yield rig
+
+
+def orchestrator(client: GateClient) -> PlannerOrchestrator:
+    world = MapInfo.load(MAPS_DIR / "lab.json")
+    planner = HeuristicLowLevelPlanner(load_rover(), world=world)
+    return PlannerOrchestrator(planner, client, map_name="lab", world=world)
+
+
+def test_the_latch_is_released_only_once_the_replan_is_approved(
+    own_gate: GateServer, slipping_rig: HilRig
+) -> None:
+    rig = slipping_rig
+    events: list[tuple[str, bool]] = []
+    cleared_slip = threading.Event()
+
+    def event(line: str) -> None:
+        events.append((line, rig.emulator.status().stop_latched))
+
+    def out_of_the_sand(result: ExecutionResult) -> None:
+        rig.emulator.inject("clear:slip")
+        cleared_slip.set()
+
+    with GateClient(own_gate.url) as client:
+        runner = MissionRunner(
+            orchestrator(client), rig.executor, on_drift=out_of_the_sand, on_event=event
+        )
+        report = runner.run(GOAL)
+    assert cleared_slip.is_set() and len(report.drift_events) == 1
+    assert report.reached, report.summary()
+    lines = [line for line, _ in events]
+    replanned = next(i for i, line in enumerate(lines) if line.startswith("at rest; re-planning"))
+    approved = next(i for i, line in enumerate(lines) if "STOP latch released" in line)
+    planned_again = next(i for i in range(replanned, len(lines)) if lines[i].startswith("planned"))
+    assert replanned < planned_again < approved
+    assert events[replanned][1] and events[planned_again][1]  # latched while re-planning
+    assert not rig.emulator.status().stop_latched
+    summary = report.summary(4.0)
+    assert "re-plan 1:" in summary
+    assert "attempt 1 (initial): approved" in summary  # the repair names what made it
+
+
+def test_a_replan_that_fails_leaves_the_rover_latched(
+    own_gate: GateServer, slipping_rig: HilRig
+) -> None:
+    rig = slipping_rig
+
+    def gate_goes_down(result: ExecutionResult) -> None:
+        own_gate.close()
+
+    with GateClient(own_gate.url, retries=1, timeout_s=5.0) as client:
+        runner = MissionRunner(orchestrator(client), rig.executor, on_drift=gate_goes_down)
+        report = runner.run(GOAL)
+    assert not report.reached
+    assert report.reason.startswith("re-planning failed: the gate at")
+    assert report.reason.endswith("the rover stays stopped (STOP latched)")
+    assert len(report.plannings) == 1 and len(report.runs) == 1
+    assert report.runs[0].execution.outcome == "drift"
+    status = rig.emulator.status()
+    assert status.stop_latched and status.wheel_mps == (0.0, 0.0)
+    assert "STOP latched" in report.summary()
+
+
+def test_a_cancelled_mission_stops_the_rover(own_gate: GateServer) -> None:
+    with (
+        HilRig("lab", speed=4.0, rtt_s=0.4, seed=5, progress_period_s=0.1) as rig,
+        GateClient(own_gate.url) as client,
+    ):
+        cancel = threading.Event()
+
+        def progress(p: object) -> None:
+            if any(abs(v) > 0.05 for v in rig.emulator.status().wheel_mps):
+                cancel.set()
+
+        runner = MissionRunner(
+            orchestrator(client), rig.executor, on_progress=progress, cancel=cancel
+        )
+        report = runner.run(GOAL)
+        assert report.cancelled and not report.reached
+        assert "NOT REACHED (cancelled by the operator)" in report.summary()
+        assert report.runs[-1].execution.stopped_s is not None
+        assert rig.emulator.status().stop_latched
