@@ -50,6 +50,7 @@ class DriftSample:
 
     t_s: float
     step: int
+    """The plan step (0-based index) that was running."""
     linear_m: float
     angular_deg: float
     exceeded: bool
@@ -61,6 +62,7 @@ class DriftEvent:
 
     t_s: float
     step: int
+    """The plan step (0-based index) that was running."""
     linear_m: float
     angular_deg: float
     measured: Pose
@@ -69,9 +71,9 @@ class DriftEvent:
 
     @property
     def reason(self) -> str:
-        """Human-readable cause."""
+        """Human-readable cause; steps counted from 1, as the progress lines count them."""
         return (
-            f"drift at step {self.step}: {self.linear_m:.3f} m, {self.angular_deg:.1f} deg "
+            f"drift in step {self.step + 1}: {self.linear_m:.3f} m, {self.angular_deg:.1f} deg "
             f"off the prediction over {self.samples_over} samples"
         )
 
