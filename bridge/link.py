@@ -234,6 +234,11 @@ class ControllerLink:
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
     ) -> None:
+        """Raises:
+        TransportUrlError: ``config.url`` is malformed; found here, once, because no
+            reconnect could fix it (a transport is built to check it, not opened).
+        """
+        transport_factory(config.url)
         self.config = config
         self._on_status = on_status
         self._on_telemetry = on_telemetry
