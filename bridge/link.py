@@ -204,6 +204,8 @@ class LinkDiagnostics:
     steps_rejected: int
     steps_aborted: int
     last_error: str
+    medium_state: str = "ok"
+    medium_errors: int = 0
 
 
 @dataclass
@@ -900,4 +902,6 @@ class ControllerLink:
                 steps_rejected=c.steps_rejected,
                 steps_aborted=c.steps_aborted,
                 last_error=self._last_error,
+                medium_state=transport.medium_state if transport else "n/a",
+                medium_errors=transport.medium_errors if transport else 0,
             )

@@ -17,7 +17,8 @@ thread under a lock, so a STOP is on the wire without waiting for any queue.
 
 Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
 ``_write`` (one message) and ``_read`` (wait a little, return messages); set
-``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; hand every
+``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; override
+``medium_state`` and ``medium_errors`` if the medium reports its health; hand every
 frame written and every frame received to ``_record`` (traffic logs,
 docs/traffic-logs.md), only when :attr:`Transport.recorder` is set.
 """
@@ -82,6 +83,18 @@ class Transport(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._opened = False
+
+    @property
+    def medium_state(self) -> str:
+        """The medium's own condition, for ``/diagnostics``: ``ok`` unless the transport
+        knows better (CAN: its fault-confinement state, see :mod:`bridge.can_transport`).
+        ``ok`` and ``error_active`` are healthy; anything else is a warning."""
+        return "ok"
+
+    @property
+    def medium_errors(self) -> int:
+        """Errors the medium itself reported on this connection (CAN: error frames)."""
+        return 0
 
     # -- hooks ------------------------------------------------------------------------
     @abstractmethod
