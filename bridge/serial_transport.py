@@ -24,6 +24,7 @@ Errors, and which are retried:
 from __future__ import annotations
 
 import logging
+import socket
 import time
 from dataclasses import dataclass
 
@@ -124,6 +125,22 @@ def split_serial_url(url: str, baud: int | None = None) -> tuple[str, int, bool]
     return device, baud if baud is not None else rate, spec.exclusive
 
 
+def _release(port: serial.SerialBase) -> None:
+    """Close ``port`` and whatever it holds, never raising.
+
+    pyserial 3.5's ``socket://`` close shuts the socket down and closes it in one
+    ``try``: after a connection reset the shutdown fails, the close is skipped and the
+    descriptor stays open until garbage collection. Close that socket ourselves.
+    """
+    sock = getattr(port, "_socket", None)
+    try:
+        port.close()
+    except (OSError, serial.SerialException) as exc:
+        logger.debug("closing %s: %s", port.portstr, exc)
+    if isinstance(sock, socket.socket):
+        sock.close()
+
+
 class SerialTransport(Transport):
     """Frames of docs/protocol.md over a serial port."""
 
@@ -155,27 +172,28 @@ class SerialTransport(Transport):
         return self._device
 
     def _open(self) -> None:
+        port = serial.serial_for_url(
+            self._device,
+            do_not_open=True,
+            baudrate=self.baud,
+            timeout=0.05,
+            write_timeout=1.0,
+            exclusive=self._exclusive or None,
+        )
         try:
-            port = serial.serial_for_url(
-                self._device,
-                baudrate=self.baud,
-                timeout=0.05,
-                write_timeout=1.0,
-                exclusive=self._exclusive or None,
-            )
+            port.open()
         except serial.SerialException as exc:
+            # A socket port can fail after connecting (a reset while flushing its input).
+            _release(port)
             raise OSError(str(exc)) from exc
         self._decoder.reset()
         self._port = port
         logger.info("opened %s at %d baud", self._device, self.baud)
 
     def _close(self) -> None:
-        if self._port is not None:
-            try:
-                self._port.close()
-            except (OSError, serial.SerialException) as exc:
-                logger.debug("closing %s: %s", self._device, exc)
-            self._port = None
+        port, self._port = self._port, None
+        if port is not None:
+            _release(port)
 
     def _write(self, message: Message) -> None:
         port = self._port

@@ -14,8 +14,10 @@ bus-off is a lost link that reconnects and shakes hands again. On python-can's
 from __future__ import annotations
 
 import logging
+import os
 import select
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -86,6 +88,7 @@ class TcpRelay:
         self._lock = threading.Lock()
         self.accepted = 0
         self._stop = threading.Event()
+        self._reset = threading.Event()
         self._thread = threading.Thread(target=self._run, name="tcp-relay", daemon=True)
         self._thread.start()
 
@@ -99,6 +102,10 @@ class TcpRelay:
             if self._client is not None:
                 self._client.shutdown(socket.SHUT_RDWR)
 
+    def reset(self) -> None:
+        """End the current connection with a TCP reset, as a crashed server would."""
+        self._reset.set()
+
     def _close_client(self) -> None:
         with self._lock:
             client, self._client = self._client, None
@@ -107,6 +114,11 @@ class TcpRelay:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            if self._reset.is_set() and self._client is not None:
+                self._reset.clear()
+                linger = struct.pack("ii", 1, 0)  # close with RST, not FIN
+                self._client.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger)
+                self._close_client()
             watched: list[Any] = [self._server]
             if self._client is not None:
                 watched.append(self._client)
@@ -306,6 +318,24 @@ def test_socket_url_round_trips_frames_and_reports_a_dropped_connection(
     assert isinstance(exc, OSError) and "disconnected" in str(exc)
 
 
+def test_a_reset_connection_is_reported_and_its_socket_closed(
+    relays: Callable[[str | None], TcpRelay],
+) -> None:
+    relay = relays(None)
+    got, errors = Inbox(), Inbox()
+    fds_before = set(os.listdir("/proc/self/fd"))
+    transport = open_transport(relay.url)
+    transport.open(lambda msg, _t: got(msg), errors)
+    transport.send(HostHeartbeat(1))
+    got.wait_for(1)
+    relay.reset()
+    (exc,) = errors.wait_for(1)
+    assert "reset" in str(exc)
+    transport.close()
+    # pyserial leaves a reset socket open on close; the transport closes it itself.
+    assert set(os.listdir("/proc/self/fd")) <= fds_before
+
+
 def test_a_refused_connection_is_retryable(relays: Callable[[str | None], TcpRelay]) -> None:
     relay = relays(None)
     url = relay.url
@@ -317,7 +347,7 @@ def test_a_refused_connection_is_retryable(relays: Callable[[str | None], TcpRel
 
 
 def test_link_drives_the_emulator_over_socket_url_and_reconnects(
-    emulators: Emus, links: Links, relays: Callable[[str | None], TcpRelay]
+    emulators: Emus, relays: Callable[[str | None], TcpRelay], links: Links
 ) -> None:
     emu = emulators()
     relay = relays(_pty(emu))
