@@ -70,6 +70,9 @@ Emus = Callable[..., Emulator]
 FWD = Command.FWD
 CAN_ERR_LOSTARB = 0x002
 WARN, OK = 1, 0
+RELAYED = {"ack_timeout_s": 0.2, "motion_retries": 5}
+"""Link timing for a line with extra hops (a TCP relay thread, pyserial's spy dump): a
+busy machine must not turn their latency into no-ack faults."""
 
 
 # -- test plumbing: a TCP server on 127.0.0.1 -------------------------------------------
@@ -351,7 +354,7 @@ def test_link_drives_the_emulator_over_socket_url_and_reconnects(
 ) -> None:
     emu = emulators()
     relay = relays(_pty(emu))
-    link, rec = links(relay.url, reconnect_min_s=0.05)
+    link, rec = links(relay.url, reconnect_min_s=0.05, **RELAYED)
     rec.wait_count("ready", 1)
     link.submit_step(StepRequest(FWD, 60, 2300))
     assert rec.wait_count("completed", 1) == ["ready", "accepted", "completed"]
@@ -373,7 +376,7 @@ def test_spy_url_wraps_the_emulator_pty(
     emu = emulators()
     url = f"spy://{_pty(emu)}"
     assert url.startswith("spy:///dev/")
-    link, rec = links(url)
+    link, rec = links(url, **RELAYED)
     rec.wait_count("ready", 1)
     link.submit_step(StepRequest(FWD, 60, 2300))
     rec.wait_count("completed", 1)
