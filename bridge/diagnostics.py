@@ -4,8 +4,10 @@
 ``diagnostic_msgs/DiagnosticArray`` with two statuses:
 
 - ``rover_bridge: link``: state, device, round-trip time, CRC/resync/drop/retry counts,
-  heartbeat age, reconnects, last STOP latency (sent -> acknowledged). ERROR when the
-  link is down, lost or mismatched; WARN while handshaking or after no-ack faults.
+  heartbeat age, reconnects, last STOP latency (sent -> acknowledged), the medium's own
+  state and error count (a CAN bus's ``error_active`` ... ``bus_off``). ERROR when the
+  link is down, lost or mismatched; WARN while handshaking, while the medium reports
+  trouble (a CAN bus error-warning or error-passive) or after no-ack faults.
 - ``rover_bridge: controller``: controller state, latch, faults, watchdog trips, queue,
   firmware, schema hashes, boot nonce, stopping distance. ERROR on a stopping fault,
   WARN while latched or on a reporting fault.
@@ -49,6 +51,8 @@ def diagnostic_array(
         )
     elif diag.state == "handshake":
         link_level, link_msg = WARN, "handshaking"
+    elif diag.medium_state not in ("ok", "error_active", "n/a"):
+        link_level, link_msg = WARN, f"ready; bus {diag.medium_state}"
     elif diag.no_ack_faults:
         link_level, link_msg = WARN, f"ready; {diag.no_ack_faults} no-ack fault(s) so far"
     else:
@@ -79,6 +83,8 @@ def diagnostic_array(
                 "reconnects",
                 "last_stop_latency_ms",
                 "last_error",
+                "medium_state",
+                "medium_errors",
             ],
         ),
     )

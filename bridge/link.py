@@ -204,6 +204,8 @@ class LinkDiagnostics:
     steps_rejected: int
     steps_aborted: int
     last_error: str
+    medium_state: str = "ok"
+    medium_errors: int = 0
 
 
 @dataclass
@@ -234,6 +236,11 @@ class ControllerLink:
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
     ) -> None:
+        """Raises:
+        TransportUrlError: ``config.url`` is malformed; found here, once, because no
+            reconnect could fix it (a transport is built to check it, not opened).
+        """
+        transport_factory(config.url)
         self.config = config
         self._on_status = on_status
         self._on_telemetry = on_telemetry
@@ -895,4 +902,6 @@ class ControllerLink:
                 steps_rejected=c.steps_rejected,
                 steps_aborted=c.steps_aborted,
                 last_error=self._last_error,
+                medium_state=transport.medium_state if transport else "n/a",
+                medium_errors=transport.medium_errors if transport else 0,
             )

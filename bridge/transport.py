@@ -17,7 +17,8 @@ thread under a lock, so a STOP is on the wire without waiting for any queue.
 
 Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
 ``_write`` (one message) and ``_read`` (wait a little, return messages); set
-``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; hand every
+``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; override
+``medium_state`` and ``medium_errors`` if the medium reports its health; hand every
 frame written and every frame received to ``_record`` (traffic logs,
 docs/traffic-logs.md), only when :attr:`Transport.recorder` is set.
 """
@@ -34,7 +35,7 @@ from types import TracebackType
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from bridge.errors import TransportError
+from bridge.errors import TransportError, TransportUrlError
 from firmware_proto.counters import RxCounters
 from firmware_proto.message import Message
 from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
@@ -82,6 +83,18 @@ class Transport(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._opened = False
+
+    @property
+    def medium_state(self) -> str:
+        """The medium's own condition, for ``/diagnostics``: ``ok`` unless the transport
+        knows better (CAN: its fault-confinement state, see :mod:`bridge.can_transport`).
+        ``ok`` and ``error_active`` are healthy; anything else is a warning."""
+        return "ok"
+
+    @property
+    def medium_errors(self) -> int:
+        """Errors the medium itself reported on this connection (CAN: error frames)."""
+        return 0
 
     # -- hooks ------------------------------------------------------------------------
     @abstractmethod
@@ -193,12 +206,12 @@ def parse_can_url(url: str) -> tuple[str, str, dict[str, Any]]:
     Options other than ``node`` are passed to ``can.Bus`` (numbers converted).
 
     Raises:
-        TransportError: malformed URL.
+        TransportUrlError: malformed URL.
     """
     parts = urlsplit(url)
     interface, channel = parts.netloc, parts.path.lstrip("/")
     if parts.scheme != "can" or not interface or not channel:
-        raise TransportError(f"CAN URL must be can://INTERFACE/CHANNEL[?node=N], got {url!r}")
+        raise TransportUrlError(f"CAN URL must be can://INTERFACE/CHANNEL[?node=N], got {url!r}")
     options: dict[str, Any] = {}
     for key, values in parse_qs(parts.query).items():
         text = values[-1]
@@ -210,14 +223,17 @@ def open_transport(url: str, **options: Any) -> Transport:
     """Build (not open) the transport for ``url`` (see the module docstring).
 
     Raises:
-        TransportError: the URL names no known transport, or is malformed.
+        TransportUrlError: the URL names no known transport, or is malformed (permanent:
+            retrying cannot help; docs/bridge.md, Transports).
     """
     kind = "can" if url.startswith("can://") else "serial"
     if "://" in url and kind == "serial":
         scheme = url.split("://", 1)[0]
         if scheme not in ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"):
             known = ", ".join(["can", "socket", "rfc2217", "loop", "a device path"])
-            raise TransportError(f"unknown transport scheme {scheme!r} in {url!r}; known: {known}")
+            raise TransportUrlError(
+                f"unknown transport scheme {scheme!r} in {url!r}; known: {known}"
+            )
     module_name, class_name = TRANSPORTS[kind]
     cls = getattr(importlib.import_module(module_name), class_name)
     transport: Transport = cls(url, **options)

@@ -1,5 +1,10 @@
 """Fixtures of the bridge tests: ROS port backends, loopback DDS, collecting callbacks,
-and real emulators (pty or python-can bus) with a ``/command_status`` recorder.
+real emulators (pty or python-can bus) with a ``/command_status`` recorder, and
+:class:`~bridge.link.ControllerLink` instances on them.
+
+The same end-to-end test runs on every medium through :data:`MEDIA` and :func:`serve`:
+a pty, python-can's ``virtual`` bus, and ``socketcan`` on ``vcan0`` where the kernel has
+it (skipped elsewhere, saying why).
 
 DDS tests (marker ``dds``) run only inside the private network namespace that
 ``.ci/test`` sets up (``ROVER_PRIVATE_NETNS=1``): Cyclone DDS sends a multicast probe
@@ -10,6 +15,7 @@ rclpy tests (marker ``rclpy``) skip where ROS 2 is not installed.
 from __future__ import annotations
 
 import itertools
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -18,6 +24,7 @@ from typing import Any
 
 import pytest
 
+from bridge.link import ControllerLink, LinkConfig
 from bridge.rosport import RosPort, loopback_config, open_port
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
@@ -88,6 +95,27 @@ class Inbox:
             if not self._cond.wait_for(lambda: len(self.items) >= count, timeout_s):
                 pytest.fail(f"received {len(self.items)} of {count} messages in {timeout_s} s")
             return list(self.items)
+
+    def wait_until(
+        self, pred: Callable[[Any], bool], *, since: int = 0, timeout_s: float = 10.0
+    ) -> Any:
+        """The first item from index ``since`` on that satisfies ``pred``, waiting for it;
+        fail the test on timeout."""
+        found: list[Any] = []
+
+        def seen() -> bool:
+            found[:] = [m for m in self.items[since:] if pred(m)][:1]
+            return bool(found)
+
+        with self._cond:
+            if not self._cond.wait_for(seen, timeout_s):
+                pytest.fail(f"none of {len(self.items) - since} items matched in {timeout_s} s")
+            return found[0]
+
+    def mark(self) -> int:
+        """Index to wait from: items received after this call."""
+        with self._cond:
+            return len(self.items)
 
 
 # -- emulators and status recording (link and node tests) -------------------------------
@@ -184,3 +212,65 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
 @pytest.fixture
 def can_channel() -> str:
     return f"bridge-test-{next(_channels)}"
+
+
+# -- media: the same test on a pty, a virtual CAN bus and SocketCAN -----------------------
+
+HAVE_VCAN0 = os.path.exists("/sys/class/net/vcan0")
+NO_VCAN0 = "no vcan0 here: this kernel has no SocketCAN (udev/vcan-up.sh says why)"
+
+#: Every medium a link test can run on.
+MEDIA = [
+    pytest.param("pty", id="pty"),
+    pytest.param("virtual", id="virtual"),
+    pytest.param(
+        "socketcan",
+        id="socketcan",
+        marks=[pytest.mark.socketcan, pytest.mark.skipif(not HAVE_VCAN0, reason=NO_VCAN0)],
+    ),
+]
+#: The CAN media only.
+CAN_MEDIA = MEDIA[1:]
+
+
+def can_channel_for(kind: str, channel: str) -> str:
+    """The channel a CAN test uses: ``vcan0`` on socketcan, else the test's own."""
+    return "vcan0" if kind == "socketcan" else channel
+
+
+def serve(emulators: Callable[..., Emulator], kind: str, channel: str, **kw: Any) -> Emulator:
+    """A running emulator on medium ``kind`` (see :data:`MEDIA`); ``channel`` names the
+    virtual bus; ``kw`` go to the ``emulators`` factory."""
+    if kind == "pty":
+        return emulators("pty", **kw)
+    return emulators("can", interface=kind, channel=can_channel_for(kind, channel), **kw)
+
+
+def link_url(emu: Emulator) -> str:
+    """The transport URL a host uses to reach ``emu``."""
+    front = emu.frontend
+    if isinstance(front, SerialFrontEnd):
+        return front.device
+    assert isinstance(front, CanFrontEnd)
+    return f"can://{front.interface}/{front.channel}?node={front.node}"
+
+
+Links = Callable[..., tuple[ControllerLink, Recorder]]
+
+
+@pytest.fixture
+def links() -> Iterator[Links]:
+    """``links(url, **LinkConfig fields)`` -> a started link and its status recorder; all
+    closed after the test."""
+    started: list[ControllerLink] = []
+
+    def make(url: str, **config: float) -> tuple[ControllerLink, Recorder]:
+        rec = Recorder()
+        link = ControllerLink(LinkConfig(url, **config), on_status=rec)  # type: ignore[arg-type]
+        link.start()
+        started.append(link)
+        return link, rec
+
+    yield make
+    for link in started:
+        link.close()
