@@ -14,7 +14,7 @@ decoders. Two threads per open transport:
 
 - the **reader** does I/O only: it reads, feeds the pure decoder, stamps each message
   with its arrival time (``time.monotonic()``) and puts it on a bounded queue
-  (:data:`RX_QUEUE_DEPTH`); it never runs a callback;
+  (:attr:`Transport.rx_queue_depth`); it never runs a callback;
 - the **dispatcher** takes the messages off that queue in order and hands each to
   ``on_message`` (the link's state machine, odometry, ROS publishing run here). An
   exception in the callback is logged and the next message is dispatched.
@@ -75,9 +75,10 @@ OnError = Callable[[Exception], None]
 """Called once, on the dispatcher thread, when the transport fails (after every message
 received before the failure)."""
 
-RX_QUEUE_DEPTH = 256
-"""Messages the reader may hold for the dispatcher: about 0.5 s of every telemetry stream
-at the controller's highest rates (docs/protocol.md, Timing)."""
+RX_QUEUE_DEPTH = 2048
+"""Messages the reader may hold for the dispatcher by default: about 11 s of everything
+the controller sends at the protocol's rates (180 messages/s, docs/protocol.md), 2.8 s
+with the emulator at 4x or telemetry at 100 Hz: only a stalled dispatcher fills it."""
 
 SAMPLE_MESSAGES: tuple[type[Message], ...] = (Encoders, WheelSpeeds, Imu, Pose)
 """Periodic sensor samples: the only messages dropped when the receive queue is full."""
@@ -96,6 +97,8 @@ class Transport(ABC):
     """A connection to the controller that carries protocol messages."""
 
     kind = "transport"
+    rx_queue_depth = RX_QUEUE_DEPTH
+    """Messages the reader may hold for the dispatcher (set before :meth:`open`)."""
 
     def __init__(self, url: str, recorder: TrafficRecorder | None = None) -> None:
         """Args:
@@ -114,7 +117,7 @@ class Transport(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._dispatcher: threading.Thread | None = None
-        self._rx: queue.Queue[tuple[Message, float] | Exception] = queue.Queue(RX_QUEUE_DEPTH)
+        self._rx: queue.Queue[tuple[Message, float] | Exception] = queue.Queue(1)
         self._opened = False
 
     # -- hooks ------------------------------------------------------------------------
@@ -161,7 +164,7 @@ class Transport(ABC):
             raise TransportError(f"cannot open {self.url}: {exc}") from exc
         self._opened = True
         self._stop.clear()
-        self._rx = queue.Queue(RX_QUEUE_DEPTH)
+        self._rx = queue.Queue(self.rx_queue_depth)
         self._dispatcher = threading.Thread(
             target=self._dispatch,
             args=(on_message, on_error),
@@ -256,7 +259,7 @@ class Transport(ABC):
             level,
             "%s: receive queue full (%d); %s dropped (%d sample(s) dropped so far)",
             self.url,
-            RX_QUEUE_DEPTH,
+            self.rx_queue_depth,
             message.NAME,
             self.rx_overflow,
         )

@@ -18,7 +18,6 @@ from bridge.node import BridgeNode
 from bridge.params import load_params
 from bridge.rosport import Bool, DiagnosticArray, RosPort
 from bridge.serial_transport import SerialTransport
-from bridge.transport import RX_QUEUE_DEPTH
 from emulator.engine import Emulator
 from emulator.ptypair import PtyPair
 from emulator.serial_frontend import SerialFrontEnd
@@ -258,34 +257,33 @@ def _wait_until(pred: Callable[[], bool], timeout: float = 10.0) -> None:
 
 def test_reader_queues_dispatcher_delivers_and_only_samples_are_dropped() -> None:
     encoder = FrameEncoder()
-    extra = 44
+    depth, extra = 64, 44
     with PtyPair() as pty:
         transport = SerialTransport(pty.device)
+        transport.rx_queue_depth = depth
         got = Received()
         transport.open(got.on_message, got.on_error)
         try:
             os.write(pty.master_fd, encoder.encode(Encoders(0, 0, 0)))
             assert got.entered.wait(10.0)  # the dispatcher holds that one: the queue is empty
-            burst = b"".join(
-                encoder.encode(Encoders(i, i, i)) for i in range(1, RX_QUEUE_DEPTH + extra + 1)
-            )
+            burst = b"".join(encoder.encode(Encoders(i, i, i)) for i in range(1, depth + extra + 1))
             os.write(pty.master_fd, burst)
             _wait_until(lambda: transport.rx_overflow == extra)
             # Not samples: never dropped, even with the queue full (the reader waits).
             os.write(pty.master_fd, encoder.encode(Ack(7, 0, 0, 1)))
             os.write(pty.master_fd, encoder.encode(Status(7, 2, 0, 100)))
             got.release.set()
-            _wait_until(lambda: len(got.messages) == 1 + RX_QUEUE_DEPTH + 2)
+            _wait_until(lambda: len(got.messages) == 1 + depth + 2)
             pty.close()  # the device goes away: reported after every message before it
             assert got.failed.wait(10.0)
         finally:
             got.release.set()
             transport.close()
     names = [m.NAME for m in got.messages]
-    assert names == ["ENCODERS"] * (1 + RX_QUEUE_DEPTH) + ["ACK", "STATUS"]
-    # In order: the first RX_QUEUE_DEPTH samples of the burst were kept, the rest dropped.
-    assert [m.t_ms for m in got.messages[1 : 1 + RX_QUEUE_DEPTH]] == list(  # type: ignore[attr-defined]
-        range(1, RX_QUEUE_DEPTH + 1)
+    assert names == ["ENCODERS"] * (1 + depth) + ["ACK", "STATUS"]
+    # In order: the first `depth` samples of the burst were kept, the rest dropped.
+    assert [m.t_ms for m in got.messages[1 : 1 + depth]] == list(  # type: ignore[attr-defined]
+        range(1, depth + 1)
     )
     assert transport.rx_overflow == extra
     assert len(got.errors) == 1 and got.errors[0][1] == len(got.messages)
