@@ -11,16 +11,27 @@ monotonic clock (everything runs in this process, so no clock skew):
 - (b) request -> the emulator's wheel targets at zero (its control thread handled it).
 
 The request is an API call (``ControllerLink.emergency_stop``) or a ROS message on
-``emergency_stop`` published by another node on the same ROS port backend. Idle means
-one long step running; load means the motion queue full and telemetry at 100 Hz. The
-pty round trip (15 bytes there and back through pyserial) is measured in the same run:
-it is the floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
+``emergency_stop`` published by another node: on the in-process port (same process), or
+over Cyclone DDS from another process (``--dds``, which needs the private loopback
+network namespace of the tests; the publisher stamps its request on CLOCK_MONOTONIC,
+which all processes of the machine share). Idle means one long step running; load
+means the motion queue full and telemetry at 100 Hz. The pty round trip (15 bytes there
+and back through pyserial) is measured in the same run: it is the floor for (b). The
+thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
+
+Run the DDS case inside the namespace::
+
+    unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
+        exec .venv/bin/python -m benchmarks.bench_bridge --dds'
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import random
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -29,13 +40,13 @@ from benchmarks.common import pty_round_trip, summary, table
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.node import BridgeNode
 from bridge.params import load_params
-from bridge.rosport import Bool, Int16MultiArray, String, open_port
+from bridge.rosport import Bool, Int16MultiArray, String, loopback_config, open_port
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.messages import Command
-from firmware_proto.rover import load_rover
+from firmware_proto.rover import RoverDescription, load_rover
 
 
 class Statuses:
@@ -64,11 +75,33 @@ class Statuses:
             return len(self.items)
 
 
+Request = Callable[[], float]
+"""Asks for a STOP; returns when it was asked (``time.monotonic()``)."""
+
+
+def _api(link: ControllerLink) -> Request:
+    def request() -> float:
+        t0 = time.monotonic()
+        link.emergency_stop()
+        return t0
+
+    return request
+
+
+def _published(publish: Callable[[Bool], None]) -> Request:
+    def request() -> float:
+        t0 = time.monotonic()
+        publish(Bool(data=True))
+        return t0
+
+    return request
+
+
 def _trials(
     emu: Emulator,
     link: ControllerLink,
     statuses: Statuses,
-    request: Callable[[], object],
+    request: Request,
     trials: int,
     load: bool,
     rng: random.Random,
@@ -82,8 +115,7 @@ def _trials(
         statuses.wait("accepted", mark)
         time.sleep(rng.uniform(0.05, 0.25))  # STOP at a random moment of the motion
         handled_before = len(emu.stop_handled)
-        t0 = time.monotonic()
-        request()
+        t0 = request()
         deadline = time.monotonic() + 5.0
         while len(emu.stop_handled) == handled_before and time.monotonic() < deadline:
             time.sleep(0.001)
@@ -131,7 +163,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--quick", action="store_true", help="3 trials per case, fewer samples (smoke test)"
     )
+    parser.add_argument(
+        "--dds",
+        action="store_true",
+        help="add the DDS case: the bridge on the dds backend here, the STOP published by "
+        "another process (needs the private loopback network namespace)",
+    )
+    parser.add_argument("--stop-publisher", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.stop_publisher:
+        return stop_publisher()
     if args.trials < 1:
         parser.error("--trials must be >= 1")
     trials, ros_trials = (3, 3) if args.quick else (args.trials, max(20, args.trials // 2))
@@ -150,9 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         with link:
             statuses.wait("ready", 0)
             for load in (False, True):
-                written, zeroed = _trials(
-                    emu, link, statuses, link.emergency_stop, trials, load, rng
-                )
+                written, zeroed = _trials(emu, link, statuses, _api(link), trials, load, rng)
                 label = "load: queue full, telemetry 100 Hz" if load else "idle"
                 rows.append((f"API call -> STOP written ({label})", summary(written)))
                 rows.append((f"API call -> wheel targets zero ({label})", summary(zeroed)))
@@ -179,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
                         emu,
                         node.link,
                         statuses,
-                        lambda: estop.publish(Bool(data=True)),
+                        _published(estop.publish),
                         ros_trials,
                         load,
                         rng,
@@ -195,14 +234,25 @@ def main(argv: list[str] | None = None) -> int:
                         )
                     )
 
+    dds_note = ""
+    if args.dds:
+        from benchmarks.bench_rosport import in_private_loopback_namespace
+
+        private, why = in_private_loopback_namespace()
+        if private:
+            rows += _dds_rows(rover, args.seed, ros_trials, rng)
+        else:
+            dds_note = f" DDS case not run: not in a private loopback namespace ({why})."
+    else:
+        dds_note = " DDS case: run with --dds in the private network namespace (see --help)."
+
     print(
         table(
             "STOP latency through the bridge (real pty, emulator in real time)",
             rows,
             note=(
                 "Thesis figure: 8.4 +/- 1.2 ms detection to activation. Target: p99 < 1 ms end to end "
-                "over a pty. DDS message latency: benchmarks/bench_rosport.py (needs a private network "
-                "namespace)."
+                "over a pty. DDS message latency alone: benchmarks/bench_rosport.py." + dds_note
             ),
         )
     )
@@ -210,6 +260,89 @@ def main(argv: list[str] | None = None) -> int:
         f"\nSustained steps through the bridge: {rate:,.0f} steps/s (tiny FWD steps, ack + completion each)"
     )
     return 0
+
+
+def stop_publisher() -> int:
+    """Child process of the DDS case: a node that publishes ``emergency_stop`` once per
+    ``go`` line on stdin and answers with the ``time.monotonic()`` it published at."""
+    with open_port("dds", node_name="operator", config=loopback_config()) as port:
+        estop = port.publisher("emergency_stop", Bool)
+        if not estop.wait_for_subscribers(1, timeout_s=30.0):
+            print("NOSUB", flush=True)
+            return 1
+        print("READY", flush=True)
+        for line in sys.stdin:
+            if line.strip() != "go":
+                break
+            t0 = time.monotonic()
+            estop.publish(Bool(data=True))
+            print(repr(t0), flush=True)
+    return 0
+
+
+def _dds_rows(
+    rover: RoverDescription, seed: int, trials: int, rng: random.Random
+) -> list[tuple[str, dict[str, float]]]:
+    """The bridge on the dds backend in this process; the STOP from another process."""
+    rows: list[tuple[str, dict[str, float]]] = []
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=seed)
+    with Emulator(model, SerialFrontEnd(seed=seed)) as emu:
+        assert isinstance(emu.frontend, SerialFrontEnd)
+        params = load_params({"device": emu.frontend.device, "ros_backend": "dds"}, env={})
+        config = loopback_config()
+        with (
+            open_port("dds", node_name="rover_bridge", config=config) as bport,
+            open_port("dds", node_name="observer", config=config) as oport,
+            BridgeNode(params, bport) as node,
+        ):
+            statuses = Statuses()
+            oport.subscribe("command_status", String, lambda m: statuses(m.data))
+            child = subprocess.Popen(
+                [sys.executable, "-m", "benchmarks.bench_bridge", "--stop-publisher"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                env={**os.environ, "CYCLONEDDS_URI": config},
+            )
+            try:
+                assert child.stdin is not None
+                assert child.stdout is not None
+                stdin, stdout = child.stdin, child.stdout
+                if stdout.readline().strip() != "READY":
+                    raise RuntimeError("the DDS STOP publisher did not match the bridge")
+                deadline = time.monotonic() + 10.0
+                while not node.link.ready and time.monotonic() < deadline:
+                    time.sleep(0.01)
+
+                def request() -> float:
+                    stdin.write("go\n")
+                    stdin.flush()
+                    return float(stdout.readline())
+
+                for load in (False, True):
+                    written, zeroed = _trials(emu, node.link, statuses, request, trials, load, rng)
+                    label = "load" if load else "idle"
+                    rows.append(
+                        (
+                            f"ROS message (DDS, other process) -> STOP written ({label})",
+                            summary(written),
+                        )
+                    )
+                    rows.append(
+                        (
+                            f"ROS message (DDS, other process) -> wheel targets zero ({label})",
+                            summary(zeroed),
+                        )
+                    )
+            finally:
+                if child.stdin is not None:
+                    child.stdin.close()
+                try:
+                    child.wait(30)
+                except subprocess.TimeoutExpired:
+                    child.kill()
+                    child.wait(10)
+    return rows
 
 
 if __name__ == "__main__":

@@ -1,7 +1,14 @@
 """``rover bridge``: run the rover-side ROS 2 bridge node.
 
-Also the ``rover_bridge`` console script that ``ros2 run`` starts (:func:`main`), which
-accepts ``--ros-args ...`` and then reads ROS parameters through the rclpy backend.
+Also the ``rover_bridge`` console script that ``ros2 run`` and launch files start
+(:func:`main`), which accepts ``--ros-args ...``. Every bridge parameter
+(:class:`~bridge.params.BridgeParams`) can be set on the command line, by a named option
+or by ``--param NAME=VALUE``, and as a ROS parameter: on the rclpy backend through the
+node's declared parameters, on the dds and inprocess backends from the ROS arguments
+themselves (the node's sections of each ``--params-file``, then ``-p name:=value``;
+``-r __node:=`` and ``-r __ns:=`` name and place the node). Precedence and validation are
+those of :func:`bridge.params.load_params`: an unknown parameter, a bad value or a
+malformed ROS argument is a usage error (exit status 2), never ignored.
 """
 
 from __future__ import annotations
@@ -11,10 +18,20 @@ import logging
 import signal
 import sys
 import threading
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["add_arguments", "main", "register", "run"]
+if TYPE_CHECKING:
+    from bridge.params import BridgeParams
+
+__all__ = ["RosLayer", "add_arguments", "main", "register", "resolve_params", "ros_layer", "run"]
+
+NODE_NAME = "rover_bridge"
+"""The node's name, unless the ROS arguments remap ``__node``."""
+
+_ROS_NODE_PARAMETERS = {"use_sim_time"}
+"""Parameters every ROS node has (launch files set them for all nodes, ``/**``)."""
 
 _OPTIONS: list[tuple[str, str, type, str]] = [
     ("--baud", "baud", int, "serial baud rate (default 115200; a pty ignores it)"),
@@ -34,6 +51,16 @@ _OPTIONS: list[tuple[str, str, type, str]] = [
         "chosen by suffix on CAN (.log: candump); see docs/traffic-logs.md",
     ),
 ]
+
+
+def _assignment(text: str) -> tuple[str, str]:
+    """``--param`` argument: ``NAME=VALUE`` -> (name, value text)."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(
+            f"--param needs NAME=VALUE (a bridge parameter, docs/bridge.md), got {text!r}"
+        )
+    return name.strip(), value
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,6 +86,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--params-file", metavar="FILE", help="parameters file (TOML or JSON; see docs/bridge.md)"
     )
     p.add_argument(
+        "--param",
+        dest="param",
+        metavar="NAME=VALUE",
+        type=_assignment,
+        action="append",
+        default=[],
+        help="set any bridge parameter by name, e.g. --param topic_odom=wheel_odom or "
+        "--param auto_clear_watchdog=false (repeatable; a named option for the same "
+        "parameter wins; names, types and ranges in docs/bridge.md)",
+    )
+    p.add_argument(
         "--duration",
         type=float,
         default=0.0,
@@ -74,8 +112,9 @@ def register(subparsers: Any) -> None:
         description=(
             "Bridge /wheel_instructions, /emergency_stop and /clear_emergency_stop to the motor "
             "controller over USB-serial or CAN, and publish /command_status, /odom, /odom_ground "
-            "and /diagnostics. Parameters: command line > ROVER_BRIDGE_* environment > "
-            "--params-file > defaults (docs/bridge.md). Prints 'BRIDGE <url> <backend>' when up."
+            "and /diagnostics. Parameters: command line (options, --param NAME=VALUE) > ROS "
+            "parameters > ROVER_BRIDGE_* environment > --params-file > defaults "
+            "(docs/bridge.md). Prints 'BRIDGE <url> <backend>' when up."
         ),
         epilog=(
             "examples:\n"
@@ -90,9 +129,15 @@ def register(subparsers: Any) -> None:
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
-    values: dict[str, Any] = {name: getattr(args, name) for _, name, _, _ in _OPTIONS}
-    values["device"] = args.device
-    values["ros_backend"] = args.ros_backend
+    """The command line's parameters: ``--param`` values, then the named options."""
+    values: dict[str, Any] = dict(getattr(args, "param", None) or [])
+    for _, name, _, _ in _OPTIONS:
+        if getattr(args, name) is not None:
+            values[name] = getattr(args, name)
+    if args.device is not None:
+        values["device"] = args.device
+    if args.ros_backend is not None:
+        values["ros_backend"] = args.ros_backend
     if args.can:
         interface, sep, channel = args.can.partition(":")
         if not sep or not interface or not channel:
@@ -103,28 +148,113 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     return values
 
 
-def run(args: argparse.Namespace, ros_args: Sequence[str] = ()) -> int:
-    """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status."""
+@dataclass(frozen=True)
+class RosLayer:
+    """What the ROS arguments of a command line say about the bridge node.
+
+    Attributes:
+        params: its parameters: its sections of each ``--params-file`` in order, then
+            every ``-p``, later ones winning; ``namespace`` from ``-r __ns:=`` unless a
+            parameter sets it.
+        node_name: from ``-r __node:=``, else :data:`NODE_NAME`.
+    """
+
+    params: dict[str, Any] = field(default_factory=dict)
+    node_name: str = NODE_NAME
+
+
+def ros_layer(ros_args: Sequence[str]) -> RosLayer:
+    """Parse the ROS arguments (without ``--ros-args``) into the node's parameters.
+
+    Raises:
+        ValueError: a malformed ROS argument or parameters file, or PyYAML missing.
+        OSError: a parameters file cannot be read.
+    """
+    from firmware_proto.rosargs import load_parameters_file, node_parameters, parse_ros_args
+
+    parsed = parse_ros_args(ros_args)
+    node = parsed.node_name or NODE_NAME
+    params: dict[str, Any] = {}
+    for path in parsed.params_files:
+        params.update(node_parameters(load_parameters_file(path), node, parsed.namespace or ""))
+    params.update(parsed.params)
+    if parsed.namespace is not None and "namespace" not in params:
+        params["namespace"] = "" if not parsed.namespace.strip("/") else parsed.namespace
+    return RosLayer(params, node)
+
+
+def _bridge_parameters(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The ROS parameters that are the bridge's: those every ROS node has are accepted
+    when they ask for nothing the bridge does not do (``use_sim_time: false``)."""
+    from bridge.errors import ParameterError
+
+    out = dict(values)
+    for name in _ROS_NODE_PARAMETERS & set(out):
+        if out.pop(name) not in (False, "false", "False"):
+            raise ParameterError(f"parameter {name} (ROS parameter): the bridge runs on wall time")
+    return out
+
+
+def resolve_params(
+    args: argparse.Namespace,
+    ros_args: Sequence[str] = (),
+    *,
+    env: Mapping[str, str] | None = None,
+) -> tuple[BridgeParams, RosLayer]:
+    """The bridge's parameters from the command line, the ROS arguments, the environment
+    and the parameters file (:func:`bridge.params.load_params`).
+
+    On the rclpy backend the ROS parameters are left to rclpy (the node declares them,
+    :func:`bridge.params.ros_parameters`); only ``-p ros_backend:=...`` is read here.
+
+    Raises:
+        ParameterError: an unknown parameter or a bad value; names it and its source.
+        ValueError: malformed ROS arguments.
+        OSError: a parameters file cannot be read.
+    """
+    from bridge.params import load_params
+
+    layer = ros_layer(ros_args) if ros_args else RosLayer()
+    ros = _bridge_parameters(layer.params)
+    overrides = _overrides(args)
+    backend = {"ros_backend": ros["ros_backend"]} if "ros_backend" in ros else {}
+    params = load_params(overrides, ros=backend, env=env, file=args.params_file)
+    if params.ros_backend != "rclpy":
+        params = load_params(overrides, ros=ros, env=env, file=args.params_file)
+    return params, layer
+
+
+def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
+    """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
+    0, or 2 for a bad parameter or ROS argument (reported on stderr as ``prog: error:``).
+
+    ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
+    (:func:`firmware_proto.rosargs.split_ros_args`).
+    """
     from bridge.node import BridgeNode
     from bridge.params import load_params, ros_parameters
     from bridge.rosport import loopback_config, open_port
 
-    params = load_params(_overrides(args), file=args.params_file)
+    try:
+        params, layer = resolve_params(args, ros_args)
+    except (OSError, ValueError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     options: dict[str, Any] = {}
     if params.ros_backend == "dds" and args.dds_config:
         options["config"] = loopback_config() if args.dds_config == "loopback" else args.dds_config
     if params.ros_backend == "rclpy" and ros_args:
-        options["args"] = list(ros_args)
+        options["args"] = ["--ros-args", *ros_args]
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     with open_port(
-        params.ros_backend, namespace=params.namespace, node_name="rover_bridge", **options
+        params.ros_backend, namespace=params.namespace, node_name=layer.node_name, **options
     ) as port:
         if params.ros_backend == "rclpy":
             # ROS parameters sit between the command line and the environment.
             params = load_params(
-                {**ros_parameters(port, params), **_overrides(args)}, file=args.params_file
+                _overrides(args), ros=ros_parameters(port, params), file=args.params_file
             )
         with BridgeNode(params, port):
             print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
@@ -133,22 +263,25 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = ()) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``rover_bridge`` (for ``ros2 run``): bridge options, then optional ``--ros-args``."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    ros_args: list[str] = []
-    if "--ros-args" in argv:
-        cut = argv.index("--ros-args")
-        argv, ros_args = argv[:cut], argv[cut:]
+    """``rover_bridge`` (for ``ros2 run`` and launch files): the options of ``rover
+    bridge``, then optionally ``--ros-args`` (see the module docstring). Exit status 2
+    for a usage error (bad option, unknown or bad parameter, malformed ROS argument), 1
+    when the bridge fails."""
+    from firmware_proto.rosargs import split_ros_args
+
+    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     parser = argparse.ArgumentParser(
-        prog="rover_bridge", description="Rover-side ROS 2 bridge node."
+        prog="rover_bridge",
+        description="Rover-side ROS 2 bridge node. Accepts --ros-args: -p name:=value and "
+        "the node's --params-file section set bridge parameters (docs/bridge.md).",
     )
     add_arguments(parser)
-    args = parser.parse_args(argv)
+    args = parser.parse_args(own)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
     )
     try:
-        return run(args, ros_args)
+        return run(args, ros_args, prog="rover_bridge")
     except Exception as exc:  # one clean line for the operator, whatever the package
         print(f"rover_bridge: error: {exc}", file=sys.stderr)
         return 1

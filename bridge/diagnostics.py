@@ -1,21 +1,28 @@
 """``/diagnostics`` for the bridge: the link and the controller, as ROS 2 expects them.
 
 :func:`diagnostic_array` turns a :class:`~bridge.link.LinkDiagnostics` snapshot into a
-``diagnostic_msgs/DiagnosticArray`` with two statuses:
+``diagnostic_msgs/DiagnosticArray`` with three statuses:
 
 - ``rover_bridge: link``: state, device, round-trip time, CRC/resync/drop/retry counts,
-  heartbeat age, reconnects, last STOP latency (sent -> acknowledged), the medium's own
-  state and error count (a CAN bus's ``error_active`` ... ``bus_off``). ERROR when the
-  link is down, lost or mismatched; WARN while handshaking, while the medium reports
-  trouble (a CAN bus error-warning or error-passive) or after no-ack faults.
+  heartbeat age and missed beats, reconnects, receive-queue overflow, last STOP latency
+  (sent -> acknowledged), the medium's own state and error count (a CAN bus's
+  ``error_active`` ... ``bus_off``). ERROR when the link is down, lost or mismatched;
+  WARN while handshaking, while the medium reports trouble (a CAN bus error-warning or
+  error-passive) or after no-ack faults.
 - ``rover_bridge: controller``: controller state, latch, faults, watchdog trips, queue,
   firmware, schema hashes, boot nonce, stopping distance. ERROR on a stopping fault,
   WARN while latched or on a reporting fault.
+- ``rover_bridge: input``: steps refused, ``rejected_total`` and one
+  ``rejected_<reason>`` per reason seen (the node's checks of ``wheel_instructions`` and
+  the link's and controller's refusals), counts since start. Always OK: a refusal is
+  the answer to bad input, not a fault of the bridge.
 
 Pure: builds messages, publishes nothing.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 from bridge.link import LinkDiagnostics
 from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time
@@ -41,9 +48,20 @@ def _values(diag: LinkDiagnostics, names: list[str]) -> list[KeyValue]:
 
 
 def diagnostic_array(
-    diag: LinkDiagnostics, stamp: Time, hardware_id: str = "rover-motor"
+    diag: LinkDiagnostics,
+    stamp: Time,
+    hardware_id: str = "rover-motor",
+    rejected: Mapping[str, int] | None = None,
 ) -> DiagnosticArray:
-    """The DiagnosticArray for one snapshot."""
+    """The DiagnosticArray for one snapshot.
+
+    Args:
+        diag: the link's snapshot.
+        stamp: the header stamp.
+        hardware_id: what the statuses name as their hardware.
+        rejected: steps refused by reason, beside those the link counted
+            (``diag.rejected``); counts of the same reason add up.
+    """
     if diag.state in ("disconnected", "lost", "mismatch"):
         link_level, link_msg = (
             ERROR,
@@ -71,11 +89,15 @@ def diagnostic_array(
                 "rtt_ms",
                 "rtt_median_ms",
                 "heartbeat_age_s",
+                "missed_beats",
+                "lost_after_beats",
+                "heartbeat_losses",
                 "rx_frames",
                 "tx_frames",
                 "crc_errors",
                 "resyncs",
                 "rx_dropped",
+                "rx_overflow",
                 "lost_frames",
                 "retries",
                 "no_ack_faults",
@@ -126,4 +148,18 @@ def diagnostic_array(
             ],
         ),
     )
-    return DiagnosticArray(header=Header(stamp=stamp, frame_id=""), status=(link, controller))
+    counts: dict[str, int] = dict(diag.rejected)
+    for reason, count in (rejected or {}).items():
+        counts[reason] = counts.get(reason, 0) + count
+    total = sum(counts.values())
+    inputs = DiagnosticStatus(
+        level=OK,
+        name="rover_bridge: input",
+        message=f"{total} step(s) rejected" if total else "no step rejected",
+        hardware_id=hardware_id,
+        values=[KeyValue(key="rejected_total", value=str(total))]
+        + [KeyValue(key=f"rejected_{r}", value=str(n)) for r, n in sorted(counts.items())],
+    )
+    return DiagnosticArray(
+        header=Header(stamp=stamp, frame_id=""), status=(link, controller, inputs)
+    )

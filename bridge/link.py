@@ -2,8 +2,9 @@
 heartbeats, link supervision and reconnects (docs/protocol.md).
 
 :class:`ControllerLink` is what the bridge node drives; it knows nothing of ROS. It
-reports every step's fate as a ``/command_status`` string through ``on_status`` and
-hands telemetry to ``on_telemetry``.
+reports every step's fate as a ``/command_status`` string through ``on_status``, hands
+telemetry to ``on_telemetry`` and tells ``on_state`` of every change of
+:class:`LinkState` (the node publishes ``/diagnostics`` at once on it).
 
 **STOP lane.** :meth:`ControllerLink.emergency_stop` writes STOP on the calling thread at
 once, ahead of anything queued, then repeats it every ``stop_repeat_s`` until STOP_ACK
@@ -22,12 +23,16 @@ controller deduplicates retransmissions, so no step runs twice. At most
 refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
 ``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``.
 A changed boot nonce -> ``fault:controller_reboot``. A transport error -> reconnect with
-exponential backoff. In every one of these cases the steps in flight are reported
-(``fault:...`` or ``aborted:...``) and dropped: no stale motion is ever replayed.
+exponential backoff. In every one of these cases every step not yet settled (in the
+controller, in flight, waiting in the lane) is dropped and gets its own fate, oldest
+first, each counted in ``steps_aborted``: ``aborted:link_lost``,
+``aborted:controller_reboot`` or ``aborted:schema_mismatch``; then one
+``fault:<reason>`` reports the link event itself. No stale motion is ever replayed.
 
-Threads: the transport's reader calls in with messages; one timer thread runs the
-periodic work; any thread may call the API. State is guarded by one lock; callbacks run
-outside it.
+Threads: the transport's dispatcher thread calls in with messages (its reader thread
+only reads and decodes, :mod:`bridge.transport`); one timer thread runs the periodic
+work; any thread may call the API. State is guarded by one lock; callbacks run outside
+it, in the order their events happened.
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ import math
 import statistics
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -87,6 +92,7 @@ logger = logging.getLogger(__name__)
 
 OnStatus = Callable[[str], None]
 OnTelemetry = Callable[[Message, float], None]
+OnState = Callable[["LinkState"], None]
 
 _ACK_REASONS = {
     AckResult.OUT_OF_RANGE: "out_of_range",
@@ -173,6 +179,12 @@ class LinkDiagnostics:
     state: str
     url: str
     connected: bool
+    missed_beats: int
+    """Whole controller heartbeat periods since the last heartbeat (0 while fresh)."""
+    lost_after_beats: int | None
+    """Missed heartbeat periods when the link was last declared lost for silence."""
+    heartbeat_losses: int
+    """Times the link was declared lost because the controller's heartbeats stopped."""
     reconnects: int
     reboots: int
     rtt_ms: float | None
@@ -183,6 +195,8 @@ class LinkDiagnostics:
     crc_errors: int
     resyncs: int
     rx_dropped: int
+    rx_overflow: int
+    """Sensor samples dropped because the receive queue was full (bridge.transport)."""
     lost_frames: int
     retries: int
     no_ack_faults: int
@@ -203,6 +217,8 @@ class LinkDiagnostics:
     steps_completed: int
     steps_rejected: int
     steps_aborted: int
+    rejected: tuple[tuple[str, int], ...]
+    """Steps refused by the link or the controller, by reason (sorted by reason)."""
     last_error: str
     medium_state: str = "ok"
     medium_errors: int = 0
@@ -220,6 +236,9 @@ class _Counters:
     steps_completed: int = 0
     steps_rejected: int = 0
     steps_aborted: int = 0
+    heartbeat_losses: int = 0
+    lost_after_beats: int | None = None
+    rejected: Counter[str] = field(default_factory=Counter)
     rtts: deque[float] = field(default_factory=lambda: deque(maxlen=100))
 
 
@@ -232,18 +251,31 @@ class ControllerLink:
         *,
         on_status: OnStatus,
         on_telemetry: OnTelemetry | None = None,
+        on_state: OnState | None = None,
         transport_factory: Callable[[str], Transport] = open_transport,
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
     ) -> None:
-        """Raises:
-        TransportUrlError: ``config.url`` is malformed; found here, once, because no
-            reconnect could fix it (a transport is built to check it, not opened).
+        """Args:
+        config: link parameters.
+        on_status: every ``/command_status`` string, in order.
+        on_telemetry: every message from the controller with its arrival time
+            (``time.monotonic()``), on the transport's dispatcher thread.
+        on_state: the new :class:`LinkState` at every change, in order, on the thread
+            that made the change (timer or dispatcher), outside the lock; it must not
+            block.
+        transport_factory: builds the (unopened) transport for a URL.
+        protocol_version, schema_hash: what this host speaks (tests change them).
+
+        Raises:
+            TransportUrlError: ``config.url`` is malformed; found here, once, because no
+                reconnect could fix it (a transport is built to check it, not opened).
         """
         transport_factory(config.url)
         self.config = config
         self._on_status = on_status
         self._on_telemetry = on_telemetry
+        self._on_state = on_state
         self._factory = transport_factory
         self.protocol_version = protocol_version
         self.schema_hash = schema_hash
@@ -276,7 +308,7 @@ class ControllerLink:
         self._last_stopping_mm: int | None = None
         self._last_error = ""
         self._counters = _Counters()
-        self._outbox: list[str] = []
+        self._outbox: list[str | LinkState] = []
         self._failure: tuple[Transport, Exception] | None = None
         self._ctrl_latched = False
         self._ctrl_state: int | None = None
@@ -349,6 +381,7 @@ class ControllerLink:
                 reason = "queue_full"
             if reason is not None:
                 self._counters.steps_rejected += 1
+                self._counters.rejected[reason] += 1
                 self._emit(f"rejected:{reason}")
                 logger.info("step %s rejected: %s", step, reason)
             else:
@@ -454,11 +487,12 @@ class ControllerLink:
                 return
             self._transport = transport
             self._backoff = self.config.reconnect_min_s
-            self._state = LinkState.HANDSHAKE
+            self._set_state(LinkState.HANDSHAKE)
             self._hello_sent = False
             self._last_hello = 0.0
             self._last_hb_rx = None
             logger.info("connected to %s; handshaking", self.config.url)
+        self._flush()
 
     def _report_failure(self, transport: Transport, exc: Exception) -> None:
         """Any thread: the transport failed. The timer thread handles it (it may have to
@@ -478,10 +512,10 @@ class ControllerLink:
             self._transport = None
             self._last_error = str(exc)
             self._counters.reconnects += 1
-            self._state = LinkState.DISCONNECTED
+            self._set_state(LinkState.DISCONNECTED)
             self._heartbeat = None
             self._reconnect_at = time.monotonic() + self.config.reconnect_min_s
-            self._drop_all("fault:link_lost")
+            self._drop_all("aborted:link_lost")
             self._emit("fault:link_lost")
             logger.warning("link to %s failed: %s; reconnecting", self.config.url, exc)
         transport.close()
@@ -529,7 +563,13 @@ class ControllerLink:
                 cfg.link_lost_beats * cfg.controller_heartbeat_s + cfg.controller_heartbeat_s / 2
             )
             if self._last_hb_rx is not None and now - self._last_hb_rx > lost_after:
-                self._lose(f"no controller heartbeat for {now - self._last_hb_rx:.2f} s")
+                silence = now - self._last_hb_rx
+                self._counters.heartbeat_losses += 1
+                self._counters.lost_after_beats = int(silence / cfg.controller_heartbeat_s)
+                self._lose(
+                    f"no controller heartbeat for {silence:.2f} s "
+                    f"({self._counters.lost_after_beats} beats missed)"
+                )
             else:
                 self._pump(now, out)
         for msg in out:
@@ -555,6 +595,7 @@ class ControllerLink:
             if step.sends > self.config.motion_retries:
                 self._inflight = None
                 self._counters.no_ack_faults += 1
+                self._counters.steps_aborted += 1
                 self._emit("fault:no_ack")
                 self._lose(f"MOTION seq {step.seq} not acknowledged after {step.sends} tries")
                 return
@@ -584,12 +625,20 @@ class ControllerLink:
         """The controller stopped answering: report, drop every step, re-handshake."""
         logger.warning("link lost: %s", why)
         self._last_error = why
-        self._state = LinkState.LOST
+        self._set_state(LinkState.LOST)
         self._hello_sent = False
-        self._drop_all("fault:link_lost")
+        self._drop_all("aborted:link_lost")
         self._emit("fault:link_lost")
 
+    def _set_state(self, state: LinkState) -> None:
+        """Change the link state (lock held); ``on_state`` hears of it at the next flush."""
+        if state is not self._state:
+            self._state = state
+            self._outbox.append(state)
+
     def _drop_all(self, status: str) -> None:
+        """Drop every step not yet settled, oldest first (in the controller by sequence,
+        then the one in flight, then the lane), each reported ``status`` and counted."""
         dropped = (
             list(self._in_controller.values())
             + ([self._inflight] if self._inflight else [])
@@ -598,6 +647,9 @@ class ControllerLink:
         self._in_controller.clear()
         self._inflight = None
         self._lane.clear()
+        for _ in dropped:
+            self._counters.steps_aborted += 1
+            self._emit(status)
         if dropped:
             logger.info("%d step(s) dropped (%s); none will be replayed", len(dropped), status)
 
@@ -610,7 +662,7 @@ class ControllerLink:
             self._counters.steps_aborted += 1
             self._emit(status)
 
-    # -- receive, on the reader thread ------------------------------------------------------
+    # -- receive, on the transport's dispatcher thread ---------------------------------------
     def _on_message(self, msg: Message, arrived: float) -> None:
         with self._lock:
             self._dispatch(msg, arrived)
@@ -653,14 +705,14 @@ class ControllerLink:
             return
         if self._state is LinkState.READY and not hb.handshake_ok:
             logger.warning("controller has no session with us; handshaking again")
-            self._drop_all("fault:link_lost")
+            self._drop_all("aborted:link_lost")
             self._emit("fault:link_lost")
-            self._state = LinkState.HANDSHAKE
+            self._set_state(LinkState.HANDSHAKE)
             self._hello_sent = False
             self._last_hello = 0.0
         if self._state is LinkState.LOST:
             logger.info("controller heartbeats again; new session")
-            self._state = LinkState.HANDSHAKE
+            self._set_state(LinkState.HANDSHAKE)
             self._hello_sent = False
             self._last_hello = 0.0
         if hb.fault_bits & (1 << (FaultCode.WATCHDOG - 1)):
@@ -694,7 +746,7 @@ class ControllerLink:
         logger.warning("controller rebooted (boot nonce 0x%04X); steps in flight dropped", nonce)
         self._drop_all("aborted:controller_reboot")
         self._emit("fault:controller_reboot")
-        self._state = LinkState.HANDSHAKE
+        self._set_state(LinkState.HANDSHAKE)
         self._hello_sent = False
         self._last_hello = 0.0
         self._faults.clear()
@@ -725,9 +777,9 @@ class ControllerLink:
                     self.protocol_version,
                     self.schema_hash,
                 )
-                self._drop_all("rejected:schema_mismatch")
+                self._drop_all("aborted:schema_mismatch")
                 self._emit("fault:schema_mismatch")
-            self._state = LinkState.MISMATCH
+            self._set_state(LinkState.MISMATCH)
             theirs = f"v{ident.protocol_version}/0x{ident.schema_hash:04X}"
             ours = f"v{self.protocol_version}/0x{self.schema_hash:04X}"
             self._last_error = f"protocol/schema mismatch: controller {theirs}, host {ours}"
@@ -735,7 +787,7 @@ class ControllerLink:
         if not self._hello_sent:
             return  # unsolicited (a boot IDENT): the session starts with our HELLO's answer
         if self._state in (LinkState.HANDSHAKE, LinkState.MISMATCH, LinkState.LOST):
-            self._state = LinkState.READY
+            self._set_state(LinkState.READY)
             self._ended_seen = 0  # the controller counts per session
             self._last_hb_rx = time.monotonic()
             logger.info(
@@ -778,6 +830,7 @@ class ControllerLink:
             reason = _ACK_REASONS.get(AckResult(ack.result), f"nack_{ack.result}")
             if ack.result == AckResult.OUT_OF_RANGE and ack.field != AckField.NONE:
                 reason += f":{AckField(ack.field).name.lower()}"
+            self._counters.rejected[reason] += 1
             self._emit(f"rejected:{reason}")
         self._pump(t)
 
@@ -838,13 +891,18 @@ class ControllerLink:
         self._outbox.append(status)
 
     def _flush(self) -> None:
+        """Deliver the statuses and state changes queued under the lock, in order."""
         with self._lock:
             out, self._outbox = self._outbox, []
-        for status in out:
+        for item in out:
             try:
-                self._on_status(status)
+                if isinstance(item, LinkState):
+                    if self._on_state is not None:
+                        self._on_state(item)
+                else:
+                    self._on_status(item)
             except Exception:
-                logger.exception("status callback failed for %r", status)
+                logger.exception("link callback failed for %r", item)
 
     # -- diagnostics ---------------------------------------------------------------------------
     def diagnostics(self) -> LinkDiagnostics:
@@ -857,20 +915,25 @@ class ControllerLink:
             rtts = list(self._counters.rtts)
             c = self._counters
             now = time.monotonic()
+            age = now - self._last_hb_rx if self._last_hb_rx is not None else None
             return LinkDiagnostics(
                 state=self._state.value,
                 url=self.config.url,
                 connected=transport is not None,
+                missed_beats=int(age / self.config.controller_heartbeat_s) if age else 0,
+                lost_after_beats=c.lost_after_beats,
+                heartbeat_losses=c.heartbeat_losses,
                 reconnects=c.reconnects,
                 reboots=c.reboots,
                 rtt_ms=rtts[-1] * 1e3 if rtts else None,
                 rtt_median_ms=statistics.median(rtts) * 1e3 if rtts else None,
-                heartbeat_age_s=now - self._last_hb_rx if self._last_hb_rx is not None else None,
+                heartbeat_age_s=age,
                 rx_frames=counters.frames if counters else 0,
                 tx_frames=transport.tx_frames if transport else 0,
                 crc_errors=counters.crc if counters else 0,
                 resyncs=(counters.framing + counters.oversize) if counters else 0,
                 rx_dropped=counters.rejected if counters else 0,
+                rx_overflow=transport.rx_overflow if transport else 0,
                 lost_frames=counters.lost if counters else 0,
                 retries=c.retries,
                 no_ack_faults=c.no_ack_faults,
@@ -901,6 +964,7 @@ class ControllerLink:
                 steps_completed=c.steps_completed,
                 steps_rejected=c.steps_rejected,
                 steps_aborted=c.steps_aborted,
+                rejected=tuple(sorted(c.rejected.items())),
                 last_error=self._last_error,
                 medium_state=transport.medium_state if transport else "n/a",
                 medium_errors=transport.medium_errors if transport else 0,

@@ -24,7 +24,14 @@ Publishes:
 - ``odom_ground`` ``nav_msgs/Odometry`` (frame ``map`` -> ``base_link``): the
   controller's POSE from a sensor that sees the ground, stamped with the measurement's
   time; what drift control must use, because encoders cannot see slip.
-- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz`` (1 Hz).
+- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz`` (1 Hz), and
+  at once whenever the link changes state (lost, disconnected, handshaking, ready,
+  mismatch): the link, the controller and the steps rejected by reason
+  (:mod:`bridge.diagnostics`).
+
+Threads: the ROS port's threads run the input callbacks; the transport's dispatcher
+thread runs the telemetry and status outputs; one diagnostics thread publishes
+``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ from types import TracebackType
 from typing import Any
 
 from bridge.diagnostics import diagnostic_array
-from bridge.link import ControllerLink, LinkDiagnostics, StepRequest
+from bridge.link import ControllerLink, LinkDiagnostics, LinkState, StepRequest
 from bridge.odometry import OdometryEstimator, ground_pose
 from bridge.params import BridgeParams
 from bridge.rosport import RosPort, Subscription
@@ -134,6 +141,9 @@ class BridgeNode:
         self.port = port
         self.rover = rover or load_rover(params.rover_description or None)
         self.rejected: Counter[str] = Counter()
+        """``wheel_instructions`` refused by this node's checks, by reason (the link
+        counts its own refusals); read it through :meth:`rejected_counts`."""
+        self._rejected_lock = threading.Lock()
         self.odometry = OdometryEstimator(self.rover)
         self._status_pub = port.publisher(params.topic_command_status, String)
         self._odom_pub = port.publisher(params.topic_odom, Odometry)
@@ -156,10 +166,12 @@ class BridgeNode:
             params.link_config(),
             on_status=self._publish_status,
             on_telemetry=self._on_telemetry,
+            on_state=self._on_link_state,
             transport_factory=transport_factory,
         )
         self._odom_lock = threading.Lock()
         self._stop = threading.Event()
+        self._diag_now = threading.Event()
         self._diag_thread = threading.Thread(
             target=self._diagnostics_loop, name="bridge-diag", daemon=True
         )
@@ -183,6 +195,7 @@ class BridgeNode:
     def close(self) -> None:
         """Stop everything this node started (idempotent); the port stays open."""
         self._stop.set()
+        self._diag_now.set()
         for sub in self._subs:
             sub.close()
         if self._started:
@@ -207,7 +220,8 @@ class BridgeNode:
     def _on_wheel_instructions(self, msg: Int16MultiArray) -> None:
         step = validate_step(tuple(msg.data), self.rover)
         if isinstance(step, str):
-            self.rejected[step] += 1
+            with self._rejected_lock:
+                self.rejected[step] += 1
             logger.warning("wheel_instructions %s rejected: %s", list(msg.data), step)
             self._publish_status(f"rejected:{step}")
             return
@@ -278,10 +292,35 @@ class BridgeNode:
         """The link's diagnostics snapshot."""
         return self.link.diagnostics()
 
+    def rejected_counts(self) -> dict[str, int]:
+        """A copy of :attr:`rejected`, safe to read from any thread."""
+        with self._rejected_lock:
+            return dict(self.rejected)
+
+    def _on_link_state(self, state: LinkState) -> None:
+        """The link changed state: publish ``/diagnostics`` now, not at the next tick (on
+        the diagnostics thread, so the link's threads never wait on the ROS port)."""
+        self._diag_now.set()
+
+    def _publish_diagnostics(self) -> None:
+        try:
+            self._diag_pub.publish(
+                diagnostic_array(self.link.diagnostics(), _stamp(), rejected=self.rejected_counts())
+            )
+        except Exception:
+            logger.exception("publishing diagnostics failed")
+
     def _diagnostics_loop(self) -> None:
+        """Publish every ``1/diagnostics_hz`` s, on schedule, and at once on a link state
+        change (which leaves the schedule alone)."""
         period = 1.0 / self.params.diagnostics_hz
-        while not self._stop.wait(period):
-            try:
-                self._diag_pub.publish(diagnostic_array(self.link.diagnostics(), _stamp()))
-            except Exception:
-                logger.exception("publishing diagnostics failed")
+        next_tick = time.monotonic() + period
+        while not self._stop.is_set():
+            if self._diag_now.wait(max(0.0, next_tick - time.monotonic())):
+                self._diag_now.clear()
+            if self._stop.is_set():
+                return
+            now = time.monotonic()
+            if now >= next_tick:
+                next_tick = max(next_tick + period, now + period / 2)
+            self._publish_diagnostics()

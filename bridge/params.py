@@ -1,11 +1,13 @@
 """Bridge parameters: defaults, validation, and one place that decides precedence.
 
-:func:`load_params` merges, highest first: explicit overrides (command-line options or
-ROS parameters), environment variables ``ROVER_BRIDGE_<NAME>`` (upper case), a
-parameters file (TOML or JSON, flat ``name = value``; a ROS-style
-``[rover_bridge.ros__parameters]`` table is accepted too), then the defaults held in
-:class:`BridgeParams`. Every value is checked; a bad one raises
-:class:`~bridge.errors.ParameterError` naming the parameter and what it must be.
+:func:`load_params` merges, highest first: the command line (named options and
+``--param NAME=VALUE``), ROS parameters (``--ros-args``: ``-p name:=value`` over the
+node's sections of ``--params-file``, or the declared parameters of the rclpy node),
+environment variables ``ROVER_BRIDGE_<NAME>`` (upper case), a parameters file (TOML or
+JSON, flat ``name = value``; a ROS-style ``[rover_bridge.ros__parameters]`` table is
+accepted too), then the defaults held in :class:`BridgeParams`. Every value is checked;
+an unknown name or a bad value raises :class:`~bridge.errors.ParameterError` naming the
+parameter, where it came from and what it must be.
 
 The link goes to CAN when ``can_interface`` is set (``can://<interface>/<channel>`` with
 ``node_id``), else to ``device`` (a device path or any pyserial URL).
@@ -181,14 +183,16 @@ def _read_file(path: Path) -> dict[str, Any]:
 def load_params(
     overrides: Mapping[str, Any] | None = None,
     *,
+    ros: Mapping[str, Any] | None = None,
     env: Mapping[str, str] | None = None,
     file: str | Path | None = None,
 ) -> BridgeParams:
-    """Merge overrides > environment > file > defaults, then validate.
+    """Merge overrides > ROS parameters > environment > file > defaults, then validate.
 
     Args:
-        overrides: values from the command line or ROS parameters (``None`` values are
-            ignored, so unset options do not override).
+        overrides: values from the command line (``None`` values are ignored, so unset
+            options do not override). Strings are converted to the parameter's type.
+        ros: ROS parameters (``None`` values ignored), typed or as text.
         env: the environment (default ``os.environ``); only ``ROVER_BRIDGE_*`` is read.
         file: a TOML or JSON parameters file.
 
@@ -210,7 +214,8 @@ def load_params(
             },
         )
     )
-    layers.append(("override", {k: v for k, v in (overrides or {}).items() if v is not None}))
+    layers.append(("ROS parameter", {k: v for k, v in (ros or {}).items() if v is not None}))
+    layers.append(("command line", {k: v for k, v in (overrides or {}).items() if v is not None}))
     for source, layer in layers:
         for name, value in layer.items():
             if name not in _TYPES:

@@ -10,10 +10,24 @@
 
 A transport moves protocol messages, not bytes: it encodes with
 :mod:`firmware_proto.framing` or :mod:`firmware_proto.canmap` and decodes with their pure
-decoders. Its reader thread does I/O only: it reads, feeds the decoder, and hands each
-message with its arrival time to the callback; an I/O error ends the reader and is
-reported once through ``on_error`` (the link reconnects). Writes happen on the caller's
-thread under a lock, so a STOP is on the wire without waiting for any queue.
+decoders. Two threads per open transport:
+
+- the **reader** does I/O only: it reads, feeds the pure decoder, stamps each message
+  with its arrival time (``time.monotonic()``) and puts it on a bounded queue
+  (:attr:`Transport.rx_queue_depth`); it never runs a callback;
+- the **dispatcher** takes the messages off that queue in order and hands each to
+  ``on_message`` (the link's state machine, odometry, ROS publishing run here). An
+  exception in the callback is logged and the next message is dispatched.
+
+When the queue is full (the dispatcher fell behind), a sensor sample (ENCODERS,
+WHEEL_SPEEDS, IMU, POSE: the next one supersedes it) is dropped, counted in
+:attr:`Transport.rx_overflow` and logged (the first and every 100th at WARNING); any other
+message (HEARTBEAT, PROGRESS, STATUS, ACK, IDENT, STOP_ACK, CLEAR_ACK, FAULT, ...) is
+never dropped: the reader waits for room, which also stops it reading, so the OS buffers
+the device's bytes meanwhile. An I/O error ends the reader; it is reported once through
+``on_error``, on the dispatcher thread after every message received before it (the link
+reconnects). Writes happen on the caller's thread under a lock, so a STOP is on the wire
+without waiting for any queue.
 
 Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
 ``_write`` (one message) and ``_read`` (wait a little, return messages); set
@@ -27,6 +41,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import queue
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -38,9 +53,12 @@ from urllib.parse import parse_qs, urlsplit
 from bridge.errors import TransportError, TransportUrlError
 from firmware_proto.counters import RxCounters
 from firmware_proto.message import Message
+from firmware_proto.messages import Encoders, Imu, Pose, WheelSpeeds
 from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
 
 __all__ = [
+    "RX_QUEUE_DEPTH",
+    "SAMPLE_MESSAGES",
     "TRANSPORTS",
     "OnError",
     "OnMessage",
@@ -52,9 +70,22 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 OnMessage = Callable[[Message, float], None]
-"""Called on the reader thread with each message and its arrival (``time.monotonic()``)."""
+"""Called on the dispatcher thread with each message, in the order received, and its
+arrival (``time.monotonic()`` when the reader got it)."""
 OnError = Callable[[Exception], None]
-"""Called once, on the reader thread, when the transport fails."""
+"""Called once, on the dispatcher thread, when the transport fails (after every message
+received before the failure)."""
+
+RX_QUEUE_DEPTH = 2048
+"""Messages the reader may hold for the dispatcher by default: about 11 s of everything
+the controller sends at the protocol's rates (180 messages/s, docs/protocol.md), 2.8 s
+with the emulator at 4x or telemetry at 100 Hz: only a stalled dispatcher fills it."""
+
+SAMPLE_MESSAGES: tuple[type[Message], ...] = (Encoders, WheelSpeeds, Imu, Pose)
+"""Periodic sensor samples: the only messages dropped when the receive queue is full."""
+
+_POLL_S = 0.05
+"""How often the reader and the dispatcher look at the stop flag while they wait, s."""
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
     "can": ("bridge.can_transport", "CanTransport"),
@@ -67,6 +98,8 @@ class Transport(ABC):
     """A connection to the controller that carries protocol messages."""
 
     kind = "transport"
+    rx_queue_depth = RX_QUEUE_DEPTH
+    """Messages the reader may hold for the dispatcher (set before :meth:`open`)."""
 
     def __init__(self, url: str, recorder: TrafficRecorder | None = None) -> None:
         """Args:
@@ -79,9 +112,13 @@ class Transport(ABC):
         self._record_failed = False
         self.counters = RxCounters()
         self.tx_frames = 0
+        self.rx_overflow = 0
+        """Sensor samples dropped because the dispatcher fell behind (queue full)."""
         self._write_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._dispatcher: threading.Thread | None = None
+        self._rx: queue.Queue[tuple[Message, float] | Exception] = queue.Queue(1)
         self._opened = False
 
     @property
@@ -140,9 +177,15 @@ class Transport(ABC):
             raise TransportError(f"cannot open {self.url}: {exc}") from exc
         self._opened = True
         self._stop.clear()
-        self._thread = threading.Thread(
-            target=self._reader, args=(on_message, on_error), name=f"{self.kind}-rx", daemon=True
+        self._rx = queue.Queue(self.rx_queue_depth)
+        self._dispatcher = threading.Thread(
+            target=self._dispatch,
+            args=(on_message, on_error),
+            name=f"{self.kind}-dispatch",
+            daemon=True,
         )
+        self._thread = threading.Thread(target=self._reader, name=f"{self.kind}-rx", daemon=True)
+        self._dispatcher.start()
         self._thread.start()
 
     def send(self, message: Message) -> None:
@@ -161,14 +204,16 @@ class Transport(ABC):
             self.tx_frames += 1
 
     def close(self) -> None:
-        """Stop the reader and release the device (idempotent; safe from any thread)."""
+        """Stop the reader and the dispatcher and release the device (idempotent; safe
+        from any thread, the dispatcher's own included). Messages not yet dispatched are
+        discarded."""
         self._stop.set()
-        thread = self._thread
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(timeout=5.0)
-            if thread.is_alive():
-                logger.error("%s reader did not stop within 5 s", self.url)
-        self._thread = None
+        for thread in (self._thread, self._dispatcher):
+            if thread is not None and thread is not threading.current_thread():
+                thread.join(timeout=5.0)
+                if thread.is_alive():
+                    logger.error("%s: thread %s did not stop within 5 s", self.url, thread.name)
+        self._thread = self._dispatcher = None
         with self._write_lock:
             if self._opened:
                 self._opened = False
@@ -185,19 +230,73 @@ class Transport(ABC):
     ) -> None:
         self.close()
 
-    def _reader(self, on_message: OnMessage, on_error: OnError) -> None:
+    # -- the two threads ------------------------------------------------------------------
+    def _reader(self) -> None:
+        """Reader thread: read and decode (``_read``), stamp, queue. No callbacks."""
         while not self._stop.is_set():
             try:
-                received = self._read(0.05)
+                received = self._read(_POLL_S)
             except (OSError, ValueError) as exc:
                 if not self._stop.is_set():
                     logger.warning("%s: read failed: %s", self.url, exc)
-                    on_error(exc)
+                    self._put(exc)
                 return
             if received:
                 now = time.monotonic()
                 for message in received:
-                    on_message(message, now)
+                    if isinstance(message, SAMPLE_MESSAGES):
+                        try:
+                            self._rx.put_nowait((message, now))
+                        except queue.Full:
+                            self._overflow(message)
+                    else:
+                        self._put((message, now))
+
+    def _put(self, item: tuple[Message, float] | Exception) -> None:
+        """Queue ``item``, waiting for room as long as the transport is open."""
+        while not self._stop.is_set():
+            try:
+                self._rx.put(item, timeout=_POLL_S)
+                return
+            except queue.Full:
+                continue
+
+    def _overflow(self, message: Message) -> None:
+        self.rx_overflow += 1
+        level = (
+            logging.WARNING
+            if self.rx_overflow == 1 or self.rx_overflow % 100 == 0
+            else logging.DEBUG
+        )
+        logger.log(
+            level,
+            "%s: receive queue full (%d); %s dropped (%d sample(s) dropped so far)",
+            self.url,
+            self.rx_queue_depth,
+            message.NAME,
+            self.rx_overflow,
+        )
+
+    def _dispatch(self, on_message: OnMessage, on_error: OnError) -> None:
+        """Dispatcher thread: hand queued messages to ``on_message`` in order; report the
+        reader's failure through ``on_error`` once, after them."""
+        rx = self._rx
+        while True:
+            try:
+                item = rx.get(timeout=_POLL_S)
+            except queue.Empty:
+                if self._stop.is_set():
+                    return
+                continue
+            if self._stop.is_set():
+                return
+            if isinstance(item, Exception):
+                on_error(item)
+                return
+            try:
+                on_message(*item)
+            except Exception:
+                logger.exception("%s: handling %s failed; carrying on", self.url, item[0].NAME)
 
 
 def parse_can_url(url: str) -> tuple[str, str, dict[str, Any]]:

@@ -166,11 +166,12 @@ def test_stop_step_on_wheel_instructions_is_an_emergency_stop(bridged: Any) -> N
 def test_diagnostics_report_link_and_controller(bridged: Any) -> None:
     emu, _node, client = bridged
     client.status.wait(lambda _: len(client.diagnostics) >= 2, timeout=5)
-    link, controller = client.diagnostics[-1].status
-    assert (link.name, link.level, controller.name) == (
+    link, controller, inputs = client.diagnostics[-1].status
+    assert (link.name, link.level, controller.name, inputs.name) == (
         "rover_bridge: link",
         0,
         "rover_bridge: controller",
+        "rover_bridge: input",
     )
     keys = {kv.key for kv in link.values} | {kv.key for kv in controller.values}
     assert {
@@ -183,7 +184,10 @@ def test_diagnostics_report_link_and_controller(bridged: Any) -> None:
         "last_stop_latency_ms",
         "controller_state",
         "faults",
+        "missed_beats",
+        "rx_overflow",
     } <= keys
+    assert {kv.key for kv in inputs.values} >= {"rejected_total"}
     emu.inject("link-drop=1.0")
     client.status.wait(lambda xs: "fault:link_lost" in xs)
     n = len(client.diagnostics)

@@ -1,0 +1,207 @@
+"""``rover_bridge`` / ``rover bridge``: every parameter from the command line (``--param``)
+and from ``--ros-args`` on every backend; unknown or bad ones are usage errors (exit 2)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import pytest
+
+from bridge.cli_bridge import add_arguments, main, resolve_params
+from bridge.errors import ParameterError
+from bridge.params import BridgeParams
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="rover_bridge")
+    add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+def _resolve(own: list[str], ros: Sequence[str] = (), **env: str) -> BridgeParams:
+    params, _layer = resolve_params(_args(*own), ros, env=env)
+    return params
+
+
+def test_every_parameter_is_settable_with_param() -> None:
+    params = _resolve(
+        [
+            "--param",
+            "topic_odom=wheel_odom",
+            "--param",
+            "base_frame=rover_base",
+            "--param",
+            "diagnostics_hz=2.5",
+            "--param",
+            "auto_clear_watchdog=false",
+            "--param",
+            "can_interface=virtual",
+            "--param",
+            "node_id=0x7",
+        ]
+    )
+    assert params.topic_odom == "wheel_odom" and params.base_frame == "rover_base"
+    assert params.diagnostics_hz == 2.5 and params.auto_clear_watchdog is False
+    assert params.url == "can://virtual/can0?node=7"
+    # The named option wins over --param for the same parameter.
+    assert _resolve(["--param", "node_id=3", "--node", "4", "--can", "virtual:x"]).node_id == 4
+    # Every field has a way in: --param takes any of them.
+    for name, value in BridgeParams().to_dict().items():
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        assert getattr(_resolve(["--param", f"{name}={text}"]), name) == value, name
+
+
+@pytest.mark.parametrize(
+    ("argv", "complaint"),
+    [
+        (["--param", "nonsense=1"], "unknown parameter 'nonsense' (command line)"),
+        (["--param", "node_id=16"], "node_id: 16 is outside 1..15"),
+        (["--param", "heartbeat_hz=fast"], "heartbeat_hz (command line): 'fast'"),
+        (["--param", "auto_clear_watchdog=maybe"], "auto_clear_watchdog"),
+        (["--param", "topic_odom="], "topic_odom: empty topic name"),
+    ],
+)
+def test_bad_param_values_name_themselves(argv: list[str], complaint: str) -> None:
+    with pytest.raises(ParameterError, match=complaint.replace("(", r"\(").replace(")", r"\)")):
+        _resolve(argv)
+
+
+def test_param_needs_name_equals_value(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["--param", "node_id"])
+    assert exit_.value.code == 2
+    assert "--param needs NAME=VALUE" in capsys.readouterr().err
+
+
+def test_ros_p_sets_bridge_parameters_on_dds_and_inprocess() -> None:
+    for backend in ("dds", "inprocess"):
+        params = _resolve(
+            ["--ros-backend", backend],
+            ["-p", "node_id:=9", "-p", "can_interface:=virtual", "-p", "heartbeat_hz:=20"],
+        )
+        assert (params.node_id, params.can_interface, params.heartbeat_hz) == (9, "virtual", 20.0)
+    # The command line wins over ROS parameters, which win over the environment.
+    params = _resolve(
+        ["--node", "3"],
+        ["-p", "node_id:=9", "-p", "baud:=57600"],
+        ROVER_BRIDGE_BAUD="38400",
+        ROVER_BRIDGE_MOTION_RETRIES="5",
+    )
+    assert (params.node_id, params.baud, params.motion_retries) == (3, 57600, 5)
+    # The backend itself may come from -p.
+    assert _resolve([], ["-p", "ros_backend:=inprocess"]).ros_backend == "inprocess"
+    # The namespace remap places the node, unless a parameter says otherwise.
+    assert _resolve([], ["-r", "__ns:=/rover1"]).namespace == "/rover1"
+    assert _resolve([], ["-r", "__ns:=/"]).namespace == ""
+
+
+def test_ros_params_file_gives_the_node_its_sections(tmp_path: Path) -> None:
+    pytest.importorskip("yaml", reason="PyYAML (the ros-params extra, or ROS 2) is missing")
+    file = tmp_path / "params.yaml"
+    file.write_text(
+        "/**:\n"
+        "  ros__parameters:\n"
+        "    use_sim_time: false\n"
+        "    diagnostics_hz: 2.0\n"
+        "/**/rover_bridge:\n"
+        "  ros__parameters:\n"
+        "    topic_odom: wheel_odom\n"
+        "    auto_clear_watchdog: false\n"
+        "    motion_retries: 5\n"
+        "other_node:\n"
+        "  ros__parameters:\n"
+        "    nonsense: 1\n"
+        "renamed:\n"
+        "  ros__parameters:\n"
+        "    odom_frame: renamed_odom\n"
+    )
+    ros = ["--params-file", str(file), "-p", "motion_retries:=6"]
+    params = _resolve([], ros)
+    assert (params.topic_odom, params.auto_clear_watchdog, params.diagnostics_hz) == (
+        "wheel_odom",
+        False,
+        2.0,
+    )
+    assert params.motion_retries == 6  # -p after the file wins
+    assert params.odom_frame == "odom"  # another node's section
+    renamed, layer = resolve_params(
+        _args(), ["--params-file", str(file), "-r", "__node:=renamed"], env={}
+    )
+    assert layer.node_name == "renamed" and renamed.odom_frame == "renamed_odom"
+    assert renamed.topic_odom == "odom"  # the rover_bridge section is not this node's now
+
+
+def test_unknown_ros_parameters_are_refused_not_ignored(tmp_path: Path) -> None:
+    with pytest.raises(ParameterError, match=r"unknown parameter 'nonsense' \(ROS parameter\)"):
+        _resolve(["--ros-backend", "inprocess"], ["-p", "nonsense:=1"])
+    with pytest.raises(ParameterError, match="node_id: 99 is outside"):
+        _resolve(["--ros-backend", "dds"], ["-p", "node_id:=99"])
+    with pytest.raises(ParameterError, match="use_sim_time"):
+        _resolve([], ["-p", "use_sim_time:=true"])
+    with pytest.raises(ValueError, match="name:=value"):
+        _resolve([], ["-p", "node_id=3"])
+    with pytest.raises(FileNotFoundError, match=r"missing\.yaml"):
+        _resolve([], ["--params-file", str(tmp_path / "missing.yaml")])
+
+
+def test_rclpy_leaves_ros_parameters_to_the_node() -> None:
+    """On rclpy the node declares the parameters and rclpy reads --ros-args itself."""
+    params = _resolve(["--ros-backend", "rclpy"], ["-p", "nonsense:=1", "-p", "node_id:=99"])
+    assert params.node_id == 1
+    assert _resolve([], ["-p", "ros_backend:=rclpy", "-p", "nonsense:=1"]).ros_backend == "rclpy"
+
+
+def _run(*argv: str) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROVER_BRIDGE_")}
+    return subprocess.run(
+        [sys.executable, "-m", "bridge.cli_bridge", *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+        env=env,
+        check=False,
+    )
+
+
+def test_rover_bridge_process_takes_ros_parameters_on_inprocess(tmp_path: Path) -> None:
+    done = _run(
+        "--ros-backend",
+        "inprocess",
+        "--duration",
+        "0.2",
+        "--ros-args",
+        "-p",
+        "can_interface:=virtual",
+        "-p",
+        "can_channel:=cli-bridge-test",
+        "-p",
+        "node_id:=7",
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines()[0] == "BRIDGE can://virtual/cli-bridge-test?node=7 inprocess"
+
+
+@pytest.mark.parametrize(
+    ("argv", "complaint"),
+    [
+        (["--ros-args", "-p", "nonsense:=1"], "unknown parameter 'nonsense' (ROS parameter)"),
+        (["--ros-args", "-p", "node_id:=99"], "parameter node_id: 99 is outside 1..15"),
+        (["--param", "nonsense=1"], "unknown parameter 'nonsense' (command line)"),
+        (["--ros-args", "-p"], "ROS argument -p needs a value"),
+    ],
+)
+def test_rover_bridge_process_refuses_bad_parameters_with_exit_2(
+    argv: list[str], complaint: str
+) -> None:
+    done = _run("--ros-backend", "inprocess", "--device", "/nonexistent", *argv)
+    assert done.returncode == 2, done.stderr
+    assert f"rover_bridge: error: {complaint}" in done.stderr
+    assert "BRIDGE" not in done.stdout
