@@ -170,7 +170,8 @@ def ros_layer(ros_args: Sequence[str]) -> RosLayer:
         ValueError: a malformed ROS argument or parameters file, or PyYAML missing.
         OSError: a parameters file cannot be read.
     """
-    from firmware_proto.rosargs import load_parameters_file, node_parameters, parse_ros_args
+    from firmware_proto.cli_rosargs import load_parameters_file
+    from firmware_proto.rosargs import node_parameters, parse_ros_args
 
     parsed = parse_ros_args(ros_args)
     node = parsed.node_name or NODE_NAME
