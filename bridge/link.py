@@ -23,7 +23,7 @@ controller deduplicates retransmissions, so no step runs twice. At most
 refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
 ``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``.
 A changed boot nonce -> ``fault:controller_reboot``. A transport error -> reconnect with
-exponential backoff. In every one of these cases every step not yet settled (in the
+exponential backoff, which only a completed handshake resets. In every one of these cases every step not yet settled (in the
 controller, in flight, waiting in the lane) is dropped and gets its own fate, oldest
 first, each counted in ``steps_aborted``: ``aborted:link_lost``,
 ``aborted:controller_reboot`` or ``aborted:schema_mismatch``; then one
@@ -125,7 +125,8 @@ class LinkConfig:
         heartbeat_s: HOST_HEARTBEAT period, s (also the HELLO repeat period).
         controller_heartbeat_s: the controller's heartbeat period, s.
         link_lost_beats: controller heartbeats missed before the link is lost.
-        reconnect_min_s, reconnect_max_s: reconnect backoff bounds, s (doubling).
+        reconnect_min_s, reconnect_max_s: reconnect backoff bounds, s (doubling with
+            every failed open or failure before a completed handshake).
         controller_queue: steps allowed outstanding in the controller.
         lane_limit: steps the bridge holds waiting to be sent; more are rejected.
         auto_clear_watchdog: after the link comes back, clear a latch whose only cause
@@ -486,7 +487,6 @@ class ControllerLink:
                 transport.close()
                 return
             self._transport = transport
-            self._backoff = self.config.reconnect_min_s
             self._set_state(LinkState.HANDSHAKE)
             self._hello_sent = False
             self._last_hello = 0.0
@@ -514,10 +514,16 @@ class ControllerLink:
             self._counters.reconnects += 1
             self._set_state(LinkState.DISCONNECTED)
             self._heartbeat = None
-            self._reconnect_at = time.monotonic() + self.config.reconnect_min_s
+            # The backoff is reset by a completed handshake only: a medium that opens and
+            # fails again at once (a CAN bus going bus-off repeatedly, a flapping socket)
+            # backs off like one that cannot be opened.
+            self._reconnect_at = time.monotonic() + self._backoff
             self._drop_all("aborted:link_lost")
             self._emit("fault:link_lost")
-            logger.warning("link to %s failed: %s; reconnecting", self.config.url, exc)
+            logger.warning(
+                "link to %s failed: %s; reconnecting in %.1f s", self.config.url, exc, self._backoff
+            )
+            self._backoff = min(self.config.reconnect_max_s, self._backoff * 2)
         transport.close()
         self._flush()
 
@@ -788,6 +794,7 @@ class ControllerLink:
             return  # unsolicited (a boot IDENT): the session starts with our HELLO's answer
         if self._state in (LinkState.HANDSHAKE, LinkState.MISMATCH, LinkState.LOST):
             self._set_state(LinkState.READY)
+            self._backoff = self.config.reconnect_min_s
             self._ended_seen = 0  # the controller counts per session
             self._last_hb_rx = time.monotonic()
             logger.info(

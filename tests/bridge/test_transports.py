@@ -90,6 +90,8 @@ class TcpRelay:
         self._client: socket.socket | None = None
         self._lock = threading.Lock()
         self.accepted = 0
+        self.flaps = 0
+        """Connections still to be closed as soon as they are accepted (a flapping line)."""
         self._stop = threading.Event()
         self._reset = threading.Event()
         self._thread = threading.Thread(target=self._run, name="tcp-relay", daemon=True)
@@ -131,10 +133,14 @@ class TcpRelay:
             for source in ready:
                 if source is self._server:
                     conn, _ = self._server.accept()
+                    self.accepted += 1
+                    if self.flaps > 0:
+                        self.flaps -= 1
+                        conn.close()
+                        continue
                     self._close_client()
                     with self._lock:
                         self._client = conn
-                    self.accepted += 1
                 elif source is self._device:
                     data = self._device.read(self._device.in_waiting or 1)
                     self._to_client(data)
@@ -368,6 +374,41 @@ def test_link_drives_the_emulator_over_socket_url_and_reconnects(
     diag = link.diagnostics()
     assert diag.reconnects == 1 and "disconnected" in diag.last_error
     _drive_after_outage(link, rec, StepRequest(FWD, 60, 2300))
+
+
+def _reconnect_delays(caplog: pytest.LogCaptureFixture) -> list[float]:
+    """The delays the link announced before each reconnect attempt, s, in order."""
+    return [
+        float(r.args[-1])  # type: ignore[index, arg-type]
+        for r in caplog.records
+        if r.name == "bridge.link" and ("retry in" in r.msg or "reconnecting in" in r.msg)
+    ]
+
+
+def test_reconnect_backoff_grows_while_the_line_flaps_and_a_handshake_resets_it(
+    emulators: Emus,
+    relays: Callable[[str | None], TcpRelay],
+    links: Links,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A line that opens and fails at once (a flapping ser2net, a CAN bus going bus-off
+    again and again) is retried with the same doubling backoff as one that cannot be
+    opened, not every ``reconnect_min_s``; a completed handshake resets it."""
+    caplog.set_level(logging.INFO, logger="bridge.link")
+    emu = emulators()
+    relay = relays(_pty(emu))
+    relay.flaps = 4
+    link, rec = links(relay.url, reconnect_min_s=0.1, reconnect_max_s=0.4, **RELAYED)
+    rec.wait_count("ready", 1)
+    assert relay.accepted == 5
+    assert _reconnect_delays(caplog) == [0.1, 0.2, 0.4, 0.4]
+    caplog.clear()
+    mark = rec.mark()
+    relay.drop()
+    rec.wait(_lost_then_ready, since=mark)
+    assert _reconnect_delays(caplog) == [0.1]  # the handshake reset it
+    link.submit_step(StepRequest(FWD, 60, 2300))
+    rec.wait(lambda xs: "completed" in xs or any("rejected" in x for x in xs), since=mark)
 
 
 def test_spy_url_wraps_the_emulator_pty(
