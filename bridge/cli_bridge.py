@@ -227,7 +227,8 @@ def resolve_params(
 
 def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
-    0, or 2 for a bad parameter or ROS argument (reported on stderr as ``prog: error:``).
+    0, or 2 for a bad parameter, a malformed device URL or a bad ROS argument (reported
+    on stderr as ``prog: error:``).
 
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
     (:func:`firmware_proto.rosargs.split_ros_args`).
@@ -235,9 +236,11 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     from bridge.node import BridgeNode
     from bridge.params import load_params, ros_parameters
     from bridge.rosport import loopback_config, open_port
+    from bridge.transport import open_transport
 
     try:
         params, layer = resolve_params(args, ros_args)
+        open_transport(params.url)  # a malformed device URL is a usage error too
     except (OSError, ValueError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

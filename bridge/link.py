@@ -23,11 +23,11 @@ controller deduplicates retransmissions, so no step runs twice. At most
 refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
 ``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``.
 A changed boot nonce -> ``fault:controller_reboot``. A transport error -> reconnect with
-exponential backoff, which only a completed handshake resets. In every one of these cases every step not yet settled (in the
-controller, in flight, waiting in the lane) is dropped and gets its own fate, oldest
-first, each counted in ``steps_aborted``: ``aborted:link_lost``,
-``aborted:controller_reboot`` or ``aborted:schema_mismatch``; then one
-``fault:<reason>`` reports the link event itself. No stale motion is ever replayed.
+exponential backoff, which only a completed handshake resets. In every one of these
+cases every step not yet settled (in the controller, in flight, waiting in the lane) is
+dropped and gets its own fate, oldest first, each counted in ``steps_aborted``:
+``aborted:link_lost``, ``aborted:controller_reboot`` or ``aborted:schema_mismatch``;
+then one ``fault:<reason>`` reports the link event itself. No stale motion is ever replayed.
 
 Threads: the transport's dispatcher thread calls in with messages (its reader thread
 only reads and decodes, :mod:`bridge.transport`); one timer thread runs the periodic

@@ -136,6 +136,10 @@ class BridgeNode:
 
         With ``params.record`` set (and no ``link`` given), every frame of the link goes to
         that traffic log, which the node closes with itself.
+
+        Raises:
+            TransportUrlError: ``params.url`` is malformed (checked before the traffic
+                log is created, so a refused URL leaves no file behind).
         """
         self.params = params
         self.port = port
@@ -151,6 +155,7 @@ class BridgeNode:
         self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray)
         self.recorder: LogWriter | None = None
         if link is None and params.record:
+            open_transport(params.url)  # a malformed URL raises here, before the file exists
             self.recorder = open_recorder(
                 params.record,
                 "can" if params.can_interface else "serial",

@@ -205,3 +205,21 @@ def test_rover_bridge_process_refuses_bad_parameters_with_exit_2(
     assert done.returncode == 2, done.stderr
     assert f"rover_bridge: error: {complaint}" in done.stderr
     assert "BRIDGE" not in done.stdout
+
+
+@pytest.mark.parametrize(
+    ("device", "complaint"),
+    [
+        ("socket://nohost", "socket:// needs HOST:PORT"),
+        ("gopher://rover", "unknown"),
+    ],
+)
+def test_a_malformed_device_url_is_a_usage_error_and_records_nothing(
+    tmp_path: Path, device: str, complaint: str
+) -> None:
+    log = tmp_path / "traffic.rlog"
+    done = _run("--ros-backend", "inprocess", "--device", device, "--record", str(log))
+    assert done.returncode == 2, done.stderr
+    assert "rover_bridge: error:" in done.stderr and complaint in done.stderr
+    assert "BRIDGE" not in done.stdout
+    assert not log.exists()
