@@ -171,14 +171,11 @@ def ros_layer(ros_args: Sequence[str]) -> RosLayer:
         OSError: a parameters file cannot be read.
     """
     from firmware_proto.cli_rosargs import load_parameters_file
-    from firmware_proto.rosargs import node_parameters, parse_ros_args
+    from firmware_proto.rosargs import parse_ros_args, ros_node_parameters
 
     parsed = parse_ros_args(ros_args)
     node = parsed.node_name or NODE_NAME
-    params: dict[str, Any] = {}
-    for path in parsed.params_files:
-        params.update(node_parameters(load_parameters_file(path), node, parsed.namespace or ""))
-    params.update(parsed.params)
+    params = ros_node_parameters(parsed, NODE_NAME, load_parameters_file)
     if parsed.namespace is not None and "namespace" not in params:
         params["namespace"] = "" if not parsed.namespace.strip("/") else parsed.namespace
     return RosLayer(params, node)

@@ -26,6 +26,7 @@ __all__ = [
     "node_parameters",
     "parameters_to_argv",
     "parse_ros_args",
+    "ros_node_parameters",
     "split_ros_args",
 ]
 
@@ -201,10 +202,26 @@ def argv_from_ros_args(
     Raises:
         ValueError: malformed ROS arguments or parameters file.
     """
-    parsed = parse_ros_args(ros_args)
+    return parameters_to_argv(ros_node_parameters(parse_ros_args(ros_args), default_node, load))
+
+
+def ros_node_parameters(
+    parsed: RosArgs, default_node: str, load: Callable[[str], Any]
+) -> dict[str, Any]:
+    """One node's parameters from parsed ROS arguments: its sections of each
+    ``--params-file`` in order, then every ``-p``, later ones winning.
+
+    Args:
+        parsed: the parsed ROS arguments (:func:`parse_ros_args`).
+        default_node: the node name when the arguments do not remap ``__node``.
+        load: reads one parameters file into a document; called once per file.
+
+    Raises:
+        ValueError: a malformed parameters file.
+    """
     node = parsed.node_name or default_node
     params: dict[str, Any] = {}
     for path in parsed.params_files:
         params.update(node_parameters(load(path), node, parsed.namespace or ""))
     params.update(parsed.params)
-    return parameters_to_argv(params)
+    return params
