@@ -1,23 +1,26 @@
 """STOP latency through the bridge, beside the pty round trip; sustained steps/s.
 
-Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick]``
+Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick] [--dds]``
 
-The emulator serves the controller on a real pty in real time; the bridge's
-ControllerLink (and its ROS node on the in-process port) drives it. For every trial
-the rover is moving, then a STOP is requested, and two latencies are taken on one
-monotonic clock (everything runs in this process, so no clock skew):
+The emulator serves the controller on a real pty in real time, in a process of its own
+as ``rover emulate`` does on a bench (in one process its control thread and the bridge
+would share the interpreter lock, whose 5 ms switch interval adds tails that a real
+controller never sees). The bridge's ControllerLink (and its ROS node) drives it. For
+every trial the rover is moving, then a STOP is requested, and two latencies are taken
+on CLOCK_MONOTONIC, which every process of the machine shares (``time.monotonic()``):
 
 - (a) request -> the STOP frame's last byte written to the device by the bridge;
-- (b) request -> the emulator's wheel targets at zero (its control thread handled it).
+- (b) request -> the emulator's wheel targets at zero (its control thread handled it;
+  the emulator process reports when).
 
 The request is an API call (``ControllerLink.emergency_stop``) or a ROS message on
 ``emergency_stop`` published by another node: on the in-process port (same process), or
 over Cyclone DDS from another process (``--dds``, which needs the private loopback
-network namespace of the tests; the publisher stamps its request on CLOCK_MONOTONIC,
-which all processes of the machine share). Idle means one long step running; load
-means the motion queue full and telemetry at 100 Hz. The pty round trip (15 bytes there
-and back through pyserial) is measured in the same run: it is the floor for (b). The
-thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
+network namespace of the tests; the publisher stamps its request on the same clock).
+Idle means one long step running; load means the motion queue full and telemetry at
+100 Hz. The pty round trip (15 bytes there and back through pyserial) is measured in the
+same run: it is the floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99
+< 1 ms.
 
 Run the DDS case inside the namespace::
 
@@ -35,6 +38,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from functools import partial
 
 from benchmarks.common import pty_round_trip, summary, table
 from bridge.link import ControllerLink, LinkConfig, StepRequest
@@ -97,8 +101,92 @@ def _published(publish: Callable[[Bool], None]) -> Request:
     return request
 
 
+class EmulatorProcess:
+    """The emulator serving a pty in a child process (``--emulator-child``), driven over
+    its stdin and stdout: one command line, one answer line."""
+
+    def __init__(self, seed: int) -> None:
+        self._child = subprocess.Popen(
+            [sys.executable, "-m", "benchmarks.bench_bridge", "--emulator-child", f"--seed={seed}"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self._child.stdin is not None
+        assert self._child.stdout is not None
+        self._stdin, self._stdout = self._child.stdin, self._child.stdout
+        word, _, device = self._stdout.readline().strip().partition(" ")
+        if word != "DEVICE":
+            self.close()
+            raise RuntimeError("the emulator process did not start")
+        self.device = device
+
+    def _ask(self, line: str) -> str:
+        self._stdin.write(line + "\n")
+        self._stdin.flush()
+        answer = self._stdout.readline().strip()
+        if not answer:
+            raise RuntimeError(f"the emulator process ended (asked {line!r})")
+        return answer
+
+    def telemetry(self, hz: float) -> None:
+        """Set the controller's telemetry rate, Hz."""
+        self._ask(f"hz {hz}")
+
+    def stops(self) -> int:
+        """How many STOP frames the emulator has handled so far."""
+        return int(self._ask("count"))
+
+    def stop_handled(self, index: int, timeout_s: float = 5.0) -> float | None:
+        """``time.monotonic()`` when the emulator's STOP number ``index`` (from 0) had
+        zeroed the wheel targets; None if it did not come within ``timeout_s``."""
+        answer = self._ask(f"wait {index} {timeout_s}")
+        return None if answer == "none" else float(answer)
+
+    def close(self) -> None:
+        self._stdin.close()
+        try:
+            self._child.wait(10)
+        except subprocess.TimeoutExpired:
+            self._child.kill()
+            self._child.wait(10)
+        self._stdout.close()
+
+    def __enter__(self) -> EmulatorProcess:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+def emulator_child(seed: int) -> int:
+    """Child process: the emulator on a pty; prints ``DEVICE <path>``, then answers
+    ``hz N``, ``count`` and ``wait INDEX TIMEOUT`` lines from stdin until it closes."""
+    rover = load_rover()
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=seed)
+    with Emulator(model, SerialFrontEnd(seed=seed)) as emu:
+        assert isinstance(emu.frontend, SerialFrontEnd)
+        print("DEVICE", emu.frontend.device, flush=True)
+        for line in sys.stdin:
+            verb, *args = line.split()
+            if verb == "hz":
+                emu.call(partial(setattr, emu.model, "telemetry_hz", float(args[0])))
+                print("ok", flush=True)
+            elif verb == "count":
+                print(len(emu.stop_handled), flush=True)
+            elif verb == "wait":
+                index, deadline = int(args[0]), time.monotonic() + float(args[1])
+                while len(emu.stop_handled) <= index and time.monotonic() < deadline:
+                    time.sleep(0.002)
+                handled = emu.stop_handled[index] if len(emu.stop_handled) > index else None
+                print("none" if handled is None else repr(handled), flush=True)
+            else:
+                print(f"error: unknown command {verb!r}", flush=True)
+    return 0
+
+
 def _trials(
-    emu: Emulator,
+    emu: EmulatorProcess,
     link: ControllerLink,
     statuses: Statuses,
     request: Request,
@@ -107,21 +195,19 @@ def _trials(
     rng: random.Random,
 ) -> tuple[list[float], list[float]]:
     written, zeroed = [], []
-    emu.call(lambda: setattr(emu.model, "telemetry_hz", 100 if load else 50))
+    emu.telemetry(100 if load else 50)
     for _ in range(trials):
         mark = statuses.mark()
         for _ in range(8 if load else 1):
             link.submit_step(StepRequest(Command.FWD, 60, 30000))
         statuses.wait("accepted", mark)
         time.sleep(rng.uniform(0.05, 0.25))  # STOP at a random moment of the motion
-        handled_before = len(emu.stop_handled)
+        before = emu.stops()
         t0 = request()
-        deadline = time.monotonic() + 5.0
-        while len(emu.stop_handled) == handled_before and time.monotonic() < deadline:
-            time.sleep(0.001)
-        if link.last_stop_written is not None and len(emu.stop_handled) > handled_before:
+        handled = emu.stop_handled(before)
+        if link.last_stop_written is not None and handled is not None:
             written.append(link.last_stop_written - t0)
-            zeroed.append(emu.stop_handled[-1] - t0)
+            zeroed.append(handled - t0)
         mark = statuses.mark()
         link.clear_stop()
         statuses.wait("cleared", mark)
@@ -170,9 +256,12 @@ def main(argv: list[str] | None = None) -> int:
         "another process (needs the private loopback network namespace)",
     )
     parser.add_argument("--stop-publisher", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--emulator-child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.stop_publisher:
         return stop_publisher()
+    if args.emulator_child:
+        return emulator_child(args.seed)
     if args.trials < 1:
         parser.error("--trials must be >= 1")
     trials, ros_trials = (3, 3) if args.quick else (args.trials, max(20, args.trials // 2))
@@ -183,11 +272,9 @@ def main(argv: list[str] | None = None) -> int:
         ("pty round trip (15 B there and back, pyserial)", summary(pty_round_trip(rtt_samples)))
     ]
 
-    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=args.seed)
-    with Emulator(model, SerialFrontEnd(seed=args.seed)) as emu:
-        assert isinstance(emu.frontend, SerialFrontEnd)
+    with EmulatorProcess(args.seed) as emu:
         statuses = Statuses()
-        link = ControllerLink(LinkConfig(emu.frontend.device), on_status=statuses)
+        link = ControllerLink(LinkConfig(emu.device), on_status=statuses)
         with link:
             statuses.wait("ready", 0)
             for load in (False, True):
@@ -198,10 +285,8 @@ def main(argv: list[str] | None = None) -> int:
             rate = steps_per_second(link, statuses, steps)
 
     # The ROS path: another node publishes on emergency_stop; the bridge node relays.
-    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=args.seed)
-    with Emulator(model, SerialFrontEnd(seed=args.seed)) as emu:
-        assert isinstance(emu.frontend, SerialFrontEnd)
-        params = load_params({"device": emu.frontend.device, "ros_backend": "inprocess"}, env={})
+    with EmulatorProcess(args.seed) as emu:
+        params = load_params({"device": emu.device, "ros_backend": "inprocess"}, env={})
         with (
             open_port("inprocess", node_name="bridge", bus="bench") as bport,
             open_port("inprocess", node_name="operator", bus="bench") as oport,
@@ -248,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
 
     print(
         table(
-            "STOP latency through the bridge (real pty, emulator in real time)",
+            "STOP latency through the bridge (real pty, emulator in real time in its own process)",
             rows,
             note=(
                 "Thesis figure: 8.4 +/- 1.2 ms detection to activation. Target: p99 < 1 ms end to end "
@@ -285,10 +370,8 @@ def _dds_rows(
 ) -> list[tuple[str, dict[str, float]]]:
     """The bridge on the dds backend in this process; the STOP from another process."""
     rows: list[tuple[str, dict[str, float]]] = []
-    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=seed)
-    with Emulator(model, SerialFrontEnd(seed=seed)) as emu:
-        assert isinstance(emu.frontend, SerialFrontEnd)
-        params = load_params({"device": emu.frontend.device, "ros_backend": "dds"}, env={})
+    with EmulatorProcess(seed) as emu:
+        params = load_params({"device": emu.device, "ros_backend": "dds"}, env={})
         config = loopback_config()
         with (
             open_port("dds", node_name="rover_bridge", config=config) as bport,
