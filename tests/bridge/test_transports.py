@@ -294,7 +294,7 @@ def test_rover_bridge_exits_at_once_on_a_malformed_url() -> None:
         timeout=60,
         check=False,
     )
-    assert proc.returncode == 1, proc.stderr
+    assert proc.returncode == 2, proc.stderr  # a usage error, as any bad parameter
     assert "socket:// needs HOST:PORT" in proc.stderr
     assert "BRIDGE" not in proc.stdout
 
