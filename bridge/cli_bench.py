@@ -43,7 +43,7 @@ def register(subparsers: Any) -> None:
             "at --telemetry-hz; on CAN a second sender floods the bus with lowest-priority "
             "frames. Prints p50/p95/p99/max per measure and writes stop_trials.csv, "
             "stop_trials.json and stop_hist.png into --out. Exit status 0 when every trial "
-            "passed every check. THE ROVER MOVES: put it on blocks or give it 1.5 m."
+            "passed every check. THE ROVER MOVES: put it on blocks or give it 3 m."
         ),
         epilog=(
             "examples:\n"

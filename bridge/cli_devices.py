@@ -79,7 +79,10 @@ def register_udev(subparsers: Any) -> None:
     p.add_argument(
         "--source",
         metavar="DIR",
-        help="where our files are (default: the checkout's udev/, else the install's)",
+        help=(
+            "where our files are (default: $ROVER_UDEV_DIR, else the checkout's udev/, "
+            "else the install's)"
+        ),
     )
     p.add_argument("--errors-only", action="store_true", help="ignore warnings")
     p.set_defaults(func=_cmd_check)
@@ -141,7 +144,10 @@ def register_udev(subparsers: Any) -> None:
     p.add_argument(
         "--source",
         metavar="DIR",
-        help="where our files are (default: the checkout's udev/, else the install's)",
+        help=(
+            "where our files are (default: $ROVER_UDEV_DIR, else the checkout's udev/, "
+            "else the install's)"
+        ),
     )
     p.set_defaults(func=_cmd_install)
 

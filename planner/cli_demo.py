@@ -22,7 +22,7 @@ def register(subparsers: Any) -> None:
             "direct plan collides, the orchestrator repairs it into a detour), drive it, inject "
             "slip on one leg so that drift control stops the rover, re-plan from the rover's "
             "reported pose and finish. Prints a summary and writes a picture of the predicted "
-            "against the actual trajectory. About two minutes in real time (--speed 4: under one). "
+            "against the actual trajectory. About 80 s in real time (--speed 4: under one minute). "
             "Ctrl-C or SIGTERM cancels: the rover is sent STOP, the processes are stopped."
         ),
     )
