@@ -601,6 +601,12 @@ class ControllerLink:
             if step.sends > self.config.motion_retries:
                 self._inflight = None
                 self._counters.no_ack_faults += 1
+                # Steps already in the controller are older: their fates come first.
+                older = list(self._in_controller.values())
+                self._in_controller.clear()
+                for _ in older:
+                    self._counters.steps_aborted += 1
+                    self._emit("aborted:link_lost")
                 self._counters.steps_aborted += 1
                 self._emit("fault:no_ack")
                 self._lose(f"MOTION seq {step.seq} not acknowledged after {step.sends} tries")

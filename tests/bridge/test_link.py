@@ -248,6 +248,25 @@ def test_no_ack_after_retries_is_a_fault(emulators: Emus, links: Links) -> None:
     emu.inject("clear:link-delay")
 
 
+def test_no_ack_fate_follows_the_fates_of_older_steps(emulators: Emus, links: Links) -> None:
+    """A step the controller already holds is older than the one that got no ACK: its
+    ``aborted:link_lost`` comes first, so a client matching fates to steps in order gives
+    ``fault:no_ack`` to the right step (docs/bridge.md: every fate, oldest first)."""
+    emu = emulators()
+    link, rec = links(link_url(emu), ack_timeout_s=0.01, motion_retries=2)
+    rec.wait_count("ready", 1)
+    link.submit_step(StepRequest(FWD, 60, 30000))  # ~1.3 m: still running at the loss
+    rec.wait_count("accepted", 1)
+    mark = rec.mark()
+    emu.inject("link-delay=0.2")  # the next MOTION's ACKs come long after 3 tries
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    got = rec.wait(lambda xs: "fault:link_lost" in xs, since=mark)
+    emu.inject("clear:link-delay")
+    settled = got[: got.index("fault:link_lost") + 1]
+    assert settled == ["aborted:link_lost", "fault:no_ack", "fault:link_lost"], got
+    assert link.diagnostics().steps_aborted == 2
+
+
 def test_transport_registry() -> None:
     assert parse_can_url("can://socketcan/vcan0?node=3&bitrate=500000") == (
         "socketcan",
