@@ -32,7 +32,7 @@ then one ``fault:<reason>`` reports the link event itself. No stale motion is ev
 Threads: the transport's dispatcher thread calls in with messages (its reader thread
 only reads and decodes, :mod:`bridge.transport`); one timer thread runs the periodic
 work; any thread may call the API. State is guarded by one lock; callbacks run outside
-it, in the order their events happened.
+it, one at a time, in the order their events happened.
 """
 
 from __future__ import annotations
@@ -259,12 +259,14 @@ class ControllerLink:
     ) -> None:
         """Args:
         config: link parameters.
-        on_status: every ``/command_status`` string, in order.
+        on_status: every ``/command_status`` string, in order, one at a time (a status
+            may be handed out by a link thread still delivering earlier ones, after the
+            call that caused it returned).
         on_telemetry: every message from the controller with its arrival time
             (``time.monotonic()``), on the transport's dispatcher thread.
-        on_state: the new :class:`LinkState` at every change, in order, on the thread
-            that made the change (timer or dispatcher), outside the lock; it must not
-            block.
+        on_state: the new :class:`LinkState` at every change, in order, outside the
+            lock, on the thread that made the change or on one of the link's threads
+            still delivering earlier events; it must not block.
         transport_factory: builds the (unopened) transport for a URL.
         protocol_version, schema_hash: what this host speaks (tests change them).
 
@@ -310,6 +312,7 @@ class ControllerLink:
         self._last_error = ""
         self._counters = _Counters()
         self._outbox: list[str | LinkState] = []
+        self._delivering = False  # a thread is in _flush handing out the outbox
         self._failure: tuple[Transport, Exception] | None = None
         self._ctrl_latched = False
         self._ctrl_state: int | None = None
@@ -601,6 +604,12 @@ class ControllerLink:
             if step.sends > self.config.motion_retries:
                 self._inflight = None
                 self._counters.no_ack_faults += 1
+                # Steps already in the controller are older: their fates come first.
+                older = list(self._in_controller.values())
+                self._in_controller.clear()
+                for _ in older:
+                    self._counters.steps_aborted += 1
+                    self._emit("aborted:link_lost")
                 self._counters.steps_aborted += 1
                 self._emit("fault:no_ack")
                 self._lose(f"MOTION seq {step.seq} not acknowledged after {step.sends} tries")
@@ -898,18 +907,35 @@ class ControllerLink:
         self._outbox.append(status)
 
     def _flush(self) -> None:
-        """Deliver the statuses and state changes queued under the lock, in order."""
+        """Deliver the statuses and state changes queued under the lock, in order.
+
+        One thread delivers at a time, outside the lock: a thread that finds another
+        delivering leaves its items to it (they are later than the ones being delivered),
+        so two threads never hand out their statuses interleaved."""
         with self._lock:
-            out, self._outbox = self._outbox, []
-        for item in out:
-            try:
-                if isinstance(item, LinkState):
-                    if self._on_state is not None:
-                        self._on_state(item)
-                else:
-                    self._on_status(item)
-            except Exception:
-                logger.exception("link callback failed for %r", item)
+            if self._delivering:
+                return
+            self._delivering = True
+        try:
+            while True:
+                with self._lock:
+                    out, self._outbox = self._outbox, []
+                    if not out:
+                        self._delivering = False
+                        return
+                for item in out:
+                    try:
+                        if isinstance(item, LinkState):
+                            if self._on_state is not None:
+                                self._on_state(item)
+                        else:
+                            self._on_status(item)
+                    except Exception:
+                        logger.exception("link callback failed for %r", item)
+        except BaseException:
+            with self._lock:
+                self._delivering = False
+            raise
 
     # -- diagnostics ---------------------------------------------------------------------------
     def diagnostics(self) -> LinkDiagnostics:

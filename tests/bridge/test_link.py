@@ -5,6 +5,7 @@ sense on every medium are parametrized over :data:`~tests.bridge.conftest.MEDIA`
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -246,6 +247,61 @@ def test_no_ack_after_retries_is_a_fault(emulators: Emus, links: Links) -> None:
     got = rec.wait(lambda xs: "fault:no_ack" in xs)
     assert "fault:link_lost" in got
     emu.inject("clear:link-delay")
+
+
+def test_no_ack_fate_follows_the_fates_of_older_steps(emulators: Emus, links: Links) -> None:
+    """A step the controller already holds is older than the one that got no ACK: its
+    ``aborted:link_lost`` comes first, so a client matching fates to steps in order gives
+    ``fault:no_ack`` to the right step (docs/bridge.md: every fate, oldest first)."""
+    emu = emulators()
+    link, rec = links(link_url(emu), ack_timeout_s=0.01, motion_retries=2)
+    rec.wait_count("ready", 1)
+    link.submit_step(StepRequest(FWD, 60, 30000))  # ~1.3 m: still running at the loss
+    rec.wait_count("accepted", 1)
+    mark = rec.mark()
+    emu.inject("link-delay=0.2")  # the next MOTION's ACKs come long after 3 tries
+    link.submit_step(StepRequest(FWD, 60, 30000))
+    got = rec.wait(lambda xs: "fault:link_lost" in xs, since=mark)
+    emu.inject("clear:link-delay")
+    settled = got[: got.index("fault:link_lost") + 1]
+    assert settled == ["aborted:link_lost", "fault:no_ack", "fault:link_lost"], got
+    assert link.diagnostics().steps_aborted == 2
+
+
+def test_statuses_keep_their_order_while_a_subscriber_is_slow(emulators: Emus) -> None:
+    """Statuses from two threads: while the dispatcher is still handing out the fates of
+    a reboot (its subscriber slow), a step refused on the caller's thread is reported
+    after them, not in the middle (the link's contract: in the order events happened)."""
+    emu = emulators()
+    rec = Recorder()
+    slow, release = threading.Event(), threading.Event()
+
+    def on_status(text: str) -> None:
+        rec(text)
+        if text == "aborted:controller_reboot" and not slow.is_set():
+            slow.set()
+            assert release.wait(10.0), "the test never released the subscriber"
+
+    link = ControllerLink(LinkConfig(link_url(emu)), on_status=on_status)
+    with link:
+        rec.wait_count("ready", 1)
+        link.submit_step(StepRequest(FWD, 60, 30000))
+        link.submit_step(StepRequest(FWD, 60, 30000))
+        rec.wait_count("accepted", 2)
+        mark = rec.mark()
+        emu.inject("reboot")
+        assert slow.wait(10.0)
+        link.submit_step(StepRequest(FWD, 30, 100))  # handshaking again: refused
+        release.set()
+        got = rec.wait(
+            lambda xs: "rejected:link_down" in xs and "fault:controller_reboot" in xs, since=mark
+        )
+    assert got[:4] == [
+        "aborted:controller_reboot",
+        "aborted:controller_reboot",
+        "fault:controller_reboot",
+        "rejected:link_down",
+    ], got
 
 
 def test_transport_registry() -> None:
