@@ -314,6 +314,7 @@ class ControllerLink:
         self._outbox: list[str | LinkState] = []
         self._delivering = False  # a thread is in _flush handing out the outbox
         self._failure: tuple[Transport, Exception] | None = None
+        self._opening: Transport | None = None  # being opened by _connect
         self._ctrl_latched = False
         self._ctrl_state: int | None = None
         self._ended_seen = 0
@@ -477,31 +478,41 @@ class ControllerLink:
     def _connect(self) -> None:
         try:
             transport = self._factory(self.config.url)
-            transport.open(self._on_message, lambda exc: self._report_failure(transport, exc))
+            opening = transport
+            with self._lock:
+                # A failure reported while open() is still running (the reader may fail
+                # before open() returns) is kept, not ignored: see _report_failure.
+                self._opening = opening
+            transport.open(self._on_message, lambda exc: self._report_failure(opening, exc))
         except TransportError as exc:
             with self._lock:
+                self._opening = None
                 self._last_error = str(exc)
                 self._reconnect_at = time.monotonic() + self._backoff
                 logger.info("connect failed (%s); retry in %.1f s", exc, self._backoff)
                 self._backoff = min(self.config.reconnect_max_s, self._backoff * 2)
             return
         with self._lock:
-            if self._stopping.is_set():
-                transport.close()
-                return
-            self._transport = transport
-            self._set_state(LinkState.HANDSHAKE)
-            self._hello_sent = False
-            self._last_hello = 0.0
-            self._last_hb_rx = None
-            logger.info("connected to %s; handshaking", self.config.url)
+            self._opening = None
+            stopping = self._stopping.is_set()
+            if not stopping:
+                self._transport = transport
+                self._set_state(LinkState.HANDSHAKE)
+                self._hello_sent = False
+                self._last_hello = 0.0
+                self._last_hb_rx = None
+                logger.info("connected to %s; handshaking", self.config.url)
+        if stopping:
+            transport.close()  # outside the lock: it joins the dispatcher, which may want it
+            return
         self._flush()
 
     def _report_failure(self, transport: Transport, exc: Exception) -> None:
         """Any thread: the transport failed. The timer thread handles it (it may have to
         join the reader thread, which must never happen with the state lock held)."""
         with self._lock:
-            if self._transport is transport and self._failure is None:
+            current = self._transport is transport or self._opening is transport
+            if current and self._failure is None:
                 self._failure = (transport, exc)
         self._wake.set()
 

@@ -411,6 +411,54 @@ def test_reconnect_backoff_grows_while_the_line_flaps_and_a_handshake_resets_it(
     rec.wait(lambda xs: "completed" in xs or any("rejected" in x for x in xs), since=mark)
 
 
+class _OpensAfterItsReaderFailed(SerialTransport):
+    """A real serial transport whose ``open`` returns only once its reader has reported
+    a failure: the moment a line that dies at once gives the link, made certain."""
+
+    def open(self, on_message: Callable[[Message, float], None], on_error: Any) -> None:
+        reported = threading.Event()
+
+        def report(exc: Exception) -> None:
+            on_error(exc)
+            reported.set()
+
+        super().open(on_message, report)
+        assert reported.wait(10.0), "the reader did not fail"
+
+
+def test_a_failure_reported_while_the_transport_opens_is_not_lost(
+    emulators: Emus,
+    relays: Callable[[str | None], TcpRelay],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The reader may fail before ``open`` returns; the link handles that failure (and
+    reconnects) instead of keeping a dead transport until a write fails."""
+    caplog.set_level(logging.INFO, logger="bridge.link")
+    emu = emulators()
+    relay = relays(_pty(emu))
+    relay.flaps = 1
+    rec = Recorder()
+    made: list[str] = []
+
+    def factory(url: str) -> SerialTransport:
+        made.append(url)
+        return _OpensAfterItsReaderFailed(url) if len(made) <= 2 else SerialTransport(url)
+
+    link = ControllerLink(
+        LinkConfig(relay.url, reconnect_min_s=0.05, **RELAYED),  # type: ignore[arg-type]
+        on_status=rec,
+        transport_factory=factory,
+    )
+    with link:
+        rec.wait_count("ready", 1)
+    failures = [
+        r.getMessage()
+        for r in caplog.records
+        if r.name == "bridge.link" and "reconnecting in" in r.msg
+    ]
+    assert len(failures) == 1 and "disconnected" in failures[0], failures
+
+
 def test_spy_url_wraps_the_emulator_pty(
     capfd: pytest.CaptureFixture[str], emulators: Emus, links: Links
 ) -> None:
