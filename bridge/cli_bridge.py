@@ -203,7 +203,8 @@ def resolve_params(
     and the parameters file (:func:`bridge.params.load_params`).
 
     On the rclpy backend the ROS parameters are left to rclpy (the node declares them,
-    :func:`bridge.params.ros_parameters`); only ``-p ros_backend:=...`` is read here.
+    :func:`bridge.params.ros_parameters`); they are only checked here, and only
+    ``-p ros_backend:=...`` is taken.
 
     Raises:
         ParameterError: an unknown parameter or a bad value; names it and its source.
@@ -215,10 +216,12 @@ def resolve_params(
     layer = ros_layer(ros_args) if ros_args else RosLayer()
     ros = _bridge_parameters(layer.params)
     overrides = _overrides(args)
-    backend = {"ros_backend": ros["ros_backend"]} if "ros_backend" in ros else {}
-    params = load_params(overrides, ros=backend, env=env, file=args.params_file)
-    if params.ros_backend != "rclpy":
-        params = load_params(overrides, ros=ros, env=env, file=args.params_file)
+    # Every ROS parameter is checked here, on every backend: rclpy would silently ignore
+    # a name the node never declares.
+    params = load_params(overrides, ros=ros, env=env, file=args.params_file)
+    if params.ros_backend == "rclpy":
+        backend = {"ros_backend": ros["ros_backend"]} if "ros_backend" in ros else {}
+        params = load_params(overrides, ros=backend, env=env, file=args.params_file)
     return params, layer
 
 
@@ -254,9 +257,14 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     ) as port:
         if params.ros_backend == "rclpy":
             # ROS parameters sit between the command line and the environment.
-            params = load_params(
-                _overrides(args), ros=ros_parameters(port, params), file=args.params_file
-            )
+            try:
+                params = load_params(
+                    _overrides(args), ros=ros_parameters(port, params), file=args.params_file
+                )
+                open_transport(params.url)
+            except (OSError, ValueError) as exc:
+                print(f"{prog}: error: {exc}", file=sys.stderr)
+                return 2
         with BridgeNode(params, port):
             print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
             done.wait(args.duration if args.duration > 0 else None)

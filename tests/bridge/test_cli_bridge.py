@@ -151,11 +151,16 @@ def test_unknown_ros_parameters_are_refused_not_ignored(tmp_path: Path) -> None:
         _resolve([], ["--params-file", str(tmp_path / "missing.yaml")])
 
 
-def test_rclpy_leaves_ros_parameters_to_the_node() -> None:
-    """On rclpy the node declares the parameters and rclpy reads --ros-args itself."""
-    params = _resolve(["--ros-backend", "rclpy"], ["-p", "nonsense:=1", "-p", "node_id:=99"])
-    assert params.node_id == 1
-    assert _resolve([], ["-p", "ros_backend:=rclpy", "-p", "nonsense:=1"]).ros_backend == "rclpy"
+def test_rclpy_leaves_ros_parameters_to_the_node_but_checks_them() -> None:
+    """On rclpy the node declares the parameters and rclpy reads --ros-args itself; they
+    are still checked first, since rclpy would ignore a name the node never declares."""
+    params = _resolve(["--ros-backend", "rclpy"], ["-p", "node_id:=7"])
+    assert params.node_id == 1  # rclpy's to read
+    assert _resolve([], ["-p", "ros_backend:=rclpy"]).ros_backend == "rclpy"
+    with pytest.raises(ParameterError, match="unknown parameter 'nonsense'"):
+        _resolve(["--ros-backend", "rclpy"], ["-p", "nonsense:=1"])
+    with pytest.raises(ParameterError, match="node_id"):
+        _resolve([], ["-p", "ros_backend:=rclpy", "-p", "node_id:=99"])
 
 
 def _run(*argv: str) -> subprocess.CompletedProcess[str]:
