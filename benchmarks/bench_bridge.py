@@ -33,12 +33,14 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import select
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
 from functools import partial
+from typing import IO
 
 from benchmarks.common import pty_round_trip, summary, table
 from bridge.link import ControllerLink, LinkConfig, StepRequest
@@ -101,6 +103,15 @@ def _published(publish: Callable[[Bool], None]) -> Request:
     return request
 
 
+def _readline(stream: IO[str], timeout_s: float, what: str) -> str:
+    """One line from a child process's stdout (each of our children answers one line per
+    request, so nothing waits in the reader's buffer), or TimeoutError."""
+    ready, _, _ = select.select([stream], [], [], timeout_s)
+    if not ready:
+        raise TimeoutError(f"no answer from {what} within {timeout_s} s")
+    return stream.readline()
+
+
 class EmulatorProcess:
     """The emulator serving a pty in a child process (``--emulator-child``), driven over
     its stdin and stdout: one command line, one answer line."""
@@ -115,7 +126,12 @@ class EmulatorProcess:
         assert self._child.stdin is not None
         assert self._child.stdout is not None
         self._stdin, self._stdout = self._child.stdin, self._child.stdout
-        word, _, device = self._stdout.readline().strip().partition(" ")
+        try:
+            first = _readline(self._stdout, 30.0, "the emulator process")
+        except TimeoutError:
+            self.close()
+            raise
+        word, _, device = first.strip().partition(" ")
         if word != "DEVICE":
             self.close()
             raise RuntimeError("the emulator process did not start")
@@ -124,7 +140,7 @@ class EmulatorProcess:
     def _ask(self, line: str) -> str:
         self._stdin.write(line + "\n")
         self._stdin.flush()
-        answer = self._stdout.readline().strip()
+        answer = _readline(self._stdout, 30.0, "the emulator process").strip()
         if not answer:
             raise RuntimeError(f"the emulator process ended (asked {line!r})")
         return answer
@@ -202,11 +218,16 @@ def _trials(
             link.submit_step(StepRequest(Command.FWD, 60, 30000))
         statuses.wait("accepted", mark)
         time.sleep(rng.uniform(0.05, 0.25))  # STOP at a random moment of the motion
-        before = emu.stops()
+        before, previous = emu.stops(), link.last_stop_written
         t0 = request()
         handled = emu.stop_handled(before)
-        if link.last_stop_written is not None and handled is not None:
-            written.append(link.last_stop_written - t0)
+        # The emulator may handle the STOP a moment before the writing thread stamps it.
+        deadline = time.monotonic() + 1.0
+        while link.last_stop_written == previous and time.monotonic() < deadline:
+            time.sleep(0.0005)
+        written_at = link.last_stop_written
+        if written_at is not None and written_at != previous and handled is not None:
+            written.append(written_at - t0)
             zeroed.append(handled - t0)
         mark = statuses.mark()
         link.clear_stop()
@@ -391,7 +412,7 @@ def _dds_rows(
                 assert child.stdin is not None
                 assert child.stdout is not None
                 stdin, stdout = child.stdin, child.stdout
-                if stdout.readline().strip() != "READY":
+                if _readline(stdout, 60.0, "the DDS STOP publisher").strip() != "READY":
                     raise RuntimeError("the DDS STOP publisher did not match the bridge")
                 deadline = time.monotonic() + 10.0
                 while not node.link.ready and time.monotonic() < deadline:
@@ -400,7 +421,7 @@ def _dds_rows(
                 def request() -> float:
                     stdin.write("go\n")
                     stdin.flush()
-                    return float(stdout.readline())
+                    return float(_readline(stdout, 10.0, "the DDS STOP publisher"))
 
                 for load in (False, True):
                     written, zeroed = _trials(emu, node.link, statuses, request, trials, load, rng)
