@@ -43,6 +43,7 @@ from functools import partial
 from typing import IO
 
 from benchmarks.common import pty_round_trip, summary, table
+from bridge.interpreter import use_short_switch_interval
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.node import BridgeNode
 from bridge.params import load_params
@@ -287,6 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--trials must be >= 1")
     trials, ros_trials = (3, 3) if args.quick else (args.trials, max(20, args.trials // 2))
     rtt_samples, steps = (200, 30) if args.quick else (2000, 300)
+    use_short_switch_interval()  # as rover bridge does (bridge/interpreter.py)
     rng = random.Random(args.seed)
     rover = load_rover()
     rows = [

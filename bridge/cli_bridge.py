@@ -233,6 +233,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
     (:func:`firmware_proto.rosargs.split_ros_args`).
     """
+    from bridge.interpreter import use_short_switch_interval
     from bridge.node import BridgeNode
     from bridge.params import load_params, ros_parameters
     from bridge.rosport import loopback_config, open_port
@@ -249,6 +250,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
         options["config"] = loopback_config() if args.dds_config == "loopback" else args.dds_config
     if params.ros_backend == "rclpy" and ros_args:
         options["args"] = ["--ros-args", *ros_args]
+    use_short_switch_interval()  # a STOP must not wait 5 ms for the interpreter lock
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -192,6 +192,8 @@ def test_rover_bridge_process_takes_ros_parameters_on_inprocess(tmp_path: Path) 
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines()[0] == "BRIDGE can://virtual/cli-bridge-test?node=7 inprocess"
+    # The process asks for short interpreter slices, so a STOP never waits 5 ms for one.
+    assert "thread switch interval 0.0005 s (was 0.0050 s)" in done.stderr
 
 
 @pytest.mark.parametrize(
