@@ -5,10 +5,10 @@ CPython lets a thread hold the interpreter lock for up to ``sys.getswitchinterva
 arrives on one thread (a ROS callback) while others (the transport's dispatcher with
 odometry, the link's timer, the ROS port's own threads) run Python too, so the default
 lets a STOP wait up to 5 ms for a turn. The bridge process therefore asks for slices of
-:data:`SWITCH_INTERVAL_S`: measured with ``benchmarks/bench_bridge.py`` (200 trials,
-ROS message on the in-process port, motion queue full and telemetry at 100 Hz), the
-STOP -> wheel targets zero p99 went from 3.7 ms to 0.69 ms; the bridge is not CPU-bound,
-so the extra switching costs it nothing measurable.
+:data:`SWITCH_INTERVAL_S`. Measured with ``benchmarks/bench_bridge.py``, one run of
+each on a 2-core machine (100 trials, a ROS message on the in-process port, the motion
+queue full and telemetry at 100 Hz): STOP -> wheel targets zero p95 2.0 -> 0.55 ms, p99
+3.7 -> 0.69 ms. The bridge is not CPU-bound, so the extra switching costs it little.
 
 Process-wide: only the bridge's entry points (and the benchmark that stands for them)
 call :func:`use_short_switch_interval`; importing this module changes nothing.
