@@ -25,7 +25,6 @@ bench, a test script) speaks the protocol differently, and the differences will 
 from __future__ import annotations
 
 import contextlib
-import difflib
 import logging
 import os
 import select
@@ -49,11 +48,13 @@ from firmware_proto.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     CanRecord,
-    DecodedRecord,
     Difference,
     SerialRecord,
     TrafficRecord,
+    counts_before,
     decode_records,
+    diff_texts,
+    log_node,
 )
 
 __all__ = ["BridgeReplayOptions", "BridgeReplayResult", "replay_into_bridge"]
@@ -136,20 +137,6 @@ def _requests(messages: list[Message]) -> list[str]:
         if not out or out[-1] != text:
             out.append(text)
     return out
-
-
-def _compare(recorded: list[str], replayed: list[str]) -> list[Difference]:
-    matcher = difflib.SequenceMatcher(a=recorded, b=replayed, autojunk=False)
-    differences: list[Difference] = []
-    for tag, i1, i2, j1, j2 in matcher.get_opcodes():
-        if tag == "equal":
-            continue
-        for k in range(max(i2 - i1, j2 - j1)):
-            exp = recorded[i1 + k] if i1 + k < i2 else None
-            act = replayed[j1 + k] if j1 + k < j2 else None
-            name = (exp or act or "?").split(" ", 1)[0]
-            differences.append(Difference(name, min(i1 + k, len(recorded)), exp, act))
-    return differences
 
 
 class _Controller:
@@ -326,17 +313,6 @@ def _play_on_time(controller: _Controller, records: list[TrafficRecord], offset:
         controller.play(record)
 
 
-def _node(decoded: list[DecodedRecord]) -> int:
-    nodes = Counter(
-        d.node
-        for d in decoded
-        if d.message is not None
-        and d.direction == HOST_TO_CONTROLLER
-        and d.node not in (None, BROADCAST_NODE)
-    )
-    return int(nodes.most_common(1)[0][0]) if nodes else DEFAULT_NODE
-
-
 def replay_into_bridge(
     log: LogFile, options: BridgeReplayOptions | None = None
 ) -> BridgeReplayResult:
@@ -349,7 +325,7 @@ def replay_into_bridge(
     """
     opts = options or BridgeReplayOptions()
     decoded = decode_records(log.records)
-    node = (opts.node or _node(decoded)) if log.kind == "can" else None
+    node = (opts.node or log_node(decoded)) if log.kind == "can" else None
     pairs = [
         (rec, d)
         for rec, d in zip(log.records, decoded, strict=False)
@@ -382,37 +358,27 @@ def replay_into_bridge(
             inputs.append((rec.time_s, m))  # type: ignore[arg-type]
 
     # What the operator had seen before each input: answers by type.
-    answers_timed = sorted(
-        (rec.time_s, d.message.NAME)
-        for rec, d in ctrl
-        if d.message is not None and d.message.PRIORITY != "telemetry"
+    input_needs = counts_before(
+        (
+            (rec.time_s, d.message.NAME)
+            for rec, d in ctrl
+            if d.message is not None and d.message.PRIORITY != "telemetry"
+        ),
+        (t for t, _ in inputs),
     )
-    input_needs: list[Counter[str]] = []
-    seen_answers: Counter[str] = Counter()
-    j = 0
-    for t, _ in inputs:
-        while j < len(answers_timed) and answers_timed[j][0] < t:
-            seen_answers[answers_timed[j][1]] += 1
-            j += 1
-        input_needs.append(Counter(seen_answers))
 
     # What the controller waited for before each of its frames: requests by type.
-    needs: list[Counter[str]] = []
-    count: Counter[str] = Counter()
-    requests_timed = sorted(
-        (rec.time_s, d.message.NAME)
-        for rec, d in host
-        if d.message is not None and d.message.PRIORITY != "telemetry"
-    )
-    i = 0
     # PROGRESS sums up the STATUS frames before it: it goes in their lane, in order.
     answers = [(rec, d) for rec, d in ctrl if d.message and not _own_time(d.message)]
     telemetry = [rec for rec, d in ctrl if d.message and _own_time(d.message)]
-    for rec, _ in answers:
-        while i < len(requests_timed) and requests_timed[i][0] < rec.time_s:
-            count[requests_timed[i][1]] += 1
-            i += 1
-        needs.append(Counter(count))
+    needs = counts_before(
+        (
+            (rec.time_s, d.message.NAME)
+            for rec, d in host
+            if d.message is not None and d.message.PRIORITY != "telemetry"
+        ),
+        (rec.time_s for rec, _ in answers),
+    )
 
     started = time.monotonic()
     statuses: list[str] = []
@@ -482,7 +448,7 @@ def replay_into_bridge(
         recorded_requests=len(recorded_requests),
         replayed_requests=len(replayed_requests),
         statuses=tuple(statuses),
-        differences=tuple(_compare(recorded_requests, replayed_requests)),
+        differences=tuple(diff_texts(recorded_requests, replayed_requests)),
         duration_s=time.monotonic() - started,
     )
 

@@ -54,22 +54,22 @@ from emulator.worldmap import load_map
 from firmware_proto.canmap import CanDecoder
 from firmware_proto.framing import FrameDecoder
 from firmware_proto.message import Message
-from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
 from firmware_proto.rover import load_rover
 from firmware_proto.trafficio import LogFile
 from firmware_proto.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     CanRecord,
-    DecodedRecord,
     Difference,
     SerialRecord,
     TrafficRecord,
     TrafficRecorder,
     answer_key,
     compare_answers,
+    counts_before,
     decode_records,
     is_answer,
+    log_node,
 )
 
 __all__ = ["MAX_SETTLE_S", "ReplayOptions", "ReplayResult", "replay_into_emulator"]
@@ -312,19 +312,6 @@ class _CanHost(_Host):
         self.bus.shutdown()
 
 
-def _log_node(decoded: list[DecodedRecord]) -> int:
-    """The node the log's host talked to: the most common non-broadcast node of its
-    host-to-controller frames."""
-    nodes = Counter(
-        d.node
-        for d in decoded
-        if d.message is not None
-        and d.direction == HOST_TO_CONTROLLER
-        and d.node not in (None, BROADCAST_NODE)
-    )
-    return int(nodes.most_common(1)[0][0]) if nodes else DEFAULT_NODE
-
-
 def _telemetry_counts(messages: list[Message]) -> dict[str, int]:
     return dict(
         Counter(
@@ -350,26 +337,6 @@ def _send_on_time(host: _Host, records: list[TrafficRecord], offset: float) -> N
         if delay > 0:
             time.sleep(delay)
         host.send(rec)
-
-
-def _answers_before(
-    host_records: list[TrafficRecord], ours: list[DecodedRecord], t_first: float
-) -> list[Counter[str]]:
-    """For each host frame, the recorded answers (by type, from ``t_first``) that came
-    before it: what the replay waits for before sending it."""
-    answers = sorted(
-        (d.time_s, d.message.NAME) for d in ours if d.message is not None and is_answer(d.message)
-    )
-    needs: list[Counter[str]] = []
-    seen: Counter[str] = Counter()
-    i = 0
-    for rec in host_records:
-        while i < len(answers) and answers[i][0] < rec.time_s:
-            if answers[i][0] >= t_first:
-                seen[answers[i][1]] += 1
-            i += 1
-        needs.append(Counter(seen))
-    return needs
 
 
 def _pair_at_the_edges(
@@ -424,7 +391,7 @@ def replay_into_emulator(
     """
     opts = options or ReplayOptions()
     decoded = decode_records(log.records)
-    node = (opts.node or _log_node(decoded)) if log.kind == "can" else None
+    node = (opts.node or log_node(decoded)) if log.kind == "can" else None
     host_records = [rec for rec in log.records if rec.direction == HOST_TO_CONTROLLER]
     if not host_records:
         raise ValueError(f"{log.path}: no host-to-controller frame to replay")
@@ -440,7 +407,16 @@ def replay_into_emulator(
     ]
     tail = max((d.time_s for d in ours), default=t_last) - t_last
     window = min(MAX_SETTLE_S, max(0.0, tail))
-    needs = _answers_before(host_records, ours, t_first)
+    # For each host frame, the recorded answers (by type) that came before it: what the
+    # replay waits for before sending it.
+    needs = counts_before(
+        (
+            (d.time_s, d.message.NAME)
+            for d in ours
+            if d.message is not None and is_answer(d.message)
+        ),
+        (rec.time_s for rec in host_records),
+    )
     is_beat = [_is_heartbeat(rec) for rec in host_records]
     recorded_timed = [
         (d.time_s - t_first, d.message)

@@ -31,6 +31,7 @@ direction of a frame follows from its identifier, so CAN logs need no direction 
 from __future__ import annotations
 
 import difflib
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -39,7 +40,7 @@ from firmware_proto.canmap import CanDecoder
 from firmware_proto.errors import DecodeError
 from firmware_proto.framing import FrameDecoder
 from firmware_proto.message import Message
-from firmware_proto.messages import CAN_NODE_BITS, MESSAGE_TYPES
+from firmware_proto.messages import BROADCAST_NODE, CAN_NODE_BITS, DEFAULT_NODE, MESSAGE_TYPES
 
 __all__ = [
     "CONTROLLER_TO_HOST",
@@ -56,10 +57,13 @@ __all__ = [
     "TrafficRecorder",
     "answer_key",
     "compare_answers",
+    "counts_before",
     "decode_records",
+    "diff_texts",
     "format_serial_record",
     "is_answer",
     "is_serial_log",
+    "log_node",
     "message_direction",
     "parse_serial_log",
     "serial_log_header",
@@ -391,15 +395,61 @@ def compare_answers(
                 target.setdefault(message.NAME, []).append(answer_key(message, strict))
     differences: list[Difference] = []
     for name in sorted(set(by_type_expected) | set(by_type_actual)):
-        a = by_type_expected.get(name, [])
-        b = by_type_actual.get(name, [])
-        matcher = difflib.SequenceMatcher(a=a, b=b, autojunk=False)
-        for tag, i1, i2, j1, j2 in matcher.get_opcodes():
-            if tag == "equal":
-                continue
-            pairs = max(i2 - i1, j2 - j1)
-            for k in range(pairs):
-                exp = a[i1 + k] if i1 + k < i2 else None
-                act = b[j1 + k] if j1 + k < j2 else None
-                differences.append(Difference(name, min(i1 + k, len(a)), exp, act))
+        differences += diff_texts(
+            by_type_expected.get(name, []), by_type_actual.get(name, []), name=name
+        )
     return differences
+
+
+def diff_texts(
+    expected: Sequence[str], actual: Sequence[str], *, name: str | None = None
+) -> list[Difference]:
+    """The differences between two sequences of message texts, in order, paired where
+    they were replaced (:class:`difflib.SequenceMatcher` without autojunk).
+
+    Args:
+        expected, actual: the recorded and the replayed texts.
+        name: the message type of every text; ``None``: each difference is named by
+            the first word of its text (``Message.describe`` starts with the name).
+    """
+    differences: list[Difference] = []
+    matcher = difflib.SequenceMatcher(a=expected, b=actual, autojunk=False)
+    for tag, i1, i2, j1, j2 in matcher.get_opcodes():
+        if tag == "equal":
+            continue
+        for k in range(max(i2 - i1, j2 - j1)):
+            exp = expected[i1 + k] if i1 + k < i2 else None
+            act = actual[j1 + k] if j1 + k < j2 else None
+            label = name if name is not None else (exp or act or "?").split(" ", 1)[0]
+            differences.append(Difference(label, min(i1 + k, len(expected)), exp, act))
+    return differences
+
+
+def log_node(decoded: Iterable[DecodedRecord]) -> int:
+    """The CAN node a log's host talked to: the most common non-broadcast node of its
+    host-to-controller frames (:data:`~firmware_proto.messages.DEFAULT_NODE` if none)."""
+    nodes = Counter(
+        d.node
+        for d in decoded
+        if d.message is not None
+        and d.direction == HOST_TO_CONTROLLER
+        and d.node not in (None, BROADCAST_NODE)
+    )
+    return int(nodes.most_common(1)[0][0]) if nodes else DEFAULT_NODE
+
+
+def counts_before(
+    events: Iterable[tuple[float, str]], times: Iterable[float]
+) -> list[Counter[str]]:
+    """For each of ``times`` (ascending), how many ``events`` ``(time, name)`` of each
+    name came strictly before it: what a replay waits for before its next frame."""
+    ordered = sorted(events)
+    out: list[Counter[str]] = []
+    seen: Counter[str] = Counter()
+    i = 0
+    for t in times:
+        while i < len(ordered) and ordered[i][0] < t:
+            seen[ordered[i][1]] += 1
+            i += 1
+        out.append(Counter(seen))
+    return out

@@ -14,6 +14,7 @@ from firmware_proto.errors import DecodeError
 from firmware_proto.framing import encode_frame
 from firmware_proto.message import Message
 from firmware_proto.messages import (
+    DEFAULT_NODE,
     Ack,
     AckField,
     AckResult,
@@ -38,10 +39,13 @@ from firmware_proto.trafficlog import (
     SerialRecord,
     answer_key,
     compare_answers,
+    counts_before,
     decode_records,
+    diff_texts,
     format_serial_record,
     is_answer,
     is_serial_log,
+    log_node,
     message_direction,
     parse_serial_log,
     serial_log_header,
@@ -197,3 +201,30 @@ def test_a_changed_missing_or_extra_answer_is_a_difference() -> None:
     )
     requests: list[Message] = [Hello(1, 2)]
     assert compare_answers([], requests) == []  # requests are never compared
+
+
+def test_counts_before_counts_each_name_strictly_before_each_time() -> None:
+    events = [(2.0, "ACK"), (1.0, "ACK"), (3.0, "STATUS"), (3.0, "ACK")]
+    needs = counts_before(events, [0.5, 2.0, 3.0, 9.0])
+    assert needs == [{}, {"ACK": 1}, {"ACK": 2}, {"ACK": 3, "STATUS": 1}]
+
+
+def test_diff_texts_names_each_difference_by_its_type_or_its_first_word() -> None:
+    recorded = ["HELLO v=1", "MOTION seq=1", "STOP id=1"]
+    replayed = ["HELLO v=1", "MOTION seq=2", "STOP id=1", "CLEAR_STOP id=1"]
+    assert diff_texts(recorded, replayed) == [
+        Difference("MOTION", 1, "MOTION seq=1", "MOTION seq=2"),
+        Difference("CLEAR_STOP", 3, None, "CLEAR_STOP id=1"),
+    ]
+    assert [d.name for d in diff_texts(["a"], ["b"], name="ACK")] == ["ACK"]
+    assert diff_texts(recorded, list(recorded)) == []
+
+
+def test_log_node_is_the_node_the_host_addressed_most() -> None:
+    def frame(node: int, message: Message) -> CanRecord:
+        arbitration_id, data = encode_can(message, node)
+        return CanRecord(1.0, "can0", arbitration_id, data, is_rx=False)
+
+    records = [frame(3, Hello(1, 0x1234)), frame(3, Stop(1, 0)), frame(5, Stop(2, 0))]
+    assert log_node(decode_records(records)) == 3
+    assert log_node([]) == DEFAULT_NODE  # nothing addressed
