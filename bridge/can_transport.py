@@ -42,6 +42,7 @@ from bridge.transport import Transport, parse_can_url
 from firmware_proto.canmap import CanDecoder, encode_can
 from firmware_proto.message import Message
 from firmware_proto.messages import DEFAULT_NODE
+from firmware_proto.trafficio import can_record
 from firmware_proto.trafficlog import CanRecord, TrafficRecorder
 
 __all__ = [
@@ -248,18 +249,8 @@ class CanTransport(Transport):
         if frame is None:
             return []
         if self.recorder is not None:
-            self._record(
-                CanRecord(
-                    frame.timestamp or time.time(),
-                    self.channel,
-                    frame.arbitration_id,
-                    bytes(frame.data),
-                    is_rx=True,
-                    is_extended_id=frame.is_extended_id,
-                    is_remote_frame=frame.is_remote_frame,
-                    is_error_frame=frame.is_error_frame,
-                )
-            )
+            received_at = frame.timestamp or time.time()
+            self._record(can_record(frame, self.channel, is_rx=True, time_s=received_at))
         if frame.is_error_frame:
             self._on_error_frame(frame)
             return []

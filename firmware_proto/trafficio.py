@@ -61,6 +61,7 @@ __all__ = [
     "LogFile",
     "LogWriter",
     "SerialLogWriter",
+    "can_record",
     "parse_log",
     "writer_for",
 ]
@@ -309,17 +310,25 @@ def _in_time_order(records: Iterable[TrafficRecord]) -> tuple[TrafficRecord, ...
     return tuple(sorted(records, key=lambda r: r.time_s))  # stable: ties keep file order
 
 
-def _can_record(msg: can.Message) -> CanRecord:
+def can_record(msg: can.Message, channel: str, *, is_rx: bool, time_s: float) -> CanRecord:
+    """The traffic record of a python-can frame (data, identifier and flags from ``msg``;
+    where, which way and when from the caller, who knows them best)."""
     return CanRecord(
-        time_s=float(msg.timestamp),
-        channel=str(msg.channel) if msg.channel is not None else "",
+        time_s=time_s,
+        channel=channel,
         arbitration_id=msg.arbitration_id,
         data=bytes(msg.data),
-        is_rx=bool(msg.is_rx),
+        is_rx=is_rx,
         is_extended_id=msg.is_extended_id,
         is_remote_frame=msg.is_remote_frame,
         is_error_frame=msg.is_error_frame,
     )
+
+
+def _logged_can_record(msg: can.Message) -> CanRecord:
+    """A frame read back from a CAN log, as the log has it."""
+    channel = str(msg.channel) if msg.channel is not None else ""
+    return can_record(msg, channel, is_rx=bool(msg.is_rx), time_s=float(msg.timestamp))
 
 
 def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
@@ -356,7 +365,7 @@ def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
             )
         with fmt.stream(stream) as wrapped:
             try:
-                records = [_can_record(msg) for msg in fmt.reader(wrapped)]
+                records = [_logged_can_record(msg) for msg in fmt.reader(wrapped)]
             except (ValueError, IndexError, struct.error, BLFParseError) as exc:
                 raise ValueError(f"{path}: malformed {fmt.name} log: {exc}") from exc
     return LogFile(path, "can", _in_time_order(records))
