@@ -32,9 +32,14 @@ import serial
 
 from bridge.errors import TransportUrlError
 from bridge.transport import Transport
-from firmware_proto.framing import FrameDecoder, FrameEncoder, encode_raw_frame
+from firmware_proto.framing import FrameDecoder, FrameEncoder
 from firmware_proto.message import Message
-from firmware_proto.trafficlog import SerialRecord, TrafficRecorder, message_direction
+from firmware_proto.trafficlog import (
+    SerialRecord,
+    TrafficRecorder,
+    message_direction,
+    received_serial_records,
+)
 
 __all__ = ["DEFAULT_BAUD", "SerialTransport", "split_serial_url"]
 
@@ -222,10 +227,6 @@ class SerialTransport(Transport):
             return []
         frames = self._decoder.feed(data)
         if self.recorder is not None and frames:
-            now = time.time()
-            for frame in frames:
-                msg = frame.message
-                # A valid frame re-encodes to exactly the bytes that carried it.
-                wire = encode_raw_frame(msg.MSG_ID, frame.seq, msg.pack(strict=False))
-                self._record(SerialRecord(now, message_direction(msg), wire))
+            for record in received_serial_records(frames, time.time()):
+                self._record(record)
         return [frame.message for frame in frames]

@@ -54,7 +54,7 @@ from bridge.errors import TransportError, TransportUrlError
 from firmware_proto.counters import RxCounters
 from firmware_proto.message import Message
 from firmware_proto.messages import Encoders, Imu, Pose, WheelSpeeds
-from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
+from firmware_proto.trafficlog import RecordingEdge, TrafficRecorder
 
 __all__ = [
     "RX_QUEUE_DEPTH",
@@ -94,7 +94,7 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
 """Transport kind -> (module, class), imported when first used."""
 
 
-class Transport(ABC):
+class Transport(RecordingEdge, ABC):
     """A connection to the controller that carries protocol messages."""
 
     kind = "transport"
@@ -109,7 +109,6 @@ class Transport(ABC):
         """
         self.url = url
         self.recorder = recorder
-        self._record_failed = False
         self.counters = RxCounters()
         self.tx_frames = 0
         self.rx_overflow = 0
@@ -151,18 +150,8 @@ class Transport(ABC):
         """Wait up to ``timeout_s``; return the messages received. Raise OSError when the
         device is gone."""
 
-    def _record(self, entry: TrafficRecord) -> None:
-        """Hand one frame to the recorder, if any. A failing recorder is logged once and
-        never breaks the link."""
-        recorder = self.recorder
-        if recorder is None:
-            return
-        try:
-            recorder.record(entry)
-        except Exception:
-            if not self._record_failed:
-                self._record_failed = True
-                logger.exception("%s: traffic recorder failed; the link carries on", self.url)
+    def _edge_name(self) -> str:
+        return self.url
 
     # -- API ----------------------------------------------------------------------------
     def open(self, on_message: OnMessage, on_error: OnError) -> None:

@@ -36,7 +36,7 @@ from types import TracebackType
 
 from emulator.errors import InjectionError
 from firmware_proto.message import Message
-from firmware_proto.trafficlog import TrafficRecord, TrafficRecorder
+from firmware_proto.trafficlog import RecordingEdge, TrafficRecorder
 
 __all__ = ["MAX_LINK_DELAY_S", "Deliver", "FrontEnd", "FrontEndStats"]
 
@@ -69,7 +69,7 @@ class FrontEndStats:
     fault_corrupted: int = 0
 
 
-class FrontEnd(ABC):
+class FrontEnd(RecordingEdge, ABC):
     """Base of the pty and CAN front ends; see the module docstring for the hooks."""
 
     name = "front end"
@@ -82,7 +82,6 @@ class FrontEnd(ABC):
         """
         self.stats = FrontEndStats()
         self.recorder = recorder
-        self._record_failed = False
         # One generator per direction: each thread draws from its own, reproducibly.
         self._rng_tx = random.Random(f"link-faults-tx-{seed}")
         self._rng_rx = random.Random(f"link-faults-rx-{seed}")
@@ -116,18 +115,8 @@ class FrontEnd(ABC):
     def _close(self) -> None:
         """Release the medium (idempotent)."""
 
-    def _record(self, entry: TrafficRecord) -> None:
-        """Hand one frame to the recorder, if any; a failing recorder is logged once and
-        never stops the controller."""
-        recorder = self.recorder
-        if recorder is None:
-            return
-        try:
-            recorder.record(entry)
-        except Exception:
-            if not self._record_failed:
-                self._record_failed = True
-                logger.exception("%s: traffic recorder failed; serving on", self.name)
+    def _edge_name(self) -> str:
+        return self.name
 
     def _can_corrupt(self) -> bool:
         """Whether this medium can deliver a damaged frame (CAN's own CRC cannot)."""

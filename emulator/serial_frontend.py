@@ -29,13 +29,13 @@ from pathlib import Path
 
 from emulator.frontend import FrontEnd
 from emulator.ptypair import PtyPair
-from firmware_proto.framing import FrameDecoder, FrameEncoder, encode_raw_frame
+from firmware_proto.framing import FrameDecoder, FrameEncoder
 from firmware_proto.message import Message
 from firmware_proto.trafficlog import (
     CONTROLLER_TO_HOST,
     SerialRecord,
     TrafficRecorder,
-    message_direction,
+    received_serial_records,
 )
 
 __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
@@ -191,12 +191,8 @@ class SerialFrontEnd(FrontEnd):
             raise
         frames = self.decoder.feed(data)
         if self.recorder is not None and frames:
-            now = time.time()
-            for frame in frames:
-                msg = frame.message
-                # A valid frame re-encodes to exactly the bytes that carried it.
-                wire = encode_raw_frame(msg.MSG_ID, frame.seq, msg.pack(strict=False))
-                self._record(SerialRecord(now, message_direction(msg), wire))
+            for record in received_serial_records(frames, time.time()):
+                self._record(record)
         return [frame.message for frame in frames]
 
     def _write(self, message: Message, corrupt: bool) -> bool:

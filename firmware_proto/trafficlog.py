@@ -31,6 +31,7 @@ direction of a frame follows from its identifier, so CAN logs need no direction 
 from __future__ import annotations
 
 import difflib
+import logging
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,7 +39,7 @@ from typing import Protocol
 
 from firmware_proto.canmap import CanDecoder
 from firmware_proto.errors import DecodeError
-from firmware_proto.framing import FrameDecoder
+from firmware_proto.framing import Frame, FrameDecoder, encode_raw_frame
 from firmware_proto.message import Message
 from firmware_proto.messages import BROADCAST_NODE, CAN_NODE_BITS, DEFAULT_NODE, MESSAGE_TYPES
 
@@ -51,6 +52,7 @@ __all__ = [
     "CanRecord",
     "DecodedRecord",
     "Difference",
+    "RecordingEdge",
     "SerialLog",
     "SerialRecord",
     "TrafficRecord",
@@ -66,8 +68,11 @@ __all__ = [
     "log_node",
     "message_direction",
     "parse_serial_log",
+    "received_serial_records",
     "serial_log_header",
 ]
+
+logger = logging.getLogger(__name__)
 
 HOST_TO_CONTROLLER = "H>C"
 CONTROLLER_TO_HOST = "C>H"
@@ -153,6 +158,45 @@ class TrafficRecorder(Protocol):
 
     def record(self, entry: TrafficRecord) -> None:
         """Keep one frame."""
+
+
+class RecordingEdge:
+    """What the edges that record link traffic share (the bridge's transports, the
+    emulator's front ends): an optional :attr:`recorder` and :meth:`_record`, which
+    hands it one frame. A failing recorder is logged once and never stops the edge."""
+
+    recorder: TrafficRecorder | None = None
+    _record_failed = False
+
+    def _edge_name(self) -> str:
+        """How the log names this edge (a URL, a device)."""
+        return type(self).__name__
+
+    def _record(self, entry: TrafficRecord) -> None:
+        recorder = self.recorder
+        if recorder is None:
+            return
+        try:
+            recorder.record(entry)
+        except Exception:
+            if not self._record_failed:
+                self._record_failed = True
+                logger.exception(
+                    "%s: traffic recorder failed; carrying on without it", self._edge_name()
+                )
+
+
+def received_serial_records(frames: Iterable[Frame], time_s: float) -> list[SerialRecord]:
+    """The log records of frames a serial decoder returned, all received at ``time_s``:
+    a valid frame re-encodes to exactly the bytes that carried it."""
+    return [
+        SerialRecord(
+            time_s,
+            message_direction(frame.message),
+            encode_raw_frame(frame.message.MSG_ID, frame.seq, frame.message.pack(strict=False)),
+        )
+        for frame in frames
+    ]
 
 
 def message_direction(message: Message) -> str:
