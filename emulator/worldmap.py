@@ -29,6 +29,7 @@ from typing import Any
 from jsonschema import Draft202012Validator
 
 from emulator.errors import MapError
+from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
     "BOUNDS_ID",
@@ -329,10 +330,6 @@ def load_map(name_or_path: str | Path) -> WorldMap:
     return world
 
 
-def _pointer(path: Any) -> str:
-    return "".join("/" + str(p).replace("~", "~0").replace("/", "~1") for p in path)
-
-
 def validate_map(obj: Any) -> list[tuple[str, str]]:
     """Every violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer.
 
@@ -341,29 +338,10 @@ def validate_map(obj: Any) -> list[tuple[str, str]]:
     polygons simple with non-zero area, segments of non-zero length, the start and the
     goals strictly inside the bounds.
     """
-    found: list[tuple[str, str]] = []
-    for error in _validator().iter_errors(obj):
-        base = _pointer(error.absolute_path)
-        if error.validator == "additionalProperties" and isinstance(error.instance, dict):
-            allowed = set(error.schema.get("properties", {}))
-            for key in sorted(k for k in error.instance if k not in allowed):
-                found.append((base + _pointer([key]), f"unexpected property {key!r}"))
-            continue
-        found.append((base, error.message))
-    found += [(ptr, "must be a finite number") for ptr in _non_finite(obj, "")]
+    found = schema_violations(_validator(), obj)
     if not found:
         found += _semantic_violations(obj)
     return sorted(set(found))
-
-
-def _non_finite(obj: Any, ptr: str) -> list[str]:
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return [ptr]
-    if isinstance(obj, dict):
-        return [p for k, v in obj.items() for p in _non_finite(v, ptr + _pointer([k]))]
-    if isinstance(obj, list):
-        return [p for i, v in enumerate(obj) for p in _non_finite(v, f"{ptr}/{i}")]
-    return []
 
 
 def _semantic_violations(obj: dict[str, Any]) -> list[tuple[str, str]]:

@@ -11,7 +11,6 @@ its JSON pointer; :meth:`Plan.from_dict` raises :class:`PlanError` carrying them
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -21,6 +20,7 @@ from jsonschema import Draft202012Validator
 
 from firmware_proto.errors import PlanError
 from firmware_proto.messages import Command
+from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
     "COMMAND_NAMES",
@@ -50,37 +50,13 @@ def _validator() -> Draft202012Validator:
     return Draft202012Validator(plan_schema())
 
 
-def _pointer(path: Any) -> str:
-    return "".join("/" + str(p).replace("~", "~0").replace("/", "~1") for p in path)
-
-
 def validate_plan(obj: Any) -> list[tuple[str, str]]:
     """Every schema violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer.
 
     Beyond the schema, numbers must be finite (JSON has no NaN or infinity; Python's
     parser accepts them). An extra property is reported at its own pointer.
     """
-    found: list[tuple[str, str]] = []
-    for error in _validator().iter_errors(obj):
-        base = _pointer(error.absolute_path)
-        if error.validator == "additionalProperties" and isinstance(error.instance, dict):
-            allowed = set(error.schema.get("properties", {}))
-            for key in sorted(k for k in error.instance if k not in allowed):
-                found.append((base + _pointer([key]), f"unexpected property {key!r}"))
-            continue
-        found.append((base, error.message))
-    found += [(ptr, "must be a finite number") for ptr in _non_finite(obj, "")]
-    return sorted(set(found))
-
-
-def _non_finite(obj: Any, ptr: str) -> list[str]:
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return [ptr]
-    if isinstance(obj, dict):
-        return [p for k, v in obj.items() for p in _non_finite(v, ptr + _pointer([k]))]
-    if isinstance(obj, list):
-        return [p for i, v in enumerate(obj) for p in _non_finite(v, f"{ptr}/{i}")]
-    return []
+    return schema_violations(_validator(), obj)
 
 
 @dataclass(frozen=True)
