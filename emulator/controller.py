@@ -6,6 +6,12 @@ acknowledgement and deduplication, STOP that zeroes the wheel targets in the cal
 receives it and latches until CLEAR_STOP, the watchdog, stall detection, and telemetry
 (ENCODERS, WHEEL_SPEEDS, IMU, POSE, HEARTBEAT) at configurable rates.
 
+The latch and the faults follow docs/protocol.md, "Latch and faults": one latch that
+remembers what set it (:attr:`ControllerModel.latch_causes`: a STOP, the watchdog, a
+stopping fault), apart from the fault *conditions* active now
+(:attr:`ControllerModel.faults`, HEARTBEAT ``fault_bits``). CLEAR_STOP releases the
+latch unless a stopping fault's condition is active.
+
 It is pure logic over the twin: no I/O, no threads, no wall clock. Time is the twin's.
 A front end feeds it with :meth:`ControllerModel.handle` (each received message, answered
 at once) and :meth:`ControllerModel.tick` (one control period: step logic, one physics
@@ -19,6 +25,7 @@ right in the host's time.
 
 from __future__ import annotations
 
+import enum
 import logging
 import math
 import random
@@ -71,7 +78,14 @@ from firmware_proto.messages import (
 )
 from firmware_proto.rover import RoverDescription
 
-__all__ = ["DEDUP_WINDOW", "PARAM_RANGES", "STOPPING_FAULTS", "ControllerConfig", "ControllerModel"]
+__all__ = [
+    "DEDUP_WINDOW",
+    "PARAM_RANGES",
+    "STOPPING_FAULTS",
+    "ControllerConfig",
+    "ControllerModel",
+    "LatchCause",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +103,15 @@ STOPPING_FAULTS = frozenset(
     }
 )
 """Faults that stop the rover and hold FAULT until CLEAR_STOP; IMU and POSE only report."""
+
+
+class LatchCause(enum.Enum):
+    """What set the latch (HEARTBEAT ``latch_stop``, ``latch_watchdog``, ``latch_fault``)."""
+
+    STOP = "stop"
+    WATCHDOG = "watchdog"
+    FAULT = "fault"
+
 
 PARAM_RANGES: dict[int, tuple[int, int]] = {
     Param.WATCHDOG_MS: (50, 10_000),
@@ -185,9 +208,12 @@ class ControllerModel:
         self.boot_nonce = self._rng.randrange(1 << 16)
         self.boot_s = self.twin.time_s
         self.handshake_ok = False
-        self.stop_latched = False
+        self.latch_causes: set[LatchCause] = set()
+        """What set the latch since the last CLEARED (empty: not latched)."""
         self.faults: set[int] = set()
-        self._fault_conditions: set[int] = set()
+        """Fault codes whose condition is active now (HEARTBEAT ``fault_bits``)."""
+        self._momentary: set[int] = set()
+        """Active faults that are events (stall): their condition ends at rest."""
         self._queue: deque[Motion] = deque()
         self._running: _Running | None = None
         self._accepted: deque[int] = deque(maxlen=DEDUP_WINDOW)
@@ -204,6 +230,11 @@ class ControllerModel:
         self._next_telemetry = now
         self._next_pose = now
         self._next_heartbeat = now
+
+    @property
+    def stop_latched(self) -> bool:
+        """Motion is inhibited until CLEAR_STOP (a STOP, the watchdog or a fault set it)."""
+        return bool(self.latch_causes)
 
     @property
     def now_s(self) -> float:
@@ -270,13 +301,18 @@ class ControllerModel:
         """Process one message from the host; returns the immediate answers.
 
         A STOP has zeroed the wheel targets and purged the queue when this returns.
-        Messages the controller does not accept (controller-to-host types) are ignored.
+        A controller-to-host message (wrong direction: an echo on a serial line) is
+        ignored and counted in ``rx_errors``; it does not feed the watchdog.
         """
+        if msg.DIRECTION != "host_to_controller":
+            self.rx_errors += 1
+            logger.debug("dropped %s: wrong direction (not for the controller)", msg.NAME)
+            return []
         out: list[Message] = []
         self._feed_watchdog(out)
         if isinstance(msg, Stop):
             aborted: list[Message] = []
-            self._stop(msg.stop_id, AbortReason.STOP, aborted)
+            self._stop(msg.stop_id, AbortReason.STOP, aborted, LatchCause.STOP)
             # The acknowledgement goes first: it is what the host is timing.
             out.insert(0, StopAck(msg.stop_id, self.state))
             out += aborted
@@ -288,18 +324,15 @@ class ControllerModel:
             self._hello(msg, out)
         elif isinstance(msg, SetParam):
             out.append(self._set_param(msg))
-        elif isinstance(msg, HostHeartbeat):
-            pass
         else:
-            logger.debug("ignored %s (not for the controller)", msg.NAME)
+            assert isinstance(msg, HostHeartbeat), msg.NAME
         return out
 
     def _feed_watchdog(self, out: list[Message]) -> None:
         self._last_rx_s = self.now_s
         if self._watchdog_tripped:
             self._watchdog_tripped = False
-            self._fault_conditions.discard(FaultCode.WATCHDOG)
-            out.append(Fault(FaultCode.WATCHDOG, 0, 0))
+            out += self.clear_fault_condition(FaultCode.WATCHDOG)
 
     def _hello(self, msg: Hello, out: list[Message]) -> None:
         match = (
@@ -330,6 +363,7 @@ class ControllerModel:
         def ack(result: int, fld: int = AckField.NONE) -> list[Message]:
             return [Ack(msg.seq, result, fld, self.queue_depth)]
 
+        # The order of the checks is normative (docs/protocol.md, MOTION).
         if not self.handshake_ok:
             return ack(AckResult.NOT_READY)
         if msg.seq in self._accepted_set:
@@ -337,15 +371,16 @@ class ControllerModel:
         limits = self.rover.drive
         if msg.command > max(Command):
             return ack(AckResult.OUT_OF_RANGE, AckField.COMMAND)
+        if msg.command == Command.STOP:
+            # An emergency stop whatever its speed and distance: they are ignored.
+            self._remember(msg.seq)
+            out: list[Message] = []
+            self._stop(0, AbortReason.STOP, out, LatchCause.STOP)
+            return ack(AckResult.ACCEPTED) + out
         if msg.speed > limits.max_speed:
             return ack(AckResult.OUT_OF_RANGE, AckField.SPEED)
         if msg.distance > limits.max_distance:
             return ack(AckResult.OUT_OF_RANGE, AckField.DISTANCE)
-        if msg.command == Command.STOP:
-            self._remember(msg.seq)
-            out: list[Message] = []
-            self._stop(0, AbortReason.STOP, out)
-            return ack(AckResult.ACCEPTED) + out
         if self.state == ControllerState.FAULT:
             return ack(AckResult.FAULT_ACTIVE)
         if self.stop_latched:
@@ -362,12 +397,14 @@ class ControllerModel:
         self._accepted.append(seq)
         self._accepted_set.add(seq)
 
-    def _stop(self, stop_id: int, reason: int, out: list[Message]) -> None:
-        """Zero the targets now, purge, latch; STOPPED follows when at rest."""
+    def _stop(self, stop_id: int, reason: int, out: list[Message], cause: LatchCause) -> None:
+        """Zero the targets now, purge, latch for ``cause``; STOPPED follows when at rest."""
         self._setpoint = (0.0, 0.0)
         self._abort_all(reason, out)
-        self.stop_latched = True
-        if self.state != ControllerState.FAULT:
+        self.latch_causes.add(cause)
+        if cause is not LatchCause.STOP:
+            self.state = ControllerState.FAULT
+        elif self.state != ControllerState.FAULT:
             self.state = ControllerState.STOP_LATCHED
         if all(p.stop_id != stop_id for p in self._pending_stops):
             self._pending_stops.append(_PendingStop(stop_id, self.now_s, self.encoders.travel()))
@@ -399,12 +436,11 @@ class ControllerModel:
         return min(0xFFFF, round((abs(left - l0) + abs(right - r0)) / 2.0))
 
     def _clear(self) -> int:
-        if not self.stop_latched and self.state != ControllerState.FAULT:
+        if not self.latch_causes:
             return ClearResult.NOT_LATCHED
-        if self._fault_conditions & STOPPING_FAULTS:
+        if self.faults & STOPPING_FAULTS:
             return ClearResult.FAULT_PERSISTS
-        self.stop_latched = False
-        self.faults -= STOPPING_FAULTS - self._fault_conditions
+        self.latch_causes.clear()
         self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
         return ClearResult.CLEARED
 
@@ -425,44 +461,43 @@ class ControllerModel:
 
     # -- faults -------------------------------------------------------------------------
     def raise_fault(self, code: int, detail: int = 0, *, condition: bool = False) -> list[Message]:
-        """Raise a fault; a stopping fault stops the rover and enters FAULT.
+        """A fault's condition became active: FAULT active = 1; a stopping fault also
+        stops the rover, latches (``latch_watchdog`` or ``latch_fault``) and enters FAULT.
 
         Args:
             code: a :class:`FaultCode`.
             detail: code-specific detail for the FAULT message.
-            condition: the fault's cause persists until :meth:`clear_fault_condition`
-                (CLEAR_STOP answers FAULT_PERSISTS meanwhile).
+            condition: the condition persists until :meth:`clear_fault_condition` (CLEAR_STOP
+                answers FAULT_PERSISTS meanwhile, for a stopping fault). Without it the
+                fault is an event (a stall): its condition ends once the wheels are at
+                rest, with FAULT active = 0 after STOPPED.
         """
         out: list[Message] = []
-        if condition:
-            self._fault_conditions.add(code)
         if code in self.faults:
             return out
         self.faults.add(code)
+        if not condition:
+            self._momentary.add(code)
         out.append(Fault(code, 1, min(detail, 0xFFFF)))
         if code in STOPPING_FAULTS:
-            reason = (
-                AbortReason.WATCHDOG
-                if code == FaultCode.WATCHDOG
-                else (
-                    AbortReason.STALL
-                    if code in (FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT)
-                    else AbortReason.FAULT
-                )
-            )
-            self._stop(0, reason, out)
-            self.state = ControllerState.FAULT
+            if code == FaultCode.WATCHDOG:
+                reason, cause = AbortReason.WATCHDOG, LatchCause.WATCHDOG
+            elif code in (FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT):
+                reason, cause = AbortReason.STALL, LatchCause.FAULT
+            else:
+                reason, cause = AbortReason.FAULT, LatchCause.FAULT
+            self._stop(0, reason, out, cause)
         logger.info("fault %s raised (detail %d)", FaultCode(code).name, detail)
         return out
 
     def clear_fault_condition(self, code: int) -> list[Message]:
-        """The cause of a fault went away: FAULT active = 0. A stopping fault still holds
-        FAULT until CLEAR_STOP; a reporting fault (IMU, POSE) is gone at once."""
-        self._fault_conditions.discard(code)
+        """The condition of a fault went away: FAULT active = 0 and its bit clears. The
+        latch a stopping fault set holds until CLEAR_STOP."""
         if code not in self.faults:
             return []
-        if code not in STOPPING_FAULTS:
-            self.faults.discard(code)
+        self.faults.discard(code)
+        self._momentary.discard(code)
+        logger.info("fault %s condition cleared", FaultCode(code).name)
         return [Fault(code, 0, 0)]
 
     # -- tick ---------------------------------------------------------------------------
@@ -520,7 +555,8 @@ class ControllerModel:
         out.append(Status(motion.seq, StepState.STARTED, AbortReason.NONE, 0))
 
     def _check_watchdog(self, out: list[Message]) -> None:
-        if self._last_rx_s is None or self._watchdog_tripped:
+        # Armed by a matching HELLO only: without a session there is nothing to stop.
+        if not self.handshake_ok or self._last_rx_s is None or self._watchdog_tripped:
             return
         silent_s = self.now_s - self._last_rx_s
         if silent_s > self._scaled_s(self.watchdog_ms):
@@ -553,7 +589,15 @@ class ControllerModel:
                 return
 
     def _check_stopped(self, travel: tuple[float, float], out: list[Message]) -> None:
-        if not self._pending_stops or not self.at_rest:
+        if not self.at_rest:
+            return
+        self._report_stopped(travel, out)
+        # Events (a stall) are over once the wheels are at rest: after STOPPED.
+        for code in sorted(self._momentary):
+            out += self.clear_fault_condition(code)
+
+    def _report_stopped(self, travel: tuple[float, float], out: list[Message]) -> None:
+        if not self._pending_stops:
             return
         for pending in self._pending_stops:
             moved_m = (
@@ -630,10 +674,14 @@ class ControllerModel:
         bits = 0
         for code in self.faults:
             bits |= 1 << (code - 1)
+        causes = self.latch_causes
         return Heartbeat(
             self.state,
-            int(self.stop_latched or self.state == ControllerState.FAULT),
+            int(self.stop_latched),
             int(self.handshake_ok),
+            int(LatchCause.STOP in causes),
+            int(LatchCause.WATCHDOG in causes),
+            int(LatchCause.FAULT in causes),
             bits,
             min(255, self.queue_depth),
             self.boot_nonce,

@@ -73,8 +73,8 @@ __all__ = [
     "WheelSpeeds",
 ]
 
-PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x9F24
+PROTOCOL_VERSION = 2
+SCHEMA_HASH = 0x42A2
 MAX_PAYLOAD_BYTES = 8
 CAN_NODE_BITS = 4
 BROADCAST_NODE = 0
@@ -147,7 +147,7 @@ class StepState(IntEnum):
 
 
 class AbortReason(IntEnum):
-    """Why a step ended early (NONE unless STATUS state is ABORTED)."""
+    """Why a step ended early (NONE unless STATUS state is ABORTED): STOP for a STOP frame or a MOTION with command STOP, WATCHDOG for the watchdog, STALL for a stall fault, FAULT for any other stopping fault, SESSION for a new session (HELLO)."""
 
     NONE = 0
     STOP = 1
@@ -168,7 +168,7 @@ class ControllerState(IntEnum):
 
 
 class ClearResult(IntEnum):
-    """Answer to CLEAR_STOP."""
+    """Answer to CLEAR_STOP: CLEARED (the latch is released), NOT_LATCHED (there was no latch; nothing changes), FAULT_PERSISTS (a stopping fault's condition is still active; the latch holds)."""
 
     CLEARED = 0
     NOT_LATCHED = 1
@@ -176,7 +176,7 @@ class ClearResult(IntEnum):
 
 
 class FaultCode(IntEnum):
-    """Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while a fault is active. WATCHDOG, STALL_*, ENCODER, DRIVER and INTERNAL stop the rover; IMU and POSE only report."""
+    """Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while the fault's condition is active (from FAULT active = 1 to FAULT active = 0). WATCHDOG, STALL_*, ENCODER, DRIVER and INTERNAL stop the rover and latch; IMU and POSE only report."""
 
     WATCHDOG = 1
     STALL_LEFT = 2
@@ -198,7 +198,7 @@ class Param(IntEnum):
 
 
 class ParamResult(IntEnum):
-    """Answer to SET_PARAM."""
+    """Answer to SET_PARAM. OK: the value is in force; UNKNOWN_PARAM: no such parameter (value 0); OUT_OF_RANGE: refused, value is the one still in force."""
 
     OK = 0
     UNKNOWN_PARAM = 1
@@ -221,7 +221,8 @@ class Stop(Message, _StopFields):
 
     Attributes:
         stop_id: u16 range 1..65535. host's request id, echoed in STOP_ACK and STOPPED; 0 is
-            reserved for stops the controller starts itself.
+            reserved for stops the controller starts itself (a STOP frame with 0 is outside the
+            wire range: dropped and counted, not obeyed).
         source: u8 (StopSource) range 0..4. who asked.
     """
 
@@ -278,7 +279,7 @@ class _StopAckFields(NamedTuple):
 
 class StopAck(Message, _StopAckFields):
     """STOP_ACK (id 1, controller to host, emergency). STOP received; wheel targets are already
-    zero and the queue purged.
+    zero and the queue purged. Sent for every STOP frame, repeats included.
 
     Sent: once per STOP received.
 
@@ -337,8 +338,9 @@ class _ClearStopFields(NamedTuple):
 
 
 class ClearStop(Message, _ClearStopFields):
-    """CLEAR_STOP (id 2, host to controller, emergency). Explicit unlatch of a STOP and
-    acknowledgement of cleared faults.
+    """CLEAR_STOP (id 2, host to controller, emergency). Explicit unlatch: releases the latch
+    (whatever set it: STOP, watchdog, fault) unless a stopping fault's condition is still
+    active.
 
     Sent: on demand; repeated every stop_repeat_ms until CLEAR_ACK.
 
@@ -457,17 +459,20 @@ class _MotionFields(NamedTuple):
 
 class Motion(Message, _MotionFields):
     """MOTION (id 8, host to controller, motion). Queue one motion step. The controller answers
-    ACK; a repeated seq is acknowledged DUPLICATE and never executed twice.
+    ACK; a repeated seq is acknowledged DUPLICATE and never executed twice. Checks in this
+    order: session, duplicate, command, (command STOP: emergency stop), speed, distance,
+    fault, latch, queue.
 
     Sent: one per plan step; retransmitted after ack_timeout_ms, at most motion_retries times.
 
     Attributes:
         seq: u16. host step sequence number, wraps; new per step, kept across retransmissions.
         command: u8 (Command) limit 0..4. STOP/FWD/REV/LEFT/RIGHT; STOP here acts as an
-            emergency stop.
-        speed: u8 limit 0..60. speed units; wheel speed = speed * k rad/s (rover description).
-        distance: u16 limit 0..30000. distance units of encoder travel per side (23000 per
-            metre).
+            emergency stop (speed and distance ignored).
+        speed: u8 limit 0..60. speed units; wheel angular speed = speed * k rad/s, surface speed
+            = speed * k * wheel_radius m/s (docs/protocol.md, Units).
+        distance: u16 limit 0..30000. distance units of encoder travel per side, each side along
+            its own direction of travel (23000 per metre).
     """
 
     __slots__ = ()
@@ -605,7 +610,9 @@ class _StatusFields(NamedTuple):
 
 class Status(Message, _StatusFields):
     """STATUS (id 32, controller to host, status). Progress of one step: STARTED, then COMPLETED
-    when both sides' encoder travel reached the distance, or ABORTED with a reason.
+    when both sides' encoder travel reached the distance and the wheels are at rest, or
+    ABORTED with a reason. A step with speed 0 or distance 0 is STARTED and COMPLETED in the
+    same control tick, travel 0.
 
     Sent: when a step starts and when it ends.
 
@@ -676,9 +683,11 @@ class _StoppedFields(NamedTuple):
 
 class Stopped(Message, _StoppedFields):
     """STOPPED (id 33, controller to host, status). The wheels are at rest after a STOP (or a
-    stop the controller started itself, stop_id 0).
+    stop the controller started itself, stop_id 0: MOTION with command STOP, watchdog,
+    stopping fault). Every new stop_id gets its own STOPPED, also while already latched and
+    at rest (then distance 0); repeats of a stop_id still waiting for its STOPPED share it.
 
-    Sent: once per stop, when both wheels have come to rest.
+    Sent: once per stop_id, when both wheels have come to rest.
 
     Attributes:
         stop_id: u16. the STOP being reported; 0 for watchdog and fault stops.
@@ -734,8 +743,9 @@ class _FaultFields(NamedTuple):
 
 
 class Fault(Message, _FaultFields):
-    """FAULT (id 34, controller to host, status). A fault was raised (active = 1) or its
-    condition went away (active = 0).
+    """FAULT (id 34, controller to host, status). A fault's condition became active (active = 1)
+    or went away (active = 0). A stopping fault's latch outlives its condition: it holds
+    until CLEAR_STOP.
 
     Sent: when a fault is raised or cleared.
 
@@ -802,6 +812,9 @@ class _HeartbeatFields(NamedTuple):
     state: int
     stop_latched: int
     handshake_ok: int
+    latch_stop: int
+    latch_watchdog: int
+    latch_fault: int
     fault_bits: int
     queue_depth: int
     boot_nonce: int
@@ -810,18 +823,29 @@ class _HeartbeatFields(NamedTuple):
 
 class Heartbeat(Message, _HeartbeatFields):
     """HEARTBEAT (id 64, controller to host, telemetry). Controller liveness and summary state.
-    A changed boot_nonce means the controller rebooted.
+    A changed boot_nonce means the controller rebooted. The latch_* bits say what holds the
+    latch; fault_bits say which fault conditions are active now.
 
     Sent: every controller_heartbeat_period_ms.
 
     Attributes:
         state: u8 (ControllerState) range 0..4.
-        stop_latched: u1. motion inhibited until CLEAR_STOP.
-        handshake_ok: u1. a HELLO with matching version and schema hash was received since boot.
-        fault_bits: u8. bit (FaultCode - 1) set while that fault is active.
+        stop_latched: u1. motion inhibited until CLEAR_STOP: latch_stop OR latch_watchdog OR
+            latch_fault.
+        handshake_ok: u1. a session is open: the last HELLO since boot matched version and
+            schema hash.
+        latch_stop: u1. the latch was set (or set again) by a STOP frame or a MOTION with
+            command STOP since the last CLEARED.
+        latch_watchdog: u1. the latch was set (or set again) by the watchdog since the last
+            CLEARED.
+        latch_fault: u1. the latch was set (or set again) by a stopping fault other than
+            WATCHDOG since the last CLEARED.
+        fault_bits: u8. bit (FaultCode - 1) set while that fault's condition is active (not the
+            latch it left).
         queue_depth: u8. steps queued, the running one included.
         boot_nonce: u16. random per boot, as in IDENT.
-        rx_errors: u16. frames the controller dropped (CRC, framing, length, range), wrapping.
+        rx_errors: u16. frames the controller dropped, for any reason of docs/protocol.md
+            'Receive errors', wrapping.
     """
 
     __slots__ = ()
@@ -830,7 +854,7 @@ class Heartbeat(Message, _HeartbeatFields):
     LENGTH: ClassVar[int] = 8
     DIRECTION: ClassVar[str] = "controller_to_host"
     PRIORITY: ClassVar[str] = "telemetry"
-    FIELDS: ClassVar[tuple[str, ...]] = ("state", "stop_latched", "handshake_ok", "fault_bits", "queue_depth", "boot_nonce", "rx_errors")
+    FIELDS: ClassVar[tuple[str, ...]] = ("state", "stop_latched", "handshake_ok", "latch_stop", "latch_watchdog", "latch_fault", "fault_bits", "queue_depth", "boot_nonce", "rx_errors")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"state": ControllerState}
 
     def pack(self, strict: bool = True) -> bytes:
@@ -838,6 +862,9 @@ class Heartbeat(Message, _HeartbeatFields):
         state = self.state
         stop_latched = self.stop_latched
         handshake_ok = self.handshake_ok
+        latch_stop = self.latch_stop
+        latch_watchdog = self.latch_watchdog
+        latch_fault = self.latch_fault
         fault_bits = self.fault_bits
         queue_depth = self.queue_depth
         boot_nonce = self.boot_nonce
@@ -848,6 +875,12 @@ class Heartbeat(Message, _HeartbeatFields):
             raise field_error("HEARTBEAT", "stop_latched", stop_latched, 0, 1)
         if not (isinstance(handshake_ok, int) and 0 <= handshake_ok <= 1):
             raise field_error("HEARTBEAT", "handshake_ok", handshake_ok, 0, 1)
+        if not (isinstance(latch_stop, int) and 0 <= latch_stop <= 1):
+            raise field_error("HEARTBEAT", "latch_stop", latch_stop, 0, 1)
+        if not (isinstance(latch_watchdog, int) and 0 <= latch_watchdog <= 1):
+            raise field_error("HEARTBEAT", "latch_watchdog", latch_watchdog, 0, 1)
+        if not (isinstance(latch_fault, int) and 0 <= latch_fault <= 1):
+            raise field_error("HEARTBEAT", "latch_fault", latch_fault, 0, 1)
         if not (isinstance(fault_bits, int) and 0 <= fault_bits <= 255):
             raise field_error("HEARTBEAT", "fault_bits", fault_bits, 0, 255)
         if not (isinstance(queue_depth, int) and 0 <= queue_depth <= 255):
@@ -860,6 +893,9 @@ class Heartbeat(Message, _HeartbeatFields):
             state
             | (stop_latched << 8)
             | (handshake_ok << 9)
+            | (latch_stop << 10)
+            | (latch_watchdog << 11)
+            | (latch_fault << 12)
             | (fault_bits << 16)
             | (queue_depth << 24)
             | (boot_nonce << 32)
@@ -887,13 +923,16 @@ def _decode_heartbeat(payload: bytes) -> Heartbeat | None:
     state = value & 0xFF
     stop_latched = (value >> 8) & 0x1
     handshake_ok = (value >> 9) & 0x1
+    latch_stop = (value >> 10) & 0x1
+    latch_watchdog = (value >> 11) & 0x1
+    latch_fault = (value >> 12) & 0x1
     fault_bits = (value >> 16) & 0xFF
     queue_depth = (value >> 24) & 0xFF
     boot_nonce = (value >> 32) & 0xFFFF
     rx_errors = value >> 48
     if not (0 <= state <= 4):
         return None
-    return _new(Heartbeat, (state, stop_latched, handshake_ok, fault_bits, queue_depth, boot_nonce, rx_errors))
+    return _new(Heartbeat, (state, stop_latched, handshake_ok, latch_stop, latch_watchdog, latch_fault, fault_bits, queue_depth, boot_nonce, rx_errors))
 
 
 _S_HOST_HEARTBEAT = struct.Struct("<H")
@@ -904,8 +943,8 @@ class _HostHeartbeatFields(NamedTuple):
 
 
 class HostHeartbeat(Message, _HostHeartbeatFields):
-    """HOST_HEARTBEAT (id 65, host to controller, telemetry). Host liveness; any valid frame
-    feeds the controller's watchdog, this one when nothing else is sent.
+    """HOST_HEARTBEAT (id 65, host to controller, telemetry). Host liveness; any valid host-to-
+    controller frame feeds the controller's watchdog, this one when nothing else is sent.
 
     Sent: every host_heartbeat_period_ms.
 
@@ -957,7 +996,7 @@ class _EncodersFields(NamedTuple):
 class Encoders(Message, _EncodersFields):
     """ENCODERS (id 66, controller to host, telemetry). Absolute wheel encoder counts since
     boot, polarity applied (forward positive on both sides), wrapping modulo 2^24; the host
-    unwraps.
+    unwraps. They restart at 0 after a reboot: the host re-bases on the new boot nonce.
 
     Sent: encoders_rate_hz.
 
@@ -1176,7 +1215,9 @@ class _PoseFields(NamedTuple):
 
 class Pose(Message, _PoseFields):
     """POSE (id 69, controller to host, telemetry). Pose from a sensor that sees the ground
-    (visual odometry or lab tracking) in the map frame; unlike the encoders it shows slip.
+    (visual odometry or lab tracking) in the map frame: the frame of the map the gate plans
+    on, x and y from its origin, never re-zeroed at boot; unlike the encoders it shows slip.
+    Optional: a controller without such a sensor never sends it.
 
     Sent: pose_rate_hz.
 
@@ -1270,11 +1311,12 @@ class Progress(Message, _ProgressFields):
     Sent: with every HEARTBEAT.
 
     Attributes:
-        ended_seq: u16. MOTION.seq of the last step that ended (meaningless while ended_count is
-            0).
+        ended_seq: u16. MOTION.seq of the last step that ended; while ended_count is 0 every
+            field is 0 and the host ignores them.
         ended_state: u8 (StepState) range 0..2. COMPLETED or ABORTED.
         ended_reason: u8 (AbortReason) range 0..5.
-        ended_count: u16. steps ended in this session, wrapping; 0 after HELLO.
+        ended_count: u16. steps ended in this session, wrapping; 0 after HELLO (the steps that
+            HELLO aborted belong to the old session and are not counted).
         travel: u16. distance units the last ended step travelled.
     """
 
@@ -1340,7 +1382,8 @@ class _HelloFields(NamedTuple):
 
 class Hello(Message, _HelloFields):
     """HELLO (id 96, host to controller, config). Handshake: the host's protocol version and
-    schema hash. The controller answers IDENT and accepts MOTION only after a matching HELLO.
+    schema hash. The controller answers every HELLO with IDENT; a matching one opens a new
+    session and arms the watchdog, a mismatched one closes any session.
 
     Sent: at connection, until IDENT.
 
@@ -1401,7 +1444,8 @@ class _IdentFields(NamedTuple):
 
 class Ident(Message, _IdentFields):
     """IDENT (id 97, controller to host, config). Controller identity: protocol version and
-    schema hash (compare with the host's), firmware version and a random boot nonce.
+    schema hash (compare with the host's), firmware version and a random boot nonce. Sent
+    once at boot (unsolicited) and otherwise only in answer to HELLO.
 
     Sent: at boot and in answer to HELLO.
 
@@ -1531,8 +1575,8 @@ class _ParamValueFields(NamedTuple):
 
 
 class ParamValue(Message, _ParamValueFields):
-    """PARAM_VALUE (id 99, controller to host, config). Answer to SET_PARAM with the value now
-    in force.
+    """PARAM_VALUE (id 99, controller to host, config). Answer to SET_PARAM: param echoed; value
+    in force (OK, OUT_OF_RANGE) or 0 (UNKNOWN_PARAM).
 
     Sent: once per SET_PARAM.
 

@@ -486,10 +486,22 @@ int rp_heartbeat_pack(const rp_heartbeat_t *msg, bool strict, uint8_t *out, size
     if (msg->handshake_ok > INT32_C(1)) {
         return RP_ERR_FIELD(2);
     }
+    if (msg->latch_stop > INT32_C(1)) {
+        return RP_ERR_FIELD(3);
+    }
+    if (msg->latch_watchdog > INT32_C(1)) {
+        return RP_ERR_FIELD(4);
+    }
+    if (msg->latch_fault > INT32_C(1)) {
+        return RP_ERR_FIELD(5);
+    }
     uint64_t w = 0;
     w |= ((uint64_t)msg->state & UINT64_C(0xFF));
     w |= ((uint64_t)msg->stop_latched & UINT64_C(0x1)) << 8;
     w |= ((uint64_t)msg->handshake_ok & UINT64_C(0x1)) << 9;
+    w |= ((uint64_t)msg->latch_stop & UINT64_C(0x1)) << 10;
+    w |= ((uint64_t)msg->latch_watchdog & UINT64_C(0x1)) << 11;
+    w |= ((uint64_t)msg->latch_fault & UINT64_C(0x1)) << 12;
     w |= ((uint64_t)msg->fault_bits & UINT64_C(0xFF)) << 16;
     w |= ((uint64_t)msg->queue_depth & UINT64_C(0xFF)) << 24;
     w |= ((uint64_t)msg->boot_nonce & UINT64_C(0xFFFF)) << 32;
@@ -525,6 +537,9 @@ int rp_heartbeat_unpack(rp_heartbeat_t *msg, const uint8_t *payload, size_t len)
     const int64_t f_state = (int64_t)(w & UINT64_C(0xFF));
     const int64_t f_stop_latched = (int64_t)((w >> 8) & UINT64_C(0x1));
     const int64_t f_handshake_ok = (int64_t)((w >> 9) & UINT64_C(0x1));
+    const int64_t f_latch_stop = (int64_t)((w >> 10) & UINT64_C(0x1));
+    const int64_t f_latch_watchdog = (int64_t)((w >> 11) & UINT64_C(0x1));
+    const int64_t f_latch_fault = (int64_t)((w >> 12) & UINT64_C(0x1));
     const int64_t f_fault_bits = (int64_t)((w >> 16) & UINT64_C(0xFF));
     const int64_t f_queue_depth = (int64_t)((w >> 24) & UINT64_C(0xFF));
     const int64_t f_boot_nonce = (int64_t)((w >> 32) & UINT64_C(0xFFFF));
@@ -535,6 +550,9 @@ int rp_heartbeat_unpack(rp_heartbeat_t *msg, const uint8_t *payload, size_t len)
     msg->state = (uint8_t)f_state;
     msg->stop_latched = (uint8_t)f_stop_latched;
     msg->handshake_ok = (uint8_t)f_handshake_ok;
+    msg->latch_stop = (uint8_t)f_latch_stop;
+    msg->latch_watchdog = (uint8_t)f_latch_watchdog;
+    msg->latch_fault = (uint8_t)f_latch_fault;
     msg->fault_bits = (uint8_t)f_fault_bits;
     msg->queue_depth = (uint8_t)f_queue_depth;
     msg->boot_nonce = (uint16_t)f_boot_nonce;
@@ -1135,6 +1153,9 @@ static const rp_field_info_t fields_heartbeat[] = {
     {"state", 8u, false, INT64_C(0), INT64_C(4), false, INT64_C(0), INT64_C(0)},
     {"stop_latched", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
     {"handshake_ok", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
+    {"latch_stop", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
+    {"latch_watchdog", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
+    {"latch_fault", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
     {"fault_bits", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
     {"queue_depth", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
     {"boot_nonce", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
@@ -1217,7 +1238,7 @@ const rp_msg_info_t rp_msg_table[RP_MSG_COUNT] = {
     {RP_MSG_STATUS, RP_MSG_STATUS_LEN, RP_DIR_CONTROLLER_TO_HOST, "STATUS", 4u, fields_status},
     {RP_MSG_STOPPED, RP_MSG_STOPPED_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOPPED", 3u, fields_stopped},
     {RP_MSG_FAULT, RP_MSG_FAULT_LEN, RP_DIR_CONTROLLER_TO_HOST, "FAULT", 3u, fields_fault},
-    {RP_MSG_HEARTBEAT, RP_MSG_HEARTBEAT_LEN, RP_DIR_CONTROLLER_TO_HOST, "HEARTBEAT", 7u, fields_heartbeat},
+    {RP_MSG_HEARTBEAT, RP_MSG_HEARTBEAT_LEN, RP_DIR_CONTROLLER_TO_HOST, "HEARTBEAT", 10u, fields_heartbeat},
     {RP_MSG_HOST_HEARTBEAT, RP_MSG_HOST_HEARTBEAT_LEN, RP_DIR_HOST_TO_CONTROLLER, "HOST_HEARTBEAT", 1u, fields_host_heartbeat},
     {RP_MSG_ENCODERS, RP_MSG_ENCODERS_LEN, RP_DIR_CONTROLLER_TO_HOST, "ENCODERS", 3u, fields_encoders},
     {RP_MSG_WHEEL_SPEEDS, RP_MSG_WHEEL_SPEEDS_LEN, RP_DIR_CONTROLLER_TO_HOST, "WHEEL_SPEEDS", 5u, fields_wheel_speeds},
@@ -1468,10 +1489,13 @@ int rp_msg_get_field(const rp_msg_t *msg, unsigned index, int64_t *value)
         case 0u: *value = (int64_t)msg->body.heartbeat.state; return RP_OK;
         case 1u: *value = (int64_t)msg->body.heartbeat.stop_latched; return RP_OK;
         case 2u: *value = (int64_t)msg->body.heartbeat.handshake_ok; return RP_OK;
-        case 3u: *value = (int64_t)msg->body.heartbeat.fault_bits; return RP_OK;
-        case 4u: *value = (int64_t)msg->body.heartbeat.queue_depth; return RP_OK;
-        case 5u: *value = (int64_t)msg->body.heartbeat.boot_nonce; return RP_OK;
-        case 6u: *value = (int64_t)msg->body.heartbeat.rx_errors; return RP_OK;
+        case 3u: *value = (int64_t)msg->body.heartbeat.latch_stop; return RP_OK;
+        case 4u: *value = (int64_t)msg->body.heartbeat.latch_watchdog; return RP_OK;
+        case 5u: *value = (int64_t)msg->body.heartbeat.latch_fault; return RP_OK;
+        case 6u: *value = (int64_t)msg->body.heartbeat.fault_bits; return RP_OK;
+        case 7u: *value = (int64_t)msg->body.heartbeat.queue_depth; return RP_OK;
+        case 8u: *value = (int64_t)msg->body.heartbeat.boot_nonce; return RP_OK;
+        case 9u: *value = (int64_t)msg->body.heartbeat.rx_errors; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_HOST_HEARTBEAT:
@@ -1771,23 +1795,41 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
             if (value < INT64_C(0) || value > INT64_C(255)) {
                 return RP_ERR_FIELD(3);
             }
-            msg->body.heartbeat.fault_bits = (uint8_t)value;
+            msg->body.heartbeat.latch_stop = (uint8_t)value;
             return RP_OK;
         case 4u:
             if (value < INT64_C(0) || value > INT64_C(255)) {
                 return RP_ERR_FIELD(4);
             }
-            msg->body.heartbeat.queue_depth = (uint8_t)value;
+            msg->body.heartbeat.latch_watchdog = (uint8_t)value;
             return RP_OK;
         case 5u:
-            if (value < INT64_C(0) || value > INT64_C(65535)) {
+            if (value < INT64_C(0) || value > INT64_C(255)) {
                 return RP_ERR_FIELD(5);
+            }
+            msg->body.heartbeat.latch_fault = (uint8_t)value;
+            return RP_OK;
+        case 6u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(6);
+            }
+            msg->body.heartbeat.fault_bits = (uint8_t)value;
+            return RP_OK;
+        case 7u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(7);
+            }
+            msg->body.heartbeat.queue_depth = (uint8_t)value;
+            return RP_OK;
+        case 8u:
+            if (value < INT64_C(0) || value > INT64_C(65535)) {
+                return RP_ERR_FIELD(8);
             }
             msg->body.heartbeat.boot_nonce = (uint16_t)value;
             return RP_OK;
-        case 6u:
+        case 9u:
             if (value < INT64_C(0) || value > INT64_C(65535)) {
-                return RP_ERR_FIELD(6);
+                return RP_ERR_FIELD(9);
             }
             msg->body.heartbeat.rx_errors = (uint16_t)value;
             return RP_OK;

@@ -3,7 +3,7 @@
 
 /**
  * @file rover_msgs.h
- * @brief Messages of the rover motor-controller protocol, version 1.
+ * @brief Messages of the rover motor-controller protocol, version 2.
  *
  * Payloads are bit-packed least significant bit first, little-endian (DBC Intel);
  * fields hold raw integers (docs/protocol.md gives units and scales). Every
@@ -24,8 +24,8 @@ extern "C" {
 
 /* ------------------------------------------------------------ protocol constants */
 
-#define RP_PROTOCOL_VERSION 1u /**< sent in HELLO and IDENT */
-#define RP_SCHEMA_HASH 0x9F24u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
+#define RP_PROTOCOL_VERSION 2u /**< sent in HELLO and IDENT */
+#define RP_SCHEMA_HASH 0x42A2u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
 #define RP_MAX_PAYLOAD_BYTES 8u /**< largest payload (one classic CAN frame) */
 #define RP_DELIMITER 0x00u /**< serial frame delimiter */
 #define RP_CAN_NODE_BITS 4u /**< CAN identifier = id << RP_CAN_NODE_BITS | node */
@@ -131,7 +131,11 @@ typedef enum {
     RP_STEP_STATE_ABORTED = 2
 } rp_step_state_t;
 
-/** AbortReason: Why a step ended early (NONE unless STATUS state is ABORTED). */
+/**
+ * AbortReason: Why a step ended early (NONE unless STATUS state is ABORTED): STOP for a
+ * STOP frame or a MOTION with command STOP, WATCHDOG for the watchdog, STALL for a stall
+ * fault, FAULT for any other stopping fault, SESSION for a new session (HELLO).
+ */
 typedef enum {
     RP_ABORT_REASON_NONE = 0,
     RP_ABORT_REASON_STOP = 1,
@@ -150,7 +154,11 @@ typedef enum {
     RP_CONTROLLER_STATE_FAULT = 4
 } rp_controller_state_t;
 
-/** ClearResult: Answer to CLEAR_STOP. */
+/**
+ * ClearResult: Answer to CLEAR_STOP: CLEARED (the latch is released), NOT_LATCHED (there
+ * was no latch; nothing changes), FAULT_PERSISTS (a stopping fault's condition is still
+ * active; the latch holds).
+ */
 typedef enum {
     RP_CLEAR_RESULT_CLEARED = 0,
     RP_CLEAR_RESULT_NOT_LATCHED = 1,
@@ -158,9 +166,9 @@ typedef enum {
 } rp_clear_result_t;
 
 /**
- * FaultCode: Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while a fault is
- * active. WATCHDOG, STALL_*, ENCODER, DRIVER and INTERNAL stop the rover; IMU and POSE only
- * report.
+ * FaultCode: Fault codes; bit (code - 1) of HEARTBEAT.fault_bits is set while the fault's
+ * condition is active (from FAULT active = 1 to FAULT active = 0). WATCHDOG, STALL_*,
+ * ENCODER, DRIVER and INTERNAL stop the rover and latch; IMU and POSE only report.
  */
 typedef enum {
     RP_FAULT_CODE_WATCHDOG = 1,
@@ -181,7 +189,10 @@ typedef enum {
     RP_PARAM_HEARTBEAT_HZ = 4
 } rp_param_t;
 
-/** ParamResult: Answer to SET_PARAM. */
+/**
+ * ParamResult: Answer to SET_PARAM. OK: the value is in force; UNKNOWN_PARAM: no such
+ * parameter (value 0); OUT_OF_RANGE: refused, value is the one still in force.
+ */
 typedef enum {
     RP_PARAM_RESULT_OK = 0,
     RP_PARAM_RESULT_UNKNOWN_PARAM = 1,
@@ -200,7 +211,8 @@ typedef enum {
 typedef struct {
     /**
      * u16 range 1..65535: host's request id, echoed in STOP_ACK and STOPPED; 0 is reserved
-     * for stops the controller starts itself.
+     * for stops the controller starts itself (a STOP frame with 0 is outside the wire
+     * range: dropped and counted, not obeyed).
      */
     uint16_t stop_id;
     /** u8 (rp_stop_source_t) range 0..4: who asked. */
@@ -231,7 +243,8 @@ int rp_stop_unpack(rp_stop_t *msg, const uint8_t *payload, size_t len);
 
 /**
  * STOP_ACK (id 1, controller to host, class emergency, 3 bytes). STOP received; wheel
- * targets are already zero and the queue purged. Sent: once per STOP received.
+ * targets are already zero and the queue purged. Sent for every STOP frame, repeats
+ * included. Sent: once per STOP received.
  */
 typedef struct {
     /** u16: echo of STOP.stop_id. */
@@ -265,9 +278,10 @@ int rp_stop_ack_unpack(rp_stop_ack_t *msg, const uint8_t *payload, size_t len);
 /* -------- CLEAR_STOP -------------------------------------------------------------------- */
 
 /**
- * CLEAR_STOP (id 2, host to controller, class emergency, 2 bytes). Explicit unlatch of a
- * STOP and acknowledgement of cleared faults. Sent: on demand; repeated every
- * stop_repeat_ms until CLEAR_ACK.
+ * CLEAR_STOP (id 2, host to controller, class emergency, 2 bytes). Explicit unlatch:
+ * releases the latch (whatever set it: STOP, watchdog, fault) unless a stopping fault's
+ * condition is still active. Sent: on demand; repeated every stop_repeat_ms until
+ * CLEAR_ACK.
  */
 typedef struct {
     /** u16 range 1..65535: host's request id, echoed in CLEAR_ACK. */
@@ -331,20 +345,27 @@ int rp_clear_ack_unpack(rp_clear_ack_t *msg, const uint8_t *payload, size_t len)
 /**
  * MOTION (id 8, host to controller, class motion, 6 bytes). Queue one motion step. The
  * controller answers ACK; a repeated seq is acknowledged DUPLICATE and never executed
- * twice. Sent: one per plan step; retransmitted after ack_timeout_ms, at most
- * motion_retries times.
+ * twice. Checks in this order: session, duplicate, command, (command STOP: emergency stop),
+ * speed, distance, fault, latch, queue. Sent: one per plan step; retransmitted after
+ * ack_timeout_ms, at most motion_retries times.
  */
 typedef struct {
     /** u16: host step sequence number, wraps; new per step, kept across retransmissions. */
     uint16_t seq;
     /**
      * u8 (rp_command_t) limit 0..4: STOP/FWD/REV/LEFT/RIGHT; STOP here acts as an emergency
-     * stop.
+     * stop (speed and distance ignored).
      */
     uint8_t command;
-    /** u8 limit 0..60: speed units; wheel speed = speed * k rad/s (rover description). */
+    /**
+     * u8 limit 0..60: speed units; wheel angular speed = speed * k rad/s, surface speed =
+     * speed * k * wheel_radius m/s (docs/protocol.md, Units).
+     */
     uint8_t speed;
-    /** u16 limit 0..30000: distance units of encoder travel per side (23000 per metre). */
+    /**
+     * u16 limit 0..30000: distance units of encoder travel per side, each side along its
+     * own direction of travel (23000 per metre).
+     */
     uint16_t distance;
 } rp_motion_t;
 
@@ -413,8 +434,9 @@ int rp_ack_unpack(rp_ack_t *msg, const uint8_t *payload, size_t len);
 
 /**
  * STATUS (id 32, controller to host, class status, 6 bytes). Progress of one step: STARTED,
- * then COMPLETED when both sides' encoder travel reached the distance, or ABORTED with a
- * reason. Sent: when a step starts and when it ends.
+ * then COMPLETED when both sides' encoder travel reached the distance and the wheels are at
+ * rest, or ABORTED with a reason. A step with speed 0 or distance 0 is STARTED and
+ * COMPLETED in the same control tick, travel 0. Sent: when a step starts and when it ends.
  */
 typedef struct {
     /** u16: MOTION.seq of the step. */
@@ -453,8 +475,10 @@ int rp_status_unpack(rp_status_t *msg, const uint8_t *payload, size_t len);
 
 /**
  * STOPPED (id 33, controller to host, class status, 6 bytes). The wheels are at rest after
- * a STOP (or a stop the controller started itself, stop_id 0). Sent: once per stop, when
- * both wheels have come to rest.
+ * a STOP (or a stop the controller started itself, stop_id 0: MOTION with command STOP,
+ * watchdog, stopping fault). Every new stop_id gets its own STOPPED, also while already
+ * latched and at rest (then distance 0); repeats of a stop_id still waiting for its STOPPED
+ * share it. Sent: once per stop_id, when both wheels have come to rest.
  */
 typedef struct {
     /** u16: the STOP being reported; 0 for watchdog and fault stops. */
@@ -489,8 +513,9 @@ int rp_stopped_unpack(rp_stopped_t *msg, const uint8_t *payload, size_t len);
 /* -------- FAULT ------------------------------------------------------------------------- */
 
 /**
- * FAULT (id 34, controller to host, class status, 4 bytes). A fault was raised (active = 1)
- * or its condition went away (active = 0). Sent: when a fault is raised or cleared.
+ * FAULT (id 34, controller to host, class status, 4 bytes). A fault's condition became
+ * active (active = 1) or went away (active = 0). A stopping fault's latch outlives its
+ * condition: it holds until CLEAR_STOP. Sent: when a fault is raised or cleared.
  */
 typedef struct {
     /** u8 (rp_fault_code_t) range 1..8. */
@@ -529,23 +554,44 @@ int rp_fault_unpack(rp_fault_t *msg, const uint8_t *payload, size_t len);
 
 /**
  * HEARTBEAT (id 64, controller to host, class telemetry, 8 bytes). Controller liveness and
- * summary state. A changed boot_nonce means the controller rebooted. Sent: every
+ * summary state. A changed boot_nonce means the controller rebooted. The latch_* bits say
+ * what holds the latch; fault_bits say which fault conditions are active now. Sent: every
  * controller_heartbeat_period_ms.
  */
 typedef struct {
     /** u8 (rp_controller_state_t) range 0..4. */
     uint8_t state;
-    /** u1: motion inhibited until CLEAR_STOP. */
+    /**
+     * u1: motion inhibited until CLEAR_STOP: latch_stop OR latch_watchdog OR latch_fault.
+     */
     uint8_t stop_latched;
-    /** u1: a HELLO with matching version and schema hash was received since boot. */
+    /** u1: a session is open: the last HELLO since boot matched version and schema hash. */
     uint8_t handshake_ok;
-    /** u8: bit (FaultCode - 1) set while that fault is active. */
+    /**
+     * u1: the latch was set (or set again) by a STOP frame or a MOTION with command STOP
+     * since the last CLEARED.
+     */
+    uint8_t latch_stop;
+    /** u1: the latch was set (or set again) by the watchdog since the last CLEARED. */
+    uint8_t latch_watchdog;
+    /**
+     * u1: the latch was set (or set again) by a stopping fault other than WATCHDOG since
+     * the last CLEARED.
+     */
+    uint8_t latch_fault;
+    /**
+     * u8: bit (FaultCode - 1) set while that fault's condition is active (not the latch it
+     * left).
+     */
     uint8_t fault_bits;
     /** u8: steps queued, the running one included. */
     uint8_t queue_depth;
     /** u16: random per boot, as in IDENT. */
     uint16_t boot_nonce;
-    /** u16: frames the controller dropped (CRC, framing, length, range), wrapping. */
+    /**
+     * u16: frames the controller dropped, for any reason of docs/protocol.md 'Receive
+     * errors', wrapping.
+     */
     uint16_t rx_errors;
 } rp_heartbeat_t;
 
@@ -555,10 +601,13 @@ typedef struct {
 #define RP_F_HEARTBEAT_STATE 0 /**< field index of state */
 #define RP_F_HEARTBEAT_STOP_LATCHED 1 /**< field index of stop_latched */
 #define RP_F_HEARTBEAT_HANDSHAKE_OK 2 /**< field index of handshake_ok */
-#define RP_F_HEARTBEAT_FAULT_BITS 3 /**< field index of fault_bits */
-#define RP_F_HEARTBEAT_QUEUE_DEPTH 4 /**< field index of queue_depth */
-#define RP_F_HEARTBEAT_BOOT_NONCE 5 /**< field index of boot_nonce */
-#define RP_F_HEARTBEAT_RX_ERRORS 6 /**< field index of rx_errors */
+#define RP_F_HEARTBEAT_LATCH_STOP 3 /**< field index of latch_stop */
+#define RP_F_HEARTBEAT_LATCH_WATCHDOG 4 /**< field index of latch_watchdog */
+#define RP_F_HEARTBEAT_LATCH_FAULT 5 /**< field index of latch_fault */
+#define RP_F_HEARTBEAT_FAULT_BITS 6 /**< field index of fault_bits */
+#define RP_F_HEARTBEAT_QUEUE_DEPTH 7 /**< field index of queue_depth */
+#define RP_F_HEARTBEAT_BOOT_NONCE 8 /**< field index of boot_nonce */
+#define RP_F_HEARTBEAT_RX_ERRORS 9 /**< field index of rx_errors */
 
 /**
  * Pack a HEARTBEAT payload into out[0..8). Checks every field's wire range in wire order,
@@ -578,8 +627,8 @@ int rp_heartbeat_unpack(rp_heartbeat_t *msg, const uint8_t *payload, size_t len)
 
 /**
  * HOST_HEARTBEAT (id 65, host to controller, class telemetry, 2 bytes). Host liveness; any
- * valid frame feeds the controller's watchdog, this one when nothing else is sent. Sent:
- * every host_heartbeat_period_ms.
+ * valid host-to-controller frame feeds the controller's watchdog, this one when nothing
+ * else is sent. Sent: every host_heartbeat_period_ms.
  */
 typedef struct {
     /** u16: increments per heartbeat, wraps. */
@@ -610,7 +659,8 @@ int rp_host_heartbeat_unpack(rp_host_heartbeat_t *msg, const uint8_t *payload, s
 /**
  * ENCODERS (id 66, controller to host, class telemetry, 8 bytes). Absolute wheel encoder
  * counts since boot, polarity applied (forward positive on both sides), wrapping modulo
- * 2^24; the host unwraps. Sent: encoders_rate_hz.
+ * 2^24; the host unwraps. They restart at 0 after a reboot: the host re-bases on the new
+ * boot nonce. Sent: encoders_rate_hz.
  */
 typedef struct {
     /** u16 ms: controller clock, wraps every 65.536 s. */
@@ -727,8 +777,10 @@ int rp_imu_unpack(rp_imu_t *msg, const uint8_t *payload, size_t len);
 
 /**
  * POSE (id 69, controller to host, class telemetry, 8 bytes). Pose from a sensor that sees
- * the ground (visual odometry or lab tracking) in the map frame; unlike the encoders it
- * shows slip. Sent: pose_rate_hz.
+ * the ground (visual odometry or lab tracking) in the map frame: the frame of the map the
+ * gate plans on, x and y from its origin, never re-zeroed at boot; unlike the encoders it
+ * shows slip. Optional: a controller without such a sensor never sends it. Sent:
+ * pose_rate_hz.
  */
 typedef struct {
     /** i20 x0.001 m. */
@@ -776,13 +828,19 @@ int rp_pose_unpack(rp_pose_t *msg, const uint8_t *payload, size_t len);
  * link can still settle every step. Sent: with every HEARTBEAT.
  */
 typedef struct {
-    /** u16: MOTION.seq of the last step that ended (meaningless while ended_count is 0). */
+    /**
+     * u16: MOTION.seq of the last step that ended; while ended_count is 0 every field is 0
+     * and the host ignores them.
+     */
     uint16_t ended_seq;
     /** u8 (rp_step_state_t) range 0..2: COMPLETED or ABORTED. */
     uint8_t ended_state;
     /** u8 (rp_abort_reason_t) range 0..5. */
     uint8_t ended_reason;
-    /** u16: steps ended in this session, wrapping; 0 after HELLO. */
+    /**
+     * u16: steps ended in this session, wrapping; 0 after HELLO (the steps that HELLO
+     * aborted belong to the old session and are not counted).
+     */
     uint16_t ended_count;
     /** u16: distance units the last ended step travelled. */
     uint16_t travel;
@@ -815,8 +873,9 @@ int rp_progress_unpack(rp_progress_t *msg, const uint8_t *payload, size_t len);
 
 /**
  * HELLO (id 96, host to controller, class config, 3 bytes). Handshake: the host's protocol
- * version and schema hash. The controller answers IDENT and accepts MOTION only after a
- * matching HELLO. Sent: at connection, until IDENT.
+ * version and schema hash. The controller answers every HELLO with IDENT; a matching one
+ * opens a new session and arms the watchdog, a mismatched one closes any session. Sent: at
+ * connection, until IDENT.
  */
 typedef struct {
     /** u8. */
@@ -850,7 +909,8 @@ int rp_hello_unpack(rp_hello_t *msg, const uint8_t *payload, size_t len);
 /**
  * IDENT (id 97, controller to host, class config, 8 bytes). Controller identity: protocol
  * version and schema hash (compare with the host's), firmware version and a random boot
- * nonce. Sent: at boot and in answer to HELLO.
+ * nonce. Sent once at boot (unsolicited) and otherwise only in answer to HELLO. Sent: at
+ * boot and in answer to HELLO.
  */
 typedef struct {
     /** u8. */
@@ -927,8 +987,9 @@ int rp_set_param_unpack(rp_set_param_t *msg, const uint8_t *payload, size_t len)
 /* -------- PARAM_VALUE ------------------------------------------------------------------- */
 
 /**
- * PARAM_VALUE (id 99, controller to host, class config, 6 bytes). Answer to SET_PARAM with
- * the value now in force. Sent: once per SET_PARAM.
+ * PARAM_VALUE (id 99, controller to host, class config, 6 bytes). Answer to SET_PARAM:
+ * param echoed; value in force (OK, OUT_OF_RANGE) or 0 (UNKNOWN_PARAM). Sent: once per
+ * SET_PARAM.
  */
 typedef struct {
     /** u8. */

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from string import Template
 
+from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.spec import FieldSpec, MessageSpec, ProtocolSpec
 
 __all__ = ["render_markdown"]
@@ -97,8 +98,34 @@ def _timing_table(spec: ProtocolSpec) -> str:
     return "\n".join(rows)
 
 
+def _g(value: float) -> str:
+    return f"{value:g}"
+
+
+def _drive_values(rover: RoverDescription) -> dict[str, str]:
+    """The rover description's numbers that the "Units and drive" section quotes."""
+    d, g = rover.drive, rover.geometry
+    return {
+        "wheel_radius_m": _g(g.wheel_radius_m),
+        "speed_scale_rad_s": _g(d.wheel_velocity_scale_rad_s),
+        "speed_unit_mps": _g(rover.speed_to_mps(1)),
+        "max_speed": str(d.max_speed),
+        "max_speed_mps": _g(round(rover.speed_to_mps(d.max_speed), 6)),
+        "max_speed_rad_s": _g(round(rover.speed_to_omega(d.max_speed), 6)),
+        "units_per_m": str(d.distance_units_per_m),
+        "max_distance": str(d.max_distance),
+        "max_distance_m": f"{d.max_distance / d.distance_units_per_m:.3f}",
+        "accel_mps2": _g(d.wheel_accel_limit_mps2),
+        "track_width_m": _g(g.track_width_m),
+        "left_sign": f"{d.left_wheel_sign:+d}",
+        "right_sign": f"{d.right_wheel_sign:+d}",
+        "turn_efficiency": _g(rover.traction.turn_efficiency),
+    }
+
+
 def render_markdown(spec: ProtocolSpec) -> str:
-    """The full text of ``docs/protocol.md``."""
+    """The full text of ``docs/protocol.md`` (the units section quotes the packaged rover
+    description, so it is regenerated, and checked stale, when that file changes)."""
     template = Template(
         (Path(__file__).resolve().parent / "protocol.md.tmpl").read_text(encoding="utf-8")
     )
@@ -111,4 +138,5 @@ def render_markdown(spec: ProtocolSpec) -> str:
         enum_tables=_enum_tables(spec),
         timing_table=_timing_table(spec),
         **{key: value for key, value in spec.timing.items()},
+        **_drive_values(load_rover()),
     )

@@ -137,7 +137,7 @@ def test_can_records_decode_with_node_and_direction_from_the_identifier() -> Non
 def test_answers_are_controller_reports_not_telemetry_or_requests() -> None:
     assert is_answer(Ack(1, 0, 0, 1))
     assert is_answer(Stopped(1, 10, 20))
-    assert not is_answer(Heartbeat(1, 0, 1, 0, 0, 0, 0))
+    assert not is_answer(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0, 0))
     assert not is_answer(Encoders(1, 2, 3))
     assert not is_answer(Motion(1, 1, 30, 100))
 
