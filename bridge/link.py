@@ -419,13 +419,16 @@ class ControllerLink:
             self._estop_requested = True
             self._estop_source = source
             self._pending_clear = None
-            self._pending_stop = _Pending(stop_id, now, now, 0)
             transport = (
                 self._transport
                 if self._state
                 in (LinkState.READY, LinkState.LOST, LinkState.HANDSHAKE, LinkState.MISMATCH)
                 else None
             )
+            # The first copy is claimed here, under the lock, before it is written: the
+            # timer thread must see it as sent (and repeat it only after stop_repeat_s),
+            # not as never sent, or it writes a second copy while this one is on its way.
+            self._pending_stop = _Pending(stop_id, now, now, 1 if transport is not None else 0)
         if transport is not None:
             self._send_stop(transport, stop_id, source)
         with self._lock:
@@ -435,16 +438,21 @@ class ControllerLink:
         return stop_id
 
     def _send_stop(self, transport: Transport, stop_id: int, source: int) -> None:
+        """Write the first copy of a STOP already claimed in ``_pending_stop``."""
         try:
             transport.send(Stop(stop_id, source))
         except TransportError as exc:
+            with self._lock:
+                if self._pending_stop is not None and self._pending_stop.stop_id == stop_id:
+                    self._pending_stop.sends = 0  # not on the wire: the next copy is the first
             self._report_failure(transport, exc)
             return
-        self.last_stop_written = time.monotonic()
+        written = time.monotonic()
+        self.last_stop_written = written
         with self._lock:
             if self._pending_stop is not None and self._pending_stop.stop_id == stop_id:
-                self._pending_stop.sends += 1
-                self._pending_stop.last_sent = time.monotonic()
+                # The repeat interval runs from when the copy left, not from the claim.
+                self._pending_stop.last_sent = written
 
     def clear_stop(self) -> int:
         """Ask the controller to release its latch (CLEAR_STOP, repeated until CLEAR_ACK).
