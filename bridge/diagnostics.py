@@ -9,9 +9,10 @@
   ``error_active`` ... ``bus_off``). ERROR when the link is down, lost or mismatched;
   WARN while handshaking, while the medium reports trouble (a CAN bus error-warning or
   error-passive) or after no-ack faults.
-- ``rover_bridge: controller``: controller state, latch, faults, watchdog trips, queue,
-  firmware, schema hashes, boot nonce, stopping distance. ERROR on a stopping fault,
-  WARN while latched or on a reporting fault.
+- ``rover_bridge: controller``: controller state, latch and what holds it, the fault
+  conditions active now, watchdog trips, queue, firmware, schema hashes, boot nonce,
+  stopping distance. ERROR while a stopping fault's condition is active or a fault holds
+  the latch; WARN while latched by a STOP or the watchdog, or on a reporting fault.
 - ``rover_bridge: input``: steps refused, ``rejected_total`` and one
   ``rejected_<reason>`` per reason seen (the node's checks of ``wheel_instructions`` and
   the link's and controller's refusals), counts since start. Always OK: a refusal is
@@ -111,10 +112,18 @@ def diagnostic_array(
         ),
     )
     faults = set(diag.faults)
+    latch = ",".join(diag.latch)
     if faults & _STOPPING:
         ctl_level, ctl_msg = ERROR, "fault: " + ",".join(sorted(faults))
+        if latch:
+            ctl_msg += f"; latched by {latch}"
+    elif "fault" in diag.latch:
+        what = f" ({diag.latch_fault})" if diag.latch_fault else ""
+        ctl_level, ctl_msg = ERROR, f"latched by {latch}{what}: clear_emergency_stop to resume"
+    elif diag.latch:
+        ctl_level, ctl_msg = WARN, f"latched by {latch}"
     elif diag.stop_latched:
-        ctl_level, ctl_msg = WARN, "emergency stop latched"
+        ctl_level, ctl_msg = WARN, "emergency stop requested"
     elif faults:
         ctl_level, ctl_msg = WARN, "reporting fault: " + ",".join(sorted(faults))
     elif diag.state != "ready":
@@ -131,6 +140,8 @@ def diagnostic_array(
             [
                 "controller_state",
                 "stop_latched",
+                "latch",
+                "latch_fault",
                 "estop_requested",
                 "faults",
                 "watchdog_trips",

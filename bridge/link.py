@@ -12,6 +12,15 @@ with its id. The operator's intent is remembered: if the controller reboots or t
 comes back, STOP is sent again right after the handshake. Only :meth:`clear_stop`
 (CLEAR_STOP, repeated until CLEAR_ACK) releases it.
 
+**Latch** (docs/protocol.md, "Latch and faults"). The controller's HEARTBEAT says what
+holds its latch (``latch_stop``, ``latch_watchdog``, ``latch_fault``) and which fault
+conditions are active (``fault_bits``). With ``auto_clear_watchdog`` the link sends
+CLEAR_STOP itself when the watchdog alone holds the latch, its condition is gone, the
+session is ours and no emergency stop is requested: a link outage does not leave the
+rover stuck. A clear answered FAULT_PERSISTS is kept and sent again once a HEARTBEAT
+shows no stopping fault condition, until it is answered, or an emergency stop or a
+reboot ends it.
+
 **MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
 after ``ack_timeout_s`` without ACK, at most ``motion_retries`` times, and the next is
 sent only after its ACK, so the controller can never receive them out of order. The
@@ -94,6 +103,18 @@ OnStatus = Callable[[str], None]
 OnTelemetry = Callable[[Message, float], None]
 OnState = Callable[["LinkState"], None]
 
+_STOPPING_FAULTS = frozenset(
+    {
+        FaultCode.WATCHDOG,
+        FaultCode.STALL_LEFT,
+        FaultCode.STALL_RIGHT,
+        FaultCode.ENCODER,
+        FaultCode.DRIVER,
+        FaultCode.INTERNAL,
+    }
+)
+"""Faults whose active condition makes CLEAR_STOP answer FAULT_PERSISTS."""
+
 _ACK_REASONS = {
     AckResult.OUT_OF_RANGE: "out_of_range",
     AckResult.QUEUE_FULL: "queue_full",
@@ -129,8 +150,9 @@ class LinkConfig:
             every failed open or failure before a completed handshake).
         controller_queue: steps allowed outstanding in the controller.
         lane_limit: steps the bridge holds waiting to be sent; more are rejected.
-        auto_clear_watchdog: after the link comes back, clear a latch whose only cause
-            is the controller's watchdog (never one from an emergency stop).
+        auto_clear_watchdog: clear a latch that the controller's watchdog alone holds
+            (HEARTBEAT ``latch_watchdog`` only) once the watchdog's condition is gone;
+            never one with an emergency stop or a fault in it.
     """
 
     url: str
@@ -223,6 +245,12 @@ class LinkDiagnostics:
     last_error: str
     medium_state: str = "ok"
     medium_errors: int = 0
+    latch: tuple[str, ...] = ()
+    """What holds the controller's latch (``stop``, ``watchdog``, ``fault``), from its
+    last HEARTBEAT; empty when it is not latched."""
+    latch_fault: str = ""
+    """The last stopping fault other than WATCHDOG the controller raised (what
+    ``latch_fault`` most likely stands for), ``""`` if none since the link started."""
 
 
 @dataclass
@@ -306,6 +334,11 @@ class ControllerLink:
         self._last_hb_tx = 0.0
         self._heartbeat: Heartbeat | None = None
         self._faults: set[int] = set()
+        """Fault conditions active in the controller (FAULT active 1..0, ``fault_bits``)."""
+        self._last_stopping_fault: int | None = None
+        self._clear_wanted = False  # a clear (operator's or automatic) not yet answered done
+        self._clear_auto = False  # ... and it is the automatic one
+        self._clear_persisted = False  # ... and was answered FAULT_PERSISTS (said once)
         self._hb_counter = 0
         self._last_stop_latency: float | None = None
         self._last_stopping_mm: int | None = None
@@ -419,6 +452,7 @@ class ControllerLink:
             self._estop_requested = True
             self._estop_source = source
             self._pending_clear = None
+            self._clear_wanted = False
             transport = (
                 self._transport
                 if self._state
@@ -464,6 +498,8 @@ class ControllerLink:
             self._estop_requested = False
             self._pending_stop = None
             self._pending_clear = _Pending(clear_id, now, 0.0, 0)
+            self._clear_wanted, self._clear_auto = True, False
+            self._clear_persisted = False
             self._wake.set()
         return clear_id
 
@@ -749,28 +785,49 @@ class ControllerLink:
             self._set_state(LinkState.HANDSHAKE)
             self._hello_sent = False
             self._last_hello = 0.0
-        if hb.fault_bits & (1 << (FaultCode.WATCHDOG - 1)):
-            self._faults.add(FaultCode.WATCHDOG)
-        self._maybe_clear_watchdog(t)
+        # The heartbeat is the authority on the conditions (FAULT frames may be lost).
+        self._faults = {code for code in FaultCode if hb.fault_bits & (1 << (code - 1))}
+        self._maybe_clear(hb, t)
 
-    def _maybe_clear_watchdog(self, now: float) -> None:
-        """A latch whose only cause is the controller's watchdog (the link was down) is
-        cleared once the link is back, unless the operator asked for a stop."""
-        hb = self._heartbeat
-        if (
+    def _maybe_clear(self, hb: Heartbeat, now: float) -> None:
+        """Send CLEAR_STOP when docs/protocol.md ("Latch and faults") allows the host to:
+        the automatic clear of a watchdog-only latch, or the retry of a clear that was
+        answered FAULT_PERSISTS once no stopping fault condition is active."""
+        if self._state is not LinkState.READY or not hb.handshake_ok:
+            return
+        if self._clear_wanted and not hb.stop_latched and self._pending_clear is None:
+            # Released meanwhile (by another host, or a reboot we have not seen yet).
+            self._clear_wanted = False
+            if not self._clear_auto:
+                self._ctrl_latched = False
+                self._emit("cleared")
+            return
+        if self._pending_clear is not None or self._estop_requested or not hb.stop_latched:
+            return
+        stopping_active = any(hb.fault_bits & (1 << (code - 1)) for code in _STOPPING_FAULTS)
+        if stopping_active:
+            return
+        retry = self._clear_wanted
+        auto = (
             self.config.auto_clear_watchdog
-            and hb is not None
-            and self._state is LinkState.READY
-            and hb.state == ControllerState.FAULT
-            and hb.fault_bits == 1 << (FaultCode.WATCHDOG - 1)
-            and not self._estop_requested
-            and self._pending_clear is None
-            and now - self._last_auto_clear >= 1.0
-        ):
-            self._last_auto_clear = now
-            self._stop_counter = self._stop_counter % 0xFFFF + 1
-            self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
-            logger.info("link back: clearing the controller's watchdog latch")
+            and hb.latch_watchdog
+            and not hb.latch_stop
+            and not hb.latch_fault
+        )
+        # At most one new request per controller heartbeat period: a heartbeat sent
+        # before our CLEAR_STOP arrived still shows the latch.
+        if not (retry or auto) or now - self._last_auto_clear < self.config.controller_heartbeat_s:
+            return
+        self._last_auto_clear = now
+        self._stop_counter = self._stop_counter % 0xFFFF + 1
+        self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
+        if not retry:
+            self._clear_wanted, self._clear_auto = True, True
+            self._clear_persisted = False
+            logger.info("watchdog latch with its condition gone: clearing it (auto_clear_watchdog)")
+        else:
+            logger.info("no stopping fault condition any more: sending CLEAR_STOP again")
+        self._wake.set()
 
     def _check_reboot(self, nonce: int) -> bool:
         if self._boot_nonce is None or nonce == self._boot_nonce:
@@ -786,6 +843,7 @@ class ControllerLink:
         self._faults.clear()
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.BOOT
+        self._clear_wanted = False  # the latch went with the reboot
         if self._estop_requested:
             now = time.monotonic()
             self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)  # re-latch at once
@@ -843,11 +901,18 @@ class ControllerLink:
             return
         self._pending_clear = None
         if ack.result == ClearResult.FAULT_PERSISTS:
-            self._emit("fault:fault_persists")
-        else:
-            self._ctrl_latched = False
-            self._ctrl_state = ControllerState.IDLE
-            self._faults -= {FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT}
+            # Kept: sent again once no stopping fault condition is active (_maybe_clear).
+            # Said once per request, not once per retry.
+            if not self._clear_persisted:
+                self._emit("fault:fault_persists")
+            self._clear_persisted = True
+            return
+        was_auto = self._clear_auto
+        self._clear_wanted = self._clear_auto = False
+        self._clear_persisted = False
+        self._ctrl_latched = False
+        self._ctrl_state = ControllerState.IDLE
+        if ack.result == ClearResult.CLEARED or not was_auto:
             self._emit("cleared")
 
     def _on_ack(self, ack: Ack, t: float) -> None:
@@ -915,10 +980,13 @@ class ControllerLink:
         )
         if fault.active:
             self._faults.add(fault.code)
+            if fault.code in _STOPPING_FAULTS and fault.code != FaultCode.WATCHDOG:
+                self._last_stopping_fault = fault.code
             if fault.code == FaultCode.WATCHDOG:
                 self._counters.watchdog_trips += 1
             self._emit(f"fault:{name}")
-        elif fault.code not in (FaultCode.WATCHDOG, FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT):
+        else:
+            # The condition went away; a latch it set is the heartbeat's to report.
             self._faults.discard(fault.code)
 
     # -- status emission ---------------------------------------------------------------------
@@ -1020,4 +1088,21 @@ class ControllerLink:
                 last_error=self._last_error,
                 medium_state=transport.medium_state if transport else "n/a",
                 medium_errors=transport.medium_errors if transport else 0,
+                latch=_latch_causes(hb) if hb is not None and self._ctrl_latched else (),
+                latch_fault=FaultCode(self._last_stopping_fault).name
+                if self._last_stopping_fault is not None
+                else "",
             )
+
+
+def _latch_causes(hb: Heartbeat) -> tuple[str, ...]:
+    """The latch causes a HEARTBEAT reports, sorted."""
+    return tuple(
+        name
+        for name, bit in (
+            ("fault", hb.latch_fault),
+            ("stop", hb.latch_stop),
+            ("watchdog", hb.latch_watchdog),
+        )
+        if bit
+    )

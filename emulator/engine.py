@@ -97,6 +97,8 @@ class EmulatorStatus:
     collision: str | None
     injected: tuple[str, ...] = ()
     """Injected faults in force (:meth:`~emulator.injection.Injector.in_force`)."""
+    latch: tuple[str, ...] = ()
+    """What holds the latch (``stop``, ``watchdog``, ``fault``), sorted; empty: none."""
 
     def line(self) -> str:
         """One status line for a terminal: controller faults (``faults=``) and the
@@ -363,6 +365,7 @@ class Emulator:
             overruns=self.overruns,
             collision=hit.obstacle_id if hit else None,
             injected=self.injector.in_force(),
+            latch=tuple(sorted(cause.value for cause in m.latch_causes)),
         )
 
     @property
