@@ -20,7 +20,8 @@ Publishes:
   finished a step; otherwise ``accepted``, ``rejected:<reason>``, ``aborted:<reason>``,
   ``fault:<reason>``, and ``ready``, ``stopped``, ``cleared`` for the link and latch.
 - ``odom`` ``nav_msgs/Odometry`` (frame ``odom`` -> ``base_link``): encoders fused with
-  the IMU yaw rate, with covariance, on every ENCODERS frame.
+  the IMU yaw rate, with covariance, on every ENCODERS frame; continuous across a
+  controller reboot (re-based on the new boot nonce).
 - ``odom_ground`` ``nav_msgs/Odometry`` (frame ``map`` -> ``base_link``): the
   controller's POSE from a sensor that sees the ground, stamped with the measurement's
   time; what drift control must use, because encoders cannot see slip.
@@ -69,7 +70,15 @@ from bridge.rosport.msgs import (
 from bridge.trafficfile import open_recorder
 from bridge.transport import Transport, open_transport
 from firmware_proto.message import Message
-from firmware_proto.messages import Command, Encoders, Imu, StopSource, WheelSpeeds
+from firmware_proto.messages import (
+    Command,
+    Encoders,
+    Heartbeat,
+    Ident,
+    Imu,
+    StopSource,
+    WheelSpeeds,
+)
 from firmware_proto.messages import Pose as PoseMsg
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.trafficio import LogWriter
@@ -266,6 +275,10 @@ class BridgeNode:
                     ),
                 )
             )
+        elif isinstance(msg, (Heartbeat, Ident)):
+            with self._odom_lock:
+                if self.odometry.observe_boot(msg.boot_nonce):
+                    logger.info("controller rebooted: odometry re-based, pose kept")
         elif isinstance(msg, Imu):
             with self._odom_lock:
                 self.odometry.update_imu(msg)

@@ -7,6 +7,12 @@ differencing over-reads yaw; the gyro does not. Without IMU samples for
 ``imu_timeout_s``, heading falls back to the encoder difference scaled by the rover
 description's calibrated turn efficiency. Covariances grow with distance and time.
 
+Across a controller reboot the pose is continuous: the encoder counts restart at 0 with
+a new boot nonce, and :meth:`OdometryEstimator.observe_boot` re-bases on the first
+reading of the new boot instead of counting the jump as motion (docs/protocol.md,
+Telemetry). A jump larger than :data:`MAX_PLAUSIBLE_STEP_M` between two readings is
+taken for a counter reset too (a reboot whose nonce has not been seen yet).
+
 Encoders cannot see slip: ``/odom`` says the rover went as far as its wheels turned.
 The controller's POSE (visual odometry or lab tracking) does see it;
 :func:`ground_pose` turns it into a pose in the map frame with its own covariance.
@@ -88,13 +94,29 @@ class OdometryEstimator:
         self._elapsed_s = 0.0
         self._enc_t_ms: int | None = None
         self._source = "imu"
+        self._boot_nonce: int | None = None
         self.resets = 0
+        """Jumps taken for a counter reset by the plausibility check."""
+        self.reboots = 0
+        """Re-basings on a new boot nonce."""
 
     def rereference(self) -> None:
         """Counts restart (controller reboot): keep the pose, forget the last counts."""
         self._counts = None
         self._imu_t_ms = None
         self._enc_t_ms = None
+        self._imu_yaw_delta = 0.0
+
+    def observe_boot(self, boot_nonce: int) -> bool:
+        """The controller's boot nonce, from every IDENT and HEARTBEAT. A new one (not
+        the first seen) means its counts and clock restarted: re-base on the next
+        reading, keeping the pose. Returns whether it re-based."""
+        previous, self._boot_nonce = self._boot_nonce, boot_nonce
+        if previous is None or previous == boot_nonce:
+            return False
+        self.reboots += 1
+        self.rereference()
+        return True
 
     def update_imu(self, msg: Imu) -> None:
         """Integrate one gyro sample (trapezoid-free: rate held since the last one)."""

@@ -250,3 +250,34 @@ def test_bridge_process_over_dds(emulators: Emus, dds_config: str) -> None:
 def test_loopback_config_is_loopback_only() -> None:
     config = loopback_config()
     assert "127.0.0.1" in config and "AllowMulticast" in config
+
+
+def test_odom_is_continuous_across_a_controller_reboot(bridged: Any) -> None:
+    """#16 bug 2: encoders restart at 0 after a reboot; /odom must not count that as
+    motion (docs/protocol.md, Telemetry: re-base on the new boot nonce)."""
+    emu, node, client = bridged
+    client.step(1, 60, 6900)  # 0.3 m: less than the 0.5 m 'counter reset' heuristic
+    client.status.wait_count("completed", 1)
+    deadline = time.monotonic() + 10.0
+    while abs(client.odom[-1].pose.pose.position.x - 0.3) > 0.005:  # the last frames
+        assert time.monotonic() < deadline, client.odom[-1].pose.pose.position
+        time.sleep(0.01)
+    before = client.odom[-1].pose.pose.position
+    mark = client.status.mark()
+    emu.inject("reboot")
+    client.status.wait(lambda xs: "fault:controller_reboot" in xs and "ready" in xs, since=mark)
+    count = len(client.odom)
+    deadline = time.monotonic() + 10.0
+    while len(client.odom) < count + 10:  # ENCODERS of the new boot, counting from 0
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    after = client.odom[-1].pose.pose.position
+    assert (after.x, after.y) == pytest.approx((before.x, before.y), abs=1e-3)
+    # And it goes on from there: 0.1 m more is 0.4 m, not 0.1 m.
+    client.step(1, 60, 2300)
+    client.status.wait_count("completed", 1, since=mark)
+    deadline = time.monotonic() + 10.0
+    while abs(client.odom[-1].pose.pose.position.x - (before.x + 0.1)) > 0.005:
+        assert time.monotonic() < deadline, client.odom[-1].pose.pose.position
+        time.sleep(0.01)
+    assert node.odometry.resets == 0  # re-based on the nonce, not caught by the heuristic

@@ -110,3 +110,15 @@ def test_ground_pose_conversion_and_no_fix() -> None:
     assert (pose.x_m, pose.y_m, pose.sigma_m, pose.age_s) == (1.5, -0.25, 0.02, 0.1)
     assert pose.yaw_rad == pytest.approx(math.pi / 2)
     assert ground_pose(Pose(0, 0, 0, 0, 0)) is None
+
+
+def test_estimator_rebases_on_a_new_boot_nonce(rover: RoverDescription) -> None:
+    est = OdometryEstimator(rover)
+    assert est.observe_boot(0x1111) is False  # the first nonce seen: nothing to re-base
+    est.update_encoders(Encoders(0, 0, 0))
+    est.update_encoders(Encoders(20, 4600, 4600))  # 0.2 m
+    assert est.observe_boot(0x1111) is False
+    assert est.observe_boot(0x2222) is True  # rebooted: counts restart
+    assert est.update_encoders(Encoders(5, 0, 0)).x_m == pytest.approx(0.2)
+    assert est.update_encoders(Encoders(25, 2300, 2300)).x_m == pytest.approx(0.3)
+    assert (est.reboots, est.resets) == (1, 0)
