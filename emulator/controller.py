@@ -221,6 +221,8 @@ class ControllerModel:
         self._setpoint = (0.0, 0.0)
         self._commanded = (0.0, 0.0)
         self._pending_stops: list[_PendingStop] = []
+        self._reported_stops: set[int] = set()
+        """Host stop_ids already answered with STOPPED since the latch was last cleared."""
         self._ended = Progress(0, StepState.STARTED, AbortReason.NONE, 0, 0)
         self._last_rx_s: float | None = None
         self._watchdog_tripped = False
@@ -406,6 +408,10 @@ class ControllerModel:
             self.state = ControllerState.FAULT
         elif self.state != ControllerState.FAULT:
             self.state = ControllerState.STOP_LATCHED
+        # One STOPPED per host stop_id until the latch is cleared: a repeat shares it,
+        # whether it comes before or after it. The controller's own stops (0) each get one.
+        if stop_id != 0 and stop_id in self._reported_stops:
+            return
         if all(p.stop_id != stop_id for p in self._pending_stops):
             self._pending_stops.append(_PendingStop(stop_id, self.now_s, self.encoders.travel()))
 
@@ -441,6 +447,7 @@ class ControllerModel:
         if self.faults & STOPPING_FAULTS:
             return ClearResult.FAULT_PERSISTS
         self.latch_causes.clear()
+        self._reported_stops.clear()
         self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
         return ClearResult.CLEARED
 
@@ -616,6 +623,8 @@ class ControllerModel:
                     min(0xFFFF, round(duration_ms)),
                 )
             )
+            if pending.stop_id != 0:
+                self._reported_stops.add(pending.stop_id)
         self._pending_stops.clear()
 
     # -- telemetry ----------------------------------------------------------------------

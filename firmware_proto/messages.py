@@ -685,9 +685,10 @@ class Stopped(Message, _StoppedFields):
     """STOPPED (id 33, controller to host, status). The wheels are at rest after a STOP (or a
     stop the controller started itself, stop_id 0: MOTION with command STOP, watchdog,
     stopping fault). Every new stop_id gets its own STOPPED, also while already latched and
-    at rest (then distance 0); repeats of a stop_id still waiting for its STOPPED share it.
+    at rest (then distance 0); a repeat of a stop_id seen since the latch was last cleared
+    gets none.
 
-    Sent: once per stop_id, when both wheels have come to rest.
+    Sent: once per stop_id (until CLEARED), when both wheels have come to rest.
 
     Attributes:
         stop_id: u16. the STOP being reported; 0 for watchdog and fault stops.

@@ -477,8 +477,9 @@ int rp_status_unpack(rp_status_t *msg, const uint8_t *payload, size_t len);
  * STOPPED (id 33, controller to host, class status, 6 bytes). The wheels are at rest after
  * a STOP (or a stop the controller started itself, stop_id 0: MOTION with command STOP,
  * watchdog, stopping fault). Every new stop_id gets its own STOPPED, also while already
- * latched and at rest (then distance 0); repeats of a stop_id still waiting for its STOPPED
- * share it. Sent: once per stop_id, when both wheels have come to rest.
+ * latched and at rest (then distance 0); a repeat of a stop_id seen since the latch was
+ * last cleared gets none. Sent: once per stop_id (until CLEARED), when both wheels have
+ * come to rest.
  */
 typedef struct {
     /** u16: the STOP being reported; 0 for watchdog and fault stops. */

@@ -157,6 +157,13 @@ def test_every_new_stop_id_gets_its_own_stopped(make_model: Make) -> None:
     model.handle(Stop(2, 0))  # latched and at rest: reported on the next tick
     (stopped,) = [m for m in run(model, 0.01) if isinstance(m, Stopped)]
     assert (stopped.stop_id, stopped.distance_mm) == (2, 0)
+    # A late repeat, after its STOPPED: acknowledged, not reported again.
+    assert model.handle(Stop(1, 0)) == [StopAck(1, ControllerState.STOP_LATCHED)]
+    assert not [m for m in run(model, 0.1) if isinstance(m, Stopped)]
+    # After CLEARED an id may come back as a new stop.
+    model.handle(ClearStop(3))
+    model.handle(Stop(1, 0))
+    assert [m.stop_id for m in run(model, 0.1) if isinstance(m, Stopped)] == [1]
 
 
 def test_a_latch_set_in_boot_clears_back_to_boot(make_model: Make) -> None:
