@@ -39,7 +39,7 @@ import can
 
 from bridge.errors import TransportUrlError
 from bridge.transport import Transport, parse_can_url
-from firmware_proto.canmap import CanDecoder, encode_can
+from firmware_proto.canmap import CanDecoder, can_id, encode_can
 from firmware_proto.message import Message
 from firmware_proto.messages import DEFAULT_NODE
 from firmware_proto.trafficio import can_record
@@ -236,6 +236,24 @@ class CanTransport(Transport):
             raise OSError(f"CAN send failed: {exc}") from exc
         if self.recorder is not None:
             self._record(CanRecord(sent_at, self.channel, arbitration_id, data, is_rx=False))
+
+    def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
+        bus = self._bus
+        if bus is None:
+            raise OSError("bus closed")
+        if bad_crc:
+            raise ValueError("a CAN frame's CRC is the bus's: it cannot be sent damaged")
+        if len(payload) > 8:
+            raise ValueError(f"a classic CAN frame carries at most 8 bytes, not {len(payload)}")
+        try:
+            bus.send(
+                can.Message(
+                    arbitration_id=can_id(msg_id, self.node), data=payload, is_extended_id=False
+                ),
+                timeout=0.1,
+            )
+        except can.CanError as exc:
+            raise OSError(f"CAN send failed: {exc}") from exc
 
     def _read(self, timeout_s: float) -> list[Message]:
         bus = self._bus

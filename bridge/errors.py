@@ -9,6 +9,12 @@ Everything this package raises derives from :class:`BridgeError`::
      |    +-- TransportUrlError   the URL itself is malformed: permanent, never retried;
      |                            also ValueError
      +-- ParameterError     a bridge parameter is missing or out of range; also ValueError
+     +-- ConformanceError   the conformance suite cannot run (no link, a control port
+          |                 that does not answer)
+          +-- RuleFailedError   a controller broke a rule of docs/protocol.md (one
+          |                     rule's verdict, reported, never raised out of the suite)
+          +-- RuleNotRunError   a rule needs what the device does not offer (a control
+                                port, a serial line): reported "not run", never passed
 
 Parts of the bridge add their own subclasses of :class:`BridgeError` beside
 :class:`RosPortError`; this root stays the one thing callers need to catch.
@@ -18,8 +24,11 @@ from __future__ import annotations
 
 __all__ = [
     "BridgeError",
+    "ConformanceError",
     "ParameterError",
     "RosPortError",
+    "RuleFailedError",
+    "RuleNotRunError",
     "TransportError",
     "TransportUrlError",
 ]
@@ -48,3 +57,15 @@ class TransportUrlError(TransportError, ValueError):
 
 class ParameterError(BridgeError, ValueError):
     """A bridge parameter is missing, malformed or out of range; names the parameter."""
+
+
+class ConformanceError(BridgeError):
+    """The conformance suite cannot do what was asked (bridge.conformance)."""
+
+
+class RuleFailedError(ConformanceError):
+    """A controller broke one rule: says what was expected and what came instead."""
+
+
+class RuleNotRunError(ConformanceError):
+    """A rule cannot run against this device; says what it needs."""

@@ -213,6 +213,16 @@ class SerialTransport(Transport):
         if self.recorder is not None:
             self._record(SerialRecord(sent_at, message_direction(message), wire))
 
+    def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
+        port = self._port
+        if port is None:
+            raise OSError("port closed")
+        wire = self._encoder.encode_raw(msg_id, payload, bad_crc=bad_crc)
+        try:
+            port.write(wire)
+        except serial.SerialException as exc:
+            raise OSError(str(exc)) from exc
+
     def _read(self, timeout_s: float) -> list[Message]:
         port = self._port
         if port is None:

@@ -30,7 +30,8 @@ reconnects). Writes happen on the caller's thread under a lock, so a STOP is on 
 without waiting for any queue.
 
 Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
-``_write`` (one message) and ``_read`` (wait a little, return messages); set
+``_write`` (one message) and ``_read`` (wait a little, return messages), and
+``_write_raw`` if it can send unchecked frames (:meth:`Transport.send_raw`); set
 ``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; override
 ``medium_state`` and ``medium_errors`` if the medium reports its health; hand every
 frame written and every frame received to ``_record`` (traffic logs,
@@ -191,6 +192,36 @@ class Transport(RecordingEdge, ABC):
             except (OSError, ValueError) as exc:
                 raise TransportError(f"write to {self.url} failed: {exc}") from exc
             self.tx_frames += 1
+
+    def send_raw(self, msg_id: int, payload: bytes, *, bad_crc: bool = False) -> None:
+        """Send a frame with this message id and these payload bytes, unchecked, now, on
+        the calling thread: for a conformance host that must put frames on the wire that
+        the codec refuses (an unknown id, a wrong length, a field outside its range).
+
+        Args:
+            msg_id: the message id, 0..127 (CAN: identifier ``msg_id << 4 | node``).
+            payload: the payload bytes, as given.
+            bad_crc: serial only: invert the frame's CRC.
+
+        Raw frames are not written to the traffic log.
+
+        Raises:
+            TransportError: not open, the write failed, or this medium cannot send such a
+                frame (a bad CRC on CAN: the bus computes its own).
+        """
+        with self._write_lock:
+            if not self._opened:
+                raise TransportError(f"{self.url} is not open")
+            try:
+                self._write_raw(msg_id, payload, bad_crc)
+            except (OSError, ValueError) as exc:
+                raise TransportError(f"write to {self.url} failed: {exc}") from exc
+            self.tx_frames += 1
+
+    def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
+        """Send one unchecked frame (see :meth:`send_raw`). Raise OSError on failure,
+        ValueError when the medium cannot carry it. Default: not supported."""
+        raise ValueError(f"{self.kind} transport cannot send raw frames")
 
     def close(self) -> None:
         """Stop the reader and the dispatcher and release the device (idempotent; safe

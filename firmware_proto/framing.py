@@ -65,16 +65,19 @@ _CODE = [bytes((n + 1,)) for n in range(254)]
 """COBS code byte of a zero-free run of n bytes (n < 254; protocol frames are shorter)."""
 
 
-def encode_raw_frame(msg_id: int, seq: int, payload: bytes) -> bytes:
-    """Frame arbitrary payload bytes (no field checks): for tests, fuzzing and replay.
+def encode_raw_frame(msg_id: int, seq: int, payload: bytes, *, bad_crc: bool = False) -> bytes:
+    """Frame arbitrary payload bytes (no field checks): for tests, fuzzing, replay and
+    conformance checks.
 
     Args:
         msg_id: message id byte, 0..255.
         seq: frame counter; only its low 8 bits are sent.
         payload: payload bytes, sent as given.
+        bad_crc: send the CRC inverted, so that a receiver must drop the frame (*crc*).
     """
     raw = bytes((msg_id, seq & 0xFF)) + payload
-    raw += crc_hqx(raw, 0xFFFF).to_bytes(2, "big")
+    crc = crc_hqx(raw, 0xFFFF) ^ (0xFFFF if bad_crc else 0)
+    raw += crc.to_bytes(2, "big")
     if len(raw) >= 254:
         return DELIMITER + cobs.encode(raw) + DELIMITER
     # COBS inlined for short frames: each zero-free run becomes (length + 1) + run.
@@ -109,6 +112,11 @@ class FrameEncoder:
     def encode(self, message: Message, strict: bool = True) -> bytes:
         """Wire bytes of ``message`` with the next frame counter value."""
         return encode_raw_frame(message.MSG_ID, next(self._counter), message.pack(strict))
+
+    def encode_raw(self, msg_id: int, payload: bytes, *, bad_crc: bool = False) -> bytes:
+        """Wire bytes of an unchecked frame with the next frame counter value (see
+        :func:`encode_raw_frame`)."""
+        return encode_raw_frame(msg_id, next(self._counter), payload, bad_crc=bad_crc)
 
 
 class FrameDecoder:

@@ -20,7 +20,7 @@ from firmware_proto.framing import (
     encode_raw_frame,
 )
 from firmware_proto.message import Message
-from firmware_proto.messages import Heartbeat, Motion, Stop
+from firmware_proto.messages import Heartbeat, HostHeartbeat, Motion, Stop
 
 from .strategies import any_message
 
@@ -253,3 +253,13 @@ def test_cobs_round_trips_long_blocks(size: int) -> None:
         out = cobs.encode(data)
         assert 0 not in out
         assert cobs.decode(out) == data
+
+
+def test_a_raw_frame_with_a_bad_crc_is_dropped_as_crc() -> None:
+    encoder = FrameEncoder()
+    good = encoder.encode_raw(HostHeartbeat.MSG_ID, HostHeartbeat(5).pack())
+    bad = encoder.encode_raw(HostHeartbeat.MSG_ID, HostHeartbeat(6).pack(), bad_crc=True)
+    decoder = FrameDecoder()
+    frames = decoder.feed(good + bad)
+    assert [f.message for f in frames] == [HostHeartbeat(5)]
+    assert (decoder.counters.crc, decoder.counters.rejected) == (1, 1)
