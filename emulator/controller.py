@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from emulator.drive import StepProfile, motor_omegas, ramp
 from emulator.sensors import EncoderModel, ImuModel, PoseSensor, SensorConfig
 from emulator.twin import Twin
+from firmware_proto.faults import STOPPING_FAULTS
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     CONTROLLER_HEARTBEAT_PERIOD_MS,
@@ -91,18 +92,6 @@ logger = logging.getLogger(__name__)
 
 DEDUP_WINDOW = 64
 """Accepted MOTION seqs remembered per session (docs/protocol.md)."""
-
-STOPPING_FAULTS = frozenset(
-    {
-        FaultCode.WATCHDOG,
-        FaultCode.STALL_LEFT,
-        FaultCode.STALL_RIGHT,
-        FaultCode.ENCODER,
-        FaultCode.DRIVER,
-        FaultCode.INTERNAL,
-    }
-)
-"""Faults that stop the rover and hold FAULT until CLEAR_STOP; IMU and POSE only report."""
 
 
 class LatchCause(enum.Enum):
@@ -193,15 +182,20 @@ class ControllerModel:
         )
         self.imu = ImuModel(twin, random.Random(self._rng.random()), sensors)
         self.pose_sensor = PoseSensor(twin, random.Random(self._rng.random()), sensors)
-        self.watchdog_ms = self.config.watchdog_ms
-        self.telemetry_hz = self.config.telemetry_hz
-        self.pose_hz = self.config.pose_hz
-        self.heartbeat_hz = self.config.heartbeat_hz
+        self._init_params()
         self.rx_errors = 0
         self.boots = 0
         self._init_state()
 
     # -- state ------------------------------------------------------------------------
+    def _init_params(self) -> None:
+        """Run-time parameters at their firmware defaults (at power-on and every reboot:
+        SET_PARAM values live in RAM, docs/protocol.md Parameters)."""
+        self.watchdog_ms = self.config.watchdog_ms
+        self.telemetry_hz = self.config.telemetry_hz
+        self.pose_hz = self.config.pose_hz
+        self.heartbeat_hz = self.config.heartbeat_hz
+
     def _init_state(self) -> None:
         self.state: int = ControllerState.BOOT
         """The :class:`ControllerState` code."""
@@ -283,9 +277,10 @@ class ControllerModel:
         return [self._ident()]
 
     def reboot(self) -> list[Message]:
-        """A reset: state, queue, latch, session and counts are lost; the motors stop at
-        once (no braking ramp); a new boot nonce; IDENT again."""
+        """A reset: state, queue, latch, session, counts and SET_PARAM values are lost;
+        the motors stop at once (no braking ramp); a new boot nonce; IDENT again."""
         self._init_state()
+        self._init_params()
         self.encoders.reset()
         self.pose_sensor.clear()
         return self.boot()

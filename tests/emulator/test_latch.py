@@ -29,6 +29,10 @@ from firmware_proto.messages import (
     Hello,
     HostHeartbeat,
     Motion,
+    Param,
+    ParamResult,
+    ParamValue,
+    SetParam,
     Status,
     Stop,
     StopAck,
@@ -188,3 +192,14 @@ def test_wrong_direction_frames_are_counted_and_do_not_feed_the_watchdog(
     assert Fault(FaultCode.WATCHDOG, 1, one(out, Fault).detail) in out
     assert isinstance(echo, Heartbeat)
     assert LatchCause.WATCHDOG in model.latch_causes
+
+
+def test_parameters_are_lost_at_reboot(make_model: Make) -> None:
+    model = ready(make_model)
+    assert model.handle(SetParam(Param.WATCHDOG_MS, 1000))[0] == ParamValue(
+        Param.WATCHDOG_MS, ParamResult.OK, 1000
+    )
+    model.reboot()
+    assert model.handle(SetParam(Param.WATCHDOG_MS, 0))[0] == ParamValue(
+        Param.WATCHDOG_MS, ParamResult.OUT_OF_RANGE, 250
+    )
