@@ -8,10 +8,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["register"]
+__all__ = ["can_spec", "register"]
 
 
-def _can_spec(text: str) -> tuple[str, str]:
+def can_spec(text: str) -> tuple[str, str]:
+    """``INTERFACE:CHANNEL`` -> ``(interface, channel)``, an argparse type."""
     interface, sep, channel = text.partition(":")
     if not sep or not interface or not channel:
         raise argparse.ArgumentTypeError(
@@ -62,7 +63,7 @@ def register(subparsers: Any) -> None:
     where.add_argument(
         "--can",
         metavar="INTERFACE:CHANNEL",
-        type=_can_spec,
+        type=can_spec,
         help="python-can bus, e.g. socketcan:rovercan0 or virtual:rover",
     )
     p.add_argument("--node", type=int, default=1, help="CAN node id of the controller (1)")
@@ -100,7 +101,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--flood-can",
         metavar="INTERFACE:CHANNEL",
-        type=_can_spec,
+        type=can_spec,
         help="CAN: send the flood on this bus (a second adapter on the same wire)",
     )
     p.add_argument(

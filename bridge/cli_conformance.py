@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any
 
+from bridge.cli_bench import can_spec
+
 __all__ = ["main", "register"]
 
 _DESCRIPTION = (
@@ -19,15 +21,6 @@ _DESCRIPTION = (
     "when none failed but some were not run, 2 on a usage error or an unreachable device. "
     "THE ROVER MOVES (a few centimetres per rule): put it on blocks."
 )
-
-
-def _can_spec(text: str) -> tuple[str, str]:
-    interface, sep, channel = text.partition(":")
-    if not sep or not interface or not channel:
-        raise argparse.ArgumentTypeError(
-            f"expected INTERFACE:CHANNEL, e.g. socketcan:can0 or virtual:rover, got {text!r}"
-        )
-    return interface, channel
 
 
 def _positive(text: str) -> float:
@@ -47,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--device", metavar="URL", help="serial device or pyserial URL (/dev/rover-motor)"
     )
     where.add_argument(
-        "--can", type=_can_spec, metavar="IFACE:CH", help="python-can bus (socketcan:can0)"
+        "--can", type=can_spec, metavar="IFACE:CH", help="python-can bus (socketcan:can0)"
     )
     p.add_argument("--node", type=int, default=1, help="with --can: controller node 1..15")
     p.add_argument(

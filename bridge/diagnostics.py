@@ -27,11 +27,13 @@ from collections.abc import Mapping
 
 from bridge.link import LinkDiagnostics
 from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time
+from firmware_proto.faults import STOPPING_FAULTS
+from firmware_proto.messages import FaultCode
 
 __all__ = ["diagnostic_array"]
 
 OK, WARN, ERROR = 0, 1, 2
-_STOPPING = {"WATCHDOG", "STALL_LEFT", "STALL_RIGHT", "ENCODER", "DRIVER", "INTERNAL"}
+_STOPPING = {FaultCode(code).name for code in STOPPING_FAULTS}
 
 
 def _fmt(value: object) -> str:

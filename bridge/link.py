@@ -59,6 +59,7 @@ from types import TracebackType
 
 from bridge.errors import TransportError
 from bridge.transport import Transport, open_transport
+from firmware_proto.faults import STOPPING_FAULTS, fault_bit
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     ACK_TIMEOUT_MS,
@@ -102,18 +103,6 @@ logger = logging.getLogger(__name__)
 OnStatus = Callable[[str], None]
 OnTelemetry = Callable[[Message, float], None]
 OnState = Callable[["LinkState"], None]
-
-_STOPPING_FAULTS = frozenset(
-    {
-        FaultCode.WATCHDOG,
-        FaultCode.STALL_LEFT,
-        FaultCode.STALL_RIGHT,
-        FaultCode.ENCODER,
-        FaultCode.DRIVER,
-        FaultCode.INTERNAL,
-    }
-)
-"""Faults whose active condition makes CLEAR_STOP answer FAULT_PERSISTS."""
 
 _ACK_REASONS = {
     AckResult.OUT_OF_RANGE: "out_of_range",
@@ -786,7 +775,7 @@ class ControllerLink:
             self._hello_sent = False
             self._last_hello = 0.0
         # The heartbeat is the authority on the conditions (FAULT frames may be lost).
-        self._faults = {code for code in FaultCode if hb.fault_bits & (1 << (code - 1))}
+        self._faults = {code for code in FaultCode if hb.fault_bits & fault_bit(code)}
         self._maybe_clear(hb, t)
 
     def _maybe_clear(self, hb: Heartbeat, now: float) -> None:
@@ -804,7 +793,7 @@ class ControllerLink:
             return
         if self._pending_clear is not None or self._estop_requested or not hb.stop_latched:
             return
-        stopping_active = any(hb.fault_bits & (1 << (code - 1)) for code in _STOPPING_FAULTS)
+        stopping_active = any(hb.fault_bits & fault_bit(code) for code in STOPPING_FAULTS)
         if stopping_active:
             return
         retry = self._clear_wanted
@@ -980,7 +969,7 @@ class ControllerLink:
         )
         if fault.active:
             self._faults.add(fault.code)
-            if fault.code in _STOPPING_FAULTS and fault.code != FaultCode.WATCHDOG:
+            if fault.code in STOPPING_FAULTS and fault.code != FaultCode.WATCHDOG:
                 self._last_stopping_fault = fault.code
             if fault.code == FaultCode.WATCHDOG:
                 self._counters.watchdog_trips += 1

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from bridge.conformance.context import Context, check
+from firmware_proto.faults import fault_bit
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     CONTROLLER_HEARTBEAT_PERIOD_MS,
@@ -183,10 +184,6 @@ def _latch_text(hb: Heartbeat) -> str:
 def _delta24(before: int, after: int) -> int:
     """Signed change of a 24-bit wrapping encoder count."""
     return ((after - before + (1 << 23)) % (1 << 24)) - (1 << 23)
-
-
-def _bit(code: int) -> int:
-    return 1 << (code - 1)
 
 
 # -- handshake and liveness ---------------------------------------------------------------
@@ -667,7 +664,7 @@ def watchdog(ctx: Context) -> str:
     check(
         _latch(hb) == (1, 0, 1, 0)
         and hb.state == ControllerState.FAULT
-        and bool(hb.fault_bits & _bit(FaultCode.WATCHDOG)),
+        and bool(hb.fault_bits & fault_bit(FaultCode.WATCHDOG)),
         f"while silent: {_latch_text(hb)}, expected FAULT, latch_watchdog, WATCHDOG bit",
     )
     mark = host.send(HostHeartbeat(0))
@@ -679,7 +676,7 @@ def watchdog(ctx: Context) -> str:
     check(
         _latch(hb) == (1, 0, 1, 0)
         and hb.state == ControllerState.FAULT
-        and not hb.fault_bits & _bit(FaultCode.WATCHDOG),
+        and not hb.fault_bits & fault_bit(FaultCode.WATCHDOG),
         f"frames again: {_latch_text(hb)}, expected the latch held, the condition gone",
     )
     _expect_ack(ctx, Motion(ctx.seq(), FWD, 10, 100), AckResult.FAULT_ACTIVE)
@@ -706,7 +703,7 @@ def fault_persists(ctx: Context) -> str:
             "latch_fault, ENCODER bit, state FAULT",
             lambda hb: (
                 _latch(hb) == (1, 0, 0, 1)
-                and bool(hb.fault_bits & _bit(FaultCode.ENCODER))
+                and bool(hb.fault_bits & fault_bit(FaultCode.ENCODER))
                 and hb.state == ControllerState.FAULT
             ),
         )
@@ -720,7 +717,7 @@ def fault_persists(ctx: Context) -> str:
     )  # fmt: skip
     hb = host.heartbeat()
     check(
-        _latch(hb) == (1, 0, 0, 1) and not hb.fault_bits & _bit(FaultCode.ENCODER),
+        _latch(hb) == (1, 0, 0, 1) and not hb.fault_bits & fault_bit(FaultCode.ENCODER),
         f"condition gone: {_latch_text(hb)}, expected the latch held, the bit clear",
     )
     ctx.clear(ClearResult.CLEARED)
