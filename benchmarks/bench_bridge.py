@@ -1,6 +1,6 @@
 """STOP latency through the bridge, beside the pty round trip; sustained steps/s.
 
-Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick] [--dds]``
+Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick] [--ros2]``
 
 The emulator serves the controller on a real pty in real time, in a process of its own
 as ``rover emulate`` does on a bench (in one process its control thread and the bridge
@@ -15,23 +15,23 @@ on CLOCK_MONOTONIC, which every process of the machine shares (``time.monotonic(
 
 The request is an API call (``ControllerLink.emergency_stop``) or a ROS message on
 ``emergency_stop`` published by another node: on the in-process port (same process), or
-over Cyclone DDS from another process (``--dds``, which needs the private loopback
-network namespace of the tests; the publisher stamps its request on the same clock).
-Idle means one long step running; load means the motion queue full and telemetry at
-100 Hz. The pty round trip (15 bytes there and back through pyserial) is measured in the
-same run: it is the floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99
-< 1 ms.
+over real ROS 2 from another process's plain rclpy node (``--ros2``: the bridge node on
+the rclpy backend here, Fast DDS between the two; it needs the private loopback network
+namespace of the tests; the publisher stamps its request on the same clock). Idle means
+one long step running; load means the motion queue full and telemetry at 100 Hz (over
+ROS 2 also published as ``/odom`` to a subscriber in the observer node). The pty round
+trip (15 bytes there and back through pyserial) is measured in the same run: it is the
+floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
 
-Run the DDS case inside the namespace::
+Run the ROS 2 case inside the namespace::
 
     unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
-        exec .venv/bin/python -m benchmarks.bench_bridge --dds'
+        exec .venv/bin/python -m benchmarks.bench_bridge --ros2'
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import random
 import select
 import subprocess
@@ -47,7 +47,8 @@ from bridge.interpreter import use_short_switch_interval
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.node import BridgeNode
 from bridge.params import load_params
-from bridge.rosport import Bool, Int16MultiArray, String, loopback_config, open_port
+from bridge.rosport import open_port, qos
+from bridge.rosport.msgs import Bool, Int16MultiArray, Odometry, String
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
@@ -81,6 +82,9 @@ class Statuses:
         with self.cond:
             return len(self.items)
 
+
+HOPS: list[float] = []
+"""Request -> the bridge node's STOP callback, per trial of the last ROS case, s."""
 
 Request = Callable[[], float]
 """Asks for a STOP; returns when it was asked (``time.monotonic()``)."""
@@ -210,8 +214,12 @@ def _trials(
     trials: int,
     load: bool,
     rng: random.Random,
+    node: BridgeNode | None = None,
 ) -> tuple[list[float], list[float]]:
+    """STOP trials; the two latencies of each (see the module docstring). With ``node``,
+    ``HOPS`` also gets, per trial, request -> the node's STOP callback."""
     written, zeroed = [], []
+    HOPS.clear()
     emu.telemetry(100 if load else 50)
     for _ in range(trials):
         mark = statuses.mark()
@@ -230,6 +238,8 @@ def _trials(
         if written_at is not None and written_at != previous and handled is not None:
             written.append(written_at - t0)
             zeroed.append(handled - t0)
+            if node is not None and node.last_estop_received is not None:
+                HOPS.append(node.last_estop_received - t0)
         mark = statuses.mark()
         link.clear_stop()
         statuses.wait("cleared", mark)
@@ -272,10 +282,10 @@ def main(argv: list[str] | None = None) -> int:
         "--quick", action="store_true", help="3 trials per case, fewer samples (smoke test)"
     )
     parser.add_argument(
-        "--dds",
+        "--ros2",
         action="store_true",
-        help="add the DDS case: the bridge on the dds backend here, the STOP published by "
-        "another process (needs the private loopback network namespace)",
+        help="add the ROS 2 case: the bridge on rclpy here, the STOP published by a plain "
+        "rclpy node in another process (needs the private loopback network namespace)",
     )
     parser.add_argument("--stop-publisher", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--emulator-child", action="store_true", help=argparse.SUPPRESS)
@@ -317,8 +327,8 @@ def main(argv: list[str] | None = None) -> int:
             node = BridgeNode(params, bport)
             with node:
                 statuses = Statuses()
-                oport.subscribe("command_status", String, lambda m: statuses(m.data))
-                estop = oport.publisher("emergency_stop", Bool)
+                oport.subscribe("command_status", String, lambda m: statuses(m.data), qos.STATUS)
+                estop = oport.publisher("emergency_stop", Bool, qos.STOP)
                 oport.publisher("wheel_instructions", Int16MultiArray)
                 statuses.wait("ready", 0)
                 for load in (False, True):
@@ -342,17 +352,17 @@ def main(argv: list[str] | None = None) -> int:
                         )
                     )
 
-    dds_note = ""
-    if args.dds:
+    ros2_note = ""
+    if args.ros2:
         from benchmarks.bench_rosport import in_private_loopback_namespace
 
         private, why = in_private_loopback_namespace()
         if private:
-            rows += _dds_rows(rover, args.seed, ros_trials, rng)
+            rows += _ros2_rows(rover, args.seed, ros_trials, rng)
         else:
-            dds_note = f" DDS case not run: not in a private loopback namespace ({why})."
+            ros2_note = f" ROS 2 case not run: not in a private loopback namespace ({why})."
     else:
-        dds_note = " DDS case: run with --dds in the private network namespace (see --help)."
+        ros2_note = " ROS 2 case: run with --ros2 in the private network namespace (see --help)."
 
     print(
         table(
@@ -360,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
             rows,
             note=(
                 "Thesis figure: 8.4 +/- 1.2 ms detection to activation. Target: p99 < 1 ms end to end "
-                "over a pty. DDS message latency alone: benchmarks/bench_rosport.py." + dds_note
+                "over a pty. ROS 2 message latency alone: benchmarks/bench_rosport.py." + ros2_note
             ),
         )
     )
@@ -371,51 +381,67 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def stop_publisher() -> int:
-    """Child process of the DDS case: a node that publishes ``emergency_stop`` once per
-    ``go`` line on stdin and answers with the ``time.monotonic()`` it published at."""
-    with open_port("dds", node_name="operator", config=loopback_config()) as port:
-        estop = port.publisher("emergency_stop", Bool)
-        if not estop.wait_for_subscribers(1, timeout_s=30.0):
-            print("NOSUB", flush=True)
-            return 1
+    """Child process of the ROS 2 case: a plain rclpy node (none of our code) that
+    publishes ``emergency_stop`` once per ``go`` line on stdin and answers with the
+    ``time.monotonic()`` it published at."""
+    import rclpy
+    import rclpy.utilities
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Bool as RosBool
+
+    rclpy.init()
+    try:
+        node = rclpy.create_node("operator")
+        estop = node.create_publisher(
+            RosBool, "emergency_stop", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        deadline = time.monotonic() + 30.0
+        while estop.get_subscription_count() < 1:
+            if time.monotonic() > deadline:
+                print("NOSUB", flush=True)
+                return 1
+            time.sleep(0.01)
         print("READY", flush=True)
         for line in sys.stdin:
             if line.strip() != "go":
                 break
             t0 = time.monotonic()
-            estop.publish(Bool(data=True))
+            estop.publish(RosBool(data=True))
             print(repr(t0), flush=True)
+        node.destroy_node()
+    finally:
+        rclpy.utilities.try_shutdown()
     return 0
 
 
-def _dds_rows(
+def _ros2_rows(
     rover: RoverDescription, seed: int, trials: int, rng: random.Random
 ) -> list[tuple[str, dict[str, float]]]:
-    """The bridge on the dds backend in this process; the STOP from another process."""
+    """The bridge on the rclpy backend in this process (its STOP lane included); the STOP
+    from a plain rclpy node in another process; an observer subscribing to /odom."""
     rows: list[tuple[str, dict[str, float]]] = []
     with EmulatorProcess(seed) as emu:
-        params = load_params({"device": emu.device, "ros_backend": "dds"}, env={})
-        config = loopback_config()
+        params = load_params({"device": emu.device, "ros_backend": "rclpy"}, env={})
         with (
-            open_port("dds", node_name="rover_bridge", config=config) as bport,
-            open_port("dds", node_name="observer", config=config) as oport,
+            open_port("rclpy", node_name="rover_bridge") as bport,
+            open_port("rclpy", node_name="observer") as oport,
             BridgeNode(params, bport) as node,
         ):
             statuses = Statuses()
-            oport.subscribe("command_status", String, lambda m: statuses(m.data))
+            oport.subscribe("command_status", String, lambda m: statuses(m.data), qos.STATUS)
+            oport.subscribe("odom", Odometry, lambda _m: None, qos.SENSOR)
             child = subprocess.Popen(
                 [sys.executable, "-m", "benchmarks.bench_bridge", "--stop-publisher"],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 text=True,
-                env={**os.environ, "CYCLONEDDS_URI": config},
             )
             try:
                 assert child.stdin is not None
                 assert child.stdout is not None
                 stdin, stdout = child.stdin, child.stdout
-                if _readline(stdout, 60.0, "the DDS STOP publisher").strip() != "READY":
-                    raise RuntimeError("the DDS STOP publisher did not match the bridge")
+                if _readline(stdout, 60.0, "the ROS 2 STOP publisher").strip() != "READY":
+                    raise RuntimeError("the ROS 2 STOP publisher did not match the bridge")
                 deadline = time.monotonic() + 10.0
                 while not node.link.ready and time.monotonic() < deadline:
                     time.sleep(0.01)
@@ -423,20 +449,29 @@ def _dds_rows(
                 def request() -> float:
                     stdin.write("go\n")
                     stdin.flush()
-                    return float(_readline(stdout, 10.0, "the DDS STOP publisher"))
+                    return float(_readline(stdout, 10.0, "the ROS 2 STOP publisher"))
 
                 for load in (False, True):
-                    written, zeroed = _trials(emu, node.link, statuses, request, trials, load, rng)
+                    written, zeroed = _trials(
+                        emu, node.link, statuses, request, trials, load, rng, node
+                    )
                     label = "load" if load else "idle"
                     rows.append(
                         (
-                            f"ROS message (DDS, other process) -> STOP written ({label})",
+                            f"ROS 2 message (rclpy, other process) -> bridge STOP callback "
+                            f"({label})",
+                            summary(list(HOPS)),
+                        )
+                    )
+                    rows.append(
+                        (
+                            f"ROS 2 message (rclpy, other process) -> STOP written ({label})",
                             summary(written),
                         )
                     )
                     rows.append(
                         (
-                            f"ROS message (DDS, other process) -> wheel targets zero ({label})",
+                            f"ROS 2 message (rclpy, other process) -> wheel targets zero ({label})",
                             summary(zeroed),
                         )
                     )

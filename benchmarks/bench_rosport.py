@@ -1,17 +1,20 @@
-"""ROS port benchmark: message latency and sustained rate, ours beside raw Cyclone DDS.
+"""ROS port benchmark: message latency and sustained rate, ours beside plain rclpy.
 
 Run it in a private network namespace with only loopback (as the tests run)::
 
     unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
         exec .venv/bin/python -m benchmarks.bench_rosport'
 
-Cases, two of them between two processes (the publisher here, the subscriber in a child
-process started with the same loopback-only Cyclone DDS config):
+Cases, three of them between two processes (the publisher here, the subscriber in a child
+process), all real ROS 2 Jazzy (rclpy, rmw_fastrtps_cpp):
 
-- ``rosport dds``: our ``dds`` backend on both sides (dataclass -> CDR -> dataclass,
-  callback on the port's thread);
-- ``raw cyclonedds``: the cyclonedds binding alone, with the same wire types, QoS and
-  topic, taking on a waitset: the peer, so the table shows what our wrapper costs;
+- ``rosport rclpy``: our ``rclpy`` backend on both sides (callback on the port's default
+  lane, whose executor also serves the node's parameter services);
+- ``rosport rclpy, STOP lane``: the same, the subscription on the STOP lane (a node and
+  an executor of its own, as the bridge's ``emergency_stop``);
+- ``raw rclpy``: a plain rclpy node on each side, spun by a ``SingleThreadedExecutor``
+  on a thread, with the same QoS and topic: the peer, none of our code, so the table
+  shows what our wrapper costs;
 - ``rosport inprocess``: our in-process backend (one process, nothing serialised).
 
 Latency is one way, from just before ``publish`` to the subscriber's callback (or
@@ -39,7 +42,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from bridge.rosport import Int16MultiArray, Message, String, loopback_config, open_port
+from bridge.rosport import DEFAULT_LANE, STOP_LANE, open_port
+from bridge.rosport.msgs import Int16MultiArray, String
 
 REPO = Path(__file__).resolve().parents[1]
 LATENCY_COUNT = 2000
@@ -60,7 +64,7 @@ NETNS_HELP = (
     "bench_rosport must run in a private network namespace with only loopback, e.g.:\n"
     "  unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on && "
     "exec .venv/bin/python -m benchmarks.bench_rosport'\n"
-    "(Cyclone DDS multicasts when it starts; nothing may leave this machine.)"
+    "(DDS discovery multicasts; nothing may leave this machine.)"
 )
 
 
@@ -85,51 +89,19 @@ def in_private_loopback_namespace() -> tuple[bool, str]:
 
 # -- messages -------------------------------------------------------------------------
 
-#: kind -> (our type, our message for seq, seq of a received message, ours or raw)
-KINDS: dict[str, tuple[type[Message], Callable[[int], Message], Callable[[Any], int]]] = {
+#: kind -> (type, message for seq, seq of a received message)
+KINDS: dict[str, tuple[type[Any], Callable[[int], Any], Callable[[Any], int]]] = {
     "Int16MultiArray[3]": (
         Int16MultiArray,
-        lambda seq: Int16MultiArray(data=(seq, 30, 23000)),
+        lambda seq: Int16MultiArray(data=[seq, 30, 23000]),
         lambda msg: int(msg.data[0]),
     ),
     "String": (
         String,
-        lambda seq: String(f"accepted:{seq}"),
+        lambda seq: String(data=f"accepted:{seq}"),
         lambda msg: int(msg.data.rsplit(":", 1)[1]),
     ),
 }
-
-
-@functools.cache
-def raw_types() -> dict[str, tuple[Any, Callable[[int], Any]]]:
-    """The wire types written directly against the cyclonedds binding (none of our code)."""
-    from cyclonedds.idl import make_idl_struct
-    from cyclonedds.idl import types as idl_types
-
-    t: Any = idl_types
-    dimension = make_idl_struct(
-        "MultiArrayDimension",
-        "std_msgs::msg::dds_::MultiArrayDimension_",
-        {"label": str, "size": t.uint32, "stride": t.uint32},
-    )
-    layout: Any = make_idl_struct(
-        "MultiArrayLayout",
-        "std_msgs::msg::dds_::MultiArrayLayout_",
-        {"dim": t.sequence[dimension], "data_offset": t.uint32},
-    )
-    int16_array: Any = make_idl_struct(
-        "Int16MultiArray",
-        "std_msgs::msg::dds_::Int16MultiArray_",
-        {"layout": layout, "data": t.sequence[t.int16]},
-    )
-    string: Any = make_idl_struct("String", "std_msgs::msg::dds_::String_", {"data": str})
-    return {
-        "Int16MultiArray[3]": (
-            int16_array,
-            lambda seq: int16_array(layout([], 0), [seq, 30, 23000]),
-        ),
-        "String": (string, lambda seq: string(f"accepted:{seq}")),
-    }
 
 
 # -- endpoints per case: a sender (publish + acks in) and a receiver (records + acks out)
@@ -150,7 +122,7 @@ class Link:
 
 class RosportLink(Link):
     def __init__(
-        self, backend: str, kind: str, role: str, on_message: Callable[[Any], None]
+        self, backend: str, kind: str, role: str, on_message: Callable[[Any], None], lane: str
     ) -> None:
         msg_type, make, _ = KINDS[kind]
         options: dict[str, Any] = {"bus": "bench"} if backend == "inprocess" else {}
@@ -159,10 +131,10 @@ class RosportLink(Link):
         if role == "sender":
             self._pub = self.port.publisher(TOPIC, msg_type)
             self.port.subscribe(ACK_TOPIC, Int16MultiArray, on_message)
-            self._messages: list[Message] = []
+            self._messages: list[Any] = []
         else:
             self._ack = self.port.publisher(ACK_TOPIC, Int16MultiArray)
-            self.port.subscribe(TOPIC, msg_type, on_message)
+            self.port.subscribe(TOPIC, msg_type, on_message, lane=lane)
 
     def prepare(self, count: int) -> None:
         self._messages = [self._make(seq) for seq in range(count)]
@@ -174,64 +146,41 @@ class RosportLink(Link):
         self._pub.publish(self._messages[seq])
 
     def ack(self, count: int) -> None:
-        self._ack.publish(Int16MultiArray(data=(count,)))
+        self._ack.publish(Int16MultiArray(data=[count]))
 
     def close(self) -> None:
         self.port.close()
 
 
 class RawLink(Link):
+    """A plain rclpy node (none of our code): default QoS, a SingleThreadedExecutor
+    spinning on a thread, as the ROS 2 tutorials write it."""
+
     def __init__(self, kind: str, role: str, on_message: Callable[[Any], None]) -> None:
-        from cyclonedds.core import (
-            InstanceState,
-            Policy,
-            Qos,
-            ReadCondition,
-            SampleState,
-            ViewState,
-            WaitSet,
-        )
-        from cyclonedds.domain import DomainParticipant
-        from cyclonedds.pub import DataWriter
-        from cyclonedds.sub import DataReader
-        from cyclonedds.topic import Topic
-        from cyclonedds.util import duration
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
 
-        types = raw_types()
-        msg_class, self._make = types[kind]
-        ack_class, self._make_ack = types["Int16MultiArray[3]"]
-        qos = Qos(
-            Policy.Reliability.Reliable(duration(seconds=1)),
-            Policy.Durability.Volatile,
-            Policy.History.KeepLast(10),
-            Policy.DataRepresentation(use_cdrv0_representation=True),
-        )
-        self._participant = DomainParticipant(0)
-        topic = Topic(self._participant, "rt" + TOPIC, msg_class)
-        ack_topic = Topic(self._participant, "rt" + ACK_TOPIC, ack_class)
+        msg_type, self._make, _ = KINDS[kind]
+        self._context = Context()
+        rclpy.init(context=self._context)
+        self._node = rclpy.create_node(f"raw_{role}", context=self._context)
         if role == "sender":
-            self._writer = DataWriter(self._participant, topic, qos)
-            self._reader = DataReader(self._participant, ack_topic, qos)
+            self._writer = self._node.create_publisher(msg_type, TOPIC, 10)
+            self._node.create_subscription(Int16MultiArray, ACK_TOPIC, on_message, 10)
         else:
-            self._writer = DataWriter(self._participant, ack_topic, qos)
-            self._reader = DataReader(self._participant, topic, qos)
-        self._entities = [self._writer, self._reader, topic, ack_topic]
-        self._on_message = on_message
-        self._samples: list[Any] = []
+            self._writer = self._node.create_publisher(Int16MultiArray, ACK_TOPIC, 10)
+            self._node.create_subscription(msg_type, TOPIC, on_message, 10)
+        self._executor = SingleThreadedExecutor(context=self._context)
+        self._executor.add_node(self._node)
         self._stop = threading.Event()
-        waitset = WaitSet(self._participant)
-        condition = ReadCondition(self._reader, SampleState.Any | ViewState.Any | InstanceState.Any)
-        waitset.attach(condition)
-        self._entities[:0] = [condition, waitset]
+        self._samples: list[Any] = []
 
-        def take_loop() -> None:
+        def spin() -> None:
             while not self._stop.is_set():
-                waitset.wait(duration(milliseconds=100))
-                for sample in self._reader.take(N=64):
-                    if sample.sample_info.valid_data:
-                        self._on_message(sample)
+                self._executor.spin_once(timeout_sec=0.1)
 
-        self._thread = threading.Thread(target=take_loop, name="raw-take", daemon=True)
+        self._thread = threading.Thread(target=spin, name="raw-spin", daemon=True)
         self._thread.start()
 
     def prepare(self, count: int) -> None:
@@ -239,29 +188,33 @@ class RawLink(Link):
 
     def wait_matched(self) -> bool:
         deadline = time.monotonic() + 30.0
-        while self._writer.get_publication_matched_status().current_count < 1:
+        while self._writer.get_subscription_count() < 1:
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)
         return True
 
     def send(self, seq: int) -> None:
-        self._writer.write(self._samples[seq])
+        self._writer.publish(self._samples[seq])
 
     def ack(self, count: int) -> None:
-        self._writer.write(self._make_ack(count))
+        self._writer.publish(Int16MultiArray(data=[count]))
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join()
-        for entity in [*self._entities, self._participant]:
-            entity.__del__()  # the binding deletes on garbage collection; now is better
+        self._executor.shutdown()
+        self._node.destroy_node()
+        self._context.try_shutdown()
 
 
 def make_link(backend: str, kind: str, role: str, on_message: Callable[[Any], None]) -> Any:
+    """``raw``, ``rclpy``, ``rclpy-stop`` (the STOP lane) or ``inprocess``."""
     if backend == "raw":
         return RawLink(kind, role, on_message)
-    return RosportLink("dds" if backend == "rosport" else backend, kind, role, on_message)
+    if backend == "rclpy-stop":
+        return RosportLink("rclpy", kind, role, on_message, STOP_LANE)
+    return RosportLink(backend, kind, role, on_message, DEFAULT_LANE)
 
 
 # -- the receiving side ---------------------------------------------------------------------
@@ -386,8 +339,9 @@ def run_case(
 # -- report ----------------------------------------------------------------------------------
 
 CASES = (
-    ("rosport dds (2 processes)", "rosport"),
-    ("raw cyclonedds (2 processes)", "raw"),
+    ("rosport rclpy (2 processes)", "rclpy"),
+    ("rosport rclpy, STOP lane (2 proc.)", "rclpy-stop"),
+    ("raw rclpy (2 processes)", "raw"),
     ("rosport inprocess (1 process)", "inprocess"),
 )
 
@@ -410,7 +364,6 @@ def main(argv: list[str] | None = None) -> int:
     if not ok:
         print(f"{NETNS_HELP}\nhere: {why}", file=sys.stderr)
         return 2
-    os.environ["CYCLONEDDS_URI"] = loopback_config()
     if args.child:
         backend, kind, count, acks = args.child
         return child(backend, kind, int(count), acks == "acks")
@@ -421,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
         f"Latency, publish -> subscriber callback, one way: {args.latency_count} messages "
         f"paced at {LATENCY_RATE_HZ:.0f}/s"
     )
-    header = f"{'case':31} {'message':19} {'p50 us':>7} {'p99 us':>7} {'max us':>7} {'lost':>5}"
+    header = f"{'case':35} {'message':19} {'p50 us':>7} {'p99 us':>7} {'max us':>7} {'lost':>5}"
     print(header)
     print("-" * len(header))
     for kind in KINDS:
@@ -429,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
             sent, arrived = run_case(backend, kind, args.latency_count, LATENCY_RATE_HZ)
             lat = [(arrived[s] - sent[s]) / 1000 for s in sent if s in arrived]
             print(
-                f"{label:31} {kind:19} {statistics.median(lat):7.0f} "
+                f"{label:35} {kind:19} {statistics.median(lat):7.0f} "
                 f"{percentile(lat, 0.99):7.0f} {max(lat):7.0f} {len(sent) - len(lat):5d}"
             )
     print()
@@ -437,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         f"Sustained rate, nothing lost: {args.rate_count} messages, at most {WINDOW} "
         f"unacknowledged (ack every {ACK_EVERY})"
     )
-    header = f"{'case':31} {'message':19} {'msgs/s':>8} {'lost':>5}"
+    header = f"{'case':35} {'message':19} {'msgs/s':>8} {'lost':>5}"
     print(header)
     print("-" * len(header))
     for kind in KINDS:
@@ -445,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
             sent, arrived = run_case(backend, kind, args.rate_count, None)
             seconds = (max(arrived.values()) - min(sent.values())) / 1e9
             print(
-                f"{label:31} {kind:19} {len(arrived) / seconds:8.0f} {len(sent) - len(arrived):5d}"
+                f"{label:35} {kind:19} {len(arrived) / seconds:8.0f} {len(sent) - len(arrived):5d}"
             )
     return 0
 

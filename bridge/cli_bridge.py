@@ -3,12 +3,16 @@
 Also the ``rover_bridge`` console script that ``ros2 run`` and launch files start
 (:func:`main`), which accepts ``--ros-args ...``. Every bridge parameter
 (:class:`~bridge.params.BridgeParams`) can be set on the command line, by a named option
-or by ``--param NAME=VALUE``, and as a ROS parameter: on the rclpy backend through the
-node's declared parameters, on the dds and inprocess backends from the ROS arguments
-themselves (the node's sections of each ``--params-file``, then ``-p name:=value``;
-``-r __node:=`` and ``-r __ns:=`` name and place the node). Precedence and validation are
-those of :func:`bridge.params.load_params`: an unknown parameter, a bad value or a
-malformed ROS argument is a usage error (exit status 2), never ignored.
+or by ``--param NAME=VALUE``, and as a ROS parameter from the ROS arguments (the node's
+sections of each ``--params-file``, then ``-p name:=value``; ``-r __node:=`` and
+``-r __ns:=`` name and place the node). Precedence and validation are those of
+:func:`bridge.params.load_params`, on every backend: an unknown parameter, a bad value or
+a malformed ROS argument is a usage error (exit status 2), never ignored. The node then
+declares every parameter with its resolved value (read-only where it cannot change while
+running; ``ros2 param set`` changes the others, a bad value refused with the reason).
+
+SIGINT and SIGTERM end it cleanly: the node, the link and the ROS context are closed and
+the exit status is 0.
 """
 
 from __future__ import annotations
@@ -74,13 +78,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         p.add_argument(flag, dest=dest, type=kind, help=text)
     p.add_argument(
         "--ros-backend",
-        choices=("dds", "rclpy", "inprocess"),
-        help="ROS port backend (default dds; rclpy on a ROS 2 machine)",
-    )
-    p.add_argument(
-        "--dds-config",
-        metavar="loopback|FILE|XML",
-        help="Cyclone DDS config: 'loopback' keeps traffic on 127.0.0.1 (default: $CYCLONEDDS_URI)",
+        choices=("rclpy", "inprocess"),
+        help="ROS port backend: rclpy (ROS 2, the default) or inprocess (tests only)",
     )
     p.add_argument(
         "--params-file", metavar="FILE", help="parameters file (TOML or JSON; see docs/bridge.md)"
@@ -119,8 +118,9 @@ def register(subparsers: Any) -> None:
         epilog=(
             "examples:\n"
             "  rover bridge --device /dev/rover-motor\n"
-            "  rover bridge --can socketcan:rovercan0 --node 1 --ros-backend rclpy\n"
-            "  rover bridge --device /tmp/rover-motor --dds-config loopback"
+            "  rover bridge --can socketcan:rovercan0 --node 1\n"
+            "  rover bridge --device /tmp/rover-motor --ros-args -r __ns:=/rover1 "
+            "-p heartbeat_hz:=20.0"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -200,11 +200,7 @@ def resolve_params(
     env: Mapping[str, str] | None = None,
 ) -> tuple[BridgeParams, RosLayer]:
     """The bridge's parameters from the command line, the ROS arguments, the environment
-    and the parameters file (:func:`bridge.params.load_params`).
-
-    On the rclpy backend the ROS parameters are left to rclpy (the node declares them,
-    :func:`bridge.params.ros_parameters`); they are only checked here, and only
-    ``-p ros_backend:=...`` is taken.
+    and the parameters file (:func:`bridge.params.load_params`), on every backend.
 
     Raises:
         ParameterError: an unknown parameter or a bad value; names it and its source.
@@ -215,28 +211,23 @@ def resolve_params(
 
     layer = ros_layer(ros_args) if ros_args else RosLayer()
     ros = _bridge_parameters(layer.params)
-    overrides = _overrides(args)
-    # Every ROS parameter is checked here, on every backend: rclpy would silently ignore
-    # a name the node never declares.
-    params = load_params(overrides, ros=ros, env=env, file=args.params_file)
-    if params.ros_backend == "rclpy":
-        backend = {"ros_backend": ros["ros_backend"]} if "ros_backend" in ros else {}
-        params = load_params(overrides, ros=backend, env=env, file=args.params_file)
+    params = load_params(_overrides(args), ros=ros, env=env, file=args.params_file)
     return params, layer
 
 
 def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
     0, or 2 for a bad parameter, a malformed device URL or a bad ROS argument (reported
-    on stderr as ``prog: error:``).
+    on stderr as ``prog: error:``), 1 when ROS 2 is not installed.
 
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
     (:func:`firmware_proto.rosargs.split_ros_args`).
     """
+    from bridge.errors import DeviceBusyError
     from bridge.interpreter import use_short_switch_interval
     from bridge.node import BridgeNode
-    from bridge.params import load_params, ros_parameters
-    from bridge.rosport import loopback_config, open_port
+    from bridge.rosport import BackendUnavailableError, open_port
+    from bridge.serial_transport import refuse_if_in_use
     from bridge.transport import open_transport
 
     try:
@@ -245,31 +236,29 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     except (OSError, ValueError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    try:
+        if not params.can_interface:
+            refuse_if_in_use(params.url)
+    except DeviceBusyError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
     options: dict[str, Any] = {}
-    if params.ros_backend == "dds" and args.dds_config:
-        options["config"] = loopback_config() if args.dds_config == "loopback" else args.dds_config
     if params.ros_backend == "rclpy" and ros_args:
         options["args"] = ["--ros-args", *ros_args]
     use_short_switch_interval()  # a STOP must not wait 5 ms for the interpreter lock
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    with open_port(
-        params.ros_backend, namespace=params.namespace, node_name=layer.node_name, **options
-    ) as port:
-        if params.ros_backend == "rclpy":
-            # ROS parameters sit between the command line and the environment.
-            try:
-                params = load_params(
-                    _overrides(args), ros=ros_parameters(port, params), file=args.params_file
-                )
-                open_transport(params.url)
-            except (OSError, ValueError) as exc:
-                print(f"{prog}: error: {exc}", file=sys.stderr)
-                return 2
-        with BridgeNode(params, port):
-            print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
-            done.wait(args.duration if args.duration > 0 else None)
+    try:
+        port = open_port(
+            params.ros_backend, namespace=params.namespace, node_name=layer.node_name, **options
+        )
+    except BackendUnavailableError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
+    with port, BridgeNode(params, port):
+        print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
+        done.wait(args.duration if args.duration > 0 else None)
     return 0
 
 

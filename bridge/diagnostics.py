@@ -30,9 +30,10 @@ from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, Header, KeyVa
 from firmware_proto.faults import STOPPING_FAULTS
 from firmware_proto.messages import FaultCode
 
-__all__ = ["diagnostic_array"]
+__all__ = ["ERROR", "OK", "WARN", "diagnostic_array"]
 
-OK, WARN, ERROR = 0, 1, 2
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+"""The ROS levels (a ROS ``byte``: one-byte ``bytes`` in rclpy)."""
 _STOPPING = {FaultCode(code).name for code in STOPPING_FAULTS}
 
 

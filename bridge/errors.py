@@ -7,7 +7,9 @@ Everything this package raises derives from :class:`BridgeError`::
      |                      in bridge/rosport/errors.py
      +-- TransportError     a device or bus cannot be opened, read or written; also OSError
      |    +-- TransportUrlError   the URL itself is malformed: permanent, never retried;
-     |                            also ValueError
+     |    |                       also ValueError
+     |    +-- DeviceBusyError     another process holds the device exclusively (a second
+     |                            bridge on one controller)
      +-- ParameterError     a bridge parameter is missing or out of range; also ValueError
      +-- ConformanceError   the conformance suite cannot run (no link, a control port
           |                 that does not answer)
@@ -25,6 +27,7 @@ from __future__ import annotations
 __all__ = [
     "BridgeError",
     "ConformanceError",
+    "DeviceBusyError",
     "ParameterError",
     "RosPortError",
     "RuleFailedError",
@@ -53,6 +56,11 @@ class TransportUrlError(TransportError, ValueError):
     reconnect can fix it. Everything that can change by itself (a device not there yet,
     a refused connection, a bus that is down) is a plain :class:`TransportError`.
     """
+
+
+class DeviceBusyError(TransportError):
+    """Another process holds the device's exclusive lock: a second bridge (or bench, or
+    conformance run) on the same controller. ``rover bridge`` refuses to start on it."""
 
 
 class ParameterError(BridgeError, ValueError):

@@ -346,6 +346,17 @@ class ControllerLink:
         """``time.monotonic()`` when the last STOP frame was handed to the OS, whole."""
 
     # -- lifecycle ----------------------------------------------------------------------
+    def reconfigure(self, config: LinkConfig) -> None:
+        """Use ``config`` from now on (timeouts, retries, heartbeat, backoff, automatic
+        clear): each is read when next needed. The URL cannot change while running.
+
+        Raises:
+            ValueError: ``config.url`` is not this link's.
+        """
+        if config.url != self.config.url:
+            raise ValueError(f"the link's URL cannot change while it runs ({self.config.url})")
+        self.config = config
+
     def start(self) -> None:
         """Start the timer thread; it connects (and reconnects) on its own."""
         if self._thread is not None:

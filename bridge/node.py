@@ -38,18 +38,20 @@ thread runs the telemetry and status outputs; one diagnostics thread publishes
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import Counter
+from collections.abc import Mapping
+from dataclasses import replace
 from types import TracebackType
 from typing import Any
 
 from bridge.diagnostics import diagnostic_array
+from bridge.errors import ParameterError
 from bridge.link import ControllerLink, LinkDiagnostics, LinkState, StepRequest
 from bridge.odometry import OdometryEstimator, ground_pose
-from bridge.params import BridgeParams
-from bridge.rosport import RosPort, Subscription
+from bridge.params import BridgeParams, check_params, parameter_specs
+from bridge.rosport import STOP_LANE, RosPort, Subscription, qos
 from bridge.rosport.msgs import (
     Bool,
     DiagnosticArray,
@@ -60,12 +62,12 @@ from bridge.rosport.msgs import (
     Point,
     Pose,
     PoseWithCovariance,
-    Quaternion,
     String,
-    Time,
     Twist,
     TwistWithCovariance,
     Vector3,
+    quaternion_from_yaw,
+    stamp,
 )
 from bridge.trafficfile import open_recorder
 from bridge.transport import Transport, open_transport
@@ -106,22 +108,12 @@ def validate_step(data: object, rover: RoverDescription) -> StepRequest | str:
     return StepRequest(command, speed, distance)
 
 
-def _stamp(t: float | None = None) -> Time:
-    t = time.time() if t is None else t
-    sec = math.floor(t)
-    return Time(sec=sec, nanosec=min(999_999_999, round((t - sec) * 1e9)))
-
-
-def _quaternion(yaw: float) -> Quaternion:
-    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
-
-
-def _covariance(var_xy: float, var_yaw: float) -> tuple[float, ...]:
+def _covariance(var_xy: float, var_yaw: float) -> list[float]:
     cov = [0.0] * 36
     cov[0] = cov[7] = var_xy
     cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane
     cov[35] = var_yaw
-    return tuple(cov)
+    return cov
 
 
 class BridgeNode:
@@ -158,10 +150,10 @@ class BridgeNode:
         counts its own refusals); read it through :meth:`rejected_counts`."""
         self._rejected_lock = threading.Lock()
         self.odometry = OdometryEstimator(self.rover)
-        self._status_pub = port.publisher(params.topic_command_status, String)
-        self._odom_pub = port.publisher(params.topic_odom, Odometry)
-        self._ground_pub = port.publisher(params.topic_ground_pose, Odometry)
-        self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray)
+        self._status_pub = port.publisher(params.topic_command_status, String, qos.STATUS)
+        self._odom_pub = port.publisher(params.topic_odom, Odometry, qos.TELEMETRY)
+        self._ground_pub = port.publisher(params.topic_ground_pose, Odometry, qos.TELEMETRY)
+        self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray, qos.DIAGNOSTICS)
         self.recorder: LogWriter | None = None
         if link is None and params.record:
             open_transport(params.url)  # a malformed URL raises here, before the file exists
@@ -191,12 +183,24 @@ class BridgeNode:
         )
         self._subs: list[Subscription[Any]] = [
             port.subscribe(
-                params.topic_wheel_instructions, Int16MultiArray, self._on_wheel_instructions
+                params.topic_wheel_instructions,
+                Int16MultiArray,
+                self._on_wheel_instructions,
+                qos.COMMAND,
             ),
-            port.subscribe(params.topic_emergency_stop, Bool, self._on_emergency_stop),
-            port.subscribe(params.topic_clear_stop, Empty, self._on_clear),
+            # The STOP lane: its own executor thread, never behind another callback.
+            port.subscribe(
+                params.topic_emergency_stop, Bool, self._on_emergency_stop, qos.STOP, lane=STOP_LANE
+            ),
+            port.subscribe(
+                params.topic_clear_stop, Empty, self._on_clear, qos.STOP, lane=STOP_LANE
+            ),
         ]
         self._started = False
+        self.last_estop_received: float | None = None
+        """``time.monotonic()`` when the last ``emergency_stop`` true reached this node
+        (its STOP lane callback): where the ROS hop ends and the link's begins."""
+        port.declare_parameters(parameter_specs(params), self._on_parameters, params.to_dict())
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self) -> BridgeNode:
@@ -230,6 +234,23 @@ class BridgeNode:
     ) -> None:
         self.close()
 
+    # -- ROS parameters --------------------------------------------------------------------
+    def _on_parameters(self, changes: Mapping[str, Any]) -> str | None:
+        """Apply parameters set while running (only those the descriptors let through:
+        see :func:`bridge.params.parameter_specs`); the reason when they break a rule
+        between parameters, e.g. ``reconnect_max_s`` below ``reconnect_min_s``."""
+        try:
+            new = replace(self.params, **changes)
+            check_params(new)
+        except (ParameterError, TypeError) as exc:
+            return str(exc)
+        self.params = new
+        if new.link_config() != self.link.config:
+            self.link.reconfigure(new.link_config())
+        logger.info("parameters set: %s", ", ".join(f"{k}={v!r}" for k, v in changes.items()))
+        self._diag_now.set()
+        return None
+
     # -- ROS inputs --------------------------------------------------------------------------
     def _on_wheel_instructions(self, msg: Int16MultiArray) -> None:
         step = validate_step(tuple(msg.data), self.rover)
@@ -243,6 +264,7 @@ class BridgeNode:
 
     def _on_emergency_stop(self, msg: Bool) -> None:
         if msg.data:
+            self.last_estop_received = time.monotonic()
             self.link.emergency_stop(StopSource.OPERATOR)
 
     def _on_clear(self, msg: Empty) -> None:
@@ -258,12 +280,12 @@ class BridgeNode:
                 est = self.odometry.update_encoders(msg)
             self._odom_pub.publish(
                 Odometry(
-                    header=Header(stamp=_stamp(), frame_id=self.params.odom_frame),
+                    header=Header(stamp=stamp(), frame_id=self.params.odom_frame),
                     child_frame_id=self.params.base_frame,
                     pose=PoseWithCovariance(
                         pose=Pose(
                             position=Point(x=est.x_m, y=est.y_m, z=0.0),
-                            orientation=_quaternion(est.yaw_rad),
+                            orientation=quaternion_from_yaw(est.yaw_rad),
                         ),
                         covariance=_covariance(est.var_xy_m2, est.var_yaw_rad2),
                     ),
@@ -293,13 +315,13 @@ class BridgeNode:
             self._ground_pub.publish(
                 Odometry(
                     header=Header(
-                        stamp=_stamp(time.time() - pose.age_s), frame_id=self.params.map_frame
+                        stamp=stamp(time.time() - pose.age_s), frame_id=self.params.map_frame
                     ),
                     child_frame_id=self.params.base_frame,
                     pose=PoseWithCovariance(
                         pose=Pose(
                             position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
-                            orientation=_quaternion(pose.yaw_rad),
+                            orientation=quaternion_from_yaw(pose.yaw_rad),
                         ),
                         covariance=_covariance(var, (var / 0.25) if var else 1e-4),
                     ),
@@ -323,7 +345,7 @@ class BridgeNode:
     def _publish_diagnostics(self) -> None:
         try:
             self._diag_pub.publish(
-                diagnostic_array(self.link.diagnostics(), _stamp(), rejected=self.rejected_counts())
+                diagnostic_array(self.link.diagnostics(), stamp(), rejected=self.rejected_counts())
             )
         except Exception:
             logger.exception("publishing diagnostics failed")
@@ -331,9 +353,9 @@ class BridgeNode:
     def _diagnostics_loop(self) -> None:
         """Publish every ``1/diagnostics_hz`` s, on schedule, and at once on a link state
         change (which leaves the schedule alone)."""
-        period = 1.0 / self.params.diagnostics_hz
-        next_tick = time.monotonic() + period
+        next_tick = time.monotonic() + 1.0 / self.params.diagnostics_hz
         while not self._stop.is_set():
+            period = 1.0 / self.params.diagnostics_hz  # a ROS parameter: may change
             if self._diag_now.wait(max(0.0, next_tick - time.monotonic())):
                 self._diag_now.clear()
             if self._stop.is_set():

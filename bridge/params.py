@@ -20,57 +20,81 @@ import math
 import os
 import sys
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 from bridge.errors import ParameterError
 from bridge.link import LinkConfig
+from bridge.rosport.parameters import ParameterSpec
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["ENV_PREFIX", "BridgeParams", "load_params", "ros_parameters"]
+__all__ = [
+    "ENV_PREFIX",
+    "BridgeParams",
+    "check_params",
+    "load_params",
+    "parameter_specs",
+]
 
 ENV_PREFIX = "ROVER_BRIDGE_"
+
+
+def _p(default: Any, description: str, *, runtime: bool = False) -> Any:
+    """A parameter field: its default, what it is (with unit), and whether it can change
+    while the bridge runs (``ros2 param set``); the others are read-only once started."""
+    return field(default=default, metadata={"description": description, "runtime": runtime})
 
 
 @dataclass(frozen=True)
 class BridgeParams:
     """Everything the bridge node can be told. Topic names without a leading slash are
     relative to ``namespace`` (ROS 2 rules); ``/diagnostics`` stays global by convention.
+    Each field is also a ROS parameter of the node (:func:`parameter_specs`).
     """
 
-    device: str = "/dev/rover-motor"
-    baud: int = 115200
-    can_interface: str = ""
-    can_channel: str = "can0"
-    node_id: int = 1
-    heartbeat_hz: float = 10.0
-    ack_timeout_s: float = 0.05
-    motion_retries: int = 3
-    reconnect_min_s: float = 0.1
-    reconnect_max_s: float = 2.0
-    auto_clear_watchdog: bool = True
-    namespace: str = ""
-    ros_backend: str = "dds"
-    topic_wheel_instructions: str = "wheel_instructions"
-    topic_command_status: str = "command_status"
-    topic_emergency_stop: str = "emergency_stop"
-    topic_clear_stop: str = "clear_emergency_stop"
-    topic_odom: str = "odom"
-    topic_ground_pose: str = "odom_ground"
-    topic_diagnostics: str = "/diagnostics"
-    odom_frame: str = "odom"
-    map_frame: str = "map"
-    base_frame: str = "base_link"
-    diagnostics_hz: float = 1.0
-    rover_description: str = ""
-    record: str = ""
-    """Traffic log file ("" records nothing): a serial frame log on a serial link, a
-    python-can log chosen by suffix on CAN (docs/traffic-logs.md)."""
+    device: str = _p("/dev/rover-motor", "serial device path or pyserial URL of the controller")
+    baud: int = _p(115200, "serial line rate, bit/s (a pty ignores it)")
+    can_interface: str = _p("", "python-can interface for a CAN link ('' = serial link)")
+    can_channel: str = _p("can0", "CAN channel, e.g. rovercan0 or vcan0")
+    node_id: int = _p(1, "the controller's CAN node id")
+    heartbeat_hz: float = _p(10.0, "host heartbeat and HELLO repeat rate, Hz", runtime=True)
+    ack_timeout_s: float = _p(
+        0.05, "wait for a MOTION's ACK before sending it again, s", runtime=True
+    )
+    motion_retries: int = _p(3, "retransmissions of one MOTION before fault:no_ack", runtime=True)
+    reconnect_min_s: float = _p(0.1, "first reconnect delay after a failure, s", runtime=True)
+    reconnect_max_s: float = _p(2.0, "longest reconnect delay (backoff doubles), s", runtime=True)
+    auto_clear_watchdog: bool = _p(
+        True,
+        "clear a latch held by the controller's watchdog alone once the link is back",
+        runtime=True,
+    )
+    namespace: str = _p("", "the node's namespace")
+    ros_backend: str = _p("rclpy", "ROS port backend: rclpy (ROS 2) or inprocess (tests)")
+    topic_wheel_instructions: str = _p("wheel_instructions", "steps in (Int16MultiArray)")
+    topic_command_status: str = _p("command_status", "step and link status out (String)")
+    topic_emergency_stop: str = _p("emergency_stop", "emergency stop in (Bool true)")
+    topic_clear_stop: str = _p("clear_emergency_stop", "release the STOP latch (Empty)")
+    topic_odom: str = _p("odom", "encoders + IMU odometry out (Odometry)")
+    topic_ground_pose: str = _p("odom_ground", "the controller's ground-seeing POSE (Odometry)")
+    topic_diagnostics: str = _p("/diagnostics", "diagnostics out (DiagnosticArray)")
+    odom_frame: str = _p("odom", "frame of /odom", runtime=True)
+    map_frame: str = _p("map", "frame of the ground-seeing pose", runtime=True)
+    base_frame: str = _p("base_link", "the rover's body frame", runtime=True)
+    diagnostics_hz: float = _p(
+        1.0, "/diagnostics rate, Hz (also at once on a link change)", runtime=True
+    )
+    rover_description: str = _p("", "rover description file ('' = the packaged one)")
+    record: str = _p(
+        "",
+        "traffic log file ('' records nothing): a serial frame log on a serial link, a "
+        "python-can log chosen by suffix on CAN (docs/traffic-logs.md)",
+    )
 
     @property
     def url(self) -> str:
@@ -109,7 +133,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "reconnect_max_s": (0.01, 600.0),
     "diagnostics_hz": (0.1, 50.0),
 }
-_BACKENDS = ("dds", "rclpy", "inprocess")
+_BACKENDS = ("rclpy", "inprocess")
 
 
 def _coerce(name: str, value: Any, source: str) -> Any:
@@ -144,7 +168,12 @@ def _coerce(name: str, value: Any, source: str) -> Any:
         ) from None
 
 
-def _check(params: BridgeParams) -> None:
+def check_params(params: BridgeParams) -> None:
+    """Check every value and the rules between them.
+
+    Raises:
+        ParameterError: names the parameter and what it must be.
+    """
     for name, (lo, hi) in _RANGES.items():
         value = getattr(params, name)
         if not lo <= value <= hi:
@@ -223,23 +252,23 @@ def load_params(
                 raise ParameterError(f"unknown parameter {name!r} ({source}); known: {known}")
             merged[name] = _coerce(name, value, source)
     params = replace(BridgeParams(), **merged)
-    _check(params)
+    check_params(params)
     return params
 
 
-def ros_parameters(port: Any, current: BridgeParams) -> dict[str, Any]:
-    """ROS parameters set on the node behind ``port`` (rclpy backend), by name.
-
-    Every bridge parameter is declared on the rclpy node with its current value as the
-    default, so ``ros2 param list`` shows them all; only values that differ are returned.
-    Ports without ROS parameters (dds, inprocess) return ``{}``.
-    """
-    node = getattr(port, "node", None)
-    if node is None or not hasattr(node, "declare_parameter"):
-        return {}
-    changed: dict[str, Any] = {}
-    for name, value in current.to_dict().items():
-        declared = node.declare_parameter(name, value).value
-        if declared != value:
-            changed[name] = declared
-    return changed
+def parameter_specs(current: BridgeParams) -> list[ParameterSpec]:
+    """Every bridge parameter as the node declares it: ``current`` values as defaults,
+    descriptions and ranges from :class:`BridgeParams`, read-only unless it can change
+    while the bridge runs."""
+    specs = []
+    for f in fields(BridgeParams):
+        specs.append(
+            ParameterSpec(
+                name=f.name,
+                default=getattr(current, f.name),
+                description=f.metadata["description"],
+                read_only=not f.metadata["runtime"],
+                range=_RANGES.get(f.name),
+            )
+        )
+    return specs

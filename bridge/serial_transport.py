@@ -23,14 +23,17 @@ Errors, and which are retried:
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import logging
+import os
 import socket
 import time
 from dataclasses import dataclass
 
 import serial
 
-from bridge.errors import TransportUrlError
+from bridge.errors import DeviceBusyError, TransportUrlError
 from bridge.transport import Transport
 from firmware_proto.framing import FrameDecoder, FrameEncoder
 from firmware_proto.message import Message
@@ -41,7 +44,7 @@ from firmware_proto.trafficlog import (
     received_serial_records,
 )
 
-__all__ = ["DEFAULT_BAUD", "SerialTransport", "split_serial_url"]
+__all__ = ["DEFAULT_BAUD", "SerialTransport", "refuse_if_in_use", "split_serial_url"]
 
 logger = logging.getLogger(__name__)
 
@@ -130,6 +133,34 @@ def split_serial_url(url: str, baud: int | None = None) -> tuple[str, int, bool]
     return device, baud if baud is not None else rate, spec.exclusive
 
 
+def refuse_if_in_use(url: str) -> None:
+    """Fail when another process holds the device of ``url`` exclusively (as pyserial's
+    ``exclusive=True`` does: ``flock(LOCK_EX | LOCK_NB)``), e.g. a bridge already running
+    on it. A device that is absent, or a URL that is not a local device, passes: the link
+    waits for those.
+
+    Raises:
+        DeviceBusyError: the device is locked by another process.
+        TransportUrlError: the URL is malformed.
+    """
+    device, _, exclusive = split_serial_url(url)
+    if not exclusive or "://" in device:
+        return
+    try:
+        fd = os.open(device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return  # not there (yet), or not permitted: the link reports and retries
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise DeviceBusyError(
+                f"{device} is held by another process (is a bridge already running on it?)"
+            ) from exc
+    finally:
+        os.close(fd)  # also releases our lock
+
+
 def _release(port: serial.SerialBase) -> None:
     """Close ``port`` and whatever it holds, never raising.
 
@@ -190,7 +221,7 @@ class SerialTransport(Transport):
         except serial.SerialException as exc:
             # A socket port can fail after connecting (a reset while flushing its input).
             _release(port)
-            raise OSError(str(exc)) from exc
+            raise OSError(exc.errno, str(exc)) from exc
         self._decoder.reset()
         self._port = port
         logger.info("opened %s at %d baud", self._device, self.baud)

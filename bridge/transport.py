@@ -40,6 +40,7 @@ docs/traffic-logs.md), only when :attr:`Transport.recorder` is set.
 
 from __future__ import annotations
 
+import errno
 import importlib
 import logging
 import queue
@@ -51,7 +52,7 @@ from types import TracebackType
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from bridge.errors import TransportError, TransportUrlError
+from bridge.errors import DeviceBusyError, TransportError, TransportUrlError
 from firmware_proto.counters import RxCounters
 from firmware_proto.message import Message
 from firmware_proto.messages import Encoders, Imu, Pose, WheelSpeeds
@@ -159,11 +160,17 @@ class Transport(RecordingEdge, ABC):
         """Open and start reading.
 
         Raises:
+            DeviceBusyError: another process holds the device's exclusive lock.
             TransportError: the device or bus cannot be opened; says which and why.
         """
         try:
             self._open()
         except (OSError, ValueError) as exc:
+            if isinstance(exc, OSError) and exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+                raise DeviceBusyError(
+                    f"cannot open {self.url}: another process holds it ({exc}); "
+                    "is a bridge already running on it?"
+                ) from exc
             raise TransportError(f"cannot open {self.url}: {exc}") from exc
         self._opened = True
         self._stop.clear()

@@ -107,7 +107,7 @@ def _installed_dirs(module_file: Path) -> list[tuple[str, Path]]:
     try:
         packages = importlib.import_module("ament_index_python.packages")
         share = packages.get_package_share_directory(ROS_PACKAGE)
-    except (ImportError, LookupError, ValueError):  # no ROS 2, or the package not in it
+    except (ImportError, LookupError, ValueError, OSError):  # no ROS 2 sourced, or not in it
         pass
     else:
         found.append(("the ament index", Path(share) / "udev"))

@@ -124,17 +124,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--token", default=None, help="gate bearer token (default $ROVER_GATE_TOKEN)")
     p.add_argument(
         "--ros-backend",
-        choices=("dds", "rclpy", "inprocess"),
-        default="dds",
-        help="ROS port backend",
+        choices=("rclpy", "inprocess"),
+        default="rclpy",
+        help="ROS port backend: rclpy (ROS 2, the default) or inprocess (tests only)",
     )
     p.add_argument(
         "--namespace", default="ground", help="namespace of the ground-side topics (default ground)"
-    )
-    p.add_argument(
-        "--dds-config",
-        metavar="loopback|FILE|XML",
-        help="Cyclone DDS config (default $CYCLONEDDS_URI)",
     )
     p.add_argument(
         "--rtt",
@@ -232,10 +227,7 @@ def register(subparsers: Any) -> None:
             "one interrupts at once, after sending STOP). Exit 0 when the goal is reached, 130 "
             "(143) when cancelled by SIGINT (SIGTERM), 1 otherwise, 2 for bad options."
         ),
-        epilog=(
-            "example: rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080 "
-            "--dds-config loopback"
-        ),
+        epilog=("example: rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080"),
     )
     add_arguments(p)
     p.set_defaults(func=run)
@@ -291,7 +283,7 @@ def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event
 def run(args: argparse.Namespace) -> int:
     """Run one mission; returns the exit status (0 reached, 128 + the signal number when
     cancelled by a signal, 1 otherwise)."""
-    from bridge.rosport import loopback_config, open_port
+    from bridge.rosport import open_port
     from firmware_proto.rover import load_rover
     from planner.errors import GateUnavailableError
     from planner.executor import ExecutorConfig, PlanExecutor, Progress
@@ -316,9 +308,6 @@ def run(args: argparse.Namespace) -> int:
         blind_margin_s=max(1.0, 2.0 * args.pose_stale),
     )
     rover = load_rover()
-    options: dict[str, Any] = {}
-    if args.ros_backend == "dds" and args.dds_config:
-        options["config"] = loopback_config() if args.dds_config == "loopback" else args.dds_config
     t0 = time.monotonic()
     cancel = threading.Event()
 
@@ -348,7 +337,7 @@ def run(args: argparse.Namespace) -> int:
         planner.route(start or world.start, goal)
         with (
             open_port(
-                args.ros_backend, namespace=args.namespace, node_name="rover_executor", **options
+                args.ros_backend, namespace=args.namespace, node_name="rover_executor"
             ) as port,
             CancelOnSignal(on_signal) as signals,
         ):

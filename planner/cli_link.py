@@ -31,12 +31,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rover-namespace", default="", help="namespace of the rover's topics (the bridge's)"
     )
     p.add_argument(
-        "--ros-backend", choices=("dds", "rclpy"), default="dds", help="ROS port backend"
-    )
-    p.add_argument(
-        "--dds-config",
-        metavar="loopback|FILE|XML",
-        help="Cyclone DDS config (default $CYCLONEDDS_URI)",
+        "--ros-backend",
+        choices=("rclpy", "inprocess"),
+        default="rclpy",
+        help="ROS port backend: rclpy (ROS 2, the default) or inprocess (tests only)",
     )
     p.add_argument(
         "--duration", type=float, default=0.0, help="exit after SECONDS; 0 runs until stopped"
@@ -61,27 +59,23 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Relay until SIGINT/SIGTERM (or ``--duration``)."""
-    from bridge.rosport import loopback_config, open_port
+    from bridge.rosport import open_port
     from planner.relay import LinkProfile, LinkRelay
 
     profile = LinkProfile(
         one_way_delay_s=args.rtt / 2.0, jitter_s=args.jitter, loss=args.loss, seed=args.seed
     )
-    options: dict[str, Any] = {}
-    if args.ros_backend == "dds" and args.dds_config:
-        options["config"] = loopback_config() if args.dds_config == "loopback" else args.dds_config
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     with (
         open_port(
-            args.ros_backend, namespace=args.ground_namespace, node_name="rover_link", **options
+            args.ros_backend, namespace=args.ground_namespace, node_name="rover_link"
         ) as ground,
         open_port(
             args.ros_backend,
             namespace=args.rover_namespace,
             node_name="rover_link_rover",
-            **options,
         ) as rover,
         LinkRelay(ground, rover, profile) as relay,
     ):

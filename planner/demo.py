@@ -38,7 +38,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
-from bridge.rosport import loopback_config, open_port
+from bridge.rosport import DEFAULT_BACKEND, open_port
+from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.rover import load_rover
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.gate_client import GateClient
@@ -49,9 +50,12 @@ from planner.orchestrator import PlannerOrchestrator
 from planner.picture import picture_of, save
 from planner.planner import HeuristicLowLevelPlanner
 
-__all__ = ["Demo", "DemoConfig", "DemoResult"]
+__all__ = ["LOCALHOST_ENV", "Demo", "DemoConfig", "DemoResult"]
 
 logger = logging.getLogger(__name__)
+
+LOCALHOST_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+"""ROS 2 Jazzy's discovery range variable; the demo sets it to ``LOCALHOST``."""
 
 
 @dataclass(frozen=True)
@@ -178,7 +182,9 @@ class Demo:
         self._t0 = time.monotonic()
         self._processes: list[_Process] = []
         self._tmp = tempfile.TemporaryDirectory(prefix="rover-demo-")
-        self._env = {**os.environ, "CYCLONEDDS_URI": loopback_config()}
+        # Every process of the demo, this one included, discovers ROS 2 peers on this
+        # host only (ROS 2 Jazzy's discovery range), so nothing leaves the machine.
+        self._env = {**os.environ, LOCALHOST_ENV: "LOCALHOST"}
         self._cancel = threading.Event()
         self._mission_running = False
 
@@ -230,29 +236,18 @@ class Demo:
         ]
         emulator = self._start("emulator", emulator_args, "CONTROL ")
         control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
-        self._start("bridge", ["bridge", "--device", str(link), "--ros-backend", "dds"], "BRIDGE ")
+        self._start("bridge", ["bridge", "--device", str(link)], "BRIDGE ")
         self._start(
             "link",
-            [
-                "link",
-                "--rtt",
-                f"{cfg.rtt_s / cfg.speed:g}",
-                "--seed",
-                str(cfg.seed),
-                "--ros-backend",
-                "dds",
-            ],
+            ["link", "--rtt", f"{cfg.rtt_s / cfg.speed:g}", "--seed", str(cfg.seed)],
             "LINK ",
         )
         rover = load_rover()
+        os.environ[LOCALHOST_ENV] = "LOCALHOST"  # read when the port's context starts
+        self.say(f"ROS 2 middleware: {middleware()}")
         with (
             GateClient(url) as client,
-            open_port(
-                "dds",
-                namespace="ground",
-                node_name="rover_executor",
-                config=self._env["CYCLONEDDS_URI"],
-            ) as port,
+            open_port(DEFAULT_BACKEND, namespace="ground", node_name="rover_executor") as port,
         ):
             world = client.get_map(cfg.map_name)
             goal = _goal(world, cfg.goal_name)

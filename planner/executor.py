@@ -38,7 +38,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.rosport import Bool, Empty, Int16MultiArray, Odometry, RosPort, String, Subscription
+from bridge.rosport import RosPort, Subscription, qos
+from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
 from planner.drift import DriftEvent, DriftMonitor
@@ -228,12 +229,11 @@ class ExecutionResult:
 
 
 def _yaw_deg(msg: Odometry) -> float:
-    q = msg.pose.pose.orientation
-    return math.degrees(2.0 * math.atan2(q.z, q.w))
+    return math.degrees(yaw_rad(msg.pose.pose.orientation))
 
 
 def _stamp_s(msg: Odometry) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+    return stamp_s(msg.header.stamp)
 
 
 class PlanExecutor:
@@ -250,9 +250,9 @@ class PlanExecutor:
         self.port = port
         self.rover = rover
         self.config = config or ExecutorConfig()
-        self._steps_pub = port.publisher("wheel_instructions", Int16MultiArray)
-        self._stop_pub = port.publisher("emergency_stop", Bool)
-        self._clear_pub = port.publisher("clear_emergency_stop", Empty)
+        self._steps_pub = port.publisher("wheel_instructions", Int16MultiArray, qos.COMMAND)
+        self._stop_pub = port.publisher("emergency_stop", Bool, qos.STOP)
+        self._clear_pub = port.publisher("clear_emergency_stop", Empty, qos.STOP)
         self._lock = threading.Lock()
         self._monitor_lock = threading.Lock()  # pose callbacks may run on two threads
         self._event = threading.Event()
@@ -281,11 +281,24 @@ class PlanExecutor:
         self._motion: tuple[float, float, float] | None = None  # stamp, v, yaw rate
         self._plan_start: Pose | None = None
         self._subs: list[Subscription[Any]] = [
-            port.subscribe("command_status", String, self._on_status),
-            port.subscribe("odom", Odometry, self._on_odom),
+            port.subscribe("command_status", String, self._on_status, qos.STATUS),
+            port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR),
         ]
         if self.config.pose_source != "odom":
-            self._subs.append(port.subscribe("odom_ground", Odometry, self._on_ground))
+            self._subs.append(port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR))
+
+    def wait_for_rover(self, timeout_s: float = 10.0) -> bool:
+        """Wait until what the executor publishes (steps, STOP, clear) reaches a
+        subscriber: the bridge, or the link relay in front of it.
+
+        Returns:
+            True when matched, False when ``timeout_s`` passed first.
+        """
+        deadline = time.monotonic() + timeout_s
+        return all(
+            pub.wait_for_subscribers(1, max(0.0, deadline - time.monotonic()))
+            for pub in (self._steps_pub, self._stop_pub, self._clear_pub)
+        )
 
     @property
     def pose_source_in_use(self) -> str:

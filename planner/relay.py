@@ -28,17 +28,8 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
-from bridge.rosport import (
-    Bool,
-    DiagnosticArray,
-    Empty,
-    Int16MultiArray,
-    Odometry,
-    Publisher,
-    RosPort,
-    String,
-    Subscription,
-)
+from bridge.rosport import DEFAULT_LANE, STOP_LANE, Publisher, Qos, RosPort, Subscription, qos
+from bridge.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
 
 __all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "Route"]
 
@@ -72,21 +63,27 @@ class LinkProfile:
 
 @dataclass(frozen=True)
 class Route:
-    """One relayed topic: name (relative), message type, direction."""
+    """One relayed topic: name (relative), message type, direction, QoS (republished
+    with ``qos``, taken with ``subscribe_qos`` when given, else ``qos``) and the lane its
+    subscription delivers on (:data:`~bridge.rosport.STOP_LANE` for the emergency stop,
+    so it never waits behind another topic's callback)."""
 
     topic: str
     msg_type: type[Any]
     uplink: bool  # ground -> rover
+    qos: Qos = qos.DEFAULT
+    subscribe_qos: Qos | None = None
+    lane: str = DEFAULT_LANE
 
 
 DEFAULT_ROUTES: tuple[Route, ...] = (
-    Route("wheel_instructions", Int16MultiArray, True),
-    Route("emergency_stop", Bool, True),
-    Route("clear_emergency_stop", Empty, True),
-    Route("command_status", String, False),
-    Route("odom", Odometry, False),
-    Route("odom_ground", Odometry, False),
-    Route("diagnostics", DiagnosticArray, False),
+    Route("wheel_instructions", Int16MultiArray, True, qos.COMMAND),
+    Route("emergency_stop", Bool, True, qos.STOP, lane=STOP_LANE),
+    Route("clear_emergency_stop", Empty, True, qos.STOP, lane=STOP_LANE),
+    Route("command_status", String, False, qos.STATUS),
+    Route("odom", Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    Route("odom_ground", Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    Route("diagnostics", DiagnosticArray, False, qos.DIAGNOSTICS),
 )
 
 
@@ -117,13 +114,19 @@ class LinkRelay:
         self._closed = False
         self._last_due: dict[str, float] = {}
         self._subs: list[Subscription[Any]] = []
+        self._publishers: list[Publisher[Any]] = []
         for route in routes:
             src, dst = (ground, rover) if route.uplink else (rover, ground)
-            publisher = dst.publisher(route.topic, route.msg_type)
+            publisher = dst.publisher(route.topic, route.msg_type, route.qos)
+            self._publishers.append(publisher)
             rng = random.Random(f"{self.profile.seed}:{route.topic}:{route.uplink}")
             self._subs.append(
                 src.subscribe(
-                    route.topic, route.msg_type, self._make_forward(route, publisher, rng)
+                    route.topic,
+                    route.msg_type,
+                    self._make_forward(route, publisher, rng),
+                    route.subscribe_qos or route.qos,
+                    lane=route.lane,
                 )
             )
         self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
@@ -165,6 +168,21 @@ class LinkRelay:
                 self.forwarded[key] += 1
             except Exception:
                 logger.exception("relay could not forward %s", key)
+
+    def wait_until_matched(self, timeout_s: float = 10.0, topics: set[str] | None = None) -> bool:
+        """Wait until each route's republisher (of ``topics``, default all) reaches at
+        least one subscription on its far side (over DDS, discovery takes a moment).
+
+        Returns:
+            True when all matched, False when ``timeout_s`` passed first.
+        """
+        deadline = time.monotonic() + timeout_s
+        for pub in self._publishers:
+            if topics is not None and pub.topic.rsplit("/", 1)[-1] not in topics:
+                continue
+            if not pub.wait_for_subscribers(1, max(0.0, deadline - time.monotonic())):
+                return False
+        return True
 
     @property
     def in_flight(self) -> int:

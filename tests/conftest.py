@@ -7,6 +7,15 @@ that legitimately keep process-wide resources mark the test ``allow_leaks``.
 Tests marked ``socketcan`` skip, saying why, where there is no ``vcan0``. With
 ``ROVER_REQUIRE_SOCKETCAN=1`` in the environment (the CI job that brings ``vcan0`` up)
 such a skip is an error instead, so that a missing interface fails loudly.
+
+Tests marked ``rclpy`` run real ROS 2 (rclpy, Fast DDS): they need the ROS 2 Jazzy
+wheels (the ``ros`` extra, which ``.ci/bootstrap`` installs) and the private network
+namespace of ``.ci/test`` (``ROVER_PRIVATE_NETNS=1``), because DDS discovery multicasts,
+or else ROS 2 told to discover on this host only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``,
+as the workflow's ros:jazzy job does).
+Test modules that import the ROS 2 message classes cannot even be collected without
+ROS 2. Where either is missing they skip, saying why; with ``ROVER_REQUIRE_RCLPY=1``
+(set by ``.ci/test``) such a skip is an error instead.
 """
 
 from __future__ import annotations
@@ -14,7 +23,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 
 import pytest
@@ -32,25 +41,61 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 LEAK_GRACE_S = 3.0
 REQUIRE_SOCKETCAN_ENV = "ROVER_REQUIRE_SOCKETCAN"
+REQUIRE_RCLPY_ENV = "ROVER_REQUIRE_RCLPY"
 
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
-SKIP_DDS_REASON = (
-    "DDS tests run only in the private network namespace of .ci/test "
-    "(ROVER_PRIVATE_NETNS=1 not set): Cyclone DDS multicasts at start"
+LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
+SKIP_NETNS_REASON = (
+    "ROS 2 tests run only in the private network namespace of .ci/test "
+    "(ROVER_PRIVATE_NETNS=1) or with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST: "
+    "DDS discovery multicasts"
 )
-SKIP_RCLPY_REASON = "rclpy (ROS 2 Jazzy) is not installed here; source a ROS 2 setup to run"
+SKIP_RCLPY_REASON = (
+    "ROS 2 Jazzy (rclpy and the message packages) is not installed here: "
+    "pip install -e '.[ros]' (or .ci/bootstrap), or source /opt/ros/jazzy/setup.bash"
+)
+
+
+def _ros_available() -> bool:
+    from bridge.rosport.rclpy_backend import rclpy_available
+
+    return rclpy_available()
+
+
+def rclpy_required() -> bool:
+    """Whether ROS 2 tests must run here (``ROVER_REQUIRE_RCLPY=1``)."""
+    return os.environ.get(REQUIRE_RCLPY_ENV, "") == "1"
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Skip, saying why, the tests whose environment is missing: DDS outside the private
-    network namespace, rclpy without ROS 2."""
-    from bridge.rosport.rclpy_backend import rclpy_available
-
+    """Skip, saying why, the ROS 2 tests whose environment is missing: ROS 2 itself, or
+    the private network namespace."""
+    ros = _ros_available()
     for item in items:
-        if item.get_closest_marker("dds") and not IN_PRIVATE_NETNS:
-            item.add_marker(pytest.mark.skip(reason=SKIP_DDS_REASON))
-        if item.get_closest_marker("rclpy") and not rclpy_available():
-            item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))
+        if item.get_closest_marker("rclpy"):
+            if not ros:
+                item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))
+            elif not (IN_PRIVATE_NETNS or LOCALHOST_DISCOVERY):
+                item.add_marker(pytest.mark.skip(reason=SKIP_NETNS_REASON))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(
+    collector: pytest.Collector,
+) -> Generator[None, pytest.CollectReport, pytest.CollectReport]:
+    """A test module that cannot import for want of ROS 2 is skipped, saying why (an
+    error with ``ROVER_REQUIRE_RCLPY=1``), instead of breaking the collection."""
+    report = yield
+    if (
+        report.failed
+        and isinstance(collector, pytest.Module)
+        and not rclpy_required()
+        and "BackendUnavailableError" in str(report.longrepr)
+        and not _ros_available()
+    ):
+        report.outcome = "skipped"
+        report.longrepr = (str(collector.path), 0, f"Skipped: {SKIP_RCLPY_REASON}")
+    return report
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -73,15 +118,22 @@ def _skip_reason(report: pytest.TestReport) -> str:
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
-    """Turn the skip of a ``socketcan`` test into an error when SocketCAN is required."""
+    """Turn the skip of a ``socketcan`` (``rclpy``) test into an error when SocketCAN
+    (ROS 2) is required."""
     outcome = yield
     report: pytest.TestReport = outcome.get_result()  # type: ignore[attr-defined]
-    if report.skipped and item.get_closest_marker("socketcan") and socketcan_required():
-        report.outcome = "failed"
-        report.longrepr = (
-            f"{REQUIRE_SOCKETCAN_ENV}=1: this SocketCAN test must run here, but it would "
-            f"have been skipped: {_skip_reason(report)}"
-        )
+    if not report.skipped:
+        return
+    for marker, required, env in (
+        ("socketcan", socketcan_required(), REQUIRE_SOCKETCAN_ENV),
+        ("rclpy", rclpy_required(), REQUIRE_RCLPY_ENV),
+    ):
+        if item.get_closest_marker(marker) and required:
+            report.outcome = "failed"
+            report.longrepr = (
+                f"{env}=1: this {marker} test must run here, but it would "
+                f"have been skipped: {_skip_reason(report)}"
+            )
 
 
 def _children() -> set[int]:

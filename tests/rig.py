@@ -2,9 +2,9 @@
 
 The real parts, wired as on the rover and the ground: the emulator (controller model and
 twin) served on a real pty, the bridge node on it, the link relay between the rover's
-topics and the ground's, and the executor on the ground side. ROS topics use the
-in-process port backend (nodes in one process); the same wiring over Cyclone DDS between
-processes is what ``rover demo`` runs.
+topics and the ground's, and the executor on the ground side. ROS topics go over real
+ROS 2 (``backend="rclpy"``, one node per part, as between processes) or the in-process
+port; the same wiring with each part in its own process is what ``rover demo`` runs.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ class HilRig:
         seed: seeds sensor noise, boot nonce and the link.
         faults: emulator faults (``slip:left=0.05``, ``...@t=3``) from the start.
         routes: the topics the link relays (default all: the rover's and the ground's).
+        backend: the ROS port backend, ``rclpy`` (real ROS 2) or ``inprocess``.
         executor: overrides of the executor's settings.
     """
 
@@ -56,6 +57,7 @@ class HilRig:
         faults: tuple[str, ...] = (),
         rover: RoverDescription | None = None,
         routes: tuple[Route, ...] = DEFAULT_ROUTES,
+        backend: str = "rclpy",
         **executor: Any,
     ) -> None:
         self.rover = rover or load_rover()
@@ -78,15 +80,17 @@ class HilRig:
             self._stack.append(self.emulator)
             front = self.emulator.frontend
             assert isinstance(front, SerialFrontEnd)
-            bus = f"rig-{next(_buses)}"
-            ports: list[RosPort] = [
-                open_port("inprocess", node_name="rover_bridge", bus=bus),
-                open_port("inprocess", node_name="link_ground", namespace="ground", bus=bus),
-                open_port("inprocess", node_name="link_rover", bus=bus),
-                open_port("inprocess", node_name="executor", namespace="ground", bus=bus),
-            ]
-            self._stack.extend(ports)
-            params = load_params({"device": front.device, "ros_backend": "inprocess"}, env={})
+            options = {"bus": f"rig-{next(_buses)}"} if backend == "inprocess" else {}
+            ports: list[RosPort] = []
+            for name, namespace in (
+                ("rover_bridge", ""),
+                ("link_ground", "ground"),
+                ("link_rover", ""),
+                ("executor", "ground"),
+            ):
+                ports.append(open_port(backend, node_name=name, namespace=namespace, **options))
+                self._stack.append(ports[-1])
+            params = load_params({"device": front.device, "ros_backend": backend}, env={})
             self.bridge = BridgeNode(params, ports[0]).start()
             self._stack.append(self.bridge)
             self.relay = LinkRelay(
@@ -99,6 +103,11 @@ class HilRig:
             config = ExecutorConfig(link_rtt_s=rtt_s / speed, time_scale=speed, **executor)
             self.executor = PlanExecutor(ports[3], self.rover, config)
             self._stack.append(self.executor)
+            # Over DDS the parts discover each other first: wait until every hop matched.
+            needed = {"wheel_instructions", "emergency_stop", "clear_emergency_stop"}
+            needed.add("command_status")  # poses are periodic: a first one lost is harmless
+            if not (self.executor.wait_for_rover() and self.relay.wait_until_matched(10.0, needed)):
+                raise TimeoutError("the rig's ROS nodes did not discover each other in 10 s")
             deadline = time.monotonic() + 10.0
             while not self.bridge.link.ready:
                 if time.monotonic() > deadline:

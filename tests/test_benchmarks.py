@@ -7,8 +7,9 @@ noisy), except counts that do not depend on speed: the codec's recovery run must
 deliver no altered frame and recover every intact one.
 
 Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
-and ``bench_mission`` (minutes). ``bench_rosport`` talks DDS, so it runs only in the
-private network namespace of ``.ci/test`` (the ``dds`` marker; tests/conftest.py).
+and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
+``bench_bridge`` talk DDS, so they run only in the private network namespace of
+``.ci/test`` (the ``rclpy`` marker; tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -89,9 +90,17 @@ def test_bench_bridge_quick_prints_its_table() -> None:
     assert "Sustained steps through the bridge" in out
 
 
-@pytest.mark.dds
+@pytest.mark.rclpy
 def test_bench_rosport_small_counts_print_its_tables() -> None:
     out = run_benchmark("bench_rosport", "--latency-count", "50", "--rate-count", "200")
     assert "Latency, publish -> subscriber callback" in out
     assert "Sustained rate, nothing lost" in out
-    assert "raw cyclonedds (2 processes)" in out
+    assert "raw rclpy (2 processes)" in out
+    assert "rosport rclpy, STOP lane (2 proc.)" in out
+
+
+@pytest.mark.rclpy
+def test_bench_bridge_ros2_case_prints_its_rows() -> None:
+    out = run_benchmark("bench_bridge", "--quick", "--ros2")
+    assert "ROS 2 message (rclpy, other process) -> bridge STOP callback (load)" in out
+    assert "ROS 2 message (rclpy, other process) -> wheel targets zero (load)" in out

@@ -1,17 +1,20 @@
-"""The ROS port: one small publish/subscribe interface with rclpy, Cyclone DDS and
-in-process backends, used by the rover-side bridge and the ground-side executor.
+"""The ROS port: one small publish/subscribe seam over real ROS 2 (rclpy), used by the
+rover-side bridge and the ground-side executor and link relay.
 
-    from bridge.rosport import Int16MultiArray, String, open_port
+    from bridge.rosport import open_port, qos
+    from bridge.rosport.msgs import Int16MultiArray, String
 
-    with open_port("dds", namespace="rover1", node_name="executor") as port:
-        port.subscribe("command_status", String, on_status)
-        steps = port.publisher("wheel_instructions", Int16MultiArray)
-        steps.publish(Int16MultiArray(data=(1, 30, 23000)))
+    with open_port("rclpy", namespace="rover1", node_name="executor") as port:
+        port.subscribe("command_status", String, on_status, qos.STATUS)
+        steps = port.publisher("wheel_instructions", Int16MultiArray, qos.COMMAND)
+        steps.publish(Int16MultiArray(data=[1, 30, 23000]))
 
-Backends are imported when opened (see :mod:`bridge.rosport.registry`). See docs/rosport.md.
+Messages are the generated ROS 2 classes (:mod:`bridge.rosport.msgs`, which needs ROS 2
+installed). Importing this package does not: backends are imported when opened (see
+:mod:`bridge.rosport.registry`). See docs/rosport.md.
 """
 
-from bridge.rosport.ddsconfig import loopback_config, network_config
+from bridge.rosport import qos
 from bridge.rosport.errors import (
     BackendUnavailableError,
     MessageError,
@@ -21,83 +24,43 @@ from bridge.rosport.errors import (
     TopicTypeError,
     UnknownBackendError,
 )
-from bridge.rosport.msgs import (
-    MESSAGE_TYPES,
-    Bool,
-    DiagnosticArray,
-    DiagnosticStatus,
-    Empty,
-    Header,
-    Int16MultiArray,
-    KeyValue,
-    Message,
-    MultiArrayDimension,
-    MultiArrayLayout,
-    Odometry,
-    Point,
-    Pose,
-    PoseWithCovariance,
-    Quaternion,
-    String,
-    Time,
-    Twist,
-    TwistWithCovariance,
-    Vector3,
-    message_type,
-)
-from bridge.rosport.names import dds_topic_name, dds_type_name, resolve_topic
+from bridge.rosport.names import resolve_topic
 from bridge.rosport.port import (
+    DEFAULT_LANE,
     DEFAULT_NODE_NAME,
     HISTORY_DEPTH,
+    LANES,
+    STOP_LANE,
     PortStats,
     Publisher,
     RosPort,
     Subscription,
 )
-from bridge.rosport.registry import BACKENDS, backend_class, open_port
+from bridge.rosport.qos import Qos
+from bridge.rosport.registry import BACKENDS, DEFAULT_BACKEND, backend_class, open_port
 
 __all__ = [
     "BACKENDS",
+    "DEFAULT_BACKEND",
+    "DEFAULT_LANE",
     "DEFAULT_NODE_NAME",
     "HISTORY_DEPTH",
-    "MESSAGE_TYPES",
+    "LANES",
+    "STOP_LANE",
     "BackendUnavailableError",
-    "Bool",
-    "DiagnosticArray",
-    "DiagnosticStatus",
-    "Empty",
-    "Header",
-    "Int16MultiArray",
-    "KeyValue",
-    "Message",
     "MessageError",
-    "MultiArrayDimension",
-    "MultiArrayLayout",
-    "Odometry",
-    "Point",
     "PortClosedError",
     "PortStats",
-    "Pose",
-    "PoseWithCovariance",
     "Publisher",
-    "Quaternion",
+    "Qos",
     "RosNameError",
     "RosPort",
     "RosPortError",
-    "String",
     "Subscription",
-    "Time",
     "TopicTypeError",
-    "Twist",
-    "TwistWithCovariance",
     "UnknownBackendError",
-    "Vector3",
     "backend_class",
-    "dds_topic_name",
-    "dds_type_name",
-    "loopback_config",
-    "message_type",
-    "network_config",
     "open_port",
+    "qos",
     "resolve_topic",
 ]

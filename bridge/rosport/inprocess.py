@@ -2,23 +2,27 @@
 
 Ports opened with the same ``bus`` name (default ``"default"``) see each other's topics,
 as nodes of one ROS domain would; ports on different buses do not. A publisher reaches
-the subscriptions on its bus with the same fully qualified topic and the same message
-type (a different type on the same name never matches, as in DDS).
+the subscriptions on its bus with the same fully qualified topic, the same message type
+(a different type on the same name never matches, as in DDS) and compatible QoS (a
+reliable subscription does not receive from a best-effort publisher:
+:func:`~bridge.rosport.qos.compatible`).
 
-``publish`` only queues: each subscription keeps the last :data:`HISTORY_DEPTH` messages
-(older ones are dropped and counted in ``stats().dropped``), and each port delivers on
-its own thread, so callbacks never run on the publisher's thread. Messages are immutable,
-so subscribers share the published object; nothing is serialised.
+``publish`` only queues: each subscription keeps the last ``qos.depth`` messages (older
+ones are dropped and counted in ``stats().dropped``), and each lane of a port delivers on
+its own thread, so callbacks never run on the publisher's thread. Every subscription
+receives its own copy of the message (as after a trip through DDS), so a subscriber that
+modifies what it received changes nothing for the others or the publisher.
 """
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections import deque
-from typing import Final
+from typing import Any, Final
 
-from bridge.rosport.msgs import Message
-from bridge.rosport.port import DEFAULT_NODE_NAME, HISTORY_DEPTH, RosPort, Subscription
+from bridge.rosport.port import DEFAULT_NODE_NAME, LANES, Message, RosPort, Subscription
+from bridge.rosport.qos import Qos, compatible
 
 __all__ = ["DEFAULT_BUS", "InProcessPort"]
 
@@ -56,9 +60,13 @@ class _Bus:
             if not slots:
                 self.slots.pop(slot.sub.topic, None)
 
-    def matching(self, topic: str, msg_type: type[Message]) -> list[_Slot]:
+    def matching(self, topic: str, msg_type: type[Any], qos: Qos) -> list[_Slot]:
         with self.lock:
-            return [s for s in self.slots.get(topic, ()) if s.sub.msg_type is msg_type]
+            return [
+                s
+                for s in self.slots.get(topic, ())
+                if s.sub.msg_type is msg_type and compatible(qos, s.sub.qos)
+            ]
 
 
 _BUSES: dict[str, _Bus] = {}
@@ -71,17 +79,18 @@ def _bus(name: str) -> _Bus:
 
 
 class _Writer:
-    def __init__(self, port: InProcessPort, topic: str, msg_type: type[Message]) -> None:
+    def __init__(self, port: InProcessPort, topic: str, msg_type: type[Any], qos: Qos) -> None:
         self._port = port
         self._topic = topic
         self._msg_type = msg_type
+        self._qos = qos
 
     def write(self, msg: Message) -> None:
-        for slot in self._port._bus.matching(self._topic, self._msg_type):
-            slot.port._enqueue(slot, msg)
+        for slot in self._port._bus.matching(self._topic, self._msg_type, self._qos):
+            slot.port._enqueue(slot, copy.deepcopy(msg))
 
     def matched_count(self) -> int:
-        return len(self._port._bus.matching(self._topic, self._msg_type))
+        return len(self._port._bus.matching(self._topic, self._msg_type, self._qos))
 
     def close(self) -> None:
         """Nothing to free: a writer is only a name on the bus."""
@@ -116,11 +125,11 @@ class InProcessPort(RosPort):
         self.bus_name = bus
         self._bus = _bus(bus)
         self._cond = threading.Condition()
-        self._ready: deque[_Slot] = deque()
+        self._ready: dict[str, deque[_Slot]] = {lane: deque() for lane in LANES}
         self._start()
 
-    def _open_writer(self, topic: str, msg_type: type[Message]) -> _Writer:
-        return _Writer(self, topic, msg_type)
+    def _open_writer(self, topic: str, msg_type: type[Any], qos: Qos) -> _Writer:
+        return _Writer(self, topic, msg_type, qos)
 
     def _open_reader(self, sub: Subscription[Message]) -> _Reader:
         slot = _Slot(self, sub)
@@ -133,26 +142,27 @@ class InProcessPort(RosPort):
         with self._cond:
             if self._stopping.is_set():
                 return
-            if len(slot.queue) >= HISTORY_DEPTH:
+            if len(slot.queue) >= slot.sub.qos.depth:
                 # Keep-last: the oldest goes, and its ready mark now stands for this one,
                 # so the ready queue never holds more marks than messages.
                 slot.queue.popleft()
                 dropped = True
             else:
-                self._ready.append(slot)
+                self._ready[slot.sub.lane].append(slot)
             slot.queue.append(msg)
-            self._cond.notify()
+            self._cond.notify_all()
         if dropped:
             self._count_dropped()
 
-    def _run(self) -> None:
+    def _run(self, lane: str) -> None:
+        ready = self._ready[lane]
         while True:
             with self._cond:
-                while not self._ready and not self._stopping.is_set():
+                while not ready and not self._stopping.is_set():
                     self._cond.wait()
                 if self._stopping.is_set():
                     return
-                slot = self._ready.popleft()
+                slot = ready.popleft()
                 if not slot.queue:
                     # The subscription closed and its queue was cleared.
                     continue

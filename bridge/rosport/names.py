@@ -1,4 +1,4 @@
-"""ROS 2 names: validation, expansion against a namespace and node, and the DDS mapping.
+"""ROS 2 names: validation and expansion against a namespace and node; interface names.
 
 The rules are those of rcl and rmw (``rcl_validate_topic_name``,
 ``rcl_expand_topic_name``, ``rmw_validate_full_topic_name``, ``rmw_validate_namespace``,
@@ -19,17 +19,17 @@ saying which rule it broke.
 from __future__ import annotations
 
 import re
-from typing import Final
+from typing import Any, Final
 
 from bridge.rosport.errors import RosNameError
 
 __all__ = [
     "NODE_NAME_MAX_LENGTH",
     "TOPIC_NAME_MAX_LENGTH",
-    "dds_topic_name",
-    "dds_type_name",
+    "is_message_type",
     "normalize_namespace",
     "resolve_topic",
+    "ros_type_name",
     "validate_full_topic_name",
     "validate_node_name",
 ]
@@ -40,9 +40,6 @@ TOPIC_NAME_MAX_LENGTH: Final = 255 - 8
 NAMESPACE_MAX_LENGTH: Final = TOPIC_NAME_MAX_LENGTH - 2
 #: rmw: RMW_NODE_NAME_MAX_NAME_LENGTH.
 NODE_NAME_MAX_LENGTH: Final = 255
-
-#: The prefix rmw puts before a ROS topic's fully qualified name to make the DDS topic.
-ROS_TOPIC_PREFIX: Final = "rt"
 
 _NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _NAME_CHARS = re.compile(r"[A-Za-z0-9_/]*\Z")
@@ -155,18 +152,6 @@ def resolve_topic(name: str, *, namespace: str = "/", node_name: str) -> str:
         ) from exc
 
 
-def dds_topic_name(full_name: str) -> str:
-    """The DDS topic of a fully qualified ROS topic: ``/rover1/odom`` -> ``rt/rover1/odom``."""
-    return ROS_TOPIC_PREFIX + validate_full_topic_name(full_name)
-
-
-def dds_type_name(ros_type: str) -> str:
-    """The DDS type name of a ROS interface: ``std_msgs/msg/String`` ->
-    ``std_msgs::msg::dds_::String_`` (rosidl's DDS IDL mapping)."""
-    package, kind, name = ros_type.split("/")
-    return f"{package}::{kind}::dds_::{name}_"
-
-
 def _substitute(name: str, *, given: str, namespace: str, node_name: str) -> str:
     values = {"node": node_name, "ns": namespace, "namespace": namespace}
 
@@ -211,3 +196,14 @@ def _check_absolute(name: str, given: str, *, kind: str, max_length: int) -> Non
                 name=given,
                 kind=kind,
             )
+
+
+def is_message_type(obj: object) -> bool:
+    """True for a generated ROS 2 message class (what rclpy can publish)."""
+    return isinstance(obj, type) and hasattr(obj, "_TYPE_SUPPORT") and hasattr(obj, "SLOT_TYPES")
+
+
+def ros_type_name(msg_type: type[Any]) -> str:
+    """The interface name of a generated message class, e.g. ``"nav_msgs/msg/Odometry"``."""
+    package = msg_type.__module__.split(".", 1)[0]
+    return f"{package}/msg/{msg_type.__name__}"

@@ -3,17 +3,23 @@
 A :class:`RosPort` is one ROS node's worth of topics. ``publisher(topic, type)`` gives a
 :class:`Publisher`; ``subscribe(topic, type, callback)`` gives a :class:`Subscription`;
 ``close()`` ends everything (idempotent; the port is also a context manager). Messages
-are the frozen dataclasses of :mod:`bridge.rosport.msgs`.
+are the generated ROS 2 classes (:mod:`bridge.rosport.msgs` re-exports the ones the
+product uses).
 
 Contract shared by every backend (the base class enforces what it can):
 
 - Topic names resolve as ROS 2 does (see :mod:`bridge.rosport.names`): relative names get
   the port's namespace, absolute ones do not; invalid names raise :class:`RosNameError`.
-- QoS is ROS 2's default profile: reliable, volatile, keep-last :data:`HISTORY_DEPTH`.
+- QoS is given per endpoint (:class:`~bridge.rosport.qos.Qos`; default ROS 2's:
+  reliable, volatile, keep-last :data:`HISTORY_DEPTH`); a reliable subscription does not
+  receive from a best-effort publisher, as in DDS.
 - Callbacks run on a thread of the backend, never on the thread that called
-  ``publish``; one port delivers on one thread, so its callbacks never run concurrently
-  with each other. A callback that raises is logged and counted (:meth:`RosPort.stats`,
-  :attr:`Subscription.errors`) and delivery goes on.
+  ``publish``. Each subscription belongs to a *lane*: :data:`DEFAULT_LANE`, or
+  :data:`STOP_LANE` for what must never wait behind other callbacks (an emergency stop).
+  Each lane delivers on its own thread, so callbacks of one lane never run concurrently
+  with each other, and a STOP callback never queues behind telemetry. A callback that
+  raises is logged and counted (:meth:`RosPort.stats`, :attr:`Subscription.errors`) and
+  delivery goes on.
 - After ``Subscription.close()`` or ``RosPort.close()`` returns, no new callback starts
   for it (one already running on the backend thread may finish).
 
@@ -23,11 +29,13 @@ Implementing a backend: subclass :class:`RosPort`, set ``backend``, and fill the
 - :meth:`RosPort._open_reader` (must): create the endpoint, call
   :meth:`RosPort._deliver` from the backend thread for each message, return a
   :class:`Reader`;
-- :meth:`RosPort._run` (must): the backend thread's loop; return once
+- :meth:`RosPort._run` (must): one lane's loop, on that lane's thread; return once
   :attr:`RosPort._stopping` is set;
-- :meth:`RosPort._wake` (may): make ``_run`` notice ``_stopping`` at once;
+- :meth:`RosPort._open_lane` (may): prepare a lane before its thread starts (called
+  once per lane, :data:`DEFAULT_LANE` from :meth:`RosPort._start`, others on first use);
+- :meth:`RosPort._wake` (may): make every ``_run`` notice ``_stopping`` at once;
 - :meth:`RosPort._release` (may): free what the backend holds; called once, after
-  ``_run`` has returned.
+  every lane's ``_run`` has returned.
 
 Call :meth:`RosPort._start` at the end of the subclass's ``__init__``. Everything else
 (names, type checks, counting, logging, closing) is done here.
@@ -38,18 +46,23 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, ClassVar, Final, Generic, Protocol, TypeVar
 
+from bridge.errors import ParameterError
 from bridge.rosport import names
 from bridge.rosport.errors import PortClosedError, RosPortError, TopicTypeError
-from bridge.rosport.msgs import Message
+from bridge.rosport.names import is_message_type, ros_type_name
+from bridge.rosport.parameters import OnSet, ParameterSpec, ParameterValue, check_value
+from bridge.rosport.qos import DEFAULT, Qos
 
 __all__ = [
+    "DEFAULT_LANE",
     "DEFAULT_NODE_NAME",
     "HISTORY_DEPTH",
+    "STOP_LANE",
     "PortStats",
     "Publisher",
     "Reader",
@@ -60,7 +73,9 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-M = TypeVar("M", bound=Message)
+M = TypeVar("M")
+Message = Any
+"""A message: an instance of a generated ROS 2 message class."""
 
 #: Keep-last depth of every publisher and subscription (ROS 2's default profile).
 HISTORY_DEPTH: Final = 10
@@ -68,6 +83,11 @@ HISTORY_DEPTH: Final = 10
 DEFAULT_NODE_NAME: Final = "rosport"
 #: How long ``close()`` waits for the backend thread (a callback may be running).
 CLOSE_TIMEOUT_S: Final = 5.0
+#: The lane of ordinary callbacks.
+DEFAULT_LANE: Final = "default"
+#: The lane of callbacks that must never wait behind others (an emergency stop).
+STOP_LANE: Final = "stop"
+LANES: Final = (DEFAULT_LANE, STOP_LANE)
 #: Poll period of ``Publisher.wait_for_subscribers``.
 _MATCH_POLL_S: Final = 0.01
 
@@ -114,11 +134,14 @@ class PortStats:
 class Publisher(Generic[M]):
     """Publishes messages of one type on one topic. Made by :meth:`RosPort.publisher`."""
 
-    def __init__(self, port: RosPort, topic: str, msg_type: type[M], writer: Writer) -> None:
+    def __init__(
+        self, port: RosPort, topic: str, msg_type: type[M], writer: Writer, qos: Qos
+    ) -> None:
         self.port = port
         #: The fully qualified topic name.
         self.topic = topic
         self.msg_type = msg_type
+        self.qos = qos
         self._writer = writer
         self._closed = False
         self._endpoint_closed = False
@@ -131,7 +154,7 @@ class Publisher(Generic[M]):
             PortClosedError: the publisher or its port is closed.
             RosPortError: the backend failed to send (chained to its exception).
         """
-        if type(msg) is not self.msg_type and not isinstance(msg, self.msg_type):
+        if type(msg) is not self.msg_type:
             raise TopicTypeError(
                 f"publisher on {self.topic} sends {self.msg_type.__name__}, "
                 f"got {type(msg).__name__}"
@@ -184,20 +207,29 @@ class Publisher(Generic[M]):
         return self._closed or self.port.closed
 
     def __repr__(self) -> str:
-        return f"<Publisher {self.topic} [{self.msg_type.ROS_TYPE}]>"
+        return f"<Publisher {self.topic} [{ros_type_name(self.msg_type)}]>"
 
 
 class Subscription(Generic[M]):
     """Calls ``callback(msg)`` for each message on one topic. Made by :meth:`RosPort.subscribe`."""
 
     def __init__(
-        self, port: RosPort, topic: str, msg_type: type[M], callback: Callable[[M], object]
+        self,
+        port: RosPort,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], object],
+        qos: Qos = DEFAULT,
+        lane: str = DEFAULT_LANE,
     ) -> None:
         self.port = port
         #: The fully qualified topic name.
         self.topic = topic
         self.msg_type = msg_type
         self.callback = callback
+        self.qos = qos
+        #: The lane (delivery thread) its callbacks run on.
+        self.lane = lane
         #: Callbacks that returned normally.
         self.delivered = 0
         #: Callbacks that raised.
@@ -219,7 +251,7 @@ class Subscription(Generic[M]):
         return self._closed or self.port.closed
 
     def __repr__(self) -> str:
-        return f"<Subscription {self.topic} [{self.msg_type.ROS_TYPE}]>"
+        return f"<Subscription {self.topic} [{ros_type_name(self.msg_type)}]>"
 
 
 _P = TypeVar("_P", bound="RosPort")
@@ -245,18 +277,23 @@ class RosPort:
         self.node_name = names.validate_node_name(node_name)
         self._lock = threading.Lock()
         self._closed = False
-        #: Set when the port is closing: ``_run`` must return soon after.
+        #: Set when the port is closing: every ``_run`` must return soon after.
         self._stopping = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._threads: dict[str, threading.Thread] = {}
+        self._running = 0  # lane threads that have not returned yet
         self._released = False
         self._pending_release: tuple[list[Publisher[Any]], list[Subscription[Any]]] | None = None
         self._publishers: list[Publisher[Any]] = []
         self._subscriptions: list[Subscription[Any]] = []
-        self._topic_types: dict[str, type[Message]] = {}
+        self._topic_types: dict[str, type[Any]] = {}
         self._published = 0
         self._delivered = 0
         self._callback_errors = 0
         self._dropped = 0
+        self._param_specs: dict[str, ParameterSpec] = {}
+        self._param_values: dict[str, ParameterValue] = {}
+        self._on_set: OnSet | None = None
+        self._param_lock = threading.Lock()
 
     # -- public API -------------------------------------------------------------------
 
@@ -268,8 +305,8 @@ class RosPort:
         """
         return names.resolve_topic(topic, namespace=self.namespace, node_name=self.node_name)
 
-    def publisher(self, topic: str, msg_type: type[M]) -> Publisher[M]:
-        """Create a publisher of ``msg_type`` on ``topic``.
+    def publisher(self, topic: str, msg_type: type[M], qos: Qos = DEFAULT) -> Publisher[M]:
+        """Create a publisher of ``msg_type`` on ``topic`` with ``qos``.
 
         Raises:
             RosNameError: invalid topic name.
@@ -280,12 +317,12 @@ class RosPort:
         """
         full = self._claim(topic, msg_type)
         try:
-            writer = self._open_writer(full, msg_type)
+            writer = self._open_writer(full, msg_type, qos)
         except RosPortError:
             raise
         except Exception as exc:
             raise RosPortError(f"cannot create a publisher on {full}: {exc}") from exc
-        pub = Publisher(self, full, msg_type, writer)
+        pub = Publisher(self, full, msg_type, writer, qos)
         with self._lock:
             closed = self._closed
             if not closed:
@@ -293,25 +330,35 @@ class RosPort:
         if closed:
             writer.close()
             raise PortClosedError(f"{self!r} is closed")
-        logger.debug("%s: publisher on %s [%s]", self, full, msg_type.ROS_TYPE)
+        logger.debug("%s: publisher on %s [%s] (%s)", self, full, ros_type_name(msg_type), qos)
         return pub
 
     def subscribe(
-        self, topic: str, msg_type: type[M], callback: Callable[[M], object]
+        self,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], object],
+        qos: Qos = DEFAULT,
+        *,
+        lane: str = DEFAULT_LANE,
     ) -> Subscription[M]:
-        """Call ``callback(msg)`` on the backend thread for each ``msg_type`` on ``topic``.
+        """Call ``callback(msg)`` on ``lane``'s thread for each ``msg_type`` on ``topic``.
 
         Raises:
             RosNameError: invalid topic name.
             TopicTypeError: ``msg_type`` is not a message type, or this port already
                 uses ``topic`` with another type.
+            ValueError: ``lane`` is not one of :data:`LANES`.
             PortClosedError: the port is closed.
             RosPortError: the backend cannot create the endpoint.
         """
         if not callable(callback):
             raise TypeError(f"callback must be callable, got {type(callback).__name__}")
+        if lane not in LANES:
+            raise ValueError(f"unknown lane {lane!r}; lanes: {', '.join(LANES)}")
         full = self._claim(topic, msg_type)
-        sub = Subscription(self, full, msg_type, callback)
+        self._ensure_lane(lane)
+        sub = Subscription(self, full, msg_type, callback, qos, lane)
         with self._lock:
             if self._closed:
                 raise PortClosedError(f"{self!r} is closed")
@@ -331,8 +378,56 @@ class RosPort:
             # The port closed while the endpoint was being made; nobody else will free it.
             self._close_endpoint(sub, reader)
             raise PortClosedError(f"{self!r} is closed")
-        logger.debug("%s: subscription on %s [%s]", self, full, msg_type.ROS_TYPE)
+        logger.debug(
+            "%s: subscription on %s [%s] (%s, lane %s)",
+            self,
+            full,
+            ros_type_name(msg_type),
+            qos,
+            lane,
+        )
         return sub
+
+    def declare_parameters(
+        self, specs: list[ParameterSpec], on_set: OnSet, initial: Mapping[str, Any] | None = None
+    ) -> dict[str, ParameterValue]:
+        """Declare this node's parameters (:mod:`bridge.rosport.parameters`).
+
+        Args:
+            specs: the parameters.
+            on_set: called with every later change that passed the checks; returns
+                ``None`` when applied, or the reason to refuse it.
+            initial: values to start with instead of the specs' defaults (what the node
+                resolved from its command line, environment and files).
+
+        Returns:
+            The values in effect, by name: ``initial``, else the defaults. ROS arguments
+            (``-p``, ``--params-file``) are not applied again here: the node resolves them
+            with its other sources, in its own order of precedence, into ``initial``.
+
+        Raises:
+            ParameterError: a value given at start is of the wrong type or out of range.
+        """
+        values = {spec.name: (initial or {}).get(spec.name, spec.default) for spec in specs}
+        declared = self._declare_parameters(specs, values)
+        with self._param_lock:
+            self._param_specs = {spec.name: spec for spec in specs}
+            self._param_values = dict(declared)
+            self._on_set = on_set
+        return declared
+
+    def set_parameters(self, values: Mapping[str, Any]) -> str | None:
+        """Change parameters as ``ros2 param set`` would: all or none.
+
+        Returns:
+            ``None`` when applied, else why they were refused (unknown name, read-only,
+            wrong type, out of range, or the node's own reason).
+        """
+        return self._set_parameters(dict(values))
+
+    def parameters(self) -> dict[str, ParameterValue]:
+        """The declared parameters' current values, by name."""
+        return self._get_parameters()
 
     def stats(self) -> PortStats:
         """A snapshot of this port's counters."""
@@ -345,12 +440,12 @@ class RosPort:
         return self._closed
 
     def close(self) -> None:
-        """Close every publisher and subscription, stop the backend thread, free the backend.
+        """Close every publisher and subscription, stop the lane threads, free the backend.
 
-        Idempotent. Called from a callback (on the backend thread), it returns at once
-        and the backend is freed when the callback returns. If a callback is still
-        running after ``CLOSE_TIMEOUT_S``, it is logged and the backend is freed when
-        that callback returns.
+        Idempotent. Called from a callback (on a lane thread), it returns at once and the
+        backend is freed when the callback returns. If a callback is still running after
+        ``CLOSE_TIMEOUT_S``, it is logged and the backend is freed when that callback
+        returns.
         """
         with self._lock:
             if self._closed:
@@ -358,24 +453,29 @@ class RosPort:
             self._closed = True
             publishers, self._publishers = self._publishers, []
             subscriptions, self._subscriptions = self._subscriptions, []
-            # Whichever of this thread and the backend thread gets there last frees the
-            # backend: here after the join, or the backend thread when it unwinds.
+            # Whichever of this thread and the lane threads gets there last frees the
+            # backend: here after the joins, or the last lane thread when it unwinds.
             self._pending_release = (publishers, subscriptions)
+            threads = list(self._threads.values())
         self._stopping.set()
         for sub in subscriptions:
             sub._closed = True
         self._wake()
-        thread = self._thread
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(CLOSE_TIMEOUT_S)
-            if thread.is_alive():
-                logger.error(
-                    "%s: backend thread still busy after %.1f s (a callback blocks?); "
-                    "it frees the backend when it returns",
-                    self,
-                    CLOSE_TIMEOUT_S,
-                )
-        if thread is None or not thread.is_alive():
+        current = threading.current_thread()
+        deadline = time.monotonic() + CLOSE_TIMEOUT_S
+        for thread in threads:
+            if thread is not current:
+                thread.join(max(0.0, deadline - time.monotonic()))
+        busy = [t.name for t in threads if t.is_alive()]
+        if busy and busy != [current.name]:
+            logger.error(
+                "%s: lane thread(s) %s still busy after %.1f s (a callback blocks?); "
+                "the last one frees the backend when it returns",
+                self,
+                ", ".join(busy),
+                CLOSE_TIMEOUT_S,
+            )
+        if not busy:
             self._release_once(publishers, subscriptions)
         logger.debug("%s: closed", self)
 
@@ -397,15 +497,27 @@ class RosPort:
     # -- for backends -----------------------------------------------------------------
 
     def _start(self) -> None:
-        """Start the backend thread running :meth:`_run` (call at the end of ``__init__``)."""
-        thread = threading.Thread(
-            target=self._thread_main, name=f"rosport-{self.backend}-{self.node_name}", daemon=True
-        )
-        self._thread = thread
+        """Start the default lane's thread (call at the end of ``__init__``)."""
+        self._ensure_lane(DEFAULT_LANE)
+
+    def _ensure_lane(self, lane: str) -> None:
+        """Open ``lane`` and start its thread, once."""
+        with self._lock:
+            if lane in self._threads or self._closed:
+                return
+            self._open_lane(lane)
+            thread = threading.Thread(
+                target=self._thread_main,
+                args=(lane,),
+                name=f"rosport-{self.backend}-{self.node_name}-{lane}",
+                daemon=True,
+            )
+            self._threads[lane] = thread
+            self._running += 1
         thread.start()
 
     def _deliver(self, sub: Subscription[Any], msg: Message) -> None:
-        """Run ``sub``'s callback with ``msg`` (from the backend thread); log and count errors."""
+        """Run ``sub``'s callback with ``msg`` (from a lane thread); log and count errors."""
         if sub._closed:
             return
         try:
@@ -433,26 +545,63 @@ class RosPort:
         with self._lock:
             self._dropped += count
 
-    def _open_writer(self, topic: str, msg_type: type[Message]) -> Writer:
+    def _declare_parameters(
+        self, specs: list[ParameterSpec], values: dict[str, ParameterValue]
+    ) -> dict[str, ParameterValue]:
+        """Declare ``specs`` with ``values``; return the values in effect (default: kept
+        here, checked with :func:`check_value`)."""
+        for spec in specs:
+            reason = check_value(spec, values[spec.name])
+            if reason is not None:
+                raise ParameterError(f"parameter {reason}")
+        return values
+
+    def _set_parameters(self, values: dict[str, Any]) -> str | None:
+        """Check and apply a change (default: the checks rclpy makes, then ``on_set``)."""
+        with self._param_lock:
+            specs, on_set = self._param_specs, self._on_set
+            for name, value in values.items():
+                spec = specs.get(name)
+                if spec is None:
+                    return f"parameter {name!r} is not declared"
+                if spec.read_only:
+                    return f"parameter {name!r} is read-only: set it when the node starts"
+                reason = check_value(spec, value)
+                if reason is not None:
+                    return reason
+            reason = on_set(values) if on_set is not None else None
+            if reason is None:
+                self._param_values.update(values)
+            return reason
+
+    def _get_parameters(self) -> dict[str, ParameterValue]:
+        """The current values (default: kept here)."""
+        with self._param_lock:
+            return dict(self._param_values)
+
+    def _open_writer(self, topic: str, msg_type: type[Any], qos: Qos) -> Writer:
         raise NotImplementedError
 
     def _open_reader(self, sub: Subscription[Any]) -> Reader:
         raise NotImplementedError
 
-    def _run(self) -> None:
+    def _open_lane(self, lane: str) -> None:
+        """Prepare ``lane`` before its thread starts (default: nothing; lock held)."""
+
+    def _run(self, lane: str) -> None:
         raise NotImplementedError
 
     def _wake(self) -> None:
-        """Make :meth:`_run` see :attr:`_stopping` promptly (default: nothing)."""
+        """Make every :meth:`_run` see :attr:`_stopping` promptly (default: nothing)."""
 
     def _release(self) -> None:
         """Free the backend's resources (default: nothing). Called once, after ``_run``."""
 
     # -- internals --------------------------------------------------------------------
 
-    def _claim(self, topic: str, msg_type: type[Message]) -> str:
-        if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
-            raise TopicTypeError(f"{msg_type!r} is not a message type of bridge.rosport.msgs")
+    def _claim(self, topic: str, msg_type: type[Any]) -> str:
+        if not is_message_type(msg_type):
+            raise TopicTypeError(f"{msg_type!r} is not a generated ROS 2 message class")
         full = self.resolve(topic)
         with self._lock:
             if self._closed:
@@ -460,8 +609,8 @@ class RosPort:
             known = self._topic_types.setdefault(full, msg_type)
         if known is not msg_type:
             raise TopicTypeError(
-                f"{full} is already used with {known.ROS_TYPE} in this port, "
-                f"not {msg_type.ROS_TYPE}"
+                f"{full} is already used with {ros_type_name(known)} in this port, "
+                f"not {ros_type_name(msg_type)}"
             )
         return full
 
@@ -491,14 +640,17 @@ class RosPort:
         except Exception:
             logger.exception("%s: closing the endpoint of %r failed", self, owner)
 
-    def _thread_main(self) -> None:
+    def _thread_main(self, lane: str) -> None:
         try:
-            self._run()
+            self._run(lane)
         except Exception:
-            logger.exception("%s: backend thread failed; the port delivers nothing more", self)
+            logger.exception("%s: lane %s failed; it delivers nothing more", self, lane)
         finally:
-            pending = self._pending_release
-            if self._stopping.is_set() and pending is not None:
+            with self._lock:
+                self._running -= 1
+                last = self._running == 0
+                pending = self._pending_release
+            if last and self._stopping.is_set() and pending is not None:
                 self._release_once(*pending)
 
     def _release_once(

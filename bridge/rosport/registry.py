@@ -1,12 +1,11 @@
 """Backends of the ROS port by name, imported only when opened.
 
-=============  =========================================  ==================================
-name           class                                      needs
-=============  =========================================  ==================================
-``dds``        :class:`bridge.rosport.dds.DdsPort`        ``cyclonedds`` (extra ``dds``)
-``inprocess``  :class:`bridge.rosport.inprocess.InProcessPort`  nothing
-``rclpy``      :class:`bridge.rosport.rclpy_backend.RclpyPort`  ROS 2 Jazzy (rclpy) sourced
-=============  =========================================  ==================================
+- ``rclpy``: :class:`bridge.rosport.rclpy_backend.RclpyPort`, a real ROS 2 node; needs
+  ROS 2 Jazzy (the ``ros`` extra, or a sourced ``/opt/ros/jazzy``);
+- ``inprocess``: :class:`bridge.rosport.inprocess.InProcessPort`, ports of one process
+  (unit tests); needs the ROS 2 message packages only.
+
+:data:`DEFAULT_BACKEND` (``rclpy``) is what every entry point uses unless told otherwise.
 """
 
 from __future__ import annotations
@@ -18,14 +17,15 @@ from typing import Any, Final
 from bridge.rosport.errors import BackendUnavailableError, UnknownBackendError
 from bridge.rosport.port import DEFAULT_NODE_NAME, RosPort
 
-__all__ = ["BACKENDS", "backend_class", "open_port"]
+__all__ = ["BACKENDS", "DEFAULT_BACKEND", "backend_class", "open_port"]
 
 #: Backend name -> (module, class). Modules are imported on first use only.
 BACKENDS: Final[Mapping[str, tuple[str, str]]] = {
-    "dds": ("bridge.rosport.dds", "DdsPort"),
     "inprocess": ("bridge.rosport.inprocess", "InProcessPort"),
     "rclpy": ("bridge.rosport.rclpy_backend", "RclpyPort"),
 }
+#: The production backend: a real ROS 2 node.
+DEFAULT_BACKEND: Final = "rclpy"
 
 
 def backend_class(backend: str) -> type[RosPort]:
@@ -33,8 +33,8 @@ def backend_class(backend: str) -> type[RosPort]:
 
     Raises:
         UnknownBackendError: no backend has that name (the error lists the known ones).
-        BackendUnavailableError: the backend's module cannot be imported here (e.g.
-            ``cyclonedds`` is not installed).
+        BackendUnavailableError: the backend's module cannot be imported here (ROS 2 is
+            not installed).
     """
     try:
         module_name, class_name = BACKENDS[backend]
@@ -42,6 +42,8 @@ def backend_class(backend: str) -> type[RosPort]:
         raise UnknownBackendError(backend, BACKENDS) from None
     try:
         module = importlib.import_module(module_name)
+    except BackendUnavailableError:
+        raise
     except ImportError as exc:
         raise BackendUnavailableError(
             f"the {backend!r} ROS port backend cannot be imported: {exc}"
@@ -56,11 +58,11 @@ def open_port(
     """Open a ROS port on the named backend.
 
     Args:
-        backend: ``"dds"``, ``"inprocess"`` or ``"rclpy"`` (see :data:`BACKENDS`).
+        backend: ``"rclpy"`` or ``"inprocess"`` (see :data:`BACKENDS`).
         namespace: the node's namespace; relative topic names resolve in it.
         node_name: the node's name.
-        **options: backend options: ``dds``: ``domain_id``, ``config``; ``inprocess``:
-            ``bus``; ``rclpy``: ``domain_id``, ``args``.
+        **options: backend options: ``rclpy``: ``domain_id``, ``args``; ``inprocess``:
+            ``bus``.
 
     Raises:
         UnknownBackendError: unknown ``backend`` (the message lists the known ones).

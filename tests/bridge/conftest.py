@@ -6,10 +6,9 @@ The same end-to-end test runs on every medium through :data:`MEDIA` and :func:`s
 a pty, python-can's ``virtual`` bus, and ``socketcan`` on ``vcan0`` where the kernel has
 it (skipped elsewhere, saying why).
 
-DDS tests (marker ``dds``) run only inside the private network namespace that
-``.ci/test`` sets up (``ROVER_PRIVATE_NETNS=1``): Cyclone DDS sends a multicast probe
-when it starts, and nothing may leave this machine. Elsewhere they skip, saying why.
-rclpy tests (marker ``rclpy``) skip where ROS 2 is not installed.
+ROS port tests run on both backends through :data:`BACKEND_PARAMS`: ``inprocess`` and
+real ROS 2 (``rclpy``, marker ``rclpy``: only inside the private network namespace that
+``.ci/test`` sets up, where DDS discovery cannot leave the machine; tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ from typing import Any
 import pytest
 
 from bridge.link import ControllerLink, LinkConfig
-from bridge.rosport import RosPort, loopback_config, open_port
+from bridge.rosport import RosPort, open_port
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
@@ -38,22 +37,15 @@ from firmware_proto.rover import RoverDescription, load_rover
 #: Every backend, with the marks it needs.
 BACKEND_PARAMS = [
     pytest.param("inprocess", id="inprocess"),
-    pytest.param("dds", id="dds", marks=pytest.mark.dds),
     pytest.param("rclpy", id="rclpy", marks=pytest.mark.rclpy),
 ]
-
-
-@pytest.fixture(scope="session")
-def dds_config() -> str:
-    """Cyclone DDS config that keeps every packet on 127.0.0.1."""
-    return loopback_config()
 
 
 PortFactory = Callable[..., RosPort]
 
 
 @pytest.fixture
-def make_port(request: pytest.FixtureRequest, dds_config: str) -> Iterator[PortFactory]:
+def make_port(request: pytest.FixtureRequest) -> Iterator[PortFactory]:
     """``make_port(backend, namespace=..., node_name=...)``; every port closes at teardown.
 
     In-process ports of one test share a bus private to that test.
@@ -62,9 +54,7 @@ def make_port(request: pytest.FixtureRequest, dds_config: str) -> Iterator[PortF
     bus = f"test-{request.node.nodeid}"
 
     def make(backend: str, **kwargs: Any) -> RosPort:
-        if backend == "dds":
-            kwargs.setdefault("config", dds_config)
-        elif backend == "inprocess":
+        if backend == "inprocess":
             kwargs.setdefault("bus", bus)
         port = open_port(backend, **kwargs)
         ports.append(port)

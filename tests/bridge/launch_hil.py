@@ -52,9 +52,11 @@ class TestHilLaunch(unittest.TestCase):
         try:
             node = rclpy.create_node("hil_launch_test")
             statuses: list[str] = []
-            node.create_subscription(
-                String, "command_status", lambda m: statuses.append(m.data), 10
-            )
+
+            def on_status(msg: Any) -> None:
+                statuses.append(str(msg.data))
+
+            node.create_subscription(String, "command_status", on_status, 10)
             publisher = node.create_publisher(Int16MultiArray, "wheel_instructions", 10)
             deadline = time.monotonic() + 60.0
             next_try = 0.0

@@ -80,8 +80,8 @@ def test_param_needs_name_equals_value(capsys: pytest.CaptureFixture[str]) -> No
     assert "--param needs NAME=VALUE" in capsys.readouterr().err
 
 
-def test_ros_p_sets_bridge_parameters_on_dds_and_inprocess() -> None:
-    for backend in ("dds", "inprocess"):
+def test_ros_p_sets_bridge_parameters_on_every_backend() -> None:
+    for backend in ("rclpy", "inprocess"):
         params = _resolve(
             ["--ros-backend", backend],
             ["-p", "node_id:=9", "-p", "can_interface:=virtual", "-p", "heartbeat_hz:=20"],
@@ -142,7 +142,7 @@ def test_unknown_ros_parameters_are_refused_not_ignored(tmp_path: Path) -> None:
     with pytest.raises(ParameterError, match=r"unknown parameter 'nonsense' \(ROS parameter\)"):
         _resolve(["--ros-backend", "inprocess"], ["-p", "nonsense:=1"])
     with pytest.raises(ParameterError, match="node_id: 99 is outside"):
-        _resolve(["--ros-backend", "dds"], ["-p", "node_id:=99"])
+        _resolve(["--ros-backend", "rclpy"], ["-p", "node_id:=99"])
     with pytest.raises(ParameterError, match="use_sim_time"):
         _resolve([], ["-p", "use_sim_time:=true"])
     with pytest.raises(ValueError, match="name:=value"):
@@ -151,16 +151,16 @@ def test_unknown_ros_parameters_are_refused_not_ignored(tmp_path: Path) -> None:
         _resolve([], ["--params-file", str(tmp_path / "missing.yaml")])
 
 
-def test_rclpy_leaves_ros_parameters_to_the_node_but_checks_them() -> None:
-    """On rclpy the node declares the parameters and rclpy reads --ros-args itself; they
-    are still checked first, since rclpy would ignore a name the node never declares."""
+def test_the_default_backend_is_rclpy_and_takes_ros_parameters_like_any() -> None:
+    """One order of precedence on every backend: the node then declares the result."""
+    assert _resolve([]).ros_backend == "rclpy"
     params = _resolve(["--ros-backend", "rclpy"], ["-p", "node_id:=7"])
-    assert params.node_id == 1  # rclpy's to read
-    assert _resolve([], ["-p", "ros_backend:=rclpy"]).ros_backend == "rclpy"
+    assert params.node_id == 7
+    assert _resolve(["--node", "3"], ["-p", "node_id:=7"]).node_id == 3
     with pytest.raises(ParameterError, match="unknown parameter 'nonsense'"):
         _resolve(["--ros-backend", "rclpy"], ["-p", "nonsense:=1"])
-    with pytest.raises(ParameterError, match="node_id"):
-        _resolve([], ["-p", "ros_backend:=rclpy", "-p", "node_id:=99"])
+    with pytest.raises(ParameterError, match="ros_backend: 'dds'"):
+        _resolve([], ["-p", "ros_backend:=dds"])
 
 
 def _run(*argv: str) -> subprocess.CompletedProcess[str]:

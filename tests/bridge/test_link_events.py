@@ -16,7 +16,8 @@ import pytest
 
 from bridge.node import BridgeNode
 from bridge.params import load_params
-from bridge.rosport import Bool, DiagnosticArray, RosPort
+from bridge.rosport import RosPort
+from bridge.rosport.msgs import Bool, DiagnosticArray
 from bridge.serial_transport import SerialTransport
 from emulator.engine import Emulator
 from emulator.ptypair import PtyPair
@@ -29,7 +30,7 @@ from .test_node import Client
 
 Emus = Callable[..., Emulator]
 
-OK, WARN, ERROR = 0, 1, 2
+from bridge.diagnostics import ERROR, OK  # noqa: E402
 
 
 class Diagnostics:
@@ -73,8 +74,8 @@ def values(msg: DiagnosticArray, name: str) -> dict[str, str]:
     raise AssertionError(f"no status {name!r} in {[s.name for s in msg.status]}")
 
 
-def level(msg: DiagnosticArray, name: str) -> int:
-    return next(s.level for s in msg.status if s.name == f"rover_bridge: {name}")
+def level(msg: DiagnosticArray, name: str) -> bytes:
+    return bytes(next(s.level for s in msg.status if s.name == f"rover_bridge: {name}"))
 
 
 Bridged = tuple[Emulator, BridgeNode, Client, Diagnostics]

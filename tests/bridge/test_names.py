@@ -7,10 +7,10 @@ import pytest
 from bridge.rosport.errors import RosNameError
 from bridge.rosport.names import (
     TOPIC_NAME_MAX_LENGTH,
-    dds_topic_name,
-    dds_type_name,
+    is_message_type,
     normalize_namespace,
     resolve_topic,
+    ros_type_name,
     validate_node_name,
 )
 
@@ -108,10 +108,12 @@ def test_invalid_node_names_are_refused(node: str, complaint: str) -> None:
     assert info.value.kind == "node"
 
 
-def test_dds_mapping() -> None:
-    assert dds_topic_name("/rover1/odom") == "rt/rover1/odom"
-    assert dds_topic_name("/wheel_instructions") == "rt/wheel_instructions"
-    assert dds_type_name("std_msgs/msg/Int16MultiArray") == "std_msgs::msg::dds_::Int16MultiArray_"
-    assert dds_type_name("nav_msgs/msg/Odometry") == "nav_msgs::msg::dds_::Odometry_"
-    with pytest.raises(RosNameError, match="not fully qualified"):
-        dds_topic_name("odom")
+def test_interface_names_of_generated_classes() -> None:
+    from bridge.rosport.msgs import Int16MultiArray, Odometry, Time
+
+    assert ros_type_name(Int16MultiArray) == "std_msgs/msg/Int16MultiArray"
+    assert ros_type_name(Odometry) == "nav_msgs/msg/Odometry"
+    assert ros_type_name(Time) == "builtin_interfaces/msg/Time"
+    assert is_message_type(Odometry)
+    assert not is_message_type(Odometry())
+    assert not is_message_type(dict)

@@ -1,13 +1,14 @@
 """The bridge node end to end: ROS topics in and out, the real emulator behind it.
 
-In-process ROS port for most checks; one test runs ``rover bridge`` as its own process
-and talks to it over Cyclone DDS, as a ROS 2 client on another machine would.
+Every check runs twice, on the in-process ROS port and on real ROS 2 (rclpy, Fast DDS);
+one test runs ``rover bridge`` as its own process and talks to it over ROS 2, as a client
+on another machine would.
 """
 
 from __future__ import annotations
 
 import math
-import os
+import signal
 import subprocess
 import sys
 import threading
@@ -17,24 +18,16 @@ from typing import Any
 
 import pytest
 
+from bridge.diagnostics import ERROR, OK
 from bridge.node import BridgeNode, validate_step
 from bridge.params import load_params
-from bridge.rosport import (
-    Bool,
-    DiagnosticArray,
-    Empty,
-    Int16MultiArray,
-    Odometry,
-    RosPort,
-    String,
-    loopback_config,
-    open_port,
-)
+from bridge.rosport import RosPort, open_port, qos
+from bridge.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.rover import RoverDescription
 
-from .conftest import Recorder
+from .conftest import BACKEND_PARAMS, Recorder
 
 Emus = Callable[..., Emulator]
 
@@ -48,13 +41,18 @@ class Client:
         self.ground: list[Odometry] = []
         self.diagnostics: list[DiagnosticArray] = []
         self._lock = threading.Lock()
-        port.subscribe("command_status", String, lambda m: self.status(m.data))
-        port.subscribe("odom", Odometry, self._keep(self.odom))
-        port.subscribe("odom_ground", Odometry, self._keep(self.ground))
+        port.subscribe("command_status", String, lambda m: self.status(m.data), qos.STATUS)
+        port.subscribe("odom", Odometry, self._keep(self.odom), qos.TELEMETRY)
+        port.subscribe("odom_ground", Odometry, self._keep(self.ground), qos.TELEMETRY)
         port.subscribe("/diagnostics", DiagnosticArray, self._keep(self.diagnostics))
-        self.steps = port.publisher("wheel_instructions", Int16MultiArray)
-        self.estop = port.publisher("emergency_stop", Bool)
-        self.clear = port.publisher("clear_emergency_stop", Empty)
+        self.steps = port.publisher("wheel_instructions", Int16MultiArray, qos.COMMAND)
+        self.estop = port.publisher("emergency_stop", Bool, qos.STOP)
+        self.clear = port.publisher("clear_emergency_stop", Empty, qos.STOP)
+
+    def wait_for_bridge(self, timeout_s: float = 10.0) -> None:
+        """Wait until the bridge subscribes (over DDS, discovery takes a moment)."""
+        for pub in (self.steps, self.estop, self.clear):
+            assert pub.wait_for_subscribers(1, timeout_s=timeout_s), pub.topic
 
     def _keep(self, sink: list[Any]) -> Callable[[Any], None]:
         def keep(msg: Any) -> None:
@@ -64,24 +62,32 @@ class Client:
         return keep
 
     def step(self, *data: int) -> None:
-        self.steps.publish(Int16MultiArray(data=tuple(data)))
+        self.steps.publish(Int16MultiArray(data=list(data)))
 
 
-@pytest.fixture
+@pytest.fixture(params=BACKEND_PARAMS)
 def bridged(
-    emulators: Emus, make_port: Callable[..., RosPort]
+    request: pytest.FixtureRequest, emulators: Emus, make_port: Callable[..., RosPort]
 ) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
+    backend: str = request.param
     emu = emulators()
     assert isinstance(emu.frontend, SerialFrontEnd)
     params = load_params(
-        {"device": emu.frontend.device, "ros_backend": "inprocess", "diagnostics_hz": 5.0}, env={}
+        {"device": emu.frontend.device, "ros_backend": backend, "diagnostics_hz": 5.0}, env={}
     )
     # The client subscribes first: the bridge publishes "ready" once, as soon as it has
-    # shaken hands, which over a pty can be before a later subscriber exists.
-    client = Client(make_port("inprocess", node_name="executor"))
-    with BridgeNode(params, make_port("inprocess", node_name="rover_bridge")) as node:
-        client.status.wait_count("ready", 1)
-        yield emu, node, client
+    # shaken hands, which over a pty can be before a later subscriber exists. Over DDS the
+    # two must also have discovered each other first: the link starts only then.
+    client = Client(make_port(backend, node_name="executor"))
+    node = BridgeNode(params, make_port(backend, node_name="rover_bridge"))
+    try:
+        client.wait_for_bridge()
+        assert node._status_pub.wait_for_subscribers(1, timeout_s=10.0)
+        with node:
+            client.status.wait_count("ready", 1)
+            yield emu, node, client
+    finally:
+        node.close()
 
 
 def test_steps_complete_in_order_and_odom_tracks_the_encoders(bridged: Any) -> None:
@@ -169,7 +175,7 @@ def test_diagnostics_report_link_and_controller(bridged: Any) -> None:
     link, controller, inputs = client.diagnostics[-1].status
     assert (link.name, link.level, controller.name, inputs.name) == (
         "rover_bridge: link",
-        0,
+        OK,
         "rover_bridge: controller",
         "rover_bridge: input",
     )
@@ -192,7 +198,7 @@ def test_diagnostics_report_link_and_controller(bridged: Any) -> None:
     client.status.wait(lambda xs: "fault:link_lost" in xs)
     n = len(client.diagnostics)
     client.status.wait(lambda _: len(client.diagnostics) > n, timeout=5)
-    assert client.diagnostics[-1].status[0].level == 2  # ERROR
+    assert client.diagnostics[-1].status[0].level == ERROR
     emu.inject("clear:link-drop")
 
 
@@ -202,33 +208,23 @@ def test_validate_step_rules(rover: RoverDescription) -> None:
     assert validate_step("abc", rover) == "bad_length"
 
 
-@pytest.mark.dds
-def test_bridge_process_over_dds(emulators: Emus, dds_config: str) -> None:
+@pytest.mark.rclpy
+def test_bridge_process_over_ros2(emulators: Emus) -> None:
+    """``rover bridge`` with its defaults (rclpy, Fast DDS) driven from another process."""
     emu = emulators()
     assert isinstance(emu.frontend, SerialFrontEnd)
-    env = {**os.environ, "CYCLONEDDS_URI": dds_config}
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "firmware_proto.cli",
-            "bridge",
-            "--device",
-            emu.frontend.device,
-            "--ros-backend",
-            "dds",
-        ],
+        [sys.executable, "-m", "firmware_proto.cli", "bridge", "--device", emu.frontend.device],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=env,
     )
     try:
         assert proc.stdout is not None
-        assert proc.stdout.readline().startswith("BRIDGE ")
-        with open_port("dds", node_name="executor", config=dds_config) as port:
+        assert proc.stdout.readline() == f"BRIDGE {emu.frontend.device} rclpy\n"
+        with open_port("rclpy", node_name="executor") as port:
             client = Client(port)
-            assert client.steps.wait_for_subscribers(1, timeout_s=10)
+            client.wait_for_bridge()
             deadline = time.monotonic() + 10
             while not client.diagnostics and time.monotonic() < deadline:
                 time.sleep(0.05)  # the bridge is up; wait for its first diagnostics sample
@@ -237,19 +233,15 @@ def test_bridge_process_over_dds(emulators: Emus, dds_config: str) -> None:
             got = client.status.wait_count("completed", 1, timeout=20)
             assert "accepted" in got and "rejected:speed_out_of_range" in got
             assert client.odom and client.diagnostics
-        proc.terminate()
+        proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err
+        assert "Traceback" not in err
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate(timeout=5)
     assert emu.status().x_m == pytest.approx(0.5, abs=0.01)
-
-
-def test_loopback_config_is_loopback_only() -> None:
-    config = loopback_config()
-    assert "127.0.0.1" in config and "AllowMulticast" in config
 
 
 def test_odom_is_continuous_across_a_controller_reboot(bridged: Any) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from bridge.errors import ParameterError
 from bridge.odometry import OdometryEstimator, ground_pose, unwrap24
-from bridge.params import BridgeParams, load_params, ros_parameters
+from bridge.params import BridgeParams, load_params, parameter_specs
 from firmware_proto.messages import Encoders, Imu, Pose
 from firmware_proto.rover import RoverDescription
 
@@ -46,20 +46,28 @@ def test_bad_parameters_name_themselves(values: dict[str, object], complaint: st
         load_params(values, env={})
 
 
-def test_ros_parameters_come_from_the_rclpy_node_only() -> None:
-    class Param:
-        def __init__(self, value: object) -> None:
-            self.value = value
-
-    class Node:  # the two calls rclpy.node.Node offers for this
-        def declare_parameter(self, name: str, default: object) -> Param:
-            return Param("/dev/ttyACM0" if name == "device" else default)
-
-    class Port:
-        node = Node()
-
-    assert ros_parameters(Port(), BridgeParams()) == {"device": "/dev/ttyACM0"}
-    assert ros_parameters(object(), BridgeParams()) == {}
+def test_every_parameter_is_declared_with_a_description_and_its_range() -> None:
+    params = load_params({"device": "/dev/ttyACM0", "heartbeat_hz": 20.0}, env={})
+    specs = {spec.name: spec for spec in parameter_specs(params)}
+    assert set(specs) == set(params.to_dict())
+    assert all(spec.description for spec in specs.values())
+    device, rate, node = specs["device"], specs["heartbeat_hz"], specs["node_id"]
+    assert (device.default, device.read_only) == ("/dev/ttyACM0", True)
+    assert (rate.default, rate.read_only, rate.range) == (20.0, False, (1.0, 100.0))
+    assert (node.range, node.read_only) == ((1, 15), True)
+    runtime = {name for name, spec in specs.items() if not spec.read_only}
+    assert runtime == {
+        "heartbeat_hz",
+        "ack_timeout_s",
+        "motion_retries",
+        "reconnect_min_s",
+        "reconnect_max_s",
+        "auto_clear_watchdog",
+        "odom_frame",
+        "map_frame",
+        "base_frame",
+        "diagnostics_hz",
+    }
 
 
 def test_unwrap24_handles_wraparound() -> None:

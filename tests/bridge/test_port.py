@@ -1,7 +1,7 @@
 """The same behaviour on every backend: delivery, threads, names, errors, closing.
 
-Each test runs on ``inprocess`` here, on ``dds`` inside the private network namespace,
-and on ``rclpy`` where ROS 2 is installed (see conftest.py).
+Each test runs on ``inprocess`` and on real ROS 2 (``rclpy``, inside the private network
+namespace; see conftest.py).
 """
 
 from __future__ import annotations
@@ -11,16 +11,17 @@ import threading
 
 import pytest
 
+from bridge.errors import ParameterError
 from bridge.rosport import (
-    MESSAGE_TYPES,
-    Bool,
-    Int16MultiArray,
-    Odometry,
+    STOP_LANE,
     PortClosedError,
     RosNameError,
-    String,
     TopicTypeError,
+    qos,
 )
+from bridge.rosport.msgs import MESSAGE_TYPES, Bool, Int16MultiArray, Odometry, String
+from bridge.rosport.names import ros_type_name
+from bridge.rosport.parameters import ParameterSpec
 from tests.bridge.conftest import BACKEND_PARAMS, Inbox, PortFactory
 from tests.bridge.samples import sample, topic_for
 
@@ -42,7 +43,7 @@ def test_every_message_type_round_trips_in_order(make_port: PortFactory, backend
             pub.publish(sample(msg_type, seed))
     for msg_type, inbox in inboxes.items():
         expected = [sample(msg_type, seed) for seed in range(count)]
-        assert inbox.wait_for(count) == expected, msg_type.ROS_TYPE
+        assert inbox.wait_for(count) == expected, ros_type_name(msg_type)
     assert sender.stats().published == count * len(MESSAGE_TYPES)
     assert receiver.stats().delivered == count * len(MESSAGE_TYPES)
 
@@ -53,8 +54,8 @@ def test_callbacks_run_on_the_backend_thread(make_port: PortFactory, backend: st
     port.subscribe("/chatter", String, inbox)
     pub = port.publisher("/chatter", String)
     assert pub.wait_for_subscribers(1, timeout_s=10.0)
-    pub.publish(String("hello"))
-    assert inbox.wait_for(1) == [String("hello")]
+    pub.publish(String(data="hello"))
+    assert inbox.wait_for(1) == [String(data="hello")]
     assert threading.current_thread().name not in inbox.threads
     assert len(inbox.threads) == 1
 
@@ -111,10 +112,10 @@ def test_relative_names_get_the_namespace_absolute_ones_do_not(
     ]
     for pub, text in zip(pubs, ("relative", "absolute", "private"), strict=True):
         assert pub.wait_for_subscribers(1, timeout_s=10.0)
-        pub.publish(String(text))
-    assert relative.wait_for(1) == [String("relative")]
-    assert absolute.wait_for(1) == [String("absolute")]
-    assert private.wait_for(1) == [String("private")]
+        pub.publish(String(data=text))
+    assert relative.wait_for(1) == [String(data="relative")]
+    assert absolute.wait_for(1) == [String(data="absolute")]
+    assert private.wait_for(1) == [String(data="private")]
 
 
 def test_invalid_names_are_refused(make_port: PortFactory, backend: str) -> None:
@@ -133,11 +134,11 @@ def test_wrong_types_are_refused(make_port: PortFactory, backend: str) -> None:
     port = make_port(backend)
     pub = port.publisher("/emergency_stop", Bool)
     with pytest.raises(TopicTypeError, match="sends Bool, got String"):
-        pub.publish(String("stop"))  # type: ignore[arg-type]
+        pub.publish(String(data="stop"))
     with pytest.raises(TopicTypeError, match="already used with std_msgs/msg/Bool"):
         port.subscribe("/emergency_stop", String, Inbox())
-    with pytest.raises(TopicTypeError, match="not a message type"):
-        port.publisher("/x", dict)  # type: ignore[type-var]
+    with pytest.raises(TopicTypeError, match="not a generated ROS 2 message class"):
+        port.publisher("/x", dict)
     with pytest.raises(TypeError, match="callback must be callable"):
         port.subscribe("/y", String, "not callable")  # type: ignore[arg-type]
 
@@ -174,14 +175,14 @@ def test_a_closed_subscription_receives_nothing_more(make_port: PortFactory, bac
     receiver.subscribe("/chatter", String, staying)
     pub = sender.publisher("/chatter", String)
     assert pub.wait_for_subscribers(2, timeout_s=10.0)
-    pub.publish(String("one"))
+    pub.publish(String(data="one"))
     closing.wait_for(1)
     staying.wait_for(1)
     closing_sub.close()
     closing_sub.close()
-    pub.publish(String("two"))
-    assert staying.wait_for(2) == [String("one"), String("two")]
-    assert closing.items == [String("one")]
+    pub.publish(String(data="two"))
+    assert staying.wait_for(2) == [String(data="one"), String(data="two")]
+    assert closing.items == [String(data="one")]
 
 
 def test_a_callback_may_close_its_own_port(make_port: PortFactory, backend: str) -> None:
@@ -196,7 +197,7 @@ def test_a_callback_may_close_its_own_port(make_port: PortFactory, backend: str)
     receiver.subscribe("/emergency_stop", Bool, close_on_message)
     pub = sender.publisher("/emergency_stop", Bool)
     assert pub.wait_for_subscribers(1, timeout_s=10.0)
-    pub.publish(Bool(True))
+    pub.publish(Bool(data=True))
     assert closed.wait(10.0)
     assert receiver.closed
     # The backend thread ends and frees the backend by itself; the leak guard checks.
@@ -207,3 +208,103 @@ def test_waiting_for_subscribers_times_out(make_port: PortFactory, backend: str)
     pub = port.publisher("/nobody_listens", String)
     assert pub.matched_count() == 0
     assert not pub.wait_for_subscribers(1, timeout_s=0.05)
+
+
+def test_a_reliable_subscription_ignores_a_best_effort_publisher(
+    make_port: PortFactory, backend: str
+) -> None:
+    sender = make_port(backend, node_name="sender")
+    receiver = make_port(backend, node_name="receiver")
+    reliable, best_effort = Inbox(), Inbox()
+    receiver.subscribe("/odom", Odometry, reliable, qos.TELEMETRY)
+    receiver.subscribe("/odom", Odometry, best_effort, qos.SENSOR)
+    telemetry = sender.publisher("/odom", Odometry, qos.TELEMETRY)  # reliable
+    sensor = sender.publisher("/odom_raw", Odometry, qos.SENSOR)  # best effort
+    assert telemetry.wait_for_subscribers(2, timeout_s=10.0)
+    sensor_readers = Inbox()
+    receiver.subscribe("/odom_raw", Odometry, sensor_readers, qos.TELEMETRY)
+    assert not sensor.wait_for_subscribers(1, timeout_s=0.5)  # reliable asks, none offered
+    msg = Odometry(child_frame_id="base_link")
+    telemetry.publish(msg)
+    assert reliable.wait_for(1) == [msg]
+    assert best_effort.wait_for(1) == [msg]
+    sensor.publish(msg)
+    assert sensor_readers.items == []
+
+
+def test_a_stop_lane_callback_runs_while_the_default_lane_is_blocked(
+    make_port: PortFactory, backend: str
+) -> None:
+    sender = make_port(backend, node_name="sender")
+    receiver = make_port(backend, node_name="receiver")
+    entered, release, stopped = threading.Event(), threading.Event(), threading.Event()
+    stops = Inbox()
+
+    def on_stop(msg: Bool) -> None:
+        stops(msg)
+        stopped.set()
+
+    def slow(msg: Odometry) -> None:
+        entered.set()
+        release.wait(10.0)
+
+    receiver.subscribe("/odom", Odometry, slow, qos.SENSOR)
+    receiver.subscribe("/emergency_stop", Bool, on_stop, qos.STOP, lane=STOP_LANE)
+    odom = sender.publisher("/odom", Odometry, qos.TELEMETRY)
+    stop = sender.publisher("/emergency_stop", Bool, qos.STOP)
+    assert odom.wait_for_subscribers(1, timeout_s=10.0)
+    assert stop.wait_for_subscribers(1, timeout_s=10.0)
+    try:
+        # Over DDS the reader may match a moment after the writer: send until it lands.
+        for _ in range(100):
+            odom.publish(Odometry())
+            if entered.wait(0.1):
+                break
+        assert entered.is_set()
+        for _ in range(100):
+            stop.publish(Bool(data=True))
+            if stopped.wait(0.1):
+                break
+        assert stops.items[0] == Bool(data=True)  # while `slow` still holds its lane
+        assert not release.is_set()
+        assert stops.threads.isdisjoint({threading.current_thread().name})
+    finally:
+        release.set()
+
+
+def test_parameters_are_declared_checked_and_set(make_port: PortFactory, backend: str) -> None:
+    port = make_port(backend, node_name="params")
+    applied: list[dict[str, object]] = []
+
+    def on_set(changes: object) -> str | None:
+        values = dict(changes)  # type: ignore[call-overload]
+        if values.get("rate_hz") == 13.0:
+            return "13 Hz is unlucky"
+        applied.append(values)
+        return None
+
+    specs = [
+        ParameterSpec("rate_hz", 10.0, "a rate, Hz", range=(1.0, 100.0)),
+        ParameterSpec("retries", 3, "retries", range=(0, 20)),
+        ParameterSpec("device", "/dev/x", "a device", read_only=True),
+    ]
+    values = port.declare_parameters(specs, on_set, {"retries": 5})
+    assert values == {"rate_hz": 10.0, "retries": 5, "device": "/dev/x"}
+    assert port.set_parameters({"rate_hz": 20.0}) is None
+    assert applied == [{"rate_hz": 20.0}]
+    assert port.parameters()["rate_hz"] == 20.0
+    for bad, why in (
+        ({"rate_hz": 500.0}, "rate_hz"),
+        ({"rate_hz": float("nan")}, "rate_hz"),
+        ({"rate_hz": 5}, "rate_hz"),  # an integer for a double
+        ({"device": "/dev/y"}, "device"),  # read-only
+        ({"rate_hz": 13.0}, "unlucky"),  # the node's own reason
+        ({"nope": 1}, "nope"),
+    ):
+        reason = port.set_parameters(bad)
+        assert reason is not None and why in reason, (bad, reason)
+    assert port.parameters() == {"rate_hz": 20.0, "retries": 5, "device": "/dev/x"}
+    assert applied == [{"rate_hz": 20.0}]
+    other = make_port(backend, node_name="params2")
+    with pytest.raises(ParameterError, match="retries"):
+        other.declare_parameters(specs, on_set, {"retries": 99})

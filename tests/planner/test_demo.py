@@ -1,5 +1,5 @@
-"""``rover demo`` and ``rover go`` as a user runs them: real processes, real DDS on
-loopback (private network namespace), real HTTP, real pty."""
+"""``rover demo`` and ``rover go`` as a user runs them: real processes, real ROS 2 (rclpy,
+Fast DDS) in the private network namespace, real HTTP, real pty."""
 
 from __future__ import annotations
 
@@ -9,17 +9,16 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import pytest
 
-from bridge.rosport import loopback_config
+from tests.child import Child
 from tests.planner.conftest import MAPS_DIR
 
-pytestmark = pytest.mark.dds
+pytestmark = pytest.mark.rclpy
 
 
 def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(tmp_path: Path) -> None:
@@ -48,6 +47,7 @@ def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(tmp_path: P
     assert "drift STOP:" in text and "detection to STOP" in text
     assert "re-plan 1:" in text
     assert "REACHED" in text
+    assert "ROS 2 middleware: rmw_fastrtps_cpp (rclpy 7." in text
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -74,7 +74,7 @@ def _go(
         text=True,
         timeout=timeout_s,
         check=False,
-        env={**os.environ, "CYCLONEDDS_URI": loopback_config()},
+        env=dict(os.environ),
     )
 
 
@@ -132,68 +132,6 @@ def test_rover_go_move_and_wait_plans_without_an_unreachable_gate_from_a_map_fil
     assert "Traceback" not in out.stderr
 
 
-class _Child:
-    """A ``rover`` subprocess whose stdout and stderr lines are collected as they come."""
-
-    def __init__(self, args: list[str], env: dict[str, str]) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "firmware_proto.cli", *args],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env=env,
-        )
-        self.lines: list[str] = []
-        self.errors: list[str] = []
-        self._new = threading.Condition()
-        self._readers = [
-            threading.Thread(target=self._read, args=(self.proc.stdout, self.lines), daemon=True),
-            threading.Thread(target=self._read, args=(self.proc.stderr, self.errors), daemon=True),
-        ]
-        for reader in self._readers:
-            reader.start()
-
-    def _read(self, stream: IO[str], into: list[str]) -> None:
-        for line in stream:
-            with self._new:
-                into.append(line.rstrip())
-                self._new.notify_all()
-        with self._new:
-            self._new.notify_all()
-
-    def wait_for(self, needle: str, timeout_s: float = 60.0) -> str:
-        """The first stdout line containing ``needle``."""
-        deadline = time.monotonic() + timeout_s
-        with self._new:
-            while True:
-                hit = next((x for x in self.lines if needle in x), None)
-                if hit is not None:
-                    return hit
-                left = deadline - time.monotonic()
-                if left <= 0 or not self._readers[0].is_alive():
-                    raise AssertionError(f"no line with {needle!r}: {self.lines[-10:]}")
-                self._new.wait(left)
-
-    def wait(self, timeout_s: float) -> int:
-        """Wait for the process to end and its output to be read; its exit status."""
-        status = self.proc.wait(timeout_s)
-        for reader in self._readers:
-            reader.join(5)
-        for stream in (self.proc.stdout, self.proc.stderr):
-            if stream is not None:
-                stream.close()
-        return status
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-        self.wait(5)
-
-
 def _status(port: int) -> dict[str, Any]:
     with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
         sock.sendall(b"status\n")
@@ -207,11 +145,11 @@ def _status(port: int) -> dict[str, Any]:
 def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
     tmp_path: Path, gate_process_url: str, sig: signal.Signals
 ) -> None:
-    env = {**os.environ, "CYCLONEDDS_URI": loopback_config()}
+    env = dict(os.environ)
     device = tmp_path / "rover-motor"
-    children: list[_Child] = []
+    children: list[Child] = []
     try:
-        emulator = _Child(
+        emulator = Child(
             [
                 "emulate",
                 "--serial",
@@ -230,13 +168,11 @@ def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
         )
         children.append(emulator)
         control = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
-        children.append(_Child(["bridge", "--device", str(device), "--ros-backend", "dds"], env))
+        children.append(Child(["bridge", "--device", str(device)], env))
         children[-1].wait_for("BRIDGE ")
-        children.append(
-            _Child(["link", "--rtt", "0.1", "--seed", "1", "--ros-backend", "dds"], env)
-        )
+        children.append(Child(["link", "--rtt", "0.1", "--seed", "1"], env))
         children[-1].wait_for("LINK ")
-        go = _Child(
+        go = Child(
             [
                 "go",
                 "--goal",

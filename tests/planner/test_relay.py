@@ -1,15 +1,18 @@
-"""Link relay over real ROS ports (in-process backend): delay, order, loss, seed."""
+"""Link relay over real ROS 2 (rclpy) and the in-process port: delay, order, loss, seed."""
 
 from __future__ import annotations
 
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
-from bridge.rosport import Int16MultiArray, RosPort, String, open_port
+from bridge.rosport import Publisher, RosPort, open_port
+from bridge.rosport.msgs import Int16MultiArray, String
 from planner.relay import LinkProfile, LinkRelay
+from tests.bridge.conftest import BACKEND_PARAMS
 
 
 class Sink:
@@ -33,19 +36,38 @@ class Sink:
             return list(self.items)
 
 
-@pytest.fixture
-def ports(request: pytest.FixtureRequest) -> Iterator[tuple[RosPort, RosPort, RosPort, RosPort]]:
-    bus = f"relay-{request.node.name}"
-    with (
-        open_port("inprocess", namespace="ground", node_name="op", bus=bus) as op,
-        open_port("inprocess", namespace="ground", node_name="relay_g", bus=bus) as rg,
-        open_port("inprocess", node_name="relay_r", bus=bus) as rr,
-        open_port("inprocess", node_name="bridge", bus=bus) as br,
-    ):
-        yield op, rg, rr, br
+def _ports(backend: str, tag: str) -> list[RosPort]:
+    """Operator, relay (ground side), relay (rover side), bridge."""
+    options = {"bus": f"relay-{tag}"} if backend == "inprocess" else {}
+    return [
+        open_port(backend, namespace=namespace, node_name=name, **options)
+        for name, namespace in (
+            ("op", "ground"),
+            ("relay_g", "ground"),
+            ("relay_r", ""),
+            ("bridge", ""),
+        )
+    ]
 
 
-def test_uplink_and_downlink_are_delayed_and_keep_order(ports: tuple[RosPort, ...]) -> None:
+def _matched(relay: LinkRelay, *publishers: Publisher[Any]) -> None:
+    """Over DDS, wait until every hop of these publishers' topics discovered the next."""
+    for pub in publishers:
+        assert pub.wait_for_subscribers(1, timeout_s=10.0), pub.topic
+    assert relay.wait_until_matched(10.0, {pub.topic.rsplit("/", 1)[-1] for pub in publishers})
+
+
+@pytest.fixture(params=BACKEND_PARAMS)
+def ports(request: pytest.FixtureRequest) -> Iterator[list[RosPort]]:
+    opened = _ports(request.param, request.node.name)
+    try:
+        yield opened
+    finally:
+        for port in opened:
+            port.close()
+
+
+def test_uplink_and_downlink_are_delayed_and_keep_order(ports: list[RosPort]) -> None:
     op, rg, rr, br = ports
     up, down = Sink(), Sink()
     br.subscribe("wheel_instructions", Int16MultiArray, up)
@@ -53,6 +75,7 @@ def test_uplink_and_downlink_are_delayed_and_keep_order(ports: tuple[RosPort, ..
     with LinkRelay(rg, rr, LinkProfile(one_way_delay_s=0.2, jitter_s=0.05, seed=3)) as relay:
         steps = op.publisher("wheel_instructions", Int16MultiArray)
         status = br.publisher("command_status", String)
+        _matched(relay, steps, status)
         sent = time.monotonic()
         for i in range(20):  # paced: a burst over the keep-last-10 QoS would drop, as in ROS
             steps.publish(Int16MultiArray(data=(1, 10, i)))
@@ -66,24 +89,28 @@ def test_uplink_and_downlink_are_delayed_and_keep_order(ports: tuple[RosPort, ..
     assert min(t for t, _ in got_up + got_down) - sent >= 0.2  # never early
 
 
-def test_loss_is_seeded_and_reproducible(request: pytest.FixtureRequest) -> None:
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
+def test_loss_is_seeded_and_reproducible(request: pytest.FixtureRequest, backend: str) -> None:
     def run(seed: int, tag: str) -> list[int]:
-        bus = f"loss-{tag}-{request.node.name}"
-        with (
-            open_port("inprocess", namespace="ground", node_name="op", bus=bus) as op,
-            open_port("inprocess", namespace="ground", node_name="g", bus=bus) as rg,
-            open_port("inprocess", node_name="r", bus=bus) as rr,
-            open_port("inprocess", node_name="b", bus=bus) as br,
-        ):
+        opened = _ports(backend, f"loss-{tag}-{request.node.name}")
+        op, rg, rr, br = opened
+        try:
             sink = Sink()
             br.subscribe("wheel_instructions", Int16MultiArray, sink)
             with LinkRelay(rg, rr, LinkProfile(one_way_delay_s=0.0, loss=0.3, seed=seed)) as relay:
                 pub = op.publisher("wheel_instructions", Int16MultiArray)
+                assert pub.wait_for_subscribers(1, timeout_s=10.0)
+                assert relay.wait_until_matched(10.0, {"wheel_instructions"})
                 for i in range(200):
                     pub.publish(Int16MultiArray(data=(1, 1, i)))
                     _wait_handled(relay, i + 1)
+                    # Paced by the far end too: a burst over keep-last QoS drops, as in ROS.
+                    sink.wait(i + 1 - sum(relay.dropped.values()))
                 kept = 200 - sum(relay.dropped.values())
                 return [m.data[2] for _, m in sink.wait(kept)]  # type: ignore[attr-defined]
+        finally:
+            for port in opened:
+                port.close()
 
     first, again, other = run(7, "a"), run(7, "b"), run(8, "c")
     assert first == again
@@ -101,12 +128,14 @@ def _wait_handled(relay: LinkRelay, total: int, timeout: float = 10.0) -> None:
     raise TimeoutError(f"relay took {relay.received}/{total} messages")
 
 
-def test_close_drops_messages_in_flight(ports: tuple[RosPort, ...]) -> None:
+def test_close_drops_messages_in_flight(ports: list[RosPort]) -> None:
     op, rg, rr, br = ports
     sink = Sink()
     br.subscribe("wheel_instructions", Int16MultiArray, sink)
     relay = LinkRelay(rg, rr, LinkProfile(one_way_delay_s=30.0))
-    op.publisher("wheel_instructions", Int16MultiArray).publish(Int16MultiArray(data=(1, 1, 1)))
+    steps = op.publisher("wheel_instructions", Int16MultiArray)
+    _matched(relay, steps)
+    steps.publish(Int16MultiArray(data=(1, 1, 1)))
     deadline = time.monotonic() + 5
     while relay.in_flight == 0 and time.monotonic() < deadline:
         time.sleep(0.01)

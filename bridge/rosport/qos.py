@@ -1,0 +1,85 @@
+"""Quality of service of the product's topics, stated once.
+
+A :class:`Qos` is the part of a ROS 2 QoS profile the product chooses: reliability,
+keep-last depth and durability (history is always keep-last). Backends translate it (the
+``rclpy`` backend into ``rclpy.qos.QoSProfile``); the ``inprocess`` backend follows the
+same matching rule as DDS: a *reliable* subscription receives nothing from a
+*best-effort* publisher, every other combination matches.
+
+Profiles, by what travels on them (docs/ros2.md, QoS):
+
+=================  ============  =====  ==========================================================
+profile            reliability   depth  topics
+=================  ============  =====  ==========================================================
+:data:`COMMAND`    reliable      10     ``wheel_instructions``: a step must not be lost
+:data:`STOP`       reliable      10     ``emergency_stop``, ``clear_emergency_stop``
+:data:`STATUS`     reliable      50     ``command_status``: every ``completed`` counts
+:data:`TELEMETRY`  reliable      5      ``odom``, ``odom_ground`` published by the bridge
+:data:`SENSOR`     best effort   5      ``odom``, ``odom_ground`` as the ground subscribes them
+:data:`DIAGNOSTICS`  reliable    10     ``/diagnostics`` (what diagnostic_aggregator expects)
+=================  ============  =====  ==========================================================
+
+Telemetry is *published* reliable and *subscribed* best effort: a reliable writer matches
+every reader (RViz, Foxglove and ``ros2 topic echo`` subscribe reliable by default),
+while our own readers never ask for a retransmission of a pose that the next sample
+supersedes. A STOP and a status are never best effort.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+__all__ = [
+    "COMMAND",
+    "DEFAULT",
+    "DIAGNOSTICS",
+    "SENSOR",
+    "STATUS",
+    "STOP",
+    "TELEMETRY",
+    "Qos",
+    "compatible",
+]
+
+
+@dataclass(frozen=True)
+class Qos:
+    """Reliability, keep-last depth and durability of one endpoint.
+
+    Attributes:
+        reliable: reliable (retransmitted) rather than best effort.
+        depth: keep-last history depth, >= 1.
+        transient_local: late joiners get the last ``depth`` messages.
+    """
+
+    reliable: bool = True
+    depth: int = 10
+    transient_local: bool = False
+
+    def __post_init__(self) -> None:
+        if self.depth < 1:
+            raise ValueError(f"QoS depth must be >= 1, got {self.depth}")
+
+    def __str__(self) -> str:
+        kind = "reliable" if self.reliable else "best_effort"
+        durable = ", transient_local" if self.transient_local else ""
+        return f"{kind}, keep_last {self.depth}{durable}"
+
+
+DEFAULT: Final = Qos()
+"""ROS 2's default profile: reliable, volatile, keep-last 10."""
+COMMAND: Final = Qos(reliable=True, depth=10)
+STOP: Final = Qos(reliable=True, depth=10)
+STATUS: Final = Qos(reliable=True, depth=50)
+TELEMETRY: Final = Qos(reliable=True, depth=5)
+SENSOR: Final = Qos(reliable=False, depth=5)
+DIAGNOSTICS: Final = Qos(reliable=True, depth=10)
+
+
+def compatible(publisher: Qos, subscription: Qos) -> bool:
+    """Whether a subscription with ``subscription`` QoS receives from a publisher with
+    ``publisher`` QoS (DDS's request/offer rule for reliability and durability)."""
+    if subscription.reliable and not publisher.reliable:
+        return False
+    return not (subscription.transient_local and not publisher.transient_local)

@@ -1,0 +1,283 @@
+"""The bridge as a ROS 2 user meets it: plain rclpy, written only from the ROS contract.
+
+``rover emulate`` and ``rover bridge`` run as processes with their defaults, the bridge
+on real ROS 2 (rclpy, Fast DDS); the client here is a plain rclpy node with an
+unmodified environment and ROS 2's default QoS: none of our ROS code. It checks the
+thesis's executor contract (publish ``[command, speed, distance]`` on
+``/wheel_instructions``, block on ``completed`` from ``/command_status``), the emergency
+stop, refused input, the bridge's ROS parameters through the parameter services, a second
+bridge on the same device, and a clean exit on SIGINT.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.child import Child
+
+pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
+
+rclpy = pytest.importorskip("rclpy")
+
+
+class PlainClient:
+    """A plain rclpy node: publishes steps and STOPs, collects statuses."""
+
+    def __init__(self) -> None:
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import Bool, Int16MultiArray, String
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("plain_client", context=self.context)
+        self.steps = self.node.create_publisher(Int16MultiArray, "/wheel_instructions", 10)
+        self.estop = self.node.create_publisher(Bool, "/emergency_stop", 10)
+        self.statuses: list[str] = []
+        self._cond = threading.Condition()
+        self.node.create_subscription(String, "/command_status", self._on_status, 10)
+        self._executor = SingleThreadedExecutor(context=self.context)
+        self._executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self._executor.spin_once(timeout_sec=0.1)
+
+    def _on_status(self, msg: Any) -> None:
+        with self._cond:
+            self.statuses.append(msg.data)
+            self._cond.notify_all()
+
+    def _completed(self, since: int) -> bool:
+        return "completed" in self.statuses[since:]
+
+    def mark(self) -> int:
+        with self._cond:
+            return len(self.statuses)
+
+    def wait_for(self, word: str, since: int, timeout_s: float = 20.0) -> list[str]:
+        """Block until ``word`` arrives on /command_status (the thesis's executor)."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: word in self.statuses[since:], timeout_s):
+                pytest.fail(f"no {word!r} in {timeout_s} s: {self.statuses[since:]}")
+            return self.statuses[since:]
+
+    def step(self, command: int, speed: int, distance: int) -> list[str]:
+        """Publish one step and block until it completes (or is refused)."""
+        from std_msgs.msg import Int16MultiArray
+
+        mark = self.mark()
+        self.steps.publish(Int16MultiArray(data=[command, speed, distance]))
+        with self._cond:
+            done = self._cond.wait_for(
+                lambda: any(
+                    s == "completed" or s.startswith(("rejected:", "aborted:", "fault:"))
+                    for s in self.statuses[mark:]
+                ),
+                20.0,
+            )
+            assert done, self.statuses[mark:]
+            return self.statuses[mark:]
+
+    def wait_for_bridge(self, timeout_s: float = 20.0) -> None:
+        """Until the bridge's subscriptions and its status publisher are matched, and a
+        step goes through."""
+        deadline = threading.Event()
+        timer = threading.Timer(timeout_s, deadline.set)
+        timer.start()
+        try:
+            while not deadline.is_set():
+                if (
+                    self.steps.get_subscription_count() >= 1
+                    and self.estop.get_subscription_count() >= 1
+                    and self.node.count_publishers("/command_status") >= 1
+                ):
+                    break
+                deadline.wait(0.02)
+            else:
+                pytest.fail("the bridge never appeared on ROS 2")
+        finally:
+            timer.cancel()
+        self._until_ready()
+
+    def _until_ready(self) -> None:
+        """A tiny step until one completes: the bridge has shaken hands with the
+        controller, and its reader has matched our writer (DDS matches each side on its
+        own; the writer may see the reader a moment before the reader sees it)."""
+        from std_msgs.msg import Int16MultiArray
+
+        for _ in range(40):
+            mark = self.mark()
+            self.steps.publish(Int16MultiArray(data=[1, 10, 1]))
+            with self._cond:
+                if self._cond.wait_for(functools.partial(self._completed, mark), 1.0):
+                    return
+        pytest.fail(f"the bridge never completed a step: {self.statuses[-10:]}")
+
+    def parameters(self, node: str, names: list[str]) -> list[Any]:
+        from rcl_interfaces.srv import GetParameters
+
+        response = self._call(f"/{node}/get_parameters", GetParameters, names=names)
+        return [_value(v) for v in response.values]
+
+    def set_parameter(self, node: str, name: str, value: Any) -> tuple[bool, str]:
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+
+        response = self._call(
+            f"/{node}/set_parameters",
+            SetParameters,
+            parameters=[Parameter(name, value=value).to_parameter_msg()],
+        )
+        result = response.results[0]
+        return bool(result.successful), str(result.reason)
+
+    def _call(self, service: str, kind: Any, **fields: Any) -> Any:
+        client = self.node.create_client(kind, service)
+        try:
+            assert client.wait_for_service(timeout_sec=20.0), service
+            future = client.call_async(kind.Request(**fields))
+            done = threading.Event()
+            future.add_done_callback(lambda _f: done.set())
+            assert done.wait(20.0), f"{service} did not answer"
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self._executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def _value(msg: Any) -> Any:
+    """A ``rcl_interfaces/ParameterValue`` as a Python value."""
+    from rclpy.parameter import parameter_value_to_python
+
+    return parameter_value_to_python(msg)
+
+
+@pytest.fixture
+def rover(tmp_path: Path) -> Iterator[tuple[Path, int, Child]]:
+    """The emulator on a pty (``tmp_path/rover-motor``) and ``rover bridge`` on it, both
+    with their defaults; yields the device, the emulator's control port, the bridge."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROVER_BRIDGE_")}
+    device = tmp_path / "rover-motor"
+    children: list[Child] = []
+    try:
+        emulator = Child(
+            ["emulate", "--serial", "--link", str(device), "--seed", "3", "--control-port", "0"],
+            env,
+        )
+        children.append(emulator)
+        control = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
+        bridge = Child(["bridge", "--device", str(device)], env)
+        children.append(bridge)
+        assert bridge.wait_for("BRIDGE ") == f"BRIDGE {device} rclpy"
+        yield device, control, bridge
+    finally:
+        for child in reversed(children):
+            child.stop()
+
+
+@pytest.fixture
+def client() -> Iterator[PlainClient]:
+    plain = PlainClient()
+    try:
+        yield plain
+    finally:
+        plain.close()
+
+
+def test_the_thesis_executor_contract_with_plain_rclpy(
+    rover: tuple[Path, int, Child], client: PlainClient
+) -> None:
+    client.wait_for_bridge()
+    # Listing 4 of the thesis: one step at a time, each until `completed`.
+    for command, speed, distance in ((1, 30, 2300), (3, 30, 3000), (2, 30, 2300)):  # FWD LEFT REV
+        got = client.step(command, speed, distance)
+        assert got[-1] == "completed", got
+        assert got.count("completed") == 1
+    # Bad input is answered, never executed, and the bridge goes on.
+    assert client.step(1, 61, 100)[-1] == "rejected:speed_out_of_range"
+    from std_msgs.msg import Bool, Int16MultiArray
+
+    mark = client.mark()
+    client.steps.publish(Int16MultiArray(data=[1, 30]))
+    assert client.wait_for("rejected:bad_length", since=mark)
+    # A long step, then the emergency stop: stopped, latched.
+    mark = client.mark()
+    client.steps.publish(Int16MultiArray(data=[1, 60, 30000]))
+    client.wait_for("accepted", since=mark)
+    client.estop.publish(Bool(data=True))
+    client.wait_for("stopped", since=mark)
+    got = client.wait_for("aborted:stop", since=mark)  # the running step's fate
+    assert "completed" not in got
+    assert client.step(1, 30, 100)[-1] == "rejected:stop_latched"
+
+
+def test_bridge_parameters_through_the_ros_parameter_services(
+    rover: tuple[Path, int, Child], client: PlainClient
+) -> None:
+    device, _, _ = rover
+    client.wait_for_bridge()
+    assert client.parameters("rover_bridge", ["device", "heartbeat_hz", "node_id"]) == [
+        str(device),
+        10.0,
+        1,
+    ]
+    assert client.set_parameter("rover_bridge", "heartbeat_hz", 20.0) == (True, "")
+    assert client.parameters("rover_bridge", ["heartbeat_hz"]) == [20.0]
+    refusals = {
+        "heartbeat_hz": 1000.0,  # outside its range
+        "ack_timeout_s": math.nan,
+        "motion_retries": 3.5,  # wrong type
+        "device": "/dev/ttyACM9",  # read-only while running
+        "reconnect_min_s": 5.0,  # above reconnect_max_s: the node's own rule
+    }
+    for name, value in refusals.items():
+        ok, reason = client.set_parameter("rover_bridge", name, value)
+        assert not ok and reason, (name, reason)
+    ok, reason = client.set_parameter("rover_bridge", "reconnect_min_s", 5.0)
+    assert "reconnect_max_s" in reason
+    assert client.parameters("rover_bridge", ["heartbeat_hz", "device"]) == [20.0, str(device)]
+    # Still bridging after all that.
+    assert client.step(1, 30, 1000)[-1] == "completed"
+
+
+def test_a_second_bridge_on_the_same_device_refuses_to_start(
+    rover: tuple[Path, int, Child],
+) -> None:
+    device, _, _ = rover
+    second = Child(["bridge", "--device", str(device)], dict(os.environ))
+    try:
+        assert second.wait(30) == 1
+    finally:
+        second.stop()
+    assert any("is held by another process" in line for line in second.errors), second.errors
+    assert not any("BRIDGE" in line for line in second.lines)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_the_bridge_shuts_down_cleanly_on_a_signal(
+    rover: tuple[Path, int, Child], client: PlainClient, sig: signal.Signals
+) -> None:
+    _, _, bridge = rover
+    client.wait_for_bridge()
+    bridge.proc.send_signal(sig)
+    assert bridge.wait(20) == 0, bridge.errors
+    assert not any("Traceback" in line for line in bridge.errors), bridge.errors
