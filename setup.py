@@ -27,6 +27,11 @@ from typing import Any
 from setuptools import find_namespace_packages, setup
 
 PACKAGE = "rover_hil"
+PYTHON_REQUIRES = ">=3.10"
+"""Here, not in pyproject.toml (where it is declared dynamic): setuptools keeps a
+``python_requires`` given to ``setup()`` as the string it is, which colcon's
+``ast.literal_eval`` of the metadata can read (a SpecifierSet made from pyproject.toml
+cannot be)."""
 SOURCE = Path(__file__).resolve().parent  # the source tree, even through a symlink
 ROS_DIR = Path("bridge") / "ros"
 
@@ -67,7 +72,6 @@ def _metadata_from_pyproject() -> dict[str, Any]:
         "name": project["name"],
         "version": project["version"],
         "description": project["description"],
-        "python_requires": project["requires-python"],
         "packages": find_namespace_packages(where=".", include=tool["packages"]["find"]["include"]),
         "package_data": tool.get("package-data", {}),
         "entry_points": entry_points,
@@ -76,5 +80,6 @@ def _metadata_from_pyproject() -> dict[str, Any]:
 
 setup(
     data_files=DATA_FILES,
+    python_requires=PYTHON_REQUIRES,
     **({} if Path("pyproject.toml").exists() else _metadata_from_pyproject()),
 )
