@@ -124,14 +124,14 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     report: pytest.TestReport = outcome.get_result()  # type: ignore[attr-defined]
     if not report.skipped:
         return
-    for marker, required, env in (
-        ("socketcan", socketcan_required(), REQUIRE_SOCKETCAN_ENV),
-        ("rclpy", rclpy_required(), REQUIRE_RCLPY_ENV),
+    for marker, what, required, env in (
+        ("socketcan", "SocketCAN", socketcan_required(), REQUIRE_SOCKETCAN_ENV),
+        ("rclpy", "ROS 2", rclpy_required(), REQUIRE_RCLPY_ENV),
     ):
         if item.get_closest_marker(marker) and required:
             report.outcome = "failed"
             report.longrepr = (
-                f"{env}=1: this {marker} test must run here, but it would "
+                f"{env}=1: this {what} test must run here, but it would "
                 f"have been skipped: {_skip_reason(report)}"
             )
 

@@ -83,3 +83,42 @@ def test_with_the_switch_a_skipped_socketcan_test_is_an_error(tmp_path: Path) ->
     assert "would have been skipped: vcan0 is down" in out
     assert "PASSED test_sample.py::test_marked_and_running" in out
     assert "SKIPPED [1] test_sample.py" in out  # the other skip stays a skip
+
+
+RCLPY_SAMPLE = """
+import pytest
+
+@pytest.mark.rclpy
+def test_needs_ros():
+    pytest.skip("no rclpy here")
+
+def test_other():
+    pytest.skip("no clang")
+"""
+
+
+def test_require_rclpy_turns_the_skip_of_a_ros_test_into_an_error(tmp_path: Path) -> None:
+    (tmp_path / "test_sample.py").write_text(RCLPY_SAMPLE, encoding="utf-8")
+    (tmp_path / "conftest.py").write_text(
+        CONFTEST.replace("socketcan: needs vcan0", "rclpy: needs ROS 2"), encoding="utf-8"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROVER_REQUIRE_")}
+    env["PYTHONPATH"] = str(ROOT)
+    command = [sys.executable, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider", "."]
+    relaxed = subprocess.run(
+        command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60, check=False
+    )
+    assert relaxed.returncode == 0, relaxed.stdout
+    strict = subprocess.run(
+        command,
+        cwd=tmp_path,
+        env={**env, "ROVER_REQUIRE_RCLPY": "1"},
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert strict.returncode == 1, strict.stdout
+    assert "ROVER_REQUIRE_RCLPY=1: this ROS 2 test must run here" in strict.stdout
+    assert "would have been skipped: no rclpy here" in strict.stdout
+    assert "SKIPPED [1] test_sample.py" in strict.stdout  # the other skip stays a skip
