@@ -112,6 +112,14 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-flood", action="store_true", help="CAN: do not flood the bus")
     p.add_argument(
+        "--flood-malformed",
+        action="store_true",
+        help=(
+            "CAN: flood malformed frames aimed at --node instead (wrong length, unknown "
+            "id, extended id, RTR, error frame): the controller must ignore them"
+        ),
+    )
+    p.add_argument(
         "--timeout", type=float, default=5.0, metavar="SECONDS", help="per answer (default 5)"
     )
     p.add_argument("--record", metavar="FILE", help="record the bench's link traffic")
@@ -130,7 +138,11 @@ def _run(args: argparse.Namespace) -> int:
         if not args.no_flood:
             f_interface, f_channel = args.flood_can or args.can
             flood = FloodConfig(
-                f_interface, f_channel, rate_hz=args.flood_hz, arbitration_id=args.flood_id
+                f_interface,
+                f_channel,
+                rate_hz=args.flood_hz,
+                arbitration_id=args.flood_id,
+                malformed=args.flood_malformed,
             )
             if args.flood_hz == 0 and f_interface == "virtual":
                 raise ValueError("--flood-hz 0 on a virtual bus would flood memory; give a rate")

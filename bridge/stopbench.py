@@ -129,6 +129,9 @@ class FloodConfig:
     rate_hz: float = 2000.0
     arbitration_id: int | None = None
     bus_options: dict[str, Any] = field(default_factory=dict)
+    malformed: bool = False
+    """Flood malformed frames aimed at the bench's node instead (see :func:`malformed_frames`):
+    each must be counted and ignored by the controller and never delay a STOP."""
 
 
 @dataclass(frozen=True)
@@ -313,8 +316,39 @@ class _Inbox:
                 self._cond.wait(left)
 
 
+#: A protocol-violation (bit error) error frame: CAN_ERR_PROT class, no state change.
+_CAN_ERR_PROT = 0x008
+
+
+def malformed_frames(node: int) -> list[can.Message]:
+    """One of each kind of malformed frame a controller at ``node`` must count and ignore
+    (docs/protocol.md, "CAN mapping"): a MOTION of the wrong length, an identifier in the
+    node's range that names no message, an extended-id MOTION, a remote (RTR) STOP and an
+    error frame (a transient bit error, which changes no bus state)."""
+    motion = can_id(Motion.MSG_ID, node)
+    valid = Motion(1, Command.FWD, 10, 100).pack()
+    return [
+        can.Message(arbitration_id=motion, data=valid[:3], is_extended_id=False),
+        can.Message(arbitration_id=can_id(UNUSED_MSG_ID, node), data=b"\0", is_extended_id=False),
+        can.Message(arbitration_id=motion, data=valid, is_extended_id=True),
+        can.Message(
+            arbitration_id=can_id(Stop.MSG_ID, node), is_remote_frame=True, dlc=3,
+            is_extended_id=False,
+        ),
+        can.Message(
+            arbitration_id=_CAN_ERR_PROT, data=bytes([0, 0, 0x01, 0, 0, 0, 0, 0]),
+            is_error_frame=True, is_extended_id=False,
+        ),
+    ]  # fmt: skip
+
+
+#: A message id (CAN identifier bits 10..4) that the protocol leaves unused.
+UNUSED_MSG_ID = 120
+
+
 class _Flood:
-    """A second CAN sender: lowest-priority frames at a fixed rate, on its own thread."""
+    """A second CAN sender: lowest-priority frames (or malformed ones) at a fixed rate,
+    on its own thread."""
 
     def __init__(self, config: FloodConfig, node: int) -> None:
         self.config = config
@@ -325,6 +359,7 @@ class _Flood:
             if config.arbitration_id is not None
             else can_id(FLOOD_MSG_ID, other)
         )
+        self._malformed = malformed_frames(node) if config.malformed else []
         self._bus = can.Bus(
             interface=config.interface, channel=config.channel, **config.bus_options
         )
@@ -343,17 +378,18 @@ class _Flood:
         while not self._stop.is_set():
             for _ in range(per_burst):
                 counter += 1
-                if self.config.arbitration_id is None:
-                    data = ParamValue(0, ParamResult.OK, counter & 0x7FFFFFFF).pack()
+                if self._malformed:
+                    frame = self._malformed[counter % len(self._malformed)]
                 else:
-                    data = (counter & 0xFFFFFFFFFFFFFFFF).to_bytes(8, "little")
-                try:
-                    self._bus.send(
-                        can.Message(
-                            arbitration_id=self.arbitration_id, data=data, is_extended_id=False
-                        ),
-                        timeout=0.05,
+                    if self.config.arbitration_id is None:
+                        data = ParamValue(0, ParamResult.OK, counter & 0x7FFFFFFF).pack()
+                    else:
+                        data = (counter & 0xFFFFFFFFFFFFFFFF).to_bytes(8, "little")
+                    frame = can.Message(
+                        arbitration_id=self.arbitration_id, data=data, is_extended_id=False
                     )
+                try:
+                    self._bus.send(frame, timeout=0.05)
                     self.stats.sent += 1
                 except can.CanError:
                     self.stats.refused += 1
@@ -555,8 +591,13 @@ class StopBench:
             self._flood = _Flood(cfg.flood, node)
             self._flood.start()
             pace = f"{cfg.flood.rate_hz:g} frames/s" if cfg.flood.rate_hz else "back to back"
+            what = (
+                "malformed frames (bad length, unknown id, extended id, RTR, error frame)"
+                if cfg.flood.malformed
+                else f"0x{self._flood.arbitration_id:03X}"
+            )
             load += (
-                f", CAN flood 0x{self._flood.arbitration_id:03X} at {pace} from a second "
+                f", CAN flood {what} at {pace} from a second "
                 f"sender on {cfg.flood.interface}:{cfg.flood.channel}"
             )
         trials: list[TrialResult] = []

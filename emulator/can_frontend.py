@@ -78,6 +78,8 @@ class CanFrontEnd(FrontEnd):
         self._bus_options = bus_options
         self.decoder = CanDecoder()
         self.foreign = 0
+        self.error_frames = 0
+        """Error frames received (counted, logged at DEBUG, otherwise ignored)."""
 
     @property
     def device(self) -> str:
@@ -111,6 +113,8 @@ class CanFrontEnd(FrontEnd):
             received_at = frame.timestamp or time.time()
             self._record(can_record(frame, self.channel, is_rx=True, time_s=received_at))
         if frame.is_error_frame:
+            self.error_frames += 1
+            logger.debug("CAN %s: error frame 0x%03X ignored", self.channel, frame.arbitration_id)
             return []
         decoded = self.decoder.decode(
             frame.arbitration_id,

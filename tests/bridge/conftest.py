@@ -27,7 +27,7 @@ from bridge.link import ControllerLink, LinkConfig
 from bridge.rosport import RosPort, open_port
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
-from emulator.engine import Emulator
+from emulator.engine import Emulator, EmulatorStatus
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
@@ -110,8 +110,13 @@ class Inbox:
 
 # -- emulators and status recording (link and node tests) -------------------------------
 
-SPEED = 4.0
-"""Twin seconds per wall second for served emulators (timeouts scaled to match)."""
+IN_VCAN_VM = os.environ.get("ROVER_IN_VCAN_VM") == "1"
+SPEED = 1.0 if IN_VCAN_VM else 4.0
+"""Twin seconds per wall second for served emulators (timeouts scaled to match). Real
+time inside .ci/vcan-vm, whose CPU may be emulated (TCG): two emulators at four times
+real time there fall behind their own heartbeats."""
+TWIN_DT_S = 0.004 if IN_VCAN_VM else 0.001
+"""The twin's physics step, s: coarser inside .ci/vcan-vm, for the same reason."""
 
 _channels = itertools.count()
 
@@ -177,7 +182,7 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
     ) -> Emulator:
         model = ControllerModel(
             rover,
-            Twin(rover),
+            Twin(rover, dt_s=TWIN_DT_S),
             ControllerConfig(timeout_scale=SPEED),
             seed=seed,
             schema_hash=schema_hash,
@@ -226,6 +231,21 @@ CAN_MEDIA = MEDIA[1:]
 def can_channel_for(kind: str, channel: str) -> str:
     """The channel a CAN test uses: ``vcan0`` on socketcan, else the test's own."""
     return "vcan0" if kind == "socketcan" else channel
+
+
+def wait_emulator(
+    emu: Emulator, pred: Callable[[EmulatorStatus], bool], what: str, timeout_s: float = 10.0
+) -> EmulatorStatus:
+    """Poll the emulator's status (every 10 ms, bounded) until ``pred`` holds; fail the
+    test, saying ``what`` was awaited, on timeout."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        status = emu.status()
+        if pred(status):
+            return status
+        if time.monotonic() > deadline:
+            pytest.fail(f"the emulator never reached: {what} in {timeout_s} s; last {status}")
+        time.sleep(0.01)
 
 
 def serve(emulators: Callable[..., Emulator], kind: str, channel: str, **kw: Any) -> Emulator:

@@ -20,7 +20,7 @@ from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.messages import SCHEMA_HASH, Command, Encoders
 from firmware_proto.rover import RoverDescription
 
-from .conftest import MEDIA, Links, Recorder, link_url, serve
+from .conftest import MEDIA, Links, Recorder, link_url, serve, wait_emulator
 
 Emus = Callable[..., Emulator]
 FWD = Command.FWD
@@ -140,9 +140,12 @@ def test_heartbeat_loss_reports_link_lost_then_recovers(
     emu.inject("link-drop=1.0")
     rec.wait_count("fault:link_lost", 1, since=mark, timeout=5)
     assert link.state is LinkState.LOST
+    # The line stays cut until the controller's watchdog has tripped (on a slow machine
+    # the bridge may notice the loss first).
+    wait_emulator(emu, lambda s: "watchdog" in s.latch, "the watchdog latch")
     emu.inject("clear:link-drop")
     rec.wait_count("ready", 1, since=mark)
-    # The controller's watchdog tripped meanwhile; the bridge clears that latch itself.
+    # The bridge clears the watchdog latch itself.
     rec.wait(lambda xs: "cleared" in xs, since=mark)
     mark = rec.mark()
     link.submit_step(StepRequest(FWD, 30, 1000))

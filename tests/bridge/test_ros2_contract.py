@@ -14,7 +14,10 @@ from __future__ import annotations
 import functools
 import math
 import os
+import shutil
 import signal
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -281,3 +284,137 @@ def test_the_bridge_shuts_down_cleanly_on_a_signal(
     bridge.proc.send_signal(sig)
     assert bridge.wait(20) == 0, bridge.errors
     assert not any("Traceback" in line for line in bridge.errors), bridge.errors
+
+
+HAVE_VCAN0 = Path("/sys/class/net/vcan0").exists()
+
+
+@pytest.mark.socketcan
+@pytest.mark.skipif(not HAVE_VCAN0, reason="no vcan0 here (.ci/test runs this in .ci/vcan-vm)")
+def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
+    tmp_path: Path, client: PlainClient
+) -> None:
+    """``rover emulate --can socketcan:vcan0`` and ``rover bridge --can socketcan:vcan0``
+    as processes, a plain rclpy client driving a mission step by step, then STOP; both
+    record the traffic as candump logs, which ``rover decode`` reads and can-utils'
+    ``canplayer`` puts back on the bus frame for frame (``candump -L`` checks it)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROVER_BRIDGE_")}
+    emu_log, bridge_log = tmp_path / "emulator.log", tmp_path / "bridge.log"
+    children: list[Child] = []
+    try:
+        emulator = Child(
+            ["emulate", "--can", "socketcan:vcan0", "--node", "2", "--record", str(emu_log)], env
+        )
+        children.append(emulator)
+        assert emulator.wait_for("CAN ") == "CAN socketcan:vcan0 node 2"
+        bridge = Child(
+            ["bridge", "--can", "socketcan:vcan0", "--node", "2", "--record", str(bridge_log)],
+            env,
+        )
+        children.append(bridge)
+        assert bridge.wait_for("BRIDGE ").endswith(" rclpy")
+        client.wait_for_bridge()
+        for command, speed, distance in ((1, 30, 2300), (3, 30, 3000), (2, 30, 2300)):
+            got = client.step(command, speed, distance)  # FWD, LEFT, REV: one at a time
+            assert got[-1] == "completed" and got.count("completed") == 1, got
+        from std_msgs.msg import Bool, Int16MultiArray
+
+        mark = client.mark()
+        client.steps.publish(Int16MultiArray(data=[1, 60, 30000]))
+        client.wait_for("accepted", since=mark)
+        client.estop.publish(Bool(data=True))
+        client.wait_for("stopped", since=mark)
+        assert "completed" not in client.wait_for("aborted:stop", since=mark)
+    finally:
+        for child in reversed(children):
+            child.stop()
+    assert [c.proc.returncode for c in children] == [0, 0], [c.errors[-5:] for c in children]
+
+    decoded = _rover("decode", "--no-telemetry", str(bridge_log)).splitlines()
+    motions = [line for line in decoded if "MOTION seq=" in line]
+    assert len(motions) >= 4, decoded  # the ready probe(s), three steps, the long one
+    assert any("STOP stop_id=" in line for line in decoded), decoded
+    assert any("STOP_ACK stop_id=" in line for line in decoded), decoded
+    frames = _candump_frames(bridge_log)
+    assert frames and {iface for iface, _ in frames} == {"vcan0"}
+    replayed = _replay_and_capture(bridge_log, len(frames), tmp_path / "replayed.log")
+    assert [f for _, f in _candump_frames(replayed)] == [f for _, f in frames]
+    again = _rover("decode", "--no-telemetry", str(replayed)).splitlines()
+    assert [line.split(None, 1)[1] for line in again] == [
+        line.split(None, 1)[1] for line in decoded
+    ]
+
+
+def _rover(*args: str) -> str:
+    done = subprocess.run(
+        [sys.executable, "-m", "firmware_proto.cli", *args],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def _candump_frames(log: Path) -> list[tuple[str, str]]:
+    """(interface, ``ID#DATA``) of each frame of a candump ``-L`` log."""
+    frames = []
+    for line in log.read_text().splitlines():
+        parts = line.split()
+        if len(parts) >= 3 and parts[0].startswith("("):
+            frames.append((parts[1], parts[2].upper()))
+    return frames
+
+
+PROBE = "7FF#"
+"""Frames the capture below sends until candump shows one: then candump is listening.
+0x7FF names no message of the protocol (message id 127)."""
+
+
+def _replay_and_capture(log: Path, count: int, out: Path) -> Path:
+    """Play ``log`` onto vcan0 with can-utils' ``canplayer`` (unpaced) while ``candump -L``
+    captures ``count`` frames into ``out``; ``candump -r`` gives its socket a receive
+    buffer (16 MiB) that holds the whole burst."""
+    import can
+
+    if shutil.which("canplayer") is None or shutil.which("candump") is None:
+        pytest.fail("can-utils (canplayer, candump) must be installed where vcan0 is")
+    lines: list[str] = []
+    cond = threading.Condition()
+    dump = subprocess.Popen(
+        ["candump", "-L", "-r", str(16 << 20), "vcan0"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+
+    def read() -> None:
+        assert dump.stdout is not None
+        for line in dump.stdout:
+            with cond:
+                lines.append(line.rstrip())
+                cond.notify_all()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        with can.Bus(interface="socketcan", channel="vcan0") as probe:
+            for _ in range(200):  # until candump shows a probe: it is listening
+                probe.send(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False))
+                with cond:
+                    if cond.wait_for(lambda: any(PROBE in x for x in lines), 0.05):
+                        break
+            else:
+                pytest.fail("candump never showed a frame")
+        with cond:
+            start = len(lines)
+        subprocess.run(["canplayer", "-t", "-I", str(log)], check=True, timeout=60)
+
+        def replayed() -> list[str]:
+            return [x for x in lines[start:] if PROBE not in x.split()[-1]]
+
+        with cond:
+            assert cond.wait_for(lambda: len(replayed()) >= count, 30.0), len(replayed())
+            out.write_text("\n".join(replayed()[:count]) + "\n")
+    finally:
+        dump.terminate()
+        dump.wait(5)
+        reader.join(5)
+        assert dump.stdout is not None
+        dump.stdout.close()
+    return out
