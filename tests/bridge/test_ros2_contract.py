@@ -380,7 +380,10 @@ def _replay_and_capture(log: Path, count: int, out: Path) -> Path:
     lines: list[str] = []
     cond = threading.Condition()
     dump = subprocess.Popen(
-        ["candump", "-L", "-r", str(16 << 20), "vcan0"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+        ["candump", "-L", "-r", str(16 << 20), "vcan0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
     )
 
     def read() -> None:
