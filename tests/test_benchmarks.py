@@ -9,7 +9,8 @@ deliver no altered frame and recover every intact one.
 Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
 and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
 ``bench_bridge`` talk DDS, so they run only in the private network namespace of
-``.ci/test`` (the ``rclpy`` marker; tests/conftest.py).
+``.ci/test`` (the ``rclpy`` marker; tests/conftest.py); ``bench_socketcan`` needs vcan0
+(marker ``socketcan``: in ``.ci/vcan-vm`` here).
 """
 
 from __future__ import annotations
@@ -104,3 +105,16 @@ def test_bench_bridge_ros2_case_prints_its_rows() -> None:
     out = run_benchmark("bench_bridge", "--quick", "--ros2")
     assert "ROS 2 message (rclpy, other process) -> bridge STOP callback (load)" in out
     assert "ROS 2 message (rclpy, other process) -> wheel targets zero (load)" in out
+
+
+@pytest.mark.socketcan
+@pytest.mark.skipif(
+    not Path("/sys/class/net/vcan0").exists(),
+    reason="no vcan0 here (.ci/test runs this in .ci/vcan-vm)",
+)
+def test_bench_socketcan_quick_prints_every_case_beside_the_floor() -> None:
+    out = run_benchmark("bench_socketcan", "--quick", "--flood-hz", "300", "--telemetry-hz", "20")
+    assert "| vcan round trip (python-can, floor) |" in out
+    for case in ("idle", "flood", "malformed"):
+        assert f"| STOP -> STOP_ACK, {case} | 3 |" in out
+        assert f"{case}: 3/3 trials passed every check" in out
