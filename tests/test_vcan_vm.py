@@ -1,0 +1,67 @@
+""".ci/vcan-vm's pure parts (docs/vcan-vm.md): which host paths the guest keeps on top
+of its tmpfs, and the guest script. The VM itself runs every ``socketcan`` test in
+``.ci/test``; here it is only asked whether it can run (``--check``)."""
+
+from __future__ import annotations
+
+import importlib.machinery
+import importlib.util
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / ".ci" / "vcan-vm"
+
+
+@pytest.fixture(scope="module")
+def vm() -> ModuleType:
+    loader = importlib.machinery.SourceFileLoader("vcan_vm", str(SCRIPT))
+    spec = importlib.util.spec_from_loader("vcan_vm", loader)
+    assert spec is not None
+    module = importlib.util.module_from_spec(spec)
+    loader.exec_module(module)
+    return module
+
+
+def test_a_checkout_under_tmp_is_kept_once_and_others_are_not(vm: ModuleType) -> None:
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        checkout = Path(tmp) / "checkout"
+        (checkout / "tests").mkdir(parents=True)
+        kept = vm.kept_paths([checkout / "tests", checkout, Path("/usr/lib"), Path(tmp) / "absent"])
+        assert kept == [checkout.resolve()]
+
+
+def test_nothing_is_kept_outside_the_tmpfs_directories(vm: ModuleType) -> None:
+    assert vm.kept_paths([Path("/usr"), Path("/etc"), Path("/")]) == []
+
+
+def test_the_guest_script_brings_up_both_interfaces_and_runs_the_command_in_its_directory(
+    vm: ModuleType,
+) -> None:
+    script = vm.guest_script(
+        ["pytest", "-m", "socketcan", "a b"], Path("/src/x y"), {"A": "1 2"}, "@T@", "tcg"
+    )
+    assert "vcan-up.sh' --name vcan0" in script or "vcan-up.sh --name vcan0" in script
+    assert "--name rovercan0" in script and "can-up.sh" in script
+    assert "cd '/src/x y'" in script
+    assert "pytest -m socketcan 'a b' </dev/null" in script
+    assert "export A='1 2'" in script
+    assert "ROVER_REQUIRE_SOCKETCAN=1" in script and "ROVER_VCAN_VM_ACCEL=tcg" in script
+    assert 'echo "@T@ $1"' in script
+
+
+def test_check_answers_0_or_125_with_the_reason() -> None:
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), "--check"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode in (0, 125), done
+    if done.returncode == 125:
+        assert "vcan-vm:" in done.stdout + done.stderr
