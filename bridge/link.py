@@ -40,8 +40,14 @@ then one ``fault:<reason>`` reports the link event itself. No stale motion is ev
 
 Threads: the transport's dispatcher thread calls in with messages (its reader thread
 only reads and decodes, :mod:`bridge.transport`); one timer thread runs the periodic
-work; any thread may call the API. State is guarded by one lock; callbacks run outside
-it, one at a time, in the order their events happened.
+work; one writer thread writes every frame but STOP, in the order they were queued; any
+thread may call the API. State is guarded by one lock, and no write to the transport
+ever happens with it held: a write stuck in the OS (a full buffer, a stalled USB-serial
+adapter) holds up neither the API, nor the dispatcher, nor a STOP. STOP is written by
+the thread that decided it (the caller of :meth:`ControllerLink.emergency_stop`, the
+timer for repeats) through the transport's STOP path, which waits for no other write;
+MOTION frames still queued when a STOP is requested are dropped with their steps.
+Callbacks run outside the lock, one at a time, in the order their events happened.
 """
 
 from __future__ import annotations
@@ -303,6 +309,10 @@ class ControllerLink:
         self._wake = threading.Event()
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
+        self._writer: threading.Thread | None = None
+        self._tx: deque[tuple[Transport, Message]] = deque()
+        """Frames for the writer thread, in order (lock held to change it)."""
+        self._tx_wake = threading.Event()
         self._transport: Transport | None = None
         self._state = LinkState.DISCONNECTED
         self._reconnect_at = 0.0
@@ -358,9 +368,12 @@ class ControllerLink:
         self.config = config
 
     def start(self) -> None:
-        """Start the timer thread; it connects (and reconnects) on its own."""
+        """Start the timer thread, which connects (and reconnects) on its own, and the
+        writer thread."""
         if self._thread is not None:
             raise RuntimeError("link already started")
+        self._writer = threading.Thread(target=self._write_queued, name="link-tx", daemon=True)
+        self._writer.start()
         self._thread = threading.Thread(target=self._timer, name="link-timer", daemon=True)
         self._thread.start()
 
@@ -368,11 +381,18 @@ class ControllerLink:
         """Stop every thread and close the transport (idempotent)."""
         self._stopping.set()
         self._wake.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5.0)
-        self._thread = None
+        self._tx_wake.set()
+        for thread in (self._thread, self._writer):
+            if thread is not None and thread is not threading.current_thread():
+                # The writer may be in a write stuck in the OS: that ends with the
+                # transport's write timeout (serial 1 s, CAN 0.1 s).
+                thread.join(timeout=5.0)
+                if thread.is_alive():
+                    logger.error("link thread %s did not stop within 5 s", thread.name)
+        self._thread = self._writer = None
         with self._lock:
             transport, self._transport = self._transport, None
+            self._tx.clear()
         if transport is not None:
             transport.close()
 
@@ -467,6 +487,11 @@ class ControllerLink:
             self._send_stop(transport, stop_id, source)
         with self._lock:
             self._purge("aborted:stop")
+            if any(isinstance(msg, Motion) for _, msg in self._tx):
+                # Their steps were just purged; the latched controller would refuse them.
+                kept = [(t, msg) for t, msg in self._tx if not isinstance(msg, Motion)]
+                self._tx.clear()
+                self._tx.extend(kept)
         self._flush()
         logger.info("emergency stop %d (source %s)", stop_id, StopSource(source).name)
         return stop_id
@@ -514,10 +539,34 @@ class ControllerLink:
                     self._connect()
             else:
                 with self._lock:
-                    self._periodic(now)
+                    transport, stops = self._transport, self._periodic(now)
+                if transport is not None:
+                    for stop in stops:
+                        self._send(transport, stop)
                 self._flush()
             self._wake.wait(0.005)
             self._wake.clear()
+
+    def _write_queued(self) -> None:
+        """Writer thread: write the queued frames in order, outside the lock. A frame
+        queued for a connection that has since failed or closed is discarded."""
+        while not self._stopping.is_set():
+            self._tx_wake.wait(0.05)
+            self._tx_wake.clear()
+            while not self._stopping.is_set():
+                with self._lock:
+                    if not self._tx:
+                        break
+                    transport, msg = self._tx.popleft()
+                    if transport is not self._transport:
+                        continue
+                self._send(transport, msg)
+
+    def _queue(self, msg: Message) -> None:
+        """Queue a frame for the writer thread (lock held); dropped if not connected."""
+        if self._transport is not None:
+            self._tx.append((self._transport, msg))
+            self._tx_wake.set()
 
     def _connect(self) -> None:
         try:
@@ -585,12 +634,15 @@ class ControllerLink:
         transport.close()
         self._flush()
 
-    def _periodic(self, now: float) -> None:
+    def _periodic(self, now: float) -> list[Message]:
+        """The timer's work (lock held): queue HELLO, HOST_HEARTBEAT, CLEAR_STOP and
+        MOTION for the writer; return the STOP copies due, for the caller to write once
+        it has released the lock."""
         cfg = self.config
-        transport = self._transport
-        if transport is None:
-            return
+        if self._transport is None:
+            return []
         out: list[Message] = []
+        stops: list[Message] = []
         if (
             self._state in (LinkState.HANDSHAKE, LinkState.LOST)
             and now - self._last_hello >= cfg.heartbeat_s
@@ -612,7 +664,7 @@ class ControllerLink:
                 self._counters.stop_repeats += 1
             stop.sends += 1
             stop.last_sent = now
-            out.insert(0, Stop(stop.stop_id, self._estop_source))
+            stops.append(Stop(stop.stop_id, self._estop_source))
         clear = self._pending_clear
         if (
             clear is not None
@@ -634,11 +686,11 @@ class ControllerLink:
                     f"no controller heartbeat for {silence:.2f} s "
                     f"({self._counters.lost_after_beats} beats missed)"
                 )
-            else:
-                self._pump(now, out)
         for msg in out:
-            if not self._send(transport, msg):
-                return
+            self._queue(msg)
+        if self._state is LinkState.READY:
+            self._pump(now)
+        return stops
 
     def _send(self, transport: Transport, msg: Message) -> bool:
         try:
@@ -648,11 +700,9 @@ class ControllerLink:
             return False
         return True
 
-    def _pump(self, now: float, out: list[Message] | None = None) -> None:
-        """Send the lane's head, retransmit on ack timeout (lock held)."""
+    def _pump(self, now: float) -> None:
+        """Queue the lane's head, or its retransmission on ack timeout (lock held)."""
         step = self._inflight
-        direct = out is None
-        batch: list[Message] = [] if out is None else out
         if step is not None:
             if now - step.last_sent < self.config.ack_timeout_s:
                 return
@@ -672,7 +722,7 @@ class ControllerLink:
             self._counters.retries += 1
             step.sends += 1
             step.last_sent = now
-            batch.append(self._motion(step))
+            self._queue(self._motion(step))
         elif self._lane and len(self._in_controller) < self.config.controller_queue and self.ready:
             step = self._lane.popleft()
             self._seq = (self._seq + 1) & 0xFFFF
@@ -681,10 +731,7 @@ class ControllerLink:
             step.first_sent = step.last_sent = now
             self._inflight = step
             self._counters.steps_sent += 1
-            batch.append(self._motion(step))
-        if direct and batch and self._transport is not None:
-            for msg in batch:
-                self._send(self._transport, msg)
+            self._queue(self._motion(step))
 
     @staticmethod
     def _motion(step: _Step) -> Motion:

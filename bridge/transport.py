@@ -26,8 +26,18 @@ message (HEARTBEAT, PROGRESS, STATUS, ACK, IDENT, STOP_ACK, CLEAR_ACK, FAULT, ..
 never dropped: the reader waits for room, which also stops it reading, so the OS buffers
 the device's bytes meanwhile. An I/O error ends the reader; it is reported once through
 ``on_error``, on the dispatcher thread after every message received before it (the link
-reconnects). Writes happen on the caller's thread under a lock, so a STOP is on the wire
-without waiting for any queue.
+reconnects).
+
+**Writes** happen on the caller's thread. Ordinary messages are written one at a time, in
+the order their callers got the write lock. STOP has a lock of its own (one STOP at a
+time): it never waits for another message's write, even one stuck in the OS for the
+serial write timeout (a full buffer, a stalled adapter, flow control). On a serial line
+a STOP written while another frame is half-way out cuts that frame: the controller drops
+it as damaged and resynchronises at STOP's leading delimiter, so STOP itself arrives
+whole (docs/protocol.md, Framing); what was cut is sent again by its own rule (a MOTION
+by its retransmission, a heartbeat by the next period) or is moot under the latch. On
+CAN every frame is whole by construction and STOP goes to the bus ahead of any frame of
+ours still waiting for the write lock.
 
 Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
 ``_write`` (one message) and ``_read`` (wait a little, return messages), and
@@ -55,7 +65,7 @@ from urllib.parse import parse_qs, urlsplit
 from bridge.errors import DeviceBusyError, TransportError, TransportUrlError
 from firmware_proto.counters import RxCounters
 from firmware_proto.message import Message
-from firmware_proto.messages import Encoders, Imu, Pose, WheelSpeeds
+from firmware_proto.messages import Encoders, Imu, Pose, Stop, WheelSpeeds
 from firmware_proto.trafficlog import RecordingEdge, TrafficRecorder
 
 __all__ = [
@@ -112,10 +122,13 @@ class Transport(RecordingEdge, ABC):
         self.url = url
         self.recorder = recorder
         self.counters = RxCounters()
-        self.tx_frames = 0
+        self._tx_frames = 0
+        self._tx_stops = 0
         self.rx_overflow = 0
         """Sensor samples dropped because the dispatcher fell behind (queue full)."""
         self._write_lock = threading.Lock()
+        self._stop_lock = threading.Lock()
+        """STOP's own write lock: never held while waiting for ``_write_lock``."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._dispatcher: threading.Thread | None = None
@@ -186,19 +199,28 @@ class Transport(RecordingEdge, ABC):
         self._thread.start()
 
     def send(self, message: Message) -> None:
-        """Send one message now, on the calling thread.
+        """Send one message now, on the calling thread. A :class:`Stop` does not wait
+        for any other message's write (see the module docstring, Writes).
 
         Raises:
             TransportError: not open, or the write failed (device gone, bus off).
         """
-        with self._write_lock:
+        with self._stop_lock if isinstance(message, Stop) else self._write_lock:
             if not self._opened:
                 raise TransportError(f"{self.url} is not open")
             try:
                 self._write(message)
             except (OSError, ValueError) as exc:
                 raise TransportError(f"write to {self.url} failed: {exc}") from exc
-            self.tx_frames += 1
+            if isinstance(message, Stop):
+                self._tx_stops += 1  # under _stop_lock
+            else:
+                self._tx_frames += 1  # under _write_lock
+
+    @property
+    def tx_frames(self) -> int:
+        """Frames written on this transport (STOPs included)."""
+        return self._tx_frames + self._tx_stops
 
     def send_raw(self, msg_id: int, payload: bytes, *, bad_crc: bool = False) -> None:
         """Send a frame with this message id and these payload bytes, unchecked, now, on
@@ -223,7 +245,7 @@ class Transport(RecordingEdge, ABC):
                 self._write_raw(msg_id, payload, bad_crc)
             except (OSError, ValueError) as exc:
                 raise TransportError(f"write to {self.url} failed: {exc}") from exc
-            self.tx_frames += 1
+            self._tx_frames += 1
 
     def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
         """Send one unchecked frame (see :meth:`send_raw`). Raise OSError on failure,
@@ -241,7 +263,7 @@ class Transport(RecordingEdge, ABC):
                 if thread.is_alive():
                     logger.error("%s: thread %s did not stop within 5 s", self.url, thread.name)
         self._thread = self._dispatcher = None
-        with self._write_lock:
+        with self._stop_lock, self._write_lock:
             if self._opened:
                 self._opened = False
                 self._close()
