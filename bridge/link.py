@@ -64,6 +64,16 @@ from dataclasses import dataclass, field
 from types import TracebackType
 
 from bridge.errors import TransportError
+from bridge.rosport.contract import (
+    ACCEPTED,
+    CLEARED,
+    COMPLETED,
+    READY,
+    STOPPED,
+    aborted,
+    fault,
+    rejected,
+)
 from bridge.transport import Transport, open_transport
 from firmware_proto.faults import STOPPING_FAULTS, fault_bit
 from firmware_proto.message import Message
@@ -440,7 +450,7 @@ class ControllerLink:
             if reason is not None:
                 self._counters.steps_rejected += 1
                 self._counters.rejected[reason] += 1
-                self._emit(f"rejected:{reason}")
+                self._emit(rejected(reason))
                 logger.info("step %s rejected: %s", step, reason)
             else:
                 self._lane.append(_Step(step))
@@ -486,7 +496,7 @@ class ControllerLink:
         if transport is not None:
             self._send_stop(transport, stop_id, source)
         with self._lock:
-            self._purge("aborted:stop")
+            self._purge(aborted("stop"))
             if any(isinstance(msg, Motion) for _, msg in self._tx):
                 # Their steps were just purged; the latched controller would refuse them.
                 kept = [(t, msg) for t, msg in self._tx if not isinstance(msg, Motion)]
@@ -625,8 +635,8 @@ class ControllerLink:
             # fails again at once (a CAN bus going bus-off repeatedly, a flapping socket)
             # backs off like one that cannot be opened.
             self._reconnect_at = time.monotonic() + self._backoff
-            self._drop_all("aborted:link_lost")
-            self._emit("fault:link_lost")
+            self._drop_all(aborted("link_lost"))
+            self._emit(fault("link_lost"))
             logger.warning(
                 "link to %s failed: %s; reconnecting in %.1f s", self.config.url, exc, self._backoff
             )
@@ -714,9 +724,9 @@ class ControllerLink:
                 self._in_controller.clear()
                 for _ in older:
                     self._counters.steps_aborted += 1
-                    self._emit("aborted:link_lost")
+                    self._emit(aborted("link_lost"))
                 self._counters.steps_aborted += 1
-                self._emit("fault:no_ack")
+                self._emit(fault("no_ack"))
                 self._lose(f"MOTION seq {step.seq} not acknowledged after {step.sends} tries")
                 return
             self._counters.retries += 1
@@ -744,8 +754,8 @@ class ControllerLink:
         self._last_error = why
         self._set_state(LinkState.LOST)
         self._hello_sent = False
-        self._drop_all("aborted:link_lost")
-        self._emit("fault:link_lost")
+        self._drop_all(aborted("link_lost"))
+        self._emit(fault("link_lost"))
 
     def _set_state(self, state: LinkState) -> None:
         """Change the link state (lock held); ``on_state`` hears of it at the next flush."""
@@ -799,7 +809,7 @@ class ControllerLink:
             if stop is not None and msg.stop_id == stop.stop_id:
                 self._last_stop_latency = t - stop.first_sent
                 self._pending_stop = None
-                self._emit("stopped")
+                self._emit(STOPPED)
         elif isinstance(msg, ClearAck):
             self._on_clear_ack(msg)
         elif isinstance(msg, Ack):
@@ -822,8 +832,8 @@ class ControllerLink:
             return
         if self._state is LinkState.READY and not hb.handshake_ok:
             logger.warning("controller has no session with us; handshaking again")
-            self._drop_all("aborted:link_lost")
-            self._emit("fault:link_lost")
+            self._drop_all(aborted("link_lost"))
+            self._emit(fault("link_lost"))
             self._set_state(LinkState.HANDSHAKE)
             self._hello_sent = False
             self._last_hello = 0.0
@@ -847,7 +857,7 @@ class ControllerLink:
             self._clear_wanted = False
             if not self._clear_auto:
                 self._ctrl_latched = False
-                self._emit("cleared")
+                self._emit(CLEARED)
             return
         if self._pending_clear is not None or self._estop_requested or not hb.stop_latched:
             return
@@ -882,8 +892,8 @@ class ControllerLink:
         self._boot_nonce = nonce
         self._counters.reboots += 1
         logger.warning("controller rebooted (boot nonce 0x%04X); steps in flight dropped", nonce)
-        self._drop_all("aborted:controller_reboot")
-        self._emit("fault:controller_reboot")
+        self._drop_all(aborted("controller_reboot"))
+        self._emit(fault("controller_reboot"))
         self._set_state(LinkState.HANDSHAKE)
         self._hello_sent = False
         self._last_hello = 0.0
@@ -916,8 +926,8 @@ class ControllerLink:
                     self.protocol_version,
                     self.schema_hash,
                 )
-                self._drop_all("aborted:schema_mismatch")
-                self._emit("fault:schema_mismatch")
+                self._drop_all(aborted("schema_mismatch"))
+                self._emit(fault("schema_mismatch"))
             self._set_state(LinkState.MISMATCH)
             theirs = f"v{ident.protocol_version}/0x{ident.schema_hash:04X}"
             ours = f"v{self.protocol_version}/0x{self.schema_hash:04X}"
@@ -937,7 +947,7 @@ class ControllerLink:
                 ident.firmware_patch,
                 ident.boot_nonce,
             )
-            self._emit("ready")
+            self._emit(READY)
             if self._estop_requested and self._pending_stop is None and not self._ctrl_latched:
                 now = time.monotonic()
                 self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)
@@ -951,7 +961,7 @@ class ControllerLink:
             # Kept: sent again once no stopping fault condition is active (_maybe_clear).
             # Said once per request, not once per retry.
             if not self._clear_persisted:
-                self._emit("fault:fault_persists")
+                self._emit(fault("fault_persists"))
             self._clear_persisted = True
             return
         was_auto = self._clear_auto
@@ -960,7 +970,7 @@ class ControllerLink:
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.IDLE
         if ack.result == ClearResult.CLEARED or not was_auto:
-            self._emit("cleared")
+            self._emit(CLEARED)
 
     def _on_ack(self, ack: Ack, t: float) -> None:
         step = self._inflight
@@ -971,14 +981,14 @@ class ControllerLink:
             self._counters.rtts.append(t - step.first_sent)
         if ack.result in (AckResult.ACCEPTED, AckResult.DUPLICATE):
             self._in_controller[step.seq] = step
-            self._emit("accepted")
+            self._emit(ACCEPTED)
         else:
             self._counters.steps_rejected += 1
             reason = _ACK_REASONS.get(AckResult(ack.result), f"nack_{ack.result}")
             if ack.result == AckResult.OUT_OF_RANGE and ack.field != AckField.NONE:
                 reason += f":{AckField(ack.field).name.lower()}"
             self._counters.rejected[reason] += 1
-            self._emit(f"rejected:{reason}")
+            self._emit(rejected(reason))
         self._pump(t)
 
     def _on_status_msg(self, status: Status) -> None:
@@ -996,10 +1006,10 @@ class ControllerLink:
             del self._in_controller[open_seq]
             if state == StepState.COMPLETED:
                 self._counters.steps_completed += 1
-                self._emit("completed")
+                self._emit(COMPLETED)
             else:
                 self._counters.steps_aborted += 1
-                self._emit(f"aborted:{AbortReason(reason).name.lower()}")
+                self._emit(aborted(AbortReason(reason).name.lower()))
             if open_seq == seq:
                 return
 
@@ -1019,22 +1029,22 @@ class ControllerLink:
         self._settle_through(progress.ended_seq, progress.ended_state, progress.ended_reason)
         self._pump(time.monotonic())
 
-    def _on_fault(self, fault: Fault) -> None:
+    def _on_fault(self, msg: Fault) -> None:
         name = (
-            FaultCode(fault.code).name.lower()
-            if fault.code in FaultCode._value2member_map_
-            else str(fault.code)
+            FaultCode(msg.code).name.lower()
+            if msg.code in FaultCode._value2member_map_
+            else str(msg.code)
         )
-        if fault.active:
-            self._faults.add(fault.code)
-            if fault.code in STOPPING_FAULTS and fault.code != FaultCode.WATCHDOG:
-                self._last_stopping_fault = fault.code
-            if fault.code == FaultCode.WATCHDOG:
+        if msg.active:
+            self._faults.add(msg.code)
+            if msg.code in STOPPING_FAULTS and msg.code != FaultCode.WATCHDOG:
+                self._last_stopping_fault = msg.code
+            if msg.code == FaultCode.WATCHDOG:
                 self._counters.watchdog_trips += 1
-            self._emit(f"fault:{name}")
+            self._emit(fault(name))
         else:
             # The condition went away; a latch it set is the heartbeat's to report.
-            self._faults.discard(fault.code)
+            self._faults.discard(msg.code)
 
     # -- status emission ---------------------------------------------------------------------
     def _emit(self, status: str) -> None:

@@ -52,6 +52,7 @@ from bridge.link import ControllerLink, LinkDiagnostics, LinkState, StepRequest
 from bridge.odometry import OdometryEstimator, ground_pose
 from bridge.params import BridgeParams, check_params, parameter_specs
 from bridge.rosport import STOP_LANE, RosPort, Subscription, qos
+from bridge.rosport.contract import rejected
 from bridge.rosport.msgs import (
     Bool,
     DiagnosticArray,
@@ -258,7 +259,7 @@ class BridgeNode:
             with self._rejected_lock:
                 self.rejected[step] += 1
             logger.warning("wheel_instructions %s rejected: %s", list(msg.data), step)
-            self._publish_status(f"rejected:{step}")
+            self._publish_status(rejected(step))
             return
         self.link.submit_step(step)
 

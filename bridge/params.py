@@ -26,6 +26,12 @@ from typing import Any
 
 from bridge.errors import ParameterError
 from bridge.link import LinkConfig
+from bridge.rosport.contract import (
+    CLEAR_EMERGENCY_STOP,
+    COMMAND_STATUS,
+    EMERGENCY_STOP,
+    WHEEL_INSTRUCTIONS,
+)
 from bridge.rosport.parameters import ParameterSpec
 
 if sys.version_info >= (3, 11):
@@ -76,10 +82,10 @@ class BridgeParams:
     )
     namespace: str = _p("", "the node's namespace")
     ros_backend: str = _p("rclpy", "ROS port backend: rclpy (ROS 2) or inprocess (tests)")
-    topic_wheel_instructions: str = _p("wheel_instructions", "steps in (Int16MultiArray)")
-    topic_command_status: str = _p("command_status", "step and link status out (String)")
-    topic_emergency_stop: str = _p("emergency_stop", "emergency stop in (Bool true)")
-    topic_clear_stop: str = _p("clear_emergency_stop", "release the STOP latch (Empty)")
+    topic_wheel_instructions: str = _p(WHEEL_INSTRUCTIONS, "steps in (Int16MultiArray)")
+    topic_command_status: str = _p(COMMAND_STATUS, "step and link status out (String)")
+    topic_emergency_stop: str = _p(EMERGENCY_STOP, "emergency stop in (Bool true)")
+    topic_clear_stop: str = _p(CLEAR_EMERGENCY_STOP, "release the STOP latch (Empty)")
     topic_odom: str = _p("odom", "encoders + IMU odometry out (Odometry)")
     topic_ground_pose: str = _p("odom_ground", "the controller's ground-seeing POSE (Odometry)")
     topic_diagnostics: str = _p("/diagnostics", "diagnostics out (DiagnosticArray)")

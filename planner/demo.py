@@ -39,6 +39,7 @@ from pathlib import Path
 from types import TracebackType
 
 from bridge.rosport import DEFAULT_BACKEND, open_port
+from bridge.rosport.contract import COMPLETED
 from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.rover import load_rover
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
@@ -277,7 +278,7 @@ class Demo:
                     if p.final or now - last_line[0] >= cfg.progress_every_s:
                         last_line[0] = now
                         self.say(p.line(cfg.speed))
-                    done = p.status == "completed" and p.step == cfg.slip_after_step
+                    done = p.status == COMPLETED and p.step == cfg.slip_after_step
                     if cfg.slip and done and not slipped.is_set():
                         slipped.set()
                         answer = _control(control_port, f"inject {cfg.slip}")

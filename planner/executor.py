@@ -39,6 +39,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.rosport import RosPort, Subscription, qos
+from bridge.rosport.contract import (
+    ACCEPTED,
+    CLEAR_EMERGENCY_STOP,
+    CLEARED,
+    COMMAND_STATUS,
+    COMPLETED,
+    EMERGENCY_STOP,
+    STOPPED,
+    WHEEL_INSTRUCTIONS,
+    ends_step,
+    fault,
+)
 from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
@@ -65,7 +77,7 @@ POSE_SOURCES = ("auto", "odom_ground", "odom")
 """What drift control may compare: ``auto`` (POSE while fresh, else ``odom``), the
 ground-seeing POSE only, or encoders + IMU only."""
 
-REPORTING_FAULTS = frozenset({"fault:pose", "fault:imu"})
+REPORTING_FAULTS = frozenset({fault("pose"), fault("imu")})
 """Statuses of faults the controller only reports (it keeps driving): a lost sensor.
 They do not end a plan; drift control copes with the lost pose (fall-back or blind)."""
 
@@ -250,9 +262,9 @@ class PlanExecutor:
         self.port = port
         self.rover = rover
         self.config = config or ExecutorConfig()
-        self._steps_pub = port.publisher("wheel_instructions", Int16MultiArray, qos.COMMAND)
-        self._stop_pub = port.publisher("emergency_stop", Bool, qos.STOP)
-        self._clear_pub = port.publisher("clear_emergency_stop", Empty, qos.STOP)
+        self._steps_pub = port.publisher(WHEEL_INSTRUCTIONS, Int16MultiArray, qos.COMMAND)
+        self._stop_pub = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
+        self._clear_pub = port.publisher(CLEAR_EMERGENCY_STOP, Empty, qos.STOP)
         self._lock = threading.Lock()
         self._monitor_lock = threading.Lock()  # pose callbacks may run on two threads
         self._event = threading.Event()
@@ -281,7 +293,7 @@ class PlanExecutor:
         self._motion: tuple[float, float, float] | None = None  # stamp, v, yaw rate
         self._plan_start: Pose | None = None
         self._subs: list[Subscription[Any]] = [
-            port.subscribe("command_status", String, self._on_status, qos.STATUS),
+            port.subscribe(COMMAND_STATUS, String, self._on_status, qos.STATUS),
             port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR),
         ]
         if self.config.pose_source != "odom":
@@ -356,21 +368,21 @@ class PlanExecutor:
         text = msg.data
         now = time.monotonic()
         with self._lock:
-            if text == "stopped":
+            if text == STOPPED:
                 self._stopped_at = now
                 self._stopped.set()
-            elif text == "cleared":
+            elif text == CLEARED:
                 self._cleared.set()
             if not self._running:
                 return
-            if text == "accepted":
+            if text == ACCEPTED:
                 self._accepted = now
                 self._accepted_wall = time.time()
                 return
             if text in REPORTING_FAULTS:
                 self._note(f"the rover reported {text} (it keeps driving)")
                 return
-            if text == "completed" or text.startswith(("rejected:", "aborted:", "fault:")):
+            if ends_step(text):
                 self._status = text
                 self._event.set()
 
@@ -616,7 +628,7 @@ class PlanExecutor:
                 )
                 if on_progress is not None:
                     on_progress(self._progress(index, status, steps, verdict, monitor, None))
-                if status == "completed":
+                if status == COMPLETED:
                     continue
                 outcome, reason = self._classify(status, index)
                 break

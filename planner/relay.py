@@ -29,6 +29,12 @@ from types import TracebackType
 from typing import Any
 
 from bridge.rosport import DEFAULT_LANE, STOP_LANE, Publisher, Qos, RosPort, Subscription, qos
+from bridge.rosport.contract import (
+    CLEAR_EMERGENCY_STOP,
+    COMMAND_STATUS,
+    EMERGENCY_STOP,
+    WHEEL_INSTRUCTIONS,
+)
 from bridge.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
 
 __all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "Route"]
@@ -77,10 +83,10 @@ class Route:
 
 
 DEFAULT_ROUTES: tuple[Route, ...] = (
-    Route("wheel_instructions", Int16MultiArray, True, qos.COMMAND),
-    Route("emergency_stop", Bool, True, qos.STOP, lane=STOP_LANE),
-    Route("clear_emergency_stop", Empty, True, qos.STOP, lane=STOP_LANE),
-    Route("command_status", String, False, qos.STATUS),
+    Route(WHEEL_INSTRUCTIONS, Int16MultiArray, True, qos.COMMAND),
+    Route(EMERGENCY_STOP, Bool, True, qos.STOP, lane=STOP_LANE),
+    Route(CLEAR_EMERGENCY_STOP, Empty, True, qos.STOP, lane=STOP_LANE),
+    Route(COMMAND_STATUS, String, False, qos.STATUS),
     Route("odom", Odometry, False, qos.TELEMETRY, qos.SENSOR),
     Route("odom_ground", Odometry, False, qos.TELEMETRY, qos.SENSOR),
     Route("diagnostics", DiagnosticArray, False, qos.DIAGNOSTICS),
