@@ -25,6 +25,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from firmware_proto.verdict import FAILURE_TYPES
 from planner.errors import GateProtocolError
 from planner.geometry import Point, Pose
 
@@ -38,15 +39,6 @@ __all__ = [
     "TrajectorySample",
     "Verdict",
 ]
-
-FAILURE_TYPES = (
-    "collision",
-    "start_in_collision",
-    "stalled",
-    "goal_not_reached",
-    "yaw_not_reached",
-)
-"""Failure types the gate documents, in its order of precedence."""
 
 _T = TypeVar("_T")
 

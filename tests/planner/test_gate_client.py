@@ -298,3 +298,14 @@ def test_server_error_is_reported_not_retried(planner: HeuristicLowLevelPlanner)
         assert client.requests == 1
     assert err.value.status == 500
     assert err.value.code == "internal_error"
+
+
+def test_the_gate_and_the_planner_share_one_list_of_failure_types() -> None:
+    """The planner reads verdicts over HTTP and may not import the gate: both take the
+    failure types from firmware_proto.verdict (the gate's OpenAPI enum is made of it)."""
+    import gate.verdict
+    import planner.verdict
+    from firmware_proto.verdict import FAILURE_TYPES
+
+    assert gate.verdict.FAILURE_TYPES is FAILURE_TYPES
+    assert planner.verdict.FAILURE_TYPES is FAILURE_TYPES
