@@ -46,7 +46,8 @@ ever happens with it held: a write stuck in the OS (a full buffer, a stalled USB
 adapter) holds up neither the API, nor the dispatcher, nor a STOP. STOP is written by
 the thread that decided it (the caller of :meth:`ControllerLink.emergency_stop`, the
 timer for repeats) through the transport's STOP path, which waits for no other write;
-MOTION frames still queued when a STOP is requested are dropped with their steps.
+a MOTION not yet written when its step is dropped (a STOP, a lost link, a reboot) is
+dropped with it, and its ACK timeout runs from when it was written.
 Callbacks run outside the lock, one at a time, in the order their events happened.
 """
 
@@ -190,6 +191,9 @@ class _Step:
     sends: int = 0
     first_sent: float = 0.0
     last_sent: float = 0.0
+    unwritten: int = 0
+    """Copies queued for the writer and not yet written: the ACK timeout runs from
+    when a copy is on the wire, not from when it was queued."""
 
 
 @dataclass
@@ -320,7 +324,7 @@ class ControllerLink:
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
         self._writer: threading.Thread | None = None
-        self._tx: deque[tuple[Transport, Message]] = deque()
+        self._tx: deque[tuple[Transport, Message, _Step | None]] = deque()
         """Frames for the writer thread, in order (lock held to change it)."""
         self._tx_wake = threading.Event()
         self._transport: Transport | None = None
@@ -497,11 +501,6 @@ class ControllerLink:
             self._send_stop(transport, stop_id, source)
         with self._lock:
             self._purge(aborted("stop"))
-            if any(isinstance(msg, Motion) for _, msg in self._tx):
-                # Their steps were just purged; the latched controller would refuse them.
-                kept = [(t, msg) for t, msg in self._tx if not isinstance(msg, Motion)]
-                self._tx.clear()
-                self._tx.extend(kept)
         self._flush()
         logger.info("emergency stop %d (source %s)", stop_id, StopSource(source).name)
         return stop_id
@@ -567,16 +566,35 @@ class ControllerLink:
                 with self._lock:
                     if not self._tx:
                         break
-                    transport, msg = self._tx.popleft()
+                    transport, msg, step = self._tx.popleft()
                     if transport is not self._transport:
                         continue
-                self._send(transport, msg)
+                sent = self._send(transport, msg)
+                if step is not None:
+                    with self._lock:
+                        step.unwritten -= 1
+                        if sent:
+                            # The ACK timeout and the round trip run from here.
+                            step.last_sent = time.monotonic()
+                            if step.sends == 1:
+                                step.first_sent = step.last_sent
 
-    def _queue(self, msg: Message) -> None:
-        """Queue a frame for the writer thread (lock held); dropped if not connected."""
+    def _unqueue_motions(self) -> None:
+        """Take every MOTION not yet written out of the writer's queue (lock held): its
+        step is being dropped, and a dropped step must never reach the controller."""
+        if any(step is not None for _, _, step in self._tx):
+            kept = [entry for entry in self._tx if entry[2] is None]
+            self._tx.clear()
+            self._tx.extend(kept)
+
+    def _queue(self, msg: Message, step: _Step | None = None) -> None:
+        """Queue a frame for the writer thread (lock held), with the step a MOTION
+        carries; dropped if not connected."""
         if self._transport is not None:
-            self._tx.append((self._transport, msg))
+            self._tx.append((self._transport, msg, step))
             self._tx_wake.set()
+            if step is not None:
+                step.unwritten += 1
 
     def _connect(self) -> None:
         try:
@@ -714,7 +732,7 @@ class ControllerLink:
         """Queue the lane's head, or its retransmission on ack timeout (lock held)."""
         step = self._inflight
         if step is not None:
-            if now - step.last_sent < self.config.ack_timeout_s:
+            if step.unwritten or now - step.last_sent < self.config.ack_timeout_s:
                 return
             if step.sends > self.config.motion_retries:
                 self._inflight = None
@@ -732,7 +750,7 @@ class ControllerLink:
             self._counters.retries += 1
             step.sends += 1
             step.last_sent = now
-            self._queue(self._motion(step))
+            self._queue(self._motion(step), step)
         elif self._lane and len(self._in_controller) < self.config.controller_queue and self.ready:
             step = self._lane.popleft()
             self._seq = (self._seq + 1) & 0xFFFF
@@ -741,7 +759,7 @@ class ControllerLink:
             step.first_sent = step.last_sent = now
             self._inflight = step
             self._counters.steps_sent += 1
-            self._queue(self._motion(step))
+            self._queue(self._motion(step), step)
 
     @staticmethod
     def _motion(step: _Step) -> Motion:
@@ -774,6 +792,7 @@ class ControllerLink:
         self._in_controller.clear()
         self._inflight = None
         self._lane.clear()
+        self._unqueue_motions()
         for _ in dropped:
             self._counters.steps_aborted += 1
             self._emit(status)
@@ -785,6 +804,7 @@ class ControllerLink:
         pending = ([self._inflight] if self._inflight else []) + list(self._lane)
         self._inflight = None
         self._lane.clear()
+        self._unqueue_motions()
         for _ in pending:
             self._counters.steps_aborted += 1
             self._emit(status)

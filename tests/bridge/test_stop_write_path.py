@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from functools import partial
 
 import pytest
 
@@ -91,7 +92,7 @@ Sticky = StickySerial | StickyCan
 
 
 def _link(
-    emu: Emulator, *, stick_from_start: bool
+    emu: Emulator, *, stick_from_start: bool, **config: float
 ) -> tuple[ControllerLink, Recorder, list[Sticky]]:
     made: list[Sticky] = []
 
@@ -103,7 +104,11 @@ def _link(
         return transport
 
     rec = Recorder()
-    link = ControllerLink(LinkConfig(link_url(emu)), on_status=rec, transport_factory=factory)
+    link = ControllerLink(
+        LinkConfig(link_url(emu), **config),  # type: ignore[arg-type]
+        on_status=rec,
+        transport_factory=factory,
+    )
     link.start()
     return link, rec, made
 
@@ -200,3 +205,34 @@ def test_stop_passes_a_hello_stuck_in_the_handshake(
     assert before_release, "the STOP was acknowledged only after the stuck HELLO ended"
     assert "stop" in status.latch
     assert latched
+
+
+@pytest.mark.parametrize("kind", MEDIA[:2])
+def test_a_motion_behind_a_stuck_write_keeps_its_retries(
+    emulators: Callable[..., Emulator], can_channel: str, kind: str
+) -> None:
+    """A MOTION's ACK timeout runs from when it was written: queued behind a stuck write
+    for many times its timeout and retries, it is not declared unacknowledged
+    (``fault:no_ack``, link lost); once the line moves it runs."""
+    emu = serve(emulators, kind, can_channel)
+    # Our frames stop while the write is stuck: the controller's watchdog must outlast it.
+    emu.call(partial(setattr, emu.model, "watchdog_ms", 10000))
+    link, rec, made = _link(emu, stick_from_start=False, ack_timeout_s=0.02, motion_retries=1)
+    try:
+        rec.wait_count("ready", 1)
+        transport = made[-1]
+        transport.stick.set()
+        assert transport.entered.wait(10.0), "no heartbeat write within 10 s"
+        mark = rec.mark()
+        link.submit_step(StepRequest(Command.FWD, 60, 500))
+        # Stuck for 15 times what the MOTION's two tries would take (a bounded wait: a
+        # slower machine only makes this test weaker, never failing).
+        transport.release.wait(0.6)
+        transport.stick.clear()
+        transport.release.set()
+        got = rec.wait(lambda xs: "completed" in xs or "fault:no_ack" in xs, since=mark)
+    finally:
+        for made_one in made:
+            made_one.release.set()
+        link.close()
+    assert got == ["accepted", "completed"], got
