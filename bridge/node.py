@@ -1,7 +1,7 @@
 """The rover-side ROS 2 node: ``/wheel_instructions`` in, frames out; telemetry back.
 
-:class:`BridgeNode` joins a ROS port (:mod:`bridge.rosport`: rclpy in production, Cyclone
-DDS speaking the ROS 2 wire format, or in-process) to a :class:`~bridge.link.ControllerLink`.
+:class:`BridgeNode` joins a ROS port (:mod:`bridge.rosport`: rclpy in production, or
+in-process for fast unit tests) to a :class:`~bridge.link.ControllerLink`.
 
 Subscribes (names relative to the namespace unless absolute):
 

@@ -18,7 +18,7 @@ def register(subparsers: Any) -> None:
         description=(
             "Start the gate, the motor-controller emulator on a pty (lab map), the ROS 2 "
             "bridge and the Earth-Moon link relay (3 s round trip) as separate processes, "
-            "talking ROS 2 over loopback-only Cyclone DDS; plan a mission behind the table (the "
+            "talking real ROS 2 (rclpy) kept on this host; plan a mission behind the table (the "
             "direct plan collides, the orchestrator repairs it into a detour), drive it, inject "
             "slip on one leg so that drift control stops the rover, re-plan from the rover's "
             "reported pose and finish. Prints a summary and writes a picture of the predicted "

@@ -3,10 +3,11 @@
 :class:`Demo` starts the parts as the launch file's HIL set does, each its own process:
 the gate (``rover gate``), the motor-controller emulator on a pty with the lab map
 (``rover emulate``), the rover-side bridge on that pty (``rover bridge``) and the
-Earth-Moon link relay (``rover link``, 3 s round trip). ROS topics travel over Cyclone
-DDS with a loopback-only configuration, so no ROS installation is needed and nothing
-leaves the machine. The ground station (planner, orchestrator, executor with drift
-control) runs in this process.
+Earth-Moon link relay (``rover link``, 3 s round trip). ROS topics travel over real
+ROS 2 (rclpy, the middleware it prints), with discovery kept on this host
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), so nothing leaves the machine. The
+ground station (planner, orchestrator, executor with drift control) runs in this
+process.
 
 The mission: from the lab's start pose to the goal straight behind the table. The direct
 plan collides with the table; the orchestrator repairs it into a detour; the rover
