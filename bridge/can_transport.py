@@ -226,7 +226,10 @@ class CanTransport(Transport):
         if bus is None:
             raise OSError("bus closed")
         arbitration_id, data = encode_can(message, self.node)
-        sent_at = time.time()  # before the send: an answer cannot be logged earlier
+        if self.recorder is not None:
+            # Logged before the send: the reader may log the answer as soon as the frame
+            # is out, and the log must keep the wire's order.
+            self._record(CanRecord(time.time(), self.channel, arbitration_id, data, is_rx=False))
         try:
             bus.send(
                 can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
@@ -234,8 +237,6 @@ class CanTransport(Transport):
             )
         except can.CanError as exc:
             raise OSError(f"CAN send failed: {exc}") from exc
-        if self.recorder is not None:
-            self._record(CanRecord(sent_at, self.channel, arbitration_id, data, is_rx=False))
 
     def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
         bus = self._bus

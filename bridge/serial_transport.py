@@ -236,13 +236,14 @@ class SerialTransport(Transport):
         if port is None:
             raise OSError("port closed")
         wire = self._encoder.encode(message)
-        sent_at = time.time()  # before the write: an answer cannot be logged earlier
+        if self.recorder is not None:
+            # Logged before the write: the reader may log the answer as soon as the frame
+            # is out, and the log must keep the wire's order.
+            self._record(SerialRecord(time.time(), message_direction(message), wire))
         try:
             port.write(wire)
         except serial.SerialException as exc:
             raise OSError(str(exc)) from exc
-        if self.recorder is not None:
-            self._record(SerialRecord(sent_at, message_direction(message), wire))
 
     def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
         port = self._port
