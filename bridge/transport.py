@@ -205,14 +205,15 @@ class Transport(RecordingEdge, ABC):
         Raises:
             TransportError: not open, or the write failed (device gone, bus off).
         """
-        with self._stop_lock if isinstance(message, Stop) else self._write_lock:
+        stop = isinstance(message, Stop)
+        with self._stop_lock if stop else self._write_lock:
             if not self._opened:
                 raise TransportError(f"{self.url} is not open")
             try:
                 self._write(message)
             except (OSError, ValueError) as exc:
                 raise TransportError(f"write to {self.url} failed: {exc}") from exc
-            if isinstance(message, Stop):
+            if stop:
                 self._tx_stops += 1  # under _stop_lock
             else:
                 self._tx_frames += 1  # under _write_lock

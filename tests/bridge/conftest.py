@@ -25,6 +25,7 @@ import pytest
 
 from bridge.link import ControllerLink, LinkConfig
 from bridge.rosport import RosPort, open_port
+from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator, EmulatorStatus
@@ -268,6 +269,25 @@ def link_url(emu: Emulator) -> str:
 Links = Callable[..., tuple[ControllerLink, Recorder]]
 
 
+def start_link(
+    url: str,
+    *,
+    transport_factory: Callable[[str], Transport] = open_transport,
+    **config: float,
+) -> tuple[ControllerLink, Recorder]:
+    """A started link to ``url`` (``config``: LinkConfig fields) and its status
+    recorder; ``transport_factory`` builds its transports (a test's subclass of a real
+    one). The caller closes the link."""
+    rec = Recorder()
+    link = ControllerLink(
+        LinkConfig(url, **config),  # type: ignore[arg-type]
+        on_status=rec,
+        transport_factory=transport_factory,
+    )
+    link.start()
+    return link, rec
+
+
 @pytest.fixture
 def links() -> Iterator[Links]:
     """``links(url, **LinkConfig fields)`` -> a started link and its status recorder; all
@@ -275,9 +295,7 @@ def links() -> Iterator[Links]:
     started: list[ControllerLink] = []
 
     def make(url: str, **config: float) -> tuple[ControllerLink, Recorder]:
-        rec = Recorder()
-        link = ControllerLink(LinkConfig(url, **config), on_status=rec)  # type: ignore[arg-type]
-        link.start()
+        link, rec = start_link(url, transport_factory=open_transport, **config)
         started.append(link)
         return link, rec
 

@@ -15,14 +15,14 @@ import threading
 import time
 from collections.abc import Callable
 
-from bridge.link import ControllerLink, LinkConfig
+from bridge.link import ControllerLink
 from bridge.serial_transport import SerialTransport
 from bridge.transport import Transport
 from emulator.engine import Emulator
 from firmware_proto.message import Message
 from firmware_proto.messages import Stop
 
-from .conftest import Recorder, link_url
+from .conftest import Recorder, link_url, start_link
 
 Emus = Callable[..., Emulator]
 
@@ -67,13 +67,7 @@ def _link(emu: Emulator, **config: float) -> tuple[ControllerLink, Recorder, Not
         made.append(transport)
         return transport
 
-    rec = Recorder()
-    link = ControllerLink(
-        LinkConfig(link_url(emu), **config),  # type: ignore[arg-type]
-        on_status=rec,
-        transport_factory=factory,
-    )
-    link.start()
+    link, rec = start_link(link_url(emu), transport_factory=factory, **config)
     rec.wait_count("ready", 1)
     return link, rec, made[-1]
 

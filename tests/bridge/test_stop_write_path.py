@@ -23,14 +23,14 @@ from functools import partial
 import pytest
 
 from bridge.can_transport import CanTransport
-from bridge.link import ControllerLink, LinkConfig, LinkState, StepRequest
+from bridge.link import ControllerLink, LinkState, StepRequest
 from bridge.serial_transport import SerialTransport
 from bridge.transport import Transport
 from emulator.engine import Emulator
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Hello, HostHeartbeat, Motion, Stop
 
-from .conftest import MEDIA, Recorder, link_url, serve, wait_emulator
+from .conftest import MEDIA, Recorder, link_url, serve, start_link, wait_emulator
 
 STUCK_LIMIT_S = 20.0
 """A stuck write lets go by itself after this long, so that a failing test ends."""
@@ -40,7 +40,8 @@ class _Sticky:
     """Notes every write; with :attr:`stick` set, a HELLO or HOST_HEARTBEAT write
     sticks (``entered`` set) until :attr:`release` is set (then ``left`` is set)."""
 
-    def _setup_sticky(self) -> None:
+    def __init__(self, url: str) -> None:
+        super().__init__(url)  # type: ignore[call-arg]
         self.stick = threading.Event()
         self.release = threading.Event()
         self.entered = threading.Event()
@@ -54,13 +55,13 @@ class _Sticky:
         with self._note_lock:
             self.writes.append((what, message, threading.current_thread().name))
 
-    def _sticky_write(self, message: Message, write: Callable[[Message], None]) -> None:
+    def _write(self, message: Message) -> None:
         self._note("begin", message)
         stuck = self.stick.is_set() and isinstance(message, (Hello, HostHeartbeat))
         if stuck:
             self.entered.set()
             self.release.wait(STUCK_LIMIT_S)
-        write(message)
+        super()._write(message)  # type: ignore[misc]
         self._note("end", message)
         if stuck:
             self.left.set()
@@ -71,21 +72,11 @@ class _Sticky:
 
 
 class StickySerial(_Sticky, SerialTransport):
-    def __init__(self, url: str) -> None:
-        super().__init__(url)
-        self._setup_sticky()
-
-    def _write(self, message: Message) -> None:
-        self._sticky_write(message, super()._write)
+    pass
 
 
 class StickyCan(_Sticky, CanTransport):
-    def __init__(self, url: str) -> None:
-        super().__init__(url)
-        self._setup_sticky()
-
-    def _write(self, message: Message) -> None:
-        self._sticky_write(message, super()._write)
+    pass
 
 
 Sticky = StickySerial | StickyCan
@@ -103,13 +94,7 @@ def _link(
         made.append(transport)
         return transport
 
-    rec = Recorder()
-    link = ControllerLink(
-        LinkConfig(link_url(emu), **config),  # type: ignore[arg-type]
-        on_status=rec,
-        transport_factory=factory,
-    )
-    link.start()
+    link, rec = start_link(link_url(emu), transport_factory=factory, **config)
     return link, rec, made
 
 
