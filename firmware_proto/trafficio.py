@@ -35,7 +35,7 @@ import struct
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import PurePath
 from types import TracebackType
 from typing import IO, Any, BinaryIO, TextIO
@@ -74,7 +74,10 @@ class LogWriter(ABC):
     """A recorder writing one log (a :class:`~firmware_proto.trafficlog.TrafficRecorder`).
 
     :meth:`record` is thread-safe (transports record from their reader threads and their
-    callers' threads) and checks the record type; an implementation fills :meth:`_write`
+    callers' threads) and checks the record type. Times never go back in a log: a record
+    stamped earlier than the one written before it (two threads that stamped their frames
+    and then raced to the log) takes that record's time, so the file's order, which a
+    replay by ``canplayer`` follows, is also its time order; an implementation fills :meth:`_write`
     (one record, under the lock) and :meth:`_close` (finish the log, close the stream,
     called once). It owns the stream it was given.
 
@@ -88,6 +91,7 @@ class LogWriter(ABC):
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._closed = False
+        self._last_time_s = float("-inf")
         self.frames = 0
 
     def record(self, entry: TrafficRecord) -> None:
@@ -104,6 +108,9 @@ class LogWriter(ABC):
         with self._lock:
             if self._closed:
                 return
+            if entry.time_s < self._last_time_s:
+                entry = replace(entry, time_s=self._last_time_s)
+            self._last_time_s = entry.time_s
             self._write(entry)
             self.frames += 1
 
@@ -334,9 +341,8 @@ def _logged_can_record(msg: can.Message) -> CanRecord:
 def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
     """Read a serial frame log or a CAN log of :data:`CAN_LOG_FORMATS`, told apart by
     content (the serial log's first line) and then by the suffix of ``path``. Records
-    come in time order: a recorder writes a sent frame once its send returned, so the
-    answer to it may come first in the file (its time, taken before the send, is
-    earlier).
+    come in time order, sorted (stably) by time: our recorders write them so already
+    (:class:`LogWriter`), a log from elsewhere may not be.
 
     Args:
         stream: a readable, seekable binary stream at the log's start. Like the writers,

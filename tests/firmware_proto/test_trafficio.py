@@ -154,3 +154,17 @@ def test_concurrent_records_stay_whole_lines(medium: str) -> None:
     log = parse_log(io.BytesIO(stream.kept), "x.log")
     assert writer.frames == len(log.records) == 4 * per_thread
     assert set(log.records) == {record}
+
+
+@pytest.mark.parametrize(("medium", "records"), [("serial", SERIAL), ("can", CAN)])
+def test_a_record_that_lost_the_race_to_the_log_never_goes_back_in_time(
+    medium: str, records: list[SerialRecord] | list[CanRecord]
+) -> None:
+    """Two threads stamp their frames, then race to the log: the file's order (what a
+    replay follows) and its time order must agree."""
+    late_first = [records[1], records[0], *records[2:]]
+    data = _write(medium, ".rlog" if medium == "serial" else ".log", late_first)
+    lines = [x for x in data.decode("ascii").splitlines() if x and not x.startswith("#")]
+    in_file_order = [float(x.split()[0].strip("()")) for x in lines]  # as canplayer reads
+    assert in_file_order == sorted(in_file_order)
+    assert in_file_order[:2] == pytest.approx([records[1].time_s] * 2, abs=1e-6)
