@@ -130,6 +130,9 @@ def register(subparsers: Any) -> None:
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The command line's parameters: ``--param`` values, then the named options."""
+    from firmware_proto.linkio.errors import LinkUrlError
+    from firmware_proto.linkio.urls import parse_can_spec
+
     values: dict[str, Any] = dict(getattr(args, "param", None) or [])
     for _, name, _, _ in _OPTIONS:
         if getattr(args, name) is not None:
@@ -139,11 +142,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     if args.ros_backend is not None:
         values["ros_backend"] = args.ros_backend
     if args.can:
-        interface, sep, channel = args.can.partition(":")
-        if not sep or not interface or not channel:
-            raise ValueError(
-                f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
-            )
+        try:
+            interface, channel = parse_can_spec(args.can)
+        except LinkUrlError as exc:
+            raise ValueError(f"--can: {exc}") from None
         values["can_interface"], values["can_channel"] = interface, channel
     return values
 

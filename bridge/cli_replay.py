@@ -14,7 +14,7 @@ def run(args: argparse.Namespace) -> int:
     """Replay ``args.log``'s controller side into a fresh bridge link; print the report;
     0 if the bridge sent the recorded requests, 1 if not."""
     from bridge.replay import BridgeReplayOptions, replay_into_bridge
-    from bridge.trafficfile import read_log
+    from firmware_proto.linkio.trafficio import read_log
 
     log = read_log(args.log)
     interface, channel = "virtual", f"rover-bridge-replay-{os.getpid()}"

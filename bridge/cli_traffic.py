@@ -53,7 +53,7 @@ def register_decode(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from bridge.trafficfile import read_log
+    from firmware_proto.linkio.trafficio import read_log
     from firmware_proto.messages import BY_NAME
     from firmware_proto.trafficlog import decode_records
 

@@ -1,11 +1,11 @@
 """Traffic logs of the controller link: records, the serial frame-log format, decoding,
 and the comparison of a replayed session with a recorded one (docs/traffic-logs.md).
 
-Everything here is pure: no files, no clocks, no buses. The bridge and the emulator
-record at their edges through the :class:`TrafficRecorder` interface; the log writers
-and the reader of :mod:`firmware_proto.trafficio` turn the records defined here into
-streams and back, and each of those packages opens the files (``bridge.trafficfile``,
-``emulator.trafficfile``).
+Everything here is pure: no files, no clocks, no buses. The endpoints of the link-I/O
+layer (:mod:`firmware_proto.linkio`) hand every frame to their listeners through the
+:class:`TrafficRecorder` interface; its log writers and reader
+(:mod:`firmware_proto.linkio.trafficio`) turn the records defined here into files and
+back.
 
 **Serial frame log** (text, ASCII), one frame per line::
 

@@ -10,7 +10,7 @@ import threading
 import can
 import pytest
 
-from firmware_proto.trafficio import (
+from firmware_proto.linkio.trafficio import (
     CAN_LOG_FORMATS,
     CanLogWriter,
     LogWriter,
