@@ -10,7 +10,7 @@ file only adds the ROS 2 data files (docs/ros2.md):
   parameter files (``bridge/ros/config/*.yaml``) under ``share/rover_hil``;
 - the ``udev/`` files (rules, networkd file, bring-up scripts, README) under
   ``share/rover_hil/udev``, where ``rover udev install`` and ``rover devices`` find them
-  in an install (bridge/udev_install.py).
+  in an install (udev/install.py).
 
 Under ``colcon build --symlink-install`` colcon runs this file from the build directory,
 next to symlinks of setup.py, setup.cfg, the packages and the data files but without
@@ -37,11 +37,12 @@ ROS_DIR = Path("bridge") / "ros"
 
 
 def _files(folder: Path, pattern: str) -> list[str]:
-    """Data files in a folder of the source tree, relative to it, sorted."""
+    """Data files in a folder of the source tree, relative to it, sorted (Python modules
+    are not data: udev/ holds its tooling's code beside the rules)."""
     return sorted(
         str(path.relative_to(SOURCE))
         for path in (SOURCE / folder).glob(pattern)
-        if path.is_file() and not path.name.startswith(".")
+        if path.is_file() and not path.name.startswith(".") and path.suffix != ".py"
     )
 
 

@@ -36,7 +36,7 @@ from typing import Any
 from bridge.transport import Transport, url_errors
 from firmware_proto.linkio.can_endpoint import CanEndpoint
 from firmware_proto.linkio.endpoint import HOST
-from firmware_proto.trafficlog import TrafficRecorder
+from firmware_proto.linkio.trafficlog import TrafficRecorder
 
 __all__ = ["CanTransport"]
 

@@ -1,5 +1,5 @@
 """``rover replay --bridge``: the bridge's replay target (see
-:mod:`firmware_proto.cli_replay` for the options and :mod:`bridge.replay` for what it
+:mod:`firmware_proto.cli.replay` for the options and :mod:`bridge.replay` for what it
 does)."""
 
 from __future__ import annotations

@@ -37,9 +37,7 @@ from firmware_proto.linkio.endpoint import CONTROLLER, Endpoint
 from firmware_proto.linkio.replay_peer import ReplayPeer
 from firmware_proto.linkio.serial_endpoint import PtyPort, SerialEndpoint
 from firmware_proto.linkio.trafficio import LogFile
-from firmware_proto.message import Message
-from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE, ClearStop, Motion, Stop
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     Difference,
@@ -48,6 +46,8 @@ from firmware_proto.trafficlog import (
     diff_texts,
     log_node,
 )
+from firmware_proto.message import Message
+from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE, ClearStop, Motion, Stop
 
 __all__ = ["BridgeReplayOptions", "BridgeReplayResult", "replay_into_bridge"]
 

@@ -30,9 +30,9 @@ from bridge.transport import Transport, url_errors
 from firmware_proto.linkio.endpoint import HOST
 from firmware_proto.linkio.errors import LinkBusyError
 from firmware_proto.linkio.serial_endpoint import SerialEndpoint
+from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.linkio.urls import DEFAULT_BAUD
 from firmware_proto.linkio.urls import refuse_if_in_use as _refuse_if_in_use
-from firmware_proto.trafficlog import TrafficRecorder
 
 __all__ = ["DEFAULT_BAUD", "SerialTransport", "refuse_if_in_use"]
 

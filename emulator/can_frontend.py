@@ -20,8 +20,8 @@ from emulator.frontend import FrontEnd
 from firmware_proto.canmap import CanDecoder
 from firmware_proto.linkio.can_endpoint import CanEndpoint
 from firmware_proto.linkio.endpoint import CONTROLLER
+from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.messages import DEFAULT_NODE
-from firmware_proto.trafficlog import TrafficRecorder
 
 __all__ = ["CanFrontEnd"]
 

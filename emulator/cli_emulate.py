@@ -313,7 +313,7 @@ def _serve(
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser(
         prog="rover_emulator",

@@ -5,8 +5,8 @@ Regression testing of the controller behaviour from traffic logs (docs/traffic-l
 python-can bus (CAN logs), re-sends every host-to-controller frame of the log with its
 recorded timing (serial frames byte for byte), collects what the controller answers, and
 compares those answers with the recorded ones through
-:func:`firmware_proto.trafficlog.compare_answers`: type by type, in order, leaving out
-fields that measure continuous time (:data:`~firmware_proto.trafficlog.VOLATILE_FIELDS`)
+:func:`firmware_proto.linkio.trafficlog.compare_answers`: type by type, in order, leaving out
+fields that measure continuous time (:data:`~firmware_proto.linkio.trafficlog.VOLATILE_FIELDS`)
 unless strict. Periodic telemetry is counted, not compared.
 
 The recorded host reacted to the controller: it sent a step after an ACK, a STOP after a
@@ -52,9 +52,7 @@ from firmware_proto.linkio.endpoint import HOST
 from firmware_proto.linkio.replay_peer import ReplayPeer
 from firmware_proto.linkio.serial_endpoint import SerialEndpoint
 from firmware_proto.linkio.trafficio import LogFile
-from firmware_proto.message import Message
-from firmware_proto.rover import load_rover
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     Difference,
@@ -67,6 +65,8 @@ from firmware_proto.trafficlog import (
     is_answer,
     log_node,
 )
+from firmware_proto.message import Message
+from firmware_proto.rover import load_rover
 
 __all__ = ["MAX_SETTLE_S", "ReplayOptions", "ReplayResult", "replay_into_emulator"]
 

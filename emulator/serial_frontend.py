@@ -30,8 +30,8 @@ from emulator.frontend import FrontEnd
 from firmware_proto.framing import FrameDecoder
 from firmware_proto.linkio.endpoint import CONTROLLER
 from firmware_proto.linkio.serial_endpoint import PtyPort, SerialEndpoint
+from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.message import Message
-from firmware_proto.trafficlog import TrafficRecorder
 
 __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
 

@@ -38,10 +38,10 @@ from firmware_proto.canmap import CanDecoder, can_id, encode_can
 from firmware_proto.linkio.endpoint import HOST, Endpoint, Side
 from firmware_proto.linkio.errors import LinkUrlError
 from firmware_proto.linkio.trafficio import can_record
+from firmware_proto.linkio.trafficlog import CanRecord, TrafficRecord, TrafficRecorder
 from firmware_proto.linkio.urls import parse_can_url
 from firmware_proto.message import Message
 from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
-from firmware_proto.trafficlog import CanRecord, TrafficRecord, TrafficRecorder
 
 __all__ = [
     "BUS_OFF",

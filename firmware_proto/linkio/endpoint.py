@@ -33,13 +33,13 @@ from types import TracebackType
 from typing import Final, Literal
 
 from firmware_proto.counters import RxCounters
-from firmware_proto.message import Message
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     TrafficRecord,
     TrafficRecorder,
 )
+from firmware_proto.message import Message
 
 __all__ = ["CONTROLLER", "HOST", "SIDES", "Endpoint", "Side"]
 

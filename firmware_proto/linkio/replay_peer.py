@@ -19,8 +19,8 @@ from collections.abc import Callable
 from types import TracebackType
 
 from firmware_proto.linkio.endpoint import Endpoint
+from firmware_proto.linkio.trafficlog import TrafficRecord
 from firmware_proto.message import Message
-from firmware_proto.trafficlog import TrafficRecord
 
 __all__ = ["ReplayPeer"]
 

@@ -38,14 +38,14 @@ import serial
 from firmware_proto.framing import FrameDecoder, FrameEncoder
 from firmware_proto.linkio.endpoint import Endpoint, Side
 from firmware_proto.linkio.ptypair import PtyPair
-from firmware_proto.linkio.urls import split_serial_url
-from firmware_proto.message import Message
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     SerialRecord,
     TrafficRecord,
     TrafficRecorder,
     received_serial_records,
 )
+from firmware_proto.linkio.urls import split_serial_url
+from firmware_proto.message import Message
 
 __all__ = ["BytePort", "PtyPort", "PyserialPort", "SerialEndpoint"]
 

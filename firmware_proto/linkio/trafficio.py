@@ -1,7 +1,7 @@
 """Traffic log writers and reader, on streams or by path (docs/traffic-logs.md).
 
 The record types, the serial frame-log format and the decoding are pure and live in
-:mod:`firmware_proto.trafficlog`; this module of the link-I/O layer turns records into
+:mod:`firmware_proto.linkio.trafficlog`; this module of the link-I/O layer turns records into
 log files and back, for both ends of the link (the bridge's transports, the emulator's
 front ends, their replays, ``rover decode``).
 
@@ -45,7 +45,7 @@ from typing import IO, Any, BinaryIO, TextIO
 import can
 from can.io.blf import BLFParseError
 
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     SERIAL_LOG_MAGIC,
     CanRecord,
     SerialRecord,
@@ -75,7 +75,7 @@ MEDIA = ("serial", "can")
 
 
 class LogWriter(ABC):
-    """A recorder writing one log (a :class:`~firmware_proto.trafficlog.TrafficRecorder`).
+    """A recorder writing one log (a :class:`~firmware_proto.linkio.trafficlog.TrafficRecorder`).
 
     :meth:`record` is thread-safe (transports record from their reader threads and their
     callers' threads) and checks the record type. Times never go back in a log: a record

@@ -21,8 +21,8 @@ from emulator.engine import Emulator
 from emulator.replay import ReplayOptions, replay_into_emulator
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.trafficio import read_log
+from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.messages import SCHEMA_HASH, Param
-from firmware_proto.trafficlog import decode_records
 
 from .conftest import IN_VCAN_VM, SPEED
 

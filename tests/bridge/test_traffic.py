@@ -28,10 +28,7 @@ from firmware_proto.canmap import encode_can
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.framing import encode_frame
 from firmware_proto.linkio.trafficio import open_recorder, read_log
-from firmware_proto.message import Message
-from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
-from firmware_proto.rover import RoverDescription
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     CanRecord,
     SerialRecord,
     TrafficRecord,
@@ -39,6 +36,9 @@ from firmware_proto.trafficlog import (
     format_serial_record,
     serial_log_header,
 )
+from firmware_proto.message import Message
+from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
+from firmware_proto.rover import RoverDescription
 
 from .conftest import SPEED, Recorder
 

@@ -18,7 +18,7 @@ from firmware_proto.linkio.trafficio import (
     parse_log,
     writer_for,
 )
-from firmware_proto.trafficlog import CanRecord, SerialRecord
+from firmware_proto.linkio.trafficlog import CanRecord, SerialRecord
 
 T0 = 1795246430.225437
 
