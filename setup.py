@@ -37,12 +37,11 @@ ROS_DIR = Path("bridge") / "ros"
 
 
 def _files(folder: Path, pattern: str) -> list[str]:
-    """Data files in a folder of the source tree, relative to it, sorted (Python modules
-    are not data: udev/ holds its tooling's code beside the rules)."""
+    """Data files in a folder of the source tree, relative to it, sorted."""
     return sorted(
         str(path.relative_to(SOURCE))
         for path in (SOURCE / folder).glob(pattern)
-        if path.is_file() and not path.name.startswith(".") and path.suffix != ".py"
+        if path.is_file() and not path.name.startswith(".")
     )
 
 
@@ -51,7 +50,8 @@ DATA_FILES = [
     (f"share/{PACKAGE}", ["package.xml"]),
     (f"share/{PACKAGE}/launch", _files(ROS_DIR / "launch", "*_launch.py")),
     (f"share/{PACKAGE}/config", _files(ROS_DIR / "config", "*.yaml")),
-    (f"share/{PACKAGE}/udev", _files(Path("udev"), "*")),
+    # udev/ holds its tooling's code (the udev package) beside the rules: code is no data.
+    (f"share/{PACKAGE}/udev", [f for f in _files(Path("udev"), "*") if not f.endswith(".py")]),
 ]
 
 
