@@ -31,7 +31,10 @@ def _odom(x: float, y: float, yaw_deg: float) -> Odometry:
 def test_msgdef_lists_dependencies_as_ros2_does() -> None:
     text = msgdef(Odometry)
     assert text.startswith("std_msgs/Header header\nstring child_frame_id\n")
-    assert "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance" in text
+    assert (
+        "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance"
+        in text
+    )
     assert "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec" in text
     assert msgdef(Int16MultiArray).startswith("std_msgs/MultiArrayLayout layout\nint16[] data\n")
     assert msgdef(Empty) == "uint8 structure_needs_at_least_one_member\n"

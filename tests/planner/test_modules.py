@@ -22,6 +22,7 @@ MODULES = [
     "planner.geometry",
     "planner.interrupt",
     "planner.mapinfo",
+    "planner.mcaprec",
     "planner.mission",
     "planner.orchestrator",
     "planner.picture",
@@ -29,6 +30,10 @@ MODULES = [
     "planner.relay",
     "planner.repairs",
     "planner.verdict",
+    "planner.view",
+    "planner.view.hub",
+    "planner.view.live",
+    "planner.view.server",
 ]
 
 
