@@ -65,6 +65,7 @@ def _run(args: argparse.Namespace) -> int:
         picture=args.picture,
         record=None if args.no_record else Path(args.record),
         view=view_config(args),
+        foxglove_port=args.foxglove,
     )
     with Demo(config, say=functools.partial(print, flush=True)) as demo:
 

@@ -6,6 +6,7 @@ Also the ``rover_executor`` console script for ``ros2 run`` (:func:`main`).
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import signal
 import sys
@@ -293,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
     from planner.cli_view import view_config
     from planner.errors import GateUnavailableError
     from planner.executor import ExecutorConfig, PlanExecutor, Progress
+    from planner.foxlive import FoxgloveLive
     from planner.gate_client import GateClient
     from planner.interrupt import CancelOnSignal
     from planner.mcaprec import McapRecorder
@@ -322,6 +324,7 @@ def run(args: argparse.Namespace) -> int:
 
     view: LiveView | None = None
     recorder: McapRecorder | None = None
+    foxglove: FoxgloveLive | None = None
     running = threading.Event()
     hold_end = threading.Event()
 
@@ -343,9 +346,17 @@ def run(args: argparse.Namespace) -> int:
         say("STOP from the view: the mission is cancelled")
         return "the mission is cancelled; nothing more is sent"
 
+    def view_clear(executor: Any) -> bool:
+        if not running.is_set():
+            raise RuntimeError("the mission has ended")
+        say("clear-STOP from the view: releasing the latch")
+        return bool(executor.clear_stop())
+
     def planned(mission: Any) -> None:
         if recorder is not None:
             recorder.planned(mission)
+        if foxglove is not None:
+            foxglove.planned(mission)
         if view is not None:
             view.hub.planned(mission)
 
@@ -379,6 +390,10 @@ def run(args: argparse.Namespace) -> int:
             if args.record:
                 recorder = McapRecorder(args.record)
                 port.add_tap(recorder.tap)
+            if args.foxglove is not None:
+                foxglove = FoxgloveLive(port=args.foxglove)
+                port.add_tap(foxglove.tap)
+                print(f"FOXGLOVE {foxglove.url}", flush=True)
             if view_cfg is not None:
                 view = LiveView(
                     world,
@@ -386,11 +401,15 @@ def run(args: argparse.Namespace) -> int:
                     rtt_s=args.rtt,
                     time_scale=args.time_scale,
                     on_stop=view_stop,
-                    on_clear=executor.clear_stop,
+                    on_clear=functools.partial(view_clear, executor),
                     drift_source=lambda: executor.latest_drift,
                 )
                 port.add_tap(view.hub.tap)
                 print(f"VIEW {view.url}", flush=True)
+                if view_cfg.wait_s > 0:
+                    say(f"waiting up to {view_cfg.wait_s:g} s for a browser to open the view")
+                    if view.hub.wait_for_client(view_cfg.wait_s):
+                        say("view: a browser is watching")
             try:
                 if start is None:
                     start = _rover_pose(executor, args, cancel)
@@ -432,6 +451,8 @@ def run(args: argparse.Namespace) -> int:
                         running.clear()
             finally:
                 executor.close()
+                if foxglove is not None:
+                    foxglove.close()
                 if recorder is not None:
                     recorder.close()
                     print(f"recording: {recorder.path} (rover decode {recorder.path})")

@@ -39,6 +39,24 @@ def add_view_arguments(p: argparse.ArgumentParser, *, record_default: str | None
         help="keep the view (and the demo's processes) up this long after the mission "
         "(Ctrl-C ends it early; default 0)",
     )
+    p.add_argument(
+        "--view-wait",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="before the mission starts, wait up to this long for a browser to open the "
+        "view (default 0: do not wait)",
+    )
+    p.add_argument(
+        "--foxglove",
+        type=int,
+        nargs="?",
+        const=8765,
+        default=None,
+        metavar="PORT",
+        help="also serve the mission live to Foxglove (foxglove-sdk WebSocket server on "
+        "127.0.0.1, PORT default 8765, 0 a free one)",
+    )
     if record_default is None:
         p.add_argument(
             "--record",
@@ -70,5 +88,9 @@ def view_config(args: argparse.Namespace) -> ViewConfig | None:
     from planner.view.server import ViewConfig
 
     return ViewConfig(
-        host=args.view_host, port=args.view_port, token=token or None, hold_s=args.view_hold
+        host=args.view_host,
+        port=args.view_port,
+        token=token or None,
+        hold_s=args.view_hold,
+        wait_s=args.view_wait,
     )

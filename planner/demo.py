@@ -39,11 +39,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
-from bridge.rosport import DEFAULT_BACKEND, open_port
+from bridge.rosport import DEFAULT_BACKEND, RosPort, open_port
 from bridge.rosport.contract import COMPLETED
 from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.rover import RoverDescription, load_rover
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient
 from planner.geometry import Pose
 from planner.mapinfo import MapInfo
@@ -82,6 +83,8 @@ class DemoConfig:
         record: the ROS 2 MCAP file to record the mission in (``None``: no recording).
         view: serve the live view so (``None``: no view); its URL is printed as
             ``VIEW <url>``.
+        foxglove_port: serve the mission live to Foxglove on this port of 127.0.0.1
+            (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
     """
 
     rtt_s: float = 3.0
@@ -96,6 +99,7 @@ class DemoConfig:
     progress_every_s: float = 4.0
     record: Path | None = Path("demo.mcap")
     view: ViewConfig | None = None
+    foxglove_port: int | None = None
 
 
 @dataclass(frozen=True)
@@ -242,6 +246,13 @@ class Demo:
         if self._view is not None:
             self._view.hub.event(line)
 
+    def _view_clear(self, executor: PlanExecutor) -> bool:
+        """The view's clear-STOP (the hub allowed it): only while the mission runs."""
+        if not self._mission_running:
+            raise RuntimeError("the mission has ended")
+        self.say("clear-STOP from the view: releasing the latch")
+        return executor.clear_stop()
+
     def _view_stop(self) -> str:
         """The view's STOP button: what Ctrl-C does."""
         if self._mission_running:
@@ -249,7 +260,7 @@ class Demo:
             self.say("STOP from the view: cancelling the mission; sending STOP")
             return "sent: the running step ends with STOP, the mission is cancelled"
         if self._holding:
-            return "the mission has ended: the rover was left stopped"
+            return "the mission has ended: no plan is running, nothing was sent"
         self.cancel()
         self.say("STOP from the view before the mission: nothing will be sent to the rover")
         return "the mission is cancelled before it starts: nothing will be sent"
@@ -315,84 +326,112 @@ class Demo:
         ):
             if recorder is not None:
                 port.add_tap(recorder.tap)
-            world = client.get_map(cfg.map_name)
-            goal = _goal(world, cfg.goal_name)
-            start = world.start
-            orchestrator = PlannerOrchestrator(
-                HeuristicLowLevelPlanner(rover, world=world),
-                client,
-                map_name=cfg.map_name,
-                world=world,
+            foxglove = (
+                FoxgloveLive(port=cfg.foxglove_port) if cfg.foxglove_port is not None else None
             )
-            executor = PlanExecutor(
-                port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
-            )
-            if cfg.view is not None:
-                self._view = LiveView(
-                    world,
-                    cfg.view,
-                    rtt_s=cfg.rtt_s / cfg.speed,
-                    time_scale=cfg.speed,
-                    on_stop=self._view_stop,
-                    on_clear=executor.clear_stop,
-                    drift_source=lambda: executor.latest_drift,
-                )
-                port.add_tap(self._view.hub.tap)
-                self._say(f"VIEW {self._view.url}")
-            view = self._view
-
-            def planned(mission: MissionResult) -> None:
-                if recorder is not None:
-                    recorder.planned(mission)
-                if view is not None:
-                    view.hub.planned(mission)
-
             try:
-                self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
-                if executor.settled_pose(cfg.startup_timeout_s) is None:
-                    raise RuntimeError("the rover never reported its pose through the link")
-                self.say(
-                    f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
-                    f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
-                )
-                slipped = threading.Event()
-                last_line = [-math.inf]
-
-                def progress(p: Progress) -> None:
-                    if view is not None:
-                        view.hub.progress(p)
-                    now = time.monotonic() * cfg.speed
-                    if p.final or now - last_line[0] >= cfg.progress_every_s:
-                        last_line[0] = now
-                        self.say(p.line(cfg.speed))
-                    done = p.status == COMPLETED and p.step == cfg.slip_after_step
-                    if cfg.slip and done and not slipped.is_set():
-                        slipped.set()
-                        answer = _control(control_port, f"inject {cfg.slip}")
-                        self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
-
-                def out_of_the_sand(result: ExecutionResult) -> None:
-                    if cfg.slip:
-                        answer = _control(control_port, "inject clear:slip")
-                        self.say(f"operator: traction back ({answer}); re-planning (still latched)")
-
-                runner = MissionRunner(
-                    orchestrator,
-                    executor,
-                    replans=1,
-                    on_progress=progress,
-                    on_drift=out_of_the_sand,
-                    on_event=self.say,
-                    cancel=self._cancel,
-                    on_planned=planned,
-                )
-                self._mission_running = True
-                try:
-                    report = runner.run(goal, start=start)
-                finally:
-                    self._mission_running = False
+                return self._mission(client, port, rover, control_port, recorder, foxglove)
             finally:
-                executor.close()
+                if foxglove is not None:
+                    foxglove.close()
+
+    def _mission(
+        self,
+        client: GateClient,
+        port: RosPort,
+        rover: RoverDescription,
+        control_port: int,
+        recorder: McapRecorder | None,
+        foxglove: FoxgloveLive | None,
+    ) -> DemoResult:
+        cfg = self.config
+        if foxglove is not None:
+            port.add_tap(foxglove.tap)
+            self._say(f"FOXGLOVE {foxglove.url}")
+        world = client.get_map(cfg.map_name)
+        goal = _goal(world, cfg.goal_name)
+        start = world.start
+        orchestrator = PlannerOrchestrator(
+            HeuristicLowLevelPlanner(rover, world=world),
+            client,
+            map_name=cfg.map_name,
+            world=world,
+        )
+        executor = PlanExecutor(
+            port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+        )
+        if cfg.view is not None:
+            self._view = LiveView(
+                world,
+                cfg.view,
+                rtt_s=cfg.rtt_s / cfg.speed,
+                time_scale=cfg.speed,
+                on_stop=self._view_stop,
+                on_clear=lambda: self._view_clear(executor),
+                drift_source=lambda: executor.latest_drift,
+            )
+            port.add_tap(self._view.hub.tap)
+            self._say(f"VIEW {self._view.url}")
+            if cfg.view.wait_s > 0:
+                self.say(f"waiting up to {cfg.view.wait_s:g} s for a browser to open the view")
+                if self._view.hub.wait_for_client(cfg.view.wait_s):
+                    self.say("view: a browser is watching")
+        view = self._view
+
+        def planned(mission: MissionResult) -> None:
+            if recorder is not None:
+                recorder.planned(mission)
+            if foxglove is not None:
+                foxglove.planned(mission)
+            if view is not None:
+                view.hub.planned(mission)
+
+        try:
+            self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
+            if executor.settled_pose(cfg.startup_timeout_s) is None:
+                raise RuntimeError("the rover never reported its pose through the link")
+            self.say(
+                f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
+                f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
+            )
+            slipped = threading.Event()
+            last_line = [-math.inf]
+
+            def progress(p: Progress) -> None:
+                if view is not None:
+                    view.hub.progress(p)
+                now = time.monotonic() * cfg.speed
+                if p.final or now - last_line[0] >= cfg.progress_every_s:
+                    last_line[0] = now
+                    self.say(p.line(cfg.speed))
+                done = p.status == COMPLETED and p.step == cfg.slip_after_step
+                if cfg.slip and done and not slipped.is_set():
+                    slipped.set()
+                    answer = _control(control_port, f"inject {cfg.slip}")
+                    self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
+
+            def out_of_the_sand(result: ExecutionResult) -> None:
+                if cfg.slip:
+                    answer = _control(control_port, "inject clear:slip")
+                    self.say(f"operator: traction back ({answer}); re-planning (still latched)")
+
+            runner = MissionRunner(
+                orchestrator,
+                executor,
+                replans=1,
+                on_progress=progress,
+                on_drift=out_of_the_sand,
+                on_event=self.say,
+                cancel=self._cancel,
+                on_planned=planned,
+            )
+            self._mission_running = True
+            try:
+                report = runner.run(goal, start=start)
+            finally:
+                self._mission_running = False
+        finally:
+            executor.close()
         outcome = (
             "goal reached"
             if report.reached

@@ -171,6 +171,7 @@ class ViewHub:
         self._queue_len = queue_len
         self._inbox: queue.SimpleQueue[tuple[str, float, Any] | None] = queue.SimpleQueue()
         self._lock = threading.Lock()  # clients and the snapshot
+        self._joined = threading.Condition(self._lock)
         self._clients: set[ClientQueue] = set()
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -227,7 +228,13 @@ class ViewHub:
         with self._lock:
             client.put(_record("hello", self._snapshot()))
             self._clients.add(client)
+            self._joined.notify_all()
         return client
+
+    def wait_for_client(self, timeout_s: float) -> bool:
+        """Wait until a client is connected; False when ``timeout_s`` passed first."""
+        with self._joined:
+            return self._joined.wait_for(lambda: bool(self._clients), timeout_s)
 
     def unsubscribe(self, client: ClientQueue) -> None:
         """Forget a client (its connection ended)."""
@@ -243,7 +250,8 @@ class ViewHub:
 
     def clear_allowed(self) -> tuple[bool, str]:
         """Whether releasing the STOP latch is allowed now, and why not: only while
-        latched and after a re-plan was approved since the STOP."""
+        latched and after a re-plan was approved since the last STOP (sent by the
+        ground station, or asked for on the page)."""
         with self._lock:
             if not self._latched:
                 return False, "the rover is not latched"
@@ -396,6 +404,7 @@ class ViewHub:
     def _on_stop(self, rx: float, source: str) -> None:
         with self._lock:
             self._stop_source = source
+            self._replan_approved = False  # an approval before this STOP no longer counts
         self._broadcast("stop", {"latched": self._latched, "source": source, "tap_s": rx})
 
     def _on_planned(self, rx: float, mission: MissionResult) -> None:

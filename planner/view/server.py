@@ -78,6 +78,8 @@ class ViewConfig:
         client_timeout_s: a write to a browser that takes longer drops that browser.
         max_clients: connections to the push channel at once (503 beyond).
         hold_s: how long ``rover demo``/``rover go`` keep the view up after the mission.
+        wait_s: how long they wait for a browser to connect before the mission starts
+            (0: they do not wait).
 
     Raises:
         ValueError: a bad port, token or timeout; a non-loopback host without a token.
@@ -89,6 +91,7 @@ class ViewConfig:
     client_timeout_s: float = 5.0
     max_clients: int = 16
     hold_s: float = 0.0
+    wait_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -100,8 +103,15 @@ class ViewConfig:
                 f"refusing to serve the view on {self.host!r} without a token: give "
                 "--view-token (or ROVER_VIEW_TOKEN), or bind a loopback address"
             )
-        if not (self.client_timeout_s > 0 and self.max_clients >= 1 and self.hold_s >= 0):
-            raise ValueError("client_timeout_s must be > 0, max_clients >= 1, hold_s >= 0")
+        if not (
+            self.client_timeout_s > 0
+            and self.max_clients >= 1
+            and self.hold_s >= 0
+            and self.wait_s >= 0
+        ):
+            raise ValueError(
+                "client_timeout_s must be > 0, max_clients >= 1, hold_s and wait_s >= 0"
+            )
 
 
 def _page() -> bytes:
@@ -241,7 +251,13 @@ class _Handler(BaseHTTPRequestHandler):
             return
         view = self.server.view
         if path == "/stop":
-            self._json(202, {"stop": view.stop()})
+            try:
+                done = view.stop()
+            except Exception as exc:
+                logger.exception("view: STOP failed")
+                self._error(500, f"STOP failed on the ground station: {exc}; use Ctrl-C")
+                return
+            self._json(202, {"stop": done})
         elif path == "/clear_stop":
             if self.headers.get(CLEAR_HEADER) != "1":
                 self._error(403, f"clear-STOP needs the header {CLEAR_HEADER}: 1")
@@ -250,7 +266,13 @@ class _Handler(BaseHTTPRequestHandler):
             if not allowed:
                 self._error(409, f"STOP stays latched: {why}")
                 return
-            if view.clear():
+            try:
+                cleared = view.clear()
+            except Exception as exc:  # the mission has ended: its ROS port is closed
+                logger.warning("view: clear-STOP failed: %s", exc)
+                self._error(503, f"the ground station cannot release the latch now: {exc}")
+                return
+            if cleared:
                 self._json(200, {"cleared": True})
             else:
                 self._error(504, "the rover did not confirm CLEAR_STOP")

@@ -18,6 +18,7 @@ MODULES = [
     "planner.errors",
     "planner.executor",
     "planner.experiment",
+    "planner.foxlive",
     "planner.gate_client",
     "planner.geometry",
     "planner.interrupt",

@@ -43,6 +43,9 @@ def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
     try:
         page.wait_for_function(expression, timeout=timeout_s * 1000)
     except PageTimeout:
+        ended = [x for x in demo.lines if "fault:watchdog" in x or "link_lost" in x]
+        if ended:
+            raise _KnownDefectError(ended[0]) from None
         seen = page.evaluate(
             "JSON.stringify({counts: roverView.counts, ghost: roverView.ghost,"
             " poses: roverView.poses, status: roverView.status, progress: roverView.progress,"
@@ -54,7 +57,24 @@ def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
         ) from None
 
 
+class _KnownDefectError(Exception):
+    """The mission ended by itself before STOP was clicked, on the link defect the README
+    documents (the bridge frozen inside an rclpy publish: fault:watchdog or link_lost)."""
+
+
 def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
+    for attempt in (1, 2):
+        try:
+            _stop_from_the_page(tmp_path / f"try{attempt}")
+            return
+        except _KnownDefectError as exc:
+            if attempt == 2:
+                raise AssertionError(f"twice the known link defect: {exc}") from None
+            print(f"retrying once: {exc}")
+
+
+def _stop_from_the_page(tmp_path: Path) -> None:
+    tmp_path.mkdir()
     recording = tmp_path / "demo.mcap"
     demo = Child(
         [
@@ -65,6 +85,10 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
             "--view",
             "--view-hold",
             "120",
+            "--view-wait",
+            "120",
+            "--foxglove",
+            "0",
             "--record",
             str(recording),
             "--picture",
@@ -75,6 +99,7 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
     try:
         control = int(demo.wait_for("emulator control port: ", 90).rsplit(":", 1)[1])
         url = demo.wait_for("VIEW http://127.0.0.1:", 60).split()[1]
+        assert demo.wait_for("FOXGLOVE ws://127.0.0.1:", 5)
         with chromium() as browser:
             page = browser.new_page(viewport={"width": 1200, "height": 700})
             page.goto(url)
@@ -87,24 +112,26 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
                 60,
             )
             first_ghost = page.evaluate("window.roverView.ghost")
-            # The rover: its reported pose has left the start.
+            # The ghost moves along the prediction and the rover moves (it turns first):
+            # STOP goes during the first step.
             _wait(
                 page,
                 demo,
-                "(() => { const p = window.roverView.poses.reported;"
-                f" return p && Math.hypot(p.x - {START[0]}, p.y - {START[1]}) > 0.3; }})()",
-                60,
+                f"(g => {{ const h = window.roverView.ghost; return h && (h[0] !== g[0]"
+                f" || h[1] !== g[1] || h[2] !== g[2]); }})({json.dumps(first_ghost)})",
+                30,
             )
             _wait(
                 page,
                 demo,
-                f"(g => {{ const h = window.roverView.ghost;"
-                f" return h && (h[0] !== g[0] || h[1] !== g[1]); }})({json.dumps(first_ghost)})",
-                30,
+                "(() => { const p = window.roverView.poses.reported; return p &&"
+                f" (Math.hypot(p.x - {START[0]}, p.y - {START[1]}) > 0.05"
+                " || Math.abs(p.yaw) > 3); })()",
+                60,
             )
             assert page.evaluate("window.roverView.plans.some(p => !p.approved && p.collision)")
             assert page.evaluate("window.roverView.connected") is True
-            assert page.evaluate("window.roverView.counts.tick") > 10
+            _wait(page, demo, "window.roverView.counts.tick > 10", 10)  # ticks keep coming
             assert page.evaluate("window.roverView.poses.odom") is not None
             shot = tmp_path / "view.png"
             page.screenshot(path=str(shot))
@@ -114,7 +141,13 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
                 assert len(im.convert("RGB").getcolors(1 << 20) or []) > 50
 
             page.click("#stop")
-            demo.wait_for("STOP from the view: cancelling the mission", 10)
+            try:
+                demo.wait_for("STOP from the view: cancelling the mission", 10)
+            except AssertionError:
+                ended = [x for x in demo.lines if "fault:watchdog" in x or "link_lost" in x]
+                if ended:
+                    raise _KnownDefectError(ended[0]) from None
+                raise
             # /command_status said so (after or before the running step's aborted:stop).
             _wait(page, demo, "window.roverView.statuses.includes('stopped')", 30)
             demo.wait_for("view: still at", 60)  # the mission ended; the parts are still up
@@ -156,5 +189,5 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
     assert "stopped" in summary.statuses and "accepted" in summary.statuses
     x0, y0, _ = summary.first_pose["/ground/odom_ground"]
     assert math.hypot(x0 - START[0], y0 - START[1]) < 0.05
-    x1, y1, _ = summary.last_pose["/ground/odom_ground"]
-    assert math.hypot(x1 - START[0], y1 - START[1]) > 0.3
+    x1, y1, yaw1 = summary.last_pose["/ground/odom_ground"]
+    assert math.hypot(x1 - START[0], y1 - START[1]) > 0.05 or abs(yaw1) > 3
