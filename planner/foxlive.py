@@ -17,17 +17,7 @@ import threading
 import time
 from typing import Any
 
-from planner.mcaprec import (
-    PREDICTED_TOPIC,
-    REJECTED_TOPIC,
-    VERDICT_TOPIC,
-    _class_of,
-    _path_msg,
-    _plain,
-    _verdict_json,
-    msgdef,
-    ros_name,
-)
+from planner.mcaprec import gate_messages, msgdef, plain_message, ros_name
 from planner.orchestrator import MissionResult
 from planner.view.server import is_loopback
 
@@ -93,16 +83,9 @@ class FoxgloveLive:
         """Each attempt's verdict and predicted trajectory (as the recorder writes them)."""
         if self._closed:
             return
-        from bridge.rosport.msgs import String  # noqa: PLC0415
-
-        path_cls = _class_of("nav_msgs/Path")
         now_ns = time.time_ns()
-        for attempt in mission.attempts:
-            verdict = attempt.verdict
-            topic = PREDICTED_TOPIC if verdict.approved else REJECTED_TOPIC
-            text = _verdict_json(verdict, attempt.index, attempt.repair_name)
-            self._queue.put((now_ns, VERDICT_TOPIC, String, {"data": text}))
-            self._queue.put((now_ns, topic, path_cls, _path_msg(verdict, now_ns / 1e9)))
+        for topic, cls, msg in gate_messages(mission, now_ns):
+            self._queue.put((now_ns, topic, cls, msg))
 
     def _channel(self, topic: str, cls: type[Any]) -> tuple[Any, Any]:
         found = self._channels.get(topic)
@@ -128,7 +111,7 @@ class FoxgloveLive:
             t_ns, topic, cls, msg = item
             try:
                 channel, encode = self._channel(topic, cls)
-                channel.log(encode(_plain(msg)), log_time=t_ns)
+                channel.log(encode(plain_message(msg)), log_time=t_ns)
                 self.logged += 1
             except Exception:
                 errors += 1

@@ -41,8 +41,11 @@ __all__ = [
     "VERDICT_TOPIC",
     "McapRecorder",
     "McapSummary",
+    "gate_messages",
     "msgdef",
+    "plain_message",
     "read_summary",
+    "ros_name",
 ]
 
 logger = logging.getLogger(__name__)
@@ -131,16 +134,16 @@ def msgdef(cls: type[Any]) -> str:
     return "\n".join(parts) + "\n"
 
 
-def _plain(value: Any) -> Any:
+def plain_message(value: Any) -> Any:
     """A generated message as dicts and lists (what the CDR encoder reads): numpy and
     ``array.array`` fields become lists."""
     fields = getattr(value, "get_fields_and_field_types", None)
     if fields is not None:
-        return {name: _plain(getattr(value, name)) for name in fields()}
+        return {name: plain_message(getattr(value, name)) for name in fields()}
     if isinstance(value, (str, bytes, int, float, bool, dict)):
         return value
     if hasattr(value, "__iter__"):
-        return [_plain(v) for v in value]
+        return [plain_message(v) for v in value]
     return value
 
 
@@ -189,6 +192,24 @@ def _verdict_json(verdict: Verdict, attempt: int, repair: str) -> str:
     )
 
 
+def gate_messages(mission: MissionResult, t_ns: int) -> list[tuple[str, type[Any], Any]]:
+    """The gate's judgement of a planning as ROS messages ``(topic, class, message as
+    dicts)``: for each attempt its verdict (JSON on :data:`VERDICT_TOPIC`) and its
+    predicted trajectory (``nav_msgs/msg/Path`` on :data:`PREDICTED_TOPIC` when approved,
+    else :data:`REJECTED_TOPIC`), stamped from ``t_ns``."""
+    from bridge.rosport.msgs import String  # noqa: PLC0415  (ROS 2 messages: when used)
+
+    path_cls = _class_of("nav_msgs/Path")
+    out: list[tuple[str, type[Any], Any]] = []
+    for attempt in mission.attempts:
+        verdict = attempt.verdict
+        topic = PREDICTED_TOPIC if verdict.approved else REJECTED_TOPIC
+        text = _verdict_json(verdict, attempt.index, attempt.repair_name)
+        out.append((VERDICT_TOPIC, String, {"data": text}))
+        out.append((topic, path_cls, _path_msg(verdict, t_ns / 1e9)))
+    return out
+
+
 class McapRecorder:
     """Writes a ROS 2 MCAP file of what the ground station's port sees (see the module
     docstring). A context manager; :meth:`close` is idempotent.
@@ -232,16 +253,9 @@ class McapRecorder:
         :data:`PREDICTED_TOPIC` (approved) or :data:`REJECTED_TOPIC`."""
         if self._closed:
             return
-        from bridge.rosport.msgs import String  # noqa: PLC0415
-
-        path_cls = _class_of("nav_msgs/Path")
         now_ns = time.time_ns()
-        for attempt in mission.attempts:
-            verdict = attempt.verdict
-            topic = PREDICTED_TOPIC if verdict.approved else REJECTED_TOPIC
-            text = _verdict_json(verdict, attempt.index, attempt.repair_name)
-            self._queue.put((now_ns, VERDICT_TOPIC, String, {"data": text}))
-            self._queue.put((now_ns, topic, path_cls, _path_msg(verdict, now_ns / 1e9)))
+        for topic, cls, msg in gate_messages(mission, now_ns):
+            self._queue.put((now_ns, topic, cls, msg))
 
     def _schema(self, cls: type[Any]) -> Any:
         name = ros_name(cls)
@@ -258,7 +272,9 @@ class McapRecorder:
                 return
             t_ns, topic, cls, msg = item
             try:
-                self._writer.write_message(topic, self._schema(cls), _plain(msg), log_time=t_ns)
+                self._writer.write_message(
+                    topic, self._schema(cls), plain_message(msg), log_time=t_ns
+                )
             except Exception:
                 self._errors += 1
                 if self._errors & (self._errors - 1) == 0:

@@ -4,10 +4,11 @@
 port (poses, statuses, the steps and STOPs it sends), :meth:`ViewHub.planned` gets each
 planning (every attempt's verdict and predicted trajectory), :meth:`ViewHub.progress`
 the executor's progress, :meth:`ViewHub.event` the mission's log lines. Feeding it never
-blocks and costs a queue put: one thread of the hub (``view-hub``) turns what came in
-into events, keeps the state, and every :data:`TICK_S` adds a ``tick`` (the ghost's
-pose now, the drift against its limits, the link's round trip), so that a page gets at
-least 10 updates a second while a plan runs.
+blocks and costs an append to a bounded queue (:data:`INBOX_LEN`, drop-oldest): one
+thread of the hub (``view-hub``) turns what came in into events, keeps the state, and
+every :data:`TICK_S` adds a ``tick`` (the ghost's pose now, the drift against its
+limits, the link's round trip), so that a page gets at least 10 updates a second while
+a plan runs.
 
 Each event is encoded once, as a Server-Sent Events record, and put on every client's
 :class:`ClientQueue`: bounded, dropping its oldest record when full (and counting the
@@ -26,7 +27,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import queue
 import threading
 import time
 from collections import deque
@@ -40,7 +40,7 @@ from planner.mapinfo import MapInfo
 from planner.orchestrator import MissionResult
 from planner.verdict import Verdict
 
-__all__ = ["QUEUE_LEN", "TICK_S", "ClientQueue", "ViewHub", "ViewLimits"]
+__all__ = ["INBOX_LEN", "QUEUE_LEN", "TICK_S", "ClientQueue", "ViewHub", "ViewLimits"]
 
 logger = logging.getLogger(__name__)
 
@@ -48,9 +48,8 @@ TICK_S = 0.1
 """Period of the ``tick`` event, s: at least 10 updates a second."""
 QUEUE_LEN = 256
 """Records a client may have waiting before its oldest are dropped."""
-
-
-_NOTHING: tuple[str, float, Any] = ("", 0.0, None)
+INBOX_LEN = 10_000
+"""Inputs the hub may have waiting before its oldest are dropped."""
 
 
 class ClientQueue:
@@ -169,7 +168,11 @@ class ViewHub:
         self.limits = limits or ViewLimits()
         self._drift_source = drift_source
         self._queue_len = queue_len
-        self._inbox: queue.SimpleQueue[tuple[str, float, Any] | None] = queue.SimpleQueue()
+        # Bounded too: a hub that cannot keep up drops the oldest input, never grows.
+        self._inbox: deque[tuple[str, float, Any]] = deque(maxlen=INBOX_LEN)
+        self._inbox_cond = threading.Condition()
+        self.dropped_inputs = 0
+        """Inputs dropped because the hub fell :data:`INBOX_LEN` behind."""
         self._lock = threading.Lock()  # clients and the snapshot
         self._joined = threading.Condition(self._lock)
         self._clients: set[ClientQueue] = set()
@@ -218,8 +221,13 @@ class ViewHub:
         self._put("_stop", source)
 
     def _put(self, kind: str, payload: Any) -> None:
-        if not self._closed:
-            self._inbox.put((kind, time.time(), payload))
+        if self._closed:
+            return
+        with self._inbox_cond:
+            if len(self._inbox) == INBOX_LEN:
+                self.dropped_inputs += 1
+            self._inbox.append((kind, time.time(), payload))
+            self._inbox_cond.notify()
 
     # -- clients ------------------------------------------------------------------------------
     def subscribe(self) -> ClientQueue:
@@ -299,7 +307,8 @@ class ViewHub:
         if self._closed:
             return
         self._closed = True
-        self._inbox.put(None)
+        with self._inbox_cond:
+            self._inbox_cond.notify()
         if self._thread is not None:
             self._thread.join(5.0)
         with self._lock:
@@ -311,15 +320,14 @@ class ViewHub:
     def _loop(self) -> None:
         next_tick = time.monotonic() + TICK_S
         while True:
-            left = next_tick - time.monotonic()
-            try:
-                item = self._inbox.get(timeout=max(0.0, left))
-            except queue.Empty:
-                item = _NOTHING
-            if item is None:
+            with self._inbox_cond:
+                if not self._inbox and not self._closed:
+                    self._inbox_cond.wait(max(0.0, next_tick - time.monotonic()))
+                items = list(self._inbox)
+                self._inbox.clear()
+            if self._closed:
                 return
-            if item is not _NOTHING:
-                kind, rx, payload = item
+            for kind, rx, payload in items:
                 try:
                     self._handle(kind, rx, payload)
                 except Exception:
