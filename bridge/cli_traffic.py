@@ -25,6 +25,8 @@ def register_decode(subparsers: Any) -> None:
             "do not decode are shown with the reason. The format is told by content: a "
             "serial frame log starts with '# rover-hil serial frame log v1'; anything else "
             "is read by python-can by its suffix (.log candump, .asc, .blf, .csv). "
+            "A .mcap file (a mission recorded by rover go --record or rover demo) is "
+            "summarised instead: topics, counts, first and last poses (docs/view.md). "
             "See docs/traffic-logs.md."
         ),
         epilog=(
@@ -53,6 +55,13 @@ def register_decode(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if str(args.log).endswith(".mcap"):  # a recorded mission: its reader plugs in (rover.decode)
+        from importlib.metadata import entry_points
+
+        for ep in entry_points(group="rover.decode", name="mcap"):
+            status: int = ep.load()(args)
+            return status
+        raise ValueError(f"{args.log}: no reader of .mcap files is installed")
     from firmware_proto.linkio.trafficio import read_log
     from firmware_proto.linkio.trafficlog import decode_records
     from firmware_proto.messages import BY_NAME

@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from planner.cli_view import add_view_arguments
+
 __all__ = ["register"]
 
 
@@ -23,7 +25,10 @@ def register(subparsers: Any) -> None:
             "slip on one leg so that drift control stops the rover, re-plan from the rover's "
             "reported pose and finish. Prints a summary and writes a picture of the predicted "
             "against the actual trajectory. About 80 s in real time (--speed 4: under one minute). "
-            "Ctrl-C or SIGTERM cancels: the rover is sent STOP, the processes are stopped."
+            "Ctrl-C or SIGTERM cancels: the rover is sent STOP, the processes are stopped. "
+            "The mission is recorded as ROS 2 MCAP (--record, default demo.mcap); --view "
+            "serves the live view (the ghost against the rover, drift, a STOP button) and "
+            "prints its URL (docs/view.md)."
         ),
     )
     p.add_argument("--rtt", type=float, default=3.0, help="link round trip, s (default 3)")
@@ -40,12 +45,15 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--picture", type=Path, default=Path("demo.png"), help="PNG to write (default demo.png)"
     )
+    add_view_arguments(p, record_default="demo.mcap")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    import functools
     import signal
 
+    from planner.cli_view import view_config
     from planner.demo import Demo, DemoConfig
     from planner.interrupt import CancelOnSignal
 
@@ -55,10 +63,16 @@ def _run(args: argparse.Namespace) -> int:
         slip=None if args.no_slip else DemoConfig.slip,
         seed=args.seed,
         picture=args.picture,
+        record=None if args.no_record else Path(args.record),
+        view=view_config(args),
+        foxglove_port=args.foxglove,
     )
-    with Demo(config) as demo:
+    with Demo(config, say=functools.partial(print, flush=True)) as demo:
 
         def on_signal(signum: int) -> None:
+            if demo.holding:
+                demo.end_hold()
+                return
             if not demo.mission_running:
                 raise KeyboardInterrupt  # nothing to stop yet: end the start-up now
             demo.cancel()
@@ -66,13 +80,22 @@ def _run(args: argparse.Namespace) -> int:
 
         with CancelOnSignal(on_signal) as signals:
             result = demo.run()
-    print()
-    print(result.report.summary(config.speed))
-    print(f"picture: {result.picture}")
+            cancel_status = signals.exit_status  # a signal ending the hold is no cancel
+            print()
+            print(result.report.summary(config.speed))
+            print(f"picture: {result.picture}")
+            if result.recording is not None:
+                print(f"recording: {result.recording} (rover decode {result.recording})")
+            if config.view is not None and config.view.hold_s > 0:
+                print(
+                    f"view: still at {demo.view_url} for {config.view.hold_s:g} s (Ctrl-C ends it)",
+                    flush=True,
+                )
+                demo.hold(config.view.hold_s)
     if result.report.cancelled:
         what = "the rover was sent STOP" if result.report.runs else "nothing was sent to the rover"
         print(f"rover demo: cancelled by the operator; {what}", file=sys.stderr)
-        return signals.exit_status
+        return cancel_status
     if config.slip and not result.drift_fired:
         print("note: the injected slip did not make drift control fire this time")
     return 0 if result.report.reached else 1

@@ -6,6 +6,7 @@ Also the ``rover_executor`` console script for ``ros2 run`` (:func:`main`).
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import signal
 import sys
@@ -14,6 +15,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from planner.cli_view import add_view_arguments
 
 __all__ = ["PoseArgumentError", "add_arguments", "main", "parse_pose", "register", "run"]
 
@@ -211,6 +214,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=Path("mission.png"),
         help="PNG of predicted vs actual (default mission.png)",
     )
+    add_view_arguments(p, record_default=None)
 
 
 def register(subparsers: Any) -> None:
@@ -225,7 +229,9 @@ def register(subparsers: Any) -> None:
             "trajectory. The goal is checked against the map first; without --start the rover "
             "must report its pose. Ctrl-C or SIGTERM cancels: the rover is sent STOP (a second "
             "one interrupts at once, after sending STOP). Exit 0 when the goal is reached, 130 "
-            "(143) when cancelled by SIGINT (SIGTERM), 1 otherwise, 2 for bad options."
+            "(143) when cancelled by SIGINT (SIGTERM), 1 otherwise, 2 for bad options. "
+            "--record FILE.mcap records the mission as ROS 2 MCAP; --view serves the live "
+            "view with a STOP button and prints its URL (docs/view.md)."
         ),
         epilog=("example: rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080"),
     )
@@ -285,16 +291,21 @@ def run(args: argparse.Namespace) -> int:
     cancelled by a signal, 1 otherwise)."""
     from bridge.rosport import open_port
     from firmware_proto.rover import load_rover
+    from planner.cli_view import view_config
     from planner.errors import GateUnavailableError
     from planner.executor import ExecutorConfig, PlanExecutor, Progress
+    from planner.foxlive import FoxgloveLive
     from planner.gate_client import GateClient
     from planner.interrupt import CancelOnSignal
+    from planner.mcaprec import McapRecorder
     from planner.mission import MissionReport, MissionRunner, MoveAndWait
     from planner.orchestrator import PlannerOrchestrator
     from planner.picture import picture_of, save
     from planner.planner import HeuristicLowLevelPlanner
+    from planner.view.live import LiveView
 
     goal = args.goal
+    view_cfg = view_config(args)
     start = args.start
     config = ExecutorConfig(
         link_rtt_s=args.rtt,
@@ -311,13 +322,46 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     cancel = threading.Event()
 
+    view: LiveView | None = None
+    recorder: McapRecorder | None = None
+    foxglove: FoxgloveLive | None = None
+    running = threading.Event()
+    hold_end = threading.Event()
+
     def say(line: str) -> None:
         print(f"[{time.monotonic() - t0:6.1f} s] {line}", flush=True)
+        if view is not None:
+            view.hub.event(line)
 
     def progress(p: Progress) -> None:
+        if view is not None:
+            view.hub.progress(p)
         say(p.line(args.time_scale))
 
+    def view_stop() -> str:
+        cancel.set()
+        if running.is_set():
+            say("STOP from the view: cancelling the mission (a running step ends with STOP)")
+            return "sent: the running step ends with STOP, the mission is cancelled"
+        say("STOP from the view: the mission is cancelled")
+        return "the mission is cancelled; nothing more is sent"
+
+    def view_clear(executor: Any) -> bool:
+        if not running.is_set():
+            raise RuntimeError("the mission has ended")
+        say("clear-STOP from the view: releasing the latch")
+        return bool(executor.clear_stop())
+
+    def planned(mission: Any) -> None:
+        if recorder is not None:
+            recorder.planned(mission)
+        if foxglove is not None:
+            foxglove.planned(mission)
+        if view is not None:
+            view.hub.planned(mission)
+
     def on_signal(signum: int) -> None:
+        hold_end.set()
         cancel.set()
         say(
             f"{signal.Signals(signum).name}: cancelling the mission (a running step ends with STOP)"
@@ -343,6 +387,29 @@ def run(args: argparse.Namespace) -> int:
         ):
             orchestrator = PlannerOrchestrator(planner, gate, map_name=args.map, world=world)
             executor = PlanExecutor(port, rover, config)
+            if args.record:
+                recorder = McapRecorder(args.record)
+                port.add_tap(recorder.tap)
+            if args.foxglove is not None:
+                foxglove = FoxgloveLive(port=args.foxglove)
+                port.add_tap(foxglove.tap)
+                print(f"FOXGLOVE {foxglove.url}", flush=True)
+            if view_cfg is not None:
+                view = LiveView(
+                    world,
+                    view_cfg,
+                    rtt_s=args.rtt,
+                    time_scale=args.time_scale,
+                    on_stop=view_stop,
+                    on_clear=functools.partial(view_clear, executor),
+                    drift_source=lambda: executor.latest_drift,
+                )
+                port.add_tap(view.hub.tap)
+                print(f"VIEW {view.url}", flush=True)
+                if view_cfg.wait_s > 0:
+                    say(f"waiting up to {view_cfg.wait_s:g} s for a browser to open the view")
+                    if view.hub.wait_for_client(view_cfg.wait_s):
+                        say("view: a browser is watching")
             try:
                 if start is None:
                     start = _rover_pose(executor, args, cancel)
@@ -354,6 +421,7 @@ def run(args: argparse.Namespace) -> int:
                 if args.move_and_wait:
                     if gated:
                         mission = orchestrator.plan_mission(goal, start=start)
+                        planned(mission)
                         if not mission.approved:
                             raise RuntimeError(f"no route to follow: {mission.reason}")
                         plans = mission.plans
@@ -374,19 +442,38 @@ def run(args: argparse.Namespace) -> int:
                         on_progress=progress,
                         on_event=say,
                         cancel=cancel,
+                        on_planned=planned,
                     )
-                    report = runner.run(goal, start=start)
+                    running.set()
+                    try:
+                        report = runner.run(goal, start=start)
+                    finally:
+                        running.clear()
             finally:
                 executor.close()
+                if foxglove is not None:
+                    foxglove.close()
+                if recorder is not None:
+                    recorder.close()
+                    print(f"recording: {recorder.path} (rover decode {recorder.path})")
+                if view is not None and sys.exc_info()[0] is not None:
+                    view.close()  # else it serves the end of the mission until the end
     print(report.summary(args.time_scale))
     outcome = "reached" if report.reached else "cancelled" if report.cancelled else "not reached"
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
     print(f"picture: {save(picture, args.picture)}")
+    status = 0 if report.reached else 1
     if report.cancelled:
         what = "the rover was sent STOP" if report.runs else "nothing was sent to the rover"
         print(f"rover go: cancelled by the operator; {what}", file=sys.stderr)
-        return signals.exit_status
-    return 0 if report.reached else 1
+        status = signals.exit_status
+    if view is not None:
+        if view_cfg is not None and view_cfg.hold_s > 0:
+            print(f"view: still at {view.url} for {view_cfg.hold_s:g} s", flush=True)
+            with CancelOnSignal(lambda signum: hold_end.set()):
+                hold_end.wait(view_cfg.hold_s)  # Ctrl-C ends it
+        view.close()
+    return status
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -39,18 +39,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
-from bridge.rosport import DEFAULT_BACKEND, open_port
+from bridge.rosport import DEFAULT_BACKEND, RosPort, open_port
 from bridge.rosport.contract import COMPLETED
 from bridge.rosport.rclpy_backend import middleware
-from firmware_proto.rover import load_rover
+from firmware_proto.rover import RoverDescription, load_rover
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient
 from planner.geometry import Pose
 from planner.mapinfo import MapInfo
+from planner.mcaprec import McapRecorder
 from planner.mission import MissionReport, MissionRunner
-from planner.orchestrator import PlannerOrchestrator
+from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.picture import picture_of, save
 from planner.planner import HeuristicLowLevelPlanner
+from planner.view.live import LiveView
+from planner.view.server import ViewConfig
 
 __all__ = ["LOCALHOST_ENV", "Demo", "DemoConfig", "DemoResult"]
 
@@ -76,6 +80,11 @@ class DemoConfig:
         startup_timeout_s: how long each process may take to come up.
         progress_every_s: while a step runs, print a progress line at most this often,
             mission seconds (the ends of steps are always printed).
+        record: the ROS 2 MCAP file to record the mission in (``None``: no recording).
+        view: serve the live view so (``None``: no view); its URL is printed as
+            ``VIEW <url>``.
+        foxglove_port: serve the mission live to Foxglove on this port of 127.0.0.1
+            (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
     """
 
     rtt_s: float = 3.0
@@ -88,15 +97,20 @@ class DemoConfig:
     picture: Path = Path("demo.png")
     startup_timeout_s: float = 60.0
     progress_every_s: float = 4.0
+    record: Path | None = Path("demo.mcap")
+    view: ViewConfig | None = None
+    foxglove_port: int | None = None
 
 
 @dataclass(frozen=True)
 class DemoResult:
-    """The mission report, the picture, and whether drift control fired."""
+    """The mission report, the picture, whether drift control fired, and the MCAP
+    recording (``None`` when not recorded)."""
 
     report: MissionReport
     picture: Path
     drift_fired: bool
+    recording: Path | None = None
 
 
 class _Process:
@@ -189,6 +203,9 @@ class Demo:
         self._env = {**os.environ, LOCALHOST_ENV: "LOCALHOST"}
         self._cancel = threading.Event()
         self._mission_running = False
+        self._view: LiveView | None = None
+        self._hold = threading.Event()
+        self._holding = False
 
     @property
     def mission_running(self) -> bool:
@@ -200,9 +217,53 @@ class Demo:
         ends with STOP, nothing more is sent, the report says ``cancelled``."""
         self._cancel.set()
 
+    @property
+    def view_url(self) -> str | None:
+        """The live view's address, once it serves."""
+        return self._view.url if self._view is not None else None
+
+    @property
+    def holding(self) -> bool:
+        """:meth:`hold` is waiting (:meth:`end_hold` ends it)."""
+        return self._holding
+
+    def hold(self, seconds: float) -> None:
+        """Keep everything up (the view serving, the parts running) for ``seconds`` or
+        until :meth:`end_hold`."""
+        self._holding = True
+        try:
+            self._hold.wait(seconds)
+        finally:
+            self._holding = False
+
+    def end_hold(self) -> None:
+        """End :meth:`hold` (from a signal handler or another thread)."""
+        self._hold.set()
+
     def say(self, line: str) -> None:
-        """Print one line with the mission time."""
+        """Print one line with the mission time (and show it in the view)."""
         self._say(f"[{(time.monotonic() - self._t0) * self.config.speed:6.1f} s] {line}")
+        if self._view is not None:
+            self._view.hub.event(line)
+
+    def _view_clear(self, executor: PlanExecutor) -> bool:
+        """The view's clear-STOP (the hub allowed it): only while the mission runs."""
+        if not self._mission_running:
+            raise RuntimeError("the mission has ended")
+        self.say("clear-STOP from the view: releasing the latch")
+        return executor.clear_stop()
+
+    def _view_stop(self) -> str:
+        """The view's STOP button: what Ctrl-C does."""
+        if self._mission_running:
+            self.cancel()
+            self.say("STOP from the view: cancelling the mission; sending STOP")
+            return "sent: the running step ends with STOP, the mission is cancelled"
+        if self._holding:
+            return "the mission has ended: no plan is running, nothing was sent"
+        self.cancel()
+        self.say("STOP from the view before the mission: nothing will be sent to the rover")
+        return "the mission is cancelled before it starts: nothing will be sent"
 
     def _start(self, name: str, args: list[str], ready: str) -> _Process:
         self.say(f"starting {name}: rover {' '.join(args)}")
@@ -244,68 +305,133 @@ class Demo:
             ["link", "--rtt", f"{cfg.rtt_s / cfg.speed:g}", "--seed", str(cfg.seed)],
             "LINK ",
         )
+        self.say(f"emulator control port: 127.0.0.1:{control_port}")
         rover = load_rover()
         os.environ[LOCALHOST_ENV] = "LOCALHOST"  # read when the port's context starts
         self.say(f"ROS 2 middleware: {middleware()}")
+        recorder = McapRecorder(cfg.record) if cfg.record is not None else None
+        try:
+            return self._drive(url, control_port, rover, recorder)
+        finally:
+            if recorder is not None:
+                recorder.close()
+
+    def _drive(
+        self, url: str, control_port: int, rover: RoverDescription, recorder: McapRecorder | None
+    ) -> DemoResult:
+        cfg = self.config
         with (
             GateClient(url) as client,
             open_port(DEFAULT_BACKEND, namespace="ground", node_name="rover_executor") as port,
         ):
-            world = client.get_map(cfg.map_name)
-            goal = _goal(world, cfg.goal_name)
-            start = world.start
-            orchestrator = PlannerOrchestrator(
-                HeuristicLowLevelPlanner(rover, world=world),
-                client,
-                map_name=cfg.map_name,
-                world=world,
-            )
-            executor = PlanExecutor(
-                port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+            if recorder is not None:
+                port.add_tap(recorder.tap)
+            foxglove = (
+                FoxgloveLive(port=cfg.foxglove_port) if cfg.foxglove_port is not None else None
             )
             try:
-                self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
-                if executor.settled_pose(cfg.startup_timeout_s) is None:
-                    raise RuntimeError("the rover never reported its pose through the link")
-                self.say(
-                    f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
-                    f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
-                )
-                slipped = threading.Event()
-                last_line = [-math.inf]
-
-                def progress(p: Progress) -> None:
-                    now = time.monotonic() * cfg.speed
-                    if p.final or now - last_line[0] >= cfg.progress_every_s:
-                        last_line[0] = now
-                        self.say(p.line(cfg.speed))
-                    done = p.status == COMPLETED and p.step == cfg.slip_after_step
-                    if cfg.slip and done and not slipped.is_set():
-                        slipped.set()
-                        answer = _control(control_port, f"inject {cfg.slip}")
-                        self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
-
-                def out_of_the_sand(result: ExecutionResult) -> None:
-                    if cfg.slip:
-                        answer = _control(control_port, "inject clear:slip")
-                        self.say(f"operator: traction back ({answer}); re-planning (still latched)")
-
-                runner = MissionRunner(
-                    orchestrator,
-                    executor,
-                    replans=1,
-                    on_progress=progress,
-                    on_drift=out_of_the_sand,
-                    on_event=self.say,
-                    cancel=self._cancel,
-                )
-                self._mission_running = True
-                try:
-                    report = runner.run(goal, start=start)
-                finally:
-                    self._mission_running = False
+                return self._mission(client, port, rover, control_port, recorder, foxglove)
             finally:
-                executor.close()
+                if foxglove is not None:
+                    foxglove.close()
+
+    def _mission(
+        self,
+        client: GateClient,
+        port: RosPort,
+        rover: RoverDescription,
+        control_port: int,
+        recorder: McapRecorder | None,
+        foxglove: FoxgloveLive | None,
+    ) -> DemoResult:
+        cfg = self.config
+        if foxglove is not None:
+            port.add_tap(foxglove.tap)
+            self._say(f"FOXGLOVE {foxglove.url}")
+        world = client.get_map(cfg.map_name)
+        goal = _goal(world, cfg.goal_name)
+        start = world.start
+        orchestrator = PlannerOrchestrator(
+            HeuristicLowLevelPlanner(rover, world=world),
+            client,
+            map_name=cfg.map_name,
+            world=world,
+        )
+        executor = PlanExecutor(
+            port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+        )
+        if cfg.view is not None:
+            self._view = LiveView(
+                world,
+                cfg.view,
+                rtt_s=cfg.rtt_s / cfg.speed,
+                time_scale=cfg.speed,
+                on_stop=self._view_stop,
+                on_clear=lambda: self._view_clear(executor),
+                drift_source=lambda: executor.latest_drift,
+            )
+            port.add_tap(self._view.hub.tap)
+            self._say(f"VIEW {self._view.url}")
+            if cfg.view.wait_s > 0:
+                self.say(f"waiting up to {cfg.view.wait_s:g} s for a browser to open the view")
+                if self._view.hub.wait_for_client(cfg.view.wait_s):
+                    self.say("view: a browser is watching")
+        view = self._view
+
+        def planned(mission: MissionResult) -> None:
+            if recorder is not None:
+                recorder.planned(mission)
+            if foxglove is not None:
+                foxglove.planned(mission)
+            if view is not None:
+                view.hub.planned(mission)
+
+        try:
+            self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
+            if executor.settled_pose(cfg.startup_timeout_s) is None:
+                raise RuntimeError("the rover never reported its pose through the link")
+            self.say(
+                f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
+                f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
+            )
+            slipped = threading.Event()
+            last_line = [-math.inf]
+
+            def progress(p: Progress) -> None:
+                if view is not None:
+                    view.hub.progress(p)
+                now = time.monotonic() * cfg.speed
+                if p.final or now - last_line[0] >= cfg.progress_every_s:
+                    last_line[0] = now
+                    self.say(p.line(cfg.speed))
+                done = p.status == COMPLETED and p.step == cfg.slip_after_step
+                if cfg.slip and done and not slipped.is_set():
+                    slipped.set()
+                    answer = _control(control_port, f"inject {cfg.slip}")
+                    self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
+
+            def out_of_the_sand(result: ExecutionResult) -> None:
+                if cfg.slip:
+                    answer = _control(control_port, "inject clear:slip")
+                    self.say(f"operator: traction back ({answer}); re-planning (still latched)")
+
+            runner = MissionRunner(
+                orchestrator,
+                executor,
+                replans=1,
+                on_progress=progress,
+                on_drift=out_of_the_sand,
+                on_event=self.say,
+                cancel=self._cancel,
+                on_planned=planned,
+            )
+            self._mission_running = True
+            try:
+                report = runner.run(goal, start=start)
+            finally:
+                self._mission_running = False
+        finally:
+            executor.close()
         outcome = (
             "goal reached"
             if report.reached
@@ -318,10 +444,12 @@ class Demo:
         )
         picture = picture_of(report, world, title)
         path = save(picture, cfg.picture)
-        return DemoResult(report, path, bool(report.drift_events))
+        return DemoResult(report, path, bool(report.drift_events), cfg.record)
 
     def close(self) -> None:
-        """Stop every process, last started first (idempotent)."""
+        """Stop the view and every process, last started first (idempotent)."""
+        if self._view is not None:
+            self._view.close()
         while self._processes:
             self._processes.pop().stop()
         self._tmp.cleanup()

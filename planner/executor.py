@@ -313,6 +313,18 @@ class PlanExecutor:
         )
 
     @property
+    def latest_drift(self) -> tuple[float, float] | None:
+        """The latest drift sample of the running plan, ``(linear_m, angular_deg)``;
+        ``None`` when no plan runs or drift control has not compared a pose yet."""
+        with self._lock:
+            monitor = self._monitor
+        if monitor is None:
+            return None
+        with self._monitor_lock:
+            last = monitor.history[-1] if monitor.history else None
+        return (last.linear_m, last.angular_deg) if last is not None else None
+
+    @property
     def pose_source_in_use(self) -> str:
         """``odom_ground`` or ``odom``: what drift control compares right now."""
         with self._lock:

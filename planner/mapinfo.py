@@ -30,7 +30,7 @@ from planner.geometry import (
     segment_segment_distance,
 )
 
-__all__ = ["BOUNDS_ID", "Bounds", "MapGoal", "MapInfo", "Obstacle"]
+__all__ = ["BOUNDS_ID", "Bounds", "MapGoal", "MapInfo", "Obstacle", "TractionRegion"]
 
 BOUNDS_ID = "bounds"
 """Obstacle id of the map's walls (as the gate reports them)."""
@@ -122,6 +122,16 @@ class MapGoal:
     note: str = ""
 
 
+@dataclass(frozen=True)
+class TractionRegion:
+    """A region of other ground (the twin scales friction there by ``mu_scale``). The
+    planner does not plan around it; the live view draws it."""
+
+    id: str
+    polygon: tuple[Point, ...]
+    mu_scale: float
+
+
 def _point(obj: Any, where: str) -> Point:
     if (
         not isinstance(obj, list)
@@ -171,11 +181,12 @@ class MapInfo:
     obstacles: tuple[Obstacle, ...]
     start: Pose
     goals: tuple[MapGoal, ...] = ()
+    traction_regions: tuple[TractionRegion, ...] = ()
 
     @classmethod
     def from_dict(cls, obj: Mapping[str, Any]) -> MapInfo:
         """Read the map document (the twin's map format, as ``GET /maps/{name}`` serves
-        it). Unknown keys (traction regions, description) are ignored.
+        it). Unknown keys (description) are ignored.
 
         Raises:
             GateProtocolError: a field the planner needs is missing or malformed, with
@@ -199,7 +210,20 @@ class MapInfo:
             )
             for i, g in enumerate(obj.get("goals", []) or [])
         )
-        return cls(str(obj.get("name", "")), bounds, obstacles, start, goals)
+        try:
+            regions = tuple(
+                TractionRegion(
+                    str(r.get("id", f"region_{i}")),
+                    tuple(_point(p, f"/traction_regions/{i}/polygon") for p in r["polygon"]),
+                    float(r.get("mu_scale", 1.0)),
+                )
+                for i, r in enumerate(obj.get("traction_regions", []) or [])
+            )
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise GateProtocolError(
+                "map: /traction_regions is malformed", ["/traction_regions"]
+            ) from exc
+        return cls(str(obj.get("name", "")), bounds, obstacles, start, goals, regions)
 
     @classmethod
     def load(cls, path: str | Path) -> MapInfo:

@@ -164,6 +164,8 @@ class MissionRunner:
             latch released (the demo uses it to take the rover out of the sand; an
             operator would look first).
         on_event: called with one line for each notable event.
+        on_planned: called with each planning (the first, then each re-plan) as soon as
+            the gate has judged it, approved or not (a recorder, the live view).
         cancel: set it (from a signal handler, another thread) to end the mission: the
             running plan is stopped (STOP) and nothing more is planned or sent.
     """
@@ -175,6 +177,7 @@ class MissionRunner:
     on_drift: Callable[[ExecutionResult], None] | None = None
     on_event: Callable[[str], None] = field(default=lambda line: None)
     cancel: threading.Event | None = None
+    on_planned: Callable[[MissionResult], None] | None = None
 
     def run(self, goal: Pose, *, start: Pose | None = None) -> MissionReport:
         """Plan and drive to ``goal`` from ``start`` (default: the map's start).
@@ -220,6 +223,8 @@ class MissionRunner:
                 return end(f"re-planning failed: {exc}")
             planning_s += time.monotonic() - tp
             plannings.append(mission)
+            if self.on_planned is not None:
+                self.on_planned(mission)
             outcome = "approved" if mission.approved else "REJECTED"
             self.on_event(
                 f"planned: {len(mission.legs)} leg(s), {len(mission.attempts)} attempt(s), "

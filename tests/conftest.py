@@ -13,6 +13,9 @@ wheels (the ``ros`` extra, which ``.ci/bootstrap`` installs) and the private net
 namespace of ``.ci/test`` (``ROVER_PRIVATE_NETNS=1``), because DDS discovery multicasts,
 or else ROS 2 told to discover on this host only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``,
 as the workflow's ros:jazzy job does).
+Tests marked ``browser`` drive Debian's ``chromium`` (headless) through Playwright for
+Python; where either is missing they skip, and with ``ROVER_REQUIRE_BROWSER=1`` (set by
+``.ci/test``) that skip is an error.
 Test modules that import the ROS 2 message classes cannot even be collected without
 ROS 2. Where either is missing they skip, saying why; with ``ROVER_REQUIRE_RCLPY=1``
 (set by ``.ci/test``) such a skip is an error instead.
@@ -42,6 +45,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 LEAK_GRACE_S = 3.0
 REQUIRE_SOCKETCAN_ENV = "ROVER_REQUIRE_SOCKETCAN"
 REQUIRE_RCLPY_ENV = "ROVER_REQUIRE_RCLPY"
+REQUIRE_BROWSER_ENV = "ROVER_REQUIRE_BROWSER"
 
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
 LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
@@ -109,6 +113,11 @@ def socketcan_required() -> bool:
     return os.environ.get(REQUIRE_SOCKETCAN_ENV, "") == "1"
 
 
+def browser_required() -> bool:
+    """Whether browser tests must run here (``ROVER_REQUIRE_BROWSER=1``)."""
+    return os.environ.get(REQUIRE_BROWSER_ENV, "") == "1"
+
+
 def _skip_reason(report: pytest.TestReport) -> str:
     longrepr = report.longrepr
     if isinstance(longrepr, tuple) and len(longrepr) == 3:
@@ -127,6 +136,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     for marker, what, required, env in (
         ("socketcan", "SocketCAN", socketcan_required(), REQUIRE_SOCKETCAN_ENV),
         ("rclpy", "ROS 2", rclpy_required(), REQUIRE_RCLPY_ENV),
+        ("browser", "browser", browser_required(), REQUIRE_BROWSER_ENV),
     ):
         if item.get_closest_marker(marker) and required:
             report.outcome = "failed"

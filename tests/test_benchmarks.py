@@ -6,6 +6,9 @@ tables. No figure is compared with a limit (a shared 2-core machine makes timing
 noisy), except counts that do not depend on speed: the codec's recovery run must
 deliver no altered frame and recover every intact one.
 
+``bench_view --quick`` runs its synthetic feed with the Python client only (its
+``--browser`` and ``--demo`` parts are left out).
+
 Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
 and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
 ``bench_bridge`` talk DDS, so they run only in the private network namespace of
@@ -118,3 +121,13 @@ def test_bench_socketcan_quick_prints_every_case_beside_the_floor() -> None:
     for case in ("idle", "flood", "malformed"):
         assert f"| STOP -> STOP_ACK, {case} | 3 |" in out
         assert f"{case}: 3/3 trials passed every check" in out
+
+
+def test_bench_view_quick_prints_push_latency_beside_its_limit() -> None:
+    out = run_benchmark("bench_view", "--quick")
+    assert "Push latency, tap to client, synthetic feed" in out
+    client = table_row(out, "| case | n |")
+    assert client["case"] == "Python socket client (peer: no browser)"
+    assert int(client["n"]) > 50  # 60 poses/s for 2 s, all delivered
+    assert "| limit: the view's update period (10 Hz) |" in out
+    assert "View threads' CPU during the feed" in out

@@ -31,10 +31,13 @@ from bridge.rosport.port import (
     HISTORY_DEPTH,
     LANES,
     STOP_LANE,
+    TAP_RECEIVED,
+    TAP_SENT,
     PortStats,
     Publisher,
     RosPort,
     Subscription,
+    Tap,
 )
 from bridge.rosport.qos import Qos
 from bridge.rosport.registry import BACKENDS, DEFAULT_BACKEND, backend_class, open_port
@@ -47,6 +50,8 @@ __all__ = [
     "HISTORY_DEPTH",
     "LANES",
     "STOP_LANE",
+    "TAP_RECEIVED",
+    "TAP_SENT",
     "BackendUnavailableError",
     "MessageError",
     "PortClosedError",
@@ -57,6 +62,7 @@ __all__ = [
     "RosPort",
     "RosPortError",
     "Subscription",
+    "Tap",
     "TopicTypeError",
     "UnknownBackendError",
     "backend_class",

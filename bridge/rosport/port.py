@@ -39,6 +39,10 @@ Implementing a backend: subclass :class:`RosPort`, set ``backend``, and fill the
 
 Call :meth:`RosPort._start` at the end of the subclass's ``__init__``. Everything else
 (names, type checks, counting, logging, closing) is done here.
+
+Taps (:meth:`RosPort.add_tap`) see every message the port sends (after the backend took
+it) and receives (before the subscription's callback), on the thread that sent or
+delivered it: a recorder or a live view hangs off the port without another endpoint.
 """
 
 from __future__ import annotations
@@ -63,11 +67,14 @@ __all__ = [
     "DEFAULT_NODE_NAME",
     "HISTORY_DEPTH",
     "STOP_LANE",
+    "TAP_RECEIVED",
+    "TAP_SENT",
     "PortStats",
     "Publisher",
     "Reader",
     "RosPort",
     "Subscription",
+    "Tap",
     "Writer",
 ]
 
@@ -90,6 +97,14 @@ STOP_LANE: Final = "stop"
 LANES: Final = (DEFAULT_LANE, STOP_LANE)
 #: Poll period of ``Publisher.wait_for_subscribers``.
 _MATCH_POLL_S: Final = 0.01
+#: A tap's ``direction`` for a message the port published, and for one it delivered.
+TAP_SENT: Final = "sent"
+TAP_RECEIVED: Final = "received"
+
+Tap = Callable[[str, str, Any], object]
+"""``tap(direction, topic, msg)``: :data:`TAP_SENT` or :data:`TAP_RECEIVED`, the fully
+qualified topic, the message. Called on the sending or delivering thread: it must be
+quick and must not block (hand the message to a queue)."""
 
 
 class Writer(Protocol):
@@ -170,6 +185,7 @@ class Publisher(Generic[M]):
                 raise PortClosedError(f"publisher on {self.topic} is closed") from exc
             raise RosPortError(f"publishing on {self.topic} failed: {exc}") from exc
         self.port._count_published()
+        self.port._tap(TAP_SENT, self.topic, msg)
 
     def matched_count(self) -> int:
         """How many subscriptions (in any process) currently receive from this publisher."""
@@ -294,6 +310,7 @@ class RosPort:
         self._param_values: dict[str, ParameterValue] = {}
         self._on_set: OnSet | None = None
         self._param_lock = threading.Lock()
+        self._taps: tuple[Tap, ...] = ()
 
     # -- public API -------------------------------------------------------------------
 
@@ -387,6 +404,21 @@ class RosPort:
             lane,
         )
         return sub
+
+    def add_tap(self, tap: Tap) -> Callable[[], None]:
+        """Show ``tap`` every message sent and received from now on (see :data:`Tap`).
+
+        A tap that raises is logged and does not stop the message. Returns a function
+        that removes the tap (idempotent).
+        """
+        with self._lock:
+            self._taps = (*self._taps, tap)
+
+        def remove() -> None:
+            with self._lock:
+                self._taps = tuple(t for t in self._taps if t is not tap)
+
+        return remove
 
     def declare_parameters(
         self, specs: list[ParameterSpec], on_set: OnSet, initial: Mapping[str, Any] | None = None
@@ -520,6 +552,7 @@ class RosPort:
         """Run ``sub``'s callback with ``msg`` (from a lane thread); log and count errors."""
         if sub._closed:
             return
+        self._tap(TAP_RECEIVED, sub.topic, msg)
         try:
             sub.callback(msg)
         except Exception:
@@ -540,6 +573,13 @@ class RosPort:
             sub.delivered += 1
             with self._lock:
                 self._delivered += 1
+
+    def _tap(self, direction: str, topic: str, msg: Message) -> None:
+        for tap in self._taps:  # a tuple, replaced whole: no lock on the message path
+            try:
+                tap(direction, topic, msg)
+            except Exception:
+                logger.exception("%s: a tap failed on %s", self, topic)
 
     def _count_dropped(self, count: int = 1) -> None:
         with self._lock:

@@ -72,6 +72,8 @@ PYTHON_DEPENDENCY_KEYS = {
     "jsonschema": "python3-jsonschema",
     "pillow": "python3-pil",
     "pymunk": None,  # no rosdep key: pip install pymunk (docs/ros2.md)
+    "mcap": None,  # no rosdep key checked: pip install, for recordings (docs/ros2.md)
+    "mcap-ros2-support": None,  # the same
     "tomli": None,  # Python < 3.11 only; Jazzy has 3.12
 }
 """pyproject dependency -> rosdep key in package.xml (None: documented exception)."""

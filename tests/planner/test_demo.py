@@ -91,6 +91,7 @@ def test_rover_go_refuses_bad_goals_and_options_cleanly(
         (["--goal", "2,3,0", "--drift-linear", "0"], 2, "--drift-linear: must be finite and > 0"),
         (["--goal", "2,3,0", "--drift-angular", "nan"], 2, "--drift-angular"),
         (["--goal", "2,3,0", "--drift-samples", "1.5"], 2, "--drift-samples"),
+        (["--goal", "2,3,0", "--view", "--view-host", "0.0.0.0"], 1, "without a token"),
     ):
         out = _go(gate_process_url, picture, *args)
         assert out.returncode == status, (args, out.stdout + out.stderr)

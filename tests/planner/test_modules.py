@@ -18,10 +18,12 @@ MODULES = [
     "planner.errors",
     "planner.executor",
     "planner.experiment",
+    "planner.foxlive",
     "planner.gate_client",
     "planner.geometry",
     "planner.interrupt",
     "planner.mapinfo",
+    "planner.mcaprec",
     "planner.mission",
     "planner.orchestrator",
     "planner.picture",
@@ -29,6 +31,10 @@ MODULES = [
     "planner.relay",
     "planner.repairs",
     "planner.verdict",
+    "planner.view",
+    "planner.view.hub",
+    "planner.view.live",
+    "planner.view.server",
 ]
 
 

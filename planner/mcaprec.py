@@ -1,0 +1,374 @@
+"""Recording a mission as ROS 2 MCAP, and reading one back (``rover decode x.mcap``).
+
+:class:`McapRecorder` is a tap of the ground station's ROS port
+(:meth:`bridge.rosport.RosPort.add_tap`): every message the ground station sends
+(``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``) and receives
+(``odom``, ``odom_ground``, ``command_status``) is written with its topic as the port
+resolved it, CDR-encoded against the message's ROS 2 definition (schema encoding
+``ros2msg``, profile ``ros2``), so the file opens in Foxglove and in ``ros2 bag`` (mcap
+storage). The gate's predicted trajectories go beside them as ``nav_msgs/msg/Path``:
+:data:`PREDICTED_TOPIC` for each approved plan, :data:`REJECTED_TOPIC` for each
+rejected attempt, and the verdict itself as JSON on :data:`VERDICT_TOPIC`.
+
+The tap only puts the message on a queue; a writer thread encodes and writes, so the
+mission thread never waits on the disk. :meth:`McapRecorder.close` drains the queue and
+finishes the file (idempotent).
+
+Message definitions are made from the generated classes' own field lists (no ``.msg``
+files needed), dependencies appended after ``=`` separator lines as ROS 2 writes them.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import math
+import queue
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from planner.orchestrator import MissionResult
+from planner.verdict import Verdict
+
+__all__ = [
+    "PREDICTED_TOPIC",
+    "REJECTED_TOPIC",
+    "VERDICT_TOPIC",
+    "McapRecorder",
+    "McapSummary",
+    "gate_messages",
+    "msgdef",
+    "plain_message",
+    "read_summary",
+    "ros_name",
+]
+
+logger = logging.getLogger(__name__)
+
+PREDICTED_TOPIC = "/gate/predicted_trajectory"
+"""The approved plan's predicted trajectory (``nav_msgs/msg/Path``, frame ``map``)."""
+REJECTED_TOPIC = "/gate/rejected_trajectory"
+"""A rejected attempt's predicted trajectory, up to its collision or stall."""
+VERDICT_TOPIC = "/gate/verdict"
+"""Each attempt's verdict as JSON (``std_msgs/msg/String``)."""
+
+_PRIMITIVES = {
+    "double": "float64",
+    "float": "float32",
+    "long double": "float64",
+    "boolean": "bool",
+    "octet": "byte",
+}
+_SEPARATOR = "=" * 80
+
+
+def _field_type(idl: str) -> tuple[str, str | None]:
+    """The .msg spelling of one field type from ``get_fields_and_field_types()`` and the
+    nested message type it names (``pkg/Name``), if any."""
+    suffix = ""
+    base = idl
+    if base.startswith("sequence<"):
+        inner = base[len("sequence<") : -1]
+        if "," in inner:
+            inner, bound = (s.strip() for s in inner.rsplit(",", 1))
+            suffix = f"[<={bound}]"
+        else:
+            suffix = "[]"
+        base = inner
+    elif base.endswith("]"):
+        base, _, size = base[:-1].partition("[")
+        suffix = f"[{size}]"
+    for name in ("string", "wstring"):
+        if base.startswith(f"{name}<"):
+            base = f"{name}<={base[len(name) + 1 : -1]}"
+    base = _PRIMITIVES.get(base, base)
+    nested = base if "/" in base else None
+    return base + suffix, nested
+
+
+def _class_of(type_name: str) -> type[Any]:
+    """``pkg/Name`` or ``pkg/msg/Name`` -> the generated class."""
+    parts = type_name.split("/")
+    module = importlib.import_module(f"{parts[0]}.msg")
+    cls: type[Any] = getattr(module, parts[-1])
+    return cls
+
+
+def ros_name(cls: type[Any]) -> str:
+    """``nav_msgs/msg/Odometry`` for the class ``nav_msgs.msg.Odometry``."""
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+
+
+def msgdef(cls: type[Any]) -> str:
+    """The ROS 2 message definition of a generated message class, with its
+    dependencies (the ``ros2msg`` schema text of a ROS 2 MCAP file)."""
+    order: list[str] = []
+    texts: dict[str, str] = {}
+
+    def walk(c: type[Any], name: str) -> None:
+        if name in texts:
+            return
+        lines = []
+        texts[name] = ""
+        for field_name, idl in c.get_fields_and_field_types().items():
+            spelled, nested = _field_type(idl)
+            lines.append(f"{spelled} {field_name}")
+            if nested is not None:
+                walk(_class_of(nested), nested)
+        # An empty message is one dummy byte on the wire, as rosidl generates it.
+        texts[name] = "\n".join(lines) or "uint8 structure_needs_at_least_one_member"
+        order.append(name)
+
+    top = ros_name(cls)
+    walk(cls, top)
+    parts = [texts[top]]
+    for name in order:
+        if name != top:
+            pkg, _, short = name.rpartition("/")
+            parts.append(f"{_SEPARATOR}\nMSG: {pkg.split('/')[0]}/{short}\n{texts[name]}")
+    return "\n".join(parts) + "\n"
+
+
+def plain_message(value: Any) -> Any:
+    """A generated message as dicts and lists (what the CDR encoder reads): numpy and
+    ``array.array`` fields become lists."""
+    fields = getattr(value, "get_fields_and_field_types", None)
+    if fields is not None:
+        return {name: plain_message(getattr(value, name)) for name in fields()}
+    if isinstance(value, (str, bytes, int, float, bool, dict)):
+        return value
+    if hasattr(value, "__iter__"):
+        return [plain_message(v) for v in value]
+    return value
+
+
+def _stamp(t_s: float) -> dict[str, int]:
+    sec = math.floor(t_s)
+    return {"sec": int(sec), "nanosec": int((t_s - sec) * 1e9)}
+
+
+def _path_msg(verdict: Verdict, t_s: float) -> dict[str, Any]:
+    """The verdict's predicted trajectory as a ``nav_msgs/Path`` (a dict), stamped with
+    the twin's time from ``t_s``."""
+    poses = []
+    for sample in verdict.trajectory.samples:
+        half = math.radians(sample.pose.yaw_deg) / 2.0
+        poses.append(
+            {
+                "header": {"stamp": _stamp(t_s + sample.t_s), "frame_id": "map"},
+                "pose": {
+                    "position": {"x": sample.pose.x, "y": sample.pose.y, "z": 0.0},
+                    "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)},
+                },
+            }
+        )
+    return {"header": {"stamp": _stamp(t_s), "frame_id": "map"}, "poses": poses}
+
+
+def _verdict_json(verdict: Verdict, attempt: int, repair: str) -> str:
+    collision = verdict.collision
+    return json.dumps(
+        {
+            "attempt": attempt,
+            "repair": repair,
+            "approved": verdict.approved,
+            "summary": verdict.summary(),
+            "failure_type": verdict.failure_type,
+            "collision": None
+            if collision is None
+            else {
+                "obstacle": collision.obstacle_id,
+                "x": collision.contact[0],
+                "y": collision.contact[1],
+                "step": collision.step,
+            },
+            "plan_sha256": verdict.plan_sha256,
+        }
+    )
+
+
+def gate_messages(mission: MissionResult, t_ns: int) -> list[tuple[str, type[Any], Any]]:
+    """The gate's judgement of a planning as ROS messages ``(topic, class, message as
+    dicts)``: for each attempt its verdict (JSON on :data:`VERDICT_TOPIC`) and its
+    predicted trajectory (``nav_msgs/msg/Path`` on :data:`PREDICTED_TOPIC` when approved,
+    else :data:`REJECTED_TOPIC`), stamped from ``t_ns``."""
+    from bridge.rosport.msgs import String  # noqa: PLC0415  (ROS 2 messages: when used)
+
+    path_cls = _class_of("nav_msgs/Path")
+    out: list[tuple[str, type[Any], Any]] = []
+    for attempt in mission.attempts:
+        verdict = attempt.verdict
+        topic = PREDICTED_TOPIC if verdict.approved else REJECTED_TOPIC
+        text = _verdict_json(verdict, attempt.index, attempt.repair_name)
+        out.append((VERDICT_TOPIC, String, {"data": text}))
+        out.append((topic, path_cls, _path_msg(verdict, t_ns / 1e9)))
+    return out
+
+
+class McapRecorder:
+    """Writes a ROS 2 MCAP file of what the ground station's port sees (see the module
+    docstring). A context manager; :meth:`close` is idempotent.
+
+    Args:
+        path: the file to write (replaced if it exists).
+
+    Raises:
+        OSError: the file cannot be created.
+        ImportError: the ``mcap`` / ``mcap-ros2-support`` packages are missing.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        from mcap_ros2.writer import Writer  # noqa: PLC0415  (only a recording needs it)
+
+        self.path = Path(path)
+        self._file: BinaryIO = self.path.open("wb")
+        self._writer = Writer(self._file)
+        self._schemas: dict[str, Any] = {}
+        self._queue: queue.SimpleQueue[tuple[int, str, Any, Any] | None] = queue.SimpleQueue()
+        self._counts: Counter[str] = Counter()
+        self._errors = 0
+        self._closed = False
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._write_loop, name="mcap-writer", daemon=True)
+        self._thread.start()
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, per topic."""
+        with self._lock:
+            return dict(self._counts)
+
+    def tap(self, direction: str, topic: str, msg: Any) -> None:
+        """A :data:`bridge.rosport.Tap`: queue ``msg`` on ``topic`` (never blocks)."""
+        if not self._closed:
+            self._queue.put((time.time_ns(), topic, type(msg), msg))
+
+    def planned(self, mission: MissionResult) -> None:
+        """Record a planning: each attempt's verdict, and its predicted trajectory on
+        :data:`PREDICTED_TOPIC` (approved) or :data:`REJECTED_TOPIC`."""
+        if self._closed:
+            return
+        now_ns = time.time_ns()
+        for topic, cls, msg in gate_messages(mission, now_ns):
+            self._queue.put((now_ns, topic, cls, msg))
+
+    def _schema(self, cls: type[Any]) -> Any:
+        name = ros_name(cls)
+        schema = self._schemas.get(name)
+        if schema is None:
+            schema = self._writer.register_msgdef(name, msgdef(cls))
+            self._schemas[name] = schema
+        return schema
+
+    def _write_loop(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            t_ns, topic, cls, msg = item
+            try:
+                self._writer.write_message(
+                    topic, self._schema(cls), plain_message(msg), log_time=t_ns
+                )
+            except Exception:
+                self._errors += 1
+                if self._errors & (self._errors - 1) == 0:
+                    logger.exception("mcap: cannot record a message on %s", topic)
+                continue
+            with self._lock:
+                self._counts[topic] += 1
+
+    def close(self) -> None:
+        """Write what is queued, finish the file and close it (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._queue.put(None)
+        self._thread.join(30.0)
+        try:
+            self._writer.finish()  # type: ignore[no-untyped-call]
+        finally:
+            self._file.close()
+
+    def __enter__(self) -> McapRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass
+class McapSummary:
+    """What :func:`read_summary` found in a file.
+
+    Attributes:
+        counts: messages per topic; ``types``: each topic's message type.
+        first_pose, last_pose: per odometry topic, ``(x, y, yaw_deg)`` of the first and
+            last message.
+        statuses: every ``command_status`` text, in order.
+        start_ns, end_ns: log times of the first and last message.
+    """
+
+    counts: dict[str, int] = field(default_factory=dict)
+    types: dict[str, str] = field(default_factory=dict)
+    first_pose: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    last_pose: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    statuses: list[str] = field(default_factory=list)
+    start_ns: int = 0
+    end_ns: int = 0
+
+    def text(self) -> str:
+        """The summary ``rover decode`` prints."""
+        span = (self.end_ns - self.start_ns) / 1e9 if self.counts else 0.0
+        lines = [f"{sum(self.counts.values())} messages on {len(self.counts)} topics, {span:.1f} s"]
+        width = max((len(t) for t in self.counts), default=0)
+        for topic in sorted(self.counts):
+            line = f"  {topic:<{width}}  {self.counts[topic]:6d}  {self.types[topic]}"
+            if topic in self.first_pose:
+                a, b = self.first_pose[topic], self.last_pose[topic]
+                line += (
+                    f"  first ({a[0]:.3f}, {a[1]:.3f}, {a[2]:.1f} deg)"
+                    f" last ({b[0]:.3f}, {b[1]:.3f}, {b[2]:.1f} deg)"
+                )
+            lines.append(line)
+        if self.statuses:
+            seen = Counter(self.statuses)
+            lines.append("  command_status: " + ", ".join(f"{k} x{n}" for k, n in seen.items()))
+        return "\n".join(lines)
+
+
+def read_summary(path: str | Path) -> McapSummary:
+    """Read a ROS 2 MCAP file with the mcap reader and decode every message.
+
+    Raises:
+        OSError: the file cannot be read.
+        mcap.exceptions.McapError: it is not an MCAP file, or is damaged.
+    """
+    from mcap.reader import make_reader  # noqa: PLC0415
+    from mcap_ros2.decoder import DecoderFactory  # noqa: PLC0415
+
+    summary = McapSummary()
+    with Path(path).open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):
+            topic = channel.topic
+            if not summary.counts:
+                summary.start_ns = message.log_time
+            summary.end_ns = message.log_time
+            summary.counts[topic] = summary.counts.get(topic, 0) + 1
+            summary.types[topic] = schema.name if schema is not None else "?"
+            if summary.types[topic] == "nav_msgs/msg/Odometry":
+                p = decoded.pose.pose
+                q = p.orientation
+                yaw = math.degrees(2.0 * math.atan2(q.z, q.w))
+                pose = (p.position.x, p.position.y, yaw)
+                summary.first_pose.setdefault(topic, pose)
+                summary.last_pose[topic] = pose
+            elif topic.endswith("/command_status"):
+                summary.statuses.append(decoded.data)
+    return summary

@@ -1,0 +1,481 @@
+"""The live view's state and its fan-out to browsers.
+
+:class:`ViewHub` is fed by the ground station: :meth:`ViewHub.tap` is a tap of its ROS
+port (poses, statuses, the steps and STOPs it sends), :meth:`ViewHub.planned` gets each
+planning (every attempt's verdict and predicted trajectory), :meth:`ViewHub.progress`
+the executor's progress, :meth:`ViewHub.event` the mission's log lines. Feeding it never
+blocks and costs an append to a bounded queue (:data:`INBOX_LEN`, drop-oldest): one
+thread of the hub (``view-hub``) turns what came in into events, keeps the state, and
+every :data:`TICK_S` adds a ``tick`` (the ghost's pose now, the drift against its
+limits, the link's round trip), so that a page gets at least 10 updates a second while
+a plan runs.
+
+Each event is encoded once, as a Server-Sent Events record, and put on every client's
+:class:`ClientQueue`: bounded, dropping its oldest record when full (and counting the
+drops), so a slow or dead browser costs memory of at most ``queue_len`` records and
+never holds up the hub, let alone the mission. A client that connects gets the state
+first (``hello``: the map, the plannings so far, the latest poses).
+
+Events (``data`` is JSON): ``hello``, ``plans``, ``pose`` (``src`` ``reported`` or
+``odom``, the latter with its speed ``v`` m/s and yaw rate ``w`` rad/s; ``tap_s``: wall
+time it reached the ground station), ``status``, ``progress``,
+``tick``, ``log``, ``stop`` (the latch and who asked).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from planner.executor import Progress
+from planner.geometry import Pose
+from planner.mapinfo import MapInfo
+from planner.orchestrator import MissionResult
+from planner.verdict import Verdict
+
+__all__ = ["INBOX_LEN", "QUEUE_LEN", "TICK_S", "ClientQueue", "ViewHub", "ViewLimits"]
+
+logger = logging.getLogger(__name__)
+
+TICK_S = 0.1
+"""Period of the ``tick`` event, s: at least 10 updates a second."""
+QUEUE_LEN = 256
+"""Records a client may have waiting before its oldest are dropped."""
+INBOX_LEN = 10_000
+"""Inputs the hub may have waiting before its oldest are dropped."""
+
+
+class ClientQueue:
+    """One browser's records: bounded, drop-oldest; :meth:`take` waits with a timeout."""
+
+    def __init__(self, maxlen: int = QUEUE_LEN) -> None:
+        self._items: deque[bytes] = deque()
+        self._maxlen = maxlen
+        self._cond = threading.Condition()
+        self.dropped = 0
+        self.closed = False
+
+    def put(self, record: bytes) -> None:
+        """Add a record; drop the oldest when full. Never blocks on the reader."""
+        with self._cond:
+            if len(self._items) >= self._maxlen:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(record)
+            self._cond.notify()
+
+    def take(self, timeout_s: float) -> list[bytes]:
+        """Every waiting record, waiting at most ``timeout_s`` for one; ``[]`` on
+        timeout or once closed."""
+        with self._cond:
+            if not self._items and not self.closed:
+                self._cond.wait(timeout_s)
+            items = list(self._items)
+            self._items.clear()
+            return items
+
+    def close(self) -> None:
+        """Wake the reader; it sends no more."""
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+
+@dataclass(frozen=True)
+class ViewLimits:
+    """What the page shows the drift against (the executor's thresholds)."""
+
+    drift_linear_m: float = 0.25
+    drift_angular_deg: float = 12.0
+
+
+def _record(name: str, data: dict[str, Any]) -> bytes:
+    return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+
+
+def _map_json(world: MapInfo) -> dict[str, Any]:
+    b = world.bounds
+    return {
+        "name": world.name,
+        "bounds": [b.min_x, b.min_y, b.max_x, b.max_y],
+        "obstacles": [
+            {"id": o.id, "kind": o.kind, "points": [list(p) for p in o.points], "r": o.radius_m}
+            for o in world.obstacles
+        ],
+        "traction": [
+            {"id": r.id, "polygon": [list(p) for p in r.polygon], "mu_scale": r.mu_scale}
+            for r in world.traction_regions
+        ],
+        "start": [world.start.x, world.start.y, world.start.yaw_deg],
+    }
+
+
+def _plan_json(planning: int, index: int, repair: str, verdict: Verdict) -> dict[str, Any]:
+    c = verdict.collision
+    return {
+        "planning": planning,
+        "attempt": index,
+        "repair": repair,
+        "approved": verdict.approved,
+        "summary": verdict.summary(),
+        "path": [[round(s.pose.x, 4), round(s.pose.y, 4)] for s in verdict.trajectory.samples],
+        "collision": None if c is None else [c.contact[0], c.contact[1]],
+    }
+
+
+def _pose_of(msg: Any) -> tuple[Pose, float]:
+    p = msg.pose.pose
+    q = p.orientation
+    yaw = math.degrees(math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y**2 + q.z**2)))
+    stamp = float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
+    return Pose(p.position.x, p.position.y, yaw), stamp
+
+
+class ViewHub:
+    """The view's state and its clients; see the module docstring. :meth:`start` the
+    hub thread, :meth:`close` it (idempotent).
+
+    Args:
+        world: the map to draw.
+        rtt_s: the link's configured round trip, wall s.
+        time_scale: twin seconds per wall second (to move the ghost along its prediction).
+        drift_source: returns the latest drift sample ``(m, deg)`` of the running plan
+            (``PlanExecutor.latest_drift``), or ``None``.
+        limits: the drift thresholds shown.
+        queue_len: see :class:`ClientQueue`.
+    """
+
+    def __init__(
+        self,
+        world: MapInfo,
+        *,
+        rtt_s: float = 3.0,
+        time_scale: float = 1.0,
+        drift_source: Callable[[], tuple[float, float] | None] | None = None,
+        limits: ViewLimits | None = None,
+        queue_len: int = QUEUE_LEN,
+    ) -> None:
+        self.world = world
+        self.rtt_s = rtt_s
+        self.time_scale = time_scale
+        self.limits = limits or ViewLimits()
+        self._drift_source = drift_source
+        self._queue_len = queue_len
+        # Bounded too: a hub that cannot keep up drops the oldest input, never grows.
+        self._inbox: deque[tuple[str, float, Any]] = deque(maxlen=INBOX_LEN)
+        self._inbox_cond = threading.Condition()
+        self.dropped_inputs = 0
+        """Inputs dropped because the hub fell :data:`INBOX_LEN` behind."""
+        self._lock = threading.Lock()  # clients and the snapshot
+        self._joined = threading.Condition(self._lock)
+        self._clients: set[ClientQueue] = set()
+        self._thread: threading.Thread | None = None
+        self._closed = False
+        # State, touched by the hub thread only (the snapshot under the lock).
+        self._plans: list[dict[str, Any]] = []
+        self._plannings = 0
+        self._ghosts: list[Verdict] = []  # approved, in order of execution
+        self._poses: dict[str, dict[str, Any]] = {}
+        self._odom_anchor: tuple[Pose, Pose] | None = None
+        self._last_odom: Pose | None = None
+        self._step_sent: float | None = None
+        self._step_started: float | None = None
+        self._step_index = 0
+        self._leg = -1
+        self._rtt_measured: float | None = None
+        self._progress: dict[str, Any] = {}
+        self._status = ""
+        self._latched = False
+        self._replan_approved = False
+        self._stop_source = ""
+        self._log: deque[str] = deque(maxlen=50)
+        self.records = 0
+        """Events encoded so far."""
+
+    # -- feeding (any thread; never blocks) ---------------------------------------------------
+    def tap(self, direction: str, topic: str, msg: Any) -> None:
+        """A :data:`bridge.rosport.Tap` of the ground station's port."""
+        self._put(topic.rsplit("/", 1)[-1], msg)
+
+    def planned(self, mission: MissionResult) -> None:
+        """A planning was judged (``MissionRunner.on_planned``)."""
+        self._put("_planned", mission)
+
+    def progress(self, p: Progress) -> None:
+        """The executor's progress (``on_progress``)."""
+        self._put("_progress", p)
+
+    def event(self, line: str) -> None:
+        """One line of the mission's log."""
+        self._put("_log", line)
+
+    def stop_requested(self, source: str) -> None:
+        """The operator asked for STOP (``source``: ``view``, ``signal``)."""
+        self._put("_stop", source)
+
+    def _put(self, kind: str, payload: Any) -> None:
+        if self._closed:
+            return
+        with self._inbox_cond:
+            if len(self._inbox) == INBOX_LEN:
+                self.dropped_inputs += 1
+            self._inbox.append((kind, time.time(), payload))
+            self._inbox_cond.notify()
+
+    # -- clients ------------------------------------------------------------------------------
+    def subscribe(self) -> ClientQueue:
+        """A new client's queue, the state first (``hello``)."""
+        client = ClientQueue(self._queue_len)
+        with self._lock:
+            client.put(_record("hello", self._snapshot()))
+            self._clients.add(client)
+            self._joined.notify_all()
+        return client
+
+    def wait_for_client(self, timeout_s: float) -> bool:
+        """Wait until a client is connected; False when ``timeout_s`` passed first."""
+        with self._joined:
+            return self._joined.wait_for(lambda: bool(self._clients), timeout_s)
+
+    def unsubscribe(self, client: ClientQueue) -> None:
+        """Forget a client (its connection ended)."""
+        client.close()
+        with self._lock:
+            self._clients.discard(client)
+
+    @property
+    def clients(self) -> int:
+        """Connected clients."""
+        with self._lock:
+            return len(self._clients)
+
+    def clear_allowed(self) -> tuple[bool, str]:
+        """Whether releasing the STOP latch is allowed now, and why not: only while
+        latched and after a re-plan was approved since the last STOP (sent by the
+        ground station, or asked for on the page)."""
+        with self._lock:
+            if not self._latched:
+                return False, "the rover is not latched"
+            if not self._replan_approved:
+                return False, "no re-plan has been approved since the STOP"
+            return True, ""
+
+    def state(self) -> dict[str, Any]:
+        """The state a new client starts from (``GET /state``)."""
+        with self._lock:
+            return self._snapshot()
+
+    def _snapshot(self) -> dict[str, Any]:
+        """The state a new client starts from (lock held)."""
+        return {
+            "map": _map_json(self.world),
+            "plans": list(self._plans),
+            "poses": dict(self._poses),
+            "progress": dict(self._progress),
+            "status": self._status,
+            "latched": self._latched,
+            "stop_source": self._stop_source,
+            "limits": [self.limits.drift_linear_m, self.limits.drift_angular_deg],
+            "rtt_s": self.rtt_s,
+            "log": list(self._log),
+        }
+
+    def _broadcast(self, name: str, data: dict[str, Any]) -> None:
+        record = _record(name, data)
+        self.records += 1
+        with self._lock:
+            for client in self._clients:
+                client.put(record)
+
+    # -- the hub thread -----------------------------------------------------------------------
+    def start(self) -> ViewHub:
+        """Start the hub thread."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._loop, name="view-hub", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the hub thread and close every client queue (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._inbox_cond:
+            self._inbox_cond.notify()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        with self._lock:
+            clients = list(self._clients)
+            self._clients.clear()
+        for client in clients:
+            client.close()
+
+    def _loop(self) -> None:
+        next_tick = time.monotonic() + TICK_S
+        while True:
+            with self._inbox_cond:
+                if not self._inbox and not self._closed:
+                    self._inbox_cond.wait(max(0.0, next_tick - time.monotonic()))
+                items = list(self._inbox)
+                self._inbox.clear()
+            if self._closed:
+                return
+            for kind, rx, payload in items:
+                try:
+                    self._handle(kind, rx, payload)
+                except Exception:
+                    logger.exception("view: cannot show %s", kind)
+            if time.monotonic() >= next_tick:
+                next_tick = time.monotonic() + TICK_S
+                try:
+                    self._tick()
+                except Exception:
+                    logger.exception("view: tick failed")
+
+    def _handle(self, kind: str, rx: float, payload: Any) -> None:
+        # Inputs of the ground station are "_name"; ROS topics go by their last part.
+        name = "_on" + kind if kind.startswith("_") else "_topic_" + kind
+        handler = getattr(self, name, None)
+        if handler is not None:
+            handler(rx, payload)
+
+    def _topic_odom_ground(self, rx: float, msg: Any) -> None:
+        pose, stamp = _pose_of(msg)
+        if self._last_odom is not None and self._odom_anchor is None:
+            self._odom_anchor = (self._last_odom, pose)
+        self._pose("reported", pose, stamp, rx)
+
+    def _topic_odom(self, rx: float, msg: Any) -> None:
+        raw, stamp = _pose_of(msg)
+        self._last_odom = raw
+        if self._odom_anchor is None:
+            return  # not in the map frame until a reported pose ties it there
+        o, m = self._odom_anchor
+        dyaw = math.radians(m.yaw_deg - o.yaw_deg)
+        dx, dy = raw.x - o.x, raw.y - o.y
+        pose = Pose(
+            m.x + dx * math.cos(dyaw) - dy * math.sin(dyaw),
+            m.y + dx * math.sin(dyaw) + dy * math.cos(dyaw),
+            (raw.yaw_deg + m.yaw_deg - o.yaw_deg + 180.0) % 360.0 - 180.0,
+        )
+        twist = msg.twist.twist
+        self._pose("odom", pose, stamp, rx, v=twist.linear.x, w=twist.angular.z)
+
+    def _pose(self, src: str, pose: Pose, stamp: float, rx: float, **extra: float) -> None:
+        data: dict[str, Any] = {
+            "src": src,
+            "x": round(pose.x, 4),
+            "y": round(pose.y, 4),
+            "yaw": round(pose.yaw_deg, 2),
+            "stamp_s": stamp,
+            "tap_s": rx,
+            **{k: round(v, 4) for k, v in extra.items()},
+        }
+        with self._lock:
+            self._poses[src] = data
+        self._broadcast("pose", data)
+
+    def _topic_command_status(self, rx: float, msg: Any) -> None:
+        text = str(msg.data)
+        if text == "accepted" and self._step_sent is not None:
+            self._rtt_measured = rx - self._step_sent
+            self._step_started = (self._step_sent + rx) / 2.0
+        elif text == "cleared":
+            with self._lock:
+                self._latched = False
+                self._replan_approved = False
+                self._stop_source = ""
+        with self._lock:
+            self._status = text
+        self._broadcast("status", {"status": text, "tap_s": rx, "latched": self._latched})
+
+    def _topic_wheel_instructions(self, rx: float, msg: Any) -> None:
+        self._step_sent = rx
+        self._step_started = None
+
+    def _topic_emergency_stop(self, rx: float, msg: Any) -> None:
+        with self._lock:
+            first = not self._latched
+            self._latched = True
+            self._replan_approved = False
+            self._stop_source = self._stop_source or "ground station"
+        if first:
+            self._broadcast("stop", {"latched": True, "source": self._stop_source, "tap_s": rx})
+
+    def _on_stop(self, rx: float, source: str) -> None:
+        with self._lock:
+            self._stop_source = source
+            self._replan_approved = False  # an approval before this STOP no longer counts
+        self._broadcast("stop", {"latched": self._latched, "source": source, "tap_s": rx})
+
+    def _on_planned(self, rx: float, mission: MissionResult) -> None:
+        self._plannings += 1
+        plans = [
+            _plan_json(self._plannings, a.index, a.repair_name, a.verdict) for a in mission.attempts
+        ]
+        with self._lock:
+            self._plans.extend(plans)
+            if mission.approved and self._latched:
+                self._replan_approved = True
+        self._ghosts = list(mission.verdicts)
+        self._leg = -1
+        self._broadcast("plans", {"plans": plans, "approved": mission.approved})
+
+    def _on_progress(self, rx: float, p: Progress) -> None:
+        if p.step == 0 and p.status == "published":
+            self._leg += 1
+        self._step_index = p.step
+        data = {
+            "step": p.step,
+            "steps": p.steps,
+            "status": p.status,
+            "eta_s": p.eta_s,
+            "leg": max(self._leg, 0),
+        }
+        with self._lock:
+            self._progress = data
+        self._broadcast("progress", data)
+
+    def _on_log(self, rx: float, line: str) -> None:
+        with self._lock:
+            self._log.append(line)
+        self._broadcast("log", {"line": line})
+
+    def _ghost(self) -> Pose | None:
+        """Where the prediction says the rover is now (the ghost ahead of the reports)."""
+        if not self._ghosts or self._leg < 0 or self._leg >= len(self._ghosts):
+            return None
+        trajectory = self._ghosts[self._leg].trajectory
+        step_t = 0.0
+        if self._step_started is not None:
+            step_t = (time.time() - self._step_started) * self.time_scale
+        samples = trajectory.for_step(self._step_index)
+        if not samples:
+            return None
+        if step_t >= samples[-1].step_t_s:
+            return samples[-1].pose
+        return trajectory.pose_at(self._step_index, step_t)
+
+    def _tick(self) -> None:
+        drift = self._drift_source() if self._drift_source is not None else None
+        ghost = self._ghost()
+        self._broadcast(
+            "tick",
+            {
+                "t": time.time(),
+                "ghost": None
+                if ghost is None
+                else [round(ghost.x, 4), round(ghost.y, 4), round(ghost.yaw_deg, 2)],
+                "drift": None if drift is None else [round(drift[0], 4), round(drift[1], 2)],
+                "rtt_s": self._rtt_measured,
+                "latched": self._latched,
+                "clients": len(self._clients),
+            },
+        )

@@ -1,0 +1,193 @@
+"""The live view in a real browser: ``rover demo --view`` (real processes, real ROS 2 in
+the private network namespace), its page in headless Chromium, STOP clicked on the
+page; the emulator's wheels stop, ``/command_status`` says ``stopped``, and the mission
+recorded as MCAP reads back."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+from PIL import Image, ImageStat
+
+from planner.mcaprec import PREDICTED_TOPIC, REJECTED_TOPIC, read_summary
+from tests.browser import chromium
+from tests.child import Child
+
+pytestmark = [pytest.mark.rclpy, pytest.mark.browser, pytest.mark.slow]
+
+START = (1.2, 3.0)  # the lab map's start
+
+
+def _emulator_status(port: int) -> dict[str, Any]:
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+        sock.sendall(b"status\n")
+        answer = json.loads(sock.makefile().readline())
+    assert answer["ok"], answer
+    status: dict[str, Any] = answer["status"]
+    return status
+
+
+def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
+    """Wait for ``expression`` to be true on the page; on timeout, say what the page and
+    the demo had."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+
+    try:
+        page.wait_for_function(expression, timeout=timeout_s * 1000)
+    except PageTimeout:
+        ended = [x for x in demo.lines if "fault:watchdog" in x or "link_lost" in x]
+        if ended:
+            raise _KnownDefectError(ended[0]) from None
+        seen = page.evaluate(
+            "JSON.stringify({counts: roverView.counts, ghost: roverView.ghost,"
+            " poses: roverView.poses, status: roverView.status, progress: roverView.progress,"
+            " connected: roverView.connected, msg: document.getElementById('msg').textContent})"
+        )
+        tail = "\n".join(demo.lines[-15:] + demo.errors[-5:])
+        raise AssertionError(
+            f"not on the page: {expression}\npage: {seen}\ndemo:\n{tail}"
+        ) from None
+
+
+class _KnownDefectError(Exception):
+    """The mission ended by itself before STOP was clicked, on the link defect the README
+    documents (the bridge frozen inside an rclpy publish: fault:watchdog or link_lost)."""
+
+
+def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
+    for attempt in (1, 2):
+        try:
+            _stop_from_the_page(tmp_path / f"try{attempt}")
+            return
+        except _KnownDefectError as exc:
+            if attempt == 2:
+                raise AssertionError(f"twice the known link defect: {exc}") from None
+            print(f"retrying once: {exc}")
+
+
+def _stop_from_the_page(tmp_path: Path) -> None:
+    tmp_path.mkdir()
+    recording = tmp_path / "demo.mcap"
+    demo = Child(
+        [
+            "demo",
+            "--speed",
+            "4",
+            "--no-slip",
+            "--view",
+            "--view-hold",
+            "120",
+            "--view-wait",
+            "120",
+            "--foxglove",
+            "0",
+            "--record",
+            str(recording),
+            "--picture",
+            str(tmp_path / "demo.png"),
+        ],
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        control = int(demo.wait_for("emulator control port: ", 90).rsplit(":", 1)[1])
+        url = demo.wait_for("VIEW http://127.0.0.1:", 60).split()[1]
+        assert demo.wait_for("FOXGLOVE ws://127.0.0.1:", 5)
+        with chromium() as browser:
+            page = browser.new_page(viewport={"width": 1200, "height": 700})
+            page.goto(url)
+            _wait(page, demo, "window.roverView.counts.hello > 0", 30)
+            # The ghost: an approved plan drawn, and the ghost moving along it.
+            _wait(
+                page,
+                demo,
+                "window.roverView.plans.some(p => p.approved) && window.roverView.ghost",
+                60,
+            )
+            first_ghost = page.evaluate("window.roverView.ghost")
+            # The ghost moves along the prediction and the rover moves (it turns first):
+            # STOP goes during the first step.
+            _wait(
+                page,
+                demo,
+                f"(g => {{ const h = window.roverView.ghost; return h && (h[0] !== g[0]"
+                f" || h[1] !== g[1] || h[2] !== g[2]); }})({json.dumps(first_ghost)})",
+                30,
+            )
+            _wait(
+                page,
+                demo,
+                "(() => { const p = window.roverView.poses.reported; return p &&"
+                f" (Math.hypot(p.x - {START[0]}, p.y - {START[1]}) > 0.05"
+                " || Math.abs(p.yaw) > 3); })()",
+                60,
+            )
+            assert page.evaluate("window.roverView.plans.some(p => !p.approved && p.collision)")
+            assert page.evaluate("window.roverView.connected") is True
+            _wait(page, demo, "window.roverView.counts.tick > 10", 10)  # ticks keep coming
+            assert page.evaluate("window.roverView.poses.odom") is not None
+            shot = tmp_path / "view.png"
+            page.screenshot(path=str(shot))
+            with Image.open(shot) as im:
+                stat = ImageStat.Stat(im.convert("RGB"))
+                assert max(stat.stddev) > 10, "the screenshot is blank"
+                assert len(im.convert("RGB").getcolors(1 << 20) or []) > 50
+
+            page.click("#stop")
+            try:
+                demo.wait_for("STOP from the view: cancelling the mission", 10)
+            except AssertionError:
+                ended = [x for x in demo.lines if "fault:watchdog" in x or "link_lost" in x]
+                if ended:
+                    raise _KnownDefectError(ended[0]) from None
+                raise
+            # /command_status said so (after or before the running step's aborted:stop).
+            _wait(page, demo, "window.roverView.statuses.includes('stopped')", 30)
+            demo.wait_for("view: still at", 60)  # the mission ended; the parts are still up
+            status = _emulator_status(control)
+            assert status["stop_latched"] and "stop" in status["latch"], status
+            assert status["setpoints_mps"] == [0.0, 0.0], status
+            # The mission waited for 'stopped' and a settled pose: the wheels are still
+            # (polled for a bounded time in case braking is slower than that).
+            for _ in range(50):
+                if max(abs(v) for v in status["wheel_mps"]) < 1e-3:
+                    break
+                threading.Event().wait(0.1)
+                status = _emulator_status(control)
+            assert max(abs(v) for v in status["wheel_mps"]) < 1e-3, status
+            assert page.locator("#latch").inner_text().startswith("LATCHED")
+
+            # Clear-STOP is refused: no re-plan was approved after this STOP.
+            page.click("#clear")
+            _wait(
+                page,
+                demo,
+                "document.getElementById('msg').textContent.includes('not released')",
+                10,
+            )
+            assert "no re-plan" in page.locator("#msg").inner_text()
+            page.close()
+        demo.proc.send_signal(signal.SIGINT)  # end the hold
+        assert demo.wait(60) == 1
+    finally:
+        demo.stop()
+    assert "cancelled by the operator; the rover was sent STOP" in "\n".join(demo.errors)
+    assert any("NOT REACHED (cancelled by the operator" in line for line in demo.lines)
+
+    summary = read_summary(recording)
+    counts = summary.counts
+    assert counts["/ground/odom_ground"] > 20 and counts["/ground/odom"] > 20, counts
+    assert counts["/ground/wheel_instructions"] >= 1 and counts["/ground/emergency_stop"] >= 1
+    assert counts[PREDICTED_TOPIC] >= 1 and counts[REJECTED_TOPIC] >= 1, counts
+    assert "stopped" in summary.statuses and "accepted" in summary.statuses
+    x0, y0, _ = summary.first_pose["/ground/odom_ground"]
+    assert math.hypot(x0 - START[0], y0 - START[1]) < 0.05
+    x1, y1, yaw1 = summary.last_pose["/ground/odom_ground"]
+    assert math.hypot(x1 - START[0], y1 - START[1]) > 0.05 or abs(yaw1) > 3
