@@ -176,6 +176,13 @@ static void reset_progress(fw_t *c)
     c->ended.travel = 0u;
 }
 
+static void sched_init(fw_sched_t *s, uint8_t hz, uint64_t now_us)
+{
+    s->base_ns = s->next_ns = now_us * 1000u;
+    s->k = 0u;
+    s->hz = hz;
+}
+
 /** ControllerModel._init_params and _init_state. */
 static void init_state(fw_t *c, uint64_t now_us)
 {
@@ -206,8 +213,9 @@ static void init_state(fw_t *c, uint64_t now_us)
     c->wd_tripped = false;
     c->stalling[0] = c->stalling[1] = false;
     c->stall_ref[0] = c->stall_ref[1] = 0;
-    c->next_tel_us = c->next_pose_us = c->next_hb_us = now_us;
-    c->tel_frac = c->pose_frac = c->hb_frac = 0u;
+    sched_init(&c->tel, c->telemetry_hz, now_us);
+    sched_init(&c->pose, c->pose_hz, now_us);
+    sched_init(&c->hb, c->heartbeat_hz, now_us);
 }
 
 void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
@@ -885,19 +893,32 @@ static void check_stopped(fw_t *c, const int32_t travel[2])
     }
 }
 
-/** next = max(next + 1/hz, now), the period kept exact with a remainder. */
-static void advance(uint64_t *next, uint32_t *frac, uint8_t hz, uint64_t now)
+/**
+ * next = max(next + 1/hz, now) on an exact grid in nanoseconds: the k-th deadline after
+ * base is base + ceil(k * 1e9 / hz) ns, so no rounding accumulates while the rate holds;
+ * a rate change (SET_PARAM) starts a new grid at the current deadline. A deadline is due
+ * from 1 ns before it (the Python model's float tolerance), so a grid point that falls
+ * on a tick, like 18.1 s at 30 Hz, fires on that tick in both.
+ */
+static void advance(fw_sched_t *s, uint8_t hz, uint64_t now_us)
 {
-    *next += 1000000u / hz;
-    *frac += 1000000u % hz;
-    if (*frac >= hz) {
-        *frac -= hz;
-        *next += 1u;
+    const uint64_t now_ns = now_us * 1000u;
+    if (hz != s->hz) {
+        s->base_ns = s->next_ns;
+        s->k = 0u;
+        s->hz = hz;
     }
-    if (*next < now) {
-        *next = now;
-        *frac = 0u;
+    s->k++;
+    s->next_ns = s->base_ns + ((uint64_t)s->k * 1000000000u + hz - 1u) / hz;
+    if (s->next_ns < now_ns) {
+        s->base_ns = s->next_ns = now_ns;
+        s->k = 0u;
     }
+}
+
+static bool due(const fw_sched_t *s, uint64_t now_us)
+{
+    return now_us * 1000u + 1u >= s->next_ns;
 }
 
 static int16_t mm12(int32_t um_s)
@@ -965,12 +986,12 @@ static void telemetry(fw_t *c)
 {
     const uint64_t now = c->now_us;
     fw_pose_sample_t pose;
-    if (now >= c->next_tel_us) {
-        advance(&c->next_tel_us, &c->tel_frac, c->telemetry_hz, now);
+    if (due(&c->tel, now)) {
+        advance(&c->tel, c->telemetry_hz, now);
         fast_telemetry(c);
     }
-    if (now >= c->next_pose_us) {
-        advance(&c->next_pose_us, &c->pose_frac, c->pose_hz, now);
+    if (due(&c->pose, now)) {
+        advance(&c->pose, c->pose_hz, now);
         fw_hal_pose_sample();
     }
     while (fw_hal_pose_read(&pose)) {
@@ -986,8 +1007,8 @@ static void telemetry(fw_t *c)
         m.body.pose.age_4ms = (uint8_t)(age > 255 ? 255 : age);
         send(c, &m);
     }
-    if (now >= c->next_hb_us) {
-        advance(&c->next_hb_us, &c->hb_frac, c->heartbeat_hz, now);
+    if (due(&c->hb, now)) {
+        advance(&c->hb, c->heartbeat_hz, now);
         send_heartbeat(c);
     }
 }

@@ -87,6 +87,13 @@ typedef struct {
     int32_t travel[2];
 } fw_pending_stop_t;
 
+/** A periodic deadline on an exact grid (telemetry, pose, heartbeat). */
+typedef struct {
+    uint64_t base_ns, next_ns;
+    uint32_t k;
+    uint8_t hz;
+} fw_sched_t;
+
 /** The whole controller. Read the fields freely; change them only through the API. */
 typedef struct {
     fw_config_t cfg;
@@ -132,8 +139,7 @@ typedef struct {
     bool stalling[2];
     int32_t stall_ref[2];
     /* telemetry schedule */
-    uint64_t next_tel_us, next_pose_us, next_hb_us;
-    uint32_t tel_frac, pose_frac, hb_frac;
+    fw_sched_t tel, pose, hb;
     /* receive and transmit */
     rp_decoder_t dec;
     rp_can_decoder_t can_dec;
