@@ -1000,8 +1000,8 @@ static void telemetry(fw_t *c)
         const int64_t age = div_round((int64_t)age_us, 4000);
         rp_msg_t m;
         m.id = RP_MSG_POSE;
-        m.body.pose.x_mm = clamp32(pose.x_mm, -(1 << 19), (1 << 19) - 1);
-        m.body.pose.y_mm = clamp32(pose.y_mm, -(1 << 19), (1 << 19) - 1);
+        m.body.pose.x_mm = clamp32(pose.x_mm, -524288L, 524287L);
+        m.body.pose.y_mm = clamp32(pose.y_mm, -524288L, 524287L);
         m.body.pose.yaw_ddeg = pose.yaw_ddeg;
         m.body.pose.sigma_cm = pose.sigma_cm;
         m.body.pose.age_4ms = (uint8_t)(age > 255 ? 255 : age);
