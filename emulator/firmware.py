@@ -28,6 +28,7 @@ AddressSanitizer and UBSan instead; the process must then have ``libasan`` prelo
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import logging
@@ -413,10 +414,8 @@ class FirmwareController(ControllerModel):
             self._h = None
 
     def __del__(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # interpreter shutdown: the library may be gone
             self.close()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass
 
     # -- plant -> HAL -----------------------------------------------------------------------
     def _now_us(self) -> int:
@@ -512,7 +511,11 @@ class FirmwareController(ControllerModel):
         bits = self._st().latch
         return {
             cause
-            for bit, cause in ((1, LatchCause.STOP), (2, LatchCause.WATCHDOG), (4, LatchCause.FAULT))
+            for bit, cause in (
+                (1, LatchCause.STOP),
+                (2, LatchCause.WATCHDOG),
+                (4, LatchCause.FAULT),
+            )
             if bits & bit
         }
 

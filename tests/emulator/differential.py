@@ -200,10 +200,12 @@ def compare(python: list[Sent], c: list[Sent]) -> list[str]:
         rest = [s for s in run if s.message.NAME not in SENSORS and not s.plant_timed]
         return sensors, plant, rest
 
-    for kind, a, b in zip(("sensor", "plant-timed", "other"), streams(python), streams(c)):
+    for kind, a, b in zip(
+        ("sensor", "plant-timed", "other"), streams(python), streams(c), strict=True
+    ):
         if len(a) != len(b):
             problems.append(f"{kind}: {len(a)} frames from Python, {len(b)} from C")
-        for x, y in zip(a, b):
+        for x, y in zip(a, b, strict=False):  # a length difference is reported above
             mx, my = x.message, y.message
             where = f"{kind} tick {x.tick}/{y.tick}: {mx} | {my}"
             if mx.NAME != my.NAME:
@@ -227,5 +229,3 @@ def compare(python: list[Sent], c: list[Sent]) -> list[str]:
         if len(problems) > 20:
             break
     return problems
-
-
