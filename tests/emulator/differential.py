@@ -5,9 +5,11 @@ implementations (Python model, C firmware core), run in lockstep on identical tw
 with silent spells long enough to trip the watchdog, matching and mismatched HELLOs,
 MOTION steps with repeated seqs and out-of-limit fields, STOPs and CLEAR_STOPs with a
 few stop_ids, SET_PARAMs (unknown parameters, values out of range), frames in the wrong
-direction, and corrupted serial bytes. Corrupted bytes go through the front end's
-decoder as on a pty: what survives is delivered, what does not is counted
-(``rx_error``), exactly as :mod:`emulator.engine` does.
+direction, corrupted serial bytes, and fault conditions raised and cleared (an
+encoder dropout, which stops and latches; an IMU dropout, which only reports).
+Corrupted bytes go through the front end's decoder as on a pty: what survives is
+delivered, what does not is counted (``rx_error``), exactly as :mod:`emulator.engine`
+does.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from firmware_proto.messages import (
     SCHEMA_HASH,
     Ack,
     ClearStop,
+    FaultCode,
     Hello,
     HostHeartbeat,
     Motion,
@@ -82,6 +85,9 @@ class Event:
     tick: int
     messages: tuple[Message, ...] = ()
     raw: bytes = b""
+    fault: tuple[int, bool] | None = None
+    """A fault condition raised (``(code, True)``) or cleared (``(code, False)``), as the
+    injector does for encoder, IMU and pose dropouts."""
 
 
 def _motion(rng: random.Random) -> Motion:
@@ -96,9 +102,9 @@ def _motion(rng: random.Random) -> Motion:
 
 def _message(rng: random.Random) -> Message:
     roll = rng.random()
-    if roll < 0.35:
+    if roll < 0.4:
         return _motion(rng)
-    if roll < 0.45:
+    if roll < 0.47:
         return Stop(rng.randrange(1, 5), rng.randrange(5))
     if roll < 0.6:
         return ClearStop(rng.randrange(1, 5))
@@ -131,12 +137,19 @@ def traffic(seed: int, ticks: int) -> Iterator[Event]:
                 msgs.append(HostHeartbeat(hb & 0xFFFF))
             if rng.random() < 0.03:
                 msgs.append(_message(rng))
+            if rng.random() < 0.0005:
+                # A burst of new steps: the queue fills.
+                base = rng.randrange(100, 60000)
+                msgs += [Motion(base + k, rng.choice((1, 3)), 20, 200) for k in range(10)]
             if rng.random() < 0.003:
                 data = bytearray(enc.encode(_message(rng), strict=False))
                 data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
                 raw = bytes(data) + bytes(rng.randrange(256) for _ in range(rng.randrange(4)))
-        if msgs or raw:
-            yield Event(tick, tuple(msgs), raw)
+        fault = None
+        if rng.random() < 0.0004:
+            fault = (rng.choice((FaultCode.ENCODER, FaultCode.IMU)), rng.random() < 0.5)
+        if msgs or raw or fault:
+            yield Event(tick, tuple(msgs), raw, fault)
 
 
 @dataclass(frozen=True)
@@ -173,6 +186,14 @@ def run_lockstep(model: ControllerModel, events: list[Event], ticks: int) -> lis
                     out += [Sent(tick, True, m) for m in model.handle(frame.message)]
                 if decoder.counters.rejected != before:
                     model.rx_error(decoder.counters.rejected - before)
+            if event.fault is not None:
+                code, active = event.fault
+                sent = (
+                    model.raise_fault(code, condition=True)
+                    if active
+                    else model.clear_fault_condition(code)
+                )
+                out += [Sent(tick, True, m) for m in sent]
         out += [Sent(tick, False, m) for m in model.tick()]
     return out
 
