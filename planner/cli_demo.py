@@ -40,6 +40,12 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--picture", type=Path, default=Path("demo.png"), help="PNG to write (default demo.png)"
     )
+    p.add_argument(
+        "--firmware",
+        choices=("python", "c"),
+        default="python",
+        help="the emulator's controller: the Python model or the C firmware core (default python)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -55,6 +61,7 @@ def _run(args: argparse.Namespace) -> int:
         slip=None if args.no_slip else DemoConfig.slip,
         seed=args.seed,
         picture=args.picture,
+        firmware=args.firmware,
     )
     with Demo(config) as demo:
 

@@ -76,6 +76,8 @@ class DemoConfig:
         startup_timeout_s: how long each process may take to come up.
         progress_every_s: while a step runs, print a progress line at most this often,
             mission seconds (the ends of steps are always printed).
+        firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
+            firmware core in the loop; ``rover emulate --firmware``).
     """
 
     rtt_s: float = 3.0
@@ -88,6 +90,7 @@ class DemoConfig:
     picture: Path = Path("demo.png")
     startup_timeout_s: float = 60.0
     progress_every_s: float = 4.0
+    firmware: str = "python"
 
 
 @dataclass(frozen=True)
@@ -235,6 +238,8 @@ class Demo:
             f"{cfg.speed:g}",
             "--control-port",
             "0",
+            "--firmware",
+            cfg.firmware,
         ]
         emulator = self._start("emulator", emulator_args, "CONTROL ")
         control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
