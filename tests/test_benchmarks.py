@@ -118,3 +118,12 @@ def test_bench_socketcan_quick_prints_every_case_beside_the_floor() -> None:
     for case in ("idle", "flood", "malformed"):
         assert f"| STOP -> STOP_ACK, {case} | 3 |" in out
         assert f"{case}: 3/3 trials passed every check" in out
+
+
+@pytest.mark.firmware
+def test_bench_firmware_quick_prints_the_c_core_beside_the_python_model() -> None:
+    out = run_benchmark("bench_firmware", "--quick")
+    assert "| C core, fw_on_bytes(STOP frame), measured in C | 50 |" in out
+    assert "| Python model (ControllerModel.handle) | 50 |" in out
+    assert "| C core + twin (FirmwareController) |" in out
+    assert "Instructions per fw_tick (callgrind, x86-64 -O2, driving): " in out
