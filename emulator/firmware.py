@@ -478,7 +478,7 @@ class FirmwareController(ControllerModel):
         return self._status
 
     # -- the ControllerModel interface --------------------------------------------------------
-    @property  # type: ignore[override]
+    @property
     def state(self) -> int:
         """The :class:`ControllerState` code."""
         return int(self._st().state)
@@ -487,7 +487,7 @@ class FirmwareController(ControllerModel):
     def state(self, value: int) -> None:  # the base class's __init__ assigns it
         pass
 
-    @property  # type: ignore[override]
+    @property
     def handshake_ok(self) -> bool:
         """A matching HELLO opened the session."""
         return bool(self._st().handshake_ok)
@@ -496,7 +496,7 @@ class FirmwareController(ControllerModel):
     def handshake_ok(self, value: bool) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def boot_nonce(self) -> int:
         """The nonce of this boot (IDENT, HEARTBEAT)."""
         return int(self._st().boot_nonce)
@@ -505,7 +505,7 @@ class FirmwareController(ControllerModel):
     def boot_nonce(self, value: int) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def latch_causes(self) -> set[LatchCause]:
         """What set the latch since the last CLEARED (empty: not latched)."""
         bits = self._st().latch
@@ -523,7 +523,7 @@ class FirmwareController(ControllerModel):
     def latch_causes(self, value: set[LatchCause]) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def faults(self) -> set[int]:
         """Fault codes whose condition is active now."""
         bits = self._st().faults
@@ -533,7 +533,7 @@ class FirmwareController(ControllerModel):
     def faults(self, value: set[int]) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def rx_errors(self) -> int:
         """Bad frames counted (HEARTBEAT ``rx_errors`` before its 16-bit wrap)."""
         return int(self._st().rx_errors) if self._h is not None else 0
@@ -542,7 +542,7 @@ class FirmwareController(ControllerModel):
     def rx_errors(self, value: int) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def watchdog_ms(self) -> int:
         """The WATCHDOG_MS parameter in force."""
         return int(self._st().watchdog_ms)
@@ -551,7 +551,7 @@ class FirmwareController(ControllerModel):
     def watchdog_ms(self, value: int) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def telemetry_hz(self) -> int:
         """The TELEMETRY_HZ parameter in force."""
         return int(self._st().telemetry_hz)
@@ -560,7 +560,7 @@ class FirmwareController(ControllerModel):
     def telemetry_hz(self, value: int) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def pose_hz(self) -> int:
         """The POSE_HZ parameter in force."""
         return int(self._st().pose_hz)
@@ -569,7 +569,7 @@ class FirmwareController(ControllerModel):
     def pose_hz(self, value: int) -> None:
         pass
 
-    @property  # type: ignore[override]
+    @property
     def heartbeat_hz(self) -> int:
         """The HEARTBEAT_HZ parameter in force."""
         return int(self._st().heartbeat_hz)

@@ -29,6 +29,7 @@ from firmware_proto.messages import (
     ControllerState,
     Hello,
     HostHeartbeat,
+    Ident,
     Motion,
     ParamResult,
     StepState,
@@ -75,18 +76,18 @@ def test_the_differential_traffic_reaches_every_corner() -> None:
     seen: Counter[str] = Counter()
     for seed in SEEDS:
         for sent in _runs(seed)[1]:
-            m = sent.message
-            seen[m.NAME] += 1
-            if m.NAME == "ACK":
-                seen[f"ACK {AckResult(m.result).name}"] += 1
-            elif m.NAME == "STATUS":
-                seen[f"STATUS {StepState(m.state).name} {AbortReason(m.reason).name}"] += 1
-            elif m.NAME == "PARAM_VALUE":
-                seen[f"PARAM_VALUE {ParamResult(m.result).name}"] += 1
-            elif m.NAME == "FAULT":
-                seen[f"FAULT {m.code} {m.active}"] += 1
-            elif m.NAME == "CLEAR_ACK":
-                seen[f"CLEAR_ACK {m.result}"] += 1
+            name, f = sent.message.NAME, sent.message.to_dict()
+            seen[name] += 1
+            if name == "ACK":
+                seen[f"ACK {AckResult(f['result']).name}"] += 1
+            elif name == "STATUS":
+                seen[f"STATUS {StepState(f['state']).name} {AbortReason(f['reason']).name}"] += 1
+            elif name == "PARAM_VALUE":
+                seen[f"PARAM_VALUE {ParamResult(f['result']).name}"] += 1
+            elif name == "FAULT":
+                seen[f"FAULT {f['code']} {f['active']}"] += 1
+            elif name == "CLEAR_ACK":
+                seen[f"CLEAR_ACK {f['result']}"] += 1
     expected = [
         "ACK ACCEPTED",
         "ACK OUT_OF_RANGE",
@@ -147,7 +148,8 @@ def test_a_stop_zeroes_the_targets_in_the_call_that_receives_it(rover: RoverDesc
     assert model.state == ControllerState.EXECUTING and model.wheel_setpoints_mps[0] > 0.1
     out = model.handle(Stop(9, 0))
     assert out[0] == StopAck(9, ControllerState.STOP_LATCHED)
-    assert [m.NAME for m in out[1:]] == ["STATUS"] and out[1].reason == AbortReason.STOP
+    assert [m.NAME for m in out[1:]] == ["STATUS"]
+    assert out[1].to_dict()["reason"] == AbortReason.STOP
     assert model.wheel_setpoints_mps == (0.0, 0.0)
     assert model.wheel_commands_mps[0] > 0.1  # braking at the accel limit, not a wall
     assert model.stop_latched and model.queue_depth == 0
@@ -155,12 +157,14 @@ def test_a_stop_zeroes_the_targets_in_the_call_that_receives_it(rover: RoverDesc
 
 def test_a_reboot_is_a_new_boot_of_the_core(rover: RoverDescription) -> None:
     model = FirmwareController(rover, Twin(rover), ControllerConfig(), seed=4)
-    first = model.boot()[0].boot_nonce
+    (booted,) = model.boot()
+    assert isinstance(booted, Ident)
     model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-    assert model.handshake_ok
+    opened = model.handshake_ok
     (ident,) = model.reboot()
-    assert ident.boot_nonce != first and ident.boot_nonce == model.boot_nonce
-    assert not model.handshake_ok and model.state == ControllerState.BOOT
+    assert isinstance(ident, Ident)
+    assert ident.boot_nonce != booted.boot_nonce and ident.boot_nonce == model.boot_nonce
+    assert opened and not model.handshake_ok and model.state == ControllerState.BOOT
 
 
 def test_the_library_is_cached_by_content(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
