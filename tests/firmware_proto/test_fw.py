@@ -1,10 +1,12 @@
 """The C firmware core (firmware_proto/c/fw/) as C: it builds freestanding with no libc
 calls and no floating point, its receive path survives fuzzing under ASan and UBSan, and
 it cross-builds for a Cortex-M0+ (within 16 KiB of flash and 2 KiB of RAM) and an
-ATmega2560, with -Wall -Wextra -Werror, reporting the sizes ``size`` gives.
+ATmega2560, with -Wall -Wextra -Werror, reporting the sizes ``size`` gives; its self-test
+(a scripted host, an ideal plant) passes on the host and on the ATmega2560 under simavr.
 
 The cross compilers are Debian's ``gcc-arm-none-eabi`` (with ``libnewlib-arm-none-eabi``)
-and ``gcc-avr`` (with ``avr-libc``), which ``.ci/bootstrap --test`` installs. Without
+and ``gcc-avr`` (with ``avr-libc``), and ``simavr``, which ``.ci/bootstrap --test``
+installs. Without
 them these tests skip, saying why; with ``ROVER_REQUIRE_CROSS=1`` (set by CI) a missing
 cross compiler fails them instead.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -37,6 +40,7 @@ pytestmark = pytest.mark.firmware
 
 FW_DIR = C_DIR / "fw"
 CORE = (FW_DIR / "fw.c", C_DIR / "rover_msgs.c", C_DIR / "rover_proto.c")
+SELFTEST = FW_DIR / "port_bare" / "selftest.c"
 REQUIRE_CROSS_ENV = "ROVER_REQUIRE_CROSS"
 M0_FLASH_BYTES = 16 * 1024
 M0_RAM_BYTES = 2 * 1024
@@ -192,11 +196,8 @@ def cross_build(target: str, out_dir: Path) -> dict[str, int]:
     bss of the image, bytes. Skips (or fails under ``ROVER_REQUIRE_CROSS=1``) without the
     cross compiler."""
     gcc, size, flags, packages = TARGETS[target]
-    if shutil.which(gcc) is None or shutil.which(size) is None:
-        reason = f"{gcc} not found: apt-get install {packages} (or .ci/bootstrap --test)"
-        if os.environ.get(REQUIRE_CROSS_ENV) == "1":
-            pytest.fail(f"{REQUIRE_CROSS_ENV}=1 but {reason}")
-        pytest.skip(reason)
+    _require(gcc, packages)
+    _require(size, packages)
     elf = out_dir / f"fw-{target}.elf"
     _run(
         [
@@ -222,6 +223,69 @@ def cross_build(target: str, out_dir: Path) -> dict[str, int]:
     )
     row = _run([size, str(elf)]).stdout.splitlines()[1].split()
     return {"text": int(row[0]), "data": int(row[1]), "bss": int(row[2])}
+
+
+def _require(tool: str, packages: str) -> str:
+    path = shutil.which(tool)
+    if path is None:
+        reason = f"{tool} not found: apt-get install {packages} (or .ci/bootstrap --test)"
+        if os.environ.get(REQUIRE_CROSS_ENV) == "1":
+            pytest.fail(f"{REQUIRE_CROSS_ENV}=1 but {reason}")
+        pytest.skip(reason)
+    return path
+
+
+def test_the_self_test_passes_on_the_host(tmp_path: Path) -> None:
+    cc = _cc()
+    exe = tmp_path / "selftest"
+    _run([cc, *WARNINGS, *SANITIZERS, f"-I{C_DIR}", *map(str, CORE), str(SELFTEST), "-o", str(exe)])
+    out = _run([str(exe)], env={**os.environ, **SANITIZER_ENV}).stdout
+    assert "FAIL" not in out and out.splitlines()[-1] == "selftest: ok", out
+
+
+def test_the_self_test_passes_on_an_atmega2560_under_simavr(tmp_path: Path) -> None:
+    """The AVR image runs the scripted host on the simulated MCU (16 MHz) and prints over
+    its UART; Timer1 measures fw_tick in CPU cycles."""
+    gcc = _require("avr-gcc", "gcc-avr avr-libc binutils-avr")
+    simavr = _require("simavr", "simavr")
+    elf = tmp_path / "selftest-avr.elf"
+    _run(
+        [
+            gcc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-pedantic",
+            "-Os",
+            "-DRP_NO_FIELD_INFO",
+            "-mmcu=atmega2560",
+            "-ffunction-sections",
+            "-fdata-sections",
+            "-Wl,--gc-sections",
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(SELFTEST),
+            "-o",
+            str(elf),
+        ]
+    )
+    done = subprocess.run(
+        [simavr, "-m", "atmega2560", "-f", "16000000", str(elf)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    # simavr echoes the UART line by line, in colour, with a trailing dot.
+    lines = [
+        re.sub(r"\x1b\[[0-9;]*m", "", line).rstrip(".")
+        for line in (done.stdout + done.stderr).splitlines()
+    ]
+    assert "selftest: ok" in lines, "\n".join(lines)
+    assert not any(line.startswith("FAIL") for line in lines), "\n".join(lines)
+    cycles = next(line for line in lines if line.startswith("fw_tick cycles:"))
+    print(f"\natmega2560 @ 16 MHz under simavr: {cycles}")
 
 
 @pytest.mark.parametrize("target", list(TARGETS))

@@ -224,6 +224,7 @@ void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
     if (c->cfg.queue_depth == 0u || c->cfg.queue_depth > FW_QUEUE_CAP) {
         c->cfg.queue_depth = (uint8_t)FW_QUEUE_CAP;
     }
+    c->a_dt = (int32_t)((uint64_t)c->cfg.accel_um_s2 * c->cfg.tick_us / 1000000u);
     c->rx_errors = 0u;
     c->tx_seq = 0u;
     rp_decoder_init(&c->dec);
@@ -678,12 +679,12 @@ static int32_t profile_side(fw_t *c, int32_t u, int64_t rem_units, int32_t a_dt,
     *arrived = false;
     {
         const int64_t vmax = c->vmax_um_s;
-        const int64_t tick = (int64_t)c->cfg.tick_us;
-        const int64_t rem_pm = rem_units * 1000000000000LL / (int64_t)c->cfg.distance_units_per_m;
-        const int64_t cruise_pm = vmax * vmax * 1000000LL / (2 * (int64_t)c->cfg.accel_um_s2) +
-                                  vmax * tick + (int64_t)a_dt * tick;
         int64_t want = vmax;
-        if (rem_pm <= cruise_pm) {
+        /* Beyond the cruise distance the braking curve allows more than cruise speed:
+         * rem_units >= cruise_units is rem_pm > cruise_pm without a division per tick. */
+        if (rem_units < c->cruise_units) {
+            const int64_t rem_pm =
+                rem_units * 1000000000000LL / (int64_t)c->cfg.distance_units_per_m;
             const int64_t b = braking_speed(c, rem_pm, a_dt);
             want = b < vmax ? b : vmax;
         }
@@ -695,6 +696,21 @@ static int32_t profile_side(fw_t *c, int32_t u, int64_t rem_units, int32_t a_dt,
         }
         return (int32_t)want;
     }
+}
+
+/**
+ * The cruise distance of a step, as the smallest remaining travel in encoder units whose
+ * length in picometres, floor(rem * 1e12 / units_per_m), exceeds
+ * vmax^2 / 2a + vmax * dt + a_dt * dt (drive.StepProfile's cruise_m).
+ */
+static int32_t cruise_units(const fw_t *c)
+{
+    const int64_t vmax = c->vmax_um_s;
+    const int64_t tick = (int64_t)c->cfg.tick_us;
+    const int64_t cruise_pm = vmax * vmax * 1000000LL / (2 * (int64_t)c->cfg.accel_um_s2) +
+                              vmax * tick + (int64_t)c->a_dt * tick;
+    const int64_t upm = (int64_t)c->cfg.distance_units_per_m;
+    return (int32_t)(((cruise_pm + 1) * upm + 999999999999LL) / 1000000000000LL);
 }
 
 static void start_next(fw_t *c, const int32_t travel[2])
@@ -717,6 +733,7 @@ static void start_next(fw_t *c, const int32_t travel[2])
     }
     c->vmax_um_s = moving ? (int32_t)(s->speed * c->cfg.speed_um_s_per_unit) : 0;
     c->goal_units = moving ? (int32_t)s->distance : 0;
+    c->cruise_units = cruise_units(c);
     c->stop_profile = c->run.command == RP_COMMAND_STOP;
     if (c->stop_profile) {
         c->u[0] = c->commanded[0];
@@ -742,7 +759,7 @@ static void start_next(fw_t *c, const int32_t travel[2])
 /** StepProfile.update: targets (rover frame) for the next tick. */
 static void profile_update(fw_t *c, const int32_t travel[2])
 {
-    const int32_t a_dt = (int32_t)((uint64_t)c->cfg.accel_um_s2 * c->cfg.tick_us / 1000000u);
+    const int32_t a_dt = c->a_dt;
     int side;
     if (c->run_done) {
         c->setpoint[0] = c->setpoint[1] = 0;
@@ -786,7 +803,7 @@ static void check_watchdog(fw_t *c)
 void fw_control(fw_t *c, uint64_t now_us)
 {
     int32_t travel[2];
-    const int32_t dv = (int32_t)((uint64_t)c->cfg.accel_um_s2 * c->cfg.tick_us / 1000000u);
+    const int32_t dv = c->a_dt;
     c->now_us = now_us;
     check_watchdog(c);
     read_travel(c, travel);

@@ -119,6 +119,8 @@ typedef struct {
     int8_t dir[2];
     int32_t vmax_um_s;
     int32_t goal_units;
+    int32_t cruise_units; /**< remaining travel from which the step cruises at vmax */
+    int32_t a_dt;         /**< speed change per tick at the acceleration limit, um/s */
     bool arrived[2], run_done, stop_profile;
     /* deduplication */
     uint16_t accepted[FW_DEDUP_WINDOW];
