@@ -2,11 +2,12 @@
 calls and no floating point, its receive path survives fuzzing under ASan and UBSan, and
 it cross-builds for a Cortex-M0+ (within 16 KiB of flash and 2 KiB of RAM) and an
 ATmega2560, with -Wall -Wextra -Werror, reporting the sizes ``size`` gives; its self-test
-(a scripted host, an ideal plant) passes on the host and on the ATmega2560 under simavr.
+(a scripted host, an ideal plant) passes on the host, on the ATmega2560 under simavr and
+on a Cortex-M0 under qemu-system-arm, which also give the cost of fw_tick.
 
 The cross compilers are Debian's ``gcc-arm-none-eabi`` (with ``libnewlib-arm-none-eabi``)
-and ``gcc-avr`` (with ``avr-libc``), and ``simavr``, which ``.ci/bootstrap --test``
-installs. Without
+and ``gcc-avr`` (with ``avr-libc``), ``simavr`` and ``qemu-system-arm``, which
+``.ci/bootstrap --test`` installs. Without
 them these tests skip, saying why; with ``ROVER_REQUIRE_CROSS=1`` (set by CI) a missing
 cross compiler fails them instead.
 """
@@ -286,6 +287,75 @@ def test_the_self_test_passes_on_an_atmega2560_under_simavr(tmp_path: Path) -> N
     assert not any(line.startswith("FAIL") for line in lines), "\n".join(lines)
     cycles = next(line for line in lines if line.startswith("fw_tick cycles:"))
     print(f"\natmega2560 @ 16 MHz under simavr: {cycles}")
+
+
+def test_the_self_test_passes_on_a_cortex_m0_under_qemu(tmp_path: Path) -> None:
+    """The image for the BBC micro:bit (nRF51822, Cortex-M0, the ARMv6-M instruction set
+    of the M0+) runs the scripted host under qemu-system-arm, printing through
+    semihosting. With ``-icount shift=6`` every instruction takes 64 ns of virtual time, so
+    the 16 MHz SysTick counts 1.024 per instruction: an instruction count per fw_tick."""
+    gcc = _require("arm-none-eabi-gcc", "gcc-arm-none-eabi libnewlib-arm-none-eabi")
+    qemu = _require("qemu-system-arm", "qemu-system-arm")
+    elf = tmp_path / "selftest-m0.elf"
+    _run(
+        [
+            gcc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-pedantic",
+            "-Os",
+            "-DRP_NO_FIELD_INFO",
+            "-DFW_SELFTEST_MICROBIT",
+            "-mcpu=cortex-m0",
+            "-mthumb",
+            "-ffunction-sections",
+            "-fdata-sections",
+            "-nostartfiles",
+            "--specs=nano.specs",
+            "--specs=rdimon.specs",
+            "-Wl,--gc-sections",
+            "-T",
+            str(FW_DIR / "port_bare" / "microbit.ld"),
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(SELFTEST),
+            "-o",
+            str(elf),
+        ]
+    )
+    done = subprocess.run(
+        [
+            qemu,
+            "-M",
+            "microbit",
+            "-nographic",
+            "-monitor",
+            "none",
+            "-serial",
+            "none",
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            "shift=6",
+            "-kernel",
+            str(elf),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    lines = done.stdout.splitlines()
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "selftest: ok" in lines and not any(line.startswith("FAIL") for line in lines)
+    counts = next(line for line in lines if line.startswith("fw_tick SysTick counts:"))
+    avg, peak = (int(w) for w in counts.split()[4:7:2])
+    print(
+        f"\ncortex-m0 under qemu (microbit): about {avg / 1.024:,.0f} instructions per "
+        f"fw_tick on average, {peak / 1.024:,.0f} at most ({counts})"
+    )
 
 
 @pytest.mark.parametrize("target", list(TARGETS))

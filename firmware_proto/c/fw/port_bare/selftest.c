@@ -1,15 +1,18 @@
 /**
  * @file selftest.c
  * @brief The firmware core's self-test on the target: a scripted host and an ideal plant
- *        behind the HAL, run on an ATmega2560 under simavr
+ *        behind the HAL, run on an ATmega2560 under simavr, on a Cortex-M0 (the BBC
+ *        micro:bit) under qemu-system-arm with semihosting for its output
  *        (tests/firmware_proto/test_fw.py), or on the host.
  *
  * The script: HELLO (IDENT, session open); a 0.1 m FWD step run to COMPLETED with
  * travel 2300; a long step stopped half-way: STOP_ACK first, the targets zero on return,
  * STOPPED once at rest, MOTION refused STOP_LATCHED, CLEAR_STOP answered CLEARED. It
- * prints one line per check and `selftest: ok` (or the first failure), then the cost of
- * fw_tick: on AVR in CPU cycles from Timer1 (prescaler 8: 8-cycle resolution, right
- * while a tick takes under 524,288 cycles), elsewhere nothing.
+ * prints one line per check and `selftest: ok` (or FAILED), then the cost of fw_tick:
+ * on AVR in CPU cycles from Timer1 (prescaler 8: 8-cycle resolution, right while a tick
+ * takes under 524,288 cycles); on the micro:bit in SysTick counts at its 16 MHz core
+ * clock, which under `qemu-system-arm -icount shift=6` (64 ns per instruction) are
+ * 1.024 counts per instruction executed; on the host nothing.
  */
 #include <stdio.h>
 
@@ -30,6 +33,55 @@ static int uart_putchar(char ch, FILE *stream)
 }
 
 static FILE uart_out = FDEV_SETUP_STREAM(uart_putchar, NULL, _FDEV_SETUP_WRITE);
+#endif
+
+#ifdef FW_SELFTEST_MICROBIT
+/* Start-up for the micro:bit image (microbit.ld): the vector table, .data copied from
+ * flash, .bss zeroed, then main; output and exit through semihosting (newlib's rdimon). */
+#include <stdlib.h>
+
+int main(void);
+void Reset_Handler(void);
+void Fault_Handler(void);
+extern void initialise_monitor_handles(void);
+extern uint32_t __data_load, __data_start, __data_end, __bss_start__, __bss_end__;
+extern void __stack_top(void); /* a linker symbol, declared so that it fits the table */
+
+__attribute__((section(".vectors"), used)) static void (*const vectors[16])(void) = {
+    __stack_top, Reset_Handler, Fault_Handler, Fault_Handler,
+};
+
+#define SYST_CSR (*(volatile uint32_t *)0xE000E010u)
+#define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
+#define SYST_CVR (*(volatile uint32_t *)0xE000E018u)
+
+void Fault_Handler(void)
+{
+    exit(99);
+}
+
+void Reset_Handler(void)
+{
+    uint32_t *src = &__data_load;
+    uint32_t *dst;
+    for (dst = &__data_start; dst < &__data_end;) {
+        *dst++ = *src++;
+    }
+    for (dst = &__bss_start__; dst < &__bss_end__;) {
+        *dst++ = 0u;
+    }
+    initialise_monitor_handles();
+    SYST_RVR = 0xFFFFFFu;
+    SYST_CVR = 0u;
+    SYST_CSR = 5u; /* enabled, core clock, no interrupt */
+    exit(main());
+}
+#endif
+
+#ifdef __AVR__
+#define COUNTER "cycles"
+#else
+#define COUNTER "SysTick counts"
 #endif
 
 /* ------------------------------------------------------------------ plant and HAL */
@@ -119,6 +171,19 @@ static void tick(void)
         t1 = TCNT1;
         /* Modulo 2^16 counts: right while fw_tick takes under 524,288 cycles. */
         cycles = (uint32_t)(uint16_t)(t1 - t0) * 8u;
+        tick_cycles_sum += cycles;
+        if (cycles > tick_cycles_max) {
+            tick_cycles_max = cycles;
+        }
+        tick_count++;
+    }
+#elif defined(FW_SELFTEST_MICROBIT)
+    {
+        /* SysTick counts down from 2^24 - 1 at the core clock. */
+        const uint32_t t0 = SYST_CVR;
+        uint32_t cycles;
+        fw_tick(&c, now);
+        cycles = (t0 - SYST_CVR) & 0xFFFFFFu;
         tick_cycles_sum += cycles;
         if (cycles > tick_cycles_max) {
             tick_cycles_max = cycles;
@@ -256,7 +321,7 @@ int main(void)
 
     printf("selftest: %s\n", failures == 0 ? "ok" : "FAILED");
     if (tick_count > 0u) {
-        printf("fw_tick cycles: avg %lu max %lu over %lu ticks\n",
+        printf("fw_tick " COUNTER ": avg %lu max %lu over %lu ticks\n",
                (unsigned long)(tick_cycles_sum / tick_count), (unsigned long)tick_cycles_max,
                (unsigned long)tick_count);
     }
