@@ -150,7 +150,7 @@ def _corpus(seed: int, records: int) -> bytes:
     return bytes(out)
 
 
-def test_fuzzing_fw_on_bytes_under_asan_and_ubsan_finds_nothing(tmp_path: Path) -> None:
+def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(tmp_path: Path) -> None:
     cc = _cc()
     exe = tmp_path / "fuzz_fw"
     _run(
@@ -174,9 +174,11 @@ def test_fuzzing_fw_on_bytes_under_asan_and_ubsan_finds_nothing(tmp_path: Path) 
     noise = tmp_path / "noise.bin"
     noise.write_bytes(random.Random(9).randbytes(300_000))
     done = _run([str(exe), *map(str, inputs), str(noise)], env={**os.environ, **SANITIZER_ENV})
-    frames, acks = (int(w) for w in done.stdout.split()[1:5:3])
-    # The corpus reaches the state machine: thousands of answers, STOPs among them.
-    assert frames > 50_000 and acks > 1_000, done.stdout
+    words = done.stdout.split()
+    frames, acks, can_frames = int(words[1]), int(words[4]), int(words[6])
+    # The corpus reaches the state machine: thousands of answers, STOPs among them, on
+    # serial and on CAN.
+    assert frames > 50_000 and acks > 1_000 and can_frames > 10_000, done.stdout
 
 
 # -- cross builds -------------------------------------------------------------------------

@@ -9,6 +9,9 @@
  * it is a plain program that runs the same checks over the files named on its command
  * line.
  *
+ * The same input, cut differently, is also fed as CAN frames to a second controller on
+ * node 1 (fw_on_can), whose every sent frame must decode as its own.
+ *
  * Input: a sequence of records; byte 0 of each: bits 0..5 the chunk length (0..63) fed
  * to fw_on_bytes, bits 6..7 what happens after it (0, 1: a tick of 1 ms; 2: 50 ticks;
  * 3: a fault raised or cleared, or a reboot, chosen by the next byte). Checks, beyond
@@ -100,11 +103,17 @@ void fw_hal_write(const uint8_t *bytes, size_t n)
     require(rp_counters_rejected(&out_dec.counters) == 0u);
 }
 
+static unsigned can_out;
+
 void fw_hal_can_send(uint16_t can_id, const uint8_t *data, uint8_t len)
 {
-    (void)can_id;
-    (void)data;
-    require(len <= 8u);
+    rp_can_decoder_t d;
+    rp_can_frame_t f;
+    rp_can_decoder_init(&d);
+    /* Every frame the core sends is a valid controller-to-host frame of its node. */
+    require(rp_can_decode(&d, can_id, false, false, data, len, &f));
+    require(f.node == 1u);
+    can_out++;
 }
 
 static void plant_step(uint32_t tick_us)
@@ -142,6 +151,37 @@ static void check(const fw_t *c)
         require(c->setpoint[0] == 0 && c->setpoint[1] == 0);
     }
     require(c->state <= RP_CONTROLLER_STATE_FAULT);
+}
+
+/* The same bytes as CAN frames to a controller on node 1: byte 0 and 1 make the 11-bit
+ * identifier (node 1, 0 or another), byte 2 the flags and length, then the data. */
+static void fuzz_can(const uint8_t *data, size_t size)
+{
+    static fw_t can;
+    fw_config_t cfg;
+    uint64_t t = 0u;
+    size_t i = 0u;
+    fw_default_config(&cfg);
+    cfg.transport = FW_TRANSPORT_CAN;
+    fw_init(&can, &cfg, t);
+    while (i + 3u <= size) {
+        const uint32_t msg_id = data[i] & 0x7Fu;
+        const uint32_t node = (data[i + 1] & 3u) == 0u ? 0u : ((data[i + 1] & 3u) == 1u ? 2u : 1u);
+        const uint8_t flags = data[i + 2];
+        size_t len = flags & 0x0Fu;
+        i += 3u;
+        if (len > size - i) {
+            len = size - i;
+        }
+        fw_on_can(&can, t, msg_id << 4 | node, (flags & 0x40u) != 0u && (flags & 0x30u) == 0x30u,
+                  (flags & 0x80u) != 0u && (flags & 0x20u) != 0u, data + i, len);
+        i += len;
+        check(&can);
+        t += cfg.tick_us;
+        fw_tick(&can, t);
+        plant_step(cfg.tick_us);
+        check(&can);
+    }
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
@@ -203,6 +243,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             break;
         }
     }
+    fuzz_can(data, size);
     return 0;
 }
 
@@ -221,7 +262,8 @@ int main(int argc, char **argv)
         fclose(f);
         LLVMFuzzerTestOneInput(buf, n);
     }
-    printf("fuzz_fw: %u frames out, %u STOP_ACK\n", frames_out, stop_acks_out);
+    printf("fuzz_fw: %u frames out, %u STOP_ACK, %u CAN frames out\n", frames_out, stop_acks_out,
+           can_out);
     return 0;
 }
 #endif
