@@ -150,7 +150,9 @@ def _corpus(seed: int, records: int) -> bytes:
     return bytes(out)
 
 
-def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(tmp_path: Path) -> None:
+def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
+    tmp_path: Path,
+) -> None:
     cc = _cc()
     exe = tmp_path / "fuzz_fw"
     _run(
