@@ -10,7 +10,7 @@ file only adds the ROS 2 data files (docs/ros2.md):
   parameter files (``bridge/ros/config/*.yaml``) under ``share/rover_hil``;
 - the ``udev/`` files (rules, networkd file, bring-up scripts, README) under
   ``share/rover_hil/udev``, where ``rover udev install`` and ``rover devices`` find them
-  in an install (bridge/udev_install.py).
+  in an install (udev/install.py).
 
 Under ``colcon build --symlink-install`` colcon runs this file from the build directory,
 next to symlinks of setup.py, setup.cfg, the packages and the data files but without
@@ -50,7 +50,8 @@ DATA_FILES = [
     (f"share/{PACKAGE}", ["package.xml"]),
     (f"share/{PACKAGE}/launch", _files(ROS_DIR / "launch", "*_launch.py")),
     (f"share/{PACKAGE}/config", _files(ROS_DIR / "config", "*.yaml")),
-    (f"share/{PACKAGE}/udev", _files(Path("udev"), "*")),
+    # udev/ holds its tooling's code (the udev package) beside the rules: code is no data.
+    (f"share/{PACKAGE}/udev", [f for f in _files(Path("udev"), "*") if not f.endswith(".py")]),
 ]
 
 

@@ -98,7 +98,7 @@ def stop_trials(
     """Emulator STOP reactions (s) and stopping distances from full speed (mm)."""
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
     distances: list[int] = []
-    with Emulator(model, SerialFrontEnd(seed=2)) as emu, SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with Emulator(model, SerialFrontEnd(seed=2)) as emu, SerialHost(emu.frontend.device) as host:
         host.handshake()
         for trial in range(trials):
             mark = host.mark()

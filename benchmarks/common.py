@@ -17,7 +17,7 @@ from pathlib import Path
 
 import serial
 
-from emulator.ptypair import PtyPair
+from firmware_proto.linkio.ptypair import PtyPair
 
 __all__ = [
     "Served",

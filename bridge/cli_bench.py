@@ -12,13 +12,15 @@ __all__ = ["can_spec", "register"]
 
 
 def can_spec(text: str) -> tuple[str, str]:
-    """``INTERFACE:CHANNEL`` -> ``(interface, channel)``, an argparse type."""
-    interface, sep, channel = text.partition(":")
-    if not sep or not interface or not channel:
-        raise argparse.ArgumentTypeError(
-            f"expected INTERFACE:CHANNEL, e.g. socketcan:can0 or virtual:rover, got {text!r}"
-        )
-    return interface, channel
+    """``INTERFACE:CHANNEL`` -> ``(interface, channel)``, an argparse type
+    (:func:`firmware_proto.linkio.urls.parse_can_spec`)."""
+    from firmware_proto.linkio.errors import LinkUrlError
+    from firmware_proto.linkio.urls import parse_can_spec
+
+    try:
+        return parse_can_spec(text)
+    except LinkUrlError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
 def register(subparsers: Any) -> None:
@@ -129,7 +131,7 @@ def register(subparsers: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     from bridge.benchreport import format_table, write_reports
     from bridge.stopbench import BenchConfig, FloodConfig, StopBench, TrialResult
-    from bridge.trafficfile import open_recorder
+    from firmware_proto.linkio.trafficio import open_recorder
 
     flood = None
     if args.can:

@@ -130,6 +130,9 @@ def register(subparsers: Any) -> None:
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The command line's parameters: ``--param`` values, then the named options."""
+    from firmware_proto.linkio.errors import LinkUrlError
+    from firmware_proto.linkio.urls import parse_can_spec
+
     values: dict[str, Any] = dict(getattr(args, "param", None) or [])
     for _, name, _, _ in _OPTIONS:
         if getattr(args, name) is not None:
@@ -139,11 +142,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     if args.ros_backend is not None:
         values["ros_backend"] = args.ros_backend
     if args.can:
-        interface, sep, channel = args.can.partition(":")
-        if not sep or not interface or not channel:
-            raise ValueError(
-                f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
-            )
+        try:
+            interface, channel = parse_can_spec(args.can)
+        except LinkUrlError as exc:
+            raise ValueError(f"--can: {exc}") from None
         values["can_interface"], values["can_channel"] = interface, channel
     return values
 
@@ -170,8 +172,8 @@ def ros_layer(ros_args: Sequence[str]) -> RosLayer:
         ValueError: a malformed ROS argument or parameters file, or PyYAML missing.
         OSError: a parameters file cannot be read.
     """
-    from firmware_proto.cli_rosargs import load_parameters_file
-    from firmware_proto.rosargs import parse_ros_args, ros_node_parameters
+    from firmware_proto.cli.rosargs import parse_ros_args, ros_node_parameters
+    from firmware_proto.cli.rosparams import load_parameters_file
 
     parsed = parse_ros_args(ros_args)
     node = parsed.node_name or NODE_NAME
@@ -221,7 +223,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     on stderr as ``prog: error:``), 1 when ROS 2 is not installed.
 
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
-    (:func:`firmware_proto.rosargs.split_ros_args`).
+    (:func:`firmware_proto.cli.rosargs.split_ros_args`).
     """
     from bridge.errors import DeviceBusyError
     from bridge.interpreter import use_short_switch_interval
@@ -267,7 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     bridge``, then optionally ``--ros-args`` (see the module docstring). Exit status 2
     for a usage error (bad option, unknown or bad parameter, malformed ROS argument), 1
     when the bridge fails."""
-    from firmware_proto.rosargs import split_ros_args
+    from firmware_proto.cli.rosargs import split_ros_args
 
     own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     parser = argparse.ArgumentParser(

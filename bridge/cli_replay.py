@@ -1,5 +1,5 @@
 """``rover replay --bridge``: the bridge's replay target (see
-:mod:`firmware_proto.cli_replay` for the options and :mod:`bridge.replay` for what it
+:mod:`firmware_proto.cli.replay` for the options and :mod:`bridge.replay` for what it
 does)."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ def run(args: argparse.Namespace) -> int:
     """Replay ``args.log``'s controller side into a fresh bridge link; print the report;
     0 if the bridge sent the recorded requests, 1 if not."""
     from bridge.replay import BridgeReplayOptions, replay_into_bridge
-    from bridge.trafficfile import read_log
+    from firmware_proto.linkio.trafficio import read_log
 
     log = read_log(args.log)
     interface, channel = "virtual", f"rover-bridge-replay-{os.getpid()}"

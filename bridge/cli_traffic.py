@@ -53,9 +53,9 @@ def register_decode(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from bridge.trafficfile import read_log
+    from firmware_proto.linkio.trafficio import read_log
+    from firmware_proto.linkio.trafficlog import decode_records
     from firmware_proto.messages import BY_NAME
-    from firmware_proto.trafficlog import decode_records
 
     only: set[str] | None = None
     if args.only:

@@ -5,7 +5,8 @@ Everything this package raises derives from :class:`BridgeError`::
     BridgeError
      +-- RosPortError       the ROS port (bridge.rosport) failed; its subclasses are drawn
      |                      in bridge/rosport/errors.py
-     +-- TransportError     a device or bus cannot be opened, read or written; also OSError
+     +-- TransportError     a device or bus cannot be opened, read or written; also
+     |    |                 OSError (firmware_proto.linkio.errors.LinkError)
      |    +-- TransportUrlError   the URL itself is malformed: permanent, never retried;
      |    |                       also ValueError
      |    +-- DeviceBusyError     another process holds the device exclusively (a second
@@ -23,6 +24,8 @@ Parts of the bridge add their own subclasses of :class:`BridgeError` beside
 """
 
 from __future__ import annotations
+
+from firmware_proto.linkio.errors import LinkBusyError, LinkError, LinkUrlError
 
 __all__ = [
     "BridgeError",
@@ -45,11 +48,11 @@ class RosPortError(BridgeError):
     """The ROS port (any backend) cannot do what was asked."""
 
 
-class TransportError(BridgeError, OSError):
+class TransportError(BridgeError, LinkError):
     """The link to the controller cannot be opened, read or written."""
 
 
-class TransportUrlError(TransportError, ValueError):
+class TransportUrlError(TransportError, LinkUrlError):
     """A transport URL is malformed (unknown scheme, missing host or port, bad option).
 
     Permanent: raised when the transport is built, before anything is opened, and no
@@ -58,7 +61,7 @@ class TransportUrlError(TransportError, ValueError):
     """
 
 
-class DeviceBusyError(TransportError):
+class DeviceBusyError(TransportError, LinkBusyError):
     """Another process holds the device's exclusive lock: a second bridge (or bench, or
     conformance run) on the same controller. ``rover bridge`` refuses to start on it."""
 

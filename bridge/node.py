@@ -70,8 +70,8 @@ from bridge.rosport.msgs import (
     quaternion_from_yaw,
     stamp,
 )
-from bridge.trafficfile import open_recorder
 from bridge.transport import Transport, open_transport
+from firmware_proto.linkio.trafficio import LogWriter, open_recorder
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     Command,
@@ -84,7 +84,6 @@ from firmware_proto.messages import (
 )
 from firmware_proto.messages import Pose as PoseMsg
 from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.trafficio import LogWriter
 
 __all__ = ["BridgeNode", "validate_step"]
 

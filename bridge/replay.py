@@ -24,38 +24,30 @@ bench, a test script) speaks the protocol differently, and the differences will 
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import os
-import select
 import threading
 import time
-import tty
 from collections import Counter
 from dataclasses import dataclass
-from types import TracebackType
-
-import can
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.transport import Transport, open_transport
-from firmware_proto.canmap import CanDecoder
-from firmware_proto.framing import FrameDecoder
-from firmware_proto.message import Message
-from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE, ClearStop, Motion, Stop
-from firmware_proto.trafficio import LogFile
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.can_endpoint import CanEndpoint
+from firmware_proto.linkio.endpoint import CONTROLLER, Endpoint
+from firmware_proto.linkio.replay_peer import ReplayPeer
+from firmware_proto.linkio.serial_endpoint import PtyPort, SerialEndpoint
+from firmware_proto.linkio.trafficio import LogFile
+from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
-    CanRecord,
     Difference,
-    SerialRecord,
-    TrafficRecord,
     counts_before,
     decode_records,
     diff_texts,
     log_node,
 )
+from firmware_proto.message import Message
+from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE, ClearStop, Motion, Stop
 
 __all__ = ["BridgeReplayOptions", "BridgeReplayResult", "replay_into_bridge"]
 
@@ -139,141 +131,23 @@ def _requests(messages: list[Message]) -> list[str]:
     return out
 
 
-class _Controller:
-    """The controller's end: writes recorded frames, reads the link's frames."""
-
-    def __init__(self) -> None:
-        self.requests: list[tuple[float, Message]] = []
-        self._counts: Counter[str] = Counter()
-        self._cond = threading.Condition()
-        self._write_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="bridge-replay-rx", daemon=True)
-
-    @property
-    def url(self) -> str:
-        raise NotImplementedError
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            messages = self._read()
-            if messages:
-                now = time.monotonic()
-                with self._cond:
-                    self.requests += [(now, m) for m in messages]
-                    self._counts.update(m.NAME for m in messages if m.PRIORITY != "telemetry")
-                    self._cond.notify_all()
-
-    def wait_requests(self, need: Counter[str], deadline: float) -> bool:
-        def reached() -> bool:
-            return all(self._counts[name] >= n for name, n in need.items())
-
-        with self._cond:
-            return self._cond.wait_for(reached, max(0.0, deadline - time.monotonic()))
-
-    def play(self, record: TrafficRecord) -> None:
-        with self._write_lock:
-            self._write(record)
-
-    def _write(self, record: TrafficRecord) -> None:
-        raise NotImplementedError
-
-    def _read(self) -> list[Message]:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5.0)
-
-    def __enter__(self) -> _Controller:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
+def _controller_peer(kind: str, opts: BridgeReplayOptions, node: int) -> ReplayPeer:
+    """The controller's end for a ``kind`` log: a new pty, or node ``node`` on the bus;
+    it counts the link's requests (everything but telemetry)."""
+    endpoint: Endpoint = (
+        SerialEndpoint(CONTROLLER, PtyPort)
+        if kind == "serial"
+        else CanEndpoint(CONTROLLER, opts.can_interface, opts.can_channel, node=node)
+    )
+    return ReplayPeer(endpoint, counted=lambda m: m.PRIORITY != "telemetry")
 
 
-class _PtyController(_Controller):
-    def __init__(self) -> None:
-        super().__init__()
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.device = os.ttyname(self._slave)
-        self._decoder = FrameDecoder()
-
-    @property
-    def url(self) -> str:
-        return self.device
-
-    def _write(self, record: TrafficRecord) -> None:
-        if not isinstance(record, SerialRecord):
-            raise TypeError("a serial replay needs serial records")
-        try:
-            os.write(self._master, record.wire)
-        except (BlockingIOError, OSError) as exc:
-            logger.debug("controller frame not delivered: %s", exc)
-
-    def _read(self) -> list[Message]:
-        ready, _, _ = select.select([self._master], [], [], 0.05)
-        if not ready:
-            return []
-        try:
-            data = os.read(self._master, 4096)
-        except (BlockingIOError, OSError):
-            self._stop.wait(0.01)
-            return []
-        return [f.message for f in self._decoder.feed(data)]
-
-    def close(self) -> None:
-        super().close()
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-
-class _CanController(_Controller):
-    def __init__(self, interface: str, channel: str, node: int) -> None:
-        super().__init__()
-        self.interface, self.channel, self.node = interface, channel, node
-        self._bus = can.Bus(interface=interface, channel=channel)
-        self._decoder = CanDecoder()
-
-    @property
-    def url(self) -> str:
-        return f"can://{self.interface}/{self.channel}?node={self.node}"
-
-    def _write(self, record: TrafficRecord) -> None:
-        if not isinstance(record, CanRecord):
-            raise TypeError("a CAN replay needs CAN records")
-        self._bus.send(
-            can.Message(
-                arbitration_id=record.arbitration_id, data=record.data, is_extended_id=False
-            )
-        )
-
-    def _read(self) -> list[Message]:
-        frame = self._bus.recv(timeout=0.05)
-        if frame is None or frame.is_error_frame:
-            return []
-        decoded = self._decoder.decode(frame.arbitration_id, bytes(frame.data))
-        if decoded is None or decoded.node not in (self.node, BROADCAST_NODE):
-            return []
-        if decoded.message.DIRECTION != "host_to_controller":
-            return []
-        return [decoded.message]
-
-    def close(self) -> None:
-        super().close()
-        self._bus.shutdown()
+def _link_url(peer: ReplayPeer) -> str:
+    """The URL a bridge link opens to reach ``peer`` (started)."""
+    endpoint = peer.endpoint
+    if isinstance(endpoint, CanEndpoint):
+        return f"can://{endpoint.interface}/{endpoint.channel}?node={endpoint.node}"
+    return endpoint.name
 
 
 class _Processed:
@@ -303,14 +177,6 @@ def _own_time(message: Message) -> bool:
     """Periodic controller telemetry, played on its recorded time alone (PROGRESS is not:
     it must not overtake the STATUS frames it sums up)."""
     return message.PRIORITY == "telemetry" and message.NAME != "PROGRESS"
-
-
-def _play_on_time(controller: _Controller, records: list[TrafficRecord], offset: float) -> None:
-    for record in records:
-        delay = record.time_s + offset - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        controller.play(record)
 
 
 def replay_into_bridge(
@@ -382,11 +248,7 @@ def replay_into_bridge(
 
     started = time.monotonic()
     statuses: list[str] = []
-    controller: _Controller = (
-        _PtyController()
-        if log.kind == "serial"
-        else _CanController(opts.can_interface, opts.can_channel, node or DEFAULT_NODE)
-    )
+    controller = _controller_peer(log.kind, opts, node or DEFAULT_NODE)
     sent: list[Message] = []
     with controller:
         controller.start()
@@ -397,14 +259,14 @@ def replay_into_bridge(
 
         processed = _Processed()
         link = ControllerLink(
-            LinkConfig(controller.url, reconnect_min_s=0.01),
+            LinkConfig(_link_url(controller), reconnect_min_s=0.01),
             on_status=statuses.append,
             on_telemetry=processed,
             transport_factory=factory,
         )
         beats = threading.Thread(
-            target=_play_on_time,
-            args=(controller, telemetry, t0 - t_first),
+            target=controller.play_on_time,
+            args=(telemetry, t0 - t_first),
             name="bridge-replay-telemetry",
             daemon=True,
         )
@@ -430,7 +292,7 @@ def replay_into_bridge(
                     if delay > 0:
                         time.sleep(delay)  # replaying the recorded timing is the point
                     if need:
-                        controller.wait_requests(need, due + opts.gate_s)
+                        controller.wait_counts(need, due + opts.gate_s)
                     controller.play(rec)
             finally:
                 operator.join()
@@ -438,8 +300,7 @@ def replay_into_bridge(
             end = t0 + (t_last - t_first) + _TAIL_S
             while (left := end - time.monotonic()) > 0:
                 time.sleep(min(left, 0.05))
-        with controller._cond:
-            sent = [m for _, m in controller.requests]
+        sent = [m for _, m in controller.snapshot()]
     replayed_requests = _requests(sent)
     return BridgeReplayResult(
         medium=log.kind,

@@ -47,8 +47,10 @@ from typing import Any, TypeVar
 import can
 
 from bridge.errors import BridgeError
-from bridge.transport import Transport, open_transport, parse_can_url
+from bridge.transport import Transport, open_transport
 from firmware_proto.canmap import MAX_NODE, can_id
+from firmware_proto.linkio.trafficlog import TrafficRecorder
+from firmware_proto.linkio.urls import parse_can_url
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     ENCODERS_RATE_HZ,
@@ -79,7 +81,6 @@ from firmware_proto.messages import (
     StopSource,
     WheelSpeeds,
 )
-from firmware_proto.trafficlog import TrafficRecorder
 
 __all__ = [
     "FLOOD_MSG_ID",

@@ -1,16 +1,22 @@
-"""Transports to the motor controller, chosen by URL through a registry.
+"""Transports to the motor controller: the host's end of the link, with its threads.
 
-``open_transport(url)`` maps a URL to a transport class, imported lazily:
+``open_transport(url)`` builds the transport a link URL names
+(:mod:`firmware_proto.linkio.urls`):
 
 - ``can://INTERFACE/CHANNEL[?node=N&bitrate=B]``: any python-can bus, e.g.
-  ``can://socketcan/vcan0?node=1`` or ``can://virtual/rover``;
+  ``can://socketcan/vcan0?node=1`` or ``can://virtual/rover``
+  (:class:`~bridge.can_transport.CanTransport`);
 - anything else goes to pyserial's ``serial_for_url``: a device path (``/dev/ttyACM0``,
   ``/dev/serial/by-id/...``, ``/dev/rover-motor``, a pty path), ``socket://host:port``,
-  ``rfc2217://...``, ``loop://``; query ``?baud=B`` sets the baud rate (default 115200).
+  ``rfc2217://...``, ``loop://``; query ``?baud=B`` sets the baud rate (default 115200)
+  (:class:`~bridge.serial_transport.SerialTransport`).
 
-A transport moves protocol messages, not bytes: it encodes with
-:mod:`firmware_proto.framing` or :mod:`firmware_proto.canmap` and decodes with their pure
-decoders. Two threads per open transport:
+A transport moves protocol messages, not bytes, through an
+:class:`~firmware_proto.linkio.endpoint.Endpoint` of the link-I/O layer on the host's
+side (the same serial and CAN endpoints the emulator serves with): the endpoint frames,
+decodes, filters and hands every frame to the traffic log; the transport adds the
+threads, the receive queue and its drop policy, the write locks and the bridge's errors.
+Two threads per open transport:
 
 - the **reader** does I/O only: it reads, feeds the pure decoder, stamps each message
   with its arrival time (``time.monotonic()``) and puts it on a bounded queue
@@ -39,13 +45,8 @@ by its retransmission, a heartbeat by the next period) or is moot under the latc
 CAN every frame is whole by construction and STOP goes to the bus ahead of any frame of
 ours still waiting for the write lock.
 
-Implementing a transport: subclass :class:`Transport`; fill ``_open``, ``_close``,
-``_write`` (one message) and ``_read`` (wait a little, return messages), and
-``_write_raw`` if it can send unchecked frames (:meth:`Transport.send_raw`); set
-``counters`` to the decoder's :class:`~firmware_proto.counters.RxCounters`; override
-``medium_state`` and ``medium_errors`` if the medium reports its health; hand every
-frame written and every frame received to ``_record`` (traffic logs,
-docs/traffic-logs.md), only when :attr:`Transport.recorder` is set.
+A new medium is a new :class:`~firmware_proto.linkio.endpoint.Endpoint`; a test that
+must see or stall the writes overrides ``_write`` (one message, on the writing thread).
 """
 
 from __future__ import annotations
@@ -56,17 +57,18 @@ import logging
 import queue
 import threading
 import time
-from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from types import TracebackType
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
 
 from bridge.errors import DeviceBusyError, TransportError, TransportUrlError
 from firmware_proto.counters import RxCounters
+from firmware_proto.linkio.endpoint import Endpoint
+from firmware_proto.linkio.errors import LinkUrlError
+from firmware_proto.linkio.urls import SERIAL_SCHEMES, is_can_url
 from firmware_proto.message import Message
 from firmware_proto.messages import Encoders, Imu, Pose, Stop, WheelSpeeds
-from firmware_proto.trafficlog import RecordingEdge, TrafficRecorder
 
 __all__ = [
     "RX_QUEUE_DEPTH",
@@ -76,7 +78,7 @@ __all__ = [
     "OnMessage",
     "Transport",
     "open_transport",
-    "parse_can_url",
+    "url_errors",
 ]
 
 logger = logging.getLogger(__name__)
@@ -106,22 +108,34 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
 """Transport kind -> (module, class), imported when first used."""
 
 
-class Transport(RecordingEdge, ABC):
-    """A connection to the controller that carries protocol messages."""
+@contextmanager
+def url_errors(url: str) -> Iterator[None]:
+    """Turn the link layer's malformed-URL error into the bridge's (permanent)
+    :class:`~bridge.errors.TransportUrlError`."""
+    try:
+        yield
+    except LinkUrlError as exc:
+        text = str(exc)
+        raise TransportUrlError(text if repr(url) in text else f"{url!r}: {text}") from exc
+
+
+class Transport:
+    """A connection to the controller that carries protocol messages, through an
+    endpoint on the host's side (see the module docstring)."""
 
     kind = "transport"
     rx_queue_depth = RX_QUEUE_DEPTH
     """Messages the reader may hold for the dispatcher (set before :meth:`open`)."""
 
-    def __init__(self, url: str, recorder: TrafficRecorder | None = None) -> None:
+    def __init__(self, url: str, endpoint: Endpoint) -> None:
         """Args:
         url: the transport URL (see the module docstring).
-        recorder: where every frame sent and received goes (a traffic log); the caller
-            keeps ownership and closes it after the transport.
+        endpoint: the host's end of the link on its medium, not yet open; its listeners
+            (a traffic log: the caller keeps ownership and closes it after the
+            transport) get every frame sent and received.
         """
         self.url = url
-        self.recorder = recorder
-        self.counters = RxCounters()
+        self.endpoint = endpoint
         self._tx_frames = 0
         self._tx_stops = 0
         self.rx_overflow = 0
@@ -136,37 +150,27 @@ class Transport(RecordingEdge, ABC):
         self._opened = False
 
     @property
+    def counters(self) -> RxCounters:
+        """The decoder's receive counters (frames, bytes, rejects by cause)."""
+        return self.endpoint.counters
+
+    @property
     def medium_state(self) -> str:
-        """The medium's own condition, for ``/diagnostics``: ``ok`` unless the transport
-        knows better (CAN: its fault-confinement state, see :mod:`bridge.can_transport`).
-        ``ok`` and ``error_active`` are healthy; anything else is a warning."""
-        return "ok"
+        """The medium's own condition, for ``/diagnostics``: ``ok`` unless the medium
+        knows better (CAN: its fault-confinement state, see
+        :mod:`firmware_proto.linkio.can_endpoint`). ``ok`` and ``error_active`` are
+        healthy; anything else is a warning."""
+        return self.endpoint.medium_state
 
     @property
     def medium_errors(self) -> int:
         """Errors the medium itself reported on this connection (CAN: error frames)."""
-        return 0
+        return self.endpoint.medium_errors
 
-    # -- hooks ------------------------------------------------------------------------
-    @abstractmethod
-    def _open(self) -> None:
-        """Acquire the device or bus. Raise OSError (or a subclass) on failure."""
-
-    @abstractmethod
-    def _close(self) -> None:
-        """Release it (idempotent)."""
-
-    @abstractmethod
     def _write(self, message: Message) -> None:
-        """Send one message. Raise OSError on failure."""
-
-    @abstractmethod
-    def _read(self, timeout_s: float) -> list[Message]:
-        """Wait up to ``timeout_s``; return the messages received. Raise OSError when the
-        device is gone."""
-
-    def _edge_name(self) -> str:
-        return self.url
+        """Send one message (the hook a test overrides to watch or stall writes). Raises
+        OSError on failure."""
+        self.endpoint.write(message)
 
     # -- API ----------------------------------------------------------------------------
     def open(self, on_message: OnMessage, on_error: OnError) -> None:
@@ -177,7 +181,7 @@ class Transport(RecordingEdge, ABC):
             TransportError: the device or bus cannot be opened; says which and why.
         """
         try:
-            self._open()
+            self.endpoint.open()
         except (OSError, ValueError) as exc:
             if isinstance(exc, OSError) and exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
                 raise DeviceBusyError(
@@ -243,15 +247,10 @@ class Transport(RecordingEdge, ABC):
             if not self._opened:
                 raise TransportError(f"{self.url} is not open")
             try:
-                self._write_raw(msg_id, payload, bad_crc)
+                self.endpoint.write_raw(msg_id, payload, bad_crc=bad_crc)
             except (OSError, ValueError) as exc:
                 raise TransportError(f"write to {self.url} failed: {exc}") from exc
             self._tx_frames += 1
-
-    def _write_raw(self, msg_id: int, payload: bytes, bad_crc: bool) -> None:
-        """Send one unchecked frame (see :meth:`send_raw`). Raise OSError on failure,
-        ValueError when the medium cannot carry it. Default: not supported."""
-        raise ValueError(f"{self.kind} transport cannot send raw frames")
 
     def close(self) -> None:
         """Stop the reader and the dispatcher and release the device (idempotent; safe
@@ -267,7 +266,7 @@ class Transport(RecordingEdge, ABC):
         with self._stop_lock, self._write_lock:
             if self._opened:
                 self._opened = False
-                self._close()
+                self.endpoint.close()
 
     def __enter__(self) -> Transport:
         return self
@@ -285,7 +284,7 @@ class Transport(RecordingEdge, ABC):
         """Reader thread: read and decode (``_read``), stamp, queue. No callbacks."""
         while not self._stop.is_set():
             try:
-                received = self._read(_POLL_S)
+                received = self.endpoint.read(_POLL_S)
             except (OSError, ValueError) as exc:
                 if not self._stop.is_set():
                     logger.warning("%s: read failed: %s", self.url, exc)
@@ -349,25 +348,6 @@ class Transport(RecordingEdge, ABC):
                 logger.exception("%s: handling %s failed; carrying on", self.url, item[0].NAME)
 
 
-def parse_can_url(url: str) -> tuple[str, str, dict[str, Any]]:
-    """``can://INTERFACE/CHANNEL?node=N&...`` -> (interface, channel, options).
-
-    Options other than ``node`` are passed to ``can.Bus`` (numbers converted).
-
-    Raises:
-        TransportUrlError: malformed URL.
-    """
-    parts = urlsplit(url)
-    interface, channel = parts.netloc, parts.path.lstrip("/")
-    if parts.scheme != "can" or not interface or not channel:
-        raise TransportUrlError(f"CAN URL must be can://INTERFACE/CHANNEL[?node=N], got {url!r}")
-    options: dict[str, Any] = {}
-    for key, values in parse_qs(parts.query).items():
-        text = values[-1]
-        options[key] = int(text, 0) if text.lstrip("-").isdigit() else text
-    return interface, channel, options
-
-
 def open_transport(url: str, **options: Any) -> Transport:
     """Build (not open) the transport for ``url`` (see the module docstring).
 
@@ -375,10 +355,10 @@ def open_transport(url: str, **options: Any) -> Transport:
         TransportUrlError: the URL names no known transport, or is malformed (permanent:
             retrying cannot help; docs/bridge.md, Transports).
     """
-    kind = "can" if url.startswith("can://") else "serial"
+    kind = "can" if is_can_url(url) else "serial"
     if "://" in url and kind == "serial":
         scheme = url.split("://", 1)[0]
-        if scheme not in ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"):
+        if scheme not in SERIAL_SCHEMES:
             known = ", ".join(["can", "socket", "rfc2217", "loop", "a device path"])
             raise TransportUrlError(
                 f"unknown transport scheme {scheme!r} in {url!r}; known: {known}"

@@ -1,4 +1,6 @@
-"""CAN front end: the controller as one node on any python-can bus.
+"""CAN front end: the controller as one node on any python-can bus, through the link-I/O
+layer's CAN endpoint on the controller's side
+(:class:`~firmware_proto.linkio.can_endpoint.CanEndpoint`).
 
 Works with every python-can interface: ``socketcan`` on ``vcan0`` or a real adapter on
 Linux, ``virtual`` in-process here and in CI, others by name. The node id (1..15) is
@@ -10,34 +12,20 @@ docs/protocol.md; the bus arbitrates by identifier, so the STOP lane wins by its
 from __future__ import annotations
 
 import logging
-import time
 from typing import Any
 
 import can
 
 from emulator.frontend import FrontEnd
-from firmware_proto.canmap import CanDecoder, encode_can
-from firmware_proto.message import Message
-from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
-from firmware_proto.trafficio import can_record
-from firmware_proto.trafficlog import CanRecord, TrafficRecorder
+from firmware_proto.canmap import CanDecoder
+from firmware_proto.linkio.can_endpoint import CanEndpoint
+from firmware_proto.linkio.endpoint import CONTROLLER
+from firmware_proto.linkio.trafficlog import TrafficRecorder
+from firmware_proto.messages import DEFAULT_NODE
 
-__all__ = ["CanFrontEnd", "open_bus"]
+__all__ = ["CanFrontEnd"]
 
 logger = logging.getLogger(__name__)
-
-
-def open_bus(interface: str, channel: str, **options: Any) -> can.BusABC:
-    """Open a python-can bus, with an error that says which interface failed and why.
-
-    Raises:
-        OSError: the interface is unknown or the channel cannot be opened (for example
-            ``socketcan`` on a kernel without SocketCAN).
-    """
-    try:
-        return can.Bus(interface=interface, channel=channel, **options)
-    except (can.CanError, OSError, ImportError, ValueError, NotImplementedError) as exc:
-        raise OSError(f"cannot open CAN bus {interface}:{channel}: {exc}") from exc
 
 
 class CanFrontEnd(FrontEnd):
@@ -67,85 +55,36 @@ class CanFrontEnd(FrontEnd):
         bus_options: passed to ``can.Bus`` (e.g. ``bitrate``).
 
         Raises:
-            ValueError: node out of range.
+            ValueError: node out of range, or an interface python-can does not know
+                (:class:`~firmware_proto.linkio.errors.LinkUrlError`).
         """
-        super().__init__(seed=seed, recorder=recorder)
-        if not 1 <= node <= 15:
-            raise ValueError(f"CAN node id must be 1..15, got {node}")
+        self.can = CanEndpoint(
+            CONTROLLER,
+            interface,
+            channel,
+            node=node,
+            bus=bus,
+            send_timeout_s=0.05,  # the control loop never waits long for a full bus
+            **bus_options,
+        )
+        super().__init__(self.can, seed=seed, recorder=recorder)
         self.interface, self.channel, self.node = interface, channel, node
-        self._bus = bus
-        self._own_bus = bus is None
-        self._bus_options = bus_options
-        self.decoder = CanDecoder()
-        self.foreign = 0
-        self.error_frames = 0
-        """Error frames received (counted, logged at DEBUG, otherwise ignored)."""
 
     @property
-    def device(self) -> str:
-        """``interface:channel`` of the bus."""
-        return f"{self.interface}:{self.channel}"
+    def decoder(self) -> CanDecoder:
+        """The endpoint's decoder (its counters say what was rejected)."""
+        return self.can.decoder
+
+    @property
+    def foreign(self) -> int:
+        """Frames of other nodes, and our own kind echoed back: counted, ignored."""
+        return self.can.foreign
+
+    @property
+    def error_frames(self) -> int:
+        """Error frames received (counted, otherwise ignored)."""
+        return self.can.error_frames
 
     def _open(self) -> None:
-        if self._bus is None:
-            self._bus = open_bus(self.interface, self.channel, **self._bus_options)
+        super()._open()
         logger.info("serving node %d on CAN %s", self.node, self.device)
-
-    def _close(self) -> None:
-        if self._bus is not None and self._own_bus:
-            self._bus.shutdown()
-        self._bus = None
-
-    def _can_corrupt(self) -> bool:
-        return False
-
-    def _decoder_rejects(self) -> int:
-        return self.decoder.counters.rejected
-
-    def _read(self, timeout_s: float) -> list[Message]:
-        bus = self._bus
-        if bus is None:
-            return []
-        frame = bus.recv(timeout=timeout_s)
-        if frame is None:
-            return []
-        if self.recorder is not None:
-            received_at = frame.timestamp or time.time()
-            self._record(can_record(frame, self.channel, is_rx=True, time_s=received_at))
-        if frame.is_error_frame:
-            self.error_frames += 1
-            logger.debug("CAN %s: error frame 0x%03X ignored", self.channel, frame.arbitration_id)
-            return []
-        decoded = self.decoder.decode(
-            frame.arbitration_id,
-            bytes(frame.data),
-            is_extended=frame.is_extended_id,
-            is_remote=frame.is_remote_frame,
-        )
-        if decoded is None:
-            return []
-        if (
-            decoded.node not in (self.node, BROADCAST_NODE)
-            or decoded.message.DIRECTION != "host_to_controller"
-        ):
-            self.foreign += 1  # another node's traffic, or our own kind echoed back
-            return []
-        return [decoded.message]
-
-    def _write(self, message: Message, corrupt: bool) -> bool:
-        bus = self._bus
-        if bus is None:
-            return False
-        arbitration_id, data = encode_can(message, self.node)
-        sent_at = time.time()  # before the send: an answer cannot be logged earlier
-        try:
-            bus.send(
-                can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
-                timeout=0.05,
-            )
-        except can.CanError as exc:
-            logger.debug("CAN send failed: %s", exc)
-            return False
-        if self.recorder is not None:
-            self._record(CanRecord(sent_at, self.channel, arbitration_id, data, is_rx=False))
-        return True

@@ -186,12 +186,13 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.errors import InjectionError
     from emulator.firmware import make_controller
     from emulator.injection import Injector, parse_fault
-    from emulator.trafficfile import open_recorder
     from emulator.twin import Twin
     from emulator.worldmap import load_map
+    from firmware_proto.linkio.errors import LinkUrlError
+    from firmware_proto.linkio.trafficio import LogWriter, open_recorder
+    from firmware_proto.linkio.urls import parse_can_spec
     from firmware_proto.messages import SCHEMA_HASH
     from firmware_proto.rover import load_rover
-    from firmware_proto.trafficio import LogWriter
 
     config = controller_config(args)
     faults: list[FaultSpec] = []
@@ -202,11 +203,10 @@ def _run(args: argparse.Namespace) -> int:
             raise InjectionError(f"--inject {text}: {exc}") from None
     interface = channel = ""
     if not args.serial:
-        interface, sep, channel = args.can.partition(":")
-        if not sep or not interface or not channel:
-            raise ValueError(
-                f"--can needs INTERFACE:CHANNEL, e.g. socketcan:vcan0, got {args.can!r}"
-            )
+        try:
+            interface, channel = parse_can_spec(args.can)
+        except LinkUrlError as exc:
+            raise ValueError(f"--can: {exc}") from None
     rover = load_rover(args.rover)
     world = load_map(args.map)
     twin = Twin(rover, world, dt_s=args.dt)
@@ -325,7 +325,7 @@ def _serve(
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser(
         prog="rover_emulator",

@@ -1,21 +1,15 @@
 """Front ends carry protocol messages between the controller model and a host.
 
-:class:`FrontEnd` does the shared work: the reader thread's lifecycle, link faults
-(drop, corrupt, delay) drawn from a seeded generator, delayed delivery, counters, and a
-write lock. An implementation (:mod:`emulator.serial_frontend`,
-:mod:`emulator.can_frontend`) fills four hooks:
-
-- ``_open()``: acquire the medium (called by :meth:`FrontEnd.start`);
-- ``_read(timeout_s)``: wait at most ``timeout_s`` for input and return the messages
-  received (decoding is pure: a :class:`~firmware_proto.framing.FrameDecoder` or
-  :class:`~firmware_proto.canmap.CanDecoder`); called only by the reader thread;
-- ``_write(message, corrupt)``: send one message, damaged if ``corrupt`` (serial flips a
-  bit; a medium that cannot corrupt refuses the fault in ``_can_corrupt``);
-- ``_close()``: release the medium (idempotent).
-
-An implementation also hands every frame it puts on the medium and every frame it
-receives to ``_record`` when :attr:`FrontEnd.recorder` is set (traffic logs,
-docs/traffic-logs.md).
+A front end serves the controller's end of the link through an
+:class:`~firmware_proto.linkio.endpoint.Endpoint` on the controller's side, the same
+serial and CAN endpoints the bridge's transports use on the host's side
+(:mod:`firmware_proto.linkio`): the endpoint frames, decodes, filters by node and hands
+every frame to the traffic log (:attr:`FrontEnd.recorder`, docs/traffic-logs.md).
+:class:`FrontEnd` adds what only an emulated controller does: link faults (drop,
+corrupt, delay) drawn from a seeded generator, wrapped around the endpoint; delayed
+delivery; counters; the reader thread and a write lock. :mod:`emulator.serial_frontend`
+(a pty, paced, unplugged on demand) and :mod:`emulator.can_frontend` (a node on a bus)
+choose the endpoint.
 
 The reader thread does I/O only: it hands each received message, with the monotonic
 time it arrived, to the ``deliver`` callback given to :meth:`FrontEnd.start`.
@@ -29,14 +23,14 @@ import logging
 import random
 import threading
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from types import TracebackType
 
 from emulator.errors import InjectionError
+from firmware_proto.linkio.endpoint import Endpoint
+from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.message import Message
-from firmware_proto.trafficlog import RecordingEdge, TrafficRecorder
 
 __all__ = ["MAX_LINK_DELAY_S", "Deliver", "FrontEnd", "FrontEndStats"]
 
@@ -69,18 +63,23 @@ class FrontEndStats:
     fault_corrupted: int = 0
 
 
-class FrontEnd(RecordingEdge, ABC):
-    """Base of the pty and CAN front ends; see the module docstring for the hooks."""
+class FrontEnd:
+    """Base of the pty and CAN front ends; see the module docstring."""
 
     name = "front end"
 
-    def __init__(self, *, seed: int = 0, recorder: TrafficRecorder | None = None) -> None:
+    def __init__(
+        self, endpoint: Endpoint, *, seed: int = 0, recorder: TrafficRecorder | None = None
+    ) -> None:
         """Args:
+        endpoint: the controller's end of the link on its medium, not yet open.
         seed: seeds the link-fault generators.
         recorder: where every frame sent and received goes (a traffic log); the caller
             keeps ownership and closes it after the front end.
         """
+        self.endpoint = endpoint
         self.stats = FrontEndStats()
+        self._recorder: TrafficRecorder | None = None
         self.recorder = recorder
         # One generator per direction: each thread draws from its own, reproducibly.
         self._rng_tx = random.Random(f"link-faults-tx-{seed}")
@@ -98,38 +97,48 @@ class FrontEnd(RecordingEdge, ABC):
         self._counter = itertools.count()
         self._closed = False
 
-    # -- hooks ------------------------------------------------------------------------
-    @abstractmethod
+    @property
+    def recorder(self) -> TrafficRecorder | None:
+        """The traffic log every frame sent and received goes to (a listener of the
+        endpoint); set it before :meth:`start`, or ``None``."""
+        return self._recorder
+
+    @recorder.setter
+    def recorder(self, recorder: TrafficRecorder | None) -> None:
+        if self._recorder is not None:
+            self.endpoint.remove_listener(self._recorder)
+        self._recorder = recorder
+        if recorder is not None:
+            self.endpoint.add_listener(recorder)
+
+    @property
+    def device(self) -> str:
+        """What a host opens: the pty's path, or ``interface:channel`` of the bus."""
+        return self.endpoint.name
+
+    # -- the medium, through the endpoint (hooks a front end may extend) -----------------
     def _open(self) -> None:
-        """Acquire the medium."""
+        self.endpoint.open()
 
-    @abstractmethod
     def _read(self, timeout_s: float) -> list[Message]:
-        """Wait up to ``timeout_s`` for input; return the messages received."""
+        return self.endpoint.read(timeout_s)
 
-    @abstractmethod
     def _write(self, message: Message, corrupt: bool) -> bool:
-        """Send one message (damaged if ``corrupt``); False if the medium dropped it."""
+        """Send one message (damaged if ``corrupt``); False if the medium dropped it or
+        failed (a full bus: logged at DEBUG)."""
+        try:
+            return self.endpoint.write(message, corrupt=self._rng_tx if corrupt else None)
+        except OSError as exc:
+            logger.debug("%s: send failed: %s", self.name, exc)
+            return False
 
-    @abstractmethod
     def _close(self) -> None:
-        """Release the medium (idempotent)."""
-
-    def _edge_name(self) -> str:
-        return self.name
-
-    def _can_corrupt(self) -> bool:
-        """Whether this medium can deliver a damaged frame (CAN's own CRC cannot)."""
-        return True
+        self.endpoint.close()
 
     @property
     def rx_errors(self) -> int:
         """Bad frames dropped so far: by the decoder, and damaged by an injected fault."""
-        return self._rx_corrupted + self._decoder_rejects()
-
-    def _decoder_rejects(self) -> int:
-        """Frames the implementation's decoder rejected (override)."""
-        return 0
+        return self._rx_corrupted + self.endpoint.counters.rejected
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self, deliver: Deliver) -> None:
@@ -190,7 +199,7 @@ class FrontEnd(RecordingEdge, ABC):
             raise InjectionError(
                 f"link-delay must be in 0..{MAX_LINK_DELAY_S:g} s, got {delay_s:g}"
             )
-        if corrupt and not self._can_corrupt():
+        if corrupt and not self.endpoint.can_corrupt:
             raise InjectionError(
                 f"link-corrupt cannot apply on {self.name}: the medium's own CRC rejects damaged "
                 "frames; use link-drop instead"

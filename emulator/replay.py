@@ -5,8 +5,8 @@ Regression testing of the controller behaviour from traffic logs (docs/traffic-l
 python-can bus (CAN logs), re-sends every host-to-controller frame of the log with its
 recorded timing (serial frames byte for byte), collects what the controller answers, and
 compares those answers with the recorded ones through
-:func:`firmware_proto.trafficlog.compare_answers`: type by type, in order, leaving out
-fields that measure continuous time (:data:`~firmware_proto.trafficlog.VOLATILE_FIELDS`)
+:func:`firmware_proto.linkio.trafficlog.compare_answers`: type by type, in order, leaving out
+fields that measure continuous time (:data:`~firmware_proto.linkio.trafficlog.VOLATILE_FIELDS`)
 unless strict. Periodic telemetry is counted, not compared.
 
 The recorded host reacted to the controller: it sent a step after an ACK, a STOP after a
@@ -39,10 +39,6 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
-from types import TracebackType
-
-import can
-import serial
 
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
@@ -51,17 +47,15 @@ from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from emulator.worldmap import load_map
-from firmware_proto.canmap import CanDecoder
-from firmware_proto.framing import FrameDecoder
-from firmware_proto.message import Message
-from firmware_proto.rover import load_rover
-from firmware_proto.trafficio import LogFile
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.can_endpoint import CanEndpoint
+from firmware_proto.linkio.endpoint import HOST
+from firmware_proto.linkio.replay_peer import ReplayPeer
+from firmware_proto.linkio.serial_endpoint import SerialEndpoint
+from firmware_proto.linkio.trafficio import LogFile
+from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
-    CanRecord,
     Difference,
-    SerialRecord,
     TrafficRecord,
     TrafficRecorder,
     answer_key,
@@ -71,6 +65,8 @@ from firmware_proto.trafficlog import (
     is_answer,
     log_node,
 )
+from firmware_proto.message import Message
+from firmware_proto.rover import load_rover
 
 __all__ = ["MAX_SETTLE_S", "ReplayOptions", "ReplayResult", "replay_into_emulator"]
 
@@ -164,154 +160,6 @@ class ReplayResult:
         return "\n".join(lines)
 
 
-class _Host:
-    """The replaying host: sends raw frames, collects the controller's messages with
-    their arrival time on a reader thread."""
-
-    def __init__(self) -> None:
-        self.received: list[tuple[float, Message]] = []
-        self._start = float("inf")
-        self._answers: Counter[str] = Counter()
-        self._cond = threading.Condition()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="replay-host-rx", daemon=True)
-        self._write_lock = threading.Lock()
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            messages = self._read()
-            if messages:
-                now = time.monotonic()
-                with self._cond:
-                    self.received += [(now, m) for m in messages]
-                    if now >= self._start:
-                        self._answers.update(m.NAME for m in messages if is_answer(m))
-                    self._cond.notify_all()
-
-    def wait_first(self, timeout_s: float) -> bool:
-        """Wait until the controller said anything (so boot frames are in)."""
-        with self._cond:
-            return self._cond.wait_for(lambda: bool(self.received), timeout_s)
-
-    def count_from(self, start: float) -> None:
-        """Count answers by type from ``start`` (``time.monotonic()``) on."""
-        with self._cond:
-            self._start = start
-            self._answers = Counter(m.NAME for t, m in self.received if t >= start and is_answer(m))
-
-    def wait_answers(self, need: Counter[str], deadline: float) -> bool:
-        """Wait until the answers counted (see :meth:`count_from`) reach every count in
-        ``need``, or until ``deadline`` (``time.monotonic()``); whether they did."""
-
-        def reached() -> bool:
-            return all(self._answers[name] >= n for name, n in need.items())
-
-        with self._cond:
-            return self._cond.wait_for(reached, max(0.0, deadline - time.monotonic()))
-
-    def snapshot(self) -> list[tuple[float, Message]]:
-        """Everything received so far, with arrival times (``time.monotonic()``)."""
-        with self._cond:
-            return list(self.received)
-
-    def send(self, record: TrafficRecord) -> None:
-        raise NotImplementedError
-
-    def _read(self) -> list[Message]:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5.0)
-
-    def __enter__(self) -> _Host:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
-
-class _SerialHost(_Host):
-    def __init__(self, device: str) -> None:
-        super().__init__()
-        self.port = serial.Serial(device, baudrate=115200, timeout=0.05)
-        self.decoder = FrameDecoder()
-
-    def send(self, record: TrafficRecord) -> None:
-        """Write a recorded frame's bytes, exactly as recorded."""
-        if not isinstance(record, SerialRecord):
-            raise TypeError("a serial replay needs serial records")
-        with self._write_lock:
-            self.port.write(record.wire)
-
-    def _read(self) -> list[Message]:
-        try:
-            data = self.port.read(self.port.in_waiting or 1)
-        except (serial.SerialException, OSError, TypeError):
-            if not self._stop.is_set():
-                self._stop.wait(0.01)
-            return []
-        return [f.message for f in self.decoder.feed(data)]
-
-    def close(self) -> None:
-        super().close()
-        self.port.close()
-
-
-class _CanHost(_Host):
-    def __init__(self, interface: str, channel: str, node: int) -> None:
-        super().__init__()
-        self.bus = can.Bus(interface=interface, channel=channel)
-        self.node = node
-        self.decoder = CanDecoder()
-
-    def send(self, record: TrafficRecord) -> None:
-        """Put a recorded frame on the bus again."""
-        if not isinstance(record, CanRecord):
-            raise TypeError("a CAN replay needs CAN records")
-        with self._write_lock:
-            self._send_can(record)
-
-    def _send_can(self, record: CanRecord) -> None:
-        self.bus.send(
-            can.Message(
-                arbitration_id=record.arbitration_id,
-                data=record.data,
-                is_extended_id=record.is_extended_id,
-                is_remote_frame=record.is_remote_frame,
-            )
-        )
-
-    def _read(self) -> list[Message]:
-        frame = self.bus.recv(timeout=0.05)
-        if frame is None or frame.is_error_frame:
-            return []
-        decoded = self.decoder.decode(
-            frame.arbitration_id,
-            bytes(frame.data),
-            is_extended=frame.is_extended_id,
-            is_remote=frame.is_remote_frame,
-        )
-        if decoded is None or decoded.node != self.node:
-            return []
-        if decoded.message.DIRECTION != "controller_to_host":
-            return []
-        return [decoded.message]
-
-    def close(self) -> None:
-        super().close()
-        self.bus.shutdown()
-
-
 def _telemetry_counts(messages: list[Message]) -> dict[str, int]:
     return dict(
         Counter(
@@ -328,15 +176,6 @@ def _is_heartbeat(record: TrafficRecord) -> bool:
     return bool(decoded) and all(
         d.message is not None and d.message.PRIORITY == "telemetry" for d in decoded
     )
-
-
-def _send_on_time(host: _Host, records: list[TrafficRecord], offset: float) -> None:
-    """Send each record at its recorded time plus ``offset`` (``time.monotonic()``)."""
-    for rec in records:
-        delay = rec.time_s + offset - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        host.send(rec)
 
 
 def _pair_at_the_edges(
@@ -380,7 +219,7 @@ def replay_into_emulator(
     """Replay ``log``'s host frames into a fresh emulator; see the module docstring.
 
     Args:
-        log: a traffic log (serial or CAN) from :func:`emulator.trafficfile.read_log`.
+        log: a traffic log (serial or CAN) from :func:`firmware_proto.linkio.trafficio.read_log`.
         options: emulator and comparison settings.
         recorder: records the replay session itself (optional).
 
@@ -432,7 +271,7 @@ def replay_into_emulator(
         seed=opts.seed,
     )
     frontend: FrontEnd
-    host: _SerialHost | _CanHost
+    host: ReplayPeer
     started = time.monotonic()
     if log.kind == "serial":
         frontend = SerialFrontEnd(seed=opts.seed, recorder=recorder)
@@ -449,13 +288,16 @@ def replay_into_emulator(
     try:
         if isinstance(frontend, CanFrontEnd):
             assert node is not None
-            host = _CanHost(opts.can_interface, opts.can_channel, node)  # before boot
+            host = ReplayPeer(
+                CanEndpoint(HOST, opts.can_interface, opts.can_channel, node=node), is_answer
+            )
+            host.start()  # before boot: the boot frames are answers too
             emulator.start()
         else:
             emulator.start()
-            host = _SerialHost(frontend.device)
-        with host:
+            host = ReplayPeer(SerialEndpoint.for_url(HOST, frontend.device), is_answer)
             host.start()
+        with host:
             if not host.wait_first(_FIRST_FRAME_TIMEOUT_S):
                 raise TimeoutError("the fresh emulator sent nothing within 5 s")
             t0 = time.monotonic()
@@ -464,8 +306,8 @@ def replay_into_emulator(
             # starve the controller's watchdog.
             heartbeats = [r for r, beat in zip(host_records, is_beat, strict=True) if beat]
             pacer = threading.Thread(
-                target=_send_on_time,
-                args=(host, heartbeats, t0 - t_first),
+                target=host.play_on_time,
+                args=(heartbeats, t0 - t_first),
                 name="replay-heartbeats",
                 daemon=True,
             )
@@ -480,9 +322,9 @@ def replay_into_emulator(
                     delay = due - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)  # replaying the recorded timing is the point
-                    if need and not host.wait_answers(need, due + opts.gate_s):
+                    if need and not host.wait_counts(need, due + opts.gate_s):
                         late += 1
-                    host.send(rec)
+                    host.play(rec)
                     last_sent = time.monotonic()
             finally:
                 pacer.join()

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import serial
 
-from emulator.ptypair import PtyPair
 from firmware_proto.framing import FrameDecoder, encode_frame
+from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.message import Message
 from firmware_proto.messages import Encoders, Heartbeat, Imu, Motion, Pose, Stop
 

@@ -1,6 +1,8 @@
 """Serial front end: the controller on a pty, as a host sees a USB-serial device.
 
-The emulator holds the pty's controller end; a host opens :attr:`SerialFrontEnd.device`
+The emulator holds the pty's controller end (the link-I/O layer's serial endpoint on the
+controller's side over a :class:`~firmware_proto.linkio.serial_endpoint.PtyPort`); a
+host opens :attr:`SerialFrontEnd.device`
 (``/dev/pts/N``, or the stable symlink given as ``link``) with pyserial or any terminal
 program. Frames are those of docs/protocol.md, byte for byte.
 
@@ -17,26 +19,19 @@ program. Frames are those of docs/protocol.md, byte for byte.
 
 from __future__ import annotations
 
-import errno
 import heapq
 import itertools
 import logging
-import os
-import select
 import threading
 import time
 from pathlib import Path
 
 from emulator.frontend import FrontEnd
-from emulator.ptypair import PtyPair
-from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.framing import FrameDecoder
+from firmware_proto.linkio.endpoint import CONTROLLER
+from firmware_proto.linkio.serial_endpoint import PtyPort, SerialEndpoint
+from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.message import Message
-from firmware_proto.trafficlog import (
-    CONTROLLER_TO_HOST,
-    SerialRecord,
-    TrafficRecorder,
-    received_serial_records,
-)
 
 __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
 
@@ -74,17 +69,14 @@ class SerialFrontEnd(FrontEnd):
         Raises:
             ValueError: baud not positive.
         """
-        super().__init__(seed=seed, recorder=recorder)
         if baud is not None and baud <= 0:
             raise ValueError(f"baud must be > 0, got {baud}")
         self.link = Path(link) if link is not None else None
+        self.serial = SerialEndpoint(CONTROLLER, lambda: PtyPort(self.link))
+        super().__init__(self.serial, seed=seed, recorder=recorder)
         self.baud = baud
-        self.decoder = FrameDecoder()
-        self._encoder = FrameEncoder()
-        self._pair: PtyPair | None = None
         self._plug_request: str | None = None
         self._plug_done = threading.Event()
-        self.device = ""
         self._tx_heap: list[tuple[int, int, float, bool, bytes]] = []
         self.stale_dropped = 0
         self._tx_order = itertools.count()
@@ -92,10 +84,13 @@ class SerialFrontEnd(FrontEnd):
         self._tx_thread: threading.Thread | None = None
 
     # -- medium -------------------------------------------------------------------------
+    @property
+    def decoder(self) -> FrameDecoder:
+        """The endpoint's frame decoder (its counters say what was rejected)."""
+        return self.serial.decoder
+
     def _open(self) -> None:
-        self._pair = PtyPair(self.link)
-        os.set_blocking(self._pair.master_fd, False)
-        self.device = self._pair.device
+        self.serial.open()
         logger.info("serving on %s%s", self.device, f" (link {self.link})" if self.link else "")
         if self.baud is not None:
             self._tx_thread = threading.Thread(
@@ -126,12 +121,7 @@ class SerialFrontEnd(FrontEnd):
         if self._tx_thread is not None and self._tx_thread is not threading.current_thread():
             self._tx_thread.join(timeout=5.0)
         self._tx_thread = None
-        if self._pair is not None:
-            self._pair.close()
-            self._pair = None
-
-    def _decoder_rejects(self) -> int:
-        return self.decoder.counters.rejected
+        self.serial.close()
 
     # -- unplug / replug ----------------------------------------------------------------
     def unplug(self, timeout_s: float = 2.0) -> None:
@@ -151,56 +141,30 @@ class SerialFrontEnd(FrontEnd):
     def _handle_plug(self) -> None:
         what, self._plug_request = self._plug_request, None
         with self._write_lock:
-            if what == "unplug" and self._pair is not None:
-                self._pair.close()
-                self._pair = None
-                self.device = ""
+            if what == "unplug" and self.serial.is_open:
+                self.serial.close()
                 logger.warning("unplugged: device gone")
-            elif what == "replug" and self._pair is None:
-                self._pair = PtyPair(self.link)
-                os.set_blocking(self._pair.master_fd, False)
-                self.device = self._pair.device
-                self.decoder.reset()
+            elif what == "replug" and not self.serial.is_open:
+                self.serial.open()
                 logger.warning("replugged: serving on %s", self.device)
         self._plug_done.set()
 
     @property
     def plugged(self) -> bool:
         """Whether the device exists."""
-        return self._pair is not None
+        return self.serial.is_open
 
     # -- I/O ----------------------------------------------------------------------------
     def _read(self, timeout_s: float) -> list[Message]:
         if self._plug_request is not None:
             self._handle_plug()
-        pair = self._pair
-        if pair is None:
+        if not self.serial.is_open:
             self._stop.wait(timeout_s)
             return []
-        ready, _, _ = select.select([pair.master_fd], [], [], timeout_s)
-        if not ready:
-            return []
-        try:
-            data = os.read(pair.master_fd, 4096)
-        except BlockingIOError:
-            return []
-        except OSError as exc:
-            if exc.errno == errno.EIO:  # no host has the device open
-                self._stop.wait(timeout_s)
-                return []
-            raise
-        frames = self.decoder.feed(data)
-        if self.recorder is not None and frames:
-            for record in received_serial_records(frames, time.time()):
-                self._record(record)
-        return [frame.message for frame in frames]
+        return self.serial.read(timeout_s)
 
     def _write(self, message: Message, corrupt: bool) -> bool:
-        wire = self._encoder.encode(message)
-        if corrupt:
-            damaged = bytearray(wire)
-            damaged[self._rng_tx.randrange(len(damaged))] ^= 1 << self._rng_tx.randrange(8)
-            wire = bytes(damaged)
+        wire = self.serial.encode(message, corrupt=self._rng_tx if corrupt else None)
         if self.baud is not None:
             with self._tx_ready:
                 telemetry = message.PRIORITY == "telemetry"
@@ -214,24 +178,7 @@ class SerialFrontEnd(FrontEnd):
                 heapq.heappush(self._tx_heap, entry)
                 self._tx_ready.notify()
             return True
-        return self._write_now(wire)
-
-    def _write_now(self, wire: bytes) -> bool:
-        pair = self._pair
-        if pair is None:
-            return False
-        sent_at = time.time()  # before the write: an answer cannot be logged earlier
-        try:
-            written = os.write(pair.master_fd, wire)
-        except (BlockingIOError, InterruptedError):
-            return False  # nobody reads: the bytes go nowhere, as on an open UART line
-        except OSError as exc:
-            if exc.errno in (errno.EIO, errno.EBADF):
-                return False
-            raise
-        if written == len(wire) and self.recorder is not None:
-            self._record(SerialRecord(sent_at, CONTROLLER_TO_HOST, wire))
-        return written == len(wire)
+        return self.serial.write_wire(wire)
 
     def _paced_writer(self) -> None:
         assert self.baud is not None
@@ -251,7 +198,7 @@ class SerialFrontEnd(FrontEnd):
             if wait > 0 and self._stop.wait(wait):
                 return
             with self._write_lock:
-                ok = self._write_now(wire)
+                ok = self.serial.write_wire(wire)
             if not ok:
                 self.stats.tx_dropped += 1
             line_free = max(line_free, time.monotonic()) + len(wire) * seconds_per_byte

@@ -246,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     """``rover_gate`` for ``ros2 run`` and launch files: the server's options of ``rover
     gate``, then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
-    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser(
         prog="rover_gate",

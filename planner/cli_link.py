@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``rover_link`` for ``ros2 run`` and launch files: the options of ``rover link``,
     then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``rtt`` -> ``--rtt``)."""
-    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser(prog="rover_link", description="Earth-Moon link relay.")
     add_arguments(parser)

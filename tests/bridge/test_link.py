@@ -13,10 +13,12 @@ import pytest
 
 from bridge.errors import TransportError
 from bridge.link import ControllerLink, LinkConfig, LinkState, StepRequest
-from bridge.transport import open_transport, parse_can_url
+from bridge.transport import open_transport
 from emulator.engine import Emulator
 from emulator.errors import InjectionError
 from emulator.serial_frontend import SerialFrontEnd
+from firmware_proto.linkio.errors import LinkUrlError
+from firmware_proto.linkio.urls import parse_can_url
 from firmware_proto.messages import SCHEMA_HASH, Command, Encoders
 from firmware_proto.rover import RoverDescription
 
@@ -318,7 +320,7 @@ def test_transport_registry() -> None:
     )
     with pytest.raises(TransportError, match="known"):
         open_transport("warp://x")
-    with pytest.raises(TransportError, match="INTERFACE/CHANNEL"):
+    with pytest.raises(LinkUrlError, match="INTERFACE/CHANNEL"):
         parse_can_url("can://virtual")
     transport = open_transport("loop://")
     assert transport.kind == "serial"

@@ -20,9 +20,9 @@ from bridge.rosport import RosPort
 from bridge.rosport.msgs import Bool, DiagnosticArray
 from bridge.serial_transport import SerialTransport
 from emulator.engine import Emulator
-from emulator.ptypair import PtyPair
 from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.framing import FrameEncoder
+from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.message import Message
 from firmware_proto.messages import Ack, Encoders, Status
 

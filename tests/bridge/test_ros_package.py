@@ -170,8 +170,8 @@ def test_symlink_install_gets_the_metadata_from_the_source_tree(
     assert kwargs["data_files"][0][1] == [f"bridge/ros/resource/{PACKAGE}"]
 
 
-UDEV_FILES = sorted(p.name for p in (ROOT / "udev").iterdir() if p.is_file())
-TOP_PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner")
+UDEV_FILES = sorted(p.name for p in (ROOT / "udev").iterdir() if p.is_file() and p.suffix != ".py")
+TOP_PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner", "udev")
 
 
 def _data_files(kwargs: dict[str, Any]) -> dict[str, str]:
@@ -208,10 +208,10 @@ def test_setup_py_installs_the_udev_files_plainly_and_with_symlinks(
 _RUN_INSTALLED = """
 import sys
 sys.path.insert(0, sys.argv[1])
-import bridge.udev_install
+import udev.install
 from firmware_proto.cli import main
-print("MODULE", bridge.udev_install.__file__)
-print("SOURCE", bridge.udev_install.source_dir())
+print("MODULE", udev.install.__file__)
+print("SOURCE", udev.install.source_dir())
 sys.exit(main(["udev", "install", "--dry-run", "--no-reload",
                "--rules-dir", sys.argv[2], "--network-dir", sys.argv[3]]))
 """
@@ -244,8 +244,11 @@ def test_rover_udev_install_finds_the_files_of_a_plain_install(
     prefix = tmp_path / "install" / PACKAGE
     site = prefix / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
     for package in TOP_PACKAGES:
+        # As pip copies a package: its code and package data, not udev/'s rules.
         shutil.copytree(
-            ROOT / package, site / package, ignore=shutil.ignore_patterns("__pycache__")
+            ROOT / package,
+            site / package,
+            ignore=shutil.ignore_patterns("__pycache__", "*.rules", "*.network", "*.sh"),
         )
     for dest, src in _data_files(_run_setup_py(monkeypatch, ROOT)).items():
         (prefix / dest).parent.mkdir(parents=True, exist_ok=True)
@@ -498,7 +501,7 @@ def test_the_bridge_parameters_are_bridge_parameters_and_floats_stay_floats() ->
 
 def test_the_emulator_takes_its_hil_section_as_options() -> None:
     """What rover_emulator makes of the hil.yaml section (as PyYAML would load it)."""
-    from firmware_proto.rosargs import argv_from_ros_args
+    from firmware_proto.cli.rosargs import argv_from_ros_args
 
     section = _sections(ROS_DIR / "config" / "hil.yaml")["/**/rover_emulator"]
     typed = {k: True if v == "true" else v for k, v in section.items()}
@@ -518,7 +521,7 @@ def test_each_program_reads_its_hil_section_with_pyyaml(node: str) -> None:
     """The real file through PyYAML, as the launch file hands it over; options given on
     the command line (what the launch arguments become) win over the file."""
     pytest.importorskip("yaml", reason="PyYAML (the ros-params extra, or ROS 2) is missing")
-    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser()
     OPTIONS[node](parser)

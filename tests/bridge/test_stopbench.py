@@ -17,12 +17,12 @@ from PIL import Image
 from bridge.benchreport import format_table, summarize, write_reports
 from bridge.errors import TransportError
 from bridge.stopbench import BenchConfig, BenchError, BenchRun, FloodConfig, StopBench, TrialResult
-from bridge.trafficfile import read_log
 from emulator.engine import Emulator
 from emulator.replay import ReplayOptions, replay_into_emulator
 from firmware_proto.cli import main as rover_cli
+from firmware_proto.linkio.trafficio import read_log
+from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.messages import SCHEMA_HASH, Param
-from firmware_proto.trafficlog import decode_records
 from tests.firmware_proto.c_harness import compiler
 
 from .conftest import IN_VCAN_VM, SPEED
@@ -70,7 +70,7 @@ def test_stop_is_acknowledged_stops_latches_and_clears_under_load(
     flood = None
     if kind == "pty":
         emu = emulators("pty")
-        url = emu.frontend.device  # type: ignore[attr-defined]
+        url = emu.frontend.device
     else:
         channel = "vcan0" if kind == "socketcan" else can_channel
         emu = emulators("can", interface=kind, channel=channel, node=3)
@@ -108,7 +108,7 @@ def test_the_stop_bench_passes_against_the_c_firmware(
         pytest.skip("gcc not found (set CC): the C firmware core cannot be built here")
     if kind == "pty":
         emu = emulators("pty", firmware="c")
-        url = emu.frontend.device  # type: ignore[attr-defined]
+        url = emu.frontend.device
     else:
         emu = emulators("can", interface="virtual", channel=can_channel, node=3, firmware="c")
         url = f"can://virtual/{can_channel}?node=3"
@@ -122,7 +122,7 @@ def test_the_stop_moments_follow_the_seed(emulators: Emus) -> None:
     delays = []
     for _ in range(2):
         emu = emulators("pty")
-        config = BenchConfig(url=emu.frontend.device, trials=2, seed=11, max_delay_s=0.05)  # type: ignore[attr-defined]
+        config = BenchConfig(url=emu.frontend.device, trials=2, seed=11, max_delay_s=0.05)
         with StopBench(config) as bench:
             delays.append([t.delay_s for t in bench.run().trials])
     assert delays[0] == delays[1]
@@ -131,7 +131,7 @@ def test_the_stop_moments_follow_the_seed(emulators: Emus) -> None:
 
 def test_reports_table_csv_json_and_histogram(emulators: Emus, tmp_path: Path) -> None:
     emu = emulators("pty")
-    config = BenchConfig(url=emu.frontend.device, trials=2, seed=1, max_delay_s=0.05)  # type: ignore[attr-defined]
+    config = BenchConfig(url=emu.frontend.device, trials=2, seed=1, max_delay_s=0.05)
     with StopBench(config) as bench:
         run = bench.run()
     table = format_table(run)
@@ -178,7 +178,7 @@ def test_summary_percentiles_and_missing_measures() -> None:
 
 def test_a_mismatched_controller_is_refused(emulators: Emus) -> None:
     emu = emulators("pty", schema_hash=SCHEMA_HASH ^ 0x1111)
-    config = BenchConfig(url=emu.frontend.device, trials=1, timeout_s=2.0)  # type: ignore[attr-defined]
+    config = BenchConfig(url=emu.frontend.device, trials=1, timeout_s=2.0)
     with StopBench(config) as bench, pytest.raises(BenchError, match="refusing to drive"):
         bench.run()
     assert emu.status().x_m == 0.0
@@ -196,7 +196,7 @@ def test_rover_bench_stop_cli_records_and_reports(
     emu = emulators("pty")
     out = tmp_path / "bench"
     log = tmp_path / "bench.rlog"
-    argv = ["bench", "stop", "--serial", emu.frontend.device, "--trials", "2"]  # type: ignore[attr-defined]
+    argv = ["bench", "stop", "--serial", emu.frontend.device, "--trials", "2"]
     argv += ["--max-delay", "0.05", "--out", str(out), "--record", str(log)]
     assert rover_cli(argv) == 0
     captured = capsys.readouterr()

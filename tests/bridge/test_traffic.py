@@ -16,7 +16,6 @@ import pytest
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.replay import BridgeReplayOptions, replay_into_bridge
-from bridge.trafficfile import open_recorder, read_log
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
@@ -28,10 +27,8 @@ from emulator.twin import Twin
 from firmware_proto.canmap import encode_can
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.framing import encode_frame
-from firmware_proto.message import Message
-from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
-from firmware_proto.rover import RoverDescription
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficio import open_recorder, read_log
+from firmware_proto.linkio.trafficlog import (
     CanRecord,
     SerialRecord,
     TrafficRecord,
@@ -39,6 +36,9 @@ from firmware_proto.trafficlog import (
     format_serial_record,
     serial_log_header,
 )
+from firmware_proto.message import Message
+from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
+from firmware_proto.rover import RoverDescription
 
 from .conftest import SPEED, Recorder
 
@@ -335,7 +335,7 @@ def test_a_failing_recorder_never_stops_the_link(
     emu = emulators()
     broken = _Broken()
     rec = Recorder()
-    url = emu.frontend.device  # type: ignore[attr-defined]
+    url = emu.frontend.device
     link = ControllerLink(
         LinkConfig(url),
         on_status=rec,

@@ -30,7 +30,19 @@ import serial
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridge.can_transport import (
+from bridge.can_transport import CanTransport
+from bridge.errors import TransportError, TransportUrlError
+from bridge.link import ControllerLink, LinkConfig, StepRequest
+from bridge.node import BridgeNode
+from bridge.params import load_params
+from bridge.rosport import RosPort
+from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, String
+from bridge.serial_transport import SerialTransport
+from bridge.transport import open_transport
+from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
+from firmware_proto.canmap import encode_can
+from firmware_proto.linkio.can_endpoint import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_ACTIVE,
@@ -40,20 +52,9 @@ from bridge.can_transport import (
     CAN_ERR_CRTL_TX_WARNING,
     CAN_ERR_FLAG,
     CAN_ERR_RESTARTED,
-    CanTransport,
     decode_error_frame,
 )
-from bridge.errors import TransportError, TransportUrlError
-from bridge.link import ControllerLink, LinkConfig, StepRequest
-from bridge.node import BridgeNode
-from bridge.params import load_params
-from bridge.rosport import RosPort
-from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, String
-from bridge.serial_transport import SerialTransport, split_serial_url
-from bridge.transport import open_transport
-from emulator.engine import Emulator
-from emulator.serial_frontend import SerialFrontEnd
-from firmware_proto.canmap import encode_can
+from firmware_proto.linkio.urls import split_serial_url
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     PROTOCOL_VERSION,
@@ -544,7 +545,7 @@ def test_can_transport_follows_the_bus_state_and_bus_off_is_a_transport_error(
     channel = can_channel_for(kind, can_channel)
     got, errors = Inbox(), Inbox()
     transport = CanTransport(f"can://{kind}/{channel}?node=2")
-    caplog.set_level(logging.INFO, logger="bridge.can_transport")
+    caplog.set_level(logging.INFO, logger="firmware_proto.linkio.can_endpoint")
     with can.Bus(interface=kind, channel=channel) as peer, transport:
         transport.open(lambda msg, _t: got(msg), errors)
 
@@ -581,7 +582,7 @@ def test_can_transport_follows_the_bus_state_and_bus_off_is_a_transport_error(
     transitions = [
         (r.levelname, r.getMessage().split(": ", 1)[1])
         for r in caplog.records
-        if r.name == "bridge.can_transport" and "->" in r.getMessage()
+        if r.name == "firmware_proto.linkio.can_endpoint" and "->" in r.getMessage()
     ]
     assert [(level, text.split(" (")[0]) for level, text in transitions] == [
         ("WARNING", "error_active -> error_warning"),

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from emulator.cli_emulate import add_arguments, controller_config, main
-from emulator.trafficfile import read_log
+from firmware_proto.linkio.trafficio import read_log
 
 
 @pytest.fixture(autouse=True)

@@ -77,7 +77,7 @@ def drive_one_metre(host: SerialHost | CanHost, seq: int = 1) -> Status:
 
 def test_fwd_one_metre_over_a_pty(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         done = drive_one_metre(host)
         assert (done.state, done.travel) == (StepState.COMPLETED, 23000)
@@ -89,7 +89,7 @@ def test_fwd_one_metre_over_a_pty(serial_emulator: Factory) -> None:
 
 def test_stop_over_a_pty_zeroes_targets_latches_and_clear_resumes(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         host.send(Motion(1, Command.FWD, 60, 30000))
         host.send(Motion(2, Command.FWD, 60, 30000))
@@ -121,7 +121,7 @@ def test_stop_over_a_pty_zeroes_targets_latches_and_clear_resumes(serial_emulato
 def test_garbage_bytes_are_ignored_and_counted(serial_emulator: Factory) -> None:
     emu = serial_emulator()
     rng = random.Random(5)
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         host.write_raw(
             b"\x00"
@@ -136,7 +136,7 @@ def test_garbage_bytes_are_ignored_and_counted(serial_emulator: Factory) -> None
 
 def test_host_closing_and_reopening_the_port(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    device = emu.frontend.device  # type: ignore[attr-defined]
+    device = emu.frontend.device
     with SerialHost(device) as host:
         host.handshake()
     with SerialHost(device) as host:  # reopened: stale bytes are skipped, service goes on
@@ -146,7 +146,7 @@ def test_host_closing_and_reopening_the_port(serial_emulator: Factory) -> None:
 
 def test_corrupted_link_is_survived(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         emu.inject("link-corrupt=0.2")
         host.wait_for(Encoders, since=host.mark())
@@ -169,7 +169,7 @@ def test_corrupted_link_is_survived(serial_emulator: Factory) -> None:
 
 def test_reboot_injection_gives_a_new_ident(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         first = host.handshake()
         # handshake() may have returned on the boot IDENT; once a heartbeat says the
         # handshake is done, the IDENT answering our HELLO is in too.
@@ -192,7 +192,7 @@ def test_reboot_injection_gives_a_new_ident(serial_emulator: Factory) -> None:
 
 def test_watchdog_trips_when_the_host_goes_quiet(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         host.send(Motion(1, Command.FWD, 60, 30000))
         host.wait_for(WheelSpeeds, lambda w: w.left_mm_s > 100)
@@ -227,7 +227,7 @@ def test_unplug_and_replug_keeps_the_link_name(
 
 def test_paced_line_still_carries_everything(serial_emulator: Factory) -> None:
     emu = serial_emulator(baud=115200)
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         assert drive_one_metre(host).state == StepState.COMPLETED
 
@@ -236,7 +236,7 @@ def test_retransmitted_motion_is_acknowledged_again_but_executed_once(
     serial_emulator: Factory,
 ) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         since = host.mark()
         host.send(Motion(5, Command.FWD, 60, 2300))
@@ -259,7 +259,7 @@ def test_out_of_range_values_get_nack_naming_the_field(serial_emulator: Factory)
     # strict=False checks only the wire range (u8, u16), which is what a faulty host
     # could put on the wire.
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         since = host.mark()
         for motion in (
@@ -290,7 +290,7 @@ def test_slip_ground_travel_falls_short_while_the_encoders_count_it_all(
 
     emu = serial_emulator()
     emu.inject("slip:both=0.1")
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         done = drive_one_metre(host)
         enc = host.wait_for(Encoders, since=host.mark())
@@ -311,7 +311,7 @@ def test_driving_into_the_lab_table_over_a_pty(serial_emulator: Factory, lab: Wo
     doc = lab.to_dict()
     doc["start"] = {"x": 2.4, "y": 3.0, "yaw_deg": 0.0}  # 0.85 m short of the table
     emu = serial_emulator(WorldMap.from_dict(doc))
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         host.handshake()
         since = host.mark()
         host.send(Motion(1, Command.FWD, 60, 30000))
@@ -332,7 +332,7 @@ def _seeded_run(emu: Emulator) -> dict[str, Any]:
     fix. Frames reach the twin at wall-clock-dependent ticks, so timestamps and the phase
     of sampled noise (IMU, POSE) differ between runs; the trajectory does not (the twin
     is at rest until the first step starts)."""
-    with SerialHost(emu.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(emu.frontend.device) as host:
         ident = host.handshake()
         since = host.mark()
         for seq, (cmd, dist) in enumerate(
@@ -364,7 +364,7 @@ def test_the_same_seeded_run_twice_over_the_wire(serial_emulator: Factory, lab: 
     assert first == again
     assert first["encoders"] == (9000, 19000)
     other = serial_emulator(lab, seed=4)
-    with SerialHost(other.frontend.device) as host:  # type: ignore[attr-defined]
+    with SerialHost(other.frontend.device) as host:
         assert host.handshake().boot_nonce != first["nonce"]
 
 

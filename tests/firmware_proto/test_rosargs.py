@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.rosargs import (
+from firmware_proto.cli.rosargs import (
     RosArgs,
     argv_from_ros_args,
     node_parameters,
@@ -145,7 +145,7 @@ def test_an_unreadable_parameters_file_is_a_usage_error(
 ) -> None:
     """The command-line edge (cli_rosargs) reads the files; with or without PyYAML, a
     file it cannot read ends the program with status 2 and says which file."""
-    from firmware_proto.cli_rosargs import parse_args_with_ros_args
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
 
     parser = argparse.ArgumentParser(prog="rover_emulator")
     parser.add_argument("--seed", type=int, default=0)

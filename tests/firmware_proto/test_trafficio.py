@@ -10,7 +10,7 @@ import threading
 import can
 import pytest
 
-from firmware_proto.trafficio import (
+from firmware_proto.linkio.trafficio import (
     CAN_LOG_FORMATS,
     CanLogWriter,
     LogWriter,
@@ -18,7 +18,7 @@ from firmware_proto.trafficio import (
     parse_log,
     writer_for,
 )
-from firmware_proto.trafficlog import CanRecord, SerialRecord
+from firmware_proto.linkio.trafficlog import CanRecord, SerialRecord
 
 T0 = 1795246430.225437
 

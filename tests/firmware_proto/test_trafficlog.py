@@ -12,25 +12,7 @@ from firmware_proto import cobs
 from firmware_proto.canmap import encode_can
 from firmware_proto.errors import DecodeError
 from firmware_proto.framing import encode_frame
-from firmware_proto.message import Message
-from firmware_proto.messages import (
-    DEFAULT_NODE,
-    Ack,
-    AckField,
-    AckResult,
-    ControllerState,
-    Encoders,
-    Heartbeat,
-    Hello,
-    Ident,
-    Motion,
-    Status,
-    StepState,
-    Stop,
-    StopAck,
-    Stopped,
-)
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     SERIAL_LOG_MAGIC,
@@ -49,6 +31,24 @@ from firmware_proto.trafficlog import (
     message_direction,
     parse_serial_log,
     serial_log_header,
+)
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    DEFAULT_NODE,
+    Ack,
+    AckField,
+    AckResult,
+    ControllerState,
+    Encoders,
+    Heartbeat,
+    Hello,
+    Ident,
+    Motion,
+    Status,
+    StepState,
+    Stop,
+    StopAck,
+    Stopped,
 )
 
 from .strategies import any_message

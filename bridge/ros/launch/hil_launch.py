@@ -14,7 +14,7 @@ Every node reads its section of one parameters YAML
 (``share/rover_hil/config/hil.yaml`` by default; sections keyed ``/**/<node name>`` so a
 namespace does not hide them). The emulator, the gate, the link relay and the executor
 are not ROS nodes: they map their section to their command-line options
-(firmware_proto.rosargs), ``speed_factor: 2.0`` being ``--speed-factor 2.0``. The launch
+(firmware_proto.cli.rosargs), ``speed_factor: 2.0`` being ``--speed-factor 2.0``. The launch
 arguments below (``rtt``, the namespaces, ``goal``) are passed to the link relay and the
 executor as options, which win over the file. The emulator's ``link`` and the bridge's ``device``
 must name the same path; the bridge reconnects until the emulator has created it.

@@ -11,7 +11,7 @@
   from sysfs and kind, controller state and bitrate from ``ip -details -json`` where
   iproute2 can tell;
 - for each device, which of our rules files (``udev/``) would name it, by replaying an
-  ``add`` event through the parsed rules (:func:`bridge.udev_rules.evaluate`), and
+  ``add`` event through the parsed rules (:func:`udev.rules.evaluate`), and
   whether a pinned rule would match once its placeholder holds this unit's serial
   number or USB port;
 - whether ``/dev/rover-motor`` exists and where it points, whether the kernel has
@@ -38,7 +38,7 @@ from typing import Any, Protocol
 
 from serial.tools import list_ports
 
-from bridge.udev_install import (
+from udev.install import (
     DEFAULT_NETWORK_DIR,
     DEFAULT_RULES_DIR,
     PLACEHOLDER_SERIAL,
@@ -47,7 +47,7 @@ from bridge.udev_install import (
     fill_placeholders,
     source_files,
 )
-from bridge.udev_rules import DeviceNode, RulesFile, UdevEvent, evaluate, parse_rules
+from udev.rules import DeviceNode, RulesFile, UdevEvent, evaluate, parse_rules
 
 __all__ = [
     "ARPHRD_CAN",

@@ -12,13 +12,13 @@ from typing import Any
 import pytest
 from serial.tools.list_ports_common import ListPortInfo
 
-from bridge.devices import (
+from firmware_proto.cli import main
+from udev.devices import (
     inventory,
     list_can_interfaces,
     list_serial_ports,
     motor_link_status,
 )
-from firmware_proto.cli import main
 
 UDEV_DIR = Path(__file__).resolve().parents[2] / "udev"
 

@@ -6,8 +6,13 @@ adds one ``argparse`` subparser and sets ``func`` on it; ``func(args)`` returns 
 status. Register functions must import nothing heavy at module level, so that
 ``rover --help`` stays fast; the handler imports what it needs.
 
-This module lives in :mod:`firmware_proto` because that package sits at the bottom of
-the dependency graph: it discovers the others by entry point and never imports them.
+The command host and the command-line helpers every program shares (``rover frame``,
+``rover replay``, the ROS 2 tail of a command line: :mod:`firmware_proto.cli.rosargs`,
+:mod:`firmware_proto.cli.rosparams`) form this sub-package of :mod:`firmware_proto`,
+apart from the pure protocol: it is the one place below the emulator, the bridge, the
+gate and the planner, which all plug into it (the repository's top-level layout is
+fixed). It discovers them by entry point and never imports them; nothing in
+``firmware_proto`` outside it imports it (docs/linkio.md, Layers).
 
 Exit status: 0 success, 1 the command failed (one line on stderr; ``-vv`` adds the
 traceback), 2 usage error, 130 interrupted.
@@ -103,7 +108,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         hint = "" if args.verbose >= 2 else " (run with -vv for details)"
         print(f"rover {args.command}: error: {name}{exc}{hint}", file=sys.stderr)
         return 1
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -7,7 +7,7 @@ their settings from their own long options; these pure helpers turn the ROS argu
 into those options, so that one parameters YAML configures the whole HIL set
 (docs/ros2.md). Everything here is pure: the parameters-file loader is passed in. The
 command-line edge, which reads the YAML files and turns bad arguments into usage errors
-for a program's ``main()``, is :mod:`firmware_proto.cli_rosargs`.
+for a program's ``main()``, is :mod:`firmware_proto.cli.rosparams`.
 
 Mapping: the parameter ``speed_factor: 4.0`` becomes ``--speed-factor 4.0``; ``true``
 becomes the bare flag, ``false`` and empty values are left out, a list repeats the

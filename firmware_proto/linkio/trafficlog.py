@@ -1,11 +1,11 @@
 """Traffic logs of the controller link: records, the serial frame-log format, decoding,
 and the comparison of a replayed session with a recorded one (docs/traffic-logs.md).
 
-Everything here is pure: no files, no clocks, no buses. The bridge and the emulator
-record at their edges through the :class:`TrafficRecorder` interface; the log writers
-and the reader of :mod:`firmware_proto.trafficio` turn the records defined here into
-streams and back, and each of those packages opens the files (``bridge.trafficfile``,
-``emulator.trafficfile``).
+Everything here is pure: no files, no clocks, no buses. The endpoints of the link-I/O
+layer (:mod:`firmware_proto.linkio`) hand every frame to their listeners through the
+:class:`TrafficRecorder` interface; its log writers and reader
+(:mod:`firmware_proto.linkio.trafficio`) turn the records defined here into files and
+back.
 
 **Serial frame log** (text, ASCII), one frame per line::
 
@@ -31,7 +31,6 @@ direction of a frame follows from its identifier, so CAN logs need no direction 
 from __future__ import annotations
 
 import difflib
-import logging
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -52,7 +51,6 @@ __all__ = [
     "CanRecord",
     "DecodedRecord",
     "Difference",
-    "RecordingEdge",
     "SerialLog",
     "SerialRecord",
     "TrafficRecord",
@@ -72,7 +70,6 @@ __all__ = [
     "serial_log_header",
 ]
 
-logger = logging.getLogger(__name__)
 
 HOST_TO_CONTROLLER = "H>C"
 CONTROLLER_TO_HOST = "C>H"
@@ -158,32 +155,6 @@ class TrafficRecorder(Protocol):
 
     def record(self, entry: TrafficRecord) -> None:
         """Keep one frame."""
-
-
-class RecordingEdge:
-    """What the edges that record link traffic share (the bridge's transports, the
-    emulator's front ends): an optional :attr:`recorder` and :meth:`_record`, which
-    hands it one frame. A failing recorder is logged once and never stops the edge."""
-
-    recorder: TrafficRecorder | None = None
-    _record_failed = False
-
-    def _edge_name(self) -> str:
-        """How the log names this edge (a URL, a device)."""
-        return type(self).__name__
-
-    def _record(self, entry: TrafficRecord) -> None:
-        recorder = self.recorder
-        if recorder is None:
-            return
-        try:
-            recorder.record(entry)
-        except Exception:
-            if not self._record_failed:
-                self._record_failed = True
-                logger.exception(
-                    "%s: traffic recorder failed; carrying on without it", self._edge_name()
-                )
 
 
 def received_serial_records(frames: Iterable[Frame], time_s: float) -> list[SerialRecord]:

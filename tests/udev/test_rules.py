@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bridge.udev_rules import (
+from udev.rules import (
     KEYS,
     DeviceNode,
     Op,

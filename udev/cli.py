@@ -153,14 +153,14 @@ def register_udev(subparsers: Any) -> None:
 
 
 def _source(args: argparse.Namespace) -> Path:
-    from bridge.udev_install import source_dir
+    from udev.install import source_dir
 
     return source_dir(args.source)
 
 
 def _cmd_devices(args: argparse.Namespace) -> int:
-    from bridge.devices import inventory
-    from bridge.udev_install import DEFAULT_NETWORK_DIR, DEFAULT_RULES_DIR, InstallError
+    from udev.devices import inventory
+    from udev.install import DEFAULT_NETWORK_DIR, DEFAULT_RULES_DIR, InstallError
 
     try:
         source: Path | None = _source(args)
@@ -182,7 +182,7 @@ def _cmd_devices(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from bridge.udev_rules import load_rules
+    from udev.rules import load_rules
 
     files = list(args.files) or sorted(_source(args).glob("*.rules"))
     if not files:
@@ -203,7 +203,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_install(args: argparse.Namespace) -> int:
-    from bridge.udev_install import (
+    from udev.install import (
         DEFAULT_NETWORK_DIR,
         DEFAULT_RULES_DIR,
         execute,

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import pytest
 
-from bridge.udev_install import (
+from firmware_proto.cli import main
+from udev.install import (
     PLACEHOLDER_SERIAL,
     InstallError,
     execute,
     plan_install,
 )
-from bridge.udev_rules import load_rules
-from firmware_proto.cli import main
+from udev.rules import load_rules
 
 UDEV_DIR = Path(__file__).resolve().parents[2] / "udev"
 PINNED_SET = {"70-rover-can.rules", "99-rover-motor.rules"}

@@ -12,7 +12,7 @@ The pinned rules carry placeholders (:data:`PLACEHOLDER_SERIAL`,
 ``--usb-port`` fill in the installed copy.
 
 Installing is all or nothing: :func:`plan_install` checks everything first (the rules
-pass :mod:`bridge.udev_rules`'s checker, the target directories are writable, udevadm is
+pass :mod:`udev.rules`'s checker, the target directories are writable, udevadm is
 there and we are root when a reload is wanted) and lists the problems;
 :func:`execute` refuses a plan with problems, stages every file next to its target, then
 renames them into place, and on any failure removes what it wrote and restores what it
@@ -36,7 +36,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bridge.udev_rules import UdevError, parse_rules
+from udev.rules import UdevError, parse_rules
 
 __all__ = [
     "BENCH_SUFFIX",
@@ -102,7 +102,7 @@ def _installed_dirs(module_file: Path) -> list[tuple[str, Path]]:
     """Where an install put ``share/rover_hil/udev`` (setup.py's data files): the ament
     index's share directory of the package when ROS 2 is sourced, then the nearest
     ancestor of the installed module that holds one (``<prefix>/lib/pythonX.Y/
-    site-packages/bridge`` -> ``<prefix>/share``: colcon, pip and venv layouts alike)."""
+    site-packages/udev`` -> ``<prefix>/share``: colcon, pip and venv layouts alike)."""
     found: list[tuple[str, Path]] = []
     try:
         packages = importlib.import_module("ament_index_python.packages")
@@ -117,6 +117,11 @@ def _installed_dirs(module_file: Path) -> list[tuple[str, Path]]:
             found.append(("the install prefix", share_udev))
             break
     return found
+
+
+def _holds_rules(directory: Path) -> bool:
+    """Whether ``directory`` holds udev rules files (not just this package's code)."""
+    return any(directory.glob("*.rules"))
 
 
 def source_dir(explicit: str | Path | None = None) -> Path:
@@ -134,7 +139,10 @@ def source_dir(explicit: str | Path | None = None) -> Path:
         candidates = [(f"${ENV_SOURCE_DIR}", Path(os.environ[ENV_SOURCE_DIR]))]
     else:
         here = Path(__file__).resolve()
-        candidates = [("the checkout", here.parent.parent / "udev"), *_installed_dirs(here)]
+        # In a checkout (or colcon's symlink install) this module sits in udev/ beside
+        # the rules; an installed package holds only the code.
+        candidates = [("the checkout", here.parent), *_installed_dirs(here)]
+        candidates = [(o, p) for o, p in candidates if o != "the checkout" or _holds_rules(p)]
     for _origin, path in candidates:
         if path.is_dir():
             return path

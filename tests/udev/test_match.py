@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from serial.tools.list_ports_common import ListPortInfo
 
-from bridge.devices import CanInterface, SerialPort, inventory
-from bridge.udev_install import fill_placeholders
-from bridge.udev_rules import DeviceNode, RulesFile, evaluate, parse_rules
+from udev.devices import CanInterface, SerialPort, inventory
+from udev.install import fill_placeholders
+from udev.rules import DeviceNode, RulesFile, evaluate, parse_rules
 
 UDEV_DIR = Path(__file__).resolve().parents[2] / "udev"
 PINNED = UDEV_DIR / "99-rover-motor.rules"

@@ -1,11 +1,11 @@
 """The ROS 2 tail of a program's command line, read: the edge of
-:mod:`firmware_proto.rosargs` for the ``main()`` of every program that ``ros2 run`` and
+:mod:`firmware_proto.cli.rosargs` for the ``main()`` of every program that ``ros2 run`` and
 the launch files start but that is not a ROS node itself (``rover_emulator``,
 ``rover_gate``, ``rover_link``, ``rover_executor``; docs/ros2.md).
 
-It sits with the other ``cli`` modules of :mod:`firmware_proto`, the command-line layer
-that does I/O, because the emulator, the gate and the planner all use it and share no
-other package; :mod:`firmware_proto.rosargs` itself stays pure.
+It sits in :mod:`firmware_proto.cli`, the command-line layer that does I/O, because the
+emulator, the gate and the planner all use it and share no other package;
+:mod:`firmware_proto.cli.rosargs` itself is pure.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import importlib
 from collections.abc import Sequence
 from typing import Any
 
-from firmware_proto.rosargs import argv_from_ros_args, split_ros_args
+from firmware_proto.cli.rosargs import argv_from_ros_args, split_ros_args
 
 __all__ = ["load_parameters_file", "parse_args_with_ros_args"]
 

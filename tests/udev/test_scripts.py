@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from bridge.devices import socketcan_support
+from udev.devices import socketcan_support
 
 UDEV_DIR = Path(__file__).resolve().parents[2] / "udev"
 VCAN_UP = UDEV_DIR / "vcan-up.sh"

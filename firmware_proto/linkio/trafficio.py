@@ -1,22 +1,24 @@
-"""Traffic log writers and reader on streams the caller opened (docs/traffic-logs.md).
+"""Traffic log writers and reader, on streams or by path (docs/traffic-logs.md).
 
-The record types, the serial frame-log format and the decoding live in
-:mod:`firmware_proto.trafficlog`; this module turns records into log streams and back.
-It opens nothing and takes no paths, as ``firmware_proto`` does no I/O of its own: the
-bridge and the emulator (which record at the two ends of the link and never import each
-other) open files by path in their own ``trafficfile`` modules and hand the streams in.
+The record types, the serial frame-log format and the decoding are pure and live in
+:mod:`firmware_proto.linkio.trafficlog`; this module of the link-I/O layer turns records into
+log files and back, for both ends of the link (the bridge's transports, the emulator's
+front ends, their replays, ``rover decode``).
 
 - :class:`LogWriter`: the recorder base (thread-safe :meth:`~LogWriter.record`,
   idempotent :meth:`~LogWriter.close`); :class:`SerialLogWriter` writes the serial frame
   log to a text stream, :class:`CanLogWriter` feeds one of python-can's log writers.
+  A writer is a listener of an endpoint
+  (:meth:`~firmware_proto.linkio.endpoint.Endpoint.add_listener`).
 - :data:`CAN_LOG_FORMATS`: the python-can formats recorded and read, by file suffix.
 - :func:`writer_for`: the writer that a medium and a file suffix call for, checked before
   anything is opened; it is then given the binary stream to write to.
 - :func:`parse_log`: a serial frame log or a CAN log back from a binary stream.
+- :func:`open_recorder` and :func:`read_log`: the same, by path.
 
 **Streams.** Writers and the reader own the streams they are given, as python-can's
 do: :meth:`LogWriter.close` finishes the log and closes its stream, :func:`parse_log`
-closes its stream once read (or on error). The caller opens; this module closes.
+closes its stream once read (or on error).
 
 **CAN formats.** ``.log`` (candump ``-L``) keeps everything a frame carries and is
 flushed per frame: the one to use, read by can-utils and cantools too. ``.blf`` (Vector
@@ -36,14 +38,14 @@ import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from types import TracebackType
 from typing import IO, Any, BinaryIO, TextIO
 
 import can
 from can.io.blf import BLFParseError
 
-from firmware_proto.trafficlog import (
+from firmware_proto.linkio.trafficlog import (
     SERIAL_LOG_MAGIC,
     CanRecord,
     SerialRecord,
@@ -62,7 +64,9 @@ __all__ = [
     "LogWriter",
     "SerialLogWriter",
     "can_record",
+    "open_recorder",
     "parse_log",
+    "read_log",
     "writer_for",
 ]
 
@@ -71,7 +75,7 @@ MEDIA = ("serial", "can")
 
 
 class LogWriter(ABC):
-    """A recorder writing one log (a :class:`~firmware_proto.trafficlog.TrafficRecorder`).
+    """A recorder writing one log (a :class:`~firmware_proto.linkio.trafficlog.TrafficRecorder`).
 
     :meth:`record` is thread-safe (transports record from their reader threads and their
     callers' threads) and checks the record type. Times never go back in a log: a record
@@ -375,3 +379,21 @@ def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
             except (ValueError, IndexError, struct.error, BLFParseError) as exc:
                 raise ValueError(f"{path}: malformed {fmt.name} log: {exc}") from exc
     return LogFile(path, "can", _in_time_order(records))
+
+
+def open_recorder(
+    path: str | Path, medium: str, *, channel: str = "", metadata: Mapping[str, str] | None = None
+) -> LogWriter:
+    """A recorder for either end of the link: a new log of ``medium`` (``"serial"``,
+    ``"can"``) at ``path``, created or truncated, in the format its suffix calls for
+    (:func:`writer_for`, whose ValueError comes before the file is made; OSError: it
+    cannot be made). ``metadata`` heads a serial log, where ``rover replay`` finds the
+    emulator's seed, speed factor and map."""
+    start = writer_for(medium, Path(path).suffix, channel=channel, metadata=metadata)
+    return start(Path(path).open("wb"))
+
+
+def read_log(path: str | Path) -> LogFile:
+    """The traffic log at ``path``, serial or CAN; raises OSError (unreadable) and
+    ValueError (not a log) as :func:`parse_log` says."""
+    return parse_log(Path(path).open("rb"), path)

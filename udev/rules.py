@@ -31,7 +31,7 @@ description of the device can answer (``ACTION``, ``KERNEL``, ``SUBSYSTEM``,
 Exceptions::
 
     UdevError (RuntimeError)        root of the udev tooling in bridge
-     +-- bridge.udev_install.InstallError   install refused or failed
+     +-- udev.install.InstallError   install refused or failed
 """
 
 from __future__ import annotations

@@ -1,0 +1,216 @@
+"""One end of the wire: protocol messages over a medium, for either side of the link.
+
+An :class:`Endpoint` turns messages into frames on a medium and frames back into
+messages, the same way at both ends of the link: the bridge's transports wrap one with
+``side=HOST``, the emulator's front ends with ``side=CONTROLLER``, the two replays with
+the side they play. The side decides what is taken in (a host takes what the controller
+sends; a controller takes what hosts send, and on CAN its own node's frames and
+broadcasts) and which way a frame written is logged.
+
+An endpoint is synchronous and owns no thread: :meth:`Endpoint.read` waits a little and
+returns what arrived, :meth:`Endpoint.write` sends one message now. Threads and queues
+are the owner's policy (the bridge's reader and dispatcher, :mod:`bridge.transport`;
+the emulator's reader with injected link faults, :mod:`emulator.frontend`), as in
+python-can, where a ``Bus`` does the I/O and a ``Notifier`` runs the thread.
+
+**Listeners.** Every frame written (just before it goes to the medium, so that an
+answer cannot be logged ahead of it) and every frame received goes to each listener
+(:meth:`Endpoint.add_listener`): a traffic log (:mod:`firmware_proto.linkio.trafficio`),
+a bus monitor. A listener that raises is logged once and called again with the next
+frame (a full disk may free up); the link never fails because its log did.
+
+Implementing a medium: subclass :class:`Endpoint`, fill ``_open``, ``_close``, ``read``,
+``write`` and, where the medium can, ``write_raw`` and ``write_record``; hand frames to
+:meth:`Endpoint._emit`.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from abc import ABC, abstractmethod
+from types import TracebackType
+from typing import Final, Literal
+
+from firmware_proto.counters import RxCounters
+from firmware_proto.linkio.trafficlog import (
+    CONTROLLER_TO_HOST,
+    HOST_TO_CONTROLLER,
+    TrafficRecord,
+    TrafficRecorder,
+)
+from firmware_proto.message import Message
+
+__all__ = ["CONTROLLER", "HOST", "SIDES", "Endpoint", "Side"]
+
+logger = logging.getLogger(__name__)
+
+Side = Literal["host", "controller"]
+HOST: Final = "host"
+"""The bridge's end, or any host: sends requests, takes the controller's messages."""
+CONTROLLER: Final = "controller"
+"""The motor controller's end (the emulator): takes requests, sends telemetry."""
+SIDES: tuple[Side, ...] = (HOST, CONTROLLER)
+
+_TAKES = {HOST: "controller_to_host", CONTROLLER: "host_to_controller"}
+_SENDS = {HOST: HOST_TO_CONTROLLER, CONTROLLER: CONTROLLER_TO_HOST}
+
+
+class Endpoint(ABC):
+    """One side's end of the link on one medium (see the module docstring).
+
+    Attributes:
+        side: :data:`HOST` or :data:`CONTROLLER`.
+        counters: the decoder's receive counters (frames, bytes, rejects by cause).
+        foreign: frames decoded but not for this side (another node's, our own kind
+            echoed back on a bus).
+    """
+
+    medium = "medium"
+    """``serial`` or ``can``: the traffic-log medium of this endpoint."""
+
+    def __init__(self, side: Side, *, recorder: TrafficRecorder | None = None) -> None:
+        """Args:
+        side: which end of the link this is.
+        recorder: a first listener (a traffic log); the caller keeps ownership.
+
+        Raises:
+            ValueError: ``side`` is not one of :data:`SIDES`.
+        """
+        if side not in SIDES:
+            raise ValueError(f"side must be one of {', '.join(SIDES)}, got {side!r}")
+        self.side: Side = side
+        self.counters = RxCounters()
+        self.foreign = 0
+        self._listeners: list[TrafficRecorder] = [] if recorder is None else [recorder]
+        self._failed: set[int] = set()
+        """ids of the listeners that raised (each is logged once)."""
+
+    # -- what the side decides ------------------------------------------------------
+    def takes(self, message: Message) -> bool:
+        """Whether this side takes ``message`` in (its direction is towards us)."""
+        return _TAKES[self.side] == message.DIRECTION
+
+    @property
+    def sends(self) -> str:
+        """The traffic-log direction of the frames this side writes."""
+        return _SENDS[self.side]
+
+    # -- listeners ----------------------------------------------------------------------
+    def add_listener(self, listener: TrafficRecorder) -> None:
+        """Hand every frame sent and received to ``listener`` from now on (called on the
+        writing thread for frames sent, on the reading thread for frames received)."""
+        self._listeners = [*self._listeners, listener]
+
+    def remove_listener(self, listener: TrafficRecorder) -> None:
+        """Stop handing frames to ``listener`` (no error if it was not there)."""
+        self._listeners = [x for x in self._listeners if x is not listener]
+
+    @property
+    def recording(self) -> bool:
+        """Whether any listener wants frames (build records only then)."""
+        return bool(self._listeners)
+
+    def _emit(self, record: TrafficRecord) -> None:
+        for listener in self._listeners:
+            try:
+                listener.record(record)
+            except Exception:
+                if id(listener) not in self._failed:
+                    self._failed.add(id(listener))
+                    logger.exception(
+                        "%s: traffic recorder failed (logged once; the link carries on)",
+                        self.name,
+                    )
+
+    # -- the medium ---------------------------------------------------------------------
+    @property
+    @abstractmethod
+    def name(self) -> str:
+        """What this endpoint is on, for messages: a device path, ``interface:channel``."""
+
+    @property
+    def medium_state(self) -> str:
+        """The medium's own condition: ``ok`` unless it knows better (CAN: its
+        fault-confinement state). ``ok`` and ``error_active`` are healthy."""
+        return "ok"
+
+    @property
+    def medium_errors(self) -> int:
+        """Errors the medium itself reported (CAN: error frames)."""
+        return 0
+
+    @property
+    def can_corrupt(self) -> bool:
+        """Whether a damaged frame can reach the other end (CAN's own CRC stops one)."""
+        return True
+
+    def open(self) -> None:
+        """Acquire the medium. Raises OSError (or a subclass) when it cannot be had."""
+        self._open()
+
+    def close(self) -> None:
+        """Release the medium (idempotent)."""
+        self._close()
+
+    @abstractmethod
+    def _open(self) -> None: ...
+
+    @abstractmethod
+    def _close(self) -> None: ...
+
+    @abstractmethod
+    def read(self, timeout_s: float) -> list[Message]:
+        """Wait up to ``timeout_s`` for frames; return the messages this side takes, in
+        the order received. Malformed frames are counted in :attr:`counters` and dropped.
+
+        Raises:
+            OSError: the medium is gone (device unplugged, bus off on the host side).
+        """
+
+    @abstractmethod
+    def write(self, message: Message, *, corrupt: random.Random | None = None) -> bool:
+        """Send one message now, on the calling thread.
+
+        Args:
+            message: what to send.
+            corrupt: damage the frame with this generator (a link-fault injection; only
+                where :attr:`can_corrupt`).
+
+        Returns:
+            False when the medium dropped the frame without failing (a pty nobody has
+            open), True when it went out.
+
+        Raises:
+            OSError: the write failed (device gone, bus off, send timeout).
+        """
+
+    def write_raw(self, msg_id: int, payload: bytes, *, bad_crc: bool = False) -> None:
+        """Send an unchecked frame (a conformance host's malformed input); not logged.
+
+        Raises:
+            OSError: the write failed.
+            ValueError: this medium cannot carry such a frame.
+        """
+        raise ValueError(f"a {self.medium} endpoint cannot send raw frames")
+
+    @abstractmethod
+    def write_record(self, record: TrafficRecord) -> None:
+        """Put a recorded frame on the medium again, exactly as recorded (a replay).
+
+        Raises:
+            TypeError: the record is of another medium.
+            OSError: the write failed.
+        """
+
+    def __enter__(self) -> Endpoint:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

@@ -1,0 +1,116 @@
+"""The arrows between the parts point down (DESIGN.md, "Parts"; docs/linkio.md, Layers).
+
+Read from the sources' import statements (every ``import``, at module level or inside a
+function), so a lazy import counts as much as a top-level one:
+
+- ``firmware_proto`` proper (everything but its ``linkio`` and ``cli`` sub-packages) is
+  pure: no python-can, pyserial, threads, sockets, ROS, and none of those two
+  sub-packages;
+- ``firmware_proto.linkio`` (both ends of the wire) imports no part above it and not
+  the command host;
+- the emulator and the bridge never import each other; the gate imports neither the
+  bridge nor the planner; the rover's device tooling (``udev``) imports none of them.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+IMPURE = {"can", "serial", "threading", "socket", "select", "rclpy", "asyncio", "subprocess"}
+"""What the pure protocol must not import."""
+
+
+def _modules(package: str) -> dict[str, Path]:
+    base = ROOT / package
+    found = {}
+    for path in sorted(base.rglob("*.py")):
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        found[name] = path
+    return found
+
+
+def _imports(path: Path) -> set[str]:
+    """Every module name an import statement in ``path`` names (absolute imports only:
+    the project uses no relative ones outside tests)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return names
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+FIRMWARE_PROTO = _modules("firmware_proto")
+PURE = {
+    name: path
+    for name, path in FIRMWARE_PROTO.items()
+    if not _under(name, "firmware_proto.linkio") and not _under(name, "firmware_proto.cli")
+}
+
+
+def test_the_split_is_what_the_docs_say() -> None:
+    # A module left behind in the wrong place would pass every other test here.
+    assert "firmware_proto.framing" in PURE and "firmware_proto.canmap" in PURE
+    assert "firmware_proto.linkio.trafficio" in FIRMWARE_PROTO
+    assert "firmware_proto.cli" in FIRMWARE_PROTO
+    assert not any(
+        name.startswith(("firmware_proto.cli_", "firmware_proto.traffic")) for name in PURE
+    )
+    assert "firmware_proto.rosargs" not in PURE
+
+
+@pytest.mark.parametrize("name", sorted(PURE))
+def test_the_protocol_is_pure(name: str) -> None:
+    wrong = sorted(
+        imported
+        for imported in _imports(PURE[name])
+        if imported.split(".")[0] in IMPURE
+        or _under(imported, "firmware_proto.linkio")
+        or _under(imported, "firmware_proto.cli")
+        or imported.split(".")[0] in {"bridge", "emulator", "gate", "planner"}
+    )
+    assert not wrong, f"{name} imports {wrong}"
+
+
+def test_importing_the_protocol_loads_no_io_library() -> None:
+    code = (
+        "import sys\n"
+        + "".join(f"import {name}\n" for name in sorted(PURE))
+        + "print(sorted(m for m in ('can', 'serial', 'rclpy') if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    ).stdout
+    assert out.strip() == "[]"
+
+
+@pytest.mark.parametrize(
+    ("package", "forbidden"),
+    [
+        ("firmware_proto/linkio", ("bridge", "emulator", "gate", "planner", "firmware_proto.cli")),
+        ("emulator", ("bridge", "gate", "planner")),
+        ("bridge", ("emulator", "gate", "planner")),
+        ("gate", ("bridge", "planner")),
+        ("udev", ("firmware_proto", "emulator", "bridge", "gate", "planner")),
+    ],
+)
+def test_arrows_point_down(package: str, forbidden: tuple[str, ...]) -> None:
+    wrong = {
+        name: sorted(i for i in _imports(path) if any(_under(i, f) for f in forbidden))
+        for name, path in _modules(package).items()
+    }
+    assert not {k: v for k, v in wrong.items() if v}
