@@ -614,17 +614,18 @@ void fw_on_can(fw_t *c, uint64_t now_us, uint32_t can_id, bool is_extended, bool
                const uint8_t *data, size_t len)
 {
     rp_can_frame_t f;
-    if (!is_extended && can_id <= RP_CAN_MAX_ID) {
-        const uint32_t node = RP_CAN_NODE(can_id);
-        if (node != c->cfg.can_node && node != RP_BROADCAST_NODE) {
-            return; /* another controller's traffic */
-        }
-    }
-    if (rp_can_decode(&c->can_dec, can_id, is_extended, is_remote, data, len, &f)) {
-        fw_handle(c, now_us, &f.msg);
-    } else {
+    /* As the Python CAN endpoint does: a bad frame is an rx error whoever it was for; a
+     * good one for another node, or of our own kind (a controller's frame echoed back),
+     * is foreign: ignored, not an error. */
+    if (!rp_can_decode(&c->can_dec, can_id, is_extended, is_remote, data, len, &f)) {
         c->rx_errors++;
+        return;
     }
+    if ((f.node != c->cfg.can_node && f.node != RP_BROADCAST_NODE) ||
+        !host_to_controller(f.msg.id)) {
+        return;
+    }
+    fw_handle(c, now_us, &f.msg);
 }
 
 /* ------------------------------------------------------------------ step profile */

@@ -162,7 +162,11 @@ void fw_reboot(fw_t *c, uint64_t now_us);
 /** Serial: feed received bytes; every complete frame is handled before this returns. */
 void fw_on_bytes(fw_t *c, uint64_t now_us, const uint8_t *data, size_t len);
 
-/** CAN: one received frame (frames for other nodes are ignored, not counted). */
+/**
+ * CAN: one received frame. A frame that fails to decode counts in rx_errors whichever
+ * node it was for; a valid frame for another node, or a controller-to-host frame (our
+ * own kind echoed), is ignored without counting (the Python endpoint's "foreign").
+ */
 void fw_on_can(fw_t *c, uint64_t now_us, uint32_t can_id, bool is_extended, bool is_remote,
                const uint8_t *data, size_t len);
 

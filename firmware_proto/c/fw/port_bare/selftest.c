@@ -7,7 +7,9 @@
  *
  * The script: HELLO (IDENT, session open); a 0.1 m FWD step run to COMPLETED with
  * travel 2300; a long step stopped half-way: STOP_ACK first, the targets zero on return,
- * STOPPED once at rest, MOTION refused STOP_LATCHED, CLEAR_STOP answered CLEARED. It
+ * STOPPED once at rest, MOTION refused STOP_LATCHED, CLEAR_STOP answered CLEARED; then
+ * CAN frames (another node's, our own kind echoed, a bad one, a broadcast) received as
+ * the Python CAN endpoint takes them. It
  * prints one line per check and `selftest: ok` (or FAILED), then the cost of fw_tick:
  * on AVR in CPU cycles from Timer1 (prescaler 8: 8-cycle resolution, right while a tick
  * takes under 524,288 cycles); on the micro:bit in SysTick counts at its 16 MHz core
@@ -318,6 +320,22 @@ int main(void)
     send(&m);
     check(n_last == 1u && last[0].body.clear_ack.result == RP_CLEAR_RESULT_CLEARED,
           "CLEAR_STOP releases the latch");
+
+    {
+        /* CAN receive: errors count whoever they were for; foreign frames do not. */
+        const uint8_t hb[2] = {1u, 0u};
+        const uint8_t ack[5] = {0u, 0u, 0u, 0u, 0u};
+        const uint32_t before = c.rx_errors;
+        fw_on_can(&c, now, RP_MSG_HOST_HEARTBEAT << 4 | 2u, false, false, hb, 2u);
+        check(c.rx_errors == before, "CAN: another node's frame ignored");
+        fw_on_can(&c, now, RP_MSG_ACK << 4 | 1u, false, false, ack, 5u);
+        check(c.rx_errors == before, "CAN: our own kind echoed back ignored");
+        fw_on_can(&c, now, RP_MSG_HOST_HEARTBEAT << 4 | 2u, false, false, hb, 1u);
+        check(c.rx_errors == before + 1u, "CAN: a bad frame counted, whoever it was for");
+        n_last = 0u;
+        fw_on_can(&c, now, RP_MSG_HOST_HEARTBEAT << 4 | 0u, false, false, hb, 2u);
+        check(c.rx_errors == before + 1u && c.last_rx_us == now, "CAN: a broadcast taken");
+    }
 
     printf("selftest: %s\n", failures == 0 ? "ok" : "FAILED");
     if (tick_count > 0u) {
