@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from emulator.controller import ControllerConfig, ControllerModel, LatchCause
+from emulator.drive import motor_omegas
 from emulator.errors import FirmwareBuildError
 from emulator.sensors import PoseMeasurement
 from emulator.twin import Twin
@@ -655,9 +656,12 @@ class FirmwareController(ControllerModel):
         lib.fw_host_control(h, self._now_us())
         wheels = _I32x2()
         lib.fw_host_wheels(h, wheels)
-        r = self.rover.geometry.wheel_radius_m
-        # Motor frame already (the core applies the polarity): omega = v / r.
-        self.twin.set_motor_omegas(wheels[0] / 1e6 / r, wheels[1] / 1e6 / r)
+        d = self.rover.drive
+        # The core applied the polarity; undone here (exactly: integers) so that the
+        # twin gets its rates through the one conversion the Python model uses too.
+        left_mps = d.left_wheel_sign * wheels[0] / 1e6
+        right_mps = d.right_wheel_sign * wheels[1] / 1e6
+        self.twin.set_motor_omegas(*motor_omegas(self.rover, left_mps, right_mps))
         self.twin.step()
         self._push_sensors()
         lib.fw_host_sense(h, self._now_us())
