@@ -136,6 +136,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="claim this schema hash in IDENT (to test a host's mismatch handling)",
     )
     p.add_argument(
+        "--firmware",
+        choices=("python", "c"),
+        default="python",
+        help=(
+            "the controller: the Python model, or the C firmware core of "
+            "firmware_proto/c/fw built for this host and run in the loop (needs a C "
+            "compiler; docs/firmware.md) (default: python)"
+        ),
+    )
+    p.add_argument(
         "--record",
         metavar="FILE",
         help=(
@@ -173,8 +183,8 @@ def controller_config(args: argparse.Namespace) -> ControllerConfig:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulator.controller import ControllerModel
     from emulator.errors import InjectionError
+    from emulator.firmware import make_controller
     from emulator.injection import Injector, parse_fault
     from emulator.twin import Twin
     from emulator.worldmap import load_map
@@ -200,7 +210,8 @@ def _run(args: argparse.Namespace) -> int:
     rover = load_rover(args.rover)
     world = load_map(args.map)
     twin = Twin(rover, world, dt_s=args.dt)
-    model = ControllerModel(
+    model = make_controller(
+        getattr(args, "firmware", "python"),
         rover,
         twin,
         config,
@@ -228,6 +239,7 @@ def _run(args: argparse.Namespace) -> int:
                 "speed_factor": str(args.speed_factor),
                 "map": str(args.map),
                 "rover": str(args.rover or ""),
+                "firmware": getattr(args, "firmware", "python"),
             },
         )
         frontend.recorder = recorder

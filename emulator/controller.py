@@ -115,6 +115,10 @@ _REST_MPS = 1e-4
 _STALL_MIN_TARGET_MPS = 0.01
 """Stall detection only watches a side whose commanded speed is above this, m/s."""
 _STALL_MIN_PROGRESS_UNITS = 1.0
+_TIME_EPS_S = 1e-9
+"""Float tolerance on twin-time comparisons: twin time is ``steps * dt``, so a silence of
+exactly 60 ms can compute as 60.000000000000005 ms and trip a 60 ms watchdog a tick
+early (found by the differential test against the C core, whose clock is integer)."""
 
 
 @dataclass(frozen=True)
@@ -264,7 +268,7 @@ class ControllerModel:
         return self._commanded == (0.0, 0.0) and abs(left) < _REST_MPS and abs(right) < _REST_MPS
 
     def _clock_ms(self) -> int:
-        return int((self.now_s - self.boot_s) * 1000.0) & 0xFFFF
+        return int((self.now_s - self.boot_s) * 1000.0 + 1e-6) & 0xFFFF
 
     def _scaled_s(self, ms: float) -> float:
         return ms / 1000.0 * self.config.timeout_scale
@@ -561,7 +565,7 @@ class ControllerModel:
         if not self.handshake_ok or self._last_rx_s is None or self._watchdog_tripped:
             return
         silent_s = self.now_s - self._last_rx_s
-        if silent_s > self._scaled_s(self.watchdog_ms):
+        if silent_s > self._scaled_s(self.watchdog_ms) + _TIME_EPS_S:
             self._watchdog_tripped = True
             detail = round(silent_s / self.config.timeout_scale * 1000.0)
             logger.warning("watchdog: no valid frame for %.0f ms", detail)
@@ -582,7 +586,7 @@ class ControllerModel:
             since = self._stall_since[side]
             if since is None:
                 self._stall_since[side] = now
-            elif now - since > self._scaled_s(self.config.stall_timeout_ms):
+            elif now - since > self._scaled_s(self.config.stall_timeout_ms) + _TIME_EPS_S:
                 expected = self._running.profile.remaining_units(
                     travel[0] - self._running.start_travel[0],
                     travel[1] - self._running.start_travel[1],

@@ -10,14 +10,24 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
      +-- InjectionError   a fault or traction change the twin cannot apply is refused;
      |                    also ValueError (never silently accepted)
      +-- ConfigError      a twin or playback parameter is out of range (time step,
-                          safety margin, sample period); also ValueError
+     |                    safety margin, sample period); also ValueError
+     +-- FirmwareBuildError  the C firmware core cannot be built or loaded here (no
+                          compiler, a failed build, a rover it cannot represent);
+                          also RuntimeError
 
 Programming errors (wrong types, calling a closed object) raise the usual built-ins.
 """
 
 from __future__ import annotations
 
-__all__ = ["CommandError", "ConfigError", "EmulatorError", "InjectionError", "MapError"]
+__all__ = [
+    "CommandError",
+    "ConfigError",
+    "EmulatorError",
+    "FirmwareBuildError",
+    "InjectionError",
+    "MapError",
+]
 
 
 class EmulatorError(Exception):
@@ -51,3 +61,8 @@ class InjectionError(EmulatorError, ValueError):
 
 class ConfigError(EmulatorError, ValueError):
     """A twin or playback parameter is out of range (time step, margin, period)."""
+
+
+class FirmwareBuildError(EmulatorError, RuntimeError):
+    """The C firmware core cannot be built or loaded here (no compiler, a failed build,
+    or a rover description or time step its integer arithmetic cannot represent)."""

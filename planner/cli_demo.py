@@ -46,6 +46,12 @@ def register(subparsers: Any) -> None:
         "--picture", type=Path, default=Path("demo.png"), help="PNG to write (default demo.png)"
     )
     add_view_arguments(p, record_default="demo.mcap")
+    p.add_argument(
+        "--firmware",
+        choices=("python", "c"),
+        default="python",
+        help="the emulator's controller: the Python model or the C firmware core (default python)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -66,6 +72,7 @@ def _run(args: argparse.Namespace) -> int:
         record=None if args.no_record else Path(args.record),
         view=view_config(args),
         foxglove_port=args.foxglove,
+        firmware=args.firmware,
     )
     with Demo(config, say=functools.partial(print, flush=True)) as demo:
 

@@ -85,6 +85,8 @@ class DemoConfig:
             ``VIEW <url>``.
         foxglove_port: serve the mission live to Foxglove on this port of 127.0.0.1
             (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
+        firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
+            firmware core in the loop; ``rover emulate --firmware``).
     """
 
     rtt_s: float = 3.0
@@ -100,6 +102,7 @@ class DemoConfig:
     record: Path | None = Path("demo.mcap")
     view: ViewConfig | None = None
     foxglove_port: int | None = None
+    firmware: str = "python"
 
 
 @dataclass(frozen=True)
@@ -296,6 +299,8 @@ class Demo:
             f"{cfg.speed:g}",
             "--control-port",
             "0",
+            "--firmware",
+            cfg.firmware,
         ]
         emulator = self._start("emulator", emulator_args, "CONTROL ")
         control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])

@@ -131,3 +131,12 @@ def test_bench_view_quick_prints_push_latency_beside_its_limit() -> None:
     assert int(client["n"]) > 50  # 60 poses/s for 2 s, all delivered
     assert "| limit: the view's update period (10 Hz) |" in out
     assert "View threads' CPU during the feed" in out
+
+
+@pytest.mark.firmware
+def test_bench_firmware_quick_prints_the_c_core_beside_the_python_model() -> None:
+    out = run_benchmark("bench_firmware", "--quick")
+    assert "| C core, fw_on_bytes(STOP frame), measured in C | 50 |" in out
+    assert "| Python model (ControllerModel.handle) | 50 |" in out
+    assert "| C core + twin (FirmwareController) |" in out
+    assert "Instructions per fw_tick (callgrind, x86-64 -O2, driving): " in out

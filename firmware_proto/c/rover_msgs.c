@@ -1097,6 +1097,13 @@ int rp_param_value_unpack(rp_param_value_t *msg, const uint8_t *payload, size_t 
     return RP_OK;
 }
 
+/* RP_NO_FIELD_INFO leaves out the field descriptions (names, ranges, limits: about
+ * 3.4 KiB on a Cortex-M0+) that firmware which only packs and unpacks never reads;
+ * rp_msg_info() then gives n_fields 0 and fields NULL. */
+#ifdef RP_NO_FIELD_INFO
+#define RP_FIELDS(n, table) 0u, NULL
+#else
+
 static const rp_field_info_t fields_stop[] = {
     {"stop_id", 16u, false, INT64_C(1), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
     {"source", 8u, false, INT64_C(0), INT64_C(4), false, INT64_C(0), INT64_C(0)},
@@ -1227,28 +1234,30 @@ static const rp_field_info_t fields_param_value[] = {
     {"result", 8u, false, INT64_C(0), INT64_C(2), false, INT64_C(0), INT64_C(0)},
     {"value", 32u, true, INT64_C(-2147483648), INT64_C(2147483647), false, INT64_C(0), INT64_C(0)},
 };
+#define RP_FIELDS(n, table) n, table
+#endif
 
 const rp_msg_info_t rp_msg_table[RP_MSG_COUNT] = {
-    {RP_MSG_STOP, RP_MSG_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "STOP", 2u, fields_stop},
-    {RP_MSG_STOP_ACK, RP_MSG_STOP_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOP_ACK", 2u, fields_stop_ack},
-    {RP_MSG_CLEAR_STOP, RP_MSG_CLEAR_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "CLEAR_STOP", 1u, fields_clear_stop},
-    {RP_MSG_CLEAR_ACK, RP_MSG_CLEAR_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "CLEAR_ACK", 2u, fields_clear_ack},
-    {RP_MSG_MOTION, RP_MSG_MOTION_LEN, RP_DIR_HOST_TO_CONTROLLER, "MOTION", 4u, fields_motion},
-    {RP_MSG_ACK, RP_MSG_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "ACK", 4u, fields_ack},
-    {RP_MSG_STATUS, RP_MSG_STATUS_LEN, RP_DIR_CONTROLLER_TO_HOST, "STATUS", 4u, fields_status},
-    {RP_MSG_STOPPED, RP_MSG_STOPPED_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOPPED", 3u, fields_stopped},
-    {RP_MSG_FAULT, RP_MSG_FAULT_LEN, RP_DIR_CONTROLLER_TO_HOST, "FAULT", 3u, fields_fault},
-    {RP_MSG_HEARTBEAT, RP_MSG_HEARTBEAT_LEN, RP_DIR_CONTROLLER_TO_HOST, "HEARTBEAT", 10u, fields_heartbeat},
-    {RP_MSG_HOST_HEARTBEAT, RP_MSG_HOST_HEARTBEAT_LEN, RP_DIR_HOST_TO_CONTROLLER, "HOST_HEARTBEAT", 1u, fields_host_heartbeat},
-    {RP_MSG_ENCODERS, RP_MSG_ENCODERS_LEN, RP_DIR_CONTROLLER_TO_HOST, "ENCODERS", 3u, fields_encoders},
-    {RP_MSG_WHEEL_SPEEDS, RP_MSG_WHEEL_SPEEDS_LEN, RP_DIR_CONTROLLER_TO_HOST, "WHEEL_SPEEDS", 5u, fields_wheel_speeds},
-    {RP_MSG_IMU, RP_MSG_IMU_LEN, RP_DIR_CONTROLLER_TO_HOST, "IMU", 4u, fields_imu},
-    {RP_MSG_POSE, RP_MSG_POSE_LEN, RP_DIR_CONTROLLER_TO_HOST, "POSE", 5u, fields_pose},
-    {RP_MSG_PROGRESS, RP_MSG_PROGRESS_LEN, RP_DIR_CONTROLLER_TO_HOST, "PROGRESS", 5u, fields_progress},
-    {RP_MSG_HELLO, RP_MSG_HELLO_LEN, RP_DIR_HOST_TO_CONTROLLER, "HELLO", 2u, fields_hello},
-    {RP_MSG_IDENT, RP_MSG_IDENT_LEN, RP_DIR_CONTROLLER_TO_HOST, "IDENT", 6u, fields_ident},
-    {RP_MSG_SET_PARAM, RP_MSG_SET_PARAM_LEN, RP_DIR_HOST_TO_CONTROLLER, "SET_PARAM", 2u, fields_set_param},
-    {RP_MSG_PARAM_VALUE, RP_MSG_PARAM_VALUE_LEN, RP_DIR_CONTROLLER_TO_HOST, "PARAM_VALUE", 3u, fields_param_value},
+    {RP_MSG_STOP, RP_MSG_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "STOP", RP_FIELDS(2u, fields_stop)},
+    {RP_MSG_STOP_ACK, RP_MSG_STOP_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOP_ACK", RP_FIELDS(2u, fields_stop_ack)},
+    {RP_MSG_CLEAR_STOP, RP_MSG_CLEAR_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "CLEAR_STOP", RP_FIELDS(1u, fields_clear_stop)},
+    {RP_MSG_CLEAR_ACK, RP_MSG_CLEAR_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "CLEAR_ACK", RP_FIELDS(2u, fields_clear_ack)},
+    {RP_MSG_MOTION, RP_MSG_MOTION_LEN, RP_DIR_HOST_TO_CONTROLLER, "MOTION", RP_FIELDS(4u, fields_motion)},
+    {RP_MSG_ACK, RP_MSG_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "ACK", RP_FIELDS(4u, fields_ack)},
+    {RP_MSG_STATUS, RP_MSG_STATUS_LEN, RP_DIR_CONTROLLER_TO_HOST, "STATUS", RP_FIELDS(4u, fields_status)},
+    {RP_MSG_STOPPED, RP_MSG_STOPPED_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOPPED", RP_FIELDS(3u, fields_stopped)},
+    {RP_MSG_FAULT, RP_MSG_FAULT_LEN, RP_DIR_CONTROLLER_TO_HOST, "FAULT", RP_FIELDS(3u, fields_fault)},
+    {RP_MSG_HEARTBEAT, RP_MSG_HEARTBEAT_LEN, RP_DIR_CONTROLLER_TO_HOST, "HEARTBEAT", RP_FIELDS(10u, fields_heartbeat)},
+    {RP_MSG_HOST_HEARTBEAT, RP_MSG_HOST_HEARTBEAT_LEN, RP_DIR_HOST_TO_CONTROLLER, "HOST_HEARTBEAT", RP_FIELDS(1u, fields_host_heartbeat)},
+    {RP_MSG_ENCODERS, RP_MSG_ENCODERS_LEN, RP_DIR_CONTROLLER_TO_HOST, "ENCODERS", RP_FIELDS(3u, fields_encoders)},
+    {RP_MSG_WHEEL_SPEEDS, RP_MSG_WHEEL_SPEEDS_LEN, RP_DIR_CONTROLLER_TO_HOST, "WHEEL_SPEEDS", RP_FIELDS(5u, fields_wheel_speeds)},
+    {RP_MSG_IMU, RP_MSG_IMU_LEN, RP_DIR_CONTROLLER_TO_HOST, "IMU", RP_FIELDS(4u, fields_imu)},
+    {RP_MSG_POSE, RP_MSG_POSE_LEN, RP_DIR_CONTROLLER_TO_HOST, "POSE", RP_FIELDS(5u, fields_pose)},
+    {RP_MSG_PROGRESS, RP_MSG_PROGRESS_LEN, RP_DIR_CONTROLLER_TO_HOST, "PROGRESS", RP_FIELDS(5u, fields_progress)},
+    {RP_MSG_HELLO, RP_MSG_HELLO_LEN, RP_DIR_HOST_TO_CONTROLLER, "HELLO", RP_FIELDS(2u, fields_hello)},
+    {RP_MSG_IDENT, RP_MSG_IDENT_LEN, RP_DIR_CONTROLLER_TO_HOST, "IDENT", RP_FIELDS(6u, fields_ident)},
+    {RP_MSG_SET_PARAM, RP_MSG_SET_PARAM_LEN, RP_DIR_HOST_TO_CONTROLLER, "SET_PARAM", RP_FIELDS(2u, fields_set_param)},
+    {RP_MSG_PARAM_VALUE, RP_MSG_PARAM_VALUE_LEN, RP_DIR_CONTROLLER_TO_HOST, "PARAM_VALUE", RP_FIELDS(3u, fields_param_value)},
 };
 
 /* Index into rp_msg_table by message id; 0xFF: not in the protocol. */

@@ -27,8 +27,9 @@ from bridge.link import ControllerLink, LinkConfig
 from bridge.rosport import RosPort, open_port
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
-from emulator.controller import ControllerConfig, ControllerModel
+from emulator.controller import ControllerConfig
 from emulator.engine import Emulator, EmulatorStatus
+from emulator.firmware import make_controller
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
@@ -168,7 +169,8 @@ def rover() -> RoverDescription:
 
 @pytest.fixture
 def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
-    """Factory of running emulators; ``kind`` "pty" or "can"; all closed after the test."""
+    """Factory of running emulators; ``kind`` "pty" or "can", ``firmware`` "python" (the
+    model) or "c" (the C core, emulator/firmware.py); all closed after the test."""
     started: list[Emulator] = []
 
     def make(
@@ -180,8 +182,10 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
         channel: str | None = None,
         interface: str = "virtual",
         schema_hash: int = SCHEMA_HASH,
+        firmware: str = "python",
     ) -> Emulator:
-        model = ControllerModel(
+        model = make_controller(
+            firmware,
             rover,
             Twin(rover, dt_s=TWIN_DT_S),
             ControllerConfig(timeout_scale=SPEED),

@@ -2,11 +2,14 @@
 python-can's ``virtual`` bus, without a control port, and against a controller that
 breaks a rule (the suite must say which, with the frames).
 
-The whole suite runs twice (pty, CAN); the other cases select a few rules.
+One suite, two implementations: every run is made against the Python controller model
+and against the C firmware core (``--firmware c``, emulator/firmware.py), and once more
+against the C core built with ASan and UBSan. The other cases select a few rules.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -24,10 +27,12 @@ from emulator.can_frontend import CanFrontEnd
 from emulator.control import ControlServer
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
+from emulator.firmware import FirmwareController, sanitizer_env
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.messages import FaultCode, Heartbeat
 from firmware_proto.rover import RoverDescription
+from tests.firmware_proto.c_harness import compiler
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -42,18 +47,49 @@ def _rover(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[st
     )
 
 
-@pytest.fixture
-def emulate_process(tmp_path: Path) -> Iterator[tuple[str, str]]:
-    """``rover emulate --serial --control-port 0`` as its own process, in real time:
-    ``(device link, control address)``."""
+FIRMWARES = [
+    pytest.param("python", id="python"),
+    pytest.param("c", id="c", marks=pytest.mark.firmware),
+]
+
+
+def _need_compiler(firmware: str) -> None:
+    if firmware != "python" and compiler() is None:
+        pytest.skip("gcc not found (set CC): the C firmware core cannot be built here")
+
+
+@pytest.fixture(params=FIRMWARES)
+def emulate_process(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[str, str]]:
+    """``rover emulate --serial --control-port 0 --firmware F`` as its own process, in
+    real time, for each firmware: ``(device link, control address)``."""
+    with _emulate(tmp_path, request.param) as where:
+        yield where
+
+
+@contextlib.contextmanager
+def _emulate(
+    tmp_path: Path, firmware: str, env: dict[str, str] | None = None
+) -> Iterator[tuple[str, str]]:
+    _need_compiler(firmware)
     link = tmp_path / "rover-motor"
     with (tmp_path / "emulate.err").open("w") as err:
         cmd = [sys.executable, "-m", "firmware_proto.cli", "emulate", "--serial"]
         proc = subprocess.Popen(
-            [*cmd, "--link", str(link), "--control-port", "0", "--seed", "3"],
+            [
+                *cmd,
+                "--link",
+                str(link),
+                "--control-port",
+                "0",
+                "--seed",
+                "3",
+                "--firmware",
+                firmware,
+            ],
             stdout=subprocess.PIPE,
             stderr=err,
             text=True,
+            env=env,
         )
     try:
         assert proc.stdout is not None
@@ -76,8 +112,30 @@ def _outcomes(doc: dict[str, Any]) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_the_emulator_passes_every_rule_over_a_pty(emulate_process: tuple[str, str]) -> None:
-    device, control = emulate_process
-    out = _rover("conformance", "--device", device, "--control", control, "--json")
+    _passes_every_rule(*emulate_process)
+
+
+@pytest.mark.slow
+@pytest.mark.firmware
+def test_the_c_firmware_passes_every_rule_under_asan_and_ubsan(tmp_path: Path) -> None:
+    """The sanitizer build of the core, loaded by the emulator with libasan preloaded:
+    any memory error or undefined behaviour aborts it, and the suite then fails."""
+    _need_compiler("c")
+    cache = tmp_path / "cache"
+    env = sanitizer_env()
+    env["ROVER_FIRMWARE_CACHE"] = str(cache)
+    with _emulate(tmp_path, "c", env) as (device, control):
+        # A sanitizer build is a slow controller: the suite's waits get the margin its
+        # --timeout-scale is for (order and content are checked as always).
+        _passes_every_rule(device, control, "--timeout-scale", "3")
+    # It was the sanitizer build that ran (built into this test's own cache).
+    assert [p.name.endswith("-san.so") for p in cache.iterdir()] == [True]
+    err = (tmp_path / "emulate.err").read_text()
+    assert "AddressSanitizer" not in err and "runtime error" not in err, err
+
+
+def _passes_every_rule(device: str, control: str, *extra: str) -> None:
+    out = _rover("conformance", "--device", device, "--control", control, "--json", *extra)
     assert out.returncode == 0, out.stdout + out.stderr
     doc = json.loads(out.stdout)
     assert _outcomes(doc) == dict.fromkeys(RULES, "pass")
@@ -133,10 +191,13 @@ def _run(
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("firmware", FIRMWARES)
 def test_the_emulator_passes_every_rule_on_a_virtual_can_bus(
-    rover: RoverDescription, can_channel: str, capsys: pytest.CaptureFixture[str]
+    firmware: str, rover: RoverDescription, can_channel: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
+    _need_compiler(firmware)
+    cls = FirmwareController if firmware == "c" else ControllerModel
+    model = cls(rover, Twin(rover), ControllerConfig(), seed=2)
     with _serve(model, "can", can_channel) as emu:
         status, out = _run(emu, capsys, "--json")
     doc = json.loads(out)

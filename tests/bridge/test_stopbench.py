@@ -23,6 +23,7 @@ from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.trafficio import read_log
 from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.messages import SCHEMA_HASH, Param
+from tests.firmware_proto.c_harness import compiler
 
 from .conftest import IN_VCAN_VM, SPEED
 
@@ -96,6 +97,25 @@ def test_stop_is_acknowledged_stops_latches_and_clears_under_load(
         assert run.flood.sent > 0
         assert "no arbitration" in run.arbitration_note
         assert "CAN flood 0x63F" in run.load  # PARAM_VALUE of node 15: lowest priority
+
+
+@pytest.mark.firmware
+@pytest.mark.parametrize("kind", ["pty", "virtual"])
+def test_the_stop_bench_passes_against_the_c_firmware(
+    emulators: Emus, kind: str, can_channel: str
+) -> None:
+    if compiler() is None:
+        pytest.skip("gcc not found (set CC): the C firmware core cannot be built here")
+    if kind == "pty":
+        emu = emulators("pty", firmware="c")
+        url = emu.frontend.device
+    else:
+        emu = emulators("can", interface="virtual", channel=can_channel, node=3, firmware="c")
+        url = f"can://virtual/{can_channel}?node=3"
+    with StopBench(BenchConfig(url=url, trials=3, seed=4, max_delay_s=0.1)) as bench:
+        run = bench.run()
+    _check_run(run, 3)
+    assert emu.status().stop_latched is False
 
 
 def test_the_stop_moments_follow_the_seed(emulators: Emus) -> None:

@@ -21,7 +21,10 @@ from tests.planner.conftest import MAPS_DIR
 pytestmark = pytest.mark.rclpy
 
 
-def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(tmp_path: Path) -> None:
+@pytest.mark.parametrize("firmware", ["python", pytest.param("c", marks=pytest.mark.firmware)])
+def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(
+    tmp_path: Path, firmware: str
+) -> None:
     picture = tmp_path / "demo.png"
     out = subprocess.run(
         [
@@ -33,6 +36,8 @@ def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(tmp_path: P
             "4",
             "--picture",
             str(picture),
+            "--firmware",
+            firmware,
         ],
         capture_output=True,
         text=True,

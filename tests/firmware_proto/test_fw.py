@@ -1,0 +1,377 @@
+"""The C firmware core (firmware_proto/c/fw/) as C: it builds freestanding with no libc
+calls and no floating point, its receive path survives fuzzing under ASan and UBSan, and
+it cross-builds for a Cortex-M0+ (within 16 KiB of flash and 2 KiB of RAM) and an
+ATmega2560, with -Wall -Wextra -Werror, reporting the sizes ``size`` gives; its self-test
+(a scripted host, an ideal plant) passes on the host, on the ATmega2560 under simavr and
+on a Cortex-M0 under qemu-system-arm, which also give the cost of fw_tick.
+
+The cross compilers are Debian's ``gcc-arm-none-eabi`` (with ``libnewlib-arm-none-eabi``)
+and ``gcc-avr`` (with ``avr-libc``), ``simavr`` and ``qemu-system-arm``, which
+``.ci/bootstrap --test`` installs. Without
+them these tests skip, saying why; with ``ROVER_REQUIRE_CROSS=1`` (set by CI) a missing
+cross compiler fails them instead.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from firmware_proto.framing import FrameEncoder
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    ClearStop,
+    Hello,
+    HostHeartbeat,
+    Motion,
+    SetParam,
+    Stop,
+)
+from tests.firmware_proto.c_harness import C_DIR, SANITIZER_ENV, SANITIZERS, WARNINGS, compiler
+
+pytestmark = pytest.mark.firmware
+
+FW_DIR = C_DIR / "fw"
+CORE = (FW_DIR / "fw.c", C_DIR / "rover_msgs.c", C_DIR / "rover_proto.c")
+SELFTEST = FW_DIR / "port_bare" / "selftest.c"
+REQUIRE_CROSS_ENV = "ROVER_REQUIRE_CROSS"
+M0_FLASH_BYTES = 16 * 1024
+M0_RAM_BYTES = 2 * 1024
+
+
+def _cc() -> str:
+    cc = compiler()
+    if cc is None:
+        pytest.skip("gcc not found (set CC): the firmware core cannot be built here")
+    return cc
+
+
+def _run(cmd: list[str], **kw: object) -> subprocess.CompletedProcess[str]:
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False, **kw)  # type: ignore[call-overload]
+    assert done.returncode == 0 and not done.stderr.strip(), f"{cmd}\n{done.stdout}{done.stderr}"
+    return done  # type: ignore[no-any-return]
+
+
+def test_the_core_builds_freestanding_without_libc_or_floating_point(tmp_path: Path) -> None:
+    cc = _cc()
+    objects = []
+    for src in CORE:
+        obj = tmp_path / (src.stem + ".o")
+        # -mgeneral-regs-only: any float or double in the code is a compile error.
+        _run(
+            [
+                cc,
+                *WARNINGS,
+                "-O2",
+                "-ffreestanding",
+                "-mgeneral-regs-only",
+                "-c",
+                str(src),
+                "-o",
+                str(obj),
+            ]
+        )
+        objects.append(obj)
+    nm = shutil.which("nm")
+    if nm is None:
+        pytest.skip("nm (binutils) not found: the undefined symbols are not listed")
+    undefined = set(_run([nm, "-u", str(objects[0])]).stdout.split()) - {"U"}
+    ours = {s for s in undefined if s.startswith(("fw_hal_", "rp_"))}
+    # The HAL and the codec, and nothing else (a struct copy may become memcpy).
+    assert undefined - ours <= {"memcpy", "memset"}, undefined - ours
+    assert {s for s in ours if s.startswith("fw_hal_")} == {
+        "fw_hal_set_wheels",
+        "fw_hal_read_encoders",
+        "fw_hal_read_wheel_speeds",
+        "fw_hal_read_imu",
+        "fw_hal_pose_sample",
+        "fw_hal_pose_read",
+        "fw_hal_boot_nonce",
+        "fw_hal_write",
+        "fw_hal_can_send",
+    }
+
+
+def _record(rng: random.Random, chunk: bytes, after: int) -> bytes:
+    """One input record of fuzz_fw.c: a chunk of at most 63 bytes and what follows it."""
+    return bytes([(after << 6) | len(chunk)]) + chunk
+
+
+def _host_message(rng: random.Random, seqs: int) -> Message:
+    roll = rng.random()
+    if roll < 0.4:
+        return Motion(
+            rng.randrange(seqs), rng.randrange(6), rng.randrange(70), rng.randrange(40000)
+        )
+    if roll < 0.5:
+        return Stop(rng.randrange(1, 6), rng.randrange(5))
+    if roll < 0.6:
+        return ClearStop(rng.randrange(1, 6))
+    if roll < 0.7:
+        return Hello(PROTOCOL_VERSION, SCHEMA_HASH if rng.random() < 0.8 else rng.randrange(65536))
+    if roll < 0.8:
+        return SetParam(rng.randrange(6), rng.randrange(-5, 20000))
+    return HostHeartbeat(rng.randrange(65536))
+
+
+def _corpus(seed: int, records: int) -> bytes:
+    """Host traffic as fuzz_fw.c reads it: valid frames, corrupted frames and garbage,
+    cut into chunks, with ticks, silences, faults and reboots in between."""
+    rng = random.Random(seed)
+    enc = FrameEncoder()
+    stream = bytearray()
+    for _ in range(records):
+        roll = rng.random()
+        if roll < 0.8:
+            stream += enc.encode(_host_message(rng, 16), strict=False)
+        elif roll < 0.9:
+            frame = bytearray(enc.encode(_host_message(rng, 16), strict=False))
+            frame[rng.randrange(len(frame))] ^= 1 << rng.randrange(8)
+            stream += frame
+        else:
+            stream += bytes(rng.randrange(256) for _ in range(rng.randrange(1, 30)))
+    out = bytearray()
+    i = 0
+    while i < len(stream):
+        n = rng.randrange(1, 40)
+        after = rng.choices((0, 2, 3), weights=(6, 3, 1))[0]
+        out += _record(rng, bytes(stream[i : i + n]), after)
+        if after == 3:
+            out.append(rng.randrange(256))
+        i += n
+    return bytes(out)
+
+
+def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
+    tmp_path: Path,
+) -> None:
+    cc = _cc()
+    exe = tmp_path / "fuzz_fw"
+    _run(
+        [
+            cc,
+            *WARNINGS,
+            *SANITIZERS,
+            "-DFW_FUZZ_MAIN",
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(FW_DIR / "tests" / "fuzz_fw.c"),
+            "-o",
+            str(exe),
+        ]
+    )
+    inputs = []
+    for seed in range(4):
+        path = tmp_path / f"corpus{seed}.bin"
+        path.write_bytes(_corpus(seed, 20_000))
+        inputs.append(path)
+    noise = tmp_path / "noise.bin"
+    noise.write_bytes(random.Random(9).randbytes(300_000))
+    done = _run([str(exe), *map(str, inputs), str(noise)], env={**os.environ, **SANITIZER_ENV})
+    words = done.stdout.split()
+    frames, acks, can_frames = int(words[1]), int(words[4]), int(words[6])
+    # The corpus reaches the state machine: thousands of answers, STOPs among them, on
+    # serial and on CAN.
+    assert frames > 50_000 and acks > 1_000 and can_frames > 10_000, done.stdout
+
+
+# -- cross builds -------------------------------------------------------------------------
+
+TARGETS = {
+    "cortex-m0plus": (
+        "arm-none-eabi-gcc",
+        "arm-none-eabi-size",
+        ["-mcpu=cortex-m0plus", "-mthumb", "--specs=nano.specs", "--specs=nosys.specs"],
+        "gcc-arm-none-eabi libnewlib-arm-none-eabi",
+    ),
+    "atmega2560": ("avr-gcc", "avr-size", ["-mmcu=atmega2560"], "gcc-avr avr-libc binutils-avr"),
+}
+
+
+def cross_build(target: str, out_dir: Path) -> dict[str, int]:
+    """Build the core with the skeleton port for ``target``; ``size``'s text, data and
+    bss of the image, bytes. Skips (or fails under ``ROVER_REQUIRE_CROSS=1``) without the
+    cross compiler."""
+    gcc, size, flags, packages = TARGETS[target]
+    _require(gcc, packages)
+    _require(size, packages)
+    elf = out_dir / f"fw-{target}.elf"
+    _run(
+        [
+            gcc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-pedantic",
+            "-Wshadow",
+            "-Os",
+            "-DRP_NO_FIELD_INFO",
+            "-ffunction-sections",
+            "-fdata-sections",
+            "-Wl,--gc-sections",
+            *flags,
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(FW_DIR / "port_bare" / "main.c"),
+            "-o",
+            str(elf),
+        ]
+    )
+    row = _run([size, str(elf)]).stdout.splitlines()[1].split()
+    return {"text": int(row[0]), "data": int(row[1]), "bss": int(row[2])}
+
+
+def _require(tool: str, packages: str) -> str:
+    path = shutil.which(tool)
+    if path is None:
+        reason = f"{tool} not found: apt-get install {packages} (or .ci/bootstrap --test)"
+        if os.environ.get(REQUIRE_CROSS_ENV) == "1":
+            pytest.fail(f"{REQUIRE_CROSS_ENV}=1 but {reason}")
+        pytest.skip(reason)
+    return path
+
+
+def test_the_self_test_passes_on_the_host(tmp_path: Path) -> None:
+    cc = _cc()
+    exe = tmp_path / "selftest"
+    _run([cc, *WARNINGS, *SANITIZERS, f"-I{C_DIR}", *map(str, CORE), str(SELFTEST), "-o", str(exe)])
+    out = _run([str(exe)], env={**os.environ, **SANITIZER_ENV}).stdout
+    assert "FAIL" not in out and out.splitlines()[-1] == "selftest: ok", out
+
+
+def test_the_self_test_passes_on_an_atmega2560_under_simavr(tmp_path: Path) -> None:
+    """The AVR image runs the scripted host on the simulated MCU (16 MHz) and prints over
+    its UART; Timer1 measures fw_tick in CPU cycles."""
+    gcc = _require("avr-gcc", "gcc-avr avr-libc binutils-avr")
+    simavr = _require("simavr", "simavr")
+    elf = tmp_path / "selftest-avr.elf"
+    _run(
+        [
+            gcc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-pedantic",
+            "-Os",
+            "-DRP_NO_FIELD_INFO",
+            "-mmcu=atmega2560",
+            "-ffunction-sections",
+            "-fdata-sections",
+            "-Wl,--gc-sections",
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(SELFTEST),
+            "-o",
+            str(elf),
+        ]
+    )
+    done = subprocess.run(
+        [simavr, "-m", "atmega2560", "-f", "16000000", str(elf)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    # simavr echoes the UART line by line, in colour, with a trailing dot.
+    lines = [
+        re.sub(r"\x1b\[[0-9;]*m", "", line).rstrip(".")
+        for line in (done.stdout + done.stderr).splitlines()
+    ]
+    assert "selftest: ok" in lines, "\n".join(lines)
+    assert not any(line.startswith("FAIL") for line in lines), "\n".join(lines)
+    cycles = next(line for line in lines if line.startswith("fw_tick cycles:"))
+    print(f"\natmega2560 @ 16 MHz under simavr: {cycles}")
+
+
+def test_the_self_test_passes_on_a_cortex_m0_under_qemu(tmp_path: Path) -> None:
+    """The image for the BBC micro:bit (nRF51822, Cortex-M0, the ARMv6-M instruction set
+    of the M0+) runs the scripted host under qemu-system-arm, printing through
+    semihosting. With ``-icount shift=6`` every instruction takes 64 ns of virtual time, so
+    the 16 MHz SysTick counts 1.024 per instruction: an instruction count per fw_tick."""
+    gcc = _require("arm-none-eabi-gcc", "gcc-arm-none-eabi libnewlib-arm-none-eabi")
+    qemu = _require("qemu-system-arm", "qemu-system-arm")
+    elf = tmp_path / "selftest-m0.elf"
+    _run(
+        [
+            gcc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-pedantic",
+            "-Os",
+            "-DRP_NO_FIELD_INFO",
+            "-DFW_SELFTEST_MICROBIT",
+            "-mcpu=cortex-m0",
+            "-mthumb",
+            "-ffunction-sections",
+            "-fdata-sections",
+            "-nostartfiles",
+            "--specs=nano.specs",
+            "--specs=rdimon.specs",
+            "-Wl,--gc-sections",
+            "-T",
+            str(FW_DIR / "port_bare" / "microbit.ld"),
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(SELFTEST),
+            "-o",
+            str(elf),
+        ]
+    )
+    done = subprocess.run(
+        [
+            qemu,
+            "-M",
+            "microbit",
+            "-nographic",
+            "-monitor",
+            "none",
+            "-serial",
+            "none",
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            "shift=6",
+            "-kernel",
+            str(elf),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    lines = done.stdout.splitlines()
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "selftest: ok" in lines and not any(line.startswith("FAIL") for line in lines)
+    counts = next(line for line in lines if line.startswith("fw_tick SysTick counts:"))
+    avg, peak = (int(w) for w in counts.split()[4:7:2])
+    print(
+        f"\ncortex-m0 under qemu (microbit): about {avg / 1.024:,.0f} instructions per "
+        f"fw_tick on average, {peak / 1.024:,.0f} at most ({counts})"
+    )
+
+
+@pytest.mark.parametrize("target", list(TARGETS))
+def test_the_core_cross_builds_and_reports_its_size(target: str, tmp_path: Path) -> None:
+    sizes = cross_build(target, tmp_path)
+    flash = sizes["text"] + sizes["data"]
+    ram = sizes["data"] + sizes["bss"]
+    print(
+        f"\n{target}: text {sizes['text']} data {sizes['data']} bss {sizes['bss']} "
+        f"-> flash {flash} B, static RAM {ram} B"
+    )
+    assert sizes["text"] > 4000  # the core is in there, not optimised away
+    if target == "cortex-m0plus":
+        assert flash <= M0_FLASH_BYTES, sizes
+        assert ram <= M0_RAM_BYTES, sizes
