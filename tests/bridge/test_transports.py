@@ -618,8 +618,14 @@ def test_error_passive_warns_in_diagnostics_and_the_link_stays_up(
     client.subscribe("/diagnostics", DiagnosticArray, diagnostics)
 
     def link_status(since: int, state: str) -> DiagnosticStatus:
+        # A diagnostics array sampled while the link was still handshaking can arrive
+        # after "ready" (the timer's snapshot races the status): wait for a ready one.
         array = diagnostics.wait_until(
-            lambda a: _value(a.status[0], "medium_state") == state, since=since
+            lambda a: (
+                _value(a.status[0], "medium_state") == state
+                and a.status[0].message.startswith("ready")
+            ),
+            since=since,
         )
         link: DiagnosticStatus = array.status[0]
         return link
