@@ -98,6 +98,19 @@ def test_importing_the_protocol_loads_no_io_library() -> None:
     assert out.strip() == "[]"
 
 
+def test_a_serial_link_never_loads_python_can() -> None:
+    code = (
+        "import sys\n"
+        "import bridge.link, bridge.serial_transport, emulator.serial_frontend\n"
+        "import firmware_proto.linkio.serial_endpoint, firmware_proto.linkio.replay_peer\n"
+        "print('can' in sys.modules)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    ).stdout
+    assert out.strip() == "False"
+
+
 @pytest.mark.parametrize(
     ("package", "forbidden"),
     [

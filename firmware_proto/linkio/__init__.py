@@ -18,43 +18,22 @@ and the emulator (the controller's end), which never import each other:
 
 It is a sub-package rather than a top-level one because the repository's top-level
 layout is fixed; the arrows still point down: nothing in ``firmware_proto`` outside this
-sub-package imports it (docs/linkio.md).
+sub-package imports it (docs/linkio.md). Importing the package loads neither pyserial nor
+python-can: each medium's module does, when it is used.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-from firmware_proto.linkio.can_endpoint import CanEndpoint
 from firmware_proto.linkio.endpoint import CONTROLLER, HOST, SIDES, Endpoint, Side
 from firmware_proto.linkio.errors import LinkBusyError, LinkError, LinkUrlError
-from firmware_proto.linkio.serial_endpoint import SerialEndpoint
-from firmware_proto.linkio.urls import is_can_url
 
 __all__ = [
     "CONTROLLER",
     "HOST",
     "SIDES",
-    "CanEndpoint",
     "Endpoint",
     "LinkBusyError",
     "LinkError",
     "LinkUrlError",
-    "SerialEndpoint",
     "Side",
-    "open_endpoint",
 ]
-
-
-def open_endpoint(url: str, side: Side, **options: Any) -> Endpoint:
-    """Build (not open) the endpoint a link URL names (:mod:`firmware_proto.linkio.urls`):
-    a :class:`~firmware_proto.linkio.can_endpoint.CanEndpoint` for ``can://``, else a
-    :class:`~firmware_proto.linkio.serial_endpoint.SerialEndpoint`. ``options`` go to
-    their ``for_url`` (``baud``, ``node``, ``recorder``, bus options).
-
-    Raises:
-        LinkUrlError: the URL is malformed or names nothing known.
-    """
-    if is_can_url(url):
-        return CanEndpoint.for_url(side, url, **options)
-    return SerialEndpoint.for_url(side, url, **options)
