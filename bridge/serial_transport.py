@@ -74,8 +74,13 @@ class SerialTransport(Transport):
         with url_errors(url):
             endpoint = SerialEndpoint.for_url(HOST, url, baud=baud, recorder=recorder)
         super().__init__(url, endpoint)
-        assert endpoint.baud is not None
-        self.baud: int = endpoint.baud
+
+    @property
+    def baud(self) -> int:
+        """The line's rate in bit/s (the URL's ``?baud=``, the argument, or 115200)."""
+        baud = self.endpoint.baud
+        assert baud is not None  # for_url always sets it
+        return baud
 
     @property
     def device(self) -> str:

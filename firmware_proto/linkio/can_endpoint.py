@@ -195,6 +195,8 @@ class CanEndpoint(Endpoint):
             known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
             raise LinkUrlError(f"unknown python-can interface {interface!r}; known: {known}")
         self.interface, self.channel, self.node = interface, channel, node
+        self._ours = (node,) if side == HOST else (node, BROADCAST_NODE)
+        """The nodes whose frames this side takes."""
         self._given_bus = bus
         self._bus: can.BusABC | None = None
         self._bus_options = bus_options
@@ -303,8 +305,7 @@ class CanEndpoint(Endpoint):
         )
         if decoded is None:
             return []
-        ours = (self.node,) if self.side == HOST else (self.node, BROADCAST_NODE)
-        if decoded.node not in ours or not self.takes(decoded.message):
+        if decoded.node not in self._ours or not self.takes(decoded.message):
             self.foreign += 1
             return []
         return [decoded.message]

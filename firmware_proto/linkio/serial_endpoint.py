@@ -205,6 +205,7 @@ class SerialEndpoint(Endpoint):
         open_port: Callable[[], BytePort],
         *,
         name: str = "",
+        baud: int | None = None,
         recorder: TrafficRecorder | None = None,
     ) -> None:
         """Args:
@@ -212,11 +213,14 @@ class SerialEndpoint(Endpoint):
         open_port: makes and opens the byte port (raises OSError when it cannot).
         name: what the endpoint is on before it is open (a URL); the port's own name
             once it is.
+        baud: the line's rate in bit/s, where the port has one (``None``: a pty).
         recorder: a first listener (see :class:`~firmware_proto.linkio.endpoint.Endpoint`).
         """
         super().__init__(side, recorder=recorder)
         self._open_port = open_port
         self._name = name
+        self.baud = baud
+        """The line's rate in bit/s, or ``None`` (a pty has none)."""
         self._port: BytePort | None = None
         self.decoder = FrameDecoder()
         self.counters = self.decoder.counters
@@ -238,19 +242,15 @@ class SerialEndpoint(Endpoint):
             LinkUrlError: the URL is malformed.
         """
         device, rate, exclusive = split_serial_url(url, baud)
-        endpoint = cls(
+        return cls(
             side,
             lambda: PyserialPort(
                 device, rate, exclusive=exclusive, write_timeout_s=write_timeout_s
             ),
             name=device,
+            baud=rate,
             recorder=recorder,
         )
-        endpoint.baud = rate
-        return endpoint
-
-    baud: int | None = None
-    """The line's rate in bit/s where the port has one (:meth:`for_url`)."""
 
     @property
     def name(self) -> str:
