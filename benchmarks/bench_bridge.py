@@ -16,8 +16,8 @@ on CLOCK_MONOTONIC, which every process of the machine shares (``time.monotonic(
 The request is an API call (``ControllerLink.emergency_stop``) or a ROS message on
 ``emergency_stop`` published by another node: on the in-process port (same process), or
 over real ROS 2 from another process's plain rclpy node (``--ros2``: the bridge node on
-the rclpy backend here, Fast DDS between the two; it needs the private loopback network
-namespace of the tests; the publisher stamps its request on the same clock). Idle means
+the ``rclpy-process`` backend, its default, and on ``rclpy`` in this process, Fast DDS
+between the two; it needs the private loopback network namespace of the tests; the publisher stamps its request on the same clock). Idle means
 one long step running; load means the motion queue full and telemetry at 100 Hz (over
 ROS 2 also published as ``/odom`` to a subscriber in the observer node). The pty round
 trip (15 bytes there and back through pyserial) is measured in the same run: it is the
@@ -84,6 +84,9 @@ class Statuses:
 
 
 HOPS: list[float] = []
+#: The bridge's backends in the ROS 2 case: the default (the node in a child process)
+#: beside the node in the bridge's process, so the table shows what the extra hop costs.
+ROS2_BACKENDS = ("rclpy-process", "rclpy")
 """Request -> the bridge node's STOP callback, per trial of the last ROS case, s."""
 
 Request = Callable[[], float]
@@ -358,7 +361,8 @@ def main(argv: list[str] | None = None) -> int:
 
         private, why = in_private_loopback_namespace()
         if private:
-            rows += _ros2_rows(rover, args.seed, ros_trials, rng)
+            for backend in ROS2_BACKENDS:
+                rows += _ros2_rows(rover, args.seed, ros_trials, rng, backend)
         else:
             ros2_note = f" ROS 2 case not run: not in a private loopback namespace ({why})."
     else:
@@ -415,15 +419,15 @@ def stop_publisher() -> int:
 
 
 def _ros2_rows(
-    rover: RoverDescription, seed: int, trials: int, rng: random.Random
+    rover: RoverDescription, seed: int, trials: int, rng: random.Random, backend: str
 ) -> list[tuple[str, dict[str, float]]]:
-    """The bridge on the rclpy backend in this process (its STOP lane included); the STOP
-    from a plain rclpy node in another process; an observer subscribing to /odom."""
+    """The bridge on ``backend`` (its STOP lane included); the STOP from a plain rclpy
+    node in another process; an observer subscribing to /odom."""
     rows: list[tuple[str, dict[str, float]]] = []
     with EmulatorProcess(seed) as emu:
-        params = load_params({"device": emu.device, "ros_backend": "rclpy"}, env={})
+        params = load_params({"device": emu.device, "ros_backend": backend}, env={})
         with (
-            open_port("rclpy", node_name="rover_bridge") as bport,
+            open_port(backend, node_name="rover_bridge") as bport,
             open_port("rclpy", node_name="observer") as oport,
             BridgeNode(params, bport) as node,
         ):
@@ -458,20 +462,19 @@ def _ros2_rows(
                     label = "load" if load else "idle"
                     rows.append(
                         (
-                            f"ROS 2 message (rclpy, other process) -> bridge STOP callback "
-                            f"({label})",
+                            f"ROS 2 STOP -> bridge on {backend}: STOP callback ({label})",
                             summary(list(HOPS)),
                         )
                     )
                     rows.append(
                         (
-                            f"ROS 2 message (rclpy, other process) -> STOP written ({label})",
+                            f"ROS 2 STOP -> bridge on {backend}: STOP written ({label})",
                             summary(written),
                         )
                     )
                     rows.append(
                         (
-                            f"ROS 2 message (rclpy, other process) -> wheel targets zero ({label})",
+                            f"ROS 2 STOP -> bridge on {backend}: wheel targets zero ({label})",
                             summary(zeroed),
                         )
                     )

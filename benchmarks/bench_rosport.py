@@ -12,13 +12,17 @@ process), all real ROS 2 Jazzy (rclpy, rmw_fastrtps_cpp):
   lane, whose executor also serves the node's parameter services);
 - ``rosport rclpy, STOP lane``: the same, the subscription on the STOP lane (a node and
   an executor of its own, as the bridge's ``emergency_stop``);
+- ``rosport rclpy-process`` and its STOP lane: the bridge's backend, the node in a child
+  process of each side (messages cross a socket pair as CDR bytes), so that no middleware
+  call can stall the caller (docs/rosport.md);
 - ``raw rclpy``: a plain rclpy node on each side, spun by a ``SingleThreadedExecutor``
   on a thread, with the same QoS and topic: the peer, none of our code, so the table
   shows what our wrapper costs;
 - ``rosport inprocess``: our in-process backend (one process, nothing serialised).
 
 Latency is one way, from just before ``publish`` to the subscriber's callback (or
-take), on CLOCK_MONOTONIC, which all processes of a machine share; messages are paced
+take); ``call`` is the time the caller spends inside ``publish`` (what a thread of the
+bridge gives up per message); both on CLOCK_MONOTONIC, which all processes of a machine share; messages are paced
 at 500/s so it measures latency, not queueing. The sustained rate is messages/s with
 nothing lost: the subscriber acknowledges every 5th message and the publisher keeps at
 most 10 (the keep-last depth) unacknowledged, as fast as that goes.
@@ -209,11 +213,12 @@ class RawLink(Link):
 
 
 def make_link(backend: str, kind: str, role: str, on_message: Callable[[Any], None]) -> Any:
-    """``raw``, ``rclpy``, ``rclpy-stop`` (the STOP lane) or ``inprocess``."""
+    """``raw``, ``rclpy``, ``rclpy-process``, either with ``-stop`` (the STOP lane), or
+    ``inprocess``."""
     if backend == "raw":
         return RawLink(kind, role, on_message)
-    if backend == "rclpy-stop":
-        return RosportLink("rclpy", kind, role, on_message, STOP_LANE)
+    if backend.endswith("-stop"):
+        return RosportLink(backend.removesuffix("-stop"), kind, role, on_message, STOP_LANE)
     return RosportLink(backend, kind, role, on_message, DEFAULT_LANE)
 
 
@@ -258,6 +263,8 @@ def child(backend: str, kind: str, count: int, acks: bool) -> int:
 class Sender:
     def __init__(self, backend: str, kind: str) -> None:
         self._acked = 0
+        #: Nanoseconds each ``publish`` call took, by sequence number.
+        self.calls: dict[int, int] = {}
         self._cond = threading.Condition()
         self.link = make_link(backend, kind, "sender", self._on_ack)
 
@@ -289,13 +296,15 @@ class Sender:
                         raise RuntimeError(f"no acknowledgement after message {seq}")
             sent[seq] = time.monotonic_ns()
             self.link.send(seq)
+            self.calls[seq] = time.monotonic_ns() - sent[seq]
         return sent
 
 
 def run_case(
     backend: str, kind: str, count: int, rate_hz: float | None
-) -> tuple[dict[int, int], dict[int, int]]:
-    """Send and receive one case; return send and arrival times by sequence number."""
+) -> tuple[dict[int, int], dict[int, int], dict[int, int]]:
+    """Send and receive one case; return send and arrival times, and the ``publish``
+    calls' durations, by sequence number (ns)."""
     acks = rate_hz is None
     if backend == "inprocess":
         receiver = Receiver(backend, kind, count, acks)
@@ -306,7 +315,7 @@ def run_case(
         finally:
             sender.link.close()
             receiver.link.close()
-        return sent, receiver.times
+        return sent, receiver.times, sender.calls
     proc = subprocess.Popen(
         [
             sys.executable, "-m", "benchmarks.bench_rosport",
@@ -333,7 +342,7 @@ def run_case(
             proc.kill()
             proc.communicate()
     arrived = {int(k): v for k, v in json.loads(out.strip().splitlines()[-1]).items()}
-    return sent, arrived
+    return sent, arrived, sender.calls
 
 
 # -- report ----------------------------------------------------------------------------------
@@ -341,6 +350,8 @@ def run_case(
 CASES = (
     ("rosport rclpy (2 processes)", "rclpy"),
     ("rosport rclpy, STOP lane (2 proc.)", "rclpy-stop"),
+    ("rosport rclpy-process (2 processes)", "rclpy-process"),
+    ("rosport rclpy-process, STOP lane", "rclpy-process-stop"),
     ("raw rclpy (2 processes)", "raw"),
     ("rosport inprocess (1 process)", "inprocess"),
 )
@@ -374,16 +385,21 @@ def main(argv: list[str] | None = None) -> int:
         f"Latency, publish -> subscriber callback, one way: {args.latency_count} messages "
         f"paced at {LATENCY_RATE_HZ:.0f}/s"
     )
-    header = f"{'case':35} {'message':19} {'p50 us':>7} {'p99 us':>7} {'max us':>7} {'lost':>5}"
+    header = (
+        f"{'case':35} {'message':19} {'p50 us':>7} {'p99 us':>7} {'max us':>7} {'lost':>5}"
+        f" {'call p50':>8} {'call p99':>8}"
+    )
     print(header)
     print("-" * len(header))
     for kind in KINDS:
         for label, backend in CASES:
-            sent, arrived = run_case(backend, kind, args.latency_count, LATENCY_RATE_HZ)
+            sent, arrived, calls = run_case(backend, kind, args.latency_count, LATENCY_RATE_HZ)
             lat = [(arrived[s] - sent[s]) / 1000 for s in sent if s in arrived]
+            call = [ns / 1000 for ns in calls.values()]
             print(
                 f"{label:35} {kind:19} {statistics.median(lat):7.0f} "
                 f"{percentile(lat, 0.99):7.0f} {max(lat):7.0f} {len(sent) - len(lat):5d}"
+                f" {statistics.median(call):8.0f} {percentile(call, 0.99):8.0f}"
             )
     print()
     print(
@@ -395,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
     print("-" * len(header))
     for kind in KINDS:
         for label, backend in CASES:
-            sent, arrived = run_case(backend, kind, args.rate_count, None)
+            sent, arrived, _ = run_case(backend, kind, args.rate_count, None)
             seconds = (max(arrived.values()) - min(sent.values())) / 1e9
             print(
                 f"{label:35} {kind:19} {len(arrived) / seconds:8.0f} {len(sent) - len(arrived):5d}"

@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -36,6 +38,8 @@ NODE_NAME = "rover_bridge"
 
 _ROS_NODE_PARAMETERS = {"use_sim_time"}
 """Parameters every ROS node has (launch files set them for all nodes, ``/**``)."""
+#: How often the running bridge checks that its ROS port still works, s.
+_FAILURE_POLL_S = 0.5
 
 _OPTIONS: list[tuple[str, str, type, str]] = [
     ("--baud", "baud", int, "serial baud rate (default 115200; a pty ignores it)"),
@@ -78,8 +82,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         p.add_argument(flag, dest=dest, type=kind, help=text)
     p.add_argument(
         "--ros-backend",
-        choices=("rclpy", "inprocess"),
-        help="ROS port backend: rclpy (ROS 2, the default) or inprocess (tests only)",
+        choices=("rclpy-process", "rclpy", "inprocess"),
+        help="ROS port backend: rclpy-process (the default: the ROS 2 node in a child "
+        "process, so that no middleware call can stall the controller link), rclpy (the "
+        "node in this process) or inprocess (tests only)",
     )
     p.add_argument(
         "--params-file", metavar="FILE", help="parameters file (TOML or JSON; see docs/bridge.md)"
@@ -220,7 +226,9 @@ def resolve_params(
 def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
     0, or 2 for a bad parameter, a malformed device URL or a bad ROS argument (reported
-    on stderr as ``prog: error:``), 1 when ROS 2 is not installed.
+    on stderr as ``prog: error:``), 1 when ROS 2 is not installed or the ROS 2 node's
+    process died (``rclpy-process``: the bridge cannot work without it, so it exits and
+    its supervisor restarts it).
 
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
     (:func:`firmware_proto.cli.rosargs.split_ros_args`).
@@ -245,7 +253,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
     options: dict[str, Any] = {}
-    if params.ros_backend == "rclpy" and ros_args:
+    if params.ros_backend in ("rclpy", "rclpy-process") and ros_args:
         options["args"] = ["--ros-args", *ros_args]
     use_short_switch_interval()  # a STOP must not wait 5 ms for the interpreter lock
     done = threading.Event()
@@ -258,9 +266,15 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     except BackendUnavailableError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
+    end = time.monotonic() + args.duration if args.duration > 0 else math.inf
     with port, BridgeNode(params, port):
         print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
-        done.wait(args.duration if args.duration > 0 else None)
+        while not done.wait(min(_FAILURE_POLL_S, max(0.0, end - time.monotonic()))):
+            if port.failure is not None:
+                print(f"{prog}: error: the ROS 2 node failed: {port.failure}", file=sys.stderr)
+                return 1
+            if time.monotonic() >= end:
+                break
     return 0
 
 

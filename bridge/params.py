@@ -81,7 +81,11 @@ class BridgeParams:
         runtime=True,
     )
     namespace: str = _p("", "the node's namespace")
-    ros_backend: str = _p("rclpy", "ROS port backend: rclpy (ROS 2) or inprocess (tests)")
+    ros_backend: str = _p(
+        "rclpy-process",
+        "ROS port backend: rclpy-process (ROS 2 in a child process: no middleware call can "
+        "stall the controller link), rclpy (ROS 2 in this process) or inprocess (tests)",
+    )
     topic_wheel_instructions: str = _p(WHEEL_INSTRUCTIONS, "steps in (Int16MultiArray)")
     topic_command_status: str = _p(COMMAND_STATUS, "step and link status out (String)")
     topic_emergency_stop: str = _p(EMERGENCY_STOP, "emergency stop in (Bool true)")
@@ -139,7 +143,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "reconnect_max_s": (0.01, 600.0),
     "diagnostics_hz": (0.1, 50.0),
 }
-_BACKENDS = ("rclpy", "inprocess")
+_BACKENDS = ("rclpy-process", "rclpy", "inprocess")
 
 
 def _coerce(name: str, value: Any, source: str) -> Any:

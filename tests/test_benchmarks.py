@@ -101,13 +101,15 @@ def test_bench_rosport_small_counts_print_its_tables() -> None:
     assert "Sustained rate, nothing lost" in out
     assert "raw rclpy (2 processes)" in out
     assert "rosport rclpy, STOP lane (2 proc.)" in out
+    assert "rosport rclpy-process (2 processes)" in out and "call p99" in out
 
 
 @pytest.mark.rclpy
 def test_bench_bridge_ros2_case_prints_its_rows() -> None:
     out = run_benchmark("bench_bridge", "--quick", "--ros2")
-    assert "ROS 2 message (rclpy, other process) -> bridge STOP callback (load)" in out
-    assert "ROS 2 message (rclpy, other process) -> wheel targets zero (load)" in out
+    for backend in ("rclpy-process", "rclpy"):
+        assert f"ROS 2 STOP -> bridge on {backend}: STOP callback (load)" in out
+        assert f"ROS 2 STOP -> bridge on {backend}: wheel targets zero (load)" in out
 
 
 @pytest.mark.socketcan

@@ -471,6 +471,12 @@ class RosPort:
         """True once :meth:`close` was called."""
         return self._closed
 
+    @property
+    def failure(self) -> str | None:
+        """Why the backend stopped working without being closed (its process died); else
+        ``None``. A node that cannot work without ROS checks it and exits."""
+        return None
+
     def close(self) -> None:
         """Close every publisher and subscription, stop the lane threads, free the backend.
 

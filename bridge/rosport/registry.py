@@ -2,6 +2,9 @@
 
 - ``rclpy``: :class:`bridge.rosport.rclpy_backend.RclpyPort`, a real ROS 2 node; needs
   ROS 2 Jazzy (the ``ros`` extra, or a sourced ``/opt/ros/jazzy``);
+- ``rclpy-process``: :class:`bridge.rosport.process_backend.ProcessPort`, the same node
+  in a child process, so that no middleware call can stall the caller's threads (the
+  bridge's default: its controller link must never wait for DDS);
 - ``inprocess``: :class:`bridge.rosport.inprocess.InProcessPort`, ports of one process
   (unit tests); needs the ROS 2 message packages only.
 
@@ -23,6 +26,7 @@ __all__ = ["BACKENDS", "DEFAULT_BACKEND", "backend_class", "open_port"]
 BACKENDS: Final[Mapping[str, tuple[str, str]]] = {
     "inprocess": ("bridge.rosport.inprocess", "InProcessPort"),
     "rclpy": ("bridge.rosport.rclpy_backend", "RclpyPort"),
+    "rclpy-process": ("bridge.rosport.process_backend", "ProcessPort"),
 }
 #: The production backend: a real ROS 2 node.
 DEFAULT_BACKEND: Final = "rclpy"
@@ -58,10 +62,11 @@ def open_port(
     """Open a ROS port on the named backend.
 
     Args:
-        backend: ``"rclpy"`` or ``"inprocess"`` (see :data:`BACKENDS`).
+        backend: ``"rclpy"``, ``"rclpy-process"`` or ``"inprocess"`` (see :data:`BACKENDS`).
         namespace: the node's namespace; relative topic names resolve in it.
         node_name: the node's name.
-        **options: backend options: ``rclpy``: ``domain_id``, ``args``; ``inprocess``:
+        **options: backend options: ``rclpy`` and ``rclpy-process``: ``domain_id``,
+            ``args``; ``inprocess``:
             ``bus``.
 
     Raises:

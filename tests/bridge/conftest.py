@@ -40,6 +40,7 @@ from firmware_proto.rover import RoverDescription, load_rover
 BACKEND_PARAMS = [
     pytest.param("inprocess", id="inprocess"),
     pytest.param("rclpy", id="rclpy", marks=pytest.mark.rclpy),
+    pytest.param("rclpy-process", id="rclpy-process", marks=pytest.mark.rclpy),
 ]
 
 

@@ -81,7 +81,7 @@ def test_param_needs_name_equals_value(capsys: pytest.CaptureFixture[str]) -> No
 
 
 def test_ros_p_sets_bridge_parameters_on_every_backend() -> None:
-    for backend in ("rclpy", "inprocess"):
+    for backend in ("rclpy-process", "rclpy", "inprocess"):
         params = _resolve(
             ["--ros-backend", backend],
             ["-p", "node_id:=9", "-p", "can_interface:=virtual", "-p", "heartbeat_hz:=20"],
@@ -151,9 +151,9 @@ def test_unknown_ros_parameters_are_refused_not_ignored(tmp_path: Path) -> None:
         _resolve([], ["--params-file", str(tmp_path / "missing.yaml")])
 
 
-def test_the_default_backend_is_rclpy_and_takes_ros_parameters_like_any() -> None:
+def test_the_default_backend_is_rclpy_in_a_child_and_takes_ros_parameters_like_any() -> None:
     """One order of precedence on every backend: the node then declares the result."""
-    assert _resolve([]).ros_backend == "rclpy"
+    assert _resolve([]).ros_backend == "rclpy-process"
     params = _resolve(["--ros-backend", "rclpy"], ["-p", "node_id:=7"])
     assert params.node_id == 7
     assert _resolve(["--node", "3"], ["-p", "node_id:=7"]).node_id == 3

@@ -221,7 +221,7 @@ def test_bridge_process_over_ros2(emulators: Emus) -> None:
     )
     try:
         assert proc.stdout is not None
-        assert proc.stdout.readline() == f"BRIDGE {emu.frontend.device} rclpy\n"
+        assert proc.stdout.readline() == f"BRIDGE {emu.frontend.device} rclpy-process\n"
         with open_port("rclpy", node_name="executor") as port:
             client = Client(port)
             client.wait_for_bridge()

@@ -21,8 +21,10 @@ from bridge.rosport.registry import backend_class
 def test_unknown_backend_lists_the_known_ones() -> None:
     with pytest.raises(UnknownBackendError) as info:
         open_port("zenoh")
-    assert str(info.value) == ("unknown ROS port backend 'zenoh'; known backends: inprocess, rclpy")
-    assert info.value.known == ("inprocess", "rclpy")
+    assert str(info.value) == (
+        "unknown ROS port backend 'zenoh'; known backends: inprocess, rclpy, rclpy-process"
+    )
+    assert info.value.known == ("inprocess", "rclpy", "rclpy-process")
     assert isinstance(info.value, ValueError)
     assert isinstance(info.value, RosPortError)
 

@@ -190,7 +190,7 @@ def rover(tmp_path: Path) -> Iterator[tuple[Path, int, Child]]:
         control = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
         bridge = Child(["bridge", "--device", str(device)], env)
         children.append(bridge)
-        assert bridge.wait_for("BRIDGE ") == f"BRIDGE {device} rclpy"
+        assert bridge.wait_for("BRIDGE ") == f"BRIDGE {device} rclpy-process"
         yield device, control, bridge
     finally:
         for child in reversed(children):
@@ -312,7 +312,7 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
             env,
         )
         children.append(bridge)
-        assert bridge.wait_for("BRIDGE ").endswith(" rclpy")
+        assert bridge.wait_for("BRIDGE ").endswith(" rclpy-process")
         client.wait_for_bridge()
         for command, speed, distance in ((1, 30, 2300), (3, 30, 3000), (2, 30, 2300)):
             got = client.step(command, speed, distance)  # FWD, LEFT, REV: one at a time

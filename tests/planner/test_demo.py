@@ -21,12 +21,6 @@ from tests.planner.conftest import MAPS_DIR
 pytestmark = pytest.mark.rclpy
 
 
-KNOWN_DEFECT = ("NOT REACHED (step 1: fault:", "NOT REACHED (step 2: fault:")
-"""How the mission ends on the link defect README.md documents ("Known defect": the bridge
-frozen inside an rclpy publish, so the controller's watchdog or the link's heartbeat
-check ends the mission in its first steps): the only failure retried, once."""
-
-
 def _demo(tmp_path: Path, firmware: str) -> subprocess.CompletedProcess[str]:
     picture = tmp_path / "demo.png"
     return subprocess.run(
@@ -55,11 +49,6 @@ def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(
     tmp_path: Path, firmware: str
 ) -> None:
     out = _demo(tmp_path, firmware)
-    if out.returncode != 0 and any(known in out.stdout for known in KNOWN_DEFECT):
-        print("retrying once, on the known link defect:", out.stdout.splitlines()[-3:])
-        tmp_path = tmp_path / "again"
-        tmp_path.mkdir()
-        out = _demo(tmp_path, firmware)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     text = out.stdout
     assert "collision at step" in text and "(dogleg): approved" in text  # around the table

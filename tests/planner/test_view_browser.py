@@ -43,9 +43,6 @@ def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
     try:
         page.wait_for_function(expression, timeout=timeout_s * 1000)
     except PageTimeout:
-        ended = [x for x in demo.lines if "fault:watchdog" in x or "link_lost" in x]
-        if ended:
-            raise _KnownDefectError(ended[0]) from None
         seen = page.evaluate(
             "JSON.stringify({counts: roverView.counts, ghost: roverView.ghost,"
             " poses: roverView.poses, status: roverView.status, progress: roverView.progress,"
@@ -57,24 +54,7 @@ def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
         ) from None
 
 
-class _KnownDefectError(Exception):
-    """The mission ended by itself before STOP was clicked, on the link defect the README
-    documents (the bridge frozen inside an rclpy publish: fault:watchdog or link_lost)."""
-
-
 def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
-    for attempt in (1, 2):
-        try:
-            _stop_from_the_page(tmp_path / f"try{attempt}")
-            return
-        except _KnownDefectError as exc:
-            if attempt == 2:
-                raise AssertionError(f"twice the known link defect: {exc}") from None
-            print(f"retrying once: {exc}")
-
-
-def _stop_from_the_page(tmp_path: Path) -> None:
-    tmp_path.mkdir()
     recording = tmp_path / "demo.mcap"
     demo = Child(
         [
@@ -141,13 +121,7 @@ def _stop_from_the_page(tmp_path: Path) -> None:
                 assert len(im.convert("RGB").getcolors(1 << 20) or []) > 50
 
             page.click("#stop")
-            try:
-                demo.wait_for("STOP from the view: cancelling the mission", 10)
-            except AssertionError:
-                ended = [x for x in demo.lines if "fault:watchdog" in x or "link_lost" in x]
-                if ended:
-                    raise _KnownDefectError(ended[0]) from None
-                raise
+            demo.wait_for("STOP from the view: cancelling the mission", 10)
             # /command_status said so (after or before the running step's aborted:stop).
             _wait(page, demo, "window.roverView.statuses.includes('stopped')", 30)
             demo.wait_for("view: still at", 60)  # the mission ended; the parts are still up

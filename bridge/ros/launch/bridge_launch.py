@@ -84,7 +84,7 @@ def generate_launch_description() -> LaunchDescription:
         executable="rover_bridge",
         name="rover_bridge",
         namespace=LaunchConfiguration("namespace"),
-        arguments=["--ros-backend", "rclpy"],
+        arguments=["--ros-backend", "rclpy-process"],
         parameters=[LaunchConfiguration("params_file"), link_parameters],
         ros_arguments=["--log-level", LaunchConfiguration("log_level")],
         output="screen",

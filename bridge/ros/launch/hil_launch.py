@@ -98,7 +98,7 @@ def generate_launch_description() -> LaunchDescription:
         _node(
             "rover_bridge",
             namespace=rover_ns,
-            arguments=["--ros-backend", "rclpy"],
+            arguments=["--ros-backend", "rclpy-process"],
             parameters=[params],
         ),
         _node(

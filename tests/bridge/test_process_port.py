@@ -1,0 +1,211 @@
+"""The ``rclpy-process`` ROS port (bridge/rosport/process_backend.py): what it exists for,
+a middleware that stalls cannot stall the controller link, and what happens at its
+edges: a flood while the node is frozen, the node's process dying, the bridge dying.
+
+The contract every backend keeps (names, QoS, lanes, parameters) runs on it in
+test_port.py and test_node.py; here the node's process is frozen with SIGSTOP, as a
+publish blocked inside Fast DDS froze the whole bridge before (README, "Known defect").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from bridge.node import BridgeNode
+from bridge.params import load_params
+from bridge.rosport import RosPort, RosPortError, qos
+from bridge.rosport.msgs import Odometry, String
+from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
+from tests.bridge.conftest import Inbox
+from tests.bridge.test_node import Client
+
+pytestmark = pytest.mark.rclpy
+
+
+@pytest.fixture
+def frozen() -> Iterator[Callable[[int], None]]:
+    """``freeze(pid)``: SIGSTOP it; every frozen process is continued at teardown."""
+    stopped: list[int] = []
+
+    def freeze(pid: int) -> None:
+        os.kill(pid, signal.SIGSTOP)
+        stopped.append(pid)
+
+    yield freeze
+    for pid in stopped:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGCONT)
+
+
+def _wait(predicate: Callable[[], bool], timeout_s: float = 15.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_a_frozen_ros_node_does_not_stall_the_controller_link(
+    emulators: Callable[..., Emulator],
+    make_port: Callable[..., RosPort],
+    frozen: Callable[[int], None],
+) -> None:
+    """The bridge's node frozen for 1.5 s (six controller watchdog periods) while the
+    rover drives: the link keeps its heartbeats, the controller's watchdog never fires, the
+    step completes, and its ``completed``, held while the node was frozen, arrives."""
+    emu = emulators()
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    params = load_params({"device": emu.frontend.device, "ros_backend": "rclpy-process"}, env={})
+    client = Client(make_port("rclpy", node_name="executor"))
+    port = make_port("rclpy-process", node_name="rover_bridge")
+    with BridgeNode(params, port) as node:
+        client.wait_for_bridge()
+        client.status.wait_count("ready", 1)
+        mark = client.status.mark()
+        client.step(1, 60, 11500)  # 1 m at 0.6 m/s: longer than the freeze
+        client.status.wait_count("accepted", 1, since=mark)
+        frozen(port.pid)  # type: ignore[attr-defined]
+        time.sleep(1.5)  # the stimulus: six watchdog periods of a frozen node
+        during = node.diagnostics()
+        os.kill(port.pid, signal.SIGCONT)  # type: ignore[attr-defined]
+        got = client.status.wait_count("completed", 1, since=mark, timeout=20)
+        after = node.diagnostics()
+    assert got == ["accepted", "completed"], got
+    assert during.state == "ready", during
+    assert after.heartbeat_losses == 0
+    status = emu.status()
+    assert status.latch == () and "watchdog" not in status.faults, status.line()
+
+
+def test_publishing_into_a_frozen_node_never_blocks_and_keeps_the_newest(
+    make_port: Callable[..., RosPort], frozen: Callable[[int], None]
+) -> None:
+    """Far more than a socket buffer's worth of telemetry published while the node is
+    frozen: every publish returns, the oldest are dropped and counted, and the newest
+    reaches a subscriber once the node runs again."""
+    inbox = Inbox()
+    listener = make_port("rclpy", node_name="listener")
+    listener.subscribe("odom", Odometry, inbox, qos.TELEMETRY)
+    port = make_port("rclpy-process", node_name="talker")
+    pub = port.publisher("odom", Odometry, qos.TELEMETRY)
+    assert pub.wait_for_subscribers(1, timeout_s=10.0)
+    frozen(port.pid)  # type: ignore[attr-defined]
+    count = 5000
+    finished = threading.Event()
+
+    def flood() -> None:
+        for seq in range(count):
+            msg = Odometry()
+            msg.header.frame_id = f"seq{seq}"
+            pub.publish(msg)
+        finished.set()
+
+    thread = threading.Thread(target=flood, daemon=True)
+    thread.start()
+    returned = finished.wait(60.0)
+    os.kill(port.pid, signal.SIGCONT)  # type: ignore[attr-defined]
+    assert returned, "publish blocked on a frozen node"
+    dropped = port.stats().dropped
+    assert 0 < dropped < count
+    assert port.stats().published == count
+    newest = f"seq{count - 1}"
+    inbox.wait_until(lambda msg: msg.header.frame_id == newest, timeout_s=30.0)
+    seqs = [int(msg.header.frame_id[3:]) for msg in inbox.items]
+    assert seqs == sorted(seqs), "published out of order"
+
+
+def test_the_node_process_dying_fails_the_port_clearly(
+    make_port: Callable[..., RosPort],
+) -> None:
+    port = make_port("rclpy-process", node_name="doomed")
+    pub = port.publisher("status", String, qos.STATUS)
+    os.kill(port.pid, signal.SIGKILL)  # type: ignore[attr-defined]
+    assert _wait(lambda: port.failure is not None)
+    assert "exit status -9" in str(port.failure)
+    pub.publish(String(data="lost"))  # counted, not raised: the caller is a link thread
+    assert port.stats().dropped >= 1
+    with pytest.raises(RosPortError, match="child process failed: it ended"):
+        port.subscribe("more", String, lambda _m: None)
+    port.close()  # returns: nothing waits for the dead child
+
+
+def _children(pid: int) -> list[int]:
+    found: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        text = (task / "children").read_text()
+        found += [int(child) for child in text.split()]
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
+
+
+def _bridge(device: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "firmware_proto.cli", "bridge", "--device", device],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_the_bridge_exits_with_an_error_when_its_node_process_dies(
+    emulators: Callable[..., Emulator],
+) -> None:
+    emu = emulators()
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    proc = _bridge(emu.frontend.device)
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().endswith(" rclpy-process\n")
+        (child,) = _children(proc.pid)
+        os.kill(child, signal.SIGKILL)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+        proc.wait(10)
+    assert proc.returncode == 1, err
+    assert "rover bridge: error: the ROS 2 node failed: it ended (exit status -9)" in err
+    assert "Traceback" not in err
+
+
+def test_the_node_process_ends_when_the_bridge_is_killed(
+    emulators: Callable[..., Emulator],
+) -> None:
+    emu = emulators()
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    proc = _bridge(emu.frontend.device)
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().endswith(" rclpy-process\n")
+        (child,) = _children(proc.pid)
+        proc.kill()  # no clean-up runs in the bridge
+        proc.wait(10)
+        assert _wait(lambda: not _alive(child)), "the node process outlived the bridge"
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_a_node_that_cannot_start_is_an_error_naming_the_reason(
+    make_port: Callable[..., RosPort],
+) -> None:
+    with pytest.raises(RosPortError, match=r"node 'bad' in a child: .*trailing -r flag"):
+        make_port("rclpy-process", node_name="bad", args=["--ros-args", "-r"])
