@@ -176,17 +176,28 @@ class LinkRelay:
                 logger.exception("relay could not forward %s", key)
 
     def wait_until_matched(self, timeout_s: float = 10.0, topics: set[str] | None = None) -> bool:
-        """Wait until each route's republisher (of ``topics``, default all) reaches at
-        least one subscription on its far side (over DDS, discovery takes a moment).
+        """Wait until each route (of ``topics``, default all) is matched both ways on both
+        sides: its subscription hears at least one publisher, and its republisher reaches
+        at least one subscription, each seen from its own end (over DDS each end discovers
+        the other on its own, and a sample sent before both did is lost).
 
         Returns:
             True when all matched, False when ``timeout_s`` passed first.
         """
         deadline = time.monotonic() + timeout_s
+
+        def wanted(topic: str) -> bool:
+            return topics is None or topic.rsplit("/", 1)[-1] in topics
+
+        for sub in self._subs:
+            if wanted(sub.topic) and not sub.wait_for_publishers(
+                1, max(0.0, deadline - time.monotonic())
+            ):
+                return False
         for pub in self._publishers:
-            if topics is not None and pub.topic.rsplit("/", 1)[-1] not in topics:
-                continue
-            if not pub.wait_for_subscribers(1, max(0.0, deadline - time.monotonic())):
+            if wanted(pub.topic) and not pub.wait_for_subscribers(
+                1, max(0.0, deadline - time.monotonic())
+            ):
                 return False
         return True
 

@@ -47,6 +47,14 @@ REQUIRE_SOCKETCAN_ENV = "ROVER_REQUIRE_SOCKETCAN"
 REQUIRE_RCLPY_ENV = "ROVER_REQUIRE_RCLPY"
 REQUIRE_BROWSER_ENV = "ROVER_REQUIRE_BROWSER"
 
+#: Each pytest-xdist worker talks ROS 2 on a DDS domain of its own (``ROS_DOMAIN_ID``,
+#: inherited by every process a test starts), so that two tests running at once never
+#: see each other's topics. A domain given in the environment is kept for ``gw0``.
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if _WORKER.startswith("gw"):
+    _base = int(os.environ.get("ROS_DOMAIN_ID") or "0")
+    os.environ["ROS_DOMAIN_ID"] = str((_base + int(_WORKER[2:])) % 100)
+
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
 LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
 SKIP_NETNS_REASON = (

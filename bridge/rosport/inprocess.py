@@ -42,11 +42,32 @@ class _Slot:
 
 
 class _Bus:
-    """Subscriptions by topic; shared by every port on one bus name."""
+    """Subscriptions and publishers by topic; shared by every port on one bus name."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.slots: dict[str, list[_Slot]] = {}
+        self.writers: dict[str, list[_Writer]] = {}
+
+    def add_writer(self, writer: _Writer) -> None:
+        with self.lock:
+            self.writers.setdefault(writer.topic, []).append(writer)
+
+    def remove_writer(self, writer: _Writer) -> None:
+        with self.lock:
+            writers = self.writers.get(writer.topic, [])
+            if writer in writers:
+                writers.remove(writer)
+            if not writers:
+                self.writers.pop(writer.topic, None)
+
+    def publishers_of(self, sub: Subscription[Message]) -> int:
+        with self.lock:
+            return sum(
+                1
+                for w in self.writers.get(sub.topic, ())
+                if w.msg_type is sub.msg_type and compatible(w.qos, sub.qos)
+            )
 
     def add(self, slot: _Slot) -> None:
         with self.lock:
@@ -81,25 +102,29 @@ def _bus(name: str) -> _Bus:
 class _Writer:
     def __init__(self, port: InProcessPort, topic: str, msg_type: type[Any], qos: Qos) -> None:
         self._port = port
-        self._topic = topic
-        self._msg_type = msg_type
-        self._qos = qos
+        self.topic = topic
+        self.msg_type = msg_type
+        self.qos = qos
+        port._bus.add_writer(self)
 
     def write(self, msg: Message) -> None:
-        for slot in self._port._bus.matching(self._topic, self._msg_type, self._qos):
+        for slot in self._port._bus.matching(self.topic, self.msg_type, self.qos):
             slot.port._enqueue(slot, copy.deepcopy(msg))
 
     def matched_count(self) -> int:
-        return len(self._port._bus.matching(self._topic, self._msg_type, self._qos))
+        return len(self._port._bus.matching(self.topic, self.msg_type, self.qos))
 
     def close(self) -> None:
-        """Nothing to free: a writer is only a name on the bus."""
+        self._port._bus.remove_writer(self)
 
 
 class _Reader:
     def __init__(self, port: InProcessPort, slot: _Slot) -> None:
         self._port = port
         self._slot = slot
+
+    def matched_count(self) -> int:
+        return self._port._bus.publishers_of(self._slot.sub)
 
     def close(self) -> None:
         self._port._bus.remove(self._slot)

@@ -123,6 +123,9 @@ class Writer(Protocol):
 class Reader(Protocol):
     """What a backend returns from ``_open_reader``: the endpoint behind a Subscription."""
 
+    def matched_count(self) -> int:
+        """How many publishers this endpoint currently receives from."""
+
     def close(self) -> None:
         """Delete the endpoint; deliver nothing more. Called once."""
 
@@ -253,6 +256,27 @@ class Subscription(Generic[M]):
         self._reader: Reader | None = None
         self._closed = False
         self._endpoint_closed = False
+
+    def matched_count(self) -> int:
+        """How many publishers (in any process) this subscription currently receives from."""
+        reader = self._reader
+        if reader is None or self._closed or self.port.closed:
+            return 0
+        return reader.matched_count()
+
+    def wait_for_publishers(self, count: int = 1, timeout_s: float = 5.0) -> bool:
+        """Wait until at least ``count`` publishers are matched.
+
+        Over DDS each side discovers the other on its own: a publisher may count this
+        subscription before this subscription accepts its samples, and with volatile QoS
+        what it sends in between is lost. Waiting on both sides closes that window.
+        """
+        deadline = time.monotonic() + timeout_s
+        while self.matched_count() < count:
+            if time.monotonic() >= deadline or self.closed:
+                return False
+            time.sleep(_MATCH_POLL_S)
+        return True
 
     def close(self) -> None:
         """Stop delivering and delete the endpoint. Idempotent."""

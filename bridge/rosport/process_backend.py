@@ -184,6 +184,9 @@ class _Reader:
         self._port = port
         self._id = reader_id
 
+    def matched_count(self) -> int:
+        return int(self._port._call("sub_matched", self._id))
+
     def close(self) -> None:
         with self._port._readers_lock:
             self._port._readers.pop(self._id, None)

@@ -7,8 +7,9 @@ child ends of the parent's socket pairs. The first thing on ``ctl`` is
 middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
 
 - ``("writer", id, topic, type, qos)``, ``("reader", id, topic, type, qos, lane)``,
-  ``("matched", id, writer)``, ``("declare", id, specs, values)``, ``("set", id, values)``,
-  ``("get", id)``: each answered ``("reply", id, status, value)``, status ``"ok"``,
+  ``("matched", id, writer)``, ``("sub_matched", id, reader)``,
+  ``("declare", id, specs, values)``, ``("set", id, values)``, ``("get", id)``: each
+  answered ``("reply", id, status, value)``, status ``"ok"``,
   ``"parameter"`` (a refused parameter) or ``"error"``;
 - ``("pub", writer, cdr)``: publish (no answer; a failure is logged and counted);
 - ``("close_writer", writer)``, ``("close_reader", reader)``: no answer;
@@ -168,6 +169,8 @@ class Child:
             return request_id
         if op == "matched":
             return self._writers[args[0]].matched_count()
+        if op == "sub_matched":
+            return self._readers[args[0]].matched_count()
         if op == "declare":
             specs, values = args
             return port.declare_parameters(specs, self._ask_parent, values)

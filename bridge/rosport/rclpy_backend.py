@@ -112,6 +112,9 @@ class _Reader:
         self._lane = lane
         self._subscription = subscription
 
+    def matched_count(self) -> int:
+        return int(self._subscription.get_publisher_count())
+
     def close(self) -> None:
         with self._lane.lock:
             self._lane.readers = [r for r in self._lane.readers if r[0] is not self._subscription]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 
 import pytest
 
@@ -208,6 +209,24 @@ def test_waiting_for_subscribers_times_out(make_port: PortFactory, backend: str)
     pub = port.publisher("/nobody_listens", String)
     assert pub.matched_count() == 0
     assert not pub.wait_for_subscribers(1, timeout_s=0.05)
+
+
+def test_a_subscription_counts_its_matched_publishers(make_port: PortFactory, backend: str) -> None:
+    listener, talker = make_port(backend, node_name="listener"), make_port(backend)
+    sub = listener.subscribe("/counted", String, lambda _m: None)
+    assert sub.matched_count() == 0
+    assert not sub.wait_for_publishers(1, timeout_s=0.05)
+    pub = talker.publisher("/counted", String)
+    talker.publisher("/counted_other", String)  # another topic does not count
+    assert sub.wait_for_publishers(1, timeout_s=10.0)
+    assert sub.matched_count() == 1
+    pub.close()
+    deadline = time.monotonic() + 10.0
+    while sub.matched_count() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert sub.matched_count() == 0
+    sub.close()
+    assert sub.matched_count() == 0
 
 
 def test_a_reliable_subscription_ignores_a_best_effort_publisher(
