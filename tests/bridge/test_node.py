@@ -7,6 +7,7 @@ on another machine would.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import subprocess
@@ -41,7 +42,9 @@ class Client:
         self.ground: list[Odometry] = []
         self.diagnostics: list[DiagnosticArray] = []
         self._lock = threading.Lock()
-        port.subscribe("command_status", String, lambda m: self.status(m.data), qos.STATUS)
+        self._status_sub = port.subscribe(
+            "command_status", String, lambda m: self.status(m.data), qos.STATUS
+        )
         port.subscribe("odom", Odometry, self._keep(self.odom), qos.TELEMETRY)
         port.subscribe("odom_ground", Odometry, self._keep(self.ground), qos.TELEMETRY)
         port.subscribe("/diagnostics", DiagnosticArray, self._keep(self.diagnostics))
@@ -53,6 +56,9 @@ class Client:
         """Wait until the bridge subscribes (over DDS, discovery takes a moment)."""
         for pub in (self.steps, self.estop, self.clear):
             assert pub.wait_for_subscribers(1, timeout_s=timeout_s), pub.topic
+        # Each end discovers the other on its own: "ready" comes once, so the status
+        # subscription must hear the bridge before the link starts.
+        assert self._status_sub.wait_for_publishers(1, timeout_s=timeout_s)
 
     def _keep(self, sink: list[Any]) -> Callable[[Any], None]:
         def keep(msg: Any) -> None:
@@ -74,7 +80,15 @@ BRIDGE_BACKENDS = [param for param in BACKEND_PARAMS if param.id != "rclpy"]
 def bridged(
     request: pytest.FixtureRequest, emulators: Emus, make_port: Callable[..., RosPort]
 ) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
-    backend: str = request.param
+    with bridge_on(request.param, emulators, make_port) as parts:
+        yield parts
+
+
+@contextlib.contextmanager
+def bridge_on(
+    backend: str, emulators: Emus, make_port: Callable[..., RosPort]
+) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
+    """An emulator on a pty, the bridge node on ``backend`` and a client, the link ready."""
     emu = emulators()
     assert isinstance(emu.frontend, SerialFrontEnd)
     params = load_params(

@@ -21,14 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from bridge.node import BridgeNode
-from bridge.params import load_params
 from bridge.rosport import RosPort, RosPortError, qos
 from bridge.rosport.msgs import Odometry, String
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from tests.bridge.conftest import Inbox
-from tests.bridge.test_node import Client
+from tests.bridge.test_node import bridge_on
 
 pytestmark = pytest.mark.rclpy
 
@@ -65,21 +63,15 @@ def test_a_frozen_ros_node_does_not_stall_the_controller_link(
     """The bridge's node frozen for 1.5 s (six controller watchdog periods) while the
     rover drives: the link keeps its heartbeats, the controller's watchdog never fires, the
     step completes, and its ``completed``, held while the node was frozen, arrives."""
-    emu = emulators()
-    assert isinstance(emu.frontend, SerialFrontEnd)
-    params = load_params({"device": emu.frontend.device, "ros_backend": "rclpy-process"}, env={})
-    client = Client(make_port("rclpy", node_name="executor"))
-    port = make_port("rclpy-process", node_name="rover_bridge")
-    with BridgeNode(params, port) as node:
-        client.wait_for_bridge()
-        client.status.wait_count("ready", 1)
+    with bridge_on("rclpy-process", emulators, make_port) as (emu, node, client):
+        pid = node.port.pid  # type: ignore[attr-defined]
         mark = client.status.mark()
         client.step(1, 60, 11500)  # 1 m at 0.6 m/s: longer than the freeze
         client.status.wait_count("accepted", 1, since=mark)
-        frozen(port.pid)  # type: ignore[attr-defined]
+        frozen(pid)
         time.sleep(1.5)  # the stimulus: six watchdog periods of a frozen node
         during = node.diagnostics()
-        os.kill(port.pid, signal.SIGCONT)  # type: ignore[attr-defined]
+        os.kill(pid, signal.SIGCONT)
         got = client.status.wait_count("completed", 1, since=mark, timeout=20)
         after = node.diagnostics()
     assert got == ["accepted", "completed"], got
