@@ -329,7 +329,10 @@ class ProcessPort(RosPort):
                     reason = f"the node failed to apply it: {exc}"
                 self._post(("on_set_reply", request_id, reason))
         if not self._stopping.is_set():
-            code = self._proc.poll()
+            try:  # its sockets close as it exits: the status follows at once
+                code: int | None = self._proc.wait(_POLL_S)
+            except subprocess.TimeoutExpired:
+                code = None
             self._fail(f"it ended (exit status {code})" if code is not None else "it hung up")
 
     def _fail(self, why: str) -> None:

@@ -12,8 +12,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -27,6 +25,7 @@ from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from tests.bridge.conftest import Inbox
 from tests.bridge.test_node import bridge_on
+from tests.child import Child
 
 pytestmark = pytest.mark.rclpy
 
@@ -149,31 +148,29 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def _bridge(device: str) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "firmware_proto.cli", "bridge", "--device", device],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+@contextlib.contextmanager
+def _bridge(emulators: Callable[..., Emulator]) -> Iterator[tuple[Child, int]]:
+    """``rover bridge`` on an emulator's pty, running; yields it and its node's pid."""
+    emu = emulators()
+    assert isinstance(emu.frontend, SerialFrontEnd)
+    bridge = Child(["bridge", "--device", emu.frontend.device], dict(os.environ))
+    try:
+        assert bridge.wait_for("BRIDGE ").endswith(" rclpy-process")
+        (node,) = _children(bridge.proc.pid)
+        yield bridge, node
+    finally:
+        bridge.proc.kill()
+        bridge.wait(10)
 
 
 def test_the_bridge_exits_with_an_error_when_its_node_process_dies(
     emulators: Callable[..., Emulator],
 ) -> None:
-    emu = emulators()
-    assert isinstance(emu.frontend, SerialFrontEnd)
-    proc = _bridge(emu.frontend.device)
-    try:
-        assert proc.stdout is not None
-        assert proc.stdout.readline().endswith(" rclpy-process\n")
-        (child,) = _children(proc.pid)
-        os.kill(child, signal.SIGKILL)
-        _, err = proc.communicate(timeout=20)
-    finally:
-        proc.kill()
-        proc.wait(10)
-    assert proc.returncode == 1, err
+    with _bridge(emulators) as (bridge, node):
+        os.kill(node, signal.SIGKILL)
+        status = bridge.wait(20)
+    err = "\n".join(bridge.errors)
+    assert status == 1, err
     assert "rover bridge: error: the ROS 2 node failed: it ended (exit status -9)" in err
     assert "Traceback" not in err
 
@@ -181,19 +178,10 @@ def test_the_bridge_exits_with_an_error_when_its_node_process_dies(
 def test_the_node_process_ends_when_the_bridge_is_killed(
     emulators: Callable[..., Emulator],
 ) -> None:
-    emu = emulators()
-    assert isinstance(emu.frontend, SerialFrontEnd)
-    proc = _bridge(emu.frontend.device)
-    try:
-        assert proc.stdout is not None
-        assert proc.stdout.readline().endswith(" rclpy-process\n")
-        (child,) = _children(proc.pid)
-        proc.kill()  # no clean-up runs in the bridge
-        proc.wait(10)
-        assert _wait(lambda: not _alive(child)), "the node process outlived the bridge"
-    finally:
-        proc.kill()
-        proc.wait(10)
+    with _bridge(emulators) as (bridge, node):
+        bridge.proc.kill()  # no clean-up runs in the bridge
+        bridge.wait(10)
+        assert _wait(lambda: not _alive(node)), "the node process outlived the bridge"
 
 
 def test_a_node_that_cannot_start_is_an_error_naming_the_reason(
