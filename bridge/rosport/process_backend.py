@@ -46,7 +46,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any, Final
 
@@ -97,7 +97,7 @@ class _Outbox:
     another comes. Requests are never dropped.
     """
 
-    def __init__(self, conn: Connection, on_drop: Any, name: str) -> None:
+    def __init__(self, conn: Connection, on_drop: Callable[[], object], name: str) -> None:
         self._conn = conn
         self._on_drop = on_drop
         self._items: collections.deque[tuple[Any, ...]] = collections.deque()
@@ -143,7 +143,7 @@ class _Outbox:
         while True:
             with self._cond:
                 while not self._items and not self._closing:
-                    self._cond.wait()
+                    self._cond.wait(_POLL_S)
                 if not self._items:
                     return
                 item = self._items.popleft()
