@@ -55,8 +55,9 @@ from bridge.rosport.errors import BackendUnavailableError, PortClosedError, RosP
 from bridge.rosport.names import ros_type_name
 from bridge.rosport.parameters import ParameterSpec, ParameterValue
 from bridge.rosport.port import (
+    DEFAULT_LANE,
     DEFAULT_NODE_NAME,
-    LANES,
+    STOP_LANE,
     Message,
     RosPort,
     Subscription,
@@ -163,6 +164,153 @@ class _Outbox:
                 return
 
 
+class _Child:
+    """One child process with an rclpy node: its two sockets (``ctl``: requests, publishes
+    and replies; ``msg``: deliveries), the sender and the reply thread. ``on_set`` answers
+    the node's parameter changes; ``on_fail`` is told once if the child dies."""
+
+    def __init__(
+        self,
+        label: str,
+        init: tuple[Any, ...],
+        on_drop: Callable[[], object],
+        on_set: Callable[[dict[str, Any]], str | None],
+        on_fail: Callable[[str], object],
+    ) -> None:
+        self.label = label
+        self._on_drop = on_drop
+        self._on_set = on_set
+        self._on_fail = on_fail
+        self._ids = itertools.count(1)
+        self._replies: dict[int, list[Any]] = {}
+        self._replies_cond = threading.Condition()
+        self._closing = threading.Event()
+        self.failure: str | None = None
+        pairs = {name: socket.socketpair() for name in ("ctl", "msg")}
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", CHILD_MODULE]
+                + [f"{name}={theirs.fileno()}" for name, (_, theirs) in pairs.items()],
+                pass_fds=[theirs.fileno() for _, theirs in pairs.values()],
+                stdin=subprocess.DEVNULL,
+            )
+        except OSError as exc:
+            for ours, theirs in pairs.values():
+                ours.close()
+                theirs.close()
+            raise RosPortError(f"cannot start the ROS 2 child process: {exc}") from exc
+        self.conns: dict[str, Connection] = {}
+        for name, (ours, theirs) in pairs.items():
+            theirs.close()
+            self.conns[name] = Connection(ours.detach())
+        try:
+            self.conns["ctl"].send(init)
+        except OSError as exc:
+            self.end()
+            raise RosPortError(f"cannot start the ROS 2 child process: {exc}") from exc
+        self.outbox: _Outbox | None = None
+        self._rx: threading.Thread | None = None
+
+    def await_ready(self, deadline: float) -> str:
+        """The child's middleware once its node is up; raises (and ends it) otherwise."""
+        ctl = self.conns["ctl"]
+        try:
+            ready = ctl.poll(max(0.0, deadline - time.monotonic()))
+            answer = ctl.recv() if ready else None
+        except (OSError, EOFError) as exc:
+            answer = ("error", f"it ended ({exc})")
+        if answer is None or answer[0] != "ready":
+            self.end()
+            why = f"no answer in {START_TIMEOUT_S:.0f} s" if answer is None else answer[1]
+            raise RosPortError(f"cannot start the ROS 2 node {self.label!r} in a child: {why}")
+        self.outbox = _Outbox(ctl, self._on_drop, f"rosport-{self.label}-tx")
+        self._rx = threading.Thread(
+            target=self._receive_replies, name=f"rosport-{self.label}-replies", daemon=True
+        )
+        self._rx.start()
+        middleware: str = answer[1]
+        return middleware
+
+    def post(self, item: tuple[Any, ...]) -> None:
+        """A request that needs no answer (closing an endpoint); ignored once closed."""
+        if self.outbox is not None:
+            with contextlib.suppress(PortClosedError):
+                self.outbox.request(item)
+
+    def call(self, op: str, *payload: Any) -> Any:
+        """Send a request and wait for its answer; the child's error is raised here."""
+        if self.failure is not None or self.outbox is None:
+            raise RosPortError(f"the ROS 2 child process failed: {self.failure}")
+        request_id = next(self._ids)
+        with self._replies_cond:
+            self._replies[request_id] = []
+        self.outbox.request((op, request_id, *payload))
+        deadline = time.monotonic() + REQUEST_TIMEOUT_S
+        with self._replies_cond:
+            while not self._replies[request_id]:
+                left = deadline - time.monotonic()
+                if left <= 0 or self.failure is not None:
+                    del self._replies[request_id]
+                    why = self.failure or f"no answer to {op!r} in {REQUEST_TIMEOUT_S:.0f} s"
+                    raise RosPortError(f"the ROS 2 child process: {why}")
+                self._replies_cond.wait(left)
+            status, value = self._replies.pop(request_id)[0]
+        if status == "ok":
+            return value
+        if status == "parameter":
+            raise ParameterError(value)
+        raise RosPortError(value)
+
+    def _receive_replies(self) -> None:
+        ctl = self.conns["ctl"]
+        while not self._closing.is_set():
+            try:
+                if not ctl.poll(_POLL_S):
+                    continue
+                item = ctl.recv()
+            except (OSError, EOFError):
+                break
+            if item[0] == "reply":
+                _, request_id, status, value = item
+                with self._replies_cond:
+                    if request_id in self._replies:
+                        self._replies[request_id].append((status, value))
+                        self._replies_cond.notify_all()
+            elif item[0] == "on_set":
+                _, request_id, values = item
+                self.post(("on_set_reply", request_id, self._on_set(values)))
+        if not self._closing.is_set():
+            try:  # its sockets close as it exits: the status follows at once
+                code: int | None = self.proc.wait(_POLL_S)
+            except subprocess.TimeoutExpired:
+                code = None
+            self.failure = f"it ended (exit status {code})" if code is not None else "it hung up"
+            with self._replies_cond:
+                self._replies_cond.notify_all()
+            self._on_fail(self.failure)
+
+    def close(self) -> None:
+        """Tell the child to close its node, wait for it (kill it if it does not end)."""
+        self._closing.set()
+        if self.outbox is not None:
+            self.outbox.close(("close",), EXIT_TIMEOUT_S)
+        if self._rx is not None:
+            self._rx.join(EXIT_TIMEOUT_S)
+        self.end()
+
+    def end(self) -> None:
+        """Close the sockets (the child reads end of file and exits); reap it."""
+        self._closing.set()
+        for conn in self.conns.values():
+            conn.close()
+        try:
+            self.proc.wait(EXIT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            logger.error("ROS 2 child %s did not exit; killing it", self.label)
+            self.proc.kill()
+            self.proc.wait(EXIT_TIMEOUT_S)
+
+
 class _Writer:
     def __init__(self, port: ProcessPort, writer_id: int, depth: int) -> None:
         self._port = port
@@ -173,38 +321,44 @@ class _Writer:
         self._port._publish(self._id, self._depth, msg)
 
     def matched_count(self) -> int:
-        return int(self._port._call("matched", self._id))
+        return int(self._port._main.call("matched", self._id))
 
     def close(self) -> None:
-        self._port._post(("close_writer", self._id))
+        self._port._main.post(("close_writer", self._id))
 
 
 class _Reader:
-    def __init__(self, port: ProcessPort, reader_id: int) -> None:
+    def __init__(self, port: ProcessPort, child: _Child, reader_id: int) -> None:
         self._port = port
+        self._child = child
         self._id = reader_id
 
     def matched_count(self) -> int:
-        return int(self._port._call("sub_matched", self._id))
+        return int(self._child.call("sub_matched", self._id))
 
     def close(self) -> None:
         with self._port._readers_lock:
-            self._port._readers.pop(self._id, None)
-        self._port._post(("close_reader", self._id))
+            self._port._readers.pop((self._child.label, self._id), None)
+        self._child.post(("close_reader", self._id))
 
 
 class ProcessPort(RosPort):
-    """A port whose rclpy node runs in a child process (``open_port("rclpy-process")``).
+    """A port whose rclpy nodes run in child processes (``open_port("rclpy-process")``).
+
+    Two children: the node ``node_name``, which publishes, owns the parameters and takes
+    the default lane's subscriptions; and the node ``<node_name>_stop``, which takes only
+    the STOP lane's. A STOP so never waits for the interpreter of a process that is
+    publishing (as the rclpy backend's STOP node is a node of its own, in one process).
 
     Args:
-        namespace: see :class:`RosPort` (also the node's namespace).
+        namespace: see :class:`RosPort` (also the nodes' namespace).
         node_name: see :class:`RosPort` (also the node's name).
         domain_id: ROS domain; default ``$ROS_DOMAIN_ID``, else 0.
-        args: ROS command-line arguments for the node (``["--ros-args", ...]``).
+        args: ROS command-line arguments for both nodes (``["--ros-args", ...]``).
 
     Raises:
         BackendUnavailableError: rclpy is not installed.
-        RosPortError: the child did not start its node (its reason), or not in
+        RosPortError: a child did not start its node (its reason), or not in
             :data:`START_TIMEOUT_S`.
     """
 
@@ -220,170 +374,109 @@ class ProcessPort(RosPort):
     ) -> None:
         super().__init__(namespace=namespace, node_name=node_name)
         self._ser = _serialization()
-        self._ids = itertools.count(1)
-        self._replies: dict[int, list[Any]] = {}
-        self._replies_cond = threading.Condition()
-        self._readers: dict[int, Subscription[Any]] = {}
+        self._readers: dict[tuple[str, int], Subscription[Any]] = {}
         self._readers_lock = threading.Lock()
         self._failure: str | None = None
-        pairs = {name: socket.socketpair() for name in ("ctl", *LANES)}
+        # Both start at once (about a second each to import rclpy and make a node).
+        children: dict[str, _Child] = {}
         try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", CHILD_MODULE]
-                + [f"{name}={theirs.fileno()}" for name, (_, theirs) in pairs.items()],
-                pass_fds=[theirs.fileno() for _, theirs in pairs.values()],
-                stdin=subprocess.DEVNULL,
-            )
-        except OSError as exc:
-            for ours, theirs in pairs.values():
-                ours.close()
-                theirs.close()
-            raise RosPortError(f"cannot start the ROS 2 child process: {exc}") from exc
-        self._conns: dict[str, Connection] = {}
-        for name, (ours, theirs) in pairs.items():
-            theirs.close()
-            self._conns[name] = Connection(ours.detach())
-        ctl = self._conns["ctl"]
-        try:
-            ctl.send(("init", self.namespace, self.node_name, domain_id, list(args)))
-            ready = ctl.poll(START_TIMEOUT_S)
-            answer = ctl.recv() if ready else None
-        except (OSError, EOFError) as exc:
-            answer = ("error", f"it ended ({exc})")
-        if answer is None or answer[0] != "ready":
-            why = f"no answer in {START_TIMEOUT_S:.0f} s" if answer is None else answer[1]
-            self._end_child()
-            raise RosPortError(f"cannot start the ROS 2 node {node_name!r} in a child: {why}")
-        #: What the child runs: ``"rmw_fastrtps_cpp (rclpy 7.1.6)"``.
-        self.middleware: str = answer[1]
-        self._outbox = _Outbox(ctl, self._count_dropped, f"rosport-{node_name}-tx")
-        self._rx = threading.Thread(
-            target=self._receive_replies, name=f"rosport-{node_name}-replies", daemon=True
-        )
-        self._rx.start()
+            for lane, name in ((DEFAULT_LANE, node_name), (STOP_LANE, node_name + "_stop")):
+                children[lane] = _Child(
+                    name,
+                    ("init", self.namespace, name, domain_id, list(args)),
+                    self._count_dropped,
+                    self._answer_on_set,
+                    self._fail,
+                )
+            deadline = time.monotonic() + START_TIMEOUT_S
+            middleware = [child.await_ready(deadline) for child in children.values()]
+        except RosPortError:
+            for child in children.values():
+                child.end()
+            raise
+        self._children = children
+        self._main = children[DEFAULT_LANE]
+        #: What the children run: ``"rmw_fastrtps_cpp (rclpy 7.1.6)"``.
+        self.middleware: str = middleware[0]
         self._start()
 
     @property
     def pid(self) -> int:
-        """The child's process id."""
-        return self._proc.pid
+        """The process id of the child that publishes (the node ``node_name``)."""
+        return self._main.proc.pid
+
+    @property
+    def stop_pid(self) -> int:
+        """The process id of the child that takes the STOP lane's subscriptions."""
+        return self._children[STOP_LANE].proc.pid
 
     @property
     def failure(self) -> str | None:
-        """Why the child is gone when it ended without being closed; else ``None``."""
+        """Why a child is gone when it ended without being closed; else ``None``."""
         return self._failure
 
-    # -- requests ---------------------------------------------------------------------
-    def _post(self, item: tuple[Any, ...]) -> None:
-        """A request that needs no answer (closing an endpoint); ignored once closed."""
-        with contextlib.suppress(PortClosedError):
-            self._outbox.request(item)
-
-    def _call(self, op: str, *payload: Any) -> Any:
-        """Send a request and wait for its answer; the child's error is raised here."""
-        if self._failure is not None:
-            raise RosPortError(f"the ROS 2 child process failed: {self._failure}")
-        request_id = next(self._ids)
-        with self._replies_cond:
-            self._replies[request_id] = []
-        self._outbox.request((op, request_id, *payload))
-        deadline = time.monotonic() + REQUEST_TIMEOUT_S
-        with self._replies_cond:
-            while not self._replies[request_id]:
-                left = deadline - time.monotonic()
-                if left <= 0 or self._failure is not None:
-                    del self._replies[request_id]
-                    why = self._failure or f"no answer to {op!r} in {REQUEST_TIMEOUT_S:.0f} s"
-                    raise RosPortError(f"the ROS 2 child process: {why}")
-                self._replies_cond.wait(left)
-            ok, value = self._replies.pop(request_id)[0]
-        if ok == "ok":
-            return value
-        if ok == "parameter":
-            raise ParameterError(value)
-        raise RosPortError(value)
-
-    def _receive_replies(self) -> None:
-        ctl = self._conns["ctl"]
-        while not self._stopping.is_set():
-            try:
-                if not ctl.poll(_POLL_S):
-                    continue
-                item = ctl.recv()
-            except (OSError, EOFError):
-                break
-            if item[0] == "reply":
-                _, request_id, status, value = item
-                with self._replies_cond:
-                    if request_id in self._replies:
-                        self._replies[request_id].append((status, value))
-                        self._replies_cond.notify_all()
-            elif item[0] == "on_set":
-                _, request_id, values = item
-                with self._param_lock:
-                    on_set = self._on_set
-                try:
-                    reason = on_set(values) if on_set is not None else None
-                except Exception as exc:  # the node's callback failed: refuse the change
-                    logger.exception("%s: on_set raised", self)
-                    reason = f"the node failed to apply it: {exc}"
-                self._post(("on_set_reply", request_id, reason))
-        if not self._stopping.is_set():
-            try:  # its sockets close as it exits: the status follows at once
-                code: int | None = self._proc.wait(_POLL_S)
-            except subprocess.TimeoutExpired:
-                code = None
-            self._fail(f"it ended (exit status {code})" if code is not None else "it hung up")
-
     def _fail(self, why: str) -> None:
+        if self._stopping.is_set():
+            return
         self._failure = why
-        logger.error("%s: the ROS 2 child process failed: %s", self, why)
-        with self._replies_cond:
-            self._replies_cond.notify_all()
+        logger.error("%s: a ROS 2 child process failed: %s", self, why)
+
+    def _answer_on_set(self, values: dict[str, Any]) -> str | None:
+        """A parameter change made from outside, through the child: the node decides."""
+        with self._param_lock:
+            on_set = self._on_set
+        try:
+            return on_set(values) if on_set is not None else None
+        except Exception as exc:  # the node's callback failed: refuse the change
+            logger.exception("%s: on_set raised", self)
+            return f"the node failed to apply it: {exc}"
 
     # -- parameters -------------------------------------------------------------------
     def _declare_parameters(
         self, specs: list[ParameterSpec], values: dict[str, ParameterValue]
     ) -> dict[str, ParameterValue]:
-        declared: dict[str, ParameterValue] = self._call("declare", specs, values)
+        declared: dict[str, ParameterValue] = self._main.call("declare", specs, values)
         return declared
 
     def _set_parameters(self, values: dict[str, Any]) -> str | None:
-        reason: str | None = self._call("set", values)
+        reason: str | None = self._main.call("set", values)
         return reason
 
     def _get_parameters(self) -> dict[str, ParameterValue]:
-        current: dict[str, ParameterValue] = self._call("get")
+        current: dict[str, ParameterValue] = self._main.call("get")
         return current
 
     # -- endpoints --------------------------------------------------------------------
     def _open_writer(self, topic: str, msg_type: type[Any], qos: Qos) -> _Writer:
-        writer_id = self._call("writer", topic, ros_type_name(msg_type), qos)
+        writer_id = self._main.call("writer", topic, ros_type_name(msg_type), qos)
         return _Writer(self, writer_id, qos.depth)
 
     def _publish(self, writer_id: int, depth: int, msg: Message) -> None:
-        if self._failure is not None:
+        outbox = self._main.outbox
+        if self._main.failure is not None or outbox is None:
             self._count_dropped()
             return
-        self._outbox.publish(writer_id, depth, self._ser.serialize_message(msg))
+        outbox.publish(writer_id, depth, self._ser.serialize_message(msg))
 
     def _open_reader(self, sub: Subscription[Any]) -> _Reader:
-        reader_id = self._call("reader", sub.topic, ros_type_name(sub.msg_type), sub.qos, sub.lane)
+        child = self._children[sub.lane]
+        reader_id = child.call("reader", sub.topic, ros_type_name(sub.msg_type), sub.qos)
         with self._readers_lock:
-            self._readers[reader_id] = sub
-        return _Reader(self, reader_id)
+            self._readers[(child.label, reader_id)] = sub
+        return _Reader(self, child, reader_id)
 
     def _run(self, lane: str) -> None:
-        conn = self._conns[lane]
+        child = self._children[lane]
+        conn = child.conns["msg"]
         while not self._stopping.is_set():
             try:
                 if not conn.poll(_POLL_S):
                     continue
                 _, reader_id, cdr = conn.recv()
             except (OSError, EOFError):
-                return  # the child is gone; the reply thread says why
+                return  # the child is gone; its reply thread says why
             with self._readers_lock:
-                sub = self._readers.get(reader_id)
+                sub = self._readers.get((child.label, reader_id))
             if sub is None:
                 continue  # closed while the message was on its way
             try:
@@ -394,21 +487,10 @@ class ProcessPort(RosPort):
             self._deliver(sub, msg)
 
     def _release(self) -> None:
-        self._outbox.close(("close",), EXIT_TIMEOUT_S)
-        self._rx.join(EXIT_TIMEOUT_S)
-        self._end_child()
-
-    def _end_child(self) -> None:
-        for conn in self._conns.values():
-            conn.close()  # the child reads end of file and exits
-        try:
-            self._proc.wait(EXIT_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            logger.error("%s: the ROS 2 child did not exit; killing it", self)
-            self._proc.kill()
-            self._proc.wait(EXIT_TIMEOUT_S)
+        for child in self._children.values():
+            child.close()
 
     def __repr__(self) -> str:
-        proc = getattr(self, "_proc", None)
-        child = f" child pid {proc.pid}" if proc is not None else ""
-        return super().__repr__()[:-1] + child + ">"
+        children = getattr(self, "_children", {})
+        pids = ",".join(str(child.proc.pid) for child in children.values())
+        return super().__repr__()[:-1] + (f" children {pids}" if pids else "") + ">"

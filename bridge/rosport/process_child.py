@@ -1,12 +1,13 @@
 """The child of :class:`~bridge.rosport.process_backend.ProcessPort`: an rclpy node that
 does what its parent asks, and nothing else.
 
-Started as ``python -m bridge.rosport.process_child ctl=FD default=FD stop=FD`` with the
-child ends of the parent's socket pairs. The first thing on ``ctl`` is
+Started as ``python -m bridge.rosport.process_child ctl=FD msg=FD`` with the child ends
+of the parent's socket pairs (the parent starts two: one for the node that publishes,
+one for the STOP lane's node). The first thing on ``ctl`` is
 ``("init", namespace, node_name, domain_id, args)``; the answer is ``("ready",
 middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
 
-- ``("writer", id, topic, type, qos)``, ``("reader", id, topic, type, qos, lane)``,
+- ``("writer", id, topic, type, qos)``, ``("reader", id, topic, type, qos)``,
   ``("matched", id, writer)``, ``("sub_matched", id, reader)``,
   ``("declare", id, specs, values)``, ``("set", id, values)``, ``("get", id)``: each
   answered ``("reply", id, status, value)``, status ``"ok"``,
@@ -17,10 +18,11 @@ middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
   ``("on_set", id, values)``, sent when a parameter change reaches the node;
 - ``("close",)``, or end of file (the parent died): close the node and exit 0.
 
-Each message a reader takes goes to the parent on its lane's socket as
-``("msg", reader, cdr)``. SIGINT and SIGTERM are ignored: the parent decides when this
-process ends (a Ctrl-C reaches the whole process group, and the parent must close the
-node itself).
+Each message a reader takes goes to the parent on ``msg`` as ``("msg", reader, cdr)``;
+every reader is on the node's default lane (its executor).
+
+SIGINT and SIGTERM are ignored: the parent decides when this process ends (a Ctrl-C
+reaches the whole process group, and the parent must close the node itself).
 """
 
 from __future__ import annotations
@@ -58,9 +60,9 @@ class Child:
 
     def __init__(self, conns: Mapping[str, Connection]) -> None:
         self._ctl = conns["ctl"]
-        self._lanes = {name: conn for name, conn in conns.items() if name != "ctl"}
+        self._msg = conns["msg"]
         self._send_lock = threading.Lock()
-        self._lane_locks = {name: threading.Lock() for name in self._lanes}
+        self._msg_lock = threading.Lock()
         self._work: queue.Queue[tuple[Any, ...]] = queue.Queue()
         self._answers: dict[int, queue.Queue[str | None]] = {}
         self._ids = itertools.count(1)
@@ -155,16 +157,15 @@ class Child:
             self._writers[request_id] = port.publisher(topic, message_type(type_name), qos)
             return request_id
         if op == "reader":
-            topic, type_name, qos, lane = args
-            conn, lock = self._lanes[lane], self._lane_locks[lane]
+            topic, type_name, qos = args
 
             def forward(msg: Any) -> None:
                 cdr = self._ser.serialize_message(msg)
-                with lock:
-                    conn.send(("msg", request_id, cdr))
+                with self._msg_lock:
+                    self._msg.send(("msg", request_id, cdr))
 
             self._readers[request_id] = port.subscribe(
-                topic, message_type(type_name), forward, qos, lane=lane
+                topic, message_type(type_name), forward, qos
             )
             return request_id
         if op == "matched":
@@ -197,7 +198,7 @@ class Child:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point: ``NAME=FD`` arguments for ``ctl`` and each lane."""
+    """Entry point: ``NAME=FD`` arguments for ``ctl`` and ``msg``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     logging.basicConfig(

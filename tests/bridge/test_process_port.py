@@ -19,8 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from bridge.rosport import RosPort, RosPortError, qos
-from bridge.rosport.msgs import Odometry, String
+from bridge.rosport import DEFAULT_LANE, STOP_LANE, RosPort, RosPortError, qos
+from bridge.rosport.msgs import Bool, Odometry, String
+from bridge.rosport.process_backend import ProcessPort
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from tests.bridge.conftest import Inbox
@@ -80,6 +81,31 @@ def test_a_frozen_ros_node_does_not_stall_the_controller_link(
     assert status.latch == () and "watchdog" not in status.faults, status.line()
 
 
+def test_a_stop_over_ros_stops_the_rover_while_the_publishing_node_is_frozen(
+    emulators: Callable[..., Emulator],
+    make_port: Callable[..., RosPort],
+    frozen: Callable[[int], None],
+) -> None:
+    """The STOP lane's subscriptions live in a process that never publishes: with the
+    node that publishes frozen (as a publish blocked inside Fast DDS would hold it), an
+    emergency stop still reaches the link and the controller latches with its wheels'
+    set-points at zero; the ``stopped`` it could not publish comes once it runs again."""
+    with bridge_on("rclpy-process", emulators, make_port) as (emu, node, client):
+        port = node.port
+        assert isinstance(port, ProcessPort)
+        client.step(1, 60, 30000)
+        client.status.wait_count("accepted", 1)
+        mark = client.status.mark()
+        frozen(port.pid)
+        client.estop.publish(Bool(data=True))
+        latched = _wait(lambda: emu.status().stop_latched)
+        during = emu.status()
+        os.kill(port.pid, signal.SIGCONT)
+        client.status.wait(lambda xs: "stopped" in xs and "aborted:stop" in xs, since=mark)
+    assert latched, during.line()
+    assert "stop" in during.latch and during.setpoints_mps == (0.0, 0.0), during.line()
+
+
 def test_publishing_into_a_frozen_node_never_blocks_and_keeps_the_newest(
     make_port: Callable[..., RosPort], frozen: Callable[[int], None]
 ) -> None:
@@ -117,18 +143,23 @@ def test_publishing_into_a_frozen_node_never_blocks_and_keeps_the_newest(
     assert seqs == sorted(seqs), "published out of order"
 
 
-def test_the_node_process_dying_fails_the_port_clearly(
-    make_port: Callable[..., RosPort],
+@pytest.mark.parametrize("lane", [DEFAULT_LANE, STOP_LANE])
+def test_a_node_process_dying_fails_the_port_clearly(
+    make_port: Callable[..., RosPort], lane: str
 ) -> None:
+    """Either child killed: the port says so, its lane refuses new work, and a publish
+    into a dead publishing node is counted, not raised (the caller is a link thread)."""
     port = make_port("rclpy-process", node_name="doomed")
+    assert isinstance(port, ProcessPort)
     pub = port.publisher("status", String, qos.STATUS)
-    os.kill(port.pid, signal.SIGKILL)  # type: ignore[attr-defined]
+    os.kill(port.pid if lane == DEFAULT_LANE else port.stop_pid, signal.SIGKILL)
     assert _wait(lambda: port.failure is not None)
     assert "exit status -9" in str(port.failure)
-    pub.publish(String(data="lost"))  # counted, not raised: the caller is a link thread
-    assert port.stats().dropped >= 1
+    if lane == DEFAULT_LANE:
+        pub.publish(String(data="lost"))
+        assert port.stats().dropped >= 1
     with pytest.raises(RosPortError, match="child process failed: it ended"):
-        port.subscribe("more", String, lambda _m: None)
+        port.subscribe("more", String, lambda _m: None, lane=lane)
     port.close()  # returns: nothing waits for the dead child
 
 
@@ -149,15 +180,16 @@ def _alive(pid: int) -> bool:
 
 
 @contextlib.contextmanager
-def _bridge(emulators: Callable[..., Emulator]) -> Iterator[tuple[Child, int]]:
-    """``rover bridge`` on an emulator's pty, running; yields it and its node's pid."""
+def _bridge(emulators: Callable[..., Emulator]) -> Iterator[tuple[Child, list[int]]]:
+    """``rover bridge`` on an emulator's pty, running; yields it and its nodes' pids."""
     emu = emulators()
     assert isinstance(emu.frontend, SerialFrontEnd)
     bridge = Child(["bridge", "--device", emu.frontend.device], dict(os.environ))
     try:
         assert bridge.wait_for("BRIDGE ").endswith(" rclpy-process")
-        (node,) = _children(bridge.proc.pid)
-        yield bridge, node
+        nodes = _children(bridge.proc.pid)
+        assert len(nodes) == 2, nodes  # the node, and the STOP lane's node
+        yield bridge, nodes
     finally:
         bridge.proc.kill()
         bridge.wait(10)
@@ -166,8 +198,8 @@ def _bridge(emulators: Callable[..., Emulator]) -> Iterator[tuple[Child, int]]:
 def test_the_bridge_exits_with_an_error_when_its_node_process_dies(
     emulators: Callable[..., Emulator],
 ) -> None:
-    with _bridge(emulators) as (bridge, node):
-        os.kill(node, signal.SIGKILL)
+    with _bridge(emulators) as (bridge, nodes):
+        os.kill(nodes[0], signal.SIGKILL)
         status = bridge.wait(20)
     err = "\n".join(bridge.errors)
     assert status == 1, err
@@ -178,10 +210,10 @@ def test_the_bridge_exits_with_an_error_when_its_node_process_dies(
 def test_the_node_process_ends_when_the_bridge_is_killed(
     emulators: Callable[..., Emulator],
 ) -> None:
-    with _bridge(emulators) as (bridge, node):
+    with _bridge(emulators) as (bridge, nodes):
         bridge.proc.kill()  # no clean-up runs in the bridge
         bridge.wait(10)
-        assert _wait(lambda: not _alive(node)), "the node process outlived the bridge"
+        assert _wait(lambda: not any(_alive(node) for node in nodes)), "a node outlived it"
 
 
 def test_a_node_that_cannot_start_is_an_error_naming_the_reason(
