@@ -1,4 +1,4 @@
-"""The ``rclpy-process`` backend: a real ROS 2 node in a child process of its own.
+"""The ``rclpy-process`` backend: real ROS 2 nodes in child processes of their own.
 
 Why: rclpy calls into the middleware (``Publisher.publish`` into Fast DDS) while holding
 Python's interpreter lock, and Fast DDS publishes on the caller's thread (Jazzy's
@@ -6,15 +6,18 @@ default, synchronous). When such a call blocks, every thread of the process stop
 it. In the bridge that was the controller link: heartbeats, STOP, the reader. A publish of
 ``/odom`` was caught blocking for 340 ms and then 354 ms inside the demo, and the motor
 controller's 250 ms watchdog stopped the rover (README, "Known defect", now fixed).
-Here the node lives in another process, so no middleware call can stop the link's threads.
+Here the nodes live in other processes, so no middleware call can stop the link's threads.
 
 What the caller sees is a :class:`~bridge.rosport.port.RosPort` like any other: the same
 names, QoS, lanes, taps, parameters and counters. Underneath:
 
-- the parent spawns ``python -m bridge.rosport.process_child`` with three socket pairs:
-  one for requests and publishes (parent to child, in order) and replies (child to
-  parent), and one per lane for deliveries (child to parent), so a STOP never queues
-  behind telemetry in a pipe either;
+- the parent spawns ``python -m bridge.rosport.process_child`` twice: the node
+  ``node_name``, which publishes, holds the parameters and takes the default lane's
+  subscriptions; and ``<node_name>_stop``, which takes only the STOP lane's and never
+  publishes, so a STOP waits neither behind telemetry nor for an interpreter stuck in a
+  publish (the rclpy backend's STOP lane is likewise a node of its own);
+- each child has two socket pairs: requests and publishes (parent to child, in order)
+  with the replies, and deliveries (child to parent);
 - messages cross as their CDR bytes (``rclpy.serialization``: no middleware, no context);
   the parent never initialises rclpy;
 - ``publish`` serializes and queues, and returns: it never waits for the child. A writer
@@ -26,9 +29,10 @@ names, QoS, lanes, taps, parameters and counters. Underneath:
   :data:`REQUEST_TIMEOUT_S` and raise :class:`RosPortError` after that;
 - a parameter change made from outside (``ros2 param set``) reaches the node's
   ``on_set`` in this process through the child, and its answer goes back;
-- the child ends when the parent closes the port, and by itself when the parent dies (its
-  request socket reaches end of file). If the child dies, :attr:`ProcessPort.failure`
-  says so, every later request raises, and publishes are dropped and counted.
+- a child ends when the parent closes the port, and by itself when the parent dies (its
+  request socket reaches end of file). If either dies, :attr:`ProcessPort.failure`
+  says so and every later request to it raises; publishes into a dead publishing node
+  are dropped and counted.
 
 The CPU cost is a serialization per message on each side and a socket hop: measured in
 ``benchmarks/bench_rosport.py`` beside the in-process ``rclpy`` backend.
@@ -41,6 +45,7 @@ import contextlib
 import importlib
 import itertools
 import logging
+import os
 import socket
 import subprocess
 import sys
@@ -48,6 +53,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any, Final
 
 from bridge.errors import ParameterError
@@ -88,6 +94,14 @@ def _serialization() -> Any:
             "rclpy is not installed: install this project with its 'ros' extra "
             f"(pip install 'rover-hil[ros]') or source /opt/ros/jazzy/setup.bash ({exc})"
         ) from exc
+
+
+def _child_env() -> dict[str, str]:
+    """This environment, with the directory this ``bridge`` package was imported from
+    first on ``PYTHONPATH``: the child runs the same code, wherever the parent started."""
+    root = str(Path(__file__).resolve().parents[2])
+    rest = os.environ.get("PYTHONPATH", "")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, rest) if p)}
 
 
 class _Outbox:
@@ -193,6 +207,7 @@ class _Child:
                 + [f"{name}={theirs.fileno()}" for name, (_, theirs) in pairs.items()],
                 pass_fds=[theirs.fileno() for _, theirs in pairs.values()],
                 stdin=subprocess.DEVNULL,
+                env=_child_env(),
             )
         except OSError as exc:
             for ours, theirs in pairs.values():

@@ -164,9 +164,7 @@ class Child:
                 with self._msg_lock:
                     self._msg.send(("msg", request_id, cdr))
 
-            self._readers[request_id] = port.subscribe(
-                topic, message_type(type_name), forward, qos
-            )
+            self._readers[request_id] = port.subscribe(topic, message_type(type_name), forward, qos)
             return request_id
         if op == "matched":
             return self._writers[args[0]].matched_count()
