@@ -398,7 +398,7 @@ class ProcessPort(RosPort):
             for lane, name in ((DEFAULT_LANE, node_name), (STOP_LANE, node_name + "_stop")):
                 children[lane] = _Child(
                     name,
-                    ("init", self.namespace, name, domain_id, list(args)),
+                    ("init", self.namespace, name, domain_id, list(args), lane == STOP_LANE),
                     self._count_dropped,
                     self._answer_on_set,
                     self._fail,

@@ -4,7 +4,7 @@ does what its parent asks, and nothing else.
 Started as ``python -m bridge.rosport.process_child ctl=FD msg=FD`` with the child ends
 of the parent's socket pairs (the parent starts two: one for the node that publishes,
 one for the STOP lane's node). The first thing on ``ctl`` is
-``("init", namespace, node_name, domain_id, args)``; the answer is ``("ready",
+``("init", namespace, node_name, domain_id, args, stop_only)``; the answer is ``("ready",
 middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
 
 - ``("writer", id, topic, type, qos)``, ``("reader", id, topic, type, qos)``,
@@ -19,7 +19,8 @@ middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
 - ``("close",)``, or end of file (the parent died): close the node and exit 0.
 
 Each message a reader takes goes to the parent on ``msg`` as ``("msg", reader, cdr)``;
-every reader is on the node's default lane (its executor).
+the STOP child (``stop_only``) takes every reader on its node's rcl wait set, as the
+rclpy backend's STOP lane does; the other on its default lane (its executor).
 
 SIGINT and SIGTERM are ignored: the parent decides when this process ends (a Ctrl-C
 reaches the whole process group, and the parent must close the node itself).
@@ -39,7 +40,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from bridge.errors import ParameterError
-from bridge.rosport.port import Publisher, Subscription
+from bridge.rosport.port import DEFAULT_LANE, STOP_LANE, Publisher, Subscription
 from bridge.rosport.process_backend import REQUEST_TIMEOUT_S
 from bridge.rosport.rclpy_backend import RclpyPort, middleware
 
@@ -66,6 +67,7 @@ class Child:
         self._work: queue.Queue[tuple[Any, ...]] = queue.Queue()
         self._answers: dict[int, queue.Queue[str | None]] = {}
         self._ids = itertools.count(1)
+        self._lane = DEFAULT_LANE
         self._writers: dict[int, Publisher[Any]] = {}
         self._readers: dict[int, Subscription[Any]] = {}
         self._ser = importlib.import_module("rclpy.serialization")
@@ -78,12 +80,17 @@ class Child:
     def run(self) -> int:
         """Start the node, serve the parent until it closes or dies; the exit status."""
         try:
-            _, namespace, node_name, domain_id, args = self._ctl.recv()
+            _, namespace, node_name, domain_id, args, stop_only = self._ctl.recv()
         except (EOFError, OSError):
             return 1
+        self._lane = STOP_LANE if stop_only else DEFAULT_LANE
         try:
             port = RclpyPort(
-                namespace=namespace, node_name=node_name, domain_id=domain_id, args=args
+                namespace=namespace,
+                node_name=node_name,
+                domain_id=domain_id,
+                args=args,
+                stop_only=stop_only,
             )
         except Exception as exc:  # the parent raises it as RosPortError
             self._send(("error", str(exc)))
@@ -164,7 +171,9 @@ class Child:
                 with self._msg_lock:
                     self._msg.send(("msg", request_id, cdr))
 
-            self._readers[request_id] = port.subscribe(topic, message_type(type_name), forward, qos)
+            self._readers[request_id] = port.subscribe(
+                topic, message_type(type_name), forward, qos, lane=self._lane
+            )
             return request_id
         if op == "matched":
             return self._writers[args[0]].matched_count()

@@ -143,6 +143,10 @@ class RclpyPort(RosPort):
         domain_id: ROS domain; default ``$ROS_DOMAIN_ID``, else 0.
         args: ROS command-line arguments for this context (``["--ros-args", ...]``):
             remappings, ``-p`` parameters, ``--params-file``, log levels.
+        stop_only: a node that only takes the STOP lane's subscriptions (the STOP child
+            of :mod:`bridge.rosport.process_backend`): the node itself is the STOP lane's,
+            waited on by the lane's rcl wait set; no executor, no second node, no
+            parameter services.
 
     Raises:
         BackendUnavailableError: rclpy or a message package is not installed.
@@ -158,8 +162,10 @@ class RclpyPort(RosPort):
         node_name: str = DEFAULT_NODE_NAME,
         domain_id: int | None = None,
         args: Sequence[str] = (),
+        stop_only: bool = False,
     ) -> None:
         super().__init__(namespace=namespace, node_name=node_name)
+        self._stop_only = stop_only
         rclpy = _import_rclpy()
         # Imported here, not at the top: this module must import where ROS is absent.
         self._qos_mod = importlib.import_module("rclpy.qos")
@@ -176,7 +182,18 @@ class RclpyPort(RosPort):
                 domain_id=domain_id,
                 signal_handler_options=signals.SignalHandlerOptions.NO,
             )
-            self._node = self._node_cls(node_name, namespace=self.namespace, context=self._context)
+            if stop_only:
+                self._node = self._node_cls(
+                    node_name,
+                    namespace=self.namespace,
+                    context=self._context,
+                    start_parameter_services=False,
+                    enable_rosout=False,
+                )
+            else:
+                self._node = self._node_cls(
+                    node_name, namespace=self.namespace, context=self._context
+                )
         except Exception as exc:
             self._context.try_shutdown()
             raise RosPortError(f"cannot start an rclpy node {node_name!r}: {exc}") from exc
@@ -204,7 +221,9 @@ class RclpyPort(RosPort):
 
     def _open_lane(self, lane: str) -> None:
         try:
-            if lane == DEFAULT_LANE:
+            if self._stop_only:  # every lane waits on this node's wait set; none is spun
+                node, executor = self._node, None
+            elif lane == DEFAULT_LANE:
                 node = self._node
                 executor = self._executors.SingleThreadedExecutor(context=self._context)
                 executor.add_node(node)
@@ -349,11 +368,11 @@ class RclpyPort(RosPort):
 
     def _release(self) -> None:
         with self._lanes_lock:
-            lanes = list(self._lanes.items())
-        for name, lane in lanes:
+            lanes = list(self._lanes.values())
+        for lane in lanes:
             if lane.executor is not None:
                 lane.executor.shutdown(timeout_sec=1.0)
-            if name != DEFAULT_LANE:
+            if lane.node is not self._node:
                 lane.node.destroy_node()
         self._node.destroy_node()
         self._context.try_shutdown()
