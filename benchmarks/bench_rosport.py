@@ -60,6 +60,8 @@ ACK_EVERY = 5
 TOPIC = "/bench"
 ACK_TOPIC = "/bench_ack"
 CHILD_TIMEOUT_S = 120.0
+#: How long the subscriber waits for stragglers after the sender has sent its last, s.
+GRACE_S = 2.0
 
 _SIOCGIFFLAGS = 0x8913
 _IFF_UP = 0x1
@@ -120,6 +122,11 @@ class Link:
     def ack(self, count: int) -> None:
         raise NotImplementedError
 
+    def wait_heard(self) -> bool:
+        """Receiver: until its subscription hears a publisher (each end of a DDS match
+        discovers the other on its own; a message sent before both did is lost)."""
+        raise NotImplementedError
+
     def close(self) -> None:
         raise NotImplementedError
 
@@ -138,7 +145,10 @@ class RosportLink(Link):
             self._messages: list[Any] = []
         else:
             self._ack = self.port.publisher(ACK_TOPIC, Int16MultiArray)
-            self.port.subscribe(TOPIC, msg_type, on_message, lane=lane)
+            self._sub = self.port.subscribe(TOPIC, msg_type, on_message, lane=lane)
+
+    def wait_heard(self) -> bool:
+        return self._sub.wait_for_publishers(1, timeout_s=30.0)
 
     def prepare(self, count: int) -> None:
         self._messages = [self._make(seq) for seq in range(count)]
@@ -174,7 +184,7 @@ class RawLink(Link):
             self._node.create_subscription(Int16MultiArray, ACK_TOPIC, on_message, 10)
         else:
             self._writer = self._node.create_publisher(Int16MultiArray, ACK_TOPIC, 10)
-            self._node.create_subscription(msg_type, TOPIC, on_message, 10)
+            self._sub = self._node.create_subscription(msg_type, TOPIC, on_message, 10)
         self._executor = SingleThreadedExecutor(context=self._context)
         self._executor.add_node(self._node)
         self._stop = threading.Event()
@@ -193,6 +203,14 @@ class RawLink(Link):
     def wait_matched(self) -> bool:
         deadline = time.monotonic() + 30.0
         while self._writer.get_subscription_count() < 1:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def wait_heard(self) -> bool:
+        deadline = time.monotonic() + 30.0
+        while self._sub.get_publisher_count() < 1:
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)
@@ -246,11 +264,28 @@ class Receiver:
 
 
 def child(backend: str, kind: str, count: int, acks: bool) -> int:
-    """The subscriber process: print ``ready``, then the arrival times as JSON."""
+    """The subscriber process: print ``ready``; on ``go`` (the sender's publisher exists)
+    wait until the subscription hears it and print ``matched``; then record until every
+    message came, or ``GRACE_S`` after the sender says ``end``; print the arrival times
+    as JSON."""
     receiver = Receiver(backend, kind, count, acks)
+    ended = threading.Event()
     try:
         print("ready", flush=True)
-        receiver.done.wait(CHILD_TIMEOUT_S)
+        if sys.stdin.readline().strip() != "go":
+            return 1
+        print("matched" if receiver.link.wait_heard() else "unheard", flush=True)
+
+        def wait_end() -> None:
+            sys.stdin.readline()
+            ended.set()
+
+        threading.Thread(target=wait_end, daemon=True).start()
+        deadline = time.monotonic() + CHILD_TIMEOUT_S
+        while not receiver.done.wait(0.05) and time.monotonic() < deadline:
+            if ended.is_set():
+                receiver.done.wait(GRACE_S)  # stragglers; what is missing then was lost
+                break
     finally:
         receiver.link.close()
     print(json.dumps(receiver.times), flush=True)
@@ -323,17 +358,24 @@ def run_case(
         ],
         cwd=REPO,
         env=dict(os.environ, PYTHONPATH=str(REPO)),
-        stdin=subprocess.DEVNULL,
+        stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
     )  # fmt: skip
     try:
         assert proc.stdout is not None
+        assert proc.stdin is not None
         if proc.stdout.readline().strip() != "ready":
             raise RuntimeError(f"the {backend} subscriber did not start")
         sender = Sender(backend, kind)
         try:
+            proc.stdin.write("go\n")
+            proc.stdin.flush()
+            if proc.stdout.readline().strip() != "matched":
+                raise RuntimeError(f"the {backend} subscriber never heard the publisher")
             sent = sender.run(count, rate_hz)
+            proc.stdin.write("end\n")
+            proc.stdin.flush()
             out, _ = proc.communicate(timeout=CHILD_TIMEOUT_S)
         finally:
             sender.link.close()
@@ -367,6 +409,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     parser.add_argument("--latency-count", type=int, default=LATENCY_COUNT)
     parser.add_argument("--rate-count", type=int, default=RATE_COUNT)
+    parser.add_argument(
+        "--kind",
+        action="append",
+        choices=list(KINDS),
+        help="message kind to measure (repeatable; default: every one)",
+    )
     args = parser.parse_args(argv)
     if max(args.rate_count, args.latency_count) > 32767:
         parser.error("counts must fit an int16 sequence number (<= 32767)")
@@ -379,6 +427,7 @@ def main(argv: list[str] | None = None) -> int:
         backend, kind, count, acks = args.child
         return child(backend, kind, int(count), acks == "acks")
 
+    kinds = args.kind or list(KINDS)
     print(f"ROS port benchmark: Python {sys.version.split()[0]}, {os.cpu_count()} CPUs, loopback")
     print()
     print(
@@ -391,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(header)
     print("-" * len(header))
-    for kind in KINDS:
+    for kind in kinds:
         for label, backend in CASES:
             sent, arrived, calls = run_case(backend, kind, args.latency_count, LATENCY_RATE_HZ)
             lat = [(arrived[s] - sent[s]) / 1000 for s in sent if s in arrived]
@@ -409,7 +458,7 @@ def main(argv: list[str] | None = None) -> int:
     header = f"{'case':35} {'message':19} {'msgs/s':>8} {'lost':>5}"
     print(header)
     print("-" * len(header))
-    for kind in KINDS:
+    for kind in kinds:
         for label, backend in CASES:
             sent, arrived, _ = run_case(backend, kind, args.rate_count, None)
             seconds = (max(arrived.values()) - min(sent.values())) / 1e9

@@ -96,7 +96,9 @@ def test_bench_bridge_quick_prints_its_table() -> None:
 
 @pytest.mark.rclpy
 def test_bench_rosport_small_counts_print_its_tables() -> None:
-    out = run_benchmark("bench_rosport", "--latency-count", "50", "--rate-count", "200")
+    out = run_benchmark(
+        "bench_rosport", "--latency-count", "50", "--rate-count", "200", "--kind", "String"
+    )
     assert "Latency, publish -> subscriber callback" in out
     assert "Sustained rate, nothing lost" in out
     assert "raw rclpy (2 processes)" in out

@@ -97,7 +97,9 @@ def bridge_on(
     # The client subscribes first: the bridge publishes "ready" once, as soon as it has
     # shaken hands, which over a pty can be before a later subscriber exists. Over DDS the
     # two must also have discovered each other first: the link starts only then.
-    client = Client(make_port(backend, node_name="executor"))
+    # The client is the ground station's executor: on plain rclpy, as in production.
+    client_backend = "rclpy" if backend == "rclpy-process" else backend
+    client = Client(make_port(client_backend, node_name="executor"))
     node = BridgeNode(params, make_port(backend, node_name="rover_bridge"))
     try:
         client.wait_for_bridge()
