@@ -166,6 +166,16 @@ class RosportLink(Link):
         self.port.close()
 
 
+def _within(timeout_s: float, done: Callable[[], bool]) -> bool:
+    """Poll ``done`` every 10 ms until it holds (True) or ``timeout_s`` passes (False)."""
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 class RawLink(Link):
     """A plain rclpy node (none of our code): default QoS, a SingleThreadedExecutor
     spinning on a thread, as the ROS 2 tutorials write it."""
@@ -201,20 +211,10 @@ class RawLink(Link):
         self._samples = [self._make(seq) for seq in range(count)]
 
     def wait_matched(self) -> bool:
-        deadline = time.monotonic() + 30.0
-        while self._writer.get_subscription_count() < 1:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.01)
-        return True
+        return _within(30.0, lambda: self._writer.get_subscription_count() >= 1)
 
     def wait_heard(self) -> bool:
-        deadline = time.monotonic() + 30.0
-        while self._sub.get_publisher_count() < 1:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.01)
-        return True
+        return _within(30.0, lambda: self._sub.get_publisher_count() >= 1)
 
     def send(self, seq: int) -> None:
         self._writer.publish(self._samples[seq])
