@@ -83,8 +83,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--ros-backend",
         choices=("rclpy-process", "rclpy", "inprocess"),
-        help="ROS port backend: rclpy-process (the default: the ROS 2 node in a child "
-        "process, so that no middleware call can stall the controller link), rclpy (the "
+        help="ROS port backend: rclpy-process (the default: the ROS 2 nodes in child "
+        "processes, so that no middleware call can stall the controller link), rclpy (the "
         "node in this process) or inprocess (tests only)",
     )
     p.add_argument(

@@ -83,7 +83,7 @@ class BridgeParams:
     namespace: str = _p("", "the node's namespace")
     ros_backend: str = _p(
         "rclpy-process",
-        "ROS port backend: rclpy-process (ROS 2 in a child process: no middleware call can "
+        "ROS port backend: rclpy-process (ROS 2 in child processes: no middleware call can "
         "stall the controller link), rclpy (ROS 2 in this process) or inprocess (tests)",
     )
     topic_wheel_instructions: str = _p(WHEEL_INSTRUCTIONS, "steps in (Int16MultiArray)")
