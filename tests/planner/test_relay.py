@@ -86,10 +86,14 @@ def test_uplink_and_downlink_are_delayed_and_keep_order(ports: list[RosPort]) ->
         for far_end in far_ends:
             assert far_end.wait_for_publishers(1, timeout_s=10.0), far_end.topic
         sent = time.monotonic()
-        for i in range(20):  # paced: a burst over the keep-last-10 QoS would drop, as in ROS
+        for i in range(20):
             steps.publish(Int16MultiArray(data=(1, 10, i)))
             status.publish(String(data=f"s{i}"))
-            _wait_handled(relay, 2 * (i + 1))
+            # Paced by the far ends: the relay releases what it holds after the delay, and
+            # a burst of them over keep-last-10 QoS to a reader slowed by a loaded
+            # machine would drop, as in ROS (it lost 6 of 20 so under two test workers).
+            up.wait(i + 1)
+            down.wait(i + 1)
         got_up = up.wait(20)
         got_down = down.wait(20)
         assert relay.forwarded["up:wheel_instructions"] == 20

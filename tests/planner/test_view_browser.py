@@ -54,6 +54,7 @@ def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
         ) from None
 
 
+@pytest.mark.serial
 def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
     recording = tmp_path / "demo.mcap"
     demo = Child(
