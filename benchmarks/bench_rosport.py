@@ -123,8 +123,13 @@ class Link:
         raise NotImplementedError
 
     def wait_heard(self) -> bool:
-        """Receiver: until its subscription hears a publisher (each end of a DDS match
-        discovers the other on its own; a message sent before both did is lost)."""
+        """Receiver: until its subscription hears a publisher and its acknowledgements
+        reach a subscription (each end of a DDS match discovers the other on its own; a
+        message sent before both did is lost)."""
+        raise NotImplementedError
+
+    def wait_acks_heard(self) -> bool:
+        """Sender: until its subscription to the acknowledgements hears a publisher."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -141,14 +146,19 @@ class RosportLink(Link):
         self._make = make
         if role == "sender":
             self._pub = self.port.publisher(TOPIC, msg_type)
-            self.port.subscribe(ACK_TOPIC, Int16MultiArray, on_message)
+            self._ack_sub = self.port.subscribe(ACK_TOPIC, Int16MultiArray, on_message)
             self._messages: list[Any] = []
         else:
             self._ack = self.port.publisher(ACK_TOPIC, Int16MultiArray)
             self._sub = self.port.subscribe(TOPIC, msg_type, on_message, lane=lane)
 
     def wait_heard(self) -> bool:
-        return self._sub.wait_for_publishers(1, timeout_s=30.0)
+        return self._sub.wait_for_publishers(1, timeout_s=30.0) and (
+            self._ack.wait_for_subscribers(1, timeout_s=30.0)
+        )
+
+    def wait_acks_heard(self) -> bool:
+        return self._ack_sub.wait_for_publishers(1, timeout_s=30.0)
 
     def prepare(self, count: int) -> None:
         self._messages = [self._make(seq) for seq in range(count)]
@@ -191,7 +201,9 @@ class RawLink(Link):
         self._node = rclpy.create_node(f"raw_{role}", context=self._context)
         if role == "sender":
             self._writer = self._node.create_publisher(msg_type, TOPIC, 10)
-            self._node.create_subscription(Int16MultiArray, ACK_TOPIC, on_message, 10)
+            self._ack_sub = self._node.create_subscription(
+                Int16MultiArray, ACK_TOPIC, on_message, 10
+            )
         else:
             self._writer = self._node.create_publisher(Int16MultiArray, ACK_TOPIC, 10)
             self._sub = self._node.create_subscription(msg_type, TOPIC, on_message, 10)
@@ -214,7 +226,12 @@ class RawLink(Link):
         return _within(30.0, lambda: self._writer.get_subscription_count() >= 1)
 
     def wait_heard(self) -> bool:
-        return _within(30.0, lambda: self._sub.get_publisher_count() >= 1)
+        return _within(30.0, lambda: self._sub.get_publisher_count() >= 1) and _within(
+            30.0, lambda: self._writer.get_subscription_count() >= 1
+        )
+
+    def wait_acks_heard(self) -> bool:
+        return _within(30.0, lambda: self._ack_sub.get_publisher_count() >= 1)
 
     def send(self, seq: int) -> None:
         self._writer.publish(self._samples[seq])
@@ -373,6 +390,8 @@ def run_case(
             proc.stdin.flush()
             if proc.stdout.readline().strip() != "matched":
                 raise RuntimeError(f"the {backend} subscriber never heard the publisher")
+            if not sender.link.wait_acks_heard():
+                raise RuntimeError(f"the {backend} sender never heard the acknowledgements")
             sent = sender.run(count, rate_hz)
             proc.stdin.write("end\n")
             proc.stdin.flush()
