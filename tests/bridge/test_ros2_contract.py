@@ -25,6 +25,7 @@ from typing import Any
 
 import pytest
 
+from tests.bridge.conftest import IN_VCAN_VM
 from tests.child import Child
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
@@ -307,12 +308,18 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         )
         children.append(emulator)
         assert emulator.wait_for("CAN ") == "CAN socketcan:vcan0 node 2"
+        # In the VM (software CPU, two vCPUs) the bridge's two ROS 2 child processes took
+        # enough CPU to starve its link past the 3-beat loss check (once, in ci12); there
+        # the node stays in the bridge's process. The host tests the default backend with
+        # a `rover bridge` process (test_node.py, test_process_port.py).
+        backend = "rclpy" if IN_VCAN_VM else "rclpy-process"
         bridge = Child(
-            ["bridge", "--can", "socketcan:vcan0", "--node", "2", "--record", str(bridge_log)],
+            ["bridge", "--can", "socketcan:vcan0", "--node", "2", "--record", str(bridge_log),
+             "--ros-backend", backend],
             env,
-        )
+        )  # fmt: skip
         children.append(bridge)
-        assert bridge.wait_for("BRIDGE ").endswith(" rclpy-process")
+        assert bridge.wait_for("BRIDGE ").endswith(f" {backend}")
         client.wait_for_bridge()
         for command, speed, distance in ((1, 30, 2300), (3, 30, 3000), (2, 30, 2300)):
             got = client.step(command, speed, distance)  # FWD, LEFT, REV: one at a time
