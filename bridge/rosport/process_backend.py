@@ -391,7 +391,6 @@ class ProcessPort(RosPort):
         self._ser = _serialization()
         self._readers: dict[tuple[str, int], Subscription[Any]] = {}
         self._readers_lock = threading.Lock()
-        self._failure: str | None = None
         # Both start at once (about a second each to import rclpy and make a node).
         children: dict[str, _Child] = {}
         try:
@@ -401,7 +400,7 @@ class ProcessPort(RosPort):
                     ("init", self.namespace, name, domain_id, list(args), lane == STOP_LANE),
                     self._count_dropped,
                     self._answer_on_set,
-                    self._fail,
+                    self._log_failure,
                 )
             deadline = time.monotonic() + START_TIMEOUT_S
             middleware = [child.await_ready(deadline) for child in children.values()]
@@ -428,12 +427,9 @@ class ProcessPort(RosPort):
     @property
     def failure(self) -> str | None:
         """Why a child is gone when it ended without being closed; else ``None``."""
-        return self._failure
+        return next((c.failure for c in self._children.values() if c.failure), None)
 
-    def _fail(self, why: str) -> None:
-        if self._stopping.is_set():
-            return
-        self._failure = why
+    def _log_failure(self, why: str) -> None:
         logger.error("%s: a ROS 2 child process failed: %s", self, why)
 
     def _answer_on_set(self, values: dict[str, Any]) -> str | None:
