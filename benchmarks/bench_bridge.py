@@ -43,7 +43,6 @@ from functools import partial
 from typing import IO
 
 from benchmarks.common import pty_round_trip, summary, table
-from bridge.interpreter import use_short_switch_interval
 from bridge.link import ControllerLink, LinkConfig, StepRequest
 from bridge.node import BridgeNode
 from bridge.params import load_params
@@ -55,6 +54,8 @@ from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.messages import Command
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.runtime.interpreter import use_short_switch_interval
+from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
 
 
 class Statuses:
@@ -124,9 +125,16 @@ class EmulatorProcess:
     """The emulator serving a pty in a child process (``--emulator-child``), driven over
     its stdin and stdout: one command line, one answer line."""
 
-    def __init__(self, seed: int) -> None:
+    def __init__(self, seed: int, rt_priority: int = 0) -> None:
         self._child = subprocess.Popen(
-            [sys.executable, "-m", "benchmarks.bench_bridge", "--emulator-child", f"--seed={seed}"],
+            [
+                sys.executable,
+                "-m",
+                "benchmarks.bench_bridge",
+                "--emulator-child",
+                f"--seed={seed}",
+                f"--rt-priority={rt_priority}",
+            ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -183,9 +191,11 @@ class EmulatorProcess:
         self.close()
 
 
-def emulator_child(seed: int) -> int:
-    """Child process: the emulator on a pty; prints ``DEVICE <path>``, then answers
-    ``hz N``, ``count`` and ``wait INDEX TIMEOUT`` lines from stdin until it closes."""
+def emulator_child(seed: int, rt_priority: int = 0) -> int:
+    """Child process: the emulator on a pty (at this real-time priority, 0: none, as
+    ``rover emulate --rt-priority``); prints ``DEVICE <path>``, then answers ``hz N``,
+    ``count`` and ``wait INDEX TIMEOUT`` lines from stdin until it closes."""
+    apply_realtime(RealtimeConfig(rt_priority))
     rover = load_rover()
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=seed)
     with Emulator(model, SerialFrontEnd(seed=seed)) as emu:
@@ -292,16 +302,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--stop-publisher", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--emulator-child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--rt-priority", type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.stop_publisher:
         return stop_publisher()
     if args.emulator_child:
-        return emulator_child(args.seed)
+        return emulator_child(args.seed, args.rt_priority)
     if args.trials < 1:
         parser.error("--trials must be >= 1")
     trials, ros_trials = (3, 3) if args.quick else (args.trials, max(20, args.trials // 2))
     rtt_samples, steps = (200, 30) if args.quick else (2000, 300)
-    use_short_switch_interval()  # as rover bridge does (bridge/interpreter.py)
+    use_short_switch_interval()  # as rover bridge does (firmware_proto/runtime/interpreter.py)
     rng = random.Random(args.seed)
     rover = load_rover()
     rows = [

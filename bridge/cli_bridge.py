@@ -52,6 +52,20 @@ _OPTIONS: list[tuple[str, str, type, str]] = [
     ("--reconnect-max", "reconnect_max_s", float, "longest reconnect delay, s (default 2)"),
     ("--rover", "rover_description", str, "rover description TOML (default: the packaged one)"),
     (
+        "--rt-priority",
+        "rt_priority",
+        int,
+        "real-time priority of the bridge's process, which holds the controller link: "
+        "SCHED_RR with memory locked where permitted (default 20; 0 = normal scheduling); "
+        "without permission the bridge says so once and runs on (docs/realtime.md)",
+    ),
+    (
+        "--stall-ms",
+        "stall_ms",
+        float,
+        "log a stall of the bridge or a link thread longer than MS with its stack (default 100)",
+    ),
+    (
         "--record",
         "record",
         str,
@@ -80,6 +94,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     for flag, dest, kind, text in _OPTIONS:
         p.add_argument(flag, dest=dest, type=kind, help=text)
+    p.add_argument(
+        "--no-realtime",
+        dest="rt_priority",
+        action="store_const",
+        const=0,
+        help="normal scheduling (the same as --rt-priority 0)",
+    )
     p.add_argument(
         "--ros-backend",
         choices=("rclpy-process", "rclpy", "inprocess"),
@@ -234,11 +255,11 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     (:func:`firmware_proto.cli.rosargs.split_ros_args`).
     """
     from bridge.errors import DeviceBusyError
-    from bridge.interpreter import use_short_switch_interval
     from bridge.node import BridgeNode
     from bridge.rosport import BackendUnavailableError, open_port
     from bridge.serial_transport import refuse_if_in_use
     from bridge.transport import open_transport
+    from firmware_proto.runtime import ProcessRuntime, RuntimeOptions, stall_log_path
 
     try:
         params, layer = resolve_params(args, ros_args)
@@ -255,26 +276,37 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     options: dict[str, Any] = {}
     if params.ros_backend in ("rclpy", "rclpy-process") and ros_args:
         options["args"] = ["--ros-args", *ros_args]
-    use_short_switch_interval()  # a STOP must not wait 5 ms for the interpreter lock
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    try:
-        port = open_port(
-            params.ros_backend, namespace=params.namespace, node_name=layer.node_name, **options
+    # First, before any thread starts: every thread of the link inherits the policy.
+    runtime = ProcessRuntime(
+        RuntimeOptions(
+            name="bridge",
+            priority=params.rt_priority,
+            stall_threshold_s=params.stall_ms / 1e3,
+            stall_log=stall_log_path(),
+            short_switch=True,  # a STOP must not wait 5 ms for the interpreter lock
         )
-    except BackendUnavailableError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 1
-    end = time.monotonic() + args.duration if args.duration > 0 else math.inf
-    with port, BridgeNode(params, port):
-        print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
-        while not done.wait(min(_FAILURE_POLL_S, max(0.0, end - time.monotonic()))):
-            if port.failure is not None:
-                print(f"{prog}: error: the ROS 2 node failed: {port.failure}", file=sys.stderr)
-                return 1
-            if time.monotonic() >= end:
-                break
+    )
+    with runtime:
+        print(runtime.line(), file=sys.stderr, flush=True)
+        try:
+            port = open_port(
+                params.ros_backend, namespace=params.namespace, node_name=layer.node_name, **options
+            )
+        except BackendUnavailableError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return 1
+        end = time.monotonic() + args.duration if args.duration > 0 else math.inf
+        with port, BridgeNode(params, port):
+            print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
+            while not done.wait(min(_FAILURE_POLL_S, max(0.0, end - time.monotonic()))):
+                if port.failure is not None:
+                    print(f"{prog}: error: the ROS 2 node failed: {port.failure}", file=sys.stderr)
+                    return 1
+                if time.monotonic() >= end:
+                    break
     return 0
 
 

@@ -6,9 +6,10 @@
 - ``rover_bridge: link``: state, device, round-trip time, CRC/resync/drop/retry counts,
   heartbeat age and missed beats, reconnects, receive-queue overflow, last STOP latency
   (sent -> acknowledged), the medium's own state and error count (a CAN bus's
-  ``error_active`` ... ``bus_off``). ERROR when the link is down, lost or mismatched;
-  WARN while handshaking, while the medium reports trouble (a CAN bus error-warning or
-  error-passive) or after no-ack faults.
+  ``error_active`` ... ``bus_off``), the longest and 99th-percentile gaps between
+  heartbeats received and sent, and this process's stalls (docs/realtime.md). ERROR
+  when the link is down, lost or mismatched; WARN while handshaking, while the medium
+  reports trouble (a CAN bus error-warning or error-passive) or after no-ack faults.
 - ``rover_bridge: controller``: controller state, latch and what holds it, the fault
   conditions active now, watchdog trips, queue, firmware, schema hashes, boot nonce,
   stopping distance. ERROR while a stopping fault's condition is active or a fault holds
@@ -111,6 +112,12 @@ def diagnostic_array(
                 "last_error",
                 "medium_state",
                 "medium_errors",
+                "heartbeat_rx_gap_max_ms",
+                "heartbeat_rx_gap_p99_ms",
+                "heartbeat_tx_gap_max_ms",
+                "heartbeat_tx_gap_p99_ms",
+                "stalls",
+                "stall_max_ms",
             ],
         ),
     )

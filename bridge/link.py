@@ -77,6 +77,7 @@ from bridge.rosport.contract import (
 )
 from bridge.transport import Transport, open_transport
 from firmware_proto.faults import STOPPING_FAULTS, fault_bit
+from firmware_proto.gapstats import GapStats
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     ACK_TIMEOUT_MS,
@@ -112,6 +113,7 @@ from firmware_proto.messages import (
     Stopped,
     StopSource,
 )
+from firmware_proto.runtime import stall
 
 __all__ = ["ControllerLink", "LinkConfig", "LinkDiagnostics", "LinkState", "StepRequest"]
 
@@ -260,6 +262,21 @@ class LinkDiagnostics:
     latch_fault: str = ""
     """The last stopping fault other than WATCHDOG the controller raised (what
     ``latch_fault`` most likely stands for), ``""`` if none since the link started."""
+    heartbeat_rx_gap_max_ms: float | None = None
+    """Longest gap between two controller HEARTBEATs received on one connection, ms
+    (their period is 100 ms; a gap longer than the link-lost limit loses the link)."""
+    heartbeat_rx_gap_p99_ms: float | None = None
+    """99th percentile of the last 1,000 such gaps, ms."""
+    heartbeat_tx_gap_max_ms: float | None = None
+    """Longest gap between two HOST_HEARTBEATs written, ms (their period is
+    ``heartbeat_s``; the controller's watchdog stops the rover after 250 ms without a
+    frame)."""
+    heartbeat_tx_gap_p99_ms: float | None = None
+    """99th percentile of the last 1,000 such gaps, ms."""
+    stalls: int = 0
+    """Stalls of this process or its loops over the stall threshold (docs/realtime.md)."""
+    stall_max_ms: float = 0.0
+    """The longest of them, ms."""
 
 
 @dataclass
@@ -368,6 +385,8 @@ class ControllerLink:
         self._hello_sent = False  # a HELLO went out in the current handshake
         self.last_stop_written: float | None = None
         """``time.monotonic()`` when the last STOP frame was handed to the OS, whole."""
+        self._hb_rx_gaps = GapStats(config.controller_heartbeat_s)
+        self._hb_tx_gaps = GapStats(config.heartbeat_s)
 
     # -- lifecycle ----------------------------------------------------------------------
     def reconfigure(self, config: LinkConfig) -> None:
@@ -539,7 +558,15 @@ class ControllerLink:
 
     # -- supervision, on the timer thread -----------------------------------------------------
     def _timer(self) -> None:
+        beat = stall.watch("link-timer")
+        try:
+            self._timer_loop(beat)
+        finally:
+            stall.forget(beat)
+
+    def _timer_loop(self, beat: stall.Beat) -> None:
         while not self._stopping.is_set():
+            beat.tick()
             if self._failure is not None:
                 self._handle_failure()
             now = time.monotonic()
@@ -559,10 +586,19 @@ class ControllerLink:
     def _write_queued(self) -> None:
         """Writer thread: write the queued frames in order, outside the lock. A frame
         queued for a connection that has since failed or closed is discarded."""
+        beat = stall.watch("link-tx")
+        try:
+            self._write_loop(beat)
+        finally:
+            stall.forget(beat)
+
+    def _write_loop(self, beat: stall.Beat) -> None:
         while not self._stopping.is_set():
+            beat.tick()
             self._tx_wake.wait(0.05)
             self._tx_wake.clear()
             while not self._stopping.is_set():
+                beat.tick()
                 with self._lock:
                     if not self._tx:
                         break
@@ -570,6 +606,9 @@ class ControllerLink:
                     if transport is not self._transport:
                         continue
                 sent = self._send(transport, msg)
+                if sent and isinstance(msg, HostHeartbeat):
+                    with self._lock:
+                        self._hb_tx_gaps.event(time.monotonic())
                 if step is not None:
                     with self._lock:
                         step.unwritten -= 1
@@ -622,6 +661,8 @@ class ControllerLink:
                 self._hello_sent = False
                 self._last_hello = 0.0
                 self._last_hb_rx = None
+                self._hb_rx_gaps.restart()
+                self._hb_tx_gaps.restart()
                 logger.info("connected to %s; handshaking", self.config.url)
         if stopping:
             transport.close()  # outside the lock: it joins the dispatcher, which may want it
@@ -845,6 +886,7 @@ class ControllerLink:
 
     def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
         self._last_hb_rx = t
+        self._hb_rx_gaps.event(t)
         self._heartbeat = hb
         self._ctrl_latched = bool(hb.stop_latched)
         self._ctrl_state = hb.state
@@ -1113,6 +1155,8 @@ class ControllerLink:
             c = self._counters
             now = time.monotonic()
             age = now - self._last_hb_rx if self._last_hb_rx is not None else None
+            rx_gaps, tx_gaps = self._hb_rx_gaps.summary(), self._hb_tx_gaps.summary()
+            monitor = stall.current_monitor()
             return LinkDiagnostics(
                 state=self._state.value,
                 url=self.config.url,
@@ -1169,6 +1213,12 @@ class ControllerLink:
                 latch_fault=FaultCode(self._last_stopping_fault).name
                 if self._last_stopping_fault is not None
                 else "",
+                heartbeat_rx_gap_max_ms=rx_gaps.max_ms,
+                heartbeat_rx_gap_p99_ms=rx_gaps.p99_ms,
+                heartbeat_tx_gap_max_ms=tx_gaps.max_ms,
+                heartbeat_tx_gap_p99_ms=tx_gaps.p99_ms,
+                stalls=len(monitor.records) if monitor is not None else 0,
+                stall_max_ms=monitor.longest_ms if monitor is not None else 0.0,
             )
 
 

@@ -33,6 +33,8 @@ from bridge.rosport.contract import (
     WHEEL_INSTRUCTIONS,
 )
 from bridge.rosport.parameters import ParameterSpec
+from firmware_proto.runtime.realtime import BRIDGE_PRIORITY
+from firmware_proto.runtime.stall import DEFAULT_STALL_THRESHOLD_S
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -105,6 +107,16 @@ class BridgeParams:
         "traffic log file ('' records nothing): a serial frame log on a serial link, a "
         "python-can log chosen by suffix on CAN (docs/traffic-logs.md)",
     )
+    rt_priority: int = _p(
+        BRIDGE_PRIORITY,
+        "real-time priority of the bridge's process, which holds the controller link "
+        "(SCHED_RR, memory locked, where permitted; 0 = normal scheduling; "
+        "docs/realtime.md)",
+    )
+    stall_ms: float = _p(
+        DEFAULT_STALL_THRESHOLD_S * 1e3,
+        "log a stall of the bridge's process or of a link thread longer than this, ms",
+    )
 
     @property
     def url(self) -> str:
@@ -142,6 +154,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     "reconnect_min_s": (0.01, 60.0),
     "reconnect_max_s": (0.01, 600.0),
     "diagnostics_hz": (0.1, 50.0),
+    "rt_priority": (0, 99),
+    "stall_ms": (1.0, 60_000.0),
 }
 _BACKENDS = ("rclpy-process", "rclpy", "inprocess")
 

@@ -69,6 +69,7 @@ from firmware_proto.linkio.errors import LinkUrlError
 from firmware_proto.linkio.urls import SERIAL_SCHEMES, is_can_url
 from firmware_proto.message import Message
 from firmware_proto.messages import Encoders, Imu, Pose, Stop, WheelSpeeds
+from firmware_proto.runtime import stall
 
 __all__ = [
     "RX_QUEUE_DEPTH",
@@ -282,7 +283,15 @@ class Transport:
     # -- the two threads ------------------------------------------------------------------
     def _reader(self) -> None:
         """Reader thread: read and decode (``_read``), stamp, queue. No callbacks."""
+        beat = stall.watch(f"{self.kind}-rx")
+        try:
+            self._read_loop(beat)
+        finally:
+            stall.forget(beat)
+
+    def _read_loop(self, beat: stall.Beat) -> None:
         while not self._stop.is_set():
+            beat.tick()
             try:
                 received = self.endpoint.read(_POLL_S)
             except (OSError, ValueError) as exc:
@@ -329,8 +338,16 @@ class Transport:
     def _dispatch(self, on_message: OnMessage, on_error: OnError) -> None:
         """Dispatcher thread: hand queued messages to ``on_message`` in order; report the
         reader's failure through ``on_error`` once, after them."""
+        beat = stall.watch(f"{self.kind}-dispatch")
+        try:
+            self._dispatch_loop(on_message, on_error, beat)
+        finally:
+            stall.forget(beat)
+
+    def _dispatch_loop(self, on_message: OnMessage, on_error: OnError, beat: stall.Beat) -> None:
         rx = self._rx
         while True:
+            beat.tick()
             try:
                 item = rx.get(timeout=_POLL_S)
             except queue.Empty:

@@ -16,6 +16,9 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
+
 if TYPE_CHECKING:
     from emulator.controller import ControllerConfig, ControllerModel
     from emulator.frontend import FrontEnd
@@ -153,6 +156,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "chosen by suffix with --can (.log: candump); see docs/traffic-logs.md"
         ),
     )
+    add_runtime_arguments(p, EMULATOR_PRIORITY)
 
 
 def controller_config(args: argparse.Namespace) -> ControllerConfig:
@@ -270,14 +274,28 @@ def _serve(
     frontend: FrontEnd,
     faults: list[FaultSpec],
 ) -> int:
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    # Everything is checked; before any thread starts, so that all inherit the policy.
+    runtime = ProcessRuntime(runtime_options(args, "emulator", EMULATOR_PRIORITY))
+    with runtime:
+        print(runtime.line(), file=sys.stderr, flush=True)
+        return _serve_emulator(args, model, frontend, faults, done)
+
+
+def _serve_emulator(
+    args: argparse.Namespace,
+    model: ControllerModel,
+    frontend: FrontEnd,
+    faults: list[FaultSpec],
+    done: threading.Event,
+) -> int:
     from emulator.can_frontend import CanFrontEnd
     from emulator.control import ControlServer
     from emulator.engine import Emulator
     from emulator.serial_frontend import SerialFrontEnd
 
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
     emulator = Emulator(
         model,
         frontend,

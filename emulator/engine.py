@@ -7,6 +7,19 @@ on the inbox. A message from the host is handled as soon as it arrives, not at t
 next tick: a STOP has zeroed the wheel targets within tens of microseconds of its
 frame's arrival (:attr:`Emulator.stop_reactions`), well inside the tick it arrived in.
 
+**Faithful when late.** A microcontroller is never descheduled; the emulator's process
+is. When the control thread wakes late it runs the ticks it owes in a burst, and plays
+each message from the host into twin time in order with them: a message is handled
+before the first tick that ends after it arrived (its arrival is stamped by the front
+end's reader), not at the start of the burst. So the watchdog, stall detection and a
+STOP's place in the twin see the host's timing, not the emulator's: a late emulator
+invents no watchdog trip, and a host that really fell silent trips it as before. A
+control loop more than :data:`MAX_BACKLOG_S` behind lets twin time slip instead of
+bursting. Every catch-up is counted, with how late it was (:class:`EmulatorStatus`),
+and so are the gaps between the host's heartbeats and the emulator's own, on the wall
+clock. The programs that serve the emulator (``rover emulate``) give all its threads
+real-time priority where permitted (docs/realtime.md).
+
 Commands from other threads (fault injection, status, unplug) go through
 :meth:`Emulator.call`, which runs a function on the control thread and returns its
 result. :meth:`Emulator.close` is idempotent and joins every thread it started.
@@ -25,6 +38,7 @@ import math
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -43,8 +57,18 @@ from emulator.injection import (
     ScheduledFault,
     parse_fault,
 )
+from firmware_proto.gapstats import GapStats, GapSummary
 from firmware_proto.message import Message
-from firmware_proto.messages import ControllerState, FaultCode, Stop
+from firmware_proto.messages import (
+    CONTROLLER_HEARTBEAT_PERIOD_MS,
+    HOST_HEARTBEAT_PERIOD_MS,
+    ControllerState,
+    FaultCode,
+    Heartbeat,
+    HostHeartbeat,
+    Stop,
+)
+from firmware_proto.runtime import stall
 
 __all__ = ["MAX_BACKLOG_S", "Emulator", "EmulatorStatus"]
 
@@ -99,6 +123,16 @@ class EmulatorStatus:
     """Injected faults in force (:meth:`~emulator.injection.Injector.in_force`)."""
     latch: tuple[str, ...] = ()
     """What holds the latch (``stop``, ``watchdog``, ``fault``), sorted; empty: none."""
+    catchups: int = 0
+    """Times the control loop woke late and ran more than one tick at once."""
+    late_max_ms: float = 0.0
+    """How late the latest-running tick ran, ms (wall)."""
+    late_p99_ms: float = 0.0
+    """99th percentile of the lateness of the last 1,000 catch-ups, ms."""
+    host_heartbeat_gaps: GapSummary | None = None
+    """Gaps between the host's HOST_HEARTBEATs as they arrived (wall)."""
+    heartbeat_gaps: GapSummary | None = None
+    """Gaps between this controller's HEARTBEATs as they were sent (wall)."""
 
     def line(self) -> str:
         """One status line for a terminal: controller faults (``faults=``) and the
@@ -111,7 +145,7 @@ class EmulatorStatus:
             f"t={self.time_s:8.2f}s {self.state:<12} x={self.x_m:+7.3f} y={self.y_m:+7.3f} "
             f"yaw={self.yaw_deg:+7.1f} wheels={left:+.2f}/{right:+.2f} m/s "
             f"q={self.queue_depth} faults={faults} injected={injected} "
-            f"rx={self.rx_frames} err={self.rx_errors}{hit}"
+            f"rx={self.rx_frames} err={self.rx_errors} late={self.late_max_ms:.0f}ms{hit}"
         )
 
 
@@ -162,6 +196,17 @@ class Emulator:
         self.stop_handled: list[float] = []
         """``time.monotonic()`` when each STOP had zeroed the targets."""
         self.overruns = 0
+        """Times the control loop fell more than :data:`MAX_BACKLOG_S` behind and let twin
+        time slip."""
+        self.catchups = 0
+        self._late_max_s = 0.0
+        self._late: deque[float] = deque(maxlen=1000)
+        self.host_heartbeat_gaps = GapStats(HOST_HEARTBEAT_PERIOD_MS / 1000.0)
+        """Gaps between the host's heartbeats as they arrived (control thread only)."""
+        self.heartbeat_gaps = GapStats(CONTROLLER_HEARTBEAT_PERIOD_MS / 1000.0 / speed_factor)
+        """Gaps between the controller's heartbeats as they were sent (control thread)."""
+        self._held: deque[_Received] = deque()
+        """Messages taken from the inbox that wait for the tick they arrived in."""
         self._inbox: queue.SimpleQueue[_Received | _Call] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -261,16 +306,21 @@ class Emulator:
 
     def _send(self, messages: list[Message]) -> None:
         if messages:
+            if any(isinstance(m, Heartbeat) for m in messages):
+                self.heartbeat_gaps.event(time.monotonic())
             self.frontend.send(messages)
 
-    def _drain(self, first: _Received | _Call | None) -> None:
+    def _drain(self, first: _Received | _Call | None, until: float = math.inf) -> None:
+        """Take everything from the inbox: run each call at once; handle each message
+        that arrived by ``until`` (wall, ``time.monotonic()``) in arrival order, and hold
+        the later ones for the ticks they arrived in."""
         item = first
         while True:
             if item is None:
                 try:
                     item = self._inbox.get_nowait()
                 except queue.Empty:
-                    return
+                    break
             if isinstance(item, _Call):
                 if item.future.set_running_or_notify_cancel():
                     try:
@@ -278,15 +328,36 @@ class Emulator:
                     except BaseException as exc:
                         item.future.set_exception(exc)
             else:
-                out = self.model.handle(item.message)
-                if isinstance(item.message, Stop):
-                    handled = time.monotonic()
-                    self.stop_reactions.append(handled - item.arrived)
-                    self.stop_handled.append(handled)
-                self._send(out)
+                self._held.append(item)
             item = None
+        held = self._held
+        while held and held[0].arrived <= until:
+            self._handle(held.popleft())
+
+    def _handle(self, item: _Received) -> None:
+        if isinstance(item.message, HostHeartbeat):
+            self.host_heartbeat_gaps.event(item.arrived)
+        out = self.model.handle(item.message)
+        if isinstance(item.message, Stop):
+            handled = time.monotonic()
+            self.stop_reactions.append(handled - item.arrived)
+            self.stop_handled.append(handled)
+        self._send(out)
 
     def _run(self) -> None:
+        beat = stall.watch("emulator-control")
+        try:
+            self._loop(beat)
+        finally:
+            stall.forget(beat)
+
+    def _catch_up(self, late_s: float) -> None:
+        """The loop woke ``late_s`` after its next tick was due and owes more than one."""
+        self.catchups += 1
+        self._late.append(late_s)
+        self._late_max_s = max(self._late_max_s, late_s)
+
+    def _loop(self, beat: stall.Beat) -> None:
         model = self.model
         tick_wall = model.twin.dt_s / self.speed_factor
         self._send(model.boot())
@@ -295,7 +366,11 @@ class Emulator:
         next_status = 0
         try:
             while not self._stop.is_set():
-                due = int((time.monotonic() - t0) / tick_wall) - ticks
+                beat.tick()
+                now = time.monotonic()
+                due = int((now - t0) / tick_wall) - ticks
+                if due > 1:
+                    self._catch_up(now - (t0 + (ticks + 1) * tick_wall))
                 if due * tick_wall > MAX_BACKLOG_S:
                     self.overruns += 1
                     if self.overruns == 1 or self.overruns % 100 == 0:
@@ -305,7 +380,9 @@ class Emulator:
                     t0 += (due - 1) * tick_wall
                     due = 1
                 for _ in range(due):
-                    self._drain(None)
+                    # The tick stands for wall time up to its end: what arrived by then
+                    # comes first, in order; later arrivals wait for their own tick.
+                    self._drain(None, until=t0 + (ticks + 1) * tick_wall)
                     out = model.tick()
                     out += self.schedule.poll()
                     ticks += 1
@@ -314,6 +391,8 @@ class Emulator:
                         model.rx_error(errors - self._rx_errors_seen)
                         self._rx_errors_seen = errors
                     self._send(out)
+                if self._held:  # arrived during the last owed tick: now is their time
+                    self._drain(None)
                 if ticks >= next_status:
                     self._status = self._snapshot()
                     next_status = ticks + max(1, round(0.05 / model.twin.dt_s))
@@ -342,6 +421,7 @@ class Emulator:
 
     def _snapshot(self) -> EmulatorStatus:
         m = self.model
+        late = sorted(self._late)
         pose = m.twin.pose
         hit = m.twin.first_collision
         stats = self.frontend.stats
@@ -366,6 +446,11 @@ class Emulator:
             collision=hit.obstacle_id if hit else None,
             injected=self.injector.in_force(),
             latch=tuple(sorted(cause.value for cause in m.latch_causes)),
+            catchups=self.catchups,
+            late_max_ms=self._late_max_s * 1e3,
+            late_p99_ms=late[max(0, math.ceil(0.99 * len(late)) - 1)] * 1e3 if late else 0.0,
+            host_heartbeat_gaps=self.host_heartbeat_gaps.summary(),
+            heartbeat_gaps=self.heartbeat_gaps.summary(),
         )
 
     @property

@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
 
+from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+
 __all__ = ["add_arguments", "main", "register"]
 
 EXIT_APPROVED = 0
@@ -101,6 +103,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--config", metavar="TOML", help="settings file with a [gate] table")
     _add_playback_options(p)
+    add_runtime_arguments(p, 0)
 
 
 def _add_check(p: argparse.ArgumentParser) -> None:
@@ -164,7 +167,7 @@ def _serve(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with GateServer(config) as gate:
+        with ProcessRuntime(runtime_options(args, "gate")), GateServer(config) as gate:
             print(f"GATE {gate.url}", flush=True)
             while not stop.wait(3600.0):
                 pass

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
 
+from firmware_proto.runtime import add_runtime_arguments
 from planner.cli_view import add_view_arguments
 
 __all__ = ["register"]
@@ -52,16 +54,26 @@ def register(subparsers: Any) -> None:
         default="python",
         help="the emulator's controller: the Python model or the C firmware core (default python)",
     )
+    p.add_argument(
+        "--no-realtime",
+        action="store_true",
+        help="run the emulator and the bridge without real-time scheduling (by default they "
+        "ask for it where permitted: docs/realtime.md)",
+    )
+    add_runtime_arguments(p, 0)
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
     import functools
     import signal
+    import time
 
+    from firmware_proto.runtime import ProcessRuntime, runtime_options
     from planner.cli_view import view_config
     from planner.demo import Demo, DemoConfig
     from planner.interrupt import CancelOnSignal
+    from planner.stallreport import stall_report
 
     config = DemoConfig(
         rtt_s=args.rtt,
@@ -73,8 +85,12 @@ def _run(args: argparse.Namespace) -> int:
         view=view_config(args),
         foxglove_port=args.foxglove,
         firmware=args.firmware,
+        realtime=not args.no_realtime,
     )
+    started = time.time()
     with Demo(config, say=functools.partial(print, flush=True)) as demo:
+        options = dataclasses.replace(runtime_options(args, "demo"), stall_log=demo.stall_log)
+        runtime = ProcessRuntime(options)
 
         def on_signal(signum: int) -> None:
             if demo.holding:
@@ -85,12 +101,23 @@ def _run(args: argparse.Namespace) -> int:
             demo.cancel()
             demo.say(f"{signal.Signals(signum).name}: cancelling the mission; sending STOP")
 
-        with CancelOnSignal(on_signal) as signals:
+        with runtime, CancelOnSignal(on_signal) as signals:
             result = demo.run()
             cancel_status = signals.exit_status  # a signal ending the hold is no cancel
             print()
             print(result.report.summary(config.speed))
+            if result.timing is not None:
+                print(result.timing.line())
+            for line in stall_report(
+                result.report,
+                since_wall_s=started,
+                stall_log=demo.stall_log,
+                threshold_s=options.stall_threshold_s,
+                logs=demo.logs,
+            ):
+                print(line)
             print(f"picture: {result.picture}")
+            print(f"logs: {demo.logs} (each process's stderr; stalls.jsonl)")
             if result.recording is not None:
                 print(f"recording: {result.recording} (rover decode {result.recording})")
             if config.view is not None and config.view.hold_s > 0:

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
 from planner.cli_view import add_view_arguments
 
 __all__ = ["PoseArgumentError", "add_arguments", "main", "parse_pose", "register", "run"]
@@ -215,6 +216,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="PNG of predicted vs actual (default mission.png)",
     )
     add_view_arguments(p, record_default=None)
+    add_runtime_arguments(p, 0)
 
 
 def register(subparsers: Any) -> None:
@@ -289,6 +291,11 @@ def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event
 def run(args: argparse.Namespace) -> int:
     """Run one mission; returns the exit status (0 reached, 128 + the signal number when
     cancelled by a signal, 1 otherwise)."""
+    with ProcessRuntime(runtime_options(args, "go")):
+        return _mission(args)
+
+
+def _mission(args: argparse.Namespace) -> int:
     from bridge.rosport import open_port
     from firmware_proto.rover import load_rover
     from planner.cli_view import view_config
@@ -302,6 +309,7 @@ def run(args: argparse.Namespace) -> int:
     from planner.orchestrator import PlannerOrchestrator
     from planner.picture import picture_of, save
     from planner.planner import HeuristicLowLevelPlanner
+    from planner.stallreport import stall_report
     from planner.view.live import LiveView
 
     goal = args.goal
@@ -320,6 +328,7 @@ def run(args: argparse.Namespace) -> int:
     )
     rover = load_rover()
     t0 = time.monotonic()
+    started = time.time()
     cancel = threading.Event()
 
     view: LiveView | None = None
@@ -459,6 +468,14 @@ def run(args: argparse.Namespace) -> int:
                 if view is not None and sys.exc_info()[0] is not None:
                     view.close()  # else it serves the end of the mission until the end
     print(report.summary(args.time_scale))
+    options = runtime_options(args, "go")
+    for line in stall_report(
+        report,
+        since_wall_s=started,
+        stall_log=options.stall_log,
+        threshold_s=options.stall_threshold_s,
+    ):
+        print(line)
     outcome = "reached" if report.reached else "cancelled" if report.cancelled else "not reached"
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
     print(f"picture: {save(picture, args.picture)}")

@@ -13,6 +13,8 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+
 __all__ = ["add_arguments", "main", "register", "run"]
 
 
@@ -39,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--duration", type=float, default=0.0, help="exit after SECONDS; 0 runs until stopped"
     )
+    add_runtime_arguments(p, 0)
 
 
 def register(subparsers: Any) -> None:
@@ -69,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     with (
+        ProcessRuntime(runtime_options(args, "link")),
         open_port(
             args.ros_backend, namespace=args.ground_namespace, node_name="rover_link"
         ) as ground,

@@ -25,6 +25,7 @@ interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -38,11 +39,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from bridge.rosport import DEFAULT_BACKEND, RosPort, open_port
 from bridge.rosport.contract import COMPLETED
+from bridge.rosport.msgs import DiagnosticArray
+from bridge.rosport.qos import DIAGNOSTICS
 from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient
@@ -56,12 +61,14 @@ from planner.planner import HeuristicLowLevelPlanner
 from planner.view.live import LiveView
 from planner.view.server import ViewConfig
 
-__all__ = ["LOCALHOST_ENV", "Demo", "DemoConfig", "DemoResult"]
+__all__ = ["LOCALHOST_ENV", "Demo", "DemoConfig", "DemoResult", "LinkTiming"]
 
 logger = logging.getLogger(__name__)
 
 LOCALHOST_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 """ROS 2 Jazzy's discovery range variable; the demo sets it to ``LOCALHOST``."""
+_NICE = 5
+"""Nice value of the gate and the link relay, which need not keep time."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,8 @@ class DemoConfig:
             (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
         firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
             firmware core in the loop; ``rover emulate --firmware``).
+        realtime: the emulator and the bridge ask for real-time scheduling (their
+            default; docs/realtime.md); ``False`` runs them with ``--no-realtime``.
     """
 
     rtt_s: float = 3.0
@@ -103,26 +112,81 @@ class DemoConfig:
     view: ViewConfig | None = None
     foxglove_port: int | None = None
     firmware: str = "python"
+    realtime: bool = True
 
 
 @dataclass(frozen=True)
 class DemoResult:
-    """The mission report, the picture, whether drift control fired, and the MCAP
-    recording (``None`` when not recorded)."""
+    """The mission report, the picture, whether drift control fired, the MCAP recording
+    (``None`` when not recorded) and how the link kept time (:class:`LinkTiming`)."""
 
     report: MissionReport
     picture: Path
     drift_fired: bool
     recording: Path | None = None
+    timing: LinkTiming | None = None
+
+
+@dataclass(frozen=True)
+class LinkTiming:
+    """How regularly the two ends of the controller link heard each other, wall ms
+    (``None``: not measured), read at the end of the mission: the bridge's from its last
+    ``/diagnostics``, the emulator's from its control port.
+
+    Attributes:
+        bridge_rx_max_ms, bridge_rx_p99_ms: gaps between controller heartbeats the
+            bridge received.
+        bridge_tx_max_ms, bridge_tx_p99_ms: gaps between host heartbeats it sent.
+        emulator_rx_max_ms, emulator_rx_p99_ms: gaps between host heartbeats the
+            emulator received.
+        emulator_catchups, emulator_late_max_ms: times the emulator's control loop woke
+            late, and the latest.
+        bridge_stall_max_ms: the bridge's longest stall.
+    """
+
+    bridge_rx_max_ms: float | None = None
+    bridge_rx_p99_ms: float | None = None
+    bridge_tx_max_ms: float | None = None
+    bridge_tx_p99_ms: float | None = None
+    emulator_rx_max_ms: float | None = None
+    emulator_rx_p99_ms: float | None = None
+    emulator_catchups: int | None = None
+    emulator_late_max_ms: float | None = None
+    bridge_stall_max_ms: float | None = None
+
+    def line(self) -> str:
+        """One line for the summary."""
+
+        def ms(value: float | None) -> str:
+            return "n/a" if value is None else f"{value:.0f}"
+
+        return (
+            "link timing (heartbeat gaps, max/p99 ms): bridge rx "
+            f"{ms(self.bridge_rx_max_ms)}/{ms(self.bridge_rx_p99_ms)}, bridge tx "
+            f"{ms(self.bridge_tx_max_ms)}/{ms(self.bridge_tx_p99_ms)}, emulator rx "
+            f"{ms(self.emulator_rx_max_ms)}/{ms(self.emulator_rx_p99_ms)}; emulator "
+            f"catch-ups {self.emulator_catchups if self.emulator_catchups is not None else 'n/a'}"
+            f" (latest {ms(self.emulator_late_max_ms)} ms); bridge's longest stall "
+            f"{ms(self.bridge_stall_max_ms)} ms"
+        )
 
 
 class _Process:
     """A child process of the demo, started with a ready line on stdout."""
 
     def __init__(
-        self, name: str, args: list[str], ready: str, timeout_s: float, env: dict[str, str]
+        self,
+        name: str,
+        args: list[str],
+        ready: str,
+        timeout_s: float,
+        env: dict[str, str],
+        log: Path,
     ) -> None:
         self.name = name
+        self.log = log
+        """Its stderr, whole (kept after the demo)."""
+        self._log_file = log.open("a", encoding="utf-8")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "firmware_proto.cli", *args],
             stdout=subprocess.PIPE,
@@ -161,10 +225,13 @@ class _Process:
 
     def _read_err(self) -> None:
         assert self.proc.stderr is not None
-        for line in self.proc.stderr:
-            self._stderr.append(line)
-            if len(self._stderr) > 200:
-                del self._stderr[:100]
+        with self._log_file:
+            for line in self.proc.stderr:
+                self._log_file.write(line)
+                self._log_file.flush()
+                self._stderr.append(line)
+                if len(self._stderr) > 200:
+                    del self._stderr[:100]
 
     def line(self, prefix: str) -> str:
         """The first stdout line starting with ``prefix``."""
@@ -201,9 +268,18 @@ class Demo:
         self._t0 = time.monotonic()
         self._processes: list[_Process] = []
         self._tmp = tempfile.TemporaryDirectory(prefix="rover-demo-")
+        self.logs = Path(tempfile.mkdtemp(prefix="rover-demo-logs-"))
+        """Where each process's stderr and the stack's stall log are kept (not removed)."""
+        self.stall_log = self.logs / "stalls.jsonl"
+        """The stall log every process of this demo writes to (docs/realtime.md)."""
         # Every process of the demo, this one included, discovers ROS 2 peers on this
         # host only (ROS 2 Jazzy's discovery range), so nothing leaves the machine.
-        self._env = {**os.environ, LOCALHOST_ENV: "LOCALHOST"}
+        self._env = {
+            **os.environ,
+            LOCALHOST_ENV: "LOCALHOST",
+            STALL_LOG_ENV: str(self.stall_log),
+        }
+        self._diagnostics: DiagnosticArray | None = None
         self._cancel = threading.Event()
         self._mission_running = False
         self._view: LiveView | None = None
@@ -270,7 +346,14 @@ class Demo:
 
     def _start(self, name: str, args: list[str], ready: str) -> _Process:
         self.say(f"starting {name}: rover {' '.join(args)}")
-        process = _Process(name, args, ready, self.config.startup_timeout_s, self._env)
+        process = _Process(
+            name,
+            args,
+            ready,
+            self.config.startup_timeout_s,
+            self._env,
+            self.logs / f"{name}.log",
+        )
         self._processes.append(process)
         return process
 
@@ -280,11 +363,25 @@ class Demo:
         if cfg.speed <= 0 or cfg.rtt_s < 0:
             raise ValueError("speed must be > 0 and rtt_s >= 0")
         link = Path(self._tmp.name) / "rover-motor"
+        # The programs that need not keep time yield the CPU to those that must.
         gate = self._start(
             "gate",
-            ["gate", "--port", "0", "--map", cfg.map_name, "--workers", "1", "--pool", "thread"],
+            [
+                "gate",
+                "--port",
+                "0",
+                "--map",
+                cfg.map_name,
+                "--workers",
+                "1",
+                "--pool",
+                "thread",
+                "--nice",
+                str(_NICE),
+            ],
             "GATE ",
         )
+        realtime = [] if cfg.realtime else ["--no-realtime"]
         url = gate.line("GATE ").split()[1]
         emulator_args = [
             "emulate",
@@ -301,13 +398,22 @@ class Demo:
             "0",
             "--firmware",
             cfg.firmware,
+            *realtime,
         ]
         emulator = self._start("emulator", emulator_args, "CONTROL ")
         control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
-        self._start("bridge", ["bridge", "--device", str(link)], "BRIDGE ")
+        self._start("bridge", ["bridge", "--device", str(link), *realtime], "BRIDGE ")
         self._start(
             "link",
-            ["link", "--rtt", f"{cfg.rtt_s / cfg.speed:g}", "--seed", str(cfg.seed)],
+            [
+                "link",
+                "--rtt",
+                f"{cfg.rtt_s / cfg.speed:g}",
+                "--seed",
+                str(cfg.seed),
+                "--nice",
+                str(_NICE),
+            ],
             "LINK ",
         )
         self.say(f"emulator control port: 127.0.0.1:{control_port}")
@@ -331,6 +437,7 @@ class Demo:
         ):
             if recorder is not None:
                 port.add_tap(recorder.tap)
+            port.subscribe("diagnostics", DiagnosticArray, self._on_diagnostics, DIAGNOSTICS)
             foxglove = (
                 FoxgloveLive(port=cfg.foxglove_port) if cfg.foxglove_port is not None else None
             )
@@ -449,7 +556,45 @@ class Demo:
         )
         picture = picture_of(report, world, title)
         path = save(picture, cfg.picture)
-        return DemoResult(report, path, bool(report.drift_events), cfg.record)
+        timing = self._timing(control_port)
+        return DemoResult(report, path, bool(report.drift_events), cfg.record, timing)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        if any(status.name == "rover_bridge: link" for status in msg.status):
+            self._diagnostics = msg
+
+    def _timing(self, control_port: int) -> LinkTiming:
+        """The link's timing figures at the end of the mission (see :class:`LinkTiming`)."""
+        values: dict[str, str] = {}
+        if self._diagnostics is not None:
+            for status in self._diagnostics.status:
+                if status.name == "rover_bridge: link":
+                    values = {kv.key: kv.value for kv in status.values}
+
+        def number(key: str) -> float | None:
+            try:
+                return float(values[key])
+            except (KeyError, ValueError):
+                return None
+
+        emulator: dict[str, Any] = {}
+        try:
+            answer = json.loads(_control(control_port, "status"))
+            emulator = answer.get("status") or {}
+        except (OSError, ValueError) as exc:
+            logger.warning("emulator status unavailable: %s", exc)
+        host_gaps = emulator.get("host_heartbeat_gaps") or {}
+        return LinkTiming(
+            bridge_rx_max_ms=number("heartbeat_rx_gap_max_ms"),
+            bridge_rx_p99_ms=number("heartbeat_rx_gap_p99_ms"),
+            bridge_tx_max_ms=number("heartbeat_tx_gap_max_ms"),
+            bridge_tx_p99_ms=number("heartbeat_tx_gap_p99_ms"),
+            emulator_rx_max_ms=host_gaps.get("max_ms"),
+            emulator_rx_p99_ms=host_gaps.get("p99_ms"),
+            emulator_catchups=emulator.get("catchups"),
+            emulator_late_max_ms=emulator.get("late_max_ms"),
+            bridge_stall_max_ms=number("stall_max_ms"),
+        )
 
     def close(self) -> None:
         """Stop the view and every process, last started first (idempotent)."""

@@ -136,10 +136,18 @@ def msgdef(cls: type[Any]) -> str:
 
 def plain_message(value: Any) -> Any:
     """A generated message as dicts and lists (what the CDR encoder reads): numpy and
-    ``array.array`` fields become lists."""
+    ``array.array`` fields become lists, and a ROS ``byte`` (rclpy: one-byte ``bytes``,
+    e.g. a diagnostic status's level) its number."""
     fields = getattr(value, "get_fields_and_field_types", None)
     if fields is not None:
-        return {name: plain_message(getattr(value, name)) for name in fields()}
+        out = {}
+        for name, kind in fields().items():
+            field_value = getattr(value, name)
+            if kind == "octet" and isinstance(field_value, bytes) and len(field_value) == 1:
+                out[name] = field_value[0]
+            else:
+                out[name] = plain_message(field_value)
+        return out
     if isinstance(value, (str, bytes, int, float, bool, dict)):
         return value
     if hasattr(value, "__iter__"):

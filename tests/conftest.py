@@ -24,6 +24,7 @@ ROS 2. Where either is missing they skip, saying why; with ``ROVER_REQUIRE_RCLPY
 from __future__ import annotations
 
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Generator, Iterator
@@ -54,6 +55,12 @@ _WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if _WORKER.startswith("gw"):
     _base = int(os.environ.get("ROS_DOMAIN_ID") or "0")
     os.environ["ROS_DOMAIN_ID"] = str((_base + int(_WORKER[2:])) % 100)
+
+#: The processes a test starts log their stalls (docs/realtime.md) to a log of this run's
+#: own, not to the host's shared one.
+os.environ.setdefault(
+    "ROVER_STALL_LOG", os.path.join(tempfile.mkdtemp(prefix="rover-test-stalls-"), "stalls.jsonl")
+)
 
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
 LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"

@@ -138,6 +138,18 @@ def test_bench_view_quick_prints_push_latency_beside_its_limit() -> None:
 
 
 @pytest.mark.firmware
+def test_bench_load_quick_measures_stop_latency_beside_busy_processes() -> None:
+    out = run_benchmark("bench_load", "--quick")
+    assert "The controller link beside load (bench_load)" in out
+    rows = [line for line in out.splitlines() if line.startswith("| 2 |")]
+    assert [row.split("|")[2].strip() for row in rows] == ["off", "on"]
+    for row in rows:
+        stop = row.strip("|").split("|")[-1].strip()
+        p50, _, rest = stop.partition("/")
+        assert float(p50) > 0 and rest.endswith("(3)"), row
+    assert "250 ms" in out
+
+
 def test_bench_firmware_quick_prints_the_c_core_beside_the_python_model() -> None:
     out = run_benchmark("bench_firmware", "--quick")
     assert "| C core, fw_on_bytes(STOP frame), measured in C | 50 |" in out

@@ -1,13 +1,15 @@
-"""The arrows between the parts point down (DESIGN.md, "Parts"; docs/linkio.md, Layers).
+"""The arrows between the parts point down (docs/architecture.md; docs/linkio.md, Layers).
 
 Read from the sources' import statements (every ``import``, at module level or inside a
 function), so a lazy import counts as much as a top-level one:
 
-- ``firmware_proto`` proper (everything but its ``linkio`` and ``cli`` sub-packages) is
-  pure: no python-can, pyserial, threads, sockets, ROS, and none of those two
-  sub-packages;
+- ``firmware_proto`` proper (everything but its ``linkio``, ``runtime`` and ``cli``
+  sub-packages) is pure: no python-can, pyserial, threads, sockets, ROS, and none of
+  those sub-packages;
 - ``firmware_proto.linkio`` (both ends of the wire) imports no part above it and not
   the command host;
+- ``firmware_proto.runtime`` (scheduling, stall detection) imports nothing of ours but
+  the pure protocol;
 - the emulator and the bridge never import each other; the gate imports neither the
   bridge nor the planner; the rover's device tooling (``udev``) imports none of them.
 """
@@ -55,10 +57,12 @@ def _under(name: str, prefix: str) -> bool:
 
 
 FIRMWARE_PROTO = _modules("firmware_proto")
+LAYERS = ("firmware_proto.linkio", "firmware_proto.runtime", "firmware_proto.cli")
+"""The sub-packages of ``firmware_proto`` that are not pure."""
 PURE = {
     name: path
     for name, path in FIRMWARE_PROTO.items()
-    if not _under(name, "firmware_proto.linkio") and not _under(name, "firmware_proto.cli")
+    if not any(_under(name, layer) for layer in LAYERS)
 }
 
 
@@ -67,6 +71,8 @@ def test_the_split_is_what_the_docs_say() -> None:
     assert "firmware_proto.framing" in PURE and "firmware_proto.canmap" in PURE
     assert "firmware_proto.linkio.trafficio" in FIRMWARE_PROTO
     assert "firmware_proto.cli" in FIRMWARE_PROTO
+    assert "firmware_proto.runtime.realtime" in FIRMWARE_PROTO
+    assert "firmware_proto.gapstats" in PURE
     assert not any(
         name.startswith(("firmware_proto.cli_", "firmware_proto.traffic")) for name in PURE
     )
@@ -79,8 +85,7 @@ def test_the_protocol_is_pure(name: str) -> None:
         imported
         for imported in _imports(PURE[name])
         if imported.split(".")[0] in IMPURE
-        or _under(imported, "firmware_proto.linkio")
-        or _under(imported, "firmware_proto.cli")
+        or any(_under(imported, layer) for layer in LAYERS)
         or imported.split(".")[0] in {"bridge", "emulator", "gate", "planner"}
     )
     assert not wrong, f"{name} imports {wrong}"
@@ -115,6 +120,17 @@ def test_a_serial_link_never_loads_python_can() -> None:
     ("package", "forbidden"),
     [
         ("firmware_proto/linkio", ("bridge", "emulator", "gate", "planner", "firmware_proto.cli")),
+        (
+            "firmware_proto/runtime",
+            (
+                "bridge",
+                "emulator",
+                "gate",
+                "planner",
+                "firmware_proto.cli",
+                "firmware_proto.linkio",
+            ),
+        ),
         ("emulator", ("bridge", "gate", "planner")),
         ("bridge", ("emulator", "gate", "planner")),
         ("gate", ("bridge", "planner")),

@@ -31,6 +31,7 @@ from __future__ import annotations
 import importlib
 import itertools
 import logging
+import os
 import queue
 import signal
 import sys
@@ -43,6 +44,7 @@ from bridge.errors import ParameterError
 from bridge.rosport.port import DEFAULT_LANE, STOP_LANE, Publisher, Subscription
 from bridge.rosport.process_backend import REQUEST_TIMEOUT_S
 from bridge.rosport.rclpy_backend import RclpyPort, middleware
+from firmware_proto.runtime.realtime import STOP_CHILD_PRIORITY, RealtimeConfig, apply_realtime
 
 __all__ = ["Child", "main", "message_type"]
 
@@ -84,6 +86,7 @@ class Child:
         except (EOFError, OSError):
             return 1
         self._lane = STOP_LANE if stop_only else DEFAULT_LANE
+        _schedule(stop_only)
         try:
             port = RclpyPort(
                 namespace=namespace,
@@ -202,6 +205,16 @@ class Child:
             return f"the node is gone ({exc})"
         finally:
             self._answers.pop(request_id, None)
+
+
+def _schedule(stop_only: bool) -> None:
+    """The child starts with its parent's scheduling (docs/realtime.md): the STOP child
+    keeps real time, below the link it feeds; the publishing child, whose middleware
+    calls may block, goes back to normal scheduling, so it never competes with the
+    link."""
+    inherited = os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
+    priority = STOP_CHILD_PRIORITY if stop_only and inherited else 0
+    apply_realtime(RealtimeConfig(priority, lock_memory=False))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

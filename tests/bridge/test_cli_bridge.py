@@ -230,3 +230,66 @@ def test_a_malformed_device_url_is_a_usage_error_and_records_nothing(
     assert "rover_bridge: error:" in done.stderr and complaint in done.stderr
     assert "BRIDGE" not in done.stdout
     assert not log.exists()
+
+
+def test_rover_bridge_asks_for_real_time_and_no_realtime_turns_it_off() -> None:
+    common = ("--ros-backend", "inprocess", "--duration", "0.2", "--can", "virtual:rt-test")
+    done = _run(*common)
+    assert done.returncode == 0, done.stderr
+    said = [line for line in done.stderr.splitlines() if line.startswith("realtime:")]
+    assert len(said) == 1
+    if os.geteuid() == 0:
+        assert said[0] == "realtime: SCHED_RR priority 20, memory locked"
+    off = _run(*common, "--no-realtime")
+    assert [line for line in off.stderr.splitlines() if line.startswith("realtime:")] == [
+        "realtime: off (SCHED_OTHER, nice 0)"
+    ]
+    bad = _run(*common, "--rt-priority", "100")
+    assert bad.returncode == 2
+    assert "parameter rt_priority: 100 is outside 0..99" in bad.stderr
+
+
+def test_a_frozen_bridge_logs_its_stall_and_the_controller_trips(tmp_path: Path) -> None:
+    """The bridge's computer holds it up past the controller's watchdog: the controller
+    stops the rover, and the bridge's stall (how long, where) is in the stall log the
+    stack shares, where ``rover go`` and ``rover demo`` read it (docs/realtime.md)."""
+    import signal
+    import time
+
+    from firmware_proto.runtime.stall import read_stalls
+    from tests.child import Child
+
+    log = tmp_path / "stalls.jsonl"
+    env = {**os.environ, "ROVER_STALL_LOG": str(log)}
+    emulator = Child(["emulate", "--serial", "--seed", "2"], env)
+    bridge: Child | None = None
+    try:
+        device = emulator.wait_for("DEVICE ").split()[1]
+        bridge = Child(["-v", "bridge", "--device", device, "--ros-backend", "inprocess"], env)
+        bridge.wait_for("BRIDGE ")
+        _wait_lines(bridge.errors, "handshake done", 20.0)
+        os.kill(bridge.proc.pid, signal.SIGSTOP)
+        time.sleep(0.6)  # the freeze: more than twice the watchdog
+        os.kill(bridge.proc.pid, signal.SIGCONT)
+        _wait_lines(emulator.errors, "watchdog: no valid frame", 10.0)
+        deadline = time.monotonic() + 10.0
+        while not [r for r in read_stalls(log) if r.process == "bridge" and r.ms >= 400]:
+            assert time.monotonic() < deadline, read_stalls(log)
+            time.sleep(0.05)
+        (record, *_) = [r for r in read_stalls(log) if r.process == "bridge" and r.ms >= 400]
+        assert record.pid == bridge.proc.pid
+        assert record.stack  # where its threads were
+    finally:
+        if bridge is not None:
+            os.kill(bridge.proc.pid, signal.SIGCONT)
+            bridge.stop()
+        emulator.stop()
+
+
+def _wait_lines(lines: list[str], needle: str, timeout_s: float) -> None:
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not any(needle in line for line in lines):
+        assert time.monotonic() < deadline, f"no {needle!r} in {lines[-10:]}"
+        time.sleep(0.05)

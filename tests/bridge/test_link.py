@@ -49,6 +49,11 @@ def test_steps_complete_once_each_in_order(
     diag = link.diagnostics()
     assert (diag.steps_sent, diag.steps_completed, diag.retries) == (4, 4, 0)
     assert diag.rtt_median_ms is not None
+    # How regularly the two ends heard each other (docs/realtime.md).
+    rx_max, rx_p99 = diag.heartbeat_rx_gap_max_ms, diag.heartbeat_rx_gap_p99_ms
+    tx_max, tx_p99 = diag.heartbeat_tx_gap_max_ms, diag.heartbeat_tx_gap_p99_ms
+    assert rx_max is not None and rx_p99 is not None and 0 < rx_p99 <= rx_max
+    assert tx_max is not None and tx_p99 is not None and 0 < tx_p99 <= tx_max
 
 
 @pytest.mark.parametrize("kind", MEDIA)

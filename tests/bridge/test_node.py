@@ -213,6 +213,12 @@ def test_diagnostics_report_link_and_controller(bridged: Any) -> None:
         "faults",
         "missed_beats",
         "rx_overflow",
+        "heartbeat_rx_gap_max_ms",
+        "heartbeat_rx_gap_p99_ms",
+        "heartbeat_tx_gap_max_ms",
+        "heartbeat_tx_gap_p99_ms",
+        "stalls",
+        "stall_max_ms",
     } <= keys
     assert {kv.key for kv in inputs.values} >= {"rejected_total"}
     emu.inject("link-drop=1.0")

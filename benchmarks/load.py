@@ -1,0 +1,94 @@
+"""A load generator of our own: N busy processes, each bounded in time.
+
+Run beside anything that must keep time::
+
+    .venv/bin/python -m benchmarks.load --busy 4 --duration 600
+
+Each process spins ``while True: pass`` at normal priority (what a perception stack, a
+logger or another user's build does to a rover's computer or a shared CI runner) and
+ends by itself after ``--duration`` seconds, so a load left behind by a crash cannot
+outlive it. :class:`BusyLoad` is the same as a context manager for the benchmarks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import subprocess
+import sys
+import time
+from types import TracebackType
+
+__all__ = ["BusyLoad"]
+
+# A child inherits its parent's scheduling: a busy loop started by a real-time process
+# would be real-time too, so it asks for normal scheduling first.
+_SPIN = (
+    "import os, sys, time\n"
+    "os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))\n"
+    "end = time.monotonic() + float(sys.argv[1])\n"
+    "while time.monotonic() < end:\n"
+    "    for _ in range(10000):\n"
+    "        pass\n"
+)
+
+
+class BusyLoad:
+    """``count`` busy processes for at most ``duration_s`` (ended on exit)."""
+
+    def __init__(self, count: int, duration_s: float = 3600.0) -> None:
+        if count < 0 or not duration_s > 0:
+            raise ValueError("count must be >= 0 and duration > 0")
+        self.count = count
+        self.duration_s = duration_s
+        self._procs: list[subprocess.Popen[bytes]] = []
+
+    def start(self) -> BusyLoad:
+        """Start the processes."""
+        for _ in range(self.count):
+            self._procs.append(
+                subprocess.Popen(
+                    [sys.executable, "-c", _SPIN, str(self.duration_s)],
+                    stdin=subprocess.DEVNULL,
+                )
+            )
+        return self
+
+    def stop(self) -> None:
+        """End every process (idempotent)."""
+        for proc in self._procs:
+            if proc.poll() is None:
+                proc.kill()
+        for proc in self._procs:
+            proc.wait(10)
+        self._procs.clear()
+
+    def __enter__(self) -> BusyLoad:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--busy", type=int, default=4, help="busy processes (default 4)")
+    parser.add_argument(
+        "--duration", type=float, default=600.0, help="seconds before they end (default 600)"
+    )
+    args = parser.parse_args(argv)
+    if args.busy < 1 or not args.duration > 0:
+        parser.error("--busy must be >= 1 and --duration > 0")
+    print(f"{args.busy} busy processes for {args.duration:g} s (Ctrl-C ends them)", flush=True)
+    with BusyLoad(args.busy, args.duration), contextlib.suppress(KeyboardInterrupt):
+        time.sleep(args.duration)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

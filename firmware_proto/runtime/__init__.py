@@ -1,0 +1,39 @@
+"""How the stack's programs run: real-time scheduling where they must keep time, and
+stall detection everywhere (docs/realtime.md).
+
+A layer beside the pure protocol, like :mod:`firmware_proto.linkio` and
+:mod:`firmware_proto.cli`: it makes system calls and starts a thread, so the pure
+modules never import it; every part above may.
+"""
+
+from firmware_proto.runtime.process import (
+    ProcessRuntime,
+    RuntimeOptions,
+    add_runtime_arguments,
+    runtime_options,
+)
+from firmware_proto.runtime.realtime import RealtimeConfig, RealtimeStatus, apply_realtime
+from firmware_proto.runtime.stall import (
+    Beat,
+    StallMonitor,
+    StallRecord,
+    describe_stalls,
+    read_stalls,
+    stall_log_path,
+)
+
+__all__ = [
+    "Beat",
+    "ProcessRuntime",
+    "RealtimeConfig",
+    "RealtimeStatus",
+    "RuntimeOptions",
+    "StallMonitor",
+    "StallRecord",
+    "add_runtime_arguments",
+    "apply_realtime",
+    "describe_stalls",
+    "read_stalls",
+    "runtime_options",
+    "stall_log_path",
+]

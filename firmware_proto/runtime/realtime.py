@@ -1,0 +1,199 @@
+"""Real-time scheduling for the processes that must keep time (docs/realtime.md).
+
+The controller's 250 ms watchdog stops the rover when the host falls silent, and a
+Python process at the default priority can be starved that long on a busy computer.
+The processes that hold the controller link (``rover bridge``) or stand in for the
+controller (``rover emulate``) therefore ask the kernel for a real-time policy, as
+ros2_control's controller manager does (``realtime_tools::configure_sched_fifo``,
+``lock_memory``):
+
+- :func:`apply_realtime` puts the **calling thread** under ``SCHED_RR`` (or
+  ``SCHED_FIFO``) at the configured priority; threads it starts afterwards inherit the
+  policy, so a program calls it first thing in ``main()`` and every thread of the
+  process keeps time (no thread of normal priority can hold the interpreter lock while
+  a busy computer keeps it off the CPU). Child processes inherit it too: a child that
+  must not keep it calls :func:`apply_realtime` with priority 0 at its start.
+- With ``lock_memory`` it locks the process's memory (``mlockall``), so a page fault
+  never waits for the disk; only where the memory-lock limit allows it (root, or an
+  unlimited ``RLIMIT_MEMLOCK``), because with a small limit later allocations would fail.
+  Threads started after it get a smaller stack (:data:`LOCKED_THREAD_STACK_BYTES`), as
+  each locked stack is resident in full.
+- Where the policy is not permitted (neither root nor ``CAP_SYS_NICE`` nor an
+  ``rtprio`` limit), it falls back to a lower nice value if that is permitted, else
+  runs as it was; :class:`RealtimeStatus` says which, in one line the program prints
+  once. Nothing fails for want of permission.
+
+The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by
+default) keeps a runaway real-time thread from locking up the machine.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import logging
+import os
+import resource
+import sys
+import threading
+from dataclasses import dataclass
+
+__all__ = [
+    "BRIDGE_PRIORITY",
+    "EMULATOR_PRIORITY",
+    "FALLBACK_NICE",
+    "LOCKED_THREAD_STACK_BYTES",
+    "STOP_CHILD_PRIORITY",
+    "RealtimeConfig",
+    "RealtimeStatus",
+    "apply_realtime",
+]
+
+logger = logging.getLogger(__name__)
+
+EMULATOR_PRIORITY = 30
+"""The emulator's priority: it stands in for a microcontroller, which is never
+descheduled, so it ranks above the host's link."""
+BRIDGE_PRIORITY = 20
+"""The bridge's (the controller link's) priority: below the kernel's interrupt threads
+(50) and the emulator."""
+STOP_CHILD_PRIORITY = 15
+"""The bridge's STOP-lane ROS 2 child: real time, below the link it feeds."""
+FALLBACK_NICE = -10
+"""The nice value asked for where the real-time policy is refused."""
+LOCKED_THREAD_STACK_BYTES = 1 << 20
+"""Stack size of threads started once memory is locked (each is resident in full)."""
+
+_MCL_CURRENT, _MCL_FUTURE = 1, 2  # linux/mman.h on x86 and arm
+_POLICIES = {"rr": getattr(os, "SCHED_RR", 2), "fifo": getattr(os, "SCHED_FIFO", 1)}
+
+
+@dataclass(frozen=True)
+class RealtimeConfig:
+    """What a process asks for.
+
+    Attributes:
+        priority: real-time priority 1..99; 0 asks for none (normal scheduling, and a
+            thread that had a real-time policy is put back to normal).
+        policy: ``rr`` (``SCHED_RR``: equal priorities take turns) or ``fifo``.
+        lock_memory: lock the process's memory where the limit allows it.
+        fallback_nice: the nice value to ask for where real time is refused (0: none).
+    """
+
+    priority: int
+    policy: str = "rr"
+    lock_memory: bool = True
+    fallback_nice: int = FALLBACK_NICE
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.priority <= 99:
+            raise ValueError(f"real-time priority must be 0..99, got {self.priority}")
+        if self.policy not in _POLICIES:
+            raise ValueError(
+                f"unknown scheduling policy {self.policy!r}; known: {', '.join(_POLICIES)}"
+            )
+        if not -20 <= self.fallback_nice <= 19:
+            raise ValueError(f"nice must be -20..19, got {self.fallback_nice}")
+
+
+@dataclass(frozen=True)
+class RealtimeStatus:
+    """What the kernel granted.
+
+    Attributes:
+        policy: ``SCHED_RR``, ``SCHED_FIFO`` or ``SCHED_OTHER``.
+        priority: the real-time priority granted (0 under ``SCHED_OTHER``).
+        nice: the nice value of the calling thread.
+        memory_locked: ``mlockall`` succeeded.
+        requested: real time was asked for (priority > 0).
+        note: why something asked for was not granted (empty when all was).
+    """
+
+    policy: str
+    priority: int
+    nice: int
+    memory_locked: bool
+    requested: bool
+    note: str = ""
+
+    @property
+    def granted(self) -> bool:
+        """Real time was asked for and granted."""
+        return self.requested and self.policy != "SCHED_OTHER"
+
+    def line(self) -> str:
+        """One line for the operator: what runs how, and why not if it does not."""
+        if not self.requested:
+            return f"realtime: off (SCHED_OTHER, nice {self.nice})"
+        if self.granted:
+            memory = "memory locked" if self.memory_locked else "memory not locked"
+            extra = f" ({self.note})" if self.note else ""
+            return f"realtime: {self.policy} priority {self.priority}, {memory}{extra}"
+        return (
+            f"realtime: NOT granted ({self.note}); running SCHED_OTHER at nice {self.nice}: "
+            "a busy computer can delay this process past the controller's watchdog; "
+            "docs/realtime.md says how to grant it"
+        )
+
+
+def _policy_name(policy: int) -> str:
+    names = {_POLICIES["rr"]: "SCHED_RR", _POLICIES["fifo"]: "SCHED_FIFO"}
+    return names.get(policy & 0xFF, "SCHED_OTHER")
+
+
+def _lock_memory() -> str:
+    """Lock all current and future memory; returns why not, or ``""``."""
+    if not sys.platform.startswith("linux"):
+        return "memory locking needs Linux"
+    soft, _ = resource.getrlimit(resource.RLIMIT_MEMLOCK)
+    if soft != resource.RLIM_INFINITY and os.geteuid() != 0:
+        return f"memory not locked: RLIMIT_MEMLOCK is {soft} bytes (docs/realtime.md)"
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) != 0:
+        return f"mlockall failed: {os.strerror(ctypes.get_errno())}"
+    # Every stack started from now on is resident in full: keep them small.
+    threading.stack_size(LOCKED_THREAD_STACK_BYTES)
+    return ""
+
+
+def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
+    """Ask for ``config`` for the calling thread (and the threads it starts later).
+
+    Never raises for want of permission: the status says what was granted and why not,
+    and the program prints its :meth:`~RealtimeStatus.line` once.
+    """
+    if not hasattr(os, "sched_setscheduler"):
+        return RealtimeStatus("SCHED_OTHER", 0, 0, False, config.priority > 0, "not on Linux")
+    note = ""
+    if config.priority == 0:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        return RealtimeStatus("SCHED_OTHER", 0, os.getpriority(os.PRIO_PROCESS, 0), False, False)
+    # Memory first, at the old priority: locking populates every page, which takes a
+    # real-time thread's CPU from everyone else for as long (100-200 ms seen here).
+    lock_note = _lock_memory() if config.lock_memory else ""
+    locked = config.lock_memory and not lock_note
+    try:
+        os.sched_setscheduler(0, _POLICIES[config.policy], os.sched_param(config.priority))
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.EACCES, errno.EINVAL):
+            raise
+        rtprio = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
+        note = f"sched_setscheduler: {exc.strerror}; RLIMIT_RTPRIO is {rtprio}"
+        if config.fallback_nice:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, config.fallback_nice)
+            except OSError as nice_exc:
+                note += f"; nice {config.fallback_nice}: {nice_exc.strerror}"
+    else:
+        note = lock_note
+    policy = os.sched_getscheduler(0)
+    status = RealtimeStatus(
+        policy=_policy_name(policy),
+        priority=os.sched_getparam(0).sched_priority,
+        nice=os.getpriority(os.PRIO_PROCESS, 0),
+        memory_locked=locked,
+        requested=True,
+        note=note,
+    )
+    return status

@@ -1,0 +1,405 @@
+"""Stall detection: a process that watches its own loops and says where time went
+(docs/realtime.md, "Stalls").
+
+:class:`StallMonitor` runs one thread that wakes every ``period_s``:
+
+- **The process.** When the monitor itself wakes more than ``threshold_s`` late, the
+  whole process was held up: not scheduled (a busy computer), or one thread held the
+  interpreter lock inside a C call (a middleware publish). Python code cannot see the
+  second case while it lasts, so the monitor keeps :func:`faulthandler.dump_traceback_later`
+  armed: the interpreter's own watchdog thread, which needs no lock, writes every
+  thread's stack to a file when the monitor has not re-armed it in time. The record of
+  the stall carries that dump.
+- **Its loops.** A loop that must keep going registers a :class:`Beat` and ticks it
+  every iteration; a beat older than ``threshold_s`` is a stalled thread, recorded
+  with that thread's stack.
+
+Every stall is logged (WARNING, with the stack) and, when a stall log is configured,
+appended to it as one JSON line (:class:`StallRecord`), where ``rover demo`` and
+``rover go`` read which process stalled when a mission ends on ``fault:watchdog`` or
+``fault:link_lost`` (:func:`read_stalls`). All processes of a stack on one host share
+the log (:func:`stall_log_path`); each line is one ``write`` to a file opened for
+appending, so lines from several processes never interleave.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import faulthandler
+import json
+import logging
+import os
+import sys
+import tempfile
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+__all__ = [
+    "DEFAULT_STALL_THRESHOLD_S",
+    "STALL_LOG_ENV",
+    "STALL_LOG_MAX_BYTES",
+    "Beat",
+    "StallMonitor",
+    "StallRecord",
+    "current_monitor",
+    "describe_stalls",
+    "forget",
+    "install",
+    "read_stalls",
+    "stall_log_path",
+    "watch",
+]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_STALL_THRESHOLD_S = 0.1
+"""A loop or process held up longer than this is a stall, s."""
+STALL_LOG_ENV = "ROVER_STALL_LOG"
+"""Environment variable naming the stall log file (empty: none)."""
+STALL_LOG_MAX_BYTES = 4 << 20
+"""A stall log longer than this is renamed ``.1`` (one generation kept) before a write."""
+_STACK_CHARS = 4000
+
+
+def stall_log_path(env: dict[str, str] | None = None) -> Path | None:
+    """The stall log this host's stack shares: :data:`STALL_LOG_ENV` if set (an empty
+    value: none), else ``rover-<uid>/stalls.jsonl`` in the system's temporary directory."""
+    source = os.environ if env is None else env
+    if STALL_LOG_ENV in source:
+        text = source[STALL_LOG_ENV].strip()
+        return Path(text) if text else None
+    return Path(tempfile.gettempdir()) / f"rover-{os.getuid()}" / "stalls.jsonl"
+
+
+@dataclass(frozen=True)
+class StallRecord:
+    """One stall.
+
+    Attributes:
+        process: the program's name (``bridge``, ``emulator``, ``gate``, ...).
+        pid: its process id.
+        thread: the stalled loop's name, or ``*`` when the whole process was held up.
+        ms: how long, ms.
+        wall_s: when it ended (``time.time()``).
+        stack: where it was (the stalled thread's stack, or every thread's).
+    """
+
+    process: str
+    pid: int
+    thread: str
+    ms: float
+    wall_s: float
+    stack: str = ""
+
+    def line(self) -> str:
+        """``bridge (pid 12) link-timer stalled 312 ms at 12:00:01``."""
+        when = time.strftime("%H:%M:%S", time.localtime(self.wall_s))
+        who = "the whole process" if self.thread == "*" else f"thread {self.thread}"
+        return f"{self.process} (pid {self.pid}): {who} stalled {self.ms:.0f} ms at {when}"
+
+
+class Beat:
+    """A loop's sign of life (:meth:`StallMonitor.watch`). ``tick`` is one store."""
+
+    __slots__ = ("_clock", "last", "name", "thread_id")
+
+    def __init__(self, name: str, clock: Callable[[], float]) -> None:
+        """Made by :meth:`StallMonitor.watch` on the loop's own thread."""
+        self.name = name
+        self._clock = clock
+        self.thread_id = threading.get_ident()
+        self.last = clock()
+
+    def tick(self) -> None:
+        """The loop is alive now (call it every iteration, from the loop's thread)."""
+        self.last = self._clock()
+
+
+@dataclass
+class _Episode:
+    started: float
+    stack: str
+
+
+class StallMonitor:
+    """Watches the process and its registered loops (see the module docstring)."""
+
+    def __init__(
+        self,
+        process: str,
+        *,
+        threshold_s: float = DEFAULT_STALL_THRESHOLD_S,
+        period_s: float | None = None,
+        log_path: Path | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Args:
+        process: the program's name in the records.
+        threshold_s: a stall is longer than this, s (> 0).
+        period_s: how often the monitor looks, s; default half the threshold.
+        log_path: the stall log to append records to (``None``: log only).
+        clock: monotonic seconds (tests may pass their own).
+
+        Raises:
+            ValueError: a threshold or period not positive.
+        """
+        if not threshold_s > 0:
+            raise ValueError(f"stall threshold must be > 0, got {threshold_s}")
+        self.process = process
+        self.threshold_s = threshold_s
+        self.period_s = period_s if period_s is not None else threshold_s / 2
+        if not self.period_s > 0:
+            raise ValueError(f"stall monitor period must be > 0, got {self.period_s}")
+        self.log_path = log_path
+        self._clock = clock
+        self._beats: list[Beat] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._episodes: dict[str, _Episode] = {}
+        self._dump: IO[str] | None = None
+        self._dump_read = 0
+        self.records: list[StallRecord] = []
+        """Every stall so far (also logged, and appended to the stall log)."""
+        self.longest_ms = 0.0
+        """The longest stall so far, ms (0: none)."""
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the monitor thread (it arms the interpreter's dump watchdog)."""
+        if self._thread is not None:
+            raise RuntimeError("stall monitor already started")
+        # Open while the monitor runs (the dump watchdog writes to it); closed by close().
+        self._dump = tempfile.TemporaryFile("w+", prefix="rover-stall-")  # noqa: SIM115
+        self._thread = threading.Thread(target=self._run, name="stall-monitor", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop the thread and disarm the dump watchdog (idempotent)."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        self._thread = None
+        if self._dump is not None:
+            with contextlib.suppress(RuntimeError):
+                faulthandler.cancel_dump_traceback_later()
+            self._dump.close()
+            self._dump = None
+
+    def __enter__(self) -> StallMonitor:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def watch(self, name: str) -> Beat:
+        """A beat for the calling thread's loop (call it from that thread: a stall is
+        reported with its stack); tick it every iteration and :meth:`forget` it when the
+        loop ends."""
+        beat = Beat(name, self._clock)
+        with self._lock:
+            self._beats.append(beat)
+        return beat
+
+    def forget(self, beat: Beat) -> None:
+        """Stop watching ``beat`` (its loop ended)."""
+        with self._lock:
+            if beat in self._beats:
+                self._beats.remove(beat)
+            self._episodes.pop(beat.name + f"#{id(beat)}", None)
+
+    # -- the monitor ---------------------------------------------------------------------
+    def _arm(self) -> None:
+        if self._dump is not None:
+            faulthandler.dump_traceback_later(
+                self.threshold_s + self.period_s, repeat=False, file=self._dump, exit=False
+            )
+
+    def _run(self) -> None:
+        expected = self._clock() + self.period_s
+        self._arm()
+        while not self._stop.wait(max(0.0, expected - self._clock())):
+            now = self._clock()
+            late = now - expected
+            if late > self.threshold_s:
+                self._record("*", late + self.period_s, self._take_dump() or _all_stacks())
+            else:
+                self._take_dump()  # a dump from a near miss: discard it
+            self._arm()
+            self.check(now)
+            expected = max(expected + self.period_s, now)
+
+    def check(self, now: float) -> None:
+        """Look at every beat (the monitor thread does this every period)."""
+        with self._lock:
+            beats = list(self._beats)
+        for beat in beats:
+            key = beat.name + f"#{id(beat)}"
+            age = now - beat.last
+            episode = self._episodes.get(key)
+            if age > self.threshold_s and episode is None:
+                stack = _thread_stack(beat.thread_id)
+                self._episodes[key] = _Episode(beat.last, stack)
+                logger.warning(
+                    "stall: %s thread %s has not run for %.0f ms; it is at:\n%s",
+                    self.process,
+                    beat.name,
+                    age * 1e3,
+                    stack,
+                )
+            elif age <= self.threshold_s and episode is not None:
+                del self._episodes[key]
+                self._record(beat.name, (beat.last - episode.started), episode.stack)
+
+    def _take_dump(self) -> str:
+        """What the interpreter's watchdog wrote since the last look."""
+        if self._dump is None:
+            return ""
+        self._dump.flush()
+        self._dump.seek(self._dump_read)
+        text = self._dump.read()
+        self._dump_read = self._dump.tell()
+        return text.strip()
+
+    def _record(self, thread: str, duration_s: float, stack: str) -> None:
+        record = StallRecord(
+            process=self.process,
+            pid=os.getpid(),
+            thread=thread,
+            ms=round(duration_s * 1e3, 1),
+            wall_s=time.time(),
+            stack=stack[-_STACK_CHARS:],
+        )
+        self.records.append(record)
+        self.longest_ms = max(self.longest_ms, record.ms)
+        logger.warning("stall: %s\n%s", record.line(), record.stack)
+        if self.log_path is not None:
+            _append(self.log_path, record)
+
+
+_installed: StallMonitor | None = None
+
+
+def install(monitor: StallMonitor | None) -> None:
+    """Make ``monitor`` the process's own (:func:`watch` registers loops with it);
+    ``None`` uninstalls. :class:`~firmware_proto.runtime.process.ProcessRuntime` does
+    this for a program."""
+    global _installed  # noqa: PLW0603 (one monitor per process, like logging's root)
+    _installed = monitor
+
+
+def current_monitor() -> StallMonitor | None:
+    """The process's monitor, if one is installed."""
+    return _installed
+
+
+def watch(name: str) -> Beat:
+    """A beat for the calling thread's loop, watched by the process's monitor; where
+    none is installed (a library used in a test), a beat nobody watches."""
+    monitor = _installed
+    return monitor.watch(name) if monitor is not None else Beat(name, time.monotonic)
+
+
+def forget(beat: Beat) -> None:
+    """Stop watching ``beat`` (its loop ended); harmless when nobody watched it."""
+    monitor = _installed
+    if monitor is not None:
+        monitor.forget(beat)
+
+
+def _thread_stack(thread_id: int) -> str:
+    frame = sys._current_frames().get(thread_id)
+    if frame is None:
+        return "(thread gone)"
+    return "".join(traceback.format_stack(frame)).rstrip()
+
+
+def _all_stacks() -> str:
+    names = {t.ident: t.name for t in threading.enumerate()}
+    parts = []
+    for ident, frame in sys._current_frames().items():
+        if ident == threading.get_ident():
+            continue
+        stack = "".join(traceback.format_stack(frame)).rstrip()
+        parts.append(f"thread {names.get(ident, ident)}:\n{stack}")
+    return "\n".join(parts)
+
+
+def _append(path: Path, record: StallRecord) -> None:
+    """One JSON line, one ``write`` (see the module docstring); errors are logged."""
+    line = json.dumps(asdict(record), separators=(",", ":")) + "\n"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(FileNotFoundError):
+            if path.stat().st_size > STALL_LOG_MAX_BYTES:
+                path.replace(path.with_name(path.name + ".1"))
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            os.write(fd, line.encode())
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        logger.warning("cannot write the stall log %s: %s", path, exc)
+
+
+def read_stalls(path: Path | None, since_wall_s: float = 0.0) -> list[StallRecord]:
+    """The stalls in the log at ``path`` that ended at or after ``since_wall_s``
+    (``time.time()``), oldest first; malformed lines are skipped (counted in the log)."""
+    if path is None:
+        return []
+    records: list[StallRecord] = []
+    bad = 0
+    for candidate in (path.with_name(path.name + ".1"), path):
+        for line in _lines(candidate):
+            try:
+                record = StallRecord(**json.loads(line))
+            except (ValueError, TypeError):
+                bad += 1
+                continue
+            if record.wall_s >= since_wall_s:
+                records.append(record)
+    if bad:
+        logger.warning("stall log %s: %d malformed line(s) skipped", path, bad)
+    return sorted(records, key=lambda r: r.wall_s)
+
+
+def _lines(path: Path) -> Iterator[str]:
+    try:
+        text = path.read_text(errors="replace")
+    except OSError:
+        return
+    yield from (line for line in text.splitlines() if line.strip())
+
+
+def describe_stalls(records: list[StallRecord], threshold_s: float) -> list[str]:
+    """Lines for the operator: each process's longest stall, longest first; or one line
+    saying that none stalled longer than ``threshold_s``."""
+    if not records:
+        return [
+            f"no process of the stack on this host stalled longer than {threshold_s * 1e3:.0f} ms"
+        ]
+    longest: dict[tuple[str, int], StallRecord] = {}
+    for record in records:
+        key = (record.process, record.pid)
+        if key not in longest or record.ms > longest[key].ms:
+            longest[key] = record
+    counts: dict[tuple[str, int], int] = {}
+    for record in records:
+        counts[(record.process, record.pid)] = counts.get((record.process, record.pid), 0) + 1
+    out = []
+    for key, record in sorted(longest.items(), key=lambda kv: -kv[1].ms):
+        more = f" ({counts[key]} stalls)" if counts[key] > 1 else ""
+        out.append(f"stall: {record.line()}{more}")
+    return out

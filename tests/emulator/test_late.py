@@ -1,0 +1,111 @@
+"""The emulator is faithful when its own process is late (docs/realtime.md): a real
+controller is never descheduled, so an emulator held up by its computer must not invent
+a watchdog trip; a host that really falls silent still trips it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import pytest
+
+from firmware_proto.messages import Fault, FaultCode, Heartbeat
+from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
+from tests.child import Child
+from tests.emulator.host import SerialHost
+from tests.emulator.test_served import ControlClient
+
+FREEZE_S = 0.6
+"""How long the emulator's process is stopped: more than twice the 250 ms watchdog."""
+
+
+@contextmanager
+def realtime_threads() -> Iterator[None]:
+    """Threads started inside get real-time priority where permitted (the host's
+    heartbeat must keep time, or the test would see a real host silence)."""
+    apply_realtime(RealtimeConfig(25, lock_memory=False))
+    try:
+        yield
+    finally:
+        apply_realtime(RealtimeConfig(0))
+
+
+def _status(control: ControlClient) -> dict[str, Any]:
+    answer = control.ask("status")
+    assert answer["ok"], answer
+    status: dict[str, Any] = answer["status"]
+    return status
+
+
+def test_a_stopped_emulator_trips_no_watchdog_and_a_silent_host_still_does() -> None:
+    args = ["emulate", "--serial", "--control-port", "0", "--seed", "5"]
+    emulator = Child(args, dict(os.environ))
+    try:
+        device = emulator.wait_for("DEVICE ").split()[1]
+        port = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
+        control = ControlClient(port)
+        with realtime_threads():
+            host = SerialHost(device, heartbeat_s=0.02)
+        try:
+            host.handshake()
+            host.wait_for(Heartbeat, lambda hb: hb.handshake_ok == 1, since=host.mark())
+            before = _status(control)
+            mark = host.mark()
+            # The emulator's computer holds it up (every thread, as a busy machine can);
+            # the host keeps sending its heartbeats meanwhile.
+            os.kill(emulator.proc.pid, signal.SIGSTOP)
+            time.sleep(FREEZE_S)
+            os.kill(emulator.proc.pid, signal.SIGCONT)
+            after = _status(control)  # answered by the control thread: it has caught up
+            assert after["overruns"] + after["catchups"] > before["overruns"] + before["catchups"]
+            # Two heartbeats sent after it caught up: any trip would have come before them.
+            resumed = host.mark()
+            host.wait_for(Heartbeat, since=resumed)
+            last = host.wait_for(Heartbeat, since=host.mark())
+            assert not [f for f in host.messages(Fault, mark) if f.code == FaultCode.WATCHDOG]
+            assert last.latch_watchdog == 0 and last.stop_latched == 0
+            gaps = _status(control)["host_heartbeat_gaps"]
+            assert gaps["max_ms"] >= FREEZE_S * 1e3 * 0.8  # it saw the host's frames late
+
+            # A host that really falls silent trips the watchdog as before.
+            silent = host.mark()
+            host.heartbeats.clear()
+            trip = host.wait_for(
+                Fault, lambda f: f.code == FaultCode.WATCHDOG and f.active == 1, since=silent
+            )
+            assert trip.active == 1
+        finally:
+            host.close()
+            control.close()
+    finally:
+        if emulator.proc.poll() is None:
+            os.kill(emulator.proc.pid, signal.SIGCONT)
+        emulator.stop()
+
+
+@pytest.mark.parametrize("freeze_s", [0.09])
+def test_a_late_control_loop_is_counted_as_a_catch_up(freeze_s: float) -> None:
+    """A control loop held up under the backlog limit runs the ticks it owes in a burst
+    and counts it, with how late it was."""
+    from emulator.controller import ControllerConfig, ControllerModel
+    from emulator.engine import Emulator
+    from emulator.serial_frontend import SerialFrontEnd
+    from emulator.twin import Twin
+    from firmware_proto.rover import load_rover
+
+    rover = load_rover()
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
+    with Emulator(model, SerialFrontEnd(seed=1)) as emu:
+        before = emu.call(lambda: model.now_s)
+        emu.call(lambda: time.sleep(freeze_s))  # the control thread itself is held up
+        deadline = time.monotonic() + 5.0
+        status = emu.status()
+        while status.time_s - before < freeze_s:  # the owed ticks are run, not skipped
+            assert time.monotonic() < deadline, status
+            status = emu.status()
+        assert status.catchups >= 1
+        assert status.late_max_ms >= freeze_s * 1e3 * 0.8

@@ -1,0 +1,249 @@
+"""The process runtime: real-time scheduling asked for and reported once, stalls found
+and said where they were, heartbeat gaps (docs/realtime.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from firmware_proto.gapstats import GapStats
+from firmware_proto.runtime.realtime import RealtimeConfig, RealtimeStatus
+from firmware_proto.runtime.stall import (
+    StallMonitor,
+    StallRecord,
+    describe_stalls,
+    read_stalls,
+    stall_log_path,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+IS_ROOT = os.geteuid() == 0
+
+
+# -- gaps ----------------------------------------------------------------------------------
+def test_gap_stats_measure_the_gaps_their_lateness_and_restart() -> None:
+    gaps = GapStats(period_s=0.1)
+    assert gaps.summary().max_ms is None
+    assert gaps.summary().line() == "none yet"
+    for t in (0.0, 0.1, 0.2, 0.55, 0.65):
+        gaps.event(t)
+    s = gaps.summary()
+    assert s.count == 4
+    assert s.max_ms == pytest.approx(350.0)
+    assert s.late_max_ms == pytest.approx(250.0)
+    assert s.last_ms == pytest.approx(100.0)
+    gaps.restart()  # the link reopened: the silence between is no gap
+    gaps.event(10.0)
+    gaps.event(10.1)
+    assert gaps.summary().count == 5
+    assert gaps.summary().max_ms == pytest.approx(350.0)
+    assert gaps.event(9.0) is None  # out of order: not counted
+
+
+def test_gap_stats_p99_is_of_the_recent_window() -> None:
+    gaps = GapStats(window=100)
+    t = 0.0
+    gaps.event(t)
+    for i in range(300):
+        t += 1.0 if i == 0 else 0.01  # one long gap, then 299 short ones
+        gaps.event(t)
+    s = gaps.summary()
+    assert s.max_ms == pytest.approx(1000.0)
+    assert s.p99_ms == pytest.approx(10.0)  # the long gap left the window
+    with pytest.raises(ValueError, match="window"):
+        GapStats(window=0)
+
+
+# -- real-time scheduling ------------------------------------------------------------------
+_PROBE = """
+import json, os, sys, threading
+from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
+status = apply_realtime(RealtimeConfig(int(sys.argv[1])))
+seen = {}
+t = threading.Thread(target=lambda: seen.update(policy=os.sched_getscheduler(0)))
+t.start(); t.join()
+print(json.dumps({"line": status.line(), "granted": status.granted,
+                  "locked": status.memory_locked, "thread_policy": seen["policy"]}))
+"""
+
+
+def _probe(priority: int, *prefix: str) -> dict[str, object]:
+    done = subprocess.run(
+        [*prefix, sys.executable, "-c", _PROBE, str(priority)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    result: dict[str, object] = json.loads(done.stdout)
+    assert done.stderr == ""  # said once, by the program: the library logs nothing
+    return result
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="granting real time needs root here")
+def test_real_time_is_granted_and_every_thread_started_after_inherits_it() -> None:
+    result = _probe(20)
+    assert result["granted"] is True
+    assert result["locked"] is True
+    assert result["thread_policy"] == os.SCHED_RR
+    assert result["line"] == "realtime: SCHED_RR priority 20, memory locked"
+
+
+@pytest.mark.skipif(
+    not IS_ROOT or shutil.which("setpriv") is None,
+    reason="needs root and setpriv to take the permission away",
+)
+def test_without_permission_it_runs_on_and_says_why() -> None:
+    result = _probe(20, "setpriv", "--bounding-set=-sys_nice")
+    assert result["granted"] is False
+    assert result["thread_policy"] == os.SCHED_OTHER
+    line = str(result["line"])
+    assert line.startswith("realtime: NOT granted (sched_setscheduler: Operation not permitted")
+    assert "docs/realtime.md" in line
+
+
+def test_priority_zero_is_normal_scheduling() -> None:
+    result = _probe(0)
+    assert result["granted"] is False
+    assert result["thread_policy"] == os.SCHED_OTHER
+    assert str(result["line"]).startswith("realtime: off")
+
+
+def test_config_is_checked() -> None:
+    with pytest.raises(ValueError, match=r"0\.\.99"):
+        RealtimeConfig(100)
+    with pytest.raises(ValueError, match="policy"):
+        RealtimeConfig(10, policy="deadline")
+    status = RealtimeStatus("SCHED_FIFO", 30, 0, False, True, "memory not locked: x")
+    assert status.line() == (
+        "realtime: SCHED_FIFO priority 30, memory not locked (memory not locked: x)"
+    )
+
+
+@pytest.mark.skipif(
+    not IS_ROOT or shutil.which("setpriv") is None,
+    reason="needs root and setpriv to take the permission away",
+)
+def test_rover_emulate_without_permission_serves_and_says_so_once() -> None:
+    proc = subprocess.run(
+        [
+            "setpriv",
+            "--bounding-set=-sys_nice",
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "emulate",
+            "--serial",
+            "--duration",
+            "1",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("DEVICE /dev/pts/")
+    said = [line for line in proc.stderr.splitlines() if "realtime" in line]
+    assert len(said) == 1 and said[0].startswith("realtime: NOT granted"), proc.stderr
+
+
+# -- stalls ---------------------------------------------------------------------------------
+def test_a_stalled_loop_is_reported_with_its_stack_and_logged(tmp_path: Path) -> None:
+    log = tmp_path / "stalls.jsonl"
+    resumed = threading.Event()
+
+    def stalling_loop(monitor: StallMonitor) -> None:
+        beat = monitor.watch("test-loop")
+        try:
+            for _ in range(5):
+                beat.tick()
+                time.sleep(0.01)
+            time.sleep(0.4)  # the stall
+            beat.tick()
+            resumed.set()
+            for _ in range(10):
+                beat.tick()
+                time.sleep(0.01)
+        finally:
+            monitor.forget(beat)
+
+    with StallMonitor("tester", threshold_s=0.1, log_path=log) as monitor:
+        thread = threading.Thread(target=stalling_loop, args=(monitor,), name="stalling")
+        thread.start()
+        thread.join(10)
+        assert resumed.is_set()
+        deadline = time.monotonic() + 5
+        while not any(r.thread == "test-loop" for r in monitor.records):
+            assert time.monotonic() < deadline, monitor.records
+            time.sleep(0.02)
+    (record,) = [r for r in read_stalls(log) if r.thread == "test-loop"]
+    assert record.process == "tester" and record.pid == os.getpid()
+    assert record.ms >= 350
+    assert "stalling_loop" in record.stack and "time.sleep(0.4)" in record.stack
+    assert "thread test-loop stalled" in record.line()
+
+
+def test_a_process_held_up_in_c_is_caught_with_every_thread_stack(tmp_path: Path) -> None:
+    """A C call that keeps the interpreter lock (here a regular expression that
+    backtracks; in the field, a middleware publish) stops every Python thread, the
+    monitor's too: the interpreter's own watchdog names the culprit."""
+    log = tmp_path / "stalls.jsonl"
+    pattern = re.compile(r"(a+)+$")
+    with StallMonitor("tester", threshold_s=0.1, log_path=log) as monitor:
+        size = 22
+        while True:  # long enough to hold the lock over the threshold on this machine
+            start = time.monotonic()
+            pattern.match("a" * size + "b")
+            if time.monotonic() - start > 0.3:
+                break
+            size += 1
+            assert size < 40
+        deadline = time.monotonic() + 5
+        while not any(r.thread == "*" for r in monitor.records):
+            assert time.monotonic() < deadline, monitor.records
+            time.sleep(0.02)
+    whole = [r for r in read_stalls(log) if r.thread == "*"]
+    assert whole and max(r.ms for r in whole) >= 250
+    assert any("test_a_process_held_up_in_c" in r.stack for r in whole), whole[0].stack
+
+
+def test_the_stall_log_reads_back_skips_bad_lines_and_describes(tmp_path: Path) -> None:
+    log = tmp_path / "stalls.jsonl"
+    records = [
+        StallRecord("bridge", 10, "link-timer", 312.0, 1000.0, "stack a"),
+        StallRecord("bridge", 10, "*", 150.0, 1001.0),
+        StallRecord("emulator", 11, "emulator-control", 120.0, 999.0),
+    ]
+    log.write_text(
+        "\n".join(json.dumps(r.__dict__) for r in records) + "\nnot json\n{}\n", encoding="utf-8"
+    )
+    back = read_stalls(log)
+    assert [r.wall_s for r in back] == [999.0, 1000.0, 1001.0]
+    assert read_stalls(log, since_wall_s=1000.5) == [records[1]]
+    lines = describe_stalls(back, 0.1)
+    assert lines[0].startswith("stall: bridge (pid 10): thread link-timer stalled 312 ms")
+    assert lines[0].endswith("(2 stalls)")
+    assert lines[1].startswith("stall: emulator (pid 11)")
+    assert describe_stalls([], 0.1) == [
+        "no process of the stack on this host stalled longer than 100 ms"
+    ]
+    assert read_stalls(tmp_path / "missing.jsonl") == []
+
+
+def test_the_stall_log_path_comes_from_the_environment() -> None:
+    assert stall_log_path({"ROVER_STALL_LOG": "/x/y.jsonl"}) == Path("/x/y.jsonl")
+    assert stall_log_path({"ROVER_STALL_LOG": ""}) is None
+    default = stall_log_path({})
+    assert default is not None and default.name == "stalls.jsonl"
