@@ -13,9 +13,11 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
+from types import FrameType, TracebackType
+from typing import Any
 
 from firmware_proto.runtime.interpreter import use_short_switch_interval
 from firmware_proto.runtime.realtime import (
@@ -26,6 +28,7 @@ from firmware_proto.runtime.realtime import (
 from firmware_proto.runtime.stall import (
     DEFAULT_STALL_THRESHOLD_S,
     StallMonitor,
+    all_stacks,
     install,
     stall_log_path,
 )
@@ -148,6 +151,10 @@ def runtime_options(
     )
 
 
+def _dump_stacks(signum: int, frame: FrameType | None) -> None:
+    logger.warning("stacks on request (SIGUSR1):\n%s", all_stacks())
+
+
 class ProcessRuntime:
     """Scheduling and stall monitoring for the calling program (a context manager).
 
@@ -162,6 +169,7 @@ class ProcessRuntime:
         self.monitor = StallMonitor(
             options.name, threshold_s=options.stall_threshold_s, log_path=options.stall_log
         )
+        self._previous_usr1: Any = signal.SIG_DFL
 
     def __enter__(self) -> ProcessRuntime:
         if self.options.short_switch:
@@ -171,6 +179,10 @@ class ProcessRuntime:
         self.realtime = apply_realtime(RealtimeConfig(priority=self.options.priority))
         self.monitor.start()
         install(self.monitor)
+        # `kill -USR1 <pid>` logs every thread's stack (docs/realtime.md, Stalls). A
+        # Python handler, run with the interpreter lock: faulthandler's C one reads the
+        # threads' frames while they run.
+        self._previous_usr1 = signal.signal(signal.SIGUSR1, _dump_stacks)
         return self
 
     def __exit__(
@@ -179,6 +191,7 @@ class ProcessRuntime:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
+        signal.signal(signal.SIGUSR1, self._previous_usr1)
         install(None)
         self.monitor.close()
 

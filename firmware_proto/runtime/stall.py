@@ -5,14 +5,19 @@
 
 - **The process.** When the monitor itself wakes more than ``threshold_s`` late, the
   whole process was held up: not scheduled (a busy computer), or one thread held the
-  interpreter lock inside a C call (a middleware publish). Python code cannot see the
-  second case while it lasts, so the monitor keeps :func:`faulthandler.dump_traceback_later`
-  armed: the interpreter's own watchdog thread, which needs no lock, writes every
-  thread's stack to a file when the monitor has not re-armed it in time. The record of
-  the stall carries that dump.
+  interpreter lock inside a C call (a middleware publish). The record carries every
+  thread's stack as the monitor finds them when it runs again.
 - **Its loops.** A loop that must keep going registers a :class:`Beat` and ticks it
   every iteration; a beat older than ``threshold_s`` is a stalled thread, recorded
-  with that thread's stack.
+  with that thread's stack. A thread held inside a C call shows here by name, with
+  how long its loop did not turn.
+
+It does not use :func:`faulthandler.dump_traceback_later`, which would catch a C call
+in the act: its watchdog thread reads the other threads' frames without the
+interpreter lock, and when a process that was not scheduled resumes, every thread runs
+again while it reads: that crashed the bridge (SIGSEGV) in one freeze of four here.
+``kill -USR1 <pid>`` still dumps every thread on demand
+(:class:`~firmware_proto.runtime.process.ProcessRuntime`).
 
 Every stall is logged (WARNING, with the stack) and, when a stall log is configured,
 appended to it as one JSON line (:class:`StallRecord`), where ``rover demo`` and
@@ -25,7 +30,6 @@ appending, so lines from several processes never interleave.
 from __future__ import annotations
 
 import contextlib
-import faulthandler
 import json
 import logging
 import os
@@ -38,7 +42,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO
 
 __all__ = [
     "DEFAULT_STALL_THRESHOLD_S",
@@ -47,6 +50,7 @@ __all__ = [
     "Beat",
     "StallMonitor",
     "StallRecord",
+    "all_stacks",
     "current_monitor",
     "describe_stalls",
     "forget",
@@ -163,8 +167,6 @@ class StallMonitor:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._episodes: dict[str, _Episode] = {}
-        self._dump: IO[str] | None = None
-        self._dump_read = 0
         self.records: list[StallRecord] = []
         """Every stall so far (also logged, and appended to the stall log)."""
         self.longest_ms = 0.0
@@ -172,25 +174,18 @@ class StallMonitor:
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
-        """Start the monitor thread (it arms the interpreter's dump watchdog)."""
+        """Start the monitor thread."""
         if self._thread is not None:
             raise RuntimeError("stall monitor already started")
-        # Open while the monitor runs (the dump watchdog writes to it); closed by close().
-        self._dump = tempfile.TemporaryFile("w+", prefix="rover-stall-")  # noqa: SIM115
         self._thread = threading.Thread(target=self._run, name="stall-monitor", daemon=True)
         self._thread.start()
 
     def close(self) -> None:
-        """Stop the thread and disarm the dump watchdog (idempotent)."""
+        """Stop the thread (idempotent)."""
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
         self._thread = None
-        if self._dump is not None:
-            with contextlib.suppress(RuntimeError):
-                faulthandler.cancel_dump_traceback_later()
-            self._dump.close()
-            self._dump = None
 
     def __enter__(self) -> StallMonitor:
         self.start()
@@ -221,23 +216,13 @@ class StallMonitor:
             self._episodes.pop(beat.name + f"#{id(beat)}", None)
 
     # -- the monitor ---------------------------------------------------------------------
-    def _arm(self) -> None:
-        if self._dump is not None:
-            faulthandler.dump_traceback_later(
-                self.threshold_s + self.period_s, repeat=False, file=self._dump, exit=False
-            )
-
     def _run(self) -> None:
         expected = self._clock() + self.period_s
-        self._arm()
         while not self._stop.wait(max(0.0, expected - self._clock())):
             now = self._clock()
             late = now - expected
             if late > self.threshold_s:
-                self._record("*", late + self.period_s, self._take_dump() or _all_stacks())
-            else:
-                self._take_dump()  # a dump from a near miss: discard it
-            self._arm()
+                self._record("*", late + self.period_s, all_stacks())
             self.check(now)
             expected = max(expected + self.period_s, now)
 
@@ -262,16 +247,6 @@ class StallMonitor:
             elif age <= self.threshold_s and episode is not None:
                 del self._episodes[key]
                 self._record(beat.name, (beat.last - episode.started), episode.stack)
-
-    def _take_dump(self) -> str:
-        """What the interpreter's watchdog wrote since the last look."""
-        if self._dump is None:
-            return ""
-        self._dump.flush()
-        self._dump.seek(self._dump_read)
-        text = self._dump.read()
-        self._dump_read = self._dump.tell()
-        return text.strip()
 
     def _record(self, thread: str, duration_s: float, stack: str) -> None:
         record = StallRecord(
@@ -326,7 +301,7 @@ def _thread_stack(thread_id: int) -> str:
     return "".join(traceback.format_stack(frame)).rstrip()
 
 
-def _all_stacks() -> str:
+def all_stacks() -> str:
     names = {t.ident: t.name for t in threading.enumerate()}
     parts = []
     for ident, frame in sys._current_frames().items():

@@ -247,3 +247,33 @@ def test_the_stall_log_path_comes_from_the_environment() -> None:
     assert stall_log_path({"ROVER_STALL_LOG": ""}) is None
     default = stall_log_path({})
     assert default is not None and default.name == "stalls.jsonl"
+
+
+def test_sigusr1_logs_every_threads_stack_and_the_program_runs_on() -> None:
+    code = (
+        "import logging, os, signal, sys, threading, time\n"
+        "logging.basicConfig(level=logging.WARNING)\n"
+        "from firmware_proto.runtime import ProcessRuntime, RuntimeOptions\n"
+        "def worker_loop(stop):\n"
+        "    while not stop.wait(0.01):\n"
+        "        pass\n"
+        "stop = threading.Event()\n"
+        "with ProcessRuntime(RuntimeOptions('tester')):\n"
+        "    t = threading.Thread(target=worker_loop, args=(stop,), name='worker'); t.start()\n"
+        "    os.kill(os.getpid(), signal.SIGUSR1)\n"
+        "    time.sleep(0.2)\n"
+        "    stop.set(); t.join()\n"
+        "print('still here')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "still here\n"
+    assert "stacks on request (SIGUSR1)" in done.stderr
+    assert "thread worker:" in done.stderr and "worker_loop" in done.stderr
