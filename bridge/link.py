@@ -17,9 +17,12 @@ holds its latch (``latch_stop``, ``latch_watchdog``, ``latch_fault``) and which 
 conditions are active (``fault_bits``). With ``auto_clear_watchdog`` the link sends
 CLEAR_STOP itself when the watchdog alone holds the latch, its condition is gone, the
 session is ours and no emergency stop is requested: a link outage does not leave the
-rover stuck. A clear answered FAULT_PERSISTS is kept and sent again once a HEARTBEAT
-shows no stopping fault condition, until it is answered, or an emergency stop or a
-reboot ends it.
+rover stuck. An automatic clear never outlives a change of the latch's causes: answered
+FAULT_PERSISTS, or a HEARTBEAT showing ``latch_stop`` or ``latch_fault``, ends it, and
+only the operator can then clear. An operator's clear answered FAULT_PERSISTS is kept
+and sent again (a new request id, at most once per controller heartbeat) once a
+HEARTBEAT shows no stopping fault condition, until it is answered, or an emergency stop
+or a reboot ends it.
 
 **MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
 after ``ack_timeout_s`` without ACK, at most ``motion_retries`` times, and the next is
@@ -30,7 +33,13 @@ controller deduplicates retransmissions, so no step runs twice. At most
 
 **Supervision.** HELLO is repeated until IDENT; a protocol or schema-hash mismatch
 refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
-``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``.
+``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``,
+by the timer or, when this process itself was held up, by the first heartbeat that
+arrives after a longer gap (the controller's watchdog has stopped the rover meanwhile).
+Sensor samples (ENCODERS, WHEEL_SPEEDS, IMU, POSE) reach ``on_telemetry`` only while
+the link is ready, that is in a session whose IDENT told the boot nonce: a conforming
+controller sends none before a HELLO, so the first count of a new boot can never be
+taken for motion of the old one (counted in ``samples_outside_session``).
 A changed boot nonce -> ``fault:controller_reboot``. A transport error -> reconnect with
 exponential backoff, which only a completed handshake resets. In every one of these
 cases every step not yet settled (in the controller, in flight, waiting in the lane) is
@@ -75,7 +84,7 @@ from bridge.rosport.contract import (
     fault,
     rejected,
 )
-from bridge.transport import Transport, open_transport
+from bridge.transport import SAMPLE_MESSAGES, Transport, open_transport
 from firmware_proto.faults import STOPPING_FAULTS, fault_bit
 from firmware_proto.gapstats import GapStats
 from firmware_proto.message import Message
@@ -273,6 +282,9 @@ class LinkDiagnostics:
     frame)."""
     heartbeat_tx_gap_p99_ms: float | None = None
     """99th percentile of the last 1,000 such gaps, ms."""
+    samples_outside_session: int = 0
+    """Sensor samples received while the link was not ready, ignored (a conforming
+    controller sends none before a HELLO)."""
     stalls: int = 0
     """Stalls of this process or its loops over the stall threshold (docs/realtime.md)."""
     stall_max_ms: float = 0.0
@@ -293,6 +305,7 @@ class _Counters:
     steps_aborted: int = 0
     heartbeat_losses: int = 0
     lost_after_beats: int | None = None
+    samples_outside_session: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     rtts: deque[float] = field(default_factory=lambda: deque(maxlen=100))
 
@@ -381,12 +394,18 @@ class ControllerLink:
         self._ctrl_latched = False
         self._ctrl_state: int | None = None
         self._ended_seen = 0
-        self._last_auto_clear = -math.inf
+        self._last_clear_request = -math.inf
         self._hello_sent = False  # a HELLO went out in the current handshake
         self.last_stop_written: float | None = None
         """``time.monotonic()`` when the last STOP frame was handed to the OS, whole."""
         self._hb_rx_gaps = GapStats(config.controller_heartbeat_s)
         self._hb_tx_gaps = GapStats(config.heartbeat_s)
+        self._watchdog_counted = False
+        """The watchdog latch episode now in force was counted in ``watchdog_trips``."""
+        self._lost_mark = 0
+        """The transport's lost-frame count at the last frame of the current boot."""
+        self._lost_forgiven = 0
+        """Lost frames not counted: the frame counter restarting at a reboot."""
 
     # -- lifecycle ----------------------------------------------------------------------
     def reconfigure(self, config: LinkConfig) -> None:
@@ -551,6 +570,7 @@ class ControllerLink:
             self._estop_requested = False
             self._pending_stop = None
             self._pending_clear = _Pending(clear_id, now, 0.0, 0)
+            self._last_clear_request = now
             self._clear_wanted, self._clear_auto = True, False
             self._clear_persisted = False
             self._wake.set()
@@ -663,6 +683,7 @@ class ControllerLink:
                 self._last_hb_rx = None
                 self._hb_rx_gaps.restart()
                 self._hb_tx_gaps.restart()
+                self._lost_mark = self._lost_forgiven = 0  # a new transport counts anew
                 logger.info("connected to %s; handshaking", self.config.url)
         if stopping:
             transport.close()  # outside the lock: it joins the dispatcher, which may want it
@@ -744,17 +765,9 @@ class ControllerLink:
             clear.last_sent = now
             out.insert(0, ClearStop(clear.stop_id))
         if self._state is LinkState.READY:
-            lost_after = (
-                cfg.link_lost_beats * cfg.controller_heartbeat_s + cfg.controller_heartbeat_s / 2
-            )
+            lost_after = self._lost_after_s()
             if self._last_hb_rx is not None and now - self._last_hb_rx > lost_after:
-                silence = now - self._last_hb_rx
-                self._counters.heartbeat_losses += 1
-                self._counters.lost_after_beats = int(silence / cfg.controller_heartbeat_s)
-                self._lose(
-                    f"no controller heartbeat for {silence:.2f} s "
-                    f"({self._counters.lost_after_beats} beats missed)"
-                )
+                self._declare_silence(now - self._last_hb_rx)
         for msg in out:
             self._queue(msg)
         if self._state is LinkState.READY:
@@ -807,6 +820,26 @@ class ControllerLink:
         r = step.request
         return Motion(step.seq, r.command, r.speed, r.distance)
 
+    def _lost_after_s(self) -> float:
+        """How long without a controller heartbeat the link is lost, s."""
+        cfg = self.config
+        return cfg.link_lost_beats * cfg.controller_heartbeat_s + cfg.controller_heartbeat_s / 2
+
+    def _declare_silence(self, silence_s: float) -> None:
+        """No controller heartbeat for ``silence_s``: the link is lost (lock held)."""
+        self._counters.heartbeat_losses += 1
+        self._counters.lost_after_beats = int(silence_s / self.config.controller_heartbeat_s)
+        self._lose(
+            f"no controller heartbeat for {silence_s:.2f} s "
+            f"({self._counters.lost_after_beats} beats missed)"
+        )
+
+    def _mark_lost_frames(self) -> None:
+        """A frame of the current boot: loss counted up to here is real loss."""
+        transport = self._transport
+        if transport is not None:
+            self._lost_mark = transport.counters.lost
+
     def _lose(self, why: str) -> None:
         """The controller stopped answering: report, drop every step, re-handshake."""
         logger.warning("link lost: %s", why)
@@ -854,8 +887,11 @@ class ControllerLink:
     def _on_message(self, msg: Message, arrived: float) -> None:
         with self._lock:
             self._dispatch(msg, arrived)
+            forward = self._state is LinkState.READY or not isinstance(msg, SAMPLE_MESSAGES)
+            if not forward:
+                self._counters.samples_outside_session += 1
         self._flush()
-        if self._on_telemetry is not None:
+        if forward and self._on_telemetry is not None:
             self._on_telemetry(msg, arrived)
 
     def _dispatch(self, msg: Message, t: float) -> None:
@@ -885,6 +921,16 @@ class ControllerLink:
             self._on_progress(msg)
 
     def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
+        previous = self._last_hb_rx
+        if (
+            self._state is LinkState.READY
+            and previous is not None
+            and t - previous > self._lost_after_s()
+        ):
+            # The timer did not see the silence first (this process was held up, and
+            # the heartbeats queued meanwhile arrive now): the controller's watchdog
+            # has stopped the rover all the same, so the link was lost.
+            self._declare_silence(t - previous)
         self._last_hb_rx = t
         self._hb_rx_gaps.event(t)
         self._heartbeat = hb
@@ -892,6 +938,13 @@ class ControllerLink:
         self._ctrl_state = hb.state
         if self._check_reboot(hb.boot_nonce):
             return
+        self._mark_lost_frames()
+        if hb.latch_watchdog and not self._watchdog_counted:
+            # A trip whose FAULT frame was lost: the latch still tells.
+            self._counters.watchdog_trips += 1
+            self._watchdog_counted = True
+        elif not hb.latch_watchdog:
+            self._watchdog_counted = False
         if self._state is LinkState.READY and not hb.handshake_ok:
             logger.warning("controller has no session with us; handshaking again")
             self._drop_all(aborted("link_lost"))
@@ -921,23 +974,27 @@ class ControllerLink:
                 self._ctrl_latched = False
                 self._emit(CLEARED)
             return
+        watchdog_only = bool(hb.latch_watchdog and not hb.latch_stop and not hb.latch_fault)
+        if self._clear_wanted and self._clear_auto and hb.stop_latched and not watchdog_only:
+            # The latch gained a cause the automatic clear was not for (an emergency
+            # stop, a stopping fault): that clear is over; the operator decides now.
+            self._abandon_auto_clear(hb)
+            return
         if self._pending_clear is not None or self._estop_requested or not hb.stop_latched:
             return
         stopping_active = any(hb.fault_bits & fault_bit(code) for code in STOPPING_FAULTS)
         if stopping_active:
             return
         retry = self._clear_wanted
-        auto = (
-            self.config.auto_clear_watchdog
-            and hb.latch_watchdog
-            and not hb.latch_stop
-            and not hb.latch_fault
-        )
-        # At most one new request per controller heartbeat period: a heartbeat sent
-        # before our CLEAR_STOP arrived still shows the latch.
-        if not (retry or auto) or now - self._last_auto_clear < self.config.controller_heartbeat_s:
+        auto = self.config.auto_clear_watchdog and watchdog_only
+        # At most one new request per controller heartbeat period after the last one: a
+        # heartbeat sent before our CLEAR_STOP arrived still shows the latch.
+        if (
+            not (retry or auto)
+            or now - self._last_clear_request < self.config.controller_heartbeat_s
+        ):
             return
-        self._last_auto_clear = now
+        self._last_clear_request = now
         self._stop_counter = self._stop_counter % 0xFFFF + 1
         self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
         if not retry:
@@ -948,11 +1005,29 @@ class ControllerLink:
             logger.info("no stopping fault condition any more: sending CLEAR_STOP again")
         self._wake.set()
 
+    def _abandon_auto_clear(self, hb: Heartbeat | None) -> None:
+        """End the automatic clear request (lock held): the latch's causes changed."""
+        self._clear_wanted = self._clear_auto = self._clear_persisted = False
+        self._pending_clear = None
+        causes = ",".join(_latch_causes(hb)) if hb is not None else "a stopping fault"
+        logger.warning(
+            "automatic clear abandoned: the latch now holds %s; clear_emergency_stop "
+            "(the operator) releases it",
+            causes,
+        )
+
     def _check_reboot(self, nonce: int) -> bool:
         if self._boot_nonce is None or nonce == self._boot_nonce:
             return False
         self._boot_nonce = nonce
         self._counters.reboots += 1
+        # The controller's frame counter restarted with it (docs/protocol.md, Serial
+        # framing): the gap it made since the last frame of the old boot is no loss.
+        transport = self._transport
+        if transport is not None:
+            self._lost_forgiven += transport.counters.lost - self._lost_mark
+            self._lost_mark = transport.counters.lost
+        self._watchdog_counted = False
         logger.warning("controller rebooted (boot nonce 0x%04X); steps in flight dropped", nonce)
         self._drop_all(aborted("controller_reboot"))
         self._emit(fault("controller_reboot"))
@@ -972,8 +1047,8 @@ class ControllerLink:
         self._ident = ident
         if self._boot_nonce is None:
             self._boot_nonce = ident.boot_nonce
-        else:
-            self._check_reboot(ident.boot_nonce)
+        elif not self._check_reboot(ident.boot_nonce):
+            self._mark_lost_frames()
         match = (
             ident.protocol_version == self.protocol_version
             and ident.schema_hash == self.schema_hash
@@ -1020,8 +1095,12 @@ class ControllerLink:
             return
         self._pending_clear = None
         if ack.result == ClearResult.FAULT_PERSISTS:
-            # Kept: sent again once no stopping fault condition is active (_maybe_clear).
-            # Said once per request, not once per retry.
+            if self._clear_auto:
+                # A stopping fault joined the watchdog in the latch: not for us to clear.
+                self._abandon_auto_clear(self._heartbeat)
+                return
+            # The operator's clear is kept: sent again once no stopping fault condition
+            # is active (_maybe_clear). Said once per request, not once per retry.
             if not self._clear_persisted:
                 self._emit(fault("fault_persists"))
             self._clear_persisted = True
@@ -1103,6 +1182,7 @@ class ControllerLink:
                 self._last_stopping_fault = msg.code
             if msg.code == FaultCode.WATCHDOG:
                 self._counters.watchdog_trips += 1
+                self._watchdog_counted = True
             self._emit(fault(name))
         else:
             # The condition went away; a latch it set is the heartbeat's to report.
@@ -1175,7 +1255,7 @@ class ControllerLink:
                 resyncs=(counters.framing + counters.oversize) if counters else 0,
                 rx_dropped=counters.rejected if counters else 0,
                 rx_overflow=transport.rx_overflow if transport else 0,
-                lost_frames=counters.lost if counters else 0,
+                lost_frames=max(0, counters.lost - self._lost_forgiven) if counters else 0,
                 retries=c.retries,
                 no_ack_faults=c.no_ack_faults,
                 stop_repeats=c.stop_repeats,
@@ -1217,6 +1297,7 @@ class ControllerLink:
                 heartbeat_rx_gap_p99_ms=rx_gaps.p99_ms,
                 heartbeat_tx_gap_max_ms=tx_gaps.max_ms,
                 heartbeat_tx_gap_p99_ms=tx_gaps.p99_ms,
+                samples_outside_session=c.samples_outside_session,
                 stalls=len(monitor.records) if monitor is not None else 0,
                 stall_max_ms=monitor.longest_ms if monitor is not None else 0.0,
             )

@@ -268,10 +268,16 @@ def test_a_frozen_bridge_logs_its_stall_and_the_controller_trips(tmp_path: Path)
         bridge = Child(["-v", "bridge", "--device", device, "--ros-backend", "inprocess"], env)
         bridge.wait_for("BRIDGE ")
         _wait_lines(bridge.errors, "handshake done", 20.0)
-        os.kill(bridge.proc.pid, signal.SIGSTOP)
-        time.sleep(0.6)  # the freeze: more than twice the watchdog
-        os.kill(bridge.proc.pid, signal.SIGCONT)
-        _wait_lines(emulator.errors, "watchdog: no valid frame", 10.0)
+        # Three freezes: after each, whichever of its threads runs first, the bridge
+        # declares the link lost (the controller's watchdog stopped the rover meanwhile:
+        # docs/protocol.md, Watchdog and heartbeats) and handshakes again.
+        for freeze in range(1, 4):
+            os.kill(bridge.proc.pid, signal.SIGSTOP)
+            time.sleep(0.6)  # the freeze: more than twice the watchdog
+            os.kill(bridge.proc.pid, signal.SIGCONT)
+            _wait_count(emulator.errors, "watchdog: no valid frame", freeze, 10.0)
+            _wait_count(bridge.errors, "link lost:", freeze, 10.0)
+            _wait_count(bridge.errors, "handshake done", freeze + 1, 20.0)
         deadline = time.monotonic() + 10.0
         while not [r for r in read_stalls(log) if r.process == "bridge" and r.ms >= 400]:
             assert time.monotonic() < deadline, read_stalls(log)
@@ -287,9 +293,13 @@ def test_a_frozen_bridge_logs_its_stall_and_the_controller_trips(tmp_path: Path)
 
 
 def _wait_lines(lines: list[str], needle: str, timeout_s: float) -> None:
+    _wait_count(lines, needle, 1, timeout_s)
+
+
+def _wait_count(lines: list[str], needle: str, count: int, timeout_s: float) -> None:
     import time
 
     deadline = time.monotonic() + timeout_s
-    while not any(needle in line for line in lines):
-        assert time.monotonic() < deadline, f"no {needle!r} in {lines[-10:]}"
+    while sum(needle in line for line in lines) < count:
+        assert time.monotonic() < deadline, f"fewer than {count} {needle!r} in {lines}"
         time.sleep(0.05)
