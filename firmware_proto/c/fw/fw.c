@@ -218,7 +218,7 @@ static void init_state(fw_t *c, uint64_t now_us)
     sched_init(&c->hb, c->heartbeat_hz, now_us);
 }
 
-void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
+fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
 {
     c->cfg = *cfg;
     if (c->cfg.queue_depth == 0u || c->cfg.queue_depth > FW_QUEUE_CAP) {
@@ -232,6 +232,7 @@ void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
     c->dec_rejected_seen = 0u;
     init_state(c, now_us);
     send_ident(c);
+    return FW_OK;
 }
 
 void fw_reboot(fw_t *c, uint64_t now_us)

@@ -49,6 +49,14 @@ extern "C" {
 #define FW_LATCH_WATCHDOG 2u
 #define FW_LATCH_FAULT 4u
 
+/** What fw_init says of a configuration: FW_OK, or why it refuses to run with it. */
+typedef enum {
+    FW_OK = 0,
+    FW_ERR_TICK = 1,          /**< tick_us is 0 */
+    FW_ERR_ACCEL = 2,         /**< accel_um_s2 is 0 (or so small that one tick changes no speed) */
+    FW_ERR_RATE = 3,          /**< telemetry_hz, pose_hz or heartbeat_hz is 0 */
+} fw_error_t;
+
 /** Transport the core answers on. */
 typedef enum { FW_TRANSPORT_SERIAL = 0, FW_TRANSPORT_CAN = 1 } fw_transport_t;
 
@@ -153,8 +161,11 @@ typedef struct {
 /** The protocol's defaults (docs/protocol.md, Timing) and the reference rover's drive. */
 void fw_default_config(fw_config_t *cfg);
 
-/** Power-on: state BOOT, parameters at their defaults, a new nonce; sends IDENT. */
-void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us);
+/**
+ * Power-on: state BOOT, parameters at their defaults, a new nonce; sends IDENT.
+ * Returns FW_OK.
+ */
+fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us);
 
 /** A reset: everything but the configuration and the rx_errors count is lost; IDENT. */
 void fw_reboot(fw_t *c, uint64_t now_us);
