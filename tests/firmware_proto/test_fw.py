@@ -183,6 +183,64 @@ def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
     assert frames > 50_000 and acks > 1_000 and can_frames > 10_000, done.stdout
 
 
+# -- cases (fw/tests/cases_fw.c) ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cases_fw(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """fw/tests/cases_fw.c built with ASan and UBSan (any error aborts it)."""
+    cc = _cc()
+    exe = tmp_path_factory.mktemp("cases") / "cases_fw"
+    _run(
+        [
+            cc,
+            *WARNINGS,
+            *SANITIZERS,
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(FW_DIR / "tests" / "cases_fw.c"),
+            "-o",
+            str(exe),
+        ]
+    )
+    return exe
+
+
+def _case(exe: Path, name: str) -> None:
+    done = subprocess.run(
+        [str(exe), name],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, **SANITIZER_ENV},
+        check=False,
+    )
+    assert (done.returncode, done.stdout, done.stderr) == (0, f"ok {name}\n", ""), (
+        done.stdout + done.stderr[-4000:]
+    )
+
+
+def test_an_int32_min_encoder_count_or_wheel_speed_is_no_undefined_behaviour(
+    cases_fw: Path,
+) -> None:
+    """Both polarities negate the motor-frame readings: INT32_MIN must not overflow."""
+    _case(cases_fw, "int32_min")
+
+
+def test_a_step_across_the_encoder_counter_wrap_completes_at_its_distance(
+    cases_fw: Path,
+) -> None:
+    """fw_hal.h's counter wraps modulo 2^32: a 1 m step whose counters wrap half-way
+    completes with travel 23000 having driven 1 m (not 2^32 units on)."""
+    _case(cases_fw, "wrap")
+
+
+def test_fw_init_refuses_a_zero_tick_acceleration_or_rate(cases_fw: Path) -> None:
+    """Each would divide by zero; refused with its error code, the core stays silent and
+    drives nothing."""
+    _case(cases_fw, "config")
+
+
 # -- cross builds -------------------------------------------------------------------------
 
 TARGETS = {
