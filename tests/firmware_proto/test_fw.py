@@ -36,6 +36,7 @@ from firmware_proto.messages import (
     Stop,
 )
 from tests.firmware_proto.c_harness import C_DIR, SANITIZER_ENV, SANITIZERS, WARNINGS, compiler
+from tests.firmware_proto.fuzz_seeds import CORPORA
 
 pytestmark = pytest.mark.firmware
 
@@ -181,6 +182,43 @@ def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
     # The corpus reaches the state machine: thousands of answers, STOPs among them, on
     # serial and on CAN.
     assert frames > 50_000 and acks > 1_000 and can_frames > 10_000, done.stdout
+
+
+def test_the_varied_plant_harness_over_its_seeds_under_asan_and_ubsan(tmp_path: Path) -> None:
+    """fuzz_fw_plant.c as a plain program (gcc), over its checked-in seeds and seeded
+    noise: what runs where clang is missing (test_libfuzzer.py runs it under libFuzzer).
+    Its invariants abort it; the seeds reach refusals, completed and watched steps."""
+    cc = _cc()
+    exe = tmp_path / "fuzz_fw_plant"
+    _run(
+        [
+            cc,
+            *WARNINGS,
+            *SANITIZERS,
+            "-DFW_FUZZ_MAIN",
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(FW_DIR / "tests" / "fuzz_fw_plant.c"),
+            "-o",
+            str(exe),
+        ]
+    )
+    seeds = sorted(CORPORA["fw_plant"].iterdir())
+    rng = random.Random(22)
+    noise = []
+    for k in range(40):
+        path = tmp_path / f"noise{k}"
+        path.write_bytes(rng.randbytes(rng.randrange(16, 400)))
+        noise.append(path)
+    done = _run([str(exe), *map(str, seeds + noise)], env={**os.environ, **SANITIZER_ENV})
+    found = re.search(
+        r"(\d+) inputs, (\d+) refused, (\d+) frames out, (\d+) steps completed, (\d+) watched",
+        done.stdout,
+    )
+    assert found, done.stdout
+    inputs, refused, frames, completed, watched = map(int, found.groups())
+    assert inputs == len(seeds) + len(noise) and refused >= 5, done.stdout
+    assert frames > 5_000 and completed >= 10 and watched >= 10, done.stdout
 
 
 # -- cases (fw/tests/cases_fw.c) ------------------------------------------------------------
