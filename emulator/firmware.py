@@ -663,8 +663,11 @@ class FirmwareController(ControllerModel):
         return self._drain()
 
     def tick(self) -> list[Message]:
-        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``."""
+        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``;
+        the sensors are pushed before each (what the HAL reads is the plant's now, also
+        after an injection or :meth:`EncoderModel.set_counts` between two ticks)."""
         lib, h = self._lib, self._h
+        self._push_sensors()
         lib.fw_host_control(h, self._now_us())
         wheels = _I32x2()
         lib.fw_host_wheels(h, wheels)
