@@ -21,6 +21,12 @@ real time behind a pty or a CAN bus (:mod:`emulator.engine`) and in lockstep in 
 Time-outs (watchdog, stall) are in twin seconds multiplied by ``timeout_scale``: when
 the twin runs ``k`` times faster than the host's clock, ``timeout_scale = k`` keeps them
 right in the host's time.
+
+Counters that wrap are compared modulo their width, as the C core does: the encoder
+counts are a signed 32-bit counter (:func:`emulator.sensors.count_delta` gives a step's
+travel, a stall's progress and a STOPPED distance right across a wrap); the frame
+counters, ``ended_count``, ``rx_errors`` and ``t_ms`` wrap on the wire at their field
+width.
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from emulator.drive import StepProfile, motor_omegas, ramp
-from emulator.sensors import EncoderModel, ImuModel, PoseSensor, SensorConfig
+from emulator.sensors import EncoderModel, ImuModel, PoseSensor, SensorConfig, count_delta
 from emulator.twin import Twin
 from firmware_proto.faults import STOPPING_FAULTS
 from firmware_proto.message import Message
@@ -438,7 +444,7 @@ class ControllerModel:
             return 0
         left, right = self.encoders.travel()
         l0, r0 = self._running.start_travel
-        return min(0xFFFF, round((abs(left - l0) + abs(right - r0)) / 2.0))
+        return min(0xFFFF, round((abs(count_delta(left, l0)) + abs(count_delta(right, r0))) / 2.0))
 
     def _clear(self) -> int:
         if not self.latch_causes:
@@ -518,7 +524,9 @@ class ControllerModel:
         if self._running is not None:
             run = self._running
             self._setpoint = run.profile.update(
-                travel[0] - run.start_travel[0], travel[1] - run.start_travel[1], dt
+                count_delta(travel[0], run.start_travel[0]),
+                count_delta(travel[1], run.start_travel[1]),
+                dt,
             )
             if run.profile.done:
                 out.append(
@@ -578,7 +586,7 @@ class ControllerModel:
         now = self.now_s
         for side, code in ((0, FaultCode.STALL_LEFT), (1, FaultCode.STALL_RIGHT)):
             if abs(self._commanded[side]) < _STALL_MIN_TARGET_MPS or (
-                abs(travel[side] - self._stall_ref[side]) >= _STALL_MIN_PROGRESS_UNITS
+                abs(count_delta(travel[side], self._stall_ref[side])) >= _STALL_MIN_PROGRESS_UNITS
             ):
                 self._stall_since[side] = None
                 self._stall_ref[side] = travel[side]
@@ -588,8 +596,8 @@ class ControllerModel:
                 self._stall_since[side] = now
             elif now - since > self._scaled_s(self.config.stall_timeout_ms) + _TIME_EPS_S:
                 expected = self._running.profile.remaining_units(
-                    travel[0] - self._running.start_travel[0],
-                    travel[1] - self._running.start_travel[1],
+                    count_delta(travel[0], self._running.start_travel[0]),
+                    count_delta(travel[1], self._running.start_travel[1]),
                 )[side]
                 out += self.raise_fault(code, max(0, round(expected)))
                 return
@@ -608,8 +616,8 @@ class ControllerModel:
         for pending in self._pending_stops:
             moved_m = (
                 (
-                    abs(travel[0] - pending.travel_at_arrival[0])
-                    + abs(travel[1] - pending.travel_at_arrival[1])
+                    abs(count_delta(travel[0], pending.travel_at_arrival[0]))
+                    + abs(count_delta(travel[1], pending.travel_at_arrival[1]))
                 )
                 / 2.0
                 / self.rover.drive.distance_units_per_m

@@ -45,7 +45,7 @@ from typing import Any
 from emulator.controller import ControllerConfig, ControllerModel, LatchCause
 from emulator.drive import motor_omegas
 from emulator.errors import FirmwareBuildError
-from emulator.sensors import PoseMeasurement
+from emulator.sensors import PoseMeasurement, wrap_count
 from emulator.twin import Twin
 from firmware_proto.framing import FrameDecoder, FrameEncoder
 from firmware_proto.message import Message
@@ -274,8 +274,10 @@ def _load(path: Path) -> ctypes.CDLL:
                     _I32x2,
                     _I32x2,
                     u64,
+                    ctypes.POINTER(ctypes.c_int),
                 ],
             ),
+            "fw_host_error_name": (ctypes.c_char_p, [ctypes.c_int]),
             "fw_host_free": (None, [vp]),
             "fw_host_set_sensors": (None, [vp, _I32x2, _I32x2]),
             "fw_host_rx": (None, [vp, u64, ctypes.c_char_p, sz]),
@@ -338,7 +340,9 @@ class FirmwareController(ControllerModel):
         Raises:
             FirmwareBuildError: no compiler, a failed build, or a rover or time step the
                 integer core cannot represent (speed scale and acceleration must be whole
-                um/s and um/s^2, the time step a whole number of microseconds).
+                um/s and um/s^2, the time step a whole number of microseconds) or that
+                ``fw_init`` refuses (its ``fw_error_t`` named: a top wheel speed above
+                3 m/s, a speed change per tick of 0 or above 3 m/s, ...).
         """
         self._lib = _load(library or build_library())
         self._h: int | None = None
@@ -393,6 +397,7 @@ class FirmwareController(ControllerModel):
             return
         self._pose_due.clear()
         enc, speed = self._sensors()
+        error = ctypes.c_int(0)
         handle = self._lib.fw_host_new(
             ctypes.byref(self._c_config()),
             self._cb_imu,
@@ -402,7 +407,11 @@ class FirmwareController(ControllerModel):
             enc,
             speed,
             self._now_us(),
+            ctypes.byref(error),
         )
+        if error.value:
+            name = self._lib.fw_host_error_name(error.value).decode()
+            raise FirmwareBuildError(f"the C core refuses this rover or time step: {name}")
         if not handle:
             raise MemoryError("fw_host_new")
         self._h = handle
@@ -427,7 +436,10 @@ class FirmwareController(ControllerModel):
         d = self.rover.drive
         left, right = self.encoders.counts()
         vl, vr = self.twin.wheel_surface_speeds_mps
-        enc = _I32x2(d.left_wheel_sign * left, d.right_wheel_sign * right)
+        # The motor frame's counter wraps like the rover frame's (-(-2**31) is -2**31).
+        enc = _I32x2(
+            int(wrap_count(d.left_wheel_sign * left)), int(wrap_count(d.right_wheel_sign * right))
+        )
         speed = _I32x2(int(d.left_wheel_sign * vl * 1e6), int(d.right_wheel_sign * vr * 1e6))
         return enc, speed
 
@@ -651,8 +663,11 @@ class FirmwareController(ControllerModel):
         return self._drain()
 
     def tick(self) -> list[Message]:
-        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``."""
+        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``;
+        the sensors are pushed before each (what the HAL reads is the plant's now, also
+        after an injection or :meth:`EncoderModel.set_counts` between two ticks)."""
         lib, h = self._lib, self._h
+        self._push_sensors()
         lib.fw_host_control(h, self._now_us())
         wheels = _I32x2()
         lib.fw_host_wheels(h, wheels)

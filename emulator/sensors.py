@@ -20,13 +20,36 @@ from emulator.twin import Pose2D, Twin, wrap_angle_rad
 from firmware_proto.rover import RoverDescription
 
 __all__ = [
+    "COUNTER_MODULUS",
     "EncoderModel",
     "ImuModel",
     "ImuReading",
     "PoseMeasurement",
     "PoseSensor",
     "SensorConfig",
+    "count_delta",
+    "wrap_count",
 ]
+
+COUNTER_MODULUS = 1 << 32
+"""An encoder counter is a signed 32-bit register: it reads ``-2**31 .. 2**31 - 1`` and
+wraps modulo ``2**32`` (firmware_proto/c/fw/fw_hal.h)."""
+_HALF = COUNTER_MODULUS // 2
+
+
+def wrap_count(units: float) -> float:
+    """``units`` as the 32-bit counter reads it: in ``[-2**31, 2**31)``, congruent modulo
+    ``2**32``. A value already in range is returned unchanged (no float rounding)."""
+    if -_HALF <= units < _HALF:
+        return units
+    return (units + _HALF) % COUNTER_MODULUS - _HALF
+
+
+def count_delta(after: float, before: float) -> float:
+    """Travel between two readings of a wrapping counter, distance units: the difference
+    taken modulo ``2**32`` into ``[-2**31, 2**31)``, right across a wrap as long as the
+    counter moved less than ``2**31`` units (93 km at 23000 units/m) in between."""
+    return wrap_count(after - before)
 
 
 @dataclass(frozen=True)
@@ -54,8 +77,10 @@ class SensorConfig:
 
 class EncoderModel:
     """Absolute wheel counts since boot, polarity applied (forward positive), in distance
-    units, from the twin's motor angles. Injectable per side: extra noise and dropout (the
-    encoder stops counting and flags a signal error)."""
+    units, from the twin's motor angles, as a signed 32-bit counter that wraps (a
+    reading's difference from an earlier one is :func:`count_delta`, not ``-``).
+    Injectable per side: extra noise and dropout (the encoder stops counting and flags a
+    signal error)."""
 
     def __init__(
         self, rover: RoverDescription, twin: Twin, rng: random.Random, noise_units: float
@@ -73,11 +98,19 @@ class EncoderModel:
         self._offset = travel_units(self._rover, *self._twin.motor_angles_rad)
         self._held = [0.0, 0.0]
 
-    def travel(self) -> tuple[float, float]:
-        """Counts since boot as floats, without noise (what the step logic integrates);
-        a side in dropout holds its last value."""
+    def set_counts(self, left_units: float, right_units: float) -> None:
+        """The counters read these values now and count on from them (rover frame): where
+        a long drive would have left them; a test sets them just short of the wrap."""
         left, right = travel_units(self._rover, *self._twin.motor_angles_rad)
-        raw = [left - self._offset[0], right - self._offset[1]]
+        self._offset = (left - left_units, right - right_units)
+        self._held = [wrap_count(left_units), wrap_count(right_units)]
+
+    def travel(self) -> tuple[float, float]:
+        """Counts since boot as floats in the counter's range (:func:`wrap_count`),
+        without noise (what the step logic integrates); a side in dropout holds its last
+        value."""
+        left, right = travel_units(self._rover, *self._twin.motor_angles_rad)
+        raw = [wrap_count(left - self._offset[0]), wrap_count(right - self._offset[1])]
         for side in (0, 1):
             if self.dropout[side]:
                 raw[side] = self._held[side]
@@ -86,13 +119,14 @@ class EncoderModel:
         return raw[0], raw[1]
 
     def counts(self) -> tuple[int, int]:
-        """Reported counts: travel plus noise, rounded (not yet wrapped to 24 bits)."""
+        """Reported counts: travel plus noise, rounded, in the 32-bit counter's range (not
+        yet wrapped to the 24 bits of ENCODERS)."""
         left, right = self.travel()
         out = []
         for side, value in enumerate((left, right)):
             sigma = self.noise_units[side]
             noise = self._rng.gauss(0.0, sigma) if sigma > 0.0 and not self.dropout[side] else 0.0
-            out.append(round(value + noise))
+            out.append(int(wrap_count(round(value + noise))))
         return out[0], out[1]
 
 

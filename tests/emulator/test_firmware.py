@@ -9,7 +9,9 @@ runs against both in tests/bridge/test_conformance.py.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import math
 import os
 from collections import Counter
 from pathlib import Path
@@ -32,6 +34,7 @@ from firmware_proto.messages import (
     Ident,
     Motion,
     ParamResult,
+    Status,
     StepState,
     Stop,
     StopAck,
@@ -70,6 +73,29 @@ def _runs(seed: int) -> tuple[list[Sent], list[Sent]]:
 def test_both_implementations_send_the_same_frames(seed: int) -> None:
     python, c = _runs(seed)
     assert compare(python, c) == []
+
+
+@functools.cache
+def _runs_across_the_wrap() -> tuple[list[Sent], list[Sent]]:
+    """Seed 3's traffic with the encoder counters 500 units short of their wrap: the
+    left one forward (at 2^31 - 500), the right one backward (at -2^31 + 500)."""
+    rover = load_rover()
+    events = list(traffic(3, TICKS))
+    runs = []
+    for kind in (ControllerModel, FirmwareController):
+        model = kind(rover, Twin(rover), ControllerConfig(), seed=3)
+        model.encoders.set_counts((1 << 31) - 500, -(1 << 31) + 500)
+        runs.append(run_lockstep(model, events, TICKS))
+    return runs[0], runs[1]
+
+
+def test_both_implementations_send_the_same_frames_across_the_encoder_wrap() -> None:
+    python, c = _runs_across_the_wrap()
+    assert compare(python, c) == []
+    # ENCODERS carry the count modulo 2^24, in which the 32-bit wrap is the crossing of 0.
+    for side in ("left", "right"):
+        counts = [s.message.to_dict()[side] for s in c if s.message.NAME == "ENCODERS"]
+        assert min(counts) < 0 < max(counts), f"the {side} counter never wrapped"
 
 
 def test_the_differential_traffic_reaches_every_corner() -> None:
@@ -155,6 +181,42 @@ def test_a_stop_zeroes_the_targets_in_the_call_that_receives_it(rover: RoverDesc
     assert model.stop_latched and model.queue_depth == 0
 
 
+@pytest.mark.parametrize("command", [Command.FWD, Command.REV], ids=["fwd", "rev"])
+@pytest.mark.parametrize("firmware", ["python", "c"])
+def test_a_step_across_the_encoder_counter_wrap_completes_at_its_distance(
+    firmware: str, command: int, rover: RoverDescription
+) -> None:
+    """The 32-bit encoder counters wrap half-way through a 1 m step (forward: from
+    2^31 - 1 to -2^31; backward: the other way): the step still completes with travel
+    23000 having driven 1 m, in both controllers."""
+    model = make_controller(firmware, rover, Twin(rover), ControllerConfig(), seed=3)
+    half = 11_500
+    start = (1 << 31) - half if command == Command.FWD else -(1 << 31) + half
+    model.encoders.set_counts(start, start)
+    model.boot()
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+    before = model.twin.pose
+    model.handle(Motion(1, command, 60, 23_000))
+    ended: Status | None = None
+    for tick in range(20_000):  # 20 s of twin time; the step takes about 4 s
+        if tick % 50 == 0:
+            model.handle(HostHeartbeat(tick))
+        for msg in model.tick():
+            if isinstance(msg, Status) and msg.seq == 1 and msg.state != StepState.STARTED:
+                ended = msg
+        if ended is not None:
+            break
+    assert ended is not None, f"still driving after 20 s: {model.twin.pose}"
+    assert (ended.state, ended.travel) == (StepState.COMPLETED, 23_000)
+    after = model.twin.pose
+    assert math.hypot(after.x_m - before.x_m, after.y_m - before.y_m) == pytest.approx(
+        1.0, abs=0.01
+    )
+    left, right = model.encoders.counts()
+    wrapped = -(1 << 31) + half if command == Command.FWD else (1 << 31) - half
+    assert left == pytest.approx(wrapped, abs=20) and right == pytest.approx(wrapped, abs=20)
+
+
 def test_a_reboot_is_a_new_boot_of_the_core(rover: RoverDescription) -> None:
     model = FirmwareController(rover, Twin(rover), ControllerConfig(), seed=4)
     (booted,) = model.boot()
@@ -165,6 +227,17 @@ def test_a_reboot_is_a_new_boot_of_the_core(rover: RoverDescription) -> None:
     assert isinstance(ident, Ident)
     assert ident.boot_nonce != booted.boot_nonce and ident.boot_nonce == model.boot_nonce
     assert opened and not model.handshake_ok and model.state == ControllerState.BOOT
+
+
+def test_a_rover_or_rate_the_core_refuses_is_refused_by_name(rover: RoverDescription) -> None:
+    """fw_init's refusal reaches the emulator as FirmwareBuildError naming the field."""
+    fast = dataclasses.replace(
+        rover, drive=dataclasses.replace(rover.drive, wheel_velocity_scale_rad_s=0.6)
+    )  # 60 speed units at 0.06 m/s each: 3.6 m/s
+    with pytest.raises(FirmwareBuildError, match="FW_ERR_SPEED: the top wheel speed"):
+        FirmwareController(fast, Twin(fast), ControllerConfig())
+    with pytest.raises(FirmwareBuildError, match="FW_ERR_RATE"):
+        FirmwareController(rover, Twin(rover), ControllerConfig(heartbeat_hz=0))
 
 
 def test_the_library_is_cached_by_content(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

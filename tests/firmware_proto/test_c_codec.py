@@ -558,42 +558,6 @@ def test_c_fuzz_target_runs_over_the_vectors_and_random_inputs(tmp_path: Path) -
     assert done.stdout.strip() == f"ok {len(corpus)} inputs"
 
 
-@pytest.mark.cc
-def test_libfuzzer_target_when_clang_is_there(tmp_path: Path) -> None:
-    if shutil.which("clang") is None:
-        pytest.skip("clang not found: the libFuzzer target is not run (gcc build covers it)")
-    binary = tmp_path / "libfuzzer_decoder"
-    done = subprocess.run(
-        [
-            "clang",
-            "-std=c99",
-            "-g",
-            "-O1",
-            "-fsanitize=fuzzer,address,undefined",
-            "-I",
-            str(C_DIR),
-            *map(str, LIBRARY_SOURCES),
-            str(C_DIR / "tests" / "fuzz_decoder.c"),
-            "-o",
-            str(binary),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    assert done.returncode == 0, done.stderr
-    run = subprocess.run(
-        [str(binary), "-runs=200000", "-seed=1"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=tmp_path,
-        check=False,
-    )
-    assert run.returncode == 0, run.stderr[-4000:]
-
-
 def _pack_or_error(msg: Message, strict: bool) -> tuple[bytes, EncodeError | None]:
     try:
         return msg.pack(strict), None

@@ -1,5 +1,8 @@
 """The C firmware core (firmware_proto/c/fw/) as C: it builds freestanding with no libc
-calls and no floating point, its receive path survives fuzzing under ASan and UBSan, and
+calls and no floating point, its receive path survives fuzzing under ASan and UBSan (an
+ideal plant, and a varied one: fuzz_fw_plant.c built with gcc; test_libfuzzer.py runs
+both under libFuzzer), the cases of issue #22 hold (fw/tests/cases_fw.c: INT32_MIN
+readings, a step across the encoder counter's wrap, fw_init's refusals), and
 it cross-builds for a Cortex-M0+ (within 16 KiB of flash and 2 KiB of RAM) and an
 ATmega2560, with -Wall -Wextra -Werror, reporting the sizes ``size`` gives; its self-test
 (a scripted host, an ideal plant) passes on the host, on the ATmega2560 under simavr and
@@ -23,19 +26,8 @@ from pathlib import Path
 
 import pytest
 
-from firmware_proto.framing import FrameEncoder
-from firmware_proto.message import Message
-from firmware_proto.messages import (
-    PROTOCOL_VERSION,
-    SCHEMA_HASH,
-    ClearStop,
-    Hello,
-    HostHeartbeat,
-    Motion,
-    SetParam,
-    Stop,
-)
 from tests.firmware_proto.c_harness import C_DIR, SANITIZER_ENV, SANITIZERS, WARNINGS, compiler
+from tests.firmware_proto.fuzz_seeds import CORPORA, fw_traffic
 
 pytestmark = pytest.mark.firmware
 
@@ -100,56 +92,6 @@ def test_the_core_builds_freestanding_without_libc_or_floating_point(tmp_path: P
     }
 
 
-def _record(rng: random.Random, chunk: bytes, after: int) -> bytes:
-    """One input record of fuzz_fw.c: a chunk of at most 63 bytes and what follows it."""
-    return bytes([(after << 6) | len(chunk)]) + chunk
-
-
-def _host_message(rng: random.Random, seqs: int) -> Message:
-    roll = rng.random()
-    if roll < 0.4:
-        return Motion(
-            rng.randrange(seqs), rng.randrange(6), rng.randrange(70), rng.randrange(40000)
-        )
-    if roll < 0.5:
-        return Stop(rng.randrange(1, 6), rng.randrange(5))
-    if roll < 0.6:
-        return ClearStop(rng.randrange(1, 6))
-    if roll < 0.7:
-        return Hello(PROTOCOL_VERSION, SCHEMA_HASH if rng.random() < 0.8 else rng.randrange(65536))
-    if roll < 0.8:
-        return SetParam(rng.randrange(6), rng.randrange(-5, 20000))
-    return HostHeartbeat(rng.randrange(65536))
-
-
-def _corpus(seed: int, records: int) -> bytes:
-    """Host traffic as fuzz_fw.c reads it: valid frames, corrupted frames and garbage,
-    cut into chunks, with ticks, silences, faults and reboots in between."""
-    rng = random.Random(seed)
-    enc = FrameEncoder()
-    stream = bytearray()
-    for _ in range(records):
-        roll = rng.random()
-        if roll < 0.8:
-            stream += enc.encode(_host_message(rng, 16), strict=False)
-        elif roll < 0.9:
-            frame = bytearray(enc.encode(_host_message(rng, 16), strict=False))
-            frame[rng.randrange(len(frame))] ^= 1 << rng.randrange(8)
-            stream += frame
-        else:
-            stream += bytes(rng.randrange(256) for _ in range(rng.randrange(1, 30)))
-    out = bytearray()
-    i = 0
-    while i < len(stream):
-        n = rng.randrange(1, 40)
-        after = rng.choices((0, 2, 3), weights=(6, 3, 1))[0]
-        out += _record(rng, bytes(stream[i : i + n]), after)
-        if after == 3:
-            out.append(rng.randrange(256))
-        i += n
-    return bytes(out)
-
-
 def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
     tmp_path: Path,
 ) -> None:
@@ -171,7 +113,7 @@ def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
     inputs = []
     for seed in range(4):
         path = tmp_path / f"corpus{seed}.bin"
-        path.write_bytes(_corpus(seed, 20_000))
+        path.write_bytes(fw_traffic(seed, 20_000))
         inputs.append(path)
     noise = tmp_path / "noise.bin"
     noise.write_bytes(random.Random(9).randbytes(300_000))
@@ -181,6 +123,101 @@ def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
     # The corpus reaches the state machine: thousands of answers, STOPs among them, on
     # serial and on CAN.
     assert frames > 50_000 and acks > 1_000 and can_frames > 10_000, done.stdout
+
+
+def test_the_varied_plant_harness_over_its_seeds_under_asan_and_ubsan(tmp_path: Path) -> None:
+    """fuzz_fw_plant.c as a plain program (gcc), over its checked-in seeds and seeded
+    noise: what runs where clang is missing (test_libfuzzer.py runs it under libFuzzer).
+    Its invariants abort it; the seeds reach refusals, completed and watched steps."""
+    cc = _cc()
+    exe = tmp_path / "fuzz_fw_plant"
+    _run(
+        [
+            cc,
+            *WARNINGS,
+            *SANITIZERS,
+            "-DFW_FUZZ_MAIN",
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(FW_DIR / "tests" / "fuzz_fw_plant.c"),
+            "-o",
+            str(exe),
+        ]
+    )
+    seeds = sorted(CORPORA["fw_plant"].iterdir())
+    rng = random.Random(22)
+    noise = []
+    for k in range(40):
+        path = tmp_path / f"noise{k}"
+        path.write_bytes(rng.randbytes(rng.randrange(16, 400)))
+        noise.append(path)
+    done = _run([str(exe), *map(str, seeds + noise)], env={**os.environ, **SANITIZER_ENV})
+    found = re.search(
+        r"(\d+) inputs, (\d+) refused, (\d+) frames out, (\d+) steps completed, (\d+) watched",
+        done.stdout,
+    )
+    assert found, done.stdout
+    inputs, refused, frames, completed, watched = map(int, found.groups())
+    assert inputs == len(seeds) + len(noise) and refused >= 5, done.stdout
+    assert frames > 5_000 and completed >= 10 and watched >= 10, done.stdout
+
+
+# -- cases (fw/tests/cases_fw.c) ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cases_fw(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """fw/tests/cases_fw.c built with ASan and UBSan (any error aborts it)."""
+    cc = _cc()
+    exe = tmp_path_factory.mktemp("cases") / "cases_fw"
+    _run(
+        [
+            cc,
+            *WARNINGS,
+            *SANITIZERS,
+            f"-I{C_DIR}",
+            *map(str, CORE),
+            str(FW_DIR / "tests" / "cases_fw.c"),
+            "-o",
+            str(exe),
+        ]
+    )
+    return exe
+
+
+def _case(exe: Path, name: str) -> None:
+    done = subprocess.run(
+        [str(exe), name],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, **SANITIZER_ENV},
+        check=False,
+    )
+    assert (done.returncode, done.stdout, done.stderr) == (0, f"ok {name}\n", ""), (
+        done.stdout + done.stderr[-4000:]
+    )
+
+
+def test_an_int32_min_encoder_count_or_wheel_speed_is_no_undefined_behaviour(
+    cases_fw: Path,
+) -> None:
+    """Both polarities negate the motor-frame readings: INT32_MIN must not overflow."""
+    _case(cases_fw, "int32_min")
+
+
+def test_a_step_across_the_encoder_counter_wrap_completes_at_its_distance(
+    cases_fw: Path,
+) -> None:
+    """fw_hal.h's counter wraps modulo 2^32: a 1 m step whose counters wrap half-way
+    completes with travel 23000 having driven 1 m (not 2^32 units on)."""
+    _case(cases_fw, "wrap")
+
+
+def test_fw_init_refuses_a_zero_tick_acceleration_or_rate(cases_fw: Path) -> None:
+    """Each would divide by zero; refused with its error code, the core stays silent and
+    drives nothing."""
+    _case(cases_fw, "config")
 
 
 # -- cross builds -------------------------------------------------------------------------

@@ -4,7 +4,11 @@
  *        emulator/controller.py (ControllerModel); the comments name its methods.
  *
  * Integer arithmetic only: speeds in um/s, travel in encoder units, lengths in the
- * braking law in picometres (int64), time in microseconds (uint64).
+ * braking law in picometres (int64), time in microseconds (uint64). No undefined or
+ * implementation-defined behaviour for any reading the HAL gives: encoder counts are
+ * compared only through count_delta (they wrap modulo 2^32), wheel speeds are negated
+ * with saturation, and fw_init refuses a configuration whose arithmetic could divide by
+ * zero or overflow (fw_error_t).
  */
 #include "fw.h"
 
@@ -13,7 +17,24 @@
 #define FW_REST_UM_S 100           /* a side is at rest below 1e-4 m/s */
 #define FW_STALL_MIN_TARGET_UM_S 10000 /* stall detection watches commands above 0.01 m/s */
 
-static int32_t abs32(int32_t v) { return v < 0 ? -v : v; }
+/** v as a two's-complement int32 (no implementation-defined conversion). */
+static int32_t as_i32(uint32_t v)
+{
+    return v < 0x80000000u ? (int32_t)v : -(int32_t)(0xFFFFFFFFu - v) - 1;
+}
+
+/**
+ * Travel between two readings of a counter that wraps modulo 2^32 (fw_hal.h): after -
+ * before in -2^31..2^31-1, right across a wrap while the counter moved less than 2^31
+ * units (93 km at 23000 units/m) in between.
+ */
+static int32_t count_delta(int32_t after, int32_t before)
+{
+    return as_i32((uint32_t)after - (uint32_t)before);
+}
+
+/** -v, INT32_MIN giving INT32_MAX (a speed reading, not a counter). */
+static int32_t neg_sat32(int32_t v) { return v == INT32_MIN ? INT32_MAX : -v; }
 
 static int64_t abs64(int64_t v) { return v < 0 ? -v : v; }
 
@@ -61,6 +82,18 @@ static uint8_t stopping_mask(void)
         }
     }
     return m;
+}
+
+/**
+ * drive.StepProfile's cruise_m in picometres for a top speed of vmax um/s: the braking
+ * distance vmax^2 / 2a plus a tick at vmax and one at a_dt. Needs vmax <= FW_SPEED_UM_S_MAX
+ * and a configuration fw_init took (fw_check).
+ */
+static int64_t cruise_pm(const fw_t *c, int64_t vmax)
+{
+    const int64_t tick = (int64_t)c->cfg.tick_us;
+    return vmax * vmax * 1000000LL / (2 * (int64_t)c->cfg.accel_um_s2) + vmax * tick +
+           (int64_t)c->a_dt * tick;
 }
 
 /** Scaled time-out in microseconds for ms milliseconds. */
@@ -117,22 +150,25 @@ static void send_fault(fw_t *c, uint8_t code, uint8_t active, uint32_t detail)
 
 /* ------------------------------------------------------------------ sensors */
 
-/** Rover-frame encoder travel since boot (polarity applied). */
+/** Rover-frame encoder counts (polarity applied: negated modulo 2^32, like the counter). */
 static void read_travel(fw_t *c, int32_t travel[2])
 {
     int32_t l = 0, r = 0;
     fw_hal_read_encoders(&l, &r);
-    travel[0] = c->cfg.left_sign < 0 ? -l : l;
-    travel[1] = c->cfg.right_sign < 0 ? -r : r;
+    travel[0] = c->cfg.left_sign < 0 ? count_delta(0, l) : l;
+    travel[1] = c->cfg.right_sign < 0 ? count_delta(0, r) : r;
 }
 
 static void read_speeds(fw_t *c, int32_t speed[2])
 {
     int32_t l = 0, r = 0;
     fw_hal_read_wheel_speeds(&l, &r);
-    speed[0] = c->cfg.left_sign < 0 ? -l : l;
-    speed[1] = c->cfg.right_sign < 0 ? -r : r;
+    speed[0] = c->cfg.left_sign < 0 ? neg_sat32(l) : l;
+    speed[1] = c->cfg.right_sign < 0 ? neg_sat32(r) : r;
 }
+
+/** -limit < v < limit. */
+static bool below(int32_t v, int32_t limit) { return v > -limit && v < limit; }
 
 /* ------------------------------------------------------------------ state */
 
@@ -218,24 +254,72 @@ static void init_state(fw_t *c, uint64_t now_us)
     sched_init(&c->hb, c->heartbeat_hz, now_us);
 }
 
-void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
+/**
+ * What fw_init says of c->cfg; sets c->a_dt. The bounds keep every product of the step
+ * profile inside 64 bits and every divisor non-zero (fw.h, fw_error_t).
+ */
+static fw_error_t fw_check(fw_t *c)
+{
+    const fw_config_t *k = &c->cfg;
+    const uint64_t a_dt = (uint64_t)k->accel_um_s2 * k->tick_us / 1000000u;
+    const uint64_t top = (uint64_t)k->max_speed * k->speed_um_s_per_unit;
+    int64_t pm;
+    c->a_dt = 0;
+    if (k->tick_us == 0u) {
+        return FW_ERR_TICK;
+    }
+    if (a_dt == 0u || a_dt > FW_SPEED_UM_S_MAX) {
+        return FW_ERR_ACCEL;
+    }
+    if (k->telemetry_hz == 0u || k->pose_hz == 0u || k->heartbeat_hz == 0u) {
+        return FW_ERR_RATE;
+    }
+    if (k->timeout_scale_permille == 0u) {
+        return FW_ERR_TIMEOUT_SCALE;
+    }
+    if (k->distance_units_per_m == 0u) {
+        return FW_ERR_UNITS;
+    }
+    if (top > FW_SPEED_UM_S_MAX) {
+        return FW_ERR_SPEED;
+    }
+    c->a_dt = (int32_t)a_dt;
+    pm = cruise_pm(c, (int64_t)top);
+    /* cruise_units multiplies (pm + 1) by the units per metre (and adds 1e12 - 1); the
+     * braking law multiplies pm by 8. */
+    if (pm > FW_BRAKING_PM_MAX ||
+        pm + 1 > (INT64_MAX - 999999999999LL) / (int64_t)k->distance_units_per_m) {
+        return FW_ERR_BRAKING;
+    }
+    return FW_OK;
+}
+
+fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
 {
     c->cfg = *cfg;
     if (c->cfg.queue_depth == 0u || c->cfg.queue_depth > FW_QUEUE_CAP) {
         c->cfg.queue_depth = (uint8_t)FW_QUEUE_CAP;
     }
-    c->a_dt = (int32_t)((uint64_t)c->cfg.accel_um_s2 * c->cfg.tick_us / 1000000u);
+    c->error = (uint8_t)fw_check(c);
     c->rx_errors = 0u;
     c->tx_seq = 0u;
     rp_decoder_init(&c->dec);
     rp_can_decoder_init(&c->can_dec);
     c->dec_rejected_seen = 0u;
     init_state(c, now_us);
+    if (c->error != FW_OK) {
+        fw_hal_set_wheels(0, 0);
+        return (fw_error_t)c->error;
+    }
     send_ident(c);
+    return FW_OK;
 }
 
 void fw_reboot(fw_t *c, uint64_t now_us)
 {
+    if (c->error != FW_OK) {
+        return;
+    }
     init_state(c, now_us);
     fw_hal_set_wheels(0, 0); /* the motors stop at once: no braking ramp */
     send_ident(c);
@@ -256,7 +340,7 @@ static int32_t step_travel(fw_t *c)
         return 0;
     }
     read_travel(c, t);
-    sum = abs64((int64_t)t[0] - c->run_start[0]) + abs64((int64_t)t[1] - c->run_start[1]);
+    sum = abs64(count_delta(t[0], c->run_start[0])) + abs64(count_delta(t[1], c->run_start[1]));
     sum = div_round(sum, 2);
     return sum > 0xFFFF ? 0xFFFF : (int32_t)sum;
 }
@@ -338,7 +422,7 @@ static void do_stop(fw_t *c, uint16_t stop_id, uint8_t reason, uint8_t cause)
 void fw_raise_fault(fw_t *c, uint64_t now_us, uint8_t code, uint32_t detail, bool condition)
 {
     uint8_t bit;
-    if (code < 1u || code > 8u) {
+    if (code < 1u || code > 8u || c->error != FW_OK) {
         return;
     }
     c->now_us = now_us;
@@ -550,6 +634,9 @@ static bool host_to_controller(uint8_t id)
 
 void fw_handle(fw_t *c, uint64_t now_us, const rp_msg_t *msg)
 {
+    if (c->error != FW_OK) {
+        return;
+    }
     c->now_us = now_us;
     if (!host_to_controller(msg->id)) {
         c->rx_errors++; /* an echo on a serial line: counted, does not feed the watchdog */
@@ -706,12 +793,8 @@ static int32_t profile_side(fw_t *c, int32_t u, int64_t rem_units, int32_t a_dt,
  */
 static int32_t cruise_units(const fw_t *c)
 {
-    const int64_t vmax = c->vmax_um_s;
-    const int64_t tick = (int64_t)c->cfg.tick_us;
-    const int64_t cruise_pm = vmax * vmax * 1000000LL / (2 * (int64_t)c->cfg.accel_um_s2) +
-                              vmax * tick + (int64_t)c->a_dt * tick;
     const int64_t upm = (int64_t)c->cfg.distance_units_per_m;
-    return (int32_t)(((cruise_pm + 1) * upm + 999999999999LL) / 1000000000000LL);
+    return (int32_t)(((cruise_pm(c, c->vmax_um_s) + 1) * upm + 999999999999LL) / 1000000000000LL);
 }
 
 static void start_next(fw_t *c, const int32_t travel[2])
@@ -775,7 +858,7 @@ static void profile_update(fw_t *c, const int32_t travel[2])
         return;
     }
     for (side = 0; side < 2; side++) {
-        const int64_t moved = (int64_t)travel[side] - c->run_start[side];
+        const int64_t moved = count_delta(travel[side], c->run_start[side]);
         const int64_t rem = (int64_t)c->goal_units - c->dir[side] * moved;
         c->u[side] = profile_side(c, c->u[side], rem, a_dt, &c->arrived[side]);
     }
@@ -805,6 +888,10 @@ void fw_control(fw_t *c, uint64_t now_us)
 {
     int32_t travel[2];
     const int32_t dv = c->a_dt;
+    if (c->error != FW_OK) {
+        fw_hal_set_wheels(0, 0);
+        return;
+    }
     c->now_us = now_us;
     check_watchdog(c);
     read_travel(c, travel);
@@ -841,8 +928,8 @@ static void check_stall(fw_t *c, const int32_t travel[2])
         return;
     }
     for (side = 0; side < 2; side++) {
-        if (abs32(c->commanded[side]) < FW_STALL_MIN_TARGET_UM_S ||
-            abs64((int64_t)travel[side] - c->stall_ref[side]) >= 1) {
+        if (below(c->commanded[side], FW_STALL_MIN_TARGET_UM_S) ||
+            count_delta(travel[side], c->stall_ref[side]) != 0) {
             c->stalling[side] = false;
             c->stall_ref[side] = travel[side];
             continue;
@@ -851,7 +938,7 @@ static void check_stall(fw_t *c, const int32_t travel[2])
             c->stalling[side] = true;
             c->stall_since[side] = c->now_us;
         } else if (c->now_us - c->stall_since[side] > scaled_us(c, c->cfg.stall_timeout_ms)) {
-            const int64_t moved = (int64_t)travel[side] - c->run_start[side];
+            const int64_t moved = count_delta(travel[side], c->run_start[side]);
             int64_t expected = (int64_t)c->goal_units - c->dir[side] * moved;
             expected = expected < 0 ? 0 : expected;
             fw_raise_fault(c, c->now_us,
@@ -868,8 +955,8 @@ static void report_stopped(fw_t *c, const int32_t travel[2])
     uint8_t i;
     for (i = 0u; i < c->n_pending; i++) {
         const fw_pending_stop_t *p = &c->pending[i];
-        const int64_t moved = abs64((int64_t)travel[0] - p->travel[0]) +
-                              abs64((int64_t)travel[1] - p->travel[1]);
+        const int64_t moved = abs64(count_delta(travel[0], p->travel[0])) +
+                              abs64(count_delta(travel[1], p->travel[1]));
         const int64_t mm = div_round(moved * 1000, 2 * (int64_t)c->cfg.distance_units_per_m);
         const int64_t ms =
             div_round((int64_t)(c->now_us - p->arrived_us), (int64_t)c->cfg.timeout_scale_permille);
@@ -899,7 +986,7 @@ static void check_stopped(fw_t *c, const int32_t travel[2])
         return;
     }
     read_speeds(c, speed);
-    if (abs32(speed[0]) >= FW_REST_UM_S || abs32(speed[1]) >= FW_REST_UM_S) {
+    if (!below(speed[0], FW_REST_UM_S) || !below(speed[1], FW_REST_UM_S)) {
         return;
     }
     report_stopped(c, travel);
@@ -914,7 +1001,8 @@ static void check_stopped(fw_t *c, const int32_t travel[2])
 /**
  * next = max(next + 1/hz, now) on an exact grid in nanoseconds: the k-th deadline after
  * base is base + ceil(k * 1e9 / hz) ns, so no rounding accumulates while the rate holds;
- * a rate change (SET_PARAM) starts a new grid at the current deadline. A deadline is due
+ * a rate change (SET_PARAM) starts a new grid at the current deadline. Every second (k =
+ * hz, exactly base + 1e9) the grid moves its base there, so k never wraps. A deadline is due
  * from 1 ns before it (the Python model's float tolerance), so a grid point that falls
  * on a tick, like 18.1 s at 30 Hz, fires on that tick in both.
  */
@@ -928,6 +1016,10 @@ static void advance(fw_sched_t *s, uint8_t hz, uint64_t now_us)
     }
     s->k++;
     s->next_ns = s->base_ns + ((uint64_t)s->k * 1000000000u + hz - 1u) / hz;
+    if (s->k == hz) {
+        s->base_ns = s->next_ns;
+        s->k = 0u;
+    }
     if (s->next_ns < now_ns) {
         s->base_ns = s->next_ns = now_ns;
         s->k = 0u;
@@ -1013,8 +1105,9 @@ static void telemetry(fw_t *c)
         fw_hal_pose_sample();
     }
     while (fw_hal_pose_read(&pose)) {
-        /* The age is in the host's time, like the time-outs. */
-        const uint64_t age_us = (now - pose.taken_us) * 1000u / c->cfg.timeout_scale_permille;
+        /* The age is in the host's time, like the time-outs; a time from the future is 0. */
+        const uint64_t age_us = (pose.taken_us < now ? now - pose.taken_us : 0u) * 1000u /
+                                c->cfg.timeout_scale_permille;
         const int64_t age = div_round((int64_t)age_us, 4000);
         rp_msg_t m;
         m.id = RP_MSG_POSE;
@@ -1034,6 +1127,9 @@ static void telemetry(fw_t *c)
 void fw_sense(fw_t *c, uint64_t now_us)
 {
     int32_t travel[2];
+    if (c->error != FW_OK) {
+        return;
+    }
     c->now_us = now_us;
     read_travel(c, travel);
     check_stall(c, travel);

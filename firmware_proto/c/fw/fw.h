@@ -49,6 +49,31 @@ extern "C" {
 #define FW_LATCH_WATCHDOG 2u
 #define FW_LATCH_FAULT 4u
 
+/** Top wheel speed fw_init takes (max_speed * speed_um_s_per_unit), um/s: 3 m/s. */
+#define FW_SPEED_UM_S_MAX 3000000u
+/** Longest braking distance fw_init takes (cruise distance at the top speed), pm: 576 km. */
+#define FW_BRAKING_PM_MAX ((int64_t)1 << 59)
+
+/**
+ * What fw_init says of a configuration: FW_OK, or why it refuses to run with it. Each
+ * refusal names the first field that would divide by zero or overflow the step profile's
+ * 64-bit arithmetic; a refused core stays silent (no IDENT) and keeps the wheels at zero.
+ */
+typedef enum {
+    FW_OK = 0,
+    FW_ERR_TICK = 1,          /**< tick_us is 0 */
+    FW_ERR_ACCEL = 2,         /**< accel_um_s2 * tick_us / 1e6 (speed change per tick) is 0
+                                   or above FW_SPEED_UM_S_MAX */
+    FW_ERR_RATE = 3,          /**< telemetry_hz, pose_hz or heartbeat_hz is 0 */
+    FW_ERR_TIMEOUT_SCALE = 4, /**< timeout_scale_permille is 0 */
+    FW_ERR_UNITS = 5,         /**< distance_units_per_m is 0 */
+    FW_ERR_SPEED = 6,         /**< max_speed * speed_um_s_per_unit is above FW_SPEED_UM_S_MAX */
+    FW_ERR_BRAKING = 7        /**< the braking distance from the top speed is above
+                                   FW_BRAKING_PM_MAX, or times distance_units_per_m above
+                                   64 bits (a faster top speed than the acceleration and the
+                                   encoder resolution allow) */
+} fw_error_t;
+
 /** Transport the core answers on. */
 typedef enum { FW_TRANSPORT_SERIAL = 0, FW_TRANSPORT_CAN = 1 } fw_transport_t;
 
@@ -97,6 +122,7 @@ typedef struct {
 /** The whole controller. Read the fields freely; change them only through the API. */
 typedef struct {
     fw_config_t cfg;
+    uint8_t error;        /**< fw_error_t of fw_init; not FW_OK: the core does nothing */
     /* parameters (SET_PARAM), reset at boot */
     uint16_t watchdog_ms;
     uint8_t telemetry_hz, pose_hz, heartbeat_hz;
@@ -153,8 +179,12 @@ typedef struct {
 /** The protocol's defaults (docs/protocol.md, Timing) and the reference rover's drive. */
 void fw_default_config(fw_config_t *cfg);
 
-/** Power-on: state BOOT, parameters at their defaults, a new nonce; sends IDENT. */
-void fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us);
+/**
+ * Power-on: state BOOT, parameters at their defaults, a new nonce; sends IDENT. Returns
+ * FW_OK, or the fw_error_t of a configuration it refuses: then nothing is sent, the wheels
+ * are set to zero, and every other call does nothing (fw_control keeps the wheels at 0).
+ */
+fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us);
 
 /** A reset: everything but the configuration and the rx_errors count is lost; IDENT. */
 void fw_reboot(fw_t *c, uint64_t now_us);

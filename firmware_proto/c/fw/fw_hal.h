@@ -10,6 +10,16 @@
  * frame (the core applies the mounting polarity, fw_config_t.left_sign/right_sign);
  * encoder counts are distance units (23000 per metre of wheel travel by default) in
  * the motor frame, since boot, as a signed 32-bit counter that may wrap.
+ *
+ * The encoder counter's contract: zero at boot, it counts up and down and wraps modulo
+ * 2^32 (one past INT32_MAX reads INT32_MIN, and back). The core only ever takes the
+ * difference of two readings modulo 2^32, so a step, a stall check or a STOPPED distance
+ * is right across a wrap as long as the counter moves less than 2^31 units (93 km at
+ * 23000 units/m) between two readings of it (the core reads it every tick). A port whose
+ * hardware counter is narrower (16 bits) extends it to 32 in software, as
+ * port_bare/main.c extends its 32-bit clock: passed as is, its wrap would read as a jump
+ * of 65536 units. Any int32 is a valid reading, INT32_MIN included; so is any wheel speed
+ * (the core negates speeds with saturation).
  */
 #ifndef FW_HAL_H
 #define FW_HAL_H
@@ -43,7 +53,7 @@ typedef struct {
  */
 void fw_hal_set_wheels(int32_t left_um_s, int32_t right_um_s);
 
-/** Encoder counts since boot, distance units, motor frame. */
+/** Encoder counts since boot, distance units, motor frame, wrapping modulo 2^32 (above). */
 void fw_hal_read_encoders(int32_t *left, int32_t *right);
 
 /** Measured wheel surface speeds, um/s, motor frame (truncated toward zero). */

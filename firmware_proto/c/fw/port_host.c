@@ -114,12 +114,39 @@ void fw_host_default_config(fw_config_t *cfg) { fw_default_config(cfg); }
 
 size_t fw_host_sizeof_config(void) { return sizeof(fw_config_t); }
 
+/** The name of an fw_error_t, and what to change. */
+const char *fw_host_error_name(int error)
+{
+    switch (error) {
+    case FW_OK: return "FW_OK";
+    case FW_ERR_TICK: return "FW_ERR_TICK: tick_us is 0";
+    case FW_ERR_ACCEL:
+        return "FW_ERR_ACCEL: the speed change per tick (accel_um_s2 * tick_us / 1e6) is 0 "
+               "or above 3 m/s";
+    case FW_ERR_RATE: return "FW_ERR_RATE: a telemetry, pose or heartbeat rate is 0";
+    case FW_ERR_TIMEOUT_SCALE: return "FW_ERR_TIMEOUT_SCALE: timeout_scale_permille is 0";
+    case FW_ERR_UNITS: return "FW_ERR_UNITS: distance_units_per_m is 0";
+    case FW_ERR_SPEED:
+        return "FW_ERR_SPEED: the top wheel speed (max_speed * speed_um_s_per_unit) is above "
+               "3 m/s";
+    case FW_ERR_BRAKING:
+        return "FW_ERR_BRAKING: the braking distance from the top speed is too long for the "
+               "core's 64-bit arithmetic";
+    default: return "unknown fw_error_t";
+    }
+}
+
+/**
+ * A core on this port, initialised (fw_init) with cfg and these first sensor readings.
+ * NULL if out of memory (*error FW_OK) or if fw_init refused cfg (*error says why).
+ */
 fw_host_t *fw_host_new(const fw_config_t *cfg, fw_host_imu_cb imu, fw_host_pose_sample_cb ps,
                        fw_host_pose_read_cb pr, fw_host_nonce_cb nonce, const int32_t enc[2],
-                       const int32_t speed[2], uint64_t now_us)
+                       const int32_t speed[2], uint64_t now_us, int *error)
 {
     fw_host_t *h = (fw_host_t *)calloc(1u, sizeof *h);
     fw_host_t *saved = current;
+    *error = FW_OK;
     if (h == NULL) {
         return NULL;
     }
@@ -132,8 +159,12 @@ fw_host_t *fw_host_new(const fw_config_t *cfg, fw_host_imu_cb imu, fw_host_pose_
     h->speed[0] = speed[0];
     h->speed[1] = speed[1];
     current = h;
-    fw_init(&h->fw, cfg, now_us);
+    *error = (int)fw_init(&h->fw, cfg, now_us);
     current = saved;
+    if (*error != FW_OK) {
+        free(h);
+        return NULL;
+    }
     return h;
 }
 

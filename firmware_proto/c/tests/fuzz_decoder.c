@@ -1,9 +1,13 @@
 /*
  * Fuzz target for the serial and CAN decoders (libFuzzer entry point).
  *
- *   clang -std=c99 -g -O1 -fsanitize=fuzzer,address,undefined -I.. \
- *       ../rover_msgs.c ../rover_proto.c fuzz_decoder.c -o fuzz_decoder
- *   ./fuzz_decoder -runs=1000000
+ *   clang -std=c99 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
+ *       -I.. ../rover_msgs.c ../rover_proto.c fuzz_decoder.c -o fuzz_decoder
+ *   ./fuzz_decoder -seed=1 -runs=1000000 new_corpus/ corpus_decoder/
+ *
+ * (make -C firmware_proto/c fuzz-decoder; tests/firmware_proto/test_libfuzzer.py runs
+ * it.) Without -fno-sanitize-recover=all UBSan only prints, and undefined behaviour
+ * passes.
  *
  * Built with -DRP_FUZZ_MAIN (any C99 compiler, e.g. gcc with the sanitizers) it is a
  * plain program that runs the same checks over the files named on its command line.

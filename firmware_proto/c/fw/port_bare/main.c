@@ -102,7 +102,11 @@ int main(void)
     fw_config_t cfg;
     uint64_t next;
     fw_default_config(&cfg);
-    fw_init(&controller, &cfg, now_us());
+    if (fw_init(&controller, &cfg, now_us()) != FW_OK) {
+        for (;;) {
+            /* a configuration the core refuses: the wheels stay at zero */
+        }
+    }
     next = now_us();
     for (;;) {
         if (UART_RX_READY != 0u) {

@@ -9,7 +9,8 @@
  * travel 2300; a long step stopped half-way: STOP_ACK first, the targets zero on return,
  * STOPPED once at rest, MOTION refused STOP_LATCHED, CLEAR_STOP answered CLEARED; then
  * CAN frames (another node's, our own kind echoed, a bad one, a broadcast) received as
- * the Python CAN endpoint takes them. It
+ * the Python CAN endpoint takes them; then a 0.1 m step whose encoder counters wrap
+ * half-way (fw_hal.h), run to COMPLETED with travel 2300 after 0.1 m. It
  * prints one line per check and `selftest: ok` (or FAILED), then the cost of fw_tick:
  * on AVR in CPU cycles from Timer1 (prescaler 8: 8-cycle resolution, right while a tick
  * takes under 524,288 cycles); on the micro:bit in SysTick counts at its 16 MHz core
@@ -90,6 +91,7 @@ void Reset_Handler(void)
 
 static int32_t wheel_cmd[2], enc[2];
 static int32_t enc_um[2];
+static uint32_t enc_base[2]; /* the counter's value when enc_um was 0 */
 static rp_decoder_t out_dec;
 static rp_msg_t last[16];
 static uint8_t n_last;
@@ -145,13 +147,24 @@ void fw_hal_can_send(uint16_t id, const uint8_t *d, uint8_t len)
     (void)len;
 }
 
+/* v as a two's-complement int32 (the counter wraps modulo 2^32). */
+static int32_t as_i32(uint32_t v)
+{
+    return v < 0x80000000u ? (int32_t)v : -(int32_t)(0xFFFFFFFFu - v) - 1;
+}
+
+static uint32_t units(uint8_t side)
+{
+    return (uint32_t)(int32_t)((int64_t)enc_um[side] * 23 / 1000);
+}
+
 /* Integrates the commands exactly (um per 1 ms tick), 23 units per mm. */
 static void plant_step(void)
 {
     uint8_t side;
     for (side = 0u; side < 2u; side++) {
         enc_um[side] += wheel_cmd[side] / 1000;
-        enc[side] = (int32_t)((int64_t)enc_um[side] * 23 / 1000);
+        enc[side] = as_i32(enc_base[side] + units(side));
     }
 }
 
@@ -280,7 +293,7 @@ int main(void)
 #endif
     rp_decoder_init(&out_dec);
     fw_default_config(&cfg);
-    fw_init(&c, &cfg, now);
+    check(fw_init(&c, &cfg, now) == FW_OK, "the default configuration is taken");
     check(n_last == 1u && last[0].id == RP_MSG_IDENT, "IDENT at boot");
 
     m.id = RP_MSG_HELLO;
@@ -335,6 +348,26 @@ int main(void)
         n_last = 0u;
         fw_on_can(&c, now, RP_MSG_HOST_HEARTBEAT << 4 | 0u, false, false, hb, 2u);
         check(c.rx_errors == before + 1u && c.last_rx_us == now, "CAN: a broadcast taken");
+    }
+
+    {
+        /* Motor frame, forward: the left counter (polarity -1) counts down through
+         * INT32_MIN and the right one up through INT32_MAX, 0.05 m into the step. */
+        const int32_t left_um = enc_um[0], right_um = enc_um[1];
+        enc_base[0] = 0x80000000u + 1150u - units(0);
+        enc_base[1] = 0x7FFFFFFFu - 1150u - units(1);
+        plant_step();
+        motion(4u, 2300u);
+        at = run_until(RP_MSG_STATUS, 10u);
+        check(at >= 0 && last[at].body.status.state == RP_STEP_STATE_STARTED, "wrap: started");
+        at = run_until(RP_MSG_STATUS, 3000u);
+        check(at >= 0 && last[at].body.status.state == RP_STEP_STATE_COMPLETED &&
+                  last[at].body.status.travel == 2300u,
+              "a step across the encoder wrap completed, travel 2300");
+        check(left_um - enc_um[0] > 99000 && left_um - enc_um[0] < 101000 &&
+                  enc_um[1] - right_um > 99000 && enc_um[1] - right_um < 101000 && enc[0] > 0 &&
+                  enc[1] < 0,
+              "both counters wrapped; both wheels drove 0.1 m");
     }
 
     printf("selftest: %s\n", failures == 0 ? "ok" : "FAILED");

@@ -2,8 +2,12 @@
  * Fuzz target for the firmware core's receive path (fw_on_bytes) and its state machine,
  * with a small ideal plant behind the HAL (libFuzzer entry point).
  *
- *   clang -std=c99 -g -O1 -fsanitize=fuzzer,address,undefined -I../.. \
- *       ../fw.c ../../rover_msgs.c ../../rover_proto.c fuzz_fw.c -o fuzz_fw
+ *   clang -std=c99 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
+ *       -I../.. ../fw.c ../../rover_msgs.c ../../rover_proto.c fuzz_fw.c -o fuzz_fw
+ *   ./fuzz_fw -seed=1 -runs=100000 new_corpus/ corpus_fw/
+ *
+ * (make -C firmware_proto/c fuzz-fw; tests/firmware_proto/test_libfuzzer.py runs it.)
+ * Without -fno-sanitize-recover=all UBSan only prints, and undefined behaviour passes.
  *
  * Built with -DFW_FUZZ_MAIN (gcc with the sanitizers: tests/firmware_proto/test_fw.py)
  * it is a plain program that runs the same checks over the files named on its command
