@@ -254,6 +254,7 @@ def record_lockstep(
     rtt_s: float = 3.0,
     dt_s: float = 0.001,
     rest_s: float = 3.0,
+    namespace: str = "",
 ) -> LockstepMission:
     """Drive ``steps`` on ``ground`` in lockstep and record the mission (module
     docstring).
@@ -271,6 +272,7 @@ def record_lockstep(
             completed (and the recording's log times are shifted by half of it).
         dt_s: the controller's tick (the emulator's default 1 ms).
         rest_s: rest before the first step and after the last.
+        namespace: prefix of the topics (``"/ground"``, as ``rover demo`` records).
     """
     twin_rover = ground.rover(rover) if ground is not None else rover
     twin_world = ground.world(world) if ground is not None else world
@@ -315,7 +317,7 @@ def record_lockstep(
     try:
         for t_ns, topic, msg in sorted(host.events, key=lambda e: e[0]):
             clock[0] = t_ns
-            recorder.tap("lockstep", topic, msg)
+            recorder.tap("lockstep", namespace + topic, msg)
     finally:
         recorder.close()
     return LockstepMission(Path(path), tuple(steps), true_start, final, driving, completed)

@@ -112,8 +112,8 @@ def twin_toml(base: RoverDescription, calibration: Calibration) -> str:
             "map": cal.map_name or "",
             "dt_s": cal.dt_s,
             "steps": cal.after.steps,
-            "driving_s": round(cal.driving_s, 3),
-            "reduced_chi2": round(cal.reduced_chi2, 4),
+            "driving_s": cal.driving_s,
+            "reduced_chi2": cal.reduced_chi2,
             "parameters": list(cal.parameters),
             "values": [cal.value(p) for p in cal.parameters],
             "relative_sigma": [round(cal.relative_sigma(p), 6) for p in cal.parameters],
@@ -131,9 +131,9 @@ def twin_toml(base: RoverDescription, calibration: Calibration) -> str:
 
 def _residuals(r: Residuals) -> dict[str, Any]:
     return {
-        "forward_m": round(r.forward_m, 6),
-        "lateral_m": round(r.lateral_m, 6),
-        "yaw_deg": round(r.yaw_deg, 4),
+        "forward_m": r.forward_m,
+        "lateral_m": r.lateral_m,
+        "yaw_deg": r.yaw_deg,
         "steps": r.steps,
     }
 

@@ -87,6 +87,12 @@ class DemoConfig:
             (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
         firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
             firmware core in the loop; ``rover emulate --firmware``).
+        ground: the ground the emulator drives on (``rover emulate --ground``: a
+            shipped ground's name or a file), unknown to the gate; ``None``: the
+            description's.
+        twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
+            (``rover gate --twin``) and the planner turns by its turn efficiency.
+        replans: drift STOPs after which the mission is re-planned.
     """
 
     rtt_s: float = 3.0
@@ -103,6 +109,9 @@ class DemoConfig:
     view: ViewConfig | None = None
     foxglove_port: int | None = None
     firmware: str = "python"
+    ground: str | None = None
+    twin: Path | None = None
+    replans: int = 1
 
 
 @dataclass(frozen=True)
@@ -280,11 +289,11 @@ class Demo:
         if cfg.speed <= 0 or cfg.rtt_s < 0:
             raise ValueError("speed must be > 0 and rtt_s >= 0")
         link = Path(self._tmp.name) / "rover-motor"
-        gate = self._start(
-            "gate",
-            ["gate", "--port", "0", "--map", cfg.map_name, "--workers", "1", "--pool", "thread"],
-            "GATE ",
-        )
+        gate_args = ["gate", "--port", "0", "--map", cfg.map_name, "--workers", "1"]
+        gate_args += ["--pool", "thread"]
+        if cfg.twin is not None:
+            gate_args += ["--twin", str(cfg.twin)]
+        gate = self._start("gate", gate_args, "GATE ")
         url = gate.line("GATE ").split()[1]
         emulator_args = [
             "emulate",
@@ -302,6 +311,8 @@ class Demo:
             "--firmware",
             cfg.firmware,
         ]
+        if cfg.ground is not None:
+            emulator_args += ["--ground", cfg.ground]
         emulator = self._start("emulator", emulator_args, "CONTROL ")
         control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
         self._start("bridge", ["bridge", "--device", str(link)], "BRIDGE ")
@@ -311,7 +322,7 @@ class Demo:
             "LINK ",
         )
         self.say(f"emulator control port: 127.0.0.1:{control_port}")
-        rover = load_rover()
+        rover = load_rover(cfg.twin)
         os.environ[LOCALHOST_ENV] = "LOCALHOST"  # read when the port's context starts
         self.say(f"ROS 2 middleware: {middleware()}")
         recorder = McapRecorder(cfg.record) if cfg.record is not None else None
@@ -423,7 +434,7 @@ class Demo:
             runner = MissionRunner(
                 orchestrator,
                 executor,
-                replans=1,
+                replans=cfg.replans,
                 on_progress=progress,
                 on_drift=out_of_the_sand,
                 on_event=self.say,
