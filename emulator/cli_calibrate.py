@@ -124,7 +124,7 @@ def _run(args: argparse.Namespace) -> int:
                     },
                     "turn_efficiency": cal.turn_efficiency,
                     "steps": cal.after.steps,
-                    "skipped": len(observed.skipped),
+                    "skipped": len(observed.skipped) + len(report.outliers),
                     "driving_s": cal.driving_s,
                     "residuals_before": cal.before.__dict__,
                     "residuals_after": cal.after.__dict__,
@@ -136,11 +136,11 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_OK
     print(
         f"{cal.after.steps} steps fitted ({cal.driving_s:.1f} s of driving), "
-        f"{len(observed.skipped)} skipped; {report.evaluations} replays of them in "
-        f"{report.wall_s:.1f} s"
+        f"{len(observed.skipped) + len(report.outliers)} left out; {report.evaluations} "
+        f"replays of them in {report.wall_s:.1f} s"
     )
-    for _source, index, why in observed.skipped:
-        print(f"  skipped step {index}: {why}")
+    for source, index, why in observed.skipped + report.outliers:
+        print(f"  left out: {source} step {index}: {why}")
     print(f"{'parameter':<24} {'description':>11} {'fitted':>9} {'1 sigma':>8}")
     for p in cal.parameters:
         if p.startswith("region."):

@@ -11,6 +11,11 @@ FIT_PARAMETERS`, and the friction scale of each map region the steps drove on) a
 fitted as logarithms within :data:`BOUNDS`, with a trust-region reflective solver and
 a finite-difference Jacobian.
 
+Outliers: a first fit with a robust (soft-L1) loss finds the steps that no ground
+explains (an injected fault, a bump into something: more than :data:`OUTLIER_SIGMA`
+measurement errors off after it); they are left out and listed, and the plain fit runs
+on the rest from there.
+
 Uncertainty: the covariance of the log-parameters is ``s^2 (J^T J)^-1`` at the
 solution, ``J`` the Jacobian of the normalised residuals and ``s^2`` the reduced
 chi-square when it exceeds 1 (the measurement errors were then too optimistic, or the
@@ -59,6 +64,7 @@ __all__ = [
     "BOUNDS",
     "MIN_DRIVING_S",
     "MIN_STEPS",
+    "OUTLIER_SIGMA",
     "PRIOR_SIGMA",
     "PROBE_STEPS",
     "RELEVANT_POSITION_M",
@@ -83,6 +89,13 @@ MIN_DRIVING_S = 15.0
 
 PRIOR_SIGMA = math.log(2.0)
 """1-sigma of each parameter's prior, in ``log(value)``: a factor of two."""
+
+OUTLIER_SIGMA = 20.0
+"""A step whose residual (in its own measurement errors) is still above this after the
+robust fit is left out: no ground the twin can model explains it."""
+
+OUTLIER_F_SCALE = 3.0
+"""Where the robust fit's soft-L1 loss turns from quadratic to linear, in sigmas."""
 
 UNINFORMED_RATIO = 0.9
 """A parameter whose fitted 1-sigma error is above this fraction of its prior's was not
@@ -128,11 +141,14 @@ class FitReport:
         evaluations: residual evaluations (each replays every step once).
         wall_s: time the fit took (wall clock), s.
         status: the solver's message.
+        outliers: steps the robust fit found off every ground it can fit.
     """
 
     evaluations: int
     wall_s: float
     status: str
+    outliers: tuple[tuple[str, int, str], ...] = ()
+    """Steps left out as outliers: ``(source, step index, why)``."""
 
 
 def predict_moves(
@@ -231,7 +247,7 @@ def fit_ground(
         raise CalibrationError("rover calibrate needs scipy: install rover-hil[calibrate]") from exc
     t0 = time.perf_counter()
     _structure(observed)
-    obs = observed.observations
+    obs = list(observed.observations)
     base = start if start is not None else Ground.of_rover(rover, world)
     measured = np.array([o.displacement() for o in obs])
     sigma = np.array([(o.sigma_xy_m, o.sigma_xy_m, o.sigma_yaw_rad) for o in obs])
@@ -262,15 +278,42 @@ def fit_ground(
     def fun(x: np.ndarray) -> np.ndarray:
         return np.concatenate((residuals_of(ground_at(x)), (x - prior) / PRIOR_SIGMA))
 
-    result: Any = least_squares(
-        fun,
-        prior,
-        bounds=(lo, hi),
-        method="trf",
-        x_scale="jac",
-        diff_step=1e-4,
-        max_nfev=max_evaluations,
+    def solve(x0: np.ndarray, loss: str) -> Any:
+        return least_squares(
+            fun,
+            x0,
+            bounds=(lo, hi),
+            method="trf",
+            loss=loss,
+            f_scale=OUTLIER_F_SCALE,
+            x_scale="jac",
+            diff_step=1e-4,
+            max_nfev=max_evaluations,
+        )
+
+    # A robust fit first, so that a step the twin cannot explain on any ground (a fault
+    # injected, a bump into something) is found, not averaged in; then the plain fit
+    # on the others, whose Jacobian gives the covariance.
+    robust = solve(prior, "soft_l1")
+    worst = np.max(np.abs(residuals_of(ground_at(robust.x)).reshape(-1, 3)), axis=1)
+    outliers = tuple(
+        (o.source, o.index, f"off every ground the twin fits: {w:.0f} sigma after the fit")
+        for o, w in zip(obs, worst, strict=True)
+        if w > OUTLIER_SIGMA
     )
+    if outliers:
+        keep = worst <= OUTLIER_SIGMA
+        obs = [o for o, k in zip(obs, keep, strict=True) if k]
+        measured, sigma = measured[keep], sigma[keep]
+        observed = ObservedSteps(
+            tuple(obs),
+            observed.skipped + outliers,
+            sum(rover.step_duration_s(o.speed, o.distance) for o in obs),
+        )
+        for source, index, why in outliers:
+            logger.warning("%s step %d left out: %s", source, index, why)
+        _structure(observed)
+    result = solve(robust.x, "linear")
     fitted = replace(ground_at(result.x), name="calibrated")
     jac = np.asarray(result.jac)
     data = np.asarray(result.fun)[: len(obs) * 3]
@@ -296,7 +339,7 @@ def fit_ground(
         turn_efficiency=efficiency,
         fixed_regions=tuple(fixed_regions),
     )
-    report = FitReport(evaluations[0], time.perf_counter() - t0, str(result.message))
+    report = FitReport(evaluations[0], time.perf_counter() - t0, str(result.message), outliers)
     logger.info(
         "fit: %s after %d evaluations in %.1f s; %s",
         ", ".join(f"{n}={calibration.value(n):.4g}" for n in names),

@@ -22,8 +22,10 @@ rest) and :data:`START_GUARD_S` before the next start. Guards are in mission sec
 than real time (``rover demo --speed``).
 
 Steps that cannot be measured so are skipped with the reason (``ObservedSteps.skipped``):
-not completed, no rest before or after (steps sent back to back), a rest that is not at
-rest (the POSE moves), encoders that disagree.
+not completed; a STOP sent by the ground while it ran or within a round trip after it
+ended (drift control saw it go wrong: a fault injected, say, not the ground); no rest
+before or after (steps sent back to back); a rest that is not at rest (the POSE moves);
+encoders that disagree.
 """
 
 from __future__ import annotations
@@ -192,6 +194,7 @@ def observe_steps(
     for rec in recordings:
         yaw_unwrapped = np.unwrap(rec.pose_yaw_rad) if len(rec.pose_yaw_rad) else rec.pose_yaw_rad
         odom_yaw = np.unwrap(rec.odom_yaw_rad) if len(rec.odom_yaw_rad) else rec.odom_yaw_rad
+        delay = 0.0 if math.isnan(rec.downlink_delay_s) else rec.downlink_delay_s
         moves = [
             (
                 rec.to_rover_clock(s.accepted_s),
@@ -206,6 +209,11 @@ def observe_steps(
                 skipped.append(
                     (rec.path, step.index, f"not completed ({step.outcome or 'no end'})")
                 )
+                continue
+            # Drift control sees a step go wrong up to a round trip after it ended.
+            late = step.ended_s + 2.0 * delay if step.ended_s is not None else math.inf
+            if any(step.sent_s <= t <= late for t in rec.stops_s):
+                skipped.append((rec.path, step.index, "the ground sent STOP during or after it"))
                 continue
             prev_end = moves[k - 1][1] + settle if k > 0 else -math.inf
             next_start = moves[k + 1][0] - guard if k + 1 < len(moves) else math.inf

@@ -15,6 +15,8 @@ ground-seeing POSE). :func:`read_recording` reads those four topics with the mca
   some faults pass). A STOP step (command 0) is an emergency stop, not a step;
 - the POSE and odometry samples with their header stamps (the rover's clock: the
   measurement time for POSE, the bridge's publication for odometry);
+- the STOPs the ground station sent on ``emergency_stop`` (a step they may have cut
+  short, or that drift control saw go wrong, is not measured);
 - the downlink delay: the median of log time minus header stamp over ``odom``, which
   maps the log times of statuses (which carry no stamp) onto the rover's clock.
 
@@ -42,7 +44,7 @@ __all__ = ["TOPICS", "RecordedStep", "Recording", "read_recording"]
 
 logger = logging.getLogger(__name__)
 
-TOPICS = ("wheel_instructions", "command_status", "odom", "odom_ground")
+TOPICS = ("wheel_instructions", "command_status", "odom", "odom_ground", "emergency_stop")
 """The topics read, by last name component."""
 
 FloatArray = npt.NDArray[np.float64]
@@ -95,6 +97,8 @@ class Recording:
             ``odom_yaw_rate_rad_s`` the gyro.
         downlink_delay_s: median of log time minus header stamp over odometry (``nan``
             without odometry).
+        stops_s: log times (ground clock) of every ``emergency_stop`` sent (drift
+            control's STOP, the operator's).
     """
 
     path: str
@@ -111,6 +115,7 @@ class Recording:
     odom_v_mps: FloatArray
     odom_yaw_rate_rad_s: FloatArray
     downlink_delay_s: float
+    stops_s: tuple[float, ...] = ()
 
     def to_rover_clock(self, log_s: float) -> float:
         """A log time (ground clock) as the rover's clock: minus the downlink delay."""
@@ -200,6 +205,7 @@ def _build(source: str, namespace: str, messages: list[Any]) -> Recording:
     pose: list[tuple[float, float, float, float, float]] = []
     odom: list[tuple[float, float, float, float, float, float]] = []
     delays: list[float] = []
+    stops: list[float] = []
     for _schema, channel, message, decoded in messages:
         last = channel.topic.rpartition("/")[2]
         log_s = (message.log_time - origin) / 1e9
@@ -212,6 +218,9 @@ def _build(source: str, namespace: str, messages: list[Any]) -> Recording:
             unanswered.append(step)
         elif last == "command_status":
             _status(str(decoded.data), log_s, unanswered, running)
+        elif last == "emergency_stop":
+            if bool(decoded.data):
+                stops.append(log_s)
         elif last == "odom":
             t_ns = _stamp_ns(decoded.header)
             p = decoded.pose.pose
@@ -261,6 +270,7 @@ def _build(source: str, namespace: str, messages: list[Any]) -> Recording:
         odom_v_mps=o_arr[:, 4].copy(),
         odom_yaw_rate_rad_s=o_arr[:, 5].copy(),
         downlink_delay_s=statistics.median(delays),
+        stops_s=tuple(stops),
     )
     logger.info(
         "%s: %d steps (%d completed), %d POSE, %d odom, downlink %.3f s",
