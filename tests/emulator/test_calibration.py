@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import random
 import subprocess
 import sys
@@ -145,38 +146,67 @@ def test_sampling_the_uncertainty_is_seeded(fitted: Calibration) -> None:
     assert fitted.sample(1, 0) == []
 
 
-def test_rover_calibrate_writes_a_twin_the_gate_plays_on(
-    loose_recording: Path, field: Path, tmp_path: Path
-) -> None:
-    out = tmp_path / "twin.toml"
+@pytest.fixture(scope="module")
+def twin_file(loose_recording: Path, field: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("twin") / "twin.toml"
     done = rover_cli("calibrate", str(loose_recording), "--map", str(field), "-o", str(out))
     assert done.returncode == 0, done.stderr
     assert "turn_efficiency" in done.stdout and f"twin written to {out}" in done.stdout
-    plan = tmp_path / "plan.json"
+    return out
+
+
+def _quarter_turn_plan() -> dict[str, object]:
     quarter = load_rover().turn_units_for_yaw(math.pi / 2)
-    plan.write_text(
-        json.dumps(
-            {
-                "goal": {"x": 20.0, "y": 20.0, "yaw_deg": 90.0},
-                "commands": [{"command": "LEFT", "speed": 30, "distance": quarter}],
-            }
-        )
-    )
+    return {
+        "goal": {"x": 20.0, "y": 20.0, "yaw_deg": 90.0},
+        "commands": [{"command": "LEFT", "speed": 30, "distance": quarter}],
+    }
+
+
+def _true_quarter_turn_deg() -> float:
+    rover = load_rover()
+    steps = [(LEFT, 30, rover.turn_units_for_yaw(math.pi / 2))]
+    twin = Twin(load_ground("loose", rover).rover(rover), dt_s=0.01)
+    return play(twin, steps).final_pose.yaw_deg
+
+
+def test_rover_gate_check_plays_on_the_twin(twin_file: Path, field: Path, tmp_path: Path) -> None:
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps(_quarter_turn_plan()))
     yaws = {}
-    for name, extra in (("nominal", []), ("twin", ["--twin", str(out)])):
+    for name, extra in (("nominal", []), ("twin", ["--twin", str(twin_file)])):
         check = rover_cli(
             "gate", "check", str(plan), "--map", str(field), "--start", "20,20,0", "--json", *extra
         )
         assert check.returncode in (0, 1), check.stderr
         yaws[name] = json.loads(check.stdout)["final_pose"]["yaw_deg"]
-    rover = load_rover()
-    truth = play(
-        Twin(load_ground("loose", rover).rover(rover), dt_s=0.01), [(LEFT, 30, quarter)]
-    ).final_pose.yaw_deg
+    truth = _true_quarter_turn_deg()
     assert abs(yaws["twin"] - truth) < 0.5
     assert abs(yaws["nominal"] - truth) > 10.0
-    both = rover_cli("gate", "check", str(plan), "--twin", str(out), "--rover", str(out))
+    both = rover_cli(
+        "gate", "check", str(plan), "--twin", str(twin_file), "--rover", str(twin_file)
+    )
     assert both.returncode == 2 and "not both" in both.stderr
+
+
+def test_rover_gate_serves_the_twin(twin_file: Path, field: Path) -> None:
+    from planner.gate_client import GateClient
+    from planner.geometry import Pose
+    from tests.child import Child
+
+    args = ["gate", "--port", "0", "--pool", "thread", "--workers", "1", "--map", str(field)]
+    args += ["--twin", str(twin_file)]
+    gate = Child(args, dict(os.environ))
+    try:
+        url = gate.wait_for("GATE ").split()[1]
+        with GateClient(url) as client:
+            verdict = client.validate(
+                _quarter_turn_plan(), map_name="field", start=Pose(20.0, 20.0, 0.0)
+            )
+        assert abs(verdict.final_pose.yaw_deg - _true_quarter_turn_deg()) < 0.5
+        assert any("calibrated on field" in line for line in gate.errors)
+    finally:
+        gate.stop()
 
 
 def _record(tmp_path: Path, steps: list[tuple[int, int, int]], name: str) -> Path:
