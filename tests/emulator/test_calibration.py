@@ -287,3 +287,15 @@ def test_a_region_not_driven_on_keeps_the_maps_scale(
     assert "region.far" not in calibration.parameters
     assert calibration.fixed_regions == ("far",)
     assert calibration.ground.region_scale("far") == 0.6
+
+
+def test_loading_a_twin_needs_no_scipy() -> None:
+    # The gate and the rover load twin files; only rover calibrate needs the extra.
+    code = (
+        "import sys, emulator.twinfile, emulator.calibration, gate.cli_gate\n"
+        "print('scipy' in sys.modules)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    assert done.stdout.strip() == "False"
