@@ -311,7 +311,7 @@ def fit_ground(
             sum(rover.step_duration_s(o.speed, o.distance) for o in obs),
         )
         for source, index, why in outliers:
-            logger.warning("%s step %d left out: %s", source, index, why)
+            logger.info("%s step %d left out: %s", source, index, why)
         _structure(observed)
     result = solve(robust.x, "linear")
     fitted = replace(ground_at(result.x), name="calibrated")
