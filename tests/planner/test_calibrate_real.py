@@ -4,7 +4,7 @@ the gate does not know (a process, over a pty), ``rover bridge`` and ``rover lin
 as ``rover go --record`` runs them; then ``rover calibrate`` on the file.
 
 Four times faster than real time (the emulator's speed factor, the link's delay and the
-executor's timeouts scaled alike), so about 20 s.
+executor's timeouts scaled alike), so about 25 s.
 """
 
 from __future__ import annotations
@@ -27,7 +27,9 @@ from planner.executor import ExecutorConfig, PlanExecutor
 from planner.mcaprec import McapRecorder
 from tests.child import Child
 
-pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
+# serial: a mission across four processes; alone, no other worker's load can starve the
+# link past the controller's watchdog (as for the demo tests).
+pytestmark = [pytest.mark.rclpy, pytest.mark.slow, pytest.mark.serial]
 
 SPEED = 4.0
 RTT_S = 3.0
@@ -46,10 +48,12 @@ def _plan() -> Plan:
         ("FWD", 25, 18400),
         ("LEFT", 35, rover.turn_units_for_yaw(math.radians(135))),
         ("REV", 40, 11500),
+        ("RIGHT", 30, quarter // 2),
+        ("FWD", 50, 9200),
     ]
     return Plan.from_dict(
         {
-            "goal": {"x": 2.0, "y": 2.5, "yaw_deg": 45.0},
+            "goal": {"x": 2.4, "y": 2.5, "yaw_deg": 0.0},
             "commands": [{"command": c, "speed": s, "distance": d} for c, s, d in steps],
         }
     )
@@ -103,7 +107,7 @@ def test_a_real_run_on_an_unknown_ground_calibrates_the_twin(tmp_path: Path) -> 
     )
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)
-    assert report["steps"] >= 6, report
+    assert report["steps"] >= 8, report  # of 10: a rest disturbed by load may cost one
     truth = measure_turn_efficiency(
         load_ground("loose", rover).rover(rover),
         distance=rover.turn_units_for_yaw(math.pi / 2),
