@@ -2,8 +2,9 @@
 injection, and front ends serving it over a pty or a python-can bus.
 
 The twin part (what the gate imports): :class:`Twin` (physics), :func:`load_map`
-(maps), :class:`StepProfile` (step semantics) and :func:`play` (lockstep playback).
-See docs/twin.md.
+(maps), :class:`StepProfile` (step semantics) and :func:`play` (lockstep playback);
+:class:`Ground` and :func:`load_ground` (a ground of the emulator's own, or a fitted
+one). See docs/twin.md.
 """
 
 from emulator.drive import (
@@ -15,7 +16,15 @@ from emulator.drive import (
     turn_units_for_yaw,
     yaw_for_turn_units,
 )
-from emulator.errors import CommandError, ConfigError, EmulatorError, InjectionError, MapError
+from emulator.errors import (
+    CommandError,
+    ConfigError,
+    EmulatorError,
+    GroundError,
+    InjectionError,
+    MapError,
+)
+from emulator.ground import Ground, list_grounds, load_ground
 from emulator.playback import (
     PlaybackResult,
     Stall,
@@ -43,6 +52,8 @@ __all__ = [
     "CommandError",
     "ConfigError",
     "EmulatorError",
+    "Ground",
+    "GroundError",
     "InjectionError",
     "MapError",
     "MapGoal",
@@ -57,7 +68,9 @@ __all__ = [
     "Twin",
     "WorldMap",
     "brake",
+    "list_grounds",
     "list_maps",
+    "load_ground",
     "load_map",
     "measure_turn_efficiency",
     "motor_omegas",

@@ -22,9 +22,11 @@ from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 if TYPE_CHECKING:
     from emulator.controller import ControllerConfig, ControllerModel
     from emulator.frontend import FrontEnd
+    from emulator.ground import Ground
     from emulator.injection import FaultSpec, InjectionRecord
+    from firmware_proto.rover import RoverDescription
 
-__all__ = ["add_arguments", "controller_config", "main", "register"]
+__all__ = ["add_arguments", "controller_config", "ground_of", "main", "register"]
 
 NODE_NAME = "rover_emulator"
 """Node name whose section of a ROS parameters file configures ``rover_emulator``."""
@@ -85,6 +87,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--node", type=int, default=1, help="with --can: node id 1..15 (default 1)")
     p.add_argument("--map", default="lab", help="map name or JSON file (default: lab)")
     p.add_argument("--rover", metavar="TOML", help="rover description (default: the packaged one)")
+    p.add_argument(
+        "--ground",
+        metavar="NAME|FILE",
+        help=(
+            "drive on a ground of its own, unknown to the gate: a shipped ground "
+            f"({', '.join(_shipped_grounds())}) or a ground TOML file (docs/twin.md); "
+            "default: the rover description's traction and the map's regions"
+        ),
+    )
+    p.add_argument(
+        "--ground-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=(
+            "set one ground parameter (repeatable, after --ground): mu_longitudinal, "
+            "mu_lateral, slip_saturation_mps, slip_saturation_ratio, rolling_resistance, "
+            "turn_efficiency (solves mu_lateral), region.ID (a region's friction scale)"
+        ),
+    )
     p.add_argument(
         "--seed", type=int, default=0, help="seed of sensor noise, boot nonces, link faults"
     )
@@ -159,6 +181,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_runtime_arguments(p, EMULATOR_PRIORITY)
 
 
+def _shipped_grounds() -> tuple[str, ...]:
+    from emulator.ground import list_grounds  # light: no pymunk
+
+    return list_grounds()
+
+
+def ground_of(args: argparse.Namespace, rover: RoverDescription) -> Ground | None:
+    """The ground ``--ground`` and ``--ground-set`` ask for; ``None`` for neither (the
+    twin then drives on what the rover description and the map say).
+
+    Raises:
+        GroundError: an unknown ground, an invalid file or setting.
+    """
+    from dataclasses import replace
+
+    from emulator.ground import Ground, load_ground, parse_ground_setting, solve_mu_lateral
+
+    settings = [parse_ground_setting(text) for text in getattr(args, "ground_set", [])]
+    name = getattr(args, "ground", None)
+    if name is None and not settings:
+        return None
+    ground = load_ground(name, rover) if name is not None else Ground.of_rover(rover)
+    if name is None:
+        ground = replace(ground, name="custom")
+    values = {k: v for k, v in settings if k != "turn_efficiency"}
+    ground = ground.with_values(**values)
+    for key, value in settings:
+        if key == "turn_efficiency":
+            ground = replace(ground, mu_lateral=solve_mu_lateral(rover, ground, value))
+    return ground
+
+
 def controller_config(args: argparse.Namespace) -> ControllerConfig:
     """The firmware settings the options ask for.
 
@@ -213,7 +267,20 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"--can: {exc}") from None
     rover = load_rover(args.rover)
     world = load_map(args.map)
-    twin = Twin(rover, world, dt_s=args.dt)
+    ground = ground_of(args, rover)
+    if ground is not None:
+        # The plant drives on this ground; the controller keeps the description (its
+        # units and limits), as real firmware knows nothing of the ground.
+        twin = Twin(ground.rover(rover), ground.world(world), dt_s=args.dt)
+        values = ", ".join(f"{k}={v:g}" for k, v in ground.values().items())
+        regions = ", ".join(f"{k}={v:g}" for k, v in ground.regions)
+        print(
+            f"GROUND {ground.name}: {values}" + (f"; regions {regions}" if regions else ""),
+            file=sys.stderr,
+            flush=True,
+        )
+    else:
+        twin = Twin(rover, world, dt_s=args.dt)
     model = make_controller(
         getattr(args, "firmware", "python"),
         rover,
@@ -243,6 +310,7 @@ def _run(args: argparse.Namespace) -> int:
                 "speed_factor": str(args.speed_factor),
                 "map": str(args.map),
                 "rover": str(args.rover or ""),
+                "ground": ground.to_toml() if ground is not None else "",
                 "firmware": getattr(args, "firmware", "python"),
             },
         )

@@ -12,8 +12,14 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
      +-- ConfigError      a twin or playback parameter is out of range (time step,
      |                    safety margin, sample period); also ValueError
      +-- FirmwareBuildError  the C firmware core cannot be built or loaded here (no
-                          compiler, a failed build, a rover it cannot represent);
-                          also RuntimeError
+     |                    compiler, a failed build, a rover it cannot represent);
+     |                    also RuntimeError
+     +-- GroundError      a ground file or ground setting is invalid, or names a region
+     |                    the map lacks; also ValueError
+     +-- CalibrationError fitting the twin to recorded missions failed; also ValueError
+          +-- RecordingError   a recording cannot be read or holds no usable step
+          +-- UnidentifiableError  the recordings cannot identify a parameter (no
+                               turns, too short); ``parameter`` names it
 
 Programming errors (wrong types, calling a closed object) raise the usual built-ins.
 """
@@ -21,12 +27,16 @@ Programming errors (wrong types, calling a closed object) raise the usual built-
 from __future__ import annotations
 
 __all__ = [
+    "CalibrationError",
     "CommandError",
     "ConfigError",
     "EmulatorError",
     "FirmwareBuildError",
+    "GroundError",
     "InjectionError",
     "MapError",
+    "RecordingError",
+    "UnidentifiableError",
 ]
 
 
@@ -66,3 +76,29 @@ class ConfigError(EmulatorError, ValueError):
 class FirmwareBuildError(EmulatorError, RuntimeError):
     """The C firmware core cannot be built or loaded here (no compiler, a failed build,
     or a rover description or time step its integer arithmetic cannot represent)."""
+
+
+class GroundError(EmulatorError, ValueError):
+    """A ground file or setting cannot be used (unreadable, unknown key, value out of
+    range), or it names a traction region the map lacks."""
+
+
+class CalibrationError(EmulatorError, ValueError):
+    """The twin cannot be fitted to the recordings given."""
+
+
+class RecordingError(CalibrationError):
+    """A recording cannot be read, or holds no step that can be replayed."""
+
+
+class UnidentifiableError(CalibrationError):
+    """The recordings cannot identify a parameter (no turns, too short, too noisy).
+
+    Attributes:
+        parameter: the parameter that cannot be identified (``""``: the recording as a
+            whole is too short).
+    """
+
+    def __init__(self, message: str, parameter: str = "") -> None:
+        super().__init__(message)
+        self.parameter = parameter

@@ -4,6 +4,11 @@ One TOML file (``firmware_proto/data/rover.toml`` by default) is read by the emu
 the gate, the planner and the bridge, so that every part agrees on what a distance unit
 or a speed unit means. Load it with :func:`load_rover`; values are immutable.
 
+A calibrated twin (``rover calibrate``) is a description with one more table,
+``[calibration]`` (the fit's report: uncertainties, residuals, region scales; read by
+``emulator.twinfile``). :func:`load_rover` accepts and ignores it, so that the planner
+and the bridge can load the calibrated file as a plain description.
+
 Units are in the field names: ``_m`` metres, ``_mps`` m/s, ``_rad_s`` rad/s, ``_kg``.
 """
 
@@ -25,6 +30,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 __all__ = [
+    "CALIBRATION_TABLE",
     "DEFAULT_ROVER_PATH",
     "Drive",
     "Environment",
@@ -37,6 +43,9 @@ __all__ = [
 ]
 
 DEFAULT_ROVER_PATH = Path(__file__).resolve().parent / "data" / "rover.toml"
+
+CALIBRATION_TABLE = "calibration"
+"""The table a calibrated twin adds to a description; not part of the description."""
 
 
 @dataclass(frozen=True)
@@ -264,7 +273,8 @@ def load_rover(path: str | Path | None = None) -> RoverDescription:
 
     Raises:
         DescriptionError: the file is missing, not TOML, or a value is absent, unknown,
-            of the wrong type or out of range. The message names the key.
+            of the wrong type or out of range. The message names the key. A
+            ``[calibration]`` table is not checked here (see the module docstring).
     """
     source = Path(path) if path is not None else DEFAULT_ROVER_PATH
     try:
@@ -278,7 +288,7 @@ def load_rover(path: str | Path | None = None) -> RoverDescription:
     name = doc.get("name")
     if not isinstance(name, str) or not name:
         raise DescriptionError(f"{source}: name must be a non-empty string")
-    extra = sorted(set(doc) - set(_SECTIONS) - {"schema_version", "name"})
+    extra = sorted(set(doc) - set(_SECTIONS) - {"schema_version", "name", CALIBRATION_TABLE})
     if extra:
         raise DescriptionError(f"{source}: unknown table(s) or key(s): {', '.join(extra)}")
     parts = {key: _section(doc, key, cls, str(source)) for key, cls in _SECTIONS.items()}

@@ -49,6 +49,13 @@ def _add_playback_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
         help="predicted trajectory rate, Hz (default 10)",
     )
     p.add_argument("--rover", dest=prefix + "rover_path", metavar="TOML", help="rover description")
+    p.add_argument(
+        "--twin",
+        dest=prefix + "twin_path",
+        metavar="FILE",
+        help="play plans on a calibrated twin (written by rover calibrate) instead of the "
+        "rover description; not with --rover",
+    )
 
 
 _DESCRIPTION = (
@@ -132,6 +139,7 @@ def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]
     keys = ("safety_margin_m", "position_tolerance_m", "yaw_tolerance_deg", "sample_hz", "dt_s")
     out = {k: getattr(args, prefix + k, None) for k in keys}
     out["rover_path"] = getattr(args, prefix + "rover_path", None)
+    out["twin_path"] = getattr(args, prefix + "twin_path", None)
     return out
 
 
@@ -156,9 +164,14 @@ def _serve(args: argparse.Namespace) -> int:
             "pool": args.pool,
             "queue_depth": args.queue_depth,
             "max_body_bytes": args.max_body_bytes,
-            **_playback_args(args),
+            **{k: v for k, v in _playback_args(args).items() if k != "twin_path"},
         },
         config_path=args.config,
+    )
+    validator = (
+        _twin_validator(args.twin_path, config.default_map, config.playback, config.rover_path)
+        if args.twin_path
+        else None
     )
     stop = threading.Event()
 
@@ -167,7 +180,10 @@ def _serve(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with ProcessRuntime(runtime_options(args, "gate")), GateServer(config) as gate:
+        with (
+            ProcessRuntime(runtime_options(args, "gate")),
+            GateServer(config, validator=validator) as gate,
+        ):
             print(f"GATE {gate.url}", flush=True)
             while not stop.wait(3600.0):
                 pass
@@ -176,6 +192,37 @@ def _serve(args: argparse.Namespace) -> int:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
     return 0
+
+
+def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path: str | None) -> Any:
+    """A validator (:class:`gate.validator.Validator`) that plays every plan on the
+    calibrated twin ``twin_path``: its rover description, and its region scales on the
+    map it was calibrated on.
+
+    Raises:
+        ConfigError: ``--rover`` given too, or the twin file cannot be used.
+    """
+    from emulator.errors import EmulatorError
+    from emulator.twinfile import load_twin
+    from gate.errors import ConfigError
+    from gate.validator import Validator, load_maps
+
+    if rover_path:
+        raise ConfigError("give --twin or --rover, not both (a twin holds its rover)")
+    try:
+        twin = load_twin(twin_path)
+    except EmulatorError as exc:
+        raise ConfigError(str(exc)) from exc
+    maps, default = load_maps(default_map)
+    served = {name: twin.world(world) or world for name, world in maps.items()}
+    cal = twin.calibration
+    print(
+        f"gate: twin {twin_path}: calibrated on {cal.map_name or 'an open plane'} from "
+        f"{cal.after.steps} steps; turn efficiency {cal.turn_efficiency:.3f}",
+        file=sys.stderr,
+        flush=True,
+    )
+    return Validator(twin.rover, served, settings, default)
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -199,9 +246,14 @@ def _check(args: argparse.Namespace) -> int:
         options = ValidateOptions.from_query(urlencode(query))
         given = _playback_args(args, "check_")
         rover_path = given.pop("rover_path")
+        twin_path = given.pop("twin_path")
         settings = PlaybackSettings(**{k: v for k, v in given.items() if v is not None})
-        maps, default = load_maps(args.check_map or "lab")
-        validator = Validator(load_rover(rover_path), maps, settings, default)
+        if twin_path:
+            validator = _twin_validator(twin_path, args.check_map or "lab", settings, rover_path)
+            default = validator.default_map
+        else:
+            maps, default = load_maps(args.check_map or "lab")
+            validator = Validator(load_rover(rover_path), maps, settings, default)
         verdict = validator.validate(plan, options.resolve(settings, default))
     except OSError as exc:
         print(f"rover gate check: cannot read {args.plan}: {exc}", file=sys.stderr)

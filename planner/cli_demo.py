@@ -49,6 +49,29 @@ def register(subparsers: Any) -> None:
     )
     add_view_arguments(p, record_default="demo.mcap")
     p.add_argument(
+        "--ground",
+        metavar="NAME|FILE",
+        help=(
+            "the emulator drives on this ground, which the gate does not know (rover "
+            "emulate --ground: loose, compacted, dusty or a file); expect drift STOPs"
+        ),
+    )
+    p.add_argument(
+        "--twin",
+        metavar="FILE",
+        help=(
+            "a calibrated twin (rover calibrate): the gate plays plans on it and the "
+            "planner turns by its turn efficiency"
+        ),
+    )
+    p.add_argument(
+        "--replan",
+        type=int,
+        default=None,
+        metavar="N",
+        help="re-plans after drift STOPs (default 1; 4 with --ground: a first day)",
+    )
+    p.add_argument(
         "--firmware",
         choices=("python", "c"),
         default="python",
@@ -86,6 +109,11 @@ def _run(args: argparse.Namespace) -> int:
         foxglove_port=args.foxglove,
         firmware=args.firmware,
         realtime=not args.no_realtime,
+        ground=args.ground,
+        twin=Path(args.twin) if args.twin else None,
+        replans=(
+            args.replan if args.replan is not None else (4 if args.ground else DemoConfig.replans)
+        ),
     )
     started = time.time()
     with Demo(config, say=functools.partial(print, flush=True)) as demo:

@@ -199,6 +199,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="re-plans after drift STOPs (default 1; 0 stops there)",
     )
     p.add_argument(
+        "--rover",
+        metavar="TOML",
+        help=(
+            "rover description the planner turns by (default: the packaged one); a twin "
+            "file from rover calibrate brings the ground's turn efficiency"
+        ),
+    )
+    p.add_argument(
         "--move-and-wait",
         action="store_true",
         help=(
@@ -326,7 +334,7 @@ def _mission(args: argparse.Namespace) -> int:
         drift_control=not args.no_drift,
         blind_margin_s=max(1.0, 2.0 * args.pose_stale),
     )
-    rover = load_rover()
+    rover = load_rover(getattr(args, "rover", None))
     t0 = time.monotonic()
     started = time.time()
     cancel = threading.Event()

@@ -96,6 +96,12 @@ class DemoConfig:
             firmware core in the loop; ``rover emulate --firmware``).
         realtime: the emulator and the bridge ask for real-time scheduling (their
             default; docs/realtime.md); ``False`` runs them with ``--no-realtime``.
+        ground: the ground the emulator drives on (``rover emulate --ground``: a
+            shipped ground's name or a file), unknown to the gate; ``None``: the
+            description's.
+        twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
+            (``rover gate --twin``) and the planner turns by its turn efficiency.
+        replans: drift STOPs after which the mission is re-planned.
     """
 
     rtt_s: float = 3.0
@@ -113,6 +119,9 @@ class DemoConfig:
     foxglove_port: int | None = None
     firmware: str = "python"
     realtime: bool = True
+    ground: str | None = None
+    twin: Path | None = None
+    replans: int = 1
 
 
 @dataclass(frozen=True)
@@ -364,23 +373,11 @@ class Demo:
             raise ValueError("speed must be > 0 and rtt_s >= 0")
         link = Path(self._tmp.name) / "rover-motor"
         # The programs that need not keep time yield the CPU to those that must.
-        gate = self._start(
-            "gate",
-            [
-                "gate",
-                "--port",
-                "0",
-                "--map",
-                cfg.map_name,
-                "--workers",
-                "1",
-                "--pool",
-                "thread",
-                "--nice",
-                str(_NICE),
-            ],
-            "GATE ",
-        )
+        gate_args = ["gate", "--port", "0", "--map", cfg.map_name, "--workers", "1"]
+        gate_args += ["--pool", "thread", "--nice", str(_NICE)]
+        if cfg.twin is not None:
+            gate_args += ["--twin", str(cfg.twin)]
+        gate = self._start("gate", gate_args, "GATE ")
         realtime = [] if cfg.realtime else ["--no-realtime"]
         url = gate.line("GATE ").split()[1]
         emulator_args = [
@@ -400,6 +397,8 @@ class Demo:
             cfg.firmware,
             *realtime,
         ]
+        if cfg.ground is not None:
+            emulator_args += ["--ground", cfg.ground]
         emulator = self._start("emulator", emulator_args, "CONTROL ")
         control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
         self._start("bridge", ["bridge", "--device", str(link), *realtime], "BRIDGE ")
@@ -417,7 +416,7 @@ class Demo:
             "LINK ",
         )
         self.say(f"emulator control port: 127.0.0.1:{control_port}")
-        rover = load_rover()
+        rover = load_rover(cfg.twin)
         os.environ[LOCALHOST_ENV] = "LOCALHOST"  # read when the port's context starts
         self.say(f"ROS 2 middleware: {middleware()}")
         recorder = McapRecorder(cfg.record) if cfg.record is not None else None
@@ -530,7 +529,7 @@ class Demo:
             runner = MissionRunner(
                 orchestrator,
                 executor,
-                replans=1,
+                replans=cfg.replans,
                 on_progress=progress,
                 on_drift=out_of_the_sand,
                 on_event=self.say,

@@ -28,6 +28,7 @@ import queue
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -224,16 +225,19 @@ class McapRecorder:
 
     Args:
         path: the file to write (replaced if it exists).
+        clock: the log time of each message, ns since the epoch (default the wall
+            clock; a lockstep run passes its own so its recordings read as real ones).
 
     Raises:
         OSError: the file cannot be created.
         ImportError: the ``mcap`` / ``mcap-ros2-support`` packages are missing.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, clock: Callable[[], int] = time.time_ns) -> None:
         from mcap_ros2.writer import Writer  # noqa: PLC0415  (only a recording needs it)
 
         self.path = Path(path)
+        self._clock = clock
         self._file: BinaryIO = self.path.open("wb")
         self._writer = Writer(self._file)
         self._schemas: dict[str, Any] = {}
@@ -254,14 +258,14 @@ class McapRecorder:
     def tap(self, direction: str, topic: str, msg: Any) -> None:
         """A :data:`bridge.rosport.Tap`: queue ``msg`` on ``topic`` (never blocks)."""
         if not self._closed:
-            self._queue.put((time.time_ns(), topic, type(msg), msg))
+            self._queue.put((self._clock(), topic, type(msg), msg))
 
     def planned(self, mission: MissionResult) -> None:
         """Record a planning: each attempt's verdict, and its predicted trajectory on
         :data:`PREDICTED_TOPIC` (approved) or :data:`REJECTED_TOPIC`."""
         if self._closed:
             return
-        now_ns = time.time_ns()
+        now_ns = self._clock()
         for topic, cls, msg in gate_messages(mission, now_ns):
             self._queue.put((now_ns, topic, cls, msg))
 

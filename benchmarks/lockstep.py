@@ -1,0 +1,323 @@
+"""Missions driven in lockstep and recorded as a real mission is, for calibration runs.
+
+A real recording (``rover go --record``) is made by the ground station's port: it hears
+the steps it publishes and, after the link's one-way delay, what the bridge publishes
+from the controller's telemetry. :func:`record_lockstep` produces the same file without
+real time: the controller model (:class:`emulator.controller.ControllerModel`) drives its
+twin tick by tick on a ground of its own; the host's side of the bridge runs in process
+(the bridge's own :class:`~bridge.odometry.OdometryEstimator` and
+:func:`~bridge.odometry.ground_pose`, the ``odom`` and ``odom_ground`` messages built as
+``bridge/node.py`` builds them); the executor's pacing is kept (a step is sent when the
+previous one's ``completed`` has crossed the link, so the rover rests a round trip
+between steps); and every message goes through :class:`planner.mcaprec.McapRecorder`
+with log times as the ground station would have heard them (downlink: the rover's time
+plus the one-way delay; uplink: the time the rover received it minus the delay).
+
+What is left out of a real run: the serial link and its framing, ROS 2 transport, and
+wall-clock jitter. ``tests/emulator/test_calibrate_e2e.py`` calibrates from a real run.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bridge.odometry import OdometryEstimator, ground_pose
+from bridge.rosport.msgs import (
+    Header,
+    Int16MultiArray,
+    Odometry,
+    Point,
+    Pose,
+    PoseWithCovariance,
+    String,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+    quaternion_from_yaw,
+    stamp,
+)
+from emulator.controller import ControllerConfig, ControllerModel
+from emulator.ground import Ground
+from emulator.twin import Pose2D, Twin
+from emulator.worldmap import WorldMap
+from firmware_proto.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    AbortReason,
+    Ack,
+    AckResult,
+    Command,
+    Encoders,
+    Hello,
+    HostHeartbeat,
+    Imu,
+    Motion,
+    StepState,
+    WheelSpeeds,
+)
+from firmware_proto.messages import Pose as PoseMsg
+from firmware_proto.messages import Status as StatusMsg
+from firmware_proto.rover import RoverDescription
+from planner.mcaprec import McapRecorder
+
+__all__ = [
+    "EPOCH_S",
+    "LockstepMission",
+    "field_map",
+    "random_mission",
+    "record_lockstep",
+]
+
+EPOCH_S = 1_800_000_000.0
+"""Wall time of twin time 0 in the recordings (any fixed value will do)."""
+
+HOST_HEARTBEAT_S = 0.1
+"""The host's heartbeat period (the controller's watchdog is 250 ms)."""
+
+
+def field_map(size_m: float = 40.0) -> WorldMap:
+    """An open field, ``size_m`` square, no obstacles, start at its centre facing east:
+    room for any 12-step mission of :func:`random_mission`."""
+    half = size_m / 2.0
+    return WorldMap.from_dict(
+        {
+            "name": "field",
+            "description": "an open field for calibration runs",
+            "bounds": {"min_x": 0.0, "min_y": 0.0, "max_x": size_m, "max_y": size_m},
+            "obstacles": [],
+            "traction_regions": [],
+            "start": {"x": half, "y": half, "yaw_deg": 0.0},
+        },
+        "field",
+    )
+
+
+def random_mission(
+    rover: RoverDescription,
+    rng: random.Random,
+    steps: int = 12,
+    *,
+    max_driving_s: float | None = None,
+) -> list[tuple[int, int, int]]:
+    """Seeded steps alternating straight lines (FWD mostly, some REV; 0.3-1.6 m at
+    speed 15-60) and turns on the spot (LEFT or RIGHT, 20-150 degrees by the rover
+    description's turn model, speed 15-45). With ``max_driving_s``, steps stop being
+    added before their nominal durations would pass it."""
+    out: list[tuple[int, int, int]] = []
+    total = 0.0
+    turn_next = rng.random() < 0.5
+    while len(out) < steps:
+        if turn_next:
+            command = Command.LEFT if rng.random() < 0.5 else Command.RIGHT
+            speed = rng.randint(15, 45)
+            distance = rover.turn_units_for_yaw(math.radians(rng.uniform(20.0, 150.0)))
+        else:
+            command = Command.FWD if rng.random() < 0.75 else Command.REV
+            speed = rng.randint(15, 60)
+            distance = rover.m_to_units(rng.uniform(0.3, 1.6))
+        turn_next = not turn_next
+        duration = rover.step_duration_s(speed, distance)
+        if max_driving_s is not None and total + duration > max_driving_s:
+            break
+        total += duration
+        out.append((int(command), speed, min(distance, rover.drive.max_distance)))
+    return out
+
+
+@dataclass(frozen=True)
+class LockstepMission:
+    """A recorded lockstep mission.
+
+    Attributes:
+        path: the MCAP file.
+        steps: the steps driven.
+        start, final: the twin's true pose before the first step and at the end.
+        driving_s: twin time spent executing steps (rests excluded).
+        completed: steps that completed.
+    """
+
+    path: Path
+    steps: tuple[tuple[int, int, int], ...]
+    start: Pose2D
+    final: Pose2D
+    driving_s: float
+    completed: int
+
+
+def _cov(var_xy: float, var_yaw: float) -> list[float]:
+    cov = [0.0] * 36
+    cov[0] = cov[7] = var_xy
+    cov[14] = cov[21] = cov[28] = 1e6
+    cov[35] = var_yaw
+    return cov
+
+
+class _Host:
+    """The bridge's telemetry side and the link's delay, in process."""
+
+    def __init__(self, rover: RoverDescription, one_way_delay_s: float) -> None:
+        self.odometry = OdometryEstimator(rover)
+        self.delay_s = one_way_delay_s
+        self.events: list[tuple[int, str, Any]] = []
+        self.completed_at: float | None = None
+        self.ended = ""
+
+    def _down(self, t_s: float, topic: str, msg: Any) -> None:
+        self.events.append((round((EPOCH_S + t_s + self.delay_s) * 1e9), topic, msg))
+
+    def up(self, t_s: float, topic: str, msg: Any) -> None:
+        """A message the ground published, received by the rover at ``t_s``."""
+        self.events.append((round((EPOCH_S + t_s - self.delay_s) * 1e9), topic, msg))
+
+    def status(self, t_s: float, text: str) -> None:
+        self._down(t_s, "/command_status", String(data=text))
+
+    def feed(self, t_s: float, messages: list[Any]) -> None:
+        """The controller's messages at twin time ``t_s``, as the bridge handles them."""
+        for msg in messages:
+            if isinstance(msg, Encoders):
+                est = self.odometry.update_encoders(msg)
+                self._down(
+                    t_s,
+                    "/odom",
+                    Odometry(
+                        header=Header(stamp=stamp(EPOCH_S + t_s), frame_id="odom"),
+                        child_frame_id="base_link",
+                        pose=PoseWithCovariance(
+                            pose=Pose(
+                                position=Point(x=est.x_m, y=est.y_m, z=0.0),
+                                orientation=quaternion_from_yaw(est.yaw_rad),
+                            ),
+                            covariance=_cov(est.var_xy_m2, est.var_yaw_rad2),
+                        ),
+                        twist=TwistWithCovariance(
+                            twist=Twist(
+                                linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)
+                            ),
+                            covariance=_cov(1e-4, 1e-4),
+                        ),
+                    ),
+                )
+            elif isinstance(msg, Imu):
+                self.odometry.update_imu(msg)
+            elif isinstance(msg, WheelSpeeds):
+                self.odometry.update_speeds(msg)
+            elif isinstance(msg, PoseMsg):
+                pose = ground_pose(msg)
+                if pose is None:
+                    continue
+                var = pose.sigma_m**2
+                self._down(
+                    t_s,
+                    "/odom_ground",
+                    Odometry(
+                        header=Header(stamp=stamp(EPOCH_S + t_s - pose.age_s), frame_id="map"),
+                        child_frame_id="base_link",
+                        pose=PoseWithCovariance(
+                            pose=Pose(
+                                position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
+                                orientation=quaternion_from_yaw(pose.yaw_rad),
+                            ),
+                            covariance=_cov(var, var / 0.25 if var else 1e-4),
+                        ),
+                    ),
+                )
+            elif isinstance(msg, Ack):
+                if msg.result == AckResult.ACCEPTED:
+                    self.status(t_s, "accepted")
+                else:
+                    self.status(t_s, f"rejected:{AckResult(msg.result).name.lower()}")
+                    self.ended = "rejected"
+            elif isinstance(msg, StatusMsg):
+                if msg.state == StepState.COMPLETED:
+                    self.status(t_s, "completed")
+                    self.completed_at = t_s
+                    self.ended = "completed"
+                elif msg.state == StepState.ABORTED:
+                    self.status(t_s, f"aborted:{AbortReason(msg.reason).name.lower()}")
+                    self.ended = "aborted"
+
+
+def record_lockstep(
+    path: str | Path,
+    rover: RoverDescription,
+    world: WorldMap | None,
+    ground: Ground | None,
+    steps: list[tuple[int, int, int]],
+    *,
+    start: Pose2D | None = None,
+    seed: int = 0,
+    rtt_s: float = 3.0,
+    dt_s: float = 0.001,
+    rest_s: float = 3.0,
+    namespace: str = "",
+) -> LockstepMission:
+    """Drive ``steps`` on ``ground`` in lockstep and record the mission (module
+    docstring).
+
+    Args:
+        path: the MCAP file to write.
+        rover: the rover description (the controller's, and the twin's but for the
+            traction ``ground`` replaces).
+        world: the map (``None``: an open plane).
+        ground: the ground the rover really drives on (``None``: the description's).
+        steps: ``(command, speed, distance)`` triples, sent one at a time.
+        start: the true start pose (default: the map's start).
+        seed: the controller's seed (sensor noise).
+        rtt_s: the link's round trip: a step is sent this long after the previous one
+            completed (and the recording's log times are shifted by half of it).
+        dt_s: the controller's tick (the emulator's default 1 ms).
+        rest_s: rest before the first step and after the last.
+        namespace: prefix of the topics (``"/ground"``, as ``rover demo`` records).
+    """
+    twin_rover = ground.rover(rover) if ground is not None else rover
+    twin_world = ground.world(world) if ground is not None else world
+    twin = Twin(twin_rover, twin_world, dt_s=dt_s, start=start)
+    model = ControllerModel(rover, twin, ControllerConfig(), seed=seed)
+    host = _Host(rover, rtt_s / 2.0)
+    beats = [0]
+    next_beat = [0.0]
+
+    def run(duration_s: float, until_ended: bool = False) -> None:
+        end = model.now_s + duration_s
+        while model.now_s < end - 1e-9:
+            now = model.now_s
+            if now >= next_beat[0] - 1e-9:
+                host.feed(now, model.handle(HostHeartbeat(beats[0] & 0xFFFF)))
+                beats[0] += 1
+                next_beat[0] = now + HOST_HEARTBEAT_S
+            host.feed(model.now_s, model.tick())
+            if until_ended and host.ended:
+                return
+
+    host.feed(0.0, model.boot())
+    host.feed(0.0, model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH)))
+    run(rest_s)
+    true_start = twin.pose
+    driving = 0.0
+    completed = 0
+    for seq, step in enumerate(steps):
+        host.up(model.now_s, "/wheel_instructions", Int16MultiArray(data=list(step)))
+        host.ended = ""
+        t0 = model.now_s
+        host.feed(t0, model.handle(Motion(seq, *step)))
+        if not host.ended:
+            limit = 1.5 * rover.step_duration_s(step[1], step[2]) + 5.0
+            run(limit, until_ended=True)
+        driving += model.now_s - t0
+        completed += host.ended == "completed"
+        run(rtt_s if seq < len(steps) - 1 else rest_s)
+    final = twin.pose
+    clock = [0]
+    recorder = McapRecorder(path, clock=lambda: clock[0])
+    try:
+        for t_ns, topic, msg in sorted(host.events, key=lambda e: e[0]):
+            clock[0] = t_ns
+            recorder.tap("lockstep", namespace + topic, msg)
+    finally:
+        recorder.close()
+    return LockstepMission(Path(path), tuple(steps), true_start, final, driving, completed)
