@@ -118,8 +118,9 @@ PARAM_RANGES: dict[int, tuple[int, int]] = {
 
 _REST_MPS = 1e-4
 """Wheel speed below which a side counts as at rest, m/s."""
-_STALL_MIN_TARGET_MPS = 0.01
-"""Stall detection only watches a side whose commanded speed is above this, m/s."""
+_STALL_MIN_TARGET_MPS = 0.0025
+"""Stall detection watches a side whose ramped motor command is at least this, m/s:
+half of speed 1, so that every step is watched (docs/protocol.md, MOTION)."""
 _STALL_MIN_PROGRESS_UNITS = 1.0
 _TIME_EPS_S = 1e-9
 """Float tolerance on twin-time comparisons: twin time is ``steps * dt``, so a silence of
@@ -154,6 +155,8 @@ class _PendingStop:
     stop_id: int
     arrived_s: float
     travel_at_arrival: tuple[float, float]
+    clears: int
+    """The controller's count of CLEARED answers when the STOP arrived."""
 
 
 class ControllerModel:
@@ -227,6 +230,11 @@ class ControllerModel:
         self._pending_stops: list[_PendingStop] = []
         self._reported_stops: set[int] = set()
         """Host stop_ids already answered with STOPPED since the latch was last cleared."""
+        self._clears = 0
+        """CLEAR_STOPs answered CLEARED since boot."""
+        self._last_cleared_id: int | None = None
+        """The stop_id of the last CLEAR_STOP answered CLEARED: a repeat of it that
+        crossed its answer is answered CLEARED again and releases nothing."""
         self._ended = Progress(0, StepState.STARTED, AbortReason.NONE, 0, 0)
         self._last_rx_s: float | None = None
         self._watchdog_tripped = False
@@ -326,7 +334,7 @@ class ControllerModel:
         elif isinstance(msg, Motion):
             out += self._motion(msg)
         elif isinstance(msg, ClearStop):
-            out.append(ClearAck(msg.stop_id, self._clear()))
+            out.append(ClearAck(msg.stop_id, self._clear(msg.stop_id)))
         elif isinstance(msg, Hello):
             self._hello(msg, out)
         elif isinstance(msg, SetParam):
@@ -418,7 +426,9 @@ class ControllerModel:
         if stop_id != 0 and stop_id in self._reported_stops:
             return
         if all(p.stop_id != stop_id for p in self._pending_stops):
-            self._pending_stops.append(_PendingStop(stop_id, self.now_s, self.encoders.travel()))
+            self._pending_stops.append(
+                _PendingStop(stop_id, self.now_s, self.encoders.travel(), self._clears)
+            )
 
     def _ended_status(self, seq: int, state: int, reason: int, travel: int) -> Status:
         """STATUS for a step that ended, remembered for PROGRESS."""
@@ -446,13 +456,18 @@ class ControllerModel:
         l0, r0 = self._running.start_travel
         return min(0xFFFF, round((abs(count_delta(left, l0)) + abs(count_delta(right, r0))) / 2.0))
 
-    def _clear(self) -> int:
+    def _clear(self, stop_id: int) -> int:
+        """Answer a CLEAR_STOP (docs/protocol.md, "Latch and faults")."""
+        if stop_id == self._last_cleared_id:
+            return ClearResult.CLEARED  # a repeat that crossed its answer: nothing changes
         if not self.latch_causes:
             return ClearResult.NOT_LATCHED
         if self.faults & STOPPING_FAULTS:
             return ClearResult.FAULT_PERSISTS
         self.latch_causes.clear()
         self._reported_stops.clear()
+        self._clears += 1
+        self._last_cleared_id = stop_id
         self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
         return ClearResult.CLEARED
 
@@ -519,7 +534,14 @@ class ControllerModel:
         dt = self.twin.dt_s
         self._check_watchdog(out)
         travel = self.encoders.travel()
-        if self._running is None and self._queue and not self.stop_latched:
+        # A STOPPED still owed (a clear came before rest) holds the queue: it measures
+        # a real stop, and the next step starts from rest.
+        if (
+            self._running is None
+            and self._queue
+            and not self.stop_latched
+            and not self._pending_stops
+        ):
             self._start_next(travel, out)
         if self._running is not None:
             run = self._running
@@ -630,21 +652,29 @@ class ControllerModel:
                     min(0xFFFF, round(duration_ms)),
                 )
             )
-            if pending.stop_id != 0:
+            if pending.stop_id != 0 and pending.clears == self._clears:
+                # Remembered only within its latch: after a CLEARED it predates, the id
+                # is a new stop again.
                 self._reported_stops.add(pending.stop_id)
         self._pending_stops.clear()
 
     # -- telemetry ----------------------------------------------------------------------
     def _telemetry(self, out: list[Message]) -> None:
+        """Telemetry due now. Sensor samples only in a session (docs/protocol.md,
+        Handshake): a new boot's first counts reach a host only after its HELLO."""
         now = self.now_s
         eps = 1e-9
         if now + eps >= self._next_telemetry:
             self._next_telemetry = max(self._next_telemetry + 1.0 / self.telemetry_hz, now)
-            out += self._fast_telemetry()
+            samples = self._fast_telemetry()
+            if self.handshake_ok:
+                out += samples
         if now + eps >= self._next_pose:
             self._next_pose = max(self._next_pose + 1.0 / self.pose_hz, now)
             self.pose_sensor.sample()
         for m in self.pose_sensor.due():
+            if not self.handshake_ok:
+                continue
             # The age is in the host's time, like the timeouts: the host subtracts it
             # from its own clock to stamp the measurement.
             age_s = (now - m.taken_s) / self.config.timeout_scale

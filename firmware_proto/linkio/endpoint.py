@@ -149,6 +149,10 @@ class Endpoint(ABC):
         """Acquire the medium. Raises OSError (or a subclass) when it cannot be had."""
         self._open()
 
+    def restart_counter(self) -> None:  # noqa: B027 (a hook: most media have no counter)
+        """The sender rebooted: its frame counter starts again at 0 (docs/protocol.md,
+        Serial framing). Media without a frame counter (CAN) have nothing to do."""
+
     def close(self) -> None:
         """Release the medium (idempotent)."""
         self._close()

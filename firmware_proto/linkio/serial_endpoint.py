@@ -284,6 +284,9 @@ class SerialEndpoint(Endpoint):
                 self._emit(record)
         return [frame.message for frame in frames]
 
+    def restart_counter(self) -> None:
+        self._encoder = FrameEncoder()
+
     def encode(self, message: Message, *, corrupt: random.Random | None = None) -> bytes:
         """The frame of ``message``, with one bit flipped by ``corrupt`` if given."""
         wire = self._encoder.encode(message)
