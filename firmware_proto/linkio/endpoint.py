@@ -172,6 +172,32 @@ class Endpoint(ABC):
             OSError: the medium is gone (device unplugged, bus off on the host side).
         """
 
+    def read_numbered(self, timeout_s: float) -> list[tuple[Message, int | None]]:
+        """Like :meth:`read`, each message with the sender's frame counter: the serial
+        frame's ``seq``, or ``None`` on a medium without one (CAN)."""
+        return [(message, None) for message in self.read(timeout_s)]
+
+    def read_ready(self) -> list[tuple[Message, int | None]]:
+        """Everything that has arrived, without waiting (:meth:`read_numbered` with no
+        timeout until the endpoint counts nothing new: a CAN read takes one frame at a
+        time, and a frame that is not for us returns nothing but still counts).
+
+        Raises:
+            OSError: the medium is gone.
+        """
+        out: list[tuple[Message, int | None]] = []
+        while True:
+            before = self._rx_progress()
+            got = self.read_numbered(0.0)
+            if got:
+                out += got
+            elif self._rx_progress() == before:
+                return out
+
+    def _rx_progress(self) -> tuple[int, ...]:
+        c = self.counters
+        return (c.bytes, c.frames, c.rejected, self.foreign, self.medium_errors)
+
     @abstractmethod
     def write(self, message: Message, *, corrupt: random.Random | None = None) -> bool:
         """Send one message now, on the calling thread.
