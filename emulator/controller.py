@@ -118,9 +118,6 @@ PARAM_RANGES: dict[int, tuple[int, int]] = {
 
 _REST_MPS = 1e-4
 """Wheel speed below which a side counts as at rest, m/s."""
-_STALL_MIN_TARGET_MPS = 0.0025
-"""Stall detection watches a side whose ramped motor command is at least this, m/s:
-half of speed 1, so that every step is watched (docs/protocol.md, MOTION)."""
 _STALL_MIN_PROGRESS_UNITS = 1.0
 _TIME_EPS_S = 1e-9
 """Float tolerance on twin-time comparisons: twin time is ``steps * dt``, so a silence of
@@ -163,7 +160,18 @@ class ControllerModel:
     """Firmware behaviour of the motor controller over a :class:`Twin`.
 
     Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
+
+    A few rules sit in methods of their own so that a subclass can break exactly one
+    (:mod:`emulator.mutants`, the conformance suite's mutation test): which samples go
+    out (:meth:`_sends_samples`), a step's profile (:meth:`_profile`), the ramp of the
+    motor commands (:meth:`_ramp_commands`), when a queued step may start
+    (:meth:`_may_start_next`), a STOPPED's distance (:meth:`_stopped_distance_units`) and
+    the stall threshold (:attr:`stall_min_command_mps`).
     """
+
+    stall_min_command_mps = 0.0025
+    """Stall detection watches a side whose ramped motor command is at least this, m/s:
+    half of speed 1, so that every step is watched (docs/protocol.md, MOTION)."""
 
     def __init__(
         self,
@@ -534,14 +542,7 @@ class ControllerModel:
         dt = self.twin.dt_s
         self._check_watchdog(out)
         travel = self.encoders.travel()
-        # A STOPPED still owed (a clear came before rest) holds the queue: it measures
-        # a real stop, and the next step starts from rest.
-        if (
-            self._running is None
-            and self._queue
-            and not self.stop_latched
-            and not self._pending_stops
-        ):
+        if self._running is None and self._queue and self._may_start_next():
             self._start_next(travel, out)
         if self._running is not None:
             run = self._running
@@ -561,11 +562,7 @@ class ControllerModel:
                     self._start_next(travel, out)
                 else:
                     self.state = ControllerState.IDLE
-        dv = self.rover.drive.wheel_accel_limit_mps2 * dt
-        self._commanded = (
-            ramp(self._commanded[0], self._setpoint[0], dv),
-            ramp(self._commanded[1], self._setpoint[1], dv),
-        )
+        self._ramp_commands(dt)
         self.twin.set_motor_omegas(*motor_omegas(self.rover, *self._commanded))
         self.twin.step()
         travel_after = self.encoders.travel()
@@ -574,9 +571,23 @@ class ControllerModel:
         self._telemetry(out)
         return out
 
-    def _start_next(self, travel: tuple[float, float], out: list[Message]) -> None:
-        motion = self._queue.popleft()
-        profile = StepProfile(
+    def _may_start_next(self) -> bool:
+        """Whether a queued step may start now (the running one has ended): not while
+        latched, nor while a STOPPED is still owed (a clear came before rest): every
+        STOPPED measures a real stop, and the next step starts from rest."""
+        return not self.stop_latched and not self._pending_stops
+
+    def _ramp_commands(self, dt: float) -> None:
+        """The motor commands follow the setpoints at the acceleration limit."""
+        dv = self.rover.drive.wheel_accel_limit_mps2 * dt
+        self._commanded = (
+            ramp(self._commanded[0], self._setpoint[0], dv),
+            ramp(self._commanded[1], self._setpoint[1], dv),
+        )
+
+    def _profile(self, motion: Motion) -> StepProfile:
+        """The speed profile of a step starting now, from the current commands."""
+        return StepProfile(
             self.rover,
             motion.command,
             motion.speed,
@@ -584,6 +595,10 @@ class ControllerModel:
             initial_left_mps=self._commanded[0],
             initial_right_mps=self._commanded[1],
         )
+
+    def _start_next(self, travel: tuple[float, float], out: list[Message]) -> None:
+        motion = self._queue.popleft()
+        profile = self._profile(motion)
         self._running = _Running(motion, profile, travel)
         self._stall_since = [None, None]
         self._stall_ref = list(travel)
@@ -607,7 +622,7 @@ class ControllerModel:
             return
         now = self.now_s
         for side, code in ((0, FaultCode.STALL_LEFT), (1, FaultCode.STALL_RIGHT)):
-            if abs(self._commanded[side]) < _STALL_MIN_TARGET_MPS or (
+            if abs(self._commanded[side]) < self.stall_min_command_mps or (
                 abs(count_delta(travel[side], self._stall_ref[side])) >= _STALL_MIN_PROGRESS_UNITS
             ):
                 self._stall_since[side] = None
@@ -637,11 +652,7 @@ class ControllerModel:
             return
         for pending in self._pending_stops:
             moved_m = (
-                (
-                    abs(count_delta(travel[0], pending.travel_at_arrival[0]))
-                    + abs(count_delta(travel[1], pending.travel_at_arrival[1]))
-                )
-                / 2.0
+                self._stopped_distance_units(travel, pending.travel_at_arrival)
                 / self.rover.drive.distance_units_per_m
             )
             duration_ms = (self.now_s - pending.arrived_s) / self.config.timeout_scale * 1000.0
@@ -658,6 +669,16 @@ class ControllerModel:
                 self._reported_stops.add(pending.stop_id)
         self._pending_stops.clear()
 
+    @staticmethod
+    def _stopped_distance_units(
+        travel: tuple[float, float], at_arrival: tuple[float, float]
+    ) -> float:
+        """STOPPED's distance in distance units: the mean of both sides' absolute travel
+        since the STOP arrived (unsigned: a spin reports a positive distance)."""
+        return (
+            abs(count_delta(travel[0], at_arrival[0])) + abs(count_delta(travel[1], at_arrival[1]))
+        ) / 2.0
+
     # -- telemetry ----------------------------------------------------------------------
     def _telemetry(self, out: list[Message]) -> None:
         """Telemetry due now. Sensor samples only in a session (docs/protocol.md,
@@ -666,14 +687,14 @@ class ControllerModel:
         eps = 1e-9
         if now + eps >= self._next_telemetry:
             self._next_telemetry = max(self._next_telemetry + 1.0 / self.telemetry_hz, now)
-            samples = self._fast_telemetry()
-            if self.handshake_ok:
+            samples = self._fast_telemetry()  # read on schedule, sent or not
+            if self._sends_samples():
                 out += samples
         if now + eps >= self._next_pose:
             self._next_pose = max(self._next_pose + 1.0 / self.pose_hz, now)
             self.pose_sensor.sample()
         for m in self.pose_sensor.due():
-            if not self.handshake_ok:
+            if not self._sends_samples():
                 continue
             # The age is in the host's time, like the timeouts: the host subtracts it
             # from its own clock to stamp the measurement.
@@ -683,6 +704,10 @@ class ControllerModel:
             self._next_heartbeat = max(self._next_heartbeat + 1.0 / self.heartbeat_hz, now)
             out.append(self.heartbeat())
             out.append(self._ended)
+
+    def _sends_samples(self) -> bool:
+        """Whether sensor samples go out now: only in a session."""
+        return self.handshake_ok
 
     def _fast_telemetry(self) -> list[Message]:
         t_ms = self._clock_ms()
