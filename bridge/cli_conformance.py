@@ -47,6 +47,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--control", metavar="HOST:PORT", help="the device's control port (reboot, faults)"
     )
     p.add_argument(
+        "--rover",
+        metavar="TOML",
+        help="the rover description the controller drives (acceleration limit, units; "
+        "default: the packaged one)",
+    )
+    p.add_argument(
         "--rule",
         action="append",
         default=[],
@@ -101,7 +107,10 @@ def run(args: argparse.Namespace) -> int:
         select_rules,
     )
     from bridge.errors import BridgeError
-    from bridge.transport import open_transport
+    from firmware_proto.errors import DescriptionError
+    from firmware_proto.linkio.endpoint import HOST
+    from firmware_proto.linkio.media import open_endpoint
+    from firmware_proto.rover import load_rover
 
     try:
         rules = select_rules(args.rule)
@@ -125,12 +134,18 @@ def run(args: argparse.Namespace) -> int:
         return 2
     control = None
     try:
-        transport = open_transport(url)
+        rover = load_rover(args.rover)
+        endpoint = open_endpoint(url, HOST)
         if args.control:
             control = ControlClient(args.control)
-        with WireHost(transport, timeout_scale=args.timeout_scale) as host:
-            results = run_suite(Context(host, control), rules)
-    except BridgeError as exc:
+        host = WireHost(endpoint, timeout_scale=args.timeout_scale)
+        try:
+            host.open()
+        except OSError as exc:
+            raise OSError(f"cannot open {url}: {exc}") from exc
+        with host:
+            results = run_suite(Context(host, control, rover), rules)
+    except (BridgeError, OSError, DescriptionError) as exc:
         print(f"rover conformance: error: {exc}", file=sys.stderr)
         return 2
     finally:
