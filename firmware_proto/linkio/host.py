@@ -267,7 +267,8 @@ class ProtocolHost:
         found = self.find(kind, where, since=since, timeout_s=timeout_s)
         if found is None:
             raise NotReceivedError(
-                f"expected {what or kind.NAME} within {self.scaled(timeout_s):g} s"
+                f"expected {what or getattr(kind, 'NAME', kind.__name__)} within "
+                f"{self.scaled(timeout_s):g} s"
             )
         message: M = found[1].message  # type: ignore[assignment]
         return message
@@ -291,7 +292,8 @@ class ProtocolHost:
         found = self.find(kind, where, since=since, timeout_s=window_s)
         if found is not None:
             message = found[1].message
-            raise UnexpectedMessageError(f"unexpected {what or kind.NAME}: {message.describe()}")
+            name = what or getattr(kind, "NAME", kind.__name__)
+            raise UnexpectedMessageError(f"unexpected {name}: {message.describe()}")
 
     def settle(self, seconds: float) -> None:
         """Let ``seconds`` (scaled) pass while messages keep arriving."""

@@ -3,7 +3,8 @@
 :class:`Inbox` is the one collector of the stack's scripted hosts and tests: items are
 appended under a condition variable, :meth:`Inbox.mark` names a position ("what arrives
 after now"), :meth:`Inbox.wait` returns the first item from a mark on that a predicate
-accepts, waiting with a timeout. The waiting goes through a
+accepts, waiting with a timeout, and :meth:`Inbox.until` waits for a condition on all
+of them (a count, an order). The waiting goes through a
 :class:`~firmware_proto.linkio.clock.Clock`, so the same code waits in real time or
 advances a lockstep world. A reader thread that fails hands its error to
 :meth:`Inbox.fail`: every wait then raises it.
@@ -107,6 +108,28 @@ class Inbox(Generic[T]):
                 return found[0]
             self._raise_if_failed()
         return None
+
+    def until(self, condition: Callable[[list[T]], bool], *, since: int, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` until ``condition`` holds of the items from ``since``
+        on (a count, a sequence); whether it did.
+
+        Raises:
+            LinkError: the source failed before it held.
+        """
+        held: list[bool] = []
+
+        def ready() -> bool:
+            if condition(self._items[max(0, since - self._base) :]):
+                held.append(True)
+                return True
+            return self._failure is not None
+
+        with self.cond:
+            self.clock.wait_for(self.cond, ready, timeout_s)
+            if held:
+                return True
+            self._raise_if_failed()
+        return False
 
     def settle(self, seconds: float) -> None:
         """Let ``seconds`` of clock time pass (items arrive meanwhile).
