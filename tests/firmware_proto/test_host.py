@@ -77,6 +77,20 @@ def test_an_inbox_wakes_a_waiter_and_raises_its_sources_failure() -> None:
         inbox.wait(lambda s: False, since=0, timeout_s=5.0)
 
 
+def test_an_inbox_waits_until_a_condition_on_everything_since_a_mark() -> None:
+    clock = LockstepClock(0.001)
+    inbox: Inbox[str] = Inbox(clock=clock)
+    clock.add(lambda: inbox.append("beat") if clock.ticks % 10 == 0 else None)
+    inbox.append("old")
+    mark = inbox.mark()
+    assert inbox.until(lambda xs: xs.count("beat") >= 3, since=mark, timeout_s=1.0)
+    assert clock.ticks == 21 and inbox.items(mark) == ["beat"] * 3
+    assert not inbox.until(lambda xs: "never" in xs, since=mark, timeout_s=0.1)
+    inbox.fail(OSError("gone"))
+    with pytest.raises(LinkError, match="gone"):
+        inbox.until(lambda xs: False, since=0, timeout_s=1.0)
+
+
 # -- clocks ---------------------------------------------------------------------------
 
 
