@@ -68,7 +68,7 @@ def _exchange(address: tuple[str, int], data: bytes, *, half_close: bool = False
 def test_limits_are_checked() -> None:
     for bad in ({"head_timeout_s": 0.0}, {"idle_timeout_s": float("inf")}, {"max_connections": 0}):
         with pytest.raises(ValueError, match="must be"):
-            ServeLimits(**bad)  # type: ignore[arg-type]
+            ServeLimits(**bad)
 
 
 def test_protocol_errors_are_classified() -> None:
