@@ -95,7 +95,26 @@ def as_plan_json(
 # -- 1. the 12-step plan ----------------------------------------------------------------------
 
 
-def bench_plan(rover: RoverDescription, repeat: int) -> None:
+def _http_walls(served: Served, payload: bytes, repeat: int) -> tuple[float, list[float]]:
+    """Twin time and wall times of ``repeat`` POSTs of ``payload`` on one connection
+    (after two that warm each worker process)."""
+    conn = http.client.HTTPConnection(*served.address, timeout=60)
+    walls = []
+    for i in range(repeat + 2):
+        t0 = time.perf_counter()
+        conn.request(
+            "POST", "/validate_plan?map=scn01", payload, {"Content-Type": "application/json"}
+        )
+        response = conn.getresponse()
+        data = response.read()
+        if i >= 2:
+            walls.append(time.perf_counter() - t0)
+    conn.close()
+    assert response.status == 200, data[:200]
+    return json.loads(data)["sim_time_s"], walls
+
+
+def bench_plan(rover: RoverDescription, repeat: int, before: str | None = None) -> None:
     world = load_map("scn01")
     steps = square_plan(rover)
     body = as_plan_json(steps, (1.0, 4.0, 0.0))
@@ -126,22 +145,13 @@ def bench_plan(rover: RoverDescription, repeat: int) -> None:
     assert verdict is not None
     assert verdict.collision is None
     rows.append(("gate validation, in process", DEFAULT_DT_S, verdict.sim_time_s, walls))
+    payload = json.dumps(body).encode()
+    if before:
+        with before_gate(before) as served:
+            sim, walls = _http_walls(served, payload, repeat)
+        rows.append((f"over HTTP before ({BEFORE_COMMIT})", DEFAULT_DT_S, sim, walls))
     with gate_process({}) as served:
-        conn = http.client.HTTPConnection(*served.address, timeout=60)
-        payload = json.dumps(body).encode()
-        walls = []
-        for i in range(repeat + 2):
-            t0 = time.perf_counter()
-            conn.request(
-                "POST", "/validate_plan?map=scn01", payload, {"Content-Type": "application/json"}
-            )
-            response = conn.getresponse()
-            data = response.read()
-            if i >= 2:  # the first two warm each worker process
-                walls.append(time.perf_counter() - t0)
-        conn.close()
-        assert response.status == 200, data[:200]
-        sim = json.loads(data)["sim_time_s"]
+        sim, walls = _http_walls(served, payload, repeat)
     rows.append(("gate over HTTP, worker processes", DEFAULT_DT_S, sim, walls))
 
     header = (
@@ -344,6 +354,9 @@ def bench_step_size(rover: RoverDescription, count: int) -> None:
 
 # -- 4. HTTP rates -------------------------------------------------------------------------------
 
+BEFORE_COMMIT = "b4a351e"
+"""The last commit of the hand-rolled server (``--before`` takes a source tree of it)."""
+
 
 class _PlainHandler(BaseHTTPRequestHandler):
     """The stdlib way: send_response, headers, end_headers, then the body (two writes)."""
@@ -363,16 +376,70 @@ class _PlainHandler(BaseHTTPRequestHandler):
         pass
 
 
-def serve_plain() -> None:
-    """``--serve-plain``: a plain http.server on a free port (the peer of table 4)."""
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _PlainHandler)
-    print(f"GATE http://127.0.0.1:{server.server_address[1]}", flush=True)
-    try:
-        server.serve_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
+def serve_peer(kind: str) -> None:
+    """``--serve-peer KIND``: a trivial JSON handler on a free port, printing ``GATE
+    <url>``, until SIGTERM: ``plain`` (http.server), ``stack`` (the gate's stack:
+    Starlette on uvicorn through :class:`~firmware_proto.httpserve.HttpService`),
+    ``aiohttp`` (the other stack weighed)."""
+    import signal
+
+    body = _PlainHandler.body
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    if kind == "plain":
+        server = ThreadingHTTPServer(("127.0.0.1", 0), _PlainHandler)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        print(f"GATE http://127.0.0.1:{server.server_address[1]}", flush=True)
+        stop.wait()
+        server.shutdown()
         server.server_close()
+    elif kind == "stack":
+        from starlette.requests import Request
+        from starlette.responses import Response
+
+        from firmware_proto.httpserve import HttpService, ServeLimits
+        from gate.response import render_connection_error
+
+        async def app(scope: Any, receive: Any, send: Any) -> None:
+            await Request(scope, receive).body()
+            await Response(body, media_type="application/json")(scope, receive, send)
+
+        with HttpService(
+            app,
+            host="127.0.0.1",
+            port=0,
+            limits=ServeLimits(),
+            render_error=render_connection_error,
+            server_name="peer",
+            thread_name="peer-http",
+        ) as service:
+            print(f"GATE {service.url}", flush=True)
+            stop.wait()
+    elif kind == "aiohttp":
+        import asyncio
+
+        from aiohttp import web
+
+        async def handle(request: web.Request) -> web.Response:
+            await request.read()
+            return web.Response(body=body, content_type="application/json")
+
+        async def run() -> None:
+            application = web.Application()
+            application.router.add_post("/validate_plan", handle)
+            runner = web.AppRunner(application, access_log=None)
+            await runner.setup()
+            site = web.TCPSite(runner, "127.0.0.1", 0)
+            await site.start()
+            port = runner.addresses[0][1]
+            print(f"GATE http://127.0.0.1:{port}", flush=True)
+            while not stop.is_set():
+                await asyncio.sleep(0.1)
+            await runner.cleanup()
+
+        asyncio.run(run())
+    else:
+        raise SystemExit(f"unknown peer {kind!r}")
 
 
 def request_rate(
@@ -381,9 +448,9 @@ def request_rate(
     seconds: float,
     payload: bytes = TRIVIAL_PLAN,
     query: str = "",
-) -> tuple[float, float]:
-    """Requests/s and median latency (ms) of ``clients`` keep-alive clients posting
-    ``payload`` (default the trivial plan) for ``seconds``."""
+) -> tuple[float, float, float]:
+    """Requests/s, median and 99th-percentile latency (ms) of ``clients`` keep-alive
+    clients posting ``payload`` (default the trivial plan) for ``seconds``."""
     latencies: list[float] = []
     lock = threading.Lock()
     start = threading.Barrier(clients + 1)
@@ -416,32 +483,53 @@ def request_rate(
     for t in threads:
         t.join()
     elapsed = time.perf_counter() - t0
-    return len(latencies) / elapsed, statistics.median(latencies) * 1e3
+    return (
+        len(latencies) / elapsed,
+        statistics.median(latencies) * 1e3,
+        percentile(latencies, 0.99) * 1e3,
+    )
 
 
-def bench_http(seconds: float) -> None:
-    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = [
-        ("gate, worker processes (as shipped)", lambda: gate_process({})),
-        ("gate, worker threads", lambda: gate_process({}, pool="thread")),
-        ("gate, one write only (Nagle on)", lambda: gate_process({"ROVER_GATE_TCP_NODELAY": "0"})),
-        (
-            "gate, TCP_NODELAY only (two writes)",
-            lambda: gate_process({"ROVER_GATE_SINGLE_WRITE": "0"}),
-        ),
-        (
-            "gate, neither (stdlib two writes)",
-            lambda: gate_process({"ROVER_GATE_SINGLE_WRITE": "0", "ROVER_GATE_TCP_NODELAY": "0"}),
-        ),
-        (
-            "plain http.server handler (peer)",
-            lambda: server_process(
-                [sys.executable, "-m", "benchmarks.bench_gate", "--serve-plain"], {}
-            ),
-        ),
+def before_gate(tree: str, pool: str = "process") -> AbstractContextManager[Served]:
+    """The gate of the source tree ``tree`` (``--before``), as a subprocess: its packages
+    come first on ``sys.path`` (before this checkout and the editable install; worker
+    processes inherit the path)."""
+    code = (
+        f"import sys; sys.path.insert(0, {tree!r}); from gate.cli_gate import main; "
+        "import gate; assert gate.__file__.startswith(sys.path[0]), gate.__file__; "
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    argv = [sys.executable, "-c", code, "--port", "0", "--pool", pool, "--workers", "2"]
+    return server_process(argv, {})
+
+
+def _peer(kind: str) -> Callable[[], AbstractContextManager[Served]]:
+    return lambda: server_process(
+        [sys.executable, "-m", "benchmarks.bench_gate", "--serve-peer", kind], {}
+    )
+
+
+def bench_http(seconds: float, before: str | None) -> None:
+    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
+    if before:
+        cases.append(
+            (f"gate before ({BEFORE_COMMIT}: stdlib, threads)", lambda: before_gate(before))
+        )
+    cases += [
+        ("gate after (uvicorn + h11), processes", lambda: gate_process({})),
+        ("gate after, worker threads", lambda: gate_process({}, pool="thread")),
+        ("peer: the stack alone (Starlette/uvicorn)", _peer("stack")),
     ]
+    try:
+        import aiohttp  # noqa: F401
+
+        cases.append(("peer: aiohttp alone", _peer("aiohttp")))
+    except ImportError:
+        print("(aiohttp is not installed: its row is left out; pip install aiohttp to add it)")
+    cases.append(("peer: plain http.server (Nagle stall)", _peer("plain")))
     header = (
-        f"{'trivial plan, keep-alive':<38} {'1 client req/s':>15} {'p50 ms':>7} "
-        f"{'4 clients req/s':>16} {'p50 ms':>7}"
+        f"{'trivial plan, keep-alive':<42} {'1 client req/s':>15} {'p50 ms':>7} {'p99 ms':>7} "
+        f"{'4 clients req/s':>16} {'p50 ms':>7} {'p99 ms':>7}"
     )
     print(header)
     print("-" * len(header))
@@ -449,9 +537,12 @@ def bench_http(seconds: float) -> None:
         with start() as served:
             address = served.address
             request_rate(address, 1, 0.3)  # warm-up
-            one, one_ms = request_rate(address, 1, seconds)
-            four, four_ms = request_rate(address, 4, seconds)
-        print(f"{name:<38} {one:>15,.0f} {one_ms:>7.2f} {four:>16,.0f} {four_ms:>7.2f}")
+            one = request_rate(address, 1, seconds)
+            four = request_rate(address, 4, seconds)
+        print(
+            f"{name:<42} {one[0]:>15,.0f} {one[1]:>7.2f} {one[2]:>7.2f} "
+            f"{four[0]:>16,.0f} {four[1]:>7.2f} {four[2]:>7.2f}"
+        )
     print("clients are threads of this process on the same 2 cores; the servers are subprocesses.")
 
 
@@ -488,7 +579,7 @@ def bench_pools(rover: RoverDescription, seconds: float) -> None:
             cells = []
             for clients in (1, 4):
                 cpu0, t0 = tree_cpu_s(served.pid), time.perf_counter()
-                rate, p50 = request_rate(served.address, clients, seconds, payload, "?map=scn01")
+                rate, p50, _ = request_rate(served.address, clients, seconds, payload, "?map=scn01")
                 cpu = (tree_cpu_s(served.pid) - cpu0) / (time.perf_counter() - t0)
                 cells.append((rate, cpu, p50))
         (one, one_cpu, _), (four, four_cpu, four_ms) = cells
@@ -504,10 +595,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeat", type=int, default=30, help="plan repetitions (default 30)")
     parser.add_argument("--seconds", type=float, default=2.0, help="per HTTP case and client count")
     parser.add_argument("--plans", type=int, default=8, help="random plans for the step-size table")
-    parser.add_argument("--serve-plain", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--before",
+        metavar="DIR",
+        help=f"a source tree of the hand-rolled server ({BEFORE_COMMIT}) to measure beside "
+        f"this one, e.g. from `git archive {BEFORE_COMMIT} | tar -x -C DIR`",
+    )
+    parser.add_argument(
+        "--serve-peer", choices=("plain", "stack", "aiohttp"), help=argparse.SUPPRESS
+    )
     args = parser.parse_args(argv)
-    if args.serve_plain:
-        serve_plain()
+    if args.serve_peer:
+        serve_peer(args.serve_peer)
         return
     rover = load_rover()
     print(
@@ -515,13 +614,13 @@ def main(argv: list[str] | None = None) -> None:
         f"{platform.machine()}, {os.cpu_count()} CPUs"
     )
     print()
-    bench_plan(rover, max(3, args.repeat))
+    bench_plan(rover, max(3, args.repeat), args.before)
     print()
     bench_collision(rover)
     print()
     bench_step_size(rover, max(1, args.plans))
     print()
-    bench_http(args.seconds)
+    bench_http(args.seconds, args.before)
     print()
     bench_pools(rover, 2 * args.seconds)  # slow requests: a longer window
 

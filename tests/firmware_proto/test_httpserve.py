@@ -94,6 +94,13 @@ def test_importing_the_limits_loads_no_server() -> None:
     assert out.stdout.strip() == "[]"
 
 
+def test_the_listener_is_tcp_so_asyncio_disables_nagle(service: HttpService) -> None:
+    # asyncio sets TCP_NODELAY on accepted sockets only when the listener says it is
+    # TCP (proto 6); with proto 0 every kept-alive answer waited ~40 ms (bench_gate).
+    assert service._sock is not None
+    assert service._sock.proto == socket.IPPROTO_TCP
+
+
 def test_bodies_heads_and_framing(service: HttpService) -> None:
     address = service.address
     ok = _exchange(
