@@ -38,7 +38,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, ExitStack
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -442,15 +442,15 @@ def serve_peer(kind: str) -> None:
         raise SystemExit(f"unknown peer {kind!r}")
 
 
-def request_rate(
+def measure(
     address: tuple[str, int],
     clients: int,
     seconds: float,
     payload: bytes = TRIVIAL_PLAN,
     query: str = "",
-) -> tuple[float, float, float]:
-    """Requests/s, median and 99th-percentile latency (ms) of ``clients`` keep-alive
-    clients posting ``payload`` (default the trivial plan) for ``seconds``."""
+) -> tuple[float, list[float]]:
+    """``clients`` keep-alive clients posting ``payload`` (default the trivial plan) for
+    ``seconds``: the wall time elapsed and every request's latency, s."""
     latencies: list[float] = []
     lock = threading.Lock()
     start = threading.Barrier(clients + 1)
@@ -482,7 +482,18 @@ def request_rate(
     stop.set()
     for t in threads:
         t.join()
-    elapsed = time.perf_counter() - t0
+    return time.perf_counter() - t0, latencies
+
+
+def request_rate(
+    address: tuple[str, int],
+    clients: int,
+    seconds: float,
+    payload: bytes = TRIVIAL_PLAN,
+    query: str = "",
+) -> tuple[float, float, float]:
+    """Requests/s, median and 99th-percentile latency (ms) of :func:`measure`."""
+    elapsed, latencies = measure(address, clients, seconds, payload, query)
     return (
         len(latencies) / elapsed,
         statistics.median(latencies) * 1e3,
@@ -509,14 +520,24 @@ def _peer(kind: str) -> Callable[[], AbstractContextManager[Served]]:
     )
 
 
-def bench_http(seconds: float, before: str | None) -> None:
+def bench_http(seconds: float, before: str | None, rounds: int = 4) -> None:
+    """Table 4. Every server runs at once and the windows are interleaved (``rounds``
+    rounds of ``seconds / rounds`` per server and client count), so that the load of a
+    shared machine falls on all of them alike."""
     cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
     if before:
         cases.append(
             (f"gate before ({BEFORE_COMMIT}: stdlib, threads)", lambda: before_gate(before))
         )
+    cases.append(("gate after (uvicorn + h11), processes", lambda: gate_process({})))
+    if before:
+        cases.append(
+            (
+                f"gate before ({BEFORE_COMMIT}), worker threads",
+                lambda: before_gate(before, "thread"),
+            )
+        )
     cases += [
-        ("gate after (uvicorn + h11), processes", lambda: gate_process({})),
         ("gate after, worker threads", lambda: gate_process({}, pool="thread")),
         ("peer: the stack alone (Starlette/uvicorn)", _peer("stack")),
     ]
@@ -531,19 +552,39 @@ def bench_http(seconds: float, before: str | None) -> None:
         f"{'trivial plan, keep-alive':<42} {'1 client req/s':>15} {'p50 ms':>7} {'p99 ms':>7} "
         f"{'4 clients req/s':>16} {'p50 ms':>7} {'p99 ms':>7}"
     )
+    window = seconds / rounds
+    with ExitStack() as stack:
+        addresses = [stack.enter_context(start()).address for _, start in cases]
+        for address in addresses:
+            measure(address, 1, 0.3)  # warm-up
+        results: dict[tuple[int, int], tuple[float, list[float]]] = {
+            (i, n): (0.0, []) for i in range(len(cases)) for n in (1, 4)
+        }
+        for _ in range(rounds):
+            for i, address in enumerate(addresses):
+                for n in (1, 4):
+                    elapsed, latencies = measure(address, n, window)
+                    total, seen = results[i, n]
+                    results[i, n] = (total + elapsed, seen + latencies)
     print(header)
     print("-" * len(header))
-    for name, start in cases:
-        with start() as served:
-            address = served.address
-            request_rate(address, 1, 0.3)  # warm-up
-            one = request_rate(address, 1, seconds)
-            four = request_rate(address, 4, seconds)
-        print(
-            f"{name:<42} {one[0]:>15,.0f} {one[1]:>7.2f} {one[2]:>7.2f} "
-            f"{four[0]:>16,.0f} {four[1]:>7.2f} {four[2]:>7.2f}"
-        )
-    print("clients are threads of this process on the same 2 cores; the servers are subprocesses.")
+    for i, (name, _) in enumerate(cases):
+        cells = []
+        for n in (1, 4):
+            elapsed, latencies = results[i, n]
+            cells.append(
+                (
+                    len(latencies) / elapsed,
+                    statistics.median(latencies) * 1e3,
+                    percentile(latencies, 0.99) * 1e3,
+                )
+            )
+        (r1, m1, q1), (r4, m4, q4) = cells
+        print(f"{name:<42} {r1:>15,.0f} {m1:>7.2f} {q1:>7.2f} {r4:>16,.0f} {m4:>7.2f} {q4:>7.2f}")
+    print(
+        f"all servers up at once, {rounds} interleaved rounds; clients are threads of this "
+        "process on the same 2 cores; the servers are subprocesses."
+    )
 
 
 def tree_cpu_s(pid: int) -> float:

@@ -160,9 +160,9 @@ class GateServer:
             max_connections=config.max_connections,
             drain_timeout_s=config.drain_timeout_s,
         )
-        # Hand-off to the pool off the event loop: replacing a dead worker process
-        # takes a second, during which other requests go on being served. Its one
-        # thread starts now, not with the first request.
+        # The retry after a worker died goes through this thread: replacing the worker
+        # takes a second, during which other requests go on being served. It starts
+        # now, not with the first retry.
         self._submitter = ThreadPoolExecutor(1, thread_name_prefix="gate-submit")
         self._submitter.submit(int).result()
         service = HttpService(
@@ -382,7 +382,10 @@ class GateServer:
         The admission slot is held until the job has finished in its worker, even when
         the wait times out, so no more than ``capacity`` validations ever run or wait. A
         job whose worker process died is retried once on a fresh worker (playback is
-        pure, so a retry is safe); a second death is a 500.
+        pure, so a retry is safe); a second death is a 500. The first hand-off is made
+        on the event loop (cheap); a pool that finds a worker dead before the job starts
+        replaces it there, which holds the loop for the worker's start-up (rare; the
+        retry after a death during a job is made off the loop).
         """
         if not self._slots.acquire(blocking=False):
             raise OverloadedError(
@@ -397,9 +400,10 @@ class GateServer:
         try:
             for attempt in (1, 2):
                 try:
-                    future: Future[bytes] = await loop.run_in_executor(
-                        self._submitter, self.pool.submit, job
-                    )
+                    if attempt == 1:  # on the loop: a hand-off to a thread costs a wake-up
+                        future: Future[bytes] = self.pool.submit(job)
+                    else:  # after a worker died: replacing it takes a second, off the loop
+                        future = await loop.run_in_executor(self._submitter, self.pool.submit, job)
                     waiter = asyncio.wrap_future(future)
                     done, _ = await asyncio.wait({waiter}, timeout=self.config.request_timeout_s)
                     if not done:
