@@ -1,12 +1,16 @@
 """Simulation gate: validation speed, collision checks, step-size accuracy, HTTP rates.
 
-Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S]``. Prints four tables:
+Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S] [--before DIR]``.
+``--before DIR`` also measures the gate of a source tree of commit b4a351e (the last with
+the hand-rolled HTTP server; ``git archive b4a351e | tar -x -C DIR``) in the same run,
+in tables 1, 4 and 5. Prints five tables:
 
 1. *12-step plan, 10 m of driving and four turns* on scn01 (through a traction region):
    wall time p50/p99 and the factor over real time, for the twin alone
    (:func:`emulator.playback.play`), the gate's whole validation in one process
    (playback, verdict, trajectory tagging, JSON) and end to end over HTTP (a ``rover
-   gate`` subprocess with worker processes), beside the thesis's 60 Hz, about real time.
+   gate`` subprocess with worker processes; before and after), beside the thesis's 60 Hz,
+   about real time.
 2. *Collision checks per physics step* on each scenario map, beside the thesis's
    12.4 / 18.6 / 24.1 ms per frame: the cost pymunk's contact detection adds to a twin
    step (the map minus an open plane, same motion), and an explicit overlap query of the
@@ -14,12 +18,14 @@ Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S]``. Prints four
    thesis's ``overlap_mesh`` did).
 3. *Step size against the 1 ms reference* over random 12-step plans: the largest final
    position and yaw difference, and the factor over real time.
-4. *Requests/s for a trivial plan* with 1 and 4 keep-alive clients: the gate as shipped
-   (one write per response, TCP_NODELAY), the same gate without either (the stdlib
-   server's two writes with Nagle: the ~40 ms stall), with each fix alone, with worker
-   threads, and a plain ``http.server`` handler measured in the same run.
-5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads,
-   with the CPU the gate used per wall second: why the gate runs playback in processes.
+4. *Requests/s and p50/p99 latency for a trivial plan* (the HTTP path's own cost) with
+   1 and 4 keep-alive clients: the gate before and after (processes and threads), the
+   HTTP stack alone with a trivial handler (Starlette on uvicorn, as the gate serves;
+   aiohttp, the other stack weighed, when it is installed) and a plain ``http.server``
+   handler (the ~40 ms Nagle stall), all up at once and measured in interleaved rounds.
+5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads
+   (and the server before), with the CPU the gate used per wall second: real plans'
+   throughput, and why the gate runs playback in processes.
 
 Timings are wall clock (``time.perf_counter``) on a shared VM; rates vary between runs.
 """
@@ -604,31 +610,56 @@ def tree_cpu_s(pid: int) -> float:
     return total
 
 
-def bench_pools(rover: RoverDescription, seconds: float) -> None:
-    """Why worker processes: the 12-step plan from 1 and 4 clients, processes vs threads,
-    with the CPU the gate used (its process and its workers) per wall second."""
+def bench_pools(
+    rover: RoverDescription, seconds: float, before: str | None, rounds: int = 3
+) -> None:
+    """Table 5. Real plans: the 12-step plan from 1 and 4 clients, worker processes
+    against threads (and the hand-rolled server's, with ``--before``), with the CPU the
+    gate used (its process and its workers) per wall second. Interleaved as table 4."""
     payload = json.dumps(as_plan_json(square_plan(rover), (1.0, 4.0, 0.0))).encode()
+    query = "?map=scn01"
+    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
+    if before:
+        cases.append((f"before ({BEFORE_COMMIT}), processes", lambda: before_gate(before)))
+    cases += [
+        ("worker processes (as shipped)", lambda: gate_process({})),
+        ("worker threads", lambda: gate_process({}, pool="thread")),
+    ]
     header = (
         f"{'12-step plan, keep-alive, 2 workers':<34} {'1 client req/s':>15} {'gate CPU':>9} "
-        f"{'4 clients req/s':>16} {'gate CPU':>9} {'p50 ms':>7}"
+        f"{'4 clients req/s':>16} {'gate CPU':>9} {'p50 ms':>7} {'p99 ms':>7}"
     )
+    window = seconds / rounds
+    with ExitStack() as stack:
+        served = [stack.enter_context(start()) for _, start in cases]
+        for server in served:
+            measure(server.address, 2, 0.5, payload, query)  # warm-up
+        totals: dict[tuple[int, int], tuple[float, float, list[float]]] = {
+            (i, n): (0.0, 0.0, []) for i in range(len(cases)) for n in (1, 4)
+        }
+        for _ in range(rounds):
+            for i, server in enumerate(served):
+                for n in (1, 4):
+                    cpu0 = tree_cpu_s(server.pid)
+                    elapsed, latencies = measure(server.address, n, window, payload, query)
+                    wall, cpu, seen = totals[i, n]
+                    totals[i, n] = (
+                        wall + elapsed,
+                        cpu + tree_cpu_s(server.pid) - cpu0,
+                        seen + latencies,
+                    )
     print(header)
     print("-" * len(header))
-    for name, pool in (("worker processes (as shipped)", "process"), ("worker threads", "thread")):
-        with gate_process({}, pool=pool) as served:
-            request_rate(served.address, 2, 0.5, payload, "?map=scn01")  # warm-up
-            cells = []
-            for clients in (1, 4):
-                cpu0, t0 = tree_cpu_s(served.pid), time.perf_counter()
-                rate, p50, _ = request_rate(served.address, clients, seconds, payload, "?map=scn01")
-                cpu = (tree_cpu_s(served.pid) - cpu0) / (time.perf_counter() - t0)
-                cells.append((rate, cpu, p50))
-        (one, one_cpu, _), (four, four_cpu, four_ms) = cells
+    for i, (name, _) in enumerate(cases):
+        (w1, c1, l1), (w4, c4, l4) = totals[i, 1], totals[i, 4]
         print(
-            f"{name:<34} {one:>15,.1f} {one_cpu:>8.0%} {four:>16,.1f} {four_cpu:>8.0%} "
-            f"{four_ms:>7.1f}"
+            f"{name:<34} {len(l1) / w1:>15,.1f} {c1 / w1:>8.0%} {len(l4) / w4:>16,.1f} "
+            f"{c4 / w4:>8.0%} {statistics.median(l4) * 1e3:>7.1f} {percentile(l4, 0.99) * 1e3:>7.1f}"
         )
-    print("gate CPU: CPU seconds of the gate and its workers per wall second (200% = both cores).")
+    print(
+        "gate CPU: CPU seconds of the gate and its workers per wall second (200% = both "
+        "cores); p50/p99: 4 clients."
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -663,7 +694,7 @@ def main(argv: list[str] | None = None) -> None:
     print()
     bench_http(args.seconds, args.before)
     print()
-    bench_pools(rover, 2 * args.seconds)  # slow requests: a longer window
+    bench_pools(rover, 2 * args.seconds, args.before)  # slow requests: a longer window
 
 
 if __name__ == "__main__":
