@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import sys
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
@@ -46,9 +47,27 @@ async def read_body(receive: Receive, *, limit_bytes: int, timeout_s: float) -> 
             if not message.get("more_body", False):
                 return b"".join(parts)
 
+    # A deadline on this task rather than asyncio.wait_for, which would run collect()
+    # as a task of its own: one more task and loop turn for every request.
+    task = asyncio.current_task()
+    assert task is not None
+    expired = False
+
+    def expire() -> None:
+        nonlocal expired
+        expired = True
+        task.cancel()
+
+    deadline = asyncio.get_running_loop().call_later(timeout_s, expire)
     try:
-        return await asyncio.wait_for(collect(), timeout_s)
-    except asyncio.TimeoutError as exc:
+        return await collect()
+    except asyncio.CancelledError as exc:
+        if not expired:
+            raise  # cancelled by someone else
+        if sys.version_info >= (3, 11):
+            task.uncancel()
         raise RequestBodyError(
             408, "request_timeout", f"the body did not arrive whole within {timeout_s:g} s"
         ) from exc
+    finally:
+        deadline.cancel()
