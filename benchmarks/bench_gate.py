@@ -673,6 +673,10 @@ def main(argv: list[str] | None = None) -> None:
         help=f"a source tree of the hand-rolled server ({BEFORE_COMMIT}) to measure beside "
         f"this one, e.g. from `git archive {BEFORE_COMMIT} | tar -x -C DIR`",
     )
+    parser.add_argument("--http-only", action="store_true", help="only the HTTP tables (4, 5)")
+    parser.add_argument(
+        "--rounds", type=int, default=4, help="interleaved rounds of tables 4 and 5 (default 4)"
+    )
     parser.add_argument(
         "--serve-peer", choices=("plain", "stack", "aiohttp"), help=argparse.SUPPRESS
     )
@@ -686,15 +690,17 @@ def main(argv: list[str] | None = None) -> None:
         f"{platform.machine()}, {os.cpu_count()} CPUs"
     )
     print()
-    bench_plan(rover, max(3, args.repeat), args.before)
+    if not args.http_only:
+        bench_plan(rover, max(3, args.repeat), args.before)
+        print()
+        bench_collision(rover)
+        print()
+        bench_step_size(rover, max(1, args.plans))
+        print()
+    rounds = max(1, args.rounds)
+    bench_http(args.seconds, args.before, rounds)
     print()
-    bench_collision(rover)
-    print()
-    bench_step_size(rover, max(1, args.plans))
-    print()
-    bench_http(args.seconds, args.before)
-    print()
-    bench_pools(rover, 2 * args.seconds, args.before)  # slow requests: a longer window
+    bench_pools(rover, 2 * args.seconds, args.before, rounds)  # slow requests: longer
 
 
 if __name__ == "__main__":
