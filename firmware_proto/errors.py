@@ -8,6 +8,8 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
      +-- DescriptionError   the rover description file is missing or invalid; also ValueError
      +-- PlanError          a command plan fails its JSON schema; also ValueError
+     +-- BindPolicyError    an HTTP server may not listen there without a token, or the
+                            token is malformed (firmware_proto.bindpolicy); also ValueError
 
 Stream decoders never raise on bad input: they count it (see ``framing.FrameDecoder``).
 """
@@ -15,6 +17,7 @@ Stream decoders never raise on bad input: they count it (see ``framing.FrameDeco
 from __future__ import annotations
 
 __all__ = [
+    "BindPolicyError",
     "DecodeError",
     "DescriptionError",
     "EncodeError",
@@ -65,3 +68,8 @@ class PlanError(ProtoError, ValueError):
         self.violations = violations
         text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in violations)
         super().__init__(f"plan fails schema: {text}")
+
+
+class BindPolicyError(ProtoError, ValueError):
+    """An HTTP server of ours may not listen on that address without a token, or its
+    token is malformed (:mod:`firmware_proto.bindpolicy`)."""

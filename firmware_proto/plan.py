@@ -125,7 +125,7 @@ class Plan:
         """
         try:
             obj = json.loads(text)
-        except (ValueError, UnicodeDecodeError) as exc:
+        except (ValueError, UnicodeDecodeError, RecursionError) as exc:
             raise PlanError([("", f"not valid JSON: {exc}")]) from exc
         return cls.from_dict(obj)
 

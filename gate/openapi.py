@@ -19,7 +19,7 @@ from typing import Any
 
 from emulator.worldmap import map_schema
 from firmware_proto.plan import MAX_PLAN_STEPS, plan_schema
-from gate.config import GateConfig
+from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig
 from gate.options import OPTION_LIMITS, QUERY_PARAMETERS
 from gate.routes import ROUTES
 from gate.verdict import FAILURE_TYPES
@@ -96,8 +96,22 @@ def _schemas() -> dict[str, Any]:
         ),
         "Trajectory": _obj(
             {
-                "sample_period_s": _NUM,
-                "samples": {"type": "array", "items": _ref("TrajectorySample")},
+                "sample_period_s": _NUM
+                | {
+                    "description": (
+                        "The period used: 1/sample_hz rounded to whole twin steps, or longer "
+                        f"when the plan could otherwise give more than {MAX_TRAJECTORY_SAMPLES} "
+                        "fixed-rate samples (see the sample_hz parameter)."
+                    )
+                },
+                "samples": {
+                    "type": "array",
+                    "items": _ref("TrajectorySample"),
+                    "description": (
+                        f"At most {MAX_TRAJECTORY_SAMPLES} fixed-rate samples, plus each "
+                        "step's start and end and the final pose."
+                    ),
+                },
             }
         ),
         "StepPrediction": _obj(
@@ -268,7 +282,12 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
             {"default": pb.yaw_tolerance_deg},
         ),
         "sample_hz": (
-            "Predicted trajectory rate, Hz (the period is rounded to whole twin steps).",
+            "Predicted trajectory rate, Hz (the period is rounded to whole twin steps). The "
+            f"answer's size is bounded: when the plan's longest possible playback (every "
+            f"step to its time limit) would give more than {MAX_TRAJECTORY_SAMPLES} samples "
+            "at this rate, the gate samples at the shortest whole number of twin steps that "
+            "keeps within that, and says so in trajectory.sample_period_s (replay.sample_hz "
+            "stays as asked: the same request gives the same bytes).",
             {"default": pb.sample_hz},
         ),
     }
@@ -324,9 +343,16 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
                 "The verdict: approved, or why not, with the predicted trajectory.",
             ),
             "400": _error(
-                "Not JSON (error 'not_json'); the plan fails the schema ('plan_schema', "
-                "with the JSON pointer of each violation); a bad query option "
-                "('invalid_option', naming the parameter); or malformed framing."
+                "Not JSON, or nested deeper than 32 levels (error 'not_json'); the plan "
+                "fails the schema ('plan_schema', with the JSON pointer of each violation); "
+                "a goal coordinate beyond +/-1e6 m ('goal_out_of_range', violations at "
+                "/goal/x, /goal/y); a bad query option ('invalid_option', naming the "
+                "parameter); malformed framing ('bad_framing', e.g. both Content-Length and "
+                "Transfer-Encoding); the connection ended inside the body ('truncated_body')."
+            ),
+            "408": _error(
+                f"The body did not arrive whole within {config.body_timeout_s:g} s "
+                "('request_timeout'); the connection is closed."
             ),
             "411": _error("A body without Content-Length or chunked Transfer-Encoding."),
             "413": _error(f"Body over {config.max_body_bytes} bytes."),
@@ -368,8 +394,10 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
                 "verdict and the predicted trajectory (docs/gate.md). Every error body is "
                 "JSON (schema Error). Beyond the responses listed per operation, any path "
                 "may answer 404 (unknown path), 405 with an Allow header (method not "
-                "allowed on a known path), 501 (unknown method), 414/431 (request line or "
-                "headers too long) or 505 (HTTP version). HEAD is answered wherever GET is."
+                "allowed on a known path), 501 (unknown method), 400 (malformed request), "
+                f"408 (a request's head not whole within {config.head_timeout_s:g} s of its "
+                "first byte: the connection is closed), 431 (request head over 16 kB) or "
+                "505 (HTTP version). HEAD is answered wherever GET is."
             ),
         },
         "paths": paths,

@@ -34,14 +34,14 @@ import pymunk
 
 from emulator.drive import nominal_step_duration_s
 from emulator.errors import MapError
-from emulator.playback import PlaybackResult, play
+from emulator.playback import DEFAULT_SETTLE_S, PlaybackResult, play, step_time_limit_s
 from emulator.twin import Pose2D, Twin
 from emulator.worldmap import WorldMap, list_maps, load_map
 from firmware_proto.errors import DescriptionError
 from firmware_proto.plan import COMMAND_NAMES, Plan
 from firmware_proto.rover import RoverDescription, load_rover
-from gate.config import GateConfig, PlaybackSettings
-from gate.errors import ConfigError, OptionError
+from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
+from gate.errors import ConfigError, GoalRangeError, OptionError
 from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
 from gate.options import ResolvedOptions
 from gate.trajectory import tag_samples
@@ -58,10 +58,13 @@ from gate.verdict import (
     Verdict,
 )
 
-__all__ = ["GATE_SEED", "Job", "Validator", "gate_version", "load_maps"]
+__all__ = ["GATE_SEED", "MAX_GOAL_ABS_M", "Job", "Validator", "gate_version", "load_maps"]
 
 logger = logging.getLogger(__name__)
 
+MAX_GOAL_ABS_M = 1.0e6
+"""Largest goal coordinate accepted, m (1000 km: beyond any map; the schema allows any
+finite number, but the error arithmetic overflows near 1e308)."""
 GATE_SEED = 0
 """The playback has no randomness; the seed is recorded in every verdict as 0."""
 
@@ -171,11 +174,19 @@ class Validator:
         return self._rover_sha
 
     def prepare(self, plan: Plan, options: ResolvedOptions) -> Job:
-        """Check the options against the maps and fix the start pose.
+        """Check the goal's range and the options against the maps; fix the start pose.
 
         Raises:
+            GoalRangeError: a goal coordinate beyond :data:`MAX_GOAL_ABS_M`.
             OptionError: unknown map, or a start pose outside the map's bounds.
         """
+        far = [
+            (f"/goal/{axis}", f"must be within +/-{MAX_GOAL_ABS_M:g} m, got {value:g}")
+            for axis, value in (("x", plan.goal.x), ("y", plan.goal.y))
+            if abs(value) > MAX_GOAL_ABS_M
+        ]
+        if far:
+            raise GoalRangeError(far)
         world = self.maps.get(options.map)
         if world is None:
             raise OptionError("map", f"unknown map {options.map!r}; known: {', '.join(self.maps)}")
@@ -205,7 +216,7 @@ class Validator:
         opts = job.options
         world = self.maps[opts.map]
         twin = self._make_twin(job)
-        result = play(twin, job.plan.to_wire(), sample_period_s=1.0 / opts.sample_hz)
+        result = play(twin, job.plan.to_wire(), sample_period_s=self.sample_period_s(job))
         verdict = self._judge(job, result)
         if opts.render:
             from gate.render import render_png  # noqa: PLC0415 - Pillow only when asked
@@ -221,6 +232,21 @@ class Validator:
             wall * 1e3,
         )
         return replace(verdict, wall_time_s=_r(wall))
+
+    def sample_period_s(self, job: Job) -> float:
+        """The trajectory's sample period for ``job``: the requested one, or, when the
+        plan's longest possible playback (every step to its time limit, then settling)
+        would give more than :data:`~gate.config.MAX_TRAJECTORY_SAMPLES` samples at that
+        rate, the shortest whole number of twin steps that keeps within it. A function
+        of the plan and the options alone, so verdicts stay reproducible."""
+        requested = 1.0 / job.options.sample_hz
+        longest_s = DEFAULT_SETTLE_S + sum(
+            step_time_limit_s(self.rover, s.speed, s.distance) for s in job.plan.commands
+        )
+        if longest_s / requested <= MAX_TRAJECTORY_SAMPLES:
+            return requested
+        dt = self.settings.dt_s
+        return math.ceil(longest_s / MAX_TRAJECTORY_SAMPLES / dt) * dt
 
     def _make_twin(self, job: Job) -> Twin:
         """The twin a job plays on: the map's traction, no injected faults. The one hook

@@ -74,6 +74,12 @@ PYTHON_DEPENDENCY_KEYS = {
     "pymunk": None,  # no rosdep key: pip install pymunk (docs/ros2.md)
     "mcap": None,  # no rosdep key checked: pip install, for recordings (docs/ros2.md)
     "mcap-ros2-support": None,  # the same
+    # The HTTP stack (gate, live view): pip install, for the tested version range;
+    # rosdep has python3-uvicorn (the distribution's, not checked against the range),
+    # no key for starlette or h11.
+    "starlette": None,
+    "uvicorn": None,
+    "h11": None,
     "tomli": None,  # Python < 3.11 only; Jazzy has 3.12
 }
 """pyproject dependency -> rosdep key in package.xml (None: documented exception)."""

@@ -298,3 +298,24 @@ def test_clear_stop_works_once_a_replan_is_approved_after_the_stop(
         assert status == 409 and "no re-plan" in answer["error"], answer
     finally:
         stream.close()
+
+
+def test_slow_clients_lock_nobody_out_of_the_view(view: tuple[ViewServer, _Actions]) -> None:
+    """The view is on the gate's HTTP stack: connections that send their headers a byte
+    at a time cost no thread, so the page, the state and STOP are still served."""
+    server, actions = view
+    host, port = server.url.split("//")[1].split("/")[0].rsplit(":", 1)
+    slow = [socket.create_connection((host, int(port)), timeout=5) for _ in range(40)]
+    try:
+        for sock in slow:
+            sock.sendall(b"GET /st")  # and never the rest
+        assert _request(server, "GET", "/state")[0] == 200
+        assert _request(server, "POST", "/stop", b"")[0] == 202 and actions.stops == 1
+        stream = _Stream(server)
+        try:
+            assert stream.next_event("hello")["map"]["name"] == "lab"
+        finally:
+            stream.close()
+    finally:
+        for sock in slow:
+            sock.close()
