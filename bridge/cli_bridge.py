@@ -28,6 +28,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from firmware_proto.cli import values
+
 if TYPE_CHECKING:
     from bridge.params import BridgeParams
 
@@ -41,9 +43,9 @@ _ROS_NODE_PARAMETERS = {"use_sim_time"}
 #: How often the running bridge checks that its ROS port still works, s.
 _FAILURE_POLL_S = 0.5
 
-_OPTIONS: list[tuple[str, str, type, str]] = [
-    ("--baud", "baud", int, "serial baud rate (default 115200; a pty ignores it)"),
-    ("--node", "node_id", int, "CAN node id of the controller, 1..15 (default 1)"),
+_OPTIONS: list[tuple[str, str, Any, str]] = [
+    ("--baud", "baud", values.baud, "serial baud rate (default 115200; a pty ignores it)"),
+    ("--node", "node_id", values.can_node, "CAN node id of the controller, 1..15 (default 1)"),
     ("--namespace", "namespace", str, "ROS namespace of the node and its relative topics"),
     ("--heartbeat-hz", "heartbeat_hz", float, "host heartbeat rate (default 10)"),
     ("--ack-timeout", "ack_timeout_s", float, "MOTION ack timeout, s (default 0.05)"),

@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from bridge.cli_bench import can_spec
+from firmware_proto.cli import values
 
 __all__ = ["main", "register"]
 
@@ -42,7 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--can", type=can_spec, metavar="IFACE:CH", help="python-can bus (socketcan:can0)"
     )
-    p.add_argument("--node", type=int, default=1, help="with --can: controller node 1..15")
+    p.add_argument(
+        "--node", type=values.can_node, default=1, help="with --can: controller node 1..15"
+    )
     p.add_argument(
         "--control", metavar="HOST:PORT", help="the device's control port (reboot, faults)"
     )
@@ -114,11 +117,6 @@ def run(args: argparse.Namespace) -> int:
     if args.device:
         url = args.device
     elif args.can:
-        if not 1 <= args.node <= 15:
-            print(
-                f"rover conformance: error: --node must be 1..15, got {args.node}", file=sys.stderr
-            )
-            return 2
         url = f"can://{args.can[0]}/{args.can[1]}?node={args.node}"
     else:
         print("rover conformance: error: give --device URL or --can IFACE:CH", file=sys.stderr)

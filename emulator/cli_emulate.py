@@ -16,6 +16,8 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from firmware_proto.cli import values
+
 if TYPE_CHECKING:
     from emulator.controller import ControllerConfig, ControllerModel
     from emulator.frontend import FrontEnd
@@ -77,9 +79,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--link", metavar="PATH", help="with --serial: stable symlink to the pty device")
     p.add_argument(
-        "--baud", type=int, help="with --serial: pace frames to the host at this bit rate"
+        "--baud", type=values.baud, help="with --serial: pace frames to the host at this bit rate"
     )
-    p.add_argument("--node", type=int, default=1, help="with --can: node id 1..15 (default 1)")
+    p.add_argument(
+        "--node", type=values.can_node, default=1, help="with --can: node id 1..15 (default 1)"
+    )
     p.add_argument("--map", default="lab", help="map name or JSON file (default: lab)")
     p.add_argument("--rover", metavar="TOML", help="rover description (default: the packaged one)")
     p.add_argument(
@@ -115,7 +119,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--control-port",
-        type=int,
+        type=values.tcp_port,
         metavar="PORT",
         help="serve the control interface on 127.0.0.1:PORT (0 picks one)",
     )
