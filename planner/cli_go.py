@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from planner.cli_view import add_view_arguments
-from planner.stackenv import add_domain_argument
+from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
 __all__ = [
     "PoseArgumentError",
@@ -179,14 +179,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rtt",
         type=_non_negative,
-        default=3.0,
-        help="link round trip, s, for timeouts and alignment (default 3)",
+        default=env_default(RTT_ENV, 3.0),
+        help=f"link round trip, wall s, for timeouts and alignment (default ${RTT_ENV}, which "
+        "rover stack up exports, else 3)",
     )
     p.add_argument(
         "--time-scale",
         type=_positive,
-        default=1.0,
-        help="twin seconds per wall second (an emulator sped up)",
+        default=env_default(SCALE_ENV, 1.0),
+        help=f"twin seconds per wall second (an emulator sped up; default ${SCALE_ENV}, else 1)",
     )
     p.add_argument(
         "--pose-source",

@@ -212,7 +212,9 @@ def _up(args: argparse.Namespace) -> int:
                 except KeyboardInterrupt:
                     _say("rover stack: interrupted while starting; stopping what started")
                     return 0
-                variables = stack_environment(domain, endpoints.gate_url, endpoints.control)
+                variables = stack_environment(
+                    domain, endpoints.gate_url, endpoints.control, config.rtt_s, config.speed
+                )
                 held.publish({"env": variables, "device": endpoints.device})
                 _say(f"GATE {endpoints.gate_url}")
                 if endpoints.control:

@@ -23,8 +23,11 @@ __all__ = [
     "DOMAIN_ENV",
     "GATE_ENV",
     "RANGE_ENV",
+    "RTT_ENV",
+    "SCALE_ENV",
     "add_domain_argument",
     "apply_domain",
+    "env_default",
     "export_line",
     "stack_environment",
 ]
@@ -37,6 +40,10 @@ GATE_ENV = "ROVER_GATE_URL"
 """The gate's URL; ``rover go`` reads it when ``--gate`` is not given."""
 CONTROL_ENV = "ROVER_STACK_CONTROL"
 """``HOST:PORT`` of the stack's emulator control interface (``rover stack inject``)."""
+RTT_ENV = "ROVER_LINK_RTT"
+"""The stack's link round trip in wall seconds; ``rover go --rtt`` defaults to it."""
+SCALE_ENV = "ROVER_TIME_SCALE"
+"""The stack's mission seconds per wall second; ``rover go --time-scale`` defaults to it."""
 
 
 def add_domain_argument(p: argparse.ArgumentParser) -> None:
@@ -69,14 +76,29 @@ def apply_domain(
     return values.check(values.domain_id, text, DOMAIN_ENV) if text else None
 
 
-def stack_environment(domain: int, gate_url: str, control: str) -> dict[str, str]:
-    """The variables a stack exports (see the module docstring)."""
+def stack_environment(
+    domain: int, gate_url: str, control: str, rtt_s: float = 3.0, speed: float = 1.0
+) -> dict[str, str]:
+    """The variables a stack exports (see the module docstring); ``rtt_s`` in mission
+    seconds, ``speed`` mission seconds per wall second."""
     return {
         DOMAIN_ENV: str(domain),
         RANGE_ENV: "LOCALHOST",
         GATE_ENV: gate_url,
         CONTROL_ENV: control,
+        RTT_ENV: f"{rtt_s / speed:g}",
+        SCALE_ENV: f"{speed:g}",
     }
+
+
+def env_default(name: str, fallback: float, env: Mapping[str, str] | None = None) -> float:
+    """A number option's default from the environment (a stack's export), else
+    ``fallback``; a variable that is not a finite number >= 0 is ignored."""
+    text = (os.environ if env is None else env).get(name, "").strip()
+    try:
+        return values.non_negative(text) if text else fallback
+    except ValueError:
+        return fallback
 
 
 def export_line(variables: Mapping[str, str]) -> str:
