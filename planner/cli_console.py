@@ -329,8 +329,11 @@ def _echo(args: argparse.Namespace) -> int:
     shown = 0
     with port:
         lane = STOP_LANE if profile is qos.STOP else "default"
-        port.subscribe(args.topic, msg_type, got.put, profile, lane=lane)
+        sub = port.subscribe(args.topic, msg_type, got.put, profile, lane=lane)
         full = port.resolve(args.topic)
+        # The header means 'listening': a publisher that is there is matched first (a
+        # volatile topic loses what is sent before), as far as discovery lets us wait.
+        sub.wait_for_publishers(1, min(args.timeout or 5.0, 5.0))
         print(f"# {full} [{msg_type.__module__.split('.')[0]}/{msg_type.__name__}]", flush=True)
         try:
             while args.count is None or shown < args.count:
