@@ -447,7 +447,8 @@ def run(args: argparse.Namespace) -> int:
             executor = PlanExecutor(port, rover, config)
             if args.record:
                 recorder = McapRecorder(args.record)
-                port.add_tap(recorder.tap)
+                recorder.attach(port)
+                recorder.set_map(world, goal)
             if args.foxglove is not None:
                 foxglove = FoxgloveLive(port=args.foxglove)
                 port.add_tap(foxglove.tap)

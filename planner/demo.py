@@ -236,7 +236,7 @@ class Demo:
             open_port(DEFAULT_BACKEND, namespace="ground", node_name="rover_executor") as port,
         ):
             if recorder is not None:
-                port.add_tap(recorder.tap)
+                recorder.attach(port)
             foxglove = (
                 FoxgloveLive(port=cfg.foxglove_port) if cfg.foxglove_port is not None else None
             )
@@ -261,6 +261,8 @@ class Demo:
             self._say(f"FOXGLOVE {foxglove.url}")
         world = client.get_map(cfg.map_name)
         goal = _goal(world, cfg.goal_name)
+        if recorder is not None:
+            recorder.set_map(world, goal)
         start = world.start
         orchestrator = PlannerOrchestrator(
             HeuristicLowLevelPlanner(rover, world=world),
