@@ -518,6 +518,8 @@ def run(args: argparse.Namespace) -> int:
                 if view is not None and sys.exc_info()[0] is not None:
                     view.close()  # else it serves the end of the mission until the end
     print(report.summary(args.time_scale))
+    if view is not None:
+        view.hub.result(report.reached, report.summary(args.time_scale).splitlines()[0])
     outcome = "reached" if report.reached else "cancelled" if report.cancelled else "not reached"
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
     print(f"picture: {save(picture, args.picture)}")

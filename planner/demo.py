@@ -345,6 +345,8 @@ class Demo:
                 self._mission_running = False
         finally:
             executor.close()
+        if view is not None:
+            view.hub.result(report.reached, report.summary(cfg.speed).splitlines()[0])
         outcome = (
             "goal reached"
             if report.reached
