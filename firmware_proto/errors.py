@@ -8,6 +8,8 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
      +-- DescriptionError   the rover description file is missing or invalid; also ValueError
      +-- PlanError          a command plan fails its JSON schema; also ValueError
+     +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
+                            also ValueError and argparse.ArgumentTypeError
 
 Stream decoders never raise on bad input: they count it (see ``framing.FrameDecoder``).
 """

@@ -20,6 +20,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from planner.errors import DomainBusyError
+
 __all__ = [
     "DIR_ENV",
     "STACK_DOMAINS",
@@ -35,10 +37,6 @@ DIR_ENV = "ROVER_STACK_DIR"
 STACK_DOMAINS = range(101, 233)
 """The domains ``rover stack up`` picks from, lowest free first (ROS 2 documents 0..232
 for Fast DDS on Linux)."""
-
-
-class DomainBusyError(RuntimeError):
-    """The domain asked for is held by another stack, or none is free."""
 
 
 def registry_dir() -> Path:

@@ -26,6 +26,8 @@ import math
 from collections.abc import Callable
 from typing import TypeVar
 
+from firmware_proto.errors import ProtoError
+
 __all__ = [
     "BAUD_RANGE",
     "DOMAIN_RANGE",
@@ -54,7 +56,7 @@ DOMAIN_RANGE = (0, 232)
 T = TypeVar("T")
 
 
-class ValueArgumentError(ValueError, argparse.ArgumentTypeError):
+class ValueArgumentError(ProtoError, ValueError, argparse.ArgumentTypeError):
     """A value on a command line is out of its range or not a number; says which rule
     it broke. An ``argparse.ArgumentTypeError`` (a usage error) and a ``ValueError``."""
 
