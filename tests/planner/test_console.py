@@ -176,3 +176,41 @@ def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
     pose = _rover("echo", "odom_ground", *where, "--count", "1", "--timeout", "20")
     assert pose.returncode == 0, pose.stderr
     assert " x=1.2" in pose.stdout.splitlines()[1] and "frame=map" in pose.stdout
+
+
+@pytest.mark.rclpy
+def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path) -> None:
+    """``rover stack up --device``: the bridge opens the device given (here a
+    ``rover emulate`` the lab started itself); no emulator is started, no control port
+    is offered, and the health comes back through the link."""
+    device = tmp_path / "rover-motor"
+    env = {**os.environ, domains.DIR_ENV: str(tmp_path / "stacks")}
+    emulator = Child(["emulate", "--serial", "--link", str(device)], env)
+    stack: Child | None = None
+    try:
+        emulator.wait_for("DEVICE ")
+        stack = Child(
+            ["stack", "up", "--device", str(device), "--baud", "115200", "--rtt", "0.2"], env
+        )
+        stack.wait_for("STACK UP domain ", timeout_s=120)
+        assert not any(line.startswith("starting emulator") for line in stack.lines)
+        assert any(f"rover bridge --device {device} --baud 115200" in x for x in stack.lines)
+        assert f"DEVICE {device}" in stack.lines and not any(
+            x.startswith("CONTROL ") for x in stack.lines
+        )
+        assert any("health: rover status" in x and "READY" in x for x in stack.lines)
+        inject = subprocess.run(
+            [sys.executable, "-m", "firmware_proto.cli", "stack", "inject", "reboot"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+            check=False,
+        )
+        assert inject.returncode == 1 and "drives a real device: no emulator" in inject.stderr
+        stack.proc.send_signal(2)
+        assert stack.wait(60) == 0
+    finally:
+        if stack is not None:
+            stack.stop()
+        emulator.stop()

@@ -95,6 +95,7 @@ def test_rover_go_refuses_bad_goals_and_options_cleanly(
     for args, status, complaint in (
         (["--goal", "3.9,3.0,0"], 1, "obstacle 'table'"),  # checked before waiting for the rover
         (["--goal", "9.5,3.0,0"], 1, "outside map 'lab'"),
+        (["--goal", "nowhere"], 1, "has no goal named 'nowhere' (its goals: behind_table, "),
         (["--goal", "nan,1,0"], 2, "not finite"),
         (["--goal", "1,2"], 2, "X,Y,YAW_DEG"),
         (["--goal", "2,3,0", "--start", "1,inf,0"], 2, "not finite"),
