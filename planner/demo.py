@@ -26,6 +26,7 @@ interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -41,6 +42,7 @@ from bridge.rosport import DEFAULT_BACKEND, RosPort, open_port
 from bridge.rosport.contract import COMPLETED
 from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.rover import RoverDescription, load_rover
+from planner.domains import claim
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient
@@ -52,6 +54,7 @@ from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.picture import picture_of, save
 from planner.planner import HeuristicLowLevelPlanner
 from planner.stack import Stack, StackConfig
+from planner.stackenv import DOMAIN_ENV
 from planner.view.live import LiveView
 from planner.view.server import ViewConfig
 
@@ -140,6 +143,7 @@ class Demo:
         self._hold = threading.Event()
         self._holding = False
         self._stack: Stack | None = None
+        self._domains = contextlib.ExitStack()
 
     @property
     def mission_running(self) -> bool:
@@ -212,6 +216,13 @@ class Demo:
             seed=cfg.seed,
             startup_timeout_s=cfg.startup_timeout_s,
         )
+        if not os.environ.get(DOMAIN_ENV, "").strip():
+            # No domain chosen: one of its own, as a stack takes, so that two demos (or
+            # a demo and a stack) on one machine never hear each other.
+            domain = self._domains.enter_context(claim()).domain
+            self._domains.callback(os.environ.pop, DOMAIN_ENV, None)
+            os.environ[DOMAIN_ENV] = self._env[DOMAIN_ENV] = str(domain)
+            self.say(f"ROS 2 domain {domain} (of its own)")
         self._stack = Stack(stack, self._env, say=self.say)
         endpoints = self._stack.start()
         url = endpoints.gate_url
@@ -367,6 +378,7 @@ class Demo:
             self._view.close()
         if self._stack is not None:
             self._stack.close()
+        self._domains.close()
 
     def __enter__(self) -> Demo:
         return self
