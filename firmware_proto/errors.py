@@ -10,6 +10,8 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- PlanError          a command plan fails its JSON schema; also ValueError
      +-- BindPolicyError    an HTTP server may not listen there without a token, or the
                             token is malformed (firmware_proto.bindpolicy); also ValueError
+     +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
+                            also ValueError and argparse.ArgumentTypeError
 
 Stream decoders never raise on bad input: they count it (see ``framing.FrameDecoder``).
 """

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
 
+from firmware_proto.cli import values
 from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
 
 __all__ = ["add_arguments", "main", "register"]
@@ -95,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="default map: name or JSON file (lab)",
     )
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, help="port (default 8080; 0 picks a free one)")
+    p.add_argument("--port", type=values.tcp_port, help="port (default 8080; 0 picks a free one)")
     p.add_argument("--token", help="bearer token required on every request")
     p.add_argument("--token-file", metavar="PATH", help="read the token from this file")
     p.add_argument(

@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from bridge.rosport.contract import COMPLETED
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan, PlanStep
 from planner.drift import DriftEvent
@@ -127,8 +128,9 @@ class MissionReport:
             ex = run.execution
             worst_m, worst_deg = ex.worst_drift
             took = ex.elapsed_s * time_scale
+            done = sum(1 for s in ex.steps if s.status == COMPLETED)
             lines.append(
-                f"  run {i + 1}: {len(ex.steps)}/{len(run.plan.commands)} steps, {ex.outcome}"
+                f"  run {i + 1}: {done}/{len(run.plan.commands)} steps completed, {ex.outcome}"
                 f" in {took:.1f} s; worst drift {worst_m:.3f} m, {worst_deg:.1f} deg"
             )
             if ex.drift is not None:

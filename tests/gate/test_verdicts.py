@@ -11,6 +11,7 @@ from emulator.playback import play
 from emulator.twin import Pose2D, Twin
 from emulator.worldmap import load_map
 from firmware_proto.rover import RoverDescription
+from gate.render import LEGEND_PX
 from gate.server import GateServer
 from gate.verdict import Verdict
 
@@ -262,7 +263,8 @@ def test_rendered_picture_is_a_png_of_the_map(http_gate: GateServer) -> None:
     assert v.image_png_base64 is not None
     image = Image.open(io.BytesIO(base64.b64decode(v.image_png_base64)))
     assert image.format == "PNG"
-    assert image.size == (848, 648)  # 8 x 6 m at 100 px/m plus a 24 px border
+    # 8 x 6 m at 100 px/m plus a 24 px border, and the legend band below.
+    assert image.size == (848, 648 + LEGEND_PX)
     plain = _verdict(http_gate, body)
     assert plain.image_png_base64 is None
     assert plain.replay.render is False and v.replay.render is True

@@ -13,7 +13,9 @@ from planner import errors
 
 MODULES = [
     "planner",
+    "planner.console",
     "planner.demo",
+    "planner.domains",
     "planner.drift",
     "planner.errors",
     "planner.executor",
@@ -23,6 +25,7 @@ MODULES = [
     "planner.geometry",
     "planner.interrupt",
     "planner.mapinfo",
+    "planner.markers",
     "planner.mcaprec",
     "planner.mission",
     "planner.orchestrator",
@@ -30,6 +33,9 @@ MODULES = [
     "planner.planner",
     "planner.relay",
     "planner.repairs",
+    "planner.roverstatus",
+    "planner.stack",
+    "planner.stackenv",
     "planner.verdict",
     "planner.view",
     "planner.view.hub",
