@@ -11,7 +11,8 @@ from typing import Any
 from urllib.parse import urlencode
 
 from firmware_proto.cli import values
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 
 __all__ = ["add_arguments", "main", "register"]
 

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.runtime import add_runtime_arguments
+from firmware_proto.cli.runtimeargs import add_runtime_arguments
 from planner.cli_view import add_view_arguments
 
 __all__ = ["register"]
@@ -92,7 +92,8 @@ def _run(args: argparse.Namespace) -> int:
     import signal
     import time
 
-    from firmware_proto.runtime import ProcessRuntime, runtime_options
+    from firmware_proto.cli.runtimeargs import runtime_options
+    from firmware_proto.runtime import ProcessRuntime
     from planner.cli_view import view_config
     from planner.demo import Demo, DemoConfig
     from planner.interrupt import CancelOnSignal

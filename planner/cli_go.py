@@ -16,7 +16,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 from planner.cli_view import add_view_arguments
 from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
