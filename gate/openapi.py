@@ -19,10 +19,10 @@ from typing import Any
 
 from emulator.worldmap import map_schema
 from firmware_proto.plan import MAX_PLAN_STEPS, plan_schema
+from firmware_proto.verdict import FAILURE_TYPES
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig
 from gate.options import OPTION_LIMITS, QUERY_PARAMETERS
 from gate.routes import ROUTES
-from gate.verdict import FAILURE_TYPES
 
 __all__ = ["OPENAPI_VERSION", "build_openapi"]
 

@@ -26,9 +26,9 @@ import re
 from dataclasses import dataclass
 from urllib.parse import parse_qsl, quote
 
+from firmware_proto.pose import Pose
 from gate.config import PlaybackSettings
 from gate.errors import OptionError
-from gate.verdict import Pose
 
 __all__ = [
     "OPTION_LIMITS",

@@ -39,24 +39,22 @@ from emulator.twin import Pose2D, Twin
 from emulator.worldmap import WorldMap, list_maps, load_map
 from firmware_proto.errors import DescriptionError
 from firmware_proto.plan import COMMAND_NAMES, Plan
+from firmware_proto.pose import Point, Pose
 from firmware_proto.rover import RoverDescription, load_rover
-from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
-from gate.errors import ConfigError, GoalRangeError, OptionError
-from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
-from gate.options import ResolvedOptions
-from gate.trajectory import tag_samples
-from gate.verdict import (
+from firmware_proto.verdict import (
     CollisionReport,
-    Point,
-    Pose,
     Replay,
     StallReport,
     StepPrediction,
     Tolerances,
     Trajectory,
-    TrajectorySample,
     Verdict,
 )
+from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
+from gate.errors import ConfigError, GoalRangeError, OptionError
+from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
+from gate.options import ResolvedOptions
+from gate.trajectory import tag_samples
 
 __all__ = ["GATE_SEED", "MAX_GOAL_ABS_M", "Job", "Validator", "gate_version", "load_maps"]
 
@@ -295,17 +293,7 @@ class Validator:
             _r(opts.position_tolerance_m), _r(opts.yaw_tolerance_deg), _r(opts.safety_margin_m)
         )
         failure, failed_step, reason = _classify(plan, collision, stall, err, tol)
-        samples = tuple(
-            TrajectorySample(
-                _r(s.t_s),
-                s.step,
-                _r(s.step_t_s),
-                _r(s.pose.x_m),
-                _r(s.pose.y_m),
-                _r(s.pose.yaw_deg),
-            )
-            for s in tag_samples(result)
-        )
+        samples = tuple(tag_samples(result, _pose, _r))
         plan_blob = json.dumps(plan.to_dict(), sort_keys=True, separators=(",", ":"))
         return Verdict(
             approved=failure is None,

@@ -50,7 +50,7 @@ def parse_pose(text: str) -> Any:
     """
     import math
 
-    from planner.geometry import Pose
+    from firmware_proto.pose import Pose
 
     parts = text.split(",")
     try:

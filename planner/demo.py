@@ -46,13 +46,13 @@ from bridge.rosport.contract import COMPLETED
 from bridge.rosport.msgs import DiagnosticArray
 from bridge.rosport.qos import DIAGNOSTICS
 from bridge.rosport.rclpy_backend import middleware
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.domains import claim
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.mcaprec import McapRecorder
 from planner.mission import MissionReport, MissionRunner

@@ -1,9 +1,10 @@
 """HTTP client of the simulation gate (the thesis's ``HttpPlanValidator``).
 
 :class:`GateClient` posts plans to ``POST /validate_plan`` and reads the verdict into
-:class:`~planner.verdict.Verdict`; it also reads ``/health``, ``/maps`` and one map
-(:class:`~planner.mapinfo.MapInfo`). Standard library only (``http.client``), one
-keep-alive connection, thread-safe (calls are serialised on it).
+:class:`~firmware_proto.verdict.Verdict` (the model the gate serialises); it also reads
+``/health``, ``/maps`` and one map (:class:`~planner.mapinfo.MapInfo`). Standard library
+only (``http.client``), one keep-alive connection, thread-safe (calls are serialised on
+it).
 
 Failure behaviour, per call (docs/planner.md):
 
@@ -38,7 +39,10 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import quote, urlsplit
 
+from firmware_proto.errors import VerdictError
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.errors import (
     GateError,
     GateOverloadedError,
@@ -46,9 +50,7 @@ from planner.errors import (
     GateTimeoutError,
     GateUnavailableError,
 )
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
-from planner.verdict import Verdict
 
 __all__ = [
     "DEFAULT_GATE_URL",
@@ -257,7 +259,10 @@ class GateClient:
         if query:
             path += "?" + "&".join(f"{k}={quote(v, safe=',')}" for k, v in query)
         data = self._call("POST", path, body)
-        verdict = Verdict.from_dict(self._json(data))
+        try:
+            verdict = Verdict.from_dict(self._json(data))
+        except VerdictError as exc:
+            raise GateProtocolError(str(exc), exc.pointers) from exc
         logger.debug("verdict for %s: %s", path, verdict.summary())
         return verdict
 

@@ -27,9 +27,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.errors import PlanTooLongError, RepairError, UnreachableGoalError
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Point, Pose
+from planner.geometry import Point
 from planner.mapinfo import MapInfo
 from planner.planner import HeuristicLowLevelPlanner, LegPlan, Route
 from planner.repairs import (
@@ -40,7 +42,6 @@ from planner.repairs import (
     RepairFunction,
     RepairSettings,
 )
-from planner.verdict import Verdict
 
 __all__ = ["Attempt", "MissionResult", "PlanResult", "PlannerOrchestrator"]
 

@@ -45,11 +45,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.executor import Progress
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
 __all__ = [
     "INBOX_LEN",

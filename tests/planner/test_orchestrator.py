@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from firmware_proto.plan import PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import StallReport
 from gate.server import GateServer
 from planner.errors import (
     GoalInObstacleError,
@@ -21,12 +23,10 @@ from planner.errors import (
     UnreachableGoalError,
 )
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import DRIVE, HeuristicLowLevelPlanner, LegPlan
 from planner.repairs import PlannerContext, RepairSettings, stall_repair
-from planner.verdict import StallInfo
 from tests.planner.conftest import ring_map, slot_map, start_gate
 
 Make = Callable[..., PlannerOrchestrator]
@@ -265,7 +265,7 @@ def test_stall_repair_slows_a_turn_and_bypasses_a_drive(
             approved=False,
             failure_type="stalled",
             failed_step=step,
-            stall=StallInfo(step, "no_encoder_progress", "both", 1.0),
+            stall=StallReport(step, "no_encoder_progress", "both", 1.0),
         )
         return PlannerContext(planner, leg, v, 0, (), (), orch.world, RepairSettings())
 
