@@ -21,7 +21,8 @@ computed as *goal minus predicted*:
 
 What an executor's drift monitor needs is here: :attr:`Verdict.trajectory` (poses tagged
 with the step index and the time since that step started, because the executor pauses
-between steps for the link's round trip) and :attr:`Verdict.steps`.
+between steps for the link's round trip) and :attr:`Verdict.steps`. A verdict played on
+several twins (``samples`` > 1) carries :class:`Uncertainty` as well.
 """
 
 from __future__ import annotations
@@ -38,12 +39,16 @@ from firmware_proto.pose import Point, Pose
 __all__ = [
     "FAILURE_TYPES",
     "CollisionReport",
+    "EnvelopePoint",
+    "GoalErrorPercentiles",
+    "ObstacleHits",
     "Replay",
     "StallReport",
     "StepPrediction",
     "Tolerances",
     "Trajectory",
     "TrajectorySample",
+    "Uncertainty",
     "Verdict",
 ]
 
@@ -113,6 +118,14 @@ class _Reader:
         if not isinstance(value, str):
             raise self._bad(key, "a string")
         return value
+
+    def numbers(self, key: str) -> tuple[float, ...]:
+        value = self._get(key)
+        if not isinstance(value, list) or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value
+        ):
+            raise self._bad(key, "a list of numbers")
+        return tuple(float(v) for v in value)
 
     def optional(self, key: str, read: Callable[[str], _T]) -> _T | None:
         return None if self.obj.get(key) is None else read(key)
@@ -389,8 +402,8 @@ class Replay:
     """Everything needed to reproduce the verdict bit for bit.
 
     Attributes:
-        seed: seed of the playback's randomness. The gate plays without noise or
-            injected faults, so it is always 0; it is recorded so that a replay states it.
+        seed: seed of the draws of a verdict played on several twins (the request's
+            ``seed``); 0 for a single playback, which has no randomness.
         map: map name; ``map_sha256`` its canonical content's SHA-256.
         rover: rover description name; ``rover_sha256`` its values' SHA-256.
         plan_sha256: SHA-256 of the plan's canonical JSON (sorted keys, no spaces).
@@ -455,13 +468,212 @@ class Replay:
 
 
 @dataclass(frozen=True)
+class ObstacleHits:
+    """The samples of an uncertain verdict that hit one obstacle.
+
+    Attributes:
+        obstacle_id: the obstacle (``"bounds"`` for the walls).
+        count: how many samples touched it first.
+        step: the step during which most of them did (the earliest on a tie).
+        contact: the mean contact point of those at that step, m.
+    """
+
+    obstacle_id: str
+    count: int
+    step: int
+    contact: Point
+
+    def to_dict(self) -> dict[str, Any]:
+        """As JSON-ready data."""
+        return {
+            "obstacle_id": self.obstacle_id,
+            "count": self.count,
+            "step": self.step,
+            "contact": self.contact.to_dict(),
+        }
+
+    @classmethod
+    def _read(cls, r: _Reader) -> ObstacleHits:
+        return cls(
+            r.string("obstacle_id"), r.integer("count"), r.integer("step"), r.point("contact")
+        )
+
+
+@dataclass(frozen=True)
+class GoalErrorPercentiles:
+    """Percentiles of the goal errors over the samples that played to the end (no
+    collision, no stall); each list has one value per entry of ``percentiles``.
+
+    Attributes:
+        samples: how many samples they are over (0: every one collided or stalled, and
+            the lists are empty).
+        percentiles: which percentiles, in percent (5, 50, 95...).
+        distance_m, position_m, lateral_m, yaw_deg: of ``distance_error_m``,
+            ``position_error_m``, ``lateral_error_m`` and ``yaw_error_deg`` (same signs
+            as the verdict's).
+    """
+
+    samples: int
+    percentiles: tuple[float, ...]
+    distance_m: tuple[float, ...]
+    position_m: tuple[float, ...]
+    lateral_m: tuple[float, ...]
+    yaw_deg: tuple[float, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """As JSON-ready data."""
+        return {
+            "samples": self.samples,
+            "percentiles": list(self.percentiles),
+            "distance_m": list(self.distance_m),
+            "position_m": list(self.position_m),
+            "lateral_m": list(self.lateral_m),
+            "yaw_deg": list(self.yaw_deg),
+        }
+
+    @classmethod
+    def _read(cls, r: _Reader) -> GoalErrorPercentiles:
+        return cls(
+            r.integer("samples"),
+            r.numbers("percentiles"),
+            r.numbers("distance_m"),
+            r.numbers("position_m"),
+            r.numbers("lateral_m"),
+            r.numbers("yaw_deg"),
+        )
+
+
+@dataclass(frozen=True)
+class EnvelopePoint:
+    """Where the samples still playing are at one moment of one step.
+
+    Attributes:
+        step, step_t_s: the moment (as the trajectory tags it).
+        samples: how many samples are still playing then (not yet collided).
+        pose: their mean pose (yaw: the circular mean).
+        major_m, minor_m, angle_deg: the ellipse that holds their positions at the
+            envelope's level (``Uncertainty.level``) under a normal fit: semi-axes, m,
+            and the major axis's direction, degrees counter-clockwise from +x.
+        yaw_sd_deg: the standard deviation of their yaw about the mean, degrees.
+    """
+
+    step: int
+    step_t_s: float
+    samples: int
+    pose: Pose
+    major_m: float
+    minor_m: float
+    angle_deg: float
+    yaw_sd_deg: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """As JSON-ready data (the pose's fields inline)."""
+        return {
+            "step": self.step,
+            "step_t_s": self.step_t_s,
+            "samples": self.samples,
+            "x": self.pose.x,
+            "y": self.pose.y,
+            "yaw_deg": self.pose.yaw_deg,
+            "major_m": self.major_m,
+            "minor_m": self.minor_m,
+            "angle_deg": self.angle_deg,
+            "yaw_sd_deg": self.yaw_sd_deg,
+        }
+
+    @classmethod
+    def _read(cls, r: _Reader) -> EnvelopePoint:
+        return cls(
+            r.integer("step"),
+            r.number("step_t_s"),
+            r.integer("samples"),
+            Pose(r.number("x"), r.number("y"), r.number("yaw_deg")),
+            r.number("major_m"),
+            r.number("minor_m"),
+            r.number("angle_deg"),
+            r.number("yaw_sd_deg"),
+        )
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """A plan played on ``samples`` twins drawn from the twin's parameter uncertainty
+    and a slip distribution (docs/gate.md, "Verdicts with their uncertainty").
+
+    Attributes:
+        samples: how many twins.
+        seed: the seed of the draws (same request, same seed: same answer).
+        spread: ``"calibration"`` (the calibrated twin's covariance) or ``"default"``
+            (the gate's documented default spread).
+        slip_sigma: the 1-sigma spread of each side's friction factor (log-normal).
+        collision_probability: the fraction of samples whose footprint touched
+            something (start included).
+        stall_probability: the fraction that stalled.
+        approved_probability: the fraction that the verdict's tolerances approve.
+        collisions: per obstacle hit, most hits first.
+        goal_error: percentiles of the goal errors.
+        level: the probability the envelope's ellipses hold (0.95).
+        envelope: per step, the samples' spread at moments of it (each step's end among
+            them), in time order.
+    """
+
+    samples: int
+    seed: int
+    spread: str
+    slip_sigma: float
+    collision_probability: float
+    stall_probability: float
+    approved_probability: float
+    collisions: tuple[ObstacleHits, ...]
+    goal_error: GoalErrorPercentiles
+    level: float
+    envelope: tuple[EnvelopePoint, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """As JSON-ready data."""
+        return {
+            "samples": self.samples,
+            "seed": self.seed,
+            "spread": self.spread,
+            "slip_sigma": self.slip_sigma,
+            "collision_probability": self.collision_probability,
+            "stall_probability": self.stall_probability,
+            "approved_probability": self.approved_probability,
+            "collisions": [c.to_dict() for c in self.collisions],
+            "goal_error": self.goal_error.to_dict(),
+            "level": self.level,
+            "envelope": [p.to_dict() for p in self.envelope],
+        }
+
+    def for_step(self, step: int) -> tuple[EnvelopePoint, ...]:
+        """The envelope points of one step, in time order."""
+        return tuple(p for p in self.envelope if p.step == step)
+
+    @classmethod
+    def _read(cls, r: _Reader) -> Uncertainty:
+        return cls(
+            samples=r.integer("samples"),
+            seed=r.integer("seed"),
+            spread=r.string("spread"),
+            slip_sigma=r.number("slip_sigma"),
+            collision_probability=r.number("collision_probability"),
+            stall_probability=r.number("stall_probability"),
+            approved_probability=r.number("approved_probability"),
+            collisions=tuple(ObstacleHits._read(c) for c in r.items("collisions")),
+            goal_error=GoalErrorPercentiles._read(r.child("goal_error")),
+            level=r.number("level"),
+            envelope=tuple(EnvelopePoint._read(p) for p in r.items("envelope")),
+        )
+
+
+@dataclass(frozen=True)
 class Verdict:
     """The response of ``POST /validate_plan``; see the module docstring for units and
     signs, and :data:`FAILURE_TYPES` for ``failure_type``.
 
     Attributes:
         approved: the plan is collision-free, made progress, and ends within tolerance
-
+            (judged on the nominal twin, also when ``uncertainty`` is present).
         failure_type: ``None`` when approved, else one of :data:`FAILURE_TYPES` (or a
             newer type this client does not know).
         failure_reason: one human-readable sentence (``""`` when approved).
@@ -478,6 +690,8 @@ class Verdict:
         trajectory: the predicted trajectory.
         sim_time_s: twin time played, settling included.
         replay: what reproduces this verdict.
+        uncertainty: the spread over twins drawn from the parameter uncertainty, when
+            the request asked for more than one sample; else ``None``.
         image_png_base64: the rendered top-down view, when requested; else ``None``.
         wall_time_s: wall-clock time the validation took: the one field that differs
             between repeats of the same request.
@@ -502,6 +716,7 @@ class Verdict:
     trajectory: Trajectory
     sim_time_s: float
     replay: Replay
+    uncertainty: Uncertainty | None = None
     image_png_base64: str | None = None
     wall_time_s: float = 0.0
 
@@ -519,7 +734,7 @@ class Verdict:
 
     def to_dict(self) -> dict[str, Any]:
         """The verdict as JSON-ready data, keys in documented order, ``wall_time_s``
-        last; ``image_png_base64`` only when present."""
+        last; ``uncertainty`` and ``image_png_base64`` only when present."""
         out: dict[str, Any] = {
             "approved": self.approved,
             "failure_type": self.failure_type,
@@ -541,6 +756,8 @@ class Verdict:
             "sim_time_s": self.sim_time_s,
             "replay": self.replay.to_dict(),
         }
+        if self.uncertainty is not None:
+            out["uncertainty"] = self.uncertainty.to_dict()
         if self.image_png_base64 is not None:
             out["image_png_base64"] = self.image_png_base64
         out["wall_time_s"] = self.wall_time_s
@@ -587,6 +804,11 @@ class Verdict:
             ),
             sim_time_s=r.number("sim_time_s"),
             replay=Replay._read(r.child("replay")),
+            uncertainty=(
+                None
+                if r.obj.get("uncertainty") is None
+                else Uncertainty._read(r.child("uncertainty"))
+            ),
             image_png_base64=r.optional("image_png_base64", r.string),
             wall_time_s=r.number("wall_time_s") if "wall_time_s" in r.obj else 0.0,
         )

@@ -21,6 +21,7 @@ from firmware_proto.verdict import (
     Tolerances,
     Trajectory,
     TrajectorySample,
+    Uncertainty,
     Verdict,
 )
 from gate.config import GateConfig, PlaybackSettings, load_config
@@ -82,6 +83,7 @@ __all__ = [
     "Trajectory",
     "TrajectorySample",
     "UnauthorizedError",
+    "Uncertainty",
     "UnsupportedMediaError",
     "ValidateOptions",
     "Validator",

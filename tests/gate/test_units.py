@@ -206,6 +206,7 @@ EXPORTED = [
     "Trajectory",
     "TrajectorySample",
     "UnauthorizedError",
+    "Uncertainty",
     "UnsupportedMediaError",
     "ValidateOptions",
     "Validator",

@@ -1,0 +1,108 @@
+"""The gate's chunks of uncertain verdicts on a Dask distributed cluster.
+
+``rover gate --cluster tcp://HOST:PORT`` connects to a running Dask scheduler (its
+workers must have this project installed: they import :func:`gate.ensemble.run_chunk`)
+and sends each chunk of a verdict with its uncertainty there instead of to the local
+process pool; the nominal playback stays local. A chunk is a self-contained
+:class:`~gate.ensemble.ChunkJob` and its result depends on nothing else, so the verdict
+is the same bytes as from the local pool (docs/gate.md says why Dask and not Ray).
+
+:class:`ClusterEngine` offers what the pool offers, :meth:`~ClusterEngine.submit_call`
+returning a :class:`concurrent.futures.Future`; ``distributed`` is imported only here,
+and only when a cluster is configured (the ``cluster`` extra).
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any, TypeVar
+
+from gate.errors import ConfigError
+
+__all__ = ["CONNECT_TIMEOUT_S", "ClusterEngine"]
+
+logger = logging.getLogger(__name__)
+
+CONNECT_TIMEOUT_S = 20.0
+"""Longest wait for the scheduler to answer at start-up."""
+
+_T = TypeVar("_T")
+
+
+class ClusterEngine:
+    """A client of one Dask scheduler; :meth:`close` is idempotent.
+
+    Args:
+        address: the scheduler's address, ``tcp://host:port``.
+        timeout_s: how long to wait for it.
+
+    Raises:
+        ConfigError: ``distributed`` is not installed, or the scheduler does not answer.
+    """
+
+    kind = "dask"
+
+    def __init__(self, address: str, *, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+        try:
+            client_class: Any = importlib.import_module("distributed").Client
+        except ImportError as exc:
+            raise ConfigError(
+                "--cluster needs Dask distributed: pip install 'rover-hil[cluster]'"
+            ) from exc
+        self.address = address
+        try:
+            self._client: Any = client_class(address, timeout=f"{timeout_s}s", set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(f"no Dask scheduler answers at {address}: {exc}") from exc
+        self._lock = threading.Lock()
+        self._closed = False
+        workers = self.workers
+        logger.info("connected to Dask scheduler %s (%d workers)", address, workers)
+
+    @property
+    def workers(self) -> int:
+        """Workers the scheduler has now."""
+        info = self._client.scheduler_info()
+        return len(info.get("workers", {}))
+
+    def submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+        """Run ``fn(arg)`` on a worker; the future gives its result or raises its error.
+
+        Raises:
+            RuntimeError: the engine is closed.
+        """
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("cluster engine is closed")
+        out: Future[_T] = Future()
+        remote = self._client.submit(fn, arg, pure=False)
+
+        def done(f: Any) -> None:
+            if out.cancelled():
+                return
+            try:
+                out.set_result(f.result())
+            except BaseException as exc:
+                out.set_exception(exc)
+
+        out.add_done_callback(lambda f: remote.cancel() if f.cancelled() else None)
+        remote.add_done_callback(done)
+        return out
+
+    def close(self) -> None:
+        """Disconnect (the cluster itself keeps running)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._client.close(timeout=10)
+
+    def __enter__(self) -> ClusterEngine:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
