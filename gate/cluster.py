@@ -18,17 +18,20 @@ import importlib
 import logging
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, TypeVar
 
 from gate.errors import ConfigError
 
-__all__ = ["CONNECT_TIMEOUT_S", "ClusterEngine"]
+__all__ = ["CONNECT_TIMEOUT_S", "WAITERS", "ClusterEngine"]
 
 logger = logging.getLogger(__name__)
 
 CONNECT_TIMEOUT_S = 20.0
 """Longest wait for the scheduler to answer at start-up."""
+
+WAITERS = 32
+"""Chunks whose results are awaited at once (more wait their turn)."""
 
 _T = TypeVar("_T")
 
@@ -60,6 +63,9 @@ class ClusterEngine:
             raise ConfigError(f"no Dask scheduler answers at {address}: {exc}") from exc
         self._lock = threading.Lock()
         self._closed = False
+        # One thread per chunk in flight waits on its result (Dask's own done-callbacks
+        # run on a thread of the library's that outlives the client).
+        self._waiters = ThreadPoolExecutor(WAITERS, thread_name_prefix="gate-cluster")
         workers = self.workers
         logger.info("connected to Dask scheduler %s (%d workers)", address, workers)
 
@@ -78,19 +84,9 @@ class ClusterEngine:
         with self._lock:
             if self._closed:
                 raise RuntimeError("cluster engine is closed")
-        out: Future[_T] = Future()
         remote = self._client.submit(fn, arg, pure=False)
-
-        def done(f: Any) -> None:
-            if out.cancelled():
-                return
-            try:
-                out.set_result(f.result())
-            except BaseException as exc:
-                out.set_exception(exc)
-
+        out: Future[_T] = self._waiters.submit(remote.result)
         out.add_done_callback(lambda f: remote.cancel() if f.cancelled() else None)
-        remote.add_done_callback(done)
         return out
 
     def close(self) -> None:
@@ -99,7 +95,8 @@ class ClusterEngine:
             if self._closed:
                 return
             self._closed = True
-        self._client.close(timeout=10)
+        self._client.close(timeout=10)  # cancels what is in flight: the waiters return
+        self._waiters.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> ClusterEngine:
         return self
