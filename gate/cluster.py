@@ -15,15 +15,21 @@ and only when a cluster is configured (the ``cluster`` extra).
 from __future__ import annotations
 
 import importlib
+import json
 import logging
+import subprocess
+import sys
 import threading
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, TypeVar
 
 from gate.errors import ConfigError
 
-__all__ = ["CONNECT_TIMEOUT_S", "WAITERS", "ClusterEngine"]
+__all__ = ["CONNECT_TIMEOUT_S", "WAITERS", "ClusterEngine", "local_cluster"]
 
 logger = logging.getLogger(__name__)
 
@@ -34,6 +40,9 @@ WAITERS = 32
 """Chunks whose results are awaited at once (more wait their turn)."""
 
 _T = TypeVar("_T")
+_SCHEDULER = (sys.executable, "-m", "distributed.cli.dask_scheduler", "--port", "0")
+_WORKER = (sys.executable, "-m", "distributed.cli.dask_worker")
+_ONE_THREAD = ("--nthreads", "1", "--no-nanny", "--memory-limit", "0")
 
 
 class ClusterEngine:
@@ -103,3 +112,59 @@ class ClusterEngine:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@contextmanager
+def local_cluster(directory: Path, workers: int = 2, timeout_s: float = 60.0) -> Iterator[str]:
+    """A Dask scheduler and ``workers`` single-threaded workers, each its own process
+    (this interpreter, ``python -m distributed.cli...``), listening on 127.0.0.1 only;
+    yields the scheduler's address once every worker has joined. Every process is ended
+    on exit (terminate, then kill after 20 s). For tests, benchmarks and a first try;
+    their output goes to ``directory/cluster.log``.
+
+    Raises:
+        RuntimeError: a process exited early, or the cluster was not up in ``timeout_s``.
+    """
+    file = directory / "scheduler.json"
+    common = ["--no-dashboard", "--host", "127.0.0.1"]
+    procs: list[subprocess.Popen[bytes]] = []
+    deadline = time.monotonic() + timeout_s
+    with (directory / "cluster.log").open("wb") as log:
+        try:
+            procs.append(
+                subprocess.Popen(
+                    [*_SCHEDULER, *common, "--scheduler-file", str(file)],
+                    stdout=log,
+                    stderr=log,
+                )
+            )
+            while not file.exists():
+                if procs[0].poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"no Dask scheduler came up; see {directory}/cluster.log")
+                time.sleep(0.1)
+            address = str(json.loads(file.read_text())["address"])
+            for _ in range(workers):
+                procs.append(
+                    subprocess.Popen(
+                        [*_WORKER, address, *common, *_ONE_THREAD],
+                        stdout=log,
+                        stderr=log,
+                    )
+                )
+            engine = ClusterEngine(address, timeout_s=max(1.0, deadline - time.monotonic()))
+            try:
+                engine._client.wait_for_workers(
+                    workers, timeout=max(1.0, deadline - time.monotonic())
+                )
+            finally:
+                engine.close()
+            yield address
+        finally:
+            for p in reversed(procs):
+                p.terminate()
+            for p in reversed(procs):
+                try:
+                    p.wait(timeout=20)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait(timeout=10)

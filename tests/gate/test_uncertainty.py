@@ -5,13 +5,8 @@ on loopback) answers the same bytes as the gate's own process pool."""
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import jsonschema
@@ -213,53 +208,15 @@ def test_bad_sample_options_are_400s(gate: GateServer, query: str, parameter: st
 # -- a real local Dask cluster -----------------------------------------------------------
 
 
-def _wait_for(path: Path, procs: list[subprocess.Popen[bytes]], timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.exists():
-        for p in procs:
-            assert p.poll() is None, f"{p.args!r} exited {p.returncode}"
-        assert time.monotonic() < deadline, f"no {path} within {timeout_s} s"
-        time.sleep(0.1)
-
-
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A Dask scheduler and two single-threaded workers, each its own process, on
-    127.0.0.1; the scheduler's address. Every process is ended afterwards."""
+    127.0.0.1 (:func:`gate.cluster.local_cluster`); the scheduler's address."""
     pytest.importorskip("distributed")
-    where = tmp_path_factory.mktemp("dask")
-    file = where / "scheduler.json"
-    common = ["--no-dashboard", "--host", "127.0.0.1"]
-    procs: list[subprocess.Popen[bytes]] = []
-    log = (where / "cluster.log").open("wb")
-    try:
-        scheduler = [sys.executable, "-m", "distributed.cli.dask_scheduler", "--port", "0"]
-        procs.append(
-            subprocess.Popen(
-                [*scheduler, *common, "--scheduler-file", str(file)], stdout=log, stderr=log
-            )
-        )
-        _wait_for(file, procs, 60.0)
-        address = json.loads(file.read_text())["address"]
-        worker = [sys.executable, "-m", "distributed.cli.dask_worker", address, *common]
-        for _ in range(2):
-            cmd = [*worker, "--nthreads", "1", "--no-nanny", "--memory-limit", "0"]
-            procs.append(subprocess.Popen(cmd, stdout=log, stderr=log))
-        from distributed import Client
+    from gate.cluster import local_cluster
 
-        with Client(address, timeout="30s", set_as_default=False) as client:
-            client.wait_for_workers(2, timeout=60)
+    with local_cluster(tmp_path_factory.mktemp("dask"), workers=2) as address:
         yield address
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(timeout=10)
-        log.close()
 
 
 @pytest.mark.slow
