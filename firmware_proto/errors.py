@@ -8,6 +8,8 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
      +-- DescriptionError   the rover description file is missing or invalid; also ValueError
      +-- PlanError          a command plan fails its JSON schema; also ValueError
+     +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
+                            pointers; firmware_proto.verdict); also ValueError
      +-- BindPolicyError    an HTTP server may not listen there without a token, or the
                             token is malformed (firmware_proto.bindpolicy); also ValueError
      +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
@@ -26,6 +28,7 @@ __all__ = [
     "PlanError",
     "ProtoError",
     "SpecError",
+    "VerdictError",
 ]
 
 
@@ -70,6 +73,18 @@ class PlanError(ProtoError, ValueError):
         self.violations = violations
         text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in violations)
         super().__init__(f"plan fails schema: {text}")
+
+
+class VerdictError(ProtoError, ValueError):
+    """A document is not the gate's verdict JSON (:mod:`firmware_proto.verdict`).
+
+    Attributes:
+        pointers: the JSON pointers where the document departs from the shape.
+    """
+
+    def __init__(self, message: str, pointers: tuple[str, ...] = ()) -> None:
+        self.pointers = pointers
+        super().__init__(message)
 
 
 class BindPolicyError(ProtoError, ValueError):

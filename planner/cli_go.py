@@ -19,6 +19,7 @@ from typing import Any
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
 from firmware_proto.runtime import ProcessRuntime
 from planner.cli_view import add_view_arguments
+from planner.gate_client import add_confidence_arguments, confidence_options
 from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
 __all__ = [
@@ -51,7 +52,7 @@ def parse_pose(text: str) -> Any:
     """
     import math
 
-    from planner.geometry import Pose
+    from firmware_proto.pose import Pose
 
     parts = text.split(",")
     try:
@@ -267,6 +268,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=Path("mission.png"),
         help="PNG of predicted vs actual (default mission.png)",
     )
+    add_confidence_arguments(p)
     add_view_arguments(p, record_default=None)
     add_runtime_arguments(p, 0)
     add_domain_argument(p)
@@ -461,7 +463,15 @@ def _mission(args: argparse.Namespace) -> int:
             ) as port,
             CancelOnSignal(on_signal) as signals,
         ):
-            orchestrator = PlannerOrchestrator(planner, gate, map_name=args.map, world=world)
+            gate_options, max_p = confidence_options(args)
+            orchestrator = PlannerOrchestrator(
+                planner,
+                gate,
+                map_name=args.map,
+                world=world,
+                options=gate_options,
+                max_collision_p=max_p,
+            )
             executor = PlanExecutor(port, rover, config)
             if args.record:
                 recorder = McapRecorder(args.record)

@@ -19,7 +19,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from planner.geometry import Pose
+from firmware_proto.pose import Pose
 from planner.mapinfo import MapInfo
 from planner.orchestrator import MissionResult
 

@@ -28,12 +28,13 @@ from dataclasses import dataclass, field
 from bridge.rosport.contract import COMPLETED
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan, PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent
 from planner.errors import PlannerError
 from planner.executor import ExecutionResult, PlanExecutor, Progress
-from planner.geometry import Pose, wrap_deg
+from planner.geometry import wrap_deg
 from planner.orchestrator import MissionResult, PlannerOrchestrator
-from planner.verdict import Verdict
 
 __all__ = [
     "CANCELLED",

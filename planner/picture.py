@@ -18,7 +18,7 @@ from typing import Any
 
 from PIL import Image, ImageDraw
 
-from planner.geometry import Pose
+from firmware_proto.pose import Pose
 from planner.mapinfo import MapInfo
 from planner.mission import MissionReport
 

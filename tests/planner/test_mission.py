@@ -9,11 +9,11 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_proto.pose import Pose
 from firmware_proto.rover import load_rover
 from gate.server import GateServer
 from planner.executor import ExecutionResult
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.mission import MissionRunner
 from planner.orchestrator import PlannerOrchestrator

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from bridge.rosport.msgs import Bool, Odometry, String
-from planner.geometry import Pose
+from firmware_proto.pose import Pose
 from planner.mapinfo import MapInfo
 from planner.view import ClientQueue, ViewConfig, ViewHub, ViewServer
 from tests.planner.conftest import MAPS_DIR
