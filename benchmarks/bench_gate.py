@@ -1,12 +1,16 @@
 """Simulation gate: validation speed, collision checks, step-size accuracy, HTTP rates.
 
-Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S]``. Prints four tables:
+Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S] [--before DIR]``.
+``--before DIR`` also measures the gate of a source tree of commit b4a351e (the last with
+the hand-rolled HTTP server; ``git archive b4a351e | tar -x -C DIR``) in the same run,
+in tables 1, 4 and 5. Prints five tables:
 
 1. *12-step plan, 10 m of driving and four turns* on scn01 (through a traction region):
    wall time p50/p99 and the factor over real time, for the twin alone
    (:func:`emulator.playback.play`), the gate's whole validation in one process
    (playback, verdict, trajectory tagging, JSON) and end to end over HTTP (a ``rover
-   gate`` subprocess with worker processes), beside the thesis's 60 Hz, about real time.
+   gate`` subprocess with worker processes; before and after), beside the thesis's 60 Hz,
+   about real time.
 2. *Collision checks per physics step* on each scenario map, beside the thesis's
    12.4 / 18.6 / 24.1 ms per frame: the cost pymunk's contact detection adds to a twin
    step (the map minus an open plane, same motion), and an explicit overlap query of the
@@ -14,12 +18,14 @@ Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S]``. Prints four
    thesis's ``overlap_mesh`` did).
 3. *Step size against the 1 ms reference* over random 12-step plans: the largest final
    position and yaw difference, and the factor over real time.
-4. *Requests/s for a trivial plan* with 1 and 4 keep-alive clients: the gate as shipped
-   (one write per response, TCP_NODELAY), the same gate without either (the stdlib
-   server's two writes with Nagle: the ~40 ms stall), with each fix alone, with worker
-   threads, and a plain ``http.server`` handler measured in the same run.
-5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads,
-   with the CPU the gate used per wall second: why the gate runs playback in processes.
+4. *Requests/s and p50/p99 latency for a trivial plan* (the HTTP path's own cost) with
+   1 and 4 keep-alive clients: the gate before and after (processes and threads), the
+   HTTP stack alone with a trivial handler (Starlette on uvicorn, as the gate serves;
+   aiohttp, the other stack weighed, when it is installed) and a plain ``http.server``
+   handler (the ~40 ms Nagle stall), all up at once and measured in interleaved rounds.
+5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads
+   (and the server before), with the CPU the gate used per wall second: real plans'
+   throughput, and why the gate runs playback in processes.
 
 Timings are wall clock (``time.perf_counter``) on a shared VM; rates vary between runs.
 """
@@ -38,7 +44,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, ExitStack
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -95,7 +101,26 @@ def as_plan_json(
 # -- 1. the 12-step plan ----------------------------------------------------------------------
 
 
-def bench_plan(rover: RoverDescription, repeat: int) -> None:
+def _http_walls(served: Served, payload: bytes, repeat: int) -> tuple[float, list[float]]:
+    """Twin time and wall times of ``repeat`` POSTs of ``payload`` on one connection
+    (after two that warm each worker process)."""
+    conn = http.client.HTTPConnection(*served.address, timeout=60)
+    walls = []
+    for i in range(repeat + 2):
+        t0 = time.perf_counter()
+        conn.request(
+            "POST", "/validate_plan?map=scn01", payload, {"Content-Type": "application/json"}
+        )
+        response = conn.getresponse()
+        data = response.read()
+        if i >= 2:
+            walls.append(time.perf_counter() - t0)
+    conn.close()
+    assert response.status == 200, data[:200]
+    return json.loads(data)["sim_time_s"], walls
+
+
+def bench_plan(rover: RoverDescription, repeat: int, before: str | None = None) -> None:
     world = load_map("scn01")
     steps = square_plan(rover)
     body = as_plan_json(steps, (1.0, 4.0, 0.0))
@@ -126,22 +151,13 @@ def bench_plan(rover: RoverDescription, repeat: int) -> None:
     assert verdict is not None
     assert verdict.collision is None
     rows.append(("gate validation, in process", DEFAULT_DT_S, verdict.sim_time_s, walls))
+    payload = json.dumps(body).encode()
+    if before:
+        with before_gate(before) as served:
+            sim, walls = _http_walls(served, payload, repeat)
+        rows.append((f"over HTTP before ({BEFORE_COMMIT})", DEFAULT_DT_S, sim, walls))
     with gate_process({}) as served:
-        conn = http.client.HTTPConnection(*served.address, timeout=60)
-        payload = json.dumps(body).encode()
-        walls = []
-        for i in range(repeat + 2):
-            t0 = time.perf_counter()
-            conn.request(
-                "POST", "/validate_plan?map=scn01", payload, {"Content-Type": "application/json"}
-            )
-            response = conn.getresponse()
-            data = response.read()
-            if i >= 2:  # the first two warm each worker process
-                walls.append(time.perf_counter() - t0)
-        conn.close()
-        assert response.status == 200, data[:200]
-        sim = json.loads(data)["sim_time_s"]
+        sim, walls = _http_walls(served, payload, repeat)
     rows.append(("gate over HTTP, worker processes", DEFAULT_DT_S, sim, walls))
 
     header = (
@@ -344,6 +360,9 @@ def bench_step_size(rover: RoverDescription, count: int) -> None:
 
 # -- 4. HTTP rates -------------------------------------------------------------------------------
 
+BEFORE_COMMIT = "b4a351e"
+"""The last commit of the hand-rolled server (``--before`` takes a source tree of it)."""
+
 
 class _PlainHandler(BaseHTTPRequestHandler):
     """The stdlib way: send_response, headers, end_headers, then the body (two writes)."""
@@ -363,27 +382,81 @@ class _PlainHandler(BaseHTTPRequestHandler):
         pass
 
 
-def serve_plain() -> None:
-    """``--serve-plain``: a plain http.server on a free port (the peer of table 4)."""
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _PlainHandler)
-    print(f"GATE http://127.0.0.1:{server.server_address[1]}", flush=True)
-    try:
-        server.serve_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
+def serve_peer(kind: str) -> None:
+    """``--serve-peer KIND``: a trivial JSON handler on a free port, printing ``GATE
+    <url>``, until SIGTERM: ``plain`` (http.server), ``stack`` (the gate's stack:
+    Starlette on uvicorn through :class:`~firmware_proto.httpserve.HttpService`),
+    ``aiohttp`` (the other stack weighed)."""
+    import signal
+
+    body = _PlainHandler.body
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    if kind == "plain":
+        server = ThreadingHTTPServer(("127.0.0.1", 0), _PlainHandler)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        print(f"GATE http://127.0.0.1:{server.server_address[1]}", flush=True)
+        stop.wait()
+        server.shutdown()
         server.server_close()
+    elif kind == "stack":
+        from starlette.requests import Request
+        from starlette.responses import Response
+
+        from firmware_proto.httpserve import HttpService, ServeLimits
+        from gate.response import render_connection_error
+
+        async def app(scope: Any, receive: Any, send: Any) -> None:
+            await Request(scope, receive).body()
+            await Response(body, media_type="application/json")(scope, receive, send)
+
+        with HttpService(
+            app,
+            host="127.0.0.1",
+            port=0,
+            limits=ServeLimits(),
+            render_error=render_connection_error,
+            server_name="peer",
+            thread_name="peer-http",
+        ) as service:
+            print(f"GATE {service.url}", flush=True)
+            stop.wait()
+    elif kind == "aiohttp":
+        import asyncio
+
+        from aiohttp import web
+
+        async def handle(request: web.Request) -> web.Response:
+            await request.read()
+            return web.Response(body=body, content_type="application/json")
+
+        async def run() -> None:
+            application = web.Application()
+            application.router.add_post("/validate_plan", handle)
+            runner = web.AppRunner(application, access_log=None)
+            await runner.setup()
+            site = web.TCPSite(runner, "127.0.0.1", 0)
+            await site.start()
+            port = runner.addresses[0][1]
+            print(f"GATE http://127.0.0.1:{port}", flush=True)
+            while not stop.is_set():
+                await asyncio.sleep(0.1)
+            await runner.cleanup()
+
+        asyncio.run(run())
+    else:
+        raise SystemExit(f"unknown peer {kind!r}")
 
 
-def request_rate(
+def measure(
     address: tuple[str, int],
     clients: int,
     seconds: float,
     payload: bytes = TRIVIAL_PLAN,
     query: str = "",
-) -> tuple[float, float]:
-    """Requests/s and median latency (ms) of ``clients`` keep-alive clients posting
-    ``payload`` (default the trivial plan) for ``seconds``."""
+) -> tuple[float, list[float]]:
+    """``clients`` keep-alive clients posting ``payload`` (default the trivial plan) for
+    ``seconds``: the wall time elapsed and every request's latency, s."""
     latencies: list[float] = []
     lock = threading.Lock()
     start = threading.Barrier(clients + 1)
@@ -415,44 +488,109 @@ def request_rate(
     stop.set()
     for t in threads:
         t.join()
-    elapsed = time.perf_counter() - t0
-    return len(latencies) / elapsed, statistics.median(latencies) * 1e3
+    return time.perf_counter() - t0, latencies
 
 
-def bench_http(seconds: float) -> None:
-    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = [
-        ("gate, worker processes (as shipped)", lambda: gate_process({})),
-        ("gate, worker threads", lambda: gate_process({}, pool="thread")),
-        ("gate, one write only (Nagle on)", lambda: gate_process({"ROVER_GATE_TCP_NODELAY": "0"})),
-        (
-            "gate, TCP_NODELAY only (two writes)",
-            lambda: gate_process({"ROVER_GATE_SINGLE_WRITE": "0"}),
-        ),
-        (
-            "gate, neither (stdlib two writes)",
-            lambda: gate_process({"ROVER_GATE_SINGLE_WRITE": "0", "ROVER_GATE_TCP_NODELAY": "0"}),
-        ),
-        (
-            "plain http.server handler (peer)",
-            lambda: server_process(
-                [sys.executable, "-m", "benchmarks.bench_gate", "--serve-plain"], {}
-            ),
-        ),
-    ]
-    header = (
-        f"{'trivial plan, keep-alive':<38} {'1 client req/s':>15} {'p50 ms':>7} "
-        f"{'4 clients req/s':>16} {'p50 ms':>7}"
+def request_rate(
+    address: tuple[str, int],
+    clients: int,
+    seconds: float,
+    payload: bytes = TRIVIAL_PLAN,
+    query: str = "",
+) -> tuple[float, float, float]:
+    """Requests/s, median and 99th-percentile latency (ms) of :func:`measure`."""
+    elapsed, latencies = measure(address, clients, seconds, payload, query)
+    return (
+        len(latencies) / elapsed,
+        statistics.median(latencies) * 1e3,
+        percentile(latencies, 0.99) * 1e3,
     )
+
+
+def before_gate(tree: str, pool: str = "process") -> AbstractContextManager[Served]:
+    """The gate of the source tree ``tree`` (``--before``), as a subprocess: its packages
+    come first on ``sys.path`` (before this checkout and the editable install; worker
+    processes inherit the path)."""
+    code = (
+        f"import sys; sys.path.insert(0, {tree!r}); from gate.cli_gate import main; "
+        "import gate; assert gate.__file__.startswith(sys.path[0]), gate.__file__; "
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    argv = [sys.executable, "-c", code, "--port", "0", "--pool", pool, "--workers", "2"]
+    return server_process(argv, {})
+
+
+def _peer(kind: str) -> Callable[[], AbstractContextManager[Served]]:
+    return lambda: server_process(
+        [sys.executable, "-m", "benchmarks.bench_gate", "--serve-peer", kind], {}
+    )
+
+
+def bench_http(seconds: float, before: str | None, rounds: int = 4) -> None:
+    """Table 4. Every server runs at once and the windows are interleaved (``rounds``
+    rounds of ``seconds / rounds`` per server and client count), so that the load of a
+    shared machine falls on all of them alike."""
+    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
+    if before:
+        cases.append(
+            (f"gate before ({BEFORE_COMMIT}: stdlib, threads)", lambda: before_gate(before))
+        )
+    cases.append(("gate after (uvicorn + h11), processes", lambda: gate_process({})))
+    if before:
+        cases.append(
+            (
+                f"gate before ({BEFORE_COMMIT}), worker threads",
+                lambda: before_gate(before, "thread"),
+            )
+        )
+    cases += [
+        ("gate after, worker threads", lambda: gate_process({}, pool="thread")),
+        ("peer: the stack alone (Starlette/uvicorn)", _peer("stack")),
+    ]
+    try:
+        import aiohttp  # noqa: F401
+
+        cases.append(("peer: aiohttp alone", _peer("aiohttp")))
+    except ImportError:
+        print("(aiohttp is not installed: its row is left out; pip install aiohttp to add it)")
+    cases.append(("peer: plain http.server (Nagle stall)", _peer("plain")))
+    header = (
+        f"{'trivial plan, keep-alive':<42} {'1 client req/s':>15} {'p50 ms':>7} {'p99 ms':>7} "
+        f"{'4 clients req/s':>16} {'p50 ms':>7} {'p99 ms':>7}"
+    )
+    window = seconds / rounds
+    with ExitStack() as stack:
+        addresses = [stack.enter_context(start()).address for _, start in cases]
+        for address in addresses:
+            measure(address, 1, 0.3)  # warm-up
+        results: dict[tuple[int, int], tuple[float, list[float]]] = {
+            (i, n): (0.0, []) for i in range(len(cases)) for n in (1, 4)
+        }
+        for _ in range(rounds):
+            for i, address in enumerate(addresses):
+                for n in (1, 4):
+                    elapsed, latencies = measure(address, n, window)
+                    total, seen = results[i, n]
+                    results[i, n] = (total + elapsed, seen + latencies)
     print(header)
     print("-" * len(header))
-    for name, start in cases:
-        with start() as served:
-            address = served.address
-            request_rate(address, 1, 0.3)  # warm-up
-            one, one_ms = request_rate(address, 1, seconds)
-            four, four_ms = request_rate(address, 4, seconds)
-        print(f"{name:<38} {one:>15,.0f} {one_ms:>7.2f} {four:>16,.0f} {four_ms:>7.2f}")
-    print("clients are threads of this process on the same 2 cores; the servers are subprocesses.")
+    for i, (name, _) in enumerate(cases):
+        cells = []
+        for n in (1, 4):
+            elapsed, latencies = results[i, n]
+            cells.append(
+                (
+                    len(latencies) / elapsed,
+                    statistics.median(latencies) * 1e3,
+                    percentile(latencies, 0.99) * 1e3,
+                )
+            )
+        (r1, m1, q1), (r4, m4, q4) = cells
+        print(f"{name:<42} {r1:>15,.0f} {m1:>7.2f} {q1:>7.2f} {r4:>16,.0f} {m4:>7.2f} {q4:>7.2f}")
+    print(
+        f"all servers up at once, {rounds} interleaved rounds; clients are threads of this "
+        "process on the same 2 cores; the servers are subprocesses."
+    )
 
 
 def tree_cpu_s(pid: int) -> float:
@@ -472,31 +610,56 @@ def tree_cpu_s(pid: int) -> float:
     return total
 
 
-def bench_pools(rover: RoverDescription, seconds: float) -> None:
-    """Why worker processes: the 12-step plan from 1 and 4 clients, processes vs threads,
-    with the CPU the gate used (its process and its workers) per wall second."""
+def bench_pools(
+    rover: RoverDescription, seconds: float, before: str | None, rounds: int = 3
+) -> None:
+    """Table 5. Real plans: the 12-step plan from 1 and 4 clients, worker processes
+    against threads (and the hand-rolled server's, with ``--before``), with the CPU the
+    gate used (its process and its workers) per wall second. Interleaved as table 4."""
     payload = json.dumps(as_plan_json(square_plan(rover), (1.0, 4.0, 0.0))).encode()
+    query = "?map=scn01"
+    cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
+    if before:
+        cases.append((f"before ({BEFORE_COMMIT}), processes", lambda: before_gate(before)))
+    cases += [
+        ("worker processes (as shipped)", lambda: gate_process({})),
+        ("worker threads", lambda: gate_process({}, pool="thread")),
+    ]
     header = (
         f"{'12-step plan, keep-alive, 2 workers':<34} {'1 client req/s':>15} {'gate CPU':>9} "
-        f"{'4 clients req/s':>16} {'gate CPU':>9} {'p50 ms':>7}"
+        f"{'4 clients req/s':>16} {'gate CPU':>9} {'p50 ms':>7} {'p99 ms':>7}"
     )
+    window = seconds / rounds
+    with ExitStack() as stack:
+        served = [stack.enter_context(start()) for _, start in cases]
+        for server in served:
+            measure(server.address, 2, 0.5, payload, query)  # warm-up
+        totals: dict[tuple[int, int], tuple[float, float, list[float]]] = {
+            (i, n): (0.0, 0.0, []) for i in range(len(cases)) for n in (1, 4)
+        }
+        for _ in range(rounds):
+            for i, server in enumerate(served):
+                for n in (1, 4):
+                    cpu0 = tree_cpu_s(server.pid)
+                    elapsed, latencies = measure(server.address, n, window, payload, query)
+                    wall, cpu, seen = totals[i, n]
+                    totals[i, n] = (
+                        wall + elapsed,
+                        cpu + tree_cpu_s(server.pid) - cpu0,
+                        seen + latencies,
+                    )
     print(header)
     print("-" * len(header))
-    for name, pool in (("worker processes (as shipped)", "process"), ("worker threads", "thread")):
-        with gate_process({}, pool=pool) as served:
-            request_rate(served.address, 2, 0.5, payload, "?map=scn01")  # warm-up
-            cells = []
-            for clients in (1, 4):
-                cpu0, t0 = tree_cpu_s(served.pid), time.perf_counter()
-                rate, p50 = request_rate(served.address, clients, seconds, payload, "?map=scn01")
-                cpu = (tree_cpu_s(served.pid) - cpu0) / (time.perf_counter() - t0)
-                cells.append((rate, cpu, p50))
-        (one, one_cpu, _), (four, four_cpu, four_ms) = cells
+    for i, (name, _) in enumerate(cases):
+        (w1, c1, l1), (w4, c4, l4) = totals[i, 1], totals[i, 4]
         print(
-            f"{name:<34} {one:>15,.1f} {one_cpu:>8.0%} {four:>16,.1f} {four_cpu:>8.0%} "
-            f"{four_ms:>7.1f}"
+            f"{name:<34} {len(l1) / w1:>15,.1f} {c1 / w1:>8.0%} {len(l4) / w4:>16,.1f} "
+            f"{c4 / w4:>8.0%} {statistics.median(l4) * 1e3:>7.1f} {percentile(l4, 0.99) * 1e3:>7.1f}"
         )
-    print("gate CPU: CPU seconds of the gate and its workers per wall second (200% = both cores).")
+    print(
+        "gate CPU: CPU seconds of the gate and its workers per wall second (200% = both "
+        "cores); p50/p99: 4 clients."
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -504,10 +667,22 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeat", type=int, default=30, help="plan repetitions (default 30)")
     parser.add_argument("--seconds", type=float, default=2.0, help="per HTTP case and client count")
     parser.add_argument("--plans", type=int, default=8, help="random plans for the step-size table")
-    parser.add_argument("--serve-plain", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--before",
+        metavar="DIR",
+        help=f"a source tree of the hand-rolled server ({BEFORE_COMMIT}) to measure beside "
+        f"this one, e.g. from `git archive {BEFORE_COMMIT} | tar -x -C DIR`",
+    )
+    parser.add_argument("--http-only", action="store_true", help="only the HTTP tables (4, 5)")
+    parser.add_argument(
+        "--rounds", type=int, default=4, help="interleaved rounds of tables 4 and 5 (default 4)"
+    )
+    parser.add_argument(
+        "--serve-peer", choices=("plain", "stack", "aiohttp"), help=argparse.SUPPRESS
+    )
     args = parser.parse_args(argv)
-    if args.serve_plain:
-        serve_plain()
+    if args.serve_peer:
+        serve_peer(args.serve_peer)
         return
     rover = load_rover()
     print(
@@ -515,15 +690,17 @@ def main(argv: list[str] | None = None) -> None:
         f"{platform.machine()}, {os.cpu_count()} CPUs"
     )
     print()
-    bench_plan(rover, max(3, args.repeat))
+    if not args.http_only:
+        bench_plan(rover, max(3, args.repeat), args.before)
+        print()
+        bench_collision(rover)
+        print()
+        bench_step_size(rover, max(1, args.plans))
+        print()
+    rounds = max(1, args.rounds)
+    bench_http(args.seconds, args.before, rounds)
     print()
-    bench_collision(rover)
-    print()
-    bench_step_size(rover, max(1, args.plans))
-    print()
-    bench_http(args.seconds)
-    print()
-    bench_pools(rover, 2 * args.seconds)  # slow requests: a longer window
+    bench_pools(rover, 2 * args.seconds, args.before, rounds)  # slow requests: longer
 
 
 if __name__ == "__main__":

@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from firmware_proto.cli import values
+
 __all__ = ["can_spec", "register"]
 
 
@@ -68,8 +70,10 @@ def register(subparsers: Any) -> None:
         type=can_spec,
         help="python-can bus, e.g. socketcan:rovercan0 or virtual:rover",
     )
-    p.add_argument("--node", type=int, default=1, help="CAN node id of the controller (1)")
-    p.add_argument("--baud", type=int, help="serial baud rate (default 115200)")
+    p.add_argument(
+        "--node", type=values.can_node, default=1, help="CAN node id of the controller (1)"
+    )
+    p.add_argument("--baud", type=values.baud, help="serial baud rate (default 115200)")
     p.add_argument("--trials", type=int, default=30, help="STOPs to measure (default 30)")
     p.add_argument("--seed", type=int, default=0, help="seed of the STOP moments (default 0)")
     p.add_argument(

@@ -11,8 +11,13 @@ a malformed ROS argument is a usage error (exit status 2), never ignored. The no
 declares every parameter with its resolved value (read-only where it cannot change while
 running; ``ros2 param set`` changes the others, a bad value refused with the reason).
 
-SIGINT and SIGTERM end it cleanly: the node, the link and the ROS context are closed and
-the exit status is 0.
+At the default verbosity it says, on stdout, one line per event of its link that an
+operator must know (:mod:`bridge.linklines`): the device cannot be opened, no controller
+answers, wrong baud suspected, handshake done, link lost and back.
+
+SIGINT and SIGTERM (or ``--duration``) end it cleanly: the node, the link and the ROS
+context are closed; the exit status is 0 when it reached a controller, 3 when it never
+did (one line on stderr says so).
 """
 
 from __future__ import annotations
@@ -28,22 +33,35 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from firmware_proto.cli import values
+
 if TYPE_CHECKING:
     from bridge.params import BridgeParams
 
-__all__ = ["RosLayer", "add_arguments", "main", "register", "resolve_params", "ros_layer", "run"]
+__all__ = [
+    "EXIT_NEVER_REACHED",
+    "RosLayer",
+    "add_arguments",
+    "main",
+    "register",
+    "resolve_params",
+    "ros_layer",
+    "run",
+]
 
 NODE_NAME = "rover_bridge"
 """The node's name, unless the ROS arguments remap ``__node``."""
 
 _ROS_NODE_PARAMETERS = {"use_sim_time"}
 """Parameters every ROS node has (launch files set them for all nodes, ``/**``)."""
-#: How often the running bridge checks that its ROS port still works, s.
+#: How often the running bridge checks that its ROS port still works and looks at its link, s.
 _FAILURE_POLL_S = 0.5
+#: Exit status of a bridge stopped without ever having reached a controller.
+EXIT_NEVER_REACHED = 3
 
-_OPTIONS: list[tuple[str, str, type, str]] = [
-    ("--baud", "baud", int, "serial baud rate (default 115200; a pty ignores it)"),
-    ("--node", "node_id", int, "CAN node id of the controller, 1..15 (default 1)"),
+_OPTIONS: list[tuple[str, str, Any, str]] = [
+    ("--baud", "baud", values.baud, "serial baud rate (default 115200; a pty ignores it)"),
+    ("--node", "node_id", values.can_node, "CAN node id of the controller, 1..15 (default 1)"),
     ("--namespace", "namespace", str, "ROS namespace of the node and its relative topics"),
     ("--heartbeat-hz", "heartbeat_hz", float, "host heartbeat rate (default 10)"),
     ("--ack-timeout", "ack_timeout_s", float, "MOTION ack timeout, s (default 0.05)"),
@@ -140,7 +158,12 @@ def register(subparsers: Any) -> None:
             "controller over USB-serial or CAN, and publish /command_status, /odom, /odom_ground "
             "and /diagnostics. Parameters: command line (options, --param NAME=VALUE) > ROS "
             "parameters > ROVER_BRIDGE_* environment > --params-file > defaults "
-            "(docs/bridge.md). Prints 'BRIDGE <url> <backend>' when up."
+            "(docs/bridge.md). Prints 'BRIDGE <url> <backend>' when up, then one line per "
+            "link event: the device cannot be opened, no controller answers, wrong baud "
+            "suspected, handshake done, link lost and back. Exit status: 0 stopped (Ctrl-C, "
+            f"SIGTERM, --duration) after it had reached a controller, {EXIT_NEVER_REACHED} "
+            "stopped without ever reaching one, 2 usage (bad option, parameter, device URL), "
+            "1 device held by another process, ROS 2 missing or its node died."
         ),
         epilog=(
             "examples:\n"
@@ -246,7 +269,8 @@ def resolve_params(
 
 def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
-    0, or 2 for a bad parameter, a malformed device URL or a bad ROS argument (reported
+    0, or :data:`EXIT_NEVER_REACHED` when no controller was ever reached, 2 for a bad
+    parameter, a malformed device URL or a bad ROS argument (reported
     on stderr as ``prog: error:``), 1 when ROS 2 is not installed or the ROS 2 node's
     process died (``rclpy-process``: the bridge cannot work without it, so it exits and
     its supervisor restarts it).
@@ -255,6 +279,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     (:func:`firmware_proto.cli.rosargs.split_ros_args`).
     """
     from bridge.errors import DeviceBusyError
+    from bridge.linklines import LinkNarrator
     from bridge.node import BridgeNode
     from bridge.rosport import BackendUnavailableError, open_port
     from bridge.serial_transport import refuse_if_in_use
@@ -299,14 +324,32 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return 1
         end = time.monotonic() + args.duration if args.duration > 0 else math.inf
-        with port, BridgeNode(params, port):
+        if getattr(args, "verbose", 1) == 0:
+            # The link's own warnings (each loss, each retry) are said once, in words, by
+            # the narrator below; -v brings them back.
+            logging.getLogger("bridge.link").setLevel(logging.ERROR)
+        narrator = LinkNarrator(
+            params.url if params.can_interface else (args.device or params.device),
+            None if params.can_interface else params.baud,
+        )
+        with port, BridgeNode(params, port) as node:
             print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
             while not done.wait(min(_FAILURE_POLL_S, max(0.0, end - time.monotonic()))):
+                for line in narrator.update(node.diagnostics(), time.monotonic()):
+                    print(f"bridge: {line}", flush=True)
                 if port.failure is not None:
                     print(f"{prog}: error: the ROS 2 node failed: {port.failure}", file=sys.stderr)
                     return 1
                 if time.monotonic() >= end:
                     break
+            for line in narrator.update(node.diagnostics(), time.monotonic()):
+                print(f"bridge: {line}", flush=True)
+    if not narrator.reached:
+        print(
+            f"{prog}: error: stopped without ever reaching a controller at {narrator.device}",
+            file=sys.stderr,
+        )
+        return EXIT_NEVER_REACHED
     return 0
 
 

@@ -7,8 +7,9 @@ import sys
 from typing import Any
 
 from bridge.cli_bench import can_spec
+from firmware_proto.cli import values
 
-__all__ = ["main", "register"]
+__all__ = ["PACE_WINDOW_S", "PROBE_S", "main", "probe", "register"]
 
 _DESCRIPTION = (
     "The protocol conformance suite (docs/protocol.md, 'Conformance suite'). A wire-level "
@@ -18,9 +19,74 @@ _DESCRIPTION = (
     "something a host cannot cause (a reboot, a fault) run only with --control HOST:PORT "
     "(the emulator's control port, or a lab's own); otherwise they are reported 'not run', "
     "never passed. Exit status: 0 when every selected rule passed, 1 when any failed, 3 "
-    "when none failed but some were not run, 2 on a usage error or an unreachable device. "
+    "when none failed but some were not run, 2 on a usage error or when no controller "
+    "answers (one line: nothing arrives, or only bytes that are no frames: wrong baud "
+    "suspected). A controller whose heartbeats arrive far slower than it sends them (a "
+    "link slower than its telemetry) is named before the table: its rules time out. "
     "THE ROVER MOVES (a few centimetres per rule): put it on blocks."
 )
+
+
+PROBE_S = 2.0
+"""How long to listen for any frame before the suite, s (scaled by --timeout-scale)."""
+PACE_WINDOW_S = 1.0
+"""How long the controller's heartbeats are counted before the suite, s (scaled)."""
+
+
+def probe(host: Any, url: str) -> tuple[str | None, str | None]:
+    """Listen to the controller before playing any rule: nothing is sent until a frame
+    has come (a host must not talk to a device it has not heard). Then HELLO opens a
+    session, as every rule's preparation does, so that the controller's telemetry flows
+    (protocol v3: no sensor samples before a session), and its heartbeats are counted.
+
+    Args:
+        host: the open :class:`~bridge.conformance.WireHost`.
+        url: the device, for the message.
+
+    Returns:
+        ``(error, warning)``: the one line to exit 2 with when no frame arrives within
+        :data:`PROBE_S` (nothing at all, or bytes that are no frames); a line to print
+        before the table when its heartbeats arrive at under half their rate.
+    """
+    from firmware_proto.message import Message
+    from firmware_proto.messages import (
+        CONTROLLER_HEARTBEAT_PERIOD_MS,
+        PROTOCOL_VERSION,
+        SCHEMA_HASH,
+        Heartbeat,
+        Hello,
+    )
+
+    mark = host.mark()
+    if host.find(Message, since=mark, timeout_s=PROBE_S) is None:
+        counts = host.endpoint.counters.as_dict()
+        waited = PROBE_S * host.timeout_scale
+        garbage = {k: v for k, v in counts.items() if v and k not in ("frames", "bytes", "lost")}
+        if counts.get("bytes", 0) and garbage:
+            return (
+                f"no controller answers at {url}: {counts['bytes']} bytes in {waited:g} s "
+                f"but no frame ({', '.join(f'{k} {v}' for k, v in sorted(garbage.items()))}): "
+                "wrong baud suspected",
+                None,
+            )
+        return (
+            f"no controller answers at {url}: nothing arrived in {waited:g} s (is it powered, "
+            "is this its device, its baud, its node?)",
+            None,
+        )
+    window = PACE_WINDOW_S * host.timeout_scale
+    host.send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+    mark = host.mark()
+    host.settle(PACE_WINDOW_S)
+    beats = sum(1 for m in host.received(mark) if isinstance(m, Heartbeat))
+    expected = window / (CONTROLLER_HEARTBEAT_PERIOD_MS / 1000.0)
+    if beats < expected / 2:
+        return None, (
+            f"warning: the controller's heartbeats arrive {beats} in {window:g} s instead of "
+            f"about {expected:.0f}: the link is slower than its telemetry (wrong baud "
+            "suspected); its rules will time out"
+        )
+    return None, None
 
 
 def _positive(text: str) -> float:
@@ -42,7 +108,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--can", type=can_spec, metavar="IFACE:CH", help="python-can bus (socketcan:can0)"
     )
-    p.add_argument("--node", type=int, default=1, help="with --can: controller node 1..15")
+    p.add_argument(
+        "--node", type=values.can_node, default=1, help="with --can: controller node 1..15"
+    )
     p.add_argument(
         "--control", metavar="HOST:PORT", help="the device's control port (reboot, faults)"
     )
@@ -123,11 +191,6 @@ def run(args: argparse.Namespace) -> int:
     if args.device:
         url = args.device
     elif args.can:
-        if not 1 <= args.node <= 15:
-            print(
-                f"rover conformance: error: --node must be 1..15, got {args.node}", file=sys.stderr
-            )
-            return 2
         url = f"can://{args.can[0]}/{args.can[1]}?node={args.node}"
     else:
         print("rover conformance: error: give --device URL or --can IFACE:CH", file=sys.stderr)
@@ -144,6 +207,12 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise OSError(f"cannot open {url}: {exc}") from exc
         with host:
+            error, warning = probe(host, url)
+            if error is not None:
+                print(f"rover conformance: error: {error}", file=sys.stderr)
+                return 2
+            if warning is not None:
+                print(f"rover conformance: {warning}", file=sys.stderr, flush=True)
             results = run_suite(Context(host, control, rover), rules)
     except (BridgeError, OSError, DescriptionError) as exc:
         print(f"rover conformance: error: {exc}", file=sys.stderr)

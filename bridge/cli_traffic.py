@@ -7,6 +7,8 @@ import json
 from collections import Counter
 from typing import Any
 
+from firmware_proto.cli import values
+
 __all__ = ["register_decode"]
 
 
@@ -48,7 +50,7 @@ def register_decode(subparsers: Any) -> None:
         action="store_true",
         help="leave out periodic telemetry (HEARTBEAT, ENCODERS, WHEEL_SPEEDS, IMU, ...)",
     )
-    p.add_argument("--node", type=int, help="CAN: only frames of this node")
+    p.add_argument("--node", type=values.can_node, help="CAN: only frames of this node")
     p.add_argument("--raw", action="store_true", help="also print each frame's bytes")
     p.add_argument("--json", action="store_true", help="one JSON object per frame")
     p.set_defaults(func=_run)

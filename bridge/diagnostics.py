@@ -16,7 +16,9 @@
   the latch; WARN while latched by a STOP or the watchdog, or on a reporting fault.
 - ``rover_bridge: input``: steps refused, ``rejected_total`` and one
   ``rejected_<reason>`` per reason seen (the node's checks of ``wheel_instructions`` and
-  the link's and controller's refusals), counts since start. Always OK: a refusal is
+  the link's and controller's refusals), counts since start; ``last_statuses``: the
+  last :data:`RECENT_STATUSES` ``/command_status`` strings, oldest first, comma-separated
+  (what ``rover status`` shows a reader who was not listening). Always OK: a refusal is
   the answer to bad input, not a fault of the bridge.
 
 Pure: builds messages, publishes nothing.
@@ -24,18 +26,20 @@ Pure: builds messages, publishes nothing.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 from bridge.link import LinkDiagnostics
 from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time
 from firmware_proto.faults import STOPPING_FAULTS
 from firmware_proto.messages import FaultCode
 
-__all__ = ["ERROR", "OK", "WARN", "diagnostic_array"]
+__all__ = ["ERROR", "OK", "RECENT_STATUSES", "WARN", "diagnostic_array"]
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 """The ROS levels (a ROS ``byte``: one-byte ``bytes`` in rclpy)."""
 _STOPPING = {FaultCode(code).name for code in STOPPING_FAULTS}
+RECENT_STATUSES = 8
+"""How many of the last ``/command_status`` strings the input status carries."""
 
 
 def _fmt(value: object) -> str:
@@ -57,6 +61,7 @@ def diagnostic_array(
     stamp: Time,
     hardware_id: str = "rover-motor",
     rejected: Mapping[str, int] | None = None,
+    statuses: Sequence[str] = (),
 ) -> DiagnosticArray:
     """The DiagnosticArray for one snapshot.
 
@@ -66,6 +71,8 @@ def diagnostic_array(
         hardware_id: what the statuses name as their hardware.
         rejected: steps refused by reason, beside those the link counted
             (``diag.rejected``); counts of the same reason add up.
+        statuses: the last ``/command_status`` strings published, oldest first (the
+            last :data:`RECENT_STATUSES` of them are reported).
     """
     if diag.state in ("disconnected", "lost", "mismatch"):
         link_level, link_msg = (
@@ -179,7 +186,8 @@ def diagnostic_array(
         message=f"{total} step(s) rejected" if total else "no step rejected",
         hardware_id=hardware_id,
         values=[KeyValue(key="rejected_total", value=str(total))]
-        + [KeyValue(key=f"rejected_{r}", value=str(n)) for r, n in sorted(counts.items())],
+        + [KeyValue(key=f"rejected_{r}", value=str(n)) for r, n in sorted(counts.items())]
+        + [KeyValue(key="last_statuses", value=",".join(list(statuses)[-RECENT_STATUSES:]))],
     )
     return DiagnosticArray(
         header=Header(stamp=stamp, frame_id=""), status=(link, controller, inputs)

@@ -402,6 +402,10 @@ class ControllerLink:
         self._hb_tx_gaps = GapStats(config.heartbeat_s)
         self._watchdog_counted = False
         """The watchdog latch episode now in force was counted in ``watchdog_trips``."""
+        self._clear_in_write = False
+        """The writer thread is writing a CLEAR_STOP now."""
+        self._stop_after_clear: Stop | None = None
+        """An emergency stop came while it was: this STOP goes out again after it."""
         self._lost_mark = 0
         """The transport's lost-frame count at the last frame of the current boot."""
         self._lost_forgiven = 0
@@ -525,6 +529,11 @@ class ControllerLink:
             self._estop_source = source
             self._pending_clear = None
             self._clear_wanted = False
+            # A CLEAR_STOP queued before this STOP must never follow it onto the wire;
+            # one being written now is answered by this STOP once more, after it.
+            self._unqueue(ClearStop)
+            if self._clear_in_write:
+                self._stop_after_clear = Stop(stop_id, source)
             transport = (
                 self._transport
                 if self._state
@@ -625,7 +634,11 @@ class ControllerLink:
                     transport, msg, step = self._tx.popleft()
                     if transport is not self._transport:
                         continue
+                    clearing = isinstance(msg, ClearStop)
+                    self._clear_in_write = clearing
                 sent = self._send(transport, msg)
+                if clearing:
+                    self._after_clear_written(transport)
                 if sent and isinstance(msg, HostHeartbeat):
                     with self._lock:
                         self._hb_tx_gaps.event(time.monotonic())
@@ -638,13 +651,29 @@ class ControllerLink:
                             if step.sends == 1:
                                 step.first_sent = step.last_sent
 
+    def _after_clear_written(self, transport: Transport) -> None:
+        """A CLEAR_STOP is out. If an emergency stop was asked for while it was being
+        written, its STOP may have gone out first (STOP waits for no other write): send
+        it again, so the last word the controller hears is STOP (docs/protocol.md, "Latch
+        and faults": no CLEAR_STOP may reach the wire after a later STOP)."""
+        with self._lock:
+            self._clear_in_write = False
+            again, self._stop_after_clear = self._stop_after_clear, None
+        if again is not None:
+            self._send(transport, again)
+
+    def _unqueue(self, kind: type[Message]) -> None:
+        """Take every frame of ``kind`` not yet written out of the writer's queue (lock
+        held)."""
+        if any(isinstance(msg, kind) for _, msg, _ in self._tx):
+            kept = [entry for entry in self._tx if not isinstance(entry[1], kind)]
+            self._tx.clear()
+            self._tx.extend(kept)
+
     def _unqueue_motions(self) -> None:
         """Take every MOTION not yet written out of the writer's queue (lock held): its
         step is being dropped, and a dropped step must never reach the controller."""
-        if any(step is not None for _, _, step in self._tx):
-            kept = [entry for entry in self._tx if entry[2] is None]
-            self._tx.clear()
-            self._tx.extend(kept)
+        self._unqueue(Motion)
 
     def _queue(self, msg: Message, step: _Step | None = None) -> None:
         """Queue a frame for the writer thread (lock held), with the step a MOTION
@@ -752,6 +781,8 @@ class ControllerLink:
         ):
             if stop.sends:
                 self._counters.stop_repeats += 1
+            else:
+                stop.first_sent = now  # requested while down: its latency runs from here
             stop.sends += 1
             stop.last_sent = now
             stops.append(Stop(stop.stop_id, self._estop_source))

@@ -40,13 +40,13 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import replace
 from types import TracebackType
 from typing import Any
 
-from bridge.diagnostics import diagnostic_array
+from bridge.diagnostics import RECENT_STATUSES, diagnostic_array
 from bridge.errors import ParameterError
 from bridge.link import ControllerLink, LinkDiagnostics, LinkState, StepRequest
 from bridge.odometry import OdometryEstimator, ground_pose
@@ -149,6 +149,8 @@ class BridgeNode:
         """``wheel_instructions`` refused by this node's checks, by reason (the link
         counts its own refusals); read it through :meth:`rejected_counts`."""
         self._rejected_lock = threading.Lock()
+        self._recent: deque[str] = deque(maxlen=RECENT_STATUSES)
+        """The last ``command_status`` strings, for ``/diagnostics`` (append is atomic)."""
         self.odometry = OdometryEstimator(self.rover)
         self._status_pub = port.publisher(params.topic_command_status, String, qos.STATUS)
         self._odom_pub = port.publisher(params.topic_odom, Odometry, qos.TELEMETRY)
@@ -272,6 +274,7 @@ class BridgeNode:
 
     # -- outputs -------------------------------------------------------------------------------
     def _publish_status(self, text: str) -> None:
+        self._recent.append(text)
         self._status_pub.publish(String(data=text))
 
     def _on_telemetry(self, msg: Message, arrived: float) -> None:
@@ -345,7 +348,12 @@ class BridgeNode:
     def _publish_diagnostics(self) -> None:
         try:
             self._diag_pub.publish(
-                diagnostic_array(self.link.diagnostics(), stamp(), rejected=self.rejected_counts())
+                diagnostic_array(
+                    self.link.diagnostics(),
+                    stamp(),
+                    rejected=self.rejected_counts(),
+                    statuses=tuple(self._recent),
+                )
             )
         except Exception:
             logger.exception("publishing diagnostics failed")

@@ -42,7 +42,7 @@ from emulator.twin import (
     Pose2D,
     Twin,
 )
-from emulator.worldmap import MapGoal, MapPose, WorldMap, list_maps, load_map
+from emulator.worldmap import MapGoal, WorldMap, list_maps, load_map
 
 __all__ = [
     "GATE_DT_S",
@@ -57,7 +57,6 @@ __all__ = [
     "InjectionError",
     "MapError",
     "MapGoal",
-    "MapPose",
     "PlaybackResult",
     "Pose2D",
     "Stall",

@@ -16,7 +16,9 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli import values
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 
 if TYPE_CHECKING:
@@ -82,9 +84,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--link", metavar="PATH", help="with --serial: stable symlink to the pty device")
     p.add_argument(
-        "--baud", type=int, help="with --serial: pace frames to the host at this bit rate"
+        "--baud", type=values.baud, help="with --serial: pace frames to the host at this bit rate"
     )
-    p.add_argument("--node", type=int, default=1, help="with --can: node id 1..15 (default 1)")
+    p.add_argument(
+        "--node", type=values.can_node, default=1, help="with --can: node id 1..15 (default 1)"
+    )
     p.add_argument("--map", default="lab", help="map name or JSON file (default: lab)")
     p.add_argument("--rover", metavar="TOML", help="rover description (default: the packaged one)")
     p.add_argument(
@@ -140,7 +144,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--control-port",
-        type=int,
+        type=values.tcp_port,
         metavar="PORT",
         help="serve the control interface on 127.0.0.1:PORT (0 picks one)",
     )

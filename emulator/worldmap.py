@@ -29,6 +29,7 @@ from typing import Any
 from jsonschema import Draft202012Validator
 
 from emulator.errors import MapError
+from firmware_proto.pose import Pose
 from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
@@ -38,7 +39,6 @@ __all__ = [
     "CircleObstacle",
     "Clearance",
     "MapGoal",
-    "MapPose",
     "Obstacle",
     "PolygonObstacle",
     "SegmentObstacle",
@@ -132,15 +132,6 @@ class TractionRegion:
 
 
 @dataclass(frozen=True)
-class MapPose:
-    """A pose in the map: metres, yaw in degrees counter-clockwise from +x."""
-
-    x: float
-    y: float
-    yaw_deg: float
-
-
-@dataclass(frozen=True)
 class MapGoal:
     """A suggested goal: a name, a pose (metres, degrees) and a note for people."""
 
@@ -172,7 +163,7 @@ class WorldMap:
     bounds: Bounds
     obstacles: tuple[Obstacle, ...]
     traction_regions: tuple[TractionRegion, ...]
-    start: MapPose
+    start: Pose
     goals: tuple[MapGoal, ...] = ()
 
     @classmethod
@@ -431,7 +422,7 @@ def _build(obj: dict[str, Any]) -> WorldMap:
             TractionRegion(r["id"], tuple(pt(p) for p in r["polygon"]), float(r["mu_scale"]))
             for r in obj["traction_regions"]
         ),
-        start=MapPose(float(s["x"]), float(s["y"]), float(s["yaw_deg"])),
+        start=Pose(float(s["x"]), float(s["y"]), float(s["yaw_deg"])),
         goals=tuple(
             MapGoal(g["name"], float(g["x"]), float(g["y"]), float(g["yaw_deg"]), g.get("note", ""))
             for g in obj.get("goals", [])

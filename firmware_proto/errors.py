@@ -8,6 +8,12 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
      +-- DescriptionError   the rover description file is missing or invalid; also ValueError
      +-- PlanError          a command plan fails its JSON schema; also ValueError
+     +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
+                            pointers; firmware_proto.verdict); also ValueError
+     +-- BindPolicyError    an HTTP server may not listen there without a token, or the
+                            token is malformed (firmware_proto.bindpolicy); also ValueError
+     +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
+                            also ValueError and argparse.ArgumentTypeError
 
 Stream decoders never raise on bad input: they count it (see ``framing.FrameDecoder``).
 """
@@ -15,12 +21,14 @@ Stream decoders never raise on bad input: they count it (see ``framing.FrameDeco
 from __future__ import annotations
 
 __all__ = [
+    "BindPolicyError",
     "DecodeError",
     "DescriptionError",
     "EncodeError",
     "PlanError",
     "ProtoError",
     "SpecError",
+    "VerdictError",
 ]
 
 
@@ -65,3 +73,20 @@ class PlanError(ProtoError, ValueError):
         self.violations = violations
         text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in violations)
         super().__init__(f"plan fails schema: {text}")
+
+
+class VerdictError(ProtoError, ValueError):
+    """A document is not the gate's verdict JSON (:mod:`firmware_proto.verdict`).
+
+    Attributes:
+        pointers: the JSON pointers where the document departs from the shape.
+    """
+
+    def __init__(self, message: str, pointers: tuple[str, ...] = ()) -> None:
+        self.pointers = pointers
+        super().__init__(message)
+
+
+class BindPolicyError(ProtoError, ValueError):
+    """An HTTP server of ours may not listen on that address without a token, or its
+    token is malformed (:mod:`firmware_proto.bindpolicy`)."""

@@ -11,7 +11,6 @@ override them in its query string; docs/gate.md explains each choice.
 
 from __future__ import annotations
 
-import ipaddress
 import math
 import os
 import sys
@@ -20,6 +19,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from firmware_proto.bindpolicy import check_bind
+from firmware_proto.errors import BindPolicyError
+from firmware_proto.httpserve.limits import (
+    DEFAULT_BODY_TIMEOUT_S,
+    DEFAULT_HEAD_TIMEOUT_S,
+    DEFAULT_IDLE_TIMEOUT_S,
+    DEFAULT_MAX_CONNECTIONS,
+)
 from gate.errors import ConfigError
 
 if sys.version_info >= (3, 11):
@@ -28,8 +35,10 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 __all__ = [
+    "DEFAULT_BODY_TIMEOUT_S",
     "DEFAULT_DRAIN_TIMEOUT_S",
     "DEFAULT_DT_S",
+    "DEFAULT_HEAD_TIMEOUT_S",
     "DEFAULT_HOST",
     "DEFAULT_IDLE_TIMEOUT_S",
     "DEFAULT_MAP",
@@ -45,11 +54,11 @@ __all__ = [
     "DEFAULT_YAW_TOLERANCE_DEG",
     "ENV_PREFIX",
     "KEYS",
+    "MAX_TRAJECTORY_SAMPLES",
     "POOL_KINDS",
     "GateConfig",
     "PlaybackSettings",
     "default_workers",
-    "is_loopback",
     "load_config",
 ]
 
@@ -62,10 +71,6 @@ DEFAULT_QUEUE_DEPTH = 16
 """Validations admitted beyond the running ones; more get 503 with Retry-After."""
 DEFAULT_MAX_BODY_BYTES = 64 * 1024
 """A maximal Listing 1 plan is under 1 KiB; 64 KiB leaves room for any formatting."""
-DEFAULT_MAX_CONNECTIONS = 64
-"""Open connections (each holds a thread); the next one gets 503 and is closed."""
-DEFAULT_IDLE_TIMEOUT_S = 15.0
-"""A keep-alive connection idle (or a client silent mid-request) this long is closed."""
 DEFAULT_REQUEST_TIMEOUT_S = 60.0
 """Longest wait for a worker's answer; the slowest valid plan takes about 10 s here."""
 DEFAULT_DRAIN_TIMEOUT_S = 30.0
@@ -84,6 +89,11 @@ DEFAULT_POSITION_TOLERANCE_M = 0.10
 """Largest accepted distance between the predicted final position and the goal."""
 DEFAULT_YAW_TOLERANCE_DEG = 3.0
 """Largest accepted final yaw error."""
+MAX_TRAJECTORY_SAMPLES = 10_000
+"""Most fixed-rate samples in a verdict's predicted trajectory: a slower rate is used when
+the plan's longest possible playback at the requested one would give more, so that a
+response stays under about 1 MB whatever the plan (docs/gate.md, "The predicted
+trajectory"). A constant, not a setting: verdicts stay the same bytes everywhere."""
 
 ENV_PREFIX = "ROVER_GATE_"
 
@@ -93,20 +103,6 @@ _MAX_DT_S = 0.02  # emulator.twin.MAX_DT_S (not imported: this module stays ligh
 def default_workers() -> int:
     """One worker per CPU core (the playback is CPU-bound)."""
     return max(1, os.cpu_count() or 1)
-
-
-def is_loopback(host: str) -> bool:
-    """Whether ``host`` is a loopback address (``127.0.0.0/8``, ``::1``, ``localhost``).
-
-    Host names other than ``localhost`` count as not loopback (they could resolve to
-    anything).
-    """
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def _check_range(name: str, value: float, low: float, high: float, *, open_low: bool) -> None:
@@ -158,14 +154,17 @@ class GateConfig:
             GIL serialises playback, but there is no start-up cost).
         queue_depth: validations admitted to wait beyond the running ones.
         max_body_bytes: largest accepted request body.
-        max_connections: open connections served at once.
-        idle_timeout_s: idle keep-alive connections are closed after this long.
+        max_connections: open connections at once; the next is answered 503.
+        idle_timeout_s: a connection waiting this long for a request to start (a new
+            one or a kept-alive one) is closed.
+        head_timeout_s: from a request's first byte to the end of its headers; a slower
+            client (slowloris) is answered 408 and closed.
+        body_timeout_s: from the end of the headers to the end of the body (408).
         request_timeout_s: longest wait for a worker's answer.
         drain_timeout_s: on shutdown, longest wait for in-flight requests.
         playback: defaults of the playback and verdict.
-        tcp_nodelay, single_write: disable Nagle on accepted sockets, and send each
-            response in one write. Both default on; turning them off reproduces the
-            stdlib server's keep-alive stall (for the benchmark).
+        cluster: address of a Dask scheduler (``tcp://host:port``) that plays the
+            chunks of verdicts with uncertainty; ``None``: the local pool does.
 
     Raises:
         ConfigError: a value is out of range, or a non-loopback host has no token.
@@ -182,22 +181,20 @@ class GateConfig:
     max_body_bytes: int = DEFAULT_MAX_BODY_BYTES
     max_connections: int = DEFAULT_MAX_CONNECTIONS
     idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S
+    head_timeout_s: float = DEFAULT_HEAD_TIMEOUT_S
+    body_timeout_s: float = DEFAULT_BODY_TIMEOUT_S
     request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
     drain_timeout_s: float = DEFAULT_DRAIN_TIMEOUT_S
     playback: PlaybackSettings = field(default_factory=PlaybackSettings)
-    tcp_nodelay: bool = True
-    single_write: bool = True
+    cluster: str | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ConfigError(f"port must be in 0..65535, got {self.port}")
-        if self.token is not None and (not self.token or not self.token.isprintable()):
-            raise ConfigError("token must be a non-empty printable string")
-        if self.token is None and not is_loopback(self.host):
-            raise ConfigError(
-                f"refusing to listen on {self.host!r} without a token: "
-                "give --token (or ROVER_GATE_TOKEN), or bind a loopback address"
-            )
+        try:
+            check_bind(self.host, self.token, hint="--token (or ROVER_GATE_TOKEN)")
+        except BindPolicyError as exc:
+            raise ConfigError(str(exc)) from exc
         if self.pool not in POOL_KINDS:
             raise ConfigError(f"pool must be one of {', '.join(POOL_KINDS)}, got {self.pool!r}")
         for name, value, low in (
@@ -210,6 +207,8 @@ class GateConfig:
                 raise ConfigError(f"{name} must be >= {low}, got {value}")
         for name, seconds in (
             ("idle_timeout_s", self.idle_timeout_s),
+            ("head_timeout_s", self.head_timeout_s),
+            ("body_timeout_s", self.body_timeout_s),
             ("request_timeout_s", self.request_timeout_s),
             ("drain_timeout_s", self.drain_timeout_s),
         ):
@@ -219,15 +218,6 @@ class GateConfig:
     def capacity(self) -> int:
         """Validations admitted at once: ``workers + queue_depth``."""
         return self.workers + self.queue_depth
-
-
-def _parse_bool(text: str) -> bool:
-    lowered = text.strip().lower()
-    if lowered in ("1", "true", "yes", "on"):
-        return True
-    if lowered in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(f"not a boolean: {text!r}")
 
 
 _PLAYBACK_KEYS = (
@@ -250,6 +240,8 @@ KEYS: dict[str, Callable[[str], Any]] = {
     "max_body_bytes": int,
     "max_connections": int,
     "idle_timeout_s": float,
+    "head_timeout_s": float,
+    "body_timeout_s": float,
     "request_timeout_s": float,
     "drain_timeout_s": float,
     "dt_s": float,
@@ -257,8 +249,7 @@ KEYS: dict[str, Callable[[str], Any]] = {
     "safety_margin_m": float,
     "position_tolerance_m": float,
     "yaw_tolerance_deg": float,
-    "tcp_nodelay": _parse_bool,
-    "single_write": _parse_bool,
+    "cluster": str,
 }
 """Every settable key and how its text form (environment) is parsed."""
 
@@ -283,8 +274,6 @@ def _from_file(path: Path) -> dict[str, Any]:
             ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         elif parse is int:
             ok = isinstance(value, int) and not isinstance(value, bool)
-        elif parse is _parse_bool:
-            ok = isinstance(value, bool)
         else:
             ok = isinstance(value, str)
         if not ok:

@@ -11,10 +11,14 @@ Everything this package raises on purpose derives from :class:`GateError`::
           |                     machine-readable ``code`` and extra response headers
           +-- BadRequestError        400: not JSON, bad option, malformed framing
           |    +-- PlanSchemaError   400: the plan fails Listing 1; ``violations`` lists
-          |                          ``(json_pointer, message)`` pairs
+          |         |                ``(json_pointer, message)`` pairs
+          |         +-- GoalRangeError  400: a goal coordinate beyond what the twin can
+          |                             measure (code ``goal_out_of_range``)
           +-- UnauthorizedError      401: missing or wrong bearer token
           +-- NotFoundError          404: unknown path or map
           +-- MethodNotAllowedError  405: ``allow`` lists the methods the path takes
+          +-- RequestTimeoutError    408: the body did not arrive whole in time
+          +-- MethodNotImplementedError  501: a method the gate does not know
           +-- LengthRequiredError    411: a body without Content-Length or chunked framing
           +-- PayloadTooLargeError   413: the body exceeds the documented limit
           +-- UnsupportedMediaError  415: the body is not ``application/json``
@@ -33,14 +37,17 @@ __all__ = [
     "BadRequestError",
     "ConfigError",
     "GateError",
+    "GoalRangeError",
     "HttpError",
     "LengthRequiredError",
     "MethodNotAllowedError",
+    "MethodNotImplementedError",
     "NotFoundError",
     "OptionError",
     "OverloadedError",
     "PayloadTooLargeError",
     "PlanSchemaError",
+    "RequestTimeoutError",
     "UnauthorizedError",
     "UnsupportedMediaError",
 ]
@@ -130,6 +137,19 @@ class PlanSchemaError(BadRequestError):
         super().__init__(f"plan fails the schema: {text}")
 
 
+class GoalRangeError(PlanSchemaError):
+    """400: the plan's goal lies beyond what the twin's arithmetic can measure (the
+    schema allows any finite number); ``violations`` names the coordinates."""
+
+    default_code = "goal_out_of_range"
+
+    def __init__(self, violations: list[tuple[str, str]]) -> None:
+        super().__init__(violations)
+        text = "; ".join(f"{ptr}: {msg}" for ptr, msg in self.violations)
+        self.message = f"goal out of range: {text}"
+        self.args = (self.message,)
+
+
 class UnauthorizedError(HttpError):
     """401: the bearer token is missing or wrong."""
 
@@ -159,6 +179,13 @@ class MethodNotAllowedError(HttpError):
         super().__init__(message, headers={"Allow": ", ".join(self.allow)})
 
 
+class RequestTimeoutError(HttpError):
+    """408: the request's body did not arrive whole within the body timeout."""
+
+    status = 408
+    default_code = "request_timeout"
+
+
 class LengthRequiredError(HttpError):
     """411: a request body without Content-Length and without chunked framing."""
 
@@ -178,6 +205,13 @@ class UnsupportedMediaError(HttpError):
 
     status = 415
     default_code = "unsupported_media_type"
+
+
+class MethodNotImplementedError(HttpError):
+    """501: a request method the gate does not know (``BREW``, ``TRACE``...)."""
+
+    status = 501
+    default_code = "not_implemented"
 
 
 class OverloadedError(HttpError):

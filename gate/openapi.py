@@ -19,10 +19,16 @@ from typing import Any
 
 from emulator.worldmap import map_schema
 from firmware_proto.plan import MAX_PLAN_STEPS, plan_schema
-from gate.config import GateConfig
-from gate.options import OPTION_LIMITS, QUERY_PARAMETERS
+from firmware_proto.verdict import FAILURE_TYPES
+from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig
+from gate.options import (
+    DEFAULT_SAMPLES,
+    DEFAULT_SEED,
+    DEFAULT_SLIP_SIGMA,
+    OPTION_LIMITS,
+    QUERY_PARAMETERS,
+)
 from gate.routes import ROUTES
-from gate.verdict import FAILURE_TYPES
 
 __all__ = ["OPENAPI_VERSION", "build_openapi"]
 
@@ -96,8 +102,22 @@ def _schemas() -> dict[str, Any]:
         ),
         "Trajectory": _obj(
             {
-                "sample_period_s": _NUM,
-                "samples": {"type": "array", "items": _ref("TrajectorySample")},
+                "sample_period_s": _NUM
+                | {
+                    "description": (
+                        "The period used: 1/sample_hz rounded to whole twin steps, or longer "
+                        f"when the plan could otherwise give more than {MAX_TRAJECTORY_SAMPLES} "
+                        "fixed-rate samples (see the sample_hz parameter)."
+                    )
+                },
+                "samples": {
+                    "type": "array",
+                    "items": _ref("TrajectorySample"),
+                    "description": (
+                        f"At most {MAX_TRAJECTORY_SAMPLES} fixed-rate samples, plus each "
+                        "step's start and end and the final pose."
+                    ),
+                },
             }
         ),
         "StepPrediction": _obj(
@@ -153,6 +173,56 @@ def _schemas() -> dict[str, Any]:
                 "query": _STR,
             }
         ),
+        "ObstacleHits": _obj(
+            {
+                "obstacle_id": _STR,
+                "count": _INT | {"minimum": 1},
+                "step": step_index,
+                "contact": _ref("Point")
+                | {"description": "Mean contact point of the hits during that step."},
+            }
+        ),
+        "GoalErrorPercentiles": _obj(
+            {
+                "samples": _INT
+                | {"description": "Samples that played to the end (no collision, no stall)."},
+                "percentiles": {"type": "array", "items": _NUM},
+                "distance_m": {"type": "array", "items": _NUM},
+                "position_m": {"type": "array", "items": _NUM},
+                "lateral_m": {"type": "array", "items": _NUM},
+                "yaw_deg": {"type": "array", "items": _NUM},
+            }
+        ),
+        "EnvelopePoint": _obj(
+            {
+                "step": step_index,
+                "step_t_s": _NUM,
+                "samples": _INT | {"description": "Samples still playing at that moment."},
+                "x": _NUM | {"description": "Mean position and (circular) mean yaw."},
+                "y": _NUM,
+                "yaw_deg": _NUM,
+                "major_m": _NUM
+                | {"minimum": 0, "description": "Semi-axes of the level's ellipse, m."},
+                "minor_m": _NUM | {"minimum": 0},
+                "angle_deg": _NUM | {"description": "Major axis, degrees CCW from +x."},
+                "yaw_sd_deg": _NUM | {"minimum": 0},
+            }
+        ),
+        "Uncertainty": _obj(
+            {
+                "samples": _INT | {"minimum": 2},
+                "seed": _INT,
+                "spread": {"enum": ["calibration", "default"]},
+                "slip_sigma": _NUM,
+                "collision_probability": _NUM | {"minimum": 0, "maximum": 1},
+                "stall_probability": _NUM | {"minimum": 0, "maximum": 1},
+                "approved_probability": _NUM | {"minimum": 0, "maximum": 1},
+                "collisions": {"type": "array", "items": _ref("ObstacleHits")},
+                "goal_error": _ref("GoalErrorPercentiles"),
+                "level": _NUM,
+                "envelope": {"type": "array", "items": _ref("EnvelopePoint")},
+            }
+        ),
         "Verdict": _obj(
             {
                 "approved": _BOOL,
@@ -175,10 +245,12 @@ def _schemas() -> dict[str, Any]:
                 "trajectory": _ref("Trajectory"),
                 "sim_time_s": _NUM,
                 "replay": _ref("Replay"),
+                "uncertainty": _ref("Uncertainty")
+                | {"description": "Only when the request asked for samples > 1."},
                 "image_png_base64": _STR | {"contentEncoding": "base64"},
                 "wall_time_s": _NUM,
             },
-            optional=("image_png_base64",),
+            optional=("uncertainty", "image_png_base64"),
         ),
         "Violation": _obj({"pointer": _STR, "message": _STR}),
         "Error": _obj(
@@ -199,6 +271,8 @@ def _schemas() -> dict[str, Any]:
                 "default_map": _STR,
                 "maps": {"type": "array", "items": _STR},
                 "pool": {"enum": ["process", "thread"]},
+                "cluster": _nullable(_STR)
+                | {"description": "The Dask scheduler that plays samples (--cluster)."},
                 "workers": _INT,
                 "queue_depth": _INT,
                 "in_flight": _INT,
@@ -268,8 +342,29 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
             {"default": pb.yaw_tolerance_deg},
         ),
         "sample_hz": (
-            "Predicted trajectory rate, Hz (the period is rounded to whole twin steps).",
+            "Predicted trajectory rate, Hz (the period is rounded to whole twin steps). The "
+            f"answer's size is bounded: when the plan's longest possible playback (every "
+            f"step to its time limit) would give more than {MAX_TRAJECTORY_SAMPLES} samples "
+            "at this rate, the gate samples at the shortest whole number of twin steps that "
+            "keeps within that, and says so in trajectory.sample_period_s (replay.sample_hz "
+            "stays as asked: the same request gives the same bytes).",
             {"default": pb.sample_hz},
+        ),
+        "samples": (
+            "Twins to play the plan on. 1: the single playback. More: also that many twins "
+            "drawn from the twin's parameter uncertainty (a calibrated twin's covariance, "
+            "else the default spread) and a slip distribution; the verdict then carries "
+            "'uncertainty' (collision probability, goal error percentiles, per-step "
+            "envelope). Its judgement stays the nominal twin's.",
+            {"type": "integer", "default": DEFAULT_SAMPLES},
+        ),
+        "seed": (
+            "Seed of the twins' draws: the same request and seed give the same verdict.",
+            {"type": "integer", "default": DEFAULT_SEED},
+        ),
+        "slip_sigma": (
+            "1-sigma of each side's friction factor (log-normal) in the draws.",
+            {"default": DEFAULT_SLIP_SIGMA},
         ),
     }
     out = []
@@ -278,6 +373,8 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
         if name in limits:
             low, high = limits[name]
             schema = {"type": "number", "minimum": low, "maximum": high} | schema
+            if schema.get("type") == "integer":
+                schema = schema | {"minimum": int(low), "maximum": int(high)}
         out.append(
             {
                 "name": name,
@@ -324,9 +421,16 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
                 "The verdict: approved, or why not, with the predicted trajectory.",
             ),
             "400": _error(
-                "Not JSON (error 'not_json'); the plan fails the schema ('plan_schema', "
-                "with the JSON pointer of each violation); a bad query option "
-                "('invalid_option', naming the parameter); or malformed framing."
+                "Not JSON, or nested deeper than 32 levels (error 'not_json'); the plan "
+                "fails the schema ('plan_schema', with the JSON pointer of each violation); "
+                "a goal coordinate beyond +/-1e6 m ('goal_out_of_range', violations at "
+                "/goal/x, /goal/y); a bad query option ('invalid_option', naming the "
+                "parameter); malformed framing ('bad_framing', e.g. both Content-Length and "
+                "Transfer-Encoding); the connection ended inside the body ('truncated_body')."
+            ),
+            "408": _error(
+                f"The body did not arrive whole within {config.body_timeout_s:g} s "
+                "('request_timeout'); the connection is closed."
             ),
             "411": _error("A body without Content-Length or chunked Transfer-Encoding."),
             "413": _error(f"Body over {config.max_body_bytes} bytes."),
@@ -368,8 +472,10 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
                 "verdict and the predicted trajectory (docs/gate.md). Every error body is "
                 "JSON (schema Error). Beyond the responses listed per operation, any path "
                 "may answer 404 (unknown path), 405 with an Allow header (method not "
-                "allowed on a known path), 501 (unknown method), 414/431 (request line or "
-                "headers too long) or 505 (HTTP version). HEAD is answered wherever GET is."
+                "allowed on a known path), 501 (unknown method), 400 (malformed request), "
+                f"408 (a request's head not whole within {config.head_timeout_s:g} s of its "
+                "first byte: the connection is closed), 431 (request head over 16 kB) or "
+                "505 (HTTP version). HEAD is answered wherever GET is."
             ),
         },
         "paths": paths,

@@ -9,6 +9,7 @@ turns by the rover's calibrated ``turn_efficiency``), the *predicted trajectory*
 the twin), the start footprint (green), the goal with its position tolerance and heading
 (purple), and the footprint at the end: green when approved, red at the first contact
 (with the margin-inflated outline and the contact point marked), orange otherwise.
+Below the map, a legend of those colours and a scale bar (1 m).
 """
 
 from __future__ import annotations
@@ -21,15 +22,18 @@ from PIL import Image, ImageDraw
 from emulator.drive import yaw_for_turn_units
 from emulator.worldmap import CircleObstacle, PolygonObstacle, WorldMap
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
-from gate.verdict import Pose, Verdict
+from firmware_proto.verdict import Verdict
 
-__all__ = ["MAX_IMAGE_PX", "planned_path", "render_png"]
+__all__ = ["LEGEND_PX", "MAX_IMAGE_PX", "planned_path", "render_png"]
 
 MAX_IMAGE_PX = 1000
 """Longest side of the picture, pixels (at most 100 px per metre)."""
 
 _PAD_PX = 24
+LEGEND_PX = 20
+"""Height of the legend band below the map, pixels."""
 _BACKGROUND = (250, 250, 247)
 _WALL = (60, 60, 60)
 _OBSTACLE = (150, 150, 150)
@@ -69,6 +73,35 @@ def _footprint(
     return [(pose.x + c * px - s * py, pose.y + s * px + c * py) for px, py in corners]
 
 
+def _legend(draw: ImageDraw.ImageDraw, top: float, width: int, scale: float) -> None:
+    """The legend band below the map (``top``: its upper edge) and a scale bar."""
+    entries = [
+        ("planned", _PLANNED),
+        ("predicted (twin)", _PREDICTED),
+        ("start / approved end", _START),
+        ("goal and tolerance", _GOAL),
+        ("collision", _FAIL),
+        ("obstacle", _OBSTACLE),
+        ("sand", _REGION),
+    ]
+    x, y = float(_PAD_PX), top + 2
+    for text, colour in entries:
+        if colour == _FAIL:
+            draw.line([x, y + 2, x + 10, y + 12], fill=colour, width=3)
+            draw.line([x, y + 12, x + 10, y + 2], fill=colour, width=3)
+        else:
+            draw.rectangle([x, y + 3, x + 10, y + 11], fill=colour)
+        draw.text((x + 14, y + 1), text, fill=_TEXT)
+        x += 14 + draw.textlength(text) + 14
+    right = width - _PAD_PX
+    left = right - scale  # 1 m
+    bar_y = y + 7
+    draw.line([left, bar_y, right, bar_y], fill=_TEXT, width=2)
+    for end in (left, right):
+        draw.line([end, bar_y - 4, end, bar_y + 4], fill=_TEXT, width=2)
+    draw.text((left - draw.textlength("1 m") - 6, y + 1), "1 m", fill=_TEXT)
+
+
 def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Verdict) -> bytes:
     """The picture of ``verdict`` (for ``plan`` on ``world``) as PNG bytes."""
     b = world.bounds
@@ -79,7 +112,7 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
     def px(x: float, y: float) -> tuple[float, float]:
         return (_PAD_PX + (x - b.min_x) * scale, height - _PAD_PX - (y - b.min_y) * scale)
 
-    image = Image.new("RGB", (width, height), _BACKGROUND)
+    image = Image.new("RGB", (width, height + LEGEND_PX), _BACKGROUND)
     draw = ImageDraw.Draw(image)
     for region in world.traction_regions:
         draw.polygon([px(*p) for p in region.polygon], fill=_REGION)
@@ -100,7 +133,7 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
         draw.line(path, fill=_PLANNED, width=2)
     for p in path:
         draw.ellipse((p[0] - 3, p[1] - 3, p[0] + 3, p[1] + 3), outline=_PLANNED)
-    trail = [px(s.x, s.y) for s in verdict.trajectory.samples]
+    trail = [px(s.pose.x, s.pose.y) for s in verdict.trajectory.samples]
     if len(trail) > 1:
         draw.line(trail, fill=_PREDICTED, width=3)
 
@@ -133,6 +166,7 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
 
     status = "APPROVED" if verdict.approved else f"REJECTED: {verdict.failure_type}"
     draw.text((_PAD_PX, 4), f"{world.name}  {status}", fill=_TEXT)
+    _legend(draw, height, width, scale)
     buffer = io.BytesIO()
     image.save(buffer, format="PNG", optimize=False)
     return buffer.getvalue()

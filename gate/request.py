@@ -1,17 +1,23 @@
-"""Reading a request body safely: media type, framing, size limit, strict JSON.
+"""Reading a request: its declared body length, media type and strict JSON.
 
-Pure functions over a header mapping and a binary reader, so they can be tested without
-a socket. The limits hold *before* reading: a declared ``Content-Length`` over the limit
-is refused without reading a byte; a chunked body is refused as soon as its running size
-passes the limit. A body with neither framing is refused (411) rather than read to EOF.
+h11 (under uvicorn, :mod:`firmware_proto.httpserve`) has already checked the framing
+(``Content-Length`` or chunked, never both); what is left is the gate's own policy:
+
+- a ``POST`` must say how long its body is (411 otherwise, rather than an empty plan);
+- a declared length over the limit is refused (413) before a byte of it is read, and
+  before ``100 Continue`` invites the client to send it;
+- the body must be ``application/json`` in UTF-8, strict JSON (no NaN, no duplicate
+  keys, no byte-order mark), nested at most :data:`~firmware_proto.schemacheck.MAX_DEPTH`
+  levels (400 ``not_json`` otherwise; a plan nests 3).
 """
 
 from __future__ import annotations
 
 import json
-import re
-from typing import Any, Protocol
+from collections.abc import Mapping
+from typing import Any
 
+from firmware_proto.schemacheck import MAX_DEPTH, json_depth
 from gate.errors import (
     BadRequestError,
     LengthRequiredError,
@@ -21,76 +27,30 @@ from gate.errors import (
 
 __all__ = [
     "JSON_MEDIA_TYPE",
-    "BodyFraming",
-    "body_framing",
+    "check_declared_length",
     "check_json_media_type",
     "parse_json",
-    "read_body",
 ]
 
 JSON_MEDIA_TYPE = "application/json"
 
-_DIGITS = re.compile(r"[0-9]{1,19}")
-_HEX = re.compile(r"[0-9A-Fa-f]{1,16}")
-_MAX_LINE = 1024
-_MAX_TRAILERS = 32
 
-
-class _Reader(Protocol):
-    def read(self, size: int, /) -> bytes: ...
-
-    def readline(self, size: int, /) -> bytes: ...
-
-
-class _Headers(Protocol):
-    def get(self, name: str, default: None = None) -> str | None: ...
-
-    def get_all(self, name: str, failobj: None = None) -> list[str] | None: ...
-
-
-class BodyFraming:
-    """How a request says its body ends: ``length`` bytes, chunked, or no body."""
-
-    def __init__(self, *, length: int | None = None, chunked: bool = False) -> None:
-        self.length = length
-        self.chunked = chunked
-
-    @property
-    def has_body(self) -> bool:
-        """Whether any body bytes follow the headers."""
-        return self.chunked or bool(self.length)
-
-    def __repr__(self) -> str:
-        return f"BodyFraming(length={self.length}, chunked={self.chunked})"
-
-
-def body_framing(headers: _Headers) -> BodyFraming:
-    """The body framing the headers declare (RFC 9112 section 6).
+def check_declared_length(headers: Mapping[str, str], limit: int) -> int | None:
+    """The body length the headers declare (``None`` for chunked).
 
     Raises:
-        BadRequestError: both ``Transfer-Encoding`` and ``Content-Length``, a transfer
-            coding other than ``chunked``, or a malformed or conflicting length.
+        LengthRequiredError: neither ``Content-Length`` nor chunked framing.
+        PayloadTooLargeError: a declared length over ``limit``.
     """
-    codings = headers.get_all("Transfer-Encoding") or []
-    lengths = headers.get_all("Content-Length") or []
-    if codings:
-        if lengths:
-            raise BadRequestError(
-                "both Transfer-Encoding and Content-Length given", code="bad_framing"
-            )
-        names = [c.strip().lower() for value in codings for c in value.split(",")]
-        if names != ["chunked"]:
-            raise BadRequestError(
-                f"unsupported Transfer-Encoding {', '.join(names)!r} (only chunked)",
-                code="bad_framing",
-            )
-        return BodyFraming(chunked=True)
-    if not lengths:
-        return BodyFraming()
-    values = {v.strip() for value in lengths for v in value.split(",")}
-    if len(values) != 1 or not _DIGITS.fullmatch(next(iter(values))):
-        raise BadRequestError(f"invalid Content-Length {lengths!r}", code="bad_framing")
-    return BodyFraming(length=int(next(iter(values))))
+    if "transfer-encoding" in headers:
+        return None  # chunked (h11 accepts no other coding): counted while reading
+    text = headers.get("content-length")
+    if text is None:
+        raise LengthRequiredError("a body needs Content-Length (or chunked Transfer-Encoding)")
+    length = int(text)  # h11 has checked it is one decimal number
+    if length > limit:
+        raise PayloadTooLargeError(f"body of {length} bytes is over the limit of {limit} bytes")
+    return length
 
 
 def check_json_media_type(content_type: str | None) -> None:
@@ -113,61 +73,6 @@ def check_json_media_type(content_type: str | None) -> None:
             raise UnsupportedMediaError(f"charset {value.strip()!r} not supported; send UTF-8")
 
 
-def read_body(framing: BodyFraming, stream: _Reader, limit: int) -> bytes:
-    """Read the body ``framing`` declares from ``stream``, at most ``limit`` bytes.
-
-    Raises:
-        LengthRequiredError: no framing (a POST must say how long its body is).
-        PayloadTooLargeError: the declared or running size passes ``limit`` (checked
-            before reading any of it for a declared length).
-        BadRequestError: the stream ends early, or the chunked framing is malformed.
-    """
-    if framing.chunked:
-        return _read_chunked(stream, limit)
-    if framing.length is None:
-        raise LengthRequiredError("a body needs Content-Length (or chunked Transfer-Encoding)")
-    if framing.length > limit:
-        raise PayloadTooLargeError(
-            f"body of {framing.length} bytes is over the limit of {limit} bytes"
-        )
-    data = stream.read(framing.length) if framing.length else b""
-    if len(data) != framing.length:
-        raise BadRequestError(
-            f"body ended after {len(data)} of {framing.length} bytes", code="truncated_body"
-        )
-    return data
-
-
-def _line(stream: _Reader) -> bytes:
-    line = stream.readline(_MAX_LINE + 1)
-    if len(line) > _MAX_LINE or not line.endswith(b"\r\n"):
-        raise BadRequestError("malformed chunked body", code="bad_framing")
-    return line[:-2]
-
-
-def _read_chunked(stream: _Reader, limit: int) -> bytes:
-    parts: list[bytes] = []
-    total = 0
-    while True:
-        size_text = _line(stream).split(b";", 1)[0].strip().decode("ascii", "replace")
-        if not _HEX.fullmatch(size_text):
-            raise BadRequestError(f"bad chunk size {size_text!r}", code="bad_framing")
-        size = int(size_text, 16)
-        if size == 0:
-            break
-        total += size
-        if total > limit:
-            raise PayloadTooLargeError(f"chunked body is over the limit of {limit} bytes")
-        chunk = stream.read(size)
-        if len(chunk) != size or stream.read(2) != b"\r\n":
-            raise BadRequestError("chunked body ended early", code="truncated_body")
-        parts.append(chunk)
-    for _ in range(_MAX_TRAILERS):
-        if not _line(stream):
-            return b"".join(parts)
-    raise BadRequestError("too many trailer lines", code="bad_framing")
-
-
 def _no_constants(name: str) -> Any:
     raise ValueError(f"{name} is not JSON")
 
@@ -183,15 +88,22 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 
 def parse_json(body: bytes) -> Any:
     """Parse a body as strict JSON: UTF-8 without BOM, no NaN or Infinity, no duplicate
-    keys.
+    keys, at most :data:`~firmware_proto.schemacheck.MAX_DEPTH` levels deep.
 
     Raises:
         BadRequestError: code ``not_json``, saying where parsing failed.
     """
     try:
         text = body.decode("utf-8")
-        return json.loads(text, parse_constant=_no_constants, object_pairs_hook=_unique_keys)
+        doc = json.loads(text, parse_constant=_no_constants, object_pairs_hook=_unique_keys)
     except UnicodeDecodeError as exc:
         raise BadRequestError(f"body is not UTF-8: {exc}", code="not_json") from exc
     except ValueError as exc:
         raise BadRequestError(f"body is not JSON: {exc}", code="not_json") from exc
+    except RecursionError as exc:  # deeper than the parser's stack allows
+        raise BadRequestError(
+            f"body is nested deeper than {MAX_DEPTH} levels", code="not_json"
+        ) from exc
+    if json_depth(doc, MAX_DEPTH + 1) > MAX_DEPTH:
+        raise BadRequestError(f"body is nested deeper than {MAX_DEPTH} levels", code="not_json")
+    return doc

@@ -1,25 +1,27 @@
-"""Responses as single byte strings, and the JSON error body.
+"""The JSON bodies of the gate's answers, errors included.
 
-Writing the status line, the headers and the body in *one* ``send`` is what avoids the
-keep-alive stall of the stdlib server: with two writes, the second waits (Nagle) for the
-ACK of the first, which the client delays by up to 40 ms because it has nothing to send.
-:func:`encode_response` builds that one byte string; the server also sets
-``TCP_NODELAY``, so either measure alone would do (the benchmark measures each).
+Every body the gate sends is JSON: verdicts and documents, the errors its handlers
+raise (:func:`error_body`), and the errors its connection layer answers by itself
+(malformed request, slow head, too many connections: :func:`render_connection_error`).
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
-from email.utils import formatdate
-from http import HTTPStatus
 from typing import Any
 
 from gate.errors import BadRequestError, HttpError, MethodNotAllowedError, PlanSchemaError
 
-__all__ = ["SERVER_NAME", "encode_response", "error_body", "json_bytes"]
+__all__ = [
+    "JSON_CONTENT_TYPE",
+    "SERVER_NAME",
+    "error_body",
+    "json_bytes",
+    "render_connection_error",
+]
 
 SERVER_NAME = "rover-gate"
+JSON_CONTENT_TYPE = "application/json"
 
 
 def json_bytes(obj: Any) -> bytes:
@@ -44,38 +46,7 @@ def error_body(error: HttpError) -> bytes:
     return json_bytes(body)
 
 
-def encode_response(
-    status: int,
-    body: bytes,
-    *,
-    content_type: str = "application/json",
-    headers: Mapping[str, str] | None = None,
-    keep_alive: bool = True,
-    head: bool = False,
-    date: str | None = None,
-) -> bytes:
-    """Status line, headers and body as one byte string (HTTP/1.1).
-
-    Args:
-        status: status code.
-        body: the body (sent unless ``head``; its length is announced either way).
-        content_type: the body's media type.
-        headers: extra headers.
-        keep_alive: ``False`` adds ``Connection: close``.
-        head: a response to HEAD: headers only.
-        date: the ``Date`` value; default now.
-    """
-    phrase = HTTPStatus(status).phrase
-    lines = [
-        f"HTTP/1.1 {status} {phrase}",
-        f"Server: {SERVER_NAME}",
-        f"Date: {date or formatdate(usegmt=True)}",
-        f"Content-Type: {content_type}",
-        f"Content-Length: {len(body)}",
-        "Cache-Control: no-store",
-    ]
-    lines += [f"{k}: {v}" for k, v in (headers or {}).items()]
-    if not keep_alive:
-        lines.append("Connection: close")
-    head_bytes = ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
-    return head_bytes if head else head_bytes + body
+def render_connection_error(status: int, code: str, message: str) -> tuple[str, bytes]:
+    """The gate's wording of an error the connection layer answers itself (a
+    :data:`firmware_proto.httpserve.ErrorRenderer`): the same JSON as every error."""
+    return JSON_CONTENT_TYPE, json_bytes({"error": code, "status": status, "message": message})

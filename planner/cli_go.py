@@ -16,10 +16,22 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 from planner.cli_view import add_view_arguments
+from planner.gate_client import add_confidence_arguments, confidence_options
+from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
-__all__ = ["PoseArgumentError", "add_arguments", "main", "parse_pose", "register", "run"]
+__all__ = [
+    "PoseArgumentError",
+    "add_arguments",
+    "main",
+    "parse_goal",
+    "parse_pose",
+    "register",
+    "resolve_goal",
+    "run",
+]
 
 POSE_WAIT_MARGIN_S = 10.0
 """Without ``--start``, the rover has the round trip plus this long to report its pose
@@ -40,7 +52,7 @@ def parse_pose(text: str) -> Any:
     """
     import math
 
-    from planner.geometry import Pose
+    from firmware_proto.pose import Pose
 
     parts = text.split(",")
     try:
@@ -50,6 +62,37 @@ def parse_pose(text: str) -> Any:
     if not all(math.isfinite(v) for v in (x, y, yaw)):
         raise PoseArgumentError(f"pose {text!r} is not finite")
     return Pose(x, y, yaw)
+
+
+def parse_goal(text: str) -> Any:
+    """``--goal``: a pose ``X,Y,YAW_DEG`` (:func:`parse_pose`), or the name of one of the
+    map's goals (a word without commas: ``behind_table``), resolved once the map is
+    known (:func:`resolve_goal`).
+
+    Raises:
+        PoseArgumentError: neither (a ``ValueError``).
+    """
+    name = text.strip()
+    if "," not in name and name.replace("_", "").replace("-", "").isalnum():
+        return name
+    return parse_pose(text)
+
+
+def resolve_goal(goal: Any, world: Any) -> Any:
+    """The pose of ``goal``: itself if a pose, else the map's goal of that name.
+
+    Raises:
+        ValueError: the map has no goal of that name (the message lists its goals).
+    """
+    if not isinstance(goal, str):
+        return goal
+    for named in world.goals:
+        if named.name == goal:
+            return named.pose
+    known = ", ".join(g.name for g in world.goals) or "none"
+    raise ValueError(
+        f"map {world.name!r} has no goal named {goal!r} (its goals: {known}); or give X,Y,YAW_DEG"
+    )
 
 
 def _number(text: str, *, positive: bool, integer: bool = False) -> float:
@@ -88,9 +131,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--goal",
         required=True,
-        type=parse_pose,
-        metavar="X,Y,YAW",
-        help="goal pose: metres, metres, degrees",
+        type=parse_goal,
+        metavar="X,Y,YAW|NAME",
+        help="goal pose (metres, metres, degrees), or the name of one of the map's goals "
+        "(the lab map: behind_table, ...; an unknown name lists them)",
     )
     p.add_argument(
         "--start",
@@ -138,14 +182,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rtt",
         type=_non_negative,
-        default=3.0,
-        help="link round trip, s, for timeouts and alignment (default 3)",
+        default=env_default(RTT_ENV, 3.0),
+        help=f"link round trip, wall s, for timeouts and alignment (default ${RTT_ENV}, which "
+        "rover stack up exports, else 3)",
     )
     p.add_argument(
         "--time-scale",
         type=_positive,
-        default=1.0,
-        help="twin seconds per wall second (an emulator sped up)",
+        default=env_default(SCALE_ENV, 1.0),
+        help=f"twin seconds per wall second (an emulator sped up; default ${SCALE_ENV}, else 1)",
     )
     p.add_argument(
         "--pose-source",
@@ -223,8 +268,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=Path("mission.png"),
         help="PNG of predicted vs actual (default mission.png)",
     )
+    add_confidence_arguments(p)
     add_view_arguments(p, record_default=None)
     add_runtime_arguments(p, 0)
+    add_domain_argument(p)
 
 
 def register(subparsers: Any) -> None:
@@ -236,14 +283,25 @@ def register(subparsers: Any) -> None:
             "Plan a mission to --goal, validate it on the gate (repairing rejected plans, at "
             "most 4 attempts per leg), then execute it step by step over ROS 2 with drift "
             "control, showing progress, and write a picture of the predicted against the actual "
-            "trajectory. The goal is checked against the map first; without --start the rover "
-            "must report its pose. Ctrl-C or SIGTERM cancels: the rover is sent STOP (a second "
+            "trajectory. Needs a running stack: a gate, an emulator (or the rover), a bridge "
+            "and a link relay ('rover stack up' starts them and prints the export line that "
+            "points this command at them: ROS_DOMAIN_ID, ROVER_GATE_URL). --goal takes a pose "
+            "or a goal's name on the map. The goal is checked against the map first; without "
+            "--start the rover must report its pose. Ctrl-C or SIGTERM cancels: the rover is "
+            "sent STOP (a second "
             "one interrupts at once, after sending STOP). Exit 0 when the goal is reached, 130 "
             "(143) when cancelled by SIGINT (SIGTERM), 1 otherwise, 2 for bad options. "
             "--record FILE.mcap records the mission as ROS 2 MCAP; --view serves the live "
             "view with a STOP button and prints its URL (docs/view.md)."
         ),
-        epilog=("example: rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080"),
+        epilog=(
+            "examples:\n"
+            "  rover stack up    # in another shell; then there:\n"
+            '  eval "$(rover stack env)"\n'
+            "  rover go --goal behind_table\n"
+            "  rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080 --domain 101"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_arguments(p)
     p.set_defaults(func=run)
@@ -317,9 +375,11 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.orchestrator import PlannerOrchestrator
     from planner.picture import picture_of, save
     from planner.planner import HeuristicLowLevelPlanner
+    from planner.stackenv import apply_domain
     from planner.stallreport import stall_report
     from planner.view.live import LiveView
 
+    apply_domain(args)
     goal = args.goal
     view_cfg = view_config(args)
     start = args.start
@@ -393,6 +453,7 @@ def _mission(args: argparse.Namespace) -> int:
                 raise
             world = _offline_map(args.map, exc)
             gated = False
+        goal = resolve_goal(goal, world)
         planner = HeuristicLowLevelPlanner(rover, world=world)
         # Bad goals (and starts) end here, before anything waits for the rover.
         planner.route(start or world.start, goal)
@@ -402,11 +463,20 @@ def _mission(args: argparse.Namespace) -> int:
             ) as port,
             CancelOnSignal(on_signal) as signals,
         ):
-            orchestrator = PlannerOrchestrator(planner, gate, map_name=args.map, world=world)
+            gate_options, max_p = confidence_options(args)
+            orchestrator = PlannerOrchestrator(
+                planner,
+                gate,
+                map_name=args.map,
+                world=world,
+                options=gate_options,
+                max_collision_p=max_p,
+            )
             executor = PlanExecutor(port, rover, config)
             if args.record:
                 recorder = McapRecorder(args.record)
-                port.add_tap(recorder.tap)
+                recorder.attach(port)
+                recorder.set_map(world, goal)
             if args.foxglove is not None:
                 foxglove = FoxgloveLive(port=args.foxglove)
                 port.add_tap(foxglove.tap)
@@ -484,6 +554,8 @@ def _mission(args: argparse.Namespace) -> int:
         threshold_s=options.stall_threshold_s,
     ):
         print(line)
+    if view is not None:
+        view.hub.result(report.reached, report.summary(args.time_scale).splitlines()[0])
     outcome = "reached" if report.reached else "cancelled" if report.cancelled else "not reached"
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
     print(f"picture: {save(picture, args.picture)}")

@@ -7,6 +7,8 @@ import argparse
 import os
 from typing import TYPE_CHECKING
 
+from firmware_proto.cli import values
+
 if TYPE_CHECKING:
     from planner.view.server import ViewConfig
 
@@ -29,7 +31,9 @@ def add_view_arguments(p: argparse.ArgumentParser, *, record_default: str | None
         default="127.0.0.1",
         help="address the view binds (default 127.0.0.1; any other needs a token)",
     )
-    p.add_argument("--view-port", type=int, default=0, help="view port (default: a free one)")
+    p.add_argument(
+        "--view-port", type=values.tcp_port, default=0, help="view port (default: a free one)"
+    )
     p.add_argument("--view-token", default=None, help=f"view bearer token (default ${TOKEN_ENV})")
     p.add_argument(
         "--view-hold",
@@ -49,7 +53,7 @@ def add_view_arguments(p: argparse.ArgumentParser, *, record_default: str | None
     )
     p.add_argument(
         "--foxglove",
-        type=int,
+        type=values.tcp_port,
         nargs="?",
         const=8765,
         default=None,

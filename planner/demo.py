@@ -1,6 +1,7 @@
 """The end-to-end demo: every part of the stack, on one machine, driving a mission.
 
-:class:`Demo` starts the parts as the launch file's HIL set does, each its own process:
+:class:`Demo` starts the parts as the launch file's HIL set does, each its own process
+(:class:`planner.stack.Stack`, as ``rover stack up`` does):
 the gate (``rover gate``), the motor-controller emulator on a pty with the lab map
 (``rover emulate``), the rover-side bridge on that pty (``rover bridge``) and the
 Earth-Moon link relay (``rover link``, 3 s round trip). ROS topics travel over real
@@ -25,13 +26,12 @@ interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import os
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -46,18 +46,21 @@ from bridge.rosport.contract import COMPLETED
 from bridge.rosport.msgs import DiagnosticArray
 from bridge.rosport.qos import DIAGNOSTICS
 from bridge.rosport.rclpy_backend import middleware
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.stall import STALL_LOG_ENV
+from planner.domains import claim
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
-from planner.gate_client import GateClient
-from planner.geometry import Pose
+from planner.gate_client import GateClient, GateOptions
 from planner.mapinfo import MapInfo
 from planner.mcaprec import McapRecorder
 from planner.mission import MissionReport, MissionRunner
 from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.picture import picture_of, save
 from planner.planner import HeuristicLowLevelPlanner
+from planner.stack import Stack, StackConfig
+from planner.stackenv import DOMAIN_ENV
 from planner.view.live import LiveView
 from planner.view.server import ViewConfig
 
@@ -67,8 +70,6 @@ logger = logging.getLogger(__name__)
 
 LOCALHOST_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 """ROS 2 Jazzy's discovery range variable; the demo sets it to ``LOCALHOST``."""
-_NICE = 5
-"""Nice value of the gate and the link relay, which need not keep time."""
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,9 @@ class DemoConfig:
         twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
             (``rover gate --twin``) and the planner turns by its turn efficiency.
         replans: drift STOPs after which the mission is re-planned.
+        samples, max_collision_p: approve a plan only if at most ``max_collision_p`` of
+            ``samples`` twins drawn from the gate's uncertainty collide (``None``: the
+            nominal verdict decides).
     """
 
     rtt_s: float = 3.0
@@ -122,6 +126,8 @@ class DemoConfig:
     ground: str | None = None
     twin: Path | None = None
     replans: int = 1
+    samples: int | None = None
+    max_collision_p: float | None = None
 
 
 @dataclass(frozen=True)
@@ -180,85 +186,6 @@ class LinkTiming:
         )
 
 
-class _Process:
-    """A child process of the demo, started with a ready line on stdout."""
-
-    def __init__(
-        self,
-        name: str,
-        args: list[str],
-        ready: str,
-        timeout_s: float,
-        env: dict[str, str],
-        log: Path,
-    ) -> None:
-        self.name = name
-        self.log = log
-        """Its stderr, whole (kept after the demo)."""
-        self._log_file = log.open("a", encoding="utf-8")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "firmware_proto.cli", *args],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env=env,
-        )
-        self.lines: list[str] = []
-        self._ready = threading.Event()
-        self._stderr: list[str] = []
-        self._ready_prefix = ready
-        self._reader = threading.Thread(target=self._read, name=f"demo-{name}-out", daemon=True)
-        self._reader.start()
-        self._err_reader = threading.Thread(
-            target=self._read_err, name=f"demo-{name}-err", daemon=True
-        )
-        self._err_reader.start()
-        try:
-            came_up = self._ready.wait(timeout_s)
-        except BaseException:  # interrupted while waiting: no orphan child
-            self.stop()
-            raise
-        if not came_up:
-            self.stop()
-            tail = "".join(self._stderr[-5:]).strip()
-            raise RuntimeError(
-                f"{name} did not come up within {timeout_s:.0f} s" + (f": {tail}" if tail else "")
-            )
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip())
-            if line.startswith(self._ready_prefix):
-                self._ready.set()
-
-    def _read_err(self) -> None:
-        assert self.proc.stderr is not None
-        with self._log_file:
-            for line in self.proc.stderr:
-                self._log_file.write(line)
-                self._log_file.flush()
-                self._stderr.append(line)
-                if len(self._stderr) > 200:
-                    del self._stderr[:100]
-
-    def line(self, prefix: str) -> str:
-        """The first stdout line starting with ``prefix``."""
-        return next(x for x in self.lines if x.startswith(prefix))
-
-    def stop(self) -> None:
-        """SIGTERM, then SIGKILL after 10 s; join the readers."""
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        for reader in (self._reader, self._err_reader):
-            reader.join(5)
-
-
 def _control(port: int, command: str) -> str:
     """One command to the emulator's control interface (as the lab's bench would)."""
     with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
@@ -275,14 +202,12 @@ class Demo:
         self.config = config or DemoConfig()
         self._say = say
         self._t0 = time.monotonic()
-        self._processes: list[_Process] = []
-        self._tmp = tempfile.TemporaryDirectory(prefix="rover-demo-")
+        # Every process of the demo, this one included, discovers ROS 2 peers on this
+        # host only (ROS 2 Jazzy's discovery range), so nothing leaves the machine.
         self.logs = Path(tempfile.mkdtemp(prefix="rover-demo-logs-"))
         """Where each process's stderr and the stack's stall log are kept (not removed)."""
         self.stall_log = self.logs / "stalls.jsonl"
         """The stall log every process of this demo writes to (docs/realtime.md)."""
-        # Every process of the demo, this one included, discovers ROS 2 peers on this
-        # host only (ROS 2 Jazzy's discovery range), so nothing leaves the machine.
         self._env = {
             **os.environ,
             LOCALHOST_ENV: "LOCALHOST",
@@ -294,6 +219,8 @@ class Demo:
         self._view: LiveView | None = None
         self._hold = threading.Event()
         self._holding = False
+        self._stack: Stack | None = None
+        self._domains = contextlib.ExitStack()
 
     @property
     def mission_running(self) -> bool:
@@ -353,68 +280,33 @@ class Demo:
         self.say("STOP from the view before the mission: nothing will be sent to the rover")
         return "the mission is cancelled before it starts: nothing will be sent"
 
-    def _start(self, name: str, args: list[str], ready: str) -> _Process:
-        self.say(f"starting {name}: rover {' '.join(args)}")
-        process = _Process(
-            name,
-            args,
-            ready,
-            self.config.startup_timeout_s,
-            self._env,
-            self.logs / f"{name}.log",
-        )
-        self._processes.append(process)
-        return process
-
     def run(self) -> DemoResult:
         """Start everything, drive the mission, return the result."""
         cfg = self.config
         if cfg.speed <= 0 or cfg.rtt_s < 0:
             raise ValueError("speed must be > 0 and rtt_s >= 0")
-        link = Path(self._tmp.name) / "rover-motor"
-        # The programs that need not keep time yield the CPU to those that must.
-        gate_args = ["gate", "--port", "0", "--map", cfg.map_name, "--workers", "1"]
-        gate_args += ["--pool", "thread", "--nice", str(_NICE)]
-        if cfg.twin is not None:
-            gate_args += ["--twin", str(cfg.twin)]
-        gate = self._start("gate", gate_args, "GATE ")
-        realtime = [] if cfg.realtime else ["--no-realtime"]
-        url = gate.line("GATE ").split()[1]
-        emulator_args = [
-            "emulate",
-            "--serial",
-            "--link",
-            str(link),
-            "--map",
-            cfg.map_name,
-            "--seed",
-            str(cfg.seed),
-            "--speed-factor",
-            f"{cfg.speed:g}",
-            "--control-port",
-            "0",
-            "--firmware",
-            cfg.firmware,
-            *realtime,
-        ]
-        if cfg.ground is not None:
-            emulator_args += ["--ground", cfg.ground]
-        emulator = self._start("emulator", emulator_args, "CONTROL ")
-        control_port = int(emulator.line("CONTROL ").rsplit(":", 1)[1])
-        self._start("bridge", ["bridge", "--device", str(link), *realtime], "BRIDGE ")
-        self._start(
-            "link",
-            [
-                "link",
-                "--rtt",
-                f"{cfg.rtt_s / cfg.speed:g}",
-                "--seed",
-                str(cfg.seed),
-                "--nice",
-                str(_NICE),
-            ],
-            "LINK ",
+        stack = StackConfig(
+            map_name=cfg.map_name,
+            firmware=cfg.firmware,
+            rtt_s=cfg.rtt_s,
+            speed=cfg.speed,
+            seed=cfg.seed,
+            startup_timeout_s=cfg.startup_timeout_s,
+            realtime=cfg.realtime,
+            ground=cfg.ground,
+            twin=cfg.twin,
         )
+        if not os.environ.get(DOMAIN_ENV, "").strip():
+            # No domain chosen: one of its own, as a stack takes, so that two demos (or
+            # a demo and a stack) on one machine never hear each other.
+            domain = self._domains.enter_context(claim()).domain
+            self._domains.callback(os.environ.pop, DOMAIN_ENV, None)
+            os.environ[DOMAIN_ENV] = self._env[DOMAIN_ENV] = str(domain)
+            self.say(f"ROS 2 domain {domain} (of its own)")
+        self._stack = Stack(stack, self._env, say=self.say, logs=self.logs)
+        endpoints = self._stack.start()
+        url = endpoints.gate_url
+        control_port = int(endpoints.control.rsplit(":", 1)[1])
         self.say(f"emulator control port: 127.0.0.1:{control_port}")
         rover = load_rover(cfg.twin)
         os.environ[LOCALHOST_ENV] = "LOCALHOST"  # read when the port's context starts
@@ -435,7 +327,7 @@ class Demo:
             open_port(DEFAULT_BACKEND, namespace="ground", node_name="rover_executor") as port,
         ):
             if recorder is not None:
-                port.add_tap(recorder.tap)
+                recorder.attach(port)
             port.subscribe("diagnostics", DiagnosticArray, self._on_diagnostics, DIAGNOSTICS)
             foxglove = (
                 FoxgloveLive(port=cfg.foxglove_port) if cfg.foxglove_port is not None else None
@@ -461,12 +353,16 @@ class Demo:
             self._say(f"FOXGLOVE {foxglove.url}")
         world = client.get_map(cfg.map_name)
         goal = _goal(world, cfg.goal_name)
+        if recorder is not None:
+            recorder.set_map(world, goal)
         start = world.start
         orchestrator = PlannerOrchestrator(
             HeuristicLowLevelPlanner(rover, world=world),
             client,
             map_name=cfg.map_name,
             world=world,
+            options=GateOptions(samples=cfg.samples),
+            max_collision_p=cfg.max_collision_p,
         )
         executor = PlanExecutor(
             port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
@@ -543,6 +439,8 @@ class Demo:
                 self._mission_running = False
         finally:
             executor.close()
+        if view is not None:
+            view.hub.result(report.reached, report.summary(cfg.speed).splitlines()[0])
         outcome = (
             "goal reached"
             if report.reached
@@ -599,9 +497,9 @@ class Demo:
         """Stop the view and every process, last started first (idempotent)."""
         if self._view is not None:
             self._view.close()
-        while self._processes:
-            self._processes.pop().stop()
-        self._tmp.cleanup()
+        if self._stack is not None:
+            self._stack.close()
+        self._domains.close()
 
     def __enter__(self) -> Demo:
         return self

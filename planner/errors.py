@@ -25,6 +25,9 @@ Everything this package raises on purpose derives from :class:`PlannerError`::
      |    +-- GateTimeoutError    connected, but no complete answer within the time
      |                            budget; also TimeoutError
      +-- GateProtocolError        a success answer that is not the documented JSON
+     +-- DomainBusyError          the ROS domain a stack asked for is held by another
+                                  stack on this machine, or none is free; also
+                                  RuntimeError
 
 Programming errors (wrong types, a closed client) raise the usual built-ins. Errors from
 :mod:`firmware_proto` (a plan that fails its own schema) are translated where they
@@ -41,6 +44,7 @@ if TYPE_CHECKING:
     from planner.orchestrator import MissionResult, PlanResult
 
 __all__ = [
+    "DomainBusyError",
     "GateError",
     "GateOverloadedError",
     "GateProtocolError",
@@ -210,6 +214,11 @@ class GateTimeoutError(GateUnavailableError, TimeoutError):
     def __init__(self, url: str, attempts: int, timeout_s: float) -> None:
         self.timeout_s = timeout_s
         super().__init__(url, attempts, f"no complete answer within {timeout_s:g} s")
+
+
+class DomainBusyError(PlannerError, RuntimeError):
+    """The ROS domain asked for is held by another stack, or none is free
+    (:mod:`planner.domains`)."""
 
 
 class GateProtocolError(PlannerError):

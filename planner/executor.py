@@ -53,10 +53,11 @@ from bridge.rosport.contract import (
 )
 from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent, DriftMonitor
-from planner.geometry import Pose, wrap_deg
-from planner.verdict import Verdict
+from planner.geometry import wrap_deg
 
 __all__ = [
     "ANCHOR_GAP_S",
@@ -285,7 +286,10 @@ class PlanExecutor:
         self._trace: list[tuple[float, float, float]] = []
         self._notes: list[str] = []
         created = time.monotonic()
-        self._ground_rx = created  # "never heard" counts from here
+        self._ground_rx = created  # "never heard" counts from here ...
+        # ... but only once a plan runs: before, odom (which the bridge publishes first)
+        # arriving ahead of the first odom_ground through the link is no silence.
+        self._ground_heard = False
         self._pose_rx = created  # last pose drift control could use
         self._on_odom_source = self.config.pose_source == "odom"
         self._odom_history: deque[tuple[float, Pose]] = deque(maxlen=64)
@@ -403,11 +407,13 @@ class PlanExecutor:
         stamp = _stamp_s(msg)
         with self._lock:
             self._ground_rx = time.monotonic()
+            self._ground_heard = True
             if self.config.pose_source == "auto":
                 self._anchor_odom(pose, stamp)
                 if self._on_odom_source:
                     self._on_odom_source = False
-                    self._note("odom_ground came back: drift control used it again", logging.INFO)
+                    # As loud as the fall-back was: whoever saw one must see the other.
+                    self._note("odom_ground came back: drift control uses it again")
         self._use_pose(pose, stamp)
 
     def _on_odom(self, msg: Odometry) -> None:
@@ -422,6 +428,7 @@ class PlanExecutor:
             if (
                 cfg.pose_source == "auto"
                 and not self._on_odom_source
+                and (self._ground_heard or self._running)
                 and time.monotonic() - self._ground_rx > cfg.pose_stale_s
             ):
                 self._on_odom_source = True
@@ -642,7 +649,7 @@ class PlanExecutor:
                     on_progress(self._progress(index, status, steps, verdict, monitor, None))
                 if status == COMPLETED:
                     continue
-                outcome, reason = self._classify(status, index)
+                outcome, reason = self._classify(status, index, len(steps))
                 break
         except BaseException as exc:
             self._end_run()
@@ -754,7 +761,9 @@ class PlanExecutor:
                 report("accepted", started)
                 next_report = now + cfg.progress_period_s
             elif now >= next_report:
-                report("running", started)
+                # Before 'accepted' comes back the step is only published: never say
+                # 'running' for a step the rover has not confirmed.
+                report("running" if accepted_seen else "published", started)
                 next_report = now + cfg.progress_period_s
         with self._lock:
             status = self._status or "timeout"
@@ -770,20 +779,22 @@ class PlanExecutor:
         with self._lock:
             return self._accepted, self._accepted_wall
 
-    def _classify(self, status: str, index: int) -> tuple[str, str]:
+    def _classify(self, status: str, index: int, count: int) -> tuple[str, str]:
+        """The outcome and its reason; steps are numbered from 1, as progress says them."""
+        step = f"step {index + 1}/{count}"
         if status == "drift":
             return "drift", "drift control stopped the rover"
         if status == "blind":
             return "blind", (
                 f"drift control blind: no pose from {self._sources()} for "
-                f"{self.config.blind_after_s:.1f} s during step {index}"
+                f"{self.config.blind_after_s:.1f} s during {step}"
             )
         if status == "timeout":
-            return "timeout", f"step {index} got no 'completed' in time (rover silent or too slow)"
+            return "timeout", f"{step} got no 'completed' in time (rover silent or too slow)"
         if status == "cancelled":
             return "cancelled", "cancelled by the operator"
         kind = status.split(":", 1)[0]
-        return kind, f"step {index}: {status}"
+        return kind, f"{step}: {status}"
 
     def _sources(self) -> str:
         return {"auto": "odom_ground or odom", "odom_ground": "odom_ground", "odom": "odom"}[

@@ -29,7 +29,8 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from planner.geometry import Point, Pose, segment_polygon_distance, wrap_deg
+from firmware_proto.pose import Pose
+from planner.geometry import Point, segment_polygon_distance, wrap_deg
 from planner.mapinfo import BOUNDS_ID, MapInfo
 from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner, Route

@@ -17,9 +17,9 @@ import threading
 import time
 from typing import Any
 
+from firmware_proto.bindpolicy import is_loopback
 from planner.mcaprec import gate_messages, msgdef, plain_message, ros_name
 from planner.orchestrator import MissionResult
-from planner.view.server import is_loopback
 
 __all__ = ["FoxgloveLive"]
 

@@ -1,4 +1,5 @@
-"""Planar geometry of the planner: poses, angle wrapping, distances between segments.
+"""Planar geometry of the planner: angle wrapping, distances between segments (the pose
+type is :class:`firmware_proto.pose.Pose`, shared with the gate and the maps).
 
 Frames and units are those of the maps and plans (DESIGN.md): metres in the map frame,
 x east, y north; yaw counter-clockwise from +x, in degrees where a name says ``_deg``
@@ -10,13 +11,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-
-from firmware_proto.plan import Goal
 
 __all__ = [
     "Point",
-    "Pose",
     "bearing_rad",
     "closest_point_on_segment",
     "point_in_polygon",
@@ -40,46 +37,6 @@ def wrap_deg(angle_deg: float) -> float:
 def wrap_rad(angle_rad: float) -> float:
     """``angle_rad`` wrapped to ``[-pi, pi)``."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
-
-
-@dataclass(frozen=True)
-class Pose:
-    """A planar pose: metres in the map frame, yaw in degrees counter-clockwise from +x
-    (the shape of a plan's ``goal`` and of the gate's poses)."""
-
-    x: float
-    y: float
-    yaw_deg: float
-
-    @property
-    def yaw_rad(self) -> float:
-        """The yaw in radians."""
-        return math.radians(self.yaw_deg)
-
-    @property
-    def xy(self) -> Point:
-        """The position as a point."""
-        return (self.x, self.y)
-
-    def is_finite(self) -> bool:
-        """Whether every coordinate is a finite number."""
-        return all(math.isfinite(v) for v in (self.x, self.y, self.yaw_deg))
-
-    def distance_to(self, point: Point) -> float:
-        """Euclidean distance to ``point``, m."""
-        return math.hypot(point[0] - self.x, point[1] - self.y)
-
-    def to_goal(self) -> Goal:
-        """The pose as a plan goal."""
-        return Goal(self.x, self.y, self.yaw_deg)
-
-    @classmethod
-    def from_goal(cls, goal: Goal) -> Pose:
-        """A plan goal as a pose."""
-        return cls(goal.x, goal.y, goal.yaw_deg)
-
-    def __str__(self) -> str:
-        return f"({self.x:.3f}, {self.y:.3f}, {self.yaw_deg:.1f} deg)"
 
 
 def bearing_rad(a: Point, b: Point) -> float:

@@ -20,10 +20,10 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from firmware_proto.pose import Pose
 from planner.errors import GateProtocolError
 from planner.geometry import (
     Point,
-    Pose,
     point_in_polygon,
     point_segment_distance,
     segment_polygon_distance,

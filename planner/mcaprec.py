@@ -10,6 +10,18 @@ storage). The gate's predicted trajectories go beside them as ``nav_msgs/msg/Pat
 :data:`PREDICTED_TOPIC` for each approved plan, :data:`REJECTED_TOPIC` for each
 rejected attempt, and the verdict itself as JSON on :data:`VERDICT_TOPIC`.
 
+What a lab's viewer needs besides (:meth:`McapRecorder.attach` hangs the recorder on a
+port and subscribes it to ``diagnostics``):
+
+- ``/tf`` (``tf2_msgs/msg/TFMessage``, :data:`TF_TOPIC`): ``odom -> base_link`` from
+  each ``odom`` and ``map -> odom`` from the latest ``odom_ground`` against it, so the
+  tree ``map -> odom -> base_link`` holds;
+- the map and the plans as ``visualization_msgs/msg/MarkerArray``
+  (:data:`MAP_MARKERS_TOPIC`, :data:`PLAN_MARKERS_TOPIC`; :mod:`planner.markers`);
+- the bridge's ``/diagnostics`` as the ground station hears them;
+- metadata records: ``map`` (name, bounds, obstacles, start, goal), ``planning-<n>``
+  for each planning (its plans and verdicts as JSON) and ``mission`` (how many).
+
 The tap only puts the message on a queue; a writer thread encodes and writes, so the
 mission thread never waits on the disk. :meth:`McapRecorder.close` drains the queue and
 finishes the file (idempotent).
@@ -33,12 +45,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
+from planner.mapinfo import MapInfo
+from planner.markers import map_markers, plan_markers
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
 __all__ = [
+    "MAP_MARKERS_TOPIC",
+    "PLAN_MARKERS_TOPIC",
     "PREDICTED_TOPIC",
     "REJECTED_TOPIC",
+    "TF_TOPIC",
     "VERDICT_TOPIC",
     "McapRecorder",
     "McapSummary",
@@ -57,6 +75,13 @@ REJECTED_TOPIC = "/gate/rejected_trajectory"
 """A rejected attempt's predicted trajectory, up to its collision or stall."""
 VERDICT_TOPIC = "/gate/verdict"
 """Each attempt's verdict as JSON (``std_msgs/msg/String``)."""
+TF_TOPIC = "/tf"
+"""``map -> odom -> base_link`` (``tf2_msgs/msg/TFMessage``)."""
+MAP_MARKERS_TOPIC = "/map/markers"
+"""The map as ``visualization_msgs/msg/MarkerArray``."""
+PLAN_MARKERS_TOPIC = "/gate/plan_markers"
+"""Each planning's attempts as ``visualization_msgs/msg/MarkerArray``."""
+_TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 _PRIMITIVES = {
     "double": "float64",
@@ -141,18 +166,28 @@ def plain_message(value: Any) -> Any:
     e.g. a diagnostic status's level) its number."""
     fields = getattr(value, "get_fields_and_field_types", None)
     if fields is not None:
-        out = {}
-        for name, kind in fields().items():
-            field_value = getattr(value, name)
-            if kind == "octet" and isinstance(field_value, bytes) and len(field_value) == 1:
-                out[name] = field_value[0]
-            else:
-                out[name] = plain_message(field_value)
-        return out
+        return {
+            name: _octets(idl, plain_message(getattr(value, name)))
+            for name, idl in fields().items()
+        }
     if isinstance(value, (str, bytes, int, float, bool, dict)):
         return value
     if hasattr(value, "__iter__"):
         return [plain_message(v) for v in value]
+    return value
+
+
+def _octets(idl: str, value: Any) -> Any:
+    """ROS ``byte`` (``octet``) fields are one-byte ``bytes`` in rclpy, integers to the
+    CDR encoder (a diagnostic status's level)."""
+    if "octet" not in idl:
+        return value
+    if isinstance(value, (bytes, bytearray)) and idl == "octet":
+        return value[0] if value else 0
+    if isinstance(value, list):
+        return [v[0] if isinstance(v, (bytes, bytearray)) and len(v) == 1 else v for v in value]
+    if isinstance(value, (bytes, bytearray)):
+        return list(value)
     return value
 
 
@@ -196,9 +231,44 @@ def _verdict_json(verdict: Verdict, attempt: int, repair: str) -> str:
                 "y": collision.contact[1],
                 "step": collision.step,
             },
-            "plan_sha256": verdict.plan_sha256,
+            "plan_sha256": verdict.replay.plan_sha256,
         }
     )
+
+
+def _transform(
+    stamp: dict[str, int], parent: str, child: str, x: float, y: float, yaw_rad: float
+) -> dict[str, Any]:
+    half = yaw_rad / 2.0
+    return {
+        "header": {"stamp": stamp, "frame_id": parent},
+        "child_frame_id": child,
+        "transform": {
+            "translation": {"x": x, "y": y, "z": 0.0},
+            "rotation": {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)},
+        },
+    }
+
+
+def _map_metadata(world: MapInfo, goal: Pose | None) -> dict[str, str]:
+    b = world.bounds
+    return {
+        "name": world.name,
+        "bounds": json.dumps([b.min_x, b.min_y, b.max_x, b.max_y]),
+        "obstacles": json.dumps(
+            [
+                {
+                    "id": o.id,
+                    "kind": o.kind,
+                    "points": [[p[0], p[1]] for p in o.points],
+                    "radius_m": o.radius_m,
+                }
+                for o in world.obstacles
+            ]
+        ),
+        "start": json.dumps([world.start.x, world.start.y, world.start.yaw_deg]),
+        "goal": json.dumps(None if goal is None else [goal.x, goal.y, goal.yaw_deg]),
+    }
 
 
 def gate_messages(mission: MissionResult, t_ns: int) -> list[tuple[str, type[Any], Any]]:
@@ -242,6 +312,8 @@ class McapRecorder:
         self._writer = Writer(self._file)
         self._schemas: dict[str, Any] = {}
         self._queue: queue.SimpleQueue[tuple[int, str, Any, Any] | None] = queue.SimpleQueue()
+        self._ground: tuple[float, float, float] | None = None  # map pose (x, y, yaw rad)
+        self._plannings = 0
         self._counts: Counter[str] = Counter()
         self._errors = 0
         self._closed = False
@@ -260,14 +332,52 @@ class McapRecorder:
         if not self._closed:
             self._queue.put((self._clock(), topic, type(msg), msg))
 
-    def planned(self, mission: MissionResult) -> None:
-        """Record a planning: each attempt's verdict, and its predicted trajectory on
-        :data:`PREDICTED_TOPIC` (approved) or :data:`REJECTED_TOPIC`."""
+    def attach(self, port: Any) -> None:
+        """Record what ``port`` sends and receives (its tap), and subscribe it to
+        ``diagnostics`` so that the bridge's ``/diagnostics`` are recorded too."""
+        from bridge.rosport import qos  # noqa: PLC0415
+        from bridge.rosport.msgs import DiagnosticArray  # noqa: PLC0415
+
+        port.add_tap(self.tap)
+        port.subscribe("diagnostics", DiagnosticArray, lambda _msg: None, qos.DIAGNOSTICS)
+
+    def set_map(self, world: MapInfo, goal: Pose | None) -> None:
+        """Record the map (markers on :data:`MAP_MARKERS_TOPIC`, metadata ``map``)."""
         if self._closed:
             return
+        from bridge.rosport.msgs import stamp  # noqa: PLC0415
+
+        now_ns = self._clock()
+        markers = map_markers(world, goal, stamp(now_ns / 1e9))
+        self._queue.put((now_ns, MAP_MARKERS_TOPIC, type(markers), markers))
+        self._queue.put((now_ns, "", None, ("map", _map_metadata(world, goal))))
+
+    def planned(self, mission: MissionResult) -> None:
+        """Record a planning: each attempt's verdict, and its predicted trajectory on
+        :data:`PREDICTED_TOPIC` (approved) or :data:`REJECTED_TOPIC`; its markers on
+        :data:`PLAN_MARKERS_TOPIC`; its plans and verdicts as metadata."""
+        if self._closed:
+            return
+        from bridge.rosport.msgs import stamp  # noqa: PLC0415
+
         now_ns = self._clock()
         for topic, cls, msg in gate_messages(mission, now_ns):
             self._queue.put((now_ns, topic, cls, msg))
+        self._plannings += 1
+        markers = plan_markers(mission, self._plannings, stamp(now_ns / 1e9))
+        self._queue.put((now_ns, PLAN_MARKERS_TOPIC, type(markers), markers))
+        meta = {
+            "approved": str(mission.approved).lower(),
+            "reason": str(mission.reason),
+            "plans": json.dumps([plan.to_dict() for plan in mission.plans]),
+            "verdicts": json.dumps(
+                [
+                    json.loads(_verdict_json(a.verdict, a.index, a.repair_name))
+                    for a in mission.attempts
+                ]
+            ),
+        }
+        self._queue.put((now_ns, "", None, (f"planning-{self._plannings}", meta)))
 
     def _schema(self, cls: type[Any]) -> Any:
         name = ros_name(cls)
@@ -277,6 +387,45 @@ class McapRecorder:
             self._schemas[name] = schema
         return schema
 
+    def _tf_schema(self) -> Any:
+        schema = self._schemas.get(_TF_TYPE)
+        if schema is None:
+            # No tf2_msgs wheel: its one-field definition is written here, its
+            # dependencies from the generated geometry_msgs class.
+            transform = _class_of("geometry_msgs/TransformStamped")
+            text = (
+                "geometry_msgs/TransformStamped[] transforms\n"
+                f"{_SEPARATOR}\nMSG: geometry_msgs/TransformStamped\n{msgdef(transform)}"
+            )
+            schema = self._writer.register_msgdef(_TF_TYPE, text)
+            self._schemas[_TF_TYPE] = schema
+        return schema
+
+    def _tf(self, topic: str, msg: Any) -> dict[str, Any] | None:
+        """The ``/tf`` message an odometry message makes (writer thread), if any."""
+        if not hasattr(msg, "child_frame_id"):
+            return None
+        p = msg.pose.pose
+        yaw = 2.0 * math.atan2(p.orientation.z, p.orientation.w)
+        if topic.endswith("/odom_ground"):
+            self._ground = (p.position.x, p.position.y, yaw)
+            return None
+        if not topic.endswith("/odom"):
+            return None
+        header = msg.header
+        stamp = {"sec": int(header.stamp.sec), "nanosec": int(header.stamp.nanosec)}
+        transforms = [
+            _transform(stamp, header.frame_id, msg.child_frame_id, p.position.x, p.position.y, yaw)
+        ]
+        if self._ground is not None:
+            gx, gy, gyaw = self._ground
+            myaw = gyaw - yaw  # map -> odom = (map -> base) * inverse(odom -> base)
+            c, s = math.cos(myaw), math.sin(myaw)
+            mx = gx - (c * p.position.x - s * p.position.y)
+            my = gy - (s * p.position.x + c * p.position.y)
+            transforms.insert(0, _transform(stamp, "map", header.frame_id, mx, my, myaw))
+        return {"transforms": transforms}
+
     def _write_loop(self) -> None:
         while True:
             item = self._queue.get()
@@ -284,9 +433,17 @@ class McapRecorder:
                 return
             t_ns, topic, cls, msg = item
             try:
+                if cls is None:  # a metadata record: (name, {key: text})
+                    self._writer._writer.add_metadata(*msg)  # the mcap writer under it
+                    continue
                 self._writer.write_message(
                     topic, self._schema(cls), plain_message(msg), log_time=t_ns
                 )
+                tf = self._tf(topic, msg)
+                if tf is not None:
+                    self._writer.write_message(TF_TOPIC, self._tf_schema(), tf, log_time=t_ns)
+                    with self._lock:
+                        self._counts[TF_TOPIC] += 1
             except Exception:
                 self._errors += 1
                 if self._errors & (self._errors - 1) == 0:
@@ -300,6 +457,7 @@ class McapRecorder:
         if self._closed:
             return
         self._closed = True
+        self._queue.put((0, "", None, ("mission", {"plannings": str(self._plannings)})))
         self._queue.put(None)
         self._thread.join(30.0)
         try:

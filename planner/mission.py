@@ -25,14 +25,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from bridge.rosport.contract import COMPLETED
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan, PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent
 from planner.errors import PlannerError
 from planner.executor import ExecutionResult, PlanExecutor, Progress
-from planner.geometry import Pose, wrap_deg
+from planner.geometry import wrap_deg
 from planner.orchestrator import MissionResult, PlannerOrchestrator
-from planner.verdict import Verdict
 
 __all__ = [
     "CANCELLED",
@@ -127,8 +129,9 @@ class MissionReport:
             ex = run.execution
             worst_m, worst_deg = ex.worst_drift
             took = ex.elapsed_s * time_scale
+            done = sum(1 for s in ex.steps if s.status == COMPLETED)
             lines.append(
-                f"  run {i + 1}: {len(ex.steps)}/{len(run.plan.commands)} steps, {ex.outcome}"
+                f"  run {i + 1}: {done}/{len(run.plan.commands)} steps completed, {ex.outcome}"
                 f" in {took:.1f} s; worst drift {worst_m:.3f} m, {worst_deg:.1f} deg"
             )
             if ex.drift is not None:

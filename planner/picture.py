@@ -1,5 +1,7 @@
-"""A top-down picture of a mission: the map, each plan's predicted trajectory (the
-ghost), the rover's reported trajectory, where drift control stopped it, and the goal.
+"""A top-down picture of a mission: the map with its obstacles' names, each plan's
+predicted trajectory (the ghost), the rover's reported trajectory, where drift control
+stopped it (a red octagon, a stop sign), where the gate's rejected plans collided (a
+black X), the goal, a legend and a scale bar.
 
 Drawn with Pillow from the planner's own map data (:class:`~planner.mapinfo.MapInfo`,
 as the gate serves it), so the ground station needs neither the twin nor the gate's
@@ -12,10 +14,11 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from PIL import Image, ImageDraw
 
-from planner.geometry import Pose
+from firmware_proto.pose import Pose
 from planner.mapinfo import MapInfo
 from planner.mission import MissionReport
 
@@ -31,6 +34,8 @@ _GHOSTS = [(70, 130, 220), (150, 90, 200), (40, 170, 160)]
 _ACTUAL = (225, 110, 30)
 _DRIFT = (210, 30, 30)
 _GOAL = (30, 150, 60)
+_COLLISION = (20, 20, 20)
+_LABEL = (255, 255, 255)
 
 
 @dataclass
@@ -45,6 +50,8 @@ class MissionPicture:
     actual: list[Point] = field(default_factory=list)
     drift_stops: list[Point] = field(default_factory=list)
     title: str = ""
+    collisions: list[tuple[Point, str]] = field(default_factory=list)
+    """Where a rejected plan would have hit, and what (not where the rover went)."""
 
 
 def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20) -> Image.Image:
@@ -87,26 +94,68 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
             pen.line([px(p) for p in path], fill=_GHOSTS[i % len(_GHOSTS)], width=3)
     if len(picture.actual) > 1:
         pen.line([px(p) for p in picture.actual], fill=_ACTUAL, width=2)
+    for ob in picture.world.obstacles:
+        cx = sum(p[0] for p in ob.points) / len(ob.points)
+        cy = sum(p[1] for p in ob.points) / len(ob.points)
+        x, y = px((cx, cy))
+        pen.text((x - pen.textlength(ob.id) / 2, y - 5), ob.id, fill=_LABEL)
+    for p, _what in picture.collisions:
+        _cross(pen, px(p), _COLLISION)
     for p in picture.drift_stops:
-        x, y = px(p)
-        pen.line([x - 7, y - 7, x + 7, y + 7], fill=_DRIFT, width=3)
-        pen.line([x - 7, y + 7, x + 7, y - 7], fill=_DRIFT, width=3)
+        _octagon(pen, px(p), _DRIFT)
     _pose_mark(pen, px, picture.start, (0, 0, 0))
     _pose_mark(pen, px, picture.goal, _GOAL)
     if picture.title:
         pen.text((margin_px, 4), picture.title, fill=(0, 0, 0))
-    legend = [
-        ("predicted (ghost)", _GHOSTS[0]),
-        ("reported by the rover", _ACTUAL),
-        ("drift STOP", _DRIFT),
-        ("goal", _GOAL),
+    legend: list[tuple[str, tuple[int, int, int], str]] = [
+        ("predicted (ghost)", _GHOSTS[0], "box"),
+        ("reported by the rover", _ACTUAL, "box"),
+        ("drift STOP", _DRIFT, "octagon"),
+        ("collision (rejected plan)", _COLLISION, "cross"),
+        ("goal", _GOAL, "box"),
     ]
     x, y = margin_px, height - legend_px  # a band below the map, never over it
-    for text, colour in legend:
-        pen.rectangle([x, y + 2, x + 10, y + 10], fill=colour)
+    for text, colour, mark in legend:
+        if mark == "octagon":
+            _octagon(pen, (x + 5, y + 6), colour, radius=5)
+        elif mark == "cross":
+            _cross(pen, (x + 5, y + 6), colour, half=4)
+        else:
+            pen.rectangle([x, y + 2, x + 10, y + 10], fill=colour)
         pen.text((x + 14, y), text, fill=(0, 0, 0))
         x += 14 + round(pen.textlength(text)) + 18
+    _scale_bar(pen, width - margin_px, height - legend_px + 6, px_per_m)
     return image
+
+
+def _octagon(
+    pen: ImageDraw.ImageDraw, at: tuple[float, float], colour: Any, radius: float = 8.0
+) -> None:
+    """A stop sign: a filled octagon."""
+    x, y = at
+    corners = [
+        (x + radius * math.cos(math.pi / 8 + k * math.pi / 4),
+         y + radius * math.sin(math.pi / 8 + k * math.pi / 4))
+        for k in range(8)
+    ]  # fmt: skip
+    pen.polygon(corners, fill=colour, outline=(255, 255, 255))
+
+
+def _cross(pen: ImageDraw.ImageDraw, at: tuple[float, float], colour: Any, half: float = 7) -> None:
+    x, y = at
+    pen.line([x - half, y - half, x + half, y + half], fill=colour, width=3)
+    pen.line([x - half, y + half, x + half, y - half], fill=colour, width=3)
+
+
+def _scale_bar(pen: ImageDraw.ImageDraw, right: float, y: float, px_per_m: float) -> None:
+    """A 1 m bar (2 m when 1 m is under 40 px) ending at ``right``, labelled."""
+    metres = 1 if px_per_m >= 40 else 2
+    left = right - metres * px_per_m
+    pen.line([left, y, right, y], fill=(0, 0, 0), width=2)
+    for end in (left, right):
+        pen.line([end, y - 4, end, y + 4], fill=(0, 0, 0), width=2)
+    label = f"{metres} m"
+    pen.text((left - pen.textlength(label) - 6, y - 6), label, fill=(0, 0, 0))
 
 
 def _pose_mark(
@@ -120,7 +169,7 @@ def _pose_mark(
 
 def picture_of(report: MissionReport, world: MapInfo, title: str) -> MissionPicture:
     """The picture of a mission: each executed plan's ghost, the reported trace, the
-    drift stops."""
+    drift stops, and where the rejected attempts collided."""
     ghosts = [
         [(s.pose.x, s.pose.y) for s in r.verdict.trajectory.samples]
         for r in report.runs
@@ -134,6 +183,15 @@ def picture_of(report: MissionReport, world: MapInfo, title: str) -> MissionPict
         actual=[(x, y) for r in report.runs for _, x, y in r.execution.trace],
         drift_stops=[(e.measured.x, e.measured.y) for e in report.drift_events],
         title=title,
+        collisions=[
+            (
+                (a.verdict.collision.contact[0], a.verdict.collision.contact[1]),
+                a.verdict.collision.obstacle_id,
+            )
+            for planning in report.plannings
+            for a in planning.attempts
+            if a.verdict.collision is not None
+        ],
     )
 
 

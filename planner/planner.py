@@ -41,6 +41,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 from firmware_proto.plan import MAX_PLAN_STEPS, Goal, Plan, PlanStep
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
 from planner.errors import (
     GoalInObstacleError,
@@ -48,7 +49,7 @@ from planner.errors import (
     OutOfBoundsError,
     PlanTooLongError,
 )
-from planner.geometry import Point, Pose, wrap_deg, wrap_rad
+from planner.geometry import Point, wrap_deg, wrap_rad
 from planner.mapinfo import BOUNDS_ID, MapInfo
 
 __all__ = [
@@ -189,7 +190,7 @@ class LegPlan:
     @property
     def goal(self) -> Pose:
         """The plan's goal."""
-        return Pose.from_goal(self.plan.goal)
+        return self.plan.goal
 
     @property
     def predicted_end(self) -> Pose:

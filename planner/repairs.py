@@ -49,8 +49,10 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 from firmware_proto.plan import PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.errors import RepairError
-from planner.geometry import Point, Pose, wrap_deg
+from planner.geometry import Point, wrap_deg
 from planner.mapinfo import BOUNDS_ID, MapInfo, Obstacle
 from planner.planner import (
     CORRECTION,
@@ -61,7 +63,6 @@ from planner.planner import (
     PlannedStep,
     Route,
 )
-from planner.verdict import Verdict
 
 __all__ = [
     "REPAIRS",

@@ -3,13 +3,16 @@
 Read from the sources' import statements (every ``import``, at module level or inside a
 function), so a lazy import counts as much as a top-level one:
 
-- ``firmware_proto`` proper (everything but its ``linkio``, ``runtime`` and ``cli``
-  sub-packages) is pure: no python-can, pyserial, threads, sockets, ROS, and none of
-  those sub-packages;
-- ``firmware_proto.linkio`` (both ends of the wire) imports no part above it and not
-  the command host;
+- ``firmware_proto`` proper (everything but its ``linkio``, ``httpserve``, ``runtime``
+  and ``cli`` sub-packages) is pure: no python-can, pyserial, threads, sockets, ROS, and
+  none of those sub-packages;
+- ``firmware_proto.linkio`` (both ends of the wire) and ``firmware_proto.httpserve``
+  (the HTTP stack of the gate and the live view) import no part above them, not each
+  other, and not the command host;
 - ``firmware_proto.runtime`` (scheduling, stall detection) imports nothing of ours but
   the pure protocol;
+- the planner reaches the gate over HTTP only and the bridge through its ROS port only:
+  of the parts above ``firmware_proto`` it imports ``bridge.rosport`` and nothing else;
 - the emulator and the bridge never import each other; the gate imports neither the
   bridge nor the planner; the rover's device tooling (``udev``) imports none of them.
 """
@@ -57,8 +60,14 @@ def _under(name: str, prefix: str) -> bool:
 
 
 FIRMWARE_PROTO = _modules("firmware_proto")
-LAYERS = ("firmware_proto.linkio", "firmware_proto.runtime", "firmware_proto.cli")
-"""The sub-packages of ``firmware_proto`` that are not pure."""
+LAYERS = (
+    "firmware_proto.linkio",
+    "firmware_proto.httpserve",
+    "firmware_proto.runtime",
+    "firmware_proto.cli",
+)
+"""The sub-packages of ``firmware_proto`` that do I/O or system calls, beside its pure
+modules."""
 PURE = {
     name: path
     for name, path in FIRMWARE_PROTO.items()
@@ -70,6 +79,8 @@ def test_the_split_is_what_the_docs_say() -> None:
     # A module left behind in the wrong place would pass every other test here.
     assert "firmware_proto.framing" in PURE and "firmware_proto.canmap" in PURE
     assert "firmware_proto.linkio.trafficio" in FIRMWARE_PROTO
+    assert "firmware_proto.httpserve.service" in FIRMWARE_PROTO
+    assert "firmware_proto.bindpolicy" in PURE
     assert "firmware_proto.cli" in FIRMWARE_PROTO
     assert "firmware_proto.runtime.realtime" in FIRMWARE_PROTO
     assert "firmware_proto.gapstats" in PURE
@@ -84,7 +95,7 @@ def test_the_protocol_is_pure(name: str) -> None:
     wrong = sorted(
         imported
         for imported in _imports(PURE[name])
-        if imported.split(".")[0] in IMPURE
+        if imported.split(".")[0] in IMPURE | {"uvicorn", "starlette", "h11"}
         or any(_under(imported, layer) for layer in LAYERS)
         or imported.split(".")[0] in {"bridge", "emulator", "gate", "planner"}
     )
@@ -121,9 +132,31 @@ def test_a_serial_link_never_loads_python_can() -> None:
 @pytest.mark.parametrize(
     ("package", "forbidden"),
     [
-        ("firmware_proto/linkio", ("bridge", "emulator", "gate", "planner", "firmware_proto.cli")),
+        (
+            "firmware_proto/linkio",
+            (
+                "bridge",
+                "emulator",
+                "gate",
+                "planner",
+                "firmware_proto.cli",
+                "firmware_proto.httpserve",
+            ),
+        ),
         (
             "firmware_proto/runtime",
+            (
+                "bridge",
+                "emulator",
+                "gate",
+                "planner",
+                "firmware_proto.cli",
+                "firmware_proto.linkio",
+                "firmware_proto.httpserve",
+            ),
+        ),
+        (
+            "firmware_proto/httpserve",
             (
                 "bridge",
                 "emulator",
@@ -136,6 +169,7 @@ def test_a_serial_link_never_loads_python_can() -> None:
         ("emulator", ("bridge", "gate", "planner")),
         ("bridge", ("emulator", "gate", "planner")),
         ("gate", ("bridge", "planner")),
+        ("planner", ("gate", "emulator", "udev")),
         ("udev", ("firmware_proto", "emulator", "bridge", "gate", "planner")),
     ],
 )
@@ -143,5 +177,15 @@ def test_arrows_point_down(package: str, forbidden: tuple[str, ...]) -> None:
     wrong = {
         name: sorted(i for i in _imports(path) if any(_under(i, f) for f in forbidden))
         for name, path in _modules(package).items()
+    }
+    assert not {k: v for k, v in wrong.items() if v}
+
+
+def test_the_planner_uses_only_the_bridges_ros_port() -> None:
+    wrong = {
+        name: sorted(
+            i for i in _imports(path) if _under(i, "bridge") and not _under(i, "bridge.rosport")
+        )
+        for name, path in _modules("planner").items()
     }
     assert not {k: v for k, v in wrong.items() if v}

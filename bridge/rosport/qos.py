@@ -13,7 +13,7 @@ profile            reliability   depth  topics
 =================  ============  =====  ==========================================================
 :data:`COMMAND`    reliable      10     ``wheel_instructions``: a step must not be lost
 :data:`STOP`       reliable      10     ``emergency_stop``, ``clear_emergency_stop``
-:data:`STATUS`     reliable      50     ``command_status``: every ``completed`` counts
+:data:`STATUS`     reliable      100    ``command_status``: every ``completed`` counts
 :data:`TELEMETRY`  reliable      5      ``odom``, ``odom_ground`` published by the bridge
 :data:`SENSOR`     best effort   5      ``odom``, ``odom_ground`` as the ground subscribes them
 :data:`DIAGNOSTICS`  reliable    10     ``/diagnostics`` (what diagnostic_aggregator expects)
@@ -71,7 +71,9 @@ DEFAULT: Final = Qos()
 """ROS 2's default profile: reliable, volatile, keep-last 10."""
 COMMAND: Final = Qos(reliable=True, depth=10)
 STOP: Final = Qos(reliable=True, depth=10)
-STATUS: Final = Qos(reliable=True, depth=50)
+STATUS: Final = Qos(reliable=True, depth=100)
+"""100: a lost link drops at most 74 steps at once (64 in the bridge's lane, 8 in the
+controller, 1 in flight, and the one ``fault:``), each with its own status."""
 TELEMETRY: Final = Qos(reliable=True, depth=5)
 SENSOR: Final = Qos(reliable=False, depth=5)
 DIAGNOSTICS: Final = Qos(reliable=True, depth=10)

@@ -14,6 +14,9 @@ gate and the planner, which all plug into it (the repository's top-level layout 
 fixed). It discovers them by entry point and never imports them; nothing in
 ``firmware_proto`` outside it imports it (docs/linkio.md, Layers).
 
+A subcommand whose positional arguments may also follow its options sets
+``intermixed`` to their destination (``rover frame encode MOTION --can 1 seq=1``).
+
 Exit status: 0 success, 1 the command failed (one line on stderr; ``-vv`` adds the
 traceback), 2 usage error, 130 interrupted.
 """
@@ -81,7 +84,15 @@ def _configure_logging(verbosity: int) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``rover`` command line; returns the process exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    # A command whose positionals may follow its options (``rover frame encode MOTION
+    # --can 1 seq=1 ...``) names them in ``intermixed``; anything else left over is the
+    # usual usage error.
+    into = getattr(args, "intermixed", None)
+    if extra and into is not None and not any(x.startswith("-") for x in extra):
+        getattr(args, into).extend(extra)
+    elif extra:
+        parser.parse_args(argv)  # reports the unrecognised arguments; exit status 2
     _configure_logging(args.verbose)
     func: Callable[[argparse.Namespace], int] = args.func
     try:

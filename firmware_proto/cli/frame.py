@@ -11,6 +11,8 @@ import argparse
 import sys
 from typing import Any
 
+from firmware_proto.cli import values
+
 __all__ = ["register"]
 
 _MAX_SEQ = 0xFF
@@ -63,7 +65,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--can",
-        type=int,
+        type=values.can_node_or_broadcast,
         metavar="NODE",
         help="encode as a CAN frame for this node id (0..15, 0: broadcast), not a serial frame",
     )
@@ -72,7 +74,7 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="only enforce wire ranges, not semantic limits (to test NACKs)",
     )
-    p.set_defaults(func=_cmd_encode)
+    p.set_defaults(func=_cmd_encode, intermixed="fields")
 
     p = sub.add_parser(
         "decode",
@@ -95,7 +97,9 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_cmd_generate)
 
     p = sub.add_parser("dbc", help="print the CAN database for one node id")
-    p.add_argument("--node", type=int, default=None, help="controller node id, 1..15 (default 1)")
+    p.add_argument(
+        "--node", type=values.can_node, default=None, help="controller node id, 1..15 (default 1)"
+    )
     p.set_defaults(func=_cmd_dbc)
 
 
@@ -191,7 +195,18 @@ def _cmd_decode(args: argparse.Namespace) -> int:
     }
     if dropped:
         print(f"dropped: {dropped}")
-    return 0 if decoder.counters.frames else 1
+    if decoder.counters.frames:
+        return 0
+    # Say why nothing came out, rather than print nothing: the bytes were dropped (the
+    # line above), or they are waiting for a frame's end that never came.
+    held = len(data) - sum(v for k, v in dropped.items() if k == "dropped_bytes")
+    why = (
+        f"{held} byte(s) without a frame delimiter (0x00): a truncated frame, or not a frame"
+        if held > 0 and not dropped
+        else "every byte was dropped (above)"
+    )
+    print(f"rover frame: error: no frame decoded from {len(data)} byte(s): {why}", file=sys.stderr)
+    return 1
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:

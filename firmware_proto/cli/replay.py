@@ -17,6 +17,8 @@ from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import Any
 
+from firmware_proto.cli import values
+
 __all__ = ["DEFAULT_TARGET", "REPLAY_GROUP", "register"]
 
 REPLAY_GROUP = "rover.replay"
@@ -77,7 +79,9 @@ def register(subparsers: Any) -> None:
         metavar="INTERFACE:CHANNEL",
         help="bus for a CAN log (default virtual:rover-replay, in-process)",
     )
-    p.add_argument("--node", type=int, help="CAN node id (default: the node the log addressed)")
+    p.add_argument(
+        "--node", type=values.can_node, help="CAN node id (default: the node the log addressed)"
+    )
     p.add_argument("--seed", type=int, help="emulator seed (default: the log's, else 0)")
     p.add_argument(
         "--speed-factor",

@@ -16,10 +16,21 @@ drops), so a slow or dead browser costs memory of at most ``queue_len`` records 
 never holds up the hub, let alone the mission. A client that connects gets the state
 first (``hello``: the map, the plannings so far, the latest poses).
 
-Events (``data`` is JSON): ``hello``, ``plans``, ``pose`` (``src`` ``reported`` or
-``odom``, the latter with its speed ``v`` m/s and yaw rate ``w`` rad/s; ``tap_s``: wall
-time it reached the ground station), ``status``, ``progress``,
-``tick``, ``log``, ``stop`` (the latch and who asked).
+Events (``data`` is JSON): ``hello``, ``plans`` (with the mission's ``goal``),
+``pose`` (``src`` ``reported`` or ``odom``, the latter with its speed ``v`` m/s and yaw
+rate ``w`` rad/s; ``tap_s``: wall time it reached the ground station), ``status``,
+``progress``, ``tick``, ``log``, ``stop`` (the latch, who asked, and ``at``: where the
+rover was), ``result`` (the banner: ``ok``, ``text``).
+
+A page opened mid-mission starts from ``hello``: the map, the goal, the plannings, the
+trails of both poses so far (1 cm apart, at most :data:`TRAIL_LEN` points each), the
+STOPs with where they happened, the progress, the ghost's state and the result.
+
+The ghost stops where it is when the step it follows ends other than ``completed``
+(``fault:``, ``aborted:``, ``rejected:``) or a STOP is sent, until the next step is
+published: the prediction of a step the rover no longer drives is not where it is.
+A step ended that way shows the banner at once (``fault:encoder at step 3/9``);
+:meth:`ViewHub.result` replaces it with the mission's outcome.
 """
 
 from __future__ import annotations
@@ -34,13 +45,21 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.executor import Progress
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
-__all__ = ["INBOX_LEN", "QUEUE_LEN", "TICK_S", "ClientQueue", "ViewHub", "ViewLimits"]
+__all__ = [
+    "INBOX_LEN",
+    "QUEUE_LEN",
+    "TICK_S",
+    "TRAIL_LEN",
+    "ClientQueue",
+    "ViewHub",
+    "ViewLimits",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +69,9 @@ QUEUE_LEN = 256
 """Records a client may have waiting before its oldest are dropped."""
 INBOX_LEN = 10_000
 """Inputs the hub may have waiting before its oldest are dropped."""
+TRAIL_LEN = 5000
+"""Points of each pose's trail kept for a page that opens later (1 cm apart)."""
+_ENDS_BADLY = ("fault:", "aborted:", "rejected:")
 
 
 class ClientQueue:
@@ -127,6 +149,13 @@ def _plan_json(planning: int, index: int, repair: str, verdict: Verdict) -> dict
         "summary": verdict.summary(),
         "path": [[round(s.pose.x, 4), round(s.pose.y, 4)] for s in verdict.trajectory.samples],
         "collision": None if c is None else [c.contact[0], c.contact[1]],
+        # With the gate's uncertainty: where the samples are (the level's ellipses along
+        # each step: x, y, semi-axes m, angle deg) and how many of them collided.
+        "envelope": [
+            [p.pose.x, p.pose.y, p.major_m, p.minor_m, p.angle_deg]
+            for p in (verdict.uncertainty.envelope if verdict.uncertainty else ())
+        ],
+        "collision_p": (verdict.uncertainty.collision_probability if verdict.uncertainty else None),
     }
 
 
@@ -196,6 +225,16 @@ class ViewHub:
         self._replan_approved = False
         self._stop_source = ""
         self._log: deque[str] = deque(maxlen=50)
+        self._trails: dict[str, deque[list[float]]] = {
+            "reported": deque(maxlen=TRAIL_LEN),
+            "odom": deque(maxlen=TRAIL_LEN),
+        }
+        self._stops: list[dict[str, Any]] = []
+        self._goal: list[float] | None = None
+        self._result: dict[str, Any] | None = None
+        self._halted: tuple[float, float, float] | None = None
+        """The ghost's pose, frozen, while the step it followed ended badly."""
+        self._last_ghost: tuple[float, float, float] | None = None
         self.records = 0
         """Events encoded so far."""
 
@@ -219,6 +258,10 @@ class ViewHub:
     def stop_requested(self, source: str) -> None:
         """The operator asked for STOP (``source``: ``view``, ``signal``)."""
         self._put("_stop", source)
+
+    def result(self, ok: bool, text: str) -> None:
+        """The mission's outcome, for the banner (``REACHED``, ``NOT REACHED (why)``)."""
+        self._put("_result", (ok, text))
 
     def _put(self, kind: str, payload: Any) -> None:
         if self._closed:
@@ -285,6 +328,11 @@ class ViewHub:
             "limits": [self.limits.drift_linear_m, self.limits.drift_angular_deg],
             "rtt_s": self.rtt_s,
             "log": list(self._log),
+            "trails": {k: list(v) for k, v in self._trails.items()},
+            "stops": list(self._stops),
+            "goal": self._goal,
+            "result": self._result,
+            "halted": self._halted is not None,
         }
 
     def _broadcast(self, name: str, data: dict[str, Any]) -> None:
@@ -380,6 +428,9 @@ class ViewHub:
         }
         with self._lock:
             self._poses[src] = data
+            trail = self._trails[src]
+            if not trail or math.hypot(pose.x - trail[-1][0], pose.y - trail[-1][1]) > 0.01:
+                trail.append([round(pose.x, 4), round(pose.y, 4)])
         self._broadcast("pose", data)
 
     def _topic_command_status(self, rx: float, msg: Any) -> None:
@@ -395,19 +446,52 @@ class ViewHub:
         with self._lock:
             self._status = text
         self._broadcast("status", {"status": text, "tap_s": rx, "latched": self._latched})
+        if text.startswith(_ENDS_BADLY) and self._step_sent is not None:
+            self._halt()
+            if text.startswith("fault:") or text.startswith("aborted:"):
+                p = self._progress
+                where = f" at step {p['step'] + 1}/{p['steps']}" if p else ""
+                self._show_result(False, f"{text}{where}", final=False)
 
     def _topic_wheel_instructions(self, rx: float, msg: Any) -> None:
         self._step_sent = rx
         self._step_started = None
+        self._halted = None  # a new step: the ghost follows it
+        if self._result is not None and not self._result.get("final"):
+            self._show_result(None, "", final=False)  # a fault's banner ends with a new step
+
+    def _halt(self) -> None:
+        """Freeze the ghost where it is (the step it followed will not be driven)."""
+        if self._halted is None and self._last_ghost is not None:
+            self._halted = self._last_ghost
+
+    def _show_result(self, ok: bool | None, text: str, *, final: bool) -> None:
+        data = None if ok is None else {"ok": ok, "text": text, "final": final}
+        with self._lock:
+            self._result = data
+        self._broadcast("result", data or {"ok": None, "text": "", "final": False})
+
+    def _on_result(self, rx: float, outcome: tuple[bool, str]) -> None:
+        self._show_result(outcome[0], outcome[1], final=True)
+
+    def _stop_at(self) -> list[float] | None:
+        pose = self._poses.get("reported") or self._poses.get("odom")
+        return None if pose is None else [pose["x"], pose["y"]]
 
     def _topic_emergency_stop(self, rx: float, msg: Any) -> None:
+        self._halt()
         with self._lock:
             first = not self._latched
             self._latched = True
             self._replan_approved = False
             self._stop_source = self._stop_source or "ground station"
+            at = self._stop_at()
+            if first and at is not None:
+                self._stops.append({"at": at, "source": self._stop_source})
         if first:
-            self._broadcast("stop", {"latched": True, "source": self._stop_source, "tap_s": rx})
+            self._broadcast(
+                "stop", {"latched": True, "source": self._stop_source, "tap_s": rx, "at": at}
+            )
 
     def _on_stop(self, rx: float, source: str) -> None:
         with self._lock:
@@ -426,7 +510,9 @@ class ViewHub:
                 self._replan_approved = True
         self._ghosts = list(mission.verdicts)
         self._leg = -1
-        self._broadcast("plans", {"plans": plans, "approved": mission.approved})
+        goal = mission.goal
+        self._goal = [goal.x, goal.y, goal.yaw_deg]
+        self._broadcast("plans", {"plans": plans, "approved": mission.approved, "goal": self._goal})
 
     def _on_progress(self, rx: float, p: Progress) -> None:
         if p.step == 0 and p.status == "published":
@@ -463,9 +549,30 @@ class ViewHub:
             return samples[-1].pose
         return trajectory.pose_at(self._step_index, step_t)
 
+    def _ghost_envelope(self) -> list[float] | None:
+        """The spread of the gate's samples where the ghost is: ``[semi-major m,
+        semi-minor m, angle deg]`` of the step's first envelope point not behind it
+        (``None`` without uncertainty)."""
+        if not self._ghosts or self._leg < 0 or self._leg >= len(self._ghosts):
+            return None
+        u = self._ghosts[self._leg].uncertainty
+        points = u.for_step(self._step_index) if u is not None else ()
+        if not points:
+            return None
+        step_t = 0.0
+        if self._step_started is not None:
+            step_t = (time.time() - self._step_started) * self.time_scale
+        at = next((p for p in points if p.step_t_s >= step_t), points[-1])
+        return [round(at.major_m, 4), round(at.minor_m, 4), round(at.angle_deg, 2)]
+
     def _tick(self) -> None:
         drift = self._drift_source() if self._drift_source is not None else None
-        ghost = self._ghost()
+        if self._halted is not None:
+            ghost: Pose | None = Pose(*self._halted)
+        else:
+            ghost = self._ghost()
+            if ghost is not None:
+                self._last_ghost = (ghost.x, ghost.y, ghost.yaw_deg)
         self._broadcast(
             "tick",
             {
@@ -473,9 +580,11 @@ class ViewHub:
                 "ghost": None
                 if ghost is None
                 else [round(ghost.x, 4), round(ghost.y, 4), round(ghost.yaw_deg, 2)],
+                "envelope": None if ghost is None else self._ghost_envelope(),
                 "drift": None if drift is None else [round(drift[0], 4), round(drift[1], 2)],
                 "rtt_s": self._rtt_measured,
                 "latched": self._latched,
+                "halted": self._halted is not None,
                 "clients": len(self._clients),
             },
         )

@@ -1,6 +1,8 @@
 """The live view's HTTP server: one static page, a Server-Sent Events stream, STOP.
 
-Standard library only (``http.server.ThreadingHTTPServer``): the page is one file
+An ASGI application (Starlette's request and response types) on the project's one HTTP
+stack, the gate's (:mod:`firmware_proto.httpserve`: uvicorn with h11, one event loop in
+a thread of its own, every connection bounded by deadlines). The page is one file
 shipped with the package (no build step, nothing fetched from elsewhere) and the push
 channel is Server-Sent Events, which a browser's ``EventSource`` reads and reconnects by
 itself.
@@ -15,39 +17,47 @@ itself.
                         another site cannot send it)
 ======================  ========================================================
 
-Anything else gets a JSON error (404, 405, 411, 413) and the server goes on.
+Anything else gets a JSON error (400, 404, 405, 408, 413) and the server goes on.
 
-Binding and auth, as the gate does it: loopback by default; a non-loopback address is
-refused without a token; with a token every request needs ``Authorization: Bearer
-<token>`` or ``?token=<token>`` (the page passes its own on; ``EventSource`` cannot set
-headers), compared in constant time, else 401.
+Binding and auth, as the gate does it (:mod:`firmware_proto.bindpolicy`): loopback by
+default; a non-loopback address is refused without a token; with a token every request
+needs ``Authorization: Bearer <token>`` or ``?token=<token>`` (the page passes its own
+on; ``EventSource`` cannot set headers), compared in constant time, else 401.
 
 Never in the mission's way: each browser has a bounded queue (drop-oldest) filled by the
-hub; its connection thread writes with a timeout (``client_timeout_s``), so a browser
-that stops reading is dropped, and a closed one only ends its own thread. Accepted
-sockets have ``TCP_NODELAY`` and every response goes out in one write (the 40 ms
-Nagle/delayed-ACK stall the gate found).
+hub; a browser that takes nothing of the stream for ``client_timeout_s`` (its socket
+full) is cut off by the connection layer, and a closed one only ends its own stream.
+Waiting on a browser's queue happens on a thread of a small pool (``view-events``), one
+per open stream at most, never on the event loop.
 """
 
 from __future__ import annotations
 
-import contextlib
-import hmac
-import ipaddress
+import asyncio
 import json
 import logging
-import socket
 import threading
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any
-from urllib.parse import parse_qs, quote, urlsplit
+from urllib.parse import quote
 
+from starlette.requests import Request
+from starlette.responses import Response, StreamingResponse
+
+from firmware_proto.bindpolicy import bearer_token, check_bind, token_matches
+from firmware_proto.httpserve import (
+    ClientGoneError,
+    HttpService,
+    RequestBodyError,
+    ServeLimits,
+    read_body,
+)
 from planner.view.hub import ClientQueue, ViewHub
 
-__all__ = ["CLEAR_HEADER", "ViewConfig", "ViewServer", "is_loopback"]
+__all__ = ["CLEAR_HEADER", "ViewConfig", "ViewServer"]
 
 logger = logging.getLogger(__name__)
 
@@ -55,16 +65,11 @@ CLEAR_HEADER = "X-Rover-View"
 """Header a clear-STOP request must carry (value ``1``)."""
 _MAX_BODY = 4096
 _KEEPALIVE_S = 1.0
+_ALLOW = {"Allow": "GET, POST"}
 
-
-def is_loopback(host: str) -> bool:
-    """``127.0.0.0/8``, ``::1`` or ``localhost``; any other name counts as not loopback."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+_Scope = MutableMapping[str, Any]
+_Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
+_Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
 
 
 @dataclass(frozen=True)
@@ -75,14 +80,16 @@ class ViewConfig:
         host: address to bind (default loopback).
         port: TCP port; 0 picks a free one.
         token: bearer token; required when ``host`` is not loopback.
-        client_timeout_s: a write to a browser that takes longer drops that browser.
+        client_timeout_s: a browser that takes nothing of its stream for this long is
+            dropped.
         max_clients: connections to the push channel at once (503 beyond).
         hold_s: how long ``rover demo``/``rover go`` keep the view up after the mission.
         wait_s: how long they wait for a browser to connect before the mission starts
             (0: they do not wait).
 
     Raises:
-        ValueError: a bad port, token or timeout; a non-loopback host without a token.
+        ValueError: a bad port, token or timeout; a non-loopback host without a token
+            (:class:`firmware_proto.errors.BindPolicyError`, a ``ValueError``).
     """
 
     host: str = "127.0.0.1"
@@ -96,13 +103,9 @@ class ViewConfig:
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ValueError(f"view port must be 0..65535, got {self.port}")
-        if self.token is not None and (not self.token or not self.token.isprintable()):
-            raise ValueError("view token must be a non-empty printable string")
-        if self.token is None and not is_loopback(self.host):
-            raise ValueError(
-                f"refusing to serve the view on {self.host!r} without a token: give "
-                "--view-token (or ROVER_VIEW_TOKEN), or bind a loopback address"
-            )
+        check_bind(
+            self.host, self.token, what="view token", hint="--view-token (or ROVER_VIEW_TOKEN)"
+        )
         if not (
             self.client_timeout_s > 0
             and self.max_clients >= 1
@@ -118,206 +121,23 @@ def _page() -> bytes:
     return resources.files("planner.view").joinpath("index.html").read_bytes()
 
 
-class _Server(ThreadingHTTPServer):
-    daemon_threads = True
-    view: ViewServer
-
-    def __init__(self, address: tuple[str, int], handler: type[BaseHTTPRequestHandler]) -> None:
-        if ":" in address[0]:
-            self.address_family = socket.AF_INET6
-        super().__init__(address, handler)
-        self.connections: set[socket.socket] = set()
-        self.connections_lock = threading.Lock()
-
-    def get_request(self) -> tuple[socket.socket, Any]:
-        sock, addr = super().get_request()
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        with self.connections_lock:
-            self.connections.add(sock)
-        return sock, addr
-
-    def shutdown_request(self, request: Any) -> None:
-        with self.connections_lock:
-            self.connections.discard(request)
-        super().shutdown_request(request)
-
-    def end_connections(self) -> None:
-        """Cut every open connection (an idle keep-alive one would hold its thread)."""
-        with self.connections_lock:
-            socks = list(self.connections)
-        for sock in socks:
-            with contextlib.suppress(OSError):
-                sock.shutdown(socket.SHUT_RDWR)
+def _error_bytes(message: str) -> bytes:
+    return json.dumps({"error": message}).encode()
 
 
-class _Handler(BaseHTTPRequestHandler):
-    server: _Server
-    protocol_version = "HTTP/1.1"
-    server_version = "rover-view"
+def _render_connection_error(status: int, code: str, message: str) -> tuple[str, bytes]:
+    """The view's wording of the errors its connection layer answers itself."""
+    return "application/json", _error_bytes(message)
 
-    def setup(self) -> None:
-        threading.current_thread().name = "view-connection"  # what a CPU account sums
-        super().setup()
 
-    def log_message(self, format: str, *args: Any) -> None:
-        logger.debug("view %s: %s", self.address_string(), format % args)
+class _AnswerError(Exception):
+    """An error answer: status, message, extra headers."""
 
-    # -- responses --------------------------------------------------------------------------
-    def _send(
-        self,
-        code: int,
-        body: bytes,
-        content_type: str = "application/json",
-        headers: dict[str, str] | None = None,
-    ) -> None:
-        head = [f"{self.protocol_version} {code} {self.responses.get(code, ('',))[0]}"]
-        head += [
-            f"Content-Type: {content_type}",
-            f"Content-Length: {len(body)}",
-            "Cache-Control: no-store",
-        ]
-        head += [f"{k}: {v}" for k, v in (headers or {}).items()]
-        self.wfile.write(("\r\n".join(head) + "\r\n\r\n").encode("latin-1") + body)
-        self.log_request(code, len(body))
-
-    def _json(self, code: int, obj: dict[str, Any], headers: dict[str, str] | None = None) -> None:
-        self._send(code, json.dumps(obj).encode(), headers=headers)
-
-    def _error(self, code: int, message: str, headers: dict[str, str] | None = None) -> None:
-        self._json(code, {"error": message}, headers)
-
-    # -- checks -----------------------------------------------------------------------------
-    def _authorised(self) -> bool:
-        token = self.server.view.config.token
-        if token is None:
-            return True
-        given = ""
-        auth = self.headers.get("Authorization", "")
-        if auth.startswith("Bearer "):
-            given = auth[len("Bearer ") :].strip()
-        else:
-            given = parse_qs(urlsplit(self.path).query).get("token", [""])[0]
-        if given and hmac.compare_digest(given.encode(), token.encode()):
-            return True
-        challenge = 'Bearer realm="rover-view"'
-        self._error(
-            401,
-            "this view needs 'Authorization: Bearer <token>' or ?token=<token>"
-            if not given
-            else "wrong token",
-            {"WWW-Authenticate": challenge},
-        )
-        return False
-
-    def _read_body(self) -> bool:
-        length = self.headers.get("Content-Length")
-        if length is None:
-            if self.headers.get("Transfer-Encoding"):
-                self._error(411, "send a Content-Length")
-                self.close_connection = True
-                return False
-            return True
-        try:
-            n = int(length)
-        except ValueError:
-            self._error(400, "bad Content-Length")
-            self.close_connection = True
-            return False
-        if n < 0 or n > _MAX_BODY:
-            self._error(413, f"body over {_MAX_BODY} bytes")
-            self.close_connection = True
-            return False
-        self.rfile.read(n)
-        return True
-
-    # -- methods ----------------------------------------------------------------------------
-    def do_GET(self) -> None:
-        path = urlsplit(self.path).path
-        if not self._authorised():
-            return
-        view = self.server.view
-        if path in ("/", "/index.html"):
-            self._send(200, view.page, "text/html; charset=utf-8")
-        elif path == "/events":
-            self._events()
-        elif path == "/state":
-            self._json(200, view.hub.state())
-        else:
-            self._error(404, f"no such page: {path}; try / or /events")
-
-    def do_POST(self) -> None:
-        path = urlsplit(self.path).path
-        if not self._read_body() or not self._authorised():
-            return
-        view = self.server.view
-        if path == "/stop":
-            try:
-                done = view.stop()
-            except Exception as exc:
-                logger.exception("view: STOP failed")
-                self._error(500, f"STOP failed on the ground station: {exc}; use Ctrl-C")
-                return
-            self._json(202, {"stop": done})
-        elif path == "/clear_stop":
-            if self.headers.get(CLEAR_HEADER) != "1":
-                self._error(403, f"clear-STOP needs the header {CLEAR_HEADER}: 1")
-                return
-            allowed, why = view.hub.clear_allowed()
-            if not allowed:
-                self._error(409, f"STOP stays latched: {why}")
-                return
-            try:
-                cleared = view.clear()
-            except Exception as exc:  # the mission has ended: its ROS port is closed
-                logger.warning("view: clear-STOP failed: %s", exc)
-                self._error(503, f"the ground station cannot release the latch now: {exc}")
-                return
-            if cleared:
-                self._json(200, {"cleared": True})
-            else:
-                self._error(504, "the rover did not confirm CLEAR_STOP")
-        else:
-            self._error(404, f"no such action: {path}; try /stop or /clear_stop")
-
-    def _method_not_allowed(self) -> None:
-        self._error(405, f"{self.command} is not served here", {"Allow": "GET, POST"})
-
-    def do_PUT(self) -> None:
-        self._method_not_allowed()
-
-    def do_DELETE(self) -> None:
-        self._method_not_allowed()
-
-    def do_PATCH(self) -> None:
-        self._method_not_allowed()
-
-    def _events(self) -> None:
-        view = self.server.view
-        client = view.join()
-        if client is None:
-            self._error(503, f"already {view.config.max_clients} viewers")
-            return
-        self.close_connection = True
-        try:
-            self.connection.settimeout(view.config.client_timeout_s)
-            self.wfile.write(
-                (
-                    f"{self.protocol_version} 200 OK\r\n"
-                    "Content-Type: text/event-stream\r\n"
-                    "Cache-Control: no-store\r\n"
-                    "Connection: close\r\n\r\n"
-                    "retry: 1000\n\n"
-                ).encode()
-            )
-            while not view.closing:
-                records = client.take(_KEEPALIVE_S)
-                if client.closed:
-                    break
-                self.wfile.write(b"".join(records) if records else b": keepalive\n\n")
-        except OSError as exc:  # the browser went away or stopped reading (timeout)
-            logger.info("view: a viewer left (%s)", exc)
-        finally:
-            view.leave(client)
+    def __init__(self, status: int, message: str, headers: dict[str, str] | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.headers = dict(headers or {})
 
 
 class ViewServer:
@@ -327,12 +147,9 @@ class ViewServer:
         hub: the state and its events (started and closed by the caller).
         config: where and how to listen.
         on_stop: sends the emergency stop (what Ctrl-C does) and says what it did;
-            called on the request's thread, so it must not block for long (set the
-            cancel event).
+            called on a worker thread of the server, so it must not block for long (set
+            the cancel event).
         on_clear: releases the STOP latch; returns whether the rover confirmed it.
-
-    Raises:
-        OSError: the address cannot be bound.
     """
 
     def __init__(
@@ -353,24 +170,39 @@ class ViewServer:
         self.closing = False
         self.stops = 0
         """STOP requests served."""
-        self._httpd = _Server((config.host, config.port), _Handler)
-        self._httpd.view = self
-        self._thread: threading.Thread | None = None
+        self.rejected = 0
+        """Requests answered with an error (each is logged)."""
+        self._service = HttpService(
+            self._asgi,
+            host=config.host,
+            port=config.port,
+            limits=ServeLimits(write_timeout_s=config.client_timeout_s),
+            render_error=_render_connection_error,
+            server_name="rover-view",
+            thread_name="view-http",
+        )
+        self._takers = ThreadPoolExecutor(config.max_clients, thread_name_prefix="view-events")
+        self._actions = ThreadPoolExecutor(2, thread_name_prefix="view-action")
 
     @property
     def url(self) -> str:
-        """The page's address (with ``?token=`` when there is a token)."""
-        host, port = self._httpd.socket.getsockname()[:2]
-        shown = f"[{host}]" if ":" in host else host
-        url = f"http://{shown}:{port}/"
+        """The page's address (with ``?token=`` when there is a token); after
+        :meth:`start`."""
+        url = self._service.url + "/"
         return url + (f"?token={quote(self.config.token)}" if self.config.token else "")
 
     def start(self) -> ViewServer:
-        """Serve on a thread of its own."""
-        self._thread = threading.Thread(
-            target=self._httpd.serve_forever, kwargs={"poll_interval": 0.2}, name="view-http"
-        )
-        self._thread.start()
+        """Bind and serve on a thread of its own.
+
+        Raises:
+            OSError: the address cannot be bound.
+        """
+        try:
+            self._service.start()
+        except BaseException:
+            self._takers.shutdown(wait=False)
+            self._actions.shutdown(wait=False)
+            raise
         return self
 
     def stop(self) -> str:
@@ -409,14 +241,140 @@ class ViewServer:
             clients = list(self._clients)
         for client in clients:
             client.close()
-        if self._thread is not None:
-            self._httpd.shutdown()
-            self._thread.join(5.0)
-        self._httpd.end_connections()
-        self._httpd.server_close()
+        self._service.close()
+        self._takers.shutdown(wait=True, cancel_futures=True)
+        self._actions.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> ViewServer:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # -- the ASGI application ------------------------------------------------------------
+    async def _asgi(self, scope: _Scope, receive: _Receive, send: _Send) -> None:
+        if scope["type"] != "http":
+            return
+        request = Request(scope, receive)
+        try:
+            response = await self._dispatch(request)
+        except ClientGoneError:
+            return
+        except _AnswerError as exc:
+            with self._lock:
+                self.rejected += 1
+            logger.info("view: %s %s: %d %s", request.method, scope["path"], exc.status, exc)
+            headers = exc.headers | {"Cache-Control": "no-store"}
+            if exc.status in (408, 413):
+                headers["Connection"] = "close"
+            response = Response(_error_bytes(exc.message), exc.status, headers, "application/json")
+        await response(scope, receive, send)
+
+    async def _dispatch(self, request: Request) -> Response:
+        path = request.url.path
+        if request.method == "GET":
+            self._authorise(request)
+            if path in ("/", "/index.html"):
+                return self._reply(200, self.page, "text/html; charset=utf-8")
+            if path == "/events":
+                return self._events()
+            if path == "/state":
+                return self._json(200, self.hub.state())
+            raise _AnswerError(404, f"no such page: {path}; try / or /events")
+        if request.method == "POST":
+            await self._read_body(request)
+            self._authorise(request)
+            if path == "/stop":
+                return await self._stop()
+            if path == "/clear_stop":
+                return await self._clear(request)
+            raise _AnswerError(404, f"no such action: {path}; try /stop or /clear_stop")
+        raise _AnswerError(405, f"{request.method} is not served here", _ALLOW)
+
+    # -- checks -----------------------------------------------------------------------------
+    def _authorise(self, request: Request) -> None:
+        token = self.config.token
+        if token is None:
+            return
+        given = bearer_token(request.headers.get("authorization"))
+        if given is None:
+            given = request.query_params.get("token")
+        if token_matches(given, token):
+            return
+        challenge = {"WWW-Authenticate": 'Bearer realm="rover-view"'}
+        if not given:
+            raise _AnswerError(
+                401, "this view needs 'Authorization: Bearer <token>' or ?token=<token>", challenge
+            )
+        raise _AnswerError(401, "wrong token", challenge)
+
+    async def _read_body(self, request: Request) -> None:
+        declared = request.headers.get("content-length")
+        if declared is not None and int(declared) > _MAX_BODY:  # h11 checked the digits
+            raise _AnswerError(413, f"body over {_MAX_BODY} bytes")
+        try:
+            await read_body(request.receive, limit_bytes=_MAX_BODY, timeout_s=10.0)
+        except RequestBodyError as exc:
+            raise _AnswerError(exc.status, exc.message) from exc
+
+    # -- answers ----------------------------------------------------------------------------
+    @staticmethod
+    def _reply(status: int, body: bytes, content_type: str) -> Response:
+        return Response(body, status, {"Cache-Control": "no-store"}, content_type)
+
+    def _json(self, status: int, obj: dict[str, Any]) -> Response:
+        return self._reply(status, json.dumps(obj).encode(), "application/json")
+
+    async def _in_thread(self, action: Callable[[], Any]) -> Any:
+        return await asyncio.get_running_loop().run_in_executor(self._actions, action)
+
+    async def _stop(self) -> Response:
+        try:
+            done = await self._in_thread(self.stop)
+        except Exception as exc:
+            logger.exception("view: STOP failed")
+            raise _AnswerError(
+                500, f"STOP failed on the ground station: {exc}; use Ctrl-C"
+            ) from exc
+        return self._json(202, {"stop": done})
+
+    async def _clear(self, request: Request) -> Response:
+        if request.headers.get(CLEAR_HEADER) != "1":
+            raise _AnswerError(403, f"clear-STOP needs the header {CLEAR_HEADER}: 1")
+        allowed, why = self.hub.clear_allowed()
+        if not allowed:
+            raise _AnswerError(409, f"STOP stays latched: {why}")
+        try:
+            cleared = await self._in_thread(self.clear)
+        except Exception as exc:  # the mission has ended: its ROS port is closed
+            logger.warning("view: clear-STOP failed: %s", exc)
+            raise _AnswerError(
+                503, f"the ground station cannot release the latch now: {exc}"
+            ) from exc
+        if not cleared:
+            raise _AnswerError(504, "the rover did not confirm CLEAR_STOP")
+        return self._json(200, {"cleared": True})
+
+    def _events(self) -> Response:
+        client = self.join()
+        if client is None:
+            raise _AnswerError(503, f"already {self.config.max_clients} viewers")
+        return StreamingResponse(
+            self._stream(client),
+            media_type="text/event-stream",
+            headers={"Cache-Control": "no-store"},
+        )
+
+    async def _stream(self, client: ClientQueue) -> AsyncIterator[bytes]:
+        """The push channel of one browser, until it leaves or the view closes."""
+        loop = asyncio.get_running_loop()
+        try:
+            yield b"retry: 1000\n\n"
+            while not self.closing:
+                records = await loop.run_in_executor(self._takers, client.take, _KEEPALIVE_S)
+                if client.closed:
+                    break
+                yield b"".join(records) if records else b": keepalive\n\n"
+        finally:
+            logger.info("view: a viewer left")
+            self.leave(client)

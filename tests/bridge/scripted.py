@@ -42,7 +42,6 @@ class ScriptedController:
         self._encoder = FrameEncoder()
         self._decoder = FrameDecoder()
         self.log: Inbox[Message] = Inbox()
-        """Every message the host sent, in order."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="scripted-rx", daemon=True)
         self._thread.start()
@@ -85,6 +84,11 @@ class ScriptedController:
         """Answer the host's HELLO with IDENT and a heartbeat of an open session."""
         self.wait_for(Hello, timeout_s=timeout_s)
         self.send(self.ident(), *self.heartbeat())
+
+    @property
+    def received(self) -> list[Message]:
+        """Every message the host sent, in order."""
+        return self.log.items()
 
     def mark(self) -> int:
         return self.log.mark()

@@ -190,7 +190,9 @@ def test_rover_bridge_process_takes_ros_parameters_on_inprocess(tmp_path: Path) 
         "-p",
         "node_id:=7",
     )
-    assert done.returncode == 0, done.stderr
+    # Nothing answers on that bus: stopped without reaching a controller, it says so.
+    assert done.returncode == 3, done.stderr
+    assert "stopped without ever reaching a controller" in done.stderr.splitlines()[-1]
     assert done.stdout.splitlines()[0] == "BRIDGE can://virtual/cli-bridge-test?node=7 inprocess"
     # The process asks for short interpreter slices, so a STOP never waits 5 ms for one.
     assert "thread switch interval 0.0005 s (was 0.0050 s)" in done.stderr
@@ -235,15 +237,14 @@ def test_a_malformed_device_url_is_a_usage_error_and_records_nothing(
 def test_rover_bridge_asks_for_real_time_and_no_realtime_turns_it_off() -> None:
     common = ("--ros-backend", "inprocess", "--duration", "0.2", "--can", "virtual:rt-test")
     done = _run(*common)
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 3, done.stderr  # nothing on that bus: never reached a controller
     said = [line for line in done.stderr.splitlines() if line.startswith("realtime:")]
     assert len(said) == 1
     if os.geteuid() == 0:
         assert said[0] == "realtime: SCHED_RR priority 20, memory locked"
     off = _run(*common, "--no-realtime")
-    assert [line for line in off.stderr.splitlines() if line.startswith("realtime:")] == [
-        "realtime: off (SCHED_OTHER, nice 0)"
-    ]
+    said_off = [line for line in off.stderr.splitlines() if line.startswith("realtime:")]
+    assert len(said_off) == 1 and said_off[0].startswith("realtime: off (SCHED_OTHER, nice ")
     bad = _run(*common, "--rt-priority", "100")
     assert bad.returncode == 2
     assert "parameter rt_priority: 100 is outside 0..99" in bad.stderr

@@ -346,7 +346,6 @@ def test_exit_status_is_zero_only_when_every_rule_passed() -> None:
     ("args", "complaint"),
     [
         ([], "give --device URL or --can IFACE:CH"),
-        (["--can", "virtual:x", "--node", "16"], "--node must be 1..15"),
         (["--device", "warp://x"], "unknown link scheme"),
         (["--device", "/nonexistent/rover-motor"], "cannot open /nonexistent/rover-motor"),
         (["--device", "loop://", "--control", "nowhere"], "control address must be HOST:PORT"),
@@ -357,6 +356,15 @@ def test_usage_and_unreachable_devices_exit_2(
 ) -> None:
     assert main(args) == 2
     assert complaint in capsys.readouterr().err
+
+
+def test_a_node_out_of_range_is_a_usage_error_in_the_shared_words(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as exited:
+        main(["--can", "virtual:x", "--node", "16"])
+    assert exited.value.code == 2
+    assert "node must be an integer in 1..15, got '16'" in capsys.readouterr().err
 
 
 def test_public_names_are_pinned() -> None:

@@ -5,6 +5,7 @@ lost, a reboot that restarts the frame counter, sensor samples before a session.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -12,6 +13,8 @@ from typing import Any
 import pytest
 
 from bridge.link import ControllerLink, LinkConfig, LinkDiagnostics, LinkState
+from bridge.serial_transport import SerialTransport
+from bridge.transport import Transport
 from firmware_proto.faults import fault_bit
 from firmware_proto.message import Message
 from firmware_proto.messages import (
@@ -24,6 +27,8 @@ from firmware_proto.messages import (
     FaultCode,
     Hello,
     HostHeartbeat,
+    Stop,
+    StopAck,
 )
 
 from .scripted import ScriptedController
@@ -229,3 +234,58 @@ def test_samples_outside_a_session_never_reach_odometry(
     )
     counts = [(m.left, m.t_ms) for m in seen.telemetry if isinstance(m, Encoders)]
     assert counts == [(7000, 1), (10, 3)]
+
+
+class _ClearSticks(SerialTransport):
+    """The real serial transport, its documented write hook holding a CLEAR_STOP until
+    released: the moment a clear is on its way out (tests/bridge/test_stop_write_path.py
+    holds other frames the same way)."""
+
+    def __init__(self, url: str) -> None:
+        super().__init__(url)
+        self.entered = threading.Event()
+        self.release = threading.Event()
+
+    def _write(self, message: Message) -> None:
+        if isinstance(message, ClearStop):
+            self.entered.set()
+            self.release.wait(10.0)
+        super()._write(message)
+
+
+def test_no_clear_stop_reaches_the_wire_after_a_later_stop() -> None:
+    """docs/protocol.md, "Latch and faults": the operator clears, and stops while that
+    clear is being written. STOP waits for no other write, so it reaches the controller
+    first; the clear follows and would release the new latch (firmware answers at once).
+    The host sends STOP once more after the clear: its last word is STOP."""
+    made: list[_ClearSticks] = []
+
+    def factory(url: str) -> Transport:
+        made.append(_ClearSticks(url))
+        return made[-1]
+
+    with ScriptedController() as ctl:
+        seen = Seen()
+        link = ControllerLink(
+            LinkConfig(ctl.device, controller_heartbeat_s=1.0),
+            on_status=seen.status,
+            transport_factory=factory,
+        )
+        with link:
+            ctl.handshake()
+            wait_until("ready", lambda: link.state is LinkState.READY)
+            ctl.send(*ctl.heartbeat(ControllerState.STOP_LATCHED, stop=1))
+            mark = ctl.mark()
+            link.clear_stop()
+            transport = made[-1]
+            assert transport.entered.wait(10.0)  # the clear is being written
+            stop_id = link.emergency_stop()
+            ctl.wait_for(Stop, lambda s: s.stop_id == stop_id, since=mark)
+            ctl.send(StopAck(stop_id, ControllerState.STOP_LATCHED))  # at once, as firmware
+            wait_until("the STOP acknowledged", lambda: "stopped" in seen.statuses)
+            transport.release.set()
+            ctl.wait_for(ClearStop, since=mark)
+            settled(ctl)
+            order = [m for m in ctl.received[mark:] if isinstance(m, (Stop, ClearStop))]
+            assert isinstance(order[-1], Stop), order
+            assert order[-1].stop_id == stop_id

@@ -74,6 +74,12 @@ PYTHON_DEPENDENCY_KEYS = {
     "pymunk": None,  # no rosdep key: pip install pymunk (docs/ros2.md)
     "mcap": None,  # no rosdep key checked: pip install, for recordings (docs/ros2.md)
     "mcap-ros2-support": None,  # the same
+    # The HTTP stack (gate, live view): pip install, for the tested version range;
+    # rosdep has python3-uvicorn (the distribution's, not checked against the range),
+    # no key for starlette or h11.
+    "starlette": None,
+    "uvicorn": None,
+    "h11": None,
     "tomli": None,  # Python < 3.11 only; Jazzy has 3.12
 }
 """pyproject dependency -> rosdep key in package.xml (None: documented exception)."""
@@ -592,3 +598,57 @@ def test_colcon_builds_the_package_and_its_executables_start(
     assert share == prefix / "share" / PACKAGE
     assert {p.name for p in (share / "launch").iterdir()} == {p.name for p in LAUNCH_FILES}
     assert (share / "package.xml").is_file() and (share / "udev" / "99-rover-motor.rules").exists()
+
+
+def _documented_colcon_lines() -> list[str]:
+    """The colcon and ``source install/...`` lines of docs/ros2.md's workspace recipe,
+    as written."""
+    text = (ROOT / "docs" / "ros2.md").read_text()
+    recipe = text.split("## Building in a Jazzy workspace", 1)[1].split("```", 2)[1]
+    return [
+        line
+        for line in recipe.splitlines()
+        if line.startswith("colcon ") or line.startswith("source install/")
+    ]
+
+
+@pytest.mark.slow
+def test_the_documented_colcon_commands_run_as_written(tmp_path: Path) -> None:
+    """docs/ros2.md's `colcon build --packages-select rover_hil` and `source
+    install/setup.bash`, line for line, in a workspace whose src/ holds this checkout;
+    the sourced environment finds the package (ament index) and its executables."""
+    lines = _documented_colcon_lines()
+    assert any(line.startswith("colcon build --packages-select rover_hil") for line in lines)
+    assert "source install/setup.bash" in [line.split("#")[0].strip() for line in lines]
+    bin_dir = Path(sys.executable).parent
+    if shutil.which("colcon", path=str(bin_dir)) is None:
+        pytest.skip("colcon is not installed (the colcon extra)")
+    (tmp_path / "src").mkdir()
+    (tmp_path / "src" / PACKAGE).symlink_to(ROOT)
+    script = "\n".join(
+        [
+            "set -e",
+            *lines,
+            'test "$AMENT_PREFIX_PATH" = "$PWD/install/rover_hil"',
+            f"test -x install/{PACKAGE}/lib/{PACKAGE}/rover_bridge",
+            f'{sys.executable} -c "from ament_index_python.packages import '
+            f"get_package_share_directory as g; print(g('{PACKAGE}'))\"",
+        ]
+    )
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH")
+    }
+    env["PATH"] = f"{bin_dir}:{env.get('PATH', '')}"
+    done = subprocess.run(
+        ["bash", "-c", script],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        check=False,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert done.stdout.strip().splitlines()[-1] == str(
+        tmp_path / "install" / PACKAGE / "share" / PACKAGE
+    )

@@ -17,7 +17,6 @@ EXPECTED = [
     "InjectionError",
     "MapError",
     "MapGoal",
-    "MapPose",
     "PlaybackResult",
     "Pose2D",
     "Stall",

@@ -48,7 +48,7 @@ def secured(
     make_gate: Callable[..., GateServer], validator: Validator
 ) -> Iterator[tuple[GateServer, HeldPool]]:
     pool = HeldPool(validator, hold=False)
-    gate = make_gate(worker_pool=pool, workers=1, queue_depth=0, token=TOKEN)
+    gate = make_gate(worker_pool=pool, workers=1, queue_depth=0, token=TOKEN, body_timeout_s=0.5)
     yield gate, pool
     pool.release.set()
 
@@ -104,12 +104,12 @@ def test_every_documented_status_happens_and_matches_its_schema(
             token=token,
         )
 
-    def post_raw(headers: str) -> Reply:
+    def post_raw(headers: str, body: bytes = b"", *, half_close: bool = True) -> Reply:
         head = (
             f"POST /validate_plan HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {TOKEN}\r\n"
             f"Content-Type: application/json\r\n{headers}\r\n"
         ).encode()
-        return parse_raw(raw_exchange(address, head, half_close=True))
+        return parse_raw(raw_exchange(address, head + body, half_close=half_close))
 
     seen: dict[tuple[str, str, int], Reply] = {}
 
@@ -139,6 +139,9 @@ def test_every_documented_status_happens_and_matches_its_schema(
     record("/validate_plan", "POST", post(STOP_AT_LAB_START, token=None))
     record("/validate_plan", "POST", post_raw(""))  # 411
     record("/validate_plan", "POST", post_raw("Content-Length: 999999\r\n"))  # 413
+    record(  # 408: the body stalls on an open connection
+        "/validate_plan", "POST", post_raw("Content-Length: 99\r\n", b"{", half_close=False)
+    )
     record("/validate_plan", "POST", post(STOP_AT_LAB_START, headers={"Content-Type": "text/csv"}))
 
     # 503 from overload (a held worker), then from draining, on every operation.

@@ -15,11 +15,11 @@ from typing import Any
 import pytest
 
 from firmware_proto.plan import Plan
+from firmware_proto.verdict import Verdict
 from gate.server import GateServer
 from planner.executor import ExecutorConfig, Progress
 from planner.gate_client import GateClient
 from planner.relay import DEFAULT_ROUTES
-from planner.verdict import Verdict
 from tests.rig import HilRig
 
 SPEED = 4.0
@@ -155,7 +155,8 @@ def test_progress_arrives_while_a_long_step_runs(
     result = h.executor.execute(Plan.from_dict(LONG_STEP), verdict, on_progress=seen.append)
     assert result.completed, result.reason
     statuses = [p.status for p in seen]
-    assert statuses[:2] == ["published", "accepted"]
+    first_accepted = statuses.index("accepted")
+    assert set(statuses[:first_accepted]) == {"published"}
     assert statuses[-1] == "completed" and seen[-1].final
     running = [p for p in seen if p.status == "running"]
     assert len(running) >= 3  # a 2.2 s step, a line every 0.2 s
@@ -164,6 +165,39 @@ def test_progress_arrives_while_a_long_step_runs(
     assert etas == sorted(etas, reverse=True)  # counting down
     assert seen[-1].eta_s == 0.0
     assert "step 1/1 running, ETA" in running[0].line(SPEED)
+
+
+def test_a_step_is_never_said_running_before_the_rover_accepted_it(gate: GateServer) -> None:
+    """A round trip longer than the progress period: until 'accepted' comes back, the
+    step is only 'published' (it was said 'running' before 'accepted')."""
+    verdict = validate(gate, LONG_STEP)
+    rig = HilRig("lab", speed=SPEED, rtt_s=0.8 * SPEED, seed=5, progress_period_s=0.1)
+    try:
+        seen: list[Progress] = []
+        result = rig.executor.execute(Plan.from_dict(LONG_STEP), verdict, on_progress=seen.append)
+    finally:
+        rig.close()
+    assert result.completed, result.reason
+    statuses = [p.status for p in seen]
+    first_accepted = statuses.index("accepted")
+    assert first_accepted >= 3, statuses  # several progress lines during the round trip
+    assert set(statuses[:first_accepted]) == {"published"}, statuses
+    assert "running" in statuses[first_accepted:]
+
+
+def test_a_fault_names_the_step_as_progress_numbers_it(
+    gate: GateServer, hil: Callable[..., HilRig]
+) -> None:
+    """Progress says 'step 2/2 fault:...'; the reason says the same step, not 'step 1'."""
+    verdict = validate(gate, TWO_STEPS)
+    h = hil(faults=("stall:left@d=1.2",), drift_control=False)
+    seen: list[Progress] = []
+    result = h.executor.execute(Plan.from_dict(TWO_STEPS), verdict, on_progress=seen.append)
+    assert not result.completed
+    final = [p for p in seen if p.final and p.status != "completed"]
+    assert final, [p.line() for p in seen]
+    said = final[-1].line().split(",")[0].rsplit(" ", 1)[0]  # "step 2/2"
+    assert result.reason.startswith(said + ": "), (said, result.reason)
 
 
 # -- drift control's pose ------------------------------------------------------------------

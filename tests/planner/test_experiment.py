@@ -6,13 +6,13 @@ from collections.abc import Callable
 
 import pytest
 
+from firmware_proto.pose import Pose
 from planner.experiment import (
     ExperimentResult,
     footprint_hits,
     run_planning_experiment,
     trial_goals,
 )
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner

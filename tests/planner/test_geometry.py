@@ -8,9 +8,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from firmware_proto.plan import Goal, Plan
+from firmware_proto.pose import Pose
 from planner.errors import GateProtocolError
 from planner.geometry import (
-    Pose,
     point_in_polygon,
     point_segment_distance,
     segment_segment_distance,
@@ -58,9 +59,11 @@ def test_point_in_polygon_concave() -> None:
     assert not point_in_polygon((1.5, 1.5), ell)
 
 
-def test_pose_round_trip_and_finiteness() -> None:
+def test_pose_is_the_plans_goal_and_knows_its_finiteness() -> None:
     p = Pose(1.0, 2.0, 90.0)
-    assert Pose.from_goal(p.to_goal()) == p
+    stop = {"command": "STOP", "speed": 0, "distance": 0}
+    assert Goal is Pose
+    assert Plan.from_dict({"goal": p.to_dict(), "commands": [stop]}).goal == p
     assert p.yaw_rad == pytest.approx(math.pi / 2)
     assert not Pose(1.0, math.nan, 0.0).is_finite()
 

@@ -4,11 +4,14 @@ back with the mcap reader (and, for the bytes, with rclpy's own deserializer), a
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -127,3 +130,101 @@ def test_decode_refuses_a_damaged_mcap_cleanly(tmp_path: Path) -> None:
     )
     assert out.returncode == 1, out.stdout + out.stderr
     assert "Traceback" not in out.stderr and "rover decode: error" in out.stderr
+
+
+def _odom_frame(x: float, y: float, yaw_deg: float) -> Odometry:
+    msg = _odom(x, y, yaw_deg)
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    return msg
+
+
+def test_a_recording_a_lab_can_open_tf_markers_diagnostics_metadata(
+    tmp_path: Path, orchestrator: Any, worlds: dict[str, Any]
+) -> None:
+    """/tf (map -> odom -> base_link), the map and the plans as markers, /diagnostics and
+    the metadata, read back with the mcap reader and mcap-ros2-support's decoder."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from bridge.diagnostics import diagnostic_array
+    from bridge.rosport.msgs import DiagnosticArray, stamp
+    from tests.planner.test_console import BASE
+
+    world = worlds["lab"]
+    goal = next(g.pose for g in world.goals if g.name == "behind_table")
+    mission = orchestrator("lab").plan_mission(goal, start=world.start)
+    assert mission.approved and len(mission.attempts) >= 2  # the direct plan collides
+    path = tmp_path / "mission.mcap"
+    heard = threading.Event()
+    with (
+        open_port("inprocess", node_name="bridge", bus="lab-rec") as rover,
+        open_port("inprocess", namespace="ground", node_name="ground", bus="lab-rec") as ground,
+        McapRecorder(path) as recorder,
+    ):
+        recorder.attach(ground)
+        recorder.set_map(world, goal)
+        recorder.planned(mission)
+        ground.subscribe("/odom", Odometry, lambda m: None, qos.SENSOR)
+        ground.subscribe("/odom_ground", Odometry, lambda m: heard.set(), qos.SENSOR)
+        odom = rover.publisher("odom", Odometry, qos.TELEMETRY)
+        ground_pose = rover.publisher("odom_ground", Odometry, qos.TELEMETRY)
+        diag = rover.publisher("/ground/diagnostics", DiagnosticArray, qos.DIAGNOSTICS)
+        assert odom.wait_for_subscribers(1) and ground_pose.wait_for_subscribers(1)
+        assert diag.wait_for_subscribers(1)
+        # The rover is at (2, 3.5, 30 deg) on the map; odometry, started elsewhere, says
+        # (0.5, 0.2, 10 deg): map -> odom must carry the difference.
+        ground_pose.publish(_odom(2.0, 3.5, 30.0))
+        assert heard.wait(10)
+        odom.publish(_odom_frame(0.5, 0.2, 10.0))
+        diag.publish(diagnostic_array(BASE, stamp(), statuses=["ready"]))
+        deadline = time.monotonic() + 10
+        while "/tf" not in recorder.counts or "/ground/diagnostics" not in recorder.counts:
+            assert time.monotonic() < deadline, recorder.counts
+            time.sleep(0.02)
+
+    decoded: dict[str, list[Any]] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for schema, channel, _message, msg in reader.iter_decoded_messages():
+            assert schema is not None
+            decoded.setdefault(channel.topic, []).append((schema.name, msg))
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+
+    [(kind, tf)] = decoded["/tf"]
+    assert kind == "tf2_msgs/msg/TFMessage"
+    frames = [(t.header.frame_id, t.child_frame_id) for t in tf.transforms]
+    assert frames == [("map", "odom"), ("odom", "base_link")]
+    m_o, o_b = tf.transforms
+
+    def yaw(q: Any) -> float:
+        return math.degrees(2 * math.atan2(q.z, q.w))
+
+    # map -> odom composed with odom -> base_link is the map pose.
+    a = math.radians(yaw(m_o.transform.rotation))
+    bx, by = o_b.transform.translation.x, o_b.transform.translation.y
+    x = m_o.transform.translation.x + math.cos(a) * bx - math.sin(a) * by
+    y = m_o.transform.translation.y + math.sin(a) * bx + math.cos(a) * by
+    assert (x, y) == pytest.approx((2.0, 3.5), abs=1e-9)
+    assert yaw(m_o.transform.rotation) + yaw(o_b.transform.rotation) == pytest.approx(30.0)
+
+    [(kind, map_markers)] = decoded["/map/markers"]
+    assert kind == "visualization_msgs/msg/MarkerArray"
+    texts = {m.text for m in map_markers.markers if m.type == 9}
+    assert {o.id for o in world.obstacles} | {"start", "goal"} <= texts
+    [(_, plans)] = decoded["/gate/plan_markers"]
+    assert any(m.type == 2 for m in plans.markers)  # the collision, a sphere
+    assert any("collision with table" in m.text for m in plans.markers)
+    [(kind, diagnostics)] = decoded["/ground/diagnostics"]
+    assert kind == "diagnostic_msgs/msg/DiagnosticArray"
+    assert [s.name for s in diagnostics.status][:2] == [
+        "rover_bridge: link",
+        "rover_bridge: controller",
+    ]
+
+    assert metadata["map"]["name"] == "lab"
+    assert "table" in metadata["map"]["obstacles"]
+    verdicts = json.loads(metadata["planning-1"]["verdicts"])
+    assert [v["approved"] for v in verdicts][-1] is True
+    assert verdicts[0]["collision"]["obstacle"] == "table"
+    assert json.loads(metadata["planning-1"]["plans"])[0]["commands"]
+    assert metadata["mission"] == {"plannings": "1"}

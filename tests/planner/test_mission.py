@@ -9,11 +9,11 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_proto.pose import Pose
 from firmware_proto.rover import load_rover
 from gate.server import GateServer
 from planner.executor import ExecutionResult
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mapinfo import MapInfo
 from planner.mission import MissionRunner
 from planner.orchestrator import PlannerOrchestrator
@@ -75,6 +75,11 @@ def test_the_latch_is_released_only_once_the_replan_is_approved(
     summary = report.summary(4.0)
     assert "re-plan 1:" in summary
     assert "attempt 1 (initial): approved" in summary  # the repair names what made it
+    # The run that drift control stopped counts the steps it completed, not those sent.
+    first = report.runs[0].execution
+    done = sum(1 for s in first.steps if s.status == "completed")
+    assert done == len(first.steps) - 1
+    assert f"run 1: {done}/{len(report.runs[0].plan.commands)} steps completed, drift" in summary
 
 
 def test_a_replan_that_fails_leaves_the_rover_latched(

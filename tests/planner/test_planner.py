@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_proto.plan import Plan, validate_plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
 from planner.errors import (
     GoalInObstacleError,
@@ -20,7 +21,7 @@ from planner.errors import (
     PlannerError,
     PlanTooLongError,
 )
-from planner.geometry import Pose, wrap_deg
+from planner.geometry import wrap_deg
 from planner.mapinfo import MapInfo
 from planner.planner import (
     CORRECTION,

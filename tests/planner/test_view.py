@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from bridge.rosport.msgs import Bool, Odometry, String
-from planner.geometry import Pose
+from firmware_proto.pose import Pose
 from planner.mapinfo import MapInfo
 from planner.view import ClientQueue, ViewConfig, ViewHub, ViewServer
 from tests.planner.conftest import MAPS_DIR
@@ -293,8 +293,96 @@ def test_clear_stop_works_once_a_replan_is_approved_after_the_stop(
         hub.tap("sent", "/ground/emergency_stop", Bool(data=True))
         hub.planned(mission)
         assert _request(server, "POST", "/stop", b"")[0] == 202
-        stream.next_event("stop")
+        # The tap's STOP is announced too: wait for the page's own, which voids the approval.
+        while stream.next_event("stop")["source"] != "view":
+            pass
         status, answer = _request(server, "POST", "/clear_stop", b"", clear)
         assert status == 409 and "no re-plan" in answer["error"], answer
     finally:
         stream.close()
+
+
+def test_slow_clients_lock_nobody_out_of_the_view(view: tuple[ViewServer, _Actions]) -> None:
+    """The view is on the gate's HTTP stack: connections that send their headers a byte
+    at a time cost no thread, so the page, the state and STOP are still served."""
+    server, actions = view
+    host, port = server.url.split("//")[1].split("/")[0].rsplit(":", 1)
+    slow = [socket.create_connection((host, int(port)), timeout=5) for _ in range(40)]
+    try:
+        for sock in slow:
+            sock.sendall(b"GET /st")  # and never the rest
+        assert _request(server, "GET", "/state")[0] == 200
+        assert _request(server, "POST", "/stop", b"")[0] == 202 and actions.stops == 1
+        stream = _Stream(server)
+        try:
+            assert stream.next_event("hello")["map"]["name"] == "lab"
+        finally:
+            stream.close()
+    finally:
+        for sock in slow:
+            sock.close()
+
+
+def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fault(
+    orchestrator: Any,
+) -> None:
+    """The hub's state for a late page: goal, trails, STOPs with where they happened,
+    progress, result; the ghost stops where it is when the step ends in a fault, and the
+    banner says so at once, then the mission's outcome."""
+    from bridge.rosport.msgs import Int16MultiArray
+    from planner.executor import Progress
+
+    goal = next(g.pose for g in WORLD.goals if g.name == "by_the_pillar")
+    mission = orchestrator("lab").plan_mission(goal, start=WORLD.start)
+    assert mission.approved
+    hub = ViewHub(WORLD, rtt_s=0.0, time_scale=4.0).start()
+    try:
+        hub.planned(mission)
+        for i in range(5):
+            hub.tap("received", "/ground/odom_ground", _odom(1.2 + 0.05 * i, 3.0))
+        hub.tap("sent", "/ground/wheel_instructions", Int16MultiArray(data=[1, 60, 23000]))
+        hub.progress(Progress(0, 4, "published", 30.0, None, None))
+        hub.tap("received", "/ground/command_status", String(data="accepted"))
+
+        def state_when(pred: Any, what: str) -> dict[str, Any]:
+            deadline = time.monotonic() + 10
+            while True:
+                state = hub.state()
+                if pred(state):
+                    return state
+                assert time.monotonic() < deadline, (what, state)
+                time.sleep(0.02)
+
+        client = hub.subscribe()
+        ghosts: list[Any] = []
+
+        def ticks(n: int) -> list[Any]:
+            got: list[Any] = []
+            deadline = time.monotonic() + 10
+            while len(got) < n:
+                assert time.monotonic() < deadline
+                for record in client.take(0.5):
+                    name, data = record.decode().split("\n", 2)[:2]
+                    if name == "event: tick":
+                        got.append(json.loads(data[len("data: ") :])["ghost"])
+            return got
+
+        ghosts = ticks(5)
+        assert ghosts[-1] is not None and ghosts[0] != ghosts[-1]  # it moves
+        hub.tap("received", "/ground/command_status", String(data="fault:encoder"))
+        state = state_when(lambda s: s["halted"], "halted")
+        assert state["result"]["text"] == "fault:encoder at step 1/4"
+        assert state["result"]["ok"] is False and not state["result"]["final"]
+        hub.tap("sent", "/ground/emergency_stop", Bool(data=True))
+        frozen = ticks(8)[-6:]
+        assert all(g == frozen[0] for g in frozen), frozen  # no further along its plan
+        hub.result(False, "mission to (6.60, 0.90, 0 deg): NOT REACHED (fault)")
+        state = state_when(lambda s: s["result"]["final"], "result")
+        assert state["result"]["text"].endswith("NOT REACHED (fault)")
+        assert state["goal"] == [goal.x, goal.y, goal.yaw_deg]
+        assert len(state["trails"]["reported"]) == 5  # 5 cm apart: every one kept
+        assert state["stops"] == [{"at": [1.4, 3.0], "source": "ground station"}]
+        assert state["progress"]["steps"] == 4
+        hub.unsubscribe(client)
+    finally:
+        hub.close()

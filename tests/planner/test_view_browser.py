@@ -74,6 +74,12 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
             str(recording),
             "--picture",
             str(tmp_path / "demo.png"),
+            # Plans played on 20 twins too (any collision probability accepted): the
+            # page draws their envelope along the plan and around the ghost.
+            "--max-collision-p",
+            "1",
+            "--samples",
+            "20",
         ],
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
@@ -112,6 +118,28 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
             )
             assert page.evaluate("window.roverView.plans.some(p => !p.approved && p.collision)")
             assert page.evaluate("window.roverView.connected") is True
+            # What the page draws besides: the goal, the obstacles' names, a scale bar,
+            # the rejected plan's collision (an X; a STOP is an octagon, below).
+            _wait(page, demo, "window.roverView.drawn.goal", 10)
+            drawn = page.evaluate("window.roverView.drawn")
+            assert {"table", "pillar"} <= set(drawn["labels"]) and drawn["scale_m"] >= 0.5
+            assert drawn["collisions"] >= 1 and drawn["stops"] == 0
+            assert drawn["envelopes"] > 0
+            assert page.evaluate(
+                "window.roverView.plans.some(p => p.approved && p.collision_p !== null)"
+            )
+            _wait(page, demo, "window.roverView.drawn.ghost_envelope", 10)
+            # A page opened now, mid-mission, starts from the mission so far.
+            late = browser.new_page(viewport={"width": 900, "height": 600})
+            late.goto(url)
+            _wait(late, demo, "window.roverView.counts.hello > 0 && window.roverView.history", 30)
+            history = late.evaluate("window.roverView.history")
+            assert history["reported"] > 1, history  # (odom: the rover turns on the spot)
+            assert late.evaluate("window.roverView.goal") is not None
+            assert late.evaluate("window.roverView.plans.length") == page.evaluate(
+                "window.roverView.plans.length"
+            )
+            late.close()
             _wait(page, demo, "window.roverView.counts.tick > 10", 10)  # ticks keep coming
             assert page.evaluate("window.roverView.poses.odom") is not None
             shot = tmp_path / "view.png"
@@ -125,6 +153,13 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
             demo.wait_for("STOP from the view: cancelling the mission", 10)
             # /command_status said so (after or before the running step's aborted:stop).
             _wait(page, demo, "window.roverView.statuses.includes('stopped')", 30)
+            # The ghost stops where it was (the step it followed will not be driven), and
+            # where the rover was stopped is marked.
+            _wait(page, demo, "window.roverView.halted && window.roverView.drawn.stops >= 1", 10)
+            ghost = page.evaluate("window.roverView.ghost")
+            ticks = page.evaluate("window.roverView.counts.tick")
+            _wait(page, demo, f"window.roverView.counts.tick > {ticks + 5}", 10)
+            assert page.evaluate("window.roverView.ghost") == ghost
             demo.wait_for("view: still at", 60)  # the mission ended; the parts are still up
             status = _emulator_status(control)
             assert status["stop_latched"] and "stop" in status["latch"], status
@@ -138,6 +173,11 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
                 status = _emulator_status(control)
             assert max(abs(v) for v in status["wheel_mps"]) < 1e-3, status
             assert page.locator("#latch").inner_text().startswith("LATCHED")
+            # The banner: the mission's outcome, on the map.
+            _wait(page, demo, "window.roverView.result && window.roverView.result.final", 10)
+            banner = page.locator("#banner")
+            assert banner.is_visible() and "NOT REACHED (" in banner.inner_text()
+            assert banner.get_attribute("class") == "no"
 
             # Clear-STOP is refused: no re-plan was approved after this STOP.
             page.click("#clear")

@@ -1,0 +1,266 @@
+"""Hostile clients against a real gate on 127.0.0.1 (issue 25): slow headers beside
+normal requests, bodies that stall, nest deep, overflow the arithmetic or ask for a huge
+answer. No answer is a 5xx for bad input, and none of them locks anyone out.
+
+No timed asserts: the tests wait on what the server does (an answer, a close), each
+wait bounded by a socket timeout, and the deadlines they rely on are made short."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from gate.config import MAX_TRAJECTORY_SAMPLES
+from gate.server import GateServer
+from gate.validator import MAX_GOAL_ABS_M
+
+from .client import TIMEOUT_S, Client, call, parse_raw, post_plan
+from .plans import STOP_AT_LAB_START, fwd, plan, step
+
+SLOW_CLIENTS = 100
+ROUNDS = 3
+"""Header bytes each slow client sends, one a second: a few seconds, not minutes."""
+
+
+def _read_until_closed(sock: socket.socket) -> bytes:
+    sock.settimeout(TIMEOUT_S)
+    chunks = []
+    while chunk := sock.recv(65536):
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _is_open(sock: socket.socket) -> bool:
+    """Whether the server still holds ``sock`` open: nothing to read yet, not even the
+    end of the stream (looked at without waiting)."""
+    sock.settimeout(0.0)
+    try:
+        sock.recv(1, socket.MSG_PEEK)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        sock.settimeout(TIMEOUT_S)
+    return False  # an answer or the end of the stream: the server is done with it
+
+
+class _Slowloris:
+    """``count`` connections that each send one byte of a request head per round, one
+    round a second, never finishing it."""
+
+    HEAD = b"GET /health HTTP/1.1\r\nHost: gate\r\nX-Slow: " + b"a" * 64
+
+    def __init__(self, address: tuple[str, int], count: int, rounds: int) -> None:
+        self.socks = [socket.create_connection(address, timeout=TIMEOUT_S) for _ in range(count)]
+        self.rounds = rounds
+        self.stop = threading.Event()
+        self.sent = 0
+        self._cond = threading.Condition()
+        self.thread = threading.Thread(target=self._run, name="slowloris")
+        self.thread.start()
+
+    def _run(self) -> None:
+        for i in range(self.rounds):
+            for sock in self.socks:
+                sock.sendall(self.HEAD[i : i + 1])
+            with self._cond:
+                self.sent += 1
+                self._cond.notify_all()
+            if self.stop.wait(1.0):
+                return
+
+    def wait_round(self, n: int) -> bool:
+        """Wait until every connection has sent ``n`` bytes of its head."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self.sent >= n, TIMEOUT_S)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(TIMEOUT_S)
+        for sock in self.socks:
+            sock.close()
+
+
+@pytest.fixture
+def slowloris() -> Iterator[Callable[[tuple[str, int]], _Slowloris]]:
+    with ExitStack() as stack:
+
+        def start(address: tuple[str, int]) -> _Slowloris:
+            attack = _Slowloris(address, SLOW_CLIENTS, ROUNDS)
+            stack.callback(attack.close)
+            return attack
+
+        yield start
+
+
+@pytest.mark.parametrize("token", [None, "s3cret-token"])
+def test_slow_headers_lock_nobody_out(
+    make_gate: Callable[..., GateServer],
+    slowloris: Callable[[tuple[str, int]], _Slowloris],
+    token: str | None,
+) -> None:
+    gate = make_gate(token=token)
+    attack = slowloris(gate.address)
+    with Client(gate.address, token) as keep_alive:
+        # While 100 connections dribble their headers, a byte a second, normal clients
+        # are served: new connections and a kept-alive one, in every round.
+        for n in range(1, ROUNDS + 1):
+            assert attack.wait_round(n)
+            assert call(gate.address, "GET", "/health", token=token).status == 200
+            reply = post_plan(gate.address, STOP_AT_LAB_START, token=token)
+            assert reply.status == 200, reply.body
+            assert reply.json()["approved"] is True
+            assert keep_alive.request("GET", "/maps").status == 200
+            # The slow connections are beside them (neither refused nor answered).
+            assert all(_is_open(sock) for sock in attack.socks)
+
+
+def test_a_slow_head_gets_408_and_a_silent_connection_is_closed(
+    make_gate: Callable[..., GateServer],
+) -> None:
+    gate = make_gate(head_timeout_s=0.5, idle_timeout_s=0.5)
+    with socket.create_connection(gate.address, timeout=TIMEOUT_S) as slow:
+        slow.sendall(b"GET /health HTTP/1.1\r\nHost: ga")  # and nothing more
+        reply = parse_raw(_read_until_closed(slow))
+    assert reply.status == 408
+    assert reply.headers["content-type"] == "application/json"
+    assert reply.json()["error"] == "request_timeout"
+    with socket.create_connection(gate.address, timeout=TIMEOUT_S) as silent:
+        assert _read_until_closed(silent) == b""  # closed without a word
+    with Client(gate.address) as client:  # a kept-alive connection: served, then closed
+        assert client.request("GET", "/health").status == 200
+        assert client.conn.sock is not None
+        assert _read_until_closed(client.conn.sock) == b""
+    assert call(gate.address, "GET", "/health").status == 200
+
+
+@pytest.mark.parametrize("chunked", [False, True], ids=["content-length", "chunked"])
+def test_a_body_that_stalls_gets_408(make_gate: Callable[..., GateServer], chunked: bool) -> None:
+    gate = make_gate(body_timeout_s=0.5)
+    framing = (
+        b"Transfer-Encoding: chunked\r\n\r\na\r\n" if chunked else b"Content-Length: 100\r\n\r\n"
+    )
+    head = b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+    with socket.create_connection(gate.address, timeout=TIMEOUT_S) as sock:
+        sock.sendall(head + framing + b'{"goal": {')  # then stalls, connection kept open
+        reply = parse_raw(_read_until_closed(sock))
+    assert reply.status == 408
+    assert reply.headers["connection"] == "close"
+    assert reply.json()["error"] == "request_timeout"
+    assert gate.rejected["request_timeout"] == 1
+    assert post_plan(gate.address, STOP_AT_LAB_START).status == 200
+
+
+def _nested(depth: int) -> str:
+    return "[" * depth + "]" * depth
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        _nested(500),
+        '{"goal": ' + _nested(500) + ', "commands": []}',
+        '{"goal": {"x": 1, "y": 1, "yaw_deg": 0}, "commands": [' + _nested(499) + "]}",
+        _nested(30_000),  # past the JSON parser's own stack, within the 64 kB limit
+    ],
+    ids=["array", "goal", "step", "beyond-the-parser"],
+)
+def test_deep_nesting_is_400(http_gate: GateServer, body: str) -> None:
+    reply = post_plan(http_gate.address, body)
+    assert reply.status == 400, reply.body[:200]
+    assert reply.json()["error"] == "not_json"
+    assert "nested deeper" in reply.json()["message"]
+
+
+@pytest.mark.parametrize("value", [1.7e308, -1.7e308, MAX_GOAL_ABS_M * 1.0001])
+def test_a_goal_beyond_any_map_is_400(http_gate: GateServer, value: float) -> None:
+    reply = post_plan(http_gate.address, plan((value, value, 0.0), fwd(0.5)))
+    assert reply.status == 400, reply.body[:200]
+    error = reply.json()
+    assert error["error"] == "goal_out_of_range"
+    assert {v["pointer"] for v in error["violations"]} == {"/goal/x", "/goal/y"}
+    # The largest accepted goal gives a verdict (finite numbers throughout).
+    edge = post_plan(http_gate.address, plan((MAX_GOAL_ABS_M, -MAX_GOAL_ABS_M, 1e308), fwd(0.1)))
+    assert edge.status == 200
+    assert edge.json()["failure_type"] == "goal_not_reached"
+
+
+def test_the_answer_is_bounded_whatever_the_plan_asks(http_gate: GateServer) -> None:
+    # Two slowest steps at 100 Hz would be 52,000 samples (about 4 MB); the gate
+    # samples more slowly instead, and says so in sample_period_s.
+    slow = plan((1.2, 3.0, 0.0), step("LEFT", 1, 30000), step("RIGHT", 1, 30000))
+    reply = post_plan(http_gate.address, slow, "sample_hz=100")
+    assert reply.status == 200
+    verdict = reply.json()
+    samples = verdict["trajectory"]["samples"]
+    assert len(samples) <= MAX_TRAJECTORY_SAMPLES + 2 * len(slow["commands"]) + 1
+    assert verdict["trajectory"]["sample_period_s"] > 0.01
+    assert verdict["replay"]["sample_hz"] == 100.0  # the request as made: replays the same
+    assert len(reply.body) < 1_000_000
+    # A normal plan keeps its rate.
+    normal = post_plan(http_gate.address, plan((2.2, 3.0, 0.0), fwd(1.0)), "sample_hz=100")
+    assert normal.json()["trajectory"]["sample_period_s"] == 0.01
+
+
+def test_the_slowest_valid_plan_is_sampled_within_the_bound(http_gate: GateServer) -> None:
+    """The issue's case: 12 steps at speed 1 and 100 Hz was 24 MB; now the period is
+    chosen from the plan before playing it (no playback here)."""
+    from firmware_proto.plan import Plan
+    from gate.options import ValidateOptions
+
+    validator = http_gate.validator
+    worst = Plan.from_dict(plan((1.2, 3.0, 0.0), *[step("FWD", 1, 30000)] * 12))
+    options = ValidateOptions(sample_hz=100.0).resolve(validator.settings, "lab")
+    period = validator.sample_period_s(validator.prepare(worst, options))
+    assert period > 0.01
+    assert 3130.0 / period <= MAX_TRAJECTORY_SAMPLES  # 3,130 s of twin time
+
+
+_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner),
+    max_leaves=20,
+)
+_PLANISH = st.fixed_dictionaries(
+    {
+        "goal": st.fixed_dictionaries(
+            {"x": st.floats(allow_nan=False), "y": st.floats(allow_nan=False), "yaw_deg": _JSON}
+        ),
+        "commands": st.lists(
+            st.fixed_dictionaries(
+                {
+                    "command": st.sampled_from(["STOP", "FWD", "REV", "LEFT", "RIGHT", "JUMP"]),
+                    "speed": st.integers(-1, 61),
+                    "distance": st.integers(-1, 400),
+                }
+            ),
+            max_size=3,
+        ),
+    }
+)
+
+
+@settings(
+    max_examples=60,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(body=st.one_of(_JSON, _PLANISH), query=st.sampled_from(["", "sample_hz=100", "x=1"]))
+def test_no_bad_input_gets_a_5xx(http_gate: GateServer, body: Any, query: str) -> None:
+    try:
+        text = json.dumps(body)
+    except ValueError:  # infinities: sent as Python writes them, not JSON
+        text = json.dumps(body, allow_nan=True)
+    reply = post_plan(http_gate.address, text, query)
+    assert reply.status < 500, reply.body[:300]
+    assert reply.headers["content-type"] == "application/json"

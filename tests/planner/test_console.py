@@ -1,0 +1,216 @@
+"""``rover status``, ``rover stop``, ``rover clear-stop`` and ``rover echo`` against a
+real ``rover bridge`` and ``rover emulate`` (real ROS 2, private network namespace); the
+readable status from the bridge's own diagnostics; the stacks' domains."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from bridge.diagnostics import diagnostic_array
+from bridge.link import LinkDiagnostics
+from bridge.rosport.msgs import stamp
+from planner import domains
+from planner.roverstatus import from_diagnostics
+from tests.child import Child
+
+BASE = LinkDiagnostics(
+    state="ready", url="/dev/x", connected=True, missed_beats=0, lost_after_beats=None,
+    heartbeat_losses=0, reconnects=0, reboots=0, rtt_ms=0.2, rtt_median_ms=0.2,
+    heartbeat_age_s=0.01, rx_frames=10, tx_frames=10, crc_errors=0, resyncs=0, rx_dropped=0,
+    rx_overflow=0, lost_frames=0, retries=0, no_ack_faults=0, stop_repeats=0, watchdog_trips=0,
+    last_stop_latency_ms=None, last_stopping_distance_mm=None, controller_state="IDLE",
+    stop_latched=False, estop_requested=False, faults=(), controller_queue=0, boot_nonce=1,
+    firmware="1.0.0", schema_hash="", host_schema_hash="", steps_sent=3, steps_completed=2,
+    steps_rejected=1, steps_aborted=0, rejected=(("stop_latched", 1),), last_error="",
+)  # fmt: skip
+
+
+def _status(**changes: object) -> object:
+    diag = dataclasses.replace(BASE, **changes)  # type: ignore[arg-type]
+    msg = diagnostic_array(diag, stamp(), statuses=["ready", "accepted", "fault:stall_left"])
+    return from_diagnostics(msg)
+
+
+def test_the_status_reads_the_bridges_diagnostics_and_says_why_it_is_held() -> None:
+    ready = _status()
+    assert ready.ready and ready.why_held() == []  # type: ignore[attr-defined]
+    text = ready.text("test")  # type: ignore[attr-defined]
+    assert text.splitlines()[0] == "rover status (test): READY: steps are accepted"
+    assert "statuses    ready, accepted, fault:stall_left  (oldest first)" in text
+    assert "rejected 1 (stop_latched 1)" in text
+    held = _status(
+        controller_state="FAULT",
+        stop_latched=True,
+        latch=("stop", "fault"),
+        latch_fault="STALL_LEFT",
+        faults=("STALL_LEFT", "IMU"),
+    )
+    assert not held.ready  # type: ignore[attr-defined]
+    why = held.why_held()  # type: ignore[attr-defined]
+    assert why[0].startswith("fault condition STALL_LEFT is active")  # IMU only reports
+    assert any("latched by a fault (STALL_LEFT)" in w for w in why)
+    assert any("latched by an emergency stop: release it with 'rover clear-stop'" in w for w in why)
+    lost = _status(state="lost", last_error="no controller heartbeat for 0.35 s")
+    assert lost.why_held()[0].startswith(  # type: ignore[attr-defined]
+        "the bridge has no link to the controller (link lost: no controller heartbeat"
+    )
+    doc = held.as_dict()  # type: ignore[attr-defined]
+    assert doc["latch"] == ["stop", "fault"] and doc["levels"]["controller"] == "ERROR"
+
+
+def test_each_stack_holds_a_domain_of_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(domains.DIR_ENV, str(tmp_path))
+    with domains.claim() as one, domains.claim() as two:
+        assert one.domain != two.domain
+        assert {one.domain, two.domain} <= set(domains.STACK_DOMAINS)
+        one.publish({"env": {"ROS_DOMAIN_ID": str(one.domain)}})
+        assert [s["domain"] for s in domains.running()] == [one.domain]
+        with (
+            pytest.raises(domains.DomainBusyError, match=f"ROS domain {one.domain} is held"),
+            domains.claim(one.domain),
+        ):
+            pass
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "firmware_proto.cli",
+                "stack",
+                "up",
+                "--domain",
+                str(two.domain),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, domains.DIR_ENV: str(tmp_path)},
+            check=False,
+        )
+        assert out.returncode == 1, out.stderr
+        assert out.stderr.splitlines()[-1].startswith(
+            f"rover stack: error: ROS domain {two.domain} is held by another rover stack"
+        )
+    assert domains.running() == []  # released with the stacks
+
+
+def _rover(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "firmware_proto.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=dict(os.environ),
+        check=False,
+    )
+
+
+@pytest.mark.rclpy
+def test_nobody_answering_is_one_line_and_exit_1() -> None:
+    out = _rover("status", "--timeout", "2")
+    assert out.returncode == 1 and out.stdout == ""
+    [line] = out.stderr.splitlines()
+    assert line.startswith("rover status: error: no /diagnostics from a bridge on /ground/")
+    out = _rover("clear-stop", "--timeout", "2")
+    assert out.returncode == 1
+    assert "NOT released: no answer" in out.stderr and "is a bridge running" in out.stderr
+
+
+@pytest.fixture
+def rover_side(tmp_path: Path) -> Iterator[None]:
+    """A ``rover emulate`` on a pty and a ``rover bridge`` on it (the bridge's topics at
+    the root namespace), up and handshaken."""
+    device = tmp_path / "rover-motor"
+    env = dict(os.environ)
+    children = [Child(["emulate", "--serial", "--link", str(device), "--speed-factor", "4"], env)]
+    try:
+        children[0].wait_for("DEVICE ")
+        children.append(Child(["bridge", "--device", str(device)], env))
+        children[-1].wait_for("bridge: handshake done")
+        yield
+    finally:
+        for child in reversed(children):
+            child.stop()
+
+
+@pytest.mark.rclpy
+@pytest.mark.usefixtures("rover_side")
+def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
+    where = ("--namespace", "/")
+    echo = Child(
+        ["echo", "command_status", *where, "--count", "2", "--timeout", "30"], dict(os.environ)
+    )
+    try:
+        echo.wait_for("# /command_status [std_msgs/String]")
+        stopped = _rover("stop", *where)
+        assert stopped.returncode == 0, stopped.stdout + stopped.stderr
+        assert stopped.stdout.startswith("stopped: the controller acknowledged the STOP")
+        held = _rover("status", *where, "--json")
+        assert held.returncode == 3, held.stdout + held.stderr
+        doc = json.loads(held.stdout)
+        assert doc["latch"] == ["stop"] and doc["controller_state"] == "STOP_LATCHED"
+        assert "stopped" in doc["statuses"]
+        released = _rover("clear-stop", *where)
+        assert released.returncode == 0, released.stdout + released.stderr
+        assert released.stdout.startswith("released: the latch is off (it was held by stop)")
+        assert echo.wait(30) == 0
+    finally:
+        echo.stop()
+    heard = [line.split(" ", 1)[1] for line in echo.lines[1:]]
+    assert heard == ["stopped", "cleared"], echo.lines
+    again = _rover("clear-stop", *where)
+    assert again.returncode == 0 and again.stdout.startswith("not latched: there was nothing")
+    watched = _rover("status", *where, "--watch", "--count", "2", "--json")
+    assert watched.returncode == 0, watched.stderr
+    reports = [json.loads(line) for line in watched.stdout.splitlines()]
+    assert len(reports) == 2 and all(r["ready"] for r in reports)
+    pose = _rover("echo", "odom_ground", *where, "--count", "1", "--timeout", "20")
+    assert pose.returncode == 0, pose.stderr
+    assert " x=1.2" in pose.stdout.splitlines()[1] and "frame=map" in pose.stdout
+
+
+@pytest.mark.rclpy
+def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path) -> None:
+    """``rover stack up --device``: the bridge opens the device given (here a
+    ``rover emulate`` the lab started itself); no emulator is started, no control port
+    is offered, and the health comes back through the link."""
+    device = tmp_path / "rover-motor"
+    env = {**os.environ, domains.DIR_ENV: str(tmp_path / "stacks")}
+    emulator = Child(["emulate", "--serial", "--link", str(device)], env)
+    stack: Child | None = None
+    try:
+        emulator.wait_for("DEVICE ")
+        stack = Child(
+            ["stack", "up", "--device", str(device), "--baud", "115200", "--rtt", "0.2"], env
+        )
+        stack.wait_for("STACK UP domain ", timeout_s=120)
+        assert not any(line.startswith("starting emulator") for line in stack.lines)
+        assert any(f"rover bridge --device {device} --baud 115200" in x for x in stack.lines)
+        assert f"DEVICE {device}" in stack.lines and not any(
+            x.startswith("CONTROL ") for x in stack.lines
+        )
+        assert any("health: rover status" in x and "READY" in x for x in stack.lines)
+        inject = subprocess.run(
+            [sys.executable, "-m", "firmware_proto.cli", "stack", "inject", "reboot"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+            check=False,
+        )
+        assert inject.returncode == 1 and "drives a real device: no emulator" in inject.stderr
+        stack.proc.send_signal(2)
+        assert stack.wait(60) == 0
+    finally:
+        if stack is not None:
+            stack.stop()
+        emulator.stop()
