@@ -18,11 +18,11 @@ from emulator.drive import (
 )
 from emulator.errors import (
     CommandError,
-    ConfigError,
     EmulatorError,
     GroundError,
     InjectionError,
     MapError,
+    TwinConfigError,
 )
 from emulator.ground import Ground, list_grounds, load_ground
 from emulator.playback import (
@@ -50,7 +50,6 @@ __all__ = [
     "BodyVelocity",
     "Collision",
     "CommandError",
-    "ConfigError",
     "EmulatorError",
     "Ground",
     "GroundError",
@@ -66,6 +65,7 @@ __all__ = [
     "TimedPose",
     "TractionModel",
     "Twin",
+    "TwinConfigError",
     "WorldMap",
     "brake",
     "list_grounds",

@@ -9,7 +9,7 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
      |                    distance out of range, non-finite motor rate); also ValueError
      +-- InjectionError   a fault or traction change the twin cannot apply is refused;
      |                    also ValueError (never silently accepted)
-     +-- ConfigError      a twin or playback parameter is out of range (time step,
+     +-- TwinConfigError  a twin or playback parameter is out of range (time step,
      |                    safety margin, sample period); also ValueError
      +-- FirmwareBuildError  the C firmware core cannot be built or loaded here (no
      |                    compiler, a failed build, a rover it cannot represent);
@@ -29,13 +29,13 @@ from __future__ import annotations
 __all__ = [
     "CalibrationError",
     "CommandError",
-    "ConfigError",
     "EmulatorError",
     "FirmwareBuildError",
     "GroundError",
     "InjectionError",
     "MapError",
     "RecordingError",
+    "TwinConfigError",
     "UnidentifiableError",
 ]
 
@@ -69,7 +69,7 @@ class InjectionError(EmulatorError, ValueError):
     """An injection (traction scale, locked wheel, fault) was refused as inapplicable."""
 
 
-class ConfigError(EmulatorError, ValueError):
+class TwinConfigError(EmulatorError, ValueError):
     """A twin or playback parameter is out of range (time step, margin, period)."""
 
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import pymunk
 
-from emulator.errors import CommandError, ConfigError, InjectionError
+from emulator.errors import CommandError, InjectionError, TwinConfigError
 from emulator.traction import TractionModel
 from emulator.worldmap import (
     BOUNDS_ID,
@@ -186,12 +186,12 @@ class Twin:
         start: initial pose; default the map's start pose, else the origin.
 
         Raises:
-            ConfigError: ``dt_s`` or ``safety_margin_m`` out of range.
+            TwinConfigError: ``dt_s`` or ``safety_margin_m`` out of range.
         """
         if not (math.isfinite(dt_s) and 0.0 < dt_s <= MAX_DT_S):
-            raise ConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
+            raise TwinConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
         if not (math.isfinite(safety_margin_m) and safety_margin_m >= 0.0):
-            raise ConfigError(f"safety_margin_m must be finite and >= 0, got {safety_margin_m}")
+            raise TwinConfigError(f"safety_margin_m must be finite and >= 0, got {safety_margin_m}")
         self.rover = rover
         self.world = world
         self.dt_s = float(dt_s)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from gate.config import GateConfig, PlaybackSettings, load_config
 from gate.errors import (
     BadRequestError,
-    ConfigError,
+    GateConfigError,
     GateError,
     GoalRangeError,
     HttpError,
@@ -53,8 +53,8 @@ __all__ = [
     "FAILURE_TYPES",
     "BadRequestError",
     "CollisionReport",
-    "ConfigError",
     "GateConfig",
+    "GateConfigError",
     "GateError",
     "GateServer",
     "GoalRangeError",

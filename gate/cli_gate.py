@@ -146,7 +146,7 @@ def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]
 
 def _serve(args: argparse.Namespace) -> int:
     from gate.config import load_config
-    from gate.errors import ConfigError
+    from gate.errors import GateConfigError
     from gate.server import GateServer
 
     token = args.token
@@ -154,7 +154,7 @@ def _serve(args: argparse.Namespace) -> int:
         try:
             token = Path(args.token_file).read_text(encoding="utf-8").strip()
         except OSError as exc:
-            raise ConfigError(f"cannot read --token-file: {exc}") from exc
+            raise GateConfigError(f"cannot read --token-file: {exc}") from exc
     config = load_config(
         {
             "default_map": args.default_map,
@@ -201,19 +201,19 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
     map it was calibrated on.
 
     Raises:
-        ConfigError: ``--rover`` given too, or the twin file cannot be used.
+        GateConfigError: ``--rover`` given too, or the twin file cannot be used.
     """
     from emulator.errors import EmulatorError
     from emulator.twinfile import load_twin
-    from gate.errors import ConfigError
+    from gate.errors import GateConfigError
     from gate.validator import Validator, load_maps
 
     if rover_path:
-        raise ConfigError("give --twin or --rover, not both (a twin holds its rover)")
+        raise GateConfigError("give --twin or --rover, not both (a twin holds its rover)")
     try:
         twin = load_twin(twin_path)
     except EmulatorError as exc:
-        raise ConfigError(str(exc)) from exc
+        raise GateConfigError(str(exc)) from exc
     maps, default = load_maps(default_map)
     served = {name: twin.world(world) or world for name, world in maps.items()}
     cal = twin.calibration

@@ -41,7 +41,7 @@ from firmware_proto.errors import DescriptionError
 from firmware_proto.plan import COMMAND_NAMES, Plan
 from firmware_proto.rover import RoverDescription, load_rover
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
-from gate.errors import ConfigError, GoalRangeError, OptionError
+from gate.errors import GateConfigError, GoalRangeError, OptionError
 from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
 from gate.options import ResolvedOptions
 from gate.trajectory import tag_samples
@@ -92,17 +92,17 @@ def load_maps(default_map: str) -> tuple[dict[str, WorldMap], str]:
     """The shipped maps, plus ``default_map`` when it is a file; and the default's name.
 
     Raises:
-        ConfigError: the default map cannot be loaded, or a file map's name clashes with
+        GateConfigError: the default map cannot be loaded, or a file map's name clashes with
             a different shipped map.
     """
     maps = {name: load_map(name) for name in list_maps()}
     try:
         world = load_map(default_map)
     except MapError as exc:
-        raise ConfigError(f"default map: {exc}") from exc
+        raise GateConfigError(f"default map: {exc}") from exc
     known = maps.get(world.name)
     if known is not None and known.digest() != world.digest():
-        raise ConfigError(
+        raise GateConfigError(
             f"map file {default_map} is named {world.name!r}, like a different shipped map"
         )
     maps[world.name] = world
@@ -138,10 +138,10 @@ class Validator:
         default_map: name of the map used when a request names none.
 
         Raises:
-            ConfigError: ``default_map`` is not among ``maps``.
+            GateConfigError: ``default_map`` is not among ``maps``.
         """
         if default_map not in maps:
-            raise ConfigError(f"default map {default_map!r} is not among {sorted(maps)}")
+            raise GateConfigError(f"default map {default_map!r} is not among {sorted(maps)}")
         self.rover = rover
         self.maps = dict(maps)
         self.settings = settings
@@ -155,12 +155,12 @@ class Validator:
         """Load the rover description and the maps a configuration names.
 
         Raises:
-            ConfigError: the rover description or the default map cannot be loaded.
+            GateConfigError: the rover description or the default map cannot be loaded.
         """
         try:
             rover = load_rover(config.rover_path)
         except DescriptionError as exc:
-            raise ConfigError(str(exc)) from exc
+            raise GateConfigError(str(exc)) from exc
         maps, default = load_maps(config.default_map)
         return cls(rover, maps, config.playback, default)
 

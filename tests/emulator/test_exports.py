@@ -10,7 +10,6 @@ EXPECTED = [
     "BodyVelocity",
     "Collision",
     "CommandError",
-    "ConfigError",
     "EmulatorError",
     "Ground",
     "GroundError",
@@ -26,6 +25,7 @@ EXPECTED = [
     "TimedPose",
     "TractionModel",
     "Twin",
+    "TwinConfigError",
     "WorldMap",
     "brake",
     "list_grounds",
@@ -57,7 +57,7 @@ def test_one_exception_root() -> None:
         emulator.MapError,
         emulator.CommandError,
         emulator.InjectionError,
-        emulator.ConfigError,
+        emulator.TwinConfigError,
     ):
         assert issubclass(cls, emulator.EmulatorError)
         assert issubclass(cls, ValueError)

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from emulator.drive import StepProfile, motor_omegas, travel_units, yaw_for_turn_units
-from emulator.errors import CommandError, ConfigError, InjectionError
+from emulator.errors import CommandError, InjectionError, TwinConfigError
 from emulator.playback import measure_turn_efficiency, play
 from emulator.twin import MAX_DT_S, Pose2D, Twin
 from firmware_proto.messages import Command
@@ -190,9 +190,9 @@ def test_unknown_side_is_refused(rover: RoverDescription) -> None:
 
 def test_bad_construction_is_refused(rover: RoverDescription) -> None:
     for dt in (0.0, -0.001, MAX_DT_S * 1.5, math.nan):
-        with pytest.raises(ConfigError):
+        with pytest.raises(TwinConfigError):
             Twin(rover, dt_s=dt)
-    with pytest.raises(ConfigError):
+    with pytest.raises(TwinConfigError):
         Twin(rover, safety_margin_m=-0.1)
 
 
