@@ -10,8 +10,9 @@ from __future__ import annotations
 
 from planner.drift import DriftEvent, DriftMonitor
 from planner.errors import (
-    GateError,
+    GateCallError,
     GateOverloadedError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
     GoalInObstacleError,
@@ -41,10 +42,11 @@ __all__ = [
     "ExecutionResult",
     "ExecutorConfig",
     "ExperimentResult",
+    "GateCallError",
     "GateClient",
-    "GateError",
     "GateOptions",
     "GateOverloadedError",
+    "GateStatusError",
     "GateTimeoutError",
     "GateUnavailableError",
     "GoalInObstacleError",

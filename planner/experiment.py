@@ -334,7 +334,7 @@ def run_planning_experiment(
         min_distance_m: least distance of a random goal from the start.
 
     Raises:
-        GateError, GateUnavailableError: the gate failed.
+        GateCallError: the gate failed.
     """
     world = orchestrator.world
     if goals is None:

@@ -17,7 +17,7 @@ Failure behaviour, per call (docs/planner.md):
 - no answer within the budget: :class:`~planner.errors.GateTimeoutError`;
 - 503 (busy, shutting down): wait ``Retry-After`` and try again while the budget
   allows, then :class:`~planner.errors.GateOverloadedError`;
-- any other 4xx or 5xx: :class:`~planner.errors.GateError` at once, never retried,
+- any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried,
   with the gate's error code, message and, for a plan that fails the schema, the JSON
   pointer of every violation.
 
@@ -40,9 +40,9 @@ from urllib.parse import quote, urlsplit
 
 from firmware_proto.plan import Plan
 from planner.errors import (
-    GateError,
     GateOverloadedError,
     GateProtocolError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
 )
@@ -233,7 +233,7 @@ class GateClient:
             options: overrides of the gate's tolerances and margin.
 
         Raises:
-            GateError: the gate refused the request (400 with the violations' pointers
+            GateStatusError: the gate refused the request (400 with the violations' pointers
                 for a plan that fails the schema; 400 naming the option for an unknown
                 map or a start outside it; 401...).
             GateOverloadedError, GateUnavailableError, GateTimeoutError: see the module.
@@ -279,7 +279,7 @@ class GateClient:
         """``GET /maps/{name}`` as a :class:`MapInfo`; ``None`` for the default map.
 
         Raises:
-            GateError: 404 for an unknown map.
+            GateStatusError: 404 for an unknown map.
         """
         if name is None:
             name = self.list_maps()[0]
@@ -344,7 +344,7 @@ class GateClient:
                 self._sleep(wait_s)
                 continue
             if status >= 400:
-                raise GateError(status, data.decode("utf-8", "replace"), url=self.url + path)
+                raise GateStatusError(status, data.decode("utf-8", "replace"), url=self.url + path)
             if not 200 <= status < 300:
                 raise GateProtocolError(f"the gate at {self.url} answered {status} to {path}")
             return data

@@ -192,8 +192,8 @@ class MissionRunner:
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal or start.
-            GateError, GateUnavailableError, GateProtocolError: the gate failed on the
-                first planning (nothing was sent to the rover).
+            GateCallError: the gate failed on the first planning (nothing was sent to
+                the rover).
         """
         t0 = time.monotonic()
         start = start or self.orchestrator.world.start

@@ -250,7 +250,7 @@ class PlannerOrchestrator:
         """The map validated on, read from the gate on first use.
 
         Raises:
-            GateError, GateUnavailableError: the gate cannot say.
+            GateCallError: the gate cannot say.
         """
         if self._world is None:
             self._world = self.gate.get_map(self.map_name)
@@ -284,7 +284,7 @@ class PlannerOrchestrator:
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal, start or
                 waypoint (nothing is sent to the gate).
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         return self.plan_route(self._route(goal, start, via))
 
@@ -297,7 +297,7 @@ class PlannerOrchestrator:
         gives up: the loop behind :meth:`plan`, for a leg made (or edited) by hand.
 
         Raises:
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         attempts: list[Attempt] = []
         failures: list[FailureRecord] = []
@@ -392,7 +392,7 @@ class PlannerOrchestrator:
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad input.
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         route = self._route(goal, start, via)
         legs: list[PlanResult] = []

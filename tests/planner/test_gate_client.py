@@ -13,9 +13,9 @@ from firmware_proto.plan import Goal, Plan, PlanStep
 from firmware_proto.rover import RoverDescription, load_rover
 from gate.server import GateServer
 from planner.errors import (
-    GateError,
     GateOverloadedError,
     GateProtocolError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
     PlannerError,
@@ -120,7 +120,7 @@ def test_schema_violations_give_gate_error_with_pointers(client: GateClient) -> 
         ],
         "extra": True,
     }
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(bad)
     e = err.value
     assert e.status == 400
@@ -135,14 +135,14 @@ def test_bad_options_name_the_parameter(
     client: GateClient, planner: HeuristicLowLevelPlanner
 ) -> None:
     plan = open_field_plan(planner)
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(plan, map_name="mars")
     assert (err.value.status, err.value.parameter) == (400, "map")
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(plan, map_name="lab", start=Pose(50.0, 1.0, 0.0))
     assert (err.value.status, err.value.parameter) == (400, "start")
     assert "outside map 'lab'" in err.value.message
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.get_map("mars")
     assert err.value.status == 404
     with pytest.raises(ValueError, match="finite"):
@@ -213,7 +213,7 @@ def test_overloaded_gate_is_retried_after_retry_after_then_reported(own_gate: Ga
 
 def test_bearer_token(planner: HeuristicLowLevelPlanner) -> None:
     with start_gate(token="s3cret") as gate:
-        with GateClient(gate.url) as anonymous, pytest.raises(GateError) as err:
+        with GateClient(gate.url) as anonymous, pytest.raises(GateStatusError) as err:
             anonymous.health()
         assert err.value.status == 401
         with GateClient(gate.url, token="s3cret") as client:
@@ -293,7 +293,7 @@ def test_server_error_is_reported_not_retried(planner: HeuristicLowLevelPlanner)
     validator = BrokenValidator(load_rover(), maps, PlaybackSettings(), default)
     config = GateConfig(port=0, pool="thread", workers=1)
     with GateServer(config, validator=validator) as gate, GateClient(gate.url) as client:
-        with pytest.raises(GateError) as err:
+        with pytest.raises(GateStatusError) as err:
             client.validate(open_field_plan(planner), map_name="lab")
         assert client.requests == 1
     assert err.value.status == 500

@@ -80,5 +80,9 @@ def test_one_exception_root() -> None:
     assert issubclass(errors.InvalidPoseError, ValueError)
     assert issubclass(errors.GateUnavailableError, ConnectionError)
     assert issubclass(errors.GateTimeoutError, TimeoutError)
-    assert issubclass(errors.GateOverloadedError, errors.GateError)
+    assert issubclass(errors.GateOverloadedError, errors.GateStatusError)
+    for failure in (errors.GateStatusError, errors.GateUnavailableError, errors.GateProtocolError):
+        assert issubclass(failure, errors.GateCallError)
+    # Distinct names: the gate's root and the planner's errors about reaching it.
+    assert not hasattr(errors, "GateError") and not hasattr(errors, "ConfigError")
     assert issubclass(errors.GoalInObstacleError, errors.InvalidPoseError)
