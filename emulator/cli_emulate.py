@@ -9,7 +9,6 @@ values stand for long options (docs/ros2.md).
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
@@ -414,10 +413,10 @@ def _serve_emulator(
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
-        prog="rover_emulator",
+        prog=NODE_NAME,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=_DESCRIPTION
         + " Accepts --ros-args: its --params-file section for the node and -p name:=value "
@@ -425,15 +424,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         epilog=_epilog(),
     )
     add_arguments(parser)
-    args = parse_args_with_ros_args(parser, list(sys.argv[1:] if argv is None else argv), NODE_NAME)
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-    )
-    try:
-        return _run(args)
-    except (OSError, ValueError, RuntimeError) as exc:
-        print(f"rover_emulator: error: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, _run, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -302,21 +302,14 @@ def main(argv: list[str] | None = None) -> int:
     """``rover_gate`` for ``ros2 run`` and launch files: the server's options of ``rover
     gate``, then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
         prog="rover_gate",
         description=_DESCRIPTION + " Accepts --ros-args (see docs/ros2.md).",
     )
     add_arguments(parser)
-    args = parse_args_with_ros_args(
-        parser, list(sys.argv[1:] if argv is None else argv), "rover_gate"
-    )
-    try:
-        return _serve(args)
-    except Exception as exc:  # one clean line for the operator, whatever went wrong
-        print(f"rover_gate: error: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, _serve, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover
