@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.messages import Encoders, Imu, Pose, WheelSpeeds
 from firmware_proto.rover import RoverDescription
 
@@ -163,7 +164,7 @@ class OdometryEstimator:
         mid = self._yaw + dyaw / 2.0
         self._x += ds * math.cos(mid)
         self._y += ds * math.sin(mid)
-        self._yaw = (self._yaw + dyaw + math.pi) % (2.0 * math.pi) - math.pi
+        self._yaw = wrap_rad(self._yaw + dyaw)
         self._distance += abs(ds)
         self._elapsed_s += max(0.0, dt)
         self._source = source

@@ -247,12 +247,12 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.firmware import make_controller
     from emulator.injection import Injector, parse_fault
     from emulator.twin import Twin
-    from emulator.worldmap import load_map
     from firmware_proto.linkio.errors import LinkUrlError
     from firmware_proto.linkio.trafficio import LogWriter, open_recorder
     from firmware_proto.linkio.urls import parse_can_spec
     from firmware_proto.messages import SCHEMA_HASH
     from firmware_proto.rover import load_rover
+    from firmware_proto.worldmap import load_map
 
     config = controller_config(args)
     faults: list[FaultSpec] = []

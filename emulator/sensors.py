@@ -16,7 +16,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from emulator.drive import travel_units
-from emulator.twin import Pose2D, Twin, wrap_angle_rad
+from emulator.twin import Pose2D, Twin
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.rover import RoverDescription
 
 __all__ = [
@@ -203,7 +204,7 @@ class PoseSensor:
         pose = Pose2D(
             truth.x_m + gauss(0.0, self.noise_m),
             truth.y_m + gauss(0.0, self.noise_m),
-            wrap_angle_rad(truth.yaw_rad + gauss(0.0, self.yaw_noise_rad)),
+            wrap_rad(truth.yaw_rad + gauss(0.0, self.yaw_noise_rad)),
         )
         self._last = pose
         # A perfect sensor still reports 1 cm: zero is reserved for "no fix".

@@ -33,16 +33,16 @@ from importlib.metadata import PackageNotFoundError, version
 import pymunk
 
 from emulator.drive import nominal_step_duration_s
-from emulator.errors import MapError
 from emulator.playback import DEFAULT_SETTLE_S, PlaybackResult, play, step_time_limit_s
 from emulator.twin import Pose2D, Twin
-from emulator.worldmap import WorldMap, list_maps, load_map
-from firmware_proto.errors import DescriptionError
+from firmware_proto.errors import DescriptionError, MapError
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.plan import COMMAND_NAMES, Plan
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import WorldMap, list_maps, load_map
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
 from gate.errors import GateConfigError, GoalRangeError, OptionError
-from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
+from gate.goal import GoalError, approach_heading_rad, goal_error
 from gate.options import ResolvedOptions
 from gate.trajectory import tag_samples
 from gate.verdict import (

@@ -27,7 +27,6 @@ from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Prog
 from planner.experiment import ExperimentResult, run_planning_experiment
 from planner.gate_client import GateClient, GateOptions
 from planner.geometry import Point, Pose
-from planner.mapinfo import MapInfo
 from planner.mission import MissionReport, MissionRunner, MoveAndWait
 from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
 from planner.planner import HeuristicLowLevelPlanner, LegPlan
@@ -55,7 +54,6 @@ __all__ = [
     "LegPlan",
     "LinkProfile",
     "LinkRelay",
-    "MapInfo",
     "MissionReport",
     "MissionResult",
     "MissionRunner",

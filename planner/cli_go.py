@@ -83,9 +83,11 @@ def resolve_goal(goal: Any, world: Any) -> Any:
     """
     if not isinstance(goal, str):
         return goal
+    from planner.geometry import pose_in_map
+
     for named in world.goals:
         if named.name == goal:
-            return named.pose
+            return pose_in_map(named)
     known = ", ".join(g.name for g in world.goals) or "none"
     raise ValueError(
         f"map {world.name!r} has no goal named {goal!r} (its goals: {known}); or give X,Y,YAW_DEG"
@@ -304,14 +306,15 @@ def register(subparsers: Any) -> None:
 
 
 def _offline_map(name: str | None, exc: Exception) -> Any:
-    """The map for move-and-wait without a gate: ``--map`` must name a map file."""
-    from planner.mapinfo import MapInfo
+    """The map for move-and-wait without a gate: ``--map`` must name a map file (a bare
+    name means the map the gate serves under it, which only the gate knows)."""
+    from firmware_proto.worldmap import load_map
 
     if name is None or not Path(name).is_file():
         raise RuntimeError(
             f"{exc}; --move-and-wait can plan without the gate from a map file: --map FILE.json"
         ) from exc
-    return MapInfo.load(name)
+    return load_map(Path(name))
 
 
 def _wait_for_pose(executor: Any, timeout_s: float, cancel: threading.Event) -> Any:
@@ -365,6 +368,7 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.executor import ExecutorConfig, PlanExecutor, Progress
     from planner.foxlive import FoxgloveLive
     from planner.gate_client import GateClient
+    from planner.geometry import pose_in_map
     from planner.interrupt import CancelOnSignal
     from planner.mcaprec import McapRecorder
     from planner.mission import MissionReport, MissionRunner, MoveAndWait
@@ -452,7 +456,7 @@ def _mission(args: argparse.Namespace) -> int:
         goal = resolve_goal(goal, world)
         planner = HeuristicLowLevelPlanner(rover, world=world)
         # Bad goals (and starts) end here, before anything waits for the rover.
-        planner.route(start or world.start, goal)
+        planner.route(start or pose_in_map(world.start), goal)
         with (
             open_port(
                 args.ros_backend, namespace=args.namespace, node_name="rover_executor"

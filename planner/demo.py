@@ -48,12 +48,12 @@ from bridge.rosport.qos import DIAGNOSTICS
 from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.stall import STALL_LOG_ENV
+from firmware_proto.worldmap import WorldMap
 from planner.domains import claim
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from planner.geometry import Pose, pose_in_map
 from planner.mcaprec import McapRecorder
 from planner.mission import MissionReport, MissionRunner
 from planner.orchestrator import MissionResult, PlannerOrchestrator
@@ -350,7 +350,7 @@ class Demo:
         goal = _goal(world, cfg.goal_name)
         if recorder is not None:
             recorder.set_map(world, goal)
-        start = world.start
+        start = pose_in_map(world.start)
         orchestrator = PlannerOrchestrator(
             HeuristicLowLevelPlanner(rover, world=world),
             client,
@@ -506,8 +506,8 @@ class Demo:
         self.close()
 
 
-def _goal(world: MapInfo, name: str) -> Pose:
-    for goal in world.goals:
-        if goal.name == name:
-            return goal.pose
-    raise ValueError(f"map {world.name!r} has no goal named {name!r}")
+def _goal(world: WorldMap, name: str) -> Pose:
+    try:
+        return pose_in_map(world.goal(name))
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from exc

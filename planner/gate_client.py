@@ -2,7 +2,7 @@
 
 :class:`GateClient` posts plans to ``POST /validate_plan`` and reads the verdict into
 :class:`~planner.verdict.Verdict`; it also reads ``/health``, ``/maps`` and one map
-(:class:`~planner.mapinfo.MapInfo`). Standard library only (``http.client``), one
+(:class:`~firmware_proto.worldmap.WorldMap`). Standard library only (``http.client``), one
 keep-alive connection, thread-safe (calls are serialised on it).
 
 Failure behaviour, per call (docs/planner.md):
@@ -38,7 +38,9 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import quote, urlsplit
 
+from firmware_proto.errors import MapError
 from firmware_proto.plan import Plan
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
     GateOverloadedError,
     GateProtocolError,
@@ -47,7 +49,6 @@ from planner.errors import (
     GateUnavailableError,
 )
 from planner.geometry import Pose
-from planner.mapinfo import MapInfo
 from planner.verdict import Verdict
 
 __all__ = [
@@ -275,18 +276,21 @@ class GateClient:
             raise GateProtocolError("/maps: not the documented map list", ["/maps"])
         return str(obj.get("default", "")), list(obj["maps"])
 
-    def get_map(self, name: str | None = None) -> MapInfo:
-        """``GET /maps/{name}`` as a :class:`MapInfo`; ``None`` for the default map.
+    def get_map(self, name: str | None = None) -> WorldMap:
+        """``GET /maps/{name}`` as a :class:`WorldMap`; ``None`` for the default map.
 
         Raises:
             GateStatusError: 404 for an unknown map.
+            GateProtocolError: the document is not a valid map (``pointers`` says
+                where).
         """
         if name is None:
             name = self.list_maps()[0]
         obj = self._json(self._call("GET", "/maps/" + quote(name, safe=""), None))
-        if not isinstance(obj, dict):
-            raise GateProtocolError(f"/maps/{name}: not a JSON object")
-        return MapInfo.from_dict(obj)
+        try:
+            return WorldMap.from_dict(obj, f"/maps/{name}")
+        except MapError as exc:
+            raise GateProtocolError(str(exc), [ptr for ptr, _ in exc.violations]) from exc
 
     # -- transport ----------------------------------------------------------------------
     def _json(self, data: bytes) -> Any:

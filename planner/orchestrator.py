@@ -26,11 +26,12 @@ import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from firmware_proto.geometry import Point
 from firmware_proto.plan import Plan
+from firmware_proto.worldmap import WorldMap
 from planner.errors import PlanTooLongError, RepairError, UnreachableGoalError
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Point, Pose
-from planner.mapinfo import MapInfo
+from planner.geometry import Pose, pose_in_map
 from planner.planner import HeuristicLowLevelPlanner, LegPlan, Route
 from planner.repairs import (
     REPAIRS,
@@ -219,7 +220,7 @@ class PlannerOrchestrator:
         map_name: str | None = None,
         max_attempts: int | None = None,
         max_legs: int = DEFAULT_MAX_LEGS,
-        world: MapInfo | None = None,
+        world: WorldMap | None = None,
         options: GateOptions | None = None,
         repair_settings: RepairSettings | None = None,
         repairs: Mapping[str, RepairFunction | None] | None = None,
@@ -246,7 +247,7 @@ class PlannerOrchestrator:
 
     # -- the map ------------------------------------------------------------------------
     @property
-    def world(self) -> MapInfo:
+    def world(self) -> WorldMap:
         """The map validated on, read from the gate on first use.
 
         Raises:
@@ -262,7 +263,7 @@ class PlannerOrchestrator:
     def _route(self, goal: Pose, start: Pose | None, via: Sequence[Point]) -> Route:
         world = self.world
         return self.planner.route(
-            start if start is not None else world.start, goal, via, world=world
+            start if start is not None else pose_in_map(world.start), goal, via, world=world
         )
 
     # -- one leg ------------------------------------------------------------------------

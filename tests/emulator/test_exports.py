@@ -14,9 +14,6 @@ EXPECTED = [
     "Ground",
     "GroundError",
     "InjectionError",
-    "MapError",
-    "MapGoal",
-    "MapPose",
     "PlaybackResult",
     "Pose2D",
     "Stall",
@@ -26,12 +23,9 @@ EXPECTED = [
     "TractionModel",
     "Twin",
     "TwinConfigError",
-    "WorldMap",
     "brake",
     "list_grounds",
-    "list_maps",
     "load_ground",
-    "load_map",
     "measure_turn_efficiency",
     "motor_omegas",
     "play",
@@ -54,7 +48,6 @@ def test_exported_members_are_sorted_and_exist() -> None:
 
 def test_one_exception_root() -> None:
     for cls in (
-        emulator.MapError,
         emulator.CommandError,
         emulator.InjectionError,
         emulator.TwinConfigError,

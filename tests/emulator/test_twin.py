@@ -356,7 +356,8 @@ def test_time_is_steps_times_dt(rover: RoverDescription) -> None:
 DETERMINISM_SCRIPT = textwrap.dedent(
     """
     import hashlib, struct
-    from emulator import Pose2D, Twin, load_map
+    from emulator import Pose2D, Twin
+    from firmware_proto.worldmap import load_map
     from firmware_proto.rover import load_rover
 
     rover = load_rover()

@@ -28,7 +28,7 @@ from gate.errors import (
     PayloadTooLargeError,
     UnsupportedMediaError,
 )
-from gate.goal import approach_heading_rad, goal_error, wrap_deg
+from gate.goal import approach_heading_rad, goal_error
 from gate.options import ValidateOptions
 from gate.request import check_declared_length, check_json_media_type, parse_json
 from gate.verdict import Verdict
@@ -144,7 +144,6 @@ def test_goal_error_signs() -> None:
     assert err.distance_m == pytest.approx(math.hypot(1.0, 0.5))
     assert err.yaw_deg == pytest.approx(-20.0)
     assert goal_error((3.0, 0.0, 0.0), (2.0, 0.0, 0.0), east).longitudinal_m == pytest.approx(-1.0)
-    assert wrap_deg(180.0) == -180.0 and wrap_deg(-190.0) == pytest.approx(170.0)
     # Approach heading: last FWD (as is) or REV (reversed); else the bearing to the goal.
     assert approach_heading_rad([1, 3], [0.5, 0.9], (0, 0, 0), (1, 1)) == 0.5
     assert approach_heading_rad([2], [0.5], (0, 0, 0), (1, 1)) == pytest.approx(0.5 + math.pi)

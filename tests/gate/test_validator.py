@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 from gate.config import GateConfig, PlaybackSettings
 from gate.errors import GateConfigError, OptionError
 from gate.options import ValidateOptions

@@ -9,8 +9,8 @@ import pytest
 
 from emulator.playback import play
 from emulator.twin import Pose2D, Twin
-from emulator.worldmap import load_map
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import load_map
 from gate.render import LEGEND_PX
 from gate.server import GateServer
 from gate.verdict import Verdict

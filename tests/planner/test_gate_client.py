@@ -309,3 +309,45 @@ def test_the_gate_and_the_planner_share_one_list_of_failure_types() -> None:
 
     assert gate.verdict.FAILURE_TYPES is FAILURE_TYPES
     assert planner.verdict.FAILURE_TYPES is FAILURE_TYPES
+
+
+def test_a_map_that_is_not_a_map_names_its_bad_field() -> None:
+    """The map the gate serves is read with the one map model, its violations becoming
+    the pointers of a GateProtocolError."""
+    import json
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    bad = {
+        "name": "odd",
+        "description": "a circle without a centre",
+        "bounds": {"min_x": 0, "min_y": 0, "max_x": 5, "max_y": 5},
+        "obstacles": [{"id": "a", "type": "circle", "center": [2], "radius": 0.5}],
+        "traction_regions": [],
+        "start": {"x": 1, "y": 1, "yaw_deg": 0},
+    }
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            body = json.dumps(bad).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format: str, *args: object) -> None:
+            pass
+
+    with HTTPServer(("127.0.0.1", 0), Handler) as server:
+        thread = threading.Thread(target=server.serve_forever, name="bad-map-gate")
+        thread.start()
+        try:
+            url = f"http://127.0.0.1:{server.server_address[1]}"
+            with GateClient(url) as client, pytest.raises(GateProtocolError) as err:
+                client.get_map("odd")
+        finally:
+            server.shutdown()
+            thread.join(timeout=10)
+    assert err.value.pointers == ("/obstacles/0/center",)
+    assert "/maps/odd" in str(err.value)

@@ -24,7 +24,6 @@ MODULES = [
     "planner.gate_client",
     "planner.geometry",
     "planner.interrupt",
-    "planner.mapinfo",
     "planner.markers",
     "planner.mcaprec",
     "planner.mission",

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from firmware_proto.plan import Plan, validate_plan
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
     GoalInObstacleError,
     InvalidPoseError,
@@ -20,8 +21,7 @@ from planner.errors import (
     PlannerError,
     PlanTooLongError,
 )
-from planner.geometry import Pose, wrap_deg
-from planner.mapinfo import MapInfo
+from planner.geometry import Pose, pose_in_map, wrap_deg
 from planner.planner import (
     CORRECTION,
     DRIVE,
@@ -180,7 +180,7 @@ def test_leg_cut_keeps_the_waypoints_ahead(planner: HeuristicLowLevelPlanner) ->
 
 
 def test_bad_input_is_refused(
-    planner: HeuristicLowLevelPlanner, worlds: dict[str, MapInfo]
+    planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]
 ) -> None:
     lab = worlds["lab"]
     for bad in (math.nan, math.inf, -math.inf):
@@ -191,19 +191,19 @@ def test_bad_input_is_refused(
     with pytest.raises(ValueError, match="via"):
         planner.route(Pose(1, 1, 0), Pose(2, 2, 0), [(math.nan, 0)])
     with pytest.raises(OutOfBoundsError, match=r"goal: \(9, 3\) lies outside map 'lab'"):
-        planner.route(lab.start, Pose(9, 3, 0), world=lab)
+        planner.route(pose_in_map(lab.start), Pose(9, 3, 0), world=lab)
     with pytest.raises(OutOfBoundsError, match="via"):
-        planner.route(lab.start, Pose(5, 1, 0), [(3, -1)], world=lab)
+        planner.route(pose_in_map(lab.start), Pose(5, 1, 0), [(3, -1)], world=lab)
     with pytest.raises(GoalInObstacleError) as err:
-        planner.route(lab.start, Pose(4.0, 3.0, 0), world=lab)
+        planner.route(pose_in_map(lab.start), Pose(4.0, 3.0, 0), world=lab)
     assert err.value.obstacle_id == "table"
     assert "inside obstacle 'table'" in str(err.value)
     with pytest.raises(GoalInObstacleError, match="too close to the wall"):
-        planner.route(lab.start, Pose(0.1, 3.0, 0), world=lab)
+        planner.route(pose_in_map(lab.start), Pose(0.1, 3.0, 0), world=lab)
 
 
 def test_a_planner_with_a_map_checks_goals(
-    rover: RoverDescription, worlds: dict[str, MapInfo]
+    rover: RoverDescription, worlds: dict[str, WorldMap]
 ) -> None:
     p = HeuristicLowLevelPlanner(rover, world=worlds["lab"])
     with pytest.raises(GoalInObstacleError):
