@@ -16,7 +16,7 @@ taken for a counter reset too (a reboot whose nonce has not been seen yet).
 Encoders cannot see slip: ``/odom`` says the rover went as far as its wheels turned.
 The controller's POSE (visual odometry or lab tracking) does see it;
 :func:`ground_pose` turns it into a pose in the map frame with its own covariance.
-That second topic is what drift control must use (DESIGN.md contract 7).
+That second topic is what drift control must use (docs/architecture.md, Contracts 7).
 
 Pure: no I/O, no threads, no ROS. Times are the controller's clock (``t_ms``) for
 integration and the host's for stamps.

@@ -2,7 +2,7 @@
 
 Encoders count wheel rotation and cannot see slip; the IMU's yaw rate and the POSE
 sensor (visual odometry or lab tracking) see the ground, which is what lets a host
-detect slip (DESIGN.md contract 7). All three read the twin's ground truth and add
+detect slip (docs/architecture.md, Contracts 7). All three read the twin's ground truth and add
 seeded noise, bias, latency and dropout, each injectable. Pure: no I/O, no threads, no
 wall clock; every random draw comes from a ``random.Random`` seeded by the caller, so a
 run is reproducible from its seed.

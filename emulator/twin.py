@@ -4,7 +4,7 @@ The rover is one rigid body with the chassis footprint and mass of the rover
 description; four wheels touch the ground at ``(+-wheelbase/2, +-track/2)``. Each side's
 motor is driven in the *motor frame* (:meth:`Twin.set_motor_omegas`); the mounting
 polarity of the description (left -1, right +1) turns motor rotation into wheel surface
-speed, so FWD at speed ``s`` is ``omega = sign * s * k`` (DESIGN.md contract 4). Motors
+speed, so FWD at speed ``s`` is ``omega = sign * s * k`` (docs/architecture.md, Contracts 4). Motors
 are ideal velocity sources: the wheel turns at exactly the commanded rate, whatever the
 load (acceleration limits belong to the step profile of :mod:`emulator.drive`).
 

@@ -1,4 +1,4 @@
-"""The arrows between the parts point down (docs/architecture.md; docs/linkio.md, Layers).
+"""The arrows between the parts point down (docs/architecture.md, Parts and layers).
 
 Read from the sources' import statements (every ``import``, at module level or inside a
 function), so a lazy import counts as much as a top-level one:

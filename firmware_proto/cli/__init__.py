@@ -13,8 +13,8 @@ starts: :mod:`firmware_proto.cli.program`) form this sub-package of
 :mod:`firmware_proto`, apart from the pure protocol: it is the one place below the
 emulator, the bridge, the gate and the planner, which all plug into it (the
 repository's top-level layout is fixed). It discovers them by entry point and never
-imports them; nothing in ``firmware_proto`` outside it imports it (docs/linkio.md,
-Layers).
+imports them; nothing in ``firmware_proto`` outside it imports it
+(docs/architecture.md, Parts and layers).
 
 A subcommand whose positional arguments may also follow its options sets
 ``intermixed`` to their destination (``rover frame encode MOTION --can 1 seq=1``).

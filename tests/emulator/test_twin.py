@@ -68,7 +68,7 @@ def test_forward_follows_the_start_heading(rover: RoverDescription) -> None:
 def test_forward_motor_polarity(rover: RoverDescription) -> None:
     twin = Twin(rover)
     k = rover.drive.wheel_velocity_scale_rad_s
-    twin.set_motor_omegas(-60 * k, 60 * k)  # FWD at speed 60 per DESIGN.md
+    twin.set_motor_omegas(-60 * k, 60 * k)  # FWD at speed 60 (docs/architecture.md, Contracts 4)
     assert twin.wheel_surface_speeds_mps == pytest.approx((0.3, 0.3))
     twin.advance(1.0)
     assert twin.motor_angles_rad == pytest.approx((-3.0, 3.0))

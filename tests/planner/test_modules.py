@@ -1,4 +1,4 @@
-"""Package hygiene: public names, and the direction of dependencies (DESIGN.md: the
+"""Package hygiene: public names, and the direction of dependencies (docs/architecture.md: the
 planner talks to the gate over HTTP and never imports the gate or the emulator)."""
 
 from __future__ import annotations
