@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 from benchmarks.common import gate_process, pty_round_trip, summary, table
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import load_rover
 from planner.experiment import (
     ExperimentResult,
@@ -53,7 +54,6 @@ from planner.experiment import (
     trial_goals,
 )
 from planner.gate_client import GateClient
-from planner.geometry import Pose, pose_in_map
 from planner.mission import MissionReport, MissionRunner, MoveAndWait
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
@@ -103,7 +103,7 @@ def colliding_goals(
     assert world is not None
     out = []
     for name, goal in trial_goals(world, planner, 50 * n, seed=seed):
-        route = planner.route(pose_in_map(world.start), goal, world=world)
+        route = planner.route(world.start, goal, world=world)
         if footprint_hits(planner, world, route):
             out.append((name, goal))
             if len(out) == n:
@@ -142,7 +142,7 @@ def missions(
             for i, trial in enumerate(t for t in result.trials if t.approved):
                 with HilRig(name, speed=speed, rtt_s=rtt_s, seed=seed + i) as rig:
                     gated = MissionRunner(orchestrator, rig.executor, replans=1).run(
-                        trial.goal, start=pose_in_map(world.start)
+                        trial.goal, start=world.start
                     )
                 baseline = None
                 plans: tuple[Plan, ...] = tuple(run.plan for run in gated.runs)
@@ -151,7 +151,7 @@ def missions(
                         name, speed=speed, rtt_s=rtt_s, seed=seed + i, drift_control=False
                     ) as rig:
                         operator = MoveAndWait(rig.executor, time_scale=speed)
-                        baseline = operator.drive(trial.goal, pose_in_map(world.start), plans)
+                        baseline = operator.drive(trial.goal, world.start, plans)
                 pair = MissionPair(name, trial.name, gated, baseline, speed)
                 pairs.append(pair)
                 print(

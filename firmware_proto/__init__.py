@@ -3,9 +3,9 @@ them (docs/architecture.md, Parts and layers).
 
 Its modules are pure (no I/O, no threads, no sockets, no ROS): the motor controller's
 wire protocol generated from ``protocol.toml`` (messages, serial framing, CAN mapping;
-docs/protocol.md), the plan and verdict schemas, the rover description, the map model
-and the geometry helpers, the bind and token policy of our HTTP servers. The names
-below are theirs.
+docs/protocol.md), the plan, the verdict and the pose, the rover description, the map
+model and the geometry helpers, the bind and token policy of our HTTP servers. The
+names below are theirs.
 
 Beside them, four sub-packages do I/O, and no pure module imports them:
 ``firmware_proto.linkio`` (both ends of the wire, serial and CAN; docs/linkio.md),

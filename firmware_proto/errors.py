@@ -11,6 +11,8 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- MapError           a map is unknown, unreadable, not JSON, or invalid
      |                      (firmware_proto.worldmap); ``violations`` lists
      |                      ``(json_pointer, message)`` pairs. Also ValueError
+     +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
+                            pointers; firmware_proto.verdict); also ValueError
      +-- BindPolicyError    an HTTP server may not listen there without a token, or the
                             token is malformed (firmware_proto.bindpolicy); also ValueError
      +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
@@ -30,6 +32,7 @@ __all__ = [
     "PlanError",
     "ProtoError",
     "SpecError",
+    "VerdictError",
 ]
 
 
@@ -90,6 +93,18 @@ class MapError(ProtoError, ValueError):
         self.violations = list(violations)
         lines = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in self.violations)
         super().__init__(f"{source}: invalid map: {lines}")
+
+
+class VerdictError(ProtoError, ValueError):
+    """A document is not the gate's verdict JSON (:mod:`firmware_proto.verdict`).
+
+    Attributes:
+        pointers: the JSON pointers where the document departs from the shape.
+    """
+
+    def __init__(self, message: str, pointers: tuple[str, ...] = ()) -> None:
+        self.pointers = pointers
+        super().__init__(message)
 
 
 class BindPolicyError(ProtoError, ValueError):

@@ -20,6 +20,7 @@ from jsonschema import Draft202012Validator
 
 from firmware_proto.errors import PlanError
 from firmware_proto.messages import Command
+from firmware_proto.pose import Pose
 from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
@@ -59,13 +60,9 @@ def validate_plan(obj: Any) -> list[tuple[str, str]]:
     return schema_violations(_validator(), obj)
 
 
-@dataclass(frozen=True)
-class Goal:
-    """Goal pose: metres in the map frame, yaw in degrees counter-clockwise from +x."""
-
-    x: float
-    y: float
-    yaw_deg: float
+Goal = Pose
+"""A plan's goal: a :class:`~firmware_proto.pose.Pose` (metres in the map frame, yaw in
+degrees counter-clockwise from +x)."""
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,7 @@ from firmware_proto.geometry import (
     segment_segment_distance,
     signed_area,
 )
+from firmware_proto.pose import Pose
 from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
@@ -58,7 +59,6 @@ __all__ = [
     "CircleObstacle",
     "Clearance",
     "MapGoal",
-    "MapPose",
     "Obstacle",
     "PolygonObstacle",
     "SegmentObstacle",
@@ -238,15 +238,6 @@ class TractionRegion:
 
 
 @dataclass(frozen=True)
-class MapPose:
-    """A pose in the map: metres, yaw in degrees counter-clockwise from +x."""
-
-    x: float
-    y: float
-    yaw_deg: float
-
-
-@dataclass(frozen=True)
 class MapGoal:
     """A suggested goal: a name, a pose (metres, degrees) and a note for people."""
 
@@ -255,6 +246,11 @@ class MapGoal:
     y: float
     yaw_deg: float
     note: str = ""
+
+    @property
+    def pose(self) -> Pose:
+        """Where the goal is, as a pose."""
+        return Pose(self.x, self.y, self.yaw_deg)
 
 
 class Clearance(NamedTuple):
@@ -278,7 +274,7 @@ class WorldMap:
     bounds: Bounds
     obstacles: tuple[Obstacle, ...]
     traction_regions: tuple[TractionRegion, ...]
-    start: MapPose
+    start: Pose
     goals: tuple[MapGoal, ...] = ()
 
     @classmethod
@@ -590,7 +586,7 @@ def _build(obj: dict[str, Any]) -> WorldMap:
             TractionRegion(r["id"], tuple(pt(p) for p in r["polygon"]), float(r["mu_scale"]))
             for r in obj["traction_regions"]
         ),
-        start=MapPose(float(s["x"]), float(s["y"]), float(s["yaw_deg"])),
+        start=Pose(float(s["x"]), float(s["y"]), float(s["yaw_deg"])),
         goals=tuple(
             MapGoal(g["name"], float(g["x"]), float(g["y"]), float(g["yaw_deg"]), g.get("note", ""))
             for g in obj.get("goals", [])

@@ -11,7 +11,8 @@ from typing import Any
 from urllib.parse import urlencode
 
 from firmware_proto.cli import values
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 
 __all__ = ["add_arguments", "main", "register"]
 
@@ -110,6 +111,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--max-body", dest="max_body_bytes", type=int, metavar="BYTES", help="body limit (65536)"
     )
     p.add_argument("--config", metavar="TOML", help="settings file with a [gate] table")
+    p.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="play the samples of verdicts with uncertainty on this Dask scheduler "
+        "(tcp://HOST:PORT; needs the cluster extra) instead of the local workers",
+    )
     _add_playback_options(p)
     add_runtime_arguments(p, 0)
 
@@ -132,6 +139,14 @@ def _add_check(p: argparse.ArgumentParser) -> None:
     c.add_argument("--start", dest="check_start", metavar="X,Y,YAW", help="start pose")
     c.add_argument("--png", dest="check_png", metavar="PATH", help="write the picture here")
     c.add_argument("--json", dest="check_json", action="store_true", help="print the JSON")
+    c.add_argument(
+        "--samples",
+        dest="check_samples",
+        metavar="N",
+        help="also play N twins drawn from the twin's uncertainty (docs/gate.md)",
+    )
+    c.add_argument("--seed", dest="check_seed", metavar="S", help="seed of those draws (0)")
+    c.add_argument("--slip-sigma", dest="check_slip_sigma", metavar="X", help="slip spread (0.1)")
     _add_playback_options(c, "check_")
     c.set_defaults(func=_check)
 
@@ -165,6 +180,7 @@ def _serve(args: argparse.Namespace) -> int:
             "pool": args.pool,
             "queue_depth": args.queue_depth,
             "max_body_bytes": args.max_body_bytes,
+            "cluster": args.cluster,
             **{k: v for k, v in _playback_args(args).items() if k != "twin_path"},
         },
         config_path=args.config,
@@ -223,7 +239,7 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
         file=sys.stderr,
         flush=True,
     )
-    return Validator(twin.rover, served, settings, default)
+    return Validator(twin.rover, served, settings, default, spread=cal, spread_map=cal.map_name)
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -242,6 +258,10 @@ def _check(args: argparse.Namespace) -> int:
         text = sys.stdin.read() if args.plan == "-" else Path(args.plan).read_text(encoding="utf-8")
         plan = Plan.from_json(text)
         query = {"start": args.check_start} if args.check_start else {}
+        for key in ("samples", "seed", "slip_sigma"):
+            value = getattr(args, "check_" + key)
+            if value is not None:
+                query[key] = value
         if args.check_png:
             query["render"] = "1"
         options = ValidateOptions.from_query(urlencode(query))
@@ -255,7 +275,8 @@ def _check(args: argparse.Namespace) -> int:
         else:
             maps, default = load_maps(args.check_map or "lab")
             validator = Validator(load_rover(rover_path), maps, settings, default)
-        verdict = validator.validate(plan, options.resolve(settings, default))
+        job = validator.prepare(plan, options.resolve(settings, default))
+        verdict = validator.validate_uncertain(job)
     except OSError as exc:
         print(f"rover gate check: cannot read {args.plan}: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -292,6 +313,16 @@ def _print_summary(verdict: Any, png: str | None) -> None:
         f"{v.tolerances.yaw_deg:g} deg)"
     )
     print(f"  steps played   {len(v.steps)}, twin time {v.sim_time_s:.2f} s")
+    u = v.uncertainty
+    if u is not None:
+        g = u.goal_error
+        spread = ", ".join(
+            f"p{p:g} {d:.3f} m" for p, d in zip(g.percentiles, g.distance_m, strict=False)
+        )
+        print(
+            f"  {u.samples} samples  collision probability {u.collision_probability:.3f}, "
+            f"approved {u.approved_probability:.3f}; goal distance {spread or 'n/a'}"
+        )
     r = v.replay
     print(f"  map            {r.map} sha256 {r.map_sha256[:16]}, rover {r.rover_sha256[:16]}")
     if png:

@@ -163,6 +163,8 @@ class GateConfig:
         request_timeout_s: longest wait for a worker's answer.
         drain_timeout_s: on shutdown, longest wait for in-flight requests.
         playback: defaults of the playback and verdict.
+        cluster: address of a Dask scheduler (``tcp://host:port``) that plays the
+            chunks of verdicts with uncertainty; ``None``: the local pool does.
 
     Raises:
         GateConfigError: a value is out of range, or a non-loopback host has no token.
@@ -184,6 +186,7 @@ class GateConfig:
     request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
     drain_timeout_s: float = DEFAULT_DRAIN_TIMEOUT_S
     playback: PlaybackSettings = field(default_factory=PlaybackSettings)
+    cluster: str | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -246,6 +249,7 @@ KEYS: dict[str, Callable[[str], Any]] = {
     "safety_margin_m": float,
     "position_tolerance_m": float,
     "yaw_tolerance_deg": float,
+    "cluster": str,
 }
 """Every settable key and how its text form (environment) is parsed."""
 

@@ -23,9 +23,10 @@ import multiprocessing
 import os
 import signal
 import threading
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
+from typing import Any, TypeVar
 
 from gate.config import GateConfig
 from gate.errors import GateConfigError
@@ -40,6 +41,8 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
 
 WARM_UP_TIMEOUT_S = 60.0
 """Longest wait for every worker process to start and load the maps."""
@@ -106,6 +109,21 @@ class WorkerPool:
     def _submit(self, job: Job) -> Future[bytes]:
         raise NotImplementedError
 
+    def submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+        """Run ``fn(arg)`` on a worker (``fn`` a module-level function, ``arg``
+        picklable: a chunk of an uncertain verdict, :func:`gate.ensemble.run_chunk`).
+
+        Raises:
+            RuntimeError: the pool is closed.
+        """
+        with self._lock:
+            if self._closed:
+                raise RuntimeError(f"{self.kind} pool is closed")
+        return self._submit_call(fn, arg)
+
+    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+        raise NotImplementedError
+
     def close(self, *, wait: bool = True) -> None:
         """Stop taking jobs; with ``wait``, let the running ones finish first. Queued jobs
         that have not started are cancelled."""
@@ -147,6 +165,9 @@ class ThreadWorkerPool(WorkerPool):
 
     def _run(self, job: Job) -> bytes:
         return self.validator.run(job).to_json().encode()
+
+    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+        return self._executor.submit(fn, arg)
 
     def _close(self, wait: bool) -> None:
         self._executor.shutdown(wait=wait, cancel_futures=True)
@@ -202,10 +223,13 @@ class ProcessWorkerPool(WorkerPool):
         return pids
 
     def _submit(self, job: Job) -> Future[bytes]:
+        return self._submit_call(run_job, job)
+
+    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
         with self._lock:
             executor = self._executor
         try:
-            return executor.submit(run_job, job)
+            return executor.submit(fn, arg)
         except BrokenProcessPool:
             logger.warning("a worker process died; restarting the pool")
             with self._lock:
@@ -213,7 +237,7 @@ class ProcessWorkerPool(WorkerPool):
                     executor.shutdown(wait=True, cancel_futures=True)  # reaps the dead
                     self._executor = self._start()
                 executor = self._executor
-            return executor.submit(run_job, job)
+            return executor.submit(fn, arg)
 
     def _close(self, wait: bool) -> None:
         with self._lock:

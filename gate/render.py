@@ -21,9 +21,10 @@ from PIL import Image, ImageDraw
 
 from emulator.drive import yaw_for_turn_units
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.verdict import Verdict
 from firmware_proto.worldmap import CircleObstacle, PolygonObstacle, WorldMap
-from gate.verdict import Pose, Verdict
 
 __all__ = ["LEGEND_PX", "MAX_IMAGE_PX", "planned_path", "render_png"]
 
@@ -132,7 +133,7 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
         draw.line(path, fill=_PLANNED, width=2)
     for p in path:
         draw.ellipse((p[0] - 3, p[1] - 3, p[0] + 3, p[1] + 3), outline=_PLANNED)
-    trail = [px(s.x, s.y) for s in verdict.trajectory.samples]
+    trail = [px(s.pose.x, s.pose.y) for s in verdict.trajectory.samples]
     if len(trail) > 1:
         draw.line(trail, fill=_PREDICTED, width=3)
 

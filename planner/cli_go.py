@@ -15,8 +15,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 from planner.cli_view import add_view_arguments
+from planner.gate_client import add_confidence_arguments, confidence_options
 from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
 __all__ = [
@@ -49,7 +51,7 @@ def parse_pose(text: str) -> Any:
     """
     import math
 
-    from planner.geometry import Pose
+    from firmware_proto.pose import Pose
 
     parts = text.split(",")
     try:
@@ -83,11 +85,9 @@ def resolve_goal(goal: Any, world: Any) -> Any:
     """
     if not isinstance(goal, str):
         return goal
-    from planner.geometry import pose_in_map
-
     for named in world.goals:
         if named.name == goal:
-            return pose_in_map(named)
+            return named.pose
     known = ", ".join(g.name for g in world.goals) or "none"
     raise ValueError(
         f"map {world.name!r} has no goal named {goal!r} (its goals: {known}); or give X,Y,YAW_DEG"
@@ -267,6 +267,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=Path("mission.png"),
         help="PNG of predicted vs actual (default mission.png)",
     )
+    add_confidence_arguments(p)
     add_view_arguments(p, record_default=None)
     add_runtime_arguments(p, 0)
     add_domain_argument(p)
@@ -368,7 +369,6 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.executor import ExecutorConfig, PlanExecutor, Progress
     from planner.foxlive import FoxgloveLive
     from planner.gate_client import GateClient
-    from planner.geometry import pose_in_map
     from planner.interrupt import CancelOnSignal
     from planner.mcaprec import McapRecorder
     from planner.mission import MissionReport, MissionRunner, MoveAndWait
@@ -456,14 +456,22 @@ def _mission(args: argparse.Namespace) -> int:
         goal = resolve_goal(goal, world)
         planner = HeuristicLowLevelPlanner(rover, world=world)
         # Bad goals (and starts) end here, before anything waits for the rover.
-        planner.route(start or pose_in_map(world.start), goal)
+        planner.route(start or world.start, goal)
         with (
             open_port(
                 args.ros_backend, namespace=args.namespace, node_name="rover_executor"
             ) as port,
             CancelOnSignal(on_signal) as signals,
         ):
-            orchestrator = PlannerOrchestrator(planner, gate, map_name=args.map, world=world)
+            gate_options, max_p = confidence_options(args)
+            orchestrator = PlannerOrchestrator(
+                planner,
+                gate,
+                map_name=args.map,
+                world=world,
+                options=gate_options,
+                max_collision_p=max_p,
+            )
             executor = PlanExecutor(port, rover, config)
             if args.record:
                 recorder = McapRecorder(args.record)

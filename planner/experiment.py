@@ -30,8 +30,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from firmware_proto.geometry import Point, segment_polygon_distance, wrap_deg
+from firmware_proto.pose import Pose
 from firmware_proto.worldmap import BOUNDS_ID, WorldMap
-from planner.geometry import Pose, pose_in_map
 from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner, Route
 
@@ -266,7 +266,7 @@ def trial_goals(
     rng = random.Random(seed)
     out: list[tuple[str, Pose]] = []
     if include_suggested:
-        out += [(g.name, pose_in_map(g)) for g in world.goals[:n]]
+        out += [(g.name, g.pose) for g in world.goals[:n]]
     need = planner.rover.footprint_radius_m + margin_m + 0.05
     b = world.bounds
     tries = 0
@@ -287,7 +287,7 @@ def trial_goals(
 
 def _trial(orchestrator: PlannerOrchestrator, world: WorldMap, name: str, goal: Pose) -> Trial:
     planner = orchestrator.planner
-    start = pose_in_map(world.start)
+    start = world.start
     straight = planner.route(start, goal, world=world)
     hit = footprint_hits(planner, world, straight) or ""
     t0 = time.perf_counter()

@@ -19,8 +19,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from firmware_proto.pose import Pose
 from firmware_proto.worldmap import WorldMap
-from planner.geometry import Pose, pose_in_map
 from planner.orchestrator import MissionResult
 
 __all__ = ["MAP_NS", "PLAN_NS", "map_markers", "plan_markers"]
@@ -122,7 +122,7 @@ def map_markers(world: WorldMap, goal: Pose | None, stamp: Any) -> Any:
         cy = sum(y for _, y in pts) / len(pts)
         out.append(_text(MAP_NS, ident + 1, stamp, (cx, cy), ob.id))
         ident += 2
-    out.append(_arrow(MAP_NS, ident, stamp, pose_in_map(world.start), _START))
+    out.append(_arrow(MAP_NS, ident, stamp, world.start, _START))
     out.append(_text(MAP_NS, ident + 1, stamp, (world.start.x, world.start.y), "start"))
     ident += 2
     if goal is not None:

@@ -45,11 +45,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from firmware_proto.worldmap import WorldMap
-from planner.geometry import Pose
 from planner.markers import map_markers, plan_markers
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
 __all__ = [
     "MAP_MARKERS_TOPIC",
@@ -231,7 +231,7 @@ def _verdict_json(verdict: Verdict, attempt: int, repair: str) -> str:
                 "y": collision.contact[1],
                 "step": collision.step,
             },
-            "plan_sha256": verdict.plan_sha256,
+            "plan_sha256": verdict.replay.plan_sha256,
         }
     )
 

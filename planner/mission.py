@@ -29,12 +29,12 @@ from bridge.rosport.contract import COMPLETED
 from firmware_proto.geometry import wrap_deg
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan, PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent
 from planner.errors import PlannerError
 from planner.executor import ExecutionResult, PlanExecutor, Progress
-from planner.geometry import Pose, pose_in_map
 from planner.orchestrator import MissionResult, PlannerOrchestrator
-from planner.verdict import Verdict
 
 __all__ = [
     "CANCELLED",
@@ -197,7 +197,7 @@ class MissionRunner:
                 the rover).
         """
         t0 = time.monotonic()
-        start = start or pose_in_map(self.orchestrator.world.start)
+        start = start or self.orchestrator.world.start
         plannings: list[MissionResult] = []
         runs: list[LegRun] = []
         planning_s = 0.0

@@ -24,14 +24,20 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from firmware_proto.geometry import Point
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import CollisionReport, Verdict
 from firmware_proto.worldmap import WorldMap
-from planner.errors import PlanTooLongError, RepairError, UnreachableGoalError
+from planner.errors import (
+    GateProtocolError,
+    PlanTooLongError,
+    RepairError,
+    UnreachableGoalError,
+)
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Pose, pose_in_map
 from planner.planner import HeuristicLowLevelPlanner, LegPlan, Route
 from planner.repairs import (
     REPAIRS,
@@ -41,7 +47,6 @@ from planner.repairs import (
     RepairFunction,
     RepairSettings,
 )
-from planner.verdict import Verdict
 
 __all__ = ["Attempt", "MissionResult", "PlanResult", "PlannerOrchestrator"]
 
@@ -207,9 +212,14 @@ class PlannerOrchestrator:
         repair_settings: parameters of the repairs.
         repairs: replacements or additions to :data:`REPAIRS`, by failure type
             (``None`` removes one: that failure type then ends the loop).
+        max_collision_p: the highest collision probability accepted: a plan the gate
+            approves on its nominal twin is rejected as a ``collision`` (on the obstacle
+            its samples hit most, at that step) when more of its samples collide.
+            Needs ``options.samples`` > 1; ``None``: the nominal verdict decides.
 
     Raises:
-        ValueError: ``max_attempts`` or ``max_legs`` below 1.
+        ValueError: ``max_attempts`` or ``max_legs`` below 1, or ``max_collision_p``
+            outside [0, 1] or without samples.
     """
 
     def __init__(
@@ -224,6 +234,7 @@ class PlannerOrchestrator:
         options: GateOptions | None = None,
         repair_settings: RepairSettings | None = None,
         repairs: Mapping[str, RepairFunction | None] | None = None,
+        max_collision_p: float | None = None,
     ) -> None:
         attempts = (
             planner.rover.safety.max_repair_attempts if max_attempts is None else max_attempts
@@ -238,6 +249,12 @@ class PlannerOrchestrator:
         self.max_attempts = attempts
         self.max_legs = max_legs
         self.options = options or GateOptions()
+        if max_collision_p is not None:
+            if not 0.0 <= max_collision_p <= 1.0:
+                raise ValueError(f"max_collision_p must be in [0, 1], got {max_collision_p}")
+            if (self.options.samples or 1) < 2:
+                raise ValueError("max_collision_p needs options.samples > 1")
+        self.max_collision_p = max_collision_p
         self.repair_settings = repair_settings or RepairSettings()
         merged = {**REPAIRS, **(repairs or {})}
         self.repairs: dict[str, RepairFunction] = {
@@ -263,7 +280,7 @@ class PlannerOrchestrator:
     def _route(self, goal: Pose, start: Pose | None, via: Sequence[Point]) -> Route:
         world = self.world
         return self.planner.route(
-            start if start is not None else pose_in_map(world.start), goal, via, world=world
+            start if start is not None else world.start, goal, via, world=world
         )
 
     # -- one leg ------------------------------------------------------------------------
@@ -375,8 +392,45 @@ class PlannerOrchestrator:
         )
 
     def _validate(self, leg: LegPlan) -> Verdict:
-        return self.gate.validate(
+        verdict = self.gate.validate(
             leg.plan, map_name=self.map_name, start=leg.start, options=self.options
+        )
+        return self._require_confidence(verdict)
+
+    def _require_confidence(self, verdict: Verdict) -> Verdict:
+        """An approved verdict whose samples collide more often than ``max_collision_p``
+        allows, as a rejected ``collision`` on the obstacle hit most (so the dogleg
+        repair moves the route away from it)."""
+        limit = self.max_collision_p
+        u = verdict.uncertainty
+        if limit is None or not verdict.approved:
+            return verdict
+        if u is None:
+            raise GateProtocolError("the gate's verdict carries no uncertainty", ["/uncertainty"])
+        if u.collision_probability <= limit or not u.collisions:
+            return verdict
+        top = u.collisions[0]
+        step = verdict.steps[min(top.step, len(verdict.steps) - 1)]
+        reason = (
+            f"collision probability {u.collision_probability:.3f} over {u.samples} samples "
+            f"is above {limit:g}; most of them touch {top.obstacle_id!r} in step {top.step} "
+            f"({top.count} samples) near ({top.contact.x:.3f}, {top.contact.y:.3f})"
+        )
+        collision = CollisionReport(
+            top.obstacle_id,
+            top.contact,
+            step.end_pose,
+            step.end_time_s,
+            step.index,
+            step.expected_duration_s,
+        )
+        return replace(
+            verdict,
+            approved=False,
+            failure_type="collision",
+            failure_reason=reason,
+            failed_step=step.index,
+            collision=collision,
         )
 
     # -- missions -----------------------------------------------------------------------

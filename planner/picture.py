@@ -18,8 +18,8 @@ from typing import Any
 
 from PIL import Image, ImageDraw
 
+from firmware_proto.pose import Pose
 from firmware_proto.worldmap import WorldMap
-from planner.geometry import Pose
 from planner.mission import MissionReport
 
 __all__ = ["MissionPicture", "draw", "picture_of", "save"]

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field, replace
 
 from firmware_proto.geometry import Point, wrap_deg, wrap_rad
 from firmware_proto.plan import MAX_PLAN_STEPS, Goal, Plan, PlanStep
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
 from firmware_proto.worldmap import BOUNDS_ID, WorldMap
 from planner.errors import (
@@ -50,7 +51,6 @@ from planner.errors import (
     OutOfBoundsError,
     PlanTooLongError,
 )
-from planner.geometry import Pose
 
 __all__ = [
     "CORRECTION",
@@ -190,7 +190,7 @@ class LegPlan:
     @property
     def goal(self) -> Pose:
         """The plan's goal."""
-        return Pose.from_goal(self.plan.goal)
+        return self.plan.goal
 
     @property
     def predicted_end(self) -> Pose:

@@ -50,9 +50,10 @@ from dataclasses import dataclass, field, replace
 
 from firmware_proto.geometry import Point, wrap_deg
 from firmware_proto.plan import PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from firmware_proto.worldmap import BOUNDS_ID, Obstacle, WorldMap
 from planner.errors import RepairError
-from planner.geometry import Pose
 from planner.planner import (
     CORRECTION,
     GOAL_TURN,
@@ -62,7 +63,6 @@ from planner.planner import (
     PlannedStep,
     Route,
 )
-from planner.verdict import Verdict
 
 __all__ = [
     "REPAIRS",

@@ -46,11 +46,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from firmware_proto.geometry import wrap_deg
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from firmware_proto.worldmap import WorldMap
 from planner.executor import Progress
-from planner.geometry import Pose
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
 __all__ = [
     "INBOX_LEN",
@@ -150,6 +150,13 @@ def _plan_json(planning: int, index: int, repair: str, verdict: Verdict) -> dict
         "summary": verdict.summary(),
         "path": [[round(s.pose.x, 4), round(s.pose.y, 4)] for s in verdict.trajectory.samples],
         "collision": None if c is None else [c.contact[0], c.contact[1]],
+        # With the gate's uncertainty: where the samples are (the level's ellipses along
+        # each step: x, y, semi-axes m, angle deg) and how many of them collided.
+        "envelope": [
+            [p.pose.x, p.pose.y, p.major_m, p.minor_m, p.angle_deg]
+            for p in (verdict.uncertainty.envelope if verdict.uncertainty else ())
+        ],
+        "collision_p": (verdict.uncertainty.collision_probability if verdict.uncertainty else None),
     }
 
 
@@ -543,6 +550,22 @@ class ViewHub:
             return samples[-1].pose
         return trajectory.pose_at(self._step_index, step_t)
 
+    def _ghost_envelope(self) -> list[float] | None:
+        """The spread of the gate's samples where the ghost is: ``[semi-major m,
+        semi-minor m, angle deg]`` of the step's first envelope point not behind it
+        (``None`` without uncertainty)."""
+        if not self._ghosts or self._leg < 0 or self._leg >= len(self._ghosts):
+            return None
+        u = self._ghosts[self._leg].uncertainty
+        points = u.for_step(self._step_index) if u is not None else ()
+        if not points:
+            return None
+        step_t = 0.0
+        if self._step_started is not None:
+            step_t = (time.time() - self._step_started) * self.time_scale
+        at = next((p for p in points if p.step_t_s >= step_t), points[-1])
+        return [round(at.major_m, 4), round(at.minor_m, 4), round(at.angle_deg, 2)]
+
     def _tick(self) -> None:
         drift = self._drift_source() if self._drift_source is not None else None
         if self._halted is not None:
@@ -558,6 +581,7 @@ class ViewHub:
                 "ghost": None
                 if ghost is None
                 else [round(ghost.x, 4), round(ghost.y, 4), round(ghost.yaw_deg, 2)],
+                "envelope": None if ghost is None else self._ghost_envelope(),
                 "drift": None if drift is None else [round(drift[0], 4), round(drift[1], 2)],
                 "rtt_s": self._rtt_measured,
                 "latched": self._latched,

@@ -190,8 +190,8 @@ def test_rover_gate_check_plays_on_the_twin(twin_file: Path, field: Path, tmp_pa
 
 
 def test_rover_gate_serves_the_twin(twin_file: Path, field: Path) -> None:
+    from firmware_proto.pose import Pose
     from planner.gate_client import GateClient
-    from planner.geometry import Pose
     from tests.child import Child
 
     args = ["gate", "--port", "0", "--pool", "thread", "--workers", "1", "--map", str(field)]

@@ -13,8 +13,9 @@ from emulator.playback import play
 from emulator.twin import GATE_DT_S, Twin
 from firmware_proto.geometry import wrap_rad
 from firmware_proto.messages import Command
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import MAPS_DIR, MapGoal, MapPose, WorldMap, list_maps, load_map
+from firmware_proto.worldmap import MAPS_DIR, MapGoal, WorldMap, list_maps, load_map
 
 MAPS = list_maps()
 GOALS = [(name, goal.name) for name in MAPS for goal in load_map(name).goals]
@@ -27,7 +28,7 @@ TURN_CLEARANCE_M = 0.43
 
 
 def straight_plan(
-    rover: RoverDescription, start: MapPose, goal: MapGoal
+    rover: RoverDescription, start: Pose, goal: MapGoal
 ) -> list[tuple[int, int, int]]:
     """What a naive planner sends: face the goal, drive straight, turn to the goal yaw."""
     dx, dy = goal.x - start.x, goal.y - start.y
@@ -45,7 +46,7 @@ def straight_plan(
     return steps
 
 
-def corridor_exists(world: WorldMap, start: MapPose, goal: MapGoal, cell_m: float = 0.1) -> bool:
+def corridor_exists(world: WorldMap, start: Pose, goal: MapGoal, cell_m: float = 0.1) -> bool:
     """Breadth-first search over grid cells whose clearance admits the rover's width."""
     b = world.bounds
     nx, ny = int(b.width_m / cell_m), int(b.height_m / cell_m)

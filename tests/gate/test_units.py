@@ -13,6 +13,7 @@ import pytest
 import gate
 from emulator.twin import GATE_DT_S
 from firmware_proto.bindpolicy import is_loopback
+from firmware_proto.verdict import Verdict
 from gate.config import (
     DEFAULT_DT_S,
     KEYS,
@@ -31,7 +32,6 @@ from gate.errors import (
 from gate.goal import approach_heading_rad, goal_error
 from gate.options import ValidateOptions
 from gate.request import check_declared_length, check_json_media_type, parse_json
-from gate.verdict import Verdict
 
 # -- request ---------------------------------------------------------------------------
 
@@ -205,6 +205,7 @@ EXPORTED = [
     "Trajectory",
     "TrajectorySample",
     "UnauthorizedError",
+    "Uncertainty",
     "UnsupportedMediaError",
     "ValidateOptions",
     "Validator",
@@ -225,7 +226,7 @@ def test_exports_are_pinned_sorted_and_resolve() -> None:
 
 def test_importing_the_data_types_does_not_load_the_twin_or_pillow() -> None:
     code = (
-        "import sys, gate, gate.verdict, gate.options, gate.errors, gate.config; "
+        "import sys, gate, gate.options, gate.errors, gate.config; "
         "heavy = [m for m in ('pymunk', 'PIL', 'gate.server', 'gate.render', 'uvicorn', "
         "'starlette') if m in sys.modules]; "
         "print(heavy)"

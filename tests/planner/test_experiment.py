@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import pytest
 
+from firmware_proto.pose import Pose
 from firmware_proto.worldmap import WorldMap
 from planner.experiment import (
     ExperimentResult,
@@ -13,18 +14,15 @@ from planner.experiment import (
     run_planning_experiment,
     trial_goals,
 )
-from planner.geometry import Pose, pose_in_map
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
 
 
 def test_footprint_check(planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]) -> None:
     lab = worlds["lab"]
-    straight = planner.route(pose_in_map(lab.start), Pose(6.2, 3.0, 0.0), world=lab)
+    straight = planner.route(lab.start, Pose(6.2, 3.0, 0.0), world=lab)
     assert footprint_hits(planner, lab, straight) == "table"
-    around = planner.route(
-        pose_in_map(lab.start), Pose(6.2, 3.0, 0.0), [(3.0, 4.8), (5.0, 4.8)], world=lab
-    )
+    around = planner.route(lab.start, Pose(6.2, 3.0, 0.0), [(3.0, 4.8), (5.0, 4.8)], world=lab)
     assert footprint_hits(planner, lab, around) is None
     # Turning on the spot next to the wall: the corners sweep into it.
     tight = planner.route(Pose(0.4, 3.0, 0.0), Pose(0.4, 3.0, 90.0))

@@ -9,8 +9,11 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_proto.errors import VerdictError
 from firmware_proto.plan import Goal, Plan, PlanStep
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.verdict import Verdict
 from gate.server import GateServer
 from planner.errors import (
     GateOverloadedError,
@@ -21,9 +24,7 @@ from planner.errors import (
     PlannerError,
 )
 from planner.gate_client import GateClient, GateOptions, resolve_gate_settings
-from planner.geometry import Pose
 from planner.planner import HeuristicLowLevelPlanner
-from planner.verdict import Verdict
 from tests.planner.conftest import start_gate
 
 
@@ -58,8 +59,8 @@ def test_open_field_plan_is_approved_with_its_trajectory(
     assert verdict.failed_step is None
     assert verdict.distance_error_m < verdict.tolerances.position_m
     assert math.dist(verdict.final_pose.xy, (3.0, 4.0)) < 0.1
-    assert verdict.map_name == "scn01"
-    assert "start=1.0,4.0,0.0" in verdict.replay_query
+    assert verdict.replay.map == "scn01"
+    assert "start=1.0,4.0,0.0" in verdict.replay.query
     # Per step: the plan's steps, their end poses and expected durations.
     assert [(s.command, s.speed, s.distance) for s in verdict.steps] == [
         (c.command, c.speed, c.distance) for c in plan.commands
@@ -268,14 +269,14 @@ def test_verdict_parsing(gate: GateServer, rover: RoverDescription) -> None:
     assert Verdict.from_dict(data) == verdict
     broken = dict(data)
     del broken["final_pose"]
-    with pytest.raises(GateProtocolError) as err:
+    with pytest.raises(VerdictError) as err:
         Verdict.from_dict(broken)
     assert err.value.pointers == ("/final_pose",)
     wrong = dict(data, steps=[dict(data["steps"][0], speed="fast")])
-    with pytest.raises(GateProtocolError) as err:
+    with pytest.raises(VerdictError) as err:
         Verdict.from_dict(wrong)
     assert err.value.pointers == ("/steps/0/speed",)
-    with pytest.raises(GateProtocolError):
+    with pytest.raises(VerdictError):
         Verdict.from_dict([1, 2])
 
 
@@ -300,15 +301,19 @@ def test_server_error_is_reported_not_retried(planner: HeuristicLowLevelPlanner)
     assert err.value.code == "internal_error"
 
 
-def test_the_gate_and_the_planner_share_one_list_of_failure_types() -> None:
-    """The planner reads verdicts over HTTP and may not import the gate: both take the
-    failure types from firmware_proto.verdict (the gate's OpenAPI enum is made of it)."""
-    import gate.verdict
-    import planner.verdict
-    from firmware_proto.verdict import FAILURE_TYPES
+def test_the_planner_reads_the_gates_verdict_into_the_model_the_gate_built(
+    client: GateClient, planner: HeuristicLowLevelPlanner
+) -> None:
+    """The planner reads verdicts over HTTP and may not import the gate: both use the one
+    model of firmware_proto.verdict, so what the gate serialised reads back equal."""
+    import gate
+    from firmware_proto import verdict as model
 
-    assert gate.verdict.FAILURE_TYPES is FAILURE_TYPES
-    assert planner.verdict.FAILURE_TYPES is FAILURE_TYPES
+    assert gate.Verdict is model.Verdict and gate.FAILURE_TYPES is model.FAILURE_TYPES
+    verdict = client.validate(open_field_plan(planner), map_name="lab")
+    again = model.Verdict.from_json(verdict.to_json())
+    assert again == verdict
+    assert verdict.trajectory.samples[-1].pose == verdict.final_pose
 
 
 def test_a_map_that_is_not_a_map_names_its_bad_field() -> None:

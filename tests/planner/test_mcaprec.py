@@ -17,7 +17,6 @@ import pytest
 
 from bridge.rosport import TAP_RECEIVED, TAP_SENT, open_port, qos
 from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String
-from planner.geometry import pose_in_map
 from planner.mcaprec import McapRecorder, msgdef, read_summary
 
 
@@ -152,8 +151,8 @@ def test_a_recording_a_lab_can_open_tf_markers_diagnostics_metadata(
     from tests.planner.test_console import BASE
 
     world = worlds["lab"]
-    goal = pose_in_map(world.goal("behind_table"))
-    mission = orchestrator("lab").plan_mission(goal, start=pose_in_map(world.start))
+    goal = world.goal("behind_table").pose
+    mission = orchestrator("lab").plan_mission(goal, start=world.start)
     assert mission.approved and len(mission.attempts) >= 2  # the direct plan collides
     path = tmp_path / "mission.mcap"
     heard = threading.Event()

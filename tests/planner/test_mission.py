@@ -9,12 +9,12 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_proto.pose import Pose
 from firmware_proto.rover import load_rover
 from firmware_proto.worldmap import load_map
 from gate.server import GateServer
 from planner.executor import ExecutionResult
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mission import MissionRunner
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner

@@ -7,8 +7,8 @@ from typing import Any
 
 from PIL import Image
 
+from firmware_proto.pose import Pose
 from planner import picture
-from planner.geometry import Pose, pose_in_map
 
 
 def _pixel(image: Image.Image, at: tuple[float, float]) -> tuple[int, ...]:
@@ -24,7 +24,7 @@ def test_drift_stop_and_collision_are_distinct_marks_with_a_legend_and_a_scale(
     shown = picture.MissionPicture(
         world,
         Pose(6.2, 3.0, 0.0),
-        pose_in_map(world.start),
+        world.start,
         drift_stops=[drift],
         collisions=[(hit, "table")],
         title="test",

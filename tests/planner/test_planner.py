@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_proto.plan import Plan, validate_plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
 from firmware_proto.worldmap import WorldMap
 from planner.errors import (
@@ -21,7 +22,7 @@ from planner.errors import (
     PlannerError,
     PlanTooLongError,
 )
-from planner.geometry import Pose, pose_in_map, wrap_deg
+from planner.geometry import wrap_deg
 from planner.planner import (
     CORRECTION,
     DRIVE,
@@ -191,15 +192,15 @@ def test_bad_input_is_refused(
     with pytest.raises(ValueError, match="via"):
         planner.route(Pose(1, 1, 0), Pose(2, 2, 0), [(math.nan, 0)])
     with pytest.raises(OutOfBoundsError, match=r"goal: \(9, 3\) lies outside map 'lab'"):
-        planner.route(pose_in_map(lab.start), Pose(9, 3, 0), world=lab)
+        planner.route(lab.start, Pose(9, 3, 0), world=lab)
     with pytest.raises(OutOfBoundsError, match="via"):
-        planner.route(pose_in_map(lab.start), Pose(5, 1, 0), [(3, -1)], world=lab)
+        planner.route(lab.start, Pose(5, 1, 0), [(3, -1)], world=lab)
     with pytest.raises(GoalInObstacleError) as err:
-        planner.route(pose_in_map(lab.start), Pose(4.0, 3.0, 0), world=lab)
+        planner.route(lab.start, Pose(4.0, 3.0, 0), world=lab)
     assert err.value.obstacle_id == "table"
     assert "inside obstacle 'table'" in str(err.value)
     with pytest.raises(GoalInObstacleError, match="too close to the wall"):
-        planner.route(pose_in_map(lab.start), Pose(0.1, 3.0, 0), world=lab)
+        planner.route(lab.start, Pose(0.1, 3.0, 0), world=lab)
 
 
 def test_a_planner_with_a_map_checks_goals(

@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 
 from bridge.rosport.msgs import Bool, Odometry, String
+from firmware_proto.pose import Pose
 from firmware_proto.worldmap import load_map
-from planner.geometry import Pose, pose_in_map
 from planner.view import ClientQueue, ViewConfig, ViewHub, ViewServer
 
 WORLD = load_map("lab")
@@ -331,8 +331,8 @@ def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fau
     from bridge.rosport.msgs import Int16MultiArray
     from planner.executor import Progress
 
-    goal = pose_in_map(WORLD.goal("by_the_pillar"))
-    mission = orchestrator("lab").plan_mission(goal, start=pose_in_map(WORLD.start))
+    goal = WORLD.goal("by_the_pillar").pose
+    mission = orchestrator("lab").plan_mission(goal, start=WORLD.start)
     assert mission.approved
     hub = ViewHub(WORLD, rtt_s=0.0, time_scale=4.0).start()
     try:
