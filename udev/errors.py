@@ -8,9 +8,9 @@ Everything the device tooling raises on purpose derives from :class:`UdevError`:
      +-- udev.verify.CheckUnavailableError  neither ``udevadm verify`` nor udev's
                                          parser in a sandbox can check rules here
 
-Rules that udev rejects are no exception: they are findings
-(:class:`udev.verify.Finding`), and the rules reader skips what it cannot read
-(:attr:`udev.rules.RulesFile.issues`).
+Rules that udev rejects are no exception: they are issues (:class:`udev.rules.Issue`,
+in :attr:`udev.verify.Verification.findings`), and the rules reader skips what it cannot
+read (:attr:`udev.rules.RulesFile.issues`).
 """
 
 from __future__ import annotations

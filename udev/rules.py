@@ -90,7 +90,8 @@ _WHITESPACE = " \t\n\r"
 
 @dataclass(frozen=True)
 class Issue:
-    """A rule the reader left out: ``path:line: message``."""
+    """A problem at a line of a rules file, ``path:line: message``: a rule this reader
+    left out, or what udev found (:mod:`udev.verify`; line 0: the file as a whole)."""
 
     path: str
     line: int

@@ -31,11 +31,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from udev.errors import UdevError
+from udev.rules import Issue
 
 __all__ = [
     "RULES_DIRS",
     "CheckUnavailableError",
-    "Finding",
     "Verification",
     "udevadm_version",
     "verify_rules",
@@ -83,24 +83,12 @@ class CheckUnavailableError(UdevError):
 
 
 @dataclass(frozen=True)
-class Finding:
-    """One problem udev found: ``path:line: message`` (line 0: the file as a whole)."""
-
-    path: str
-    line: int
-    message: str
-
-    def __str__(self) -> str:
-        return f"{self.path}:{self.line}: {self.message}"
-
-
-@dataclass(frozen=True)
 class Verification:
     """The outcome of a check: what checked, which files, what it found."""
 
     checker: str
     files: tuple[str, ...]
-    findings: tuple[Finding, ...]
+    findings: tuple[Issue, ...]
 
     @property
     def ok(self) -> bool:
@@ -162,7 +150,7 @@ def _verify(program: str, release: int, files: list[Path], style: bool) -> Verif
     findings = _findings(done.stdout + done.stderr, by_arg)
     if done.returncode != 0 and not findings:
         why = (done.stderr or done.stdout).strip().splitlines()
-        findings = [Finding("", 0, why[-1] if why else f"exit status {done.returncode}")]
+        findings = [Issue("", 0, why[-1] if why else f"exit status {done.returncode}")]
     return Verification(
         f"udevadm verify (systemd {release})", tuple(map(str, files)), tuple(findings)
     )
@@ -221,19 +209,19 @@ def _run(argv: list[str], env: dict[str, str] | None = None) -> subprocess.Compl
         raise CheckUnavailableError(f"{argv[0]} failed: {exc}") from exc
 
 
-def _findings(output: str, paths: dict[str, str]) -> list[Finding]:
+def _findings(output: str, paths: dict[str, str]) -> list[Issue]:
     """The lines of ``output`` about a file of ``paths`` (as udev names it -> as the
     caller does), in order, each once."""
-    found: list[Finding] = []
+    found: list[Issue] = []
     for line in output.splitlines():
         at = _AT_LINE.match(line.strip())
         if at is not None and at.group("path") in paths:
-            item = Finding(paths[at.group("path")], int(at.group("line")), at.group("message"))
+            item = Issue(paths[at.group("path")], int(at.group("line")), at.group("message"))
         else:
             whole = _UNREADABLE.match(line.strip())
             if whole is None or whole.group("path") not in paths:
                 continue
-            item = Finding(paths[whole.group("path")], 0, whole.group("message"))
+            item = Issue(paths[whole.group("path")], 0, whole.group("message"))
         if item not in found:
             found.append(item)
     return found
