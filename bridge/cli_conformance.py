@@ -9,6 +9,9 @@ from typing import Any
 
 from bridge.cli_bench import can_spec
 from firmware_proto.cli import values
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
+from firmware_proto.runtime.realtime import BRIDGE_PRIORITY
 
 __all__ = ["PACE_WINDOW_S", "PROBE_S", "main", "probe", "register"]
 
@@ -143,11 +146,22 @@ def register(subparsers: Any) -> None:
         ),
     )
     add_arguments(p)
+    add_runtime_arguments(p, BRIDGE_PRIORITY)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the suite as the options say; the exit status (see the description)."""
+    """Run the suite as the options say; the exit status (see the description). The
+    suite's host keeps time as the bridge does (its heartbeats feed the controller's
+    watchdog): real-time scheduling where permitted (docs/realtime.md)."""
+    runtime = ProcessRuntime(runtime_options(args, "conformance", BRIDGE_PRIORITY))
+    with runtime:
+        if runtime.realtime is not None and not runtime.realtime.granted:
+            print(runtime.line(), file=sys.stderr, flush=True)
+        return _suite(args)
+
+
+def _suite(args: argparse.Namespace) -> int:
     from bridge.conformance import (
         Context,
         ControlClient,
