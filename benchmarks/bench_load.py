@@ -10,7 +10,7 @@ For each number of busy processes (:mod:`benchmarks.load`: ``while True: pass`` 
 normal priority, what a rover's perception stack or another user's build does to its
 computer) and for real time off and on (``rover demo --no-realtime``, and the default):
 
-- ``rover demo --speed 4`` as the README starts it, ``--runs`` times: how many reached
+- ``rover demo --speed 4``, ``--runs`` times: how many reached
   the goal; the longest and the 99th-percentile gaps between heartbeats at each end of
   the controller link, worst over the runs (the bridge's from its ``/diagnostics``, the
   emulator's from its control port; the heartbeat period is 100 ms, and the controller

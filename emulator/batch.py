@@ -47,7 +47,7 @@ import pymunk
 import pymunk.batch
 
 from emulator.drive import StepProfile, motor_omegas, nominal_step_duration_s, travel_units
-from emulator.errors import ConfigError
+from emulator.errors import TwinConfigError
 from emulator.ground import Ground
 from emulator.playback import (
     DEFAULT_SETTLE_S,
@@ -65,15 +65,15 @@ from emulator.twin import (
     WALL_THICKNESS_M,
     Pose2D,
 )
-from emulator.worldmap import (
+from firmware_proto.geometry import convex_parts
+from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import (
     BOUNDS_ID,
     CircleObstacle,
     PolygonObstacle,
     SegmentObstacle,
     WorldMap,
-    convex_parts,
 )
-from firmware_proto.rover import RoverDescription
 
 __all__ = ["BatchDraw", "BatchResult", "Schedule", "play_batch", "schedule"]
 
@@ -317,10 +317,10 @@ class _World:
                         own.append((poly, o.id))
                 elif isinstance(o, CircleObstacle):
                     center = (o.center[0] + ox, o.center[1] + oy)
-                    own.append((pymunk.Circle(static, o.radius, offset=center), o.id))
+                    own.append((pymunk.Circle(static, o.radius_m, offset=center), o.id))
                 elif isinstance(o, SegmentObstacle):
                     a, b2 = (o.a[0] + ox, o.a[1] + oy), (o.b[0] + ox, o.b[1] + oy)
-                    own.append((pymunk.Segment(static, a, b2, o.radius), o.id))
+                    own.append((pymunk.Segment(static, a, b2, o.radius_m), o.id))
             for shape, oid in own:
                 shape.friction = CONTACT_FRICTION
                 shape.elasticity = 0.0
@@ -540,16 +540,16 @@ def play_batch(
 
     Raises:
         CommandError: a step is invalid (nothing is played).
-        ConfigError: no draw, or a step, margin or period out of range.
+        TwinConfigError: no draw, or a step, margin or period out of range.
     """
     if not draws:
-        raise ConfigError("a batch needs at least one draw")
+        raise TwinConfigError("a batch needs at least one draw")
     if not (math.isfinite(dt_s) and 0.0 < dt_s <= MAX_DT_S):
-        raise ConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
+        raise TwinConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
     if not (math.isfinite(safety_margin_m) and 0.0 <= safety_margin_m <= 1.0):
-        raise ConfigError(f"safety_margin_m must be in [0, 1], got {safety_margin_m}")
+        raise TwinConfigError(f"safety_margin_m must be in [0, 1], got {safety_margin_m}")
     if not (math.isfinite(record_every_s) and record_every_s > 0.0):
-        raise ConfigError(f"record_every_s must be > 0, got {record_every_s}")
+        raise TwinConfigError(f"record_every_s must be > 0, got {record_every_s}")
     plan = schedule(rover, steps, dt_s)
     n = len(draws)
     space = _World(rover, world, draws, dt_s, safety_margin_m, start)

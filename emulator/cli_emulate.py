@@ -9,7 +9,6 @@ values stand for long options (docs/ros2.md).
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
@@ -258,12 +257,12 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.firmware import make_controller
     from emulator.injection import Injector, parse_fault
     from emulator.twin import Twin
-    from emulator.worldmap import load_map
     from firmware_proto.linkio.errors import LinkUrlError
     from firmware_proto.linkio.trafficio import LogWriter, open_recorder
     from firmware_proto.linkio.urls import parse_can_spec
     from firmware_proto.messages import SCHEMA_HASH
     from firmware_proto.rover import load_rover
+    from firmware_proto.worldmap import load_map
 
     config = controller_config(args)
     faults: list[FaultSpec] = []
@@ -437,10 +436,10 @@ def _serve_emulator(
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
-        prog="rover_emulator",
+        prog=NODE_NAME,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=_DESCRIPTION
         + " Accepts --ros-args: its --params-file section for the node and -p name:=value "
@@ -448,15 +447,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         epilog=_epilog(),
     )
     add_arguments(parser)
-    args = parse_args_with_ros_args(parser, list(sys.argv[1:] if argv is None else argv), NODE_NAME)
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-    )
-    try:
-        return _run(args)
-    except (OSError, ValueError, RuntimeError) as exc:
-        print(f"rover_emulator: error: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, _run, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

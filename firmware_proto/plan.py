@@ -1,11 +1,11 @@
 """Command plans: the thesis's Listing 1 schema, validation and the wire form.
 
 A plan is ``{"goal": {x, y, yaw_deg}, "commands": [{command, speed, distance}, ...]}``
-(DESIGN.md contract 1), checked against ``data/command_plan.schema.json`` (JSON Schema
+(docs/architecture.md, Contracts 1), checked against ``data/command_plan.schema.json`` (JSON Schema
 2020-12, the one copy every part uses). :func:`validate_plan` lists every violation with
 its JSON pointer; :meth:`Plan.from_dict` raises :class:`PlanError` carrying them.
 :meth:`PlanStep.to_wire` gives the ``[command, speed, distance]`` integers of
-``/wheel_instructions`` (command codes of contract 2).
+``/wheel_instructions`` (command codes: Contracts 2).
 """
 
 from __future__ import annotations

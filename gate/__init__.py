@@ -27,7 +27,7 @@ from firmware_proto.verdict import (
 from gate.config import GateConfig, PlaybackSettings, load_config
 from gate.errors import (
     BadRequestError,
-    ConfigError,
+    GateConfigError,
     GateError,
     GoalRangeError,
     HttpError,
@@ -54,8 +54,8 @@ __all__ = [
     "FAILURE_TYPES",
     "BadRequestError",
     "CollisionReport",
-    "ConfigError",
     "GateConfig",
+    "GateConfigError",
     "GateError",
     "GateServer",
     "GoalRangeError",

@@ -161,7 +161,7 @@ def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]
 
 def _serve(args: argparse.Namespace) -> int:
     from gate.config import load_config
-    from gate.errors import ConfigError
+    from gate.errors import GateConfigError
     from gate.server import GateServer
 
     token = args.token
@@ -169,7 +169,7 @@ def _serve(args: argparse.Namespace) -> int:
         try:
             token = Path(args.token_file).read_text(encoding="utf-8").strip()
         except OSError as exc:
-            raise ConfigError(f"cannot read --token-file: {exc}") from exc
+            raise GateConfigError(f"cannot read --token-file: {exc}") from exc
     config = load_config(
         {
             "default_map": args.default_map,
@@ -217,19 +217,19 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
     map it was calibrated on.
 
     Raises:
-        ConfigError: ``--rover`` given too, or the twin file cannot be used.
+        GateConfigError: ``--rover`` given too, or the twin file cannot be used.
     """
     from emulator.errors import EmulatorError
     from emulator.twinfile import load_twin
-    from gate.errors import ConfigError
+    from gate.errors import GateConfigError
     from gate.validator import Validator, load_maps
 
     if rover_path:
-        raise ConfigError("give --twin or --rover, not both (a twin holds its rover)")
+        raise GateConfigError("give --twin or --rover, not both (a twin holds its rover)")
     try:
         twin = load_twin(twin_path)
     except EmulatorError as exc:
-        raise ConfigError(str(exc)) from exc
+        raise GateConfigError(str(exc)) from exc
     maps, default = load_maps(default_map)
     served = {name: twin.world(world) or world for name, world in maps.items()}
     cal = twin.calibration
@@ -333,21 +333,14 @@ def main(argv: list[str] | None = None) -> int:
     """``rover_gate`` for ``ros2 run`` and launch files: the server's options of ``rover
     gate``, then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
         prog="rover_gate",
         description=_DESCRIPTION + " Accepts --ros-args (see docs/ros2.md).",
     )
     add_arguments(parser)
-    args = parse_args_with_ros_args(
-        parser, list(sys.argv[1:] if argv is None else argv), "rover_gate"
-    )
-    try:
-        return _serve(args)
-    except Exception as exc:  # one clean line for the operator, whatever went wrong
-        print(f"rover_gate: error: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, _serve, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
-from gate.errors import ConfigError
+from gate.errors import GateConfigError
 
 __all__ = ["CONNECT_TIMEOUT_S", "WAITERS", "ClusterEngine", "local_cluster"]
 
@@ -53,7 +53,7 @@ class ClusterEngine:
         timeout_s: how long to wait for it.
 
     Raises:
-        ConfigError: ``distributed`` is not installed, or the scheduler does not answer.
+        GateConfigError: ``distributed`` is not installed, or the scheduler does not answer.
     """
 
     kind = "dask"
@@ -62,14 +62,14 @@ class ClusterEngine:
         try:
             client_class: Any = importlib.import_module("distributed").Client
         except ImportError as exc:
-            raise ConfigError(
+            raise GateConfigError(
                 "--cluster needs Dask distributed: pip install 'rover-hil[cluster]'"
             ) from exc
         self.address = address
         try:
             self._client: Any = client_class(address, timeout=f"{timeout_s}s", set_as_default=False)
         except (OSError, TimeoutError) as exc:
-            raise ConfigError(f"no Dask scheduler answers at {address}: {exc}") from exc
+            raise GateConfigError(f"no Dask scheduler answers at {address}: {exc}") from exc
         self._lock = threading.Lock()
         self._closed = False
         # One thread per chunk in flight waits on its result (Dask's own done-callbacks

@@ -32,7 +32,6 @@ from emulator.batch import BatchDraw, BatchResult, play_batch
 from emulator.calibration import FIT_PARAMETERS
 from emulator.ground import Ground
 from emulator.twin import Pose2D
-from emulator.worldmap import WorldMap
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan
 from firmware_proto.pose import Point, Pose
@@ -43,6 +42,7 @@ from firmware_proto.verdict import (
     ObstacleHits,
     Uncertainty,
 )
+from firmware_proto.worldmap import WorldMap
 from gate.goal import approach_heading_rad, goal_error
 
 __all__ = [

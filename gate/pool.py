@@ -29,7 +29,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TypeVar
 
 from gate.config import GateConfig
-from gate.errors import ConfigError
+from gate.errors import GateConfigError
 from gate.validator import Job, Validator
 
 __all__ = [
@@ -88,7 +88,7 @@ class WorkerPool:
 
     def __init__(self, validator: Validator, workers: int) -> None:
         if workers < 1:
-            raise ConfigError(f"workers must be >= 1, got {workers}")
+            raise GateConfigError(f"workers must be >= 1, got {workers}")
         self.validator = validator
         self.workers = workers
         self._closed = False
@@ -254,7 +254,7 @@ def make_pool(config: GateConfig, validator: Validator) -> WorkerPool:
     try:
         cls = kinds[config.pool]
     except KeyError:
-        raise ConfigError(
+        raise GateConfigError(
             f"unknown pool {config.pool!r}; known: {', '.join(sorted(kinds))}"
         ) from None
     return cls(validator, config.workers)

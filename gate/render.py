@@ -20,11 +20,11 @@ import math
 from PIL import Image, ImageDraw
 
 from emulator.drive import yaw_for_turn_units
-from emulator.worldmap import CircleObstacle, PolygonObstacle, WorldMap
 from firmware_proto.plan import Plan
 from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
 from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import CircleObstacle, PolygonObstacle, WorldMap
 
 __all__ = ["LEGEND_PX", "MAX_IMAGE_PX", "planned_path", "render_png"]
 
@@ -121,10 +121,10 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
             draw.polygon([px(*p) for p in o.points], fill=_OBSTACLE, outline=_WALL)
         elif isinstance(o, CircleObstacle):
             cx, cy = px(*o.center)
-            r = o.radius * scale
+            r = o.radius_m * scale
             draw.ellipse((cx - r, cy - r, cx + r, cy + r), fill=_OBSTACLE, outline=_WALL)
         else:
-            thickness = max(2, round(2 * o.radius * scale))
+            thickness = max(2, round(2 * o.radius_m * scale))
             draw.line([px(*o.a), px(*o.b)], fill=_OBSTACLE, width=thickness)
     draw.rectangle((*px(b.min_x, b.max_y), *px(b.max_x, b.min_y)), outline=_WALL, width=3)
 

@@ -34,12 +34,11 @@ import pymunk
 
 from emulator.batch import BatchResult
 from emulator.drive import nominal_step_duration_s
-from emulator.errors import MapError
 from emulator.ground import Ground
 from emulator.playback import DEFAULT_SETTLE_S, PlaybackResult, play, step_time_limit_s
 from emulator.twin import Pose2D, Twin
-from emulator.worldmap import WorldMap, list_maps, load_map
-from firmware_proto.errors import DescriptionError
+from firmware_proto.errors import DescriptionError, MapError
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.plan import COMMAND_NAMES, Plan
 from firmware_proto.pose import Point, Pose
 from firmware_proto.rover import RoverDescription, load_rover
@@ -52,10 +51,11 @@ from firmware_proto.verdict import (
     Trajectory,
     Verdict,
 )
+from firmware_proto.worldmap import WorldMap, list_maps, load_map
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
 from gate.ensemble import ChunkJob, DefaultSpread, Spread, chunk_jobs, draw, run_chunk, summarise
-from gate.errors import ConfigError, GoalRangeError, OptionError
-from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
+from gate.errors import GateConfigError, GoalRangeError, OptionError
+from gate.goal import GoalError, approach_heading_rad, goal_error
 from gate.options import ResolvedOptions
 from gate.trajectory import tag_samples
 
@@ -94,17 +94,17 @@ def load_maps(default_map: str) -> tuple[dict[str, WorldMap], str]:
     """The shipped maps, plus ``default_map`` when it is a file; and the default's name.
 
     Raises:
-        ConfigError: the default map cannot be loaded, or a file map's name clashes with
+        GateConfigError: the default map cannot be loaded, or a file map's name clashes with
             a different shipped map.
     """
     maps = {name: load_map(name) for name in list_maps()}
     try:
         world = load_map(default_map)
     except MapError as exc:
-        raise ConfigError(f"default map: {exc}") from exc
+        raise GateConfigError(f"default map: {exc}") from exc
     known = maps.get(world.name)
     if known is not None and known.digest() != world.digest():
-        raise ConfigError(
+        raise GateConfigError(
             f"map file {default_map} is named {world.name!r}, like a different shipped map"
         )
     maps[world.name] = world
@@ -148,10 +148,10 @@ class Validator:
             drawn grounds' region scales are dropped, as the calibrated twin's are).
 
         Raises:
-            ConfigError: ``default_map`` is not among ``maps``.
+            GateConfigError: ``default_map`` is not among ``maps``.
         """
         if default_map not in maps:
-            raise ConfigError(f"default map {default_map!r} is not among {sorted(maps)}")
+            raise GateConfigError(f"default map {default_map!r} is not among {sorted(maps)}")
         self.rover = rover
         self.maps = dict(maps)
         self.settings = settings
@@ -168,12 +168,12 @@ class Validator:
         """Load the rover description and the maps a configuration names.
 
         Raises:
-            ConfigError: the rover description or the default map cannot be loaded.
+            GateConfigError: the rover description or the default map cannot be loaded.
         """
         try:
             rover = load_rover(config.rover_path)
         except DescriptionError as exc:
-            raise ConfigError(str(exc)) from exc
+            raise GateConfigError(str(exc)) from exc
         maps, default = load_maps(config.default_map)
         return cls(rover, maps, config.playback, default)
 

@@ -12,8 +12,9 @@ from firmware_proto.pose import Pose
 from firmware_proto.verdict import Trajectory, Verdict
 from planner.drift import DriftEvent, DriftMonitor
 from planner.errors import (
-    GateError,
+    GateCallError,
     GateOverloadedError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
     GoalInObstacleError,
@@ -28,7 +29,6 @@ from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Prog
 from planner.experiment import ExperimentResult, run_planning_experiment
 from planner.gate_client import GateClient, GateOptions
 from planner.geometry import Point
-from planner.mapinfo import MapInfo
 from planner.mission import MissionReport, MissionRunner, MoveAndWait
 from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
 from planner.planner import HeuristicLowLevelPlanner, LegPlan
@@ -42,10 +42,11 @@ __all__ = [
     "ExecutionResult",
     "ExecutorConfig",
     "ExperimentResult",
+    "GateCallError",
     "GateClient",
-    "GateError",
     "GateOptions",
     "GateOverloadedError",
+    "GateStatusError",
     "GateTimeoutError",
     "GateUnavailableError",
     "GoalInObstacleError",
@@ -54,7 +55,6 @@ __all__ = [
     "LegPlan",
     "LinkProfile",
     "LinkRelay",
-    "MapInfo",
     "MissionReport",
     "MissionResult",
     "MissionRunner",

@@ -49,11 +49,11 @@ from bridge.rosport.rclpy_backend import middleware
 from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.stall import STALL_LOG_ENV
+from firmware_proto.worldmap import WorldMap
 from planner.domains import claim
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
 from planner.gate_client import GateClient, GateOptions
-from planner.mapinfo import MapInfo
 from planner.mcaprec import McapRecorder
 from planner.mission import MissionReport, MissionRunner
 from planner.orchestrator import MissionResult, PlannerOrchestrator
@@ -513,8 +513,8 @@ class Demo:
         self.close()
 
 
-def _goal(world: MapInfo, name: str) -> Pose:
-    for goal in world.goals:
-        if goal.name == name:
-            return goal.pose
-    raise ValueError(f"map {world.name!r} has no goal named {name!r}")
+def _goal(world: WorldMap, name: str) -> Pose:
+    try:
+        return world.goal(name).pose
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from exc

@@ -2,9 +2,9 @@
 
 :class:`GateClient` posts plans to ``POST /validate_plan`` and reads the verdict into
 :class:`~firmware_proto.verdict.Verdict` (the model the gate serialises); it also reads
-``/health``, ``/maps`` and one map (:class:`~planner.mapinfo.MapInfo`). Standard library
-only (``http.client``), one keep-alive connection, thread-safe (calls are serialised on
-it).
+``/health``, ``/maps`` and one map (:class:`~firmware_proto.worldmap.WorldMap`).
+Standard library only (``http.client``), one keep-alive connection, thread-safe (calls
+are serialised on it).
 
 Failure behaviour, per call (docs/planner.md):
 
@@ -18,7 +18,7 @@ Failure behaviour, per call (docs/planner.md):
 - no answer within the budget: :class:`~planner.errors.GateTimeoutError`;
 - 503 (busy, shutting down): wait ``Retry-After`` and try again while the budget
   allows, then :class:`~planner.errors.GateOverloadedError`;
-- any other 4xx or 5xx: :class:`~planner.errors.GateError` at once, never retried,
+- any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried,
   with the gate's error code, message and, for a plan that fails the schema, the JSON
   pointer of every violation.
 
@@ -39,18 +39,18 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import quote, urlsplit
 
-from firmware_proto.errors import VerdictError
+from firmware_proto.errors import MapError, VerdictError
 from firmware_proto.plan import Plan
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
-    GateError,
     GateOverloadedError,
     GateProtocolError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
 )
-from planner.mapinfo import MapInfo
 
 __all__ = [
     "DEFAULT_CONFIDENCE_SAMPLES",
@@ -285,7 +285,7 @@ class GateClient:
             options: overrides of the gate's tolerances and margin.
 
         Raises:
-            GateError: the gate refused the request (400 with the violations' pointers
+            GateStatusError: the gate refused the request (400 with the violations' pointers
                 for a plan that fails the schema; 400 naming the option for an unknown
                 map or a start outside it; 401...).
             GateOverloadedError, GateUnavailableError, GateTimeoutError: see the module.
@@ -330,18 +330,21 @@ class GateClient:
             raise GateProtocolError("/maps: not the documented map list", ["/maps"])
         return str(obj.get("default", "")), list(obj["maps"])
 
-    def get_map(self, name: str | None = None) -> MapInfo:
-        """``GET /maps/{name}`` as a :class:`MapInfo`; ``None`` for the default map.
+    def get_map(self, name: str | None = None) -> WorldMap:
+        """``GET /maps/{name}`` as a :class:`WorldMap`; ``None`` for the default map.
 
         Raises:
-            GateError: 404 for an unknown map.
+            GateStatusError: 404 for an unknown map.
+            GateProtocolError: the document is not a valid map (``pointers`` says
+                where).
         """
         if name is None:
             name = self.list_maps()[0]
         obj = self._json(self._call("GET", "/maps/" + quote(name, safe=""), None))
-        if not isinstance(obj, dict):
-            raise GateProtocolError(f"/maps/{name}: not a JSON object")
-        return MapInfo.from_dict(obj)
+        try:
+            return WorldMap.from_dict(obj, f"/maps/{name}")
+        except MapError as exc:
+            raise GateProtocolError(str(exc), [ptr for ptr, _ in exc.violations]) from exc
 
     # -- transport ----------------------------------------------------------------------
     def _json(self, data: bytes) -> Any:
@@ -399,7 +402,7 @@ class GateClient:
                 self._sleep(wait_s)
                 continue
             if status >= 400:
-                raise GateError(status, data.decode("utf-8", "replace"), url=self.url + path)
+                raise GateStatusError(status, data.decode("utf-8", "replace"), url=self.url + path)
             if not 200 <= status < 300:
                 raise GateProtocolError(f"the gate at {self.url} answered {status} to {path}")
             return data

@@ -47,7 +47,7 @@ from typing import Any, BinaryIO
 
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import Verdict
-from planner.mapinfo import MapInfo
+from firmware_proto.worldmap import WorldMap
 from planner.markers import map_markers, plan_markers
 from planner.orchestrator import MissionResult
 
@@ -250,7 +250,7 @@ def _transform(
     }
 
 
-def _map_metadata(world: MapInfo, goal: Pose | None) -> dict[str, str]:
+def _map_metadata(world: WorldMap, goal: Pose | None) -> dict[str, str]:
     b = world.bounds
     return {
         "name": world.name,
@@ -341,7 +341,7 @@ class McapRecorder:
         port.add_tap(self.tap)
         port.subscribe("diagnostics", DiagnosticArray, lambda _msg: None, qos.DIAGNOSTICS)
 
-    def set_map(self, world: MapInfo, goal: Pose | None) -> None:
+    def set_map(self, world: WorldMap, goal: Pose | None) -> None:
         """Record the map (markers on :data:`MAP_MARKERS_TOPIC`, metadata ``map``)."""
         if self._closed:
             return

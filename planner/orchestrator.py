@@ -26,9 +26,11 @@ import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
+from firmware_proto.geometry import Point
 from firmware_proto.plan import Plan
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import CollisionReport, Verdict
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
     GateProtocolError,
     PlanTooLongError,
@@ -36,8 +38,6 @@ from planner.errors import (
     UnreachableGoalError,
 )
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Point
-from planner.mapinfo import MapInfo
 from planner.planner import HeuristicLowLevelPlanner, LegPlan, Route
 from planner.repairs import (
     REPAIRS,
@@ -230,7 +230,7 @@ class PlannerOrchestrator:
         map_name: str | None = None,
         max_attempts: int | None = None,
         max_legs: int = DEFAULT_MAX_LEGS,
-        world: MapInfo | None = None,
+        world: WorldMap | None = None,
         options: GateOptions | None = None,
         repair_settings: RepairSettings | None = None,
         repairs: Mapping[str, RepairFunction | None] | None = None,
@@ -264,11 +264,11 @@ class PlannerOrchestrator:
 
     # -- the map ------------------------------------------------------------------------
     @property
-    def world(self) -> MapInfo:
+    def world(self) -> WorldMap:
         """The map validated on, read from the gate on first use.
 
         Raises:
-            GateError, GateUnavailableError: the gate cannot say.
+            GateCallError: the gate cannot say.
         """
         if self._world is None:
             self._world = self.gate.get_map(self.map_name)
@@ -302,7 +302,7 @@ class PlannerOrchestrator:
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal, start or
                 waypoint (nothing is sent to the gate).
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         return self.plan_route(self._route(goal, start, via))
 
@@ -315,7 +315,7 @@ class PlannerOrchestrator:
         gives up: the loop behind :meth:`plan`, for a leg made (or edited) by hand.
 
         Raises:
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         attempts: list[Attempt] = []
         failures: list[FailureRecord] = []
@@ -447,7 +447,7 @@ class PlannerOrchestrator:
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad input.
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         route = self._route(goal, start, via)
         legs: list[PlanResult] = []

@@ -45,10 +45,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from planner.executor import Progress
-from planner.mapinfo import MapInfo
 from planner.orchestrator import MissionResult
 
 __all__ = [
@@ -122,7 +123,7 @@ def _record(name: str, data: dict[str, Any]) -> bytes:
     return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
 
 
-def _map_json(world: MapInfo) -> dict[str, Any]:
+def _map_json(world: WorldMap) -> dict[str, Any]:
     b = world.bounds
     return {
         "name": world.name,
@@ -183,7 +184,7 @@ class ViewHub:
 
     def __init__(
         self,
-        world: MapInfo,
+        world: WorldMap,
         *,
         rtt_s: float = 3.0,
         time_scale: float = 1.0,
@@ -411,7 +412,7 @@ class ViewHub:
         pose = Pose(
             m.x + dx * math.cos(dyaw) - dy * math.sin(dyaw),
             m.y + dx * math.sin(dyaw) + dy * math.cos(dyaw),
-            (raw.yaw_deg + m.yaw_deg - o.yaw_deg + 180.0) % 360.0 - 180.0,
+            wrap_deg(raw.yaw_deg + m.yaw_deg - o.yaw_deg),
         )
         twist = msg.twist.twist
         self._pose("odom", pose, stamp, rx, v=twist.linear.x, w=twist.angular.z)

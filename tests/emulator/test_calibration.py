@@ -29,8 +29,8 @@ from emulator.playback import measure_turn_efficiency, play
 from emulator.recording import RecordedStep, _status, read_recording
 from emulator.twin import Pose2D, Twin
 from emulator.twinfile import load_twin, write_twin
-from emulator.worldmap import WorldMap
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import WorldMap
 
 LEFT, RIGHT, FWD = 3, 4, 1
 

@@ -16,8 +16,8 @@ import pytest
 from emulator.controller import ControllerModel
 from emulator.drive import turn_units_for_yaw
 from emulator.injection import Injector, parse_fault
-from emulator.twin import Pose2D, wrap_angle_rad
-from emulator.worldmap import WorldMap
+from emulator.twin import Pose2D
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     PROTOCOL_VERSION,
@@ -53,6 +53,7 @@ from firmware_proto.messages import (
     WheelSpeeds,
 )
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 
 Make = Callable[..., ControllerModel]
 
@@ -394,7 +395,7 @@ def test_driving_into_an_obstacle_stops_the_body_against_it(
     model = ready(make_model, lab)
     start = model.twin.pose
     bearing = math.atan2(goal.y - start.y_m, goal.x - start.x_m)
-    turn = wrap_angle_rad(bearing - start.yaw_rad)
+    turn = wrap_rad(bearing - start.yaw_rad)
     model.handle(
         Motion(1, Command.LEFT if turn > 0 else Command.RIGHT, 20, turn_units_for_yaw(rover, turn))
     )

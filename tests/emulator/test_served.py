@@ -31,7 +31,6 @@ from emulator.errors import InjectionError
 from emulator.injection import Injector, parse_fault
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.cli import main as rover_main
 from firmware_proto.linkio.host import ProtocolHost
 from firmware_proto.message import Message
@@ -57,6 +56,7 @@ from firmware_proto.messages import (
 )
 from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 
 from .conftest import SPEED
 from .host import can_host, serial_host

@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
 from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from gate.config import GateConfig, PlaybackSettings
-from gate.errors import ConfigError, OptionError
+from gate.errors import GateConfigError, OptionError
 from gate.options import ValidateOptions
 from gate.validator import Job, Validator, load_maps
 
@@ -119,7 +119,7 @@ def test_a_map_file_becomes_the_default_and_is_served(tmp_path: Path) -> None:
     assert v.default_map == "thin"
     clash = dict(THIN_WALL, name="lab")
     path.write_text(json.dumps(clash))
-    with pytest.raises(ConfigError, match="like a different shipped map"):
+    with pytest.raises(GateConfigError, match="like a different shipped map"):
         load_maps(str(path))
-    with pytest.raises(ConfigError):
+    with pytest.raises(GateConfigError):
         load_maps(str(tmp_path / "missing.json"))

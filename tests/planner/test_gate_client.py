@@ -16,8 +16,9 @@ from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.verdict import Verdict
 from gate.server import GateServer
 from planner.errors import (
-    GateError,
     GateOverloadedError,
+    GateProtocolError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
     PlannerError,
@@ -120,7 +121,7 @@ def test_schema_violations_give_gate_error_with_pointers(client: GateClient) -> 
         ],
         "extra": True,
     }
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(bad)
     e = err.value
     assert e.status == 400
@@ -135,14 +136,14 @@ def test_bad_options_name_the_parameter(
     client: GateClient, planner: HeuristicLowLevelPlanner
 ) -> None:
     plan = open_field_plan(planner)
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(plan, map_name="mars")
     assert (err.value.status, err.value.parameter) == (400, "map")
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(plan, map_name="lab", start=Pose(50.0, 1.0, 0.0))
     assert (err.value.status, err.value.parameter) == (400, "start")
     assert "outside map 'lab'" in err.value.message
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.get_map("mars")
     assert err.value.status == 404
     with pytest.raises(ValueError, match="finite"):
@@ -213,7 +214,7 @@ def test_overloaded_gate_is_retried_after_retry_after_then_reported(own_gate: Ga
 
 def test_bearer_token(planner: HeuristicLowLevelPlanner) -> None:
     with start_gate(token="s3cret") as gate:
-        with GateClient(gate.url) as anonymous, pytest.raises(GateError) as err:
+        with GateClient(gate.url) as anonymous, pytest.raises(GateStatusError) as err:
             anonymous.health()
         assert err.value.status == 401
         with GateClient(gate.url, token="s3cret") as client:
@@ -293,7 +294,7 @@ def test_server_error_is_reported_not_retried(planner: HeuristicLowLevelPlanner)
     validator = BrokenValidator(load_rover(), maps, PlaybackSettings(), default)
     config = GateConfig(port=0, pool="thread", workers=1)
     with GateServer(config, validator=validator) as gate, GateClient(gate.url) as client:
-        with pytest.raises(GateError) as err:
+        with pytest.raises(GateStatusError) as err:
             client.validate(open_field_plan(planner), map_name="lab")
         assert client.requests == 1
     assert err.value.status == 500
@@ -313,3 +314,45 @@ def test_the_planner_reads_the_gates_verdict_into_the_model_the_gate_built(
     again = model.Verdict.from_json(verdict.to_json())
     assert again == verdict
     assert verdict.trajectory.samples[-1].pose == verdict.final_pose
+
+
+def test_a_map_that_is_not_a_map_names_its_bad_field() -> None:
+    """The map the gate serves is read with the one map model, its violations becoming
+    the pointers of a GateProtocolError."""
+    import json
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    bad = {
+        "name": "odd",
+        "description": "a circle without a centre",
+        "bounds": {"min_x": 0, "min_y": 0, "max_x": 5, "max_y": 5},
+        "obstacles": [{"id": "a", "type": "circle", "center": [2], "radius": 0.5}],
+        "traction_regions": [],
+        "start": {"x": 1, "y": 1, "yaw_deg": 0},
+    }
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            body = json.dumps(bad).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format: str, *args: object) -> None:
+            pass
+
+    with HTTPServer(("127.0.0.1", 0), Handler) as server:
+        thread = threading.Thread(target=server.serve_forever, name="bad-map-gate")
+        thread.start()
+        try:
+            url = f"http://127.0.0.1:{server.server_address[1]}"
+            with GateClient(url) as client, pytest.raises(GateProtocolError) as err:
+                client.get_map("odd")
+        finally:
+            server.shutdown()
+            thread.join(timeout=10)
+    assert err.value.pointers == ("/obstacles/0/center",)
+    assert "/maps/odd" in str(err.value)

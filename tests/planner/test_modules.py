@@ -1,4 +1,4 @@
-"""Package hygiene: public names, and the direction of dependencies (DESIGN.md: the
+"""Package hygiene: public names, and the direction of dependencies (docs/architecture.md: the
 planner talks to the gate over HTTP and never imports the gate or the emulator)."""
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ MODULES = [
     "planner.gate_client",
     "planner.geometry",
     "planner.interrupt",
-    "planner.mapinfo",
     "planner.markers",
     "planner.mcaprec",
     "planner.mission",
@@ -86,5 +85,9 @@ def test_one_exception_root() -> None:
     assert issubclass(errors.InvalidPoseError, ValueError)
     assert issubclass(errors.GateUnavailableError, ConnectionError)
     assert issubclass(errors.GateTimeoutError, TimeoutError)
-    assert issubclass(errors.GateOverloadedError, errors.GateError)
+    assert issubclass(errors.GateOverloadedError, errors.GateStatusError)
+    for failure in (errors.GateStatusError, errors.GateUnavailableError, errors.GateProtocolError):
+        assert issubclass(failure, errors.GateCallError)
+    # Distinct names: the gate's root and the planner's errors about reaching it.
+    assert not hasattr(errors, "GateError") and not hasattr(errors, "ConfigError")
     assert issubclass(errors.GoalInObstacleError, errors.InvalidPoseError)

@@ -14,6 +14,7 @@ import pytest
 from firmware_proto.plan import PlanStep
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import StallReport
+from firmware_proto.worldmap import WorldMap
 from gate.server import GateServer
 from planner.errors import (
     GoalInObstacleError,
@@ -23,7 +24,6 @@ from planner.errors import (
     UnreachableGoalError,
 )
 from planner.gate_client import GateClient, GateOptions
-from planner.mapinfo import MapInfo
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import DRIVE, HeuristicLowLevelPlanner, LegPlan
 from planner.repairs import PlannerContext, RepairSettings, stall_repair
@@ -49,7 +49,7 @@ def test_open_field_goal_is_approved_first_try(orchestrator: Make, client: GateC
 
 def test_dogleg_around_the_table(orchestrator: Make) -> None:
     orch = orchestrator("lab")
-    goal = next(g.pose for g in orch.world.goals if g.name == "behind_table")
+    goal = orch.world.goal("behind_table").pose
     result = orch.plan(goal)
     assert result.approved
     first, last = result.attempts[0], result.attempts[-1]
@@ -71,7 +71,7 @@ def test_thesis_dogleg_without_the_map(orchestrator: Make) -> None:
     """The thesis's blind dogleg (midpoint, side away from the contact, alternating,
     delta growing) gets around scn01's single rock."""
     orch = orchestrator("scn01", repair_settings=BLIND)
-    goal = next(g.pose for g in orch.world.goals if g.name == "behind_rock")
+    goal = orch.world.goal("behind_rock").pose
     result = orch.plan(goal)
     assert result.approved
     assert result.attempts[0].verdict.failure_type == "collision"
@@ -195,7 +195,7 @@ def test_blind_doglegs_alternate_and_grow(
 
 
 def test_bad_goals_are_refused_before_the_gate(
-    planner: HeuristicLowLevelPlanner, client: GateClient, worlds: dict[str, MapInfo]
+    planner: HeuristicLowLevelPlanner, client: GateClient, worlds: dict[str, WorldMap]
 ) -> None:
     orch = PlannerOrchestrator(planner, client, map_name="lab", world=worlds["lab"])
     for goal in (Pose(math.nan, 3, 0), Pose(3, math.inf, 0), Pose(3, 3, -math.inf)):

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from firmware_proto.plan import Plan, validate_plan
 from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
     GoalInObstacleError,
     InvalidPoseError,
@@ -22,7 +23,6 @@ from planner.errors import (
     PlanTooLongError,
 )
 from planner.geometry import wrap_deg
-from planner.mapinfo import MapInfo
 from planner.planner import (
     CORRECTION,
     DRIVE,
@@ -181,7 +181,7 @@ def test_leg_cut_keeps_the_waypoints_ahead(planner: HeuristicLowLevelPlanner) ->
 
 
 def test_bad_input_is_refused(
-    planner: HeuristicLowLevelPlanner, worlds: dict[str, MapInfo]
+    planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]
 ) -> None:
     lab = worlds["lab"]
     for bad in (math.nan, math.inf, -math.inf):
@@ -204,7 +204,7 @@ def test_bad_input_is_refused(
 
 
 def test_a_planner_with_a_map_checks_goals(
-    rover: RoverDescription, worlds: dict[str, MapInfo]
+    rover: RoverDescription, worlds: dict[str, WorldMap]
 ) -> None:
     p = HeuristicLowLevelPlanner(rover, world=worlds["lab"])
     with pytest.raises(GoalInObstacleError):
