@@ -168,16 +168,8 @@ class StopRuns:
 
 def _wait_any(statuses: Statuses, mark: int, words: tuple[str, ...], timeout_s: float) -> str:
     """The first status after ``mark`` that starts with one of ``words`` ('' on timeout)."""
-    deadline = time.monotonic() + timeout_s
-    with statuses.cond:
-        while True:
-            for text in statuses.items[mark:]:
-                if text.startswith(words):
-                    return text
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return ""
-            statuses.cond.wait(left)
+    found = statuses.log.wait(lambda text: text.startswith(words), since=mark, timeout_s=timeout_s)
+    return found[1] if found is not None else ""
 
 
 def stop_latency(count: int, trials: int, realtime: bool, seed: int) -> StopRuns:

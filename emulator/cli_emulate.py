@@ -174,6 +174,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ),
     )
     p.add_argument(
+        "--mutant",
+        metavar="NAME",
+        help=(
+            "TEST AID: serve a mutant controller, the Python model with one rule of "
+            "docs/protocol.md broken (emulator/mutants.py; the conformance suite must fail "
+            "it); an unknown NAME lists the known ones. Never drive a rover with one"
+        ),
+    )
+    p.add_argument(
         "--record",
         metavar="FILE",
         help=(
@@ -284,15 +293,28 @@ def _run(args: argparse.Namespace) -> int:
         )
     else:
         twin = Twin(rover, world, dt_s=args.dt)
-    model = make_controller(
-        getattr(args, "firmware", "python"),
-        rover,
-        twin,
-        config,
-        seed=args.seed,
-        schema_hash=SCHEMA_HASH if args.schema_hash is None else args.schema_hash,
-    )
+    schema_hash = SCHEMA_HASH if args.schema_hash is None else args.schema_hash
+    mutant = None
+    if getattr(args, "mutant", None):
+        from emulator.mutants import mutant as find_mutant
+
+        if getattr(args, "firmware", "python") != "python":
+            raise ValueError("--mutant: mutants are of the Python model (--firmware python)")
+        mutant = find_mutant(args.mutant)
+        print(f"MUTANT {mutant.name}: breaks: {mutant.breaks}", file=sys.stderr, flush=True)
+        model = mutant.model(rover, twin, config, seed=args.seed, schema_hash=schema_hash)
+    else:
+        model = make_controller(
+            getattr(args, "firmware", "python"),
+            rover,
+            twin,
+            config,
+            seed=args.seed,
+            schema_hash=schema_hash,
+        )
     frontend = _frontend(args, interface, channel)
+    if mutant is not None and mutant.link is not None:
+        mutant.link(frontend.endpoint)
     # Refuse what cannot apply before anything is served or written: a fault refused
     # only when its trigger fires would be a fault silently accepted at start-up.
     checker = Injector(model, frontend)

@@ -14,6 +14,8 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
      |                    also RuntimeError
      +-- GroundError      a ground file or ground setting is invalid, or names a region
      |                    the map lacks; also ValueError
+     +-- UnknownMutantError  no mutant controller has this name (the message lists
+     |                    the known ones); also ValueError
      +-- CalibrationError fitting the twin to recorded missions failed; also ValueError
           +-- RecordingError   a recording cannot be read or holds no usable step
           +-- UnidentifiableError  the recordings cannot identify a parameter (no
@@ -36,6 +38,7 @@ __all__ = [
     "RecordingError",
     "TwinConfigError",
     "UnidentifiableError",
+    "UnknownMutantError",
 ]
 
 
@@ -85,3 +88,8 @@ class UnidentifiableError(CalibrationError):
     def __init__(self, message: str, parameter: str = "") -> None:
         super().__init__(message)
         self.parameter = parameter
+
+
+class UnknownMutantError(EmulatorError, ValueError):
+    """No mutant controller (:mod:`emulator.mutants`) has this name; the message lists
+    the known ones."""

@@ -121,6 +121,8 @@ def test_a_serial_link_never_loads_python_can() -> None:
         "import sys\n"
         "import bridge.link, bridge.serial_transport, emulator.serial_frontend\n"
         "import firmware_proto.linkio.serial_endpoint, firmware_proto.linkio.replay_peer\n"
+        "import firmware_proto.linkio.host, firmware_proto.linkio.media, emulator.lockstep\n"
+        "import bridge.conformance, bridge.cli_conformance\n"
         "print('can' in sys.modules)\n"
     )
     out = subprocess.run(

@@ -315,8 +315,12 @@ def test_reboot_gives_a_new_nonce_and_forgets_everything(make_model: Make) -> No
     assert isinstance(ident, Ident) and ident.boot_nonce != old
     assert model.state == ControllerState.BOOT and model.queue_depth == 0
     assert model.wheel_commands_mps == (0.0, 0.0)
-    heartbeat = [m for m in run(model, 0.2) if isinstance(m, Heartbeat)][-1]
+    before_hello = run(model, 0.2)
+    heartbeat = [m for m in before_hello if isinstance(m, Heartbeat)][-1]
     assert heartbeat.boot_nonce == ident.boot_nonce and heartbeat.handshake_ok == 0
+    # Protocol v3: the new boot's counts reach a host only after its HELLO.
+    assert not [m for m in before_hello if isinstance(m, Encoders)]
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
     assert [m for m in run(model, 0.1) if isinstance(m, Encoders)][-1].left == 0
 
 
