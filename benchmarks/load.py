@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import subprocess
 import sys
 import time
@@ -23,18 +24,21 @@ __all__ = ["BusyLoad"]
 
 # A child inherits its parent's scheduling: a busy loop started by a real-time process
 # would be real-time too, so it asks for normal scheduling first.
+# It also ends when its parent goes (a benchmark killed by a signal or a CI runner's
+# timeout must not leave the next job running beside busy loops).
 _SPIN = (
     "import os, sys, time\n"
     "os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))\n"
     "end = time.monotonic() + float(sys.argv[1])\n"
-    "while time.monotonic() < end:\n"
+    "parent = int(sys.argv[2])\n"
+    "while time.monotonic() < end and os.getppid() == parent:\n"
     "    for _ in range(10000):\n"
     "        pass\n"
 )
 
 
 class BusyLoad:
-    """``count`` busy processes for at most ``duration_s`` (ended on exit)."""
+    """``count`` busy processes for at most ``duration_s``, ended on exit or when this process ends."""
 
     def __init__(self, count: int, duration_s: float = 3600.0) -> None:
         if count < 0 or not duration_s > 0:
@@ -48,7 +52,7 @@ class BusyLoad:
         for _ in range(self.count):
             self._procs.append(
                 subprocess.Popen(
-                    [sys.executable, "-c", _SPIN, str(self.duration_s)],
+                    [sys.executable, "-c", _SPIN, str(self.duration_s), str(os.getpid())],
                     stdin=subprocess.DEVNULL,
                 )
             )

@@ -25,8 +25,11 @@ and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
 
 from __future__ import annotations
 
+import contextlib
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -199,3 +202,35 @@ def test_bench_uncertain_quick_prints_both_tables() -> None:
     verdicts = table_row(out, "| engine | N |")
     assert verdicts["engine"] == "local pool, 1 worker" and verdicts["N"] == "1"
     assert "| local pool, 2 workers | 20 |" in out
+
+
+def test_a_busy_load_ends_with_the_process_that_started_it() -> None:
+    # A benchmark killed by a signal must not leave its busy loops beside the next job.
+    script = (
+        "import os, sys\n"
+        "from benchmarks.load import BusyLoad\n"
+        "load = BusyLoad(2, duration_s=600).start()\n"
+        "print(' '.join(str(p.pid) for p in load._procs), flush=True)\n"
+        "os._exit(0)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True
+    )
+    pids = [int(p) for p in out.stdout.split()]
+    assert len(pids) == 2
+    for pid in pids:
+        assert _ends_within(pid, 30.0), f"busy process {pid} outlived its parent"
+
+
+def _ends_within(pid: int, timeout_s: float) -> bool:
+    """Whether ``pid`` (not our child) is gone within ``timeout_s``, polled (no event exists)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, 9)
+    return False
