@@ -41,11 +41,12 @@ conditions are active (``fault_bits``). With ``auto_clear_watchdog`` the core se
 CLEAR_STOP itself when the watchdog alone holds the latch, its condition is gone, the
 session is ours and no emergency stop is requested: a link outage does not leave the
 rover stuck. An automatic clear never outlives a change of the latch's causes: answered
-FAULT_PERSISTS, or a HEARTBEAT showing ``latch_stop`` or ``latch_fault``, ends it, and
-only the operator can then clear. An operator's clear answered FAULT_PERSISTS is kept
-and sent again (a new request id, at most once per controller heartbeat) once a
-HEARTBEAT shows no stopping fault condition, until it is answered, or an emergency stop
-or a reboot ends it.
+FAULT_PERSISTS, a stopping FAULT frame, or a HEARTBEAT showing ``latch_stop`` or
+``latch_fault`` ends it, and only the operator can then clear (a copy already on the
+wire when a fault joins can still release it: no host can recall a frame, docs/sim.md).
+An operator's clear answered FAULT_PERSISTS is kept and sent again (a new request id, at
+most once per controller heartbeat) once a HEARTBEAT shows no stopping fault condition,
+until it is answered, or an emergency stop or a reboot ends it.
 
 **MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
 ``ack_timeout_s`` after it was written without ACK, at most ``motion_retries`` times,
@@ -164,7 +165,9 @@ _ACK_REASONS = {
 }
 
 _TIME_EPS_S = 1e-9
-"""A deadline that a strict ``>`` guards is due this long after it (float times)."""
+"""A deadline that a strict ``>`` guards is due this long after it (float times). Every
+deadline is compared as ``now >= last + period``, the very sum :meth:`LinkCore.next_deadline`
+returns, so that a tick at the deadline finds it due."""
 
 
 @dataclass(eq=False)
@@ -204,6 +207,11 @@ class Outgoing:
     conn: int
     step: _Step | None = None
     auto_clear: bool = False
+
+    @property
+    def step_number(self) -> int | None:
+        """The number of the step a MOTION carries (``None`` for any other frame)."""
+        return self.step.number if self.step is not None else None
 
 
 @dataclass
@@ -351,6 +359,13 @@ class LinkCore:
     def estop_requested(self) -> bool:
         """An emergency stop is requested and no clear has been asked for since."""
         return self._estop_requested
+
+    @property
+    def latch(self) -> tuple[str, ...]:
+        """What holds the controller's latch (``fault``, ``stop``, ``watchdog``) as its
+        last HEARTBEAT said; empty when it is not latched."""
+        hb = self._heartbeat
+        return latch_causes(hb) if hb is not None and self._ctrl_latched else ()
 
     @property
     def boot_nonce(self) -> int | None:
@@ -577,12 +592,12 @@ class LinkCore:
         out: list[tuple[Message, bool]] = []
         if (
             self._state in (LinkState.HANDSHAKE, LinkState.LOST)
-            and now - self._last_hello >= cfg.heartbeat_s
+            and now >= self._last_hello + cfg.heartbeat_s
         ):
             self._last_hello = now
             self._hello_sent = True
             out.append((Hello(self.protocol_version, self.schema_hash), False))
-        if now - self._last_hb_tx >= cfg.heartbeat_s:
+        if now >= self._last_hb_tx + cfg.heartbeat_s:
             self._last_hb_tx = now
             self._hb_counter = (self._hb_counter + 1) & 0xFFFF
             out.append((HostHeartbeat(self._hb_counter), False))
@@ -590,7 +605,7 @@ class LinkCore:
         if (
             stop is not None
             and self._state is not LinkState.DISCONNECTED
-            and (stop.sends == 0 or now - stop.last_sent >= cfg.stop_repeat_s)
+            and (stop.sends == 0 or now >= stop.last_sent + cfg.stop_repeat_s)
         ):
             if stop.sends:
                 self._counters.stop_repeats += 1
@@ -603,14 +618,14 @@ class LinkCore:
         if (
             clear is not None
             and self._state in (LinkState.READY, LinkState.LOST)
-            and (clear.sends == 0 or now - clear.last_sent >= cfg.stop_repeat_s)
+            and (clear.sends == 0 or now >= clear.last_sent + cfg.stop_repeat_s)
         ):
             clear.sends += 1
             clear.last_sent = now
             out.insert(0, (ClearStop(clear.stop_id), self._clear_auto))
         if self._state is LinkState.READY:
             lost_after = self._lost_after_s()
-            if self._last_hb_rx is not None and now - self._last_hb_rx > lost_after:
+            if self._last_hb_rx is not None and now > self._last_hb_rx + lost_after:
                 self._declare_silence(now - self._last_hb_rx)
         for msg, auto in out:
             self._queue(msg, auto_clear=auto)
@@ -711,6 +726,7 @@ class LinkCore:
         if self._clear_wanted and not hb.stop_latched and self._pending_clear is None:
             # Released meanwhile (by another host, or a reboot we have not seen yet).
             self._clear_wanted = False
+            self._settle_latched()
             if not self._clear_auto:
                 self._ctrl_latched = False
                 self._emit(CLEARED)
@@ -851,6 +867,8 @@ class LinkCore:
         was_auto = self._clear_auto
         self._clear_wanted = self._clear_auto = False
         self._clear_persisted = False
+        if ack.result == ClearResult.CLEARED:
+            self._settle_latched()
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.IDLE
         if ack.result == ClearResult.CLEARED or not was_auto:
@@ -898,20 +916,50 @@ class LinkCore:
                 return
 
     def _on_progress(self, progress: Progress, t: float) -> None:
-        """Settle steps whose STATUS was lost (docs/protocol.md, MOTION)."""
+        """Settle steps whose STATUS was lost (docs/protocol.md, MOTION): steps end in the
+        order they were sent, so every open step sent up to ``ended_seq`` has ended, also
+        when ``ended_seq`` itself is no longer open (its ACK was lost and its step purged
+        here, or it was settled)."""
         missed = (progress.ended_count - self._ended_seen) & 0xFFFF
         if missed == 0 or missed >= 0x8000 or self._state is not LinkState.READY:
             return
         self._ended_seen = progress.ended_count
-        if progress.ended_seq not in self._in_controller:
+        ended = [seq for seq in self._in_controller if (progress.ended_seq - seq) & 0xFFFF < 0x8000]
+        if not ended:
             return  # its ending was seen; steps before it were settled with it
         logger.warning(
             "%d STATUS frame(s) lost; settling through seq %d from PROGRESS",
             missed,
-            progress.ended_seq,
+            ended[-1],
         )
-        self._settle_through(progress.ended_seq, progress.ended_state, progress.ended_reason)
+        self._settle_through(ended[-1], progress.ended_state, progress.ended_reason)
         self._pump(t)
+
+    def _settle_latched(self) -> None:
+        """The controller's latch was released: every step still open here ended when it
+        was set (a latch purges the queue, and no step is accepted while it holds), its
+        STATUS lost. Its outcome is not known: it is reported aborted, with the latch's
+        cause, never completed (a step ahead of it that completes could otherwise be
+        taken for its own completion, docs/sim.md)."""
+        if not self._in_controller:
+            return
+        causes = self.latch
+        if "stop" in causes or not causes:
+            reason = "stop"
+        elif "fault" in causes:
+            stall = self._last_stopping_fault in (FaultCode.STALL_LEFT, FaultCode.STALL_RIGHT)
+            reason = "stall" if stall else "fault"
+        else:
+            reason = "watchdog"
+        logger.warning(
+            "latch released with %d step(s) whose end was never reported: aborted:%s",
+            len(self._in_controller),
+            reason,
+        )
+        for step in self._in_controller.values():
+            self._counters.steps_aborted += 1
+            self._emit(aborted(reason), step.number)
+        self._in_controller.clear()
 
     def _on_fault(self, msg: Fault) -> None:
         name = (
@@ -920,12 +968,24 @@ class LinkCore:
             else str(msg.code)
         )
         if msg.active:
-            self._faults.add(msg.code)
             if msg.code in STOPPING_FAULTS and msg.code != FaultCode.WATCHDOG:
                 self._last_stopping_fault = msg.code
+                if (
+                    self._clear_wanted
+                    and self._clear_auto
+                    and "auto-clear-survives" not in self.mutants
+                ):
+                    # A stopping fault joins the latch while the automatic clear is
+                    # out: no copy of it may follow (the next heartbeat would say so
+                    # 100 ms later, ten copies later).
+                    self._abandon_auto_clear(None)
             if msg.code == FaultCode.WATCHDOG:
-                self._counters.watchdog_trips += 1
+                if msg.code not in self._faults:
+                    # A trip; the same frame received twice (a CAN frame whose
+                    # acknowledgement the controller missed is sent again) is not two.
+                    self._counters.watchdog_trips += 1
                 self._watchdog_counted = True
+            self._faults.add(msg.code)
             self._emit(fault(name))
         else:
             # The condition went away; a latch it set is the heartbeat's to report.
@@ -951,7 +1011,7 @@ class LinkCore:
         """Queue the lane's head, or its retransmission on ack timeout."""
         step = self._inflight
         if step is not None:
-            if step.unwritten or now - step.last_sent < self.config.ack_timeout_s:
+            if step.unwritten or now < step.last_sent + self.config.ack_timeout_s:
                 return
             if step.sends > self.config.motion_retries:
                 self._inflight = None
@@ -1113,7 +1173,7 @@ class LinkCore:
             last_error=self._last_error,
             medium_state=m.medium_state,
             medium_errors=m.medium_errors,
-            latch=latch_causes(hb) if hb is not None and self._ctrl_latched else (),
+            latch=self.latch,
             latch_fault=FaultCode(self._last_stopping_fault).name
             if self._last_stopping_fault is not None
             else "",
