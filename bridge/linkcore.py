@@ -75,7 +75,8 @@ replayed.
 
 **Mutants.** ``LinkCore(..., mutants={...})`` undoes a fix on purpose, so that a test
 can show the simulator finds the bug it fixed (docs/sim.md); :data:`MUTANTS` lists
-them. Never set outside tests and ``rover sim --mutant``.
+them: the two of issue #22 and the three the simulator found itself. Never set outside
+tests and ``rover sim --mutant``.
 
 Not thread-safe: one caller at a time (the shell holds its lock around every call).
 """
@@ -152,6 +153,19 @@ MUTANTS: dict[str, str] = {
     "samples-outside-session": (
         "sensor samples are forwarded whatever the link state, also before the IDENT of "
         "a session told the boot nonce (#22 bug 2 undone)"
+    ),
+    "settle-by-guess": (
+        "a step whose STATUS was lost stays open until a later step's STATUS settles it "
+        "with that step's outcome, and PROGRESS settles only when it names an open step "
+        "(a false 'completed', found by the simulator)"
+    ),
+    "watchdog-frame-twice": (
+        "every WATCHDOG FAULT frame counts a trip, also one received twice (a CAN frame "
+        "sent again), found by the simulator"
+    ),
+    "auto-clear-after-fault-frame": (
+        "an automatic clear goes on being repeated after a stopping FAULT frame arrived, "
+        "until a HEARTBEAT shows the new cause (found by the simulator)"
     ),
 }
 """Fixes that :class:`LinkCore` can undo on purpose, by name, with what each undoes."""
@@ -726,7 +740,8 @@ class LinkCore:
         if self._clear_wanted and not hb.stop_latched and self._pending_clear is None:
             # Released meanwhile (by another host, or a reboot we have not seen yet).
             self._clear_wanted = False
-            self._settle_latched()
+            if "settle-by-guess" not in self.mutants:
+                self._settle_latched()
             if not self._clear_auto:
                 self._ctrl_latched = False
                 self._emit(CLEARED)
@@ -867,7 +882,7 @@ class LinkCore:
         was_auto = self._clear_auto
         self._clear_wanted = self._clear_auto = False
         self._clear_persisted = False
-        if ack.result == ClearResult.CLEARED:
+        if ack.result == ClearResult.CLEARED and "settle-by-guess" not in self.mutants:
             self._settle_latched()
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.IDLE
@@ -925,6 +940,8 @@ class LinkCore:
             return
         self._ended_seen = progress.ended_count
         ended = [seq for seq in self._in_controller if (progress.ended_seq - seq) & 0xFFFF < 0x8000]
+        if "settle-by-guess" in self.mutants:
+            ended = [progress.ended_seq] if progress.ended_seq in self._in_controller else []
         if not ended:
             return  # its ending was seen; steps before it were settled with it
         logger.warning(
@@ -973,14 +990,14 @@ class LinkCore:
                 if (
                     self._clear_wanted
                     and self._clear_auto
-                    and "auto-clear-survives" not in self.mutants
+                    and not self.mutants & {"auto-clear-survives", "auto-clear-after-fault-frame"}
                 ):
                     # A stopping fault joins the latch while the automatic clear is
                     # out: no copy of it may follow (the next heartbeat would say so
                     # 100 ms later, ten copies later).
                     self._abandon_auto_clear(None)
             if msg.code == FaultCode.WATCHDOG:
-                if msg.code not in self._faults:
+                if msg.code not in self._faults or "watchdog-frame-twice" in self.mutants:
                     # A trip; the same frame received twice (a CAN frame whose
                     # acknowledgement the controller missed is sent again) is not two.
                     self._counters.watchdog_trips += 1
