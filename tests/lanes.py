@@ -70,6 +70,7 @@ SLOW_MODULES = (
 """Modules of real time, subprocesses or DDS: ``slow``, out of the fast lane."""
 
 _SIM = "tests/sim/test_soak.py (virtual time, both controllers)"
+_LATCH = "tests/bridge/test_latch_recovery.py::"
 
 EXTENDED: dict[str, str] = {
     # Benchmarks: figures, not behaviour; the quick runs of the others stay.
@@ -104,14 +105,12 @@ EXTENDED: dict[str, str] = {
     # The link's latch recovery in real time, in process: the invariants auto-clear and
     # never-stuck of the simulator, against both controllers; the bridge process frozen
     # with SIGSTOP stays in the command (only real time shows it).
-    "tests/bridge/test_latch_recovery.py::test_outage_the_host_never_sees_is_cleared_by_the_bridge": _SIM,
-    "tests/bridge/test_latch_recovery.py::test_outage_longer_than_link_lost_is_cleared_after_the"
-    "_handshake": _SIM,
-    "tests/bridge/test_latch_recovery.py::test_bridge_frozen_in_process_recovers_every_time": _SIM,
-    "tests/bridge/test_latch_recovery.py::test_an_operator_stop_is_never_cleared_by_the_bridge": _SIM,
-    "tests/bridge/test_latch_recovery.py::test_a_fault_latch_is_left_to_the_operator": _SIM,
-    "tests/bridge/test_latch_recovery.py::test_fault_persists_then_the_bridge_retries_when_the"
-    "_fault_clears": _SIM,
+    _LATCH + "test_outage_the_host_never_sees_is_cleared_by_the_bridge": _SIM,
+    _LATCH + "test_outage_longer_than_link_lost_is_cleared_after_the_handshake": _SIM,
+    _LATCH + "test_bridge_frozen_in_process_recovers_every_time": _SIM,
+    _LATCH + "test_an_operator_stop_is_never_cleared_by_the_bridge": _SIM,
+    _LATCH + "test_a_fault_latch_is_left_to_the_operator": _SIM,
+    _LATCH + "test_fault_persists_then_the_bridge_retries_when_the_fault_clears": _SIM,
     # The link on the virtual CAN bus and on SocketCAN: tests/sim plays CAN in virtual time;
     # the pty case of each stays, and tests/bridge/test_socketcan.py is SocketCAN's smoke.
     "tests/bridge/test_link.py::test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing"
