@@ -84,6 +84,10 @@ EXTENDED: dict[str, str] = {
     "tests/test_benchmarks.py::test_bench_bridge_ros2_case_prints_its_rows": (
         "the bridge's STOP path benchmark: test_bench_bridge_quick_prints_its_table"
     ),
+    "tests/test_benchmarks.py::test_bench_socketcan_quick_prints_every_case_beside_the_floor": (
+        "STOP over SocketCAN: tests/bridge/test_stop_write_path.py and the STOP bench over a "
+        "flooded vcan0 (tests/bridge/test_socketcan.py), in the VM"
+    ),
     # The conformance suite: each controller on one medium in the command (the C core
     # also under ASan and UBSan), the other pairs here.
     "tests/bridge/test_conformance.py::test_the_emulator_passes_every_rule_over_a_pty[c]": (
