@@ -117,6 +117,7 @@ def test_the_emulator_passes_every_rule_over_a_pty(emulate_process: tuple[str, s
 
 @pytest.mark.slow
 @pytest.mark.firmware
+@pytest.mark.timeout(300)
 def test_the_c_firmware_passes_every_rule_under_asan_and_ubsan(tmp_path: Path) -> None:
     """The sanitizer build of the core, loaded by the emulator with libasan preloaded:
     any memory error or undefined behaviour aborts it, and the suite then fails."""
