@@ -69,8 +69,9 @@ class SoakReport:
         keys = ("steps", "completed", "aborted", "rejected", "reboots", "watchdog_trips")
         out.append("  " + ", ".join(f"{k} {self.counts[k]}" for k in keys))
         out.append(
-            f"  excused (controller before protocol v3): {self.counts['excused_jumps']} "
-            f"odometry jumps, {self.counts['excused_clears']} repeated clears"
+            f"  counted, not failed (docs/sim.md): {self.counts['excused_jumps']} odometry "
+            "jumps from a controller's samples before a session, "
+            f"{self.counts['excused_clears']} clears on the wire before a fault joined the latch"
         )
         for failure in self.failures:
             out.append(f"FAIL {failure.scenario.reproducer}")
