@@ -32,11 +32,11 @@ Run the ROS 2 case inside the namespace::
 from __future__ import annotations
 
 import argparse
+import functools
 import random
 import select
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from functools import partial
@@ -52,6 +52,7 @@ from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
+from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.messages import Command
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.interpreter import use_short_switch_interval
@@ -59,29 +60,21 @@ from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
 
 
 class Statuses:
-    """Collects /command_status strings and lets the benchmark wait for one."""
+    """Collects /command_status strings (a waitable
+    :class:`~firmware_proto.linkio.inbox.Inbox`) and lets the benchmark wait for one."""
 
     def __init__(self) -> None:
-        self.items: list[str] = []
-        self.cond = threading.Condition()
+        self.log: Inbox[str] = Inbox()
 
     def __call__(self, text: str) -> None:
-        with self.cond:
-            self.items.append(text)
-            self.cond.notify_all()
+        self.log.append(text)
 
     def wait(self, text: str, since: int, timeout: float = 10.0) -> None:
-        deadline = time.monotonic() + timeout
-        with self.cond:
-            while text not in self.items[since:]:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(f"no {text!r} within {timeout} s")
-                self.cond.wait(left)
+        if self.log.wait(lambda s: s == text, since=since, timeout_s=timeout) is None:
+            raise TimeoutError(f"no {text!r} within {timeout} s")
 
     def mark(self) -> int:
-        with self.cond:
-            return len(self.items)
+        return self.log.mark()
 
 
 HOPS: list[float] = []
@@ -259,6 +252,10 @@ def _trials(
     return written, zeroed
 
 
+def _completed_at_least(n: int, statuses: list[str]) -> bool:
+    return statuses.count("completed") >= n
+
+
 def steps_per_second(link: ControllerLink, statuses: Statuses, count: int) -> float:
     """Sustained rate of tiny steps (1 distance unit) completed through the bridge, fed in
     batches that fit the bridge's lane (more would be refused ``queue_full``)."""
@@ -270,15 +267,11 @@ def steps_per_second(link: ControllerLink, statuses: Statuses, count: int) -> fl
         n = min(batch, count - done)
         for _ in range(n):
             link.submit_step(StepRequest(Command.FWD, 60, 1))
-        deadline = time.monotonic() + 30
-        with statuses.cond:
-            while statuses.items[mark:].count("completed") < n:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(
-                        f"only {statuses.items[mark:].count('completed')}/{n} steps completed"
-                    )
-                statuses.cond.wait(left)
+        if not statuses.log.until(
+            functools.partial(_completed_at_least, n), since=mark, timeout_s=30.0
+        ):
+            got = statuses.log.items(mark).count("completed")
+            raise TimeoutError(f"only {got}/{n} steps completed")
         done += n
     return count / (time.monotonic() - t0)
 

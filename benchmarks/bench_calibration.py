@@ -42,9 +42,10 @@ from emulator.ground import Ground, list_grounds, load_ground
 from emulator.observations import MAX_REST_S, SETTLE_S, START_GUARD_S, observe_steps
 from emulator.playback import play
 from emulator.recording import Recording, read_recording
-from emulator.twin import GATE_DT_S, Pose2D, Twin, wrap_angle_rad
-from emulator.worldmap import WorldMap
+from emulator.twin import GATE_DT_S, Pose2D, Twin
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import WorldMap
 
 FIT_DRIVING_S = 60.0
 CUT_BAR = 5.0
@@ -114,7 +115,7 @@ def run_ground(
         for key, ground in twins.items():
             final = predict_final(rover, world, ground, start, steps)
             errors_m[key].append(math.dist((final.x_m, final.y_m), (end.x_m, end.y_m)))
-            errors_deg[key].append(abs(math.degrees(wrap_angle_rad(final.yaw_rad - end.yaw_rad))))
+            errors_deg[key].append(abs(math.degrees(wrap_rad(final.yaw_rad - end.yaw_rad))))
     return GroundResult(
         name=name,
         fit_steps=len(fit_steps),

@@ -43,7 +43,7 @@ from firmware_proto.messages import (
     WheelSpeeds,
 )
 from firmware_proto.rover import RoverDescription, load_rover
-from tests.emulator.host import SerialHost
+from tests.emulator.host import serial_host
 
 
 def controller_rate(rover: RoverDescription, seconds: float) -> float:
@@ -79,7 +79,7 @@ def cpu_share(window_s: float) -> float:
     try:
         assert proc.stdout is not None
         device = proc.stdout.readline().split()[1]
-        with SerialHost(device) as host:
+        with serial_host(device) as host:
             host.handshake()
             for seq in range(1, 9):
                 host.send(Motion(seq, Command.FWD if seq % 2 else Command.REV, 40, 30000))
@@ -98,18 +98,18 @@ def stop_trials(
     """Emulator STOP reactions (s) and stopping distances from full speed (mm)."""
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
     distances: list[int] = []
-    with Emulator(model, SerialFrontEnd(seed=2)) as emu, SerialHost(emu.frontend.device) as host:
+    with Emulator(model, SerialFrontEnd(seed=2)) as emu, serial_host(emu.frontend.device) as host:
         host.handshake()
         for trial in range(trials):
             mark = host.mark()
             host.send(Motion(trial + 1, Command.FWD if trial % 2 == 0 else Command.REV, 60, 30000))
-            host.wait_for(WheelSpeeds, lambda w: abs(w.left_mm_s) >= 299, since=mark, timeout=10)
+            host.expect(WheelSpeeds, lambda w: abs(w.left_mm_s) >= 299, since=mark, timeout_s=10)
             time.sleep(rng.uniform(0.0, 0.2))
             mark = host.mark()
             host.send(Stop(trial + 1, 4))
-            distances.append(host.wait_for(Stopped, since=mark, timeout=10).distance_mm)
+            distances.append(host.expect(Stopped, since=mark, timeout_s=10).distance_mm)
             host.send(ClearStop(trial + 1))
-            host.wait_for(ClearAck, since=mark, timeout=10)
+            host.expect(ClearAck, since=mark, timeout_s=10)
         reactions = list(emu.stop_reactions)
     return reactions, distances
 

@@ -55,10 +55,11 @@ from benchmarks.common import Served, gate_process, server_process
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
 from emulator.twin import Twin
-from emulator.worldmap import CircleObstacle, PolygonObstacle, WorldMap, convex_parts, load_map
+from firmware_proto.geometry import convex_parts
 from firmware_proto.messages import Command
 from firmware_proto.plan import COMMAND_NAMES, Plan
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import CircleObstacle, PolygonObstacle, WorldMap, load_map
 from gate.config import DEFAULT_DT_S, DEFAULT_SAFETY_MARGIN_M, GateConfig
 from gate.options import ValidateOptions
 from gate.validator import Validator
@@ -226,9 +227,9 @@ def map_space(world: WorldMap) -> pymunk.Space:
         if isinstance(o, PolygonObstacle):
             shapes += [pymunk.Poly(static, list(part)) for part in convex_parts(o.points)]
         elif isinstance(o, CircleObstacle):
-            shapes.append(pymunk.Circle(static, o.radius, offset=o.center))
+            shapes.append(pymunk.Circle(static, o.radius_m, offset=o.center))
         else:
-            shapes.append(pymunk.Segment(static, o.a, o.b, o.radius))
+            shapes.append(pymunk.Segment(static, o.a, o.b, o.radius_m))
     space.add(*shapes)
     return space
 

@@ -10,7 +10,7 @@ For each number of busy processes (:mod:`benchmarks.load`: ``while True: pass`` 
 normal priority, what a rover's perception stack or another user's build does to its
 computer) and for real time off and on (``rover demo --no-realtime``, and the default):
 
-- ``rover demo --speed 4`` as the README starts it, ``--runs`` times: how many reached
+- ``rover demo --speed 4``, ``--runs`` times: how many reached
   the goal; the longest and the 99th-percentile gaps between heartbeats at each end of
   the controller link, worst over the runs (the bridge's from its ``/diagnostics``, the
   emulator's from its control port; the heartbeat period is 100 ms, and the controller
@@ -168,16 +168,8 @@ class StopRuns:
 
 def _wait_any(statuses: Statuses, mark: int, words: tuple[str, ...], timeout_s: float) -> str:
     """The first status after ``mark`` that starts with one of ``words`` ('' on timeout)."""
-    deadline = time.monotonic() + timeout_s
-    with statuses.cond:
-        while True:
-            for text in statuses.items[mark:]:
-                if text.startswith(words):
-                    return text
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return ""
-            statuses.cond.wait(left)
+    found = statuses.log.wait(lambda text: text.startswith(words), since=mark, timeout_s=timeout_s)
+    return found[1] if found is not None else ""
 
 
 def stop_latency(count: int, trials: int, realtime: bool, seed: int) -> StopRuns:

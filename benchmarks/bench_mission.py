@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 from benchmarks.common import gate_process, pty_round_trip, summary, table
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import load_rover
 from planner.experiment import (
     ExperimentResult,
@@ -53,7 +54,6 @@ from planner.experiment import (
     trial_goals,
 )
 from planner.gate_client import GateClient
-from planner.geometry import Pose
 from planner.mission import MissionReport, MissionRunner, MoveAndWait
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner

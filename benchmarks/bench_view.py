@@ -43,11 +43,10 @@ from typing import Any
 
 from benchmarks.common import summary, table
 from bridge.rosport.msgs import Odometry
-from planner.mapinfo import MapInfo
+from firmware_proto.worldmap import load_map
 from planner.view import ViewConfig, ViewHub, ViewServer
 
-REPO = Path(__file__).resolve().parents[1]
-WORLD = REPO / "emulator" / "maps" / "lab.json"
+WORLD = "lab"
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -170,7 +169,7 @@ def _with_browser(url: str, ready: threading.Event, done: threading.Event) -> di
 
 
 def synthetic(seconds: float, odom_hz: float, browser: bool) -> str:
-    hub = ViewHub(MapInfo.load(WORLD), rtt_s=3.0).start()
+    hub = ViewHub(load_map(WORLD), rtt_s=3.0).start()
     server = ViewServer(hub, ViewConfig(), on_stop=lambda: "benchmark").start()
     results: dict[str, Any] = {}
     ready = threading.Event()

@@ -43,7 +43,6 @@ from bridge.rosport.msgs import (
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.ground import Ground
 from emulator.twin import Pose2D, Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
@@ -62,6 +61,7 @@ from firmware_proto.messages import (
 from firmware_proto.messages import Pose as PoseMsg
 from firmware_proto.messages import Status as StatusMsg
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 from planner.mcaprec import McapRecorder
 
 __all__ = [

@@ -9,6 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from firmware_proto.cli import values
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
+from firmware_proto.runtime.realtime import BRIDGE_PRIORITY
 
 __all__ = ["can_spec", "register"]
 
@@ -129,10 +132,21 @@ def register(subparsers: Any) -> None:
         "--timeout", type=float, default=5.0, metavar="SECONDS", help="per answer (default 5)"
     )
     p.add_argument("--record", metavar="FILE", help="record the bench's link traffic")
+    add_runtime_arguments(p, BRIDGE_PRIORITY)
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    """As the bridge, the host here keeps time (its heartbeats feed the controller's
+    watchdog): real-time scheduling where permitted (docs/realtime.md)."""
+    runtime = ProcessRuntime(runtime_options(args, "bench", BRIDGE_PRIORITY))
+    with runtime:
+        if runtime.realtime is not None and not runtime.realtime.granted:
+            print(runtime.line(), file=sys.stderr, flush=True)
+        return _bench(args)
+
+
+def _bench(args: argparse.Namespace) -> int:
     from bridge.benchreport import format_table, write_reports
     from bridge.stopbench import BenchConfig, FloodConfig, StopBench, TrialResult
     from firmware_proto.linkio.trafficio import open_recorder

@@ -359,24 +359,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     bridge``, then optionally ``--ros-args`` (see the module docstring). Exit status 2
     for a usage error (bad option, unknown or bad parameter, malformed ROS argument), 1
     when the bridge fails."""
-    from firmware_proto.cli.rosargs import split_ros_args
+    from firmware_proto.cli.program import ros_main
 
-    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     parser = argparse.ArgumentParser(
         prog="rover_bridge",
         description="Rover-side ROS 2 bridge node. Accepts --ros-args: -p name:=value and "
         "the node's --params-file section set bridge parameters (docs/bridge.md).",
     )
     add_arguments(parser)
-    args = parser.parse_args(own)
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+    return ros_main(
+        parser, lambda args: run(args, args.ros_args, prog="rover_bridge"), argv, node=True
     )
-    try:
-        return run(args, ros_args, prog="rover_bridge")
-    except Exception as exc:  # one clean line for the operator, whatever the package
-        print(f"rover_bridge: error: {exc}", file=sys.stderr)
-        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

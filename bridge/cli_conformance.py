@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 from typing import Any
 
 from bridge.cli_bench import can_spec
 from firmware_proto.cli import values
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
+from firmware_proto.runtime.realtime import BRIDGE_PRIORITY
 
 __all__ = ["PACE_WINDOW_S", "PROBE_S", "main", "probe", "register"]
 
@@ -34,24 +36,33 @@ PACE_WINDOW_S = 1.0
 """How long the controller's heartbeats are counted before the suite, s (scaled)."""
 
 
-def probe(host: Any, transport: Any, url: str) -> tuple[str | None, str | None]:
-    """Listen to the controller before playing any rule (nothing is sent: a rule may
-    need a controller that has not heard from a host yet).
+def probe(host: Any, url: str) -> tuple[str | None, str | None]:
+    """Listen to the controller before playing any rule: nothing is sent until a frame
+    has come (a host must not talk to a device it has not heard). Then HELLO opens a
+    session, as every rule's preparation does, so that the controller's telemetry flows
+    (protocol v3: no sensor samples before a session), and its heartbeats are counted.
+
+    Args:
+        host: the open :class:`~bridge.conformance.WireHost`.
+        url: the device, for the message.
 
     Returns:
         ``(error, warning)``: the one line to exit 2 with when no frame arrives within
         :data:`PROBE_S` (nothing at all, or bytes that are no frames); a line to print
         before the table when its heartbeats arrive at under half their rate.
     """
-    from bridge.errors import BridgeError
     from firmware_proto.message import Message
-    from firmware_proto.messages import CONTROLLER_HEARTBEAT_PERIOD_MS, Heartbeat
+    from firmware_proto.messages import (
+        CONTROLLER_HEARTBEAT_PERIOD_MS,
+        PROTOCOL_VERSION,
+        SCHEMA_HASH,
+        Heartbeat,
+        Hello,
+    )
 
     mark = host.mark()
-    try:
-        host.expect(Message, "any frame", since=mark, timeout_s=PROBE_S)
-    except BridgeError:
-        counts = transport.counters.as_dict()
+    if host.find(Message, since=mark, timeout_s=PROBE_S) is None:
+        counts = host.endpoint.counters.as_dict()
         waited = PROBE_S * host.timeout_scale
         garbage = {k: v for k, v in counts.items() if v and k not in ("frames", "bytes", "lost")}
         if counts.get("bytes", 0) and garbage:
@@ -67,8 +78,9 @@ def probe(host: Any, transport: Any, url: str) -> tuple[str | None, str | None]:
             None,
         )
     window = PACE_WINDOW_S * host.timeout_scale
+    host.send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
     mark = host.mark()
-    threading.Event().wait(window)
+    host.settle(PACE_WINDOW_S)
     beats = sum(1 for m in host.received(mark) if isinstance(m, Heartbeat))
     expected = window / (CONTROLLER_HEARTBEAT_PERIOD_MS / 1000.0)
     if beats < expected / 2:
@@ -104,6 +116,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--control", metavar="HOST:PORT", help="the device's control port (reboot, faults)"
+    )
+    p.add_argument(
+        "--rover",
+        metavar="TOML",
+        help="the rover description the controller drives (acceleration limit, units; "
+        "default: the packaged one)",
     )
     p.add_argument(
         "--rule",
@@ -143,11 +161,22 @@ def register(subparsers: Any) -> None:
         ),
     )
     add_arguments(p)
+    add_runtime_arguments(p, BRIDGE_PRIORITY)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the suite as the options say; the exit status (see the description)."""
+    """Run the suite as the options say; the exit status (see the description). The
+    suite's host keeps time as the bridge does (its heartbeats feed the controller's
+    watchdog): real-time scheduling where permitted (docs/realtime.md)."""
+    runtime = ProcessRuntime(runtime_options(args, "conformance", BRIDGE_PRIORITY))
+    with runtime:
+        if runtime.realtime is not None and not runtime.realtime.granted:
+            print(runtime.line(), file=sys.stderr, flush=True)
+        return _suite(args)
+
+
+def _suite(args: argparse.Namespace) -> int:
     from bridge.conformance import (
         Context,
         ControlClient,
@@ -160,7 +189,10 @@ def run(args: argparse.Namespace) -> int:
         select_rules,
     )
     from bridge.errors import BridgeError
-    from bridge.transport import open_transport
+    from firmware_proto.errors import DescriptionError
+    from firmware_proto.linkio.endpoint import HOST
+    from firmware_proto.linkio.media import open_endpoint
+    from firmware_proto.rover import load_rover
 
     try:
         rules = select_rules(args.rule)
@@ -179,18 +211,24 @@ def run(args: argparse.Namespace) -> int:
         return 2
     control = None
     try:
-        transport = open_transport(url)
+        rover = load_rover(args.rover)
+        endpoint = open_endpoint(url, HOST)
         if args.control:
             control = ControlClient(args.control)
-        with WireHost(transport, timeout_scale=args.timeout_scale) as host:
-            error, warning = probe(host, transport, url)
+        host = WireHost(endpoint, timeout_scale=args.timeout_scale)
+        try:
+            host.open()
+        except OSError as exc:
+            raise OSError(f"cannot open {url}: {exc}") from exc
+        with host:
+            error, warning = probe(host, url)
             if error is not None:
                 print(f"rover conformance: error: {error}", file=sys.stderr)
                 return 2
             if warning is not None:
                 print(f"rover conformance: {warning}", file=sys.stderr, flush=True)
-            results = run_suite(Context(host, control), rules)
-    except BridgeError as exc:
+            results = run_suite(Context(host, control, rover), rules)
+    except (BridgeError, OSError, DescriptionError) as exc:
         print(f"rover conformance: error: {exc}", file=sys.stderr)
         return 2
     finally:

@@ -16,7 +16,7 @@ taken for a counter reset too (a reboot whose nonce has not been seen yet).
 Encoders cannot see slip: ``/odom`` says the rover went as far as its wheels turned.
 The controller's POSE (visual odometry or lab tracking) does see it;
 :func:`ground_pose` turns it into a pose in the map frame with its own covariance.
-That second topic is what drift control must use (DESIGN.md contract 7).
+That second topic is what drift control must use (docs/architecture.md, Contracts 7).
 
 Pure: no I/O, no threads, no ROS. Times are the controller's clock (``t_ms``) for
 integration and the host's for stamps.
@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.messages import Encoders, Imu, Pose, WheelSpeeds
 from firmware_proto.rover import RoverDescription
 
@@ -163,7 +164,7 @@ class OdometryEstimator:
         mid = self._yaw + dyaw / 2.0
         self._x += ds * math.cos(mid)
         self._y += ds * math.sin(mid)
-        self._yaw = (self._yaw + dyaw + math.pi) % (2.0 * math.pi) - math.pi
+        self._yaw = wrap_rad(self._yaw + dyaw)
         self._distance += abs(ds)
         self._elapsed_s += max(0.0, dt)
         self._source = source

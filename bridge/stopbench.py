@@ -1,9 +1,10 @@
 """The STOP bench test: how fast an emergency stop takes effect, under load, and whether it
 latches (docs/bench.md).
 
-:class:`StopBench` speaks the protocol directly through a bridge transport
-(:func:`bridge.transport.open_transport`: message-level I/O with arrival times on
-``time.monotonic()``), against a real controller or the emulator. Per trial it
+:class:`StopBench` speaks the protocol directly through the scripted protocol host of the
+link layer (:class:`~firmware_proto.linkio.host.ProtocolHost` on the endpoint its URL
+names: message-level I/O with arrival times on ``time.monotonic()``), against a real
+controller or the emulator. Per trial it
 
 1. fills the controller's motion queue with long FWD steps until it answers QUEUE_FULL,
 2. waits until the wheels move (a WHEEL_SPEEDS of at least 10 mm/s), then a random
@@ -46,9 +47,13 @@ from typing import Any, TypeVar
 
 import can
 
-from bridge.errors import BridgeError
-from bridge.transport import Transport, open_transport
+from bridge.errors import BridgeError, TransportError
+from bridge.transport import url_errors
 from firmware_proto.canmap import MAX_NODE, can_id
+from firmware_proto.linkio.endpoint import HOST
+from firmware_proto.linkio.errors import LinkError
+from firmware_proto.linkio.host import ProtocolHost
+from firmware_proto.linkio.media import open_endpoint
 from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.linkio.urls import parse_can_url
 from firmware_proto.message import Message
@@ -66,7 +71,6 @@ from firmware_proto.messages import (
     ClearStop,
     Command,
     Hello,
-    HostHeartbeat,
     Ident,
     Motion,
     Param,
@@ -256,67 +260,6 @@ class BenchRun:
         return sum(t.ok for t in self.trials)
 
 
-class _Inbox:
-    """Every message the transport delivered, with its arrival time; waitable."""
-
-    def __init__(self) -> None:
-        self.items: list[tuple[float, Message]] = []
-        self._cond = threading.Condition()
-        self.failure: Exception | None = None
-
-    def on_message(self, message: Message, arrived: float) -> None:
-        with self._cond:
-            self.items.append((arrived, message))
-            self._cond.notify_all()
-
-    def on_error(self, exc: Exception) -> None:
-        with self._cond:
-            self.failure = exc
-            self._cond.notify_all()
-
-    def mark(self) -> int:
-        with self._cond:
-            return len(self.items)
-
-    def all(self, kind: type[M], since: int) -> list[tuple[int, float, M]]:
-        """Every message of ``kind`` from index ``since``: (index, arrival, message)."""
-        with self._cond:
-            return [
-                (i, t, m)
-                for i, (t, m) in enumerate(self.items[since:], start=since)
-                if isinstance(m, kind)
-            ]
-
-    def wait(
-        self,
-        kind: type[M],
-        pred: Callable[[M], bool] = lambda _m: True,
-        *,
-        since: int,
-        timeout_s: float,
-    ) -> tuple[int, float, M] | None:
-        """The first message of ``kind`` from index ``since`` matching ``pred``, waiting
-        at most ``timeout_s``: (index, arrival, message), or ``None`` on timeout.
-
-        Raises:
-            BenchError: the transport failed.
-        """
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            start = since
-            while True:
-                if self.failure is not None:
-                    raise BenchError(f"link failed: {self.failure}") from self.failure
-                for i, (t, m) in enumerate(self.items[start:], start=start):
-                    if isinstance(m, kind) and pred(m):
-                        return i, t, m
-                start = len(self.items)
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(left)
-
-
 #: A protocol-violation (bit error) error frame: CAN_ERR_PROT class, no state change.
 _CAN_ERR_PROT = 0x008
 
@@ -412,42 +355,33 @@ class StopBench:
     thread and the flood are released however the run ends.
     """
 
-    def __init__(
-        self,
-        config: BenchConfig,
-        *,
-        recorder: TrafficRecorder | None = None,
-        transport_factory: Callable[..., Transport] = open_transport,
-    ) -> None:
+    def __init__(self, config: BenchConfig, *, recorder: TrafficRecorder | None = None) -> None:
         """Args:
         config: what to bench.
         recorder: traffic log of the bench's link (optional).
-        transport_factory: builds the transport from the URL (tests may swap it).
 
         Raises:
-            TransportError: the URL is malformed.
+            TransportUrlError: the URL is malformed.
         """
         self.config = config
         self._rng = random.Random(config.seed)
-        self._transport = transport_factory(config.url, recorder=recorder)
-        self._inbox = _Inbox()
+        with url_errors(config.url):
+            endpoint = open_endpoint(config.url, HOST, recorder=recorder)
+        self._host = ProtocolHost(endpoint)
         self._stop = threading.Event()
-        self._hb_thread = threading.Thread(target=self._heartbeats, name="bench-hb", daemon=True)
         self._flood: _Flood | None = None
         self._seq = 0
         self._stop_id = 0
-        self.medium = self._transport.kind
+        self.medium = endpoint.medium
 
     # -- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
-        """Stop every thread and close the transport (idempotent)."""
+        """Stop every thread and close the link (idempotent)."""
         self._stop.set()
         if self._flood is not None:
             self._flood.close()
             self._flood = None
-        if self._hb_thread.is_alive():
-            self._hb_thread.join(timeout=5.0)
-        self._transport.close()
+        self._host.close()
 
     def __enter__(self) -> StopBench:
         return self
@@ -462,20 +396,48 @@ class StopBench:
 
     # -- helpers ----------------------------------------------------------------------------
     def _send(self, message: Message) -> float:
-        """Write one message; returns the monotonic time just before the write."""
-        t = time.monotonic()
-        self._transport.send(message)
+        """Write one message; returns the monotonic time just before the write.
+
+        Raises:
+            TransportError: the write failed.
+        """
+        t = self._host.now()
+        try:
+            self._host.send(message)
+        except LinkError as exc:
+            raise TransportError(str(exc)) from exc
         return t
 
-    def _heartbeats(self) -> None:
-        period = HOST_HEARTBEAT_PERIOD_MS / 1000.0
-        counter = 0
-        while not self._stop.wait(period):
-            counter = (counter + 1) & 0xFFFF
-            try:
-                self._transport.send(HostHeartbeat(counter))
-            except BridgeError as exc:
-                logger.warning("heartbeat not sent: %s", exc)
+    def _wait(
+        self,
+        kind: type[M],
+        pred: Callable[[M], bool] = lambda _m: True,
+        *,
+        since: int,
+        timeout_s: float,
+    ) -> tuple[int, float, M] | None:
+        """The first ``kind`` message from position ``since`` matching ``pred``, waiting
+        at most ``timeout_s``: (position, arrival, message), or ``None`` on timeout.
+
+        Raises:
+            BenchError: the link failed.
+        """
+        try:
+            found = self._host.find(kind, pred, since=since, timeout_s=timeout_s)
+        except LinkError as exc:
+            raise BenchError(f"link failed: {exc}") from exc
+        if found is None:
+            return None
+        index, received = found
+        return index, received.arrived, received.message  # type: ignore[return-value]
+
+    def _all(self, kind: type[M], since: int) -> list[tuple[int, float, M]]:
+        """Every ``kind`` message from position ``since``: (position, arrival, message)."""
+        return [
+            (i, r.arrived, r.message)
+            for i, r in self._host.inbox.indexed(since)
+            if isinstance(r.message, kind)
+        ]
 
     def _next_seq(self) -> int:
         self._seq = self._seq % 0xFFFF + 1
@@ -493,14 +455,14 @@ class StopBench:
         since: int,
         what: str,
     ) -> tuple[int, float, M]:
-        got = self._inbox.wait(kind, pred, since=since, timeout_s=self.config.timeout_s)
+        got = self._wait(kind, pred, since=since, timeout_s=self.config.timeout_s)
         if got is None:
             raise BenchError(f"no {what} within {self.config.timeout_s:g} s")
         return got
 
     def _motion(self, distance: int) -> tuple[int, Ack]:
         seq = self._next_seq()
-        mark = self._inbox.mark()
+        mark = self._host.mark()
         self._send(Motion(seq, Command.FWD, self.config.speed, distance))
         _, _, ack = self._expect(Ack, lambda a: a.seq == seq, since=mark, what=f"ACK of seq {seq}")
         return seq, ack
@@ -510,12 +472,12 @@ class StopBench:
     ) -> tuple[float, tuple[int, float, M], int]:
         """Send ``message`` every STOP_REPEAT_MS until an answer: (time of the first
         send, (index, arrival, answer), repeats)."""
-        mark = self._inbox.mark()
+        mark = self._host.mark()
         t0 = self._send(message)
         repeats = 0
         deadline = t0 + self.config.timeout_s
         while True:
-            got = self._inbox.wait(kind, pred, since=mark, timeout_s=STOP_REPEAT_MS / 1000.0)
+            got = self._wait(kind, pred, since=mark, timeout_s=STOP_REPEAT_MS / 1000.0)
             if got is not None:
                 return t0, got, repeats
             if time.monotonic() > deadline:
@@ -527,9 +489,9 @@ class StopBench:
     def _handshake(self) -> Ident:
         deadline = time.monotonic() + self.config.timeout_s
         while time.monotonic() < deadline:
-            mark = self._inbox.mark()
+            mark = self._host.mark()
             self._send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-            got = self._inbox.wait(Ident, since=mark, timeout_s=HOST_HEARTBEAT_PERIOD_MS / 1000.0)
+            got = self._wait(Ident, since=mark, timeout_s=HOST_HEARTBEAT_PERIOD_MS / 1000.0)
             if got is None:
                 continue
             ident = got[2]
@@ -546,9 +508,9 @@ class StopBench:
         )
 
     def _set_telemetry(self, hz: int) -> int | None:
-        mark = self._inbox.mark()
+        mark = self._host.mark()
         self._send(SetParam(Param.TELEMETRY_HZ, hz))
-        got = self._inbox.wait(
+        got = self._wait(
             ParamValue,
             lambda p: p.param == Param.TELEMETRY_HZ,
             since=mark,
@@ -578,13 +540,15 @@ class StopBench:
         """
         cfg = self.config
         started = time.monotonic()
-        self._transport.open(self._inbox.on_message, self._inbox.on_error)
-        self._hb_thread.start()
+        try:
+            self._host.open()
+        except OSError as exc:
+            raise TransportError(f"cannot open {cfg.url}: {exc}") from exc
         ident = self._handshake()
         if self._clear() == "FAULT_PERSISTS":
             raise BenchError("the controller has an active fault (CLEAR_STOP: FAULT_PERSISTS)")
         rate = self._set_telemetry(cfg.telemetry_hz) if cfg.telemetry_hz else None
-        node = int(getattr(self._transport, "node", 1))
+        node = int(getattr(self._host.endpoint, "node", 1))
         load = "motion queue full"
         if rate is not None:
             load += f", telemetry {rate} Hz (SET_PARAM)"
@@ -658,7 +622,7 @@ class StopBench:
         try:
             stop_id = self._stop_trial(delay, fields)
         except BenchError as exc:
-            if self._inbox.failure is not None:
+            if self._host.inbox.failure is not None:
                 raise
             error = str(exc)
             logger.warning("trial %d: %s", number, error)
@@ -675,7 +639,7 @@ class StopBench:
         return TrialResult(trial=number, stop_id=stop_id, delay_s=delay, error=error, **fields)
 
     def _stop_trial(self, delay: float, out: dict[str, Any]) -> int:
-        mark = self._inbox.mark()
+        mark = self._host.mark()
         queued: list[int] = []
         for _ in range(_MAX_FILL):
             seq, ack = self._motion(_LONG_STEP)
@@ -694,12 +658,12 @@ class StopBench:
         )
         if delay > 0 and self._stop.wait(delay):  # the random moment of the STOP
             raise BenchError("bench closed")
-        speeds = self._inbox.all(WheelSpeeds, mark)
+        speeds = self._all(WheelSpeeds, mark)
         if speeds:
             last = speeds[-1][2]
             out["speed_mm_s"] = (last.left_mm_s + last.right_mm_s) / 2.0
         stop_id = self._next_stop_id()
-        since = self._inbox.mark()
+        since = self._host.mark()
         t0, (i_ack, t_ack, _), repeats = self._repeat_until(
             Stop(stop_id, StopSource.BENCH), StopAck, lambda a: a.stop_id == stop_id, "STOP_ACK"
         )
@@ -722,7 +686,7 @@ class StopBench:
         )
         out["zero_ms"] = (t_zero - t0) * 1e3
         grace = 1 if self.medium == "can" else 0
-        after = [w for i, _, w in self._inbox.all(WheelSpeeds, i_ack + 1) if i < i_stopped]
+        after = [w for i, _, w in self._all(WheelSpeeds, i_ack + 1) if i < i_stopped]
         judged = after[grace:] if len(after) > grace else after[-1:]
         out["targets_zero"] = bool(judged) and all(
             w.left_target_mm_s == 0 and w.right_target_mm_s == 0 for w in judged
@@ -730,7 +694,7 @@ class StopBench:
         out["purged"] = len(
             {
                 s.seq
-                for _, _, s in self._inbox.all(Status, since)
+                for _, _, s in self._all(Status, since)
                 if s.seq in queued and s.state == StepState.ABORTED and s.reason == AbortReason.STOP
             }
         )

@@ -1,10 +1,11 @@
 """Rover motor-controller emulator: the pymunk twin, the controller model, fault
 injection, and front ends serving it over a pty or a python-can bus.
 
-The twin part (what the gate imports): :class:`Twin` (physics), :func:`load_map`
-(maps), :class:`StepProfile` (step semantics) and :func:`play` (lockstep playback);
-:class:`Ground` and :func:`load_ground` (a ground of the emulator's own, or a fitted
-one). See docs/twin.md.
+The twin part (what the gate imports): :class:`Twin` (physics), :class:`StepProfile`
+(step semantics) and :func:`play` (lockstep playback); :class:`Ground` and
+:func:`load_ground` (a ground of the emulator's own, or a fitted one). The maps it
+plays on are the protocol's (:mod:`firmware_proto.worldmap`: ``load_map``), shared
+with the gate and the planner. See docs/twin.md.
 """
 
 from emulator.drive import (
@@ -18,11 +19,10 @@ from emulator.drive import (
 )
 from emulator.errors import (
     CommandError,
-    ConfigError,
     EmulatorError,
     GroundError,
     InjectionError,
-    MapError,
+    TwinConfigError,
 )
 from emulator.ground import Ground, list_grounds, load_ground
 from emulator.playback import (
@@ -42,7 +42,6 @@ from emulator.twin import (
     Pose2D,
     Twin,
 )
-from emulator.worldmap import MapGoal, MapPose, WorldMap, list_maps, load_map
 
 __all__ = [
     "GATE_DT_S",
@@ -50,14 +49,10 @@ __all__ = [
     "BodyVelocity",
     "Collision",
     "CommandError",
-    "ConfigError",
     "EmulatorError",
     "Ground",
     "GroundError",
     "InjectionError",
-    "MapError",
-    "MapGoal",
-    "MapPose",
     "PlaybackResult",
     "Pose2D",
     "Stall",
@@ -66,12 +61,10 @@ __all__ = [
     "TimedPose",
     "TractionModel",
     "Twin",
-    "WorldMap",
+    "TwinConfigError",
     "brake",
     "list_grounds",
-    "list_maps",
     "load_ground",
-    "load_map",
     "measure_turn_efficiency",
     "motor_omegas",
     "play",

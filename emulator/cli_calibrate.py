@@ -82,9 +82,9 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.recording import read_recording
     from emulator.twin import GATE_DT_S
     from emulator.twinfile import write_twin
-    from emulator.worldmap import load_map
     from firmware_proto.errors import DescriptionError
     from firmware_proto.rover import load_rover
+    from firmware_proto.worldmap import load_map
 
     try:
         rover = load_rover(args.rover)

@@ -9,7 +9,6 @@ values stand for long options (docs/ros2.md).
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
@@ -17,7 +16,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from firmware_proto.cli import values
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 
 if TYPE_CHECKING:
@@ -174,6 +174,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ),
     )
     p.add_argument(
+        "--mutant",
+        metavar="NAME",
+        help=(
+            "TEST AID: serve a mutant controller, the Python model with one rule of "
+            "docs/protocol.md broken (emulator/mutants.py; the conformance suite must fail "
+            "it); an unknown NAME lists the known ones. Never drive a rover with one"
+        ),
+    )
+    p.add_argument(
         "--record",
         metavar="FILE",
         help=(
@@ -248,12 +257,12 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.firmware import make_controller
     from emulator.injection import Injector, parse_fault
     from emulator.twin import Twin
-    from emulator.worldmap import load_map
     from firmware_proto.linkio.errors import LinkUrlError
     from firmware_proto.linkio.trafficio import LogWriter, open_recorder
     from firmware_proto.linkio.urls import parse_can_spec
     from firmware_proto.messages import SCHEMA_HASH
     from firmware_proto.rover import load_rover
+    from firmware_proto.worldmap import load_map
 
     config = controller_config(args)
     faults: list[FaultSpec] = []
@@ -284,15 +293,28 @@ def _run(args: argparse.Namespace) -> int:
         )
     else:
         twin = Twin(rover, world, dt_s=args.dt)
-    model = make_controller(
-        getattr(args, "firmware", "python"),
-        rover,
-        twin,
-        config,
-        seed=args.seed,
-        schema_hash=SCHEMA_HASH if args.schema_hash is None else args.schema_hash,
-    )
+    schema_hash = SCHEMA_HASH if args.schema_hash is None else args.schema_hash
+    mutant = None
+    if getattr(args, "mutant", None):
+        from emulator.mutants import mutant as find_mutant
+
+        if getattr(args, "firmware", "python") != "python":
+            raise ValueError("--mutant: mutants are of the Python model (--firmware python)")
+        mutant = find_mutant(args.mutant)
+        print(f"MUTANT {mutant.name}: breaks: {mutant.breaks}", file=sys.stderr, flush=True)
+        model = mutant.model(rover, twin, config, seed=args.seed, schema_hash=schema_hash)
+    else:
+        model = make_controller(
+            getattr(args, "firmware", "python"),
+            rover,
+            twin,
+            config,
+            seed=args.seed,
+            schema_hash=schema_hash,
+        )
     frontend = _frontend(args, interface, channel)
+    if mutant is not None and mutant.link is not None:
+        mutant.link(frontend.endpoint)
     # Refuse what cannot apply before anything is served or written: a fault refused
     # only when its trigger fires would be a fault silently accepted at start-up.
     checker = Injector(model, frontend)
@@ -414,10 +436,10 @@ def _serve_emulator(
 def main(argv: Sequence[str] | None = None) -> int:
     """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
     ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
-        prog="rover_emulator",
+        prog=NODE_NAME,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=_DESCRIPTION
         + " Accepts --ros-args: its --params-file section for the node and -p name:=value "
@@ -425,15 +447,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         epilog=_epilog(),
     )
     add_arguments(parser)
-    args = parse_args_with_ros_args(parser, list(sys.argv[1:] if argv is None else argv), NODE_NAME)
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-    )
-    try:
-        return _run(args)
-    except (OSError, ValueError, RuntimeError) as exc:
-        print(f"rover_emulator: error: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, _run, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -118,8 +118,6 @@ PARAM_RANGES: dict[int, tuple[int, int]] = {
 
 _REST_MPS = 1e-4
 """Wheel speed below which a side counts as at rest, m/s."""
-_STALL_MIN_TARGET_MPS = 0.01
-"""Stall detection only watches a side whose commanded speed is above this, m/s."""
 _STALL_MIN_PROGRESS_UNITS = 1.0
 _TIME_EPS_S = 1e-9
 """Float tolerance on twin-time comparisons: twin time is ``steps * dt``, so a silence of
@@ -154,13 +152,26 @@ class _PendingStop:
     stop_id: int
     arrived_s: float
     travel_at_arrival: tuple[float, float]
+    clears: int
+    """The controller's count of CLEARED answers when the STOP arrived."""
 
 
 class ControllerModel:
     """Firmware behaviour of the motor controller over a :class:`Twin`.
 
     Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
+
+    A few rules sit in methods of their own so that a subclass can break exactly one
+    (:mod:`emulator.mutants`, the conformance suite's mutation test): which samples go
+    out (:meth:`_sends_samples`), a step's profile (:meth:`_profile`), the ramp of the
+    motor commands (:meth:`_ramp_commands`), when a queued step may start
+    (:meth:`_may_start_next`), a STOPPED's distance (:meth:`_stopped_distance_units`) and
+    the stall threshold (:attr:`stall_min_command_mps`).
     """
+
+    stall_min_command_mps = 0.0025
+    """Stall detection watches a side whose ramped motor command is at least this, m/s:
+    half of speed 1, so that every step is watched (docs/protocol.md, MOTION)."""
 
     def __init__(
         self,
@@ -227,6 +238,11 @@ class ControllerModel:
         self._pending_stops: list[_PendingStop] = []
         self._reported_stops: set[int] = set()
         """Host stop_ids already answered with STOPPED since the latch was last cleared."""
+        self._clears = 0
+        """CLEAR_STOPs answered CLEARED since boot."""
+        self._last_cleared_id: int | None = None
+        """The stop_id of the last CLEAR_STOP answered CLEARED: a repeat of it that
+        crossed its answer is answered CLEARED again and releases nothing."""
         self._ended = Progress(0, StepState.STARTED, AbortReason.NONE, 0, 0)
         self._last_rx_s: float | None = None
         self._watchdog_tripped = False
@@ -326,7 +342,7 @@ class ControllerModel:
         elif isinstance(msg, Motion):
             out += self._motion(msg)
         elif isinstance(msg, ClearStop):
-            out.append(ClearAck(msg.stop_id, self._clear()))
+            out.append(ClearAck(msg.stop_id, self._clear(msg.stop_id)))
         elif isinstance(msg, Hello):
             self._hello(msg, out)
         elif isinstance(msg, SetParam):
@@ -418,7 +434,9 @@ class ControllerModel:
         if stop_id != 0 and stop_id in self._reported_stops:
             return
         if all(p.stop_id != stop_id for p in self._pending_stops):
-            self._pending_stops.append(_PendingStop(stop_id, self.now_s, self.encoders.travel()))
+            self._pending_stops.append(
+                _PendingStop(stop_id, self.now_s, self.encoders.travel(), self._clears)
+            )
 
     def _ended_status(self, seq: int, state: int, reason: int, travel: int) -> Status:
         """STATUS for a step that ended, remembered for PROGRESS."""
@@ -446,13 +464,18 @@ class ControllerModel:
         l0, r0 = self._running.start_travel
         return min(0xFFFF, round((abs(count_delta(left, l0)) + abs(count_delta(right, r0))) / 2.0))
 
-    def _clear(self) -> int:
+    def _clear(self, stop_id: int) -> int:
+        """Answer a CLEAR_STOP (docs/protocol.md, "Latch and faults")."""
+        if stop_id == self._last_cleared_id:
+            return ClearResult.CLEARED  # a repeat that crossed its answer: nothing changes
         if not self.latch_causes:
             return ClearResult.NOT_LATCHED
         if self.faults & STOPPING_FAULTS:
             return ClearResult.FAULT_PERSISTS
         self.latch_causes.clear()
         self._reported_stops.clear()
+        self._clears += 1
+        self._last_cleared_id = stop_id
         self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
         return ClearResult.CLEARED
 
@@ -519,7 +542,7 @@ class ControllerModel:
         dt = self.twin.dt_s
         self._check_watchdog(out)
         travel = self.encoders.travel()
-        if self._running is None and self._queue and not self.stop_latched:
+        if self._running is None and self._queue and self._may_start_next():
             self._start_next(travel, out)
         if self._running is not None:
             run = self._running
@@ -539,11 +562,7 @@ class ControllerModel:
                     self._start_next(travel, out)
                 else:
                     self.state = ControllerState.IDLE
-        dv = self.rover.drive.wheel_accel_limit_mps2 * dt
-        self._commanded = (
-            ramp(self._commanded[0], self._setpoint[0], dv),
-            ramp(self._commanded[1], self._setpoint[1], dv),
-        )
+        self._ramp_commands(dt)
         self.twin.set_motor_omegas(*motor_omegas(self.rover, *self._commanded))
         self.twin.step()
         travel_after = self.encoders.travel()
@@ -552,9 +571,23 @@ class ControllerModel:
         self._telemetry(out)
         return out
 
-    def _start_next(self, travel: tuple[float, float], out: list[Message]) -> None:
-        motion = self._queue.popleft()
-        profile = StepProfile(
+    def _may_start_next(self) -> bool:
+        """Whether a queued step may start now (the running one has ended): not while
+        latched, nor while a STOPPED is still owed (a clear came before rest): every
+        STOPPED measures a real stop, and the next step starts from rest."""
+        return not self.stop_latched and not self._pending_stops
+
+    def _ramp_commands(self, dt: float) -> None:
+        """The motor commands follow the setpoints at the acceleration limit."""
+        dv = self.rover.drive.wheel_accel_limit_mps2 * dt
+        self._commanded = (
+            ramp(self._commanded[0], self._setpoint[0], dv),
+            ramp(self._commanded[1], self._setpoint[1], dv),
+        )
+
+    def _profile(self, motion: Motion) -> StepProfile:
+        """The speed profile of a step starting now, from the current commands."""
+        return StepProfile(
             self.rover,
             motion.command,
             motion.speed,
@@ -562,6 +595,10 @@ class ControllerModel:
             initial_left_mps=self._commanded[0],
             initial_right_mps=self._commanded[1],
         )
+
+    def _start_next(self, travel: tuple[float, float], out: list[Message]) -> None:
+        motion = self._queue.popleft()
+        profile = self._profile(motion)
         self._running = _Running(motion, profile, travel)
         self._stall_since = [None, None]
         self._stall_ref = list(travel)
@@ -585,7 +622,7 @@ class ControllerModel:
             return
         now = self.now_s
         for side, code in ((0, FaultCode.STALL_LEFT), (1, FaultCode.STALL_RIGHT)):
-            if abs(self._commanded[side]) < _STALL_MIN_TARGET_MPS or (
+            if abs(self._commanded[side]) < self.stall_min_command_mps or (
                 abs(count_delta(travel[side], self._stall_ref[side])) >= _STALL_MIN_PROGRESS_UNITS
             ):
                 self._stall_since[side] = None
@@ -615,11 +652,7 @@ class ControllerModel:
             return
         for pending in self._pending_stops:
             moved_m = (
-                (
-                    abs(count_delta(travel[0], pending.travel_at_arrival[0]))
-                    + abs(count_delta(travel[1], pending.travel_at_arrival[1]))
-                )
-                / 2.0
+                self._stopped_distance_units(travel, pending.travel_at_arrival)
                 / self.rover.drive.distance_units_per_m
             )
             duration_ms = (self.now_s - pending.arrived_s) / self.config.timeout_scale * 1000.0
@@ -630,21 +663,39 @@ class ControllerModel:
                     min(0xFFFF, round(duration_ms)),
                 )
             )
-            if pending.stop_id != 0:
+            if pending.stop_id != 0 and pending.clears == self._clears:
+                # Remembered only within its latch: after a CLEARED it predates, the id
+                # is a new stop again.
                 self._reported_stops.add(pending.stop_id)
         self._pending_stops.clear()
 
+    @staticmethod
+    def _stopped_distance_units(
+        travel: tuple[float, float], at_arrival: tuple[float, float]
+    ) -> float:
+        """STOPPED's distance in distance units: the mean of both sides' absolute travel
+        since the STOP arrived (unsigned: a spin reports a positive distance)."""
+        return (
+            abs(count_delta(travel[0], at_arrival[0])) + abs(count_delta(travel[1], at_arrival[1]))
+        ) / 2.0
+
     # -- telemetry ----------------------------------------------------------------------
     def _telemetry(self, out: list[Message]) -> None:
+        """Telemetry due now. Sensor samples only in a session (docs/protocol.md,
+        Handshake): a new boot's first counts reach a host only after its HELLO."""
         now = self.now_s
         eps = 1e-9
         if now + eps >= self._next_telemetry:
             self._next_telemetry = max(self._next_telemetry + 1.0 / self.telemetry_hz, now)
-            out += self._fast_telemetry()
+            samples = self._fast_telemetry()  # read on schedule, sent or not
+            if self._sends_samples():
+                out += samples
         if now + eps >= self._next_pose:
             self._next_pose = max(self._next_pose + 1.0 / self.pose_hz, now)
             self.pose_sensor.sample()
         for m in self.pose_sensor.due():
+            if not self._sends_samples():
+                continue
             # The age is in the host's time, like the timeouts: the host subtracts it
             # from its own clock to stamp the measurement.
             age_s = (now - m.taken_s) / self.config.timeout_scale
@@ -653,6 +704,10 @@ class ControllerModel:
             self._next_heartbeat = max(self._next_heartbeat + 1.0 / self.heartbeat_hz, now)
             out.append(self.heartbeat())
             out.append(self._ended)
+
+    def _sends_samples(self) -> bool:
+        """Whether sensor samples go out now: only in a session."""
+        return self.handshake_ok
 
     def _fast_telemetry(self) -> list[Message]:
         t_ms = self._clock_ms()

@@ -1,7 +1,7 @@
 """Step execution semantics shared by the controller model and the gate.
 
 One implementation of what the motor controller does with a MOTION step
-``(command, speed, distance)`` (DESIGN.md contracts 2 and 4):
+``(command, speed, distance)`` (docs/architecture.md, Contracts 2 and 4):
 
 - FWD drives both sides forward, REV both backward; LEFT turns counter-clockwise on the
   spot (left side backward, right side forward), RIGHT the opposite; STOP brakes.

@@ -2,10 +2,13 @@
 
 :class:`Emulator` owns one control thread that alone touches the model: it runs one
 :meth:`~emulator.controller.ControllerModel.tick` per twin step, paced so that twin
-time runs ``speed_factor`` times as fast as the wall clock, and between ticks it waits
-on the inbox. A message from the host is handled as soon as it arrives, not at the
-next tick: a STOP has zeroed the wheel targets within tens of microseconds of its
-frame's arrival (:attr:`Emulator.stop_reactions`), well inside the tick it arrived in.
+time runs ``speed_factor`` times as fast as the wall clock. It waits on the inbox
+between turns, :data:`WAKE_QUANTUM_S` at least unless a message arrives; a message
+wakes it at once, it runs the ticks owed until the message's arrival (a burst of a few
+ticks, tens of microseconds) and handles it in its own tick. A STOP preempts even that,
+as a firmware's receive interrupt does: it has zeroed the wheel targets within tens of
+microseconds of its frame's arrival (:attr:`Emulator.stop_reactions`), at most one wake
+quantum of twin time early.
 
 **Faithful when late.** A microcontroller is never descheduled; the emulator's process
 is. When the control thread wakes late it runs the ticks it owes in a burst, and plays
@@ -70,7 +73,7 @@ from firmware_proto.messages import (
 )
 from firmware_proto.runtime import stall
 
-__all__ = ["MAX_BACKLOG_S", "Emulator", "EmulatorStatus"]
+__all__ = ["MAX_BACKLOG_S", "WAKE_QUANTUM_S", "Emulator", "EmulatorStatus"]
 
 logger = logging.getLogger(__name__)
 
@@ -79,6 +82,12 @@ T = TypeVar("T")
 MAX_BACKLOG_S = 0.1
 """When the control loop falls this far behind the wall clock (CPU starved), it drops
 the backlog and lets twin time slip rather than running in a burst."""
+WAKE_QUANTUM_S = 0.002
+"""The control thread wakes at least this long apart unless a message arrives, and runs
+the ticks owed since (each message still played into the tick it arrived in). Waking
+for every tick (4,000 times a second at ``--speed-factor 4``) cost a real-time process
+a third of a core, CPU that the kernel's own work (a pty's receive path runs in a
+kernel worker of normal priority) then lacked on a busy machine."""
 
 
 @dataclass(frozen=True)
@@ -352,7 +361,7 @@ class Emulator:
             stall.forget(beat)
 
     def _catch_up(self, late_s: float) -> None:
-        """The loop woke ``late_s`` after its next tick was due and owes more than one."""
+        """The loop woke ``late_s`` after it planned to (more than a tick late)."""
         self.catchups += 1
         self._late.append(late_s)
         self._late_max_s = max(self._late_max_s, late_s)
@@ -364,13 +373,14 @@ class Emulator:
         t0 = time.monotonic()
         ticks = 0
         next_status = 0
+        planned: float | None = None  # when the loop meant to wake (None: by a message)
         try:
             while not self._stop.is_set():
                 beat.tick()
                 now = time.monotonic()
+                if planned is not None and now - planned > tick_wall:
+                    self._catch_up(now - planned)
                 due = int((now - t0) / tick_wall) - ticks
-                if due > 1:
-                    self._catch_up(now - (t0 + (ticks + 1) * tick_wall))
                 if due * tick_wall > MAX_BACKLOG_S:
                     self.overruns += 1
                     if self.overruns == 1 or self.overruns % 100 == 0:
@@ -397,13 +407,24 @@ class Emulator:
                     self._status = self._snapshot()
                     next_status = ticks + max(1, round(0.05 / model.twin.dt_s))
                 self.frontend.flush_due()
-                timeout = t0 + (ticks + 1) * tick_wall - time.monotonic()
+                after = time.monotonic()
+                planned = max(t0 + (ticks + 1) * tick_wall, after + WAKE_QUANTUM_S)
                 try:
-                    item = self._inbox.get(timeout=timeout) if timeout > 0 else None
+                    item = self._inbox.get(timeout=planned - after)
                 except queue.Empty:
                     item = None
-                if item is not None:
-                    self._drain(item)
+                if isinstance(item, _Call):
+                    self._drain(item, until=-math.inf)  # messages wait for their tick
+                elif item is not None:
+                    planned = None
+                    if isinstance(item.message, Stop) and not self._held:
+                        # STOP preempts, as the firmware's receive interrupt does: now,
+                        # ahead of the ticks owed (at most a wake quantum of twin time).
+                        self._handle(item)
+                    else:
+                        # The ticks owed until it arrived run first (next turn of the
+                        # loop, at once), then it is handled in its own tick.
+                        self._held.append(item)
         except Exception:
             logger.exception("control loop crashed; the controller stops")
             raise

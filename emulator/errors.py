@@ -3,25 +3,27 @@
 Everything this package raises on purpose derives from :class:`EmulatorError`::
 
     EmulatorError
-     +-- MapError         a map file is missing, not JSON, or invalid; also ValueError.
-     |                    ``violations`` lists ``(json_pointer, message)`` pairs.
      +-- CommandError     a motion command cannot be executed (unknown command, speed or
      |                    distance out of range, non-finite motor rate); also ValueError
      +-- InjectionError   a fault or traction change the twin cannot apply is refused;
      |                    also ValueError (never silently accepted)
-     +-- ConfigError      a twin or playback parameter is out of range (time step,
+     +-- TwinConfigError  a twin or playback parameter is out of range (time step,
      |                    safety margin, sample period); also ValueError
      +-- FirmwareBuildError  the C firmware core cannot be built or loaded here (no
      |                    compiler, a failed build, a rover it cannot represent);
      |                    also RuntimeError
      +-- GroundError      a ground file or ground setting is invalid, or names a region
      |                    the map lacks; also ValueError
+     +-- UnknownMutantError  no mutant controller has this name (the message lists
+     |                    the known ones); also ValueError
      +-- CalibrationError fitting the twin to recorded missions failed; also ValueError
           +-- RecordingError   a recording cannot be read or holds no usable step
           +-- UnidentifiableError  the recordings cannot identify a parameter (no
                                turns, too short); ``parameter`` names it
 
-Programming errors (wrong types, calling a closed object) raise the usual built-ins.
+A map that cannot be used raises :class:`firmware_proto.errors.MapError`: the map model
+is the protocol's (:mod:`firmware_proto.worldmap`). Programming errors (wrong types,
+calling a closed object) raise the usual built-ins.
 """
 
 from __future__ import annotations
@@ -29,35 +31,19 @@ from __future__ import annotations
 __all__ = [
     "CalibrationError",
     "CommandError",
-    "ConfigError",
     "EmulatorError",
     "FirmwareBuildError",
     "GroundError",
     "InjectionError",
-    "MapError",
     "RecordingError",
+    "TwinConfigError",
     "UnidentifiableError",
+    "UnknownMutantError",
 ]
 
 
 class EmulatorError(Exception):
     """Root of every exception raised on purpose by the emulator package."""
-
-
-class MapError(EmulatorError, ValueError):
-    """A map file cannot be used.
-
-    Attributes:
-        source: the file (or map name) that was read.
-        violations: ``(json_pointer, message)`` pairs, sorted by pointer; the pointer is
-            ``""`` for a problem with the whole document (unreadable, not JSON).
-    """
-
-    def __init__(self, source: str, violations: list[tuple[str, str]]) -> None:
-        self.source = source
-        self.violations = list(violations)
-        lines = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in self.violations)
-        super().__init__(f"{source}: invalid map: {lines}")
 
 
 class CommandError(EmulatorError, ValueError):
@@ -69,7 +55,7 @@ class InjectionError(EmulatorError, ValueError):
     """An injection (traction scale, locked wheel, fault) was refused as inapplicable."""
 
 
-class ConfigError(EmulatorError, ValueError):
+class TwinConfigError(EmulatorError, ValueError):
     """A twin or playback parameter is out of range (time step, margin, period)."""
 
 
@@ -102,3 +88,8 @@ class UnidentifiableError(CalibrationError):
     def __init__(self, message: str, parameter: str = "") -> None:
         super().__init__(message)
         self.parameter = parameter
+
+
+class UnknownMutantError(EmulatorError, ValueError):
+    """No mutant controller (:mod:`emulator.mutants`) has this name; the message lists
+    the known ones."""

@@ -352,6 +352,9 @@ class FirmwareController(ControllerModel):
         self._buf = ctypes.create_string_buffer(_OUT_CAP)
         self._pose_due: deque[PoseMeasurement] = deque()
         self._status = _Status()
+        self.frame_seqs: list[int] = []
+        """The serial frame counter of each frame the core wrote in the last call (its own
+        framing, as on hardware; the emulator's front end numbers frames itself)."""
         # The callbacks must outlive the library's use of them.
         self._cb_imu = _IMU_CB(self._read_imu)
         self._cb_pose_sample = _POSE_SAMPLE_CB(self._pose_sample)
@@ -477,11 +480,15 @@ class FirmwareController(ControllerModel):
     # -- core -> messages --------------------------------------------------------------------
     def _drain(self) -> list[Message]:
         out: list[Message] = []
+        seqs: list[int] = []
         while True:
             n = self._lib.fw_host_take(self._h, self._buf, _OUT_CAP)
             if not n:
                 break
-            out += [f.message for f in self._decoder.feed(self._buf.raw[:n])]
+            for frame in self._decoder.feed(self._buf.raw[:n]):
+                out.append(frame.message)
+                seqs.append(frame.seq)
+        self.frame_seqs = seqs
         if self._decoder.counters.rejected:
             raise RuntimeError(f"the C core wrote bad frames: {self._decoder.counters}")
         return out

@@ -135,6 +135,13 @@ class FrontEnd:
     def _close(self) -> None:
         self.endpoint.close()
 
+    def restart(self) -> None:
+        """The controller rebooted: what it had queued for the host is gone and its frame
+        counter starts again at 0, as a reset MCU's would (on the control thread, before
+        the new boot's first frame)."""
+        with self._write_lock:
+            self.endpoint.restart_counter()
+
     @property
     def rx_errors(self) -> int:
         """Bad frames dropped so far: by the decoder, and damaged by an injected fault."""

@@ -47,8 +47,8 @@ from pathlib import Path
 from typing import Any
 
 from emulator.errors import GroundError
-from emulator.worldmap import WorldMap
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 
 if sys.version_info >= (3, 11):
     import tomllib

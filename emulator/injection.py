@@ -211,7 +211,10 @@ def parse_fault(text: str) -> FaultSpec:
 
 
 class LinkFaultTarget(Protocol):
-    """What a front end exposes for link faults."""
+    """What a front end exposes for link faults (and for a reboot)."""
+
+    def restart(self) -> None:
+        """The controller rebooted: drop what it had queued, restart its frame counter."""
 
     def check_link_faults(
         self,
@@ -436,6 +439,8 @@ class Injector:
             m.pose_sensor.dropout = True
             return m.raise_fault(FaultCode.POSE, condition=True)
         if kind == "reboot":
+            if self.link is not None:
+                self.link.restart()  # before the new boot's IDENT: its frame is seq 0
             return m.reboot()
         if kind in _LINK_KEYS:
             assert value is not None

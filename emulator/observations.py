@@ -37,7 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.recording import FloatArray, Recording
-from emulator.twin import Pose2D, wrap_angle_rad
+from emulator.twin import Pose2D
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.messages import Command
 from firmware_proto.rover import RoverDescription
 
@@ -242,8 +243,8 @@ def observe_steps(
                     command=step.command,
                     speed=step.speed,
                     distance=step.distance,
-                    start=Pose2D(before.x, before.y, wrap_angle_rad(before.yaw)),
-                    end=Pose2D(after.x, after.y, wrap_angle_rad(after.yaw)),
+                    start=Pose2D(before.x, before.y, wrap_rad(before.yaw)),
+                    end=Pose2D(after.x, after.y, wrap_rad(after.yaw)),
                     yaw_change_rad=dyaw,
                     sigma_xy_m=max(POSITION_SIGMA_FLOOR_M, math.hypot(before.sigma, after.sigma)),
                     sigma_yaw_rad=max(YAW_SIGMA_FLOOR_RAD, sigma_yaw),

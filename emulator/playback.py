@@ -34,7 +34,7 @@ from emulator.drive import (
     travel_units,
     turn_units_for_yaw,
 )
-from emulator.errors import ConfigError
+from emulator.errors import TwinConfigError
 from emulator.traction import ideal_spin_yaw_rad
 from emulator.twin import Collision, Pose2D, Twin
 from firmware_proto.messages import Command
@@ -189,13 +189,13 @@ def play(
     Raises:
         CommandError: a step is invalid (unknown command, value out of range); nothing
             is played then.
-        ConfigError: a period or window is not positive.
+        TwinConfigError: a period or window is not positive.
     """
     for name, value in (("sample_period_s", sample_period_s), ("stall_window_s", stall_window_s)):
         if not (math.isfinite(value) and value > 0.0):
-            raise ConfigError(f"{name} must be > 0, got {value}")
+            raise TwinConfigError(f"{name} must be > 0, got {value}")
     if not (math.isfinite(settle_s) and settle_s >= 0.0):
-        raise ConfigError(f"settle_s must be >= 0, got {settle_s}")
+        raise TwinConfigError(f"settle_s must be >= 0, got {settle_s}")
     rover = twin.rover
     dt = twin.dt_s
     # Validate every step before moving anything.

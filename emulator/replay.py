@@ -46,7 +46,6 @@ from emulator.engine import Emulator
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from emulator.worldmap import load_map
 from firmware_proto.linkio.can_endpoint import CanEndpoint
 from firmware_proto.linkio.endpoint import HOST
 from firmware_proto.linkio.replay_peer import ReplayPeer
@@ -67,6 +66,7 @@ from firmware_proto.linkio.trafficlog import (
 )
 from firmware_proto.message import Message
 from firmware_proto.rover import load_rover
+from firmware_proto.worldmap import load_map
 
 __all__ = ["MAX_SETTLE_S", "ReplayOptions", "ReplayResult", "replay_into_emulator"]
 

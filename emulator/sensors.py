@@ -2,7 +2,7 @@
 
 Encoders count wheel rotation and cannot see slip; the IMU's yaw rate and the POSE
 sensor (visual odometry or lab tracking) see the ground, which is what lets a host
-detect slip (DESIGN.md contract 7). All three read the twin's ground truth and add
+detect slip (docs/architecture.md, Contracts 7). All three read the twin's ground truth and add
 seeded noise, bias, latency and dropout, each injectable. Pure: no I/O, no threads, no
 wall clock; every random draw comes from a ``random.Random`` seeded by the caller, so a
 run is reproducible from its seed.
@@ -16,7 +16,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from emulator.drive import travel_units
-from emulator.twin import Pose2D, Twin, wrap_angle_rad
+from emulator.twin import Pose2D, Twin
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.rover import RoverDescription
 
 __all__ = [
@@ -203,7 +204,7 @@ class PoseSensor:
         pose = Pose2D(
             truth.x_m + gauss(0.0, self.noise_m),
             truth.y_m + gauss(0.0, self.noise_m),
-            wrap_angle_rad(truth.yaw_rad + gauss(0.0, self.yaw_noise_rad)),
+            wrap_rad(truth.yaw_rad + gauss(0.0, self.yaw_noise_rad)),
         )
         self._last = pose
         # A perfect sensor still reports 1 cm: zero is reserved for "no fix".

@@ -77,7 +77,9 @@ class SerialFrontEnd(FrontEnd):
         self.baud = baud
         self._plug_request: str | None = None
         self._plug_done = threading.Event()
-        self._tx_heap: list[tuple[int, int, float, bool, bytes]] = []
+        self._tx_heap: list[tuple[int, int, float, bool, Message, tuple[float, int] | None]] = []
+        """Frames waiting for the paced line: (class order, queue order, queued at,
+        telemetry?, message, corruption draws). They are numbered as they are written."""
         self.stale_dropped = 0
         self._tx_order = itertools.count()
         self._tx_ready = threading.Condition()
@@ -164,8 +166,11 @@ class SerialFrontEnd(FrontEnd):
         return self.serial.read(timeout_s)
 
     def _write(self, message: Message, corrupt: bool) -> bool:
-        wire = self.serial.encode(message, corrupt=self._rng_tx if corrupt else None)
         if self.baud is not None:
+            # The frame counter follows the wire's order, not the queue's: the frame is
+            # numbered (and damaged, by draws taken here on the control thread so that a
+            # seed replays) when the paced writer puts it on the line.
+            draws = (self._rng_tx.random(), self._rng_tx.randrange(8)) if corrupt else None
             with self._tx_ready:
                 telemetry = message.PRIORITY == "telemetry"
                 entry = (
@@ -173,12 +178,22 @@ class SerialFrontEnd(FrontEnd):
                     next(self._tx_order),
                     time.monotonic(),
                     telemetry,
-                    wire,
+                    message,
+                    draws,
                 )
                 heapq.heappush(self._tx_heap, entry)
                 self._tx_ready.notify()
             return True
-        return self.serial.write_wire(wire)
+        return self.serial.write_wire(
+            self.serial.encode(message, corrupt=self._rng_tx if corrupt else None)
+        )
+
+    def restart(self) -> None:
+        """A reboot: the paced queue is dropped (a reset UART loses it) and the counter
+        restarts (:meth:`FrontEnd.restart`)."""
+        with self._tx_ready:
+            self._tx_heap.clear()
+        super().restart()
 
     def _paced_writer(self) -> None:
         assert self.baud is not None
@@ -190,7 +205,7 @@ class SerialFrontEnd(FrontEnd):
                     self._tx_ready.wait(0.1)
                 if self._stop.is_set():
                     return
-                _, _, queued, telemetry, wire = heapq.heappop(self._tx_heap)
+                _, _, queued, telemetry, message, draws = heapq.heappop(self._tx_heap)
             if telemetry and time.monotonic() - queued > STALE_TELEMETRY_S:
                 self.stale_dropped += 1
                 continue
@@ -198,6 +213,11 @@ class SerialFrontEnd(FrontEnd):
             if wait > 0 and self._stop.wait(wait):
                 return
             with self._write_lock:
+                wire = self.serial.encode(message)
+                if draws is not None:
+                    damaged = bytearray(wire)
+                    damaged[int(draws[0] * len(damaged))] ^= 1 << draws[1]
+                    wire = bytes(damaged)
                 ok = self.serial.write_wire(wire)
             if not ok:
                 self.stats.tx_dropped += 1

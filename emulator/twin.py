@@ -4,7 +4,7 @@ The rover is one rigid body with the chassis footprint and mass of the rover
 description; four wheels touch the ground at ``(+-wheelbase/2, +-track/2)``. Each side's
 motor is driven in the *motor frame* (:meth:`Twin.set_motor_omegas`); the mounting
 polarity of the description (left -1, right +1) turns motor rotation into wheel surface
-speed, so FWD at speed ``s`` is ``omega = sign * s * k`` (DESIGN.md contract 4). Motors
+speed, so FWD at speed ``s`` is ``omega = sign * s * k`` (docs/architecture.md, Contracts 4). Motors
 are ideal velocity sources: the wheel turns at exactly the commanded rate, whatever the
 load (acceleration limits belong to the step profile of :mod:`emulator.drive`).
 
@@ -36,17 +36,17 @@ from typing import Any
 
 import pymunk
 
-from emulator.errors import CommandError, ConfigError, InjectionError
+from emulator.errors import CommandError, InjectionError, TwinConfigError
 from emulator.traction import TractionModel
-from emulator.worldmap import (
+from firmware_proto.geometry import convex_parts, wrap_rad
+from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import (
     BOUNDS_ID,
     CircleObstacle,
     PolygonObstacle,
     SegmentObstacle,
     WorldMap,
-    convex_parts,
 )
-from firmware_proto.rover import RoverDescription
 
 __all__ = [
     "GATE_DT_S",
@@ -57,7 +57,6 @@ __all__ = [
     "Collision",
     "Pose2D",
     "Twin",
-    "wrap_angle_rad",
 ]
 
 logger = logging.getLogger(__name__)
@@ -89,14 +88,6 @@ _WHEEL_PROBE_RADIUS_M = 0.001
 # Collision categories (bit masks) and collision types.
 _CAT_CHASSIS, _CAT_SENSOR, _CAT_OBSTACLE, _CAT_WHEEL, _CAT_REGION = 1, 2, 4, 8, 16
 _CT_CHASSIS, _CT_SENSOR, _CT_OBSTACLE, _CT_WHEEL, _CT_REGION = 1, 2, 3, 4, 5
-
-
-def wrap_angle_rad(angle_rad: float) -> float:
-    """``angle_rad`` wrapped to ``[-pi, pi)``; returned unchanged (bit for bit) when it
-    is in range already."""
-    if -math.pi <= angle_rad < math.pi:
-        return angle_rad
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass(frozen=True)
@@ -186,12 +177,12 @@ class Twin:
         start: initial pose; default the map's start pose, else the origin.
 
         Raises:
-            ConfigError: ``dt_s`` or ``safety_margin_m`` out of range.
+            TwinConfigError: ``dt_s`` or ``safety_margin_m`` out of range.
         """
         if not (math.isfinite(dt_s) and 0.0 < dt_s <= MAX_DT_S):
-            raise ConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
+            raise TwinConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
         if not (math.isfinite(safety_margin_m) and safety_margin_m >= 0.0):
-            raise ConfigError(f"safety_margin_m must be finite and >= 0, got {safety_margin_m}")
+            raise TwinConfigError(f"safety_margin_m must be finite and >= 0, got {safety_margin_m}")
         self.rover = rover
         self.world = world
         self.dt_s = float(dt_s)
@@ -294,9 +285,9 @@ class Twin:
                 for part in convex_parts(o.points):
                     obstacle(pymunk.Poly(static, list(part)), o.id)
             elif isinstance(o, CircleObstacle):
-                obstacle(pymunk.Circle(static, o.radius, offset=o.center), o.id)
+                obstacle(pymunk.Circle(static, o.radius_m, offset=o.center), o.id)
             elif isinstance(o, SegmentObstacle):
-                obstacle(pymunk.Segment(static, o.a, o.b, o.radius), o.id)
+                obstacle(pymunk.Segment(static, o.a, o.b, o.radius_m), o.id)
 
         if world.traction_regions:
             for i, (x, y) in enumerate(self._model.wheel_positions_m):
@@ -471,7 +462,7 @@ class Twin:
     def pose(self) -> Pose2D:
         """Ground-truth pose; yaw wrapped to ``[-pi, pi)``."""
         x, y = self._body.position
-        return Pose2D(x, y, wrap_angle_rad(self._body.angle))
+        return Pose2D(x, y, wrap_rad(self._body.angle))
 
     @property
     def yaw_unwrapped_rad(self) -> float:

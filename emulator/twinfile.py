@@ -30,9 +30,9 @@ from typing import Any
 from emulator.calibration import Calibration, Residuals
 from emulator.errors import GroundError
 from emulator.ground import Ground
-from emulator.worldmap import WorldMap
 from firmware_proto.errors import DescriptionError
 from firmware_proto.rover import CALIBRATION_TABLE, RoverDescription, load_rover
+from firmware_proto.worldmap import WorldMap
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -8,6 +8,11 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
      +-- DescriptionError   the rover description file is missing or invalid; also ValueError
      +-- PlanError          a command plan fails its JSON schema; also ValueError
+     +-- MapError           a map is unknown, unreadable, not JSON, or invalid
+     |                      (firmware_proto.worldmap); ``violations`` lists
+     |                      ``(json_pointer, message)`` pairs. Also ValueError
+     +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
+                            pointers; firmware_proto.verdict); also ValueError
      +-- BindPolicyError    an HTTP server may not listen there without a token, or the
                             token is malformed (firmware_proto.bindpolicy); also ValueError
      +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
@@ -23,9 +28,11 @@ __all__ = [
     "DecodeError",
     "DescriptionError",
     "EncodeError",
+    "MapError",
     "PlanError",
     "ProtoError",
     "SpecError",
+    "VerdictError",
 ]
 
 
@@ -70,6 +77,34 @@ class PlanError(ProtoError, ValueError):
         self.violations = violations
         text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in violations)
         super().__init__(f"plan fails schema: {text}")
+
+
+class MapError(ProtoError, ValueError):
+    """A map cannot be used.
+
+    Attributes:
+        source: the file (or map name) that was read.
+        violations: ``(json_pointer, message)`` pairs, sorted by pointer; the pointer is
+            ``""`` for a problem with the whole document (unreadable, not JSON).
+    """
+
+    def __init__(self, source: str, violations: list[tuple[str, str]]) -> None:
+        self.source = source
+        self.violations = list(violations)
+        lines = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in self.violations)
+        super().__init__(f"{source}: invalid map: {lines}")
+
+
+class VerdictError(ProtoError, ValueError):
+    """A document is not the gate's verdict JSON (:mod:`firmware_proto.verdict`).
+
+    Attributes:
+        pointers: the JSON pointers where the document departs from the shape.
+    """
+
+    def __init__(self, message: str, pointers: tuple[str, ...] = ()) -> None:
+        self.pointers = pointers
+        super().__init__(message)
 
 
 class BindPolicyError(ProtoError, ValueError):

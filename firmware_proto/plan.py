@@ -1,11 +1,11 @@
 """Command plans: the thesis's Listing 1 schema, validation and the wire form.
 
 A plan is ``{"goal": {x, y, yaw_deg}, "commands": [{command, speed, distance}, ...]}``
-(DESIGN.md contract 1), checked against ``data/command_plan.schema.json`` (JSON Schema
+(docs/architecture.md, Contracts 1), checked against ``data/command_plan.schema.json`` (JSON Schema
 2020-12, the one copy every part uses). :func:`validate_plan` lists every violation with
 its JSON pointer; :meth:`Plan.from_dict` raises :class:`PlanError` carrying them.
 :meth:`PlanStep.to_wire` gives the ``[command, speed, distance]`` integers of
-``/wheel_instructions`` (command codes of contract 2).
+``/wheel_instructions`` (command codes: Contracts 2).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from jsonschema import Draft202012Validator
 
 from firmware_proto.errors import PlanError
 from firmware_proto.messages import Command
+from firmware_proto.pose import Pose
 from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
@@ -59,13 +60,9 @@ def validate_plan(obj: Any) -> list[tuple[str, str]]:
     return schema_violations(_validator(), obj)
 
 
-@dataclass(frozen=True)
-class Goal:
-    """Goal pose: metres in the map frame, yaw in degrees counter-clockwise from +x."""
-
-    x: float
-    y: float
-    yaw_deg: float
+Goal = Pose
+"""A plan's goal: a :class:`~firmware_proto.pose.Pose` (metres in the map frame, yaw in
+degrees counter-clockwise from +x)."""
 
 
 @dataclass(frozen=True)

@@ -68,7 +68,7 @@ class Mass:
 
 @dataclass(frozen=True)
 class Drive:
-    """Command units and motor conventions (DESIGN.md contract 4)."""
+    """Command units and motor conventions (docs/architecture.md, Contracts 4)."""
 
     distance_units_per_m: int
     wheel_velocity_scale_rad_s: float
@@ -109,7 +109,7 @@ class Environment:
 
 @dataclass(frozen=True)
 class Safety:
-    """Drift-control thresholds and the repair budget (DESIGN.md contract 6)."""
+    """Drift-control thresholds and the repair budget (docs/architecture.md, Contracts 6)."""
 
     drift_linear_m: float
     drift_angular_deg: float

@@ -1,6 +1,6 @@
 """JSON documents checked against a JSON Schema, every violation at its JSON pointer:
 what the plan schema (:mod:`firmware_proto.plan`) and the map schema
-(:mod:`emulator.worldmap`) report through.
+(:mod:`firmware_proto.worldmap`) report through.
 
 Beyond the schema, numbers must be finite: JSON has no NaN or infinity, but Python's
 parser accepts them. An extra property is reported at its own pointer, not its parent's.

@@ -1,6 +1,7 @@
 """Simulation gate: HTTP ``/validate_plan`` playing command plans on the pymunk twin.
 
-The light names (verdict and option data types, errors, configuration) are imported
+The light names (option data types, errors, configuration, and the verdict's types,
+defined once in :mod:`firmware_proto.verdict` for the gate and its clients) are imported
 here; the ones that pull in the twin (pymunk) or the HTTP server load on first use, so
 that ``from gate import Verdict`` stays cheap for a client. See docs/gate.md.
 """
@@ -10,10 +11,23 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from firmware_proto.pose import Point, Pose
+from firmware_proto.verdict import (
+    FAILURE_TYPES,
+    CollisionReport,
+    Replay,
+    StallReport,
+    StepPrediction,
+    Tolerances,
+    Trajectory,
+    TrajectorySample,
+    Uncertainty,
+    Verdict,
+)
 from gate.config import GateConfig, PlaybackSettings, load_config
 from gate.errors import (
     BadRequestError,
-    ConfigError,
+    GateConfigError,
     GateError,
     GoalRangeError,
     HttpError,
@@ -30,19 +44,6 @@ from gate.errors import (
     UnsupportedMediaError,
 )
 from gate.options import ResolvedOptions, ValidateOptions
-from gate.verdict import (
-    FAILURE_TYPES,
-    CollisionReport,
-    Point,
-    Pose,
-    Replay,
-    StallReport,
-    StepPrediction,
-    Tolerances,
-    Trajectory,
-    TrajectorySample,
-    Verdict,
-)
 
 if TYPE_CHECKING:
     from gate.pool import ProcessWorkerPool, ThreadWorkerPool, WorkerPool
@@ -53,8 +54,8 @@ __all__ = [
     "FAILURE_TYPES",
     "BadRequestError",
     "CollisionReport",
-    "ConfigError",
     "GateConfig",
+    "GateConfigError",
     "GateError",
     "GateServer",
     "GoalRangeError",
@@ -82,6 +83,7 @@ __all__ = [
     "Trajectory",
     "TrajectorySample",
     "UnauthorizedError",
+    "Uncertainty",
     "UnsupportedMediaError",
     "ValidateOptions",
     "Validator",

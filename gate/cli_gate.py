@@ -11,7 +11,8 @@ from typing import Any
 from urllib.parse import urlencode
 
 from firmware_proto.cli import values
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 
 __all__ = ["add_arguments", "main", "register"]
 
@@ -110,6 +111,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--max-body", dest="max_body_bytes", type=int, metavar="BYTES", help="body limit (65536)"
     )
     p.add_argument("--config", metavar="TOML", help="settings file with a [gate] table")
+    p.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="play the samples of verdicts with uncertainty on this Dask scheduler "
+        "(tcp://HOST:PORT; needs the cluster extra) instead of the local workers",
+    )
     _add_playback_options(p)
     add_runtime_arguments(p, 0)
 
@@ -132,6 +139,14 @@ def _add_check(p: argparse.ArgumentParser) -> None:
     c.add_argument("--start", dest="check_start", metavar="X,Y,YAW", help="start pose")
     c.add_argument("--png", dest="check_png", metavar="PATH", help="write the picture here")
     c.add_argument("--json", dest="check_json", action="store_true", help="print the JSON")
+    c.add_argument(
+        "--samples",
+        dest="check_samples",
+        metavar="N",
+        help="also play N twins drawn from the twin's uncertainty (docs/gate.md)",
+    )
+    c.add_argument("--seed", dest="check_seed", metavar="S", help="seed of those draws (0)")
+    c.add_argument("--slip-sigma", dest="check_slip_sigma", metavar="X", help="slip spread (0.1)")
     _add_playback_options(c, "check_")
     c.set_defaults(func=_check)
 
@@ -146,7 +161,7 @@ def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]
 
 def _serve(args: argparse.Namespace) -> int:
     from gate.config import load_config
-    from gate.errors import ConfigError
+    from gate.errors import GateConfigError
     from gate.server import GateServer
 
     token = args.token
@@ -154,7 +169,7 @@ def _serve(args: argparse.Namespace) -> int:
         try:
             token = Path(args.token_file).read_text(encoding="utf-8").strip()
         except OSError as exc:
-            raise ConfigError(f"cannot read --token-file: {exc}") from exc
+            raise GateConfigError(f"cannot read --token-file: {exc}") from exc
     config = load_config(
         {
             "default_map": args.default_map,
@@ -165,6 +180,7 @@ def _serve(args: argparse.Namespace) -> int:
             "pool": args.pool,
             "queue_depth": args.queue_depth,
             "max_body_bytes": args.max_body_bytes,
+            "cluster": args.cluster,
             **{k: v for k, v in _playback_args(args).items() if k != "twin_path"},
         },
         config_path=args.config,
@@ -201,19 +217,19 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
     map it was calibrated on.
 
     Raises:
-        ConfigError: ``--rover`` given too, or the twin file cannot be used.
+        GateConfigError: ``--rover`` given too, or the twin file cannot be used.
     """
     from emulator.errors import EmulatorError
     from emulator.twinfile import load_twin
-    from gate.errors import ConfigError
+    from gate.errors import GateConfigError
     from gate.validator import Validator, load_maps
 
     if rover_path:
-        raise ConfigError("give --twin or --rover, not both (a twin holds its rover)")
+        raise GateConfigError("give --twin or --rover, not both (a twin holds its rover)")
     try:
         twin = load_twin(twin_path)
     except EmulatorError as exc:
-        raise ConfigError(str(exc)) from exc
+        raise GateConfigError(str(exc)) from exc
     maps, default = load_maps(default_map)
     served = {name: twin.world(world) or world for name, world in maps.items()}
     cal = twin.calibration
@@ -223,7 +239,7 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
         file=sys.stderr,
         flush=True,
     )
-    return Validator(twin.rover, served, settings, default)
+    return Validator(twin.rover, served, settings, default, spread=cal, spread_map=cal.map_name)
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -242,6 +258,10 @@ def _check(args: argparse.Namespace) -> int:
         text = sys.stdin.read() if args.plan == "-" else Path(args.plan).read_text(encoding="utf-8")
         plan = Plan.from_json(text)
         query = {"start": args.check_start} if args.check_start else {}
+        for key in ("samples", "seed", "slip_sigma"):
+            value = getattr(args, "check_" + key)
+            if value is not None:
+                query[key] = value
         if args.check_png:
             query["render"] = "1"
         options = ValidateOptions.from_query(urlencode(query))
@@ -255,7 +275,8 @@ def _check(args: argparse.Namespace) -> int:
         else:
             maps, default = load_maps(args.check_map or "lab")
             validator = Validator(load_rover(rover_path), maps, settings, default)
-        verdict = validator.validate(plan, options.resolve(settings, default))
+        job = validator.prepare(plan, options.resolve(settings, default))
+        verdict = validator.validate_uncertain(job)
     except OSError as exc:
         print(f"rover gate check: cannot read {args.plan}: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -292,6 +313,16 @@ def _print_summary(verdict: Any, png: str | None) -> None:
         f"{v.tolerances.yaw_deg:g} deg)"
     )
     print(f"  steps played   {len(v.steps)}, twin time {v.sim_time_s:.2f} s")
+    u = v.uncertainty
+    if u is not None:
+        g = u.goal_error
+        spread = ", ".join(
+            f"p{p:g} {d:.3f} m" for p, d in zip(g.percentiles, g.distance_m, strict=False)
+        )
+        print(
+            f"  {u.samples} samples  collision probability {u.collision_probability:.3f}, "
+            f"approved {u.approved_probability:.3f}; goal distance {spread or 'n/a'}"
+        )
     r = v.replay
     print(f"  map            {r.map} sha256 {r.map_sha256[:16]}, rover {r.rover_sha256[:16]}")
     if png:
@@ -302,21 +333,14 @@ def main(argv: list[str] | None = None) -> int:
     """``rover_gate`` for ``ros2 run`` and launch files: the server's options of ``rover
     gate``, then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
         prog="rover_gate",
         description=_DESCRIPTION + " Accepts --ros-args (see docs/ros2.md).",
     )
     add_arguments(parser)
-    args = parse_args_with_ros_args(
-        parser, list(sys.argv[1:] if argv is None else argv), "rover_gate"
-    )
-    try:
-        return _serve(args)
-    except Exception as exc:  # one clean line for the operator, whatever went wrong
-        print(f"rover_gate: error: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, _serve, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -27,7 +27,7 @@ from firmware_proto.httpserve.limits import (
     DEFAULT_IDLE_TIMEOUT_S,
     DEFAULT_MAX_CONNECTIONS,
 )
-from gate.errors import ConfigError
+from gate.errors import GateConfigError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -109,7 +109,7 @@ def _check_range(name: str, value: float, low: float, high: float, *, open_low: 
     ok = math.isfinite(value) and (value > low if open_low else value >= low) and value <= high
     if not ok:
         bracket = "(" if open_low else "["
-        raise ConfigError(f"{name} must be in {bracket}{low}, {high}], got {value}")
+        raise GateConfigError(f"{name} must be in {bracket}{low}, {high}], got {value}")
 
 
 @dataclass(frozen=True)
@@ -163,9 +163,11 @@ class GateConfig:
         request_timeout_s: longest wait for a worker's answer.
         drain_timeout_s: on shutdown, longest wait for in-flight requests.
         playback: defaults of the playback and verdict.
+        cluster: address of a Dask scheduler (``tcp://host:port``) that plays the
+            chunks of verdicts with uncertainty; ``None``: the local pool does.
 
     Raises:
-        ConfigError: a value is out of range, or a non-loopback host has no token.
+        GateConfigError: a value is out of range, or a non-loopback host has no token.
     """
 
     host: str = DEFAULT_HOST
@@ -184,16 +186,17 @@ class GateConfig:
     request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
     drain_timeout_s: float = DEFAULT_DRAIN_TIMEOUT_S
     playback: PlaybackSettings = field(default_factory=PlaybackSettings)
+    cluster: str | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
-            raise ConfigError(f"port must be in 0..65535, got {self.port}")
+            raise GateConfigError(f"port must be in 0..65535, got {self.port}")
         try:
             check_bind(self.host, self.token, hint="--token (or ROVER_GATE_TOKEN)")
         except BindPolicyError as exc:
-            raise ConfigError(str(exc)) from exc
+            raise GateConfigError(str(exc)) from exc
         if self.pool not in POOL_KINDS:
-            raise ConfigError(f"pool must be one of {', '.join(POOL_KINDS)}, got {self.pool!r}")
+            raise GateConfigError(f"pool must be one of {', '.join(POOL_KINDS)}, got {self.pool!r}")
         for name, value, low in (
             ("workers", self.workers, 1),
             ("queue_depth", self.queue_depth, 0),
@@ -201,7 +204,7 @@ class GateConfig:
             ("max_connections", self.max_connections, 1),
         ):
             if value < low:
-                raise ConfigError(f"{name} must be >= {low}, got {value}")
+                raise GateConfigError(f"{name} must be >= {low}, got {value}")
         for name, seconds in (
             ("idle_timeout_s", self.idle_timeout_s),
             ("head_timeout_s", self.head_timeout_s),
@@ -246,6 +249,7 @@ KEYS: dict[str, Callable[[str], Any]] = {
     "safety_margin_m": float,
     "position_tolerance_m": float,
     "yaw_tolerance_deg": float,
+    "cluster": str,
 }
 """Every settable key and how its text form (environment) is parsed."""
 
@@ -254,15 +258,15 @@ def _from_file(path: Path) -> dict[str, Any]:
     try:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
-        raise ConfigError(f"cannot read gate config {path}: {exc}") from exc
+        raise GateConfigError(f"cannot read gate config {path}: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+        raise GateConfigError(f"{path}: not valid TOML: {exc}") from exc
     table = doc.get("gate", {})
     if not isinstance(table, dict) or set(doc) - {"gate"}:
-        raise ConfigError(f"{path}: expected only a [gate] table")
+        raise GateConfigError(f"{path}: expected only a [gate] table")
     unknown = sorted(set(table) - set(KEYS))
     if unknown:
-        raise ConfigError(f"{path}: unknown key(s) in [gate]: {', '.join(unknown)}")
+        raise GateConfigError(f"{path}: unknown key(s) in [gate]: {', '.join(unknown)}")
     out: dict[str, Any] = {}
     for key, value in table.items():
         parse = KEYS[key]
@@ -273,7 +277,9 @@ def _from_file(path: Path) -> dict[str, Any]:
         else:
             ok = isinstance(value, str)
         if not ok:
-            raise ConfigError(f"{path}: [gate] {key} has the wrong type ({type(value).__name__})")
+            raise GateConfigError(
+                f"{path}: [gate] {key} has the wrong type ({type(value).__name__})"
+            )
         out[key] = float(value) if parse is float else value
     return out
 
@@ -293,14 +299,14 @@ def load_config(
         config_path: a TOML file with a ``[gate]`` table; beats ``ROVER_GATE_CONFIG``.
 
     Raises:
-        ConfigError: an unknown key, a value that does not parse, a value out of range,
+        GateConfigError: an unknown key, a value that does not parse, a value out of range,
             an unreadable file, or the bind policy (see :class:`GateConfig`).
     """
     env = os.environ if environ is None else environ
     given = {k: v for k, v in (args or {}).items() if v is not None}
     unknown = sorted(set(given) - set(KEYS))
     if unknown:
-        raise ConfigError(f"unknown setting(s): {', '.join(unknown)}")
+        raise GateConfigError(f"unknown setting(s): {', '.join(unknown)}")
     path = config_path if config_path is not None else env.get(ENV_PREFIX + "CONFIG")
     merged: dict[str, Any] = _from_file(Path(path)) if path else {}
     for key, parse in KEYS.items():
@@ -309,10 +315,10 @@ def load_config(
             try:
                 merged[key] = parse(text)
             except ValueError as exc:
-                raise ConfigError(f"{ENV_PREFIX}{key.upper()}: {exc}") from exc
+                raise GateConfigError(f"{ENV_PREFIX}{key.upper()}: {exc}") from exc
     merged.update(given)
     playback = PlaybackSettings(**{k: merged.pop(k) for k in _PLAYBACK_KEYS if k in merged})
     try:
         return GateConfig(playback=playback, **merged)
     except TypeError as exc:  # pragma: no cover - KEYS and GateConfig agree (tested)
-        raise ConfigError(str(exc)) from exc
+        raise GateConfigError(str(exc)) from exc

@@ -3,7 +3,7 @@
 Everything this package raises on purpose derives from :class:`GateError`::
 
     GateError
-     +-- ConfigError            a gate setting is out of range, or the bind policy refuses
+     +-- GateConfigError        a gate setting is out of range, or the bind policy refuses
      |                          it (non-loopback address without a token); also ValueError
      +-- OptionError            a request option (query parameter) is unknown, repeated or
      |                          out of range; also ValueError. ``parameter`` names it.
@@ -35,7 +35,7 @@ from __future__ import annotations
 
 __all__ = [
     "BadRequestError",
-    "ConfigError",
+    "GateConfigError",
     "GateError",
     "GoalRangeError",
     "HttpError",
@@ -57,7 +57,7 @@ class GateError(Exception):
     """Root of every exception raised on purpose by the gate package."""
 
 
-class ConfigError(GateError, ValueError):
+class GateConfigError(GateError, ValueError):
     """A gate setting is out of range or refused by the bind policy."""
 
 

@@ -13,16 +13,12 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.messages import Command
 
-__all__ = ["GoalError", "approach_heading_rad", "goal_error", "wrap_deg"]
+__all__ = ["GoalError", "approach_heading_rad", "goal_error"]
 
 _EPS_M = 1e-9
-
-
-def wrap_deg(angle_deg: float) -> float:
-    """``angle_deg`` wrapped to ``[-180, 180)``."""
-    return (angle_deg + 180.0) % 360.0 - 180.0
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ The paths and methods come from :data:`gate.routes.ROUTES` (the table the server
 dispatches on). The request body is the plan schema itself
 (:func:`firmware_proto.plan.plan_schema`, the one copy of Listing 1) and ``GET
 /maps/{name}`` answers with documents of the map schema
-(:func:`emulator.worldmap.map_schema`), each with its ``$defs`` hoisted into
+(:func:`firmware_proto.worldmap.map_schema`), each with its ``$defs`` hoisted into
 ``components.schemas`` (``CommandPlan_command_step``, ``Map_polygon``...). The query
 parameters and their ranges come from :mod:`gate.options`; limits and defaults from the
 server's configuration, so the document states the values this server uses. The 401
@@ -17,12 +17,18 @@ from __future__ import annotations
 
 from typing import Any
 
-from emulator.worldmap import map_schema
 from firmware_proto.plan import MAX_PLAN_STEPS, plan_schema
+from firmware_proto.verdict import FAILURE_TYPES
+from firmware_proto.worldmap import map_schema
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig
-from gate.options import OPTION_LIMITS, QUERY_PARAMETERS
+from gate.options import (
+    DEFAULT_SAMPLES,
+    DEFAULT_SEED,
+    DEFAULT_SLIP_SIGMA,
+    OPTION_LIMITS,
+    QUERY_PARAMETERS,
+)
 from gate.routes import ROUTES
-from gate.verdict import FAILURE_TYPES
 
 __all__ = ["OPENAPI_VERSION", "build_openapi"]
 
@@ -167,6 +173,56 @@ def _schemas() -> dict[str, Any]:
                 "query": _STR,
             }
         ),
+        "ObstacleHits": _obj(
+            {
+                "obstacle_id": _STR,
+                "count": _INT | {"minimum": 1},
+                "step": step_index,
+                "contact": _ref("Point")
+                | {"description": "Mean contact point of the hits during that step."},
+            }
+        ),
+        "GoalErrorPercentiles": _obj(
+            {
+                "samples": _INT
+                | {"description": "Samples that played to the end (no collision, no stall)."},
+                "percentiles": {"type": "array", "items": _NUM},
+                "distance_m": {"type": "array", "items": _NUM},
+                "position_m": {"type": "array", "items": _NUM},
+                "lateral_m": {"type": "array", "items": _NUM},
+                "yaw_deg": {"type": "array", "items": _NUM},
+            }
+        ),
+        "EnvelopePoint": _obj(
+            {
+                "step": step_index,
+                "step_t_s": _NUM,
+                "samples": _INT | {"description": "Samples still playing at that moment."},
+                "x": _NUM | {"description": "Mean position and (circular) mean yaw."},
+                "y": _NUM,
+                "yaw_deg": _NUM,
+                "major_m": _NUM
+                | {"minimum": 0, "description": "Semi-axes of the level's ellipse, m."},
+                "minor_m": _NUM | {"minimum": 0},
+                "angle_deg": _NUM | {"description": "Major axis, degrees CCW from +x."},
+                "yaw_sd_deg": _NUM | {"minimum": 0},
+            }
+        ),
+        "Uncertainty": _obj(
+            {
+                "samples": _INT | {"minimum": 2},
+                "seed": _INT,
+                "spread": {"enum": ["calibration", "default"]},
+                "slip_sigma": _NUM,
+                "collision_probability": _NUM | {"minimum": 0, "maximum": 1},
+                "stall_probability": _NUM | {"minimum": 0, "maximum": 1},
+                "approved_probability": _NUM | {"minimum": 0, "maximum": 1},
+                "collisions": {"type": "array", "items": _ref("ObstacleHits")},
+                "goal_error": _ref("GoalErrorPercentiles"),
+                "level": _NUM,
+                "envelope": {"type": "array", "items": _ref("EnvelopePoint")},
+            }
+        ),
         "Verdict": _obj(
             {
                 "approved": _BOOL,
@@ -189,10 +245,12 @@ def _schemas() -> dict[str, Any]:
                 "trajectory": _ref("Trajectory"),
                 "sim_time_s": _NUM,
                 "replay": _ref("Replay"),
+                "uncertainty": _ref("Uncertainty")
+                | {"description": "Only when the request asked for samples > 1."},
                 "image_png_base64": _STR | {"contentEncoding": "base64"},
                 "wall_time_s": _NUM,
             },
-            optional=("image_png_base64",),
+            optional=("uncertainty", "image_png_base64"),
         ),
         "Violation": _obj({"pointer": _STR, "message": _STR}),
         "Error": _obj(
@@ -213,6 +271,8 @@ def _schemas() -> dict[str, Any]:
                 "default_map": _STR,
                 "maps": {"type": "array", "items": _STR},
                 "pool": {"enum": ["process", "thread"]},
+                "cluster": _nullable(_STR)
+                | {"description": "The Dask scheduler that plays samples (--cluster)."},
                 "workers": _INT,
                 "queue_depth": _INT,
                 "in_flight": _INT,
@@ -290,6 +350,22 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
             "stays as asked: the same request gives the same bytes).",
             {"default": pb.sample_hz},
         ),
+        "samples": (
+            "Twins to play the plan on. 1: the single playback. More: also that many twins "
+            "drawn from the twin's parameter uncertainty (a calibrated twin's covariance, "
+            "else the default spread) and a slip distribution; the verdict then carries "
+            "'uncertainty' (collision probability, goal error percentiles, per-step "
+            "envelope). Its judgement stays the nominal twin's.",
+            {"type": "integer", "default": DEFAULT_SAMPLES},
+        ),
+        "seed": (
+            "Seed of the twins' draws: the same request and seed give the same verdict.",
+            {"type": "integer", "default": DEFAULT_SEED},
+        ),
+        "slip_sigma": (
+            "1-sigma of each side's friction factor (log-normal) in the draws.",
+            {"default": DEFAULT_SLIP_SIGMA},
+        ),
     }
     out = []
     for name in QUERY_PARAMETERS:
@@ -297,6 +373,8 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
         if name in limits:
             low, high = limits[name]
             schema = {"type": "number", "minimum": low, "maximum": high} | schema
+            if schema.get("type") == "integer":
+                schema = schema | {"minimum": int(low), "maximum": int(high)}
         out.append(
             {
                 "name": name,

@@ -13,6 +13,10 @@ parameter       meaning                                     default / range
 ``pos_tol_m``   accepted final distance to the goal, m      server default, 0.001..10
 ``yaw_tol_deg`` accepted final yaw error, degrees           server default, 0.01..180
 ``sample_hz``   predicted trajectory rate, Hz               server default, 0.1..1/dt
+``samples``     twins to play (> 1: a verdict with its      1, 1..2000
+                uncertainty, :mod:`gate.ensemble`)
+``seed``        seed of those twins' draws                  0, 0..4294967295
+``slip_sigma``  1-sigma of each side's friction factor      0.1, 0..1
 ==============  ==========================================  ==========================
 
 Parsing is strict, like the body: an unknown or repeated parameter, an empty value, or
@@ -26,11 +30,14 @@ import re
 from dataclasses import dataclass
 from urllib.parse import parse_qsl, quote
 
+from firmware_proto.pose import Pose
 from gate.config import PlaybackSettings
 from gate.errors import OptionError
-from gate.verdict import Pose
 
 __all__ = [
+    "DEFAULT_SAMPLES",
+    "DEFAULT_SEED",
+    "DEFAULT_SLIP_SIGMA",
     "OPTION_LIMITS",
     "QUERY_PARAMETERS",
     "ResolvedOptions",
@@ -45,6 +52,9 @@ QUERY_PARAMETERS = (
     "pos_tol_m",
     "yaw_tol_deg",
     "sample_hz",
+    "samples",
+    "seed",
+    "slip_sigma",
 )
 """Every query parameter ``/validate_plan`` accepts, in canonical order."""
 
@@ -53,9 +63,21 @@ OPTION_LIMITS: dict[str, tuple[float, float]] = {
     "pos_tol_m": (0.001, 10.0),
     "yaw_tol_deg": (0.01, 180.0),
     "sample_hz": (0.1, 1000.0),
+    "samples": (1, 2000),
+    "seed": (0, 2**32 - 1),
+    "slip_sigma": (0.0, 1.0),
 }
 """Inclusive ranges of the numeric options (``sample_hz`` is further capped at 1/dt)."""
 
+DEFAULT_SAMPLES = 1
+"""One playback on the nominal twin unless a request asks for more."""
+DEFAULT_SEED = 0
+DEFAULT_SLIP_SIGMA = 0.1
+"""1-sigma of each side's friction factor (log-normal) in a verdict with uncertainty:
+one side gripping about 10 % more or less than the other, which turns a 5 m leg by a
+few degrees (docs/gate.md)."""
+
+_INTEGER = re.compile(r"\d+")
 _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 _TRUE = ("1", "true")
 _FALSE = ("0", "false")
@@ -75,6 +97,16 @@ def _ranged(name: str, text: str) -> float:
     low, high = OPTION_LIMITS[name]
     if not low <= value <= high:
         raise OptionError(name, f"must be in [{low:g}, {high:g}], got {value:g}")
+    return value
+
+
+def _integer(name: str, text: str) -> int:
+    if not _INTEGER.fullmatch(text) or len(text) > 12:
+        raise OptionError(name, f"not a plain non-negative integer: {text!r}")
+    value = int(text)
+    low, high = OPTION_LIMITS[name]
+    if not low <= value <= high:
+        raise OptionError(name, f"must be in [{low:g}, {high:g}], got {value}")
     return value
 
 
@@ -100,6 +132,8 @@ class ValidateOptions:
         render: add a PNG of the top-down view to the verdict.
         safety_margin_m, position_tolerance_m, yaw_tolerance_deg, sample_hz: overrides
             of the server's playback defaults.
+        samples: twins to play (``None``: one); ``seed``: the seed of their draws;
+            ``slip_sigma``: the spread of each side's friction factor.
     """
 
     map: str | None = None
@@ -109,6 +143,9 @@ class ValidateOptions:
     position_tolerance_m: float | None = None
     yaw_tolerance_deg: float | None = None
     sample_hz: float | None = None
+    samples: int | None = None
+    seed: int | None = None
+    slip_sigma: float | None = None
 
     @classmethod
     def from_query(cls, query: str) -> ValidateOptions:
@@ -147,6 +184,11 @@ class ValidateOptions:
                 _ranged("yaw_tol_deg", seen["yaw_tol_deg"]) if "yaw_tol_deg" in seen else None
             ),
             sample_hz=_ranged("sample_hz", seen["sample_hz"]) if "sample_hz" in seen else None,
+            samples=_integer("samples", seen["samples"]) if "samples" in seen else None,
+            seed=_integer("seed", seen["seed"]) if "seed" in seen else None,
+            slip_sigma=(
+                _ranged("slip_sigma", seen["slip_sigma"]) if "slip_sigma" in seen else None
+            ),
         )
 
     def to_query(self) -> str:
@@ -168,6 +210,11 @@ class ValidateOptions:
         ):
             if value is not None:
                 parts.append(f"{name}={_fmt(value)}")
+        for name, count in (("samples", self.samples), ("seed", self.seed)):
+            if count is not None:
+                parts.append(f"{name}={count}")
+        if self.slip_sigma is not None:
+            parts.append(f"slip_sigma={_fmt(self.slip_sigma)}")
         return "&".join(parts)
 
     def resolve(self, defaults: PlaybackSettings, default_map: str) -> ResolvedOptions:
@@ -199,13 +246,17 @@ class ValidateOptions:
                 else self.yaw_tolerance_deg
             ),
             sample_hz=sample_hz,
+            samples=DEFAULT_SAMPLES if self.samples is None else self.samples,
+            seed=DEFAULT_SEED if self.seed is None else self.seed,
+            slip_sigma=DEFAULT_SLIP_SIGMA if self.slip_sigma is None else self.slip_sigma,
         )
 
 
 @dataclass(frozen=True)
 class ResolvedOptions:
     """Options with every default filled in (``start`` may still be ``None``: the map's
-    start pose, resolved by the validator once the map is known)."""
+    start pose, resolved by the validator once the map is known). ``samples`` > 1 asks
+    for a verdict with its uncertainty (:mod:`gate.ensemble`)."""
 
     map: str
     start: Pose | None
@@ -214,10 +265,15 @@ class ResolvedOptions:
     position_tolerance_m: float
     yaw_tolerance_deg: float
     sample_hz: float
+    samples: int = DEFAULT_SAMPLES
+    seed: int = DEFAULT_SEED
+    slip_sigma: float = DEFAULT_SLIP_SIGMA
 
     def to_query(self, start: Pose) -> str:
         """A query string that pins every option (with ``start`` made explicit), so that
-        the same request on a server with other defaults gives the same verdict."""
+        the same request on a server with other defaults gives the same verdict. The
+        draws' options appear only when ``samples`` > 1."""
+        many = self.samples > 1
         return ValidateOptions(
             map=self.map,
             start=start,
@@ -226,4 +282,7 @@ class ResolvedOptions:
             position_tolerance_m=self.position_tolerance_m,
             yaw_tolerance_deg=self.yaw_tolerance_deg,
             sample_hz=self.sample_hz,
+            samples=self.samples if many else None,
+            seed=self.seed if many else None,
+            slip_sigma=self.slip_sigma if many else None,
         ).to_query()

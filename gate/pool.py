@@ -23,12 +23,13 @@ import multiprocessing
 import os
 import signal
 import threading
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
+from typing import Any, TypeVar
 
 from gate.config import GateConfig
-from gate.errors import ConfigError
+from gate.errors import GateConfigError
 from gate.validator import Job, Validator
 
 __all__ = [
@@ -40,6 +41,8 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
 
 WARM_UP_TIMEOUT_S = 60.0
 """Longest wait for every worker process to start and load the maps."""
@@ -85,7 +88,7 @@ class WorkerPool:
 
     def __init__(self, validator: Validator, workers: int) -> None:
         if workers < 1:
-            raise ConfigError(f"workers must be >= 1, got {workers}")
+            raise GateConfigError(f"workers must be >= 1, got {workers}")
         self.validator = validator
         self.workers = workers
         self._closed = False
@@ -104,6 +107,21 @@ class WorkerPool:
         return self._submit(job)
 
     def _submit(self, job: Job) -> Future[bytes]:
+        raise NotImplementedError
+
+    def submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+        """Run ``fn(arg)`` on a worker (``fn`` a module-level function, ``arg``
+        picklable: a chunk of an uncertain verdict, :func:`gate.ensemble.run_chunk`).
+
+        Raises:
+            RuntimeError: the pool is closed.
+        """
+        with self._lock:
+            if self._closed:
+                raise RuntimeError(f"{self.kind} pool is closed")
+        return self._submit_call(fn, arg)
+
+    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
         raise NotImplementedError
 
     def close(self, *, wait: bool = True) -> None:
@@ -147,6 +165,9 @@ class ThreadWorkerPool(WorkerPool):
 
     def _run(self, job: Job) -> bytes:
         return self.validator.run(job).to_json().encode()
+
+    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+        return self._executor.submit(fn, arg)
 
     def _close(self, wait: bool) -> None:
         self._executor.shutdown(wait=wait, cancel_futures=True)
@@ -202,10 +223,13 @@ class ProcessWorkerPool(WorkerPool):
         return pids
 
     def _submit(self, job: Job) -> Future[bytes]:
+        return self._submit_call(run_job, job)
+
+    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
         with self._lock:
             executor = self._executor
         try:
-            return executor.submit(run_job, job)
+            return executor.submit(fn, arg)
         except BrokenProcessPool:
             logger.warning("a worker process died; restarting the pool")
             with self._lock:
@@ -213,7 +237,7 @@ class ProcessWorkerPool(WorkerPool):
                     executor.shutdown(wait=True, cancel_futures=True)  # reaps the dead
                     self._executor = self._start()
                 executor = self._executor
-            return executor.submit(run_job, job)
+            return executor.submit(fn, arg)
 
     def _close(self, wait: bool) -> None:
         with self._lock:
@@ -230,7 +254,7 @@ def make_pool(config: GateConfig, validator: Validator) -> WorkerPool:
     try:
         cls = kinds[config.pool]
     except KeyError:
-        raise ConfigError(
+        raise GateConfigError(
             f"unknown pool {config.pool!r}; known: {', '.join(sorted(kinds))}"
         ) from None
     return cls(validator, config.workers)

@@ -20,10 +20,11 @@ import math
 from PIL import Image, ImageDraw
 
 from emulator.drive import yaw_for_turn_units
-from emulator.worldmap import CircleObstacle, PolygonObstacle, WorldMap
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
-from gate.verdict import Pose, Verdict
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import CircleObstacle, PolygonObstacle, WorldMap
 
 __all__ = ["LEGEND_PX", "MAX_IMAGE_PX", "planned_path", "render_png"]
 
@@ -120,10 +121,10 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
             draw.polygon([px(*p) for p in o.points], fill=_OBSTACLE, outline=_WALL)
         elif isinstance(o, CircleObstacle):
             cx, cy = px(*o.center)
-            r = o.radius * scale
+            r = o.radius_m * scale
             draw.ellipse((cx - r, cy - r, cx + r, cy + r), fill=_OBSTACLE, outline=_WALL)
         else:
-            thickness = max(2, round(2 * o.radius * scale))
+            thickness = max(2, round(2 * o.radius_m * scale))
             draw.line([px(*o.a), px(*o.b)], fill=_OBSTACLE, width=thickness)
     draw.rectangle((*px(b.min_x, b.max_y), *px(b.max_x, b.min_y)), outline=_WALL, width=3)
 
@@ -132,7 +133,7 @@ def render_png(world: WorldMap, rover: RoverDescription, plan: Plan, verdict: Ve
         draw.line(path, fill=_PLANNED, width=2)
     for p in path:
         draw.ellipse((p[0] - 3, p[1] - 3, p[0] + 3, p[1] + 3), outline=_PLANNED)
-    trail = [px(s.x, s.y) for s in verdict.trajectory.samples]
+    trail = [px(s.pose.x, s.pose.y) for s in verdict.trajectory.samples]
     if len(trail) > 1:
         draw.line(trail, fill=_PREDICTED, width=3)
 

@@ -37,6 +37,7 @@ from collections import Counter
 from collections.abc import Awaitable, Callable, MutableMapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from dataclasses import replace
 from typing import Any
 
 from starlette.requests import Request
@@ -53,8 +54,10 @@ from firmware_proto.httpserve import (
 )
 from firmware_proto.httpserve.limits import DEFAULT_MAX_DRAIN_BYTES
 from firmware_proto.plan import Plan
+from firmware_proto.verdict import Verdict
 from gate import routes
 from gate.config import GateConfig
+from gate.ensemble import run_chunk
 from gate.errors import (
     BadRequestError,
     HttpError,
@@ -120,6 +123,7 @@ class GateServer:
         self.config = config
         self.validator = validator if validator is not None else Validator.from_config(config)
         self._pool = pool
+        self._cluster: Any = None  # gate.cluster.ClusterEngine, with --cluster
         self._service: HttpService | None = None
         self._submitter: ThreadPoolExecutor | None = None
         self._draining = threading.Event()
@@ -151,6 +155,14 @@ class GateServer:
             raise RuntimeError("gate server already started")
         if self._pool is None:
             self._pool = make_pool(self.config, self.validator)
+        if self.config.cluster and self._cluster is None:
+            from gate.cluster import ClusterEngine  # noqa: PLC0415 - Dask only when asked
+
+            try:
+                self._cluster = ClusterEngine(self.config.cluster)
+            except BaseException:
+                self._pool.close()
+                raise
         config = self.config
         limits = ServeLimits(
             idle_timeout_s=config.idle_timeout_s,
@@ -236,6 +248,8 @@ class GateServer:
             self._service.close()
         if self._submitter is not None:
             self._submitter.shutdown(wait=True)
+        if self._cluster is not None:
+            self._cluster.close()
         if self._pool is not None:
             self._pool.close(wait=True)
         logger.info("gate closed")
@@ -358,6 +372,8 @@ class GateServer:
             )
         except OptionError as exc:
             raise BadRequestError(str(exc), code="invalid_option", parameter=exc.parameter) from exc
+        if job.options.samples > 1:
+            return 200, await self._run_uncertain(job), {}
         return 200, await self._run(job), {}
 
     async def _read_json(self, request: Request) -> Any:
@@ -437,6 +453,41 @@ class GateServer:
             if release_now:
                 self._release()
 
+    async def _run_uncertain(self, job: Job) -> bytes:
+        """A verdict with its uncertainty: the nominal playback (:meth:`_run`, which
+        admits the request) and, meanwhile, the chunks of its twins on the cluster or
+        the local pool; then the summary (:mod:`gate.ensemble`). A chunk that fails or
+        a wait past ``request_timeout_s`` fails the request (its chunks are cancelled)."""
+        t0 = time.perf_counter()
+        engine = self._cluster if self._cluster is not None else self.pool
+        futures = [engine.submit_call(run_chunk, c) for c in self.validator.chunk_jobs(job)]
+        waiters = [asyncio.wrap_future(f) for f in futures]
+        try:
+            nominal = await self._run(job)
+            done, _ = await asyncio.wait(waiters, timeout=self.config.request_timeout_s)
+            if len(done) < len(waiters):
+                raise OverloadedError(
+                    f"no verdict for {job.options.samples} samples within "
+                    f"{self.config.request_timeout_s:g} s",
+                    code="timeout",
+                    retry_after_s=RETRY_AFTER_S,
+                )
+            results = [w.result() for w in waiters]
+        except BrokenProcessPool as exc:
+            raise HttpError("a worker process died playing samples", code="worker_lost") from exc
+        finally:
+            for w in waiters:
+                w.cancel()
+        verdict = self.validator.with_uncertainty(Verdict.from_json(nominal), job, results)
+        logger.debug(
+            "plan %s: %d samples, collision probability %.3f",
+            verdict.replay.plan_sha256[:12],
+            job.options.samples,
+            verdict.uncertainty.collision_probability if verdict.uncertainty else 0.0,
+        )
+        wall = round(time.perf_counter() - t0, 6)
+        return replace(verdict, wall_time_s=wall).to_json().encode()
+
     def _release(self) -> None:
         with self._count_lock:
             self._in_flight -= 1
@@ -452,6 +503,7 @@ class GateServer:
             "default_map": self.validator.default_map,
             "maps": sorted(self.validator.maps),
             "pool": self.pool.kind,
+            "cluster": self.config.cluster,
             "workers": self.pool.workers,
             "queue_depth": self.config.queue_depth,
             "in_flight": in_flight,

@@ -12,30 +12,33 @@ Times are compared as whole physics steps (``round(t / dt)``), never as floats.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
 
 from emulator.playback import PlaybackResult
 from emulator.twin import Pose2D
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import TrajectorySample
 
-__all__ = ["TaggedPose", "tag_samples"]
-
-
-@dataclass(frozen=True)
-class TaggedPose:
-    """A predicted pose with its plan time, step index and time into the step."""
-
-    t_s: float
-    step: int
-    step_t_s: float
-    pose: Pose2D
+__all__ = ["tag_samples"]
 
 
-def tag_samples(result: PlaybackResult) -> list[TaggedPose]:
+def tag_samples(
+    result: PlaybackResult, pose: Callable[[Pose2D], Pose], seconds: Callable[[float], float]
+) -> list[TrajectorySample]:
     """Trajectory samples of ``result`` tagged with their step (see the module doc).
+
+    Args:
+        result: the playback.
+        pose: converts the twin's pose to the verdict's (units, rounding).
+        seconds: rounds a time for the verdict.
 
     With no step played (the start pose already collides), the one sample at time 0
     belongs to step 0.
     """
+
+    def sample(t_s: float, step: int, step_t_s: float, p: Pose2D) -> TrajectorySample:
+        return TrajectorySample(seconds(t_s), step, seconds(step_t_s), pose(p))
+
     dt = result.dt_s
 
     def tick(t: float) -> int:
@@ -44,23 +47,23 @@ def tag_samples(result: PlaybackResult) -> list[TaggedPose]:
     samples = result.samples
     if not result.steps:
         first = samples[0]
-        return [TaggedPose(first.time_s, 0, 0.0, first.pose)]
+        return [sample(first.time_s, 0, 0.0, first.pose)]
     ticks = [tick(s.time_s) for s in samples]
-    out: list[TaggedPose] = []
+    out: list[TrajectorySample] = []
     cursor = 0  # next fixed-rate sample not yet placed
     previous_end = samples[0].pose
     for step in result.steps:
         start_k, end_k = tick(step.start_time_s), tick(step.end_time_s)
-        out.append(TaggedPose(start_k * dt, step.index, 0.0, previous_end))
+        out.append(sample(start_k * dt, step.index, 0.0, previous_end))
         while cursor < len(samples) and ticks[cursor] <= end_k:
             k = ticks[cursor]
             if start_k < k < end_k:  # the step's own start and end are added apart
-                out.append(TaggedPose(k * dt, step.index, (k - start_k) * dt, samples[cursor].pose))
+                out.append(sample(k * dt, step.index, (k - start_k) * dt, samples[cursor].pose))
             cursor += 1
-        out.append(TaggedPose(end_k * dt, step.index, (end_k - start_k) * dt, step.end_pose))
+        out.append(sample(end_k * dt, step.index, (end_k - start_k) * dt, step.end_pose))
         previous_end = step.end_pose
     last = result.steps[-1]
     last_start = tick(last.start_time_s)
-    for k, sample in zip(ticks[cursor:], samples[cursor:], strict=True):  # settling
-        out.append(TaggedPose(k * dt, last.index, (k - last_start) * dt, sample.pose))
+    for k, settled in zip(ticks[cursor:], samples[cursor:], strict=True):  # settling
+        out.append(sample(k * dt, last.index, (k - last_start) * dt, settled.pose))
     return out

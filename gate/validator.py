@@ -26,37 +26,38 @@ import json
 import logging
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from importlib.metadata import PackageNotFoundError, version
 
 import pymunk
 
+from emulator.batch import BatchResult
 from emulator.drive import nominal_step_duration_s
-from emulator.errors import MapError
+from emulator.ground import Ground
 from emulator.playback import DEFAULT_SETTLE_S, PlaybackResult, play, step_time_limit_s
 from emulator.twin import Pose2D, Twin
-from emulator.worldmap import WorldMap, list_maps, load_map
-from firmware_proto.errors import DescriptionError
+from firmware_proto.errors import DescriptionError, MapError
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.plan import COMMAND_NAMES, Plan
+from firmware_proto.pose import Point, Pose
 from firmware_proto.rover import RoverDescription, load_rover
-from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
-from gate.errors import ConfigError, GoalRangeError, OptionError
-from gate.goal import GoalError, approach_heading_rad, goal_error, wrap_deg
-from gate.options import ResolvedOptions
-from gate.trajectory import tag_samples
-from gate.verdict import (
+from firmware_proto.verdict import (
     CollisionReport,
-    Point,
-    Pose,
     Replay,
     StallReport,
     StepPrediction,
     Tolerances,
     Trajectory,
-    TrajectorySample,
     Verdict,
 )
+from firmware_proto.worldmap import WorldMap, list_maps, load_map
+from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
+from gate.ensemble import ChunkJob, DefaultSpread, Spread, chunk_jobs, draw, run_chunk, summarise
+from gate.errors import GateConfigError, GoalRangeError, OptionError
+from gate.goal import GoalError, approach_heading_rad, goal_error
+from gate.options import ResolvedOptions
+from gate.trajectory import tag_samples
 
 __all__ = ["GATE_SEED", "MAX_GOAL_ABS_M", "Job", "Validator", "gate_version", "load_maps"]
 
@@ -66,7 +67,8 @@ MAX_GOAL_ABS_M = 1.0e6
 """Largest goal coordinate accepted, m (1000 km: beyond any map; the schema allows any
 finite number, but the error arithmetic overflows near 1e308)."""
 GATE_SEED = 0
-"""The playback has no randomness; the seed is recorded in every verdict as 0."""
+"""A single playback has no randomness; its verdict records the seed as 0 (a verdict
+with uncertainty records the request's)."""
 
 _DIGITS = 6  # metres (1 um), degrees, seconds (1 us) in the verdict
 _UNIT_DIGITS = 3  # encoder travel, distance units
@@ -92,17 +94,17 @@ def load_maps(default_map: str) -> tuple[dict[str, WorldMap], str]:
     """The shipped maps, plus ``default_map`` when it is a file; and the default's name.
 
     Raises:
-        ConfigError: the default map cannot be loaded, or a file map's name clashes with
+        GateConfigError: the default map cannot be loaded, or a file map's name clashes with
             a different shipped map.
     """
     maps = {name: load_map(name) for name in list_maps()}
     try:
         world = load_map(default_map)
     except MapError as exc:
-        raise ConfigError(f"default map: {exc}") from exc
+        raise GateConfigError(f"default map: {exc}") from exc
     known = maps.get(world.name)
     if known is not None and known.digest() != world.digest():
-        raise ConfigError(
+        raise GateConfigError(
             f"map file {default_map} is named {world.name!r}, like a different shipped map"
         )
     maps[world.name] = world
@@ -130,18 +132,26 @@ class Validator:
         maps: Mapping[str, WorldMap],
         settings: PlaybackSettings,
         default_map: str,
+        *,
+        spread: Spread | None = None,
+        spread_map: str | None = None,
     ) -> None:
         """Args:
         rover: the rover description.
         maps: maps by name.
         settings: playback defaults (``dt_s`` is used for every plan).
         default_map: name of the map used when a request names none.
+        spread: where the twins of a verdict with uncertainty are drawn from: a
+            calibration (:meth:`emulator.calibration.Calibration.sample`); ``None`` for
+            :class:`gate.ensemble.DefaultSpread` around the description's ground.
+        spread_map: the map ``spread``'s region scales belong to (on other maps the
+            drawn grounds' region scales are dropped, as the calibrated twin's are).
 
         Raises:
-            ConfigError: ``default_map`` is not among ``maps``.
+            GateConfigError: ``default_map`` is not among ``maps``.
         """
         if default_map not in maps:
-            raise ConfigError(f"default map {default_map!r} is not among {sorted(maps)}")
+            raise GateConfigError(f"default map {default_map!r} is not among {sorted(maps)}")
         self.rover = rover
         self.maps = dict(maps)
         self.settings = settings
@@ -149,18 +159,21 @@ class Validator:
         self._rover_sha = rover.digest()
         self._map_sha = {name: world.digest() for name, world in self.maps.items()}
         self._version = gate_version()
+        self.spread_name = "default" if spread is None else "calibration"
+        self.spread: Spread = DefaultSpread(Ground.of_rover(rover)) if spread is None else spread
+        self.spread_map = spread_map
 
     @classmethod
     def from_config(cls, config: GateConfig) -> Validator:
         """Load the rover description and the maps a configuration names.
 
         Raises:
-            ConfigError: the rover description or the default map cannot be loaded.
+            GateConfigError: the rover description or the default map cannot be loaded.
         """
         try:
             rover = load_rover(config.rover_path)
         except DescriptionError as exc:
-            raise ConfigError(str(exc)) from exc
+            raise GateConfigError(str(exc)) from exc
         maps, default = load_maps(config.default_map)
         return cls(rover, maps, config.playback, default)
 
@@ -233,6 +246,52 @@ class Validator:
         )
         return replace(verdict, wall_time_s=_r(wall))
 
+    def chunk_jobs(self, job: Job) -> list[ChunkJob]:
+        """The chunks of ``job``'s verdict with uncertainty (``samples`` > 1): its twins
+        drawn (seeded) and split (:mod:`gate.ensemble`), each ready for any worker."""
+        opts = job.options
+        draws = draw(self.spread, opts.samples, opts.seed, opts.slip_sigma)
+        if opts.map != self.spread_map:
+            draws = [replace(d, ground=replace(d.ground, regions=())) for d in draws]
+        return chunk_jobs(
+            self.rover,
+            self.maps[opts.map],
+            job.plan,
+            draws,
+            dt_s=self.settings.dt_s,
+            safety_margin_m=opts.safety_margin_m,
+            start=job.start,
+        )
+
+    def with_uncertainty(
+        self, nominal: Verdict, job: Job, results: Sequence[BatchResult]
+    ) -> Verdict:
+        """``nominal`` (the single playback of ``job``) with the uncertainty its chunks'
+        ``results`` (in chunk order) give."""
+        opts = job.options
+        uncertainty = summarise(
+            results,
+            job.plan,
+            start=job.start,
+            seed=opts.seed,
+            spread=self.spread_name,
+            slip_sigma=opts.slip_sigma,
+            position_tolerance_m=opts.position_tolerance_m,
+            yaw_tolerance_deg=opts.yaw_tolerance_deg,
+        )
+        return replace(nominal, uncertainty=uncertainty)
+
+    def validate_uncertain(self, job: Job) -> Verdict:
+        """:meth:`run` and, for ``samples`` > 1, its chunks one after the other in this
+        thread (``rover gate check``; the server spreads them over its workers)."""
+        t0 = time.perf_counter()
+        nominal = self.run(job)
+        if job.options.samples <= 1:
+            return nominal
+        results = [run_chunk(c) for c in self.chunk_jobs(job)]
+        verdict = self.with_uncertainty(nominal, job, results)
+        return replace(verdict, wall_time_s=_r(time.perf_counter() - t0))
+
     def sample_period_s(self, job: Job) -> float:
         """The trajectory's sample period for ``job``: the requested one, or, when the
         plan's longest possible playback (every step to its time limit, then settling)
@@ -295,17 +354,7 @@ class Validator:
             _r(opts.position_tolerance_m), _r(opts.yaw_tolerance_deg), _r(opts.safety_margin_m)
         )
         failure, failed_step, reason = _classify(plan, collision, stall, err, tol)
-        samples = tuple(
-            TrajectorySample(
-                _r(s.t_s),
-                s.step,
-                _r(s.step_t_s),
-                _r(s.pose.x_m),
-                _r(s.pose.y_m),
-                _r(s.pose.yaw_deg),
-            )
-            for s in tag_samples(result)
-        )
+        samples = tuple(tag_samples(result, _pose, _r))
         plan_blob = json.dumps(plan.to_dict(), sort_keys=True, separators=(",", ":"))
         return Verdict(
             approved=failure is None,
@@ -327,7 +376,7 @@ class Validator:
             trajectory=Trajectory(_r(result.sample_period_s), samples),
             sim_time_s=_r(result.sim_time_s),
             replay=Replay(
-                seed=GATE_SEED,
+                seed=opts.seed if opts.samples > 1 else GATE_SEED,
                 map=opts.map,
                 map_sha256=self._map_sha[opts.map],
                 rover=self.rover.name,

@@ -8,10 +8,13 @@ and :mod:`planner.demo` (subprocesses) are imported from their modules.
 
 from __future__ import annotations
 
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Trajectory, Verdict
 from planner.drift import DriftEvent, DriftMonitor
 from planner.errors import (
-    GateError,
+    GateCallError,
     GateOverloadedError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
     GoalInObstacleError,
@@ -25,14 +28,12 @@ from planner.errors import (
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.experiment import ExperimentResult, run_planning_experiment
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Point, Pose
-from planner.mapinfo import MapInfo
+from planner.geometry import Point
 from planner.mission import MissionReport, MissionRunner, MoveAndWait
 from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
 from planner.planner import HeuristicLowLevelPlanner, LegPlan
 from planner.relay import LinkProfile, LinkRelay
 from planner.repairs import RepairSettings
-from planner.verdict import Trajectory, Verdict
 
 __all__ = [
     "Attempt",
@@ -41,10 +42,11 @@ __all__ = [
     "ExecutionResult",
     "ExecutorConfig",
     "ExperimentResult",
+    "GateCallError",
     "GateClient",
-    "GateError",
     "GateOptions",
     "GateOverloadedError",
+    "GateStatusError",
     "GateTimeoutError",
     "GateUnavailableError",
     "GoalInObstacleError",
@@ -53,7 +55,6 @@ __all__ = [
     "LegPlan",
     "LinkProfile",
     "LinkRelay",
-    "MapInfo",
     "MissionReport",
     "MissionResult",
     "MissionRunner",

@@ -8,8 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.runtime import add_runtime_arguments
+from firmware_proto.cli.runtimeargs import add_runtime_arguments
 from planner.cli_view import add_view_arguments
+from planner.gate_client import add_confidence_arguments, confidence_options
 
 __all__ = ["register"]
 
@@ -83,6 +84,7 @@ def register(subparsers: Any) -> None:
         help="run the emulator and the bridge without real-time scheduling (by default they "
         "ask for it where permitted: docs/realtime.md)",
     )
+    add_confidence_arguments(p)
     add_runtime_arguments(p, 0)
     p.set_defaults(func=_run)
 
@@ -92,12 +94,14 @@ def _run(args: argparse.Namespace) -> int:
     import signal
     import time
 
-    from firmware_proto.runtime import ProcessRuntime, runtime_options
+    from firmware_proto.cli.runtimeargs import runtime_options
+    from firmware_proto.runtime import ProcessRuntime
     from planner.cli_view import view_config
     from planner.demo import Demo, DemoConfig
     from planner.interrupt import CancelOnSignal
     from planner.stallreport import stall_report
 
+    gate_options, max_p = confidence_options(args)
     config = DemoConfig(
         rtt_s=args.rtt,
         speed=args.speed,
@@ -114,6 +118,8 @@ def _run(args: argparse.Namespace) -> int:
         replans=(
             args.replan if args.replan is not None else (4 if args.ground else DemoConfig.replans)
         ),
+        samples=gate_options.samples,
+        max_collision_p=max_p,
     )
     started = time.time()
     with Demo(config, say=functools.partial(print, flush=True)) as demo:

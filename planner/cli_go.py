@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import logging
 import signal
 import sys
 import threading
@@ -16,8 +15,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 from planner.cli_view import add_view_arguments
+from planner.gate_client import add_confidence_arguments, confidence_options
 from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
 __all__ = [
@@ -50,7 +51,7 @@ def parse_pose(text: str) -> Any:
     """
     import math
 
-    from planner.geometry import Pose
+    from firmware_proto.pose import Pose
 
     parts = text.split(",")
     try:
@@ -266,6 +267,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=Path("mission.png"),
         help="PNG of predicted vs actual (default mission.png)",
     )
+    add_confidence_arguments(p)
     add_view_arguments(p, record_default=None)
     add_runtime_arguments(p, 0)
     add_domain_argument(p)
@@ -305,14 +307,15 @@ def register(subparsers: Any) -> None:
 
 
 def _offline_map(name: str | None, exc: Exception) -> Any:
-    """The map for move-and-wait without a gate: ``--map`` must name a map file."""
-    from planner.mapinfo import MapInfo
+    """The map for move-and-wait without a gate: ``--map`` must name a map file (a bare
+    name means the map the gate serves under it, which only the gate knows)."""
+    from firmware_proto.worldmap import load_map
 
     if name is None or not Path(name).is_file():
         raise RuntimeError(
             f"{exc}; --move-and-wait can plan without the gate from a map file: --map FILE.json"
         ) from exc
-    return MapInfo.load(name)
+    return load_map(Path(name))
 
 
 def _wait_for_pose(executor: Any, timeout_s: float, cancel: threading.Event) -> Any:
@@ -460,7 +463,15 @@ def _mission(args: argparse.Namespace) -> int:
             ) as port,
             CancelOnSignal(on_signal) as signals,
         ):
-            orchestrator = PlannerOrchestrator(planner, gate, map_name=args.map, world=world)
+            gate_options, max_p = confidence_options(args)
+            orchestrator = PlannerOrchestrator(
+                planner,
+                gate,
+                map_name=args.map,
+                world=world,
+                options=gate_options,
+                max_collision_p=max_p,
+            )
             executor = PlanExecutor(port, rover, config)
             if args.record:
                 recorder = McapRecorder(args.record)
@@ -566,26 +577,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``rover_executor`` for ``ros2 run`` and launch files: the options of ``rover go``,
     then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``map`` -> ``--map``)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(
         prog="rover_executor", description="Plan, validate and execute a mission."
     )
     add_arguments(parser)
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-    )
-    args = parse_args_with_ros_args(
-        parser, list(sys.argv[1:] if argv is None else argv), "rover_executor"
-    )
-    try:
-        return run(args)
-    except KeyboardInterrupt:  # a second signal: the executor sent STOP on its way out
-        print("rover_executor: interrupted", file=sys.stderr)
-        return 130
-    except Exception as exc:  # one clean line for the operator, whatever the package
-        print(f"rover_executor: error: {exc}", file=sys.stderr)
-        return 1
+    # A Ctrl-C that gets through (a second signal) finds the STOP already sent.
+    return ros_main(parser, run, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

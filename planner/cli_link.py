@@ -6,14 +6,14 @@ Also the ``rover_link`` console script for ``ros2 run`` (:func:`main`).
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
 from collections.abc import Sequence
 from typing import Any
 
-from firmware_proto.runtime import ProcessRuntime, add_runtime_arguments, runtime_options
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime import ProcessRuntime
 
 __all__ = ["add_arguments", "main", "register", "run"]
 
@@ -99,21 +99,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``rover_link`` for ``ros2 run`` and launch files: the options of ``rover link``,
     then optionally ``--ros-args`` (its ``--params-file`` section for the node and
     ``-p name:=value`` stand for the long options: ``rtt`` -> ``--rtt``)."""
-    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+    from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(prog="rover_link", description="Earth-Moon link relay.")
     add_arguments(parser)
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-    )
-    args = parse_args_with_ros_args(
-        parser, list(sys.argv[1:] if argv is None else argv), "rover_link"
-    )
-    try:
-        return run(args)
-    except Exception as exc:  # one clean line for the operator, whatever the package
-        print(f"rover_link: error: {exc}", file=sys.stderr)
-        return 1
+    return ros_main(parser, run, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

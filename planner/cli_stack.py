@@ -47,7 +47,7 @@ def register(subparsers: Any) -> None:
         "stack",
         help="a whole stack that stays up (gate, emulator or device, bridge, link)",
         description="A whole HIL stack that stays up: rover stack up; then rover go, "
-        "rover status, ... against it (README: 'Missions against a stack').",
+        "rover status, ... against it (docs/commands.md: 'Missions against a stack').",
     )
     sub = stack.add_subparsers(dest="stack_command", metavar="ACTION")
     sub.required = True

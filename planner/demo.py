@@ -46,14 +46,14 @@ from bridge.rosport.contract import COMPLETED
 from bridge.rosport.msgs import DiagnosticArray
 from bridge.rosport.qos import DIAGNOSTICS
 from bridge.rosport.rclpy_backend import middleware
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.stall import STALL_LOG_ENV
+from firmware_proto.worldmap import WorldMap
 from planner.domains import claim
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.foxlive import FoxgloveLive
-from planner.gate_client import GateClient
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from planner.gate_client import GateClient, GateOptions
 from planner.mcaprec import McapRecorder
 from planner.mission import MissionReport, MissionRunner
 from planner.orchestrator import MissionResult, PlannerOrchestrator
@@ -103,6 +103,9 @@ class DemoConfig:
         twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
             (``rover gate --twin``) and the planner turns by its turn efficiency.
         replans: drift STOPs after which the mission is re-planned.
+        samples, max_collision_p: approve a plan only if at most ``max_collision_p`` of
+            ``samples`` twins drawn from the gate's uncertainty collide (``None``: the
+            nominal verdict decides).
     """
 
     rtt_s: float = 3.0
@@ -123,6 +126,8 @@ class DemoConfig:
     ground: str | None = None
     twin: Path | None = None
     replans: int = 1
+    samples: int | None = None
+    max_collision_p: float | None = None
 
 
 @dataclass(frozen=True)
@@ -356,6 +361,8 @@ class Demo:
             client,
             map_name=cfg.map_name,
             world=world,
+            options=GateOptions(samples=cfg.samples),
+            max_collision_p=cfg.max_collision_p,
         )
         executor = PlanExecutor(
             port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
@@ -506,8 +513,8 @@ class Demo:
         self.close()
 
 
-def _goal(world: MapInfo, name: str) -> Pose:
-    for goal in world.goals:
-        if goal.name == name:
-            return goal.pose
-    raise ValueError(f"map {world.name!r} has no goal named {name!r}")
+def _goal(world: WorldMap, name: str) -> Pose:
+    try:
+        return world.goal(name).pose
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from exc

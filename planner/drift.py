@@ -25,8 +25,9 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from planner.geometry import Pose, wrap_deg
-from planner.verdict import Verdict
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
+from planner.geometry import wrap_deg
 
 __all__ = ["DriftEvent", "DriftMonitor", "DriftSample", "predicted_pose"]
 

@@ -14,20 +14,24 @@ Everything this package raises on purpose derives from :class:`PlannerError`::
      |                            orchestrator then gives up with this reason)
      +-- UnreachableGoalError     the orchestrator gave up; ``result`` holds every
      |                            attempt, its plan and its verdict, and the reason
-     +-- GateError                the gate answered with an error status (4xx, 5xx):
-     |    |                       ``status``, ``body``, ``code``, ``message``, and for a
-     |    |                       plan that fails the schema its ``violations`` (pointers)
-     |    +-- GateOverloadedError 503 for longer than the call's time budget;
-     |                            ``retry_after_s`` is the gate's last advice
-     +-- GateUnavailableError     no answer at all from the gate at ``url`` after the
-     |    |                       allowed retries (refused, reset, unreachable); also
-     |    |                       ConnectionError
-     |    +-- GateTimeoutError    connected, but no complete answer within the time
-     |                            budget; also TimeoutError
-     +-- GateProtocolError        a success answer that is not the documented JSON
+     +-- GateCallError            reaching the gate failed: one of the three below
+     |    +-- GateStatusError     the gate answered with an error status (4xx, 5xx):
+     |    |    |                  ``status``, ``body``, ``code``, ``message``, and for a
+     |    |    |                  plan that fails the schema its ``violations`` (pointers)
+     |    |    +-- GateOverloadedError  503 for longer than the call's time budget;
+     |    |                       ``retry_after_s`` is the gate's last advice
+     |    +-- GateUnavailableError  no answer at all from the gate at ``url`` after the
+     |    |    |                  allowed retries (refused, reset, unreachable); also
+     |    |    |                  ConnectionError
+     |    |    +-- GateTimeoutError  connected, but no complete answer within the time
+     |    |                       budget; also TimeoutError
+     |    +-- GateProtocolError   a success answer that is not the documented JSON
      +-- DomainBusyError          the ROS domain a stack asked for is held by another
                                   stack on this machine, or none is free; also
                                   RuntimeError
+
+(The gate's own tree, :mod:`gate.errors`, is rooted at ``gate.errors.GateError``: what
+the server raises. These are what a client of it meets.)
 
 Programming errors (wrong types, a closed client) raise the usual built-ins. Errors from
 :mod:`firmware_proto` (a plan that fails its own schema) are translated where they
@@ -38,16 +42,14 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    from planner.orchestrator import MissionResult, PlanResult
+from typing import Any, Protocol
 
 __all__ = [
     "DomainBusyError",
-    "GateError",
+    "GateCallError",
     "GateOverloadedError",
     "GateProtocolError",
+    "GateStatusError",
     "GateTimeoutError",
     "GateUnavailableError",
     "GoalInObstacleError",
@@ -114,15 +116,31 @@ class RepairError(PlannerError):
     """A repair cannot turn this rejection into a new plan (the message says why)."""
 
 
+class GaveUp(Protocol):
+    """What :class:`UnreachableGoalError` holds: an outcome that says why it failed
+    (:class:`~planner.orchestrator.PlanResult` and
+    :class:`~planner.orchestrator.MissionResult` are two; this module imports neither,
+    so that nothing in the planner imports back into its errors)."""
+
+    @property
+    def approved(self) -> bool:
+        """Whether the outcome is an approval (never, when raised)."""
+
+    @property
+    def reason(self) -> str:
+        """Why it was not approved."""
+
+
 class UnreachableGoalError(PlannerError):
     """The orchestrator gave up on a goal.
 
     Attributes:
         result: the :class:`~planner.orchestrator.PlanResult` or
-            :class:`~planner.orchestrator.MissionResult`, with every attempt and verdict.
+            :class:`~planner.orchestrator.MissionResult`, with every attempt and verdict
+            (narrow it with ``isinstance`` to reach them).
     """
 
-    def __init__(self, result: PlanResult | MissionResult) -> None:
+    def __init__(self, result: GaveUp) -> None:
         self.result = result
         super().__init__(result.reason)
 
@@ -135,7 +153,13 @@ def _json_or_none(body: str) -> dict[str, Any] | None:
     return obj if isinstance(obj, dict) else None
 
 
-class GateError(PlannerError):
+class GateCallError(PlannerError):
+    """Reaching the gate failed: it answered an error status
+    (:class:`GateStatusError`), did not answer (:class:`GateUnavailableError`), or
+    answered something other than the documented JSON (:class:`GateProtocolError`)."""
+
+
+class GateStatusError(GateCallError):
     """The gate answered with an error status.
 
     Attributes:
@@ -172,7 +196,7 @@ class GateError(PlannerError):
         return tuple(p for p, _ in self.violations)
 
 
-class GateOverloadedError(GateError):
+class GateOverloadedError(GateStatusError):
     """The gate kept answering 503 (busy or shutting down) past the time budget.
 
     Attributes:
@@ -184,7 +208,7 @@ class GateOverloadedError(GateError):
         super().__init__(status, body, url=url)
 
 
-class GateUnavailableError(PlannerError, ConnectionError):
+class GateUnavailableError(GateCallError, ConnectionError):
     """No answer from the gate.
 
     Attributes:
@@ -221,7 +245,7 @@ class DomainBusyError(PlannerError, RuntimeError):
     (:mod:`planner.domains`)."""
 
 
-class GateProtocolError(PlannerError):
+class GateProtocolError(GateCallError):
     """A success answer that is not the documented JSON.
 
     Attributes:

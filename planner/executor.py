@@ -58,11 +58,12 @@ from bridge.rosport.contract import (
 )
 from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent, DriftMonitor
-from planner.geometry import Pose, wrap_deg
+from planner.geometry import wrap_deg
 from planner.stepwatch import StepWatch
-from planner.verdict import Verdict
 
 __all__ = [
     "ANCHOR_GAP_S",

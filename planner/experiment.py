@@ -29,8 +29,9 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from planner.geometry import Point, Pose, segment_polygon_distance, wrap_deg
-from planner.mapinfo import BOUNDS_ID, MapInfo
+from firmware_proto.geometry import Point, segment_polygon_distance, wrap_deg
+from firmware_proto.pose import Pose
+from firmware_proto.worldmap import BOUNDS_ID, WorldMap
 from planner.orchestrator import MissionResult, PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner, Route
 
@@ -172,7 +173,7 @@ def _rectangle(pose: Pose, half_length_m: float, half_width_m: float) -> list[Po
     ]
 
 
-def _rectangle_hits(world: MapInfo, corners: Sequence[Point], margin_m: float) -> str | None:
+def _rectangle_hits(world: WorldMap, corners: Sequence[Point], margin_m: float) -> str | None:
     xs = [p[0] for p in corners]
     ys = [p[1] for p in corners]
     b = world.bounds
@@ -213,7 +214,7 @@ def _inside_convex(p: Point, corners: Sequence[Point]) -> bool:
 
 
 def footprint_hits(
-    planner: HeuristicLowLevelPlanner, world: MapInfo, route: Route, margin_m: float = 0.0
+    planner: HeuristicLowLevelPlanner, world: WorldMap, route: Route, margin_m: float = 0.0
 ) -> str | None:
     """What the chassis footprint, inflated by ``margin_m``, first hits when it follows
     the planner's ideal path along ``route`` (every step, however many plans it takes),
@@ -249,7 +250,7 @@ def footprint_hits(
 
 
 def trial_goals(
-    world: MapInfo,
+    world: WorldMap,
     planner: HeuristicLowLevelPlanner,
     n: int,
     *,
@@ -276,7 +277,7 @@ def trial_goals(
         x = round(rng.uniform(b.min_x, b.max_x), 2)
         y = round(rng.uniform(b.min_y, b.max_y), 2)
         yaw = float(rng.randrange(-180, 180))
-        if math.dist((x, y), world.start.xy) < min_distance_m:
+        if math.dist((x, y), (world.start.x, world.start.y)) < min_distance_m:
             continue
         if world.point_blocked((x, y), need) is not None:
             continue
@@ -284,12 +285,13 @@ def trial_goals(
     return out
 
 
-def _trial(orchestrator: PlannerOrchestrator, world: MapInfo, name: str, goal: Pose) -> Trial:
+def _trial(orchestrator: PlannerOrchestrator, world: WorldMap, name: str, goal: Pose) -> Trial:
     planner = orchestrator.planner
-    straight = planner.route(world.start, goal, world=world)
+    start = world.start
+    straight = planner.route(start, goal, world=world)
     hit = footprint_hits(planner, world, straight) or ""
     t0 = time.perf_counter()
-    result: MissionResult = orchestrator.plan_mission(goal, start=world.start)
+    result: MissionResult = orchestrator.plan_mission(goal, start=start)
     wall = time.perf_counter() - t0
     first_failure: str | None = None
     intercepted = False
@@ -334,7 +336,7 @@ def run_planning_experiment(
         min_distance_m: least distance of a random goal from the start.
 
     Raises:
-        GateError, GateUnavailableError: the gate failed.
+        GateCallError: the gate failed.
     """
     world = orchestrator.world
     if goals is None:

@@ -1,9 +1,10 @@
 """HTTP client of the simulation gate (the thesis's ``HttpPlanValidator``).
 
 :class:`GateClient` posts plans to ``POST /validate_plan`` and reads the verdict into
-:class:`~planner.verdict.Verdict`; it also reads ``/health``, ``/maps`` and one map
-(:class:`~planner.mapinfo.MapInfo`). Standard library only (``http.client``), one
-keep-alive connection, thread-safe (calls are serialised on it).
+:class:`~firmware_proto.verdict.Verdict` (the model the gate serialises); it also reads
+``/health``, ``/maps`` and one map (:class:`~firmware_proto.worldmap.WorldMap`).
+Standard library only (``http.client``), one keep-alive connection, thread-safe (calls
+are serialised on it).
 
 Failure behaviour, per call (docs/planner.md):
 
@@ -17,7 +18,7 @@ Failure behaviour, per call (docs/planner.md):
 - no answer within the budget: :class:`~planner.errors.GateTimeoutError`;
 - 503 (busy, shutting down): wait ``Retry-After`` and try again while the budget
   allows, then :class:`~planner.errors.GateOverloadedError`;
-- any other 4xx or 5xx: :class:`~planner.errors.GateError` at once, never retried,
+- any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried,
   with the gate's error code, message and, for a plan that fails the schema, the JSON
   pointer of every violation.
 
@@ -38,24 +39,28 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import quote, urlsplit
 
+from firmware_proto.errors import MapError, VerdictError
 from firmware_proto.plan import Plan
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
-    GateError,
     GateOverloadedError,
     GateProtocolError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
 )
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
-from planner.verdict import Verdict
 
 __all__ = [
+    "DEFAULT_CONFIDENCE_SAMPLES",
     "DEFAULT_GATE_URL",
     "ENV_TOKEN",
     "ENV_URL",
     "GateClient",
     "GateOptions",
+    "add_confidence_arguments",
+    "confidence_options",
     "resolve_gate_settings",
 ]
 
@@ -100,6 +105,8 @@ class GateOptions:
         yaw_tol_deg: accepted final yaw error, degrees.
         sample_hz: predicted trajectory rate, Hz.
         render: ask for a PNG of the top-down view (``Verdict.image_png_base64``).
+        samples: also play this many twins drawn from the gate's uncertainty (> 1: the
+            verdict carries ``uncertainty``); ``seed`` seeds their draws.
     """
 
     margin_m: float | None = None
@@ -107,6 +114,8 @@ class GateOptions:
     yaw_tol_deg: float | None = None
     sample_hz: float | None = None
     render: bool = False
+    samples: int | None = None
+    seed: int | None = None
 
     def query_items(self) -> list[tuple[str, str]]:
         """The query parameters these options set."""
@@ -121,7 +130,50 @@ class GateOptions:
                 items.append((name, repr(float(value))))
         if self.render:
             items.append(("render", "1"))
+        for name, count in (("samples", self.samples), ("seed", self.seed)):
+            if count is not None:
+                items.append((name, str(int(count))))
         return items
+
+
+DEFAULT_CONFIDENCE_SAMPLES = 200
+"""Twins a ``--max-collision-p`` check plays when ``--samples`` is not given."""
+
+
+def add_confidence_arguments(p: Any) -> None:
+    """``--max-collision-p P`` and ``--samples N`` of ``rover go`` and ``rover demo``
+    (an :class:`argparse.ArgumentParser`)."""
+    p.add_argument(
+        "--max-collision-p",
+        type=float,
+        metavar="P",
+        help="approve a plan only if at most this fraction of the gate's samples collide "
+        "(twins drawn from its calibration's uncertainty, or its default spread; "
+        f"{DEFAULT_CONFIDENCE_SAMPLES} samples unless --samples): e.g. 0.05",
+    )
+    p.add_argument(
+        "--samples",
+        type=int,
+        metavar="N",
+        help="twins the gate plays each plan on (with --max-collision-p; 2..2000)",
+    )
+
+
+def confidence_options(args: Any) -> tuple[GateOptions, float | None]:
+    """The gate options and the collision threshold ``add_confidence_arguments`` gave.
+
+    Raises:
+        ValueError: ``--samples`` without ``--max-collision-p``, or out of range.
+    """
+    limit: float | None = args.max_collision_p
+    if limit is None:
+        if args.samples is not None:
+            raise ValueError("--samples is for --max-collision-p")
+        return GateOptions(), None
+    samples = DEFAULT_CONFIDENCE_SAMPLES if args.samples is None else args.samples
+    if not 2 <= samples <= 2000 or not 0.0 <= limit <= 1.0:
+        raise ValueError("--samples must be in 2..2000 and --max-collision-p in [0, 1]")
+    return GateOptions(samples=samples), limit
 
 
 def _retry_after_s(value: str | None) -> float:
@@ -233,7 +285,7 @@ class GateClient:
             options: overrides of the gate's tolerances and margin.
 
         Raises:
-            GateError: the gate refused the request (400 with the violations' pointers
+            GateStatusError: the gate refused the request (400 with the violations' pointers
                 for a plan that fails the schema; 400 naming the option for an unknown
                 map or a start outside it; 401...).
             GateOverloadedError, GateUnavailableError, GateTimeoutError: see the module.
@@ -257,7 +309,10 @@ class GateClient:
         if query:
             path += "?" + "&".join(f"{k}={quote(v, safe=',')}" for k, v in query)
         data = self._call("POST", path, body)
-        verdict = Verdict.from_dict(self._json(data))
+        try:
+            verdict = Verdict.from_dict(self._json(data))
+        except VerdictError as exc:
+            raise GateProtocolError(str(exc), exc.pointers) from exc
         logger.debug("verdict for %s: %s", path, verdict.summary())
         return verdict
 
@@ -275,18 +330,21 @@ class GateClient:
             raise GateProtocolError("/maps: not the documented map list", ["/maps"])
         return str(obj.get("default", "")), list(obj["maps"])
 
-    def get_map(self, name: str | None = None) -> MapInfo:
-        """``GET /maps/{name}`` as a :class:`MapInfo`; ``None`` for the default map.
+    def get_map(self, name: str | None = None) -> WorldMap:
+        """``GET /maps/{name}`` as a :class:`WorldMap`; ``None`` for the default map.
 
         Raises:
-            GateError: 404 for an unknown map.
+            GateStatusError: 404 for an unknown map.
+            GateProtocolError: the document is not a valid map (``pointers`` says
+                where).
         """
         if name is None:
             name = self.list_maps()[0]
         obj = self._json(self._call("GET", "/maps/" + quote(name, safe=""), None))
-        if not isinstance(obj, dict):
-            raise GateProtocolError(f"/maps/{name}: not a JSON object")
-        return MapInfo.from_dict(obj)
+        try:
+            return WorldMap.from_dict(obj, f"/maps/{name}")
+        except MapError as exc:
+            raise GateProtocolError(str(exc), [ptr for ptr, _ in exc.violations]) from exc
 
     # -- transport ----------------------------------------------------------------------
     def _json(self, data: bytes) -> Any:
@@ -344,7 +402,7 @@ class GateClient:
                 self._sleep(wait_s)
                 continue
             if status >= 400:
-                raise GateError(status, data.decode("utf-8", "replace"), url=self.url + path)
+                raise GateStatusError(status, data.decode("utf-8", "replace"), url=self.url + path)
             if not 200 <= status < 300:
                 raise GateProtocolError(f"the gate at {self.url} answered {status} to {path}")
             return data

@@ -19,8 +19,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from firmware_proto.pose import Pose
+from firmware_proto.worldmap import WorldMap
 from planner.orchestrator import MissionResult
 
 __all__ = ["MAP_NS", "PLAN_NS", "map_markers", "plan_markers"]
@@ -91,7 +91,7 @@ def _arrow(ns: str, ident: int, stamp: Any, pose: Pose, colour: Any) -> Any:
     return marker
 
 
-def map_markers(world: MapInfo, goal: Pose | None, stamp: Any) -> Any:
+def map_markers(world: WorldMap, goal: Pose | None, stamp: Any) -> Any:
     """The map (see the module docstring) as a ``MarkerArray`` stamped ``stamp``."""
     b = world.bounds
     out: list[Any] = [

@@ -45,11 +45,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from planner.markers import map_markers, plan_markers
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
 __all__ = [
     "MAP_MARKERS_TOPIC",
@@ -231,7 +231,7 @@ def _verdict_json(verdict: Verdict, attempt: int, repair: str) -> str:
                 "y": collision.contact[1],
                 "step": collision.step,
             },
-            "plan_sha256": verdict.plan_sha256,
+            "plan_sha256": verdict.replay.plan_sha256,
         }
     )
 
@@ -250,7 +250,7 @@ def _transform(
     }
 
 
-def _map_metadata(world: MapInfo, goal: Pose | None) -> dict[str, str]:
+def _map_metadata(world: WorldMap, goal: Pose | None) -> dict[str, str]:
     b = world.bounds
     return {
         "name": world.name,
@@ -341,7 +341,7 @@ class McapRecorder:
         port.add_tap(self.tap)
         port.subscribe("diagnostics", DiagnosticArray, lambda _msg: None, qos.DIAGNOSTICS)
 
-    def set_map(self, world: MapInfo, goal: Pose | None) -> None:
+    def set_map(self, world: WorldMap, goal: Pose | None) -> None:
         """Record the map (markers on :data:`MAP_MARKERS_TOPIC`, metadata ``map``)."""
         if self._closed:
             return

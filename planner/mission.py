@@ -26,14 +26,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bridge.rosport.contract import COMPLETED
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.messages import Command
 from firmware_proto.plan import Plan, PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent
 from planner.errors import PlannerError
 from planner.executor import ExecutionResult, PlanExecutor, Progress
-from planner.geometry import Pose, wrap_deg
 from planner.orchestrator import MissionResult, PlannerOrchestrator
-from planner.verdict import Verdict
 
 __all__ = [
     "CANCELLED",
@@ -192,8 +193,8 @@ class MissionRunner:
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal or start.
-            GateError, GateUnavailableError, GateProtocolError: the gate failed on the
-                first planning (nothing was sent to the rover).
+            GateCallError: the gate failed on the first planning (nothing was sent to
+                the rover).
         """
         t0 = time.monotonic()
         start = start or self.orchestrator.world.start

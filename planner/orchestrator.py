@@ -24,13 +24,20 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+from firmware_proto.geometry import Point
 from firmware_proto.plan import Plan
-from planner.errors import PlanTooLongError, RepairError, UnreachableGoalError
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import CollisionReport, Verdict
+from firmware_proto.worldmap import WorldMap
+from planner.errors import (
+    GateProtocolError,
+    PlanTooLongError,
+    RepairError,
+    UnreachableGoalError,
+)
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Point, Pose
-from planner.mapinfo import MapInfo
 from planner.planner import HeuristicLowLevelPlanner, LegPlan, Route
 from planner.repairs import (
     REPAIRS,
@@ -40,7 +47,6 @@ from planner.repairs import (
     RepairFunction,
     RepairSettings,
 )
-from planner.verdict import Verdict
 
 __all__ = ["Attempt", "MissionResult", "PlanResult", "PlannerOrchestrator"]
 
@@ -206,9 +212,14 @@ class PlannerOrchestrator:
         repair_settings: parameters of the repairs.
         repairs: replacements or additions to :data:`REPAIRS`, by failure type
             (``None`` removes one: that failure type then ends the loop).
+        max_collision_p: the highest collision probability accepted: a plan the gate
+            approves on its nominal twin is rejected as a ``collision`` (on the obstacle
+            its samples hit most, at that step) when more of its samples collide.
+            Needs ``options.samples`` > 1; ``None``: the nominal verdict decides.
 
     Raises:
-        ValueError: ``max_attempts`` or ``max_legs`` below 1.
+        ValueError: ``max_attempts`` or ``max_legs`` below 1, or ``max_collision_p``
+            outside [0, 1] or without samples.
     """
 
     def __init__(
@@ -219,10 +230,11 @@ class PlannerOrchestrator:
         map_name: str | None = None,
         max_attempts: int | None = None,
         max_legs: int = DEFAULT_MAX_LEGS,
-        world: MapInfo | None = None,
+        world: WorldMap | None = None,
         options: GateOptions | None = None,
         repair_settings: RepairSettings | None = None,
         repairs: Mapping[str, RepairFunction | None] | None = None,
+        max_collision_p: float | None = None,
     ) -> None:
         attempts = (
             planner.rover.safety.max_repair_attempts if max_attempts is None else max_attempts
@@ -237,6 +249,12 @@ class PlannerOrchestrator:
         self.max_attempts = attempts
         self.max_legs = max_legs
         self.options = options or GateOptions()
+        if max_collision_p is not None:
+            if not 0.0 <= max_collision_p <= 1.0:
+                raise ValueError(f"max_collision_p must be in [0, 1], got {max_collision_p}")
+            if (self.options.samples or 1) < 2:
+                raise ValueError("max_collision_p needs options.samples > 1")
+        self.max_collision_p = max_collision_p
         self.repair_settings = repair_settings or RepairSettings()
         merged = {**REPAIRS, **(repairs or {})}
         self.repairs: dict[str, RepairFunction] = {
@@ -246,11 +264,11 @@ class PlannerOrchestrator:
 
     # -- the map ------------------------------------------------------------------------
     @property
-    def world(self) -> MapInfo:
+    def world(self) -> WorldMap:
         """The map validated on, read from the gate on first use.
 
         Raises:
-            GateError, GateUnavailableError: the gate cannot say.
+            GateCallError: the gate cannot say.
         """
         if self._world is None:
             self._world = self.gate.get_map(self.map_name)
@@ -284,7 +302,7 @@ class PlannerOrchestrator:
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal, start or
                 waypoint (nothing is sent to the gate).
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         return self.plan_route(self._route(goal, start, via))
 
@@ -297,7 +315,7 @@ class PlannerOrchestrator:
         gives up: the loop behind :meth:`plan`, for a leg made (or edited) by hand.
 
         Raises:
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         attempts: list[Attempt] = []
         failures: list[FailureRecord] = []
@@ -374,8 +392,45 @@ class PlannerOrchestrator:
         )
 
     def _validate(self, leg: LegPlan) -> Verdict:
-        return self.gate.validate(
+        verdict = self.gate.validate(
             leg.plan, map_name=self.map_name, start=leg.start, options=self.options
+        )
+        return self._require_confidence(verdict)
+
+    def _require_confidence(self, verdict: Verdict) -> Verdict:
+        """An approved verdict whose samples collide more often than ``max_collision_p``
+        allows, as a rejected ``collision`` on the obstacle hit most (so the dogleg
+        repair moves the route away from it)."""
+        limit = self.max_collision_p
+        u = verdict.uncertainty
+        if limit is None or not verdict.approved:
+            return verdict
+        if u is None:
+            raise GateProtocolError("the gate's verdict carries no uncertainty", ["/uncertainty"])
+        if u.collision_probability <= limit or not u.collisions:
+            return verdict
+        top = u.collisions[0]
+        step = verdict.steps[min(top.step, len(verdict.steps) - 1)]
+        reason = (
+            f"collision probability {u.collision_probability:.3f} over {u.samples} samples "
+            f"is above {limit:g}; most of them touch {top.obstacle_id!r} in step {top.step} "
+            f"({top.count} samples) near ({top.contact.x:.3f}, {top.contact.y:.3f})"
+        )
+        collision = CollisionReport(
+            top.obstacle_id,
+            top.contact,
+            step.end_pose,
+            step.end_time_s,
+            step.index,
+            step.expected_duration_s,
+        )
+        return replace(
+            verdict,
+            approved=False,
+            failure_type="collision",
+            failure_reason=reason,
+            failed_step=step.index,
+            collision=collision,
         )
 
     # -- missions -----------------------------------------------------------------------
@@ -392,7 +447,7 @@ class PlannerOrchestrator:
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad input.
-            GateError, GateUnavailableError, GateProtocolError: the gate failed.
+            GateCallError: the gate failed.
         """
         route = self._route(goal, start, via)
         legs: list[PlanResult] = []

@@ -3,7 +3,7 @@ predicted trajectory (the ghost), the rover's reported trajectory, where drift c
 stopped it (a red octagon, a stop sign), where the gate's rejected plans collided (a
 black X), the goal, a legend and a scale bar.
 
-Drawn with Pillow from the planner's own map data (:class:`~planner.mapinfo.MapInfo`,
+Drawn with Pillow from the planner's own map data (:class:`~firmware_proto.worldmap.WorldMap`,
 as the gate serves it), so the ground station needs neither the twin nor the gate's
 renderer. Pure apart from :func:`save`.
 """
@@ -18,8 +18,8 @@ from typing import Any
 
 from PIL import Image, ImageDraw
 
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from firmware_proto.pose import Pose
+from firmware_proto.worldmap import WorldMap
 from planner.mission import MissionReport
 
 __all__ = ["MissionPicture", "draw", "picture_of", "save"]
@@ -43,7 +43,7 @@ class MissionPicture:
     """What to draw: predicted paths (one per executed plan), the reported trace, the
     drift stops and the goal."""
 
-    world: MapInfo
+    world: WorldMap
     goal: Pose
     start: Pose
     predicted: list[Sequence[Point]] = field(default_factory=list)
@@ -167,7 +167,7 @@ def _pose_mark(
     pen.line([(x, y), tip], fill=colour, width=3)
 
 
-def picture_of(report: MissionReport, world: MapInfo, title: str) -> MissionPicture:
+def picture_of(report: MissionReport, world: WorldMap, title: str) -> MissionPicture:
     """The picture of a mission: each executed plan's ghost, the reported trace, the
     drift stops, and where the rejected attempts collided."""
     ghosts = [

@@ -40,16 +40,17 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+from firmware_proto.geometry import Point, wrap_deg, wrap_rad
 from firmware_proto.plan import MAX_PLAN_STEPS, Goal, Plan, PlanStep
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import BOUNDS_ID, WorldMap
 from planner.errors import (
     GoalInObstacleError,
     InvalidPoseError,
     OutOfBoundsError,
     PlanTooLongError,
 )
-from planner.geometry import Point, Pose, wrap_deg, wrap_rad
-from planner.mapinfo import BOUNDS_ID, MapInfo
 
 __all__ = [
     "CORRECTION",
@@ -189,7 +190,7 @@ class LegPlan:
     @property
     def goal(self) -> Pose:
         """The plan's goal."""
-        return Pose.from_goal(self.plan.goal)
+        return self.plan.goal
 
     @property
     def predicted_end(self) -> Pose:
@@ -205,7 +206,7 @@ def check_pose(
     name: str,
     pose: Pose | Point,
     *,
-    world: MapInfo | None = None,
+    world: WorldMap | None = None,
     body_half_width_m: float = 0.0,
 ) -> None:
     """Refuse a pose the planner cannot aim for.
@@ -275,7 +276,7 @@ class HeuristicLowLevelPlanner:
         self,
         rover: RoverDescription,
         *,
-        world: MapInfo | None = None,
+        world: WorldMap | None = None,
         drive_speed: int = DEFAULT_DRIVE_SPEED,
         approach_speed: int = DEFAULT_APPROACH_SPEED,
         turn_speed: int = DEFAULT_TURN_SPEED,
@@ -327,7 +328,7 @@ class HeuristicLowLevelPlanner:
 
     # -- routes -------------------------------------------------------------------------
     def route(
-        self, start: Pose, goal: Pose, via: Sequence[Point] = (), *, world: MapInfo | None = None
+        self, start: Pose, goal: Pose, via: Sequence[Point] = (), *, world: WorldMap | None = None
     ) -> Route:
         """A checked route.
 

@@ -48,10 +48,12 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
+from firmware_proto.geometry import Point, wrap_deg
 from firmware_proto.plan import PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import BOUNDS_ID, Obstacle, WorldMap
 from planner.errors import RepairError
-from planner.geometry import Point, Pose, wrap_deg
-from planner.mapinfo import BOUNDS_ID, MapInfo, Obstacle
 from planner.planner import (
     CORRECTION,
     GOAL_TURN,
@@ -61,7 +63,6 @@ from planner.planner import (
     PlannedStep,
     Route,
 )
-from planner.verdict import Verdict
 
 __all__ = [
     "REPAIRS",
@@ -266,7 +267,7 @@ class PlannerContext:
     attempt: int
     previous_failures: tuple[FailureRecord, ...]
     history: tuple[Repair, ...]
-    world: MapInfo | None
+    world: WorldMap | None
     settings: RepairSettings
     earlier: tuple[tuple[LegPlan, Verdict], ...] = ()
 

@@ -34,15 +34,12 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from bridge.linktypes import LinkDiagnostics, StatusEvent
 from firmware_proto.messages import Heartbeat, Ident, Status, StepState
 
-if TYPE_CHECKING:
-    from sim.rig import Rig
-
-__all__ = ["RULES", "Ledger", "Violation", "final_checks"]
+__all__ = ["RULES", "Judge", "Ledger", "Violation", "final_checks"]
 
 RULES = (
     "once",
@@ -58,6 +55,13 @@ RULES = (
 """Every invariant by name (docs/sim.md)."""
 
 _FINAL = ("completed", "rejected:", "aborted:", "fault:no_ack")
+
+
+class Judge(Protocol):
+    """What records a violation the moment it happens (:class:`sim.rig.Rig`)."""
+
+    def violate(self, rule: str, text: str) -> None:
+        """Invariant ``rule`` broke now: ``text`` says how."""
 
 
 @dataclass(frozen=True)
@@ -106,7 +110,7 @@ class Ledger:
     _nonce: int | None = None
 
     # -- the controller's side -----------------------------------------------------------
-    def controller_status(self, msg: Status, now: float, rig: Rig) -> None:
+    def controller_status(self, msg: Status, now: float, rig: Judge) -> None:
         """A STATUS the controller sent."""
         if msg.state == StepState.STARTED:
             self.starts[msg.seq] += 1
@@ -132,7 +136,7 @@ class Ledger:
             self._nonce = msg.boot_nonce
             self.expected_reboots += 1
 
-    def status(self, event: StatusEvent, rig: Rig) -> None:
+    def status(self, event: StatusEvent, rig: Judge) -> None:
         """A status the host reported."""
         text = event.text
         self.statuses[text] += 1

@@ -88,13 +88,6 @@ EXTENDED: dict[str, str] = {
         "STOP over SocketCAN: tests/bridge/test_stop_write_path.py and the STOP bench over a "
         "flooded vcan0 (tests/bridge/test_socketcan.py), in the VM"
     ),
-    # The conformance suite: each controller on one medium in the command (the C core
-    # also under ASan and UBSan), the other pairs here.
-    "tests/bridge/test_conformance.py::test_the_emulator_passes_every_rule_over_a_pty[c]": (
-        "the C core passes every rule on a virtual CAN bus and under the sanitizers"
-    ),
-    "tests/bridge/test_conformance.py::test_the_emulator_passes_every_rule_on_a_virtual_can_bus"
-    "[python]": "the Python model passes every rule over a pty",
     # The bridge node over a ROS 2 process: two smoke tests stay (steps, STOP lane).
     "tests/bridge/test_node.py::test_bad_input_is_rejected_precisely_and_nothing_is_sent"
     "[rclpy-process": "the same checks on the in-process backend; the node's checks run "

@@ -22,8 +22,8 @@ from emulator.engine import Emulator
 from emulator.injection import parse_fault
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from emulator.worldmap import load_map
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import load_map
 from planner.executor import ExecutorConfig, PlanExecutor
 from planner.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
 

@@ -13,6 +13,9 @@ deliver no altered frame and recover every intact one.
 within 1.5x of the floor) on every ground: its missions are seeded and driven in lockstep,
 so the figures do not depend on the machine's speed.
 
+``bench_uncertain --quick --no-cluster`` plays its batches and posts its verdicts to
+gates with one and two worker processes (its Dask rows are left out).
+
 Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
 and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
 ``bench_bridge`` talk DDS, so they run only in the private network namespace of
@@ -186,3 +189,14 @@ def test_bench_calibration_quick_cuts_the_error_on_every_ground() -> None:
         assert row["pass"].startswith("yes"), row
         assert float(row["fit driving s"]) <= 60.0
     assert "| loose | turn_efficiency |" in out
+
+
+def test_bench_uncertain_quick_prints_both_tables() -> None:
+    """The local rows only: the Dask cluster's start-up (about 5 s) is the cluster test's
+    business (tests/gate/test_uncertainty.py)."""
+    out = run_benchmark("bench_uncertain", "--quick", "--no-cluster")
+    batch = table_row(out, "| 12-step plan, scn01, 10 ms, one process")
+    assert batch["twins"] == "1" and float(batch["wall p50 s"]) > 0
+    verdicts = table_row(out, "| engine | N |")
+    assert verdicts["engine"] == "local pool, 1 worker" and verdicts["N"] == "1"
+    assert "| local pool, 2 workers | 20 |" in out

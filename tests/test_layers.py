@@ -1,4 +1,4 @@
-"""The arrows between the parts point down (docs/architecture.md; docs/linkio.md, Layers).
+"""The arrows between the parts point down (docs/architecture.md, Parts and layers).
 
 Read from the sources' import statements (every ``import``, at module level or inside a
 function), so a lazy import counts as much as a top-level one:
@@ -16,7 +16,9 @@ function), so a lazy import counts as much as a top-level one:
 - the emulator and the bridge never import each other; the gate imports neither the
   bridge nor the planner; the rover's device tooling (``udev``) imports none of them;
 - the wire simulator (``sim``) sits on top of the bridge and the emulator: it imports
-  both, never the gate, the planner or ``udev``, and no part imports it.
+  both, never the gate, the planner or ``udev``, and no part imports it;
+- no module imports itself back through others: the modules of all seven parts form no
+  import circle (an import for type checking only counts too).
 """
 
 from __future__ import annotations
@@ -121,6 +123,8 @@ def test_a_serial_link_never_loads_python_can() -> None:
         "import sys\n"
         "import bridge.link, bridge.serial_transport, emulator.serial_frontend\n"
         "import firmware_proto.linkio.serial_endpoint, firmware_proto.linkio.replay_peer\n"
+        "import firmware_proto.linkio.host, firmware_proto.linkio.media, emulator.lockstep\n"
+        "import bridge.conformance, bridge.cli_conformance\n"
         "print('can' in sys.modules)\n"
     )
     out = subprocess.run(
@@ -190,3 +194,75 @@ def test_the_planner_uses_only_the_bridges_ros_port() -> None:
         for name, path in _modules("planner").items()
     }
     assert not {k: v for k, v in wrong.items() if v}
+
+
+PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner", "udev", "sim")
+
+
+def _targets(path: Path) -> set[str]:
+    """The modules an import statement in ``path`` loads: ``from a.b import c`` loads
+    module ``a.b.c`` where there is one, else ``a.b`` (its package is loaded either
+    way, but importing from a package is no import of the package's own name)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            for alias in node.names:
+                full = f"{node.module}.{alias.name}"
+                where = ROOT / full.replace(".", "/")
+                is_module = where.is_dir() or where.with_suffix(".py").is_file()
+                names.add(full if is_module else node.module)
+    return names
+
+
+def _circles() -> list[list[str]]:
+    """Every set of two or more of our modules that import each other in a circle."""
+    modules = {name: path for package in PACKAGES for name, path in _modules(package).items()}
+    graph = {
+        name: {target for target in _targets(path) if target in modules and target != name}
+        for name, path in modules.items()
+    }
+    order: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        order[v] = low[v] = len(order)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in order:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], order[w])
+        if low[v] == order[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for name in sorted(graph):
+        if name not in order:
+            visit(name)
+    return found
+
+
+def test_no_import_circle() -> None:
+    assert _circles() == []
+
+
+def test_the_circle_check_sees_a_circle(monkeypatch: pytest.MonkeyPatch) -> None:
+    real = _targets
+
+    def with_a_circle(path: Path) -> set[str]:
+        extra = {"planner.orchestrator"} if path == ROOT / "planner" / "errors.py" else set()
+        return real(path) | extra
+
+    monkeypatch.setattr(sys.modules[__name__], "_targets", with_a_circle)
+    assert any("planner.errors" in c and "planner.orchestrator" in c for c in _circles())

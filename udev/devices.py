@@ -722,7 +722,7 @@ def inventory(
     """Gather everything ``rover devices`` shows; ``source`` is our ``udev/`` directory
     (None: report devices without rule verdicts)."""
     sources = _load_sources(source)
-    problems = tuple(str(i) for s in sources for i in s.parsed.issues if i.severity == "error")
+    problems = tuple(str(i) for s in sources for i in s.parsed.issues)
     ports, hidden = list_serial_ports(comports, by_id_dir=by_id_dir, sys_class_tty=sys_class_tty)
     port_reports = tuple(
         PortReport(

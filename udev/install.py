@@ -11,9 +11,10 @@ The pinned rules carry placeholders (:data:`PLACEHOLDER_SERIAL`,
 :data:`PLACEHOLDER_USB_PORT`) that the lab edits in the source, or that ``--serial`` and
 ``--usb-port`` fill in the installed copy.
 
-Installing is all or nothing: :func:`plan_install` checks everything first (the rules
-pass :mod:`udev.rules`'s checker, the target directories are writable, udevadm is
-there and we are root when a reload is wanted) and lists the problems;
+Installing is all or nothing: :func:`plan_install` checks everything first (udev itself
+finds nothing wrong with the rules as they would be installed, placeholders filled:
+:mod:`udev.verify`; the target directories are writable, udevadm is there and we are
+root when a reload is wanted) and lists the problems;
 :func:`execute` refuses a plan with problems, stages every file next to its target, then
 renames them into place, and on any failure removes what it wrote and restores what it
 replaced. Reloading comes after the files are in place; if it fails the files stay (they
@@ -36,7 +37,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from udev.rules import UdevError, parse_rules
+from udev.errors import UdevError
+from udev.verify import CheckUnavailableError, verify_rules
 
 __all__ = [
     "BENCH_SUFFIX",
@@ -252,6 +254,31 @@ def _nearest_existing(path: Path) -> Path:
     return path
 
 
+def _udev_check(
+    rules: Sequence[tuple[SourceFile, str]], udevadm: str | None, notes: list[str]
+) -> list[str]:
+    """What udev finds wrong with ``rules`` as they would be installed (their text with
+    the placeholders filled), one ``FILE:LINE: message`` each, named by the source file.
+    Where udev cannot check them here, a note says so and nothing is a problem."""
+    if not rules:
+        return []
+    if udevadm is None:
+        notes.append("the rules were not checked by udev here: udevadm not found")
+        return []
+    with tempfile.TemporaryDirectory(prefix="rover-udev-install-") as tmp:
+        staged = {}
+        for src, text in rules:
+            path = Path(tmp, src.name)
+            path.write_text(text, encoding="utf-8")
+            staged[str(path)] = str(src.path)
+        try:
+            result = verify_rules(list(map(Path, staged)), udevadm=udevadm)
+        except CheckUnavailableError as exc:
+            notes.append(f"the rules were not checked by udev here: {exc}")
+            return []
+    return [f"{staged.get(f.path, f.path)}:{f.line}: {f.message}" for f in result.findings]
+
+
 def plan_install(
     *,
     source: str | Path | None = None,
@@ -285,6 +312,7 @@ def plan_install(
     problems: list[str] = []
     notes: list[str] = []
     files: list[FileAction] = []
+    to_check: list[tuple[SourceFile, str]] = []
     for src in wanted:
         target_dir = rules_dir if src.kind == "rules" else network_dir
         text = src.path.read_text(encoding="utf-8")
@@ -293,8 +321,7 @@ def plan_install(
                 text = fill_placeholders(text, serial, usb_port)
             except ValueError as exc:
                 raise InstallError(str(exc)) from None
-            parsed = parse_rules(text, str(src.path))
-            problems.extend(str(issue) for issue in parsed.issues)
+            to_check.append((src, text))
             if PLACEHOLDER_SERIAL in text:
                 notes.append(
                     f"{src.name} still has {PLACEHOLDER_SERIAL}: its rules pinned by serial "
@@ -324,6 +351,7 @@ def plan_install(
         else:
             state = "new"
         files.append(FileAction(src.path, target, content, state))
+    problems.extend(_udev_check(to_check, which("udevadm"), notes))
 
     mkdirs: list[Path] = []
     root = euid() == 0

@@ -1,13 +1,17 @@
 """What a conformance rule works with: the wire host, the device's control port if any,
-fresh sequence numbers and stop ids, and the steps every rule shares (handshake, clear
-the latch, wait for the controller to be idle)."""
+the rover description the controller drives, fresh sequence numbers and stop ids, and
+the steps every rule shares (handshake, clear the latch, wait for the controller to be
+idle).
+
+Every wait goes through the host, and so through its clock: a rule is the same code in
+real time and in lockstep (virtual time, :mod:`firmware_proto.linkio.clock`)."""
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import Any, Protocol
 
-from bridge.conformance.control import ControlClient
 from bridge.conformance.host import WireHost
 from bridge.errors import RuleFailedError, RuleNotRunError
 from firmware_proto.messages import (
@@ -18,6 +22,7 @@ from firmware_proto.messages import (
     ClearResult,
     ClearStop,
     ControllerState,
+    Encoders,
     Heartbeat,
     Hello,
     Ident,
@@ -26,10 +31,14 @@ from firmware_proto.messages import (
     ParamValue,
     SetParam,
 )
+from firmware_proto.rover import RoverDescription, load_rover
 
-__all__ = ["Context", "check"]
+__all__ = ["REST_UNITS", "Context", "Control", "check"]
 
 logger = logging.getLogger(__name__)
+
+REST_UNITS = 3
+"""Encoder counts that move less than this between two ENCODERS are at rest."""
 
 
 def check(condition: bool, what: str) -> None:
@@ -42,12 +51,37 @@ def check(condition: bool, what: str) -> None:
         raise RuleFailedError(what)
 
 
+class Control(Protocol):
+    """A device's control port: what makes it do what a host cannot cause.
+    :class:`~bridge.conformance.control.ControlClient` speaks to one over TCP; an
+    in-process controller in lockstep offers the same ``inject``."""
+
+    def inject(self, fault: str) -> dict[str, Any]:
+        """Do ``fault`` now (``reboot``, ``encoder-dropout:left``, ``clear:stall``...).
+
+        Raises:
+            ConformanceError or InjectionError: refused, or the port failed.
+        """
+
+
 class Context:
     """One controller under test; shared by the rules of one run."""
 
-    def __init__(self, host: WireHost, control: ControlClient | None = None) -> None:
+    def __init__(
+        self,
+        host: WireHost,
+        control: Control | None = None,
+        rover: RoverDescription | None = None,
+    ) -> None:
+        """Args:
+        host: the open wire host.
+        control: the device's control port, if it has one.
+        rover: the rover description the controller drives (its acceleration limit,
+            units and speed scale); default: the packaged one.
+        """
         self.host = host
         self.control = control
+        self.rover = rover or load_rover()
         self._seq = 0x4000
         self._stop_id = 0x7000
         self._watchdog_ms: int | None = None
@@ -62,7 +96,7 @@ class Context:
         self._stop_id = self._stop_id % 0xFFFF + 1
         return self._stop_id
 
-    def require_control(self, what: str) -> ControlClient:
+    def require_control(self, what: str) -> Control:
         """The control port, for a rule that needs the device to ``what``.
 
         Raises:
@@ -84,7 +118,7 @@ class Context:
         """HELLO with our version and schema hash; the IDENT, checked to match, and a
         HEARTBEAT with ``handshake_ok`` 1 after it."""
         mark = self.host.send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-        ident = self.host.expect(Ident, "IDENT in answer to HELLO", since=mark)
+        ident = self.host.expect(Ident, since=mark, what="IDENT in answer to HELLO")
         check(
             (ident.protocol_version, ident.schema_hash) == (PROTOCOL_VERSION, SCHEMA_HASH),
             f"IDENT v{ident.protocol_version}/0x{ident.schema_hash:04X} does not match this "
@@ -96,13 +130,7 @@ class Context:
     def clear(self, expected: int = ClearResult.CLEARED) -> ClearAck:
         """CLEAR_STOP; its CLEAR_ACK, checked to answer ``expected``."""
         clear_id = self.stop_id()
-        mark = self.host.send(ClearStop(clear_id))
-        ack = self.host.expect(
-            ClearAck,
-            f"CLEAR_ACK for stop_id {clear_id}",
-            since=mark,
-            where=lambda a: a.stop_id == clear_id,
-        )
+        ack = self.clear_ack(clear_id)
         check(
             ack.result == expected,
             f"CLEAR_STOP answered {ClearResult(ack.result).name}, expected "
@@ -110,24 +138,54 @@ class Context:
         )
         return ack
 
+    def clear_ack(self, clear_id: int) -> ClearAck:
+        """CLEAR_STOP ``clear_id``; its CLEAR_ACK, whatever it says."""
+        mark = self.host.send(ClearStop(clear_id))
+        return self.host.expect(
+            ClearAck,
+            lambda a: a.stop_id == clear_id,
+            since=mark,
+            what=f"CLEAR_ACK for stop_id {clear_id}",
+        )
+
     def prepare(self) -> Heartbeat:
-        """A fresh session with no latch and nothing queued: HELLO (aborts whatever ran),
-        CLEAR_STOP if latched, then a HEARTBEAT showing IDLE. Fails the rule if the
-        controller cannot get there (a fault whose condition persists)."""
+        """A fresh session with no latch and nothing queued, the wheels at rest: HELLO
+        (aborts whatever ran), CLEAR_STOP if latched, a HEARTBEAT showing IDLE, two
+        ENCODERS in a row that did not count. Fails the rule if the controller cannot
+        get there (a fault whose condition persists, wheels that do not stop)."""
         self.handshake()
         hb = self.host.heartbeat()
         if hb.stop_latched:
-            clear_id = self.stop_id()
-            mark = self.host.send(ClearStop(clear_id))
-            ack = self.host.expect(
-                ClearAck, "CLEAR_ACK", since=mark, where=lambda a: a.stop_id == clear_id
-            )
+            ack = self.clear_ack(self.stop_id())
             check(
                 ack.result != ClearResult.FAULT_PERSISTS,
                 "the controller is latched with an active stopping fault (CLEAR_STOP "
                 f"answered FAULT_PERSISTS; fault_bits 0x{hb.fault_bits:02X}): clear it first",
             )
-        return self.idle()
+        idle = self.idle()
+        self.at_rest()
+        return idle
+
+    def at_rest(self, timeout_s: float = 3.0) -> Encoders:
+        """The first ENCODERS from now on whose counts moved less than
+        :data:`REST_UNITS` on each side since the one before."""
+        previous: list[Encoders] = []
+
+        def still(e: Encoders) -> bool:
+            last = previous[0] if previous else None
+            previous[:] = [e]
+            return last is not None and all(
+                abs(((b - a + (1 << 23)) % (1 << 24)) - (1 << 23)) < REST_UNITS
+                for a, b in ((last.left, e.left), (last.right, e.right))
+            )
+
+        return self.host.expect(
+            Encoders,
+            still,
+            since=self.host.mark(),
+            timeout_s=timeout_s,
+            what="two ENCODERS in a row that did not count (the wheels at rest)",
+        )
 
     def idle(self, timeout_s: float = 3.0) -> Heartbeat:
         """The first HEARTBEAT that shows IDLE, unlatched, nothing queued."""
@@ -139,12 +197,12 @@ class Context:
 
     def param(self, param: int, value: int) -> ParamValue:
         """SET_PARAM; its PARAM_VALUE (param echoed)."""
-        mark = self.host.send_unchecked(SetParam(param, value))
+        mark = self.host.send(SetParam(param, value), strict=False)
         return self.host.expect(
             ParamValue,
-            f"PARAM_VALUE for param {param}",
+            lambda p: p.param == param,
             since=mark,
-            where=lambda p: p.param == param,
+            what=f"PARAM_VALUE for param {param}",
         )
 
     def watchdog_ms(self) -> int:

@@ -19,6 +19,7 @@ from bridge.conformance.context import Context
 from bridge.conformance.host import FrameRecord
 from bridge.conformance.rules import RULES, Rule
 from bridge.errors import ConformanceError, RuleFailedError, RuleNotRunError
+from firmware_proto.linkio.errors import ExpectationError, LinkError
 
 __all__ = ["Outcome", "RuleResult", "exit_status", "run_suite", "select_rules"]
 
@@ -83,12 +84,14 @@ def _run_one(ctx: Context, rule: Rule) -> RuleResult:
     try:
         try:
             ctx.prepare()
-        except RuleFailedError as exc:
+        except (RuleFailedError, ExpectationError) as exc:
             raise RuleFailedError(f"could not start from a fresh session: {exc}") from exc
         outcome, detail = Outcome.PASS, rule.run(ctx)
     except RuleNotRunError as exc:
         outcome, detail = Outcome.NOT_RUN, str(exc)
-    except ConformanceError as exc:  # RuleFailedError, or a control port that failed
+    except (ConformanceError, ExpectationError, LinkError) as exc:
+        # A check that failed, an answer that did not come (or came and must not), a
+        # control port or a link that failed.
         outcome, detail = Outcome.FAIL, str(exc)
     frames, samples = host.take_log()
     return RuleResult(rule, outcome, detail, frames, samples, time.monotonic() - started)

@@ -5,7 +5,7 @@ Python's interpreter lock, and Fast DDS publishes on the caller's thread (Jazzy'
 default, synchronous). When such a call blocks, every thread of the process stops with
 it. In the bridge that was the controller link: heartbeats, STOP, the reader. A publish of
 ``/odom`` was caught blocking for 340 ms and then 354 ms inside the demo, and the motor
-controller's 250 ms watchdog stopped the rover (README, "Fixed defect").
+controller's 250 ms watchdog stopped the rover (CHANGELOG.md, Fixed).
 Here the nodes live in other processes, so no middleware call can stop the link's threads.
 
 What the caller sees is a :class:`~bridge.rosport.port.RosPort` like any other: the same

@@ -45,6 +45,7 @@ from bridge.rosport.port import DEFAULT_LANE, STOP_LANE, Publisher, Subscription
 from bridge.rosport.process_backend import REQUEST_TIMEOUT_S
 from bridge.rosport.rclpy_backend import RclpyPort, middleware
 from firmware_proto.runtime.realtime import STOP_CHILD_PRIORITY, RealtimeConfig, apply_realtime
+from firmware_proto.runtime.stall import StallMonitor, stall_log_path
 
 __all__ = ["Child", "main", "message_type"]
 
@@ -87,6 +88,15 @@ class Child:
             return 1
         self._lane = STOP_LANE if stop_only else DEFAULT_LANE
         _schedule(stop_only)
+        # Its stalls (a middleware call holding the interpreter lock) are logged and go
+        # to the stack's stall log under the node's name (docs/realtime.md, Stalls).
+        monitor = StallMonitor(node_name, log_path=stall_log_path())
+        with monitor:
+            return self._serve(namespace, node_name, domain_id, args, stop_only)
+
+    def _serve(
+        self, namespace: str, node_name: str, domain_id: int | None, args: Any, stop_only: bool
+    ) -> int:
         try:
             port = RclpyPort(
                 namespace=namespace,

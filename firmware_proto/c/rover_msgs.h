@@ -3,7 +3,7 @@
 
 /**
  * @file rover_msgs.h
- * @brief Messages of the rover motor-controller protocol, version 2.
+ * @brief Messages of the rover motor-controller protocol, version 3.
  *
  * Payloads are bit-packed least significant bit first, little-endian (DBC Intel);
  * fields hold raw integers (docs/protocol.md gives units and scales). Every
@@ -24,8 +24,8 @@ extern "C" {
 
 /* ------------------------------------------------------------ protocol constants */
 
-#define RP_PROTOCOL_VERSION 2u /**< sent in HELLO and IDENT */
-#define RP_SCHEMA_HASH 0x42A2u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
+#define RP_PROTOCOL_VERSION 3u /**< sent in HELLO and IDENT */
+#define RP_SCHEMA_HASH 0x7193u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
 #define RP_MAX_PAYLOAD_BYTES 8u /**< largest payload (one classic CAN frame) */
 #define RP_DELIMITER 0x00u /**< serial frame delimiter */
 #define RP_CAN_NODE_BITS 4u /**< CAN identifier = id << RP_CAN_NODE_BITS | node */

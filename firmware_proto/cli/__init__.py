@@ -8,11 +8,13 @@ status. Register functions must import nothing heavy at module level, so that
 
 The command host and the command-line helpers every program shares (``rover frame``,
 ``rover replay``, the ROS 2 tail of a command line: :mod:`firmware_proto.cli.rosargs`,
-:mod:`firmware_proto.cli.rosparams`) form this sub-package of :mod:`firmware_proto`,
-apart from the pure protocol: it is the one place below the emulator, the bridge, the
-gate and the planner, which all plug into it (the repository's top-level layout is
-fixed). It discovers them by entry point and never imports them; nothing in
-``firmware_proto`` outside it imports it (docs/linkio.md, Layers).
+:mod:`firmware_proto.cli.rosparams`; the ``main()`` of every program ``ros2 run``
+starts: :mod:`firmware_proto.cli.program`) form this sub-package of
+:mod:`firmware_proto`, apart from the pure protocol: it is the one place below the
+emulator, the bridge, the gate and the planner, which all plug into it (the
+repository's top-level layout is fixed). It discovers them by entry point and never
+imports them; nothing in ``firmware_proto`` outside it imports it
+(docs/architecture.md, Parts and layers).
 
 A subcommand whose positional arguments may also follow its options sets
 ``intermixed`` to their destination (``rover frame encode MOTION --can 1 seq=1``).
@@ -30,6 +32,8 @@ import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import Any
+
+from firmware_proto.cli.program import configure_logging, error_text
 
 __all__ = ["ENTRY_POINT_GROUP", "build_parser", "main"]
 
@@ -74,13 +78,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _configure_logging(verbosity: int) -> None:
-    level = logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
-    logging.basicConfig(
-        level=level, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr
-    )
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``rover`` command line; returns the process exit status."""
     parser = build_parser()
@@ -93,7 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         getattr(args, into).extend(extra)
     elif extra:
         parser.parse_args(argv)  # reports the unrecognised arguments; exit status 2
-    _configure_logging(args.verbose)
+    verbosity: int = args.verbose
+    configure_logging(
+        logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
+    )
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return int(func(args) or 0)
@@ -111,11 +111,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         # operator gets one clean line, and the traceback with -vv.
         if args.verbose >= 2:
             logger.exception("rover %s failed", args.command)
-        name = (
-            ""
-            if isinstance(exc, (OSError, ValueError, RuntimeError))
-            else f"{type(exc).__name__}: "
-        )
         hint = "" if args.verbose >= 2 else " (run with -vv for details)"
-        print(f"rover {args.command}: error: {name}{exc}{hint}", file=sys.stderr)
+        print(f"rover {args.command}: error: {error_text(exc)}{hint}", file=sys.stderr)
         return 1

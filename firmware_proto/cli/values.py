@@ -16,6 +16,8 @@ Limits:
 - TCP port: 0..65535 where 0 lets the system pick one (:func:`tcp_port`), 1..65535
   where a port to connect to is named (:func:`host_port`);
 - ROS domain id: 0..232 (the range ROS 2 documents for Fast DDS on Linux);
+- real-time priority: 0..99 (0: none; Linux's SCHED_RR/SCHED_FIFO range);
+- nice: 0..19 (a program may always lower its own priority);
 - durations and rates: finite numbers, positive or non-negative as the option says.
 """
 
@@ -43,7 +45,9 @@ __all__ = [
     "non_negative_int",
     "positive",
     "positive_int",
+    "rt_priority",
     "tcp_port",
+    "yielding_nice",
 ]
 
 BAUD_RANGE = (50, 4_000_000)
@@ -95,6 +99,16 @@ def tcp_port(text: str) -> int:
 def domain_id(text: str) -> int:
     """A ROS 2 domain id, in :data:`DOMAIN_RANGE`."""
     return _integer(text, "ROS domain id", *DOMAIN_RANGE)
+
+
+def rt_priority(text: str) -> int:
+    """A real-time priority, 1..99, or 0 for normal scheduling (docs/realtime.md)."""
+    return _integer(text, "real-time priority", 0, 99, unit="0: normal scheduling")
+
+
+def yielding_nice(text: str) -> int:
+    """A nice value a program may set without privilege: 0..19."""
+    return _integer(text, "nice", 0, 19)
 
 
 def host_port(text: str) -> tuple[str, int]:

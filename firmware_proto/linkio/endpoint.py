@@ -149,6 +149,10 @@ class Endpoint(ABC):
         """Acquire the medium. Raises OSError (or a subclass) when it cannot be had."""
         self._open()
 
+    def restart_counter(self) -> None:  # noqa: B027 (a hook: most media have no counter)
+        """The sender rebooted: its frame counter starts again at 0 (docs/protocol.md,
+        Serial framing). Media without a frame counter (CAN) have nothing to do."""
+
     def close(self) -> None:
         """Release the medium (idempotent)."""
         self._close()
@@ -167,6 +171,32 @@ class Endpoint(ABC):
         Raises:
             OSError: the medium is gone (device unplugged, bus off on the host side).
         """
+
+    def read_numbered(self, timeout_s: float) -> list[tuple[Message, int | None]]:
+        """Like :meth:`read`, each message with the sender's frame counter: the serial
+        frame's ``seq``, or ``None`` on a medium without one (CAN)."""
+        return [(message, None) for message in self.read(timeout_s)]
+
+    def read_ready(self) -> list[tuple[Message, int | None]]:
+        """Everything that has arrived, without waiting (:meth:`read_numbered` with no
+        timeout until the endpoint counts nothing new: a CAN read takes one frame at a
+        time, and a frame that is not for us returns nothing but still counts).
+
+        Raises:
+            OSError: the medium is gone.
+        """
+        out: list[tuple[Message, int | None]] = []
+        while True:
+            before = self._rx_progress()
+            got = self.read_numbered(0.0)
+            if got:
+                out += got
+            elif self._rx_progress() == before:
+                return out
+
+    def _rx_progress(self) -> tuple[int, ...]:
+        c = self.counters
+        return (c.bytes, c.frames, c.rejected, self.foreign, self.medium_errors)
 
     @abstractmethod
     def write(self, message: Message, *, corrupt: random.Random | None = None) -> bool:

@@ -35,7 +35,7 @@ from typing import Protocol
 
 import serial
 
-from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.framing import Frame, FrameDecoder, FrameEncoder
 from firmware_proto.linkio.endpoint import Endpoint, Side
 from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.linkio.trafficlog import (
@@ -271,7 +271,7 @@ class SerialEndpoint(Endpoint):
         if port is not None:
             port.close()
 
-    def read(self, timeout_s: float) -> list[Message]:
+    def _frames(self, timeout_s: float) -> list[Frame]:
         port = self._port
         if port is None:
             raise OSError(errno.EBADF, f"{self._name or 'serial port'} is closed")
@@ -282,7 +282,20 @@ class SerialEndpoint(Endpoint):
         if frames and self.recording:
             for record in received_serial_records(frames, time.time()):
                 self._emit(record)
-        return [frame.message for frame in frames]
+        return frames
+
+    def read(self, timeout_s: float) -> list[Message]:
+        return [frame.message for frame in self._frames(timeout_s)]
+
+    def read_numbered(self, timeout_s: float) -> list[tuple[Message, int | None]]:
+        return [(frame.message, frame.seq) for frame in self._frames(timeout_s)]
+
+    def read_ready(self) -> list[tuple[Message, int | None]]:
+        """One read without waiting: a byte port returns every byte it has."""
+        return self.read_numbered(0.0)
+
+    def restart_counter(self) -> None:
+        self._encoder = FrameEncoder()
 
     def encode(self, message: Message, *, corrupt: random.Random | None = None) -> bytes:
         """The frame of ``message``, with one bit flipped by ``corrupt`` if given."""

@@ -6,12 +6,7 @@ A layer beside the pure protocol, like :mod:`firmware_proto.linkio` and
 modules never import it; every part above may.
 """
 
-from firmware_proto.runtime.process import (
-    ProcessRuntime,
-    RuntimeOptions,
-    add_runtime_arguments,
-    runtime_options,
-)
+from firmware_proto.runtime.process import ProcessRuntime, RuntimeOptions
 from firmware_proto.runtime.realtime import RealtimeConfig, RealtimeStatus, apply_realtime
 from firmware_proto.runtime.stall import (
     Beat,
@@ -30,10 +25,8 @@ __all__ = [
     "RuntimeOptions",
     "StallMonitor",
     "StallRecord",
-    "add_runtime_arguments",
     "apply_realtime",
     "describe_stalls",
     "read_stalls",
-    "runtime_options",
     "stall_log_path",
 ]

@@ -5,12 +5,11 @@ Every program that runs for the length of a mission (``rover bridge``, ``rover e
 :class:`ProcessRuntime` first thing in its ``main``: the programs that must keep time ask
 for real-time scheduling (:mod:`firmware_proto.runtime.realtime`), and every one
 watches itself for stalls (:mod:`firmware_proto.runtime.stall`). The command-line
-options are the same everywhere (:func:`add_runtime_arguments`).
+options are the same everywhere (:mod:`firmware_proto.cli.runtimeargs`).
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 import signal
@@ -30,10 +29,9 @@ from firmware_proto.runtime.stall import (
     StallMonitor,
     all_stacks,
     install,
-    stall_log_path,
 )
 
-__all__ = ["ProcessRuntime", "RuntimeOptions", "add_runtime_arguments", "runtime_options"]
+__all__ = ["ProcessRuntime", "RuntimeOptions"]
 
 logger = logging.getLogger(__name__)
 
@@ -60,95 +58,6 @@ class RuntimeOptions:
     stall_log: Path | None = None
     short_switch: bool = False
     nice: int = 0
-
-
-def _priority(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer 0..99, got {text!r}") from None
-    if not 0 <= value <= 99:
-        raise argparse.ArgumentTypeError(f"expected 0..99, got {value}")
-    return value
-
-
-def _stall_ms(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected milliseconds > 0, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected milliseconds > 0, got {text}")
-    return value
-
-
-def _nice(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer 0..19, got {text!r}") from None
-    if not 0 <= value <= 19:
-        raise argparse.ArgumentTypeError(f"expected 0..19, got {value}")
-    return value
-
-
-def add_runtime_arguments(parser: argparse.ArgumentParser, default_priority: int) -> None:
-    """``--rt-priority N`` / ``--no-realtime`` where ``default_priority`` > 0 (a program
-    that keeps time), else ``--nice N``; and ``--stall-ms MS``."""
-    group = parser.add_argument_group("scheduling (docs/realtime.md)")
-    if default_priority == 0:
-        group.add_argument(
-            "--nice",
-            type=_nice,
-            default=0,
-            metavar="N",
-            help="run at nice N, 0..19 (default 0), yielding the CPU to the programs that "
-            "keep time",
-        )
-    if default_priority > 0:
-        group.add_argument(
-            "--rt-priority",
-            type=_priority,
-            default=None,
-            metavar="N",
-            help=f"real-time priority 1..99 (SCHED_RR, memory locked) where permitted "
-            f"(default {default_priority}; 0 = off); without "
-            "permission the program says so once and runs at normal priority",
-        )
-        group.add_argument(
-            "--no-realtime",
-            dest="rt_priority",
-            action="store_const",
-            const=0,
-            help="normal scheduling (the same as --rt-priority 0)",
-        )
-    group.add_argument(
-        "--stall-ms",
-        type=_stall_ms,
-        default=DEFAULT_STALL_THRESHOLD_S * 1e3,
-        metavar="MS",
-        help="log a stall of this program or its loops longer than MS with its stack "
-        f"(default {DEFAULT_STALL_THRESHOLD_S * 1e3:.0f}); shared stall log: "
-        "$ROVER_STALL_LOG",
-    )
-
-
-def runtime_options(
-    args: argparse.Namespace, name: str, default_priority: int = 0
-) -> RuntimeOptions:
-    """The options :func:`add_runtime_arguments` parsed; a program with a default
-    priority keeps time (short interpreter switch interval too)."""
-    priority = getattr(args, "rt_priority", None)
-    if priority is None:
-        priority = default_priority
-    return RuntimeOptions(
-        name=name,
-        priority=priority,
-        stall_threshold_s=getattr(args, "stall_ms", DEFAULT_STALL_THRESHOLD_S * 1e3) / 1e3,
-        stall_log=stall_log_path(),
-        short_switch=default_priority > 0,
-        nice=getattr(args, "nice", 0),
-    )
 
 
 def _dump_stacks(signum: int, frame: FrameType | None) -> None:

@@ -45,11 +45,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from firmware_proto.geometry import wrap_deg
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from planner.executor import Progress
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
 from planner.orchestrator import MissionResult
-from planner.verdict import Verdict
 
 __all__ = [
     "INBOX_LEN",
@@ -122,7 +123,7 @@ def _record(name: str, data: dict[str, Any]) -> bytes:
     return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
 
 
-def _map_json(world: MapInfo) -> dict[str, Any]:
+def _map_json(world: WorldMap) -> dict[str, Any]:
     b = world.bounds
     return {
         "name": world.name,
@@ -149,6 +150,13 @@ def _plan_json(planning: int, index: int, repair: str, verdict: Verdict) -> dict
         "summary": verdict.summary(),
         "path": [[round(s.pose.x, 4), round(s.pose.y, 4)] for s in verdict.trajectory.samples],
         "collision": None if c is None else [c.contact[0], c.contact[1]],
+        # With the gate's uncertainty: where the samples are (the level's ellipses along
+        # each step: x, y, semi-axes m, angle deg) and how many of them collided.
+        "envelope": [
+            [p.pose.x, p.pose.y, p.major_m, p.minor_m, p.angle_deg]
+            for p in (verdict.uncertainty.envelope if verdict.uncertainty else ())
+        ],
+        "collision_p": (verdict.uncertainty.collision_probability if verdict.uncertainty else None),
     }
 
 
@@ -176,7 +184,7 @@ class ViewHub:
 
     def __init__(
         self,
-        world: MapInfo,
+        world: WorldMap,
         *,
         rtt_s: float = 3.0,
         time_scale: float = 1.0,
@@ -404,7 +412,7 @@ class ViewHub:
         pose = Pose(
             m.x + dx * math.cos(dyaw) - dy * math.sin(dyaw),
             m.y + dx * math.sin(dyaw) + dy * math.cos(dyaw),
-            (raw.yaw_deg + m.yaw_deg - o.yaw_deg + 180.0) % 360.0 - 180.0,
+            wrap_deg(raw.yaw_deg + m.yaw_deg - o.yaw_deg),
         )
         twist = msg.twist.twist
         self._pose("odom", pose, stamp, rx, v=twist.linear.x, w=twist.angular.z)
@@ -542,6 +550,22 @@ class ViewHub:
             return samples[-1].pose
         return trajectory.pose_at(self._step_index, step_t)
 
+    def _ghost_envelope(self) -> list[float] | None:
+        """The spread of the gate's samples where the ghost is: ``[semi-major m,
+        semi-minor m, angle deg]`` of the step's first envelope point not behind it
+        (``None`` without uncertainty)."""
+        if not self._ghosts or self._leg < 0 or self._leg >= len(self._ghosts):
+            return None
+        u = self._ghosts[self._leg].uncertainty
+        points = u.for_step(self._step_index) if u is not None else ()
+        if not points:
+            return None
+        step_t = 0.0
+        if self._step_started is not None:
+            step_t = (time.time() - self._step_started) * self.time_scale
+        at = next((p for p in points if p.step_t_s >= step_t), points[-1])
+        return [round(at.major_m, 4), round(at.minor_m, 4), round(at.angle_deg, 2)]
+
     def _tick(self) -> None:
         drift = self._drift_source() if self._drift_source is not None else None
         if self._halted is not None:
@@ -557,6 +581,7 @@ class ViewHub:
                 "ghost": None
                 if ghost is None
                 else [round(ghost.x, 4), round(ghost.y, 4), round(ghost.yaw_deg, 2)],
+                "envelope": None if ghost is None else self._ghost_envelope(),
                 "drift": None if drift is None else [round(drift[0], 4), round(drift[1], 2)],
                 "rtt_s": self._rtt_measured,
                 "latched": self._latched,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from planner.mapinfo import MapInfo
+from firmware_proto.worldmap import WorldMap
 from planner.view.hub import ViewHub, ViewLimits
 from planner.view.server import ViewConfig, ViewServer
 
@@ -24,7 +24,7 @@ class LiveView:
 
     def __init__(
         self,
-        world: MapInfo,
+        world: WorldMap,
         config: ViewConfig,
         *,
         rtt_s: float,

@@ -33,6 +33,7 @@ from emulator.firmware import make_controller
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
+from firmware_proto.linkio.inbox import Inbox as WaitableLog
 from firmware_proto.messages import SCHEMA_HASH
 from firmware_proto.rover import RoverDescription, load_rover
 
@@ -69,46 +70,41 @@ def make_port(request: pytest.FixtureRequest) -> Iterator[PortFactory]:
 
 
 class Inbox:
-    """A callback that keeps what it receives, and lets a test wait for it."""
+    """A callback that keeps what it receives (in the link layer's waitable
+    :class:`~firmware_proto.linkio.inbox.Inbox`), and lets a test wait for it."""
 
     def __init__(self) -> None:
-        self.items: list[Any] = []
+        self.log: WaitableLog[Any] = WaitableLog()
         self.threads: set[str] = set()
-        self._cond = threading.Condition()
+
+    @property
+    def items(self) -> list[Any]:
+        """Everything received, in order."""
+        return self.log.items()
 
     def __call__(self, msg: Any) -> None:
-        with self._cond:
-            self.items.append(msg)
-            self.threads.add(threading.current_thread().name)
-            self._cond.notify_all()
+        self.threads.add(threading.current_thread().name)
+        self.log.append(msg)
 
     def wait_for(self, count: int, timeout_s: float = 10.0) -> list[Any]:
         """Wait until ``count`` items arrived; fail the test on timeout."""
-        with self._cond:
-            if not self._cond.wait_for(lambda: len(self.items) >= count, timeout_s):
-                pytest.fail(f"received {len(self.items)} of {count} messages in {timeout_s} s")
-            return list(self.items)
+        if not self.log.until(lambda xs: len(xs) >= count, since=0, timeout_s=timeout_s):
+            pytest.fail(f"received {len(self.items)} of {count} messages in {timeout_s} s")
+        return self.items
 
     def wait_until(
         self, pred: Callable[[Any], bool], *, since: int = 0, timeout_s: float = 10.0
     ) -> Any:
         """The first item from index ``since`` on that satisfies ``pred``, waiting for it;
         fail the test on timeout."""
-        found: list[Any] = []
-
-        def seen() -> bool:
-            found[:] = [m for m in self.items[since:] if pred(m)][:1]
-            return bool(found)
-
-        with self._cond:
-            if not self._cond.wait_for(seen, timeout_s):
-                pytest.fail(f"none of {len(self.items) - since} items matched in {timeout_s} s")
-            return found[0]
+        found = self.log.wait(pred, since=since, timeout_s=timeout_s)
+        if found is None:
+            pytest.fail(f"none of {len(self.items) - since} items matched in {timeout_s} s")
+        return found[1]
 
     def mark(self) -> int:
         """Index to wait from: items received after this call."""
-        with self._cond:
-            return len(self.items)
+        return self.log.mark()
 
 
 # -- emulators and status recording (link and node tests) -------------------------------
@@ -125,39 +121,35 @@ _channels = itertools.count()
 
 
 class Recorder:
-    """Collects ``/command_status`` strings; waits on them with timeouts."""
+    """Collects ``/command_status`` strings (in a waitable
+    :class:`~firmware_proto.linkio.inbox.Inbox`); waits on them with timeouts."""
 
     def __init__(self) -> None:
-        self.items: list[str] = []
-        self._cond = threading.Condition()
+        self.log: WaitableLog[str] = WaitableLog()
+
+    @property
+    def items(self) -> list[str]:
+        """Every status received, in order."""
+        return self.log.items()
 
     def __call__(self, text: str) -> None:
-        with self._cond:
-            self.items.append(text)
-            self._cond.notify_all()
+        self.log.append(text)
 
     def mark(self) -> int:
-        with self._cond:
-            return len(self.items)
+        return self.log.mark()
 
     def since(self, mark: int) -> list[str]:
-        with self._cond:
-            return list(self.items[mark:])
+        return self.log.items(mark)
 
     def wait(
         self, pred: Callable[[list[str]], bool], *, since: int = 0, timeout: float = 15.0
     ) -> list[str]:
         """Wait until ``pred(items since mark)`` holds; returns those items."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while not pred(self.items[since:]):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(
-                        f"status condition not met in {timeout} s; got {self.items[since:]}"
-                    )
-                self._cond.wait(left)
-            return list(self.items[since:])
+        if not self.log.until(pred, since=since, timeout_s=timeout):
+            raise TimeoutError(
+                f"status condition not met in {timeout} s; got {self.log.items(since)}"
+            )
+        return self.log.items(since)
 
     def wait_count(self, text: str, n: int, *, since: int = 0, timeout: float = 15.0) -> list[str]:
         return self.wait(lambda xs: xs.count(text) >= n, since=since, timeout=timeout)

@@ -12,12 +12,12 @@ from __future__ import annotations
 import os
 import select
 import threading
-import time
 from collections.abc import Callable
 from types import TracebackType
 from typing import TypeVar
 
 from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.message import Message
 from firmware_proto.messages import (
@@ -41,8 +41,7 @@ class ScriptedController:
         self.boot_nonce = boot_nonce
         self._encoder = FrameEncoder()
         self._decoder = FrameDecoder()
-        self.received: list[Message] = []
-        self._cond = threading.Condition()
+        self.log: Inbox[Message] = Inbox()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="scripted-rx", daemon=True)
         self._thread.start()
@@ -86,13 +85,16 @@ class ScriptedController:
         self.wait_for(Hello, timeout_s=timeout_s)
         self.send(self.ident(), *self.heartbeat())
 
+    @property
+    def received(self) -> list[Message]:
+        """Every message the host sent, in order."""
+        return self.log.items()
+
     def mark(self) -> int:
-        with self._cond:
-            return len(self.received)
+        return self.log.mark()
 
     def messages(self, kind: type[M], since: int = 0) -> list[M]:
-        with self._cond:
-            return [m for m in self.received[since:] if isinstance(m, kind)]
+        return [m for m in self.log.items(since) if isinstance(m, kind)]
 
     def wait_for(
         self,
@@ -108,16 +110,12 @@ class ScriptedController:
         Raises:
             TimeoutError: none came within ``timeout_s``.
         """
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while True:
-                for m in self.received[since:]:
-                    if isinstance(m, kind) and pred(m):
-                        return m
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(f"the host sent no {kind.__name__} within {timeout_s} s")
-                self._cond.wait(left)
+        found = self.log.wait(
+            lambda m: isinstance(m, kind) and pred(m), since=since, timeout_s=timeout_s
+        )
+        if found is None:
+            raise TimeoutError(f"the host sent no {kind.__name__} within {timeout_s} s")
+        return found[1]  # type: ignore[return-value]
 
     def _read(self) -> None:
         while not self._stop.is_set():
@@ -129,9 +127,8 @@ class ScriptedController:
             except OSError:
                 return
             frames = self._decoder.feed(data)
-            with self._cond:
-                self.received.extend(frame.message for frame in frames)
-                self._cond.notify_all()
+            for frame in frames:
+                self.log.append(frame.message)
 
     def close(self) -> None:
         self._stop.set()

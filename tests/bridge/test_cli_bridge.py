@@ -243,9 +243,8 @@ def test_rover_bridge_asks_for_real_time_and_no_realtime_turns_it_off() -> None:
     if os.geteuid() == 0:
         assert said[0] == "realtime: SCHED_RR priority 20, memory locked"
     off = _run(*common, "--no-realtime")
-    assert [line for line in off.stderr.splitlines() if line.startswith("realtime:")] == [
-        "realtime: off (SCHED_OTHER, nice 0)"
-    ]
+    said_off = [line for line in off.stderr.splitlines() if line.startswith("realtime:")]
+    assert len(said_off) == 1 and said_off[0].startswith("realtime: off (SCHED_OTHER, nice ")
     bad = _run(*common, "--rt-priority", "100")
     assert bad.returncode == 2
     assert "parameter rt_priority: 100 is outside 0..99" in bad.stderr

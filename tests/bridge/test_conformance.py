@@ -1,10 +1,19 @@
-"""``rover conformance`` against the emulator: as a real subprocess on a pty, on
-python-can's ``virtual`` bus, without a control port, and against a controller that
-breaks a rule (the suite must say which, with the frames).
+"""``rover conformance`` against the emulator.
 
-One suite, two implementations: every run is made against the Python controller model
-and against the C firmware core (``--firmware c``, emulator/firmware.py), and once more
-against the C core built with ASan and UBSan. The other cases select a few rules.
+One suite, two implementations (the Python controller model and the C firmware core,
+``--firmware c``, emulator/firmware.py), two ways to run:
+
+- in lockstep (virtual time, :mod:`tests.bridge.lockstep_suite`): every rule, against
+  both controllers on both media (an in-memory serial line, a python-can ``virtual``
+  bus), and the C core built with ASan and UBSan in a process of its own;
+- in real time, a smoke run of the rules that touch each part of the path (handshake,
+  samples, a stop, receive errors, the watchdog, a fault, a reboot, the frame counter)
+  against each controller on each medium: the emulator as its own process on a
+  pty, and in process on a python-can ``virtual`` bus; also without a control port, and
+  against a mutant served with ``rover emulate --mutant`` (the suite must say which rule
+  it broke, with the frames).
+
+Every mutant is run in tests/bridge/test_mutants.py.
 """
 
 from __future__ import annotations
@@ -28,11 +37,13 @@ from emulator.control import ControlServer
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.firmware import FirmwareController, sanitizer_env
+from emulator.mutants import make_mutant
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from firmware_proto.messages import FaultCode, Heartbeat
 from firmware_proto.rover import RoverDescription
 from tests.firmware_proto.c_harness import compiler
+
+from .lockstep_suite import make, run_lockstep
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -68,7 +79,7 @@ def emulate_process(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[
 
 @contextlib.contextmanager
 def _emulate(
-    tmp_path: Path, firmware: str, env: dict[str, str] | None = None
+    tmp_path: Path, firmware: str, env: dict[str, str] | None = None, *extra: str
 ) -> Iterator[tuple[str, str]]:
     _need_compiler(firmware)
     link = tmp_path / "rover-motor"
@@ -85,6 +96,7 @@ def _emulate(
                 "3",
                 "--firmware",
                 firmware,
+                *extra,
             ],
             stdout=subprocess.PIPE,
             stderr=err,
@@ -110,43 +122,86 @@ def _outcomes(doc: dict[str, Any]) -> dict[str, str]:
     return {r["id"]: r["outcome"] for r in doc["rules"]}
 
 
-@pytest.mark.slow
-def test_the_emulator_passes_every_rule_over_a_pty(emulate_process: tuple[str, str]) -> None:
-    _passes_every_rule(*emulate_process)
+# -- every rule, in lockstep -----------------------------------------------------------
 
 
-@pytest.mark.slow
+@pytest.mark.parametrize("medium", ["serial", "can"])
+@pytest.mark.parametrize("firmware", FIRMWARES)
+def test_both_controllers_pass_every_rule_in_lockstep(firmware: str, medium: str) -> None:
+    _need_compiler(firmware)
+    run = run_lockstep(make(firmware), medium)
+    outcomes = {r.rule.id: r.outcome for r in run.results}
+    # seq-restart is of the serial frame counter: not run on CAN, never passed there.
+    expected = {
+        rule_id: Outcome.NOT_RUN if medium == "can" and "serial" in rule.needs else Outcome.PASS
+        for rule_id, rule in RULES.items()
+    }
+    assert outcomes == expected, run.failed()
+    # Every verdict carries the frames exchanged, both ways (the host's clock is virtual).
+    for result in run.results:
+        if result.outcome is Outcome.PASS:
+            assert {f.direction for f in result.frames} == {"H>C", "C>H"}, result.rule.id
+            assert result.frames == tuple(sorted(result.frames, key=lambda f: f.t_s))
+    rx = next(r for r in run.results if r.rule.id == "rx-errors")
+    if medium == "serial":
+        assert "wrong direction, short run: 5 counted" in rx.detail
+    else:
+        assert rx.detail == "unknown id, bad length: 2 counted"  # no CRC or direction
+
+
 @pytest.mark.firmware
 @pytest.mark.timeout(300)
 def test_the_c_firmware_passes_every_rule_under_asan_and_ubsan(tmp_path: Path) -> None:
-    """The sanitizer build of the core, loaded by the emulator with libasan preloaded:
-    any memory error or undefined behaviour aborts it, and the suite then fails."""
+    """The sanitizer build of the core, in lockstep, in a process of its own with
+    libasan preloaded: any memory error or undefined behaviour aborts it."""
     _need_compiler("c")
     cache = tmp_path / "cache"
     env = sanitizer_env()
     env["ROVER_FIRMWARE_CACHE"] = str(cache)
-    with _emulate(tmp_path, "c", env) as (device, control):
-        # A sanitizer build is a slow controller: the suite's waits get the margin its
-        # --timeout-scale is for (order and content are checked as always).
-        _passes_every_rule(device, control, "--timeout-scale", "3")
+    env["PYTHONPATH"] = str(REPO)
+    done = subprocess.run(
+        [sys.executable, "-m", "tests.bridge.lockstep_suite", "--firmware", "c"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=REPO,
+        check=False,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr[-3000:]
+    doc = json.loads(done.stdout)
+    assert doc["outcomes"] == dict.fromkeys(RULES, "pass")
+    assert doc["virtual_s"] > 20
     # It was the sanitizer build that ran (built into this test's own cache).
     assert [p.name.endswith("-san.so") for p in cache.iterdir()] == [True]
-    err = (tmp_path / "emulate.err").read_text()
-    assert "AddressSanitizer" not in err and "runtime error" not in err, err
+    assert "AddressSanitizer" not in done.stderr and "runtime error" not in done.stderr
 
 
-def _passes_every_rule(device: str, control: str, *extra: str) -> None:
-    out = _rover("conformance", "--device", device, "--control", control, "--json", *extra)
+# -- real time: a smoke run per medium and controller --------------------------------------
+
+SMOKE = "handshake,samples-in-session,stop,rx-errors,watchdog,fault-persists,reboot"
+"""Rules that together touch every part of the real-time path: the host's clock and
+heartbeats, samples, motion and a stop, the medium's framing and errors, the control
+port, a reboot (the pty adds seq-restart)."""
+
+
+@pytest.mark.slow
+def test_the_emulator_passes_the_smoke_rules_over_a_pty_in_real_time(
+    emulate_process: tuple[str, str],
+) -> None:
+    device, control = emulate_process
+    out = _rover(
+        "conformance", "--device", device, "--control", control, "--json",
+        "--rule", SMOKE + ",seq-restart",
+    )  # fmt: skip
     assert out.returncode == 0, out.stdout + out.stderr
     doc = json.loads(out.stdout)
-    assert _outcomes(doc) == dict.fromkeys(RULES, "pass")
-    assert (doc["passed"], doc["failed"], doc["not_run"]) == (len(RULES), 0, 0)
-    # Every verdict carries the frames exchanged, both ways.
+    assert _outcomes(doc) == dict.fromkeys([*SMOKE.split(","), "seq-restart"], "pass")
     for rule in doc["rules"]:
         directions = {f["direction"] for f in rule["frames"]}
         assert directions == {"H>C", "C>H"}, rule["id"]
     rx = next(r for r in doc["rules"] if r["id"] == "rx-errors")
-    assert "bad CRC, wrong direction: 4 counted" in rx["detail"]
+    assert "wrong direction, short run: 5 counted" in rx["detail"]
 
 
 def test_without_a_control_port_those_rules_are_not_run_never_passed(
@@ -193,37 +248,27 @@ def _run(
 
 @pytest.mark.slow
 @pytest.mark.parametrize("firmware", FIRMWARES)
-def test_the_emulator_passes_every_rule_on_a_virtual_can_bus(
+def test_the_emulator_passes_the_smoke_rules_on_a_virtual_can_bus_in_real_time(
     firmware: str, rover: RoverDescription, can_channel: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     _need_compiler(firmware)
     cls = FirmwareController if firmware == "c" else ControllerModel
     model = cls(rover, Twin(rover), ControllerConfig(), seed=2)
     with _serve(model, "can", can_channel) as emu:
-        status, out = _run(emu, capsys, "--json")
+        status, out = _run(emu, capsys, "--json", "--rule", SMOKE)
     doc = json.loads(out)
     assert status == 0, [(r["id"], r["detail"]) for r in doc["rules"] if r["outcome"] != "pass"]
-    assert _outcomes(doc) == dict.fromkeys(RULES, "pass")
+    assert _outcomes(doc) == dict.fromkeys(SMOKE.split(","), "pass")
     rx = next(r for r in doc["rules"] if r["id"] == "rx-errors")
     assert rx["detail"] == "unknown id, bad length: 2 counted"  # CAN: no CRC or direction
-
-
-class _WatchdogBitUntilClear(ControllerModel):
-    """A controller that breaks 'Latch and faults': its HEARTBEAT keeps the WATCHDOG
-    bit until CLEAR_STOP, as the emulator did before protocol v2, although it sent
-    FAULT active 0 (the condition and the latch mixed up)."""
-
-    def heartbeat(self) -> Heartbeat:
-        hb = super().heartbeat()
-        if self.latch_causes and any(c.value == "watchdog" for c in self.latch_causes):
-            return hb._replace(fault_bits=hb.fault_bits | 1 << (FaultCode.WATCHDOG - 1))
-        return hb
 
 
 def test_a_broken_rule_fails_with_its_frames(
     rover: RoverDescription, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    model = _WatchdogBitUntilClear(rover, Twin(rover), ControllerConfig(), seed=2)
+    """The mutant whose HEARTBEAT keeps the WATCHDOG bit until CLEAR_STOP (the condition
+    and the latch mixed up, as the emulator did before protocol v2), in real time."""
+    model = make_mutant("watchdog-bit-until-clear", rover, Twin(rover), ControllerConfig(), seed=2)
     with _serve(model, "pty", "") as emu:
         status, out = _run(emu, capsys, "--rule", "handshake,watchdog", control=False)
     assert status == 1, out
@@ -236,6 +281,27 @@ def test_a_broken_rule_fails_with_its_frames(
     assert "C>H FAULT code=WATCHDOG active=1" in tail
     assert "H>C HOST_HEARTBEAT" in tail and "C>H FAULT code=WATCHDOG active=0" in tail
     assert "fault_bits=1" in tail
+
+
+@pytest.mark.slow
+def test_rover_emulate_serves_a_mutant_and_the_suite_names_its_rule(tmp_path: Path) -> None:
+    """Issue #22's first miss, in real time: a controller that sends STOPPED the moment
+    STOP arrives (0 mm, 0 ms, the wheels still turning)."""
+    with _emulate(tmp_path, "python", None, "--mutant", "stopped-at-once") as (device, _):
+        out = _rover("conformance", "--device", device, "--rule", "stop,stopped-at-rest")
+    assert out.returncode == 1, out.stdout + out.stderr
+    rows = {line.split()[0]: line for line in out.stdout.splitlines()[3:5]}
+    assert rows["stop"].split()[1] == "PASS"
+    assert rows["stopped-at-rest"].split()[1] == "FAIL"
+    assert "distance_mm=0 duration_ms=0: no time and no distance" in rows["stopped-at-rest"]
+    err = (tmp_path / "emulate.err").read_text()
+    assert "MUTANT stopped-at-once: breaks: The controller brakes" in err
+
+
+def test_rover_emulate_refuses_an_unknown_mutant() -> None:
+    out = _rover("emulate", "--serial", "--mutant", "warp", "--duration", "1")
+    assert out.returncode != 0
+    assert "unknown mutant 'warp'; known: hello-delays-heartbeat" in out.stderr
 
 
 # -- the pieces --------------------------------------------------------------------------
@@ -253,7 +319,7 @@ def test_list_names_every_rule_and_what_it_needs(capsys: pytest.CaptureFixture[s
     assert main(["--list"]) == 0
     out = capsys.readouterr().out
     for rule in RULES.values():
-        assert f"{rule.id}{' [needs control]' if rule.needs else ''} ({rule.section})" in out
+        assert f"{rule.id}{f' [needs {rule.needs}]' if rule.needs else ''} ({rule.section})" in out
 
 
 def test_every_rule_is_documented_in_protocol_md() -> None:
@@ -281,7 +347,7 @@ def test_exit_status_is_zero_only_when_every_rule_passed() -> None:
     ("args", "complaint"),
     [
         ([], "give --device URL or --can IFACE:CH"),
-        (["--device", "warp://x"], "unknown transport scheme"),
+        (["--device", "warp://x"], "unknown link scheme"),
         (["--device", "/nonexistent/rover-motor"], "cannot open /nonexistent/rover-motor"),
         (["--device", "loop://", "--control", "nowhere"], "control address must be HOST:PORT"),
     ],

@@ -22,6 +22,7 @@ from bridge.serial_transport import SerialTransport
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.framing import FrameEncoder
+from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.message import Message
 from firmware_proto.messages import Ack, Encoders, Status
@@ -37,33 +38,20 @@ class Diagnostics:
     """``/diagnostics`` as it arrives; waits on a condition, with timeouts."""
 
     def __init__(self, port: RosPort) -> None:
-        self.items: list[DiagnosticArray] = []
-        self._cond = threading.Condition()
-        port.subscribe("/diagnostics", DiagnosticArray, self._on)
-
-    def _on(self, msg: DiagnosticArray) -> None:
-        with self._cond:
-            self.items.append(msg)
-            self._cond.notify_all()
+        self.log: Inbox[DiagnosticArray] = Inbox()
+        port.subscribe("/diagnostics", DiagnosticArray, self.log.append)
 
     def mark(self) -> int:
-        with self._cond:
-            return len(self.items)
+        return self.log.mark()
 
     def wait(
         self, pred: Callable[[DiagnosticArray], bool], *, since: int = 0, timeout: float = 15.0
     ) -> DiagnosticArray:
         """The first array at or after ``since`` for which ``pred`` holds."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                for msg in self.items[since:]:
-                    if pred(msg):
-                        return msg
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    pytest.fail(f"no matching /diagnostics in {timeout} s ({len(self.items)} seen)")
-                self._cond.wait(left)
+        found = self.log.wait(pred, since=since, timeout_s=timeout)
+        if found is None:
+            pytest.fail(f"no matching /diagnostics in {timeout} s ({self.log.mark()} seen)")
+        return found[1]
 
 
 def values(msg: DiagnosticArray, name: str) -> dict[str, str]:

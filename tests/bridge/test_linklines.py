@@ -155,4 +155,9 @@ def test_the_bridge_says_handshake_done_and_a_slow_emulator_makes_it_suspect_the
             emulator.stop()
     said = [x for x in bad.stdout.splitlines() if "wrong baud suspected" in x]
     assert len(said) == 1, bad.stdout
-    assert "WARNING" not in bad.stderr  # the link's own warnings are the narrator's lines
+    # The link's own warnings are the narrator's lines (a stall of this process on a
+    # loaded machine is reported by the stall monitor, not by the link: not counted).
+    link_warnings = [
+        x for x in bad.stderr.splitlines() if "WARNING" in x and "runtime.stall" not in x
+    ]
+    assert link_warnings == [], bad.stderr

@@ -4,7 +4,7 @@ edges: a flood while the node is frozen, the node's process dying, the bridge dy
 
 The contract every backend keeps (names, QoS, lanes, parameters) runs on it in
 test_port.py and test_node.py; here the node's process is frozen with SIGSTOP, as a
-publish blocked inside Fast DDS froze the whole bridge before (README, "Fixed defect").
+publish blocked inside Fast DDS froze the whole bridge before (CHANGELOG.md, Fixed).
 """
 
 from __future__ import annotations

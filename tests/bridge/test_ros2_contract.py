@@ -11,7 +11,6 @@ bridge on the same device, and a clean exit on SIGINT.
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 import shutil
@@ -25,6 +24,7 @@ from typing import Any
 
 import pytest
 
+from firmware_proto.linkio.inbox import Inbox
 from tests.bridge.conftest import IN_VCAN_VM
 from tests.child import Child
 
@@ -46,8 +46,8 @@ class PlainClient:
         self.node = rclpy.create_node("plain_client", context=self.context)
         self.steps = self.node.create_publisher(Int16MultiArray, "/wheel_instructions", 10)
         self.estop = self.node.create_publisher(Bool, "/emergency_stop", 10)
-        self.statuses: list[str] = []
-        self._cond = threading.Condition()
+        self.log: Inbox[str] = Inbox()
+        """Every /command_status string, in order."""
         self.node.create_subscription(String, "/command_status", self._on_status, 10)
         self._executor = SingleThreadedExecutor(context=self.context)
         self._executor.add_node(self.node)
@@ -60,23 +60,21 @@ class PlainClient:
             self._executor.spin_once(timeout_sec=0.1)
 
     def _on_status(self, msg: Any) -> None:
-        with self._cond:
-            self.statuses.append(msg.data)
-            self._cond.notify_all()
+        self.log.append(msg.data)
 
-    def _completed(self, since: int) -> bool:
-        return "completed" in self.statuses[since:]
+    @property
+    def statuses(self) -> list[str]:
+        """Every /command_status string received, in order."""
+        return self.log.items()
 
     def mark(self) -> int:
-        with self._cond:
-            return len(self.statuses)
+        return self.log.mark()
 
     def wait_for(self, word: str, since: int, timeout_s: float = 20.0) -> list[str]:
         """Block until ``word`` arrives on /command_status (the thesis's executor)."""
-        with self._cond:
-            if not self._cond.wait_for(lambda: word in self.statuses[since:], timeout_s):
-                pytest.fail(f"no {word!r} in {timeout_s} s: {self.statuses[since:]}")
-            return self.statuses[since:]
+        if not self.log.until(lambda xs: word in xs, since=since, timeout_s=timeout_s):
+            pytest.fail(f"no {word!r} in {timeout_s} s: {self.log.items(since)}")
+        return self.log.items(since)
 
     def step(self, command: int, speed: int, distance: int) -> list[str]:
         """Publish one step and block until it completes (or is refused)."""
@@ -84,16 +82,15 @@ class PlainClient:
 
         mark = self.mark()
         self.steps.publish(Int16MultiArray(data=[command, speed, distance]))
-        with self._cond:
-            done = self._cond.wait_for(
-                lambda: any(
-                    s == "completed" or s.startswith(("rejected:", "aborted:", "fault:"))
-                    for s in self.statuses[mark:]
-                ),
-                20.0,
-            )
-            assert done, self.statuses[mark:]
-            return self.statuses[mark:]
+        done = self.log.until(
+            lambda xs: any(
+                s == "completed" or s.startswith(("rejected:", "aborted:", "fault:")) for s in xs
+            ),
+            since=mark,
+            timeout_s=20.0,
+        )
+        assert done, self.log.items(mark)
+        return self.log.items(mark)
 
     def wait_for_bridge(self, timeout_s: float = 20.0) -> None:
         """Until the bridge's subscriptions and its status publisher are matched, and a
@@ -125,9 +122,8 @@ class PlainClient:
         for _ in range(40):
             mark = self.mark()
             self.steps.publish(Int16MultiArray(data=[1, 10, 1]))
-            with self._cond:
-                if self._cond.wait_for(functools.partial(self._completed, mark), 1.0):
-                    return
+            if self.log.until(lambda xs: "completed" in xs, since=mark, timeout_s=1.0):
+                return
         pytest.fail(f"the bridge never completed a step: {self.statuses[-10:]}")
 
     def parameters(self, node: str, names: list[str]) -> list[Any]:

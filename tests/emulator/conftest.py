@@ -12,8 +12,8 @@ from emulator.engine import Emulator
 from emulator.injection import FaultSpec
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap, load_map
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import WorldMap, load_map
 
 SPEED = 4.0
 """Twin seconds per wall second in served tests: fast, with timeouts scaled to match."""

@@ -16,8 +16,8 @@ import pytest
 from emulator.controller import ControllerModel
 from emulator.drive import turn_units_for_yaw
 from emulator.injection import Injector, parse_fault
-from emulator.twin import Pose2D, wrap_angle_rad
-from emulator.worldmap import WorldMap
+from emulator.twin import Pose2D
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     PROTOCOL_VERSION,
@@ -53,6 +53,7 @@ from firmware_proto.messages import (
     WheelSpeeds,
 )
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 
 Make = Callable[..., ControllerModel]
 
@@ -314,8 +315,12 @@ def test_reboot_gives_a_new_nonce_and_forgets_everything(make_model: Make) -> No
     assert isinstance(ident, Ident) and ident.boot_nonce != old
     assert model.state == ControllerState.BOOT and model.queue_depth == 0
     assert model.wheel_commands_mps == (0.0, 0.0)
-    heartbeat = [m for m in run(model, 0.2) if isinstance(m, Heartbeat)][-1]
+    before_hello = run(model, 0.2)
+    heartbeat = [m for m in before_hello if isinstance(m, Heartbeat)][-1]
     assert heartbeat.boot_nonce == ident.boot_nonce and heartbeat.handshake_ok == 0
+    # Protocol v3: the new boot's counts reach a host only after its HELLO.
+    assert not [m for m in before_hello if isinstance(m, Encoders)]
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
     assert [m for m in run(model, 0.1) if isinstance(m, Encoders)][-1].left == 0
 
 
@@ -390,7 +395,7 @@ def test_driving_into_an_obstacle_stops_the_body_against_it(
     model = ready(make_model, lab)
     start = model.twin.pose
     bearing = math.atan2(goal.y - start.y_m, goal.x - start.x_m)
-    turn = wrap_angle_rad(bearing - start.yaw_rad)
+    turn = wrap_rad(bearing - start.yaw_rad)
     model.handle(
         Motion(1, Command.LEFT if turn > 0 else Command.RIGHT, 20, turn_units_for_yaw(rover, turn))
     )

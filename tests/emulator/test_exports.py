@@ -10,14 +10,10 @@ EXPECTED = [
     "BodyVelocity",
     "Collision",
     "CommandError",
-    "ConfigError",
     "EmulatorError",
     "Ground",
     "GroundError",
     "InjectionError",
-    "MapError",
-    "MapGoal",
-    "MapPose",
     "PlaybackResult",
     "Pose2D",
     "Stall",
@@ -26,12 +22,10 @@ EXPECTED = [
     "TimedPose",
     "TractionModel",
     "Twin",
-    "WorldMap",
+    "TwinConfigError",
     "brake",
     "list_grounds",
-    "list_maps",
     "load_ground",
-    "load_map",
     "measure_turn_efficiency",
     "motor_omegas",
     "play",
@@ -54,10 +48,9 @@ def test_exported_members_are_sorted_and_exist() -> None:
 
 def test_one_exception_root() -> None:
     for cls in (
-        emulator.MapError,
         emulator.CommandError,
         emulator.InjectionError,
-        emulator.ConfigError,
+        emulator.TwinConfigError,
     ):
         assert issubclass(cls, emulator.EmulatorError)
         assert issubclass(cls, ValueError)

@@ -18,7 +18,6 @@ from emulator.drive import turn_units_for_yaw
 from emulator.errors import InjectionError
 from emulator.injection import FaultSchedule, InjectionRecord, Injector, parse_fault
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.canmap import CanDecoder
 from firmware_proto.message import Message
 from firmware_proto.messages import (
@@ -35,6 +34,7 @@ from firmware_proto.messages import (
     StepState,
 )
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 
 from .test_controller import ready
 

@@ -16,7 +16,7 @@ import pytest
 from firmware_proto.messages import Fault, FaultCode, Heartbeat
 from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
 from tests.child import Child
-from tests.emulator.host import SerialHost
+from tests.emulator.host import serial_host
 from tests.emulator.test_served import ControlClient
 
 FREEZE_S = 0.6
@@ -49,10 +49,12 @@ def test_a_stopped_emulator_trips_no_watchdog_and_a_silent_host_still_does() -> 
         port = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
         control = ControlClient(port)
         with realtime_threads():
-            host = SerialHost(device, heartbeat_s=0.02)
+            host = serial_host(device, heartbeat_s=0.02)
         try:
             host.handshake()
-            host.wait_for(Heartbeat, lambda hb: hb.handshake_ok == 1, since=host.mark())
+            host.expect(
+                Heartbeat, lambda hb: hb.handshake_ok == 1, since=host.mark(), timeout_s=10.0
+            )
             before = _status(control)
             mark = host.mark()
             # The emulator's computer holds it up (every thread, as a busy machine can);
@@ -64,19 +66,22 @@ def test_a_stopped_emulator_trips_no_watchdog_and_a_silent_host_still_does() -> 
             assert after["overruns"] + after["catchups"] > before["overruns"] + before["catchups"]
             # Two heartbeats sent after it caught up: any trip would have come before them.
             resumed = host.mark()
-            host.wait_for(Heartbeat, since=resumed)
-            last = host.wait_for(Heartbeat, since=host.mark())
+            host.expect(Heartbeat, since=resumed, timeout_s=10.0)
+            last = host.expect(Heartbeat, since=host.mark(), timeout_s=10.0)
             assert not [f for f in host.messages(Fault, mark) if f.code == FaultCode.WATCHDOG]
             assert last.latch_watchdog == 0 and last.stop_latched == 0
             gaps = _status(control)["host_heartbeat_gaps"]
             assert gaps["max_ms"] >= FREEZE_S * 1e3 * 0.8  # it saw the host's frames late
 
             # A host that really falls silent trips the watchdog as before.
-            silent = host.mark()
-            host.heartbeats.clear()
-            trip = host.wait_for(
-                Fault, lambda f: f.code == FaultCode.WATCHDOG and f.active == 1, since=silent
-            )
+            with host.silent():
+                silent = host.mark()
+                trip = host.expect(
+                    Fault,
+                    lambda f: f.code == FaultCode.WATCHDOG and f.active == 1,
+                    since=silent,
+                    timeout_s=10.0,
+                )
             assert trip.active == 1
         finally:
             host.close()

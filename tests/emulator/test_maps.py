@@ -10,10 +10,12 @@ import pytest
 
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
-from emulator.twin import GATE_DT_S, Twin, wrap_angle_rad
-from emulator.worldmap import MAPS_DIR, MapGoal, MapPose, WorldMap, list_maps, load_map
+from emulator.twin import GATE_DT_S, Twin
+from firmware_proto.geometry import wrap_rad
 from firmware_proto.messages import Command
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import MAPS_DIR, MapGoal, WorldMap, list_maps, load_map
 
 MAPS = list_maps()
 GOALS = [(name, goal.name) for name in MAPS for goal in load_map(name).goals]
@@ -26,13 +28,13 @@ TURN_CLEARANCE_M = 0.43
 
 
 def straight_plan(
-    rover: RoverDescription, start: MapPose, goal: MapGoal
+    rover: RoverDescription, start: Pose, goal: MapGoal
 ) -> list[tuple[int, int, int]]:
     """What a naive planner sends: face the goal, drive straight, turn to the goal yaw."""
     dx, dy = goal.x - start.x, goal.y - start.y
     heading = math.atan2(dy, dx)
     steps: list[tuple[int, int, int]] = []
-    for turn in (wrap_angle_rad(heading - math.radians(start.yaw_deg)),):
+    for turn in (wrap_rad(heading - math.radians(start.yaw_deg)),):
         if abs(turn) > 1e-3:
             command = Command.LEFT if turn > 0 else Command.RIGHT
             steps.append((command, 30, turn_units_for_yaw(rover, turn)))
@@ -44,7 +46,7 @@ def straight_plan(
     return steps
 
 
-def corridor_exists(world: WorldMap, start: MapPose, goal: MapGoal, cell_m: float = 0.1) -> bool:
+def corridor_exists(world: WorldMap, start: Pose, goal: MapGoal, cell_m: float = 0.1) -> bool:
     """Breadth-first search over grid cells whose clearance admits the rover's width."""
     b = world.bounds
     nx, ny = int(b.width_m / cell_m), int(b.height_m / cell_m)
@@ -53,7 +55,7 @@ def corridor_exists(world: WorldMap, start: MapPose, goal: MapGoal, cell_m: floa
         return b.min_x + (i + 0.5) * cell_m, b.min_y + (j + 0.5) * cell_m
 
     free = [
-        [world.clearance(*centre(i, j)).distance_m >= CORRIDOR_CLEARANCE_M for j in range(ny)]
+        [world.clearance(centre(i, j)).distance_m >= CORRIDOR_CLEARANCE_M for j in range(ny)]
         for i in range(nx)
     ]
     first = (int((start.x - b.min_x) / cell_m), int((start.y - b.min_y) / cell_m))
@@ -83,7 +85,7 @@ def test_map_loads_and_is_named_after_its_file(name: str) -> None:
 @pytest.mark.parametrize("name", MAPS)
 def test_start_pose_is_clear(rover: RoverDescription, name: str) -> None:
     world = load_map(name)
-    assert world.clearance(world.start.x, world.start.y).distance_m >= TURN_CLEARANCE_M
+    assert world.clearance((world.start.x, world.start.y)).distance_m >= TURN_CLEARANCE_M
     assert Twin(rover, world).first_collision is None
 
 
@@ -93,7 +95,7 @@ def test_goal_is_blocked_straight_but_reachable(
 ) -> None:
     world = load_map(name)
     goal = world.goal(goal_name)
-    clearance = world.clearance(goal.x, goal.y).distance_m
+    clearance = world.clearance((goal.x, goal.y)).distance_m
     assert clearance >= CORRIDOR_CLEARANCE_M + 0.1 - 1e-9, "room to stand at the goal"
     assert corridor_exists(world, world.start, goal), "a detour exists"
     result = play(Twin(rover, world, dt_s=GATE_DT_S), straight_plan(rover, world.start, goal))
@@ -119,4 +121,4 @@ def test_scn03_narrow_passages_fit_the_rover_with_room(x: float, y: float) -> No
     """Each designed passage is 0.9 m wide: the 0.7 m footprint length plus 0.2 m, so
     the 0.5 m wide rover passes lengthwise with 0.2 m to spare on each side."""
     world = load_map("scn03")
-    assert world.clearance(x, y).distance_m >= 0.45 - 1e-9
+    assert world.clearance((x, y)).distance_m >= 0.45 - 1e-9

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from emulator.errors import CommandError, ConfigError
+from emulator.errors import CommandError, TwinConfigError
 from emulator.playback import play
 from emulator.twin import Twin
 from firmware_proto.messages import Command
@@ -109,5 +109,5 @@ def test_invalid_step_is_refused_before_anything_moves(rover: RoverDescription) 
     "kwargs", [{"sample_period_s": 0.0}, {"stall_window_s": -1.0}, {"settle_s": -1.0}]
 )
 def test_bad_parameters(rover: RoverDescription, kwargs: dict[str, float]) -> None:
-    with pytest.raises(ConfigError):
+    with pytest.raises(TwinConfigError):
         play(Twin(rover), [], **kwargs)

@@ -31,8 +31,8 @@ from emulator.errors import InjectionError
 from emulator.injection import Injector, parse_fault
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.cli import main as rover_main
+from firmware_proto.linkio.host import ProtocolHost
 from firmware_proto.message import Message
 from firmware_proto.messages import (
     SCHEMA_HASH,
@@ -56,32 +56,33 @@ from firmware_proto.messages import (
 )
 from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 
 from .conftest import SPEED
-from .host import CanHost, SerialHost
+from .host import can_host, serial_host
 from .test_controller import ready
 from .test_controller import run as run_lockstep
 
 Factory = Callable[..., Emulator]
 
 
-def drive_one_metre(host: SerialHost | CanHost, seq: int = 1) -> Status:
+def drive_one_metre(host: ProtocolHost, seq: int = 1) -> Status:
     since = host.mark()
     host.send(Motion(seq, Command.FWD, 60, 23000))
-    ack = host.wait_for(AckMsg, lambda a: a.seq == seq, since=since)
+    ack = host.expect(AckMsg, lambda a: a.seq == seq, since=since, timeout_s=10.0)
     assert ack.result == AckResult.ACCEPTED
-    return host.wait_for(
-        Status, lambda s: s.seq == seq and s.state != StepState.STARTED, since=since, timeout=15
+    return host.expect(
+        Status, lambda s: s.seq == seq and s.state != StepState.STARTED, since=since, timeout_s=15
     )
 
 
 def test_fwd_one_metre_over_a_pty(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         done = drive_one_metre(host)
         assert (done.state, done.travel) == (StepState.COMPLETED, 23000)
-        enc = host.wait_for(Encoders, since=host.mark())
+        enc = host.expect(Encoders, since=host.mark(), timeout_s=10.0)
         assert enc.left == pytest.approx(23000, abs=2)
     status = emu.status()
     assert math.hypot(status.x_m, status.y_m) == pytest.approx(1.0, abs=0.01)
@@ -89,31 +90,39 @@ def test_fwd_one_metre_over_a_pty(serial_emulator: Factory) -> None:
 
 def test_stop_over_a_pty_zeroes_targets_latches_and_clear_resumes(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         host.send(Motion(1, Command.FWD, 60, 30000))
         host.send(Motion(2, Command.FWD, 60, 30000))
-        host.wait_for(WheelSpeeds, lambda w: w.left_mm_s > 250, timeout=10)
+        host.expect(WheelSpeeds, lambda w: w.left_mm_s > 250, timeout_s=10)
         since = host.mark()
         host.send(Stop(77, 0))
-        ack = host.wait_for(StopAck, since=since)
+        ack = host.expect(StopAck, since=since, timeout_s=10.0)
         assert ack.stop_id == 77
         # Every wheel-speed report after the acknowledgement shows zero targets.
         after_ack = host.mark()
-        first = host.wait_for(WheelSpeeds, since=after_ack)
+        first = host.expect(WheelSpeeds, since=after_ack, timeout_s=10.0)
         assert (first.left_target_mm_s, first.right_target_mm_s) == (0, 0)
         aborted = {s.seq for s in host.messages(Status, since) if s.state == StepState.ABORTED}
         assert aborted == {1, 2}
-        stopped = host.wait_for(Stopped, since=since)
+        stopped = host.expect(Stopped, since=since, timeout_s=10.0)
         assert stopped.stop_id == 77 and 30 < stopped.distance_mm < 80
-        host.wait_for(WheelSpeeds, lambda w: w.left_mm_s == 0 and w.right_mm_s == 0, since=since)
+        host.expect(
+            WheelSpeeds,
+            lambda w: w.left_mm_s == 0 and w.right_mm_s == 0,
+            since=since,
+            timeout_s=10.0,
+        )
         mark = host.mark()
         host.send(Motion(3, Command.FWD, 30, 100))
         assert (
-            host.wait_for(AckMsg, lambda a: a.seq == 3, since=mark).result == AckResult.STOP_LATCHED
+            host.expect(AckMsg, lambda a: a.seq == 3, since=mark, timeout_s=10.0).result
+            == AckResult.STOP_LATCHED
         )
         host.send(ClearStop(78))
-        assert host.wait_for(ClearAck, since=mark) == ClearAck(78, ClearResult.CLEARED)
+        assert host.expect(ClearAck, since=mark, timeout_s=10.0) == ClearAck(
+            78, ClearResult.CLEARED
+        )
         assert drive_one_metre(host, seq=4).state == StepState.COMPLETED
     assert len(emu.stop_reactions) == 1
 
@@ -121,15 +130,15 @@ def test_stop_over_a_pty_zeroes_targets_latches_and_clear_resumes(serial_emulato
 def test_garbage_bytes_are_ignored_and_counted(serial_emulator: Factory) -> None:
     emu = serial_emulator()
     rng = random.Random(5)
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
-        host.write_raw(
+        host.write_bytes(
             b"\x00"
             + bytes(rng.randrange(1, 256) for _ in range(200))
             + b"\x00garbage\x00\x01\x02\x00"
         )
         assert drive_one_metre(host).state == StepState.COMPLETED
-        beat = host.wait_for(Heartbeat, lambda h: h.rx_errors > 0, since=host.mark())
+        beat = host.expect(Heartbeat, lambda h: h.rx_errors > 0, since=host.mark(), timeout_s=10.0)
         assert beat.rx_errors >= 2
     assert emu.status().rx_errors == beat.rx_errors
 
@@ -137,22 +146,22 @@ def test_garbage_bytes_are_ignored_and_counted(serial_emulator: Factory) -> None
 def test_host_closing_and_reopening_the_port(serial_emulator: Factory) -> None:
     emu = serial_emulator()
     device = emu.frontend.device
-    with SerialHost(device) as host:
+    with serial_host(device) as host:
         host.handshake()
-    with SerialHost(device) as host:  # reopened: stale bytes are skipped, service goes on
+    with serial_host(device) as host:  # reopened: stale bytes are skipped, service goes on
         host.handshake()
         assert drive_one_metre(host).state == StepState.COMPLETED
 
 
 def test_corrupted_link_is_survived(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         emu.inject("link-corrupt=0.2")
-        host.wait_for(Encoders, since=host.mark())
+        host.expect(Encoders, since=host.mark(), timeout_s=10.0)
 
         def damaged() -> int:
-            counters = host.decoder.counters
+            counters = host.endpoint.counters
             return counters.crc + counters.framing + counters.oversize
 
         # The host's decoder drops the damaged frames; the rest come through. A fifth of
@@ -161,7 +170,7 @@ def test_corrupted_link_is_survived(serial_emulator: Factory) -> None:
         for _ in range(200):
             if damaged():
                 break
-            host.wait_for(Heartbeat, since=host.mark())
+            host.expect(Heartbeat, since=host.mark(), timeout_s=10.0)
         assert damaged() > 0
         emu.inject("clear:link-corrupt")
         assert drive_one_metre(host).state == StepState.COMPLETED
@@ -169,11 +178,11 @@ def test_corrupted_link_is_survived(serial_emulator: Factory) -> None:
 
 def test_reboot_injection_gives_a_new_ident(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         first = host.handshake()
         # handshake() may have returned on the boot IDENT; once a heartbeat says the
         # handshake is done, the IDENT answering our HELLO is in too.
-        host.wait_for(Heartbeat, lambda h: h.handshake_ok == 1, since=host.mark())
+        host.expect(Heartbeat, lambda h: h.handshake_ok == 1, since=host.mark(), timeout_s=10.0)
         since = host.mark()
         control = ControlServer(emu).start()
         try:
@@ -184,22 +193,22 @@ def test_reboot_injection_gives_a_new_ident(serial_emulator: Factory) -> None:
             assert "injections" in control.execute("injections")
         finally:
             control.close()
-        ident = host.wait_for(Ident, since=since)
+        ident = host.expect(Ident, since=since, timeout_s=10.0)
         assert ident.boot_nonce != first.boot_nonce
-        beat = host.wait_for(Heartbeat, since=host.mark())
+        beat = host.expect(Heartbeat, since=host.mark(), timeout_s=10.0)
         assert (beat.boot_nonce, beat.handshake_ok) == (ident.boot_nonce, 0)
 
 
 def test_watchdog_trips_when_the_host_goes_quiet(serial_emulator: Factory) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         host.send(Motion(1, Command.FWD, 60, 30000))
-        host.wait_for(WheelSpeeds, lambda w: w.left_mm_s > 100)
-        host.heartbeats.clear()
-        since = host.mark()
-        beat = host.wait_for(Heartbeat, lambda h: h.state == 4, since=since)  # FAULT
-        assert beat.fault_bits & 1  # WATCHDOG
+        host.expect(WheelSpeeds, lambda w: w.left_mm_s > 100, timeout_s=10.0)
+        with host.silent():
+            since = host.mark()
+            beat = host.expect(Heartbeat, lambda h: h.state == 4, since=since, timeout_s=10.0)
+        assert beat.fault_bits & 1  # WATCHDOG; state 4 is FAULT
         assert any(s.state == StepState.ABORTED for s in host.messages(Status, since))
 
 
@@ -219,7 +228,7 @@ def test_unplug_and_replug_keeps_the_link_name(
         assert not link.exists() and not front.plugged
         front.replug()
         assert os.path.realpath(link) == front.device
-        with SerialHost(str(link)) as host:
+        with serial_host(str(link)) as host:
             host.handshake()
             assert drive_one_metre(host).state == StepState.COMPLETED
     assert not link.exists()
@@ -227,7 +236,7 @@ def test_unplug_and_replug_keeps_the_link_name(
 
 def test_paced_line_still_carries_everything(serial_emulator: Factory) -> None:
     emu = serial_emulator(baud=115200)
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         assert drive_one_metre(host).state == StepState.COMPLETED
 
@@ -236,17 +245,27 @@ def test_retransmitted_motion_is_acknowledged_again_but_executed_once(
     serial_emulator: Factory,
 ) -> None:
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         since = host.mark()
         host.send(Motion(5, Command.FWD, 60, 2300))
         host.send(Motion(5, Command.FWD, 60, 2300))  # a retransmission: same seq
-        host.wait_for(AckMsg, lambda a: a.result == AckResult.DUPLICATE, since=since)
-        host.wait_for(Status, lambda s: s.seq == 5 and s.state != StepState.STARTED, since=since)
+        host.expect(AckMsg, lambda a: a.result == AckResult.DUPLICATE, since=since, timeout_s=10.0)
+        host.expect(
+            Status,
+            lambda s: s.seq == 5 and s.state != StepState.STARTED,
+            since=since,
+            timeout_s=10.0,
+        )
         host.send(Motion(5, Command.FWD, 60, 2300))  # a late one, after completion
         # Steps run in order: once seq 6 is done, a second run of 5 would have shown.
         host.send(Motion(6, Command.FWD, 60, 2300))
-        host.wait_for(Status, lambda s: s.seq == 6 and s.state != StepState.STARTED, since=since)
+        host.expect(
+            Status,
+            lambda s: s.seq == 6 and s.state != StepState.STARTED,
+            since=since,
+            timeout_s=10.0,
+        )
         acks = [a.result for a in host.messages(AckMsg, since) if a.seq == 5]
         ended = [s for s in host.messages(Status, since) if s.seq == 5]
     assert acks == [AckResult.ACCEPTED, AckResult.DUPLICATE, AckResult.DUPLICATE]
@@ -259,7 +278,7 @@ def test_out_of_range_values_get_nack_naming_the_field(serial_emulator: Factory)
     # strict=False checks only the wire range (u8, u16), which is what a faulty host
     # could put on the wire.
     emu = serial_emulator()
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         since = host.mark()
         for motion in (
@@ -268,7 +287,7 @@ def test_out_of_range_values_get_nack_naming_the_field(serial_emulator: Factory)
             Motion(3, 5, 30, 100),
         ):
             host.send(motion, strict=False)
-        host.wait_for(AckMsg, lambda a: a.seq == 3, since=since)
+        host.expect(AckMsg, lambda a: a.seq == 3, since=since, timeout_s=10.0)
         nacks = [(a.seq, a.result, a.field) for a in host.messages(AckMsg, since)]
     assert nacks == [
         (1, AckResult.OUT_OF_RANGE, AckField.SPEED),
@@ -290,10 +309,10 @@ def test_slip_ground_travel_falls_short_while_the_encoders_count_it_all(
 
     emu = serial_emulator()
     emu.inject("slip:both=0.1")
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         done = drive_one_metre(host)
-        enc = host.wait_for(Encoders, since=host.mark())
+        enc = host.expect(Encoders, since=host.mark(), timeout_s=10.0)
     status = emu.status()
     assert (done.state, done.travel) == (StepState.COMPLETED, 23000)
     assert enc.left == pytest.approx(23000, abs=2) and enc.right == pytest.approx(23000, abs=2)
@@ -311,14 +330,14 @@ def test_driving_into_the_lab_table_over_a_pty(serial_emulator: Factory, lab: Wo
     doc = lab.to_dict()
     doc["start"] = {"x": 2.4, "y": 3.0, "yaw_deg": 0.0}  # 0.85 m short of the table
     emu = serial_emulator(WorldMap.from_dict(doc))
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         host.handshake()
         since = host.mark()
         host.send(Motion(1, Command.FWD, 60, 30000))
-        done = host.wait_for(
-            Status, lambda s: s.seq == 1 and s.state != StepState.STARTED, since=since, timeout=15
+        done = host.expect(
+            Status, lambda s: s.seq == 1 and s.state != StepState.STARTED, since=since, timeout_s=15
         )
-        pose = host.wait_for(Pose, since=host.mark())
+        pose = host.expect(Pose, since=host.mark(), timeout_s=10.0)
     status = emu.status()
     assert (done.state, done.travel) == (StepState.COMPLETED, 30000)
     assert status.collision == "table" and "HIT table" in status.line()
@@ -332,18 +351,26 @@ def _seeded_run(emu: Emulator) -> dict[str, Any]:
     fix. Frames reach the twin at wall-clock-dependent ticks, so timestamps and the phase
     of sampled noise (IMU, POSE) differ between runs; the trajectory does not (the twin
     is at rest until the first step starts)."""
-    with SerialHost(emu.frontend.device) as host:
+    with serial_host(emu.frontend.device) as host:
         ident = host.handshake()
         since = host.mark()
         for seq, (cmd, dist) in enumerate(
             [(Command.FWD, 9000), (Command.LEFT, 5000), (Command.FWD, 5000)], 1
         ):
             host.send(Motion(seq, cmd, 45, dist))
-        host.wait_for(Status, lambda s: s.seq == 3 and s.state != StepState.STARTED, since=since)
-        rest = host.wait_for(
-            WheelSpeeds, lambda w: (w.left_mm_s, w.right_mm_s) == (0, 0), since=host.mark()
+        host.expect(
+            Status,
+            lambda s: s.seq == 3 and s.state != StepState.STARTED,
+            since=since,
+            timeout_s=10.0,
         )
-        enc = host.wait_for(Encoders, lambda e: e.t_ms > rest.t_ms, since=host.mark())
+        rest = host.expect(
+            WheelSpeeds,
+            lambda w: (w.left_mm_s, w.right_mm_s) == (0, 0),
+            since=host.mark(),
+            timeout_s=10.0,
+        )
+        enc = host.expect(Encoders, lambda e: e.t_ms > rest.t_ms, since=host.mark(), timeout_s=10.0)
         session = {
             "nonce": ident.boot_nonce,
             "acks": [(a.seq, a.result) for a in host.messages(AckMsg, since)],
@@ -364,7 +391,7 @@ def test_the_same_seeded_run_twice_over_the_wire(serial_emulator: Factory, lab: 
     assert first == again
     assert first["encoders"] == (9000, 19000)
     other = serial_emulator(lab, seed=4)
-    with SerialHost(other.frontend.device) as host:
+    with serial_host(other.frontend.device) as host:
         assert host.handshake().boot_nonce != first["nonce"]
 
 
@@ -397,15 +424,15 @@ def test_fwd_and_stop_over_a_virtual_can_bus(
     can_emulator: Callable[..., Emulator], can_channel: str
 ) -> None:
     emu = can_emulator(node=3)
-    with can.Bus(interface="virtual", channel=can_channel) as bus, CanHost(bus, node=3) as host:
+    with can.Bus(interface="virtual", channel=can_channel) as bus, can_host(bus, node=3) as host:
         host.handshake()
         assert drive_one_metre(host).state == StepState.COMPLETED
         host.send(Motion(2, Command.FWD, 60, 30000))
-        host.wait_for(WheelSpeeds, lambda w: w.left_mm_s > 200)
+        host.expect(WheelSpeeds, lambda w: w.left_mm_s > 200, timeout_s=10.0)
         since = host.mark()
         host.send(Stop(5, 0))
-        assert host.wait_for(StopAck, since=since).stop_id == 5
-        assert host.wait_for(Stopped, since=since).stop_id == 5
+        assert host.expect(StopAck, since=since, timeout_s=10.0).stop_id == 5
+        assert host.expect(Stopped, since=since, timeout_s=10.0).stop_id == 5
     assert emu.status().stop_latched
 
 
@@ -413,15 +440,15 @@ def test_a_left_turn_over_a_virtual_can_bus_matches_the_calibrated_model(
     can_emulator: Callable[..., Emulator], can_channel: str, rover: RoverDescription
 ) -> None:
     emu = can_emulator()
-    with can.Bus(interface="virtual", channel=can_channel) as bus, CanHost(bus) as host:
+    with can.Bus(interface="virtual", channel=can_channel) as bus, can_host(bus) as host:
         host.handshake()
         since = host.mark()
         units = turn_units_for_yaw(rover, math.pi / 2)
         host.send(Motion(1, Command.LEFT, 30, units))
-        done = host.wait_for(
-            Status, lambda s: s.seq == 1 and s.state != StepState.STARTED, since=since, timeout=15
+        done = host.expect(
+            Status, lambda s: s.seq == 1 and s.state != StepState.STARTED, since=since, timeout_s=15
         )
-        enc = host.wait_for(Encoders, since=host.mark())
+        enc = host.expect(Encoders, since=host.mark(), timeout_s=10.0)
     status = emu.status()
     assert done.state == StepState.COMPLETED
     assert status.yaw_deg == pytest.approx(90.0, abs=3.0)
@@ -436,13 +463,13 @@ def test_can_node_ignores_other_nodes_and_refuses_corruption(
     with (
         can.Bus(interface="virtual", channel=can_channel) as bus_a,
         can.Bus(interface="virtual", channel=can_channel) as bus_b,
-        CanHost(bus_a, node=5, heartbeat_s=None) as other,
-        CanHost(bus_b, node=2) as host,
+        can_host(bus_a, node=5, heartbeat_s=None) as other,
+        can_host(bus_b, node=2) as host,
     ):
         other.send(Motion(1, Command.FWD, 10, 10))  # addressed to node 5: not ours
         host.handshake()
         host.send(Motion(1, Command.FWD, 10, 10))
-        host.wait_for(AckMsg, lambda a: a.seq == 1)
+        host.expect(AckMsg, lambda a: a.seq == 1, timeout_s=10.0)
         assert other.messages(AckMsg) == []  # nobody answered node 5
     assert emu.status().rx_frames >= 2
     for fault in ("link-corrupt=0.1", "link-corrupt=0.1@t=0.2"):
@@ -556,7 +583,7 @@ def test_rover_emulate_cli_serves_and_stops_on_sigterm(tmp_path: Path) -> None:
         device_line = proc.stdout.readline().split()
         control_line = proc.stdout.readline().split()
         assert device_line[0] == "DEVICE" and control_line[0] == "CONTROL"
-        with SerialHost(device_line[1]) as host:
+        with serial_host(device_line[1]) as host:
             host.handshake()
             assert drive_one_metre(host).state == StepState.COMPLETED
         proc.send_signal(signal.SIGTERM)
@@ -627,11 +654,11 @@ def test_a_saturated_line_never_starves_the_handshake(serial_emulator: Factory) 
     emu = serial_emulator(baud=1200)
     front = emu.frontend
     assert isinstance(front, SerialFrontEnd)
-    with SerialHost(front.device) as host:
-        assert host.handshake(timeout=10).schema_hash == SCHEMA_HASH
+    with serial_host(front.device) as host:
+        assert host.handshake(timeout_s=10).schema_hash == SCHEMA_HASH
         # handshake() may return on the boot IDENT, the first frame out, before anything
         # could go stale. Each frame holds the line ~0.1 s while ~18 telemetry frames
         # queue behind it: by the sixth frame the writer has met stale ones and dropped
         # them.
-        host.wait_for(Message, since=5, timeout=10)
+        host.expect(Message, since=5, timeout_s=10)
     assert front.stale_dropped > 0

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from emulator.drive import StepProfile, motor_omegas, travel_units, yaw_for_turn_units
-from emulator.errors import CommandError, ConfigError, InjectionError
+from emulator.errors import CommandError, InjectionError, TwinConfigError
 from emulator.playback import measure_turn_efficiency, play
 from emulator.twin import MAX_DT_S, Pose2D, Twin
 from firmware_proto.messages import Command
@@ -68,7 +68,7 @@ def test_forward_follows_the_start_heading(rover: RoverDescription) -> None:
 def test_forward_motor_polarity(rover: RoverDescription) -> None:
     twin = Twin(rover)
     k = rover.drive.wheel_velocity_scale_rad_s
-    twin.set_motor_omegas(-60 * k, 60 * k)  # FWD at speed 60 per DESIGN.md
+    twin.set_motor_omegas(-60 * k, 60 * k)  # FWD at speed 60 (docs/architecture.md, Contracts 4)
     assert twin.wheel_surface_speeds_mps == pytest.approx((0.3, 0.3))
     twin.advance(1.0)
     assert twin.motor_angles_rad == pytest.approx((-3.0, 3.0))
@@ -190,9 +190,9 @@ def test_unknown_side_is_refused(rover: RoverDescription) -> None:
 
 def test_bad_construction_is_refused(rover: RoverDescription) -> None:
     for dt in (0.0, -0.001, MAX_DT_S * 1.5, math.nan):
-        with pytest.raises(ConfigError):
+        with pytest.raises(TwinConfigError):
             Twin(rover, dt_s=dt)
-    with pytest.raises(ConfigError):
+    with pytest.raises(TwinConfigError):
         Twin(rover, safety_margin_m=-0.1)
 
 
@@ -356,7 +356,8 @@ def test_time_is_steps_times_dt(rover: RoverDescription) -> None:
 DETERMINISM_SCRIPT = textwrap.dedent(
     """
     import hashlib, struct
-    from emulator import Pose2D, Twin, load_map
+    from emulator import Pose2D, Twin
+    from firmware_proto.worldmap import load_map
     from firmware_proto.rover import load_rover
 
     rover = load_rover()

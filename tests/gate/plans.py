@@ -6,6 +6,7 @@ import math
 from typing import Any
 
 from emulator.drive import turn_units_for_yaw
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.rover import RoverDescription
 
 UNITS_PER_M = 23000
@@ -40,7 +41,7 @@ def heuristic(
     dx, dy = goal[0] - start[0], goal[1] - start[1]
     bearing = math.degrees(math.atan2(dy, dx))
     steps: list[dict[str, Any]] = []
-    first = (bearing - start[2] + 180.0) % 360.0 - 180.0
+    first = wrap_deg(bearing - start[2])
     if abs(first) > 0.5:
         steps.append(turn(rover, first))
     units = round(math.hypot(dx, dy) * UNITS_PER_M)
@@ -48,7 +49,7 @@ def heuristic(
         chunk = min(units, 30000)
         steps.append(step("FWD", speed, chunk))
         units -= chunk
-    last = (goal[2] - bearing + 180.0) % 360.0 - 180.0
+    last = wrap_deg(goal[2] - bearing)
     if abs(last) > 0.5:
         steps.append(turn(rover, last))
     return plan(goal, *steps)

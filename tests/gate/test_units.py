@@ -13,6 +13,7 @@ import pytest
 import gate
 from emulator.twin import GATE_DT_S
 from firmware_proto.bindpolicy import is_loopback
+from firmware_proto.verdict import Verdict
 from gate.config import (
     DEFAULT_DT_S,
     KEYS,
@@ -22,16 +23,15 @@ from gate.config import (
 )
 from gate.errors import (
     BadRequestError,
-    ConfigError,
+    GateConfigError,
     LengthRequiredError,
     OptionError,
     PayloadTooLargeError,
     UnsupportedMediaError,
 )
-from gate.goal import approach_heading_rad, goal_error, wrap_deg
+from gate.goal import approach_heading_rad, goal_error
 from gate.options import ValidateOptions
 from gate.request import check_declared_length, check_json_media_type, parse_json
-from gate.verdict import Verdict
 
 # -- request ---------------------------------------------------------------------------
 
@@ -104,12 +104,12 @@ def test_config_precedence_arguments_environment_file_defaults(tmp_path: Path) -
     assert load_config({}, env, toml).port == 9100  # environment beats file
     assert load_config({}, {"ROVER_GATE_CONFIG": str(toml)}).port == 9000
     assert "token" not in repr(load_config({"token": "secret"}, {}))
-    with pytest.raises(ConfigError, match="unknown"):
+    with pytest.raises(GateConfigError, match="unknown"):
         load_config({"colour": "red"}, {})
-    with pytest.raises(ConfigError, match="ROVER_GATE_PORT"):
+    with pytest.raises(GateConfigError, match="ROVER_GATE_PORT"):
         load_config({}, {"ROVER_GATE_PORT": "eighty"})
     toml.write_text("[gate]\nport = true\n")
-    with pytest.raises(ConfigError, match="wrong type"):
+    with pytest.raises(GateConfigError, match="wrong type"):
         load_config({}, {}, toml)
     assert set(KEYS) >= {"host", "port", "token", "dt_s"}
 
@@ -118,14 +118,14 @@ def test_bind_policy_and_ranges() -> None:
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("10.0.0.1")
     assert not is_loopback("gate.example")
-    with pytest.raises(ConfigError, match="without a token"):
+    with pytest.raises(GateConfigError, match="without a token"):
         GateConfig(host="0.0.0.0")
     assert GateConfig(host="0.0.0.0", token="t").host == "0.0.0.0"
     for bad in ({"workers": 0}, {"queue_depth": -1}, {"pool": "fibres"}, {"port": 70000}):
-        with pytest.raises(ConfigError):
+        with pytest.raises(GateConfigError):
             GateConfig(**bad)
     for bad_pb in ({"dt_s": 0.05}, {"safety_margin_m": -1.0}, {"yaw_tolerance_deg": 0.0}):
-        with pytest.raises(ConfigError):
+        with pytest.raises(GateConfigError):
             PlaybackSettings(**bad_pb)
 
 
@@ -144,7 +144,6 @@ def test_goal_error_signs() -> None:
     assert err.distance_m == pytest.approx(math.hypot(1.0, 0.5))
     assert err.yaw_deg == pytest.approx(-20.0)
     assert goal_error((3.0, 0.0, 0.0), (2.0, 0.0, 0.0), east).longitudinal_m == pytest.approx(-1.0)
-    assert wrap_deg(180.0) == -180.0 and wrap_deg(-190.0) == pytest.approx(170.0)
     # Approach heading: last FWD (as is) or REV (reversed); else the bearing to the goal.
     assert approach_heading_rad([1, 3], [0.5, 0.9], (0, 0, 0), (1, 1)) == 0.5
     assert approach_heading_rad([2], [0.5], (0, 0, 0), (1, 1)) == pytest.approx(0.5 + math.pi)
@@ -177,8 +176,8 @@ EXPORTED = [
     "FAILURE_TYPES",
     "BadRequestError",
     "CollisionReport",
-    "ConfigError",
     "GateConfig",
+    "GateConfigError",
     "GateError",
     "GateServer",
     "GoalRangeError",
@@ -206,6 +205,7 @@ EXPORTED = [
     "Trajectory",
     "TrajectorySample",
     "UnauthorizedError",
+    "Uncertainty",
     "UnsupportedMediaError",
     "ValidateOptions",
     "Validator",
@@ -226,7 +226,7 @@ def test_exports_are_pinned_sorted_and_resolve() -> None:
 
 def test_importing_the_data_types_does_not_load_the_twin_or_pillow() -> None:
     code = (
-        "import sys, gate, gate.verdict, gate.options, gate.errors, gate.config; "
+        "import sys, gate, gate.options, gate.errors, gate.config; "
         "heavy = [m for m in ('pymunk', 'PIL', 'gate.server', 'gate.render', 'uvicorn', "
         "'starlette') if m in sys.modules]; "
         "print(heavy)"

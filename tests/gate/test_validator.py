@@ -10,14 +10,14 @@ from pathlib import Path
 import pytest
 
 from emulator.twin import Twin
-from emulator.worldmap import WorldMap
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap
 from gate.config import GateConfig, PlaybackSettings
-from gate.errors import ConfigError, OptionError
+from gate.errors import GateConfigError, OptionError
 from gate.options import ValidateOptions
 from gate.validator import Job, Validator, load_maps
-from gate.verdict import Verdict
 
 from .plans import plan, step
 
@@ -61,7 +61,7 @@ def test_no_tunnelling_through_a_zero_thickness_wall_at_top_speed(
     yaw = math.radians(v.collision.pose.yaw_deg)
     reach = 0.35 * abs(math.cos(yaw)) + 0.25 * abs(math.sin(yaw)) + margin
     assert v.collision.pose.x + reach == pytest.approx(6.0, abs=0.004)
-    assert all(s.x < 6.0 for s in v.trajectory.samples)
+    assert all(s.pose.x < 6.0 for s in v.trajectory.samples)
 
 
 def test_a_locked_wheel_stalls(rover: RoverDescription, validator: Validator) -> None:
@@ -119,7 +119,7 @@ def test_a_map_file_becomes_the_default_and_is_served(tmp_path: Path) -> None:
     assert v.default_map == "thin"
     clash = dict(THIN_WALL, name="lab")
     path.write_text(json.dumps(clash))
-    with pytest.raises(ConfigError, match="like a different shipped map"):
+    with pytest.raises(GateConfigError, match="like a different shipped map"):
         load_maps(str(path))
-    with pytest.raises(ConfigError):
+    with pytest.raises(GateConfigError):
         load_maps(str(tmp_path / "missing.json"))

@@ -9,11 +9,11 @@ import pytest
 
 from emulator.playback import play
 from emulator.twin import Pose2D, Twin
-from emulator.worldmap import load_map
 from firmware_proto.rover import RoverDescription
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import load_map
 from gate.render import LEGEND_PX
 from gate.server import GateServer
-from gate.verdict import Verdict
 
 from .client import post_plan
 from .plans import fwd, plan, step, turn
@@ -204,24 +204,16 @@ def test_trajectory_is_tagged_per_step(http_gate: GateServer, rover: RoverDescri
     for st in v.steps:
         own = [s for s in samples if s.step == st.index]
         assert own[0].step_t_s == 0.0
-        assert (own[0].x, own[0].y, own[0].yaw_deg) == (
-            st.start_pose.x,
-            st.start_pose.y,
-            st.start_pose.yaw_deg,
-        )
+        assert own[0].pose == st.start_pose
         ends = [s for s in own if s.t_s == st.end_time_s]
-        assert (ends[0].x, ends[0].y, ends[0].yaw_deg) == (
-            st.end_pose.x,
-            st.end_pose.y,
-            st.end_pose.yaw_deg,
-        )
+        assert ends[0].pose == st.end_pose
         assert st.expected_duration_s == pytest.approx(st.end_time_s - st.start_time_s)
         assert st.nominal_duration_s > 0
         inner = [s for s in own if 0.0 < s.step_t_s < st.expected_duration_s]
         gaps = [b.t_s - a.t_s for a, b in itertools.pairwise(inner)]
         assert all(g == pytest.approx(0.05) for g in gaps)
     last = samples[-1]
-    assert (last.x, last.y, last.yaw_deg) == (v.final_pose.x, v.final_pose.y, v.final_pose.yaw_deg)
+    assert last.pose == v.final_pose
     assert last.t_s == pytest.approx(v.sim_time_s)
 
 

@@ -14,14 +14,12 @@ from typing import Any
 import pytest
 
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.worldmap import WorldMap, list_maps, load_map
 from gate.config import GateConfig
 from gate.server import GateServer
 from planner.gate_client import GateClient
-from planner.mapinfo import MapInfo
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
-
-MAPS_DIR = Path(__file__).resolve().parents[2] / "emulator" / "maps"
 
 
 def start_gate(**overrides: Any) -> GateServer:
@@ -97,11 +95,9 @@ def planner(rover: RoverDescription) -> HeuristicLowLevelPlanner:
 
 
 @pytest.fixture(scope="session")
-def worlds() -> dict[str, MapInfo]:
+def worlds() -> dict[str, WorldMap]:
     """The shipped maps, read from their files."""
-    return {
-        p.stem: MapInfo.load(p) for p in sorted(MAPS_DIR.glob("*.json")) if p.stem != "map.schema"
-    }
+    return {name: load_map(name) for name in list_maps()}
 
 
 @pytest.fixture

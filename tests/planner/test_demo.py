@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 
+from firmware_proto.worldmap import MAPS_DIR
 from tests.child import Child
-from tests.planner.conftest import MAPS_DIR
 
 pytestmark = pytest.mark.rclpy
 

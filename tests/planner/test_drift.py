@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import pytest
 
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import (
+    Replay,
+    StepPrediction,
+    Tolerances,
+    Trajectory,
+    TrajectorySample,
+    Verdict,
+)
 from planner.drift import DriftMonitor, predicted_pose
-from planner.geometry import Pose
-from planner.verdict import StepPrediction, Tolerances, Trajectory, TrajectorySample, Verdict
 
 
 def verdict_of(steps: list[list[tuple[float, Pose]]]) -> Verdict:
@@ -53,11 +60,7 @@ def verdict_of(steps: list[list[tuple[float, Pose]]]) -> Verdict:
         steps=tuple(predictions),
         trajectory=Trajectory(0.1, tuple(samples)),
         sim_time_s=t0,
-        map_name="test",
-        map_sha256="",
-        rover_sha256="",
-        plan_sha256="",
-        replay_query="",
+        replay=Replay(0, "test", "", "", "", "", first, 0.01, 10.0, False, "", "", ""),
     )
 
 

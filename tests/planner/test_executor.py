@@ -15,11 +15,11 @@ from typing import Any
 import pytest
 
 from firmware_proto.plan import Plan
+from firmware_proto.verdict import Verdict
 from gate.server import GateServer
 from planner.executor import ExecutorConfig, Progress
 from planner.gate_client import GateClient
 from planner.relay import DEFAULT_ROUTES
-from planner.verdict import Verdict
 from tests.rig import HilRig
 
 SPEED = 4.0

@@ -6,19 +6,19 @@ from collections.abc import Callable
 
 import pytest
 
+from firmware_proto.pose import Pose
+from firmware_proto.worldmap import WorldMap
 from planner.experiment import (
     ExperimentResult,
     footprint_hits,
     run_planning_experiment,
     trial_goals,
 )
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
 
 
-def test_footprint_check(planner: HeuristicLowLevelPlanner, worlds: dict[str, MapInfo]) -> None:
+def test_footprint_check(planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]) -> None:
     lab = worlds["lab"]
     straight = planner.route(lab.start, Pose(6.2, 3.0, 0.0), world=lab)
     assert footprint_hits(planner, lab, straight) == "table"
@@ -31,7 +31,7 @@ def test_footprint_check(planner: HeuristicLowLevelPlanner, worlds: dict[str, Ma
 
 
 def test_trial_goals_are_seeded_and_feasible(
-    planner: HeuristicLowLevelPlanner, worlds: dict[str, MapInfo]
+    planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]
 ) -> None:
     world = worlds["scn02"]
     goals = trial_goals(world, planner, 8, seed=3)
@@ -41,7 +41,7 @@ def test_trial_goals_are_seeded_and_feasible(
     need = planner.rover.footprint_radius_m + 0.1
     for _, goal in goals[2:]:
         assert world.clearance(goal.xy)[0] >= need
-        assert goal.distance_to(world.start.xy) >= 3.0
+        assert goal.distance_to((world.start.x, world.start.y)) >= 3.0
         assert -180.0 <= goal.yaw_deg < 180.0
     assert all(
         n.startswith("random_") for n, _ in trial_goals(world, planner, 3, include_suggested=False)

@@ -9,21 +9,22 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_proto.errors import VerdictError
 from firmware_proto.plan import Goal, Plan, PlanStep
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.verdict import Verdict
 from gate.server import GateServer
 from planner.errors import (
-    GateError,
     GateOverloadedError,
     GateProtocolError,
+    GateStatusError,
     GateTimeoutError,
     GateUnavailableError,
     PlannerError,
 )
 from planner.gate_client import GateClient, GateOptions, resolve_gate_settings
-from planner.geometry import Pose
 from planner.planner import HeuristicLowLevelPlanner
-from planner.verdict import Verdict
 from tests.planner.conftest import start_gate
 
 
@@ -58,8 +59,8 @@ def test_open_field_plan_is_approved_with_its_trajectory(
     assert verdict.failed_step is None
     assert verdict.distance_error_m < verdict.tolerances.position_m
     assert math.dist(verdict.final_pose.xy, (3.0, 4.0)) < 0.1
-    assert verdict.map_name == "scn01"
-    assert "start=1.0,4.0,0.0" in verdict.replay_query
+    assert verdict.replay.map == "scn01"
+    assert "start=1.0,4.0,0.0" in verdict.replay.query
     # Per step: the plan's steps, their end poses and expected durations.
     assert [(s.command, s.speed, s.distance) for s in verdict.steps] == [
         (c.command, c.speed, c.distance) for c in plan.commands
@@ -120,7 +121,7 @@ def test_schema_violations_give_gate_error_with_pointers(client: GateClient) -> 
         ],
         "extra": True,
     }
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(bad)
     e = err.value
     assert e.status == 400
@@ -135,14 +136,14 @@ def test_bad_options_name_the_parameter(
     client: GateClient, planner: HeuristicLowLevelPlanner
 ) -> None:
     plan = open_field_plan(planner)
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(plan, map_name="mars")
     assert (err.value.status, err.value.parameter) == (400, "map")
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.validate(plan, map_name="lab", start=Pose(50.0, 1.0, 0.0))
     assert (err.value.status, err.value.parameter) == (400, "start")
     assert "outside map 'lab'" in err.value.message
-    with pytest.raises(GateError) as err:
+    with pytest.raises(GateStatusError) as err:
         client.get_map("mars")
     assert err.value.status == 404
     with pytest.raises(ValueError, match="finite"):
@@ -213,7 +214,7 @@ def test_overloaded_gate_is_retried_after_retry_after_then_reported(own_gate: Ga
 
 def test_bearer_token(planner: HeuristicLowLevelPlanner) -> None:
     with start_gate(token="s3cret") as gate:
-        with GateClient(gate.url) as anonymous, pytest.raises(GateError) as err:
+        with GateClient(gate.url) as anonymous, pytest.raises(GateStatusError) as err:
             anonymous.health()
         assert err.value.status == 401
         with GateClient(gate.url, token="s3cret") as client:
@@ -268,14 +269,14 @@ def test_verdict_parsing(gate: GateServer, rover: RoverDescription) -> None:
     assert Verdict.from_dict(data) == verdict
     broken = dict(data)
     del broken["final_pose"]
-    with pytest.raises(GateProtocolError) as err:
+    with pytest.raises(VerdictError) as err:
         Verdict.from_dict(broken)
     assert err.value.pointers == ("/final_pose",)
     wrong = dict(data, steps=[dict(data["steps"][0], speed="fast")])
-    with pytest.raises(GateProtocolError) as err:
+    with pytest.raises(VerdictError) as err:
         Verdict.from_dict(wrong)
     assert err.value.pointers == ("/steps/0/speed",)
-    with pytest.raises(GateProtocolError):
+    with pytest.raises(VerdictError):
         Verdict.from_dict([1, 2])
 
 
@@ -293,19 +294,65 @@ def test_server_error_is_reported_not_retried(planner: HeuristicLowLevelPlanner)
     validator = BrokenValidator(load_rover(), maps, PlaybackSettings(), default)
     config = GateConfig(port=0, pool="thread", workers=1)
     with GateServer(config, validator=validator) as gate, GateClient(gate.url) as client:
-        with pytest.raises(GateError) as err:
+        with pytest.raises(GateStatusError) as err:
             client.validate(open_field_plan(planner), map_name="lab")
         assert client.requests == 1
     assert err.value.status == 500
     assert err.value.code == "internal_error"
 
 
-def test_the_gate_and_the_planner_share_one_list_of_failure_types() -> None:
-    """The planner reads verdicts over HTTP and may not import the gate: both take the
-    failure types from firmware_proto.verdict (the gate's OpenAPI enum is made of it)."""
-    import gate.verdict
-    import planner.verdict
-    from firmware_proto.verdict import FAILURE_TYPES
+def test_the_planner_reads_the_gates_verdict_into_the_model_the_gate_built(
+    client: GateClient, planner: HeuristicLowLevelPlanner
+) -> None:
+    """The planner reads verdicts over HTTP and may not import the gate: both use the one
+    model of firmware_proto.verdict, so what the gate serialised reads back equal."""
+    import gate
+    from firmware_proto import verdict as model
 
-    assert gate.verdict.FAILURE_TYPES is FAILURE_TYPES
-    assert planner.verdict.FAILURE_TYPES is FAILURE_TYPES
+    assert gate.Verdict is model.Verdict and gate.FAILURE_TYPES is model.FAILURE_TYPES
+    verdict = client.validate(open_field_plan(planner), map_name="lab")
+    again = model.Verdict.from_json(verdict.to_json())
+    assert again == verdict
+    assert verdict.trajectory.samples[-1].pose == verdict.final_pose
+
+
+def test_a_map_that_is_not_a_map_names_its_bad_field() -> None:
+    """The map the gate serves is read with the one map model, its violations becoming
+    the pointers of a GateProtocolError."""
+    import json
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    bad = {
+        "name": "odd",
+        "description": "a circle without a centre",
+        "bounds": {"min_x": 0, "min_y": 0, "max_x": 5, "max_y": 5},
+        "obstacles": [{"id": "a", "type": "circle", "center": [2], "radius": 0.5}],
+        "traction_regions": [],
+        "start": {"x": 1, "y": 1, "yaw_deg": 0},
+    }
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            body = json.dumps(bad).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format: str, *args: object) -> None:
+            pass
+
+    with HTTPServer(("127.0.0.1", 0), Handler) as server:
+        thread = threading.Thread(target=server.serve_forever, name="bad-map-gate")
+        thread.start()
+        try:
+            url = f"http://127.0.0.1:{server.server_address[1]}"
+            with GateClient(url) as client, pytest.raises(GateProtocolError) as err:
+                client.get_map("odd")
+        finally:
+            server.shutdown()
+            thread.join(timeout=10)
+    assert err.value.pointers == ("/obstacles/0/center",)
+    assert "/maps/odd" in str(err.value)

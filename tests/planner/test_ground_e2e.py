@@ -14,11 +14,11 @@ from typing import Any
 
 import pytest
 
-from emulator.worldmap import WorldMap, load_map
 from firmware_proto.plan import Plan
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.verdict import Verdict
+from firmware_proto.worldmap import WorldMap, load_map
 from planner.gate_client import GateClient
-from planner.verdict import Verdict
 from tests.rig import HilRig
 
 SPEED = 4.0

@@ -151,7 +151,7 @@ def test_a_recording_a_lab_can_open_tf_markers_diagnostics_metadata(
     from tests.planner.test_console import BASE
 
     world = worlds["lab"]
-    goal = next(g.pose for g in world.goals if g.name == "behind_table")
+    goal = world.goal("behind_table").pose
     mission = orchestrator("lab").plan_mission(goal, start=world.start)
     assert mission.approved and len(mission.attempts) >= 2  # the direct plan collides
     path = tmp_path / "mission.mcap"

@@ -9,16 +9,16 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_proto.pose import Pose
 from firmware_proto.rover import load_rover
+from firmware_proto.worldmap import load_map
 from gate.server import GateServer
 from planner.executor import ExecutionResult
 from planner.gate_client import GateClient
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
 from planner.mission import MissionRunner
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
-from tests.planner.conftest import MAPS_DIR, start_gate
+from tests.planner.conftest import start_gate
 from tests.rig import HilRig
 
 GOAL = Pose(1.2 + 1.5, 3.0, 0.0)  # 1.5 m straight ahead of the lab map's start
@@ -39,7 +39,7 @@ def slipping_rig() -> Iterator[HilRig]:
 
 
 def orchestrator(client: GateClient) -> PlannerOrchestrator:
-    world = MapInfo.load(MAPS_DIR / "lab.json")
+    world = load_map("lab")
     planner = HeuristicLowLevelPlanner(load_rover(), world=world)
     return PlannerOrchestrator(planner, client, map_name="lab", world=world)
 

@@ -12,6 +12,9 @@ from pathlib import Path
 import pytest
 
 from firmware_proto.plan import PlanStep
+from firmware_proto.pose import Pose
+from firmware_proto.verdict import StallReport
+from firmware_proto.worldmap import WorldMap
 from gate.server import GateServer
 from planner.errors import (
     GoalInObstacleError,
@@ -20,13 +23,10 @@ from planner.errors import (
     RepairError,
     UnreachableGoalError,
 )
-from planner.gate_client import GateClient
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from planner.gate_client import GateClient, GateOptions
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import DRIVE, HeuristicLowLevelPlanner, LegPlan
 from planner.repairs import PlannerContext, RepairSettings, stall_repair
-from planner.verdict import StallInfo
 from tests.planner.conftest import ring_map, slot_map, start_gate
 
 Make = Callable[..., PlannerOrchestrator]
@@ -49,7 +49,7 @@ def test_open_field_goal_is_approved_first_try(orchestrator: Make, client: GateC
 
 def test_dogleg_around_the_table(orchestrator: Make) -> None:
     orch = orchestrator("lab")
-    goal = next(g.pose for g in orch.world.goals if g.name == "behind_table")
+    goal = orch.world.goal("behind_table").pose
     result = orch.plan(goal)
     assert result.approved
     first, last = result.attempts[0], result.attempts[-1]
@@ -71,7 +71,7 @@ def test_thesis_dogleg_without_the_map(orchestrator: Make) -> None:
     """The thesis's blind dogleg (midpoint, side away from the contact, alternating,
     delta growing) gets around scn01's single rock."""
     orch = orchestrator("scn01", repair_settings=BLIND)
-    goal = next(g.pose for g in orch.world.goals if g.name == "behind_rock")
+    goal = orch.world.goal("behind_rock").pose
     result = orch.plan(goal)
     assert result.approved
     assert result.attempts[0].verdict.failure_type == "collision"
@@ -195,7 +195,7 @@ def test_blind_doglegs_alternate_and_grow(
 
 
 def test_bad_goals_are_refused_before_the_gate(
-    planner: HeuristicLowLevelPlanner, client: GateClient, worlds: dict[str, MapInfo]
+    planner: HeuristicLowLevelPlanner, client: GateClient, worlds: dict[str, WorldMap]
 ) -> None:
     orch = PlannerOrchestrator(planner, client, map_name="lab", world=worlds["lab"])
     for goal in (Pose(math.nan, 3, 0), Pose(3, math.inf, 0), Pose(3, 3, -math.inf)):
@@ -265,7 +265,7 @@ def test_stall_repair_slows_a_turn_and_bypasses_a_drive(
             approved=False,
             failure_type="stalled",
             failed_step=step,
-            stall=StallInfo(step, "no_encoder_progress", "both", 1.0),
+            stall=StallReport(step, "no_encoder_progress", "both", 1.0),
         )
         return PlannerContext(planner, leg, v, 0, (), (), orch.world, RepairSettings())
 
@@ -298,3 +298,35 @@ def test_approach_into_a_slot(
     assert wx == pytest.approx(6.0, abs=1e-6)
     assert wy < 5.3  # outside the slot, straight below the goal
     assert abs(result.verdict.final_pose.x - 6.0) < 0.1
+
+
+def test_a_collision_probability_above_the_limit_is_a_collision_to_repair(
+    orchestrator: Make,
+) -> None:
+    """The route around the table, its plans played on 40 twins of the gate's default
+    spread: with no collision allowed, a plan the nominal twin approves but some samples
+    see touching is rejected as a collision on the obstacle they hit most, and the
+    orchestrator repairs it; with any allowed, the first approval stands."""
+    goal = Pose(6.2, 3.0, 0.0)
+    options = GateOptions(samples=40, seed=2)
+    lenient = orchestrator("lab", options=options, max_collision_p=1.0).plan(goal)
+    assert lenient.approved and lenient.verdict.uncertainty is not None
+    assert lenient.verdict.uncertainty.samples == 40
+    strict = orchestrator("lab", options=options, max_collision_p=0.0).plan(goal)
+    by_chance = [
+        a for a in strict.attempts if a.verdict.failure_reason.startswith("collision probability")
+    ]
+    assert by_chance, [a.verdict.summary() for a in strict.attempts]
+    first = by_chance[0].verdict
+    u = first.uncertainty
+    assert u is not None and u.collision_probability > 0.0 and u.collisions
+    assert first.failure_type == "collision" and first.collision is not None
+    assert first.collision.obstacle_id == u.collisions[0].obstacle_id
+    if strict.approved:
+        assert strict.verdict.uncertainty is not None
+        assert strict.verdict.uncertainty.collision_probability == 0.0
+
+
+def test_a_collision_limit_needs_samples(orchestrator: Make) -> None:
+    with pytest.raises(ValueError, match="samples"):
+        orchestrator("lab", max_collision_p=0.1)

@@ -7,8 +7,8 @@ from typing import Any
 
 from PIL import Image
 
+from firmware_proto.pose import Pose
 from planner import picture
-from planner.geometry import Pose
 
 
 def _pixel(image: Image.Image, at: tuple[float, float]) -> tuple[int, ...]:

@@ -12,7 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_proto.plan import Plan, validate_plan
+from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
+from firmware_proto.worldmap import WorldMap
 from planner.errors import (
     GoalInObstacleError,
     InvalidPoseError,
@@ -20,8 +22,7 @@ from planner.errors import (
     PlannerError,
     PlanTooLongError,
 )
-from planner.geometry import Pose, wrap_deg
-from planner.mapinfo import MapInfo
+from planner.geometry import wrap_deg
 from planner.planner import (
     CORRECTION,
     DRIVE,
@@ -180,7 +181,7 @@ def test_leg_cut_keeps_the_waypoints_ahead(planner: HeuristicLowLevelPlanner) ->
 
 
 def test_bad_input_is_refused(
-    planner: HeuristicLowLevelPlanner, worlds: dict[str, MapInfo]
+    planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]
 ) -> None:
     lab = worlds["lab"]
     for bad in (math.nan, math.inf, -math.inf):
@@ -203,7 +204,7 @@ def test_bad_input_is_refused(
 
 
 def test_a_planner_with_a_map_checks_goals(
-    rover: RoverDescription, worlds: dict[str, MapInfo]
+    rover: RoverDescription, worlds: dict[str, WorldMap]
 ) -> None:
     p = HeuristicLowLevelPlanner(rover, world=worlds["lab"])
     with pytest.raises(GoalInObstacleError):

@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from firmware_proto.pose import Pose
 from firmware_proto.runtime.stall import StallRecord
-from planner.geometry import Pose
 from planner.mission import MissionReport
 from planner.stallreport import ended_on_link_fault, stall_report
 

@@ -16,12 +16,11 @@ from typing import Any
 import pytest
 
 from bridge.rosport.msgs import Bool, Odometry, String
-from planner.geometry import Pose
-from planner.mapinfo import MapInfo
+from firmware_proto.pose import Pose
+from firmware_proto.worldmap import load_map
 from planner.view import ClientQueue, ViewConfig, ViewHub, ViewServer
-from tests.planner.conftest import MAPS_DIR
 
-WORLD = MapInfo.load(MAPS_DIR / "lab.json")
+WORLD = load_map("lab")
 
 
 def _odom(x: float, y: float) -> Odometry:
@@ -332,7 +331,7 @@ def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fau
     from bridge.rosport.msgs import Int16MultiArray
     from planner.executor import Progress
 
-    goal = next(g.pose for g in WORLD.goals if g.name == "by_the_pillar")
+    goal = WORLD.goal("by_the_pillar").pose
     mission = orchestrator("lab").plan_mission(goal, start=WORLD.start)
     assert mission.approved
     hub = ViewHub(WORLD, rtt_s=0.0, time_scale=4.0).start()

@@ -74,6 +74,12 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
             str(recording),
             "--picture",
             str(tmp_path / "demo.png"),
+            # Plans played on 20 twins too (any collision probability accepted): the
+            # page draws their envelope along the plan and around the ghost.
+            "--max-collision-p",
+            "1",
+            "--samples",
+            "20",
         ],
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
@@ -118,6 +124,11 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
             drawn = page.evaluate("window.roverView.drawn")
             assert {"table", "pillar"} <= set(drawn["labels"]) and drawn["scale_m"] >= 0.5
             assert drawn["collisions"] >= 1 and drawn["stops"] == 0
+            assert drawn["envelopes"] > 0
+            assert page.evaluate(
+                "window.roverView.plans.some(p => p.approved && p.collision_p !== null)"
+            )
+            _wait(page, demo, "window.roverView.drawn.ghost_envelope", 10)
             # A page opened now, mid-mission, starts from the mission so far.
             late = browser.new_page(viewport={"width": 900, "height": 600})
             late.goto(url)

@@ -1,7 +1,7 @@
-"""README's walkthrough, 'Missions against a stack', run exactly as written: a stack
-up, two missions, a fault, ``rover status`` saying why, ``rover clear-stop``, a third
-mission. Real processes, real ROS 2 in the private network namespace; the stack at
-``--speed 4`` (a whole-mission test: marker ``serial``)."""
+"""The walkthrough of docs/commands.md, 'Missions against a stack', run exactly as
+written: a stack up, two missions, a fault, ``rover status`` saying why, ``rover
+clear-stop``, a third mission. Real processes, real ROS 2 in the private network
+namespace; the stack at ``--speed 4`` (a whole-mission test: marker ``serial``)."""
 
 from __future__ import annotations
 
@@ -22,8 +22,8 @@ pytestmark = [pytest.mark.rclpy, pytest.mark.serial, pytest.mark.timeout(300)]
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _readme_commands() -> list[str]:
-    text = (ROOT / "README.md").read_text()
+def _walkthrough_commands() -> list[str]:
+    text = (ROOT / "docs" / "commands.md").read_text()
     section = text.split("## Missions against a stack: a walkthrough", 1)[1]
     blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
     return [line for block in blocks[:2] for line in block.splitlines() if line.strip()]
@@ -42,10 +42,10 @@ def _rover(
     )
 
 
-def test_the_readme_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
+def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
     tmp_path: Path,
 ) -> None:
-    steps = _readme_commands()
+    steps = _walkthrough_commands()
     assert steps == [
         "rover stack up",
         'eval "$(rover stack env)"',
@@ -56,7 +56,7 @@ def test_the_readme_walkthrough_two_missions_a_fault_status_clear_stop_and_a_thi
         "rover stack inject clear:encoder-dropout:left",
         "rover clear-stop",
         "rover go --goal by_the_pillar",
-    ], "README's walkthrough changed: change this test with it"
+    ], "the walkthrough of docs/commands.md changed: change this test with it"
     env = {**os.environ, "ROVER_STACK_DIR": str(tmp_path / "stacks")}
     env.pop("ROS_DOMAIN_ID", None)  # the stack picks its own
     stack = Child(["stack", "up", "--speed", "4"], env)

@@ -8,6 +8,7 @@ reload itself is exercised with a stub udevadm on PATH that records its argument
 from __future__ import annotations
 
 import os
+import shutil
 import stat
 from pathlib import Path
 
@@ -152,7 +153,9 @@ def test_install_reloads_udev_and_a_second_run_changes_nothing(
     assert "udevadm trigger --action=change --subsystem-match=tty" in out
     assert "networkctl not found" in out
     assert "replug the USB-CAN adapter" in out
-    assert stub_udevadm.read_text().splitlines() == [
+    # The stand-in answers no version, so udev's check of the rules cannot run: said.
+    assert "the rules were not checked by udev here" in out
+    assert [c for c in stub_udevadm.read_text().splitlines() if c != "--version"] == [
         "control --reload-rules",
         "trigger --action=change --subsystem-match=tty",
     ]
@@ -160,7 +163,7 @@ def test_install_reloads_udev_and_a_second_run_changes_nothing(
     assert status == 0
     assert f"{rules_dir / '99-rover-motor.rules'} is up to date" in out
     assert "run:" not in out
-    assert len(stub_udevadm.read_text().splitlines()) == 2
+    assert len([c for c in stub_udevadm.read_text().splitlines() if c != "--version"]) == 2
 
 
 def test_failed_reload_keeps_the_files_and_says_what_to_run(
@@ -254,3 +257,19 @@ def test_a_failure_half_way_rolls_back_everything(
     assert old.read_text() == "# an older version\n"
     assert {p.name for p in rules_dir.iterdir()} == {old.name, other.name}
     assert not network_dir.exists()
+
+
+def test_rules_udev_rejects_are_not_installed(
+    udev_check: str, dirs: tuple[Path, Path], tmp_path: Path
+):
+    source = tmp_path / "udev"
+    shutil.copytree(UDEV_DIR, source, ignore=shutil.ignore_patterns("*.py", "__pycache__"))
+    broken = source / "70-rover-can.rules"
+    broken.write_text(broken.read_text() + 'SUBSYSTEM="net", NAME="rovercan9"\n')
+    last = len(broken.read_text().splitlines())
+    rules_dir, network_dir = dirs
+    plan = plan_install(source=source, rules_dir=rules_dir, network_dir=network_dir, reload=False)
+    assert plan.problems == (f"{broken}:{last}: Invalid operator for SUBSYSTEM.",)
+    with pytest.raises(InstallError, match="nothing was installed"):
+        execute(plan, out=lambda _line: None)
+    assert files_under(rules_dir.parents[1]) == []

@@ -15,7 +15,8 @@
 /* ------------------------------------------------------------------ helpers */
 
 #define FW_REST_UM_S 100           /* a side is at rest below 1e-4 m/s */
-#define FW_STALL_MIN_TARGET_UM_S 10000 /* stall detection watches commands above 0.01 m/s */
+#define FW_STALL_MIN_TARGET_UM_S 2500 /* stall detection watches ramped commands from
+                                        2.5 mm/s, half of speed 1: every step */
 
 /** v as a two's-complement int32 (no implementation-defined conversion). */
 static int32_t as_i32(uint32_t v)
@@ -244,6 +245,14 @@ static void init_state(fw_t *c, uint64_t now_us)
     c->n_pending = 0u;
     c->n_reported = 0u;
     c->reported_head = 0u;
+    c->clears = 0u;
+    c->last_cleared_id = 0u;
+    /* A reset MCU's UART: the frame counter restarts at 0 (the boot IDENT is seq 0) and
+     * a partial frame is gone. */
+    c->tx_seq = 0u;
+    rp_decoder_init(&c->dec);
+    rp_can_decoder_init(&c->can_dec);
+    c->dec_rejected_seen = 0u;
     reset_progress(c);
     c->have_rx = false;
     c->wd_tripped = false;
@@ -302,10 +311,6 @@ fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
     }
     c->error = (uint8_t)fw_check(c);
     c->rx_errors = 0u;
-    c->tx_seq = 0u;
-    rp_decoder_init(&c->dec);
-    rp_can_decoder_init(&c->can_dec);
-    c->dec_rejected_seen = 0u;
     init_state(c, now_us);
     if (c->error != FW_OK) {
         fw_hal_set_wheels(0, 0);
@@ -414,6 +419,7 @@ static void do_stop(fw_t *c, uint16_t stop_id, uint8_t reason, uint8_t cause)
     if (c->n_pending < FW_PENDING_STOPS) {
         fw_pending_stop_t *p = &c->pending[c->n_pending++];
         p->stop_id = stop_id;
+        p->clears = c->clears;
         p->arrived_us = c->now_us;
         read_travel(c, p->travel);
     }
@@ -557,8 +563,12 @@ static void on_motion(fw_t *c, const rp_motion_t *mo)
     send_ack(c, mo->seq, (uint8_t)RP_ACK_RESULT_ACCEPTED, (uint8_t)RP_ACK_FIELD_NONE);
 }
 
-static uint8_t do_clear(fw_t *c)
+/** ControllerModel._clear: the answer to CLEAR_STOP stop_id. */
+static uint8_t do_clear(fw_t *c, uint16_t stop_id)
 {
+    if (stop_id == c->last_cleared_id) {
+        return (uint8_t)RP_CLEAR_RESULT_CLEARED; /* a repeat that crossed its answer */
+    }
     if (c->latch == 0u) {
         return (uint8_t)RP_CLEAR_RESULT_NOT_LATCHED;
     }
@@ -568,6 +578,8 @@ static uint8_t do_clear(fw_t *c)
     c->latch = 0u;
     c->n_reported = 0u;
     c->reported_head = 0u;
+    c->clears++;
+    c->last_cleared_id = stop_id;
     c->state = (uint8_t)(c->handshake_ok ? RP_CONTROLLER_STATE_IDLE : RP_CONTROLLER_STATE_BOOT);
     return (uint8_t)RP_CLEAR_RESULT_CLEARED;
 }
@@ -670,7 +682,7 @@ void fw_handle(fw_t *c, uint64_t now_us, const rp_msg_t *msg)
         rp_msg_t m;
         m.id = RP_MSG_CLEAR_ACK;
         m.body.clear_ack.stop_id = msg->body.clear_stop.stop_id;
-        m.body.clear_ack.result = do_clear(c);
+        m.body.clear_ack.result = do_clear(c, m.body.clear_ack.stop_id);
         send(c, &m);
         break;
     }
@@ -895,7 +907,8 @@ void fw_control(fw_t *c, uint64_t now_us)
     c->now_us = now_us;
     check_watchdog(c);
     read_travel(c, travel);
-    if (!c->running && c->q_len > 0u && c->latch == 0u) {
+    /* A STOPPED still owed (a clear came before rest) holds the queue. */
+    if (!c->running && c->q_len > 0u && c->latch == 0u && c->n_pending == 0u) {
         start_next(c, travel);
     }
     if (c->running) {
@@ -966,7 +979,8 @@ static void report_stopped(fw_t *c, const int32_t travel[2])
         m.body.stopped.distance_mm = (uint16_t)(mm > 0xFFFF ? 0xFFFF : mm);
         m.body.stopped.duration_ms = (uint16_t)(ms > 0xFFFF ? 0xFFFF : ms);
         send(c, &m);
-        if (p->stop_id != 0u) {
+        /* Remembered only within its latch: a CLEARED it predates makes it new again. */
+        if (p->stop_id != 0u && p->clears == c->clears) {
             if (c->n_reported < FW_REPORTED_STOPS) {
                 c->reported[c->n_reported++] = p->stop_id;
             } else {
@@ -1041,6 +1055,18 @@ static int32_t wrap24(int32_t v)
     return (int32_t)(((uint32_t)v + 0x800000u) & 0xFFFFFFu) - 0x800000;
 }
 
+/**
+ * A sensor sample (ENCODERS, WHEEL_SPEEDS, IMU, POSE): sent only in a session
+ * (docs/protocol.md, Handshake). The sensors are read on schedule all the same, so the
+ * HAL sees the same calls with or without a session.
+ */
+static void send_sample(fw_t *c, const rp_msg_t *msg)
+{
+    if (c->handshake_ok) {
+        send(c, msg);
+    }
+}
+
 static void fast_telemetry(fw_t *c)
 {
     const uint16_t t_ms = (uint16_t)(((c->now_us - c->boot_us) / 1000u) & 0xFFFFu);
@@ -1053,21 +1079,21 @@ static void fast_telemetry(fw_t *c)
     m.body.encoders.t_ms = t_ms;
     m.body.encoders.left = wrap24(travel[0]);
     m.body.encoders.right = wrap24(travel[1]);
-    send(c, &m);
+    send_sample(c, &m);
     m.id = RP_MSG_WHEEL_SPEEDS;
     m.body.wheel_speeds.t_ms = t_ms;
     m.body.wheel_speeds.left_mm_s = mm12(speed[0]);
     m.body.wheel_speeds.right_mm_s = mm12(speed[1]);
     m.body.wheel_speeds.left_target_mm_s = mm12(c->setpoint[0]);
     m.body.wheel_speeds.right_target_mm_s = mm12(c->setpoint[1]);
-    send(c, &m);
+    send_sample(c, &m);
     if (fw_hal_read_imu(&imu)) {
         m.id = RP_MSG_IMU;
         m.body.imu.t_ms = t_ms;
         m.body.imu.yaw_rate_mrad_s = imu.yaw_rate_mrad_s;
         m.body.imu.accel_x_mm_s2 = imu.accel_x_mm_s2;
         m.body.imu.accel_y_mm_s2 = imu.accel_y_mm_s2;
-        send(c, &m);
+        send_sample(c, &m);
     }
 }
 
@@ -1116,7 +1142,7 @@ static void telemetry(fw_t *c)
         m.body.pose.yaw_ddeg = pose.yaw_ddeg;
         m.body.pose.sigma_cm = pose.sigma_cm;
         m.body.pose.age_4ms = (uint8_t)(age > 255 ? 255 : age);
-        send(c, &m);
+        send_sample(c, &m);
     }
     if (due(&c->hb, now)) {
         advance(&c->hb, c->heartbeat_hz, now);

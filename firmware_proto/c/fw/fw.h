@@ -108,6 +108,7 @@ typedef struct {
 /** A stop waiting for both wheels at rest, to be answered with STOPPED. */
 typedef struct {
     uint16_t stop_id;
+    uint16_t clears;      /**< fw_t.clears when the stop arrived */
     uint64_t arrived_us;
     int32_t travel[2];
 } fw_pending_stop_t;
@@ -158,6 +159,8 @@ typedef struct {
     uint8_t n_pending;
     uint16_t reported[FW_REPORTED_STOPS];
     uint8_t n_reported, reported_head;
+    uint16_t clears;          /**< CLEAR_STOPs answered CLEARED since boot (wraps) */
+    uint16_t last_cleared_id; /**< stop_id of the last CLEARED (0: none since boot) */
     /* PROGRESS of the last ended step */
     rp_progress_t ended;
     /* watchdog and stall */
@@ -186,7 +189,11 @@ void fw_default_config(fw_config_t *cfg);
  */
 fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us);
 
-/** A reset: everything but the configuration and the rx_errors count is lost; IDENT. */
+/**
+ * A reset: everything but the configuration and the rx_errors count is lost (the frame
+ * counter restarts at 0, so the IDENT sent is seq 0; the remembered CLEAR_STOP id is
+ * forgotten); IDENT.
+ */
 void fw_reboot(fw_t *c, uint64_t now_us);
 
 /** Serial: feed received bytes; every complete frame is handled before this returns. */

@@ -14,7 +14,8 @@
  * line.
  *
  * The same input, cut differently, is also fed as CAN frames to a second controller on
- * node 1 (fw_on_can), whose every sent frame must decode as its own.
+ * node 1 (fw_on_can), whose every sent frame must decode as its own; a matching HELLO
+ * opens a session there whenever it has none, every 50 ms.
  *
  * Input: a sequence of records; byte 0 of each: bits 0..5 the chunk length (0..63) fed
  * to fw_on_bytes, bits 6..7 what happens after it (0, 1: a tick of 1 ms; 2: 50 ticks;
@@ -165,10 +166,27 @@ static void fuzz_can(const uint8_t *data, size_t size)
     fw_config_t cfg;
     uint64_t t = 0u;
     size_t i = 0u;
+    rp_msg_t hello;
+    uint32_t hello_id = 0u;
+    uint8_t hello_data[RP_MAX_PAYLOAD_BYTES];
+    int n;
     fw_default_config(&cfg);
     cfg.transport = FW_TRANSPORT_CAN;
     fw_init(&can, &cfg, t);
+    /* A host that opens a session, and a new one every 50 ms while it has none (as the
+     * bridge does): without one the core sends no sensor samples and refuses every
+     * MOTION, and the random frames end sessions (a mismatched HELLO) far more often
+     * than they open one. */
+    hello.id = RP_MSG_HELLO;
+    hello.body.hello.protocol_version = (uint8_t)RP_PROTOCOL_VERSION;
+    hello.body.hello.schema_hash = (uint16_t)RP_SCHEMA_HASH;
+    n = rp_can_encode(&hello, 1u, true, &hello_id, hello_data);
+    require(n >= 0);
     while (i + 3u <= size) {
+        if (!can.handshake_ok && t % 50000u == 0u) {
+            fw_on_can(&can, t, hello_id, false, false, hello_data, (size_t)n);
+            require(can.handshake_ok);
+        }
         const uint32_t msg_id = data[i] & 0x7Fu;
         const uint32_t node = (data[i + 1] & 3u) == 0u ? 0u : ((data[i + 1] & 3u) == 1u ? 2u : 1u);
         const uint8_t flags = data[i + 2];

@@ -1,5 +1,5 @@
-"""Map files: schema and semantic violations reported with their JSON pointer,
-loading by name or path, canonical digests, geometry helpers."""
+"""The map model: schema and semantic violations reported with their JSON pointer,
+loading by name or path, canonical digests, lookups and clearance queries."""
 
 from __future__ import annotations
 
@@ -10,18 +10,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
-from emulator.errors import EmulatorError, MapError
-from emulator.worldmap import (
+from firmware_proto.errors import MapError, ProtoError
+from firmware_proto.worldmap import (
     BOUNDS_ID,
     MAPS_DIR,
+    CircleObstacle,
+    PolygonObstacle,
+    SegmentObstacle,
     WorldMap,
-    convex_parts,
     list_maps,
     load_map,
-    point_in_polygon,
     validate_map,
 )
 
@@ -111,9 +110,9 @@ def test_duplicate_goal_names() -> None:
     assert ("/goals/1/name", "duplicate goal name 'east'") in validate_map(doc)
 
 
-def test_map_error_is_a_value_error_and_an_emulator_error() -> None:
+def test_map_error_is_a_value_error_and_a_protocol_error() -> None:
     assert issubclass(MapError, ValueError)
-    assert issubclass(MapError, EmulatorError)
+    assert issubclass(MapError, ProtoError)
 
 
 def test_load_by_name_and_by_path(tmp_path: Path) -> None:
@@ -159,61 +158,72 @@ def test_digest_is_canonical() -> None:
 def test_lookups() -> None:
     world = WorldMap.from_dict(VALID)
     assert world.goal("east").note == "behind the crate"
-    assert world.obstacle("rock").id == "rock"
+    rock = world.obstacle("rock")
+    assert rock is not None and rock.id == "rock"
     with pytest.raises(KeyError, match="known: east"):
         world.goal("west")
-    with pytest.raises(KeyError):
-        world.obstacle("nope")
+    assert world.obstacle("nope") is None
+    assert world.obstacle(BOUNDS_ID) is None
 
 
 def test_clearance() -> None:
     world = WorldMap.from_dict(VALID)
-    inside = world.clearance(2.5, 1.5)
+    inside = world.clearance((2.5, 1.5))
     assert inside.obstacle_id == "crate"
     assert inside.distance_m == pytest.approx(-0.5)
-    near_rock = world.clearance(1.0, 2.0)
+    near_rock = world.clearance((1.0, 2.0))
     assert near_rock.obstacle_id == "rock"
     assert near_rock.distance_m == pytest.approx(0.3)
-    near_wall = world.clearance(3.9, 2.8)
+    near_wall = world.clearance((3.9, 2.8))
     assert near_wall.obstacle_id == BOUNDS_ID
     assert near_wall.distance_m == pytest.approx(0.1)
-    assert world.clearance(2.0, 0.3).obstacle_id == "rail"
+    assert world.clearance((2.0, 0.3)).obstacle_id == "rail"
+    distance_m, obstacle_id = world.clearance((1.0, 2.0), max_m=0.1)
+    assert (distance_m, obstacle_id) == (0.1, "")  # nothing that close
 
 
-def polygon_area(points: tuple[tuple[float, float], ...]) -> float:
-    n = len(points)
-    return 0.5 * sum(
-        points[i][0] * points[(i + 1) % n][1] - points[(i + 1) % n][0] * points[i][1]
-        for i in range(n)
+def test_a_point_outside_the_walls_and_inside_an_obstacle_names_the_obstacle() -> None:
+    doc = mutated("/obstacles/0/points", [[3.5, 1], [4.5, 1], [4.5, 2], [3.5, 2]])
+    world = WorldMap.from_dict(doc)
+    found = world.clearance((4.05, 1.5))  # 0.05 m beyond the wall at x = 4
+    assert found.obstacle_id == "crate"
+    assert found.distance_m == pytest.approx(-0.45)
+
+
+def test_clearance_on_the_lab_map() -> None:
+    lab = load_map("lab")
+    for point, distance_m, obstacle_id in [
+        ((3.0, 3.0), 0.6, "table"),
+        ((4.0, 3.0), -0.4, "table"),
+        ((0.1, 3.0), 0.1, BOUNDS_ID),
+    ]:
+        found = lab.clearance(point)
+        assert found.distance_m == pytest.approx(distance_m) and found.obstacle_id == obstacle_id
+    assert lab.segment_clearance((1.2, 3.0), (6.2, 3.0)) == (0.0, "table")
+    assert lab.segment_blocked((2.0, 4.6), (5.0, 4.6), 0.3) is None
+    assert lab.segment_blocked((2.0, 4.6), (5.0, 4.6), 1.0) == "table"
+    assert lab.point_blocked((5.6, 1.7), 0.2) == "pillar"
+    assert lab.point_blocked((0.1, 3.0), 0.2) == BOUNDS_ID
+
+
+def test_every_obstacle_answers_from_its_outline() -> None:
+    square = PolygonObstacle("sq", ((0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)))
+    disc = CircleObstacle("disc", (5.0, 5.0), 1.0)
+    wall = SegmentObstacle("wall", (0.0, 5.0), (2.0, 5.0), 0.1)
+    assert [o.kind for o in (square, disc, wall)] == ["polygon", "circle", "segment"]
+    assert (square.radius_m, disc.points, wall.points) == (
+        0.0,
+        ((5.0, 5.0),),
+        ((0.0, 5.0), (2.0, 5.0)),
     )
-
-
-@given(
-    radii=st.lists(st.floats(0.3, 2.0), min_size=3, max_size=14),
-    phase=st.floats(0.0, 1.0),
-)
-def test_convex_parts_cover_a_star_polygon_exactly(radii: list[float], phase: float) -> None:
-    """Star-shaped polygons (simple, often concave) split into convex, counter-clockwise
-    pieces whose areas sum to the polygon's."""
-    n = len(radii)
-    points = tuple(
-        (r * math.cos(2 * math.pi * (i + phase) / n), r * math.sin(2 * math.pi * (i + phase) / n))
-        for i, r in enumerate(radii)
-    )
-    parts = convex_parts(points)
-    assert sum(polygon_area(p) for p in parts) == pytest.approx(polygon_area(points), rel=1e-9)
-    for part in parts:
-        assert polygon_area(part) > 0
-        k = len(part)
-        for i in range(k):
-            (ax, ay), (bx, by), (cx, cy) = part[i], part[(i + 1) % k], part[(i + 2) % k]
-            assert (bx - ax) * (cy - ay) - (by - ay) * (cx - ax) >= -1e-12
-
-
-def test_concave_obstacle_collides_where_the_polygon_is() -> None:
-    ell = ((0.0, 0.0), (2.0, 0.0), (2.0, 0.5), (0.5, 0.5), (0.5, 2.0), (0.0, 2.0))
-    parts = convex_parts(ell)
-    assert len(parts) > 1
-    assert point_in_polygon(0.25, 1.5, ell)
-    assert not point_in_polygon(1.5, 1.5, ell)
-    assert convex_parts(ell) == parts  # deterministic
+    assert square.distance((1.0, 1.0)) == pytest.approx(-1.0)
+    assert disc.distance((5.0, 7.0)) == pytest.approx(1.0)
+    assert wall.distance((1.0, 5.5)) == pytest.approx(0.4)
+    assert square.segment_distance((3.0, -1.0), (3.0, 3.0)) == pytest.approx(1.0)
+    assert square.segment_distance((-1.0, 1.0), (3.0, 1.0)) == 0.0
+    assert disc.segment_distance((3.0, 3.0), (7.0, 3.0)) == pytest.approx(1.0)
+    assert wall.segment_distance((1.0, 4.0), (1.0, 6.0)) == pytest.approx(-0.1)
+    assert disc.box == (4.0, 4.0, 6.0, 6.0)
+    assert wall.box == pytest.approx((-0.1, 4.9, 2.1, 5.1))
+    assert square.extent_along((0.0, 0.0), (1.0, 0.0)) == (0.0, 2.0)
+    assert disc.extent_along((0.0, 5.0), (1.0, 0.0)) == (4.0, 6.0)

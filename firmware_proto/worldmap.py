@@ -1,18 +1,29 @@
-"""Map files of the twin: walls, obstacles, traction regions, start pose and goals.
+"""Maps: walls, obstacles, traction regions, start pose and goals; the one map model.
 
-A map is a JSON document checked against ``emulator/maps/map.schema.json`` (JSON Schema
-2020-12, ``additionalProperties: false`` everywhere) and then for what a schema cannot
-say (ids unique, polygons simple, bounds non-empty, start and goals inside the bounds).
-Every violation is reported with its JSON pointer; :func:`load_map` raises
-:class:`~emulator.errors.MapError` carrying them all.
+The twin (emulator) plays plans on a map, the gate serves maps at ``GET /maps/{name}``,
+the planner plans around them: all three read this model, so a map means the same to
+each (docs/twin.md, Maps).
+
+A map is a JSON document checked against ``firmware_proto/data/maps/map.schema.json``
+(JSON Schema 2020-12, ``additionalProperties: false`` everywhere) and then for what a
+schema cannot say (ids unique, polygons simple, bounds non-empty, start and goals inside
+the bounds). Every violation is reported with its JSON pointer; :func:`load_map` and
+:meth:`WorldMap.from_dict` raise :class:`~firmware_proto.errors.MapError` carrying them
+all.
 
 Coordinates are metres in the map frame (x east, y north), yaw in degrees
 counter-clockwise from +x. The bounds are walls; obstacles are polygons (simple, convex
-or not), circles, or segments with an optional radius (half the wall thickness).
+or not), circles, or segments with an optional radius (half the wall thickness). Every
+obstacle answers the same questions (:class:`Obstacle`): its outline (``kind``,
+``points``, ``radius_m``), its distance to a point or a segment, its bounding box.
 
-Shipped maps live in ``emulator/maps/<name>.json``: :func:`list_maps` names them and
-:func:`load_map` takes a bare name (``"lab"``) or a path. :meth:`WorldMap.digest` hashes
-the canonical content so that a verdict can name the exact map it was computed on.
+Shipped maps live in ``firmware_proto/data/maps/<name>.json``: :func:`list_maps` names
+them and :func:`load_map` takes a bare name (``"lab"``) or a path.
+:meth:`WorldMap.digest` hashes the canonical content so that a verdict can name the
+exact map it was computed on. The clearance queries (:meth:`WorldMap.clearance`,
+:meth:`~WorldMap.segment_clearance`, :meth:`~WorldMap.point_blocked`,
+:meth:`~WorldMap.segment_blocked`) are planning aids, linear in the number of
+obstacles: the gate, which plays a plan on the twin, stays the judge.
 """
 
 from __future__ import annotations
@@ -22,13 +33,23 @@ import json
 import logging
 import math
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 from jsonschema import Draft202012Validator
 
-from emulator.errors import MapError
+from firmware_proto.errors import MapError
+from firmware_proto.geometry import (
+    Point,
+    point_in_polygon,
+    point_segment_distance,
+    polygon_crossing,
+    segment_polygon_distance,
+    segment_segment_distance,
+    signed_area,
+)
+from firmware_proto.pose import Pose
 from firmware_proto.schemacheck import schema_violations
 
 __all__ = [
@@ -38,31 +59,28 @@ __all__ = [
     "CircleObstacle",
     "Clearance",
     "MapGoal",
-    "MapPose",
     "Obstacle",
     "PolygonObstacle",
     "SegmentObstacle",
     "TractionRegion",
     "WorldMap",
-    "convex_parts",
     "list_maps",
     "load_map",
     "map_schema",
-    "point_in_polygon",
     "validate_map",
 ]
 
 logger = logging.getLogger(__name__)
 
-MAPS_DIR = Path(__file__).resolve().parent / "maps"
+MAPS_DIR = Path(__file__).resolve().parent / "data" / "maps"
 """Directory of the shipped maps and of ``map.schema.json``."""
 
 BOUNDS_ID = "bounds"
 """Obstacle id of the walls formed by the bounds (reserved: no obstacle may use it)."""
 
-Point = tuple[float, float]
-
 _EPS = 1e-12
+
+Box = tuple[float, float, float, float]
 
 
 # -- values --------------------------------------------------------------------------
@@ -91,35 +109,123 @@ class Bounds:
         """Whether the point lies strictly inside the walls."""
         return self.min_x < x < self.max_x and self.min_y < y < self.max_y
 
+    def distance(self, p: Point) -> float:
+        """Distance from ``p`` to the nearest wall, m (negative outside)."""
+        return min(p[0] - self.min_x, self.max_x - p[0], p[1] - self.min_y, self.max_y - p[1])
+
+    def __str__(self) -> str:
+        return f"x {self.min_x:g}..{self.max_x:g}, y {self.min_y:g}..{self.max_y:g}"
+
+
+class _Outline:
+    """What every obstacle answers from its outline (``points``, ``radius_m``): its
+    bounding box and its shadow on a line. An obstacle class provides ``kind``,
+    ``points``, ``radius_m``, ``distance`` and ``segment_distance``."""
+
+    if TYPE_CHECKING:
+
+        @property
+        def points(self) -> tuple[Point, ...]:
+            """The outline's points."""
+
+        @property
+        def radius_m(self) -> float:
+            """How far the surface lies beyond the points, m."""
+
+    @cached_property
+    def box(self) -> Box:
+        """Axis-aligned bounding box ``(min_x, min_y, max_x, max_y)``, m."""
+        r = self.radius_m
+        xs = [q[0] for q in self.points]
+        ys = [q[1] for q in self.points]
+        return min(xs) - r, min(ys) - r, max(xs) + r, max(ys) + r
+
+    def extent_along(self, origin: Point, direction: Point) -> tuple[float, float]:
+        """The obstacle's shadow on the line ``origin + s * direction`` (``direction`` a
+        unit vector): ``(s_min, s_max)``, m."""
+        ux, uy = direction
+        proj = [(q[0] - origin[0]) * ux + (q[1] - origin[1]) * uy for q in self.points]
+        return min(proj) - self.radius_m, max(proj) + self.radius_m
+
 
 @dataclass(frozen=True)
-class PolygonObstacle:
+class PolygonObstacle(_Outline):
     """A simple polygon (convex or not), vertices in file order."""
 
     id: str
     points: tuple[Point, ...]
+    kind: ClassVar[str] = "polygon"
+
+    @property
+    def radius_m(self) -> float:
+        """0: the surface is the outline."""
+        return 0.0
+
+    def distance(self, p: Point) -> float:
+        """Distance from ``p`` to the surface, m; negative inside."""
+        pts = self.points
+        n = len(pts)
+        edge = min(point_segment_distance(p, pts[i], pts[(i + 1) % n]) for i in range(n))
+        return -edge if point_in_polygon(p, pts) else edge
+
+    def segment_distance(self, a: Point, b: Point) -> float:
+        """Distance from segment ``a``-``b`` to the surface, m (0 when it touches or
+        enters it)."""
+        return segment_polygon_distance(a, b, self.points)
 
 
 @dataclass(frozen=True)
-class CircleObstacle:
+class CircleObstacle(_Outline):
     """A disc: centre and radius, m."""
 
     id: str
     center: Point
-    radius: float
+    radius_m: float
+    kind: ClassVar[str] = "circle"
+
+    @property
+    def points(self) -> tuple[Point, ...]:
+        """The centre, alone."""
+        return (self.center,)
+
+    def distance(self, p: Point) -> float:
+        """Distance from ``p`` to the surface, m; negative inside."""
+        return math.hypot(p[0] - self.center[0], p[1] - self.center[1]) - self.radius_m
+
+    def segment_distance(self, a: Point, b: Point) -> float:
+        """Distance from segment ``a``-``b`` to the surface, m (<= 0 when it touches or
+        enters it)."""
+        return point_segment_distance(self.center, a, b) - self.radius_m
 
 
 @dataclass(frozen=True)
-class SegmentObstacle:
-    """A wall from ``a`` to ``b`` with half thickness ``radius`` (0: an ideal line), m."""
+class SegmentObstacle(_Outline):
+    """A wall from ``a`` to ``b`` with half thickness ``radius_m`` (0: an ideal line), m."""
 
     id: str
     a: Point
     b: Point
-    radius: float = 0.0
+    radius_m: float = 0.0
+    kind: ClassVar[str] = "segment"
+
+    @property
+    def points(self) -> tuple[Point, ...]:
+        """The two ends."""
+        return (self.a, self.b)
+
+    def distance(self, p: Point) -> float:
+        """Distance from ``p`` to the surface, m; negative inside."""
+        return point_segment_distance(p, self.a, self.b) - self.radius_m
+
+    def segment_distance(self, a: Point, b: Point) -> float:
+        """Distance from segment ``a``-``b`` to the surface, m (<= 0 when it touches or
+        enters it)."""
+        return segment_segment_distance(a, b, self.a, self.b) - self.radius_m
 
 
 Obstacle = PolygonObstacle | CircleObstacle | SegmentObstacle
+"""An obstacle of any kind (each has ``id``, ``kind``, ``points``, ``radius_m``,
+``box``, ``distance``, ``segment_distance`` and ``extent_along``)."""
 
 
 @dataclass(frozen=True)
@@ -132,15 +238,6 @@ class TractionRegion:
 
 
 @dataclass(frozen=True)
-class MapPose:
-    """A pose in the map: metres, yaw in degrees counter-clockwise from +x."""
-
-    x: float
-    y: float
-    yaw_deg: float
-
-
-@dataclass(frozen=True)
 class MapGoal:
     """A suggested goal: a name, a pose (metres, degrees) and a note for people."""
 
@@ -150,13 +247,18 @@ class MapGoal:
     yaw_deg: float
     note: str = ""
 
+    @property
+    def pose(self) -> Pose:
+        """Where the goal is, as a pose."""
+        return Pose(self.x, self.y, self.yaw_deg)
 
-@dataclass(frozen=True)
-class Clearance:
-    """Distance from a point to the nearest obstacle surface or wall, m.
+
+class Clearance(NamedTuple):
+    """Distance from a point (or a segment) to the nearest obstacle surface or wall, m.
 
     Negative inside an obstacle (or outside the walls). ``obstacle_id`` names it
-    (:data:`BOUNDS_ID` for the walls, ``""`` for a map without any).
+    (:data:`BOUNDS_ID` for the walls; ``""`` when a query's ``max_m`` found nothing that
+    close). A named tuple: ``distance_m, obstacle_id = world.clearance(p)``.
     """
 
     distance_m: float
@@ -172,7 +274,7 @@ class WorldMap:
     bounds: Bounds
     obstacles: tuple[Obstacle, ...]
     traction_regions: tuple[TractionRegion, ...]
-    start: MapPose
+    start: Pose
     goals: tuple[MapGoal, ...] = ()
 
     @classmethod
@@ -239,38 +341,91 @@ class WorldMap:
         known = ", ".join(g.name for g in self.goals) or "none"
         raise KeyError(f"map {self.name!r} has no goal {name!r} (known: {known})")
 
-    def obstacle(self, obstacle_id: str) -> Obstacle:
-        """The obstacle with this id.
-
-        Raises:
-            KeyError: no such obstacle.
-        """
+    def obstacle(self, obstacle_id: str) -> Obstacle | None:
+        """The obstacle with this id; ``None`` for the walls (:data:`BOUNDS_ID`) or an
+        id the map lacks."""
         for o in self.obstacles:
             if o.id == obstacle_id:
                 return o
-        raise KeyError(f"map {self.name!r} has no obstacle {obstacle_id!r}")
+        return None
 
-    def clearance(self, x: float, y: float) -> Clearance:
-        """Signed distance from ``(x, y)`` to the nearest obstacle surface or wall, m.
-
-        Pure geometry, linear in the number of obstacle edges: meant for planning
-        aids and tests, not for every physics step.
-        """
-        b = self.bounds
-        best = min(x - b.min_x, b.max_x - x, y - b.min_y, b.max_y - y)
-        best_id = BOUNDS_ID
+    def clearance(self, p: Point, max_m: float = math.inf) -> Clearance:
+        """Signed distance from ``p`` to the nearest obstacle surface or wall, m
+        (negative inside), and that obstacle's id; at most ``max_m`` (then with the id
+        ``""``: nothing that close)."""
+        best, best_id = max_m, ""
+        wall = self.bounds.distance(p)
+        if wall < best:
+            best, best_id = wall, BOUNDS_ID
         for o in self.obstacles:
-            d = _distance_to_obstacle(o, x, y)
+            x0, y0, x1, y1 = o.box
+            reach = max(best, 0.0)  # a point outside the walls may still be inside o
+            if p[0] < x0 - reach or p[0] > x1 + reach or p[1] < y0 - reach or p[1] > y1 + reach:
+                continue
+            d = o.distance(p)
             if d < best:
                 best, best_id = d, o.id
         return Clearance(best, best_id)
+
+    def segment_clearance(self, a: Point, b: Point, max_m: float = math.inf) -> Clearance:
+        """Least distance between segment ``a``-``b`` and any obstacle surface or wall,
+        m (<= 0 when it touches or crosses one), and that obstacle's id; at most
+        ``max_m`` (then with the id ``""``)."""
+        best, best_id = max_m, ""
+        wall = min(self.bounds.distance(a), self.bounds.distance(b))
+        if wall < best:
+            best, best_id = wall, BOUNDS_ID
+        for o in self.obstacles:
+            x0, y0, x1, y1 = o.box
+            reach = max(best, 0.0)
+            if (
+                max(a[0], b[0]) < x0 - reach
+                or min(a[0], b[0]) > x1 + reach
+                or max(a[1], b[1]) < y0 - reach
+                or min(a[1], b[1]) > y1 + reach
+            ):
+                continue
+            d = o.segment_distance(a, b)
+            if d < best:
+                best, best_id = d, o.id
+        return Clearance(best, best_id)
+
+    def point_blocked(self, p: Point, radius_m: float) -> str | None:
+        """The id of an obstacle (or wall) closer to ``p`` than ``radius_m``, else
+        ``None``: whether a disc of that radius fits there."""
+        if self.bounds.distance(p) < radius_m:
+            return BOUNDS_ID
+        for o in self.obstacles:
+            x0, y0, x1, y1 = o.box
+            if p[0] < x0 - radius_m or p[0] > x1 + radius_m:
+                continue
+            if p[1] < y0 - radius_m or p[1] > y1 + radius_m:
+                continue
+            if o.distance(p) < radius_m:
+                return o.id
+        return None
+
+    def segment_blocked(self, a: Point, b: Point, radius_m: float) -> str | None:
+        """The id of an obstacle (or wall) closer to segment ``a``-``b`` than
+        ``radius_m``, else ``None``: whether a disc of that radius can slide along it."""
+        if min(self.bounds.distance(a), self.bounds.distance(b)) < radius_m:
+            return BOUNDS_ID
+        lo_x, hi_x = min(a[0], b[0]) - radius_m, max(a[0], b[0]) + radius_m
+        lo_y, hi_y = min(a[1], b[1]) - radius_m, max(a[1], b[1]) + radius_m
+        for o in self.obstacles:
+            x0, y0, x1, y1 = o.box
+            if x1 < lo_x or x0 > hi_x or y1 < lo_y or y0 > hi_y:
+                continue
+            if o.segment_distance(a, b) < radius_m:
+                return o.id
+        return None
 
     def region_scale_at(self, x: float, y: float) -> float:
         """Friction scale of the ground at ``(x, y)``: the last region containing it,
         else 1.0."""
         scale = 1.0
         for r in self.traction_regions:
-            if point_in_polygon(x, y, r.polygon):
+            if point_in_polygon((x, y), r.polygon):
                 scale = r.mu_scale
         return scale
 
@@ -299,9 +454,9 @@ def load_map(name_or_path: str | Path) -> WorldMap:
     """Read and validate a map.
 
     Args:
-        name_or_path: a shipped map's bare name (``"lab"`` -> ``emulator/maps/lab.json``)
-            or the path of a JSON file (a :class:`~pathlib.Path`, or a string containing a
-            path separator or ending in ``.json``).
+        name_or_path: a shipped map's bare name (``"lab"``: ``lab.json`` in
+            :data:`MAPS_DIR`) or the path of a JSON file (a :class:`~pathlib.Path`, or a
+            string containing a path separator or ending in ``.json``).
 
     Raises:
         MapError: unknown name (listing the shipped ones), unreadable file, not JSON, or
@@ -398,11 +553,11 @@ def _polygon_violations(raw: list[list[float]], ptr: str) -> list[tuple[str, str
             if j == 0:
                 return [(f"{ptr}/{i}", "repeats the first point (do not close polygons)")]
             return [(f"{ptr}/{j}", "repeats the previous point")]
-    crossing = _self_intersection(pts)
+    crossing = polygon_crossing(pts)
     if crossing is not None:
         i, j = crossing
         return [(ptr, f"polygon is not simple: edge {i} crosses edge {j}")]
-    if abs(_signed_area(pts)) < _EPS:
+    if abs(signed_area(pts)) < _EPS:
         return [(ptr, "polygon has zero area")]
     return []
 
@@ -431,7 +586,7 @@ def _build(obj: dict[str, Any]) -> WorldMap:
             TractionRegion(r["id"], tuple(pt(p) for p in r["polygon"]), float(r["mu_scale"]))
             for r in obj["traction_regions"]
         ),
-        start=MapPose(float(s["x"]), float(s["y"]), float(s["yaw_deg"])),
+        start=Pose(float(s["x"]), float(s["y"]), float(s["yaw_deg"])),
         goals=tuple(
             MapGoal(g["name"], float(g["x"]), float(g["y"]), float(g["yaw_deg"]), g.get("note", ""))
             for g in obj.get("goals", [])
@@ -447,127 +602,11 @@ def _obstacle_dict(o: Obstacle) -> dict[str, Any]:
     if isinstance(o, PolygonObstacle):
         return {"id": o.id, "type": "polygon", "points": _points(o.points)}
     if isinstance(o, CircleObstacle):
-        return {"id": o.id, "type": "circle", "center": list(o.center), "radius": o.radius}
+        return {"id": o.id, "type": "circle", "center": list(o.center), "radius": o.radius_m}
     return {
         "id": o.id,
         "type": "segment",
         "a": list(o.a),
         "b": list(o.b),
-        "radius": float(o.radius),
+        "radius": float(o.radius_m),
     }
-
-
-# -- geometry (pure) ------------------------------------------------------------------
-
-
-def _signed_area(pts: list[Point] | tuple[Point, ...]) -> float:
-    n = len(pts)
-    return 0.5 * sum(
-        pts[i][0] * pts[(i + 1) % n][1] - pts[(i + 1) % n][0] * pts[i][1] for i in range(n)
-    )
-
-
-def _cross(o: Point, a: Point, b: Point) -> float:
-    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-
-def _segments_intersect(p1: Point, p2: Point, q1: Point, q2: Point) -> bool:
-    d1 = _cross(q1, q2, p1)
-    d2 = _cross(q1, q2, p2)
-    d3 = _cross(p1, p2, q1)
-    d4 = _cross(p1, p2, q2)
-    if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and d1 and d2 and d3 and d4:
-        return True
-
-    def on(a: Point, b: Point, c: Point) -> bool:
-        return (
-            min(a[0], b[0]) <= c[0] <= max(a[0], b[0])
-            and min(a[1], b[1]) <= c[1] <= max(a[1], b[1])
-            and abs(_cross(a, b, c)) < _EPS
-        )
-
-    return on(q1, q2, p1) or on(q1, q2, p2) or on(p1, p2, q1) or on(p1, p2, q2)
-
-
-def _self_intersection(pts: list[Point]) -> tuple[int, int] | None:
-    n = len(pts)
-    for i in range(n):
-        a1, a2 = pts[i], pts[(i + 1) % n]
-        for j in range(i + 1, n):
-            if j == i + 1 or (i == 0 and j == n - 1):
-                continue  # neighbours share a vertex
-            if _segments_intersect(a1, a2, pts[j], pts[(j + 1) % n]):
-                return i, j
-    return None
-
-
-def point_in_polygon(x: float, y: float, polygon: tuple[Point, ...]) -> bool:
-    """Whether ``(x, y)`` lies inside ``polygon`` (even-odd rule; simple polygons)."""
-    inside = False
-    n = len(polygon)
-    j = n - 1
-    for i in range(n):
-        xi, yi = polygon[i]
-        xj, yj = polygon[j]
-        if (yi > y) != (yj > y) and x < (xj - xi) * (y - yi) / (yj - yi) + xi:
-            inside = not inside
-        j = i
-    return inside
-
-
-def _is_convex(pts: list[Point]) -> bool:
-    n = len(pts)
-    signs = {_cross(pts[i], pts[(i + 1) % n], pts[(i + 2) % n]) > 0 for i in range(n)}
-    return len(signs) == 1
-
-
-def convex_parts(points: tuple[Point, ...]) -> list[tuple[Point, ...]]:
-    """Split a simple polygon into convex pieces (counter-clockwise).
-
-    A convex polygon comes back whole; a concave one is ear-clipped into triangles.
-    Deterministic: the same polygon always gives the same pieces in the same order.
-    """
-    pts = list(points)
-    if _signed_area(pts) < 0:
-        pts.reverse()
-    if _is_convex(pts):
-        return [tuple(pts)]
-    triangles: list[tuple[Point, ...]] = []
-    idx = list(range(len(pts)))
-    while len(idx) > 3:
-        for k in range(len(idx)):
-            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % len(idx)]
-            a, b, c = pts[i0], pts[i1], pts[i2]
-            if _cross(a, b, c) <= _EPS:
-                continue  # reflex or degenerate corner: not an ear
-            if any(_point_in_triangle(pts[m], a, b, c) for m in idx if m not in (i0, i1, i2)):
-                continue
-            triangles.append((a, b, c))
-            del idx[k]
-            break
-        else:  # pragma: no cover - impossible for a simple polygon
-            raise ValueError("polygon could not be triangulated (not simple?)")
-    triangles.append(tuple(pts[i] for i in idx))
-    return triangles
-
-
-def _point_in_triangle(p: Point, a: Point, b: Point, c: Point) -> bool:
-    return _cross(a, b, p) >= 0 and _cross(b, c, p) >= 0 and _cross(c, a, p) >= 0
-
-
-def _distance_to_segment(x: float, y: float, a: Point, b: Point) -> float:
-    ax, ay = a
-    dx, dy = b[0] - ax, b[1] - ay
-    length2 = dx * dx + dy * dy
-    t = 0.0 if length2 == 0 else max(0.0, min(1.0, ((x - ax) * dx + (y - ay) * dy) / length2))
-    return math.hypot(x - (ax + t * dx), y - (ay + t * dy))
-
-
-def _distance_to_obstacle(o: Obstacle, x: float, y: float) -> float:
-    if isinstance(o, CircleObstacle):
-        return math.hypot(x - o.center[0], y - o.center[1]) - o.radius
-    if isinstance(o, SegmentObstacle):
-        return _distance_to_segment(x, y, o.a, o.b) - o.radius
-    n = len(o.points)
-    d = min(_distance_to_segment(x, y, o.points[i], o.points[(i + 1) % n]) for i in range(n))
-    return -d if point_in_polygon(x, y, o.points) else d

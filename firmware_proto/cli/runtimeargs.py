@@ -1,0 +1,76 @@
+"""The scheduling options every long-running ``rover`` program takes (docs/realtime.md).
+
+``--rt-priority N`` and ``--no-realtime`` on the programs that keep time (``rover
+emulate``; ``rover bridge`` has them as its parameter ``rt_priority``), ``--nice N`` on
+those that need not (``rover gate``, ``rover link``, ``rover go``, ``rover demo``), and
+``--stall-ms MS`` on all. Values are checked by :mod:`firmware_proto.cli.values`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from firmware_proto.cli import values
+from firmware_proto.runtime.process import RuntimeOptions
+from firmware_proto.runtime.stall import DEFAULT_STALL_THRESHOLD_S, stall_log_path
+
+__all__ = ["add_runtime_arguments", "runtime_options"]
+
+
+def add_runtime_arguments(parser: argparse.ArgumentParser, default_priority: int) -> None:
+    """``--rt-priority N`` / ``--no-realtime`` where ``default_priority`` > 0 (a program
+    that keeps time), else ``--nice N``; and ``--stall-ms MS``."""
+    group = parser.add_argument_group("scheduling (docs/realtime.md)")
+    if default_priority > 0:
+        group.add_argument(
+            "--rt-priority",
+            type=values.rt_priority,
+            default=None,
+            metavar="N",
+            help=f"real-time priority 1..99 (SCHED_RR, memory locked) where permitted "
+            f"(default {default_priority}; 0 = off); without permission the program says "
+            "so once and runs at normal priority",
+        )
+        group.add_argument(
+            "--no-realtime",
+            dest="rt_priority",
+            action="store_const",
+            const=0,
+            help="normal scheduling (the same as --rt-priority 0)",
+        )
+    else:
+        group.add_argument(
+            "--nice",
+            type=values.yielding_nice,
+            default=0,
+            metavar="N",
+            help="run at nice N, 0..19 (default 0), yielding the CPU to the programs that "
+            "keep time",
+        )
+    group.add_argument(
+        "--stall-ms",
+        type=values.positive,
+        default=DEFAULT_STALL_THRESHOLD_S * 1e3,
+        metavar="MS",
+        help="log a stall of this program or its loops longer than MS with its stack "
+        f"(default {DEFAULT_STALL_THRESHOLD_S * 1e3:.0f}); shared stall log: "
+        "$ROVER_STALL_LOG",
+    )
+
+
+def runtime_options(
+    args: argparse.Namespace, name: str, default_priority: int = 0
+) -> RuntimeOptions:
+    """The options :func:`add_runtime_arguments` parsed; a program with a default
+    priority keeps time (short interpreter switch interval too)."""
+    priority = getattr(args, "rt_priority", None)
+    if priority is None:
+        priority = default_priority
+    return RuntimeOptions(
+        name=name,
+        priority=priority,
+        stall_threshold_s=getattr(args, "stall_ms", DEFAULT_STALL_THRESHOLD_S * 1e3) / 1e3,
+        stall_log=stall_log_path(),
+        short_switch=default_priority > 0,
+        nice=getattr(args, "nice", 0),
+    )

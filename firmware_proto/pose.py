@@ -1,0 +1,64 @@
+"""The planar pose every part shares: a plan's goal, a map's start, the gate's poses, the
+planner's.
+
+Units are those of the maps and plans: metres in the map frame (x east, y north), yaw in
+degrees counter-clockwise from +x. Two other pose types exist, each for a reason:
+:class:`emulator.twin.Pose2D` is the physics twin's own state in the units of pymunk and
+of the wire's POSE message (yaw in radians, read every physics step), converted to this
+one at the gate's boundary; :class:`emulator.playback.TimedPose` is a pose with its twin
+time (a trajectory sample, not a pose). Pure: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+__all__ = ["Point", "Pose"]
+
+
+class Point(NamedTuple):
+    """A point in the map frame, metres. A tuple, so ``math.dist`` and unpacking work."""
+
+    x: float
+    y: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"x": ..., "y": ...}``."""
+        return {"x": self.x, "y": self.y}
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A planar pose: metres in the map frame, yaw in degrees counter-clockwise from +x
+    (the shape of a plan's ``goal``, a map's ``start`` and every pose in a verdict)."""
+
+    x: float
+    y: float
+    yaw_deg: float
+
+    @property
+    def yaw_rad(self) -> float:
+        """The yaw in radians."""
+        return math.radians(self.yaw_deg)
+
+    @property
+    def xy(self) -> Point:
+        """The position as a point."""
+        return Point(self.x, self.y)
+
+    def is_finite(self) -> bool:
+        """Whether every coordinate is a finite number."""
+        return all(math.isfinite(v) for v in (self.x, self.y, self.yaw_deg))
+
+    def distance_to(self, point: tuple[float, float]) -> float:
+        """Euclidean distance to ``point``, m."""
+        return math.hypot(point[0] - self.x, point[1] - self.y)
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"x": ..., "y": ..., "yaw_deg": ...}`` (the JSON of plans, maps and verdicts)."""
+        return {"x": self.x, "y": self.y, "yaw_deg": self.yaw_deg}
+
+    def __str__(self) -> str:
+        return f"({self.x:.3f}, {self.y:.3f}, {self.yaw_deg:.1f} deg)"

@@ -1,0 +1,200 @@
+"""The rules protocol v3 added (docs/protocol.md), on both controllers in lockstep: the
+Python model and the C firmware core (:mod:`emulator.firmware`), one test each.
+
+- no sensor samples before a session, though the sensors are read on schedule all the
+  same (the C core's HAL calls are the model's, which the differential test relies on);
+- a CLEAR_STOP that repeats the id of the last CLEARED is answered CLEARED again and
+  releases nothing; a reboot forgets the id;
+- queued steps wait for a STOPPED still owed, and an id reported after a CLEARED that it
+  predates is a new stop again;
+- stall detection watches a step at speed 1;
+- the serial frame counter restarts at 0 at every boot (the C core's own framing).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from emulator.controller import ControllerConfig, ControllerModel, LatchCause
+from emulator.firmware import FirmwareController, make_controller
+from emulator.injection import Injector, parse_fault
+from emulator.sensors import ImuReading
+from emulator.twin import Twin
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    AbortReason,
+    AckResult,
+    ClearAck,
+    ClearResult,
+    ClearStop,
+    Command,
+    Encoders,
+    Fault,
+    FaultCode,
+    Hello,
+    Ident,
+    Imu,
+    Motion,
+    Pose,
+    Status,
+    StepState,
+    Stop,
+    Stopped,
+    WheelSpeeds,
+)
+from firmware_proto.rover import RoverDescription
+from tests.firmware_proto.c_harness import compiler
+
+from .test_controller import one, run
+
+SAMPLES = (Encoders, WheelSpeeds, Imu, Pose)
+
+
+@pytest.fixture(
+    params=["python", pytest.param("c", marks=pytest.mark.firmware)],
+)
+def controller(
+    request: pytest.FixtureRequest, rover: RoverDescription
+) -> Callable[..., ControllerModel]:
+    """Factory of booted controllers of one implementation (seeded, open plane)."""
+    if request.param == "c" and compiler() is None:
+        pytest.skip("gcc not found (set CC): the C firmware core cannot be built here")
+
+    def make(*, seed: int = 5, hello: bool = True) -> ControllerModel:
+        model = make_controller(request.param, rover, Twin(rover), ControllerConfig(), seed=seed)
+        model.boot()
+        if hello:
+            model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+        return model
+
+    return make
+
+
+Make = Callable[..., ControllerModel]
+
+
+def _count_imu_reads(model: ControllerModel) -> list[int]:
+    reads = [0]
+    read = model.imu.read
+
+    def counted() -> ImuReading | None:
+        reads[0] += 1
+        return read()
+
+    model.imu.read = counted  # type: ignore[method-assign]
+    return reads
+
+
+def test_no_sensor_samples_before_a_session_yet_the_sensors_are_read(controller: Make) -> None:
+    model = controller(hello=False)
+    reads = _count_imu_reads(model)
+    before = run(model, 1.0, heartbeat_s=None)
+    assert not [m for m in before if isinstance(m, SAMPLES)]
+    # Read on schedule all the same (50 Hz: at boot, then every 20 ms up to 1 s), so that
+    # noise draws do not depend on it.
+    assert reads[0] == 51
+    answer = model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+    assert [m.NAME for m in answer] == ["IDENT"]
+    during = run(model, 1.0)
+    assert sum(isinstance(m, Encoders) for m in during) == 50
+    assert sum(isinstance(m, Pose) for m in during) >= 9
+    # A mismatched HELLO ends the session: its IDENT is the last word about samples.
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH ^ 1))
+    assert not [m for m in run(model, 1.0) if isinstance(m, SAMPLES)]
+    assert reads[0] == 151
+
+
+def test_a_new_boot_sends_samples_only_after_its_hello(controller: Make) -> None:
+    model = controller()
+    model.handle(Motion(1, Command.FWD, 60, 30000))
+    run(model, 0.5)
+    (ident,) = model.reboot()
+    assert isinstance(ident, Ident)
+    assert not [m for m in run(model, 0.5) if isinstance(m, SAMPLES)]
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+    first = one(run(model, 0.1), Encoders)
+    assert abs(first.left) < 50 and abs(first.right) < 50  # the new boot's count
+
+
+def test_a_repeated_clear_id_is_cleared_again_and_releases_nothing(controller: Make) -> None:
+    model = controller()
+    model.handle(Stop(1, 0))
+    run(model, 0.05)
+    assert model.handle(ClearStop(5)) == [ClearAck(5, ClearResult.CLEARED)]
+    # The repeat that crossed its answer, with no latch: CLEARED, not NOT_LATCHED.
+    assert model.handle(ClearStop(5)) == [ClearAck(5, ClearResult.CLEARED)]
+    model.handle(Stop(2, 0))
+    run(model, 0.05)
+    # ... and with a latch set since: CLEARED, and the latch holds.
+    assert model.handle(ClearStop(5)) == [ClearAck(5, ClearResult.CLEARED)]
+    assert model.latch_causes == {LatchCause.STOP}
+    assert one(model.handle(Motion(3, Command.FWD, 10, 10))).result == AckResult.STOP_LATCHED
+    assert model.handle(ClearStop(6)) == [ClearAck(6, ClearResult.CLEARED)]
+    assert not model.latch_causes
+    # A reboot forgets the id: a CLEAR_STOP 6 is a new request (nothing latched).
+    model.reboot()
+    assert model.handle(ClearStop(6)) == [ClearAck(6, ClearResult.NOT_LATCHED)]
+
+
+def test_queued_steps_wait_for_an_owed_stopped(controller: Make) -> None:
+    model = controller()
+    model.handle(Motion(1, Command.FWD, 60, 30000))
+    run(model, 1.0)
+    model.handle(Stop(3, 0))
+    # Cleared before the wheels are at rest: the STOPPED is still owed.
+    assert model.handle(ClearStop(4)) == [ClearAck(4, ClearResult.CLEARED)]
+    assert one(model.handle(Motion(2, Command.FWD, 30, 2300))).result == AckResult.ACCEPTED
+    out = run(model, 2.0, until=lambda m: isinstance(m, Status) and m.seq == 2)
+    stopped = one(out, Stopped)
+    assert stopped.stop_id == 3 and stopped.distance_mm > 20 and stopped.duration_ms > 100
+    started = one(out, Status)
+    assert (started.seq, started.state) == (2, StepState.STARTED)
+    assert out.index(stopped) < out.index(started)
+    # STOPPED 3 predates the CLEARED: 3 is not remembered, a STOP 3 is a new stop.
+    run(model, 2.0, until=lambda m: isinstance(m, Status) and m.state != StepState.STARTED)
+    model.handle(Stop(3, 0))
+    again = run(model, 0.05)
+    assert [m.stop_id for m in again if isinstance(m, Stopped)] == [3]
+    # Within its latch an id is remembered: a repeat gets no second STOPPED.
+    model.handle(Stop(3, 0))
+    assert not [m for m in run(model, 0.05) if isinstance(m, Stopped)]
+
+
+def test_a_locked_wheel_is_caught_at_speed_one(controller: Make) -> None:
+    model = controller()
+    Injector(model).apply(parse_fault("stall:right"))
+    model.handle(Motion(1, Command.FWD, 1, 2300))
+    out = run(model, 3.0, until=lambda m: isinstance(m, Fault))
+    fault = one(out, Fault)
+    assert (fault.code, fault.active) == (FaultCode.STALL_RIGHT, 1)
+    assert fault.detail > 2290  # the locked side's distance still to go
+    ended = [m for m in out if isinstance(m, Status) and m.state != StepState.STARTED]
+    assert [(m.seq, m.state, m.reason) for m in ended] == [
+        (1, StepState.ABORTED, AbortReason.STALL)
+    ]
+
+
+def _seqs(model: FirmwareController, out: list[Message]) -> list[int]:
+    assert len(model.frame_seqs) == len(out)
+    return model.frame_seqs
+
+
+@pytest.mark.firmware
+def test_the_c_cores_frame_counter_restarts_at_every_boot(rover: RoverDescription) -> None:
+    if compiler() is None:
+        pytest.skip("gcc not found (set CC): the C firmware core cannot be built here")
+    model = FirmwareController(rover, Twin(rover), ControllerConfig(), seed=2)
+    assert _seqs(model, model.boot()) == [0]
+    model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
+    run(model, 0.3)
+    assert model.frame_seqs and model.frame_seqs[-1] > 10
+    out = model.reboot()
+    assert [m.NAME for m in out] == ["IDENT"] and _seqs(model, out) == [0]
+    beat = model.tick()
+    while not beat:
+        beat = model.tick()
+    assert _seqs(model, beat)[0] == 1
