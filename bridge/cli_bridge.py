@@ -327,7 +327,8 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
         if getattr(args, "verbose", 1) == 0:
             # The link's own warnings (each loss, each retry) are said once, in words, by
             # the narrator below; -v brings them back.
-            logging.getLogger("bridge.link").setLevel(logging.ERROR)
+            for name in ("bridge.link", "bridge.linkcore"):
+                logging.getLogger(name).setLevel(logging.ERROR)
         narrator = LinkNarrator(
             params.url if params.can_interface else (args.device or params.device),
             None if params.can_interface else params.baud,

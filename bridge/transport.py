@@ -63,12 +63,13 @@ from types import TracebackType
 from typing import Any
 
 from bridge.errors import DeviceBusyError, TransportError, TransportUrlError
+from bridge.linktypes import SAMPLE_MESSAGES
 from firmware_proto.counters import RxCounters
 from firmware_proto.linkio.endpoint import Endpoint
 from firmware_proto.linkio.errors import LinkUrlError
 from firmware_proto.linkio.urls import SERIAL_SCHEMES, is_can_url
 from firmware_proto.message import Message
-from firmware_proto.messages import Encoders, Imu, Pose, Stop, WheelSpeeds
+from firmware_proto.messages import Stop
 from firmware_proto.runtime import stall
 
 __all__ = [
@@ -95,9 +96,6 @@ RX_QUEUE_DEPTH = 2048
 """Messages the reader may hold for the dispatcher by default: about 11 s of everything
 the controller sends at the protocol's rates (180 messages/s, docs/protocol.md), 2.8 s
 with the emulator at 4x or telemetry at 100 Hz: only a stalled dispatcher fills it."""
-
-SAMPLE_MESSAGES: tuple[type[Message], ...] = (Encoders, WheelSpeeds, Imu, Pose)
-"""Periodic sensor samples: the only messages dropped when the receive queue is full."""
 
 _POLL_S = 0.05
 """How often the reader and the dispatcher look at the stop flag while they wait, s."""

@@ -10,6 +10,11 @@ anything else that ends :meth:`PlanExecutor.execute` early: the ``cancel`` event
 any exception (an ``on_progress`` callback that raises, ``KeyboardInterrupt``), which
 is re-raised once STOP went out (its confirmation awaited for a bounded time).
 
+The time rules of a step in flight (its timeout, drift control gone blind, when
+``accepted`` and ``running`` are reported, when the rover started it) are a pure
+:class:`~planner.stepwatch.StepWatch` that takes the time as an argument, tested in
+virtual time; this class keeps the threads, the ROS port and the waiting.
+
 While steps run, a :class:`~planner.drift.DriftMonitor` compares the rover's best pose
 with the gate's prediction. With ``pose_source="auto"`` (the default) that is the
 ground-seeing POSE (``odom_ground``) while it is fresh, and ``odom`` (encoders + IMU,
@@ -58,6 +63,7 @@ from firmware_proto.rover import RoverDescription
 from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent, DriftMonitor
 from planner.geometry import wrap_deg
+from planner.stepwatch import StepWatch
 
 __all__ = [
     "ANCHOR_GAP_S",
@@ -731,40 +737,32 @@ class PlanExecutor:
                 on_progress(self._progress(index, status, steps, verdict, monitor, started))
 
         report("published", None)
-        deadline = published + self.step_timeout_s(index, step, verdict)
-        next_report = published + cfg.progress_period_s
-        watch_blind = monitor is not None and cfg.blind_stop
-        accepted_seen = False
+        watch = StepWatch(
+            published,
+            self.step_timeout_s(index, step, verdict),
+            cfg.progress_period_s,
+            cfg.blind_after_s if monitor is not None and cfg.blind_stop else None,
+            plan_started,
+        )
         while True:
-            now = time.monotonic()
-            left = deadline - now
-            if left <= 0:
+            if watch.expired(time.monotonic()):
                 return "timeout", published, self._accepted
-            if self._event.wait(min(left, 0.1)):
+            if self._event.wait(watch.wait_s(time.monotonic())):
                 break
             if cancel is not None and cancel.is_set():
                 return "cancelled", published, self._accepted
-            now = time.monotonic()
-            if watch_blind:
-                with self._lock:
-                    heard = max(self._pose_rx, plan_started)
-                if now - heard > cfg.blind_after_s:
-                    return "blind", published, self._accepted
+            with self._lock:
+                heard = self._pose_rx
             acc, acc_wall = self._accepted_times()
-            # The rover started about halfway through the round trip.
-            started = (published + acc) / 2.0 if acc is not None else None
-            if acc_wall is not None and not accepted_seen:
-                accepted_seen = True
-                if monitor is not None:
-                    with self._monitor_lock:
-                        monitor.step_accepted(index, published_wall, acc_wall)
-                report("accepted", started)
-                next_report = now + cfg.progress_period_s
-            elif now >= next_report:
-                # Before 'accepted' comes back the step is only published: never say
-                # 'running' for a step the rover has not confirmed.
-                report("running" if accepted_seen else "published", started)
-                next_report = now + cfg.progress_period_s
+            said = watch.poll(time.monotonic(), last_pose_s=heard, accepted_s=acc)
+            if said.end is not None:
+                return said.end, published, self._accepted
+            if said.accepted_now and monitor is not None and acc_wall is not None:
+                with self._monitor_lock:
+                    monitor.step_accepted(index, published_wall, acc_wall)
+            if said.report is not None:
+                report(said.report, said.started_s)
+        accepted_seen = watch.accepted_seen
         with self._lock:
             status = self._status or "timeout"
         acc, acc_wall = self._accepted_times()

@@ -33,6 +33,8 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, settings
 
+from tests.lanes import lane_marks
+
 # Seeded and reproducible: the same examples on every run and every machine.
 settings.register_profile(
     "ci",
@@ -87,10 +89,16 @@ def rclpy_required() -> bool:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Skip, saying why, the ROS 2 tests whose environment is missing: ROS 2 itself, or
-    the private network namespace."""
+    """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``); skip, saying why,
+    the ROS 2 tests whose environment is missing: ROS 2 itself, or the private network
+    namespace."""
     ros = _ros_available()
     for item in items:
+        slow, extended = lane_marks(item.nodeid)
+        if slow:
+            item.add_marker(pytest.mark.slow)
+        if extended:
+            item.add_marker(pytest.mark.extended)
         if item.get_closest_marker("rclpy"):
             if not ros:
                 item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))

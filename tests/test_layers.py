@@ -15,7 +15,9 @@ function), so a lazy import counts as much as a top-level one:
   of the parts above ``firmware_proto`` it imports ``bridge.rosport`` and nothing else;
 - the emulator and the bridge never import each other; the gate imports neither the
   bridge nor the planner; the rover's device tooling (``udev``) imports none of them;
-- no module imports itself back through others: the modules of all six parts form no
+- the wire simulator (``sim``) sits on top of the bridge and the emulator: it imports
+  both, never the gate, the planner or ``udev``, and no part imports it;
+- no module imports itself back through others: the modules of all seven parts form no
   import circle (an import for type checking only counts too).
 """
 
@@ -99,7 +101,7 @@ def test_the_protocol_is_pure(name: str) -> None:
         for imported in _imports(PURE[name])
         if imported.split(".")[0] in IMPURE | {"uvicorn", "starlette", "h11"}
         or any(_under(imported, layer) for layer in LAYERS)
-        or imported.split(".")[0] in {"bridge", "emulator", "gate", "planner"}
+        or imported.split(".")[0] in {"bridge", "emulator", "gate", "planner", "sim"}
     )
     assert not wrong, f"{name} imports {wrong}"
 
@@ -168,11 +170,12 @@ def test_a_serial_link_never_loads_python_can() -> None:
                 "firmware_proto.linkio",
             ),
         ),
-        ("emulator", ("bridge", "gate", "planner")),
-        ("bridge", ("emulator", "gate", "planner")),
-        ("gate", ("bridge", "planner")),
-        ("planner", ("gate", "emulator", "udev")),
-        ("udev", ("firmware_proto", "emulator", "bridge", "gate", "planner")),
+        ("emulator", ("bridge", "gate", "planner", "sim")),
+        ("bridge", ("emulator", "gate", "planner", "sim")),
+        ("gate", ("bridge", "planner", "sim")),
+        ("planner", ("gate", "emulator", "udev", "sim")),
+        ("udev", ("firmware_proto", "emulator", "bridge", "gate", "planner", "sim")),
+        ("sim", ("gate", "planner", "udev")),
     ],
 )
 def test_arrows_point_down(package: str, forbidden: tuple[str, ...]) -> None:
@@ -193,7 +196,7 @@ def test_the_planner_uses_only_the_bridges_ros_port() -> None:
     assert not {k: v for k, v in wrong.items() if v}
 
 
-PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner", "udev")
+PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner", "udev", "sim")
 
 
 def _targets(path: Path) -> set[str]:

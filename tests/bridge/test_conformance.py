@@ -150,6 +150,7 @@ def test_both_controllers_pass_every_rule_in_lockstep(firmware: str, medium: str
 
 
 @pytest.mark.firmware
+@pytest.mark.timeout(300)
 def test_the_c_firmware_passes_every_rule_under_asan_and_ubsan(tmp_path: Path) -> None:
     """The sanitizer build of the core, in lockstep, in a process of its own with
     libasan preloaded: any memory error or undefined behaviour aborts it."""

@@ -287,6 +287,7 @@ HAVE_VCAN0 = Path("/sys/class/net/vcan0").exists()
 
 
 @pytest.mark.socketcan
+@pytest.mark.timeout(400)  # a whole mission in the VM's software CPU: 40 to 92 s seen
 @pytest.mark.skipif(not HAVE_VCAN0, reason="no vcan0 here (.ci/test runs this in .ci/vcan-vm)")
 def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
     tmp_path: Path, client: PlainClient

@@ -386,7 +386,7 @@ def _reconnect_delays(caplog: pytest.LogCaptureFixture) -> list[float]:
     return [
         float(r.args[-1])  # type: ignore[index, arg-type]
         for r in caplog.records
-        if r.name == "bridge.link" and ("retry in" in r.msg or "reconnecting in" in r.msg)
+        if r.name.startswith("bridge.link") and ("retry in" in r.msg or "reconnecting in" in r.msg)
     ]
 
 
@@ -399,7 +399,7 @@ def test_reconnect_backoff_grows_while_the_line_flaps_and_a_handshake_resets_it(
     """A line that opens and fails at once (a flapping ser2net, a CAN bus going bus-off
     again and again) is retried with the same doubling backoff as one that cannot be
     opened, not every ``reconnect_min_s``; a completed handshake resets it."""
-    caplog.set_level(logging.INFO, logger="bridge.link")
+    caplog.set_level(logging.INFO, logger="bridge.linkcore")
     emu = emulators()
     relay = relays(_pty(emu))
     relay.flaps = 4
@@ -438,7 +438,7 @@ def test_a_failure_reported_while_the_transport_opens_is_not_lost(
 ) -> None:
     """The reader may fail before ``open`` returns; the link handles that failure (and
     reconnects) instead of keeping a dead transport until a write fails."""
-    caplog.set_level(logging.INFO, logger="bridge.link")
+    caplog.set_level(logging.INFO, logger="bridge.linkcore")
     emu = emulators()
     relay = relays(_pty(emu))
     relay.flaps = 1
@@ -459,7 +459,7 @@ def test_a_failure_reported_while_the_transport_opens_is_not_lost(
     failures = [
         r.getMessage()
         for r in caplog.records
-        if r.name == "bridge.link" and "reconnecting in" in r.msg
+        if r.name.startswith("bridge.link") and "reconnecting in" in r.msg
     ]
     assert len(failures) == 1 and "disconnected" in failures[0], failures
 

@@ -29,7 +29,7 @@ from tests.child import Child
 
 # serial: a mission across four processes; alone, no other worker's load can starve the
 # link past the controller's watchdog (as for the demo tests).
-pytestmark = [pytest.mark.rclpy, pytest.mark.slow, pytest.mark.serial]
+pytestmark = [pytest.mark.rclpy, pytest.mark.slow, pytest.mark.serial, pytest.mark.timeout(300)]
 
 SPEED = 4.0
 RTT_S = 3.0

@@ -45,6 +45,7 @@ def _demo(tmp_path: Path, firmware: str) -> subprocess.CompletedProcess[str]:
 
 
 @pytest.mark.serial
+@pytest.mark.timeout(300)
 @pytest.mark.parametrize("firmware", ["python", pytest.param("c", marks=pytest.mark.firmware)])
 def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(
     tmp_path: Path, firmware: str

@@ -17,7 +17,7 @@ import pytest
 
 from tests.child import Child
 
-pytestmark = [pytest.mark.rclpy, pytest.mark.serial]
+pytestmark = [pytest.mark.rclpy, pytest.mark.serial, pytest.mark.timeout(300)]
 
 ROOT = Path(__file__).resolve().parents[2]
 

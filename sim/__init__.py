@@ -1,0 +1,24 @@
+"""The wire simulator: the host's protocol core, a controller (the Python model or the C
+firmware core) and its twin, and a serial line or a CAN bus between them, in virtual
+time, with seeded faults; invariants checked after every scenario, and any failure
+played again from its seed (docs/sim.md, ``rover sim``).
+
+Above the bridge and the emulator: it imports both (and the protocol), and nothing of
+ours imports it but its own command and the tests.
+"""
+
+from sim.checks import RULES, Violation
+from sim.rig import Outcome, Rig, run_scenario
+from sim.scenario import CONTROLLERS, MEDIA, Scenario, make_scenario
+
+__all__ = [
+    "CONTROLLERS",
+    "MEDIA",
+    "RULES",
+    "Outcome",
+    "Rig",
+    "Scenario",
+    "Violation",
+    "make_scenario",
+    "run_scenario",
+]

@@ -1,0 +1,719 @@
+"""One scenario played in virtual time: the host's :class:`~bridge.linkcore.LinkCore`, a
+controller (the Python model or the C core) over its twin, and the two directions of a
+serial line or a CAN bus between them, with the scenario's faults (docs/sim.md).
+
+:class:`Rig` is an event loop over virtual time. Nothing waits: the next event is the
+earliest of the controller's next tick, the next frame arriving at either end, the host
+core's next deadline (:meth:`LinkCore.next_deadline <bridge.linkcore.LinkCore.next_deadline>`),
+a fault starting or ending and the operator's next action; time jumps to it, so idle time
+costs nothing. Ties are broken in one fixed order (operator and faults, frames to the
+controller, its tick, frames to the host, the host's tick), so a seed plays the same way
+every time.
+
+The host side is driven as :class:`bridge.link.ControllerLink` drives the core: every
+STOP copy is written first and at once, the ordinary frames in the order the core
+queued them, each reported written; frames are encoded with the real codecs
+(:class:`~firmware_proto.framing.FrameEncoder` / :class:`~firmware_proto.framing.FrameDecoder`,
+:mod:`firmware_proto.canmap`) and decoded back from the bytes that arrive. The
+controller side is driven as the emulator's front ends drive the model: every message
+handled as soon as it arrives, its bad frames counted in ``rx_errors``, a tick every
+``tick_s``. Odometry is :class:`bridge.odometry.OdometryEstimator` fed as the bridge
+node feeds it.
+
+What the rig sees on both sides goes to a :class:`~sim.checks.Ledger`; the invariants
+(:mod:`sim.checks`) are checked as events happen and once more at the end.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import heapq
+import logging
+import math
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+
+from bridge.linkcore import LinkCore
+from bridge.linktypes import SAMPLE_MESSAGES, LinkConfig, LinkState, StatusEvent, StepRequest
+from bridge.odometry import OdometryEstimator
+from emulator.controller import STOPPING_FAULTS, LatchCause
+from emulator.sensors import count_delta
+from firmware_proto.canmap import CanDecoder, encode_can
+from firmware_proto.framing import FrameDecoder, FrameEncoder
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    Ack,
+    AckResult,
+    ClearStop,
+    Command,
+    Encoders,
+    Fault,
+    FaultCode,
+    Heartbeat,
+    Ident,
+    Imu,
+    Motion,
+    Status,
+    Stop,
+    StopAck,
+    StopSource,
+    WheelSpeeds,
+)
+from firmware_proto.rover import RoverDescription, load_rover
+from sim.checks import Ledger, Violation, final_checks
+from sim.controllers import SampleLeak, build_controller
+from sim.pipe import Delivery, Pipe, Window
+from sim.scenario import Fault as FaultSpec
+from sim.scenario import Scenario
+
+__all__ = ["RECOVERY_S", "Outcome", "Rig", "run_scenario"]
+
+logger = logging.getLogger(__name__)
+
+RECOVERY_S = 8.0
+"""After the last fault ends, a new step must complete within this, virtual s: the
+longest reconnect backoff (2 s), a link loss noticed (0.35 s), a handshake, a clear and
+a short step, with room to spare."""
+STEP_OVERHEAD_S = 0.1
+"""Added to each step's nominal duration in the recovery bound: its start and end ticks,
+its STATUS and the next MOTION's round trip, s."""
+RECOVERY_START_S = 0.15
+"""The operator starts recovering this long after the last fault ended (a latch the
+watchdog alone holds is the host's to clear first)."""
+POLL_S = 0.05
+"""How often the operator looks at the link while recovering, s."""
+PROBE = StepRequest(int(Command.FWD), 60, 100)
+"""The step that shows the link recovered (4 mm)."""
+CAN_NODE = 1
+MAX_EVENTS_AT_ONCE = 10_000
+"""More events than this at one virtual instant: something reschedules itself forever."""
+ODOM_TOLERANCE_M = 0.003
+"""Odometry may move this much more than the encoders between two samples (rounding)."""
+
+_ACTION, _TO_CTL, _TICK, _TO_HOST, _HOST = range(5)
+
+
+@dataclass
+class Outcome:
+    """What one scenario did and whether every invariant held.
+
+    Attributes:
+        scenario: what was played.
+        violations: the invariants broken (empty: the scenario passed).
+        sim_s: virtual time simulated, s.
+        digest: a hash of everything both sides did, in order (two runs of one scenario
+            give the same digest).
+        counts: what happened, by name (frames, steps, faults, excused odometry jumps...).
+        trace: every event in words (only when asked for).
+    """
+
+    scenario: Scenario
+    violations: list[Violation]
+    sim_s: float
+    digest: str
+    counts: dict[str, int] = field(default_factory=dict)
+    trace: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """Every invariant held."""
+        return not self.violations
+
+
+def _windows(faults: tuple[FaultSpec, ...], direction: str, medium: str) -> tuple[Window, ...]:
+    out = []
+    for f in faults:
+        if f.kind not in ("cut", "drop", "corrupt", "delay", "kind-loss", "dup"):
+            continue
+        if f.direction not in ("both", direction):
+            continue
+        level = f.level
+        out.append(Window(f.kind, f.start_s, f.end_s, level, f.kinds))
+    return tuple(out)
+
+
+class Rig:
+    """One scenario, ready to :meth:`run`; see the module docstring."""
+
+    def __init__(
+        self, scenario: Scenario, rover: RoverDescription | None = None, *, trace: bool = False
+    ) -> None:
+        """Args:
+        scenario: what to play.
+        rover: the rover description (default: the packaged one).
+        trace: keep every event in words (:attr:`Outcome.trace`).
+
+        Raises:
+            FirmwareBuildError: the C core is asked for and cannot be built here.
+        """
+        self.sc = scenario
+        self.rover = rover or load_rover(None)
+        self.rng = random.Random(scenario.seed * 1_000_003 + 17)
+        self.now = 0.0
+        self._heap: list[tuple[float, int, int, Callable[[], None]]] = []
+        self._n = 0
+        self._trace: list[str] | None = [] if trace else None
+        self._digest = hashlib.blake2b(digest_size=12)
+        self.ledger = Ledger()
+        self.violations: list[Violation] = []
+        # -- the controller
+        self.ctl = build_controller(
+            scenario.controller, self.rover, scenario.tick_s, scenario.queue_depth, scenario.seed
+        )
+        self.leak = SampleLeak(self.ctl) if scenario.leak_samples else None
+        self._ctl_frozen = False
+        self._ctl_backlog: list[tuple[Message, float]] = []
+        self._ctl_encoder = FrameEncoder()
+        self._ctl_seq = 0
+        """The controller's serial frame counter (its encoder's, from 0 at each boot)."""
+        self._meta_by_seq: list[object] = [None] * 256
+        """What the simulator knew of each serial frame the controller sent, by its frame
+        counter (the last 256)."""
+        self._ctl_decoder = FrameDecoder()
+        self._ctl_can = CanDecoder()
+        self._ctl_rejected = 0
+        self._units_per_m = float(self.rover.drive.distance_units_per_m)
+        self._travel_ref = self.ctl.encoders.travel()
+        self.true_path_m = 0.0
+        """The mean of both sides' encoder travel, in absolute value, summed tick by tick
+        over every boot, m: what odometry may have seen at most."""
+        # -- the medium
+        medium = scenario.medium
+        self.to_ctl = Pipe(
+            medium,
+            random.Random(self.rng.random()),
+            _windows(scenario.faults, "to_controller", medium),
+        )
+        self.to_host = Pipe(
+            medium, random.Random(self.rng.random()), _windows(scenario.faults, "to_host", medium)
+        )
+        # -- the host
+        self.core = LinkCore(LinkConfig(f"sim://{medium}"), mutants=scenario.mutants)
+        self._device_present = True
+        self._host_frozen = False
+        self._host_backlog: list[tuple[Message, object]] = []
+        self._deferred: list[Callable[[], None]] = []
+        self._connected_at = -math.inf
+        self._host_encoder = FrameEncoder()
+        self._host_decoder = FrameDecoder()
+        self._host_can = CanDecoder()
+        self._host_at = math.inf
+        self.odometry = OdometryEstimator(self.rover)
+        self._odom_prev: tuple[float, float, float] | None = None
+        """(x, y, true path at the sample's making) of the last ENCODERS applied."""
+        # -- the operator
+        self._probe: int | None = None
+        self._probe_done = False
+        self._last_clear = -math.inf
+        self._auto_clears: set[int] = set()
+        self._latch_gen = 0
+        """Grows whenever the controller's latch is released or it reboots."""
+        self._evidence_at: dict[int, float] = {}
+        """When the host first received a frame showing a latch cause other than the
+        watchdog (a stopping FAULT, a HEARTBEAT with latch_stop or latch_fault, a
+        STOP_ACK), by latch generation."""
+        # The steps queued before the probe run first: their nominal time counts too.
+        work_s = sum(
+            self.rover.step_duration_s(speed, distance) + STEP_OVERHEAD_S
+            for action in scenario.actions
+            for _, speed, distance in action.steps
+        )
+        self.end_s = scenario.quiet_s + RECOVERY_START_S + RECOVERY_S + work_s
+
+    # -- bookkeeping -----------------------------------------------------------------------
+    def _at(self, t: float, prio: int, fn: Callable[[], None]) -> None:
+        self._n += 1
+        heapq.heappush(self._heap, (t, prio, self._n, fn))
+
+    def _note(self, text: str) -> None:
+        """Something both runs of a seed must do alike: into the digest (and the trace)."""
+        line = f"{self.now:.6f} {text}"
+        self._digest.update(line.encode())
+        if self._trace is not None:
+            self._trace.append(line)
+
+    def violate(self, rule: str, text: str) -> None:
+        """An invariant broke now."""
+        self.violations.append(Violation(rule, self.now, text))
+        self._note(f"VIOLATION {rule}: {text}")
+
+    # -- the run ---------------------------------------------------------------------------
+    def run(self) -> Outcome:
+        """Play the scenario to its end; the outcome with every violation found."""
+        sc = self.sc
+        for action in sc.actions:
+            self._at(action.at_s, _ACTION, partial(self._operator, action.kind, action.steps))
+        for f in sc.faults:
+            self._schedule_fault(f)
+        self._at(sc.quiet_s + RECOVERY_START_S, _ACTION, self._recover)
+        self._at(0.0, _TICK, self._tick)
+        self._reschedule_host()
+        heap = self._heap
+        to_ctl, to_host = self.to_ctl, self.to_host
+        end = self.end_s
+        last_t, same = -1.0, 0
+        while not self._probe_done:
+            t_heap, p_heap = (heap[0][0], heap[0][1]) if heap else (math.inf, 9)
+            t_a, t_b = to_ctl.due(), to_host.due()
+            if t_a < t_heap or (t_a == t_heap and p_heap > _TO_CTL):
+                if t_b < t_a:
+                    t, which = t_b, _TO_HOST
+                else:
+                    t, which = t_a, _TO_CTL
+            elif t_b < t_heap or (t_b == t_heap and p_heap > _TO_HOST):
+                t, which = t_b, _TO_HOST
+            else:
+                t, which = t_heap, -1
+            if t > end:
+                break
+            if t == last_t:
+                same += 1
+                if same > MAX_EVENTS_AT_ONCE:
+                    self.violate("crash", f"time stands still: {same} events at t={t}")
+                    break
+            else:
+                last_t, same = t, 0
+            self.now = t
+            if which == _TO_CTL:
+                self._deliver_to_ctl(to_ctl.pop())
+            elif which == _TO_HOST:
+                self._deliver_to_host(to_host.pop())
+            else:
+                heapq.heappop(heap)[3]()
+        if not self._probe_done:
+            self.now = end
+            self.violate(
+                "never-stuck",
+                f"no step completed within {RECOVERY_S:g} s of the last fault's end and the "
+                "nominal time of the steps before it "
+                f"(link {self.core.state.value}, latch {self.core.latch})",
+            )
+        self.violations += final_checks(self.ledger, self.core.diagnostics(self.now), self.now)
+        counts = self.ledger.counts()
+        counts["frames_to_controller"] = self.to_ctl.sent
+        counts["frames_to_host"] = self.to_host.sent
+        counts["leaked_samples"] = self.leak.sent if self.leak is not None else 0
+        close = getattr(self.ctl, "close", None)
+        if close is not None:
+            close()
+        return Outcome(
+            sc,
+            self.violations,
+            self.now,
+            self._digest.hexdigest(),
+            counts,
+            self._trace or [],
+        )
+
+    # -- faults ---------------------------------------------------------------------------------
+    def _schedule_fault(self, f: FaultSpec) -> None:
+        kind = f.kind
+        if kind == "reboot":
+            self._at(f.start_s, _ACTION, self._reboot)
+        elif kind == "host-freeze":
+            self._at(f.start_s, _ACTION, self._freeze_host)
+            self._at(f.end_s, _ACTION, self._thaw_host)
+        elif kind == "controller-freeze":
+            self._at(f.start_s, _ACTION, self._freeze_ctl)
+            self._at(f.end_s, _ACTION, self._thaw_ctl)
+        elif kind == "encoder":
+            side = 0 if f.side == "left" else 1
+            self._at(f.start_s, _ACTION, lambda: self._encoder_fault(side, True))
+            self._at(f.end_s, _ACTION, lambda: self._encoder_fault(side, False))
+        elif kind == "stall":
+            self._at(f.start_s, _ACTION, lambda: self._stall(f.side, True))
+            self._at(f.end_s, _ACTION, lambda: self._stall(f.side, False))
+        elif kind == "unplug":
+            self._at(f.start_s, _ACTION, self._unplug)
+            self._at(f.end_s, _ACTION, self._replug)
+
+    def _reboot(self) -> None:
+        self._note("fault reboot")
+        self._account_travel()
+        self.ledger.controller_reboots += 1
+        self._latch_gen += 1
+        self._ctl_backlog.clear()
+        out = self.ctl.reboot()
+        self._travel_ref = self.ctl.encoders.travel()
+        self._ctl_encoder = FrameEncoder()  # its frame counter restarts with it
+        self._ctl_seq = 0
+        self._ctl_decoder = FrameDecoder()
+        self._ctl_rejected = 0
+        self._ctl_send(out)
+
+    def _freeze_host(self) -> None:
+        self._note("fault host-freeze")
+        self._host_frozen = True
+
+    def _thaw_host(self) -> None:
+        self._note("fault host-thaw")
+        self._host_frozen = False
+        backlog, self._host_backlog = self._host_backlog, []
+        deferred, self._deferred = self._deferred, []
+        # A process resumed: its reader reads what waited, its timer runs; which comes
+        # first is a race, played both ways.
+        tick_first = self.rng.random() < 0.5
+        if tick_first:
+            self._host_tick()
+        for msg, meta in backlog:
+            self._host_frame(msg, meta)
+        for fn in deferred:
+            fn()
+        if not tick_first:
+            self._host_tick()
+
+    def _freeze_ctl(self) -> None:
+        self._note("fault controller-freeze")
+        self._ctl_frozen = True
+
+    def _thaw_ctl(self) -> None:
+        self._note("fault controller-thaw")
+        self._ctl_frozen = False
+        backlog, self._ctl_backlog = self._ctl_backlog, []
+        for msg, sent_s in backlog:
+            self._ctl_handle(msg, sent_s)
+
+    def _encoder_fault(self, side: int, on: bool) -> None:
+        self._note(f"fault encoder {side} {on}")
+        ctl = self.ctl
+        if on:
+            ctl.encoders.dropout[side] = True
+            self._ctl_send(ctl.raise_fault(FaultCode.ENCODER, condition=True))
+        else:
+            ctl.encoders.dropout[side] = False
+            if not any(ctl.encoders.dropout):
+                self._ctl_send(ctl.clear_fault_condition(FaultCode.ENCODER))
+
+    def _stall(self, side: str, on: bool) -> None:
+        self._note(f"fault stall {side} {on}")
+        self.ctl.twin.set_wheel_locked(side, on)
+
+    def _unplug(self) -> None:
+        self._note("fault unplug")
+        self._device_present = False
+        if self.core.connected:
+            self.ledger.transport_failures += 1
+            self.core.failed(self.now, "sim: device unplugged")
+            self.to_host.clear()
+            self._host_after()
+
+    def _replug(self) -> None:
+        self._note("fault replug")
+        self._device_present = True
+        self._reschedule_host()
+
+    # -- the controller ---------------------------------------------------------------------------
+    def _tick(self) -> None:
+        self._at(self.now + self.sc.tick_s, _TICK, self._tick)
+        if self._ctl_frozen:
+            return
+        out = self.ctl.tick()
+        self._account_travel()
+        if self.leak is not None:
+            self.leak.after_tick(out)
+        if out:
+            self._ctl_send(out)
+
+    def _account_travel(self) -> None:
+        left, right = self.ctl.encoders.travel()
+        l0, r0 = self._travel_ref
+        if left != l0 or right != r0:
+            self.true_path_m += (
+                abs(count_delta(left, l0) + count_delta(right, r0)) / 2.0 / self._units_per_m
+            )
+            self._travel_ref = (left, right)
+
+    def _ctl_send(self, out: list[Message]) -> None:
+        ledger = self.ledger
+        ctl = self.ctl
+        serial = self.sc.medium == "serial"
+        batch: list[tuple[bytes, Message]] = []
+        lost = 0
+        for msg in out:
+            meta: object = None
+            if isinstance(msg, Status):
+                ledger.controller_status(msg, self.now, self)
+            elif isinstance(msg, Encoders):
+                meta = (self.true_path_m, ctl.handshake_ok)
+            elif isinstance(msg, Fault) and msg.active and msg.code in STOPPING_FAULTS:
+                if msg.code == FaultCode.WATCHDOG:
+                    ledger.watchdog_trips += 1
+                else:
+                    meta = self._latch_gen
+            elif (isinstance(msg, Heartbeat) and (msg.latch_stop or msg.latch_fault)) or isinstance(
+                msg, StopAck
+            ):
+                meta = self._latch_gen
+            if serial:
+                self._meta_by_seq[self._ctl_seq & 0xFF] = meta
+                self._ctl_seq += 1
+                batch.append((self._ctl_encoder.encode(msg), msg))
+            else:
+                can_id, data = encode_can(msg, CAN_NODE)
+                if not self.to_host.send(self.now, data, msg, can_id=can_id, meta=meta):
+                    lost += 1
+        if batch:
+            lost += self.to_host.send_batch(self.now, batch).count(False)
+        if lost and self.core.connected:
+            ledger.frames_lost_to_host += lost
+
+    def _deliver_to_ctl(self, d: Delivery) -> None:
+        if self.sc.medium == "serial":
+            decoder = self._ctl_decoder
+            messages = [f.message for f in decoder.feed(d.data)]
+            rejected = decoder.counters.rejected
+            if rejected != self._ctl_rejected:
+                self.ctl.rx_error(rejected - self._ctl_rejected)
+                self._ctl_rejected = rejected
+        else:
+            assert d.can_id is not None
+            frame = self._ctl_can.decode(d.can_id, d.data)
+            messages = [frame.message] if frame is not None and frame.node in (0, CAN_NODE) else []
+        for msg in messages:
+            if self._ctl_frozen:
+                self._ctl_backlog.append((msg, d.sent_s))
+            else:
+                self._ctl_handle(msg, d.sent_s)
+
+    def _ctl_handle(self, msg: Message, sent_s: float = math.inf) -> None:
+        ctl = self.ctl
+        if isinstance(msg, ClearStop):
+            before = set(ctl.latch_causes)
+            out = ctl.handle(msg)
+            released = bool(before) and not ctl.latch_causes
+            if msg.stop_id in self._auto_clears and released and before - {LatchCause.WATCHDOG}:
+                causes = ",".join(sorted(c.value for c in before))
+                known = self._evidence_at.get(self._latch_gen, math.inf)
+                if known <= sent_s:
+                    self.violate(
+                        "auto-clear",
+                        f"the host's automatic CLEAR_STOP {msg.stop_id} released a latch "
+                        f"held by {causes}, sent {sent_s:.3f} s after the host heard of that "
+                        f"cause at {known:.3f} s (only a watchdog-only latch is the host's to "
+                        "clear)",
+                    )
+                else:
+                    # The cause joined after this copy left: no host can recall a frame
+                    # (docs/sim.md, "What the protocol cannot prevent").
+                    self.ledger.excused_clears += 1
+                    self._note(f"excused clear {msg.stop_id} in flight released {causes}")
+            if released:
+                self._latch_gen += 1
+        elif isinstance(msg, Stop):
+            out = ctl.handle(msg)
+            if ctl.wheel_setpoints_mps != (0.0, 0.0):
+                self.violate(
+                    "stop-zeroes",
+                    f"STOP {msg.stop_id} handled and the wheel targets are "
+                    f"{ctl.wheel_setpoints_mps}, not zero",
+                )
+        elif isinstance(msg, Motion):
+            self.ledger.motions_handled += 1
+            out = ctl.handle(msg)
+        else:
+            out = ctl.handle(msg)
+        if out:
+            self._ctl_send(out)
+
+    # -- the host -------------------------------------------------------------------------------
+    def _reschedule_host(self) -> None:
+        core = self.core
+        if core.connected:
+            due = core.next_deadline(self.now)
+        else:
+            due = max(self.now, core.next_deadline(self.now))
+        if due < self._host_at:
+            self._host_at = due
+            self._at(due, _HOST, self._host_tick_event)
+
+    def _host_tick_event(self) -> None:
+        if self.now != self._host_at:
+            return  # superseded by an earlier one
+        self._host_at = math.inf
+        if self._host_frozen:
+            return  # it runs at the thaw
+        self._host_tick()
+
+    def _host_tick(self) -> None:
+        core = self.core
+        now = self.now
+        if not core.connected and core.connect_due(now):
+            if self._device_present:
+                core.on_connected(now)
+                self._connected_at = now
+                self.ledger.frames_lost_to_host = 0
+                self._host_encoder = FrameEncoder()
+                self._host_decoder = FrameDecoder()
+                self._host_can = CanDecoder()
+                self._note("host connected")
+            else:
+                core.connect_failed(now, "cannot open sim: no such device")
+        core.tick(now)
+        self._host_after()
+
+    def _host_after(self) -> None:
+        """Write what the core decided (STOP first), take its events, plan its next tick."""
+        core = self.core
+        while True:
+            stops = core.take_stops()
+            for stop in stops:
+                self._host_send(stop)
+            entry = core.take_write()
+            if entry is None:
+                break
+            msg = entry.msg
+            if isinstance(msg, ClearStop) and entry.auto_clear:
+                self._auto_clears.add(msg.stop_id)
+            elif isinstance(msg, Motion):
+                self.ledger.motion_written(msg.seq, entry.step_number)
+            self._host_send(msg)
+            core.written(entry, self.now, True)
+        for event in core.take_events():
+            if isinstance(event, StatusEvent):
+                self._note(f"status {event.text} {event.step}")
+                self.ledger.status(event, self)
+                if event.step is not None and event.step == self._probe:
+                    if event.text == "completed":
+                        self._probe_done = True
+                    elif event.text != "accepted":
+                        self._probe = None
+            else:
+                self._note(f"state {event.value}")
+        self._reschedule_host()
+
+    def _host_send(self, msg: Message) -> None:
+        if isinstance(msg, Stop):
+            self.ledger.stops_written.append(msg.stop_id)
+        if self.sc.medium == "serial":
+            self.to_ctl.send(self.now, self._host_encoder.encode(msg), msg)
+        else:
+            can_id, data = encode_can(msg, CAN_NODE)
+            self.to_ctl.send(self.now, data, msg, can_id=can_id)
+
+    def _deliver_to_host(self, d: Delivery) -> None:
+        if not self.core.connected or d.sent_s < self._connected_at:
+            return  # nobody reads, or flushed when the device was opened
+        if self.sc.medium == "serial":
+            # A frame whose closing delimiter was cut is completed by the next delivery's
+            # leading one: its frame counter, not the delivery, says which frame it is.
+            meta = self._meta_by_seq
+            got = [(f.message, meta[f.seq]) for f in self._host_decoder.feed(d.data)]
+        else:
+            assert d.can_id is not None
+            frame = self._host_can.decode(d.can_id, d.data)
+            got = [(frame.message, d.meta)] if frame is not None and frame.node == CAN_NODE else []
+        for msg, info in got:
+            if msg.DIRECTION != "controller_to_host":
+                continue
+            if self._host_frozen:
+                self._host_backlog.append((msg, info))
+            else:
+                self._host_frame(msg, info)
+
+    def _host_frame(self, msg: Message, meta: object) -> None:
+        core = self.core
+        ledger = self.ledger
+        state = core.state
+        if isinstance(msg, (Heartbeat, Ident)):
+            ledger.nonce_delivered(msg)
+        elif isinstance(msg, Fault) and msg.code == FaultCode.WATCHDOG and msg.active:
+            ledger.watchdog_fault_frames += 1
+        elif isinstance(msg, Ack) and msg.result == AckResult.QUEUE_FULL:
+            ledger.queue_full += 1
+        if isinstance(meta, int) and meta not in self._evidence_at:
+            self._evidence_at[meta] = self.now
+        lost = self._host_decoder.counters.lost if self.sc.medium == "serial" else None
+        forward = core.on_frame(msg, self.now, rx_lost=lost)
+        if forward:
+            self._odometry(msg, meta, state)
+        if not isinstance(msg, SAMPLE_MESSAGES):  # a sample changes nothing in the core
+            self._host_after()
+
+    def _odometry(self, msg: Message, meta: object, state: LinkState) -> None:
+        """Feed odometry as the bridge node does; check that it never moves more than the
+        encoders did between the samples it used (continuity across reboots)."""
+        odo = self.odometry
+        if isinstance(msg, Encoders):
+            est = odo.update_encoders(msg)
+            path, in_session = meta if isinstance(meta, tuple) else (self.true_path_m, True)
+            prev = self._odom_prev
+            self._odom_prev = (est.x_m, est.y_m, path)
+            if prev is None:
+                return
+            moved = math.hypot(est.x_m - prev[0], est.y_m - prev[1])
+            allowed = max(0.0, path - prev[2]) + ODOM_TOLERANCE_M
+            if moved <= allowed:
+                return
+            if not in_session and state is LinkState.READY:
+                # A v2 controller's sample of a boot the host could not know of yet (no
+                # IDENT or HEARTBEAT of it had arrived): protocol v3 forbids it.
+                self.ledger.excused_jumps += 1
+                self._note(f"excused odometry jump {moved:.3f} m")
+                return
+            self.violate(
+                "odometry",
+                f"odometry moved {moved:.3f} m between two ENCODERS while the encoders "
+                f"travelled {path - prev[2]:.3f} m (link {state.value} when it arrived)",
+            )
+        elif isinstance(msg, (Heartbeat, Ident)):
+            odo.observe_boot(msg.boot_nonce)
+        elif isinstance(msg, Imu):
+            odo.update_imu(msg)
+        elif isinstance(msg, WheelSpeeds):
+            odo.update_speeds(msg)
+
+    # -- the operator ---------------------------------------------------------------------------
+    def _operator(self, kind: str, steps: tuple[tuple[int, int, int], ...]) -> None:
+        if self._host_frozen:
+            self._deferred.append(lambda: self._operator(kind, steps))
+            return
+        self._note(f"operator {kind} {len(steps)}")
+        core = self.core
+        now = self.now
+        if kind == "steps":
+            for step in steps:
+                self.ledger.submitted += 1
+                core.submit_step(StepRequest(*step), now)
+        elif kind in ("stop", "stop-step"):
+            source = StopSource.OPERATOR if kind == "stop" else StopSource.PLAN_STEP
+            core.emergency_stop(source, now)
+            for stop in core.take_stops():
+                self._host_send(stop)
+                core.stop_written(stop.stop_id, now, True)
+        elif kind == "clear":
+            core.clear_stop(now)
+            self._last_clear = now
+        self._host_after()
+
+    def _recover(self) -> None:
+        """After the faults: wait for the link, release a latch that is the operator's
+        (an emergency stop, a fault), send a short step until one completes."""
+        if self._probe_done:
+            return
+        self._at(self.now + POLL_S, _ACTION, self._recover)
+        if self._host_frozen or self._probe is not None:
+            return
+        core = self.core
+        if core.state is not LinkState.READY:
+            return
+        latch = core.latch
+        if core.estop_requested or "stop" in latch or "fault" in latch:
+            if self.now - self._last_clear >= 0.5:
+                self._note("operator clear (recovery)")
+                core.clear_stop(self.now)
+                self._last_clear = self.now
+                self._host_after()
+            return
+        if core.stop_latched:
+            return  # the watchdog's latch: the host clears it itself
+        self.ledger.submitted += 1
+        self._probe = core.submit_step(PROBE, self.now)
+        self._note(f"operator probe {self._probe}")
+        self._host_after()
+
+
+def run_scenario(scenario: Scenario, *, trace: bool = False) -> Outcome:
+    """Play ``scenario`` once; see :class:`Rig`."""
+    return Rig(scenario, trace=trace).run()

@@ -1,0 +1,118 @@
+"""LinkCore on its own, in virtual time: the API the threaded shell and the simulator
+drive, at exact moments (the same rules run against real controllers in
+tests/bridge/test_link*.py and against both controllers in tests/sim)."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge.linkcore import MUTANTS, LinkCore, Outgoing
+from bridge.linktypes import LinkConfig, LinkState, StatusEvent, StepRequest
+from firmware_proto.message import Message
+from firmware_proto.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Ack,
+    AckField,
+    AckResult,
+    ControllerState,
+    Hello,
+    HostHeartbeat,
+    Ident,
+    Motion,
+    Stop,
+    StopAck,
+)
+
+FWD = StepRequest(1, 30, 500)
+
+
+def _written(core: LinkCore, now: float) -> list[Message]:
+    """Take every ordinary frame queued, as the writer would, written at ``now``."""
+    out: list[Message] = []
+    while (entry := core.take_write()) is not None:
+        assert isinstance(entry, Outgoing)
+        core.written(entry, now, True)
+        out.append(entry.msg)
+    return out
+
+
+def _texts(core: LinkCore) -> list[str]:
+    return [e.text for e in core.take_events() if isinstance(e, StatusEvent)]
+
+
+def _ready(core: LinkCore) -> None:
+    core.on_connected(0.0)
+    core.tick(0.0)
+    assert [type(m) for m in _written(core, 0.0)] == [Hello, HostHeartbeat]
+    core.on_frame(Ident(PROTOCOL_VERSION, 1, 0, 0, SCHEMA_HASH, 0x1234), 0.002)
+    assert core.state is LinkState.READY
+    assert _texts(core) == ["ready"]
+
+
+def test_an_unknown_mutant_is_refused_with_the_known_ones() -> None:
+    with pytest.raises(ValueError, match="known: " + ", ".join(sorted(MUTANTS))):
+        LinkCore(LinkConfig("sim://x"), mutants=["no-such-fix"])
+
+
+def test_a_motion_is_retransmitted_exactly_at_its_ack_timeout_from_its_write() -> None:
+    core = LinkCore(LinkConfig("sim://x"))
+    _ready(core)
+    number = core.submit_step(FWD, 0.010)
+    (motion,) = _written(core, 0.015)  # written 5 ms after it was decided
+    assert isinstance(motion, Motion)
+    due = core.next_deadline(0.016)
+    assert due == pytest.approx(0.065)  # 50 ms from the write
+    core.tick(due - 1e-6)
+    assert _written(core, due) == []
+    core.tick(due)
+    assert _written(core, 0.066) == [motion]  # the same seq: deduplicated by the controller
+    core.on_frame(Ack(motion.seq, AckResult.ACCEPTED, AckField.NONE, 1), 0.070)
+    events = core.take_events()
+    assert events == [StatusEvent("accepted", number)]
+    assert core.diagnostics(0.07).retries == 1
+
+
+def test_a_stop_is_claimed_at_once_and_repeated_until_acknowledged() -> None:
+    core = LinkCore(LinkConfig("sim://x"))
+    _ready(core)
+    stop_id = core.emergency_stop(0, 0.050)
+    assert core.take_stops() == [Stop(stop_id, 0)]  # before anything else is written
+    core.stop_written(stop_id, 0.0505, True)
+    due = core.next_deadline(0.051)
+    assert due == pytest.approx(0.0605)  # 10 ms after the first copy left
+    core.tick(due - 1e-6)
+    assert core.take_stops() == []
+    core.tick(due)
+    assert core.take_stops() == [Stop(stop_id, 0)]
+    core.on_frame(StopAck(stop_id, ControllerState.STOP_LATCHED), 0.062)
+    assert _texts(core) == ["stopped"]
+    core.tick(0.08)
+    assert core.take_stops() == []
+    d = core.diagnostics(0.08)
+    assert (d.stop_repeats, d.stop_latched) == (1, True)
+    assert d.last_stop_latency_ms == pytest.approx(12.0)
+
+
+def test_a_step_while_latched_is_refused_with_its_number() -> None:
+    core = LinkCore(LinkConfig("sim://x"))
+    _ready(core)
+    core.emergency_stop(0, 1.0)
+    number = core.submit_step(FWD, 1.001)
+    assert core.take_events() == [StatusEvent("rejected:stop_latched", number)]
+
+
+def test_a_transport_failure_drops_every_step_once_and_backs_off() -> None:
+    core = LinkCore(LinkConfig("sim://x", reconnect_min_s=0.1, reconnect_max_s=0.4))
+    _ready(core)
+    numbers = [core.submit_step(FWD, 0.01) for _ in range(3)]
+    _written(core, 0.01)
+    core.failed(0.02, "unplugged")
+    events = core.take_events()
+    assert events[0] is LinkState.DISCONNECTED
+    assert events[1:] == [StatusEvent("aborted:link_lost", n) for n in numbers] + [
+        StatusEvent("fault:link_lost")
+    ]
+    assert not core.connect_due(0.119) and core.connect_due(0.121)
+    core.connect_failed(0.121, "no such device")
+    assert core.next_deadline(0.13) == pytest.approx(0.321)  # the backoff doubled

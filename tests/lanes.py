@@ -1,0 +1,141 @@
+"""Which tests run in which lane (README, "Tests"): one list, applied at collection by
+tests/conftest.py.
+
+- **fast lane** (``-m "not slow"``): the edit-test loop. :data:`SLOW_MODULES` are whole
+  modules of real time, real processes or real DDS; their tests are marked ``slow`` as
+  well as those marked so where they are written.
+- **the test command** (``.ci/test``): everything but ``extended``.
+- **extended** (``-m extended``): wall-time tests whose behaviour the test command checks
+  otherwise: in virtual time against both controllers (the wire simulator, tests/sim),
+  or by a test of the same path kept in the command. Each entry of :data:`EXTENDED`
+  says where. They still run, on demand (README), and before a release.
+"""
+
+from __future__ import annotations
+
+__all__ = ["EXTENDED", "SLOW_MODULES", "lane_marks"]
+
+SLOW_MODULES = (
+    "tests/bridge/test_cli_bridge.py",
+    "tests/bridge/test_conformance.py",
+    "tests/bridge/test_conformance_probe.py",
+    "tests/bridge/test_inprocess.py",
+    "tests/bridge/test_latch_recovery.py",
+    "tests/bridge/test_link.py",
+    "tests/bridge/test_link_events.py",
+    "tests/bridge/test_link_rules.py",
+    "tests/bridge/test_linklines.py",
+    "tests/bridge/test_node.py",
+    "tests/bridge/test_port.py",
+    "tests/bridge/test_process_port.py",
+    "tests/bridge/test_rclpy_backend.py",
+    "tests/bridge/test_ros2_contract.py",
+    "tests/bridge/test_ros_package.py",
+    "tests/bridge/test_socketcan.py",
+    "tests/bridge/test_stop_lane.py",
+    "tests/bridge/test_stop_write_path.py",
+    "tests/bridge/test_stopbench.py",
+    "tests/bridge/test_traffic.py",
+    "tests/bridge/test_transports.py",
+    "tests/emulator/test_calibration.py",
+    "tests/emulator/test_emulator_main.py",
+    "tests/emulator/test_firmware.py",
+    "tests/emulator/test_late.py",
+    "tests/emulator/test_served.py",
+    "tests/firmware_proto/test_c_codec.py",
+    "tests/firmware_proto/test_cli.py",
+    "tests/firmware_proto/test_fw.py",
+    "tests/firmware_proto/test_httpserve.py",
+    "tests/firmware_proto/test_libfuzzer.py",
+    "tests/firmware_proto/test_runtime.py",
+    "tests/firmware_proto/test_values.py",
+    "tests/gate/test_cli.py",
+    "tests/gate/test_hostile.py",
+    "tests/planner/test_calibrate_real.py",
+    "tests/planner/test_console.py",
+    "tests/planner/test_demo.py",
+    "tests/planner/test_executor.py",
+    "tests/planner/test_foxlive.py",
+    "tests/planner/test_ground_e2e.py",
+    "tests/planner/test_mission.py",
+    "tests/planner/test_relay.py",
+    "tests/planner/test_view.py",
+    "tests/planner/test_view_browser.py",
+    "tests/planner/test_walkthrough.py",
+    "tests/test_benchmarks.py",
+    "tests/test_lanes.py",
+    "tests/test_require_socketcan.py",
+    "tests/test_vcan_vm.py",
+)
+"""Modules of real time, subprocesses or DDS: ``slow``, out of the fast lane."""
+
+_SIM = "tests/sim/test_soak.py (virtual time, both controllers)"
+_LATCH = "tests/bridge/test_latch_recovery.py::"
+
+EXTENDED: dict[str, str] = {
+    # Benchmarks: figures, not behaviour; the quick runs of the others stay.
+    "tests/test_benchmarks.py::test_bench_calibration_quick_cuts_the_error_on_every_ground": (
+        "the fit on every ground: tests/emulator/test_calibration.py (lockstep) and "
+        "tests/planner/test_calibrate_real.py (a real run)"
+    ),
+    "tests/test_benchmarks.py::test_bench_rosport_small_counts_print_its_tables": (
+        "the port's contract on both backends: tests/bridge/test_port.py"
+    ),
+    "tests/test_benchmarks.py::test_bench_bridge_ros2_case_prints_its_rows": (
+        "the bridge's STOP path benchmark: test_bench_bridge_quick_prints_its_table"
+    ),
+    "tests/test_benchmarks.py::test_bench_socketcan_quick_prints_every_case_beside_the_floor": (
+        "STOP over SocketCAN: tests/bridge/test_stop_write_path.py and the STOP bench over a "
+        "flooded vcan0 (tests/bridge/test_socketcan.py), in the VM"
+    ),
+    # The bridge node over a ROS 2 process: two smoke tests stay (steps, STOP lane).
+    "tests/bridge/test_node.py::test_bad_input_is_rejected_precisely_and_nothing_is_sent"
+    "[rclpy-process": "the same checks on the in-process backend; the node's checks run "
+    "before any ROS call",
+    "tests/bridge/test_node.py::test_stop_step_on_wheel_instructions_is_an_emergency_stop"
+    "[rclpy-process]": "in-process backend; " + _SIM,
+    "tests/bridge/test_node.py::test_diagnostics_report_link_and_controller[rclpy-process]": (
+        "in-process backend"
+    ),
+    "tests/bridge/test_node.py::test_odom_is_continuous_across_a_controller_reboot"
+    "[rclpy-process]": "in-process backend; the odometry invariant of " + _SIM,
+    # The link's latch recovery in real time, in process: the invariants auto-clear and
+    # never-stuck of the simulator, against both controllers; the bridge process frozen
+    # with SIGSTOP stays in the command (only real time shows it).
+    _LATCH + "test_outage_the_host_never_sees_is_cleared_by_the_bridge": _SIM,
+    _LATCH + "test_outage_longer_than_link_lost_is_cleared_after_the_handshake": _SIM,
+    _LATCH + "test_bridge_frozen_in_process_recovers_every_time": _SIM,
+    _LATCH + "test_an_operator_stop_is_never_cleared_by_the_bridge": _SIM,
+    _LATCH + "test_a_fault_latch_is_left_to_the_operator": _SIM,
+    _LATCH + "test_fault_persists_then_the_bridge_retries_when_the_fault_clears": _SIM,
+    # The link on the virtual CAN bus and on SocketCAN: tests/sim plays CAN in virtual time;
+    # the pty case of each stays, and tests/bridge/test_socketcan.py is SocketCAN's smoke.
+    "tests/bridge/test_link.py::test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing"
+    "_twice[virtual]": _SIM,
+    "tests/bridge/test_link.py::test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing"
+    "_twice[socketcan]": _SIM,
+    "tests/bridge/test_link.py::test_heartbeat_loss_reports_link_lost_then_recovers[virtual]": _SIM,
+    "tests/bridge/test_link.py::test_heartbeat_loss_reports_link_lost_then_recovers"
+    "[socketcan]": _SIM,
+    "tests/bridge/test_link.py::test_controller_reboot_is_detected_and_nothing_replayed"
+    "[virtual]": _SIM,
+    "tests/bridge/test_link.py::test_controller_reboot_is_detected_and_nothing_replayed"
+    "[socketcan]": _SIM,
+    "tests/bridge/test_link.py::test_estop_survives_a_reboot[virtual]": _SIM,
+    "tests/bridge/test_link.py::test_estop_survives_a_reboot[socketcan]": _SIM,
+    # Whole missions: the demo on the Python model stays; the C core's run of every rule
+    # and scenario is tests/bridge/test_conformance.py and tests/sim.
+    "tests/planner/test_demo.py::test_rover_demo_plans_detours_stops_on_drift_replans_and"
+    "_arrives[c]": "the demo on the Python model; the C core in " + _SIM,
+    "tests/planner/test_demo.py::test_rover_go_interrupted_mid_step_stops_the_rover_and_says"
+    "_cancelled[SIGTERM]": "the same path with SIGINT (Ctrl-C)",
+}
+"""Node-id prefixes of the tests out of the test command, and where what they show is
+checked in it."""
+
+
+def lane_marks(nodeid: str) -> tuple[bool, bool]:
+    """``(slow, extended)`` for a test's node id."""
+    path = nodeid.split("::", 1)[0]
+    extended = any(nodeid.startswith(prefix) for prefix in EXTENDED)
+    return path in SLOW_MODULES or extended, extended
