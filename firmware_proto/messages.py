@@ -98,7 +98,7 @@ POSE_RATE_HZ = 10
 
 
 class Command(IntEnum):
-    """Motion command codes (DESIGN.md contract 2)."""
+    """Motion command codes (docs/architecture.md, contract 2)."""
 
     STOP = 0
     FWD = 1

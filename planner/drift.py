@@ -94,7 +94,7 @@ class DriftMonitor:
     ) -> None:
         """Args:
         verdict: the gate's verdict on the plan being executed (its prediction).
-        linear_limit_m, angular_limit_deg: thresholds (DESIGN.md contract 6).
+        linear_limit_m, angular_limit_deg: thresholds (docs/architecture.md, contract 6).
         persistence: consecutive samples over a threshold before a violation counts.
         one_way_delay_s: assumed ground-to-rover delay until a step's ``accepted`` gives
             a measurement, wall seconds.

@@ -84,7 +84,7 @@ bool rp_err_is_limit(int err);
 
 /* ------------------------------------------------------------ enumerations */
 
-/** Command: Motion command codes (DESIGN.md contract 2). */
+/** Command: Motion command codes (docs/architecture.md, contract 2). */
 typedef enum {
     RP_COMMAND_STOP = 0,
     RP_COMMAND_FWD = 1,
