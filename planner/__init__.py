@@ -8,6 +8,7 @@ and :mod:`planner.demo` (subprocesses) are imported from their modules.
 
 from __future__ import annotations
 
+from firmware_proto.geometry import Point
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import Trajectory, Verdict
 from planner.drift import DriftEvent, DriftMonitor
@@ -28,7 +29,6 @@ from planner.errors import (
 from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.experiment import ExperimentResult, run_planning_experiment
 from planner.gate_client import GateClient, GateOptions
-from planner.geometry import Point
 from planner.mission import MissionReport, MissionRunner, MoveAndWait
 from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
 from planner.planner import HeuristicLowLevelPlanner, LegPlan

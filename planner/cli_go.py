@@ -43,7 +43,7 @@ class PoseArgumentError(ValueError, argparse.ArgumentTypeError):
 
 
 def parse_pose(text: str) -> Any:
-    """``X,Y,YAW_DEG`` -> :class:`planner.geometry.Pose` (metres, metres, degrees); an
+    """``X,Y,YAW_DEG`` -> :class:`firmware_proto.pose.Pose` (metres, metres, degrees); an
     ``argparse`` type.
 
     Raises:

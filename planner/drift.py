@@ -25,9 +25,9 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.pose import Pose
 from firmware_proto.verdict import Verdict
-from planner.geometry import wrap_deg
 
 __all__ = ["DriftEvent", "DriftMonitor", "DriftSample", "predicted_pose"]
 

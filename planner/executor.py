@@ -57,12 +57,12 @@ from bridge.rosport.contract import (
     fault,
 )
 from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.plan import Plan
 from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
 from firmware_proto.verdict import Verdict
 from planner.drift import DriftEvent, DriftMonitor
-from planner.geometry import wrap_deg
 from planner.stepwatch import StepWatch
 
 __all__ = [

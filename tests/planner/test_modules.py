@@ -22,7 +22,6 @@ MODULES = [
     "planner.experiment",
     "planner.foxlive",
     "planner.gate_client",
-    "planner.geometry",
     "planner.interrupt",
     "planner.markers",
     "planner.mcaprec",

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from firmware_proto.geometry import wrap_deg
 from firmware_proto.plan import Plan, validate_plan
 from firmware_proto.pose import Pose
 from firmware_proto.rover import RoverDescription
@@ -22,7 +23,6 @@ from planner.errors import (
     PlannerError,
     PlanTooLongError,
 )
-from planner.geometry import wrap_deg
 from planner.planner import (
     CORRECTION,
     DRIVE,
