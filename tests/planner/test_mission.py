@@ -21,6 +21,11 @@ from planner.planner import HeuristicLowLevelPlanner
 from tests.planner.conftest import start_gate
 from tests.rig import HilRig
 
+# Missions in real time on an in-process rig (emulator, bridge and relay threads in this
+# worker): run alone, after the rest, as the whole-mission tests are (marker serial), so
+# that a CPU-bound test on the other worker cannot make the rover lag the prediction.
+pytestmark = pytest.mark.serial
+
 GOAL = Pose(1.2 + 1.5, 3.0, 0.0)  # 1.5 m straight ahead of the lab map's start
 
 
@@ -119,6 +124,6 @@ def test_a_cancelled_mission_stops_the_rover(own_gate: GateServer) -> None:
         )
         report = runner.run(GOAL)
         assert report.cancelled and not report.reached
-        assert "NOT REACHED (cancelled by the operator)" in report.summary()
+        assert "NOT REACHED (cancelled by the operator" in report.summary()
         assert report.runs[-1].execution.stopped_s is not None
         assert rig.emulator.status().stop_latched
