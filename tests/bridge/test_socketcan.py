@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -138,11 +139,29 @@ def test_interface_down_is_a_lost_link_and_up_a_new_handshake(
     # handshake: our frames arrive again.
     if emu.status().stop_latched:
         rec.wait(lambda xs: "cleared" in xs, since=mark)
-    x_before = emu.status().x_m
+    # Under the VM's software CPU the emulator may play the outage into twin time after
+    # the handshake: until its watchdog has stopped the rover (or the first step ended),
+    # the rover still moves. Measure from a rover at rest and released.
+    x_before = _at_rest(emu)
     mark = rec.mark()
     link.submit_step(StepRequest(FWD, 30, 2300))
     assert rec.wait_count("completed", 1, since=mark)[-1] == "completed"
     assert emu.status().x_m == pytest.approx(x_before + 0.1, abs=0.01)
+
+
+def _at_rest(emu: Emulator, timeout_s: float = 30.0) -> float:
+    """The emulated rover's x (m) once its wheels stand still and no STOP is latched,
+    the same over two reads 50 ms apart; polled (the emulator's status has no event)."""
+    deadline = time.monotonic() + timeout_s
+    last: float | None = None
+    while time.monotonic() < deadline:
+        status = emu.status()
+        still = not status.stop_latched and not any(abs(v) > 1e-6 for v in status.wheel_mps)
+        if still and last is not None and status.x_m == last:
+            return status.x_m
+        last = status.x_m if still else None
+        time.sleep(0.05)
+    raise AssertionError(f"the rover did not come to rest in {timeout_s:g} s: {emu.status()}")
 
 
 def _bench(out: Path, *extra: str) -> dict[str, object]:
