@@ -119,8 +119,10 @@ def local_cluster(directory: Path, workers: int = 2, timeout_s: float = 60.0) ->
     """A Dask scheduler and ``workers`` single-threaded workers, each its own process
     (this interpreter, ``python -m distributed.cli...``), listening on 127.0.0.1 only;
     yields the scheduler's address once every worker has joined. Every process is ended
-    on exit (terminate, then kill after 20 s). For tests, benchmarks and a first try;
-    their output goes to ``directory/cluster.log``.
+    on exit (terminate, then kill after 3 s: a worker that ran tasks can hang in its own
+    close once the scheduler is gone, 20 s in a test, and none holds state worth waiting
+    for). For tests, benchmarks and a first try; their output goes to
+    ``directory/cluster.log``.
 
     Raises:
         RuntimeError: a process exited early, or the cluster was not up in ``timeout_s``.
@@ -164,7 +166,7 @@ def local_cluster(directory: Path, workers: int = 2, timeout_s: float = 60.0) ->
                 p.terminate()
             for p in reversed(procs):
                 try:
-                    p.wait(timeout=20)
+                    p.wait(timeout=3)
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait(timeout=10)
