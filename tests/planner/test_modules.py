@@ -53,9 +53,10 @@ def test_public_names_are_sorted_and_exist(name: str) -> None:
 def test_the_package_reexports_the_modules_objects() -> None:
     import planner
 
-    # The pose and the verdict are the shared model of firmware_proto (the gate builds
-    # what the planner reads), re-exported here for an operator's script.
+    # The pose, the point and the verdict are the shared model of firmware_proto (the gate
+    # builds what the planner reads), re-exported here for an operator's script.
     shared = {"Pose": "firmware_proto.pose", "Trajectory": "firmware_proto.verdict"}
+    shared["Point"] = "firmware_proto.geometry"
     shared["Verdict"] = "firmware_proto.verdict"
     modules = [importlib.import_module(m) for m in MODULES[1:]]
     for name in planner.__all__:
