@@ -175,8 +175,8 @@ class StepProfile:
     sides have travelled ``distance`` and their targets are zero; from then on every
     update returns ``(0.0, 0.0)``.
 
-    A step with speed 0 or distance 0 has nothing to do: it is done at once (if it
-    starts at rest). A STOP step brakes from the initial speeds to rest.
+    A step with speed 0 or distance 0 has nothing to do: it is done at once if it starts
+    at rest, else it brakes from the initial speeds to rest, as a STOP step does.
     """
 
     def __init__(
@@ -224,8 +224,11 @@ class StepProfile:
         dl, dr = self.directions
         # Current target of each side along its direction of travel (m/s, may be < 0).
         self._u = [initial_left_mps * dl if dl else 0.0, initial_right_mps * dr if dr else 0.0]
-        if command == Command.STOP:
-            # STOP brakes whatever the direction: track the speeds themselves.
+        # STOP, and a step with nothing to do started while a wheel still turns (after a
+        # new session or a clear before rest), brake whatever the direction: track the
+        # speeds themselves. Along a direction, a zero step could never arrive.
+        self._brakes = not moving
+        if self._brakes:
             self._u = [initial_left_mps, initial_right_mps]
         self._done = not moving and self._u == [0.0, 0.0]
         self._arrived = [not moving, not moving]
@@ -262,7 +265,7 @@ class StepProfile:
         if self._done:
             return (0.0, 0.0)
         a_dt = self._accel * dt_s
-        if self.command == Command.STOP:
+        if self._brakes:
             left, right = self._u
             self._u = [ramp(left, 0.0, a_dt), ramp(right, 0.0, a_dt)]
             self._done = self._u == [0.0, 0.0]
@@ -299,7 +302,7 @@ class StepProfile:
         return want, False
 
     def _signed(self) -> tuple[float, float]:
-        if self.command == Command.STOP:
+        if self._brakes:
             return (self._u[0], self._u[1])
         dl, dr = self.directions
         return (dl * self._u[0], dr * self._u[1])

@@ -612,7 +612,9 @@ class Status(Message, _StatusFields):
     """STATUS (id 32, controller to host, status). Progress of one step: STARTED, then COMPLETED
     when both sides' encoder travel reached the distance and the wheels are at rest, or
     ABORTED with a reason. A step with speed 0 or distance 0 is STARTED and COMPLETED in the
-    same control tick, travel 0.
+    same control tick, travel 0, when the wheels are at rest; started while a wheel still
+    turns (after a new session or a clear before rest), it first brakes them to rest as a
+    STOP does.
 
     Sent: when a step starts and when it ends.
 

@@ -143,8 +143,8 @@ class Scenario:
         leak_samples: the controller also sends sensor samples before a session
             (protocol v2 allowed it; a v3 controller sends none).
         zero_steps: the operator also sends steps with speed 0 or distance 0 (off by
-            default: both controllers leave such a step unfinished when it starts while a
-            wheel still turns, docs/sim.md "Bugs found").
+            default, so that every kept seed plays as it was found; docs/sim.md "Bugs
+            found", 4).
         tick_s: the controller's control period (the twin's step), s.
         queue_depth: the controller's MOTION queue (the host assumes 8: fewer makes it
             answer QUEUE_FULL).

@@ -830,7 +830,9 @@ static void start_next(fw_t *c, const int32_t travel[2])
     c->vmax_um_s = moving ? (int32_t)(s->speed * c->cfg.speed_um_s_per_unit) : 0;
     c->goal_units = moving ? (int32_t)s->distance : 0;
     c->cruise_units = cruise_units(c);
-    c->stop_profile = c->run.command == RP_COMMAND_STOP;
+    /* STOP, and a step with nothing to do started while a wheel turns, brake whatever
+     * the direction (StepProfile._brakes): along a direction a zero step never arrives. */
+    c->stop_profile = !moving;
     if (c->stop_profile) {
         c->u[0] = c->commanded[0];
         c->u[1] = c->commanded[1];
