@@ -125,6 +125,9 @@ def test_nobody_answering_is_one_line_and_exit_1() -> None:
     assert "NOT released: no answer" in out.stderr and "is a bridge running" in out.stderr
 
 
+_LOGS: list[list[str]] = []
+
+
 @pytest.fixture
 def rover_side(tmp_path: Path) -> Iterator[None]:
     """A ``rover emulate`` on a pty and a ``rover bridge`` on it (the bridge's topics at
@@ -136,6 +139,8 @@ def rover_side(tmp_path: Path) -> Iterator[None]:
         children[0].wait_for("DEVICE ")
         children.append(Child(["bridge", "--device", str(device)], env))
         children[-1].wait_for("bridge: handshake done")
+        _LOGS.clear()
+        _LOGS.extend(c.errors for c in children)  # their stderr, for a failure to show
         yield
     finally:
         for child in reversed(children):
@@ -157,7 +162,10 @@ def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
         held = _rover("status", *where, "--json")
         assert held.returncode == 3, held.stdout + held.stderr
         doc = json.loads(held.stdout)
-        assert doc["latch"] == ["stop"] and doc["controller_state"] == "STOP_LATCHED"
+        assert doc["latch"] == ["stop"] and doc["controller_state"] == "STOP_LATCHED", (
+            doc,
+            _LOGS,
+        )
         assert "stopped" in doc["statuses"]
         released = _rover("clear-stop", *where)
         assert released.returncode == 0, released.stdout + released.stderr
