@@ -185,10 +185,12 @@ def test_a_stalled_loop_is_reported_with_its_stack_and_logged(tmp_path: Path) ->
         thread.join(10)
         assert resumed.is_set()
         deadline = time.monotonic() + 5
-        while not any(r.thread == "test-loop" for r in monitor.records):
+        # A loaded machine may hold the loop up before the stall as well (132 ms was
+        # seen beside 4 busy processes): the 0.4 s stall is the longest record.
+        while not any(r.thread == "test-loop" and r.ms >= 350 for r in monitor.records):
             assert time.monotonic() < deadline, monitor.records
             time.sleep(0.02)
-    (record,) = [r for r in read_stalls(log) if r.thread == "test-loop"]
+    record = max((r for r in read_stalls(log) if r.thread == "test-loop"), key=lambda r: r.ms)
     assert record.process == "tester" and record.pid == os.getpid()
     assert record.ms >= 350
     assert "stalling_loop" in record.stack and "time.sleep(0.4)" in record.stack
