@@ -134,11 +134,7 @@ def rover_side(tmp_path: Path) -> Iterator[None]:
     the root namespace), up and handshaken."""
     device = tmp_path / "rover-motor"
     env = dict(os.environ)
-    # The tools are under test here, not the link's timing (bench_load measures that):
-    # a 1 s watchdog keeps a stall of a loaded machine out of the latch they report (a
-    # 250 ms one joined the STOP in 2 of 3 runs of the test command).
-    emulate = ["emulate", "--serial", "--link", str(device), "--speed-factor", "4"]
-    children = [Child([*emulate, "--watchdog-ms", "1000"], env)]
+    children = [Child(["emulate", "--serial", "--link", str(device), "--speed-factor", "4"], env)]
     try:
         children[0].wait_for("DEVICE ")
         children.append(Child(["bridge", "--device", str(device)], env))
@@ -151,6 +147,11 @@ def rover_side(tmp_path: Path) -> Iterator[None]:
             child.stop()
 
 
+# Alone, after the rest (marker serial): in 3 of 4 runs of the whole test command the
+# link between this bridge and its emulator stalled for more than 250 ms while the other
+# worker ran (a watchdog trip or a lost link joined the STOP), never in 7 runs of this
+# test alone or beside the simulator's soak. The stall is not diagnosed (docs/realtime.md).
+@pytest.mark.serial
 @pytest.mark.rclpy
 @pytest.mark.usefixtures("rover_side")
 def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
