@@ -147,7 +147,7 @@ def rover_side(tmp_path: Path) -> Iterator[None]:
             child.stop()
 
 
-# Alone, after the rest (marker serial): in 3 of 4 runs of the whole test command the
+# Alone, after the rest (marker serial): in 3 of 5 runs of the whole test command the
 # link between this bridge and its emulator stalled for more than 250 ms while the other
 # worker ran (a watchdog trip or a lost link joined the STOP), never in 7 runs of this
 # test alone or beside the simulator's soak. The stall is not diagnosed (docs/realtime.md).
