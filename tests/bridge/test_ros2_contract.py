@@ -208,7 +208,7 @@ def test_the_thesis_executor_contract_with_plain_rclpy(
 ) -> None:
     client.wait_for_bridge()
     # Listing 4 of the thesis: one step at a time, each until `completed`.
-    for command, speed, distance in ((1, 30, 2300), (3, 30, 3000), (2, 30, 2300)):  # FWD LEFT REV
+    for command, speed, distance in ((1, 30, 800), (3, 30, 1000), (2, 30, 800)):  # FWD LEFT REV
         got = client.step(command, speed, distance)
         assert got[-1] == "completed", got
         assert got.count("completed") == 1
@@ -318,7 +318,7 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         children.append(bridge)
         assert bridge.wait_for("BRIDGE ").endswith(f" {backend}")
         client.wait_for_bridge()
-        for command, speed, distance in ((1, 30, 2300), (3, 30, 3000), (2, 30, 2300)):
+        for command, speed, distance in ((1, 30, 800), (3, 30, 1000), (2, 30, 800)):
             got = client.step(command, speed, distance)  # FWD, LEFT, REV: one at a time
             assert got[-1] == "completed" and got.count("completed") == 1, got
         from std_msgs.msg import Bool, Int16MultiArray
