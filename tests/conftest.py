@@ -89,16 +89,18 @@ def rclpy_required() -> bool:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``); skip, saying why,
-    the ROS 2 tests whose environment is missing: ROS 2 itself, or the private network
-    namespace."""
+    """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``, ``virtual``); skip,
+    saying why, the ROS 2 tests whose environment is missing: ROS 2 itself, or the private
+    network namespace."""
     ros = _ros_available()
     for item in items:
-        slow, extended = lane_marks(item.nodeid)
+        slow, extended, virtual = lane_marks(item.nodeid)
         if slow:
             item.add_marker(pytest.mark.slow)
         if extended:
             item.add_marker(pytest.mark.extended)
+        if virtual:
+            item.add_marker(pytest.mark.virtual)
         if item.get_closest_marker("rclpy"):
             if not ros:
                 item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))

@@ -4,7 +4,10 @@ tests/conftest.py.
 - **fast lane** (``-m "not slow"``): the edit-test loop. :data:`SLOW_MODULES` are whole
   modules of real time, real processes or real DDS; their tests are marked ``slow`` as
   well as those marked so where they are written.
-- **the test command** (``.ci/test``): everything but ``extended``.
+- **the test command** (``.ci/test``): everything but ``extended``. Of it, the fast lane
+  and the tests marked ``virtual`` (slow, but needing no wall clock: the wire
+  simulator's soak, and :data:`VIRTUAL_MODULES`) run at the lowest priority beside the
+  real-time tests (docs/testing.md).
 - **extended** (``-m extended``): wall-time tests whose behaviour the test command checks
   otherwise: in virtual time against both controllers (the wire simulator, tests/sim),
   or by a test of the same path kept in the command. Each entry of :data:`EXTENDED`
@@ -13,7 +16,7 @@ tests/conftest.py.
 
 from __future__ import annotations
 
-__all__ = ["EXTENDED", "SLOW_MODULES", "lane_marks"]
+__all__ = ["EXTENDED", "SLOW_MODULES", "VIRTUAL_MODULES", "lane_marks"]
 
 SLOW_MODULES = (
     "tests/bridge/test_cli_bridge.py",
@@ -68,6 +71,17 @@ SLOW_MODULES = (
     "tests/test_vcan_vm.py",
 )
 """Modules of real time, subprocesses or DDS: ``slow``, out of the fast lane."""
+
+VIRTUAL_MODULES = (
+    "tests/emulator/test_calibration.py",  # lockstep recordings; a gate on port 0
+    "tests/firmware_proto/test_c_codec.py",  # compilers, then vectors
+    "tests/firmware_proto/test_fw.py",  # cross builds, simavr and qemu-arm run to the end
+    "tests/firmware_proto/test_libfuzzer.py",  # a fixed count of runs, not a duration
+    "tests/test_lanes.py",  # collections
+)
+"""Slow modules whose tests need no wall clock (no watchdog, no rate, no deadline but a
+generous timeout): marked ``virtual``, so that ``.ci/test`` runs them at the lowest
+priority beside the real-time tests."""
 
 _SIM = "tests/sim/test_soak.py (virtual time, both controllers)"
 _LATCH = "tests/bridge/test_latch_recovery.py::"
@@ -134,8 +148,8 @@ EXTENDED: dict[str, str] = {
 checked in it."""
 
 
-def lane_marks(nodeid: str) -> tuple[bool, bool]:
-    """``(slow, extended)`` for a test's node id."""
+def lane_marks(nodeid: str) -> tuple[bool, bool, bool]:
+    """``(slow, extended, virtual)`` for a test's node id."""
     path = nodeid.split("::", 1)[0]
     extended = any(nodeid.startswith(prefix) for prefix in EXTENDED)
-    return path in SLOW_MODULES or extended, extended
+    return path in SLOW_MODULES or extended, extended, path in VIRTUAL_MODULES

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import TracebackType
 from typing import Any
 
@@ -23,6 +25,12 @@ from emulator.injection import parse_fault
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.runtime.realtime import (
+    BRIDGE_PRIORITY,
+    EMULATOR_PRIORITY,
+    RealtimeConfig,
+    apply_realtime,
+)
 from firmware_proto.worldmap import load_map
 from planner.executor import ExecutorConfig, PlanExecutor
 from planner.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
@@ -30,6 +38,19 @@ from planner.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
 __all__ = ["HilRig"]
 
 _buses = itertools.count()
+
+
+@contextmanager
+def _threads_at(priority: int) -> Iterator[None]:
+    """Threads started inside run at real-time ``priority`` where permitted, as the
+    programs' own do (docs/realtime.md): the emulator's and the bridge's, so that the
+    rig keeps the controller's watchdog beside other work as ``rover emulate`` and
+    ``rover bridge`` do. The calling thread is put back to normal scheduling after."""
+    apply_realtime(RealtimeConfig(priority, lock_memory=False, fallback_nice=0))
+    try:
+        yield
+    finally:
+        apply_realtime(RealtimeConfig(0, lock_memory=False, fallback_nice=0))
 
 
 class HilRig:
@@ -76,7 +97,8 @@ class HilRig:
                 speed_factor=speed,
                 faults=[parse_fault(f) for f in faults],
             )
-            self.emulator.start()
+            with _threads_at(EMULATOR_PRIORITY):
+                self.emulator.start()
             self._stack.append(self.emulator)
             front = self.emulator.frontend
             assert isinstance(front, SerialFrontEnd)
@@ -91,7 +113,8 @@ class HilRig:
                 ports.append(open_port(backend, node_name=name, namespace=namespace, **options))
                 self._stack.append(ports[-1])
             params = load_params({"device": front.device, "ros_backend": backend}, env={})
-            self.bridge = BridgeNode(params, ports[0]).start()
+            with _threads_at(BRIDGE_PRIORITY):
+                self.bridge = BridgeNode(params, ports[0]).start()
             self._stack.append(self.bridge)
             self.relay = LinkRelay(
                 ports[1],
