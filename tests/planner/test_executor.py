@@ -22,11 +22,6 @@ from planner.gate_client import GateClient
 from planner.relay import DEFAULT_ROUTES
 from tests.rig import HilRig
 
-# Missions in real time on an in-process rig (emulator, bridge and relay threads in this
-# worker): run alone, after the rest, as the whole-mission tests are (marker serial), so
-# that a CPU-bound test on the other worker cannot make the rover lag the prediction.
-pytestmark = pytest.mark.serial
-
 SPEED = 4.0
 RTT_S = 0.4  # mission seconds: 0.1 s wall
 START = (1.2, 3.0)  # the lab map's start, facing +x

@@ -21,11 +21,6 @@ from firmware_proto.worldmap import WorldMap, load_map
 from planner.gate_client import GateClient
 from tests.rig import HilRig
 
-# Missions in real time on an in-process rig (emulator, bridge and relay threads in this
-# worker): run alone, after the rest, as the whole-mission tests are (marker serial), so
-# that a CPU-bound test on the other worker cannot make the rover lag the prediction.
-pytestmark = pytest.mark.serial
-
 SPEED = 4.0
 ONE_WAY_S = 0.05
 

@@ -21,11 +21,6 @@ from planner.planner import HeuristicLowLevelPlanner
 from tests.planner.conftest import start_gate
 from tests.rig import HilRig
 
-# Missions in real time on an in-process rig (emulator, bridge and relay threads in this
-# worker): run alone, after the rest, as the whole-mission tests are (marker serial), so
-# that a CPU-bound test on the other worker cannot make the rover lag the prediction.
-pytestmark = pytest.mark.serial
-
 GOAL = Pose(1.2 + 1.5, 3.0, 0.0)  # 1.5 m straight ahead of the lab map's start
 
 
