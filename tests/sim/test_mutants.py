@@ -3,8 +3,10 @@ purpose (a mutant, :data:`bridge.linkcore.MUTANTS`), is found within the test
 command's budget, with the one command line that plays it again; with the fix in
 place the same scenario passes.
 
-The two bugs of issue #22 are searched for from seed 0; the three the simulator found
-in the core (docs/sim.md, "Bugs found") stay as regression seeds."""
+The two bugs of issue #22 are searched for from seed 0 in the test command (marked
+``slow`` and ``virtual``: about 14 s each), and the seeds that search finds are replayed
+in the fast lane; the three the simulator found in the core (docs/sim.md, "Bugs found")
+stay as regression seeds."""
 
 from __future__ import annotations
 
@@ -21,7 +23,14 @@ from sim.scenario import CONTROLLERS, MEDIA, make_scenario
 from sim.soak import soak
 
 SEARCH = 1000
-"""Scenarios a #22 mutant gets to be found in (both are found within the first 50)."""
+"""Scenarios a #22 mutant gets to be found in, from seed 0."""
+
+ISSUE_22 = [
+    pytest.param("auto-clear-survives", "auto-clear", 778, id="auto-clear-survives"),
+    pytest.param("samples-outside-session", "odometry", 22, id="samples-outside-session"),
+]
+"""(mutant, the invariant it breaks, the first seed that finds it against both
+controllers): the fixes of issue #22, undone."""
 
 FOUND = [
     pytest.param("settle-by-guess", 1481, "can", "truthful", id="settle-by-guess"),
@@ -43,14 +52,13 @@ def test_every_mutant_is_tested() -> None:
     assert tested | MASKED == set(MUTANTS)
 
 
-@pytest.mark.timeout(120)
+@pytest.mark.slow
+@pytest.mark.virtual
+@pytest.mark.timeout(600)  # about 14 s of CPU; .ci/test runs it at the lowest priority
 @pytest.mark.parametrize("controller", CONTROLLERS)
-@pytest.mark.parametrize(
-    ("mutant", "rule"),
-    [("auto-clear-survives", "auto-clear"), ("samples-outside-session", "odometry")],
-)
+@pytest.mark.parametrize(("mutant", "rule", "first_seed"), ISSUE_22)
 def test_the_simulator_finds_each_fix_of_issue_22_undone(
-    mutant: str, rule: str, controller: str
+    mutant: str, rule: str, first_seed: int, controller: str
 ) -> None:
     # The controller also sends samples before a session, as a protocol v2 one did:
     # without them the second bug cannot happen (a v3 controller sends none).
@@ -66,8 +74,29 @@ def test_the_simulator_finds_each_fix_of_issue_22_undone(
     found = report.failures[0]
     print(f"{mutant}: found at {found.scenario.reproducer}")
     assert rule in {v.rule for v in found.violations}, found.violations
+    assert found.scenario.seed == first_seed, "the search changed: update ISSUE_22"
     fixed = run_scenario(dataclasses.replace(found.scenario, mutants=()))
     assert fixed.ok, fixed.violations
+
+
+@pytest.mark.parametrize("controller", CONTROLLERS)
+@pytest.mark.parametrize(("mutant", "rule", "first_seed"), ISSUE_22)
+def test_the_seeds_that_find_issue_22s_fixes_undone_still_do(
+    mutant: str, rule: str, first_seed: int, controller: str
+) -> None:
+    """The fast lane's share of the search above: its finds, replayed."""
+    report = soak(
+        range(first_seed, first_seed + 1),
+        controllers=(controller,),
+        media=MEDIA,
+        mutants=(mutant,),
+        leak_samples=True,
+    )
+    assert report.failures, f"{mutant} not found at seed {first_seed}"
+    for failure in report.failures:
+        assert rule in {v.rule for v in failure.violations}, failure.violations
+        fixed = run_scenario(dataclasses.replace(failure.scenario, mutants=()))
+        assert fixed.ok, fixed.violations
 
 
 @pytest.mark.timeout(60)
