@@ -399,9 +399,10 @@ class GateServer:
         the wait times out, so no more than ``capacity`` validations ever run or wait. A
         job whose worker process died is retried once on a fresh worker (playback is
         pure, so a retry is safe); a second death is a 500. The first hand-off is made
-        on the event loop (cheap); a pool that finds a worker dead before the job starts
-        replaces it there, which holds the loop for the worker's start-up (rare; the
-        retry after a death during a job is made off the loop).
+        on the event loop (a write to an idle worker's pipe, or a place in the pool's
+        queue); the process pool replaces a dead worker from its own thread, and the
+        job waits for it (the retry after a death during a job is handed off from the
+        ``gate-submit`` thread).
         """
         if not self._slots.acquire(blocking=False):
             raise OverloadedError(
@@ -418,7 +419,7 @@ class GateServer:
                 try:
                     if attempt == 1:  # on the loop: a hand-off to a thread costs a wake-up
                         future: Future[bytes] = self.pool.submit(job)
-                    else:  # after a worker died: replacing it takes a second, off the loop
+                    else:  # after a worker died: off the loop
                         future = await loop.run_in_executor(self._submitter, self.pool.submit, job)
                     waiter = asyncio.wrap_future(future)
                     done, _ = await asyncio.wait({waiter}, timeout=self.config.request_timeout_s)
