@@ -281,7 +281,8 @@ class ProcessWorkerPool(WorkerPool):
                     raise TimeoutError("timed out")
                 _ready, pid = worker.conn.recv()
             except (EOFError, OSError, TimeoutError) as exc:
-                raise RuntimeError(f"gate worker processes did not start: {exc}") from exc
+                why = "a worker exited while starting" if isinstance(exc, EOFError) else exc
+                raise RuntimeError(f"gate worker processes did not start: {why}") from exc
             worker.pid, worker.ready = pid, True
             self._idle.append(worker)
 
@@ -438,6 +439,9 @@ class ProcessWorkerPool(WorkerPool):
         with self._state:
             workers = list(self._workers)
         for worker in workers:
+            if not worker.ready:  # still starting (a replacement): nothing to finish
+                worker.process.kill()
+                continue
             with contextlib.suppress(OSError, ValueError):  # gone already
                 worker.conn.send(None)
         deadline = time.monotonic() + timeout_s

@@ -45,7 +45,18 @@ def _quiet() -> Iterator[None]:
     logging.disable(logging.NOTSET)
 
 
-@pytest.mark.parametrize("name", list(MUTANTS))
+_HEAVY = {"reboot-keeps-nonce"}
+"""Mutants whose run takes seconds (the suite plays every reboot rule to its end): out
+of the fast lane, in the test command's background part (marker ``virtual``)."""
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(n, marks=[pytest.mark.slow, pytest.mark.virtual]) if n in _HEAVY else n
+        for n in MUTANTS
+    ],
+)
 def test_the_suite_fails_the_mutant_on_the_rule_it_breaks(
     name: str, rover: RoverDescription
 ) -> None:

@@ -113,6 +113,10 @@ def test_an_unknown_name_lists_the_shipped_grounds(rover: RoverDescription) -> N
         load_ground("moon", rover)
 
 
+# Seconds of CPU (a root search over twin playbacks): out of the fast lane, in the test
+# command's background part.
+@pytest.mark.slow
+@pytest.mark.virtual
 def test_turn_efficiency_solves_the_lateral_friction(rover: RoverDescription) -> None:
     base = load_ground("loose", rover)
     mu = solve_mu_lateral(rover, base, 0.45)

@@ -300,6 +300,10 @@ def test_approach_into_a_slot(
     assert abs(result.verdict.final_pose.x - 6.0) < 0.1
 
 
+# Seconds of CPU (an uncertain verdict's samples): out of the fast lane, in the test
+# command's background part.
+@pytest.mark.slow
+@pytest.mark.virtual
 def test_a_collision_probability_above_the_limit_is_a_collision_to_repair(
     orchestrator: Make,
 ) -> None:
