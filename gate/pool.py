@@ -242,9 +242,9 @@ class ProcessWorkerPool(WorkerPool):
             self._workers = [self._spawn() for _ in range(workers)]
             self.warm_up()
         except BaseException:
-            self._stop_workers(0.0)
+            self._stop_workers(self._workers, 0.0)
             for worker in self._workers:
-                worker.conn.close()
+                _release(worker)
             raise
         self._reader = threading.Thread(
             target=self._read_answers, name="gate-pool-results", daemon=True
@@ -398,8 +398,10 @@ class ProcessWorkerPool(WorkerPool):
             call, worker.call = worker.call, None
             replace_it = not self._stopping
             self._state.notify_all()
-        worker.conn.close()
-        worker.process.join(1.0)
+        if replace_it:
+            _release(worker)
+        else:
+            worker.conn.close()  # its process is released by close(), once this thread ends
         if call is not None:
             call.future.set_exception(BrokenProcessPool("a worker process died during a job"))
         if replace_it:
@@ -410,12 +412,17 @@ class ProcessWorkerPool(WorkerPool):
                 logger.exception("could not start a worker process")
                 return
             with self._state:
-                self._workers.append(fresh)  # idle once it says ready
+                if not self._stopping:
+                    self._workers.append(fresh)  # idle once it says ready
+                    return
+            fresh.process.kill()  # closed meanwhile
+            _release(fresh)
 
     # -- the end ----------------------------------------------------------------------------
     def _close(self, wait: bool) -> None:
         with self._state:
             self._stopping = True
+            workers = list(self._workers)  # no worker is added from now on
             cancelled = list(self._pending)
             self._pending.clear()
             if wait:
@@ -425,19 +432,18 @@ class ProcessWorkerPool(WorkerPool):
         for call in cancelled:
             if not call.future.cancel():  # it had gone to a worker that died
                 call.future.set_exception(RuntimeError("process pool is closed"))
-        self._stop_workers(5.0)
+        self._stop_workers(workers, 5.0)
         self._wake_w.send_bytes(b"x")  # the reader sees every death, then ends
         self._reader.join(5.0)
-        for worker in self._workers:  # should the reader not have
-            worker.conn.close()
+        if not self._reader.is_alive():  # else it may still wait on their sentinels
+            for worker in workers:
+                _release(worker)
         self._wake_r.close()
         self._wake_w.close()
 
-    def _stop_workers(self, timeout_s: float) -> None:
-        """Tell every worker to exit after its call; end those that have not within
-        ``timeout_s``."""
-        with self._state:
-            workers = list(self._workers)
+    def _stop_workers(self, workers: list[_Worker], timeout_s: float) -> None:
+        """Tell ``workers`` to exit after their call; end those that have not within
+        ``timeout_s``. Their process objects stay open (see :func:`_release`)."""
         for worker in workers:
             if not worker.ready:  # still starting (a replacement): nothing to finish
                 worker.process.kill()
@@ -450,6 +456,21 @@ class ProcessWorkerPool(WorkerPool):
             if worker.process.is_alive():
                 worker.process.kill()
                 worker.process.join(5.0)
+
+
+def _release(worker: _Worker) -> None:
+    """Close a worker's pipe and, once it has exited (killed after 5 s), its process's
+    file descriptors (idempotent). Only the reader thread, for a worker it saw die while
+    the pool runs, or :meth:`ProcessWorkerPool.close` once the reader has ended, calls
+    this: the reader waits on the process's sentinel."""
+    worker.conn.close()
+    process = worker.process
+    process.join(5.0)
+    if process.is_alive():
+        process.kill()
+        process.join(5.0)
+    with contextlib.suppress(ValueError, AttributeError):  # still running, or released
+        process.close()
 
 
 def make_pool(config: GateConfig, validator: Validator) -> WorkerPool:
