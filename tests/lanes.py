@@ -6,8 +6,8 @@ tests/conftest.py.
   well as those marked so where they are written.
 - **the test command** (``.ci/test``): everything but ``extended``. Of it, the fast lane
   and the tests marked ``virtual`` (slow, but needing no wall clock: the wire
-  simulator's soak, and :data:`VIRTUAL_MODULES`) run at the lowest priority beside the
-  real-time tests (docs/testing.md).
+  simulator's soak, and :data:`VIRTUAL_MODULES`) run beside the real-time tests, at a
+  lower priority (docs/testing.md).
 - **extended** (``-m extended``): wall-time tests whose behaviour the test command checks
   otherwise: in virtual time against both controllers (the wire simulator, tests/sim),
   or by a test of the same path kept in the command. Each entry of :data:`EXTENDED`
@@ -80,8 +80,8 @@ VIRTUAL_MODULES = (
     "tests/test_lanes.py",  # collections
 )
 """Slow modules whose tests need no wall clock (no watchdog, no rate, no deadline but a
-generous timeout): marked ``virtual``, so that ``.ci/test`` runs them at the lowest
-priority beside the real-time tests."""
+generous timeout): marked ``virtual``, so that ``.ci/test`` runs them beside the
+real-time tests, at a lower priority."""
 
 _SIM = "tests/sim/test_soak.py (virtual time, both controllers)"
 _LATCH = "tests/bridge/test_latch_recovery.py::"

@@ -54,7 +54,7 @@ def test_every_mutant_is_tested() -> None:
 
 @pytest.mark.slow
 @pytest.mark.virtual
-@pytest.mark.timeout(600)  # about 14 s of CPU; .ci/test runs it at the lowest priority
+@pytest.mark.timeout(600)  # about 14 s of CPU; .ci/test runs it below the real-time tests
 @pytest.mark.parametrize("controller", CONTROLLERS)
 @pytest.mark.parametrize(("mutant", "rule", "first_seed"), ISSUE_22)
 def test_the_simulator_finds_each_fix_of_issue_22_undone(

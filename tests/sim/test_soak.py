@@ -1,9 +1,9 @@
 """The bulk of the link's behaviour in virtual time: thousands of seeded scenarios
 against each controller (docs/sim.md), every invariant checked after each.
 
-The test command plays 5,000 scenarios per controller (four chunks of 1,250, so that
-two workers share them), on both media, which is more than one simulated rover-hour
-each; the fast lane (``-m "not slow"``) plays 150 per controller."""
+The test command plays 5,000 scenarios per controller (four chunks of 1,250, in its
+background part: marker ``virtual``), on both media, which is more than one simulated
+rover-hour each; the fast lane (``-m "not slow"``) plays 150 per controller."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def _check(report: SoakReport) -> None:
 
 @pytest.mark.slow
 @pytest.mark.virtual
-@pytest.mark.timeout(600)  # about 12 s of CPU; .ci/test runs it at the lowest priority
+@pytest.mark.timeout(600)  # about 12 s of CPU; .ci/test runs it below the real-time tests
 @pytest.mark.parametrize("chunk", range(CHUNKS))
 @pytest.mark.parametrize("controller", CONTROLLERS)
 def test_thousands_of_seeded_scenarios_keep_every_invariant(controller: str, chunk: int) -> None:
