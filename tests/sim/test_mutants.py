@@ -18,7 +18,7 @@ import sys
 import pytest
 
 from bridge.linkcore import MUTANTS
-from sim.rig import run_scenario
+from sim.rig import Outcome, run_scenario
 from sim.scenario import CONTROLLERS, MEDIA, make_scenario
 from sim.soak import soak
 
@@ -52,6 +52,27 @@ def test_every_mutant_is_tested() -> None:
     assert tested | MASKED == set(MUTANTS)
 
 
+def _failures_of(mutant: str, controller: str, rule: str, seeds: range) -> list[Outcome]:
+    """The failures ``seeds`` show against ``mutant`` (the search stops at the first);
+    each breaks ``rule`` and passes with the fix in place. The controller also sends
+    samples before a session, as a protocol v2 one did: without them the second bug
+    cannot happen (a v3 controller sends none)."""
+    report = soak(
+        seeds,
+        controllers=(controller,),
+        media=MEDIA,
+        mutants=(mutant,),
+        leak_samples=True,
+        stop_on_failure=len(seeds) > 1,
+    )
+    assert report.failures, f"{mutant} not found in seeds {seeds.start}..{seeds.stop - 1}"
+    for failure in report.failures:
+        assert rule in {v.rule for v in failure.violations}, failure.violations
+        fixed = run_scenario(dataclasses.replace(failure.scenario, mutants=()))
+        assert fixed.ok, fixed.violations
+    return report.failures
+
+
 @pytest.mark.slow
 @pytest.mark.virtual
 @pytest.mark.timeout(600)  # about 14 s of CPU; .ci/test runs it below the real-time tests
@@ -60,23 +81,9 @@ def test_every_mutant_is_tested() -> None:
 def test_the_simulator_finds_each_fix_of_issue_22_undone(
     mutant: str, rule: str, first_seed: int, controller: str
 ) -> None:
-    # The controller also sends samples before a session, as a protocol v2 one did:
-    # without them the second bug cannot happen (a v3 controller sends none).
-    report = soak(
-        range(SEARCH),
-        controllers=(controller,),
-        media=MEDIA,
-        mutants=(mutant,),
-        leak_samples=True,
-        stop_on_failure=True,
-    )
-    assert report.failures, f"{mutant} not found in {SEARCH} scenarios"
-    found = report.failures[0]
+    found = _failures_of(mutant, controller, rule, range(SEARCH))[0]
     print(f"{mutant}: found at {found.scenario.reproducer}")
-    assert rule in {v.rule for v in found.violations}, found.violations
     assert found.scenario.seed == first_seed, "the search changed: update ISSUE_22"
-    fixed = run_scenario(dataclasses.replace(found.scenario, mutants=()))
-    assert fixed.ok, fixed.violations
 
 
 @pytest.mark.parametrize("controller", CONTROLLERS)
@@ -85,18 +92,7 @@ def test_the_seeds_that_find_issue_22s_fixes_undone_still_do(
     mutant: str, rule: str, first_seed: int, controller: str
 ) -> None:
     """The fast lane's share of the search above: its finds, replayed."""
-    report = soak(
-        range(first_seed, first_seed + 1),
-        controllers=(controller,),
-        media=MEDIA,
-        mutants=(mutant,),
-        leak_samples=True,
-    )
-    assert report.failures, f"{mutant} not found at seed {first_seed}"
-    for failure in report.failures:
-        assert rule in {v.rule for v in failure.violations}, failure.violations
-        fixed = run_scenario(dataclasses.replace(failure.scenario, mutants=()))
-        assert fixed.ok, fixed.violations
+    _failures_of(mutant, controller, rule, range(first_seed, first_seed + 1))
 
 
 @pytest.mark.timeout(60)
