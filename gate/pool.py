@@ -371,6 +371,8 @@ class ProcessWorkerPool(WorkerPool):
         except (EOFError, OSError):
             self._on_death(worker)
             return
+        except Exception as exc:  # read whole, but it cannot be unpickled here
+            word, value = "err", RuntimeError(f"a worker's answer could not be read: {exc!r}")
         with self._state:
             call, worker.call = worker.call, None
             if word == "ready":

@@ -42,6 +42,21 @@ def _unpicklable(_: object) -> object:
     return lambda: None
 
 
+def _refuse_to_load() -> None:
+    raise ValueError("not here")
+
+
+class _Unloadable:
+    """Pickles in the worker; unpickling it raises (in the pool's reader thread)."""
+
+    def __reduce__(self) -> tuple[object, tuple[()]]:
+        return _refuse_to_load, ()
+
+
+def _unloadable(_: object) -> _Unloadable:
+    return _Unloadable()
+
+
 @pytest.fixture
 def pool(validator: Validator) -> Iterator[ProcessWorkerPool]:
     with ProcessWorkerPool(validator, 2) as made:
@@ -60,6 +75,8 @@ def test_a_failure_in_a_worker_is_the_callers_exception(pool: ProcessWorkerPool)
         pool.submit_call(_fail, "no such plan").result(WAIT_S)
     with pytest.raises(RuntimeError, match="could not be sent"):
         pool.submit_call(_unpicklable, None).result(WAIT_S)
+    with pytest.raises(RuntimeError, match="could not be read"):
+        pool.submit_call(_unloadable, None).result(WAIT_S)
     assert pool.submit_call(_pid_after, 0).result(WAIT_S) in pool.pids  # still serving
 
 
