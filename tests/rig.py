@@ -11,8 +11,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from types import TracebackType
 from typing import Any
 
@@ -29,7 +28,8 @@ from firmware_proto.runtime.realtime import (
     BRIDGE_PRIORITY,
     EMULATOR_PRIORITY,
     RealtimeConfig,
-    apply_realtime,
+    RealtimeStatus,
+    realtime_threads,
 )
 from firmware_proto.worldmap import load_map
 from planner.executor import ExecutorConfig, PlanExecutor
@@ -40,17 +40,12 @@ __all__ = ["HilRig"]
 _buses = itertools.count()
 
 
-@contextmanager
-def _threads_at(priority: int) -> Iterator[None]:
+def threads_at(priority: int) -> AbstractContextManager[RealtimeStatus]:
     """Threads started inside run at real-time ``priority`` where permitted, as the
-    programs' own do (docs/realtime.md): the emulator's and the bridge's, so that the
-    rig keeps the controller's watchdog beside other work as ``rover emulate`` and
-    ``rover bridge`` do. The calling thread is put back to normal scheduling after."""
-    apply_realtime(RealtimeConfig(priority, lock_memory=False, fallback_nice=0))
-    try:
-        yield
-    finally:
-        apply_realtime(RealtimeConfig(0, lock_memory=False, fallback_nice=0))
+    programs' own do (docs/realtime.md): an in-process emulator or bridge keeps the
+    controller's watchdog beside other work as ``rover emulate`` and ``rover bridge``
+    do. The calling thread is put back as it was after; memory is not locked."""
+    return realtime_threads(RealtimeConfig(priority, lock_memory=False, fallback_nice=0))
 
 
 class HilRig:
@@ -97,7 +92,7 @@ class HilRig:
                 speed_factor=speed,
                 faults=[parse_fault(f) for f in faults],
             )
-            with _threads_at(EMULATOR_PRIORITY):
+            with threads_at(EMULATOR_PRIORITY):
                 self.emulator.start()
             self._stack.append(self.emulator)
             front = self.emulator.frontend
@@ -113,7 +108,7 @@ class HilRig:
                 ports.append(open_port(backend, node_name=name, namespace=namespace, **options))
                 self._stack.append(ports[-1])
             params = load_params({"device": front.device, "ros_backend": backend}, env={})
-            with _threads_at(BRIDGE_PRIORITY):
+            with threads_at(BRIDGE_PRIORITY):
                 self.bridge = BridgeNode(params, ports[0]).start()
             self._stack.append(self.bridge)
             self.relay = LinkRelay(

@@ -13,11 +13,14 @@ Exit status: 0 the replay matched the recording, 1 it differed (or failed), 2 us
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import Any
 
 from firmware_proto.cli import values
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 
 __all__ = ["DEFAULT_TARGET", "REPLAY_GROUP", "register"]
 
@@ -104,14 +107,24 @@ def register(subparsers: Any) -> None:
         ),
     )
     p.add_argument("--record", metavar="FILE", help="record the replay session too")
+    # A replay plays one side of the link on its recorded clock (the host's heartbeats
+    # against the controller's 250 ms watchdog): it keeps time as `rover emulate` does.
+    add_runtime_arguments(p, EMULATOR_PRIORITY)
     p.set_defaults(func=_run, into=None)
 
 
 def _run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from firmware_proto.runtime import ProcessRuntime
+
     name = args.into or DEFAULT_TARGET
     for ep in entry_points(group=REPLAY_GROUP):
         if ep.name == name:
             run: Callable[[argparse.Namespace], int] = ep.load()
-            return int(run(args))
+            options = runtime_options(args, "replay", EMULATOR_PRIORITY)
+            with ProcessRuntime(replace(options, lock_memory=False)) as runtime:
+                print(runtime.line(), file=sys.stderr, flush=True)
+                return int(run(args))
     known = ", ".join(_targets()) or "none installed"
     raise ValueError(f"unknown replay target {name!r}; known: {known}")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -23,6 +24,8 @@ from firmware_proto.runtime.realtime import (
     RealtimeConfig,
     RealtimeStatus,
     apply_realtime,
+    restore_scheduling,
+    saved_scheduling,
 )
 from firmware_proto.runtime.stall import (
     DEFAULT_STALL_THRESHOLD_S,
@@ -50,6 +53,8 @@ class RuntimeOptions:
         nice: a nice value to run at (>= 0 needs no permission): the programs that need
             not keep time can yield to those that must (``rover demo`` starts the gate
             and the link relay at 5).
+        lock_memory: lock the process's memory when real time is granted (a tool that
+            runs for one test, such as ``rover replay``, need not).
     """
 
     name: str
@@ -58,6 +63,7 @@ class RuntimeOptions:
     stall_log: Path | None = None
     short_switch: bool = False
     nice: int = 0
+    lock_memory: bool = True
 
 
 def _dump_stacks(signum: int, frame: FrameType | None) -> None:
@@ -68,7 +74,9 @@ class ProcessRuntime:
     """Scheduling and stall monitoring for the calling program (a context manager).
 
     Enter it from the main thread before any other thread starts, so that every thread
-    inherits the scheduling asked for.
+    inherits the scheduling asked for. On exit the calling thread's scheduling and the
+    interpreter's switch interval are put back as they were, so that a program run
+    in-process (a test calling ``rover replay``) leaves its caller as it found it.
     """
 
     def __init__(self, options: RuntimeOptions) -> None:
@@ -79,13 +87,19 @@ class ProcessRuntime:
             options.name, threshold_s=options.stall_threshold_s, log_path=options.stall_log
         )
         self._previous_usr1: Any = signal.SIG_DFL
+        self._previous_switch = sys.getswitchinterval()
+        self._previous_scheduling = saved_scheduling()
 
     def __enter__(self) -> ProcessRuntime:
+        self._previous_scheduling = saved_scheduling()
+        self._previous_switch = sys.getswitchinterval()
         if self.options.short_switch:
             use_short_switch_interval()
         if self.options.nice:
             os.setpriority(os.PRIO_PROCESS, 0, self.options.nice)
-        self.realtime = apply_realtime(RealtimeConfig(priority=self.options.priority))
+        self.realtime = apply_realtime(
+            RealtimeConfig(priority=self.options.priority, lock_memory=self.options.lock_memory)
+        )
         self.monitor.start()
         install(self.monitor)
         # `kill -USR1 <pid>` logs every thread's stack (docs/realtime.md, Stalls). A
@@ -103,6 +117,8 @@ class ProcessRuntime:
         signal.signal(signal.SIGUSR1, self._previous_usr1)
         install(None)
         self.monitor.close()
+        restore_scheduling(self._previous_scheduling)
+        sys.setswitchinterval(self._previous_switch)
 
     def line(self) -> str:
         """The one line a program prints at start: what scheduling it got."""

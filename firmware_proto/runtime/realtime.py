@@ -22,6 +22,10 @@ ros2_control's controller manager does (``realtime_tools::configure_sched_fifo``
   ``rtprio`` limit), it falls back to a lower nice value if that is permitted, else
   runs as it was; :class:`RealtimeStatus` says which, in one line the program prints
   once. Nothing fails for want of permission.
+- :func:`realtime_threads` does the same for a stretch of code inside a process that
+  must not keep real time for the rest of its life (a test, a library call such as a
+  replay): the calling thread is put back as it was at the end, and only the threads
+  started inside keep the policy.
 
 The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by
 default) keeps a runaway real-time thread from locking up the machine.
@@ -36,6 +40,8 @@ import os
 import resource
 import sys
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 __all__ = [
@@ -47,6 +53,9 @@ __all__ = [
     "RealtimeConfig",
     "RealtimeStatus",
     "apply_realtime",
+    "realtime_threads",
+    "restore_scheduling",
+    "saved_scheduling",
 ]
 
 logger = logging.getLogger(__name__)
@@ -197,3 +206,46 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
         note=note,
     )
     return status
+
+
+@dataclass(frozen=True)
+class _Scheduling:
+    policy: int
+    priority: int
+    nice: int
+
+
+def saved_scheduling() -> _Scheduling | None:
+    """The calling thread's policy, priority and nice (``None`` off Linux)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return None
+    return _Scheduling(
+        os.sched_getscheduler(0),
+        os.sched_getparam(0).sched_priority,
+        os.getpriority(os.PRIO_PROCESS, 0),
+    )
+
+
+def restore_scheduling(saved: _Scheduling | None) -> None:
+    """Put the calling thread back to ``saved`` (from :func:`saved_scheduling`); a
+    lower nice than now that is not permitted is left as it is."""
+    if saved is None:
+        return
+    os.sched_setscheduler(0, saved.policy, os.sched_param(saved.priority))
+    if os.getpriority(os.PRIO_PROCESS, 0) != saved.nice:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, saved.nice)
+        except OSError:
+            logger.debug("nice %d not restored: not permitted", saved.nice)
+
+
+@contextmanager
+def realtime_threads(config: RealtimeConfig) -> Iterator[RealtimeStatus]:
+    """Threads started inside run under ``config`` (where permitted, as
+    :func:`apply_realtime` says); the calling thread runs under it inside too and is put
+    back as it was after. Memory locking, if asked for, stays (it is process-wide)."""
+    saved = saved_scheduling()
+    try:
+        yield apply_realtime(config)
+    finally:
+        restore_scheduling(saved)

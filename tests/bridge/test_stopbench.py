@@ -23,7 +23,9 @@ from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.trafficio import read_log
 from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.messages import SCHEMA_HASH, Param
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 from tests.firmware_proto.c_harness import compiler
+from tests.rig import threads_at
 
 from .conftest import IN_VCAN_VM, SPEED
 
@@ -222,7 +224,8 @@ def test_rover_bench_stop_cli_records_and_reports(
         (Param.TELEMETRY_HZ, 50),
     ]
     # A closed-loop session (every request waits on an answer) replays alike.
-    result = replay_into_emulator(read_log(log), ReplayOptions(seed=1, speed_factor=SPEED))
+    with threads_at(EMULATOR_PRIORITY):  # as `rover replay` keeps time
+        result = replay_into_emulator(read_log(log), ReplayOptions(seed=1, speed_factor=SPEED))
     assert result.ok, result.report()
     assert result.recorded_answers > 30
 

@@ -15,13 +15,13 @@ import can
 import pytest
 
 from bridge.link import ControllerLink, LinkConfig, StepRequest
-from bridge.replay import BridgeReplayOptions, replay_into_bridge
+from bridge.replay import BridgeReplayOptions, BridgeReplayResult, replay_into_bridge
 from bridge.transport import Transport, open_transport
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.frontend import FrontEnd
-from emulator.replay import ReplayOptions, replay_into_emulator
+from emulator.replay import ReplayOptions, ReplayResult, replay_into_emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.canmap import encode_can
@@ -39,6 +39,8 @@ from firmware_proto.linkio.trafficlog import (
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
 from firmware_proto.rover import RoverDescription
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
+from tests.rig import threads_at
 
 from .conftest import SPEED, Recorder
 
@@ -143,11 +145,27 @@ def _record_session(
 def sessions(
     rover: RoverDescription, tmp_path_factory: pytest.TempPathFactory
 ) -> dict[str, Session]:
-    """One recorded session per medium, shared by the tests of this module (read only)."""
-    return {
-        kind: _record_session(rover, tmp_path_factory.mktemp(kind), kind, f"traffic-{kind}")
-        for kind in ("serial", "can")
-    }
+    """One recorded session per medium, shared by the tests of this module (read only).
+    Recorded, like every replay below, at the emulator's real-time priority, as the
+    programs run (``rover emulate``, ``rover replay``): on a busy machine a session at
+    normal priority can record a watchdog trip that the replay then does not repeat."""
+    with threads_at(EMULATOR_PRIORITY):
+        return {
+            kind: _record_session(rover, tmp_path_factory.mktemp(kind), kind, f"traffic-{kind}")
+            for kind in ("serial", "can")
+        }
+
+
+def _replay(path: Path, options: ReplayOptions) -> ReplayResult:
+    """:func:`replay_into_emulator` keeping time as ``rover replay`` does."""
+    with threads_at(EMULATOR_PRIORITY):
+        return replay_into_emulator(read_log(path), options)
+
+
+def _replay_bridge(path: Path, options: BridgeReplayOptions) -> BridgeReplayResult:
+    """:func:`replay_into_bridge` keeping time as ``rover replay --bridge`` does."""
+    with threads_at(EMULATOR_PRIORITY):
+        return replay_into_bridge(read_log(path), options)
 
 
 @pytest.fixture(params=["serial", "can"])
@@ -242,7 +260,7 @@ def test_rover_decode_prints_direction_time_and_messages(
 
 def test_a_recorded_session_replays_with_the_same_answers(session: Session) -> None:
     for path in (session.host_log, session.controller_log):
-        result = replay_into_emulator(read_log(path), _options(session))
+        result = _replay(path, _options(session))
         assert result.ok, result.report()
         assert result.sent > 10
         assert result.recorded_answers == result.replayed_answers > 20
@@ -272,7 +290,7 @@ def test_an_altered_log_shows_where_behaviour_differs(session: Session, tmp_path
     altered = _rewrite(
         session.host_log, tmp_path / f"no-clear.{session.host_log.suffix}", drop_clear
     )
-    result = replay_into_emulator(read_log(altered), _options(session))
+    result = _replay(altered, _options(session))
     text = [str(d) for d in result.differences]
     assert not result.ok
     assert "CLEAR_ACK #0: missing in replay: CLEAR_ACK stop_id=2 result=CLEARED" in text
@@ -299,7 +317,7 @@ def test_a_changed_request_changes_the_answer(session: Session, tmp_path: Path) 
         return CanRecord(r.time_s, r.channel, arb, data, r.is_rx)
 
     altered = _rewrite(session.host_log, tmp_path / f"fast.{session.host_log.suffix}", too_fast)
-    result = replay_into_emulator(read_log(altered), _options(session))
+    result = _replay(altered, _options(session))
     assert (
         "ACK #0: recorded ACK seq=1 result=ACCEPTED field=NONE | "
         "replayed ACK seq=1 result=OUT_OF_RANGE field=SPEED"
@@ -366,8 +384,8 @@ def test_recorders_refuse_the_other_medium_and_unknown_formats(tmp_path: Path) -
 
 
 def test_the_controller_side_replays_into_a_fresh_bridge(session: Session) -> None:
-    result = replay_into_bridge(
-        read_log(session.host_log), BridgeReplayOptions(can_channel=f"{session.channel}-bridge")
+    result = _replay_bridge(
+        session.host_log, BridgeReplayOptions(can_channel=f"{session.channel}-bridge")
     )
     assert result.ok, result.report()
     assert result.inputs == 8  # six steps sent, a stop, a clear (the refused step never left)
@@ -395,9 +413,7 @@ def test_a_controller_of_another_schema_makes_the_bridge_refuse(
     altered = _rewrite(
         session.host_log, tmp_path / f"schema.{session.host_log.suffix}", other_schema
     )
-    result = replay_into_bridge(
-        read_log(altered), BridgeReplayOptions(can_channel=f"{session.channel}-schema")
-    )
+    result = _replay_bridge(altered, BridgeReplayOptions(can_channel=f"{session.channel}-schema"))
     assert not result.ok
     assert "fault:schema_mismatch" in result.statuses
     assert "rejected:schema_mismatch" in result.statuses

@@ -119,6 +119,52 @@ def test_priority_zero_is_normal_scheduling() -> None:
     assert str(result["line"]).startswith("realtime: off")
 
 
+_SCOPED_PROBE = """
+import json, os, sys, threading
+from firmware_proto.runtime import ProcessRuntime, RuntimeOptions
+from firmware_proto.runtime.realtime import RealtimeConfig, realtime_threads
+os.setpriority(os.PRIO_PROCESS, 0, 3)
+seen = {}
+def policy_of_a_new_thread(key):
+    t = threading.Thread(target=lambda: seen.update({key: os.sched_getscheduler(0)}))
+    t.start(); t.join()
+with realtime_threads(RealtimeConfig(25, lock_memory=False)) as status:
+    policy_of_a_new_thread("inside")
+    seen["granted"] = status.granted
+policy_of_a_new_thread("after")
+seen["caller_after"] = [os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)]
+switch = sys.getswitchinterval()
+with ProcessRuntime(RuntimeOptions("probe", priority=25, short_switch=True, lock_memory=False)):
+    policy_of_a_new_thread("program")
+    seen["short_switch"] = sys.getswitchinterval() < switch
+seen["caller_after_program"] = [os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)]
+seen["switch_back"] = sys.getswitchinterval() == switch
+print(json.dumps(seen))
+"""
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="granting real time needs root here")
+def test_scoped_real_time_reaches_the_threads_started_inside_and_puts_the_caller_back() -> None:
+    """``realtime_threads`` and :class:`ProcessRuntime` (as ``rover replay`` run
+    in-process uses it) leave the calling thread as they found it: policy, nice, and the
+    interpreter's switch interval."""
+    done = subprocess.run(
+        [sys.executable, "-c", _SCOPED_PROBE],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    seen = json.loads(done.stdout)
+    assert seen["granted"] is True
+    assert seen["inside"] == seen["program"] == os.SCHED_RR
+    assert seen["after"] == os.SCHED_OTHER
+    assert seen["caller_after"] == seen["caller_after_program"] == [os.SCHED_OTHER, 3]
+    assert seen["short_switch"] is True
+    assert seen["switch_back"] is True
+
+
 def test_config_is_checked() -> None:
     with pytest.raises(ValueError, match=r"0\.\.99"):
         RealtimeConfig(100)
