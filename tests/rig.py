@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import time
-from contextlib import AbstractContextManager
 from types import TracebackType
 from typing import Any
 
@@ -24,28 +23,15 @@ from emulator.injection import parse_fault
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.runtime.realtime import (
-    BRIDGE_PRIORITY,
-    EMULATOR_PRIORITY,
-    RealtimeConfig,
-    RealtimeStatus,
-    realtime_threads,
-)
+from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
 from firmware_proto.worldmap import load_map
 from planner.executor import ExecutorConfig, PlanExecutor
 from planner.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
+from tests.scheduling import threads_at
 
 __all__ = ["HilRig"]
 
 _buses = itertools.count()
-
-
-def threads_at(priority: int) -> AbstractContextManager[RealtimeStatus]:
-    """Threads started inside run at real-time ``priority`` where permitted, as the
-    programs' own do (docs/realtime.md): an in-process emulator or bridge keeps the
-    controller's watchdog beside other work as ``rover emulate`` and ``rover bridge``
-    do. The calling thread is put back as it was after; memory is not locked."""
-    return realtime_threads(RealtimeConfig(priority, lock_memory=False, fallback_nice=0))
 
 
 class HilRig:

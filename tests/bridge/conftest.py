@@ -36,6 +36,8 @@ from emulator.twin import Twin
 from firmware_proto.linkio.inbox import Inbox as WaitableLog
 from firmware_proto.messages import SCHEMA_HASH
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
+from tests.scheduling import threads_at
 
 #: Every backend, with the marks it needs.
 BACKEND_PARAMS = [
@@ -193,7 +195,8 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
                 interface=interface, channel=channel or "bridge", node=node, seed=seed
             )
         emu = Emulator(model, frontend, speed_factor=SPEED)
-        emu.start()
+        with threads_at(EMULATOR_PRIORITY):  # as `rover emulate` runs it
+            emu.start()
         started.append(emu)
         return emu
 
@@ -281,7 +284,8 @@ def start_link(
         on_status=rec,
         transport_factory=transport_factory,
     )
-    link.start()
+    with threads_at(BRIDGE_PRIORITY):  # as `rover bridge` runs it
+        link.start()
     return link, rec
 
 

@@ -25,7 +25,7 @@ from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.messages import SCHEMA_HASH, Param
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 from tests.firmware_proto.c_harness import compiler
-from tests.rig import threads_at
+from tests.scheduling import threads_at
 
 from .conftest import IN_VCAN_VM, SPEED
 

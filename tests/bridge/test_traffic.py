@@ -40,7 +40,7 @@ from firmware_proto.message import Message
 from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
 from firmware_proto.rover import RoverDescription
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
-from tests.rig import threads_at
+from tests.scheduling import threads_at
 
 from .conftest import SPEED, Recorder
 

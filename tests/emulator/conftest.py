@@ -13,7 +13,9 @@ from emulator.injection import FaultSpec
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 from firmware_proto.worldmap import WorldMap, load_map
+from tests.scheduling import threads_at
 
 SPEED = 4.0
 """Twin seconds per wall second in served tests: fast, with timeouts scaled to match."""
@@ -59,7 +61,8 @@ def serial_emulator(rover: RoverDescription) -> Iterator[Callable[..., Emulator]
         emu = Emulator(
             model, SerialFrontEnd(baud=baud, seed=seed), speed_factor=SPEED, faults=faults
         )
-        emu.start()
+        with threads_at(EMULATOR_PRIORITY):  # as `rover emulate` runs it
+            emu.start()
         started.append(emu)
         return emu
 

@@ -56,7 +56,9 @@ from firmware_proto.messages import (
 )
 from firmware_proto.messages import Ack as AckMsg
 from firmware_proto.rover import RoverDescription
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 from firmware_proto.worldmap import WorldMap
+from tests.scheduling import threads_at
 
 from .conftest import SPEED
 from .host import can_host, serial_host
@@ -411,7 +413,8 @@ def can_emulator(rover: RoverDescription, can_channel: str) -> Iterator[Callable
             CanFrontEnd(interface="virtual", channel=can_channel, node=node),
             speed_factor=SPEED,
         )
-        emu.start()
+        with threads_at(EMULATOR_PRIORITY):  # as `rover emulate` runs it
+            emu.start()
         started.append(emu)
         return emu
 
