@@ -23,6 +23,7 @@ from emulator.ground import load_ground
 from emulator.playback import measure_turn_efficiency
 from firmware_proto.plan import Plan
 from firmware_proto.rover import load_rover
+from firmware_proto.runtime.stall import describe_stalls, read_stalls
 from planner.executor import ExecutorConfig, PlanExecutor
 from planner.mcaprec import McapRecorder
 from tests.child import Child
@@ -61,7 +62,9 @@ def _plan() -> Plan:
 
 def test_a_real_run_on_an_unknown_ground_calibrates_the_twin(tmp_path: Path) -> None:
     rover = load_rover()
-    env = dict(os.environ)
+    # Every process logs its stalls here: a link fault then says who stalled.
+    stalls = tmp_path / "stalls.jsonl"
+    env = dict(os.environ, ROVER_STALL_LOG=str(stalls))
     link = tmp_path / "rover-motor"
     recording = tmp_path / "real.mcap"
     children: list[Child] = []
@@ -89,7 +92,12 @@ def test_a_real_run_on_an_unknown_ground_calibrates_the_twin(tmp_path: Path) -> 
                 result = executor.execute(_plan())
             finally:
                 executor.close()
-        assert result.completed, (result.reason, result.trace[-10:], emulator.errors[-5:])
+        assert result.completed, (
+            result.reason,
+            result.trace[-10:],
+            [line for child in children for line in child.errors[-5:]],
+            describe_stalls(read_stalls(stalls), 0.1),
+        )
         assert any("GROUND loose" in line for line in emulator.errors)
     finally:
         for child in reversed(children):
