@@ -38,14 +38,6 @@ LONG_STEP = {
     "goal": {"x": START[0] + 1.3, "y": START[1], "yaw_deg": 0.0},
     "commands": [{"command": "FWD", "speed": 30, "distance": 30000}],
 }
-# The same at a quarter of full speed: about 17 s of mission time, 4.3 s wall, so that an
-# interrupt sent once the wheels turn lands mid-step even when a loaded machine delays
-# the threads of this process that are not real-time (seen: more than the 2 s left of
-# LONG_STEP, twice, beside 4 busy processes and the background part).
-SLOW_LONG_STEP = {
-    "goal": LONG_STEP["goal"],
-    "commands": [{"command": "FWD", "speed": 15, "distance": 30000}],
-}
 TWO_STEPS = {
     "goal": {"x": START[0] + 1.5, "y": START[1], "yaw_deg": 0.0},
     "commands": [
@@ -116,7 +108,7 @@ def test_an_exception_from_on_progress_mid_step_stops_the_rover(
 def test_keyboard_interrupt_mid_step_stops_the_rover_then_propagates(
     gate: GateServer, hil: Callable[..., HilRig]
 ) -> None:
-    verdict = validate(gate, SLOW_LONG_STEP)
+    verdict = validate(gate, LONG_STEP)
     h = hil(progress_period_s=0.1)
     rolling = threading.Event()
 
@@ -139,7 +131,7 @@ def test_keyboard_interrupt_mid_step_stops_the_rover_then_propagates(
     ended = None
     try:
         try:
-            result = h.executor.execute(Plan.from_dict(SLOW_LONG_STEP), verdict, on_progress=watch)
+            result = h.executor.execute(Plan.from_dict(LONG_STEP), verdict, on_progress=watch)
             ended = f"{result.outcome}: {result.reason}"
             times["ended"] = time.monotonic()
         finally:
