@@ -57,7 +57,7 @@ def validate_plan(obj: Any) -> list[tuple[str, str]]:
     Beyond the schema, numbers must be finite (JSON has no NaN or infinity; Python's
     parser accepts them). An extra property is reported at its own pointer.
     """
-    return schema_violations(_validator(), obj)
+    return schema_violations(_validator(), obj, fast=True)
 
 
 Goal = Pose
