@@ -70,6 +70,7 @@ PYTHON_DEPENDENCY_KEYS = {
     "python-can": "python3-can",
     "numpy": "python3-numpy",
     "jsonschema": "python3-jsonschema",
+    "fastjsonschema": None,  # no rosdep key checked (Debian has python3-fastjsonschema)
     "pillow": "python3-pil",
     "pymunk": None,  # no rosdep key: pip install pymunk (docs/ros2.md)
     "mcap": None,  # no rosdep key checked: pip install, for recordings (docs/ros2.md)
