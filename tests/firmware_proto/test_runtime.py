@@ -76,15 +76,22 @@ print(json.dumps({"line": status.line(), "granted": status.granted,
 """
 
 
-def _probe(priority: int, *prefix: str) -> dict[str, object]:
-    done = subprocess.run(
-        [*prefix, sys.executable, "-c", _PROBE, str(priority)],
+def _python(
+    code: str, *args: str, prefix: tuple[str, ...] = (), check: bool = True
+) -> subprocess.CompletedProcess[str]:
+    """``python -c code args`` in a process of its own (its scheduling is its own)."""
+    return subprocess.run(
+        [*prefix, sys.executable, "-c", code, *args],
         cwd=ROOT,
         capture_output=True,
         text=True,
         timeout=60,
-        check=True,
+        check=check,
     )
+
+
+def _probe(priority: int, *prefix: str) -> dict[str, object]:
+    done = _python(_PROBE, str(priority), prefix=prefix)
     result: dict[str, object] = json.loads(done.stdout)
     assert done.stderr == ""  # said once, by the program: the library logs nothing
     return result
@@ -148,15 +155,7 @@ def test_scoped_real_time_reaches_the_threads_started_inside_and_puts_the_caller
     """``realtime_threads`` and :class:`ProcessRuntime` (as ``rover replay`` run
     in-process uses it) leave the calling thread as they found it: policy, nice, and the
     interpreter's switch interval."""
-    done = subprocess.run(
-        [sys.executable, "-c", _SCOPED_PROBE],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    )
-    seen = json.loads(done.stdout)
+    seen = json.loads(_python(_SCOPED_PROBE).stdout)
     assert seen["granted"] is True
     assert seen["inside"] == seen["program"] == os.SCHED_RR
     assert seen["after"] == os.SCHED_OTHER
@@ -313,14 +312,7 @@ def test_sigusr1_logs_every_threads_stack_and_the_program_runs_on() -> None:
         "    stop.set(); t.join()\n"
         "print('still here')\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", code],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = _python(code, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout == "still here\n"
     assert "stacks on request (SIGUSR1)" in done.stderr
