@@ -109,21 +109,19 @@ def register(subparsers: Any) -> None:
     p.add_argument("--record", metavar="FILE", help="record the replay session too")
     # A replay plays one side of the link on its recorded clock (the host's heartbeats
     # against the controller's 250 ms watchdog): it keeps time as `rover emulate` does.
-    add_runtime_arguments(p, EMULATOR_PRIORITY)
+    add_runtime_arguments(p, EMULATOR_PRIORITY, lock_memory=False)
     p.set_defaults(func=_run, into=None)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from firmware_proto.runtime import ProcessRuntime
 
     name = args.into or DEFAULT_TARGET
     for ep in entry_points(group=REPLAY_GROUP):
         if ep.name == name:
             run: Callable[[argparse.Namespace], int] = ep.load()
-            options = runtime_options(args, "replay", EMULATOR_PRIORITY)
-            with ProcessRuntime(replace(options, lock_memory=False)) as runtime:
+            options = runtime_options(args, "replay", EMULATOR_PRIORITY, lock_memory=False)
+            with ProcessRuntime(options) as runtime:
                 print(runtime.line(), file=sys.stderr, flush=True)
                 return int(run(args))
     known = ", ".join(_targets()) or "none installed"

@@ -17,17 +17,21 @@ from firmware_proto.runtime.stall import DEFAULT_STALL_THRESHOLD_S, stall_log_pa
 __all__ = ["add_runtime_arguments", "runtime_options"]
 
 
-def add_runtime_arguments(parser: argparse.ArgumentParser, default_priority: int) -> None:
+def add_runtime_arguments(
+    parser: argparse.ArgumentParser, default_priority: int, *, lock_memory: bool = True
+) -> None:
     """``--rt-priority N`` / ``--no-realtime`` where ``default_priority`` > 0 (a program
-    that keeps time), else ``--nice N``; and ``--stall-ms MS``."""
+    that keeps time; ``lock_memory``: it also locks its memory), else ``--nice N``; and
+    ``--stall-ms MS``."""
     group = parser.add_argument_group("scheduling (docs/realtime.md)")
     if default_priority > 0:
+        policy = "SCHED_RR, memory locked" if lock_memory else "SCHED_RR"
         group.add_argument(
             "--rt-priority",
             type=values.rt_priority,
             default=None,
             metavar="N",
-            help=f"real-time priority 1..99 (SCHED_RR, memory locked) where permitted "
+            help=f"real-time priority 1..99 ({policy}) where permitted "
             f"(default {default_priority}; 0 = off); without permission the program says "
             "so once and runs at normal priority",
         )
@@ -59,10 +63,11 @@ def add_runtime_arguments(parser: argparse.ArgumentParser, default_priority: int
 
 
 def runtime_options(
-    args: argparse.Namespace, name: str, default_priority: int = 0
+    args: argparse.Namespace, name: str, default_priority: int = 0, *, lock_memory: bool = True
 ) -> RuntimeOptions:
     """The options :func:`add_runtime_arguments` parsed; a program with a default
-    priority keeps time (short interpreter switch interval too)."""
+    priority keeps time (short interpreter switch interval too; its memory locked with
+    ``lock_memory``)."""
     priority = getattr(args, "rt_priority", None)
     if priority is None:
         priority = default_priority
@@ -73,4 +78,5 @@ def runtime_options(
         stall_log=stall_log_path(),
         short_switch=default_priority > 0,
         nice=getattr(args, "nice", 0),
+        lock_memory=lock_memory,
     )
