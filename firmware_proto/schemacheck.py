@@ -95,20 +95,10 @@ def schema_violations(
 def json_depth(obj: Any, limit: int | None = None) -> int:
     """How deeply ``obj`` nests arrays and objects (a scalar is 0, ``[]`` is 1), counted
     without recursion; the walk stops once ``limit`` is reached and returns it."""
-    deepest = 0
-    todo: list[tuple[Any, int]] = [(obj, 0)]
-    while todo:
-        node, depth = todo.pop()
-        if isinstance(node, (dict, list)):
-            depth += 1
-            deepest = max(deepest, depth)
-            if limit is not None and deepest >= limit:
-                return deepest
-            todo.extend((v, depth) for v in (node.values() if isinstance(node, dict) else node))
-    return deepest
+    return _scan(obj, math.inf if limit is None else limit)[0]
 
 
-def _scan(obj: Any, limit: int) -> tuple[int, bool]:
+def _scan(obj: Any, limit: float) -> tuple[int, bool]:
     """One iterative walk of ``obj``: how deeply it nests (as :func:`json_depth`; the walk
     stops once ``limit`` is reached) and whether it holds a non-finite float."""
     deepest = 0
