@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import _thread
 import math
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -105,6 +106,23 @@ def test_an_exception_from_on_progress_mid_step_stops_the_rover(
     assert h.emulator.status().x_m < START[0] + 1.2  # stopped well before the step's end
 
 
+@pytest.fixture
+def ctrl_c_raises() -> Iterator[None]:
+    """Python's own SIGINT handler for the test, whatever this process inherited.
+
+    A process started in the background by a non-interactive shell (``cmd &`` in a
+    script, as a CI runner or a load script may start the test command) inherits SIGINT
+    ignored, and Python keeps it so; ``_thread.interrupt_main()`` then does nothing and
+    the plan runs to its end (three loaded runs of the test command failed so).
+    """
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.usefixtures("ctrl_c_raises")
 def test_keyboard_interrupt_mid_step_stops_the_rover_then_propagates(
     gate: GateServer, hil: Callable[..., HilRig]
 ) -> None:
