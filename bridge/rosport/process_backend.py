@@ -48,7 +48,6 @@ import logging
 import os
 import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -69,13 +68,22 @@ from bridge.rosport.port import (
     Subscription,
 )
 from bridge.rosport.qos import Qos
+from firmware_proto.runtime.realtime import in_realtime, module_command_at_normal_priority
 
-__all__ = ["CHILD_MODULE", "REQUEST_TIMEOUT_S", "START_TIMEOUT_S", "ProcessPort"]
+__all__ = [
+    "CHILD_MODULE",
+    "PARENT_REALTIME_ENV",
+    "REQUEST_TIMEOUT_S",
+    "START_TIMEOUT_S",
+    "ProcessPort",
+]
 
 logger = logging.getLogger(__name__)
 
 #: The module the child runs (``python -m``).
 CHILD_MODULE: Final = "bridge.rosport.process_child"
+PARENT_REALTIME_ENV: Final = "ROVER_PARENT_REALTIME"
+"""Set in a child's environment: ``1`` when the port's owner ran at real time."""
 #: How long the child may take to start its node and say so, s.
 START_TIMEOUT_S: Final = 30.0
 #: How long a request waits for the child's answer, s.
@@ -101,7 +109,12 @@ def _child_env() -> dict[str, str]:
     first on ``PYTHONPATH``: the child runs the same code, wherever the parent started."""
     root = str(Path(__file__).resolve().parents[2])
     rest = os.environ.get("PYTHONPATH", "")
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, rest) if p)}
+    return {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(p for p in (root, rest) if p),
+        # The child starts at normal priority; this says whether its parent keeps time.
+        PARENT_REALTIME_ENV: "1" if in_realtime() else "0",
+    }
 
 
 class _Outbox:
@@ -202,8 +215,10 @@ class _Child:
         self.failure: str | None = None
         pairs = {name: socket.socketpair() for name in ("ctl", "msg")}
         try:
+            # At normal priority from its first line: its imports must not hold a core
+            # at the link's priority; it asks for its own once it is ready (_schedule).
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", CHILD_MODULE]
+                module_command_at_normal_priority(CHILD_MODULE)
                 + [f"{name}={theirs.fileno()}" for name, (_, theirs) in pairs.items()],
                 pass_fds=[theirs.fileno() for _, theirs in pairs.values()],
                 stdin=subprocess.DEVNULL,

@@ -42,7 +42,7 @@ from typing import Any
 
 from bridge.errors import ParameterError
 from bridge.rosport.port import DEFAULT_LANE, STOP_LANE, Publisher, Subscription
-from bridge.rosport.process_backend import REQUEST_TIMEOUT_S
+from bridge.rosport.process_backend import PARENT_REALTIME_ENV, REQUEST_TIMEOUT_S
 from bridge.rosport.rclpy_backend import RclpyPort, middleware
 from firmware_proto.runtime.realtime import STOP_CHILD_PRIORITY, RealtimeConfig, apply_realtime
 from firmware_proto.runtime.stall import StallMonitor, stall_log_path
@@ -218,12 +218,13 @@ class Child:
 
 
 def _schedule(stop_only: bool) -> None:
-    """The child starts with its parent's scheduling (docs/realtime.md): the STOP child
-    keeps real time, below the link it feeds; the publishing child, whose middleware
-    calls may block, goes back to normal scheduling, so it never competes with the
-    link."""
-    inherited = os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
-    priority = STOP_CHILD_PRIORITY if stop_only and inherited else 0
+    """The child starts at normal priority (its parent launches it so, lest its imports
+    hold a core at the link's priority) and, once imported, takes its own (docs/
+    realtime.md): where the parent keeps real time, the STOP child does too, below the
+    link it feeds; the publishing child, whose middleware calls may block, stays at
+    normal scheduling, so it never competes with the link."""
+    parent_realtime = os.environ.get(PARENT_REALTIME_ENV) == "1"
+    priority = STOP_CHILD_PRIORITY if stop_only and parent_realtime else 0
     apply_realtime(RealtimeConfig(priority, lock_memory=False))
 
 

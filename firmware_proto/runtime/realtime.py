@@ -53,6 +53,8 @@ __all__ = [
     "RealtimeConfig",
     "RealtimeStatus",
     "apply_realtime",
+    "in_realtime",
+    "module_command_at_normal_priority",
     "realtime_threads",
     "restore_scheduling",
     "saved_scheduling",
@@ -68,6 +70,16 @@ BRIDGE_PRIORITY = 20
 (50) and the emulator."""
 STOP_CHILD_PRIORITY = 15
 """The bridge's STOP-lane ROS 2 child: real time, below the link it feeds."""
+
+# Runs as ``python -c _NORMAL_PRIORITY_LAUNCH MODULE ARGS...``: normal scheduling first
+# (nice kept), then ``python -m MODULE ARGS...`` as if started so.
+_NORMAL_PRIORITY_LAUNCH = (
+    "import os, runpy, sys\n"
+    "if hasattr(os, 'sched_setscheduler') and os.sched_getscheduler(0) != os.SCHED_OTHER:\n"
+    "    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))\n"
+    "del sys.argv[0]\n"
+    "runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)\n"
+)
 FALLBACK_NICE = -10
 """The nice value asked for where the real-time policy is refused."""
 LOCKED_THREAD_STACK_BYTES = 1 << 20
@@ -206,6 +218,28 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
         note=note,
     )
     return status
+
+
+def in_realtime() -> bool:
+    """The calling thread runs under ``SCHED_RR`` or ``SCHED_FIFO``."""
+    if not hasattr(os, "sched_getscheduler"):
+        return False
+    return os.sched_getscheduler(0) in (_POLICIES["rr"], _POLICIES["fifo"])
+
+
+def module_command_at_normal_priority(module: str) -> list[str]:
+    """The command that runs ``python -m module`` (append its arguments) under normal
+    scheduling from its first line, whatever its parent's.
+
+    A child inherits its parent's policy, and a Python program's imports are CPU-bound
+    (the bridge's ROS 2 child imports for about half a second): two children started at
+    once by a real-time parent held both cores of this machine for about 190 ms, and the
+    pty's kernel worker (normal priority) with them, so a link over a pty fell silent
+    (traced: docs/realtime.md, "A child starts at normal priority"). A child that must
+    keep time asks for it after its imports. Only the interpreter's start-up runs at the
+    parent's priority.
+    """
+    return [sys.executable, "-c", _NORMAL_PRIORITY_LAUNCH, module]
 
 
 @dataclass(frozen=True)

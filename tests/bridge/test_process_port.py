@@ -21,9 +21,16 @@ import pytest
 
 from bridge.rosport import DEFAULT_LANE, STOP_LANE, RosPort, RosPortError, qos
 from bridge.rosport.msgs import Bool, Odometry, String
-from bridge.rosport.process_backend import ProcessPort
+from bridge.rosport.process_backend import CHILD_MODULE, ProcessPort
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
+from firmware_proto.runtime.realtime import (
+    BRIDGE_PRIORITY,
+    STOP_CHILD_PRIORITY,
+    RealtimeConfig,
+    module_command_at_normal_priority,
+    realtime_threads,
+)
 from tests.bridge.conftest import Inbox
 from tests.bridge.test_node import bridge_on
 from tests.child import Child
@@ -221,3 +228,31 @@ def test_a_node_that_cannot_start_is_an_error_naming_the_reason(
 ) -> None:
     with pytest.raises(RosPortError, match=r"node 'bad' in a child: .*trailing -r flag"):
         make_port("rclpy-process", node_name="bad", args=["--ros-args", "-r"])
+
+
+def _scheduling(pid: int) -> tuple[int, int]:
+    """(policy, real-time priority) of a process's main thread, from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[38]), int(fields[37])
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="granting real time needs root here")
+@pytest.mark.parametrize("owner_realtime", [True, False], ids=["realtime-owner", "normal-owner"])
+def test_the_node_processes_take_their_own_scheduling_after_their_imports(
+    make_port: Callable[..., RosPort], owner_realtime: bool
+) -> None:
+    """The children start at normal priority whatever their owner's (their imports must
+    not hold a core at the link's priority: docs/realtime.md); then, where the owner
+    keeps real time, the STOP lane's child takes ``SCHED_RR`` 15 and the publishing
+    child stays at normal scheduling; where it does not, neither takes real time."""
+    config = RealtimeConfig(BRIDGE_PRIORITY if owner_realtime else 0, lock_memory=False)
+    with realtime_threads(config):
+        port = make_port("rclpy-process", node_name="scheduled")
+    assert isinstance(port, ProcessPort)
+    launcher = module_command_at_normal_priority(CHILD_MODULE)
+    for pid in (port.pid, port.stop_pid):
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode().split("\0")
+        assert argv[: len(launcher)] == launcher
+    assert _scheduling(port.pid) == (os.SCHED_OTHER, 0)
+    expected = (os.SCHED_RR, STOP_CHILD_PRIORITY) if owner_realtime else (os.SCHED_OTHER, 0)
+    assert _scheduling(port.stop_pid) == expected

@@ -77,12 +77,18 @@ print(json.dumps({"line": status.line(), "granted": status.granted,
 
 
 def _python(
-    code: str, *args: str, prefix: tuple[str, ...] = (), check: bool = True
+    code: str,
+    *args: str,
+    prefix: tuple[str, ...] = (),
+    check: bool = True,
+    env: dict[str, str] | None = None,
 ) -> subprocess.CompletedProcess[str]:
-    """``python -c code args`` in a process of its own (its scheduling is its own)."""
+    """``python -c code args`` in a process of its own (its scheduling is its own);
+    ``env``: variables added to this process's environment."""
     return subprocess.run(
         [*prefix, sys.executable, "-c", code, *args],
         cwd=ROOT,
+        env={**os.environ, **(env or {})},
         capture_output=True,
         text=True,
         timeout=60,
@@ -162,6 +168,45 @@ def test_scoped_real_time_reaches_the_threads_started_inside_and_puts_the_caller
     assert seen["caller_after"] == seen["caller_after_program"] == [os.SCHED_OTHER, 3]
     assert seen["short_switch"] is True
     assert seen["switch_back"] is True
+
+
+_CHILD_PROBE = """
+import json, os, subprocess, sys
+from firmware_proto.runtime.realtime import (
+    RealtimeConfig, module_command_at_normal_priority, realtime_threads,
+)
+def child(argv):
+    out = subprocess.run(argv + ["one", "two"], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+with realtime_threads(RealtimeConfig(25, lock_memory=False)):
+    plain = child([sys.executable, "-m", "rt_child_probe"])
+    launched = child(module_command_at_normal_priority("rt_child_probe"))
+print(json.dumps({"plain": plain, "launched": launched}))
+"""
+
+_CHILD_MODULE = """
+import json, os, sys
+print(json.dumps({"policy": os.sched_getscheduler(0), "name": __name__,
+                  "argv": sys.argv[1:], "nice": os.getpriority(os.PRIO_PROCESS, 0)}))
+"""
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="granting real time needs root here")
+def test_a_child_launched_at_normal_priority_does_its_imports_at_normal_priority(
+    tmp_path: Path,
+) -> None:
+    """A real-time caller's child inherits real time, and a Python child's imports then
+    hold a core at that priority; ``module_command_at_normal_priority`` starts the module
+    under ``SCHED_OTHER`` from its first line, as ``python -m`` would run it (its name
+    ``__main__``, its arguments), its nice kept."""
+    (tmp_path / "rt_child_probe.py").write_text(_CHILD_MODULE)
+    env = {"PYTHONPATH": os.pathsep.join((str(tmp_path), str(ROOT)))}
+    seen = json.loads(_python(_CHILD_PROBE, env=env).stdout)
+    assert seen["plain"]["policy"] == os.SCHED_RR  # the hazard: inherited
+    launched = seen["launched"]
+    assert launched["policy"] == os.SCHED_OTHER
+    assert launched["name"] == "__main__" and launched["argv"] == ["one", "two"]
+    assert launched["nice"] == seen["plain"]["nice"]
 
 
 def test_config_is_checked() -> None:
