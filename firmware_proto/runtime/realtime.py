@@ -11,8 +11,10 @@ ros2_control's controller manager does (``realtime_tools::configure_sched_fifo``
   ``SCHED_FIFO``) at the configured priority; threads it starts afterwards inherit the
   policy, so a program calls it first thing in ``main()`` and every thread of the
   process keeps time (no thread of normal priority can hold the interpreter lock while
-  a busy computer keeps it off the CPU). Child processes inherit it too: a child that
-  must not keep it calls :func:`apply_realtime` with priority 0 at its start.
+  a busy computer keeps it off the CPU). Child processes inherit it too, and a Python
+  child's imports would then hold a core at that priority: a real-time program starts
+  its children with :func:`module_command_at_normal_priority`, and a child that must
+  keep time asks for it once imported.
 - With ``lock_memory`` it locks the process's memory (``mlockall``), so a page fault
   never waits for the disk; only where the memory-lock limit allows it (root, or an
   unlimited ``RLIMIT_MEMLOCK``), because with a small limit later allocations would fail.
@@ -70,6 +72,12 @@ BRIDGE_PRIORITY = 20
 (50) and the emulator."""
 STOP_CHILD_PRIORITY = 15
 """The bridge's STOP-lane ROS 2 child: real time, below the link it feeds."""
+FALLBACK_NICE = -10
+"""The nice value asked for where the real-time policy is refused."""
+LOCKED_THREAD_STACK_BYTES = 1 << 20
+"""Stack size of threads started once memory is locked (each is resident in full)."""
+
+_MCL_CURRENT, _MCL_FUTURE = 1, 2  # linux/mman.h on x86 and arm
 
 # Runs as ``python -c _NORMAL_PRIORITY_LAUNCH MODULE ARGS...``: normal scheduling first
 # (nice kept), then ``python -m MODULE ARGS...`` as if started so.
@@ -80,12 +88,7 @@ _NORMAL_PRIORITY_LAUNCH = (
     "del sys.argv[0]\n"
     "runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)\n"
 )
-FALLBACK_NICE = -10
-"""The nice value asked for where the real-time policy is refused."""
-LOCKED_THREAD_STACK_BYTES = 1 << 20
-"""Stack size of threads started once memory is locked (each is resident in full)."""
 
-_MCL_CURRENT, _MCL_FUTURE = 1, 2  # linux/mman.h on x86 and arm
 _POLICIES = {"rr": getattr(os, "SCHED_RR", 2), "fifo": getattr(os, "SCHED_FIFO", 1)}
 
 
@@ -235,7 +238,7 @@ def module_command_at_normal_priority(module: str) -> list[str]:
     (the bridge's ROS 2 child imports for about half a second): two children started at
     once by a real-time parent held both cores of this machine for about 190 ms, and the
     pty's kernel worker (normal priority) with them, so a link over a pty fell silent
-    (traced: docs/realtime.md, "A child starts at normal priority"). A child that must
+    (traced with the kernel's sched events: docs/realtime.md). A child that must
     keep time asks for it after its imports. Only the interpreter's start-up runs at the
     parent's priority.
     """
