@@ -170,6 +170,7 @@ class Emulator:
         faults: list[FaultSpec] | None = None,
         on_injection: InjectionListener | None = None,
         fault_source: str = "api",
+        max_backlog_s: float = MAX_BACKLOG_S,
     ) -> None:
         """Args:
         model: the controller over its twin (the engine steps it).
@@ -182,6 +183,10 @@ class Emulator:
             must be quick and must not call back into the emulator.
         fault_source: who asked for ``faults`` (``cli`` from the command line),
             recorded with each injection.
+        max_backlog_s: wall seconds the control loop may fall behind and still run
+            the ticks it owes in a burst (each message in the tick it arrived in);
+            further behind, twin time slips. A replay, which compares answers in twin
+            time, allows more than a live emulator.
 
         Raises:
             ValueError: speed factor not positive and finite.
@@ -193,6 +198,7 @@ class Emulator:
         self.model = model
         self.frontend = frontend
         self.speed_factor = speed_factor
+        self.max_backlog_s = max_backlog_s
         self.injector = Injector(model, frontend)
         if on_injection is not None:
             self.injector.listeners.append(on_injection)
@@ -205,7 +211,7 @@ class Emulator:
         self.stop_handled: list[float] = []
         """``time.monotonic()`` when each STOP had zeroed the targets."""
         self.overruns = 0
-        """Times the control loop fell more than :data:`MAX_BACKLOG_S` behind and let twin
+        """Times the control loop fell more than ``max_backlog_s`` behind and let twin
         time slip."""
         self.catchups = 0
         self._late_max_s = 0.0
@@ -381,7 +387,7 @@ class Emulator:
                 if planned is not None and now - planned > tick_wall:
                     self._catch_up(now - planned)
                 due = int((now - t0) / tick_wall) - ticks
-                if due * tick_wall > MAX_BACKLOG_S:
+                if due * tick_wall > self.max_backlog_s:
                     self.overruns += 1
                     if self.overruns == 1 or self.overruns % 100 == 0:
                         logger.warning(

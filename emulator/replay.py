@@ -68,12 +68,22 @@ from firmware_proto.message import Message
 from firmware_proto.rover import load_rover
 from firmware_proto.worldmap import load_map
 
-__all__ = ["MAX_SETTLE_S", "ReplayOptions", "ReplayResult", "replay_into_emulator"]
+__all__ = [
+    "MAX_SETTLE_S",
+    "REPLAY_MAX_BACKLOG_S",
+    "ReplayOptions",
+    "ReplayResult",
+    "replay_into_emulator",
+]
 
 logger = logging.getLogger(__name__)
 
 MAX_SETTLE_S = 10.0
 """Longest wait for answers after the last host frame, s (wall)."""
+REPLAY_MAX_BACKLOG_S = 2.0
+"""How far behind the replay's emulator may fall and still catch up in a burst, wall s
+(a live one lets twin time slip past 0.1 s: :data:`emulator.engine.MAX_BACKLOG_S`): a
+slip would move the recorded frames to other ticks and change the answers."""
 _FIRST_FRAME_TIMEOUT_S = 5.0
 
 
@@ -284,7 +294,12 @@ def replay_into_emulator(
             seed=opts.seed,
             recorder=recorder,
         )
-    emulator = Emulator(model, frontend, speed_factor=opts.speed_factor)
+    # The answers are compared in twin time: a loop held up (up to REPLAY_MAX_BACKLOG_S)
+    # runs the ticks it owes, each frame in the tick it arrived in, rather than letting
+    # twin time slip past the recorded timing.
+    emulator = Emulator(
+        model, frontend, speed_factor=opts.speed_factor, max_backlog_s=REPLAY_MAX_BACKLOG_S
+    )
     try:
         if isinstance(frontend, CanFrontEnd):
             assert node is not None

@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from emulator.engine import MAX_BACKLOG_S
 from firmware_proto.messages import Fault, FaultCode, Heartbeat
 from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
 from tests.child import Child
@@ -114,3 +115,33 @@ def test_a_late_control_loop_is_counted_as_a_catch_up(freeze_s: float) -> None:
             status = emu.status()
         assert status.catchups >= 1
         assert status.late_max_ms >= freeze_s * 1e3 * 0.8
+
+
+@pytest.mark.parametrize(("max_backlog_s", "slips"), [(MAX_BACKLOG_S, True), (1.0, False)])
+def test_a_loop_held_up_past_its_backlog_limit_slips_and_under_it_catches_up(
+    max_backlog_s: float, slips: bool
+) -> None:
+    """Held up 0.3 s: a live emulator (its default limit, 0.1 s) lets twin time slip and counts an
+    overrun; one allowed 1 s (a replay's) runs every tick it owes."""
+    from emulator.controller import ControllerConfig, ControllerModel
+    from emulator.engine import Emulator
+    from emulator.serial_frontend import SerialFrontEnd
+    from emulator.twin import Twin
+    from firmware_proto.rover import load_rover
+
+    rover = load_rover()
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
+    with Emulator(model, SerialFrontEnd(seed=1), max_backlog_s=max_backlog_s) as emu:
+        wall0, twin0 = time.monotonic(), emu.call(lambda: model.now_s)
+        emu.call(lambda: time.sleep(0.3))  # the control thread itself is held up
+        emu.call(lambda: None)  # the loop ran again after it
+        deadline = time.monotonic() + 5.0
+        status = emu.status()
+        while status.time_s - twin0 < 0.3 and not emu.overruns:
+            assert time.monotonic() < deadline, status
+            status = emu.status()
+        wall = time.monotonic() - wall0
+        twin = emu.call(lambda: model.now_s) - twin0
+    assert (emu.overruns >= 1) is slips
+    if slips:
+        assert twin < wall - 0.1  # twin time fell behind the wall clock
