@@ -79,11 +79,13 @@ LOCKED_THREAD_STACK_BYTES = 1 << 20
 
 _MCL_CURRENT, _MCL_FUTURE = 1, 2  # linux/mman.h on x86 and arm
 
-# Runs as ``python -c _NORMAL_PRIORITY_LAUNCH MODULE ARGS...``: normal scheduling first
-# (nice kept), then ``python -m MODULE ARGS...`` as if started so.
+# Runs as ``python -c _NORMAL_PRIORITY_LAUNCH MODULE ARGS...``: out of a real-time policy
+# first (a batch or idle policy and the nice are kept), then ``python -m MODULE ARGS...``
+# as if started so.
 _NORMAL_PRIORITY_LAUNCH = (
     "import os, runpy, sys\n"
-    "if hasattr(os, 'sched_setscheduler') and os.sched_getscheduler(0) != os.SCHED_OTHER:\n"
+    "if hasattr(os, 'sched_setscheduler') and os.sched_getscheduler(0) in (\n"
+    "        os.SCHED_RR, os.SCHED_FIFO):\n"
     "    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))\n"
     "del sys.argv[0]\n"
     "runpy.run_module(sys.argv[0], run_name='__main__', alter_sys=True)\n"
