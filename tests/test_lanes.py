@@ -3,10 +3,14 @@ test command by accident, nor stay in it by accident."""
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
+from _pytest.mark.expression import Expression
 
 from tests.lanes import EXTENDED, SLOW_MODULES, VIRTUAL_MODULES
 
@@ -21,17 +25,42 @@ def test_every_virtual_module_is_a_slow_one() -> None:
     assert [m for m in VIRTUAL_MODULES if m not in SLOW_MODULES] == []
 
 
-def _collect(expression: str) -> set[str]:
+@pytest.fixture(scope="module")
+def marks(tmp_path_factory: pytest.TempPathFactory) -> dict[str, frozenset[str]]:
+    """Every collected test's node id and the names of its marks, lanes included: one
+    collection of the whole tree (tests/_dump_marks.py), as pytest itself sees it."""
+    out = tmp_path_factory.mktemp("marks") / "marks.tsv"
     done = subprocess.run(
         [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
-         "-m", expression],
+         "-p", "tests._dump_marks"],
         capture_output=True, text=True, cwd=ROOT, timeout=110, check=False,
+        env={**os.environ, "ROVER_DUMP_MARKS": str(out)},
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    return {line for line in done.stdout.splitlines() if "::" in line}
+    dumped = {}
+    for line in out.read_text().splitlines():
+        nodeid, _, names = line.partition("\t")
+        dumped[nodeid] = frozenset(filter(None, names.split(",")))
+    assert len(dumped) > 1000
+    return dumped
 
 
-def test_the_parts_of_the_test_command_run_every_test_once() -> None:
+def _select(marks: dict[str, frozenset[str]], expression: str) -> set[str]:
+    """The tests ``pytest -m EXPRESSION`` selects, by pytest's own expression matcher."""
+    compiled = Expression.compile(expression)
+
+    def selected(names: frozenset[str]) -> bool:
+        def has(name: str, /, **kwargs: str | int | bool | None) -> bool:
+            return not kwargs and name in names
+
+        return compiled.evaluate(has)
+
+    return {nodeid for nodeid, names in marks.items() if selected(names)}
+
+
+def test_the_parts_of_the_test_command_run_every_test_once(
+    marks: dict[str, frozenset[str]],
+) -> None:
     """.ci/test's parts (background, host, serial, vm; SocketCAN in the VM) select each
     test of the command exactly once, whatever its marks."""
     script = (ROOT / ".ci" / "test").read_text()
@@ -40,23 +69,32 @@ def test_the_parts_of_the_test_command_run_every_test_once() -> None:
     ]
     parts = list(dict.fromkeys(e for e in expressions if "not extended" in e))
     assert len(parts) == 4, expressions  # background, host, serial, and the VM's
-    selected = [_collect(e) for e in parts]
-    every = _collect("not extended")
+    selected = [_select(marks, e) for e in parts]
+    every = _select(marks, "not extended")
     assert sum(len(s) for s in selected) == len(every) > 1000
     assert set().union(*selected) == every
 
 
-def test_every_extended_entry_names_collected_tests_and_says_where_they_are_covered() -> None:
+def test_the_matcher_selects_as_pytest_does(marks: dict[str, frozenset[str]]) -> None:
+    """The expression matcher above agrees with a real ``pytest -m`` collection."""
+    expression = "serial and not extended"
     done = subprocess.run(
-        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=110,
-        check=False,
-    )
-    ids = [line for line in done.stdout.splitlines() if "::" in line]
-    assert len(ids) > 1000, done.stdout[-2000:] + done.stderr[-2000:]
-    unmatched = [p for p in EXTENDED if not any(i.startswith(p) for i in ids)]
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+         "-m", expression, "tests/planner", "tests/bridge/test_link.py"],
+        capture_output=True, text=True, cwd=ROOT, timeout=110, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    collected = {line for line in done.stdout.splitlines() if "::" in line}
+    mine = {
+        n for n in _select(marks, expression)
+        if n.startswith(("tests/planner/", "tests/bridge/test_link.py::"))
+    }  # fmt: skip
+    assert collected == mine and len(mine) > 5
+
+
+def test_every_extended_entry_names_collected_tests_and_says_where_they_are_covered(
+    marks: dict[str, frozenset[str]],
+) -> None:
+    unmatched = [p for p in EXTENDED if not any(i.startswith(p) for i in marks)]
     assert unmatched == []
     assert all(reason.strip() for reason in EXTENDED.values())
