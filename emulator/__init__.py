@@ -8,15 +8,10 @@ plays on are the protocol's (:mod:`firmware_proto.worldmap`: ``load_map``), shar
 with the gate and the planner. See docs/twin.md.
 """
 
-from emulator.drive import (
-    StepProfile,
-    brake,
-    motor_omegas,
-    side_directions,
-    travel_units,
-    turn_units_for_yaw,
-    yaw_for_turn_units,
-)
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from emulator.errors import (
     CommandError,
     EmulatorError,
@@ -24,23 +19,68 @@ from emulator.errors import (
     InjectionError,
     TwinConfigError,
 )
-from emulator.ground import Ground, list_grounds, load_ground
-from emulator.playback import (
-    PlaybackResult,
-    Stall,
-    StepResult,
-    TimedPose,
-    measure_turn_efficiency,
-    play,
-)
-from emulator.traction import TractionModel
-from emulator.twin import (
-    GATE_DT_S,
-    BodyAcceleration,
-    BodyVelocity,
-    Collision,
-    Pose2D,
-    Twin,
+from firmware_proto.lazyexports import lazy_exports
+
+if TYPE_CHECKING:
+    from emulator.drive import (
+        StepProfile,
+        brake,
+        motor_omegas,
+        side_directions,
+        travel_units,
+        turn_units_for_yaw,
+        yaw_for_turn_units,
+    )
+    from emulator.ground import Ground, list_grounds, load_ground
+    from emulator.playback import (
+        PlaybackResult,
+        Stall,
+        StepResult,
+        TimedPose,
+        measure_turn_efficiency,
+        play,
+    )
+    from emulator.traction import TractionModel
+    from emulator.twin import (
+        GATE_DT_S,
+        BodyAcceleration,
+        BodyVelocity,
+        Collision,
+        Pose2D,
+        Twin,
+    )
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "emulator.drive": (
+            "StepProfile",
+            "brake",
+            "motor_omegas",
+            "side_directions",
+            "travel_units",
+            "turn_units_for_yaw",
+            "yaw_for_turn_units",
+        ),
+        "emulator.ground": ("Ground", "list_grounds", "load_ground"),
+        "emulator.playback": (
+            "PlaybackResult",
+            "Stall",
+            "StepResult",
+            "TimedPose",
+            "measure_turn_efficiency",
+            "play",
+        ),
+        "emulator.traction": ("TractionModel",),
+        "emulator.twin": (
+            "GATE_DT_S",
+            "BodyAcceleration",
+            "BodyVelocity",
+            "Collision",
+            "Pose2D",
+            "Twin",
+        ),
+    },
 )
 
 __all__ = [

@@ -15,8 +15,10 @@ Beside them, four sub-packages do I/O, and no pure module imports them:
 ``ros2 run`` starts). ``c/`` holds the C codec and the firmware core (docs/firmware.md).
 """
 
-from firmware_proto.canmap import CanDecoder, CanFrame, can_id, encode_can, split_can_id
-from firmware_proto.counters import RxCounters
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from firmware_proto.errors import (
     DecodeError,
     DescriptionError,
@@ -26,12 +28,43 @@ from firmware_proto.errors import (
     ProtoError,
     SpecError,
 )
-from firmware_proto.framing import Frame, FrameDecoder, FrameEncoder, encode_frame, encode_raw_frame
-from firmware_proto.message import Message
-from firmware_proto.messages import PROTOCOL_VERSION, SCHEMA_HASH
-from firmware_proto.plan import Goal, Plan, PlanStep, validate_plan
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.worldmap import WorldMap, list_maps, load_map
+from firmware_proto.lazyexports import lazy_exports
+
+if TYPE_CHECKING:
+    from firmware_proto.canmap import CanDecoder, CanFrame, can_id, encode_can, split_can_id
+    from firmware_proto.counters import RxCounters
+    from firmware_proto.framing import (
+        Frame,
+        FrameDecoder,
+        FrameEncoder,
+        encode_frame,
+        encode_raw_frame,
+    )
+    from firmware_proto.message import Message
+    from firmware_proto.messages import PROTOCOL_VERSION, SCHEMA_HASH
+    from firmware_proto.plan import Goal, Plan, PlanStep, validate_plan
+    from firmware_proto.rover import RoverDescription, load_rover
+    from firmware_proto.worldmap import WorldMap, list_maps, load_map
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "firmware_proto.canmap": ("CanDecoder", "CanFrame", "can_id", "encode_can", "split_can_id"),
+        "firmware_proto.counters": ("RxCounters",),
+        "firmware_proto.framing": (
+            "Frame",
+            "FrameDecoder",
+            "FrameEncoder",
+            "encode_frame",
+            "encode_raw_frame",
+        ),
+        "firmware_proto.message": ("Message",),
+        "firmware_proto.messages": ("PROTOCOL_VERSION", "SCHEMA_HASH"),
+        "firmware_proto.plan": ("Goal", "Plan", "PlanStep", "validate_plan"),
+        "firmware_proto.rover": ("RoverDescription", "load_rover"),
+        "firmware_proto.worldmap": ("WorldMap", "list_maps", "load_map"),
+    },
+)
 
 __all__ = [
     "PROTOCOL_VERSION",

@@ -14,14 +14,14 @@ import json
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import Any
-
-from jsonschema import Draft202012Validator
+from typing import TYPE_CHECKING, Any
 
 from firmware_proto.errors import PlanError
 from firmware_proto.messages import Command
 from firmware_proto.pose import Pose
-from firmware_proto.schemacheck import schema_violations
+
+if TYPE_CHECKING:
+    from jsonschema import Draft202012Validator
 
 __all__ = [
     "COMMAND_NAMES",
@@ -48,6 +48,8 @@ def plan_schema() -> dict[str, Any]:
 
 @cache
 def _validator() -> Draft202012Validator:
+    from jsonschema import Draft202012Validator  # noqa: PLC0415 - on first use: most never do
+
     return Draft202012Validator(plan_schema())
 
 
@@ -57,6 +59,8 @@ def validate_plan(obj: Any) -> list[tuple[str, str]]:
     Beyond the schema, numbers must be finite (JSON has no NaN or infinity; Python's
     parser accepts them). An extra property is reported at its own pointer.
     """
+    from firmware_proto.schemacheck import schema_violations  # noqa: PLC0415 - jsonschema
+
     return schema_violations(_validator(), obj, fast=True)
 
 

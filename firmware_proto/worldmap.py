@@ -37,8 +37,6 @@ from functools import cache, cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
-from jsonschema import Draft202012Validator
-
 from firmware_proto.errors import MapError
 from firmware_proto.geometry import (
     Point,
@@ -50,7 +48,9 @@ from firmware_proto.geometry import (
     signed_area,
 )
 from firmware_proto.pose import Pose
-from firmware_proto.schemacheck import schema_violations
+
+if TYPE_CHECKING:
+    from jsonschema import Draft202012Validator
 
 __all__ = [
     "BOUNDS_ID",
@@ -442,6 +442,8 @@ def map_schema() -> dict[str, Any]:
 
 @cache
 def _validator() -> Draft202012Validator:
+    from jsonschema import Draft202012Validator  # noqa: PLC0415 - on first use: most never do
+
     return Draft202012Validator(map_schema())
 
 
@@ -493,6 +495,8 @@ def validate_map(obj: Any) -> list[tuple[str, str]]:
     polygons simple with non-zero area, segments of non-zero length, the start and the
     goals strictly inside the bounds.
     """
+    from firmware_proto.schemacheck import schema_violations  # noqa: PLC0415 - jsonschema
+
     found = schema_violations(_validator(), obj)
     if not found:
         found += _semantic_violations(obj)

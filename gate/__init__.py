@@ -8,9 +8,9 @@ that ``from gate import Verdict`` stays cheap for a client. See docs/gate.md.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from firmware_proto.lazyexports import lazy_exports
 from firmware_proto.pose import Point, Pose
 from firmware_proto.verdict import (
     FAILURE_TYPES,
@@ -92,20 +92,11 @@ __all__ = [
     "load_config",
 ]
 
-_LAZY = {
-    "GateServer": "gate.server",
-    "Job": "gate.validator",
-    "ProcessWorkerPool": "gate.pool",
-    "ThreadWorkerPool": "gate.pool",
-    "Validator": "gate.validator",
-    "WorkerPool": "gate.pool",
-}
-
-
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'gate' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "gate.pool": ("ProcessWorkerPool", "ThreadWorkerPool", "WorkerPool"),
+        "gate.server": ("GateServer",),
+        "gate.validator": ("Job", "Validator"),
+    },
+)

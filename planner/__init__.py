@@ -8,10 +8,11 @@ and :mod:`planner.demo` (subprocesses) are imported from their modules.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from firmware_proto.geometry import Point
+from firmware_proto.lazyexports import lazy_exports
 from firmware_proto.pose import Pose
-from firmware_proto.verdict import Trajectory, Verdict
-from planner.drift import DriftEvent, DriftMonitor
 from planner.errors import (
     GateCallError,
     GateOverloadedError,
@@ -26,14 +27,34 @@ from planner.errors import (
     RepairError,
     UnreachableGoalError,
 )
-from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
-from planner.experiment import ExperimentResult, run_planning_experiment
-from planner.gate_client import GateClient, GateOptions
-from planner.mission import MissionReport, MissionRunner, MoveAndWait
-from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
-from planner.planner import HeuristicLowLevelPlanner, LegPlan
-from planner.relay import LinkProfile, LinkRelay
-from planner.repairs import RepairSettings
+
+if TYPE_CHECKING:
+    from firmware_proto.verdict import Trajectory, Verdict
+    from planner.drift import DriftEvent, DriftMonitor
+    from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+    from planner.experiment import ExperimentResult, run_planning_experiment
+    from planner.gate_client import GateClient, GateOptions
+    from planner.mission import MissionReport, MissionRunner, MoveAndWait
+    from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
+    from planner.planner import HeuristicLowLevelPlanner, LegPlan
+    from planner.relay import LinkProfile, LinkRelay
+    from planner.repairs import RepairSettings
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "firmware_proto.verdict": ("Trajectory", "Verdict"),
+        "planner.drift": ("DriftEvent", "DriftMonitor"),
+        "planner.executor": ("ExecutionResult", "ExecutorConfig", "PlanExecutor", "Progress"),
+        "planner.experiment": ("ExperimentResult", "run_planning_experiment"),
+        "planner.gate_client": ("GateClient", "GateOptions"),
+        "planner.mission": ("MissionReport", "MissionRunner", "MoveAndWait"),
+        "planner.orchestrator": ("Attempt", "MissionResult", "PlannerOrchestrator", "PlanResult"),
+        "planner.planner": ("HeuristicLowLevelPlanner", "LegPlan"),
+        "planner.relay": ("LinkProfile", "LinkRelay"),
+        "planner.repairs": ("RepairSettings",),
+    },
+)
 
 __all__ = [
     "Attempt",

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments
+from planner.cli_confidence import add_confidence_arguments, confidence_options
 from planner.cli_view import add_view_arguments
-from planner.gate_client import add_confidence_arguments, confidence_options
 
 __all__ = ["register"]
 

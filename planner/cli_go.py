@@ -17,8 +17,8 @@ from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
 from firmware_proto.runtime import ProcessRuntime
+from planner.cli_confidence import add_confidence_arguments, confidence_options
 from planner.cli_view import add_view_arguments
-from planner.gate_client import add_confidence_arguments, confidence_options
 from planner.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
 
 __all__ = [

@@ -7,9 +7,25 @@ Above the bridge and the emulator: it imports both (and the protocol), and nothi
 ours imports it but its own command and the tests.
 """
 
-from sim.checks import RULES, Violation
-from sim.rig import Outcome, Rig, run_scenario
-from sim.scenario import CONTROLLERS, MEDIA, Scenario, make_scenario
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from firmware_proto.lazyexports import lazy_exports
+
+if TYPE_CHECKING:
+    from sim.checks import RULES, Violation
+    from sim.rig import Outcome, Rig, run_scenario
+    from sim.scenario import CONTROLLERS, MEDIA, Scenario, make_scenario
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "sim.checks": ("RULES", "Violation"),
+        "sim.rig": ("Outcome", "Rig", "run_scenario"),
+        "sim.scenario": ("CONTROLLERS", "MEDIA", "Scenario", "make_scenario"),
+    },
+)
 
 __all__ = [
     "CONTROLLERS",
