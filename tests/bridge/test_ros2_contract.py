@@ -318,9 +318,10 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         children.append(bridge)
         assert bridge.wait_for("BRIDGE ").endswith(f" {backend}")
         client.wait_for_bridge()
-        for command, speed, distance in ((1, 30, 800), (3, 30, 1000), (2, 30, 800)):
-            got = client.step(command, speed, distance)  # FWD, LEFT, REV: one at a time
-            assert got[-1] == "completed" and got.count("completed") == 1, got
+        # One step to its end, then one the STOP ends (every command's direction over CAN:
+        # the lockstep conformance rules and the wire simulator).
+        got = client.step(1, 30, 800)
+        assert got[-1] == "completed" and got.count("completed") == 1, got
         from std_msgs.msg import Bool, Int16MultiArray
 
         mark = client.mark()
@@ -336,7 +337,7 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
 
     decoded = _rover("decode", "--no-telemetry", str(bridge_log)).splitlines()
     motions = [line for line in decoded if "MOTION seq=" in line]
-    assert len(motions) >= 4, decoded  # the ready probe(s), three steps, the long one
+    assert len(motions) >= 2, decoded  # the step, the long one
     assert any("STOP stop_id=" in line for line in decoded), decoded
     assert any("STOP_ACK stop_id=" in line for line in decoded), decoded
     frames = _candump_frames(bridge_log)

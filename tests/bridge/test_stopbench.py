@@ -17,6 +17,7 @@ from PIL import Image
 from bridge.benchreport import format_table, summarize, write_reports
 from bridge.errors import TransportError
 from bridge.stopbench import BenchConfig, BenchError, BenchRun, FloodConfig, StopBench, TrialResult
+from emulator.can_frontend import CanFrontEnd
 from emulator.engine import Emulator
 from emulator.replay import ReplayOptions, replay_into_emulator
 from firmware_proto.cli import main as rover_cli
@@ -60,6 +61,7 @@ def _check_run(run: BenchRun, trials: int) -> None:
     [
         "pty",
         "virtual",
+        "virtual-malformed",
         pytest.param(
             "socketcan",
             marks=[pytest.mark.socketcan, pytest.mark.skipif(not HAVE_VCAN0, reason=NO_VCAN0)],
@@ -74,12 +76,19 @@ def test_stop_is_acknowledged_stops_latches_and_clears_under_load(
         emu = emulators("pty")
         url = emu.frontend.device
     else:
+        interface = kind.removesuffix("-malformed")
         channel = "vcan0" if kind == "socketcan" else can_channel
-        emu = emulators("can", interface=kind, channel=channel, node=3)
-        url = f"can://{kind}/{channel}?node=3"
+        emu = emulators("can", interface=interface, channel=channel, node=3)
+        url = f"can://{interface}/{channel}?node=3"
         # 1 kHz; 300 Hz on the VM's emulated CPU (about 6 times slower), where 1 kHz
         # beside 100 Hz telemetry overruns the Python readers (as in test_socketcan.py).
-        flood = FloodConfig(kind, channel, rate_hz=300 if IN_VCAN_VM else 1000)
+        # "-malformed": a flood of malformed frames aimed at the controller instead.
+        flood = FloodConfig(
+            interface,
+            channel,
+            rate_hz=300 if IN_VCAN_VM else 1000,
+            malformed=kind.endswith("-malformed"),
+        )
     config = BenchConfig(url=url, trials=3, seed=4, max_delay_s=0.1, flood=flood)
     seen: list[TrialResult] = []
     with StopBench(config) as bench:
@@ -98,7 +107,15 @@ def test_stop_is_acknowledged_stops_latches_and_clears_under_load(
         assert run.flood is not None
         assert run.flood.sent > 0
         assert "no arbitration" in run.arbitration_note
-        assert "CAN flood 0x63F" in run.load  # PARAM_VALUE of node 15: lowest priority
+        frontend = emu.frontend
+        assert isinstance(frontend, CanFrontEnd)
+        rejected = frontend.decoder.counters.rejected
+        if kind.endswith("-malformed"):
+            assert "malformed frames" in run.load
+            assert rejected >= run.flood.sent // 2  # counted and ignored; every trial passed
+        else:
+            assert rejected == 0
+            assert "CAN flood 0x63F" in run.load  # PARAM_VALUE of node 15: lowest priority
 
 
 @pytest.mark.firmware
