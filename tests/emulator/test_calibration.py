@@ -65,11 +65,10 @@ def loose_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def fitted(loose_recording: Path) -> Calibration:
-    rover = load_rover()
-    observed = observe_steps([read_recording(loose_recording)], rover)
-    calibration, _ = fit_ground(observed, rover, field_map())
-    return calibration
+def fitted(twin_file: Path) -> Calibration:
+    """The fit ``rover calibrate`` wrote (one fit of the recording for the module: the
+    fit in process is the regions' tests below)."""
+    return load_twin(twin_file).calibration
 
 
 def test_a_recording_is_read_with_every_step_and_its_fate(loose_recording: Path) -> None:
