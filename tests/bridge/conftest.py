@@ -13,6 +13,7 @@ real ROS 2 (``rclpy``, marker ``rclpy``: only inside the private network namespa
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import threading
@@ -165,7 +166,8 @@ def rover() -> RoverDescription:
 @pytest.fixture
 def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
     """Factory of running emulators; ``kind`` "pty" or "can", ``firmware`` "python" (the
-    model) or "c" (the C core, emulator/firmware.py); all closed after the test."""
+    model) or "c" (the C core, emulator/firmware.py), ``watchdog_ms`` the controller's
+    (its default unless given); all closed after the test."""
     started: list[Emulator] = []
 
     def make(
@@ -178,12 +180,16 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
         interface: str = "virtual",
         schema_hash: int = SCHEMA_HASH,
         firmware: str = "python",
+        watchdog_ms: int | None = None,
     ) -> Emulator:
+        config = ControllerConfig(timeout_scale=SPEED)
+        if watchdog_ms is not None:
+            config = dataclasses.replace(config, watchdog_ms=watchdog_ms)
         model = make_controller(
             firmware,
             rover,
             Twin(rover, dt_s=TWIN_DT_S),
-            ControllerConfig(timeout_scale=SPEED),
+            config,
             seed=seed,
             schema_hash=schema_hash,
         )
