@@ -85,6 +85,8 @@ real-time tests, at a lower priority."""
 
 _SIM = "tests/sim/test_soak.py (virtual time, both controllers)"
 _LATCH = "tests/bridge/test_latch_recovery.py::"
+_CONF = "tests/bridge/test_conformance.py::"
+_LOCKSTEP = _CONF + "test_both_controllers_pass_every_rule_in_lockstep (both media)"
 
 EXTENDED: dict[str, str] = {
     # Benchmarks: figures, not behaviour; the quick runs of the others stay.
@@ -137,6 +139,19 @@ EXTENDED: dict[str, str] = {
     "[socketcan]": _SIM,
     "tests/bridge/test_link.py::test_estop_survives_a_reboot[virtual]": _SIM,
     "tests/bridge/test_link.py::test_estop_survives_a_reboot[socketcan]": _SIM,
+    # The conformance suite in real time: one controller per medium (the C core's process
+    # over a pty, the Python model on the virtual CAN bus); every rule against both
+    # controllers on both media runs in lockstep (virtual time) in the command.
+    _CONF + "test_the_emulator_passes_the_smoke_rules_over_a_pty_in_real_time[python]": (
+        _LOCKSTEP + "; the pty's smoke on the C core"
+    ),
+    _CONF + "test_the_emulator_passes_the_smoke_rules_on_a_virtual_can_bus_in_real_time[c]": (
+        _LOCKSTEP + "; the virtual bus's smoke on the Python model"
+    ),
+    _CONF + "test_without_a_control_port_those_rules_are_not_run_never_passed[c]": (
+        "the same command against the Python model's process (the rule selection is the "
+        "suite's, not the controller's)"
+    ),
     # The STOP bench command over SocketCAN, twice (about 40 s of the VM's software CPU):
     # STOP under a flood over SocketCAN, and each malformed frame counted and ignored
     # there, stay in the VM; the bench's malformed flood and its command stay on the host.
