@@ -44,7 +44,11 @@ from bridge.errors import ParameterError
 from bridge.rosport.port import DEFAULT_LANE, STOP_LANE, Publisher, Subscription
 from bridge.rosport.process_backend import PARENT_REALTIME_ENV, REQUEST_TIMEOUT_S
 from bridge.rosport.rclpy_backend import RclpyPort, middleware
-from firmware_proto.runtime.realtime import STOP_CHILD_PRIORITY, RealtimeConfig, apply_realtime
+from firmware_proto.runtime.realtime import (
+    STOP_CHILD_PRIORITY,
+    RealtimeConfig,
+    apply_realtime_to_process,
+)
 from firmware_proto.runtime.stall import StallMonitor, stall_log_path
 
 __all__ = ["Child", "main", "message_type"]
@@ -87,7 +91,6 @@ class Child:
         except (EOFError, OSError):
             return 1
         self._lane = STOP_LANE if stop_only else DEFAULT_LANE
-        _schedule(stop_only)
         # Its stalls (a middleware call holding the interpreter lock) are logged and go
         # to the stack's stall log under the node's name (docs/realtime.md, Stalls).
         monitor = StallMonitor(node_name, log_path=stall_log_path())
@@ -108,6 +111,8 @@ class Child:
         except Exception as exc:  # the parent raises it as RosPortError
             self._send(("error", str(exc)))
             return 1
+        # Only now: the node's start (rclpy, a DDS participant) ran at normal priority.
+        _schedule(stop_only)
         with port:
             self._send(("ready", middleware()))
             threading.Thread(target=self._receive, name="process-child-rx", daemon=True).start()
@@ -219,13 +224,17 @@ class Child:
 
 def _schedule(stop_only: bool) -> None:
     """The child starts at normal priority (its parent launches it so, lest its imports
-    hold a core at the link's priority) and, once imported, takes its own (docs/
-    realtime.md): where the parent keeps real time, the STOP child does too, below the
-    link it feeds; the publishing child, whose middleware calls may block, stays at
-    normal scheduling, so it never competes with the link."""
+    hold a core at the link's priority) and, once its node has started, takes its own
+    (docs/realtime.md): where the parent keeps real time, the STOP child does too, every
+    thread of it (the middleware's among them), below the link it feeds; the publishing
+    child, whose middleware calls may block, stays at normal scheduling, so it never
+    competes with the link. The node's start (``rclpy.init``, a DDS participant: about
+    half a second of CPU on two threads) at real-time priority held both cores above the
+    kernel worker that moves a pty's bytes, and a link over a pty went silent for
+    200-400 ms."""
     parent_realtime = os.environ.get(PARENT_REALTIME_ENV) == "1"
     priority = STOP_CHILD_PRIORITY if stop_only and parent_realtime else 0
-    apply_realtime(RealtimeConfig(priority, lock_memory=False))
+    apply_realtime_to_process(RealtimeConfig(priority, lock_memory=False))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

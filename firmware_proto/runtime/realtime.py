@@ -55,6 +55,7 @@ __all__ = [
     "RealtimeConfig",
     "RealtimeStatus",
     "apply_realtime",
+    "apply_realtime_to_process",
     "in_realtime",
     "module_command_at_normal_priority",
     "realtime_threads",
@@ -222,6 +223,37 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
         requested=True,
         note=note,
     )
+    return status
+
+
+def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
+    """:func:`apply_realtime` for the calling thread, then the policy it got for every
+    other thread the process has already started (a middleware's receive and discovery
+    threads, say).
+
+    For a process whose start is heavy, CPU-bound work that creates threads (the STOP
+    lane's ROS 2 child: ``rclpy.init`` and a DDS participant, about half a second of
+    CPU on two threads): done at normal priority first and promoted after, that work
+    never holds both cores above the kernel's own workers (a pty's receive path runs in
+    one), which it did at real-time priority (docs/realtime.md). Threads that end while
+    they are promoted are skipped; a thread the policy cannot be given to keeps its own.
+    """
+    status = apply_realtime(config)
+    if not hasattr(os, "sched_setscheduler") or status.policy == "SCHED_OTHER":
+        return status
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    me = threading.get_native_id()
+    try:
+        tids = [int(tid) for tid in os.listdir("/proc/self/task")]
+    except OSError:
+        return status
+    for tid in tids:
+        if tid == me:
+            continue
+        try:
+            os.sched_setscheduler(tid, policy, param)
+        except OSError:  # ended meanwhile, or not permitted
+            continue
     return status
 
 

@@ -230,9 +230,11 @@ def test_a_node_that_cannot_start_is_an_error_naming_the_reason(
         make_port("rclpy-process", node_name="bad", args=["--ros-args", "-r"])
 
 
-def _scheduling(pid: int) -> tuple[int, int]:
-    """(policy, real-time priority) of a process's main thread, from /proc."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+def _scheduling(pid: int, tid: int | None = None) -> tuple[int, int]:
+    """(policy, real-time priority) of a process's main thread (or thread ``tid``), from
+    /proc."""
+    task = f"/proc/{pid}/task/{tid}/stat" if tid is not None else f"/proc/{pid}/stat"
+    fields = Path(task).read_text().rsplit(")", 1)[1].split()
     return int(fields[38]), int(fields[37])
 
 
@@ -241,10 +243,11 @@ def _scheduling(pid: int) -> tuple[int, int]:
 def test_the_node_processes_take_their_own_scheduling_after_their_imports(
     make_port: Callable[..., RosPort], owner_realtime: bool
 ) -> None:
-    """The children start at normal priority whatever their owner's (their imports must
-    not hold a core at the link's priority: docs/realtime.md); then, where the owner
-    keeps real time, the STOP lane's child takes ``SCHED_RR`` 15 and the publishing
-    child stays at normal scheduling; where it does not, neither takes real time."""
+    """The children start at normal priority whatever their owner's (their imports and
+    their node's start must not hold a core at the link's priority: docs/realtime.md);
+    then, where the owner keeps real time, the STOP lane's child takes ``SCHED_RR`` 15,
+    every thread of it, the middleware's too, and the publishing child stays at normal
+    scheduling; where it does not, neither takes real time."""
     config = RealtimeConfig(BRIDGE_PRIORITY if owner_realtime else 0, lock_memory=False)
     with realtime_threads(config):
         port = make_port("rclpy-process", node_name="scheduled")
@@ -256,3 +259,6 @@ def test_the_node_processes_take_their_own_scheduling_after_their_imports(
     assert _scheduling(port.pid) == (os.SCHED_OTHER, 0)
     expected = (os.SCHED_RR, STOP_CHILD_PRIORITY) if owner_realtime else (os.SCHED_OTHER, 0)
     assert _scheduling(port.stop_pid) == expected
+    threads = [int(tid) for tid in os.listdir(f"/proc/{port.stop_pid}/task")]
+    assert len(threads) > 3  # the middleware's threads, this test's point
+    assert {_scheduling(port.stop_pid, tid) for tid in threads} == {expected}

@@ -125,6 +125,34 @@ def test_without_permission_it_runs_on_and_says_why() -> None:
     assert "docs/realtime.md" in line
 
 
+_PROCESS_PROBE = """
+import json, os, sys, threading
+from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime_to_process
+go, done = threading.Event(), threading.Event()
+def before():  # started at normal priority, as a library's thread would be
+    go.wait(10)
+    os.sched_getscheduler(0)
+t = threading.Thread(target=before); t.start()
+status = apply_realtime_to_process(RealtimeConfig(int(sys.argv[1]), lock_memory=False))
+policies = {}
+for tid in os.listdir("/proc/self/task"):
+    policies[tid] = os.sched_getscheduler(int(tid))
+go.set(); t.join()
+print(json.dumps({"granted": status.granted, "policies": sorted(set(policies.values())),
+                  "threads": len(policies)}))
+"""
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="granting real time needs root here")
+def test_a_whole_process_is_promoted_with_the_threads_it_already_started() -> None:
+    done = _python(_PROCESS_PROBE, "15")
+    result = json.loads(done.stdout)
+    assert result["granted"] is True and result["threads"] >= 2
+    assert result["policies"] == [os.SCHED_RR]  # the thread started before too
+    normal = json.loads(_python(_PROCESS_PROBE, "0").stdout)
+    assert normal["granted"] is False and normal["policies"] == [os.SCHED_OTHER]
+
+
 def test_priority_zero_is_normal_scheduling() -> None:
     result = _probe(0)
     assert result["granted"] is False
