@@ -24,6 +24,9 @@ ros2_control's controller manager does (``realtime_tools::configure_sched_fifo``
   ``rtprio`` limit), it falls back to a lower nice value if that is permitted, else
   runs as it was; :class:`RealtimeStatus` says which, in one line the program prints
   once. Nothing fails for want of permission.
+- :func:`apply_realtime_to_process` also promotes the threads the process already has: a
+  process whose start is heavy work that starts threads (a DDS participant) does it at
+  normal priority, then takes real time, every thread of it.
 - :func:`realtime_threads` does the same for a stretch of code inside a process that
   must not keep real time for the rest of its life (a test, a library call such as a
   replay): the calling thread is put back as it was at the end, and only the threads
