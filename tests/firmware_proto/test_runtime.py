@@ -128,11 +128,9 @@ def test_without_permission_it_runs_on_and_says_why() -> None:
 _PROCESS_PROBE = """
 import json, os, sys, threading
 from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime_to_process
-go, done = threading.Event(), threading.Event()
-def before():  # started at normal priority, as a library's thread would be
-    go.wait(10)
-    os.sched_getscheduler(0)
-t = threading.Thread(target=before); t.start()
+go = threading.Event()
+# Started at normal priority, as a library's thread would be; it waits to be counted.
+t = threading.Thread(target=go.wait, args=(10,)); t.start()
 status = apply_realtime_to_process(RealtimeConfig(int(sys.argv[1]), lock_memory=False))
 policies = {}
 for tid in os.listdir("/proc/self/task"):
