@@ -282,7 +282,9 @@ def test_a_region_not_driven_on_keeps_the_maps_scale(
     ]
     world = WorldMap.from_dict(doc)
     observed = observe_steps([read_recording(loose_recording)], rover)
-    calibration, _ = fit_ground(observed, rover, world)
+    # Which regions are fitted is decided before the solver runs: a small budget of its
+    # own (the fit's quality is test_the_fit_finds_the_ground_the_gate_did_not_know's).
+    calibration, _ = fit_ground(observed, rover, world, max_evaluations=8)
     assert "region.far" not in calibration.parameters
     assert calibration.fixed_regions == ("far",)
     assert calibration.ground.region_scale("far") == 0.6
