@@ -230,9 +230,12 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
 
 
 def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
-    """:func:`apply_realtime` for the calling thread, then the policy it got for every
-    other thread the process has already started (a middleware's receive and discovery
-    threads, say).
+    """:func:`apply_realtime` for the calling thread, then, where that granted a
+    real-time policy, the same for every other thread the process has already started (a
+    middleware's receive and discovery threads, say). Normal scheduling (priority 0, or
+    real time not permitted) changes the calling thread only. A thread that a thread of
+    normal priority starts while the others are promoted may be missed: call it once the
+    threads it should reach exist.
 
     For a process whose start is heavy, CPU-bound work that creates threads (the STOP
     lane's ROS 2 child: ``rclpy.init`` and a DDS participant, about half a second of
