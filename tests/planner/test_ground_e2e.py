@@ -22,10 +22,11 @@ from planner.gate_client import GateClient
 from tests.rig import HilRig
 
 # Missions in real time on an in-process rig (emulator, bridge and relay threads in this
-# worker): run alone, after the rest, as the whole-mission tests are (marker serial). Its
-# emulator and bridge threads are real-time, but they share this process's interpreter
-# lock with threads that are not: beside the other worker's tests the bridge's
-# heartbeats came 255 ms late (watchdog trips in 5 tests of one run).
+# worker): run after the rest, as the whole-mission tests are (marker serial: two at a
+# time, never beside the host part's tests). Its emulator and bridge threads are
+# real-time, but they share this process's interpreter lock with threads that are not:
+# beside the host part's tests the bridge's heartbeats came 255 ms late (watchdog trips
+# in 5 tests of one run).
 pytestmark = pytest.mark.serial
 
 SPEED = 4.0
