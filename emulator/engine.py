@@ -419,7 +419,15 @@ class Emulator:
                     item = self._inbox.get(timeout=planned - after)
                 except queue.Empty:
                     item = None
+                woke: float = time.monotonic()
+                if woke - planned > tick_wall:
+                    # Held up past its plan, whatever woke it (a call or a message that
+                    # came meanwhile too): counted before that is handled, so that a
+                    # status asked for after a stall shows it.
+                    self._catch_up(woke - planned)
+                    planned = None
                 if isinstance(item, _Call):
+                    # Runs now; should it hold the loop up, the next turn counts that.
                     self._drain(item, until=-math.inf)  # messages wait for their tick
                 elif item is not None:
                     planned = None

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from emulator.engine import MAX_BACKLOG_S
+from emulator.engine import MAX_BACKLOG_S, _Call
 from firmware_proto.messages import Fault, FaultCode, Heartbeat
 from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
 from tests.child import Child
@@ -115,6 +115,51 @@ def test_a_late_control_loop_is_counted_as_a_catch_up(freeze_s: float) -> None:
             status = emu.status()
         assert status.catchups >= 1
         assert status.late_max_ms >= freeze_s * 1e3 * 0.8
+
+
+class _HeldUpInbox:
+    """The control loop's inbox, whose wait for the next call returns ``hold_s`` late once:
+    the loop's thread descheduled by its computer just as a call woke it."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.hold_s = 0.0
+
+    def put(self, item: Any) -> None:
+        self.inner.put(item)
+
+    def get_nowait(self) -> Any:
+        return self.inner.get_nowait()
+
+    def get(self, timeout: float | None = None) -> Any:
+        item = self.inner.get(timeout=timeout)
+        if self.hold_s and isinstance(item, _Call):
+            time.sleep(self.hold_s)
+            self.hold_s = 0.0
+        return item
+
+
+def test_a_status_asked_for_as_the_loop_wakes_late_shows_it_was_late() -> None:
+    """The loop's wait ends late, woken by the very call that asks for the status (what
+    SIGCONT after SIGSTOP can do): the lateness is counted before the call runs, so the
+    status shows it (this raced the call before)."""
+    from emulator.controller import ControllerConfig, ControllerModel
+    from emulator.engine import Emulator
+    from emulator.serial_frontend import SerialFrontEnd
+    from emulator.twin import Twin
+    from firmware_proto.rover import load_rover
+
+    rover = load_rover()
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
+    emu = Emulator(model, SerialFrontEnd(seed=1))
+    inbox = _HeldUpInbox(emu._inbox)
+    emu._inbox = inbox  # type: ignore[assignment]
+    with emu:
+        before = emu.status()
+        inbox.hold_s = 0.09
+        after = emu.status()
+        assert after.catchups > before.catchups
+        assert after.late_max_ms >= 0.09 * 1e3 * 0.8
 
 
 @pytest.mark.parametrize(("max_backlog_s", "slips"), [(MAX_BACKLOG_S, True), (1.0, False)])
