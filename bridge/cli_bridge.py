@@ -335,14 +335,21 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
         )
         with port, BridgeNode(params, port) as node:
             print(f"BRIDGE {params.url} {params.ros_backend}", flush=True)
-            while not done.wait(min(_FAILURE_POLL_S, max(0.0, end - time.monotonic()))):
-                for line in narrator.update(node.diagnostics(), time.monotonic()):
-                    print(f"bridge: {line}", flush=True)
-                if port.failure is not None:
-                    print(f"{prog}: error: the ROS 2 node failed: {port.failure}", file=sys.stderr)
-                    return 1
-                if time.monotonic() >= end:
-                    break
+            try:
+                while not done.wait(min(_FAILURE_POLL_S, max(0.0, end - time.monotonic()))):
+                    for line in narrator.update(node.diagnostics(), time.monotonic()):
+                        print(f"bridge: {line}", flush=True)
+                    if port.failure is not None:
+                        print(
+                            f"{prog}: error: the ROS 2 node failed: {port.failure}",
+                            file=sys.stderr,
+                        )
+                        return 1
+                    if time.monotonic() >= end:
+                        break
+            finally:
+                # Closing the link and the node is no work that must keep time.
+                runtime.wind_down()
             for line in narrator.update(node.diagnostics(), time.monotonic()):
                 print(f"bridge: {line}", flush=True)
     if not narrator.reached:

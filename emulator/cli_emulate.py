@@ -388,6 +388,7 @@ def _serve_emulator(
     from emulator.control import ControlServer
     from emulator.engine import Emulator
     from emulator.serial_frontend import SerialFrontEnd
+    from firmware_proto.runtime.realtime import leave_realtime_for_process
 
     emulator = Emulator(
         model,
@@ -425,6 +426,9 @@ def _serve_emulator(
                 if deadline is not None and waited >= deadline:
                     break
         finally:
+            # Ending (the control loop joined, the interpreter's finalisation) is no
+            # work that must keep time.
+            leave_realtime_for_process()
             if control is not None:
                 control.close()
     final = emulator.last_status

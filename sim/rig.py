@@ -26,6 +26,7 @@ What the rig sees on both sides goes to a :class:`~sim.checks.Ledger`; the invar
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import heapq
 import logging
@@ -149,7 +150,7 @@ class Rig:
             FirmwareBuildError: the C core is asked for and cannot be built here.
         """
         self.sc = scenario
-        self.rover = rover or load_rover(None)
+        self.rover = rover or _packaged_rover()
         self.rng = random.Random(scenario.seed * 1_000_003 + 17)
         self.now = 0.0
         self._heap: list[tuple[float, int, int, Callable[[], None]]] = []
@@ -712,6 +713,12 @@ class Rig:
         self._probe = core.submit_step(PROBE, self.now)
         self._note(f"operator probe {self._probe}")
         self._host_after()
+
+
+@functools.cache
+def _packaged_rover() -> RoverDescription:
+    """The packaged rover description, read once per process (it is immutable)."""
+    return load_rover(None)
 
 
 def run_scenario(scenario: Scenario, *, trace: bool = False) -> Outcome:

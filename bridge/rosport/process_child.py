@@ -48,6 +48,7 @@ from firmware_proto.runtime.realtime import (
     STOP_CHILD_PRIORITY,
     RealtimeConfig,
     apply_realtime_to_process,
+    leave_realtime_for_process,
 )
 from firmware_proto.runtime.stall import StallMonitor, stall_log_path
 
@@ -116,14 +117,20 @@ class Child:
         with port:
             self._send(("ready", middleware()))
             threading.Thread(target=self._receive, name="process-child-rx", daemon=True).start()
-            while True:
-                item = self._work.get()
-                if item[0] == "close":
-                    break
-                try:
-                    self._handle(port, item)
-                except (OSError, EOFError):
-                    break  # the parent is gone
+            try:
+                while True:
+                    item = self._work.get()
+                    if item[0] == "close":
+                        break
+                    try:
+                        self._handle(port, item)
+                    except (OSError, EOFError):
+                        break  # the parent is gone
+            finally:
+                # The node's end (a DDS participant destroyed, rclpy's shutdown) and the
+                # interpreter's, at normal priority, as its start: at the STOP lane's, two
+                # ending at once held both cores (docs/realtime.md).
+                leave_realtime_for_process()
         return 0
 
     def _receive(self) -> None:

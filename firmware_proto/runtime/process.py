@@ -24,6 +24,7 @@ from firmware_proto.runtime.realtime import (
     RealtimeConfig,
     RealtimeStatus,
     apply_realtime,
+    leave_realtime_for_process,
     restore_scheduling,
     saved_scheduling,
 )
@@ -108,6 +109,15 @@ class ProcessRuntime:
         self._previous_usr1 = signal.signal(signal.SIGUSR1, _dump_stacks)
         return self
 
+    def wind_down(self) -> None:
+        """The program has begun to end: every thread of it leaves real time
+        (:func:`~firmware_proto.runtime.realtime.leave_realtime_for_process`), so that
+        its teardown never holds a core above the programs still keeping time. Call it
+        once the work that must keep time is over (a signal came, the loop ended);
+        leaving the runtime does it too."""
+        if self.realtime is not None and self.realtime.granted:
+            leave_realtime_for_process()
+
     def __exit__(
         self,
         exc_type: type[BaseException] | None,
@@ -115,6 +125,7 @@ class ProcessRuntime:
         tb: TracebackType | None,
     ) -> None:
         signal.signal(signal.SIGUSR1, self._previous_usr1)
+        self.wind_down()
         install(None)
         self.monitor.close()
         restore_scheduling(self._previous_scheduling)

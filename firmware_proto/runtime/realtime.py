@@ -27,6 +27,9 @@ ros2_control's controller manager does (``realtime_tools::configure_sched_fifo``
 - :func:`apply_realtime_to_process` also promotes the threads the process already has: a
   process whose start is heavy work that starts threads (a DDS participant) does it at
   normal priority, then takes real time, every thread of it.
+- :func:`leave_realtime_for_process` is its reverse, for a program that is ending: its
+  end (threads joined, a DDS participant destroyed, the interpreter's finalisation) is
+  CPU-bound work of no urgency, done at normal priority as its start is.
 - :func:`realtime_threads` does the same for a stretch of code inside a process that
   must not keep real time for the rest of its life (a test, a library call such as a
   replay): the calling thread is put back as it was at the end, and only the threads
@@ -60,6 +63,7 @@ __all__ = [
     "apply_realtime",
     "apply_realtime_to_process",
     "in_realtime",
+    "leave_realtime_for_process",
     "module_command_at_normal_priority",
     "realtime_threads",
     "restore_scheduling",
@@ -261,6 +265,35 @@ def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
         except OSError:  # ended meanwhile, or not permitted
             continue
     return status
+
+
+def leave_realtime_for_process() -> int:
+    """Every thread of the calling process under ``SCHED_RR`` or ``SCHED_FIFO`` goes
+    back to normal scheduling (``SCHED_OTHER``, its nice kept); returns how many did.
+
+    For a program that has begun to end: its teardown (threads joined, a DDS participant
+    destroyed, the interpreter's finalisation: 50-300 ms of CPU) at real-time priority
+    held a core above every program of normal priority and the kernel's workers (a
+    pty's receive path runs in one), and two ending at once held both, so that another
+    link on the machine fell silent past its watchdog (docs/realtime.md). Threads that
+    end meanwhile are skipped. Nothing else changes: memory stays locked.
+    """
+    if not hasattr(os, "sched_setscheduler"):
+        return 0
+    try:
+        tids = [int(tid) for tid in os.listdir("/proc/self/task")]
+    except OSError:
+        return 0
+    realtime = (_POLICIES["rr"], _POLICIES["fifo"])
+    left = 0
+    for tid in tids:
+        try:
+            if os.sched_getscheduler(tid) in realtime:
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                left += 1
+        except OSError:  # ended meanwhile
+            continue
+    return left
 
 
 def in_realtime() -> bool:

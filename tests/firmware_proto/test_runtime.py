@@ -151,6 +151,38 @@ def test_a_whole_process_is_promoted_with_the_threads_it_already_started() -> No
     assert normal["granted"] is False and normal["policies"] == [os.SCHED_OTHER]
 
 
+_WIND_DOWN_PROBE = """
+import json, os, sys, threading
+from firmware_proto.runtime import ProcessRuntime, RuntimeOptions
+go = threading.Event()
+seen = {}
+def policies():
+    return sorted({os.sched_getscheduler(int(tid)) for tid in os.listdir("/proc/self/task")})
+os.setpriority(os.PRIO_PROCESS, 0, 4)
+with ProcessRuntime(RuntimeOptions("probe", priority=int(sys.argv[1]), lock_memory=False)) as rt:
+    t = threading.Thread(target=go.wait, args=(10,)); t.start()
+    seen["running"] = policies()
+    rt.wind_down()
+    seen["ending"] = policies()
+    seen["thread_nice"] = os.getpriority(os.PRIO_PROCESS, t.native_id)
+    rt.wind_down()  # again: nothing left to do
+    go.set(); t.join()
+seen["after"] = policies()
+print(json.dumps(seen))
+"""
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="granting real time needs root here")
+def test_an_ending_program_leaves_real_time_every_thread_of_it() -> None:
+    result = json.loads(_python(_WIND_DOWN_PROBE, "20").stdout)
+    assert result["running"] == [os.SCHED_RR]
+    assert result["ending"] == [os.SCHED_OTHER]  # the thread it started too
+    assert result["thread_nice"] == 4  # its nice is kept
+    assert result["after"] == [os.SCHED_OTHER]
+    normal = json.loads(_python(_WIND_DOWN_PROBE, "0").stdout)
+    assert normal["running"] == normal["ending"] == [os.SCHED_OTHER]
+
+
 def test_priority_zero_is_normal_scheduling() -> None:
     result = _probe(0)
     assert result["granted"] is False
