@@ -64,18 +64,19 @@ def chromium() -> Iterator[Any]:
 
 
 def _at_browser_nice(path: str, directory: Path) -> str:
-    """``path``, or a launcher in ``directory`` that runs it at :data:`BROWSER_NICE`
-    when this process runs below that (``nice`` adds to the caller's value)."""
-    increment = BROWSER_NICE - os.getpriority(os.PRIO_PROCESS, 0)
-    if increment <= 0:
-        return path
+    """A launcher in ``directory`` that runs ``path`` at :data:`BROWSER_NICE` or above
+    (``nice`` adds to the caller's value) and, as root, without ``CAP_SYS_NICE``:
+    Chromium lowers the nice of its own processes where it may (to -8, as root), and
+    without that capability it cannot go below the value it starts at (nor can any
+    other user's Chromium)."""
+    increment = max(0, BROWSER_NICE - os.getpriority(os.PRIO_PROCESS, 0))
+    command = f"{shlex.quote(path)} " + '"$@"'
+    if os.geteuid() == 0:
+        command = f"setpriv --bounding-set=-sys_nice --inh-caps=-sys_nice {command}"
+    if increment:
+        command = f"nice -n {increment} {command}"
     launcher = directory / "chromium"
-    # Chromium lowers the nice of its own processes where it may (to -8, as root):
-    # without CAP_SYS_NICE it cannot go below the value it starts at.
-    drop = (
-        "setpriv --bounding-set=-sys_nice --inh-caps=-sys_nice " if shutil.which("setpriv") else ""
-    )
-    launcher.write_text(f'#!/bin/sh\nexec nice -n {increment} {drop}{shlex.quote(path)} "$@"\n')
+    launcher.write_text(f"#!/bin/sh\nexec {command}\n")
     launcher.chmod(0o755)
     return str(launcher)
 
