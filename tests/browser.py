@@ -30,7 +30,7 @@ BROWSER_NICE = 10
 not take the CPU from the stack it watches. Started at the tests' own priority (nice -10
 in the test command), its start and its drawing held both cores beside a mission: every
 program of the stack at normal priority stalled 340-500 ms at once, and the pty's
-kernel worker with them, so the link fell silent (docs/testing.md)."""
+kernel worker with them, so the link fell silent (docs/realtime.md, Known limits)."""
 
 
 def chromium_path() -> str | None:
