@@ -253,11 +253,7 @@ def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
         return status
     policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
     me = threading.get_native_id()
-    try:
-        tids = [int(tid) for tid in os.listdir("/proc/self/task")]
-    except OSError:
-        return status
-    for tid in tids:
+    for tid in _own_threads():
         if tid == me:
             continue
         try:
@@ -280,13 +276,9 @@ def leave_realtime_for_process() -> int:
     """
     if not hasattr(os, "sched_setscheduler"):
         return 0
-    try:
-        tids = [int(tid) for tid in os.listdir("/proc/self/task")]
-    except OSError:
-        return 0
     realtime = (_POLICIES["rr"], _POLICIES["fifo"])
     left = 0
-    for tid in tids:
+    for tid in _own_threads():
         try:
             if os.sched_getscheduler(tid) in realtime:
                 os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
@@ -294,6 +286,14 @@ def leave_realtime_for_process() -> int:
         except OSError:  # ended meanwhile
             continue
     return left
+
+
+def _own_threads() -> list[int]:
+    """The calling process's thread ids (none where ``/proc`` cannot tell)."""
+    try:
+        return [int(tid) for tid in os.listdir("/proc/self/task")]
+    except OSError:
+        return []
 
 
 def in_realtime() -> bool:
