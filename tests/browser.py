@@ -14,6 +14,8 @@ from typing import Any
 
 import pytest
 
+from tests.procs import descendants
+
 CHROMIUM_ARGS = [
     "--no-sandbox",  # root in CI
     "--disable-gpu",
@@ -85,7 +87,7 @@ def _check_niced() -> None:
     """Every browser process this test started runs at :data:`BROWSER_NICE` or above
     (Playwright's driver, ``node``, is not the browser)."""
     seen = 0
-    for pid in _descendants(os.getpid()):
+    for pid in descendants(os.getpid()):
         try:
             if Path(f"/proc/{pid}/comm").read_text().strip() != "chromium":
                 continue
@@ -95,23 +97,3 @@ def _check_niced() -> None:
         seen += 1
         assert nice >= BROWSER_NICE, f"chromium {pid} runs at nice {nice}"
     assert seen, "no chromium process among this test's"
-
-
-def _descendants(root: int) -> list[int]:
-    """The processes below ``root`` (from /proc: each one's parent)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
-        except OSError:
-            continue
-        ppid = int(stat.rsplit(")", 1)[1].split()[1])
-        children.setdefault(ppid, []).append(int(entry))
-    out, todo = [], [root]
-    while todo:
-        for child in children.get(todo.pop(), []):
-            out.append(child)
-            todo.append(child)
-    return out

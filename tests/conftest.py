@@ -28,12 +28,12 @@ import tempfile
 import threading
 import time
 from collections.abc import Generator, Iterator
-from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
 
 from tests.lanes import lane_marks
+from tests.procs import children as children_of
 
 # Seeded and reproducible: the same examples on every run and every machine.
 settings.register_profile(
@@ -171,16 +171,6 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
             )
 
 
-def _children() -> set[int]:
-    pids: set[int] = set()
-    for task in Path("/proc/self/task").iterdir():
-        try:
-            pids.update(int(p) for p in (task / "children").read_text().split())
-        except OSError:
-            continue
-    return pids
-
-
 def _fds() -> set[int]:
     return {int(name) for name in os.listdir("/proc/self/fd")}
 
@@ -198,13 +188,13 @@ def _no_leaks(request: pytest.FixtureRequest) -> Iterator[None]:
         yield
         return
     threads_before = set(threading.enumerate())
-    children_before = _children()
+    children_before = children_of(os.getpid())
     fds_before = _fds()
     yield
     deadline = time.monotonic() + LEAK_GRACE_S
     while True:
         threads = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
-        children = _children() - children_before
+        children = children_of(os.getpid()) - children_before
         fds = _fds() - fds_before
         if not (threads or children or fds) or time.monotonic() > deadline:
             break

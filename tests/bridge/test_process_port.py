@@ -34,6 +34,7 @@ from firmware_proto.runtime.realtime import (
 from tests.bridge.conftest import Inbox
 from tests.bridge.test_node import bridge_on
 from tests.child import Child
+from tests.procs import children
 
 pytestmark = pytest.mark.rclpy
 
@@ -170,14 +171,6 @@ def test_a_node_process_dying_fails_the_port_clearly(
     port.close()  # returns: nothing waits for the dead child
 
 
-def _children(pid: int) -> list[int]:
-    found: list[int] = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        text = (task / "children").read_text()
-        found += [int(child) for child in text.split()]
-    return found
-
-
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -194,7 +187,7 @@ def _bridge(emulators: Callable[..., Emulator]) -> Iterator[tuple[Child, list[in
     bridge = Child(["bridge", "--device", emu.frontend.device], dict(os.environ))
     try:
         assert bridge.wait_for("BRIDGE ").endswith(" rclpy-process")
-        nodes = _children(bridge.proc.pid)
+        nodes = sorted(children(bridge.proc.pid))
         assert len(nodes) == 2, nodes  # the node, and the STOP lane's node
         yield bridge, nodes
     finally:
