@@ -23,7 +23,9 @@ ROS 2. Where either is missing they skip, saying why; with ``ROVER_REQUIRE_RCLPY
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 import threading
 import time
@@ -59,10 +61,12 @@ if _WORKER.startswith("gw"):
     os.environ["ROS_DOMAIN_ID"] = str((_base + int(_WORKER[2:])) % 100)
 
 #: The processes a test starts log their stalls (docs/realtime.md) to a log of this run's
-#: own, not to the host's shared one.
-os.environ.setdefault(
-    "ROVER_STALL_LOG", os.path.join(tempfile.mkdtemp(prefix="rover-test-stalls-"), "stalls.jsonl")
-)
+#: own, not to the host's shared one; the process that made it (pytest-xdist's workers
+#: inherit it) removes it when it exits.
+if "ROVER_STALL_LOG" not in os.environ:
+    _stall_dir = tempfile.mkdtemp(prefix="rover-test-stalls-")
+    os.environ["ROVER_STALL_LOG"] = os.path.join(_stall_dir, "stalls.jsonl")
+    atexit.register(shutil.rmtree, _stall_dir, ignore_errors=True)
 
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
 LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
