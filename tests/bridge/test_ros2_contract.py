@@ -16,7 +16,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Any
 
 import pytest
 
+from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.inbox import Inbox
 from tests.bridge.conftest import IN_VCAN_VM
 from tests.child import Child
@@ -290,7 +290,7 @@ HAVE_VCAN0 = Path("/sys/class/net/vcan0").exists()
 @pytest.mark.timeout(400)  # a whole mission in the VM's software CPU: 40 to 92 s seen
 @pytest.mark.skipif(not HAVE_VCAN0, reason="no vcan0 here (.ci/test runs this in .ci/vcan-vm)")
 def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
-    tmp_path: Path, client: PlainClient
+    tmp_path: Path, client: PlainClient, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """``rover emulate --can socketcan:vcan0`` and ``rover bridge --can socketcan:vcan0``
     as processes, a plain rclpy client driving a mission step by step, then STOP; both
@@ -335,7 +335,11 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
             child.stop()
     assert [c.proc.returncode for c in children] == [0, 0], [c.errors[-5:] for c in children]
 
-    decoded = _rover("decode", "--no-telemetry", str(bridge_log)).splitlines()
+    # `rover decode` in this process (in the VM's software CPU a Python process takes
+    # about 4.5 s to start; `rover` as a process: tests/firmware_proto/test_cli.py).
+    capsys.readouterr()
+    assert rover_cli(["decode", "--no-telemetry", str(bridge_log)]) == 0
+    decoded = capsys.readouterr().out.splitlines()
     motions = [line for line in decoded if "MOTION seq=" in line]
     assert len(motions) >= 2, decoded  # the step, the long one
     assert any("STOP stop_id=" in line for line in decoded), decoded
@@ -344,21 +348,13 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
     assert frames and {iface for iface, _ in frames} == {"vcan0"}
     replayed = _replay_and_capture(bridge_log, len(frames), tmp_path / "replayed.log")
     assert [f for _, f in _candump_frames(replayed)] == [f for _, f in frames]
-    again = _rover("decode", "--no-telemetry", str(replayed)).splitlines()
+    assert rover_cli(["decode", "--no-telemetry", str(replayed)]) == 0
+    again = capsys.readouterr().out.splitlines()
     # The order is checked frame for frame above; decode orders each log by its own
     # times, which may break a tie of two frames of the same microsecond differently.
     assert sorted(line.split(None, 1)[1] for line in again) == sorted(
         line.split(None, 1)[1] for line in decoded
     )
-
-
-def _rover(*args: str) -> str:
-    done = subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", *args],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    return done.stdout
 
 
 def _candump_frames(log: Path) -> list[tuple[str, str]]:
