@@ -1,6 +1,7 @@
-"""A pytest plugin for tests/test_lanes.py: after collection (the lanes' marks applied by
-tests/conftest.py), write each test's node id and the names of its marks, one test per
-line (``nodeid<TAB>mark,mark``), to the file that ``ROVER_DUMP_MARKS`` names."""
+"""A pytest plugin for tests/test_lanes.py and ``.ci/test`` (which reads from it the
+modules its serial and VM parts need): after collection (the lanes' marks applied by
+tests/conftest.py), write each selected test's node id and the names of its marks, one
+test per line (``nodeid<TAB>mark,mark``), to the file that ``ROVER_DUMP_MARKS`` names."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 against each controller (docs/sim.md), every invariant checked after each.
 
 The test command plays 5,000 scenarios per controller (four chunks of 1,250, in its
-background part: marker ``virtual``), on both media, which is more than one simulated
+soak part: marker ``soak``), on both media, which is more than one simulated
 rover-hour each; the fast lane (``-m "not slow"``) plays 150 per controller."""
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ def _check(report: SoakReport) -> None:
 
 @pytest.mark.slow
 @pytest.mark.virtual
-@pytest.mark.timeout(600)  # about 12 s of CPU; .ci/test runs it below the real-time tests
+@pytest.mark.soak  # .ci/test runs these in a part of their own, on CPU no other part wants
+@pytest.mark.timeout(900)  # about 10 s of CPU; .ci/test runs it below every other part
 @pytest.mark.parametrize("chunk", range(CHUNKS))
 @pytest.mark.parametrize("controller", CONTROLLERS)
 def test_thousands_of_seeded_scenarios_keep_every_invariant(controller: str, chunk: int) -> None:
