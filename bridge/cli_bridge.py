@@ -25,9 +25,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import signal
 import sys
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -284,7 +282,12 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     from bridge.rosport import BackendUnavailableError, open_port
     from bridge.serial_transport import refuse_if_in_use
     from bridge.transport import open_transport
-    from firmware_proto.runtime import ProcessRuntime, RuntimeOptions, stall_log_path
+    from firmware_proto.runtime import (
+        ProcessRuntime,
+        RuntimeOptions,
+        ShutdownSignals,
+        stall_log_path,
+    )
 
     try:
         params, layer = resolve_params(args, ros_args)
@@ -301,9 +304,6 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     options: dict[str, Any] = {}
     if params.ros_backend in ("rclpy", "rclpy-process") and ros_args:
         options["args"] = ["--ros-args", *ros_args]
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
     # First, before any thread starts: every thread of the link inherits the policy.
     runtime = ProcessRuntime(
         RuntimeOptions(
@@ -314,7 +314,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
             short_switch=True,  # a STOP must not wait 5 ms for the interpreter lock
         )
     )
-    with runtime:
+    with ShutdownSignals() as done, runtime:
         print(runtime.line(), file=sys.stderr, flush=True)
         try:
             port = open_port(

@@ -9,15 +9,13 @@ values stand for long options (docs/ros2.md).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from firmware_proto.cli import values
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
-from firmware_proto.runtime import ProcessRuntime
+from firmware_proto.runtime import ProcessRuntime, ShutdownSignals
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 
 if TYPE_CHECKING:
@@ -367,12 +365,9 @@ def _serve(
     frontend: FrontEnd,
     faults: list[FaultSpec],
 ) -> int:
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
     # Everything is checked; before any thread starts, so that all inherit the policy.
     runtime = ProcessRuntime(runtime_options(args, "emulator", EMULATOR_PRIORITY))
-    with runtime:
+    with ShutdownSignals() as done, runtime:
         print(runtime.line(), file=sys.stderr, flush=True)
         return _serve_emulator(args, model, frontend, faults, done)
 
@@ -382,7 +377,7 @@ def _serve_emulator(
     model: ControllerModel,
     frontend: FrontEnd,
     faults: list[FaultSpec],
-    done: threading.Event,
+    done: ShutdownSignals,
 ) -> int:
     from emulator.can_frontend import CanFrontEnd
     from emulator.control import ControlServer
@@ -414,7 +409,7 @@ def _serve_emulator(
             deadline = args.duration if args.duration > 0 else None
             interval = args.status if args.status > 0 else None
             waited = 0.0
-            while not done.is_set():
+            while not done.received:
                 step = min(x for x in (interval, 0.5) if x is not None)
                 if deadline is not None:
                     step = min(step, max(0.0, deadline - waited))

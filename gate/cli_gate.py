@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
 
 from firmware_proto.cli import values
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
-from firmware_proto.runtime import ProcessRuntime
+from firmware_proto.runtime import ProcessRuntime, ShutdownSignals
 
 __all__ = ["add_arguments", "main", "register"]
 
@@ -190,24 +188,14 @@ def _serve(args: argparse.Namespace) -> int:
         if args.twin_path
         else None
     )
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: object) -> None:
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with (
-            ProcessRuntime(runtime_options(args, "gate")),
-            GateServer(config, validator=validator) as gate,
-        ):
-            print(f"GATE {gate.url}", flush=True)
-            while not stop.wait(3600.0):
-                pass
-            print("gate: shutting down", file=sys.stderr, flush=True)
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+    with (
+        ShutdownSignals() as signals,
+        ProcessRuntime(runtime_options(args, "gate")),
+        GateServer(config, validator=validator) as gate,
+    ):
+        print(f"GATE {gate.url}", flush=True)
+        signals.wait(None)
+        print("gate: shutting down", file=sys.stderr, flush=True)
     return 0
 
 

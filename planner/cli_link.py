@@ -6,14 +6,12 @@ Also the ``rover_link`` console script for ``ros2 run`` (:func:`main`).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 from collections.abc import Sequence
 from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
-from firmware_proto.runtime import ProcessRuntime
+from firmware_proto.runtime import ProcessRuntime, ShutdownSignals
 
 __all__ = ["add_arguments", "main", "register", "run"]
 
@@ -68,10 +66,8 @@ def run(args: argparse.Namespace) -> int:
     profile = LinkProfile(
         one_way_delay_s=args.rtt / 2.0, jitter_s=args.jitter, loss=args.loss, seed=args.seed
     )
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
     with (
+        ShutdownSignals() as done,
         ProcessRuntime(runtime_options(args, "link")),
         open_port(
             args.ros_backend, namespace=args.ground_namespace, node_name="rover_link"

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import sys
 import tempfile
@@ -171,6 +170,7 @@ def _health(console: Any, timeout_s: float) -> Any:
 
 def _up(args: argparse.Namespace) -> int:
     from bridge.rosport import open_port
+    from firmware_proto.runtime import ShutdownSignals
     from planner.console import RoverConsole
     from planner.domains import claim
     from planner.stack import Stack, StackConfig
@@ -188,96 +188,86 @@ def _up(args: argparse.Namespace) -> int:
         startup_timeout_s=args.startup_timeout,
         inject=tuple(args.inject),
     )
-    done = threading.Event()
     up = threading.Event()
+    # While the stack starts, a signal ends the start-up at once (KeyboardInterrupt).
+    with ShutdownSignals(interrupt=True) as done, claim(args.domain) as held:
+        domain = held.domain
+        os.environ.update({"ROS_DOMAIN_ID": str(domain)})
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        _say(f"rover stack: ROS 2 domain {domain}, discovery on this host; starting the parts")
 
-    def on_signal(signum: int, frame: Any) -> None:
-        if not up.is_set():
-            raise KeyboardInterrupt  # still starting: end the start-up now
-        done.set()
+        def forward(name: str, line: str) -> None:
+            if up.is_set() or name == "bridge":
+                _say(f"[{name}] {line}")
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with claim(args.domain) as held:
-            domain = held.domain
-            os.environ.update({"ROS_DOMAIN_ID": str(domain)})
-            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-            _say(f"rover stack: ROS 2 domain {domain}, discovery on this host; starting the parts")
-
-            def forward(name: str, line: str) -> None:
-                if up.is_set() or name == "bridge":
-                    _say(f"[{name}] {line}")
-
-            logs = Path(tempfile.mkdtemp(prefix="rover-stack-logs-"))
-            _say(f"rover stack: each part's log and the stall log in {logs}")
-            with Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack:
-                try:
-                    endpoints = stack.start()
-                except KeyboardInterrupt:
-                    _say("rover stack: interrupted while starting; stopping what started")
-                    return 0
-                variables = stack_environment(
-                    domain,
-                    endpoints.gate_url,
-                    endpoints.control,
-                    config.rtt_s,
-                    config.speed,
-                    logs / "stalls.jsonl",
+        logs = Path(tempfile.mkdtemp(prefix="rover-stack-logs-"))
+        _say(f"rover stack: each part's log and the stall log in {logs}")
+        with Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack:
+            try:
+                endpoints = stack.start()
+            except KeyboardInterrupt:
+                _say("rover stack: interrupted while starting; stopping what started")
+                return 0
+            variables = stack_environment(
+                domain,
+                endpoints.gate_url,
+                endpoints.control,
+                config.rtt_s,
+                config.speed,
+                logs / "stalls.jsonl",
+            )
+            held.publish({"env": variables, "device": endpoints.device})
+            _say(f"GATE {endpoints.gate_url}")
+            if endpoints.control:
+                _say(f"CONTROL {endpoints.control} (the emulator: rover stack inject FAULT)")
+            _say(f"DEVICE {endpoints.device}")
+            wait_s = config.startup_timeout_s + config.rtt_s / config.speed
+            with (
+                open_port("rclpy", namespace="ground", node_name="rover_stack") as port,
+                RoverConsole(port) as console,
+            ):
+                health = _health(console, wait_s)
+            if health is None:
+                failed = stack.failed()
+                why = (
+                    f"the {failed.name} exited: {failed.stderr_tail()}"
+                    if failed is not None
+                    else "no /ground/diagnostics through the link"
                 )
-                held.publish({"env": variables, "device": endpoints.device})
-                _say(f"GATE {endpoints.gate_url}")
-                if endpoints.control:
-                    _say(f"CONTROL {endpoints.control} (the emulator: rover stack inject FAULT)")
-                _say(f"DEVICE {endpoints.device}")
-                wait_s = config.startup_timeout_s + config.rtt_s / config.speed
-                with (
-                    open_port("rclpy", namespace="ground", node_name="rover_stack") as port,
-                    RoverConsole(port) as console,
-                ):
-                    health = _health(console, wait_s)
-                if health is None:
-                    failed = stack.failed()
-                    why = (
-                        f"the {failed.name} exited: {failed.stderr_tail()}"
-                        if failed is not None
-                        else "no /ground/diagnostics through the link"
-                    )
+                print(
+                    f"rover stack: error: the rover's state never came back within "
+                    f"{wait_s:g} s ({why})",
+                    file=sys.stderr,
+                )
+                return 1
+            for line in health.text(f"domain {domain}, through the link").splitlines():
+                _say("health: " + line.strip())
+            _say(f"STACK UP domain {domain}")
+            _say("point rover go / status / stop / clear-stop / echo at it, in any shell:")
+            _say("  " + export_line(variables))
+            _say('  (or: eval "$(rover stack env)")')
+            _say("Ctrl-C stops the stack")
+            up.set()
+            done.interrupt = False
+            end = time.monotonic() + args.duration if args.duration > 0 else None
+            status = 0
+            while not done.received:
+                if end is not None and time.monotonic() >= end:
+                    break
+                failed = stack.failed()
+                if failed is not None:
                     print(
-                        f"rover stack: error: the rover's state never came back within "
-                        f"{wait_s:g} s ({why})",
+                        f"rover stack: error: the {failed.name} exited with status "
+                        f"{failed.exit_status}: {failed.stderr_tail() or 'no message'}; "
+                        "stopping the stack",
                         file=sys.stderr,
                     )
-                    return 1
-                for line in health.text(f"domain {domain}, through the link").splitlines():
-                    _say("health: " + line.strip())
-                _say(f"STACK UP domain {domain}")
-                _say("point rover go / status / stop / clear-stop / echo at it, in any shell:")
-                _say("  " + export_line(variables))
-                _say('  (or: eval "$(rover stack env)")')
-                _say("Ctrl-C stops the stack")
-                up.set()
-                end = time.monotonic() + args.duration if args.duration > 0 else None
-                status = 0
-                while not done.is_set():
-                    if end is not None and time.monotonic() >= end:
-                        break
-                    failed = stack.failed()
-                    if failed is not None:
-                        print(
-                            f"rover stack: error: the {failed.name} exited with status "
-                            f"{failed.exit_status}: {failed.stderr_tail() or 'no message'}; "
-                            "stopping the stack",
-                            file=sys.stderr,
-                        )
-                        status = 1
-                        break
-                    done.wait(0.5)
-                _say("rover stack: stopping the link, the bridge, the emulator and the gate")
-            _say("rover stack: down")
-            return status
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+                    status = 1
+                    break
+                done.wait(0.5)
+            _say("rover stack: stopping the link, the bridge, the emulator and the gate")
+        _say("rover stack: down")
+        return status
 
 
 # -- rover stack env / inject -------------------------------------------------------------

@@ -51,6 +51,7 @@ SLOW_MODULES = (
     "tests/firmware_proto/test_httpserve.py",
     "tests/firmware_proto/test_libfuzzer.py",
     "tests/firmware_proto/test_runtime.py",
+    "tests/firmware_proto/test_signals.py",
     "tests/firmware_proto/test_values.py",
     "tests/gate/test_cli.py",
     "tests/gate/test_hostile.py",

@@ -8,6 +8,7 @@ modules never import it; every part above may.
 
 from firmware_proto.runtime.process import ProcessRuntime, RuntimeOptions
 from firmware_proto.runtime.realtime import RealtimeConfig, RealtimeStatus, apply_realtime
+from firmware_proto.runtime.signals import ShutdownSignals
 from firmware_proto.runtime.stall import (
     Beat,
     StallMonitor,
@@ -23,6 +24,7 @@ __all__ = [
     "RealtimeConfig",
     "RealtimeStatus",
     "RuntimeOptions",
+    "ShutdownSignals",
     "StallMonitor",
     "StallRecord",
     "apply_realtime",

@@ -1,0 +1,111 @@
+"""SIGINT and SIGTERM for a program's main loop, received without a lock.
+
+A handler that calls ``threading.Event.set()`` can hang its own process for ever. Python
+runs a signal's handler in the main thread, between two bytecodes; when that falls inside
+``Event.wait()`` on the same event (after ``wait`` took the event's lock, before it
+released it to sleep), ``set()`` waits for a lock its own thread holds. ``rover gate``
+hung so after a SIGTERM in the test command (2026-11-27): it never said it was shutting
+down. Here the handler only stores the signal's number, and the interpreter's wake-up
+file descriptor (:func:`signal.set_wakeup_fd`, written by its C-level handler in
+whichever thread the signal lands) wakes :meth:`ShutdownSignals.wait`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import signal
+import threading
+import time
+from types import FrameType, TracebackType
+from typing import Any
+
+__all__ = ["ShutdownSignals"]
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class ShutdownSignals:
+    """While entered (in the main thread), SIGINT and SIGTERM end :meth:`wait`; the first
+    one received is :attr:`signum`. On exit the previous handlers and wake-up descriptor
+    are put back. Entered in another thread it changes nothing and :meth:`wait` only
+    times out (signals are the main thread's).
+
+    ``interrupt``: while it is true (an attribute the program may change, e.g. while it
+    starts up), a signal raises :class:`KeyboardInterrupt` in the main thread instead,
+    as Python's own SIGINT handler does.
+    """
+
+    def __init__(self, *, interrupt: bool = False) -> None:
+        self.interrupt = interrupt
+        self.signum: int | None = None
+        """The first signal received, or ``None``."""
+        self._previous: dict[int, Any] = {}
+        self._previous_fd: int | None = None
+        self._read_fd = self._write_fd = -1
+
+    @property
+    def received(self) -> bool:
+        """A signal came."""
+        return self.signum is not None
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        # No lock taken here, nothing but stores (see the module's docstring).
+        if self.signum is None:
+            self.signum = signum
+        if self.interrupt:
+            raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    def __enter__(self) -> ShutdownSignals:
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        self._read_fd, self._write_fd = os.pipe()
+        os.set_blocking(self._read_fd, False)
+        os.set_blocking(self._write_fd, False)
+        self._previous_fd = signal.set_wakeup_fd(self._write_fd, warn_on_full_buffer=False)
+        for sig in SIGNALS:
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if self._read_fd < 0:
+            return
+        while self._previous:
+            sig, handler = self._previous.popitem()
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        signal.set_wakeup_fd(self._previous_fd if self._previous_fd is not None else -1)
+        for fd in (self._read_fd, self._write_fd):
+            os.close(fd)
+        self._read_fd = self._write_fd = -1
+
+    def wait(self, timeout_s: float | None) -> bool:
+        """Wait up to ``timeout_s`` seconds (``None``: for ever) for a signal; whether one
+        came (now or before)."""
+        deadline = None if timeout_s is None else time.monotonic() + max(0.0, timeout_s)
+        while self.signum is None:
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return False
+            if self._read_fd < 0:  # not the main thread: nothing can wake this wait
+                time.sleep(remaining if remaining is not None else 3600.0)
+                continue
+            ready, _, _ = select.select([self._read_fd], [], [], remaining)
+            if ready:
+                self._drain()
+        return True
+
+    def _drain(self) -> None:
+        """Read the wake-up bytes: each is the number of a signal Python handled. Ours
+        count at once (the Python-level handler may not have run yet when the signal
+        landed in another thread); others (e.g. SIGUSR1's stack dump) only woke us."""
+        with contextlib.suppress(BlockingIOError):
+            while data := os.read(self._read_fd, 512):
+                for number in data:
+                    if number in SIGNALS and self.signum is None:
+                        self.signum = number
