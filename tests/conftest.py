@@ -68,6 +68,16 @@ if "ROVER_STALL_LOG" not in os.environ:
     os.environ["ROVER_STALL_LOG"] = os.path.join(_stall_dir, "stalls.jsonl")
     atexit.register(shutil.rmtree, _stall_dir, ignore_errors=True)
 
+#: Every ``rover stack up`` and ``rover demo`` a test starts claims its ROS domain in one
+#: directory for the whole run (planner/domains.py; pytest-xdist's workers inherit it),
+#: so that two at once, on two workers, get two domains (in a directory of each test's
+#: own, a stack and a demo both took domain 101 and drove on each other's topics), and
+#: none takes one that the user's own stacks hold.
+if "ROVER_STACK_DIR" not in os.environ:
+    _stacks_dir = tempfile.mkdtemp(prefix="rover-test-stacks-")
+    os.environ["ROVER_STACK_DIR"] = _stacks_dir
+    atexit.register(shutil.rmtree, _stacks_dir, ignore_errors=True)
+
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
 LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
 SKIP_NETNS_REASON = (

@@ -1,12 +1,15 @@
 """Planner fixtures: a real gate on 127.0.0.1 (its HTTP server in this process, one
 worker thread, or a ``rover gate`` process), clients of it, the planner, maps as the
-planner reads them."""
+planner reads them; one ``rover stack up`` at a time in a run."""
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -17,6 +20,7 @@ from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.worldmap import WorldMap, list_maps, load_map
 from gate.config import GateConfig
 from gate.server import GateServer
+from planner.domains import registry_dir
 from planner.gate_client import GateClient
 from planner.orchestrator import PlannerOrchestrator
 from planner.planner import HeuristicLowLevelPlanner
@@ -159,3 +163,29 @@ def slot_map(path: Path) -> Path:
     }
     path.write_text(json.dumps(doc), encoding="utf-8")
     return path
+
+
+@pytest.fixture
+def one_stack() -> Iterator[None]:
+    """Hold the run's stack lock for the test: one ``rover stack up`` at a time.
+
+    Stacks and demos claim their ROS domains in the run's one directory
+    (tests/conftest.py), so two never share one; but ``rover stack env``, ``rover stack
+    inject`` and ``rover status`` without ``--domain`` name *the* stack, and with two
+    running they ask which. A test that starts a stack takes this, so that the commands
+    it runs as the docs write them find one (waiting up to 600 s for another's)."""
+    path = registry_dir() / "tests-one-stack.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        deadline = time.monotonic() + 600.0
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"another test's rover stack held {path} 600 s") from None
+                time.sleep(0.1)  # flock has no time limit of its own
+        yield
+    finally:
+        os.close(fd)  # drops the lock

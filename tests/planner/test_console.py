@@ -196,12 +196,12 @@ def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
 
 
 @pytest.mark.rclpy
-def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path) -> None:
+def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path, one_stack: None) -> None:
     """``rover stack up --device``: the bridge opens the device given (here a
     ``rover emulate`` the lab started itself); no emulator is started, no control port
     is offered, and the health comes back through the link."""
     device = tmp_path / "rover-motor"
-    env = {**os.environ, domains.DIR_ENV: str(tmp_path / "stacks")}
+    env = dict(os.environ)  # the run's stack directory (tests/conftest.py)
     emulator = Child(["emulate", "--serial", "--link", str(device)], env)
     stack: Child | None = None
     try:

@@ -43,7 +43,7 @@ def _rover(
 
 
 def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
-    tmp_path: Path,
+    tmp_path: Path, one_stack: None
 ) -> None:
     steps = _walkthrough_commands()
     assert steps == [
@@ -57,7 +57,7 @@ def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
         "rover clear-stop",
         "rover go --goal by_the_pillar",
     ], "the walkthrough of docs/commands.md changed: change this test with it"
-    env = {**os.environ, "ROVER_STACK_DIR": str(tmp_path / "stacks")}
+    env = dict(os.environ)  # the run's stack directory (tests/conftest.py)
     env.pop("ROS_DOMAIN_ID", None)  # the stack picks its own
     stack = Child(["stack", "up", "--speed", "4"], env)
     try:
