@@ -7,6 +7,13 @@ ends with STOP and the mission reports ``cancelled``. A second signal raises
 ``KeyboardInterrupt`` in the main thread, for an operator who cannot wait; the executor
 sends STOP on that path too before the exception goes on.
 
+``on_signal`` runs on a thread of its own (``signal-dispatch``), not in the handler:
+Python runs a handler in the main thread between two bytecodes, and one that set an
+event while the main thread was inside that event's ``wait`` (the mission loop waits on
+``cancel``; ``rover go`` waits on the end of its hold) would wait for ever for a lock its
+own thread holds (firmware_proto/runtime/signals.py says how ``rover gate`` hung so).
+The handler only stores the signal and writes its number to a pipe.
+
 Signal handlers can only be installed from the main thread; elsewhere the context
 manager does nothing (say so in the log) and signals keep their handlers.
 """
@@ -14,6 +21,7 @@ manager does nothing (say so in the log) and signals keep their handlers.
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import threading
 from collections.abc import Callable
@@ -24,15 +32,19 @@ __all__ = ["CancelOnSignal"]
 
 logger = logging.getLogger(__name__)
 
+_END = 0
+"""Written to the dispatch pipe to end its thread (no signal has number 0)."""
+
 
 class CancelOnSignal:
     """Within ``with``: the first SIGINT/SIGTERM calls ``on_signal(signum)``, the next
     raises ``KeyboardInterrupt``; the previous handlers come back on exit.
 
     Args:
-        on_signal: called in the main thread, between two bytecodes of whatever it runs:
-            keep it short (set an event, print a line). It may raise (e.g.
-            ``KeyboardInterrupt`` while nothing is running yet that needs a STOP).
+        on_signal: called on the ``signal-dispatch`` thread, soon after the signal: keep
+            it short (set an event, print a line). It may raise ``KeyboardInterrupt``
+            (e.g. while nothing is running yet that needs a STOP): the main thread then
+            gets one.
 
     Attributes:
         signum: the first signal received, or ``None``.
@@ -44,6 +56,9 @@ class CancelOnSignal:
         self.on_signal = on_signal
         self.signum: int | None = None
         self._previous: dict[int, Any] = {}
+        self._read_fd = self._write_fd = -1
+        self._dispatcher: threading.Thread | None = None
+        self._interrupt = ""  # why the main thread is to raise KeyboardInterrupt, if set
 
     @property
     def exit_status(self) -> int:
@@ -52,15 +67,39 @@ class CancelOnSignal:
         return 128 + self.signum if self.signum is not None else 1
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
+        # In the main thread, between two bytecodes: no lock taken here.
+        if self._interrupt:
+            reason, self._interrupt = self._interrupt, ""
+            raise KeyboardInterrupt(reason)
         if self.signum is not None:
             raise KeyboardInterrupt(f"signal {signal.Signals(signum).name} received twice")
         self.signum = signum
-        self.on_signal(signum)
+        os.write(self._write_fd, bytes([signum]))
+
+    def _dispatch(self) -> None:
+        """The ``signal-dispatch`` thread: ``on_signal`` for each signal written."""
+        while (data := os.read(self._read_fd, 1)) and data[0] != _END:
+            try:
+                self.on_signal(data[0])
+            except KeyboardInterrupt as exc:
+                # The main thread's handler raises it: the signal again, to the main
+                # thread (a wait there ends at once, as it would have for the first).
+                self._interrupt = str(exc) or "interrupted"
+                main = threading.main_thread().ident
+                if main is not None:
+                    signal.pthread_kill(main, data[0])
+            except Exception:
+                logger.exception("the handler of %s failed", signal.Signals(data[0]).name)
 
     def __enter__(self) -> CancelOnSignal:
         if threading.current_thread() is not threading.main_thread():
             logger.info("not the main thread: SIGINT/SIGTERM keep their handlers")
             return self
+        self._read_fd, self._write_fd = os.pipe()
+        self._dispatcher = threading.Thread(
+            target=self._dispatch, name="signal-dispatch", daemon=True
+        )
+        self._dispatcher.start()
         for sig in self.SIGNALS:
             self._previous[sig] = signal.signal(sig, self._handle)
         return self
@@ -74,3 +113,13 @@ class CancelOnSignal:
         while self._previous:
             sig, handler = self._previous.popitem()
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        if self._dispatcher is None:
+            return
+        os.write(self._write_fd, bytes([_END]))  # after any signal written before it
+        self._dispatcher.join(timeout=10.0)
+        if self._dispatcher.is_alive():
+            logger.warning("signal-dispatch still runs a handler after 10 s; left to end")
+        else:
+            os.close(self._read_fd)
+        os.close(self._write_fd)
+        self._dispatcher = None

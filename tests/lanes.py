@@ -59,6 +59,7 @@ SLOW_MODULES = (
     "tests/planner/test_console.py",
     "tests/planner/test_demo.py",
     "tests/planner/test_executor.py",
+    "tests/planner/test_interrupt.py",
     "tests/planner/test_foxlive.py",
     "tests/planner/test_ground_e2e.py",
     "tests/planner/test_mission.py",

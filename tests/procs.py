@@ -1,11 +1,18 @@
 """The processes below a process, from ``/proc`` (Linux): what the tests that check
-children (none leaked, a node's process, the browser's) read."""
+children (none leaked, a node's process, the browser's) read; and a snippet of Python
+run in a child of its own (signals are a process's main thread's)."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
-__all__ = ["children", "descendants"]
+__all__ = ["children", "descendants", "run_snippet"]
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def children(pid: int) -> set[int]:
@@ -32,3 +39,14 @@ def descendants(pid: int) -> set[int]:
             found.add(child)
             todo.append(child)
     return found
+
+
+def run_snippet(header: str, body: str, timeout_s: float = 60.0) -> dict[str, object]:
+    """Run ``header`` then ``body`` (dedented) as a Python program in a child, at the
+    repository's root; the JSON object it prints last. Its exit status must be 0."""
+    done = subprocess.run(
+        [sys.executable, "-c", header + "\n" + textwrap.dedent(body)],
+        capture_output=True, text=True, cwd=ROOT, timeout=timeout_s, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return dict(json.loads(done.stdout.splitlines()[-1]))

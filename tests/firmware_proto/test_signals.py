@@ -7,28 +7,18 @@ test by its time limit, not by a clock."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-import textwrap
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.procs import run_snippet
+
+HEADER = """import json, os, signal, threading
+from firmware_proto.runtime import ShutdownSignals"""
 
 
 def _run(body: str) -> dict[str, object]:
-    """Run ``body`` (with ``ShutdownSignals``, ``signal``, ``threading`` and ``os``
+    """Run ``body`` (``ShutdownSignals``, ``signal``, ``threading``, ``os`` and ``json``
     imported) in a child; the JSON it prints last."""
-    script = "import json, os, signal, threading\n"
-    script += "from firmware_proto.runtime import ShutdownSignals\n" + textwrap.dedent(body)
-    done = subprocess.run(
-        [sys.executable, "-c", script],
-        capture_output=True, text=True, cwd=ROOT, timeout=60, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    return dict(json.loads(done.stdout.splitlines()[-1]))
+    return run_snippet(HEADER, body)
 
 
 def test_a_signal_to_the_process_ends_the_wait_and_is_remembered() -> None:
