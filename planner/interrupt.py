@@ -28,6 +28,8 @@ from collections.abc import Callable
 from types import FrameType, TracebackType
 from typing import Any
 
+from firmware_proto.runtime.signals import install_handler, restore_handlers
+
 __all__ = ["CancelOnSignal"]
 
 logger = logging.getLogger(__name__)
@@ -49,8 +51,6 @@ class CancelOnSignal:
     Attributes:
         signum: the first signal received, or ``None``.
     """
-
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self, on_signal: Callable[[int], None]) -> None:
         self.on_signal = on_signal
@@ -100,8 +100,7 @@ class CancelOnSignal:
             target=self._dispatch, name="signal-dispatch", daemon=True
         )
         self._dispatcher.start()
-        for sig in self.SIGNALS:
-            self._previous[sig] = signal.signal(sig, self._handle)
+        self._previous = install_handler(self._handle)
         return self
 
     def __exit__(
@@ -110,9 +109,7 @@ class CancelOnSignal:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        while self._previous:
-            sig, handler = self._previous.popitem()
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        restore_handlers(self._previous)
         if self._dispatcher is None:
             return
         os.write(self._write_fd, bytes([_END]))  # after any signal written before it

@@ -18,12 +18,29 @@ import select
 import signal
 import threading
 import time
+from collections.abc import Callable
 from types import FrameType, TracebackType
 from typing import Any
 
-__all__ = ["ShutdownSignals"]
+__all__ = ["SIGNALS", "ShutdownSignals", "install_handler", "restore_handlers"]
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals that end a program (Ctrl-C, and what a launch system or ``kill`` sends)."""
+
+Handler = Callable[[int, FrameType | None], Any]
+
+
+def install_handler(handler: Handler) -> dict[int, Any]:
+    """``handler`` for each of :data:`SIGNALS` (main thread only); the handlers it
+    replaced, for :func:`restore_handlers`."""
+    return {sig: signal.signal(sig, handler) for sig in SIGNALS}
+
+
+def restore_handlers(previous: dict[int, Any]) -> None:
+    """Put back what :func:`install_handler` replaced (emptying ``previous``)."""
+    while previous:
+        sig, handler = previous.popitem()
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
 class ShutdownSignals:
@@ -64,8 +81,7 @@ class ShutdownSignals:
         os.set_blocking(self._read_fd, False)
         os.set_blocking(self._write_fd, False)
         self._previous_fd = signal.set_wakeup_fd(self._write_fd, warn_on_full_buffer=False)
-        for sig in SIGNALS:
-            self._previous[sig] = signal.signal(sig, self._handle)
+        self._previous = install_handler(self._handle)
         return self
 
     def __exit__(
@@ -76,9 +92,7 @@ class ShutdownSignals:
     ) -> None:
         if self._read_fd < 0:
             return
-        while self._previous:
-            sig, handler = self._previous.popitem()
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        restore_handlers(self._previous)
         signal.set_wakeup_fd(self._previous_fd if self._previous_fd is not None else -1)
         for fd in (self._read_fd, self._write_fd):
             os.close(fd)
