@@ -106,6 +106,7 @@ def test_leaving_puts_back_the_handlers_and_the_wakeup_descriptor() -> None:
         def mine(signum, frame):
             pass
         signal.signal(signal.SIGTERM, mine)
+        sigint = signal.getsignal(signal.SIGINT)  # as inherited (ignored in a background job)
         r, w = os.pipe()
         os.set_blocking(w, False)
         signal.set_wakeup_fd(w)
@@ -114,7 +115,7 @@ def test_leaving_puts_back_the_handlers_and_the_wakeup_descriptor() -> None:
         print(json.dumps({
             "inside": inside,
             "handler": signal.getsignal(signal.SIGTERM) is mine,
-            "sigint": signal.getsignal(signal.SIGINT) is signal.default_int_handler,
+            "sigint": signal.getsignal(signal.SIGINT) is sigint,
             "fd": signal.set_wakeup_fd(-1) == w,
         }))
         """
@@ -129,10 +130,11 @@ def test_outside_the_main_thread_it_changes_nothing_and_only_times_out(
     got = _run(
         f"""
         out = {{}}
+        sigint = signal.getsignal(signal.SIGINT)  # as inherited (ignored in a background job)
         def other() -> None:
             with ShutdownSignals() as signals:
                 out["woke"] = signals.wait({timeout_s})
-                out["handler"] = signal.getsignal(signal.SIGINT) is signal.default_int_handler
+                out["handler"] = signal.getsignal(signal.SIGINT) is sigint
         t = threading.Thread(target=other)
         t.start()
         t.join(60)
