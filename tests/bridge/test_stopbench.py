@@ -43,8 +43,9 @@ def _check_run(run: BenchRun, trials: int) -> None:
         assert t.ack_ms is not None
         assert t.stopped_ms is not None
         assert t.zero_ms is not None
-        # The acknowledgement comes long before the rover is at rest.
-        assert 0 < t.ack_ms < t.stopped_ms
+        # The acknowledgement comes no later than the report of rest: from a slow rover
+        # both can come in one read, with one arrival time (38.354 ms both, once).
+        assert 0 < t.ack_ms <= t.stopped_ms
         assert t.zero_ms > t.ack_ms
         assert t.queued == t.purged == 8  # MOTION_QUEUE_DEPTH: the queue was full
         assert t.speed_mm_s is not None
