@@ -109,11 +109,14 @@ class CancelOnSignal:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        restore_handlers(self._previous)
         if self._dispatcher is None:
             return
-        os.write(self._write_fd, bytes([_END]))  # after any signal written before it
+        # The dispatch thread ends first (after any signal written before the end), while
+        # the handler is still ours: a KeyboardInterrupt of on_signal is raised here, not
+        # turned into the signal's default action by the handler put back.
+        os.write(self._write_fd, bytes([_END]))
         self._dispatcher.join(timeout=10.0)
+        restore_handlers(self._previous)
         if self._dispatcher.is_alive():
             logger.warning("signal-dispatch still runs a handler after 10 s; left to end")
         else:
