@@ -59,7 +59,7 @@ class ShutdownSignals:
         self.signum: int | None = None
         """The first signal received, or ``None``."""
         self._previous: dict[int, Any] = {}
-        self._previous_fd: int | None = None
+        self._previous_fd = -1  # the wake-up descriptor before ours (-1: none)
         self._read_fd = self._write_fd = -1
 
     @property
@@ -93,7 +93,7 @@ class ShutdownSignals:
         if self._read_fd < 0:
             return
         restore_handlers(self._previous)
-        signal.set_wakeup_fd(self._previous_fd if self._previous_fd is not None else -1)
+        signal.set_wakeup_fd(self._previous_fd)
         for fd in (self._read_fd, self._write_fd):
             os.close(fd)
         self._read_fd = self._write_fd = -1
