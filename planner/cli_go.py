@@ -206,7 +206,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.5,
         metavar="S",
         help=(
-            "with --pose-source auto, odom_ground silent this long (wall s) -> odom (default "
+            "with --pose-source auto, odom_ground silent this long (s, by the topics' "
+            "stamps: an odom this much newer than the last odom_ground) -> odom (default "
             "0.5); no pose at all for the round trip plus twice this (at least 1 s) -> STOP"
         ),
     )

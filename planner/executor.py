@@ -19,12 +19,16 @@ While steps run, a :class:`~planner.drift.DriftMonitor` compares the rover's bes
 with the gate's prediction. With ``pose_source="auto"`` (the default) that is the
 ground-seeing POSE (``odom_ground``) while it is fresh, and ``odom`` (encoders + IMU,
 blind to slip) once POSE has been silent for ``pose_stale_s``; the fall-back is logged
-once and noted in the result. A persistent violation purges the rest of the plan and
-publishes STOP at once, from the pose callback itself, the shortest path there is; the
-detection-to-STOP latency is measured from the sample that confirmed the violation to
-the STOP being handed to the ROS port. When no pose at all reaches drift control for
-the link's round trip plus ``blind_margin_s`` while a step runs, drift control is blind:
-the plan ends with STOP (outcome ``blind``).
+once and noted in the result. Silence is read from the two topics' own stamps (the
+rover's clock): an ``odom`` stamped more than ``pose_stale_s`` after the last
+``odom_ground``. A ground station that fell behind (its process not scheduled for a
+while, both topics' messages waiting) then reads a backlog, not a silence; before the
+first ``odom_ground``, the wall clock since the executor began counts. A persistent
+violation purges the rest of the plan and publishes STOP at once, from the pose callback
+itself, the shortest path there is; the detection-to-STOP latency is measured from the
+sample that confirmed the violation to the STOP being handed to the ROS port. When no
+pose at all reaches drift control for the link's round trip plus ``blind_margin_s``
+while a step runs, drift control is blind: the plan ends with STOP (outcome ``blind``).
 
 After a drift STOP the operator can re-plan from :attr:`PlanExecutor.reported_pose`
 (the rover's last reported pose; :meth:`PlanExecutor.wait_for_rest` says when it has
@@ -106,7 +110,8 @@ class ExecutorConfig:
         duration_factor: predicted duration multiplier in the timeout (slip, jitter).
         time_scale: twin seconds per wall second (1 on the real rover).
         pose_source: one of :data:`POSE_SOURCES`.
-        pose_stale_s: with ``auto``, POSE silent this long -> drift control uses ``odom``.
+        pose_stale_s: with ``auto``, POSE silent this long -> drift control uses ``odom``
+            (by the topics' stamps: an ``odom`` this much newer than the last POSE).
         drift_linear_m, drift_angular_deg, drift_persistence: drift control thresholds.
         drift_control: compare poses with the prediction at all.
         blind_stop: end the plan (STOP, outcome ``blind``) when drift control hears no
@@ -296,6 +301,7 @@ class PlanExecutor:
         # ... but only once a plan runs: before, odom (which the bridge publishes first)
         # arriving ahead of the first odom_ground through the link is no silence.
         self._ground_heard = False
+        self._ground_stamp = -math.inf  # the last odom_ground's stamp (the rover's clock, s)
         self._pose_rx = created  # last pose drift control could use
         self._on_odom_source = self.config.pose_source == "odom"
         self._odom_history: deque[tuple[float, Pose]] = deque(maxlen=64)
@@ -414,6 +420,7 @@ class PlanExecutor:
         with self._lock:
             self._ground_rx = time.monotonic()
             self._ground_heard = True
+            self._ground_stamp = stamp
             if self.config.pose_source == "auto":
                 self._anchor_odom(pose, stamp)
                 if self._on_odom_source:
@@ -431,12 +438,8 @@ class PlanExecutor:
             self._odom_history.append((stamp, raw))
             self._motion = (stamp, twist.linear.x, twist.angular.z)
             self._pose_cond.notify_all()
-            if (
-                cfg.pose_source == "auto"
-                and not self._on_odom_source
-                and (self._ground_heard or self._running)
-                and time.monotonic() - self._ground_rx > cfg.pose_stale_s
-            ):
+            auto = cfg.pose_source == "auto"
+            if auto and not self._on_odom_source and self._ground_silent(stamp):
                 self._on_odom_source = True
                 self._note(
                     f"odom_ground silent for more than {cfg.pose_stale_s:g} s: drift "
@@ -450,6 +453,17 @@ class PlanExecutor:
                 self._odom_anchor = (raw, self._plan_start)
             pose = self._odom_to_map(raw)
         self._use_pose(pose, stamp)
+
+    def _ground_silent(self, odom_stamp: float) -> bool:
+        """Whether ``odom_ground`` has been silent for ``pose_stale_s`` as of an ``odom``
+        stamped ``odom_stamp`` (lock held): once heard, when that ``odom`` is stamped more
+        than ``pose_stale_s`` after the last ``odom_ground`` (both the rover's clock, so a
+        backlog read late is no silence); before, when a plan runs and ``pose_stale_s``
+        of wall time has passed since the executor began."""
+        stale = self.config.pose_stale_s
+        if self._ground_heard:
+            return odom_stamp - self._ground_stamp > stale
+        return self._running and time.monotonic() - self._ground_rx > stale
 
     def _note(self, text: str, level: int = logging.WARNING) -> None:
         """Log ``text`` and, during a plan, note it in the result once (lock held)."""

@@ -1,0 +1,102 @@
+"""When drift control falls back from ``odom_ground`` to ``odom``: silence is judged by
+the two topics' stamps (the rover's clock), not by when the ground station reads them.
+
+A ground station that fell behind (its process not scheduled for half a second beside
+other work) reads both topics' waiting messages late; judged by the wall clock at
+reading, the first ``odom`` of that backlog looked like half a second of ``odom_ground``
+silence (a false "fell back to odom" seen in the stack walkthrough under load). The
+executor's callbacks are called here as its port calls them, with the wall clock moved
+on between them; the real fall-back, a POSE dropout on the emulated rover, is
+``tests/planner/test_executor.py``."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from bridge.rosport import open_port
+from bridge.rosport.msgs import Odometry, stamp
+from firmware_proto.rover import load_rover
+from planner import executor as executor_module
+from planner.executor import ExecutorConfig, PlanExecutor
+
+T0 = 1_800_000_000.0  # the rover's clock, s
+
+
+def _odometry(stamp_s: float, x: float = 1.0) -> Odometry:
+    msg = Odometry()
+    msg.header.stamp = stamp(stamp_s)
+    msg.pose.pose.position.x = x
+    msg.pose.pose.orientation.w = 1.0
+    return msg
+
+
+@pytest.fixture
+def executor() -> Iterator[PlanExecutor]:
+    with open_port("inprocess", node_name="ground", bus="pose-silence") as port:
+        ex = PlanExecutor(port, load_rover(), ExecutorConfig(pose_stale_s=0.5))
+        try:
+            yield ex
+        finally:
+            ex.close()
+
+
+class _Clock:
+    """The executor's wall clock, moved on at will (its ``time`` module, replaced)."""
+
+    def __init__(self) -> None:
+        self.offset_s = 0.0
+        self.time = time.time
+
+    def monotonic(self) -> float:
+        return time.monotonic() + self.offset_s
+
+
+@pytest.fixture
+def clock(monkeypatch: pytest.MonkeyPatch) -> _Clock:
+    c = _Clock()
+    monkeypatch.setattr(executor_module, "time", c)
+    return c
+
+
+def test_a_backlog_read_late_is_no_silence(
+    executor: PlanExecutor, clock: _Clock, caplog: pytest.LogCaptureFixture
+) -> None:
+    executor._on_ground(_odometry(T0))
+    clock.offset_s = 10.0  # the rest of the backlog is read 10 s after it came
+    with caplog.at_level(logging.WARNING, logger="planner.executor"):
+        for k in range(1, 6):  # odom of the same backlog, stamped up to 0.5 s after
+            executor._on_odom(_odometry(T0 + 0.1 * k))
+        assert executor.pose_source_in_use == "odom_ground"
+        executor._on_ground(_odometry(T0 + 0.45))
+        clock.offset_s = 20.0
+        executor._on_odom(_odometry(T0 + 0.9))
+    assert executor.pose_source_in_use == "odom_ground"
+    assert "fell back" not in caplog.text
+
+
+def test_odom_stamped_past_the_last_pose_by_more_than_stale_falls_back_and_pose_returns(
+    executor: PlanExecutor, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level(logging.WARNING, logger="planner.executor"):
+        executor._on_ground(_odometry(T0))
+        executor._on_odom(_odometry(T0 + 0.5))  # exactly stale: not yet
+        assert executor.pose_source_in_use == "odom_ground"
+        executor._on_odom(_odometry(T0 + 0.51))
+        assert executor.pose_source_in_use == "odom"
+        assert "odom_ground silent for more than 0.5 s" in caplog.text
+        executor._on_ground(_odometry(T0 + 0.6))
+        assert executor.pose_source_in_use == "odom_ground"
+        assert "odom_ground came back" in caplog.text
+
+
+def test_before_the_first_pose_and_any_plan_odom_is_no_silence(
+    executor: PlanExecutor, clock: _Clock
+) -> None:
+    # The bridge publishes odom first; through the link it may come well ahead.
+    clock.offset_s = 10.0
+    executor._on_odom(_odometry(T0))
+    assert executor.pose_source_in_use == "odom_ground"
