@@ -21,14 +21,15 @@ ground-seeing POSE (``odom_ground``) while it is fresh, and ``odom`` (encoders +
 blind to slip) once POSE has been silent for ``pose_stale_s``; the fall-back is logged
 once and noted in the result. Silence is read from the two topics' own stamps (the
 rover's clock): an ``odom`` stamped more than ``pose_stale_s`` after the last
-``odom_ground``. A ground station that fell behind (its process not scheduled for a
-while, both topics' messages waiting) then reads a backlog, not a silence; before the
-first ``odom_ground``, the wall clock since the executor began counts. A persistent
-violation purges the rest of the plan and publishes STOP at once, from the pose callback
-itself, the shortest path there is; the detection-to-STOP latency is measured from the
-sample that confirmed the violation to the STOP being handed to the ROS port. When no
-pose at all reaches drift control for the link's round trip plus ``blind_margin_s``
-while a step runs, drift control is blind: the plan ends with STOP (outcome ``blind``).
+``odom_ground``, and still so :data:`SILENCE_CONFIRM_S` later. A ground station that
+fell behind (its process not scheduled for a while, both topics' messages waiting) then
+reads a backlog, not a silence; before the first ``odom_ground``, the wall clock since
+the executor began counts. A persistent violation purges the rest of the plan and
+publishes STOP at once, from the pose callback itself, the shortest path there is; the
+detection-to-STOP latency is measured from the sample that confirmed the violation to
+the STOP being handed to the ROS port. When no pose at all reaches drift control for the
+link's round trip plus ``blind_margin_s`` while a step runs, drift control is blind: the
+plan ends with STOP (outcome ``blind``).
 
 After a drift STOP the operator can re-plan from :attr:`PlanExecutor.reported_pose`
 (the rover's last reported pose; :meth:`PlanExecutor.wait_for_rest` says when it has
@@ -94,6 +95,12 @@ They do not end a plan; drift control copes with the lost pose (fall-back or bli
 
 ANCHOR_GAP_S = 0.05
 """``odom`` samples further than this from a POSE's time do not tie ``odom`` to the map."""
+
+SILENCE_CONFIRM_S = 0.1
+"""A silence of ``odom_ground`` seen in the stamps must still be there this much later
+(wall s) before drift control falls back: a ground station that fell behind reads its
+backlog in a burst, ``odom`` and ``odom_ground`` in whatever order its executor takes
+them, so the POSE that ends the silence may still wait behind an ``odom`` or two."""
 
 REST_SPEED_MPS = 0.01
 REST_YAW_RATE_RAD_S = 0.01
@@ -302,6 +309,7 @@ class PlanExecutor:
         # arriving ahead of the first odom_ground through the link is no silence.
         self._ground_heard = False
         self._ground_stamp = -math.inf  # the last odom_ground's stamp (the rover's clock, s)
+        self._silence_seen: float | None = None  # when an odom first found it silent (wall)
         self._pose_rx = created  # last pose drift control could use
         self._on_odom_source = self.config.pose_source == "odom"
         self._odom_history: deque[tuple[float, Pose]] = deque(maxlen=64)
@@ -309,11 +317,14 @@ class PlanExecutor:
         self._motion: tuple[float, float, float] | None = None  # stamp, v, yaw rate
         self._plan_start: Pose | None = None
         self._subs: list[Subscription[Any]] = [
-            port.subscribe(COMMAND_STATUS, String, self._on_status, qos.STATUS),
-            port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR),
+            port.subscribe(COMMAND_STATUS, String, self._on_status, qos.STATUS)
         ]
+        # odom_ground before odom: an executor that finds both waiting takes them in the
+        # order they were subscribed (rclpy's does), so a POSE is read before the odom
+        # beside it, which would otherwise find it silent (SILENCE_CONFIRM_S).
         if self.config.pose_source != "odom":
             self._subs.append(port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR))
+        self._subs.append(port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR))
 
     def wait_for_rover(self, timeout_s: float = 10.0) -> bool:
         """Wait until what the executor publishes (steps, STOP, clear) reaches a
@@ -421,6 +432,7 @@ class PlanExecutor:
             self._ground_rx = time.monotonic()
             self._ground_heard = True
             self._ground_stamp = stamp
+            self._silence_seen = None
             if self.config.pose_source == "auto":
                 self._anchor_odom(pose, stamp)
                 if self._on_odom_source:
@@ -456,14 +468,21 @@ class PlanExecutor:
 
     def _ground_silent(self, odom_stamp: float) -> bool:
         """Whether ``odom_ground`` has been silent for ``pose_stale_s`` as of an ``odom``
-        stamped ``odom_stamp`` (lock held): once heard, when that ``odom`` is stamped more
-        than ``pose_stale_s`` after the last ``odom_ground`` (both the rover's clock, so a
-        backlog read late is no silence); before, when a plan runs and ``pose_stale_s``
-        of wall time has passed since the executor began."""
+        stamped ``odom_stamp`` (lock held). Once heard: that ``odom`` is stamped more than
+        ``pose_stale_s`` after the last ``odom_ground`` (both the rover's clock, so a
+        backlog read late is no silence), and an ``odom`` read :data:`SILENCE_CONFIRM_S`
+        (wall) before it found the same, with no ``odom_ground`` read in between. Before
+        the first: a plan runs and ``pose_stale_s`` of wall time has passed since the
+        executor began."""
         stale = self.config.pose_stale_s
-        if self._ground_heard:
-            return odom_stamp - self._ground_stamp > stale
-        return self._running and time.monotonic() - self._ground_rx > stale
+        now = time.monotonic()
+        if not self._ground_heard:
+            return self._running and now - self._ground_rx > stale
+        if odom_stamp - self._ground_stamp <= stale:
+            return False
+        if self._silence_seen is None:
+            self._silence_seen = now
+        return now - self._silence_seen >= SILENCE_CONFIRM_S
 
     def _note(self, text: str, level: int = logging.WARNING) -> None:
         """Log ``text`` and, during a plan, note it in the result once (lock held)."""

@@ -5,8 +5,9 @@ A ground station that fell behind (its process not scheduled for half a second b
 other work) reads both topics' waiting messages late; judged by the wall clock at
 reading, the first ``odom`` of that backlog looked like half a second of ``odom_ground``
 silence (a false "fell back to odom" seen in the stack walkthrough under load). The
-executor's callbacks are called here as its port calls them, with the wall clock moved
-on between them; the real fall-back, a POSE dropout on the emulated rover, is
+executor's callbacks are called here as its port calls them, with its wall clock moved
+on between them (a silence must also last :data:`~planner.executor.SILENCE_CONFIRM_S` of
+it); the real fall-back, a POSE dropout on the emulated rover, is
 ``tests/planner/test_executor.py``."""
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from bridge.rosport import open_port
 from bridge.rosport.msgs import Odometry, stamp
 from firmware_proto.rover import load_rover
 from planner import executor as executor_module
-from planner.executor import ExecutorConfig, PlanExecutor
+from planner.executor import SILENCE_CONFIRM_S, ExecutorConfig, PlanExecutor
 
 T0 = 1_800_000_000.0  # the rover's clock, s
 
@@ -45,14 +46,16 @@ def executor() -> Iterator[PlanExecutor]:
 
 
 class _Clock:
-    """The executor's wall clock, moved on at will (its ``time`` module, replaced)."""
+    """The executor's wall clock (its ``time`` module, replaced): it stands still but when
+    moved on, so that no pause of this process beside load moves it."""
 
     def __init__(self) -> None:
+        self.base_s = time.monotonic()
         self.offset_s = 0.0
         self.time = time.time
 
     def monotonic(self) -> float:
-        return time.monotonic() + self.offset_s
+        return self.base_s + self.offset_s
 
 
 @pytest.fixture
@@ -70,27 +73,47 @@ def test_a_backlog_read_late_is_no_silence(
     with caplog.at_level(logging.WARNING, logger="planner.executor"):
         for k in range(1, 6):  # odom of the same backlog, stamped up to 0.5 s after
             executor._on_odom(_odometry(T0 + 0.1 * k))
+        # The reader kept only the newest odom: 0.8 s after the last POSE it has read,
+        # in one burst with the POSE still queued behind it.
+        executor._on_odom(_odometry(T0 + 0.8))
+        executor._on_odom(_odometry(T0 + 0.81))
         assert executor.pose_source_in_use == "odom_ground"
-        executor._on_ground(_odometry(T0 + 0.45))
+        executor._on_ground(_odometry(T0 + 0.75))
         clock.offset_s = 20.0
         executor._on_odom(_odometry(T0 + 0.9))
     assert executor.pose_source_in_use == "odom_ground"
     assert "fell back" not in caplog.text
 
 
-def test_odom_stamped_past_the_last_pose_by_more_than_stale_falls_back_and_pose_returns(
-    executor: PlanExecutor, caplog: pytest.LogCaptureFixture
+def test_a_silence_in_the_stamps_that_lasts_falls_back_and_pose_returns(
+    executor: PlanExecutor, clock: _Clock, caplog: pytest.LogCaptureFixture
 ) -> None:
     with caplog.at_level(logging.WARNING, logger="planner.executor"):
         executor._on_ground(_odometry(T0))
         executor._on_odom(_odometry(T0 + 0.5))  # exactly stale: not yet
+        executor._on_odom(_odometry(T0 + 0.51))  # stale: seen ...
+        clock.offset_s = SILENCE_CONFIRM_S / 2
+        executor._on_odom(_odometry(T0 + 0.56))
         assert executor.pose_source_in_use == "odom_ground"
-        executor._on_odom(_odometry(T0 + 0.51))
+        clock.offset_s = 1.5 * SILENCE_CONFIRM_S  # ... and still there, read later
+        executor._on_odom(_odometry(T0 + 0.61))
         assert executor.pose_source_in_use == "odom"
         assert "odom_ground silent for more than 0.5 s" in caplog.text
         executor._on_ground(_odometry(T0 + 0.6))
         assert executor.pose_source_in_use == "odom_ground"
         assert "odom_ground came back" in caplog.text
+
+
+def test_a_pose_read_between_resets_the_confirmation(executor: PlanExecutor, clock: _Clock) -> None:
+    executor._on_ground(_odometry(T0))
+    executor._on_odom(_odometry(T0 + 0.6))  # silent: seen at wall 0
+    executor._on_ground(_odometry(T0 + 0.05))  # an old POSE, late: a silence begun anew
+    clock.offset_s = 1.5 * SILENCE_CONFIRM_S
+    executor._on_odom(_odometry(T0 + 0.6))  # seen again, now
+    assert executor.pose_source_in_use == "odom_ground"
+    clock.offset_s = 3 * SILENCE_CONFIRM_S
+    executor._on_odom(_odometry(T0 + 0.7))
+    assert executor.pose_source_in_use == "odom"
 
 
 def test_before_the_first_pose_and_any_plan_odom_is_no_silence(
