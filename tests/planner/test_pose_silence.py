@@ -27,10 +27,10 @@ from planner.executor import SILENCE_CONFIRM_S, ExecutorConfig, PlanExecutor
 T0 = 1_800_000_000.0  # the rover's clock, s
 
 
-def _odometry(stamp_s: float, x: float = 1.0) -> Odometry:
+def _odometry(stamp_s: float) -> Odometry:
     msg = Odometry()
     msg.header.stamp = stamp(stamp_s)
-    msg.pose.pose.position.x = x
+    msg.pose.pose.position.x = 1.0
     msg.pose.pose.orientation.w = 1.0
     return msg
 
