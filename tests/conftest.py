@@ -60,23 +60,26 @@ if _WORKER.startswith("gw"):
     _base = int(os.environ.get("ROS_DOMAIN_ID") or "0")
     os.environ["ROS_DOMAIN_ID"] = str((_base + int(_WORKER[2:])) % 100)
 
-#: The processes a test starts log their stalls (docs/realtime.md) to a log of this run's
-#: own, not to the host's shared one; the process that made it (pytest-xdist's workers
-#: inherit it) removes it when it exits.
-if "ROVER_STALL_LOG" not in os.environ:
-    _stall_dir = tempfile.mkdtemp(prefix="rover-test-stalls-")
-    os.environ["ROVER_STALL_LOG"] = os.path.join(_stall_dir, "stalls.jsonl")
-    atexit.register(shutil.rmtree, _stall_dir, ignore_errors=True)
 
+def _run_dir(variable: str, prefix: str, leaf: str = "") -> None:
+    """Unless set already, ``variable`` names a new directory of this run (``leaf``
+    inside it, if given); pytest-xdist's workers inherit it, and the process that made it
+    removes it when it exits."""
+    if variable not in os.environ:
+        made = tempfile.mkdtemp(prefix=prefix)
+        os.environ[variable] = os.path.join(made, leaf) if leaf else made
+        atexit.register(shutil.rmtree, made, ignore_errors=True)
+
+
+#: The processes a test starts log their stalls (docs/realtime.md) to a log of this run's
+#: own, not to the host's shared one.
+_run_dir("ROVER_STALL_LOG", "rover-test-stalls-", "stalls.jsonl")
 #: Every ``rover stack up`` and ``rover demo`` a test starts claims its ROS domain in one
-#: directory for the whole run (planner/domains.py; pytest-xdist's workers inherit it),
-#: so that two at once, on two workers, get two domains (in a directory of each test's
-#: own, a stack and a demo both took domain 101 and drove on each other's topics), and
-#: none takes one that the user's own stacks hold.
-if "ROVER_STACK_DIR" not in os.environ:
-    _stacks_dir = tempfile.mkdtemp(prefix="rover-test-stacks-")
-    os.environ["ROVER_STACK_DIR"] = _stacks_dir
-    atexit.register(shutil.rmtree, _stacks_dir, ignore_errors=True)
+#: directory for the whole run (planner/domains.py), so that two at once, on two workers,
+#: get two domains (in a directory of each test's own, a stack and a demo both took
+#: domain 101 and drove on each other's topics), and none takes one that the user's own
+#: stacks hold.
+_run_dir("ROVER_STACK_DIR", "rover-test-stacks-")
 
 IN_PRIVATE_NETNS = os.environ.get("ROVER_PRIVATE_NETNS") == "1"
 LOCALHOST_DISCOVERY = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
