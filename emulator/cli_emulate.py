@@ -112,7 +112,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--seed", type=int, default=0, help="seed of sensor noise, boot nonces, link faults"
     )
     p.add_argument(
-        "--dt", type=float, default=0.001, help="physics and control step, s (default 0.001)"
+        "--dt",
+        type=float,
+        default=None,
+        help=(
+            "physics and control step, s (default: 1 ms of wall time, 0.001 times the "
+            "speed factor, at most 0.01)"
+        ),
     )
     p.add_argument(
         "--speed-factor",
@@ -254,7 +260,7 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.errors import InjectionError
     from emulator.firmware import make_controller
     from emulator.injection import Injector, parse_fault
-    from emulator.twin import Twin
+    from emulator.twin import Twin, served_dt_s
     from firmware_proto.linkio.errors import LinkUrlError
     from firmware_proto.linkio.trafficio import LogWriter, open_recorder
     from firmware_proto.linkio.urls import parse_can_spec
@@ -278,10 +284,11 @@ def _run(args: argparse.Namespace) -> int:
     rover = load_rover(args.rover)
     world = load_map(args.map)
     ground = ground_of(args, rover)
+    dt_s = served_dt_s(args.speed_factor) if args.dt is None else args.dt
     if ground is not None:
         # The plant drives on this ground; the controller keeps the description (its
         # units and limits), as real firmware knows nothing of the ground.
-        twin = Twin(ground.rover(rover), ground.world(world), dt_s=args.dt)
+        twin = Twin(ground.rover(rover), ground.world(world), dt_s=dt_s)
         values = ", ".join(f"{k}={v:g}" for k, v in ground.values().items())
         regions = ", ".join(f"{k}={v:g}" for k, v in ground.regions)
         print(
@@ -290,7 +297,7 @@ def _run(args: argparse.Namespace) -> int:
             flush=True,
         )
     else:
-        twin = Twin(rover, world, dt_s=args.dt)
+        twin = Twin(rover, world, dt_s=dt_s)
     schema_hash = SCHEMA_HASH if args.schema_hash is None else args.schema_hash
     mutant = None
     if getattr(args, "mutant", None):
@@ -331,6 +338,7 @@ def _run(args: argparse.Namespace) -> int:
                 "role": "emulator",
                 "seed": str(args.seed),
                 "speed_factor": str(args.speed_factor),
+                "dt_s": str(dt_s),
                 "map": str(args.map),
                 "rover": str(args.rover or ""),
                 "ground": ground.to_toml() if ground is not None else "",

@@ -30,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
             if args.speed_factor is not None
             else float(meta.get("speed_factor", "1"))
         ),
+        dt_s=float(meta["dt_s"]) if meta.get("dt_s") else None,
         map_name=args.map or meta.get("map") or "lab",
         rover_path=args.rover or meta.get("rover", ""),
         node=args.node,

@@ -45,7 +45,7 @@ from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
-from emulator.twin import Twin
+from emulator.twin import Twin, served_dt_s
 from firmware_proto.linkio.can_endpoint import CanEndpoint
 from firmware_proto.linkio.endpoint import HOST
 from firmware_proto.linkio.replay_peer import ReplayPeer
@@ -94,6 +94,8 @@ class ReplayOptions:
     Attributes:
         seed: the emulator's seed (boot nonce, sensor noise).
         speed_factor: twin seconds per wall second, as when recorded.
+        dt_s: the twin's step, s, as when recorded (``None``: as ``rover emulate`` takes
+            it at that speed factor, :func:`~emulator.twin.served_dt_s`).
         map_name: map name or JSON file.
         rover_path: rover description TOML ("" for the packaged one).
         node: CAN node id of the controller (``None``: the node the log's host addressed).
@@ -107,6 +109,7 @@ class ReplayOptions:
 
     seed: int = 0
     speed_factor: float = 1.0
+    dt_s: float | None = None
     map_name: str = "lab"
     rover_path: str = ""
     node: int | None = None
@@ -276,7 +279,11 @@ def replay_into_emulator(
     rover = load_rover(opts.rover_path or None)
     model = ControllerModel(
         rover,
-        Twin(rover, load_map(opts.map_name)),
+        Twin(
+            rover,
+            load_map(opts.map_name),
+            dt_s=served_dt_s(opts.speed_factor) if opts.dt_s is None else opts.dt_s,
+        ),
         ControllerConfig(timeout_scale=opts.speed_factor),
         seed=opts.seed,
     )

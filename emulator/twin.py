@@ -51,12 +51,14 @@ from firmware_proto.worldmap import (
 __all__ = [
     "GATE_DT_S",
     "MAX_DT_S",
+    "SERVED_TICK_WALL_S",
     "SIDES",
     "BodyAcceleration",
     "BodyVelocity",
     "Collision",
     "Pose2D",
     "Twin",
+    "served_dt_s",
 ]
 
 logger = logging.getLogger(__name__)
@@ -73,6 +75,21 @@ GATE_DT_S = 0.01
 """Step recommended for plan validation: a 12-step, 55 s plan ends within 3 mm and
 0.2 degree of the 1 ms reference at a tenth of the steps, so the 500x real-time target
 holds with a factor of two to spare for a loaded machine (docs/twin.md)."""
+
+SERVED_TICK_WALL_S = 0.001
+"""The wall time between two control periods of a served emulator (``rover emulate``,
+the tests' rigs) when its step is not given: 1 ms, a 1 kHz controller."""
+
+
+def served_dt_s(speed_factor: float) -> float:
+    """The twin step, s, of an emulator served at ``speed_factor`` twin seconds per wall
+    second when none is given: :data:`SERVED_TICK_WALL_S` of wall time (so its CPU per
+    wall second does not grow with the speed factor: at 4x, a 1 ms step cost a whole core
+    of a slow host), never coarser than :data:`GATE_DT_S`, the gate's own step."""
+    if speed_factor <= 0.0:
+        raise ValueError(f"speed_factor must be > 0, got {speed_factor}")
+    return min(GATE_DT_S, SERVED_TICK_WALL_S * max(1.0, speed_factor))
+
 
 WALL_THICKNESS_M = 1.0
 """The bounds are built as solid slabs this thick outside the room (cannot be passed)."""

@@ -21,7 +21,7 @@ from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.injection import parse_fault
 from emulator.serial_frontend import SerialFrontEnd
-from emulator.twin import Twin
+from emulator.twin import Twin, served_dt_s
 from firmware_proto.rover import RoverDescription, load_rover
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
 from firmware_proto.worldmap import load_map
@@ -68,7 +68,7 @@ class HilRig:
         try:
             model = ControllerModel(
                 self.rover,
-                Twin(self.rover, self.world),
+                Twin(self.rover, self.world, dt_s=served_dt_s(speed)),  # as `rover emulate`
                 ControllerConfig(timeout_scale=speed),
                 seed=seed,
             )

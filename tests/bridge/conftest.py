@@ -33,7 +33,7 @@ from emulator.engine import Emulator, EmulatorStatus
 from emulator.firmware import make_controller
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
-from emulator.twin import Twin
+from emulator.twin import GATE_DT_S, Twin, served_dt_s
 from firmware_proto.linkio.inbox import Inbox as WaitableLog
 from firmware_proto.messages import SCHEMA_HASH
 from firmware_proto.rover import RoverDescription, load_rover
@@ -117,8 +117,14 @@ SPEED = 1.0 if IN_VCAN_VM else 4.0
 """Twin seconds per wall second for served emulators (timeouts scaled to match). Real
 time inside .ci/vcan-vm, whose CPU may be emulated (TCG): two emulators at four times
 real time there fall behind their own heartbeats."""
-TWIN_DT_S = 0.004 if IN_VCAN_VM else 0.001
-"""The twin's physics step, s: coarser inside .ci/vcan-vm, for the same reason."""
+TWIN_DT_S = GATE_DT_S if IN_VCAN_VM else served_dt_s(SPEED)
+"""The twin's physics step, s: as ``rover emulate`` takes it at :data:`SPEED`; inside
+.ci/vcan-vm the gate's (and the wire simulator's) 10 ms, for the same reason: a Python
+loop runs 6 to 20 times slower there than on its host (docs/vcan-vm.md)."""
+VM_ACK_TIMEOUT_S = 0.25
+"""The links' ACK timeout inside .ci/vcan-vm unless a test sets its own: there a frame's
+round trip through two Python processes on the emulated CPU may take longer than the
+protocol's 50 ms, and a retry is then no lost frame."""
 
 _channels = itertools.count()
 
@@ -166,8 +172,9 @@ def rover() -> RoverDescription:
 @pytest.fixture
 def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
     """Factory of running emulators; ``kind`` "pty" or "can", ``firmware`` "python" (the
-    model) or "c" (the C core, emulator/firmware.py), ``watchdog_ms`` the controller's
-    (its default unless given); all closed after the test."""
+    model) or "c" (the C core, emulator/firmware.py), ``watchdog_ms`` and
+    ``telemetry_hz`` the controller's (its defaults unless given); all closed after the
+    test."""
     started: list[Emulator] = []
 
     def make(
@@ -181,10 +188,13 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
         schema_hash: int = SCHEMA_HASH,
         firmware: str = "python",
         watchdog_ms: int | None = None,
+        telemetry_hz: int | None = None,
     ) -> Emulator:
         config = ControllerConfig(timeout_scale=SPEED)
         if watchdog_ms is not None:
             config = dataclasses.replace(config, watchdog_ms=watchdog_ms)
+        if telemetry_hz is not None:
+            config = dataclasses.replace(config, telemetry_hz=telemetry_hz)
         model = make_controller(
             firmware,
             rover,
@@ -302,6 +312,8 @@ def links() -> Iterator[Links]:
     started: list[ControllerLink] = []
 
     def make(url: str, **config: float) -> tuple[ControllerLink, Recorder]:
+        if IN_VCAN_VM:
+            config.setdefault("ack_timeout_s", VM_ACK_TIMEOUT_S)
         link, rec = start_link(url, transport_factory=open_transport, **config)
         started.append(link)
         return link, rec

@@ -25,7 +25,7 @@ import pytest
 
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.inbox import Inbox
-from tests.bridge.conftest import IN_VCAN_VM
+from tests.bridge.conftest import IN_VCAN_VM, TWIN_DT_S
 from tests.child import Child
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
@@ -300,9 +300,12 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
     emu_log, bridge_log = tmp_path / "emulator.log", tmp_path / "bridge.log"
     children: list[Child] = []
     try:
+        # The twin's step as the served emulators take it (coarser in the VM's software CPU).
         emulator = Child(
-            ["emulate", "--can", "socketcan:vcan0", "--node", "2", "--record", str(emu_log)], env
-        )
+            ["emulate", "--can", "socketcan:vcan0", "--node", "2", "--record", str(emu_log),
+             "--dt", str(TWIN_DT_S)],
+            env,
+        )  # fmt: skip
         children.append(emulator)
         assert emulator.wait_for("CAN ") == "CAN socketcan:vcan0 node 2"
         # In the VM (software CPU, two vCPUs) the bridge's two ROS 2 child processes took
@@ -321,7 +324,12 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         # One step to its end, then one the STOP ends (every command's direction over CAN:
         # the lockstep conformance rules and the wire simulator).
         got = client.step(1, 30, 800)
-        assert got[-1] == "completed" and got.count("completed") == 1, got
+        assert got[-1] == "completed" and got.count("completed") == 1, (
+            got,
+            bridge.lines[-10:],
+            bridge.errors[-10:],
+            emulator.errors[-10:],
+        )
         from std_msgs.msg import Bool, Int16MultiArray
 
         mark = client.mark()

@@ -592,11 +592,12 @@ def test_rover_emulate_cli_serves_and_stops_on_sigterm(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err
-        # The immediate fault applied at the first tick, before the step could run; the
-        # one at t=100 s never fired.
-        assert "fault injected: imu-bias=0.01 at t=0.001 s (cli)" in err  # the WARNING log
+        # The immediate fault applied at the first tick, before the step could run (the
+        # default step at 4x: 4 ms of twin time, 1 ms of wall time); the one at t=100 s
+        # never fired.
+        assert "fault injected: imu-bias=0.01 at t=0.004 s (cli)" in err  # the WARNING log
         injects = [line for line in err.splitlines() if line.startswith("INJECT")]
-        assert injects == ["INJECT t=0.001 imu-bias=0.01 (cli)"]
+        assert injects == ["INJECT t=0.004 imu-bias=0.01 (cli)"]
         final = [line for line in err.splitlines() if line.startswith("emulator stopped")]
         assert len(final) == 1 and " injected=imu-bias=0.01 " in final[0]
     finally:
