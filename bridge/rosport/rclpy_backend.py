@@ -49,6 +49,9 @@ __all__ = ["STOP_NODE_SUFFIX", "RclpyPort", "middleware", "rclpy_available"]
 
 logger = logging.getLogger(__name__)
 
+_MAX_DESTROYED_SPINS: Final = 100
+"""Spins in a row that may meet an entity being destroyed before the lane fails."""
+
 #: Executor spin period: each lane re-checks for close at least this often, s.
 _SPIN_S: Final = 0.5
 #: The STOP lane's node is named ``<node_name>`` + this.
@@ -330,11 +333,25 @@ class RclpyPort(RosPort):
 
     def _run(self, lane_name: str) -> None:
         lane = self._lane(lane_name)
-        if lane.executor is not None:
-            while not self._stopping.is_set() and self._context.ok():
-                lane.executor.spin_once(timeout_sec=_SPIN_S)
-            return
         rcl = importlib.import_module("rclpy.impl.implementation_singleton").rclpy_implementation
+        if lane.executor is not None:
+            destroyed = 0  # spins in a row that met an entity being destroyed
+            while not self._stopping.is_set() and self._context.ok():
+                try:
+                    lane.executor.spin_once(timeout_sec=_SPIN_S)
+                    destroyed = 0
+                except rcl.InvalidHandle:
+                    # A subscription of this lane closed on another thread while the
+                    # executor put it (or its QoS events) into its wait set: rclpy raises
+                    # "destruction was requested", and the next spin builds the set
+                    # without it. Seen as `rover demo` ended (the executor's subscriptions
+                    # closed while its lane spun). An entity that stays invalid is a
+                    # failure of the lane, as before.
+                    destroyed += 1
+                    if destroyed > _MAX_DESTROYED_SPINS:
+                        raise
+                    logger.debug("%s: lane %s met an entity being destroyed", self, lane_name)
+            return
         timeout_ns = int(_SPIN_S * 1e9)
         while not self._stopping.is_set() and self._context.ok():
             with lane.lock:
