@@ -33,6 +33,7 @@ from bridge.rosport.contract import (
     WHEEL_INSTRUCTIONS,
 )
 from bridge.rosport.parameters import ParameterSpec
+from firmware_proto.messages import LINK_LOST_HEARTBEATS
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY
 from firmware_proto.runtime.stall import DEFAULT_STALL_THRESHOLD_S
 
@@ -75,6 +76,10 @@ class BridgeParams:
         0.05, "wait for a MOTION's ACK before sending it again, s", runtime=True
     )
     motion_retries: int = _p(3, "retransmissions of one MOTION before fault:no_ack", runtime=True)
+    link_lost_beats: int = _p(
+        LINK_LOST_HEARTBEATS,
+        "controller heartbeats missed before fault:link_lost (more for a slow adapter or computer)",
+    )
     reconnect_min_s: float = _p(0.1, "first reconnect delay after a failure, s", runtime=True)
     reconnect_max_s: float = _p(2.0, "longest reconnect delay (backoff doubles), s", runtime=True)
     auto_clear_watchdog: bool = _p(
@@ -133,6 +138,7 @@ class BridgeParams:
             url=self.url,
             ack_timeout_s=self.ack_timeout_s,
             motion_retries=self.motion_retries,
+            link_lost_beats=self.link_lost_beats,
             heartbeat_s=1.0 / self.heartbeat_hz,
             reconnect_min_s=self.reconnect_min_s,
             reconnect_max_s=self.reconnect_max_s,
@@ -151,6 +157,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "heartbeat_hz": (1.0, 100.0),
     "ack_timeout_s": (0.001, 10.0),
     "motion_retries": (0, 20),
+    "link_lost_beats": (1, 100),
     "reconnect_min_s": (0.01, 60.0),
     "reconnect_max_s": (0.01, 600.0),
     "diagnostics_hz": (0.1, 50.0),

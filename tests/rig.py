@@ -33,6 +33,10 @@ __all__ = ["HilRig"]
 
 _buses = itertools.count()
 
+RIG_MAX_BACKLOG_S = 1.0
+"""How far behind the wall clock the rig's emulator may fall and still run every tick it
+owes (``rover emulate``: :data:`emulator.engine.MAX_BACKLOG_S`), s."""
+
 
 class HilRig:
     """Emulator + bridge + relay + executor; close it (or use ``with``) to stop them all.
@@ -72,11 +76,17 @@ class HilRig:
                 ControllerConfig(timeout_scale=speed),
                 seed=seed,
             )
+            # Its threads share this process's interpreter with the rig's ROS nodes, relay
+            # and executor, which the machine may keep off the CPU while they hold it: the
+            # loop then fell 107 ms behind and let twin time slip, and drift control,
+            # which aligns the prediction on the wall clock, saw 0.28 m of false drift. Here
+            # it catches up in a burst instead, up to a second behind.
             self.emulator = Emulator(
                 model,
                 SerialFrontEnd(seed=seed),
                 speed_factor=speed,
                 faults=[parse_fault(f) for f in faults],
+                max_backlog_s=RIG_MAX_BACKLOG_S,
             )
             with threads_at(EMULATOR_PRIORITY):
                 self.emulator.start()

@@ -55,6 +55,12 @@ def test_every_parameter_is_declared_with_a_description_and_its_range() -> None:
     assert (device.default, device.read_only) == ("/dev/ttyACM0", True)
     assert (rate.default, rate.read_only, rate.range) == (20.0, False, (1.0, 100.0))
     assert (node.range, node.read_only) == ((1, 15), True)
+    beats = specs["link_lost_beats"]
+    assert (beats.default, beats.range, beats.read_only) == (3, (1, 100), True)
+    slow = load_params({"device": "/dev/ttyACM0", "link_lost_beats": 10}, env={})
+    assert slow.link_config().link_lost_beats == 10
+    with pytest.raises(ParameterError, match="link_lost_beats"):
+        load_params({"link_lost_beats": 0}, env={})
     runtime = {name for name, spec in specs.items() if not spec.read_only}
     assert runtime == {
         "heartbeat_hz",

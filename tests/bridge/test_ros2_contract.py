@@ -33,6 +33,11 @@ pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
 rclpy = pytest.importorskip("rclpy")
 
 
+def _ends_step(status: str) -> bool:
+    """Whether a ``/command_status`` string ends a step."""
+    return status == "completed" or status.startswith(("rejected:", "aborted:"))
+
+
 class PlainClient:
     """A plain rclpy node: publishes steps and STOPs, collects statuses."""
 
@@ -83,9 +88,7 @@ class PlainClient:
         mark = self.mark()
         self.steps.publish(Int16MultiArray(data=[command, speed, distance]))
         done = self.log.until(
-            lambda xs: any(
-                s == "completed" or s.startswith(("rejected:", "aborted:", "fault:")) for s in xs
-            ),
+            lambda xs: any(_ends_step(s) or s.startswith("fault:") for s in xs),
             since=mark,
             timeout_s=20.0,
         )
@@ -119,12 +122,26 @@ class PlainClient:
         own; the writer may see the reader a moment before the reader sees it)."""
         from std_msgs.msg import Int16MultiArray
 
+        first = self.mark()
         for _ in range(40):
             mark = self.mark()
             self.steps.publish(Int16MultiArray(data=[1, 10, 1]))
-            if self.log.until(lambda xs: "completed" in xs, since=mark, timeout_s=1.0):
-                return
-        pytest.fail(f"the bridge never completed a step: {self.statuses[-10:]}")
+            # Another probe only when this one was not taken at all: one still running
+            # (a slow machine: the VM's software CPU) would end after a test's own mark,
+            # and its statuses would be taken for the test's step's.
+            if not self.log.until(lambda xs: "accepted" in xs, since=mark, timeout_s=2.0):
+                continue
+            if self.log.until(lambda xs: "completed" in xs, since=mark, timeout_s=20.0):
+                break
+        else:
+            pytest.fail(f"the bridge never completed a step: {self.statuses[-10:]}")
+        # Every probe the bridge took has ended before the test's steps go out.
+        if not self.log.until(
+            lambda xs: xs.count("accepted") <= sum(1 for s in xs if _ends_step(s)),
+            since=first,
+            timeout_s=20.0,
+        ):
+            pytest.fail(f"a probe step never ended: {self.log.items(first)}")
 
     def parameters(self, node: str, names: list[str]) -> list[Any]:
         from rcl_interfaces.srv import GetParameters
@@ -300,10 +317,20 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
     emu_log, bridge_log = tmp_path / "emulator.log", tmp_path / "bridge.log"
     children: list[Child] = []
     try:
-        # The twin's step as the served emulators take it (coarser in the VM's software CPU).
+        # The twin's step as the served emulators take it (coarser in the VM's software
+        # CPU). There, too, the bridge's whole process stalled 370 ms now and then (on a
+        # host whose VM ran a Python loop 20 times slower than itself), past the link's
+        # 3-beat loss check and the controller's 250 ms watchdog: losing the link is not
+        # what this test is about (the link tests' and the wire simulator's), so in the
+        # VM each is given a second, as test_socketcan.py's two controllers are, and the
+        # ACK a quarter of one. (Even so it failed 6 runs of 12 there: tests/lanes.py.)
+        slack_emu = ["--watchdog-ms", "1000"] if IN_VCAN_VM else []
+        slack_bridge = ["--param", "link_lost_beats=10", "--ack-timeout", "0.25"]
+        if not IN_VCAN_VM:
+            slack_bridge = []
         emulator = Child(
             ["emulate", "--can", "socketcan:vcan0", "--node", "2", "--record", str(emu_log),
-             "--dt", str(TWIN_DT_S)],
+             "--dt", str(TWIN_DT_S), *slack_emu],
             env,
         )  # fmt: skip
         children.append(emulator)
@@ -315,7 +342,7 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         backend = "rclpy" if IN_VCAN_VM else "rclpy-process"
         bridge = Child(
             ["bridge", "--can", "socketcan:vcan0", "--node", "2", "--record", str(bridge_log),
-             "--ros-backend", backend],
+             "--ros-backend", backend, *slack_bridge],
             env,
         )  # fmt: skip
         children.append(bridge)
@@ -324,12 +351,9 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         # One step to its end, then one the STOP ends (every command's direction over CAN:
         # the lockstep conformance rules and the wire simulator).
         got = client.step(1, 30, 800)
-        assert got[-1] == "completed" and got.count("completed") == 1, (
-            got,
-            bridge.lines[-10:],
-            bridge.errors[-10:],
-            emulator.errors[-10:],
-        )
+        if got[-1] != "completed" or got.count("completed") != 1:
+            said = [*bridge.lines[-10:], *bridge.errors[-80:], "emulator:", *emulator.errors[-10:]]
+            pytest.fail("\n".join([f"statuses: {got}", "bridge:", *said]))
         from std_msgs.msg import Bool, Int16MultiArray
 
         mark = client.mark()
