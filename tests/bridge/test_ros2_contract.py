@@ -323,7 +323,7 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         # 3-beat loss check and the controller's 250 ms watchdog: losing the link is not
         # what this test is about (the link tests' and the wire simulator's), so in the
         # VM each is given a second, as test_socketcan.py's two controllers are, and the
-        # ACK a quarter of one. (Even so it failed 6 runs of 12 there: tests/lanes.py.)
+        # ACK a quarter of one. (Even so it failed 3 runs of 4 there: tests/lanes.py.)
         slack_emu = ["--watchdog-ms", "1000"] if IN_VCAN_VM else []
         slack_bridge = ["--param", "link_lost_beats=10", "--ack-timeout", "0.25"]
         if not IN_VCAN_VM:
