@@ -30,7 +30,7 @@ from emulator.engine import Emulator
 from firmware_proto.message import Message
 from firmware_proto.messages import Command, Hello, HostHeartbeat, Motion, Stop
 
-from .conftest import MEDIA, Recorder, link_url, serve, start_link, wait_emulator
+from .conftest import MEDIA, Recorder, link_url, serve, start_link, vm_slack, wait_emulator
 
 STUCK_LIMIT_S = 20.0
 """A stuck write lets go by itself after this long, so that a failing test ends."""
@@ -94,7 +94,7 @@ def _link(
         made.append(transport)
         return transport
 
-    link, rec = start_link(link_url(emu), transport_factory=factory, **config)
+    link, rec = start_link(link_url(emu), transport_factory=factory, **vm_slack(config))
     return link, rec, made
 
 

@@ -66,7 +66,16 @@ from firmware_proto.messages import (
     HostHeartbeat,
 )
 
-from .conftest import CAN_MEDIA, Inbox, Links, Recorder, can_channel_for, link_url, serve
+from .conftest import (
+    CAN_MEDIA,
+    Inbox,
+    Links,
+    Recorder,
+    can_channel_for,
+    link_url,
+    serve,
+    vm_slack,
+)
 
 Emus = Callable[..., Emulator]
 FWD = Command.FWD
@@ -603,13 +612,15 @@ def test_error_passive_warns_in_diagnostics_and_the_link_stays_up(
     emu = serve(emulators, kind, can_channel, node=2)
     channel = can_channel_for(kind, can_channel)
     params = load_params(
-        {
-            "can_interface": kind,
-            "can_channel": channel,
-            "node_id": 2,
-            "ros_backend": "inprocess",
-            "diagnostics_hz": 20.0,
-        },
+        vm_slack(
+            {
+                "can_interface": kind,
+                "can_channel": channel,
+                "node_id": 2,
+                "ros_backend": "inprocess",
+                "diagnostics_hz": 20.0,
+            }
+        ),
         env={},
     )
     status, diagnostics = Recorder(), Inbox()
