@@ -6,8 +6,25 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Mapping
 
-__all__ = ["run"]
+__all__ = ["LEGACY_EMULATE_DT_S", "recorded_dt_s", "run"]
+
+LEGACY_EMULATE_DT_S = 0.001
+"""``rover emulate``'s step, s, before its logs recorded it (``dt_s``): 1 ms of twin
+time whatever the speed factor."""
+
+
+def recorded_dt_s(metadata: Mapping[str, str]) -> float | None:
+    """The twin step (s) a traffic log was recorded at, from its metadata: ``dt_s``; an
+    emulator's log without it (one with ``speed_factor``) is older than that field, when
+    the step was :data:`LEGACY_EMULATE_DT_S` unless ``--dt`` said otherwise; ``None``
+    for a log that does not say (another recorder's): ``rover emulate``'s default."""
+    if metadata.get("dt_s"):
+        return float(metadata["dt_s"])
+    if "speed_factor" in metadata:
+        return LEGACY_EMULATE_DT_S
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             if args.speed_factor is not None
             else float(meta.get("speed_factor", "1"))
         ),
-        dt_s=float(meta["dt_s"]) if meta.get("dt_s") else None,
+        dt_s=recorded_dt_s(meta),
         map_name=args.map or meta.get("map") or "lab",
         rover_path=args.rover or meta.get("rover", ""),
         node=args.node,
