@@ -130,8 +130,8 @@ VM_LINK_LOST_BEATS = 10
 """The links' (and bridges') controller heartbeats missed before ``fault:link_lost``
 inside .ci/vcan-vm unless a test sets its own, instead of the protocol's 3 (the bridge's
 ``link_lost_beats``): there a test process sharing the emulated CPU with its emulator
-was kept off it for longer than three of them, and lost its link in a test of
-something else."""
+may be kept off it for longer than three of them, and a link lost in a test of
+something else is a false failure."""
 
 
 def vm_slack(config: dict[str, Any]) -> dict[str, Any]:
