@@ -23,9 +23,10 @@ from typing import Any
 
 import pytest
 
+from bridge.rosport.contract import Outcome, ends_step, parse_status
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.inbox import Inbox
-from tests.bridge.conftest import IN_VCAN_VM, TWIN_DT_S
+from tests.bridge.conftest import IN_VCAN_VM, TWIN_DT_S, VM_ACK_TIMEOUT_S, VM_LINK_LOST_BEATS
 from tests.child import Child
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
@@ -33,9 +34,10 @@ pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
 rclpy = pytest.importorskip("rclpy")
 
 
-def _ends_step(status: str) -> bool:
-    """Whether a ``/command_status`` string ends a step."""
-    return status == "completed" or status.startswith(("rejected:", "aborted:"))
+def _is_fate(status: str) -> bool:
+    """Whether a ``/command_status`` string is a step's own end (completed, rejected or
+    aborted: one per step), not a link's fault."""
+    return ends_step(status) and parse_status(status).kind != Outcome.FAULT.value
 
 
 class PlainClient:
@@ -88,7 +90,7 @@ class PlainClient:
         mark = self.mark()
         self.steps.publish(Int16MultiArray(data=[command, speed, distance]))
         done = self.log.until(
-            lambda xs: any(_ends_step(s) or s.startswith("fault:") for s in xs),
+            lambda xs: any(ends_step(s) for s in xs),
             since=mark,
             timeout_s=20.0,
         )
@@ -137,7 +139,7 @@ class PlainClient:
             pytest.fail(f"the bridge never completed a step: {self.statuses[-10:]}")
         # Every probe the bridge took has ended before the test's steps go out.
         if not self.log.until(
-            lambda xs: xs.count("accepted") <= sum(1 for s in xs if _ends_step(s)),
+            lambda xs: xs.count("accepted") <= sum(1 for s in xs if _is_fate(s)),
             since=first,
             timeout_s=20.0,
         ):
@@ -325,9 +327,12 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         # VM each is given a second, as test_socketcan.py's two controllers are, and the
         # ACK a quarter of one. (Even so it failed 3 runs of 4 there: tests/lanes.py.)
         slack_emu = ["--watchdog-ms", "1000"] if IN_VCAN_VM else []
-        slack_bridge = ["--param", "link_lost_beats=10", "--ack-timeout", "0.25"]
-        if not IN_VCAN_VM:
-            slack_bridge = []
+        slack_bridge = (
+            ["--param", f"link_lost_beats={VM_LINK_LOST_BEATS}",
+             "--ack-timeout", str(VM_ACK_TIMEOUT_S)]
+            if IN_VCAN_VM
+            else []
+        )  # fmt: skip
         emulator = Child(
             ["emulate", "--can", "socketcan:vcan0", "--node", "2", "--record", str(emu_log),
              "--dt", str(TWIN_DT_S), *slack_emu],
