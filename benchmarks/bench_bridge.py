@@ -43,20 +43,20 @@ from functools import partial
 from typing import IO
 
 from benchmarks.common import pty_round_trip, summary, table
-from bridge.link import ControllerLink, LinkConfig, StepRequest
-from bridge.node import BridgeNode
-from bridge.params import load_params
-from bridge.rosport import open_port, qos
-from bridge.rosport.msgs import Bool, Int16MultiArray, Odometry, String
+from bridge.link.controllerlink import ControllerLink, LinkConfig, StepRequest
+from bridge.ros.node import BridgeNode
+from bridge.ros.params import load_params
+from bridge.ros.rosport import open_port, qos
+from bridge.ros.rosport.msgs import Bool, Int16MultiArray, Odometry, String
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.linkio.inbox import Inbox
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.runtime.interpreter import use_short_switch_interval
 from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
+from firmware_proto.wire.messages import Command
 
 
 class Statuses:

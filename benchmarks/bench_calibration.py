@@ -43,9 +43,9 @@ from emulator.observations import MAX_REST_S, SETTLE_S, START_GUARD_S, observe_s
 from emulator.playback import play
 from emulator.recording import Recording, read_recording
 from emulator.twin import GATE_DT_S, Pose2D, Twin
-from firmware_proto.geometry import wrap_rad
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.geometry import wrap_rad
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import WorldMap
 
 FIT_DRIVING_S = 60.0
 CUT_BAR = 5.0

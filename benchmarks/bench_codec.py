@@ -29,11 +29,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from firmware_proto import codegen
-from firmware_proto.canmap import CanDecoder, encode_can
-from firmware_proto.framing import FrameDecoder, encode_frame
-from firmware_proto.message import Message
-from firmware_proto.messages import Encoders, Motion
+from firmware_proto.wire import codegen
+from firmware_proto.wire.canmap import CanDecoder, encode_can
+from firmware_proto.wire.framing import FrameDecoder, encode_frame
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Encoders, Motion
 
 Row = tuple[str, str, float]
 
@@ -125,7 +125,9 @@ def pymavlink_rows(n: int, repeats: int) -> list[Row]:
 def cantools_rows(n: int, repeats: int) -> list[Row]:
     import cantools
 
-    db = cantools.database.load_file(str(codegen.REPO_ROOT / "firmware_proto" / "rover.dbc"))
+    db = cantools.database.load_file(
+        str(codegen.REPO_ROOT / "firmware_proto" / "wire" / "rover.dbc")
+    )
     assert isinstance(db, cantools.database.can.Database)
     rows: list[Row] = []
     for name, msg in (
@@ -152,7 +154,7 @@ def cantools_rows(n: int, repeats: int) -> list[Row]:
 
 
 RECOVERY_REASONS = ("crc", "framing", "oversize", "unknown_id", "bad_length", "out_of_range")
-"""Drop reasons of :class:`~firmware_proto.counters.RxCounters` a serial stream can show."""
+"""Drop reasons of :class:`~firmware_proto.wire.counters.RxCounters` a serial stream can show."""
 
 
 def recovery(frames: int, ratio: float, seed: int) -> dict[str, float]:

@@ -29,7 +29,8 @@ from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     ClearAck,
@@ -42,7 +43,6 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
-from firmware_proto.rover import RoverDescription, load_rover
 from tests.emulator.host import serial_host
 
 

@@ -7,7 +7,7 @@ Run: ``.venv/bin/python -m benchmarks.bench_firmware [--quick]``
   more queued, then hands the controller one STOP; the time is from the call to its
   return, and the wheel targets are checked zero when it returns (the STOP_ACK and the
   eight aborted STATUS are written inside it). Rows: the C core measured in C
-  (``fw_on_bytes`` of the STOP frame, ``firmware_proto/c/fw/tests/bench_fw.c``, -O2,
+  (``fw_on_bytes`` of the STOP frame, ``firmware_proto/wire/c/fw/tests/bench_fw.c``, -O2,
   CLOCK_MONOTONIC around the call); the same core in the emulator
   (:meth:`FirmwareController.handle`: frame encoding, the ctypes call, decoding the
   answers); the Python model (:meth:`ControllerModel.handle`).
@@ -33,7 +33,8 @@ from benchmarks.common import percentile
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.firmware import C_DIR, FirmwareController
 from emulator.twin import Twin
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     ClearStop,
@@ -43,7 +44,6 @@ from firmware_proto.messages import (
     Motion,
     Stop,
 )
-from firmware_proto.rover import RoverDescription, load_rover
 
 CORE = ("fw/fw.c", "rover_msgs.c", "rover_proto.c")
 

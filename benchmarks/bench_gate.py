@@ -55,11 +55,11 @@ from benchmarks.common import Served, gate_process, server_process
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
 from emulator.twin import Twin
-from firmware_proto.geometry import convex_parts
-from firmware_proto.messages import Command
-from firmware_proto.plan import COMMAND_NAMES, Plan
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.worldmap import CircleObstacle, PolygonObstacle, WorldMap, load_map
+from firmware_proto.model.geometry import convex_parts
+from firmware_proto.model.plan import COMMAND_NAMES, Plan
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import CircleObstacle, PolygonObstacle, WorldMap, load_map
+from firmware_proto.wire.messages import Command
 from gate.config import DEFAULT_DT_S, DEFAULT_SAFETY_MARGIN_M, GateConfig
 from gate.options import ValidateOptions
 from gate.validator import Validator
@@ -386,7 +386,7 @@ class _PlainHandler(BaseHTTPRequestHandler):
 def serve_peer(kind: str) -> None:
     """``--serve-peer KIND``: a trivial JSON handler on a free port, printing ``GATE
     <url>``, until SIGTERM: ``plain`` (http.server), ``stack`` (the gate's stack:
-    Starlette on uvicorn through :class:`~firmware_proto.httpserve.HttpService`),
+    Starlette on uvicorn through :class:`~firmware_proto.http.HttpService`),
     ``aiohttp`` (the other stack weighed)."""
     import signal
 
@@ -404,7 +404,7 @@ def serve_peer(kind: str) -> None:
         from starlette.requests import Request
         from starlette.responses import Response
 
-        from firmware_proto.httpserve import HttpService, ServeLimits
+        from firmware_proto.http import HttpService, ServeLimits
         from gate.response import render_connection_error
 
         async def app(scope: Any, receive: Any, send: Any) -> None:

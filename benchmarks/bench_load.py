@@ -41,14 +41,14 @@ from pathlib import Path
 from benchmarks.bench_bridge import EmulatorProcess, Statuses
 from benchmarks.common import percentile
 from benchmarks.load import BusyLoad
-from bridge.link import ControllerLink, LinkConfig, StepRequest
-from firmware_proto.messages import Command
+from bridge.link.controllerlink import ControllerLink, LinkConfig, StepRequest
 from firmware_proto.runtime.realtime import (
     BRIDGE_PRIORITY,
     EMULATOR_PRIORITY,
     RealtimeConfig,
     apply_realtime,
 )
+from firmware_proto.wire.messages import Command
 
 _TIMING = re.compile(
     r"bridge rx (\S+)/(\S+), bridge tx (\S+)/(\S+), emulator rx (\S+)/(\S+); "

@@ -13,16 +13,16 @@ runs at its real speed and counts one to one.
 Three tables:
 
 1. *Planning* (thesis 6.2): ``--goals`` goals per scenario map (seed 0: the maps'
-   suggested goals, then random ones, :func:`planner.experiment.trial_goals`; with
+   suggested goals, then random ones, :func:`planner.plan.experiment.trial_goals`; with
    ``--colliding``, only goals whose straight route's bare footprint hits something on
    the map, as the thesis's trials "designed to collide"), from the map's start. The share of straight plans that collide (gate / bare-footprint
    geometry), the share of geometric collisions the gate intercepted, the share
    approved, and mean repair cycles, beside the thesis's 40 / 70 / 90 % and
    1.2 / 2.4 / 3.8.
 2. *Missions* (thesis 6.2, last paragraph): each approved goal driven twice from the
-   start on a fresh rig: gated (:class:`~planner.mission.MissionRunner`: plan,
+   start on a fresh rig: gated (:class:`~planner.ground.mission.MissionRunner`: plan,
    validate, repair, then the event-driven executor with drift control) and
-   move-and-wait (:class:`~planner.mission.MoveAndWait`: the same route, drives cut to
+   move-and-wait (:class:`~planner.ground.mission.MoveAndWait`: the same route, drives cut to
    0.5 m, each command confirmed through the round trip, then 2 s for the operator to
    look and decide; no gate, no drift control). The share completed, the mean mission
    time of each and the reduction, beside the thesis's -42.5 % at high density.
@@ -44,19 +44,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from benchmarks.common import gate_process, pty_round_trip, summary, table
-from firmware_proto.plan import Plan
-from firmware_proto.pose import Pose
-from firmware_proto.rover import load_rover
-from planner.experiment import (
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import load_rover
+from planner.ground.mission import MissionReport, MissionRunner, MoveAndWait
+from planner.plan.experiment import (
     ExperimentResult,
     footprint_hits,
     run_planning_experiment,
     trial_goals,
 )
-from planner.gate_client import GateClient
-from planner.mission import MissionReport, MissionRunner, MoveAndWait
-from planner.orchestrator import PlannerOrchestrator
-from planner.planner import HeuristicLowLevelPlanner
+from planner.plan.gate_client import GateClient
+from planner.plan.orchestrator import PlannerOrchestrator
+from planner.plan.planner import HeuristicLowLevelPlanner
 from tests.rig import HilRig
 
 THESIS_COLLISIONS = {"scn01": 0.40, "scn02": 0.70, "scn03": 0.90}

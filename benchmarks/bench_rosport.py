@@ -46,8 +46,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from bridge.rosport import DEFAULT_LANE, STOP_LANE, open_port
-from bridge.rosport.msgs import Int16MultiArray, String
+from bridge.ros.rosport import DEFAULT_LANE, STOP_LANE, open_port
+from bridge.ros.rosport.msgs import Int16MultiArray, String
 
 REPO = Path(__file__).resolve().parents[1]
 LATENCY_COUNT = 2000

@@ -7,7 +7,7 @@ Run where ``vcan0`` is up (on this machine: inside the micro-VM)::
     .ci/vcan-vm -- .venv/bin/python -m benchmarks.bench_socketcan [--trials N] [--quick]
 
 ``rover emulate --can socketcan:vcan0`` runs as a process of its own (as on a bench);
-the STOP bench (:mod:`bridge.stopbench`, the engine of ``rover bench stop``) drives it
+the STOP bench (:mod:`bridge.tools.stopbench`, the engine of ``rover bench stop``) drives it
 over python-can's ``socketcan`` interface: per trial the motion queue is full and the
 rover moving, STOP comes at a seeded random moment. Cases: *idle* (no flood), *flood*
 (PARAM_VALUE of another node, the protocol's lowest priority, from a second socket) and
@@ -32,7 +32,7 @@ from pathlib import Path
 import can
 
 from benchmarks.common import summary, table
-from bridge.stopbench import BenchConfig, BenchRun, FloodConfig, StopBench
+from bridge.tools.stopbench import BenchConfig, BenchRun, FloodConfig, StopBench
 
 CHANNEL = "vcan0"
 NODE = 1

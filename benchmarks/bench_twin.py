@@ -30,9 +30,9 @@ import pymunk
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
 from emulator.twin import GATE_DT_S, Twin
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import load_map
+from firmware_proto.wire.messages import Command
 
 STEP_RUN = 20_000
 

@@ -42,8 +42,8 @@ from emulator.batch import BatchDraw, play_batch
 from emulator.ground import Ground
 from emulator.playback import play
 from emulator.twin import Pose2D, Twin
-from firmware_proto.rover import load_rover
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.rover import load_rover
+from firmware_proto.model.worldmap import load_map
 from gate.config import DEFAULT_DT_S, DEFAULT_SAFETY_MARGIN_M, GateConfig
 from gate.ensemble import DefaultSpread, draw
 from gate.server import GateServer

@@ -42,8 +42,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import summary, table
-from bridge.rosport.msgs import Odometry
-from firmware_proto.worldmap import load_map
+from bridge.ros.rosport.msgs import Odometry
+from firmware_proto.model.worldmap import load_map
 from planner.view import ViewConfig, ViewHub, ViewServer
 
 WORLD = "lab"
@@ -238,7 +238,7 @@ def synthetic(seconds: float, odom_hz: float, browser: bool) -> str:
 
 
 def demo(speed: float, browser: bool) -> str:
-    from planner.demo import Demo, DemoConfig
+    from planner.stack.demo import Demo, DemoConfig
 
     marks: dict[str, float] = {}
     url = threading.Event()

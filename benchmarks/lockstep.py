@@ -5,11 +5,11 @@ the steps it publishes and, after the link's one-way delay, what the bridge publ
 from the controller's telemetry. :func:`record_lockstep` produces the same file without
 real time: the controller model (:class:`emulator.controller.ControllerModel`) drives its
 twin tick by tick on a ground of its own; the host's side of the bridge runs in process
-(the bridge's own :class:`~bridge.odometry.OdometryEstimator` and
-:func:`~bridge.odometry.ground_pose`, the ``odom`` and ``odom_ground`` messages built as
-``bridge/node.py`` builds them); the executor's pacing is kept (a step is sent when the
+(the bridge's own :class:`~bridge.link.odometry.OdometryEstimator` and
+:func:`~bridge.link.odometry.ground_pose`, the ``odom`` and ``odom_ground`` messages built as
+``bridge/ros/node.py`` builds them); the executor's pacing is kept (a step is sent when the
 previous one's ``completed`` has crossed the link, so the rover rests a round trip
-between steps); and every message goes through :class:`planner.mcaprec.McapRecorder`
+between steps); and every message goes through :class:`planner.record.mcaprec.McapRecorder`
 with log times as the ground station would have heard them (downlink: the rover's time
 plus the one-way delay; uplink: the time the rover received it minus the delay).
 
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bridge.odometry import OdometryEstimator, ground_pose
-from bridge.rosport.msgs import (
+from bridge.link.odometry import OdometryEstimator, ground_pose
+from bridge.ros.rosport.msgs import (
     Header,
     Int16MultiArray,
     Odometry,
@@ -43,7 +43,9 @@ from bridge.rosport.msgs import (
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.ground import Ground
 from emulator.twin import Pose2D, Twin
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     AbortReason,
@@ -58,11 +60,9 @@ from firmware_proto.messages import (
     StepState,
     WheelSpeeds,
 )
-from firmware_proto.messages import Pose as PoseMsg
-from firmware_proto.messages import Status as StatusMsg
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
-from planner.mcaprec import McapRecorder
+from firmware_proto.wire.messages import Pose as PoseMsg
+from firmware_proto.wire.messages import Status as StatusMsg
+from planner.record.mcaprec import McapRecorder
 
 __all__ = [
     "EPOCH_S",

@@ -2,17 +2,17 @@
 
 Also the ``rover_bridge`` console script that ``ros2 run`` and launch files start
 (:func:`main`), which accepts ``--ros-args ...``. Every bridge parameter
-(:class:`~bridge.params.BridgeParams`) can be set on the command line, by a named option
+(:class:`~bridge.ros.params.BridgeParams`) can be set on the command line, by a named option
 or by ``--param NAME=VALUE``, and as a ROS parameter from the ROS arguments (the node's
 sections of each ``--params-file``, then ``-p name:=value``; ``-r __node:=`` and
 ``-r __ns:=`` name and place the node). Precedence and validation are those of
-:func:`bridge.params.load_params`, on every backend: an unknown parameter, a bad value or
+:func:`bridge.ros.params.load_params`, on every backend: an unknown parameter, a bad value or
 a malformed ROS argument is a usage error (exit status 2), never ignored. The node then
 declares every parameter with its resolved value (read-only where it cannot change while
 running; ``ros2 param set`` changes the others, a bad value refused with the reason).
 
 At the default verbosity it says, on stdout, one line per event of its link that an
-operator must know (:mod:`bridge.linklines`): the device cannot be opened, no controller
+operator must know (:mod:`bridge.link.linklines`): the device cannot be opened, no controller
 answers, wrong baud suspected, handshake done, link lost and back.
 
 SIGINT and SIGTERM (or ``--duration``) end it cleanly: the node, the link and the ROS
@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 from firmware_proto.cli import values
 
 if TYPE_CHECKING:
-    from bridge.params import BridgeParams
+    from bridge.ros.params import BridgeParams
 
 __all__ = [
     "EXIT_NEVER_REACHED",
@@ -250,14 +250,14 @@ def resolve_params(
     env: Mapping[str, str] | None = None,
 ) -> tuple[BridgeParams, RosLayer]:
     """The bridge's parameters from the command line, the ROS arguments, the environment
-    and the parameters file (:func:`bridge.params.load_params`), on every backend.
+    and the parameters file (:func:`bridge.ros.params.load_params`), on every backend.
 
     Raises:
         ParameterError: an unknown parameter or a bad value; names it and its source.
         ValueError: malformed ROS arguments.
         OSError: a parameters file cannot be read.
     """
-    from bridge.params import load_params
+    from bridge.ros.params import load_params
 
     layer = ros_layer(ros_args) if ros_args else RosLayer()
     ros = _bridge_parameters(layer.params)
@@ -277,11 +277,11 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     (:func:`firmware_proto.cli.rosargs.split_ros_args`).
     """
     from bridge.errors import DeviceBusyError
-    from bridge.linklines import LinkNarrator
-    from bridge.node import BridgeNode
-    from bridge.rosport import BackendUnavailableError, open_port
-    from bridge.serial_transport import refuse_if_in_use
-    from bridge.transport import open_transport
+    from bridge.link.linklines import LinkNarrator
+    from bridge.link.serial_transport import refuse_if_in_use
+    from bridge.link.transport import open_transport
+    from bridge.ros.node import BridgeNode
+    from bridge.ros.rosport import BackendUnavailableError, open_port
     from firmware_proto.runtime import (
         ProcessRuntime,
         RuntimeOptions,
@@ -327,7 +327,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
         if getattr(args, "verbose", 1) == 0:
             # The link's own warnings (each loss, each retry) are said once, in words, by
             # the narrator below; -v brings them back.
-            for name in ("bridge.link", "bridge.linkcore"):
+            for name in ("bridge.link.controllerlink", "bridge.link.linkcore"):
                 logging.getLogger(name).setLevel(logging.ERROR)
         narrator = LinkNarrator(
             params.url if params.can_interface else (args.device or params.device),

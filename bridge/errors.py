@@ -3,8 +3,8 @@
 Everything this package raises derives from :class:`BridgeError`::
 
     BridgeError
-     +-- RosPortError       the ROS port (bridge.rosport) failed; its subclasses are drawn
-     |                      in bridge/rosport/errors.py
+     +-- RosPortError       the ROS port (bridge.ros.rosport) failed; its subclasses are drawn
+     |                      in bridge/ros/rosport/errors.py
      +-- TransportError     a device or bus cannot be opened, read or written; also
      |    |                 OSError (firmware_proto.linkio.errors.LinkError)
      |    +-- TransportUrlError   the URL itself is malformed: permanent, never retried;
@@ -71,7 +71,7 @@ class ParameterError(BridgeError, ValueError):
 
 
 class ConformanceError(BridgeError):
-    """The conformance suite cannot do what was asked (bridge.conformance)."""
+    """The conformance suite cannot do what was asked (bridge.tools.conformance)."""
 
 
 class RuleFailedError(ConformanceError):

@@ -4,7 +4,7 @@ injection, and front ends serving it over a pty or a python-can bus.
 The twin part (what the gate imports): :class:`Twin` (physics), :class:`StepProfile`
 (step semantics) and :func:`play` (lockstep playback); :class:`Ground` and
 :func:`load_ground` (a ground of the emulator's own, or a fitted one). The maps it
-plays on are the protocol's (:mod:`firmware_proto.worldmap`: ``load_map``), shared
+plays on are the protocol's (:mod:`firmware_proto.model.worldmap`: ``load_map``), shared
 with the gate and the planner. See docs/twin.md.
 """
 

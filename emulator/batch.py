@@ -65,9 +65,9 @@ from emulator.twin import (
     WALL_THICKNESS_M,
     Pose2D,
 )
-from firmware_proto.geometry import convex_parts
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import (
+from firmware_proto.model.geometry import convex_parts
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import (
     BOUNDS_ID,
     CircleObstacle,
     PolygonObstacle,

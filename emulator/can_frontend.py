@@ -17,11 +17,11 @@ from typing import Any
 import can
 
 from emulator.frontend import FrontEnd
-from firmware_proto.canmap import CanDecoder
 from firmware_proto.linkio.can_endpoint import CanEndpoint
 from firmware_proto.linkio.endpoint import CONTROLLER
 from firmware_proto.linkio.trafficlog import TrafficRecorder
-from firmware_proto.messages import DEFAULT_NODE
+from firmware_proto.wire.canmap import CanDecoder
+from firmware_proto.wire.messages import DEFAULT_NODE
 
 __all__ = ["CanFrontEnd"]
 

@@ -83,8 +83,8 @@ def _run(args: argparse.Namespace) -> int:
     from emulator.twin import GATE_DT_S
     from emulator.twinfile import write_twin
     from firmware_proto.errors import DescriptionError
-    from firmware_proto.rover import load_rover
-    from firmware_proto.worldmap import load_map
+    from firmware_proto.model.rover import load_rover
+    from firmware_proto.model.worldmap import load_map
 
     try:
         rover = load_rover(args.rover)

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from emulator.frontend import FrontEnd
     from emulator.ground import Ground
     from emulator.injection import FaultSpec, InjectionRecord
-    from firmware_proto.rover import RoverDescription
+    from firmware_proto.model.rover import RoverDescription
 
 __all__ = ["add_arguments", "controller_config", "ground_of", "main", "register"]
 
@@ -173,7 +173,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="python",
         help=(
             "the controller: the Python model, or the C firmware core of "
-            "firmware_proto/c/fw built for this host and run in the loop (needs a C "
+            "firmware_proto/wire/c/fw built for this host and run in the loop (needs a C "
             "compiler; docs/firmware.md) (default: python)"
         ),
     )
@@ -237,7 +237,7 @@ def controller_config(args: argparse.Namespace) -> ControllerConfig:
             what SET_PARAM accepts (``emulator.controller.PARAM_RANGES``).
     """
     from emulator.controller import PARAM_RANGES, ControllerConfig
-    from firmware_proto.messages import Param
+    from firmware_proto.wire.messages import Param
 
     if not args.speed_factor > 0:
         raise ValueError("--speed-factor must be > 0")
@@ -264,9 +264,9 @@ def _run(args: argparse.Namespace) -> int:
     from firmware_proto.linkio.errors import LinkUrlError
     from firmware_proto.linkio.trafficio import LogWriter, open_recorder
     from firmware_proto.linkio.urls import parse_can_spec
-    from firmware_proto.messages import SCHEMA_HASH
-    from firmware_proto.rover import load_rover
-    from firmware_proto.worldmap import load_map
+    from firmware_proto.model.rover import load_rover
+    from firmware_proto.model.worldmap import load_map
+    from firmware_proto.wire.messages import SCHEMA_HASH
 
     config = controller_config(args)
     faults: list[FaultSpec] = []

@@ -41,9 +41,10 @@ from dataclasses import dataclass, field
 from emulator.drive import StepProfile, motor_omegas, ramp
 from emulator.sensors import EncoderModel, ImuModel, PoseSensor, SensorConfig, count_delta
 from emulator.twin import Twin
-from firmware_proto.faults import STOPPING_FAULTS
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.faults import STOPPING_FAULTS
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     CONTROLLER_HEARTBEAT_PERIOD_MS,
     ENCODERS_RATE_HZ,
     MOTION_QUEUE_DEPTH,
@@ -83,7 +84,6 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
-from firmware_proto.rover import RoverDescription
 
 __all__ = [
     "DEDUP_WINDOW",

@@ -28,8 +28,8 @@ import logging
 import math
 
 from emulator.errors import CommandError
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Command
 
 __all__ = [
     "DONE_TOLERANCE_UNITS",
@@ -191,7 +191,7 @@ class StepProfile:
     ) -> None:
         """Args:
         rover: the rover description (speed scale, units, accel limit, limits).
-        command: command code (``firmware_proto.messages.Command``).
+        command: command code (``firmware_proto.wire.messages.Command``).
         speed: speed units, ``0..drive.max_speed``.
         distance: distance units, ``0..drive.max_distance``.
         initial_left_mps, initial_right_mps: wheel speeds when the step starts (rover

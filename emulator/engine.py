@@ -60,9 +60,10 @@ from emulator.injection import (
     ScheduledFault,
     parse_fault,
 )
-from firmware_proto.gapstats import GapStats, GapSummary
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.runtime import stall
+from firmware_proto.wire.gapstats import GapStats, GapSummary
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     CONTROLLER_HEARTBEAT_PERIOD_MS,
     HOST_HEARTBEAT_PERIOD_MS,
     ControllerState,
@@ -71,7 +72,6 @@ from firmware_proto.messages import (
     HostHeartbeat,
     Stop,
 )
-from firmware_proto.runtime import stall
 
 __all__ = ["MAX_BACKLOG_S", "WAKE_QUANTUM_S", "Emulator", "EmulatorStatus"]
 

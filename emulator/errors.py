@@ -22,7 +22,7 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
                                turns, too short); ``parameter`` names it
 
 A map that cannot be used raises :class:`firmware_proto.errors.MapError`: the map model
-is the protocol's (:mod:`firmware_proto.worldmap`). Programming errors (wrong types,
+is the protocol's (:mod:`firmware_proto.model.worldmap`). Programming errors (wrong types,
 calling a closed object) raise the usual built-ins.
 """
 

@@ -1,5 +1,5 @@
 """The C firmware core in the loop: :class:`FirmwareController` runs the motor
-controller of ``firmware_proto/c/fw/`` (compiled for the host as a shared library)
+controller of ``firmware_proto/wire/c/fw/`` (compiled for the host as a shared library)
 instead of the Python :class:`~emulator.controller.ControllerModel`, with the same twin
 as its plant and the same interface, so that the engine, the front ends, fault
 injection, the bridge and the conformance suite run against it unchanged.
@@ -47,10 +47,10 @@ from emulator.drive import motor_omegas
 from emulator.errors import FirmwareBuildError
 from emulator.sensors import PoseMeasurement, wrap_count
 from emulator.twin import Twin
-from firmware_proto.framing import FrameDecoder, FrameEncoder
-from firmware_proto.message import Message
-from firmware_proto.messages import PROTOCOL_VERSION, SCHEMA_HASH
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import PROTOCOL_VERSION, SCHEMA_HASH
 
 __all__ = [
     "C_DIR",
@@ -64,7 +64,7 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-C_DIR = Path(__file__).resolve().parents[1] / "firmware_proto" / "c"
+C_DIR = Path(__file__).resolve().parents[1] / "firmware_proto" / "wire" / "c"
 """The C codec; the firmware core is in its ``fw/`` folder."""
 SOURCES = ("fw/fw.c", "fw/port_host.c", "rover_msgs.c", "rover_proto.c")
 HEADERS = ("fw/fw.h", "fw/fw_hal.h", "rover_msgs.h", "rover_proto.h")

@@ -56,9 +56,9 @@ from emulator.ground import Ground
 from emulator.observations import ObservedSteps, StepObservation
 from emulator.playback import measure_turn_efficiency, play
 from emulator.twin import GATE_DT_S, Pose2D, Twin
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.wire.messages import Command
 
 __all__ = [
     "BOUNDS",

@@ -30,7 +30,7 @@ from types import TracebackType
 from emulator.errors import InjectionError
 from firmware_proto.linkio.endpoint import Endpoint
 from firmware_proto.linkio.trafficlog import TrafficRecorder
-from firmware_proto.message import Message
+from firmware_proto.wire.message import Message
 
 __all__ = ["MAX_LINK_DELAY_S", "Deliver", "FrontEnd", "FrontEndStats"]
 

@@ -47,8 +47,8 @@ from pathlib import Path
 from typing import Any
 
 from emulator.errors import GroundError
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
 
 if sys.version_info >= (3, 11):
     import tomllib

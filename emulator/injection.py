@@ -40,8 +40,8 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Protocol
 
 from emulator.errors import InjectionError
-from firmware_proto.message import Message
-from firmware_proto.messages import FaultCode
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import FaultCode
 
 if TYPE_CHECKING:  # the CLI imports this module for its help text; keep it light
     from emulator.controller import ControllerModel

@@ -35,7 +35,7 @@ from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.linkio.endpoint import CONTROLLER, HOST, Endpoint
 from firmware_proto.linkio.memory import memory_line
 from firmware_proto.linkio.serial_endpoint import SerialEndpoint
-from firmware_proto.message import Message
+from firmware_proto.wire.message import Message
 
 __all__ = ["MEDIA", "LockstepController", "lockstep_pair"]
 

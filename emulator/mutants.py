@@ -27,8 +27,9 @@ from emulator.drive import StepProfile
 from emulator.errors import UnknownMutantError
 from emulator.twin import Twin
 from firmware_proto.linkio.endpoint import Endpoint
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     Ack,
     AckField,
     AckResult,
@@ -49,7 +50,6 @@ from firmware_proto.messages import (
     StepState,
     StopAck,
 )
-from firmware_proto.rover import RoverDescription
 
 __all__ = ["MUTANTS", "Mutant", "UnknownMutantError", "make_mutant", "mutant"]
 

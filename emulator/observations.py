@@ -38,9 +38,9 @@ import numpy as np
 
 from emulator.recording import FloatArray, Recording
 from emulator.twin import Pose2D
-from firmware_proto.geometry import wrap_rad
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.geometry import wrap_rad
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Command
 
 __all__ = [
     "MAX_REST_S",

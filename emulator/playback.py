@@ -37,8 +37,8 @@ from emulator.drive import (
 from emulator.errors import TwinConfigError
 from emulator.traction import ideal_spin_yaw_rad
 from emulator.twin import Collision, Pose2D, Twin
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Command
 
 __all__ = [
     "DEFAULT_SAMPLE_PERIOD_S",

@@ -64,9 +64,9 @@ from firmware_proto.linkio.trafficlog import (
     is_answer,
     log_node,
 )
-from firmware_proto.message import Message
-from firmware_proto.rover import load_rover
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.rover import load_rover
+from firmware_proto.model.worldmap import load_map
+from firmware_proto.wire.message import Message
 
 __all__ = [
     "MAX_SETTLE_S",

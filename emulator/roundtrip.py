@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 
 import serial
 
-from firmware_proto.framing import FrameDecoder, encode_frame
 from firmware_proto.linkio.ptypair import PtyPair
-from firmware_proto.message import Message
-from firmware_proto.messages import Encoders, Heartbeat, Imu, Motion, Pose, Stop
+from firmware_proto.wire.framing import FrameDecoder, encode_frame
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Encoders, Heartbeat, Imu, Motion, Pose, Stop
 
 __all__ = ["RoundtripResult", "pty_roundtrip", "sample_messages"]
 

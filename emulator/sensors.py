@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 from emulator.drive import travel_units
 from emulator.twin import Pose2D, Twin
-from firmware_proto.geometry import wrap_rad
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.geometry import wrap_rad
+from firmware_proto.model.rover import RoverDescription
 
 __all__ = [
     "COUNTER_MODULUS",
@@ -34,7 +34,7 @@ __all__ = [
 
 COUNTER_MODULUS = 1 << 32
 """An encoder counter is a signed 32-bit register: it reads ``-2**31 .. 2**31 - 1`` and
-wraps modulo ``2**32`` (firmware_proto/c/fw/fw_hal.h)."""
+wraps modulo ``2**32`` (firmware_proto/wire/c/fw/fw_hal.h)."""
 _HALF = COUNTER_MODULUS // 2
 
 

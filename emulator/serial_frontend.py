@@ -27,11 +27,11 @@ import time
 from pathlib import Path
 
 from emulator.frontend import FrontEnd
-from firmware_proto.framing import FrameDecoder
 from firmware_proto.linkio.endpoint import CONTROLLER
 from firmware_proto.linkio.serial_endpoint import PtyPort, SerialEndpoint
 from firmware_proto.linkio.trafficlog import TrafficRecorder
-from firmware_proto.message import Message
+from firmware_proto.wire.framing import FrameDecoder
+from firmware_proto.wire.message import Message
 
 __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
 

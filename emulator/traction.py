@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 
 __all__ = [
     "ROLLING_SPEED_SCALE_MPS",

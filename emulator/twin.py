@@ -38,9 +38,9 @@ import pymunk
 
 from emulator.errors import CommandError, InjectionError, TwinConfigError
 from emulator.traction import TractionModel
-from firmware_proto.geometry import convex_parts, wrap_rad
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import (
+from firmware_proto.model.geometry import convex_parts, wrap_rad
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import (
     BOUNDS_ID,
     CircleObstacle,
     PolygonObstacle,

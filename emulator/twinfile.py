@@ -31,8 +31,8 @@ from emulator.calibration import Calibration, Residuals
 from emulator.errors import GroundError
 from emulator.ground import Ground
 from firmware_proto.errors import DescriptionError
-from firmware_proto.rover import CALIBRATION_TABLE, RoverDescription, load_rover
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.rover import CALIBRATION_TABLE, RoverDescription, load_rover
+from firmware_proto.model.worldmap import WorldMap
 
 if sys.version_info >= (3, 11):
     import tomllib

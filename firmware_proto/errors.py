@@ -9,12 +9,12 @@ Everything this package raises derives from :class:`ProtoError`::
      +-- DescriptionError   the rover description file is missing or invalid; also ValueError
      +-- PlanError          a command plan fails its JSON schema; also ValueError
      +-- MapError           a map is unknown, unreadable, not JSON, or invalid
-     |                      (firmware_proto.worldmap); ``violations`` lists
+     |                      (firmware_proto.model.worldmap); ``violations`` lists
      |                      ``(json_pointer, message)`` pairs. Also ValueError
      +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
-                            pointers; firmware_proto.verdict); also ValueError
+                            pointers; firmware_proto.model.verdict); also ValueError
      +-- BindPolicyError    an HTTP server may not listen there without a token, or the
-                            token is malformed (firmware_proto.bindpolicy); also ValueError
+                            token is malformed (firmware_proto.http.bindpolicy); also ValueError
      +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
                             also ValueError and argparse.ArgumentTypeError
 
@@ -96,7 +96,7 @@ class MapError(ProtoError, ValueError):
 
 
 class VerdictError(ProtoError, ValueError):
-    """A document is not the gate's verdict JSON (:mod:`firmware_proto.verdict`).
+    """A document is not the gate's verdict JSON (:mod:`firmware_proto.model.verdict`).
 
     Attributes:
         pointers: the JSON pointers where the document departs from the shape.
@@ -109,4 +109,4 @@ class VerdictError(ProtoError, ValueError):
 
 class BindPolicyError(ProtoError, ValueError):
     """An HTTP server of ours may not listen on that address without a token, or its
-    token is malformed (:mod:`firmware_proto.bindpolicy`)."""
+    token is malformed (:mod:`firmware_proto.http.bindpolicy`)."""

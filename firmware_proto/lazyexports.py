@@ -8,8 +8,8 @@ each start pay for all of them. A package lists its lazy names here, and imports
 under ``TYPE_CHECKING`` for the type checker::
 
     if TYPE_CHECKING:
-        from planner.executor import PlanExecutor
-    __getattr__, __dir__ = lazy_exports(__name__, {"planner.executor": ("PlanExecutor",)})
+        from planner.ground.executor import PlanExecutor
+    __getattr__, __dir__ = lazy_exports(__name__, {"planner.ground.executor": ("PlanExecutor",)})
 """
 
 from __future__ import annotations

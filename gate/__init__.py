@@ -1,7 +1,7 @@
 """Simulation gate: HTTP ``/validate_plan`` playing command plans on the pymunk twin.
 
 The light names (option data types, errors, configuration, and the verdict's types,
-defined once in :mod:`firmware_proto.verdict` for the gate and its clients) are imported
+defined once in :mod:`firmware_proto.model.verdict` for the gate and its clients) are imported
 here; the ones that pull in the twin (pymunk) or the HTTP server load on first use, so
 that ``from gate import Verdict`` stays cheap for a client. See docs/gate.md.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from firmware_proto.lazyexports import lazy_exports
-from firmware_proto.pose import Point, Pose
-from firmware_proto.verdict import (
+from firmware_proto.model.pose import Point, Pose
+from firmware_proto.model.verdict import (
     FAILURE_TYPES,
     CollisionReport,
     Replay,

@@ -235,8 +235,8 @@ def _check(args: argparse.Namespace) -> int:
 
     from emulator.errors import EmulatorError
     from firmware_proto.errors import PlanError
-    from firmware_proto.plan import Plan
-    from firmware_proto.rover import load_rover
+    from firmware_proto.model.plan import Plan
+    from firmware_proto.model.rover import load_rover
     from gate.config import PlaybackSettings
     from gate.errors import GateError
     from gate.options import ValidateOptions

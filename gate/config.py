@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.bindpolicy import check_bind
 from firmware_proto.errors import BindPolicyError
-from firmware_proto.httpserve.limits import (
+from firmware_proto.http.bindpolicy import check_bind
+from firmware_proto.http.limits import (
     DEFAULT_BODY_TIMEOUT_S,
     DEFAULT_HEAD_TIMEOUT_S,
     DEFAULT_IDLE_TIMEOUT_S,

@@ -11,7 +11,7 @@ chunks of fixed size (:func:`chunk_sizes`, a function of N alone) by
 :func:`run_chunk`, which needs nothing but its :class:`ChunkJob`: on the gate's process
 pool, or on a Dask cluster (:mod:`gate.cluster`). :func:`summarise` turns the chunks'
 results, concatenated in chunk order, into the verdict's
-:class:`~firmware_proto.verdict.Uncertainty`: the same request and seed give the same
+:class:`~firmware_proto.model.verdict.Uncertainty`: the same request and seed give the same
 bytes wherever the chunks ran.
 
 Each twin is judged as the nominal one is (collision, stall, goal and yaw tolerances),
@@ -32,17 +32,17 @@ from emulator.batch import BatchDraw, BatchResult, play_batch
 from emulator.calibration import FIT_PARAMETERS
 from emulator.ground import Ground
 from emulator.twin import Pose2D
-from firmware_proto.messages import Command
-from firmware_proto.plan import Plan
-from firmware_proto.pose import Point, Pose
-from firmware_proto.rover import RoverDescription
-from firmware_proto.verdict import (
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.pose import Point, Pose
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.verdict import (
     EnvelopePoint,
     GoalErrorPercentiles,
     ObstacleHits,
     Uncertainty,
 )
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.wire.messages import Command
 from gate.goal import approach_heading_rad, goal_error
 
 __all__ = [

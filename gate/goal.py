@@ -13,8 +13,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from firmware_proto.geometry import wrap_deg
-from firmware_proto.messages import Command
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.wire.messages import Command
 
 __all__ = ["GoalError", "approach_heading_rad", "goal_error"]
 

@@ -2,9 +2,9 @@
 
 The paths and methods come from :data:`gate.routes.ROUTES` (the table the server
 dispatches on). The request body is the plan schema itself
-(:func:`firmware_proto.plan.plan_schema`, the one copy of Listing 1) and ``GET
+(:func:`firmware_proto.model.plan.plan_schema`, the one copy of Listing 1) and ``GET
 /maps/{name}`` answers with documents of the map schema
-(:func:`firmware_proto.worldmap.map_schema`), each with its ``$defs`` hoisted into
+(:func:`firmware_proto.model.worldmap.map_schema`), each with its ``$defs`` hoisted into
 ``components.schemas`` (``CommandPlan_command_step``, ``Map_polygon``...). The query
 parameters and their ranges come from :mod:`gate.options`; limits and defaults from the
 server's configuration, so the document states the values this server uses. The 401
@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from firmware_proto.plan import MAX_PLAN_STEPS, plan_schema
-from firmware_proto.verdict import FAILURE_TYPES
-from firmware_proto.worldmap import map_schema
+from firmware_proto.model.plan import MAX_PLAN_STEPS, plan_schema
+from firmware_proto.model.verdict import FAILURE_TYPES
+from firmware_proto.model.worldmap import map_schema
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig
 from gate.options import (
     DEFAULT_SAMPLES,

@@ -30,7 +30,7 @@ import re
 from dataclasses import dataclass
 from urllib.parse import parse_qsl, quote
 
-from firmware_proto.pose import Pose
+from firmware_proto.model.pose import Pose
 from gate.config import PlaybackSettings
 from gate.errors import OptionError
 

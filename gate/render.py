@@ -20,11 +20,11 @@ import math
 from PIL import Image, ImageDraw
 
 from emulator.drive import yaw_for_turn_units
-from firmware_proto.plan import Plan
-from firmware_proto.pose import Pose
-from firmware_proto.rover import RoverDescription
-from firmware_proto.verdict import Verdict
-from firmware_proto.worldmap import CircleObstacle, PolygonObstacle, WorldMap
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.model.worldmap import CircleObstacle, PolygonObstacle, WorldMap
 
 __all__ = ["LEGEND_PX", "MAX_IMAGE_PX", "planned_path", "render_png"]
 

@@ -1,13 +1,13 @@
 """Reading a request: its declared body length, media type and strict JSON.
 
-h11 (under uvicorn, :mod:`firmware_proto.httpserve`) has already checked the framing
+h11 (under uvicorn, :mod:`firmware_proto.http`) has already checked the framing
 (``Content-Length`` or chunked, never both); what is left is the gate's own policy:
 
 - a ``POST`` must say how long its body is (411 otherwise, rather than an empty plan);
 - a declared length over the limit is refused (413) before a byte of it is read, and
   before ``100 Continue`` invites the client to send it;
 - the body must be ``application/json`` in UTF-8, strict JSON (no NaN, no duplicate
-  keys, no byte-order mark), nested at most :data:`~firmware_proto.schemacheck.MAX_DEPTH`
+  keys, no byte-order mark), nested at most :data:`~firmware_proto.model.schemacheck.MAX_DEPTH`
   levels (400 ``not_json`` otherwise; a plan nests 3).
 """
 
@@ -17,7 +17,7 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from firmware_proto.schemacheck import MAX_DEPTH, json_depth
+from firmware_proto.model.schemacheck import MAX_DEPTH, json_depth
 from gate.errors import (
     BadRequestError,
     LengthRequiredError,
@@ -88,7 +88,7 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 
 def parse_json(body: bytes) -> Any:
     """Parse a body as strict JSON: UTF-8 without BOM, no NaN or Infinity, no duplicate
-    keys, at most :data:`~firmware_proto.schemacheck.MAX_DEPTH` levels deep.
+    keys, at most :data:`~firmware_proto.model.schemacheck.MAX_DEPTH` levels deep.
 
     Raises:
         BadRequestError: code ``not_json``, saying where parsing failed.

@@ -48,5 +48,5 @@ def error_body(error: HttpError) -> bytes:
 
 def render_connection_error(status: int, code: str, message: str) -> tuple[str, bytes]:
     """The gate's wording of an error the connection layer answers itself (a
-    :data:`firmware_proto.httpserve.ErrorRenderer`): the same JSON as every error."""
+    :data:`firmware_proto.http.ErrorRenderer`): the same JSON as every error."""
     return JSON_CONTENT_TYPE, json_bytes({"error": code, "status": status, "message": message})

@@ -1,7 +1,7 @@
 """The HTTP gate: ``POST /validate_plan`` and friends, served by uvicorn.
 
 :class:`GateServer` is an ASGI application (Starlette's request and response types) on
-the project's one HTTP stack (:mod:`firmware_proto.httpserve`: uvicorn with h11, one
+the project's one HTTP stack (:mod:`firmware_proto.http`: uvicorn with h11, one
 event loop in a thread of its own, every connection bounded by deadlines), in front of
 a bounded :mod:`worker pool <gate.pool>`:
 
@@ -16,7 +16,7 @@ a bounded :mod:`worker pool <gate.pool>`:
   it is read (and before ``100 Continue``); chunked bodies are counted as they come; a
   body without framing gets 411; every error body is JSON, those the connection layer
   answers itself too (:func:`gate.response.render_connection_error`).
-- *Auth and binding* (:mod:`firmware_proto.bindpolicy`): with a token, every request
+- *Auth and binding* (:mod:`firmware_proto.http.bindpolicy`): with a token, every request
   needs ``Authorization: Bearer <token>`` (constant-time comparison; 401 otherwise). The
   configuration refuses a non-loopback address without a token.
 - *Shutdown* (:meth:`GateServer.close`, idempotent): new requests get 503; the listener
@@ -43,18 +43,18 @@ from typing import Any
 from starlette.requests import Request
 from starlette.responses import Response
 
-from firmware_proto.bindpolicy import bearer_token, token_matches
 from firmware_proto.errors import PlanError
-from firmware_proto.httpserve import (
+from firmware_proto.http import (
     ClientGoneError,
     HttpService,
     RequestBodyError,
     ServeLimits,
     read_body,
 )
-from firmware_proto.httpserve.limits import DEFAULT_MAX_DRAIN_BYTES
-from firmware_proto.plan import Plan
-from firmware_proto.verdict import Verdict
+from firmware_proto.http.bindpolicy import bearer_token, token_matches
+from firmware_proto.http.limits import DEFAULT_MAX_DRAIN_BYTES
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.verdict import Verdict
 from gate import routes
 from gate.config import GateConfig
 from gate.ensemble import run_chunk

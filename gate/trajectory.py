@@ -16,8 +16,8 @@ from collections.abc import Callable
 
 from emulator.playback import PlaybackResult
 from emulator.twin import Pose2D
-from firmware_proto.pose import Pose
-from firmware_proto.verdict import TrajectorySample
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.verdict import TrajectorySample
 
 __all__ = ["tag_samples"]
 

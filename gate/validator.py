@@ -38,11 +38,11 @@ from emulator.ground import Ground
 from emulator.playback import DEFAULT_SETTLE_S, PlaybackResult, play, step_time_limit_s
 from emulator.twin import Pose2D, Twin
 from firmware_proto.errors import DescriptionError, MapError
-from firmware_proto.geometry import wrap_deg
-from firmware_proto.plan import COMMAND_NAMES, Plan
-from firmware_proto.pose import Point, Pose
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.verdict import (
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.model.plan import COMMAND_NAMES, Plan
+from firmware_proto.model.pose import Point, Pose
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.verdict import (
     CollisionReport,
     Replay,
     StallReport,
@@ -51,7 +51,7 @@ from firmware_proto.verdict import (
     Trajectory,
     Verdict,
 )
-from firmware_proto.worldmap import WorldMap, list_maps, load_map
+from firmware_proto.model.worldmap import WorldMap, list_maps, load_map
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig, PlaybackSettings
 from gate.ensemble import ChunkJob, DefaultSpread, Spread, chunk_jobs, draw, run_chunk, summarise
 from gate.errors import GateConfigError, GoalRangeError, OptionError

@@ -1,18 +1,23 @@
-"""Ground station: heuristic planner with repairs, orchestrator, gate client, executor
-with drift control, link emulation, missions and the operator CLI (docs/planner.md,
-docs/ground.md).
+"""Ground station (docs/planner.md, docs/ground.md):
 
-The names an operator's script needs are imported here. :mod:`planner.picture` (Pillow)
-and :mod:`planner.demo` (subprocesses) are imported from their modules.
+- ``plan/``: the heuristic planner, repairs, orchestrator and gate client;
+- ``ground/``: the executor with drift control, missions, the link relay, the operator's
+  console;
+- ``stack/``: a stack of the programs on one machine, and the demo;
+- ``record/``: MCAP recordings, markers, Foxglove, the mission picture;
+- ``view/``: the live view.
+
+The names an operator's script needs are imported here. :mod:`planner.record.picture` (Pillow)
+and :mod:`planner.stack.demo` (subprocesses) are imported from their modules.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from firmware_proto.geometry import Point
 from firmware_proto.lazyexports import lazy_exports
-from firmware_proto.pose import Pose
+from firmware_proto.model.geometry import Point
+from firmware_proto.model.pose import Pose
 from planner.errors import (
     GateCallError,
     GateOverloadedError,
@@ -29,30 +34,40 @@ from planner.errors import (
 )
 
 if TYPE_CHECKING:
-    from firmware_proto.verdict import Trajectory, Verdict
-    from planner.drift import DriftEvent, DriftMonitor
-    from planner.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
-    from planner.experiment import ExperimentResult, run_planning_experiment
-    from planner.gate_client import GateClient, GateOptions
-    from planner.mission import MissionReport, MissionRunner, MoveAndWait
-    from planner.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
-    from planner.planner import HeuristicLowLevelPlanner, LegPlan
-    from planner.relay import LinkProfile, LinkRelay
-    from planner.repairs import RepairSettings
+    from firmware_proto.model.verdict import Trajectory, Verdict
+    from planner.ground.drift import DriftEvent, DriftMonitor
+    from planner.ground.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+    from planner.ground.mission import MissionReport, MissionRunner, MoveAndWait
+    from planner.ground.relay import LinkProfile, LinkRelay
+    from planner.plan.experiment import ExperimentResult, run_planning_experiment
+    from planner.plan.gate_client import GateClient, GateOptions
+    from planner.plan.orchestrator import Attempt, MissionResult, PlannerOrchestrator, PlanResult
+    from planner.plan.planner import HeuristicLowLevelPlanner, LegPlan
+    from planner.plan.repairs import RepairSettings
 
 __getattr__, __dir__ = lazy_exports(
     __name__,
     {
-        "firmware_proto.verdict": ("Trajectory", "Verdict"),
-        "planner.drift": ("DriftEvent", "DriftMonitor"),
-        "planner.executor": ("ExecutionResult", "ExecutorConfig", "PlanExecutor", "Progress"),
-        "planner.experiment": ("ExperimentResult", "run_planning_experiment"),
-        "planner.gate_client": ("GateClient", "GateOptions"),
-        "planner.mission": ("MissionReport", "MissionRunner", "MoveAndWait"),
-        "planner.orchestrator": ("Attempt", "MissionResult", "PlannerOrchestrator", "PlanResult"),
-        "planner.planner": ("HeuristicLowLevelPlanner", "LegPlan"),
-        "planner.relay": ("LinkProfile", "LinkRelay"),
-        "planner.repairs": ("RepairSettings",),
+        "firmware_proto.model.verdict": ("Trajectory", "Verdict"),
+        "planner.ground.drift": ("DriftEvent", "DriftMonitor"),
+        "planner.ground.executor": (
+            "ExecutionResult",
+            "ExecutorConfig",
+            "PlanExecutor",
+            "Progress",
+        ),
+        "planner.plan.experiment": ("ExperimentResult", "run_planning_experiment"),
+        "planner.plan.gate_client": ("GateClient", "GateOptions"),
+        "planner.ground.mission": ("MissionReport", "MissionRunner", "MoveAndWait"),
+        "planner.plan.orchestrator": (
+            "Attempt",
+            "MissionResult",
+            "PlannerOrchestrator",
+            "PlanResult",
+        ),
+        "planner.plan.planner": ("HeuristicLowLevelPlanner", "LegPlan"),
+        "planner.ground.relay": ("LinkProfile", "LinkRelay"),
+        "planner.plan.repairs": ("RepairSettings",),
     },
 )
 

@@ -118,8 +118,8 @@ class RepairError(PlannerError):
 
 class GaveUp(Protocol):
     """What :class:`UnreachableGoalError` holds: an outcome that says why it failed
-    (:class:`~planner.orchestrator.PlanResult` and
-    :class:`~planner.orchestrator.MissionResult` are two; this module imports neither,
+    (:class:`~planner.plan.orchestrator.PlanResult` and
+    :class:`~planner.plan.orchestrator.MissionResult` are two; this module imports neither,
     so that nothing in the planner imports back into its errors)."""
 
     @property
@@ -135,8 +135,8 @@ class UnreachableGoalError(PlannerError):
     """The orchestrator gave up on a goal.
 
     Attributes:
-        result: the :class:`~planner.orchestrator.PlanResult` or
-            :class:`~planner.orchestrator.MissionResult`, with every attempt and verdict
+        result: the :class:`~planner.plan.orchestrator.PlanResult` or
+            :class:`~planner.plan.orchestrator.MissionResult`, with every attempt and verdict
             (narrow it with ``isinstance`` to reach them).
     """
 
@@ -242,7 +242,7 @@ class GateTimeoutError(GateUnavailableError, TimeoutError):
 
 class DomainBusyError(PlannerError, RuntimeError):
     """The ROS domain asked for is held by another stack, or none is free
-    (:mod:`planner.domains`)."""
+    (:mod:`planner.stack.domains`)."""
 
 
 class GateProtocolError(GateCallError):

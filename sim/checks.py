@@ -36,8 +36,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from bridge.linktypes import LinkDiagnostics, StatusEvent
-from firmware_proto.messages import Heartbeat, Ident, Status, StepState
+from bridge.link.linktypes import LinkDiagnostics, StatusEvent
+from firmware_proto.wire.messages import Heartbeat, Ident, Status, StepState
 
 __all__ = ["RULES", "Judge", "Ledger", "Violation", "final_checks"]
 

@@ -16,9 +16,9 @@ from pathlib import Path
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.firmware import build_library, make_controller
 from emulator.twin import Twin
-from firmware_proto.message import Message
-from firmware_proto.messages import ENCODERS_RATE_HZ, Encoders
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import ENCODERS_RATE_HZ, Encoders
 
 __all__ = ["SampleLeak", "build_controller"]
 

@@ -24,7 +24,7 @@ import random
 from collections import deque
 from dataclasses import dataclass, field
 
-from firmware_proto.message import Message
+from firmware_proto.wire.message import Message
 
 __all__ = ["BYTE_S", "CAN_FRAME_S", "Delivery", "Pipe", "Window"]
 

@@ -1,23 +1,24 @@
-"""One scenario played in virtual time: the host's :class:`~bridge.linkcore.LinkCore`, a
+"""One scenario played in virtual time: the host's :class:`~bridge.link.linkcore.LinkCore`, a
 controller (the Python model or the C core) over its twin, and the two directions of a
 serial line or a CAN bus between them, with the scenario's faults (docs/sim.md).
 
 :class:`Rig` is an event loop over virtual time. Nothing waits: the next event is the
 earliest of the controller's next tick, the next frame arriving at either end, the host
-core's next deadline (:meth:`LinkCore.next_deadline <bridge.linkcore.LinkCore.next_deadline>`),
+core's next deadline (:meth:`LinkCore.next_deadline <bridge.link.linkcore.LinkCore.next_deadline>`),
 a fault starting or ending and the operator's next action; time jumps to it, so idle time
 costs nothing. Ties are broken in one fixed order (operator and faults, frames to the
 controller, its tick, frames to the host, the host's tick), so a seed plays the same way
 every time.
 
-The host side is driven as :class:`bridge.link.ControllerLink` drives the core: every
+The host side is driven as :class:`bridge.link.controllerlink.ControllerLink` drives the core: every
 STOP copy is written first and at once, the ordinary frames in the order the core
 queued them, each reported written; frames are encoded with the real codecs
-(:class:`~firmware_proto.framing.FrameEncoder` / :class:`~firmware_proto.framing.FrameDecoder`,
-:mod:`firmware_proto.canmap`) and decoded back from the bytes that arrive. The
+(:class:`~firmware_proto.wire.framing.FrameEncoder` /
+:class:`~firmware_proto.wire.framing.FrameDecoder`,
+:mod:`firmware_proto.wire.canmap`) and decoded back from the bytes that arrive. The
 controller side is driven as the emulator's front ends drive the model: every message
 handled as soon as it arrives, its bad frames counted in ``rx_errors``, a tick every
-``tick_s``. Odometry is :class:`bridge.odometry.OdometryEstimator` fed as the bridge
+``tick_s``. Odometry is :class:`bridge.link.odometry.OdometryEstimator` fed as the bridge
 node feeds it.
 
 What the rig sees on both sides goes to a :class:`~sim.checks.Ledger`; the invariants
@@ -36,15 +37,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 
-from bridge.linkcore import LinkCore
-from bridge.linktypes import SAMPLE_MESSAGES, LinkConfig, LinkState, StatusEvent, StepRequest
-from bridge.odometry import OdometryEstimator
+from bridge.link.linkcore import LinkCore
+from bridge.link.linktypes import SAMPLE_MESSAGES, LinkConfig, LinkState, StatusEvent, StepRequest
+from bridge.link.odometry import OdometryEstimator
 from emulator.controller import STOPPING_FAULTS, LatchCause
 from emulator.sensors import count_delta
-from firmware_proto.canmap import CanDecoder, encode_can
-from firmware_proto.framing import FrameDecoder, FrameEncoder
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.wire.canmap import CanDecoder, encode_can
+from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     Ack,
     AckResult,
     ClearStop,
@@ -62,7 +64,6 @@ from firmware_proto.messages import (
     StopSource,
     WheelSpeeds,
 )
-from firmware_proto.rover import RoverDescription, load_rover
 from sim.checks import Ledger, Violation, final_checks
 from sim.controllers import SampleLeak, build_controller
 from sim.pipe import Delivery, Pipe, Window

@@ -75,7 +75,7 @@ def _run_dir(variable: str, prefix: str, leaf: str = "") -> None:
 #: own, not to the host's shared one.
 _run_dir("ROVER_STALL_LOG", "rover-test-stalls-", "stalls.jsonl")
 #: Every ``rover stack up`` and ``rover demo`` a test starts claims its ROS domain in one
-#: directory for the whole run (planner/domains.py), so that two at once, on two workers,
+#: directory for the whole run (planner/stack/domains.py), so that two at once, on two workers,
 #: get two domains (in a directory of each test's own, a stack and a demo both took
 #: domain 101 and drove on each other's topics), and none takes one that the user's own
 #: stacks hold.
@@ -95,7 +95,7 @@ SKIP_RCLPY_REASON = (
 
 
 def _ros_available() -> bool:
-    from bridge.rosport.rclpy_backend import rclpy_available
+    from bridge.ros.rosport.rclpy_backend import rclpy_available
 
     return rclpy_available()
 

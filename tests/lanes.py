@@ -48,7 +48,7 @@ SLOW_MODULES = (
     "tests/firmware_proto/test_c_codec.py",
     "tests/firmware_proto/test_cli.py",
     "tests/firmware_proto/test_fw.py",
-    "tests/firmware_proto/test_httpserve.py",
+    "tests/firmware_proto/test_http.py",
     "tests/firmware_proto/test_libfuzzer.py",
     "tests/firmware_proto/test_runtime.py",
     "tests/firmware_proto/test_signals.py",

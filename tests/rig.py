@@ -14,19 +14,19 @@ import time
 from types import TracebackType
 from typing import Any
 
-from bridge.node import BridgeNode
-from bridge.params import load_params
-from bridge.rosport import RosPort, open_port
+from bridge.ros.node import BridgeNode
+from bridge.ros.params import load_params
+from bridge.ros.rosport import RosPort, open_port
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.injection import parse_fault
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin, served_dt_s
-from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import load_map
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
-from firmware_proto.worldmap import load_map
-from planner.executor import ExecutorConfig, PlanExecutor
-from planner.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
+from planner.ground.executor import ExecutorConfig, PlanExecutor
+from planner.ground.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
 from tests.scheduling import threads_at
 
 __all__ = ["HilRig"]

@@ -104,7 +104,7 @@ def register(subparsers: Any) -> None:
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
-    from firmware_proto.messages import MESSAGE_TYPES, PROTOCOL_VERSION, SCHEMA_HASH
+    from firmware_proto.wire.messages import MESSAGE_TYPES, PROTOCOL_VERSION, SCHEMA_HASH
 
     print(f"protocol version {PROTOCOL_VERSION}, schema hash 0x{SCHEMA_HASH:04X}")
     for msg_id, cls in sorted(MESSAGE_TYPES.items()):
@@ -142,9 +142,9 @@ def _parse_fields(cls: Any, items: list[str]) -> dict[str, int]:
 
 
 def _cmd_encode(args: argparse.Namespace) -> int:
-    from firmware_proto.canmap import encode_can
-    from firmware_proto.framing import encode_frame
-    from firmware_proto.messages import BY_NAME
+    from firmware_proto.wire.canmap import encode_can
+    from firmware_proto.wire.framing import encode_frame
+    from firmware_proto.wire.messages import BY_NAME
 
     cls = BY_NAME.get(args.name.upper())
     if cls is None:
@@ -165,8 +165,8 @@ def _cmd_encode(args: argparse.Namespace) -> int:
 
 
 def _cmd_decode(args: argparse.Namespace) -> int:
-    from firmware_proto.canmap import CanDecoder
-    from firmware_proto.framing import FrameDecoder
+    from firmware_proto.wire.canmap import CanDecoder
+    from firmware_proto.wire.framing import FrameDecoder
 
     text = "".join(args.hex).replace(" ", "").replace(":", "")
     try:
@@ -210,7 +210,7 @@ def _cmd_decode(args: argparse.Namespace) -> int:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
-    from firmware_proto import codegen
+    from firmware_proto.wire import codegen
 
     if args.check:
         stale = codegen.stale()
@@ -223,8 +223,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
 
 def _cmd_dbc(args: argparse.Namespace) -> int:
-    from firmware_proto.codegen.dbc import render_dbc
-    from firmware_proto.spec import load_spec
+    from firmware_proto.wire.codegen.dbc import render_dbc
+    from firmware_proto.wire.spec import load_spec
 
     sys.stdout.write(render_dbc(load_spec(), args.node))
     return 0

@@ -2,7 +2,7 @@
 
 ``socketcan`` on Linux (``vcan0`` in CI, a real adapter such as ``rovercan0`` on the
 rover), ``virtual`` in-process, any other python-can interface by name. Identifiers and
-payloads are those of docs/protocol.md (:mod:`firmware_proto.canmap`); the bus
+payloads are those of docs/protocol.md (:mod:`firmware_proto.wire.canmap`); the bus
 arbitrates by identifier, so the STOP lane wins by itself.
 
 **Which frames a side takes.** A host takes its controller node's frames sent towards
@@ -34,14 +34,14 @@ from typing import Any
 
 import can
 
-from firmware_proto.canmap import CanDecoder, can_id, encode_can
 from firmware_proto.linkio.endpoint import HOST, Endpoint, Side
 from firmware_proto.linkio.errors import LinkUrlError
 from firmware_proto.linkio.trafficio import can_record
 from firmware_proto.linkio.trafficlog import CanRecord, TrafficRecord, TrafficRecorder
 from firmware_proto.linkio.urls import parse_can_url
-from firmware_proto.message import Message
-from firmware_proto.messages import BROADCAST_NODE, DEFAULT_NODE
+from firmware_proto.wire.canmap import CanDecoder, can_id, encode_can
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import BROADCAST_NODE, DEFAULT_NODE
 
 __all__ = [
     "BUS_OFF",

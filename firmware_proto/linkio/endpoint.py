@@ -9,7 +9,7 @@ broadcasts) and which way a frame written is logged.
 
 An endpoint is synchronous and owns no thread: :meth:`Endpoint.read` waits a little and
 returns what arrived, :meth:`Endpoint.write` sends one message now. Threads and queues
-are the owner's policy (the bridge's reader and dispatcher, :mod:`bridge.transport`;
+are the owner's policy (the bridge's reader and dispatcher, :mod:`bridge.link.transport`;
 the emulator's reader with injected link faults, :mod:`emulator.frontend`), as in
 python-can, where a ``Bus`` does the I/O and a ``Notifier`` runs the thread.
 
@@ -32,14 +32,14 @@ from abc import ABC, abstractmethod
 from types import TracebackType
 from typing import Final, Literal
 
-from firmware_proto.counters import RxCounters
 from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
     TrafficRecord,
     TrafficRecorder,
 )
-from firmware_proto.message import Message
+from firmware_proto.wire.counters import RxCounters
+from firmware_proto.wire.message import Message
 
 __all__ = ["CONTROLLER", "HOST", "SIDES", "Endpoint", "Side"]
 

@@ -37,8 +37,8 @@ from firmware_proto.linkio.clock import WALL, Clock, LockstepClock
 from firmware_proto.linkio.endpoint import HOST, Endpoint
 from firmware_proto.linkio.errors import LinkError, NotReceivedError, UnexpectedMessageError
 from firmware_proto.linkio.inbox import Inbox
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     HOST_HEARTBEAT_PERIOD_MS,
     PROTOCOL_VERSION,
     SCHEMA_HASH,

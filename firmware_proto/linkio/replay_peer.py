@@ -20,7 +20,7 @@ from types import TracebackType
 
 from firmware_proto.linkio.endpoint import Endpoint
 from firmware_proto.linkio.trafficlog import TrafficRecord
-from firmware_proto.message import Message
+from firmware_proto.wire.message import Message
 
 __all__ = ["ReplayPeer"]
 

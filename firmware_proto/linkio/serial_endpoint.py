@@ -1,8 +1,8 @@
 """Serial endpoint: frames of docs/protocol.md over a byte stream, for either side.
 
 :class:`SerialEndpoint` does the framing (the pure
-:class:`~firmware_proto.framing.FrameEncoder` and
-:class:`~firmware_proto.framing.FrameDecoder`), the listeners and the counting; a
+:class:`~firmware_proto.wire.framing.FrameEncoder` and
+:class:`~firmware_proto.wire.framing.FrameDecoder`), the listeners and the counting; a
 :class:`BytePort` moves the bytes. Two ports:
 
 - :class:`PyserialPort`: anything pyserial's ``serial_for_url`` opens (a device, a pty
@@ -35,7 +35,6 @@ from typing import Protocol
 
 import serial
 
-from firmware_proto.framing import Frame, FrameDecoder, FrameEncoder
 from firmware_proto.linkio.endpoint import Endpoint, Side
 from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.linkio.trafficlog import (
@@ -45,7 +44,8 @@ from firmware_proto.linkio.trafficlog import (
     received_serial_records,
 )
 from firmware_proto.linkio.urls import split_serial_url
-from firmware_proto.message import Message
+from firmware_proto.wire.framing import Frame, FrameDecoder, FrameEncoder
+from firmware_proto.wire.message import Message
 
 __all__ = ["BytePort", "PtyPort", "PyserialPort", "SerialEndpoint"]
 

@@ -36,11 +36,11 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from firmware_proto.canmap import CanDecoder
 from firmware_proto.errors import DecodeError
-from firmware_proto.framing import Frame, FrameDecoder, encode_raw_frame
-from firmware_proto.message import Message
-from firmware_proto.messages import BROADCAST_NODE, CAN_NODE_BITS, DEFAULT_NODE, MESSAGE_TYPES
+from firmware_proto.wire.canmap import CanDecoder
+from firmware_proto.wire.framing import Frame, FrameDecoder, encode_raw_frame
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import BROADCAST_NODE, CAN_NODE_BITS, DEFAULT_NODE, MESSAGE_TYPES
 
 __all__ = [
     "CONTROLLER_TO_HOST",
@@ -442,7 +442,7 @@ def diff_texts(
 
 def log_node(decoded: Iterable[DecodedRecord]) -> int:
     """The CAN node a log's host talked to: the most common non-broadcast node of its
-    host-to-controller frames (:data:`~firmware_proto.messages.DEFAULT_NODE` if none)."""
+    host-to-controller frames (:data:`~firmware_proto.wire.messages.DEFAULT_NODE` if none)."""
     nodes = Counter(
         d.node
         for d in decoded

@@ -45,12 +45,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from firmware_proto.geometry import wrap_deg
-from firmware_proto.pose import Pose
-from firmware_proto.verdict import Verdict
-from firmware_proto.worldmap import WorldMap
-from planner.executor import Progress
-from planner.orchestrator import MissionResult
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.model.worldmap import WorldMap
+from planner.ground.executor import Progress
+from planner.plan.orchestrator import MissionResult
 
 __all__ = [
     "INBOX_LEN",
@@ -241,7 +241,7 @@ class ViewHub:
 
     # -- feeding (any thread; never blocks) ---------------------------------------------------
     def tap(self, direction: str, topic: str, msg: Any) -> None:
-        """A :data:`bridge.rosport.Tap` of the ground station's port."""
+        """A :data:`bridge.ros.rosport.Tap` of the ground station's port."""
         self._put(topic.rsplit("/", 1)[-1], msg)
 
     def planned(self, mission: MissionResult) -> None:

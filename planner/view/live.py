@@ -1,11 +1,11 @@
 """The live view as ``rover go`` and ``rover demo`` run it: the hub and its server in
-one object (their options: :mod:`planner.cli_view`)."""
+one object (their options: :mod:`planner.view.cli_view`)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.worldmap import WorldMap
 from planner.view.hub import ViewHub, ViewLimits
 from planner.view.server import ViewConfig, ViewServer
 

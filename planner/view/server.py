@@ -1,7 +1,7 @@
 """The live view's HTTP server: one static page, a Server-Sent Events stream, STOP.
 
 An ASGI application (Starlette's request and response types) on the project's one HTTP
-stack, the gate's (:mod:`firmware_proto.httpserve`: uvicorn with h11, one event loop in
+stack, the gate's (:mod:`firmware_proto.http`: uvicorn with h11, one event loop in
 a thread of its own, every connection bounded by deadlines). The page is one file
 shipped with the package (no build step, nothing fetched from elsewhere) and the push
 channel is Server-Sent Events, which a browser's ``EventSource`` reads and reconnects by
@@ -19,7 +19,7 @@ itself.
 
 Anything else gets a JSON error (400, 404, 405, 408, 413) and the server goes on.
 
-Binding and auth, as the gate does it (:mod:`firmware_proto.bindpolicy`): loopback by
+Binding and auth, as the gate does it (:mod:`firmware_proto.http.bindpolicy`): loopback by
 default; a non-loopback address is refused without a token; with a token every request
 needs ``Authorization: Bearer <token>`` or ``?token=<token>`` (the page passes its own
 on; ``EventSource`` cannot set headers), compared in constant time, else 401.
@@ -47,14 +47,14 @@ from urllib.parse import quote
 from starlette.requests import Request
 from starlette.responses import Response, StreamingResponse
 
-from firmware_proto.bindpolicy import bearer_token, check_bind, token_matches
-from firmware_proto.httpserve import (
+from firmware_proto.http import (
     ClientGoneError,
     HttpService,
     RequestBodyError,
     ServeLimits,
     read_body,
 )
+from firmware_proto.http.bindpolicy import bearer_token, check_bind, token_matches
 from planner.view.hub import ClientQueue, ViewHub
 
 __all__ = ["CLEAR_HEADER", "ViewConfig", "ViewServer"]

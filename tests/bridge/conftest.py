@@ -1,6 +1,6 @@
 """Fixtures of the bridge tests: ROS port backends, loopback DDS, collecting callbacks,
 real emulators (pty or python-can bus) with a ``/command_status`` recorder, and
-:class:`~bridge.link.ControllerLink` instances on them.
+:class:`~bridge.link.controllerlink.ControllerLink` instances on them.
 
 The same end-to-end test runs on every medium through :data:`MEDIA` and :func:`serve`:
 a pty, python-can's ``virtual`` bus, and ``socketcan`` on ``vcan0`` where the kernel has
@@ -24,9 +24,9 @@ from typing import Any
 
 import pytest
 
-from bridge.link import ControllerLink, LinkConfig
-from bridge.rosport import RosPort, open_port
-from bridge.transport import Transport, open_transport
+from bridge.link.controllerlink import ControllerLink, LinkConfig
+from bridge.link.transport import Transport, open_transport
+from bridge.ros.rosport import RosPort, open_port
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig
 from emulator.engine import Emulator, EmulatorStatus
@@ -35,9 +35,9 @@ from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import GATE_DT_S, Twin, served_dt_s
 from firmware_proto.linkio.inbox import Inbox as WaitableLog
-from firmware_proto.messages import SCHEMA_HASH
-from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
+from firmware_proto.wire.messages import SCHEMA_HASH
 from tests.scheduling import threads_at
 
 #: Every backend, with the marks it needs.

@@ -7,7 +7,7 @@ about 30 s of virtual time and takes about a second.
 core's sanitizer build, which needs libasan preloaded in a process of its own) and
 prints one JSON line: every rule's outcome and detail, and the virtual time.
 ``--mutation-table`` runs it against every mutant (:mod:`emulator.mutants`) and prints
-the rows of docs/protocol.md's mutation score table (firmware_proto/codegen/
+the rows of docs/protocol.md's mutation score table (firmware_proto/wire/codegen/
 protocol.md.tmpl) and the score.
 """
 
@@ -21,8 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from bridge.conformance import RULES, Context, Rule, RuleResult, WireHost, run_suite
 from bridge.errors import ConformanceError
+from bridge.tools.conformance import RULES, Context, Rule, RuleResult, WireHost, run_suite
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.errors import InjectionError
 from emulator.firmware import FIRMWARES, make_controller
@@ -30,7 +30,7 @@ from emulator.lockstep import LockstepController, lockstep_pair
 from emulator.mutants import MUTANTS, mutant
 from emulator.twin import Twin
 from firmware_proto.linkio.endpoint import Endpoint
-from firmware_proto.rover import load_rover
+from firmware_proto.model.rover import load_rover
 
 
 @dataclass(frozen=True)

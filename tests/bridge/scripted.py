@@ -16,11 +16,11 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import TypeVar
 
-from firmware_proto.framing import FrameDecoder, FrameEncoder
 from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.linkio.ptypair import PtyPair
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     ControllerState,

@@ -14,7 +14,7 @@ import pytest
 
 from bridge.cli_bridge import add_arguments, main, resolve_params
 from bridge.errors import ParameterError
-from bridge.params import BridgeParams
+from bridge.ros.params import BridgeParams
 
 REPO = Path(__file__).resolve().parents[2]
 

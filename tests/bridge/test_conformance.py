@@ -28,10 +28,10 @@ from typing import Any
 
 import pytest
 
-from bridge.cli_conformance import main
-from bridge.conformance import RULES, Outcome, exit_status, render_json, select_rules
-from bridge.conformance.suite import RuleResult
 from bridge.errors import ConformanceError
+from bridge.tools.cli_conformance import main
+from bridge.tools.conformance import RULES, Outcome, exit_status, render_json, select_rules
+from bridge.tools.conformance.suite import RuleResult
 from emulator.can_frontend import CanFrontEnd
 from emulator.control import ControlServer
 from emulator.controller import ControllerConfig, ControllerModel
@@ -40,7 +40,7 @@ from emulator.firmware import FirmwareController, sanitizer_env
 from emulator.mutants import make_mutant
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 from tests.firmware_proto.c_harness import compiler
 
 from .lockstep_suite import make, run_lockstep
@@ -369,9 +369,9 @@ def test_a_node_out_of_range_is_a_usage_error_in_the_shared_words(
 
 
 def test_public_names_are_pinned() -> None:
-    import bridge.conformance
+    import bridge.tools.conformance
 
-    assert bridge.conformance.__all__ == [
+    assert bridge.tools.conformance.__all__ == [
         "RULES",
         "Context",
         "ControlClient",

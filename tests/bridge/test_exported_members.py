@@ -1,8 +1,8 @@
-"""The public names of bridge.rosport, pinned."""
+"""The public names of bridge.ros.rosport, pinned."""
 
 from __future__ import annotations
 
-import bridge.rosport
+import bridge.ros.rosport
 
 EXPECTED = [
     "BACKENDS",
@@ -36,9 +36,9 @@ EXPECTED = [
 
 def test_all_is_pinned() -> None:
     # ruff (RUF022) keeps __all__ sorted; this pins its content.
-    assert bridge.rosport.__all__ == EXPECTED
+    assert bridge.ros.rosport.__all__ == EXPECTED
 
 
 def test_every_exported_name_exists() -> None:
-    for name in bridge.rosport.__all__:
-        assert getattr(bridge.rosport, name) is not None
+    for name in bridge.ros.rosport.__all__:
+        assert getattr(bridge.ros.rosport, name) is not None

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import threading
 
-from bridge.rosport import HISTORY_DEPTH
-from bridge.rosport.msgs import Int16MultiArray, String
+from bridge.ros.rosport import HISTORY_DEPTH
+from bridge.ros.rosport.msgs import Int16MultiArray, String
 from tests.bridge.conftest import Inbox, PortFactory
 
 

@@ -29,13 +29,13 @@ from typing import Any
 
 import pytest
 
-from bridge.can_transport import CanTransport
-from bridge.link import ControllerLink, LinkConfig, LinkState, StepRequest
-from bridge.serial_transport import SerialTransport
-from bridge.transport import Transport
+from bridge.link.can_transport import CanTransport
+from bridge.link.controllerlink import ControllerLink, LinkConfig, LinkState, StepRequest
+from bridge.link.serial_transport import SerialTransport
+from bridge.link.transport import Transport
 from emulator.engine import Emulator, EmulatorStatus
-from firmware_proto.message import Message
-from firmware_proto.messages import Command, Heartbeat
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Command, Heartbeat
 
 from .conftest import Recorder, link_url, serve
 

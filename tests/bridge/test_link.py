@@ -12,15 +12,15 @@ from pathlib import Path
 import pytest
 
 from bridge.errors import TransportError
-from bridge.link import ControllerLink, LinkConfig, LinkState, StepRequest
-from bridge.transport import open_transport
+from bridge.link.controllerlink import ControllerLink, LinkConfig, LinkState, StepRequest
+from bridge.link.transport import open_transport
 from emulator.engine import Emulator
 from emulator.errors import InjectionError
 from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.linkio.errors import LinkUrlError
 from firmware_proto.linkio.urls import parse_can_url
-from firmware_proto.messages import SCHEMA_HASH, Command, Encoders
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import SCHEMA_HASH, Command, Encoders
 
 from .conftest import MEDIA, Links, Recorder, link_url, serve, wait_emulator
 
@@ -334,7 +334,7 @@ def test_transport_registry() -> None:
 
 
 def test_odometry_tracks_the_emulator_encoders(emulators: Emus, rover: RoverDescription) -> None:
-    from bridge.odometry import OdometryEstimator
+    from bridge.link.odometry import OdometryEstimator
 
     estimator = OdometryEstimator(rover)
     emu = emulators()

@@ -14,24 +14,24 @@ from typing import Any
 
 import pytest
 
-from bridge.node import BridgeNode
-from bridge.params import load_params
-from bridge.rosport import RosPort
-from bridge.rosport.msgs import Bool, DiagnosticArray
-from bridge.serial_transport import SerialTransport
+from bridge.link.serial_transport import SerialTransport
+from bridge.ros.node import BridgeNode
+from bridge.ros.params import load_params
+from bridge.ros.rosport import RosPort
+from bridge.ros.rosport.msgs import Bool, DiagnosticArray
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
-from firmware_proto.framing import FrameEncoder
 from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.linkio.ptypair import PtyPair
-from firmware_proto.message import Message
-from firmware_proto.messages import Ack, Encoders, Status
+from firmware_proto.wire.framing import FrameEncoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Ack, Encoders, Status
 
 from .test_node import Client
 
 Emus = Callable[..., Emulator]
 
-from bridge.diagnostics import ERROR, OK  # noqa: E402
+from bridge.ros.diagnostics import ERROR, OK  # noqa: E402
 
 
 class Diagnostics:

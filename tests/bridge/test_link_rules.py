@@ -12,12 +12,12 @@ from typing import Any
 
 import pytest
 
-from bridge.link import ControllerLink, LinkConfig, LinkDiagnostics, LinkState
-from bridge.serial_transport import SerialTransport
-from bridge.transport import Transport
-from firmware_proto.faults import fault_bit
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from bridge.link.controllerlink import ControllerLink, LinkConfig, LinkDiagnostics, LinkState
+from bridge.link.serial_transport import SerialTransport
+from bridge.link.transport import Transport
+from firmware_proto.wire.faults import fault_bit
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     ClearAck,
     ClearResult,
     ClearStop,

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.linkcore import MUTANTS, LinkCore, Outgoing
-from bridge.linktypes import LinkConfig, LinkState, StatusEvent, StepRequest
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from bridge.link.linkcore import MUTANTS, LinkCore, Outgoing
+from bridge.link.linktypes import LinkConfig, LinkState, StatusEvent, StepRequest
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     Ack,

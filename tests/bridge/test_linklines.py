@@ -1,5 +1,5 @@
 """What ``rover bridge`` says about its link at the default verbosity
-(``bridge/linklines.py``): the narrator fed snapshots, then the real process against a
+(``bridge/link/linklines.py``): the narrator fed snapshots, then the real process against a
 missing device, a silent pty, an emulator at the wrong baud and a good one."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from bridge.link import LinkDiagnostics
-from bridge.linklines import SILENT_AFTER_S, LinkNarrator
+from bridge.link.controllerlink import LinkDiagnostics
+from bridge.link.linklines import SILENT_AFTER_S, LinkNarrator
 from tests.child import Child
 
 BASE = LinkDiagnostics(

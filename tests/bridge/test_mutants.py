@@ -13,13 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from bridge.conformance import RULES
+from bridge.tools.conformance import RULES
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.errors import InjectionError
 from emulator.lockstep import lockstep_pair
 from emulator.mutants import MUTANTS, UnknownMutantError, make_mutant, mutant
 from emulator.twin import Twin
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 
 from .lockstep_suite import run_lockstep
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.rosport.errors import RosNameError
-from bridge.rosport.names import (
+from bridge.ros.rosport.errors import RosNameError
+from bridge.ros.rosport.names import (
     TOPIC_NAME_MAX_LENGTH,
     is_message_type,
     normalize_namespace,
@@ -109,7 +109,7 @@ def test_invalid_node_names_are_refused(node: str, complaint: str) -> None:
 
 
 def test_interface_names_of_generated_classes() -> None:
-    from bridge.rosport.msgs import Int16MultiArray, Odometry, Time
+    from bridge.ros.rosport.msgs import Int16MultiArray, Odometry, Time
 
     assert ros_type_name(Int16MultiArray) == "std_msgs/msg/Int16MultiArray"
     assert ros_type_name(Odometry) == "nav_msgs/msg/Odometry"

@@ -19,14 +19,14 @@ from typing import Any
 
 import pytest
 
-from bridge.diagnostics import ERROR, OK
-from bridge.node import BridgeNode, validate_step
-from bridge.params import load_params
-from bridge.rosport import RosPort, open_port, qos
-from bridge.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
+from bridge.ros.diagnostics import ERROR, OK
+from bridge.ros.node import BridgeNode, validate_step
+from bridge.ros.params import load_params
+from bridge.ros.rosport import RosPort, open_port, qos
+from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 
 from .conftest import BACKEND_PARAMS, Recorder
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from bridge.errors import ParameterError
-from bridge.odometry import OdometryEstimator, ground_pose, unwrap24
-from bridge.params import BridgeParams, load_params, parameter_specs
-from firmware_proto.messages import Encoders, Imu, Pose
-from firmware_proto.rover import RoverDescription
+from bridge.link.odometry import OdometryEstimator, ground_pose, unwrap24
+from bridge.ros.params import BridgeParams, load_params, parameter_specs
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Encoders, Imu, Pose
 
 
 def test_precedence_overrides_env_file_defaults(tmp_path: Path) -> None:

@@ -13,16 +13,16 @@ import time
 import pytest
 
 from bridge.errors import ParameterError
-from bridge.rosport import (
+from bridge.ros.rosport import (
     STOP_LANE,
     PortClosedError,
     RosNameError,
     TopicTypeError,
     qos,
 )
-from bridge.rosport.msgs import MESSAGE_TYPES, Bool, Int16MultiArray, Odometry, String
-from bridge.rosport.names import ros_type_name
-from bridge.rosport.parameters import ParameterSpec
+from bridge.ros.rosport.msgs import MESSAGE_TYPES, Bool, Int16MultiArray, Odometry, String
+from bridge.ros.rosport.names import ros_type_name
+from bridge.ros.rosport.parameters import ParameterSpec
 from tests.bridge.conftest import BACKEND_PARAMS, Inbox, PortFactory
 from tests.bridge.samples import sample, topic_for
 
@@ -78,7 +78,7 @@ def test_a_raising_callback_is_logged_counted_and_survived(
     good_sub = port.subscribe("/wheel_instructions", Int16MultiArray, good)
     pub = port.publisher("/wheel_instructions", Int16MultiArray)
     assert pub.wait_for_subscribers(2, timeout_s=10.0)
-    with caplog.at_level(logging.ERROR, logger="bridge.rosport.port"):
+    with caplog.at_level(logging.ERROR, logger="bridge.ros.rosport.port"):
         for i in range(8):
             pub.publish(Int16MultiArray(data=(i, 30, 1000)))
         received = good.wait_for(8)
@@ -199,7 +199,7 @@ def test_subscriptions_closed_while_the_lane_waits_leave_it_delivering(
     receiver.subscribe("/chatter", String, staying)
     pub = sender.publisher("/chatter", String)
     assert pub.wait_for_subscribers(1, timeout_s=10.0)
-    with caplog.at_level(logging.ERROR, logger="bridge.rosport"):
+    with caplog.at_level(logging.ERROR, logger="bridge.ros.rosport"):
         # A race: with 1,000 the old lane failed 2 runs of 2 beside the test command, none
         # of 5 on an idle machine; 100 keep the behaviour checked (1,000 through a child
         # process took 12 s of the host part).

@@ -1,4 +1,4 @@
-"""The ``rclpy-process`` ROS port (bridge/rosport/process_backend.py): what it exists for,
+"""The ``rclpy-process`` ROS port (bridge/ros/rosport/process_backend.py): what it exists for,
 a middleware that stalls cannot stall the controller link, and what happens at its
 edges: a flood while the node is frozen, the node's process dying, the bridge dying.
 
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from bridge.rosport import DEFAULT_LANE, STOP_LANE, RosPort, RosPortError, qos
-from bridge.rosport.msgs import Bool, Odometry, String
-from bridge.rosport.process_backend import CHILD_MODULE, ProcessPort
+from bridge.ros.rosport import DEFAULT_LANE, STOP_LANE, RosPort, RosPortError, qos
+from bridge.ros.rosport.msgs import Bool, Odometry, String
+from bridge.ros.rosport.process_backend import CHILD_MODULE, ProcessPort
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.runtime.realtime import (

@@ -8,13 +8,13 @@ import time
 
 import pytest
 
-from bridge.rosport import BackendUnavailableError, open_port
+from bridge.ros.rosport import BackendUnavailableError, open_port
 
 
 def test_module_imports_without_rclpy(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "rclpy", None)  # as if not installed
-    monkeypatch.delitem(sys.modules, "bridge.rosport.rclpy_backend", raising=False)
-    module = importlib.import_module("bridge.rosport.rclpy_backend")
+    monkeypatch.delitem(sys.modules, "bridge.ros.rosport.rclpy_backend", raising=False)
+    module = importlib.import_module("bridge.ros.rosport.rclpy_backend")
     assert module.rclpy_available() is False
 
 
@@ -39,8 +39,8 @@ def test_rclpy_port_is_a_ros_node() -> None:
 
 @pytest.mark.rclpy
 def test_the_stop_lane_is_a_node_of_its_own_in_the_same_context() -> None:
-    from bridge.rosport import STOP_LANE
-    from bridge.rosport.msgs import Bool
+    from bridge.ros.rosport import STOP_LANE
+    from bridge.ros.rosport.msgs import Bool
 
     with open_port("rclpy", namespace="rover1", node_name="bridge") as port:
         port.subscribe("emergency_stop", Bool, lambda _msg: None, lane=STOP_LANE)
@@ -56,6 +56,6 @@ def test_the_stop_lane_is_a_node_of_its_own_in_the_same_context() -> None:
 
 @pytest.mark.rclpy
 def test_middleware_names_the_rmw_and_rclpy() -> None:
-    from bridge.rosport.rclpy_backend import middleware
+    from bridge.ros.rosport.rclpy_backend import middleware
 
     assert middleware().startswith("rmw_fastrtps_cpp (rclpy 7.")

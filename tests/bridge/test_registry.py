@@ -7,15 +7,15 @@ import sys
 
 import pytest
 
-from bridge.rosport import (
+from bridge.ros.rosport import (
     BACKENDS,
     BackendUnavailableError,
     RosPortError,
     UnknownBackendError,
     open_port,
 )
-from bridge.rosport.inprocess import InProcessPort
-from bridge.rosport.registry import backend_class
+from bridge.ros.rosport.inprocess import InProcessPort
+from bridge.ros.rosport.registry import backend_class
 
 
 def test_unknown_backend_lists_the_known_ones() -> None:
@@ -38,7 +38,7 @@ def test_open_port_passes_names_and_options() -> None:
 
 
 def test_a_backend_that_cannot_import_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(BACKENDS, "broken", ("bridge.rosport._no_such_module", "Port"))
+    monkeypatch.setitem(BACKENDS, "broken", ("bridge.ros.rosport._no_such_module", "Port"))
     with pytest.raises(
         BackendUnavailableError, match="the 'broken' ROS port backend cannot be imported"
     ):
@@ -47,9 +47,9 @@ def test_a_backend_that_cannot_import_says_so(monkeypatch: pytest.MonkeyPatch) -
 
 def test_importing_the_package_imports_no_backend() -> None:
     code = (
-        "import sys, bridge.rosport\n"
-        "print(sorted(m for m in ('rclpy', 'std_msgs', 'bridge.rosport.msgs',"
-        " 'bridge.rosport.rclpy_backend', 'bridge.rosport.inprocess') if m in sys.modules))"
+        "import sys, bridge.ros.rosport\n"
+        "print(sorted(m for m in ('rclpy', 'std_msgs', 'bridge.ros.rosport.msgs',"
+        " 'bridge.ros.rosport.rclpy_backend', 'bridge.ros.rosport.inprocess') if m in sys.modules))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60

@@ -29,11 +29,11 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from bridge.params import BridgeParams
+from bridge.ros.params import BridgeParams
 from emulator.cli_emulate import add_arguments as emulator_arguments
 from gate.cli_gate import add_arguments as gate_arguments
-from planner.cli_go import add_arguments as executor_arguments
-from planner.cli_link import add_arguments as link_arguments
+from planner.ground.cli_go import add_arguments as executor_arguments
+from planner.ground.cli_link import add_arguments as link_arguments
 
 ROOT = Path(__file__).resolve().parents[2]
 ROS_DIR = ROOT / "bridge" / "ros"
@@ -175,7 +175,7 @@ def test_symlink_install_gets_the_metadata_from_the_source_tree(
     assert sorted(kwargs["entry_points"]["console_scripts"]) == sorted(
         f"{k} = {v}" for k, v in SCRIPTS.items()
     )
-    assert {"firmware_proto", "bridge", "emulator", "bridge.rosport"} <= set(kwargs["packages"])
+    assert {"firmware_proto", "bridge", "emulator", "bridge.ros.rosport"} <= set(kwargs["packages"])
     assert kwargs["data_files"][0][1] == [f"bridge/ros/resource/{PACKAGE}"]
 
 

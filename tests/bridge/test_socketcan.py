@@ -16,12 +16,12 @@ from pathlib import Path
 import can
 import pytest
 
-from bridge.link import LinkState, StepRequest
-from bridge.stopbench import UNUSED_MSG_ID, malformed_frames
+from bridge.link.controllerlink import LinkState, StepRequest
+from bridge.tools.stopbench import UNUSED_MSG_ID, malformed_frames
 from emulator.can_frontend import CanFrontEnd
 from emulator.engine import Emulator
-from firmware_proto.canmap import can_id
-from firmware_proto.messages import Ack, Command, Heartbeat, Status
+from firmware_proto.wire.canmap import can_id
+from firmware_proto.wire.messages import Ack, Command, Heartbeat, Status
 from tests.child import Child
 
 from .conftest import (

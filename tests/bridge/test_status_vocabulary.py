@@ -1,12 +1,12 @@
-"""The /command_status vocabulary and topic names of bridge/rosport/contract.py: what the
+"""The /command_status vocabulary and topic names of bridge/ros/rosport/contract.py: what the
 bridge says and what the executor reads come from one definition."""
 
 from __future__ import annotations
 
 import pytest
 
-from bridge.params import BridgeParams
-from bridge.rosport.contract import (
+from bridge.ros.params import BridgeParams
+from bridge.ros.rosport.contract import (
     ACCEPTED,
     CLEARED,
     COMMAND_STATUS,
@@ -21,8 +21,8 @@ from bridge.rosport.contract import (
     parse_status,
     rejected,
 )
-from planner.executor import REPORTING_FAULTS
-from planner.relay import DEFAULT_ROUTES
+from planner.ground.executor import REPORTING_FAULTS
+from planner.ground.relay import DEFAULT_ROUTES
 
 
 def test_builders_and_parse_are_inverse() -> None:

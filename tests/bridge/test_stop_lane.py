@@ -15,12 +15,12 @@ import threading
 import time
 from collections.abc import Callable
 
-from bridge.link import ControllerLink
-from bridge.serial_transport import SerialTransport
-from bridge.transport import Transport
+from bridge.link.controllerlink import ControllerLink
+from bridge.link.serial_transport import SerialTransport
+from bridge.link.transport import Transport
 from emulator.engine import Emulator
-from firmware_proto.message import Message
-from firmware_proto.messages import Stop
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Stop
 
 from .conftest import Recorder, link_url, start_link
 

@@ -1,5 +1,5 @@
-"""STOP never waits behind another write of ours (#15; bridge/link.py, Threads;
-bridge/transport.py, Writes).
+"""STOP never waits behind another write of ours (#15; bridge/link/controllerlink.py, Threads;
+bridge/link/transport.py, Writes).
 
 A write can stick in the OS for the serial write timeout (1 s): a full output buffer, a
 stalled USB-serial adapter, hardware flow control. Before, the link wrote HELLO, host
@@ -22,13 +22,13 @@ from functools import partial
 
 import pytest
 
-from bridge.can_transport import CanTransport
-from bridge.link import ControllerLink, LinkState, StepRequest
-from bridge.serial_transport import SerialTransport
-from bridge.transport import Transport
+from bridge.link.can_transport import CanTransport
+from bridge.link.controllerlink import ControllerLink, LinkState, StepRequest
+from bridge.link.serial_transport import SerialTransport
+from bridge.link.transport import Transport
 from emulator.engine import Emulator
-from firmware_proto.message import Message
-from firmware_proto.messages import Command, Hello, HostHeartbeat, Motion, Stop
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Command, Hello, HostHeartbeat, Motion, Stop
 
 from .conftest import MEDIA, Recorder, link_url, serve, start_link, vm_slack, wait_emulator
 

@@ -14,17 +14,24 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from bridge.benchreport import format_table, summarize, write_reports
 from bridge.errors import TransportError
-from bridge.stopbench import BenchConfig, BenchError, BenchRun, FloodConfig, StopBench, TrialResult
+from bridge.tools.benchreport import format_table, summarize, write_reports
+from bridge.tools.stopbench import (
+    BenchConfig,
+    BenchError,
+    BenchRun,
+    FloodConfig,
+    StopBench,
+    TrialResult,
+)
 from emulator.can_frontend import CanFrontEnd
 from emulator.engine import Emulator
 from emulator.replay import ReplayOptions, replay_into_emulator
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.trafficio import read_log
 from firmware_proto.linkio.trafficlog import decode_records
-from firmware_proto.messages import SCHEMA_HASH, Param
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
+from firmware_proto.wire.messages import SCHEMA_HASH, Param
 from tests.firmware_proto.c_harness import compiler
 from tests.scheduling import threads_at
 

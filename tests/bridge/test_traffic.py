@@ -15,9 +15,9 @@ from pathlib import Path
 import can
 import pytest
 
-from bridge.link import ControllerLink, LinkConfig, StepRequest
-from bridge.replay import BridgeReplayOptions, BridgeReplayResult, replay_into_bridge
-from bridge.transport import Transport, open_transport
+from bridge.link.controllerlink import ControllerLink, LinkConfig, StepRequest
+from bridge.link.transport import Transport, open_transport
+from bridge.tools.replay import BridgeReplayOptions, BridgeReplayResult, replay_into_bridge
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
@@ -25,9 +25,7 @@ from emulator.frontend import FrontEnd
 from emulator.replay import ReplayOptions, ReplayResult, replay_into_emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from firmware_proto.canmap import encode_can
 from firmware_proto.cli import main as rover_cli
-from firmware_proto.framing import encode_frame
 from firmware_proto.linkio.trafficio import open_recorder, read_log
 from firmware_proto.linkio.trafficlog import (
     CanRecord,
@@ -37,10 +35,12 @@ from firmware_proto.linkio.trafficlog import (
     format_serial_record,
     serial_log_header,
 )
-from firmware_proto.message import Message
-from firmware_proto.messages import Command, Ident, Motion, Stopped, WheelSpeeds
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
+from firmware_proto.wire.canmap import encode_can
+from firmware_proto.wire.framing import encode_frame
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Command, Ident, Motion, Stopped, WheelSpeeds
 from tests.scheduling import threads_at
 
 from .conftest import SPEED, Recorder

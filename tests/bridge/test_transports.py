@@ -30,18 +30,17 @@ import serial
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridge.can_transport import CanTransport
 from bridge.errors import TransportError, TransportUrlError
-from bridge.link import ControllerLink, LinkConfig, StepRequest
-from bridge.node import BridgeNode
-from bridge.params import load_params
-from bridge.rosport import RosPort
-from bridge.rosport.msgs import DiagnosticArray, DiagnosticStatus, String
-from bridge.serial_transport import SerialTransport
-from bridge.transport import open_transport
+from bridge.link.can_transport import CanTransport
+from bridge.link.controllerlink import ControllerLink, LinkConfig, StepRequest
+from bridge.link.serial_transport import SerialTransport
+from bridge.link.transport import open_transport
+from bridge.ros.node import BridgeNode
+from bridge.ros.params import load_params
+from bridge.ros.rosport import RosPort
+from bridge.ros.rosport.msgs import DiagnosticArray, DiagnosticStatus, String
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
-from firmware_proto.canmap import encode_can
 from firmware_proto.linkio.can_endpoint import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
@@ -55,8 +54,9 @@ from firmware_proto.linkio.can_endpoint import (
     decode_error_frame,
 )
 from firmware_proto.linkio.urls import split_serial_url
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.canmap import encode_can
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     Command,
@@ -80,7 +80,7 @@ from .conftest import (
 Emus = Callable[..., Emulator]
 FWD = Command.FWD
 CAN_ERR_LOSTARB = 0x002
-from bridge.diagnostics import OK, WARN  # noqa: E402
+from bridge.ros.diagnostics import OK, WARN  # noqa: E402
 
 RELAYED = {"ack_timeout_s": 0.2, "motion_retries": 5}
 """Link timing for a line with extra hops (a TCP relay thread, pyserial's spy dump): a
@@ -395,7 +395,8 @@ def _reconnect_delays(caplog: pytest.LogCaptureFixture) -> list[float]:
     return [
         float(r.args[-1])  # type: ignore[index, arg-type]
         for r in caplog.records
-        if r.name.startswith("bridge.link") and ("retry in" in r.msg or "reconnecting in" in r.msg)
+        if r.name.startswith("bridge.link.controllerlink")
+        and ("retry in" in r.msg or "reconnecting in" in r.msg)
     ]
 
 
@@ -408,7 +409,7 @@ def test_reconnect_backoff_grows_while_the_line_flaps_and_a_handshake_resets_it(
     """A line that opens and fails at once (a flapping ser2net, a CAN bus going bus-off
     again and again) is retried with the same doubling backoff as one that cannot be
     opened, not every ``reconnect_min_s``; a completed handshake resets it."""
-    caplog.set_level(logging.INFO, logger="bridge.linkcore")
+    caplog.set_level(logging.INFO, logger="bridge.link.linkcore")
     emu = emulators()
     relay = relays(_pty(emu))
     relay.flaps = 4
@@ -447,7 +448,7 @@ def test_a_failure_reported_while_the_transport_opens_is_not_lost(
 ) -> None:
     """The reader may fail before ``open`` returns; the link handles that failure (and
     reconnects) instead of keeping a dead transport until a write fails."""
-    caplog.set_level(logging.INFO, logger="bridge.linkcore")
+    caplog.set_level(logging.INFO, logger="bridge.link.linkcore")
     emu = emulators()
     relay = relays(_pty(emu))
     relay.flaps = 1
@@ -468,7 +469,7 @@ def test_a_failure_reported_while_the_transport_opens_is_not_lost(
     failures = [
         r.getMessage()
         for r in caplog.records
-        if r.name.startswith("bridge.link") and "reconnecting in" in r.msg
+        if r.name.startswith("bridge.link.controllerlink") and "reconnecting in" in r.msg
     ]
     assert len(failures) == 1 and "disconnected" in failures[0], failures
 

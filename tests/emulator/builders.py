@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.worldmap import WorldMap
 
 
 def make_map(

@@ -12,9 +12,9 @@ from emulator.engine import Emulator
 from emulator.injection import FaultSpec
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
-from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import WorldMap, load_map
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
-from firmware_proto.worldmap import WorldMap, load_map
 from tests.scheduling import threads_at
 
 SPEED = 4.0

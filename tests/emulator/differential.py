@@ -19,9 +19,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from emulator.controller import ControllerModel
-from firmware_proto.framing import FrameDecoder, FrameEncoder
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     Ack,

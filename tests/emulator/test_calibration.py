@@ -29,8 +29,8 @@ from emulator.playback import measure_turn_efficiency, play
 from emulator.recording import RecordedStep, _status, read_recording
 from emulator.twin import Pose2D, Twin
 from emulator.twinfile import load_twin, write_twin
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import WorldMap
 
 LEFT, RIGHT, FWD = 3, 4, 1
 
@@ -189,8 +189,8 @@ def test_rover_gate_check_plays_on_the_twin(twin_file: Path, field: Path, tmp_pa
 
 
 def test_rover_gate_serves_the_twin(twin_file: Path, field: Path) -> None:
-    from firmware_proto.pose import Pose
-    from planner.gate_client import GateClient
+    from firmware_proto.model.pose import Pose
+    from planner.plan.gate_client import GateClient
     from tests.child import Child
 
     args = ["gate", "--port", "0", "--pool", "thread", "--workers", "1", "--map", str(field)]

@@ -17,9 +17,11 @@ from emulator.controller import ControllerModel
 from emulator.drive import turn_units_for_yaw
 from emulator.injection import Injector, parse_fault
 from emulator.twin import Pose2D
-from firmware_proto.geometry import wrap_rad
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.geometry import wrap_rad
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     AbortReason,
@@ -52,8 +54,6 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
 
 Make = Callable[..., ControllerModel]
 

@@ -22,8 +22,8 @@ from emulator.drive import (
     yaw_for_turn_units,
 )
 from emulator.errors import CommandError
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Command
 
 MOVING = [Command.FWD, Command.REV, Command.LEFT, Command.RIGHT]
 

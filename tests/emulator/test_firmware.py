@@ -22,7 +22,8 @@ from emulator.controller import ControllerConfig, ControllerModel
 from emulator.errors import FirmwareBuildError
 from emulator.firmware import FirmwareController, build_library, make_controller
 from emulator.twin import Twin
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     AbortReason,
@@ -39,7 +40,6 @@ from firmware_proto.messages import (
     Stop,
     StopAck,
 )
-from firmware_proto.rover import RoverDescription, load_rover
 from tests.emulator.differential import Sent, compare, run_lockstep, traffic
 from tests.firmware_proto.c_harness import compiler
 

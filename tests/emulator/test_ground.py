@@ -21,8 +21,8 @@ from emulator.ground import (
 )
 from emulator.playback import measure_turn_efficiency, play
 from emulator.twin import Twin
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
 
 
 def test_the_shipped_grounds_differ_from_the_description(rover: RoverDescription) -> None:

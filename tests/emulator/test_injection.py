@@ -18,9 +18,11 @@ from emulator.drive import turn_units_for_yaw
 from emulator.errors import InjectionError
 from emulator.injection import FaultSchedule, InjectionRecord, Injector, parse_fault
 from emulator.twin import Twin
-from firmware_proto.canmap import CanDecoder
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.wire.canmap import CanDecoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     Command,
     ControllerState,
     Encoders,
@@ -33,8 +35,6 @@ from firmware_proto.messages import (
     Status,
     StepState,
 )
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
 
 from .test_controller import ready
 

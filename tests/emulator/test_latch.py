@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from emulator.controller import ControllerModel, LatchCause
 from emulator.injection import Injector, parse_fault
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     AbortReason,

@@ -15,8 +15,8 @@ from typing import Any
 import pytest
 
 from emulator.engine import MAX_BACKLOG_S, _Call
-from firmware_proto.messages import Fault, FaultCode, Heartbeat
 from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
+from firmware_proto.wire.messages import Fault, FaultCode, Heartbeat
 from tests.child import Child
 from tests.emulator.host import serial_host
 from tests.emulator.test_served import ControlClient
@@ -102,7 +102,7 @@ def test_a_late_control_loop_is_counted_as_a_catch_up(freeze_s: float) -> None:
     from emulator.engine import Emulator
     from emulator.serial_frontend import SerialFrontEnd
     from emulator.twin import Twin
-    from firmware_proto.rover import load_rover
+    from firmware_proto.model.rover import load_rover
 
     rover = load_rover()
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
@@ -153,7 +153,7 @@ def test_a_status_asked_for_as_the_loop_wakes_late_shows_it_was_late() -> None:
     from emulator.engine import Emulator
     from emulator.serial_frontend import SerialFrontEnd
     from emulator.twin import Twin
-    from firmware_proto.rover import load_rover
+    from firmware_proto.model.rover import load_rover
 
     rover = load_rover()
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
@@ -178,7 +178,7 @@ def test_a_loop_held_up_past_its_backlog_limit_slips_and_under_it_catches_up(
     from emulator.engine import Emulator
     from emulator.serial_frontend import SerialFrontEnd
     from emulator.twin import Twin
-    from firmware_proto.rover import load_rover
+    from firmware_proto.model.rover import load_rover
 
     rover = load_rover()
     model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)

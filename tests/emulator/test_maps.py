@@ -11,11 +11,11 @@ import pytest
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
 from emulator.twin import GATE_DT_S, Twin
-from firmware_proto.geometry import wrap_rad
-from firmware_proto.messages import Command
-from firmware_proto.pose import Pose
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import MAPS_DIR, MapGoal, WorldMap, list_maps, load_map
+from firmware_proto.model.geometry import wrap_rad
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import MAPS_DIR, MapGoal, WorldMap, list_maps, load_map
+from firmware_proto.wire.messages import Command
 
 MAPS = list_maps()
 GOALS = [(name, goal.name) for name in MAPS for goal in load_map(name).goals]

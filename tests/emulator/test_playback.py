@@ -8,8 +8,8 @@ import pytest
 from emulator.errors import CommandError, TwinConfigError
 from emulator.playback import play
 from emulator.twin import Twin
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Command
 
 from .builders import box, make_map
 

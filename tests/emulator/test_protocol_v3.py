@@ -22,8 +22,9 @@ from emulator.firmware import FirmwareController, make_controller
 from emulator.injection import Injector, parse_fault
 from emulator.sensors import ImuReading
 from emulator.twin import Twin
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     AbortReason,
@@ -46,7 +47,6 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
-from firmware_proto.rover import RoverDescription
 from tests.firmware_proto.c_harness import compiler
 
 from .test_controller import one, run

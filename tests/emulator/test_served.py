@@ -33,8 +33,11 @@ from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.cli import main as rover_main
 from firmware_proto.linkio.host import ProtocolHost
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     SCHEMA_HASH,
     AckField,
     AckResult,
@@ -54,10 +57,7 @@ from firmware_proto.messages import (
     Stopped,
     WheelSpeeds,
 )
-from firmware_proto.messages import Ack as AckMsg
-from firmware_proto.rover import RoverDescription
-from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.wire.messages import Ack as AckMsg
 from tests.scheduling import threads_at
 
 from .conftest import SPEED

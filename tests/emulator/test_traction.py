@@ -17,7 +17,7 @@ from emulator.traction import (
     wheel_force,
 )
 from emulator.twin import Twin
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 
 speeds = st.floats(-0.5, 0.5, allow_nan=False)
 rates = st.floats(-3.0, 3.0, allow_nan=False)

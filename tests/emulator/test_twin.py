@@ -19,8 +19,8 @@ from emulator.drive import StepProfile, motor_omegas, travel_units, yaw_for_turn
 from emulator.errors import CommandError, InjectionError, TwinConfigError
 from emulator.playback import measure_turn_efficiency, play
 from emulator.twin import MAX_DT_S, Pose2D, Twin
-from firmware_proto.messages import Command
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.wire.messages import Command
 
 from .builders import box, make_map
 
@@ -357,8 +357,8 @@ DETERMINISM_SCRIPT = textwrap.dedent(
     """
     import hashlib, struct
     from emulator import Pose2D, Twin
-    from firmware_proto.worldmap import load_map
-    from firmware_proto.rover import load_rover
+    from firmware_proto.model.worldmap import load_map
+    from firmware_proto.model.rover import load_rover
 
     rover = load_rover()
     twin = Twin(rover, load_map("lab"), start=Pose2D.from_deg(2.6, 1.6, 30.0))

@@ -1,6 +1,6 @@
 """Build the C reference codec with its pipe harness and talk to it.
 
-The harness (``firmware_proto/c/tests/rp_tool.c``) reads lines on stdin and answers
+The harness (``firmware_proto/wire/c/tests/rp_tool.c``) reads lines on stdin and answers
 lines on stdout; see its header comment for the modes. Every run is a subprocess that
 is waited for with a timeout, so a hung or crashed harness fails the test instead of
 leaking a child. The sanitizers abort the harness on the first error; their report goes
@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from firmware_proto.codegen import REPO_ROOT
-from firmware_proto.framing import Frame, FrameDecoder
+from firmware_proto.wire.codegen import REPO_ROOT
+from firmware_proto.wire.framing import Frame, FrameDecoder
 
-C_DIR = REPO_ROOT / "firmware_proto" / "c"
+C_DIR = REPO_ROOT / "firmware_proto" / "wire" / "c"
 LIBRARY_SOURCES = (C_DIR / "rover_msgs.c", C_DIR / "rover_proto.c")
 WARNINGS = (
     "-std=c99",

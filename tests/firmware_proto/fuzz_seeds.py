@@ -1,11 +1,11 @@
 """The seed corpora of the three libFuzzer targets, generated, checked in, pinned.
 
-- ``firmware_proto/c/tests/corpus_decoder/``: ``fuzz_decoder.c`` (serial and CAN
+- ``firmware_proto/wire/c/tests/corpus_decoder/``: ``fuzz_decoder.c`` (serial and CAN
   decoders): every serial stream of the shared vectors, chunk size first;
-- ``firmware_proto/c/fw/tests/corpus_fw/``: ``fuzz_fw.c`` (the core, ideal plant):
+- ``firmware_proto/wire/c/fw/tests/corpus_fw/``: ``fuzz_fw.c`` (the core, ideal plant):
   seeded host traffic (valid, corrupted and garbage frames cut into chunks, with ticks,
   faults and reboots) in its record format;
-- ``firmware_proto/c/fw/tests/corpus_fw_plant/``: ``fuzz_fw_plant.c`` (the core, varied
+- ``firmware_proto/wire/c/fw/tests/corpus_fw_plant/``: ``fuzz_fw_plant.c`` (the core, varied
   plant): scripted scenarios in its format (configuration header, then op records),
   one per thing the harness is about: steps whose encoder counters wrap, INT32_MIN
   readings, time jumps, refused and edge configurations, faults, glitches.
@@ -22,10 +22,10 @@ import random
 import struct
 import sys
 
-from firmware_proto.codegen import REPO_ROOT
-from firmware_proto.framing import FrameEncoder
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.codegen import REPO_ROOT
+from firmware_proto.wire.framing import FrameEncoder
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     ClearStop,
@@ -38,7 +38,7 @@ from firmware_proto.messages import (
 
 __all__ = ["CORPORA", "decoder_seeds", "fw_plant_seeds", "fw_seeds", "generate", "main"]
 
-C_DIR = REPO_ROOT / "firmware_proto" / "c"
+C_DIR = REPO_ROOT / "firmware_proto" / "wire" / "c"
 CORPORA = {
     "decoder": C_DIR / "tests" / "corpus_decoder",
     "fw": C_DIR / "fw" / "tests" / "corpus_fw",
@@ -50,7 +50,7 @@ CORPORA = {
 # -- fuzz_decoder.c ------------------------------------------------------------------------
 def decoder_seeds() -> dict[str, bytes]:
     """Every serial stream vector: a chunk-size byte, then the stream's bytes."""
-    vectors = REPO_ROOT / "firmware_proto" / "vectors" / "serial_streams.json"
+    vectors = REPO_ROOT / "firmware_proto" / "wire" / "vectors" / "serial_streams.json"
     doc = json.loads(vectors.read_text(encoding="utf-8"))
     return {
         f"{k:02d}-{s['label']}": bytes([k % 32]) + b"".join(bytes.fromhex(c) for c in s["chunks"])

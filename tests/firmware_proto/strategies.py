@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from hypothesis import strategies as st
 
-from firmware_proto.message import Message
-from firmware_proto.messages import BY_NAME
-from firmware_proto.spec import MessageSpec, load_spec
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import BY_NAME
+from firmware_proto.wire.spec import MessageSpec, load_spec
 
 SPEC = load_spec()
 

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_proto.bindpolicy import (
+from firmware_proto.errors import BindPolicyError, ProtoError
+from firmware_proto.http.bindpolicy import (
     bearer_token,
     check_bind,
     check_token,
     is_loopback,
     token_matches,
 )
-from firmware_proto.errors import BindPolicyError, ProtoError
 
 
 def test_loopback_addresses() -> None:

@@ -1,6 +1,6 @@
 """The C reference codec agrees with the Python codec byte for byte and counter for counter.
 
-Both are checked against the shared vectors (``firmware_proto/vectors/``): the Python side
+Both are checked against the shared vectors (``firmware_proto/wire/vectors/``): the Python side
 always (so a drift of either the vectors or the codec is caught without a compiler), the
 C side when gcc is there (tests marked ``cc``). The C library and its pipe harness are
 built once per session with warnings as errors and AddressSanitizer + UBSan; random and
@@ -29,15 +29,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_proto import cobs
-from firmware_proto.canmap import CanDecoder, encode_can
-from firmware_proto.codegen import REPO_ROOT
-from firmware_proto.codegen.vectors import COUNTER_NAMES, ReferenceDecoder, frame_bytes
 from firmware_proto.errors import EncodeError
-from firmware_proto.framing import FrameDecoder, encode_frame, encode_raw_frame
-from firmware_proto.message import Message
-from firmware_proto.messages import BY_NAME, MESSAGE_TYPES
-from firmware_proto.spec import load_spec
+from firmware_proto.wire import cobs
+from firmware_proto.wire.canmap import CanDecoder, encode_can
+from firmware_proto.wire.codegen import REPO_ROOT
+from firmware_proto.wire.codegen.vectors import COUNTER_NAMES, ReferenceDecoder, frame_bytes
+from firmware_proto.wire.framing import FrameDecoder, encode_frame, encode_raw_frame
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import BY_NAME, MESSAGE_TYPES
+from firmware_proto.wire.spec import load_spec
 
 from .c_harness import (
     C_DIR,
@@ -56,7 +56,7 @@ from .c_harness import (
     xorshift_chunks,
 )
 
-VECTORS = REPO_ROOT / "firmware_proto" / "vectors"
+VECTORS = REPO_ROOT / "firmware_proto" / "wire" / "vectors"
 GENERAL_REGS_ONLY = {"x86_64", "AMD64", "i386", "i686", "aarch64", "arm64"}
 """Machines whose gcc takes ``-mgeneral-regs-only``."""
 SPEC = load_spec()
@@ -605,9 +605,9 @@ def test_c_generator_handles_edge_case_layouts(tmp_path: Path) -> None:
     compiles clean and packs and unpacks exactly like the Python generated from the same spec."""
     if compiler() is None:
         pytest.skip("gcc not found (set CC)")
-    from firmware_proto.codegen.c import render_c_header, render_c_source
-    from firmware_proto.codegen.python import render_python
-    from firmware_proto.spec import DEFAULT_SPEC_PATH
+    from firmware_proto.wire.codegen.c import render_c_header, render_c_source
+    from firmware_proto.wire.codegen.python import render_python
+    from firmware_proto.wire.spec import DEFAULT_SPEC_PATH
 
     spec_file = tmp_path / "protocol.toml"
     spec_file.write_text(DEFAULT_SPEC_PATH.read_text(encoding="utf-8") + EDGE_MESSAGES)

@@ -12,11 +12,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_proto import codegen
-from firmware_proto.canmap import CanDecoder, can_id, encode_can, split_can_id
 from firmware_proto.errors import EncodeError
-from firmware_proto.message import Message
-from firmware_proto.messages import MESSAGE_TYPES, Ack, Motion, Stop
+from firmware_proto.wire import codegen
+from firmware_proto.wire.canmap import CanDecoder, can_id, encode_can, split_can_id
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import MESSAGE_TYPES, Ack, Motion, Stop
 
 from .strategies import SPEC, any_message
 
@@ -110,7 +110,7 @@ def test_frames_cross_a_real_python_can_virtual_bus() -> None:
 
 @functools.cache
 def _load_dbc() -> cantools.database.can.Database:
-    path = codegen.REPO_ROOT / "firmware_proto" / "rover.dbc"
+    path = codegen.REPO_ROOT / "firmware_proto" / "wire" / "rover.dbc"
     db = cantools.database.load_file(str(path), strict=True)
     assert isinstance(db, cantools.database.can.Database)
     return db
@@ -148,7 +148,7 @@ def test_cantools_encodes_what_we_decode(dbc: cantools.database.can.Database) ->
 
 @pytest.mark.parametrize("node", [0, 16, -1, 2000])
 def test_dbc_render_refuses_a_node_that_is_not_a_controller(node: int) -> None:
-    from firmware_proto.codegen.dbc import render_dbc
+    from firmware_proto.wire.codegen.dbc import render_dbc
 
     with pytest.raises(EncodeError, match=rf"controller node id {node} outside 1\.\.15") as exc:
         render_dbc(SPEC, node)
@@ -157,7 +157,7 @@ def test_dbc_render_refuses_a_node_that_is_not_a_controller(node: int) -> None:
 
 @pytest.mark.parametrize("node", [1, 7, 15])
 def test_dbc_for_any_controller_node_decodes_that_nodes_frames(node: int) -> None:
-    from firmware_proto.codegen.dbc import render_dbc
+    from firmware_proto.wire.codegen.dbc import render_dbc
 
     db = cantools.database.load_string(render_dbc(SPEC, node), database_format="dbc", strict=True)
     assert isinstance(db, cantools.database.can.Database)

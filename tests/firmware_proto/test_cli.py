@@ -9,8 +9,8 @@ import cantools
 import pytest
 
 import firmware_proto
-from firmware_proto.framing import FrameDecoder
-from firmware_proto.messages import Motion
+from firmware_proto.wire.framing import FrameDecoder
+from firmware_proto.wire.messages import Motion
 
 
 def rover(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:

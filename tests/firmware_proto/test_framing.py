@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_proto import cobs
-from firmware_proto.framing import (
+from firmware_proto.wire import cobs
+from firmware_proto.wire.framing import (
     MAX_ENCODED_BYTES,
     MAX_WIRE_BYTES,
     FrameDecoder,
@@ -19,8 +19,8 @@ from firmware_proto.framing import (
     encode_frame,
     encode_raw_frame,
 )
-from firmware_proto.message import Message
-from firmware_proto.messages import Heartbeat, HostHeartbeat, Motion, Stop
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Heartbeat, HostHeartbeat, Motion, Stop
 
 from .strategies import any_message
 

@@ -1,4 +1,4 @@
-"""The C firmware core (firmware_proto/c/fw/) as C: it builds freestanding with no libc
+"""The C firmware core (firmware_proto/wire/c/fw/) as C: it builds freestanding with no libc
 calls and no floating point, its receive path survives fuzzing under ASan and UBSan (an
 ideal plant, and a varied one: fuzz_fw_plant.c built with gcc; test_libfuzzer.py runs
 both under libFuzzer), the cases of issue #22 hold (fw/tests/cases_fw.c: INT32_MIN

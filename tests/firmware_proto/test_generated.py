@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from firmware_proto import codegen, messages
 from firmware_proto.errors import SpecError
-from firmware_proto.spec import DEFAULT_SPEC_PATH, load_spec
+from firmware_proto.wire import codegen, messages
+from firmware_proto.wire.spec import DEFAULT_SPEC_PATH, load_spec
 
 
 def test_no_generated_file_is_stale() -> None:
@@ -22,7 +22,7 @@ def test_stale_check_notices_an_edit(tmp_path: Path) -> None:
     spec_file.write_text(text)
     edited = load_spec(spec_file)
     assert edited.schema_hash != messages.SCHEMA_HASH
-    assert codegen.REPO_ROOT / "firmware_proto/messages.py" in codegen.stale(edited)
+    assert codegen.REPO_ROOT / "firmware_proto/wire/messages.py" in codegen.stale(edited)
 
 
 def test_schema_hash_ignores_documentation(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_proto.geometry import (
+from firmware_proto.model.geometry import (
     closest_point_on_segment,
     convex_parts,
     point_in_polygon,

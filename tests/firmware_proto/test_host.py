@@ -26,8 +26,8 @@ from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.linkio.media import medium_of, open_endpoint
 from firmware_proto.linkio.memory import memory_line
 from firmware_proto.linkio.serial_endpoint import SerialEndpoint
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     Heartbeat,

@@ -58,7 +58,7 @@ def test_building_the_rover_parser_loads_no_heavy_library() -> None:
         "from firmware_proto.cli import build_parser\n"
         "build_parser()\n"
         "heavy = ('jsonschema', 'fastjsonschema', 'numpy', 'pymunk', 'rclpy', 'scipy', "
-        "'planner.executor', 'emulator.twin')\n"
+        "'planner.ground.executor', 'emulator.twin')\n"
         "print(sorted(m for m in heavy if m in sys.modules))\n"
     )
     done = subprocess.run(

@@ -1,9 +1,9 @@
 """The three libFuzzer targets run under ASan and UBSan that abort, from their checked-in
 seed corpora, with a fixed seed and a fixed number of inputs each:
 
-- ``firmware_proto/c/tests/fuzz_decoder.c``: the serial and CAN decoders;
-- ``firmware_proto/c/fw/tests/fuzz_fw.c``: the firmware core, ideal plant;
-- ``firmware_proto/c/fw/tests/fuzz_fw_plant.c``: the firmware core, varied plant
+- ``firmware_proto/wire/c/tests/fuzz_decoder.c``: the serial and CAN decoders;
+- ``firmware_proto/wire/c/fw/tests/fuzz_fw.c``: the firmware core, ideal plant;
+- ``firmware_proto/wire/c/fw/tests/fuzz_fw_plant.c``: the firmware core, varied plant
   (configuration, encoder counters near the wrap and at INT32_MIN, time jumps, sensor
   glitches), with its invariants checked inside.
 

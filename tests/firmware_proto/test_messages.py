@@ -7,10 +7,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_proto import messages
 from firmware_proto.errors import DecodeError, EncodeError
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire import messages
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     DECODERS,
     Command,
     Encoders,
@@ -19,7 +19,7 @@ from firmware_proto.messages import (
     Pose,
     Stop,
 )
-from firmware_proto.spec import MessageSpec
+from firmware_proto.wire.spec import MessageSpec
 
 from .strategies import SPEC, any_message, message_of
 

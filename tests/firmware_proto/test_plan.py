@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from firmware_proto.errors import PlanError
-from firmware_proto.plan import Plan, PlanStep, plan_schema, validate_plan
+from firmware_proto.model.plan import Plan, PlanStep, plan_schema, validate_plan
 
 GOOD: dict[str, Any] = {
     "goal": {"x": 1.5, "y": -2, "yaw_deg": 90},

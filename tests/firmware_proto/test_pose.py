@@ -6,9 +6,9 @@ import math
 
 import pytest
 
-from firmware_proto.plan import Goal, Plan
-from firmware_proto.pose import Pose
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.plan import Goal, Plan
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.worldmap import load_map
 
 
 def test_pose_is_the_plans_goal_and_knows_its_finiteness() -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from firmware_proto.errors import DescriptionError
-from firmware_proto.rover import DEFAULT_ROVER_PATH, load_rover
+from firmware_proto.model.rover import DEFAULT_ROVER_PATH, load_rover
 
 
 def test_default_description_loads_with_the_contract_values() -> None:

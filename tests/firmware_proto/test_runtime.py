@@ -15,7 +15,6 @@ from pathlib import Path
 
 import pytest
 
-from firmware_proto.gapstats import GapStats
 from firmware_proto.runtime.realtime import RealtimeConfig, RealtimeStatus
 from firmware_proto.runtime.stall import (
     StallMonitor,
@@ -24,6 +23,7 @@ from firmware_proto.runtime.stall import (
     read_stalls,
     stall_log_path,
 )
+from firmware_proto.wire.gapstats import GapStats
 
 ROOT = Path(__file__).resolve().parents[2]
 IS_ROOT = os.geteuid() == 0

@@ -1,4 +1,4 @@
-"""The plan check's fast path (firmware_proto/schemacheck.py) against jsonschema: the
+"""The plan check's fast path (firmware_proto/model/schemacheck.py) against jsonschema: the
 compiled check passes exactly the documents jsonschema finds no violation in.
 
 The property test kills, among others, these changes to the compiled schema alone: a
@@ -17,9 +17,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_proto import plan, schemacheck
-from firmware_proto.plan import _validator, plan_schema, validate_plan
-from firmware_proto.schemacheck import schema_violations
+from firmware_proto.model import plan, schemacheck
+from firmware_proto.model.plan import _validator, plan_schema, validate_plan
+from firmware_proto.model.schemacheck import schema_violations
 
 # Values of every JSON kind, near and at the schema's limits, and of the wrong kinds.
 _limits = st.sampled_from(

@@ -8,10 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_proto import cobs
-from firmware_proto.canmap import encode_can
 from firmware_proto.errors import DecodeError
-from firmware_proto.framing import encode_frame
 from firmware_proto.linkio.trafficlog import (
     CONTROLLER_TO_HOST,
     HOST_TO_CONTROLLER,
@@ -32,8 +29,11 @@ from firmware_proto.linkio.trafficlog import (
     parse_serial_log,
     serial_log_header,
 )
-from firmware_proto.message import Message
-from firmware_proto.messages import (
+from firmware_proto.wire import cobs
+from firmware_proto.wire.canmap import encode_can
+from firmware_proto.wire.framing import encode_frame
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
     DEFAULT_NODE,
     Ack,
     AckField,

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from firmware_proto.errors import MapError, ProtoError
-from firmware_proto.worldmap import (
+from firmware_proto.model.worldmap import (
     BOUNDS_ID,
     MAPS_DIR,
     CircleObstacle,

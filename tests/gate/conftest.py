@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.rover import RoverDescription, load_rover
+from firmware_proto.model.rover import RoverDescription, load_rover
 from gate.config import GateConfig, PlaybackSettings
 from gate.pool import WorkerPool
 from gate.server import GateServer

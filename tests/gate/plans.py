@@ -6,8 +6,8 @@ import math
 from typing import Any
 
 from emulator.drive import turn_units_for_yaw
-from firmware_proto.geometry import wrap_deg
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.model.rover import RoverDescription
 
 UNITS_PER_M = 23000
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from firmware_proto.cli import main
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.rover import RoverDescription
 
 from .client import call, post_plan
 from .plans import STOP_AT_LAB_START, fwd, plan, step, turn

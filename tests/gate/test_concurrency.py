@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.plan import Plan
-from firmware_proto.rover import RoverDescription
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.rover import RoverDescription
 from gate.options import ValidateOptions
 from gate.server import GateServer
 from gate.validator import Validator

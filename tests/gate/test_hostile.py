@@ -214,7 +214,7 @@ def test_the_answer_is_bounded_whatever_the_plan_asks(http_gate: GateServer) -> 
 def test_the_slowest_valid_plan_is_sampled_within_the_bound(http_gate: GateServer) -> None:
     """The issue's case: 12 steps at speed 1 and 100 Hz was 24 MB; now the period is
     chosen from the plan before playing it (no playback here)."""
-    from firmware_proto.plan import Plan
+    from firmware_proto.model.plan import Plan
     from gate.options import ValidateOptions
 
     validator = http_gate.validator

@@ -17,10 +17,10 @@ from emulator.batch import BatchDraw, play_batch, schedule
 from emulator.ground import Ground
 from emulator.playback import play
 from emulator.twin import Pose2D, Twin
-from firmware_proto.plan import Plan
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.verdict import Verdict
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.model.worldmap import load_map
 from gate.config import GateConfig, PlaybackSettings
 from gate.ensemble import DefaultSpread, chunk_sizes
 from gate.openapi import build_openapi

@@ -12,8 +12,8 @@ import pytest
 
 import gate
 from emulator.twin import GATE_DT_S
-from firmware_proto.bindpolicy import is_loopback
-from firmware_proto.verdict import Verdict
+from firmware_proto.http.bindpolicy import is_loopback
+from firmware_proto.model.verdict import Verdict
 from gate.config import (
     DEFAULT_DT_S,
     KEYS,
@@ -155,7 +155,7 @@ def test_goal_error_signs() -> None:
 
 
 def test_verdict_round_trips(validator: object) -> None:
-    from firmware_proto.plan import Plan
+    from firmware_proto.model.plan import Plan
     from gate.validator import Validator
 
     assert isinstance(validator, Validator)
@@ -238,7 +238,7 @@ def test_importing_the_data_types_does_not_load_the_twin_or_pillow() -> None:
 def test_validation_without_a_picture_does_not_load_pillow() -> None:
     code = (
         "import sys\n"
-        "from firmware_proto.plan import Plan\n"
+        "from firmware_proto.model.plan import Plan\n"
         "from gate.config import GateConfig\n"
         "from gate.options import ValidateOptions\n"
         "from gate.validator import Validator\n"

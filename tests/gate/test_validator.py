@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 
 from emulator.twin import Twin
-from firmware_proto.plan import Plan
-from firmware_proto.rover import RoverDescription
-from firmware_proto.verdict import Verdict
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.model.worldmap import WorldMap
 from gate.config import GateConfig, PlaybackSettings
 from gate.errors import GateConfigError, OptionError
 from gate.options import ValidateOptions

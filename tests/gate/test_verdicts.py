@@ -9,9 +9,9 @@ import pytest
 
 from emulator.playback import play
 from emulator.twin import Pose2D, Twin
-from firmware_proto.rover import RoverDescription
-from firmware_proto.verdict import Verdict
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.model.worldmap import load_map
 from gate.render import LEGEND_PX
 from gate.server import GateServer
 

@@ -16,14 +16,14 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.worldmap import WorldMap, list_maps, load_map
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import WorldMap, list_maps, load_map
 from gate.config import GateConfig
 from gate.server import GateServer
-from planner.domains import registry_dir
-from planner.gate_client import GateClient
-from planner.orchestrator import PlannerOrchestrator
-from planner.planner import HeuristicLowLevelPlanner
+from planner.plan.gate_client import GateClient
+from planner.plan.orchestrator import PlannerOrchestrator
+from planner.plan.planner import HeuristicLowLevelPlanner
+from planner.stack.domains import registry_dir
 
 
 def start_gate(**overrides: Any) -> GateServer:

@@ -18,14 +18,14 @@ from pathlib import Path
 
 import pytest
 
-from bridge.rosport import open_port
+from bridge.ros.rosport import open_port
 from emulator.ground import load_ground
 from emulator.playback import measure_turn_efficiency
-from firmware_proto.plan import Plan
-from firmware_proto.rover import load_rover
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.rover import load_rover
 from firmware_proto.runtime.stall import describe_stalls, read_stalls
-from planner.executor import ExecutorConfig, PlanExecutor
-from planner.mcaprec import McapRecorder
+from planner.ground.executor import ExecutorConfig, PlanExecutor
+from planner.record.mcaprec import McapRecorder
 from tests.child import Child
 
 # serial: a mission across four processes; alone, no other worker's load can starve the

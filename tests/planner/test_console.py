@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from bridge.diagnostics import diagnostic_array
-from bridge.link import LinkDiagnostics
-from bridge.rosport.msgs import stamp
-from planner import domains
-from planner.roverstatus import from_diagnostics
+from bridge.link.controllerlink import LinkDiagnostics
+from bridge.ros.diagnostics import diagnostic_array
+from bridge.ros.rosport.msgs import stamp
+from planner.ground.roverstatus import from_diagnostics
+from planner.stack import domains
 from tests.child import Child
 
 BASE = LinkDiagnostics(

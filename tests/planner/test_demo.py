@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.worldmap import MAPS_DIR
+from firmware_proto.model.worldmap import MAPS_DIR
 from tests.child import Child
 
 pytestmark = pytest.mark.rclpy

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_proto.pose import Pose
-from firmware_proto.verdict import (
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.verdict import (
     Replay,
     StepPrediction,
     Tolerances,
@@ -13,7 +13,7 @@ from firmware_proto.verdict import (
     TrajectorySample,
     Verdict,
 )
-from planner.drift import DriftMonitor, predicted_pose
+from planner.ground.drift import DriftMonitor, predicted_pose
 
 
 def verdict_of(steps: list[list[tuple[float, Pose]]]) -> Verdict:

@@ -15,12 +15,12 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.plan import Plan
-from firmware_proto.verdict import Verdict
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.verdict import Verdict
 from gate.server import GateServer
-from planner.executor import ExecutorConfig, Progress
-from planner.gate_client import GateClient
-from planner.relay import DEFAULT_ROUTES
+from planner.ground.executor import ExecutorConfig, Progress
+from planner.ground.relay import DEFAULT_ROUTES
+from planner.plan.gate_client import GateClient
 from tests.rig import HilRig
 
 # Missions in real time on an in-process rig (emulator, bridge and relay threads in this

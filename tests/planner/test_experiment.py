@@ -6,16 +6,16 @@ from collections.abc import Callable
 
 import pytest
 
-from firmware_proto.pose import Pose
-from firmware_proto.worldmap import WorldMap
-from planner.experiment import (
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.worldmap import WorldMap
+from planner.plan.experiment import (
     ExperimentResult,
     footprint_hits,
     run_planning_experiment,
     trial_goals,
 )
-from planner.orchestrator import PlannerOrchestrator
-from planner.planner import HeuristicLowLevelPlanner
+from planner.plan.orchestrator import PlannerOrchestrator
+from planner.plan.planner import HeuristicLowLevelPlanner
 
 
 def test_footprint_check(planner: HeuristicLowLevelPlanner, worlds: dict[str, WorldMap]) -> None:

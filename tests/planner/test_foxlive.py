@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from bridge.rosport.msgs import Odometry
+from bridge.ros.rosport.msgs import Odometry
 from tests.browser import chromium
 
 pytestmark = pytest.mark.browser
@@ -49,7 +49,7 @@ def test_the_ground_stations_messages_reach_a_foxglove_client() -> None:
     pytest.importorskip("foxglove")
     from rclpy.serialization import deserialize_message
 
-    from planner.foxlive import FoxgloveLive
+    from planner.record.foxlive import FoxgloveLive
 
     with pytest.raises(ValueError, match="no token"):
         FoxgloveLive(host="0.0.0.0")

@@ -10,10 +10,10 @@ from collections.abc import Iterator
 import pytest
 
 from firmware_proto.errors import VerdictError
-from firmware_proto.plan import Goal, Plan, PlanStep
-from firmware_proto.pose import Pose
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.verdict import Verdict
+from firmware_proto.model.plan import Goal, Plan, PlanStep
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.verdict import Verdict
 from gate.server import GateServer
 from planner.errors import (
     GateOverloadedError,
@@ -23,8 +23,8 @@ from planner.errors import (
     GateUnavailableError,
     PlannerError,
 )
-from planner.gate_client import GateClient, GateOptions, resolve_gate_settings
-from planner.planner import HeuristicLowLevelPlanner
+from planner.plan.gate_client import GateClient, GateOptions, resolve_gate_settings
+from planner.plan.planner import HeuristicLowLevelPlanner
 from tests.planner.conftest import start_gate
 
 
@@ -305,9 +305,9 @@ def test_the_planner_reads_the_gates_verdict_into_the_model_the_gate_built(
     client: GateClient, planner: HeuristicLowLevelPlanner
 ) -> None:
     """The planner reads verdicts over HTTP and may not import the gate: both use the one
-    model of firmware_proto.verdict, so what the gate serialised reads back equal."""
+    model of firmware_proto.model.verdict, so what the gate serialised reads back equal."""
     import gate
-    from firmware_proto import verdict as model
+    from firmware_proto.model import verdict as model
 
     assert gate.Verdict is model.Verdict and gate.FAILURE_TYPES is model.FAILURE_TYPES
     verdict = client.validate(open_field_plan(planner), map_name="lab")

@@ -14,11 +14,11 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.plan import Plan
-from firmware_proto.rover import RoverDescription, load_rover
-from firmware_proto.verdict import Verdict
-from firmware_proto.worldmap import WorldMap, load_map
-from planner.gate_client import GateClient
+from firmware_proto.model.plan import Plan
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.model.worldmap import WorldMap, load_map
+from planner.plan.gate_client import GateClient
 from tests.rig import HilRig
 
 # Missions in real time on an in-process rig (emulator, bridge and relay threads in this

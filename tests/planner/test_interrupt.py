@@ -12,7 +12,7 @@ from __future__ import annotations
 from tests.procs import run_snippet
 
 HEADER = """import json, os, signal, threading
-from planner.interrupt import CancelOnSignal"""
+from planner.ground.interrupt import CancelOnSignal"""
 
 
 def test_the_first_signal_sets_the_cancel_even_inside_that_events_own_wait() -> None:

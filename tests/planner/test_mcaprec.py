@@ -15,9 +15,9 @@ from typing import Any
 
 import pytest
 
-from bridge.rosport import TAP_RECEIVED, TAP_SENT, open_port, qos
-from bridge.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String
-from planner.mcaprec import McapRecorder, msgdef, read_summary
+from bridge.ros.rosport import TAP_RECEIVED, TAP_SENT, open_port, qos
+from bridge.ros.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String
+from planner.record.mcaprec import McapRecorder, msgdef, read_summary
 
 
 def _odom(x: float, y: float, yaw_deg: float) -> Odometry:
@@ -146,8 +146,8 @@ def test_a_recording_a_lab_can_open_tf_markers_diagnostics_metadata(
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from bridge.diagnostics import diagnostic_array
-    from bridge.rosport.msgs import DiagnosticArray, stamp
+    from bridge.ros.diagnostics import diagnostic_array
+    from bridge.ros.rosport.msgs import DiagnosticArray, stamp
     from tests.planner.test_console import BASE
 
     world = worlds["lab"]

@@ -9,15 +9,15 @@ from collections.abc import Iterator
 
 import pytest
 
-from firmware_proto.pose import Pose
-from firmware_proto.rover import load_rover
-from firmware_proto.worldmap import load_map
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import load_rover
+from firmware_proto.model.worldmap import load_map
 from gate.server import GateServer
-from planner.executor import ExecutionResult
-from planner.gate_client import GateClient
-from planner.mission import MissionRunner
-from planner.orchestrator import PlannerOrchestrator
-from planner.planner import HeuristicLowLevelPlanner
+from planner.ground.executor import ExecutionResult
+from planner.ground.mission import MissionRunner
+from planner.plan.gate_client import GateClient
+from planner.plan.orchestrator import PlannerOrchestrator
+from planner.plan.planner import HeuristicLowLevelPlanner
 from tests.planner.conftest import start_gate
 from tests.rig import HilRig
 

@@ -13,27 +13,27 @@ from planner import errors
 
 MODULES = [
     "planner",
-    "planner.console",
-    "planner.demo",
-    "planner.domains",
-    "planner.drift",
+    "planner.ground.console",
+    "planner.stack.demo",
+    "planner.stack.domains",
+    "planner.ground.drift",
     "planner.errors",
-    "planner.executor",
-    "planner.experiment",
-    "planner.foxlive",
-    "planner.gate_client",
-    "planner.interrupt",
-    "planner.markers",
-    "planner.mcaprec",
-    "planner.mission",
-    "planner.orchestrator",
-    "planner.picture",
-    "planner.planner",
-    "planner.relay",
-    "planner.repairs",
-    "planner.roverstatus",
-    "planner.stack",
-    "planner.stackenv",
+    "planner.ground.executor",
+    "planner.plan.experiment",
+    "planner.record.foxlive",
+    "planner.plan.gate_client",
+    "planner.ground.interrupt",
+    "planner.record.markers",
+    "planner.record.mcaprec",
+    "planner.ground.mission",
+    "planner.plan.orchestrator",
+    "planner.record.picture",
+    "planner.plan.planner",
+    "planner.ground.relay",
+    "planner.plan.repairs",
+    "planner.ground.roverstatus",
+    "planner.stack.processes",
+    "planner.stack.stackenv",
     "planner.view",
     "planner.view.hub",
     "planner.view.live",
@@ -55,9 +55,9 @@ def test_the_package_reexports_the_modules_objects() -> None:
 
     # The pose, the point and the verdict are the shared model of firmware_proto (the gate
     # builds what the planner reads), re-exported here for an operator's script.
-    shared = {"Pose": "firmware_proto.pose", "Trajectory": "firmware_proto.verdict"}
-    shared["Point"] = "firmware_proto.geometry"
-    shared["Verdict"] = "firmware_proto.verdict"
+    shared = {"Pose": "firmware_proto.model.pose", "Trajectory": "firmware_proto.model.verdict"}
+    shared["Point"] = "firmware_proto.model.geometry"
+    shared["Verdict"] = "firmware_proto.model.verdict"
     modules = [importlib.import_module(m) for m in MODULES[1:]]
     for name in planner.__all__:
         homes = [m for m in modules if name in m.__all__]

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from firmware_proto.plan import PlanStep
-from firmware_proto.pose import Pose
-from firmware_proto.verdict import StallReport
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.plan import PlanStep
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.verdict import StallReport
+from firmware_proto.model.worldmap import WorldMap
 from gate.server import GateServer
 from planner.errors import (
     GoalInObstacleError,
@@ -23,10 +23,10 @@ from planner.errors import (
     RepairError,
     UnreachableGoalError,
 )
-from planner.gate_client import GateClient, GateOptions
-from planner.orchestrator import PlannerOrchestrator
-from planner.planner import DRIVE, HeuristicLowLevelPlanner, LegPlan
-from planner.repairs import PlannerContext, RepairSettings, stall_repair
+from planner.plan.gate_client import GateClient, GateOptions
+from planner.plan.orchestrator import PlannerOrchestrator
+from planner.plan.planner import DRIVE, HeuristicLowLevelPlanner, LegPlan
+from planner.plan.repairs import PlannerContext, RepairSettings, stall_repair
 from tests.planner.conftest import ring_map, slot_map, start_gate
 
 Make = Callable[..., PlannerOrchestrator]

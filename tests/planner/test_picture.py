@@ -1,4 +1,4 @@
-"""The mission picture (``planner/picture.py``): a drift STOP and a rejected plan's
+"""The mission picture (``planner/record/picture.py``): a drift STOP and a rejected plan's
 collision are told apart, obstacles are named, and a scale bar gives the metres."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from typing import Any
 
 from PIL import Image
 
-from firmware_proto.pose import Pose
-from planner import picture
+from firmware_proto.model.pose import Pose
+from planner.record import picture
 
 
 def _pixel(image: Image.Image, at: tuple[float, float]) -> tuple[int, ...]:

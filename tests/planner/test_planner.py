@@ -11,11 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_proto.geometry import wrap_deg
-from firmware_proto.plan import Plan, validate_plan
-from firmware_proto.pose import Pose
-from firmware_proto.rover import RoverDescription
-from firmware_proto.worldmap import WorldMap
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.model.plan import Plan, validate_plan
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
 from planner.errors import (
     GoalInObstacleError,
     InvalidPoseError,
@@ -23,7 +23,7 @@ from planner.errors import (
     PlannerError,
     PlanTooLongError,
 )
-from planner.planner import (
+from planner.plan.planner import (
     CORRECTION,
     DRIVE,
     GOAL_TURN,

@@ -6,7 +6,7 @@ other work) reads both topics' waiting messages late; judged by the wall clock a
 reading, the first ``odom`` of that backlog looked like half a second of ``odom_ground``
 silence (a false "fell back to odom" seen in the stack walkthrough under load). The
 executor's callbacks are called here as its port calls them, with its wall clock moved
-on between them (a silence must also last :data:`~planner.executor.SILENCE_CONFIRM_S` of
+on between them (a silence must also last :data:`~planner.ground.executor.SILENCE_CONFIRM_S` of
 it); the real fall-back, a POSE dropout on the emulated rover, is
 ``tests/planner/test_executor.py``."""
 
@@ -18,11 +18,11 @@ from collections.abc import Iterator
 
 import pytest
 
-from bridge.rosport import open_port
-from bridge.rosport.msgs import Odometry, stamp
-from firmware_proto.rover import load_rover
-from planner import executor as executor_module
-from planner.executor import SILENCE_CONFIRM_S, ExecutorConfig, PlanExecutor
+from bridge.ros.rosport import open_port
+from bridge.ros.rosport.msgs import Odometry, stamp
+from firmware_proto.model.rover import load_rover
+from planner.ground import executor as executor_module
+from planner.ground.executor import SILENCE_CONFIRM_S, ExecutorConfig, PlanExecutor
 
 T0 = 1_800_000_000.0  # the rover's clock, s
 
@@ -70,7 +70,7 @@ def test_a_backlog_read_late_is_no_silence(
 ) -> None:
     executor._on_ground(_odometry(T0))
     clock.offset_s = 10.0  # the rest of the backlog is read 10 s after it came
-    with caplog.at_level(logging.WARNING, logger="planner.executor"):
+    with caplog.at_level(logging.WARNING, logger="planner.ground.executor"):
         for k in range(1, 6):  # odom of the same backlog, stamped up to 0.5 s after
             executor._on_odom(_odometry(T0 + 0.1 * k))
         # The reader kept only the newest odom: 0.8 s after the last POSE it has read,
@@ -88,7 +88,7 @@ def test_a_backlog_read_late_is_no_silence(
 def test_a_silence_in_the_stamps_that_lasts_falls_back_and_pose_returns(
     executor: PlanExecutor, clock: _Clock, caplog: pytest.LogCaptureFixture
 ) -> None:
-    with caplog.at_level(logging.WARNING, logger="planner.executor"):
+    with caplog.at_level(logging.WARNING, logger="planner.ground.executor"):
         executor._on_ground(_odometry(T0))
         executor._on_odom(_odometry(T0 + 0.5))  # exactly stale: not yet
         executor._on_odom(_odometry(T0 + 0.51))  # stale: seen ...

@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from bridge.rosport import Publisher, RosPort, open_port
-from bridge.rosport.msgs import Int16MultiArray, String
-from planner.relay import LinkProfile, LinkRelay
+from bridge.ros.rosport import Publisher, RosPort, open_port
+from bridge.ros.rosport.msgs import Int16MultiArray, String
+from planner.ground.relay import LinkProfile, LinkRelay
 from tests.bridge.conftest import BACKEND_PARAMS
 
 

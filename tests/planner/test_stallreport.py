@@ -1,15 +1,15 @@
 """A mission that ends because the link to the controller failed says which process of
-the stack stalled (planner/stallreport.py; docs/realtime.md)."""
+the stack stalled (planner/stack/stallreport.py; docs/realtime.md)."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-from firmware_proto.pose import Pose
+from firmware_proto.model.pose import Pose
 from firmware_proto.runtime.stall import StallRecord
-from planner.mission import MissionReport
-from planner.stallreport import ended_on_link_fault, stall_report
+from planner.ground.mission import MissionReport
+from planner.stack.stallreport import ended_on_link_fault, stall_report
 
 
 def _report(reached: bool, reason: str, cancelled: bool = False) -> MissionReport:

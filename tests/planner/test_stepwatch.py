@@ -1,11 +1,11 @@
-"""The executor's time rules for one step, in virtual time (planner/stepwatch.py): the
+"""The executor's time rules for one step, in virtual time (planner/ground/stepwatch.py): the
 same rules tests/planner/test_executor.py checks in real time, here at any moment."""
 
 from __future__ import annotations
 
 import pytest
 
-from planner.stepwatch import WAIT_SLICE_S, StepWatch
+from planner.ground.stepwatch import WAIT_SLICE_S, StepWatch
 
 
 def _watch(blind: float | None = 4.0) -> StepWatch:

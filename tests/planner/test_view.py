@@ -15,9 +15,9 @@ from typing import Any
 
 import pytest
 
-from bridge.rosport.msgs import Bool, Odometry, String
-from firmware_proto.pose import Pose
-from firmware_proto.worldmap import load_map
+from bridge.ros.rosport.msgs import Bool, Odometry, String
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.worldmap import load_map
 from planner.view import ClientQueue, ViewConfig, ViewHub, ViewServer
 
 WORLD = load_map("lab")
@@ -328,8 +328,8 @@ def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fau
     """The hub's state for a late page: goal, trails, STOPs with where they happened,
     progress, result; the ghost stops where it is when the step ends in a fault, and the
     banner says so at once, then the mission's outcome."""
-    from bridge.rosport.msgs import Int16MultiArray
-    from planner.executor import Progress
+    from bridge.ros.rosport.msgs import Int16MultiArray
+    from planner.ground.executor import Progress
 
     goal = WORLD.goal("by_the_pillar").pose
     mission = orchestrator("lab").plan_mission(goal, start=WORLD.start)

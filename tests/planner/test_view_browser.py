@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 from PIL import Image, ImageStat
 
-from planner.mcaprec import PREDICTED_TOPIC, REJECTED_TOPIC, read_summary
+from planner.record.mcaprec import PREDICTED_TOPIC, REJECTED_TOPIC, read_summary
 from tests.browser import chromium
 from tests.child import Child
 

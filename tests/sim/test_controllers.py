@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_proto.messages import (
+from firmware_proto.model.rover import load_rover
+from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     Ack,
@@ -28,7 +29,6 @@ from firmware_proto.messages import (
     Status,
     StepState,
 )
-from firmware_proto.rover import load_rover
 from sim.controllers import build_controller
 from sim.scenario import CONTROLLERS
 

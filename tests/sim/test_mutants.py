@@ -1,5 +1,5 @@
 """The simulator finds real bugs by itself: each fix of the host's core, undone on
-purpose (a mutant, :data:`bridge.linkcore.MUTANTS`), is found within the test
+purpose (a mutant, :data:`bridge.link.linkcore.MUTANTS`), is found within the test
 command's budget, with the one command line that plays it again; with the fix in
 place the same scenario passes.
 
@@ -17,7 +17,7 @@ import sys
 
 import pytest
 
-from bridge.linkcore import MUTANTS
+from bridge.link.linkcore import MUTANTS
 from sim.rig import Outcome, run_scenario
 from sim.scenario import CONTROLLERS, MEDIA, make_scenario
 from sim.soak import soak

@@ -1,0 +1,451 @@
+"""The host side of the controller protocol in real time: :class:`ControllerLink`, a thin
+threaded shell around the pure :class:`~bridge.link.linkcore.LinkCore` (docs/protocol.md).
+
+Every rule of the protocol's host side (handshake, the two send lanes, acknowledgements
+and retries, STOP and its repeats, the latch and its automatic clear, supervision,
+reconnect decisions, counters) is the core's and documented there; the same core runs
+in virtual time in the wire simulator (docs/sim.md). This module adds what only real
+time has: the transport, the threads, the clock (``time.monotonic()``) and the callbacks.
+
+:class:`ControllerLink` is what the bridge node drives; it knows nothing of ROS. It
+reports every step's fate as a ``/command_status`` string through ``on_status``, hands
+telemetry to ``on_telemetry`` and tells ``on_state`` of every change of
+:class:`LinkState` (the node publishes ``/diagnostics`` at once on it).
+
+Threads: the transport's dispatcher thread calls in with messages (its reader thread
+only reads and decodes, :mod:`bridge.link.transport`); one timer thread runs the core's
+periodic work every 5 ms and (re)connects; one writer thread (``link-tx``) writes every
+frame but STOP, in the order the core queued them; any thread may call the API. The
+core is guarded by one lock, and no write to the transport ever happens with it held: a
+write stuck in the OS (a full buffer, a stalled USB-serial adapter) holds up neither
+the API, nor the dispatcher, nor a STOP. STOP is written by the thread that decided it
+(the caller of :meth:`ControllerLink.emergency_stop`, the timer for repeats, the writer
+for the STOP that follows a CLEAR_STOP it was writing) through the transport's STOP
+path, which waits for no other write; a MOTION not yet written when its step is dropped
+(a STOP, a lost link, a reboot) is dropped with it, and its ACK timeout runs from when
+it was written. Callbacks run outside the lock, one at a time, in the order their
+events happened.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from types import TracebackType
+
+from bridge.errors import TransportError
+from bridge.link.linkcore import LinkCore, Outgoing
+from bridge.link.linktypes import (
+    LinkConfig,
+    LinkDiagnostics,
+    LinkState,
+    MediumStats,
+    StatusEvent,
+    StepRequest,
+)
+from bridge.link.transport import Transport, open_transport
+from firmware_proto.runtime import stall
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Command,
+    Stop,
+    StopSource,
+)
+
+__all__ = ["ControllerLink", "LinkConfig", "LinkDiagnostics", "LinkState", "StepRequest"]
+
+logger = logging.getLogger(__name__)
+
+OnStatus = Callable[[str], None]
+OnTelemetry = Callable[[Message, float], None]
+OnState = Callable[["LinkState"], None]
+
+TIMER_PERIOD_S = 0.005
+"""How often the timer thread runs the core's periodic work, s (at most: a request or a
+failure wakes it at once)."""
+
+
+class ControllerLink:
+    """Host end of the controller protocol in real time; see the module docstring."""
+
+    def __init__(
+        self,
+        config: LinkConfig,
+        *,
+        on_status: OnStatus,
+        on_telemetry: OnTelemetry | None = None,
+        on_state: OnState | None = None,
+        transport_factory: Callable[[str], Transport] = open_transport,
+        protocol_version: int = PROTOCOL_VERSION,
+        schema_hash: int = SCHEMA_HASH,
+        mutants: Iterable[str] = (),
+    ) -> None:
+        """Args:
+        config: link parameters.
+        on_status: every ``/command_status`` string, in order, one at a time (a status
+            may be handed out by a link thread still delivering earlier ones, after the
+            call that caused it returned).
+        on_telemetry: every message from the controller with its arrival time
+            (``time.monotonic()``), on the transport's dispatcher thread; sensor samples
+            only in a session (:mod:`bridge.link.linkcore`).
+        on_state: the new :class:`LinkState` at every change, in order, outside the
+            lock, on the thread that made the change or on one of the link's threads
+            still delivering earlier events; it must not block.
+        transport_factory: builds the (unopened) transport for a URL.
+        protocol_version, schema_hash: what this host speaks (tests change them).
+        mutants: fixes of the core to undo (:data:`bridge.link.linkcore.MUTANTS`; tests only).
+
+        Raises:
+            TransportUrlError: ``config.url`` is malformed; found here, once, because no
+                reconnect could fix it (a transport is built to check it, not opened).
+            ValueError: an unknown mutant.
+        """
+        transport_factory(config.url)
+        self._core = LinkCore(
+            config, protocol_version=protocol_version, schema_hash=schema_hash, mutants=mutants
+        )
+        self._on_status = on_status
+        self._on_telemetry = on_telemetry
+        self._on_state = on_state
+        self._factory = transport_factory
+        self.protocol_version = protocol_version
+        self.schema_hash = schema_hash
+        self._lock = threading.RLock()
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._writer: threading.Thread | None = None
+        self._tx_wake = threading.Event()
+        self._transport: Transport | None = None
+        self._delivering = False  # a thread is in _flush handing out the core's events
+        self._failure: tuple[Transport, Exception] | None = None
+        self._opening: Transport | None = None  # being opened by _connect
+        self.last_stop_written: float | None = None
+        """``time.monotonic()`` when the last STOP frame was handed to the OS, whole."""
+
+    # -- lifecycle ----------------------------------------------------------------------
+    @property
+    def config(self) -> LinkConfig:
+        """The link parameters in force."""
+        return self._core.config
+
+    def reconfigure(self, config: LinkConfig) -> None:
+        """Use ``config`` from now on (timeouts, retries, heartbeat, backoff, automatic
+        clear): each is read when next needed. The URL cannot change while running.
+
+        Raises:
+            ValueError: ``config.url`` is not this link's.
+        """
+        if config.url != self._core.config.url:
+            raise ValueError(f"the link's URL cannot change while it runs ({self.config.url})")
+        with self._lock:
+            self._core.config = config
+
+    def start(self) -> None:
+        """Start the timer thread, which connects (and reconnects) on its own, and the
+        writer thread."""
+        if self._thread is not None:
+            raise RuntimeError("link already started")
+        self._writer = threading.Thread(target=self._write_queued, name="link-tx", daemon=True)
+        self._writer.start()
+        self._thread = threading.Thread(target=self._timer, name="link-timer", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop every thread and close the transport (idempotent)."""
+        self._stopping.set()
+        self._wake.set()
+        self._tx_wake.set()
+        for thread in (self._thread, self._writer):
+            if thread is not None and thread is not threading.current_thread():
+                # The writer may be in a write stuck in the OS: that ends with the
+                # transport's write timeout (serial 1 s, CAN 0.1 s).
+                thread.join(timeout=5.0)
+                if thread.is_alive():
+                    logger.error("link thread %s did not stop within 5 s", thread.name)
+        self._thread = self._writer = None
+        with self._lock:
+            transport, self._transport = self._transport, None
+            while self._core.take_write() is not None:
+                pass
+        if transport is not None:
+            transport.close()
+
+    def __enter__(self) -> ControllerLink:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- properties -----------------------------------------------------------------------
+    @property
+    def state(self) -> LinkState:
+        """The link state."""
+        return self._core.state
+
+    @property
+    def ready(self) -> bool:
+        """Handshake done with a matching controller, link alive."""
+        return self._core.ready
+
+    @property
+    def stop_latched(self) -> bool:
+        """An emergency stop is requested, or the controller's motion is latched (STOP or
+        fault) as its last STOP_ACK, CLEAR_ACK or HEARTBEAT said."""
+        return self._core.stop_latched
+
+    # -- API ------------------------------------------------------------------------------
+    def submit_step(self, step: StepRequest) -> None:
+        """Queue a validated motion step. Its fate comes through ``on_status``:
+        ``accepted`` then ``completed``, or ``rejected:<reason>``, ``aborted:<reason>``,
+        ``fault:<reason>``. A STOP command is an emergency stop."""
+        if step.command == Command.STOP:
+            self.emergency_stop(StopSource.PLAN_STEP)
+            return
+        with self._lock:
+            self._core.submit_step(step, time.monotonic())
+            self._wake_writer()
+        self._flush()
+
+    def emergency_stop(self, source: int = StopSource.OPERATOR) -> int:
+        """Send STOP now, on this thread, ahead of anything queued (repeated until
+        acknowledged), and purge every pending step.
+
+        Returns the stop id. Works in any link state: if the link is down the STOP goes
+        out first thing after the next handshake.
+        """
+        with self._lock:
+            stop_id = self._core.emergency_stop(source, time.monotonic())
+            stops, transport = self._core.take_stops(), self._transport
+        if transport is not None:
+            for stop in stops:
+                self._write_first_stop(transport, stop)
+        self._flush()
+        return stop_id
+
+    def _write_first_stop(self, transport: Transport, stop: Stop) -> None:
+        """Write the first copy of an emergency stop the core claimed."""
+        try:
+            transport.send(stop)
+        except TransportError as exc:
+            with self._lock:
+                self._core.stop_written(stop.stop_id, time.monotonic(), False)
+            self._report_failure(transport, exc)
+            return
+        written = time.monotonic()
+        self.last_stop_written = written
+        with self._lock:
+            self._core.stop_written(stop.stop_id, written, True)
+
+    def clear_stop(self) -> int:
+        """Ask the controller to release its latch (CLEAR_STOP, repeated until CLEAR_ACK).
+        Returns the request id; the answer comes as ``cleared`` or ``fault:<reason>``."""
+        with self._lock:
+            clear_id = self._core.clear_stop(time.monotonic())
+        self._wake.set()
+        return clear_id
+
+    # -- the timer thread --------------------------------------------------------------------
+    def _timer(self) -> None:
+        beat = stall.watch("link-timer")
+        try:
+            self._timer_loop(beat)
+        finally:
+            stall.forget(beat)
+
+    def _timer_loop(self, beat: stall.Beat) -> None:
+        while not self._stopping.is_set():
+            beat.tick()
+            if self._failure is not None:
+                self._handle_failure()
+            now = time.monotonic()
+            with self._lock:
+                connect = self._transport is None and self._core.connect_due(now)
+            if connect:
+                self._connect()
+            else:
+                with self._lock:
+                    transport = self._transport
+                    stops: list[Stop] = []
+                    if transport is not None:
+                        self._core.tick(now)
+                        stops = self._core.take_stops()
+                        self._wake_writer()
+                if transport is not None:
+                    self._send_all(transport, stops)
+                    self._flush()
+            self._wake.wait(TIMER_PERIOD_S)
+            self._wake.clear()
+
+    def _connect(self) -> None:
+        try:
+            transport = self._factory(self.config.url)
+            opening = transport
+            with self._lock:
+                # A failure reported while open() is still running (the reader may fail
+                # before open() returns) is kept, not ignored: see _report_failure.
+                self._opening = opening
+            transport.open(self._on_message, lambda exc: self._report_failure(opening, exc))
+        except TransportError as exc:
+            with self._lock:
+                self._opening = None
+                self._core.connect_failed(time.monotonic(), str(exc))
+            return
+        with self._lock:
+            self._opening = None
+            stopping = self._stopping.is_set()
+            if not stopping:
+                self._transport = transport
+                self._core.on_connected(time.monotonic())
+        if stopping:
+            transport.close()  # outside the lock: it joins the dispatcher, which may want it
+            return
+        self._flush()
+
+    def _report_failure(self, transport: Transport, exc: Exception) -> None:
+        """Any thread: the transport failed. The timer thread handles it (it may have to
+        join the reader thread, which must never happen with the state lock held)."""
+        with self._lock:
+            current = self._transport is transport or self._opening is transport
+            if current and self._failure is None:
+                self._failure = (transport, exc)
+        self._wake.set()
+
+    def _handle_failure(self) -> None:
+        """Timer thread: close the failed transport, tell the core, which schedules the
+        reconnect."""
+        with self._lock:
+            failure, self._failure = self._failure, None
+            if failure is None or self._transport is not failure[0]:
+                return
+            transport, exc = failure
+            self._transport = None
+            self._core.failed(time.monotonic(), str(exc))
+        transport.close()
+        self._flush()
+
+    # -- the writer thread --------------------------------------------------------------------
+    def _wake_writer(self) -> None:
+        """Wake the writer if the core queued frames (lock held)."""
+        if self._core.pending_writes:
+            self._tx_wake.set()
+
+    def _write_queued(self) -> None:
+        """Writer thread: write the core's queued frames in order, outside the lock."""
+        beat = stall.watch("link-tx")
+        try:
+            self._write_loop(beat)
+        finally:
+            stall.forget(beat)
+
+    def _write_loop(self, beat: stall.Beat) -> None:
+        while not self._stopping.is_set():
+            beat.tick()
+            self._tx_wake.wait(0.05)
+            self._tx_wake.clear()
+            while not self._stopping.is_set():
+                beat.tick()
+                with self._lock:
+                    transport = self._transport
+                    entry: Outgoing | None = None
+                    if transport is not None:
+                        entry = self._core.take_write()
+                if entry is None or transport is None:
+                    break
+                sent = self._send(transport, entry.msg)
+                with self._lock:
+                    self._core.written(entry, time.monotonic(), sent)
+                    stops = self._core.take_stops()
+                self._send_all(transport, stops)
+
+    def _send_all(self, transport: Transport, stops: list[Stop]) -> None:
+        for stop in stops:
+            self._send(transport, stop)
+
+    def _send(self, transport: Transport, msg: Message) -> bool:
+        try:
+            transport.send(msg)
+        except TransportError as exc:
+            self._report_failure(transport, exc)
+            return False
+        return True
+
+    # -- receive, on the transport's dispatcher thread ---------------------------------------
+    def _on_message(self, msg: Message, arrived: float) -> None:
+        with self._lock:
+            transport = self._transport
+            lost = transport.counters.lost if transport is not None else None
+            forward = self._core.on_frame(msg, arrived, rx_lost=lost)
+            self._wake_writer()
+        self._flush()
+        if forward and self._on_telemetry is not None:
+            self._on_telemetry(msg, arrived)
+
+    # -- callbacks ------------------------------------------------------------------------------
+    def _flush(self) -> None:
+        """Deliver the statuses and state changes the core decided, in order.
+
+        One thread delivers at a time, outside the lock: a thread that finds another
+        delivering leaves its items to it (they are later than the ones being delivered),
+        so two threads never hand out their statuses interleaved."""
+        with self._lock:
+            if self._delivering:
+                return
+            self._delivering = True
+        try:
+            while True:
+                with self._lock:
+                    out = self._core.take_events()
+                    if not out:
+                        self._delivering = False
+                        return
+                for item in out:
+                    try:
+                        if isinstance(item, StatusEvent):
+                            self._on_status(item.text)
+                        elif self._on_state is not None:
+                            self._on_state(item)
+                    except Exception:
+                        logger.exception("link callback failed for %r", item)
+        except BaseException:
+            with self._lock:
+                self._delivering = False
+            raise
+
+    # -- diagnostics ---------------------------------------------------------------------------
+    def diagnostics(self) -> LinkDiagnostics:
+        """A consistent snapshot for ``/diagnostics``."""
+        with self._lock:
+            transport = self._transport
+            medium = MediumStats()
+            if transport is not None:
+                counters = transport.counters
+                medium = MediumStats(
+                    connected=True,
+                    rx_frames=counters.frames,
+                    tx_frames=transport.tx_frames,
+                    crc_errors=counters.crc,
+                    resyncs=counters.framing + counters.oversize,
+                    rx_dropped=counters.rejected,
+                    rx_lost=counters.lost,
+                    rx_overflow=transport.rx_overflow,
+                    medium_state=transport.medium_state,
+                    medium_errors=transport.medium_errors,
+                )
+            monitor = stall.current_monitor()
+            return self._core.diagnostics(
+                time.monotonic(),
+                medium,
+                stalls=len(monitor.records) if monitor is not None else 0,
+                stall_max_ms=monitor.longest_ms if monitor is not None else 0.0,
+            )

@@ -1,0 +1,374 @@
+"""The rover-side ROS 2 node: ``/wheel_instructions`` in, frames out; telemetry back.
+
+:class:`BridgeNode` joins a ROS port (:mod:`bridge.ros.rosport`: rclpy in production, or
+in-process for fast unit tests) to a :class:`~bridge.link.controllerlink.ControllerLink`.
+
+Subscribes (names relative to the namespace unless absolute):
+
+- ``wheel_instructions`` ``std_msgs/Int16MultiArray`` ``[command, speed, distance]``:
+  each valid step is queued on the link; a STOP step (command 0) is an emergency stop.
+  Invalid input is answered ``rejected:<reason>`` and never sent: ``bad_length``,
+  ``unknown_command``, ``speed_out_of_range``, ``distance_out_of_range``; the link adds
+  ``stop_latched``, ``link_down``, ``schema_mismatch``, ``fault_active``, ``queue_full``.
+- ``emergency_stop`` ``std_msgs/Bool``: ``true`` sends STOP on the STOP lane; ``false``
+  does nothing (a pressed-then-released button must not resume the rover).
+- ``clear_emergency_stop`` ``std_msgs/Empty``: the only way to resume after a STOP.
+
+Publishes:
+
+- ``command_status`` ``std_msgs/String``: exactly ``completed`` when the controller
+  finished a step; otherwise ``accepted``, ``rejected:<reason>``, ``aborted:<reason>``,
+  ``fault:<reason>``, and ``ready``, ``stopped``, ``cleared`` for the link and latch.
+- ``odom`` ``nav_msgs/Odometry`` (frame ``odom`` -> ``base_link``): encoders fused with
+  the IMU yaw rate, with covariance, on every ENCODERS frame; continuous across a
+  controller reboot (re-based on the new boot nonce).
+- ``odom_ground`` ``nav_msgs/Odometry`` (frame ``map`` -> ``base_link``): the
+  controller's POSE from a sensor that sees the ground, stamped with the measurement's
+  time; what drift control must use, because encoders cannot see slip.
+- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz`` (1 Hz), and
+  at once whenever the link changes state (lost, disconnected, handshaking, ready,
+  mismatch): the link, the controller and the steps rejected by reason
+  (:mod:`bridge.ros.diagnostics`).
+
+Threads: the ROS port's threads run the input callbacks; the transport's dispatcher
+thread runs the telemetry and status outputs; one diagnostics thread publishes
+``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Mapping
+from dataclasses import replace
+from types import TracebackType
+from typing import Any
+
+from bridge.errors import ParameterError
+from bridge.link.controllerlink import ControllerLink, LinkDiagnostics, LinkState, StepRequest
+from bridge.link.odometry import OdometryEstimator, ground_pose
+from bridge.link.transport import Transport, open_transport
+from bridge.ros.diagnostics import RECENT_STATUSES, diagnostic_array
+from bridge.ros.params import BridgeParams, check_params, parameter_specs
+from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
+from bridge.ros.rosport.contract import rejected
+from bridge.ros.rosport.msgs import (
+    Bool,
+    DiagnosticArray,
+    Empty,
+    Header,
+    Int16MultiArray,
+    Odometry,
+    Point,
+    Pose,
+    PoseWithCovariance,
+    String,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+    quaternion_from_yaw,
+    stamp,
+)
+from firmware_proto.linkio.trafficio import LogWriter, open_recorder
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import (
+    Command,
+    Encoders,
+    Heartbeat,
+    Ident,
+    Imu,
+    StopSource,
+    WheelSpeeds,
+)
+from firmware_proto.wire.messages import Pose as PoseMsg
+
+__all__ = ["BridgeNode", "validate_step"]
+
+logger = logging.getLogger(__name__)
+
+
+def validate_step(data: object, rover: RoverDescription) -> StepRequest | str:
+    """A ``wheel_instructions`` payload as a step, or the rejection reason."""
+    if not isinstance(data, (list, tuple)) or len(data) != 3:
+        return "bad_length"
+    command, speed, distance = data
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in data):
+        return "bad_type"
+    if command not in Command._value2member_map_:
+        return "unknown_command"
+    if command == Command.STOP:
+        return StepRequest(command, 0, 0)
+    if not 0 <= speed <= rover.drive.max_speed:
+        return "speed_out_of_range"
+    if not 0 <= distance <= rover.drive.max_distance:
+        return "distance_out_of_range"
+    return StepRequest(command, speed, distance)
+
+
+def _covariance(var_xy: float, var_yaw: float) -> list[float]:
+    cov = [0.0] * 36
+    cov[0] = cov[7] = var_xy
+    cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane
+    cov[35] = var_yaw
+    return cov
+
+
+class BridgeNode:
+    """The bridge: a ROS port on one side, the controller link on the other."""
+
+    def __init__(
+        self,
+        params: BridgeParams,
+        port: RosPort,
+        *,
+        rover: RoverDescription | None = None,
+        link: ControllerLink | None = None,
+    ) -> None:
+        """Args:
+        params: validated parameters (see :func:`bridge.ros.params.load_params`).
+        port: an open ROS port; the node publishes and subscribes on it but does not
+            close it.
+        rover: the rover description (default: ``params.rover_description`` or the
+            packaged one).
+        link: a link to use instead of one built from ``params`` (it is started here).
+
+        With ``params.record`` set (and no ``link`` given), every frame of the link goes to
+        that traffic log, which the node closes with itself.
+
+        Raises:
+            TransportUrlError: ``params.url`` is malformed (checked before the traffic
+                log is created, so a refused URL leaves no file behind).
+        """
+        self.params = params
+        self.port = port
+        self.rover = rover or load_rover(params.rover_description or None)
+        self.rejected: Counter[str] = Counter()
+        """``wheel_instructions`` refused by this node's checks, by reason (the link
+        counts its own refusals); read it through :meth:`rejected_counts`."""
+        self._rejected_lock = threading.Lock()
+        self._recent: deque[str] = deque(maxlen=RECENT_STATUSES)
+        """The last ``command_status`` strings, for ``/diagnostics`` (append is atomic)."""
+        self.odometry = OdometryEstimator(self.rover)
+        self._status_pub = port.publisher(params.topic_command_status, String, qos.STATUS)
+        self._odom_pub = port.publisher(params.topic_odom, Odometry, qos.TELEMETRY)
+        self._ground_pub = port.publisher(params.topic_ground_pose, Odometry, qos.TELEMETRY)
+        self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray, qos.DIAGNOSTICS)
+        self.recorder: LogWriter | None = None
+        if link is None and params.record:
+            open_transport(params.url)  # a malformed URL raises here, before the file exists
+            self.recorder = open_recorder(
+                params.record,
+                "can" if params.can_interface else "serial",
+                channel=params.can_channel,
+                metadata={"role": "bridge", "url": params.url},
+            )
+        recorder = self.recorder
+
+        def transport_factory(url: str) -> Transport:
+            return open_transport(url, recorder=recorder)
+
+        self.link = link or ControllerLink(
+            params.link_config(),
+            on_status=self._publish_status,
+            on_telemetry=self._on_telemetry,
+            on_state=self._on_link_state,
+            transport_factory=transport_factory,
+        )
+        self._odom_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._diag_now = threading.Event()
+        self._diag_thread = threading.Thread(
+            target=self._diagnostics_loop, name="bridge-diag", daemon=True
+        )
+        self._subs: list[Subscription[Any]] = [
+            port.subscribe(
+                params.topic_wheel_instructions,
+                Int16MultiArray,
+                self._on_wheel_instructions,
+                qos.COMMAND,
+            ),
+            # The STOP lane: its own executor thread, never behind another callback.
+            port.subscribe(
+                params.topic_emergency_stop, Bool, self._on_emergency_stop, qos.STOP, lane=STOP_LANE
+            ),
+            port.subscribe(
+                params.topic_clear_stop, Empty, self._on_clear, qos.STOP, lane=STOP_LANE
+            ),
+        ]
+        self._started = False
+        self.last_estop_received: float | None = None
+        """``time.monotonic()`` when the last ``emergency_stop`` true reached this node
+        (its STOP lane callback): where the ROS hop ends and the link's begins."""
+        port.declare_parameters(parameter_specs(params), self._on_parameters, params.to_dict())
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def start(self) -> BridgeNode:
+        """Start the link and the diagnostics timer."""
+        self._started = True
+        self.link.start()
+        self._diag_thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop everything this node started (idempotent); the port stays open."""
+        self._stop.set()
+        self._diag_now.set()
+        for sub in self._subs:
+            sub.close()
+        if self._started:
+            self.link.close()
+            self._diag_thread.join(timeout=5.0)
+            self._started = False
+        if self.recorder is not None:
+            self.recorder.close()
+
+    def __enter__(self) -> BridgeNode:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- ROS parameters --------------------------------------------------------------------
+    def _on_parameters(self, changes: Mapping[str, Any]) -> str | None:
+        """Apply parameters set while running (only those the descriptors let through:
+        see :func:`bridge.ros.params.parameter_specs`); the reason when they break a rule
+        between parameters, e.g. ``reconnect_max_s`` below ``reconnect_min_s``."""
+        try:
+            new = replace(self.params, **changes)
+            check_params(new)
+        except (ParameterError, TypeError) as exc:
+            return str(exc)
+        self.params = new
+        if new.link_config() != self.link.config:
+            self.link.reconfigure(new.link_config())
+        logger.info("parameters set: %s", ", ".join(f"{k}={v!r}" for k, v in changes.items()))
+        self._diag_now.set()
+        return None
+
+    # -- ROS inputs --------------------------------------------------------------------------
+    def _on_wheel_instructions(self, msg: Int16MultiArray) -> None:
+        step = validate_step(tuple(msg.data), self.rover)
+        if isinstance(step, str):
+            with self._rejected_lock:
+                self.rejected[step] += 1
+            logger.warning("wheel_instructions %s rejected: %s", list(msg.data), step)
+            self._publish_status(rejected(step))
+            return
+        self.link.submit_step(step)
+
+    def _on_emergency_stop(self, msg: Bool) -> None:
+        if msg.data:
+            self.last_estop_received = time.monotonic()
+            self.link.emergency_stop(StopSource.OPERATOR)
+
+    def _on_clear(self, msg: Empty) -> None:
+        self.link.clear_stop()
+
+    # -- outputs -------------------------------------------------------------------------------
+    def _publish_status(self, text: str) -> None:
+        self._recent.append(text)
+        self._status_pub.publish(String(data=text))
+
+    def _on_telemetry(self, msg: Message, arrived: float) -> None:
+        if isinstance(msg, Encoders):
+            with self._odom_lock:
+                est = self.odometry.update_encoders(msg)
+            self._odom_pub.publish(
+                Odometry(
+                    header=Header(stamp=stamp(), frame_id=self.params.odom_frame),
+                    child_frame_id=self.params.base_frame,
+                    pose=PoseWithCovariance(
+                        pose=Pose(
+                            position=Point(x=est.x_m, y=est.y_m, z=0.0),
+                            orientation=quaternion_from_yaw(est.yaw_rad),
+                        ),
+                        covariance=_covariance(est.var_xy_m2, est.var_yaw_rad2),
+                    ),
+                    twist=TwistWithCovariance(
+                        twist=Twist(
+                            linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)
+                        ),
+                        covariance=_covariance(1e-4, 1e-4),
+                    ),
+                )
+            )
+        elif isinstance(msg, (Heartbeat, Ident)):
+            with self._odom_lock:
+                if self.odometry.observe_boot(msg.boot_nonce):
+                    logger.info("controller rebooted: odometry re-based, pose kept")
+        elif isinstance(msg, Imu):
+            with self._odom_lock:
+                self.odometry.update_imu(msg)
+        elif isinstance(msg, WheelSpeeds):
+            with self._odom_lock:
+                self.odometry.update_speeds(msg)
+        elif isinstance(msg, PoseMsg):
+            pose = ground_pose(msg)
+            if pose is None:
+                return  # no fix: nothing to report
+            var = pose.sigma_m**2
+            self._ground_pub.publish(
+                Odometry(
+                    header=Header(
+                        stamp=stamp(time.time() - pose.age_s), frame_id=self.params.map_frame
+                    ),
+                    child_frame_id=self.params.base_frame,
+                    pose=PoseWithCovariance(
+                        pose=Pose(
+                            position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
+                            orientation=quaternion_from_yaw(pose.yaw_rad),
+                        ),
+                        covariance=_covariance(var, (var / 0.25) if var else 1e-4),
+                    ),
+                )
+            )
+
+    def diagnostics(self) -> LinkDiagnostics:
+        """The link's diagnostics snapshot."""
+        return self.link.diagnostics()
+
+    def rejected_counts(self) -> dict[str, int]:
+        """A copy of :attr:`rejected`, safe to read from any thread."""
+        with self._rejected_lock:
+            return dict(self.rejected)
+
+    def _on_link_state(self, state: LinkState) -> None:
+        """The link changed state: publish ``/diagnostics`` now, not at the next tick (on
+        the diagnostics thread, so the link's threads never wait on the ROS port)."""
+        self._diag_now.set()
+
+    def _publish_diagnostics(self) -> None:
+        try:
+            self._diag_pub.publish(
+                diagnostic_array(
+                    self.link.diagnostics(),
+                    stamp(),
+                    rejected=self.rejected_counts(),
+                    statuses=tuple(self._recent),
+                )
+            )
+        except Exception:
+            logger.exception("publishing diagnostics failed")
+
+    def _diagnostics_loop(self) -> None:
+        """Publish every ``1/diagnostics_hz`` s, on schedule, and at once on a link state
+        change (which leaves the schedule alone)."""
+        next_tick = time.monotonic() + 1.0 / self.params.diagnostics_hz
+        while not self._stop.is_set():
+            period = 1.0 / self.params.diagnostics_hz  # a ROS parameter: may change
+            if self._diag_now.wait(max(0.0, next_tick - time.monotonic())):
+                self._diag_now.clear()
+            if self._stop.is_set():
+                return
+            now = time.monotonic()
+            if now >= next_tick:
+                next_tick = max(next_tick + period, now + period / 2)
+            self._publish_diagnostics()

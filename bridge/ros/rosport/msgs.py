@@ -1,0 +1,152 @@
+"""The ROS 2 message types the product uses: the real generated classes of ROS 2 Jazzy.
+
+The bridge, the executor and the link relay build and read ``std_msgs``,
+``geometry_msgs``, ``nav_msgs``, ``diagnostic_msgs`` and ``builtin_interfaces`` messages
+exactly as any rclpy node does: these names are those classes, re-exported from one place
+so that a missing ROS 2 installation fails here, once, with a message that says how to get
+it (``pip install 'rover-hil[ros]'`` or source ``/opt/ros/jazzy/setup.bash``).
+
+The generated classes check each field on assignment (type, range, array length) and
+raise ``AssertionError`` or ``TypeError`` naming the field; :func:`checked` turns that into
+:class:`~bridge.ros.rosport.errors.MessageError`.
+
+Helpers for the conversions every node here repeats: :func:`stamp` (wall seconds to a
+``builtin_interfaces/Time``), :func:`stamp_s` (and back), :func:`quaternion_from_yaw`,
+:func:`yaw_rad` (planar rotation of a ``geometry_msgs/Quaternion``), and
+:func:`ros_type_name` (``"nav_msgs/msg/Odometry"``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, Final, TypeVar
+
+from bridge.ros.rosport.errors import BackendUnavailableError, MessageError
+from bridge.ros.rosport.names import is_message_type, ros_type_name
+
+try:
+    from builtin_interfaces.msg import Time
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from geometry_msgs.msg import (
+        Point,
+        Pose,
+        PoseStamped,
+        PoseWithCovariance,
+        Quaternion,
+        Twist,
+        TwistWithCovariance,
+        Vector3,
+    )
+    from nav_msgs.msg import Odometry, Path
+    from std_msgs.msg import (
+        Bool,
+        Empty,
+        Header,
+        Int16MultiArray,
+        MultiArrayDimension,
+        MultiArrayLayout,
+        String,
+    )
+except ImportError as exc:  # pragma: no cover - exercised where ROS 2 is absent
+    raise BackendUnavailableError(
+        "the ROS 2 message packages (std_msgs, nav_msgs, diagnostic_msgs, geometry_msgs) "
+        "are not installed: install this project with its 'ros' extra "
+        "(pip install 'rover-hil[ros]') or source a ROS 2 Jazzy setup "
+        f"(/opt/ros/jazzy/setup.bash) before starting ({exc})"
+    ) from exc
+
+__all__ = [
+    "MESSAGE_TYPES",
+    "Bool",
+    "DiagnosticArray",
+    "DiagnosticStatus",
+    "Empty",
+    "Header",
+    "Int16MultiArray",
+    "KeyValue",
+    "MultiArrayDimension",
+    "MultiArrayLayout",
+    "Odometry",
+    "Path",
+    "Point",
+    "Pose",
+    "PoseStamped",
+    "PoseWithCovariance",
+    "Quaternion",
+    "String",
+    "Time",
+    "Twist",
+    "TwistWithCovariance",
+    "Vector3",
+    "checked",
+    "is_message_type",
+    "quaternion_from_yaw",
+    "ros_type_name",
+    "stamp",
+    "stamp_s",
+    "yaw_rad",
+]
+
+T = TypeVar("T")
+
+MESSAGE_TYPES: Final[Mapping[str, type[Any]]] = {
+    "builtin_interfaces/msg/Time": Time,
+    "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray,
+    "diagnostic_msgs/msg/DiagnosticStatus": DiagnosticStatus,
+    "diagnostic_msgs/msg/KeyValue": KeyValue,
+    "geometry_msgs/msg/Point": Point,
+    "geometry_msgs/msg/Pose": Pose,
+    "geometry_msgs/msg/PoseStamped": PoseStamped,
+    "geometry_msgs/msg/PoseWithCovariance": PoseWithCovariance,
+    "geometry_msgs/msg/Quaternion": Quaternion,
+    "geometry_msgs/msg/Twist": Twist,
+    "geometry_msgs/msg/TwistWithCovariance": TwistWithCovariance,
+    "geometry_msgs/msg/Vector3": Vector3,
+    "nav_msgs/msg/Odometry": Odometry,
+    "nav_msgs/msg/Path": Path,
+    "std_msgs/msg/Bool": Bool,
+    "std_msgs/msg/Empty": Empty,
+    "std_msgs/msg/Header": Header,
+    "std_msgs/msg/Int16MultiArray": Int16MultiArray,
+    "std_msgs/msg/MultiArrayDimension": MultiArrayDimension,
+    "std_msgs/msg/MultiArrayLayout": MultiArrayLayout,
+    "std_msgs/msg/String": String,
+}
+"""Every interface the product publishes or subscribes (or nests), by ROS type name."""
+
+
+def checked(build: Callable[[], T], what: str) -> T:
+    """Run ``build`` (which makes a message) and turn the generated classes' field checks
+    into :class:`MessageError`.
+
+    Raises:
+        MessageError: a field value does not fit its ROS type; names ``what`` and the field.
+    """
+    try:
+        return build()
+    except (AssertionError, TypeError, ValueError, OverflowError) as exc:
+        raise MessageError(f"{what}: {exc}") from exc
+
+
+def stamp(t_s: float | None = None) -> Time:
+    """Wall-clock seconds (default: now) as a ``builtin_interfaces/Time``."""
+    t_s = time.time() if t_s is None else t_s
+    sec = math.floor(t_s)
+    return Time(sec=sec, nanosec=min(999_999_999, round((t_s - sec) * 1e9)))
+
+
+def stamp_s(t: Time) -> float:
+    """A ``builtin_interfaces/Time`` as seconds."""
+    return float(t.sec) + float(t.nanosec) * 1e-9
+
+
+def quaternion_from_yaw(yaw: float) -> Quaternion:
+    """The rotation by ``yaw`` radians about +z."""
+    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
+
+
+def yaw_rad(q: Quaternion) -> float:
+    """The rotation about +z of a planar quaternion, radians in (-pi, pi]."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))

@@ -1,0 +1,744 @@
+"""The ROS port: one small publish/subscribe interface over several backends.
+
+A :class:`RosPort` is one ROS node's worth of topics. ``publisher(topic, type)`` gives a
+:class:`Publisher`; ``subscribe(topic, type, callback)`` gives a :class:`Subscription`;
+``close()`` ends everything (idempotent; the port is also a context manager). Messages
+are the generated ROS 2 classes (:mod:`bridge.ros.rosport.msgs` re-exports the ones the
+product uses).
+
+Contract shared by every backend (the base class enforces what it can):
+
+- Topic names resolve as ROS 2 does (see :mod:`bridge.ros.rosport.names`): relative names get
+  the port's namespace, absolute ones do not; invalid names raise :class:`RosNameError`.
+- QoS is given per endpoint (:class:`~bridge.ros.rosport.qos.Qos`; default ROS 2's:
+  reliable, volatile, keep-last :data:`HISTORY_DEPTH`); a reliable subscription does not
+  receive from a best-effort publisher, as in DDS.
+- Callbacks run on a thread of the backend, never on the thread that called
+  ``publish``. Each subscription belongs to a *lane*: :data:`DEFAULT_LANE`, or
+  :data:`STOP_LANE` for what must never wait behind other callbacks (an emergency stop).
+  Each lane delivers on its own thread, so callbacks of one lane never run concurrently
+  with each other, and a STOP callback never queues behind telemetry. A callback that
+  raises is logged and counted (:meth:`RosPort.stats`, :attr:`Subscription.errors`) and
+  delivery goes on.
+- After ``Subscription.close()`` or ``RosPort.close()`` returns, no new callback starts
+  for it (one already running on the backend thread may finish).
+
+Implementing a backend: subclass :class:`RosPort`, set ``backend``, and fill the hooks
+
+- :meth:`RosPort._open_writer` (must): create the endpoint, return a :class:`Writer`;
+- :meth:`RosPort._open_reader` (must): create the endpoint, call
+  :meth:`RosPort._deliver` from the backend thread for each message, return a
+  :class:`Reader`;
+- :meth:`RosPort._run` (must): one lane's loop, on that lane's thread; return once
+  :attr:`RosPort._stopping` is set;
+- :meth:`RosPort._open_lane` (may): prepare a lane before its thread starts (called
+  once per lane, :data:`DEFAULT_LANE` from :meth:`RosPort._start`, others on first use);
+- :meth:`RosPort._wake` (may): make every ``_run`` notice ``_stopping`` at once;
+- :meth:`RosPort._release` (may): free what the backend holds; called once, after
+  every lane's ``_run`` has returned.
+
+Call :meth:`RosPort._start` at the end of the subclass's ``__init__``. Everything else
+(names, type checks, counting, logging, closing) is done here.
+
+Taps (:meth:`RosPort.add_tap`) see every message the port sends (after the backend took
+it) and receives (before the subscription's callback), on the thread that sent or
+delivered it: a recorder or a live view hangs off the port without another endpoint.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, ClassVar, Final, Generic, Protocol, TypeVar
+
+from bridge.errors import ParameterError
+from bridge.ros.rosport import names
+from bridge.ros.rosport.errors import PortClosedError, RosPortError, TopicTypeError
+from bridge.ros.rosport.names import is_message_type, ros_type_name
+from bridge.ros.rosport.parameters import OnSet, ParameterSpec, ParameterValue, check_value
+from bridge.ros.rosport.qos import DEFAULT, Qos
+
+__all__ = [
+    "DEFAULT_LANE",
+    "DEFAULT_NODE_NAME",
+    "HISTORY_DEPTH",
+    "STOP_LANE",
+    "TAP_RECEIVED",
+    "TAP_SENT",
+    "PortStats",
+    "Publisher",
+    "Reader",
+    "RosPort",
+    "Subscription",
+    "Tap",
+    "Writer",
+]
+
+logger = logging.getLogger(__name__)
+
+M = TypeVar("M")
+Message = Any
+"""A message: an instance of a generated ROS 2 message class."""
+
+#: Keep-last depth of every publisher and subscription (ROS 2's default profile).
+HISTORY_DEPTH: Final = 10
+#: Node name used when the caller gives none.
+DEFAULT_NODE_NAME: Final = "rosport"
+#: How long ``close()`` waits for the backend thread (a callback may be running).
+CLOSE_TIMEOUT_S: Final = 5.0
+#: The lane of ordinary callbacks.
+DEFAULT_LANE: Final = "default"
+#: The lane of callbacks that must never wait behind others (an emergency stop).
+STOP_LANE: Final = "stop"
+LANES: Final = (DEFAULT_LANE, STOP_LANE)
+#: Poll period of ``Publisher.wait_for_subscribers``.
+_MATCH_POLL_S: Final = 0.01
+#: A tap's ``direction`` for a message the port published, and for one it delivered.
+TAP_SENT: Final = "sent"
+TAP_RECEIVED: Final = "received"
+
+Tap = Callable[[str, str, Any], object]
+"""``tap(direction, topic, msg)``: :data:`TAP_SENT` or :data:`TAP_RECEIVED`, the fully
+qualified topic, the message. Called on the sending or delivering thread: it must be
+quick and must not block (hand the message to a queue)."""
+
+
+class Writer(Protocol):
+    """What a backend returns from ``_open_writer``: the endpoint behind a Publisher."""
+
+    def write(self, msg: Message) -> None:
+        """Send one message (already type-checked). May raise the backend's errors."""
+
+    def matched_count(self) -> int:
+        """How many subscriptions currently receive from this endpoint."""
+
+    def close(self) -> None:
+        """Delete the endpoint. Called once."""
+
+
+class Reader(Protocol):
+    """What a backend returns from ``_open_reader``: the endpoint behind a Subscription."""
+
+    def matched_count(self) -> int:
+        """How many publishers this endpoint currently receives from."""
+
+    def close(self) -> None:
+        """Delete the endpoint; deliver nothing more. Called once."""
+
+
+@dataclass(frozen=True)
+class PortStats:
+    """Counters of one port since it opened.
+
+    Attributes:
+        published: messages handed to the backend by this port's publishers.
+        delivered: callbacks that returned normally.
+        callback_errors: callbacks that raised.
+        dropped: messages discarded because a subscription's keep-last queue was full
+            (counted by the in-process backend; DDS and rclpy drop inside their history
+            without telling).
+    """
+
+    published: int
+    delivered: int
+    callback_errors: int
+    dropped: int
+
+
+class Publisher(Generic[M]):
+    """Publishes messages of one type on one topic. Made by :meth:`RosPort.publisher`."""
+
+    def __init__(
+        self, port: RosPort, topic: str, msg_type: type[M], writer: Writer, qos: Qos
+    ) -> None:
+        self.port = port
+        #: The fully qualified topic name.
+        self.topic = topic
+        self.msg_type = msg_type
+        self.qos = qos
+        self._writer = writer
+        self._closed = False
+        self._endpoint_closed = False
+
+    def publish(self, msg: M) -> None:
+        """Send ``msg`` to every matched subscription; returns without waiting for them.
+
+        Raises:
+            TopicTypeError: ``msg`` is not an instance of this publisher's type.
+            PortClosedError: the publisher or its port is closed.
+            RosPortError: the backend failed to send (chained to its exception).
+        """
+        if type(msg) is not self.msg_type:
+            raise TopicTypeError(
+                f"publisher on {self.topic} sends {self.msg_type.__name__}, "
+                f"got {type(msg).__name__}"
+            )
+        if self._closed or self.port.closed:
+            raise PortClosedError(f"publisher on {self.topic} is closed")
+        try:
+            self._writer.write(msg)
+        except RosPortError:
+            raise
+        except Exception as exc:
+            if self._closed or self.port.closed:
+                raise PortClosedError(f"publisher on {self.topic} is closed") from exc
+            raise RosPortError(f"publishing on {self.topic} failed: {exc}") from exc
+        self.port._count_published()
+        self.port._tap(TAP_SENT, self.topic, msg)
+
+    def matched_count(self) -> int:
+        """How many subscriptions (in any process) currently receive from this publisher."""
+        if self._closed or self.port.closed:
+            return 0
+        return self._writer.matched_count()
+
+    def wait_for_subscribers(self, count: int = 1, timeout_s: float = 5.0) -> bool:
+        """Wait until at least ``count`` subscriptions are matched.
+
+        Volatile QoS delivers nothing published before a subscription matched, so a
+        sender that must not lose its first messages waits here first.
+
+        Returns:
+            True when matched, False when ``timeout_s`` passed first.
+        """
+        deadline = time.monotonic() + timeout_s
+        waiter = threading.Event()
+        while self.matched_count() < count:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            waiter.wait(min(_MATCH_POLL_S, remaining))
+        return True
+
+    def close(self) -> None:
+        """Delete the endpoint. Idempotent; the port closes its publishers too."""
+        self._closed = True
+        self.port._forget_publisher(self)
+        self.port._close_endpoint(self, self._writer)
+
+    @property
+    def closed(self) -> bool:
+        """True once this publisher or its port is closed."""
+        return self._closed or self.port.closed
+
+    def __repr__(self) -> str:
+        return f"<Publisher {self.topic} [{ros_type_name(self.msg_type)}]>"
+
+
+class Subscription(Generic[M]):
+    """Calls ``callback(msg)`` for each message on one topic. Made by :meth:`RosPort.subscribe`."""
+
+    def __init__(
+        self,
+        port: RosPort,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], object],
+        qos: Qos = DEFAULT,
+        lane: str = DEFAULT_LANE,
+    ) -> None:
+        self.port = port
+        #: The fully qualified topic name.
+        self.topic = topic
+        self.msg_type = msg_type
+        self.callback = callback
+        self.qos = qos
+        #: The lane (delivery thread) its callbacks run on.
+        self.lane = lane
+        #: Callbacks that returned normally.
+        self.delivered = 0
+        #: Callbacks that raised.
+        self.errors = 0
+        self._reader: Reader | None = None
+        self._closed = False
+        self._endpoint_closed = False
+
+    def matched_count(self) -> int:
+        """How many publishers (in any process) this subscription currently receives from."""
+        reader = self._reader
+        if reader is None or self._closed or self.port.closed:
+            return 0
+        return reader.matched_count()
+
+    def wait_for_publishers(self, count: int = 1, timeout_s: float = 5.0) -> bool:
+        """Wait until at least ``count`` publishers are matched.
+
+        Over DDS each side discovers the other on its own: a publisher may count this
+        subscription before this subscription accepts its samples, and with volatile QoS
+        what it sends in between is lost. Waiting on both sides closes that window.
+        """
+        deadline = time.monotonic() + timeout_s
+        while self.matched_count() < count:
+            if time.monotonic() >= deadline or self.closed:
+                return False
+            time.sleep(_MATCH_POLL_S)
+        return True
+
+    def close(self) -> None:
+        """Stop delivering and delete the endpoint. Idempotent."""
+        self._closed = True
+        self.port._forget_subscription(self)
+        if self._reader is not None:
+            self.port._close_endpoint(self, self._reader)
+
+    @property
+    def closed(self) -> bool:
+        """True once this subscription or its port is closed."""
+        return self._closed or self.port.closed
+
+    def __repr__(self) -> str:
+        return f"<Subscription {self.topic} [{ros_type_name(self.msg_type)}]>"
+
+
+_P = TypeVar("_P", bound="RosPort")
+
+
+class RosPort:
+    """One ROS node's publishers and subscriptions, over one backend.
+
+    Args:
+        namespace: the node's namespace; relative topic names are resolved in it
+            (``""`` or ``"/"`` is the root; ``"rover1"`` means ``"/rover1"``).
+        node_name: the node's name (for ``~`` names and for what the graph shows).
+
+    Raises:
+        RosNameError: the namespace or node name is invalid.
+    """
+
+    #: Registry name of the backend (``open_port(backend=...)``).
+    backend: ClassVar[str] = ""
+
+    def __init__(self, *, namespace: str = "", node_name: str = DEFAULT_NODE_NAME) -> None:
+        self.namespace = names.normalize_namespace(namespace)
+        self.node_name = names.validate_node_name(node_name)
+        self._lock = threading.Lock()
+        self._closed = False
+        #: Set when the port is closing: every ``_run`` must return soon after.
+        self._stopping = threading.Event()
+        self._threads: dict[str, threading.Thread] = {}
+        self._running = 0  # lane threads that have not returned yet
+        self._released = False
+        self._pending_release: tuple[list[Publisher[Any]], list[Subscription[Any]]] | None = None
+        self._publishers: list[Publisher[Any]] = []
+        self._subscriptions: list[Subscription[Any]] = []
+        self._topic_types: dict[str, type[Any]] = {}
+        self._published = 0
+        self._delivered = 0
+        self._callback_errors = 0
+        self._dropped = 0
+        self._param_specs: dict[str, ParameterSpec] = {}
+        self._param_values: dict[str, ParameterValue] = {}
+        self._on_set: OnSet | None = None
+        self._param_lock = threading.Lock()
+        self._taps: tuple[Tap, ...] = ()
+
+    # -- public API -------------------------------------------------------------------
+
+    def resolve(self, topic: str) -> str:
+        """The fully qualified name of ``topic`` for this node (see :mod:`names`).
+
+        Raises:
+            RosNameError: the name is invalid.
+        """
+        return names.resolve_topic(topic, namespace=self.namespace, node_name=self.node_name)
+
+    def publisher(self, topic: str, msg_type: type[M], qos: Qos = DEFAULT) -> Publisher[M]:
+        """Create a publisher of ``msg_type`` on ``topic`` with ``qos``.
+
+        Raises:
+            RosNameError: invalid topic name.
+            TopicTypeError: ``msg_type`` is not a message type, or this port already
+                uses ``topic`` with another type.
+            PortClosedError: the port is closed.
+            RosPortError: the backend cannot create the endpoint.
+        """
+        full = self._claim(topic, msg_type)
+        try:
+            writer = self._open_writer(full, msg_type, qos)
+        except RosPortError:
+            raise
+        except Exception as exc:
+            raise RosPortError(f"cannot create a publisher on {full}: {exc}") from exc
+        pub = Publisher(self, full, msg_type, writer, qos)
+        with self._lock:
+            closed = self._closed
+            if not closed:
+                self._publishers.append(pub)
+        if closed:
+            writer.close()
+            raise PortClosedError(f"{self!r} is closed")
+        logger.debug("%s: publisher on %s [%s] (%s)", self, full, ros_type_name(msg_type), qos)
+        return pub
+
+    def subscribe(
+        self,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], object],
+        qos: Qos = DEFAULT,
+        *,
+        lane: str = DEFAULT_LANE,
+    ) -> Subscription[M]:
+        """Call ``callback(msg)`` on ``lane``'s thread for each ``msg_type`` on ``topic``.
+
+        Raises:
+            RosNameError: invalid topic name.
+            TopicTypeError: ``msg_type`` is not a message type, or this port already
+                uses ``topic`` with another type.
+            ValueError: ``lane`` is not one of :data:`LANES`.
+            PortClosedError: the port is closed.
+            RosPortError: the backend cannot create the endpoint.
+        """
+        if not callable(callback):
+            raise TypeError(f"callback must be callable, got {type(callback).__name__}")
+        if lane not in LANES:
+            raise ValueError(f"unknown lane {lane!r}; lanes: {', '.join(LANES)}")
+        full = self._claim(topic, msg_type)
+        self._ensure_lane(lane)
+        sub = Subscription(self, full, msg_type, callback, qos, lane)
+        with self._lock:
+            if self._closed:
+                raise PortClosedError(f"{self!r} is closed")
+            self._subscriptions.append(sub)
+        try:
+            reader = self._open_reader(sub)
+        except Exception as exc:
+            self._forget_subscription(sub)
+            sub._closed = True
+            if isinstance(exc, RosPortError):
+                raise
+            raise RosPortError(f"cannot subscribe to {full}: {exc}") from exc
+        with self._lock:
+            sub._reader = reader
+            late = self._released  # released implies closed
+        if late:
+            # The port closed while the endpoint was being made; nobody else will free it.
+            self._close_endpoint(sub, reader)
+            raise PortClosedError(f"{self!r} is closed")
+        logger.debug(
+            "%s: subscription on %s [%s] (%s, lane %s)",
+            self,
+            full,
+            ros_type_name(msg_type),
+            qos,
+            lane,
+        )
+        return sub
+
+    def add_tap(self, tap: Tap) -> Callable[[], None]:
+        """Show ``tap`` every message sent and received from now on (see :data:`Tap`).
+
+        A tap that raises is logged and does not stop the message. Returns a function
+        that removes the tap (idempotent).
+        """
+        with self._lock:
+            self._taps = (*self._taps, tap)
+
+        def remove() -> None:
+            with self._lock:
+                self._taps = tuple(t for t in self._taps if t is not tap)
+
+        return remove
+
+    def declare_parameters(
+        self, specs: list[ParameterSpec], on_set: OnSet, initial: Mapping[str, Any] | None = None
+    ) -> dict[str, ParameterValue]:
+        """Declare this node's parameters (:mod:`bridge.ros.rosport.parameters`).
+
+        Args:
+            specs: the parameters.
+            on_set: called with every later change that passed the checks; returns
+                ``None`` when applied, or the reason to refuse it.
+            initial: values to start with instead of the specs' defaults (what the node
+                resolved from its command line, environment and files).
+
+        Returns:
+            The values in effect, by name: ``initial``, else the defaults. ROS arguments
+            (``-p``, ``--params-file``) are not applied again here: the node resolves them
+            with its other sources, in its own order of precedence, into ``initial``.
+
+        Raises:
+            ParameterError: a value given at start is of the wrong type or out of range.
+        """
+        values = {spec.name: (initial or {}).get(spec.name, spec.default) for spec in specs}
+        declared = self._declare_parameters(specs, values)
+        with self._param_lock:
+            self._param_specs = {spec.name: spec for spec in specs}
+            self._param_values = dict(declared)
+            self._on_set = on_set
+        return declared
+
+    def set_parameters(self, values: Mapping[str, Any]) -> str | None:
+        """Change parameters as ``ros2 param set`` would: all or none.
+
+        Returns:
+            ``None`` when applied, else why they were refused (unknown name, read-only,
+            wrong type, out of range, or the node's own reason).
+        """
+        return self._set_parameters(dict(values))
+
+    def parameters(self) -> dict[str, ParameterValue]:
+        """The declared parameters' current values, by name."""
+        return self._get_parameters()
+
+    def stats(self) -> PortStats:
+        """A snapshot of this port's counters."""
+        with self._lock:
+            return PortStats(self._published, self._delivered, self._callback_errors, self._dropped)
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called."""
+        return self._closed
+
+    @property
+    def failure(self) -> str | None:
+        """Why the backend stopped working without being closed (its process died); else
+        ``None``. A node that cannot work without ROS checks it and exits."""
+        return None
+
+    def close(self) -> None:
+        """Close every publisher and subscription, stop the lane threads, free the backend.
+
+        Idempotent. Called from a callback (on a lane thread), it returns at once and the
+        backend is freed when the callback returns. If a callback is still running after
+        ``CLOSE_TIMEOUT_S``, it is logged and the backend is freed when that callback
+        returns.
+        """
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            publishers, self._publishers = self._publishers, []
+            subscriptions, self._subscriptions = self._subscriptions, []
+            # Whichever of this thread and the lane threads gets there last frees the
+            # backend: here after the joins, or the last lane thread when it unwinds.
+            self._pending_release = (publishers, subscriptions)
+            threads = list(self._threads.values())
+        self._stopping.set()
+        for sub in subscriptions:
+            sub._closed = True
+        self._wake()
+        current = threading.current_thread()
+        deadline = time.monotonic() + CLOSE_TIMEOUT_S
+        for thread in threads:
+            if thread is not current:
+                thread.join(max(0.0, deadline - time.monotonic()))
+        busy = [t.name for t in threads if t.is_alive()]
+        if busy and busy != [current.name]:
+            logger.error(
+                "%s: lane thread(s) %s still busy after %.1f s (a callback blocks?); "
+                "the last one frees the backend when it returns",
+                self,
+                ", ".join(busy),
+                CLOSE_TIMEOUT_S,
+            )
+        if not busy:
+            self._release_once(publishers, subscriptions)
+        logger.debug("%s: closed", self)
+
+    def __enter__(self: _P) -> _P:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        node = self.namespace.rstrip("/") + "/" + self.node_name
+        return f"<{type(self).__name__} {node}{' closed' if self._closed else ''}>"
+
+    # -- for backends -----------------------------------------------------------------
+
+    def _start(self) -> None:
+        """Start the default lane's thread (call at the end of ``__init__``)."""
+        self._ensure_lane(DEFAULT_LANE)
+
+    def _ensure_lane(self, lane: str) -> None:
+        """Open ``lane`` and start its thread, once."""
+        with self._lock:
+            if lane in self._threads or self._closed:
+                return
+            self._open_lane(lane)
+            thread = threading.Thread(
+                target=self._thread_main,
+                args=(lane,),
+                name=f"rosport-{self.backend}-{self.node_name}-{lane}",
+                daemon=True,
+            )
+            self._threads[lane] = thread
+            self._running += 1
+        thread.start()
+
+    def _deliver(self, sub: Subscription[Any], msg: Message) -> None:
+        """Run ``sub``'s callback with ``msg`` (from a lane thread); log and count errors."""
+        if sub._closed:
+            return
+        self._tap(TAP_RECEIVED, sub.topic, msg)
+        try:
+            sub.callback(msg)
+        except Exception:
+            sub.errors += 1
+            with self._lock:
+                self._callback_errors += 1
+            # The first failure with its traceback, then at 2, 4, 8, ... so a callback
+            # that fails on every message cannot flood the log.
+            if sub.errors & (sub.errors - 1) == 0:
+                logger.error(
+                    "%s: callback on %s raised (failure %d of this subscription)",
+                    self,
+                    sub.topic,
+                    sub.errors,
+                    exc_info=sub.errors == 1,
+                )
+        else:
+            sub.delivered += 1
+            with self._lock:
+                self._delivered += 1
+
+    def _tap(self, direction: str, topic: str, msg: Message) -> None:
+        for tap in self._taps:  # a tuple, replaced whole: no lock on the message path
+            try:
+                tap(direction, topic, msg)
+            except Exception:
+                logger.exception("%s: a tap failed on %s", self, topic)
+
+    def _count_dropped(self, count: int = 1) -> None:
+        with self._lock:
+            self._dropped += count
+
+    def _declare_parameters(
+        self, specs: list[ParameterSpec], values: dict[str, ParameterValue]
+    ) -> dict[str, ParameterValue]:
+        """Declare ``specs`` with ``values``; return the values in effect (default: kept
+        here, checked with :func:`check_value`)."""
+        for spec in specs:
+            reason = check_value(spec, values[spec.name])
+            if reason is not None:
+                raise ParameterError(f"parameter {reason}")
+        return values
+
+    def _set_parameters(self, values: dict[str, Any]) -> str | None:
+        """Check and apply a change (default: the checks rclpy makes, then ``on_set``)."""
+        with self._param_lock:
+            specs, on_set = self._param_specs, self._on_set
+            for name, value in values.items():
+                spec = specs.get(name)
+                if spec is None:
+                    return f"parameter {name!r} is not declared"
+                if spec.read_only:
+                    return f"parameter {name!r} is read-only: set it when the node starts"
+                reason = check_value(spec, value)
+                if reason is not None:
+                    return reason
+            reason = on_set(values) if on_set is not None else None
+            if reason is None:
+                self._param_values.update(values)
+            return reason
+
+    def _get_parameters(self) -> dict[str, ParameterValue]:
+        """The current values (default: kept here)."""
+        with self._param_lock:
+            return dict(self._param_values)
+
+    def _open_writer(self, topic: str, msg_type: type[Any], qos: Qos) -> Writer:
+        raise NotImplementedError
+
+    def _open_reader(self, sub: Subscription[Any]) -> Reader:
+        raise NotImplementedError
+
+    def _open_lane(self, lane: str) -> None:
+        """Prepare ``lane`` before its thread starts (default: nothing; lock held)."""
+
+    def _run(self, lane: str) -> None:
+        raise NotImplementedError
+
+    def _wake(self) -> None:
+        """Make every :meth:`_run` see :attr:`_stopping` promptly (default: nothing)."""
+
+    def _release(self) -> None:
+        """Free the backend's resources (default: nothing). Called once, after ``_run``."""
+
+    # -- internals --------------------------------------------------------------------
+
+    def _claim(self, topic: str, msg_type: type[Any]) -> str:
+        if not is_message_type(msg_type):
+            raise TopicTypeError(f"{msg_type!r} is not a generated ROS 2 message class")
+        full = self.resolve(topic)
+        with self._lock:
+            if self._closed:
+                raise PortClosedError(f"{self!r} is closed")
+            known = self._topic_types.setdefault(full, msg_type)
+        if known is not msg_type:
+            raise TopicTypeError(
+                f"{full} is already used with {ros_type_name(known)} in this port, "
+                f"not {ros_type_name(msg_type)}"
+            )
+        return full
+
+    def _count_published(self) -> None:
+        with self._lock:
+            self._published += 1
+
+    def _forget_publisher(self, pub: Publisher[M]) -> None:
+        with self._lock:
+            if pub in self._publishers:
+                self._publishers.remove(pub)
+
+    def _forget_subscription(self, sub: Subscription[M]) -> None:
+        with self._lock:
+            if sub in self._subscriptions:
+                self._subscriptions.remove(sub)
+
+    def _close_endpoint(
+        self, owner: Publisher[M] | Subscription[M], endpoint: Writer | Reader
+    ) -> None:
+        with self._lock:
+            if owner._endpoint_closed:
+                return
+            owner._endpoint_closed = True
+        try:
+            endpoint.close()
+        except Exception:
+            logger.exception("%s: closing the endpoint of %r failed", self, owner)
+
+    def _thread_main(self, lane: str) -> None:
+        try:
+            self._run(lane)
+        except Exception:
+            logger.exception("%s: lane %s failed; it delivers nothing more", self, lane)
+        finally:
+            with self._lock:
+                self._running -= 1
+                last = self._running == 0
+                pending = self._pending_release
+            if last and self._stopping.is_set() and pending is not None:
+                self._release_once(*pending)
+
+    def _release_once(
+        self, publishers: list[Publisher[Any]], subscriptions: list[Subscription[Any]]
+    ) -> None:
+        with self._lock:
+            if self._released:
+                return
+            self._released = True
+        for pub in publishers:
+            pub._closed = True
+            self._close_endpoint(pub, pub._writer)
+        for sub in subscriptions:
+            with self._lock:
+                reader = sub._reader
+            if reader is not None:
+                self._close_endpoint(sub, reader)
+        try:
+            self._release()
+        except Exception:
+            logger.exception("%s: releasing the backend failed", self)

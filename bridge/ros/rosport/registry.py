@@ -1,0 +1,79 @@
+"""Backends of the ROS port by name, imported only when opened.
+
+- ``rclpy``: :class:`bridge.ros.rosport.rclpy_backend.RclpyPort`, a real ROS 2 node; needs
+  ROS 2 Jazzy (the ``ros`` extra, or a sourced ``/opt/ros/jazzy``);
+- ``rclpy-process``: :class:`bridge.ros.rosport.process_backend.ProcessPort`, the same node
+  in a child process, so that no middleware call can stall the caller's threads (the
+  bridge's default: its controller link must never wait for DDS);
+- ``inprocess``: :class:`bridge.ros.rosport.inprocess.InProcessPort`, ports of one process
+  (unit tests); needs the ROS 2 message packages only.
+
+:data:`DEFAULT_BACKEND` (``rclpy``) is what every entry point uses unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any, Final
+
+from bridge.ros.rosport.errors import BackendUnavailableError, UnknownBackendError
+from bridge.ros.rosport.port import DEFAULT_NODE_NAME, RosPort
+
+__all__ = ["BACKENDS", "DEFAULT_BACKEND", "backend_class", "open_port"]
+
+#: Backend name -> (module, class). Modules are imported on first use only.
+BACKENDS: Final[Mapping[str, tuple[str, str]]] = {
+    "inprocess": ("bridge.ros.rosport.inprocess", "InProcessPort"),
+    "rclpy": ("bridge.ros.rosport.rclpy_backend", "RclpyPort"),
+    "rclpy-process": ("bridge.ros.rosport.process_backend", "ProcessPort"),
+}
+#: The production backend: a real ROS 2 node.
+DEFAULT_BACKEND: Final = "rclpy"
+
+
+def backend_class(backend: str) -> type[RosPort]:
+    """The port class registered as ``backend``, importing its module.
+
+    Raises:
+        UnknownBackendError: no backend has that name (the error lists the known ones).
+        BackendUnavailableError: the backend's module cannot be imported here (ROS 2 is
+            not installed).
+    """
+    try:
+        module_name, class_name = BACKENDS[backend]
+    except KeyError:
+        raise UnknownBackendError(backend, BACKENDS) from None
+    try:
+        module = importlib.import_module(module_name)
+    except BackendUnavailableError:
+        raise
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            f"the {backend!r} ROS port backend cannot be imported: {exc}"
+        ) from exc
+    cls: type[RosPort] = getattr(module, class_name)
+    return cls
+
+
+def open_port(
+    backend: str, *, namespace: str = "", node_name: str = DEFAULT_NODE_NAME, **options: Any
+) -> RosPort:
+    """Open a ROS port on the named backend.
+
+    Args:
+        backend: ``"rclpy"``, ``"rclpy-process"`` or ``"inprocess"`` (see :data:`BACKENDS`).
+        namespace: the node's namespace; relative topic names resolve in it.
+        node_name: the node's name.
+        **options: backend options: ``rclpy`` and ``rclpy-process``: ``domain_id``,
+            ``args``; ``inprocess``:
+            ``bus``.
+
+    Raises:
+        UnknownBackendError: unknown ``backend`` (the message lists the known ones).
+        BackendUnavailableError: the backend's dependency is not installed.
+        RosNameError: invalid namespace or node name.
+        TypeError: an option the backend does not take.
+        RosPortError: the backend failed to start.
+    """
+    return backend_class(backend)(namespace=namespace, node_name=node_name, **options)

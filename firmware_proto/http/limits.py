@@ -1,0 +1,92 @@
+"""What one connection may cost a server: the limits :mod:`~.protocol` enforces.
+
+Every wait has a bound, so that no client, slow or silent, holds a connection (or the
+server's shutdown) for longer than the server chose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+__all__ = [
+    "DEFAULT_BODY_TIMEOUT_S",
+    "DEFAULT_HEAD_TIMEOUT_S",
+    "DEFAULT_IDLE_TIMEOUT_S",
+    "DEFAULT_MAX_CONNECTIONS",
+    "DEFAULT_MAX_DRAIN_BYTES",
+    "DEFAULT_MAX_HEAD_BYTES",
+    "ErrorRenderer",
+    "ServeLimits",
+]
+
+DEFAULT_IDLE_TIMEOUT_S = 15.0
+"""A connection with no request under way and no byte of the next one is closed after
+this long (a new connection as much as a kept-alive one)."""
+DEFAULT_HEAD_TIMEOUT_S = 10.0
+"""From the first byte of a request to the end of its head (request line and headers):
+a client sending its headers a byte at a time (slowloris) is answered 408 and closed."""
+DEFAULT_BODY_TIMEOUT_S = 10.0
+"""From the end of a request's head to the end of its body (408 past it)."""
+DEFAULT_MAX_CONNECTIONS = 1024
+"""Open connections at once; the next one is answered 503 and closed. Each costs a few
+kB and a file descriptor, not a thread."""
+DEFAULT_MAX_HEAD_BYTES = 16 * 1024
+"""Largest request head (h11's limit): beyond it, 431."""
+DEFAULT_MAX_DRAIN_BYTES = 1 << 20
+"""After answering a request without reading its body (413, 415...), this much of the
+body is read and dropped, so that the client gets the answer instead of a reset; past
+it the connection is closed."""
+
+ErrorRenderer = Callable[[int, str, str], tuple[str, bytes]]
+"""``(status, code, message) -> (content_type, body)``: how a server words the errors
+the connection layer answers by itself (400 malformed request, 408, 431, 503)."""
+
+
+def _positive(name: str, value: float) -> None:
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number of seconds, got {value}")
+
+
+@dataclass(frozen=True)
+class ServeLimits:
+    """The bounds of one server's connections.
+
+    Attributes:
+        idle_timeout_s: see :data:`DEFAULT_IDLE_TIMEOUT_S`.
+        head_timeout_s: see :data:`DEFAULT_HEAD_TIMEOUT_S`.
+        body_timeout_s: see :data:`DEFAULT_BODY_TIMEOUT_S` (applied by
+            :func:`~firmware_proto.http.body.read_body`).
+        write_timeout_s: a client that has not taken any of the answer for this long
+            (the socket's buffers full) is cut off.
+        max_connections: see :data:`DEFAULT_MAX_CONNECTIONS`.
+        max_head_bytes: see :data:`DEFAULT_MAX_HEAD_BYTES`.
+        max_drain_bytes: see :data:`DEFAULT_MAX_DRAIN_BYTES`.
+        drain_timeout_s: on shutdown, how long requests under way may take.
+
+    Raises:
+        ValueError: a timeout that is not a positive number, a count below 1.
+    """
+
+    idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S
+    head_timeout_s: float = DEFAULT_HEAD_TIMEOUT_S
+    body_timeout_s: float = DEFAULT_BODY_TIMEOUT_S
+    write_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S
+    max_connections: int = DEFAULT_MAX_CONNECTIONS
+    max_head_bytes: int = DEFAULT_MAX_HEAD_BYTES
+    max_drain_bytes: int = DEFAULT_MAX_DRAIN_BYTES
+    drain_timeout_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        for name in (
+            "idle_timeout_s",
+            "head_timeout_s",
+            "body_timeout_s",
+            "write_timeout_s",
+            "drain_timeout_s",
+        ):
+            _positive(name, getattr(self, name))
+        for name in ("max_connections", "max_head_bytes", "max_drain_bytes"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")

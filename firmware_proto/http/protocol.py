@@ -1,0 +1,281 @@
+"""uvicorn's h11 connection with this project's limits: :class:`GuardedH11Protocol`.
+
+uvicorn serves the ASGI apps and h11 parses HTTP/1.1 strictly (framing, chunked bodies,
+``Expect: 100-continue``, keep-alive, pipelining, flow control). What uvicorn leaves
+open, this protocol bounds (the numbers are :class:`~.limits.ServeLimits`):
+
+- *Silent and slow clients.* uvicorn times out only an idle kept-alive connection, and
+  only until its first byte. Here a connection waits at most ``idle_timeout_s`` for a
+  request to start (new connections too), and the request's head must then arrive whole
+  within ``head_timeout_s``: a client sending its headers a byte a second (slowloris) is
+  answered 408 and closed, and costs no thread meanwhile.
+- *Readers that stop reading.* A response the client has not taken for
+  ``write_timeout_s`` (the socket's buffers full) ends the connection.
+- *Unread bodies.* After an answer given without reading the body (413, 415...), at most
+  ``max_drain_bytes`` of it are read and dropped (so the client reads the answer rather
+  than a reset), within the same deadlines.
+- *Connections.* Beyond ``max_connections`` open at once, a new one is answered 503.
+- *A client that half-closes* after its request still gets its answer; one that closes
+  mid-body gets 400 ``truncated_body``.
+- *Ambiguous framing* (both ``Content-Length`` and ``Transfer-Encoding``) is refused
+  with 400 and the connection closed, rather than read by one of them (smuggling); an
+  HTTP version other than 1.0 or 1.1 with 505.
+- *Errors the connection answers itself* (malformed request 400, 408, 431, 503) are
+  worded by the server's :data:`~.limits.ErrorRenderer`, so that a JSON API stays JSON.
+
+The hooks overridden are uvicorn's ``asyncio.Protocol`` callbacks and its
+``send_400_response``; ``uvicorn.Config(http=...)`` is uvicorn's documented way to give
+it a protocol class. The version range in ``pyproject.toml`` is the one tested.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import sys
+from http import HTTPStatus
+from typing import Any, cast
+
+import h11
+import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
+from uvicorn.server import ServerState
+
+from firmware_proto.http.limits import ErrorRenderer, ServeLimits
+
+__all__ = ["GuardedH11Protocol", "ServeConfig", "classify_protocol_error"]
+
+logger = logging.getLogger(__name__)
+
+_FRAMING_WORDS = ("content-length", "transfer-encoding", "chunk")
+
+
+def classify_protocol_error(hint: int, text: str) -> tuple[int, str]:
+    """The status and code of a request h11 refused: ``(431,
+    "request_header_fields_too_large")`` for a head over the limit, ``(400,
+    "bad_framing")`` for a malformed ``Content-Length``/``Transfer-Encoding`` or chunk
+    (h11 hints 501 for an unknown transfer coding; it is a malformed request here too),
+    else ``(400, "bad_request")``."""
+    if hint == 431:
+        return 431, "request_header_fields_too_large"
+    lowered = text.lower()
+    if any(word in lowered for word in _FRAMING_WORDS):
+        return 400, "bad_framing"
+    return 400, "bad_request"
+
+
+def _refusal(version: str, names: set[bytes]) -> tuple[int, str, str] | None:
+    """What h11 lets through but we refuse: ``(status, code, message)`` or ``None``."""
+    if version not in ("1.0", "1.1"):
+        return 505, "http_version_not_supported", f"HTTP/{version} is not supported"
+    if b"transfer-encoding" in names and b"content-length" in names:
+        # h11 lets Transfer-Encoding win (RFC 9112 6.3); a server may refuse instead,
+        # and must close: a mismatch between the two is how requests are smuggled.
+        return 400, "bad_framing", "both Transfer-Encoding and Content-Length given"
+    return None
+
+
+class ServeConfig(uvicorn.Config):
+    """uvicorn's settings for one of our servers, carrying the limits and the error
+    renderer to each connection.
+
+    Args:
+        app: the ASGI application.
+        host: the address, for uvicorn's messages (the socket is bound by the caller).
+        limits: the connection limits.
+        render_error: how connection-level errors are worded.
+        server_name: the ``Server`` header.
+    """
+
+    def __init__(
+        self,
+        app: Any,
+        *,
+        host: str,
+        limits: ServeLimits,
+        render_error: ErrorRenderer,
+        server_name: str,
+    ) -> None:
+        self.limits = limits
+        self.render_error = render_error
+        super().__init__(
+            app,
+            host=host,
+            http=GuardedH11Protocol,
+            ws="none",
+            lifespan="off",
+            interface="asgi3",
+            log_config=None,
+            access_log=False,
+            proxy_headers=False,
+            server_header=False,
+            headers=[("Server", server_name)],
+            timeout_keep_alive=max(1, math.ceil(limits.idle_timeout_s)),
+            timeout_graceful_shutdown=max(1, math.ceil(limits.drain_timeout_s)),
+            h11_max_incomplete_event_size=limits.max_head_bytes,
+        )
+
+
+class GuardedH11Protocol(H11Protocol):
+    """One connection: uvicorn's h11 protocol bounded as the module docstring says.
+
+    Only :class:`ServeConfig` configures it (it reads ``limits`` and ``render_error``
+    from there).
+    """
+
+    def __init__(
+        self,
+        config: uvicorn.Config,
+        server_state: ServerState,
+        app_state: dict[str, Any],
+        _loop: asyncio.AbstractEventLoop | None = None,
+    ) -> None:
+        super().__init__(config, server_state, app_state, _loop)
+        guard = cast(ServeConfig, config)
+        self._limits = guard.limits
+        self._render = guard.render_error
+        self._deadline: asyncio.TimerHandle | None = None
+        self._waiting = ""  # "idle" before a request's first byte, "head" after it
+        self._write_timer: asyncio.TimerHandle | None = None
+        self._drained = 0
+        self._peer_eof = False
+
+    # -- the connection ----------------------------------------------------------------
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        if len(self.connections) > self._limits.max_connections:
+            logger.warning("refusing a connection: %d open", len(self.connections) - 1)
+            self._answer_and_close(503, "too_many_connections", "too many open connections")
+            return
+        self._wait("idle", self._limits.idle_timeout_s)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._cancel_deadline()
+        if self._write_timer is not None:
+            self._write_timer.cancel()
+            self._write_timer = None
+        super().connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        if self._waiting == "idle":  # the first byte of the next request (or of a drain)
+            self._wait("head", self._limits.head_timeout_s)
+        cycle = self.cycle
+        if (
+            cycle is not None and cycle.response_complete and self.conn.their_state is h11.SEND_BODY
+        ):  # the rest of a body we answered without reading
+            self._drained += len(data)
+            if self._drained > self._limits.max_drain_bytes:
+                logger.debug("closing: more than %d bytes of an unread body", self._drained)
+                self.transport.close()
+                return
+        super().data_received(data)
+
+    def handle_events(self) -> None:
+        before = self.cycle
+        super().handle_events()
+        cycle = self.cycle
+        if cycle is not before and cycle is not None:  # a request's head arrived whole
+            self._cancel_deadline()
+            self._drained = 0
+            refusal = _refusal(self.scope["http_version"], {name for name, _ in self.headers})
+            if refusal is not None:
+                self._answer_and_close(*refusal)
+                cycle.disconnected = True  # the application's answer, if any, is dropped
+                cycle.message_event.set()
+
+    def on_response_complete(self) -> None:
+        self._wait("idle", self._limits.idle_timeout_s)
+        super().on_response_complete()
+        if self._peer_eof and not self.transport.is_closing():
+            self.transport.close()  # the client said it sends nothing more
+
+    def eof_received(self) -> bool | None:  # type: ignore[override]  # asyncio allows a bool
+        cycle = self.cycle
+        if cycle is None or cycle.response_complete:
+            return None  # nothing under way: close
+        if self.conn.their_state is h11.SEND_BODY and not cycle.response_started:
+            self._answer_and_close(
+                400, "truncated_body", "the connection ended before the request body did"
+            )
+            cycle.disconnected = True
+            cycle.message_event.set()
+            return None
+        self._peer_eof = True  # half-closed after a whole request: answer it first
+        return True
+
+    # -- flow control -------------------------------------------------------------------
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        if self._write_timer is None:
+            self._write_timer = self.loop.call_later(
+                self._limits.write_timeout_s, self._write_stalled
+            )
+
+    def resume_writing(self) -> None:
+        super().resume_writing()
+        if self._write_timer is not None:
+            self._write_timer.cancel()
+            self._write_timer = None
+
+    def _write_stalled(self) -> None:
+        self._write_timer = None
+        logger.info(
+            "dropping %s: it took nothing for %g s", self.client, self._limits.write_timeout_s
+        )
+        self.transport.abort()
+
+    # -- errors answered here ------------------------------------------------------------
+    def send_400_response(self, msg: str) -> None:
+        error = sys.exc_info()[1]  # uvicorn calls this while handling h11's error
+        hint = int(getattr(error, "error_status_hint", 400))
+        text = str(error) if error is not None else msg
+        status, code = classify_protocol_error(hint, text)
+        logger.info("malformed request from %s: %s", self.client, text)
+        cycle = self.cycle
+        if cycle is not None and cycle.response_started and not cycle.response_complete:
+            self.transport.close()  # mid-answer: no room for another one
+            return
+        self._answer_and_close(status, code, f"malformed request: {text}")
+
+    def _answer_and_close(self, status: int, code: str, message: str) -> None:
+        """Write an error response by hand (h11 may be in no state to frame one) and
+        close the connection."""
+        if self.transport.is_closing():
+            return
+        content_type, body = self._render(status, code, message)
+        head = (
+            f"HTTP/1.1 {status} {HTTPStatus(status).phrase}\r\n"
+            f"Content-Type: {content_type}\r\n"
+            f"Content-Length: {len(body)}\r\n"
+            "Cache-Control: no-store\r\n"
+            "Connection: close\r\n\r\n"
+        )
+        self.transport.write(head.encode("latin-1") + body)
+        self.transport.close()
+
+    # -- deadlines -------------------------------------------------------------------------
+    def _wait(self, what: str, timeout_s: float) -> None:
+        self._cancel_deadline()
+        self._waiting = what
+        self._deadline = self.loop.call_later(timeout_s, self._expired)
+
+    def _cancel_deadline(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+        self._waiting = ""
+
+    def _expired(self) -> None:
+        waiting, self._waiting, self._deadline = self._waiting, "", None
+        if self.transport.is_closing():
+            return
+        if waiting == "head" and self.conn.their_state is h11.IDLE:
+            logger.info("slow request head from %s: 408", self.client)
+            self._answer_and_close(
+                408,
+                "request_timeout",
+                f"the request's head did not arrive whole within {self._limits.head_timeout_s:g} s",
+            )
+            return
+        self.transport.close()

@@ -1,0 +1,3 @@
+"""The ground station: the executor and drift control, missions, the link relay,
+the operator's console and their commands (docs/ground.md).
+"""

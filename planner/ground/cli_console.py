@@ -1,0 +1,364 @@
+"""``rover status``, ``rover stop``, ``rover clear-stop`` and ``rover echo``: the
+operator's console over ROS 2 (:mod:`planner.ground.console`), no ros2cli needed.
+
+Each talks to the bridge's topics in ``--namespace`` (default ``ground``: through the
+link relay, as ``rover go`` does; ``/`` for the bridge's own) on the ROS 2 domain of
+``--domain`` or ``$ROS_DOMAIN_ID`` (what ``rover stack up`` prints).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from firmware_proto.cli import values
+from planner.stack.stackenv import add_domain_argument
+
+__all__ = [
+    "ECHO_TOPICS",
+    "describe",
+    "register_clear_stop",
+    "register_echo",
+    "register_status",
+    "register_stop",
+]
+
+ECHO_TOPICS = (
+    "command_status",
+    "diagnostics",
+    "odom",
+    "odom_ground",
+    "wheel_instructions",
+    "emergency_stop",
+    "clear_emergency_stop",
+)
+"""The product's topics ``rover echo`` knows (docs/bridge.md, ROS contract)."""
+
+EXIT_HELD = 3
+"""``rover status``: the bridge answered, and the rover refuses steps now."""
+
+
+def _common(p: argparse.ArgumentParser, timeout_s: float) -> None:
+    p.add_argument(
+        "--namespace",
+        default="ground",
+        help="namespace of the topics: ground (default: through the link relay, as rover go) "
+        "or / (the bridge's own)",
+    )
+    add_domain_argument(p)
+    p.add_argument(
+        "--timeout",
+        type=values.positive,
+        default=timeout_s,
+        metavar="S",
+        help=f"how long to wait for the bridge's answer, s (default {timeout_s:g})",
+    )
+
+
+def register_status(subparsers: Any) -> None:
+    """Add ``rover status``."""
+    p = subparsers.add_parser(
+        "status",
+        help="the rover's link, controller, latch, faults, last statuses and counters",
+        description=(
+            "Read the bridge's /diagnostics (and listen to command_status) and print the "
+            "link state, the controller state, what holds the STOP latch, the fault "
+            "conditions active now, the last statuses and the counters, and why the rover "
+            "refuses steps, if it does, with the way out. Exit status: 0 the rover takes "
+            f"steps, {EXIT_HELD} it refuses them (latched, a stopping fault, no link), 1 no "
+            "answer from a bridge within --timeout, 2 usage; with --watch 0 (130 on Ctrl-C)."
+        ),
+    )
+    _common(p, 10.0)
+    p.add_argument("--json", action="store_true", help="print one JSON object per report")
+    p.add_argument(
+        "--watch", action="store_true", help="print every report as it comes, until Ctrl-C"
+    )
+    p.add_argument(
+        "--count",
+        type=values.positive_int,
+        default=None,
+        metavar="N",
+        help="with --watch: stop after N reports",
+    )
+    p.set_defaults(func=_status)
+
+
+def register_stop(subparsers: Any) -> None:
+    """Add ``rover stop``."""
+    p = subparsers.add_parser(
+        "stop",
+        help="emergency stop: the rover stops and latches",
+        description=(
+            "Publish true on emergency_stop (repeated every 0.5 s) until the bridge says "
+            "'stopped': the controller acknowledged the STOP, the rover stops and its latch "
+            "holds until 'rover clear-stop'. Exit status: 0 stopped, 1 no acknowledgement "
+            "within --timeout, 2 usage."
+        ),
+    )
+    _common(p, 10.0)
+    p.set_defaults(func=_stop)
+
+
+def register_clear_stop(subparsers: Any) -> None:
+    """Add ``rover clear-stop``."""
+    p = subparsers.add_parser(
+        "clear-stop",
+        help="release the STOP latch, and say whether it released and why not",
+        description=(
+            "Publish on clear_emergency_stop and wait for the controller's answer through "
+            "the bridge: 'released' (and what held it), 'not latched' (nothing to release), "
+            "or why the latch stays (a stopping fault's condition still active, no link, no "
+            "bridge). Exit status: 0 released or not latched, 1 the latch stays or no "
+            "answer, 2 usage."
+        ),
+    )
+    _common(p, 15.0)
+    p.add_argument("--json", action="store_true", help="print the outcome as JSON")
+    p.set_defaults(func=_clear_stop)
+
+
+def register_echo(subparsers: Any) -> None:
+    """Add ``rover echo``."""
+    p = subparsers.add_parser(
+        "echo",
+        help="print the messages on one of the product's topics",
+        description=(
+            "Subscribe to TOPIC (one of: " + ", ".join(ECHO_TOPICS) + ") and print each "
+            "message on one line (--json: as JSON). Exit status: 0 after --count messages or "
+            "Ctrl-C, 1 when --timeout passes without a message, 2 usage."
+        ),
+    )
+    p.add_argument("topic", choices=ECHO_TOPICS, metavar="TOPIC", help=", ".join(ECHO_TOPICS))
+    p.add_argument(
+        "--namespace",
+        default="ground",
+        help="namespace of the topic (default ground; / for the bridge's own)",
+    )
+    add_domain_argument(p)
+    p.add_argument("--count", type=values.positive_int, default=None, metavar="N")
+    p.add_argument(
+        "--timeout",
+        type=values.positive,
+        default=None,
+        metavar="S",
+        help="give up after S s without a message (default: wait until Ctrl-C)",
+    )
+    p.add_argument("--json", action="store_true", help="one JSON object per message")
+    p.set_defaults(func=_echo)
+
+
+# -- handlers -------------------------------------------------------------------------------
+def _where(port: Any, domain: int | None) -> str:
+    ns = port.namespace
+    return f"{ns}, ROS domain {domain if domain is not None else 0}"
+
+
+def _open(args: argparse.Namespace, node: str) -> tuple[Any, int | None]:
+    from bridge.ros.rosport import open_port
+    from planner.stack.stackenv import apply_domain
+
+    domain = apply_domain(args)
+    return open_port("rclpy", namespace=args.namespace, node_name=node), domain
+
+
+def _terminate_as_interrupt() -> None:
+    """SIGTERM ends a watch as Ctrl-C does (the port closes on the way out)."""
+    if threading.current_thread() is threading.main_thread():
+
+        def _raise(signum: int, frame: Any) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, _raise)
+
+
+def _status(args: argparse.Namespace) -> int:
+    from planner.ground.console import RoverConsole
+
+    port, domain = _open(args, "rover_status")
+    with port, RoverConsole(port) as console:
+        where = _where(port, domain)
+        if not args.watch:
+            status = console.status(args.timeout)
+            if status is None:
+                print(
+                    f"rover status: error: no /diagnostics from a bridge on "
+                    f"{console.topic('diagnostics')} (ROS domain {domain or 0}) within "
+                    f"{args.timeout:g} s: is the stack up, and this the domain it printed?",
+                    file=sys.stderr,
+                )
+                return 1
+            if args.json:
+                print(json.dumps({"where": where, **status.as_dict()}), flush=True)
+            else:
+                print(status.text(where), flush=True)
+            return 0 if status.ready else EXIT_HELD
+        _terminate_as_interrupt()
+        shown = 0
+        seen = 0
+        try:
+            while args.count is None or shown < args.count:
+                status = console.status(args.timeout, newer_than=seen)
+                if status is None:
+                    print(f"(no /diagnostics for {args.timeout:g} s)", flush=True)
+                    continue
+                seen = console.diagnostics_seen
+                if args.json:
+                    print(json.dumps({"where": where, **status.as_dict()}), flush=True)
+                else:
+                    print(time.strftime("%H:%M:%S ") + status.text(where) + "\n", flush=True)
+                shown += 1
+        except KeyboardInterrupt:
+            return 130
+    return 0
+
+
+def _stop(args: argparse.Namespace) -> int:
+    from planner.ground.console import RoverConsole
+
+    port, domain = _open(args, "rover_stop")
+    with port, RoverConsole(port) as console:
+        console.wait_matched(min(args.timeout, 5.0))
+        if console.stop(args.timeout):
+            print(
+                f"stopped: the controller acknowledged the STOP ({_where(port, domain)}); "
+                "the latch holds until 'rover clear-stop'",
+                flush=True,
+            )
+            return 0
+    print(
+        f"rover stop: error: no 'stopped' on {port.resolve('command_status')} within "
+        f"{args.timeout:g} s (is the stack up on ROS domain {domain or 0}?)",
+        file=sys.stderr,
+    )
+    return 1
+
+
+def _clear_stop(args: argparse.Namespace) -> int:
+    from planner.ground.console import ClearOutcome, RoverConsole
+
+    port, _domain = _open(args, "rover_clear_stop")
+    with port, RoverConsole(port) as console:
+        console.wait_matched(min(args.timeout / 3.0, 5.0))
+        report = console.clear_stop(args.timeout)
+    before = report.before
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "outcome": report.outcome.value,
+                    "released": report.released,
+                    "why": report.why,
+                    "held_by": list(before.latch) if before is not None else None,
+                    "after": report.after.as_dict() if report.after is not None else None,
+                }
+            )
+        )
+    elif report.outcome is ClearOutcome.RELEASED:
+        held = ", ".join(before.latch) if before is not None and before.latch else "the latch"
+        print(f"released: the latch is off (it was held by {held}); the rover takes steps again")
+    elif report.outcome is ClearOutcome.NOT_LATCHED:
+        print("not latched: there was nothing to release; the rover takes steps")
+    else:
+        print(f"rover clear-stop: NOT released: {report.why}", file=sys.stderr)
+    if report.after is not None and report.released and report.after.stopping_faults:
+        print(
+            "note: fault condition(s) "
+            + ", ".join(report.after.stopping_faults)
+            + " active again: the rover stops at once",
+            file=sys.stderr,
+        )
+    return 0 if report.released else 1
+
+
+def _yaw_deg(q: Any) -> float:
+    return math.degrees(2.0 * math.atan2(q.z, q.w))
+
+
+def describe(topic: str, msg: Any) -> str:
+    """One line for one message of one of :data:`ECHO_TOPICS` (relative name)."""
+    if topic in ("odom", "odom_ground"):
+        p = msg.pose.pose
+        return (
+            f"x={p.position.x:.3f} y={p.position.y:.3f} yaw={_yaw_deg(p.orientation):.1f} deg "
+            f"v={msg.twist.twist.linear.x:.3f} m/s frame={msg.header.frame_id}"
+        )
+    if topic == "diagnostics":
+        from planner.ground.roverstatus import LEVELS
+
+        parts = []
+        for s in msg.status:
+            level = s.level[0] if isinstance(s.level, (bytes, bytearray)) else int(s.level)
+            parts.append(f"{s.name}: {LEVELS.get(level, level)} {s.message}")
+        return " | ".join(parts)
+    if topic == "wheel_instructions":
+        return "[" + ", ".join(str(int(v)) for v in msg.data) + "]"
+    if topic == "emergency_stop":
+        return str(bool(msg.data)).lower()
+    if topic == "clear_emergency_stop":
+        return "{}"
+    return str(msg.data)
+
+
+def _echo(args: argparse.Namespace) -> int:
+    import queue
+
+    from bridge.ros.rosport import STOP_LANE, qos
+    from bridge.ros.rosport.msgs import (
+        Bool,
+        DiagnosticArray,
+        Empty,
+        Int16MultiArray,
+        Odometry,
+        String,
+    )
+    from planner.record.mcaprec import plain_message
+
+    kinds: dict[str, tuple[type[Any], Any]] = {
+        "command_status": (String, qos.STATUS),
+        "diagnostics": (DiagnosticArray, qos.DIAGNOSTICS),
+        "odom": (Odometry, qos.SENSOR),
+        "odom_ground": (Odometry, qos.SENSOR),
+        "wheel_instructions": (Int16MultiArray, qos.COMMAND),
+        "emergency_stop": (Bool, qos.STOP),
+        "clear_emergency_stop": (Empty, qos.STOP),
+    }
+    msg_type, profile = kinds[args.topic]
+    got: queue.SimpleQueue[Any] = queue.SimpleQueue()
+    port, _domain = _open(args, "rover_echo")
+    _terminate_as_interrupt()
+    shown = 0
+    with port:
+        lane = STOP_LANE if profile is qos.STOP else "default"
+        sub = port.subscribe(args.topic, msg_type, got.put, profile, lane=lane)
+        full = port.resolve(args.topic)
+        # The header means 'listening': a publisher that is there is matched first (a
+        # volatile topic loses what is sent before), as far as discovery lets us wait.
+        sub.wait_for_publishers(1, min(args.timeout or 5.0, 5.0))
+        print(f"# {full} [{msg_type.__module__.split('.')[0]}/{msg_type.__name__}]", flush=True)
+        try:
+            while args.count is None or shown < args.count:
+                try:
+                    msg = got.get(timeout=args.timeout if args.timeout is not None else 1.0)
+                except queue.Empty:
+                    if args.timeout is not None:
+                        print(
+                            f"rover echo: error: no message on {full} within {args.timeout:g} s",
+                            file=sys.stderr,
+                        )
+                        return 1
+                    continue
+                if args.json:
+                    print(json.dumps(plain_message(msg), default=str), flush=True)
+                else:
+                    print(f"{time.time():.3f} {describe(args.topic, msg)}", flush=True)
+                shown += 1
+        except KeyboardInterrupt:
+            return 0
+    return 0

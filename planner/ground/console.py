@@ -1,0 +1,246 @@
+"""The operator's console: read the rover's state, stop it and release its latch over
+ROS 2, through the bridge's topics (``rover status``, ``rover stop``, ``rover
+clear-stop``, ``rover echo``; no ros2cli needed).
+
+:class:`RoverConsole` sits on an open :class:`~bridge.ros.rosport.RosPort` in the namespace
+of the topics it talks to: the ground's (through the link relay, as ``rover go`` does)
+or the rover's own (the bridge's). It subscribes to ``diagnostics`` and
+``command_status`` and publishes on ``emergency_stop`` and ``clear_emergency_stop``.
+Every wait has a timeout; a discovery that has not matched both sides in time is said,
+not assumed.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from bridge.ros.rosport import RosPort, qos
+from bridge.ros.rosport.contract import (
+    CLEAR_EMERGENCY_STOP,
+    CLEARED,
+    COMMAND_STATUS,
+    EMERGENCY_STOP,
+    STOPPED,
+    fault,
+)
+from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, String
+from planner.ground.roverstatus import RoverStatus, from_diagnostics
+
+__all__ = ["DIAGNOSTICS", "ClearOutcome", "ClearReport", "RoverConsole"]
+
+logger = logging.getLogger(__name__)
+
+DIAGNOSTICS = "diagnostics"
+"""Relative: ``/diagnostics`` at the root (the bridge's), ``/ground/diagnostics`` as the
+link relays it."""
+_FAULT_PERSISTS = fault("fault_persists")
+_STOP_REPEAT_S = 0.5
+"""``rover stop`` publishes STOP again this often until ``stopped`` comes back."""
+
+
+class ClearOutcome(str, enum.Enum):
+    """What became of a clear-STOP."""
+
+    RELEASED = "released"
+    """The latch was set and the controller released it (``cleared``)."""
+    NOT_LATCHED = "not_latched"
+    """Nothing held the rover; the controller said so (``cleared``)."""
+    FAULT_PERSISTS = "fault_persists"
+    """A stopping fault's condition is still active: the latch holds (the bridge sends
+    the clear again once the condition is gone)."""
+    NO_ANSWER = "no_answer"
+    """Nothing came back in time (see :attr:`ClearReport.why`)."""
+
+
+@dataclass(frozen=True)
+class ClearReport:
+    """The outcome, the rover's state before and after (``None``: not heard), and why
+    it did not release, in words."""
+
+    outcome: ClearOutcome
+    before: RoverStatus | None
+    after: RoverStatus | None
+    why: str = ""
+
+    @property
+    def released(self) -> bool:
+        """The rover is free to take steps as far as the latch goes."""
+        return self.outcome in (ClearOutcome.RELEASED, ClearOutcome.NOT_LATCHED)
+
+
+class RoverConsole:
+    """The operator's reads and writes of the bridge's topics (see the module docstring).
+
+    Args:
+        port: an open ROS port in the namespace of the topics (not closed here).
+        on_status: called with each ``command_status`` string heard (on the port's
+            thread).
+    """
+
+    def __init__(self, port: RosPort, on_status: Callable[[str], None] | None = None) -> None:
+        self.port = port
+        self._lock = threading.Condition()
+        self._diagnostics: RoverStatus | None = None
+        self._diag_count = 0
+        self._statuses: deque[tuple[int, str]] = deque(maxlen=200)
+        self._status_count = 0
+        self._on_status = on_status
+        self._diag_sub = port.subscribe(
+            DIAGNOSTICS, DiagnosticArray, self._on_diag, qos.DIAGNOSTICS
+        )
+        self._status_sub = port.subscribe(COMMAND_STATUS, String, self._on_text, qos.STATUS)
+        self._estop = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
+        self._clear = port.publisher(CLEAR_EMERGENCY_STOP, Empty, qos.STOP)
+
+    # -- what comes in ------------------------------------------------------------------
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        try:
+            status = from_diagnostics(msg)
+        except ValueError:
+            return  # another node's diagnostics on the same topic
+        with self._lock:
+            self._diagnostics = status
+            self._diag_count += 1
+            self._lock.notify_all()
+
+    def _on_text(self, msg: String) -> None:
+        with self._lock:
+            self._status_count += 1
+            self._statuses.append((self._status_count, msg.data))
+            self._lock.notify_all()
+        if self._on_status is not None:
+            self._on_status(msg.data)
+
+    @property
+    def heard(self) -> tuple[str, ...]:
+        """Every ``command_status`` heard so far (the last 200), oldest first."""
+        with self._lock:
+            return tuple(text for _, text in self._statuses)
+
+    def topic(self, name: str) -> str:
+        """The fully qualified name of one of the console's topics."""
+        return self.port.resolve(name)
+
+    def status(self, timeout_s: float, *, newer_than: int = 0) -> RoverStatus | None:
+        """The next ``/diagnostics`` of the bridge after the ``newer_than``-th, waiting
+        at most ``timeout_s``; ``None`` when none came."""
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while self._diag_count <= newer_than:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._lock.wait(left)
+            assert self._diagnostics is not None
+            return self._diagnostics
+
+    @property
+    def diagnostics_seen(self) -> int:
+        """How many of the bridge's ``/diagnostics`` came so far."""
+        with self._lock:
+            return self._diag_count
+
+    def _wait_status(
+        self, wanted: Callable[[str], bool], since: int, deadline: float
+    ) -> str | None:
+        """The first status after the ``since``-th that ``wanted`` accepts, until
+        ``deadline`` (monotonic)."""
+        with self._lock:
+            while True:
+                hit = next((s for i, s in self._statuses if i > since and wanted(s)), None)
+                if hit is not None:
+                    return hit
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._lock.wait(min(left, 0.1))
+
+    def wait_matched(self, timeout_s: float) -> bool:
+        """Wait until the publishers have a subscriber and the status subscription a
+        publisher (a relay or the bridge), each side as DDS sees it."""
+        deadline = time.monotonic() + timeout_s
+        return all(
+            endpoint(1, max(0.0, deadline - time.monotonic()))
+            for endpoint in (
+                self._estop.wait_for_subscribers,
+                self._clear.wait_for_subscribers,
+                self._status_sub.wait_for_publishers,
+            )
+        )
+
+    # -- what goes out --------------------------------------------------------------------
+    def stop(self, timeout_s: float) -> bool:
+        """Emergency stop: ``true`` on ``emergency_stop``, repeated every 0.5 s until the
+        bridge says ``stopped`` (the controller acknowledged it) or ``timeout_s`` passes.
+        Returns whether ``stopped`` came back."""
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            since = self._status_count
+        while True:
+            self._estop.publish(Bool(data=True))
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            hit = self._wait_status(
+                lambda s: s == STOPPED, since, time.monotonic() + min(left, _STOP_REPEAT_S)
+            )
+            if hit is not None:
+                return True
+
+    def clear_stop(self, timeout_s: float) -> ClearReport:
+        """Ask the bridge to release the controller's latch and say what became of it.
+
+        Waits for the bridge's state first (at most a third of ``timeout_s``), publishes
+        on ``clear_emergency_stop``, then waits for ``cleared`` or
+        ``fault:fault_persists`` until ``timeout_s`` has passed, and for the next
+        ``/diagnostics`` after the answer (briefly) to report the state after it.
+        """
+        start = time.monotonic()
+        deadline = start + timeout_s
+        before = self.status(timeout_s / 3.0)
+        with self._lock:
+            since, seen = self._status_count, self._diag_count
+        self._clear.publish(Empty())
+        answer = self._wait_status(lambda s: s in (CLEARED, _FAULT_PERSISTS), since, deadline)
+        after = self.status(max(0.0, min(deadline - time.monotonic(), 3.0)), newer_than=seen)
+        if answer == CLEARED:
+            latched = before is None or before.latched
+            outcome = ClearOutcome.RELEASED if latched else ClearOutcome.NOT_LATCHED
+            return ClearReport(outcome, before, after)
+        state = after or before
+        if answer == _FAULT_PERSISTS:
+            faults = ", ".join(state.stopping_faults) if state is not None else ""
+            why = (
+                f"fault condition {faults} is still active"
+                if faults
+                else "a stopping fault's condition is still active"
+            ) + "; the bridge sends the clear again once it is gone"
+            return ClearReport(ClearOutcome.FAULT_PERSISTS, before, after, why)
+        if state is None:
+            why = (
+                f"no answer on {self.topic(COMMAND_STATUS)} and no {self.topic(DIAGNOSTICS)} "
+                f"within {timeout_s:g} s: is a bridge running (and the link relaying) on this "
+                "ROS domain?"
+            )
+        elif state.link_state != "ready":
+            why = state.why_held()[0]
+        else:
+            why = f"no answer on {self.topic(COMMAND_STATUS)} within {timeout_s:g} s"
+        return ClearReport(ClearOutcome.NO_ANSWER, before, after, why)
+
+    def close(self) -> None:
+        """Close the console's endpoints (idempotent; the port stays open)."""
+        for endpoint in (self._diag_sub, self._status_sub, self._estop, self._clear):
+            endpoint.close()
+
+    def __enter__(self) -> RoverConsole:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

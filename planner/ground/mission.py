@@ -1,0 +1,411 @@
+"""Missions: plan, validate, execute leg by leg, and re-plan after a drift STOP; and the
+move-and-wait operator the thesis compares against.
+
+:class:`MissionRunner` is what ``rover go`` and ``rover demo`` run: the orchestrator
+plans and validates the whole mission on the gate (repairing rejected plans), the
+executor drives each approved leg against its prediction, and when drift control stops
+the rover the runner (if allowed) waits for it to come to rest, re-plans from where it
+settled and releases the STOP latch only once the new plan is approved: the thesis's
+future-work item 3, kept simple. A re-plan that fails leaves the rover latched.
+
+:class:`MoveAndWait` is the baseline of the thesis's comparison: no gate and no twin.
+The operator sends one short command, waits for its confirmation through the whole round
+trip, looks at the delayed picture (``decision_s``), and sends the next. Lacking a
+prediction to trust, drives are cut into increments the operator can check
+(``increment_m``). It drives the same route as the gated mission, so the comparison
+measures the cost of moving and waiting, not of getting lost.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from bridge.ros.rosport.contract import COMPLETED
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.model.plan import Plan, PlanStep
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.verdict import Verdict
+from firmware_proto.wire.messages import Command
+from planner.errors import PlannerError
+from planner.ground.drift import DriftEvent
+from planner.ground.executor import ExecutionResult, PlanExecutor, Progress
+from planner.plan.orchestrator import MissionResult, PlannerOrchestrator
+
+__all__ = [
+    "CANCELLED",
+    "LegRun",
+    "MissionReport",
+    "MissionRunner",
+    "MoveAndWait",
+    "split_for_move_and_wait",
+]
+
+logger = logging.getLogger(__name__)
+
+CANCELLED = "cancelled by the operator"
+"""The reason of a mission the operator cancelled."""
+
+
+@dataclass(frozen=True)
+class LegRun:
+    """One executed plan: the plan, its verdict (``None`` without a gate) and the result."""
+
+    plan: Plan
+    verdict: Verdict | None
+    execution: ExecutionResult
+
+
+@dataclass(frozen=True)
+class MissionReport:
+    """How a mission went.
+
+    Attributes:
+        goal, start: the mission's goal and where it started.
+        plannings: each :class:`MissionResult` (the first, then one per re-plan).
+        runs: each executed plan, in order.
+        reached: every leg completed.
+        reason: why it stopped short (``""`` when reached).
+        final_pose: the rover's last reported pose.
+        position_error_m, yaw_error_deg: final pose against the goal.
+        elapsed_s: wall time from the first plan to the end.
+        planning_s: wall time spent planning and validating.
+        cancelled: the operator cancelled the mission (the rover was sent STOP).
+    """
+
+    goal: Pose
+    start: Pose
+    plannings: tuple[MissionResult, ...]
+    runs: tuple[LegRun, ...]
+    reached: bool
+    reason: str
+    final_pose: Pose | None
+    position_error_m: float | None
+    yaw_error_deg: float | None
+    elapsed_s: float
+    planning_s: float
+    cancelled: bool = False
+
+    @property
+    def drift_events(self) -> tuple[DriftEvent, ...]:
+        """Every drift STOP, in order."""
+        return tuple(r.execution.drift for r in self.runs if r.execution.drift is not None)
+
+    @property
+    def repair_cycles(self) -> int:
+        """Repairs the orchestrator made over every planning."""
+        return sum(p.repair_cycles for p in self.plannings)
+
+    @property
+    def steps_executed(self) -> int:
+        """Steps published over the whole mission."""
+        return sum(len(r.execution.steps) for r in self.runs)
+
+    def summary(self, time_scale: float = 1.0) -> str:
+        """A few lines for the operator (times in mission seconds: wall x ``time_scale``)."""
+        lines = [
+            f"mission to ({self.goal.x:.2f}, {self.goal.y:.2f}, {self.goal.yaw_deg:.0f} deg): "
+            + ("REACHED" if self.reached else f"NOT REACHED ({self.reason})")
+        ]
+        for i, planning in enumerate(self.plannings):
+            what = "plan" if i == 0 else f"re-plan {i}"
+            tried = len(planning.attempts)
+            verdict = "approved" if planning.approved else planning.reason
+            lines.append(
+                f"  {what}: {len(planning.legs)} leg(s), {tried} attempt(s), "
+                f"{planning.repair_cycles} repair(s); {verdict}"
+            )
+            for attempt in planning.attempts:
+                # The repair named is the one that produced this attempt's plan.
+                lines.append(
+                    f"    attempt {attempt.index + 1} ({attempt.repair_name}): "
+                    f"{attempt.verdict.summary()}"
+                )
+        for i, run in enumerate(self.runs):
+            ex = run.execution
+            worst_m, worst_deg = ex.worst_drift
+            took = ex.elapsed_s * time_scale
+            done = sum(1 for s in ex.steps if s.status == COMPLETED)
+            lines.append(
+                f"  run {i + 1}: {done}/{len(run.plan.commands)} steps completed, {ex.outcome}"
+                f" in {took:.1f} s; worst drift {worst_m:.3f} m, {worst_deg:.1f} deg"
+            )
+            if ex.drift is not None:
+                latency = (
+                    f"{ex.stop_latency_s * 1e3:.3f} ms" if ex.stop_latency_s is not None else "n/a"
+                )
+                lines.append(f"    drift STOP: {ex.drift.reason}; detection to STOP {latency}")
+            elif not ex.completed:
+                lines.append(f"    {ex.outcome}: {ex.reason}")
+            lines.extend(f"    note: {note}" for note in ex.notes)
+        if self.final_pose is not None:
+            lines.append(
+                f"  final pose ({self.final_pose.x:.3f}, {self.final_pose.y:.3f}, "
+                f"{self.final_pose.yaw_deg:.1f} deg): {self.position_error_m:.3f} m and "
+                f"{self.yaw_error_deg:.1f} deg from the goal"
+            )
+        total = self.elapsed_s * time_scale
+        lines.append(f"  time: {total:.1f} s, of which planning {self.planning_s:.2f} s (wall)")
+        return "\n".join(lines)
+
+
+@dataclass
+class MissionRunner:
+    """Runs missions: see the module docstring.
+
+    Attributes:
+        orchestrator: plans and validates (its gate client and map).
+        executor: drives plans over ROS.
+        replans: drift STOPs after which the runner re-plans (0: stop there).
+        on_progress: called with the executor's progress (see
+            :class:`~planner.ground.executor.Progress`: during steps and when each ends).
+        on_drift: called after a drift STOP, before the rover is re-planned for and its
+            latch released (the demo uses it to take the rover out of the sand; an
+            operator would look first).
+        on_event: called with one line for each notable event.
+        on_planned: called with each planning (the first, then each re-plan) as soon as
+            the gate has judged it, approved or not (a recorder, the live view).
+        cancel: set it (from a signal handler, another thread) to end the mission: the
+            running plan is stopped (STOP) and nothing more is planned or sent.
+    """
+
+    orchestrator: PlannerOrchestrator
+    executor: PlanExecutor
+    replans: int = 1
+    on_progress: Callable[[Progress], None] | None = None
+    on_drift: Callable[[ExecutionResult], None] | None = None
+    on_event: Callable[[str], None] = field(default=lambda line: None)
+    cancel: threading.Event | None = None
+    on_planned: Callable[[MissionResult], None] | None = None
+
+    def run(self, goal: Pose, *, start: Pose | None = None) -> MissionReport:
+        """Plan and drive to ``goal`` from ``start`` (default: the map's start).
+
+        After a drift STOP (at most ``replans`` times): ``on_drift``, wait for the rover
+        to come to rest, re-plan from where it settled, and only when the gate approved
+        the new mission release the latch (CLEAR_STOP) and drive on. If the rover does
+        not report rest, or the re-plan is not approved or fails (the gate down), the
+        mission ends there with the rover still latched, and the reason says so.
+
+        Raises:
+            InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal or start.
+            GateCallError: the gate failed on the first planning (nothing was sent to
+                the rover).
+        """
+        t0 = time.monotonic()
+        start = start or self.orchestrator.world.start
+        plannings: list[MissionResult] = []
+        runs: list[LegRun] = []
+        planning_s = 0.0
+        replans = self.replans
+        where = start
+        latched = False  # by a drift STOP this runner means to recover from
+
+        def end(reason: str, *, reached: bool = False, cancelled: bool = False) -> MissionReport:
+            if latched:
+                reason += "; the rover stays stopped (STOP latched)"
+            return self._report(
+                goal, start, plannings, runs, reached, reason, t0, planning_s, cancelled
+            )
+
+        while True:
+            if self._cancelled():
+                return end(CANCELLED, cancelled=True)
+            tp = time.monotonic()
+            try:
+                mission = self.orchestrator.plan_mission(goal, start=where)
+            except PlannerError as exc:
+                if not latched:
+                    raise
+                planning_s += time.monotonic() - tp
+                self.on_event(f"re-planning failed: {exc}")
+                return end(f"re-planning failed: {exc}")
+            planning_s += time.monotonic() - tp
+            plannings.append(mission)
+            if self.on_planned is not None:
+                self.on_planned(mission)
+            outcome = "approved" if mission.approved else "REJECTED"
+            self.on_event(
+                f"planned: {len(mission.legs)} leg(s), {len(mission.attempts)} attempt(s), "
+                f"{mission.repair_cycles} repair(s), {outcome}"
+            )
+            if not mission.approved:
+                what = "re-plan not approved" if latched else "not approved"
+                return end(f"{what}: {mission.reason}" if mission.reason else what)
+            if self._cancelled():
+                return end(CANCELLED, cancelled=True)
+            if latched:
+                if not self.executor.clear_stop():
+                    return end("the rover did not confirm CLEAR_STOP")
+                latched = False
+                self.on_event("re-plan approved: STOP latch released")
+            replanned = False
+            for plan, verdict in zip(mission.plans, mission.verdicts, strict=True):
+                result = self.executor.execute(
+                    plan, verdict, on_progress=self.on_progress, cancel=self.cancel
+                )
+                runs.append(LegRun(plan, verdict, result))
+                if result.completed:
+                    continue
+                self.on_event(f"execution ended: {result.outcome}: {result.reason}")
+                if result.outcome == "cancelled":
+                    return end(CANCELLED, cancelled=True)
+                if result.outcome == "drift" and replans > 0 and result.reported_pose is not None:
+                    replans -= 1
+                    latched = True
+                    if self.on_drift is not None:
+                        self.on_drift(result)
+                    # The STOP took half a round trip to reach the rover, which braked
+                    # after that: re-plan from where it came to rest, not from where it
+                    # was when the drift was seen.
+                    if not self.executor.wait_for_rest():
+                        return end("the rover did not report coming to rest after the drift STOP")
+                    where = self.executor.settled_pose() or result.reported_pose
+                    self.on_event(
+                        f"at rest; re-planning from the reported pose ({where.x:.2f}, "
+                        f"{where.y:.2f}, {where.yaw_deg:.0f} deg), STOP still latched"
+                    )
+                    replanned = True
+                    break
+                return end(result.reason)
+            if not replanned:
+                return end("", reached=True)
+
+    def _cancelled(self) -> bool:
+        return self.cancel is not None and self.cancel.is_set()
+
+    def _report(
+        self,
+        goal: Pose,
+        start: Pose,
+        plannings: list[MissionResult],
+        runs: list[LegRun],
+        reached: bool,
+        reason: str,
+        t0: float,
+        planning_s: float,
+        cancelled: bool = False,
+    ) -> MissionReport:
+        final = self.executor.settled_pose()
+        return _report(
+            goal,
+            start,
+            plannings,
+            runs,
+            reached,
+            reason,
+            final,
+            time.monotonic() - t0,
+            planning_s,
+            cancelled,
+        )
+
+
+def _report(
+    goal: Pose,
+    start: Pose,
+    plannings: list[MissionResult],
+    runs: list[LegRun],
+    reached: bool,
+    reason: str,
+    final: Pose | None,
+    elapsed_s: float,
+    planning_s: float,
+    cancelled: bool = False,
+) -> MissionReport:
+    err = yaw_err = None
+    if final is not None:
+        err = math.hypot(final.x - goal.x, final.y - goal.y)
+        yaw_err = abs(wrap_deg(final.yaw_deg - goal.yaw_deg))
+    return MissionReport(
+        goal,
+        start,
+        tuple(plannings),
+        tuple(runs),
+        reached,
+        reason,
+        final,
+        err,
+        yaw_err,
+        elapsed_s,
+        planning_s,
+        cancelled,
+    )
+
+
+def split_for_move_and_wait(plan: Plan, increment_units: int) -> list[PlanStep]:
+    """The plan's steps with every drive cut into increments of at most
+    ``increment_units`` (turns unchanged)."""
+    steps: list[PlanStep] = []
+    for step in plan.commands:
+        if step.code in (Command.FWD, Command.REV) and step.distance > increment_units:
+            left = step.distance
+            while left > 0:
+                part = min(increment_units, left)
+                steps.append(PlanStep(step.command, step.speed, part))
+                left -= part
+        else:
+            steps.append(step)
+    return steps
+
+
+@dataclass
+class MoveAndWait:
+    """The move-and-wait operator (see the module docstring).
+
+    Attributes:
+        executor: sends each command and waits for its confirmation (drift control off:
+            there is no prediction to compare with).
+        increment_m: longest drive the operator sends without looking, m.
+        decision_s: the operator's time to look at the delayed picture and decide, per
+            command, in mission (twin) seconds.
+        time_scale: twin seconds per wall second (the benchmark runs sped up).
+        on_progress: called with the executor's progress.
+        cancel: set it to end the drive (STOP is sent).
+    """
+
+    executor: PlanExecutor
+    increment_m: float = 0.5
+    decision_s: float = 2.0
+    time_scale: float = 1.0
+    on_progress: Callable[[Progress], None] | None = None
+    cancel: threading.Event | None = None
+
+    def drive(self, goal: Pose, start: Pose, plans: tuple[Plan, ...]) -> MissionReport:
+        """Drive ``plans`` (the same route as the gated mission) one confirmed command at a
+        time."""
+        t0 = time.monotonic()
+        units = self.executor.rover.m_to_units(self.increment_m)
+        runs: list[LegRun] = []
+        cancel = self.cancel or threading.Event()
+
+        def end(reached: bool, reason: str) -> MissionReport:
+            return _report(
+                goal,
+                start,
+                [],
+                runs,
+                reached,
+                reason,
+                self.executor.settled_pose(),
+                time.monotonic() - t0,
+                0.0,
+                reason == CANCELLED,
+            )
+
+        for plan in plans:
+            for step in split_for_move_and_wait(plan, units):
+                single = Plan(plan.goal, (step,))
+                result = self.executor.execute(
+                    single, None, on_progress=self.on_progress, cancel=cancel
+                )
+                runs.append(LegRun(single, None, result))
+                if not result.completed:
+                    return end(False, CANCELLED if result.outcome == "cancelled" else result.reason)
+                if cancel.wait(self.decision_s / self.time_scale):
+                    return end(False, CANCELLED)
+        return end(True, "")

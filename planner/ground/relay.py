@@ -1,0 +1,230 @@
+"""Link emulation: a relay between the ground's topics and the rover's, with the
+Earth-Moon link's delay, jitter and loss (the thesis's latency injection).
+
+:class:`LinkRelay` subscribes to each route's topic on one side and republishes every
+message on the other after ``one_way_delay_s`` plus jitter, unless the loss draw drops
+it. Routes (relative names, so each side's namespace applies):
+
+- ground -> rover: ``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``
+- rover -> ground: ``command_status``, ``odom``, ``odom_ground``, ``diagnostics``
+
+Messages on one topic keep their order (a space link is a stream; jitter stretches
+gaps, it never reorders). Each route draws delay and loss from its own generator seeded
+from ``seed`` and the topic name, so a run is reproducible whatever the interleaving of
+topics. One scheduler thread releases messages when due; ``close()`` drops what is in
+flight (the link went down) and joins it.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import random
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+from bridge.ros.rosport import DEFAULT_LANE, STOP_LANE, Publisher, Qos, RosPort, Subscription, qos
+from bridge.ros.rosport.contract import (
+    CLEAR_EMERGENCY_STOP,
+    COMMAND_STATUS,
+    EMERGENCY_STOP,
+    WHEEL_INSTRUCTIONS,
+)
+from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
+
+__all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "Route"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LinkProfile:
+    """The link: one-way delay and jitter (wall seconds), loss ratio, seed.
+
+    A 3 s round trip is ``one_way_delay_s = 1.5``. Jitter is uniform in
+    ``[0, jitter_s]`` added to the delay.
+    """
+
+    one_way_delay_s: float = 1.5
+    jitter_s: float = 0.0
+    loss: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.one_way_delay_s <= 600.0 and 0.0 <= self.jitter_s <= 600.0):
+            raise ValueError("delay and jitter must be in 0..600 s")
+        if not 0.0 <= self.loss < 1.0:
+            raise ValueError("loss must be in [0, 1)")
+
+    @property
+    def rtt_s(self) -> float:
+        """Nominal round trip (no jitter), s."""
+        return 2.0 * self.one_way_delay_s
+
+
+@dataclass(frozen=True)
+class Route:
+    """One relayed topic: name (relative), message type, direction, QoS (republished
+    with ``qos``, taken with ``subscribe_qos`` when given, else ``qos``) and the lane its
+    subscription delivers on (:data:`~bridge.ros.rosport.STOP_LANE` for the emergency stop,
+    so it never waits behind another topic's callback)."""
+
+    topic: str
+    msg_type: type[Any]
+    uplink: bool  # ground -> rover
+    qos: Qos = qos.DEFAULT
+    subscribe_qos: Qos | None = None
+    lane: str = DEFAULT_LANE
+
+
+DEFAULT_ROUTES: tuple[Route, ...] = (
+    Route(WHEEL_INSTRUCTIONS, Int16MultiArray, True, qos.COMMAND),
+    Route(EMERGENCY_STOP, Bool, True, qos.STOP, lane=STOP_LANE),
+    Route(CLEAR_EMERGENCY_STOP, Empty, True, qos.STOP, lane=STOP_LANE),
+    Route(COMMAND_STATUS, String, False, qos.STATUS),
+    Route("odom", Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    Route("odom_ground", Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    Route("diagnostics", DiagnosticArray, False, qos.DIAGNOSTICS),
+)
+
+
+class LinkRelay:
+    """Relays :data:`DEFAULT_ROUTES` between a ground port and a rover port."""
+
+    def __init__(
+        self,
+        ground: RosPort,
+        rover: RosPort,
+        profile: LinkProfile | None = None,
+        routes: tuple[Route, ...] = DEFAULT_ROUTES,
+    ) -> None:
+        """Args:
+        ground: the operator side's port (its namespace applies to ground topics).
+        rover: the rover side's port.
+        profile: delay, jitter, loss, seed.
+        routes: the topics to relay.
+        """
+        self.profile = profile or LinkProfile()
+        self.received = 0
+        """Messages taken from either side so far (relayed, queued or dropped)."""
+        self.forwarded: Counter[str] = Counter()
+        self.dropped: Counter[str] = Counter()
+        self._heap: list[tuple[float, int, Publisher[Any], Any, str]] = []
+        self._order = itertools.count()
+        self._cond = threading.Condition()
+        self._closed = False
+        self._last_due: dict[str, float] = {}
+        self._subs: list[Subscription[Any]] = []
+        self._publishers: list[Publisher[Any]] = []
+        for route in routes:
+            src, dst = (ground, rover) if route.uplink else (rover, ground)
+            publisher = dst.publisher(route.topic, route.msg_type, route.qos)
+            self._publishers.append(publisher)
+            rng = random.Random(f"{self.profile.seed}:{route.topic}:{route.uplink}")
+            self._subs.append(
+                src.subscribe(
+                    route.topic,
+                    route.msg_type,
+                    self._make_forward(route, publisher, rng),
+                    route.subscribe_qos or route.qos,
+                    lane=route.lane,
+                )
+            )
+        self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
+        self._thread.start()
+
+    def _make_forward(self, route: Route, publisher: Publisher[Any], rng: random.Random) -> Any:
+        key = f"{'up' if route.uplink else 'down'}:{route.topic}"
+        profile = self.profile
+
+        def forward(msg: Any) -> None:
+            self.received += 1
+            if profile.loss and rng.random() < profile.loss:
+                self.dropped[key] += 1
+                return
+            delay = profile.one_way_delay_s + (
+                rng.uniform(0.0, profile.jitter_s) if profile.jitter_s else 0.0
+            )
+            with self._cond:
+                if self._closed:
+                    return
+                due = max(time.monotonic() + delay, self._last_due.get(key, 0.0))  # no reordering
+                self._last_due[key] = due
+                heapq.heappush(self._heap, (due, next(self._order), publisher, msg, key))
+                self._cond.notify()
+
+        return forward
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._closed and (not self._heap or self._heap[0][0] > time.monotonic()):
+                    timeout = self._heap[0][0] - time.monotonic() if self._heap else None
+                    self._cond.wait(timeout)
+                if self._closed:
+                    return
+                _, _, publisher, msg, key = heapq.heappop(self._heap)
+            try:
+                publisher.publish(msg)
+                self.forwarded[key] += 1
+            except Exception:
+                logger.exception("relay could not forward %s", key)
+
+    def wait_until_matched(self, timeout_s: float = 10.0, topics: set[str] | None = None) -> bool:
+        """Wait until each route (of ``topics``, default all) is matched both ways on both
+        sides: its subscription hears at least one publisher, and its republisher reaches
+        at least one subscription, each seen from its own end (over DDS each end discovers
+        the other on its own, and a sample sent before both did is lost).
+
+        Returns:
+            True when all matched, False when ``timeout_s`` passed first.
+        """
+        deadline = time.monotonic() + timeout_s
+
+        def wanted(topic: str) -> bool:
+            return topics is None or topic.rsplit("/", 1)[-1] in topics
+
+        for sub in self._subs:
+            if wanted(sub.topic) and not sub.wait_for_publishers(
+                1, max(0.0, deadline - time.monotonic())
+            ):
+                return False
+        for pub in self._publishers:
+            if wanted(pub.topic) and not pub.wait_for_subscribers(
+                1, max(0.0, deadline - time.monotonic())
+            ):
+                return False
+        return True
+
+    @property
+    def in_flight(self) -> int:
+        """Messages waiting for their delay to pass."""
+        with self._cond:
+            return len(self._heap)
+
+    def close(self) -> None:
+        """Stop relaying; messages in flight are lost (idempotent)."""
+        for sub in self._subs:
+            sub.close()
+        with self._cond:
+            self._closed = True
+            self._heap.clear()
+            self._cond.notify_all()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> LinkRelay:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

@@ -1,0 +1,3 @@
+"""Recordings: MCAP missions, markers, the live Foxglove connection and the
+mission picture (docs/view.md).
+"""

@@ -1,0 +1,338 @@
+"""``rover stack up``: the gate, the emulator (or a real device), the bridge and the link
+relay as child processes that stay up, so that ``rover go`` runs mission after mission
+against them; ``rover stack env`` and ``rover stack inject`` for the running stack.
+
+Each stack runs on a ROS 2 domain of its own (:mod:`planner.stack.domains`) with discovery
+kept on this host; it prints the ``export`` line that points ``rover go``, ``rover
+status``, ``rover stop``, ``rover clear-stop`` and ``rover echo`` at it
+(:mod:`planner.stack.stackenv`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from firmware_proto.cli import values
+from planner.stack.stackenv import add_domain_argument
+
+__all__ = ["register"]
+
+_UP_DESCRIPTION = (
+    "Start the simulation gate, the motor-controller emulator on a pty (or, with --device, "
+    "a real controller's serial device instead), the rover-side ROS 2 bridge and the "
+    "Earth-Moon link relay as child processes; wait until the rover's state comes back "
+    "through the link; print the health and the endpoints, and the export line that "
+    "points rover go / status / stop / clear-stop / echo at this stack; then stay up until "
+    "Ctrl-C or SIGTERM (or --duration), and end every child. Each stack gets a ROS 2 domain "
+    "of its own (the first free of 101..232 unless --domain), with discovery kept on this "
+    "host, so two stacks on one machine never hear each other. A child that exits ends "
+    "the stack. Exit status: 0 stopped by Ctrl-C, SIGTERM or --duration; 1 a part did not "
+    "come up or exited, or the domain is taken; 2 usage."
+)
+
+
+def register(subparsers: Any) -> None:
+    """Add ``rover stack`` with ``up``, ``env`` and ``inject``."""
+    stack = subparsers.add_parser(
+        "stack",
+        help="a whole stack that stays up (gate, emulator or device, bridge, link)",
+        description="A whole HIL stack that stays up: rover stack up; then rover go, "
+        "rover status, ... against it (docs/commands.md: 'Missions against a stack').",
+    )
+    sub = stack.add_subparsers(dest="stack_command", metavar="ACTION")
+    sub.required = True
+    up = sub.add_parser(
+        "up",
+        help="start the stack and keep it up until Ctrl-C",
+        description=_UP_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=(
+            "examples:\n"
+            "  rover stack up                                   # lab map, emulator, 3 s link\n"
+            "  rover stack up --map scn02 --firmware c --rtt 1\n"
+            "  rover stack up --device /dev/rover-motor --baud 1000000\n"
+            "then, in another shell:\n"
+            '  eval "$(rover stack env)"\n'
+            "  rover go --goal behind_table && rover status"
+        ),
+    )
+    up.add_argument("--map", default="lab", help="map name or JSON file (default lab)")
+    up.add_argument(
+        "--firmware",
+        choices=("python", "c"),
+        default="python",
+        help="the emulator's controller: the Python model or the C firmware core",
+    )
+    up.add_argument(
+        "--device",
+        metavar="URL",
+        help="a real controller's serial device or pyserial URL: no emulator is started",
+    )
+    up.add_argument("--baud", type=values.baud, help="with --device: its baud rate")
+    up.add_argument(
+        "--rtt", type=values.non_negative, default=3.0, help="link round trip, s (default 3)"
+    )
+    up.add_argument(
+        "--speed",
+        type=values.positive,
+        default=1.0,
+        help="mission seconds per wall second: emulator and link this much faster (default 1)",
+    )
+    up.add_argument("--seed", type=int, default=1, help="seed of the emulator and the link")
+    up.add_argument(
+        "--gate-port",
+        type=values.tcp_port,
+        default=0,
+        metavar="PORT",
+        help="the gate's port on 127.0.0.1 (default: a free one)",
+    )
+    up.add_argument(
+        "--inject",
+        action="append",
+        default=[],
+        metavar="FAULT",
+        help="schedule a fault on the emulator (rover emulate --inject; repeatable)",
+    )
+    add_domain_argument(up)
+    up.add_argument(
+        "--duration",
+        type=values.non_negative,
+        default=0.0,
+        metavar="S",
+        help="stop after S s (wall); 0 (default) runs until Ctrl-C",
+    )
+    up.add_argument(
+        "--startup-timeout",
+        type=values.positive,
+        default=60.0,
+        metavar="S",
+        help="how long each part may take to come up, and the rover to report (default 60)",
+    )
+    up.set_defaults(func=_up)
+
+    env = sub.add_parser(
+        "env",
+        help="print the export line of a running stack",
+        description=(
+            "Print the export line of the stack running on this machine (of --domain when "
+            'several are): eval "$(rover stack env)" points rover go, rover status, ... at '
+            "it. Exit status 0, 1 when no stack (or more than one, without --domain) runs."
+        ),
+    )
+    add_domain_argument(env)
+    env.set_defaults(func=_env)
+
+    inject = sub.add_parser(
+        "inject",
+        help="inject a fault into the stack's emulator",
+        description=(
+            "Send 'inject FAULT' to the emulator's control interface of the stack "
+            "($ROVER_STACK_CONTROL, else the running stack's): a stall, slip, a reboot, ... "
+            "(rover emulate --help lists them). Exit status 0 applied or scheduled, 1 "
+            "refused or no stack."
+        ),
+    )
+    inject.add_argument("fault", help="e.g. stall:left, slip:right=0.2, reboot, clear:stall:left")
+    add_domain_argument(inject)
+    inject.set_defaults(func=_inject)
+
+
+# -- rover stack up -------------------------------------------------------------------------
+def _say(line: str) -> None:
+    print(line, flush=True)
+
+
+def _health(console: Any, timeout_s: float) -> Any:
+    """The first state heard through the link in which the rover takes steps, else the
+    last one heard (``None``: none at all) within ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    last = None
+    seen = 0
+    while time.monotonic() < deadline:
+        status = console.status(max(0.0, deadline - time.monotonic()), newer_than=seen)
+        if status is None:
+            break
+        seen = console.diagnostics_seen
+        last = status
+        if status.ready:
+            break
+    return last
+
+
+def _up(args: argparse.Namespace) -> int:
+    from bridge.ros.rosport import open_port
+    from firmware_proto.runtime import ShutdownSignals
+    from planner.ground.console import RoverConsole
+    from planner.stack.domains import claim
+    from planner.stack.processes import Stack, StackConfig
+    from planner.stack.stackenv import export_line, stack_environment
+
+    config = StackConfig(
+        map_name=args.map,
+        firmware=args.firmware,
+        device=args.device,
+        baud=args.baud,
+        rtt_s=args.rtt,
+        speed=args.speed,
+        seed=args.seed,
+        gate_port=args.gate_port,
+        startup_timeout_s=args.startup_timeout,
+        inject=tuple(args.inject),
+    )
+    up = threading.Event()
+    # While the stack starts, a signal ends the start-up at once (KeyboardInterrupt).
+    with ShutdownSignals(interrupt=True) as done, claim(args.domain) as held:
+        domain = held.domain
+        os.environ.update({"ROS_DOMAIN_ID": str(domain)})
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        _say(f"rover stack: ROS 2 domain {domain}, discovery on this host; starting the parts")
+
+        def forward(name: str, line: str) -> None:
+            if up.is_set() or name == "bridge":
+                _say(f"[{name}] {line}")
+
+        logs = Path(tempfile.mkdtemp(prefix="rover-stack-logs-"))
+        _say(f"rover stack: each part's log and the stall log in {logs}")
+        with Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack:
+            try:
+                endpoints = stack.start()
+            except KeyboardInterrupt:
+                _say("rover stack: interrupted while starting; stopping what started")
+                return 0
+            variables = stack_environment(
+                domain,
+                endpoints.gate_url,
+                endpoints.control,
+                config.rtt_s,
+                config.speed,
+                logs / "stalls.jsonl",
+            )
+            held.publish({"env": variables, "device": endpoints.device})
+            _say(f"GATE {endpoints.gate_url}")
+            if endpoints.control:
+                _say(f"CONTROL {endpoints.control} (the emulator: rover stack inject FAULT)")
+            _say(f"DEVICE {endpoints.device}")
+            wait_s = config.startup_timeout_s + config.rtt_s / config.speed
+            with (
+                open_port("rclpy", namespace="ground", node_name="rover_stack") as port,
+                RoverConsole(port) as console,
+            ):
+                health = _health(console, wait_s)
+            if health is None:
+                failed = stack.failed()
+                why = (
+                    f"the {failed.name} exited: {failed.stderr_tail()}"
+                    if failed is not None
+                    else "no /ground/diagnostics through the link"
+                )
+                print(
+                    f"rover stack: error: the rover's state never came back within "
+                    f"{wait_s:g} s ({why})",
+                    file=sys.stderr,
+                )
+                return 1
+            for line in health.text(f"domain {domain}, through the link").splitlines():
+                _say("health: " + line.strip())
+            _say(f"STACK UP domain {domain}")
+            _say("point rover go / status / stop / clear-stop / echo at it, in any shell:")
+            _say("  " + export_line(variables))
+            _say('  (or: eval "$(rover stack env)")')
+            _say("Ctrl-C stops the stack")
+            up.set()
+            done.interrupt = False
+            end = time.monotonic() + args.duration if args.duration > 0 else None
+            status = 0
+            while not done.received:
+                if end is not None and time.monotonic() >= end:
+                    break
+                failed = stack.failed()
+                if failed is not None:
+                    print(
+                        f"rover stack: error: the {failed.name} exited with status "
+                        f"{failed.exit_status}: {failed.stderr_tail() or 'no message'}; "
+                        "stopping the stack",
+                        file=sys.stderr,
+                    )
+                    status = 1
+                    break
+                done.wait(0.5)
+            _say("rover stack: stopping the link, the bridge, the emulator and the gate")
+        _say("rover stack: down")
+        return status
+
+
+# -- rover stack env / inject -------------------------------------------------------------
+def _one_stack(args: argparse.Namespace, prog: str) -> dict[str, Any] | None:
+    from planner.stack.domains import running
+
+    stacks = running()
+    if args.domain is not None:
+        stacks = [s for s in stacks if str(s["domain"]) == str(args.domain)]
+    if len(stacks) == 1:
+        return stacks[0]
+    if not stacks:
+        where = f" on ROS domain {args.domain}" if args.domain is not None else ""
+        print(
+            f"{prog}: error: no rover stack runs{where} (start one: rover stack up)",
+            file=sys.stderr,
+        )
+    else:
+        domains = ", ".join(str(s["domain"]) for s in stacks)
+        print(
+            f"{prog}: error: {len(stacks)} stacks run (domains {domains}): give --domain N",
+            file=sys.stderr,
+        )
+    return None
+
+
+def _env(args: argparse.Namespace) -> int:
+    from planner.stack.stackenv import export_line
+
+    stack = _one_stack(args, "rover stack env")
+    if stack is None:
+        return 1
+    print(export_line(stack["env"]))
+    return 0
+
+
+def _inject(args: argparse.Namespace) -> int:
+    from planner.stack.stackenv import CONTROL_ENV
+
+    control = os.environ.get(CONTROL_ENV, "") if args.domain is None else ""
+    if not control:
+        stack = _one_stack(args, "rover stack inject")
+        if stack is None:
+            return 1
+        control = str(stack["env"].get(CONTROL_ENV, ""))
+        if not control:
+            print(
+                "rover stack inject: error: this stack drives a real device: no emulator",
+                file=sys.stderr,
+            )
+            return 1
+    host, port = values.check(values.host_port, control, CONTROL_ENV)
+    try:
+        with socket.create_connection((host, port), timeout=5) as sock:
+            sock.sendall(f"inject {args.fault}\n".encode())
+            answer = json.loads(sock.makefile().readline() or "{}")
+    except (OSError, ValueError) as exc:
+        print(
+            f"rover stack inject: error: the emulator at {control} does not answer: {exc}",
+            file=sys.stderr,
+        )
+        return 1
+    if not answer.get("ok"):
+        print(f"rover stack inject: error: {answer.get('error', answer)}", file=sys.stderr)
+        return 1
+    when = answer.get("fires") or "now"
+    print(f"injected {answer.get('fault', args.fault)} ({when})")
+    return 0

@@ -1,0 +1,520 @@
+"""The end-to-end demo: every part of the stack, on one machine, driving a mission.
+
+:class:`Demo` starts the parts as the launch file's HIL set does, each its own process
+(:class:`planner.stack.processes.Stack`, as ``rover stack up`` does):
+the gate (``rover gate``), the motor-controller emulator on a pty with the lab map
+(``rover emulate``), the rover-side bridge on that pty (``rover bridge``) and the
+Earth-Moon link relay (``rover link``, 3 s round trip). ROS topics travel over real
+ROS 2 (rclpy, the middleware it prints), with discovery kept on this host
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), so nothing leaves the machine. The
+ground station (planner, orchestrator, executor with drift control) runs in this
+process.
+
+The mission: from the lab's start pose to the goal straight behind the table. The direct
+plan collides with the table; the orchestrator repairs it into a detour; the rover
+drives it. Slip is injected on one leg (one side's traction drops) when a chosen step is
+done; drift control sees the rover leave the predicted trajectory and stops it. The
+operator re-plans from the rover's reported pose (the slip is cleared first: out of the
+sand), and the rover finishes. The demo prints a summary and writes a picture of the
+predicted against the actual trajectory.
+
+:meth:`Demo.cancel` (``rover demo`` calls it on SIGINT or SIGTERM) ends the mission
+through the executor's cancel path: the rover is sent STOP and the summary says
+``cancelled``. Before the mission runs there is nothing to stop; the caller then
+interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import os
+import socket
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from bridge.ros.rosport import DEFAULT_BACKEND, RosPort, open_port
+from bridge.ros.rosport.contract import COMPLETED
+from bridge.ros.rosport.msgs import DiagnosticArray
+from bridge.ros.rosport.qos import DIAGNOSTICS
+from bridge.ros.rosport.rclpy_backend import middleware
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.worldmap import WorldMap
+from firmware_proto.runtime.stall import STALL_LOG_ENV
+from planner.ground.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+from planner.ground.mission import MissionReport, MissionRunner
+from planner.plan.gate_client import GateClient, GateOptions
+from planner.plan.orchestrator import MissionResult, PlannerOrchestrator
+from planner.plan.planner import HeuristicLowLevelPlanner
+from planner.record.foxlive import FoxgloveLive
+from planner.record.mcaprec import McapRecorder
+from planner.record.picture import picture_of, save
+from planner.stack.domains import claim
+from planner.stack.processes import Stack, StackConfig
+from planner.stack.stackenv import DOMAIN_ENV
+from planner.view.live import LiveView
+from planner.view.server import ViewConfig
+
+__all__ = ["LOCALHOST_ENV", "Demo", "DemoConfig", "DemoResult", "LinkTiming"]
+
+logger = logging.getLogger(__name__)
+
+LOCALHOST_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+"""ROS 2 Jazzy's discovery range variable; the demo sets it to ``LOCALHOST``."""
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """What the demo runs.
+
+    Attributes:
+        rtt_s: the link's round trip, s of mission time.
+        speed: mission seconds per wall second (the emulator and the link run this much
+            faster; 1 is real time).
+        map_name, goal_name: the lab map and its goal behind the table.
+        slip: the fault injected on one leg, and ``slip_after_step``: once that step
+            (0-based) has completed. ``None`` drives without slip.
+        seed: seeds the emulator (sensor noise, boot nonce) and the link.
+        picture: where to write the PNG.
+        startup_timeout_s: how long each process may take to come up.
+        progress_every_s: while a step runs, print a progress line at most this often,
+            mission seconds (the ends of steps are always printed).
+        record: the ROS 2 MCAP file to record the mission in (``None``: no recording).
+        view: serve the live view so (``None``: no view); its URL is printed as
+            ``VIEW <url>``.
+        foxglove_port: serve the mission live to Foxglove on this port of 127.0.0.1
+            (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
+        firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
+            firmware core in the loop; ``rover emulate --firmware``).
+        realtime: the emulator and the bridge ask for real-time scheduling (their
+            default; docs/realtime.md); ``False`` runs them with ``--no-realtime``.
+        ground: the ground the emulator drives on (``rover emulate --ground``: a
+            shipped ground's name or a file), unknown to the gate; ``None``: the
+            description's.
+        twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
+            (``rover gate --twin``) and the planner turns by its turn efficiency.
+        replans: drift STOPs after which the mission is re-planned.
+        samples, max_collision_p: approve a plan only if at most ``max_collision_p`` of
+            ``samples`` twins drawn from the gate's uncertainty collide (``None``: the
+            nominal verdict decides).
+    """
+
+    rtt_s: float = 3.0
+    speed: float = 1.0
+    map_name: str = "lab"
+    goal_name: str = "behind_table"
+    slip: str | None = "slip:left=0.05"
+    slip_after_step: int = 0
+    seed: int = 1
+    picture: Path = Path("demo.png")
+    startup_timeout_s: float = 60.0
+    progress_every_s: float = 4.0
+    record: Path | None = Path("demo.mcap")
+    view: ViewConfig | None = None
+    foxglove_port: int | None = None
+    firmware: str = "python"
+    realtime: bool = True
+    ground: str | None = None
+    twin: Path | None = None
+    replans: int = 1
+    samples: int | None = None
+    max_collision_p: float | None = None
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """The mission report, the picture, whether drift control fired, the MCAP recording
+    (``None`` when not recorded) and how the link kept time (:class:`LinkTiming`)."""
+
+    report: MissionReport
+    picture: Path
+    drift_fired: bool
+    recording: Path | None = None
+    timing: LinkTiming | None = None
+
+
+@dataclass(frozen=True)
+class LinkTiming:
+    """How regularly the two ends of the controller link heard each other, wall ms
+    (``None``: not measured), read at the end of the mission: the bridge's from its last
+    ``/diagnostics``, the emulator's from its control port.
+
+    Attributes:
+        bridge_rx_max_ms, bridge_rx_p99_ms: gaps between controller heartbeats the
+            bridge received.
+        bridge_tx_max_ms, bridge_tx_p99_ms: gaps between host heartbeats it sent.
+        emulator_rx_max_ms, emulator_rx_p99_ms: gaps between host heartbeats the
+            emulator received.
+        emulator_catchups, emulator_late_max_ms: times the emulator's control loop woke
+            late, and the latest.
+        bridge_stall_max_ms: the bridge's longest stall.
+    """
+
+    bridge_rx_max_ms: float | None = None
+    bridge_rx_p99_ms: float | None = None
+    bridge_tx_max_ms: float | None = None
+    bridge_tx_p99_ms: float | None = None
+    emulator_rx_max_ms: float | None = None
+    emulator_rx_p99_ms: float | None = None
+    emulator_catchups: int | None = None
+    emulator_late_max_ms: float | None = None
+    bridge_stall_max_ms: float | None = None
+
+    def line(self) -> str:
+        """One line for the summary."""
+
+        def ms(value: float | None) -> str:
+            return "n/a" if value is None else f"{value:.0f}"
+
+        return (
+            "link timing (heartbeat gaps, max/p99 ms): bridge rx "
+            f"{ms(self.bridge_rx_max_ms)}/{ms(self.bridge_rx_p99_ms)}, bridge tx "
+            f"{ms(self.bridge_tx_max_ms)}/{ms(self.bridge_tx_p99_ms)}, emulator rx "
+            f"{ms(self.emulator_rx_max_ms)}/{ms(self.emulator_rx_p99_ms)}; emulator "
+            f"catch-ups {self.emulator_catchups if self.emulator_catchups is not None else 'n/a'}"
+            f" (latest {ms(self.emulator_late_max_ms)} ms); bridge's longest stall "
+            f"{ms(self.bridge_stall_max_ms)} ms"
+        )
+
+
+def _control(port: int, command: str) -> str:
+    """One command to the emulator's control interface (as the lab's bench would)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+        sock.sendall(command.encode() + b"\n")
+        return sock.makefile().readline().strip()
+
+
+class Demo:
+    """Starts the parts, runs the mission, stops everything (a context manager)."""
+
+    def __init__(
+        self, config: DemoConfig | None = None, say: Callable[[str], None] = print
+    ) -> None:
+        self.config = config or DemoConfig()
+        self._say = say
+        self._t0 = time.monotonic()
+        # Every process of the demo, this one included, discovers ROS 2 peers on this
+        # host only (ROS 2 Jazzy's discovery range), so nothing leaves the machine.
+        self.logs = Path(tempfile.mkdtemp(prefix="rover-demo-logs-"))
+        """Where each process's stderr and the stack's stall log are kept (not removed)."""
+        self.stall_log = self.logs / "stalls.jsonl"
+        """The stall log every process of this demo writes to (docs/realtime.md)."""
+        self._env = {
+            **os.environ,
+            LOCALHOST_ENV: "LOCALHOST",
+            STALL_LOG_ENV: str(self.stall_log),
+        }
+        self._diagnostics: DiagnosticArray | None = None
+        self._cancel = threading.Event()
+        self._mission_running = False
+        self._view: LiveView | None = None
+        self._hold = threading.Event()
+        self._holding = False
+        self._stack: Stack | None = None
+        self._domains = contextlib.ExitStack()
+
+    @property
+    def mission_running(self) -> bool:
+        """The mission has started: :meth:`cancel` now stops the rover."""
+        return self._mission_running
+
+    def cancel(self) -> None:
+        """End the mission (from a signal handler or another thread): the running plan
+        ends with STOP, nothing more is sent, the report says ``cancelled``."""
+        self._cancel.set()
+
+    @property
+    def view_url(self) -> str | None:
+        """The live view's address, once it serves."""
+        return self._view.url if self._view is not None else None
+
+    @property
+    def holding(self) -> bool:
+        """:meth:`hold` is waiting (:meth:`end_hold` ends it)."""
+        return self._holding
+
+    def hold(self, seconds: float) -> None:
+        """Keep everything up (the view serving, the parts running) for ``seconds`` or
+        until :meth:`end_hold`."""
+        self._holding = True
+        try:
+            self._hold.wait(seconds)
+        finally:
+            self._holding = False
+
+    def end_hold(self) -> None:
+        """End :meth:`hold` (from a signal handler or another thread)."""
+        self._hold.set()
+
+    def say(self, line: str) -> None:
+        """Print one line with the mission time (and show it in the view)."""
+        self._say(f"[{(time.monotonic() - self._t0) * self.config.speed:6.1f} s] {line}")
+        if self._view is not None:
+            self._view.hub.event(line)
+
+    def _view_clear(self, executor: PlanExecutor) -> bool:
+        """The view's clear-STOP (the hub allowed it): only while the mission runs."""
+        if not self._mission_running:
+            raise RuntimeError("the mission has ended")
+        self.say("clear-STOP from the view: releasing the latch")
+        return executor.clear_stop()
+
+    def _view_stop(self) -> str:
+        """The view's STOP button: what Ctrl-C does."""
+        if self._mission_running:
+            self.cancel()
+            self.say("STOP from the view: cancelling the mission; sending STOP")
+            return "sent: the running step ends with STOP, the mission is cancelled"
+        if self._holding:
+            return "the mission has ended: no plan is running, nothing was sent"
+        self.cancel()
+        self.say("STOP from the view before the mission: nothing will be sent to the rover")
+        return "the mission is cancelled before it starts: nothing will be sent"
+
+    def run(self) -> DemoResult:
+        """Start everything, drive the mission, return the result."""
+        cfg = self.config
+        if cfg.speed <= 0 or cfg.rtt_s < 0:
+            raise ValueError("speed must be > 0 and rtt_s >= 0")
+        stack = StackConfig(
+            map_name=cfg.map_name,
+            firmware=cfg.firmware,
+            rtt_s=cfg.rtt_s,
+            speed=cfg.speed,
+            seed=cfg.seed,
+            startup_timeout_s=cfg.startup_timeout_s,
+            realtime=cfg.realtime,
+            ground=cfg.ground,
+            twin=cfg.twin,
+        )
+        if not os.environ.get(DOMAIN_ENV, "").strip():
+            # No domain chosen: one of its own, as a stack takes, so that two demos (or
+            # a demo and a stack) on one machine never hear each other.
+            domain = self._domains.enter_context(claim()).domain
+            self._domains.callback(os.environ.pop, DOMAIN_ENV, None)
+            os.environ[DOMAIN_ENV] = self._env[DOMAIN_ENV] = str(domain)
+            self.say(f"ROS 2 domain {domain} (of its own)")
+        self._stack = Stack(stack, self._env, say=self.say, logs=self.logs)
+        endpoints = self._stack.start()
+        url = endpoints.gate_url
+        control_port = int(endpoints.control.rsplit(":", 1)[1])
+        self.say(f"emulator control port: 127.0.0.1:{control_port}")
+        rover = load_rover(cfg.twin)
+        os.environ[LOCALHOST_ENV] = "LOCALHOST"  # read when the port's context starts
+        self.say(f"ROS 2 middleware: {middleware()}")
+        recorder = McapRecorder(cfg.record) if cfg.record is not None else None
+        try:
+            return self._drive(url, control_port, rover, recorder)
+        finally:
+            if recorder is not None:
+                recorder.close()
+
+    def _drive(
+        self, url: str, control_port: int, rover: RoverDescription, recorder: McapRecorder | None
+    ) -> DemoResult:
+        cfg = self.config
+        with (
+            GateClient(url) as client,
+            open_port(DEFAULT_BACKEND, namespace="ground", node_name="rover_executor") as port,
+        ):
+            if recorder is not None:
+                recorder.attach(port)
+            port.subscribe("diagnostics", DiagnosticArray, self._on_diagnostics, DIAGNOSTICS)
+            foxglove = (
+                FoxgloveLive(port=cfg.foxglove_port) if cfg.foxglove_port is not None else None
+            )
+            try:
+                return self._mission(client, port, rover, control_port, recorder, foxglove)
+            finally:
+                if foxglove is not None:
+                    foxglove.close()
+
+    def _mission(
+        self,
+        client: GateClient,
+        port: RosPort,
+        rover: RoverDescription,
+        control_port: int,
+        recorder: McapRecorder | None,
+        foxglove: FoxgloveLive | None,
+    ) -> DemoResult:
+        cfg = self.config
+        if foxglove is not None:
+            port.add_tap(foxglove.tap)
+            self._say(f"FOXGLOVE {foxglove.url}")
+        world = client.get_map(cfg.map_name)
+        goal = _goal(world, cfg.goal_name)
+        if recorder is not None:
+            recorder.set_map(world, goal)
+        start = world.start
+        orchestrator = PlannerOrchestrator(
+            HeuristicLowLevelPlanner(rover, world=world),
+            client,
+            map_name=cfg.map_name,
+            world=world,
+            options=GateOptions(samples=cfg.samples),
+            max_collision_p=cfg.max_collision_p,
+        )
+        executor = PlanExecutor(
+            port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+        )
+        if cfg.view is not None:
+            self._view = LiveView(
+                world,
+                cfg.view,
+                rtt_s=cfg.rtt_s / cfg.speed,
+                time_scale=cfg.speed,
+                on_stop=self._view_stop,
+                on_clear=lambda: self._view_clear(executor),
+                drift_source=lambda: executor.latest_drift,
+            )
+            port.add_tap(self._view.hub.tap)
+            self._say(f"VIEW {self._view.url}")
+            if cfg.view.wait_s > 0:
+                self.say(f"waiting up to {cfg.view.wait_s:g} s for a browser to open the view")
+                if self._view.hub.wait_for_client(cfg.view.wait_s):
+                    self.say("view: a browser is watching")
+        view = self._view
+
+        def planned(mission: MissionResult) -> None:
+            if recorder is not None:
+                recorder.planned(mission)
+            if foxglove is not None:
+                foxglove.planned(mission)
+            if view is not None:
+                view.hub.planned(mission)
+
+        try:
+            self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
+            if executor.settled_pose(cfg.startup_timeout_s) is None:
+                raise RuntimeError("the rover never reported its pose through the link")
+            self.say(
+                f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
+                f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
+            )
+            slipped = threading.Event()
+            last_line = [-math.inf]
+
+            def progress(p: Progress) -> None:
+                if view is not None:
+                    view.hub.progress(p)
+                now = time.monotonic() * cfg.speed
+                if p.final or now - last_line[0] >= cfg.progress_every_s:
+                    last_line[0] = now
+                    self.say(p.line(cfg.speed))
+                done = p.status == COMPLETED and p.step == cfg.slip_after_step
+                if cfg.slip and done and not slipped.is_set():
+                    slipped.set()
+                    answer = _control(control_port, f"inject {cfg.slip}")
+                    self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
+
+            def out_of_the_sand(result: ExecutionResult) -> None:
+                if cfg.slip:
+                    answer = _control(control_port, "inject clear:slip")
+                    self.say(f"operator: traction back ({answer}); re-planning (still latched)")
+
+            runner = MissionRunner(
+                orchestrator,
+                executor,
+                replans=cfg.replans,
+                on_progress=progress,
+                on_drift=out_of_the_sand,
+                on_event=self.say,
+                cancel=self._cancel,
+                on_planned=planned,
+            )
+            self._mission_running = True
+            try:
+                report = runner.run(goal, start=start)
+            finally:
+                self._mission_running = False
+        finally:
+            executor.close()
+        if view is not None:
+            view.hub.result(report.reached, report.summary(cfg.speed).splitlines()[0])
+        outcome = (
+            "goal reached"
+            if report.reached
+            else "cancelled"
+            if report.cancelled
+            else "goal not reached"
+        )
+        title = (
+            f"rover demo: {outcome}; {len(report.drift_events)} drift STOP(s); RTT {cfg.rtt_s:g} s"
+        )
+        picture = picture_of(report, world, title)
+        path = save(picture, cfg.picture)
+        timing = self._timing(control_port)
+        return DemoResult(report, path, bool(report.drift_events), cfg.record, timing)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        if any(status.name == "rover_bridge: link" for status in msg.status):
+            self._diagnostics = msg
+
+    def _timing(self, control_port: int) -> LinkTiming:
+        """The link's timing figures at the end of the mission (see :class:`LinkTiming`)."""
+        values: dict[str, str] = {}
+        if self._diagnostics is not None:
+            for status in self._diagnostics.status:
+                if status.name == "rover_bridge: link":
+                    values = {kv.key: kv.value for kv in status.values}
+
+        def number(key: str) -> float | None:
+            try:
+                return float(values[key])
+            except (KeyError, ValueError):
+                return None
+
+        emulator: dict[str, Any] = {}
+        try:
+            answer = json.loads(_control(control_port, "status"))
+            emulator = answer.get("status") or {}
+        except (OSError, ValueError) as exc:
+            logger.warning("emulator status unavailable: %s", exc)
+        host_gaps = emulator.get("host_heartbeat_gaps") or {}
+        return LinkTiming(
+            bridge_rx_max_ms=number("heartbeat_rx_gap_max_ms"),
+            bridge_rx_p99_ms=number("heartbeat_rx_gap_p99_ms"),
+            bridge_tx_max_ms=number("heartbeat_tx_gap_max_ms"),
+            bridge_tx_p99_ms=number("heartbeat_tx_gap_p99_ms"),
+            emulator_rx_max_ms=host_gaps.get("max_ms"),
+            emulator_rx_p99_ms=host_gaps.get("p99_ms"),
+            emulator_catchups=emulator.get("catchups"),
+            emulator_late_max_ms=emulator.get("late_max_ms"),
+            bridge_stall_max_ms=number("stall_max_ms"),
+        )
+
+    def close(self) -> None:
+        """Stop the view and every process, last started first (idempotent)."""
+        if self._view is not None:
+            self._view.close()
+        if self._stack is not None:
+            self._stack.close()
+        self._domains.close()
+
+    def __enter__(self) -> Demo:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _goal(world: WorldMap, name: str) -> Pose:
+    try:
+        return world.goal(name).pose
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from exc

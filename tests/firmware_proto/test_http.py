@@ -1,0 +1,175 @@
+"""The HTTP serving layer on its own: limits, error wording, a minimal ASGI app served
+on 127.0.0.1. The gate's and the view's tests drive it through their applications."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from firmware_proto.http import HttpService, RequestBodyError, ServeLimits, read_body
+from firmware_proto.http.protocol import classify_protocol_error
+from firmware_proto.model.schemacheck import MAX_DEPTH, json_depth, schema_violations
+
+TIMEOUT_S = 30.0
+
+
+def _render(status: int, code: str, message: str) -> tuple[str, bytes]:
+    return "application/json", json.dumps({"code": code, "message": message}).encode()
+
+
+async def _echo(scope: Any, receive: Any, send: Any) -> None:
+    """Answers with the body's length, or the body error's status."""
+    if scope["type"] != "http":
+        return
+    try:
+        body = await read_body(receive, limit_bytes=10, timeout_s=0.5)
+        status, text = 200, str(len(body)).encode()
+    except RequestBodyError as exc:
+        status, text = exc.status, exc.code.encode()
+    headers = [(b"content-length", str(len(text)).encode())]
+    if status != 200:
+        headers.append((b"connection", b"close"))
+    await send({"type": "http.response.start", "status": status, "headers": headers})
+    await send({"type": "http.response.body", "body": text})
+
+
+@pytest.fixture
+def service() -> Iterator[HttpService]:
+    limits = ServeLimits(idle_timeout_s=0.5, head_timeout_s=0.5, max_connections=2)
+    with HttpService(
+        _echo,
+        host="127.0.0.1",
+        port=0,
+        limits=limits,
+        render_error=_render,
+        server_name="probe",
+        thread_name="probe-http",
+    ) as served:
+        yield served
+
+
+def _exchange(address: tuple[str, int], data: bytes, *, half_close: bool = False) -> bytes:
+    with socket.create_connection(address, timeout=TIMEOUT_S) as sock:
+        sock.sendall(data)
+        if half_close:
+            sock.shutdown(socket.SHUT_WR)
+        chunks = []
+        while chunk := sock.recv(65536):
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def test_limits_are_checked() -> None:
+    for bad in ({"head_timeout_s": 0.0}, {"idle_timeout_s": float("inf")}, {"max_connections": 0}):
+        with pytest.raises(ValueError, match="must be"):
+            ServeLimits(**bad)
+
+
+def test_protocol_errors_are_classified() -> None:
+    assert classify_protocol_error(431, "Receive buffer too long") == (
+        431,
+        "request_header_fields_too_large",
+    )
+    assert classify_protocol_error(501, "Only Transfer-Encoding: chunked is supported") == (
+        400,
+        "bad_framing",
+    )
+    assert classify_protocol_error(400, "illegal request line") == (400, "bad_request")
+
+
+def test_importing_the_limits_loads_no_server() -> None:
+    code = (
+        "import sys, firmware_proto.http\n"
+        "print(sorted(m for m in ('uvicorn', 'starlette', 'h11') if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_listener_is_tcp_so_asyncio_disables_nagle(service: HttpService) -> None:
+    # asyncio sets TCP_NODELAY on accepted sockets only when the listener says it is
+    # TCP (proto 6); with proto 0 every kept-alive answer waited ~40 ms (bench_gate).
+    assert service._sock is not None
+    assert service._sock.proto == socket.IPPROTO_TCP
+
+
+def test_bodies_heads_and_framing(service: HttpService) -> None:
+    address = service.address
+    ok = _exchange(
+        address, b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 3\r\n\r\nabc", half_close=True
+    )
+    assert ok.startswith(b"HTTP/1.1 200 ") and ok.endswith(b"\r\n\r\n3")
+    assert b"Server: probe" in ok or b"server: probe" in ok
+    big = _exchange(
+        address, b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 11\r\n\r\n" + b"x" * 11
+    )
+    assert big.startswith(b"HTTP/1.1 413 ")
+    stalled = _exchange(address, b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\n\r\nab")
+    assert stalled.startswith(b"HTTP/1.1 408 ")
+    truncated = _exchange(
+        address, b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\n\r\nab", half_close=True
+    )
+    assert truncated.startswith(b"HTTP/1.1 400 ") and b'"truncated_body"' in truncated
+    both = _exchange(
+        address,
+        b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 3\r\nTransfer-Encoding: chunked\r\n\r\n",
+    )
+    assert both.startswith(b"HTTP/1.1 400 ") and b'"bad_framing"' in both
+    slow = _exchange(address, b"GET / HTTP/1.1\r\nHo")
+    assert slow.startswith(b"HTTP/1.1 408 ") and b'"request_timeout"' in slow
+    assert b"application/json" in slow
+    garbage = _exchange(address, b"\x00\x01 nonsense\r\n\r\n")
+    assert garbage.startswith(b"HTTP/1.1 400 ") and b'"bad_request"' in garbage
+    assert _exchange(address, b"") == b""  # silent: closed after the idle timeout
+
+
+def test_the_connection_cap_answers_503(service: HttpService) -> None:
+    with (
+        socket.create_connection(service.address, timeout=TIMEOUT_S),
+        socket.create_connection(service.address, timeout=TIMEOUT_S),
+    ):
+        third = _exchange(service.address, b"")
+    assert third.startswith(b"HTTP/1.1 503 ") and b'"too_many_connections"' in third
+
+
+def test_close_is_idempotent_and_refuses_new_connections() -> None:
+    served = HttpService(
+        _echo,
+        host="127.0.0.1",
+        port=0,
+        limits=ServeLimits(),
+        render_error=_render,
+        server_name="probe",
+        thread_name="probe-http",
+    ).start()
+    address = served.address
+    served.close()
+    served.close()
+    assert served.stopped_accepting.is_set()
+    with pytest.raises(ConnectionRefusedError):
+        socket.create_connection(address, timeout=TIMEOUT_S).close()
+
+
+def test_depth_is_measured_without_recursion() -> None:
+    deep: Any = []
+    for _ in range(100_000):
+        deep = [deep]
+    assert json_depth(deep) == 100_001
+    assert json_depth(deep, limit=10) == 10
+    assert json_depth(1) == 0
+    assert json_depth({"a": [1, {"b": []}]}) == 4
+    assert schema_violations_of(deep) == [("", f"nested deeper than {MAX_DEPTH} levels")]
+
+
+def schema_violations_of(doc: Any) -> list[tuple[str, str]]:
+    from jsonschema import Draft202012Validator
+
+    return schema_violations(Draft202012Validator({"type": "array"}), doc)
