@@ -395,7 +395,7 @@ def _reconnect_delays(caplog: pytest.LogCaptureFixture) -> list[float]:
     return [
         float(r.args[-1])  # type: ignore[index, arg-type]
         for r in caplog.records
-        if r.name.startswith("bridge.link.controllerlink")
+        if r.name.startswith("bridge.link.")
         and ("retry in" in r.msg or "reconnecting in" in r.msg)
     ]
 
@@ -469,7 +469,7 @@ def test_a_failure_reported_while_the_transport_opens_is_not_lost(
     failures = [
         r.getMessage()
         for r in caplog.records
-        if r.name.startswith("bridge.link.controllerlink") and "reconnecting in" in r.msg
+        if r.name.startswith("bridge.link.") and "reconnecting in" in r.msg
     ]
     assert len(failures) == 1 and "disconnected" in failures[0], failures
 
