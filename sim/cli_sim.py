@@ -61,7 +61,7 @@ def _tick_ms(text: str) -> float:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``rover sim``."""
-    from bridge.link.linkcore import MUTANTS
+    from sim.linkmutants import MUTANTS
     from sim.scenario import CONTROLLERS, MEDIA
 
     what = p.add_mutually_exclusive_group()

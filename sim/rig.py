@@ -37,7 +37,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 
-from bridge.link.linkcore import LinkCore
 from bridge.link.linktypes import SAMPLE_MESSAGES, LinkConfig, LinkState, StatusEvent, StepRequest
 from bridge.link.odometry import OdometryEstimator
 from emulator.controller import STOPPING_FAULTS, LatchCause
@@ -66,6 +65,7 @@ from firmware_proto.wire.messages import (
 )
 from sim.checks import Ledger, Violation, final_checks
 from sim.controllers import SampleLeak, build_controller
+from sim.linkmutants import make_link_core
 from sim.pipe import Delivery, Pipe, Window
 from sim.scenario import Fault as FaultSpec
 from sim.scenario import Scenario
@@ -192,7 +192,7 @@ class Rig:
             medium, random.Random(self.rng.random()), _windows(scenario.faults, "to_host", medium)
         )
         # -- the host
-        self.core = LinkCore(LinkConfig(f"sim://{medium}"), mutants=scenario.mutants)
+        self.core = make_link_core(LinkConfig(f"sim://{medium}"), scenario.mutants)
         self._device_present = True
         self._host_frozen = False
         self._host_backlog: list[tuple[Message, object]] = []

@@ -139,7 +139,7 @@ class Scenario:
         seed: the seed it was drawn from.
         controller: one of :data:`CONTROLLERS`.
         medium: one of :data:`MEDIA`.
-        mutants: fixes of the host core undone (:data:`bridge.link.linkcore.MUTANTS`).
+        mutants: fixes of the host core undone (:data:`sim.linkmutants.MUTANTS`).
         leak_samples: the controller also sends sensor samples before a session
             (protocol v2 allowed it; a v3 controller sends none).
         zero_steps: the operator also sends steps with speed 0 or distance 0 (off by

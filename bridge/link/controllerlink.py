@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from types import TracebackType
 
 from bridge.errors import TransportError
@@ -82,7 +82,6 @@ class ControllerLink:
         transport_factory: Callable[[str], Transport] = open_transport,
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
-        mutants: Iterable[str] = (),
     ) -> None:
         """Args:
         config: link parameters.
@@ -97,17 +96,13 @@ class ControllerLink:
             still delivering earlier events; it must not block.
         transport_factory: builds the (unopened) transport for a URL.
         protocol_version, schema_hash: what this host speaks (tests change them).
-        mutants: fixes of the core to undo (:data:`bridge.link.linkcore.MUTANTS`; tests only).
 
         Raises:
             TransportUrlError: ``config.url`` is malformed; found here, once, because no
                 reconnect could fix it (a transport is built to check it, not opened).
-            ValueError: an unknown mutant.
         """
         transport_factory(config.url)
-        self._core = LinkCore(
-            config, protocol_version=protocol_version, schema_hash=schema_hash, mutants=mutants
-        )
+        self._core = LinkCore(config, protocol_version=protocol_version, schema_hash=schema_hash)
         self._on_status = on_status
         self._on_telemetry = on_telemetry
         self._on_state = on_state

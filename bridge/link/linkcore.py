@@ -73,10 +73,16 @@ dropped and gets its own fate, oldest first, each counted in ``steps_aborted``:
 then one ``fault:<reason>`` reports the link event itself. No stale motion is ever
 replayed.
 
-**Mutants.** ``LinkCore(..., mutants={...})`` undoes a fix on purpose, so that a test
-can show the simulator finds the bug it fixed (docs/sim.md); :data:`MUTANTS` lists
-them: the two of issue #22 and the three the simulator found itself. Never set outside
-tests and ``rover sim --mutant``.
+**Seams.** A few rules sit in methods of their own so that the wire simulator can
+undo exactly one fix in a subclass (``sim/linkmutants.py``, docs/sim.md "Mutants"), as
+:mod:`emulator.mutants` does for the controller: which frames are forwarded
+(:meth:`LinkCore._forwards`), which open steps a PROGRESS settles
+(:meth:`LinkCore._ended_by_progress`), what a released latch settles
+(:meth:`LinkCore._settle_latched`), whether a WATCHDOG FAULT is a new trip
+(:meth:`LinkCore._new_watchdog_trip`), and how an automatic clear ends when the latch
+gains a cause (:meth:`LinkCore._stopping_fault_frame`,
+:meth:`LinkCore._auto_clear_refused`, :meth:`LinkCore._auto_clear_outlived`). The core
+itself holds no test switch.
 
 Not thread-safe: one caller at a time (the shell holds its lock around every call).
 """
@@ -87,7 +93,6 @@ import logging
 import math
 import statistics
 from collections import Counter, deque
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from bridge.link.linktypes import (
@@ -140,35 +145,9 @@ from firmware_proto.wire.messages import (
     StopSource,
 )
 
-__all__ = ["MUTANTS", "LinkCore", "Outgoing", "latch_causes"]
+__all__ = ["LinkCore", "Outgoing", "latch_causes"]
 
 logger = logging.getLogger(__name__)
-
-MUTANTS: dict[str, str] = {
-    "auto-clear-survives": (
-        "an automatic clear survives a change of the latch's causes: answered "
-        "FAULT_PERSISTS it is kept and sent again once the fault's condition ends, and a "
-        "HEARTBEAT showing latch_stop or latch_fault does not end it (#22 bug 1 undone)"
-    ),
-    "samples-outside-session": (
-        "sensor samples are forwarded whatever the link state, also before the IDENT of "
-        "a session told the boot nonce (#22 bug 2 undone)"
-    ),
-    "settle-by-guess": (
-        "a step whose STATUS was lost stays open until a later step's STATUS settles it "
-        "with that step's outcome, and PROGRESS settles only when it names an open step "
-        "(a false 'completed', found by the simulator)"
-    ),
-    "watchdog-frame-twice": (
-        "every WATCHDOG FAULT frame counts a trip, also one received twice (a CAN frame "
-        "sent again), found by the simulator"
-    ),
-    "auto-clear-after-fault-frame": (
-        "an automatic clear goes on being repeated after a stopping FAULT frame arrived, "
-        "until a HEARTBEAT shows the new cause (found by the simulator)"
-    ),
-}
-"""Fixes that :class:`LinkCore` can undo on purpose, by name, with what each undoes."""
 
 _ACK_REASONS = {
     AckResult.OUT_OF_RANGE: "out_of_range",
@@ -269,26 +248,15 @@ class LinkCore:
         *,
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
-        mutants: Iterable[str] = (),
     ) -> None:
         """Args:
         config: link parameters (:attr:`config` may be replaced while running: each
             value is read when next needed).
         protocol_version, schema_hash: what this host speaks (tests change them).
-        mutants: names of :data:`MUTANTS` to switch on (tests of the simulator only).
-
-        Raises:
-            ValueError: an unknown mutant (the message lists the known ones).
         """
-        unknown = sorted(set(mutants) - MUTANTS.keys())
-        if unknown:
-            raise ValueError(
-                f"unknown link mutant(s) {', '.join(unknown)}; known: {', '.join(sorted(MUTANTS))}"
-            )
         self.config = config
         self.protocol_version = protocol_version
         self.schema_hash = schema_hash
-        self.mutants = frozenset(mutants)
         self._conn = 0
         """The connection number: grows at every open and every failure."""
         self._connected = False
@@ -655,14 +623,16 @@ class LinkCore:
         if rx_lost is not None:
             self._rx_lost = rx_lost
         self._dispatch(msg, now)
-        forward = (
-            self._state is LinkState.READY
-            or not isinstance(msg, SAMPLE_MESSAGES)
-            or "samples-outside-session" in self.mutants
-        )
+        forward = self._forwards(msg)
         if not forward:
             self._counters.samples_outside_session += 1
         return forward
+
+    def _forwards(self, msg: Message) -> bool:
+        """Whether a received message is telemetry to hand on: every message but a sensor
+        sample outside a session whose IDENT told the boot nonce (docs/protocol.md,
+        Handshake 2)."""
+        return self._state is LinkState.READY or not isinstance(msg, SAMPLE_MESSAGES)
 
     def _dispatch(self, msg: Message, t: float) -> None:
         if isinstance(msg, Heartbeat):
@@ -740,8 +710,7 @@ class LinkCore:
         if self._clear_wanted and not hb.stop_latched and self._pending_clear is None:
             # Released meanwhile (by another host, or a reboot we have not seen yet).
             self._clear_wanted = False
-            if "settle-by-guess" not in self.mutants:
-                self._settle_latched()
+            self._settle_latched()
             if not self._clear_auto:
                 self._ctrl_latched = False
                 self._emit(CLEARED)
@@ -752,11 +721,8 @@ class LinkCore:
             and self._clear_auto
             and hb.stop_latched
             and not watchdog_only
-            and "auto-clear-survives" not in self.mutants
+            and self._auto_clear_outlived(hb)
         ):
-            # The latch gained a cause the automatic clear was not for (an emergency
-            # stop, a stopping fault): that clear is over; the operator decides now.
-            self._abandon_auto_clear(hb)
             return
         if self._pending_clear is not None or self._estop_requested or not hb.stop_latched:
             return
@@ -781,6 +747,13 @@ class LinkCore:
             logger.info("watchdog latch with its condition gone: clearing it (auto_clear_watchdog)")
         else:
             logger.info("no stopping fault condition any more: sending CLEAR_STOP again")
+
+    def _auto_clear_outlived(self, hb: Heartbeat) -> bool:
+        """A HEARTBEAT shows the latch gained a cause the automatic clear was not for (an
+        emergency stop, a stopping fault): that clear is over, the operator decides now.
+        Returns whether it ended."""
+        self._abandon_auto_clear(hb)
+        return True
 
     def _abandon_auto_clear(self, hb: Heartbeat | None) -> None:
         """End the automatic clear request: the latch's causes changed."""
@@ -869,9 +842,7 @@ class LinkCore:
             return
         self._pending_clear = None
         if ack.result == ClearResult.FAULT_PERSISTS:
-            if self._clear_auto and "auto-clear-survives" not in self.mutants:
-                # A stopping fault joined the watchdog in the latch: not for us to clear.
-                self._abandon_auto_clear(self._heartbeat)
+            if self._clear_auto and self._auto_clear_refused():
                 return
             # The operator's clear is kept: sent again once no stopping fault condition
             # is active (_maybe_clear). Said once per request, not once per retry.
@@ -882,12 +853,19 @@ class LinkCore:
         was_auto = self._clear_auto
         self._clear_wanted = self._clear_auto = False
         self._clear_persisted = False
-        if ack.result == ClearResult.CLEARED and "settle-by-guess" not in self.mutants:
+        if ack.result == ClearResult.CLEARED:
             self._settle_latched()
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.IDLE
         if ack.result == ClearResult.CLEARED or not was_auto:
             self._emit(CLEARED)
+
+    def _auto_clear_refused(self) -> bool:
+        """The automatic clear was answered FAULT_PERSISTS: a stopping fault joined the
+        watchdog in the latch, which is not the host's to clear; the request ends.
+        Returns whether it ended (else it is kept as an operator's would be)."""
+        self._abandon_auto_clear(self._heartbeat)
+        return True
 
     def _on_ack(self, ack: Ack, t: float) -> None:
         step = self._inflight
@@ -939,9 +917,7 @@ class LinkCore:
         if missed == 0 or missed >= 0x8000 or self._state is not LinkState.READY:
             return
         self._ended_seen = progress.ended_count
-        ended = [seq for seq in self._in_controller if (progress.ended_seq - seq) & 0xFFFF < 0x8000]
-        if "settle-by-guess" in self.mutants:
-            ended = [progress.ended_seq] if progress.ended_seq in self._in_controller else []
+        ended = self._ended_by_progress(progress)
         if not ended:
             return  # its ending was seen; steps before it were settled with it
         logger.warning(
@@ -951,6 +927,11 @@ class LinkCore:
         )
         self._settle_through(ended[-1], progress.ended_state, progress.ended_reason)
         self._pump(t)
+
+    def _ended_by_progress(self, progress: Progress) -> list[int]:
+        """The open steps (by seq, in order) that ``progress`` says have ended: every one
+        sent up to its ``ended_seq``."""
+        return [seq for seq in self._in_controller if (progress.ended_seq - seq) & 0xFFFF < 0x8000]
 
     def _settle_latched(self) -> None:
         """The controller's latch was released: every step still open here ended when it
@@ -986,18 +967,9 @@ class LinkCore:
         )
         if msg.active:
             if msg.code in STOPPING_FAULTS and msg.code != FaultCode.WATCHDOG:
-                self._last_stopping_fault = msg.code
-                if (
-                    self._clear_wanted
-                    and self._clear_auto
-                    and not self.mutants & {"auto-clear-survives", "auto-clear-after-fault-frame"}
-                ):
-                    # A stopping fault joins the latch while the automatic clear is
-                    # out: no copy of it may follow (the next heartbeat would say so
-                    # 100 ms later, ten copies later).
-                    self._abandon_auto_clear(None)
+                self._stopping_fault_frame(msg.code)
             if msg.code == FaultCode.WATCHDOG:
-                if msg.code not in self._faults or "watchdog-frame-twice" in self.mutants:
+                if self._new_watchdog_trip(msg):
                     # A trip; the same frame received twice (a CAN frame whose
                     # acknowledgement the controller missed is sent again) is not two.
                     self._counters.watchdog_trips += 1
@@ -1007,6 +979,20 @@ class LinkCore:
         else:
             # The condition went away; a latch it set is the heartbeat's to report.
             self._faults.discard(msg.code)
+
+    def _stopping_fault_frame(self, code: int) -> None:
+        """A stopping fault other than WATCHDOG was raised: remember it, and end an
+        automatic clear that is out (no copy of it may follow; the next heartbeat would
+        say so 100 ms later, ten copies later)."""
+        self._last_stopping_fault = code
+        if self._clear_wanted and self._clear_auto:
+            self._abandon_auto_clear(None)
+
+    def _new_watchdog_trip(self, msg: Fault) -> bool:
+        """A WATCHDOG FAULT ``active = 1`` is a new trip unless its condition is already
+        active: the same frame received twice (a CAN frame whose acknowledgement the
+        controller missed is sent again) is not two."""
+        return msg.code not in self._faults
 
     # -- the lanes ----------------------------------------------------------------------------
     def _queue(self, msg: Message, step: _Step | None = None, *, auto_clear: bool = False) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.link.linkcore import MUTANTS, LinkCore, Outgoing
+from bridge.link.linkcore import LinkCore, Outgoing
 from bridge.link.linktypes import LinkConfig, LinkState, StatusEvent, StepRequest
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (
@@ -48,11 +48,6 @@ def _ready(core: LinkCore) -> None:
     core.on_frame(Ident(PROTOCOL_VERSION, 1, 0, 0, SCHEMA_HASH, 0x1234), 0.002)
     assert core.state is LinkState.READY
     assert _texts(core) == ["ready"]
-
-
-def test_an_unknown_mutant_is_refused_with_the_known_ones() -> None:
-    with pytest.raises(ValueError, match="known: " + ", ".join(sorted(MUTANTS))):
-        LinkCore(LinkConfig("sim://x"), mutants=["no-such-fix"])
 
 
 def test_a_motion_is_retransmitted_exactly_at_its_ack_timeout_from_its_write() -> None:

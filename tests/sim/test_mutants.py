@@ -1,6 +1,6 @@
 """The simulator finds real bugs by itself: each fix of the host's core, undone on
-purpose (a mutant, :data:`bridge.link.linkcore.MUTANTS`), is found within the test
-command's budget, with the one command line that plays it again; with the fix in
+purpose (a mutant: a subclass of the core, :data:`sim.linkmutants.MUTANTS`), is found
+within the test command's budget, with the one command line that plays it again; with the fix in
 place the same scenario passes.
 
 The two bugs of issue #22 are searched for from seed 0 in the test command (marked
@@ -17,7 +17,7 @@ import sys
 
 import pytest
 
-from bridge.link.linkcore import MUTANTS
+from sim.linkmutants import MUTANTS
 from sim.rig import Outcome, run_scenario
 from sim.scenario import CONTROLLERS, MEDIA, make_scenario
 from sim.soak import soak
@@ -130,3 +130,26 @@ def test_a_failure_replays_exactly_from_its_one_line_reproducer() -> None:
     for violation in first.violations:
         assert violation.line() in done.stdout
     assert f"reproduce: {scenario.reproducer}" in done.stdout
+
+
+def test_an_unknown_mutant_is_refused_with_the_known_ones() -> None:
+    from bridge.link.linktypes import LinkConfig
+    from sim.linkmutants import make_link_core
+
+    with pytest.raises(ValueError, match="known: " + ", ".join(sorted(MUTANTS))):
+        make_link_core(LinkConfig("sim://x"), ["no-such-fix"])
+
+
+def test_mutants_combine_and_the_product_core_holds_no_switch() -> None:
+    import inspect
+
+    from bridge.link import controllerlink, linkcore
+    from bridge.link.linktypes import LinkConfig
+    from sim.linkmutants import make_link_core
+
+    every = make_link_core(LinkConfig("sim://x"), MUTANTS)
+    assert isinstance(every, linkcore.LinkCore)
+    assert type(make_link_core(LinkConfig("sim://x"))) is linkcore.LinkCore
+    for cls in (linkcore.LinkCore, controllerlink.ControllerLink):
+        assert "mutants" not in inspect.signature(cls).parameters
+        assert "self.mutants" not in inspect.getsource(cls)

@@ -1,0 +1,135 @@
+"""Mutant host cores: :class:`~bridge.link.linkcore.LinkCore` with exactly one fix undone.
+
+They measure the wire simulator (docs/sim.md, "Mutants"): a simulator that cannot find a
+bug we know of cannot be trusted to find the ones we do not. Each mutant is a small
+mixin that overrides one of the core's seams (the core keeps those rules in methods of
+their own for that, as :class:`~emulator.controller.ControllerModel` does for
+:mod:`emulator.mutants`); the product holds no switch. ``tests/sim/test_mutants.py``
+shows that the simulator finds each by itself, by seed, and that the same scenario
+passes with the fix in place.
+
+:data:`MUTANTS` maps each name to what it undoes; :func:`make_link_core` builds a core
+with the named ones (``rover sim --mutant NAME``, repeatable).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from bridge.link.linkcore import LinkCore
+from bridge.link.linktypes import LinkConfig
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import Fault, Heartbeat, Progress
+
+__all__ = ["MUTANTS", "LinkMutant", "make_link_core"]
+
+
+@dataclass(frozen=True)
+class LinkMutant:
+    """One fix of the host core, undone.
+
+    Attributes:
+        name: what ``--mutant`` takes.
+        undoes: the bug it brings back, one sentence.
+        mixin: the class that overrides the core's seam (placed before
+            :class:`LinkCore` in the bases).
+    """
+
+    name: str
+    undoes: str
+    mixin: type
+
+
+class _SamplesOutsideSession(LinkCore):
+    def _forwards(self, msg: Message) -> bool:
+        return True
+
+
+class _SettleByGuess(LinkCore):
+    def _ended_by_progress(self, progress: Progress) -> list[int]:
+        return [progress.ended_seq] if progress.ended_seq in self._in_controller else []
+
+    def _settle_latched(self) -> None:
+        return
+
+
+class _WatchdogFrameTwice(LinkCore):
+    def _new_watchdog_trip(self, msg: Fault) -> bool:
+        return True
+
+
+class _AutoClearAfterFaultFrame(LinkCore):
+    def _stopping_fault_frame(self, code: int) -> None:
+        self._last_stopping_fault = code
+
+
+class _AutoClearSurvives(LinkCore):
+    def _stopping_fault_frame(self, code: int) -> None:
+        self._last_stopping_fault = code
+
+    def _auto_clear_refused(self) -> bool:
+        return False
+
+    def _auto_clear_outlived(self, hb: Heartbeat) -> bool:
+        return False
+
+
+MUTANTS: dict[str, LinkMutant] = {
+    m.name: m
+    for m in (
+        LinkMutant(
+            "auto-clear-survives",
+            "an automatic clear survives a change of the latch's causes: answered "
+            "FAULT_PERSISTS it is kept and sent again once the fault's condition ends, and a "
+            "HEARTBEAT showing latch_stop or latch_fault does not end it (#22 bug 1 undone)",
+            _AutoClearSurvives,
+        ),
+        LinkMutant(
+            "samples-outside-session",
+            "sensor samples are forwarded whatever the link state, also before the IDENT of "
+            "a session told the boot nonce (#22 bug 2 undone)",
+            _SamplesOutsideSession,
+        ),
+        LinkMutant(
+            "settle-by-guess",
+            "a step whose STATUS was lost stays open until a later step's STATUS settles it "
+            "with that step's outcome, and PROGRESS settles only when it names an open step "
+            "(a false 'completed', found by the simulator)",
+            _SettleByGuess,
+        ),
+        LinkMutant(
+            "watchdog-frame-twice",
+            "every WATCHDOG FAULT frame counts a trip, also one received twice (a CAN frame "
+            "sent again), found by the simulator",
+            _WatchdogFrameTwice,
+        ),
+        LinkMutant(
+            "auto-clear-after-fault-frame",
+            "an automatic clear goes on being repeated after a stopping FAULT frame arrived, "
+            "until a HEARTBEAT shows the new cause (found by the simulator)",
+            _AutoClearAfterFaultFrame,
+        ),
+    )
+}
+"""Every fix of the host core the simulator can undo, by name."""
+
+
+def make_link_core(config: LinkConfig, mutants: Iterable[str] = ()) -> LinkCore:
+    """A host core with the fixes ``mutants`` undone (none: the product's core).
+
+    Raises:
+        ValueError: an unknown mutant (the message lists the known ones).
+    """
+    names = sorted(set(mutants))
+    unknown = [n for n in names if n not in MUTANTS]
+    if unknown:
+        raise ValueError(
+            f"unknown link mutant(s) {', '.join(unknown)}; known: {', '.join(sorted(MUTANTS))}"
+        )
+    if not names:
+        return LinkCore(config)
+    bases = tuple(MUTANTS[n].mixin for n in names)
+    cls = type("LinkCore_" + "_".join(n.replace("-", "_") for n in names), bases, {})
+    core: LinkCore = cls(config)
+    return core
