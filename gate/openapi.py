@@ -17,8 +17,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from firmware_proto.model.plan import MAX_PLAN_STEPS, plan_schema
-from firmware_proto.model.verdict import FAILURE_TYPES
+from firmware_proto.model.plan import plan_schema
+from firmware_proto.model.verdict import verdict_schemas
 from firmware_proto.model.worldmap import map_schema
 from gate.config import MAX_TRAJECTORY_SAMPLES, GateConfig
 from gate.options import (
@@ -39,6 +39,8 @@ _INT: dict[str, Any] = {"type": "integer"}
 _STR: dict[str, Any] = {"type": "string"}
 _BOOL: dict[str, Any] = {"type": "boolean"}
 _SHA: dict[str, Any] = {"type": "string", "pattern": "^[0-9a-f]{64}$"}
+_DECIMAL = r"\s*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*"
+"""A number as ``gate.options`` reads one (blanks around it are stripped)."""
 
 
 def _ref(name: str) -> dict[str, Any]:
@@ -82,176 +84,20 @@ def _hoist(schema: dict[str, Any], name: str) -> dict[str, Any]:
     return hoisted
 
 
+def _verdict_schemas() -> dict[str, Any]:
+    """The verdict's schemas, generated from its dataclasses, with this gate's bound on
+    the trajectory's length stated."""
+    schemas = verdict_schemas()
+    trajectory = schemas["Trajectory"]["properties"]
+    trajectory["samples"]["description"] += f" At most {MAX_TRAJECTORY_SAMPLES} fixed-rate samples."
+    return schemas
+
+
 def _schemas() -> dict[str, Any]:
-    pose = _obj({"x": _NUM, "y": _NUM, "yaw_deg": _NUM})
-    step_index = {"type": "integer", "minimum": 0, "maximum": MAX_PLAN_STEPS - 1}
     return {
         **_hoist(plan_schema(), "CommandPlan"),
         **_hoist(map_schema(), "Map"),
-        "Pose": pose | {"description": "Metres in the map frame; yaw in degrees CCW from +x."},
-        "Point": _obj({"x": _NUM, "y": _NUM}),
-        "TrajectorySample": _obj(
-            {
-                "t_s": _NUM | {"description": "Plan time (steps back to back)."},
-                "step": step_index,
-                "step_t_s": _NUM | {"description": "Time since this sample's step started."},
-                "x": _NUM,
-                "y": _NUM,
-                "yaw_deg": _NUM,
-            }
-        ),
-        "Trajectory": _obj(
-            {
-                "sample_period_s": _NUM
-                | {
-                    "description": (
-                        "The period used: 1/sample_hz rounded to whole twin steps, or longer "
-                        f"when the plan could otherwise give more than {MAX_TRAJECTORY_SAMPLES} "
-                        "fixed-rate samples (see the sample_hz parameter)."
-                    )
-                },
-                "samples": {
-                    "type": "array",
-                    "items": _ref("TrajectorySample"),
-                    "description": (
-                        f"At most {MAX_TRAJECTORY_SAMPLES} fixed-rate samples, plus each "
-                        "step's start and end and the final pose."
-                    ),
-                },
-            }
-        ),
-        "StepPrediction": _obj(
-            {
-                "index": step_index,
-                "command": {"enum": ["STOP", "FWD", "REV", "LEFT", "RIGHT"]},
-                "speed": _INT,
-                "distance": _INT,
-                "start_time_s": _NUM,
-                "end_time_s": _NUM,
-                "expected_duration_s": _NUM,
-                "nominal_duration_s": _NUM,
-                "start_pose": _ref("Pose"),
-                "end_pose": _ref("Pose"),
-                "completed": _BOOL,
-                "left_travel_units": _NUM,
-                "right_travel_units": _NUM,
-            }
-        ),
-        "CollisionReport": _obj(
-            {
-                "obstacle_id": _STR,
-                "contact": _ref("Point"),
-                "pose": _ref("Pose"),
-                "time_s": _NUM,
-                "step": step_index,
-                "step_t_s": _NUM,
-            }
-        ),
-        "StallReport": _obj(
-            {
-                "step": step_index,
-                "reason": {"enum": ["no_encoder_progress", "time_limit"]},
-                "side": {"enum": ["left", "right", "both", ""]},
-                "time_s": _NUM,
-            }
-        ),
-        "Tolerances": _obj({"position_m": _NUM, "yaw_deg": _NUM, "safety_margin_m": _NUM}),
-        "Replay": _obj(
-            {
-                "seed": _INT,
-                "map": _STR,
-                "map_sha256": _SHA,
-                "rover": _STR,
-                "rover_sha256": _SHA,
-                "plan_sha256": _SHA,
-                "start": _ref("Pose"),
-                "dt_s": _NUM,
-                "sample_hz": _NUM,
-                "render": _BOOL,
-                "gate_version": _STR,
-                "pymunk_version": _STR,
-                "query": _STR,
-            }
-        ),
-        "ObstacleHits": _obj(
-            {
-                "obstacle_id": _STR,
-                "count": _INT | {"minimum": 1},
-                "step": step_index,
-                "contact": _ref("Point")
-                | {"description": "Mean contact point of the hits during that step."},
-            }
-        ),
-        "GoalErrorPercentiles": _obj(
-            {
-                "samples": _INT
-                | {"description": "Samples that played to the end (no collision, no stall)."},
-                "percentiles": {"type": "array", "items": _NUM},
-                "distance_m": {"type": "array", "items": _NUM},
-                "position_m": {"type": "array", "items": _NUM},
-                "lateral_m": {"type": "array", "items": _NUM},
-                "yaw_deg": {"type": "array", "items": _NUM},
-            }
-        ),
-        "EnvelopePoint": _obj(
-            {
-                "step": step_index,
-                "step_t_s": _NUM,
-                "samples": _INT | {"description": "Samples still playing at that moment."},
-                "x": _NUM | {"description": "Mean position and (circular) mean yaw."},
-                "y": _NUM,
-                "yaw_deg": _NUM,
-                "major_m": _NUM
-                | {"minimum": 0, "description": "Semi-axes of the level's ellipse, m."},
-                "minor_m": _NUM | {"minimum": 0},
-                "angle_deg": _NUM | {"description": "Major axis, degrees CCW from +x."},
-                "yaw_sd_deg": _NUM | {"minimum": 0},
-            }
-        ),
-        "Uncertainty": _obj(
-            {
-                "samples": _INT | {"minimum": 2},
-                "seed": _INT,
-                "spread": {"enum": ["calibration", "default"]},
-                "slip_sigma": _NUM,
-                "collision_probability": _NUM | {"minimum": 0, "maximum": 1},
-                "stall_probability": _NUM | {"minimum": 0, "maximum": 1},
-                "approved_probability": _NUM | {"minimum": 0, "maximum": 1},
-                "collisions": {"type": "array", "items": _ref("ObstacleHits")},
-                "goal_error": _ref("GoalErrorPercentiles"),
-                "level": _NUM,
-                "envelope": {"type": "array", "items": _ref("EnvelopePoint")},
-            }
-        ),
-        "Verdict": _obj(
-            {
-                "approved": _BOOL,
-                "failure_type": _nullable({"enum": list(FAILURE_TYPES)}),
-                "failure_reason": _STR,
-                "failed_step": _nullable(step_index),
-                "goal": _ref("Pose"),
-                "start_pose": _ref("Pose"),
-                "final_pose": _ref("Pose"),
-                "position_error_m": _NUM
-                | {"description": "Signed, along the approach heading: > 0 short of the goal."},
-                "lateral_error_m": _NUM | {"description": "Signed: > 0 the goal lies left."},
-                "distance_error_m": _NUM | {"minimum": 0},
-                "yaw_error_deg": _NUM | {"minimum": -180, "exclusiveMaximum": 180},
-                "approach_heading_deg": _NUM,
-                "collision": _nullable(_ref("CollisionReport")),
-                "stall": _nullable(_ref("StallReport")),
-                "tolerances": _ref("Tolerances"),
-                "steps": {"type": "array", "items": _ref("StepPrediction")},
-                "trajectory": _ref("Trajectory"),
-                "sim_time_s": _NUM,
-                "replay": _ref("Replay"),
-                "uncertainty": _ref("Uncertainty")
-                | {"description": "Only when the request asked for samples > 1."},
-                "image_png_base64": _STR | {"contentEncoding": "base64"},
-                "wall_time_s": _NUM,
-            },
-            optional=("uncertainty", "image_png_base64"),
-        ),
+        **_verdict_schemas(),
         "Violation": _obj({"pointer": _STR, "message": _STR}),
         "Error": _obj(
             {
@@ -321,9 +167,11 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
             {"type": "string", "enum": maps},
         ),
         "start": (
-            "Start pose 'x,y,yaw_deg' (metres, degrees); default the map's start pose. "
-            "Must lie inside the map's bounds.",
-            {"type": "string", "pattern": r"^[^,]+,[^,]+,[^,]+$"},
+            "Start pose 'x,y,yaw_deg' (metres, degrees; plain decimal numbers); default "
+            "the map's start pose. x and y must lie within the map's bounds (GET /maps), "
+            "edges included: a start outside them is a 400 'invalid_option'; one whose "
+            "footprint touches a wall is played and answered 'start_in_collision'.",
+            {"type": "string", "pattern": f"^{_DECIMAL},{_DECIMAL},{_DECIMAL}$"},
         ),
         "render": (
             "1 or true: add a PNG of the top-down view (image_png_base64).",

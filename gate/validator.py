@@ -191,7 +191,8 @@ class Validator:
 
         Raises:
             GoalRangeError: a goal coordinate beyond :data:`MAX_GOAL_ABS_M`.
-            OptionError: unknown map, or a start pose outside the map's bounds.
+            OptionError: unknown map, or a start pose outside the map's bounds (a start on
+                their edge is played: its footprint touches a wall).
         """
         far = [
             (f"/goal/{axis}", f"must be within +/-{MAX_GOAL_ABS_M:g} m, got {value:g}")
@@ -206,7 +207,10 @@ class Validator:
         start = options.start
         if start is None:
             start = Pose(world.start.x, world.start.y, world.start.yaw_deg)
-        elif not world.bounds.contains(start.x, start.y):
+        elif not (
+            world.bounds.min_x <= start.x <= world.bounds.max_x
+            and world.bounds.min_y <= start.y <= world.bounds.max_y
+        ):
             b = world.bounds
             raise OptionError(
                 "start",

@@ -12,8 +12,10 @@ time (a trajectory sample, not a pose). Pure: no I/O.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
+
+from firmware_proto.model.jsoncodec import spec
 
 __all__ = ["Point", "Pose"]
 
@@ -34,9 +36,9 @@ class Pose:
     """A planar pose: metres in the map frame, yaw in degrees counter-clockwise from +x
     (the shape of a plan's ``goal``, a map's ``start`` and every pose in a verdict)."""
 
-    x: float
-    y: float
-    yaw_deg: float
+    x: float = field(metadata=spec("Metres east in the map frame."))
+    y: float = field(metadata=spec("Metres north in the map frame."))
+    yaw_deg: float = field(metadata=spec("Degrees counter-clockwise from +x."))
 
     @property
     def yaw_rad(self) -> float:

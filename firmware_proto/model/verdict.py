@@ -2,12 +2,13 @@
 definition that the gate (which builds and serialises verdicts) and the planner (which
 reads them over HTTP and may not import the gate) share.
 
-These mirror the JSON one to one (:meth:`Verdict.to_dict` / :meth:`Verdict.from_dict`;
-docs/gate.md and the gate's ``GET /openapi.json`` document the same shape), so a client
-may use them or work from the JSON alone. Reading is strict about what it uses and
-lenient about the rest: a missing or mistyped field raises
-:class:`~firmware_proto.errors.VerdictError` naming its JSON pointer; a field it does
-not know is ignored (a newer gate may add some). Pure: standard library only.
+These mirror the JSON one to one, written, read and described by one codec
+(:mod:`firmware_proto.model.jsoncodec`): each field's ``spec`` is its meaning in the
+schema that :func:`verdict_schemas` generates and the gate's ``GET /openapi.json``
+serves. Reading is strict about what it uses and lenient about the rest: a missing or
+mistyped field raises :class:`~firmware_proto.errors.VerdictError` naming its JSON
+pointer; a field it does not know is ignored (a newer gate may add some). Pure:
+standard library only.
 
 Units: metres in the map frame (x east, y north), yaw in degrees counter-clockwise from
 +x, times in seconds of twin time unless a name says ``wall``. Errors are signed and
@@ -29,11 +30,12 @@ from __future__ import annotations
 
 import bisect
 import json
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from typing import Any, Final, TypeVar
+from dataclasses import dataclass, field
+from typing import Any, Final
 
 from firmware_proto.errors import VerdictError
+from firmware_proto.model.jsoncodec import JsonCodec, spec
+from firmware_proto.model.plan import COMMAND_NAMES, MAX_PLAN_STEPS
 from firmware_proto.model.pose import Point, Pose
 
 __all__ = [
@@ -50,6 +52,7 @@ __all__ = [
     "TrajectorySample",
     "Uncertainty",
     "Verdict",
+    "verdict_schemas",
 ]
 
 FAILURE_TYPES: Final = (
@@ -73,114 +76,25 @@ precedence:
 - ``yaw_not_reached``: the position is within tolerance but the final yaw is not.
 """
 
-_T = TypeVar("_T")
-
-
-class _Reader:
-    """Typed field access with JSON pointers in the errors."""
-
-    def __init__(self, obj: Any, pointer: str) -> None:
-        if not isinstance(obj, Mapping):
-            raise VerdictError(f"verdict: {pointer or '/'} is not an object", (pointer,))
-        self.obj = obj
-        self.pointer = pointer
-
-    def _get(self, key: str) -> Any:
-        if key not in self.obj:
-            where = f"{self.pointer}/{key}"
-            raise VerdictError(f"verdict: missing field {where}", (where,))
-        return self.obj[key]
-
-    def _bad(self, key: str, what: str) -> VerdictError:
-        where = f"{self.pointer}/{key}"
-        return VerdictError(f"verdict: {where} is not {what}", (where,))
-
-    def number(self, key: str) -> float:
-        value = self._get(key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self._bad(key, "a number")
-        return float(value)
-
-    def integer(self, key: str) -> int:
-        value = self._get(key)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self._bad(key, "an integer")
-        return value
-
-    def boolean(self, key: str) -> bool:
-        value = self._get(key)
-        if not isinstance(value, bool):
-            raise self._bad(key, "a boolean")
-        return value
-
-    def string(self, key: str) -> str:
-        value = self._get(key)
-        if not isinstance(value, str):
-            raise self._bad(key, "a string")
-        return value
-
-    def numbers(self, key: str) -> tuple[float, ...]:
-        value = self._get(key)
-        if not isinstance(value, list) or any(
-            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value
-        ):
-            raise self._bad(key, "a list of numbers")
-        return tuple(float(v) for v in value)
-
-    def optional(self, key: str, read: Callable[[str], _T]) -> _T | None:
-        return None if self.obj.get(key) is None else read(key)
-
-    def child(self, key: str) -> _Reader:
-        return _Reader(self._get(key), f"{self.pointer}/{key}")
-
-    def items(self, key: str) -> list[_Reader]:
-        value = self._get(key)
-        if not isinstance(value, list):
-            raise self._bad(key, "a list")
-        return [_Reader(v, f"{self.pointer}/{key}/{i}") for i, v in enumerate(value)]
-
-    def pose(self, key: str) -> Pose:
-        r = self.child(key)
-        return Pose(r.number("x"), r.number("y"), r.number("yaw_deg"))
-
-    def point(self, key: str) -> Point:
-        r = self.child(key)
-        return Point(r.number("x"), r.number("y"))
+_STEP: Final = {"minimum": 0, "maximum": MAX_PLAN_STEPS - 1}
+_SHA: Final = {"pattern": "^[0-9a-f]{64}$"}
+_PROBABILITY: Final = {"minimum": 0, "maximum": 1}
+_CODEC: Final = JsonCodec(VerdictError, "verdict")
 
 
 @dataclass(frozen=True)
 class TrajectorySample:
-    """One predicted pose.
+    """One predicted pose (the pose's fields inline in the JSON)."""
 
-    Attributes:
-        t_s: twin time since the plan started (steps back to back, no pauses).
-        step: index of the step this sample belongs to.
-        step_t_s: time since that step started: what a drift monitor aligns on, since
-            the executor pauses between steps for the link's round trip.
-        pose: the predicted pose.
-    """
-
-    t_s: float
-    step: int
-    step_t_s: float
-    pose: Pose
-
-    def to_dict(self) -> dict[str, Any]:
-        """The sample as JSON-ready data (the pose's fields inline)."""
-        p = self.pose
-        return {
-            "t_s": self.t_s,
-            "step": self.step,
-            "step_t_s": self.step_t_s,
-            "x": p.x,
-            "y": p.y,
-            "yaw_deg": p.yaw_deg,
-        }
-
-    @classmethod
-    def _read(cls, r: _Reader) -> TrajectorySample:
-        pose = Pose(r.number("x"), r.number("y"), r.number("yaw_deg"))
-        return cls(r.number("t_s"), r.integer("step"), r.number("step_t_s"), pose)
+    t_s: float = field(metadata=spec("Plan time (steps back to back, no pauses), s."))
+    step: int = field(metadata=spec("The step this sample belongs to.", schema=_STEP))
+    step_t_s: float = field(
+        metadata=spec(
+            "Time since that step started, s: what a drift monitor aligns on, since the "
+            "executor pauses between steps for the link's round trip."
+        )
+    )
+    pose: Pose = field(metadata=spec(inline=True))
 
 
 @dataclass(frozen=True)
@@ -195,15 +109,16 @@ class Trajectory:
     start of the next).
     """
 
-    sample_period_s: float
-    samples: tuple[TrajectorySample, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        """The trajectory as JSON-ready data."""
-        return {
-            "sample_period_s": self.sample_period_s,
-            "samples": [s.to_dict() for s in self.samples],
-        }
+    sample_period_s: float = field(
+        metadata=spec(
+            "The period used, s: 1/sample_hz rounded to whole twin steps, or longer when "
+            "the plan could otherwise give more fixed-rate samples than the gate's bound "
+            "(see the sample_hz parameter)."
+        )
+    )
+    samples: tuple[TrajectorySample, ...] = field(
+        metadata=spec("Fixed-rate samples, plus each step's start and end and the final pose.")
+    )
 
     def for_step(self, step: int) -> tuple[TrajectorySample, ...]:
         """The samples of one step, in time order."""
@@ -236,489 +151,295 @@ class Trajectory:
 
 @dataclass(frozen=True)
 class StepPrediction:
-    """What the twin predicts for one step.
+    """What the twin predicts for one step."""
 
-    Attributes:
-        index: the step's position in the plan (0-based).
-        command, speed, distance: the step as planned.
-        start_time_s, end_time_s: twin time at its start and end (plan time).
-        expected_duration_s: ``end - start``: how long the twin took, slip included; an
-            executor's per-step timeout should start from it.
-        nominal_duration_s: the step's ideal trapezoidal speed profile without slip.
-        start_pose, end_pose: poses at its start and end.
-        completed: it ran to its distance (false when a collision or stall cut it).
-        left_travel_units, right_travel_units: encoder travel of each side, distance
-            units, forward positive (what the rover's encoders should count).
-    """
-
-    index: int
-    command: str
+    index: int = field(metadata=spec("The step's position in the plan.", schema=_STEP))
+    command: str = field(metadata=spec(schema={"enum": list(COMMAND_NAMES.values())}))
     speed: int
     distance: int
-    start_time_s: float
-    end_time_s: float
-    expected_duration_s: float
-    nominal_duration_s: float
+    start_time_s: float = field(metadata=spec("Plan time at the step's start, s."))
+    end_time_s: float = field(metadata=spec("Plan time at its end, s."))
+    expected_duration_s: float = field(
+        metadata=spec(
+            "end - start: how long the twin took, slip included, s; an executor's step "
+            "timeout starts from it."
+        )
+    )
+    nominal_duration_s: float = field(
+        metadata=spec("The step's ideal trapezoidal speed profile without slip, s.")
+    )
     start_pose: Pose
     end_pose: Pose
-    completed: bool
-    left_travel_units: float
-    right_travel_units: float
+    completed: bool = field(
+        metadata=spec("It ran to its distance (false when a collision or stall cut it).")
+    )
+    left_travel_units: float = field(
+        metadata=spec("Encoder travel of the left side, distance units, forward positive.")
+    )
+    right_travel_units: float = field(metadata=spec("The same of the right side."))
 
     @property
     def yaw_change_deg(self) -> float:
         """Predicted yaw change over the step, degrees, wrapped to ``[-180, 180)``."""
         return (self.end_pose.yaw_deg - self.start_pose.yaw_deg + 180.0) % 360.0 - 180.0
 
-    def to_dict(self) -> dict[str, Any]:
-        """The step as JSON-ready data."""
-        return {
-            "index": self.index,
-            "command": self.command,
-            "speed": self.speed,
-            "distance": self.distance,
-            "start_time_s": self.start_time_s,
-            "end_time_s": self.end_time_s,
-            "expected_duration_s": self.expected_duration_s,
-            "nominal_duration_s": self.nominal_duration_s,
-            "start_pose": self.start_pose.to_dict(),
-            "end_pose": self.end_pose.to_dict(),
-            "completed": self.completed,
-            "left_travel_units": self.left_travel_units,
-            "right_travel_units": self.right_travel_units,
-        }
-
-    @classmethod
-    def _read(cls, s: _Reader) -> StepPrediction:
-        return cls(
-            index=s.integer("index"),
-            command=s.string("command"),
-            speed=s.integer("speed"),
-            distance=s.integer("distance"),
-            start_time_s=s.number("start_time_s"),
-            end_time_s=s.number("end_time_s"),
-            expected_duration_s=s.number("expected_duration_s"),
-            nominal_duration_s=s.number("nominal_duration_s"),
-            start_pose=s.pose("start_pose"),
-            end_pose=s.pose("end_pose"),
-            completed=s.boolean("completed"),
-            left_travel_units=s.number("left_travel_units"),
-            right_travel_units=s.number("right_travel_units"),
-        )
-
 
 @dataclass(frozen=True)
 class CollisionReport:
-    """The first contact of the margin-inflated footprint.
+    """The first contact of the margin-inflated footprint."""
 
-    Attributes:
-        obstacle_id: the map obstacle's id, or ``"bounds"`` for the walls.
-        contact: contact point on the obstacle's surface.
-        pose: the rover's pose at contact.
-        time_s: plan time of the contact.
-        step: the step during which it happened.
-        step_t_s: time since that step started.
-    """
-
-    obstacle_id: str
-    contact: Point
-    pose: Pose
-    time_s: float
-    step: int
-    step_t_s: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """The collision as JSON-ready data."""
-        return {
-            "obstacle_id": self.obstacle_id,
-            "contact": self.contact.to_dict(),
-            "pose": self.pose.to_dict(),
-            "time_s": self.time_s,
-            "step": self.step,
-            "step_t_s": self.step_t_s,
-        }
-
-    @classmethod
-    def _read(cls, c: _Reader) -> CollisionReport:
-        return cls(
-            c.string("obstacle_id"),
-            c.point("contact"),
-            c.pose("pose"),
-            c.number("time_s"),
-            c.integer("step"),
-            c.number("step_t_s"),
-        )
+    obstacle_id: str = field(metadata=spec('The map obstacle\'s id, or "bounds" for the walls.'))
+    contact: Point = field(metadata=spec("Contact point on the obstacle's surface."))
+    pose: Pose = field(metadata=spec("The rover's pose at contact."))
+    time_s: float = field(metadata=spec("Plan time of the contact, s."))
+    step: int = field(metadata=spec("The step during which it happened.", schema=_STEP))
+    step_t_s: float = field(metadata=spec("Time since that step started, s."))
 
 
 @dataclass(frozen=True)
 class StallReport:
-    """Why playback stopped for lack of progress.
+    """Why playback stopped for lack of progress."""
 
-    Attributes:
-        step: the step that stalled.
-        reason: ``"no_encoder_progress"`` or ``"time_limit"``.
-        side: ``"left"``, ``"right"``, ``"both"`` (no progress) or ``""`` (time limit).
-        time_s: plan time of the detection.
-    """
-
-    step: int
-    reason: str
-    side: str
-    time_s: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """The stall as JSON-ready data."""
-        return {"step": self.step, "reason": self.reason, "side": self.side, "time_s": self.time_s}
-
-    @classmethod
-    def _read(cls, s: _Reader) -> StallReport:
-        return cls(s.integer("step"), s.string("reason"), s.string("side"), s.number("time_s"))
+    step: int = field(metadata=spec("The step that stalled.", schema=_STEP))
+    reason: str = field(metadata=spec(schema={"enum": ["no_encoder_progress", "time_limit"]}))
+    side: str = field(
+        metadata=spec(
+            "The side without progress; empty for time_limit.",
+            schema={"enum": ["left", "right", "both", ""]},
+        )
+    )
+    time_s: float = field(metadata=spec("Plan time of the detection, s."))
 
 
 @dataclass(frozen=True)
 class Tolerances:
-    """What the verdict was judged against: goal distance (m), yaw (deg), and the
-    inflation of the footprint for collisions (m)."""
+    """What the verdict was judged against."""
 
-    position_m: float
-    yaw_deg: float
-    safety_margin_m: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """The tolerances as JSON-ready data."""
-        return {
-            "position_m": self.position_m,
-            "yaw_deg": self.yaw_deg,
-            "safety_margin_m": self.safety_margin_m,
-        }
-
-    @classmethod
-    def _read(cls, t: _Reader) -> Tolerances:
-        return cls(t.number("position_m"), t.number("yaw_deg"), t.number("safety_margin_m"))
+    position_m: float = field(metadata=spec("Accepted distance from the goal, m."))
+    yaw_deg: float = field(metadata=spec("Accepted yaw error, degrees."))
+    safety_margin_m: float = field(metadata=spec("Footprint inflation for collisions, m."))
 
 
 @dataclass(frozen=True)
 class Replay:
-    """Everything needed to reproduce the verdict bit for bit.
+    """Everything needed to reproduce the verdict bit for bit."""
 
-    Attributes:
-        seed: seed of the draws of a verdict played on several twins (the request's
-            ``seed``); 0 for a single playback, which has no randomness.
-        map: map name; ``map_sha256`` its canonical content's SHA-256.
-        rover: rover description name; ``rover_sha256`` its values' SHA-256.
-        plan_sha256: SHA-256 of the plan's canonical JSON (sorted keys, no spaces).
-        start: the start pose used.
-        dt_s: the twin's fixed physics step.
-        sample_hz: requested trajectory rate (the period actually used is in
-            ``trajectory.sample_period_s``).
-        render: whether a picture was requested.
-        gate_version: version of this software; ``pymunk_version`` of the physics engine.
-        query: the query string that reproduces these options on ``/validate_plan``.
-    """
-
-    seed: int
-    map: str
-    map_sha256: str
-    rover: str
-    rover_sha256: str
-    plan_sha256: str
-    start: Pose
-    dt_s: float
-    sample_hz: float
-    render: bool
+    seed: int = field(
+        metadata=spec(
+            "Seed of the draws of a verdict played on several twins (the request's seed); "
+            "0 for a single playback, which has no randomness."
+        )
+    )
+    map: str = field(metadata=spec("Map name."))
+    map_sha256: str = field(metadata=spec("SHA-256 of the map's canonical content.", schema=_SHA))
+    rover: str = field(metadata=spec("Rover description name."))
+    rover_sha256: str = field(metadata=spec("SHA-256 of its values.", schema=_SHA))
+    plan_sha256: str = field(
+        metadata=spec("SHA-256 of the plan's canonical JSON (sorted keys, no spaces).", schema=_SHA)
+    )
+    start: Pose = field(metadata=spec("The start pose used."))
+    dt_s: float = field(metadata=spec("The twin's fixed physics step, s."))
+    sample_hz: float = field(
+        metadata=spec(
+            "Requested trajectory rate, Hz (the period used is trajectory.sample_period_s)."
+        )
+    )
+    render: bool = field(metadata=spec("Whether a picture was requested."))
     gate_version: str
     pymunk_version: str
-    query: str
-
-    def to_dict(self) -> dict[str, Any]:
-        """The replay record as JSON-ready data."""
-        return {
-            "seed": self.seed,
-            "map": self.map,
-            "map_sha256": self.map_sha256,
-            "rover": self.rover,
-            "rover_sha256": self.rover_sha256,
-            "plan_sha256": self.plan_sha256,
-            "start": self.start.to_dict(),
-            "dt_s": self.dt_s,
-            "sample_hz": self.sample_hz,
-            "render": self.render,
-            "gate_version": self.gate_version,
-            "pymunk_version": self.pymunk_version,
-            "query": self.query,
-        }
-
-    @classmethod
-    def _read(cls, r: _Reader) -> Replay:
-        return cls(
-            seed=r.integer("seed"),
-            map=r.string("map"),
-            map_sha256=r.string("map_sha256"),
-            rover=r.string("rover"),
-            rover_sha256=r.string("rover_sha256"),
-            plan_sha256=r.string("plan_sha256"),
-            start=r.pose("start"),
-            dt_s=r.number("dt_s"),
-            sample_hz=r.number("sample_hz"),
-            render=r.boolean("render"),
-            gate_version=r.string("gate_version"),
-            pymunk_version=r.string("pymunk_version"),
-            query=r.string("query"),
-        )
+    query: str = field(
+        metadata=spec("The query string that reproduces these options on /validate_plan.")
+    )
 
 
 @dataclass(frozen=True)
 class ObstacleHits:
-    """The samples of an uncertain verdict that hit one obstacle.
+    """The samples of an uncertain verdict that hit one obstacle."""
 
-    Attributes:
-        obstacle_id: the obstacle (``"bounds"`` for the walls).
-        count: how many samples touched it first.
-        step: the step during which most of them did (the earliest on a tie).
-        contact: the mean contact point of those at that step, m.
-    """
-
-    obstacle_id: str
-    count: int
-    step: int
-    contact: Point
-
-    def to_dict(self) -> dict[str, Any]:
-        """As JSON-ready data."""
-        return {
-            "obstacle_id": self.obstacle_id,
-            "count": self.count,
-            "step": self.step,
-            "contact": self.contact.to_dict(),
-        }
-
-    @classmethod
-    def _read(cls, r: _Reader) -> ObstacleHits:
-        return cls(
-            r.string("obstacle_id"), r.integer("count"), r.integer("step"), r.point("contact")
+    obstacle_id: str = field(metadata=spec('The obstacle ("bounds" for the walls).'))
+    count: int = field(metadata=spec("How many samples touched it first.", schema={"minimum": 1}))
+    step: int = field(
+        metadata=spec(
+            "The step during which most of them did (the earliest on a tie).", schema=_STEP
         )
+    )
+    contact: Point = field(metadata=spec("Mean contact point of the hits during that step, m."))
 
 
 @dataclass(frozen=True)
 class GoalErrorPercentiles:
     """Percentiles of the goal errors over the samples that played to the end (no
-    collision, no stall); each list has one value per entry of ``percentiles``.
+    collision, no stall); each list has one value per entry of ``percentiles``, of the
+    verdict's error of that name (same signs)."""
 
-    Attributes:
-        samples: how many samples they are over (0: every one collided or stalled, and
-            the lists are empty).
-        percentiles: which percentiles, in percent (5, 50, 95...).
-        distance_m, position_m, lateral_m, yaw_deg: of ``distance_error_m``,
-            ``position_error_m``, ``lateral_error_m`` and ``yaw_error_deg`` (same signs
-            as the verdict's).
-    """
-
-    samples: int
-    percentiles: tuple[float, ...]
+    samples: int = field(
+        metadata=spec(
+            "Samples that played to the end (0: every one collided or stalled, and the "
+            "lists are empty)."
+        )
+    )
+    percentiles: tuple[float, ...] = field(metadata=spec("Which percentiles, in percent."))
     distance_m: tuple[float, ...]
     position_m: tuple[float, ...]
     lateral_m: tuple[float, ...]
     yaw_deg: tuple[float, ...]
 
-    def to_dict(self) -> dict[str, Any]:
-        """As JSON-ready data."""
-        return {
-            "samples": self.samples,
-            "percentiles": list(self.percentiles),
-            "distance_m": list(self.distance_m),
-            "position_m": list(self.position_m),
-            "lateral_m": list(self.lateral_m),
-            "yaw_deg": list(self.yaw_deg),
-        }
-
-    @classmethod
-    def _read(cls, r: _Reader) -> GoalErrorPercentiles:
-        return cls(
-            r.integer("samples"),
-            r.numbers("percentiles"),
-            r.numbers("distance_m"),
-            r.numbers("position_m"),
-            r.numbers("lateral_m"),
-            r.numbers("yaw_deg"),
-        )
-
 
 @dataclass(frozen=True)
 class EnvelopePoint:
-    """Where the samples still playing are at one moment of one step.
+    """Where the samples still playing are at one moment of one step."""
 
-    Attributes:
-        step, step_t_s: the moment (as the trajectory tags it).
-        samples: how many samples are still playing then (not yet collided).
-        pose: their mean pose (yaw: the circular mean).
-        major_m, minor_m, angle_deg: the ellipse that holds their positions at the
-            envelope's level (``Uncertainty.level``) under a normal fit: semi-axes, m,
-            and the major axis's direction, degrees counter-clockwise from +x.
-        yaw_sd_deg: the standard deviation of their yaw about the mean, degrees.
-    """
-
-    step: int
+    step: int = field(metadata=spec(schema=_STEP))
     step_t_s: float
-    samples: int
-    pose: Pose
-    major_m: float
-    minor_m: float
-    angle_deg: float
-    yaw_sd_deg: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """As JSON-ready data (the pose's fields inline)."""
-        return {
-            "step": self.step,
-            "step_t_s": self.step_t_s,
-            "samples": self.samples,
-            "x": self.pose.x,
-            "y": self.pose.y,
-            "yaw_deg": self.pose.yaw_deg,
-            "major_m": self.major_m,
-            "minor_m": self.minor_m,
-            "angle_deg": self.angle_deg,
-            "yaw_sd_deg": self.yaw_sd_deg,
-        }
-
-    @classmethod
-    def _read(cls, r: _Reader) -> EnvelopePoint:
-        return cls(
-            r.integer("step"),
-            r.number("step_t_s"),
-            r.integer("samples"),
-            Pose(r.number("x"), r.number("y"), r.number("yaw_deg")),
-            r.number("major_m"),
-            r.number("minor_m"),
-            r.number("angle_deg"),
-            r.number("yaw_sd_deg"),
+    samples: int = field(metadata=spec("Samples still playing at that moment."))
+    pose: Pose = field(
+        metadata=spec(inline={"x": {"description": "Mean position and (circular) mean yaw."}})
+    )
+    major_m: float = field(
+        metadata=spec(
+            "Semi-axes of the ellipse that holds the positions at the envelope's level "
+            "under a normal fit, m.",
+            schema={"minimum": 0},
         )
+    )
+    minor_m: float = field(metadata=spec(schema={"minimum": 0}))
+    angle_deg: float = field(metadata=spec("Major axis, degrees counter-clockwise from +x."))
+    yaw_sd_deg: float = field(
+        metadata=spec(
+            "Standard deviation of the yaw about the mean, degrees.", schema={"minimum": 0}
+        )
+    )
 
 
 @dataclass(frozen=True)
 class Uncertainty:
     """A plan played on ``samples`` twins drawn from the twin's parameter uncertainty
-    and a slip distribution (docs/gate.md, "Verdicts with their uncertainty").
+    and a slip distribution (docs/gate.md, "Verdicts with their uncertainty")."""
 
-    Attributes:
-        samples: how many twins.
-        seed: the seed of the draws (same request, same seed: same answer).
-        spread: ``"calibration"`` (the calibrated twin's covariance) or ``"default"``
-            (the gate's documented default spread).
-        slip_sigma: the 1-sigma spread of each side's friction factor (log-normal).
-        collision_probability: the fraction of samples whose footprint touched
-            something (start included).
-        stall_probability: the fraction that stalled.
-        approved_probability: the fraction that the verdict's tolerances approve.
-        collisions: per obstacle hit, most hits first.
-        goal_error: percentiles of the goal errors.
-        level: the probability the envelope's ellipses hold (0.95).
-        envelope: per step, the samples' spread at moments of it (each step's end among
-            them), in time order.
-    """
-
-    samples: int
-    seed: int
-    spread: str
-    slip_sigma: float
-    collision_probability: float
-    stall_probability: float
-    approved_probability: float
-    collisions: tuple[ObstacleHits, ...]
+    samples: int = field(metadata=spec("How many twins.", schema={"minimum": 2}))
+    seed: int = field(metadata=spec("The seed of the draws (same request, same answer)."))
+    spread: str = field(
+        metadata=spec(
+            "The calibrated twin's covariance, or the gate's documented default spread.",
+            schema={"enum": ["calibration", "default"]},
+        )
+    )
+    slip_sigma: float = field(metadata=spec("1-sigma of each side's friction factor (log-normal)."))
+    collision_probability: float = field(
+        metadata=spec(
+            "Share of samples whose footprint touched something (start included).",
+            schema=_PROBABILITY,
+        )
+    )
+    stall_probability: float = field(metadata=spec("Share that stalled.", schema=_PROBABILITY))
+    approved_probability: float = field(
+        metadata=spec("Share that the verdict's tolerances approve.", schema=_PROBABILITY)
+    )
+    collisions: tuple[ObstacleHits, ...] = field(metadata=spec("Per obstacle hit, most first."))
     goal_error: GoalErrorPercentiles
-    level: float
-    envelope: tuple[EnvelopePoint, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        """As JSON-ready data."""
-        return {
-            "samples": self.samples,
-            "seed": self.seed,
-            "spread": self.spread,
-            "slip_sigma": self.slip_sigma,
-            "collision_probability": self.collision_probability,
-            "stall_probability": self.stall_probability,
-            "approved_probability": self.approved_probability,
-            "collisions": [c.to_dict() for c in self.collisions],
-            "goal_error": self.goal_error.to_dict(),
-            "level": self.level,
-            "envelope": [p.to_dict() for p in self.envelope],
-        }
+    level: float = field(metadata=spec("The probability the envelope's ellipses hold."))
+    envelope: tuple[EnvelopePoint, ...] = field(
+        metadata=spec(
+            "Per step, the samples' spread at moments of it (each step's end among them), "
+            "in time order."
+        )
+    )
 
     def for_step(self, step: int) -> tuple[EnvelopePoint, ...]:
         """The envelope points of one step, in time order."""
         return tuple(p for p in self.envelope if p.step == step)
 
-    @classmethod
-    def _read(cls, r: _Reader) -> Uncertainty:
-        return cls(
-            samples=r.integer("samples"),
-            seed=r.integer("seed"),
-            spread=r.string("spread"),
-            slip_sigma=r.number("slip_sigma"),
-            collision_probability=r.number("collision_probability"),
-            stall_probability=r.number("stall_probability"),
-            approved_probability=r.number("approved_probability"),
-            collisions=tuple(ObstacleHits._read(c) for c in r.items("collisions")),
-            goal_error=GoalErrorPercentiles._read(r.child("goal_error")),
-            level=r.number("level"),
-            envelope=tuple(EnvelopePoint._read(p) for p in r.items("envelope")),
-        )
-
 
 @dataclass(frozen=True)
 class Verdict:
     """The response of ``POST /validate_plan``; see the module docstring for units and
-    signs, and :data:`FAILURE_TYPES` for ``failure_type``.
+    signs, and :data:`FAILURE_TYPES` for ``failure_type``. Each field's meaning is its
+    ``spec``, the ``description`` of the gate's OpenAPI schema."""
 
-    Attributes:
-        approved: the plan is collision-free, made progress, and ends within tolerance
-            (judged on the nominal twin, also when ``uncertainty`` is present).
-        failure_type: ``None`` when approved, else one of :data:`FAILURE_TYPES` (or a
-            newer type this client does not know).
-        failure_reason: one human-readable sentence (``""`` when approved).
-        failed_step: the step that failed: the colliding or stalled step, or the last
-            step for ``goal_not_reached`` / ``yaw_not_reached``; ``None`` when approved.
-        goal: the plan's goal; ``start_pose`` where playback started; ``final_pose``
-            where the twin came to rest (or the pose at contact).
-        position_error_m, lateral_error_m, distance_error_m, yaw_error_deg: the final
-            pose against the goal (``distance_error_m`` is the unsigned Euclidean one).
-        approach_heading_deg: the heading the longitudinal error is measured along.
-        collision, stall: details of those failures, else ``None``.
-        tolerances: what the verdict was judged against.
-        steps: one prediction per step played (fewer than planned when cut short).
-        trajectory: the predicted trajectory.
-        sim_time_s: twin time played, settling included.
-        replay: what reproduces this verdict.
-        uncertainty: the spread over twins drawn from the parameter uncertainty, when
-            the request asked for more than one sample; else ``None``.
-        image_png_base64: the rendered top-down view, when requested; else ``None``.
-        wall_time_s: wall-clock time the validation took: the one field that differs
-            between repeats of the same request.
-    """
-
-    approved: bool
-    failure_type: str | None
-    failure_reason: str
-    failed_step: int | None
-    goal: Pose
-    start_pose: Pose
-    final_pose: Pose
-    position_error_m: float
-    lateral_error_m: float
-    distance_error_m: float
-    yaw_error_deg: float
-    approach_heading_deg: float
+    approved: bool = field(
+        metadata=spec(
+            "Collision free, made progress, and ends within both tolerances (judged on "
+            "the nominal twin, also with uncertainty)."
+        )
+    )
+    failure_type: str | None = field(
+        metadata=spec(
+            "null when approved, else one of FAILURE_TYPES, in order of precedence (a "
+            "newer gate may add types).",
+            schema={"enum": list(FAILURE_TYPES)},
+        )
+    )
+    failure_reason: str = field(metadata=spec('One sentence for people ("" when approved).'))
+    failed_step: int | None = field(
+        metadata=spec(
+            "The colliding or stalled step; the last step for goal_not_reached and "
+            "yaw_not_reached; 0 for start_in_collision; null when approved.",
+            schema=_STEP,
+        )
+    )
+    goal: Pose = field(metadata=spec("The plan's goal."))
+    start_pose: Pose = field(metadata=spec("Where playback started."))
+    final_pose: Pose = field(
+        metadata=spec(
+            "Where the twin came to rest (wheels stopped, up to 1 s of settling), or the "
+            "pose at the first contact."
+        )
+    )
+    position_error_m: float = field(
+        metadata=spec(
+            "Signed, goal minus final, along the approach heading: > 0 the rover stops "
+            "short of the goal (undershoot), < 0 it goes past it (overshoot)."
+        )
+    )
+    lateral_error_m: float = field(
+        metadata=spec("Signed, across the approach heading: > 0 the goal lies to the left.")
+    )
+    distance_error_m: float = field(
+        metadata=spec(
+            "Euclidean distance to the goal (what pos_tol_m is compared with).",
+            schema={"minimum": 0},
+        )
+    )
+    yaw_error_deg: float = field(
+        metadata=spec(
+            "Goal yaw minus final yaw, wrapped to [-180, 180): > 0 turn further left.",
+            schema={"minimum": -180, "exclusiveMaximum": 180},
+        )
+    )
+    approach_heading_deg: float = field(
+        metadata=spec(
+            "The heading of the last FWD step (REV: reversed) as it started; the "
+            "start-to-goal bearing when the plan never drives."
+        )
+    )
     collision: CollisionReport | None
     stall: StallReport | None
     tolerances: Tolerances
-    steps: tuple[StepPrediction, ...]
+    steps: tuple[StepPrediction, ...] = field(
+        metadata=spec("One prediction per step played (fewer than planned when cut short).")
+    )
     trajectory: Trajectory
-    sim_time_s: float
+    sim_time_s: float = field(metadata=spec("Twin time played, settling included, s."))
     replay: Replay
-    uncertainty: Uncertainty | None = None
-    image_png_base64: str | None = None
-    wall_time_s: float = 0.0
+    uncertainty: Uncertainty | None = field(
+        default=None,
+        metadata=spec("Only when the request asked for samples > 1.", omit_none=True),
+    )
+    image_png_base64: str | None = field(
+        default=None,
+        metadata=spec(
+            "Only with render=1: a PNG of the map, the plan and the prediction.",
+            schema={"contentEncoding": "base64"},
+            omit_none=True,
+        ),
+    )
+    wall_time_s: float = field(
+        default=0.0,
+        metadata=spec(
+            "Wall-clock time the validation took in its worker, s: the one field that "
+            "differs between repeats of the same request."
+        ),
+    )
 
     @property
     def expected_duration_s(self) -> float:
@@ -733,39 +454,13 @@ class Verdict:
         return f"{self.failure_type} at step {self.failed_step}: {self.failure_reason}"
 
     def to_dict(self) -> dict[str, Any]:
-        """The verdict as JSON-ready data, keys in documented order, ``wall_time_s``
-        last; ``uncertainty`` and ``image_png_base64`` only when present."""
-        out: dict[str, Any] = {
-            "approved": self.approved,
-            "failure_type": self.failure_type,
-            "failure_reason": self.failure_reason,
-            "failed_step": self.failed_step,
-            "goal": self.goal.to_dict(),
-            "start_pose": self.start_pose.to_dict(),
-            "final_pose": self.final_pose.to_dict(),
-            "position_error_m": self.position_error_m,
-            "lateral_error_m": self.lateral_error_m,
-            "distance_error_m": self.distance_error_m,
-            "yaw_error_deg": self.yaw_error_deg,
-            "approach_heading_deg": self.approach_heading_deg,
-            "collision": self.collision.to_dict() if self.collision else None,
-            "stall": self.stall.to_dict() if self.stall else None,
-            "tolerances": self.tolerances.to_dict(),
-            "steps": [s.to_dict() for s in self.steps],
-            "trajectory": self.trajectory.to_dict(),
-            "sim_time_s": self.sim_time_s,
-            "replay": self.replay.to_dict(),
-        }
-        if self.uncertainty is not None:
-            out["uncertainty"] = self.uncertainty.to_dict()
-        if self.image_png_base64 is not None:
-            out["image_png_base64"] = self.image_png_base64
-        out["wall_time_s"] = self.wall_time_s
-        return out
+        """The verdict as JSON-ready data, keys in field order, ``wall_time_s`` last;
+        ``uncertainty`` and ``image_png_base64`` only when present."""
+        return _CODEC.encode(self)
 
     def to_json(self) -> str:
         """Compact JSON text of :meth:`to_dict` (what the gate sends)."""
-        return json.dumps(self.to_dict(), separators=(",", ":"), allow_nan=False)
+        return json.dumps(_CODEC.encode(self), separators=(",", ":"), allow_nan=False)
 
     @classmethod
     def from_dict(cls, obj: Any) -> Verdict:
@@ -775,43 +470,8 @@ class Verdict:
             VerdictError: a field is missing or of the wrong type (its pointer is in the
                 message and in ``pointers``).
         """
-        r = _Reader(obj, "")
-        traj = r.child("trajectory")
-        return cls(
-            approved=r.boolean("approved"),
-            failure_type=r.optional("failure_type", r.string),
-            failure_reason=r.string("failure_reason"),
-            failed_step=r.optional("failed_step", r.integer),
-            goal=r.pose("goal"),
-            start_pose=r.pose("start_pose"),
-            final_pose=r.pose("final_pose"),
-            position_error_m=r.number("position_error_m"),
-            lateral_error_m=r.number("lateral_error_m"),
-            distance_error_m=r.number("distance_error_m"),
-            yaw_error_deg=r.number("yaw_error_deg"),
-            approach_heading_deg=r.number("approach_heading_deg"),
-            collision=(
-                None
-                if r.obj.get("collision") is None
-                else CollisionReport._read(r.child("collision"))
-            ),
-            stall=None if r.obj.get("stall") is None else StallReport._read(r.child("stall")),
-            tolerances=Tolerances._read(r.child("tolerances")),
-            steps=tuple(StepPrediction._read(s) for s in r.items("steps")),
-            trajectory=Trajectory(
-                traj.number("sample_period_s"),
-                tuple(TrajectorySample._read(s) for s in traj.items("samples")),
-            ),
-            sim_time_s=r.number("sim_time_s"),
-            replay=Replay._read(r.child("replay")),
-            uncertainty=(
-                None
-                if r.obj.get("uncertainty") is None
-                else Uncertainty._read(r.child("uncertainty"))
-            ),
-            image_png_base64=r.optional("image_png_base64", r.string),
-            wall_time_s=r.number("wall_time_s") if "wall_time_s" in r.obj else 0.0,
-        )
+        verdict: Verdict = _CODEC.decode(cls, obj)
+        return verdict
 
     @classmethod
     def from_json(cls, text: str | bytes) -> Verdict:
@@ -825,3 +485,10 @@ class Verdict:
         except (ValueError, RecursionError) as exc:
             raise VerdictError(f"verdict: not JSON: {exc}", ("",)) from exc
         return cls.from_dict(obj)
+
+
+def verdict_schemas(ref: str = "#/components/schemas/") -> dict[str, Any]:
+    """The JSON Schema (2020-12) of :class:`Verdict` and of every class it holds, by
+    class name, generated from the dataclasses (what the gate's OpenAPI document
+    serves); references point at ``ref + name``."""
+    return _CODEC.schemas(Verdict, ref=ref)

@@ -265,3 +265,15 @@ def test_rendered_picture_is_a_png_of_the_map(http_gate: GateServer) -> None:
 def test_pose2d_helpers_agree_with_the_verdict_frame() -> None:
     # A sanity anchor for the sign conventions the tests above rely on.
     assert Pose2D.from_deg(0, 0, 90).yaw_rad == pytest.approx(math.pi / 2)
+
+
+def test_a_start_on_the_maps_edge_is_played_and_one_past_it_refused(
+    http_gate: GateServer,
+) -> None:
+    """The OpenAPI document allows any start within the map's bounds, edges included
+    (issue 43): a start on the west wall is played, and touches it; a step past it is a 400."""
+    v = _verdict(http_gate, plan((1.0, 1.0, 0.0), fwd(0.5)), "start=0,3,0")
+    assert v.failure_type == "start_in_collision"
+    assert v.collision is not None and v.collision.obstacle_id == "bounds"
+    outside = post_plan(http_gate.address, plan((1.0, 1.0, 0.0), fwd(0.5)), "start=-0.01,3,0")
+    assert (outside.status, outside.json()["parameter"]) == (400, "start")
