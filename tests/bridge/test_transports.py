@@ -395,8 +395,7 @@ def _reconnect_delays(caplog: pytest.LogCaptureFixture) -> list[float]:
     return [
         float(r.args[-1])  # type: ignore[index, arg-type]
         for r in caplog.records
-        if r.name.startswith("bridge.link.")
-        and ("retry in" in r.msg or "reconnecting in" in r.msg)
+        if r.name.startswith("bridge.link.") and ("retry in" in r.msg or "reconnecting in" in r.msg)
     ]
 
 
