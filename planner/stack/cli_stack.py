@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_proto.cli import values
-from planner.stack.stackenv import add_domain_argument
+from planner.stack.stackenv import TWIN_ENV, add_domain_argument
 
 __all__ = ["register"]
 
@@ -60,6 +60,7 @@ def register(subparsers: Any) -> None:
             "  rover stack up                                   # lab map, emulator, 3 s link\n"
             "  rover stack up --map scn02 --firmware c --rtt 1\n"
             "  rover stack up --device /dev/rover-motor --baud 1000000\n"
+            "  rover stack up --ground loose --twin twin.toml   # a calibrated twin on it\n"
             "then, in another shell:\n"
             '  eval "$(rover stack env)"\n'
             "  rover go --goal behind_table && rover status"
@@ -88,6 +89,18 @@ def register(subparsers: Any) -> None:
         help="mission seconds per wall second: emulator and link this much faster (default 1)",
     )
     up.add_argument("--seed", type=int, default=1, help="seed of the emulator and the link")
+    up.add_argument(
+        "--ground",
+        metavar="NAME|FILE",
+        help="the emulator drives on this ground, which the gate does not know (rover "
+        "emulate --ground: a shipped ground's name or a ground file); not with --device",
+    )
+    up.add_argument(
+        "--twin",
+        metavar="FILE",
+        help="a calibrated twin (rover calibrate): the gate plays every plan on it, and "
+        f"rover go plans by its turn efficiency (the export line's ${TWIN_ENV})",
+    )
     up.add_argument(
         "--gate-port",
         type=values.tcp_port,
@@ -176,6 +189,17 @@ def _up(args: argparse.Namespace) -> int:
     from planner.stack.processes import Stack, StackConfig
     from planner.stack.stackenv import export_line, stack_environment
 
+    if args.ground is not None and args.device is not None:
+        print(
+            "rover stack up: error: --ground is the emulator's ground; with --device the "
+            "rover drives on its own",
+            file=sys.stderr,
+        )
+        return 2
+    twin = Path(args.twin).resolve() if args.twin is not None else None
+    if twin is not None and not twin.is_file():
+        print(f"rover stack up: error: --twin {args.twin}: no such file", file=sys.stderr)
+        return 2
     config = StackConfig(
         map_name=args.map,
         firmware=args.firmware,
@@ -187,6 +211,8 @@ def _up(args: argparse.Namespace) -> int:
         gate_port=args.gate_port,
         startup_timeout_s=args.startup_timeout,
         inject=tuple(args.inject),
+        ground=args.ground,
+        twin=twin,
     )
     up = threading.Event()
     # While the stack starts, a signal ends the start-up at once (KeyboardInterrupt).
@@ -215,6 +241,7 @@ def _up(args: argparse.Namespace) -> int:
                 config.rtt_s,
                 config.speed,
                 logs / "stalls.jsonl",
+                twin=config.twin,
             )
             held.publish({"env": variables, "device": endpoints.device})
             _say(f"GATE {endpoints.gate_url}")

@@ -27,6 +27,7 @@ __all__ = [
     "RANGE_ENV",
     "RTT_ENV",
     "SCALE_ENV",
+    "TWIN_ENV",
     "add_domain_argument",
     "apply_domain",
     "env_default",
@@ -46,6 +47,10 @@ RTT_ENV = "ROVER_LINK_RTT"
 """The stack's link round trip in wall seconds; ``rover go --rtt`` defaults to it."""
 SCALE_ENV = "ROVER_TIME_SCALE"
 """The stack's mission seconds per wall second; ``rover go --time-scale`` defaults to it."""
+TWIN_ENV = "ROVER_TWIN"
+"""The calibrated twin file the stack's gate plays plans on (``rover stack up --twin``);
+``rover go --rover`` defaults to it, so that the planner turns by the twin's turn
+efficiency."""
 
 
 def add_domain_argument(p: argparse.ArgumentParser) -> None:
@@ -85,10 +90,13 @@ def stack_environment(
     rtt_s: float = 3.0,
     speed: float = 1.0,
     stall_log: Path | None = None,
+    *,
+    twin: Path | None = None,
 ) -> dict[str, str]:
     """The variables a stack exports (see the module docstring); ``rtt_s`` in mission
     seconds, ``speed`` mission seconds per wall second; ``stall_log`` the stall log its
-    parts write (``rover go`` names a stalled part from it: docs/realtime.md)."""
+    parts write (``rover go`` names a stalled part from it: docs/realtime.md); ``twin``
+    the calibrated twin its gate plays on."""
     variables = {
         DOMAIN_ENV: str(domain),
         RANGE_ENV: "LOCALHOST",
@@ -99,6 +107,8 @@ def stack_environment(
     }
     if stall_log is not None:
         variables[STALL_LOG_ENV] = str(stall_log)
+    if twin is not None:
+        variables[TWIN_ENV] = str(twin)
     return variables
 
 
