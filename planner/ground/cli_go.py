@@ -7,18 +7,26 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
 from firmware_proto.runtime import ProcessRuntime
 from planner.plan.cli_confidence import add_confidence_arguments, confidence_options
-from planner.stack.stackenv import RTT_ENV, SCALE_ENV, add_domain_argument, env_default
+from planner.stack.stackenv import (
+    RTT_ENV,
+    SCALE_ENV,
+    TWIN_ENV,
+    add_domain_argument,
+    env_default,
+)
 from planner.view.cli_view import add_view_arguments
 
 __all__ = [
@@ -35,6 +43,11 @@ __all__ = [
 POSE_WAIT_MARGIN_S = 10.0
 """Without ``--start``, the rover has the round trip plus this long to report its pose
 (default of ``--pose-wait``: a launch starts the bridge and the link alongside)."""
+
+RECORD_REST_S = 1.5
+"""With ``--record``, the recording goes on after the mission until a pose stamped this
+long (mission seconds) after the rover's last status has come: the rest after the last
+step, where ``rover calibrate`` measures it (docs/twin.md)."""
 
 
 class PoseArgumentError(ValueError, argparse.ArgumentTypeError):
@@ -127,13 +140,21 @@ def _non_negative_int(text: str) -> int:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options shared by ``rover go`` and ``rover_executor``."""
-    p.add_argument(
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument(
         "--goal",
-        required=True,
         type=parse_goal,
         metavar="X,Y,YAW|NAME",
         help="goal pose (metres, metres, degrees), or the name of one of the map's goals "
         "(the lab map: behind_table, ...; an unknown name lists them)",
+    )
+    what.add_argument(
+        "--plan",
+        type=Path,
+        metavar="FILE",
+        help="drive this plan (Listing 1 JSON) instead of planning one: validated on the "
+        "gate once as it is (no repair: a rejected plan is not sent), then executed as "
+        "any approved plan, with drift control (no re-plan after a drift STOP)",
     )
     p.add_argument(
         "--start",
@@ -212,6 +233,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ),
     )
     p.add_argument(
+        "--pos-tol",
+        type=_positive,
+        default=None,
+        metavar="M",
+        help="the gate's accepted final distance to the goal, m (default: the gate's)",
+    )
+    p.add_argument(
+        "--yaw-tol",
+        type=_positive,
+        default=None,
+        metavar="DEG",
+        help="the gate's accepted final yaw error, degrees (default: the gate's)",
+    )
+    p.add_argument(
         "--drift-linear",
         type=_positive,
         default=0.25,
@@ -246,9 +281,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rover",
         metavar="TOML",
+        default=os.environ.get(TWIN_ENV) or None,
         help=(
-            "rover description the planner turns by (default: the packaged one); a twin "
-            "file from rover calibrate brings the ground's turn efficiency"
+            f"rover description the planner turns by (default ${TWIN_ENV}, which rover "
+            "stack up --twin exports, else the packaged one); a twin file from rover "
+            "calibrate brings the ground's turn efficiency"
         ),
     )
     p.add_argument(
@@ -286,7 +323,9 @@ def register(subparsers: Any) -> None:
             "trajectory. Needs a running stack: a gate, an emulator (or the rover), a bridge "
             "and a link relay ('rover stack up' starts them and prints the export line that "
             "points this command at them: ROS_DOMAIN_ID, ROVER_GATE_URL). --goal takes a pose "
-            "or a goal's name on the map. The goal is checked against the map first; without "
+            "or a goal's name on the map; --plan FILE drives a given plan instead (validated "
+            "once, not repaired, not re-planned). The goal is checked against the map first; "
+            "without "
             "--start the rover must report its pose. Ctrl-C or SIGTERM cancels: the rover is "
             "sent STOP (a second "
             "one interrupts at once, after sending STOP). Exit 0 when the goal is reached, 130 "
@@ -299,7 +338,8 @@ def register(subparsers: Any) -> None:
             "  rover stack up    # in another shell; then there:\n"
             '  eval "$(rover stack env)"\n'
             "  rover go --goal behind_table\n"
-            "  rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080 --domain 101"
+            "  rover go --goal 6.2,3.0,0 --map lab --gate http://127.0.0.1:8080 --domain 101\n"
+            "  rover go --plan plan.json --record plan.mcap"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -355,6 +395,25 @@ def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event
     return pose
 
 
+def _read_plan(path: Path) -> Any:
+    """The plan of ``--plan FILE``.
+
+    Raises:
+        ValueError: the file cannot be read, or is not a valid plan (the message names the
+            first violation's JSON pointer).
+    """
+    from firmware_proto.errors import PlanError
+    from firmware_proto.model.plan import Plan
+
+    try:
+        return Plan.from_json(path.read_bytes())
+    except OSError as exc:
+        raise ValueError(f"--plan {path}: cannot read it: {exc.strerror or exc}") from None
+    except PlanError as exc:
+        pointer, message = exc.violations[0]
+        raise ValueError(f"--plan {path}: not a valid plan: {pointer or '/'}: {message}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run one mission; returns the exit status (0 reached, 128 + the signal number when
     cancelled by a signal, 1 otherwise)."""
@@ -364,6 +423,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _mission(args: argparse.Namespace) -> int:
     from bridge.ros.rosport import open_port
+    from firmware_proto.model.pose import Pose
     from firmware_proto.model.rover import load_rover
     from planner.errors import GateUnavailableError
     from planner.ground.executor import ExecutorConfig, PlanExecutor, Progress
@@ -371,7 +431,7 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.ground.mission import MissionReport, MissionRunner, MoveAndWait
     from planner.plan.gate_client import GateClient
     from planner.plan.orchestrator import PlannerOrchestrator
-    from planner.plan.planner import HeuristicLowLevelPlanner
+    from planner.plan.planner import HeuristicLowLevelPlanner, check_pose
     from planner.record.foxlive import FoxgloveLive
     from planner.record.mcaprec import McapRecorder
     from planner.record.picture import picture_of, save
@@ -381,7 +441,8 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.view.live import LiveView
 
     apply_domain(args)
-    goal = args.goal
+    given = _read_plan(args.plan) if args.plan is not None else None
+    goal = args.goal if given is None else given.goal
     view_cfg = view_config(args)
     start = args.start
     config = ExecutorConfig(
@@ -454,10 +515,16 @@ def _mission(args: argparse.Namespace) -> int:
                 raise
             world = _offline_map(args.map, exc)
             gated = False
-        goal = resolve_goal(goal, world)
+        if given is None:
+            goal = resolve_goal(goal, world)
+        else:
+            goal = Pose(given.goal.x, given.goal.y, given.goal.yaw_deg)
         planner = HeuristicLowLevelPlanner(rover, world=world)
         # Bad goals (and starts) end here, before anything waits for the rover.
-        planner.route(start or world.start, goal)
+        if given is None:
+            planner.route(start or world.start, goal)
+        elif start is not None:
+            check_pose("start", start, world=world)
         with (
             open_port(
                 args.ros_backend, namespace=args.namespace, node_name="rover_executor"
@@ -465,6 +532,7 @@ def _mission(args: argparse.Namespace) -> int:
             CancelOnSignal(on_signal) as signals,
         ):
             gate_options, max_p = confidence_options(args)
+            gate_options = replace(gate_options, pos_tol_m=args.pos_tol, yaw_tol_deg=args.yaw_tol)
             orchestrator = PlannerOrchestrator(
                 planner,
                 gate,
@@ -498,6 +566,7 @@ def _mission(args: argparse.Namespace) -> int:
                     say(f"waiting up to {view_cfg.wait_s:g} s for a browser to open the view")
                     if view.hub.wait_for_client(view_cfg.wait_s):
                         say("view: a browser is watching")
+            report: MissionReport | None = None
             try:
                 if start is None:
                     start = _rover_pose(executor, args, cancel)
@@ -505,8 +574,24 @@ def _mission(args: argparse.Namespace) -> int:
                     print("rover go: cancelled; nothing was sent to the rover", file=sys.stderr)
                     return signals.exit_status
                 say(f"start ({start.x:.2f}, {start.y:.2f}, {start.yaw_deg:.0f} deg)")
-                report: MissionReport
-                if args.move_and_wait:
+                if given is not None and args.move_and_wait:
+                    raise ValueError("--plan drives the plan as given: not with --move-and-wait")
+                if given is not None:
+                    runner = MissionRunner(
+                        orchestrator,
+                        executor,
+                        replans=0,
+                        on_progress=progress,
+                        on_event=say,
+                        cancel=cancel,
+                        on_planned=planned,
+                    )
+                    running.set()
+                    try:
+                        report = runner.run_plan(given, start=start)
+                    finally:
+                        running.clear()
+                elif args.move_and_wait:
                     if gated:
                         mission = orchestrator.plan_mission(goal, start=start)
                         planned(mission)
@@ -538,6 +623,9 @@ def _mission(args: argparse.Namespace) -> int:
                     finally:
                         running.clear()
             finally:
+                if recorder is not None and report is not None and report.runs:
+                    # The rest after the last step, for rover calibrate.
+                    executor.settled_pose(after_s=RECORD_REST_S / args.time_scale)
                 executor.close()
                 if foxglove is not None:
                     foxglove.close()

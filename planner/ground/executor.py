@@ -357,13 +357,15 @@ class PlanExecutor:
         with self._lock:
             return "odom" if self._on_odom_source else "odom_ground"
 
-    def settled_pose(self, timeout_s: float | None = None) -> Pose | None:
+    def settled_pose(self, timeout_s: float | None = None, *, after_s: float = 0.0) -> Pose | None:
         """The rover's pose measured after it reported its last status: waits (at most a
-        round trip plus a second) for a pose stamped after the moment the rover must have
-        sent what came back last; returns the latest reported pose either way."""
+        round trip plus a second, plus ``after_s``) for a pose stamped ``after_s`` (wall
+        s) or more after the moment the rover must have sent what came back last;
+        returns the latest reported pose either way."""
         cfg = self.config
-        wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + 1.0
-        since = time.time() - cfg.link_rtt_s / 2.0  # rover time of the last status we heard
+        wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + 1.0 + after_s
+        # Rover time of the last status we heard, and after_s more.
+        since = time.time() - cfg.link_rtt_s / 2.0 + after_s
         deadline = time.monotonic() + wait_s
         with self._pose_cond:
             while self._reported_stamp < since:

@@ -275,6 +275,50 @@ class MissionRunner:
             if not replanned:
                 return end("", reached=True)
 
+    def run_plan(self, plan: Plan, *, start: Pose | None = None) -> MissionReport:
+        """Validate a given plan once (no repair: :meth:`PlannerOrchestrator.check_plan`)
+        and drive it from ``start`` (default: the map's start): ``rover go --plan FILE``.
+        A drift STOP ends it there (a given plan is not re-planned); ``reached`` means
+        every step completed, the gate having judged the plan's goal.
+
+        Raises:
+            InvalidPoseError, OutOfBoundsError: a start off the map.
+            GateCallError: the gate failed (nothing was sent to the rover).
+        """
+        t0 = time.monotonic()
+        where = start or self.orchestrator.world.start
+        mission = self.orchestrator.check_plan(plan, start=where)
+        planning_s = time.monotonic() - t0
+        plannings = [mission]
+        runs: list[LegRun] = []
+        if self.on_planned is not None:
+            self.on_planned(mission)
+        self.on_event(
+            f"the plan ({len(plan.commands)} steps): "
+            + ("approved" if mission.approved else f"REJECTED: {mission.reason}")
+        )
+
+        def end(reason: str, *, reached: bool = False, cancelled: bool = False) -> MissionReport:
+            return self._report(
+                mission.goal, where, plannings, runs, reached, reason, t0, planning_s, cancelled
+            )
+
+        if not mission.approved:
+            return end(f"not approved: {mission.reason}")
+        if self._cancelled():
+            return end(CANCELLED, cancelled=True)
+        verdict = mission.verdicts[0]
+        result = self.executor.execute(
+            plan, verdict, on_progress=self.on_progress, cancel=self.cancel
+        )
+        runs.append(LegRun(plan, verdict, result))
+        if result.completed:
+            return end("", reached=True)
+        self.on_event(f"execution ended: {result.outcome}: {result.reason}")
+        if result.outcome == "cancelled":
+            return end(CANCELLED, cancelled=True)
+        return end(result.reason)
+
     def _cancelled(self) -> bool:
         return self.cancel is not None and self.cancel.is_set()
 

@@ -38,7 +38,7 @@ from planner.errors import (
     UnreachableGoalError,
 )
 from planner.plan.gate_client import GateClient, GateOptions
-from planner.plan.planner import HeuristicLowLevelPlanner, LegPlan, Route
+from planner.plan.planner import HeuristicLowLevelPlanner, LegPlan, Route, check_pose
 from planner.plan.repairs import (
     REPAIRS,
     FailureRecord,
@@ -377,6 +377,32 @@ class PlannerOrchestrator:
             history.append(repair)
             logger.info("repair %d: %s", len(history), repair.description)
             leg = repair.leg
+
+    def check_plan(self, plan: Plan, *, start: Pose | None = None) -> MissionResult:
+        """Validate a plan made elsewhere (``rover go --plan FILE``) once, as it is: no
+        repair (a rejected plan is the result, with the gate's reason), the confidence
+        check applied as to every plan.
+
+        Raises:
+            InvalidPoseError, OutOfBoundsError: a start pose off the map.
+            GateCallError: the gate failed.
+        """
+        world = self.world
+        where = start if start is not None else world.start
+        check_pose("start", where, world=world)
+        leg = self.planner.leg_of(where, plan)
+        verdict = self._validate(leg)
+        attempt = Attempt(0, leg, verdict)
+        if verdict.approved:
+            result = PlanResult(True, (attempt,), ())
+            return MissionResult(leg.goal, where, (result,))
+        failure = FailureRecord.from_verdict(0, leg, verdict)
+        reason = (
+            f"the plan was rejected with {verdict.failure_type} at step {verdict.failed_step}: "
+            f"{verdict.failure_reason}"
+        )
+        rejected = PlanResult(False, (attempt,), (failure,), reason)
+        return MissionResult(leg.goal, where, (rejected,), reason)
 
     def _give_up(
         self, attempts: list[Attempt], failures: list[FailureRecord], reason: str, leg: LegPlan

@@ -501,6 +501,27 @@ class HeuristicLowLevelPlanner:
         plan = Plan(Goal(goal.x, goal.y, goal.yaw_deg), tuple(s.step for s in steps))
         return LegPlan(route, tuple(steps), plan, reaches_goal, tuple(remaining))
 
+    def leg_of(self, start: Pose, plan: Plan) -> LegPlan:
+        """A plan made elsewhere (``rover go --plan FILE``) as a leg from ``start``: its
+        steps as they are, each with the pose the planner's kinematics predict after it
+        (:meth:`predict`), the route straight from ``start`` to the plan's goal."""
+        route = Route(start, (), Pose(plan.goal.x, plan.goal.y, plan.goal.yaw_deg))
+        poses = self.predict(start, plan.commands)
+        steps: list[PlannedStep] = []
+        before = start
+        for step, pose in zip(plan.commands, poses, strict=True):
+            turn = step.command in ("LEFT", "RIGHT")
+            kind = NOOP if step.speed == 0 or step.distance == 0 else (TURN if turn else DRIVE)
+            dyaw = wrap_deg(pose.yaw_deg - before.yaw_deg) if turn else 0.0
+            travel = (
+                0.0
+                if turn
+                else math.dist(before.xy, pose.xy) * (-1.0 if step.command == "REV" else 1.0)
+            )
+            steps.append(PlannedStep(step, kind, 0, dyaw, travel, pose))
+            before = pose
+        return LegPlan(route, tuple(steps), plan, True)
+
     def plan_leg(self, route: Route) -> LegPlan:
         """The first leg of a route: all of it when it fits in ``max_steps`` steps, else
         the longest prefix that ends with a drive (the leg then ends at the predicted

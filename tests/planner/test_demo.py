@@ -115,6 +115,36 @@ def test_rover_go_refuses_bad_goals_and_options_cleanly(
     assert not picture.exists()
 
 
+def test_rover_go_plan_refuses_bad_files_and_sends_no_rejected_plan(
+    tmp_path: Path, gate_process_url: str
+) -> None:
+    picture = tmp_path / "m.png"
+    into_the_table = tmp_path / "table.json"
+    drive: dict[str, object] = {"command": "FWD", "speed": 40, "distance": 11500}
+    plan = {"goal": {"x": 3.5, "y": 3.0, "yaw_deg": 0}, "commands": [drive]}
+    into_the_table.write_text(json.dumps(plan))
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**plan, "commands": [{"command": "FLY", "speed": 1}]}))
+    for args, status, complaint in (
+        (["--plan", str(tmp_path / "none.json")], 1, "cannot read it"),
+        (["--plan", str(bad)], 1, "not a valid plan: /commands/0"),
+        (["--plan", str(into_the_table), "--goal", "2,3,0"], 2, "not allowed with argument"),
+        (["--plan", str(into_the_table), "--start", "9.5,3,0"], 1, "outside map 'lab'"),
+        (["--plan", str(into_the_table), "--start", "1.2,3,0", "--move-and-wait"], 1, "as given"),
+    ):
+        out = _go(gate_process_url, picture, *args)
+        assert out.returncode == status, (args, out.stdout + out.stderr)
+        last = out.stderr.strip().splitlines()[-1]
+        assert last.startswith("rover go: error: ") and complaint in last, (args, out.stderr)
+    # Rejected by the gate (it runs into the table from 3.0, 3.0): nothing is sent, and
+    # the rover is not even waited for (no bridge runs here).
+    out = _go(gate_process_url, picture, "--plan", str(into_the_table), "--start", "3.0,3.0,0")
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "REJECTED: the plan was rejected with collision at step 0" in out.stdout
+    assert "'table'" in out.stdout and "published" not in out.stdout
+    assert "Traceback" not in out.stderr
+
+
 def test_rover_go_without_a_reporting_rover_sends_nothing(
     tmp_path: Path, gate_process_url: str
 ) -> None:

@@ -334,3 +334,33 @@ def test_a_collision_probability_above_the_limit_is_a_collision_to_repair(
 def test_a_collision_limit_needs_samples(orchestrator: Make) -> None:
     with pytest.raises(ValueError, match="samples"):
         orchestrator("lab", max_collision_p=0.1)
+
+
+def test_a_given_plan_is_validated_once_as_it_is(orchestrator: Make, client: GateClient) -> None:
+    # rover go --plan FILE: the plan the operator wrote, approved or not, never repaired.
+    from firmware_proto.model.plan import Plan
+
+    orch = orchestrator("lab")
+    quarter = orch.planner.rover.turn_units_for_yaw(math.pi / 2)
+    steps = [{"command": "FWD", "speed": 40, "distance": 11500}]
+    steps.append({"command": "LEFT", "speed": 30, "distance": quarter})
+    plan = Plan.from_dict({"goal": {"x": 1.7, "y": 3.0, "yaw_deg": 90.0}, "commands": steps})
+    start = Pose(1.2, 3.0, 0.0)
+    assert orch.world.name == "lab"  # the map, from the gate
+    before = client.requests
+    approved = orch.check_plan(plan, start=start)
+    assert approved.approved and approved.reason == ""
+    assert approved.plans == (plan,) and approved.repair_cycles == 0
+    leg = approved.legs[0].attempts[0].leg
+    assert [s.kind for s in leg.steps] == [DRIVE, "turn"]
+    assert leg.steps[0].end_pose.x == pytest.approx(1.7) and leg.steps[1].yaw_change_deg == (
+        pytest.approx(90.0, abs=0.01)
+    )
+    # Into the table: rejected with the gate's reason, and nothing repaired.
+    rejected = orch.check_plan(plan, start=Pose(3.0, 3.0, 0.0))
+    assert not rejected.approved and not rejected.plans
+    assert len(rejected.attempts) == 1 and "collision at step 0" in rejected.reason
+    assert "'table'" in rejected.reason
+    assert client.requests - before == 2
+    with pytest.raises(OutOfBoundsError):
+        orch.check_plan(plan, start=Pose(9.5, 3.0, 0.0))
