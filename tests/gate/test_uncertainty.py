@@ -5,8 +5,17 @@ on loopback) answers the same bytes as the gate's own process pool."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import re
+import shlex
+import signal
+import socket
+import subprocess
+import sys
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import jsonschema
@@ -27,6 +36,7 @@ from gate.openapi import build_openapi
 from gate.options import ValidateOptions
 from gate.server import GateServer
 from gate.validator import Validator, load_maps
+from tests.child import Child
 from tests.gate.client import call, post_plan
 
 QUARTER = 15484
@@ -208,28 +218,81 @@ def test_bad_sample_options_are_400s(gate: GateServer, query: str, parameter: st
 # -- a real local Dask cluster -----------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """A Dask scheduler and two single-threaded workers, each its own process, on
-    127.0.0.1 (:func:`gate.cluster.local_cluster`); the scheduler's address."""
-    pytest.importorskip("distributed")
-    from gate.cluster import local_cluster
+def _documented_cluster_commands() -> list[list[str]]:
+    """The command lines of docs/gate.md's "A Dask cluster", as argument lists."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "gate.md").read_text()
+    section = text.split("### A Dask cluster", 1)[1]
+    block = re.findall(r"```\n(.*?)```", section, flags=re.S)[0]
+    return [shlex.split(line) for line in block.splitlines() if line.strip()]
 
-    with local_cluster(tmp_path_factory.mktemp("dask"), workers=2) as address:
-        yield address
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[list[str]]:
+    """docs/gate.md's cluster, started as written: the scheduler and the worker's line
+    twice (one per core), each a process of its own on 127.0.0.1, with a free port for
+    Dask's 8786; yields the gate's command line (its port still to fill in)."""
+    pytest.importorskip("distributed")
+    scheduler, worker, gate = _documented_cluster_commands()
+    assert scheduler[:2] == [".venv/bin/dask", "scheduler"] and worker[:2] == [
+        ".venv/bin/dask",
+        "worker",
+    ], "docs/gate.md's cluster commands changed: change this test with them"
+    assert gate[:2] == [".venv/bin/rover", "gate"]
+    port = str(_free_port())
+    venv_bin = str(Path(sys.executable).parent)
+
+    def local(command: list[str]) -> list[str]:
+        out = [arg.replace("8786", port) for arg in command]
+        return [out[0].replace(".venv/bin", venv_bin), *out[1:]]
+
+    log = (tmp_path_factory.mktemp("dask") / "cluster.log").open("wb")
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        for command in (scheduler, worker, worker):
+            procs.append(
+                subprocess.Popen(local(command), stdout=log, stderr=log, start_new_session=True)
+            )
+        from distributed import Client
+
+        with Client(f"tcp://127.0.0.1:{port}", timeout="60s", set_as_default=False) as client:
+            client.wait_for_workers(2, timeout=60)
+        yield local(gate)
+    finally:
+        for p in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(timeout=10)
+        log.close()
 
 
 @pytest.mark.slow
-def test_a_cluster_answers_the_same_verdict_as_the_local_pool(
-    gate: GateServer, cluster: str
+def test_the_documented_cluster_answers_the_same_verdict_as_the_local_pool(
+    gate: GateServer, cluster: list[str]
 ) -> None:
     query = "map=scn01&start=1,4,0&samples=200&seed=11"
     local = post_plan(gate.address, SQUARE, query)
     assert local.status == 200, local.body[:300]
-    config = GateConfig(port=0, pool="thread", workers=1, cluster=cluster)
-    with GateServer(config) as on_cluster:
-        assert call(on_cluster.address, "GET", "/health").json()["cluster"] == cluster
-        remote = post_plan(on_cluster.address, SQUARE, query)
+    command = [arg.replace("8080", "0") for arg in cluster]
+    address = command[command.index("--cluster") + 1]
+    on_cluster = Child(command[1:], dict(os.environ))  # rover gate ..., a process
+    try:
+        url = on_cluster.wait_for("GATE ").split()[1]
+        host, port = url.removeprefix("http://").rsplit(":", 1)
+        assert call((host, int(port)), "GET", "/health").json()["cluster"] == address
+        remote = post_plan((host, int(port)), SQUARE, query)
+    finally:
+        on_cluster.stop()
     assert remote.status == 200, remote.body[:300]
     assert remote.without_wall_time() == local.without_wall_time()
     u = local.json()["uncertainty"]
