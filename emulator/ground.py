@@ -21,7 +21,7 @@ A ground file is TOML (shipped ones in ``emulator/grounds/``, loaded by bare nam
     description = "loose regolith: less grip, more slip"
     [traction]                 # any subset; the rest comes from the rover description
     mu_longitudinal = 0.45
-    mu_lateral = 0.55          # or turn_efficiency = 0.42 (mu_lateral is then solved)
+    mu_lateral = 0.55          # or turn_efficiency = 0.411 (mu_lateral is then solved)
     slip_saturation_ratio = 0.04
     rolling_resistance = 0.08
     [regions]                  # friction scale per map traction region, (0, 2]
@@ -30,7 +30,10 @@ A ground file is TOML (shipped ones in ``emulator/grounds/``, loaded by bare nam
 ``turn_efficiency`` (body yaw over the ideal yaw of wheel arc travel in the calibration
 spin, docs/twin.md) is what a lab measures first; given instead of ``mu_lateral``, the
 lateral friction is solved by bisection so that
-:func:`~emulator.playback.measure_turn_efficiency` returns it (to 1e-4).
+:func:`~emulator.playback.measure_turn_efficiency` returns it (to 1e-4). A file may state
+both, the measured efficiency beside the friction it was fitted to, when they agree
+(within :data:`TURN_EFFICIENCY_AGREEMENT`); otherwise it is refused, naming the
+efficiency the friction gives.
 
 Per region only the friction scales (as in the map format); rolling resistance and the
 slip saturation are the ground's as a whole.
@@ -58,6 +61,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 __all__ = [
     "GROUNDS_DIR",
     "GROUND_PARAMETERS",
+    "TURN_EFFICIENCY_AGREEMENT",
     "Ground",
     "ground_from_dict",
     "list_grounds",
@@ -86,6 +90,11 @@ REGION_SCALE_MAX = 2.0
 """Largest region friction scale (the map format's bound)."""
 
 _TURN_EFFICIENCY_TOLERANCE = 1e-4
+
+TURN_EFFICIENCY_AGREEMENT = 0.005
+"""How closely a ground file's measured ``turn_efficiency`` and its ``mu_lateral`` must
+agree when it states both (the tolerance the rover description's own turn efficiency is
+held to: docs/twin.md, Recalibrating)."""
 
 
 @dataclass(frozen=True)
@@ -270,11 +279,6 @@ def ground_from_dict(doc: dict[str, Any], rover: RoverDescription, source: str) 
             f"{source}: unknown key(s) in [traction]: {', '.join(unknown)} (known: "
             f"{', '.join(GROUND_PARAMETERS)}, turn_efficiency)"
         )
-    if "turn_efficiency" in traction and "mu_lateral" in traction:
-        raise GroundError(
-            f"{source}: give mu_lateral or turn_efficiency in [traction], not both "
-            "(turn_efficiency solves mu_lateral)"
-        )
     values: dict[str, float] = {}
     for key, value in [*traction.items(), *((f"region.{k}", v) for k, v in regions.items())]:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -287,9 +291,36 @@ def ground_from_dict(doc: dict[str, Any], rover: RoverDescription, source: str) 
         ground = ground.with_values(**values)
     except GroundError as exc:
         raise GroundError(f"{source}: {exc}") from None
-    if target is not None:
+    if target is not None and "mu_lateral" in traction:
+        _check_turn_efficiency(rover, ground, target, source)
+    elif target is not None:
         ground = replace(ground, mu_lateral=solve_mu_lateral(rover, ground, target))
     return ground
+
+
+def _check_turn_efficiency(
+    rover: RoverDescription, ground: Ground, stated: float, source: str
+) -> None:
+    """A file that states both ``mu_lateral`` and a measured ``turn_efficiency``: they
+    must agree (the calibration spin on ``ground`` within
+    :data:`TURN_EFFICIENCY_AGREEMENT` of ``stated``).
+
+    Raises:
+        GroundError: they do not (the message gives what ``mu_lateral`` turns at).
+    """
+    from emulator.playback import measure_turn_efficiency  # noqa: PLC0415 - a cycle
+
+    if not (math.isfinite(stated) and 0.0 < stated < 1.0):
+        raise GroundError(f"{source}: turn_efficiency must be in (0, 1), got {stated}")
+    got = measure_turn_efficiency(
+        ground.rover(rover), distance=rover.turn_units_for_yaw(math.pi / 2)
+    )
+    if abs(got - stated) > TURN_EFFICIENCY_AGREEMENT:
+        raise GroundError(
+            f"{source}: mu_lateral {ground.mu_lateral:g} and turn_efficiency {stated:g} "
+            f"disagree: with that mu_lateral this ground turns at {got:.3f} (give "
+            f"one, or both within {TURN_EFFICIENCY_AGREEMENT:g})"
+        )
 
 
 def load_ground(name_or_path: str | Path, rover: RoverDescription) -> Ground:

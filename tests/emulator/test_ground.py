@@ -94,7 +94,12 @@ def test_the_file_round_trips(rover: RoverDescription, tmp_path: Path) -> None:
         ("schema_version = 1\nname = 'x'\n[regions]\nsandbox = 3\n", r"\(0, 2\]"),
         (
             "schema_version = 1\nname = 'x'\n[traction]\nmu_lateral = 0.5\nturn_efficiency = 0.4\n",
-            "not both",
+            "mu_lateral 0.5 and turn_efficiency 0.4 disagree: with that mu_lateral this "
+            "ground turns at 0.5",
+        ),
+        (
+            "schema_version = 1\nname = 'x'\n[traction]\nmu_lateral = 0.5\nturn_efficiency = 1\n",
+            r"turn_efficiency must be in \(0, 1\)",
         ),
         ("schema_version = 1\nname = 'x'\n[traction\n", "not valid TOML"),
     ],
@@ -106,6 +111,22 @@ def test_a_bad_file_is_refused_naming_the_key(
     path.write_text(text)
     with pytest.raises(GroundError, match=message):
         load_ground(path, rover)
+
+
+def test_a_measured_turn_efficiency_may_stand_beside_the_friction_it_agrees_with(
+    rover: RoverDescription, tmp_path: Path
+) -> None:
+    loose = load_ground("loose", rover)
+    efficiency = measure_turn_efficiency(
+        loose.rover(rover), distance=rover.turn_units_for_yaw(math.pi / 2)
+    )
+    path = tmp_path / "measured.toml"
+    text = loose.to_toml().replace(
+        "[traction]\n", f"[traction]\nturn_efficiency = {efficiency + 0.004:.4f}\n"
+    )
+    path.write_text(text)
+    both = load_ground(path, rover)
+    assert both.mu_lateral == loose.mu_lateral  # the friction stays; the efficiency checks it
 
 
 def test_an_unknown_name_lists_the_shipped_grounds(rover: RoverDescription) -> None:
