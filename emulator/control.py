@@ -26,18 +26,37 @@ import json
 import logging
 import socketserver
 import threading
-from typing import Any
+from typing import Any, Protocol
 
-from emulator.engine import Emulator
+from emulator.engine import EmulatorStatus
 from emulator.errors import EmulatorError
-from emulator.injection import InjectionRecord
+from emulator.injection import InjectionRecord, ScheduledFault
 from emulator.serial_frontend import SerialFrontEnd
 
-__all__ = ["ControlServer"]
+__all__ = ["ControlServer", "ControlTarget"]
 
 logger = logging.getLogger(__name__)
 
 _HELP = "commands: status | inject FAULT | injections | unplug [SECONDS] | replug | help"
+
+
+class ControlTarget(Protocol):
+    """What the control interface serves: an :class:`~emulator.engine.Emulator`, or a
+    processor-in-the-loop target (``emulator.pil.target.PilTarget``)."""
+
+    @property
+    def frontend(self) -> object:
+        """The front end (``unplug``/``replug`` need a :class:`SerialFrontEnd`)."""
+
+    @property
+    def injections(self) -> list[InjectionRecord]:
+        """Every injection applied so far."""
+
+    def status(self) -> EmulatorStatus:
+        """A fresh snapshot."""
+
+    def inject(self, fault: str, source: str = ...) -> InjectionRecord | ScheduledFault:
+        """Apply or schedule a fault; raises InjectionError when it cannot apply."""
 
 
 class _Handler(socketserver.StreamRequestHandler):
@@ -61,9 +80,9 @@ class _Server(socketserver.ThreadingTCPServer):
 
 
 class ControlServer:
-    """Serves the control interface of one :class:`Emulator` on 127.0.0.1."""
+    """Serves the control interface of one :class:`ControlTarget` on 127.0.0.1."""
 
-    def __init__(self, emulator: Emulator, port: int = 0) -> None:
+    def __init__(self, emulator: ControlTarget, port: int = 0) -> None:
         """Args:
         emulator: the running emulator to control.
         port: TCP port on 127.0.0.1; 0 picks a free one (see :attr:`port`).

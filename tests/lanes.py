@@ -44,6 +44,7 @@ SLOW_MODULES = (
     "tests/emulator/test_emulator_main.py",
     "tests/emulator/test_firmware.py",
     "tests/emulator/test_late.py",
+    "tests/emulator/test_pil.py",
     "tests/emulator/test_served.py",
     "tests/firmware_proto/test_c_codec.py",
     "tests/firmware_proto/test_cli.py",

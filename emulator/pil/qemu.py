@@ -1,0 +1,216 @@
+"""The nRF51 image under qemu-system-arm ``-M microbit``: the controller's UART on a pty,
+its plant inside the image (``-DFW_PIL``: ``port_pil/pil_plant.c``).
+
+qemu runs with ``-serial pty`` (its UART moves bytes as fast as the host takes them, so
+the line is about 5.6x a 115200 line, and loses nothing), a QMP socket for
+``system_reset`` (``reboot`` is a real reset: the image starts again from its reset
+vector, RAM and peripherals lost), and a GDB stub through which the runner reads
+``pil_view``/``pil_stats`` and writes ``pil_hooks`` (each access stops the machine for
+well under a millisecond). No ``-icount``: the emulated timers follow the host clock,
+and at real-time priority the controller's clock keeps wall time; with ``-icount``, or at
+normal priority beside load, its watchdog rules failed spuriously.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import re
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from emulator.injection import FaultSpec
+from emulator.pil.errors import PilError
+from emulator.pil.gdbstub import GdbStub
+from emulator.pil.images import require_tool
+from emulator.pil.target import PilTarget
+from emulator.pil.view import STATS, VIEW, PortStats, PortView, hooks_bytes
+
+__all__ = ["MicrobitTarget", "qemu_command"]
+
+logger = logging.getLogger(__name__)
+
+_PTY = re.compile(r"char device redirected to (/dev/pts/\d+) \(label serial0\)")
+_START_TIMEOUT_S = 20.0
+_SIDES = {"left": (0,), "right": (1,), "both": (0, 1), None: (0, 1)}
+
+
+def qemu_command(elf: Path, qmp: Path, gdb: Path) -> list[str]:
+    """qemu-system-arm's command line for ``elf``, halted until the GDB stub continues it."""
+    return [
+        require_tool("qemu-system-arm", "qemu-system-arm"),
+        "-M",
+        "microbit",
+        "-nographic",
+        "-monitor",
+        "none",
+        "-serial",
+        "pty",
+        "-qmp",
+        f"unix:{qmp},server=on,wait=off",
+        "-chardev",
+        f"socket,id=gdb0,path={gdb},server=on,wait=off",
+        "-gdb",
+        "chardev:gdb0",
+        "-S",
+        "-kernel",
+        str(elf),
+    ]
+
+
+def _set_scheduling(priority: int) -> None:
+    """In the child before exec: real-time round robin where permitted, else nothing
+    (the parent reports which)."""
+    if priority > 0:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+
+
+class MicrobitTarget(PilTarget):
+    """The nRF51 image in qemu; its plant is the in-image kinematic model."""
+
+    name = "microbit"
+    plant_name = "the in-image kinematic wheel and encoder model (FW_PIL)"
+
+    def _start_emulator(self) -> None:
+        if not self.image.pil or "pil_hooks" not in self.image.symbols:
+            raise PilError("the microbit target needs the image built with the PIL flag")
+        self._tmp = tempfile.TemporaryDirectory(prefix="rover-pil-")
+        tmp = Path(self._tmp.name)
+        self._qmp_path, gdb_path = tmp / "qmp.sock", tmp / "gdb.sock"
+        self._stall = [False, False]
+        self._dropout = [False, False]
+        self._slip = [1.0, 1.0]
+        self._proc = subprocess.Popen(
+            qemu_command(self.image.elf, self._qmp_path, gdb_path),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,  # the pty's name (qemu_printf), and its errors
+            stderr=subprocess.STDOUT,
+            text=True,
+            preexec_fn=lambda: _set_scheduling(self.realtime_priority),  # noqa: PLW1509
+        )
+        self._stderr: list[str] = []
+        got = threading.Event()
+
+        def read_stderr() -> None:
+            assert self._proc.stdout is not None
+            for line in self._proc.stdout:
+                self._stderr.append(line.rstrip())
+                match = _PTY.search(line)
+                if match:
+                    self.device = match.group(1)
+                    got.set()
+            got.set()
+
+        self._reader = threading.Thread(target=read_stderr, name="pil-qemu-stderr", daemon=True)
+        self._reader.start()
+        if not got.wait(_START_TIMEOUT_S) or not self.device:
+            raise PilError("qemu did not start: " + " | ".join(self._stderr[-5:]))
+        self.realtime_note = self._scheduling_note()
+        self._gdb = GdbStub(str(gdb_path), timeout_s=5.0)
+        self._gdb.cont()
+
+    def _scheduling_note(self) -> str:
+        if self.realtime_priority <= 0:
+            return "normal scheduling (asked for none)"
+        try:
+            policy = os.sched_getscheduler(self._proc.pid)
+        except OSError as exc:
+            return f"unknown ({exc.strerror})"
+        if policy == os.SCHED_RR:
+            return f"SCHED_RR priority {self.realtime_priority}"
+        return "normal scheduling: real-time priority not permitted"
+
+    def alive(self) -> bool:
+        return hasattr(self, "_proc") and self._proc.poll() is None
+
+    def _close_emulator(self) -> None:
+        gdb = getattr(self, "_gdb", None)
+        if gdb is not None:
+            gdb.close()
+        proc = getattr(self, "_proc", None)
+        if proc is not None:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(5)
+            self._reader.join(5)
+            if proc.stdout is not None:
+                proc.stdout.close()
+        tmp = getattr(self, "_tmp", None)
+        if tmp is not None:
+            tmp.cleanup()
+
+    # -- the machine -------------------------------------------------------------------------
+    def _qmp(self, command: str) -> dict[str, object]:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+            sock.settimeout(5.0)
+            sock.connect(str(self._qmp_path))
+            stream = sock.makefile("rw", encoding="utf-8")
+            json.loads(stream.readline())  # the greeting
+            for cmd in ("qmp_capabilities", command):
+                stream.write(json.dumps({"execute": cmd}) + "\n")
+                stream.flush()
+                while True:
+                    answer: dict[str, object] = json.loads(stream.readline())
+                    if "return" in answer or "error" in answer:
+                        break
+            if "error" in answer:
+                raise PilError(f"qemu refused {command}: {answer['error']}")
+            return answer
+
+    def reset(self) -> None:
+        """A hardware reset of the MCU (qemu's ``system_reset``); the hooks survive in the
+        runner and are written again once the image has cleared its RAM."""
+        before = self._ticks()
+        self._qmp("system_reset")
+        # The image zeroes .bss (pil_hooks included) as it starts again; the faults in
+        # force are written back once it ticks (its tick count restarts from 0).
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            time.sleep(0.005)
+            ticks = self._ticks()
+            if 0 < ticks < before:
+                break
+        else:
+            raise PilError("the image did not start again after system_reset")
+        self._write_hooks()
+
+    def _ticks(self) -> int:
+        return PortStats.decode(self._gdb.read(self.image.symbols["pil_stats"], STATS.size)).ticks
+
+    def _write_hooks(self) -> None:
+        data = hooks_bytes(
+            (self._stall[0], self._stall[1]),
+            (self._dropout[0], self._dropout[1]),
+            (self._slip[0], self._slip[1]),
+        )
+        self._gdb.write(self.image.symbols["pil_hooks"], data)
+
+    def _apply(self, spec: FaultSpec) -> None:
+        if spec.kind == "reboot":
+            self.reset()
+            return
+        kind = spec.target if spec.kind == "clear" else spec.kind
+        for i in _SIDES[spec.side]:
+            if kind == "stall":
+                self._stall[i] = spec.kind != "clear"
+            elif kind == "encoder-dropout":
+                self._dropout[i] = spec.kind != "clear"
+            elif kind == "slip":
+                self._slip[i] = 1.0 if spec.kind == "clear" else float(spec.value or 1.0)
+        self._write_hooks()
+
+    def _read_port(self) -> tuple[PortView, PortStats]:
+        view = PortView.decode(self._gdb.read(self.image.symbols["pil_view"], VIEW.size))
+        stats = PortStats.decode(self._gdb.read(self.image.symbols["pil_stats"], STATS.size))
+        return view, stats

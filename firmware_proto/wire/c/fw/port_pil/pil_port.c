@@ -1,0 +1,22 @@
+/**
+ * @file pil_port.c
+ * @brief The counters and the view every processor-in-the-loop port keeps (pil_port.h).
+ */
+#include "pil_port.h"
+
+volatile pil_stats_t pil_stats;
+volatile pil_view_t pil_view;
+
+void pil_view_update(const fw_t *c, int32_t speed_left_um_s, int32_t speed_right_um_s)
+{
+    pil_view.commanded_um_s[0] = c->commanded[0];
+    pil_view.commanded_um_s[1] = c->commanded[1];
+    pil_view.speed_um_s[0] = speed_left_um_s;
+    pil_view.speed_um_s[1] = speed_right_um_s;
+    pil_view.boot_nonce = c->boot_nonce;
+    pil_view.rx_errors = (uint16_t)c->rx_errors;
+    pil_view.state = c->state;
+    pil_view.latch = c->latch;
+    pil_view.faults = c->faults;
+    pil_view.queue_depth = fw_queue_depth(c);
+}

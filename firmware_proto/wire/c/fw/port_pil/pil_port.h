@@ -1,0 +1,61 @@
+/**
+ * @file pil_port.h
+ * @brief What every processor-in-the-loop port exposes to its host-side runner
+ *        (`rover pil`, docs/firmware.md "Processor in the loop"): its counters, and under
+ *        FW_PIL the hooks a runner writes into RAM to inject faults.
+ *
+ * A port keeps one `pil_stats` and (FW_PIL) one `pil_hooks` at global scope under these
+ * names; the runner finds them by symbol in the ELF image and reads or writes them (the
+ * qemu gdbstub for the nRF51, libsimavr's RAM for the ATmega2560). A lab's port keeps the
+ * counters (they cost 28 bytes) and drops the hooks with the PIL flag.
+ */
+#ifndef PIL_PORT_H
+#define PIL_PORT_H
+
+#include <stdint.h>
+
+#include "../fw.h"
+
+/** The port's own counters, since boot. Read by the runner; written only by the port. */
+typedef struct {
+    uint32_t ticks;        /**< fw_tick calls */
+    uint32_t tick_last;    /**< duration of the last fw_tick, in `tick_unit` */
+    uint32_t tick_max;     /**< longest fw_tick since boot, in `tick_unit` */
+    uint32_t late_ticks;   /**< ticks run late: the next grid point had passed already */
+    uint32_t rx_overflows; /**< bytes the UART delivered into a full receive ring (lost) */
+    uint32_t tx_drops;     /**< frames dropped whole because the transmit ring was full */
+    uint32_t tick_unit_hz; /**< counts per second of tick_last/tick_max (CPU clock on AVR) */
+} pil_stats_t;
+
+/** Faults a runner injects (FW_PIL builds only); each field read once per tick. */
+typedef struct {
+    uint8_t stall[2];          /**< 1: that wheel is locked (left, right) */
+    uint8_t encoder_dropout[2];/**< 1: that encoder stops counting and flags an error */
+    uint16_t slip_permille[2]; /**< ground travel per wheel travel, per mille (0: 1000) */
+} pil_hooks_t;
+
+/**
+ * What the controller is doing, copied from fw_t after every tick for the runner's
+ * `status` (the same layout on 8- and 32-bit targets: little-endian, no padding).
+ */
+typedef struct {
+    int32_t commanded_um_s[2]; /**< ramped wheel commands, rover frame, um/s */
+    int32_t speed_um_s[2];     /**< measured wheel speeds, motor frame, um/s */
+    int32_t x_mm, y_mm;        /**< ground truth of an in-image plant (else 0), mm */
+    int16_t yaw_ddeg;          /**< ground truth heading of an in-image plant, 0.1 deg */
+    uint16_t boot_nonce;
+    uint16_t rx_errors;        /**< fw_t.rx_errors, 16 bits */
+    uint8_t state;             /**< rp_controller_state_t */
+    uint8_t latch;             /**< FW_LATCH_* bits */
+    uint8_t faults;            /**< active fault conditions, bit (code - 1) */
+    uint8_t queue_depth;       /**< steps queued, the running one included */
+    uint8_t reserved[2];
+} pil_view_t;
+
+extern volatile pil_stats_t pil_stats;
+extern volatile pil_view_t pil_view;
+
+/** Copy what the runner shows from the core (after each tick): pil_view. */
+void pil_view_update(const fw_t *c, int32_t speed_left_um_s, int32_t speed_right_um_s);
+
+#endif /* PIL_PORT_H */
