@@ -33,6 +33,7 @@ from emulator.errors import InjectionError
 from emulator.injection import Injector, parse_fault
 from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.linkio.endpoint import CONTROLLER, HOST, Endpoint
+from firmware_proto.linkio.media import MEDIA
 from firmware_proto.linkio.memory import memory_line
 from firmware_proto.linkio.serial_endpoint import SerialEndpoint
 from firmware_proto.wire.message import Message
@@ -41,8 +42,6 @@ __all__ = ["MEDIA", "LockstepController", "lockstep_pair"]
 
 logger = logging.getLogger(__name__)
 
-MEDIA = ("serial", "can")
-"""What :func:`lockstep_pair` can put between host and controller."""
 
 _channels = itertools.count()
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass
 
+from firmware_proto.linkio.media import MEDIA
 from firmware_proto.wire.messages import Command
 
 __all__ = [
@@ -39,7 +40,6 @@ __all__ = [
 
 CONTROLLERS = ("python", "c")
 """The controllers a scenario can run against: the Python model, the C firmware core."""
-MEDIA = ("serial", "can")
 
 FAULT_KINDS: dict[str, float] = {
     "cut": 3.0,

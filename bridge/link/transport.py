@@ -66,7 +66,7 @@ from bridge.errors import DeviceBusyError, TransportError, TransportUrlError
 from bridge.link.linktypes import SAMPLE_MESSAGES
 from firmware_proto.linkio.endpoint import Endpoint
 from firmware_proto.linkio.errors import LinkUrlError
-from firmware_proto.linkio.urls import SERIAL_SCHEMES, is_can_url
+from firmware_proto.linkio.media import medium_of
 from firmware_proto.runtime import stall
 from firmware_proto.wire.counters import RxCounters
 from firmware_proto.wire.message import Message
@@ -101,10 +101,11 @@ _POLL_S = 0.05
 """How often the reader and the dispatcher look at the stop flag while they wait, s."""
 
 TRANSPORTS: dict[str, tuple[str, str]] = {
-    "can": ("bridge.link.can_transport", "CanTransport"),
     "serial": ("bridge.link.serial_transport", "SerialTransport"),
+    "can": ("bridge.link.can_transport", "CanTransport"),
 }
-"""Transport kind -> (module, class), imported when first used."""
+"""Medium (:func:`firmware_proto.linkio.media.medium_of`, the one registry from a URL to
+its medium) -> (module, transport class), imported when first used."""
 
 
 @contextmanager
@@ -370,14 +371,8 @@ def open_transport(url: str, **options: Any) -> Transport:
         TransportUrlError: the URL names no known transport, or is malformed (permanent:
             retrying cannot help; docs/bridge.md, Transports).
     """
-    kind = "can" if is_can_url(url) else "serial"
-    if "://" in url and kind == "serial":
-        scheme = url.split("://", 1)[0]
-        if scheme not in SERIAL_SCHEMES:
-            known = ", ".join(["can", "socket", "rfc2217", "loop", "a device path"])
-            raise TransportUrlError(
-                f"unknown transport scheme {scheme!r} in {url!r}; known: {known}"
-            )
+    with url_errors(url):
+        kind = medium_of(url)
     module_name, class_name = TRANSPORTS[kind]
     cls = getattr(importlib.import_module(module_name), class_name)
     transport: Transport = cls(url, **options)

@@ -2,7 +2,8 @@
 
     LinkError                  a medium cannot be opened, read or written; also OSError
      +-- LinkUrlError          a link URL is malformed: permanent, never retried; also
-     |                         ValueError
+     |    |                    ValueError
+     |    +-- UnknownSchemeError  its scheme names no medium
      +-- LinkBusyError         another process holds the device exclusively
     ExpectationError           a scripted host's expectation failed (what a test or a
      |                         conformance rule reports, not a fault of the medium)
@@ -22,6 +23,7 @@ __all__ = [
     "LinkUrlError",
     "NotReceivedError",
     "UnexpectedMessageError",
+    "UnknownSchemeError",
 ]
 
 
@@ -32,6 +34,11 @@ class LinkError(OSError):
 class LinkUrlError(LinkError, ValueError):
     """A link URL is malformed (unknown scheme, missing host or port, bad option, a CAN
     node id out of range). Raised before anything is opened; no retry can fix it."""
+
+
+class UnknownSchemeError(LinkUrlError):
+    """A link URL's scheme names no medium (:data:`firmware_proto.linkio.media.SCHEMES`);
+    the message lists the known ones."""
 
 
 class LinkBusyError(LinkError):

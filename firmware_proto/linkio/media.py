@@ -1,46 +1,51 @@
-"""Which endpoint a link URL names, built for either side.
+"""The one registry from a link URL to its medium, and the endpoint of each medium.
 
-:func:`open_endpoint` is the link layer's counterpart of the bridge's
-``open_transport``: ``can://INTERFACE/CHANNEL?node=N`` gives a
-:class:`~firmware_proto.linkio.can_endpoint.CanEndpoint`, a device path or a pyserial
-URL (``socket://``, ``rfc2217://``, ``loop://``) a
-:class:`~firmware_proto.linkio.serial_endpoint.SerialEndpoint`
-(:mod:`firmware_proto.linkio.urls` parses both). The medium's module is imported only
-when it is used, so a serial link never loads python-can.
+A link URL's scheme names its medium (:data:`SCHEMES`): ``can://INTERFACE/CHANNEL``
+is CAN; a device path (no scheme) or a pyserial URL (``socket://``, ``rfc2217://``,
+``loop://``...) is serial (:mod:`firmware_proto.linkio.urls` parses both). Each medium
+has an endpoint class here (:data:`ENDPOINTS`), imported only when it is used, so a serial
+link never loads python-can; the bridge keys its transports by the same media
+(``bridge.link.transport.TRANSPORTS``). An unknown scheme is an
+:class:`~firmware_proto.linkio.errors.UnknownSchemeError` listing the known ones.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import Any, Final
 
 from firmware_proto.linkio.endpoint import Endpoint, Side
-from firmware_proto.linkio.errors import LinkUrlError
-from firmware_proto.linkio.urls import SERIAL_SCHEMES, is_can_url
+from firmware_proto.linkio.errors import UnknownSchemeError
+from firmware_proto.linkio.urls import SERIAL_SCHEMES
 
-__all__ = ["MEDIA", "medium_of", "open_endpoint"]
+__all__ = ["ENDPOINTS", "MEDIA", "SCHEMES", "medium_of", "open_endpoint"]
 
-MEDIA: dict[str, tuple[str, str]] = {
-    "can": ("firmware_proto.linkio.can_endpoint", "CanEndpoint"),
+MEDIA: Final = ("serial", "can")
+"""The media of a link, by the names every tool uses (``--medium``, logs, lockstep)."""
+
+ENDPOINTS: Final[dict[str, tuple[str, str]]] = {
     "serial": ("firmware_proto.linkio.serial_endpoint", "SerialEndpoint"),
+    "can": ("firmware_proto.linkio.can_endpoint", "CanEndpoint"),
 }
 """Medium -> (module, endpoint class), imported when first used."""
 
+SCHEMES: Final[dict[str, str]] = {"can": "can"} | {s: "serial" for s in SERIAL_SCHEMES}
+"""URL scheme -> medium (``""``: a device path)."""
+
 
 def medium_of(url: str) -> str:
-    """``can`` or ``serial``: the medium ``url`` names.
+    """``serial`` or ``can``: the medium ``url`` names (by its scheme alone; the rest of
+    the URL is checked by whoever opens it).
 
     Raises:
-        LinkUrlError: a scheme no medium knows (the message lists the known ones).
+        UnknownSchemeError: a scheme no medium knows (the message lists the known ones).
     """
-    if is_can_url(url):
-        return "can"
-    if "://" in url:
-        scheme = url.split("://", 1)[0]
-        if scheme not in SERIAL_SCHEMES:
-            known = ", ".join(["can", *sorted(s for s in SERIAL_SCHEMES if s), "a device path"])
-            raise LinkUrlError(f"unknown link scheme {scheme!r} in {url!r}; known: {known}")
-    return "serial"
+    scheme = url.split("://", 1)[0] if "://" in url else ""
+    medium = SCHEMES.get(scheme)
+    if medium is None:
+        known = ", ".join([*(f"{s}://" for s in SCHEMES if s), "a device path"])
+        raise UnknownSchemeError(f"unknown link scheme {scheme!r} in {url!r}; known: {known}")
+    return medium
 
 
 def open_endpoint(url: str, side: Side, **options: Any) -> Endpoint:
@@ -49,9 +54,10 @@ def open_endpoint(url: str, side: Side, **options: Any) -> Endpoint:
     or bus options).
 
     Raises:
-        LinkUrlError: the URL names no medium, or is malformed (permanent).
+        LinkUrlError: the URL names no medium (:class:`UnknownSchemeError`), or is
+            malformed (permanent).
     """
-    module, name = MEDIA[medium_of(url)]
+    module, name = ENDPOINTS[medium_of(url)]
     cls = getattr(importlib.import_module(module), name)
     endpoint: Endpoint = cls.for_url(side, url, **options)
     return endpoint

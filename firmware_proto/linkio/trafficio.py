@@ -45,6 +45,7 @@ from typing import IO, Any, BinaryIO, TextIO
 import can
 from can.io.blf import BLFParseError
 
+from firmware_proto.linkio.media import MEDIA
 from firmware_proto.linkio.trafficlog import (
     SERIAL_LOG_MAGIC,
     CanRecord,
@@ -69,9 +70,6 @@ __all__ = [
     "read_log",
     "writer_for",
 ]
-
-MEDIA = ("serial", "can")
-"""The media a link records: a serial frame log, or a CAN log."""
 
 
 class LogWriter(ABC):

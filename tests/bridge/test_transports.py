@@ -271,7 +271,7 @@ BAD_URLS = [
     ("/dev/ttyACM0?baud=fast", "baud must be a positive integer"),
     ("/dev/ttyACM0?baud=0", "baud must be a positive integer"),
     ("/dev/ttyACM0?parity=E", "a device path takes no option 'parity'"),
-    ("warp://x", "unknown transport scheme 'warp'"),
+    ("warp://x", "unknown link scheme 'warp'"),
     ("can://virtual", "CAN URL must be can://INTERFACE/CHANNEL"),
     ("can://virtual/bus?node=16", "CAN node id must be 1..15"),
     ("can://virtual/bus?node=two", "CAN node id must be 1..15"),
