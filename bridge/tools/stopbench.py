@@ -36,11 +36,12 @@ wake-up, as any host would see it. The controller's own account of each stop (ST
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import random
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from types import TracebackType
 from typing import Any, TypeVar
@@ -50,8 +51,8 @@ import can
 from bridge.errors import BridgeError, TransportError
 from bridge.link.transport import url_errors
 from firmware_proto.linkio.endpoint import HOST
-from firmware_proto.linkio.errors import LinkError
-from firmware_proto.linkio.host import ProtocolHost
+from firmware_proto.linkio.errors import LinkError, NotReceivedError
+from firmware_proto.linkio.host import HEARTBEAT_S, ProtocolHost, Received
 from firmware_proto.linkio.media import open_endpoint
 from firmware_proto.linkio.trafficlog import TrafficRecorder
 from firmware_proto.linkio.urls import parse_can_url
@@ -59,18 +60,12 @@ from firmware_proto.wire.canmap import MAX_NODE, can_id
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (
     ENCODERS_RATE_HZ,
-    HOST_HEARTBEAT_PERIOD_MS,
-    PROTOCOL_VERSION,
-    SCHEMA_HASH,
     STOP_REPEAT_MS,
     AbortReason,
     Ack,
     AckResult,
-    ClearAck,
     ClearResult,
-    ClearStop,
     Command,
-    Hello,
     Ident,
     Motion,
     Param,
@@ -107,6 +102,8 @@ protocol, which every controller ignores (a controller-to-host type, another nod
 _LONG_STEP = 30000
 """Distance units of the queued steps: the longest the protocol allows (1.3 m)."""
 _MAX_FILL = 64
+_REPEAT_S = STOP_REPEAT_MS / 1000.0
+"""STOP and CLEAR_STOP are sent again this often until answered (the protocol's rule), s."""
 _MOVING_MM_S = 10.0
 """The STOP's random moment is counted from the first wheel-speed report at least this
 fast (mean of both sides), so that every STOP stops a moving rover."""
@@ -395,49 +392,35 @@ class StopBench:
         self.close()
 
     # -- helpers ----------------------------------------------------------------------------
-    def _send(self, message: Message) -> float:
-        """Write one message; returns the monotonic time just before the write.
+    @contextlib.contextmanager
+    def _errors(self, what: str) -> Iterator[None]:
+        """The host's errors as the bench's: a write that failed is a
+        :class:`TransportError`; an answer that did not come, or a link that failed while
+        waiting, a :class:`BenchError`."""
+        try:
+            yield
+        except NotReceivedError as exc:
+            raise BenchError(f"no {what} within {self.config.timeout_s:g} s") from exc
+        except LinkError as exc:
+            failed = self._host.inbox.failure is not None
+            raise (
+                BenchError(f"link failed: {exc}") if failed else TransportError(str(exc))
+            ) from exc
+
+    def _expect(
+        self, kind: type[M], where: Callable[[M], bool], *, since: int, what: str
+    ) -> tuple[int, Received]:
+        """The first ``kind`` message from position ``since`` for which ``where`` holds,
+        with its position, within the bench's timeout.
 
         Raises:
-            TransportError: the write failed.
+            BenchError: none came, or the link failed.
         """
-        t = self._host.now()
-        try:
-            self._host.send(message)
-        except LinkError as exc:
-            raise TransportError(str(exc)) from exc
-        return t
-
-    def _wait(
-        self,
-        kind: type[M],
-        pred: Callable[[M], bool] = lambda _m: True,
-        *,
-        since: int,
-        timeout_s: float,
-    ) -> tuple[int, float, M] | None:
-        """The first ``kind`` message from position ``since`` matching ``pred``, waiting
-        at most ``timeout_s``: (position, arrival, message), or ``None`` on timeout.
-
-        Raises:
-            BenchError: the link failed.
-        """
-        try:
-            found = self._host.find(kind, pred, since=since, timeout_s=timeout_s)
-        except LinkError as exc:
-            raise BenchError(f"link failed: {exc}") from exc
-        if found is None:
-            return None
-        index, received = found
-        return index, received.arrived, received.message  # type: ignore[return-value]
-
-    def _all(self, kind: type[M], since: int) -> list[tuple[int, float, M]]:
-        """Every ``kind`` message from position ``since``: (position, arrival, message)."""
-        return [
-            (i, r.arrived, r.message)
-            for i, r in self._host.inbox.indexed(since)
-            if isinstance(r.message, kind)
-        ]
+        with self._errors(what):
+            found = self._host.find(kind, where, since=since, timeout_s=self.config.timeout_s)
+            if found is None:
+                raise NotReceivedError(what)
+        return found
 
     def _next_seq(self) -> int:
         self._seq = self._seq % 0xFFFF + 1
@@ -447,85 +430,69 @@ class StopBench:
         self._stop_id = self._stop_id % 0xFFFF + 1
         return self._stop_id
 
-    def _expect(
-        self,
-        kind: type[M],
-        pred: Callable[[M], bool] = lambda _m: True,
-        *,
-        since: int,
-        what: str,
-    ) -> tuple[int, float, M]:
-        got = self._wait(kind, pred, since=since, timeout_s=self.config.timeout_s)
-        if got is None:
-            raise BenchError(f"no {what} within {self.config.timeout_s:g} s")
-        return got
-
     def _motion(self, distance: int) -> tuple[int, Ack]:
         seq = self._next_seq()
-        mark = self._host.mark()
-        self._send(Motion(seq, Command.FWD, self.config.speed, distance))
-        _, _, ack = self._expect(Ack, lambda a: a.seq == seq, since=mark, what=f"ACK of seq {seq}")
+        what = f"ACK of seq {seq}"
+        with self._errors(what):
+            _, (_, got), _ = self._host.request(
+                Motion(seq, Command.FWD, self.config.speed, distance),
+                Ack,
+                lambda a: a.seq == seq,
+                timeout_s=self.config.timeout_s,
+                what=what,
+            )
+        ack: Ack = got.message  # type: ignore[assignment]
         return seq, ack
 
-    def _repeat_until(
-        self, message: Message, kind: type[M], pred: Callable[[M], bool], what: str
-    ) -> tuple[float, tuple[int, float, M], int]:
-        """Send ``message`` every STOP_REPEAT_MS until an answer: (time of the first
-        send, (index, arrival, answer), repeats)."""
-        mark = self._host.mark()
-        t0 = self._send(message)
-        repeats = 0
-        deadline = t0 + self.config.timeout_s
-        while True:
-            got = self._wait(kind, pred, since=mark, timeout_s=STOP_REPEAT_MS / 1000.0)
-            if got is not None:
-                return t0, got, repeats
-            if time.monotonic() > deadline:
-                raise BenchError(f"no {what} within {self.config.timeout_s:g} s")
-            self._send(message)
-            repeats += 1
+    def _send_stop(self, stop_id: int) -> tuple[float, tuple[int, Received], int]:
+        """STOP ``stop_id``, repeated every STOP_REPEAT_MS until its STOP_ACK: the time
+        of the first send, the STOP_ACK with its position, the repeats."""
+        with self._errors("STOP_ACK"):
+            return self._host.request(
+                Stop(stop_id, StopSource.BENCH),
+                StopAck,
+                lambda a: a.stop_id == stop_id,
+                every_s=_REPEAT_S,
+                timeout_s=self.config.timeout_s,
+            )
 
     # -- the run ----------------------------------------------------------------------------
     def _handshake(self) -> Ident:
-        deadline = time.monotonic() + self.config.timeout_s
-        while time.monotonic() < deadline:
-            mark = self._host.mark()
-            self._send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-            got = self._wait(Ident, since=mark, timeout_s=HOST_HEARTBEAT_PERIOD_MS / 1000.0)
-            if got is None:
-                continue
-            ident = got[2]
-            if (ident.protocol_version, ident.schema_hash) != (PROTOCOL_VERSION, SCHEMA_HASH):
-                raise BenchError(
-                    f"controller speaks protocol v{ident.protocol_version} schema "
-                    f"0x{ident.schema_hash:04X}, this host v{PROTOCOL_VERSION} schema "
-                    f"0x{SCHEMA_HASH:04X}: refusing to drive"
-                )
-            return ident
-        raise BenchError(
-            f"no IDENT from {self.config.url} within {self.config.timeout_s:g} s: is a "
-            "controller (or rover emulate) there, at the right baud rate or node id?"
-        )
+        try:
+            ident = self._host.handshake(timeout_s=self.config.timeout_s, every_s=HEARTBEAT_S)
+        except NotReceivedError as exc:
+            raise BenchError(
+                f"no IDENT from {self.config.url} within {self.config.timeout_s:g} s: is a "
+                "controller (or rover emulate) there, at the right baud rate or node id?"
+            ) from exc
+        mismatch = self._host.matches(ident)
+        if mismatch:
+            raise BenchError(f"{mismatch}: refusing to drive")
+        return ident
 
     def _set_telemetry(self, hz: int) -> int | None:
-        mark = self._host.mark()
-        self._send(SetParam(Param.TELEMETRY_HZ, hz))
-        got = self._wait(
-            ParamValue,
-            lambda p: p.param == Param.TELEMETRY_HZ,
-            since=mark,
-            timeout_s=self.config.timeout_s,
-        )
-        if got is None or got[2].result != ParamResult.OK:
-            logger.warning("controller did not set TELEMETRY_HZ=%d (%s)", hz, got)
+        try:
+            _, (_, got), _ = self._host.request(
+                SetParam(Param.TELEMETRY_HZ, hz),
+                ParamValue,
+                lambda p: p.param == Param.TELEMETRY_HZ,
+                timeout_s=self.config.timeout_s,
+            )
+        except NotReceivedError:
+            got = None
+        except LinkError as exc:
+            raise BenchError(f"link failed: {exc}") from exc
+        answer: ParamValue | None = None if got is None else got.message  # type: ignore[assignment]
+        if answer is None or answer.result != ParamResult.OK:
+            logger.warning("controller did not set TELEMETRY_HZ=%d (%s)", hz, answer)
             return None
-        return int(got[2].value)
+        return int(answer.value)
 
     def _clear(self) -> str:
-        clear_id = self._next_stop_id()
-        _, (_, _, ack), _ = self._repeat_until(
-            ClearStop(clear_id), ClearAck, lambda a: a.stop_id == clear_id, "CLEAR_ACK"
-        )
+        with self._errors("CLEAR_ACK"):
+            ack = self._host.clear_stop(
+                self._next_stop_id(), every_s=_REPEAT_S, timeout_s=self.config.timeout_s
+            )
         return ClearResult(ack.result).name
 
     def run(self, progress: Callable[[TrialResult], None] | None = None) -> BenchRun:
@@ -627,12 +594,7 @@ class StopBench:
             error = str(exc)
             logger.warning("trial %d: %s", number, error)
             try:  # leave the controller stopped and unlatched for the next trial
-                self._repeat_until(
-                    Stop(self._next_stop_id(), StopSource.BENCH),
-                    StopAck,
-                    lambda _a: True,
-                    "STOP_ACK",
-                )
+                self._send_stop(self._next_stop_id())
                 fields["clear_result"] = fields["clear_result"] or self._clear()
             except BenchError as again:
                 logger.warning("trial %d: recovery failed: %s", number, again)
@@ -658,35 +620,38 @@ class StopBench:
         )
         if delay > 0 and self._stop.wait(delay):  # the random moment of the STOP
             raise BenchError("bench closed")
-        speeds = self._all(WheelSpeeds, mark)
+        speeds = self._host.messages(WheelSpeeds, mark)
         if speeds:
-            last = speeds[-1][2]
+            last = speeds[-1]
             out["speed_mm_s"] = (last.left_mm_s + last.right_mm_s) / 2.0
         stop_id = self._next_stop_id()
         since = self._host.mark()
-        t0, (i_ack, t_ack, _), repeats = self._repeat_until(
-            Stop(stop_id, StopSource.BENCH), StopAck, lambda a: a.stop_id == stop_id, "STOP_ACK"
-        )
-        out["ack_ms"] = (t_ack - t0) * 1e3
+        t0, (i_ack, ack_received), repeats = self._send_stop(stop_id)
+        out["ack_ms"] = (ack_received.arrived - t0) * 1e3
         out["stop_repeats"] = repeats
-        i_stopped, t_stopped, stopped = self._expect(
+        i_stopped, stopped_received = self._expect(
             Stopped, lambda s: s.stop_id == stop_id, since=since, what="STOPPED"
         )
-        out["stopped_ms"] = (t_stopped - t0) * 1e3
+        stopped: Stopped = stopped_received.message  # type: ignore[assignment]
+        out["stopped_ms"] = (stopped_received.arrived - t0) * 1e3
         out["controller_duration_ms"] = stopped.duration_ms
         out["controller_distance_mm"] = stopped.distance_mm
         # Wheel speeds reported after STOP_ACK, in arrival order: they describe the
         # controller after the STOP (on CAN the first may have waited in the controller's
         # transmit queue behind the higher-priority STOP_ACK, so it is not judged).
-        _, t_zero, _ = self._expect(
+        _, zero = self._expect(
             WheelSpeeds,
             lambda w: w.left_mm_s == 0 and w.right_mm_s == 0,
             since=i_ack + 1,
             what="WHEEL_SPEEDS at zero",
         )
-        out["zero_ms"] = (t_zero - t0) * 1e3
+        out["zero_ms"] = (zero.arrived - t0) * 1e3
         grace = 1 if self.medium == "can" else 0
-        after = [w for i, _, w in self._all(WheelSpeeds, i_ack + 1) if i < i_stopped]
+        after = [
+            w
+            for i, r in self._host.indexed(WheelSpeeds, i_ack + 1)
+            if i < i_stopped and isinstance(w := r.message, WheelSpeeds)
+        ]
         judged = after[grace:] if len(after) > grace else after[-1:]
         out["targets_zero"] = bool(judged) and all(
             w.left_target_mm_s == 0 and w.right_target_mm_s == 0 for w in judged
@@ -694,7 +659,7 @@ class StopBench:
         out["purged"] = len(
             {
                 s.seq
-                for _, _, s in self._all(Status, since)
+                for s in self._host.messages(Status, since)
                 if s.seq in queued and s.state == StepState.ABORTED and s.reason == AbortReason.STOP
             }
         )

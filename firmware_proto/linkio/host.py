@@ -42,6 +42,8 @@ from firmware_proto.wire.messages import (
     HOST_HEARTBEAT_PERIOD_MS,
     PROTOCOL_VERSION,
     SCHEMA_HASH,
+    ClearAck,
+    ClearStop,
     Heartbeat,
     Hello,
     HostHeartbeat,
@@ -320,11 +322,105 @@ class ProtocolHost:
             what=f"a HEARTBEAT with {what}",
         )
 
-    def handshake(self, *, timeout_s: float = 5.0) -> Ident:
+    def handshake(self, *, timeout_s: float = 5.0, every_s: float | None = None) -> Ident:
         """HELLO with this protocol's version and schema hash; the first IDENT after it
-        (which may be a boot IDENT that crossed it: compare its hash yourself)."""
-        since = self.send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-        return self.expect(Ident, since=since, timeout_s=timeout_s, what="IDENT")
+        (which may be a boot IDENT that crossed it: :meth:`matches` tells). With
+        ``every_s``, HELLO is sent again every ``every_s`` until an IDENT comes (a
+        controller still booting, or one that lost the first).
+
+        Raises:
+            NotReceivedError: no IDENT within ``timeout_s`` (scaled).
+            LinkError: the link failed.
+        """
+        hello = Hello(PROTOCOL_VERSION, SCHEMA_HASH)
+        _, (_, got), _ = self.request(
+            hello, Ident, every_s=every_s, timeout_s=timeout_s, what="IDENT"
+        )
+        ident: Ident = got.message  # type: ignore[assignment]
+        return ident
+
+    @staticmethod
+    def matches(ident: Ident) -> str:
+        """``""`` when ``ident`` speaks this host's protocol version and schema hash,
+        else a sentence saying how it differs."""
+        theirs = (ident.protocol_version, ident.schema_hash)
+        if theirs == (PROTOCOL_VERSION, SCHEMA_HASH):
+            return ""
+        return (
+            f"controller speaks protocol v{ident.protocol_version} schema "
+            f"0x{ident.schema_hash:04X}, this host v{PROTOCOL_VERSION} schema "
+            f"0x{SCHEMA_HASH:04X}"
+        )
+
+    def clear_stop(
+        self, clear_id: int, *, every_s: float | None = None, timeout_s: float = 1.0
+    ) -> ClearAck:
+        """CLEAR_STOP ``clear_id`` (sent again every ``every_s``, if given, until
+        answered); its CLEAR_ACK, whatever it says.
+
+        Raises:
+            NotReceivedError: no CLEAR_ACK for ``clear_id`` within ``timeout_s`` (scaled).
+            LinkError: the link failed.
+        """
+        _, (_, got), _ = self.request(
+            ClearStop(clear_id),
+            ClearAck,
+            lambda a: a.stop_id == clear_id,
+            every_s=every_s,
+            timeout_s=timeout_s,
+            what=f"CLEAR_ACK for stop_id {clear_id}",
+        )
+        ack: ClearAck = got.message  # type: ignore[assignment]
+        return ack
+
+    def request(
+        self,
+        message: Message,
+        kind: type[M],
+        where: Callable[[M], bool] = _any,
+        *,
+        every_s: float | None = None,
+        timeout_s: float = 1.0,
+        what: str = "",
+    ) -> tuple[float, tuple[int, Received], int]:
+        """Send ``message`` and await its answer: the first ``kind`` message after the
+        send for which ``where`` holds. With ``every_s``, the message is sent again every
+        ``every_s`` (not scaled: the protocol's repeat period, STOP_REPEAT_MS for STOP
+        and CLEAR_STOP) until the answer comes.
+
+        Returns:
+            the host clock just before the first write, s; the answer with its position;
+            how many times the message was repeated.
+
+        Raises:
+            NotReceivedError: no answer within ``timeout_s`` (scaled) of the first send.
+            LinkError: a write failed, or the link failed meanwhile.
+        """
+
+        def accept(item: Received) -> bool:
+            return isinstance(item.message, kind) and where(item.message)
+
+        sent_at = self.now()
+        since = self.send(message)
+        deadline = sent_at + self.scaled(timeout_s)
+        repeats = 0
+        while True:
+            left = max(0.0, deadline - self.now())
+            found = self.inbox.wait(accept, since=since, timeout_s=min(every_s or left, left))
+            if found is not None:
+                return sent_at, found, repeats
+            if self.now() >= deadline:
+                raise NotReceivedError(
+                    f"expected {what or getattr(kind, 'NAME', kind.__name__)} within "
+                    f"{self.scaled(timeout_s):g} s"
+                )
+            self.send(message)
+            repeats += 1
+
+    def indexed(self, kind: type[M], since: int = 0) -> list[tuple[int, Received]]:
+        """Every ``kind`` message received from position ``since`` on, with its position
+        (those still kept)."""
+        return [(i, r) for i, r in self.inbox.indexed(since) if isinstance(r.message, kind)]
 
     # -- send -----------------------------------------------------------------------------
     def send(self, message: Message, *, strict: bool = True) -> int:

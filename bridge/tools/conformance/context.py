@@ -16,16 +16,12 @@ from bridge.errors import RuleFailedError, RuleNotRunError
 from bridge.tools.conformance.host import WireHost
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.wire.messages import (
-    PROTOCOL_VERSION,
-    SCHEMA_HASH,
     WATCHDOG_MS,
     ClearAck,
     ClearResult,
-    ClearStop,
     ControllerState,
     Encoders,
     Heartbeat,
-    Hello,
     Ident,
     Param,
     ParamResult,
@@ -117,13 +113,9 @@ class Context:
     def handshake(self) -> Ident:
         """HELLO with our version and schema hash; the IDENT, checked to match, and a
         HEARTBEAT with ``handshake_ok`` 1 after it."""
-        mark = self.host.send(Hello(PROTOCOL_VERSION, SCHEMA_HASH))
-        ident = self.host.expect(Ident, since=mark, what="IDENT in answer to HELLO")
-        check(
-            (ident.protocol_version, ident.schema_hash) == (PROTOCOL_VERSION, SCHEMA_HASH),
-            f"IDENT v{ident.protocol_version}/0x{ident.schema_hash:04X} does not match this "
-            f"host's v{PROTOCOL_VERSION}/0x{SCHEMA_HASH:04X}: nothing else can be checked",
-        )
+        ident = self.host.handshake(timeout_s=1.0)
+        mismatch = self.host.matches(ident)
+        check(not mismatch, f"{mismatch}: nothing else can be checked")
         self.host.heartbeat_where("handshake_ok 1", lambda hb: bool(hb.handshake_ok))
         return ident
 
@@ -140,13 +132,7 @@ class Context:
 
     def clear_ack(self, clear_id: int) -> ClearAck:
         """CLEAR_STOP ``clear_id``; its CLEAR_ACK, whatever it says."""
-        mark = self.host.send(ClearStop(clear_id))
-        return self.host.expect(
-            ClearAck,
-            lambda a: a.stop_id == clear_id,
-            since=mark,
-            what=f"CLEAR_ACK for stop_id {clear_id}",
-        )
+        return self.host.clear_stop(clear_id)
 
     def prepare(self) -> Heartbeat:
         """A fresh session with no latch and nothing queued, the wheels at rest: HELLO
