@@ -197,9 +197,14 @@ class Progress:
     """What the operator sees while a plan runs.
 
     ``status`` is ``published`` and ``accepted`` as the step goes out and is
-    acknowledged, ``running`` about every ``progress_period_s`` while it runs, then its
-    final status (``completed``, ``rejected:...``, ``drift``...). ``eta_s`` is the
-    expected wall time to the end of the plan; the drift figures are the latest sample.
+    acknowledged, ``published`` again about every ``progress_period_s`` until it is
+    acknowledged, ``running`` as often while it runs, then its final status
+    (``completed``, ``rejected:...``, ``drift``...). ``eta_s`` is the expected wall time
+    to the end of the plan; the drift figures are the latest sample. ``verdict`` is the
+    gate's verdict of the plan this step belongs to (``None`` for a plan run without
+    one): what the step is predicted to do, and the key by which a viewer tells one plan
+    from the next (the live view's ghost follows it). ``unit`` names what is counted
+    (``step``; move-and-wait counts its ``increment`` s).
     """
 
     step: int
@@ -208,6 +213,8 @@ class Progress:
     eta_s: float
     drift_linear_m: float | None
     drift_angular_deg: float | None
+    verdict: Verdict | None = field(default=None, compare=False, repr=False)
+    unit: str = "step"
 
     @property
     def final(self) -> bool:
@@ -215,9 +222,11 @@ class Progress:
         return self.status not in ("published", "accepted", "running")
 
     def line(self, time_scale: float = 1.0) -> str:
-        """``step 3/8 completed, ETA 24 s, drift 0.031 m 1.2 deg`` (ETA in mission time)."""
+        """``step 3/8 completed, ETA 24 s, drift 0.031 m 1.2 deg`` (ETA in mission time;
+        the drift only where drift control runs)."""
         text = (
-            f"step {self.step + 1}/{self.steps} {self.status}, ETA {self.eta_s * time_scale:.0f} s"
+            f"{self.unit} {self.step + 1}/{self.steps} {self.status}, "
+            f"ETA {self.eta_s * time_scale:.0f} s"
         )
         if self.drift_linear_m is not None and self.drift_angular_deg is not None:
             text += f", drift {self.drift_linear_m:.3f} m {self.drift_angular_deg:.1f} deg"
@@ -869,4 +878,5 @@ class PlanExecutor:
             current + later,
             last.linear_m if last else None,
             last.angular_deg if last else None,
+            verdict,
         )

@@ -26,6 +26,13 @@ A page opened mid-mission starts from ``hello``: the map, the goal, the planning
 trails of both poses so far (1 cm apart, at most :data:`TRAIL_LEN` points each), the
 STOPs with where they happened, the progress, the ghost's state and the result.
 
+The ghost follows the plan its step belongs to: each progress report names the gate's
+verdict of its plan (:attr:`~planner.ground.executor.Progress.verdict`), and the ghost
+moves along that verdict's prediction, whatever else came before (a step's
+``published`` is reported again every second until the rover acknowledges it, so
+counting reports cannot tell one plan from the next). The leg shown is that verdict's
+place among the plannings' approved plans.
+
 The ghost stops where it is when the step it follows ends other than ``completed``
 (``fault:``, ``aborted:``, ``rejected:``) or a STOP is sent, until the next step is
 published: the prediction of a step the rover no longer drives is not where it is.
@@ -180,6 +187,8 @@ class ViewHub:
             (``PlanExecutor.latest_drift``), or ``None``.
         limits: the drift thresholds shown.
         queue_len: see :class:`ClientQueue`.
+        clock: wall seconds (``time.time``; a test passes its own, and drives the hub
+            with :meth:`pump` instead of :meth:`start`).
     """
 
     def __init__(
@@ -191,8 +200,10 @@ class ViewHub:
         drift_source: Callable[[], tuple[float, float] | None] | None = None,
         limits: ViewLimits | None = None,
         queue_len: int = QUEUE_LEN,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         self.world = world
+        self._clock = clock
         self.rtt_s = rtt_s
         self.time_scale = time_scale
         self.limits = limits or ViewLimits()
@@ -212,13 +223,14 @@ class ViewHub:
         self._plans: list[dict[str, Any]] = []
         self._plannings = 0
         self._ghosts: list[Verdict] = []  # approved, in order of execution
+        self._following: Verdict | None = None
+        """The verdict of the plan whose step runs now (the ghost's prediction)."""
         self._poses: dict[str, dict[str, Any]] = {}
         self._odom_anchor: tuple[Pose, Pose] | None = None
         self._last_odom: Pose | None = None
         self._step_sent: float | None = None
         self._step_started: float | None = None
         self._step_index = 0
-        self._leg = -1
         self._rtt_measured: float | None = None
         self._progress: dict[str, Any] = {}
         self._status = ""
@@ -270,7 +282,7 @@ class ViewHub:
         with self._inbox_cond:
             if len(self._inbox) == INBOX_LEN:
                 self.dropped_inputs += 1
-            self._inbox.append((kind, time.time(), payload))
+            self._inbox.append((kind, self._clock(), payload))
             self._inbox_cond.notify()
 
     # -- clients ------------------------------------------------------------------------------
@@ -366,6 +378,23 @@ class ViewHub:
         for client in clients:
             client.close()
 
+    def pump(self) -> None:
+        """Turn every input waiting into events, then send one ``tick``: what the hub
+        thread does, for a caller that drives the hub itself (a test in virtual time,
+        with its own ``clock``); never beside :meth:`start`."""
+        with self._inbox_cond:
+            items = list(self._inbox)
+            self._inbox.clear()
+        self._handle_all(items)
+        self._tick()
+
+    def _handle_all(self, items: list[tuple[str, float, Any]]) -> None:
+        for kind, rx, payload in items:
+            try:
+                self._handle(kind, rx, payload)
+            except Exception:
+                logger.exception("view: cannot show %s", kind)
+
     def _loop(self) -> None:
         next_tick = time.monotonic() + TICK_S
         while True:
@@ -376,11 +405,7 @@ class ViewHub:
                 self._inbox.clear()
             if self._closed:
                 return
-            for kind, rx, payload in items:
-                try:
-                    self._handle(kind, rx, payload)
-                except Exception:
-                    logger.exception("view: cannot show %s", kind)
+            self._handle_all(items)
             if time.monotonic() >= next_tick:
                 next_tick = time.monotonic() + TICK_S
                 try:
@@ -510,21 +535,26 @@ class ViewHub:
             if mission.approved and self._latched:
                 self._replan_approved = True
         self._ghosts = list(mission.verdicts)
-        self._leg = -1
         goal = mission.goal
         self._goal = [goal.x, goal.y, goal.yaw_deg]
         self._broadcast("plans", {"plans": plans, "approved": mission.approved, "goal": self._goal})
 
+    def _leg_of(self, verdict: Verdict | None) -> int:
+        """The place of ``verdict`` among the latest planning's approved plans, by
+        identity (0-based; 0 when it is none of them: a plan the view was not told of)."""
+        return next((i for i, v in enumerate(self._ghosts) if v is verdict), 0)
+
     def _on_progress(self, rx: float, p: Progress) -> None:
-        if p.step == 0 and p.status == "published":
-            self._leg += 1
+        self._following = p.verdict
         self._step_index = p.step
         data = {
             "step": p.step,
             "steps": p.steps,
             "status": p.status,
             "eta_s": p.eta_s,
-            "leg": max(self._leg, 0),
+            "leg": self._leg_of(p.verdict),
+            "legs": max(1, len(self._ghosts)),
+            "planning": self._plannings,
         }
         with self._lock:
             self._progress = data
@@ -536,13 +566,14 @@ class ViewHub:
         self._broadcast("log", {"line": line})
 
     def _ghost(self) -> Pose | None:
-        """Where the prediction says the rover is now (the ghost ahead of the reports)."""
-        if not self._ghosts or self._leg < 0 or self._leg >= len(self._ghosts):
+        """Where the prediction of the plan running now says the rover is (the ghost
+        ahead of the reports); ``None`` without one."""
+        if self._following is None:
             return None
-        trajectory = self._ghosts[self._leg].trajectory
+        trajectory = self._following.trajectory
         step_t = 0.0
         if self._step_started is not None:
-            step_t = (time.time() - self._step_started) * self.time_scale
+            step_t = (self._clock() - self._step_started) * self.time_scale
         samples = trajectory.for_step(self._step_index)
         if not samples:
             return None
@@ -554,15 +585,15 @@ class ViewHub:
         """The spread of the gate's samples where the ghost is: ``[semi-major m,
         semi-minor m, angle deg]`` of the step's first envelope point not behind it
         (``None`` without uncertainty)."""
-        if not self._ghosts or self._leg < 0 or self._leg >= len(self._ghosts):
+        if self._following is None:
             return None
-        u = self._ghosts[self._leg].uncertainty
+        u = self._following.uncertainty
         points = u.for_step(self._step_index) if u is not None else ()
         if not points:
             return None
         step_t = 0.0
         if self._step_started is not None:
-            step_t = (time.time() - self._step_started) * self.time_scale
+            step_t = (self._clock() - self._step_started) * self.time_scale
         at = next((p for p in points if p.step_t_s >= step_t), points[-1])
         return [round(at.major_m, 4), round(at.minor_m, 4), round(at.angle_deg, 2)]
 
@@ -577,7 +608,7 @@ class ViewHub:
         self._broadcast(
             "tick",
             {
-                "t": time.time(),
+                "t": self._clock(),
                 "ghost": None
                 if ghost is None
                 else [round(ghost.x, 4), round(ghost.y, 4), round(ghost.yaw_deg, 2)],

@@ -5,6 +5,7 @@ recorded as MCAP reads back."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -206,3 +207,87 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
     assert math.hypot(x0 - START[0], y0 - START[1]) < 0.05
     x1, y1, yaw1 = summary.last_pose["/ground/odom_ground"]
     assert math.hypot(x1 - START[0], y1 - START[1]) > 0.05 or abs(yaw1) > 3
+
+
+def _off_path(xy: list[float], path: list[list[float]]) -> float:
+    """How far ``xy`` is from the polyline ``path``, m."""
+    best = math.inf
+    for (ax, ay), (bx, by) in itertools.pairwise(path):
+        length2 = (bx - ax) ** 2 + (by - ay) ** 2
+        t = 0.0 if length2 == 0 else ((xy[0] - ax) * (bx - ax) + (xy[1] - ay) * (by - ay)) / length2
+        t = min(1.0, max(0.0, t))
+        best = min(best, math.hypot(xy[0] - (ax + t * (bx - ax)), xy[1] - (ay + t * (by - ay))))
+    return best
+
+
+@pytest.mark.serial
+@pytest.mark.timeout(300)
+def test_the_ghost_stays_on_the_plan_at_speed_1(tmp_path: Path) -> None:
+    """At the real round trip (3 s, ``--speed 1``) a step's ``published`` is reported
+    three times before the rover acknowledges it (issue #41: the page then showed
+    ``7/7 completed (leg 4)`` and, after the STOP, the ghost at the start). The demo's
+    whole mission, with its drift STOP and re-plan: every ghost the page draws lies on the
+    approved plan of the planning running, the stopped ghost where the plan was, and the
+    page names one leg of the first plan, then of the re-plan."""
+    demo = Child(
+        [
+            "demo",
+            "--speed",
+            "1",
+            "--view",
+            "--view-wait",
+            "120",
+            "--view-hold",
+            "60",
+            "--no-record",
+            "--picture",
+            str(tmp_path / "demo.png"),
+        ],
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    samples: list[dict[str, Any]] = []
+    try:
+        url = demo.wait_for("VIEW http://127.0.0.1:", 90).split()[1]
+        with chromium() as browser:
+            page = browser.new_page(viewport={"width": 900, "height": 600})
+            page.goto(url)
+            _wait(page, demo, "window.roverView.counts.hello > 0", 30)
+            # Sample what the page draws, a few times a second, until the mission ends
+            # (the view is held up after it, so the page stays live to the end).
+            while not any("view: still at" in x for x in demo.lines):
+                assert demo.proc.poll() is None, demo.lines[-20:] + demo.errors[-5:]
+                ticks = page.evaluate("window.roverView.counts.tick")
+                _wait(page, demo, f"window.roverView.counts.tick > {ticks + 2}", 10)
+                sample = page.evaluate(
+                    "({ghost: roverView.ghost, halted: roverView.halted,"
+                    " progress: roverView.progress, step: document.getElementById('step')"
+                    ".textContent})"
+                )
+                samples.append(sample)
+            plans = page.evaluate("window.roverView.plans")
+            page.close()
+        demo.proc.send_signal(signal.SIGINT)  # end the hold
+        assert demo.wait(60) == 0, demo.lines[-20:] + demo.errors[-5:]
+    finally:
+        demo.stop()
+    assert any("REACHED" in line for line in demo.lines)
+    approved = {p["planning"]: p["path"] for p in plans if p["approved"]}
+    assert set(approved) == {1, 2}, "the demo's mission is one plan and one re-plan"
+    drawn = [s for s in samples if s["ghost"] is not None and s["progress"]]
+    assert len(drawn) > 100, f"only {len(drawn)} ghosts sampled"
+    off = [
+        (s["progress"], s["ghost"])
+        for s in drawn
+        if _off_path(s["ghost"], approved[s["progress"].get("planning", 1)]) > 0.02
+    ]
+    assert not off, f"{len(off)} of {len(drawn)} ghosts off the plan running: {off[:3]}"
+    # The page names the plan: one leg each, never a count of reports.
+    assert {s["progress"]["leg"] for s in drawn} == {0}
+    assert {s["progress"]["planning"] for s in drawn} == {1, 2}
+    assert not any("leg" in s["step"] for s in drawn), {s["step"] for s in drawn}
+    # The drift STOP: the ghost stopped on the first plan, well past the start.
+    stopped = [s for s in drawn if s["halted"] and s["progress"]["planning"] == 1]
+    assert stopped, "the ghost never stopped with the rover"
+    ghost = stopped[-1]["ghost"]
+    assert _off_path(ghost, approved[1]) < 0.02
+    assert math.hypot(ghost[0] - START[0], ghost[1] - START[1]) > 0.3, ghost
