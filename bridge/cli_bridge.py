@@ -79,7 +79,8 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
         "--stall-ms",
         "stall_ms",
         float,
-        "log a stall of the bridge or a link thread longer than MS with its stack (default 100)",
+        "log a stall of the bridge or a link thread longer than MS: one line, its stack in "
+        "the stall log ($ROVER_STALL_LOG), on the console too with -v (default 100)",
     ),
     (
         "--record",
@@ -312,6 +313,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
             stall_threshold_s=params.stall_ms / 1e3,
             stall_log=stall_log_path(),
             short_switch=True,  # a STOP must not wait 5 ms for the interpreter lock
+            stall_stacks_on_console=getattr(args, "verbose", 0) >= 1,
         )
     )
     with ShutdownSignals() as done, runtime:

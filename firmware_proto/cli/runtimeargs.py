@@ -56,9 +56,9 @@ def add_runtime_arguments(
         type=values.positive,
         default=DEFAULT_STALL_THRESHOLD_S * 1e3,
         metavar="MS",
-        help="log a stall of this program or its loops longer than MS with its stack "
-        f"(default {DEFAULT_STALL_THRESHOLD_S * 1e3:.0f}); shared stall log: "
-        "$ROVER_STALL_LOG",
+        help="log a stall of this program or its loops longer than MS: one line, its stacks "
+        f"in the stall log ($ROVER_STALL_LOG), on the console too with -v (default "
+        f"{DEFAULT_STALL_THRESHOLD_S * 1e3:.0f})",
     )
 
 
@@ -67,7 +67,8 @@ def runtime_options(
 ) -> RuntimeOptions:
     """The options :func:`add_runtime_arguments` parsed; a program with a default
     priority keeps time (short interpreter switch interval too; its memory locked with
-    ``lock_memory``)."""
+    ``lock_memory``). The ``rover`` command's ``-v`` brings stalls' stacks back to the
+    console (otherwise they are in the stall log only)."""
     priority = getattr(args, "rt_priority", None)
     if priority is None:
         priority = default_priority
@@ -79,4 +80,5 @@ def runtime_options(
         short_switch=default_priority > 0,
         nice=getattr(args, "nice", 0),
         lock_memory=lock_memory,
+        stall_stacks_on_console=getattr(args, "verbose", 0) >= 1,
     )

@@ -56,6 +56,8 @@ class RuntimeOptions:
             and the link relay at 5).
         lock_memory: lock the process's memory when real time is granted (a tool that
             runs for one test, such as ``rover replay``, need not).
+        stall_stacks_on_console: log each stall's stacks on the console too (``-v``);
+            otherwise a stall is one line naming where its stacks are (the stall log).
     """
 
     name: str
@@ -65,6 +67,7 @@ class RuntimeOptions:
     short_switch: bool = False
     nice: int = 0
     lock_memory: bool = True
+    stall_stacks_on_console: bool = False
 
 
 def _dump_stacks(signum: int, frame: FrameType | None) -> None:
@@ -85,7 +88,10 @@ class ProcessRuntime:
         self.realtime: RealtimeStatus | None = None
         """What the kernel granted (set on entry)."""
         self.monitor = StallMonitor(
-            options.name, threshold_s=options.stall_threshold_s, log_path=options.stall_log
+            options.name,
+            threshold_s=options.stall_threshold_s,
+            log_path=options.stall_log,
+            stacks_on_console=options.stall_stacks_on_console,
         )
         self._previous_usr1: Any = signal.SIG_DFL
         self._previous_switch = sys.getswitchinterval()

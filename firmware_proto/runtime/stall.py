@@ -19,12 +19,17 @@ again while it reads: that crashed the bridge (SIGSEGV) in one freeze of four he
 ``kill -USR1 <pid>`` still dumps every thread on demand
 (:class:`~firmware_proto.runtime.process.ProcessRuntime`).
 
-Every stall is logged (WARNING, with the stack) and, when a stall log is configured,
-appended to it as one JSON line (:class:`StallRecord`), where ``rover demo`` and
-``rover go`` read which process stalled when a mission ends on ``fault:watchdog`` or
-``fault:link_lost`` (:func:`read_stalls`). All processes of a stack on one host share
-the log (:func:`stall_log_path`); each line is one ``write`` to a file opened for
-appending, so lines from several processes never interleave.
+Every stall is logged as one line (WARNING: the process, the thread, how long, and
+where its stacks are) and, when a stall log is configured, appended to it as one JSON
+line with the stacks (:class:`StallRecord`), where ``rover demo`` and ``rover go`` read
+which process stalled when a mission ends on ``fault:watchdog`` or ``fault:link_lost``
+(:func:`read_stalls`). The stacks go to the console too only when asked
+(``stacks_on_console``: a program's ``-v``): a busy machine's stalls must not bury the
+mission's own lines. All processes of a stack on one host share the log
+(:func:`stall_log_path`); each line is one ``write`` to a file opened for appending, so
+lines from several processes never interleave. A loop found stalled while it still is
+(a thread that may never come back) is said at INFO when it is found, its stack with
+it; the WARNING line comes when it runs again.
 """
 
 from __future__ import annotations
@@ -142,13 +147,17 @@ class StallMonitor:
         period_s: float | None = None,
         log_path: Path | None = None,
         clock: Callable[[], float] = time.monotonic,
+        stacks_on_console: bool = False,
     ) -> None:
         """Args:
         process: the program's name in the records.
         threshold_s: a stall is longer than this, s (> 0).
         period_s: how often the monitor looks, s; default half the threshold.
-        log_path: the stall log to append records to (``None``: log only).
+        log_path: the stall log to append records to, stacks included (``None``: the
+            stacks are kept nowhere unless ``stacks_on_console``).
         clock: monotonic seconds (tests may pass their own).
+        stacks_on_console: log each stall's stacks with its line (a program's ``-v``);
+            otherwise the line says where they are.
 
         Raises:
             ValueError: a threshold or period not positive.
@@ -161,6 +170,7 @@ class StallMonitor:
         if not self.period_s > 0:
             raise ValueError(f"stall monitor period must be > 0, got {self.period_s}")
         self.log_path = log_path
+        self.stacks_on_console = stacks_on_console
         self._clock = clock
         self._beats: list[Beat] = []
         self._lock = threading.Lock()
@@ -237,7 +247,7 @@ class StallMonitor:
             if age > self.threshold_s and episode is None:
                 stack = _thread_stack(beat.thread_id)
                 self._episodes[key] = _Episode(beat.last, stack)
-                logger.warning(
+                logger.info(
                     "stall: %s thread %s has not run for %.0f ms; it is at:\n%s",
                     self.process,
                     beat.name,
@@ -259,9 +269,18 @@ class StallMonitor:
         )
         self.records.append(record)
         self.longest_ms = max(self.longest_ms, record.ms)
-        logger.warning("stall: %s\n%s", record.line(), record.stack)
         if self.log_path is not None:
             _append(self.log_path, record)
+        if self.stacks_on_console:
+            logger.warning("stall: %s\n%s", record.line(), record.stack)
+        else:
+            logger.warning("stall: %s; %s", record.line(), self.where_stacks_are())
+
+    def where_stacks_are(self) -> str:
+        """Where a stall's stacks can be read, in words, for its one console line."""
+        if self.log_path is not None:
+            return f"stacks in {self.log_path}"
+        return "stacks not kept (no stall log: $ROVER_STALL_LOG is empty); -v shows them"
 
 
 _installed: StallMonitor | None = None
