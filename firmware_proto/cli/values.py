@@ -18,7 +18,8 @@ Limits:
 - ROS domain id: 0..232 (the range ROS 2 documents for Fast DDS on Linux);
 - real-time priority: 0..99 (0: none; Linux's SCHED_RR/SCHED_FIFO range);
 - nice: 0..19 (a program may always lower its own priority);
-- durations and rates: finite numbers, positive or non-negative as the option says.
+- durations and rates: finite numbers, positive or non-negative as the option says;
+- a share of messages lost: a number in [0, 1) (:func:`loss_ratio`).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ __all__ = [
     "check",
     "domain_id",
     "host_port",
+    "loss_ratio",
     "non_negative",
     "non_negative_int",
     "positive",
@@ -138,6 +140,17 @@ def positive(text: str) -> float:
 def non_negative(text: str) -> float:
     """A finite number >= 0 (a duration where 0 means none)."""
     return _number(text, "value", strict=False)
+
+
+def loss_ratio(text: str) -> float:
+    """A share of messages lost, a number in [0, 1) (1 would lose everything)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value < 1.0:
+        raise ValueArgumentError(f"loss must be a number in [0, 1), got {text!r}")
+    return value
 
 
 def positive_int(text: str) -> int:

@@ -10,6 +10,7 @@ from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments
 from planner.plan.cli_confidence import add_confidence_arguments, confidence_options
+from planner.stack.linkargs import add_link_arguments
 from planner.view.cli_view import add_view_arguments
 
 __all__ = ["register"]
@@ -34,7 +35,7 @@ def register(subparsers: Any) -> None:
             "prints its URL (docs/view.md)."
         ),
     )
-    p.add_argument("--rtt", type=float, default=3.0, help="link round trip, s (default 3)")
+    add_link_arguments(p)
     p.add_argument(
         "--speed",
         type=float,
@@ -104,6 +105,8 @@ def _run(args: argparse.Namespace) -> int:
     gate_options, max_p = confidence_options(args)
     config = DemoConfig(
         rtt_s=args.rtt,
+        jitter_s=args.jitter,
+        loss=args.loss,
         speed=args.speed,
         slip=None if args.no_slip else DemoConfig.slip,
         seed=args.seed,

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_proto.cli import values
+from planner.stack.linkargs import add_link_arguments
 from planner.stack.stackenv import TWIN_ENV, add_domain_argument
 
 __all__ = ["register"]
@@ -59,6 +60,7 @@ def register(subparsers: Any) -> None:
             "examples:\n"
             "  rover stack up                                   # lab map, emulator, 3 s link\n"
             "  rover stack up --map scn02 --firmware c --rtt 1\n"
+            "  rover stack up --loss 0.3 --jitter 0.2        # a degraded link\n"
             "  rover stack up --device /dev/rover-motor --baud 1000000\n"
             "  rover stack up --ground loose --twin twin.toml   # a calibrated twin on it\n"
             "then, in another shell:\n"
@@ -79,9 +81,7 @@ def register(subparsers: Any) -> None:
         help="a real controller's serial device or pyserial URL: no emulator is started",
     )
     up.add_argument("--baud", type=values.baud, help="with --device: its baud rate")
-    up.add_argument(
-        "--rtt", type=values.non_negative, default=3.0, help="link round trip, s (default 3)"
-    )
+    add_link_arguments(up)
     up.add_argument(
         "--speed",
         type=values.positive,
@@ -206,6 +206,8 @@ def _up(args: argparse.Namespace) -> int:
         device=args.device,
         baud=args.baud,
         rtt_s=args.rtt,
+        jitter_s=args.jitter,
+        loss=args.loss,
         speed=args.speed,
         seed=args.seed,
         gate_port=args.gate_port,
@@ -228,6 +230,7 @@ def _up(args: argparse.Namespace) -> int:
 
         logs = Path(tempfile.mkdtemp(prefix="rover-stack-logs-"))
         _say(f"rover stack: each part's log and the stall log in {logs}")
+        _say(f"rover stack: {config.link_line()}")
         with Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack:
             try:
                 endpoints = stack.start()
@@ -267,6 +270,17 @@ def _up(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
                 return 1
+            if health.link_state != "ready":
+                # Up with no controller is no stack to drive: say why and end it.
+                for line in health.text(f"domain {domain}, through the link").splitlines():
+                    _say("health: " + line.strip())
+                print(
+                    f"rover stack: error: no link to the controller within {wait_s:g} s: "
+                    f"{health.why_held()[0]}",
+                    file=sys.stderr,
+                )
+                _say(f"rover stack: stopping {_names(stack)}")
+                return 1
             for line in health.text(f"domain {domain}, through the link").splitlines():
                 _say("health: " + line.strip())
             _say(f"STACK UP domain {domain}")
@@ -292,9 +306,17 @@ def _up(args: argparse.Namespace) -> int:
                     status = 1
                     break
                 done.wait(0.5)
-            _say("rover stack: stopping the link, the bridge, the emulator and the gate")
+            _say(f"rover stack: stopping {_names(stack)}")
         _say("rover stack: down")
         return status
+
+
+def _names(stack: Any) -> str:
+    """The parts started, last first, in words: ``the link, the bridge and the gate``."""
+    names = [f"the {part.name}" for part in reversed(stack.parts)]
+    if len(names) < 2:
+        return "".join(names) or "nothing (no part started)"
+    return ", ".join(names[:-1]) + " and " + names[-1]
 
 
 # -- rover stack env / inject -------------------------------------------------------------

@@ -78,6 +78,8 @@ class DemoConfig:
 
     Attributes:
         rtt_s: the link's round trip, s of mission time.
+        jitter_s, loss: the link's jitter (s of mission time, each way) and the share of
+            messages it loses each way (``rover link --jitter``, ``--loss``).
         speed: mission seconds per wall second (the emulator and the link run this much
             faster; 1 is real time).
         map_name, goal_name: the lab map and its goal behind the table.
@@ -109,6 +111,8 @@ class DemoConfig:
     """
 
     rtt_s: float = 3.0
+    jitter_s: float = 0.0
+    loss: float = 0.0
     speed: float = 1.0
     map_name: str = "lab"
     goal_name: str = "behind_table"
@@ -289,6 +293,8 @@ class Demo:
             map_name=cfg.map_name,
             firmware=cfg.firmware,
             rtt_s=cfg.rtt_s,
+            jitter_s=cfg.jitter_s,
+            loss=cfg.loss,
             speed=cfg.speed,
             seed=cfg.seed,
             startup_timeout_s=cfg.startup_timeout_s,
@@ -303,6 +309,7 @@ class Demo:
             self._domains.callback(os.environ.pop, DOMAIN_ENV, None)
             os.environ[DOMAIN_ENV] = self._env[DOMAIN_ENV] = str(domain)
             self.say(f"ROS 2 domain {domain} (of its own)")
+        self.say(stack.link_line())
         self._stack = Stack(stack, self._env, say=self.say, logs=self.logs)
         endpoints = self._stack.start()
         url = endpoints.gate_url

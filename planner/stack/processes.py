@@ -177,6 +177,9 @@ class StackConfig:
             started and the bridge opens this; ``None``: the emulator on a pty.
         baud: with ``device``, its baud rate (``None``: the bridge's default).
         rtt_s: the link relay's round trip, s of mission time.
+        jitter_s: the relay's jitter, s of mission time: each message's one-way delay is
+            half the round trip plus a uniform draw in ``[0, jitter_s]``.
+        loss: the share of messages the relay drops, each way, in [0, 1).
         speed: mission seconds per wall second (the emulator and the relay run this much
             faster).
         seed: seeds the emulator and the relay.
@@ -196,6 +199,8 @@ class StackConfig:
     device: str | None = None
     baud: int | None = None
     rtt_s: float = 3.0
+    jitter_s: float = 0.0
+    loss: float = 0.0
     speed: float = 1.0
     seed: int = 1
     gate_port: int = 0
@@ -205,6 +210,14 @@ class StackConfig:
     realtime: bool = True
     ground: str | None = None
     twin: Path | None = None
+
+    def link_line(self) -> str:
+        """The link the relay emulates, in one line (mission seconds):
+        ``link: round trip 3 s, jitter up to 0.2 s each way, 30 % of messages lost each
+        way (seed 1)``."""
+        jitter = f"jitter up to {self.jitter_s:g} s each way" if self.jitter_s else "no jitter"
+        loss = f"{self.loss * 100:g} % of messages lost each way" if self.loss else "no loss"
+        return f"link: round trip {self.rtt_s:g} s, {jitter}, {loss} (seed {self.seed})"
 
 
 @dataclass(frozen=True)
@@ -278,8 +291,10 @@ class Stack:
             ValueError: ``speed`` not > 0 or ``rtt_s`` < 0.
         """
         cfg = self.config
-        if cfg.speed <= 0 or cfg.rtt_s < 0:
-            raise ValueError("speed must be > 0 and rtt_s >= 0")
+        if cfg.speed <= 0 or cfg.rtt_s < 0 or cfg.jitter_s < 0:
+            raise ValueError("speed must be > 0, rtt_s and jitter_s >= 0")
+        if not 0.0 <= cfg.loss < 1.0:
+            raise ValueError("loss must be in [0, 1)")
         gate = self._start(
             "gate",
             [
@@ -339,6 +354,10 @@ class Stack:
                 "link",
                 "--rtt",
                 f"{cfg.rtt_s / cfg.speed:g}",
+                "--jitter",
+                f"{cfg.jitter_s / cfg.speed:g}",
+                "--loss",
+                f"{cfg.loss:g}",
                 "--seed",
                 str(cfg.seed),
                 "--ground-namespace",

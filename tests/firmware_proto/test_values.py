@@ -24,6 +24,7 @@ def rover(*args: str) -> subprocess.CompletedProcess[str]:
 BAUD = "baud must be an integer in 50..4000000 (bit/s), got '0'"
 NODE = "node must be an integer in 1..15, got '16'"
 PORT = "port must be an integer in 0..65535 (0 picks a free one), got '70000'"
+LOSS = "loss must be a number in [0, 1), got '1'"
 
 
 @pytest.mark.parametrize(
@@ -42,6 +43,8 @@ PORT = "port must be an integer in 0..65535 (0 picks a free one), got '70000'"
         (["emulate", "--serial", "--control-port", "70000"], "--control-port", PORT),
         (["go", "--goal", "1,1,0", "--view-port", "70000"], "--view-port", PORT),
         (["stack", "up", "--gate-port", "70000"], "--gate-port", PORT),
+        (["stack", "up", "--loss", "1"], "--loss", LOSS),
+        (["demo", "--loss", "1"], "--loss", LOSS),
     ],
 )
 def test_every_command_refuses_a_bad_value_in_the_same_words(
@@ -60,6 +63,7 @@ def test_the_checks_accept_their_limits_and_refuse_beyond() -> None:
     assert values.host_port("127.0.0.1:7700") == ("127.0.0.1", 7700)
     assert values.domain_id("232") == 232
     assert values.positive("0.5") == 0.5 and values.non_negative("0") == 0.0
+    assert values.loss_ratio("0") == 0.0 and values.loss_ratio("0.999") == 0.999
     for check, text in [
         (values.baud, "49"),
         (values.baud, "fast"),
@@ -72,6 +76,9 @@ def test_the_checks_accept_their_limits_and_refuse_beyond() -> None:
         (values.positive, "nan"),
         (values.non_negative, "-1"),
         (values.positive_int, "1.5"),
+        (values.loss_ratio, "1"),
+        (values.loss_ratio, "-0.1"),
+        (values.loss_ratio, "nan"),
     ]:
         with pytest.raises(values.ValueArgumentError):
             check(text)

@@ -199,7 +199,9 @@ def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
 def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path, one_stack: None) -> None:
     """``rover stack up --device``: the bridge opens the device given (here a
     ``rover emulate`` the lab started itself); no emulator is started, no control port
-    is offered, and the health comes back through the link."""
+    is offered, and the health comes back through the link, a lossy one
+    (``--loss 0.3 --jitter 0.05``: the relay's options, printed); on the way down it
+    names only the parts it started."""
     device = tmp_path / "rover-motor"
     env = dict(os.environ)  # the run's stack directory (tests/conftest.py)
     emulator = Child(["emulate", "--serial", "--link", str(device)], env)
@@ -207,9 +209,18 @@ def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path, one_stack: 
     try:
         emulator.wait_for("DEVICE ")
         stack = Child(
-            ["stack", "up", "--device", str(device), "--baud", "115200", "--rtt", "0.2"], env
+            [
+                *("stack", "up", "--device", str(device), "--baud", "115200"),
+                *("--rtt", "0.2", "--jitter", "0.05", "--loss", "0.3"),
+            ],
+            env,
         )
         stack.wait_for("STACK UP domain ", timeout_s=120)
+        assert (
+            "rover stack: link: round trip 0.2 s, jitter up to 0.05 s each way, 30 % of "
+            "messages lost each way (seed 1)" in stack.lines
+        )
+        assert any("rover link --rtt 0.2 --jitter 0.05 --loss 0.3" in x for x in stack.lines)
         assert not any(line.startswith("starting emulator") for line in stack.lines)
         assert any(f"rover bridge --device {device} --baud 115200" in x for x in stack.lines)
         assert f"DEVICE {device}" in stack.lines and not any(
@@ -227,7 +238,31 @@ def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path, one_stack: 
         assert inject.returncode == 1 and "drives a real device: no emulator" in inject.stderr
         stack.proc.send_signal(2)
         assert stack.wait(60) == 0
+        assert "rover stack: stopping the link, the bridge and the gate" in stack.lines
     finally:
         if stack is not None:
             stack.stop()
         emulator.stop()
+
+
+@pytest.mark.rclpy
+def test_a_stack_whose_device_never_answers_does_not_stay_up(
+    tmp_path: Path, one_stack: None
+) -> None:
+    """``rover stack up --device`` on a device with no controller behind it ends with the
+    bridge's reason (exit 1) instead of staying up with the link in ERROR."""
+    stack = Child(
+        [
+            *("stack", "up", "--device", str(tmp_path / "nothing-here"), "--rtt", "0.2"),
+            *("--startup-timeout", "20"),
+        ],
+        dict(os.environ),
+    )
+    try:
+        assert stack.wait(120) == 1
+    finally:
+        stack.stop()
+    assert not any(line.startswith("STACK UP") for line in stack.lines), stack.lines
+    error = next(line for line in stack.errors if line.startswith("rover stack: error:"))
+    assert "no link to the controller" in error and "nothing-here" in error, stack.errors
+    assert "rover stack: stopping the link, the bridge and the gate" in stack.lines
