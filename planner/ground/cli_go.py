@@ -592,12 +592,15 @@ def _mission(args: argparse.Namespace) -> int:
                     finally:
                         running.clear()
                 elif args.move_and_wait:
+                    plannings: tuple[Any, ...] = ()
+                    tp = time.monotonic()
                     if gated:
                         mission = orchestrator.plan_mission(goal, start=start)
                         planned(mission)
                         if not mission.approved:
                             raise RuntimeError(f"no route to follow: {mission.reason}")
                         plans = mission.plans
+                        plannings = (mission,)
                     else:
                         say(
                             "WARNING: the gate is unreachable: the route is planned by the "
@@ -606,7 +609,13 @@ def _mission(args: argparse.Namespace) -> int:
                         plans = tuple(leg.plan for leg in planner.plan_mission(start, goal))
                     report = MoveAndWait(
                         executor, time_scale=args.time_scale, on_progress=progress, cancel=cancel
-                    ).drive(goal, start, plans)
+                    ).drive(
+                        goal,
+                        start,
+                        plans,
+                        plannings=plannings,
+                        planning_s=time.monotonic() - tp,
+                    )
                 else:
                     runner = MissionRunner(
                         orchestrator,

@@ -75,6 +75,9 @@ class MissionReport:
         elapsed_s: wall time from the first plan to the end.
         planning_s: wall time spent planning and validating.
         cancelled: the operator cancelled the mission (the rover was sent STOP).
+        move_and_wait: the runs are move-and-wait's increments (:class:`MoveAndWait`):
+            no prediction was driven against, so no drift was measured; ``decision_s``
+            is the operator's time per increment (mission s).
     """
 
     goal: Pose
@@ -89,6 +92,8 @@ class MissionReport:
     elapsed_s: float
     planning_s: float
     cancelled: bool = False
+    move_and_wait: bool = False
+    decision_s: float = 0.0
 
     @property
     def drift_events(self) -> tuple[DriftEvent, ...]:
@@ -125,7 +130,9 @@ class MissionReport:
                     f"    attempt {attempt.index + 1} ({attempt.repair_name}): "
                     f"{attempt.verdict.summary()}"
                 )
-        for i, run in enumerate(self.runs):
+        if self.move_and_wait:
+            lines.extend(self._increments(time_scale))
+        for i, run in enumerate(() if self.move_and_wait else self.runs):
             ex = run.execution
             worst_m, worst_deg = ex.worst_drift
             took = ex.elapsed_s * time_scale
@@ -149,8 +156,28 @@ class MissionReport:
                 f"{self.yaw_error_deg:.1f} deg from the goal"
             )
         total = self.elapsed_s * time_scale
-        lines.append(f"  time: {total:.1f} s, of which planning {self.planning_s:.2f} s (wall)")
+        unchecked = "; the route was not validated on the gate" * (
+            self.move_and_wait and not self.plannings
+        )
+        lines.append(
+            f"  time: {total:.1f} s, of which planning {self.planning_s:.2f} s (wall{unchecked})"
+        )
         return "\n".join(lines)
+
+    def _increments(self, time_scale: float) -> list[str]:
+        """Move-and-wait's runs as what they are: increments, each confirmed through the
+        round trip; no drift figures (there was no prediction to drift from)."""
+        done = sum(1 for r in self.runs if r.execution.completed)
+        took = sum(r.execution.elapsed_s for r in self.runs) * time_scale
+        lines = [
+            f"  move-and-wait: {done}/{len(self.runs)} increments completed, {took:.1f} s "
+            f"driving and confirming, {self.decision_s:g} s to decide after each; no drift "
+            "control (no prediction to compare with)"
+        ]
+        last = self.runs[-1].execution if self.runs else None
+        if last is not None and not last.completed:
+            lines.append(f"    increment {len(self.runs)}: {last.outcome}: {last.reason}")
+        return lines
 
 
 @dataclass
@@ -360,6 +387,9 @@ def _report(
     elapsed_s: float,
     planning_s: float,
     cancelled: bool = False,
+    *,
+    move_and_wait: bool = False,
+    decision_s: float = 0.0,
 ) -> MissionReport:
     err = yaw_err = None
     if final is not None:
@@ -378,6 +408,8 @@ def _report(
         elapsed_s,
         planning_s,
         cancelled,
+        move_and_wait,
+        decision_s,
     )
 
 
@@ -419,37 +451,78 @@ class MoveAndWait:
     on_progress: Callable[[Progress], None] | None = None
     cancel: threading.Event | None = None
 
-    def drive(self, goal: Pose, start: Pose, plans: tuple[Plan, ...]) -> MissionReport:
+    def drive(
+        self,
+        goal: Pose,
+        start: Pose,
+        plans: tuple[Plan, ...],
+        *,
+        plannings: tuple[MissionResult, ...] = (),
+        planning_s: float = 0.0,
+    ) -> MissionReport:
         """Drive ``plans`` (the same route as the gated mission) one confirmed command at a
-        time."""
-        t0 = time.monotonic()
+        time; ``plannings`` and ``planning_s`` say how the route was planned (on the
+        gate, and how long it took, wall s) for the report.
+
+        Progress is reported per increment (``increment 3/14``), with the ETA of the
+        whole drive: the rest of this increment, then each later one's nominal duration,
+        round trip and decision time."""
+        t0 = time.monotonic() - planning_s
         units = self.executor.rover.m_to_units(self.increment_m)
         runs: list[LegRun] = []
         cancel = self.cancel or threading.Event()
+        increments = [
+            (plan, step) for plan in plans for step in split_for_move_and_wait(plan, units)
+        ]
+        cfg = self.executor.config
+
+        def each_s(step: PlanStep) -> float:
+            duration = self.executor.rover.step_duration_s(step.speed, step.distance)
+            return (duration + self.decision_s) / self.time_scale + cfg.link_rtt_s
 
         def end(reached: bool, reason: str) -> MissionReport:
             return _report(
                 goal,
                 start,
-                [],
+                list(plannings),
                 runs,
                 reached,
                 reason,
                 self.executor.settled_pose(),
                 time.monotonic() - t0,
-                0.0,
+                planning_s,
                 reason == CANCELLED,
+                move_and_wait=True,
+                decision_s=self.decision_s,
             )
 
-        for plan in plans:
-            for step in split_for_move_and_wait(plan, units):
-                single = Plan(plan.goal, (step,))
-                result = self.executor.execute(
-                    single, None, on_progress=self.on_progress, cancel=cancel
-                )
-                runs.append(LegRun(single, None, result))
-                if not result.completed:
-                    return end(False, CANCELLED if result.outcome == "cancelled" else result.reason)
-                if cancel.wait(self.decision_s / self.time_scale):
+        for k, (plan, step) in enumerate(increments):
+            later = sum(each_s(s) for _, s in increments[k + 1 :])
+
+            def progress(p: Progress, k: int = k, later: float = later) -> None:
+                if self.on_progress is not None:
+                    self.on_progress(
+                        Progress(
+                            k,
+                            len(increments),
+                            p.status,
+                            p.eta_s + later,
+                            None,
+                            None,
+                            None,
+                            unit="increment",
+                        )
+                    )
+
+            single = Plan(plan.goal, (step,))
+            result = self.executor.execute(single, None, on_progress=progress, cancel=cancel)
+            runs.append(LegRun(single, None, result))
+            if not result.completed:
+                if result.outcome == "cancelled":
                     return end(False, CANCELLED)
+                # The executor numbers the one step it ran; the operator counts increments.
+                where = f"increment {k + 1}/{len(increments)}"
+                return end(False, result.reason.replace("step 1/1", where, 1))
+            if cancel.wait(self.decision_s / self.time_scale):
+                return end(False, CANCELLED)
         return end(True, "")

@@ -171,7 +171,7 @@ def test_rover_go_move_and_wait_plans_without_an_unreachable_gate_from_a_map_fil
     # No rover here either: the first command times out, and the rover is sent STOP.
     assert out.returncode == 1, out.stdout + out.stderr
     assert "the route is planned by the heuristic planner alone and NOT validated" in out.stdout
-    assert "NOT REACHED (step 1/" in out.stdout and "got no 'completed' in time" in out.stdout
+    assert "NOT REACHED (increment 1/" in out.stdout and "got no 'completed' in time" in out.stdout
     assert "Traceback" not in out.stderr
 
 

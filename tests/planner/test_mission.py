@@ -4,6 +4,7 @@ new mission is approved; a re-plan that fails leaves the rover latched, and says
 
 from __future__ import annotations
 
+import itertools
 import threading
 from collections.abc import Iterator
 
@@ -130,3 +131,36 @@ def test_a_cancelled_mission_stops_the_rover(own_gate: GateServer) -> None:
         assert "NOT REACHED (cancelled by the operator" in report.summary()
         assert report.runs[-1].execution.stopped_s is not None
         assert rig.emulator.status().stop_latched
+
+
+def test_move_and_wait_reports_increments_and_only_the_figures_it_has() -> None:
+    """Issue #41: every 0.5 m increment printed as ``step 1/1``, and the summary gave a
+    ``worst drift 0.000 m`` move-and-wait never measured and ``planning 0.00 s`` for a
+    route planned beforehand. Now progress counts increments over the whole drive, the
+    ETA is the drive's, and the summary says what move-and-wait is and how long the
+    route's planning took."""
+    from firmware_proto.model.plan import Plan
+    from planner.ground.executor import Progress
+    from planner.ground.mission import MoveAndWait, split_for_move_and_wait
+
+    seen: list[Progress] = []
+    with HilRig("lab", speed=2.0, rtt_s=0.4, seed=5) as rig:
+        planner = HeuristicLowLevelPlanner(rig.rover, world=rig.world)
+        plan: Plan = planner.plan(rig.world.start, GOAL)  # one 1.5 m drive
+        n = len(split_for_move_and_wait(plan, rig.rover.m_to_units(0.5)))
+        report = MoveAndWait(
+            rig.executor, decision_s=0.2, time_scale=2.0, on_progress=seen.append
+        ).drive(GOAL, rig.world.start, (plan,), planning_s=0.25)
+    assert report.reached, report.summary(2.0)
+    assert n >= 3
+    assert {p.unit for p in seen} == {"increment"} and {p.steps for p in seen} == {n}
+    assert [p.step for p in seen if p.final] == list(range(n))
+    assert all(p.drift_linear_m is None for p in seen)
+    assert seen[0].line().startswith(f"increment 1/{n} published, ETA ")
+    finals = [p.eta_s for p in seen if p.final]
+    # The whole drive's ETA, counting down to 0 at the last increment's end.
+    assert all(a > b for a, b in itertools.pairwise(finals)) and finals[-1] == 0.0
+    text = report.summary(2.0)
+    assert f"move-and-wait: {n}/{n} increments completed" in text and "no drift control" in text
+    assert "worst drift" not in text and "run 1:" not in text
+    assert "of which planning 0.25 s (wall; the route was not validated on the gate)" in text
