@@ -112,7 +112,11 @@ class PyserialPort:
         except serial.SerialException as exc:
             # A socket port can fail after connecting (a reset while flushing its input).
             _release(port)
-            raise OSError(exc.errno, str(exc)) from exc
+            if exc.errno is None:
+                raise OSError(str(exc)) from exc
+            # pyserial's text already holds "[Errno N] ..." twice over; OSError(errno, ...)
+            # adds its own: say the cause once ("[Errno 2] No such file or directory: 'X'").
+            raise OSError(exc.errno, os.strerror(exc.errno), device) from exc
         self._port = port
         self._name = device
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import can
 import pytest
@@ -270,3 +271,17 @@ def test_a_host_on_can_sends_no_raw_bytes(can_channel: str) -> None:
                 host.send_raw(2, b"\x01", bad_crc=True)
     finally:
         bus.shutdown()
+
+
+def test_a_device_that_is_not_there_says_why_once(tmp_path: Path) -> None:
+    """Issue #41: ``cannot open X: [Errno 2] [Errno 2] could not open port X: [Errno 2]
+    ...``: pyserial's text already holds the errno, and wrapping it added another."""
+    import errno as errno_codes
+
+    from firmware_proto.linkio.serial_endpoint import PyserialPort
+
+    missing = tmp_path / "rover-motor"
+    with pytest.raises(OSError, match="No such file") as caught:
+        PyserialPort(str(missing), 115200)
+    assert caught.value.errno == errno_codes.ENOENT
+    assert str(caught.value) == f"[Errno 2] No such file or directory: '{missing}'"
