@@ -306,6 +306,47 @@ def describe(topic: str, msg: Any) -> str:
     return str(msg.data)
 
 
+_LAST_WAIT_S = 3.0
+"""``rover echo command_status`` waits this long for the bridge's ``/diagnostics``, to
+print the last status before it listened (s)."""
+_LAST_NOTE = "(the last before this echo, from /diagnostics)"
+
+
+class _LastStatus:
+    """The bridge's last ``command_status`` as its ``/diagnostics`` carries it
+    (``last_statuses``), for ``rover echo command_status`` on an idle rover."""
+
+    def __init__(self, port: Any) -> None:
+        from bridge.ros.rosport import qos
+        from bridge.ros.rosport.msgs import DiagnosticArray
+
+        self._came = threading.Event()
+        self.value: tuple[float, str] | None = None
+        self._sub = port.subscribe(
+            "diagnostics", DiagnosticArray, self._on_diagnostics, qos.DIAGNOSTICS
+        )
+
+    def _on_diagnostics(self, msg: Any) -> None:
+        from planner.ground.roverstatus import from_diagnostics
+
+        if self._came.is_set():
+            return
+        try:
+            status = from_diagnostics(msg)
+        except ValueError:
+            return  # another node's diagnostics
+        if status.statuses:
+            self.value = (status.stamp_s, status.statuses[-1])
+        self._came.set()
+
+    def wait(self, timeout_s: float) -> tuple[float, str] | None:
+        """The last status, once the first ``/diagnostics`` came (``None``: none came
+        within ``timeout_s``, or the bridge has said nothing yet)."""
+        self._came.wait(timeout_s)
+        self._sub.close()
+        return self.value
+
+
 def _echo(args: argparse.Namespace) -> int:
     import queue
 
@@ -336,12 +377,24 @@ def _echo(args: argparse.Namespace) -> int:
     shown = 0
     with port:
         lane = STOP_LANE if profile is qos.STOP else "default"
+        last = _LastStatus(port) if args.topic == "command_status" else None
         sub = port.subscribe(args.topic, msg_type, got.put, profile, lane=lane)
         full = port.resolve(args.topic)
         # The header means 'listening': a publisher that is there is matched first (a
         # volatile topic loses what is sent before), as far as discovery lets us wait.
         sub.wait_for_publishers(1, min(args.timeout or 5.0, 5.0))
         print(f"# {full} [{msg_type.__module__.split('.')[0]}/{msg_type.__name__}]", flush=True)
+        if last is not None:
+            # command_status is volatile: an idle rover says nothing. Its last value is
+            # in the bridge's /diagnostics (1 Hz, then the link's delay).
+            known = last.wait(min(args.timeout or _LAST_WAIT_S, _LAST_WAIT_S))
+            if known is not None and got.empty():
+                stamp, text = known
+                if args.json:
+                    print(json.dumps({"data": text, "last_known": True}), flush=True)
+                else:
+                    print(f"{stamp:.3f} {text} {_LAST_NOTE}", flush=True)
+                shown += 1
         try:
             while args.count is None or shown < args.count:
                 try:

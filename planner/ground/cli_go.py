@@ -302,8 +302,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--picture",
         type=Path,
-        default=Path("mission.png"),
-        help="PNG of predicted vs actual (default mission.png)",
+        default=None,
+        help="PNG of predicted vs actual (default mission-YYYYmmdd-HHMMSS.png here: a new "
+        "file for each mission, never the last one's)",
     )
     add_confidence_arguments(p)
     add_view_arguments(p, record_default=None)
@@ -434,7 +435,7 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.plan.planner import HeuristicLowLevelPlanner, check_pose
     from planner.record.foxlive import FoxgloveLive
     from planner.record.mcaprec import McapRecorder
-    from planner.record.picture import picture_of, save
+    from planner.record.picture import fresh_path, picture_of, save
     from planner.stack.stackenv import apply_domain
     from planner.stack.stallreport import stall_report
     from planner.view.cli_view import view_config
@@ -656,7 +657,7 @@ def _mission(args: argparse.Namespace) -> int:
         view.hub.result(report.reached, report.summary(args.time_scale).splitlines()[0])
     outcome = "reached" if report.reached else "cancelled" if report.cancelled else "not reached"
     picture = picture_of(report, world, f"rover go -> ({goal.x:.1f}, {goal.y:.1f}): {outcome}")
-    print(f"picture: {save(picture, args.picture)}")
+    print(f"picture: {save(picture, args.picture or fresh_path('mission', Path(), started))}")
     status = 0 if report.reached else 1
     if report.cancelled:
         what = "the rover was sent STOP" if report.runs else "nothing was sent to the rover"

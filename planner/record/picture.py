@@ -11,6 +11,7 @@ renderer. Pure apart from :func:`save`.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from firmware_proto.model.pose import Pose
 from firmware_proto.model.worldmap import WorldMap
 from planner.ground.mission import MissionReport
 
-__all__ = ["MissionPicture", "draw", "picture_of", "save"]
+__all__ = ["MissionPicture", "draw", "fresh_path", "label_point", "picture_of", "save"]
 
 Point = tuple[float, float]
 ToPixels = Callable[[Point], tuple[float, float]]
@@ -36,6 +37,8 @@ _DRIFT = (210, 30, 30)
 _GOAL = (30, 150, 60)
 _COLLISION = (20, 20, 20)
 _LABEL = (255, 255, 255)
+_LABEL_EDGE = (60, 60, 70)
+"""The outline of a name: legible over the obstacle and over the floor beside it."""
 
 
 @dataclass
@@ -95,10 +98,14 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
     if len(picture.actual) > 1:
         pen.line([px(p) for p in picture.actual], fill=_ACTUAL, width=2)
     for ob in picture.world.obstacles:
-        cx = sum(p[0] for p in ob.points) / len(ob.points)
-        cy = sum(p[1] for p in ob.points) / len(ob.points)
-        x, y = px((cx, cy))
-        pen.text((x - pen.textlength(ob.id) / 2, y - 5), ob.id, fill=_LABEL)
+        x, y = px(label_point(ob.points) if ob.kind == "polygon" else _mean(ob.points))
+        pen.text(
+            (x - pen.textlength(ob.id) / 2, y - 5),
+            ob.id,
+            fill=_LABEL,
+            stroke_width=2,
+            stroke_fill=_LABEL_EDGE,
+        )
     for p, _what in picture.collisions:
         _cross(pen, px(p), _COLLISION)
     for p in picture.drift_stops:
@@ -126,6 +133,53 @@ def draw(picture: MissionPicture, *, px_per_m: float = 80.0, margin_px: int = 20
         x += 14 + round(pen.textlength(text)) + 18
     _scale_bar(pen, width - margin_px, height - legend_px + 6, px_per_m)
     return image
+
+
+def _mean(points: Sequence[Point]) -> Point:
+    return (sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points))
+
+
+def _inside(p: Point, polygon: Sequence[Point]) -> bool:
+    """Even-odd rule."""
+    inside = False
+    for (ax, ay), (bx, by) in zip(polygon, [*polygon[1:], polygon[0]], strict=True):
+        if (ay > p[1]) != (by > p[1]) and p[0] < ax + (p[1] - ay) * (bx - ax) / (by - ay):
+            inside = not inside
+    return inside
+
+
+def _edge_distance(p: Point, polygon: Sequence[Point]) -> float:
+    best = math.inf
+    for (ax, ay), (bx, by) in zip(polygon, [*polygon[1:], polygon[0]], strict=True):
+        length2 = (bx - ax) ** 2 + (by - ay) ** 2
+        t = 0.0 if length2 == 0 else ((p[0] - ax) * (bx - ax) + (p[1] - ay) * (by - ay)) / length2
+        t = min(1.0, max(0.0, t))
+        best = min(best, math.hypot(p[0] - ax - t * (bx - ax), p[1] - ay - t * (by - ay)))
+    return best
+
+
+def label_point(polygon: Sequence[Point], grid: int = 24) -> Point:
+    """Where a polygon's name goes: the point of a ``grid`` x ``grid`` sampling of its
+    bounding box that is inside it and farthest from its edges (the mean of the
+    vertices lies outside a concave shape, such as the lab's L-shaped workbench, whose
+    name was drawn on the floor beside it), the one nearest the middle among those as
+    deep; the mean where no sample is inside."""
+    xs, ys = [p[0] for p in polygon], [p[1] for p in polygon]
+    centre = _mean(polygon)
+    best, best_score = centre, -math.inf
+    for i in range(grid):
+        for j in range(grid):
+            p = (
+                min(xs) + (i + 0.5) * (max(xs) - min(xs)) / grid,
+                min(ys) + (j + 0.5) * (max(ys) - min(ys)) / grid,
+            )
+            if not _inside(p, polygon):
+                continue
+            # Of points as deep inside, the one nearest the middle (a rectangle's axis).
+            score = _edge_distance(p, polygon) - 1e-3 * math.dist(p, centre)
+            if score > best_score:
+                best, best_score = p, score
+    return best
 
 
 def _octagon(
@@ -200,3 +254,16 @@ def save(picture: MissionPicture, path: str | Path) -> Path:
     out = Path(path)
     draw(picture).save(out, format="PNG")
     return out
+
+
+def fresh_path(stem: str, directory: Path, wall_s: float) -> Path:
+    """``<directory>/<stem>-YYYYmmdd-HHMMSS.png`` for the local time ``wall_s``, with
+    ``-2``, ``-3``, ... where that file exists: a mission's picture never overwrites
+    another's (``rover go`` wrote ``mission.png`` over the last one on every run)."""
+    name = f"{stem}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(wall_s))}"
+    path = directory / f"{name}.png"
+    n = 2
+    while path.exists():
+        path = directory / f"{name}-{n}.png"
+        n += 1
+    return path

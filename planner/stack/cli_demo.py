@@ -91,7 +91,6 @@ def register(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import functools
     import signal
     import time
 
@@ -99,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
     from firmware_proto.runtime import ProcessRuntime
     from planner.ground.interrupt import CancelOnSignal
     from planner.stack.demo import Demo, DemoConfig
+    from planner.stack.lines import say
     from planner.stack.stallreport import stall_report
     from planner.view.cli_view import view_config
 
@@ -125,7 +125,7 @@ def _run(args: argparse.Namespace) -> int:
         max_collision_p=max_p,
     )
     started = time.time()
-    with Demo(config, say=functools.partial(print, flush=True)) as demo:
+    with Demo(config, say=say) as demo:
         options = dataclasses.replace(runtime_options(args, "demo"), stall_log=demo.stall_log)
         runtime = ProcessRuntime(options)
 

@@ -161,7 +161,9 @@ def register(subparsers: Any) -> None:
 
 # -- rover stack up -------------------------------------------------------------------------
 def _say(line: str) -> None:
-    print(line, flush=True)
+    from planner.stack.lines import say
+
+    say(line)
 
 
 def _health(console: Any, timeout_s: float) -> Any:

@@ -157,10 +157,13 @@ def rover_side(tmp_path: Path) -> Iterator[None]:
 def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
     where = ("--namespace", "/")
     echo = Child(
-        ["echo", "command_status", *where, "--count", "2", "--timeout", "30"], dict(os.environ)
+        ["echo", "command_status", *where, "--count", "3", "--timeout", "30"], dict(os.environ)
     )
     try:
         echo.wait_for("# /command_status [std_msgs/String]")
+        # An idle rover says nothing on command_status: its last status comes first, from
+        # the bridge's /diagnostics (issue #41: echo failed on an idle rover).
+        echo.wait_for("(the last before this echo, from /diagnostics)")
         stopped = _rover("stop", *where)
         assert stopped.returncode == 0, stopped.stdout + stopped.stderr
         assert stopped.stdout.startswith("stopped: the controller acknowledged the STOP")
@@ -179,7 +182,11 @@ def test_stop_status_echo_and_clear_stop_against_a_real_bridge() -> None:
     finally:
         echo.stop()
     heard = [line.split(" ", 1)[1] for line in echo.lines[1:]]
-    assert heard == ["stopped", "cleared"], (echo.lines, _LOGS)
+    assert heard == [
+        "ready (the last before this echo, from /diagnostics)",
+        "stopped",
+        "cleared",
+    ], (echo.lines, _LOGS)
     again = _rover("clear-stop", *where)
     assert again.returncode == 0 and again.stdout.startswith("not latched: there was nothing")
     watched = _rover("status", *where, "--watch", "--count", "2", "--json")

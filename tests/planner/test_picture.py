@@ -82,3 +82,43 @@ def test_the_gate_pictures_legend_band_is_drawn(tmp_path: Any) -> None:
     colours = {c for _, c in band.getcolors(maxcolors=100_000) or []}
     assert (40, 90, 200) in colours and (235, 120, 20) in colours  # planned, predicted
     assert (20, 20, 20) in colours  # the labels and the scale bar
+
+
+def test_a_concave_obstacles_name_is_drawn_on_it(worlds: dict[str, Any]) -> None:
+    """Issue #41: the lab's L-shaped workbench was named at the mean of its corners,
+    which lies in the notch of the L: white letters on the floor, unreadable. Its name
+    now sits inside it, outlined, clear of the legend band."""
+    world = worlds["lab"]
+    bench = next(o for o in world.obstacles if o.id == "workbench")
+    mean = picture._mean(bench.points)
+    assert not picture._inside(mean, bench.points)  # why it went wrong
+    at = picture.label_point(bench.points)
+    assert picture._inside(at, bench.points)
+    assert picture._edge_distance(at, bench.points) >= 0.2  # in the L's thick part
+    shown = picture.MissionPicture(world, Pose(6.2, 3.0, 0.0), world.start, title="t")
+    px_per_m, margin = 80.0, 20
+    image = picture.draw(shown, px_per_m=px_per_m, margin_px=margin)
+    b = world.bounds
+    x = margin + (at[0] - b.min_x) * px_per_m
+    y = 22 + margin + (b.max_y - at[1]) * px_per_m
+    assert y + 8 < image.height - 18  # above the legend band
+    # The letters (white, outlined dark) are drawn around that point.
+    around = image.crop((round(x - 30), round(y - 8), round(x + 30), round(y + 8)))
+    colours = {c for _, c in around.getcolors(maxcolors=10_000) or []}
+    assert any(isinstance(c, tuple) and min(c) > 220 for c in colours), colours  # white
+    assert picture._LABEL_EDGE in colours  # its outline
+
+
+def test_a_missions_picture_never_overwrites_the_last_ones(tmp_path: Any) -> None:
+    """Issue #41: ``rover go`` wrote ``./mission.png`` over the last mission's."""
+    import time
+
+    wall = time.mktime((2026, 11, 28, 12, 0, 1, 0, 0, -1))
+    first = picture.fresh_path("mission", tmp_path, wall)
+    assert first == tmp_path / "mission-20261128-120001.png"
+    first.write_bytes(b"x")
+    second = picture.fresh_path("mission", tmp_path, wall)  # the same second
+    assert second == tmp_path / "mission-20261128-120001-2.png"
+    second.write_bytes(b"y")
+    assert picture.fresh_path("mission", tmp_path, wall).name == "mission-20261128-120001-3.png"
+    assert first.read_bytes() == b"x"

@@ -385,3 +385,34 @@ def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fau
         hub.unsubscribe(client)
     finally:
         hub.close()
+
+
+@pytest.mark.browser
+def test_a_plain_headless_screenshot_of_the_view_finishes(
+    view: tuple[ViewServer, _Actions], tmp_path: Any
+) -> None:
+    """Issue #41: ``chromium --headless --screenshot URL`` hung (the push channel never
+    ends loading) or showed ``connecting``. With ``?snapshot`` the page reads ``GET
+    /state`` once and opens no stream: the command docs/view.md gives finishes, and the
+    page it draws has the state."""
+    import subprocess
+
+    from tests.browser import CHROMIUM_ARGS, chromium_path
+
+    path = chromium_path()
+    if path is None:
+        pytest.skip("no chromium: apt-get install chromium (bash .ci/bootstrap --test does)")
+    server, _ = view
+    url = f"{server.url}?snapshot"
+    common = ["nice", "-n", "10", path, "--headless", *CHROMIUM_ARGS]
+    common += ["--window-size=1200,700", "--virtual-time-budget=3000"]
+    dom = subprocess.run(
+        [*common, "--dump-dom", url], capture_output=True, text=True, timeout=90, check=False
+    )
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    assert '<span id="conn" class="live">snapshot (not live)</span>' in dom.stdout
+    shot = tmp_path / "view.png"
+    done = subprocess.run(
+        [*common, f"--screenshot={shot}", url], capture_output=True, timeout=90, check=False
+    )
+    assert done.returncode == 0 and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
