@@ -12,7 +12,11 @@ Everything this package raises derives from :class:`ProtoError`::
      |                      (firmware_proto.model.worldmap); ``violations`` lists
      |                      ``(json_pointer, message)`` pairs. Also ValueError
      +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
-                            pointers; firmware_proto.model.verdict); also ValueError
+     |                      pointers; firmware_proto.model.verdict); also ValueError
+     +-- UplinkError        a plan uplink or a cancel cannot be taken: malformed, out of
+     |                      range, unauthenticated or a prediction that does not fit its
+     |                      steps; ``reason`` is the short code the rover answers with
+     |                      (firmware_proto.model.uplink); also ValueError
      +-- BindPolicyError    an HTTP server may not listen there without a token, or the
                             token is malformed (firmware_proto.http.bindpolicy); also ValueError
      +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
@@ -32,6 +36,7 @@ __all__ = [
     "PlanError",
     "ProtoError",
     "SpecError",
+    "UplinkError",
     "VerdictError",
 ]
 
@@ -105,6 +110,22 @@ class VerdictError(ProtoError, ValueError):
     def __init__(self, message: str, pointers: tuple[str, ...] = ()) -> None:
         self.pointers = pointers
         super().__init__(message)
+
+
+class UplinkError(ProtoError, ValueError):
+    """A plan uplink (or a cancel) is refused by :mod:`firmware_proto.model.uplink`.
+
+    Attributes:
+        reason: the short code the rover answers with (``malformed``, ``out_of_range``,
+            ``unauthenticated``, ``bad_tag``, ``prediction_mismatch``, ``too_large``,
+            ``unsupported_version``), see :data:`firmware_proto.model.uplink.REFUSALS`.
+        detail: one sentence saying what exactly is wrong (names the field).
+    """
+
+    def __init__(self, reason: str, detail: str) -> None:
+        self.reason = reason
+        self.detail = detail
+        super().__init__(f"{reason}: {detail}")
 
 
 class BindPolicyError(ProtoError, ValueError):

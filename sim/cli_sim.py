@@ -114,6 +114,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="MS",
         help="the controller's control period in the simulator (default 10)",
     )
+    p.add_argument(
+        "--mission",
+        action="store_true",
+        help="play onboard missions instead (docs/sim.md, 'Missions'): the rover's "
+        "sequencer and guard over the wire, a ground across a lossy 3 s link, slip, POSE "
+        "silence, bad and replayed uplinks, ground STOPs, reboots",
+    )
     p.add_argument("--trace", action="store_true", help="with --seed: print every event")
     p.add_argument(
         "--stop-on-failure", action="store_true", help="stop at the first failing scenario"
@@ -160,6 +167,8 @@ def run(args: argparse.Namespace) -> int:
         # what matters (-v brings them back).
         for name in ("bridge", "emulator"):
             logging.getLogger(name).setLevel(logging.ERROR)
+    if args.mission:
+        return _missions(args)
     if args.seed is not None:
         if "both" in (args.controller, args.medium):
             print("rover sim: error: --seed plays one controller on one medium", file=sys.stderr)
@@ -212,6 +221,63 @@ def run(args: argparse.Namespace) -> int:
     )
     print("\n".join(report.lines()))
     return 1 if report.failures else 0
+
+
+def _missions(args: argparse.Namespace) -> int:
+    """``rover sim --mission``: one mission from its seed, or a range (a soak)."""
+    import itertools
+    import time
+
+    from sim.mission import make_mission, run_mission
+    from sim.scenario import CONTROLLERS, MEDIA
+    from sim.soak import assignment
+
+    if args.seed is not None:
+        mission = make_mission(
+            args.seed, controller=args.controller or "python", medium=args.medium or "serial"
+        )
+        outcome = run_mission(mission, trace=args.trace)
+        print("\n".join(mission.describe()))
+        if args.trace:
+            print("\n".join(outcome.trace))
+        verdict = "passed" if outcome.ok else "FAILED"
+        truth = ", ".join(f"{k} {v:.3f}" for k, v in sorted(outcome.truth.items()))
+        heard = "heard" if outcome.ground_heard else "did not hear"
+        print(
+            f"{verdict}: {outcome.sim_s:.3f} s simulated; the plan ended "
+            f"{outcome.ended or 'never'}, the ground {heard} it; {truth}"
+        )
+        for v in outcome.violations:
+            print(f"  {v.line()}")
+        if not outcome.ok:
+            print(f"reproduce: {mission.reproducer}")
+        return 0 if outcome.ok else 1
+    controllers = CONTROLLERS if args.controller in (None, "both") else (args.controller,)
+    media = MEDIA if args.medium in (None, "both") else (args.medium,)
+    seeds: Any = args.seeds if args.seeds is not None else itertools.count(args.start or 0)
+    budget = args.budget if args.budget is not None else (None if args.seeds else 60.0)
+    start = time.perf_counter()
+    played = failed = 0
+    sim_s = 0.0
+    for seed in seeds:
+        if budget is not None and time.perf_counter() - start >= budget:
+            break
+        controller, medium = assignment(seed, controllers, media)
+        mission = make_mission(seed, controller=controller, medium=medium)
+        outcome = run_mission(mission)
+        played += 1
+        sim_s += outcome.sim_s
+        if not outcome.ok:
+            failed += 1
+            print(f"FAIL {mission.reproducer}: {outcome.violations[0].line()}", flush=True)
+            if args.stop_on_failure:
+                break
+    wall = time.perf_counter() - start
+    print(
+        f"{played} missions, {failed} failed; {sim_s:.0f} s simulated in {wall:.1f} s "
+        f"({sim_s / wall if wall else 0:.0f}x real time)"
+    )
+    return 1 if failed else 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -203,6 +203,12 @@ class Rig:
         self._host_can = CanDecoder()
         self._host_at = math.inf
         self.odometry = OdometryEstimator(self.rover)
+        self.status_listeners: list[Callable[[StatusEvent], None]] = []
+        """Called with every status the host core says, as the bridge node publishes it
+        on ``/command_status`` (the onboard mission, :mod:`sim.mission`, listens)."""
+        self.sample_listeners: list[Callable[[Message], None]] = []
+        """Called with every sensor sample the host core forwards, after odometry took
+        it (the onboard mission's estimate)."""
         self._odom_prev: tuple[float, float, float] | None = None
         """(x, y, true path at the sample's making) of the last ENCODERS applied."""
         # -- the operator
@@ -576,6 +582,8 @@ class Rig:
             if isinstance(event, StatusEvent):
                 self._note(f"status {event.text} {event.step}")
                 self.ledger.status(event, self)
+                for listener in self.status_listeners:
+                    listener(event)
                 if event.step is not None and event.step == self._probe:
                     if event.text == "completed":
                         self._probe_done = True
@@ -630,6 +638,8 @@ class Rig:
         forward = core.on_frame(msg, self.now, rx_lost=lost)
         if forward:
             self._odometry(msg, meta, state)
+            for listener in self.sample_listeners:
+                listener(msg)
         if not isinstance(msg, SAMPLE_MESSAGES):  # a sample changes nothing in the core
             self._host_after()
 

@@ -14,6 +14,19 @@ Topic names are relative: a node's namespace prefixes them (``rover1/command_sta
   ``fault:<reason>`` also reports link events and controller faults.
 
 Readers take a string apart with :func:`parse_status` rather than matching prefixes.
+
+The rover's onboard sequencer (``rover onboard``, docs/onboard.md) adds its own topics
+beside the bridge's, and one status: ``plan_refused:<reason>:<plan id>`` when it refuses
+an uplink (a kind of its own, not a step's fate: :func:`ends_step` is false for it).
+
+- :data:`PLAN_UPLINK`, ``std_msgs/String``, ground -> rover: an uplink envelope, a plan
+  or a cancel (JSON, ``firmware_proto/model/uplink.py``);
+- :data:`PLAN_ACK`, ``std_msgs/String``, rover -> ground: the answer to each uplink
+  message (JSON);
+- :data:`ONBOARD_REPORT`, ``std_msgs/String``, rover -> ground: the plan's snapshot at each
+  event and every second (JSON, ``firmware_proto/model/downlink.py``);
+- :data:`ONBOARD_POSE`, ``nav_msgs/Odometry``, rover -> ground: the onboard estimate (EKF)
+  in the map frame, with its covariance.
 """
 
 from __future__ import annotations
@@ -28,6 +41,11 @@ __all__ = [
     "COMMAND_STATUS",
     "COMPLETED",
     "EMERGENCY_STOP",
+    "ONBOARD_POSE",
+    "ONBOARD_REPORT",
+    "PLAN_ACK",
+    "PLAN_REFUSED",
+    "PLAN_UPLINK",
     "READY",
     "STOPPED",
     "WHEEL_INSTRUCTIONS",
@@ -37,6 +55,7 @@ __all__ = [
     "ends_step",
     "fault",
     "parse_status",
+    "plan_refused",
     "rejected",
 ]
 
@@ -49,11 +68,23 @@ EMERGENCY_STOP: Final = "emergency_stop"
 CLEAR_EMERGENCY_STOP: Final = "clear_emergency_stop"
 """Release the STOP latch: ``std_msgs/Empty``."""
 
+PLAN_UPLINK: Final = "plan_uplink"
+"""Plans and cancels up to the rover's onboard sequencer: ``std_msgs/String``, an uplink
+envelope."""
+PLAN_ACK: Final = "plan_ack"
+"""The onboard sequencer's answer to each uplink message: ``std_msgs/String`` JSON."""
+ONBOARD_REPORT: Final = "onboard_report"
+"""The onboard sequencer's reports: ``std_msgs/String`` JSON snapshots."""
+ONBOARD_POSE: Final = "onboard_pose"
+"""The onboard estimate with its covariance: ``nav_msgs/Odometry``, map frame."""
+
 ACCEPTED: Final = "accepted"
 COMPLETED: Final = "completed"
 READY: Final = "ready"
 STOPPED: Final = "stopped"
 CLEARED: Final = "cleared"
+PLAN_REFUSED: Final = "plan_refused"
+"""The kind of status the onboard sequencer says when it refuses an uplink."""
 
 
 class Outcome(str, enum.Enum):
@@ -88,6 +119,11 @@ def aborted(reason: str) -> str:
 def fault(reason: str) -> str:
     """``fault:<reason>``."""
     return f"{Outcome.FAULT.value}:{reason}"
+
+
+def plan_refused(reason: str) -> str:
+    """``plan_refused:<reason>`` (the onboard sequencer refused an uplink)."""
+    return f"{PLAN_REFUSED}:{reason}"
 
 
 def parse_status(text: str) -> Status:

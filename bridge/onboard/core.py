@@ -1,0 +1,684 @@
+"""The rover's sequencer and drift guard as a state machine with no thread, no clock and
+no I/O (docs/onboard.md): the approved plan comes up once, runs here step after step, and
+drift stops the wheels where they are, not a round trip later.
+
+:class:`OnboardCore` is driven by events, each with the time it happened (the rover's
+clock, the one its poses are stamped on: ROS time, s):
+
+- :meth:`~OnboardCore.on_uplink`: an uplink envelope (a plan or a cancel) as received;
+- :meth:`~OnboardCore.on_status`: a ``/command_status`` string of the bridge;
+- :meth:`~OnboardCore.on_estimate`: the pose estimate (:class:`~bridge.onboard.ekf.Estimate`,
+  the EKF of encoders, IMU and POSE), at every ``odom`` and POSE;
+- :meth:`~OnboardCore.on_ground_stop`: an emergency stop heard on ``emergency_stop``
+  (the ground's; the core's own comes back too and finds nothing to stop);
+- :meth:`~OnboardCore.tick`: the passing of time, due at :meth:`~OnboardCore.next_deadline`.
+
+What it decides comes out of :meth:`~OnboardCore.take_actions`, in order:
+:class:`SendStop` (always first of a batch: a STOP waits for nothing), :class:`SendStep`,
+:class:`SendAck`, :class:`SayStatus` and :class:`SendReport`.
+
+**Uplinks.** A plan is refused, with its reason on the ack and ``plan_refused:<reason>``
+on ``/command_status``, and nothing driven, when it is malformed, out of range,
+unauthenticated or its prediction does not fit its steps
+(:func:`firmware_proto.model.uplink.decode_uplink`); when its id is not newer than the
+last plan taken or older than the floor set at start (``stale``: a replay); when the
+ground cancelled every plan up to its id (``cancelled``); and when another plan is armed
+or running (``busy``: the ground cancels that one first). A copy of a plan already
+taken is answered ``duplicate`` with where it is, and runs nothing again: the ground
+retransmits until it hears an answer, so copies are normal. Each id runs at most once.
+
+**Running.** A plan taken while the bridge's STOP latch is held waits ``armed`` until
+``cleared`` (the ground releases the latch; the guard never does), at most
+``arm_timeout_s``. Then its steps go out one at a time, each as soon as the one before
+it is ``completed``: no round trip between them, and every status is the fate of the
+one step outstanding (``/command_status`` names no step). A step is started when its
+``accepted`` comes (its publication until then). Any other end of a step (``rejected:``,
+``aborted:``, a fault but a lost sensor's, no ``completed`` within 1.5 times its
+predicted duration plus ``step_margin_s``) ends the plan with STOP.
+
+**The guard.** Each estimate is compared with the prediction for the same moment of the
+same step (the uplink's samples are tagged with their step and the twin time since it
+started; ``time_scale`` turns the rover's seconds into the twin's). ``persistence``
+consecutive estimates beyond the uplink's limits (0.25 m, 12 deg) and the core sends
+STOP at once, drops the rest of the plan and reports where (the step, the estimate, the
+prediction, the drift). The estimate is the filter's, so the guard keeps guarding on
+encoders and IMU when POSE goes quiet. No estimate for ``blind_s`` while a step runs:
+STOP (outcome ``blind``).
+
+**After any end** the core waits for the rover to stand (the estimate's twist below
+``rest_speed_mps`` and ``rest_yaw_rate_rad_s`` for ``rest_hold_s``, at most
+``rest_timeout_s``) and reports the estimate there with its covariance, how far the
+rover moved from where the plan ended and how long it took. A ground STOP
+(``emergency_stop``, or ``stopped`` / ``aborted:stop`` that the core did not cause)
+ends a running plan at once; a cancel stops it and ends it.
+
+Every event ends with a snapshot report of the plan
+(:class:`~firmware_proto.model.downlink.OnboardReport`), and the latest goes out again every
+``report_period_s`` so that a lossy downlink still delivers the end.
+
+Not thread-safe: one caller at a time (the program holds a lock around every call).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field
+
+from bridge.onboard.ekf import Estimate
+from bridge.ros.rosport.contract import (
+    ACCEPTED,
+    CLEARED,
+    COMPLETED,
+    STOPPED,
+    Outcome,
+    parse_status,
+    plan_refused,
+)
+from firmware_proto.errors import UplinkError
+from firmware_proto.model.downlink import GuardStop, OnboardReport, RestReport
+from firmware_proto.model.geometry import wrap_deg
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.uplink import CancelUplink, PlanUplink, UplinkAck, decode_uplink
+
+__all__ = [
+    "Action",
+    "OnboardConfig",
+    "OnboardCore",
+    "PlanState",
+    "SayStatus",
+    "SendAck",
+    "SendReport",
+    "SendStep",
+    "SendStop",
+]
+
+logger = logging.getLogger(__name__)
+
+REPORTING_FAULTS = frozenset({"pose", "imu"})
+"""``fault:<reason>`` of a lost sensor: the controller keeps driving, and so does the
+plan (the guard's estimate copes)."""
+
+
+class PlanState(str, enum.Enum):
+    """Where a plan is on board (:data:`firmware_proto.model.downlink.STATES`)."""
+
+    ARMED = "armed"
+    RUNNING = "running"
+    COMPLETED = "completed"
+    STOPPED = "stopped"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+
+_ENDS = {
+    "completed": PlanState.COMPLETED,
+    "guard": PlanState.STOPPED,
+    "ground_stop": PlanState.STOPPED,
+    "blind": PlanState.STOPPED,
+    "cancelled": PlanState.CANCELLED,
+    "failed": PlanState.FAILED,
+}
+
+
+@dataclass(frozen=True)
+class OnboardConfig:
+    """How the sequencer and guard behave (times in the rover's seconds).
+
+    Attributes:
+        token: the stack's token: uplinks must carry its tag (``None``: not checked).
+        min_plan_id: plan ids below this are stale (the program sets it from its start
+            time, so that an uplink from before a restart is not run).
+        time_scale: twin seconds per rover second (the emulator runs faster in a demo).
+        persistence: consecutive estimates beyond a limit before the guard stops.
+        blind_s: no estimate this long while a step runs: STOP (outcome ``blind``).
+        step_margin_s: added to 1.5 x a step's predicted duration for its timeout.
+        arm_timeout_s: longest an armed plan waits for the latch to be released.
+        rest_speed_mps, rest_yaw_rate_rad_s, rest_hold_s: at rest when the wheels are
+            below both for this long.
+        rest_timeout_s: report the estimate after an end at the latest this much later.
+        report_period_s: the latest report goes out again this often.
+        remember: plan ids kept to answer copies as duplicates.
+    """
+
+    token: str | None = None
+    min_plan_id: int = 1
+    time_scale: float = 1.0
+    persistence: int = 3
+    blind_s: float = 0.5
+    step_margin_s: float = 2.0
+    arm_timeout_s: float = 30.0
+    rest_speed_mps: float = 0.01
+    rest_yaw_rate_rad_s: float = 0.01
+    rest_hold_s: float = 0.2
+    rest_timeout_s: float = 5.0
+    report_period_s: float = 1.0
+    remember: int = 256
+
+    def __post_init__(self) -> None:
+        for name in (
+            "time_scale",
+            "blind_s",
+            "step_margin_s",
+            "arm_timeout_s",
+            "rest_hold_s",
+            "rest_timeout_s",
+            "report_period_s",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        if self.persistence < 1:
+            raise ValueError(f"persistence must be >= 1, got {self.persistence}")
+
+
+# -- actions ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SendStop:
+    """Publish ``true`` on ``emergency_stop`` (the bridge's STOP lane) now."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class SendStep:
+    """Publish one step on ``wheel_instructions``."""
+
+    plan_id: int
+    index: int
+    step: tuple[int, int, int]
+
+
+@dataclass(frozen=True)
+class SendAck:
+    """Answer an uplink on the ack topic."""
+
+    ack: UplinkAck
+
+
+@dataclass(frozen=True)
+class SayStatus:
+    """Publish one string on ``/command_status`` (a refusal)."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class SendReport:
+    """Publish a snapshot report on the report topic."""
+
+    report: OnboardReport
+
+
+Action = SendStop | SendStep | SendAck | SayStatus | SendReport
+
+
+@dataclass
+class _Plan:
+    uplink: PlanUplink
+    state: PlanState
+    taken_s: float
+    step: int = 0
+    status: str = ""
+    published_s: float = math.nan
+    started: list[float] = field(default_factory=list)
+    """When each step started (rover clock), in order."""
+    accepted: bool = False
+    outcome: str = ""
+    reason: str = ""
+    ended_s: float = math.nan
+    end_pose: Pose | None = None
+    guard: GuardStop | None = None
+    rest: RestReport | None = None
+    drift: tuple[float, float] | None = None
+    worst: tuple[float, float] = (0.0, 0.0)
+    over: int = 0
+    still_since: float | None = None
+
+
+class OnboardCore:
+    """The sequencer and guard; see the module docstring."""
+
+    def __init__(self, rover: RoverDescription, config: OnboardConfig | None = None) -> None:
+        self.rover = rover
+        self.config = config or OnboardConfig()
+        self._actions: list[Action] = []
+        self._plan: _Plan | None = None
+        """The plan armed, running, or the last one (ended)."""
+        self._settling: _Plan | None = None
+        """An ended plan whose rest is still to be reported."""
+        self._states: dict[int, PlanState] = {}
+        self._max_taken = 0
+        self._cancel_floor = 0
+        self._latched = False
+        self._stop_sent = False
+        """The core's own STOP went out and no ``stopped`` answered it yet: the next
+        ``stopped`` is the core's, not the ground's."""
+        self._estimate: Estimate | None = None
+        self._last_estimate_s = -math.inf
+        self._seq = 0
+        self._last_report: OnboardReport | None = None
+        self._next_report_s = math.inf
+        self.counts: dict[str, int] = {
+            "uplinks": 0,
+            "accepted": 0,
+            "duplicates": 0,
+            "refused": 0,
+            "cancels": 0,
+            "steps_sent": 0,
+            "guard_stops": 0,
+            "ground_stops": 0,
+        }
+        """What the core has seen and done, by name (the program's diagnostics)."""
+
+    # -- reading -----------------------------------------------------------------------------
+    @property
+    def latched(self) -> bool:
+        """The bridge's STOP latch, as ``stopped`` / ``cleared`` said."""
+        return self._latched
+
+    @property
+    def active(self) -> bool:
+        """A plan is armed or running."""
+        return self._plan is not None and self._plan.state in (PlanState.ARMED, PlanState.RUNNING)
+
+    @property
+    def last_report(self) -> OnboardReport | None:
+        """The latest report made."""
+        return self._last_report
+
+    def take_actions(self) -> list[Action]:
+        """What to do now, in order (STOPs first); empties the queue."""
+        actions, self._actions = self._actions, []
+        stops = [a for a in actions if isinstance(a, SendStop)]
+        if stops:
+            actions = stops + [a for a in actions if not isinstance(a, SendStop)]
+        return actions
+
+    def next_deadline(self, now: float) -> float:
+        """The latest time :meth:`tick` must run next (``inf``: nothing pending)."""
+        due = self._next_report_s
+        plan = self._plan
+        cfg = self.config
+        if plan is not None and plan.state is PlanState.ARMED:
+            due = min(due, plan.taken_s + cfg.arm_timeout_s)
+        if plan is not None and plan.state is PlanState.RUNNING:
+            due = min(due, self._step_deadline(plan), self._last_estimate_s + cfg.blind_s)
+        if self._settling is not None:
+            due = min(due, self._settling.ended_s + cfg.rest_timeout_s)
+        return max(due, now) if math.isfinite(due) else due
+
+    # -- events ------------------------------------------------------------------------------
+    def on_uplink(self, text: str | bytes, now: float) -> None:
+        """An uplink envelope arrived (a plan or a cancel)."""
+        self.counts["uplinks"] += 1
+        try:
+            message = decode_uplink(text, token=self.config.token, rover=self.rover)
+        except UplinkError as exc:
+            self._refuse(_peek_plan_id(text), exc.reason, exc.detail)
+            return
+        if isinstance(message, CancelUplink):
+            self._cancel(message.upto, now)
+            return
+        self._plan_uplink(message, now)
+
+    def _plan_uplink(self, uplink: PlanUplink, now: float) -> None:
+        pid = uplink.plan_id
+        if pid in self._states:
+            self.counts["duplicates"] += 1
+            state = self._states[pid].value
+            self._ack(UplinkAck(pid, "duplicate", "", f"plan {pid} was taken before", state))
+            return
+        if pid <= self._cancel_floor:
+            self._refuse(
+                pid, "cancelled", f"the ground cancelled every plan up to {self._cancel_floor}"
+            )
+            return
+        if pid < self._max_taken or pid < self.config.min_plan_id:
+            floor = max(self._max_taken, self.config.min_plan_id)
+            self._refuse(
+                pid, "stale", f"plan {pid} is older than {floor} (a replay or a late copy)"
+            )
+            return
+        current = self._plan
+        if current is not None and current.state in (PlanState.ARMED, PlanState.RUNNING):
+            running = current.uplink.plan_id
+            self._refuse(pid, "busy", f"plan {running} is {current.state.value}; cancel it first")
+            return
+        plan = _Plan(uplink, PlanState.ARMED, now)
+        self._plan = plan
+        self._states[pid] = PlanState.ARMED
+        while len(self._states) > self.config.remember:
+            self._states.pop(next(iter(self._states)))
+        self._max_taken = max(self._max_taken, pid)
+        self.counts["accepted"] += 1
+        logger.info(
+            "plan %d taken: %d steps, verdict %s%s",
+            pid,
+            len(uplink.steps),
+            uplink.verdict[:12],
+            "; armed until the latch is released" if self._latched else "",
+        )
+        if self._latched:
+            self._ack(
+                UplinkAck(pid, "accepted", "", "armed: waits for the latch's release", "armed")
+            )
+            self._report("armed", now)
+            return
+        self._ack(UplinkAck(pid, "accepted", "", "running", "running"))
+        self._start(plan, now)
+
+    def _cancel(self, upto: int, now: float) -> None:
+        self.counts["cancels"] += 1
+        self._cancel_floor = max(self._cancel_floor, upto)
+        plan = self._plan
+        detail = f"every plan up to {upto} is cancelled"
+        state = "cancelled"
+        if plan is not None and plan.uplink.plan_id <= upto:
+            if plan.state is PlanState.RUNNING:
+                # Its step is stopped where it is: the latch then holds until the ground
+                # releases it (the ack says "stopped" so that the ground knows).
+                self._stop("cancelled by the ground", now)
+                self._end(plan, "cancelled", "cancelled by the ground", now)
+                state = "stopped"
+                detail += f"; plan {plan.uplink.plan_id} was running and is stopped"
+            elif plan.state is PlanState.ARMED:
+                self._end(plan, "cancelled", "cancelled by the ground before it started", now)
+        self._ack(UplinkAck(upto, "cancelled", "", detail, state))
+
+    def on_status(self, text: str, now: float) -> None:
+        """One ``/command_status`` string of the bridge (the core's own refusals come
+        back too and are ignored)."""
+        kind, reason = parse_status(text)
+        plan = self._plan
+        if text == STOPPED:
+            self._latched = True
+            if self._stop_sent:
+                self._stop_sent = False
+            elif plan is not None and plan.state is PlanState.RUNNING:
+                self._ground_stop(plan, "the ground's STOP (stopped)", now)
+            return
+        if text == CLEARED:
+            self._latched = False
+            if plan is not None and plan.state is PlanState.ARMED:
+                logger.info("plan %d: latch released; starting", plan.uplink.plan_id)
+                self._start(plan, now)
+            return
+        if plan is None or plan.state is not PlanState.RUNNING:
+            if kind == Outcome.REJECTED.value and reason == "stop_latched":
+                self._latched = True
+            return
+        if text == ACCEPTED:
+            if not plan.accepted:
+                plan.accepted = True
+                plan.status = text
+                plan.started[plan.step] = now  # the controller starts it as it takes it
+                self._report("step", now)
+            return
+        if text == COMPLETED:
+            plan.status = text
+            self._next_step(plan, now)
+            return
+        if kind == Outcome.FAULT.value and reason in REPORTING_FAULTS:
+            plan.status = text
+            self._report("step", now)
+            return
+        if kind not in (Outcome.REJECTED.value, Outcome.ABORTED.value, Outcome.FAULT.value):
+            return  # ready, the core's own plan_refused:..., anything new
+        plan.status = text
+        if kind == Outcome.REJECTED.value and reason == "stop_latched":
+            self._latched = True
+        if kind == Outcome.ABORTED.value and reason == "stop" and not self._stop_sent:
+            self._ground_stop(plan, f"the ground's STOP ({text})", now)
+            return
+        n = len(plan.uplink.steps)
+        self._stop(f"step {plan.step + 1}/{n}: {text}", now)
+        self._end(plan, "failed", f"step {plan.step + 1}/{n}: {text}", now)
+
+    def on_ground_stop(self, now: float) -> None:
+        """``true`` heard on ``emergency_stop``: the ground's STOP (the core's own, heard
+        back, finds no plan running)."""
+        plan = self._plan
+        if plan is not None and plan.state in (PlanState.RUNNING, PlanState.ARMED):
+            self._ground_stop(plan, "the ground's STOP (emergency_stop)", now)
+        self._latched = True
+
+    def shutdown(self, reason: str, now: float) -> None:
+        """The program is ending: a plan armed or running ends (``failed``), with STOP
+        when it was running; nobody will run the rest of it."""
+        plan = self._plan
+        if plan is not None and plan.state is PlanState.RUNNING:
+            self._stop(reason, now)
+            self._end(plan, "failed", reason, now)
+        elif plan is not None and plan.state is PlanState.ARMED:
+            self._end(plan, "failed", reason, now)
+
+    def _ground_stop(self, plan: _Plan, reason: str, now: float) -> None:
+        self.counts["ground_stops"] += 1
+        logger.warning("plan %d ended by %s", plan.uplink.plan_id, reason)
+        self._end(plan, "ground_stop", reason, now)
+
+    def on_estimate(self, estimate: Estimate, now: float) -> None:
+        """The pose estimate changed (every ``odom`` and POSE): guard, and watch for rest."""
+        self._estimate = estimate
+        self._last_estimate_s = now
+        plan = self._plan
+        if plan is not None and plan.state is PlanState.RUNNING:
+            self._guard(plan, estimate, now)
+        settling = self._settling
+        if settling is not None:
+            self._watch_rest(settling, estimate, now)
+
+    def tick(self, now: float) -> None:
+        """The passing of time: step timeouts, the armed wait, blindness, rest, reports."""
+        cfg = self.config
+        plan = self._plan
+        if (
+            plan is not None
+            and plan.state is PlanState.ARMED
+            and now >= plan.taken_s + cfg.arm_timeout_s
+        ):
+            reason = f"the latch was not released within {cfg.arm_timeout_s:g} s"
+            self._end(plan, "failed", reason, now)
+        if plan is not None and plan.state is PlanState.RUNNING:
+            n = len(plan.uplink.steps)
+            if now >= self._step_deadline(plan):
+                self._stop(f"step {plan.step + 1}/{n} timed out", now)
+                self._end(plan, "failed", f"step {plan.step + 1}/{n}: no 'completed' in time", now)
+            elif now >= self._last_estimate_s + cfg.blind_s:
+                self.counts["guard_stops"] += 1
+                self._stop("guard blind: no pose estimate", now)
+                self._end(
+                    plan,
+                    "blind",
+                    f"no pose estimate for {cfg.blind_s:g} s in step {plan.step + 1}/{n}",
+                    now,
+                )
+        settling = self._settling
+        if settling is not None and now >= settling.ended_s + cfg.rest_timeout_s:
+            self._rest(settling, self._estimate, now, at_rest=False)
+        if now >= self._next_report_s and self._last_report is not None:
+            self._report("periodic", now)
+
+    # -- the plan ----------------------------------------------------------------------------
+    def _start(self, plan: _Plan, now: float) -> None:
+        plan.state = PlanState.RUNNING
+        self._states[plan.uplink.plan_id] = PlanState.RUNNING
+        plan.started = [math.nan] * len(plan.uplink.steps)
+        self._last_estimate_s = max(self._last_estimate_s, now)  # blindness counts from here
+        self._send_step(plan, 0, now)
+        self._report("running", now)
+
+    def _send_step(self, plan: _Plan, index: int, now: float) -> None:
+        plan.step = index
+        plan.accepted = False
+        plan.status = "published"
+        plan.published_s = now
+        plan.started[index] = now  # until its 'accepted' says better
+        plan.over = 0
+        self.counts["steps_sent"] += 1
+        self._actions.append(SendStep(plan.uplink.plan_id, index, plan.uplink.steps[index]))
+
+    def _next_step(self, plan: _Plan, now: float) -> None:
+        if plan.step + 1 >= len(plan.uplink.steps):
+            self._end(plan, "completed", "all steps completed", now)
+            return
+        self._send_step(plan, plan.step + 1, now)
+        self._report("step", now)
+
+    def _step_deadline(self, plan: _Plan) -> float:
+        predicted = plan.uplink.durations_s[plan.step] / self.config.time_scale
+        return plan.published_s + 1.5 * predicted + self.config.step_margin_s
+
+    def _stop(self, reason: str, now: float) -> None:
+        self._stop_sent = True
+        self._latched = True
+        self._actions.append(SendStop(reason))
+
+    def _end(self, plan: _Plan, outcome: str, reason: str, now: float) -> None:
+        plan.state = _ENDS[outcome]
+        self._states[plan.uplink.plan_id] = plan.state
+        plan.outcome = outcome
+        plan.reason = reason
+        plan.ended_s = now
+        est = self._estimate
+        if plan.end_pose is None and est is not None:
+            plan.end_pose = Pose(est.x_m, est.y_m, est.yaw_deg)
+        if outcome != "completed":
+            logger.warning("plan %d ended: %s: %s", plan.uplink.plan_id, outcome, reason)
+        plan.still_since = None
+        self._settling = plan
+        self._report("ended" if outcome != "guard" else "guard_stop", now)
+        if est is not None:
+            self._watch_rest(plan, est, now)
+
+    # -- the guard ---------------------------------------------------------------------------
+    def predicted_at(self, stamp_s: float) -> tuple[int, int, Pose] | None:
+        """The running plan's id, the step in force at ``stamp_s`` and the predicted
+        pose then, as the guard compares (``None``: no plan runs)."""
+        plan = self._plan
+        if plan is None or plan.state is not PlanState.RUNNING:
+            return None
+        step, pose = self._predicted(plan, stamp_s)
+        return plan.uplink.plan_id, step, pose
+
+    def _predicted(self, plan: _Plan, stamp_s: float) -> tuple[int, Pose]:
+        """The step in force at ``stamp_s`` and the predicted pose then."""
+        step = plan.step
+        while step > 0 and stamp_s < plan.started[step]:
+            step -= 1
+        start = plan.started[step]
+        if math.isnan(start) or stamp_s < start:
+            return step, plan.uplink.pose_at(step, 0.0)
+        return step, plan.uplink.pose_at(step, (stamp_s - start) * self.config.time_scale)
+
+    def _guard(self, plan: _Plan, est: Estimate, now: float) -> None:
+        step, predicted = self._predicted(plan, est.stamp_s)
+        linear = math.hypot(est.x_m - predicted.x, est.y_m - predicted.y)
+        angular = abs(wrap_deg(est.yaw_deg - predicted.yaw_deg))
+        plan.drift = (linear, angular)
+        plan.worst = (max(plan.worst[0], linear), max(plan.worst[1], angular))
+        limits = plan.uplink.limits
+        if linear > limits.linear_m or angular > limits.angular_deg:
+            plan.over += 1
+        else:
+            plan.over = 0
+        if plan.over < self.config.persistence:
+            return
+        self.counts["guard_stops"] += 1
+        pose = Pose(est.x_m, est.y_m, est.yaw_deg)
+        self._stop(f"drift {linear:.3f} m {angular:.1f} deg in step {step + 1}", now)
+        plan.guard = GuardStop(
+            step, est.stamp_s, now, pose, predicted, linear, angular, est.pose_age_s
+        )
+        plan.end_pose = pose
+        self._end(plan, "guard", plan.guard.reason, now)
+
+    # -- rest --------------------------------------------------------------------------------
+    def _watch_rest(self, plan: _Plan, est: Estimate, now: float) -> None:
+        cfg = self.config
+        still = (
+            abs(est.v_mps) < cfg.rest_speed_mps
+            and abs(est.yaw_rate_rad_s) < cfg.rest_yaw_rate_rad_s
+        )
+        if not still:
+            plan.still_since = None
+            return
+        if plan.still_since is None:
+            plan.still_since = est.stamp_s
+        if est.stamp_s - plan.still_since >= cfg.rest_hold_s:
+            self._rest(plan, est, now, at_rest=True)
+
+    def _rest(self, plan: _Plan, est: Estimate | None, now: float, *, at_rest: bool) -> None:
+        self._settling = None
+        if est is None:
+            logger.warning("plan %d: no estimate to report at rest", plan.uplink.plan_id)
+            return
+        pose = Pose(est.x_m, est.y_m, est.yaw_deg)
+        since = plan.end_pose or pose
+        t_ref = plan.guard.stamp_s if plan.guard is not None else plan.ended_s
+        rest_s = plan.still_since if at_rest and plan.still_since is not None else est.stamp_s
+        plan.rest = RestReport(
+            rest_s,
+            pose,
+            est.covariance,
+            at_rest,
+            math.hypot(pose.x - since.x, pose.y - since.y),
+            max(0.0, rest_s - t_ref),
+        )
+        self._report("rest", now)
+
+    # -- answers and reports -----------------------------------------------------------------
+    def _ack(self, ack: UplinkAck) -> None:
+        self._actions.append(SendAck(ack))
+
+    def _refuse(self, plan_id: int, reason: str, detail: str) -> None:
+        self.counts["refused"] += 1
+        logger.warning("uplink of plan %d refused: %s: %s", plan_id, reason, detail)
+        state = self._states.get(plan_id)
+        self._ack(UplinkAck(plan_id, "refused", reason, detail, state.value if state else ""))
+        self._actions.append(SayStatus(plan_refused(f"{reason}:{plan_id}")))
+
+    def _report(self, event: str, now: float) -> None:
+        plan = self._plan
+        self._seq += 1
+        if plan is None:
+            report = OnboardReport(self._seq, event, now)
+        else:
+            up = plan.uplink
+            report = OnboardReport(
+                self._seq,
+                event,
+                now,
+                up.plan_id,
+                up.verdict,
+                plan.state.value,
+                plan.step,
+                len(up.steps),
+                plan.status,
+                plan.drift[0] if plan.drift else None,
+                plan.drift[1] if plan.drift else None,
+                plan.outcome,
+                plan.reason,
+                plan.guard,
+                plan.rest,
+                {"worst_linear_m": plan.worst[0], "worst_angular_deg": plan.worst[1]},
+            )
+        self._last_report = report
+        self._next_report_s = now + self.config.report_period_s
+        self._actions.append(SendReport(report))
+
+
+def _peek_plan_id(text: str | bytes) -> int:
+    """The plan id of an uplink that was refused, if it can be read at all (0: not)."""
+    import json  # noqa: PLC0415 - only for a refusal
+
+    try:
+        env = json.loads(text)
+        body = json.loads(env["body"])
+        pid = body.get("plan_id", body.get("upto", 0))
+    except (ValueError, TypeError, KeyError, AttributeError, RecursionError):
+        return 0
+    return pid if isinstance(pid, int) and not isinstance(pid, bool) and pid > 0 else 0

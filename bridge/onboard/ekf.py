@@ -1,0 +1,268 @@
+"""The rover's pose on board: an extended Kalman filter of its map pose, fed by the
+bridge's odometry (encoder travel along the integrated IMU heading, ``odom``) and
+corrected by the ground-seeing POSE (``odom_ground``) (docs/onboard.md, "Estimate").
+
+State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
+
+- **Predict** with every ``odom`` sample: the motion since the previous one, taken in
+  the rover's own frame (forward, left, turn), applied at the estimate's heading.
+  Process noise grows with the motion (``forward_sigma_per_m``, ``lateral_sigma_per_m``
+  of the distance, ``yaw_sigma_per_rad`` of the turn, plus floors): encoders cannot see
+  slip, so the filter must not trust them more than slip allows, or the guard would see
+  a slip late.
+- **Correct** with every POSE, at the time it was measured (its stamp is older than the
+  last ``odom``: the sensor's latency): the filter goes back to its state at that stamp
+  (a short history is kept), applies the correction there, and replays the motion since.
+  An innovation far outside its covariance (squared Mahalanobis distance over
+  ``gate_chi2``: the rover slipped more than the process noise allows) inflates the
+  covariance by the innovation first, so the estimate follows the ground-seeing sensor
+  at once instead of creeping towards it.
+- Until the first POSE (or :meth:`PoseEkf.reset` with a known pose) the filter has no
+  map pose; it only follows ``odom`` to be ready.
+
+Numpy, not filterpy: a 3-state filter is a dozen lines of matrix algebra; what it needs
+beyond them (the delayed measurement replayed through a history, heading residuals
+wrapped to +-pi, the innovation-driven inflation) filterpy's ``ExtendedKalmanFilter``
+does not do, and filterpy (unmaintained since 2018) would bring scipy and matplotlib to
+the rover's computer for nothing. numpy is already the project's dependency.
+
+Pure: no I/O, no clock (stamps come with the samples), no thread; not thread-safe.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from firmware_proto.model.geometry import wrap_rad
+
+__all__ = ["EkfConfig", "Estimate", "PoseEkf"]
+
+Matrix = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Noise model and history of :class:`PoseEkf`.
+
+    Attributes:
+        forward_sigma_per_m: 1-sigma error of the forward motion, per metre driven.
+        lateral_sigma_per_m: 1-sigma sideways motion per metre driven.
+        yaw_sigma_per_rad: 1-sigma heading error per radian turned (gyro scale).
+        floor_m, floor_rad: noise added to every prediction (m, rad).
+        gate_chi2: squared Mahalanobis distance of a POSE innovation above which the
+            covariance is inflated by it first (3 degrees of freedom; 16.3 is 99.9 %).
+        history_s: how far back a POSE may be applied, s.
+    """
+
+    forward_sigma_per_m: float = 0.25
+    lateral_sigma_per_m: float = 0.15
+    yaw_sigma_per_rad: float = 0.05
+    floor_m: float = 0.0005
+    floor_rad: float = 0.0005
+    gate_chi2: float = 16.3
+    history_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The rover's pose as the filter has it at ``stamp_s``.
+
+    Attributes:
+        stamp_s: the time of the estimate (the latest ``odom`` or POSE), s.
+        x_m, y_m, yaw_deg: the pose in the map frame.
+        covariance: row-major 3x3 covariance of ``x, y, yaw`` (m^2, m rad, rad^2).
+        v_mps, yaw_rate_rad_s: the rover's motion from ``odom``'s twist (encoder speed,
+            gyro rate): zero means the wheels stand.
+        pose_stamp_s: the stamp of the last POSE taken (``-inf``: none yet).
+    """
+
+    stamp_s: float
+    x_m: float
+    y_m: float
+    yaw_deg: float
+    covariance: tuple[float, ...]
+    v_mps: float = 0.0
+    yaw_rate_rad_s: float = 0.0
+    pose_stamp_s: float = -math.inf
+
+    @property
+    def pose_age_s(self) -> float:
+        """How old the last POSE in it is, s (``inf``: none)."""
+        return self.stamp_s - self.pose_stamp_s
+
+    @property
+    def sigma_xy_m(self) -> float:
+        """1-sigma position error (the larger axis), m."""
+        cov = self.covariance
+        a, b, c = cov[0], cov[1], cov[4]
+        return math.sqrt(max(0.0, (a + c) / 2.0 + math.sqrt(((a - c) / 2.0) ** 2 + b * b)))
+
+
+@dataclass
+class _Entry:
+    stamp: float
+    x: Matrix
+    p: Matrix
+    motion: tuple[float, float, float]
+    """The motion applied to reach this entry (forward, left, turn)."""
+
+
+class PoseEkf:
+    """See the module docstring."""
+
+    def __init__(self, config: EkfConfig | None = None) -> None:
+        self.config = config or EkfConfig()
+        self._x: Matrix = np.zeros(3)
+        self._p: Matrix = np.eye(3)
+        self._ready = False
+        self._stamp = -math.inf
+        self._odom: tuple[float, float, float] | None = None
+        self._history: deque[_Entry] = deque()
+        self._motion = (0.0, 0.0)
+        self._pose_stamp = -math.inf
+        self.corrections = 0
+        """POSE samples applied."""
+        self.inflations = 0
+        """POSE samples that inflated the covariance first (a slip)."""
+        self.late = 0
+        """POSE samples older than the history: applied at its oldest entry."""
+
+    @property
+    def ready(self) -> bool:
+        """The filter has a map pose (a POSE came, or :meth:`reset`)."""
+        return self._ready
+
+    def reset(
+        self, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix, stamp_s: float
+    ) -> None:
+        """Start at a known pose (the plan's start when no POSE ever came)."""
+        self._x = np.array([x_m, y_m, wrap_rad(yaw_rad)])
+        self._p = np.array(covariance, dtype=float).reshape(3, 3)
+        self._stamp = stamp_s
+        self._history.clear()
+        self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), (0.0, 0.0, 0.0)))
+        self._ready = True
+
+    # -- predict ---------------------------------------------------------------------------
+    def predict(
+        self,
+        stamp_s: float,
+        odom_x_m: float,
+        odom_y_m: float,
+        odom_yaw_rad: float,
+        v_mps: float = 0.0,
+        yaw_rate_rad_s: float = 0.0,
+    ) -> None:
+        """One ``odom`` sample (its pose in the odometry frame and its twist)."""
+        previous, self._odom = self._odom, (odom_x_m, odom_y_m, odom_yaw_rad)
+        self._motion = (v_mps, yaw_rate_rad_s)
+        if previous is None:
+            self._stamp = max(self._stamp, stamp_s)
+            return
+        px, py, pyaw = previous
+        dx, dy = odom_x_m - px, odom_y_m - py
+        c, s = math.cos(pyaw), math.sin(pyaw)
+        motion = (c * dx + s * dy, -s * dx + c * dy, wrap_rad(odom_yaw_rad - pyaw))
+        if not self._ready:
+            self._stamp = max(self._stamp, stamp_s)
+            return
+        self._x, self._p = self._apply(self._x, self._p, motion)
+        self._stamp = max(self._stamp, stamp_s)
+        self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), motion))
+        self._trim()
+
+    def _apply(
+        self, x: Matrix, p: Matrix, motion: tuple[float, float, float]
+    ) -> tuple[Matrix, Matrix]:
+        cfg = self.config
+        fwd, left, turn = motion
+        yaw = float(x[2])
+        c, s = math.cos(yaw), math.sin(yaw)
+        new = np.array([x[0] + c * fwd - s * left, x[1] + s * fwd + c * left, wrap_rad(yaw + turn)])
+        f = np.array(
+            [[1.0, 0.0, -s * fwd - c * left], [0.0, 1.0, c * fwd - s * left], [0.0, 0.0, 1.0]]
+        )
+        g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        dist = math.hypot(fwd, left)
+        q_body = np.diag(
+            [
+                (cfg.forward_sigma_per_m * dist + cfg.floor_m) ** 2,
+                (cfg.lateral_sigma_per_m * dist + cfg.floor_m) ** 2,
+                (cfg.yaw_sigma_per_rad * abs(turn) + cfg.floor_rad) ** 2,
+            ]
+        )
+        return new, f @ p @ f.T + g @ q_body @ g.T
+
+    def _trim(self) -> None:
+        horizon = self._stamp - self.config.history_s
+        while len(self._history) > 1 and self._history[1].stamp <= horizon:
+            self._history.popleft()
+
+    # -- correct ---------------------------------------------------------------------------
+    def correct(
+        self, stamp_s: float, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix
+    ) -> None:
+        """One POSE, measured at ``stamp_s``, with its 3x3 covariance (x, y, yaw)."""
+        r = np.array(covariance, dtype=float).reshape(3, 3)
+        z = np.array([x_m, y_m, wrap_rad(yaw_rad)])
+        self._pose_stamp = max(self._pose_stamp, stamp_s)
+        if not self._ready:
+            self.reset(x_m, y_m, yaw_rad, r, max(stamp_s, self._stamp))
+            self.corrections += 1
+            return
+        history = self._history
+        # The last entry at or before the measurement; the motions after it are replayed.
+        index = len(history) - 1
+        while index > 0 and history[index].stamp > stamp_s:
+            index -= 1
+        if history[index].stamp > stamp_s:
+            self.late += 1
+        base = history[index]
+        x, p = self._update(base.x, base.p, z, r)
+        history[index] = _Entry(base.stamp, x, p, base.motion)
+        for i in range(index + 1, len(history)):
+            entry = history[i]
+            x, p = self._apply(x, p, entry.motion)
+            history[i] = _Entry(entry.stamp, x, p, entry.motion)
+        self._x, self._p = x, p
+        self._stamp = max(self._stamp, stamp_s)
+        self.corrections += 1
+
+    def _update(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix]:
+        y = z - x
+        y[2] = wrap_rad(float(y[2]))
+        s = p + r
+        nis = float(y @ np.linalg.solve(s, y))
+        if nis > self.config.gate_chi2:
+            # The rover moved where the odometry could not see (slip): trust the sensor.
+            self.inflations += 1
+            p = p + np.outer(y, y)
+            s = p + r
+        k = p @ np.linalg.inv(s)
+        new = x + k @ y
+        new[2] = wrap_rad(float(new[2]))
+        i_k = np.eye(3) - k
+        p = i_k @ p @ i_k.T + k @ r @ k.T  # Joseph form: stays symmetric, positive
+        return new, p
+
+    # -- read ------------------------------------------------------------------------------
+    def estimate(self) -> Estimate | None:
+        """The current estimate, ``None`` before the filter has a map pose."""
+        if not self._ready:
+            return None
+        x, p = self._x, self._p
+        return Estimate(
+            self._stamp,
+            float(x[0]),
+            float(x[1]),
+            math.degrees(float(x[2])),
+            tuple(float(v) for v in p.reshape(9)),
+            self._motion[0],
+            self._motion[1],
+            self._pose_stamp,
+        )

@@ -1,0 +1,339 @@
+"""The onboard sequencer and guard (bridge/onboard/core.py) driven event by event in
+virtual time: the time is an argument, nothing waits. The whole mission against the
+bridge's link core, a controller and its twin is tests/sim/test_mission.py."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from bridge.onboard.core import (
+    OnboardConfig,
+    OnboardCore,
+    SayStatus,
+    SendAck,
+    SendReport,
+    SendStep,
+    SendStop,
+)
+from bridge.onboard.ekf import Estimate
+from firmware_proto.model.pose import Pose
+from firmware_proto.model.rover import load_rover
+from firmware_proto.model.uplink import CancelUplink, DriftLimits, PlanUplink, PredictedSample
+from firmware_proto.wire.messages import Command
+
+ROVER = load_rover(None)
+TOKEN = "t0ken"
+FWD = int(Command.FWD)
+COV = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4)
+
+
+def _plan(plan_id: int = 10, steps: int = 3) -> PlanUplink:
+    """``steps`` drives of 1 m along +x, 2 s each (0.5 m/s)."""
+    samples = []
+    for k in range(steps):
+        samples += [PredictedSample(k, 0.1 * i, k + 0.05 * i, 0.0, 0.0) for i in range(21)]
+    return PlanUplink(
+        plan_id,
+        tuple((FWD, 30, 23000) for _ in range(steps)),
+        tuple(2.0 for _ in range(steps)),
+        tuple(samples),
+        Pose(0.0, 0.0, 0.0),
+        Pose(float(steps), 0.0, 0.0),
+        DriftLimits.of(ROVER),
+        "b" * 64,
+    )
+
+
+def _est(t: float, x: float, y: float = 0.0, yaw: float = 0.0, v: float = 0.5) -> Estimate:
+    return Estimate(t, x, y, yaw, COV, v, 0.0, t - 0.1)
+
+
+class Rover:
+    """The core with the time in hand and every action kept."""
+
+    def __init__(self, **config: Any) -> None:
+        self.core = OnboardCore(ROVER, OnboardConfig(token=TOKEN, **config))
+        self.t = 0.0
+        self.actions: list[Any] = []
+
+    def do(self, fn: str, *args: Any) -> list[Any]:
+        getattr(self.core, fn)(*args, self.t)
+        out = self.core.take_actions()
+        self.actions += out
+        return out
+
+    def at(self, t: float) -> None:
+        self.t = t
+
+    def uplink(self, plan: PlanUplink | CancelUplink) -> list[Any]:
+        return self.do("on_uplink", plan.envelope(TOKEN))
+
+    def status(self, text: str) -> list[Any]:
+        return self.do("on_status", text)
+
+    def steps(self) -> list[SendStep]:
+        return [a for a in self.actions if isinstance(a, SendStep)]
+
+    def acks(self) -> list[Any]:
+        return [a.ack for a in self.actions if isinstance(a, SendAck)]
+
+    def reports(self) -> list[Any]:
+        return [a.report for a in self.actions if isinstance(a, SendReport)]
+
+    def drive(self, plan: PlanUplink, upto: int) -> None:
+        """Run ``plan``'s steps to ``upto`` completed, on the predicted path."""
+        for k in range(upto):
+            self.status("accepted")
+            start = self.t
+            for i in range(1, 21):
+                self.at(start + 0.1 * i)
+                self.do("on_estimate", _est(self.t, k + 0.05 * i))
+            self.status("completed")
+
+
+def test_a_plan_runs_back_to_back_and_ends_completed_with_a_rest_report() -> None:
+    r = Rover()
+    plan = _plan()
+    out = r.uplink(plan)
+    assert [a.ack.result for a in out if isinstance(a, SendAck)] == ["accepted"]
+    assert [(s.plan_id, s.index) for s in r.steps()] == [(10, 0)]
+    r.drive(plan, 3)
+    assert [s.index for s in r.steps()] == [0, 1, 2]
+    assert not any(isinstance(a, SendStop) for a in r.actions)
+    last = r.reports()[-1]
+    assert last.state == "completed" and last.outcome == "completed"
+    # at rest: wheels still for rest_hold_s
+    for _ in range(4):
+        r.at(r.t + 0.1)
+        r.do("on_estimate", _est(r.t, 3.0, v=0.0))
+    rest = r.reports()[-1].rest
+    assert rest is not None and rest.at_rest and rest.pose.x == pytest.approx(3.0)
+    assert len(rest.covariance) == 9
+
+
+def test_copies_are_duplicates_and_run_nothing_again() -> None:
+    r = Rover()
+    plan = _plan()
+    r.uplink(plan)
+    r.at(0.5)
+    r.uplink(plan)
+    r.drive(plan, 3)
+    r.uplink(plan)
+    assert [a.result for a in r.acks()] == ["accepted", "duplicate", "duplicate"]
+    assert r.acks()[-1].state == "completed"
+    assert [s.index for s in r.steps()] == [0, 1, 2]
+
+
+def test_stale_and_replayed_plans_are_refused_with_a_reason_and_drive_nothing() -> None:
+    r = Rover()
+    r.uplink(_plan(10, 1))
+    r.drive(_plan(10, 1), 1)
+    before = len(r.steps())
+    out = r.uplink(_plan(9, 1))
+    assert r.acks()[-1].result == "refused" and r.acks()[-1].reason == "stale"
+    assert [a.text for a in out if isinstance(a, SayStatus)] == ["plan_refused:stale:9"]
+    floor = Rover(min_plan_id=100)
+    floor.uplink(_plan(50, 1))
+    assert floor.acks()[-1].reason == "stale"
+    assert len(r.steps()) == before and floor.steps() == []
+
+
+def test_a_plan_while_another_runs_is_busy_until_that_one_is_cancelled() -> None:
+    r = Rover()
+    r.uplink(_plan(10))
+    r.status("accepted")
+    r.uplink(_plan(11))
+    assert r.acks()[-1].reason == "busy"
+    out = r.uplink(CancelUplink(10))
+    assert isinstance(out[0], SendStop)  # the running step is stopped first
+    assert r.acks()[-1].result == "cancelled" and r.acks()[-1].state == "stopped"
+    r.status("stopped")
+    r.uplink(_plan(10))  # a late copy of the cancelled plan: a duplicate, nothing runs
+    assert r.acks()[-1].result == "duplicate"
+    r.uplink(_plan(11))
+    assert r.acks()[-1].result == "accepted" and r.acks()[-1].state == "armed"
+    assert [s.plan_id for s in r.steps()] == [10]  # armed: the latch holds
+    r.status("cleared")
+    assert [s.plan_id for s in r.steps()] == [10, 11]
+    r.uplink(CancelUplink(5))
+    assert r.core.active  # a cancel of older plans leaves the running one
+
+
+def test_a_plan_cancelled_before_it_arrives_is_refused() -> None:
+    r = Rover()
+    r.uplink(CancelUplink(20))
+    r.uplink(_plan(15))
+    assert r.acks()[-1].reason == "cancelled" and r.steps() == []
+
+
+def test_an_armed_plan_gives_up_when_the_latch_is_not_released() -> None:
+    r = Rover(arm_timeout_s=5.0, report_period_s=60.0)
+    r.status("stopped")
+    r.uplink(_plan())
+    assert r.core.next_deadline(r.t) == pytest.approx(5.0)
+    r.at(5.0)
+    r.do("tick")
+    assert r.reports()[-1].state == "failed" and "latch" in r.reports()[-1].reason
+    r.status("cleared")
+    assert r.steps() == []
+
+
+def test_the_guard_stops_at_the_limit_and_reports_where_and_at_rest() -> None:
+    r = Rover(persistence=3)
+    plan = _plan()
+    r.uplink(plan)
+    r.status("accepted")
+    # step 0: sliding sideways, 0.1 m more each 0.1 s
+    stop_at = None
+    for i in range(1, 10):
+        r.at(0.1 * i)
+        out = r.do("on_estimate", _est(r.t, 0.05 * i, 0.1 * i))
+        if out and isinstance(out[0], SendStop):
+            stop_at = i
+            break
+    # over the limit (0.25 m) from 0.3 m on: 3 estimates persist at i = 5
+    assert stop_at == 5
+    report = r.reports()[-1]
+    assert report.outcome == "guard" and report.state == "stopped"
+    assert report.guard is not None and report.guard.step == 0
+    assert report.guard.linear_m == pytest.approx(math.hypot(0.0, 0.5), abs=1e-6)
+    assert "drift in step 1" in report.reason
+    r.status("aborted:stop")
+    r.status("stopped")
+    assert [s.index for s in r.steps()] == [0]  # the rest of the plan is dropped
+    r.do("on_ground_stop")  # its own STOP heard back: nothing more
+    for _ in range(4):
+        r.at(r.t + 0.1)
+        r.do("on_estimate", _est(r.t, 0.27, 0.55, v=0.0))
+    rest = r.reports()[-1].rest
+    assert rest is not None and rest.moved_m == pytest.approx(math.hypot(0.02, 0.05), abs=1e-6)
+    assert rest.time_to_rest_s == pytest.approx(0.1, abs=1e-6)
+
+
+def test_one_estimate_over_the_limit_does_not_stop() -> None:
+    r = Rover(persistence=3)
+    r.uplink(_plan())
+    r.status("accepted")
+    for i, y in enumerate((0.0, 0.4, 0.4, 0.0, 0.4, 0.0), 1):
+        r.at(0.1 * i)
+        r.do("on_estimate", _est(r.t, 0.05 * i, y))
+    assert not any(isinstance(a, SendStop) for a in r.actions)
+
+
+def test_the_ground_stop_ends_the_plan_and_nothing_more_is_sent() -> None:
+    r = Rover()
+    r.uplink(_plan())
+    r.status("accepted")
+    r.at(0.5)
+    out = r.do("on_ground_stop")
+    assert not any(isinstance(a, SendStop) for a in out)  # the bridge has it already
+    assert r.reports()[-1].outcome == "ground_stop"
+    r.status("aborted:stop")
+    r.status("completed")
+    assert len(r.steps()) == 1
+
+
+@pytest.mark.parametrize(
+    "status", ["aborted:link_lost", "rejected:stop_latched", "fault:stall_left"]
+)
+def test_a_failed_step_ends_the_plan_with_stop(status: str) -> None:
+    r = Rover()
+    r.uplink(_plan())
+    r.status("accepted")
+    out = r.status(status)
+    assert isinstance(out[0], SendStop)
+    assert r.reports()[-1].outcome == "failed" and status in r.reports()[-1].reason
+    assert len(r.steps()) == 1
+
+
+def test_a_lost_sensor_does_not_end_the_plan() -> None:
+    r = Rover()
+    plan = _plan()
+    r.uplink(plan)
+    r.status("accepted")
+    r.status("fault:pose")
+    assert r.core.active and r.reports()[-1].status == "fault:pose"
+
+
+def test_a_step_without_completed_times_out_and_no_estimate_is_blind() -> None:
+    r = Rover(step_margin_s=1.0, blind_s=10.0, report_period_s=60.0)
+    r.uplink(_plan())
+    r.status("accepted")
+    assert r.core.next_deadline(0.0) == pytest.approx(1.5 * 2.0 + 1.0)
+    r.at(4.0)
+    out = r.do("tick")
+    assert isinstance(out[0], SendStop) and r.reports()[-1].outcome == "failed"
+    blind = Rover(blind_s=0.5)
+    blind.uplink(_plan())
+    blind.at(0.5)
+    out = blind.do("tick")
+    assert isinstance(out[0], SendStop) and blind.reports()[-1].outcome == "blind"
+
+
+def test_bad_uplinks_are_refused_and_the_status_says_why() -> None:
+    r = Rover()
+    r.do("on_uplink", "garbage")
+    r.do("on_uplink", _plan().envelope("wrong token"))
+    r.do("on_uplink", _plan().envelope(None))
+    assert [(a.result, a.reason) for a in r.acks()] == [
+        ("refused", "malformed"),
+        ("refused", "bad_tag"),
+        ("refused", "unauthenticated"),
+    ]
+    says = [a.text for a in r.actions if isinstance(a, SayStatus)]
+    assert says == [
+        "plan_refused:malformed:0",
+        "plan_refused:bad_tag:10",
+        "plan_refused:unauthenticated:10",
+    ]
+    assert r.steps() == [] and r.core.counts["refused"] == 3
+    r.uplink(_plan())  # and the genuine one still runs
+    assert len(r.steps()) == 1
+
+
+def test_the_latest_report_goes_out_again_every_period() -> None:
+    r = Rover(report_period_s=1.0, blind_s=5.0)
+    r.uplink(_plan())
+    n = len(r.reports())
+    assert r.core.next_deadline(0.0) == pytest.approx(1.0)
+    r.at(1.0)
+    r.do("tick")
+    assert len(r.reports()) == n + 1 and r.reports()[-1].event == "periodic"
+    assert r.reports()[-1].seq > r.reports()[-2].seq
+
+
+def test_the_guard_aligns_each_step_on_its_own_start() -> None:
+    r = Rover()
+    plan = _plan()
+    r.uplink(plan)
+    r.status("accepted")
+    r.at(2.0)
+    r.status("completed")
+    r.at(2.7)  # step 1 accepted late: its prediction starts then, not at 2.0
+    r.status("accepted")
+    aligned = r.core.predicted_at(3.7)
+    assert aligned is not None
+    assert aligned[1] == 1 and aligned[2].x == pytest.approx(1.5)
+    assert r.core.predicted_at(1.0) is not None and r.core.predicted_at(1.0)[1] == 0  # type: ignore[index]
+
+
+def test_the_package_exports_are_pinned() -> None:
+    import bridge.onboard
+
+    assert bridge.onboard.__all__ == [
+        "Action",
+        "EkfConfig",
+        "Estimate",
+        "OnboardConfig",
+        "OnboardCore",
+        "PlanState",
+        "PoseEkf",
+        "SayStatus",
+        "SendAck",
+        "SendReport",
+        "SendStep",
+        "SendStop",
+    ]
