@@ -29,6 +29,7 @@ SLOW_MODULES = (
     "tests/bridge/test_link_rules.py",
     "tests/bridge/test_linklines.py",
     "tests/bridge/test_node.py",
+    "tests/bridge/test_onboard_mission.py",
     "tests/bridge/test_port.py",
     "tests/bridge/test_process_port.py",
     "tests/bridge/test_rclpy_backend.py",

@@ -1,0 +1,166 @@
+"""``rover onboard``: the rover's onboard sequencer and drift guard, beside the bridge
+(docs/onboard.md).
+
+Also the ``rover_onboard`` console script that ``ros2 run`` and launch files start
+(:func:`main`), which accepts ``--ros-args ...`` (its ``-p name:=value`` stand for the
+long options: ``time_scale`` -> ``--time-scale``).
+
+It prints ``ONBOARD <namespace> <backend>`` once its ROS 2 node is up, and one line per
+plan: taken, ended (how and why), the guard's STOP. SIGINT and SIGTERM (or
+``--duration``) end it: a plan still running is stopped first (STOP on
+``emergency_stop``), then the node and the ROS context are closed. Exit status 0, 2 on
+a usage error, 1 when ROS 2 is missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
+
+__all__ = ["ENV_TOKEN", "ENV_TOKEN_FALLBACK", "add_arguments", "main", "register", "run"]
+
+ENV_TOKEN = "ROVER_UPLINK_TOKEN"
+"""The stack's token for uplinks (docs/onboard.md, "The uplink")."""
+ENV_TOKEN_FALLBACK = "ROVER_GATE_TOKEN"
+"""Used when :data:`ENV_TOKEN` is not set: the token the stack gives its gate."""
+DEFAULT_PRIORITY = 20
+"""Real-time priority, as the bridge's: the guard's STOP must not wait for the CPU."""
+REPLAY_WINDOW_S = 600.0
+"""Plan ids (the ground's milliseconds) older than this before the program started are
+stale: an uplink recorded before a restart is not run."""
+
+
+def token_from_env(env: dict[str, str] | None = None) -> str | None:
+    """The stack's uplink token from the environment (``None``: none configured)."""
+    env = dict(os.environ) if env is None else env
+    return env.get(ENV_TOKEN) or env.get(ENV_TOKEN_FALLBACK) or None
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The program's options."""
+    p.add_argument("--namespace", default="", help="ROS namespace: the bridge's (default '')")
+    p.add_argument(
+        "--ros-backend",
+        choices=("rclpy", "inprocess"),
+        default="rclpy",
+        help="ROS port backend: rclpy (ROS 2, the default) or inprocess (tests only)",
+    )
+    p.add_argument(
+        "--token",
+        default=None,
+        help=f"uplink token: uplinks must carry its tag (default ${ENV_TOKEN}, else "
+        f"${ENV_TOKEN_FALLBACK}; none: tags are not checked)",
+    )
+    p.add_argument(
+        "--time-scale",
+        type=float,
+        default=1.0,
+        help="twin seconds per rover second: the emulator's --speed-factor (default 1)",
+    )
+    p.add_argument("--rover", default=None, help="rover description TOML (default: packaged)")
+    p.add_argument(
+        "--persistence",
+        type=int,
+        default=3,
+        help="consecutive estimates past a limit before the guard stops (default 3)",
+    )
+    p.add_argument(
+        "--duration", type=float, default=0.0, help="exit after SECONDS; 0 runs until stopped"
+    )
+    add_runtime_arguments(p, DEFAULT_PRIORITY)
+
+
+def register(subparsers: Any) -> None:
+    """Add ``rover onboard``."""
+    p = subparsers.add_parser(
+        "onboard",
+        help="run the rover's onboard sequencer and drift guard beside the bridge",
+        description=(
+            "Take approved plans from plan_uplink (checked: format, ranges, the stack's "
+            "token, the prediction against the steps, ids never run twice), run their steps "
+            "back to back on wheel_instructions, estimate the pose (EKF of odom and "
+            "odom_ground) and stop the rover on emergency_stop when it drifts 0.25 m or 12 "
+            "deg off the prediction. Answers on plan_ack, reports on onboard_report, the "
+            "estimate on onboard_pose (docs/onboard.md). Prints 'ONBOARD <namespace> "
+            "<backend>' when up."
+        ),
+    )
+    add_arguments(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run until SIGINT/SIGTERM (or ``--duration``)."""
+    from bridge.errors import RosPortError
+    from bridge.onboard.core import OnboardConfig
+    from bridge.onboard.node import OnboardNode
+    from bridge.ros.rosport import open_port
+    from firmware_proto.model.rover import load_rover
+    from firmware_proto.runtime import ProcessRuntime, ShutdownSignals
+    from firmware_proto.runtime.realtime import (
+        RealtimeConfig,
+        apply_realtime_to_process,
+        leave_realtime_for_process,
+    )
+
+    if not args.time_scale > 0 or args.persistence < 1:
+        print("rover onboard: error: --time-scale must be > 0, --persistence >= 1", file=sys.stderr)
+        return 2
+    rover = load_rover(args.rover)
+    config = OnboardConfig(
+        token=args.token if args.token is not None else token_from_env(),
+        min_plan_id=int((time.time() - REPLAY_WINDOW_S) * 1000),
+        time_scale=args.time_scale,
+        persistence=args.persistence,
+    )
+    options = runtime_options(args, "onboard", DEFAULT_PRIORITY)
+    priority = options.priority
+    # The node starts at normal priority (rclpy's and DDS's start is heavy CPU work that
+    # must not hold a core above the kernel's workers), then every thread is promoted.
+    with ShutdownSignals() as done, ProcessRuntime(_normal(options)) as runtime:
+        try:
+            port = open_port(args.ros_backend, namespace=args.namespace, node_name="rover_onboard")
+        except RosPortError as exc:
+            print(f"rover onboard: error: {exc}", file=sys.stderr)
+            return 1
+        with port, OnboardNode(port, rover, config) as node:
+            status = apply_realtime_to_process(RealtimeConfig(priority))
+            print(f"onboard: {status.line()}", file=sys.stderr)
+            auth = "uplinks must be signed" if config.token else "no token: tags not checked"
+            print(f"ONBOARD {port.namespace} {args.ros_backend} ({auth})", flush=True)
+            done.wait(args.duration if args.duration > 0 else None)
+            leave_realtime_for_process()
+            runtime.wind_down()
+            if node.core.active:
+                node.stop_now("the onboard program is ending")
+        counts = ", ".join(f"{k} {v}" for k, v in node.core.counts.items())
+        print(f"onboard: {counts}", file=sys.stderr)
+    return 0
+
+
+def _normal(options: Any) -> Any:
+    from dataclasses import replace
+
+    return replace(options, priority=0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``rover_onboard`` for ``ros2 run`` and launch files: the options of ``rover
+    onboard``, then optionally ``--ros-args``."""
+    from firmware_proto.cli.program import ros_main
+
+    parser = argparse.ArgumentParser(
+        prog="rover_onboard", description="The rover's onboard sequencer and drift guard."
+    )
+    add_arguments(parser)
+    return ros_main(parser, run, argv)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

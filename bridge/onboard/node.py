@@ -1,0 +1,297 @@
+"""The onboard program's ROS 2 shell around :class:`~bridge.onboard.core.OnboardCore` and
+:class:`~bridge.onboard.ekf.PoseEkf` (``rover onboard``, docs/onboard.md).
+
+It runs beside the bridge on the rover's computer and talks to it through the bridge's
+unchanged contract: steps out on ``wheel_instructions``, the guard's STOP on
+``emergency_stop`` (the bridge's STOP lane), the steps' fates in on ``command_status``,
+the rover's motion in on ``odom`` and ``odom_ground``. To the ground: ``plan_uplink`` in,
+``plan_ack``, ``onboard_report`` and ``onboard_pose`` out (topic names in
+:mod:`bridge.ros.rosport.contract`).
+
+Threads (besides the ROS port's own, docs/architecture.md):
+
+- the port's default lane runs the callbacks of ``plan_uplink``, ``command_status``,
+  ``odom`` and ``odom_ground``; its STOP lane the ``emergency_stop`` callback, so the
+  ground's STOP never waits behind a pose. Each callback feeds the core under one lock
+  and publishes what the core decided, STOP first, from the same thread: a drift STOP
+  leaves in the callback of the estimate that confirmed it;
+- ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline (step timeouts,
+  the armed wait, blindness, rest, the periodic report), at least every
+  :data:`TICK_MAX_S`, and beats the stall monitor.
+
+The core's clock is ROS time (the system clock, s), the clock the bridge stamps its poses
+with. Not a ROS node class of rclpy: the port is the seam (docs/rosport.md), so the same
+node runs on ``inprocess`` in the tests.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from bridge.onboard.core import (
+    Action,
+    OnboardConfig,
+    OnboardCore,
+    SayStatus,
+    SendAck,
+    SendReport,
+    SendStep,
+    SendStop,
+)
+from bridge.onboard.ekf import EkfConfig, Estimate, PoseEkf
+from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
+from bridge.ros.rosport.contract import (
+    COMMAND_STATUS,
+    EMERGENCY_STOP,
+    ONBOARD_POSE,
+    ONBOARD_REPORT,
+    PLAN_ACK,
+    PLAN_UPLINK,
+    WHEEL_INSTRUCTIONS,
+)
+from bridge.ros.rosport.msgs import (
+    Bool,
+    Header,
+    Int16MultiArray,
+    Odometry,
+    Point,
+    Pose,
+    PoseWithCovariance,
+    String,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+    quaternion_from_yaw,
+    stamp,
+    stamp_s,
+    yaw_rad,
+)
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.runtime import stall
+
+__all__ = ["TICK_MAX_S", "OnboardNode"]
+
+logger = logging.getLogger(__name__)
+
+TICK_MAX_S = 0.05
+"""The timer thread runs the core at least this often, s."""
+
+
+def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """x, y, yaw of a 6x6 pose covariance (row-major), as a 3x3."""
+    c = msg.pose.covariance
+    return np.array([[c[0], c[1], c[5]], [c[6], c[7], c[11]], [c[30], c[31], c[35]]], dtype=float)
+
+
+class OnboardNode:
+    """The onboard program on a ROS port (see the module docstring); a context manager.
+
+    Args:
+        port: the ROS port, in the rover's namespace (the bridge's).
+        rover: the rover description (its limits bound the uplink's).
+        config: the core's settings (token, time scale, ...).
+        map_frame: ``onboard_pose``'s frame id.
+    """
+
+    def __init__(
+        self,
+        port: RosPort,
+        rover: RoverDescription,
+        config: OnboardConfig | None = None,
+        *,
+        ekf: EkfConfig | None = None,
+        map_frame: str = "map",
+    ) -> None:
+        self.port = port
+        self.core = OnboardCore(rover, config)
+        self.ekf = PoseEkf(ekf)
+        self.map_frame = map_frame
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._closed = False
+        self.published_stops = 0
+        self._steps = port.publisher(WHEEL_INSTRUCTIONS, Int16MultiArray, qos.COMMAND)
+        self._stop = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
+        self._ack = port.publisher(PLAN_ACK, String, qos.STATUS)
+        self._report = port.publisher(ONBOARD_REPORT, String, qos.STATUS)
+        self._status = port.publisher(COMMAND_STATUS, String, qos.STATUS)
+        self._pose = port.publisher(ONBOARD_POSE, Odometry, qos.TELEMETRY)
+        self._subs: list[Subscription[Any]] = [
+            port.subscribe(EMERGENCY_STOP, Bool, self._on_stop, qos.STOP, lane=STOP_LANE),
+            port.subscribe(PLAN_UPLINK, String, self._on_uplink, qos.COMMAND),
+            port.subscribe(COMMAND_STATUS, String, self._on_status, qos.STATUS),
+            # odom_ground before odom: a backlog read late takes the POSE first
+            port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR),
+            port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR),
+        ]
+        self._thread = threading.Thread(target=self._timer, name="onboard-timer", daemon=True)
+
+    def start(self) -> OnboardNode:
+        """Start the timer thread."""
+        self._thread.start()
+        return self
+
+    def wait_for_bridge(self, timeout_s: float = 10.0) -> bool:
+        """Wait until the steps and the STOP reach a subscriber (the bridge)."""
+        deadline = time.monotonic() + timeout_s
+        return all(
+            pub.wait_for_subscribers(1, max(0.0, deadline - time.monotonic()))
+            for pub in (self._steps, self._stop)
+        )
+
+    # -- inputs (the port's lanes) -------------------------------------------------------------
+    def _feed(self, fn: str, *args: Any) -> None:
+        now = time.time()
+        with self._lock:
+            getattr(self.core, fn)(*args, now)
+            actions = self.core.take_actions()
+            self._wake.notify()
+        self._act(actions)
+
+    def _on_stop(self, msg: Bool) -> None:
+        if msg.data:
+            self._feed("on_ground_stop")
+
+    def _on_uplink(self, msg: String) -> None:
+        self._feed("on_uplink", msg.data)
+
+    def _on_status(self, msg: String) -> None:
+        self._feed("on_status", msg.data)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        p = msg.pose.pose
+        t = msg.twist.twist
+        with self._lock:
+            self.ekf.predict(
+                stamp_s(msg.header.stamp),
+                p.position.x,
+                p.position.y,
+                yaw_rad(p.orientation),
+                t.linear.x,
+                t.angular.z,
+            )
+        self._estimated()
+
+    def _on_ground(self, msg: Odometry) -> None:
+        p = msg.pose.pose
+        with self._lock:
+            self.ekf.correct(
+                stamp_s(msg.header.stamp),
+                p.position.x,
+                p.position.y,
+                yaw_rad(p.orientation),
+                _cov3(msg),
+            )
+        self._estimated()
+
+    def _estimated(self) -> None:
+        now = time.time()
+        with self._lock:
+            estimate = self.ekf.estimate()
+            if estimate is None:
+                return
+            self.core.on_estimate(estimate, now)
+            actions = self.core.take_actions()
+            self._wake.notify()
+        self._act(actions)
+        self._pose.publish(self._odometry(estimate))
+
+    def _odometry(self, est: Estimate) -> Odometry:
+        c = est.covariance
+        cov = [0.0] * 36
+        for i, ri in enumerate((0, 1, 5)):
+            for j, rj in enumerate((0, 1, 5)):
+                cov[ri * 6 + rj] = c[i * 3 + j]
+        return Odometry(
+            header=Header(stamp=stamp(est.stamp_s), frame_id=self.map_frame),
+            child_frame_id="base_link",
+            pose=PoseWithCovariance(
+                pose=Pose(
+                    position=Point(x=est.x_m, y=est.y_m, z=0.0),
+                    orientation=quaternion_from_yaw(math.radians(est.yaw_deg)),
+                ),
+                covariance=cov,
+            ),
+            twist=TwistWithCovariance(
+                twist=Twist(linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s))
+            ),
+        )
+
+    # -- outputs -------------------------------------------------------------------------------
+    def _act(self, actions: list[Action]) -> None:
+        """Publish what the core decided (its STOPs come first)."""
+        for action in actions:
+            try:
+                if isinstance(action, SendStop):
+                    self._stop.publish(Bool(data=True))
+                    self.published_stops += 1
+                    logger.warning("STOP: %s", action.reason)
+                elif isinstance(action, SendStep):
+                    self._steps.publish(Int16MultiArray(data=list(action.step)))
+                elif isinstance(action, SendAck):
+                    self._ack.publish(String(data=action.ack.to_json()))
+                elif isinstance(action, SayStatus):
+                    self._status.publish(String(data=action.text))
+                elif isinstance(action, SendReport):
+                    self._report.publish(String(data=action.report.to_json()))
+            except Exception:
+                # A port closed while the program ends; anything else is logged and the
+                # program goes on (its next report tells the ground).
+                logger.exception("could not publish %s", type(action).__name__)
+
+    def stop_now(self, reason: str) -> None:
+        """End the plan armed or running (STOP when it runs): the program is ending."""
+        self._feed("shutdown", reason)
+
+    # -- the timer -----------------------------------------------------------------------------
+    def _timer(self) -> None:
+        beat = stall.watch("onboard-timer")
+        try:
+            while True:
+                with self._lock:
+                    now = time.time()
+                    due = self.core.next_deadline(now)
+                    wait = min(TICK_MAX_S, max(0.0, due - now))
+                    if wait > 0:
+                        self._wake.wait(wait)
+                    if self._closed:
+                        return
+                    now = time.time()
+                    actions: list[Action] = []
+                    if now >= self.core.next_deadline(now):
+                        self.core.tick(now)
+                        actions = self.core.take_actions()
+                beat.tick()
+                self._act(actions)
+        finally:
+            stall.forget(beat)
+
+    def close(self) -> None:
+        """Stop the timer and unsubscribe (idempotent). The port is the caller's."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._wake.notify_all()
+        for sub in self._subs:
+            sub.close()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> OnboardNode:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
