@@ -15,6 +15,7 @@ __all__ = ["TARGETS", "target_class"]
 
 TARGETS: dict[str, str] = {
     "microbit": "emulator.pil.qemu:MicrobitTarget",
+    "atmega2560": "emulator.pil.avr:AvrTarget",
 }
 """Target name -> ``module:Class``."""
 

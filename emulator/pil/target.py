@@ -28,6 +28,7 @@ from emulator.injection import FaultSpec, InjectionRecord, ScheduledFault, parse
 from emulator.pil.errors import PilError
 from emulator.pil.images import Image
 from emulator.pil.view import PortStats, PortView
+from firmware_proto.wire.messages import FaultCode
 
 __all__ = ["PilTarget"]
 
@@ -157,6 +158,7 @@ class PilTarget(ABC):
             self._remember(spec)
             record = InjectionRecord(self.time_s(), str(spec), source)
             self._log.append(record)
+        self._settle(spec)
         logger.warning("%s", record.line())
         self._say(record.line())
         return record
@@ -186,6 +188,29 @@ class PilTarget(ABC):
             )
         if spec.kind == "slip" and spec.value is not None and not 0.0 < spec.value <= 1.0:
             raise InjectionError(f"{spec}: slip scale must be in (0, 1]")
+
+    def _settle(self, spec: FaultSpec) -> None:
+        """Return once the firmware has taken an encoder dropout or its end (its ENCODER
+        fault bit follows the error line at its next tick), as the emulator's ``inject``
+        returns once the controller has acted: a host that sends CLEAR_STOP right after
+        ``inject clear:encoder-dropout`` is then judged on the condition gone.
+
+        Raises:
+            PilError: the firmware did not follow within 2 s of wall time.
+        """
+        kind = spec.target if spec.kind == "clear" else spec.kind
+        if kind != "encoder-dropout":
+            return
+        want = any(key[0] == "encoder-dropout" for key in self._in_force)
+        bit = 1 << (FaultCode.ENCODER.value - 1)
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            with self._lock:
+                view, _stats = self._read_port()
+            if bool(view.faults & bit) == want:
+                return
+            time.sleep(0.001)
+        raise PilError(f"the firmware did not follow {spec} within 2 s")
 
     @abstractmethod
     def _apply(self, spec: FaultSpec) -> None:

@@ -13,7 +13,7 @@ import pytest
 
 from .pil_helpers import pil_process, rover
 
-TARGETS = ["microbit"]
+TARGETS = ["microbit", "atmega2560"]
 
 
 def _control(address: str, *commands: str) -> list[dict[str, Any]]:

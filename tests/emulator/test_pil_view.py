@@ -55,5 +55,5 @@ def test_hooks_carry_stall_dropout_and_slip_per_mille() -> None:
 
 
 def test_an_unknown_target_names_the_known_ones() -> None:
-    with pytest.raises(PilError, match="known: microbit"):
+    with pytest.raises(PilError, match="known: microbit, atmega2560"):
         target_class("pdp11")

@@ -20,3 +20,20 @@ void pil_view_update(const fw_t *c, int32_t speed_left_um_s, int32_t speed_right
     pil_view.faults = c->faults;
     pil_view.queue_depth = fw_queue_depth(c);
 }
+
+void pil_sensors_copy(pil_sensors_t *out, const volatile pil_sensors_t *in)
+{
+    uint8_t tries;
+    for (tries = 0u; tries < 8u; tries++) {
+        const volatile uint8_t *src = (const volatile uint8_t *)in;
+        uint8_t *dst = (uint8_t *)out;
+        const uint8_t seq = in->seq;
+        size_t i;
+        for (i = 0u; i < sizeof *out; i++) {
+            dst[i] = src[i];
+        }
+        if (in->seq == seq) {
+            return;
+        }
+    }
+}

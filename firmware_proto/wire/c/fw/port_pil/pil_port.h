@@ -52,8 +52,36 @@ typedef struct {
     uint8_t reserved[2];
 } pil_view_t;
 
+/**
+ * The sensors of a port whose plant is outside the MCU (the ATmega2560 under simavr, the
+ * twin in the harness): the count registers of an external quadrature decoder and its
+ * error line, the measured wheel speeds, the latest IMU sample and the latest pose fix,
+ * as the harness posts them. Its layout is the same on every target (no padding).
+ *
+ * The harness changes it between two instructions and adds 1 to `seq` each time; a port
+ * copies it whole and copies again while `seq` moved (pil_sensors_copy), so that no
+ * multi-byte field is read half old, half new.
+ */
+typedef struct {
+    uint8_t seq;           /**< +1 per update by the harness */
+    uint8_t encoder_error; /**< the decoder's error line per side: bit 0 left, bit 1 right */
+    uint8_t imu_valid;     /**< 1: imu[] is a sample; 0: no IMU (a dropout) */
+    uint8_t pose_seq;      /**< +1 per new pose fix */
+    int32_t enc[2];        /**< encoder counts, motor frame, wrapping */
+    int32_t speed_um_s[2]; /**< measured wheel speeds, motor frame, um/s */
+    int16_t imu[3];        /**< yaw rate mrad/s, accel x and y mm/s^2 */
+    uint8_t pose_sigma_cm; /**< 0: no fix */
+    uint8_t reserved;
+    int32_t pose_x_mm, pose_y_mm;
+    int16_t pose_yaw_ddeg;
+    uint32_t pose_age_us;  /**< how long ago the fix was taken, when posted */
+} pil_sensors_t;
+
 extern volatile pil_stats_t pil_stats;
 extern volatile pil_view_t pil_view;
+
+/** A consistent copy of a harness-posted pil_sensors_t (retries while it changes). */
+void pil_sensors_copy(pil_sensors_t *out, const volatile pil_sensors_t *in);
 
 /** Copy what the runner shows from the core (after each tick): pil_view. */
 void pil_view_update(const fw_t *c, int32_t speed_left_um_s, int32_t speed_right_um_s);
