@@ -46,7 +46,9 @@ SLOW_MODULES = (
     "tests/emulator/test_firmware.py",
     "tests/emulator/test_late.py",
     "tests/emulator/test_pil.py",
+    "tests/emulator/test_pil_demo.py",
     "tests/emulator/test_pil_images.py",
+    "tests/emulator/test_pil_lockstep.py",
     "tests/emulator/test_served.py",
     "tests/firmware_proto/test_c_codec.py",
     "tests/firmware_proto/test_cli.py",
@@ -81,6 +83,7 @@ VIRTUAL_MODULES = (
     "tests/emulator/test_calibration.py",  # lockstep recordings; a gate on port 0
     "tests/firmware_proto/test_c_codec.py",  # compilers, then vectors
     "tests/emulator/test_pil_images.py",  # cross builds of the PIL images, a layout check
+    "tests/emulator/test_pil_lockstep.py",  # the ATmega2560 and its twin on a lockstep clock
     "tests/firmware_proto/test_fw.py",  # cross builds, simavr and qemu-arm run to the end
     "tests/firmware_proto/test_libfuzzer.py",  # a fixed count of runs, not a duration
     "tests/test_lanes.py",  # collections

@@ -25,6 +25,7 @@ from __future__ import annotations
 import ctypes
 import errno
 import hashlib
+import itertools
 import logging
 import os
 import random
@@ -43,12 +44,24 @@ from emulator.pil.target import PilTarget
 from emulator.pil.view import STATS, VIEW, PortStats, PortView
 from emulator.twin import Pose2D, Twin
 from firmware_proto.linkio.clock import LockstepClock
-from firmware_proto.linkio.memory import MemoryPort
+from firmware_proto.linkio.endpoint import HOST, Endpoint
+from firmware_proto.linkio.memory import MemoryPort, memory_line
 from firmware_proto.linkio.ptypair import PtyPair
+from firmware_proto.linkio.serial_endpoint import SerialEndpoint
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.model.worldmap import load_map
+from firmware_proto.wire.messages import FaultCode
 
-__all__ = ["F_CPU_HZ", "AvrLockstep", "AvrMcu", "AvrSystem", "AvrTarget", "build_harness"]
+__all__ = [
+    "F_CPU_HZ",
+    "AvrLockstep",
+    "AvrMcu",
+    "AvrSystem",
+    "AvrTarget",
+    "avr_lockstep_pair",
+    "build_harness",
+    "make_system",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -63,6 +76,7 @@ _GPIOR1 = 0x4A
 _PH5, _PH6 = 5, 6
 _OUT_CAP = 65536
 _STATES = {7: "done", 8: "crashed"}
+_lines = itertools.count()
 
 
 def build_harness(timeout_s: float = 120.0) -> Path:
@@ -276,15 +290,17 @@ class AvrSystem:
 def make_system(
     image: Image,
     *,
-    map_name: str = "lab",
+    map_name: str | None = "lab",
     rover: RoverDescription | None = None,
     seed: int = 1,
     dt_s: float = 0.001,
     start: Pose2D | None = None,
 ) -> AvrSystem:
-    """An :class:`AvrSystem` on the twin ``rover emulate`` builds for ``map_name``."""
+    """An :class:`AvrSystem` on the twin ``rover emulate`` builds for ``map_name`` (``None``:
+    an open plane)."""
     rover = rover or load_rover()
-    twin = Twin(rover, load_map(map_name), dt_s=dt_s, start=start)
+    world = load_map(map_name) if map_name is not None else None
+    twin = Twin(rover, world, dt_s=dt_s, start=start)
     return AvrSystem(image, TwinPlant(rover, twin, seed=seed), seed=seed)
 
 
@@ -411,10 +427,13 @@ class AvrLockstep:
         self._opened = False
         self.ticks = 0
 
-    def open(self) -> AvrLockstep:
-        """Tick from now on."""
+    def open(self, boot_s: float = 0.05) -> AvrLockstep:
+        """Tick from now on, and run ``boot_s`` of it: the MCU has booted (its USART takes
+        bytes, its IDENT is out) when the host starts, as the emulator's controller has
+        (a USART whose receiver is not yet enabled drops what arrives, as on silicon)."""
         self._opened = True
         self.clock.add(self.tick)
+        self.clock.advance(max(0, round(boot_s / self.clock.dt_s)))
         return self
 
     def close(self) -> None:
@@ -439,9 +458,33 @@ class AvrLockstep:
         """The control port's ``inject`` (reboot, stall, slip, encoder-dropout, clear:)."""
         spec = parse_fault(fault)
         apply_fault(self.system, spec)
+        kind = spec.target if spec.kind == "clear" else spec.kind
+        if kind == "encoder-dropout":
+            # Answer once the firmware has taken it (its next tick), as the real-time
+            # target does (PilTarget._settle).
+            want = any(self.system.plant.encoders.dropout)
+            bit = 1 << (FaultCode.ENCODER.value - 1)
+            for _ in range(1000):
+                if bool(self.system.view()[0].faults & bit) == want:
+                    break
+                self.clock.advance(1)
+            else:
+                raise PilError(f"the firmware did not follow {fault} within 1 s")
         return {"ok": True, "fault": fault, "t": round(self.system.plant.twin.time_s, 6)}
 
     @property
     def digest(self) -> str:
         """SHA-256 of the wire traffic so far, both directions, with their ticks."""
         return self._hash.hexdigest()
+
+
+def avr_lockstep_pair(
+    system: AvrSystem,
+) -> tuple[AvrLockstep, Endpoint, LockstepClock]:
+    """``system`` in lockstep on an in-memory serial line: ``(the MCU's side, the host's
+    endpoint, the clock)``. Open the first, then a ``ProtocolHost`` on the endpoint and
+    the clock."""
+    clock = LockstepClock(system.plant.twin.dt_s)
+    host_port, mcu_port = memory_line(f"pil-avr-{next(_lines)}")
+    host_end = SerialEndpoint(HOST, lambda: host_port, name=host_port.name)
+    return AvrLockstep(system, mcu_port, clock), host_end, clock

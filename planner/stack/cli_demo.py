@@ -10,6 +10,7 @@ from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments
 from planner.plan.cli_confidence import add_confidence_arguments, confidence_options
+from planner.stack.controllers import CONTROLLERS
 from planner.stack.linkargs import add_link_arguments
 from planner.view.cli_view import add_view_arguments
 
@@ -87,6 +88,14 @@ def register(subparsers: Any) -> None:
         help="the emulator's controller: the Python model or the C firmware core (default python)",
     )
     p.add_argument(
+        "--controller",
+        choices=CONTROLLERS,
+        default="emulator",
+        help="the controller: the emulator (default; --firmware chooses its core), or the "
+        "firmware image in an emulated MCU (rover pil: pil:microbit under qemu, "
+        "pil:atmega2560 under simavr with the twin as its plant; real time only)",
+    )
+    p.add_argument(
         "--no-realtime",
         action="store_true",
         help="run the emulator and the bridge without real-time scheduling (by default they "
@@ -122,6 +131,7 @@ def _run(args: argparse.Namespace) -> int:
         view=view_config(args),
         foxglove_port=args.foxglove,
         firmware=args.firmware,
+        controller=args.controller,
         realtime=not args.no_realtime,
         ground=args.ground,
         twin=Path(args.twin) if args.twin else None,

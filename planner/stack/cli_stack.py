@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from firmware_proto.cli import values
+from planner.stack.controllers import CONTROLLERS
 from planner.stack.linkargs import add_link_arguments
 from planner.stack.stackenv import TWIN_ENV, add_domain_argument
 
@@ -74,6 +75,14 @@ def register(subparsers: Any) -> None:
         choices=("python", "c"),
         default="python",
         help="the emulator's controller: the Python model or the C firmware core",
+    )
+    up.add_argument(
+        "--controller",
+        choices=CONTROLLERS,
+        default="emulator",
+        help="the controller: the emulator (default; --firmware chooses its core), or the "
+        "firmware image in an emulated MCU (rover pil: pil:microbit under qemu, "
+        "pil:atmega2560 under simavr with the twin as its plant; real time only)",
     )
     up.add_argument(
         "--device",
@@ -205,6 +214,7 @@ def _up(args: argparse.Namespace) -> int:
     config = StackConfig(
         map_name=args.map,
         firmware=args.firmware,
+        controller=args.controller,
         device=args.device,
         baud=args.baud,
         rtt_s=args.rtt,

@@ -101,6 +101,8 @@ class DemoConfig:
             (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
         firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
             firmware core in the loop; ``rover emulate --firmware``).
+        controller: ``emulator``, or ``pil:microbit`` / ``pil:atmega2560``: the firmware
+            image in an emulated MCU (``rover pil``), in real time.
         realtime: the emulator and the bridge ask for real-time scheduling (their
             default; docs/realtime.md); ``False`` runs them with ``--no-realtime``.
         ground: the ground the emulator drives on (``rover emulate --ground``: a
@@ -132,6 +134,7 @@ class DemoConfig:
     view: ViewConfig | None = None
     foxglove_port: int | None = None
     firmware: str = "python"
+    controller: str = "emulator"
     realtime: bool = True
     ground: str | None = None
     twin: Path | None = None
@@ -304,6 +307,7 @@ class Demo:
         stack = StackConfig(
             map_name=cfg.map_name,
             firmware=cfg.firmware,
+            controller=cfg.controller,
             rtt_s=cfg.rtt_s,
             jitter_s=cfg.jitter_s,
             loss=cfg.loss,

@@ -33,6 +33,7 @@ from pathlib import Path
 from types import TracebackType
 
 from firmware_proto.runtime.stall import STALL_LOG_ENV
+from planner.stack.controllers import pil_target_of
 
 __all__ = ["NICE", "ChildProcess", "Endpoints", "Stack", "StackConfig"]
 
@@ -174,6 +175,10 @@ class StackConfig:
     Attributes:
         map_name: the gate's default map and the emulator's world (name or JSON file).
         firmware: the emulator's controller, ``python`` or ``c``.
+        controller: ``emulator`` (``rover emulate`` with ``firmware``), or
+            ``pil:TARGET``: the firmware image in an emulated MCU (``rover pil --target
+            TARGET``: ``microbit`` or ``atmega2560``), real time only (``speed`` 1), on the
+            description's ground.
         device: a real controller's serial device (or pyserial URL): no emulator is
             started and the bridge opens this; ``None``: the emulator on a pty.
         baud: with ``device``, its baud rate (``None``: the bridge's default).
@@ -200,6 +205,7 @@ class StackConfig:
 
     map_name: str = "lab"
     firmware: str = "python"
+    controller: str = "emulator"
     device: str | None = None
     baud: int | None = None
     rtt_s: float = 3.0
@@ -300,6 +306,14 @@ class Stack:
             raise ValueError("speed must be > 0, rtt_s and jitter_s >= 0")
         if not 0.0 <= cfg.loss < 1.0:
             raise ValueError("loss must be in [0, 1)")
+        pil_target = pil_target_of(cfg.controller)
+        if pil_target is not None and cfg.device is None:
+            if cfg.speed != 1.0:
+                raise ValueError(
+                    f"controller {cfg.controller} runs in real time only: speed must be 1"
+                )
+            if cfg.ground is not None:
+                raise ValueError(f"controller {cfg.controller} drives on the description's ground")
         gate = self._start(
             "gate",
             [
@@ -321,7 +335,28 @@ class Stack:
         realtime = [] if cfg.realtime else ["--no-realtime"]
         url = gate.line("GATE ").split()[1]
         control = ""
-        if cfg.device is None:
+        if cfg.device is None and pil_target is not None:
+            device = str(Path(self._tmp.name) / "rover-motor")
+            pil_args = [
+                "pil",
+                "--target",
+                pil_target,
+                "--link",
+                device,
+                "--map",
+                cfg.map_name,
+                "--seed",
+                str(cfg.seed),
+                "--control-port",
+                "0",
+                *realtime,
+            ]
+            for fault in cfg.inject:
+                pil_args += ["--inject", fault]
+            emulator = self._start("emulator", pil_args, "CONTROL ")
+            control = emulator.line("CONTROL ").split()[1]
+            bridge_args = ["bridge", "--device", device, *realtime]
+        elif cfg.device is None:
             device = str(Path(self._tmp.name) / "rover-motor")
             emulator_args = [
                 "emulate",

@@ -1,0 +1,53 @@
+"""``rover demo --controller pil:atmega2560``: the whole mission (gate, bridge over the
+emulated UART, link, ground station) against the ATmega2560 image under simavr with the
+twin as its plant: around the table, a drift STOP on slip, a re-plan, the goal. Real
+ROS 2 (marker ``rclpy``), one whole mission (marker ``serial``), in real time (the PIL
+controller runs at 1x only)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from .pil_helpers import require_target
+
+pytestmark = pytest.mark.rclpy
+
+
+@pytest.mark.serial
+@pytest.mark.timeout(400)
+def test_rover_demo_on_the_atmega2560_stops_on_drift_and_reaches_its_goal(tmp_path: Path) -> None:
+    require_target("atmega2560")
+    out = subprocess.run(
+        [
+            sys.executable, "-m", "firmware_proto.cli", "demo", "--controller",
+            "pil:atmega2560", "--picture", str(tmp_path / "demo.png"), "--no-record",
+        ],  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=360,
+        check=False,
+        cwd=tmp_path,
+    )
+    text = out.stdout
+    assert out.returncode == 0, text[-3000:] + out.stderr[-3000:]
+    assert "starting emulator: rover pil --target atmega2560" in text
+    assert "INJECTING slip:left" in text
+    assert "drift STOP:" in text and "re-plan 1:" in text
+    assert "REACHED" in text
+
+
+def test_a_pil_controller_refuses_another_speed() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "firmware_proto.cli", "stack", "up", "--controller",
+         "pil:microbit", "--speed", "4", "--duration", "1"],  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert out.returncode != 0
+    assert "runs in real time only" in out.stdout + out.stderr
