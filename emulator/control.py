@@ -3,6 +3,7 @@
 Listens on 127.0.0.1 only. Commands (``help`` lists them)::
 
     status                  the emulator's state, pose, wheels, faults, counters
+    stats                   a PIL target's port counters (rover pil: pil_stats)
     inject FAULT            apply or schedule a fault (see emulator.injection), e.g.
                             inject slip:left=0.3   inject reboot   inject stall:right@t=4
                             A fault that cannot apply here is refused at once.
@@ -37,7 +38,9 @@ __all__ = ["ControlServer", "ControlTarget"]
 
 logger = logging.getLogger(__name__)
 
-_HELP = "commands: status | inject FAULT | injections | unplug [SECONDS] | replug | help"
+_HELP = (
+    "commands: status | stats | inject FAULT | injections | unplug [SECONDS] | replug | help"
+)
 
 
 class ControlTarget(Protocol):
@@ -138,6 +141,11 @@ class ControlServer:
                     "scheduled_s": round(done.scheduled_s, 6),
                     "fires": done.fires,
                 }
+            if verb == "stats":
+                port_stats = getattr(self.emulator, "port_stats", None)
+                if port_stats is None:
+                    raise ValueError("stats applies to a PIL target (rover pil) only")
+                return {"ok": True, "stats": dataclasses.asdict(port_stats())}
             if verb == "injections":
                 return {
                     "ok": True,

@@ -68,7 +68,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--image", type=Path, help="an image already built (ELF) instead of building one"
     )
-    p.add_argument("--map", default="lab", help="the twin's map (atmega2560: the plant's world)")
+    p.add_argument(
+        "--map",
+        default="lab",
+        help="the plant's world: the twin's map (atmega2560), the start pose (microbit)",
+    )
     p.add_argument("--seed", type=int, default=1, help="seeds the plant's sensor noise")
     p.add_argument(
         "--inject",
@@ -106,8 +110,7 @@ def _target(args: argparse.Namespace, priority: int) -> Any:
         "seed": args.seed,
         "say": lambda line: print(line, file=sys.stderr, flush=True),
     }
-    if args.target == "atmega2560":
-        kwargs["map_name"] = args.map
+    kwargs["map_name"] = args.map
     return cls(image, **kwargs)
 
 

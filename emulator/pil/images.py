@@ -5,7 +5,8 @@ Targets (:data:`IMAGES`):
 
 - ``microbit``: nRF51822 (Cortex-M0, the BBC micro:bit) with ``port_microbit/main.c``;
   with the PIL flag (``-DFW_PIL``), the kinematic wheel and encoder model of
-  ``port_pil/pil_plant.c`` and the runner's fault hooks inside the image.
+  ``port_pil/pil_plant.c`` (the packaged rover's track width and turn efficiency) and the
+  runner's fault hooks inside the image.
 - ``atmega2560``: with ``port_avr/main.c``; its plant is outside, in the simavr harness
   (the twin behind its pins and counters), so the flag only adds the fault hooks.
 
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from emulator.pil.errors import PilError, PilToolMissingError
+from firmware_proto.model.rover import load_rover
 
 __all__ = ["IMAGES", "Image", "ImageSpec", "build_image", "cache_dir", "require_tool"]
 
@@ -40,8 +42,6 @@ _COMMON = (
     "-fdata-sections",
     "-Wl,--gc-sections",
 )
-TRACK_UM = 420_000
-"""The reference rover's track width, um (the in-image plant's; rover.toml)."""
 
 
 @dataclass(frozen=True)
@@ -196,7 +196,16 @@ def build_image(target: str, *, pil: bool = True, timeout_s: float = 300.0) -> I
     size = require_tool(spec.size_tool, spec.packages)
     nm = require_tool(spec.nm_tool, spec.packages)
     sources = _sources(spec, pil)
-    defines = ["-DFW_PIL", f"-DFW_PIL_TRACK_UM={TRACK_UM}u"] if pil else []
+    rover = load_rover()
+    defines = (
+        [
+            "-DFW_PIL",
+            f"-DFW_PIL_TRACK_UM={round(rover.geometry.track_width_m * 1e6)}",
+            f"-DFW_PIL_TURN_PERMILLE={round(rover.traction.turn_efficiency * 1000)}",
+        ]
+        if pil
+        else []
+    )
     argv = [*_WARN, *_COMMON, *spec.flags, *defines, f"-I{C_DIR}"]
     digest = hashlib.sha256()
     for part in [

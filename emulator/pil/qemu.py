@@ -24,13 +24,15 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from emulator.injection import FaultSpec
 from emulator.pil.errors import PilError
 from emulator.pil.gdbstub import GdbStub
-from emulator.pil.images import require_tool
+from emulator.pil.images import Image, require_tool
 from emulator.pil.target import PilTarget
-from emulator.pil.view import STATS, VIEW, PortStats, PortView, hooks_bytes
+from emulator.pil.view import STATS, VIEW, WORLD, WORLD_MAGIC, PortStats, PortView, hooks_bytes
+from firmware_proto.model.worldmap import load_map
 
 __all__ = ["MicrobitTarget", "qemu_command"]
 
@@ -41,8 +43,12 @@ _START_TIMEOUT_S = 20.0
 _SIDES = {"left": (0,), "right": (1,), "both": (0, 1), None: (0, 1)}
 
 
-def qemu_command(elf: Path, qmp: Path, gdb: Path) -> list[str]:
-    """qemu-system-arm's command line for ``elf``, halted until the GDB stub continues it."""
+def qemu_command(elf: Path, qmp: Path, gdb: Path, icount: int | None = None) -> list[str]:
+    """qemu-system-arm's command line for ``elf``, halted until the GDB stub continues it;
+    ``icount``: ``-icount shift=N`` (each instruction 2^N ns of emulated time: the
+    benchmark's instruction counts; never for conformance, whose watchdog rules then fail
+    spuriously)."""
+    extra = ["-icount", f"shift={icount}"] if icount is not None else []
     return [
         require_tool("qemu-system-arm", "qemu-system-arm"),
         "-M",
@@ -59,6 +65,7 @@ def qemu_command(elf: Path, qmp: Path, gdb: Path) -> list[str]:
         "-gdb",
         "chardev:gdb0",
         "-S",
+        *extra,
         "-kernel",
         str(elf),
     ]
@@ -73,10 +80,18 @@ def _set_scheduling(priority: int) -> None:
 
 
 class MicrobitTarget(PilTarget):
-    """The nRF51 image in qemu; its plant is the in-image kinematic model."""
+    """The nRF51 image in qemu; its plant is the in-image kinematic model, started at the
+    map's start pose (``map_name``; no obstacles: the image knows no map)."""
 
     name = "microbit"
     plant_name = "the in-image kinematic wheel and encoder model (FW_PIL)"
+
+    def __init__(
+        self, image: Image, *, map_name: str = "lab", icount: int | None = None, **kwargs: Any
+    ) -> None:
+        super().__init__(image, **kwargs)
+        self.map_name = map_name
+        self.icount = icount
 
     def _start_emulator(self) -> None:
         if not self.image.pil or "pil_hooks" not in self.image.symbols:
@@ -88,7 +103,7 @@ class MicrobitTarget(PilTarget):
         self._dropout = [False, False]
         self._slip = [1.0, 1.0]
         self._proc = subprocess.Popen(
-            qemu_command(self.image.elf, self._qmp_path, gdb_path),
+            qemu_command(self.image.elf, self._qmp_path, gdb_path, self.icount),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,  # the pty's name (qemu_printf), and its errors
             stderr=subprocess.STDOUT,
@@ -114,6 +129,14 @@ class MicrobitTarget(PilTarget):
             raise PilError("qemu did not start: " + " | ".join(self._stderr[-5:]))
         self.realtime_note = self._scheduling_note()
         self._gdb = GdbStub(str(gdb_path), timeout_s=5.0)
+        # Halted before its first instruction (-S): the world starts at the map's pose.
+        start = load_map(self.map_name).start
+        self._gdb.write(
+            self.image.symbols["pil_world"],
+            WORLD.pack(
+                WORLD_MAGIC, round(start.x * 1000), round(start.y * 1000), round(start.yaw_deg * 10)
+            ),
+        )
         self._gdb.cont()
 
     def _scheduling_note(self) -> str:

@@ -8,14 +8,19 @@ from dataclasses import dataclass
 
 from firmware_proto.wire.messages import ControllerState, FaultCode
 
-__all__ = ["HOOKS", "STATS", "VIEW", "PortStats", "PortView", "hooks_bytes"]
+__all__ = ["HOOKS", "STATS", "VIEW", "WORLD", "WORLD_MAGIC", "PortStats", "PortView", "hooks_bytes"]
 
-STATS = struct.Struct("<7I")
-"""``pil_stats_t``: ticks, tick_last, tick_max, late_ticks, rx_overflows, tx_drops, tick_unit_hz."""
+STATS = struct.Struct("<10I")
+"""``pil_stats_t``: ticks, tick_last, tick_max, late_ticks, rx_overflows, tx_drops,
+tick_unit_hz, stop_ack_last, stop_ack_max, ident_last."""
 VIEW = struct.Struct("<2i2i2ihHHBBBB2x")
 """``pil_view_t``."""
 HOOKS = struct.Struct("<2B2B2H")
 """``pil_hooks_t``: stall[2], encoder_dropout[2], slip_permille[2]."""
+WORLD = struct.Struct("<I2ih2x")
+"""``pil_world_t``: magic, x_mm, y_mm, yaw_ddeg."""
+WORLD_MAGIC = 0x57524C44
+"""``PIL_WORLD_MAGIC``."""
 _LATCH = ((1, "stop"), (2, "watchdog"), (4, "fault"))
 
 
@@ -30,6 +35,9 @@ class PortStats:
     rx_overflows: int
     tx_drops: int
     tick_unit_hz: int
+    stop_ack_last: int
+    stop_ack_max: int
+    ident_last: int
 
     @classmethod
     def decode(cls, raw: bytes) -> PortStats:

@@ -1,6 +1,7 @@
-"""``rover demo --controller pil:atmega2560``: the whole mission (gate, bridge over the
+"""``rover demo --controller pil:TARGET``: the whole mission (gate, bridge over the
 emulated UART, link, ground station) against the ATmega2560 image under simavr with the
-twin as its plant: around the table, a drift STOP on slip, a re-plan, the goal. Real
+twin as its plant, and the nRF51 image under qemu with its in-image plant: around the
+table, a drift STOP on slip, a re-plan, the goal. Real
 ROS 2 (marker ``rclpy``), one whole mission (marker ``serial``), in real time (the PIL
 controller runs at 1x only)."""
 
@@ -19,13 +20,25 @@ pytestmark = pytest.mark.rclpy
 
 @pytest.mark.serial
 @pytest.mark.timeout(400)
-def test_rover_demo_on_the_atmega2560_stops_on_drift_and_reaches_its_goal(tmp_path: Path) -> None:
-    require_target("atmega2560")
+@pytest.mark.parametrize("target", ["atmega2560", "microbit"])
+def test_rover_demo_on_the_image_stops_on_drift_and_reaches_its_goal(
+    target: str, tmp_path: Path
+) -> None:
+    """The bridge's mission over the emulated UART: with the twin as the ATmega2560's
+    plant, or the nRF51's in-image kinematic plant (slip through its hooks)."""
+    require_target(target)
     out = subprocess.run(
         [
-            sys.executable, "-m", "firmware_proto.cli", "demo", "--controller",
-            "pil:atmega2560", "--picture", str(tmp_path / "demo.png"), "--no-record",
-        ],  # fmt: skip
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "demo",
+            "--controller",
+            f"pil:{target}",
+            "--picture",
+            str(tmp_path / "demo.png"),
+            "--no-record",
+        ],
         capture_output=True,
         text=True,
         timeout=360,
@@ -34,7 +47,7 @@ def test_rover_demo_on_the_atmega2560_stops_on_drift_and_reaches_its_goal(tmp_pa
     )
     text = out.stdout
     assert out.returncode == 0, text[-3000:] + out.stderr[-3000:]
-    assert "starting emulator: rover pil --target atmega2560" in text
+    assert f"starting emulator: rover pil --target {target}" in text
     assert "INJECTING slip:left" in text
     assert "drift STOP:" in text and "re-plan 1:" in text
     assert "REACHED" in text
@@ -42,8 +55,19 @@ def test_rover_demo_on_the_atmega2560_stops_on_drift_and_reaches_its_goal(tmp_pa
 
 def test_a_pil_controller_refuses_another_speed() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", "stack", "up", "--controller",
-         "pil:microbit", "--speed", "4", "--duration", "1"],  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "firmware_proto.cli",
+            "stack",
+            "up",
+            "--controller",
+            "pil:microbit",
+            "--speed",
+            "4",
+            "--duration",
+            "1",
+        ],
         capture_output=True,
         text=True,
         timeout=120,

@@ -23,7 +23,7 @@ def test_public_names_are_pinned() -> None:
 
 
 def test_the_layouts_are_those_of_pil_port_h() -> None:
-    assert (STATS.size, VIEW.size, HOOKS.size) == (28, 36, 8)
+    assert (STATS.size, VIEW.size, HOOKS.size) == (40, 36, 8)
 
 
 def test_a_view_decodes_state_latch_and_faults() -> None:
@@ -39,13 +39,14 @@ def test_a_view_decodes_state_latch_and_faults() -> None:
 
 
 def test_stats_decode_in_order() -> None:
-    stats = PortStats.decode(STATS.pack(1, 2, 3, 4, 5, 6, 16_000_000))
+    stats = PortStats.decode(STATS.pack(1, 2, 3, 4, 5, 6, 16_000_000, 7, 8, 9))
     assert (stats.ticks, stats.tick_max, stats.tx_drops, stats.tick_unit_hz) == (
         1,
         3,
         6,
         16_000_000,
     )
+    assert (stats.stop_ack_last, stats.stop_ack_max, stats.ident_last) == (7, 8, 9)
 
 
 def test_hooks_carry_stall_dropout_and_slip_per_mille() -> None:

@@ -68,6 +68,8 @@ static volatile uint8_t tx_head; /* main loop */
 static volatile uint8_t tx_tail; /* ISR */
 static volatile uint8_t tx_left; /* bytes left of the frame being sent (ISR) */
 static volatile uint32_t grid_ticks; /* Timer1 compares */
+static volatile uint16_t rx_stamp;   /* TCNT3 when the newest byte came in (ISR) */
+static uint16_t rx_stamp_fed;        /* rx_stamp of the bytes being handed to the core */
 
 /* ------------------------------------------------------------------ clock */
 
@@ -91,6 +93,7 @@ static uint64_t now_us(void)
 ISR(USART0_RX_vect)
 {
     const uint8_t status = UCSR0A;
+    rx_stamp = TCNT3;
     const uint8_t b = UDR0;
     const uint8_t next = (uint8_t)(rx_head + 1u);
     if ((status & ((1 << DOR0) | (1 << FE0))) != 0u || next == rx_tail) {
@@ -174,6 +177,7 @@ void fw_hal_write(const uint8_t *bytes, size_t n)
     size_t i;
     uint8_t used;
     uint8_t sreg;
+    pil_note_answer(bytes, n, (uint32_t)(uint16_t)(TCNT3 - rx_stamp_fed) * 8u);
     if (n >= 3u && (bytes[1] == 1u ? 0u : bytes[2]) == RP_MSG_STOP_ACK) {
         drop_queued_samples();
     }
@@ -316,6 +320,10 @@ static void drain_rx(void)
 {
     uint8_t chunk[32];
     uint8_t n = 0u;
+    uint8_t sreg = SREG;
+    cli();
+    rx_stamp_fed = rx_stamp;
+    SREG = sreg;
     while (rx_tail != rx_head) {
         chunk[n++] = rx_ring[rx_tail];
         rx_tail = (uint8_t)(rx_tail + 1u);

@@ -58,6 +58,7 @@
 #define TIMER_START(b) REG((b) + 0x000u)
 #define TIMER_CLEAR(b) REG((b) + 0x00Cu)
 #define TIMER_CAPTURE0(b) REG((b) + 0x040u)
+#define TIMER_CAPTURE1(b) REG((b) + 0x044u)
 #define TIMER_COMPARE0(b) REG((b) + 0x140u)
 #define TIMER_SHORTS(b) REG((b) + 0x200u)
 #define TIMER_INTENSET(b) REG((b) + 0x304u)
@@ -65,6 +66,7 @@
 #define TIMER_BITMODE(b) REG((b) + 0x508u)
 #define TIMER_PRESCALER(b) REG((b) + 0x510u)
 #define TIMER_CC0(b) REG((b) + 0x540u)
+#define TIMER_CC1(b) REG((b) + 0x544u)
 #define TIMER_SHORT_COMPARE0_CLEAR 1u
 #define TIMER_INT_COMPARE0 (1u << 16)
 #define TIMER_BITMODE_32 3u
@@ -97,9 +99,13 @@ static volatile uint16_t tx_head; /* written by the main loop */
 static volatile uint16_t tx_tail; /* written by the ISR */
 static volatile uint8_t tx_busy;
 static volatile uint32_t grid_ticks; /* TIMER0 compares, written by its ISR */
+static volatile uint32_t rx_stamp;   /* TIMER2 when the newest byte came in (ISR) */
+static uint32_t rx_stamp_fed;        /* rx_stamp of the bytes being handed to the core */
 
 #ifdef FW_PIL
-volatile pil_hooks_t pil_hooks;
+/* Kept across resets (.noinit): the runner's faults, and the plant's world. */
+__attribute__((section(".noinit"))) volatile pil_hooks_t pil_hooks;
+__attribute__((section(".noinit"))) volatile pil_world_t pil_world;
 pil_plant_t pil_plant;
 static uint8_t dropout_seen;
 static fw_pose_sample_t pose_taken;
@@ -143,6 +149,8 @@ void UART0_IRQHandler(void)
         uint8_t next;
         UART_RXDRDY = 0u;
         b = (uint8_t)UART_RXD;
+        TIMER_CAPTURE1(TIMER2_BASE) = 1u; /* CC[1]: the main loop captures into CC[0] */
+        rx_stamp = TIMER_CC1(TIMER2_BASE);
         next = (uint8_t)(rx_head + 1u);
         if (next == rx_tail) {
             pil_stats.rx_overflows++;
@@ -176,6 +184,7 @@ void fw_hal_write(const uint8_t *bytes, size_t n)
 {
     size_t i;
     uint16_t used;
+    pil_note_answer(bytes, n, cycles() - rx_stamp_fed);
     irq_off();
     used = (uint16_t)((tx_head + TX_RING - tx_tail) % TX_RING);
     if (used + n >= TX_RING) {
@@ -278,6 +287,7 @@ static void plant_before_tick(uint64_t now)
     uint8_t dropout = (uint8_t)((pil_hooks.encoder_dropout[0] ? 1u : 0u) |
                                 (pil_hooks.encoder_dropout[1] ? 2u : 0u));
     pil_plant_step(&pil_plant, &pil_hooks, config.tick_us);
+    pil_plant_keep(&pil_plant, &pil_world);
     if (dropout != 0u && dropout_seen == 0u) {
         fw_raise_fault(&controller, now, (uint8_t)RP_FAULT_CODE_ENCODER, 0u, true);
     } else if (dropout == 0u && dropout_seen != 0u) {
@@ -371,6 +381,7 @@ static void drain_rx(void)
 {
     uint8_t chunk[32];
     size_t n = 0u;
+    rx_stamp_fed = rx_stamp;
     while (rx_tail != rx_head) {
         chunk[n++] = rx_ring[rx_tail];
         rx_tail = (uint8_t)(rx_tail + 1u);
@@ -391,7 +402,7 @@ int main(void)
     uart_init();
     timers_init(config.tick_us);
 #ifdef FW_PIL
-    pil_plant_init(&pil_plant, &config, FW_PIL_TRACK_UM);
+    pil_plant_init(&pil_plant, &config, FW_PIL_TRACK_UM, &pil_world);
 #endif
     if (fw_init(&controller, &config, now_us()) != FW_OK) {
         for (;;) {

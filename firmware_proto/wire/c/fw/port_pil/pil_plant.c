@@ -4,6 +4,9 @@
  */
 #include "pil_plant.h"
 
+#ifndef FW_PIL_TURN_PERMILLE
+#define FW_PIL_TURN_PERMILLE 1000
+#endif
 #define PI_URAD 3141593
 #define TWO_PI_URAD 6283185
 
@@ -54,7 +57,8 @@ static int32_t urad_to_mdeg(int32_t urad)
     return (int32_t)(((int64_t)urad * 57296) / 1000000);
 }
 
-void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um)
+void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um,
+                    const volatile pil_world_t *world)
 {
     uint8_t i;
     p->sign[0] = cfg->left_sign;
@@ -70,6 +74,11 @@ void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um)
     p->x_um = 0;
     p->y_um = 0;
     p->yaw_urad = 0;
+    if (world->magic == PIL_WORLD_MAGIC) {
+        p->x_um = (int64_t)world->x_mm * 1000;
+        p->y_um = (int64_t)world->y_mm * 1000;
+        p->yaw_urad = (int32_t)(((int64_t)world->yaw_ddeg * PI_URAD) / 1800);
+    }
     p->yaw_rate_mrad_s = 0;
     p->accel_mm_s2 = 0;
     p->v_um_s = 0;
@@ -99,7 +108,10 @@ void pil_plant_step(pil_plant_t *p, const volatile pil_hooks_t *hooks, uint32_t 
         ground[i] = (int32_t)(((int64_t)p->sign[i] * p->speed[i] * slip) / 1000);
     }
     v = (ground[0] + ground[1]) / 2;
-    omega_urad_s = (int32_t)(((int64_t)(ground[1] - ground[0]) * 1000000) / (int64_t)p->track_um);
+    /* A skid-steer rover yaws less than its wheel arcs say (its wheels slip sideways in a
+     * turn): FW_PIL_TURN_PERMILLE of it, the description's turn_efficiency. */
+    omega_urad_s = (int32_t)(((int64_t)(ground[1] - ground[0]) * 1000 * FW_PIL_TURN_PERMILLE) /
+                             (int64_t)p->track_um);
     p->accel_mm_s2 = (int32_t)(((int64_t)(v - p->v_um_s) * 1000) / (int64_t)dt_us);
     p->v_um_s = v;
     p->yaw_rate_mrad_s = omega_urad_s / 1000;
@@ -124,4 +136,15 @@ void pil_plant_pose(const pil_plant_t *p, int32_t *x_mm, int32_t *y_mm, int16_t 
     *x_mm = (int32_t)(p->x_um / 1000);
     *y_mm = (int32_t)(p->y_um / 1000);
     *yaw_ddeg = (int16_t)ddeg;
+}
+
+void pil_plant_keep(const pil_plant_t *p, volatile pil_world_t *world)
+{
+    int32_t x, y;
+    int16_t yaw;
+    pil_plant_pose(p, &x, &y, &yaw);
+    world->x_mm = x;
+    world->y_mm = y;
+    world->yaw_ddeg = yaw;
+    world->magic = PIL_WORLD_MAGIC;
 }

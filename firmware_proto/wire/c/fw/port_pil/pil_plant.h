@@ -35,8 +35,13 @@ typedef struct {
     int32_t v_um_s;          /**< last step's forward ground speed, um/s */
 } pil_plant_t;
 
-/** At rest at the origin, heading 0, counters 0. */
-void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um);
+/** At rest, counters 0; at `world`'s pose when it holds one (PIL_WORLD_MAGIC), else at the
+ * origin, heading 0. */
+void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um,
+                    const volatile pil_world_t *world);
+
+/** Write the pose into `world` (to be found again after a reset). */
+void pil_plant_keep(const pil_plant_t *p, volatile pil_world_t *world);
 
 /** Advance dt_us with the faults in `hooks`. */
 void pil_plant_step(pil_plant_t *p, const volatile pil_hooks_t *hooks, uint32_t dt_us);

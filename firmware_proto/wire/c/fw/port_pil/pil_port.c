@@ -37,3 +37,20 @@ void pil_sensors_copy(pil_sensors_t *out, const volatile pil_sensors_t *in)
         }
     }
 }
+
+void pil_note_answer(const uint8_t *frame, size_t n, uint32_t spent)
+{
+    uint8_t id;
+    if (n < 3u) {
+        return;
+    }
+    id = frame[1] == 1u ? 0u : frame[2]; /* 0x00, COBS(id, seq, ...), 0x00 */
+    if (id == RP_MSG_STOP_ACK) {
+        pil_stats.stop_ack_last = spent;
+        if (spent > pil_stats.stop_ack_max) {
+            pil_stats.stop_ack_max = spent;
+        }
+    } else if (id == RP_MSG_IDENT) {
+        pil_stats.ident_last = spent;
+    }
+}

@@ -24,8 +24,28 @@ typedef struct {
     uint32_t late_ticks;   /**< ticks run late: the next grid point had passed already */
     uint32_t rx_overflows; /**< bytes the UART delivered into a full receive ring (lost) */
     uint32_t tx_drops;     /**< frames dropped whole because the transmit ring was full */
-    uint32_t tick_unit_hz; /**< counts per second of tick_last/tick_max (CPU clock on AVR) */
+    uint32_t tick_unit_hz; /**< counts per second of the durations here (the CPU clock) */
+    uint32_t stop_ack_last; /**< last STOP: its last byte received -> STOP_ACK queued (the
+                                 wheel targets zero), in tick_unit_hz */
+    uint32_t stop_ack_max;  /**< the longest of those since boot */
+    uint32_t ident_last;    /**< last HELLO: its last byte received -> IDENT queued */
 } pil_stats_t;
+
+
+/**
+ * The pose of an in-image plant's world, kept in RAM that the start-up does not clear
+ * (.noinit), so that a reset of the MCU does not move the rover: the runner writes the
+ * map's start pose with the magic before the first instruction; the plant starts from it
+ * at every boot and writes its pose back every tick.
+ */
+typedef struct {
+    uint32_t magic;   /**< PIL_WORLD_MAGIC once written */
+    int32_t x_mm, y_mm;
+    int16_t yaw_ddeg;
+    uint16_t reserved;
+} pil_world_t;
+
+#define PIL_WORLD_MAGIC 0x57524C44u /* "WRLD" */
 
 /** Faults a runner injects (FW_PIL builds only); each field read once per tick. */
 typedef struct {
@@ -79,6 +99,12 @@ typedef struct {
 
 extern volatile pil_stats_t pil_stats;
 extern volatile pil_view_t pil_view;
+
+/**
+ * Note an answer the core writes: call from fw_hal_write with the frame and how long ago
+ * (tick_unit_hz counts) the last received byte came in; keeps STOP_ACK's and IDENT's.
+ */
+void pil_note_answer(const uint8_t *frame, size_t n, uint32_t spent);
 
 /** A consistent copy of a harness-posted pil_sensors_t (retries while it changes). */
 void pil_sensors_copy(pil_sensors_t *out, const volatile pil_sensors_t *in);
