@@ -38,9 +38,7 @@ __all__ = ["ControlServer", "ControlTarget"]
 
 logger = logging.getLogger(__name__)
 
-_HELP = (
-    "commands: status | stats | inject FAULT | injections | unplug [SECONDS] | replug | help"
-)
+_HELP = "commands: status | stats | inject FAULT | injections | unplug [SECONDS] | replug | help"
 
 
 class ControlTarget(Protocol):

@@ -135,7 +135,7 @@ class Image:
         return self.data + self.bss
 
     def line(self) -> str:
-        """``IMAGE microbit flash 17828 of 262144 B, RAM 1856 of 16384 B (PIL) path``."""
+        """``IMAGE microbit flash N of 262144 B, static RAM N of 16384 B (PIL) path``."""
         s = self.spec
         return (
             f"IMAGE {s.name} flash {self.flash_bytes} of {s.flash_bytes} B, static RAM "

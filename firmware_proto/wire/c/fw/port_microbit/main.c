@@ -83,6 +83,13 @@
 
 #define RX_RING 256u
 #define TX_RING 512u
+#ifndef FW_MICROBIT_TICK_US
+/* The control period. The braking law's worst fw_tick is about 24,000 instructions (an
+ * integer square root and 64-bit divisions per side, telemetry due): more than 1 ms on a
+ * 16 MHz Cortex-M0, so that tick runs late (pil_stats.late_ticks) and the next is on the
+ * grid again. Where late ticks matter, build with 2000. */
+#define FW_MICROBIT_TICK_US 1000u
+#endif
 
 static inline void irq_off(void) { __asm__ volatile("cpsid i" ::: "memory"); }
 static inline void irq_on(void) { __asm__ volatile("cpsie i" ::: "memory"); }
@@ -399,6 +406,7 @@ int main(void)
 {
     uint32_t done_ticks = 0u;
     fw_default_config(&config);
+    config.tick_us = FW_MICROBIT_TICK_US;
     uart_init();
     timers_init(config.tick_us);
 #ifdef FW_PIL
