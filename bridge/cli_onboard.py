@@ -23,23 +23,13 @@ from typing import Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
 
-__all__ = ["ENV_TOKEN", "ENV_TOKEN_FALLBACK", "add_arguments", "main", "register", "run"]
+__all__ = ["add_arguments", "main", "register", "run"]
 
-ENV_TOKEN = "ROVER_UPLINK_TOKEN"
-"""The stack's token for uplinks (docs/onboard.md, "The uplink")."""
-ENV_TOKEN_FALLBACK = "ROVER_GATE_TOKEN"
-"""Used when :data:`ENV_TOKEN` is not set: the token the stack gives its gate."""
 DEFAULT_PRIORITY = 20
 """Real-time priority, as the bridge's: the guard's STOP must not wait for the CPU."""
 REPLAY_WINDOW_S = 600.0
 """Plan ids (the ground's milliseconds) older than this before the program started are
 stale: an uplink recorded before a restart is not run."""
-
-
-def token_from_env(env: dict[str, str] | None = None) -> str | None:
-    """The stack's uplink token from the environment (``None``: none configured)."""
-    env = dict(os.environ) if env is None else env
-    return env.get(ENV_TOKEN) or env.get(ENV_TOKEN_FALLBACK) or None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -54,8 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--token",
         default=None,
-        help=f"uplink token: uplinks must carry its tag (default ${ENV_TOKEN}, else "
-        f"${ENV_TOKEN_FALLBACK}; none: tags are not checked)",
+        help="uplink token: uplinks must carry its tag (default $ROVER_UPLINK_TOKEN, else "
+        "$ROVER_GATE_TOKEN; none: tags are not checked)",
     )
     p.add_argument(
         "--time-scale",
@@ -102,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from bridge.onboard.node import OnboardNode
     from bridge.ros.rosport import open_port
     from firmware_proto.model.rover import load_rover
+    from firmware_proto.model.uplink import token_from_env
     from firmware_proto.runtime import ProcessRuntime, ShutdownSignals
     from firmware_proto.runtime.realtime import (
         RealtimeConfig,
@@ -114,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     rover = load_rover(args.rover)
     config = OnboardConfig(
-        token=args.token if args.token is not None else token_from_env(),
+        token=args.token if args.token is not None else token_from_env(os.environ),
         min_plan_id=int((time.time() - REPLAY_WINDOW_S) * 1000),
         time_scale=args.time_scale,
         persistence=args.persistence,

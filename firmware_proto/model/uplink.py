@@ -66,6 +66,8 @@ __all__ = [
     "MAX_PREDICTION_SAMPLES",
     "MAX_UPLINK_BYTES",
     "REFUSALS",
+    "TOKEN_ENV",
+    "TOKEN_ENV_FALLBACK",
     "UPLINK_VERSION",
     "CancelUplink",
     "DriftLimits",
@@ -76,6 +78,7 @@ __all__ = [
     "decode_ack",
     "decode_uplink",
     "sign",
+    "token_from_env",
     "verdict_digest",
 ]
 
@@ -138,6 +141,17 @@ _SETTLE_S: Final = 2.0
 
 def _canonical(obj: Any) -> bytes:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+
+
+TOKEN_ENV: Final = "ROVER_UPLINK_TOKEN"
+"""The stack's token for uplinks; when it is not set, :data:`TOKEN_ENV_FALLBACK`."""
+TOKEN_ENV_FALLBACK: Final = "ROVER_GATE_TOKEN"
+"""The token the stack gives its gate: the uplink's when :data:`TOKEN_ENV` is not set."""
+
+
+def token_from_env(env: Mapping[str, str]) -> str | None:
+    """The stack's uplink token from an environment (``None``: none configured)."""
+    return env.get(TOKEN_ENV) or env.get(TOKEN_ENV_FALLBACK) or None
 
 
 def verdict_digest(verdict: Mapping[str, Any] | Any) -> str:

@@ -194,10 +194,20 @@ def _status(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
                 return 1
+            plan = console.onboard
             if args.json:
-                print(json.dumps({"where": where, **status.as_dict()}), flush=True)
+                on_board = json.loads(plan.to_json()) if plan is not None else None
+                print(
+                    json.dumps({"where": where, **status.as_dict(), "plan": on_board}), flush=True
+                )
             else:
                 print(status.text(where), flush=True)
+                print(
+                    f"plan on board: {plan.line()}"
+                    if plan is not None
+                    else "plan on board: none reported (no plan run, or no rover onboard)",
+                    flush=True,
+                )
             return 0 if status.ready else EXIT_HELD
         _terminate_as_interrupt()
         shown = 0

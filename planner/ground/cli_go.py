@@ -289,6 +289,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         ),
     )
     p.add_argument(
+        "--step-by-step",
+        action="store_true",
+        help=(
+            "run approved plans with the thesis's step-by-step executor (each step "
+            "published, then its 'completed' awaited through the round trip; drift control "
+            "on the ground) instead of on board (the default: the plan is uplinked once, "
+            "the rover runs it and its guard stops a drift there; docs/onboard.md)"
+        ),
+    )
+    p.add_argument(
         "--move-and-wait",
         action="store_true",
         help=(
@@ -426,10 +436,12 @@ def _mission(args: argparse.Namespace) -> int:
     from bridge.ros.rosport import open_port
     from firmware_proto.model.pose import Pose
     from firmware_proto.model.rover import load_rover
+    from firmware_proto.model.uplink import token_from_env
     from planner.errors import GateUnavailableError
     from planner.ground.executor import ExecutorConfig, PlanExecutor, Progress
     from planner.ground.interrupt import CancelOnSignal
     from planner.ground.mission import MissionReport, MissionRunner, MoveAndWait
+    from planner.ground.onboard import OnboardExecutor, UplinkOptions
     from planner.plan.gate_client import GateClient
     from planner.plan.orchestrator import PlannerOrchestrator
     from planner.plan.planner import HeuristicLowLevelPlanner, check_pose
@@ -542,7 +554,16 @@ def _mission(args: argparse.Namespace) -> int:
                 options=gate_options,
                 max_collision_p=max_p,
             )
-            executor = PlanExecutor(port, rover, config)
+            executor = (
+                PlanExecutor(port, rover, config)
+                if args.step_by_step or args.move_and_wait
+                else OnboardExecutor(
+                    port,
+                    rover,
+                    config,
+                    UplinkOptions(token=token_from_env(os.environ) or args.token),
+                )
+            )
             if args.record:
                 recorder = McapRecorder(args.record)
                 recorder.attach(port)

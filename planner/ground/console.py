@@ -26,10 +26,12 @@ from bridge.ros.rosport.contract import (
     CLEARED,
     COMMAND_STATUS,
     EMERGENCY_STOP,
+    ONBOARD_REPORT,
     STOPPED,
     fault,
 )
 from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, String
+from firmware_proto.model.downlink import OnboardReport, decode_report
 from planner.ground.roverstatus import RoverStatus, from_diagnostics
 
 __all__ = ["DIAGNOSTICS", "ClearOutcome", "ClearReport", "RoverConsole"]
@@ -95,6 +97,8 @@ class RoverConsole:
             DIAGNOSTICS, DiagnosticArray, self._on_diag, qos.DIAGNOSTICS
         )
         self._status_sub = port.subscribe(COMMAND_STATUS, String, self._on_text, qos.STATUS)
+        self._onboard: OnboardReport | None = None
+        self._report_sub = port.subscribe(ONBOARD_REPORT, String, self._on_report, qos.STATUS)
         self._estop = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
         self._clear = port.publisher(CLEAR_EMERGENCY_STOP, Empty, qos.STOP)
 
@@ -116,6 +120,22 @@ class RoverConsole:
             self._lock.notify_all()
         if self._on_status is not None:
             self._on_status(msg.data)
+
+    def _on_report(self, msg: String) -> None:
+        try:
+            report = decode_report(msg.data)
+        except ValueError:
+            return
+        with self._lock:
+            if self._onboard is None or report.seq >= self._onboard.seq:
+                self._onboard = report
+
+    @property
+    def onboard(self) -> OnboardReport | None:
+        """The latest report of the plan on board (``rover onboard`` repeats it every
+        second), ``None`` when none was heard."""
+        with self._lock:
+            return self._onboard
 
     @property
     def heard(self) -> tuple[str, ...]:

@@ -5,8 +5,13 @@ Earth-Moon link's delay, jitter and loss (the thesis's latency injection).
 message on the other after ``one_way_delay_s`` plus jitter, unless the loss draw drops
 it. Routes (relative names, so each side's namespace applies):
 
-- ground -> rover: ``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``
-- rover -> ground: ``command_status``, ``odom``, ``odom_ground``, ``diagnostics``
+- ground -> rover: ``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``,
+  ``plan_uplink``
+- rover -> ground: ``command_status``, ``odom``, ``odom_ground``, ``diagnostics``,
+  ``plan_ack``, ``onboard_report``, ``onboard_pose``
+
+Every message of every route takes the delay and jitter and the loss draw: the uplink,
+its answers and reports, STOP and clear, statuses and telemetry.
 
 Messages on one topic keep their order (a space link is a stream; jitter stretches
 gaps, it never reorders). Each route draws delay and loss from its own generator seeded
@@ -33,6 +38,10 @@ from bridge.ros.rosport.contract import (
     CLEAR_EMERGENCY_STOP,
     COMMAND_STATUS,
     EMERGENCY_STOP,
+    ONBOARD_POSE,
+    ONBOARD_REPORT,
+    PLAN_ACK,
+    PLAN_UPLINK,
     WHEEL_INSTRUCTIONS,
 )
 from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
@@ -90,6 +99,11 @@ DEFAULT_ROUTES: tuple[Route, ...] = (
     Route("odom", Odometry, False, qos.TELEMETRY, qos.SENSOR),
     Route("odom_ground", Odometry, False, qos.TELEMETRY, qos.SENSOR),
     Route("diagnostics", DiagnosticArray, False, qos.DIAGNOSTICS),
+    # the onboard sequencer's (docs/onboard.md): the uplink, its answers, its reports
+    Route(PLAN_UPLINK, String, True, qos.COMMAND),
+    Route(PLAN_ACK, String, False, qos.STATUS),
+    Route(ONBOARD_REPORT, String, False, qos.STATUS),
+    Route(ONBOARD_POSE, Odometry, False, qos.TELEMETRY, qos.SENSOR),
 )
 
 

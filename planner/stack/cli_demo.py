@@ -45,6 +45,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-slip", action="store_true", help="drive without injecting slip")
     p.add_argument(
+        "--step-by-step",
+        action="store_true",
+        help="run the plans with the thesis's step-by-step executor and drift control on "
+        "the ground, instead of on board (the default: uplinked once, run and guarded by "
+        "the rover; docs/onboard.md)",
+    )
+    p.add_argument(
         "--seed", type=int, default=1, help="seed of sensor noise and the link (default 1)"
     )
     p.add_argument(
@@ -133,6 +140,7 @@ def _run(args: argparse.Namespace) -> int:
         ),
         samples=gate_options.samples,
         max_collision_p=max_p,
+        step_by_step=args.step_by_step,
     )
     started = time.time()
     with Demo(config, say=say) as demo:
@@ -155,6 +163,16 @@ def _run(args: argparse.Namespace) -> int:
             print(result.report.summary(config.speed))
             if result.timing is not None:
                 print(result.timing.line())
+            mode = (
+                "step by step, drift control on the ground"
+                if config.step_by_step
+                else ("on board, the rover's own guard")
+            )
+            for i, (by_drift, by_path) in enumerate(result.physical, 1):
+                # measured from the rover's own stamped odom_ground (docs/onboard.md)
+                detected = by_drift.line(time_scale=config.speed, what="the drift was detected")
+                print(f"drift stop {i} ({mode}), from odom_ground: {detected}; ")
+                print(f"  {by_path.line(time_scale=config.speed)}")
             for line in stall_report(
                 result.report,
                 since_wall_s=started,

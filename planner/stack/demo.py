@@ -27,6 +27,7 @@ interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import logging
 import math
@@ -41,17 +42,20 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from bridge.ros.rosport import DEFAULT_BACKEND, RosPort, open_port
-from bridge.ros.rosport.contract import COMPLETED
-from bridge.ros.rosport.msgs import DiagnosticArray
+from bridge.ros.rosport import DEFAULT_BACKEND, TAP_RECEIVED, RosPort, open_port
+from bridge.ros.rosport.msgs import DiagnosticArray, stamp_s
 from bridge.ros.rosport.qos import DIAGNOSTICS
 from bridge.ros.rosport.rclpy_backend import middleware
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.model.uplink import token_from_env
+from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import WorldMap
 from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.ground.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
 from planner.ground.mission import MissionReport, MissionRunner
+from planner.ground.onboard import OnboardExecutor, UplinkOptions
+from planner.ground.overshoot import Overshoot, overshoot
 from planner.plan.gate_client import GateClient, GateOptions
 from planner.plan.orchestrator import MissionResult, PlannerOrchestrator
 from planner.plan.planner import HeuristicLowLevelPlanner
@@ -107,6 +111,8 @@ class DemoConfig:
         twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
             (``rover gate --twin``) and the planner turns by its turn efficiency.
         replans: drift STOPs after which the mission is re-planned.
+        step_by_step: run the plans with the thesis's step-by-step executor (drift
+            control on the ground) instead of on board (the default; docs/onboard.md).
         samples, max_collision_p: approve a plan only if at most ``max_collision_p`` of
             ``samples`` twins drawn from the gate's uncertainty collide (``None``: the
             nominal verdict decides).
@@ -133,6 +139,7 @@ class DemoConfig:
     ground: str | None = None
     twin: Path | None = None
     replans: int = 1
+    step_by_step: bool = False
     samples: int | None = None
     max_collision_p: float | None = None
 
@@ -147,6 +154,11 @@ class DemoResult:
     drift_fired: bool
     recording: Path | None = None
     timing: LinkTiming | None = None
+    physical: tuple[tuple[Overshoot, Overshoot], ...] = ()
+    """For each drift stop, how far and how long the rover went on after the drift
+    crossed the limit (as drift control measured it), and after it first strayed the
+    limit off the approved path, from its own stamped ``odom_ground``
+    (:mod:`planner.ground.overshoot`)."""
 
 
 @dataclass(frozen=True)
@@ -375,9 +387,23 @@ class Demo:
             options=GateOptions(samples=cfg.samples),
             max_collision_p=cfg.max_collision_p,
         )
-        executor = PlanExecutor(
-            port, rover, ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+        exec_config = ExecutorConfig(link_rtt_s=cfg.rtt_s / cfg.speed, time_scale=cfg.speed)
+        executor = (
+            PlanExecutor(port, rover, exec_config)
+            if cfg.step_by_step
+            else OnboardExecutor(
+                port, rover, exec_config, UplinkOptions(token=token_from_env(os.environ))
+            )
         )
+        ground_poses: list[tuple[float, float, float]] = []
+
+        def keep_pose(direction: str, topic: str, msg: Any) -> None:
+            # What the recording keeps too: the rover's stamped ground-seeing POSE.
+            if direction == TAP_RECEIVED and topic.endswith("/odom_ground"):
+                p = msg.pose.pose.position
+                ground_poses.append((stamp_s(msg.header.stamp), p.x, p.y))
+
+        port.add_tap(keep_pose)
         if cfg.view is not None:
             self._view = LiveView(
                 world,
@@ -397,6 +423,14 @@ class Demo:
         view = self._view
 
         def planned(mission: MissionResult) -> None:
+            if cfg.slip and mission.approved and not slipped.is_set():
+                # Where the slip starts is the rover's, not the ground's: once the rover has
+                # travelled to the end of the step after which it slips (the emulator's
+                # distance trigger), however the steps reach it (step by step, on board).
+                slipped.set()
+                at_m = slip_distance_m(mission.verdicts[0], cfg.slip_after_step)
+                answer = _control(control_port, f"inject {cfg.slip}@d={at_m:.3f}")
+                self.say(f"SCHEDULING {cfg.slip} on the rover after {at_m:.2f} m: {answer}")
             if recorder is not None:
                 recorder.planned(mission)
             if foxglove is not None:
@@ -404,6 +438,7 @@ class Demo:
             if view is not None:
                 view.hub.planned(mission)
 
+        slipped = threading.Event()
         try:
             self.say(f"waiting for the rover to report (round trip {cfg.rtt_s:g} s)")
             if executor.settled_pose(cfg.startup_timeout_s) is None:
@@ -412,7 +447,6 @@ class Demo:
                 f"mission: ({start.x:.1f}, {start.y:.1f}) -> goal '{cfg.goal_name}' "
                 f"({goal.x:.1f}, {goal.y:.1f}, {goal.yaw_deg:.0f} deg), behind the table"
             )
-            slipped = threading.Event()
             last_line = [-math.inf]
 
             def progress(p: Progress) -> None:
@@ -422,11 +456,6 @@ class Demo:
                 if p.final or now - last_line[0] >= cfg.progress_every_s:
                     last_line[0] = now
                     self.say(p.line(cfg.speed))
-                done = p.status == COMPLETED and p.step == cfg.slip_after_step
-                if cfg.slip and done and not slipped.is_set():
-                    slipped.set()
-                    answer = _control(control_port, f"inject {cfg.slip}")
-                    self.say(f"INJECTING {cfg.slip} on the rover: {answer}")
 
             def out_of_the_sand(result: ExecutionResult) -> None:
                 if cfg.slip:
@@ -465,7 +494,16 @@ class Demo:
         picture = picture_of(report, world, title)
         path = save(picture, cfg.picture)
         timing = self._timing(control_port)
-        return DemoResult(report, path, bool(report.drift_events), cfg.record, timing)
+        physical = tuple(
+            figure
+            for run in report.runs
+            if run.execution.drift is not None and run.verdict is not None
+            for figure in [
+                _physical(run.verdict, run.execution, ground_poses, cfg.rtt_s, cfg.speed)
+            ]
+            if figure is not None
+        )
+        return DemoResult(report, path, bool(report.drift_events), cfg.record, timing, physical)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         if any(status.name == "rover_bridge: link" for status in msg.status):
@@ -522,6 +560,34 @@ class Demo:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def slip_distance_m(verdict: Verdict, step: int) -> float:
+    """How far the rover's centre travels, predicted, to the end of ``step`` (plus 1 cm):
+    where the demo's slip starts (the emulator's ``@d=`` trigger)."""
+    points = [(s.pose.x, s.pose.y) for s in verdict.trajectory.samples if s.step <= step]
+    return sum(math.dist(a, b) for a, b in itertools.pairwise(points)) + 0.01
+
+
+def _physical(
+    verdict: Verdict,
+    execution: ExecutionResult,
+    poses: list[tuple[float, float, float]],
+    rtt_s: float,
+    speed: float,
+) -> tuple[Overshoot, Overshoot] | None:
+    """The drift stop's figures from the poses the rover stamped while it ran this plan
+    and until the ground could have sent anything after the stop (a round trip later:
+    the rover stood latched meanwhile)."""
+    assert execution.drift is not None
+    detected = execution.drift.t_s
+    path = [(s.pose.x, s.pose.y) for s in verdict.trajectory.samples]
+    during = [
+        p for p in poses if detected - execution.elapsed_s <= p[0] <= detected + 0.9 * rtt_s / speed
+    ]
+    by_drift = overshoot(path, during, crossing_s=detected, time_scale=speed)
+    by_path = overshoot(path, during, time_scale=speed)
+    return None if by_drift is None or by_path is None else (by_drift, by_path)
 
 
 def _goal(world: WorldMap, name: str) -> Pose:

@@ -13,7 +13,8 @@ logs directory, and every part logs its stalls to ``<logs>/stalls.jsonl``
 gate and the relay at nice :data:`NICE`.
 
 Ready lines: the gate ``GATE <url>``, the emulator ``CONTROL 127.0.0.1:<port>`` (it
-prints ``DEVICE`` first), the bridge ``BRIDGE <url> <backend>``, the relay ``LINK``.
+prints ``DEVICE`` first), the bridge ``BRIDGE <url> <backend>``, the onboard
+program ``ONBOARD`` (``rover onboard``, beside the bridge), the relay ``LINK``.
 A part that does not come up in ``startup_timeout_s`` fails :meth:`Stack.start` with
 its last lines of stderr; a part that exits later is seen by :meth:`Stack.failed`.
 """
@@ -197,6 +198,9 @@ class StackConfig:
             default); ``False`` runs them with ``--no-realtime`` (docs/realtime.md).
         ground: the emulator's ground (``rover emulate --ground``), unknown to the gate.
         twin: a calibrated twin the gate plays plans on (``rover gate --twin``).
+        onboard: start the rover's onboard sequencer and guard beside the bridge
+            (``rover onboard``, docs/onboard.md), which ``rover go`` and ``rover demo``
+            run plans on by default.
     """
 
     map_name: str = "lab"
@@ -216,6 +220,7 @@ class StackConfig:
     realtime: bool = True
     ground: str | None = None
     twin: Path | None = None
+    onboard: bool = True
 
     def link_line(self) -> str:
         """The link the relay emulates, in one line (mission seconds):
@@ -383,6 +388,13 @@ class Stack:
             if cfg.baud is not None:
                 bridge_args += ["--baud", str(cfg.baud)]
         self._start("bridge", bridge_args, "BRIDGE ")
+        if cfg.onboard:
+            # The rover's sequencer and guard, beside the bridge (docs/onboard.md).
+            self._start(
+                "onboard",
+                ["onboard", "--time-scale", f"{cfg.speed:g}", *realtime],
+                "ONBOARD ",
+            )
         self._start(
             "link",
             [

@@ -52,8 +52,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from firmware_proto.model.downlink import decode_report
 from firmware_proto.model.geometry import wrap_deg
 from firmware_proto.model.pose import Pose
+from firmware_proto.model.uplink import decode_ack
 from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import WorldMap
 from planner.ground.executor import Progress
@@ -243,6 +245,9 @@ class ViewHub:
             "odom": deque(maxlen=TRAIL_LEN),
         }
         self._stops: list[dict[str, Any]] = []
+        self._onboard: dict[str, Any] | None = None
+        """The latest report of the plan on board (docs/onboard.md)."""
+        self._onboard_seen: set[tuple[Any, ...]] = set()
         self._goal: list[float] | None = None
         self._result: dict[str, Any] | None = None
         self._halted: tuple[float, float, float] | None = None
@@ -343,6 +348,7 @@ class ViewHub:
             "log": list(self._log),
             "trails": {k: list(v) for k, v in self._trails.items()},
             "stops": list(self._stops),
+            "onboard": self._onboard,
             "goal": self._goal,
             "result": self._result,
             "halted": self._halted is not None,
@@ -517,6 +523,64 @@ class ViewHub:
         if first:
             self._broadcast(
                 "stop", {"latched": True, "source": self._stop_source, "tap_s": rx, "at": at}
+            )
+
+    # -- the plan on board (docs/onboard.md): the uplink, its answers, the rover's reports --
+    def _topic_plan_uplink(self, rx: float, msg: Any) -> None:
+        try:
+            body = json.loads(json.loads(msg.data)["body"])
+            pid, steps = int(body.get("plan_id", body.get("upto", 0))), body.get("steps")
+        except (ValueError, KeyError, TypeError):
+            return
+        key = ("uplink", pid)
+        if key in self._onboard_seen:
+            return  # a copy sent again until the rover answers
+        self._onboard_seen.add(key)
+        what = f"{len(steps)} steps" if isinstance(steps, list) else "a cancel"
+        self._on_log(rx, f"uplink: plan {pid} ({what}) sent to the rover")
+
+    def _topic_plan_ack(self, rx: float, msg: Any) -> None:
+        try:
+            ack = decode_ack(msg.data)
+        except ValueError:
+            return
+        key = ("ack", ack.plan_id, ack.result, ack.reason)
+        if key in self._onboard_seen:
+            return
+        self._onboard_seen.add(key)
+        why = f" ({ack.reason}: {ack.detail})" if ack.reason else ""
+        self._on_log(rx, f"rover: plan {ack.plan_id} {ack.result}{why}")
+
+    def _topic_onboard_report(self, rx: float, msg: Any) -> None:
+        try:
+            report = decode_report(msg.data)
+        except ValueError:
+            return
+        with self._lock:
+            self._onboard = json.loads(report.to_json())
+        self._broadcast("onboard", {"report": self._onboard, "tap_s": rx})
+        guard = report.guard
+        if guard is not None and ("guard", report.plan_id) not in self._onboard_seen:
+            # Where and why the rover stopped itself: a STOP marker where it was.
+            self._onboard_seen.add(("guard", report.plan_id))
+            self._halt()
+            at = [round(guard.pose.x, 4), round(guard.pose.y, 4)]
+            source = f"guard on board: {guard.reason}"
+            with self._lock:
+                self._latched = True
+                self._stops.append({"at": at, "source": source})
+            self._broadcast("stop", {"latched": True, "source": source, "tap_s": rx, "at": at})
+            self._on_log(
+                rx, f"rover: STOP by its guard at ({at[0]:.2f}, {at[1]:.2f}): {guard.reason}"
+            )
+        if report.rest is not None and ("rest", report.plan_id) not in self._onboard_seen:
+            self._onboard_seen.add(("rest", report.plan_id))
+            rest = report.rest
+            self._on_log(
+                rx,
+                f"rover: plan {report.plan_id} {report.outcome}; at rest "
+                f"({rest.pose.x:.2f}, {rest.pose.y:.2f}, {rest.pose.yaw_deg:.0f} deg) "
+                f"+- {rest.sigma_xy_m:.3f} m",
             )
 
     def _on_stop(self, rx: float, source: str) -> None:

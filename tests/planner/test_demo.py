@@ -54,8 +54,12 @@ def test_rover_demo_plans_detours_stops_on_drift_replans_and_arrives(
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     text = out.stdout
     assert "collision at step" in text and "(dogleg): approved" in text  # around the table
-    assert "INJECTING slip:left" in text
+    assert "SCHEDULING slip:left" in text
     assert "drift STOP:" in text and "detection to STOP" in text
+    # run on board (the default): the rover's guard stopped it, and the demo says how
+    # far and how long it went on, from the rover's own stamped odom_ground
+    assert "run on board as plan" in text and "(stopped on board)" in text
+    assert "drift stop 1 (on board, the rover's own guard), from odom_ground:" in text
     assert "re-plan 1:" in text
     assert "REACHED" in text
     assert "ROS 2 middleware: rmw_fastrtps_cpp (rclpy 7." in text
