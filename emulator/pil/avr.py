@@ -398,6 +398,10 @@ class AvrTarget(PilTarget):
     def time_s(self) -> float:
         return self.system.plant.twin.time_s
 
+    def ground_travel_m(self) -> float:
+        with self._lock:
+            return self.system.plant.travel_m
+
     def pose(self, view: PortView) -> tuple[float, float, float]:
         p = self.system.plant.twin.pose
         return p.x_m, p.y_m, p.yaw_deg

@@ -81,6 +81,9 @@ class TwinPlant:
         self._pose: tuple[int, int, int, int, float] = (0, 0, 0, 0, 0.0)
         self._slip = [1.0, 1.0]
         self.commanded_mps = (0.0, 0.0)
+        self.travel_m = 0.0
+        """Ground travel of the rover's centre since the start, m (``@d=`` triggers)."""
+        self._last_xy = (twin.pose.x_m, twin.pose.y_m)
 
     # -- faults ------------------------------------------------------------------------------
     def set_slip(self, side: int, scale: float) -> None:
@@ -111,6 +114,9 @@ class TwinPlant:
         self.commanded_mps = (left, right)
         self.twin.set_motor_omegas(*motor_omegas(self.rover, left, right))
         self.twin.step()
+        pose = self.twin.pose
+        self.travel_m += math.hypot(pose.x_m - self._last_xy[0], pose.y_m - self._last_xy[1])
+        self._last_xy = (pose.x_m, pose.y_m)
         if self.twin.steps % self._pose_every == 0:
             self.pose_sensor.sample()
         for m in self.pose_sensor.due():

@@ -134,7 +134,11 @@ class MicrobitTarget(PilTarget):
         self._gdb.write(
             self.image.symbols["pil_world"],
             WORLD.pack(
-                WORLD_MAGIC, round(start.x * 1000), round(start.y * 1000), round(start.yaw_deg * 10)
+                WORLD_MAGIC,
+                round(start.x * 1000),
+                round(start.y * 1000),
+                round(start.yaw_deg * 10),
+                0,
             ),
         )
         self._gdb.cont()

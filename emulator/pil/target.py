@@ -74,6 +74,9 @@ class PilTarget(ABC):
         self._in_force: dict[tuple[str, str | None], FaultSpec] = {}
         self._started = 0.0
         self._closed = False
+        self._pending: list[tuple[FaultSpec, str]] = []
+        self._scheduler: threading.Thread | None = None
+        self._stopping = threading.Event()
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> PilTarget:
@@ -99,6 +102,9 @@ class PilTarget(ABC):
             if self._closed:
                 return
             self._closed = True
+        self._stopping.set()
+        if self._scheduler is not None:
+            self._scheduler.join(5)
         try:
             self._close_emulator()
         finally:
@@ -139,18 +145,24 @@ class PilTarget(ABC):
         self, fault: str | FaultSpec, source: str = "api"
     ) -> InjectionRecord | ScheduledFault:
         """Apply a fault now (``reboot`` resets the MCU; the others go to the plant or the
-        image's hooks).
+        image's hooks), or keep it until its ``@t=`` (target time) or ``@d=`` (ground
+        travel) trigger is met.
 
         Raises:
-            InjectionError: malformed, or not applicable on this target (the reason said).
+            InjectionError: malformed, not applicable on this target, or ``@region=`` (the
+                reason said).
         """
         spec = parse_fault(fault) if isinstance(fault, str) else fault
-        if not spec.trigger.immediate:
+        if spec.trigger.region is not None:
             raise InjectionError(
-                f"{spec}: a PIL target applies faults at once; triggers (@t, @d, @region) "
-                "are the emulator's (rover emulate)"
+                f"{spec}: a PIL target has no map regions; use @t= or @d= (or rover emulate)"
             )
         self._check(spec)
+        if not spec.trigger.immediate:
+            return self._schedule(spec, source)
+        return self._apply_now(spec, source)
+
+    def _apply_now(self, spec: FaultSpec, source: str) -> InjectionRecord:
         with self._lock:
             if self._closed:
                 raise PilError("the PIL target is closed")
@@ -162,6 +174,58 @@ class PilTarget(ABC):
         logger.warning("%s", record.line())
         self._say(record.line())
         return record
+
+    # -- triggers ----------------------------------------------------------------------------
+    def ground_travel_m(self) -> float:
+        """Ground travel of the rover's centre since the target started, m (the ``@d=``
+        trigger's): the in-image plant's odometer by default."""
+        with self._lock:
+            return self._read_port()[0].travel_mm / 1000.0
+
+    def _schedule(self, spec: FaultSpec, source: str) -> ScheduledFault:
+        """Keep a triggered fault; a thread applies it when its trigger is met (checked
+        every 5 ms of wall time)."""
+        trig = spec.trigger
+        value = (
+            f" (now {self.ground_travel_m():.3f} m)"
+            if trig.after_m is not None
+            else f" (now t={self.time_s():.3f} s)"
+        )
+        with self._lock:
+            if self._closed:
+                raise PilError("the PIL target is closed")
+            self._pending.append((spec, source))
+            if self._scheduler is None:
+                self._scheduler = threading.Thread(
+                    target=self._run_schedule, name="pil-schedule", daemon=True
+                )
+                self._scheduler.start()
+        logger.info("scheduled %s (%s)", spec, source)
+        return ScheduledFault(str(spec), round(self.time_s(), 6), trig.describe() + value)
+
+    def _run_schedule(self) -> None:
+        while not self._stopping.wait(0.005):
+            with self._lock:
+                pending = list(self._pending)
+            if not pending:
+                continue
+            travel = self.ground_travel_m()
+            now = self.time_s()
+            for item in pending:
+                trig = item[0].trigger
+                due = (trig.at_s is not None and now >= trig.at_s) or (
+                    trig.after_m is not None and travel >= trig.after_m
+                )
+                if not due:
+                    continue
+                with self._lock:
+                    if item not in self._pending:
+                        continue
+                    self._pending.remove(item)
+                try:
+                    self._apply_now(item[0], "schedule")
+                except (PilError, InjectionError) as exc:
+                    logger.warning("scheduled %s failed: %s", item[0], exc)
 
     def _remember(self, spec: FaultSpec) -> None:
         if spec.kind == "reboot":

@@ -13,12 +13,12 @@ __all__ = ["HOOKS", "STATS", "VIEW", "WORLD", "WORLD_MAGIC", "PortStats", "PortV
 STATS = struct.Struct("<10I")
 """``pil_stats_t``: ticks, tick_last, tick_max, late_ticks, rx_overflows, tx_drops,
 tick_unit_hz, stop_ack_last, stop_ack_max, ident_last."""
-VIEW = struct.Struct("<2i2i2ihHHBBBB2x")
+VIEW = struct.Struct("<2i2i2ihHHBBBB2xI")
 """``pil_view_t``."""
 HOOKS = struct.Struct("<2B2B2H")
 """``pil_hooks_t``: stall[2], encoder_dropout[2], slip_permille[2]."""
-WORLD = struct.Struct("<I2ih2x")
-"""``pil_world_t``: magic, x_mm, y_mm, yaw_ddeg."""
+WORLD = struct.Struct("<I2ih2xI")
+"""``pil_world_t``: magic, x_mm, y_mm, yaw_ddeg, travel_mm."""
 WORLD_MAGIC = 0x57524C44
 """``PIL_WORLD_MAGIC``."""
 _LATCH = ((1, "stop"), (2, "watchdog"), (4, "fault"))
@@ -60,14 +60,13 @@ class PortView:
     latch: int
     faults: int
     queue_depth: int
+    travel_mm: int = 0
 
     @classmethod
     def decode(cls, raw: bytes) -> PortView:
         """From the bytes of ``pil_view``."""
         v = VIEW.unpack(raw)
-        return cls(
-            (v[0], v[1]), (v[2], v[3]), v[4], v[5], v[6], v[7], v[8], v[9], v[10], v[11], v[12]
-        )
+        return cls((v[0], v[1]), (v[2], v[3]), *v[4:])
 
     @property
     def state_name(self) -> str:

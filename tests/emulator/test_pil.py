@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import socket
+import time
 from pathlib import Path
 from typing import Any
 
@@ -60,23 +61,38 @@ def test_the_control_port_applies_what_the_image_can_and_refuses_the_rest(
     target: str, tmp_path: Path
 ) -> None:
     with pil_process(tmp_path, target) as (_device, control):
-        status, stall, bias, later, clear, after, boom = _control(
+        status, stall, bias, region, later, clear, after, boom = _control(
             control,
             "status",
             "inject stall:right",
             "inject imu-bias=0.1",
-            "inject slip:left=0.5@t=3",
+            "inject slip:left=0.5@region=sand",
+            "inject slip:left=0.5@t=0.3",
             "inject clear:stall",
             "status",
             "inject nonsense",
         )
+        fired = _wait_for_schedule(control)
     assert status["ok"] and status["status"]["state"] == "BOOT"
     assert stall["ok"] and stall["fault"] == "stall:right"
     assert not bias["ok"] and "cannot apply on the" in bias["error"]
-    assert not later["ok"] and "at once" in later["error"]
+    assert not region["ok"] and "no map regions" in region["error"]
+    assert later["ok"] and "scheduled_s" in later and "t=0.3" in later["fires"]
     assert clear["ok"]
-    assert after["ok"] and after["status"]["injected"] == []
+    assert "stall:right" not in after["status"]["injected"]
     assert not boom["ok"] and "unknown fault" in boom["error"]
+    assert fired["fault"] == "slip:left=0.5@t=0.3" and fired["time_s"] >= 0.3
+
+
+def _wait_for_schedule(control: str) -> dict[str, Any]:
+    """The injection the schedule applied (polled: the trigger is on the target's clock)."""
+    for _ in range(200):
+        (answer,) = _control(control, "injections")
+        done = [r for r in answer["injections"] if r["source"] == "schedule"]
+        if done:
+            return dict(done[0])
+        time.sleep(0.05)
+    raise AssertionError("the scheduled fault never fired")
 
 
 def test_an_unknown_target_is_refused_with_the_known_ones() -> None:

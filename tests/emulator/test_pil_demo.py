@@ -48,8 +48,8 @@ def test_rover_demo_on_the_image_stops_on_drift_and_reaches_its_goal(
     text = out.stdout
     assert out.returncode == 0, text[-3000:] + out.stderr[-3000:]
     assert f"starting emulator: rover pil --target {target}" in text
-    assert "INJECTING slip:left" in text
-    assert "drift STOP:" in text and "re-plan 1:" in text
+    assert "SCHEDULING slip:left" in text and "applied_s" not in text.split("SCHEDULING")[1][:200]
+    assert "drift STOP:" in text and "re-plan 1:" in text, text[-3000:]
     assert "REACHED" in text
 
 

@@ -73,7 +73,7 @@ def test_an_avr_sensor_layout_is_unpadded(tmp_path: Path) -> None:
     src.write_text(
         '#include "fw/port_pil/pil_port.h"\n'
         "typedef char size_is_42[sizeof(pil_sensors_t) == 42 ? 1 : -1];\n"
-        "typedef char view_is_36[sizeof(pil_view_t) == 36 ? 1 : -1];\n"
+        "typedef char view_is_40[sizeof(pil_view_t) == 40 ? 1 : -1];\n"
     )
     subprocess.run(
         [

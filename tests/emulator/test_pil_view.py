@@ -23,11 +23,13 @@ def test_public_names_are_pinned() -> None:
 
 
 def test_the_layouts_are_those_of_pil_port_h() -> None:
-    assert (STATS.size, VIEW.size, HOOKS.size) == (40, 36, 8)
+    assert (STATS.size, VIEW.size, HOOKS.size) == (40, 40, 8)
 
 
 def test_a_view_decodes_state_latch_and_faults() -> None:
-    raw = VIEW.pack(-150000, 150000, 150000, 150000, 1234, -56, -900, 0xBEEF, 7, 3, 5, 0b1100, 2)
+    raw = VIEW.pack(
+        -150000, 150000, 150000, 150000, 1234, -56, -900, 0xBEEF, 7, 3, 5, 0b1100, 2, 4321
+    )
     view = PortView.decode(raw)
     assert view.commanded_um_s == (-150000, 150000)
     assert (view.x_mm, view.y_mm, view.yaw_ddeg) == (1234, -56, -900)
@@ -35,7 +37,8 @@ def test_a_view_decodes_state_latch_and_faults() -> None:
     assert view.latch_names == ("fault", "stop")
     assert view.fault_names == ("STALL_RIGHT", "ENCODER")
     assert (view.boot_nonce, view.rx_errors, view.queue_depth) == (0xBEEF, 7, 2)
-    assert PortView.decode(VIEW.pack(*([0] * 9), 99, 0, 0, 0)).state_name == "STATE_99"
+    assert view.travel_mm == 4321
+    assert PortView.decode(VIEW.pack(*([0] * 9), 99, 0, 0, 0, 0)).state_name == "STATE_99"
 
 
 def test_stats_decode_in_order() -> None:

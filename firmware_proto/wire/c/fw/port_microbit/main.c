@@ -287,6 +287,7 @@ static void view_update(void)
     pil_view_update(&controller, pil_plant.speed[0], pil_plant.speed[1]);
     pil_plant_pose(&pil_plant, (int32_t *)&pil_view.x_mm, (int32_t *)&pil_view.y_mm,
                    (int16_t *)&pil_view.yaw_ddeg);
+    pil_view.travel_mm = (uint32_t)(pil_plant.travel_um / 1000u);
 }
 
 static void plant_before_tick(uint64_t now)

@@ -78,10 +78,12 @@ void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um,
         p->x_um = (int64_t)world->x_mm * 1000;
         p->y_um = (int64_t)world->y_mm * 1000;
         p->yaw_urad = (int32_t)(((int64_t)world->yaw_ddeg * PI_URAD) / 1800);
+        p->travel_um = (uint64_t)world->travel_mm * 1000u;
     }
     p->yaw_rate_mrad_s = 0;
     p->accel_mm_s2 = 0;
     p->v_um_s = 0;
+    p->travel_um = 0u;
 }
 
 void pil_plant_step(pil_plant_t *p, const volatile pil_hooks_t *hooks, uint32_t dt_us)
@@ -114,6 +116,7 @@ void pil_plant_step(pil_plant_t *p, const volatile pil_hooks_t *hooks, uint32_t 
                              (int64_t)p->track_um);
     p->accel_mm_s2 = (int32_t)(((int64_t)(v - p->v_um_s) * 1000) / (int64_t)dt_us);
     p->v_um_s = v;
+    p->travel_um += (uint64_t)(v < 0 ? -(int64_t)v : v) * dt_us / 1000000u;
     p->yaw_rate_mrad_s = omega_urad_s / 1000;
     mdeg = urad_to_mdeg(p->yaw_urad);
     /* um/s * us / 1e6 = um; Q15 */
@@ -146,5 +149,6 @@ void pil_plant_keep(const pil_plant_t *p, volatile pil_world_t *world)
     world->x_mm = x;
     world->y_mm = y;
     world->yaw_ddeg = yaw;
+    world->travel_mm = (uint32_t)(p->travel_um / 1000u);
     world->magic = PIL_WORLD_MAGIC;
 }

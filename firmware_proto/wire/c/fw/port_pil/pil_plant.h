@@ -33,6 +33,7 @@ typedef struct {
     int32_t yaw_rate_mrad_s; /**< last step's yaw rate, mrad/s */
     int32_t accel_mm_s2;     /**< last step's forward acceleration, mm/s^2 */
     int32_t v_um_s;          /**< last step's forward ground speed, um/s */
+    uint64_t travel_um;      /**< ground travel of the centre (kept in pil_world), um */
 } pil_plant_t;
 
 /** At rest, counters 0; at `world`'s pose when it holds one (PIL_WORLD_MAGIC), else at the

@@ -43,6 +43,7 @@ typedef struct {
     int32_t x_mm, y_mm;
     int16_t yaw_ddeg;
     uint16_t reserved;
+    uint32_t travel_mm; /**< ground travel of the rover's centre since the runner started */
 } pil_world_t;
 
 #define PIL_WORLD_MAGIC 0x57524C44u /* "WRLD" */
@@ -70,6 +71,8 @@ typedef struct {
     uint8_t faults;            /**< active fault conditions, bit (code - 1) */
     uint8_t queue_depth;       /**< steps queued, the running one included */
     uint8_t reserved[2];
+    uint32_t travel_mm;        /**< ground travel of an in-image plant's centre since the
+                                    runner started it (else 0), mm */
 } pil_view_t;
 
 /**
