@@ -217,6 +217,9 @@ def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
         control = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
         children.append(Child(["bridge", "--device", str(device)], env))
         children[-1].wait_for("BRIDGE ")
+        # The rover's sequencer beside the bridge: rover go runs its plan on board.
+        children.append(Child(["onboard", "--time-scale", "4"], env))
+        children[-1].wait_for("ONBOARD ")
         children.append(Child(["link", "--rtt", "0.1", "--seed", "1"], env))
         children[-1].wait_for("LINK ")
         go = Child(
