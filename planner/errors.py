@@ -27,8 +27,12 @@ Everything this package raises on purpose derives from :class:`PlannerError`::
      |    |                       budget; also TimeoutError
      |    +-- GateProtocolError   a success answer that is not the documented JSON
      +-- DomainBusyError          the ROS domain a stack asked for is held by another
-                                  stack on this machine, or none is free; also
-                                  RuntimeError
+     |                            stack on this machine, or none is free; also
+     |                            RuntimeError
+     +-- ConsoleUnavailableError  a stack's console socket did not answer (nothing
+     |                            listens there, the connection broke); also OSError
+     +-- ConsoleRefusedError      it answered with an error (``status``: a bad token,
+                                  no bridge within the wait); also ValueError
 
 (The gate's own tree, :mod:`gate.errors`, is rooted at ``gate.errors.GateError``: what
 the server raises. These are what a client of it meets.)
@@ -45,6 +49,8 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 __all__ = [
+    "ConsoleRefusedError",
+    "ConsoleUnavailableError",
     "DomainBusyError",
     "GateCallError",
     "GateOverloadedError",
@@ -243,6 +249,23 @@ class GateTimeoutError(GateUnavailableError, TimeoutError):
 class DomainBusyError(PlannerError, RuntimeError):
     """The ROS domain asked for is held by another stack, or none is free
     (:mod:`planner.stack.domains`)."""
+
+
+class ConsoleUnavailableError(PlannerError, OSError):
+    """A stack's console socket did not answer (:mod:`planner.ground.console_client`):
+    nothing listens there, or the connection failed."""
+
+
+class ConsoleRefusedError(PlannerError, ValueError):
+    """A stack's console answered with an error.
+
+    Attributes:
+        status: its HTTP status (0: the URL itself was refused before any call).
+    """
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
 
 
 class GateProtocolError(GateCallError):

@@ -16,6 +16,9 @@ so the figures do not depend on the machine's speed.
 ``bench_uncertain --quick --no-cluster`` plays its batches and posts its verdicts to
 gates with one and two worker processes (its Dask rows are left out).
 
+``bench_console --quick`` starts a ``rover stack up`` and runs each operator command
+twice through its console (the ``rclpy`` marker: the stack talks DDS).
+
 Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
 and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
 ``bench_bridge`` talk DDS, so they run only in the private network namespace of
@@ -122,6 +125,16 @@ def test_bench_bridge_ros2_case_prints_its_rows() -> None:
     for backend in ("rclpy-process", "rclpy"):
         assert f"ROS 2 STOP -> bridge on {backend}: STOP callback (load)" in out
         assert f"ROS 2 STOP -> bridge on {backend}: wheel targets zero (load)" in out
+
+
+@pytest.mark.rclpy
+@pytest.mark.timeout(300)
+def test_bench_console_quick_prints_its_table() -> None:
+    """A ``rover stack up`` and each operator command twice through its console."""
+    out = run_benchmark("bench_console", "--quick")
+    assert "Operator commands against a running stack, beside 0 busy processes" in out
+    for command in ("status", "stop", "clear-stop", "echo command_status --count 1"):
+        assert f"| rover {command} (console) | 2 |" in out
 
 
 @pytest.mark.socketcan

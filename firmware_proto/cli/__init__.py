@@ -44,9 +44,14 @@ ENTRY_POINT_GROUP = "rover.commands"
 RegisterFn = Callable[[Any], None]
 
 
-def _load_registrations() -> list[tuple[str, RegisterFn]]:
+def _load_registrations(only: str | None = None) -> list[tuple[str, RegisterFn]]:
     found = []
-    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+    points = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)
+    if only is not None and any(ep.name == only for ep in points):
+        # One command named: load its entry point alone (the others import their
+        # packages: a second of a loaded machine's CPU before `rover stop` even starts).
+        points = [ep for ep in points if ep.name == only]
+    for ep in points:
         try:
             found.append((ep.name, ep.load()))
         except Exception as exc:  # a broken plugin must not take the whole CLI down
@@ -54,8 +59,9 @@ def _load_registrations() -> list[tuple[str, RegisterFn]]:
     return found
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full ``rover`` parser with every installed subcommand."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``rover`` parser with every installed subcommand, or, when ``command`` names
+    one, with that one alone."""
     parser = argparse.ArgumentParser(
         prog="rover",
         description=(
@@ -73,15 +79,26 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for _name, register in _load_registrations():
+    for _name, register in _load_registrations(command):
         register(sub)
     return parser
 
 
+def _command_named(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names: its first word after the global options (``-v``
+    and ``--verbose`` only; ``None`` with ``-h`` or any other option first)."""
+    for word in argv:
+        if word in ("-v", "--verbose") or (word.startswith("-v") and set(word[1:]) == {"v"}):
+            continue
+        return None if word.startswith("-") else word
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``rover`` command line; returns the process exit status."""
-    parser = build_parser()
-    args, extra = parser.parse_known_args(argv)
+    given = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_command_named(given))
+    args, extra = parser.parse_known_args(given)
     # A command whose positionals may follow its options (``rover frame encode MOTION
     # --can 1 seq=1 ...``) names them in ``intermixed``; anything else left over is the
     # usual usage error.
@@ -89,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if extra and into is not None and not any(x.startswith("-") for x in extra):
         getattr(args, into).extend(extra)
     elif extra:
-        parser.parse_args(argv)  # reports the unrecognised arguments; exit status 2
+        parser.parse_args(given)  # reports the unrecognised arguments; exit status 2
     verbosity: int = args.verbose
     configure_logging(
         logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG

@@ -1,9 +1,20 @@
 """``rover status``, ``rover stop``, ``rover clear-stop`` and ``rover echo``: the
-operator's console over ROS 2 (:mod:`planner.ground.console`), no ros2cli needed.
+operator's console, no ros2cli needed.
 
-Each talks to the bridge's topics in ``--namespace`` (default ``ground``: through the
-link relay, as ``rover go`` does; ``/`` for the bridge's own) on the ROS 2 domain of
-``--domain`` or ``$ROS_DOMAIN_ID`` (what ``rover stack up`` prints).
+Two paths:
+
+- **A stack's console socket** where one is known (``--console URL``, or
+  ``$ROVER_STACK_CONSOLE``, which ``rover stack env`` exports): the running stack
+  answers what its own ROS port already knows (:mod:`planner.stack.console_server`,
+  through :mod:`planner.ground.console_client`, the standard library only): no rclpy,
+  no discovery, well under a second. It is the rover side (the bridge's own topics, as
+  ``--namespace /``), not the emulated link. A console that does not answer is said on
+  stderr, and the command goes on over ROS 2.
+- **ROS 2** (:mod:`planner.ground.console`) otherwise, or with ``--ros`` or
+  ``--namespace``: the bridge's topics in ``--namespace`` (default ``ground``: through
+  the link relay, as ``rover go`` does; ``/`` for the bridge's own) on the ROS 2 domain
+  of ``--domain`` or ``$ROS_DOMAIN_ID`` (what ``rover stack up`` prints). What a bridge
+  started alone answers to.
 """
 
 from __future__ import annotations
@@ -18,6 +29,7 @@ import time
 from typing import Any
 
 from firmware_proto.cli import values
+from planner.ground.console_client import CONSOLE_ENV, TOKEN_ENV
 from planner.stack.stackenv import add_domain_argument
 
 __all__ = [
@@ -40,18 +52,47 @@ ECHO_TOPICS = (
 )
 """The product's topics ``rover echo`` knows (docs/bridge.md, ROS contract)."""
 
+ECHO_TYPES = {
+    "command_status": "std_msgs/String",
+    "diagnostics": "diagnostic_msgs/DiagnosticArray",
+    "odom": "nav_msgs/Odometry",
+    "odom_ground": "nav_msgs/Odometry",
+    "wheel_instructions": "std_msgs/Int16MultiArray",
+    "emergency_stop": "std_msgs/Bool",
+    "clear_emergency_stop": "std_msgs/Empty",
+}
+"""Each of :data:`ECHO_TOPICS`' message type (the header ``rover echo`` prints)."""
+
 EXIT_HELD = 3
 """``rover status``: the bridge answered, and the rover refuses steps now."""
 
 
-def _common(p: argparse.ArgumentParser, timeout_s: float) -> None:
+def _paths(p: argparse.ArgumentParser) -> None:
+    """``--console URL``, ``--ros``, ``--namespace NS`` and ``--domain N``."""
+    p.add_argument(
+        "--console",
+        metavar="URL",
+        default=None,
+        help=f"a stack's console socket (default ${CONSOLE_ENV}, which 'rover stack env' "
+        "exports): the stack answers at once, rover side, no ROS 2 discovery",
+    )
+    p.add_argument(
+        "--ros",
+        action="store_true",
+        help="over ROS 2 even where a stack's console is known (what a bridge started "
+        "alone answers to)",
+    )
     p.add_argument(
         "--namespace",
-        default="ground",
-        help="namespace of the topics: ground (default: through the link relay, as rover go) "
-        "or / (the bridge's own)",
+        default=None,
+        help="over ROS 2, the namespace of the topics: ground (the default: through the "
+        "link relay, as rover go) or / (the bridge's own); implies --ros",
     )
     add_domain_argument(p)
+
+
+def _common(p: argparse.ArgumentParser, timeout_s: float) -> None:
+    _paths(p)
     p.add_argument(
         "--timeout",
         type=values.positive,
@@ -136,12 +177,7 @@ def register_echo(subparsers: Any) -> None:
         ),
     )
     p.add_argument("topic", choices=ECHO_TOPICS, metavar="TOPIC", help=", ".join(ECHO_TOPICS))
-    p.add_argument(
-        "--namespace",
-        default="ground",
-        help="namespace of the topic (default ground; / for the bridge's own)",
-    )
-    add_domain_argument(p)
+    _paths(p)
     p.add_argument("--count", type=values.positive_int, default=None, metavar="N")
     p.add_argument(
         "--timeout",
@@ -165,7 +201,31 @@ def _open(args: argparse.Namespace, node: str) -> tuple[Any, int | None]:
     from planner.stack.stackenv import apply_domain
 
     domain = apply_domain(args)
-    return open_port("rclpy", namespace=args.namespace, node_name=node), domain
+    namespace = args.namespace if args.namespace is not None else "ground"
+    return open_port("rclpy", namespace=namespace, node_name=node), domain
+
+
+def _console(args: argparse.Namespace) -> Any:
+    """The stack's console client to use, or ``None`` (ROS 2: ``--ros``,
+    ``--namespace``, or no console known)."""
+    import os
+
+    if args.ros or args.namespace is not None:
+        return None
+    url = args.console or os.environ.get(CONSOLE_ENV, "").strip()
+    if not url:
+        return None
+    from planner.ground.console_client import ConsoleClient
+
+    return ConsoleClient(url, os.environ.get(TOKEN_ENV) or None)
+
+
+def _unavailable(prog: str, exc: Exception) -> None:
+    print(f"{prog}: {exc}; over ROS 2 instead (--ros)", file=sys.stderr, flush=True)
+
+
+def _on_console(client: Any) -> str:
+    return f"the stack's console {client.url}, rover side"
 
 
 def _terminate_as_interrupt() -> None:
@@ -180,7 +240,14 @@ def _terminate_as_interrupt() -> None:
 
 def _status(args: argparse.Namespace) -> int:
     from planner.ground.console import RoverConsole
+    from planner.ground.console_client import ConsoleUnavailableError
 
+    client = _console(args)
+    if client is not None:
+        try:
+            return _status_on_console(args, client)
+        except ConsoleUnavailableError as exc:
+            _unavailable("rover status", exc)
     port, domain = _open(args, "rover_status")
     with port, RoverConsole(port) as console:
         where = _where(port, domain)
@@ -229,9 +296,69 @@ def _status(args: argparse.Namespace) -> int:
     return 0
 
 
+def _status_on_console(args: argparse.Namespace, client: Any) -> int:
+    from planner.ground.console_client import ConsoleRefusedError
+
+    where = _on_console(client)
+    _terminate_as_interrupt()
+    shown, stamp = 0, None
+    try:
+        while True:
+            try:
+                status, doc = client.status(args.timeout)
+            except ConsoleRefusedError as exc:
+                print(f"rover status: error: {exc}", file=sys.stderr)
+                return 1
+            if not args.watch:
+                _print_status(args, status, where, doc["age_s"])
+                return 0 if status.ready else EXIT_HELD
+            if doc["stamp_s"] != stamp:
+                stamp = doc["stamp_s"]
+                _print_status(args, status, where, doc["age_s"], stamped=True)
+                shown += 1
+                if args.count is not None and shown >= args.count:
+                    return 0
+            time.sleep(0.25)
+    except KeyboardInterrupt:
+        return 130
+
+
+def _print_status(
+    args: argparse.Namespace, status: Any, where: str, age_s: float, *, stamped: bool = False
+) -> None:
+    if args.json:
+        print(json.dumps({"where": where, "age_s": age_s, **status.as_dict()}), flush=True)
+    elif stamped:
+        print(time.strftime("%H:%M:%S ") + status.text(where) + "\n", flush=True)
+    else:
+        print(status.text(f"{where}, {age_s:.1f} s old"), flush=True)
+
+
 def _stop(args: argparse.Namespace) -> int:
     from planner.ground.console import RoverConsole
+    from planner.ground.console_client import ConsoleRefusedError, ConsoleUnavailableError
 
+    client = _console(args)
+    if client is not None:
+        try:
+            if client.stop(args.timeout):
+                print(
+                    f"stopped: the controller acknowledged the STOP ({_on_console(client)}); "
+                    "the latch holds until 'rover clear-stop'",
+                    flush=True,
+                )
+                return 0
+            print(
+                f"rover stop: error: no 'stopped' within {args.timeout:g} s "
+                f"({_on_console(client)}): is the bridge linked to its controller?",
+                file=sys.stderr,
+            )
+            return 1
+        except ConsoleRefusedError as exc:
+            print(f"rover stop: error: {exc}", file=sys.stderr)
+            return 1
+        except ConsoleUnavailableError as exc:
+            _unavailable("rover stop", exc)
     port, domain = _open(args, "rover_stop")
     with port, RoverConsole(port) as console:
         console.wait_matched(min(args.timeout, 5.0))
@@ -252,7 +379,19 @@ def _stop(args: argparse.Namespace) -> int:
 
 def _clear_stop(args: argparse.Namespace) -> int:
     from planner.ground.console import ClearOutcome, RoverConsole
+    from planner.ground.console_client import ConsoleRefusedError, ConsoleUnavailableError
 
+    client = _console(args)
+    if client is not None:
+        try:
+            doc = client.clear_stop(args.timeout)
+        except ConsoleRefusedError as exc:
+            print(f"rover clear-stop: error: {exc}", file=sys.stderr)
+            return 1
+        except ConsoleUnavailableError as exc:
+            _unavailable("rover clear-stop", exc)
+        else:
+            return _say_cleared(args, doc)
     port, _domain = _open(args, "rover_clear_stop")
     with port, RoverConsole(port) as console:
         console.wait_matched(min(args.timeout / 3.0, 5.0))
@@ -285,6 +424,20 @@ def _clear_stop(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return 0 if report.released else 1
+
+
+def _say_cleared(args: argparse.Namespace, doc: dict[str, Any]) -> int:
+    """What ``rover clear-stop`` says of a console's answer."""
+    if args.json:
+        print(json.dumps({k: doc.get(k) for k in ("outcome", "released", "why", "held_by")}))
+    elif doc["outcome"] == "released":
+        held = ", ".join(doc.get("held_by") or []) or "the latch"
+        print(f"released: the latch is off (it was held by {held}); the rover takes steps again")
+    elif doc["outcome"] == "not_latched":
+        print("not latched: there was nothing to release; the rover takes steps")
+    else:
+        print(f"rover clear-stop: NOT released: {doc['why']}", file=sys.stderr)
+    return 0 if doc["released"] else 1
 
 
 def _yaw_deg(q: Any) -> float:
@@ -357,8 +510,53 @@ class _LastStatus:
         return self.value
 
 
+def _echo_on_console(args: argparse.Namespace, client: Any) -> int:
+    """``rover echo`` through a stack's console: its last value first where one is kept
+    (marked so), then each message as it comes."""
+    from planner.ground.console_client import ConsoleRefusedError
+
+    _terminate_as_interrupt()
+    idle = args.timeout if args.timeout is not None else 1e9
+    try:
+        for doc in client.echo(args.topic, args.count or 0, idle):
+            if doc.get("listening"):
+                print(
+                    f"# /{args.topic} [{ECHO_TYPES[args.topic]}] ({_on_console(client)})",
+                    flush=True,
+                )
+            elif args.json:
+                data = dict(doc["data"]) if isinstance(doc["data"], dict) else {"data": doc}
+                if doc.get("last_known"):
+                    data["last_known"] = True
+                print(json.dumps(data, default=str), flush=True)
+            else:
+                note = f" {_LAST_NOTE_CONSOLE}" if doc.get("last_known") else ""
+                print(f"{doc['t']:.3f} {doc['text']}{note}", flush=True)
+    except ConsoleRefusedError as exc:
+        print(f"rover echo: error: {exc}", file=sys.stderr)
+        return 1
+    except TimeoutError as exc:
+        print(f"rover echo: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 0
+    return 0
+
+
+_LAST_NOTE_CONSOLE = "(the last before this echo)"
+
+
 def _echo(args: argparse.Namespace) -> int:
     import queue
+
+    from planner.ground.console_client import ConsoleUnavailableError
+
+    client = _console(args)
+    if client is not None:
+        try:
+            return _echo_on_console(args, client)
+        except ConsoleUnavailableError as exc:
+            _unavailable("rover echo", exc)
 
     from bridge.ros.rosport import STOP_LANE, qos
     from bridge.ros.rosport.msgs import (

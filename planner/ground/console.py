@@ -213,13 +213,14 @@ class RoverConsole:
             if hit is not None:
                 return True
 
-    def clear_stop(self, timeout_s: float) -> ClearReport:
+    def clear_stop(self, timeout_s: float, *, after_wait_s: float = 3.0) -> ClearReport:
         """Ask the bridge to release the controller's latch and say what became of it.
 
         Waits for the bridge's state first (at most a third of ``timeout_s``), publishes
         on ``clear_emergency_stop``, then waits for ``cleared`` or
         ``fault:fault_persists`` until ``timeout_s`` has passed, and for the next
-        ``/diagnostics`` after the answer (briefly) to report the state after it.
+        ``/diagnostics`` after the answer (at most ``after_wait_s``; 1 Hz) to report the
+        state after it (``None`` when it did not come in time).
         """
         start = time.monotonic()
         deadline = start + timeout_s
@@ -228,7 +229,9 @@ class RoverConsole:
             since, seen = self._status_count, self._diag_count
         self._clear.publish(Empty())
         answer = self._wait_status(lambda s: s in (CLEARED, _FAULT_PERSISTS), since, deadline)
-        after = self.status(max(0.0, min(deadline - time.monotonic(), 3.0)), newer_than=seen)
+        after = self.status(
+            max(0.0, min(deadline - time.monotonic(), after_wait_s)), newer_than=seen
+        )
         if answer == CLEARED:
             latched = before is None or before.latched
             outcome = ClearOutcome.RELEASED if latched else ClearOutcome.NOT_LATCHED

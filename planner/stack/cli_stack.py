@@ -11,6 +11,7 @@ status``, ``rover stop``, ``rover clear-stop`` and ``rover echo`` at it
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import socket
@@ -126,6 +127,25 @@ def register(subparsers: Any) -> None:
     )
     add_domain_argument(up)
     up.add_argument(
+        "--console-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="address of the stack's console socket (default 127.0.0.1; any other needs a token)",
+    )
+    up.add_argument(
+        "--console-port",
+        type=values.tcp_port,
+        default=0,
+        metavar="PORT",
+        help="its port (default: a free one)",
+    )
+    up.add_argument(
+        "--console-token",
+        default=None,
+        metavar="TOKEN",
+        help="its bearer token (default $ROVER_CONSOLE_TOKEN)",
+    )
+    up.add_argument(
         "--duration",
         type=values.non_negative,
         default=0.0,
@@ -196,6 +216,8 @@ def _up(args: argparse.Namespace) -> int:
     from bridge.ros.rosport import open_port
     from firmware_proto.runtime import ShutdownSignals
     from planner.ground.console import RoverConsole
+    from planner.ground.console_client import TOKEN_ENV
+    from planner.stack.console_server import ConsoleConfig, ConsoleServer
     from planner.stack.domains import claim
     from planner.stack.processes import Stack, StackConfig
     from planner.stack.stackenv import export_line, stack_environment
@@ -210,6 +232,15 @@ def _up(args: argparse.Namespace) -> int:
     twin = Path(args.twin).resolve() if args.twin is not None else None
     if twin is not None and not twin.is_file():
         print(f"rover stack up: error: --twin {args.twin}: no such file", file=sys.stderr)
+        return 2
+    try:
+        console_config = ConsoleConfig(
+            args.console_host,
+            args.console_port,
+            args.console_token or os.environ.get(TOKEN_ENV) or None,
+        )
+    except ValueError as exc:
+        print(f"rover stack up: error: {exc}", file=sys.stderr)
         return 2
     config = StackConfig(
         map_name=args.map,
@@ -243,12 +274,22 @@ def _up(args: argparse.Namespace) -> int:
         logs = Path(tempfile.mkdtemp(prefix="rover-stack-logs-"))
         _say(f"rover stack: each part's log and the stall log in {logs}")
         _say(f"rover stack: {config.link_line()}")
-        with Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack:
+        with (
+            Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack,
+            contextlib.ExitStack() as stack_ports,  # closed before the parts stop
+        ):
             try:
                 endpoints = stack.start()
             except KeyboardInterrupt:
                 _say("rover stack: interrupted while starting; stopping what started")
                 return 0
+            # The console: a port of this process on the bridge's own topics, matched now,
+            # so that rover status / stop / clear-stop / echo need no discovery later.
+            rover_port = stack_ports.enter_context(
+                open_port("rclpy", namespace="", node_name="rover_stack_console")
+            )
+            console = stack_ports.enter_context(RoverConsole(rover_port))
+            server = stack_ports.enter_context(ConsoleServer(console, console_config))
             variables = stack_environment(
                 domain,
                 endpoints.gate_url,
@@ -257,18 +298,25 @@ def _up(args: argparse.Namespace) -> int:
                 config.speed,
                 logs / "stalls.jsonl",
                 twin=config.twin,
+                console=server.url,
             )
             held.publish({"env": variables, "device": endpoints.device})
             _say(f"GATE {endpoints.gate_url}")
             if endpoints.control:
                 _say(f"CONTROL {endpoints.control} (the emulator: rover stack inject FAULT)")
             _say(f"DEVICE {endpoints.device}")
+            _say(
+                f"CONSOLE {server.url} (rover status / stop / clear-stop / echo answer here, "
+                "rover side, at once)"
+            )
             wait_s = config.startup_timeout_s + config.rtt_s / config.speed
             with (
                 open_port("rclpy", namespace="ground", node_name="rover_stack") as port,
-                RoverConsole(port) as console,
+                RoverConsole(port) as through_link,
             ):
-                health = _health(console, wait_s)
+                health = _health(through_link, wait_s)
+            if not console.wait_matched(config.startup_timeout_s):
+                _say("rover stack: the console has not matched the bridge's topics yet")
             if health is None:
                 failed = stack.failed()
                 why = (

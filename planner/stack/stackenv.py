@@ -19,6 +19,7 @@ from pathlib import Path
 
 from firmware_proto.cli import values
 from firmware_proto.runtime.stall import STALL_LOG_ENV
+from planner.ground.console_client import CONSOLE_ENV
 
 __all__ = [
     "CONTROL_ENV",
@@ -92,11 +93,14 @@ def stack_environment(
     stall_log: Path | None = None,
     *,
     twin: Path | None = None,
+    console: str = "",
 ) -> dict[str, str]:
     """The variables a stack exports (see the module docstring); ``rtt_s`` in mission
     seconds, ``speed`` mission seconds per wall second; ``stall_log`` the stall log its
     parts write (``rover go`` names a stalled part from it: docs/realtime.md); ``twin``
-    the calibrated twin its gate plays on."""
+    the calibrated twin its gate plays on; ``console`` its console socket's URL
+    (``rover status``, ``stop``, ``clear-stop``, ``echo`` answer there:
+    :mod:`planner.stack.console_server`)."""
     variables = {
         DOMAIN_ENV: str(domain),
         RANGE_ENV: "LOCALHOST",
@@ -109,6 +113,8 @@ def stack_environment(
         variables[STALL_LOG_ENV] = str(stall_log)
     if twin is not None:
         variables[TWIN_ENV] = str(twin)
+    if console:
+        variables[CONSOLE_ENV] = console
     return variables
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -234,6 +235,7 @@ def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path, one_stack: 
             x.startswith("CONTROL ") for x in stack.lines
         )
         assert any("health: rover status" in x and "READY" in x for x in stack.lines)
+        _the_stacks_console_answers(stack, env)
         inject = subprocess.run(
             [sys.executable, "-m", "firmware_proto.cli", "stack", "inject", "reboot"],
             capture_output=True,
@@ -261,7 +263,7 @@ def test_a_stack_whose_device_never_answers_does_not_stay_up(
     stack = Child(
         [
             *("stack", "up", "--device", str(tmp_path / "nothing-here"), "--rtt", "0.2"),
-            *("--startup-timeout", "20"),
+            *("--startup-timeout", "45"),
         ],
         dict(os.environ),
     )
@@ -273,3 +275,65 @@ def test_a_stack_whose_device_never_answers_does_not_stay_up(
     error = next(line for line in stack.errors if line.startswith("rover stack: error:"))
     assert "no link to the controller" in error and "nothing-here" in error, stack.errors
     assert "rover stack: stopping the link, the bridge and the gate" in stack.lines
+
+
+def _the_stacks_console_answers(stack: Child, env: dict[str, str]) -> None:
+    """``rover stop``, ``status``, ``clear-stop`` and ``echo`` through the stack's
+    console socket (issue #41: each took 4-13 s of rclpy start and DDS discovery): the
+    export line points them at it; the STOP reaches the controller (latched by ``stop``,
+    which only the bridge's STOP lane sets); ``stop`` loads no rclpy; a console that does
+    not answer is said, and the command goes on over ROS 2."""
+    export = stack.wait_for("  export ROS_DOMAIN_ID=", 30)
+    names = dict(item.split("=", 1) for item in export.split()[1:])
+    url = names["ROVER_STACK_CONSOLE"]
+    assert any(x.startswith(f"CONSOLE {url} ") for x in stack.lines)
+    env = {**env, **names}
+
+    def rover(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "firmware_proto.cli", *args],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+            check=False,
+        )
+
+    # `rover stop` as typed at a console, in a process that shows what it imported.
+    probe = (
+        "import sys; from firmware_proto.cli import main; status = main(['stop']); "
+        "print('rclpy loaded:', 'rclpy' in sys.modules); sys.exit(status)"
+    )
+    stopped = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        check=False,
+    )
+    assert stopped.returncode == 0, stopped.stdout + stopped.stderr
+    assert stopped.stdout.startswith(
+        f"stopped: the controller acknowledged the STOP (the stack's console {url}, rover side)"
+    )
+    assert "rclpy loaded: False" in stopped.stdout
+    held = rover("status", "--json")
+    assert held.returncode == 3, held.stdout + held.stderr
+    doc = json.loads(held.stdout)
+    assert doc["latch"] == ["stop"] and doc["where"].startswith("the stack's console")
+    assert "stopped" in doc["statuses"]
+    released = rover("clear-stop")
+    assert released.returncode == 0, released.stdout + released.stderr
+    assert released.stdout.startswith("released: the latch is off (it was held by stop)")
+    echo = rover("echo", "command_status", "--count", "1", "--timeout", "10")
+    assert echo.returncode == 0, echo.stderr
+    assert echo.stdout.splitlines()[1].endswith(" cleared (the last before this echo)")
+    # A console that is gone: said once, then ROS 2 (here: the link's side, as rover go).
+    with socket.socket() as probe_socket:
+        probe_socket.bind(("127.0.0.1", 0))
+        dead = f"http://127.0.0.1:{probe_socket.getsockname()[1]}"
+    fallback = rover("status", "--console", dead, "--timeout", "20")
+    assert fallback.returncode == 0, fallback.stdout + fallback.stderr
+    assert f"rover status: the stack's console at {dead}" in fallback.stderr
+    assert "over ROS 2 instead (--ros)" in fallback.stderr
+    assert fallback.stdout.startswith("rover status (/ground, ROS domain ")
