@@ -6,8 +6,10 @@ file only adds the ROS 2 data files (docs/ros2.md):
 
 - the package marker for the ament index (``bridge/ros/resource/rover_hil``), so that
   ``ros2 run`` and ``ros2 launch`` find the package;
-- ``package.xml``, the launch files (``bridge/ros/launch/*_launch.py``) and the
-  parameter files (``bridge/ros/config/*.yaml``) under ``share/rover_hil``;
+- ``package.xml``, the launch files (``bridge/ros/launch/*_launch.py``), the
+  parameter files (``bridge/ros/config/*.yaml``), the bridge's systemd unit
+  (``bridge/ros/systemd/*.service``) and the RViz and Foxglove layouts
+  (``bridge/ros/layouts/``) under ``share/rover_hil``;
 - the ``udev/`` files (rules, networkd file, bring-up scripts, README) under
   ``share/rover_hil/udev``, where ``rover udev install`` and ``rover devices`` find them
   in an install (udev/install.py).
@@ -50,6 +52,7 @@ DATA_FILES = [
     (f"share/{PACKAGE}", ["package.xml"]),
     (f"share/{PACKAGE}/launch", _files(ROS_DIR / "launch", "*_launch.py")),
     (f"share/{PACKAGE}/config", _files(ROS_DIR / "config", "*.yaml")),
+    (f"share/{PACKAGE}/systemd", _files(ROS_DIR / "systemd", "*.service")),
     # udev/ holds its tooling's code (the udev package) beside the rules: code is no data.
     (f"share/{PACKAGE}/udev", [f for f in _files(Path("udev"), "*") if not f.endswith(".py")]),
 ]

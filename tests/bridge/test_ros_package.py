@@ -160,6 +160,9 @@ def test_setup_py_installs_the_marker_manifest_launch_and_config_files(
     assert {f"share/{PACKAGE}/config/hil.yaml", f"share/{PACKAGE}/config/bridge.yaml"} <= set(
         installed
     )
+    assert installed[f"share/{PACKAGE}/systemd/rover-bridge.service"] == str(
+        ROS_DIR.relative_to(ROOT) / "systemd" / "rover-bridge.service"
+    )
 
 
 def test_symlink_install_gets_the_metadata_from_the_source_tree(

@@ -84,8 +84,11 @@ def test_bench_rules_name_every_chip_rover_motor(chip: str):
     assert (out.group, out.mode) == ("dialout", "0660")
     assert out.env["ID_MM_DEVICE_IGNORE"] == "1"
     assert out.assumed == ()
-    (hit,) = out.hits
+    hit, service = out.hits
     assert re.search(f"{pid:04x}", (BENCH.read_text().splitlines()[hit.line - 1]))
+    # Then the device is handed to systemd, which starts the bridge's unit (bound to it).
+    assert service.line == line_of(BENCH, "ENV{SYSTEMD_WANTS}+=")
+    assert out.env["SYSTEMD_WANTS"] == "rover-bridge.service"
 
 
 @pytest.mark.parametrize("chip", SERIAL_CHIPS)
@@ -104,7 +107,11 @@ def test_pinned_rules_match_only_the_pinned_unit(chip: str):
         needle = f'ATTRS{{idProduct}}=="{pid:04x}", KERNELS'
     out = evaluate([right], event)
     assert out.symlinks == ("rover-motor",)
-    assert [h.line for h in out.hits] == [line_of(PINNED, needle)]
+    assert [h.line for h in out.hits] == [
+        line_of(PINNED, needle),
+        line_of(PINNED, "ENV{SYSTEMD_WANTS}+="),
+    ]
+    assert out.env["SYSTEMD_WANTS"] == "rover-bridge.service"
     assert evaluate([wrong], event).symlinks == ()
 
 
