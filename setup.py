@@ -53,6 +53,7 @@ DATA_FILES = [
     (f"share/{PACKAGE}/launch", _files(ROS_DIR / "launch", "*_launch.py")),
     (f"share/{PACKAGE}/config", _files(ROS_DIR / "config", "*.yaml")),
     (f"share/{PACKAGE}/systemd", _files(ROS_DIR / "systemd", "*.service")),
+    (f"share/{PACKAGE}/layouts", _files(ROS_DIR / "layouts", "*")),
     # udev/ holds its tooling's code (the udev package) beside the rules: code is no data.
     (f"share/{PACKAGE}/udev", [f for f in _files(Path("udev"), "*") if not f.endswith(".py")]),
 ]

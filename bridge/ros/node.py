@@ -25,6 +25,14 @@ Publishes:
 - ``odom_ground`` ``nav_msgs/Odometry`` (frame ``map`` -> ``base_link``): the
   controller's POSE from a sensor that sees the ground, stamped with the measurement's
   time; what drift control must use, because encoders cannot see slip.
+- ``/tf`` ``tf2_msgs/TFMessage`` with ``publish_tf`` (the default), on every ENCODERS
+  frame: ``odom -> base_link`` from the odometry, and ``map -> odom`` once a POSE has
+  placed the odometry in the map (held between POSEs, REP 105), so that RViz and tf2
+  see ``map -> odom -> base_link`` live. Only where ``tf2_msgs`` is installed: a sourced
+  ROS 2 has it; the ROS 2 wheels on PyPI have no ``tf2_msgs`` for Jazzy, and rclpy can
+  publish no type whose support is not built, so there the node says once that it
+  publishes no ``/tf`` (:attr:`BridgeNode.tf_note`). Recordings and the live Foxglove
+  connection carry ``/tf`` everywhere (docs/view.md).
 - ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz`` (1 Hz), and
   at once whenever the link changes state (lost, disconnected, handshaking, ready,
   mismatch): the link, the controller and the steps rejected by reason
@@ -37,7 +45,9 @@ thread runs the telemetry and status outputs; one diagnostics thread publishes
 
 from __future__ import annotations
 
+import importlib
 import logging
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -72,6 +82,8 @@ from bridge.ros.rosport.msgs import (
     stamp,
 )
 from firmware_proto.linkio.trafficio import LogWriter, open_recorder
+from firmware_proto.model.pose import Pose as PlanarPose
+from firmware_proto.model.pose import frame_in
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (
@@ -116,6 +128,39 @@ def _covariance(var_xy: float, var_yaw: float) -> list[float]:
     return cov
 
 
+TF_TOPIC = "/tf"
+"""tf2's topic (absolute: one tree per ROS domain, REP 105)."""
+NO_TF2_MSGS = (
+    "no /tf: tf2_msgs is not installed (the ROS 2 Jazzy wheels on PyPI have no "
+    "tf2_msgs, and rclpy cannot publish a type without its generated support; a sourced "
+    "ROS 2 has it). Recordings and rover go --foxglove carry /tf (docs/ros2.md)"
+)
+"""What :attr:`BridgeNode.tf_note` says where ``tf2_msgs`` cannot be imported."""
+
+
+def tf_message_type() -> type[Any] | None:
+    """``tf2_msgs/msg/TFMessage``'s generated class, or ``None`` where it is not
+    installed."""
+    try:
+        found: type[Any] = importlib.import_module("tf2_msgs.msg").TFMessage
+    except (ImportError, AttributeError):
+        return None
+    return found
+
+
+def _transform(when: Any, parent: str, child: str, x: float, y: float, yaw: float) -> Any:
+    """A planar ``geometry_msgs/TransformStamped``: ``child`` at (x, y, yaw rad) in
+    ``parent``."""
+    geometry = importlib.import_module("geometry_msgs.msg")
+    return geometry.TransformStamped(
+        header=Header(stamp=when, frame_id=parent),
+        child_frame_id=child,
+        transform=geometry.Transform(
+            translation=geometry.Vector3(x=x, y=y, z=0.0), rotation=quaternion_from_yaw(yaw)
+        ),
+    )
+
+
 class BridgeNode:
     """The bridge: a ROS port on one side, the controller link on the other."""
 
@@ -156,6 +201,19 @@ class BridgeNode:
         self._odom_pub = port.publisher(params.topic_odom, Odometry, qos.TELEMETRY)
         self._ground_pub = port.publisher(params.topic_ground_pose, Odometry, qos.TELEMETRY)
         self._diag_pub = port.publisher(params.topic_diagnostics, DiagnosticArray, qos.DIAGNOSTICS)
+        self._tf_type = tf_message_type() if params.publish_tf else None
+        self._tf_pub = (
+            port.publisher(TF_TOPIC, self._tf_type, qos.TELEMETRY)
+            if self._tf_type is not None
+            else None
+        )
+        self.tf_note = NO_TF2_MSGS if params.publish_tf and self._tf_type is None else ""
+        """Why the node publishes no ``/tf`` (``""``: it does, or was told not to)."""
+        if self.tf_note:
+            logger.info("%s", self.tf_note)
+        self._map_to_odom: PlanarPose | None = None
+        """Where the odometry's frame lies in the map, from the last POSE (held)."""
+        self._odom_now: PlanarPose | None = None
         self.recorder: LogWriter | None = None
         if link is None and params.record:
             open_transport(params.url)  # a malformed URL raises here, before the file exists
@@ -281,9 +339,12 @@ class BridgeNode:
         if isinstance(msg, Encoders):
             with self._odom_lock:
                 est = self.odometry.update_encoders(msg)
+                self._odom_now = PlanarPose(est.x_m, est.y_m, math.degrees(est.yaw_rad))
+            now = stamp()
+            self._publish_tf(now, est.x_m, est.y_m, est.yaw_rad)
             self._odom_pub.publish(
                 Odometry(
-                    header=Header(stamp=stamp(), frame_id=self.params.odom_frame),
+                    header=Header(stamp=now, frame_id=self.params.odom_frame),
                     child_frame_id=self.params.base_frame,
                     pose=PoseWithCovariance(
                         pose=Pose(
@@ -314,6 +375,13 @@ class BridgeNode:
             pose = ground_pose(msg)
             if pose is None:
                 return  # no fix: nothing to report
+            with self._odom_lock:
+                odom_now = self._odom_now
+            if odom_now is not None:
+                # map -> odom: the POSE against the odometry at (about) the same moment.
+                self._map_to_odom = frame_in(
+                    PlanarPose(pose.x_m, pose.y_m, math.degrees(pose.yaw_rad)), odom_now
+                )
             var = pose.sigma_m**2
             self._ground_pub.publish(
                 Odometry(
@@ -330,6 +398,19 @@ class BridgeNode:
                     ),
                 )
             )
+
+    def _publish_tf(self, when: Any, x_m: float, y_m: float, yaw_rad: float) -> None:
+        """``/tf`` for one odometry sample (dispatcher thread); nothing without tf2_msgs."""
+        if self._tf_pub is None or self._tf_type is None:
+            return
+        p = self.params
+        transforms = [_transform(when, p.odom_frame, p.base_frame, x_m, y_m, yaw_rad)]
+        held = self._map_to_odom
+        if held is not None:
+            transforms.insert(
+                0, _transform(when, p.map_frame, p.odom_frame, held.x, held.y, held.yaw_rad)
+            )
+        self._tf_pub.publish(self._tf_type(transforms=transforms))
 
     def diagnostics(self) -> LinkDiagnostics:
         """The link's diagnostics snapshot."""

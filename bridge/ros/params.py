@@ -103,6 +103,11 @@ class BridgeParams:
     odom_frame: str = _p("odom", "frame of /odom", runtime=True)
     map_frame: str = _p("map", "frame of the ground-seeing pose", runtime=True)
     base_frame: str = _p("base_link", "the rover's body frame", runtime=True)
+    publish_tf: bool = _p(
+        True,
+        "publish /tf: odom -> base_link from odometry, map -> odom from the ground-seeing "
+        "POSE (where tf2_msgs is installed: a sourced ROS 2 has it, the PyPI wheels do not)",
+    )
     diagnostics_hz: float = _p(
         1.0, "/diagnostics rate, Hz (also at once on a link change)", runtime=True
     )

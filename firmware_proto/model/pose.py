@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 
 from firmware_proto.model.jsoncodec import spec
 
-__all__ = ["Point", "Pose"]
+__all__ = ["Point", "Pose", "frame_in"]
 
 
 class Point(NamedTuple):
@@ -64,3 +64,17 @@ class Pose:
 
     def __str__(self) -> str:
         return f"({self.x:.3f}, {self.y:.3f}, {self.yaw_deg:.1f} deg)"
+
+
+def frame_in(body_in_parent: Pose, body_in_frame: Pose) -> Pose:
+    """Where a frame lies in a parent frame, given one body's pose in each: ``map ->
+    odom`` from the rover's pose in the map (a ground-seeing POSE) and in ``odom`` (its
+    odometry), the transform ROS's ``/tf`` carries as ``map -> odom`` (REP 105), so that
+    composed with ``odom -> base_link`` it gives the map pose. Planar: metres, degrees."""
+    yaw = math.radians(body_in_parent.yaw_deg - body_in_frame.yaw_deg)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return Pose(
+        body_in_parent.x - (c * body_in_frame.x - s * body_in_frame.y),
+        body_in_parent.y - (s * body_in_frame.x + c * body_in_frame.y),
+        math.degrees(math.atan2(math.sin(yaw), math.cos(yaw))),
+    )

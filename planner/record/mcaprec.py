@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from firmware_proto.model.pose import Pose
+from firmware_proto.model.pose import Pose, frame_in
 from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import WorldMap
 from planner.plan.orchestrator import MissionResult
@@ -390,13 +390,16 @@ class McapRecorder:
     def _tf_schema(self) -> Any:
         schema = self._schemas.get(_TF_TYPE)
         if schema is None:
-            # No tf2_msgs wheel: its one-field definition is written here, its
-            # dependencies from the generated geometry_msgs class.
-            transform = _class_of("geometry_msgs/TransformStamped")
-            text = (
-                "geometry_msgs/TransformStamped[] transforms\n"
-                f"{_SEPARATOR}\nMSG: geometry_msgs/TransformStamped\n{msgdef(transform)}"
-            )
+            try:  # a sourced ROS 2 has tf2_msgs: its definition made from its class
+                text = msgdef(_class_of(_TF_TYPE))
+            except ImportError:
+                # The PyPI wheels have no tf2_msgs: its one field is tf2_msgs's own
+                # TFMessage.msg, the rest made from the generated geometry_msgs class.
+                transform = _class_of("geometry_msgs/TransformStamped")
+                text = (
+                    "geometry_msgs/TransformStamped[] transforms\n"
+                    f"{_SEPARATOR}\nMSG: geometry_msgs/TransformStamped\n{msgdef(transform)}"
+                )
             schema = self._writer.register_msgdef(_TF_TYPE, text)
             self._schemas[_TF_TYPE] = schema
         return schema
@@ -419,11 +422,14 @@ class McapRecorder:
         ]
         if self._ground is not None:
             gx, gy, gyaw = self._ground
-            myaw = gyaw - yaw  # map -> odom = (map -> base) * inverse(odom -> base)
-            c, s = math.cos(myaw), math.sin(myaw)
-            mx = gx - (c * p.position.x - s * p.position.y)
-            my = gy - (s * p.position.x + c * p.position.y)
-            transforms.insert(0, _transform(stamp, "map", header.frame_id, mx, my, myaw))
+            # map -> odom = (map -> base) * inverse(odom -> base)
+            odom = frame_in(
+                Pose(gx, gy, math.degrees(gyaw)),
+                Pose(p.position.x, p.position.y, math.degrees(yaw)),
+            )
+            transforms.insert(
+                0, _transform(stamp, "map", header.frame_id, odom.x, odom.y, odom.yaw_rad)
+            )
         return {"transforms": transforms}
 
     def _write_loop(self) -> None:

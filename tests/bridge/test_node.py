@@ -37,6 +37,7 @@ class Client:
     """A ROS client of the bridge: publishes steps and e-stops, records what comes back."""
 
     def __init__(self, port: RosPort) -> None:
+        self.port = port
         self.status = Recorder()
         self.odom: list[Odometry] = []
         self.ground: list[Odometry] = []
@@ -300,3 +301,46 @@ def test_odom_is_continuous_across_a_controller_reboot(bridged: Any) -> None:
         assert time.monotonic() < deadline, client.odom[-1].pose.pose.position
         time.sleep(0.01)
     assert node.odometry.resets == 0  # re-based on the nonce, not caught by the heuristic
+
+
+def test_tf_where_tf2_msgs_is_installed_else_said_once(bridged: Any) -> None:
+    """``/tf``: ``odom -> base_link`` on every odometry sample and ``map -> odom`` once a
+    POSE placed it, composing to the reported map pose. The ROS 2 wheels on PyPI have no
+    tf2_msgs: there the node publishes none and says why (docs/ros2.md)."""
+    from bridge.ros.node import NO_TF2_MSGS, TF_TOPIC, tf_message_type
+
+    _emu, node, client = bridged
+    tf_type = tf_message_type()
+    if tf_type is None:
+        assert node.tf_note == NO_TF2_MSGS and node._tf_pub is None
+        return
+    got: list[Any] = []
+    lock = threading.Lock()
+
+    def keep(msg: Any) -> None:
+        with lock:
+            got.append(msg)
+
+    sub = client.port.subscribe(TF_TOPIC, tf_type, keep, qos.TELEMETRY)
+    try:
+        client.step(1, 60, 11500)
+        client.status.wait_count("completed", 1)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with lock:
+                both = [m for m in got if len(m.transforms) == 2]
+            if both:
+                break
+            threading.Event().wait(0.05)
+        assert both, "no /tf with map -> odom -> base_link"
+        map_odom, odom_base = both[-1].transforms
+        assert (map_odom.header.frame_id, map_odom.child_frame_id) == ("map", "odom")
+        assert (odom_base.header.frame_id, odom_base.child_frame_id) == ("odom", "base_link")
+        ground = client.ground[-1].pose.pose.position
+        t1, t2 = map_odom.transform, odom_base.transform
+        yaw1 = 2 * math.atan2(t1.rotation.z, t1.rotation.w)
+        x = t1.translation.x + math.cos(yaw1) * t2.translation.x - math.sin(yaw1) * t2.translation.y
+        y = t1.translation.y + math.sin(yaw1) * t2.translation.x + math.cos(yaw1) * t2.translation.y
+        assert math.hypot(x - ground.x, y - ground.y) < 0.1  # the POSE, within its noise
+    finally:
+        sub.close()

@@ -163,6 +163,11 @@ def test_setup_py_installs_the_marker_manifest_launch_and_config_files(
     assert installed[f"share/{PACKAGE}/systemd/rover-bridge.service"] == str(
         ROS_DIR.relative_to(ROOT) / "systemd" / "rover-bridge.service"
     )
+    layouts = {k for k in installed if k.startswith(f"share/{PACKAGE}/layouts/")}
+    assert layouts == {
+        f"share/{PACKAGE}/layouts/rover.rviz",
+        f"share/{PACKAGE}/layouts/mission.foxglove.json",
+    }
 
 
 def test_symlink_install_gets_the_metadata_from_the_source_tree(
