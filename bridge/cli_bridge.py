@@ -215,15 +215,24 @@ class RosLayer:
 
 
 def ros_layer(ros_args: Sequence[str]) -> RosLayer:
-    """Parse the ROS arguments (without ``--ros-args``) into the node's parameters.
+    """Parse the ROS arguments (without ``--ros-args``) into the node's parameters: by
+    rcl's own parser where rclpy is installed (:mod:`firmware_proto.cli.rclargs`, as
+    for any ROS 2 node), else by :mod:`firmware_proto.cli.rosargs`.
 
     Raises:
         ValueError: a malformed ROS argument or parameters file, or PyYAML missing.
         OSError: a parameters file cannot be read.
     """
+    from firmware_proto.cli.rclargs import rclpy_available, rclpy_node_parameters
     from firmware_proto.cli.rosargs import parse_ros_args, ros_node_parameters
     from firmware_proto.cli.rosparams import load_parameters_file
 
+    if rclpy_available():
+        read = rclpy_node_parameters(ros_args, NODE_NAME)
+        params = dict(read.params)
+        if read.namespace.strip("/") and "namespace" not in params:
+            params["namespace"] = read.namespace
+        return RosLayer(params, read.node_name)
     parsed = parse_ros_args(ros_args)
     node = parsed.node_name or NODE_NAME
     params = ros_node_parameters(parsed, NODE_NAME, load_parameters_file)

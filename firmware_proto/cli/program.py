@@ -47,6 +47,7 @@ def ros_main(
     argv: Sequence[str] | None = None,
     *,
     node: bool = False,
+    with_rclpy: bool = False,
 ) -> int:
     """Run a program that ``ros2 run`` starts: its own options, then optionally
     ``--ros-args``.
@@ -60,6 +61,9 @@ def ros_main(
             tail goes to it whole, as ``args.ros_args``. Otherwise the node's
             parameters become long options placed before the program's own, which
             therefore win (``map:=lab`` -> ``--map lab``).
+        with_rclpy: the program loads rclpy anyway (the link relay, the executor):
+            rcl's own parser reads the ROS arguments where rclpy is installed
+            (:mod:`firmware_proto.cli.rclargs`).
 
     Returns:
         The exit status (see the module docstring). A usage error exits through
@@ -72,7 +76,7 @@ def ros_main(
         args = parser.parse_args(own)
         args.ros_args = ros_args
     else:
-        args = parse_args_with_ros_args(parser, given, prog)
+        args = parse_args_with_ros_args(parser, given, prog, with_rclpy=with_rclpy)
     configure_logging()
     try:
         return run(args)

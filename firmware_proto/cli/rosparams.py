@@ -15,7 +15,8 @@ import importlib
 from collections.abc import Sequence
 from typing import Any
 
-from firmware_proto.cli.rosargs import argv_from_ros_args, split_ros_args
+from firmware_proto.cli.rclargs import rclpy_available, rclpy_node_parameters
+from firmware_proto.cli.rosargs import argv_from_ros_args, parameters_to_argv, split_ros_args
 
 __all__ = ["load_parameters_file", "parse_args_with_ros_args"]
 
@@ -38,15 +39,28 @@ def load_parameters_file(path: str) -> Any:
 
 
 def parse_args_with_ros_args(
-    parser: argparse.ArgumentParser, argv: Sequence[str], node_name: str
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str],
+    node_name: str,
+    *,
+    with_rclpy: bool = False,
 ) -> argparse.Namespace:
     """Parse a command line that may end in ``--ros-args``: the node's parameters (its
     sections of each ``--params-file``, then ``-p``) become long options placed before
     the program's own, which therefore win. A bad ROS argument or an unreadable file is
-    a usage error (``parser.error``: exit status 2)."""
+    a usage error (``parser.error``: exit status 2).
+
+    ``with_rclpy``: the program loads rclpy anyway; where rclpy is installed, rcl's own
+    parser reads the arguments (:mod:`firmware_proto.cli.rclargs`), else the pure one
+    (:mod:`firmware_proto.cli.rosargs`)."""
     own, ros_args = split_ros_args(argv)
     try:
-        from_ros = argv_from_ros_args(ros_args, node_name, load_parameters_file) if ros_args else []
+        if not ros_args:
+            from_ros: list[str] = []
+        elif with_rclpy and rclpy_available():
+            from_ros = parameters_to_argv(rclpy_node_parameters(ros_args, node_name).params)
+        else:
+            from_ros = argv_from_ros_args(ros_args, node_name, load_parameters_file)
     except (OSError, ValueError) as exc:
         parser.error(str(exc))
     return parser.parse_args(from_ros + own)

@@ -704,7 +704,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     add_arguments(parser)
     # A Ctrl-C that gets through (a second signal) finds the STOP already sent.
-    return ros_main(parser, run, argv)
+    return ros_main(parser, run, argv, with_rclpy=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -99,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="rover_link", description="Earth-Moon link relay.")
     add_arguments(parser)
-    return ros_main(parser, run, argv)
+    return ros_main(parser, run, argv, with_rclpy=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -554,6 +554,40 @@ def test_each_program_reads_its_hil_section_with_pyyaml(node: str) -> None:
         assert args.seed == 9
 
 
+@pytest.mark.rclpy
+@pytest.mark.parametrize("node", ["rover_link", "rover_executor"])
+def test_rcl_reads_the_ros_arguments_of_the_programs_that_load_rclpy(
+    node: str, tmp_path: Path
+) -> None:
+    """Where rclpy is loaded anyway, rcl's own parser reads ``--ros-args`` (issue #41):
+    the same options as the pure reader for the shipped file, ``-p`` winning over it,
+    ``-r __node:=`` choosing the section, and a malformed argument refused in rcl's
+    words (a usage error, exit 2)."""
+    from firmware_proto.cli.rosparams import parse_args_with_ros_args
+
+    parser = argparse.ArgumentParser(prog=node)
+    OPTIONS[node](parser)
+    given = ["--goal", "2,3,90"] if node == "rover_executor" else []
+    argv = [*given, "--ros-args", "--params-file", str(ROS_DIR / "config" / "hil.yaml")]
+    by_rcl = parse_args_with_ros_args(parser, argv, node, with_rclpy=True)
+    assert vars(by_rcl) == vars(parse_args_with_ros_args(parser, argv, node))
+    if node == "rover_link":
+        assert parse_args_with_ros_args(parser, [*argv, "-p", "seed:=5"], node).seed == 5
+        mine = tmp_path / "params.yaml"
+        mine.write_text(
+            "/**/rover_link:\n  ros__parameters:\n    rtt: 0.5\n"
+            "/**/relay_b:\n  ros__parameters:\n    rtt: 0.25\n"
+        )
+        ros = ["--ros-args", "--params-file", str(mine)]
+        read = parse_args_with_ros_args(parser, ros, node, with_rclpy=True)
+        assert read.rtt == 0.5
+        renamed = [*ros, "-r", "__node:=relay_b"]  # another node name: its section
+        assert parse_args_with_ros_args(parser, renamed, node, with_rclpy=True).rtt == 0.25
+    with pytest.raises(SystemExit) as refused:
+        parse_args_with_ros_args(parser, [*given, "--ros-args", "-p", "bad"], node, with_rclpy=True)
+    assert refused.value.code == 2
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", [[], ["--symlink-install"]], ids=["copy", "symlink"])
 def test_colcon_builds_the_package_and_its_executables_start(
