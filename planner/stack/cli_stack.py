@@ -373,7 +373,8 @@ def _up(args: argparse.Namespace) -> int:
 
 def _names(stack: Any) -> str:
     """The parts started, last first, in words: ``the link, the bridge and the gate``."""
-    names = [f"the {part.name}" for part in reversed(stack.parts)]
+    words = {"onboard": "onboard program"}
+    names = [f"the {words.get(part.name, part.name)}" for part in reversed(stack.parts)]
     if len(names) < 2:
         return "".join(names) or "nothing (no part started)"
     return ", ".join(names[:-1]) + " and " + names[-1]

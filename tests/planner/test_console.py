@@ -247,7 +247,10 @@ def test_a_stack_on_a_real_device_starts_no_emulator(tmp_path: Path, one_stack: 
         assert inject.returncode == 1 and "drives a real device: no emulator" in inject.stderr
         stack.proc.send_signal(2)
         assert stack.wait(60) == 0
-        assert "rover stack: stopping the link, the bridge and the gate" in stack.lines
+        assert (
+            "rover stack: stopping the link, the onboard program, the bridge and the gate"
+            in stack.lines
+        )
     finally:
         if stack is not None:
             stack.stop()
@@ -274,7 +277,10 @@ def test_a_stack_whose_device_never_answers_does_not_stay_up(
     assert not any(line.startswith("STACK UP") for line in stack.lines), stack.lines
     error = next(line for line in stack.errors if line.startswith("rover stack: error:"))
     assert "no link to the controller" in error and "nothing-here" in error, stack.errors
-    assert "rover stack: stopping the link, the bridge and the gate" in stack.lines
+    assert (
+        "rover stack: stopping the link, the onboard program, the bridge and the gate"
+        in stack.lines
+    )
 
 
 def _the_stacks_console_answers(stack: Child, env: dict[str, str]) -> None:
