@@ -49,6 +49,7 @@ from pathlib import Path
 from types import TracebackType
 
 __all__ = [
+    "CONSOLE_QUIET_S",
     "DEFAULT_STALL_THRESHOLD_S",
     "STALL_LOG_ENV",
     "STALL_LOG_MAX_BYTES",
@@ -74,6 +75,9 @@ STALL_LOG_ENV = "ROVER_STALL_LOG"
 STALL_LOG_MAX_BYTES = 4 << 20
 """A stall log longer than this is renamed ``.1`` (one generation kept) before a write."""
 _STACK_CHARS = 4000
+CONSOLE_QUIET_S = 10.0
+"""After a stall's console line, further stalls within this long (s) are only counted,
+and said with the next line; the stall log has every one."""
 
 
 def stall_log_path(env: dict[str, str] | None = None) -> Path | None:
@@ -177,6 +181,9 @@ class StallMonitor:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._episodes: dict[str, _Episode] = {}
+        self._said_at: float | None = None
+        self._held_back = 0
+        self._held_back_ms = 0.0
         self.records: list[StallRecord] = []
         """Every stall so far (also logged, and appended to the stall log)."""
         self.longest_ms = 0.0
@@ -273,8 +280,23 @@ class StallMonitor:
             _append(self.log_path, record)
         if self.stacks_on_console:
             logger.warning("stall: %s\n%s", record.line(), record.stack)
-        else:
-            logger.warning("stall: %s; %s", record.line(), self.where_stacks_are())
+            return
+        # One line per CONSOLE_QUIET_S at most: a machine that holds the process up
+        # again and again (a load of 30 held a demo up 60 times in a minute) gets one
+        # line naming how many more there were, not a screen of them. All are logged.
+        now = self._clock()
+        if self._said_at is not None and now - self._said_at < CONSOLE_QUIET_S:
+            self._held_back += 1
+            self._held_back_ms = max(self._held_back_ms, record.ms)
+            return
+        more = ""
+        if self._held_back:
+            more = (
+                f" ({self._held_back} more since the last line, the longest "
+                f"{self._held_back_ms:.0f} ms)"
+            )
+        self._said_at, self._held_back, self._held_back_ms = now, 0, 0.0
+        logger.warning("stall: %s%s; %s", record.line(), more, self.where_stacks_are())
 
     def where_stacks_are(self) -> str:
         """Where a stall's stacks can be read, in words, for its one console line."""

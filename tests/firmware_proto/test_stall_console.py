@@ -102,3 +102,28 @@ def test_the_rover_commands_v_is_what_brings_them_back(verbose: int, on_console:
     args = parser.parse_args([])
     args.verbose = verbose  # the rover command's own -v (firmware_proto.cli)
     assert runtime_options(args, "demo").stall_stacks_on_console is on_console
+
+
+def test_stalls_coming_again_and_again_are_counted_not_each_said(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A machine that holds a process up again and again (at a load of 30 a demo was held
+    up 60 times in a minute): one line, then the next after CONSOLE_QUIET_S naming how
+    many more there were; the stall log keeps every one."""
+    from firmware_proto.runtime.stall import CONSOLE_QUIET_S
+
+    log = tmp_path / "stalls.jsonl"
+    clock = Clock()
+    monitor = StallMonitor("demo", log_path=log, clock=clock)
+    with caplog.at_level(logging.WARNING, logger="firmware_proto.runtime.stall"):
+        for _ in range(5):  # five stalls within a few seconds
+            _stall_once(monitor, clock)
+            clock.now += 1.0
+        clock.now += CONSOLE_QUIET_S
+        _stall_once(monitor, clock)
+    lines = _warnings(caplog)
+    assert len(lines) == 2, lines
+    assert "more since" not in lines[0]
+    assert "(4 more since the last line, the longest 300 ms)" in lines[1]
+    assert all("\n" not in line for line in lines)
+    assert len(read_stalls(log)) == 6
