@@ -233,6 +233,10 @@ class ViewHub:
         self._step_sent: float | None = None
         self._step_started: float | None = None
         self._step_index = 0
+        self._step_sent_for: float | None = None
+        """When a step was last sent from the ground (step by step; ``None``: never)."""
+        self._moved_at = -math.inf
+        """When the progress last moved to another plan or step."""
         self._rtt_measured: float | None = None
         self._progress: dict[str, Any] = {}
         self._status = ""
@@ -487,6 +491,7 @@ class ViewHub:
 
     def _topic_wheel_instructions(self, rx: float, msg: Any) -> None:
         self._step_sent = rx
+        self._step_sent_for = rx
         self._step_started = None
         self._halted = None  # a new step: the ghost follows it
         if self._result is not None and not self._result.get("final"):
@@ -609,6 +614,17 @@ class ViewHub:
         return next((i for i, v in enumerate(self._ghosts) if v is verdict), 0)
 
     def _on_progress(self, rx: float, p: Progress) -> None:
+        moved = p.verdict is not self._following or p.step != self._step_index
+        if moved and p.status in ("published", "accepted", "running"):
+            # Another plan, or another step of it, under way: the ghost follows it again
+            # (a plan run on board has no wheel_instructions to say so).
+            self._halted = None
+            if self._step_sent_for is None or self._step_sent_for < self._moved_at:
+                # No step was sent from here since the last move: the rover runs the
+                # plan on board and its report of the step, half a round trip old, is
+                # the first the ground hears of it.
+                self._step_started = rx - self.rtt_s / 2.0 if p.status == "running" else None
+            self._moved_at = rx
         self._following = p.verdict
         self._step_index = p.step
         data = {

@@ -209,3 +209,37 @@ def test_without_a_verdict_there_is_no_ghost() -> None:
         hub.pump()
     ticks = _events(client, "tick")
     assert ticks and all(t["ghost"] is None for t in ticks)
+
+
+def test_a_plan_run_on_board_moves_the_ghost_and_a_replan_frees_it() -> None:
+    """On board (docs/onboard.md) no step is sent from the ground: the rover's reports,
+    half a round trip old, say which step runs. The ghost follows them; stopped by a STOP
+    it stays until the next plan runs, then follows that one."""
+    clock = Clock()
+    hub = ViewHub(WORLD, rtt_s=RTT_S, clock=clock)
+    client = hub.subscribe()
+    first = _plan(WORLD.start, [1.0, 1.0])
+    hub.planned(_mission(first))
+
+    def report(verdict: Verdict, step: int, status: str, seconds: float) -> list[Any]:
+        hub.progress(Progress(step, 2, status, 10.0, None, None, verdict))
+        ghosts = []
+        for _ in range(round(seconds * 10)):
+            clock.now += 0.1
+            hub.pump()
+            ghosts += [t for t in _events(client, "tick") if t["ghost"] is not None]
+        return ghosts
+
+    moving = report(first, 0, "running", 2.0)
+    # Reported half a round trip after it began: already 1.5 s into the step's 4 s.
+    assert _on_step(first, 0, moving[0]["ghost"]) < 1e-3
+    assert moving[0]["ghost"][0] > WORLD.start.x + 0.3
+    assert moving[-1]["ghost"][0] > moving[0]["ghost"][0]  # and on along it
+    hub.tap("sent", "/ground/emergency_stop", Bool(data=True))
+    stopped = report(first, 0, "running", 1.0)
+    assert stopped[-1]["halted"] and stopped[-1]["ghost"] == stopped[0]["ghost"]
+    second = _plan(Pose(1.9, 3.0, 90.0), [0.8, 0.8])
+    hub.planned(_mission(second))
+    again = report(second, 0, "running", 1.0)
+    assert not again[-1]["halted"]
+    assert all(_on_step(second, 0, t["ghost"]) < 1e-3 for t in again)
