@@ -69,6 +69,7 @@ SLOW_MODULES = (
     "tests/planner/test_ground_e2e.py",
     "tests/planner/test_interrupt.py",
     "tests/planner/test_mission.py",
+    "tests/planner/test_orphans.py",
     "tests/planner/test_relay.py",
     "tests/planner/test_view.py",
     "tests/planner/test_view_browser.py",

@@ -34,6 +34,7 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from firmware_proto.cli.program import configure_logging, error_text
+from firmware_proto.runtime.parentwatch import watch_parent
 
 __all__ = ["ENTRY_POINT_GROUP", "build_parser", "main"]
 
@@ -112,6 +113,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
     )
     func: Callable[[argparse.Namespace], int] = args.func
+    # A part of a stack ends with the process that started it (runtime/parentwatch.py).
+    watch_parent()
     try:
         return int(func(args) or 0)
     except KeyboardInterrupt:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import subprocess
 import sys
 import tempfile
@@ -32,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
+from firmware_proto.runtime.parentwatch import EXIT_WITH_PARENT_ENV
 from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.stack.controllers import pil_target_of
 
@@ -72,12 +74,16 @@ class ChildProcess:
         self.args = args
         self.log = log
         """Where its stderr is kept whole (``None``: only its tail, in memory)."""
+        # Its standard input is a pipe this process never writes to: when this process
+        # ends, however it ends, the part reads end-of-file and ends too
+        # (firmware_proto/runtime/parentwatch.py).
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "firmware_proto.cli", *args],
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env=dict(env),
+            env={**env, EXIT_WITH_PARENT_ENV: str(os.getpid())},
         )
         self.lines: list[str] = []
         self._ready = threading.Event()
@@ -163,7 +169,7 @@ class ChildProcess:
                 self.proc.wait(5)
         for reader in (self._reader, self._err_reader):
             reader.join(5)
-        for stream in (self.proc.stdout, self.proc.stderr):
+        for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if stream is not None:
                 stream.close()
 

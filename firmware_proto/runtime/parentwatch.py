@@ -1,0 +1,80 @@
+"""A part of a stack ends when the process that started it ends, however that ends.
+
+``rover stack up`` and ``rover demo`` start their parts (gate, emulator, bridge, onboard
+program, link relay) as child processes and stop them on the way out. A parent killed
+outright (SIGKILL, a test's time limit, the out-of-memory killer) runs no way out: its
+parts went on, an emulator and a relay each holding a core, until someone found them.
+
+The parent opens a pipe to each part's standard input and says so in the part's
+environment (:data:`EXIT_WITH_PARENT_ENV`, its own pid); it never writes to it. The
+kernel closes the pipe when the parent ends, whatever the cause, and the part's
+:func:`watch_parent` thread reads end-of-file: it sends the part SIGTERM, so that the
+part ends as it does at Ctrl-C (its STOP, its cleanup), and ends it outright if it is
+still there :data:`GRACE_S` later. A process that inherited the variable from further up
+(its parent's pid is not the one named) watches nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import BinaryIO
+
+__all__ = ["EXIT_WITH_PARENT_ENV", "GRACE_S", "watch_parent"]
+
+logger = logging.getLogger(__name__)
+
+EXIT_WITH_PARENT_ENV = "ROVER_EXIT_WITH_PARENT"
+"""Set by a parent to its own pid, with a pipe of its as the child's standard input."""
+
+GRACE_S = 10.0
+"""Seconds a part is given to end after SIGTERM once its parent is gone."""
+
+
+def watch_parent(
+    environ: Mapping[str, str] | None = None,
+    stdin: BinaryIO | None = None,
+    *,
+    on_orphaned: Callable[[], None] | None = None,
+    grace_s: float = GRACE_S,
+) -> threading.Thread | None:
+    """Start the watch if this process is a part whose parent asked for it; returns the
+    thread (daemon, ``parent-watch``), or ``None`` when there is nothing to watch.
+
+    Args:
+        environ: the environment (default ``os.environ``).
+        stdin: the pipe from the parent (default the process's standard input).
+        on_orphaned: what to do when the parent is gone (default: SIGTERM to this
+            process, then ``os._exit(1)`` if it is still running ``grace_s`` later).
+    """
+    env = os.environ if environ is None else environ
+    wanted = env.get(EXIT_WITH_PARENT_ENV, "")
+    if not wanted.isdigit() or int(wanted) != os.getppid():
+        return None
+    stream = stdin if stdin is not None else sys.stdin.buffer
+    act = on_orphaned if on_orphaned is not None else (lambda: _end_self(grace_s))
+
+    def watch() -> None:
+        try:
+            while stream.read(4096):  # the parent never writes: only end-of-file comes
+                pass
+        except (OSError, ValueError):  # closed under us while the program ends
+            return
+        logger.warning("the process that started this one (pid %s) has ended: stopping", wanted)
+        act()
+
+    thread = threading.Thread(target=watch, name="parent-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def _end_self(grace_s: float) -> None:
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(grace_s)
+    logger.error("still running %.0f s after SIGTERM with no parent: exiting", grace_s)
+    os._exit(1)
