@@ -1,5 +1,5 @@
 """``rover replay --emulator``: the emulator's replay target (see
-:mod:`firmware_proto.cli.replay` for the options and :mod:`emulator.replay` for what it
+:mod:`firmware_proto.cli.replay` for the options and :mod:`emulator.emulator_replay` for what it
 does)."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def recorded_dt_s(metadata: Mapping[str, str]) -> float | None:
 def run(args: argparse.Namespace) -> int:
     """Replay ``args.log`` into a fresh emulator; print the report; 0 if the answers
     match, 1 if they differ."""
-    from emulator.replay import ReplayOptions, replay_into_emulator
+    from emulator.emulator_replay import ReplayOptions, replay_into_emulator
     from firmware_proto.linkio.trafficio import open_recorder, read_log
 
     log = read_log(args.log)

@@ -15,14 +15,14 @@ from firmware_proto.lazyexports import lazy_exports
 
 if TYPE_CHECKING:
     from sim.checks import RULES, Violation
-    from sim.rig import Outcome, Rig, run_scenario
+    from sim.rig import Rig, ScenarioOutcome, run_scenario
     from sim.scenario import CONTROLLERS, MEDIA, Scenario, make_scenario
 
 __getattr__, __dir__ = lazy_exports(
     __name__,
     {
         "sim.checks": ("RULES", "Violation"),
-        "sim.rig": ("Outcome", "Rig", "run_scenario"),
+        "sim.rig": ("ScenarioOutcome", "Rig", "run_scenario"),
         "sim.scenario": ("CONTROLLERS", "MEDIA", "Scenario", "make_scenario"),
     },
 )
@@ -31,9 +31,9 @@ __all__ = [
     "CONTROLLERS",
     "MEDIA",
     "RULES",
-    "Outcome",
     "Rig",
     "Scenario",
+    "ScenarioOutcome",
     "Violation",
     "make_scenario",
     "run_scenario",

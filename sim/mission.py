@@ -78,7 +78,7 @@ from firmware_proto.wire.messages import Command, Encoders, FaultCode, StopSourc
 from firmware_proto.wire.messages import Pose as PoseMsg
 from sim.checks import Violation
 from sim.rig import _ACTION, Rig, _packaged_rover
-from sim.scenario import DEFAULT_TICK_S, Fault, Scenario
+from sim.scenario import DEFAULT_TICK_S, Scenario, ScenarioFault
 
 __all__ = [
     "GUARD_BOUND_S",
@@ -213,7 +213,7 @@ class MissionScenario:
     pose_silent: tuple[float, float] | None
     ground_stop_s: float | None
     uplink_faults: tuple[str, ...]
-    wire_faults: tuple[Fault, ...]
+    wire_faults: tuple[ScenarioFault, ...]
 
     @property
     def reproducer(self) -> str:
@@ -288,11 +288,13 @@ def make_mission(
     kinds = ("dup", "late", "supersede", "replay", "tamper", "malformed", "misfit")
     uplink = tuple(k for k in kinds if rng.random() < 0.12)
     token = rng.random() < 0.7 or "tamper" in uplink
-    wire: list[Fault] = []
+    wire: list[ScenarioFault] = []
     if rng.random() < 0.1:
-        wire.append(Fault("reboot", arrive + rng.uniform(0.0, duration), 0.0))
+        wire.append(ScenarioFault("reboot", arrive + rng.uniform(0.0, duration), 0.0))
     if rng.random() < 0.1:
-        wire.append(Fault("cut", arrive + rng.uniform(0.0, duration), rng.uniform(0.4, 1.0)))
+        wire.append(
+            ScenarioFault("cut", arrive + rng.uniform(0.0, duration), rng.uniform(0.4, 1.0))
+        )
     return MissionScenario(
         seed,
         controller,

@@ -67,10 +67,9 @@ from sim.checks import Ledger, Violation, final_checks
 from sim.controllers import SampleLeak, build_controller
 from sim.linkmutants import make_link_core
 from sim.pipe import Delivery, Pipe, Window
-from sim.scenario import Fault as FaultSpec
-from sim.scenario import Scenario
+from sim.scenario import Scenario, ScenarioFault
 
-__all__ = ["RECOVERY_S", "Outcome", "Rig", "run_scenario"]
+__all__ = ["RECOVERY_S", "Rig", "ScenarioOutcome", "run_scenario"]
 
 logger = logging.getLogger(__name__)
 
@@ -98,7 +97,7 @@ _ACTION, _TO_CTL, _TICK, _TO_HOST, _HOST = range(5)
 
 
 @dataclass
-class Outcome:
+class ScenarioOutcome:
     """What one scenario did and whether every invariant held.
 
     Attributes:
@@ -124,7 +123,7 @@ class Outcome:
         return not self.violations
 
 
-def _windows(faults: tuple[FaultSpec, ...], direction: str, medium: str) -> tuple[Window, ...]:
+def _windows(faults: tuple[ScenarioFault, ...], direction: str, medium: str) -> tuple[Window, ...]:
     out = []
     for f in faults:
         if f.kind not in ("cut", "drop", "corrupt", "delay", "kind-loss", "dup"):
@@ -145,7 +144,7 @@ class Rig:
         """Args:
         scenario: what to play.
         rover: the rover description (default: the packaged one).
-        trace: keep every event in words (:attr:`Outcome.trace`).
+        trace: keep every event in words (:attr:`ScenarioOutcome.trace`).
 
         Raises:
             FirmwareBuildError: the C core is asked for and cannot be built here.
@@ -248,7 +247,7 @@ class Rig:
         self._note(f"VIOLATION {rule}: {text}")
 
     # -- the run ---------------------------------------------------------------------------
-    def run(self) -> Outcome:
+    def run(self) -> ScenarioOutcome:
         """Play the scenario to its end; the outcome with every violation found."""
         sc = self.sc
         for action in sc.actions:
@@ -306,7 +305,7 @@ class Rig:
         close = getattr(self.ctl, "close", None)
         if close is not None:
             close()
-        return Outcome(
+        return ScenarioOutcome(
             sc,
             self.violations,
             self.now,
@@ -316,7 +315,7 @@ class Rig:
         )
 
     # -- faults ---------------------------------------------------------------------------------
-    def _schedule_fault(self, f: FaultSpec) -> None:
+    def _schedule_fault(self, f: ScenarioFault) -> None:
         kind = f.kind
         if kind == "reboot":
             self._at(f.start_s, _ACTION, self._reboot)
@@ -732,6 +731,6 @@ def _packaged_rover() -> RoverDescription:
     return load_rover(None)
 
 
-def run_scenario(scenario: Scenario, *, trace: bool = False) -> Outcome:
+def run_scenario(scenario: Scenario, *, trace: bool = False) -> ScenarioOutcome:
     """Play ``scenario`` once; see :class:`Rig`."""
     return Rig(scenario, trace=trace).run()

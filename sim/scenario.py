@@ -8,7 +8,7 @@ simulator checks that the link recovers (docs/sim.md). The same seed and options
 give the same scenario, and :attr:`Scenario.reproducer` is the one command line that
 plays it again.
 
-Fault kinds (:data:`FAULT_KINDS`): ``cut`` (both directions or one, any length),
+ScenarioFault kinds (:data:`FAULT_KINDS`): ``cut`` (both directions or one, any length),
 ``drop``, ``corrupt`` (serial; on CAN the bus drops a damaged frame), ``delay``,
 ``kind-loss`` (frames of one kind lost: an ACK, a STATUS, an IDENT...), ``dup`` (CAN:
 a frame received twice), ``reboot`` (the controller resets), ``host-freeze`` (the host
@@ -33,8 +33,8 @@ __all__ = [
     "FAULT_KINDS",
     "MEDIA",
     "Action",
-    "Fault",
     "Scenario",
+    "ScenarioFault",
     "make_scenario",
 ]
 
@@ -55,7 +55,7 @@ FAULT_KINDS: dict[str, float] = {
     "stall": 0.5,
     "unplug": 0.7,
 }
-"""Fault kinds and their relative weights in a draw."""
+"""ScenarioFault kinds and their relative weights in a draw."""
 
 _LOST_KINDS = (
     ("ACK", 4.0),
@@ -76,7 +76,7 @@ _HOST_BOUND = {"ACK", "STATUS", "PROGRESS", "IDENT", "STOP_ACK", "CLEAR_ACK", "H
 
 
 @dataclass(frozen=True)
-class Fault:
+class ScenarioFault:
     """One fault of a scenario.
 
     Attributes:
@@ -161,7 +161,7 @@ class Scenario:
     zero_steps: bool
     tick_s: float
     queue_depth: int
-    faults: tuple[Fault, ...]
+    faults: tuple[ScenarioFault, ...]
     actions: tuple[Action, ...]
     quiet_s: float
 
@@ -223,7 +223,7 @@ def _steps(rng: random.Random, n: int, zero_steps: bool) -> tuple[tuple[int, int
 _OUTAGES = ("cut", "host-freeze", "unplug")
 
 
-def _fault(rng: random.Random, kind: str, start: float, duration: float) -> Fault:
+def _fault(rng: random.Random, kind: str, start: float, duration: float) -> ScenarioFault:
     """A fault of ``kind`` with its direction and level drawn."""
     direction = "both"
     level = 1.0
@@ -241,10 +241,12 @@ def _fault(rng: random.Random, kind: str, start: float, duration: float) -> Faul
         level = rng.choice((0.5, 1.0, 1.0))
     elif kind == "unplug":
         duration = min(duration, 2.5)
-    return Fault(kind, start, duration, direction, level, lost, rng.choice(("left", "right")))
+    return ScenarioFault(
+        kind, start, duration, direction, level, lost, rng.choice(("left", "right"))
+    )
 
 
-def _pattern(rng: random.Random, active: float) -> list[Fault]:
+def _pattern(rng: random.Random, active: float) -> list[ScenarioFault]:
     """One of the interleavings that matter most, now and then: faults that meet during
     a recovery. ``recovery``: an outage long enough to trip the controller's watchdog,
     a stopping fault as it ends and answers lost or delayed meanwhile (the automatic
@@ -256,9 +258,11 @@ def _pattern(rng: random.Random, active: float) -> list[Fault]:
         return []
     outage = _fault(rng, rng.choice(_OUTAGES), rng.uniform(0.05, active), 0.0)
     if outage.kind == "cut":
-        outage = Fault("cut", outage.start_s, 0.0, rng.choice(("both", "to_host", "to_controller")))
+        outage = ScenarioFault(
+            "cut", outage.start_s, 0.0, rng.choice(("both", "to_host", "to_controller"))
+        )
     if u < 0.13:
-        out = [Fault(outage.kind, outage.start_s, rng.uniform(0.26, 0.9), outage.direction)]
+        out = [ScenarioFault(outage.kind, outage.start_s, rng.uniform(0.26, 0.9), outage.direction)]
         end = out[0].end_s
         kind = "encoder" if rng.random() < 0.8 else "stall"
         out.append(_fault(rng, kind, end + rng.uniform(0.0, 0.15), _duration(rng)))
@@ -266,17 +270,19 @@ def _pattern(rng: random.Random, active: float) -> list[Fault]:
             loss = rng.choice(("CLEAR_ACK", "CLEAR_ACK", "HEARTBEAT", "drop", "delay"))
             start, length = end - 0.02, rng.uniform(0.05, 0.4)
             if loss == "drop":
-                out.append(Fault("drop", start, length, "to_host", rng.choice((0.3, 0.6))))
+                out.append(ScenarioFault("drop", start, length, "to_host", rng.choice((0.3, 0.6))))
             elif loss == "delay":
-                out.append(Fault("delay", start, length, "to_controller", rng.uniform(0.01, 0.12)))
+                out.append(
+                    ScenarioFault("delay", start, length, "to_controller", rng.uniform(0.01, 0.12))
+                )
             else:
-                out.append(Fault("kind-loss", start, length, "to_host", 1.0, (loss,)))
+                out.append(ScenarioFault("kind-loss", start, length, "to_host", 1.0, (loss,)))
         return out
     length = rng.uniform(0.36, 1.2)
     direction = "to_host" if outage.direction == "to_controller" else outage.direction
     return [
-        Fault(outage.kind, outage.start_s, length, direction),
-        Fault("reboot", outage.start_s + rng.uniform(0.05, length - 0.02), 0.0),
+        ScenarioFault(outage.kind, outage.start_s, length, direction),
+        ScenarioFault("reboot", outage.start_s + rng.uniform(0.05, length - 0.02), 0.0),
     ]
 
 

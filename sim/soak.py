@@ -15,7 +15,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from sim.rig import Outcome, run_scenario
+from sim.rig import ScenarioOutcome, run_scenario
 from sim.scenario import DEFAULT_TICK_S, make_scenario
 
 __all__ = ["SoakReport", "assignment", "soak"]
@@ -36,14 +36,14 @@ class SoakReport:
         sim_s: virtual time simulated, s.
         wall_s: wall time spent, s (the host's clock: a figure, never an assertion).
         failures: the outcomes that broke an invariant, in seed order.
-        counts: what happened over all scenarios, by name (:attr:`Outcome.counts`).
+        counts: what happened over all scenarios, by name (:attr:`ScenarioOutcome.counts`).
         by_controller: scenarios and virtual seconds per controller.
     """
 
     scenarios: int = 0
     sim_s: float = 0.0
     wall_s: float = 0.0
-    failures: list[Outcome] = field(default_factory=list)
+    failures: list[ScenarioOutcome] = field(default_factory=list)
     counts: Counter[str] = field(default_factory=Counter)
     by_controller: dict[str, tuple[int, float]] = field(default_factory=dict)
 
@@ -90,7 +90,7 @@ def soak(
     tick_s: float = DEFAULT_TICK_S,
     budget_s: float | None = None,
     stop_on_failure: bool = False,
-    on_outcome: Callable[[Outcome], None] | None = None,
+    on_outcome: Callable[[ScenarioOutcome], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
 ) -> SoakReport:
     """Play the scenarios of ``seeds`` in order.

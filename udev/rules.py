@@ -21,7 +21,7 @@ do only for a device that is plugged in, with the rules installed. It evaluates 
 that a description of the device can answer (``ACTION``, ``KERNEL``, ``SUBSYSTEM``,
 ``DRIVER``, ``ATTR``, ``ENV``, ``NAME``, ``SYMLINK`` and the parent keys ``KERNELS``,
 ``SUBSYSTEMS``, ``DRIVERS``, ``ATTRS``) and assumes the others true, listing them in
-:attr:`Outcome.assumed`.
+:attr:`UdevOutcome.assumed`.
 """
 
 from __future__ import annotations
@@ -39,12 +39,12 @@ __all__ = [
     "DeviceNode",
     "Issue",
     "Op",
-    "Outcome",
-    "Rule",
     "RuleHit",
     "RulesFile",
     "Token",
     "UdevEvent",
+    "UdevOutcome",
+    "UdevRule",
     "evaluate",
     "load_rules",
     "parse_rules",
@@ -120,7 +120,7 @@ class Token:
 
 
 @dataclass(frozen=True)
-class Rule:
+class UdevRule:
     """One logical rule line: its tokens, where it starts and ends."""
 
     path: str
@@ -145,7 +145,7 @@ class RulesFile:
     """A read rules file: its rules and the rules it left out."""
 
     path: str
-    rules: tuple[Rule, ...]
+    rules: tuple[UdevRule, ...]
     issues: tuple[Issue, ...] = ()
 
 
@@ -249,7 +249,7 @@ def parse_rules(text: str, path: str = "<rules>") -> RulesFile:
     """Read the text of one rules file. Never raises on bad rules: one it cannot read
     is left out of :attr:`RulesFile.rules` and listed in :attr:`RulesFile.issues`."""
     issues: list[Issue] = []
-    rules: list[Rule] = []
+    rules: list[UdevRule] = []
     for logical in _logical_lines(text):
         try:
             raw = _tokens(logical.text)
@@ -264,7 +264,7 @@ def parse_rules(text: str, path: str = "<rules>") -> RulesFile:
             Token(key, attr, Op.MATCH if key in _AS_MATCH else op, value, logical.line_at(at), ci)
             for at, key, attr, op, value, ci in raw
         )
-        rules.append(Rule(path, logical.first, logical.last, logical.text, tokens))
+        rules.append(UdevRule(path, logical.first, logical.last, logical.text, tokens))
     return RulesFile(path, tuple(rules), tuple(issues))
 
 
@@ -310,7 +310,7 @@ class RuleHit:
 
 
 @dataclass(frozen=True)
-class Outcome:
+class UdevOutcome:
     """What the rules would do to the event (see :func:`evaluate`)."""
 
     symlinks: tuple[str, ...] = ()
@@ -378,7 +378,7 @@ class _State:
     final: set[str] = field(default_factory=set)
 
 
-def _rule_matches(rule: Rule, event: UdevEvent, state: _State, assumed: list[str]) -> bool:
+def _rule_matches(rule: UdevRule, event: UdevEvent, state: _State, assumed: list[str]) -> bool:
     device = event.chain[0]
     parent_tokens: list[Token] = []
     for tok in rule.tokens:
@@ -412,7 +412,7 @@ def _expand(value: str, event: UdevEvent, state: _State) -> str:
     return value.replace("$kernel", device.kernel).replace("%k", device.kernel)
 
 
-def _apply(rule: Rule, event: UdevEvent, state: _State) -> tuple[str, ...]:
+def _apply(rule: UdevRule, event: UdevEvent, state: _State) -> tuple[str, ...]:
     done: list[str] = []
     for tok in rule.tokens:
         if tok.op.is_match or tok.key in ("GOTO", "LABEL"):
@@ -450,12 +450,12 @@ def _apply(rule: Rule, event: UdevEvent, state: _State) -> tuple[str, ...]:
     return tuple(done)
 
 
-def evaluate(files: Sequence[RulesFile], event: UdevEvent) -> Outcome:
+def evaluate(files: Sequence[RulesFile], event: UdevEvent) -> UdevOutcome:
     """Replay ``event`` through ``files`` (in the order given, as udev orders them).
 
     Rules the reader could not read are absent from the files. Keys
     the event cannot answer (``PROGRAM``, ``TEST``, ``IMPORT``, ...) are assumed to
-    match and are listed in :attr:`Outcome.assumed`. ``GOTO`` jumps within a file.
+    match and are listed in :attr:`UdevOutcome.assumed`. ``GOTO`` jumps within a file.
     """
     if not event.chain:
         raise ValueError("an event needs at least the device itself in its chain")
@@ -481,7 +481,7 @@ def evaluate(files: Sequence[RulesFile], event: UdevEvent) -> Outcome:
                     if rules[later].label == target:
                         index = later
                         break
-    return Outcome(
+    return UdevOutcome(
         symlinks=tuple(state.symlinks),
         name=state.name,
         owner=state.owner,

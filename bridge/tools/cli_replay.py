@@ -1,5 +1,5 @@
 """``rover replay --bridge``: the bridge's replay target (see
-:mod:`firmware_proto.cli.replay` for the options and :mod:`bridge.tools.replay` for what it
+:mod:`firmware_proto.cli.replay` for the options and :mod:`bridge.tools.bridge_replay` for what it
 does)."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ __all__ = ["run"]
 def run(args: argparse.Namespace) -> int:
     """Replay ``args.log``'s controller side into a fresh bridge link; print the report;
     0 if the bridge sent the recorded requests, 1 if not."""
-    from bridge.tools.replay import BridgeReplayOptions, replay_into_bridge
+    from bridge.tools.bridge_replay import BridgeReplayOptions, replay_into_bridge
     from firmware_proto.linkio.trafficio import read_log
 
     log = read_log(args.log)

@@ -30,7 +30,7 @@ import pytest
 
 from bridge.errors import ConformanceError
 from bridge.tools.cli_conformance import main
-from bridge.tools.conformance import RULES, Outcome, exit_status, render_json, select_rules
+from bridge.tools.conformance import RULES, RuleOutcome, exit_status, render_json, select_rules
 from bridge.tools.conformance.suite import RuleResult
 from emulator.can_frontend import CanFrontEnd
 from emulator.control import ControlServer
@@ -133,13 +133,15 @@ def test_both_controllers_pass_every_rule_in_lockstep(firmware: str, medium: str
     outcomes = {r.rule.id: r.outcome for r in run.results}
     # seq-restart is of the serial frame counter: not run on CAN, never passed there.
     expected = {
-        rule_id: Outcome.NOT_RUN if medium == "can" and "serial" in rule.needs else Outcome.PASS
+        rule_id: RuleOutcome.NOT_RUN
+        if medium == "can" and "serial" in rule.needs
+        else RuleOutcome.PASS
         for rule_id, rule in RULES.items()
     }
     assert outcomes == expected, run.failed()
     # Every verdict carries the frames exchanged, both ways (the host's clock is virtual).
     for result in run.results:
-        if result.outcome is Outcome.PASS:
+        if result.outcome is RuleOutcome.PASS:
             assert {f.direction for f in result.frames} == {"H>C", "C>H"}, result.rule.id
             assert result.frames == tuple(sorted(result.frames, key=lambda f: f.t_s))
     rx = next(r for r in run.results if r.rule.id == "rx-errors")
@@ -333,13 +335,13 @@ def test_every_rule_is_documented_in_protocol_md() -> None:
 def test_exit_status_is_zero_only_when_every_rule_passed() -> None:
     rule = RULES["handshake"]
 
-    def result(outcome: Outcome) -> RuleResult:
+    def result(outcome: RuleOutcome) -> RuleResult:
         return RuleResult(rule, outcome, "", (), 0, 0.0)
 
-    assert exit_status([result(Outcome.PASS)] * 2) == 0
-    assert exit_status([result(Outcome.PASS), result(Outcome.NOT_RUN)]) == 3
-    assert exit_status([result(Outcome.NOT_RUN), result(Outcome.FAIL)]) == 1
-    doc = json.loads(render_json([result(Outcome.NOT_RUN)], url="x"))
+    assert exit_status([result(RuleOutcome.PASS)] * 2) == 0
+    assert exit_status([result(RuleOutcome.PASS), result(RuleOutcome.NOT_RUN)]) == 3
+    assert exit_status([result(RuleOutcome.NOT_RUN), result(RuleOutcome.FAIL)]) == 1
+    doc = json.loads(render_json([result(RuleOutcome.NOT_RUN)], url="x"))
     assert (doc["passed"], doc["not_run"], doc["rules"][0]["outcome"]) == (0, 1, "not run")
 
 
@@ -376,7 +378,7 @@ def test_public_names_are_pinned() -> None:
         "Context",
         "ControlClient",
         "FrameRecord",
-        "Outcome",
+        "RuleOutcome",
         "Rule",
         "RuleResult",
         "WireHost",

@@ -13,8 +13,8 @@ from bridge.ros.rosport.contract import (
     COMPLETED,
     READY,
     STOPPED,
+    CommandStatus,
     Outcome,
-    Status,
     aborted,
     ends_step,
     fault,
@@ -27,10 +27,12 @@ from planner.ground.relay import DEFAULT_ROUTES
 
 def test_builders_and_parse_are_inverse() -> None:
     assert rejected("out_of_range:speed") == "rejected:out_of_range:speed"
-    assert parse_status(rejected("out_of_range:speed")) == Status("rejected", "out_of_range:speed")
-    assert parse_status(aborted("stop")) == Status(Outcome.ABORTED.value, "stop")
-    assert parse_status(fault("link_lost")) == Status("fault", "link_lost")
-    assert parse_status(COMPLETED) == Status("completed", "")
+    assert parse_status(rejected("out_of_range:speed")) == CommandStatus(
+        "rejected", "out_of_range:speed"
+    )
+    assert parse_status(aborted("stop")) == CommandStatus(Outcome.ABORTED.value, "stop")
+    assert parse_status(fault("link_lost")) == CommandStatus("fault", "link_lost")
+    assert parse_status(COMPLETED) == CommandStatus("completed", "")
 
 
 @pytest.mark.parametrize(

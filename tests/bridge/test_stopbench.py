@@ -25,8 +25,8 @@ from bridge.tools.stopbench import (
     TrialResult,
 )
 from emulator.can_frontend import CanFrontEnd
+from emulator.emulator_replay import ReplayOptions, replay_into_emulator
 from emulator.engine import Emulator
-from emulator.replay import ReplayOptions, replay_into_emulator
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.trafficio import read_log
 from firmware_proto.linkio.trafficlog import decode_records

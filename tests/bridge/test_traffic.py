@@ -17,12 +17,12 @@ import pytest
 
 from bridge.link.controllerlink import ControllerLink, LinkConfig, StepRequest
 from bridge.link.transport import Transport, open_transport
-from bridge.tools.replay import BridgeReplayOptions, BridgeReplayResult, replay_into_bridge
+from bridge.tools.bridge_replay import BridgeReplayOptions, BridgeReplayResult, replay_into_bridge
 from emulator.can_frontend import CanFrontEnd
 from emulator.controller import ControllerConfig, ControllerModel
+from emulator.emulator_replay import ReplayOptions, ReplayResult, replay_into_emulator
 from emulator.engine import Emulator
 from emulator.frontend import FrontEnd
-from emulator.replay import ReplayOptions, ReplayResult, replay_into_emulator
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.cli import main as rover_cli

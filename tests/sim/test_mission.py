@@ -15,7 +15,7 @@ import pytest
 from bridge.onboard.core import OnboardConfig, OnboardCore
 from firmware_proto.wire.messages import Command
 from sim.mission import MissionRig, MissionScenario, make_mission, run_mission
-from sim.scenario import CONTROLLERS, MEDIA, Fault
+from sim.scenario import CONTROLLERS, MEDIA, ScenarioFault
 from sim.soak import assignment
 
 FWD, LEFT, RIGHT = int(Command.FWD), int(Command.LEFT), int(Command.RIGHT)
@@ -111,7 +111,7 @@ def test_bad_replayed_and_superseded_uplinks_are_refused_and_drive_nothing() -> 
 def test_a_controller_reboot_or_link_loss_mid_plan_ends_it_without_running_a_step_twice(
     kind: str,
 ) -> None:
-    fault = Fault(kind, 4.0, 0.0 if kind == "reboot" else 0.8)
+    fault = ScenarioFault(kind, 4.0, 0.0 if kind == "reboot" else 0.8)
     outcome = run_mission(_mission(wire_faults=(fault,)))
     _ok(outcome)
     assert outcome.ended == "failed" and outcome.ground_heard

@@ -18,7 +18,7 @@ import sys
 import pytest
 
 from sim.linkmutants import MUTANTS
-from sim.rig import Outcome, run_scenario
+from sim.rig import ScenarioOutcome, run_scenario
 from sim.scenario import CONTROLLERS, MEDIA, make_scenario
 from sim.soak import soak
 
@@ -52,7 +52,7 @@ def test_every_mutant_is_tested() -> None:
     assert tested | MASKED == set(MUTANTS)
 
 
-def _failures_of(mutant: str, controller: str, rule: str, seeds: range) -> list[Outcome]:
+def _failures_of(mutant: str, controller: str, rule: str, seeds: range) -> list[ScenarioOutcome]:
     """The failures ``seeds`` show against ``mutant`` (the search stops at the first);
     each breaks ``rule`` and passes with the fix in place. The controller also sends
     samples before a session, as a protocol v2 one did: without them the second bug

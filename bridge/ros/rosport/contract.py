@@ -49,8 +49,8 @@ __all__ = [
     "READY",
     "STOPPED",
     "WHEEL_INSTRUCTIONS",
+    "CommandStatus",
     "Outcome",
-    "Status",
     "aborted",
     "ends_step",
     "fault",
@@ -98,7 +98,7 @@ class Outcome(str, enum.Enum):
     """A fault or link event; while a step runs it ends the step."""
 
 
-class Status(NamedTuple):
+class CommandStatus(NamedTuple):
     """A ``/command_status`` string taken apart: its kind and its reason (``""`` for a
     status without one)."""
 
@@ -126,12 +126,12 @@ def plan_refused(reason: str) -> str:
     return f"{PLAN_REFUSED}:{reason}"
 
 
-def parse_status(text: str) -> Status:
+def parse_status(text: str) -> CommandStatus:
     """Take a status apart at its first ``:`` (``"aborted:stop"`` -> ``("aborted",
     "stop")``; ``"completed"`` -> ``("completed", "")``). Reasons may hold more colons
     (``rejected:out_of_range:speed``)."""
     kind, _, reason = text.partition(":")
-    return Status(kind, reason)
+    return CommandStatus(kind, reason)
 
 
 def ends_step(text: str) -> bool:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from bridge.errors import RuleFailedError, RuleNotRunError
-from bridge.tools.conformance.host import WireHost
+from bridge.tools.conformance.wirehost import WireHost
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.wire.messages import (
     WATCHDOG_MS,

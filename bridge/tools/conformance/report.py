@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from bridge.tools.conformance.rules import Rule
-from bridge.tools.conformance.suite import Outcome, RuleResult
+from bridge.tools.conformance.suite import RuleOutcome, RuleResult
 
 __all__ = ["render_json", "render_list", "render_table"]
 
@@ -23,14 +23,14 @@ def render_table(results: Sequence[RuleResult], *, url: str, frames: bool = Fals
         lines.append(
             "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=False)) + "  " + row[3]
         )
-    counts = {o: sum(r.outcome is o for r in results) for o in Outcome}
+    counts = {o: sum(r.outcome is o for r in results) for o in RuleOutcome}
     lines += [
         "",
-        f"{counts[Outcome.PASS]} passed, {counts[Outcome.FAIL]} failed, "
-        f"{counts[Outcome.NOT_RUN]} not run, of {len(results)} rules",
+        f"{counts[RuleOutcome.PASS]} passed, {counts[RuleOutcome.FAIL]} failed, "
+        f"{counts[RuleOutcome.NOT_RUN]} not run, of {len(results)} rules",
     ]
     for r in results:
-        if r.outcome is Outcome.FAIL or frames:
+        if r.outcome is RuleOutcome.FAIL or frames:
             lines += ["", f"== {r.rule.id} ({r.outcome.value}): {r.rule.statement}"]
             lines += [f"  {f.line()}" for f in r.frames]
             lines.append(f"  (+ {r.samples} sensor samples)")
@@ -41,9 +41,9 @@ def render_json(results: Sequence[RuleResult], *, url: str) -> str:
     """Every result with its frames, as one JSON document."""
     doc: dict[str, Any] = {
         "device": url,
-        "passed": sum(r.outcome is Outcome.PASS for r in results),
-        "failed": sum(r.outcome is Outcome.FAIL for r in results),
-        "not_run": sum(r.outcome is Outcome.NOT_RUN for r in results),
+        "passed": sum(r.outcome is RuleOutcome.PASS for r in results),
+        "failed": sum(r.outcome is RuleOutcome.FAIL for r in results),
+        "not_run": sum(r.outcome is RuleOutcome.NOT_RUN for r in results),
         "rules": [
             {
                 "id": r.rule.id,

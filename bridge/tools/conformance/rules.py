@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 from bridge.tools.conformance.context import REST_UNITS, Context, check
-from bridge.tools.conformance.host import SAMPLES
+from bridge.tools.conformance.wirehost import SAMPLES
 from firmware_proto.wire.faults import fault_bit
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (

@@ -17,16 +17,16 @@ from dataclasses import dataclass
 
 from bridge.errors import ConformanceError, RuleFailedError, RuleNotRunError
 from bridge.tools.conformance.context import Context
-from bridge.tools.conformance.host import FrameRecord
 from bridge.tools.conformance.rules import RULES, Rule
+from bridge.tools.conformance.wirehost import FrameRecord
 from firmware_proto.linkio.errors import ExpectationError, LinkError
 
-__all__ = ["Outcome", "RuleResult", "exit_status", "run_suite", "select_rules"]
+__all__ = ["RuleOutcome", "RuleResult", "exit_status", "run_suite", "select_rules"]
 
 logger = logging.getLogger(__name__)
 
 
-class Outcome(enum.Enum):
+class RuleOutcome(enum.Enum):
     """A rule's verdict."""
 
     PASS = "pass"
@@ -48,7 +48,7 @@ class RuleResult:
     """
 
     rule: Rule
-    outcome: Outcome
+    outcome: RuleOutcome
     detail: str
     frames: tuple[FrameRecord, ...]
     samples: int
@@ -86,13 +86,13 @@ def _run_one(ctx: Context, rule: Rule) -> RuleResult:
             ctx.prepare()
         except (RuleFailedError, ExpectationError) as exc:
             raise RuleFailedError(f"could not start from a fresh session: {exc}") from exc
-        outcome, detail = Outcome.PASS, rule.run(ctx)
+        outcome, detail = RuleOutcome.PASS, rule.run(ctx)
     except RuleNotRunError as exc:
-        outcome, detail = Outcome.NOT_RUN, str(exc)
+        outcome, detail = RuleOutcome.NOT_RUN, str(exc)
     except (ConformanceError, ExpectationError, LinkError) as exc:
         # A check that failed, an answer that did not come (or came and must not), a
         # control port or a link that failed.
-        outcome, detail = Outcome.FAIL, str(exc)
+        outcome, detail = RuleOutcome.FAIL, str(exc)
     frames, samples = host.take_log()
     return RuleResult(rule, outcome, detail, frames, samples, time.monotonic() - started)
 
@@ -101,8 +101,8 @@ def exit_status(results: Iterable[RuleResult]) -> int:
     """0 when every rule passed, 1 when any failed, 3 when none failed but some were not
     run (an incomplete verdict is not a pass)."""
     outcomes = {r.outcome for r in results}
-    if Outcome.FAIL in outcomes:
+    if RuleOutcome.FAIL in outcomes:
         return 1
-    if Outcome.NOT_RUN in outcomes:
+    if RuleOutcome.NOT_RUN in outcomes:
         return 3
     return 0

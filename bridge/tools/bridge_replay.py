@@ -1,7 +1,7 @@
 """Replay a recorded session's controller side into a fresh bridge link and compare the
 bridge's requests (docs/traffic-logs.md).
 
-The counterpart of :mod:`emulator.replay`: a regression test of the host side.
+The counterpart of :mod:`emulator.emulator_replay`: a regression test of the host side.
 :func:`replay_into_bridge` plays the controller on a new pty (serial logs) or a
 python-can bus (CAN logs) and drives a fresh
 :class:`~bridge.link.controllerlink.ControllerLink` with
