@@ -57,10 +57,10 @@ from firmware_proto.wire.messages import (
     HostHeartbeat,
     Imu,
     Motion,
+    PoseMsg,
     StepState,
     WheelSpeeds,
 )
-from firmware_proto.wire.messages import Pose as PoseMsg
 from firmware_proto.wire.messages import Status as StatusMsg
 from planner.record.mcaprec import McapRecorder
 

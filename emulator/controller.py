@@ -74,7 +74,7 @@ from firmware_proto.wire.messages import (
     Param,
     ParamResult,
     ParamValue,
-    Pose,
+    PoseMsg,
     Progress,
     SetParam,
     Status,
@@ -731,14 +731,16 @@ class ControllerModel:
         return out
 
     @staticmethod
-    def _pose_message(x_m: float, y_m: float, yaw_rad: float, sigma_m: float, age_s: float) -> Pose:
+    def _pose_message(
+        x_m: float, y_m: float, yaw_rad: float, sigma_m: float, age_s: float
+    ) -> PoseMsg:
         limit = (1 << 19) - 1
         x_mm = max(-limit - 1, min(limit, round(x_m * 1000.0)))
         y_mm = max(-limit - 1, min(limit, round(y_m * 1000.0)))
         yaw = round(math.degrees(yaw_rad) * 10.0)
         yaw = (yaw + 1800) % 3600 - 1800
         sigma_cm = 0 if sigma_m <= 0.0 else max(1, min(15, round(sigma_m * 100.0)))
-        return Pose(x_mm, y_mm, yaw, sigma_cm, max(0, min(255, round(age_s * 1000.0 / 4.0))))
+        return PoseMsg(x_mm, y_mm, yaw, sigma_cm, max(0, min(255, round(age_s * 1000.0 / 4.0))))
 
     def heartbeat(self) -> Heartbeat:
         """The HEARTBEAT for the current state."""

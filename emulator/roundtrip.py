@@ -19,7 +19,7 @@ import serial
 from firmware_proto.linkio.ptypair import PtyPair
 from firmware_proto.wire.framing import FrameDecoder, encode_frame
 from firmware_proto.wire.message import Message
-from firmware_proto.wire.messages import Encoders, Heartbeat, Imu, Motion, Pose, Stop
+from firmware_proto.wire.messages import Encoders, Heartbeat, Imu, Motion, PoseMsg, Stop
 
 __all__ = ["RoundtripResult", "pty_roundtrip", "sample_messages"]
 
@@ -45,7 +45,7 @@ def sample_messages(count: int, rng: random.Random) -> list[Message]:
             out.append(Imu(i & 0xFFFF, rng.randint(-3000, 3000), rng.randint(-900, 900), 0))
         elif kind == 3:
             out.append(
-                Pose(
+                PoseMsg(
                     rng.randint(-50000, 50000),
                     rng.randint(-50000, 50000),
                     rng.randint(-1800, 1800),

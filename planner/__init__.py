@@ -36,7 +36,12 @@ from planner.errors import (
 if TYPE_CHECKING:
     from firmware_proto.model.verdict import Trajectory, Verdict
     from planner.ground.drift import DriftEvent, DriftMonitor
-    from planner.ground.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+    from planner.ground.executor import (
+        ExecutionProgress,
+        ExecutionResult,
+        ExecutorConfig,
+        PlanExecutor,
+    )
     from planner.ground.mission import MissionReport, MissionRunner, MoveAndWait
     from planner.ground.relay import LinkProfile, LinkRelay
     from planner.plan.experiment import ExperimentResult, run_planning_experiment
@@ -54,7 +59,7 @@ __getattr__, __dir__ = lazy_exports(
             "ExecutionResult",
             "ExecutorConfig",
             "PlanExecutor",
-            "Progress",
+            "ExecutionProgress",
         ),
         "planner.plan.experiment": ("ExperimentResult", "run_planning_experiment"),
         "planner.plan.gate_client": ("GateClient", "GateOptions"),
@@ -75,6 +80,7 @@ __all__ = [
     "Attempt",
     "DriftEvent",
     "DriftMonitor",
+    "ExecutionProgress",
     "ExecutionResult",
     "ExecutorConfig",
     "ExperimentResult",
@@ -103,7 +109,6 @@ __all__ = [
     "PlannerOrchestrator",
     "Point",
     "Pose",
-    "Progress",
     "RepairError",
     "RepairSettings",
     "Trajectory",

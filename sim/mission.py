@@ -74,8 +74,7 @@ from firmware_proto.model.uplink import (
 )
 from firmware_proto.model.worldmap import WorldMap
 from firmware_proto.wire.message import Message
-from firmware_proto.wire.messages import Command, Encoders, FaultCode, StopSource
-from firmware_proto.wire.messages import Pose as PoseMsg
+from firmware_proto.wire.messages import Command, Encoders, FaultCode, PoseMsg, StopSource
 from sim.checks import Violation
 from sim.rig import _ACTION, Rig, _packaged_rover
 from sim.scenario import DEFAULT_TICK_S, Scenario, ScenarioFault

@@ -26,7 +26,7 @@ from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.model.worldmap import load_map
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
 from planner.ground.executor import ExecutorConfig, PlanExecutor
-from planner.ground.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, Route
+from planner.ground.relay import DEFAULT_ROUTES, LinkProfile, LinkRelay, RelayedTopic
 from tests.scheduling import threads_at
 
 __all__ = ["HilRig"]
@@ -62,7 +62,7 @@ class HilRig:
         seed: int = 5,
         faults: tuple[str, ...] = (),
         rover: RoverDescription | None = None,
-        routes: tuple[Route, ...] = DEFAULT_ROUTES,
+        routes: tuple[RelayedTopic, ...] = DEFAULT_ROUTES,
         backend: str = "rclpy",
         **executor: Any,
     ) -> None:

@@ -22,7 +22,7 @@ from firmware_proto.wire.messages import (
     STOP_REPEAT_MS,
     Encoders,
     Imu,
-    Pose,
+    PoseMsg,
     WheelSpeeds,
 )
 
@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 
-SAMPLE_MESSAGES: tuple[type[Message], ...] = (Encoders, WheelSpeeds, Imu, Pose)
+SAMPLE_MESSAGES: tuple[type[Message], ...] = (Encoders, WheelSpeeds, Imu, PoseMsg)
 """Periodic sensor samples: the link forwards them only in a session, and a full receive
 queue drops only them (:mod:`bridge.link.transport`; the next one supersedes it)."""
 

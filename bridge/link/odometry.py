@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 from firmware_proto.model.geometry import wrap_rad
 from firmware_proto.model.rover import RoverDescription
-from firmware_proto.wire.messages import Encoders, Imu, Pose, WheelSpeeds
+from firmware_proto.wire.messages import Encoders, Imu, PoseMsg, WheelSpeeds
 
 __all__ = ["GroundPose", "OdometryEstimate", "OdometryEstimator", "ground_pose", "unwrap24"]
 
@@ -206,7 +206,7 @@ class GroundPose:
     age_s: float
 
 
-def ground_pose(msg: Pose) -> GroundPose | None:
+def ground_pose(msg: PoseMsg) -> GroundPose | None:
     """The pose in a POSE message, or ``None`` when it carries no fix (``sigma_cm`` 0)."""
     if msg.sigma_cm == 0:
         return None

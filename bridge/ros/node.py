@@ -92,10 +92,10 @@ from firmware_proto.wire.messages import (
     Heartbeat,
     Ident,
     Imu,
+    PoseMsg,
     StopSource,
     WheelSpeeds,
 )
-from firmware_proto.wire.messages import Pose as PoseMsg
 
 __all__ = ["BridgeNode", "validate_step"]
 

@@ -61,7 +61,7 @@ __all__ = [
     "Param",
     "ParamResult",
     "ParamValue",
-    "Pose",
+    "PoseMsg",
     "Progress",
     "SetParam",
     "Status",
@@ -1208,7 +1208,7 @@ def _decode_imu(payload: bytes) -> Imu | None:
     return _new(Imu, _S_IMU.unpack(payload))
 
 
-class _PoseFields(NamedTuple):
+class _PoseMsgFields(NamedTuple):
     x_mm: int
     y_mm: int
     yaw_ddeg: int
@@ -1216,7 +1216,7 @@ class _PoseFields(NamedTuple):
     age_4ms: int
 
 
-class Pose(Message, _PoseFields):
+class PoseMsg(Message, _PoseMsgFields):
     """POSE (id 69, controller to host, telemetry). Pose from a sensor that sees the ground
     (visual odometry or lab tracking) in the map frame: the frame of the map the gate plans
     on, x and y from its origin, never re-zeroed at boot; unlike the encoders it shows slip.
@@ -1269,7 +1269,7 @@ class Pose(Message, _PoseFields):
         return value.to_bytes(8, "little")
 
     @classmethod
-    def unpack(cls, payload: bytes) -> Pose:
+    def unpack(cls, payload: bytes) -> PoseMsg:
         """Strict decode of one payload.
 
         Raises:
@@ -1283,7 +1283,7 @@ class Pose(Message, _PoseFields):
         return decoded
 
 
-def _decode_pose(payload: bytes) -> Pose | None:
+def _decode_pose(payload: bytes) -> PoseMsg | None:
     value = int.from_bytes(payload, "little")
     x_mm = ((value & 0xFFFFF) ^ 0x80000) - 0x80000
     y_mm = (((value >> 20) & 0xFFFFF) ^ 0x80000) - 0x80000
@@ -1292,7 +1292,7 @@ def _decode_pose(payload: bytes) -> Pose | None:
     age_4ms = value >> 56
     if not (-1800 <= yaw_ddeg <= 1800):
         return None
-    return _new(Pose, (x_mm, y_mm, yaw_ddeg, sigma_cm, age_4ms))
+    return _new(PoseMsg, (x_mm, y_mm, yaw_ddeg, sigma_cm, age_4ms))
 
 
 _S_PROGRESS = struct.Struct("<HBBHH")
@@ -1649,7 +1649,7 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
     66: Encoders,
     67: WheelSpeeds,
     68: Imu,
-    69: Pose,
+    69: PoseMsg,
     70: Progress,
     96: Hello,
     97: Ident,

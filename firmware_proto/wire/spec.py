@@ -118,6 +118,10 @@ class MessageSpec:
     rate: str
     doc: str
     fields: tuple[FieldSpec, ...]
+    python_class: str = ""
+    """The Python class's name where the spec gives one (``class``): a message whose
+    CamelCase name would be another public class of ours (``POSE``: ``PoseMsg``, beside
+    the map pose ``firmware_proto.model.pose.Pose``)."""
 
     @property
     def length(self) -> int:
@@ -127,8 +131,9 @@ class MessageSpec:
 
     @property
     def class_name(self) -> str:
-        """CamelCase name, e.g. ``STOP_ACK`` -> ``StopAck``."""
-        return "".join(part.capitalize() for part in self.name.split("_"))
+        """The Python class: the spec's ``class``, else the CamelCase name (``STOP_ACK``
+        -> ``StopAck``)."""
+        return self.python_class or "".join(part.capitalize() for part in self.name.split("_"))
 
     @property
     def c_name(self) -> str:
@@ -195,6 +200,13 @@ class ProtocolSpec:
         """CRC-16/CCITT-FALSE of :meth:`canonical` as compact JSON."""
         blob = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":")).encode()
         return binascii.crc_hqx(blob, 0xFFFF)
+
+
+def _python_class(table: dict[str, Any], where: str) -> str:
+    name = table.get("class", "")
+    if not isinstance(name, str) or (name and not re.fullmatch(r"[A-Z][A-Za-z0-9]*", name)):
+        raise SpecError(f"{where}: class must be a CamelCase Python name, got {name!r}")
+    return name
 
 
 def _need(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
@@ -329,6 +341,7 @@ def _parse_messages(
                 rate=str(table.get("rate", "")),
                 doc=str(table.get("doc", "")),
                 fields=tuple(fields),
+                python_class=_python_class(table, where),
             )
         )
     if not messages:

@@ -438,7 +438,7 @@ def _mission(args: argparse.Namespace) -> int:
     from firmware_proto.model.rover import load_rover
     from firmware_proto.model.uplink import token_from_env
     from planner.errors import GateUnavailableError
-    from planner.ground.executor import ExecutorConfig, PlanExecutor, Progress
+    from planner.ground.executor import ExecutionProgress, ExecutorConfig, PlanExecutor
     from planner.ground.interrupt import CancelOnSignal
     from planner.ground.mission import MissionReport, MissionRunner, MoveAndWait
     from planner.ground.onboard import OnboardExecutor, UplinkOptions
@@ -485,7 +485,7 @@ def _mission(args: argparse.Namespace) -> int:
         if view is not None:
             view.hub.event(line)
 
-    def progress(p: Progress) -> None:
+    def progress(p: ExecutionProgress) -> None:
         if view is not None:
             view.hub.progress(p)
         say(p.line(args.time_scale))

@@ -76,10 +76,10 @@ __all__ = [
     "REPORTING_FAULTS",
     "REST_SPEED_MPS",
     "REST_YAW_RATE_RAD_S",
+    "ExecutionProgress",
     "ExecutionResult",
     "ExecutorConfig",
     "PlanExecutor",
-    "Progress",
     "StepOutcome",
 ]
 
@@ -193,7 +193,7 @@ class StepOutcome:
 
 
 @dataclass(frozen=True)
-class Progress:
+class ExecutionProgress:
     """What the operator sees while a plan runs.
 
     ``status`` is ``published`` and ``accepted`` as the step goes out and is
@@ -628,7 +628,7 @@ class PlanExecutor:
         plan: Plan,
         verdict: Verdict | None = None,
         *,
-        on_progress: Callable[[Progress], None] | None = None,
+        on_progress: Callable[[ExecutionProgress], None] | None = None,
         cancel: threading.Event | None = None,
     ) -> ExecutionResult:
         """Run ``plan`` step by step; blocks until it completes or ends early.
@@ -644,7 +644,7 @@ class PlanExecutor:
                 the timeouts); ``None`` runs without drift control.
             on_progress: called on the executing thread: when a step is published,
                 accepted, about every ``progress_period_s`` while it runs, and when it
-                ends (see :class:`Progress`).
+                ends (see :class:`ExecutionProgress`).
             cancel: set it to stop the plan from another thread (STOP is sent; the
                 outcome is ``cancelled``).
         """
@@ -758,7 +758,7 @@ class PlanExecutor:
         verdict: Verdict | None,
         monitor: DriftMonitor | None,
         cancel: threading.Event | None,
-        on_progress: Callable[[Progress], None] | None,
+        on_progress: Callable[[ExecutionProgress], None] | None,
         plan_started: float,
     ) -> tuple[str, float, float | None]:
         cfg = self.config
@@ -851,7 +851,7 @@ class PlanExecutor:
         verdict: Verdict | None,
         monitor: DriftMonitor | None,
         started: float | None,
-    ) -> Progress:
+    ) -> ExecutionProgress:
         """The operator's view; ``started``: when the rover began this step (monotonic),
         ``None`` before it is known (or once the step ended)."""
         cfg = self.config
@@ -871,7 +871,7 @@ class PlanExecutor:
                 elapsed = time.monotonic() - started
                 current = max(0.0, duration - elapsed) + cfg.link_rtt_s / 2.0
         last = monitor.history[-1] if monitor is not None and monitor.history else None
-        return Progress(
+        return ExecutionProgress(
             index,
             len(steps),
             status,

@@ -33,7 +33,7 @@ from firmware_proto.model.verdict import Verdict
 from firmware_proto.wire.messages import Command
 from planner.errors import PlannerError
 from planner.ground.drift import DriftEvent
-from planner.ground.executor import ExecutionResult, PlanExecutor, Progress
+from planner.ground.executor import ExecutionProgress, ExecutionResult, PlanExecutor
 from planner.plan.orchestrator import MissionResult, PlannerOrchestrator
 
 __all__ = [
@@ -189,7 +189,7 @@ class MissionRunner:
         executor: drives plans over ROS.
         replans: drift STOPs after which the runner re-plans (0: stop there).
         on_progress: called with the executor's progress (see
-            :class:`~planner.ground.executor.Progress`: during steps and when each ends).
+            :class:`~planner.ground.executor.ExecutionProgress`: during steps and when each ends).
         on_drift: called after a drift STOP, before the rover is re-planned for and its
             latch released (the demo uses it to take the rover out of the sand; an
             operator would look first).
@@ -203,7 +203,7 @@ class MissionRunner:
     orchestrator: PlannerOrchestrator
     executor: PlanExecutor
     replans: int = 1
-    on_progress: Callable[[Progress], None] | None = None
+    on_progress: Callable[[ExecutionProgress], None] | None = None
     on_drift: Callable[[ExecutionResult], None] | None = None
     on_event: Callable[[str], None] = field(default=lambda line: None)
     cancel: threading.Event | None = None
@@ -448,7 +448,7 @@ class MoveAndWait:
     increment_m: float = 0.5
     decision_s: float = 2.0
     time_scale: float = 1.0
-    on_progress: Callable[[Progress], None] | None = None
+    on_progress: Callable[[ExecutionProgress], None] | None = None
     cancel: threading.Event | None = None
 
     def drive(
@@ -499,10 +499,10 @@ class MoveAndWait:
         for k, (plan, step) in enumerate(increments):
             later = sum(each_s(s) for _, s in increments[k + 1 :])
 
-            def progress(p: Progress, k: int = k, later: float = later) -> None:
+            def progress(p: ExecutionProgress, k: int = k, later: float = later) -> None:
                 if self.on_progress is not None:
                     self.on_progress(
-                        Progress(
+                        ExecutionProgress(
                             k,
                             len(increments),
                             p.status,

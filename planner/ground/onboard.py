@@ -7,7 +7,7 @@ token), resends it every ``resend_s`` until the rover answers it (``accepted`` o
 ``duplicate``: every copy after the first is harmless), and then only listens: the
 rover runs the steps back to back and guards them itself. Its reports (``onboard_report``,
 a snapshot at each event and every second) say where the plan is; the executor turns
-them into :class:`~planner.ground.executor.Progress` and, once the plan has ended and the
+them into :class:`~planner.ground.executor.ExecutionProgress` and, once the plan has ended and the
 rover reported its rest, into an :class:`~planner.ground.executor.ExecutionResult` of the
 same shape as the step-by-step executor's: a guard stop is outcome ``drift`` (with the
 rover's own detection), so :class:`~planner.ground.mission.MissionRunner` re-plans after
@@ -52,10 +52,10 @@ from firmware_proto.model.uplink import CancelUplink, DriftLimits, PlanUplink, U
 from firmware_proto.model.verdict import Verdict
 from planner.ground.drift import DriftEvent
 from planner.ground.executor import (
+    ExecutionProgress,
     ExecutionResult,
     ExecutorConfig,
     PlanExecutor,
-    Progress,
     StepOutcome,
 )
 
@@ -214,7 +214,7 @@ class OnboardExecutor(PlanExecutor):
         plan: Plan,
         verdict: Verdict | None = None,
         *,
-        on_progress: Callable[[Progress], None] | None = None,
+        on_progress: Callable[[ExecutionProgress], None] | None = None,
         cancel: threading.Event | None = None,
     ) -> ExecutionResult:
         """Run ``plan`` on board (see the module docstring); without a verdict, step by
@@ -390,7 +390,7 @@ class _Progress:
         steps: list[tuple[int, int, int]],
         verdict: Verdict,
         cfg: ExecutorConfig,
-        on_progress: Callable[[Progress], None] | None,
+        on_progress: Callable[[ExecutionProgress], None] | None,
         t_begin: float,
     ) -> None:
         self.steps = steps
@@ -411,7 +411,7 @@ class _Progress:
         if self.on_progress is None:
             return
         self.on_progress(
-            Progress(
+            ExecutionProgress(
                 step,
                 len(self.steps),
                 status,

@@ -46,7 +46,7 @@ from bridge.ros.rosport.contract import (
 )
 from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
 
-__all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "Route"]
+__all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "RelayedTopic"]
 
 logger = logging.getLogger(__name__)
 
@@ -77,7 +77,7 @@ class LinkProfile:
 
 
 @dataclass(frozen=True)
-class Route:
+class RelayedTopic:
     """One relayed topic: name (relative), message type, direction, QoS (republished
     with ``qos``, taken with ``subscribe_qos`` when given, else ``qos``) and the lane its
     subscription delivers on (:data:`~bridge.ros.rosport.STOP_LANE` for the emergency stop,
@@ -91,19 +91,19 @@ class Route:
     lane: str = DEFAULT_LANE
 
 
-DEFAULT_ROUTES: tuple[Route, ...] = (
-    Route(WHEEL_INSTRUCTIONS, Int16MultiArray, True, qos.COMMAND),
-    Route(EMERGENCY_STOP, Bool, True, qos.STOP, lane=STOP_LANE),
-    Route(CLEAR_EMERGENCY_STOP, Empty, True, qos.STOP, lane=STOP_LANE),
-    Route(COMMAND_STATUS, String, False, qos.STATUS),
-    Route("odom", Odometry, False, qos.TELEMETRY, qos.SENSOR),
-    Route("odom_ground", Odometry, False, qos.TELEMETRY, qos.SENSOR),
-    Route("diagnostics", DiagnosticArray, False, qos.DIAGNOSTICS),
+DEFAULT_ROUTES: tuple[RelayedTopic, ...] = (
+    RelayedTopic(WHEEL_INSTRUCTIONS, Int16MultiArray, True, qos.COMMAND),
+    RelayedTopic(EMERGENCY_STOP, Bool, True, qos.STOP, lane=STOP_LANE),
+    RelayedTopic(CLEAR_EMERGENCY_STOP, Empty, True, qos.STOP, lane=STOP_LANE),
+    RelayedTopic(COMMAND_STATUS, String, False, qos.STATUS),
+    RelayedTopic("odom", Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    RelayedTopic("odom_ground", Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    RelayedTopic("diagnostics", DiagnosticArray, False, qos.DIAGNOSTICS),
     # the onboard sequencer's (docs/onboard.md): the uplink, its answers, its reports
-    Route(PLAN_UPLINK, String, True, qos.COMMAND),
-    Route(PLAN_ACK, String, False, qos.STATUS),
-    Route(ONBOARD_REPORT, String, False, qos.STATUS),
-    Route(ONBOARD_POSE, Odometry, False, qos.TELEMETRY, qos.SENSOR),
+    RelayedTopic(PLAN_UPLINK, String, True, qos.COMMAND),
+    RelayedTopic(PLAN_ACK, String, False, qos.STATUS),
+    RelayedTopic(ONBOARD_REPORT, String, False, qos.STATUS),
+    RelayedTopic(ONBOARD_POSE, Odometry, False, qos.TELEMETRY, qos.SENSOR),
 )
 
 
@@ -115,7 +115,7 @@ class LinkRelay:
         ground: RosPort,
         rover: RosPort,
         profile: LinkProfile | None = None,
-        routes: tuple[Route, ...] = DEFAULT_ROUTES,
+        routes: tuple[RelayedTopic, ...] = DEFAULT_ROUTES,
     ) -> None:
         """Args:
         ground: the operator side's port (its namespace applies to ground topics).
@@ -152,7 +152,9 @@ class LinkRelay:
         self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
         self._thread.start()
 
-    def _make_forward(self, route: Route, publisher: Publisher[Any], rng: random.Random) -> Any:
+    def _make_forward(
+        self, route: RelayedTopic, publisher: Publisher[Any], rng: random.Random
+    ) -> Any:
         key = f"{'up' if route.uplink else 'down'}:{route.topic}"
         profile = self.profile
 

@@ -33,7 +33,7 @@ from firmware_proto.model.geometry import Point, segment_polygon_distance, wrap_
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.worldmap import BOUNDS_ID, WorldMap
 from planner.plan.orchestrator import MissionResult, PlannerOrchestrator
-from planner.plan.planner import HeuristicLowLevelPlanner, Route
+from planner.plan.planner import HeuristicLowLevelPlanner, Itinerary
 
 __all__ = [
     "ExperimentResult",
@@ -214,7 +214,7 @@ def _inside_convex(p: Point, corners: Sequence[Point]) -> bool:
 
 
 def footprint_hits(
-    planner: HeuristicLowLevelPlanner, world: WorldMap, route: Route, margin_m: float = 0.0
+    planner: HeuristicLowLevelPlanner, world: WorldMap, route: Itinerary, margin_m: float = 0.0
 ) -> str | None:
     """What the chassis footprint, inflated by ``margin_m``, first hits when it follows
     the planner's ideal path along ``route`` (every step, however many plans it takes),

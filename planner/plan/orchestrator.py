@@ -38,7 +38,7 @@ from planner.errors import (
     UnreachableGoalError,
 )
 from planner.plan.gate_client import GateClient, GateOptions
-from planner.plan.planner import HeuristicLowLevelPlanner, LegPlan, Route, check_pose
+from planner.plan.planner import HeuristicLowLevelPlanner, Itinerary, LegPlan, check_pose
 from planner.plan.repairs import (
     REPAIRS,
     FailureRecord,
@@ -277,7 +277,7 @@ class PlannerOrchestrator:
             )
         return self._world
 
-    def _route(self, goal: Pose, start: Pose | None, via: Sequence[Point]) -> Route:
+    def _route(self, goal: Pose, start: Pose | None, via: Sequence[Point]) -> Itinerary:
         world = self.world
         return self.planner.route(
             start if start is not None else world.start, goal, via, world=world
@@ -306,7 +306,7 @@ class PlannerOrchestrator:
         """
         return self.plan_route(self._route(goal, start, via))
 
-    def plan_route(self, route: Route) -> PlanResult:
+    def plan_route(self, route: Itinerary) -> PlanResult:
         """:meth:`plan` for a checked route (:meth:`HeuristicLowLevelPlanner.route`)."""
         return self.run_leg(self.planner.plan_leg(route))
 
@@ -496,4 +496,4 @@ class PlannerOrchestrator:
                     tuple(legs),
                     f"the goal is still not reached after {len(legs)} legs",
                 )
-            route = Route(result.verdict.final_pose, result.remaining, route.goal)
+            route = Itinerary(result.verdict.final_pose, result.remaining, route.goal)

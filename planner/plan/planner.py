@@ -59,9 +59,9 @@ __all__ = [
     "NOOP",
     "TURN",
     "HeuristicLowLevelPlanner",
+    "Itinerary",
     "LegPlan",
     "PlannedStep",
-    "Route",
     "check_pose",
 ]
 
@@ -125,7 +125,7 @@ class PlannedStep:
 
 
 @dataclass(frozen=True)
-class Route:
+class Itinerary:
     """Where to go: the start pose, intermediate points (no yaw), the goal pose."""
 
     start: Pose
@@ -154,7 +154,7 @@ class Route:
         pts = self.points
         return sum(math.dist(pts[i], pts[i + 1]) for i in range(len(pts) - 1))
 
-    def with_waypoints(self, waypoints: Sequence[Point]) -> Route:
+    def with_waypoints(self, waypoints: Sequence[Point]) -> Itinerary:
         """The same start and goal through other waypoints."""
         return replace(self, waypoints=tuple(waypoints))
 
@@ -176,7 +176,7 @@ class LegPlan:
         remaining: the waypoints still ahead when it does not (the goal excluded).
     """
 
-    route: Route
+    route: Itinerary
     steps: tuple[PlannedStep, ...]
     plan: Plan
     reaches_goal: bool
@@ -329,7 +329,7 @@ class HeuristicLowLevelPlanner:
     # -- routes -------------------------------------------------------------------------
     def route(
         self, start: Pose, goal: Pose, via: Sequence[Point] = (), *, world: WorldMap | None = None
-    ) -> Route:
+    ) -> Itinerary:
         """A checked route.
 
         Raises:
@@ -342,7 +342,7 @@ class HeuristicLowLevelPlanner:
         for i, point in enumerate(via):
             check_pose(f"via[{i}]", point, world=world)
         check_pose("goal", goal, world=world, body_half_width_m=self.body_half_width_m)
-        return Route(
+        return Itinerary(
             Pose(float(start.x), float(start.y), float(start.yaw_deg)),
             tuple((float(x), float(y)) for x, y in via),
             Pose(float(goal.x), float(goal.y), float(goal.yaw_deg)),
@@ -405,7 +405,7 @@ class HeuristicLowLevelPlanner:
             out.append(PlannedStep(PlanStep("FWD", speed, part), kind, segment, 0.0, d, pose))
         return out
 
-    def steps_for(self, route: Route) -> tuple[PlannedStep, ...]:
+    def steps_for(self, route: Itinerary) -> tuple[PlannedStep, ...]:
         """Every step of a route, however many (no leg splitting)."""
         pose = route.start
         steps: list[PlannedStep] = []
@@ -463,7 +463,7 @@ class HeuristicLowLevelPlanner:
     # -- plans --------------------------------------------------------------------------
     def make_leg(
         self,
-        route: Route,
+        route: Itinerary,
         steps: Sequence[PlannedStep],
         *,
         reaches_goal: bool,
@@ -505,7 +505,7 @@ class HeuristicLowLevelPlanner:
         """A plan made elsewhere (``rover go --plan FILE``) as a leg from ``start``: its
         steps as they are, each with the pose the planner's kinematics predict after it
         (:meth:`predict`), the route straight from ``start`` to the plan's goal."""
-        route = Route(start, (), Pose(plan.goal.x, plan.goal.y, plan.goal.yaw_deg))
+        route = Itinerary(start, (), Pose(plan.goal.x, plan.goal.y, plan.goal.yaw_deg))
         poses = self.predict(start, plan.commands)
         steps: list[PlannedStep] = []
         before = start
@@ -522,7 +522,7 @@ class HeuristicLowLevelPlanner:
             before = pose
         return LegPlan(route, tuple(steps), plan, True)
 
-    def plan_leg(self, route: Route) -> LegPlan:
+    def plan_leg(self, route: Itinerary) -> LegPlan:
         """The first leg of a route: all of it when it fits in ``max_steps`` steps, else
         the longest prefix that ends with a drive (the leg then ends at the predicted
         pose there, and ``remaining`` holds the waypoints still ahead)."""
@@ -576,7 +576,7 @@ class HeuristicLowLevelPlanner:
                 return tuple(legs)
             if len(legs) >= max_legs:
                 raise PlanTooLongError(len(legs) * self.max_steps, max_legs * self.max_steps)
-            route = Route(leg.predicted_end, leg.remaining, route.goal)
+            route = Itinerary(leg.predicted_end, leg.remaining, route.goal)
 
 
 def _split(units: int, max_units: int) -> list[int]:

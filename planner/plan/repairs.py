@@ -59,9 +59,9 @@ from planner.plan.planner import (
     GOAL_TURN,
     TURN,
     HeuristicLowLevelPlanner,
+    Itinerary,
     LegPlan,
     PlannedStep,
-    Route,
 )
 
 __all__ = [
@@ -405,7 +405,7 @@ def _prior_detour(
     return None
 
 
-def _step_span(route: Route, step: PlannedStep) -> tuple[Point, Point]:
+def _step_span(route: Itinerary, step: PlannedStep) -> tuple[Point, Point]:
     """Where a step happens: its segment for a drive, the point it turns at for a
     turn (as a degenerate segment)."""
     a, b = route.segment(step.segment)

@@ -52,7 +52,7 @@ from firmware_proto.model.uplink import token_from_env
 from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import WorldMap
 from firmware_proto.runtime.stall import STALL_LOG_ENV
-from planner.ground.executor import ExecutionResult, ExecutorConfig, PlanExecutor, Progress
+from planner.ground.executor import ExecutionProgress, ExecutionResult, ExecutorConfig, PlanExecutor
 from planner.ground.mission import MissionReport, MissionRunner
 from planner.ground.onboard import OnboardExecutor, UplinkOptions
 from planner.ground.overshoot import Overshoot, overshoot
@@ -449,7 +449,7 @@ class Demo:
             )
             last_line = [-math.inf]
 
-            def progress(p: Progress) -> None:
+            def progress(p: ExecutionProgress) -> None:
                 if view is not None:
                     view.hub.progress(p)
                 now = time.monotonic() * cfg.speed

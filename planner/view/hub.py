@@ -27,7 +27,7 @@ trails of both poses so far (1 cm apart, at most :data:`TRAIL_LEN` points each),
 STOPs with where they happened, the progress, the ghost's state and the result.
 
 The ghost follows the plan its step belongs to: each progress report names the gate's
-verdict of its plan (:attr:`~planner.ground.executor.Progress.verdict`), and the ghost
+verdict of its plan (:attr:`~planner.ground.executor.ExecutionProgress.verdict`), and the ghost
 moves along that verdict's prediction, whatever else came before (a step's
 ``published`` is reported again every second until the rover acknowledges it, so
 counting reports cannot tell one plan from the next). The leg shown is that verdict's
@@ -58,7 +58,7 @@ from firmware_proto.model.pose import Pose
 from firmware_proto.model.uplink import decode_ack
 from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import WorldMap
-from planner.ground.executor import Progress
+from planner.ground.executor import ExecutionProgress
 from planner.plan.orchestrator import MissionResult
 
 __all__ = [
@@ -269,7 +269,7 @@ class ViewHub:
         """A planning was judged (``MissionRunner.on_planned``)."""
         self._put("_planned", mission)
 
-    def progress(self, p: Progress) -> None:
+    def progress(self, p: ExecutionProgress) -> None:
         """The executor's progress (``on_progress``)."""
         self._put("_progress", p)
 
@@ -613,7 +613,7 @@ class ViewHub:
         identity (0-based; 0 when it is none of them: a plan the view was not told of)."""
         return next((i for i, v in enumerate(self._ghosts) if v is verdict), 0)
 
-    def _on_progress(self, rx: float, p: Progress) -> None:
+    def _on_progress(self, rx: float, p: ExecutionProgress) -> None:
         moved = p.verdict is not self._following or p.step != self._step_index
         if moved and p.status in ("published", "accepted", "running"):
             # Another plan, or another step of it, under way: the ghost follows it again

@@ -11,7 +11,7 @@ from bridge.errors import ParameterError
 from bridge.link.odometry import OdometryEstimator, ground_pose, unwrap24
 from bridge.ros.params import BridgeParams, load_params, parameter_specs
 from firmware_proto.model.rover import RoverDescription
-from firmware_proto.wire.messages import Encoders, Imu, Pose
+from firmware_proto.wire.messages import Encoders, Imu, PoseMsg
 
 
 def test_precedence_overrides_env_file_defaults(tmp_path: Path) -> None:
@@ -119,11 +119,11 @@ def test_estimator_ignores_a_counter_reset(rover: RoverDescription) -> None:
 
 
 def test_ground_pose_conversion_and_no_fix() -> None:
-    pose = ground_pose(Pose(1500, -250, 900, 2, 25))
+    pose = ground_pose(PoseMsg(1500, -250, 900, 2, 25))
     assert pose is not None
     assert (pose.x_m, pose.y_m, pose.sigma_m, pose.age_s) == (1.5, -0.25, 0.02, 0.1)
     assert pose.yaw_rad == pytest.approx(math.pi / 2)
-    assert ground_pose(Pose(0, 0, 0, 0, 0)) is None
+    assert ground_pose(PoseMsg(0, 0, 0, 0, 0)) is None
 
 
 def test_estimator_rebases_on_a_new_boot_nonce(rover: RoverDescription) -> None:

@@ -45,7 +45,7 @@ from firmware_proto.wire.messages import (
     Param,
     ParamResult,
     ParamValue,
-    Pose,
+    PoseMsg,
     SetParam,
     Status,
     StepState,
@@ -301,7 +301,7 @@ def test_pose_dropout_reports_no_fix_without_stopping(make_model: Make) -> None:
     assert out == [Fault(FaultCode.POSE, 1, 0)]
     model.handle(Motion(1, Command.FWD, 30, 2300))
     after = run(model, 2.0)
-    poses = [m for m in after if isinstance(m, Pose)]
+    poses = [m for m in after if isinstance(m, PoseMsg)]
     assert poses and all(p.sigma_cm == 0 for p in poses)
     assert any(isinstance(m, Status) and m.state == StepState.COMPLETED for m in after)
 
@@ -345,9 +345,9 @@ def test_telemetry_rates_and_set_param(make_model: Make) -> None:
     out = run(model, 1.0)  # one second after a warm-up: rates are exact
     count = {
         kind: sum(isinstance(m, kind) for m in out)
-        for kind in (Encoders, WheelSpeeds, Imu, Pose, Heartbeat)
+        for kind in (Encoders, WheelSpeeds, Imu, PoseMsg, Heartbeat)
     }
-    assert count == {Encoders: 50, WheelSpeeds: 50, Imu: 50, Pose: 10, Heartbeat: 10}
+    assert count == {Encoders: 50, WheelSpeeds: 50, Imu: 50, PoseMsg: 10, Heartbeat: 10}
     assert model.handle(SetParam(Param.TELEMETRY_HZ, 100)) == [
         ParamValue(Param.TELEMETRY_HZ, ParamResult.OK, 100)
     ]
@@ -365,7 +365,7 @@ def test_sensors_see_the_ground_encoders_do_not(make_model: Make) -> None:
     yaw = model.twin.pose.yaw_rad
     imu_yaw = sum(m.yaw_rate_mrad_s for m in out if isinstance(m, Imu)) / 1000.0 / 50.0
     assert imu_yaw == pytest.approx(yaw, abs=0.03)  # integrated gyro follows the true yaw
-    last = [m for m in out if isinstance(m, Pose)][-1]
+    last = [m for m in out if isinstance(m, PoseMsg)][-1]
     assert math.radians(last.yaw_ddeg / 10.0) == pytest.approx(yaw, abs=0.05)
     enc = [m for m in out if isinstance(m, Encoders)][-1]
     assert enc.left == pytest.approx(enc.right, abs=2)  # encoders: "straight"

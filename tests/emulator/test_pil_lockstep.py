@@ -23,7 +23,7 @@ from firmware_proto.wire.messages import (
     ClearStop,
     Command,
     Motion,
-    Pose,
+    PoseMsg,
     Status,
     StepState,
     Stop,
@@ -141,7 +141,7 @@ def _drive_and_watch(slip: float | None) -> tuple[float, bool, int]:
             host.send(Motion(8, *step))
             seen = mark
             while True:
-                found = host.find(Pose, since=seen, timeout_s=0.5)
+                found = host.find(PoseMsg, since=seen, timeout_s=0.5)
                 done = host.find(
                     Status,
                     lambda m: m.seq == 8 and m.state != StepState.STARTED,
@@ -152,7 +152,7 @@ def _drive_and_watch(slip: float | None) -> tuple[float, bool, int]:
                     break
                 seen = found[0] + 1
                 pose = found[1].message
-                assert isinstance(pose, Pose)
+                assert isinstance(pose, PoseMsg)
                 t = found[1].arrived - t0 - pose.age_4ms * 0.004
                 ref = min(predicted, key=lambda s: abs(s.time_s - t)).pose
                 err = math.hypot(pose.x_mm / 1000 - ref.x_m, pose.y_mm / 1000 - ref.y_m)

@@ -40,7 +40,7 @@ from firmware_proto.wire.messages import (
     Ident,
     Imu,
     Motion,
-    Pose,
+    PoseMsg,
     Status,
     StepState,
     Stop,
@@ -51,7 +51,7 @@ from tests.firmware_proto.c_harness import compiler
 
 from .test_controller import one, run
 
-SAMPLES = (Encoders, WheelSpeeds, Imu, Pose)
+SAMPLES = (Encoders, WheelSpeeds, Imu, PoseMsg)
 
 
 @pytest.fixture(
@@ -101,7 +101,7 @@ def test_no_sensor_samples_before_a_session_yet_the_sensors_are_read(controller:
     assert [m.NAME for m in answer] == ["IDENT"]
     during = run(model, 1.0)
     assert sum(isinstance(m, Encoders) for m in during) == 50
-    assert sum(isinstance(m, Pose) for m in during) >= 9
+    assert sum(isinstance(m, PoseMsg) for m in during) >= 9
     # A mismatched HELLO ends the session: its IDENT is the last word about samples.
     model.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH ^ 1))
     assert not [m for m in run(model, 1.0) if isinstance(m, SAMPLES)]

@@ -49,7 +49,7 @@ from firmware_proto.wire.messages import (
     Heartbeat,
     Ident,
     Motion,
-    Pose,
+    PoseMsg,
     Status,
     StepState,
     Stop,
@@ -339,7 +339,7 @@ def test_driving_into_the_lab_table_over_a_pty(serial_emulator: Factory, lab: Wo
         done = host.expect(
             Status, lambda s: s.seq == 1 and s.state != StepState.STARTED, since=since, timeout_s=15
         )
-        pose = host.expect(Pose, since=host.mark(), timeout_s=10.0)
+        pose = host.expect(PoseMsg, since=host.mark(), timeout_s=10.0)
     status = emu.status()
     assert (done.state, done.travel) == (StepState.COMPLETED, 30000)
     assert status.collision == "table" and "HIT table" in status.line()

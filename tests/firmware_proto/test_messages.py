@@ -16,7 +16,7 @@ from firmware_proto.wire.messages import (
     Encoders,
     Heartbeat,
     Motion,
-    Pose,
+    PoseMsg,
     Stop,
 )
 from firmware_proto.wire.spec import MessageSpec
@@ -46,7 +46,7 @@ def test_known_bytes_of_motion() -> None:
 
 
 def test_known_bytes_of_bit_packed_pose() -> None:
-    pose = Pose(x_mm=-1, y_mm=1, yaw_ddeg=-1, sigma_cm=15, age_4ms=0xAB)
+    pose = PoseMsg(x_mm=-1, y_mm=1, yaw_ddeg=-1, sigma_cm=15, age_4ms=0xAB)
     value = int.from_bytes(pose.pack(), "little")
     assert value & 0xFFFFF == 0xFFFFF  # x = -1 in 20 bits
     assert (value >> 20) & 0xFFFFF == 1
@@ -70,7 +70,7 @@ def test_signed_24_bit_extremes() -> None:
         (Motion(1, 1, 256, 1), "speed"),
         (Stop(0, 0), "stop_id"),
         (Stop(1, 9), "source"),
-        (Pose(0, 0, 1801, 0, 0), "yaw_ddeg"),
+        (PoseMsg(0, 0, 1801, 0, 0), "yaw_ddeg"),
         (Encoders(0, 1 << 23, 0), "left"),
         (Motion(1, 1, 1.5, 1), "speed"),  # type: ignore[arg-type]
         (Motion(1, 1, "30", 1), "speed"),  # type: ignore[arg-type]

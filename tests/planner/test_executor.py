@@ -18,7 +18,7 @@ import pytest
 from firmware_proto.model.plan import Plan
 from firmware_proto.model.verdict import Verdict
 from gate.server import GateServer
-from planner.ground.executor import ExecutorConfig, Progress
+from planner.ground.executor import ExecutionProgress, ExecutorConfig
 from planner.ground.relay import DEFAULT_ROUTES
 from planner.plan.gate_client import GateClient
 from tests.rig import HilRig
@@ -97,7 +97,7 @@ def test_an_exception_from_on_progress_mid_step_stops_the_rover(
     verdict = validate(gate, LONG_STEP)
     h = hil(progress_period_s=0.1)
 
-    def explode(p: Progress) -> None:
+    def explode(p: ExecutionProgress) -> None:
         if p.status == "running" and moving(h):
             raise RuntimeError("the operator's display crashed")
 
@@ -133,7 +133,7 @@ def test_keyboard_interrupt_mid_step_stops_the_rover_then_propagates(
 
     times: dict[str, float] = {}
 
-    def watch(p: Progress) -> None:
+    def watch(p: ExecutionProgress) -> None:
         if p.status == "running" and moving(h):
             times.setdefault("rolling", time.monotonic())
             rolling.set()
@@ -169,7 +169,7 @@ def test_cancel_from_another_thread_stops_the_rover(
     h = hil(progress_period_s=0.1)
     cancel = threading.Event()
 
-    def watch(p: Progress) -> None:
+    def watch(p: ExecutionProgress) -> None:
         if p.status == "running" and moving(h):
             threading.Thread(target=cancel.set, name="operator").start()
 
@@ -189,7 +189,7 @@ def test_progress_arrives_while_a_long_step_runs(
 ) -> None:
     verdict = validate(gate, LONG_STEP)
     h = hil(progress_period_s=0.2)
-    seen: list[Progress] = []
+    seen: list[ExecutionProgress] = []
     result = h.executor.execute(Plan.from_dict(LONG_STEP), verdict, on_progress=seen.append)
     assert result.completed, result.reason
     statuses = [p.status for p in seen]
@@ -211,7 +211,7 @@ def test_a_step_is_never_said_running_before_the_rover_accepted_it(gate: GateSer
     verdict = validate(gate, LONG_STEP)
     rig = HilRig("lab", speed=SPEED, rtt_s=0.8 * SPEED, seed=5, progress_period_s=0.1)
     try:
-        seen: list[Progress] = []
+        seen: list[ExecutionProgress] = []
         result = rig.executor.execute(Plan.from_dict(LONG_STEP), verdict, on_progress=seen.append)
     finally:
         rig.close()
@@ -226,10 +226,10 @@ def test_a_step_is_never_said_running_before_the_rover_accepted_it(gate: GateSer
 def test_a_fault_names_the_step_as_progress_numbers_it(
     gate: GateServer, hil: Callable[..., HilRig]
 ) -> None:
-    """Progress says 'step 2/2 fault:...'; the reason says the same step, not 'step 1'."""
+    """ExecutionProgress says 'step 2/2 fault:...'; the reason says the same step, not 'step 1'."""
     verdict = validate(gate, TWO_STEPS)
     h = hil(faults=("stall:left@d=1.2",), drift_control=False)
-    seen: list[Progress] = []
+    seen: list[ExecutionProgress] = []
     result = h.executor.execute(Plan.from_dict(TWO_STEPS), verdict, on_progress=seen.append)
     assert not result.completed
     final = [p for p in seen if p.final and p.status != "completed"]

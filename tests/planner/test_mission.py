@@ -140,10 +140,10 @@ def test_move_and_wait_reports_increments_and_only_the_figures_it_has() -> None:
     ETA is the drive's, and the summary says what move-and-wait is and how long the
     route's planning took."""
     from firmware_proto.model.plan import Plan
-    from planner.ground.executor import Progress
+    from planner.ground.executor import ExecutionProgress
     from planner.ground.mission import MoveAndWait, split_for_move_and_wait
 
-    seen: list[Progress] = []
+    seen: list[ExecutionProgress] = []
     with HilRig("lab", speed=2.0, rtt_s=0.4, seed=5) as rig:
         planner = HeuristicLowLevelPlanner(rig.rover, world=rig.world)
         plan: Plan = planner.plan(rig.world.start, GOAL)  # one 1.5 m drive

@@ -329,7 +329,7 @@ def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fau
     progress, result; the ghost stops where it is when the step ends in a fault, and the
     banner says so at once, then the mission's outcome."""
     from bridge.ros.rosport.msgs import Int16MultiArray
-    from planner.ground.executor import Progress
+    from planner.ground.executor import ExecutionProgress
 
     goal = WORLD.goal("by_the_pillar").pose
     mission = orchestrator("lab").plan_mission(goal, start=WORLD.start)
@@ -340,7 +340,7 @@ def test_a_page_opened_mid_mission_gets_its_history_and_the_ghost_halts_on_a_fau
         for i in range(5):
             hub.tap("received", "/ground/odom_ground", _odom(1.2 + 0.05 * i, 3.0))
         hub.tap("sent", "/ground/wheel_instructions", Int16MultiArray(data=[1, 60, 23000]))
-        hub.progress(Progress(0, 4, "published", 30.0, None, None, mission.verdicts[0]))
+        hub.progress(ExecutionProgress(0, 4, "published", 30.0, None, None, mission.verdicts[0]))
         hub.tap("received", "/ground/command_status", String(data="accepted"))
 
         def state_when(pred: Any, what: str) -> dict[str, Any]:

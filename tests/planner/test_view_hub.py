@@ -17,7 +17,7 @@ from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import load_rover
 from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import load_map
-from planner.ground.executor import Progress
+from planner.ground.executor import ExecutionProgress
 from planner.plan.orchestrator import Attempt, MissionResult, PlanResult
 from planner.plan.planner import HeuristicLowLevelPlanner
 from planner.view import ClientQueue, ViewHub
@@ -122,7 +122,7 @@ class Mission:
                     self.ghosts.append((verdict, step, data["ghost"], dict(self.progress)))
 
     def report(self, verdict: Verdict, step: int, steps: int, status: str) -> None:
-        self.hub.progress(Progress(step, steps, status, 10.0, None, None, verdict))
+        self.hub.progress(ExecutionProgress(step, steps, status, 10.0, None, None, verdict))
 
     def step(self, verdict: Verdict, step: int, steps: int, *, ends: str = "completed") -> None:
         """One step as ``rover go`` runs it over a 3 s round trip: published (and said so
@@ -202,7 +202,7 @@ def test_without_a_verdict_there_is_no_ghost() -> None:
     client = hub.subscribe()
     hub.planned(_mission(_plan(WORLD.start, [1.0])))
     hub.tap("sent", "/ground/wheel_instructions", Int16MultiArray(data=[1, 30, 9000]))
-    hub.progress(Progress(0, 1, "published", 5.0, None, None))
+    hub.progress(ExecutionProgress(0, 1, "published", 5.0, None, None))
     hub.tap("received", "/ground/command_status", String(data="accepted"))
     for _ in range(10):
         clock.now += 0.1
@@ -222,7 +222,7 @@ def test_a_plan_run_on_board_moves_the_ghost_and_a_replan_frees_it() -> None:
     hub.planned(_mission(first))
 
     def report(verdict: Verdict, step: int, status: str, seconds: float) -> list[Any]:
-        hub.progress(Progress(step, 2, status, 10.0, None, None, verdict))
+        hub.progress(ExecutionProgress(step, 2, status, 10.0, None, None, verdict))
         ghosts = []
         for _ in range(round(seconds * 10)):
             clock.now += 0.1

@@ -55,7 +55,7 @@ from firmware_proto.wire.messages import (
     Motion,
     Param,
     ParamResult,
-    Pose,
+    PoseMsg,
     Progress,
     Status,
     StepState,
@@ -388,7 +388,7 @@ def telemetry(ctx: Context) -> str:
         f"{count['ENCODERS']} ENCODERS in {host.scaled(window_s):g} s, expected about "
         f"{expected:g} (mandatory)",
     )
-    for pose in (m for m in got if isinstance(m, Pose)):
+    for pose in (m for m in got if isinstance(m, PoseMsg)):
         check(-1800 <= pose.yaw_ddeg <= 1800, f"POSE yaw out of range: {pose.describe()}")
     missing = [name for name in ("WHEEL_SPEEDS", "IMU") if count[name] == 0]
     note = ", ".join(f"{n} {c}" for n, c in count.items())

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.linkio.endpoint import Endpoint
 from firmware_proto.linkio.host import HEARTBEAT_S, ProtocolHost, Received
-from firmware_proto.wire.messages import Encoders, Imu, Pose, WheelSpeeds
+from firmware_proto.wire.messages import Encoders, Imu, PoseMsg, WheelSpeeds
 
 __all__ = ["SAMPLES", "FrameRecord", "WireHost"]
 
-SAMPLES = (Encoders, WheelSpeeds, Imu, Pose)
+SAMPLES = (Encoders, WheelSpeeds, Imu, PoseMsg)
 """Sensor samples: counted in a rule's log, not listed."""
 
 KEEP = 100_000
