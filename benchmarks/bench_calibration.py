@@ -5,7 +5,7 @@ field:
 
 1. a calibration mission of at most 60 s of driving (seeded random steps, turns and
    straight lines) is driven in lockstep on that ground and recorded as a real mission
-   is (:mod:`benchmarks.lockstep`: the controller model at 1 ms, sensor noise, the
+   is (:mod:`sim.calibration_runs`: the controller model at 1 ms, sensor noise, the
    bridge's odometry, a 3 s round trip, the same MCAP writer);
 2. ``rover calibrate``'s path fits the twin to that recording (read the MCAP, measure
    the steps at rest, least squares); its wall time is the time to calibrate;
@@ -36,7 +36,6 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.lockstep import field_map, random_mission, record_lockstep
 from emulator.fit import fit_ground
 from emulator.ground import Ground, list_grounds, load_ground
 from emulator.observations import MAX_REST_S, SETTLE_S, START_GUARD_S, observe_steps
@@ -46,6 +45,8 @@ from emulator.twin import GATE_DT_S, Pose2D, Twin
 from firmware_proto.model.geometry import wrap_rad
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.model.worldmap import WorldMap
+from planner.record.mcaprec import record_messages
+from sim.calibration_runs import drive_lockstep, field_map, random_mission
 
 FIT_DRIVING_S = 60.0
 CUT_BAR = 5.0
@@ -98,20 +99,22 @@ def run_ground(
     truth = load_ground(name, rover)
     seed = 10 + list_grounds().index(name)
     fit_steps = random_mission(rover, random.Random(seed), 40, max_driving_s=FIT_DRIVING_S)
-    fit = record_lockstep(work / f"{name}-fit.mcap", rover, world, truth, fit_steps, seed=seed)
+    fit_path = work / f"{name}-fit.mcap"
+    fit = drive_lockstep(rover, world, truth, fit_steps, seed=seed)
+    record_messages(fit_path, fit.messages)
     t0 = time.perf_counter()
-    observed = observe_steps([read_recording(fit.path)], rover)
-    calibration, _report = fit_ground(observed, rover, world, sources=(str(fit.path),))
+    observed = observe_steps([read_recording(fit_path)], rover)
+    calibration, _report = fit_ground(observed, rover, world, sources=(str(fit_path),))
     calibrate_s = time.perf_counter() - t0
     twins = {"before": Ground.of_rover(rover, world), "after": calibration.ground, "floor": truth}
     errors_m: dict[str, list[float]] = {k: [] for k in twins}
     errors_deg: dict[str, list[float]] = {k: [] for k in twins}
     for k in range(missions):
         steps = random_mission(rover, random.Random(1000 + 100 * seed + k), 12)
-        test = record_lockstep(
-            work / f"{name}-test{k}.mcap", rover, world, truth, steps, seed=500 + seed * 10 + k
-        )
-        start, end = mission_ends(read_recording(test.path))
+        test_path = work / f"{name}-test{k}.mcap"
+        test = drive_lockstep(rover, world, truth, steps, seed=500 + seed * 10 + k)
+        record_messages(test_path, test.messages)
+        start, end = mission_ends(read_recording(test_path))
         for key, ground in twins.items():
             final = predict_final(rover, world, ground, start, steps)
             errors_m[key].append(math.dist((final.x_m, final.y_m), (end.x_m, end.y_m)))

@@ -1,7 +1,8 @@
 """The wire simulator: the host's protocol core, a controller (the Python model or the C
 firmware core) and its twin, and a serial line or a CAN bus between them, in virtual
 time, with seeded faults; invariants checked after every scenario, and any failure
-played again from its seed (docs/sim.md, ``rover sim``).
+played again from its seed (docs/sim.md, ``rover sim``). Also the calibration's
+missions driven in lockstep (:mod:`sim.calibration_runs`).
 
 Above the bridge and the emulator: it imports both (and the protocol), and nothing of
 ours imports it but its own command and the tests.

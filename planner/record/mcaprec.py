@@ -40,7 +40,7 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -64,6 +64,7 @@ __all__ = [
     "msgdef",
     "plain_message",
     "read_summary",
+    "record_messages",
     "ros_name",
 ]
 
@@ -548,3 +549,18 @@ def read_summary(path: str | Path) -> McapSummary:
             elif topic.endswith("/command_status"):
                 summary.statuses.append(decoded.data)
     return summary
+
+
+def record_messages(
+    path: str | Path, messages: Iterable[tuple[int, str, Any]], direction: str = "lockstep"
+) -> None:
+    """Write ``(log time ns, topic, ROS message)`` as a recording, each at its own log
+    time (a mission heard without a port: :func:`sim.calibration_runs.drive_lockstep`'s)."""
+    clock = [0]
+    recorder = McapRecorder(path, clock=lambda: clock[0])
+    try:
+        for t_ns, topic, msg in messages:
+            clock[0] = t_ns
+            recorder.tap(direction, topic, msg)
+    finally:
+        recorder.close()

@@ -1,7 +1,7 @@
 """``rover calibrate``: read a recorded mission, measure its steps, fit the ground, write
 a twin file the gate plays on; refuse what cannot be identified.
 
-Recordings are made in lockstep (``benchmarks.lockstep``: the controller model on a
+Recordings are made in lockstep (``sim.calibration_runs``: the controller model on a
 ground of its own, the bridge's odometry, the same MCAP writer as a real run); one made
 by the real stack is calibrated in ``tests/planner/test_calibrate_real.py``.
 """
@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.lockstep import field_map, random_mission, record_lockstep
 from emulator.calibration import Calibration
 from emulator.errors import RecordingError, UnidentifiableError
 from emulator.fit import fit_ground
@@ -31,6 +30,8 @@ from emulator.twin import Pose2D, Twin
 from emulator.twinfile import load_twin, write_twin
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.model.worldmap import WorldMap
+from planner.record.mcaprec import record_messages
+from sim.calibration_runs import drive_lockstep, field_map, random_mission
 
 LEFT, RIGHT, FWD = 3, 4, 1
 
@@ -59,7 +60,8 @@ def loose_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     steps = random_mission(rover, random.Random(12), 40, max_driving_s=60.0)
     path = tmp_path_factory.mktemp("rec") / "loose.mcap"
     ground = load_ground("loose", rover)
-    mission = record_lockstep(path, rover, field_map(), ground, steps, seed=3, namespace="/ground")
+    mission = drive_lockstep(rover, field_map(), ground, steps, seed=3, namespace="/ground")
+    record_messages(path, mission.messages)
     assert mission.completed == len(steps)
     return path
 
@@ -211,7 +213,10 @@ def test_rover_gate_serves_the_twin(twin_file: Path, field: Path) -> None:
 def _record(tmp_path: Path, steps: list[tuple[int, int, int]], name: str) -> Path:
     rover = load_rover()
     path = tmp_path / f"{name}.mcap"
-    record_lockstep(path, rover, field_map(), load_ground("dusty", rover), steps, seed=1)
+    record_messages(
+        path,
+        drive_lockstep(rover, field_map(), load_ground("dusty", rover), steps, seed=1).messages,
+    )
     return path
 
 
@@ -265,7 +270,8 @@ def test_a_region_driven_on_is_fitted(
     ]
     truth = load_ground("loose", rover).with_values(**{"region.sandbox": 0.35})
     path = tmp_path / "sandbox.mcap"
-    record_lockstep(path, rover, lab, truth, steps, start=Pose2D(1.1, 3.2, math.pi / 2), seed=4)
+    mission = drive_lockstep(rover, lab, truth, steps, start=Pose2D(1.1, 3.2, math.pi / 2), seed=4)
+    record_messages(path, mission.messages)
     observed = observe_steps([read_recording(path)], rover)
     assert len(observed.observations) == len(steps)
     calibration, _ = fit_ground(observed, rover, lab)

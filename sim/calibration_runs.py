@@ -1,17 +1,19 @@
-"""Missions driven in lockstep and recorded as a real mission is, for calibration runs.
+"""Missions driven in lockstep and heard as a real mission is, for calibration runs.
 
 A real recording (``rover go --record``) is made by the ground station's port: it hears
 the steps it publishes and, after the link's one-way delay, what the bridge publishes
-from the controller's telemetry. :func:`record_lockstep` produces the same file without
-real time: the controller model (:class:`emulator.controller.ControllerModel`) drives its
+from the controller's telemetry. :func:`drive_lockstep` produces the same messages
+without real time: the controller model (:class:`emulator.controller.ControllerModel`) drives its
 twin tick by tick on a ground of its own; the host's side of the bridge runs in process
 (the bridge's own :class:`~bridge.link.odometry.OdometryEstimator` and
 :func:`~bridge.link.odometry.ground_pose`, the ``odom`` and ``odom_ground`` messages built as
 ``bridge/ros/node.py`` builds them); the executor's pacing is kept (a step is sent when the
 previous one's ``completed`` has crossed the link, so the rover rests a round trip
-between steps); and every message goes through :class:`planner.record.mcaprec.McapRecorder`
-with log times as the ground station would have heard them (downlink: the rover's time
-plus the one-way delay; uplink: the time the rover received it minus the delay).
+between steps); and every message gets the log time at which the ground station would
+have heard it (downlink: the rover's time plus the one-way delay; uplink: the time the
+rover received it minus the delay). :func:`planner.record.mcaprec.record_messages`
+writes them as a recording (the calibration's tests and benchmark do; ``sim`` sits
+below the planner and does not import it).
 
 What is left out of a real run: the serial link and its framing, ROS 2 transport, and
 wall-clock jitter. ``tests/emulator/test_calibrate_e2e.py`` calibrates from a real run.
@@ -22,7 +24,6 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from bridge.link.odometry import OdometryEstimator, ground_pose
@@ -62,14 +63,13 @@ from firmware_proto.wire.messages import (
     WheelSpeeds,
 )
 from firmware_proto.wire.messages import Status as StatusMsg
-from planner.record.mcaprec import McapRecorder
 
 __all__ = [
     "EPOCH_S",
     "LockstepMission",
+    "drive_lockstep",
     "field_map",
     "random_mission",
-    "record_lockstep",
 ]
 
 EPOCH_S = 1_800_000_000.0
@@ -130,17 +130,18 @@ def random_mission(
 
 @dataclass(frozen=True)
 class LockstepMission:
-    """A recorded lockstep mission.
+    """A lockstep mission and what the ground station would have heard of it.
 
     Attributes:
-        path: the MCAP file.
+        messages: ``(log time ns, topic, ROS message)`` in time order (what
+            :func:`planner.record.mcaprec.record_messages` writes).
         steps: the steps driven.
         start, final: the twin's true pose before the first step and at the end.
         driving_s: twin time spent executing steps (rests excluded).
         completed: steps that completed.
     """
 
-    path: Path
+    messages: tuple[tuple[int, str, Any], ...]
     steps: tuple[tuple[int, int, int], ...]
     start: Pose2D
     final: Pose2D
@@ -242,8 +243,7 @@ class _Host:
                     self.ended = "aborted"
 
 
-def record_lockstep(
-    path: str | Path,
+def drive_lockstep(
     rover: RoverDescription,
     world: WorldMap | None,
     ground: Ground | None,
@@ -256,11 +256,10 @@ def record_lockstep(
     rest_s: float = 3.0,
     namespace: str = "",
 ) -> LockstepMission:
-    """Drive ``steps`` on ``ground`` in lockstep and record the mission (module
-    docstring).
+    """Drive ``steps`` on ``ground`` in lockstep, hearing the mission as the ground
+    station would (module docstring).
 
     Args:
-        path: the MCAP file to write.
         rover: the rover description (the controller's, and the twin's but for the
             traction ``ground`` replaces).
         world: the map (``None``: an open plane).
@@ -311,13 +310,8 @@ def record_lockstep(
         driving += model.now_s - t0
         completed += host.ended == "completed"
         run(rtt_s if seq < len(steps) - 1 else rest_s)
-    final = twin.pose
-    clock = [0]
-    recorder = McapRecorder(path, clock=lambda: clock[0])
-    try:
-        for t_ns, topic, msg in sorted(host.events, key=lambda e: e[0]):
-            clock[0] = t_ns
-            recorder.tap("lockstep", namespace + topic, msg)
-    finally:
-        recorder.close()
-    return LockstepMission(Path(path), tuple(steps), true_start, final, driving, completed)
+    messages = tuple(
+        (t_ns, namespace + topic, msg)
+        for t_ns, topic, msg in sorted(host.events, key=lambda e: e[0])
+    )
+    return LockstepMission(messages, tuple(steps), true_start, twin.pose, driving, completed)
