@@ -446,13 +446,16 @@ def _mission(args: argparse.Namespace) -> int:
     from planner.plan.orchestrator import PlannerOrchestrator
     from planner.plan.planner import HeuristicLowLevelPlanner, check_pose
     from planner.record.foxlive import FoxgloveLive
-    from planner.record.mcaprec import McapRecorder
+    from planner.record.mcaprec import McapRecorder, recording_unavailable
     from planner.record.picture import fresh_path, picture_of, save
     from planner.stack.stackenv import apply_domain
     from planner.stack.stallreport import stall_report
     from planner.view.cli_view import view_config
     from planner.view.live import LiveView
 
+    if args.record and recording_unavailable():
+        print(f"rover go: --record: {recording_unavailable()}", file=sys.stderr)
+        return 2
     apply_domain(args)
     given = _read_plan(args.plan) if args.plan is not None else None
     goal = args.goal if given is None else given.goal

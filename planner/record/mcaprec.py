@@ -65,6 +65,7 @@ __all__ = [
     "plain_message",
     "read_summary",
     "record_messages",
+    "recording_unavailable",
     "ros_name",
 ]
 
@@ -290,6 +291,18 @@ def gate_messages(mission: MissionResult, t_ns: int) -> list[tuple[str, type[Any
     return out
 
 
+def recording_unavailable() -> str:
+    """``""`` when MCAP recordings can be written and read, else why not (the ``record``
+    extra, ``mcap`` and ``mcap-ros2-support``, is not installed) and how to get them."""
+    try:
+        import mcap.reader  # noqa: F401, PLC0415
+        import mcap_ros2.writer  # noqa: F401, PLC0415
+    except ImportError as exc:
+        package = (exc.name or "mcap").split(".")[0]
+        return f"MCAP recording needs {package}: pip install 'rover-hil[record]'"
+    return ""
+
+
 class McapRecorder:
     """Writes a ROS 2 MCAP file of what the ground station's port sees (see the module
     docstring). A context manager; :meth:`close` is idempotent.
@@ -301,10 +314,13 @@ class McapRecorder:
 
     Raises:
         OSError: the file cannot be created.
-        ImportError: the ``mcap`` / ``mcap-ros2-support`` packages are missing.
+        ImportError: the ``record`` extra is not installed (:func:`recording_unavailable`).
     """
 
     def __init__(self, path: str | Path, *, clock: Callable[[], int] = time.time_ns) -> None:
+        missing = recording_unavailable()
+        if missing:
+            raise ImportError(missing)
         from mcap_ros2.writer import Writer  # noqa: PLC0415  (only a recording needs it)
 
         self.path = Path(path)

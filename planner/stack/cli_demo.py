@@ -14,7 +14,11 @@ from planner.stack.controllers import CONTROLLERS
 from planner.stack.linkargs import add_link_arguments
 from planner.view.cli_view import add_view_arguments
 
-__all__ = ["register"]
+__all__ = ["DEMO_RECORDING", "register"]
+
+DEMO_RECORDING = "demo.mcap"
+"""Where the demo records its mission unless told otherwise (when the ``record`` extra is
+installed: without it the demo says so and records nothing)."""
 
 
 def register(subparsers: Any) -> None:
@@ -57,7 +61,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--picture", type=Path, default=Path("demo.png"), help="PNG to write (default demo.png)"
     )
-    add_view_arguments(p, record_default="demo.mcap")
+    add_view_arguments(p, record_default=DEMO_RECORDING)
     p.add_argument(
         "--ground",
         metavar="NAME|FILE",
@@ -113,12 +117,21 @@ def _run(args: argparse.Namespace) -> int:
     from firmware_proto.cli.runtimeargs import runtime_options
     from firmware_proto.runtime import ProcessRuntime
     from planner.ground.interrupt import CancelOnSignal
+    from planner.record.mcaprec import recording_unavailable
     from planner.stack.demo import Demo, DemoConfig
     from planner.stack.lines import say
     from planner.stack.stallreport import stall_report
     from planner.view.cli_view import view_config
 
     gate_options, max_p = confidence_options(args)
+    record = None if args.no_record else Path(args.record)
+    missing = recording_unavailable() if record is not None else ""
+    if missing and args.record != DEMO_RECORDING:
+        print(f"rover demo: --record: {missing}", file=sys.stderr)
+        return 2
+    if missing:
+        print(f"not recording the mission: {missing}", flush=True)
+        record = None
     config = DemoConfig(
         rtt_s=args.rtt,
         jitter_s=args.jitter,
@@ -127,7 +140,7 @@ def _run(args: argparse.Namespace) -> int:
         slip=None if args.no_slip else DemoConfig.slip,
         seed=args.seed,
         picture=args.picture,
-        record=None if args.no_record else Path(args.record),
+        record=record,
         view=view_config(args),
         foxglove_port=args.foxglove,
         firmware=args.firmware,

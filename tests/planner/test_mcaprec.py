@@ -228,3 +228,28 @@ def test_a_recording_a_lab_can_open_tf_markers_diagnostics_metadata(
     assert verdicts[0]["collision"]["obstacle"] == "table"
     assert json.loads(metadata["planning-1"]["plans"])[0]["commands"]
     assert metadata["mission"] == {"plannings": "1"}
+
+
+def test_without_the_record_extra_rover_go_refuses_to_record(tmp_path: Path) -> None:
+    """MCAP is optional (the ``record`` extra): the check names what is missing, and
+    ``rover go --record`` refuses at once (exit 2) instead of failing mid-mission."""
+    from planner.record.mcaprec import recording_unavailable
+
+    assert recording_unavailable() == ""
+    hide = "import sys; sys.modules['mcap_ros2'] = None; "
+    check = subprocess.run(
+        [sys.executable, "-c", hide + "from planner.record.mcaprec import recording_unavailable"
+         "; print(recording_unavailable())"],
+        capture_output=True, text=True, timeout=60, check=True,
+    )  # fmt: skip
+    assert check.stdout.strip() == (
+        "MCAP recording needs mcap_ros2: pip install 'rover-hil[record]'"
+    )
+    go = subprocess.run(
+        [sys.executable, "-c", hide + "from firmware_proto.cli import main; sys.exit(main())",
+         "go", "--goal", "2,3,0", "--record", str(tmp_path / "x.mcap")],
+        check=False, capture_output=True, text=True, timeout=60, cwd=tmp_path,
+    )  # fmt: skip
+    assert go.returncode == 2, go.stderr
+    assert "rover go: --record: MCAP recording needs mcap_ros2" in go.stderr
+    assert not (tmp_path / "x.mcap").exists()
