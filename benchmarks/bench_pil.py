@@ -42,7 +42,7 @@ from benchmarks.load import BusyLoad
 from emulator.pil.avr import avr_lockstep_pair, make_system
 from emulator.pil.images import build_image
 from emulator.pil.qemu import MicrobitTarget
-from emulator.pil.view import PortStats
+from emulator.pil.view import PilStats
 from firmware_proto.linkio.endpoint import HOST
 from firmware_proto.linkio.host import ProtocolHost
 from firmware_proto.linkio.media import open_endpoint
@@ -70,7 +70,7 @@ def _ack_of(stop_id: int) -> Callable[[StopAck], bool]:
 
 
 def _script(
-    host: ProtocolHost, trials: int, get: Callable[[], PortStats]
+    host: ProtocolHost, trials: int, get: Callable[[], PilStats]
 ) -> tuple[list[int], list[int]]:
     """HELLO -> IDENT and STOP -> STOP_ACK, ``trials`` each; the port's own counts of each
     (``get()`` reads ``pil_stats``)."""

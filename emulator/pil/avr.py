@@ -41,7 +41,7 @@ from emulator.pil.errors import PilError, PilToolMissingError
 from emulator.pil.images import Image, cache_dir, require_tool
 from emulator.pil.plant import MotorOutputs, TwinPlant
 from emulator.pil.target import PilTarget
-from emulator.pil.view import STATS, VIEW, PortStats, PortView
+from emulator.pil.view import STATS, VIEW, PilStats, PortView
 from emulator.twin import Pose2D, Twin
 from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.linkio.endpoint import HOST, Endpoint
@@ -274,12 +274,12 @@ class AvrSystem:
         self._seed_nonce()
         self.plant.reboot()
 
-    def view(self) -> tuple[PortView, PortStats]:
+    def view(self) -> tuple[PortView, PilStats]:
         """The image's ``pil_view`` and ``pil_stats``."""
         s = self.image.symbols
         return (
             PortView.decode(self.mcu.read(s["pil_view"], VIEW.size)),
-            PortStats.decode(self.mcu.read(s["pil_stats"], STATS.size)),
+            PilStats.decode(self.mcu.read(s["pil_stats"], STATS.size)),
         )
 
     def close(self) -> None:
@@ -409,7 +409,7 @@ class AvrTarget(PilTarget):
     def _apply(self, spec: FaultSpec) -> None:
         apply_fault(self.system, spec)
 
-    def _read_port(self) -> tuple[PortView, PortStats]:
+    def _read_port(self) -> tuple[PortView, PilStats]:
         return self.system.view()
 
 

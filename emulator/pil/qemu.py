@@ -31,7 +31,7 @@ from emulator.pil.errors import PilError
 from emulator.pil.gdbstub import GdbStub
 from emulator.pil.images import Image, require_tool
 from emulator.pil.target import PilTarget
-from emulator.pil.view import STATS, VIEW, WORLD, WORLD_MAGIC, PortStats, PortView, hooks_bytes
+from emulator.pil.view import STATS, VIEW, WORLD, WORLD_MAGIC, PilStats, PortView, hooks_bytes
 from firmware_proto.model.worldmap import load_map
 
 __all__ = ["MicrobitTarget", "qemu_command"]
@@ -213,7 +213,7 @@ class MicrobitTarget(PilTarget):
         self._write_hooks()
 
     def _ticks(self) -> int:
-        return PortStats.decode(self._gdb.read(self.image.symbols["pil_stats"], STATS.size)).ticks
+        return PilStats.decode(self._gdb.read(self.image.symbols["pil_stats"], STATS.size)).ticks
 
     def _write_hooks(self) -> None:
         data = hooks_bytes(
@@ -237,7 +237,7 @@ class MicrobitTarget(PilTarget):
                 self._slip[i] = 1.0 if spec.kind == "clear" else float(spec.value or 1.0)
         self._write_hooks()
 
-    def _read_port(self) -> tuple[PortView, PortStats]:
+    def _read_port(self) -> tuple[PortView, PilStats]:
         view = PortView.decode(self._gdb.read(self.image.symbols["pil_view"], VIEW.size))
-        stats = PortStats.decode(self._gdb.read(self.image.symbols["pil_stats"], STATS.size))
+        stats = PilStats.decode(self._gdb.read(self.image.symbols["pil_stats"], STATS.size))
         return view, stats

@@ -27,7 +27,7 @@ from emulator.errors import InjectionError
 from emulator.injection import FaultSpec, InjectionRecord, ScheduledFault, parse_fault
 from emulator.pil.errors import PilError
 from emulator.pil.images import Image
-from emulator.pil.view import PortStats, PortView
+from emulator.pil.view import PilStats, PortView
 from firmware_proto.wire.messages import FaultCode
 
 __all__ = ["PilTarget"]
@@ -282,7 +282,7 @@ class PilTarget(ABC):
 
     # -- status ------------------------------------------------------------------------------
     @abstractmethod
-    def _read_port(self) -> tuple[PortView, PortStats]:
+    def _read_port(self) -> tuple[PortView, PilStats]:
         """The image's ``pil_view`` and ``pil_stats`` now."""
 
     def time_s(self) -> float:
@@ -293,7 +293,7 @@ class PilTarget(ABC):
         """Ground truth, m, m, deg: the in-image plant's by default."""
         return view.x_mm / 1000.0, view.y_mm / 1000.0, view.yaw_ddeg / 10.0
 
-    def port_stats(self) -> PortStats:
+    def port_stats(self) -> PilStats:
         """The image's counters now."""
         with self._lock:
             return self._read_port()[1]

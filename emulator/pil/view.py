@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from firmware_proto.wire.messages import ControllerState, FaultCode
 
-__all__ = ["HOOKS", "STATS", "VIEW", "WORLD", "WORLD_MAGIC", "PortStats", "PortView", "hooks_bytes"]
+__all__ = ["HOOKS", "STATS", "VIEW", "WORLD", "WORLD_MAGIC", "PilStats", "PortView", "hooks_bytes"]
 
 STATS = struct.Struct("<10I")
 """``pil_stats_t``: ticks, tick_last, tick_max, late_ticks, rx_overflows, tx_drops,
@@ -25,7 +25,7 @@ _LATCH = ((1, "stop"), (2, "watchdog"), (4, "fault"))
 
 
 @dataclass(frozen=True)
-class PortStats:
+class PilStats:
     """``pil_stats``: the port's counters since boot."""
 
     ticks: int
@@ -40,7 +40,7 @@ class PortStats:
     ident_last: int
 
     @classmethod
-    def decode(cls, raw: bytes) -> PortStats:
+    def decode(cls, raw: bytes) -> PilStats:
         """From the bytes of ``pil_stats``."""
         return cls(*STATS.unpack(raw))
 

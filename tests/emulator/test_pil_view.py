@@ -7,7 +7,7 @@ import pytest
 import emulator.pil
 from emulator.pil.errors import PilError
 from emulator.pil.registry import target_class
-from emulator.pil.view import HOOKS, STATS, VIEW, PortStats, PortView, hooks_bytes
+from emulator.pil.view import HOOKS, STATS, VIEW, PilStats, PortView, hooks_bytes
 
 
 def test_public_names_are_pinned() -> None:
@@ -42,7 +42,7 @@ def test_a_view_decodes_state_latch_and_faults() -> None:
 
 
 def test_stats_decode_in_order() -> None:
-    stats = PortStats.decode(STATS.pack(1, 2, 3, 4, 5, 6, 16_000_000, 7, 8, 9))
+    stats = PilStats.decode(STATS.pack(1, 2, 3, 4, 5, 6, 16_000_000, 7, 8, 9))
     assert (stats.ticks, stats.tick_max, stats.tx_drops, stats.tick_unit_hz) == (
         1,
         3,
