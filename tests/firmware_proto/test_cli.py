@@ -8,7 +8,6 @@ import sys
 import cantools
 import pytest
 
-import firmware_proto
 from firmware_proto.wire.framing import FrameDecoder
 from firmware_proto.wire.messages import Motion
 
@@ -160,44 +159,3 @@ def test_roundtrip_help_prints_its_percent_sign_once() -> None:
     out = rover("roundtrip", "--help")
     assert out.returncode == 0
     assert "1% by default" in " ".join(out.stdout.split()) and "%%" not in out.stdout
-
-
-EXPORTED = [
-    "PROTOCOL_VERSION",
-    "SCHEMA_HASH",
-    "CanDecoder",
-    "CanFrame",
-    "DecodeError",
-    "DescriptionError",
-    "EncodeError",
-    "Frame",
-    "FrameDecoder",
-    "FrameEncoder",
-    "Goal",
-    "MapError",
-    "Message",
-    "Plan",
-    "PlanError",
-    "PlanStep",
-    "ProtoError",
-    "RoverDescription",
-    "RxCounters",
-    "SpecError",
-    "WorldMap",
-    "can_id",
-    "encode_can",
-    "encode_frame",
-    "encode_raw_frame",
-    "list_maps",
-    "load_map",
-    "load_rover",
-    "split_can_id",
-    "validate_plan",
-]
-
-
-def test_exported_members_are_pinned() -> None:
-    assert firmware_proto.__all__ == EXPORTED
-    assert sorted(EXPORTED, key=lambda n: (not n.isupper(), n)) == EXPORTED
-    for name in firmware_proto.__all__:
-        assert hasattr(firmware_proto, name)

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-import gate
 from emulator.twin import GATE_DT_S
 from firmware_proto.http.bindpolicy import is_loopback
 from firmware_proto.model.verdict import Verdict
@@ -170,58 +169,6 @@ def test_verdict_round_trips(validator: object) -> None:
     keys = list(verdict.to_dict())
     assert keys[0] == "approved" and keys[-1] == "wall_time_s"
     assert "image_png_base64" not in keys
-
-
-EXPORTED = [
-    "FAILURE_TYPES",
-    "BadRequestError",
-    "CollisionReport",
-    "GateConfig",
-    "GateConfigError",
-    "GateError",
-    "GateServer",
-    "GoalRangeError",
-    "HttpError",
-    "Job",
-    "LengthRequiredError",
-    "MethodNotAllowedError",
-    "MethodNotImplementedError",
-    "NotFoundError",
-    "OptionError",
-    "OverloadedError",
-    "PayloadTooLargeError",
-    "PlanSchemaError",
-    "PlaybackSettings",
-    "Point",
-    "Pose",
-    "ProcessWorkerPool",
-    "Replay",
-    "RequestTimeoutError",
-    "ResolvedOptions",
-    "StallReport",
-    "StepPrediction",
-    "ThreadWorkerPool",
-    "Tolerances",
-    "Trajectory",
-    "TrajectorySample",
-    "UnauthorizedError",
-    "Uncertainty",
-    "UnsupportedMediaError",
-    "ValidateOptions",
-    "Validator",
-    "Verdict",
-    "WorkerPool",
-    "load_config",
-]
-
-
-def test_exports_are_pinned_sorted_and_resolve() -> None:
-    assert gate.__all__ == EXPORTED
-    assert gate.__all__ == sorted(gate.__all__, key=lambda n: (not n.isupper(), n))
-    for name in gate.__all__:
-        assert getattr(gate, name) is not None
-    with pytest.raises(AttributeError):
-        gate.NoSuchThing  # noqa: B018
 
 
 def test_importing_the_data_types_does_not_load_the_twin_or_pillow() -> None:
