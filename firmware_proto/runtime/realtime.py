@@ -307,13 +307,11 @@ def module_command_at_normal_priority(module: str) -> list[str]:
     """The command that runs ``python -m module`` (append its arguments) under normal
     scheduling from its first line, whatever its parent's.
 
-    A child inherits its parent's policy, and a Python program's imports are CPU-bound
-    (the bridge's ROS 2 child imports for about half a second): two children started at
-    once by a real-time parent held both cores of this machine for about 190 ms, and the
-    pty's kernel worker (normal priority) with them, so a link over a pty fell silent
-    (traced with the kernel's sched events: docs/realtime.md). A child that must
-    keep time asks for it after its imports. Only the interpreter's start-up runs at the
-    parent's priority.
+    A child inherits its parent's policy, and a Python program's imports are CPU-bound:
+    children importing at a real-time priority can hold every core, and the pty's kernel
+    worker (normal priority) with them, so that a link over a pty falls silent
+    (docs/realtime.md). A child that must keep time asks for it after its imports. Only
+    the interpreter's start-up runs at the parent's priority.
     """
     return [sys.executable, "-c", _NORMAL_PRIORITY_LAUNCH, module]
 

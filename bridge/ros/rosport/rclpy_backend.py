@@ -17,8 +17,8 @@ thread:
   executor, so the lane is a node of its own, and no executor spins it: its thread waits
   on an rcl wait set that holds only the STOP subscriptions and a guard condition, takes
   each message and runs the callback. An emergency stop so waits for no other callback,
-  and skips the general executor's per-wake bookkeeping (measured: about 100 us less per
-  message at the median; benchmarks/bench_rosport.py). This uses rclpy's binding of rcl
+  and skips the general executor's per-wake bookkeeping (docs/rosport.md gives the
+  figure). This uses rclpy's binding of rcl
   (``rclpy.impl.implementation_singleton``), as rclpy's own executor does.
 
 Messages are the generated classes; they are published and delivered as they are.
