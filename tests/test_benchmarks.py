@@ -218,6 +218,14 @@ def test_bench_uncertain_quick_prints_both_tables() -> None:
     assert "| local pool, 2 workers | 20 |" in out
 
 
+def test_bench_onboard_quick_prints_the_three_tables() -> None:
+    out = run_benchmark("bench_onboard", "--quick")
+    for header in ("## Overshoot", "## Mission time at a 3 s round trip", "## Loss"):
+        assert header in out, out
+    assert "| lab | step-by-step |" in out and "| lab | onboard |" in out, out
+    assert "| 0.3 | onboard | 2/2 | 0 |" in out, out  # reached, nothing run twice
+
+
 def test_a_busy_load_ends_with_the_process_that_started_it() -> None:
     # A benchmark killed by a signal must not leave its busy loops beside the next job.
     script = (
