@@ -105,8 +105,9 @@ def _slip_step(steps: tuple[tuple[int, int, int], ...]) -> int | None:
 def overshoot_table(trials: int, scenes: tuple[str, ...] = SCENES) -> list[str]:
     lines = [
         "| scene | mode | drift stops | after detection: driven m / at rest s | "
-        "after 0.25 m off the path: driven m / at rest s | off the path at rest m |",
-        "|---|---|---:|---|---|---:|",
+        "after 0.25 m off the path: driven m / at rest s | off the path at rest m | "
+        "twin: after detection m / s |",
+        "|---|---|---:|---|---|---:|---|",
     ]
     for scene in scenes:
         legs = _legs(scene, 1)[0]
@@ -115,7 +116,7 @@ def overshoot_table(trials: int, scenes: tuple[str, ...] = SCENES) -> list[str]:
         assert k is not None
         path = [(s.x, s.y) for s in predict(ROVER, 1, steps).prediction]
         for mode in MODES:
-            det, crossed, rest_off, stops = [], [], [], 0
+            det, crossed, rest_off, true, stops = [], [], [], [], 0
             for seed in range(trials):
                 fig = _run(mode, _mission(seed, steps, slip=(k, 0.3, "left", 0.03)))
                 if fig.detected_s is None:
@@ -128,6 +129,9 @@ def overshoot_table(trials: int, scenes: tuple[str, ...] = SCENES) -> list[str]:
                     rest_off.append(a.rest_off_path_m)
                 if b is not None and b.crossed:
                     crossed.append((b.past_limit_m, b.time_to_rest_s))
+                c = overshoot(path, fig.truth, crossing_s=fig.detected_s, rest_move_m=0.002)
+                if c is not None:
+                    true.append((c.past_limit_m, c.time_to_rest_s))
 
             def med(xs: list[tuple[float, float]]) -> str:
                 if not xs:
@@ -140,7 +144,8 @@ def overshoot_table(trials: int, scenes: tuple[str, ...] = SCENES) -> list[str]:
             off = f"{statistics.median(rest_off):.3f}" if rest_off else "n/a"
             crossed_txt = med(crossed) + (f" ({len(crossed)} of {stops})" if stops else "")
             lines.append(
-                f"| {scene} | {mode} | {stops}/{trials} | {med(det)} | {crossed_txt} | {off} |"
+                f"| {scene} | {mode} | {stops}/{trials} | {med(det)} | {crossed_txt} | {off} "
+                f"| {med(true)} |"
             )
     return lines
 

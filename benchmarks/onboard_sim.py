@@ -49,6 +49,8 @@ class RunFigures:
     stop_reached_s: float | None = None
     fixes: list[tuple[float, float, float]] = field(default_factory=list)
     """Every POSE the rover measured: ``(stamp, x, y)``, its stamped ``odom_ground``."""
+    truth: list[tuple[float, float, float]] = field(default_factory=list)
+    """The twin's pose at every control tick: ``(t, x, y)``, the ground truth."""
 
 
 class _VerdictOf:
@@ -207,6 +209,11 @@ class GroundRig(MissionRig):
                 pose = (fix.x_m, fix.y_m, math.degrees(fix.yaw_rad), stamp)
                 self.down["pose"].send(partial(self._ground_pose, *pose))
 
+    def _tick(self) -> None:
+        super()._tick()
+        pose = self.ctl.twin.pose
+        self.figures.truth.append((self.now, pose.x_m, pose.y_m))
+
     def _ground_pose(self, x: float, y: float, yaw_deg: float, stamp: float) -> None:
         if self._ended or self.monitor is None or self._index < 0:
             return
@@ -254,6 +261,11 @@ class _OnboardFigures(MissionRig):
             fix = ground_pose(msg)
             if fix is not None:
                 self.figures.fixes.append((self.now - fix.age_s, fix.x_m, fix.y_m))
+
+    def _tick(self) -> None:
+        super()._tick()
+        pose = self.ctl.twin.pose
+        self.figures.truth.append((self.now, pose.x_m, pose.y_m))
 
     def _ground_report(self, text: str) -> None:
         super()._ground_report(text)

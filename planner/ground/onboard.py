@@ -236,6 +236,7 @@ class OnboardExecutor(PlanExecutor):
             + REST_WAIT_S
         )
         deadline = t_begin + budget
+        unanswered_s = 3 * cfg.link_rtt_s + 5.0
         self._stopped.clear()
         self.last_report = None
         tracker = _Progress(steps, verdict, cfg, on_progress, t_begin)
@@ -268,6 +269,14 @@ class OnboardExecutor(PlanExecutor):
                     reason = f"the rover refused the plan: {ack.reason}: {ack.detail}"
                     break
                 taken = report is not None or (ack is not None and ack.taken)
+                if not taken and ack is None and now - t_begin > unanswered_s:
+                    outcome = "rejected"
+                    reason = (
+                        f"no answer to the uplink of plan {pid} in {unanswered_s:.0f} s: is "
+                        "rover onboard running beside the bridge? (--step-by-step runs "
+                        "without it)"
+                    )
+                    break
                 if not taken and now >= next_send:
                     self._uplink_pub.publish(String(data=envelope))
                     sent += 1
@@ -281,7 +290,7 @@ class OnboardExecutor(PlanExecutor):
         except BaseException:
             self._abandon(pid)
             raise
-        if outcome in ("cancelled", "timeout"):
+        if outcome in ("cancelled", "timeout") or (outcome == "rejected" and sent and ack is None):
             logger.warning("plan %d: %s; sending STOP and a cancel", pid, reason)
             if not self._abandon(pid):
                 reason += "; STOP not confirmed within the round trip"

@@ -89,6 +89,7 @@ def overshoot(
     *,
     crossing_s: float | None = None,
     time_scale: float = 1.0,
+    rest_move_m: float = REST_MOVE_M,
 ) -> Overshoot | None:
     """The figures of ``poses`` (``(stamp_s, x, y)`` in time order) against ``path``;
     ``None`` without poses or a path.
@@ -101,6 +102,10 @@ def overshoot(
             path.
         time_scale: mission seconds per second of the stamps (an emulator run faster):
             the rest's hold is :data:`REST_HOLD_S` of mission time.
+        rest_move_m: at rest when no pose of the hold is further than this from its
+            first: :data:`REST_MOVE_M` for POSE's noise; less for noiseless poses (the
+            twin's). A rover that brakes in less than this is at rest at once: the
+            figures' resolution.
     """
     if not poses or not path:
         return None
@@ -112,7 +117,7 @@ def overshoot(
         first = next((i for i, off in enumerate(offs) if off > limit_m), None)
     crossed = first is not None
     start = first if first is not None else offs.index(worst)
-    rest = _rest_index(poses, start, REST_HOLD_S / time_scale)
+    rest = _rest_index(poses, start, REST_HOLD_S / time_scale, rest_move_m)
     end = rest if rest is not None else len(poses) - 1
     driven = sum(math.dist(poses[i][1:], poses[i + 1][1:]) for i in range(start, end))
     return Overshoot(
@@ -127,16 +132,16 @@ def overshoot(
 
 
 def _rest_index(
-    poses: Sequence[tuple[float, float, float]], start: int, hold_s: float
+    poses: Sequence[tuple[float, float, float]], start: int, hold_s: float, move_m: float
 ) -> int | None:
-    """The first pose from ``start`` on after which the rover stays within
-    :data:`REST_MOVE_M` for ``hold_s`` (``None``: never, in what was seen)."""
+    """The first pose from ``start`` on after which the rover stays within ``move_m``
+    for ``hold_s`` (``None``: never, in what was seen)."""
     n = len(poses)
     for i in range(start, n):
         t0, x0, y0 = poses[i]
         j = i + 1
         while j < n and poses[j][0] - t0 <= hold_s:
-            if math.hypot(poses[j][1] - x0, poses[j][2] - y0) >= REST_MOVE_M:
+            if math.hypot(poses[j][1] - x0, poses[j][2] - y0) >= move_m:
                 break
             j += 1
         else:

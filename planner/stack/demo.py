@@ -563,10 +563,10 @@ class Demo:
 
 
 def slip_distance_m(verdict: Verdict, step: int) -> float:
-    """How far the rover's centre travels, predicted, to the end of ``step`` (plus 1 cm):
+    """How far the rover's centre travels, predicted, to the end of ``step``, plus 5 cm:
     where the demo's slip starts (the emulator's ``@d=`` trigger)."""
     points = [(s.pose.x, s.pose.y) for s in verdict.trajectory.samples if s.step <= step]
-    return sum(math.dist(a, b) for a, b in itertools.pairwise(points)) + 0.01
+    return sum(math.dist(a, b) for a, b in itertools.pairwise(points)) + 0.05
 
 
 def _physical(
