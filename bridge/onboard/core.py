@@ -285,6 +285,12 @@ class OnboardCore:
         return self._plan is not None and self._plan.state in (PlanState.ARMED, PlanState.RUNNING)
 
     @property
+    def running(self) -> PlanUplink | None:
+        """The uplink of the plan running now (``None``: none runs)."""
+        plan = self._plan
+        return plan.uplink if plan is not None and plan.state is PlanState.RUNNING else None
+
+    @property
     def last_report(self) -> OnboardReport | None:
         """The latest report made."""
         return self._last_report
