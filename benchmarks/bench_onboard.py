@@ -215,7 +215,7 @@ def main() -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="a smoke run: the lab's overshoot once, one scn01 goal, loss 0.3 twice per mode",
+        help="a smoke run: the lab's overshoot once, one scn01 goal, loss 0.3 once per mode",
     )
     args = p.parse_args()
     scenes: tuple[str, ...] = SCENES
@@ -224,7 +224,7 @@ def main() -> None:
     missions = 10
     if args.quick:
         args.trials, args.goals = 1, 1
-        scenes, time_scenes, losses, missions = ("lab",), ("scn01",), (0.3,), 2
+        scenes, time_scenes, losses, missions = ("lab",), ("scn01",), (0.3,), 1
     for name in ("bridge", "emulator", "sim"):
         logging.getLogger(name).setLevel(logging.ERROR)
     t0 = time.perf_counter()

@@ -218,12 +218,13 @@ def test_bench_uncertain_quick_prints_both_tables() -> None:
     assert "| local pool, 2 workers | 20 |" in out
 
 
+@pytest.mark.timeout(300)  # eleven missions in virtual time: CPU, about 20 s on a quiet host
 def test_bench_onboard_quick_prints_the_three_tables() -> None:
     out = run_benchmark("bench_onboard", "--quick")
     for header in ("## Overshoot", "## Mission time at a 3 s round trip", "## Loss"):
         assert header in out, out
     assert "| lab | step-by-step |" in out and "| lab | onboard |" in out, out
-    assert "| 0.3 | onboard | 2/2 | 0 |" in out, out  # reached, nothing run twice
+    assert "| 0.3 | onboard | 1/1 | 0 |" in out, out  # reached, nothing run twice
 
 
 def test_a_busy_load_ends_with_the_process_that_started_it() -> None:
