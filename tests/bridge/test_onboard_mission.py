@@ -132,6 +132,13 @@ def _control(port: int, command: str) -> str:
         return sock.makefile().readline().strip()
 
 
+SLACK = {"emulator": ["--watchdog-ms", "1000"], "bridge": ["--param", "link_lost_beats=10"]}
+"""The controller's watchdog and the bridge's link loss are not what this test checks:
+beside a load of many times the machine's cores, a pty falls silent for longer than the
+protocol's 250 ms (docs/realtime.md, "Known limits"; seen here at a load average of 31
+as ``fault:watchdog``), so they are given the slack the VM's tests have."""
+
+
 @pytest.fixture
 def rover(tmp_path: Path) -> Iterator[tuple[int, Child]]:
     """The emulator on a pty, the bridge on it and the onboard program beside it."""
@@ -141,12 +148,22 @@ def rover(tmp_path: Path) -> Iterator[tuple[int, Child]]:
     children: list[Child] = []
     try:
         emulator = Child(
-            ["emulate", "--serial", "--link", str(device), "--seed", "5", "--control-port", "0"],
+            [
+                "emulate",
+                "--serial",
+                "--link",
+                str(device),
+                "--seed",
+                "5",
+                "--control-port",
+                "0",
+                *SLACK["emulator"],
+            ],
             env,
         )
         children.append(emulator)
         control = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
-        children.append(Child(["bridge", "--device", str(device)], env))
+        children.append(Child(["bridge", "--device", str(device), *SLACK["bridge"]], env))
         children[-1].wait_for("BRIDGE ")
         onboard = Child(["onboard", "--token", TOKEN], env)
         children.append(onboard)
@@ -180,7 +197,8 @@ def test_a_plan_runs_on_board_bad_uplinks_are_refused_and_the_guard_stops_a_slip
     ack = ground.send(uplink.envelope(TOKEN), plan_id)
     assert (ack.result, ack.state) == ("accepted", "running")
     done = ground.ended(plan_id)
-    assert done.outcome == "completed" and done.step == 1
+    why = [done.line(), *onboard.errors[-5:], *ground.statuses.items()[-8:]]
+    assert done.outcome == "completed" and done.step == 1, why
     assert done.rest is not None and done.rest.at_rest
     end = uplink.prediction[-1]
     assert math.hypot(done.rest.pose.x - end.x, done.rest.pose.y - end.y) < 0.1
@@ -209,7 +227,8 @@ def test_a_plan_runs_on_board_bad_uplinks_are_refused_and_the_guard_stops_a_slip
     uplink = predict(rover_description, slip_id, ((FWD, 40, 30000),), 0.001, world=lab, start=here)
     assert ground.send(uplink.envelope(TOKEN), slip_id).result == "accepted"
     stopped = ground.ended(slip_id)
-    assert stopped.outcome == "guard" and stopped.guard is not None
+    why = [stopped.line(), *onboard.errors[-5:], *ground.statuses.items()[-8:]]
+    assert stopped.outcome == "guard" and stopped.guard is not None, why
     assert stopped.guard.linear_m > 0.25 or stopped.guard.angular_deg > 12.0
     assert stopped.rest is not None and stopped.rest.moved_m < 0.15
     status = json.loads(_control(control, "status"))["status"]
