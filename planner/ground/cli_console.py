@@ -310,7 +310,7 @@ def _status_on_console(args: argparse.Namespace, client: Any) -> int:
                 print(f"rover status: error: {exc}", file=sys.stderr)
                 return 1
             if not args.watch:
-                _print_status(args, status, where, doc["age_s"])
+                _print_status(args, status, where, doc["age_s"], plan=doc.get("plan"))
                 return 0 if status.ready else EXIT_HELD
             if doc["stamp_s"] != stamp:
                 stamp = doc["stamp_s"]
@@ -324,14 +324,34 @@ def _status_on_console(args: argparse.Namespace, client: Any) -> int:
 
 
 def _print_status(
-    args: argparse.Namespace, status: Any, where: str, age_s: float, *, stamped: bool = False
+    args: argparse.Namespace,
+    status: Any,
+    where: str,
+    age_s: float,
+    *,
+    stamped: bool = False,
+    plan: dict[str, Any] | None = None,
 ) -> None:
     if args.json:
-        print(json.dumps({"where": where, "age_s": age_s, **status.as_dict()}), flush=True)
+        answer = {"where": where, "age_s": age_s, **status.as_dict(), "plan": plan}
+        print(json.dumps(answer), flush=True)
     elif stamped:
         print(time.strftime("%H:%M:%S ") + status.text(where) + "\n", flush=True)
     else:
         print(status.text(f"{where}, {age_s:.1f} s old"), flush=True)
+        print(_plan_line(plan), flush=True)
+
+
+def _plan_line(plan: dict[str, Any] | None) -> str:
+    """The plan on board, as the console's ``/status`` carries it (docs/onboard.md)."""
+    from firmware_proto.model.downlink import decode_report
+
+    if plan is None:
+        return "plan on board: none reported (no plan run, or no rover onboard)"
+    try:
+        return f"plan on board: {decode_report(json.dumps(plan)).line()}"
+    except ValueError:
+        return "plan on board: (a report this console cannot read)"
 
 
 def _stop(args: argparse.Namespace) -> int:

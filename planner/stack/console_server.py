@@ -14,7 +14,9 @@ needed anywhere else. The commands' client is the standard library's
 
 ======================================  ===================================================
 ``GET /status``                         the bridge's latest ``/diagnostics`` (kept as it
-                                        comes, 1 Hz) and how old it is
+                                        comes, 1 Hz) and how old it is; ``plan``: the
+                                        plan on board, ``rover onboard``'s latest report
+                                        (``null``: none; docs/onboard.md)
 ``POST /stop?timeout=S``                ``true`` on ``emergency_stop`` until the bridge
                                         says ``stopped`` (repeated every 0.5 s): the
                                         bridge takes it on its STOP lane, as any STOP
@@ -317,7 +319,10 @@ class ConsoleServer:
         seen = self.console.diagnostics_seen
         if seen != self._received_at[0]:
             self._received_at = (seen, time.monotonic())
-        return _json(200, status_json(status, time.monotonic() - self._received_at[1]))
+        doc = status_json(status, time.monotonic() - self._received_at[1])
+        plan = self.console.onboard  # the plan on board, when rover onboard reports one
+        doc["plan"] = json.loads(plan.to_json()) if plan is not None else None
+        return _json(200, doc)
 
     def _stop(self, timeout_s: float) -> Response:
         if self.console.stop(timeout_s):
