@@ -24,8 +24,7 @@ from bridge.link.odometry import ground_pose
 from bridge.ros.rosport.contract import COMPLETED, ends_step
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.uplink import PlanUplink
-from firmware_proto.wire.messages import Command
-from firmware_proto.wire.messages import Pose as PoseMsg
+from firmware_proto.wire.messages import Command, PoseMsg
 from planner.ground.drift import DriftMonitor
 from sim.mission import UPLINK_AT_S, MissionRig, MissionScenario, _Channel
 from sim.rig import _ACTION
