@@ -200,7 +200,8 @@ def test_stop_on_the_page_stops_the_emulated_rover(tmp_path: Path) -> None:
     summary = read_summary(recording)
     counts = summary.counts
     assert counts["/ground/odom_ground"] > 20 and counts["/ground/odom"] > 20, counts
-    assert counts["/ground/wheel_instructions"] >= 1 and counts["/ground/emergency_stop"] >= 1
+    # the plan went up on board (the default: docs/onboard.md), and the operator's STOP
+    assert counts["/ground/plan_uplink"] >= 1 and counts["/ground/emergency_stop"] >= 1, counts
     assert counts[PREDICTED_TOPIC] >= 1 and counts[REJECTED_TOPIC] >= 1, counts
     assert "stopped" in summary.statuses and "accepted" in summary.statuses
     x0, y0, _ = summary.first_pose["/ground/odom_ground"]
