@@ -34,7 +34,6 @@ from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
     ClearAck,
-    ClearStop,
     Command,
     Hello,
     HostHeartbeat,
@@ -108,7 +107,7 @@ def stop_trials(
             mark = host.mark()
             host.send(Stop(trial + 1, 4))
             distances.append(host.expect(Stopped, since=mark, timeout_s=10).distance_mm)
-            host.send(ClearStop(trial + 1))
+            host.send(host.clear_stop_for(trial + 1))
             host.expect(ClearAck, since=mark, timeout_s=10)
         reactions = list(emu.stop_reactions)
     return reactions, distances

@@ -95,7 +95,7 @@ def model_stop_ns(model: ControllerModel, trials: int) -> list[float]:
     seq = 0
     for trial in range(trials):
         stop_id = trial % 60000 + 1
-        model.handle(ClearStop(stop_id))
+        model.handle(ClearStop(stop_id, model.latch_gen))
         for _ in range(8):
             model.handle(Motion(seq & 0xFFFF, Command.FWD, 40, 30000))
             seq += 1

@@ -220,7 +220,13 @@ class ControllerModel:
     def _init_state(self) -> None:
         self.state: int = ControllerState.BOOT
         """The :class:`ControllerState` code."""
-        self.boot_nonce = self._rng.randrange(1 << 16)
+        previous: int | None = getattr(self, "boot_nonce", None)
+        nonce = self._rng.randrange(1 << 16)
+        if nonce == previous:
+            # A boot's nonce differs from the one before (docs/protocol.md, Handshake 1):
+            # the host tells a reboot by it. As the C core does.
+            nonce = (nonce + 1) & 0xFFFF
+        self.boot_nonce = nonce
         self.boot_s = self.twin.time_s
         self.handshake_ok = False
         self.latch_causes: set[LatchCause] = set()
@@ -240,9 +246,12 @@ class ControllerModel:
         """Host stop_ids already answered with STOPPED since the latch was last cleared."""
         self._clears = 0
         """CLEAR_STOPs answered CLEARED since boot."""
-        self._last_cleared_id: int | None = None
-        """The stop_id of the last CLEAR_STOP answered CLEARED: a repeat of it that
-        crossed its answer is answered CLEARED again and releases nothing."""
+        self.latch_gen = 0
+        """The latch generation (HEARTBEAT ``latch_gen``): raised, wrapping at 256, by
+        every new latch cause (docs/protocol.md, "Latch and faults")."""
+        self._last_clear: tuple[int, int, int] | None = None
+        """(stop_id, latch_gen, result) of the last CLEAR_STOP answered: a repeat of it
+        gets the same answer and changes nothing. Survives sessions; a reboot forgets it."""
         self._ended = Progress(0, StepState.STARTED, AbortReason.NONE, 0, 0)
         self._last_rx_s: float | None = None
         self._watchdog_tripped = False
@@ -332,17 +341,22 @@ class ControllerModel:
             logger.debug("dropped %s: wrong direction (not for the controller)", msg.NAME)
             return []
         out: list[Message] = []
+        if isinstance(msg, Stop) and not self._stop_is_repeat(msg.stop_id):
+            # Raised before anything is answered: every frame after the STOP (its STOP_ACK,
+            # a FAULT WATCHDOG active 0) names the generation it made.
+            self._raise_latch_gen()
         self._feed_watchdog(out)
         if isinstance(msg, Stop):
             aborted: list[Message] = []
             self._stop(msg.stop_id, AbortReason.STOP, aborted, LatchCause.STOP)
             # The acknowledgement goes first: it is what the host is timing.
-            out.insert(0, StopAck(msg.stop_id, self.state))
+            out.insert(0, StopAck(msg.stop_id, self.state, self.latch_gen))
             out += aborted
         elif isinstance(msg, Motion):
             out += self._motion(msg)
         elif isinstance(msg, ClearStop):
-            out.append(ClearAck(msg.stop_id, self._clear(msg.stop_id)))
+            result = self._clear(msg.stop_id, msg.latch_gen)
+            out.append(ClearAck(msg.stop_id, result, self.latch_gen))
         elif isinstance(msg, Hello):
             self._hello(msg, out)
         elif isinstance(msg, SetParam):
@@ -425,6 +439,8 @@ class ControllerModel:
         self._setpoint = (0.0, 0.0)
         self._abort_all(reason, out)
         self.latch_causes.add(cause)
+        if stop_id == 0:
+            self._raise_latch_gen()  # the controller's own stops are always new causes
         if cause is not LatchCause.STOP:
             self.state = ControllerState.FAULT
         elif self.state != ControllerState.FAULT:
@@ -464,19 +480,43 @@ class ControllerModel:
         l0, r0 = self._running.start_travel
         return min(0xFFFF, round((abs(count_delta(left, l0)) + abs(count_delta(right, r0))) / 2.0))
 
-    def _clear(self, stop_id: int) -> int:
-        """Answer a CLEAR_STOP (docs/protocol.md, "Latch and faults")."""
-        if stop_id == self._last_cleared_id:
-            return ClearResult.CLEARED  # a repeat that crossed its answer: nothing changes
+    def _stop_is_repeat(self, stop_id: int) -> bool:
+        """A host STOP with this id was seen in this latch (its STOPPED is owed or sent): a
+        repeat, which raises no latch generation and gets no STOPPED of its own."""
+        return stop_id != 0 and (
+            stop_id in self._reported_stops
+            or any(p.stop_id == stop_id for p in self._pending_stops)
+        )
+
+    def _raise_latch_gen(self) -> None:
+        """A new latch cause: the generation moves on (docs/protocol.md, "Latch and
+        faults")."""
+        self.latch_gen = (self.latch_gen + 1) & 0xFF
+
+    def _clear(self, stop_id: int, latch_gen: int) -> int:
+        """Answer a CLEAR_STOP (docs/protocol.md, "Latch and faults"): a repeat of the last
+        request answered gets its answer again; else the first that holds of
+        NOT_LATCHED, LATCH_CHANGED, FAULT_PERSISTS, CLEARED."""
+        last = self._last_clear
+        if last is not None and last[:2] == (stop_id, latch_gen):
+            return last[2]  # a repeat that crossed its answer: nothing changes
+        result = self._judge_clear(latch_gen)
+        self._last_clear = (stop_id, latch_gen, result)
+        if result == ClearResult.CLEARED:
+            self.latch_causes.clear()
+            self._reported_stops.clear()
+            self._clears += 1
+            self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
+        return result
+
+    def _judge_clear(self, latch_gen: int) -> int:
+        """The answer to a new CLEAR_STOP request naming generation ``latch_gen``."""
         if not self.latch_causes:
             return ClearResult.NOT_LATCHED
+        if latch_gen != self.latch_gen:
+            return ClearResult.LATCH_CHANGED
         if self.faults & STOPPING_FAULTS:
             return ClearResult.FAULT_PERSISTS
-        self.latch_causes.clear()
-        self._reported_stops.clear()
-        self._clears += 1
-        self._last_cleared_id = stop_id
-        self.state = ControllerState.IDLE if self.handshake_ok else ControllerState.BOOT
         return ClearResult.CLEARED
 
     def _set_param(self, msg: SetParam) -> ParamValue:
@@ -513,7 +553,7 @@ class ControllerModel:
         self.faults.add(code)
         if not condition:
             self._momentary.add(code)
-        out.append(Fault(code, 1, min(detail, 0xFFFF)))
+        stopped: list[Message] = []
         if code in STOPPING_FAULTS:
             if code == FaultCode.WATCHDOG:
                 reason, cause = AbortReason.WATCHDOG, LatchCause.WATCHDOG
@@ -521,7 +561,10 @@ class ControllerModel:
                 reason, cause = AbortReason.STALL, LatchCause.FAULT
             else:
                 reason, cause = AbortReason.FAULT, LatchCause.FAULT
-            self._stop(0, reason, out, cause)
+            self._stop(0, reason, stopped, cause)
+        # FAULT first (it names the generation the stop raised), then the aborts.
+        out.append(Fault(code, 1, min(detail, 0xFFFF), self.latch_gen))
+        out += stopped
         logger.info("fault %s raised (detail %d)", FaultCode(code).name, detail)
         return out
 
@@ -533,7 +576,7 @@ class ControllerModel:
         self.faults.discard(code)
         self._momentary.discard(code)
         logger.info("fault %s condition cleared", FaultCode(code).name)
-        return [Fault(code, 0, 0)]
+        return [Fault(code, 0, 0, self.latch_gen)]
 
     # -- tick ---------------------------------------------------------------------------
     def tick(self) -> list[Message]:
@@ -759,6 +802,7 @@ class ControllerModel:
             min(255, self.queue_depth),
             self.boot_nonce,
             self.rx_errors & 0xFFFF,
+            self.latch_gen,
         )
 
 

@@ -215,7 +215,7 @@ class _Status(ctypes.Structure):
         ("telemetry_hz", ctypes.c_uint8),
         ("pose_hz", ctypes.c_uint8),
         ("heartbeat_hz", ctypes.c_uint8),
-        ("pad", ctypes.c_uint8),
+        ("latch_gen", ctypes.c_uint8),
         ("rx_errors", ctypes.c_uint32),
         ("setpoint", ctypes.c_int32 * 2),
         ("commanded", ctypes.c_int32 * 2),
@@ -523,6 +523,15 @@ class FirmwareController(ControllerModel):
 
     @boot_nonce.setter
     def boot_nonce(self, value: int) -> None:
+        pass
+
+    @property
+    def latch_gen(self) -> int:
+        """The latch generation (HEARTBEAT ``latch_gen``)."""
+        return int(self._st().latch_gen)
+
+    @latch_gen.setter
+    def latch_gen(self, value: int) -> None:
         pass
 
     @property

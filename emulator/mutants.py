@@ -22,9 +22,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from emulator.controller import STOPPING_FAULTS, ControllerConfig, ControllerModel
-from emulator.drive import StepProfile
+from emulator.controller import STOPPING_FAULTS, ControllerConfig, ControllerModel, _PendingStop
+from emulator.drive import StepProfile, travel_units
 from emulator.errors import UnknownMutantError
+from emulator.sensors import EncoderModel
 from emulator.twin import Twin
 from firmware_proto.linkio.endpoint import Endpoint
 from firmware_proto.model.rover import RoverDescription
@@ -199,8 +200,8 @@ class _MismatchKeepsSteps(ControllerModel):
     "CLEARED without a session leaves the controller in BOOT, not IDLE.",
 )
 class _BootClearToIdle(ControllerModel):
-    def _clear(self, stop_id: int) -> int:
-        result = super()._clear(stop_id)
+    def _clear(self, stop_id: int, latch_gen: int) -> int:
+        result = super()._clear(stop_id, latch_gen)
         if result == ClearResult.CLEARED and self.state == ControllerState.BOOT:
             self.state = ControllerState.IDLE
         return result
@@ -441,6 +442,22 @@ class _OwnStopsAsRepeats(ControllerModel):
 
 
 @_mutant(
+    "own-stops-each-stopped",
+    "own-stops-share",
+    "Own stops that come while a STOPPED 0 is still owed share it (issue #40, 10: each "
+    "owing its own passed the suite).",
+)
+class _OwnStopsEachStopped(ControllerModel):
+    def _stop(self, stop_id: int, reason: int, out: list[Message], cause: Any) -> None:
+        owed = any(p.stop_id == 0 for p in self._pending_stops)
+        super()._stop(stop_id, reason, out, cause)
+        if stop_id == 0 and owed:
+            self._pending_stops.append(
+                _PendingStop(0, self.now_s, self.encoders.travel(), self._clears)
+            )
+
+
+@_mutant(
     "motion-stop-forgotten",
     "motion-stop",
     "MOTION STOP is a plan step: its seq is remembered, and a repeat is DUPLICATE.",
@@ -513,14 +530,16 @@ class _ProgressKeptAtHello(ControllerModel):
 @_mutant(
     "clear-repeat-not-latched",
     "clear-repeat",
-    "A CLEAR_STOP whose stop_id is that of the last one answered CLEARED is answered "
-    "CLEARED again (protocol v2 answered a repeat with nothing latched NOT_LATCHED).",
+    "A CLEAR_STOP repeating the last request answered CLEARED (its stop_id and "
+    "latch_gen) is answered CLEARED again (protocol v2 answered a repeat with nothing "
+    "latched NOT_LATCHED).",
 )
 class _ClearRepeatNotLatched(ControllerModel):
-    def _clear(self, stop_id: int) -> int:
-        if stop_id == self._last_cleared_id and not self.latch_causes:
+    def _clear(self, stop_id: int, latch_gen: int) -> int:
+        last = self._last_clear
+        if last is not None and last[:2] == (stop_id, latch_gen) and not self.latch_causes:
             return ClearResult.NOT_LATCHED
-        return super()._clear(stop_id)
+        return super()._clear(stop_id, latch_gen)
 
 
 @_mutant(
@@ -529,10 +548,50 @@ class _ClearRepeatNotLatched(ControllerModel):
     "A repeated CLEAR_STOP id must not release a latch set since its CLEARED.",
 )
 class _ClearRepeatReleases(ControllerModel):
-    def _clear(self, stop_id: int) -> int:
-        if stop_id == self._last_cleared_id:
-            self._last_cleared_id = None
-        return super()._clear(stop_id) if self.latch_causes else ClearResult.CLEARED
+    def _clear(self, stop_id: int, latch_gen: int) -> int:
+        last = self._last_clear
+        if last is not None and last[:2] == (stop_id, latch_gen):
+            # Judged again as new, and for the latch as it is now.
+            self._last_clear = None
+            if not self.latch_causes:
+                return ClearResult.CLEARED
+            return super()._clear(stop_id, self.latch_gen)
+        return super()._clear(stop_id, latch_gen)
+
+
+@_mutant(
+    "clear-ignores-generation",
+    "clear-generation",
+    "A CLEAR_STOP naming a generation older than the latch's is answered LATCH_CHANGED and "
+    "releases nothing (protocol v3 had no generation: a clear sent before a fault released "
+    "it, issue #40 hole 1).",
+)
+class _ClearIgnoresGeneration(ControllerModel):
+    def _judge_clear(self, latch_gen: int) -> int:
+        return super()._judge_clear(self.latch_gen)
+
+
+@_mutant(
+    "stop-repeat-raises-generation",
+    "clear-generation",
+    "A repeated STOP (a stop_id seen in this latch) raises no latch generation.",
+)
+class _StopRepeatRaisesGeneration(ControllerModel):
+    def _stop_is_repeat(self, stop_id: int) -> bool:
+        return False
+
+
+@_mutant(
+    "stop-ack-names-old-generation",
+    "clear-generation",
+    "STOP_ACK names the latch generation after the STOP.",
+)
+class _StopAckNamesOldGeneration(ControllerModel):
+    def handle(self, msg: Message) -> list[Message]:
+        return [
+            m._replace(latch_gen=(m.latch_gen - 1) & 0xFF) if isinstance(m, StopAck) else m
+            for m in super().handle(msg)
+        ]
 
 
 # -- receive errors, parameters ---------------------------------------------------------
@@ -626,7 +685,7 @@ class _FaultDetailKept(ControllerModel):
     def clear_fault_condition(self, code: int) -> list[Message]:
         detail = self.__dict__.get("_details", {}).get(code, 0)
         return [
-            Fault(m.code, 0, detail) if isinstance(m, Fault) else m
+            Fault(m.code, 0, detail, m.latch_gen) if isinstance(m, Fault) else m
             for m in super().clear_fault_condition(code)
         ]
 
@@ -638,12 +697,70 @@ class _FaultDetailKept(ControllerModel):
     "latch holds).",
 )
 class _ClearDespiteFault(ControllerModel):
-    def _clear(self, stop_id: int) -> int:
+    def _clear(self, stop_id: int, latch_gen: int) -> int:
         faults, self.faults = self.faults, set()
         try:
-            return super()._clear(stop_id)
+            return super()._clear(stop_id, latch_gen)
         finally:
             self.faults = faults
+
+
+@_mutant(
+    "refused-clear-repeat-releases",
+    "clear-refused-repeat",
+    "A repeat of a CLEAR_STOP answered FAULT_PERSISTS gets FAULT_PERSISTS again, also once "
+    "the condition has gone: a refused clear never releases later (issue #40 hole 2).",
+)
+class _RefusedClearRepeatReleases(ControllerModel):
+    def _clear(self, stop_id: int, latch_gen: int) -> int:
+        last = self._last_clear
+        if last is not None and last[:2] == (stop_id, latch_gen) and last[2] != 0:
+            self._last_clear = None  # only CLEARED remembered, as protocol v3 did
+        return super()._clear(stop_id, latch_gen)
+
+
+@_mutant(
+    "fault-names-old-generation",
+    "clear-refused-repeat",
+    "A stopping FAULT active = 1 names the latch generation it raised.",
+)
+class _FaultNamesOldGeneration(ControllerModel):
+    def raise_fault(self, code: int, detail: int = 0, *, condition: bool = False) -> list[Message]:
+        return [
+            m._replace(latch_gen=(m.latch_gen - 1) & 0xFF)
+            if isinstance(m, Fault) and m.active and code in STOPPING_FAULTS
+            else m
+            for m in super().raise_fault(code, detail, condition=condition)
+        ]
+
+
+class _FrozenResumeEncoders(EncoderModel):
+    """An encoder that, after a dropout, counts on from the value it held."""
+
+    _was_out = (False, False)
+
+    def travel(self) -> tuple[float, float]:
+        was = self._was_out
+        self._was_out = (self.dropout[0], self.dropout[1])
+        for side in (0, 1):
+            if was[side] and not self.dropout[side]:
+                true = travel_units(self._rover, *self._twin.motor_angles_rad)[side]
+                offset = list(self._offset)
+                offset[side] = true - self._held[side]
+                self._offset = (offset[0], offset[1])
+        return super().travel()
+
+
+@_mutant(
+    "encoder-resumes-frozen",
+    "encoder-resume",
+    "When an ENCODER fault's condition ends the failed side reports its true count since "
+    "boot again (issue #40, 10: one that went on from its frozen value passed the suite).",
+)
+class _EncoderResumesFrozen(ControllerModel):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.encoders.__class__ = _FrozenResumeEncoders
 
 
 @_mutant(

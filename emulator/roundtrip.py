@@ -54,7 +54,7 @@ def sample_messages(count: int, rng: random.Random) -> list[Message]:
                 )
             )
         elif kind == 4:
-            out.append(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0x1234, 0))
+            out.append(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0x1234, 0, 0))
         else:
             out.append(Stop(1 + (i & 0x7FFF), 0))
     return out

@@ -11,6 +11,9 @@ Checked as they happen (by :class:`sim.rig.Rig`):
   it has been handled (the same tick);
 - ``auto-clear``: an automatic CLEAR_STOP of the host never releases a latch that holds
   anything but the watchdog (docs/protocol.md, "Latch and faults");
+- ``release``: a latch is released only by a clear someone asked for, and a watchdog trip
+  or a stopping fault in it only by an operator's clear asked for after the host had
+  heard of it (issue #40: no request made before the fault releases it);
 - ``odometry``: between two ENCODERS it uses, odometry never moves more than the
   encoders travelled (continuous across reboots; a v2 controller's sample of a boot the
   host could not know yet is excused and counted, see docs/sim.md);
@@ -47,6 +50,7 @@ RULES = (
     "truthful",
     "stop-zeroes",
     "auto-clear",
+    "release",
     "odometry",
     "never-stuck",
     "counters",
@@ -105,7 +109,6 @@ class Ledger:
     """Controller frames sent on the current connection that did not arrive whole."""
     queue_full: int = 0
     excused_jumps: int = 0
-    excused_clears: int = 0
     expected_reboots: int = 0
     _nonce: int | None = None
 
@@ -172,7 +175,6 @@ class Ledger:
             "watchdog_trips": self.watchdog_trips,
             "queue_full": self.queue_full,
             "excused_jumps": self.excused_jumps,
-            "excused_clears": self.excused_clears,
         }
 
 

@@ -98,6 +98,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="undo one fix of the host's core, to see the simulator find its bug (repeatable)",
     )
     p.add_argument(
+        "--controller-mutant",
+        default=None,
+        metavar="NAME",
+        help="play the Python controller with one rule broken (rover emulate --mutant's names)",
+    )
+    p.add_argument(
         "--leak-samples",
         action="store_true",
         help="the controller also sends sensor samples before a session (a protocol v2 one)",
@@ -158,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
     tick_s = args.tick_ms / 1000.0 if args.tick_ms is not None else DEFAULT_TICK_S
     options: dict[str, Any] = {
         "mutants": tuple(args.mutant),
+        "controller_mutant": args.controller_mutant or "",
         "leak_samples": args.leak_samples,
         "zero_steps": args.zero_steps,
         "tick_s": tick_s,

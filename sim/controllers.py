@@ -15,6 +15,7 @@ from pathlib import Path
 
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.firmware import build_library, make_controller
+from emulator.mutants import make_mutant
 from emulator.twin import Twin
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.wire.message import Message
@@ -24,16 +25,31 @@ __all__ = ["SampleLeak", "build_controller"]
 
 
 def build_controller(
-    name: str, rover: RoverDescription, tick_s: float, queue_depth: int, seed: int
+    name: str,
+    rover: RoverDescription,
+    tick_s: float,
+    queue_depth: int,
+    seed: int,
+    mutant: str = "",
 ) -> ControllerModel:
     """A controller (``python`` or ``c``) over a fresh twin on an open plane, booted
-    (its boot IDENT is not sent: the host connects later).
+    (its boot IDENT is not sent: the host connects later). ``mutant``: the Python model
+    with one rule broken instead (:mod:`emulator.mutants`; a fix of the controller side
+    undone, for the simulator to find).
 
     Raises:
         ValueError: an unknown controller name.
         FirmwareBuildError: ``c`` and the core cannot be built here.
     """
     twin = Twin(rover, None, dt_s=tick_s)
+    if mutant:
+        if name != "python":
+            raise ValueError(f"a controller mutant is a Python model, not {name!r}")
+        model = make_mutant(
+            mutant, rover, twin, ControllerConfig(queue_depth=queue_depth), seed=seed
+        )
+        model.boot()
+        return model
     extra = {"library": _library()} if name == "c" else {}
     controller = make_controller(
         name, rover, twin, ControllerConfig(queue_depth=queue_depth), seed=seed, **extra

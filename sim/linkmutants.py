@@ -17,8 +17,9 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from bridge.link.linkcore import LinkCore
+from bridge.link.linkcore import LinkCore, _Pending
 from bridge.link.linktypes import LinkConfig
+from firmware_proto.wire.faults import STOPPING_FAULTS, fault_bit
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import Fault, Heartbeat, Progress
 
@@ -68,11 +69,38 @@ class _AutoClearSurvives(LinkCore):
     def _stopping_fault_frame(self, code: int) -> None:
         self._last_stopping_fault = code
 
-    def _auto_clear_refused(self) -> bool:
-        return False
+    def _auto_clear_may_start(self, hb: Heartbeat) -> bool:
+        return bool(hb.latch_watchdog)
 
     def _auto_clear_outlived(self, hb: Heartbeat) -> bool:
         return False
+
+
+class _RefusedClearRetried(LinkCore):
+    """Protocol v3's rule: an operator's clear answered FAULT_PERSISTS is kept, and a new
+    request goes out once a HEARTBEAT shows no stopping condition (issue #40, hole 2)."""
+
+    _retry = False
+
+    def _refuse_operator_clear(self, why: str) -> None:
+        super()._refuse_operator_clear(why)
+        self._retry = why == "fault_persists"
+
+    def clear_stop(self, now: float) -> int:
+        self._retry = False
+        return super().clear_stop(now)
+
+    def emergency_stop(self, source: int, now: float) -> int:
+        self._retry = False
+        return super().emergency_stop(source, now)
+
+    def _maybe_clear(self, hb: Heartbeat, now: float) -> None:
+        super()._maybe_clear(hb, now)
+        stopping = any(hb.fault_bits & fault_bit(code) for code in STOPPING_FAULTS)
+        if self._retry and self._pending_clear is None and hb.stop_latched and not stopping:
+            self._retry = False
+            self._stop_counter = self._stop_counter % 0xFFFF + 1
+            self._pending_clear = _Pending(self._stop_counter, now, latch_gen=hb.latch_gen)
 
 
 MUTANTS: dict[str, LinkMutant] = {
@@ -80,9 +108,9 @@ MUTANTS: dict[str, LinkMutant] = {
     for m in (
         LinkMutant(
             "auto-clear-survives",
-            "an automatic clear survives a change of the latch's causes: answered "
-            "FAULT_PERSISTS it is kept and sent again once the fault's condition ends, and a "
-            "HEARTBEAT showing latch_stop or latch_fault does not end it (#22 bug 1 undone)",
+            "an automatic clear survives a change of the latch's causes: a latch the watchdog "
+            "holds is cleared once no stopping condition is active, whatever joined it, and a "
+            "HEARTBEAT showing latch_stop or latch_fault does not end one (#22 bug 1 undone)",
             _AutoClearSurvives,
         ),
         LinkMutant(
@@ -103,6 +131,13 @@ MUTANTS: dict[str, LinkMutant] = {
             "every WATCHDOG FAULT frame counts a trip, also one received twice (a CAN frame "
             "sent again), found by the simulator",
             _WatchdogFrameTwice,
+        ),
+        LinkMutant(
+            "refused-clear-retried",
+            "an operator's clear answered FAULT_PERSISTS is kept and sent again (a new "
+            "request) once a HEARTBEAT shows no stopping condition: the latch is released "
+            "with no new command (issue #40, hole 2, protocol v3's rule)",
+            _RefusedClearRetried,
         ),
         LinkMutant(
             "auto-clear-after-fault-frame",

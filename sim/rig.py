@@ -48,6 +48,7 @@ from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (
     Ack,
     AckResult,
+    ClearAck,
     ClearStop,
     Command,
     Encoders,
@@ -94,6 +95,14 @@ ODOM_TOLERANCE_M = 0.003
 """Odometry may move this much more than the encoders between two samples (rounding)."""
 
 _ACTION, _TO_CTL, _TICK, _TO_HOST, _HOST = range(5)
+
+
+@dataclass(frozen=True)
+class _Gen:
+    """What the simulator knew of a controller frame that names a latch generation: the
+    generation then, counted over every boot (the wire's wraps at 256 and restarts)."""
+
+    absolute: int
 
 
 @dataclass
@@ -161,7 +170,12 @@ class Rig:
         self.violations: list[Violation] = []
         # -- the controller
         self.ctl = build_controller(
-            scenario.controller, self.rover, scenario.tick_s, scenario.queue_depth, scenario.seed
+            scenario.controller,
+            self.rover,
+            scenario.tick_s,
+            scenario.queue_depth,
+            scenario.seed,
+            scenario.controller_mutant,
         )
         self.leak = SampleLeak(self.ctl) if scenario.leak_samples else None
         self._ctl_frozen = False
@@ -194,7 +208,7 @@ class Rig:
         self.core = make_link_core(LinkConfig(f"sim://{medium}"), scenario.mutants)
         self._device_present = True
         self._host_frozen = False
-        self._host_backlog: list[tuple[Message, object]] = []
+        self._host_backlog: list[tuple[Message, object, int | None]] = []
         self._deferred: list[Callable[[], None]] = []
         self._connected_at = -math.inf
         self._host_encoder = FrameEncoder()
@@ -215,12 +229,16 @@ class Rig:
         self._probe_done = False
         self._last_clear = -math.inf
         self._auto_clears: set[int] = set()
-        self._latch_gen = 0
-        """Grows whenever the controller's latch is released or it reboots."""
-        self._evidence_at: dict[int, float] = {}
-        """When the host first received a frame showing a latch cause other than the
-        watchdog (a stopping FAULT, a HEARTBEAT with latch_stop or latch_fault, a
-        STOP_ACK), by latch generation."""
+        self._operator_clears: dict[int, int] = {}
+        """The operator's clear requests: the latch generation the host had heard of when
+        each was asked for (:class:`_Gen` numbering), by request id."""
+        self._gen_wire = self.ctl.latch_gen
+        self._gen_abs = 0
+        """The controller's latch generation counted over every boot."""
+        self._gen_cause: dict[int, str] = {}
+        """What raised each generation: ``stop``, ``watchdog`` or ``fault``."""
+        self._heard_gen = 0
+        """The newest generation a frame that reached the host named."""
         # The steps queued before the probe run first: their nominal time counts too.
         work_s = sum(
             self.rover.step_duration_s(speed, distance) + STEP_OVERHEAD_S
@@ -340,9 +358,9 @@ class Rig:
         self._note("fault reboot")
         self._account_travel()
         self.ledger.controller_reboots += 1
-        self._latch_gen += 1
         self._ctl_backlog.clear()
         out = self.ctl.reboot()
+        self._gen_wire = self.ctl.latch_gen  # a new boot counts from 0; the latch is gone
         self._travel_ref = self.ctl.encoders.travel()
         self._ctl_encoder = FrameEncoder()  # its frame counter restarts with it
         self._ctl_seq = 0
@@ -364,8 +382,8 @@ class Rig:
         tick_first = self.rng.random() < 0.5
         if tick_first:
             self._host_tick()
-        for msg, meta in backlog:
-            self._host_frame(msg, meta)
+        for msg, meta, seq in backlog:
+            self._host_frame(msg, meta, seq)
         for fn in deferred:
             fn()
         if not tick_first:
@@ -387,7 +405,9 @@ class Rig:
         ctl = self.ctl
         if on:
             ctl.encoders.dropout[side] = True
-            self._ctl_send(ctl.raise_fault(FaultCode.ENCODER, condition=True))
+            out = ctl.raise_fault(FaultCode.ENCODER, condition=True)
+            self._track_gen(out)
+            self._ctl_send(out)
         else:
             ctl.encoders.dropout[side] = False
             if not any(ctl.encoders.dropout):
@@ -417,6 +437,7 @@ class Rig:
         if self._ctl_frozen:
             return
         out = self.ctl.tick()
+        self._track_gen(out)
         self._account_travel()
         if self.leak is not None:
             self.leak.after_tick(out)
@@ -432,6 +453,21 @@ class Rig:
             )
             self._travel_ref = (left, right)
 
+    def _track_gen(self, out: list[Message]) -> None:
+        """Note every latch generation the controller raised in the call that sent
+        ``out``, with its cause (a stopping FAULT among them names it, else a stop)."""
+        g = self.ctl.latch_gen
+        if g == self._gen_wire:
+            return
+        cause = "stop"
+        for msg in out:
+            if isinstance(msg, Fault) and msg.active and msg.code in STOPPING_FAULTS:
+                cause = "watchdog" if msg.code == FaultCode.WATCHDOG else "fault"
+        while self._gen_wire != g:
+            self._gen_wire = (self._gen_wire + 1) & 0xFF
+            self._gen_abs += 1
+            self._gen_cause[self._gen_abs] = cause
+
     def _ctl_send(self, out: list[Message]) -> None:
         ledger = self.ledger
         ctl = self.ctl
@@ -444,15 +480,10 @@ class Rig:
                 ledger.controller_status(msg, self.now, self)
             elif isinstance(msg, Encoders):
                 meta = (self.true_path_m, ctl.handshake_ok)
-            elif isinstance(msg, Fault) and msg.active and msg.code in STOPPING_FAULTS:
-                if msg.code == FaultCode.WATCHDOG:
-                    ledger.watchdog_trips += 1
-                else:
-                    meta = self._latch_gen
-            elif (isinstance(msg, Heartbeat) and (msg.latch_stop or msg.latch_fault)) or isinstance(
-                msg, StopAck
-            ):
-                meta = self._latch_gen
+            if isinstance(msg, Fault) and msg.active and msg.code == FaultCode.WATCHDOG:
+                ledger.watchdog_trips += 1
+            if isinstance(msg, (Heartbeat, StopAck, Fault, ClearAck)):
+                meta = _Gen(self._gen_abs)
             if serial:
                 self._meta_by_seq[self._ctl_seq & 0xFF] = meta
                 self._ctl_seq += 1
@@ -489,25 +520,8 @@ class Rig:
         if isinstance(msg, ClearStop):
             before = set(ctl.latch_causes)
             out = ctl.handle(msg)
-            released = bool(before) and not ctl.latch_causes
-            if msg.stop_id in self._auto_clears and released and before - {LatchCause.WATCHDOG}:
-                causes = ",".join(sorted(c.value for c in before))
-                known = self._evidence_at.get(self._latch_gen, math.inf)
-                if known <= sent_s:
-                    self.violate(
-                        "auto-clear",
-                        f"the host's automatic CLEAR_STOP {msg.stop_id} released a latch "
-                        f"held by {causes}, sent {sent_s:.3f} s after the host heard of that "
-                        f"cause at {known:.3f} s (only a watchdog-only latch is the host's to "
-                        "clear)",
-                    )
-                else:
-                    # The cause joined after this copy left: no host can recall a frame
-                    # (docs/sim.md, "What the protocol cannot prevent").
-                    self.ledger.excused_clears += 1
-                    self._note(f"excused clear {msg.stop_id} in flight released {causes}")
-            if released:
-                self._latch_gen += 1
+            if before and not ctl.latch_causes:
+                self._released(msg.stop_id, before)
         elif isinstance(msg, Stop):
             out = ctl.handle(msg)
             if ctl.wheel_setpoints_mps != (0.0, 0.0):
@@ -521,8 +535,44 @@ class Rig:
             out = ctl.handle(msg)
         else:
             out = ctl.handle(msg)
+        self._track_gen(out)
         if out:
             self._ctl_send(out)
+
+    def _released(self, clear_id: int, causes: set[LatchCause]) -> None:
+        """CLEAR_STOP ``clear_id`` released a latch held by ``causes``: by the rules of
+        docs/protocol.md ("Latch and faults")? An automatic clear only a latch the
+        watchdog alone holds; an operator's only one whose stopping faults (and watchdog
+        trips) the host had heard of when the operator asked; nothing else at all."""
+        names = ",".join(sorted(c.value for c in causes))
+        if clear_id in self._auto_clears:
+            if causes - {LatchCause.WATCHDOG}:
+                self.violate(
+                    "auto-clear",
+                    f"the host's automatic CLEAR_STOP {clear_id} released a latch held by "
+                    f"{names} (only a watchdog-only latch is the host's to clear)",
+                )
+            return
+        heard = self._operator_clears.get(clear_id)
+        if heard is None:
+            self.violate(
+                "release",
+                f"CLEAR_STOP {clear_id}, which no operator asked for, released a latch held "
+                f"by {names}",
+            )
+            return
+        unheard = [
+            f"{g} ({self._gen_cause.get(g)})"
+            for g in range(heard + 1, self._gen_abs + 1)
+            if self._gen_cause.get(g) in ("watchdog", "fault")
+        ]
+        if unheard:
+            self.violate(
+                "release",
+                f"the operator's CLEAR_STOP {clear_id}, asked for when the host had heard of "
+                f"latch generation {heard}, released a latch held by {names} whose "
+                f"generation(s) {', '.join(unheard)} it had not heard of then",
+            )
 
     # -- the host -------------------------------------------------------------------------------
     def _reschedule_host(self) -> None:
@@ -604,24 +654,29 @@ class Rig:
     def _deliver_to_host(self, d: Delivery) -> None:
         if not self.core.connected or d.sent_s < self._connected_at:
             return  # nobody reads, or flushed when the device was opened
+        got: list[tuple[Message, object, int | None]]
         if self.sc.medium == "serial":
             # A frame whose closing delimiter was cut is completed by the next delivery's
             # leading one: its frame counter, not the delivery, says which frame it is.
             meta = self._meta_by_seq
-            got = [(f.message, meta[f.seq]) for f in self._host_decoder.feed(d.data)]
+            got = [(f.message, meta[f.seq], f.seq) for f in self._host_decoder.feed(d.data)]
         else:
             assert d.can_id is not None
             frame = self._host_can.decode(d.can_id, d.data)
-            got = [(frame.message, d.meta)] if frame is not None and frame.node == CAN_NODE else []
-        for msg, info in got:
+            got = (
+                [(frame.message, d.meta, None)]
+                if frame is not None and frame.node == CAN_NODE
+                else []
+            )
+        for msg, info, seq in got:
             if msg.DIRECTION != "controller_to_host":
                 continue
             if self._host_frozen:
-                self._host_backlog.append((msg, info))
+                self._host_backlog.append((msg, info, seq))
             else:
-                self._host_frame(msg, info)
+                self._host_frame(msg, info, seq)
 
-    def _host_frame(self, msg: Message, meta: object) -> None:
+    def _host_frame(self, msg: Message, meta: object, seq: int | None = None) -> None:
         core = self.core
         ledger = self.ledger
         state = core.state
@@ -631,10 +686,9 @@ class Rig:
             ledger.watchdog_fault_frames += 1
         elif isinstance(msg, Ack) and msg.result == AckResult.QUEUE_FULL:
             ledger.queue_full += 1
-        if isinstance(meta, int) and meta not in self._evidence_at:
-            self._evidence_at[meta] = self.now
-        lost = self._host_decoder.counters.lost if self.sc.medium == "serial" else None
-        forward = core.on_frame(msg, self.now, rx_lost=lost)
+        if isinstance(meta, _Gen) and meta.absolute > self._heard_gen:
+            self._heard_gen = meta.absolute
+        forward = core.on_frame(msg, self.now, rx_seq=seq)
         if forward:
             self._odometry(msg, meta, state)
             for listener in self.sample_listeners:
@@ -694,7 +748,7 @@ class Rig:
                 self._host_send(stop)
                 core.stop_written(stop.stop_id, now, True)
         elif kind == "clear":
-            core.clear_stop(now)
+            self._operator_clears[core.clear_stop(now)] = self._heard_gen
             self._last_clear = now
         self._host_after()
 
@@ -713,7 +767,7 @@ class Rig:
         if core.estop_requested or "stop" in latch or "fault" in latch:
             if self.now - self._last_clear >= 0.5:
                 self._note("operator clear (recovery)")
-                core.clear_stop(self.now)
+                self._operator_clears[core.clear_stop(self.now)] = self._heard_gen
                 self._last_clear = self.now
                 self._host_after()
             return

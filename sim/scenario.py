@@ -140,6 +140,8 @@ class Scenario:
         controller: one of :data:`CONTROLLERS`.
         medium: one of :data:`MEDIA`.
         mutants: fixes of the host core undone (:data:`sim.linkmutants.MUTANTS`).
+        controller_mutant: a rule of the controller broken (:data:`emulator.mutants.MUTANTS`;
+            the Python model only), ``""`` for none.
         leak_samples: the controller also sends sensor samples before a session
             (protocol v2 allowed it; a v3 controller sends none).
         zero_steps: the operator also sends steps with speed 0 or distance 0 (off by
@@ -164,6 +166,7 @@ class Scenario:
     faults: tuple[ScenarioFault, ...]
     actions: tuple[Action, ...]
     quiet_s: float
+    controller_mutant: str = ""
 
     @property
     def reproducer(self) -> str:
@@ -175,6 +178,8 @@ class Scenario:
         if self.tick_s != DEFAULT_TICK_S:
             parts.append(f"--tick-ms {self.tick_s * 1000:g}")
         parts += [f"--mutant {m}" for m in self.mutants]
+        if self.controller_mutant:
+            parts.append(f"--controller-mutant {self.controller_mutant}")
         if self.leak_samples:
             parts.append("--leak-samples")
         if self.zero_steps:
@@ -292,6 +297,7 @@ def make_scenario(
     controller: str = "python",
     medium: str = "serial",
     mutants: tuple[str, ...] = (),
+    controller_mutant: str = "",
     leak_samples: bool = False,
     zero_steps: bool = False,
     tick_s: float = DEFAULT_TICK_S,
@@ -357,4 +363,5 @@ def make_scenario(
         faults=tuple(faults),
         actions=tuple(actions),
         quiet_s=quiet,
+        controller_mutant=controller_mutant,
     )

@@ -70,8 +70,7 @@ class SoakReport:
         out.append("  " + ", ".join(f"{k} {self.counts[k]}" for k in keys))
         out.append(
             f"  counted, not failed (docs/sim.md): {self.counts['excused_jumps']} odometry "
-            "jumps from a controller's samples before a session, "
-            f"{self.counts['excused_clears']} clears on the wire before a fault joined the latch"
+            "jumps from a controller's samples before a session"
         )
         for failure in self.failures:
             out.append(f"FAIL {failure.scenario.reproducer}")
@@ -85,6 +84,7 @@ def soak(
     controllers: tuple[str, ...] = ("python",),
     media: tuple[str, ...] = ("serial",),
     mutants: tuple[str, ...] = (),
+    controller_mutant: str = "",
     leak_samples: bool = False,
     zero_steps: bool = False,
     tick_s: float = DEFAULT_TICK_S,
@@ -98,7 +98,8 @@ def soak(
     Args:
         seeds: the seeds (any iterable: a range, or ``itertools.count()`` with a budget).
         controllers, media: what the seeds play on (:func:`assignment`).
-        mutants, leak_samples, zero_steps, tick_s: as :func:`sim.scenario.make_scenario`.
+        mutants, controller_mutant, leak_samples, zero_steps, tick_s: as
+            :func:`sim.scenario.make_scenario`.
         budget_s: stop before starting a scenario once this much wall time has passed.
         stop_on_failure: stop after the first failing scenario.
         on_outcome: called with every outcome, as it comes.
@@ -115,6 +116,7 @@ def soak(
             controller=controller,
             medium=medium,
             mutants=mutants,
+            controller_mutant=controller_mutant,
             leak_samples=leak_samples,
             zero_steps=zero_steps,
             tick_s=tick_s,

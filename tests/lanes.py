@@ -134,7 +134,7 @@ EXTENDED: dict[str, str] = {
     _LATCH + "test_bridge_frozen_in_process_recovers_every_time": _SIM,
     _LATCH + "test_an_operator_stop_is_never_cleared_by_the_bridge": _SIM,
     _LATCH + "test_a_fault_latch_is_left_to_the_operator": _SIM,
-    _LATCH + "test_fault_persists_then_the_bridge_retries_when_the_fault_clears": _SIM,
+    _LATCH + "test_fault_persists_is_over_and_only_a_new_clear_releases": _SIM,
     # The link on the virtual CAN bus and on SocketCAN: tests/sim plays CAN in virtual time;
     # the pty case of each stays, and tests/bridge/test_socketcan.py is SocketCAN's smoke.
     "tests/bridge/test_link.py::test_corrupted_and_dropped_frames_lose_nothing_and_run_nothing"

@@ -30,6 +30,7 @@ events happened.
 from __future__ import annotations
 
 import logging
+import random
 import threading
 import time
 from collections.abc import Callable
@@ -102,7 +103,14 @@ class ControllerLink:
                 reconnect could fix it (a transport is built to check it, not opened).
         """
         transport_factory(config.url)
-        self._core = LinkCore(config, protocol_version=protocol_version, schema_hash=schema_hash)
+        # Request ids start at random: a bridge started again must not repeat the last
+        # request of the one before (docs/protocol.md, "Latch and faults").
+        self._core = LinkCore(
+            config,
+            protocol_version=protocol_version,
+            schema_hash=schema_hash,
+            first_request_id=random.SystemRandom().randrange(1, 0x10000),
+        )
         self._on_status = on_status
         self._on_telemetry = on_telemetry
         self._on_state = on_state
@@ -379,8 +387,8 @@ class ControllerLink:
     def _on_message(self, msg: Message, arrived: float) -> None:
         with self._lock:
             transport = self._transport
-            lost = transport.counters.lost if transport is not None else None
-            forward = self._core.on_frame(msg, arrived, rx_lost=lost)
+            seq = transport.dispatch_seq if transport is not None else None
+            forward = self._core.on_frame(msg, arrived, rx_seq=seq)
             self._wake_writer()
         self._flush()
         if forward and self._on_telemetry is not None:

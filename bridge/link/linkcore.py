@@ -36,17 +36,25 @@ is dropped, and one being written when STOP is asked for is followed by the STOP
 more.
 
 **Latch** (docs/protocol.md, "Latch and faults"). The controller's HEARTBEAT says what
-holds its latch (``latch_stop``, ``latch_watchdog``, ``latch_fault``) and which fault
-conditions are active (``fault_bits``). With ``auto_clear_watchdog`` the core sends
-CLEAR_STOP itself when the watchdog alone holds the latch, its condition is gone, the
-session is ours and no emergency stop is requested: a link outage does not leave the
-rover stuck. An automatic clear never outlives a change of the latch's causes: answered
-FAULT_PERSISTS, a stopping FAULT frame, or a HEARTBEAT showing ``latch_stop`` or
-``latch_fault`` ends it, and only the operator can then clear (a copy already on the
-wire when a fault joins can still release it: no host can recall a frame, docs/sim.md).
-An operator's clear answered FAULT_PERSISTS is kept and sent again (a new request id, at
-most once per controller heartbeat) once a HEARTBEAT shows no stopping fault condition,
-until it is answered, or an emergency stop or a reboot ends it.
+holds its latch (``latch_stop``, ``latch_watchdog``, ``latch_fault``), which fault
+conditions are active (``fault_bits``) and the latch generation (``latch_gen``, raised by
+every new cause; STOP_ACK, FAULT and CLEAR_ACK carry it too). Every CLEAR_STOP names
+the generation it releases, and the controller releases nothing if the latch gained a
+cause since (``LATCH_CHANGED``): a request made before a fault can never release it.
+An operator's clear names the last generation this core learned, and every stopping
+cause it learns it reports first (``fault:<name>``; also when only a HEARTBEAT told it,
+its FAULT frame lost); a clear asked for while this host's own STOP awaits its
+STOP_ACK waits for it (so ``stopped`` comes, then the clear, naming the STOP's
+generation). An operator's clear is one request: answered FAULT_PERSISTS or
+LATCH_CHANGED it ends (``fault:fault_persists``, ``fault:latch_changed``), and only a
+new one releases. Steps submitted while an operator's clear is out wait for its answer:
+sent after CLEARED, refused with the latch's reason otherwise. With
+``auto_clear_watchdog`` the core sends CLEAR_STOP itself, naming the generation of the
+HEARTBEAT that showed it, when the watchdog alone holds the latch, its condition is
+gone, the session is ours and no emergency stop is requested: a link outage does not
+leave the rover stuck; a refusal, a stopping FAULT frame or a HEARTBEAT with another
+cause ends it for good. A copy of a CLEAR_STOP is repeated every ``stop_repeat_s`` from
+when the previous copy was written, never queued behind an unwritten one.
 
 **MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
 ``ack_timeout_s`` after it was written without ACK, at most ``motion_retries`` times,
@@ -183,6 +191,14 @@ class _Pending:
     first_sent: float = 0.0
     last_sent: float = 0.0
     sends: int = 0
+    latch_gen: int | None = None
+    """CLEAR_STOP: the latch generation it names (``None``: not known yet)."""
+    auto: bool = False
+    """CLEAR_STOP: the core's own automatic clear, not the operator's."""
+    unwritten: int = 0
+    """CLEAR_STOP: copies queued for the writer and not yet written."""
+    after_stop: bool = False
+    """CLEAR_STOP: waits for the STOP_ACK of this host's own STOP before it goes."""
 
 
 @dataclass(eq=False)
@@ -248,11 +264,15 @@ class LinkCore:
         *,
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
+        first_request_id: int = 1,
     ) -> None:
         """Args:
         config: link parameters (:attr:`config` may be replaced while running: each
             value is read when next needed).
         protocol_version, schema_hash: what this host speaks (tests change them).
+        first_request_id: the id of the first STOP or CLEAR_STOP request, 1..65535; a
+            real host picks it at random (docs/protocol.md, "Latch and faults"), so that
+            a new host's first request does not repeat the last one of the host before.
         """
         self.config = config
         self.protocol_version = protocol_version
@@ -264,7 +284,7 @@ class LinkCore:
         self._reconnect_at = -math.inf
         self._backoff = config.reconnect_min_s
         self._seq = 0
-        self._stop_counter = 0
+        self._stop_counter = (first_request_id - 1) % 0xFFFF
         self._numbers = 0
         self._lane: deque[_Step] = deque()
         self._inflight: _Step | None = None
@@ -282,9 +302,14 @@ class LinkCore:
         self._faults: set[int] = set()
         """Fault conditions active in the controller (FAULT active 1..0, ``fault_bits``)."""
         self._last_stopping_fault: int | None = None
-        self._clear_wanted = False  # a clear (operator's or automatic) not yet answered done
-        self._clear_auto = False  # ... and it is the automatic one
-        self._clear_persisted = False  # ... and was answered FAULT_PERSISTS (said once)
+        self._latch_gen: int | None = None
+        """The controller's latch generation, as the last frame of this boot said."""
+        self._released_gen: int | None = None
+        """The generation this host's last CLEARED released: a HEARTBEAT sent before that
+        CLEAR_STOP arrived still shows it latched, and is stale."""
+        self._reported: set[str] = set()
+        """Stopping latch causes reported (``watchdog``, ``fault``) since the latch was last
+        released (docs/protocol.md: a fault is reported before a clear may release it)."""
         self._hb_counter = 0
         self._last_stop_latency: float | None = None
         self._last_stopping_mm: int | None = None
@@ -298,7 +323,7 @@ class LinkCore:
         self._ctrl_latched = False
         self._ctrl_state: int | None = None
         self._ended_seen = 0
-        self._last_clear_request = -math.inf
+        self._last_auto_clear = -math.inf
         self._hello_sent = False  # a HELLO went out in the current handshake
         self._hb_rx_gaps = GapStats(config.controller_heartbeat_s)
         self._hb_tx_gaps = GapStats(config.heartbeat_s)
@@ -309,7 +334,8 @@ class LinkCore:
         self._stop_after_clear: Stop | None = None
         """An emergency stop came while it was: this STOP goes out again after it."""
         self._rx_lost = 0
-        """The decoder's lost-frame count, as the last frame reported it."""
+        """Frames lost before the last frame received, from the gaps in the counter."""
+        self._last_rx_seq: int | None = None
         self._lost_mark = 0
         """The lost-frame count at the last frame of the current boot."""
         self._lost_forgiven = 0
@@ -375,6 +401,7 @@ class LinkCore:
         while self._tx:
             entry = self._tx.popleft()
             if entry.conn != self._conn:
+                self._forget_clear_copy(entry)
                 continue
             self._clear_in_write = isinstance(entry.msg, ClearStop)
             return entry
@@ -392,6 +419,11 @@ class LinkCore:
             again, self._stop_after_clear = self._stop_after_clear, None
             if again is not None and entry.conn == self._conn:
                 self._stops.append(again)
+            clear = self._pending_clear
+            if clear is not None and clear.stop_id == entry.msg.stop_id and clear.unwritten:
+                clear.unwritten -= 1
+                if ok:
+                    clear.last_sent = now  # the repeat interval runs from the write
         if ok and isinstance(entry.msg, HostHeartbeat) and entry.conn == self._conn:
             self._hb_tx_gaps.event(now)
         step = entry.step
@@ -402,6 +434,17 @@ class LinkCore:
                 step.last_sent = now
                 if step.sends == 1:
                     step.first_sent = step.last_sent
+
+    def _forget_clear_copy(self, entry: Outgoing) -> None:
+        """A CLEAR_STOP copy will never be written (its connection is gone)."""
+        clear = self._pending_clear
+        if (
+            isinstance(entry.msg, ClearStop)
+            and clear is not None
+            and clear.stop_id == entry.msg.stop_id
+            and clear.unwritten
+        ):
+            clear.unwritten -= 1
 
     def stop_written(self, stop_id: int, now: float, ok: bool) -> None:
         """The first copy of emergency stop ``stop_id`` (claimed by :meth:`emergency_stop`)
@@ -426,8 +469,10 @@ class LinkCore:
         if stop is not None and self._state is not LinkState.DISCONNECTED:
             due = min(due, now if stop.sends == 0 else stop.last_sent + cfg.stop_repeat_s)
         clear = self._pending_clear
-        if clear is not None and self._state in (LinkState.READY, LinkState.LOST):
-            due = min(due, now if clear.sends == 0 else clear.last_sent + cfg.stop_repeat_s)
+        if self._clear_sendable(clear) and self._state in (LinkState.READY, LinkState.LOST):
+            assert clear is not None
+            if not clear.unwritten:
+                due = min(due, now if clear.sends == 0 else clear.last_sent + cfg.stop_repeat_s)
         if self._state is LinkState.READY:
             if self._last_hb_rx is not None:
                 due = min(due, self._last_hb_rx + self._lost_after_s() + _TIME_EPS_S)
@@ -435,7 +480,11 @@ class LinkCore:
             if step is not None:
                 if not step.unwritten:
                     due = min(due, step.last_sent + cfg.ack_timeout_s)
-            elif self._lane and len(self._in_controller) < cfg.controller_queue:
+            elif (
+                self._lane
+                and len(self._in_controller) < cfg.controller_queue
+                and not self._operator_clear_out()
+            ):
                 due = now
         return max(now, due)
 
@@ -455,6 +504,7 @@ class LinkCore:
         self._hb_rx_gaps.restart()
         self._hb_tx_gaps.restart()
         self._rx_lost = 0
+        self._last_rx_seq = None
         self._lost_mark = self._lost_forgiven = 0  # a new transport counts anew
         logger.info("connected to %s; handshaking", self.config.url)
 
@@ -472,6 +522,8 @@ class LinkCore:
             return
         self._connected = False
         self._conn += 1
+        for entry in self._tx:
+            self._forget_clear_copy(entry)
         self._tx.clear()
         self._last_error = error
         self._counters.reconnects += 1
@@ -518,6 +570,8 @@ class LinkCore:
             return "schema_mismatch"
         if self._state is not LinkState.READY:
             return "link_down"
+        if self._operator_clear_out():
+            return None  # it waits for the clear's answer (docs/protocol.md)
         if self._ctrl_state == ControllerState.FAULT:
             return "fault_active"
         if self.stop_latched:
@@ -533,8 +587,7 @@ class LinkCore:
         stop_id = self._stop_counter
         self._estop_requested = True
         self._estop_source = source
-        self._pending_clear = None
-        self._clear_wanted = False
+        self._end_clear(None)
         # A CLEAR_STOP queued before this STOP must never follow it onto the wire; one
         # being written now is answered by this STOP once more, after it.
         self._unqueue(ClearStop)
@@ -557,12 +610,43 @@ class LinkCore:
         self._stop_counter = self._stop_counter % 0xFFFF + 1
         clear_id = self._stop_counter
         self._estop_requested = False
-        self._pending_stop = None
-        self._pending_clear = _Pending(clear_id, now, 0.0, 0)
-        self._last_clear_request = now
-        self._clear_wanted, self._clear_auto = True, False
-        self._clear_persisted = False
+        stop = self._pending_stop
+        after_stop = stop is not None and stop.sends > 0
+        if not after_stop:
+            self._pending_stop = None  # never on the wire: nothing to wait for
+        self._end_clear(None)
+        # The generation the operator was told of; the own STOP it waits for adds one
+        # when its STOP_ACK says so (_on_stop_ack).
+        self._pending_clear = _Pending(
+            clear_id, now, 0.0, 0, latch_gen=self._latch_gen, after_stop=after_stop
+        )
         return clear_id
+
+    @staticmethod
+    def _clear_sendable(clear: _Pending | None) -> bool:
+        """``clear`` may go on the wire: it names a generation and waits for no STOP_ACK."""
+        return clear is not None and clear.latch_gen is not None and not clear.after_stop
+
+    def _operator_clear_out(self) -> bool:
+        """An operator's clear is out, not yet answered (steps wait for it)."""
+        clear = self._pending_clear
+        return clear is not None and not clear.auto
+
+    def _end_clear(self, refusal: str | None) -> None:
+        """The clear request now out (if any) is over; steps that waited for an operator's
+        clear are refused with ``refusal`` (``None``: they stay, for what comes next)."""
+        clear, self._pending_clear = self._pending_clear, None
+        if clear is not None and not clear.auto and refusal is not None:
+            self._reject_lane(refusal)
+
+    def _reject_lane(self, reason: str) -> None:
+        """Refuse every step waiting in the lane with ``rejected:<reason>``."""
+        waiting = list(self._lane)
+        self._lane.clear()
+        for step in waiting:
+            self._counters.steps_rejected += 1
+            self._counters.rejected[reason] += 1
+            self._emit(rejected(reason), step.number)
 
     # -- time ---------------------------------------------------------------------------------
     def tick(self, now: float) -> None:
@@ -599,12 +683,16 @@ class LinkCore:
         clear = self._pending_clear
         if (
             clear is not None
+            and clear.latch_gen is not None
+            and self._clear_sendable(clear)
             and self._state in (LinkState.READY, LinkState.LOST)
+            and not clear.unwritten
             and (clear.sends == 0 or now >= clear.last_sent + cfg.stop_repeat_s)
         ):
             clear.sends += 1
             clear.last_sent = now
-            out.insert(0, (ClearStop(clear.stop_id), self._clear_auto))
+            clear.unwritten += 1
+            out.insert(0, (ClearStop(clear.stop_id, clear.latch_gen), clear.auto))
         if self._state is LinkState.READY:
             lost_after = self._lost_after_s()
             if self._last_hb_rx is not None and now > self._last_hb_rx + lost_after:
@@ -615,13 +703,18 @@ class LinkCore:
             self._pump(now)
 
     # -- frames received ------------------------------------------------------------------------
-    def on_frame(self, msg: Message, now: float, *, rx_lost: int | None = None) -> bool:
-        """A message from the controller, arrived at ``now``. ``rx_lost``: the decoder's
-        lost-frame count at this frame (serial), for the reboot's restart to be forgiven.
+    def on_frame(self, msg: Message, now: float, *, rx_seq: int | None = None) -> bool:
+        """A message from the controller, arrived at ``now``. ``rx_seq``: its serial frame
+        counter (``None`` on CAN): the gaps before each frame, counted here frame by frame
+        (not from the decoder's total, which already holds the frames read with it), let
+        the gap a reboot makes be forgiven exactly (docs/protocol.md, Serial framing).
         Returns whether it is telemetry to forward (every message but a sensor sample
         outside a session)."""
-        if rx_lost is not None:
-            self._rx_lost = rx_lost
+        if rx_seq is not None:
+            last = self._last_rx_seq
+            if last is not None:
+                self._rx_lost += (rx_seq - last - 1) & 0xFF
+            self._last_rx_seq = rx_seq
         self._dispatch(msg, now)
         forward = self._forwards(msg)
         if not forward:
@@ -640,15 +733,9 @@ class LinkCore:
         elif isinstance(msg, Ident):
             self._on_ident(msg, t)
         elif isinstance(msg, StopAck):
-            stop = self._pending_stop
-            self._ctrl_latched = True
-            self._ctrl_state = msg.state
-            if stop is not None and msg.stop_id == stop.stop_id:
-                self._last_stop_latency = t - stop.first_sent
-                self._pending_stop = None
-                self._emit(STOPPED)
+            self._on_stop_ack(msg, t)
         elif isinstance(msg, ClearAck):
-            self._on_clear_ack(msg)
+            self._on_clear_ack(msg, t)
         elif isinstance(msg, Ack):
             self._on_ack(msg, t)
         elif isinstance(msg, Status):
@@ -659,6 +746,34 @@ class LinkCore:
             self._on_fault(msg)
         elif isinstance(msg, Progress):
             self._on_progress(msg, t)
+
+    def _on_stop_ack(self, msg: StopAck, t: float) -> None:
+        stop = self._pending_stop
+        known = self._latch_gen
+        self._latch_gen = msg.latch_gen
+        self._ctrl_latched = True
+        self._ctrl_state = msg.state
+        if stop is None or msg.stop_id != stop.stop_id:
+            return
+        self._last_stop_latency = t - stop.first_sent
+        self._pending_stop = None
+        self._emit(STOPPED)
+        clear = self._pending_clear
+        if clear is not None and clear.after_stop:
+            # The operator cleared after this STOP: the clear names the STOP's generation,
+            # if the STOP alone raised it since the operator's view (anything else that
+            # joined meanwhile was not reported to them: the clear then names the older
+            # one, and the controller answers LATCH_CHANGED).
+            clear.after_stop = False
+            base = clear.latch_gen if clear.latch_gen is not None else known
+            if base is None and msg.state == ControllerState.FAULT:
+                # A watchdog or fault latch this host never knew of: not the operator's
+                # to release with a clear asked for before it was reported.
+                self._refuse_operator_clear("latch_changed")
+            elif base is None or (msg.latch_gen - base) & 0xFF <= 1:
+                clear.latch_gen = msg.latch_gen
+            else:
+                clear.latch_gen = (base + 1) & 0xFF
 
     def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
         previous = self._last_hb_rx
@@ -674,12 +789,16 @@ class LinkCore:
         self._last_hb_rx = t
         self._hb_rx_gaps.event(t)
         self._heartbeat = hb
-        self._ctrl_latched = bool(hb.stop_latched)
-        self._ctrl_state = hb.state
         if self._check_reboot(hb.boot_nonce, t):
+            self._heartbeat = hb
             return
+        stale = bool(hb.stop_latched) and hb.latch_gen == self._released_gen
+        # A HEARTBEAT sent before our CLEAR_STOP arrived still shows the latch it released.
+        self._ctrl_latched = bool(hb.stop_latched) and not stale
+        self._ctrl_state = hb.state if not stale else ControllerState.IDLE
+        self._learn_gen(hb)
         self._lost_mark = self._rx_lost  # a frame of this boot: loss up to here is real
-        if hb.latch_watchdog and not self._watchdog_counted:
+        if hb.latch_watchdog and not stale and not self._watchdog_counted:
             # A trip whose FAULT frame was lost: the latch still tells.
             self._counters.watchdog_trips += 1
             self._watchdog_counted = True
@@ -701,63 +820,99 @@ class LinkCore:
         self._faults = {code for code in FaultCode if hb.fault_bits & fault_bit(code)}
         self._maybe_clear(hb, t)
 
+    def _learn_gen(self, hb: Heartbeat) -> None:
+        """A HEARTBEAT of this boot: its latch generation, and every stopping cause it
+        shows that no FAULT frame reported (lost on the way) reported now, before any
+        clear may name that generation (docs/protocol.md, "Latch and faults")."""
+        self._latch_gen = hb.latch_gen
+        reported_now = False
+        if self._ctrl_latched:
+            if hb.latch_watchdog and "watchdog" not in self._reported:
+                self._reported.add("watchdog")
+                self._emit(fault("watchdog"))
+                reported_now = True
+            if hb.latch_fault and "fault" not in self._reported:
+                self._reported.add("fault")
+                self._emit(fault(self._latched_fault_name(hb)))
+                reported_now = True
+        elif not hb.stop_latched:
+            self._reported.clear()
+        clear = self._pending_clear
+        if clear is not None and clear.latch_gen is None and not clear.after_stop:
+            if reported_now:
+                # Asked for before this host knew the latch: what it holds was reported
+                # only now, so that clear may not release it.
+                self._refuse_operator_clear("latch_changed")
+            else:
+                clear.latch_gen = hb.latch_gen
+
+    def _latched_fault_name(self, hb: Heartbeat) -> str:
+        """The stopping fault behind ``latch_fault``: active now, else the last raised."""
+        for code in sorted(STOPPING_FAULTS):
+            if code != FaultCode.WATCHDOG and hb.fault_bits & fault_bit(code):
+                return FaultCode(code).name.lower()
+        if self._last_stopping_fault is not None:
+            return FaultCode(self._last_stopping_fault).name.lower()
+        return "fault"
+
+    def _refuse_operator_clear(self, why: str) -> None:
+        """The operator's clear released nothing (``why``: ``fault_persists``,
+        ``latch_changed``): said once; the request is over, and the steps that waited for
+        it are refused. Only a new clear releases (docs/protocol.md)."""
+        self._emit(fault(why))
+        self._end_clear(
+            "fault_active" if self._ctrl_state == ControllerState.FAULT else "stop_latched"
+        )
+
+    def _auto_clear_may_start(self, hb: Heartbeat) -> bool:
+        """The latch ``hb`` shows is the host's to clear on its own: the watchdog alone
+        holds it (docs/protocol.md, "Host: automatic clear")."""
+        return bool(hb.latch_watchdog and not hb.latch_stop and not hb.latch_fault)
+
     def _maybe_clear(self, hb: Heartbeat, now: float) -> None:
-        """Send CLEAR_STOP when docs/protocol.md ("Latch and faults") allows the host to:
-        the automatic clear of a watchdog-only latch, or the retry of a clear that was
-        answered FAULT_PERSISTS once no stopping fault condition is active."""
+        """Start the automatic clear of a watchdog-only latch when docs/protocol.md
+        ("Latch and faults") allows the host to, naming this HEARTBEAT's generation; end
+        one the latch has outgrown."""
         if self._state is not LinkState.READY or not hb.handshake_ok:
             return
-        if self._clear_wanted and not hb.stop_latched and self._pending_clear is None:
-            # Released meanwhile (by another host, or a reboot we have not seen yet).
-            self._clear_wanted = False
-            self._settle_latched()
-            if not self._clear_auto:
-                self._ctrl_latched = False
-                self._emit(CLEARED)
-            return
-        watchdog_only = bool(hb.latch_watchdog and not hb.latch_stop and not hb.latch_fault)
+        clear = self._pending_clear
         if (
-            self._clear_wanted
-            and self._clear_auto
-            and hb.stop_latched
-            and not watchdog_only
+            clear is not None
+            and clear.auto
+            and self._ctrl_latched
+            and (not self._auto_clear_may_start(hb) or hb.latch_gen != clear.latch_gen)
             and self._auto_clear_outlived(hb)
         ):
             return
-        if self._pending_clear is not None or self._estop_requested or not hb.stop_latched:
+        if self._pending_clear is not None or self._estop_requested or not self._ctrl_latched:
             return
-        stopping_active = any(hb.fault_bits & fault_bit(code) for code in STOPPING_FAULTS)
-        if stopping_active:
+        if any(hb.fault_bits & fault_bit(code) for code in STOPPING_FAULTS):
             return
-        retry = self._clear_wanted
-        auto = self.config.auto_clear_watchdog and watchdog_only
+        if not (self.config.auto_clear_watchdog and self._auto_clear_may_start(hb)):
+            return
         # At most one new request per controller heartbeat period after the last one: a
         # heartbeat sent before our CLEAR_STOP arrived still shows the latch.
-        if (
-            not (retry or auto)
-            or now - self._last_clear_request < self.config.controller_heartbeat_s
-        ):
+        if now - self._last_auto_clear < self.config.controller_heartbeat_s:
             return
-        self._last_clear_request = now
+        self._last_auto_clear = now
         self._stop_counter = self._stop_counter % 0xFFFF + 1
-        self._pending_clear = _Pending(self._stop_counter, now, 0.0, 0)
-        if not retry:
-            self._clear_wanted, self._clear_auto = True, True
-            self._clear_persisted = False
-            logger.info("watchdog latch with its condition gone: clearing it (auto_clear_watchdog)")
-        else:
-            logger.info("no stopping fault condition any more: sending CLEAR_STOP again")
+        self._pending_clear = _Pending(
+            self._stop_counter, now, 0.0, 0, latch_gen=hb.latch_gen, auto=True
+        )
+        logger.info("watchdog latch with its condition gone: clearing it (auto_clear_watchdog)")
 
     def _auto_clear_outlived(self, hb: Heartbeat) -> bool:
         """A HEARTBEAT shows the latch gained a cause the automatic clear was not for (an
-        emergency stop, a stopping fault): that clear is over, the operator decides now.
-        Returns whether it ended."""
+        emergency stop, a stopping fault, a new trip): that clear is over, the operator
+        decides now. Returns whether it ended."""
         self._abandon_auto_clear(hb)
         return True
 
     def _abandon_auto_clear(self, hb: Heartbeat | None) -> None:
         """End the automatic clear request: the latch's causes changed."""
-        self._clear_wanted = self._clear_auto = self._clear_persisted = False
+        clear = self._pending_clear
+        if clear is None or not clear.auto:
+            return
         self._pending_clear = None
         causes = ",".join(latch_causes(hb)) if hb is not None else "a stopping fault"
         logger.warning(
@@ -786,7 +941,11 @@ class LinkCore:
         self._faults.clear()
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.BOOT
-        self._clear_wanted = False  # the latch went with the reboot
+        # The latch went with the reboot, and every request about it.
+        self._pending_clear = None
+        self._latch_gen = self._released_gen = None
+        self._reported.clear()
+        self._pending_stop = None
         if self._estop_requested:
             self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)  # re-latch at once
         return True
@@ -836,34 +995,38 @@ class LinkCore:
             if self._estop_requested and self._pending_stop is None and not self._ctrl_latched:
                 self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)
 
-    def _on_clear_ack(self, ack: ClearAck) -> None:
+    def _on_clear_ack(self, ack: ClearAck, t: float) -> None:
+        self._latch_gen = ack.latch_gen
         clear = self._pending_clear
         if clear is None or ack.stop_id != clear.stop_id:
             return
         self._pending_clear = None
-        if ack.result == ClearResult.FAULT_PERSISTS:
-            if self._clear_auto and self._auto_clear_refused():
+        if ack.result in (ClearResult.FAULT_PERSISTS, ClearResult.LATCH_CHANGED):
+            if clear.auto:
+                # A stopping fault or a new cause joined the watchdog in the latch: not
+                # for the host to clear.
+                self._pending_clear = clear
+                self._auto_clear_refused()
                 return
-            # The operator's clear is kept: sent again once no stopping fault condition
-            # is active (_maybe_clear). Said once per request, not once per retry.
-            if not self._clear_persisted:
-                self._emit(fault("fault_persists"))
-            self._clear_persisted = True
+            self._pending_clear = clear
+            self._refuse_operator_clear(
+                "fault_persists" if ack.result == ClearResult.FAULT_PERSISTS else "latch_changed"
+            )
             return
-        was_auto = self._clear_auto
-        self._clear_wanted = self._clear_auto = False
-        self._clear_persisted = False
         if ack.result == ClearResult.CLEARED:
+            self._released_gen = clear.latch_gen
+            self._reported.clear()
             self._settle_latched()
         self._ctrl_latched = False
         self._ctrl_state = ControllerState.IDLE
-        if ack.result == ClearResult.CLEARED or not was_auto:
+        if ack.result == ClearResult.CLEARED or not clear.auto:
             self._emit(CLEARED)
+        self._pump(t)
 
     def _auto_clear_refused(self) -> bool:
-        """The automatic clear was answered FAULT_PERSISTS: a stopping fault joined the
-        watchdog in the latch, which is not the host's to clear; the request ends.
-        Returns whether it ended (else it is kept as an operator's would be)."""
+        """The automatic clear was answered FAULT_PERSISTS or LATCH_CHANGED: a stopping
+        fault or a new cause joined the watchdog in the latch, which is not the host's to
+        clear; the request ends. Returns whether it ended."""
         self._abandon_auto_clear(self._heartbeat)
         return True
 
@@ -960,6 +1123,7 @@ class LinkCore:
         self._in_controller.clear()
 
     def _on_fault(self, msg: Fault) -> None:
+        self._latch_gen = msg.latch_gen
         name = (
             FaultCode(msg.code).name.lower()
             if msg.code in FaultCode._value2member_map_
@@ -968,7 +1132,9 @@ class LinkCore:
         if msg.active:
             if msg.code in STOPPING_FAULTS and msg.code != FaultCode.WATCHDOG:
                 self._stopping_fault_frame(msg.code)
+                self._reported.add("fault")
             if msg.code == FaultCode.WATCHDOG:
+                self._reported.add("watchdog")
                 if self._new_watchdog_trip(msg):
                     # A trip; the same frame received twice (a CAN frame whose
                     # acknowledgement the controller missed is sent again) is not two.
@@ -985,8 +1151,7 @@ class LinkCore:
         automatic clear that is out (no copy of it may follow; the next heartbeat would
         say so 100 ms later, ten copies later)."""
         self._last_stopping_fault = code
-        if self._clear_wanted and self._clear_auto:
-            self._abandon_auto_clear(None)
+        self._abandon_auto_clear(None)
 
     def _new_watchdog_trip(self, msg: Fault) -> bool:
         """A WATCHDOG FAULT ``active = 1`` is a new trip unless its condition is already
@@ -1033,7 +1198,12 @@ class LinkCore:
             step.sends += 1
             step.last_sent = now
             self._queue(self._motion(step), step)
-        elif self._lane and len(self._in_controller) < self.config.controller_queue and self.ready:
+        elif (
+            self._lane
+            and len(self._in_controller) < self.config.controller_queue
+            and self.ready
+            and not self._operator_clear_out()
+        ):
             step = self._lane.popleft()
             self._seq = (self._seq + 1) & 0xFFFF
             step.seq = self._seq

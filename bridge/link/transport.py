@@ -146,7 +146,12 @@ class Transport:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._dispatcher: threading.Thread | None = None
-        self._rx: queue.Queue[tuple[Message, float] | Exception] = queue.Queue(1)
+        self._rx: queue.Queue[tuple[Message, float, int | None] | Exception] = queue.Queue(1)
+        self.dispatch_seq: int | None = None
+        """The sender's serial frame counter of the message being handed to
+        ``on_message`` (``None`` on CAN): read it from ``on_message``, on the dispatcher
+        thread, for the frame's place in the counter (the link's lost-frame forgiveness
+        at a reboot)."""
         self._opened = False
 
     @property
@@ -292,7 +297,7 @@ class Transport:
         while not self._stop.is_set():
             beat.tick()
             try:
-                received = self.endpoint.read(_POLL_S)
+                received = self.endpoint.read_numbered(_POLL_S)
             except (OSError, ValueError) as exc:
                 if not self._stop.is_set():
                     logger.warning("%s: read failed: %s", self.url, exc)
@@ -300,16 +305,16 @@ class Transport:
                 return
             if received:
                 now = time.monotonic()
-                for message in received:
+                for message, seq in received:
                     if isinstance(message, SAMPLE_MESSAGES):
                         try:
-                            self._rx.put_nowait((message, now))
+                            self._rx.put_nowait((message, now, seq))
                         except queue.Full:
                             self._overflow(message)
                     else:
-                        self._put((message, now))
+                        self._put((message, now, seq))
 
-    def _put(self, item: tuple[Message, float] | Exception) -> None:
+    def _put(self, item: tuple[Message, float, int | None] | Exception) -> None:
         """Queue ``item``, waiting for room as long as the transport is open."""
         while not self._stop.is_set():
             try:
@@ -358,8 +363,9 @@ class Transport:
             if isinstance(item, Exception):
                 on_error(item)
                 return
+            message, arrived, self.dispatch_seq = item
             try:
-                on_message(*item)
+                on_message(message, arrived)
             except Exception:
                 logger.exception("%s: handling %s failed; carrying on", self.url, item[0].NAME)
 

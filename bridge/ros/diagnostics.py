@@ -124,6 +124,7 @@ def diagnostic_array(
                 "heartbeat_rx_gap_p99_ms",
                 "heartbeat_tx_gap_max_ms",
                 "heartbeat_tx_gap_p99_ms",
+                "samples_outside_session",
                 "stalls",
                 "stall_max_ms",
             ],

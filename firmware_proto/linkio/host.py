@@ -117,6 +117,10 @@ class ProtocolHost:
         self._threads: list[threading.Thread] = []
         self._opened = False
         self._closed = False
+        self.latch_gen = 0
+        """The controller's latch generation as the last frame that carries one said
+        (HEARTBEAT, STOP_ACK, CLEAR_ACK, FAULT; docs/protocol.md, "Latch and faults"): what
+        a CLEAR_STOP of this host names (:meth:`clear_stop_for`)."""
 
     @property
     def kind(self) -> str:
@@ -188,7 +192,16 @@ class ProtocolHost:
 
     def _received(self, item: Received) -> None:
         """Keep one message (a subclass may extend this to log it)."""
+        gen = getattr(item.message, "latch_gen", None)
+        if isinstance(gen, int):
+            self.latch_gen = gen
         self.inbox.append(item)
+
+    def clear_stop_for(self, stop_id: int, *, ahead: int = 0) -> ClearStop:
+        """A CLEAR_STOP ``stop_id`` naming the latch generation this host last heard of,
+        plus ``ahead`` (new latch causes this host sent that no answer told it of yet: a
+        STOP just written raises the generation by one)."""
+        return ClearStop(stop_id, (self.latch_gen + ahead) & 0xFF)
 
     def _reader(self) -> None:
         while not self._stop.is_set():
@@ -353,17 +366,24 @@ class ProtocolHost:
         )
 
     def clear_stop(
-        self, clear_id: int, *, every_s: float | None = None, timeout_s: float = 1.0
+        self,
+        clear_id: int,
+        *,
+        latch_gen: int | None = None,
+        every_s: float | None = None,
+        timeout_s: float = 1.0,
     ) -> ClearAck:
-        """CLEAR_STOP ``clear_id`` (sent again every ``every_s``, if given, until
-        answered); its CLEAR_ACK, whatever it says.
+        """CLEAR_STOP ``clear_id`` naming ``latch_gen`` (default: the generation the last
+        frame told, :attr:`latch_gen`), sent again every ``every_s``, if given, until
+        answered; its CLEAR_ACK, whatever it says.
 
         Raises:
             NotReceivedError: no CLEAR_ACK for ``clear_id`` within ``timeout_s`` (scaled).
             LinkError: the link failed.
         """
+        gen = self.latch_gen if latch_gen is None else latch_gen
         _, (_, got), _ = self.request(
-            ClearStop(clear_id),
+            ClearStop(clear_id, gen),
             ClearAck,
             lambda a: a.stop_id == clear_id,
             every_s=every_s,

@@ -73,8 +73,8 @@ __all__ = [
     "WheelSpeeds",
 ]
 
-PROTOCOL_VERSION = 3
-SCHEMA_HASH = 0x7193
+PROTOCOL_VERSION = 4
+SCHEMA_HASH = 0x75E0
 MAX_PAYLOAD_BYTES = 8
 CAN_NODE_BITS = 4
 BROADCAST_NODE = 0
@@ -168,11 +168,12 @@ class ControllerState(IntEnum):
 
 
 class ClearResult(IntEnum):
-    """Answer to CLEAR_STOP: CLEARED (the latch is released), NOT_LATCHED (there was no latch; nothing changes), FAULT_PERSISTS (a stopping fault's condition is still active; the latch holds)."""
+    """Answer to CLEAR_STOP: CLEARED (the latch is released), NOT_LATCHED (there was no latch; nothing changes), FAULT_PERSISTS (a stopping fault's condition is still active; the latch holds), LATCH_CHANGED (the latch gained a cause since the generation the request names; the latch holds). A repeat of the last request answered gets the same answer and changes nothing."""
 
     CLEARED = 0
     NOT_LATCHED = 1
     FAULT_PERSISTS = 2
+    LATCH_CHANGED = 3
 
 
 class FaultCode(IntEnum):
@@ -269,12 +270,13 @@ def _decode_stop(payload: bytes) -> Stop | None:
     return _new(Stop, values)
 
 
-_S_STOP_ACK = struct.Struct("<HB")
+_S_STOP_ACK = struct.Struct("<HBB")
 
 
 class _StopAckFields(NamedTuple):
     stop_id: int
     state: int
+    latch_gen: int
 
 
 class StopAck(Message, _StopAckFields):
@@ -286,26 +288,31 @@ class StopAck(Message, _StopAckFields):
     Attributes:
         stop_id: u16. echo of STOP.stop_id.
         state: u8 (ControllerState) range 0..4. state after the STOP (STOP_LATCHED, or FAULT).
+        latch_gen: u8. the latch generation after the STOP (docs/protocol.md, 'Latch and
+            faults').
     """
 
     __slots__ = ()
     MSG_ID: ClassVar[int] = 1
     NAME: ClassVar[str] = "STOP_ACK"
-    LENGTH: ClassVar[int] = 3
+    LENGTH: ClassVar[int] = 4
     DIRECTION: ClassVar[str] = "controller_to_host"
     PRIORITY: ClassVar[str] = "emergency"
-    FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "state")
+    FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "state", "latch_gen")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"state": ControllerState}
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
         stop_id = self.stop_id
         state = self.state
+        latch_gen = self.latch_gen
         if not (isinstance(stop_id, int) and 0 <= stop_id <= 65535):
             raise field_error("STOP_ACK", "stop_id", stop_id, 0, 65535)
         if not (isinstance(state, int) and 0 <= state <= 4):
             raise field_error("STOP_ACK", "state", state, 0, 4)
-        return _S_STOP_ACK.pack(stop_id, state)
+        if not (isinstance(latch_gen, int) and 0 <= latch_gen <= 255):
+            raise field_error("STOP_ACK", "latch_gen", latch_gen, 0, 255)
+        return _S_STOP_ACK.pack(stop_id, state, latch_gen)
 
     @classmethod
     def unpack(cls, payload: bytes) -> StopAck:
@@ -314,8 +321,8 @@ class StopAck(Message, _StopAckFields):
         Raises:
             DecodeError: wrong length, or a value outside the wire range.
         """
-        if len(payload) != 3:
-            raise DecodeError(f"STOP_ACK payload is {len(payload)} bytes, expected 3")
+        if len(payload) != 4:
+            raise DecodeError(f"STOP_ACK payload is {len(payload)} bytes, expected 4")
         decoded = _decode_stop_ack(bytes(payload))
         if decoded is None:
             raise DecodeError("STOP_ACK payload has a value outside its range")
@@ -330,39 +337,45 @@ def _decode_stop_ack(payload: bytes) -> StopAck | None:
     return _new(StopAck, values)
 
 
-_S_CLEAR_STOP = struct.Struct("<H")
+_S_CLEAR_STOP = struct.Struct("<HB")
 
 
 class _ClearStopFields(NamedTuple):
     stop_id: int
+    latch_gen: int
 
 
 class ClearStop(Message, _ClearStopFields):
     """CLEAR_STOP (id 2, host to controller, emergency). Explicit unlatch: releases the latch
-    (whatever set it: STOP, watchdog, fault) unless a stopping fault's condition is still
-    active.
+    (whatever set it: STOP, watchdog, fault) if it is still the latch of the generation named
+    and no stopping fault's condition is active.
 
     Sent: on demand; repeated every stop_repeat_ms until CLEAR_ACK.
 
     Attributes:
         stop_id: u16 range 1..65535. host's request id, echoed in CLEAR_ACK.
+        latch_gen: u8. the latch generation the request releases: the last one the host reported
+            to whoever asked for the clear (its operator, or its own automatic clear).
     """
 
     __slots__ = ()
     MSG_ID: ClassVar[int] = 2
     NAME: ClassVar[str] = "CLEAR_STOP"
-    LENGTH: ClassVar[int] = 2
+    LENGTH: ClassVar[int] = 3
     DIRECTION: ClassVar[str] = "host_to_controller"
     PRIORITY: ClassVar[str] = "emergency"
-    FIELDS: ClassVar[tuple[str, ...]] = ("stop_id",)
+    FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "latch_gen")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {}
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
         stop_id = self.stop_id
+        latch_gen = self.latch_gen
         if not (isinstance(stop_id, int) and 1 <= stop_id <= 65535):
             raise field_error("CLEAR_STOP", "stop_id", stop_id, 1, 65535)
-        return _S_CLEAR_STOP.pack(stop_id)
+        if not (isinstance(latch_gen, int) and 0 <= latch_gen <= 255):
+            raise field_error("CLEAR_STOP", "latch_gen", latch_gen, 0, 255)
+        return _S_CLEAR_STOP.pack(stop_id, latch_gen)
 
     @classmethod
     def unpack(cls, payload: bytes) -> ClearStop:
@@ -371,8 +384,8 @@ class ClearStop(Message, _ClearStopFields):
         Raises:
             DecodeError: wrong length, or a value outside the wire range.
         """
-        if len(payload) != 2:
-            raise DecodeError(f"CLEAR_STOP payload is {len(payload)} bytes, expected 2")
+        if len(payload) != 3:
+            raise DecodeError(f"CLEAR_STOP payload is {len(payload)} bytes, expected 3")
         decoded = _decode_clear_stop(bytes(payload))
         if decoded is None:
             raise DecodeError("CLEAR_STOP payload has a value outside its range")
@@ -387,12 +400,13 @@ def _decode_clear_stop(payload: bytes) -> ClearStop | None:
     return _new(ClearStop, values)
 
 
-_S_CLEAR_ACK = struct.Struct("<HB")
+_S_CLEAR_ACK = struct.Struct("<HBB")
 
 
 class _ClearAckFields(NamedTuple):
     stop_id: int
     result: int
+    latch_gen: int
 
 
 class ClearAck(Message, _ClearAckFields):
@@ -402,27 +416,31 @@ class ClearAck(Message, _ClearAckFields):
 
     Attributes:
         stop_id: u16. echo of CLEAR_STOP.stop_id.
-        result: u8 (ClearResult) range 0..2.
+        result: u8 (ClearResult) range 0..3.
+        latch_gen: u8. the latch generation after the answer.
     """
 
     __slots__ = ()
     MSG_ID: ClassVar[int] = 3
     NAME: ClassVar[str] = "CLEAR_ACK"
-    LENGTH: ClassVar[int] = 3
+    LENGTH: ClassVar[int] = 4
     DIRECTION: ClassVar[str] = "controller_to_host"
     PRIORITY: ClassVar[str] = "emergency"
-    FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "result")
+    FIELDS: ClassVar[tuple[str, ...]] = ("stop_id", "result", "latch_gen")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"result": ClearResult}
 
     def pack(self, strict: bool = True) -> bytes:
         """Encode the payload; see :meth:`Message.pack`."""
         stop_id = self.stop_id
         result = self.result
+        latch_gen = self.latch_gen
         if not (isinstance(stop_id, int) and 0 <= stop_id <= 65535):
             raise field_error("CLEAR_ACK", "stop_id", stop_id, 0, 65535)
-        if not (isinstance(result, int) and 0 <= result <= 2):
-            raise field_error("CLEAR_ACK", "result", result, 0, 2)
-        return _S_CLEAR_ACK.pack(stop_id, result)
+        if not (isinstance(result, int) and 0 <= result <= 3):
+            raise field_error("CLEAR_ACK", "result", result, 0, 3)
+        if not (isinstance(latch_gen, int) and 0 <= latch_gen <= 255):
+            raise field_error("CLEAR_ACK", "latch_gen", latch_gen, 0, 255)
+        return _S_CLEAR_ACK.pack(stop_id, result, latch_gen)
 
     @classmethod
     def unpack(cls, payload: bytes) -> ClearAck:
@@ -431,8 +449,8 @@ class ClearAck(Message, _ClearAckFields):
         Raises:
             DecodeError: wrong length, or a value outside the wire range.
         """
-        if len(payload) != 3:
-            raise DecodeError(f"CLEAR_ACK payload is {len(payload)} bytes, expected 3")
+        if len(payload) != 4:
+            raise DecodeError(f"CLEAR_ACK payload is {len(payload)} bytes, expected 4")
         decoded = _decode_clear_ack(bytes(payload))
         if decoded is None:
             raise DecodeError("CLEAR_ACK payload has a value outside its range")
@@ -442,7 +460,7 @@ class ClearAck(Message, _ClearAckFields):
 def _decode_clear_ack(payload: bytes) -> ClearAck | None:
     values = _S_CLEAR_ACK.unpack(payload)
     result = values[1]
-    if not (0 <= result <= 2):
+    if not (0 <= result <= 3):
         return None
     return _new(ClearAck, values)
 
@@ -743,6 +761,7 @@ class _FaultFields(NamedTuple):
     code: int
     active: int
     detail: int
+    latch_gen: int
 
 
 class Fault(Message, _FaultFields):
@@ -755,17 +774,20 @@ class Fault(Message, _FaultFields):
     Attributes:
         code: u8 (FaultCode) range 1..8.
         active: u1.
-        detail: u16. code-specific: WATCHDOG ms since the last valid frame; STALL_* distance
-            units short.
+        detail: u16. code-specific with active = 1: WATCHDOG ms since the last valid frame;
+            STALL_* distance units still to go; ENCODER the failed side (1 left, 2 right, 3
+            both); DRIVER, INTERNAL, IMU, POSE 0 or a vendor code; always 0 with active = 0.
+        latch_gen: u8. the latch generation after this FAULT (a stopping fault's active = 1
+            raises it).
     """
 
     __slots__ = ()
     MSG_ID: ClassVar[int] = 34
     NAME: ClassVar[str] = "FAULT"
-    LENGTH: ClassVar[int] = 4
+    LENGTH: ClassVar[int] = 5
     DIRECTION: ClassVar[str] = "controller_to_host"
     PRIORITY: ClassVar[str] = "status"
-    FIELDS: ClassVar[tuple[str, ...]] = ("code", "active", "detail")
+    FIELDS: ClassVar[tuple[str, ...]] = ("code", "active", "detail", "latch_gen")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"code": FaultCode}
 
     def pack(self, strict: bool = True) -> bytes:
@@ -773,18 +795,22 @@ class Fault(Message, _FaultFields):
         code = self.code
         active = self.active
         detail = self.detail
+        latch_gen = self.latch_gen
         if not (isinstance(code, int) and 1 <= code <= 8):
             raise field_error("FAULT", "code", code, 1, 8)
         if not (isinstance(active, int) and 0 <= active <= 1):
             raise field_error("FAULT", "active", active, 0, 1)
         if not (isinstance(detail, int) and 0 <= detail <= 65535):
             raise field_error("FAULT", "detail", detail, 0, 65535)
+        if not (isinstance(latch_gen, int) and 0 <= latch_gen <= 255):
+            raise field_error("FAULT", "latch_gen", latch_gen, 0, 255)
         value = (
             code
             | (active << 8)
             | (detail << 16)
+            | (latch_gen << 32)
         )
-        return value.to_bytes(4, "little")
+        return value.to_bytes(5, "little")
 
     @classmethod
     def unpack(cls, payload: bytes) -> Fault:
@@ -793,8 +819,8 @@ class Fault(Message, _FaultFields):
         Raises:
             DecodeError: wrong length, or a value outside the wire range.
         """
-        if len(payload) != 4:
-            raise DecodeError(f"FAULT payload is {len(payload)} bytes, expected 4")
+        if len(payload) != 5:
+            raise DecodeError(f"FAULT payload is {len(payload)} bytes, expected 5")
         decoded = _decode_fault(bytes(payload))
         if decoded is None:
             raise DecodeError("FAULT payload has a value outside its range")
@@ -805,10 +831,11 @@ def _decode_fault(payload: bytes) -> Fault | None:
     value = int.from_bytes(payload, "little")
     code = value & 0xFF
     active = (value >> 8) & 0x1
-    detail = value >> 16
+    detail = (value >> 16) & 0xFFFF
+    latch_gen = value >> 32
     if not (1 <= code <= 8):
         return None
-    return _new(Fault, (code, active, detail))
+    return _new(Fault, (code, active, detail, latch_gen))
 
 
 class _HeartbeatFields(NamedTuple):
@@ -822,6 +849,7 @@ class _HeartbeatFields(NamedTuple):
     queue_depth: int
     boot_nonce: int
     rx_errors: int
+    latch_gen: int
 
 
 class Heartbeat(Message, _HeartbeatFields):
@@ -832,7 +860,7 @@ class Heartbeat(Message, _HeartbeatFields):
     Sent: every controller_heartbeat_period_ms.
 
     Attributes:
-        state: u8 (ControllerState) range 0..4.
+        state: u3 (ControllerState) range 0..4.
         stop_latched: u1. motion inhibited until CLEAR_STOP: latch_stop OR latch_watchdog OR
             latch_fault.
         handshake_ok: u1. a session is open: the last HELLO since boot matched version and
@@ -849,6 +877,8 @@ class Heartbeat(Message, _HeartbeatFields):
         boot_nonce: u16. random per boot, as in IDENT.
         rx_errors: u16. frames the controller dropped, for any reason of docs/protocol.md
             'Receive errors', wrapping.
+        latch_gen: u8. the latch generation: raised by every new latch cause (docs/protocol.md,
+            'Latch and faults'), wrapping.
     """
 
     __slots__ = ()
@@ -857,7 +887,7 @@ class Heartbeat(Message, _HeartbeatFields):
     LENGTH: ClassVar[int] = 8
     DIRECTION: ClassVar[str] = "controller_to_host"
     PRIORITY: ClassVar[str] = "telemetry"
-    FIELDS: ClassVar[tuple[str, ...]] = ("state", "stop_latched", "handshake_ok", "latch_stop", "latch_watchdog", "latch_fault", "fault_bits", "queue_depth", "boot_nonce", "rx_errors")
+    FIELDS: ClassVar[tuple[str, ...]] = ("state", "stop_latched", "handshake_ok", "latch_stop", "latch_watchdog", "latch_fault", "fault_bits", "queue_depth", "boot_nonce", "rx_errors", "latch_gen")
     ENUMS: ClassVar[dict[str, type[IntEnum]]] = {"state": ControllerState}
 
     def pack(self, strict: bool = True) -> bytes:
@@ -872,6 +902,7 @@ class Heartbeat(Message, _HeartbeatFields):
         queue_depth = self.queue_depth
         boot_nonce = self.boot_nonce
         rx_errors = self.rx_errors
+        latch_gen = self.latch_gen
         if not (isinstance(state, int) and 0 <= state <= 4):
             raise field_error("HEARTBEAT", "state", state, 0, 4)
         if not (isinstance(stop_latched, int) and 0 <= stop_latched <= 1):
@@ -892,17 +923,20 @@ class Heartbeat(Message, _HeartbeatFields):
             raise field_error("HEARTBEAT", "boot_nonce", boot_nonce, 0, 65535)
         if not (isinstance(rx_errors, int) and 0 <= rx_errors <= 65535):
             raise field_error("HEARTBEAT", "rx_errors", rx_errors, 0, 65535)
+        if not (isinstance(latch_gen, int) and 0 <= latch_gen <= 255):
+            raise field_error("HEARTBEAT", "latch_gen", latch_gen, 0, 255)
         value = (
             state
-            | (stop_latched << 8)
-            | (handshake_ok << 9)
-            | (latch_stop << 10)
-            | (latch_watchdog << 11)
-            | (latch_fault << 12)
-            | (fault_bits << 16)
-            | (queue_depth << 24)
-            | (boot_nonce << 32)
-            | (rx_errors << 48)
+            | (stop_latched << 3)
+            | (handshake_ok << 4)
+            | (latch_stop << 5)
+            | (latch_watchdog << 6)
+            | (latch_fault << 7)
+            | (fault_bits << 8)
+            | (queue_depth << 16)
+            | (boot_nonce << 24)
+            | (rx_errors << 40)
+            | (latch_gen << 56)
         )
         return value.to_bytes(8, "little")
 
@@ -923,19 +957,20 @@ class Heartbeat(Message, _HeartbeatFields):
 
 def _decode_heartbeat(payload: bytes) -> Heartbeat | None:
     value = int.from_bytes(payload, "little")
-    state = value & 0xFF
-    stop_latched = (value >> 8) & 0x1
-    handshake_ok = (value >> 9) & 0x1
-    latch_stop = (value >> 10) & 0x1
-    latch_watchdog = (value >> 11) & 0x1
-    latch_fault = (value >> 12) & 0x1
-    fault_bits = (value >> 16) & 0xFF
-    queue_depth = (value >> 24) & 0xFF
-    boot_nonce = (value >> 32) & 0xFFFF
-    rx_errors = value >> 48
+    state = value & 0x7
+    stop_latched = (value >> 3) & 0x1
+    handshake_ok = (value >> 4) & 0x1
+    latch_stop = (value >> 5) & 0x1
+    latch_watchdog = (value >> 6) & 0x1
+    latch_fault = (value >> 7) & 0x1
+    fault_bits = (value >> 8) & 0xFF
+    queue_depth = (value >> 16) & 0xFF
+    boot_nonce = (value >> 24) & 0xFFFF
+    rx_errors = (value >> 40) & 0xFFFF
+    latch_gen = value >> 56
     if not (0 <= state <= 4):
         return None
-    return _new(Heartbeat, (state, stop_latched, handshake_ok, latch_stop, latch_watchdog, latch_fault, fault_bits, queue_depth, boot_nonce, rx_errors))
+    return _new(Heartbeat, (state, stop_latched, handshake_ok, latch_stop, latch_watchdog, latch_fault, fault_bits, queue_depth, boot_nonce, rx_errors, latch_gen))
 
 
 _S_HOST_HEARTBEAT = struct.Struct("<H")
@@ -1663,14 +1698,14 @@ BY_NAME: dict[str, type[Message]] = {cls.NAME: cls for cls in MESSAGE_TYPES.valu
 
 LENGTHS: dict[int, int] = {
     0: 3,
-    1: 3,
-    2: 2,
-    3: 3,
+    1: 4,
+    2: 3,
+    3: 4,
     8: 6,
     9: 5,
     32: 6,
     33: 6,
-    34: 4,
+    34: 5,
     64: 8,
     65: 2,
     66: 8,

@@ -42,6 +42,7 @@ DIAGNOSTICS = "diagnostics"
 """Relative: ``/diagnostics`` at the root (the bridge's), ``/ground/diagnostics`` as the
 link relays it."""
 _FAULT_PERSISTS = fault("fault_persists")
+_LATCH_CHANGED = fault("latch_changed")
 _STOP_REPEAT_S = 0.5
 """``rover stop`` publishes STOP again this often until ``stopped`` comes back."""
 
@@ -54,8 +55,11 @@ class ClearOutcome(str, enum.Enum):
     NOT_LATCHED = "not_latched"
     """Nothing held the rover; the controller said so (``cleared``)."""
     FAULT_PERSISTS = "fault_persists"
-    """A stopping fault's condition is still active: the latch holds (the bridge sends
-    the clear again once the condition is gone)."""
+    """A stopping fault's condition is still active: the latch holds, and this clear is
+    over (clear again once the condition is gone; docs/protocol.md, protocol v4)."""
+    LATCH_CHANGED = "latch_changed"
+    """The latch gained a cause (a fault, a stop) after the bridge last reported it: the
+    latch holds; look at what holds it and clear again."""
     NO_ANSWER = "no_answer"
     """Nothing came back in time (see :attr:`ClearReport.why`)."""
 
@@ -228,7 +232,9 @@ class RoverConsole:
         with self._lock:
             since, seen = self._status_count, self._diag_count
         self._clear.publish(Empty())
-        answer = self._wait_status(lambda s: s in (CLEARED, _FAULT_PERSISTS), since, deadline)
+        answer = self._wait_status(
+            lambda s: s in (CLEARED, _FAULT_PERSISTS, _LATCH_CHANGED), since, deadline
+        )
         after = self.status(
             max(0.0, min(deadline - time.monotonic(), after_wait_s)), newer_than=seen
         )
@@ -243,8 +249,16 @@ class RoverConsole:
                 f"fault condition {faults} is still active"
                 if faults
                 else "a stopping fault's condition is still active"
-            ) + "; the bridge sends the clear again once it is gone"
+            ) + "; clear again once it is gone"
             return ClearReport(ClearOutcome.FAULT_PERSISTS, before, after, why)
+        if answer == _LATCH_CHANGED:
+            causes = ", ".join(state.latch) if state is not None and state.latch else ""
+            why = (
+                "the latch gained a cause after the bridge last reported it"
+                + (f" (now held by {causes})" if causes else "")
+                + "; see what holds it and clear again"
+            )
+            return ClearReport(ClearOutcome.LATCH_CHANGED, before, after, why)
         if state is None:
             why = (
                 f"no answer on {self.topic(COMMAND_STATUS)} and no {self.topic(DIAGNOSTICS)} "

@@ -72,11 +72,23 @@ class ScriptedController:
         fault: int = 0,
         fault_bits: int = 0,
         handshake_ok: int = 1,
+        gen: int = 0,
     ) -> list[Message]:
-        """A HEARTBEAT (and the PROGRESS that follows it) with these latch causes."""
+        """A HEARTBEAT (and the PROGRESS that follows it) with these latch causes and
+        latch generation."""
         latched = int(bool(stop or watchdog or fault))
         hb = Heartbeat(
-            state, latched, handshake_ok, stop, watchdog, fault, fault_bits, 0, self.boot_nonce, 0
+            state,
+            latched,
+            handshake_ok,
+            stop,
+            watchdog,
+            fault,
+            fault_bits,
+            0,
+            self.boot_nonce,
+            0,
+            gen,
         )
         return [hb, Progress(0, 0, 0, 0, 0)]
 

@@ -2,7 +2,8 @@
 
 The bridge clears a latch on its own only when the controller says the watchdog alone
 set it and the watchdog's condition is gone, never one with an operator's STOP or a
-fault in it; after FAULT_PERSISTS it retries once the fault's condition goes away.
+fault in it; an operator's clear refused FAULT_PERSISTS is over, and releases nothing
+when the fault's condition goes away (protocol v4; issue #40, hole 2).
 Every interleaving the issue lists, against the real emulator:
 
 - the host's frames cut for longer than the watchdog but the controller's heartbeats
@@ -12,7 +13,7 @@ Every interleaving the issue lists, against the real emulator:
   stop while the reader keeps reading), then released, so the timer and the dispatcher
   with its backlog of stale heartbeats race for the lock; eight times over;
 - the bridge frozen as a process (``rover bridge``, SIGSTOP/SIGCONT);
-- FAULT_PERSISTS followed by the fault clearing.
+- FAULT_PERSISTS followed by the fault clearing: the latch holds until a new clear.
 """
 
 from __future__ import annotations
@@ -222,7 +223,7 @@ def test_a_fault_latch_is_left_to_the_operator(watched: Callable[..., Watched]) 
     w.step_completes()
 
 
-def test_fault_persists_then_the_bridge_retries_when_the_fault_clears(
+def test_fault_persists_is_over_and_only_a_new_clear_releases(
     watched: Callable[..., Watched],
 ) -> None:
     w = watched("pty")
@@ -235,8 +236,12 @@ def test_fault_persists_then_the_bridge_retries_when_the_fault_clears(
     assert "cleared" not in w.rec.since(mark)
     assert w.link.diagnostics().faults == ("ENCODER",)
     w.emu.inject("clear:encoder-dropout")
+    w.emulator_until(lambda s: s.faults == () and s.latch == ("fault",))
+    w.heartbeats_after(5)  # the condition is gone: the refused clear stays refused
+    assert "cleared" not in w.rec.since(mark) and w.emu.status().stop_latched
+    w.link.clear_stop()
     got = w.rec.wait(lambda xs: "cleared" in xs, since=mark)
-    assert got.count("fault:fault_persists") == 1, got  # told once per request
+    assert got.count("fault:fault_persists") == 1, got  # told once
     w.emulator_until(lambda s: not s.stop_latched)
     assert (w.link.diagnostics().faults, w.link.diagnostics().latch) == ((), ())
     w.step_completes()

@@ -84,16 +84,6 @@ def settled(ctl: ScriptedController) -> None:
     ctl.wait_for(HostHeartbeat, since=ctl.mark())
 
 
-def beat_until_clear(ctl: ScriptedController, mark: int, beat: list[Message]) -> ClearStop:
-    """Send this heartbeat every 50 ms, as a controller does, until the host clears."""
-    deadline = time.monotonic() + 10.0
-    while not ctl.messages(ClearStop, mark):
-        assert time.monotonic() < deadline, "the host sent no CLEAR_STOP"
-        ctl.send(*beat)
-        time.sleep(0.05)
-    return ctl.messages(ClearStop, mark)[0]
-
-
 def diag(link: ControllerLink, **expect: Any) -> Callable[[], bool]:
     def check() -> bool:
         d: LinkDiagnostics = link.diagnostics()
@@ -105,47 +95,59 @@ def diag(link: ControllerLink, **expect: Any) -> Callable[[], bool]:
 def test_an_automatic_clear_never_outlives_a_new_stopping_fault(
     scripted: tuple[ScriptedController, ControllerLink, Seen],
 ) -> None:
-    """docs/protocol.md, "Latch and faults": the watchdog alone holds the latch, the
-    bridge clears it by itself, and a new encoder fault crosses that clear (answered
-    FAULT_PERSISTS): once the fault's condition ends, the latch holds the watchdog and
-    the fault, and only the operator may release it. (Before the fix the bridge sent
-    CLEAR_STOP again on its own and released the rover.)"""
+    """docs/protocol.md, "Latch and faults": the watchdog alone holds the latch
+    (generation 1), the bridge clears it by itself naming that generation, and a new
+    encoder fault crosses that clear (generation 2: answered LATCH_CHANGED): once the
+    fault's condition ends, the latch holds the watchdog and the fault, and only the
+    operator may release it. An operator's clear answered FAULT_PERSISTS is over: it
+    releases nothing later, by itself (issue #40, hole 2); a new one does."""
     ctl, link, seen = scripted
     mark = ctl.mark()
-    ctl.send(*ctl.heartbeat(FAULT, watchdog=1))  # a trip; frames arrive again
+    ctl.send(*ctl.heartbeat(FAULT, watchdog=1, gen=1))  # a trip; frames arrive again
     auto = ctl.wait_for(ClearStop, since=mark)
+    assert auto.latch_gen == 1
     ctl.send(
-        ClearAck(auto.stop_id, ClearResult.FAULT_PERSISTS),
-        *ctl.heartbeat(FAULT, watchdog=1, fault=1, fault_bits=ENCODER_BIT),
+        ClearAck(auto.stop_id, ClearResult.LATCH_CHANGED, 2),
+        *ctl.heartbeat(FAULT, watchdog=1, fault=1, fault_bits=ENCODER_BIT, gen=2),
     )
     wait_until("the fault seen", diag(link, faults=("ENCODER",)))
     after = ctl.mark()
-    ctl.send(*ctl.heartbeat(FAULT, watchdog=1, fault=1))  # the condition ends
+    ctl.send(*ctl.heartbeat(FAULT, watchdog=1, fault=1, gen=2))  # the condition ends
     wait_until("the condition gone", diag(link, faults=(), latch=("fault", "watchdog")))
     # Heartbeats as a controller sends them, for three of the link's heartbeat periods
     # (it sends at most one clear request per period): no clear may go out.
     deadline = time.monotonic() + 3 * link.config.controller_heartbeat_s
     while time.monotonic() < deadline and not ctl.messages(ClearStop, after):
-        ctl.send(*ctl.heartbeat(FAULT, watchdog=1, fault=1))
+        ctl.send(*ctl.heartbeat(FAULT, watchdog=1, fault=1, gen=2))
         time.sleep(0.05)
     settled(ctl)
     assert ctl.messages(ClearStop, after) == []
     assert link.stop_latched
     assert "cleared" not in seen.statuses
+    assert "fault:encoder" in seen.statuses  # reported before any clear names it
 
-    # The operator's clear goes out, is kept through FAULT_PERSISTS, and succeeds.
+    # The operator's clear names generation 2; answered FAULT_PERSISTS it is over.
     mark = ctl.mark()
+    ctl.send(*ctl.heartbeat(FAULT, watchdog=1, fault=1, fault_bits=ENCODER_BIT, gen=2))
+    wait_until("the fault active again", diag(link, faults=("ENCODER",)))
     link.clear_stop()
     first = ctl.wait_for(ClearStop, since=mark)
-    ctl.send(
-        ClearAck(first.stop_id, ClearResult.FAULT_PERSISTS),
-        *ctl.heartbeat(FAULT, watchdog=1, fault=1, fault_bits=ENCODER_BIT),
-    )
+    assert first.latch_gen == 2
+    ctl.send(ClearAck(first.stop_id, ClearResult.FAULT_PERSISTS, 2))
     wait_until("fault_persists said", lambda: "fault:fault_persists" in seen.statuses)
+    after = ctl.mark()
+    deadline = time.monotonic() + 3 * link.config.controller_heartbeat_s
+    while time.monotonic() < deadline and not ctl.messages(ClearStop, after):
+        ctl.send(*ctl.heartbeat(FAULT, watchdog=1, fault=1, gen=2))  # condition gone
+        time.sleep(0.05)
+    settled(ctl)
+    assert ctl.messages(ClearStop, after) == []  # no retry of a refused clear
+    assert "cleared" not in seen.statuses
     mark = ctl.mark()
-    again = beat_until_clear(ctl, mark, ctl.heartbeat(FAULT, watchdog=1, fault=1))
-    assert again.stop_id != first.stop_id  # a new request id
-    ctl.send(ClearAck(again.stop_id, ClearResult.CLEARED))
+    link.clear_stop()
+    again = ctl.wait_for(ClearStop, since=mark)
+    assert again.stop_id != first.stop_id and again.latch_gen == 2
+    ctl.send(ClearAck(again.stop_id, ClearResult.CLEARED, 2))
     wait_until("cleared", lambda: "cleared" in seen.statuses)
 
 
@@ -179,7 +181,7 @@ def test_watchdog_trips_are_counted_from_the_heartbeat_when_the_fault_frame_is_l
     wait_until("one trip", diag(link, watchdog_trips=1))
     ctl.send(*ctl.heartbeat(FAULT, watchdog=1))  # the same latch: no new trip
     ctl.send(*ctl.heartbeat(ControllerState.IDLE))  # cleared
-    ctl.send(Fault(FaultCode.WATCHDOG, 1, 260), *ctl.heartbeat(FAULT, watchdog=1))
+    ctl.send(Fault(FaultCode.WATCHDOG, 1, 260, 2), *ctl.heartbeat(FAULT, watchdog=1, gen=2))
     wait_until("two trips", diag(link, watchdog_trips=2))
     ctl.send(*ctl.heartbeat(FAULT, watchdog=1))
     settled(ctl)
@@ -281,7 +283,7 @@ def test_no_clear_stop_reaches_the_wire_after_a_later_stop() -> None:
             assert transport.entered.wait(10.0)  # the clear is being written
             stop_id = link.emergency_stop()
             ctl.wait_for(Stop, lambda s: s.stop_id == stop_id, since=mark)
-            ctl.send(StopAck(stop_id, ControllerState.STOP_LATCHED))  # at once, as firmware
+            ctl.send(StopAck(stop_id, ControllerState.STOP_LATCHED, 1))  # at once, as firmware
             wait_until("the STOP acknowledged", lambda: "stopped" in seen.statuses)
             transport.release.set()
             ctl.wait_for(ClearStop, since=mark)

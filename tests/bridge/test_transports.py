@@ -541,6 +541,7 @@ def _heartbeat_frame(node: int) -> can.Message:
             queue_depth=0,
             boot_nonce=0x1234,
             rx_errors=0,
+            latch_gen=0,
         ),
         node,
     )

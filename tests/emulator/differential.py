@@ -44,6 +44,10 @@ __all__ = [
     "traffic",
 ]
 
+CURRENT_GEN = -1
+"""A CLEAR_STOP's ``latch_gen`` in :func:`traffic` that :func:`run_lockstep` replaces with
+the controller's own when it sends it (a host that knows the latch)."""
+
 SENSORS = frozenset({"ENCODERS", "WHEEL_SPEEDS", "IMU", "POSE"})
 
 TOLERANCE: dict[str, int] = {
@@ -107,7 +111,11 @@ def _message(rng: random.Random) -> Message:
     if roll < 0.47:
         return Stop(rng.randrange(1, 5), rng.randrange(5))
     if roll < 0.6:
-        return ClearStop(rng.randrange(1, 5))
+        # Most name the controller's generation as it is when sent (CURRENT_GEN); some
+        # an old one, which must release nothing.
+        return ClearStop(
+            rng.randrange(1, 5), rng.choice((CURRENT_GEN, CURRENT_GEN, rng.randrange(8)))
+        )
     if roll < 0.7:
         good = rng.random() < 0.8
         return Hello(PROTOCOL_VERSION, SCHEMA_HASH if good else rng.randrange(65536))
@@ -142,7 +150,10 @@ def traffic(seed: int, ticks: int) -> Iterator[Event]:
                 base = rng.randrange(100, 60000)
                 msgs += [Motion(base + k, rng.choice((1, 3)), 20, 200) for k in range(10)]
             if rng.random() < 0.003:
-                data = bytearray(enc.encode(_message(rng), strict=False))
+                msg = _message(rng)
+                if isinstance(msg, ClearStop) and msg.latch_gen == CURRENT_GEN:
+                    msg = ClearStop(msg.stop_id, rng.randrange(256))
+                data = bytearray(enc.encode(msg, strict=False))
                 data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
                 raw = bytes(data) + bytes(rng.randrange(256) for _ in range(rng.randrange(4)))
         fault = None
@@ -179,7 +190,10 @@ def run_lockstep(model: ControllerModel, events: list[Event], ticks: int) -> lis
         event = by_tick.get(tick)
         if event is not None:
             for msg in event.messages:
-                out += [Sent(tick, True, m) for m in model.handle(msg)]
+                given = msg
+                if isinstance(msg, ClearStop) and msg.latch_gen == CURRENT_GEN:
+                    given = ClearStop(msg.stop_id, model.latch_gen)
+                out += [Sent(tick, True, m) for m in model.handle(given)]
             if event.raw:
                 before = decoder.counters.rejected
                 for frame in decoder.feed(event.raw):

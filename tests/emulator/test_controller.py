@@ -187,7 +187,7 @@ def test_stop_zeroes_targets_in_the_call_purges_latches_and_clear_resumes(make_m
     # Before any further tick: targets zero, queue purged, latched, acknowledged first.
     assert model.wheel_setpoints_mps == (0.0, 0.0)
     assert model.queue_depth == 0
-    assert out[0] == StopAck(9, ControllerState.STOP_LATCHED)
+    assert out[0] == StopAck(9, ControllerState.STOP_LATCHED, model.latch_gen)
     aborted = [(m.seq, m.reason) for m in out if isinstance(m, Status)]
     assert aborted == [(1, AbortReason.STOP), (2, AbortReason.STOP), (3, AbortReason.STOP)]
     # Braking follows the accel limit, then STOPPED with the stopping distance.
@@ -198,9 +198,13 @@ def test_stop_zeroes_targets_in_the_call_purges_latches_and_clear_resumes(make_m
     assert model.at_rest
     # Latched: motion refused; a repeated STOP is harmless.
     assert one(model.handle(Motion(4, Command.FWD, 60, 100))).result == AckResult.STOP_LATCHED
-    assert model.handle(Stop(9, 0))[0] == StopAck(9, ControllerState.STOP_LATCHED)
-    assert model.handle(ClearStop(10)) == [ClearAck(10, ClearResult.CLEARED)]
-    assert model.handle(ClearStop(11)) == [ClearAck(11, ClearResult.NOT_LATCHED)]
+    assert model.handle(Stop(9, 0))[0] == StopAck(9, ControllerState.STOP_LATCHED, model.latch_gen)
+    assert model.handle(ClearStop(10, model.latch_gen)) == [
+        ClearAck(10, ClearResult.CLEARED, model.latch_gen)
+    ]
+    assert model.handle(ClearStop(11, model.latch_gen)) == [
+        ClearAck(11, ClearResult.NOT_LATCHED, model.latch_gen)
+    ]
     assert one(model.handle(Motion(4, Command.FWD, 60, 100))).result == AckResult.ACCEPTED
     run(model, 3.0, until=completed(4))
     assert model.state == ControllerState.IDLE
@@ -268,9 +272,11 @@ def test_watchdog_stops_and_faults_then_recovers_on_clear(make_model: Make) -> N
     assert any(isinstance(m, Status) and m.reason == AbortReason.WATCHDOG for m in out)
     # Frames again: the condition clears, but FAULT holds until CLEAR_STOP.
     back = model.handle(HostHeartbeat(1))
-    assert back == [Fault(FaultCode.WATCHDOG, 0, 0)]
+    assert back == [Fault(FaultCode.WATCHDOG, 0, 0, model.latch_gen)]
     assert one(model.handle(Motion(2, Command.FWD, 10, 10))).result == AckResult.FAULT_ACTIVE
-    assert model.handle(ClearStop(3))[0] == ClearAck(3, ClearResult.CLEARED)
+    assert model.handle(ClearStop(3, model.latch_gen))[0] == ClearAck(
+        3, ClearResult.CLEARED, model.latch_gen
+    )
     assert model.state == ControllerState.IDLE
 
 
@@ -279,7 +285,7 @@ def test_stalled_wheel_aborts_the_step_with_a_stall_fault(make_model: Make) -> N
     Injector(model).apply(parse_fault("stall:right"))
     model.handle(Motion(1, Command.FWD, 30, 23000))
     out = run(model, 3.0, until=lambda m: isinstance(m, Fault))
-    assert Fault(FaultCode.STALL_RIGHT, 1, 23000) in out
+    assert Fault(FaultCode.STALL_RIGHT, 1, 23000, model.latch_gen) in out
     assert any(isinstance(m, Status) and m.reason == AbortReason.STALL for m in out)
     assert model.state == ControllerState.FAULT
 
@@ -288,17 +294,23 @@ def test_encoder_dropout_fault_persists_until_the_encoder_returns(make_model: Ma
     model = ready(make_model)
     injector = Injector(model)
     out = injector.apply(parse_fault("encoder-dropout:left"))
-    assert out[0] == Fault(FaultCode.ENCODER, 1, 0)
+    assert out[0] == Fault(FaultCode.ENCODER, 1, 0, model.latch_gen)
     assert model.state == ControllerState.FAULT
-    assert model.handle(ClearStop(1))[0] == ClearAck(1, ClearResult.FAULT_PERSISTS)
-    assert injector.apply(parse_fault("clear:encoder-dropout")) == [Fault(FaultCode.ENCODER, 0, 0)]
-    assert model.handle(ClearStop(2))[0] == ClearAck(2, ClearResult.CLEARED)
+    assert model.handle(ClearStop(1, model.latch_gen))[0] == ClearAck(
+        1, ClearResult.FAULT_PERSISTS, model.latch_gen
+    )
+    assert injector.apply(parse_fault("clear:encoder-dropout")) == [
+        Fault(FaultCode.ENCODER, 0, 0, model.latch_gen)
+    ]
+    assert model.handle(ClearStop(2, model.latch_gen))[0] == ClearAck(
+        2, ClearResult.CLEARED, model.latch_gen
+    )
 
 
 def test_pose_dropout_reports_no_fix_without_stopping(make_model: Make) -> None:
     model = ready(make_model)
     out = Injector(model).apply(parse_fault("pose-dropout"))
-    assert out == [Fault(FaultCode.POSE, 1, 0)]
+    assert out == [Fault(FaultCode.POSE, 1, 0, model.latch_gen)]
     model.handle(Motion(1, Command.FWD, 30, 2300))
     after = run(model, 2.0)
     poses = [m for m in after if isinstance(m, PoseMsg)]

@@ -173,7 +173,7 @@ def test_a_stop_zeroes_the_targets_in_the_call_that_receives_it(rover: RoverDesc
         model.tick()
     assert model.state == ControllerState.EXECUTING and model.wheel_setpoints_mps[0] > 0.1
     out = model.handle(Stop(9, 0))
-    assert out[0] == StopAck(9, ControllerState.STOP_LATCHED)
+    assert out[0] == StopAck(9, ControllerState.STOP_LATCHED, model.latch_gen)
     assert [m.NAME for m in out[1:]] == ["STATUS"]
     assert out[1].to_dict()["reason"] == AbortReason.STOP
     assert model.wheel_setpoints_mps == (0.0, 0.0)

@@ -254,8 +254,8 @@ def test_imu_dropout_silences_the_imu_and_reports_a_fault_without_stopping(
     assert any(t < 300 for t in imu_times) and any(t > 600 for t in imu_times)
     assert not any(300 < t < 600 for t in imu_times)
     assert [m for m in out if isinstance(m, Fault)] == [
-        Fault(FaultCode.IMU, 1, 0),
-        Fault(FaultCode.IMU, 0, 0),
+        Fault(FaultCode.IMU, 1, 0, model.latch_gen),
+        Fault(FaultCode.IMU, 0, 0, model.latch_gen),
     ]
     imu_bit = 1 << (FaultCode.IMU - 1)
     assert any(isinstance(m, Heartbeat) and m.fault_bits & imu_bit for m in out)

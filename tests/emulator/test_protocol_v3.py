@@ -124,20 +124,22 @@ def test_a_repeated_clear_id_is_cleared_again_and_releases_nothing(controller: M
     model = controller()
     model.handle(Stop(1, 0))
     run(model, 0.05)
-    assert model.handle(ClearStop(5)) == [ClearAck(5, ClearResult.CLEARED)]
+    gen = model.latch_gen
+    assert model.handle(ClearStop(5, gen)) == [ClearAck(5, ClearResult.CLEARED, gen)]
     # The repeat that crossed its answer, with no latch: CLEARED, not NOT_LATCHED.
-    assert model.handle(ClearStop(5)) == [ClearAck(5, ClearResult.CLEARED)]
+    assert model.handle(ClearStop(5, gen)) == [ClearAck(5, ClearResult.CLEARED, gen)]
     model.handle(Stop(2, 0))
     run(model, 0.05)
-    # ... and with a latch set since: CLEARED, and the latch holds.
-    assert model.handle(ClearStop(5)) == [ClearAck(5, ClearResult.CLEARED)]
+    assert model.latch_gen == (gen + 1) & 0xFF
+    # ... and with a latch set since: CLEARED again, and the latch holds.
+    assert model.handle(ClearStop(5, gen)) == [ClearAck(5, ClearResult.CLEARED, gen + 1)]
     assert model.latch_causes == {LatchCause.STOP}
     assert one(model.handle(Motion(3, Command.FWD, 10, 10))).result == AckResult.STOP_LATCHED
-    assert model.handle(ClearStop(6)) == [ClearAck(6, ClearResult.CLEARED)]
+    assert model.handle(ClearStop(6, gen + 1)) == [ClearAck(6, ClearResult.CLEARED, gen + 1)]
     assert not model.latch_causes
-    # A reboot forgets the id: a CLEAR_STOP 6 is a new request (nothing latched).
+    # A reboot forgets the request: a CLEAR_STOP 6 is a new one (nothing latched).
     model.reboot()
-    assert model.handle(ClearStop(6)) == [ClearAck(6, ClearResult.NOT_LATCHED)]
+    assert model.handle(ClearStop(6, gen + 1)) == [ClearAck(6, ClearResult.NOT_LATCHED, 0)]
 
 
 def test_queued_steps_wait_for_an_owed_stopped(controller: Make) -> None:
@@ -146,7 +148,8 @@ def test_queued_steps_wait_for_an_owed_stopped(controller: Make) -> None:
     run(model, 1.0)
     model.handle(Stop(3, 0))
     # Cleared before the wheels are at rest: the STOPPED is still owed.
-    assert model.handle(ClearStop(4)) == [ClearAck(4, ClearResult.CLEARED)]
+    gen = model.latch_gen
+    assert model.handle(ClearStop(4, gen)) == [ClearAck(4, ClearResult.CLEARED, gen)]
     assert one(model.handle(Motion(2, Command.FWD, 30, 2300))).result == AckResult.ACCEPTED
     out = run(model, 2.0, until=lambda m: isinstance(m, Status) and m.seq == 2)
     stopped = one(out, Stopped)

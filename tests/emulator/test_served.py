@@ -43,7 +43,6 @@ from firmware_proto.wire.messages import (
     AckResult,
     ClearAck,
     ClearResult,
-    ClearStop,
     Command,
     Encoders,
     Heartbeat,
@@ -121,10 +120,9 @@ def test_stop_over_a_pty_zeroes_targets_latches_and_clear_resumes(serial_emulato
             host.expect(AckMsg, lambda a: a.seq == 3, since=mark, timeout_s=10.0).result
             == AckResult.STOP_LATCHED
         )
-        host.send(ClearStop(78))
-        assert host.expect(ClearAck, since=mark, timeout_s=10.0) == ClearAck(
-            78, ClearResult.CLEARED
-        )
+        host.send(host.clear_stop_for(78))
+        answer = host.expect(ClearAck, since=mark, timeout_s=10.0)
+        assert (answer.stop_id, answer.result) == (78, ClearResult.CLEARED)
         assert drive_one_metre(host, seq=4).state == StepState.COMPLETED
     assert len(emu.stop_reactions) == 1
 

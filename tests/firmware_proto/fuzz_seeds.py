@@ -68,7 +68,7 @@ def _host_message(rng: random.Random, seqs: int) -> Message:
     if roll < 0.5:
         return Stop(rng.randrange(1, 6), rng.randrange(5))
     if roll < 0.6:
-        return ClearStop(rng.randrange(1, 6))
+        return ClearStop(rng.randrange(1, 6), rng.randrange(4))
     if roll < 0.7:
         return Hello(PROTOCOL_VERSION, SCHEMA_HASH if rng.random() < 0.8 else rng.randrange(65536))
     if roll < 0.8:

@@ -211,11 +211,11 @@ def test_each_kind_of_bad_frame_is_counted_by_its_reason() -> None:
 
 
 def test_truncated_frame_is_dropped_when_the_next_delimiter_comes() -> None:
-    whole = encode_frame(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 42, 0))
+    whole = encode_frame(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 42, 0, 0))
     decoder = FrameDecoder()
     assert decoder.feed(whole[:-4]) == []
     frames = decoder.feed(b"\x00" + whole)
-    assert [f.message for f in frames] == [Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 42, 0)]
+    assert [f.message for f in frames] == [Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 42, 0, 0)]
     assert decoder.counters.rejected == 1
 
 

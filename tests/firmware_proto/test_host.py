@@ -151,11 +151,11 @@ def test_read_ready_on_can_reads_past_frames_that_are_not_ours(can_channel: str)
     for end in (host, controller, other):
         end.open()
     try:
-        other.write(StopAck(1, 3))  # node 5: foreign to a host of node 3
-        controller.write(StopAck(2, 3))
-        other.write(StopAck(3, 3))
-        controller.write(StopAck(4, 3))
-        assert host.read_ready() == [(StopAck(2, 3), None), (StopAck(4, 3), None)]
+        other.write(StopAck(1, 3, 1))  # node 5: foreign to a host of node 3
+        controller.write(StopAck(2, 3, 1))
+        other.write(StopAck(3, 3, 1))
+        controller.write(StopAck(4, 3, 1))
+        assert host.read_ready() == [(StopAck(2, 3, 1), None), (StopAck(4, 3, 1), None)]
         assert host.foreign == 2
     finally:
         for end in (host, controller, other):
@@ -198,11 +198,11 @@ class _ScriptedController:
             if isinstance(message, Hello):
                 self.endpoint.write(IDENT)
             elif isinstance(message, Stop):
-                self.endpoint.write(StopAck(message.stop_id, 3))
+                self.endpoint.write(StopAck(message.stop_id, 3, 1))
             elif isinstance(message, HostHeartbeat):
                 self.beats += 1
         if self.ticks % 100 == 0:
-            self.endpoint.write(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0xBEEF, 0))
+            self.endpoint.write(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0xBEEF, 0, 0))
         self.ticks += 1
 
 
@@ -217,7 +217,7 @@ def test_a_lockstep_host_runs_a_script_in_virtual_time() -> None:
         assert host.handshake() == IDENT
         assert clock.now() == pytest.approx(0.001)  # sent, answered and read in one tick
         mark = host.send(Stop(9, 0))
-        assert host.expect(StopAck, lambda a: a.stop_id == 9, since=mark) == StopAck(9, 3)
+        assert host.expect(StopAck, lambda a: a.stop_id == 9, since=mark) == StopAck(9, 3, 1)
         with pytest.raises(UnexpectedMessageError, match="unexpected STOP_ACK"):
             host.absent(StopAck, since=mark, window_s=0.1)
         with pytest.raises(NotReceivedError, match=r"expected IDENT again within 0\.5 s"):

@@ -92,8 +92,8 @@ def test_loose_encode_allows_values_beyond_limits_within_the_wire_range() -> Non
 
 
 def test_decode_drops_values_outside_the_wire_range() -> None:
-    good = Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 7, 0).pack()
-    bad = bytes([9]) + good[1:]  # state 9 is not a ControllerState
+    good = Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 7, 0, 0).pack()
+    bad = bytes([5]) + good[1:]  # state 5 (3 bits) is not a ControllerState
     assert DECODERS[Heartbeat.MSG_ID](bad) is None
     with pytest.raises(DecodeError, match="outside"):
         Heartbeat.unpack(bad)

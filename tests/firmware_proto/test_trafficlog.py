@@ -137,7 +137,7 @@ def test_can_records_decode_with_node_and_direction_from_the_identifier() -> Non
 def test_answers_are_controller_reports_not_telemetry_or_requests() -> None:
     assert is_answer(Ack(1, 0, 0, 1))
     assert is_answer(Stopped(1, 10, 20))
-    assert not is_answer(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0, 0))
+    assert not is_answer(Heartbeat(1, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0))
     assert not is_answer(Encoders(1, 2, 3))
     assert not is_answer(Motion(1, 1, 30, 100))
 
@@ -158,7 +158,7 @@ SESSION: list[Message] = [
     Status(1, StepState.STARTED, 0, 0),
     Encoders(10, 0, 0),
     Status(1, StepState.COMPLETED, 0, 2300),
-    StopAck(1, ControllerState.STOP_LATCHED),
+    StopAck(1, ControllerState.STOP_LATCHED, 1),
     Stopped(1, 40, 120),
 ]
 
@@ -169,7 +169,7 @@ def test_the_same_session_compares_alike_whatever_the_telemetry_and_interleaving
         Status(1, StepState.STARTED, 0, 0),  # before the ACK this time
         Ack(1, AckResult.ACCEPTED, AckField.NONE, 2),  # another queue depth: volatile
         Status(1, StepState.COMPLETED, 0, 2301),  # another travel: volatile
-        StopAck(1, ControllerState.STOP_LATCHED),
+        StopAck(1, ControllerState.STOP_LATCHED, 1),
         Stopped(1, 41, 119),
     ]
     assert compare_answers(SESSION, replayed) == []
@@ -181,7 +181,7 @@ def test_a_changed_missing_or_extra_answer_is_a_difference() -> None:
     replayed: list[Message] = [
         SESSION[0],
         Ack(1, AckResult.STOP_LATCHED, AckField.NONE, 0),
-        StopAck(1, ControllerState.STOP_LATCHED),
+        StopAck(1, ControllerState.STOP_LATCHED, 1),
         Stopped(1, 40, 120),
         Stopped(9, 0, 0),
     ]

@@ -26,7 +26,7 @@ SEARCH = 1000
 """Scenarios a #22 mutant gets to be found in, from seed 0."""
 
 ISSUE_22 = [
-    pytest.param("auto-clear-survives", "auto-clear", 778, id="auto-clear-survives"),
+    pytest.param("auto-clear-survives", "auto-clear", 27, id="auto-clear-survives"),
     pytest.param("samples-outside-session", "odometry", 22, id="samples-outside-session"),
 ]
 """(mutant, the invariant it breaks, the first seed that finds it against both
@@ -40,6 +40,15 @@ FOUND = [
 LinkCore, each now fixed."""
 
 
+ISSUE_40 = [
+    pytest.param("refused-clear-retried", "", 36, "serial", "release", id="hole-2"),
+    pytest.param("", "clear-ignores-generation", 6, "serial", "release", id="hole-1"),
+]
+"""(host mutant, controller mutant, seed, medium, the invariant it breaks): the holes of
+issue #40 that the latch generation closes, each with its fix undone, found by seed. A
+controller mutant is the Python model with one rule broken (:mod:`emulator.mutants`)."""
+
+
 MASKED = {"auto-clear-after-fault-frame"}
 """Found by the simulator against protocol v2 controllers (docs/sim.md, "Bugs found" 3);
 a v3 controller answers a repeated CLEAR_STOP id CLEARED without releasing anything,
@@ -49,6 +58,7 @@ controller that does not."""
 
 def test_every_mutant_is_tested() -> None:
     tested = {"auto-clear-survives", "samples-outside-session"} | {p.values[0] for p in FOUND}
+    tested |= {p.values[0] for p in ISSUE_40 if p.values[0]}
     assert tested | MASKED == set(MUTANTS)
 
 
@@ -106,6 +116,26 @@ def test_each_bug_the_simulator_found_stays_found_and_fixed(
     assert rule in {v.rule for v in outcome.violations}, outcome.violations
     fixed = run_scenario(dataclasses.replace(broken, mutants=()))
     assert fixed.ok, fixed.violations
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(("mutant", "controller_mutant", "seed", "medium", "rule"), ISSUE_40)
+def test_each_hole_of_issue_40_is_found_with_its_fix_undone_and_closed_with_it(
+    mutant: str, controller_mutant: str, seed: int, medium: str, rule: str
+) -> None:
+    controllers = ("python",) if controller_mutant else CONTROLLERS
+    for controller in controllers:
+        broken = make_scenario(
+            seed,
+            controller=controller,
+            medium=medium,
+            mutants=(mutant,) if mutant else (),
+            controller_mutant=controller_mutant,
+        )
+        outcome = run_scenario(broken)
+        assert rule in {v.rule for v in outcome.violations}, (controller, outcome.violations)
+        fixed = run_scenario(dataclasses.replace(broken, mutants=(), controller_mutant=""))
+        assert fixed.ok, (controller, fixed.violations)
 
 
 @pytest.mark.timeout(120)

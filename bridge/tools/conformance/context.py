@@ -19,6 +19,7 @@ from firmware_proto.wire.messages import (
     WATCHDOG_MS,
     ClearAck,
     ClearResult,
+    ClearStop,
     ControllerState,
     Encoders,
     Heartbeat,
@@ -80,6 +81,8 @@ class Context:
         self.rover = rover or load_rover()
         self._seq = 0x4000
         self._stop_id = 0x7000
+        self.last_clear: ClearStop | None = None
+        """The last CLEAR_STOP :meth:`clear_ack` had answered."""
         self._watchdog_ms: int | None = None
 
     def seq(self) -> int:
@@ -130,9 +133,26 @@ class Context:
         )
         return ack
 
-    def clear_ack(self, clear_id: int) -> ClearAck:
-        """CLEAR_STOP ``clear_id``; its CLEAR_ACK, whatever it says."""
-        return self.host.clear_stop(clear_id)
+    def clear_ack(self, clear_id: int, latch_gen: int | None = None) -> ClearAck:
+        """CLEAR_STOP ``clear_id`` naming ``latch_gen``; its CLEAR_ACK, whatever it says.
+
+        Without ``latch_gen`` it names the generation the last frame told
+        (:attr:`ProtocolHost.latch_gen`), and a LATCH_CHANGED answer (a cause no answer
+        tells of, such as a MOTION STOP, raised it since) is followed by one new request
+        naming the generation that answer gives: the suite tests a controller, not an
+        operator (docs/protocol.md, "Latch and faults"). :attr:`last_clear` is the request
+        answered."""
+        msg = ClearStop(clear_id, self.host.latch_gen if latch_gen is None else latch_gen)
+        ack = self.send_clear(msg)
+        if latch_gen is None and ack.result == ClearResult.LATCH_CHANGED:
+            msg = ClearStop(self.stop_id(), ack.latch_gen)
+            ack = self.send_clear(msg)
+        self.last_clear = msg
+        return ack
+
+    def send_clear(self, msg: ClearStop) -> ClearAck:
+        """Send ``msg`` (a repeat too); its CLEAR_ACK, whatever it says."""
+        return self.host.clear_stop(msg.stop_id, latch_gen=msg.latch_gen)
 
     def prepare(self) -> Heartbeat:
         """A fresh session with no latch and nothing queued, the wheels at rest: HELLO

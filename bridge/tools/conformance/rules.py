@@ -42,7 +42,6 @@ from firmware_proto.wire.messages import (
     AckResult,
     ClearAck,
     ClearResult,
-    ClearStop,
     Command,
     ControllerState,
     Encoders,
@@ -861,7 +860,7 @@ def stopped_owed(ctx: Context) -> str:
     # Back to back, so that the CLEAR_STOP reaches the controller long before rest (a
     # quarter of a second of braking) however slow the host is.
     mark = host.send(Stop(stop_id, StopSource.BENCH))
-    host.send(ClearStop(clear_id))
+    host.send(host.clear_stop_for(clear_id, ahead=1))  # after the STOP just sent
     host.expect(StopAck, lambda a: a.stop_id == stop_id, since=mark, what="STOP_ACK")
     ack = host.expect(
         ClearAck, lambda a: a.stop_id == clear_id, since=mark, what=f"CLEAR_ACK {clear_id}"
@@ -901,6 +900,29 @@ def own_stops(ctx: Context) -> str:
         _stopped(ctx, 0, mark, timeout_s=1.0, what=f"STOPPED 0 for MOTION STOP number {n}")
     ctx.clear()
     return "two MOTION STOPs, two STOPPED 0"
+
+
+@rule("own-stops-share", "STOP semantics")
+def own_stops_share(ctx: Context) -> str:
+    """Own stops that come while a STOPPED 0 is still owed share it: two MOTION STOPs in
+    a row during a step at cruise get one STOPPED 0, at rest, measured from the first."""
+    host = ctx.host
+    _, start = _running_step(ctx)
+    _cruising(ctx, start, 60)
+    mark = host.mark()
+    _expect_ack(ctx, Motion(ctx.seq(), Command.STOP, 0, 0), AckResult.ACCEPTED)
+    _expect_ack(ctx, Motion(ctx.seq(), Command.STOP, 0, 0), AckResult.ACCEPTED)
+    first = _stopped(ctx, 0, mark, what="STOPPED 0 for the two MOTION STOPs")
+    check(first.distance_mm > 0, f"{first.describe()}: the first stop braked from cruise")
+    host.settle(0.3)
+    got = [m for m in host.messages(Stopped, mark) if m.stop_id == 0]
+    check(
+        len(got) == 1,
+        f"{len(got)} STOPPED 0 for two own stops while one was owed, expected one: "
+        + ", ".join(m.describe() for m in got),
+    )
+    ctx.clear()
+    return f"one STOPPED 0 for two own stops, {first.distance_mm} mm"
 
 
 @rule("motion-stop", "STOP semantics")
@@ -989,29 +1011,31 @@ def session(ctx: Context) -> str:
 
 @rule("clear-repeat", "Latch and faults")
 def clear_repeat(ctx: Context) -> str:
-    """A CLEAR_STOP that repeats the stop_id of the last one answered CLEARED (a repeat
-    that crossed its answer) is answered CLEARED again and changes nothing: without a
-    latch it is not NOT_LATCHED, and a latch set since holds; a new id then clears it."""
+    """A CLEAR_STOP that repeats the last request answered (its stop_id and latch_gen: a
+    repeat that crossed its answer) gets the same answer and changes nothing: after
+    CLEARED, without a latch it is CLEARED, not NOT_LATCHED, and a latch set since holds;
+    a new request then clears it."""
     host = ctx.host
     stop_id = ctx.stop_id()
     mark = host.send(Stop(stop_id, StopSource.BENCH))
     host.expect(StopAck, lambda a: a.stop_id == stop_id, since=mark, what="STOP_ACK")
-    clear_id = ctx.stop_id()
-    first = ctx.clear_ack(clear_id)
+    first = ctx.clear_ack(ctx.stop_id())
     check(first.result == ClearResult.CLEARED, f"CLEAR_STOP answered {first.describe()}")
-    repeat = ctx.clear_ack(clear_id)
+    request = ctx.last_clear
+    assert request is not None
+    repeat = ctx.send_clear(request)
     check(
         repeat.result == ClearResult.CLEARED,
-        f"the repeat of CLEAR_STOP {clear_id} with nothing latched answered "
+        f"the repeat of {request.describe()} with nothing latched answered "
         f"{_name(ClearResult, repeat.result)}, expected CLEARED (a repeat of the last)",
     )
     again = ctx.stop_id()
     mark = host.send(Stop(again, StopSource.BENCH))
     host.expect(StopAck, lambda a: a.stop_id == again, since=mark, what="STOP_ACK")
-    late = ctx.clear_ack(clear_id)
+    late = ctx.send_clear(request)
     check(
         late.result == ClearResult.CLEARED,
-        f"a late repeat of CLEAR_STOP {clear_id} answered {_name(ClearResult, late.result)}",
+        f"a late repeat of {request.describe()} answered {_name(ClearResult, late.result)}",
     )
     hb = host.heartbeat()
     check(
@@ -1021,7 +1045,49 @@ def clear_repeat(ctx: Context) -> str:
     _expect_ack(ctx, Motion(ctx.seq(), FWD, 10, 100), AckResult.STOP_LATCHED)
     ctx.clear(ClearResult.CLEARED)
     ctx.idle()
-    return "repeats answered CLEARED, the latch held until a new id"
+    return "repeats answered CLEARED, the latch held until a new request"
+
+
+def _acks(stop_id: int) -> Callable[[StopAck], bool]:
+    return lambda a: a.stop_id == stop_id
+
+
+@rule("clear-generation", "Latch and faults")
+def clear_generation(ctx: Context) -> str:
+    """Every new latch cause raises latch_gen by one and a repeated STOP does not; STOP_ACK
+    and HEARTBEAT name it. A CLEAR_STOP naming an older generation is answered
+    LATCH_CHANGED and releases nothing; one naming the current generation is CLEARED."""
+    host = ctx.host
+    base = host.heartbeat().latch_gen
+    gens = []
+    for stop_id in (ctx.stop_id(), ctx.stop_id()):
+        for copy in ("first", "repeat"):
+            mark = host.send(Stop(stop_id, StopSource.BENCH))
+            ack = host.expect(StopAck, _acks(stop_id), since=mark, what="STOP_ACK")
+            gens.append((copy, ack.latch_gen))
+    want = [("first", (base + 1) & 0xFF), ("repeat", (base + 1) & 0xFF)]
+    want += [("first", (base + 2) & 0xFF), ("repeat", (base + 2) & 0xFF)]
+    check(
+        gens == want,
+        f"STOP_ACK generations {gens} from {base}, expected {want}: a new STOP raises it by "
+        "one, its repeat not",
+    )
+    hb = host.heartbeat()
+    check(hb.latch_gen == (base + 2) & 0xFF, f"HEARTBEAT latch_gen {hb.latch_gen}")
+    stale = ctx.clear_ack(ctx.stop_id(), latch_gen=(base + 1) & 0xFF)
+    check(
+        stale.result == ClearResult.LATCH_CHANGED,
+        f"a CLEAR_STOP naming generation {(base + 1) & 0xFF} (the latch is at "
+        f"{(base + 2) & 0xFF}) answered {_name(ClearResult, stale.result)}, expected "
+        "LATCH_CHANGED",
+    )
+    hb = host.heartbeat()
+    check(_latch(hb) == (1, 1, 0, 0), f"after LATCH_CHANGED: {_latch_text(hb)}, latch held")
+    _expect_ack(ctx, Motion(ctx.seq(), FWD, 10, 100), AckResult.STOP_LATCHED)
+    ok = ctx.clear_ack(ctx.stop_id(), latch_gen=(base + 2) & 0xFF)
+    check(ok.result == ClearResult.CLEARED, f"the current generation: {ok.describe()}")
+    ctx.idle()
+    return "generations raised by new causes only; a stale clear released nothing"
 
 
 # -- receive errors -------------------------------------------------------------------
@@ -1284,6 +1350,85 @@ def fault_persists(ctx: Context) -> str:
     ctx.clear(ClearResult.CLEARED)
     ctx.idle()
     return "FAULT_PERSISTS, then CLEARED once the condition went"
+
+
+@rule("clear-refused-repeat", "Latch and faults", needs="control")
+def clear_refused_repeat(ctx: Context) -> str:
+    """A refused clear never releases later: a repeat of a CLEAR_STOP answered
+    FAULT_PERSISTS gets FAULT_PERSISTS again after the condition has gone, and the latch
+    holds; a new request then clears it. A stopping FAULT active 1 names the generation
+    it raised."""
+    control = ctx.require_control("raise and clear a fault (encoder-dropout)")
+    host = ctx.host
+    base = host.heartbeat().latch_gen
+    mark = host.mark()
+    control.inject("encoder-dropout:left")
+    try:
+        raised = host.expect(
+            Fault, lambda f: f.code == FaultCode.ENCODER and f.active == 1, since=mark,
+            what="FAULT ENCODER active 1",
+        )  # fmt: skip
+        check(
+            raised.latch_gen == (base + 1) & 0xFF,
+            f"{raised.describe()} after generation {base}: expected {(base + 1) & 0xFF}",
+        )
+        ctx.until("latch_fault", lambda hb: _latch(hb) == (1, 0, 0, 1))
+        refused = ctx.clear_ack(ctx.stop_id())
+        check(refused.result == ClearResult.FAULT_PERSISTS, f"{refused.describe()}")
+        request = ctx.last_clear
+        assert request is not None
+    finally:
+        mark = host.mark()
+        control.inject("clear:encoder-dropout")
+    host.expect(
+        Fault, lambda f: f.code == FaultCode.ENCODER and f.active == 0, since=mark,
+        what="FAULT ENCODER active 0",
+    )  # fmt: skip
+    again = ctx.send_clear(request)
+    check(
+        again.result == ClearResult.FAULT_PERSISTS,
+        f"the repeat of {request.describe()}, refused FAULT_PERSISTS, answered "
+        f"{_name(ClearResult, again.result)} once the condition had gone: a refused clear "
+        "must not release later",
+    )
+    hb = host.heartbeat()
+    check(_latch(hb) == (1, 0, 0, 1), f"after the repeat: {_latch_text(hb)}, latch held")
+    ctx.clear(ClearResult.CLEARED)
+    ctx.idle()
+    return "the refused request stayed refused; a new one cleared"
+
+
+@rule("encoder-resume", "Telemetry", needs="control")
+def encoder_resume(ctx: Context) -> str:
+    """During an ENCODER fault the failed side repeats its last good count; when the
+    condition ends it reports its true count since boot again: after a dropout of the
+    left encoder while a straight step brakes, both sides show the same travel."""
+    control = ctx.require_control("raise and clear a fault (encoder-dropout)")
+    host = ctx.host
+    _, start = _running_step(ctx)
+    before = _last_before(ctx, Encoders, start)
+    _cruising(ctx, start, 60)
+    mark = host.mark()
+    control.inject("encoder-dropout:left")
+    try:
+        _stopped(ctx, 0, mark, what="STOPPED 0 after the ENCODER fault")
+        host.settle(0.1)
+    finally:
+        mark = host.mark()
+        control.inject("clear:encoder-dropout")
+    host.expect(
+        Fault, lambda f: f.code == FaultCode.ENCODER and f.active == 0, since=mark,
+        what="FAULT ENCODER active 0",
+    )  # fmt: skip
+    after = host.expect(Encoders, since=host.mark(), what="ENCODERS after the fault")
+    left, right = _delta24(before.left, after.left), _delta24(before.right, after.right)
+    check(
+        abs(left - right) <= max(120, abs(right) // 20),
+        f"after the dropout the left side counted {left} units, the right {right}: the "
+        "left must report its true count again, not go on from the value it held",
+    )
+    ctx.clear()
+    return f"both sides {right} units after the fault"
 
 
 @rule("fault-order", "Latch and faults", needs="control")

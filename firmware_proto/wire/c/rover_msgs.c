@@ -74,7 +74,7 @@ int rp_stop_ack_pack(const rp_stop_ack_t *msg, bool strict, uint8_t *out, size_t
     if (msg == NULL || out == NULL) {
         return RP_ERR_NULL;
     }
-    if (cap < 3u) {
+    if (cap < 4u) {
         return RP_ERR_BUFFER;
     }
     if (msg->state > INT32_C(4)) {
@@ -83,10 +83,12 @@ int rp_stop_ack_pack(const rp_stop_ack_t *msg, bool strict, uint8_t *out, size_t
     uint64_t w = 0;
     w |= ((uint64_t)msg->stop_id & UINT64_C(0xFFFF));
     w |= ((uint64_t)msg->state & UINT64_C(0xFF)) << 16;
+    w |= ((uint64_t)msg->latch_gen & UINT64_C(0xFF)) << 24;
     out[0] = (uint8_t)(w);
     out[1] = (uint8_t)(w >> 8);
     out[2] = (uint8_t)(w >> 16);
-    return 3;
+    out[3] = (uint8_t)(w >> 24);
+    return 4;
 }
 
 int rp_stop_ack_unpack(rp_stop_ack_t *msg, const uint8_t *payload, size_t len)
@@ -94,20 +96,23 @@ int rp_stop_ack_unpack(rp_stop_ack_t *msg, const uint8_t *payload, size_t len)
     if (msg == NULL || (payload == NULL && len > 0u)) {
         return RP_ERR_NULL;
     }
-    if (len != 3u) {
+    if (len != 4u) {
         return RP_ERR_LENGTH;
     }
     uint64_t w = 0;
     w |= (uint64_t)payload[0];
     w |= (uint64_t)payload[1] << 8;
     w |= (uint64_t)payload[2] << 16;
+    w |= (uint64_t)payload[3] << 24;
     const int64_t f_stop_id = (int64_t)(w & UINT64_C(0xFFFF));
     const int64_t f_state = (int64_t)((w >> 16) & UINT64_C(0xFF));
+    const int64_t f_latch_gen = (int64_t)((w >> 24) & UINT64_C(0xFF));
     if (f_state > 4) {
         return RP_ERR_FIELD(1);
     }
     msg->stop_id = (uint16_t)f_stop_id;
     msg->state = (uint8_t)f_state;
+    msg->latch_gen = (uint8_t)f_latch_gen;
     return RP_OK;
 }
 
@@ -117,7 +122,7 @@ int rp_clear_stop_pack(const rp_clear_stop_t *msg, bool strict, uint8_t *out, si
     if (msg == NULL || out == NULL) {
         return RP_ERR_NULL;
     }
-    if (cap < 2u) {
+    if (cap < 3u) {
         return RP_ERR_BUFFER;
     }
     if (msg->stop_id < INT32_C(1)) {
@@ -125,52 +130,14 @@ int rp_clear_stop_pack(const rp_clear_stop_t *msg, bool strict, uint8_t *out, si
     }
     uint64_t w = 0;
     w |= ((uint64_t)msg->stop_id & UINT64_C(0xFFFF));
-    out[0] = (uint8_t)(w);
-    out[1] = (uint8_t)(w >> 8);
-    return 2;
-}
-
-int rp_clear_stop_unpack(rp_clear_stop_t *msg, const uint8_t *payload, size_t len)
-{
-    if (msg == NULL || (payload == NULL && len > 0u)) {
-        return RP_ERR_NULL;
-    }
-    if (len != 2u) {
-        return RP_ERR_LENGTH;
-    }
-    uint64_t w = 0;
-    w |= (uint64_t)payload[0];
-    w |= (uint64_t)payload[1] << 8;
-    const int64_t f_stop_id = (int64_t)(w & UINT64_C(0xFFFF));
-    if (f_stop_id < 1) {
-        return RP_ERR_FIELD(0);
-    }
-    msg->stop_id = (uint16_t)f_stop_id;
-    return RP_OK;
-}
-
-int rp_clear_ack_pack(const rp_clear_ack_t *msg, bool strict, uint8_t *out, size_t cap)
-{
-    (void)strict;
-    if (msg == NULL || out == NULL) {
-        return RP_ERR_NULL;
-    }
-    if (cap < 3u) {
-        return RP_ERR_BUFFER;
-    }
-    if (msg->result > INT32_C(2)) {
-        return RP_ERR_FIELD(1);
-    }
-    uint64_t w = 0;
-    w |= ((uint64_t)msg->stop_id & UINT64_C(0xFFFF));
-    w |= ((uint64_t)msg->result & UINT64_C(0xFF)) << 16;
+    w |= ((uint64_t)msg->latch_gen & UINT64_C(0xFF)) << 16;
     out[0] = (uint8_t)(w);
     out[1] = (uint8_t)(w >> 8);
     out[2] = (uint8_t)(w >> 16);
     return 3;
 }
 
-int rp_clear_ack_unpack(rp_clear_ack_t *msg, const uint8_t *payload, size_t len)
+int rp_clear_stop_unpack(rp_clear_stop_t *msg, const uint8_t *payload, size_t len)
 {
     if (msg == NULL || (payload == NULL && len > 0u)) {
         return RP_ERR_NULL;
@@ -183,12 +150,60 @@ int rp_clear_ack_unpack(rp_clear_ack_t *msg, const uint8_t *payload, size_t len)
     w |= (uint64_t)payload[1] << 8;
     w |= (uint64_t)payload[2] << 16;
     const int64_t f_stop_id = (int64_t)(w & UINT64_C(0xFFFF));
+    const int64_t f_latch_gen = (int64_t)((w >> 16) & UINT64_C(0xFF));
+    if (f_stop_id < 1) {
+        return RP_ERR_FIELD(0);
+    }
+    msg->stop_id = (uint16_t)f_stop_id;
+    msg->latch_gen = (uint8_t)f_latch_gen;
+    return RP_OK;
+}
+
+int rp_clear_ack_pack(const rp_clear_ack_t *msg, bool strict, uint8_t *out, size_t cap)
+{
+    (void)strict;
+    if (msg == NULL || out == NULL) {
+        return RP_ERR_NULL;
+    }
+    if (cap < 4u) {
+        return RP_ERR_BUFFER;
+    }
+    if (msg->result > INT32_C(3)) {
+        return RP_ERR_FIELD(1);
+    }
+    uint64_t w = 0;
+    w |= ((uint64_t)msg->stop_id & UINT64_C(0xFFFF));
+    w |= ((uint64_t)msg->result & UINT64_C(0xFF)) << 16;
+    w |= ((uint64_t)msg->latch_gen & UINT64_C(0xFF)) << 24;
+    out[0] = (uint8_t)(w);
+    out[1] = (uint8_t)(w >> 8);
+    out[2] = (uint8_t)(w >> 16);
+    out[3] = (uint8_t)(w >> 24);
+    return 4;
+}
+
+int rp_clear_ack_unpack(rp_clear_ack_t *msg, const uint8_t *payload, size_t len)
+{
+    if (msg == NULL || (payload == NULL && len > 0u)) {
+        return RP_ERR_NULL;
+    }
+    if (len != 4u) {
+        return RP_ERR_LENGTH;
+    }
+    uint64_t w = 0;
+    w |= (uint64_t)payload[0];
+    w |= (uint64_t)payload[1] << 8;
+    w |= (uint64_t)payload[2] << 16;
+    w |= (uint64_t)payload[3] << 24;
+    const int64_t f_stop_id = (int64_t)(w & UINT64_C(0xFFFF));
     const int64_t f_result = (int64_t)((w >> 16) & UINT64_C(0xFF));
-    if (f_result > 2) {
+    const int64_t f_latch_gen = (int64_t)((w >> 24) & UINT64_C(0xFF));
+    if (f_result > 3) {
         return RP_ERR_FIELD(1);
     }
     msg->stop_id = (uint16_t)f_stop_id;
     msg->result = (uint8_t)f_result;
+    msg->latch_gen = (uint8_t)f_latch_gen;
     return RP_OK;
 }
 
@@ -423,7 +438,7 @@ int rp_fault_pack(const rp_fault_t *msg, bool strict, uint8_t *out, size_t cap)
     if (msg == NULL || out == NULL) {
         return RP_ERR_NULL;
     }
-    if (cap < 4u) {
+    if (cap < 5u) {
         return RP_ERR_BUFFER;
     }
     if (msg->code < INT32_C(1) || msg->code > INT32_C(8)) {
@@ -436,11 +451,13 @@ int rp_fault_pack(const rp_fault_t *msg, bool strict, uint8_t *out, size_t cap)
     w |= ((uint64_t)msg->code & UINT64_C(0xFF));
     w |= ((uint64_t)msg->active & UINT64_C(0x1)) << 8;
     w |= ((uint64_t)msg->detail & UINT64_C(0xFFFF)) << 16;
+    w |= ((uint64_t)msg->latch_gen & UINT64_C(0xFF)) << 32;
     out[0] = (uint8_t)(w);
     out[1] = (uint8_t)(w >> 8);
     out[2] = (uint8_t)(w >> 16);
     out[3] = (uint8_t)(w >> 24);
-    return 4;
+    out[4] = (uint8_t)(w >> 32);
+    return 5;
 }
 
 int rp_fault_unpack(rp_fault_t *msg, const uint8_t *payload, size_t len)
@@ -448,7 +465,7 @@ int rp_fault_unpack(rp_fault_t *msg, const uint8_t *payload, size_t len)
     if (msg == NULL || (payload == NULL && len > 0u)) {
         return RP_ERR_NULL;
     }
-    if (len != 4u) {
+    if (len != 5u) {
         return RP_ERR_LENGTH;
     }
     uint64_t w = 0;
@@ -456,15 +473,18 @@ int rp_fault_unpack(rp_fault_t *msg, const uint8_t *payload, size_t len)
     w |= (uint64_t)payload[1] << 8;
     w |= (uint64_t)payload[2] << 16;
     w |= (uint64_t)payload[3] << 24;
+    w |= (uint64_t)payload[4] << 32;
     const int64_t f_code = (int64_t)(w & UINT64_C(0xFF));
     const int64_t f_active = (int64_t)((w >> 8) & UINT64_C(0x1));
     const int64_t f_detail = (int64_t)((w >> 16) & UINT64_C(0xFFFF));
+    const int64_t f_latch_gen = (int64_t)((w >> 32) & UINT64_C(0xFF));
     if (f_code < 1 || f_code > 8) {
         return RP_ERR_FIELD(0);
     }
     msg->code = (uint8_t)f_code;
     msg->active = (uint8_t)f_active;
     msg->detail = (uint16_t)f_detail;
+    msg->latch_gen = (uint8_t)f_latch_gen;
     return RP_OK;
 }
 
@@ -496,16 +516,17 @@ int rp_heartbeat_pack(const rp_heartbeat_t *msg, bool strict, uint8_t *out, size
         return RP_ERR_FIELD(5);
     }
     uint64_t w = 0;
-    w |= ((uint64_t)msg->state & UINT64_C(0xFF));
-    w |= ((uint64_t)msg->stop_latched & UINT64_C(0x1)) << 8;
-    w |= ((uint64_t)msg->handshake_ok & UINT64_C(0x1)) << 9;
-    w |= ((uint64_t)msg->latch_stop & UINT64_C(0x1)) << 10;
-    w |= ((uint64_t)msg->latch_watchdog & UINT64_C(0x1)) << 11;
-    w |= ((uint64_t)msg->latch_fault & UINT64_C(0x1)) << 12;
-    w |= ((uint64_t)msg->fault_bits & UINT64_C(0xFF)) << 16;
-    w |= ((uint64_t)msg->queue_depth & UINT64_C(0xFF)) << 24;
-    w |= ((uint64_t)msg->boot_nonce & UINT64_C(0xFFFF)) << 32;
-    w |= ((uint64_t)msg->rx_errors & UINT64_C(0xFFFF)) << 48;
+    w |= ((uint64_t)msg->state & UINT64_C(0x7));
+    w |= ((uint64_t)msg->stop_latched & UINT64_C(0x1)) << 3;
+    w |= ((uint64_t)msg->handshake_ok & UINT64_C(0x1)) << 4;
+    w |= ((uint64_t)msg->latch_stop & UINT64_C(0x1)) << 5;
+    w |= ((uint64_t)msg->latch_watchdog & UINT64_C(0x1)) << 6;
+    w |= ((uint64_t)msg->latch_fault & UINT64_C(0x1)) << 7;
+    w |= ((uint64_t)msg->fault_bits & UINT64_C(0xFF)) << 8;
+    w |= ((uint64_t)msg->queue_depth & UINT64_C(0xFF)) << 16;
+    w |= ((uint64_t)msg->boot_nonce & UINT64_C(0xFFFF)) << 24;
+    w |= ((uint64_t)msg->rx_errors & UINT64_C(0xFFFF)) << 40;
+    w |= ((uint64_t)msg->latch_gen & UINT64_C(0xFF)) << 56;
     out[0] = (uint8_t)(w);
     out[1] = (uint8_t)(w >> 8);
     out[2] = (uint8_t)(w >> 16);
@@ -534,16 +555,17 @@ int rp_heartbeat_unpack(rp_heartbeat_t *msg, const uint8_t *payload, size_t len)
     w |= (uint64_t)payload[5] << 40;
     w |= (uint64_t)payload[6] << 48;
     w |= (uint64_t)payload[7] << 56;
-    const int64_t f_state = (int64_t)(w & UINT64_C(0xFF));
-    const int64_t f_stop_latched = (int64_t)((w >> 8) & UINT64_C(0x1));
-    const int64_t f_handshake_ok = (int64_t)((w >> 9) & UINT64_C(0x1));
-    const int64_t f_latch_stop = (int64_t)((w >> 10) & UINT64_C(0x1));
-    const int64_t f_latch_watchdog = (int64_t)((w >> 11) & UINT64_C(0x1));
-    const int64_t f_latch_fault = (int64_t)((w >> 12) & UINT64_C(0x1));
-    const int64_t f_fault_bits = (int64_t)((w >> 16) & UINT64_C(0xFF));
-    const int64_t f_queue_depth = (int64_t)((w >> 24) & UINT64_C(0xFF));
-    const int64_t f_boot_nonce = (int64_t)((w >> 32) & UINT64_C(0xFFFF));
-    const int64_t f_rx_errors = (int64_t)((w >> 48) & UINT64_C(0xFFFF));
+    const int64_t f_state = (int64_t)(w & UINT64_C(0x7));
+    const int64_t f_stop_latched = (int64_t)((w >> 3) & UINT64_C(0x1));
+    const int64_t f_handshake_ok = (int64_t)((w >> 4) & UINT64_C(0x1));
+    const int64_t f_latch_stop = (int64_t)((w >> 5) & UINT64_C(0x1));
+    const int64_t f_latch_watchdog = (int64_t)((w >> 6) & UINT64_C(0x1));
+    const int64_t f_latch_fault = (int64_t)((w >> 7) & UINT64_C(0x1));
+    const int64_t f_fault_bits = (int64_t)((w >> 8) & UINT64_C(0xFF));
+    const int64_t f_queue_depth = (int64_t)((w >> 16) & UINT64_C(0xFF));
+    const int64_t f_boot_nonce = (int64_t)((w >> 24) & UINT64_C(0xFFFF));
+    const int64_t f_rx_errors = (int64_t)((w >> 40) & UINT64_C(0xFFFF));
+    const int64_t f_latch_gen = (int64_t)((w >> 56) & UINT64_C(0xFF));
     if (f_state > 4) {
         return RP_ERR_FIELD(0);
     }
@@ -557,6 +579,7 @@ int rp_heartbeat_unpack(rp_heartbeat_t *msg, const uint8_t *payload, size_t len)
     msg->queue_depth = (uint8_t)f_queue_depth;
     msg->boot_nonce = (uint16_t)f_boot_nonce;
     msg->rx_errors = (uint16_t)f_rx_errors;
+    msg->latch_gen = (uint8_t)f_latch_gen;
     return RP_OK;
 }
 
@@ -1112,15 +1135,18 @@ static const rp_field_info_t fields_stop[] = {
 static const rp_field_info_t fields_stop_ack[] = {
     {"stop_id", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
     {"state", 8u, false, INT64_C(0), INT64_C(4), false, INT64_C(0), INT64_C(0)},
+    {"latch_gen", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
 };
 
 static const rp_field_info_t fields_clear_stop[] = {
     {"stop_id", 16u, false, INT64_C(1), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
+    {"latch_gen", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
 };
 
 static const rp_field_info_t fields_clear_ack[] = {
     {"stop_id", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
-    {"result", 8u, false, INT64_C(0), INT64_C(2), false, INT64_C(0), INT64_C(0)},
+    {"result", 8u, false, INT64_C(0), INT64_C(3), false, INT64_C(0), INT64_C(0)},
+    {"latch_gen", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
 };
 
 static const rp_field_info_t fields_motion[] = {
@@ -1154,10 +1180,11 @@ static const rp_field_info_t fields_fault[] = {
     {"code", 8u, false, INT64_C(1), INT64_C(8), false, INT64_C(0), INT64_C(0)},
     {"active", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
     {"detail", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
+    {"latch_gen", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
 };
 
 static const rp_field_info_t fields_heartbeat[] = {
-    {"state", 8u, false, INT64_C(0), INT64_C(4), false, INT64_C(0), INT64_C(0)},
+    {"state", 3u, false, INT64_C(0), INT64_C(4), false, INT64_C(0), INT64_C(0)},
     {"stop_latched", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
     {"handshake_ok", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
     {"latch_stop", 1u, false, INT64_C(0), INT64_C(1), false, INT64_C(0), INT64_C(0)},
@@ -1167,6 +1194,7 @@ static const rp_field_info_t fields_heartbeat[] = {
     {"queue_depth", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
     {"boot_nonce", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
     {"rx_errors", 16u, false, INT64_C(0), INT64_C(65535), false, INT64_C(0), INT64_C(0)},
+    {"latch_gen", 8u, false, INT64_C(0), INT64_C(255), false, INT64_C(0), INT64_C(0)},
 };
 
 static const rp_field_info_t fields_host_heartbeat[] = {
@@ -1239,15 +1267,15 @@ static const rp_field_info_t fields_param_value[] = {
 
 const rp_msg_info_t rp_msg_table[RP_MSG_COUNT] = {
     {RP_MSG_STOP, RP_MSG_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "STOP", RP_FIELDS(2u, fields_stop)},
-    {RP_MSG_STOP_ACK, RP_MSG_STOP_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOP_ACK", RP_FIELDS(2u, fields_stop_ack)},
-    {RP_MSG_CLEAR_STOP, RP_MSG_CLEAR_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "CLEAR_STOP", RP_FIELDS(1u, fields_clear_stop)},
-    {RP_MSG_CLEAR_ACK, RP_MSG_CLEAR_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "CLEAR_ACK", RP_FIELDS(2u, fields_clear_ack)},
+    {RP_MSG_STOP_ACK, RP_MSG_STOP_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOP_ACK", RP_FIELDS(3u, fields_stop_ack)},
+    {RP_MSG_CLEAR_STOP, RP_MSG_CLEAR_STOP_LEN, RP_DIR_HOST_TO_CONTROLLER, "CLEAR_STOP", RP_FIELDS(2u, fields_clear_stop)},
+    {RP_MSG_CLEAR_ACK, RP_MSG_CLEAR_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "CLEAR_ACK", RP_FIELDS(3u, fields_clear_ack)},
     {RP_MSG_MOTION, RP_MSG_MOTION_LEN, RP_DIR_HOST_TO_CONTROLLER, "MOTION", RP_FIELDS(4u, fields_motion)},
     {RP_MSG_ACK, RP_MSG_ACK_LEN, RP_DIR_CONTROLLER_TO_HOST, "ACK", RP_FIELDS(4u, fields_ack)},
     {RP_MSG_STATUS, RP_MSG_STATUS_LEN, RP_DIR_CONTROLLER_TO_HOST, "STATUS", RP_FIELDS(4u, fields_status)},
     {RP_MSG_STOPPED, RP_MSG_STOPPED_LEN, RP_DIR_CONTROLLER_TO_HOST, "STOPPED", RP_FIELDS(3u, fields_stopped)},
-    {RP_MSG_FAULT, RP_MSG_FAULT_LEN, RP_DIR_CONTROLLER_TO_HOST, "FAULT", RP_FIELDS(3u, fields_fault)},
-    {RP_MSG_HEARTBEAT, RP_MSG_HEARTBEAT_LEN, RP_DIR_CONTROLLER_TO_HOST, "HEARTBEAT", RP_FIELDS(10u, fields_heartbeat)},
+    {RP_MSG_FAULT, RP_MSG_FAULT_LEN, RP_DIR_CONTROLLER_TO_HOST, "FAULT", RP_FIELDS(4u, fields_fault)},
+    {RP_MSG_HEARTBEAT, RP_MSG_HEARTBEAT_LEN, RP_DIR_CONTROLLER_TO_HOST, "HEARTBEAT", RP_FIELDS(11u, fields_heartbeat)},
     {RP_MSG_HOST_HEARTBEAT, RP_MSG_HOST_HEARTBEAT_LEN, RP_DIR_HOST_TO_CONTROLLER, "HOST_HEARTBEAT", RP_FIELDS(1u, fields_host_heartbeat)},
     {RP_MSG_ENCODERS, RP_MSG_ENCODERS_LEN, RP_DIR_CONTROLLER_TO_HOST, "ENCODERS", RP_FIELDS(3u, fields_encoders)},
     {RP_MSG_WHEEL_SPEEDS, RP_MSG_WHEEL_SPEEDS_LEN, RP_DIR_CONTROLLER_TO_HOST, "WHEEL_SPEEDS", RP_FIELDS(5u, fields_wheel_speeds)},
@@ -1442,17 +1470,20 @@ int rp_msg_get_field(const rp_msg_t *msg, unsigned index, int64_t *value)
         switch (index) {
         case 0u: *value = (int64_t)msg->body.stop_ack.stop_id; return RP_OK;
         case 1u: *value = (int64_t)msg->body.stop_ack.state; return RP_OK;
+        case 2u: *value = (int64_t)msg->body.stop_ack.latch_gen; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_CLEAR_STOP:
         switch (index) {
         case 0u: *value = (int64_t)msg->body.clear_stop.stop_id; return RP_OK;
+        case 1u: *value = (int64_t)msg->body.clear_stop.latch_gen; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_CLEAR_ACK:
         switch (index) {
         case 0u: *value = (int64_t)msg->body.clear_ack.stop_id; return RP_OK;
         case 1u: *value = (int64_t)msg->body.clear_ack.result; return RP_OK;
+        case 2u: *value = (int64_t)msg->body.clear_ack.latch_gen; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_MOTION:
@@ -1491,6 +1522,7 @@ int rp_msg_get_field(const rp_msg_t *msg, unsigned index, int64_t *value)
         case 0u: *value = (int64_t)msg->body.fault.code; return RP_OK;
         case 1u: *value = (int64_t)msg->body.fault.active; return RP_OK;
         case 2u: *value = (int64_t)msg->body.fault.detail; return RP_OK;
+        case 3u: *value = (int64_t)msg->body.fault.latch_gen; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_HEARTBEAT:
@@ -1505,6 +1537,7 @@ int rp_msg_get_field(const rp_msg_t *msg, unsigned index, int64_t *value)
         case 7u: *value = (int64_t)msg->body.heartbeat.queue_depth; return RP_OK;
         case 8u: *value = (int64_t)msg->body.heartbeat.boot_nonce; return RP_OK;
         case 9u: *value = (int64_t)msg->body.heartbeat.rx_errors; return RP_OK;
+        case 10u: *value = (int64_t)msg->body.heartbeat.latch_gen; return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_HOST_HEARTBEAT:
@@ -1624,6 +1657,12 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
             }
             msg->body.stop_ack.state = (uint8_t)value;
             return RP_OK;
+        case 2u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(2);
+            }
+            msg->body.stop_ack.latch_gen = (uint8_t)value;
+            return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_CLEAR_STOP:
@@ -1633,6 +1672,12 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
                 return RP_ERR_FIELD(0);
             }
             msg->body.clear_stop.stop_id = (uint16_t)value;
+            return RP_OK;
+        case 1u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(1);
+            }
+            msg->body.clear_stop.latch_gen = (uint8_t)value;
             return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
@@ -1649,6 +1694,12 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
                 return RP_ERR_FIELD(1);
             }
             msg->body.clear_ack.result = (uint8_t)value;
+            return RP_OK;
+        case 2u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(2);
+            }
+            msg->body.clear_ack.latch_gen = (uint8_t)value;
             return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
@@ -1778,6 +1829,12 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
             }
             msg->body.fault.detail = (uint16_t)value;
             return RP_OK;
+        case 3u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(3);
+            }
+            msg->body.fault.latch_gen = (uint8_t)value;
+            return RP_OK;
         default: return RP_ERR_FIELD(index);
         }
     case RP_MSG_HEARTBEAT:
@@ -1841,6 +1898,12 @@ int rp_msg_set_field(rp_msg_t *msg, unsigned index, int64_t value)
                 return RP_ERR_FIELD(9);
             }
             msg->body.heartbeat.rx_errors = (uint16_t)value;
+            return RP_OK;
+        case 10u:
+            if (value < INT64_C(0) || value > INT64_C(255)) {
+                return RP_ERR_FIELD(10);
+            }
+            msg->body.heartbeat.latch_gen = (uint8_t)value;
             return RP_OK;
         default: return RP_ERR_FIELD(index);
         }

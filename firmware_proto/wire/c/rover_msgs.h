@@ -3,7 +3,7 @@
 
 /**
  * @file rover_msgs.h
- * @brief Messages of the rover motor-controller protocol, version 3.
+ * @brief Messages of the rover motor-controller protocol, version 4.
  *
  * Payloads are bit-packed least significant bit first, little-endian (DBC Intel);
  * fields hold raw integers (docs/protocol.md gives units and scales). Every
@@ -24,8 +24,8 @@ extern "C" {
 
 /* ------------------------------------------------------------ protocol constants */
 
-#define RP_PROTOCOL_VERSION 3u /**< sent in HELLO and IDENT */
-#define RP_SCHEMA_HASH 0x7193u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
+#define RP_PROTOCOL_VERSION 4u /**< sent in HELLO and IDENT */
+#define RP_SCHEMA_HASH 0x75E0u /**< CRC-16 of the wire-relevant spec; compared at HELLO */
 #define RP_MAX_PAYLOAD_BYTES 8u /**< largest payload (one classic CAN frame) */
 #define RP_DELIMITER 0x00u /**< serial frame delimiter */
 #define RP_CAN_NODE_BITS 4u /**< CAN identifier = id << RP_CAN_NODE_BITS | node */
@@ -157,12 +157,15 @@ typedef enum {
 /**
  * ClearResult: Answer to CLEAR_STOP: CLEARED (the latch is released), NOT_LATCHED (there
  * was no latch; nothing changes), FAULT_PERSISTS (a stopping fault's condition is still
- * active; the latch holds).
+ * active; the latch holds), LATCH_CHANGED (the latch gained a cause since the generation
+ * the request names; the latch holds). A repeat of the last request answered gets the same
+ * answer and changes nothing.
  */
 typedef enum {
     RP_CLEAR_RESULT_CLEARED = 0,
     RP_CLEAR_RESULT_NOT_LATCHED = 1,
-    RP_CLEAR_RESULT_FAULT_PERSISTS = 2
+    RP_CLEAR_RESULT_FAULT_PERSISTS = 2,
+    RP_CLEAR_RESULT_LATCH_CHANGED = 3
 } rp_clear_result_t;
 
 /**
@@ -242,7 +245,7 @@ int rp_stop_unpack(rp_stop_t *msg, const uint8_t *payload, size_t len);
 /* -------- STOP_ACK ---------------------------------------------------------------------- */
 
 /**
- * STOP_ACK (id 1, controller to host, class emergency, 3 bytes). STOP received; wheel
+ * STOP_ACK (id 1, controller to host, class emergency, 4 bytes). STOP received; wheel
  * targets are already zero and the queue purged. Sent for every STOP frame, repeats
  * included. Sent: once per STOP received.
  */
@@ -253,23 +256,26 @@ typedef struct {
      * u8 (rp_controller_state_t) range 0..4: state after the STOP (STOP_LATCHED, or FAULT).
      */
     uint8_t state;
+    /** u8: the latch generation after the STOP (docs/protocol.md, 'Latch and faults'). */
+    uint8_t latch_gen;
 } rp_stop_ack_t;
 
 #define RP_MSG_STOP_ACK 1u /**< message id of STOP_ACK */
-#define RP_MSG_STOP_ACK_LEN 3u /**< payload bytes of STOP_ACK */
+#define RP_MSG_STOP_ACK_LEN 4u /**< payload bytes of STOP_ACK */
 #define RP_MSG_STOP_ACK_NAME "STOP_ACK"
 #define RP_F_STOP_ACK_STOP_ID 0 /**< field index of stop_id */
 #define RP_F_STOP_ACK_STATE 1 /**< field index of state */
+#define RP_F_STOP_ACK_LATCH_GEN 2 /**< field index of latch_gen */
 
 /**
- * Pack a STOP_ACK payload into out[0..3). Checks every field's wire range in wire order,
- * then, if strict, every semantic limit. Returns the payload length (3) or RP_ERR_NULL,
- * RP_ERR_BUFFER (cap < 3), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
+ * Pack a STOP_ACK payload into out[0..4). Checks every field's wire range in wire order,
+ * then, if strict, every semantic limit. Returns the payload length (4) or RP_ERR_NULL,
+ * RP_ERR_BUFFER (cap < 4), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
  * index i (RP_F_STOP_ACK_*); out is untouched on error.
  */
 int rp_stop_ack_pack(const rp_stop_ack_t *msg, bool strict, uint8_t *out, size_t cap);
 /**
- * Unpack a STOP_ACK payload of exactly 3 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
+ * Unpack a STOP_ACK payload of exactly 4 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
  * RP_ERR_LENGTH, or RP_ERR_FIELD(i) for the first field outside its wire range (the frame
  * must then be dropped); *msg is untouched on error.
  */
@@ -278,30 +284,36 @@ int rp_stop_ack_unpack(rp_stop_ack_t *msg, const uint8_t *payload, size_t len);
 /* -------- CLEAR_STOP -------------------------------------------------------------------- */
 
 /**
- * CLEAR_STOP (id 2, host to controller, class emergency, 2 bytes). Explicit unlatch:
- * releases the latch (whatever set it: STOP, watchdog, fault) unless a stopping fault's
- * condition is still active. Sent: on demand; repeated every stop_repeat_ms until
- * CLEAR_ACK.
+ * CLEAR_STOP (id 2, host to controller, class emergency, 3 bytes). Explicit unlatch:
+ * releases the latch (whatever set it: STOP, watchdog, fault) if it is still the latch of
+ * the generation named and no stopping fault's condition is active. Sent: on demand;
+ * repeated every stop_repeat_ms until CLEAR_ACK.
  */
 typedef struct {
     /** u16 range 1..65535: host's request id, echoed in CLEAR_ACK. */
     uint16_t stop_id;
+    /**
+     * u8: the latch generation the request releases: the last one the host reported to
+     * whoever asked for the clear (its operator, or its own automatic clear).
+     */
+    uint8_t latch_gen;
 } rp_clear_stop_t;
 
 #define RP_MSG_CLEAR_STOP 2u /**< message id of CLEAR_STOP */
-#define RP_MSG_CLEAR_STOP_LEN 2u /**< payload bytes of CLEAR_STOP */
+#define RP_MSG_CLEAR_STOP_LEN 3u /**< payload bytes of CLEAR_STOP */
 #define RP_MSG_CLEAR_STOP_NAME "CLEAR_STOP"
 #define RP_F_CLEAR_STOP_STOP_ID 0 /**< field index of stop_id */
+#define RP_F_CLEAR_STOP_LATCH_GEN 1 /**< field index of latch_gen */
 
 /**
- * Pack a CLEAR_STOP payload into out[0..2). Checks every field's wire range in wire order,
- * then, if strict, every semantic limit. Returns the payload length (2) or RP_ERR_NULL,
- * RP_ERR_BUFFER (cap < 2), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
+ * Pack a CLEAR_STOP payload into out[0..3). Checks every field's wire range in wire order,
+ * then, if strict, every semantic limit. Returns the payload length (3) or RP_ERR_NULL,
+ * RP_ERR_BUFFER (cap < 3), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
  * index i (RP_F_CLEAR_STOP_*); out is untouched on error.
  */
 int rp_clear_stop_pack(const rp_clear_stop_t *msg, bool strict, uint8_t *out, size_t cap);
 /**
- * Unpack a CLEAR_STOP payload of exactly 2 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
+ * Unpack a CLEAR_STOP payload of exactly 3 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
  * RP_ERR_LENGTH, or RP_ERR_FIELD(i) for the first field outside its wire range (the frame
  * must then be dropped); *msg is untouched on error.
  */
@@ -310,31 +322,34 @@ int rp_clear_stop_unpack(rp_clear_stop_t *msg, const uint8_t *payload, size_t le
 /* -------- CLEAR_ACK --------------------------------------------------------------------- */
 
 /**
- * CLEAR_ACK (id 3, controller to host, class emergency, 3 bytes). Answer to CLEAR_STOP.
+ * CLEAR_ACK (id 3, controller to host, class emergency, 4 bytes). Answer to CLEAR_STOP.
  * Sent: once per CLEAR_STOP received.
  */
 typedef struct {
     /** u16: echo of CLEAR_STOP.stop_id. */
     uint16_t stop_id;
-    /** u8 (rp_clear_result_t) range 0..2. */
+    /** u8 (rp_clear_result_t) range 0..3. */
     uint8_t result;
+    /** u8: the latch generation after the answer. */
+    uint8_t latch_gen;
 } rp_clear_ack_t;
 
 #define RP_MSG_CLEAR_ACK 3u /**< message id of CLEAR_ACK */
-#define RP_MSG_CLEAR_ACK_LEN 3u /**< payload bytes of CLEAR_ACK */
+#define RP_MSG_CLEAR_ACK_LEN 4u /**< payload bytes of CLEAR_ACK */
 #define RP_MSG_CLEAR_ACK_NAME "CLEAR_ACK"
 #define RP_F_CLEAR_ACK_STOP_ID 0 /**< field index of stop_id */
 #define RP_F_CLEAR_ACK_RESULT 1 /**< field index of result */
+#define RP_F_CLEAR_ACK_LATCH_GEN 2 /**< field index of latch_gen */
 
 /**
- * Pack a CLEAR_ACK payload into out[0..3). Checks every field's wire range in wire order,
- * then, if strict, every semantic limit. Returns the payload length (3) or RP_ERR_NULL,
- * RP_ERR_BUFFER (cap < 3), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
+ * Pack a CLEAR_ACK payload into out[0..4). Checks every field's wire range in wire order,
+ * then, if strict, every semantic limit. Returns the payload length (4) or RP_ERR_NULL,
+ * RP_ERR_BUFFER (cap < 4), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
  * index i (RP_F_CLEAR_ACK_*); out is untouched on error.
  */
 int rp_clear_ack_pack(const rp_clear_ack_t *msg, bool strict, uint8_t *out, size_t cap);
 /**
- * Unpack a CLEAR_ACK payload of exactly 3 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
+ * Unpack a CLEAR_ACK payload of exactly 4 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
  * RP_ERR_LENGTH, or RP_ERR_FIELD(i) for the first field outside its wire range (the frame
  * must then be dropped); *msg is untouched on error.
  */
@@ -516,7 +531,7 @@ int rp_stopped_unpack(rp_stopped_t *msg, const uint8_t *payload, size_t len);
 /* -------- FAULT ------------------------------------------------------------------------- */
 
 /**
- * FAULT (id 34, controller to host, class status, 4 bytes). A fault's condition became
+ * FAULT (id 34, controller to host, class status, 5 bytes). A fault's condition became
  * active (active = 1) or went away (active = 0). A stopping fault's latch outlives its
  * condition: it holds until CLEAR_STOP. Sent: when a fault is raised or cleared.
  */
@@ -526,28 +541,34 @@ typedef struct {
     /** u1. */
     uint8_t active;
     /**
-     * u16: code-specific: WATCHDOG ms since the last valid frame; STALL_* distance units
-     * short.
+     * u16: code-specific with active = 1: WATCHDOG ms since the last valid frame; STALL_*
+     * distance units still to go; ENCODER the failed side (1 left, 2 right, 3 both);
+     * DRIVER, INTERNAL, IMU, POSE 0 or a vendor code; always 0 with active = 0.
      */
     uint16_t detail;
+    /**
+     * u8: the latch generation after this FAULT (a stopping fault's active = 1 raises it).
+     */
+    uint8_t latch_gen;
 } rp_fault_t;
 
 #define RP_MSG_FAULT 34u /**< message id of FAULT */
-#define RP_MSG_FAULT_LEN 4u /**< payload bytes of FAULT */
+#define RP_MSG_FAULT_LEN 5u /**< payload bytes of FAULT */
 #define RP_MSG_FAULT_NAME "FAULT"
 #define RP_F_FAULT_CODE 0 /**< field index of code */
 #define RP_F_FAULT_ACTIVE 1 /**< field index of active */
 #define RP_F_FAULT_DETAIL 2 /**< field index of detail */
+#define RP_F_FAULT_LATCH_GEN 3 /**< field index of latch_gen */
 
 /**
- * Pack a FAULT payload into out[0..4). Checks every field's wire range in wire order, then,
- * if strict, every semantic limit. Returns the payload length (4) or RP_ERR_NULL,
- * RP_ERR_BUFFER (cap < 4), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
+ * Pack a FAULT payload into out[0..5). Checks every field's wire range in wire order, then,
+ * if strict, every semantic limit. Returns the payload length (5) or RP_ERR_NULL,
+ * RP_ERR_BUFFER (cap < 5), RP_ERR_FIELD(i) / RP_ERR_LIMIT(i) for the first offending field
  * index i (RP_F_FAULT_*); out is untouched on error.
  */
 int rp_fault_pack(const rp_fault_t *msg, bool strict, uint8_t *out, size_t cap);
 /**
- * Unpack a FAULT payload of exactly 4 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
+ * Unpack a FAULT payload of exactly 5 bytes into *msg. Returns RP_OK, RP_ERR_NULL,
  * RP_ERR_LENGTH, or RP_ERR_FIELD(i) for the first field outside its wire range (the frame
  * must then be dropped); *msg is untouched on error.
  */
@@ -562,7 +583,7 @@ int rp_fault_unpack(rp_fault_t *msg, const uint8_t *payload, size_t len);
  * controller_heartbeat_period_ms.
  */
 typedef struct {
-    /** u8 (rp_controller_state_t) range 0..4. */
+    /** u3 (rp_controller_state_t) range 0..4. */
     uint8_t state;
     /**
      * u1: motion inhibited until CLEAR_STOP: latch_stop OR latch_watchdog OR latch_fault.
@@ -596,6 +617,11 @@ typedef struct {
      * errors', wrapping.
      */
     uint16_t rx_errors;
+    /**
+     * u8: the latch generation: raised by every new latch cause (docs/protocol.md, 'Latch
+     * and faults'), wrapping.
+     */
+    uint8_t latch_gen;
 } rp_heartbeat_t;
 
 #define RP_MSG_HEARTBEAT 64u /**< message id of HEARTBEAT */
@@ -611,6 +637,7 @@ typedef struct {
 #define RP_F_HEARTBEAT_QUEUE_DEPTH 7 /**< field index of queue_depth */
 #define RP_F_HEARTBEAT_BOOT_NONCE 8 /**< field index of boot_nonce */
 #define RP_F_HEARTBEAT_RX_ERRORS 9 /**< field index of rx_errors */
+#define RP_F_HEARTBEAT_LATCH_GEN 10 /**< field index of latch_gen */
 
 /**
  * Pack a HEARTBEAT payload into out[0..8). Checks every field's wire range in wire order,

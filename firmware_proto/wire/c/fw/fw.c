@@ -146,6 +146,7 @@ static void send_fault(fw_t *c, uint8_t code, uint8_t active, uint32_t detail)
     m.body.fault.code = code;
     m.body.fault.active = active;
     m.body.fault.detail = (uint16_t)(detail > 0xFFFFu ? 0xFFFFu : detail);
+    m.body.fault.latch_gen = c->latch_gen;
     send(c, &m);
 }
 
@@ -228,7 +229,14 @@ static void init_state(fw_t *c, uint64_t now_us)
     c->pose_hz = c->cfg.pose_hz;
     c->heartbeat_hz = c->cfg.heartbeat_hz;
     c->state = (uint8_t)RP_CONTROLLER_STATE_BOOT;
-    c->boot_nonce = fw_hal_boot_nonce();
+    {
+        /* A boot's nonce differs from the one before (docs/protocol.md, Handshake 1). A
+         * reset of the MCU loses fw_t: its port's fw_hal_boot_nonce keeps that promise
+         * across one (docs/firmware.md); fw_reboot keeps it here. */
+        const uint16_t nonce = fw_hal_boot_nonce();
+        c->boot_nonce = (c->booted && nonce == c->boot_nonce) ? (uint16_t)(nonce + 1u) : nonce;
+        c->booted = true;
+    }
     c->boot_us = now_us;
     c->now_us = now_us;
     c->handshake_ok = false;
@@ -246,7 +254,11 @@ static void init_state(fw_t *c, uint64_t now_us)
     c->n_reported = 0u;
     c->reported_head = 0u;
     c->clears = 0u;
-    c->last_cleared_id = 0u;
+    c->latch_gen = 0u;
+    c->have_last_clear = false;
+    c->last_clear_id = 0u;
+    c->last_clear_gen = 0u;
+    c->last_clear_result = 0u;
     /* A reset MCU's UART: the frame counter restarts at 0 (the boot IDENT is seq 0) and
      * a partial frame is gone. */
     c->tx_seq = 0u;
@@ -311,6 +323,7 @@ fw_error_t fw_init(fw_t *c, const fw_config_t *cfg, uint64_t now_us)
     }
     c->error = (uint8_t)fw_check(c);
     c->rx_errors = 0u;
+    c->booted = false;
     init_state(c, now_us);
     if (c->error != FW_OK) {
         fw_hal_set_wheels(0, 0);
@@ -395,7 +408,31 @@ static bool reported(const fw_t *c, uint16_t stop_id)
     return false;
 }
 
-/** ControllerModel._stop: zero the targets now, purge, latch; STOPPED follows at rest. */
+/** A host STOP with this id was seen in this latch (its STOPPED is owed or sent): a
+ * repeat, which raises no latch generation and gets no STOPPED of its own. */
+static bool stop_is_repeat(const fw_t *c, uint16_t stop_id)
+{
+    uint8_t i;
+    if (stop_id == 0u) {
+        return false; /* the controller's own stops are never repeats */
+    }
+    if (reported(c, stop_id)) {
+        return true;
+    }
+    for (i = 0u; i < c->n_pending; i++) {
+        if (c->pending[i].stop_id == stop_id) {
+            return true;
+        }
+    }
+    return false;
+}
+
+/** ControllerModel._raise_latch_gen: a new latch cause (docs/protocol.md, "Latch and
+ * faults"); the caller raises it before it reports the cause. */
+static void raise_latch_gen(fw_t *c) { c->latch_gen = (uint8_t)(c->latch_gen + 1u); }
+
+/** ControllerModel._stop: zero the targets now, purge, latch; STOPPED follows at rest.
+ * The caller has raised the latch generation if the stop is new. */
 static void do_stop(fw_t *c, uint16_t stop_id, uint8_t reason, uint8_t cause)
 {
     uint8_t i;
@@ -439,6 +476,9 @@ void fw_raise_fault(fw_t *c, uint64_t now_us, uint8_t code, uint32_t detail, boo
     c->faults = (uint8_t)(c->faults | bit);
     if (!condition) {
         c->momentary = (uint8_t)(c->momentary | bit);
+    }
+    if (stopping_fault(code)) {
+        raise_latch_gen(c); /* FAULT names the generation its stop raised */
     }
     send_fault(c, code, 1u, detail);
     if (stopping_fault(code)) {
@@ -528,6 +568,7 @@ static void on_motion(fw_t *c, const rp_motion_t *mo)
         send_ack(c, mo->seq, (uint8_t)RP_ACK_RESULT_ACCEPTED, (uint8_t)RP_ACK_FIELD_NONE);
         c->q_len = saved_len;
         c->running = saved_running;
+        raise_latch_gen(c);
         do_stop(c, 0u, (uint8_t)RP_ABORT_REASON_STOP, FW_LATCH_STOP);
         return;
     }
@@ -563,25 +604,42 @@ static void on_motion(fw_t *c, const rp_motion_t *mo)
     send_ack(c, mo->seq, (uint8_t)RP_ACK_RESULT_ACCEPTED, (uint8_t)RP_ACK_FIELD_NONE);
 }
 
-/** ControllerModel._clear: the answer to CLEAR_STOP stop_id. */
-static uint8_t do_clear(fw_t *c, uint16_t stop_id)
+/** ControllerModel._judge_clear: the answer to a new request naming latch_gen. */
+static uint8_t judge_clear(const fw_t *c, uint8_t latch_gen)
 {
-    if (stop_id == c->last_cleared_id) {
-        return (uint8_t)RP_CLEAR_RESULT_CLEARED; /* a repeat that crossed its answer */
-    }
     if (c->latch == 0u) {
         return (uint8_t)RP_CLEAR_RESULT_NOT_LATCHED;
+    }
+    if (latch_gen != c->latch_gen) {
+        return (uint8_t)RP_CLEAR_RESULT_LATCH_CHANGED;
     }
     if ((c->faults & stopping_mask()) != 0u) {
         return (uint8_t)RP_CLEAR_RESULT_FAULT_PERSISTS;
     }
-    c->latch = 0u;
-    c->n_reported = 0u;
-    c->reported_head = 0u;
-    c->clears++;
-    c->last_cleared_id = stop_id;
-    c->state = (uint8_t)(c->handshake_ok ? RP_CONTROLLER_STATE_IDLE : RP_CONTROLLER_STATE_BOOT);
     return (uint8_t)RP_CLEAR_RESULT_CLEARED;
+}
+
+/** ControllerModel._clear: the answer to CLEAR_STOP stop_id naming latch_gen. */
+static uint8_t do_clear(fw_t *c, uint16_t stop_id, uint8_t latch_gen)
+{
+    uint8_t result;
+    if (c->have_last_clear && stop_id == c->last_clear_id && latch_gen == c->last_clear_gen) {
+        return c->last_clear_result; /* a repeat that crossed its answer: nothing changes */
+    }
+    result = judge_clear(c, latch_gen);
+    c->have_last_clear = true;
+    c->last_clear_id = stop_id;
+    c->last_clear_gen = latch_gen;
+    c->last_clear_result = result;
+    if (result == RP_CLEAR_RESULT_CLEARED) {
+        c->latch = 0u;
+        c->n_reported = 0u;
+        c->reported_head = 0u;
+        c->clears++;
+        c->state =
+            (uint8_t)(c->handshake_ok ? RP_CONTROLLER_STATE_IDLE : RP_CONTROLLER_STATE_BOOT);
+    }
+    return result;
 }
 
 static void on_hello(fw_t *c, const rp_hello_t *h)
@@ -655,10 +713,15 @@ void fw_handle(fw_t *c, uint64_t now_us, const rp_msg_t *msg)
         return;
     }
     if (msg->id == RP_MSG_STOP) {
-        /* The acknowledgement goes first (it is what the host is timing); the state it
-         * names is the one after the stop: FAULT stays FAULT, all else latches. */
+        /* The acknowledgement goes first (it is what the host is timing); the state and
+         * generation it names are the ones after the stop: FAULT stays FAULT, all else
+         * latches. */
         rp_msg_t ack;
         c->setpoint[0] = c->setpoint[1] = 0;
+        if (!stop_is_repeat(c, msg->body.stop.stop_id)) {
+            raise_latch_gen(c);
+        }
+        ack.body.stop_ack.latch_gen = c->latch_gen;
         ack.id = RP_MSG_STOP_ACK;
         ack.body.stop_ack.stop_id = msg->body.stop.stop_id;
         ack.body.stop_ack.state = (uint8_t)(c->state == RP_CONTROLLER_STATE_FAULT
@@ -682,7 +745,9 @@ void fw_handle(fw_t *c, uint64_t now_us, const rp_msg_t *msg)
         rp_msg_t m;
         m.id = RP_MSG_CLEAR_ACK;
         m.body.clear_ack.stop_id = msg->body.clear_stop.stop_id;
-        m.body.clear_ack.result = do_clear(c, m.body.clear_ack.stop_id);
+        m.body.clear_ack.result =
+            do_clear(c, m.body.clear_ack.stop_id, msg->body.clear_stop.latch_gen);
+        m.body.clear_ack.latch_gen = c->latch_gen;
         send(c, &m);
         break;
     }
@@ -1114,6 +1179,7 @@ static void send_heartbeat(fw_t *c)
     m.body.heartbeat.queue_depth = depth;
     m.body.heartbeat.boot_nonce = c->boot_nonce;
     m.body.heartbeat.rx_errors = (uint16_t)(c->rx_errors & 0xFFFFu);
+    m.body.heartbeat.latch_gen = c->latch_gen;
     send(c, &m);
     m.id = RP_MSG_PROGRESS;
     m.body.progress = c->ended;

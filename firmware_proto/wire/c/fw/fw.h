@@ -134,6 +134,7 @@ typedef struct {
     uint8_t faults;       /**< active fault conditions, bit (code - 1) */
     uint8_t momentary;    /**< active faults that end at rest (stall) */
     uint16_t boot_nonce;
+    bool booted;          /**< boot_nonce holds the nonce of a previous boot (fw_reboot) */
     uint64_t boot_us;
     uint32_t rx_errors;   /**< HEARTBEAT rx_errors (wraps at 16 bits on the wire) */
     /* queue and the running step */
@@ -160,7 +161,11 @@ typedef struct {
     uint16_t reported[FW_REPORTED_STOPS];
     uint8_t n_reported, reported_head;
     uint16_t clears;          /**< CLEAR_STOPs answered CLEARED since boot (wraps) */
-    uint16_t last_cleared_id; /**< stop_id of the last CLEARED (0: none since boot) */
+    uint8_t latch_gen;        /**< HEARTBEAT latch_gen: raised by every new latch cause */
+    bool have_last_clear;     /**< a CLEAR_STOP was answered since boot */
+    uint16_t last_clear_id;   /**< stop_id of the last CLEAR_STOP answered */
+    uint8_t last_clear_gen;   /**< its latch_gen */
+    uint8_t last_clear_result; /**< its answer (rp_clear_result_t): a repeat gets it again */
     /* PROGRESS of the last ended step */
     rp_progress_t ended;
     /* watchdog and stall */

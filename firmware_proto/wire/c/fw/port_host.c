@@ -39,7 +39,7 @@ typedef struct {
 typedef struct {
     uint8_t state, handshake_ok, latch, faults, queue_depth, running;
     uint16_t boot_nonce, running_seq, watchdog_ms;
-    uint8_t telemetry_hz, pose_hz, heartbeat_hz, pad;
+    uint8_t telemetry_hz, pose_hz, heartbeat_hz, latch_gen;
     uint32_t rx_errors;
     int32_t setpoint[2], commanded[2];
 } fw_host_status_t;
@@ -260,7 +260,7 @@ void fw_host_status(const fw_host_t *h, fw_host_status_t *s)
     s->telemetry_hz = c->telemetry_hz;
     s->pose_hz = c->pose_hz;
     s->heartbeat_hz = c->heartbeat_hz;
-    s->pad = 0u;
+    s->latch_gen = c->latch_gen;
     s->rx_errors = c->rx_errors;
     s->setpoint[0] = c->setpoint[0];
     s->setpoint[1] = c->setpoint[1];
