@@ -14,6 +14,10 @@ Checked as they happen (by :class:`sim.rig.Rig`):
 - ``release``: a latch is released only by a clear someone asked for, and a watchdog trip
   or a stopping fault in it only by an operator's clear asked for after the host had
   heard of it (issue #40: no request made before the fault releases it);
+- ``stopped``: every operator STOP whose STOP_ACK reached the host is said ``stopped``;
+- ``order``: a step submitted while an operator's clear is out is not refused
+  ``stop_latched`` when that clear releases the latch;
+- ``repeat``: copies of one CLEAR_STOP reach the wire at least ``stop_repeat_s`` apart;
 - ``odometry``: between two ENCODERS it uses, odometry never moves more than the
   encoders travelled (continuous across reboots; a v2 controller's sample of a boot the
   host could not know yet is excused and counted, see docs/sim.md);
@@ -51,6 +55,9 @@ RULES = (
     "stop-zeroes",
     "auto-clear",
     "release",
+    "stopped",
+    "order",
+    "repeat",
     "odometry",
     "never-stuck",
     "counters",

@@ -103,6 +103,42 @@ class _RefusedClearRetried(LinkCore):
             self._pending_clear = _Pending(self._stop_counter, now, latch_gen=hb.latch_gen)
 
 
+class _ClearDropsStop(LinkCore):
+    """Protocol v3's host: a clear asked for before the STOP_ACK forgot the STOP, so
+    ``stopped`` was never said (issue #40, hole 3)."""
+
+    def clear_stop(self, now: float) -> int:
+        clear_id = super().clear_stop(now)
+        self._pending_stop = None
+        clear = self._pending_clear
+        if clear is not None and clear.after_stop:
+            clear.after_stop = False
+            clear.latch_gen = (self._latch_gen or 0) + 1 & 0xFF
+        return clear_id
+
+
+class _StepRefusedDuringClear(LinkCore):
+    """Protocol v3's host: a step submitted while the operator's clear is out is refused
+    ``stop_latched`` (issue #40, hole 4)."""
+
+    def _refusal(self) -> str | None:
+        if self._operator_clear_out() and self.stop_latched:
+            return "stop_latched"
+        return super()._refusal()
+
+
+class _ClearCopiesQueue(LinkCore):
+    """Protocol v3's host: a CLEAR_STOP copy is queued every repeat interval whether the
+    last one was written or not, so a stalled writer puts them back to back on the wire
+    (issue #40, hole 7)."""
+
+    def tick(self, now: float) -> None:
+        clear = self._pending_clear
+        if clear is not None:
+            clear.unwritten = 0
+        super().tick(now)
+
+
 MUTANTS: dict[str, LinkMutant] = {
     m.name: m
     for m in (
@@ -138,6 +174,24 @@ MUTANTS: dict[str, LinkMutant] = {
             "request) once a HEARTBEAT shows no stopping condition: the latch is released "
             "with no new command (issue #40, hole 2, protocol v3's rule)",
             _RefusedClearRetried,
+        ),
+        LinkMutant(
+            "clear-drops-stop",
+            "an operator's clear asked for before the STOP_ACK forgets the STOP: its "
+            "STOP_ACK says nothing, 'stopped' is never published (issue #40, hole 3)",
+            _ClearDropsStop,
+        ),
+        LinkMutant(
+            "step-refused-during-clear",
+            "a step submitted while an operator's clear is out is refused stop_latched "
+            "instead of waiting for the clear's answer (issue #40, hole 4)",
+            _StepRefusedDuringClear,
+        ),
+        LinkMutant(
+            "clear-copies-queue",
+            "CLEAR_STOP copies are queued every repeat interval behind a stalled writer and "
+            "go out back to back when it resumes (issue #40, hole 7)",
+            _ClearCopiesQueue,
         ),
         LinkMutant(
             "auto-clear-after-fault-frame",

@@ -49,6 +49,7 @@ from firmware_proto.wire.messages import (
     Ack,
     AckResult,
     ClearAck,
+    ClearResult,
     ClearStop,
     Command,
     Encoders,
@@ -207,6 +208,19 @@ class Rig:
         # -- the host
         self.core = make_link_core(LinkConfig(f"sim://{medium}"), scenario.mutants)
         self._device_present = True
+        self._writer_stalled = False
+        """The host's writer is held (a write stuck in the OS): ordinary frames wait, STOP
+        still goes (its own write path)."""
+        self._clear_copies: dict[int, float] = {}
+        """When the last copy of each CLEAR_STOP id went on the wire."""
+        self._stop_waits: int | None = None
+        """The operator's emergency stop whose STOP_ACK has not reached the host yet."""
+        self.stopped_owed = 0
+        """Operator stops whose STOP_ACK reached the host (each owes ``stopped``)."""
+        self._clear_answers: dict[int, int] = {}
+        """CLEAR_ACK results that reached the host, by request id."""
+        self._steps_after_clear: dict[int, int] = {}
+        """Steps submitted while an operator's clear was open: the clear's id, by step."""
         self._host_frozen = False
         self._host_backlog: list[tuple[Message, object, int | None]] = []
         self._deferred: list[Callable[[], None]] = []
@@ -228,6 +242,7 @@ class Rig:
         self._probe: int | None = None
         self._probe_done = False
         self._last_clear = -math.inf
+        self._last_clear_id = 0
         self._auto_clears: set[int] = set()
         self._operator_clears: dict[int, int] = {}
         """The operator's clear requests: the latch generation the host had heard of when
@@ -316,6 +331,7 @@ class Rig:
                 f"(link {self.core.state.value}, latch {self.core.latch})",
             )
         self.violations += final_checks(self.ledger, self.core.diagnostics(self.now), self.now)
+        self._final_issue_40()
         counts = self.ledger.counts()
         counts["frames_to_controller"] = self.to_ctl.sent
         counts["frames_to_host"] = self.to_host.sent
@@ -331,6 +347,29 @@ class Rig:
             counts,
             self._trace or [],
         )
+
+    def _final_issue_40(self) -> None:
+        """``stopped``: every operator stop whose STOP_ACK reached the host was said
+        ``stopped``; ``order``: no step submitted while an operator's clear was open was
+        refused ``stop_latched`` when that clear released the latch."""
+        said = self.ledger.statuses["stopped"]
+        if said < self.stopped_owed:
+            self.violate(
+                "stopped",
+                f"{self.stopped_owed} operator STOP(s) acknowledged to the host, 'stopped' "
+                f"said {said} time(s)",
+            )
+        for number, clear_id in sorted(self._steps_after_clear.items()):
+            fates = self.ledger.fates.get(number, [])
+            if (
+                self._clear_answers.get(clear_id) == ClearResult.CLEARED
+                and "rejected:stop_latched" in fates
+            ):
+                self.violate(
+                    "order",
+                    f"step {number}, submitted after the operator's clear {clear_id}, was "
+                    "refused stop_latched although that clear released the latch",
+                )
 
     # -- faults ---------------------------------------------------------------------------------
     def _schedule_fault(self, f: ScenarioFault) -> None:
@@ -353,6 +392,9 @@ class Rig:
         elif kind == "unplug":
             self._at(f.start_s, _ACTION, self._unplug)
             self._at(f.end_s, _ACTION, self._replug)
+        elif kind == "writer-stall":
+            self._at(f.start_s, _ACTION, lambda: self._writer_stall(f.end_s))
+            self._at(f.end_s, _ACTION, self._writer_resume)
 
     def _reboot(self) -> None:
         self._note("fault reboot")
@@ -388,6 +430,15 @@ class Rig:
             fn()
         if not tick_first:
             self._host_tick()
+
+    def _writer_stall(self, until_s: float) -> None:
+        self._note("fault writer-stall")
+        self._writer_stalled = True
+
+    def _writer_resume(self) -> None:
+        self._note("fault writer-resume")
+        self._writer_stalled = False
+        self._host_after()
 
     def _freeze_ctl(self) -> None:
         self._note("fault controller-freeze")
@@ -617,6 +668,8 @@ class Rig:
             stops = core.take_stops()
             for stop in stops:
                 self._host_send(stop)
+            if self._writer_stalled:
+                break
             entry = core.take_write()
             if entry is None:
                 break
@@ -645,6 +698,16 @@ class Rig:
     def _host_send(self, msg: Message) -> None:
         if isinstance(msg, Stop):
             self.ledger.stops_written.append(msg.stop_id)
+        elif isinstance(msg, ClearStop):
+            last = self._clear_copies.get(msg.stop_id)
+            repeat_s = self.core.config.stop_repeat_s
+            if last is not None and self.now - last < repeat_s - 1e-9:
+                self.violate(
+                    "repeat",
+                    f"CLEAR_STOP {msg.stop_id} copies {1000 * (self.now - last):.1f} ms apart "
+                    f"(at least {1000 * repeat_s:g} ms after the previous copy)",
+                )
+            self._clear_copies[msg.stop_id] = self.now
         if self.sc.medium == "serial":
             self.to_ctl.send(self.now, self._host_encoder.encode(msg), msg)
         else:
@@ -688,6 +751,11 @@ class Rig:
             ledger.queue_full += 1
         if isinstance(meta, _Gen) and meta.absolute > self._heard_gen:
             self._heard_gen = meta.absolute
+        if isinstance(msg, StopAck) and msg.stop_id == self._stop_waits:
+            self._stop_waits = None
+            self.stopped_owed += 1
+        elif isinstance(msg, ClearAck):
+            self._clear_answers.setdefault(msg.stop_id, msg.result)
         forward = core.on_frame(msg, self.now, rx_seq=seq)
         if forward:
             self._odometry(msg, meta, state)
@@ -738,17 +806,21 @@ class Rig:
         core = self.core
         now = self.now
         if kind == "steps":
+            clear_open = core.clear_open
             for step in steps:
                 self.ledger.submitted += 1
-                core.submit_step(StepRequest(*step), now)
+                number = core.submit_step(StepRequest(*step), now)
+                if clear_open:
+                    self._steps_after_clear[number] = self._last_clear_id
         elif kind in ("stop", "stop-step"):
             source = StopSource.OPERATOR if kind == "stop" else StopSource.PLAN_STEP
-            core.emergency_stop(source, now)
+            self._stop_waits = core.emergency_stop(source, now)
             for stop in core.take_stops():
                 self._host_send(stop)
                 core.stop_written(stop.stop_id, now, True)
         elif kind == "clear":
-            self._operator_clears[core.clear_stop(now)] = self._heard_gen
+            self._last_clear_id = core.clear_stop(now)
+            self._operator_clears[self._last_clear_id] = self._heard_gen
             self._last_clear = now
         self._host_after()
 

@@ -15,7 +15,15 @@ a frame received twice), ``reboot`` (the controller resets), ``host-freeze`` (th
 process held: no tick, nothing read or written), ``controller-freeze`` (the controller
 held), ``encoder`` (an encoder fault's condition, a stopping fault), ``stall`` (a wheel
 locked while it should turn), ``unplug`` (the host's device gone: a transport error,
-reconnects refused until it is back; on CAN a bus-off).
+reconnects refused until it is back; on CAN a bus-off), ``writer-stall`` (the host's
+writer held: no ordinary frame written, STOP still is).
+
+Issue #40's interleavings come in three scenarios of ten, from a generator of their own
+(so that every other draw, and so every kept seed, plays as before): an encoder glitch
+(an encoder fault of 5 to 40 ms) timed at an operator's clear or at the automatic clear
+after an outage, a stalled writer (0.1 to 0.6 s) while a clear is out, the operator's
+STOP followed by a clear before the STOP_ACK can be back, and a clear followed by a step
+at once.
 
 Pure: no I/O, no clock; one ``random.Random(seed)``.
 """
@@ -54,6 +62,7 @@ FAULT_KINDS: dict[str, float] = {
     "encoder": 1.0,
     "stall": 0.5,
     "unplug": 0.7,
+    "writer-stall": 0.0,
 }
 """ScenarioFault kinds and their relative weights in a draw."""
 
@@ -291,6 +300,36 @@ def _pattern(rng: random.Random, active: float) -> list[ScenarioFault]:
     ]
 
 
+def _issue_40(
+    rng: random.Random, active: float, faults: list[Fault], actions: list[Action]
+) -> None:
+    """Add, to three scenarios in ten, one or two of issue #40's interleavings (see the
+    module docstring), drawn from ``rng`` alone."""
+    if rng.random() >= 0.3:
+        return
+    for _ in range(rng.choice((1, 1, 2))):
+        kind = rng.choice(("glitch", "glitch", "writer-stall", "stop-clear", "clear-step"))
+        at = rng.uniform(0.05, active)
+        clears = [a.at_s for a in actions if a.kind == "clear"]
+        outages = [f.end_s for f in faults if f.kind in ("cut", "host-freeze")]
+        if kind == "glitch":
+            # At a clear: the operator's, or the host's own as an outage ends.
+            marks = clears + outages
+            start = (rng.choice(marks) if marks else at) + rng.uniform(-0.01, 0.04)
+            side = rng.choice(("left", "right"))
+            faults.append(Fault("encoder", max(0.01, start), rng.uniform(0.005, 0.04), side=side))
+        elif kind == "writer-stall":
+            start = (rng.choice(clears) if clears else at) + rng.uniform(-0.02, 0.01)
+            faults.append(Fault("writer-stall", max(0.01, start), rng.uniform(0.1, 0.6)))
+        elif kind == "stop-clear":
+            actions.append(Action(at, "stop"))
+            actions.append(Action(at + rng.uniform(0.0, 0.02), "clear"))
+        else:
+            actions.append(Action(at, "clear"))
+            step = (int(Command.FWD), rng.randint(10, 60), rng.randint(100, 2000))
+            actions.append(Action(at + rng.uniform(0.0, 0.004), "steps", (step,)))
+
+
 def make_scenario(
     seed: int,
     *,
@@ -313,7 +352,7 @@ def make_scenario(
         raise ValueError(f"unknown medium {medium!r}; known: {', '.join(MEDIA)}")
     rng = random.Random(seed)
     active = rng.uniform(0.15, 0.8)
-    kinds = [k for k in FAULT_KINDS if medium == "can" or k != "dup"]
+    kinds = [k for k, w in FAULT_KINDS.items() if w > 0 and (medium == "can" or k != "dup")]
     faults = _pattern(rng, active)
     # Swarm testing: the other faults of a scenario are drawn from a few kinds only, so
     # that the ones it has come often enough to meet, and half of them start inside
@@ -348,6 +387,7 @@ def make_scenario(
         actions.append(Action(rng.uniform(0.0, active), "stop-step"))
     if rng.random() < 0.35:
         actions.append(Action(rng.uniform(0.0, active + 0.3), "clear"))
+    _issue_40(random.Random(seed * 7919 + 40), active, faults, actions)
     faults.sort(key=lambda f: f.start_s)
     actions.sort(key=lambda a: a.at_s)
     quiet = max([active, *(f.end_s for f in faults), *(a.at_s for a in actions)])

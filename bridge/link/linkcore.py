@@ -376,6 +376,12 @@ class LinkCore:
         return latch_causes(hb) if hb is not None and self._ctrl_latched else ()
 
     @property
+    def clear_open(self) -> bool:
+        """An operator's clear is out and not yet answered: steps submitted now wait for
+        its answer (docs/protocol.md, "Host: a clear, then a step")."""
+        return self._operator_clear_out()
+
+    @property
     def boot_nonce(self) -> int | None:
         """The controller's boot nonce as last seen (``None`` before any)."""
         return self._boot_nonce

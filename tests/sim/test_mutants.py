@@ -41,8 +41,11 @@ LinkCore, each now fixed."""
 
 
 ISSUE_40 = [
-    pytest.param("refused-clear-retried", "", 36, "serial", "release", id="hole-2"),
     pytest.param("", "clear-ignores-generation", 6, "serial", "release", id="hole-1"),
+    pytest.param("refused-clear-retried", "", 36, "serial", "release", id="hole-2"),
+    pytest.param("clear-drops-stop", "", 24, "serial", "stopped", id="hole-3"),
+    pytest.param("step-refused-during-clear", "", 82, "serial", "order", id="hole-4"),
+    pytest.param("clear-copies-queue", "", 1, "can", "repeat", id="hole-7"),
 ]
 """(host mutant, controller mutant, seed, medium, the invariant it breaks): the holes of
 issue #40 that the latch generation closes, each with its fix undone, found by seed. A
