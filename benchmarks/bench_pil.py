@@ -49,7 +49,6 @@ from firmware_proto.linkio.media import open_endpoint
 from firmware_proto.wire.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
-    ClearStop,
     Command,
     Hello,
     Ident,
@@ -95,7 +94,7 @@ def _script(
         host.settle(0.05)
         stops.append(get().stop_ack_last)
         host.settle(0.45)
-        host.send(ClearStop(stop_id))
+        host.send(host.clear_stop_for(stop_id))
         host.settle(0.05)
     return idents, stops
 

@@ -183,6 +183,8 @@ class _Step:
     unwritten: int = 0
     """Copies queued for the writer and not yet written: the ACK timeout runs from
     when a copy is on the wire, not from when it was queued."""
+    written: bool = False
+    """A copy of it reached the wire (``steps_sent`` counts it then)."""
 
 
 @dataclass
@@ -436,6 +438,13 @@ class LinkCore:
         if step is not None:
             step.unwritten -= 1
             if ok:
+                # Counted as they reach the wire: a copy dropped unwritten (a STOP, a lost
+                # link behind a stalled writer) was never sent (found by the simulator).
+                if step.written:
+                    self._counters.retries += 1
+                else:
+                    self._counters.steps_sent += 1
+                    step.written = True
                 # The ACK timeout and the round trip run from here.
                 step.last_sent = now
                 if step.sends == 1:
@@ -1200,7 +1209,6 @@ class LinkCore:
                 self._emit(fault("no_ack"), step.number)
                 self._lose(f"MOTION seq {step.seq} not acknowledged after {step.sends} tries")
                 return
-            self._counters.retries += 1
             step.sends += 1
             step.last_sent = now
             self._queue(self._motion(step), step)
@@ -1216,7 +1224,6 @@ class LinkCore:
             step.sends = 1
             step.first_sent = step.last_sent = now
             self._inflight = step
-            self._counters.steps_sent += 1
             self._queue(self._motion(step), step)
 
     @staticmethod

@@ -20,7 +20,6 @@ from firmware_proto.model.rover import load_rover
 from firmware_proto.model.worldmap import load_map
 from firmware_proto.wire.messages import (
     ClearAck,
-    ClearStop,
     Command,
     Motion,
     PoseMsg,
@@ -164,7 +163,7 @@ def _drive_and_watch(slip: float | None) -> tuple[float, bool, int]:
                     stopped_mm = host.expect(
                         Stopped, lambda m: m.stop_id == 41, since=seen, timeout_s=3.0
                     ).distance_mm
-                    host.send(ClearStop(41))
+                    host.send(host.clear_stop_for(41))
                     host.expect(ClearAck, since=seen)
                     break
     finally:
