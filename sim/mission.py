@@ -759,7 +759,7 @@ class MissionRig(Rig):
 
     def _bridge_clear(self) -> None:
         self._note("ground clear")
-        self.core.clear_stop(self.now)
+        self.operator_clear()
         self._host_after()
 
     def _ground_report(self, text: str) -> None:

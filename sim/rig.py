@@ -252,6 +252,9 @@ class Rig:
         """The controller's latch generation counted over every boot."""
         self._gen_cause: dict[int, str] = {}
         """What raised each generation: ``stop``, ``watchdog`` or ``fault``."""
+        self._latch_base = 0
+        """The generation when the latch was last empty (released, or a reboot): the
+        latch holds only the causes of the generations after it."""
         self._heard_gen = 0
         """The newest generation a frame that reached the host named."""
         # The steps queued before the probe run first: their nominal time counts too.
@@ -403,6 +406,7 @@ class Rig:
         self._ctl_backlog.clear()
         out = self.ctl.reboot()
         self._gen_wire = self.ctl.latch_gen  # a new boot counts from 0; the latch is gone
+        self._latch_base = self._gen_abs
         self._travel_ref = self.ctl.encoders.travel()
         self._ctl_encoder = FrameEncoder()  # its frame counter restarts with it
         self._ctl_seq = 0
@@ -573,6 +577,7 @@ class Rig:
             out = ctl.handle(msg)
             if before and not ctl.latch_causes:
                 self._released(msg.stop_id, before)
+                self._latch_base = self._gen_abs
         elif isinstance(msg, Stop):
             out = ctl.handle(msg)
             if ctl.wheel_setpoints_mps != (0.0, 0.0):
@@ -614,7 +619,7 @@ class Rig:
             return
         unheard = [
             f"{g} ({self._gen_cause.get(g)})"
-            for g in range(heard + 1, self._gen_abs + 1)
+            for g in range(max(heard, self._latch_base) + 1, self._gen_abs + 1)
             if self._gen_cause.get(g) in ("watchdog", "fault")
         ]
         if unheard:
@@ -819,10 +824,16 @@ class Rig:
                 self._host_send(stop)
                 core.stop_written(stop.stop_id, now, True)
         elif kind == "clear":
-            self._last_clear_id = core.clear_stop(now)
-            self._operator_clears[self._last_clear_id] = self._heard_gen
+            self._last_clear_id = self.operator_clear()
             self._last_clear = now
         self._host_after()
+
+    def operator_clear(self) -> int:
+        """The operator (or the ground) asks the host to clear now: the request id. The
+        ``release`` invariant holds every release to what the host had heard of then."""
+        clear_id = self.core.clear_stop(self.now)
+        self._operator_clears[clear_id] = self._heard_gen
+        return clear_id
 
     def _recover(self) -> None:
         """After the faults: wait for the link, release a latch that is the operator's
@@ -839,7 +850,7 @@ class Rig:
         if core.estop_requested or "stop" in latch or "fault" in latch:
             if self.now - self._last_clear >= 0.5:
                 self._note("operator clear (recovery)")
-                self._operator_clears[core.clear_stop(self.now)] = self._heard_gen
+                self.operator_clear()
                 self._last_clear = self.now
                 self._host_after()
             return

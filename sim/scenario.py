@@ -155,7 +155,7 @@ class Scenario:
             (protocol v2 allowed it; a v3 controller sends none).
         zero_steps: the operator also sends steps with speed 0 or distance 0 (off by
             default, so that every kept seed plays as it was found; docs/sim.md "Bugs
-            found", 4).
+            found", 5).
         tick_s: the controller's control period (the twin's step), s.
         queue_depth: the controller's MOTION queue (the host assumes 8: fewer makes it
             answer QUEUE_FULL).

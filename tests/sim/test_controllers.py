@@ -1,4 +1,4 @@
-"""A bug the simulator found in both controllers (docs/sim.md, "Bugs found", 4), fixed
+"""A bug the simulator found in both controllers (docs/sim.md, "Bugs found", 5), fixed
 in both and kept here as its regression test.
 
 A step with speed 0 or distance 0 "is STARTED and COMPLETED in the same control tick"
