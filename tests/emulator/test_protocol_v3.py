@@ -1,4 +1,4 @@
-"""The rules protocol v3 added (docs/protocol.md), on both controllers in lockstep: the
+"""The rules protocols v3 and v4 added (docs/protocol.md), on both controllers in lockstep: the
 Python model and the C firmware core (:mod:`emulator.firmware`), one test each.
 
 - no sensor samples before a session, though the sensors are read on schedule all the
@@ -201,3 +201,68 @@ def test_the_c_cores_frame_counter_restarts_at_every_boot(rover: RoverDescriptio
     while not beat:
         beat = model.tick()
     assert _seqs(model, beat)[0] == 1
+
+
+# -- protocol v4 (issue #40), on both controllers ----------------------------------------
+
+
+def test_v4_a_clear_asked_for_before_a_fault_releases_nothing(controller: Make) -> None:
+    """Hole 1: a clear naming the generation before an encoder fault rose and went is
+    answered LATCH_CHANGED; the latch holds until a clear names the fault's generation."""
+    model = controller()
+    model.handle(Stop(1, 0))
+    before = model.latch_gen
+    injector = Injector(model)
+    injector.apply(parse_fault("encoder-dropout:left"))
+    injector.apply(parse_fault("clear:encoder-dropout"))
+    assert model.latch_gen == (before + 1) & 0xFF
+    (ack,) = model.handle(ClearStop(2, before))
+    assert (ack.result, ack.latch_gen) == (ClearResult.LATCH_CHANGED, model.latch_gen)
+    assert model.latch_causes == {LatchCause.STOP, LatchCause.FAULT}
+    assert model.handle(ClearStop(3, model.latch_gen))[0].result == ClearResult.CLEARED
+
+
+def test_v4_a_refused_clear_stays_refused_after_the_fault_goes(controller: Make) -> None:
+    """Hole 2: the repeat of a clear answered FAULT_PERSISTS gets FAULT_PERSISTS again
+    once the condition is gone; a new request releases."""
+    model = controller()
+    injector = Injector(model)
+    injector.apply(parse_fault("encoder-dropout:left"))
+    gen = model.latch_gen
+    assert model.handle(ClearStop(5, gen))[0].result == ClearResult.FAULT_PERSISTS
+    injector.apply(parse_fault("clear:encoder-dropout"))
+    assert model.handle(ClearStop(5, gen))[0].result == ClearResult.FAULT_PERSISTS
+    assert model.latch_causes == {LatchCause.FAULT}
+    assert model.handle(ClearStop(6, gen))[0].result == ClearResult.CLEARED
+
+
+def test_v4_a_new_hosts_first_clear_with_the_last_ones_id_still_releases(
+    controller: Make,
+) -> None:
+    """Hole 8: a bridge started again numbered its clears from 1, and its first clear
+    (id 1) matched the old bridge's last CLEARED: v3 answered CLEARED and released
+    nothing. The latch set since has a new generation, so it is a new request."""
+    model = controller()
+    model.handle(Stop(1, 0))
+    assert model.handle(ClearStop(1, model.latch_gen))[0].result == ClearResult.CLEARED
+    model.handle(Stop(2, 0))  # the watchdog or an operator, after the old bridge died
+    assert model.latch_causes
+    assert model.handle(ClearStop(1, model.latch_gen))[0].result == ClearResult.CLEARED
+    assert not model.latch_causes
+
+
+def test_v4_a_boot_nonce_differs_from_the_one_before(rover: RoverDescription) -> None:
+    """Hole 5: an RNG that gives the same number again (no entropy, a fixed seed) must
+    not make a reboot look like the same boot."""
+
+    class _Fixed(ControllerModel):
+        def _init_state(self) -> None:
+            self._rng.seed(7)  # the same draw at every boot
+            super()._init_state()
+
+    model = _Fixed(rover, Twin(rover), ControllerConfig(), seed=1)
+    nonces = [model.boot_nonce]
+    for _ in range(3):
+        model.reboot()
+        nonces.append(model.boot_nonce)
+    assert all(a != b for a, b in zip(nonces, nonces[1:], strict=False))
