@@ -1,5 +1,5 @@
-"""The rules protocols v3 and v4 added (docs/protocol.md), on both controllers in lockstep: the
-Python model and the C firmware core (:mod:`emulator.firmware`), one test each.
+"""The rules protocols v3 and v4 added (docs/protocol.md), on both controllers in
+lockstep: the Python model and the C firmware core (:mod:`emulator.firmware`), one test each.
 
 - no sensor samples before a session, though the sensors are read on schedule all the
   same (the C core's HAL calls are the model's, which the differential test relies on);
@@ -13,6 +13,7 @@ Python model and the C firmware core (:mod:`emulator.firmware`), one test each.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 
 import pytest
@@ -206,6 +207,12 @@ def test_the_c_cores_frame_counter_restarts_at_every_boot(rover: RoverDescriptio
 # -- protocol v4 (issue #40), on both controllers ----------------------------------------
 
 
+def _clear(model: ControllerModel, clear_id: int, latch_gen: int) -> ClearAck:
+    """CLEAR_STOP ``clear_id`` naming ``latch_gen``: its CLEAR_ACK."""
+    (ack,) = [m for m in model.handle(ClearStop(clear_id, latch_gen)) if isinstance(m, ClearAck)]
+    return ack
+
+
 def test_v4_a_clear_asked_for_before_a_fault_releases_nothing(controller: Make) -> None:
     """Hole 1: a clear naming the generation before an encoder fault rose and went is
     answered LATCH_CHANGED; the latch holds until a clear names the fault's generation."""
@@ -216,10 +223,10 @@ def test_v4_a_clear_asked_for_before_a_fault_releases_nothing(controller: Make) 
     injector.apply(parse_fault("encoder-dropout:left"))
     injector.apply(parse_fault("clear:encoder-dropout"))
     assert model.latch_gen == (before + 1) & 0xFF
-    (ack,) = model.handle(ClearStop(2, before))
+    ack = _clear(model, 2, before)
     assert (ack.result, ack.latch_gen) == (ClearResult.LATCH_CHANGED, model.latch_gen)
     assert model.latch_causes == {LatchCause.STOP, LatchCause.FAULT}
-    assert model.handle(ClearStop(3, model.latch_gen))[0].result == ClearResult.CLEARED
+    assert _clear(model, 3, model.latch_gen).result == ClearResult.CLEARED
 
 
 def test_v4_a_refused_clear_stays_refused_after_the_fault_goes(controller: Make) -> None:
@@ -229,11 +236,11 @@ def test_v4_a_refused_clear_stays_refused_after_the_fault_goes(controller: Make)
     injector = Injector(model)
     injector.apply(parse_fault("encoder-dropout:left"))
     gen = model.latch_gen
-    assert model.handle(ClearStop(5, gen))[0].result == ClearResult.FAULT_PERSISTS
+    assert _clear(model, 5, gen).result == ClearResult.FAULT_PERSISTS
     injector.apply(parse_fault("clear:encoder-dropout"))
-    assert model.handle(ClearStop(5, gen))[0].result == ClearResult.FAULT_PERSISTS
+    assert _clear(model, 5, gen).result == ClearResult.FAULT_PERSISTS
     assert model.latch_causes == {LatchCause.FAULT}
-    assert model.handle(ClearStop(6, gen))[0].result == ClearResult.CLEARED
+    assert _clear(model, 6, gen).result == ClearResult.CLEARED
 
 
 def test_v4_a_new_hosts_first_clear_with_the_last_ones_id_still_releases(
@@ -244,10 +251,10 @@ def test_v4_a_new_hosts_first_clear_with_the_last_ones_id_still_releases(
     nothing. The latch set since has a new generation, so it is a new request."""
     model = controller()
     model.handle(Stop(1, 0))
-    assert model.handle(ClearStop(1, model.latch_gen))[0].result == ClearResult.CLEARED
+    assert _clear(model, 1, model.latch_gen).result == ClearResult.CLEARED
     model.handle(Stop(2, 0))  # the watchdog or an operator, after the old bridge died
     assert model.latch_causes
-    assert model.handle(ClearStop(1, model.latch_gen))[0].result == ClearResult.CLEARED
+    assert _clear(model, 1, model.latch_gen).result == ClearResult.CLEARED
     assert not model.latch_causes
 
 
@@ -265,4 +272,4 @@ def test_v4_a_boot_nonce_differs_from_the_one_before(rover: RoverDescription) ->
     for _ in range(3):
         model.reboot()
         nonces.append(model.boot_nonce)
-    assert all(a != b for a, b in zip(nonces, nonces[1:], strict=False))
+    assert all(a != b for a, b in itertools.pairwise(nonces))
