@@ -110,6 +110,7 @@ class _ClearDropsStop(LinkCore):
     def clear_stop(self, now: float) -> int:
         clear_id = super().clear_stop(now)
         self._pending_stop = None
+        self._last_stop_id = None
         clear = self._pending_clear
         if clear is not None and clear.after_stop:
             clear.after_stop = False

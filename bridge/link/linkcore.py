@@ -309,6 +309,10 @@ class LinkCore:
         self._released_gen: int | None = None
         """The generation this host's last CLEARED released: a HEARTBEAT sent before that
         CLEAR_STOP arrived still shows it latched, and is stale."""
+        self._last_stop_id: int | None = None
+        """The id of this host's last emergency stop."""
+        self._stopped_said: int | None = None
+        """The stop id ``stopped`` was last said for."""
         self._reported: set[str] = set()
         """Stopping latch causes reported (``watchdog``, ``fault``) since the latch was last
         released (docs/protocol.md: a fault is reported before a clear may release it)."""
@@ -600,6 +604,7 @@ class LinkCore:
         goes out first thing after the next handshake. Returns the stop id."""
         self._stop_counter = self._stop_counter % 0xFFFF + 1
         stop_id = self._stop_counter
+        self._last_stop_id = stop_id
         self._estop_requested = True
         self._estop_source = source
         self._end_clear(None)
@@ -769,9 +774,15 @@ class LinkCore:
         self._ctrl_latched = True
         self._ctrl_state = msg.state
         if stop is None or msg.stop_id != stop.stop_id:
+            if msg.stop_id == self._last_stop_id and self._stopped_said != msg.stop_id:
+                # Our last STOP, acknowledged after we stopped waiting for it (a clear
+                # asked for, then a reboot): the rover did stop, and the operator hears so.
+                self._stopped_said = msg.stop_id
+                self._emit(STOPPED)
             return
         self._last_stop_latency = t - stop.first_sent
         self._pending_stop = None
+        self._stopped_said = msg.stop_id
         self._emit(STOPPED)
         clear = self._pending_clear
         if clear is not None and clear.after_stop:
