@@ -301,7 +301,7 @@ def _pattern(rng: random.Random, active: float) -> list[ScenarioFault]:
 
 
 def _issue_40(
-    rng: random.Random, active: float, faults: list[Fault], actions: list[Action]
+    rng: random.Random, active: float, faults: list[ScenarioFault], actions: list[Action]
 ) -> None:
     """Add, to three scenarios in ten, one or two of issue #40's interleavings (see the
     module docstring), drawn from ``rng`` alone."""
@@ -317,10 +317,12 @@ def _issue_40(
             marks = clears + outages
             start = (rng.choice(marks) if marks else at) + rng.uniform(-0.01, 0.04)
             side = rng.choice(("left", "right"))
-            faults.append(Fault("encoder", max(0.01, start), rng.uniform(0.005, 0.04), side=side))
+            faults.append(
+                ScenarioFault("encoder", max(0.01, start), rng.uniform(0.005, 0.04), side=side)
+            )
         elif kind == "writer-stall":
             start = (rng.choice(clears) if clears else at) + rng.uniform(-0.02, 0.01)
-            faults.append(Fault("writer-stall", max(0.01, start), rng.uniform(0.1, 0.6)))
+            faults.append(ScenarioFault("writer-stall", max(0.01, start), rng.uniform(0.1, 0.6)))
         elif kind == "stop-clear":
             actions.append(Action(at, "stop"))
             actions.append(Action(at + rng.uniform(0.0, 0.02), "clear"))
