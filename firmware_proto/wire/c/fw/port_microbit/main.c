@@ -244,8 +244,8 @@ void fw_hal_set_wheels(int32_t left_um_s, int32_t right_um_s)
 
 void fw_hal_read_encoders(int32_t *left, int32_t *right)
 {
-    *left = pil_plant.enc[0];
-    *right = pil_plant.enc[1];
+    *left = pil_plant.reported[0];
+    *right = pil_plant.reported[1];
 }
 
 void fw_hal_read_wheel_speeds(int32_t *left_um_s, int32_t *right_um_s)

@@ -69,6 +69,7 @@ void pil_plant_init(pil_plant_t *p, const fw_config_t *cfg, uint32_t track_um,
         p->cmd[i] = 0;
         p->speed[i] = 0;
         p->enc[i] = 0;
+        p->reported[i] = 0;
         p->frac[i] = 0;
     }
     p->x_um = 0;
@@ -95,13 +96,18 @@ void pil_plant_step(pil_plant_t *p, const volatile pil_hooks_t *hooks, uint32_t 
     for (i = 0u; i < 2u; i++) {
         uint16_t slip = hooks->slip_permille[i];
         p->speed[i] = hooks->stall[i] ? 0 : p->cmd[i];
-        if (hooks->encoder_dropout[i] == 0u) {
+        {
             int64_t whole;
             /* um/s * us * units/m = units * 1e-12 */
             p->frac[i] += (int64_t)p->speed[i] * (int64_t)dt_us * (int64_t)p->units_per_m;
             whole = p->frac[i] / 1000000000000LL;
             p->frac[i] -= whole * 1000000000000LL;
             p->enc[i] = (int32_t)(uint32_t)((uint32_t)p->enc[i] + (uint32_t)(int32_t)whole);
+        }
+        /* A dropped-out encoder repeats its last good count; the wheel's travel is still
+         * there to be counted when it comes back. */
+        if (hooks->encoder_dropout[i] == 0u) {
+            p->reported[i] = p->enc[i];
         }
         if (slip == 0u || slip > 1000u) {
             slip = 1000u;

@@ -7,7 +7,9 @@
  * Each wheel turns at the speed the core last commanded (fw_hal_set_wheels, motor frame,
  * um/s) unless the runner locked it (pil_hooks.stall); its encoder counts that travel,
  * 23000 units per metre by default, as a wrapping 32-bit counter, unless it dropped out
- * (pil_hooks.encoder_dropout: the count holds). The ground travel of each side is the
+ * (pil_hooks.encoder_dropout: the reported count holds its last good value while the wheel
+turns on, and reports its true count again when the dropout ends, as docs/protocol.md
+asks of an ENCODER fault's end). The ground travel of each side is the
  * wheel travel times pil_hooks.slip_permille / 1000, so the pose (integer, um and urad)
  * and the IMU yaw rate see slip where the encoders cannot. No floating point: a sine table
  * of 91 entries (Q15, whole degrees) with linear interpolation.
@@ -26,7 +28,8 @@ typedef struct {
     uint32_t track_um;       /**< distance between the wheel lines, um */
     int32_t cmd[2];          /**< commanded wheel surface speed, motor frame, um/s */
     int32_t speed[2];        /**< measured wheel surface speed, motor frame, um/s */
-    int32_t enc[2];          /**< encoder counts, motor frame, wrapping */
+    int32_t enc[2];          /**< the wheels' true counts, motor frame, wrapping */
+    int32_t reported[2];     /**< what the encoders report: enc, or held in a dropout */
     int64_t frac[2];         /**< encoder travel not yet counted, units * 1e-12 */
     int64_t x_um, y_um;      /**< ground truth, map frame */
     int32_t yaw_urad;        /**< ground truth heading, -pi..pi, urad */
