@@ -5,13 +5,17 @@ program, link relay) as child processes and stop them on the way out. A parent k
 outright (SIGKILL, a test's time limit, the out-of-memory killer) runs no way out: its
 parts went on, an emulator and a relay each holding a core, until someone found them.
 
-The parent opens a pipe to each part's standard input and says so in the part's
-environment (:data:`EXIT_WITH_PARENT_ENV`, its own pid); it never writes to it. The
-kernel closes the pipe when the parent ends, whatever the cause, and the part's
-:func:`watch_parent` thread reads end-of-file: it sends the part SIGTERM, so that the
-part ends as it does at Ctrl-C (its STOP, its cleanup), and ends it outright if it is
-still there :data:`GRACE_S` later. A process that inherited the variable from further up
-(its parent's pid is not the one named) watches nothing.
+The parent makes a pipe for each part's standard input and names it in the part's
+environment (:data:`EXIT_WITH_PARENT_ENV`: the pipe's inode, :func:`pipe_for_child`); it
+never writes to it. The kernel closes the pipe when the parent ends, whatever the cause,
+and the part's :func:`watch_parent` thread reads end-of-file: it sends the part SIGTERM,
+so that the part ends as it does at Ctrl-C (its STOP, its cleanup), and ends it outright
+if it is still there :data:`GRACE_S` later. The pipe is named, not the parent: a part
+whose parent died before it started still reads end-of-file, and a process that
+inherited the variable with another standard input watches nothing. The parts never
+read their standard input otherwise; when a parent goes, all its parts get SIGTERM at
+once, so the controller's watchdog (250 ms) is what stops the wheels if the bridge ends
+before a STOP went out.
 """
 
 from __future__ import annotations
@@ -19,18 +23,19 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import stat
 import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import BinaryIO
 
-__all__ = ["EXIT_WITH_PARENT_ENV", "GRACE_S", "watch_parent"]
+__all__ = ["EXIT_WITH_PARENT_ENV", "GRACE_S", "pipe_for_child", "watch_parent"]
 
 logger = logging.getLogger(__name__)
 
 EXIT_WITH_PARENT_ENV = "ROVER_EXIT_WITH_PARENT"
-"""Set by a parent to its own pid, with a pipe of its as the child's standard input."""
+"""Set by a parent to the inode of the pipe it gives the child as standard input."""
 
 GRACE_S = 10.0
 """Seconds a part is given to end after SIGTERM once its parent is gone."""
@@ -54,9 +59,13 @@ def watch_parent(
     """
     env = os.environ if environ is None else environ
     wanted = env.get(EXIT_WITH_PARENT_ENV, "")
-    if not wanted.isdigit() or int(wanted) != os.getppid():
-        return None
     stream = stdin if stdin is not None else sys.stdin.buffer
+    try:
+        info = os.fstat(stream.fileno())
+    except (OSError, ValueError):  # no standard input at all
+        return None
+    if not wanted.isdigit() or not stat.S_ISFIFO(info.st_mode) or info.st_ino != int(wanted):
+        return None
     act = on_orphaned if on_orphaned is not None else (lambda: _end_self(grace_s))
 
     def watch() -> None:
@@ -65,12 +74,21 @@ def watch_parent(
                 pass
         except (OSError, ValueError):  # closed under us while the program ends
             return
-        logger.warning("the process that started this one (pid %s) has ended: stopping", wanted)
+        logger.warning("the process that started this one has ended: stopping")
         act()
 
     thread = threading.Thread(target=watch, name="parent-watch", daemon=True)
     thread.start()
     return thread
+
+
+def pipe_for_child() -> tuple[int, int, dict[str, str]]:
+    """A pipe for a child's standard input: ``(read_fd, write_fd, environment)``. Give
+    the child ``read_fd`` as its standard input and ``environment`` on top of its own,
+    close ``read_fd`` once it is started, and keep ``write_fd`` open (never written) for
+    as long as the child should live."""
+    read_fd, write_fd = os.pipe()
+    return read_fd, write_fd, {EXIT_WITH_PARENT_ENV: str(os.fstat(read_fd).st_ino)}
 
 
 def _end_self(grace_s: float) -> None:

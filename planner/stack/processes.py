@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
-from firmware_proto.runtime.parentwatch import EXIT_WITH_PARENT_ENV
+from firmware_proto.runtime.parentwatch import pipe_for_child
 from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.stack.controllers import pil_target_of
 
@@ -77,14 +77,21 @@ class ChildProcess:
         # Its standard input is a pipe this process never writes to: when this process
         # ends, however it ends, the part reads end-of-file and ends too
         # (firmware_proto/runtime/parentwatch.py).
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "firmware_proto.cli", *args],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env={**env, EXIT_WITH_PARENT_ENV: str(os.getpid())},
-        )
+        read_fd, self._lifeline, watch_env = pipe_for_child()
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "firmware_proto.cli", *args],
+                stdin=read_fd,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                env={**env, **watch_env},
+            )
+        except BaseException:
+            os.close(self._lifeline)
+            raise
+        finally:
+            os.close(read_fd)
         self.lines: list[str] = []
         self._ready = threading.Event()
         self._stderr: list[str] = []
@@ -169,9 +176,12 @@ class ChildProcess:
                 self.proc.wait(5)
         for reader in (self._reader, self._err_reader):
             reader.join(5)
-        for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+        for stream in (self.proc.stdout, self.proc.stderr):
             if stream is not None:
                 stream.close()
+        if self._lifeline >= 0:
+            os.close(self._lifeline)
+            self._lifeline = -1
 
 
 @dataclass(frozen=True)

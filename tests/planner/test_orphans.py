@@ -12,6 +12,8 @@ import time
 
 import pytest
 
+from firmware_proto.runtime.parentwatch import pipe_for_child
+
 PARENT = """
 import os, sys
 from planner.stack.processes import ChildProcess
@@ -61,3 +63,25 @@ def test_a_part_ends_when_its_stack_is_killed() -> None:
             parent.wait(10)
         if part_pid and not _gone(part_pid, 0):
             os.kill(part_pid, signal.SIGKILL)
+
+
+@pytest.mark.timeout(120)
+def test_a_part_whose_parent_is_gone_before_it_starts_ends_too() -> None:
+    # The parent dies before the part has started watching: the pipe, not the parent's
+    # pid, tells (firmware_proto/runtime/parentwatch.py).
+    read_fd, write_fd, watch_env = pipe_for_child()
+    part = subprocess.Popen(
+        [sys.executable, "-m", "firmware_proto.cli", "gate", "--port", "0", "--map", "lab"],
+        stdin=read_fd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, **watch_env},
+    )
+    os.close(read_fd)
+    os.close(write_fd)  # "the parent" is gone at once
+    try:
+        assert part.wait(60) is not None
+    finally:
+        if part.poll() is None:
+            part.kill()
+            part.wait(10)
