@@ -24,7 +24,6 @@ import logging
 import os
 import signal
 import stat
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -53,15 +52,16 @@ def watch_parent(
 
     Args:
         environ: the environment (default ``os.environ``).
-        stdin: the pipe from the parent (default the process's standard input).
+        stdin: the pipe from the parent (default the process's standard input, fd 0);
+            read through its descriptor only.
         on_orphaned: what to do when the parent is gone (default: SIGTERM to this
             process, then ``os._exit(1)`` if it is still running ``grace_s`` later).
     """
     env = os.environ if environ is None else environ
     wanted = env.get(EXIT_WITH_PARENT_ENV, "")
-    stream = stdin if stdin is not None else sys.stdin.buffer
     try:
-        info = os.fstat(stream.fileno())
+        fd = stdin.fileno() if stdin is not None else 0
+        info = os.fstat(fd)
     except (OSError, ValueError):  # no standard input at all
         return None
     if not wanted.isdigit() or not stat.S_ISFIFO(info.st_mode) or info.st_ino != int(wanted):
@@ -69,10 +69,13 @@ def watch_parent(
     act = on_orphaned if on_orphaned is not None else (lambda: _end_self(grace_s))
 
     def watch() -> None:
+        # os.read on the descriptor, not sys.stdin: a thread blocked inside the buffered
+        # reader holds its lock, and the interpreter aborts at exit when it cannot take
+        # it ("could not acquire lock for <stdin> at interpreter shutdown").
         try:
-            while stream.read(4096):  # the parent never writes: only end-of-file comes
+            while os.read(fd, 4096):  # the parent never writes: only end-of-file comes
                 pass
-        except (OSError, ValueError):  # closed under us while the program ends
+        except OSError:  # closed under us while the program ends
             return
         logger.warning("the process that started this one has ended: stopping")
         act()

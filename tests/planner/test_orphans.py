@@ -13,6 +13,7 @@ import time
 import pytest
 
 from firmware_proto.runtime.parentwatch import pipe_for_child
+from planner.stack.processes import ChildProcess
 
 PARENT = """
 import os, sys
@@ -85,3 +86,19 @@ def test_a_part_whose_parent_is_gone_before_it_starts_ends_too() -> None:
         if part.poll() is None:
             part.kill()
             part.wait(10)
+
+
+@pytest.mark.timeout(120)
+def test_a_part_stopped_by_its_parent_ends_cleanly() -> None:
+    # The watch must not hold standard input's lock: the interpreter aborted at exit
+    # ("could not acquire lock for <stdin> at interpreter shutdown") when it did.
+    part = ChildProcess(
+        "gate",
+        ["gate", "--port", "0", "--map", "lab", "--workers", "1", "--pool", "thread"],
+        "GATE ",
+        60,
+        dict(os.environ),
+    )
+    part.stop()
+    assert part.proc.returncode == 0, part.stderr_tail()
+    assert "Fatal Python error" not in part.stderr_tail()
