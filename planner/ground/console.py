@@ -94,6 +94,7 @@ class RoverConsole:
         self._lock = threading.Condition()
         self._diagnostics: RoverStatus | None = None
         self._diag_count = 0
+        self._diag_at = time.monotonic()
         self._statuses: deque[tuple[int, str]] = deque(maxlen=200)
         self._status_count = 0
         self._on_status = on_status
@@ -115,6 +116,7 @@ class RoverConsole:
         with self._lock:
             self._diagnostics = status
             self._diag_count += 1
+            self._diag_at = time.monotonic()
             self._lock.notify_all()
 
     def _on_text(self, msg: String) -> None:
@@ -169,6 +171,12 @@ class RoverConsole:
         """How many of the bridge's ``/diagnostics`` came so far."""
         with self._lock:
             return self._diag_count
+
+    @property
+    def diagnostics_age_s(self) -> float:
+        """Seconds since the latest ``/diagnostics`` came (monotonic)."""
+        with self._lock:
+            return time.monotonic() - self._diag_at
 
     def _wait_status(
         self, wanted: Callable[[str], bool], since: int, deadline: float

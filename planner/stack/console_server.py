@@ -192,7 +192,10 @@ class ConsoleServer:
     def __init__(self, console: RoverConsole, config: ConsoleConfig | None = None) -> None:
         self.console = console
         self.config = config or ConsoleConfig()
-        self._received_at: tuple[int, float] = (0, time.monotonic())
+        self._acted_seen = 0
+        """The bridge's /diagnostics seen when a STOP or a clear was last answered: a
+        status asked after it waits for a newer one (1 Hz), so that ``rover status`` right
+        after ``rover stop`` shows the latch, not the state from before."""
         self._echoes: dict[str, _Echo] = {}
         self._echo_lock = threading.Lock()
         self._closing = False
@@ -311,21 +314,19 @@ class ConsoleServer:
 
     # -- the answers (on a console-action thread) -----------------------------------------
     def _status(self, timeout_s: float) -> Response:
-        status = self.console.status(timeout_s)
+        status = self.console.status(timeout_s, newer_than=self._acted_seen)
         if status is None:
             raise _AnswerError(
                 504, f"no /diagnostics from the bridge within {timeout_s:g} s: is it running?"
             )
-        seen = self.console.diagnostics_seen
-        if seen != self._received_at[0]:
-            self._received_at = (seen, time.monotonic())
-        doc = status_json(status, time.monotonic() - self._received_at[1])
+        doc = status_json(status, self.console.diagnostics_age_s)
         plan = self.console.onboard  # the plan on board, when rover onboard reports one
         doc["plan"] = json.loads(plan.to_json()) if plan is not None else None
         return _json(200, doc)
 
     def _stop(self, timeout_s: float) -> Response:
         if self.console.stop(timeout_s):
+            self._acted_seen = self.console.diagnostics_seen
             return _json(200, {"stopped": True})
         raise _AnswerError(504, f"no 'stopped' from the bridge within {timeout_s:g} s")
 
@@ -333,6 +334,7 @@ class ConsoleServer:
         # The state after comes with the bridge's next /diagnostics (1 Hz): not waited
         # for here, so that the answer comes as soon as the controller's does.
         report = self.console.clear_stop(timeout_s, after_wait_s=0.0)
+        self._acted_seen = self.console.diagnostics_seen
         before = report.before
         return _json(
             200,
