@@ -6,8 +6,8 @@ tests/conftest.py.
   well as those marked so where they are written.
 - **the test command** (``.ci/test``): everything but ``extended``. Of it, the fast lane
   and the tests marked ``virtual`` (slow, but needing no wall clock: the wire
-  simulator's soak, and :data:`VIRTUAL_MODULES`) run beside the real-time tests, at a
-  lower priority (docs/testing.md).
+  simulator's soak, :data:`VIRTUAL_MODULES` and :data:`HEAVY`) run beside the real-time
+  tests, at a lower priority (docs/testing.md).
 - **extended** (``-m extended``): wall-time tests whose behaviour the test command checks
   otherwise: in virtual time against both controllers (the wire simulator, tests/sim),
   or by a test of the same path kept in the command. Each entry of :data:`EXTENDED`
@@ -16,7 +16,7 @@ tests/conftest.py.
 
 from __future__ import annotations
 
-__all__ = ["EXTENDED", "SLOW_MODULES", "VIRTUAL_MODULES", "lane_marks"]
+__all__ = ["EXTENDED", "HEAVY", "SLOW_MODULES", "VIRTUAL_MODULES", "lane_marks"]
 
 SLOW_MODULES = (
     "tests/bridge/test_cli_bridge.py",
@@ -77,6 +77,7 @@ SLOW_MODULES = (
     "tests/test_benchmarks.py",
     "tests/test_lanes.py",
     "tests/test_require_socketcan.py",
+    "tests/test_timeouts.py",
     "tests/test_vcan_vm.py",
 )
 """Modules of real time, subprocesses or DDS: ``slow``, out of the fast lane."""
@@ -93,6 +94,41 @@ VIRTUAL_MODULES = (
 """Slow modules whose tests need no wall clock (no watchdog, no rate, no deadline but a
 generous timeout): marked ``virtual``, so that ``.ci/test`` runs them beside the
 real-time tests, at a lower priority."""
+
+HEAVY: dict[str, str] = {
+    # Node-id prefix -> what the fast lane keeps of it. Each costs seconds of CPU and no
+    # wall clock: out of the fast lane (30 s), in the test command's no-wall-clock part.
+    "tests/firmware_proto/test_schemacheck.py::test_the_fast_path_agrees_with_jsonschema": (
+        "the same property on 150 examples: test_the_fast_path_agrees_on_a_quick_sample"
+    ),
+    "tests/gate/test_pool.py::": "the gate's answers: tests/gate/test_validator.py",
+    "tests/gate/test_concurrency.py::": "the gate's answers: tests/gate/test_validator.py",
+    "tests/gate/test_lifecycle.py::test_a_dead_worker_process_is_replaced": (
+        "the rest of tests/gate/test_lifecycle.py"
+    ),
+    "tests/planner/test_orchestrator.py::test_gives_up_after_max_attempts_with_every_verdict": (
+        "the repairs that succeed: the rest of tests/planner/test_orchestrator.py"
+    ),
+    "tests/planner/test_experiment.py::test_experiment_with_random_goals": (
+        "test_experiment_on_scn01"
+    ),
+    "tests/gate/test_uncertainty.py::test_a_batch_twin_plays_as_the_single_twin": (
+        "test_the_gate_answers_with_the_documented_uncertainty"
+    ),
+    "tests/gate/test_uncertainty.py::test_the_summary_says_what_the_samples_did": (
+        "test_the_gate_answers_with_the_documented_uncertainty"
+    ),
+    "tests/bridge/test_mutants.py::test_the_suite_fails_the_mutant_on_the_rule_it_breaks"
+    "[no-accel-ramp]": "the mutant stopped-at-once",
+    "tests/bridge/test_mutants.py::test_the_suite_fails_the_mutant_on_the_rule_it_breaks"
+    "[no-brake-ramp]": "the mutant stopped-at-once",
+    "tests/emulator/test_twin.py::test_same_inputs_same_trajectory_across_processes": (
+        "test_the_same_run_twice_gives_the_same_trajectory (tests/emulator/test_controller.py)"
+    ),
+}
+"""Tests that need no wall clock but seconds of CPU each: ``slow`` and ``virtual``, so
+that the fast lane stays within 30 s (docs/testing.md) while the test command runs
+them; each entry says what the fast lane keeps of what it checks."""
 
 _SIM = "tests/sim/test_soak.py (virtual time, both controllers)"
 _LATCH = "tests/bridge/test_latch_recovery.py::"
@@ -209,4 +245,6 @@ def lane_marks(nodeid: str) -> tuple[bool, bool, bool]:
     """``(slow, extended, virtual)`` for a test's node id."""
     path = nodeid.split("::", 1)[0]
     extended = any(nodeid.startswith(prefix) for prefix in EXTENDED)
-    return path in SLOW_MODULES or extended, extended, path in VIRTUAL_MODULES
+    heavy = any(nodeid.startswith(prefix) for prefix in HEAVY)
+    virtual = path in VIRTUAL_MODULES or heavy
+    return path in SLOW_MODULES or extended or heavy, extended, virtual

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from _pytest.mark.expression import Expression
 
-from tests.lanes import EXTENDED, SLOW_MODULES, VIRTUAL_MODULES
+from tests.lanes import EXTENDED, HEAVY, SLOW_MODULES, VIRTUAL_MODULES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -98,3 +98,15 @@ def test_every_extended_entry_names_collected_tests_and_says_where_they_are_cove
     unmatched = [p for p in EXTENDED if not any(i.startswith(p) for i in marks)]
     assert unmatched == []
     assert all(reason.strip() for reason in EXTENDED.values())
+
+
+def test_every_heavy_entry_names_collected_tests_none_of_them_real_time(
+    marks: dict[str, frozenset[str]],
+) -> None:
+    """Each :data:`tests.lanes.HEAVY` prefix names tests, all out of the fast lane and in
+    the no-wall-clock part, none of them in a real-time module."""
+    for prefix, kept in HEAVY.items():
+        named = [n for n in marks if n.startswith(prefix)]
+        assert named and kept.strip(), prefix
+        assert all({"slow", "virtual"} <= marks[n] for n in named), prefix
+        assert prefix.split("::", 1)[0] not in SLOW_MODULES, prefix

@@ -46,10 +46,10 @@ def _quiet() -> Iterator[None]:
 
 
 FAST = ("stopped-at-once", "no-accel-ramp", "no-brake-ramp")
-"""The mutants the fast lane (``-m "not slow"``) runs: the controllers issue #22 found
-the suite passing. Every mutant, these too, runs in the test command's background part
-(marker ``virtual``): the whole score costs about half a minute of CPU, half the fast
-lane's budget."""
+"""The controllers issue #22 found the suite passing. The fast lane (``-m "not slow"``)
+runs the first (tests/lanes.py HEAVY takes the other two out of it); every mutant runs
+in the test command's no-wall-clock part (marker ``virtual``): the whole score costs
+about half a minute of CPU."""
 
 
 @pytest.mark.parametrize(

@@ -101,14 +101,25 @@ def _mutated(draw: st.DrawFn) -> Any:
 _plans = st.one_of(_valid_plans, _mutated(), _values)
 
 
-@settings(max_examples=1500, deadline=None, derandomize=True)
-@given(_plans)
-def test_the_fast_path_agrees_with_jsonschema(doc: Any) -> None:
+def _agrees(doc: Any) -> None:
     slow = schema_violations(_validator(), doc)  # jsonschema alone
     assert validate_plan(doc) == slow  # the fast path first: the same answer
     assert (not list(_validator().iter_errors(doc))) == (
         not [v for v in slow if v[1] != "must be a finite number"]
     )
+
+
+@settings(max_examples=1500, deadline=None, derandomize=True)
+@given(_plans)
+def test_the_fast_path_agrees_with_jsonschema(doc: Any) -> None:
+    _agrees(doc)
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(_plans)
+def test_the_fast_path_agrees_on_a_quick_sample(doc: Any) -> None:
+    """The property above on fewer examples, for the fast lane (tests/lanes.py HEAVY)."""
+    _agrees(doc)
 
 
 def test_the_fast_path_passes_a_valid_plan_and_words_nothing_itself() -> None:
