@@ -16,8 +16,10 @@ serial line (:func:`~firmware_proto.linkio.memory.memory_line`: bytes through th
 codec) or a python-can ``virtual`` bus (frames through the CAN map).
 
 :meth:`LockstepController.inject` is the control port's ``inject`` (docs/emulator.md):
-what the conformance suite calls to reboot the controller or raise a fault. Link faults
-need a served emulator; they are refused here.
+what the conformance suite calls to reboot the controller or raise a fault. A fault with
+a trigger (``@t=``, ``@d=``, ``@region=``) waits in a
+:class:`~emulator.injection.FaultSchedule` polled after every control period, as the
+served emulator's. Link faults need a served emulator; they are refused here.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from typing import Any
 
 from emulator.controller import ControllerModel
 from emulator.errors import InjectionError
-from emulator.injection import Injector, parse_fault
+from emulator.injection import FaultSchedule, Injector, parse_fault
 from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.linkio.endpoint import CONTROLLER, HOST, Endpoint
 from firmware_proto.linkio.media import MEDIA
@@ -68,6 +70,8 @@ class LockstepController:
         self.endpoint = endpoint
         self.clock = clock
         self.injector = Injector(model, self)
+        self.schedule = FaultSchedule(self.injector, source="control")
+        """Faults waiting for their trigger (polled after each control period)."""
         self._rx_errors_seen = 0
         self._opened = False
 
@@ -97,6 +101,7 @@ class LockstepController:
         for message, _seq in self.endpoint.read_ready():
             self._send(model.handle(message))
         out = model.tick()
+        out += self.schedule.poll()
         errors = self.endpoint.counters.rejected
         if errors != self._rx_errors_seen:
             model.rx_error(errors - self._rx_errors_seen)
@@ -105,7 +110,8 @@ class LockstepController:
 
     def inject(self, fault: str) -> dict[str, Any]:
         """Apply a fault now (``reboot``, ``encoder-dropout:left``, ``clear:stall`` ...),
-        as the control port's ``inject`` does; its answer.
+        or schedule it when it has a trigger (``stall:left@d=1.2``), as the control
+        port's ``inject`` does; its answer.
 
         Raises:
             InjectionError: malformed, inapplicable, or a link fault.
@@ -113,7 +119,8 @@ class LockstepController:
         spec = parse_fault(fault)
         self.injector.check(spec)
         if not spec.trigger.immediate:
-            raise InjectionError(f"{fault}: a trigger needs a served emulator")
+            scheduled = self.schedule.add(spec, "control")
+            return {"ok": True, "fault": fault, "scheduled": scheduled.fires}
         self._send(self.injector.apply(spec, "control"))
         return {"ok": True, "fault": fault, "t": round(self.model.now_s, 6)}
 

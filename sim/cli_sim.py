@@ -127,10 +127,113 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "sequencer and guard over the wire, a ground across a lossy 3 s link, slip, POSE "
         "silence, bad and replayed uplinks, ground STOPs, reboots",
     )
+    p.add_argument(
+        "--world",
+        metavar="NAME",
+        default=None,
+        help="play a named mission of the whole stack in virtual time instead (the gate, the "
+        "executor, the link relay, the bridge node, the controller and its twin in one "
+        "process; docs/sim.md, 'Whole missions in virtual time'): one of "
+        + ", ".join(_world_names()),
+    )
+    p.add_argument("--map", default="lab", help="with --world: the map (default lab)")
+    p.add_argument(
+        "--rtt", type=float, default=3.0, metavar="S", help="with --world: the round trip"
+    )
+    p.add_argument("--jitter", type=float, default=0.0, metavar="S", help="with --world")
+    p.add_argument(
+        "--loss", type=float, default=0.0, metavar="RATIO", help="with --world: relay loss"
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="FAULT",
+        help="with --world: a controller fault from the start (repeatable; docs/emulator.md)",
+    )
+    p.add_argument(
+        "--unrelayed",
+        action="append",
+        default=[],
+        metavar="TOPIC",
+        help="with --world: a topic the link does not carry (repeatable)",
+    )
+    p.add_argument(
+        "--executor",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="with --world: an executor setting (repeatable; docs/ground.md)",
+    )
     p.add_argument("--trace", action="store_true", help="with --seed: print every event")
     p.add_argument(
         "--stop-on-failure", action="store_true", help="stop at the first failing scenario"
     )
+
+
+def _world_names() -> list[str]:
+    """The whole-stack missions' names, as :mod:`sim.worldmissions` lists them (kept here
+    so that the parser does not import the whole stack)."""
+    return [
+        "approved", "slip", "rejected", "dark", "dead", "replan", "replan-fails", "cancel",
+        "demo",
+    ]  # fmt: skip
+
+
+def _setting(text: str) -> tuple[str, Any]:
+    """``NAME=VALUE`` of ``--executor``: the value as Python reads it (a number, a
+    boolean), else the text."""
+    import ast
+
+    name, _, value = text.partition("=")
+    try:
+        return name, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return name, value
+
+
+def _run_world(args: argparse.Namespace, tick_s: float | None) -> int:
+    """``--world``: each seed on each controller and medium asked for; the exit status."""
+    from sim.world import CONTROLLERS, MEDIA, WorldConfig
+    from sim.worldmissions import MISSIONS, play, start_gate
+
+    if args.world not in MISSIONS:
+        known = ", ".join(MISSIONS)
+        print(f"rover sim: error: unknown --world {args.world!r}; known: {known}", file=sys.stderr)
+        return 2
+    seeds = args.seeds if args.seeds is not None else [args.seed or 0]
+    controllers = CONTROLLERS if args.controller == "both" else (args.controller or "python",)
+    media = MEDIA if args.medium == "both" else (args.medium or "serial",)
+    failed = 0
+    gate = start_gate()
+    try:
+        for seed in seeds:
+            for controller in controllers:
+                for medium in media:
+                    config = WorldConfig(
+                        map_name=args.map,
+                        controller=controller,
+                        medium=medium,
+                        seed=seed,
+                        rtt_s=args.rtt,
+                        jitter_s=args.jitter,
+                        loss=args.loss,
+                    )
+                    config = config.with_(
+                        faults=tuple(args.fault),
+                        unrelayed=tuple(args.unrelayed),
+                        executor=tuple(_setting(text) for text in args.executor),
+                    )
+                    if tick_s is not None:
+                        config = config.with_(tick_s=tick_s)
+                    outcome = play(args.world, config, gate_url=gate.url)
+                    print(outcome.report(), flush=True)
+                    if args.trace or (args.seed is not None and not outcome.ok):
+                        print("\n".join(f"  | {line}" for line in outcome.lines))
+                    failed += not outcome.ok
+    finally:
+        gate.close()
+    return 1 if failed else 0
 
 
 def register(subparsers: Any) -> None:
@@ -146,6 +249,7 @@ def register(subparsers: Any) -> None:
             "  rover sim --budget 600                    # soak for ten minutes\n"
             "  rover sim --seed 4711 --controller c --medium can --trace\n"
             "  rover sim --seeds 0..2999 --mutant auto-clear-survives --stop-on-failure\n"
+            "  rover sim --world demo --seed 1 --controller c --medium can\n"
         ),
     )
     add_arguments(p)
@@ -161,6 +265,11 @@ def run(args: argparse.Namespace) -> int:
     from sim.scenario import CONTROLLERS, DEFAULT_TICK_S, MEDIA, make_scenario
     from sim.soak import soak
 
+    if args.world is not None:
+        if args.verbose <= 0:
+            for name in ("bridge", "emulator", "planner", "gate"):
+                logging.getLogger(name).setLevel(logging.ERROR)
+        return _run_world(args, args.tick_ms / 1000.0 if args.tick_ms is not None else None)
     tick_s = args.tick_ms / 1000.0 if args.tick_ms is not None else DEFAULT_TICK_S
     options: dict[str, Any] = {
         "mutants": tuple(args.mutant),

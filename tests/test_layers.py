@@ -16,8 +16,9 @@ function), so a lazy import counts as much as a top-level one:
   of the parts above ``firmware_proto`` it imports ``bridge.ros.rosport`` and nothing else;
 - the emulator and the bridge never import each other; the gate imports neither the
   bridge nor the planner; the rover's device tooling (``udev``) imports none of them;
-- the wire simulator (``sim``) sits on top of the bridge and the emulator: it imports
-  both, never the gate, the planner or ``udev``, and no part imports it;
+- the simulator (``sim``) sits on top of every part but ``udev``: the wire simulator
+  imports the bridge and the emulator, a whole mission in virtual time the planner and
+  the gate too; no part imports it;
 - no module imports itself back through others: the modules of all seven parts form no
   import circle (an import for type checking only counts too).
 """
@@ -178,7 +179,7 @@ def test_a_serial_link_never_loads_python_can() -> None:
         ("gate", ("bridge", "planner", "sim")),
         ("planner", ("gate", "emulator", "udev", "sim")),
         ("udev", ("firmware_proto", "emulator", "bridge", "gate", "planner", "sim")),
-        ("sim", ("gate", "planner", "udev")),
+        ("sim", ("udev",)),
     ],
 )
 def test_arrows_point_down(package: str, forbidden: tuple[str, ...]) -> None:

@@ -5,7 +5,12 @@ Every rule of the protocol's host side (handshake, the two send lanes, acknowled
 and retries, STOP and its repeats, the latch and its automatic clear, supervision,
 reconnect decisions, counters) is the core's and documented there; the same core runs
 in virtual time in the wire simulator (docs/sim.md). This module adds what only real
-time has: the transport, the threads, the clock (``time.monotonic()``) and the callbacks.
+time has: the transport, the threads, the clock (``self._clock.now()``) and the callbacks.
+
+Given a lockstep clock (:class:`~firmware_proto.linkio.clock.LockstepClock`: a whole
+mission in virtual time, docs/sim.md) the same shell starts no thread: once per tick of
+the clock it reads the transport (:meth:`~bridge.link.transport.Transport.pump`), runs
+the timer's work and writes what the core queued, in that order, on the clock's thread.
 
 :class:`ControllerLink` is what the bridge node drives; it knows nothing of ROS. It
 reports every step's fate as a ``/command_status`` string through ``on_status``, hands
@@ -32,7 +37,6 @@ from __future__ import annotations
 import logging
 import random
 import threading
-import time
 from collections.abc import Callable
 from types import TracebackType
 
@@ -47,6 +51,7 @@ from bridge.link.linktypes import (
     StepRequest,
 )
 from bridge.link.transport import Transport, open_transport
+from firmware_proto.linkio.clock import WALL, Clock, is_lockstep
 from firmware_proto.runtime import stall
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (
@@ -83,6 +88,7 @@ class ControllerLink:
         transport_factory: Callable[[str], Transport] = open_transport,
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
+        clock: Clock = WALL,
     ) -> None:
         """Args:
         config: link parameters.
@@ -90,13 +96,17 @@ class ControllerLink:
             may be handed out by a link thread still delivering earlier ones, after the
             call that caused it returned).
         on_telemetry: every message from the controller with its arrival time
-            (``time.monotonic()``), on the transport's dispatcher thread; sensor samples
+            (``self._clock.now()``), on the transport's dispatcher thread; sensor samples
             only in a session (:mod:`bridge.link.linkcore`).
         on_state: the new :class:`LinkState` at every change, in order, outside the
             lock, on the thread that made the change or on one of the link's threads
             still delivering earlier events; it must not block.
         transport_factory: builds the (unopened) transport for a URL.
         protocol_version, schema_hash: what this host speaks (tests change them).
+        clock: what tells the time (arrival times, ``last_stop_written`` and every
+            time the core is given are its :meth:`~firmware_proto.linkio.clock.Clock.now`);
+            a lockstep clock runs the link on its ticks, without threads (module
+            docstring).
 
         Raises:
             TransportUrlError: ``config.url`` is malformed; found here, once, because no
@@ -115,6 +125,9 @@ class ControllerLink:
         self._on_telemetry = on_telemetry
         self._on_state = on_state
         self._factory = transport_factory
+        self._clock = clock
+        self._lockstep = is_lockstep(clock)
+        self._started = False
         self.protocol_version = protocol_version
         self.schema_hash = schema_hash
         self._lock = threading.RLock()
@@ -128,7 +141,8 @@ class ControllerLink:
         self._failure: tuple[Transport, Exception] | None = None
         self._opening: Transport | None = None  # being opened by _connect
         self.last_stop_written: float | None = None
-        """``time.monotonic()`` when the last STOP frame was handed to the OS, whole."""
+        """The clock's time (``self._clock.now()``) when the last STOP frame was handed to
+        the OS, whole."""
 
     # -- lifecycle ----------------------------------------------------------------------
     @property
@@ -150,9 +164,14 @@ class ControllerLink:
 
     def start(self) -> None:
         """Start the timer thread, which connects (and reconnects) on its own, and the
-        writer thread."""
-        if self._thread is not None:
+        writer thread (in lockstep: run their work on every tick of the clock from now
+        on)."""
+        if self._thread is not None or self._started:
             raise RuntimeError("link already started")
+        self._started = True
+        if self._lockstep:
+            self._clock.add(self._lockstep_tick)  # type: ignore[attr-defined]
+            return
         self._writer = threading.Thread(target=self._write_queued, name="link-tx", daemon=True)
         self._writer.start()
         self._thread = threading.Thread(target=self._timer, name="link-timer", daemon=True)
@@ -160,6 +179,8 @@ class ControllerLink:
 
     def close(self) -> None:
         """Stop every thread and close the transport (idempotent)."""
+        if self._lockstep:
+            self._clock.remove(self._lockstep_tick)  # type: ignore[attr-defined]
         self._stopping.set()
         self._wake.set()
         self._tx_wake.set()
@@ -216,9 +237,12 @@ class ControllerLink:
             self.emergency_stop(StopSource.PLAN_STEP)
             return
         with self._lock:
-            self._core.submit_step(step, time.monotonic())
+            self._core.submit_step(step, self._clock.now())
             self._wake_writer()
+            transport = self._transport
         self._flush()
+        if self._lockstep and transport is not None:
+            self._write_now(transport)
 
     def emergency_stop(self, source: int = StopSource.OPERATOR) -> int:
         """Send STOP now, on this thread, ahead of anything queued (repeated until
@@ -228,7 +252,7 @@ class ControllerLink:
         out first thing after the next handshake.
         """
         with self._lock:
-            stop_id = self._core.emergency_stop(source, time.monotonic())
+            stop_id = self._core.emergency_stop(source, self._clock.now())
             stops, transport = self._core.take_stops(), self._transport
         if transport is not None:
             for stop in stops:
@@ -242,10 +266,10 @@ class ControllerLink:
             transport.send(stop)
         except TransportError as exc:
             with self._lock:
-                self._core.stop_written(stop.stop_id, time.monotonic(), False)
+                self._core.stop_written(stop.stop_id, self._clock.now(), False)
             self._report_failure(transport, exc)
             return
-        written = time.monotonic()
+        written = self._clock.now()
         self.last_stop_written = written
         with self._lock:
             self._core.stop_written(stop.stop_id, written, True)
@@ -254,9 +278,51 @@ class ControllerLink:
         """Ask the controller to release its latch (CLEAR_STOP, repeated until CLEAR_ACK).
         Returns the request id; the answer comes as ``cleared`` or ``fault:<reason>``."""
         with self._lock:
-            clear_id = self._core.clear_stop(time.monotonic())
+            clear_id = self._core.clear_stop(self._clock.now())
         self._wake.set()
         return clear_id
+
+    # -- lockstep --------------------------------------------------------------------------
+    def _lockstep_tick(self) -> None:
+        """One tick of a lockstep clock: what arrived, the timer's work (a reconnect, the
+        core's periodic work), then every frame the core queued, as the writer would."""
+        if self._stopping.is_set():
+            return
+        transport = self._transport
+        if transport is not None:
+            transport.pump(self._clock.now())
+        if self._failure is not None:
+            self._handle_failure()
+        now = self._clock.now()
+        with self._lock:
+            connect = self._transport is None and self._core.connect_due(now)
+        if connect:
+            self._connect()
+            return
+        transport = self._transport
+        if transport is None:
+            return
+        with self._lock:
+            self._core.tick(now)
+            stops = self._core.take_stops()
+        self._send_all(transport, stops)
+        self._flush()
+        self._write_now(transport)
+
+    def _write_now(self, transport: Transport) -> None:
+        """Lockstep: write every frame the core queued, in order, as the writer thread
+        would at once."""
+        while not self._stopping.is_set():
+            with self._lock:
+                entry = self._core.take_write() if self._transport is transport else None
+            if entry is None:
+                break
+            sent = self._send(transport, entry.msg)
+            with self._lock:
+                self._core.written(entry, self._clock.now(), sent)
+                stops = self._core.take_stops()
+            self._send_all(transport, stops)
+        self._flush()
 
     # -- the timer thread --------------------------------------------------------------------
     def _timer(self) -> None:
@@ -271,7 +337,7 @@ class ControllerLink:
             beat.tick()
             if self._failure is not None:
                 self._handle_failure()
-            now = time.monotonic()
+            now = self._clock.now()
             with self._lock:
                 connect = self._transport is None and self._core.connect_due(now)
             if connect:
@@ -298,18 +364,25 @@ class ControllerLink:
                 # A failure reported while open() is still running (the reader may fail
                 # before open() returns) is kept, not ignored: see _report_failure.
                 self._opening = opening
-            transport.open(self._on_message, lambda exc: self._report_failure(opening, exc))
+
+            def on_error(exc: Exception) -> None:
+                self._report_failure(opening, exc)
+
+            if self._lockstep:
+                transport.open(self._on_message, on_error, threads=False)
+            else:
+                transport.open(self._on_message, on_error)
         except TransportError as exc:
             with self._lock:
                 self._opening = None
-                self._core.connect_failed(time.monotonic(), str(exc))
+                self._core.connect_failed(self._clock.now(), str(exc))
             return
         with self._lock:
             self._opening = None
             stopping = self._stopping.is_set()
             if not stopping:
                 self._transport = transport
-                self._core.on_connected(time.monotonic())
+                self._core.on_connected(self._clock.now())
         if stopping:
             transport.close()  # outside the lock: it joins the dispatcher, which may want it
             return
@@ -333,7 +406,7 @@ class ControllerLink:
                 return
             transport, exc = failure
             self._transport = None
-            self._core.failed(time.monotonic(), str(exc))
+            self._core.failed(self._clock.now(), str(exc))
         transport.close()
         self._flush()
 
@@ -367,7 +440,7 @@ class ControllerLink:
                     break
                 sent = self._send(transport, entry.msg)
                 with self._lock:
-                    self._core.written(entry, time.monotonic(), sent)
+                    self._core.written(entry, self._clock.now(), sent)
                     stops = self._core.take_stops()
                 self._send_all(transport, stops)
 
@@ -447,7 +520,7 @@ class ControllerLink:
                 )
             monitor = stall.current_monitor()
             return self._core.diagnostics(
-                time.monotonic(),
+                self._clock.now(),
                 medium,
                 stalls=len(monitor.records) if monitor is not None else 0,
                 stall_max_ms=monitor.longest_ms if monitor is not None else 0.0,

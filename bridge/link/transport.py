@@ -45,6 +45,10 @@ by its retransmission, a heartbeat by the next period) or is moot under the latc
 CAN every frame is whole by construction and STOP goes to the bus ahead of any frame of
 ours still waiting for the write lock.
 
+**In lockstep** (a whole mission in virtual time, docs/sim.md) a transport is opened with
+``threads=False``: nothing reads until its owner calls :meth:`Transport.pump` once per
+tick, which reads what has arrived and dispatches it on the calling thread.
+
 A new medium is a new :class:`~firmware_proto.linkio.endpoint.Endpoint`; a test that
 must see or stall the writes overrides ``_write`` (one message, on the writing thread).
 """
@@ -152,6 +156,7 @@ class Transport:
         ``on_message`` (``None`` on CAN): read it from ``on_message``, on the dispatcher
         thread, for the frame's place in the counter (the link's lost-frame forgiveness
         at a reboot)."""
+        self._callbacks: tuple[OnMessage, OnError] | None = None
         self._opened = False
 
     @property
@@ -178,8 +183,13 @@ class Transport:
         self.endpoint.write(message)
 
     # -- API ----------------------------------------------------------------------------
-    def open(self, on_message: OnMessage, on_error: OnError) -> None:
+    def open(self, on_message: OnMessage, on_error: OnError, *, threads: bool = True) -> None:
         """Open and start reading.
+
+        Args:
+            on_message, on_error: see :data:`OnMessage`, :data:`OnError`.
+            threads: start the reader and the dispatcher (real time). Without them (a
+                link in lockstep, docs/sim.md) nothing is read until :meth:`pump`.
 
         Raises:
             DeviceBusyError: another process holds the device's exclusive lock.
@@ -196,6 +206,9 @@ class Transport:
             raise TransportError(f"cannot open {self.url}: {exc}") from exc
         self._opened = True
         self._stop.clear()
+        self._callbacks = (on_message, on_error)
+        if not threads:
+            return
         self._rx = queue.Queue(self.rx_queue_depth)
         self._dispatcher = threading.Thread(
             target=self._dispatch,
@@ -206,6 +219,30 @@ class Transport:
         self._thread = threading.Thread(target=self._reader, name=f"{self.kind}-rx", daemon=True)
         self._dispatcher.start()
         self._thread.start()
+
+    def pump(self, now: float) -> None:
+        """Lockstep (opened with ``threads=False``): read what has arrived, without
+        waiting, and hand each message to ``on_message`` on this thread, arrived at
+        ``now``; a failed read goes to ``on_error`` once, after them. The caller's thread
+        is both the reader and the dispatcher, so the receive queue and its drop policy
+        do not apply.
+        """
+        if not self._opened or self._stop.is_set() or self._callbacks is None:
+            return
+        on_message, on_error = self._callbacks
+        try:
+            received = self.endpoint.read_ready()
+        except (OSError, ValueError) as exc:
+            logger.warning("%s: read failed: %s", self.url, exc)
+            self._stop.set()
+            on_error(exc)
+            return
+        for message, seq in received:
+            self.dispatch_seq = seq
+            try:
+                on_message(message, now)
+            except Exception:
+                logger.exception("%s: handling %s failed; carrying on", self.url, message.NAME)
 
     def send(self, message: Message) -> None:
         """Send one message now, on the calling thread. A :class:`Stop` does not wait

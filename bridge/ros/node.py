@@ -40,7 +40,9 @@ Publishes:
 
 Threads: the ROS port's threads run the input callbacks; the transport's dispatcher
 thread runs the telemetry and status outputs; one diagnostics thread publishes
-``/diagnostics``.
+``/diagnostics``. Given a lockstep clock (a whole mission in virtual time, docs/sim.md),
+the node and its link start no thread: the link runs on the clock's ticks, and so does
+the diagnostics schedule; every stamp is the clock's time of day.
 """
 
 from __future__ import annotations
@@ -51,10 +53,12 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from types import TracebackType
 from typing import Any
+
+import numpy
 
 from bridge.errors import ParameterError
 from bridge.link.controllerlink import ControllerLink, LinkDiagnostics, LinkState, StepRequest
@@ -81,6 +85,7 @@ from bridge.ros.rosport.msgs import (
     quaternion_from_yaw,
     stamp,
 )
+from firmware_proto.linkio.clock import WALL, Clock, LockstepClock
 from firmware_proto.linkio.trafficio import LogWriter, open_recorder
 from firmware_proto.model.pose import Pose as PlanarPose
 from firmware_proto.model.pose import frame_in
@@ -120,8 +125,10 @@ def validate_step(data: object, rover: RoverDescription) -> StepRequest | str:
     return StepRequest(command, speed, distance)
 
 
-def _covariance(var_xy: float, var_yaw: float) -> list[float]:
-    cov = [0.0] * 36
+def _covariance(var_xy: float, var_yaw: float) -> numpy.ndarray[Any, Any]:
+    # A float64 array of 36: the generated setter takes it as it is (a list is checked
+    # value by value, a third of the cost of building an Odometry).
+    cov = numpy.zeros(36)
     cov[0] = cov[7] = var_xy
     cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane
     cov[35] = var_yaw
@@ -171,6 +178,8 @@ class BridgeNode:
         *,
         rover: RoverDescription | None = None,
         link: ControllerLink | None = None,
+        clock: Clock = WALL,
+        transport_factory: Callable[[str], Transport] | None = None,
     ) -> None:
         """Args:
         params: validated parameters (see :func:`bridge.ros.params.load_params`).
@@ -179,6 +188,10 @@ class BridgeNode:
         rover: the rover description (default: ``params.rover_description`` or the
             packaged one).
         link: a link to use instead of one built from ``params`` (it is started here).
+        clock: the time (stamps, the diagnostics schedule) and, when it is a lockstep
+            clock, what runs the node and its link instead of threads.
+        transport_factory: builds the link's transport for ``params.url`` (default: the
+            one the URL names, recording to ``params.record``).
 
         With ``params.record`` set (and no ``link`` given), every frame of the link goes to
         that traffic log, which the node closes with itself.
@@ -225,15 +238,18 @@ class BridgeNode:
             )
         recorder = self.recorder
 
-        def transport_factory(url: str) -> Transport:
+        def recording_transport(url: str) -> Transport:
             return open_transport(url, recorder=recorder)
 
+        self.clock = clock
+        self._stepping = clock if isinstance(clock, LockstepClock) else None
         self.link = link or ControllerLink(
             params.link_config(),
             on_status=self._publish_status,
             on_telemetry=self._on_telemetry,
             on_state=self._on_link_state,
-            transport_factory=transport_factory,
+            transport_factory=transport_factory or recording_transport,
+            clock=clock,
         )
         self._odom_lock = threading.Lock()
         self._stop = threading.Event()
@@ -241,6 +257,7 @@ class BridgeNode:
         self._diag_thread = threading.Thread(
             target=self._diagnostics_loop, name="bridge-diag", daemon=True
         )
+        self._diag_next = 0.0  # lockstep: when the next scheduled diagnostics are due
         self._subs: list[Subscription[Any]] = [
             port.subscribe(
                 params.topic_wheel_instructions,
@@ -258,8 +275,9 @@ class BridgeNode:
         ]
         self._started = False
         self.last_estop_received: float | None = None
-        """``time.monotonic()`` when the last ``emergency_stop`` true reached this node
-        (its STOP lane callback): where the ROS hop ends and the link's begins."""
+        """The clock's time (``time.monotonic()``) when the last ``emergency_stop`` true
+        reached this node (its STOP lane callback): where the ROS hop ends and the link's
+        begins."""
         port.declare_parameters(parameter_specs(params), self._on_parameters, params.to_dict())
 
     # -- lifecycle ----------------------------------------------------------------------
@@ -267,7 +285,11 @@ class BridgeNode:
         """Start the link and the diagnostics timer."""
         self._started = True
         self.link.start()
-        self._diag_thread.start()
+        if self._stepping is not None:
+            self._diag_next = self.clock.now() + 1.0 / self.params.diagnostics_hz
+            self._stepping.add(self._diagnostics_tick)
+        else:
+            self._diag_thread.start()
         return self
 
     def close(self) -> None:
@@ -278,7 +300,10 @@ class BridgeNode:
             sub.close()
         if self._started:
             self.link.close()
-            self._diag_thread.join(timeout=5.0)
+            if self._stepping is not None:
+                self._stepping.remove(self._diagnostics_tick)
+            else:
+                self._diag_thread.join(timeout=5.0)
             self._started = False
         if self.recorder is not None:
             self.recorder.close()
@@ -324,7 +349,7 @@ class BridgeNode:
 
     def _on_emergency_stop(self, msg: Bool) -> None:
         if msg.data:
-            self.last_estop_received = time.monotonic()
+            self.last_estop_received = self.clock.now()
             self.link.emergency_stop(StopSource.OPERATOR)
 
     def _on_clear(self, msg: Empty) -> None:
@@ -340,7 +365,7 @@ class BridgeNode:
             with self._odom_lock:
                 est = self.odometry.update_encoders(msg)
                 self._odom_now = PlanarPose(est.x_m, est.y_m, math.degrees(est.yaw_rad))
-            now = stamp()
+            now = stamp(self.clock.time())
             self._publish_tf(now, est.x_m, est.y_m, est.yaw_rad)
             self._odom_pub.publish(
                 Odometry(
@@ -386,7 +411,8 @@ class BridgeNode:
             self._ground_pub.publish(
                 Odometry(
                     header=Header(
-                        stamp=stamp(time.time() - pose.age_s), frame_id=self.params.map_frame
+                        stamp=stamp(self.clock.time() - pose.age_s),
+                        frame_id=self.params.map_frame,
                     ),
                     child_frame_id=self.params.base_frame,
                     pose=PoseWithCovariance(
@@ -431,13 +457,26 @@ class BridgeNode:
             self._diag_pub.publish(
                 diagnostic_array(
                     self.link.diagnostics(),
-                    stamp(),
+                    stamp(self.clock.time()),
                     rejected=self.rejected_counts(),
                     statuses=tuple(self._recent),
                 )
             )
         except Exception:
             logger.exception("publishing diagnostics failed")
+
+    def _diagnostics_tick(self) -> None:
+        """Lockstep: the diagnostics loop's work for one tick of the clock."""
+        if self._stop.is_set():
+            return
+        now = self.clock.now()
+        due = now >= self._diag_next
+        if due:
+            period = 1.0 / self.params.diagnostics_hz
+            self._diag_next = max(self._diag_next + period, now + period / 2)
+        if self._diag_now.is_set() or due:
+            self._diag_now.clear()
+            self._publish_diagnostics()
 
     def _diagnostics_loop(self) -> None:
         """Publish every ``1/diagnostics_hz`` s, on schedule, and at once on a link state

@@ -10,7 +10,14 @@ until the condition holds or its virtual timeout passes).
 
 The lockstep clock knows nothing of controllers: it calls, once per tick and in the
 order added, the steps it was given (:meth:`LockstepClock.add`): a controller's tick,
-a host's pump of its endpoint, a host's heartbeat timer.
+a host's pump of its endpoint, a host's heartbeat timer, and, in a whole mission in
+virtual time (``sim/world.py``), the bridge's link and node, the ROS port's deliveries
+and the link relay, each taking the clock as an argument where it would otherwise start
+a thread (docs/sim.md, "Missions in virtual time").
+
+Both clocks also tell the time of day (:meth:`Clock.time`, seconds since the epoch): what
+stamps ROS messages. The lockstep clock's starts at a fixed :data:`EPOCH_S`, so a run in
+virtual time stamps the same on every machine.
 """
 
 from __future__ import annotations
@@ -20,9 +27,12 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
-__all__ = ["WALL", "Clock", "LockstepClock", "WallClock"]
+__all__ = ["EPOCH_S", "WALL", "Clock", "LockstepClock", "WallClock", "is_lockstep"]
 
 Ready = Callable[[], bool]
+
+EPOCH_S = 1_767_225_600.0
+"""The time of day at a lockstep clock's start, s since the epoch (2026-01-01 00:00 UTC)."""
 
 
 class Clock(Protocol):
@@ -30,6 +40,9 @@ class Clock(Protocol):
 
     def now(self) -> float:
         """Seconds, monotonic (an arbitrary origin)."""
+
+    def time(self) -> float:
+        """The time of day, seconds since the epoch (what stamps a message)."""
 
     def wait_for(self, cond: threading.Condition, ready: Ready, timeout_s: float) -> bool:
         """Wait, with ``cond`` held by the caller, until ``ready()`` is true or
@@ -45,6 +58,10 @@ class WallClock:
     def now(self) -> float:
         """``time.monotonic()``, s."""
         return time.monotonic()
+
+    def time(self) -> float:
+        """``time.time()``, s since the epoch."""
+        return time.time()
 
     def wait_for(self, cond: threading.Condition, ready: Ready, timeout_s: float) -> bool:
         """``cond.wait_for(ready, timeout_s)``: another thread notifies ``cond``."""
@@ -63,12 +80,14 @@ WALL = WallClock()
 class LockstepClock:
     """Virtual time in ticks of ``dt_s``, advanced only by waits and sleeps.
 
-    Not thread-safe: one thread runs the script and, through its waits, the world.
+    Not thread-safe: one thread runs the script and, through its waits, the world. A
+    step that raises ends the tick and the wait that ran it, with its exception.
     """
 
-    def __init__(self, dt_s: float = 0.001) -> None:
+    def __init__(self, dt_s: float = 0.001, *, epoch_s: float = EPOCH_S) -> None:
         """Args:
         dt_s: one tick, s (> 0): the controller's control period.
+        epoch_s: the time of day at tick 0, s since the epoch.
 
         Raises:
             ValueError: ``dt_s`` is not positive.
@@ -76,16 +95,26 @@ class LockstepClock:
         if not dt_s > 0:
             raise ValueError(f"a tick must be > 0 s, got {dt_s}")
         self.dt_s = dt_s
+        self.epoch_s = epoch_s
         self.ticks = 0
         self._steps: list[Callable[[], None]] = []
 
     def add(self, step: Callable[[], None]) -> None:
-        """Call ``step()`` once per tick from now on, after the steps added before."""
-        self._steps.append(step)
+        """Call ``step()`` once per tick from the next one on, after the steps added
+        before (a step may add or remove steps)."""
+        self._steps = [*self._steps, step]
+
+    def remove(self, step: Callable[[], None]) -> None:
+        """Call ``step`` no more (idempotent): what a part that closes does."""
+        self._steps = [s for s in self._steps if s != step]
 
     def now(self) -> float:
         """Virtual seconds since the clock was made."""
         return self.ticks * self.dt_s
+
+    def time(self) -> float:
+        """``epoch_s`` plus :meth:`now`."""
+        return self.epoch_s + self.ticks * self.dt_s
 
     def advance(self, ticks: int = 1) -> None:
         """Run ``ticks`` ticks: each step in turn, then the time moves on by ``dt_s``."""
@@ -95,10 +124,11 @@ class LockstepClock:
             self.ticks += 1
 
     def wait_for(self, cond: threading.Condition, ready: Ready, timeout_s: float) -> bool:
-        """Advance tick by tick until ``ready()`` or ``timeout_s`` of virtual time passed.
+        """Advance tick by tick until ``ready()`` or ``timeout_s`` of virtual time passed
+        (rounded to whole ticks, at least one when positive).
         The steps run with ``cond`` held (it must be re-entrant, as
         ``threading.Condition()``'s default lock is)."""
-        deadline = self.ticks + max(0, round(timeout_s / self.dt_s))
+        deadline = self.ticks + self._ticks_in(timeout_s)
         while not ready():
             if self.ticks >= deadline:
                 return False
@@ -107,4 +137,17 @@ class LockstepClock:
 
     def sleep(self, seconds: float) -> None:
         """Advance ``seconds`` of virtual time (rounded to whole ticks)."""
-        self.advance(max(0, round(seconds / self.dt_s)))
+        self.advance(self._ticks_in(seconds))
+
+    def _ticks_in(self, seconds: float) -> int:
+        """Whole ticks in ``seconds``, rounded; at least one for any positive time, so
+        that a waiter that polls with a wait shorter than a tick still moves time on."""
+        if not seconds > 0:
+            return 0
+        return max(1, round(seconds / self.dt_s))
+
+
+def is_lockstep(clock: Clock) -> bool:
+    """Whether ``clock`` runs in lockstep: a part given it starts no thread and adds its
+    periodic work to the clock instead (:meth:`LockstepClock.add`)."""
+    return isinstance(clock, LockstepClock)

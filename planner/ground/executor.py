@@ -13,7 +13,10 @@ is re-raised once STOP went out (its confirmation awaited for a bounded time).
 The time rules of a step in flight (its timeout, drift control gone blind, when
 ``accepted`` and ``running`` are reported, when the rover started it) are a pure
 :class:`~planner.ground.stepwatch.StepWatch` that takes the time as an argument, tested in
-virtual time; this class keeps the threads, the ROS port and the waiting.
+virtual time; this class keeps the threads, the ROS port and the waiting. Every time and
+every wait goes through its clock (``clock=``): the wall clock, or a lockstep clock whose
+waits advance a whole mission in virtual time (docs/sim.md), the executor's thread then
+running the world.
 
 While steps run, a :class:`~planner.ground.drift.DriftMonitor` compares the rover's best pose
 with the gate's prediction. With ``pose_source="auto"`` (the default) that is the
@@ -42,7 +45,6 @@ from __future__ import annotations
 import logging
 import math
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -62,6 +64,7 @@ from bridge.ros.rosport.contract import (
     fault,
 )
 from bridge.ros.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
+from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.model.geometry import wrap_deg
 from firmware_proto.model.plan import Plan
 from firmware_proto.model.pose import Pose
@@ -285,16 +288,30 @@ class PlanExecutor:
     """
 
     def __init__(
-        self, port: RosPort, rover: RoverDescription, config: ExecutorConfig | None = None
+        self,
+        port: RosPort,
+        rover: RoverDescription,
+        config: ExecutorConfig | None = None,
+        *,
+        clock: Clock = WALL,
     ) -> None:
+        """Args:
+        port: the ground's ROS port.
+        rover: the rover description (nominal step durations).
+        config: the settings.
+        clock: every time and wait (``WALL``, or a lockstep clock: virtual time).
+        """
         self.port = port
         self.rover = rover
         self.config = config or ExecutorConfig()
+        self.clock = clock
         self._steps_pub = port.publisher(WHEEL_INSTRUCTIONS, Int16MultiArray, qos.COMMAND)
         self._stop_pub = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
         self._clear_pub = port.publisher(CLEAR_EMERGENCY_STOP, Empty, qos.STOP)
-        self._lock = threading.Lock()
-        self._monitor_lock = threading.Lock()  # pose callbacks may run on two threads
+        # Re-entrant: in lockstep a wait advances the world with the lock held, and the
+        # callbacks it runs take it again on the same thread.
+        self._lock = threading.RLock()
+        self._monitor_lock = threading.RLock()  # pose callbacks may run on two threads
         self._event = threading.Event()
         self._status: str | None = None
         self._accepted: float | None = None
@@ -303,6 +320,8 @@ class PlanExecutor:
         self._cleared = threading.Event()
         self._stopped = threading.Event()
         self._pose_cond = threading.Condition(self._lock)
+        """Notified whenever a pose, an ``odom``, a step's end, ``stopped`` or ``cleared``
+        arrives: every wait of the executor waits on it, through the clock."""
         self._reported_stamp = -math.inf
         self._monitor: DriftMonitor | None = None
         self._drift: DriftEvent | None = None
@@ -312,7 +331,7 @@ class PlanExecutor:
         self.reported_pose: Pose | None = None
         self._trace: list[tuple[float, float, float]] = []
         self._notes: list[str] = []
-        created = time.monotonic()
+        created = self.clock.now()
         self._ground_rx = created  # "never heard" counts from here ...
         # ... but only once a plan runs: before, odom (which the bridge publishes first)
         # arriving ahead of the first odom_ground through the link is no silence.
@@ -342,9 +361,9 @@ class PlanExecutor:
         Returns:
             True when matched, False when ``timeout_s`` passed first.
         """
-        deadline = time.monotonic() + timeout_s
+        deadline = self.clock.now() + timeout_s
         return all(
-            pub.wait_for_subscribers(1, max(0.0, deadline - time.monotonic()))
+            pub.wait_for_subscribers(1, max(0.0, deadline - self.clock.now()))
             for pub in (self._steps_pub, self._stop_pub, self._clear_pub)
         )
 
@@ -374,14 +393,9 @@ class PlanExecutor:
         cfg = self.config
         wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + 1.0 + after_s
         # Rover time of the last status we heard, and after_s more.
-        since = time.time() - cfg.link_rtt_s / 2.0 + after_s
-        deadline = time.monotonic() + wait_s
+        since = self.clock.time() - cfg.link_rtt_s / 2.0 + after_s
         with self._pose_cond:
-            while self._reported_stamp < since:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._pose_cond.wait(left)
+            self.clock.wait_for(self._pose_cond, lambda: self._reported_stamp >= since, wait_s)
             return self.reported_pose
 
     def wait_for_rest(self, timeout_s: float | None = None) -> bool:
@@ -391,22 +405,19 @@ class PlanExecutor:
         (default: round trip + ``step_margin_s``) without one."""
         cfg = self.config
         wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + cfg.step_margin_s
-        since = time.time() - cfg.link_rtt_s / 2.0
-        deadline = time.monotonic() + wait_s
+        since = self.clock.time() - cfg.link_rtt_s / 2.0
+
+        def at_rest() -> bool:
+            motion = self._motion
+            return (
+                motion is not None
+                and motion[0] >= since
+                and abs(motion[1]) < REST_SPEED_MPS
+                and abs(motion[2]) < REST_YAW_RATE_RAD_S
+            )
+
         with self._pose_cond:
-            while True:
-                motion = self._motion
-                if (
-                    motion is not None
-                    and motion[0] >= since
-                    and abs(motion[1]) < REST_SPEED_MPS
-                    and abs(motion[2]) < REST_YAW_RATE_RAD_S
-                ):
-                    return True
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._pose_cond.wait(left)
+            return self.clock.wait_for(self._pose_cond, at_rest, wait_s)
 
     def close(self) -> None:
         """Stop listening (the port stays open)."""
@@ -416,18 +427,20 @@ class PlanExecutor:
     # -- callbacks (ROS port threads) ------------------------------------------------------
     def _on_status(self, msg: String) -> None:
         text = msg.data
-        now = time.monotonic()
+        now = self.clock.now()
         with self._lock:
             if text == STOPPED:
                 self._stopped_at = now
                 self._stopped.set()
+                self._pose_cond.notify_all()
             elif text == CLEARED:
                 self._cleared.set()
+                self._pose_cond.notify_all()
             if not self._running:
                 return
             if text == ACCEPTED:
                 self._accepted = now
-                self._accepted_wall = time.time()
+                self._accepted_wall = self.clock.time()
                 return
             if text in REPORTING_FAULTS:
                 self._note(f"the rover reported {text} (it keeps driving)")
@@ -435,12 +448,13 @@ class PlanExecutor:
             if ends_step(text):
                 self._status = text
                 self._event.set()
+                self._pose_cond.notify_all()
 
     def _on_ground(self, msg: Odometry) -> None:
         pose = Pose(msg.pose.pose.position.x, msg.pose.pose.position.y, _yaw_deg(msg))
         stamp = _stamp_s(msg)
         with self._lock:
-            self._ground_rx = time.monotonic()
+            self._ground_rx = self.clock.now()
             self._ground_heard = True
             self._ground_stamp = stamp
             self._silence_seen = None
@@ -486,7 +500,7 @@ class PlanExecutor:
         the first: a plan runs and ``pose_stale_s`` of wall time has passed since the
         executor began."""
         stale = self.config.pose_stale_s
-        now = time.monotonic()
+        now = self.clock.now()
         if not self._ground_heard:
             return self._running and now - self._ground_rx > stale
         if odom_stamp - self._ground_stamp <= stale:
@@ -508,7 +522,7 @@ class PlanExecutor:
         with self._lock:
             self.reported_pose = pose
             self._reported_stamp = stamp
-            self._pose_rx = time.monotonic()
+            self._pose_rx = self.clock.now()
             self._trace.append((stamp, pose.x, pose.y))
             self._pose_cond.notify_all()
             monitor = self._monitor if self._running else None
@@ -563,14 +577,15 @@ class PlanExecutor:
         )
 
     def _on_drift(self, event: DriftEvent) -> None:
-        detected = time.monotonic()
+        detected = self.clock.now()
         self._publish_stop()  # first: the purge and the report can wait
-        published = time.monotonic()
+        published = self.clock.now()
         with self._lock:
             self._drift = event
             self._stop_latency = published - detected
             self._status = "drift"
             self._event.set()
+            self._pose_cond.notify_all()
         logger.warning(
             "%s; STOP sent %.3f ms after detection", event.reason, (published - detected) * 1e3
         )
@@ -578,22 +593,28 @@ class PlanExecutor:
     # -- STOP and clear ------------------------------------------------------------------------
     def _publish_stop(self) -> None:
         self._stop_pub.publish(Bool(data=True))
-        self._stop_published = time.monotonic()
+        self._stop_published = self.clock.now()
 
     def stop(self, timeout_s: float | None = None) -> bool:
         """Publish STOP every ``stop_repeat_s`` until the rover confirms (``stopped``) or
         ``timeout_s`` passes (default: round trip + margin). Returns whether it did."""
         cfg = self.config
-        deadline = time.monotonic() + (
+        deadline = self.clock.now() + (
             timeout_s if timeout_s is not None else cfg.link_rtt_s + cfg.step_margin_s
         )
         while True:
             self._publish_stop()
-            left = deadline - time.monotonic()
-            if self._stopped.wait(max(0.0, min(cfg.stop_repeat_s, left))):
+            left = deadline - self.clock.now()
+            if self._wait(self._stopped.is_set, max(0.0, min(cfg.stop_repeat_s, left))):
                 return True
-            if time.monotonic() >= deadline:
+            if self.clock.now() >= deadline:
                 return False
+
+    def _wait(self, ready: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait through the clock until ``ready()`` (checked whenever a callback notifies)
+        or ``timeout_s`` passed; whether it became true."""
+        with self._pose_cond:
+            return self.clock.wait_for(self._pose_cond, ready, timeout_s)
 
     def clear_stop(self, timeout_s: float | None = None) -> bool:
         """Ask the rover to release its latch; True when ``cleared`` came back in time."""
@@ -604,7 +625,7 @@ class PlanExecutor:
         )
         self._cleared.clear()
         self._clear_pub.publish(Empty())
-        return self._cleared.wait(timeout_s)
+        return self._wait(self._cleared.is_set, timeout_s)
 
     # -- execution -----------------------------------------------------------------------------
     def step_timeout_s(
@@ -660,7 +681,7 @@ class PlanExecutor:
                 time_scale=cfg.time_scale,
             )
         steps = plan.to_wire()
-        t_begin = time.monotonic()
+        t_begin = self.clock.now()
         with self._lock:
             self._status = None  # nothing of the previous plan carries over
             self._drift = None
@@ -693,7 +714,7 @@ class PlanExecutor:
                     index, step, steps, verdict, monitor, cancel, on_progress, t_begin
                 )
                 outcomes.append(
-                    StepOutcome(index, step, status, published, accepted, time.monotonic())
+                    StepOutcome(index, step, status, published, accepted, self.clock.now())
                 )
                 if on_progress is not None:
                     on_progress(self._progress(index, status, steps, verdict, monitor, None))
@@ -738,7 +759,7 @@ class PlanExecutor:
             drift=drift,
             stop_latency_s=latency,
             stopped_s=stopped,
-            elapsed_s=time.monotonic() - t_begin,
+            elapsed_s=self.clock.now() - t_begin,
             reported_pose=pose,
             worst_drift=monitor.worst if monitor is not None else (0.0, 0.0),
             trace=trace,
@@ -764,13 +785,13 @@ class PlanExecutor:
         cfg = self.config
         with self._lock:
             if self._status == "drift":
-                return "drift", time.monotonic(), None
+                return "drift", self.clock.now(), None
             self._event.clear()
             self._status = None
             self._accepted = None
             self._accepted_wall = None
-        published = time.monotonic()
-        published_wall = time.time()
+        published = self.clock.now()
+        published_wall = self.clock.time()
         if monitor is not None:
             with self._monitor_lock:
                 monitor.step_published(index, published_wall)
@@ -789,16 +810,16 @@ class PlanExecutor:
             plan_started,
         )
         while True:
-            if watch.expired(time.monotonic()):
+            if watch.expired(self.clock.now()):
                 return "timeout", published, self._accepted
-            if self._event.wait(watch.wait_s(time.monotonic())):
+            if self._wait(self._event.is_set, watch.wait_s(self.clock.now())):
                 break
             if cancel is not None and cancel.is_set():
                 return "cancelled", published, self._accepted
             with self._lock:
                 heard = self._pose_rx
             acc, acc_wall = self._accepted_times()
-            said = watch.poll(time.monotonic(), last_pose_s=heard, accepted_s=acc)
+            said = watch.poll(self.clock.now(), last_pose_s=heard, accepted_s=acc)
             if said.end is not None:
                 return said.end, published, self._accepted
             if said.accepted_now and monitor is not None and acc_wall is not None:
@@ -868,7 +889,7 @@ class PlanExecutor:
                 current = duration + cfg.link_rtt_s
             else:
                 # From the rover's start: the step's rest, then its 'completed' coming back.
-                elapsed = time.monotonic() - started
+                elapsed = self.clock.now() - started
                 current = max(0.0, duration - elapsed) + cfg.link_rtt_s / 2.0
         last = monitor.history[-1] if monitor is not None and monitor.history else None
         return ExecutionProgress(

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bridge.ros.rosport.contract import COMPLETED
+from firmware_proto.linkio.clock import Clock, is_lockstep
 from firmware_proto.model.geometry import wrap_deg
 from firmware_proto.model.plan import Plan, PlanStep
 from firmware_proto.model.pose import Pose
@@ -72,8 +73,10 @@ class MissionReport:
         reason: why it stopped short (``""`` when reached).
         final_pose: the rover's last reported pose.
         position_error_m, yaw_error_deg: final pose against the goal.
-        elapsed_s: wall time from the first plan to the end.
-        planning_s: wall time spent planning and validating.
+        elapsed_s: the executor's clock's time from the first plan to the end (wall
+            time, or virtual time in a mission in virtual time).
+        planning_s: wall time spent planning and validating (none of the clock's: in
+            virtual time, planning takes no virtual time).
         cancelled: the operator cancelled the mission (the rover was sent STOP).
         move_and_wait: the runs are move-and-wait's increments (:class:`MoveAndWait`):
             no prediction was driven against, so no drift was measured; ``decision_s``
@@ -223,7 +226,7 @@ class MissionRunner:
             GateCallError: the gate failed on the first planning (nothing was sent to
                 the rover).
         """
-        t0 = time.monotonic()
+        t0 = self.executor.clock.now()
         start = start or self.orchestrator.world.start
         plannings: list[MissionResult] = []
         runs: list[LegRun] = []
@@ -312,10 +315,11 @@ class MissionRunner:
             InvalidPoseError, OutOfBoundsError: a start off the map.
             GateCallError: the gate failed (nothing was sent to the rover).
         """
-        t0 = time.monotonic()
+        t0 = self.executor.clock.now()
+        tp = time.monotonic()
         where = start or self.orchestrator.world.start
         mission = self.orchestrator.check_plan(plan, start=where)
-        planning_s = time.monotonic() - t0
+        planning_s = time.monotonic() - tp
         plannings = [mission]
         runs: list[LegRun] = []
         if self.on_planned is not None:
@@ -370,7 +374,7 @@ class MissionRunner:
             reached,
             reason,
             final,
-            time.monotonic() - t0,
+            self.executor.clock.now() - t0,
             planning_s,
             cancelled,
         )
@@ -467,7 +471,8 @@ class MoveAndWait:
         Progress is reported per increment (``increment 3/14``), with the ETA of the
         whole drive: the rest of this increment, then each later one's nominal duration,
         round trip and decision time."""
-        t0 = time.monotonic() - planning_s
+        clock = self.executor.clock
+        t0 = clock.now() - planning_s
         units = self.executor.rover.m_to_units(self.increment_m)
         runs: list[LegRun] = []
         cancel = self.cancel or threading.Event()
@@ -489,7 +494,7 @@ class MoveAndWait:
                 reached,
                 reason,
                 self.executor.settled_pose(),
-                time.monotonic() - t0,
+                clock.now() - t0,
                 planning_s,
                 reason == CANCELLED,
                 move_and_wait=True,
@@ -523,6 +528,15 @@ class MoveAndWait:
                 # The executor numbers the one step it ran; the operator counts increments.
                 where = f"increment {k + 1}/{len(increments)}"
                 return end(False, result.reason.replace("step 1/1", where, 1))
-            if cancel.wait(self.decision_s / self.time_scale):
+            if _pause(clock, cancel, self.decision_s / self.time_scale):
                 return end(False, CANCELLED)
         return end(True, "")
+
+
+def _pause(clock: Clock, cancel: threading.Event, seconds: float) -> bool:
+    """Let ``seconds`` pass on ``clock``; whether ``cancel`` was set (at once on the wall
+    clock; after the pause in lockstep, where nothing outside the clock's thread runs)."""
+    if is_lockstep(clock):
+        clock.sleep(seconds)
+        return cancel.is_set()
+    return cancel.wait(seconds)

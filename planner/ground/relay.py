@@ -17,7 +17,9 @@ Messages on one topic keep their order (a space link is a stream; jitter stretch
 gaps, it never reorders). Each route draws delay and loss from its own generator seeded
 from ``seed`` and the topic name, so a run is reproducible whatever the interleaving of
 topics. One scheduler thread releases messages when due; ``close()`` drops what is in
-flight (the link went down) and joins it.
+flight (the link went down) and joins it. Given a lockstep clock (a whole mission in
+virtual time, docs/sim.md) there is no thread: each tick of the clock releases what is
+due by then.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from bridge.ros.rosport.contract import (
     WHEEL_INSTRUCTIONS,
 )
 from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
+from firmware_proto.linkio.clock import WALL, Clock, LockstepClock
 
 __all__ = ["DEFAULT_ROUTES", "LinkProfile", "LinkRelay", "RelayedTopic"]
 
@@ -116,14 +119,20 @@ class LinkRelay:
         rover: RosPort,
         profile: LinkProfile | None = None,
         routes: tuple[RelayedTopic, ...] = DEFAULT_ROUTES,
+        *,
+        clock: Clock = WALL,
     ) -> None:
         """Args:
         ground: the operator side's port (its namespace applies to ground topics).
         rover: the rover side's port.
         profile: delay, jitter, loss, seed.
         routes: the topics to relay.
+        clock: what the delays run on; a lockstep clock releases messages on its ticks
+            (no thread).
         """
         self.profile = profile or LinkProfile()
+        self.clock = clock
+        self._stepping = clock if isinstance(clock, LockstepClock) else None
         self.received = 0
         """Messages taken from either side so far (relayed, queued or dropped)."""
         self.forwarded: Counter[str] = Counter()
@@ -149,8 +158,12 @@ class LinkRelay:
                     lane=route.lane,
                 )
             )
-        self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
-        self._thread.start()
+        self._thread: threading.Thread | None = None
+        if self._stepping is not None:
+            self._stepping.add(self._release_due)
+        else:
+            self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
+            self._thread.start()
 
     def _make_forward(
         self, route: RelayedTopic, publisher: Publisher[Any], rng: random.Random
@@ -169,12 +182,29 @@ class LinkRelay:
             with self._cond:
                 if self._closed:
                     return
-                due = max(time.monotonic() + delay, self._last_due.get(key, 0.0))  # no reordering
+                due = max(self.clock.now() + delay, self._last_due.get(key, 0.0))  # in order
                 self._last_due[key] = due
                 heapq.heappush(self._heap, (due, next(self._order), publisher, msg, key))
                 self._cond.notify()
 
         return forward
+
+    def _release_due(self) -> None:
+        """Lockstep: publish every message due by now, in the order due."""
+        now = self.clock.now()
+        while True:
+            with self._cond:
+                if self._closed or not self._heap or self._heap[0][0] > now:
+                    return
+                _, _, publisher, msg, key = heapq.heappop(self._heap)
+            self._publish(publisher, msg, key)
+
+    def _publish(self, publisher: Publisher[Any], msg: Any, key: str) -> None:
+        try:
+            publisher.publish(msg)
+            self.forwarded[key] += 1
+        except Exception:
+            logger.exception("relay could not forward %s", key)
 
     def _run(self) -> None:
         while True:
@@ -185,11 +215,7 @@ class LinkRelay:
                 if self._closed:
                     return
                 _, _, publisher, msg, key = heapq.heappop(self._heap)
-            try:
-                publisher.publish(msg)
-                self.forwarded[key] += 1
-            except Exception:
-                logger.exception("relay could not forward %s", key)
+            self._publish(publisher, msg, key)
 
     def wait_until_matched(self, timeout_s: float = 10.0, topics: set[str] | None = None) -> bool:
         """Wait until each route (of ``topics``, default all) is matched both ways on both
@@ -200,19 +226,20 @@ class LinkRelay:
         Returns:
             True when all matched, False when ``timeout_s`` passed first.
         """
-        deadline = time.monotonic() + timeout_s
+        clock = self.clock
+        deadline = clock.now() + timeout_s
 
         def wanted(topic: str) -> bool:
             return topics is None or topic.rsplit("/", 1)[-1] in topics
 
         for sub in self._subs:
             if wanted(sub.topic) and not sub.wait_for_publishers(
-                1, max(0.0, deadline - time.monotonic())
+                1, max(0.0, deadline - clock.now())
             ):
                 return False
         for pub in self._publishers:
             if wanted(pub.topic) and not pub.wait_for_subscribers(
-                1, max(0.0, deadline - time.monotonic())
+                1, max(0.0, deadline - clock.now())
             ):
                 return False
         return True
@@ -231,7 +258,9 @@ class LinkRelay:
             self._closed = True
             self._heap.clear()
             self._cond.notify_all()
-        if self._thread is not threading.current_thread():
+        if self._stepping is not None:
+            self._stepping.remove(self._release_due)
+        if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
 
     def __enter__(self) -> LinkRelay:

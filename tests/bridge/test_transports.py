@@ -429,14 +429,16 @@ class _OpensAfterItsReaderFailed(SerialTransport):
     """A real serial transport whose ``open`` returns only once its reader has reported
     a failure: the moment a line that dies at once gives the link, made certain."""
 
-    def open(self, on_message: Callable[[Message, float], None], on_error: Any) -> None:
+    def open(
+        self, on_message: Callable[[Message, float], None], on_error: Any, *, threads: bool = True
+    ) -> None:
         reported = threading.Event()
 
         def report(exc: Exception) -> None:
             on_error(exc)
             reported.set()
 
-        super().open(on_message, report)
+        super().open(on_message, report, threads=threads)
         assert reported.wait(10.0), "the reader did not fail"
 
 

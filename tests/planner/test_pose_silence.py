@@ -5,23 +5,22 @@ A ground station that fell behind (its process not scheduled for half a second b
 other work) reads both topics' waiting messages late; judged by the wall clock at
 reading, the first ``odom`` of that backlog looked like half a second of ``odom_ground``
 silence (a false "fell back to odom" seen in the stack walkthrough under load). The
-executor's callbacks are called here as its port calls them, with its wall clock moved
-on between them (a silence must also last :data:`~planner.ground.executor.SILENCE_CONFIRM_S` of
-it); the real fall-back, a POSE dropout on the emulated rover, is
-``tests/planner/test_executor.py``."""
+executor's callbacks are called here as its port calls them, with its clock (given as
+an argument) moved on between them (a silence must also last
+:data:`~planner.ground.executor.SILENCE_CONFIRM_S` of it); the real fall-back, a POSE
+dropout on the emulated rover, is ``tests/planner/test_executor.py``."""
 
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 
 import pytest
 
 from bridge.ros.rosport import open_port
 from bridge.ros.rosport.msgs import Odometry, stamp
 from firmware_proto.model.rover import load_rover
-from planner.ground import executor as executor_module
 from planner.ground.executor import SILENCE_CONFIRM_S, ExecutorConfig, PlanExecutor
 
 T0 = 1_800_000_000.0  # the rover's clock, s
@@ -35,34 +34,41 @@ def _odometry(stamp_s: float) -> Odometry:
     return msg
 
 
+class _Clock:
+    """The executor's clock (``clock=``): it stands still but when the test moves it on,
+    so that no pause of this process beside load moves it."""
+
+    def __init__(self) -> None:
+        self.offset_s = 0.0
+
+    def now(self) -> float:
+        return 1000.0 + self.offset_s
+
+    def time(self) -> float:
+        return T0 + self.offset_s
+
+    def wait_for(
+        self, cond: threading.Condition, ready: Callable[[], bool], timeout_s: float
+    ) -> bool:
+        return ready()
+
+    def sleep(self, seconds: float) -> None:
+        self.offset_s += max(0.0, seconds)
+
+
 @pytest.fixture
-def executor() -> Iterator[PlanExecutor]:
+def clock() -> _Clock:
+    return _Clock()
+
+
+@pytest.fixture
+def executor(clock: _Clock) -> Iterator[PlanExecutor]:
     with open_port("inprocess", node_name="ground", bus="pose-silence") as port:
-        ex = PlanExecutor(port, load_rover(), ExecutorConfig(pose_stale_s=0.5))
+        ex = PlanExecutor(port, load_rover(), ExecutorConfig(pose_stale_s=0.5), clock=clock)
         try:
             yield ex
         finally:
             ex.close()
-
-
-class _Clock:
-    """The executor's wall clock (its ``time`` module, replaced): it stands still but when
-    moved on, so that no pause of this process beside load moves it."""
-
-    def __init__(self) -> None:
-        self.base_s = time.monotonic()
-        self.offset_s = 0.0
-        self.time = time.time
-
-    def monotonic(self) -> float:
-        return self.base_s + self.offset_s
-
-
-@pytest.fixture
-def clock(monkeypatch: pytest.MonkeyPatch) -> _Clock:
-    c = _Clock()
-    monkeypatch.setattr(executor_module, "time", c)
-    return c
 
 
 def test_a_backlog_read_late_is_no_silence(

@@ -9,25 +9,44 @@ reliable subscription does not receive from a best-effort publisher:
 
 ``publish`` only queues: each subscription keeps the last ``qos.depth`` messages (older
 ones are dropped and counted in ``stats().dropped``), and each lane of a port delivers on
-its own thread, so callbacks never run on the publisher's thread. Every subscription
+its own thread, so callbacks never run on the publisher's thread.
+
+**In lockstep** (``clock=`` a :class:`~firmware_proto.linkio.clock.LockstepClock`: a whole
+mission in virtual time, docs/sim.md) a port has no thread: on each tick of the clock it
+delivers what is queued, the STOP lane's first, then the default lane's, in the order
+published, and what those callbacks publish in turn, until nothing is left; so a message
+crosses a port within the tick it was published in, never inside ``publish``. Every subscription
 receives its own copy of the message (as after a trip through DDS), so a subscriber that
 modifies what it received changes nothing for the others or the publisher.
 """
 
 from __future__ import annotations
 
-import copy
 import threading
 from collections import deque
 from typing import Any, Final
 
-from bridge.ros.rosport.port import DEFAULT_NODE_NAME, LANES, Message, RosPort, Subscription
+from bridge.ros.rosport.copying import copy_message
+from bridge.ros.rosport.errors import RosPortError
+from bridge.ros.rosport.port import (
+    DEFAULT_NODE_NAME,
+    LANES,
+    STOP_LANE,
+    Message,
+    RosPort,
+    Subscription,
+)
 from bridge.ros.rosport.qos import Qos, compatible
+from firmware_proto.linkio.clock import WALL, Clock, LockstepClock
 
-__all__ = ["DEFAULT_BUS", "InProcessPort"]
+__all__ = ["DEFAULT_BUS", "LOCKSTEP_BURST", "InProcessPort"]
 
 #: Bus used when ``open_port("inprocess")`` is given none.
 DEFAULT_BUS: Final = "default"
+
+#: In lockstep, more deliveries than this in one tick of one port: callbacks that publish
+#: to each other for ever (an error, raised on the clock's thread).
+LOCKSTEP_BURST: Final = 100_000
 
 
 class _Slot:
@@ -109,7 +128,7 @@ class _Writer:
 
     def write(self, msg: Message) -> None:
         for slot in self._port._bus.matching(self.topic, self.msg_type, self.qos):
-            slot.port._enqueue(slot, copy.deepcopy(msg))
+            slot.port._enqueue(slot, copy_message(msg))
 
     def matched_count(self) -> int:
         return len(self._port._bus.matching(self.topic, self.msg_type, self.qos))
@@ -139,19 +158,55 @@ class InProcessPort(RosPort):
         namespace: see :class:`RosPort`.
         node_name: see :class:`RosPort`.
         bus: name of the in-process bus to join; ports on one bus see each other.
+        clock: the wall clock (lane threads), or a lockstep clock whose ticks deliver
+            (see the module docstring).
     """
 
     backend = "inprocess"
 
     def __init__(
-        self, *, namespace: str = "", node_name: str = DEFAULT_NODE_NAME, bus: str = DEFAULT_BUS
+        self,
+        *,
+        namespace: str = "",
+        node_name: str = DEFAULT_NODE_NAME,
+        bus: str = DEFAULT_BUS,
+        clock: Clock = WALL,
     ) -> None:
         super().__init__(namespace=namespace, node_name=node_name)
         self.bus_name = bus
         self._bus = _bus(bus)
         self._cond = threading.Condition()
         self._ready: dict[str, deque[_Slot]] = {lane: deque() for lane in LANES}
+        self.clock = clock
+        self._stepping: LockstepClock | None = None
+        if isinstance(clock, LockstepClock):
+            self._stepping = clock
+            clock.add(self._deliver_ready)
         self._start()
+
+    def _deliver_ready(self) -> None:
+        """Lockstep: one tick's deliveries (see the module docstring)."""
+        order = [STOP_LANE, *(lane for lane in LANES if lane != STOP_LANE)]
+        for _ in range(LOCKSTEP_BURST):
+            if self._stopping.is_set():
+                return
+            with self._cond:
+                lane = next((name for name in order if self._ready[name]), None)
+                if lane is None:
+                    return
+                slot = self._ready[lane].popleft()
+                if not slot.queue:
+                    continue
+                msg = slot.queue.popleft()
+            self._deliver(slot.sub, msg)
+        raise RosPortError(
+            f"{self!r}: more than {LOCKSTEP_BURST} deliveries in one tick (callbacks "
+            "publishing to each other for ever?)"
+        )
+
+    def _release(self) -> None:
+        if self._stepping is not None:
+            self._stepping.remove(self._deliver_ready)
 
     def _open_writer(self, topic: str, msg_type: type[Any], qos: Qos) -> _Writer:
         return _Writer(self, topic, msg_type, qos)

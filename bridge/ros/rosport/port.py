@@ -61,6 +61,7 @@ from bridge.ros.rosport.errors import PortClosedError, RosPortError, TopicTypeEr
 from bridge.ros.rosport.names import is_message_type, ros_type_name
 from bridge.ros.rosport.parameters import OnSet, ParameterSpec, ParameterValue, check_value
 from bridge.ros.rosport.qos import DEFAULT, Qos
+from firmware_proto.linkio.clock import WALL, Clock, is_lockstep
 
 __all__ = [
     "DEFAULT_LANE",
@@ -205,13 +206,13 @@ class Publisher(Generic[M]):
         Returns:
             True when matched, False when ``timeout_s`` passed first.
         """
-        deadline = time.monotonic() + timeout_s
-        waiter = threading.Event()
+        clock = self.port.clock
+        deadline = clock.now() + timeout_s
         while self.matched_count() < count:
-            remaining = deadline - time.monotonic()
+            remaining = deadline - clock.now()
             if remaining <= 0:
                 return False
-            waiter.wait(min(_MATCH_POLL_S, remaining))
+            clock.sleep(min(_MATCH_POLL_S, remaining))
         return True
 
     def close(self) -> None:
@@ -271,11 +272,12 @@ class Subscription(Generic[M]):
         subscription before this subscription accepts its samples, and with volatile QoS
         what it sends in between is lost. Waiting on both sides closes that window.
         """
-        deadline = time.monotonic() + timeout_s
+        clock = self.port.clock
+        deadline = clock.now() + timeout_s
         while self.matched_count() < count:
-            if time.monotonic() >= deadline or self.closed:
+            if clock.now() >= deadline or self.closed:
                 return False
-            time.sleep(_MATCH_POLL_S)
+            clock.sleep(_MATCH_POLL_S)
         return True
 
     def close(self) -> None:
@@ -320,6 +322,7 @@ class RosPort:
         #: Set when the port is closing: every ``_run`` must return soon after.
         self._stopping = threading.Event()
         self._threads: dict[str, threading.Thread] = {}
+        self._lockstep_lanes: set[str] = set()  # lanes open without a thread (lockstep)
         self._running = 0  # lane threads that have not returned yet
         self._released = False
         self._pending_release: tuple[list[Publisher[Any]], list[Subscription[Any]]] | None = None
@@ -335,6 +338,10 @@ class RosPort:
         self._on_set: OnSet | None = None
         self._param_lock = threading.Lock()
         self._taps: tuple[Tap, ...] = ()
+        #: What the port's waits go through; a backend that runs in lockstep with a
+        #: virtual clock sets it before :meth:`_start` (then no lane has a thread: the
+        #: backend delivers on the clock's ticks).
+        self.clock: Clock = WALL
 
     # -- public API -------------------------------------------------------------------
 
@@ -563,11 +570,14 @@ class RosPort:
         self._ensure_lane(DEFAULT_LANE)
 
     def _ensure_lane(self, lane: str) -> None:
-        """Open ``lane`` and start its thread, once."""
+        """Open ``lane`` and start its thread, once (in lockstep: open it only)."""
         with self._lock:
-            if lane in self._threads or self._closed:
+            if lane in self._threads or lane in self._lockstep_lanes or self._closed:
                 return
             self._open_lane(lane)
+            if is_lockstep(self.clock):
+                self._lockstep_lanes.add(lane)
+                return
             thread = threading.Thread(
                 target=self._thread_main,
                 args=(lane,),
