@@ -66,11 +66,10 @@ SLOW_MODULES = (
     "tests/planner/test_demo.py",
     "tests/planner/test_executor.py",
     "tests/planner/test_foxlive.py",
-    "tests/planner/test_ground_e2e.py",
     "tests/planner/test_interrupt.py",
     "tests/planner/test_mission.py",
     "tests/planner/test_orphans.py",
-    "tests/planner/test_relay.py",
+    "tests/planner/test_relay_ros2.py",
     "tests/planner/test_view.py",
     "tests/planner/test_view_browser.py",
     "tests/planner/test_walkthrough.py",
@@ -89,6 +88,8 @@ VIRTUAL_MODULES = (
     "tests/emulator/test_pil_lockstep.py",  # the ATmega2560 and its twin on a lockstep clock
     "tests/firmware_proto/test_fw.py",  # cross builds, simavr and qemu-arm run to the end
     "tests/firmware_proto/test_libfuzzer.py",  # a fixed count of runs, not a duration
+    "tests/planner/test_executor.py",  # whole rover sides in virtual time (sim/world.py)
+    "tests/planner/test_mission.py",  # the same, with move-and-wait
     "tests/test_lanes.py",  # collections
 )
 """Slow modules whose tests need no wall clock (no watchdog, no rate, no deadline but a

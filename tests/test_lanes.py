@@ -89,7 +89,7 @@ def test_the_matcher_selects_as_pytest_does(marks: dict[str, frozenset[str]]) ->
         n for n in _select(marks, expression)
         if n.startswith(("tests/planner/", "tests/bridge/test_link.py::"))
     }  # fmt: skip
-    assert collected == mine and len(mine) > 5
+    assert collected == mine and len(mine) >= 3
 
 
 def test_every_extended_entry_names_collected_tests_and_says_where_they_are_covered(
