@@ -89,6 +89,7 @@ class ControllerLink:
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
         clock: Clock = WALL,
+        first_request_id: int | None = None,
     ) -> None:
         """Args:
         config: link parameters.
@@ -107,6 +108,10 @@ class ControllerLink:
             time the core is given are its :meth:`~firmware_proto.linkio.clock.Clock.now`);
             a lockstep clock runs the link on its ticks, without threads (module
             docstring).
+        first_request_id: the id of the first STOP or CLEAR_STOP, 1..65535; ``None``
+            (the default, and what a bridge must use) draws it at random, so a bridge
+            started again never repeats the last request of the one before. A replay
+            gives the recorded one, to send the recorded bytes again.
 
         Raises:
             TransportUrlError: ``config.url`` is malformed; found here, once, because no
@@ -119,7 +124,11 @@ class ControllerLink:
             config,
             protocol_version=protocol_version,
             schema_hash=schema_hash,
-            first_request_id=random.SystemRandom().randrange(1, 0x10000),
+            first_request_id=(
+                random.SystemRandom().randrange(1, 0x10000)
+                if first_request_id is None
+                else first_request_id
+            ),
         )
         self._on_status = on_status
         self._on_telemetry = on_telemetry

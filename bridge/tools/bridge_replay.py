@@ -264,6 +264,7 @@ def replay_into_bridge(
             on_status=statuses.append,
             on_telemetry=processed,
             transport_factory=factory,
+            first_request_id=_first_request_id([d.message for _, d in host if d.message]),
         )
         beats = threading.Thread(
             target=controller.play_on_time,
@@ -313,6 +314,15 @@ def replay_into_bridge(
         differences=tuple(diff_texts(recorded_requests, replayed_requests)),
         duration_s=time.monotonic() - started,
     )
+
+
+def _first_request_id(requests: list[Message]) -> int | None:
+    """The id the recorded bridge gave its first STOP or CLEAR_STOP (``None`` if it sent
+    none): the fresh link starts its count there, so its requests match the recording."""
+    for message in requests:
+        if isinstance(message, (Stop, ClearStop)):
+            return message.stop_id
+    return None
 
 
 def _operate(

@@ -65,12 +65,16 @@ class RosArgs:
         params_files: every ``--params-file``, in order.
         params: every ``-p name:=value``, later ones winning; values typed as ROS types
             them (``true``/``false``, integers, floats, else text).
+        sources: the parameter sources in command-line order, as rcl reads them:
+            ``("file", path)`` for a ``--params-file``, ``("param", section, name,
+            value)`` for a ``-p`` (section ``/**``, or the node named before the name).
     """
 
     node_name: str | None = None
     namespace: str | None = None
     params_files: tuple[str, ...] = ()
     params: dict[str, Any] = field(default_factory=dict)
+    sources: tuple[tuple[Any, ...], ...] = ()
 
 
 def _scalar(text: str) -> Any:
@@ -103,6 +107,7 @@ def parse_ros_args(ros_args: Sequence[str]) -> RosArgs:
     files: list[str] = []
     params: dict[str, Any] = {}
     remaps: list[str] = []
+    sources: list[tuple[Any, ...]] = []
     it = iter(ros_args)
     for arg in it:
         if arg in ("-p", "--param", "-r", "--remap", "--params-file", *_FLAGS_WITH_VALUE):
@@ -113,14 +118,19 @@ def parse_ros_args(ros_args: Sequence[str]) -> RosArgs:
                 name, sep, text = value.partition(":=")
                 if not sep or not name:
                     raise ValueError(f"ROS parameter must be name:=value, got {value!r}")
-                if ":" not in name:
+                section, colon, own = name.rpartition(":")
+                if not colon:
                     params[name] = _scalar(text)
+                    sources.append(("param", "/**", name, _scalar(text)))
+                elif section and own:
+                    sources.append(("param", section, own, _scalar(text)))
             elif arg in ("-r", "--remap"):
                 if ":=" not in value:
                     raise ValueError(f"ROS remap must be from:=to, got {value!r}")
                 remaps.append(value)
             elif arg == "--params-file":
                 files.append(value)
+                sources.append(("file", value))
         # anything else (--enable-rosout-logs, ...) takes no value and is ignored
     for remap in remaps:
         source, _, target = remap.partition(":=")
@@ -128,7 +138,7 @@ def parse_ros_args(ros_args: Sequence[str]) -> RosArgs:
             node_name = target
         elif source == "__ns":
             namespace = target
-    return RosArgs(node_name, namespace, tuple(files), params)
+    return RosArgs(node_name, namespace, tuple(files), params, tuple(sources))
 
 
 def _flatten(prefix: str, values: Mapping[str, Any], out: dict[str, Any]) -> None:
@@ -140,33 +150,51 @@ def _flatten(prefix: str, values: Mapping[str, Any], out: dict[str, Any]) -> Non
             out[name] = value
 
 
-def node_parameters(doc: Any, node_name: str, namespace: str = "") -> dict[str, Any]:
-    """The parameters a ROS 2 parameters document gives one node.
+def _section_keys(node_name: str, namespace: str) -> set[str]:
+    """The section names of a parameters document that apply to one node."""
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    fqn = f"{ns}/{node_name}"
+    return {"/**", "**", f"/**/{node_name}", node_name, fqn.lstrip("/"), fqn}
 
-    Sections apply in ROS order, later ones winning: ``/**`` (every node), ``/**/NAME``,
-    ``NAME``, then ``/NS/NAME`` (the fully qualified name). Nested mappings under
-    ``ros__parameters`` become dotted names, as ROS does.
 
-    Raises:
-        ValueError: the document is not a mapping of sections.
-    """
+def _check_document(doc: Any) -> Mapping[str, Any]:
     if doc is None:
         return {}
     if not isinstance(doc, Mapping):
         raise ValueError("a parameters file must be a mapping of node names to sections")
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    fqn = f"{ns}/{node_name}"
-    keys = ["/**", "**", f"/**/{node_name}", node_name, fqn.lstrip("/"), fqn]
-    out: dict[str, Any] = {}
-    seen: set[str] = set()
-    for key in keys:
-        if key in seen:
-            continue
-        seen.add(key)
-        section = doc.get(key)
+    return doc
+
+
+def _merge_sections(sections: dict[str, dict[str, Any]], doc: Mapping[str, Any]) -> None:
+    for key, section in doc.items():
         if isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping):
-            _flatten("", section["ros__parameters"], out)
+            _flatten("", section["ros__parameters"], sections.setdefault(str(key), {}))
+
+
+def _apply_sections(
+    sections: Mapping[str, Mapping[str, Any]], node_name: str, namespace: str
+) -> dict[str, Any]:
+    keys = _section_keys(node_name, namespace)
+    out: dict[str, Any] = {}
+    for key, values in sections.items():
+        if key in keys:
+            out.update(values)
     return out
+
+
+def node_parameters(doc: Any, node_name: str, namespace: str = "") -> dict[str, Any]:
+    """The parameters a ROS 2 parameters document gives one node.
+
+    rcl's order: every section that names the node (``/**``, ``**``, ``/**/NAME``,
+    ``NAME``, ``/NS/NAME``) applies in the order the sections first appear, later ones
+    winning. Nested mappings under ``ros__parameters`` become dotted names, as ROS does.
+
+    Raises:
+        ValueError: the document is not a mapping of sections.
+    """
+    sections: dict[str, dict[str, Any]] = {}
+    _merge_sections(sections, _check_document(doc))
+    return _apply_sections(sections, node_name, namespace)
 
 
 def parameters_to_argv(params: Mapping[str, Any]) -> list[str]:
@@ -208,8 +236,13 @@ def argv_from_ros_args(
 def ros_node_parameters(
     parsed: RosArgs, default_node: str, load: Callable[[str], Any]
 ) -> dict[str, Any]:
-    """One node's parameters from parsed ROS arguments: its sections of each
-    ``--params-file`` in order, then every ``-p``, later ones winning.
+    """One node's parameters from parsed ROS arguments, merged as rcl merges them.
+
+    rcl keeps one table of sections: each ``--params-file`` and each ``-p`` (section
+    ``/**`` unless the name carries a node) updates it in command-line order, and the
+    node's parameters are its sections applied in the order they first appeared. So a
+    ``-p`` wins over an earlier file's ``/**`` section but not over its ``/**/NAME``
+    section, exactly as for any ROS 2 node (docs/ros2.md).
 
     Args:
         parsed: the parsed ROS arguments (:func:`parse_ros_args`).
@@ -220,8 +253,15 @@ def ros_node_parameters(
         ValueError: a malformed parameters file.
     """
     node = parsed.node_name or default_node
-    params: dict[str, Any] = {}
-    for path in parsed.params_files:
-        params.update(node_parameters(load(path), node, parsed.namespace or ""))
-    params.update(parsed.params)
-    return params
+    sections: dict[str, dict[str, Any]] = {}
+    sources = parsed.sources or (
+        *(("file", path) for path in parsed.params_files),
+        *(("param", "/**", name, value) for name, value in parsed.params.items()),
+    )
+    for source in sources:
+        if source[0] == "file":
+            _merge_sections(sections, _check_document(load(source[1])))
+        else:
+            _kind, section, name, value = source
+            sections.setdefault(section, {})[name] = value
+    return _apply_sections(sections, node, parsed.namespace or "")

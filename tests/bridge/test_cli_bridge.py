@@ -122,14 +122,14 @@ def test_ros_params_file_gives_the_node_its_sections(tmp_path: Path) -> None:
         "  ros__parameters:\n"
         "    odom_frame: renamed_odom\n"
     )
-    ros = ["--params-file", str(file), "-p", "motion_retries:=6"]
+    ros = ["--params-file", str(file), "-p", "motion_retries:=6", "-p", "diagnostics_hz:=4.0"]
     params = _resolve([], ros)
     assert (params.topic_odom, params.auto_clear_watchdog, params.diagnostics_hz) == (
         "wheel_odom",
         False,
-        2.0,
+        4.0,  # -p after the file wins over its /** section
     )
-    assert params.motion_retries == 6  # -p after the file wins
+    assert params.motion_retries == 5  # but not over the node's own section, as in rcl
     assert params.odom_frame == "odom"  # another node's section
     renamed, layer = resolve_params(
         _args(), ["--params-file", str(file), "-r", "__node:=renamed"], env={}

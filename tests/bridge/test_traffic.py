@@ -137,6 +137,7 @@ def _record_session(
                 on_status=rec,
                 on_telemetry=on_telemetry,
                 transport_factory=factory,
+                first_request_id=1,  # a bridge draws it at random; 1 keeps this readable
             ) as link:
                 _drive(link, rec, moving, halted)
     return Session(kind, channel, node, host_log, controller_log, rec.items)
@@ -294,7 +295,10 @@ def test_an_altered_log_shows_where_behaviour_differs(session: Session, tmp_path
     result = _replay(altered, _options(session))
     text = [str(d) for d in result.differences]
     assert not result.ok
-    assert "CLEAR_ACK #0: missing in replay: CLEAR_ACK stop_id=2 result=CLEARED" in text
+    assert any(
+        t.startswith("CLEAR_ACK #0: missing in replay: CLEAR_ACK stop_id=2 result=CLEARED")
+        for t in text
+    ), text
     # Still latched: the last step is refused, and never starts or completes.
     assert any(
         d.name == "ACK" and d.actual is not None and "result=STOP_LATCHED" in d.actual

@@ -321,6 +321,7 @@ int main(void)
     check(n_last >= 2u && last[0].id == RP_MSG_STOP_ACK && last[1].id == RP_MSG_STATUS &&
               last[1].body.status.reason == RP_ABORT_REASON_STOP,
           "STOP_ACK first, then the step aborted");
+    const uint8_t gen = last[0].body.stop_ack.latch_gen; /* the latch CLEAR_STOP names */
     check(c.setpoint[0] == 0 && c.setpoint[1] == 0 && c.latch == FW_LATCH_STOP,
           "targets zero and latched on return");
     at = run_until(RP_MSG_STOPPED, 1000u);
@@ -330,6 +331,7 @@ int main(void)
           "MOTION refused while latched");
     m.id = RP_MSG_CLEAR_STOP;
     m.body.clear_stop.stop_id = 8u;
+    m.body.clear_stop.latch_gen = gen;
     send(&m);
     check(n_last == 1u && last[0].body.clear_ack.result == RP_CLEAR_RESULT_CLEARED,
           "CLEAR_STOP releases the latch");

@@ -159,6 +159,7 @@ int main(int argc, char **argv)
             unsigned long before;
             m.id = RP_MSG_CLEAR_STOP;
             m.body.clear_stop.stop_id = (uint16_t)(i % 60000 + 1);
+            m.body.clear_stop.latch_gen = c.latch_gen; /* the latch it releases (v4) */
             send(&c, &m);
             for (k = 0; k < 8; k++) {
                 motion(&c, 30000u);
