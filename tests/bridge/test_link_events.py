@@ -138,7 +138,7 @@ def test_every_dropped_step_gets_one_fate_in_order(
     # One fate per step, in order (in the controller, in flight, the lane), then the event.
     assert settled == [fate] * STEPS + [event], settled
     assert "completed" not in got
-    assert client_port.stats().dropped == 0
+    assert client_port.stats().dropped == 0, (client_port.stats(), client.status.since(mark))
     diag = node.link.diagnostics()
     assert diag.steps_aborted == STEPS
     assert diag.steps_sent == 8  # the lane's step was never sent, and never will be
