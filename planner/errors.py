@@ -29,6 +29,9 @@ Everything this package raises on purpose derives from :class:`PlannerError`::
      +-- DomainBusyError          the ROS domain a stack asked for is held by another
      |                            stack on this machine, or none is free; also
      |                            RuntimeError
+     +-- StackRegistryError       the directory of the stacks' registry is not this
+     |                            user's alone (another owner, writable by others, a
+     |                            link); also PermissionError
      +-- ConsoleUnavailableError  a stack's console socket did not answer (nothing
      |                            listens there, the connection broke); also OSError
      +-- ConsoleRefusedError      it answered with an error (``status``: a bad token,
@@ -64,6 +67,7 @@ __all__ = [
     "PlanTooLongError",
     "PlannerError",
     "RepairError",
+    "StackRegistryError",
     "UnreachableGoalError",
 ]
 
@@ -249,6 +253,11 @@ class GateTimeoutError(GateUnavailableError, TimeoutError):
 class DomainBusyError(PlannerError, RuntimeError):
     """The ROS domain asked for is held by another stack, or none is free
     (:mod:`planner.stack.domains`)."""
+
+
+class StackRegistryError(PlannerError, PermissionError):
+    """The stacks' registry directory (:mod:`planner.stack.domains`) could have been
+    planted or read by another user: nothing is read from it or written to it."""
 
 
 class ConsoleUnavailableError(PlannerError, OSError):
