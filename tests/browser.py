@@ -41,10 +41,10 @@ def chromium_path() -> str | None:
 
 
 @contextmanager
-def chromium() -> Iterator[Any]:
-    """A headless Chromium browser (Playwright's ``Browser``); skips, saying why, where
-    Chromium or Playwright is missing. Closed (the browser and Playwright's driver
-    process ended) on exit."""
+def chromium(extra_args: tuple[str, ...] = ()) -> Iterator[Any]:
+    """A headless Chromium browser (Playwright's ``Browser``; ``extra_args`` after
+    :data:`CHROMIUM_ARGS`); skips, saying why, where Chromium or Playwright is missing.
+    Closed (the browser and Playwright's driver process ended) on exit."""
     path = chromium_path()
     if path is None:
         pytest.skip("no chromium: apt-get install chromium (bash .ci/bootstrap --test does)")
@@ -56,7 +56,7 @@ def chromium() -> Iterator[Any]:
         launcher = _at_browser_nice(path, Path(tmp))
         with sync_playwright() as pw:
             browser = pw.chromium.launch(
-                executable_path=launcher, headless=True, args=CHROMIUM_ARGS
+                executable_path=launcher, headless=True, args=[*CHROMIUM_ARGS, *extra_args]
             )
             try:
                 _check_niced()

@@ -62,6 +62,7 @@ SLOW_MODULES = (
     "tests/gate/test_hostile.py",
     "tests/planner/test_calibrate_real.py",
     "tests/planner/test_console.py",
+    "tests/planner/test_console_browser.py",
     "tests/planner/test_console_server.py",
     "tests/planner/test_demo.py",
     "tests/planner/test_executor.py",

@@ -8,8 +8,10 @@ Two paths:
   answers what its own ROS port already knows (:mod:`planner.stack.console_server`,
   through :mod:`planner.ground.console_client`, the standard library only): no rclpy,
   no discovery, well under a second. It is the rover side (the bridge's own topics, as
-  ``--namespace /``), not the emulated link. A console that does not answer is said on
-  stderr, and the command goes on over ROS 2.
+  ``--namespace /``), not the emulated link. Its token comes from
+  ``$ROVER_CONSOLE_TOKEN``, else from the stacks' registry (the stack wrote it there,
+  readable by this user only). A console that does not answer is said on stderr, and
+  the command goes on over ROS 2; so does ``rover stop`` when the console refuses it.
 - **ROS 2** (:mod:`planner.ground.console`) otherwise, or with ``--ros`` or
   ``--namespace``: the bridge's topics in ``--namespace`` (default ``ground``: through
   the link relay, as ``rover go`` does; ``/`` for the bridge's own) on the ROS 2 domain
@@ -217,10 +219,29 @@ def _console(args: argparse.Namespace) -> Any:
         return None
     from planner.ground.console_client import ConsoleClient
 
-    return ConsoleClient(url, os.environ.get(TOKEN_ENV) or None)
+    return ConsoleClient(url, _console_token(url))
 
 
-def _unavailable(prog: str, exc: Exception) -> None:
+def _console_token(url: str) -> str | None:
+    """The console's token: ``$ROVER_CONSOLE_TOKEN``, else the one its stack wrote in
+    the stacks' registry, readable by this user only (never an argument: ``ps`` shows
+    those to every user)."""
+    import os
+
+    from planner.errors import StackRegistryError
+    from planner.stack.domains import console_token
+
+    given = os.environ.get(TOKEN_ENV, "").strip()
+    if given:
+        return given
+    try:
+        return console_token(url)
+    except (StackRegistryError, OSError) as exc:
+        print(f"warning: the stacks' registry: {exc}", file=sys.stderr, flush=True)
+        return None
+
+
+def _unavailable(prog: str, exc: Exception | str) -> None:
     print(f"{prog}: {exc}; over ROS 2 instead (--ros)", file=sys.stderr, flush=True)
 
 
@@ -375,8 +396,9 @@ def _stop(args: argparse.Namespace) -> int:
             )
             return 1
         except ConsoleRefusedError as exc:
-            print(f"rover stop: error: {exc}", file=sys.stderr)
-            return 1
+            # Refused before anything was published (a wrong token, ...): a STOP must
+            # still get through, so over ROS 2.
+            _unavailable("rover stop", f"the stack's console {client.url} refused: {exc}")
         except ConsoleUnavailableError as exc:
             _unavailable("rover stop", exc)
     port, domain = _open(args, "rover_stop")

@@ -6,8 +6,8 @@ clear-stop``, ``rover echo``; no ros2cli needed).
 of the topics it talks to: the ground's (through the link relay, as ``rover go`` does)
 or the rover's own (the bridge's). It subscribes to ``diagnostics`` and
 ``command_status`` and publishes on ``emergency_stop`` and ``clear_emergency_stop``.
-Every wait has a timeout; a discovery that has not matched both sides in time is said,
-not assumed.
+Every wait has a timeout and ends at :meth:`RoverConsole.close`; a discovery that has
+not matched both sides in time is said, not assumed.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, String
 from firmware_proto.model.downlink import OnboardReport, decode_report
 from planner.ground.roverstatus import RoverStatus, from_diagnostics
 
-__all__ = ["DIAGNOSTICS", "ClearOutcome", "ClearReport", "RoverConsole"]
+__all__ = ["DIAGNOSTICS", "STOP_REPEAT_S", "ClearOutcome", "ClearReport", "RoverConsole"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,8 +43,10 @@ DIAGNOSTICS = "diagnostics"
 link relays it."""
 _FAULT_PERSISTS = fault("fault_persists")
 _LATCH_CHANGED = fault("latch_changed")
-_STOP_REPEAT_S = 0.5
+STOP_REPEAT_S = 0.5
 """``rover stop`` publishes STOP again this often until ``stopped`` comes back."""
+_CANCEL_POLL_S = 0.1
+"""A wait given a ``cancel`` event notices it within this long."""
 
 
 class ClearOutcome(str, enum.Enum):
@@ -106,6 +108,30 @@ class RoverConsole:
         self._report_sub = port.subscribe(ONBOARD_REPORT, String, self._on_report, qos.STATUS)
         self._estop = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
         self._clear = port.publisher(CLEAR_EMERGENCY_STOP, Empty, qos.STOP)
+        self._listeners: list[Callable[[], None]] = []
+        self._closed = False
+
+    def add_listener(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` after every ``/diagnostics``, ``command_status`` and
+        onboard report taken (on the port's thread: it must not block; one that raises
+        is logged and the others are still called)."""
+        with self._lock:
+            self._listeners.append(listener)
+
+    def remove_listener(self, listener: Callable[[], None]) -> None:
+        """Stop calling ``listener`` (no error when it is not there)."""
+        with self._lock:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+
+    def _changed(self) -> None:
+        with self._lock:
+            listeners = list(self._listeners)
+        for listener in listeners:
+            try:
+                listener()
+            except Exception:
+                logger.exception("console: a listener failed")
 
     # -- what comes in ------------------------------------------------------------------
     def _on_diag(self, msg: DiagnosticArray) -> None:
@@ -118,12 +144,14 @@ class RoverConsole:
             self._diag_count += 1
             self._diag_at = time.monotonic()
             self._lock.notify_all()
+        self._changed()
 
     def _on_text(self, msg: String) -> None:
         with self._lock:
             self._status_count += 1
             self._statuses.append((self._status_count, msg.data))
             self._lock.notify_all()
+        self._changed()
         if self._on_status is not None:
             self._on_status(msg.data)
 
@@ -135,6 +163,7 @@ class RoverConsole:
         with self._lock:
             if self._onboard is None or report.seq >= self._onboard.seq:
                 self._onboard = report
+        self._changed()
 
     @property
     def onboard(self) -> OnboardReport | None:
@@ -153,16 +182,19 @@ class RoverConsole:
         """The fully qualified name of one of the console's topics."""
         return self.port.resolve(name)
 
-    def status(self, timeout_s: float, *, newer_than: int = 0) -> RoverStatus | None:
+    def status(
+        self, timeout_s: float, *, newer_than: int = 0, cancel: threading.Event | None = None
+    ) -> RoverStatus | None:
         """The next ``/diagnostics`` of the bridge after the ``newer_than``-th, waiting
-        at most ``timeout_s``; ``None`` when none came."""
+        at most ``timeout_s`` (or until ``cancel`` is set: within 0.1 s); ``None`` when
+        none came."""
         deadline = time.monotonic() + timeout_s
         with self._lock:
             while self._diag_count <= newer_than:
                 left = deadline - time.monotonic()
-                if left <= 0:
+                if left <= 0 or self._closed or (cancel is not None and cancel.is_set()):
                     return None
-                self._lock.wait(left)
+                self._lock.wait(left if cancel is None else min(left, _CANCEL_POLL_S))
             assert self._diagnostics is not None
             return self._diagnostics
 
@@ -178,20 +210,41 @@ class RoverConsole:
         with self._lock:
             return time.monotonic() - self._diag_at
 
+    def latest(self) -> RoverStatus | None:
+        """The bridge's latest ``/diagnostics`` (``None``: none yet); never waits."""
+        with self._lock:
+            return self._diagnostics
+
+    def mark(self) -> int:
+        """How many ``command_status`` were heard so far: what :meth:`heard_since`
+        counts from."""
+        with self._lock:
+            return self._status_count
+
+    def heard_since(self, since: int, wanted: Callable[[str], bool]) -> str | None:
+        """The first status heard after the ``since``-th (:meth:`mark`) that ``wanted``
+        accepts, ``None`` when none was (of the last 200 kept); never waits."""
+        with self._lock:
+            return next((s for i, s in self._statuses if i > since and wanted(s)), None)
+
     def _wait_status(
-        self, wanted: Callable[[str], bool], since: int, deadline: float
+        self,
+        wanted: Callable[[str], bool],
+        since: int,
+        deadline: float,
+        cancel: threading.Event | None = None,
     ) -> str | None:
         """The first status after the ``since``-th that ``wanted`` accepts, until
-        ``deadline`` (monotonic)."""
+        ``deadline`` (monotonic), :meth:`close` or ``cancel``."""
         with self._lock:
             while True:
                 hit = next((s for i, s in self._statuses if i > since and wanted(s)), None)
                 if hit is not None:
                     return hit
                 left = deadline - time.monotonic()
-                if left <= 0:
+                if left <= 0 or self._closed or (cancel is not None and cancel.is_set()):
                     return None
-                self._lock.wait(min(left, 0.1))
+                self._lock.wait(min(left, _CANCEL_POLL_S))
 
     def wait_matched(self, timeout_s: float) -> bool:
         """Wait until the publishers have a subscriber and the status subscription a
@@ -207,6 +260,15 @@ class RoverConsole:
         )
 
     # -- what goes out --------------------------------------------------------------------
+    def publish_stop(self) -> None:
+        """Publish ``true`` on ``emergency_stop`` once; never waits (the message is
+        handed to the middleware, as any publish).
+
+        Raises:
+            RosPortError: the port failed to send it, or is closed.
+        """
+        self._estop.publish(Bool(data=True))
+
     def stop(self, timeout_s: float) -> bool:
         """Emergency stop: ``true`` on ``emergency_stop``, repeated every 0.5 s until the
         bridge says ``stopped`` (the controller acknowledged it) or ``timeout_s`` passes.
@@ -215,17 +277,23 @@ class RoverConsole:
         with self._lock:
             since = self._status_count
         while True:
-            self._estop.publish(Bool(data=True))
+            self.publish_stop()
             left = deadline - time.monotonic()
             if left <= 0:
                 return False
             hit = self._wait_status(
-                lambda s: s == STOPPED, since, time.monotonic() + min(left, _STOP_REPEAT_S)
+                lambda s: s == STOPPED, since, time.monotonic() + min(left, STOP_REPEAT_S)
             )
             if hit is not None:
                 return True
 
-    def clear_stop(self, timeout_s: float, *, after_wait_s: float = 3.0) -> ClearReport:
+    def clear_stop(
+        self,
+        timeout_s: float,
+        *,
+        after_wait_s: float = 3.0,
+        cancel: threading.Event | None = None,
+    ) -> ClearReport:
         """Ask the bridge to release the controller's latch and say what became of it.
 
         Waits for the bridge's state first (at most a third of ``timeout_s``), publishes
@@ -236,15 +304,17 @@ class RoverConsole:
         """
         start = time.monotonic()
         deadline = start + timeout_s
-        before = self.status(timeout_s / 3.0)
+        before = self.status(timeout_s / 3.0, cancel=cancel)
         with self._lock:
             since, seen = self._status_count, self._diag_count
         self._clear.publish(Empty())
         answer = self._wait_status(
-            lambda s: s in (CLEARED, _FAULT_PERSISTS, _LATCH_CHANGED), since, deadline
+            lambda s: s in (CLEARED, _FAULT_PERSISTS, _LATCH_CHANGED), since, deadline, cancel
         )
         after = self.status(
-            max(0.0, min(deadline - time.monotonic(), after_wait_s)), newer_than=seen
+            max(0.0, min(deadline - time.monotonic(), after_wait_s)),
+            newer_than=seen,
+            cancel=cancel,
         )
         if answer == CLEARED:
             latched = before is None or before.latched
@@ -280,8 +350,19 @@ class RoverConsole:
         return ClearReport(ClearOutcome.NO_ANSWER, before, after, why)
 
     def close(self) -> None:
-        """Close the console's endpoints (idempotent; the port stays open)."""
-        for endpoint in (self._diag_sub, self._status_sub, self._estop, self._clear):
+        """Close the console's endpoints and end every wait under way at once (it
+        returns as if nothing came); idempotent; the port stays open."""
+        with self._lock:
+            self._closed = True
+            self._listeners.clear()
+            self._lock.notify_all()
+        for endpoint in (
+            self._diag_sub,
+            self._status_sub,
+            self._report_sub,
+            self._estop,
+            self._clear,
+        ):
             endpoint.close()
 
     def __enter__(self) -> RoverConsole:

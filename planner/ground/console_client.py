@@ -22,6 +22,7 @@ from planner.ground.roverstatus import RoverStatus
 
 __all__ = [
     "CONSOLE_ENV",
+    "CONSOLE_HEADER",
     "TOKEN_ENV",
     "ConsoleClient",
     "ConsoleRefusedError",
@@ -32,7 +33,10 @@ __all__ = [
 CONSOLE_ENV = "ROVER_STACK_CONSOLE"
 """The stack's console, ``http://HOST:PORT`` (``rover stack env`` exports it)."""
 TOKEN_ENV = "ROVER_CONSOLE_TOKEN"
-"""Its bearer token, where it has one."""
+"""Its bearer token; without it, the commands take the token of the stack that serves
+the console from the stacks' registry (:func:`planner.stack.domains.console_token`)."""
+CONSOLE_HEADER = "X-Rover-Console"
+"""The header (value ``1``) every request carries (:mod:`planner.stack.consoleaccess`)."""
 _SLACK_S = 2.0
 """How much longer than the wait it asked for a call may take to answer, s."""
 
@@ -62,7 +66,12 @@ class ConsoleClient:
         return http.client.HTTPConnection(self._host, self._port, timeout=timeout_s)
 
     def _headers(self) -> dict[str, str]:
-        return {"Authorization": f"Bearer {self._token}"} if self._token else {}
+        # The marker header: what a web page's form or no-cors fetch cannot send
+        # (planner.stack.consoleaccess).
+        headers = {CONSOLE_HEADER: "1"}
+        if self._token:
+            headers["Authorization"] = f"Bearer {self._token}"
+        return headers
 
     def _call(self, method: str, path: str, wait_s: float) -> dict[str, Any]:
         query = urlencode({"timeout": f"{wait_s:g}"})

@@ -130,7 +130,8 @@ def register(subparsers: Any) -> None:
         "--console-host",
         default="127.0.0.1",
         metavar="HOST",
-        help="address of the stack's console socket (default 127.0.0.1; any other needs a token)",
+        help="address of the stack's console socket (default 127.0.0.1; any other needs "
+        "a token, in $ROVER_CONSOLE_TOKEN)",
     )
     up.add_argument(
         "--console-port",
@@ -143,7 +144,7 @@ def register(subparsers: Any) -> None:
         "--console-token",
         default=None,
         metavar="TOKEN",
-        help="its bearer token (default $ROVER_CONSOLE_TOKEN)",
+        help=argparse.SUPPRESS,  # refused, saying why (a token in argv is seen by all)
     )
     up.add_argument(
         "--duration",
@@ -218,7 +219,7 @@ def _up(args: argparse.Namespace) -> int:
     from planner.ground.console import RoverConsole
     from planner.ground.console_client import TOKEN_ENV
     from planner.stack.console_server import ConsoleConfig, ConsoleServer
-    from planner.stack.domains import claim
+    from planner.stack.domains import TOKEN_KEY, claim
     from planner.stack.processes import Stack, StackConfig
     from planner.stack.stackenv import export_line, stack_environment
 
@@ -233,11 +234,18 @@ def _up(args: argparse.Namespace) -> int:
     if twin is not None and not twin.is_file():
         print(f"rover stack up: error: --twin {args.twin}: no such file", file=sys.stderr)
         return 2
+    if args.console_token is not None:
+        print(
+            "rover stack up: error: --console-token is no longer accepted: a token on the "
+            "command line is shown to every user of this machine (ps, /proc/PID/cmdline); "
+            f"set {TOKEN_ENV} instead (without it the stack makes one, which the rover "
+            "commands find in the stacks' registry)",
+            file=sys.stderr,
+        )
+        return 2
     try:
         console_config = ConsoleConfig(
-            args.console_host,
-            args.console_port,
-            args.console_token or os.environ.get(TOKEN_ENV) or None,
+            args.console_host, args.console_port, os.environ.get(TOKEN_ENV, "").strip()
         )
     except ValueError as exc:
         print(f"rover stack up: error: {exc}", file=sys.stderr)
@@ -274,8 +282,10 @@ def _up(args: argparse.Namespace) -> int:
         logs = Path(tempfile.mkdtemp(prefix="rover-stack-logs-"))
         _say(f"rover stack: each part's log and the stall log in {logs}")
         _say(f"rover stack: {config.link_line()}")
+        # The parts never need the console's token.
+        parts_env = {k: v for k, v in os.environ.items() if k != TOKEN_ENV}
         with (
-            Stack(config, dict(os.environ), say=_say, on_line=forward, logs=logs) as stack,
+            Stack(config, parts_env, say=_say, on_line=forward, logs=logs) as stack,
             contextlib.ExitStack() as stack_ports,  # closed before the parts stop
         ):
             try:
@@ -300,7 +310,10 @@ def _up(args: argparse.Namespace) -> int:
                 twin=config.twin,
                 console=server.url,
             )
-            held.publish({"env": variables, "device": endpoints.device})
+            # The token goes to the registry (this user's alone), never to the output.
+            held.publish(
+                {"env": variables, "device": endpoints.device, TOKEN_KEY: console_config.token}
+            )
             _say(f"GATE {endpoints.gate_url}")
             if endpoints.control:
                 _say(f"CONTROL {endpoints.control} (the emulator: rover stack inject FAULT)")

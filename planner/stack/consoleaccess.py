@@ -1,0 +1,154 @@
+"""Who the stack's console answers (:mod:`planner.stack.console_server`): the checks a
+request passes before anything is read or done, as a pure function of its method and
+headers (no I/O, no clock).
+
+The console stops and releases the rover, so it answers the operator's commands only,
+never a web page and never another user of the machine (docs/commands.md, "The stack's
+console"):
+
+1. ``Host`` must name the console exactly as its URL does: ``127.0.0.1:PORT`` or
+   ``localhost:PORT`` for a loopback bind (``[::1]:PORT`` for ``::1``), the address and
+   port for another bind, any address literal and the port for a wildcard bind. A page
+   whose name a DNS rebinding points at 127.0.0.1 sends its own name, and is refused
+   (421), so that it cannot read ``/status`` or ``/echo`` as its own origin.
+2. No ``Origin`` header, and no ``Sec-Fetch-Site`` other than ``none``: browsers send
+   them with a page's requests, the commands' client never does (403). The console has
+   no page of its own, so no origin is its own.
+3. The stack's token (``Authorization: Bearer``), always: a random one per stack unless
+   the operator gives one (401). The commands find it in the environment
+   (``ROVER_CONSOLE_TOKEN``) or in the stack's registry file, readable by its user only
+   (:mod:`planner.stack.domains`); it is never on a command line.
+4. A ``POST`` carries ``X-Rover-Console: 1`` or ``Content-Type: application/json``
+   (403): a form or a ``no-cors`` fetch of another origin can send neither without a
+   CORS preflight, which the console never grants.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from firmware_proto.http.bindpolicy import bearer_token, is_loopback, token_matches
+from planner.ground.console_client import CONSOLE_HEADER
+
+__all__ = ["CONSOLE_HEADER", "ConsoleAccess", "Refusal"]
+
+_JSON = "application/json"
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Why a request is refused: its HTTP ``status``, a short ``code`` and one sentence
+    for the operator (``message``)."""
+
+    status: int
+    code: str
+    message: str
+
+
+def _literal(host: str) -> str:
+    """``host`` as it appears in a URL's authority (an IPv6 address in brackets)."""
+    return f"[{host}]" if ":" in host else host
+
+
+def _is_ip(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text.strip("[]"))
+    except ValueError:
+        return False
+    return True
+
+
+@dataclass(frozen=True)
+class ConsoleAccess:
+    """The checks of the module docstring for one console.
+
+    Attributes:
+        hosts: the ``Host`` values accepted, lower case, each with its port.
+        port: the console's TCP port.
+        any_address: any IP address literal with :attr:`port` is accepted too (a
+            wildcard bind; a DNS rebinding always sends a name).
+        token: the bearer token every request must present.
+    """
+
+    hosts: frozenset[str]
+    port: int
+    token: str = field(repr=False)
+    any_address: bool = False
+
+    @classmethod
+    def for_bind(cls, host: str, port: int, token: str) -> ConsoleAccess:
+        """The access of a console bound to ``host:port`` (the port actually bound)."""
+        names = {host.lower()}
+        if is_loopback(host):
+            names.add("localhost")
+        wildcard = host in ("", "0.0.0.0", "::")
+        hosts = frozenset(f"{_literal(name)}:{port}" for name in names if name)
+        return cls(hosts, port, token, any_address=wildcard)
+
+    def _host_ok(self, header: str | None) -> bool:
+        if header is None:
+            return False
+        value = header.strip().lower()
+        if value in self.hosts:
+            return True
+        if not self.any_address:
+            return False
+        name, sep, port = value.rpartition(":")
+        return bool(sep) and port == str(self.port) and _is_ip(name)
+
+    def refusal(self, method: str, headers: Mapping[str, str]) -> Refusal | None:
+        """Why the request is refused, or ``None`` when it may be served.
+
+        Args:
+            method: the request's method.
+            headers: its headers, looked up by lower-case name (Starlette's
+                ``Headers``, or a ``dict`` with lower-case keys).
+        """
+        host = headers.get("host")
+        if not self._host_ok(host):
+            return Refusal(
+                421,
+                "misdirected_request",
+                f"this console does not answer to the host {host!r}: use its URL "
+                f"(http://127.0.0.1:{self.port} or the one its stack printed)",
+            )
+        origin = headers.get("origin")
+        if origin is not None:
+            return Refusal(
+                403,
+                "cross_origin",
+                f"refused: a request from a web page (Origin: {origin!r}); the console "
+                "answers the rover commands only",
+            )
+        site = headers.get("sec-fetch-site")
+        if site is not None and site.strip().lower() != "none":
+            return Refusal(
+                403,
+                "cross_origin",
+                f"refused: a browser's {site!r} request (Sec-Fetch-Site); the console "
+                "answers the rover commands only",
+            )
+        given = bearer_token(headers.get("authorization"))
+        if not token_matches(given, self.token):
+            return Refusal(
+                401,
+                "unauthorized",
+                "wrong token"
+                if given
+                else "this console needs its stack's token ('Authorization: Bearer "
+                "<token>'; the rover commands take it from ROVER_CONSOLE_TOKEN or the "
+                "stack's registry)",
+            )
+        if method == "POST":
+            marked = headers.get(CONSOLE_HEADER.lower()) == "1"
+            kind = (headers.get("content-type") or "").split(";", 1)[0].strip().lower()
+            if not marked and kind != _JSON:
+                return Refusal(
+                    403,
+                    "cross_origin",
+                    f"refused: a POST here needs the header {CONSOLE_HEADER}: 1 (or "
+                    f"Content-Type: {_JSON})",
+                )
+        return None
