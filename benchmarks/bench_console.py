@@ -13,22 +13,43 @@ One ``rover stack up --speed 4`` serves every case. Each command is a fresh proc
 the ``rover`` command line, as typed at a console; ``stop`` and ``clear-stop`` alternate,
 so that each STOP finds the rover released. The limit is issue #41's: 1 s p99.
 ``--quick`` (the smoke test) runs 2 of each through the console only, idle.
+
+**A STOP beside pending clear-STOPs** (the review's B1: four ``/clear_stop?timeout=20``
+waiting on a silent controller once held every thread that served STOP, and the STOP
+went out 19.5 s late). A silent controller cannot be had from the stack (its emulator
+answers every clear at once), so this part runs the stack's own
+:class:`~planner.stack.console_server.ConsoleServer` and
+:class:`~planner.ground.console.RoverConsole` on the ``inprocess`` ROS port, with the
+rover's side of the bus answering each STOP with ``stopped`` (as the bridge does once
+its controller acknowledged it) and never a clear. Timed from the request's start:
+the STOP heard on the rover's side (published) and the answer (``stopped``), with no
+clear pending and right after 4 clear-STOPs were sent (one admitted and waiting, three
+refused, 409). The peer, from the same run: ``rover stop --ros --namespace /`` against
+the stack (what the commands fall back to, discovery in each), and the limit (1 s).
+``--pending-runs`` sets how many (0: not run).
 """
 
 from __future__ import annotations
 
 import argparse
 import ctypes
+import http.client
 import os
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 from benchmarks.common import summary, table
 from benchmarks.load import BusyLoad
+from planner.ground.console_client import CONSOLE_HEADER
 
 __all__ = ["main"]
 
@@ -129,12 +150,154 @@ def _measure(env: dict[str, str], runs: int, paths: list[str]) -> dict[str, list
     return times
 
 
+_PENDING_CLEARS = 4
+
+
+class _SilentController:
+    """The rover's side of an ``inprocess`` bus: answers each STOP with ``stopped`` and
+    never a clear-STOP (a controller that does not answer one); publishes the bridge's
+    ``/diagnostics`` once, so that a clear goes on to wait for its answer."""
+
+    def __init__(self, port: Any) -> None:
+        from bridge.ros.rosport import STOP_LANE, qos
+        from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, String
+
+        self.heard_stop = threading.Event()
+        self.heard_at = 0.0
+        self.clears = 0
+        self._statuses = port.publisher("command_status", String, qos.STATUS)
+        self._diagnostics = port.publisher("diagnostics", DiagnosticArray, qos.DIAGNOSTICS)
+        self._string = String
+        port.subscribe("emergency_stop", Bool, self._on_stop, qos.STOP, lane=STOP_LANE)
+        port.subscribe("clear_emergency_stop", Empty, self._on_clear, qos.STOP, lane=STOP_LANE)
+
+    def _on_stop(self, msg: Any) -> None:
+        if not self.heard_stop.is_set():
+            self.heard_at = time.perf_counter()
+            self.heard_stop.set()
+        self.say("stopped")
+
+    def _on_clear(self, msg: Any) -> None:
+        self.clears += 1
+
+    def say(self, text: str) -> None:
+        self._statuses.publish(self._string(data=text))
+
+    def report(self) -> None:
+        from bridge.ros.diagnostics import diagnostic_array
+        from bridge.ros.rosport.msgs import stamp
+
+        self._diagnostics.publish(diagnostic_array(_idle_diagnostics(), stamp()))
+
+
+def _idle_diagnostics() -> Any:
+    from bridge.link.controllerlink import LinkDiagnostics
+
+    return LinkDiagnostics(
+        state="ready", url="inprocess", connected=True, missed_beats=0,
+        lost_after_beats=None, heartbeat_losses=0, reconnects=0, reboots=0, rtt_ms=0.2,
+        rtt_median_ms=0.2, heartbeat_age_s=0.01, rx_frames=0, tx_frames=0, crc_errors=0,
+        resyncs=0, rx_dropped=0, rx_overflow=0, lost_frames=0, retries=0,
+        no_ack_faults=0, stop_repeats=0, watchdog_trips=0, last_stop_latency_ms=None,
+        last_stopping_distance_mm=None, controller_state="IDLE", stop_latched=False,
+        estop_requested=False, faults=(), controller_queue=0, boot_nonce=1,
+        firmware="1.0.0", schema_hash="", host_schema_hash="", steps_sent=0,
+        steps_completed=0, steps_rejected=0, steps_aborted=0, rejected=(), last_error="",
+    )  # fmt: skip
+
+
+def _wait(condition: Callable[[], bool], what: str, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the benchmark's rig: {what} did not come in {timeout_s:g} s")
+        time.sleep(0.005)
+
+
+def _stop_beside_pending_clears(runs: int) -> dict[str, list[float]]:
+    """The B1 part of the module docstring: ``{case: [s, ...]}``."""
+    from bridge.ros.rosport import open_port
+    from planner.ground.console import RoverConsole
+    from planner.ground.console_client import ConsoleClient
+    from planner.stack.console_server import ConsoleConfig, ConsoleServer
+
+    times: dict[str, list[float]] = {}
+    bus = f"bench-console-{os.getpid()}"
+    with (
+        open_port("inprocess", bus=bus, node_name="rover_stack_console") as port,
+        open_port("inprocess", bus=bus, node_name="rover_bridge") as rover_port,
+        RoverConsole(port) as console,
+        ConsoleServer(console, ConsoleConfig()) as server,
+        ThreadPoolExecutor(_PENDING_CLEARS) as pool,
+    ):
+        rover = _SilentController(rover_port)
+        client = ConsoleClient(server.url, server.config.token)
+        rover.report()
+        _wait(lambda: console.latest() is not None, "the first /diagnostics")
+        for run in range(2 * runs):
+            pending = run % 2 == 1
+            label = f"{_PENDING_CLEARS} clear-STOPs sent first" if pending else "no clear-STOP"
+            clears: list[Future[int]] = []
+            if pending:
+                before = rover.clears
+                clears = [
+                    pool.submit(_clear_status, server.url, server.config.token)
+                    for _ in range(_PENDING_CLEARS)
+                ]
+                # In: the one admitted reached the rover, the others were refused.
+                _wait(partial(_clears_in, rover, before, clears), "the clear-STOPs")
+            rover.heard_stop.clear()
+            t0 = time.perf_counter()
+            stopped = client.stop(10.0)
+            answered = time.perf_counter() - t0
+            if not stopped or not rover.heard_stop.wait(10.0):
+                raise RuntimeError("the benchmark's rig: the STOP was not answered")
+            times.setdefault(f"STOP published, {label}", []).append(rover.heard_at - t0)
+            times.setdefault(f"STOP answered (stopped), {label}", []).append(answered)
+            if pending:
+                if [c.done() for c in clears].count(False) != 1:
+                    raise RuntimeError("the benchmark's rig: not one clear-STOP pending")
+                rover.say("cleared")  # the controller answers the pending one at last
+                codes = sorted(c.result(30.0) for c in clears)
+                if codes != [200, 409, 409, 409]:
+                    raise RuntimeError(f"the benchmark's rig: clear-STOPs answered {codes}")
+    return times
+
+
+def _clears_in(rover: _SilentController, before: int, clears: list[Future[int]]) -> bool:
+    """The one clear-STOP admitted reached the rover, the others were answered."""
+    return rover.clears > before and sum(c.done() for c in clears) >= _PENDING_CLEARS - 1
+
+
+def _clear_status(url: str, token: str) -> int:
+    """``POST /clear_stop?timeout=20`` as the commands send it; the answer's status."""
+    host, port = url.rsplit("//", 1)[1].rsplit(":", 1)
+    conn = http.client.HTTPConnection(host, int(port), timeout=_CALL_TIMEOUT_S)
+    try:
+        conn.request(
+            "POST",
+            "/clear_stop?timeout=20",
+            headers={"Authorization": f"Bearer {token}", CONSOLE_HEADER: "1"},
+        )
+        response = conn.getresponse()
+        response.read()
+        return response.status
+    finally:
+        conn.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--busy", default="0,4", help="busy processes, comma-separated (0,4)")
     p.add_argument("--runs", type=int, default=20, help="runs of each command on each path")
     p.add_argument(
         "--quick", action="store_true", help="2 runs through the console only, idle (smoke)"
+    )
+    p.add_argument(
+        "--pending-runs",
+        type=int,
+        default=30,
+        help="STOPs timed with and without pending clear-STOPs, each (0: not run)",
     )
     args = p.parse_args(argv)
     busies = [0] if args.quick else [int(x) for x in args.busy.split(",")]
@@ -147,6 +310,11 @@ def main(argv: list[str] | None = None) -> int:
                 with BusyLoad(busy, duration_s=3600):
                     load = os.getloadavg()[0]
                     times = _measure(stack.env, runs, paths)
+                    pending = (
+                        {}
+                        if args.quick or args.pending_runs <= 0
+                        else _stop_beside_pending_clears(args.pending_runs)
+                    )
                 rows = [(key, summary(values)) for key, values in sorted(times.items())]
                 print(
                     table(
@@ -161,6 +329,24 @@ def main(argv: list[str] | None = None) -> int:
                     )
                 )
                 print(flush=True)
+                if pending:
+                    peer = times.get("rover stop (ROS 2)", [])
+                    rows = [(key, summary(values)) for key, values in sorted(pending.items())]
+                    rows.append(("peer: rover stop --ros --namespace / (the stack)", summary(peer)))
+                    print(
+                        table(
+                            f"A STOP beside pending clear-STOPs (review B1), beside {busy} "
+                            "busy processes: the stack's console on the inprocess ROS port, "
+                            "a controller that answers STOP and never a clear; from the "
+                            "request's start",
+                            rows,
+                            f"limit: {LIMIT_S * 1e3:.0f} ms p99 (issue #41). Before the fix, "
+                            f"{_PENDING_CLEARS} pending /clear_stop?timeout=20 held the STOP "
+                            "19.5 s (the review's repro). The peer is a whole command, "
+                            "start to exit, discovery included.",
+                        )
+                    )
+                    print(flush=True)
         finally:
             stack.close()
     return 0
