@@ -43,3 +43,24 @@ def test_the_stack_exports_its_twin_and_rover_go_plans_by_it(
     assert given.rover == "other.toml"
     monkeypatch.delenv(TWIN_ENV)
     assert build_parser().parse_args(["go", "--goal", "behind_table"]).rover is None
+
+
+def test_a_console_token_on_the_command_line_is_refused_before_anything_starts(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``ps`` shows arguments to every user: the console's token comes from the
+    environment or is made at random, never from argv (docs/commands.md)."""
+    status = main(["stack", "up", "--console-token", "s3cret"])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert "--console-token is no longer accepted" in err and "ROVER_CONSOLE_TOKEN" in err
+    assert "s3cret" not in err
+
+
+def test_a_console_off_loopback_needs_the_token_in_the_environment(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("ROVER_CONSOLE_TOKEN", raising=False)
+    status = main(["stack", "up", "--console-host", "0.0.0.0"])
+    assert status == 2
+    assert "refusing to listen on '0.0.0.0' without a token" in capsys.readouterr().err
