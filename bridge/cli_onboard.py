@@ -5,11 +5,15 @@ Also the ``rover_onboard`` console script that ``ros2 run`` and launch files sta
 (:func:`main`), which accepts ``--ros-args ...`` (its ``-p name:=value`` stand for the
 long options: ``time_scale`` -> ``--time-scale``).
 
-It prints ``ONBOARD <namespace> <backend>`` once its ROS 2 node is up, and one line per
-plan: taken, ended (how and why), the guard's STOP. SIGINT and SIGTERM (or
-``--duration``) end it: a plan still running is stopped first (STOP on
+The uplink token comes from the environment only (``ROVER_UPLINK_TOKEN``; a command line
+is readable by every user in ``/proc``): without it the program refuses to start unless
+told ``--insecure`` (then any publisher on the rover's ROS domain can drive it).
+
+It prints ``ONBOARD <namespace> <backend> (uplinks must be signed)`` once its ROS 2 node
+is up, and one line per plan: taken, ended (how and why), the guard's STOP. SIGINT and
+SIGTERM (or ``--duration``) end it: a plan still running is stopped first (STOP on
 ``emergency_stop``), then the node and the ROS context are closed. Exit status 0, 2 on
-a usage error, 1 when ROS 2 is missing.
+a usage error (no token and no ``--insecure`` among them), 1 when ROS 2 is missing.
 """
 
 from __future__ import annotations
@@ -17,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -27,9 +30,6 @@ __all__ = ["add_arguments", "main", "register", "run"]
 
 DEFAULT_PRIORITY = 20
 """Real-time priority, as the bridge's: the guard's STOP must not wait for the CPU."""
-REPLAY_WINDOW_S = 600.0
-"""Plan ids (the ground's milliseconds) older than this before the program started are
-stale: an uplink recorded before a restart is not run."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,10 +42,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="ROS port backend: rclpy (ROS 2, the default) or inprocess (tests only)",
     )
     p.add_argument(
-        "--token",
-        default=None,
-        help="uplink token: uplinks must carry its tag (default $ROVER_UPLINK_TOKEN, else "
-        "$ROVER_GATE_TOKEN; none: tags are not checked)",
+        "--insecure",
+        action="store_true",
+        help="run without an uplink token (tags not checked: anyone on the ROS domain can "
+        "drive the rover); without it the token must be in $ROVER_UPLINK_TOKEN",
     )
     p.add_argument(
         "--time-scale",
@@ -72,8 +72,9 @@ def register(subparsers: Any) -> None:
         "onboard",
         help="run the rover's onboard sequencer and drift guard beside the bridge",
         description=(
-            "Take approved plans from plan_uplink (checked: format, ranges, the stack's "
-            "token, the prediction against the steps, ids never run twice), run their steps "
+            "Take approved plans from plan_uplink (checked: format, ranges, the tag under "
+            "$ROVER_UPLINK_TOKEN, this run's boot id, the prediction against the steps, ids "
+            "never run twice), run their steps "
             "back to back on wheel_instructions, estimate the pose (EKF of odom and "
             "odom_ground) and stop the rover on emergency_stop when it drifts 0.25 m or 12 "
             "deg off the prediction. Answers on plan_ack, reports on onboard_report, the "
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     from bridge.onboard.node import OnboardNode
     from bridge.ros.rosport import open_port
     from firmware_proto.model.rover import load_rover
-    from firmware_proto.model.uplink import token_from_env
+    from firmware_proto.model.uplink import TOKEN_ENV, token_from_env
     from firmware_proto.runtime import ProcessRuntime, ShutdownSignals
     from firmware_proto.runtime.realtime import (
         RealtimeConfig,
@@ -103,10 +104,17 @@ def run(args: argparse.Namespace) -> int:
     if not args.time_scale > 0 or args.persistence < 1:
         print("rover onboard: error: --time-scale must be > 0, --persistence >= 1", file=sys.stderr)
         return 2
+    token = token_from_env(os.environ)
+    if token is None and not args.insecure:
+        print(
+            f"rover onboard: error: no uplink token: set ${TOKEN_ENV} (rover stack up and "
+            "rover demo make one), or run --insecure to take unsigned plans from anyone",
+            file=sys.stderr,
+        )
+        return 2
     rover = load_rover(args.rover)
     config = OnboardConfig(
-        token=args.token if args.token is not None else token_from_env(os.environ),
-        min_plan_id=int((time.time() - REPLAY_WINDOW_S) * 1000),
+        token=token,
         time_scale=args.time_scale,
         persistence=args.persistence,
     )
@@ -123,7 +131,10 @@ def run(args: argparse.Namespace) -> int:
         with port, OnboardNode(port, rover, config) as node:
             status = apply_realtime_to_process(RealtimeConfig(priority))
             print(f"onboard: {status.line()}", file=sys.stderr)
-            auth = "uplinks must be signed" if config.token else "no token: tags not checked"
+            print(f"onboard: boot {node.core.boot}", file=sys.stderr)
+            auth = (
+                "uplinks must be signed" if config.token else "INSECURE: no token, tags not checked"
+            )
             print(f"ONBOARD {port.namespace} {args.ros_backend} ({auth})", flush=True)
             done.wait(args.duration if args.duration > 0 else None)
             leave_realtime_for_process()

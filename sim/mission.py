@@ -12,15 +12,21 @@ slip on one side from any moment of any step; POSE going silent; the uplink lost
 duplicated, late, or overtaken (a superseded plan, its cancel and the new plan arriving
 out of order); replays of old or tampered uplinks, malformed ones, a plan whose
 prediction belongs to other steps; a ground STOP at any moment; a controller reboot or a
-cut link mid-plan. :class:`MissionRig` plays it; the ROS hops on the rover take
-:data:`ROS_HOP_S` each.
+cut link mid-plan; a restart of the onboard program (a new boot id: a new core and a
+fresh estimate), after which the ground's copies of its plan arrive again.
+:class:`MissionRig` plays it; the ROS hops on the rover take :data:`ROS_HOP_S` each.
+
+The onboard program has been up for a while when a mission starts: the ground holds
+its boot id (from an earlier report) and signs its plan for it; after a restart it
+learns the new one from the reports, as ``rover go`` does.
 
 Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``):
 
 - ``once`` and the wire's rules: the wire simulator's own (no MOTION started twice, every
   step's fate once, ...);
 - ``step-once``: the sequencer sends each step of a plan at most once;
-- ``plan-once``: a plan id starts at most once;
+- ``plan-once``: a plan id starts at most once, across restarts of the onboard program
+  too;
 - ``genuine``: every step sent is the step the ground signed, at its index;
 - ``refused-inert``: nothing is driven for a plan the rover refused or the ground never
   sent;
@@ -66,6 +72,8 @@ from firmware_proto.model.downlink import OnboardReport, decode_report
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.model.uplink import (
+    BOOT_HEX_DIGITS,
+    REFUSED_FOR_NOW,
     CancelUplink,
     DriftLimits,
     PlanUplink,
@@ -109,9 +117,19 @@ UPLINK_AT_S = 0.5
 STOP_REPEAT_S = 0.5
 """The ground repeats STOP this often until it hears ``stopped``, s."""
 TOKEN = "sim-token"
-REFUSED_FOR_GOOD = frozenset({"stale", "cancelled", "prediction_mismatch", "out_of_range"})
-"""Refusals of a plan id for good (``refused-inert``); the others refuse one message (a
-tampered or malformed copy) or refuse for now (``busy``)."""
+REFUSED_FOR_GOOD = frozenset(
+    {
+        "stale",
+        "cancelled",
+        "prediction_mismatch",
+        "out_of_range",
+        "other_boot",
+        "start_mismatch",
+    }
+)
+"""Refusals of a plan id for good (``refused-inert``, for the core that refused it); the
+others refuse one message (a tampered or malformed copy) or refuse for now
+(:data:`~firmware_proto.model.uplink.REFUSED_FOR_NOW`)."""
 
 
 def _tagged(result: PlaybackResult) -> list[PredictedSample]:
@@ -156,10 +174,12 @@ def predict(
     *,
     world: WorldMap | None = None,
     start: Pose2D | None = None,
+    boot: str = "",
 ) -> PlanUplink:
     """The uplink of ``steps`` with their prediction, played on a twin of ``rover`` as
     the gate plays a plan: by default on an open plane from the origin (where the
-    simulator's controller starts), else on ``world`` from ``start``."""
+    simulator's controller starts), else on ``world`` from ``start``; signed for the
+    onboard program's ``boot``."""
     result = play(Twin(rover, world, dt_s=tick_s, start=start), steps)
     samples = _tagged(result)
     durations = tuple(s.end_time_s - s.start_time_s for s in result.steps)
@@ -174,6 +194,7 @@ def predict(
         Pose(goal.x, goal.y, goal.yaw_deg),
         DriftLimits.of(rover),
         f"{plan_id:064x}"[-64:],
+        boot,
     )
 
 
@@ -197,6 +218,9 @@ class MissionScenario:
             ``malformed`` (garbage), ``misfit`` (a signed plan whose prediction is
             another plan's).
         wire_faults: faults of the wire simulator (``reboot``, ``cut``) mid-plan.
+        onboard_restart_s: when the onboard program restarts (``None``: never): a new
+            boot id, a fresh core and estimate; the ground's copies of its plan, and with
+            ``replay`` the replay, come again after it.
     """
 
     seed: int
@@ -213,6 +237,7 @@ class MissionScenario:
     ground_stop_s: float | None
     uplink_faults: tuple[str, ...]
     wire_faults: tuple[ScenarioFault, ...]
+    onboard_restart_s: float | None = None
 
     @property
     def reproducer(self) -> str:
@@ -225,7 +250,12 @@ class MissionScenario:
     @property
     def healthy(self) -> bool:
         """Nothing but the link's faults and POSE silence: the plan must complete."""
-        return self.slip is None and self.ground_stop_s is None and not self.wire_faults
+        return (
+            self.slip is None
+            and self.ground_stop_s is None
+            and not self.wire_faults
+            and self.onboard_restart_s is None
+        )
 
     def describe(self) -> list[str]:
         """The scenario in lines."""
@@ -244,6 +274,8 @@ class MissionScenario:
             lines.append(f"  ground STOP at {self.ground_stop_s:.2f}s")
         lines += [f"  uplink {u}" for u in self.uplink_faults]
         lines += ["  fault " + f.text() for f in self.wire_faults]
+        if self.onboard_restart_s is not None:
+            lines.append(f"  onboard program restarts at {self.onboard_restart_s:.2f}s")
         return lines
 
 
@@ -294,6 +326,7 @@ def make_mission(
         wire.append(
             ScenarioFault("cut", arrive + rng.uniform(0.0, duration), rng.uniform(0.4, 1.0))
         )
+    restart = arrive + rng.uniform(-1.0, duration) if rng.random() < 0.08 else None
     return MissionScenario(
         seed,
         controller,
@@ -309,6 +342,7 @@ def make_mission(
         ground_stop,
         uplink,
         tuple(wire),
+        restart,
     )
 
 
@@ -376,7 +410,11 @@ class MissionRig(Rig):
     def __init__(self, mission: MissionScenario, *, trace: bool = False) -> None:
         self.mission = mission
         rover = _packaged_rover()
-        self.uplink = predict(rover, 1000 + mission.seed % 1000, mission.steps, mission.tick_s)
+        self._boots = random.Random(f"boot:{mission.seed}")
+        boot = self._new_boot()
+        self.uplink = predict(
+            rover, 1000 + mission.seed % 1000, mission.steps, mission.tick_s, boot=boot
+        )
         end = UPLINK_AT_S + 4.0 + 2.5 * self.uplink.expected_duration_s + 12.0
         base = Scenario(
             seed=mission.seed,
@@ -395,8 +433,12 @@ class MissionRig(Rig):
         self.end_s = end + 10.0
         token = TOKEN if mission.token else None
         self.token = token
-        self.onboard = OnboardCore(rover, OnboardConfig(token=token))
+        self.onboard = OnboardCore(rover, OnboardConfig(token=token, boot=boot))
         self.ekf = PoseEkf()
+        self.cores = [self.onboard]
+        """Every run of the onboard program, the first first (a restart adds one)."""
+        self.ground_boot = boot
+        """The boot id the ground signs for: the latest report's."""
         self._core_at = math.inf
         self.status_listeners.append(self._on_link_status)
         self.sample_listeners.append(self._on_sample)
@@ -428,6 +470,21 @@ class MissionRig(Rig):
         figures start there)."""
         self._replayed = False
         self._clearing = False
+        self.refusals: Counter[str] = Counter()
+        """The rover's refusals, by reason."""
+
+    def _plan_report(self) -> OnboardReport | None:
+        """The last report of the mission's plan, from whichever run of the onboard
+        program took it (the latest such run)."""
+        plan = self.uplink.plan_id
+        for core in reversed(self.cores):
+            last = core.last_report
+            if last is not None and last.plan_id == plan:
+                return last
+        return None
+
+    def _new_boot(self) -> str:
+        return f"{self._boots.getrandbits(4 * BOOT_HEX_DIGITS):0{BOOT_HEX_DIGITS}x}"
 
     # -- the run ---------------------------------------------------------------------------
     def play(self) -> MissionOutcome:
@@ -440,6 +497,8 @@ class MissionRig(Rig):
             self._at(start + length, _ACTION, partial(self._pose_dropout, False))
         if sc.ground_stop_s is not None:
             self._at(sc.ground_stop_s, _ACTION, self._ground_stop)
+        if sc.onboard_restart_s is not None:
+            self._at(sc.onboard_restart_s, _ACTION, self._restart_onboard)
         self._schedule_core()
         outcome = self.run()
         violations = [v for v in outcome.violations if v.rule != "never-stuck"]
@@ -447,13 +506,17 @@ class MissionRig(Rig):
         plan = self.uplink.plan_id
         report = self.ground_reports.get(plan)
         ended = ""
-        last = self.onboard.last_report
-        if last is not None and last.plan_id == plan and last.outcome:
+        last = self._plan_report()
+        if last is not None and last.outcome:
             ended = last.outcome
-        counts = {**outcome.counts, **{f"onboard_{k}": v for k, v in self.onboard.counts.items()}}
+        onboard: Counter[str] = Counter()
+        for core in self.cores:
+            onboard.update(core.counts)
+        counts = {**outcome.counts, **{f"onboard_{k}": v for k, v in onboard.items()}}
         counts["uplink_copies"] = self.up["plan"].sent
         counts["uplink_lost"] = self.up["plan"].lost
         counts["ekf_inflations"] = self.ekf.inflations
+        counts.update({f"refused:{k}": v for k, v in self.refusals.items()})
         return MissionOutcome(
             sc,
             violations,
@@ -498,6 +561,8 @@ class MissionRig(Rig):
             elif isinstance(action, SendAck):
                 ack = action.ack
                 self._note(f"onboard ack {ack.plan_id} {ack.result} {ack.reason}")
+                if ack.result == "refused":
+                    self.refusals[ack.reason] += 1
                 if ack.result == "refused" and ack.reason in REFUSED_FOR_GOOD:
                     self.refused.add(ack.plan_id)
                 text = ack.to_json()
@@ -594,6 +659,25 @@ class MissionRig(Rig):
         self.onboard.on_uplink(text, self.now)
         self._core_after()
 
+    def _restart_onboard(self) -> None:
+        """The onboard program ends (a plan running is stopped, as ``rover onboard``
+        does on SIGTERM) and starts again: a new boot id, a new core, a fresh estimate;
+        an operator releases the latch its STOP left. The ground's copies of its plan
+        come again (a replay across the restart)."""
+        self._note("onboard program restarts")
+        self.onboard.shutdown("the onboard program is ending", self.now)
+        self._core_after()
+        token = self.token
+        self.onboard = OnboardCore(self.rover, OnboardConfig(token=token, boot=self._new_boot()))
+        self.cores.append(self.onboard)
+        self.ekf = PoseEkf()
+        self._core_at = math.inf
+        self._schedule_core()
+        self._at(self.now + 0.5, _ACTION, self._bridge_clear)
+        text = self._envelope(self.uplink)
+        self._uplink(text, extra_s=0.2)
+        self._uplink(text, extra_s=1.0)
+
     # -- the world ---------------------------------------------------------------------------
     def _slip(self, side: str, scale: float) -> None:
         self._note(f"slip {side}={scale:.2f}")
@@ -675,7 +759,13 @@ class MissionRig(Rig):
         sc = self.mission
         uplink = self.uplink
         if "supersede" in sc.uplink_faults:
-            old = predict(self.rover, uplink.plan_id - 1, ((int(Command.FWD), 10, 50),), sc.tick_s)
+            old = predict(
+                self.rover,
+                uplink.plan_id - 1,
+                ((int(Command.FWD), 10, 50),),
+                sc.tick_s,
+                boot=self.ground_boot,
+            )
             self.superseded = old
             # sent, then cancelled, then the real plan: jitter may reorder them all
             self._uplink(self._envelope(old), in_order=False)
@@ -701,7 +791,12 @@ class MissionRig(Rig):
             env["body"] = json.dumps(body, separators=(",", ":"))
             return json.dumps(env)
         # misfit: a newer id with another plan's prediction (a mix-up), properly signed
-        other = predict(self.rover, self.uplink.plan_id + 1, ((int(Command.FWD), 30, 4600),))
+        other = predict(
+            self.rover,
+            self.uplink.plan_id + 1,
+            ((int(Command.FWD), 30, 4600),),
+            boot=self.ground_boot,
+        )
         mixed = PlanUplink(
             other.plan_id,
             ((int(Command.LEFT), 30, 6000),),
@@ -711,6 +806,7 @@ class MissionRig(Rig):
             other.goal,
             other.limits,
             other.verdict,
+            other.boot,
         )
         return self._envelope(mixed)
 
@@ -735,7 +831,7 @@ class MissionRig(Rig):
         elif ack.taken:
             self.ground_taken.add(ack.plan_id)
             self.pending.pop(ack.plan_id, None)
-        elif ack.result == "refused" and ack.reason != "busy":
+        elif ack.result == "refused" and ack.reason not in REFUSED_FOR_NOW:
             self.pending.pop(ack.plan_id, None)
 
     def _ground_status(self, text: str) -> None:
@@ -764,10 +860,12 @@ class MissionRig(Rig):
 
     def _ground_report(self, text: str) -> None:
         report = decode_report(text)
+        if report.boot:
+            self.ground_boot = report.boot
         if report.plan_id == 0:
             return
         known = self.ground_reports.get(report.plan_id)
-        if known is None or report.seq > known.seq:
+        if known is None or report.seq > known.seq or report.boot != known.boot:
             self.ground_reports[report.plan_id] = report
         mine = self.ground_reports.get(self.uplink.plan_id)
         if mine is not None and mine.ended and mine.rest is not None:
@@ -776,7 +874,12 @@ class MissionRig(Rig):
             wait = 1.0
             if "replay" in self.mission.uplink_faults and not self._replayed:
                 self._replayed = True
-                old = predict(self.rover, self.uplink.plan_id - 5, ((int(Command.FWD), 30, 9000),))
+                old = predict(
+                    self.rover,
+                    self.uplink.plan_id - 5,
+                    ((int(Command.FWD), 30, 9000),),
+                    boot=self.ground_boot,
+                )
                 self._uplink(self._envelope(old))
                 self._uplink(self._envelope(self.uplink))
                 wait = 2.5
@@ -798,8 +901,8 @@ class MissionRig(Rig):
         out: list[Violation] = []
         sc = self.mission
         plan = self.uplink.plan_id
-        last = self.onboard.last_report
-        ended = last.outcome if last is not None and last.plan_id == plan else ""
+        last = self._plan_report()
+        ended = last.outcome if last is not None else ""
         heard = self.ground_reports.get(plan)
         if sc.healthy:
             if ended != "completed" or self.started[plan] != 1:
@@ -813,7 +916,8 @@ class MissionRig(Rig):
                 )
             elif heard is None or heard.outcome != "completed":
                 out.append(Violation("delivered", self.now, "the ground never heard it complete"))
-        if self.started[plan] and ended and (heard is None or heard.rest is None):
+        restarted = sc.onboard_restart_s is not None
+        if self.started[plan] and ended and not restarted and (heard is None or heard.rest is None):
             out.append(
                 Violation(
                     "rest", self.now, f"plan ended {ended}; no rest report reached the ground"

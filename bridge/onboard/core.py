@@ -20,18 +20,30 @@ What it decides comes out of :meth:`~OnboardCore.take_actions`, in order:
 **Uplinks.** A plan is refused, with its reason on the ack and ``plan_refused:<reason>``
 on ``/command_status``, and nothing driven, when it is malformed, out of range,
 unauthenticated or its prediction does not fit its steps
-(:func:`firmware_proto.model.uplink.decode_uplink`); when its id is not newer than the
-last plan taken or older than the floor set at start (``stale``: a replay); when the
-ground cancelled every plan up to its id (``cancelled``); and when another plan is armed
-or running (``busy``: the ground cancels that one first). A copy of a plan already
-taken is answered ``duplicate`` with where it is, and runs nothing again: the ground
-retransmits until it hears an answer, so copies are normal. Each id runs at most once.
+(:func:`firmware_proto.model.uplink.decode_uplink`); when it was signed for another boot
+of the onboard program (``other_boot``: :attr:`OnboardCore.boot` is random at each start
+and named in every report, so nothing signed before a restart runs after it); when its
+id is not newer than the last plan taken or older than ``min_plan_id`` (``stale``: a
+replay); when the ground cancelled every plan up to its id (``cancelled``); when another
+plan is armed or running (``busy``); when the latch is held by a STOP the core did not
+send (``latched``: the ground's, an operator's, a STOP step); when no ground-seeing
+POSE fix is younger than ``fix_fresh_s`` (``no_fix``: drift control needs one,
+docs/onboard.md); and when the plan's start is further than its drift limits from that
+estimate (``start_mismatch``). ``busy``, ``latched`` and ``no_fix`` hold for now (the
+ground resends); the others for good. A copy of a plan already taken is answered
+``duplicate`` with where it is, and runs nothing again: the ground retransmits until it
+hears an answer, so copies are normal. Each id runs at most once.
 
-**Running.** A plan taken while the bridge's STOP latch is held waits ``armed`` until
-``cleared`` (the ground releases the latch; the guard never does), at most
-``arm_timeout_s``. Then its steps go out one at a time, each as soon as the one before
-it is ``completed``: no round trip between them, and every status is the fate of the
-one step outstanding (``/command_status`` names no step). A step is started when its
+**Running.** A plan taken while the latch is held by the core's own STOP (the guard's, a
+cancel's, a failed step's) waits ``armed`` until ``cleared`` (the ground releases the
+latch; the guard never does), at most ``arm_timeout_s``. Any STOP the core did not send
+(heard on ``emergency_stop``, or a ``stopped`` / ``aborted:stop`` that no STOP of its
+own explains) ends a running plan, drops an armed one, and raises the cancel floor to
+the newest id taken, so nothing taken before that STOP ever starts after it.
+
+A running plan's steps go out one at a time, each as soon as the one before it is
+``completed``: no round trip between them, and every status is the fate of the one step
+outstanding (``/command_status`` names no step). A step is started when its
 ``accepted`` comes (its publication until then). Any other end of a step (``rejected:``,
 ``aborted:``, a fault but a lost sensor's, no ``completed`` within 1.5 times its
 predicted duration plus ``step_margin_s``) ends the plan with STOP.
@@ -50,11 +62,13 @@ STOP (outcome ``blind``).
 ``rest_timeout_s``) and reports the estimate there with its covariance, how far the
 rover moved from where the plan ended and how long it took. A ground STOP
 (``emergency_stop``, or ``stopped`` / ``aborted:stop`` that the core did not cause)
-ends a running plan at once; a cancel stops it and ends it.
+ends a running plan at once; a cancel stops it and ends it. An estimate that is not
+finite while a step runs stops it at once (outcome ``blind``).
 
 Every event ends with a snapshot report of the plan
 (:class:`~firmware_proto.model.downlink.OnboardReport`), and the latest goes out again every
-``report_period_s`` so that a lossy downlink still delivers the end.
+``report_period_s`` so that a lossy downlink still delivers the end; before any plan, an
+``idle`` report, so that the ground learns the boot id to sign for.
 
 Not thread-safe: one caller at a time (the program holds a lock around every call).
 """
@@ -64,6 +78,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
+import secrets
 from dataclasses import dataclass, field
 
 from bridge.onboard.ekf import Estimate
@@ -81,7 +96,16 @@ from firmware_proto.model.downlink import GuardStop, OnboardReport, RestReport
 from firmware_proto.model.geometry import wrap_deg
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import RoverDescription
-from firmware_proto.model.uplink import CancelUplink, PlanUplink, UplinkAck, decode_uplink
+from firmware_proto.model.uplink import (
+    BOOT_HEX_DIGITS,
+    CancelUplink,
+    PlanUplink,
+    UplinkAck,
+    decode_body,
+    is_boot_id,
+    open_envelope,
+    peek_body,
+)
 
 __all__ = [
     "Action",
@@ -89,14 +113,19 @@ __all__ = [
     "OnboardCore",
     "PlanState",
     "SayStatus",
+    "Screened",
     "SendAck",
     "SendReport",
     "SendStep",
     "SendStop",
+    "decode_screened",
+    "screen_uplink",
 ]
 
 logger = logging.getLogger(__name__)
 
+REFUSAL_LOG_PERIOD_S = 1.0
+"""Refusals of one reason are logged at most this often (the rest are counted)."""
 REPORTING_FAULTS = frozenset({"pose", "imu"})
 """``fault:<reason>`` of a lost sensor: the controller keeps driving, and so does the
 plan (the guard's estimate copes)."""
@@ -128,9 +157,11 @@ class OnboardConfig:
     """How the sequencer and guard behave (times in the rover's seconds).
 
     Attributes:
-        token: the stack's token: uplinks must carry its tag (``None``: not checked).
-        min_plan_id: plan ids below this are stale (the program sets it from its start
-            time, so that an uplink from before a restart is not run).
+        token: the uplink token: uplinks must carry its tag (``None``: not checked).
+        boot: this run's boot id (:data:`~firmware_proto.model.uplink.BOOT_HEX_DIGITS`
+            lower-case hex digits; ``""``: the core draws a random one). A plan must be
+            signed for it.
+        min_plan_id: plan ids below this are stale.
         time_scale: twin seconds per rover second (the emulator runs faster in a demo).
         persistence: consecutive estimates beyond a limit before the guard stops.
         blind_s: no estimate this long while a step runs: STOP (outcome ``blind``).
@@ -141,9 +172,12 @@ class OnboardConfig:
         rest_timeout_s: report the estimate after an end at the latest this much later.
         report_period_s: the latest report goes out again this often.
         remember: plan ids kept to answer copies as duplicates.
+        fix_fresh_s: a plan starts only when the estimate holds a POSE fix younger than
+            this (``no_fix`` otherwise).
     """
 
     token: str | None = None
+    boot: str = ""
     min_plan_id: int = 1
     time_scale: float = 1.0
     persistence: int = 3
@@ -156,8 +190,11 @@ class OnboardConfig:
     rest_timeout_s: float = 5.0
     report_period_s: float = 1.0
     remember: int = 256
+    fix_fresh_s: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.boot and not is_boot_id(self.boot):
+            raise ValueError(f"boot must be {BOOT_HEX_DIGITS} lower-case hex digits")
         for name in (
             "time_scale",
             "blind_s",
@@ -166,6 +203,7 @@ class OnboardConfig:
             "rest_hold_s",
             "rest_timeout_s",
             "report_period_s",
+            "fix_fresh_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -244,6 +282,8 @@ class OnboardCore:
     def __init__(self, rover: RoverDescription, config: OnboardConfig | None = None) -> None:
         self.rover = rover
         self.config = config or OnboardConfig()
+        self.boot = self.config.boot or secrets.token_hex(BOOT_HEX_DIGITS // 2)
+        """This run's boot id: plans must be signed for it; every report names it."""
         self._actions: list[Action] = []
         self._plan: _Plan | None = None
         """The plan armed, running, or the last one (ended)."""
@@ -253,14 +293,21 @@ class OnboardCore:
         self._max_taken = 0
         self._cancel_floor = 0
         self._latched = False
+        self._latch_own = False
+        """The latch is held by the core's own STOPs only (nothing else stopped the rover
+        since it was last released): only then does a plan wait armed."""
         self._stop_sent = False
         """The core's own STOP went out and no ``stopped`` answered it yet: the next
         ``stopped`` is the core's, not the ground's."""
+        self._own_echoes = 0
+        """The core's own STOPs not yet heard back on ``emergency_stop``."""
         self._estimate: Estimate | None = None
         self._last_estimate_s = -math.inf
         self._seq = 0
         self._last_report: OnboardReport | None = None
-        self._next_report_s = math.inf
+        self._next_report_s = -math.inf
+        self._refusal_log: dict[str, tuple[float, int]] = {}
+        """Per refusal reason: when it was last logged and how many went unlogged since."""
         self.counts: dict[str, int] = {
             "uplinks": 0,
             "accepted": 0,
@@ -270,6 +317,7 @@ class OnboardCore:
             "steps_sent": 0,
             "guard_stops": 0,
             "ground_stops": 0,
+            "bad_estimates": 0,
         }
         """What the core has seen and done, by name (the program's diagnostics)."""
 
@@ -314,44 +362,103 @@ class OnboardCore:
             due = min(due, self._step_deadline(plan), self._last_estimate_s + cfg.blind_s)
         if self._settling is not None:
             due = min(due, self._settling.ended_s + cfg.rest_timeout_s)
-        return max(due, now) if math.isfinite(due) else due
+        return max(due, now) if due < math.inf else due
 
     # -- events ------------------------------------------------------------------------------
     def on_uplink(self, text: str | bytes, now: float) -> None:
-        """An uplink envelope arrived (a plan or a cancel)."""
+        """An uplink envelope arrived (a plan or a cancel): :func:`screen_uplink`, then
+        :meth:`on_screened` and, unless that answered it, :func:`decode_screened` and
+        :meth:`on_decoded`. The program runs the two pure steps outside its lock (a full
+        decode of a large plan takes tens of milliseconds)."""
+        screened = screen_uplink(text, self.config.token)
+        if self.on_screened(screened, now):
+            return
+        self.on_decoded(screened, decode_screened(screened, self.rover), now)
+
+    def on_screened(self, screened: Screened, now: float) -> bool:
+        """The first, cheap look at an uplink: a bad envelope or tag is refused, a copy
+        of a plan already taken answered ``duplicate``. ``True``: answered, nothing more
+        to do; ``False``: decode the body and call :meth:`on_decoded`."""
         self.counts["uplinks"] += 1
-        try:
-            message = decode_uplink(text, token=self.config.token, rover=self.rover)
-        except UplinkError as exc:
-            self._refuse(_peek_plan_id(text), exc.reason, exc.detail)
-            return
-        if isinstance(message, CancelUplink):
+        if screened.error is not None:
+            self._refuse(screened.plan_id, screened.error.reason, screened.error.detail, now)
+            return True
+        pid = screened.plan_id
+        if screened.is_plan and pid in self._states:
+            self._duplicate(pid)
+            return True
+        return False
+
+    def on_decoded(
+        self, screened: Screened, message: PlanUplink | CancelUplink | UplinkError, now: float
+    ) -> None:
+        """The body of a screened uplink, decoded (or why it could not be)."""
+        if isinstance(message, UplinkError):
+            self._refuse(screened.plan_id, message.reason, message.detail, now)
+        elif isinstance(message, CancelUplink):
             self._cancel(message.upto, now)
-            return
-        self._plan_uplink(message, now)
+        else:
+            self._plan_uplink(message, now)
+
+    def _duplicate(self, pid: int) -> None:
+        self.counts["duplicates"] += 1
+        state = self._states[pid].value
+        self._ack(UplinkAck(pid, "duplicate", "", f"plan {pid} was taken before", state))
 
     def _plan_uplink(self, uplink: PlanUplink, now: float) -> None:
         pid = uplink.plan_id
+        if uplink.boot != self.boot:
+            signed = f"boot {uplink.boot}" if uplink.boot else "no boot"
+            self._refuse(
+                pid,
+                "other_boot",
+                f"signed for {signed}; this is boot {self.boot} (a copy from before a "
+                "restart of rover onboard, or a plan for another rover)",
+                now,
+            )
+            return
         if pid in self._states:
-            self.counts["duplicates"] += 1
-            state = self._states[pid].value
-            self._ack(UplinkAck(pid, "duplicate", "", f"plan {pid} was taken before", state))
+            self._duplicate(pid)
             return
         if pid <= self._cancel_floor:
             self._refuse(
-                pid, "cancelled", f"the ground cancelled every plan up to {self._cancel_floor}"
+                pid,
+                "cancelled",
+                f"the ground cancelled every plan up to {self._cancel_floor}",
+                now,
             )
             return
         if pid < self._max_taken or pid < self.config.min_plan_id:
             floor = max(self._max_taken, self.config.min_plan_id)
             self._refuse(
-                pid, "stale", f"plan {pid} is older than {floor} (a replay or a late copy)"
+                pid,
+                "stale",
+                f"plan {pid} is older than {floor} (a replay or a late copy)",
+                now,
             )
             return
         current = self._plan
         if current is not None and current.state in (PlanState.ARMED, PlanState.RUNNING):
             running = current.uplink.plan_id
-            self._refuse(pid, "busy", f"plan {running} is {current.state.value}; cancel it first")
+            self._refuse(
+                pid,
+                "busy",
+                f"plan {running} is {current.state.value}; resend once it ends",
+                now,
+            )
+            return
+        if self._latched and not self._latch_own:
+            self._refuse(
+                pid,
+                "latched",
+                "the rover is latched by a STOP that is not its own guard's; resend once "
+                "the latch is released",
+                now,
+            )
+            return
+        unfit = self._unfit_start(uplink, now)
+        if unfit is not None:
+            self._refuse(pid, *unfit, now)
             return
         plan = _Plan(uplink, PlanState.ARMED, now)
         self._plan = plan
@@ -375,6 +482,36 @@ class OnboardCore:
             return
         self._ack(UplinkAck(pid, "accepted", "", "running", "running"))
         self._start(plan, now)
+
+    def _unfit_start(self, uplink: PlanUplink, now: float) -> tuple[str, str] | None:
+        """``(reason, detail)`` when the plan may not start from where the rover is: no
+        recent ground-seeing fix (drift control needs one), or its start further than
+        its limits from the estimate (planned from elsewhere). ``None``: it may."""
+        est = self._estimate
+        fresh = self.config.fix_fresh_s
+        if est is None or not now - est.pose_stamp_s <= fresh:
+            age = (
+                "none"
+                if est is None or est.pose_stamp_s == -math.inf
+                else (f"{now - est.pose_stamp_s:.1f} s old")
+            )
+            return (
+                "no_fix",
+                f"no POSE fix in the last {fresh:g} s (last: {age}): the guard needs a "
+                "sensor that sees the ground",
+            )
+        start = uplink.start
+        linear = math.hypot(est.x_m - start.x, est.y_m - start.y)
+        angular = abs(wrap_deg(est.yaw_deg - start.yaw_deg))
+        limits = uplink.limits
+        if linear > limits.linear_m or angular > limits.angular_deg:
+            return (
+                "start_mismatch",
+                f"the plan starts at ({start.x:.2f}, {start.y:.2f}, {start.yaw_deg:.0f} deg), "
+                f"{linear:.2f} m and {angular:.1f} deg from the rover's estimate "
+                f"({est.x_m:.2f}, {est.y_m:.2f}, {est.yaw_deg:.0f} deg)",
+            )
+        return None
 
     def _cancel(self, upto: int, now: float) -> None:
         self.counts["cancels"] += 1
@@ -400,21 +537,26 @@ class OnboardCore:
         kind, reason = parse_status(text)
         plan = self._plan
         if text == STOPPED:
-            self._latched = True
             if self._stop_sent:
                 self._stop_sent = False
-            elif plan is not None and plan.state is PlanState.RUNNING:
-                self._ground_stop(plan, "the ground's STOP (stopped)", now)
+                self._latched = True
+            else:
+                self._foreign_stop("the ground's STOP (stopped)", now)
             return
         if text == CLEARED:
             self._latched = False
+            self._latch_own = False
             if plan is not None and plan.state is PlanState.ARMED:
+                unfit = self._unfit_start(plan.uplink, now)
+                if unfit is not None:
+                    self._end(plan, "failed", f"not started: {unfit[0]}: {unfit[1]}", now)
+                    return
                 logger.info("plan %d: latch released; starting", plan.uplink.plan_id)
                 self._start(plan, now)
             return
         if plan is None or plan.state is not PlanState.RUNNING:
             if kind == Outcome.REJECTED.value and reason == "stop_latched":
-                self._latched = True
+                self._latch_unknown()
             return
         if text == ACCEPTED:
             if not plan.accepted:
@@ -435,21 +577,40 @@ class OnboardCore:
             return  # ready, the core's own plan_refused:..., anything new
         plan.status = text
         if kind == Outcome.REJECTED.value and reason == "stop_latched":
-            self._latched = True
+            self._latch_unknown()
         if kind == Outcome.ABORTED.value and reason == "stop" and not self._stop_sent:
-            self._ground_stop(plan, f"the ground's STOP ({text})", now)
+            self._foreign_stop(f"the ground's STOP ({text})", now)
             return
         n = len(plan.uplink.steps)
         self._stop(f"step {plan.step + 1}/{n}: {text}", now)
         self._end(plan, "failed", f"step {plan.step + 1}/{n}: {text}", now)
 
     def on_ground_stop(self, now: float) -> None:
-        """``true`` heard on ``emergency_stop``: the ground's STOP (the core's own, heard
-        back, finds no plan running)."""
-        plan = self._plan
-        if plan is not None and plan.state in (PlanState.RUNNING, PlanState.ARMED):
-            self._ground_stop(plan, "the ground's STOP (emergency_stop)", now)
+        """``true`` heard on ``emergency_stop``: the core's own STOP heard back (one per
+        STOP it sent), else a STOP of someone else's (the ground's, an operator's)."""
+        if self._own_echoes > 0:
+            self._own_echoes -= 1
+            self._latched = True
+            return
+        self._foreign_stop("the ground's STOP (emergency_stop)", now)
+
+    def _latch_unknown(self) -> None:
+        """The latch is held and the core did not know it: it is not the core's own."""
+        if not self._latched:
+            self._latch_own = False
         self._latched = True
+
+    def _foreign_stop(self, reason: str, now: float) -> None:
+        """A STOP the core did not send: a running plan ends, an armed one is dropped,
+        and nothing taken before it may start after it (the cancel floor)."""
+        self._latched = True
+        self._latch_own = False
+        self._cancel_floor = max(self._cancel_floor, self._max_taken)
+        plan = self._plan
+        if plan is not None and plan.state is PlanState.RUNNING:
+            self._ground_stop(plan, reason, now)
+        elif plan is not None and plan.state is PlanState.ARMED:
+            self._ground_stop(plan, f"{reason}, before it started", now)
 
     def shutdown(self, reason: str, now: float) -> None:
         """The program is ending: a plan armed or running ends (``failed``), with STOP
@@ -467,10 +628,17 @@ class OnboardCore:
         self._end(plan, "ground_stop", reason, now)
 
     def on_estimate(self, estimate: Estimate, now: float) -> None:
-        """The pose estimate changed (every ``odom`` and POSE): guard, and watch for rest."""
+        """The pose estimate changed (every ``odom`` and POSE): guard, and watch for rest.
+        One that is not finite (a broken filter) is no estimate: a running plan stops
+        at once (``blind``), and it is neither kept nor reported."""
+        plan = self._plan
+        if not estimate.finite:
+            self.counts["bad_estimates"] += 1
+            if plan is not None and plan.state is PlanState.RUNNING:
+                self._blind(plan, "the pose estimate is not finite", now)
+            return
         self._estimate = estimate
         self._last_estimate_s = now
-        plan = self._plan
         if plan is not None and plan.state is PlanState.RUNNING:
             self._guard(plan, estimate, now)
         settling = self._settling
@@ -494,19 +662,19 @@ class OnboardCore:
                 self._stop(f"step {plan.step + 1}/{n} timed out", now)
                 self._end(plan, "failed", f"step {plan.step + 1}/{n}: no 'completed' in time", now)
             elif now >= self._last_estimate_s + cfg.blind_s:
-                self.counts["guard_stops"] += 1
-                self._stop("guard blind: no pose estimate", now)
-                self._end(
-                    plan,
-                    "blind",
-                    f"no pose estimate for {cfg.blind_s:g} s in step {plan.step + 1}/{n}",
-                    now,
-                )
+                self._blind(plan, f"no pose estimate for {cfg.blind_s:g} s", now)
         settling = self._settling
         if settling is not None and now >= settling.ended_s + cfg.rest_timeout_s:
             self._rest(settling, self._estimate, now, at_rest=False)
-        if now >= self._next_report_s and self._last_report is not None:
-            self._report("periodic", now)
+        if now >= self._next_report_s:
+            self._report("periodic" if self._last_report is not None else "idle", now)
+
+    def _blind(self, plan: _Plan, why: str, now: float) -> None:
+        """STOP: the guard cannot see (outcome ``blind``)."""
+        n = len(plan.uplink.steps)
+        self.counts["guard_stops"] += 1
+        self._stop(f"guard blind: {why}", now)
+        self._end(plan, "blind", f"{why} in step {plan.step + 1}/{n}", now)
 
     # -- the plan ----------------------------------------------------------------------------
     def _start(self, plan: _Plan, now: float) -> None:
@@ -539,8 +707,11 @@ class OnboardCore:
         return plan.published_s + 1.5 * predicted + self.config.step_margin_s
 
     def _stop(self, reason: str, now: float) -> None:
+        if not self._latched:
+            self._latch_own = True  # a latch of someone else's stays theirs
         self._stop_sent = True
         self._latched = True
+        self._own_echoes += 1
         self._actions.append(SendStop(reason))
 
     def _end(self, plan: _Plan, outcome: str, reason: str, now: float) -> None:
@@ -640,9 +811,16 @@ class OnboardCore:
     def _ack(self, ack: UplinkAck) -> None:
         self._actions.append(SendAck(ack))
 
-    def _refuse(self, plan_id: int, reason: str, detail: str) -> None:
+    def _refuse(self, plan_id: int, reason: str, detail: str, now: float) -> None:
         self.counts["refused"] += 1
-        logger.warning("uplink of plan %d refused: %s: %s", plan_id, reason, detail)
+        # One line a second per reason at most: junk on the uplink must not flood the log.
+        last, quiet = self._refusal_log.get(reason, (-math.inf, 0))
+        if now - last >= REFUSAL_LOG_PERIOD_S:
+            more = f" ({quiet} more since the last line)" if quiet else ""
+            logger.warning("uplink of plan %d refused: %s: %s%s", plan_id, reason, detail, more)
+            self._refusal_log[reason] = (now, 0)
+        else:
+            self._refusal_log[reason] = (last, quiet + 1)
         state = self._states.get(plan_id)
         self._ack(UplinkAck(plan_id, "refused", reason, detail, state.value if state else ""))
         self._actions.append(SayStatus(plan_refused(f"{reason}:{plan_id}")))
@@ -651,7 +829,7 @@ class OnboardCore:
         plan = self._plan
         self._seq += 1
         if plan is None:
-            report = OnboardReport(self._seq, event, now)
+            report = OnboardReport(self._seq, event, now, boot=self.boot)
         else:
             up = plan.uplink
             report = OnboardReport(
@@ -671,20 +849,58 @@ class OnboardCore:
                 plan.guard,
                 plan.rest,
                 {"worst_linear_m": plan.worst[0], "worst_angular_deg": plan.worst[1]},
+                self.boot,
             )
         self._last_report = report
         self._next_report_s = now + self.config.report_period_s
         self._actions.append(SendReport(report))
 
 
-def _peek_plan_id(text: str | bytes) -> int:
-    """The plan id of an uplink that was refused, if it can be read at all (0: not)."""
+@dataclass(frozen=True)
+class Screened:
+    """An uplink after its first, cheap look (:func:`screen_uplink`).
+
+    Attributes:
+        body: the authenticated body's text (``""`` when ``error``).
+        plan_id: its plan id (a cancel's ``upto``), 0 when none can be read.
+        is_plan: the body says it is a plan.
+        error: why the envelope or its tag is refused (``None``: it is authentic).
+    """
+
+    body: str
+    plan_id: int
+    is_plan: bool
+    error: UplinkError | None = None
+
+
+def screen_uplink(text: str | bytes, token: str | None) -> Screened:
+    """Open an envelope and check its tag; read the body's id and type (pure, cheap: one
+    parse of the envelope, one HMAC, one parse of the body)."""
+    try:
+        body = open_envelope(text, token)
+    except UplinkError as exc:
+        return Screened("", _peek_id(text), False, exc)
+    pid, kind = peek_body(body)
+    return Screened(body, pid, kind == "plan")
+
+
+def decode_screened(
+    screened: Screened, rover: RoverDescription
+) -> PlanUplink | CancelUplink | UplinkError:
+    """The full check of a screened body (pure; tens of milliseconds for a large plan)."""
+    try:
+        return decode_body(screened.body, rover=rover)
+    except UplinkError as exc:
+        return exc
+
+
+def _peek_id(text: str | bytes) -> int:
+    """The plan id of an envelope that was refused, if it can be read at all (0: not)."""
     import json  # noqa: PLC0415 - only for a refusal
 
     try:
         env = json.loads(text)
-        body = json.loads(env["body"])
-        pid = body.get("plan_id", body.get("upto", 0))
-    except (ValueError, TypeError, KeyError, AttributeError, RecursionError):
+        body = env["body"]
+    except (ValueError, TypeError, KeyError, RecursionError):
         return 0
-    return pid if isinstance(pid, int) and not isinstance(pid, bool) and pid > 0 else 0
+    return peek_body(body)[0] if isinstance(body, str) else 0

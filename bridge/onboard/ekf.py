@@ -19,6 +19,12 @@ State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
   at once instead of creeping towards it.
 - Until the first POSE (or :meth:`PoseEkf.reset` with a known pose) the filter has no
   map pose; it only follows ``odom`` to be ready.
+- **Bad input loses nothing.** An ``odom`` sample or a POSE that is not finite, a POSE
+  covariance that is not symmetric positive definite, is refused and counted
+  (:attr:`PoseEkf.rejected`) and changes nothing (not even the POSE's age). Should the
+  state itself ever stop being finite, the filter forgets its map pose
+  (:attr:`PoseEkf.poisoned`): no estimate is better than a wrong one, and the guard
+  stops a plan that has none.
 
 Numpy, not filterpy: a 3-state filter is a dozen lines of matrix algebra; what it needs
 beyond them (the delayed measurement replayed through a history, heading residuals
@@ -57,6 +63,10 @@ class EkfConfig:
         gate_chi2: squared Mahalanobis distance of a POSE innovation above which the
             covariance is inflated by it first (3 degrees of freedom; 16.3 is 99.9 %).
         history_s: how far back a POSE may be applied, s.
+        max_step_m, max_turn_rad: an ``odom`` motion larger than these between two
+            samples is no motion but a new odometry frame (the bridge restarted, its
+            odometry reset): the filter re-bases on it (as the bridge's own odometry does
+            with ``MAX_PLAUSIBLE_STEP_M``).
     """
 
     forward_sigma_per_m: float = 0.25
@@ -66,6 +76,8 @@ class EkfConfig:
     floor_rad: float = 0.0005
     gate_chi2: float = 16.3
     history_s: float = 1.0
+    max_step_m: float = 0.5
+    max_turn_rad: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -91,6 +103,12 @@ class Estimate:
     pose_stamp_s: float = -math.inf
 
     @property
+    def finite(self) -> bool:
+        """Every number of the pose, its covariance and its twist is finite."""
+        values = (self.stamp_s, self.x_m, self.y_m, self.yaw_deg, self.v_mps, self.yaw_rate_rad_s)
+        return all(math.isfinite(v) for v in (*values, *self.covariance))
+
+    @property
     def pose_age_s(self) -> float:
         """How old the last POSE in it is, s (``inf``: none)."""
         return self.stamp_s - self.pose_stamp_s
@@ -101,6 +119,22 @@ class Estimate:
         cov = self.covariance
         a, b, c = cov[0], cov[1], cov[4]
         return math.sqrt(max(0.0, (a + c) / 2.0 + math.sqrt(((a - c) / 2.0) ** 2 + b * b)))
+
+
+def _covariance(value: Matrix | object) -> Matrix | None:
+    """A 3x3 covariance as a matrix, ``None`` when it is not one: not 3x3 numbers, not
+    finite, not symmetric, or not positive definite."""
+    try:
+        p = np.array(value, dtype=float).reshape(3, 3)
+    except (TypeError, ValueError):
+        return None
+    if not np.all(np.isfinite(p)) or not np.allclose(p, p.T, rtol=1e-6, atol=1e-12):
+        return None
+    try:
+        np.linalg.cholesky(p)
+    except np.linalg.LinAlgError:
+        return None
+    return p
 
 
 @dataclass
@@ -131,6 +165,12 @@ class PoseEkf:
         """POSE samples that inflated the covariance first (a slip)."""
         self.late = 0
         """POSE samples older than the history: applied at its oldest entry."""
+        self.rejected = 0
+        """Samples refused: not finite, or a POSE covariance not positive definite."""
+        self.poisoned = 0
+        """Times the state stopped being finite and the map pose was forgotten."""
+        self.rebased = 0
+        """``odom`` jumps taken for a new odometry frame (no motion applied)."""
 
     @property
     def ready(self) -> bool:
@@ -140,9 +180,17 @@ class PoseEkf:
     def reset(
         self, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix, stamp_s: float
     ) -> None:
-        """Start at a known pose (the plan's start when no POSE ever came)."""
+        """Start at a known pose with its covariance.
+
+        Raises:
+            ValueError: the pose or stamp is not finite, or the covariance is not
+                symmetric positive definite.
+        """
+        p = _covariance(covariance)
+        if p is None or not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad, stamp_s)):
+            raise ValueError("reset: a pose, stamp or covariance that is not usable")
         self._x = np.array([x_m, y_m, wrap_rad(yaw_rad)])
-        self._p = np.array(covariance, dtype=float).reshape(3, 3)
+        self._p = p
         self._stamp = stamp_s
         self._history.clear()
         self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), (0.0, 0.0, 0.0)))
@@ -158,7 +206,12 @@ class PoseEkf:
         v_mps: float = 0.0,
         yaw_rate_rad_s: float = 0.0,
     ) -> None:
-        """One ``odom`` sample (its pose in the odometry frame and its twist)."""
+        """One ``odom`` sample (its pose in the odometry frame and its twist); refused
+        (counted, nothing changes) when any of it is not finite."""
+        values = (stamp_s, odom_x_m, odom_y_m, odom_yaw_rad, v_mps, yaw_rate_rad_s)
+        if not all(math.isfinite(v) for v in values):
+            self.rejected += 1
+            return
         previous, self._odom = self._odom, (odom_x_m, odom_y_m, odom_yaw_rad)
         self._motion = (v_mps, yaw_rate_rad_s)
         if previous is None:
@@ -168,6 +221,12 @@ class PoseEkf:
         dx, dy = odom_x_m - px, odom_y_m - py
         c, s = math.cos(pyaw), math.sin(pyaw)
         motion = (c * dx + s * dy, -s * dx + c * dy, wrap_rad(odom_yaw_rad - pyaw))
+        cfg = self.config
+        if math.hypot(dx, dy) > cfg.max_step_m or abs(motion[2]) > cfg.max_turn_rad:
+            # Not motion: the odometry frame started over (the bridge restarted).
+            self.rebased += 1
+            self._stamp = max(self._stamp, stamp_s)
+            return
         if not self._ready:
             self._stamp = max(self._stamp, stamp_s)
             return
@@ -175,8 +234,15 @@ class PoseEkf:
         self._stamp = max(self._stamp, stamp_s)
         self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), motion))
         self._trim()
+        self._check_state()
 
     def _apply(
+        self, x: Matrix, p: Matrix, motion: tuple[float, float, float]
+    ) -> tuple[Matrix, Matrix]:
+        with np.errstate(all="ignore"):  # an overflow is caught by _check_state
+            return self._apply_motion(x, p, motion)
+
+    def _apply_motion(
         self, x: Matrix, p: Matrix, motion: tuple[float, float, float]
     ) -> tuple[Matrix, Matrix]:
         cfg = self.config
@@ -207,12 +273,17 @@ class PoseEkf:
     def correct(
         self, stamp_s: float, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix
     ) -> None:
-        """One POSE, measured at ``stamp_s``, with its 3x3 covariance (x, y, yaw)."""
-        r = np.array(covariance, dtype=float).reshape(3, 3)
+        """One POSE, measured at ``stamp_s``, with its 3x3 covariance (x, y, yaw);
+        refused (counted, nothing changes) when it is not finite or its covariance is
+        not symmetric positive definite."""
+        r = _covariance(covariance)
+        if r is None or not all(math.isfinite(v) for v in (stamp_s, x_m, y_m, yaw_rad)):
+            self.rejected += 1
+            return
         z = np.array([x_m, y_m, wrap_rad(yaw_rad)])
-        self._pose_stamp = max(self._pose_stamp, stamp_s)
         if not self._ready:
             self.reset(x_m, y_m, yaw_rad, r, max(stamp_s, self._stamp))
+            self._pose_stamp = max(self._pose_stamp, stamp_s)
             self.corrections += 1
             return
         history = self._history
@@ -223,7 +294,12 @@ class PoseEkf:
         if history[index].stamp > stamp_s:
             self.late += 1
         base = history[index]
-        x, p = self._update(base.x, base.p, z, r)
+        try:
+            x, p = self._update(base.x, base.p, z, r)
+        except np.linalg.LinAlgError:
+            self.rejected += 1
+            return
+        self._pose_stamp = max(self._pose_stamp, stamp_s)
         history[index] = _Entry(base.stamp, x, p, base.motion)
         for i in range(index + 1, len(history)):
             entry = history[i]
@@ -232,8 +308,23 @@ class PoseEkf:
         self._x, self._p = x, p
         self._stamp = max(self._stamp, stamp_s)
         self.corrections += 1
+        self._check_state()
+
+    def _check_state(self) -> None:
+        """A state that is not finite is forgotten: no map pose until the next POSE."""
+        if np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._p)):
+            return
+        self.poisoned += 1
+        self._ready = False
+        self._x = np.zeros(3)
+        self._p = np.eye(3)
+        self._history.clear()
 
     def _update(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix]:
+        with np.errstate(all="ignore"):  # an overflow is caught by _check_state
+            return self._update_at(x, p, z, r)
+
+    def _update_at(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix]:
         y = z - x
         y[2] = wrap_rad(float(y[2]))
         s = p + r

@@ -76,15 +76,12 @@ from bridge.ros.rosport.msgs import (
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.runtime import stall
 
-__all__ = ["SEED_SIGMA_DEG", "SEED_SIGMA_M", "TICK_MAX_S", "OnboardNode"]
+__all__ = ["TICK_MAX_S", "OnboardNode"]
 
 logger = logging.getLogger(__name__)
 
 TICK_MAX_S = 0.05
 """The timer thread runs the core at least this often, s."""
-SEED_SIGMA_M = 0.05
-SEED_SIGMA_DEG = 5.0
-"""The uncertainty of an estimate started at a plan's start pose (no POSE yet)."""
 
 
 def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:
@@ -237,8 +234,6 @@ class OnboardNode:
                     self.published_stops += 1
                     logger.warning("STOP: %s", action.reason)
                 elif isinstance(action, SendStep):
-                    if action.index == 0:
-                        self._seed_estimate()
                     self._steps.publish(Int16MultiArray(data=list(action.step)))
                 elif isinstance(action, SendAck):
                     self._ack.publish(String(data=action.ack.to_json()))
@@ -254,19 +249,6 @@ class OnboardNode:
     def stop_now(self, reason: str) -> None:
         """End the plan armed or running (STOP when it runs): the program is ending."""
         self._feed("shutdown", reason)
-
-    def _seed_estimate(self) -> None:
-        """A plan starts and no POSE ever came: the filter starts where the plan was
-        planned from (the ground's best knowledge), uncertain by :data:`SEED_SIGMA_M` and
-        :data:`SEED_SIGMA_DEG`, so that the guard has an estimate to guard with."""
-        with self._lock:
-            uplink = self.core.running
-            if self.ekf.ready or uplink is None:
-                return
-            start = uplink.start
-            cov = np.diag([SEED_SIGMA_M**2, SEED_SIGMA_M**2, math.radians(SEED_SIGMA_DEG) ** 2])
-            self.ekf.reset(start.x, start.y, math.radians(start.yaw_deg), cov, time.time())
-        logger.warning("no POSE yet: the estimate starts at the plan's start pose")
 
     # -- the timer -----------------------------------------------------------------------------
     def _timer(self) -> None:

@@ -5,8 +5,10 @@ and verdict, where it is (``state``, ``step``), the last step status, the latest
 how it ended and why, where the guard stopped it and where the rover came to rest with
 the estimate's covariance. The rover sends one at each event (``event`` says which) and
 the latest again every second, so a ground station that lost some over a lossy link
-still learns the end; it keeps the one with the highest ``seq``. Times are the rover's
-clock (ROS time, s), the clock its poses are stamped on.
+still learns the end; it keeps the one with the highest ``seq``. Every report names the
+``boot`` id of the onboard program that sent it (random at each start, 32 hex digits):
+the ground signs its plans for that boot, and ``seq`` counts within one boot. Times are
+the rover's clock (ROS time, s), the clock its poses are stamped on.
 
 Pure: no I/O, no clock.
 """
@@ -185,6 +187,8 @@ class OnboardReport:
         outcome, reason: how it ended (:data:`OUTCOMES`) and one sentence.
         guard: where the guard stopped it, if it did.
         rest: where the rover came to rest after it ended.
+        extra: figures by name (the worst drift of the plan).
+        boot: the boot id of the onboard program that sent it (``""``: unknown).
     """
 
     seq: int
@@ -203,6 +207,7 @@ class OnboardReport:
     guard: GuardStop | None = None
     rest: RestReport | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    boot: str = ""
 
     @property
     def ended(self) -> bool:
@@ -212,6 +217,19 @@ class OnboardReport:
     def with_(self, **changes: Any) -> OnboardReport:
         """A copy with ``changes``."""
         return replace(self, **changes)
+
+    def shifted(self, offset_s: float) -> OnboardReport:
+        """A copy with every time moved by ``offset_s`` (``t_s``, the guard's and the
+        rest's stamps): from the clock the sequencer runs on to the one the report is
+        sent in (``rover onboard`` runs on the monotonic clock and reports in ROS
+        time)."""
+        guard = self.guard
+        if guard is not None:
+            guard = replace(guard, stamp_s=guard.stamp_s + offset_s, stop_s=guard.stop_s + offset_s)
+        rest = self.rest
+        if rest is not None:
+            rest = replace(rest, stamp_s=rest.stamp_s + offset_s)
+        return replace(self, t_s=self.t_s + offset_s, guard=guard, rest=rest)
 
     def to_json(self) -> str:
         """Compact JSON text."""
@@ -232,6 +250,7 @@ class OnboardReport:
                 "reason": self.reason,
                 "guard": self.guard.to_dict() if self.guard else None,
                 "rest": self.rest.to_dict() if self.rest else None,
+                "boot": self.boot,
                 **({"extra": self.extra} if self.extra else {}),
             },
             separators=(",", ":"),
@@ -250,6 +269,12 @@ class OnboardReport:
         if self.outcome:
             text += f"; {self.outcome}: {self.reason}"
         return text
+
+
+def _boot(value: Any) -> str:
+    if not isinstance(value, str):
+        raise TypeError("boot: not a string")
+    return value
 
 
 def decode_report(text: str) -> OnboardReport:
@@ -280,6 +305,7 @@ def decode_report(text: str) -> OnboardReport:
             None if obj["guard"] is None else GuardStop.from_dict(obj["guard"]),
             None if obj["rest"] is None else RestReport.from_dict(obj["rest"]),
             dict(obj.get("extra") or {}),
+            _boot(obj.get("boot", "")),
         )
     except (ValueError, TypeError, KeyError, RecursionError) as exc:
         raise UplinkError("malformed", f"not an onboard report: {exc}") from exc

@@ -18,15 +18,20 @@ One message carries everything the rover needs to run the plan by itself and gua
   description's ``[safety]`` (0.25 m, 12 deg; Contracts 6);
 - ``verdict``: the identity of the verdict the gate approved, :func:`verdict_digest`
   (SHA-256 of its JSON without the wall time), so that the rover's reports, the
-  recording and the view name exactly which approval the rover ran.
+  recording and the view name exactly which approval the rover ran;
+- ``boot``: the boot id of the rover's onboard program the plan is for (32 lower-case
+  hex digits, random at each start of ``rover onboard`` and announced in every report):
+  a plan signed for one run of the program is refused by any other (``other_boot``),
+  so no recording or late copy of it can run after a restart or on another rover.
 
 **Authentication.** The message on the wire is an envelope ``{"body": "<the uplink as
 JSON text>", "tag": "<hex>" | null}``. The tag is HMAC-SHA256 of the body's exact bytes
-under the stack's token (``ROVER_UPLINK_TOKEN``, else ``ROVER_GATE_TOKEN``), computed
-before the body is parsed, so any change to a plan, its prediction, its limits or its
-verdict id after the ground signed it is refused (``bad_tag``). A rover with a token
-refuses an envelope without a tag (``unauthenticated``); a rover without one takes any
-(it has nothing to check with), and says so in its log.
+under the uplink token (``ROVER_UPLINK_TOKEN``, never the gate's), checked before the
+body is parsed (:func:`open_envelope`), so any change to a plan, its prediction, its
+limits, its verdict id or its boot id after the ground signed it is refused
+(``bad_tag``; a tag that is not 64 lower-case hex digits too). A rover with a token
+refuses an envelope without a tag (``unauthenticated``); ``rover onboard`` runs without
+one only when told ``--insecure``.
 
 A **cancel** (``{"type": "cancel", "upto": ID}``, in the same envelope) drops every plan
 with an id up to ``upto``: the one running (it is stopped) and any that arrives later.
@@ -38,8 +43,10 @@ says where it is), ``refused`` (with a reason from :data:`REFUSALS` and a senten
 
 Everything here is pure: the codec (:func:`decode_uplink`, :meth:`PlanUplink.envelope`)
 validates strictly and refuses with a specific reason (:class:`UplinkError`), never a
-traceback; :func:`check_fit` says whether a prediction belongs to its steps;
-:meth:`PlanUplink.pose_at` interpolates the prediction. No I/O, no clock.
+traceback. It comes in two parts so that the rover answers copies cheaply: the
+envelope and its tag (:func:`open_envelope`, then :func:`peek_body`), and the body's
+full check (:func:`decode_body`). :func:`check_fit` says whether a prediction belongs
+to its steps; :meth:`PlanUplink.pose_at` interpolates the prediction. No I/O, no clock.
 """
 
 from __future__ import annotations
@@ -63,11 +70,12 @@ from firmware_proto.wire.messages import Command
 
 __all__ = [
     "ACK_RESULTS",
+    "BOOT_HEX_DIGITS",
     "MAX_PREDICTION_SAMPLES",
     "MAX_UPLINK_BYTES",
     "REFUSALS",
+    "REFUSED_FOR_NOW",
     "TOKEN_ENV",
-    "TOKEN_ENV_FALLBACK",
     "UPLINK_VERSION",
     "CancelUplink",
     "DriftLimits",
@@ -76,14 +84,22 @@ __all__ = [
     "UplinkAck",
     "check_fit",
     "decode_ack",
+    "decode_body",
     "decode_uplink",
+    "is_boot_id",
+    "open_envelope",
+    "peek_body",
     "sign",
     "token_from_env",
     "verdict_digest",
 ]
 
-UPLINK_VERSION: Final = 1
-"""The uplink's format version; another is refused (``unsupported_version``)."""
+UPLINK_VERSION: Final = 2
+"""The uplink's format version; another is refused (``unsupported_version``). Version 2
+binds a plan to the boot id of the onboard program it is for (``boot``)."""
+BOOT_HEX_DIGITS: Final = 32
+"""A boot id: this many lower-case hex digits (128 random bits)."""
+_TAG_HEX_DIGITS: Final = 64
 MAX_UPLINK_BYTES: Final = 512 * 1024
 """Largest envelope taken, bytes (a 12-step plan at 10 samples a second is ~40 KiB)."""
 MAX_PREDICTION_SAMPLES: Final = 6000
@@ -98,13 +114,21 @@ REFUSALS: Final[dict[str, str]] = {
     "prediction_mismatch": "the predicted trajectory does not fit the steps",
     "too_large": "more bytes or samples than the rover takes",
     "unsupported_version": "a format version this rover does not read",
-    "busy": "another plan runs and the ground did not cancel it",
+    "busy": "another plan is armed or running on board",
     "stale": "an id not newer than the last plan the rover took (a replay)",
     "cancelled": "the ground cancelled every plan up to this id",
     "latched": "the rover is latched by a STOP that is not its own guard's",
+    "other_boot": "signed for another run of the rover's onboard program (a restart, "
+    "another rover)",
+    "no_fix": "no recent ground-seeing POSE fix: drift control needs one",
+    "start_mismatch": "the plan starts further than the drift limits from the rover's estimate",
 }
 """Why the rover refuses an uplink: each reason's code and meaning (the first seven come
 from this module, the rest from the rover's sequencer, ``bridge/onboard/core.py``)."""
+REFUSED_FOR_NOW: Final = frozenset({"busy", "latched", "no_fix"})
+"""Refusals that hold only for now: the ground resends the same uplink (within its
+budget) and the rover takes it once the cause is gone; every other refusal is for good
+(the ground re-plans or gives up)."""
 
 ACK_RESULTS: Final = ("accepted", "duplicate", "refused", "cancelled")
 """The results an :class:`UplinkAck` can carry."""
@@ -121,6 +145,7 @@ _PLAN_KEYS: Final = {
     "goal",
     "limits",
     "verdict",
+    "boot",
 }
 _CANCEL_KEYS: Final = {"type", "version", "upto"}
 _POSE_TOL_M: Final = 0.01
@@ -144,14 +169,24 @@ def _canonical(obj: Any) -> bytes:
 
 
 TOKEN_ENV: Final = "ROVER_UPLINK_TOKEN"
-"""The stack's token for uplinks; when it is not set, :data:`TOKEN_ENV_FALLBACK`."""
-TOKEN_ENV_FALLBACK: Final = "ROVER_GATE_TOKEN"
-"""The token the stack gives its gate: the uplink's when :data:`TOKEN_ENV` is not set."""
+"""The uplink token's variable. It is given to programs through the environment only
+(never a command line, which every user can read in ``/proc``), and it is not the gate's
+token (``ROVER_GATE_TOKEN`` travels as a bearer token over plain HTTP): ``rover stack
+up`` and ``rover demo`` make a random one for each stack (docs/onboard.md)."""
 
 
 def token_from_env(env: Mapping[str, str]) -> str | None:
-    """The stack's uplink token from an environment (``None``: none configured)."""
-    return env.get(TOKEN_ENV) or env.get(TOKEN_ENV_FALLBACK) or None
+    """The uplink token from an environment (``None``: none configured)."""
+    return env.get(TOKEN_ENV) or None
+
+
+def is_boot_id(text: object) -> bool:
+    """``text`` is a boot id: :data:`BOOT_HEX_DIGITS` lower-case hex digits."""
+    return isinstance(text, str) and _is_hex(text, BOOT_HEX_DIGITS)
+
+
+def _is_hex(text: str, digits: int) -> bool:
+    return len(text) == digits and all(c in "0123456789abcdef" for c in text)
 
 
 def verdict_digest(verdict: Mapping[str, Any] | Any) -> str:
@@ -212,6 +247,8 @@ class PlanUplink:
     goal: Pose
     limits: DriftLimits
     verdict: str
+    boot: str = ""
+    """The boot id of the onboard program the plan is for (``""``: none, refused)."""
     _by_step: dict[int, tuple[tuple[float, ...], tuple[PredictedSample, ...]]] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
@@ -224,6 +261,7 @@ class PlanUplink:
         steps: Sequence[tuple[int, int, int]],
         verdict: Any,
         limits: DriftLimits,
+        boot: str = "",
     ) -> PlanUplink:
         """The uplink of an approved plan: its steps, the verdict's prediction and
         durations, its identity (:func:`verdict_digest`).
@@ -233,6 +271,7 @@ class PlanUplink:
             steps: ``Plan.to_wire()``.
             verdict: the gate's :class:`~firmware_proto.model.verdict.Verdict` on it.
             limits: the drift limits to stop at.
+            boot: the boot id of the rover's onboard program (its latest report's).
         """
         prediction = tuple(
             PredictedSample(s.step, s.step_t_s, s.pose.x, s.pose.y, s.pose.yaw_deg)
@@ -247,6 +286,7 @@ class PlanUplink:
             verdict.goal,
             limits,
             verdict_digest(verdict),
+            boot,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -262,6 +302,7 @@ class PlanUplink:
             "goal": self.goal.to_dict(),
             "limits": {"linear_m": self.limits.linear_m, "angular_deg": self.limits.angular_deg},
             "verdict": self.verdict,
+            "boot": self.boot,
         }
 
     def envelope(self, token: str | None = None) -> str:
@@ -468,20 +509,18 @@ def _number(value: Any, path: str) -> float:
     return float(value)
 
 
-def decode_uplink(
-    text: str | bytes, *, token: str | None = None, rover: RoverDescription | None = None
-) -> PlanUplink | CancelUplink:
-    """Read one uplink envelope: authenticate it, parse it, check every field, and for a
-    plan check that the prediction fits the steps (:func:`check_fit`, with ``rover``).
+def open_envelope(text: str | bytes, token: str | None = None) -> str:
+    """Read one uplink envelope and authenticate it: the body's text, not yet parsed.
+
+    Cheap (one JSON parse of the envelope and one HMAC), so the rover does this before
+    anything else: a forged or tampered copy costs it no more than this.
 
     Args:
         text: the envelope as received.
-        token: the rover's token; ``None``: tags are not checked.
-        rover: the rover description (ranges of the limits, the fit check); ``None``
-            checks the schema's ranges only and skips the fit.
+        token: the rover's token; ``None``: tags are not checked (``--insecure``).
 
     Raises:
-        UplinkError: refused, with its reason (:data:`REFUSALS`) and one sentence.
+        UplinkError: ``too_large``, ``malformed``, ``unauthenticated`` or ``bad_tag``.
     """
     env = _json_object(text, "envelope")
     fields_ = _Fields(env, "envelope")
@@ -493,8 +532,54 @@ def decode_uplink(
     if token:
         if tag is None:
             raise UplinkError("unauthenticated", "no tag, and this rover has a token")
+        if not _is_hex(tag, _TAG_HEX_DIGITS):
+            raise UplinkError("bad_tag", "the tag is not 64 lower-case hex digits")
         if not hmac.compare_digest(sign(body.encode(), token), tag):
             raise UplinkError("bad_tag", "the tag does not match the body under this rover's token")
+    return body
+
+
+def peek_body(body: str) -> tuple[int, str]:
+    """The plan id (a cancel's ``upto``) and the type of a body, without checking the
+    rest: ``(0, "")`` for what cannot be read. The rover answers a copy of a plan it
+    took from this alone (after :func:`open_envelope` authenticated it)."""
+    try:
+        obj = json.loads(body)
+    except (ValueError, RecursionError):
+        return 0, ""
+    if not isinstance(obj, dict):
+        return 0, ""
+    pid: Any = obj.get("plan_id", obj.get("upto", 0))
+    kind: Any = obj.get("type")
+    ok = isinstance(pid, int) and not isinstance(pid, bool) and 0 < pid <= MAX_PLAN_ID
+    return (pid if ok else 0), (kind if isinstance(kind, str) else "")
+
+
+def decode_uplink(
+    text: str | bytes, *, token: str | None = None, rover: RoverDescription | None = None
+) -> PlanUplink | CancelUplink:
+    """Read one uplink envelope: authenticate it (:func:`open_envelope`), then parse and
+    check its body (:func:`decode_body`).
+
+    Args:
+        text: the envelope as received.
+        token: the rover's token; ``None``: tags are not checked.
+        rover: the rover description (ranges of the limits, the fit check); ``None``
+            checks the schema's ranges only and skips the fit.
+
+    Raises:
+        UplinkError: refused, with its reason (:data:`REFUSALS`) and one sentence.
+    """
+    return decode_body(open_envelope(text, token), rover=rover)
+
+
+def decode_body(body: str, *, rover: RoverDescription | None = None) -> PlanUplink | CancelUplink:
+    """Parse an authenticated body and check every field; for a plan, check that the
+    prediction fits the steps (:func:`check_fit`, with ``rover``).
+
+    Raises:
+        UplinkError: refused, with its reason (:data:`REFUSALS`) and one sentence.
+    """
     obj = _json_object(body, "body")
     r = _Fields(obj, "body")
     kind = r.string("type")
@@ -544,8 +629,13 @@ def decode_uplink(
             " (never looser than the rover's own)",
         )
     verdict = r.string("verdict")
-    if len(verdict) != 64 or any(c not in "0123456789abcdef" for c in verdict):
+    if not _is_hex(verdict, 64):
         raise UplinkError("malformed", "body.verdict: not a SHA-256 digest in lower-case hex")
+    boot = r.string("boot")
+    if boot and not is_boot_id(boot):
+        raise UplinkError(
+            "malformed", f"body.boot: not {BOOT_HEX_DIGITS} lower-case hex digits (or empty)"
+        )
     uplink = PlanUplink(
         plan_id,
         steps,
@@ -555,6 +645,7 @@ def decode_uplink(
         r.pose("goal"),
         limits,
         verdict,
+        boot,
     )
     problems = check_fit(uplink, rover)
     if problems:

@@ -448,6 +448,7 @@ def _clear_stop(args: argparse.Namespace) -> int:
                     "why": report.why,
                     "held_by": list(before.latch) if before is not None else None,
                     "after": report.after.as_dict() if report.after is not None else None,
+                    "armed": report.armed,
                 }
             )
         )
@@ -458,6 +459,8 @@ def _clear_stop(args: argparse.Namespace) -> int:
         print("not latched: there was nothing to release; the rover takes steps")
     else:
         print(f"rover clear-stop: NOT released: {report.why}", file=sys.stderr)
+    if report.armed and not args.json:
+        print(f"note: {report.armed}")
     if report.after is not None and report.released and report.after.stopping_faults:
         print(
             "note: fault condition(s) "
@@ -471,7 +474,8 @@ def _clear_stop(args: argparse.Namespace) -> int:
 def _say_cleared(args: argparse.Namespace, doc: dict[str, Any]) -> int:
     """What ``rover clear-stop`` says of a console's answer."""
     if args.json:
-        print(json.dumps({k: doc.get(k) for k in ("outcome", "released", "why", "held_by")}))
+        keys = ("outcome", "released", "why", "held_by", "armed")
+        print(json.dumps({k: doc.get(k) for k in keys}))
     elif doc["outcome"] == "released":
         held = ", ".join(doc.get("held_by") or []) or "the latch"
         print(f"released: the latch is off (it was held by {held}); the rover takes steps again")
@@ -479,6 +483,8 @@ def _say_cleared(args: argparse.Namespace, doc: dict[str, Any]) -> int:
         print("not latched: there was nothing to release; the rover takes steps")
     else:
         print(f"rover clear-stop: NOT released: {doc['why']}", file=sys.stderr)
+    if doc.get("armed"):
+        print(f"note: {doc['armed']}")
     return 0 if doc["released"] else 1
 
 

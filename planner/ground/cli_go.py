@@ -564,7 +564,8 @@ def _mission(args: argparse.Namespace) -> int:
                     port,
                     rover,
                     config,
-                    UplinkOptions(token=token_from_env(os.environ) or args.token),
+                    # The uplink's token, never the gate's (docs/onboard.md, "Tokens").
+                    UplinkOptions(token=token_from_env(os.environ)),
                 )
             )
             if args.record:

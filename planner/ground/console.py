@@ -75,6 +75,9 @@ class ClearReport:
     before: RoverStatus | None
     after: RoverStatus | None
     why: str = ""
+    armed: str = ""
+    """When a plan was waiting armed on board (after its guard's STOP) as the latch was
+    released: a sentence saying that it starts now (``""``: none was)."""
 
     @property
     def released(self) -> bool:
@@ -161,7 +164,9 @@ class RoverConsole:
         except ValueError:
             return
         with self._lock:
-            if self._onboard is None or report.seq >= self._onboard.seq:
+            known = self._onboard
+            # seq counts within one boot of the onboard program: a new boot starts over
+            if known is None or report.seq >= known.seq or report.boot != known.boot:
                 self._onboard = report
         self._changed()
 
@@ -307,6 +312,12 @@ class RoverConsole:
         before = self.status(timeout_s / 3.0, cancel=cancel)
         with self._lock:
             since, seen = self._status_count, self._diag_count
+            plan = self._onboard
+        armed = (
+            f"plan {plan.plan_id} was armed on board (it waited for this release) and starts now"
+            if plan is not None and plan.state == "armed"
+            else ""
+        )
         self._clear.publish(Empty())
         answer = self._wait_status(
             lambda s: s in (CLEARED, _FAULT_PERSISTS, _LATCH_CHANGED), since, deadline, cancel
@@ -319,7 +330,7 @@ class RoverConsole:
         if answer == CLEARED:
             latched = before is None or before.latched
             outcome = ClearOutcome.RELEASED if latched else ClearOutcome.NOT_LATCHED
-            return ClearReport(outcome, before, after)
+            return ClearReport(outcome, before, after, armed=armed)
         state = after or before
         if answer == _FAULT_PERSISTS:
             faults = ", ".join(state.stopping_faults) if state is not None else ""

@@ -2,9 +2,11 @@
 
 :class:`OnboardExecutor` is what ``rover go`` and ``rover demo`` run by default. Given an
 approved plan and its verdict it sends the rover one uplink (the steps, the gate's
-prediction, the drift limits, a plan id, the verdict's identity, tagged with the stack's
-token), resends it every ``resend_s`` until the rover answers it (``accepted`` or
-``duplicate``: every copy after the first is harmless), and then only listens: the
+prediction, the drift limits, a plan id, the verdict's identity and the boot id of the
+rover's onboard program, from its latest report, tagged with the uplink token), resends
+it every ``resend_s`` until the rover answers it (``accepted`` or ``duplicate``: every
+copy after the first is harmless; a refusal for now, ``busy``, ``latched`` or
+``no_fix``, is resent too until the plan's budget runs out), and then only listens: the
 rover runs the steps back to back and guards them itself. Its reports (``onboard_report``,
 a snapshot at each event and every second) say where the plan is; the executor turns
 them into :class:`~planner.ground.executor.ExecutionProgress` and, once the plan has ended and the
@@ -48,7 +50,14 @@ from firmware_proto.model.downlink import OnboardReport, RestReport, decode_repo
 from firmware_proto.model.plan import Plan
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import RoverDescription
-from firmware_proto.model.uplink import CancelUplink, DriftLimits, PlanUplink, UplinkAck, decode_ack
+from firmware_proto.model.uplink import (
+    REFUSED_FOR_NOW,
+    CancelUplink,
+    DriftLimits,
+    PlanUplink,
+    UplinkAck,
+    decode_ack,
+)
 from firmware_proto.model.verdict import Verdict
 from planner.ground.drift import DriftEvent
 from planner.ground.executor import (
@@ -77,7 +86,8 @@ class UplinkOptions:
     """The uplink's settings.
 
     Attributes:
-        token: the stack's token the uplink is tagged with (``None``: untagged).
+        token: the uplink token the uplink is tagged with (``None``: untagged);
+            ``ROVER_UPLINK_TOKEN``, which ``rover stack up`` and ``rover demo`` make.
         resend_s: an unanswered uplink (or cancel) is sent again this often, wall s
             (``None``: a third of the round trip, at least 0.5 s).
         limits: the drift limits the rover stops at (``None``: the description's).
@@ -105,6 +115,11 @@ class OnboardExecutor(PlanExecutor):
         self._answer = threading.Condition()
         self._acks: dict[int, UplinkAck] = {}
         self._reports: dict[int, OnboardReport] = {}
+        """The answers and the latest report of the plan in hand only (:attr:`_current`):
+        one session runs many plans, and nothing of an old one is needed."""
+        self._current = 0
+        self._boot = ""
+        """The boot id of the rover's onboard program, from its latest report."""
         self._onboard_pose: tuple[float, Pose] | None = None
         self._last_id = 0
         self.last_report: OnboardReport | None = None
@@ -123,7 +138,8 @@ class OnboardExecutor(PlanExecutor):
             logger.warning("an answer that is no ack: %s", exc)
             return
         with self._answer:
-            self._acks[ack.plan_id] = ack
+            if ack.plan_id == self._current:
+                self._acks[ack.plan_id] = ack
             self._answer.notify_all()
 
     def _on_report(self, msg: String) -> None:
@@ -132,13 +148,32 @@ class OnboardExecutor(PlanExecutor):
         except UplinkError as exc:
             logger.warning("a report that is no report: %s", exc)
             return
-        if report.plan_id == 0:
-            return
         with self._answer:
-            known = self._reports.get(report.plan_id)
-            if known is None or report.seq > known.seq:
-                self._reports[report.plan_id] = report
+            if report.boot:
+                self._boot = report.boot
+            if report.plan_id != 0 and report.plan_id == self._current:
+                known = self._reports.get(report.plan_id)
+                if known is None or report.seq > known.seq or report.boot != known.boot:
+                    self._reports[report.plan_id] = report
             self._answer.notify_all()
+
+    @property
+    def boot(self) -> str:
+        """The boot id of the rover's onboard program, from its latest report (``""``:
+        none heard yet)."""
+        with self._answer:
+            return self._boot
+
+    def _wait_boot(self, deadline: float, cancel: threading.Event | None) -> str:
+        """The boot id to sign for: the latest report's, waited for until ``deadline``
+        (monotonic) when none came yet (``""``: none came, or ``cancel`` was set)."""
+        with self._answer:
+            while not self._boot:
+                left = deadline - time.monotonic()
+                if left <= 0 or (cancel is not None and cancel.is_set()):
+                    break
+                self._answer.wait(min(0.1, left))
+            return self._boot
 
     def _on_onboard_pose(self, msg: Odometry) -> None:
         p = msg.pose.pose
@@ -225,10 +260,16 @@ class OnboardExecutor(PlanExecutor):
         cfg = self.config
         limits = self.uplink.limits or DriftLimits(cfg.drift_linear_m, cfg.drift_angular_deg)
         pid = self.next_plan_id()
-        uplink = PlanUplink.from_verdict(pid, plan.to_wire(), verdict, limits)
+        with self._answer:
+            self._current = pid
+            self._acks.clear()
+            self._reports.clear()
+        t_begin = time.monotonic()
+        unanswered_s = 3 * cfg.link_rtt_s + 5.0
+        boot = self._wait_boot(t_begin + unanswered_s, cancel)
+        uplink = PlanUplink.from_verdict(pid, plan.to_wire(), verdict, limits, boot)
         envelope = uplink.envelope(self.uplink.token)
         steps = plan.to_wire()
-        t_begin = time.monotonic()
         budget = (
             uplink.expected_duration_s * cfg.duration_factor / cfg.time_scale
             + 2 * cfg.link_rtt_s
@@ -236,7 +277,6 @@ class OnboardExecutor(PlanExecutor):
             + REST_WAIT_S
         )
         deadline = t_begin + budget
-        unanswered_s = 3 * cfg.link_rtt_s + 5.0
         self._stopped.clear()
         self.last_report = None
         tracker = _Progress(steps, verdict, cfg, on_progress, t_begin)
@@ -264,17 +304,27 @@ class OnboardExecutor(PlanExecutor):
                         report.rest is not None or now > ended_at + cfg.link_rtt_s + REST_WAIT_S
                     ):
                         break
-                if ack is not None and ack.result == "refused" and ack.reason != "busy":
+                if (
+                    ack is not None
+                    and ack.result == "refused"
+                    and ack.reason not in REFUSED_FOR_NOW
+                ):
                     outcome = "rejected"
                     reason = f"the rover refused the plan: {ack.reason}: {ack.detail}"
+                    if ack.reason in ("unauthenticated", "bad_tag"):
+                        reason += " (the uplink token is $ROVER_UPLINK_TOKEN: rover stack env)"
                     break
                 taken = report is not None or (ack is not None and ack.taken)
                 if not taken and ack is None and now - t_begin > unanswered_s:
                     outcome = "rejected"
+                    heard = (
+                        f"no answer to the uplink of plan {pid}"
+                        if boot
+                        else "no report from rover onboard (nothing to sign the plan for)"
+                    )
                     reason = (
-                        f"no answer to the uplink of plan {pid} in {unanswered_s:.0f} s: is "
-                        "rover onboard running beside the bridge? (--step-by-step runs "
-                        "without it)"
+                        f"{heard} in {unanswered_s:.0f} s: is rover onboard running beside "
+                        "the bridge? (--step-by-step runs without it)"
                     )
                     break
                 if not taken and now >= next_send:
@@ -302,6 +352,8 @@ class OnboardExecutor(PlanExecutor):
         """STOP (repeated until ``stopped``) and a cancel of ``pid`` (resent until it is
         acknowledged, bounded); whether the rover confirmed the STOP."""
         envelope = CancelUplink(pid).envelope(self.uplink.token)
+        with self._answer:
+            self._current = pid
         self._stopped.clear()
         stopped = self.stop()
         deadline = time.monotonic() + 2 * self.config.link_rtt_s + self.config.step_margin_s

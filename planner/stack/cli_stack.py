@@ -221,7 +221,7 @@ def _up(args: argparse.Namespace) -> int:
     from planner.stack.console_server import ConsoleConfig, ConsoleServer
     from planner.stack.domains import TOKEN_KEY, claim
     from planner.stack.processes import Stack, StackConfig
-    from planner.stack.stackenv import export_line, stack_environment
+    from planner.stack.stackenv import UPLINK_TOKEN_ENV, export_line, stack_environment
 
     if args.ground is not None and args.device is not None:
         print(
@@ -309,6 +309,7 @@ def _up(args: argparse.Namespace) -> int:
                 logs / "stalls.jsonl",
                 twin=config.twin,
                 console=server.url,
+                uplink_token=stack.uplink_token,
             )
             # The token goes to the registry (this user's alone), never to the output.
             held.publish(
@@ -358,8 +359,12 @@ def _up(args: argparse.Namespace) -> int:
                 _say("health: " + line.strip())
             _say(f"STACK UP domain {domain}")
             _say("point rover go / status / stop / clear-stop / echo at it, in any shell:")
-            _say("  " + export_line(variables))
-            _say('  (or: eval "$(rover stack env)")')
+            _say('  eval "$(rover stack env)"')
+            shown = {k: v for k, v in variables.items() if k != UPLINK_TOKEN_ENV}
+            _say(
+                f"  (that is: {export_line(shown)} and {UPLINK_TOKEN_ENV}, the key rover go "
+                "signs its plans with; it is not printed)"
+            )
             _say("Ctrl-C stops the stack")
             up.set()
             done.interrupt = False

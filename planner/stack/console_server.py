@@ -508,6 +508,7 @@ class ConsoleServer:
                 "why": report.why,
                 "held_by": list(before.latch) if before is not None else None,
                 "before": status_json(before, 0.0) if before is not None else None,
+                "armed": report.armed,
             },
         )
 

@@ -48,7 +48,6 @@ from bridge.ros.rosport.qos import DIAGNOSTICS
 from bridge.ros.rosport.rclpy_backend import middleware
 from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import RoverDescription, load_rover
-from firmware_proto.model.uplink import token_from_env
 from firmware_proto.model.verdict import Verdict
 from firmware_proto.model.worldmap import WorldMap
 from firmware_proto.runtime.stall import STALL_LOG_ENV
@@ -280,6 +279,10 @@ class Demo:
         if self._view is not None:
             self._view.hub.event(line)
 
+    def _uplink_token(self) -> str | None:
+        """The stack's uplink token (its onboard program checks plans with it)."""
+        return self._stack.uplink_token if self._stack is not None else None
+
     def _view_clear(self, executor: PlanExecutor) -> bool:
         """The view's clear-STOP (the hub allowed it): only while the mission runs."""
         if not self._mission_running:
@@ -392,7 +395,7 @@ class Demo:
             PlanExecutor(port, rover, exec_config)
             if cfg.step_by_step
             else OnboardExecutor(
-                port, rover, exec_config, UplinkOptions(token=token_from_env(os.environ))
+                port, rover, exec_config, UplinkOptions(token=self._uplink_token())
             )
         )
         ground_poses: list[tuple[float, float, float]] = []

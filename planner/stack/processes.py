@@ -7,6 +7,12 @@ ready line, and ended last started first.
 is a :class:`ChildProcess`, ``python -m firmware_proto.cli <command>`` with the
 environment the stack gives it (its ROS 2 domain, discovery on this host).
 
+The stack makes a random uplink token (:attr:`Stack.uplink_token`) and gives it to the
+onboard program, and to nothing else, through its environment (``ROVER_UPLINK_TOKEN``;
+never on a command line, which every user can read): the ground signs its plans with it
+(``rover stack up`` exports it to ``rover go``, ``rover demo`` uses it in-process). It is
+not the gate's token.
+
 Every part's stderr is kept whole in ``<logs>/<name>.log`` when the stack is given a
 logs directory, and every part logs its stalls to ``<logs>/stalls.jsonl``
 (docs/realtime.md): the emulator and the bridge run real time unless told not to, the
@@ -24,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import secrets
 import subprocess
 import sys
 import tempfile
@@ -33,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
+from firmware_proto.model.uplink import TOKEN_ENV
 from firmware_proto.runtime.parentwatch import pipe_for_child
 from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.stack.controllers import pil_target_of
@@ -281,7 +289,10 @@ class Stack:
     ) -> None:
         self.config = config
         self.logs = logs
-        self._env = dict(env)
+        self._env = {k: v for k, v in env.items() if k != TOKEN_ENV}
+        self.uplink_token = secrets.token_hex(32)
+        """This stack's uplink token (random): the onboard program's environment holds
+        it, the ground signs its plans with it."""
         if logs is not None:
             self._env[STALL_LOG_ENV] = str(logs / "stalls.jsonl")
         self._say = say
@@ -290,14 +301,16 @@ class Stack:
         self._tmp = tempfile.TemporaryDirectory(prefix="rover-stack-")
         self._lock = threading.Lock()
 
-    def _start(self, name: str, args: list[str], ready: str) -> ChildProcess:
+    def _start(
+        self, name: str, args: list[str], ready: str, env: Mapping[str, str] | None = None
+    ) -> ChildProcess:
         self._say(f"starting {name}: rover {' '.join(args)}")
         part = ChildProcess(
             name,
             args,
             ready,
             self.config.startup_timeout_s,
-            self._env,
+            {**self._env, **(env or {})},
             self._forward,
             self.logs / f"{name}.log" if self.logs is not None else None,
         )
@@ -410,6 +423,7 @@ class Stack:
                 "onboard",
                 ["onboard", "--time-scale", f"{cfg.speed:g}", *realtime],
                 "ONBOARD ",
+                {TOKEN_ENV: self.uplink_token},
             )
         self._start(
             "link",

@@ -18,6 +18,7 @@ from collections.abc import Mapping, MutableMapping
 from pathlib import Path
 
 from firmware_proto.cli import values
+from firmware_proto.model.uplink import TOKEN_ENV as UPLINK_TOKEN_ENV
 from firmware_proto.runtime.stall import STALL_LOG_ENV
 from planner.ground.console_client import CONSOLE_ENV
 
@@ -29,6 +30,7 @@ __all__ = [
     "RTT_ENV",
     "SCALE_ENV",
     "TWIN_ENV",
+    "UPLINK_TOKEN_ENV",
     "add_domain_argument",
     "apply_domain",
     "env_default",
@@ -94,13 +96,15 @@ def stack_environment(
     *,
     twin: Path | None = None,
     console: str = "",
+    uplink_token: str = "",
 ) -> dict[str, str]:
     """The variables a stack exports (see the module docstring); ``rtt_s`` in mission
     seconds, ``speed`` mission seconds per wall second; ``stall_log`` the stall log its
     parts write (``rover go`` names a stalled part from it: docs/realtime.md); ``twin``
     the calibrated twin its gate plays on; ``console`` its console socket's URL
     (``rover status``, ``stop``, ``clear-stop``, ``echo`` answer there:
-    :mod:`planner.stack.console_server`)."""
+    :mod:`planner.stack.console_server`); ``uplink_token`` the key its onboard program
+    checks plans with (``ROVER_UPLINK_TOKEN``: ``rover go`` signs with it)."""
     variables = {
         DOMAIN_ENV: str(domain),
         RANGE_ENV: "LOCALHOST",
@@ -115,6 +119,8 @@ def stack_environment(
         variables[TWIN_ENV] = str(twin)
     if console:
         variables[CONSOLE_ENV] = console
+    if uplink_token:
+        variables[UPLINK_TOKEN_ENV] = uplink_token
     return variables
 
 

@@ -4,6 +4,7 @@ bridge's link core, a controller and its twin is tests/sim/test_mission.py."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -51,13 +52,21 @@ def _est(t: float, x: float, y: float = 0.0, yaw: float = 0.0, v: float = 0.5) -
     return Estimate(t, x, y, yaw, COV, v, 0.0, t - 0.1)
 
 
-class Rover:
-    """The core with the time in hand and every action kept."""
+BOOT = "0123456789abcdef" * 2
+"""The boot id of the onboard program under test."""
 
-    def __init__(self, **config: Any) -> None:
+
+class Rover:
+    """The core with the time in hand and every action kept; it starts at rest at the
+    origin with a fresh POSE fix (what every plan here starts from)."""
+
+    def __init__(self, *, fix: bool = True, **config: Any) -> None:
+        config.setdefault("boot", BOOT)
         self.core = OnboardCore(ROVER, OnboardConfig(token=TOKEN, **config))
         self.t = 0.0
         self.actions: list[Any] = []
+        if fix:
+            self.do("on_estimate", _est(0.0, 0.0, v=0.0))
 
     def do(self, fn: str, *args: Any) -> list[Any]:
         getattr(self.core, fn)(*args, self.t)
@@ -69,6 +78,9 @@ class Rover:
         self.t = t
 
     def uplink(self, plan: PlanUplink | CancelUplink) -> list[Any]:
+        """Send ``plan`` signed for this core's boot (unless it names one)."""
+        if isinstance(plan, PlanUplink) and not plan.boot:
+            plan = dataclasses.replace(plan, boot=self.core.boot)
         return self.do("on_uplink", plan.envelope(TOKEN))
 
     def status(self, text: str) -> list[Any]:
@@ -150,6 +162,7 @@ def test_a_plan_while_another_runs_is_busy_until_that_one_is_cancelled() -> None
     out = r.uplink(CancelUplink(10))
     assert isinstance(out[0], SendStop)  # the running step is stopped first
     assert r.acks()[-1].result == "cancelled" and r.acks()[-1].state == "stopped"
+    r.do("on_ground_stop")  # the cancel's STOP heard back: the core's own
     r.status("stopped")
     r.uplink(_plan(10))  # a late copy of the cancelled plan: a duplicate, nothing runs
     assert r.acks()[-1].result == "duplicate"
@@ -169,16 +182,150 @@ def test_a_plan_cancelled_before_it_arrives_is_refused() -> None:
     assert r.acks()[-1].reason == "cancelled" and r.steps() == []
 
 
+def _guard_stopped(r: Rover, plan_id: int = 10) -> None:
+    """Run plan ``plan_id`` and let the guard stop it (the rover slides sideways); its
+    STOP heard back and the bridge's ``stopped``: the latch is the core's own."""
+    r.uplink(_plan(plan_id))
+    r.status("accepted")
+    for i in range(1, 8):
+        r.at(r.t + 0.1)
+        r.do("on_estimate", _est(r.t, 0.05 * i, 0.1 * i))
+    assert r.reports()[-1].outcome == "guard"
+    r.do("on_ground_stop")  # its own STOP, heard back on emergency_stop
+    r.status("stopped")
+
+
 def test_an_armed_plan_gives_up_when_the_latch_is_not_released() -> None:
     r = Rover(arm_timeout_s=5.0, report_period_s=60.0)
-    r.status("stopped")
-    r.uplink(_plan())
-    assert r.core.next_deadline(r.t) == pytest.approx(5.0)
-    r.at(5.0)
+    _guard_stopped(r)
+    r.do("on_estimate", _est(r.t, 0.0, v=0.0))
+    r.uplink(_plan(11))
+    assert (r.acks()[-1].result, r.acks()[-1].state) == ("accepted", "armed")
+    t0 = r.t
+    assert r.core.next_deadline(r.t) <= t0 + 5.0
+    r.at(t0 + 5.0)
     r.do("tick")
     assert r.reports()[-1].state == "failed" and "latch" in r.reports()[-1].reason
     r.status("cleared")
-    assert r.steps() == []
+    assert [s.plan_id for s in r.steps()] == [10]
+
+
+def test_a_plan_after_a_stop_the_core_did_not_send_is_refused_until_the_latch_is_released() -> None:
+    """Review A1 (E9): after ``rover stop`` a plan arriving was taken armed and started
+    when anyone cleared the latch, up to 30 s later. Only the core's own latch arms a
+    plan; any other is ``latched``, for now: the ground resends after the release."""
+    r = Rover()
+    r.do("on_ground_stop")  # the operator's STOP, heard on emergency_stop
+    r.status("stopped")
+    out = r.uplink(_plan(40))
+    assert (r.acks()[-1].result, r.acks()[-1].reason) == ("refused", "latched")
+    assert [a.text for a in out if isinstance(a, SayStatus)] == ["plan_refused:latched:40"]
+    r.at(20.0)
+    r.status("cleared")
+    assert r.steps() == []  # nothing starts by itself when someone clears
+    r.do("on_estimate", _est(r.t, 0.0, v=0.0))
+    r.uplink(_plan(40))  # the ground's next copy, after the release
+    assert r.acks()[-1].result == "accepted" and [s.plan_id for s in r.steps()] == [40]
+
+
+def test_a_stop_the_core_did_not_send_drops_an_armed_plan_for_good() -> None:
+    r = Rover()
+    _guard_stopped(r)
+    r.do("on_estimate", _est(r.t, 0.0, v=0.0))
+    r.uplink(_plan(11))
+    assert r.acks()[-1].state == "armed"  # the guard's own latch: it waits
+    r.do("on_ground_stop")  # then the operator presses STOP
+    report = r.reports()[-1]
+    assert (report.plan_id, report.state, report.outcome) == (11, "stopped", "ground_stop")
+    r.status("stopped")
+    r.status("cleared")
+    assert [s.plan_id for s in r.steps()] == [10]  # the armed plan never starts
+    r.uplink(_plan(11))
+    assert r.acks()[-1].result == "duplicate"
+    r.uplink(_plan(12))  # a new plan after the release runs
+    assert [s.plan_id for s in r.steps()] == [10, 12]
+
+
+def test_a_foreign_stop_raises_the_cancel_floor_to_the_newest_plan_taken() -> None:
+    r = Rover()
+    r.uplink(_plan(10))
+    r.status("accepted")
+    r.status("stopped")  # a STOP of someone else's (no STOP of the core's explains it)
+    assert r.reports()[-1].outcome == "ground_stop"
+    r.status("cleared")
+    r.uplink(_plan(9))
+    r.uplink(_plan(10))
+    assert [(a.result, a.reason) for a in r.acks()[-2:]] == [
+        ("refused", "cancelled"),  # below the floor
+        ("duplicate", ""),
+    ]
+    assert [s.plan_id for s in r.steps()] == [10]
+
+
+def test_a_plan_signed_for_another_boot_is_refused_and_drives_nothing() -> None:
+    """Review A2 (E6): a plan taken, then ``rover onboard`` restarts: the same signed
+    uplink was taken again. Every run has its own boot id and takes only plans signed
+    for it."""
+    first = Rover(boot="1" * 32)
+    plan = dataclasses.replace(_plan(10), boot="1" * 32)
+    first.uplink(plan)
+    assert first.acks()[-1].result == "accepted" and len(first.steps()) == 1
+    again = Rover(boot="2" * 32)  # the program after a restart
+    out = again.uplink(plan)
+    assert (again.acks()[-1].result, again.acks()[-1].reason) == ("refused", "other_boot")
+    assert [a.text for a in out if isinstance(a, SayStatus)] == ["plan_refused:other_boot:10"]
+    assert again.steps() == []
+    again.do("on_uplink", dataclasses.replace(plan, boot="").envelope(TOKEN))  # no boot
+    assert again.acks()[-1].reason == "other_boot" and again.steps() == []
+
+
+def test_every_report_names_the_boot_and_one_goes_out_before_any_plan() -> None:
+    r = Rover(report_period_s=1.0, boot="3" * 32)
+    r.do("tick")
+    idle = r.reports()[-1]
+    assert (idle.event, idle.plan_id, idle.boot) == ("idle", 0, "3" * 32)
+    assert r.core.next_deadline(r.t) == pytest.approx(1.0)
+    r.uplink(_plan())
+    assert {rep.boot for rep in r.reports()} == {"3" * 32}
+    assert len(OnboardCore(ROVER).boot) == 32  # a random one when none is given
+
+
+def test_a_plan_from_elsewhere_or_without_a_fix_is_refused() -> None:
+    """Review A2 (E7): a plan whose start is 4 m from the rover was taken and driven;
+    and without any POSE the program seeded the estimate at the plan's own start, so the
+    guard compared the prediction with itself."""
+    r = Rover()
+    r.do("on_estimate", _est(0.0, 3.0, 3.0, 90.0, v=0.0))
+    r.uplink(_plan(20))
+    assert (r.acks()[-1].reason, r.steps()) == ("start_mismatch", [])
+    assert "3.00" in r.acks()[-1].detail
+    blind = Rover(fix=False)
+    blind.uplink(_plan(21))
+    assert (blind.acks()[-1].reason, blind.steps()) == ("no_fix", [])
+    stale = Rover(fix_fresh_s=1.0)
+    stale.at(1.5)  # the last fix is 1.5 s old
+    stale.uplink(_plan(22))
+    assert stale.acks()[-1].reason == "no_fix"
+    stale.do("on_estimate", _est(stale.t, 0.0, v=0.0))
+    stale.uplink(_plan(22))  # fix again: the ground's next copy is taken
+    assert stale.acks()[-1].result == "accepted"
+
+
+def test_an_estimate_that_is_not_finite_stops_the_plan_at_once() -> None:
+    """Review A4 (E2): NaN estimates made every drift NaN, ``NaN > limit`` was false and
+    the guard never fired (1 s of them: no STOP)."""
+    r = Rover()
+    r.uplink(_plan())
+    r.status("accepted")
+    r.at(0.02)
+    out = r.do("on_estimate", _est(r.t, math.nan, 0.0))
+    assert isinstance(out[0], SendStop) and "not finite" in out[0].reason
+    report = r.reports()[-1]
+    assert report.outcome == "blind" and report.drift_linear_m is None
+    report.to_json()  # a report with no NaN in it
+    assert r.core.counts["bad_estimates"] == 1
+    bad_cov = Estimate(0.1, 0.0, 0.0, 0.0, (math.inf, *COV[1:]), 0.0, 0.0, 0.0)
+    assert not bad_cov.finite
 
 
 def test_the_guard_stops_at_the_limit_and_reports_where_and_at_rest() -> None:

@@ -92,3 +92,73 @@ def test_a_reset_starts_at_a_known_pose() -> None:
     ekf.predict(0.1, 0.1, 0.0, 0.0)
     est = ekf.estimate()
     assert est is not None and est.x_m == pytest.approx(1.1)
+
+
+def test_a_pose_that_is_not_finite_is_refused_and_a_later_good_one_still_works() -> None:
+    """Review A4 (E2): one NaN POSE made the estimate NaN for good; a good POSE 5 m away
+    did not bring it back."""
+    ekf = PoseEkf()
+    odom = [0.0]
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    t = _drive(ekf, 0.0, 2, dx=0.01, odom=odom)
+    ekf.correct(t, math.nan, 0.0, 0.0, R)
+    ekf.correct(t, 0.0, math.inf, 0.0, R)
+    ekf.predict(t + 0.02, math.nan, 0.0, 0.0)
+    assert ekf.rejected == 3
+    est = ekf.estimate()
+    assert est is not None and est.finite and est.x_m == pytest.approx(0.01)  # 1 motion
+    ekf.correct(t + 0.02, 5.0, 0.0, 0.0, R)
+    est = ekf.estimate()
+    assert est is not None and est.finite and est.x_m > 4.9
+
+
+@pytest.mark.parametrize(
+    "covariance",
+    [
+        np.zeros((3, 3)),  # singular: solving with it raised LinAlgError (E2b)
+        np.diag([1e-4, -1e-4, 1e-4]),  # not positive definite
+        np.array([[1e-4, 1e-3, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-4]]),  # not symmetric
+        np.diag([1e-4, math.nan, 1e-4]),
+        [1.0, 2.0],  # not 3x3
+    ],
+)
+def test_a_pose_covariance_that_is_no_covariance_is_refused_and_changes_nothing(
+    covariance: object,
+) -> None:
+    ekf = PoseEkf()
+    ekf.correct(0.0, 0.0, 0.0, 0.0, covariance)  # type: ignore[arg-type]
+    assert not ekf.ready  # not even the first fix is taken
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    odom = [0.0]
+    t = _drive(ekf, 0.0, 5, dx=0.01, odom=odom)
+    ekf.correct(t, 0.05, 0.0, 0.0, covariance)  # type: ignore[arg-type]
+    est = ekf.estimate()
+    assert est is not None and est.finite
+    # its stamp was not taken: the POSE's age says how old the last good one is
+    assert est.pose_stamp_s == 0.0 and ekf.rejected == 2
+
+
+def test_a_state_that_stops_being_finite_is_forgotten() -> None:
+    ekf = PoseEkf()
+    ekf.reset(0.0, 0.0, math.pi / 2, np.eye(3) * 1.7e308, 0.0)  # finite, near the top
+    ekf.predict(0.0, 0.0, 0.0, 0.0)
+    ekf.predict(0.02, 0.4, 0.0, 0.0)  # the covariance overflows
+    assert ekf.poisoned == 1 and ekf.estimate() is None  # no estimate beats a wrong one
+    ekf.correct(0.05, 1.0, 1.0, 0.0, R)
+    est = ekf.estimate()
+    assert est is not None and est.finite and est.x_m == 1.0
+
+
+def test_an_odometry_jump_is_a_new_frame_not_motion() -> None:
+    """Review A15: a bridge restart resets the odometry frame; the filter integrated the
+    jump as motion. Beyond a plausible step it re-bases instead."""
+    ekf = PoseEkf()
+    ekf.correct(0.0, 1.0, 1.0, 0.0, R)
+    odom = [3.0]
+    t = _drive(ekf, 0.0, 10, dx=0.01, odom=odom)  # at 1.09 in the map
+    ekf.predict(t + 0.02, 0.0, 0.0, 0.0)  # the bridge restarted: odom is 0 again
+    ekf.predict(t + 0.04, 0.01, 0.0, 0.0)  # and it moves on from there
+    est = ekf.estimate()
+    assert est is not None and est.x_m == pytest.approx(1.10) and ekf.rebased == 1
+    ekf.predict(t + 0.06, 0.01, 0.0, 3.0)  # a turn of 3 rad in 20 ms is no turn either
+    assert ekf.rebased == 2 and ekf.estimate().yaw_deg == pytest.approx(0.0)  # type: ignore[union-attr]

@@ -26,7 +26,7 @@ from emulator.twin import Pose2D
 from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.model.downlink import OnboardReport, decode_report
 from firmware_proto.model.rover import load_rover
-from firmware_proto.model.uplink import UplinkAck, decode_ack
+from firmware_proto.model.uplink import TOKEN_ENV, UplinkAck, decode_ack
 from firmware_proto.model.worldmap import load_map
 from firmware_proto.wire.messages import Command
 from sim.mission import predict
@@ -109,6 +109,11 @@ class Ground:
         assert answers, f"no answer to plan {plan_id}"
         return answers[0]
 
+    def boot(self, timeout_s: float = 30.0) -> str:
+        """The boot id of the rover's onboard program (every report names it)."""
+        assert self.reports.until(lambda xs: any(r.boot for r in xs), since=0, timeout_s=timeout_s)
+        return next(r.boot for r in reversed(self.reports.items()) if r.boot)
+
     def ended(self, plan_id: int, timeout_s: float = 60.0) -> OnboardReport:
         """The plan's report once it has ended and the rover is at rest."""
 
@@ -144,6 +149,7 @@ def rover(tmp_path: Path) -> Iterator[tuple[int, Child]]:
     """The emulator on a pty, the bridge on it and the onboard program beside it."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROVER_BRIDGE_", "ROVER_UP"))}
     env.pop("ROVER_GATE_TOKEN", None)
+    onboard_env = {**env, TOKEN_ENV: TOKEN}  # the token through the environment only
     device = tmp_path / "rover-motor"
     children: list[Child] = []
     try:
@@ -165,7 +171,7 @@ def rover(tmp_path: Path) -> Iterator[tuple[int, Child]]:
         control = int(emulator.wait_for("CONTROL ").rsplit(":", 1)[1])
         children.append(Child(["bridge", "--device", str(device), *SLACK["bridge"]], env))
         children[-1].wait_for("BRIDGE ")
-        onboard = Child(["onboard", "--token", TOKEN], env)
+        onboard = Child(["onboard"], onboard_env)
         children.append(onboard)
         assert onboard.wait_for("ONBOARD ").startswith("ONBOARD / rclpy (uplinks must be signed)")
         yield control, onboard
@@ -193,7 +199,8 @@ def test_a_plan_runs_on_board_bad_uplinks_are_refused_and_the_guard_stops_a_slip
     # 1. A plan of two drives runs on board, step after step, and ends at rest.
     here = ground.where()
     steps = ((FWD, 30, 9200), (FWD, 40, 9200))
-    uplink = predict(rover_description, plan_id, steps, 0.001, world=lab, start=here)
+    boot = ground.boot()
+    uplink = predict(rover_description, plan_id, steps, 0.001, world=lab, start=here, boot=boot)
     ack = ground.send(uplink.envelope(TOKEN), plan_id)
     assert (ack.result, ack.state) == ("accepted", "running")
     done = ground.ended(plan_id)
@@ -224,7 +231,9 @@ def test_a_plan_runs_on_board_bad_uplinks_are_refused_and_the_guard_stops_a_slip
     assert "ok" in _control(control, "inject slip:both=0.05")
     here = ground.where()
     slip_id = plan_id + 2
-    uplink = predict(rover_description, slip_id, ((FWD, 40, 30000),), 0.001, world=lab, start=here)
+    uplink = predict(
+        rover_description, slip_id, ((FWD, 40, 30000),), 0.001, world=lab, start=here, boot=boot
+    )
     assert ground.send(uplink.envelope(TOKEN), slip_id).result == "accepted"
     stopped = ground.ended(slip_id)
     why = [stopped.line(), *onboard.errors[-5:], *ground.statuses.items()[-8:]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -50,6 +51,7 @@ def _uplink(plan_id: int = 7, **changes: Any) -> PlanUplink:
         "goal": Pose(1.0, 0.0, 90.0),
         "limits": DriftLimits.of(ROVER),
         "verdict": "a" * 64,
+        "boot": "b" * 32,
     }
     fields.update(changes)
     return PlanUplink(**fields)
@@ -90,7 +92,7 @@ def test_a_cancel_reads_back() -> None:
         (lambda b: b.update(steps=[]), "out_of_range", "0 steps"),
         (lambda b: b["limits"].update(linear_m=0.5), "out_of_range", "never looser"),
         (lambda b: b["limits"].update(angular_deg=0.0), "out_of_range", "angular_deg 0"),
-        (lambda b: b.update(version=2), "unsupported_version", "this rover reads 1"),
+        (lambda b: b.update(version=1), "unsupported_version", "this rover reads 2"),
         (lambda b: b.update(type="dance"), "malformed", "neither 'plan' nor 'cancel'"),
         (lambda b: b.update(verdict="XYZ"), "malformed", "SHA-256"),
         (lambda b: b["prediction"][3].__setitem__(2, "x"), "malformed", "not a number"),
@@ -149,6 +151,45 @@ def test_authentication() -> None:
     with pytest.raises(UplinkError) as caught:
         decode_uplink(json.dumps(changed), token=TOKEN, rover=ROVER)
     assert caught.value.reason == "bad_tag"
+
+
+@pytest.mark.parametrize("tag", ["\u00e9" * 64, "A" * 64, "ab", "0" * 65, "g" * 64])
+def test_a_tag_that_is_not_64_lower_case_hex_digits_is_refused_not_raised(tag: str) -> None:
+    """A non-ASCII tag made hmac.compare_digest raise TypeError out of the decoder (review
+    A14): no answer, no refusal on command_status."""
+    env = json.dumps({"body": json.loads(_uplink().envelope(TOKEN))["body"], "tag": tag})
+    with pytest.raises(UplinkError) as caught:
+        decode_uplink(env, token=TOKEN, rover=ROVER)
+    assert caught.value.reason == "bad_tag"
+
+
+def test_the_boot_id_is_signed_and_checked_for_form() -> None:
+    """A plan is bound to one run of the onboard program: its boot id is in the signed
+    body (so it cannot be changed on the way), and must be a boot id or empty."""
+    up = _uplink()
+    assert decode_uplink(up.envelope(TOKEN), token=TOKEN, rover=ROVER) == up  # boot and all
+    env = json.loads(up.envelope(TOKEN))
+    env["body"] = env["body"].replace("b" * 32, "c" * 32)
+    with pytest.raises(UplinkError) as caught:
+        decode_uplink(json.dumps(env), token=TOKEN, rover=ROVER)
+    assert caught.value.reason == "bad_tag"
+    body = _body(up.envelope(TOKEN))
+    body["boot"] = "not a boot"
+    with pytest.raises(UplinkError) as caught:
+        decode_uplink(_reenvelope(body), token=TOKEN, rover=ROVER)
+    assert caught.value.reason == "malformed" and "body.boot" in caught.value.detail
+    body["boot"] = ""
+    assert decode_uplink(_reenvelope(body), token=TOKEN, rover=ROVER) == replace(up, boot="")
+
+
+def test_the_cheap_look_reads_the_id_and_type_of_an_authentic_body() -> None:
+    from firmware_proto.model.uplink import open_envelope, peek_body
+
+    body = open_envelope(_uplink(41).envelope(TOKEN), TOKEN)
+    assert peek_body(body) == (41, "plan")
+    assert peek_body(open_envelope(CancelUplink(9).envelope(TOKEN), TOKEN)) == (9, "cancel")
+    assert peek_body("[1]") == (0, "") and peek_body("{not json") == (0, "")
+    assert peek_body('{"plan_id": true, "type": 3}') == (0, "")
 
 
 @pytest.mark.parametrize(
@@ -228,9 +269,13 @@ def test_reports_read_back() -> None:
     rest = RestReport(10.4, Pose(1, 2.35, 4), tuple(float(i) for i in range(9)), True, 0.06, 0.4)
     report = OnboardReport(
         3, "rest", 10.5, 7, "a" * 64, "stopped", 2, 4, "aborted:stop", 0.3, 0.5, "guard",
-        guard.reason, guard, rest, {"worst_linear_m": 0.31},
+        guard.reason, guard, rest, {"worst_linear_m": 0.31}, "c" * 32,
     )  # fmt: skip
     assert decode_report(report.to_json()) == report
+    assert json.loads(report.to_json())["boot"] == "c" * 32
+    moved = report.shifted(100.0)
+    assert (moved.t_s, moved.guard.stamp_s, moved.guard.stop_s) == (110.5, 110.0, 110.01)  # type: ignore[union-attr]
+    assert moved.rest.stamp_s == 110.4 and moved.rest.pose == rest.pose  # type: ignore[union-attr]
     assert report.ended
     assert "plan 7: stopped, step 3/4" in report.line()
     with pytest.raises(UplinkError):

@@ -390,3 +390,32 @@ def test_a_console_that_is_not_there_is_unavailable() -> None:
         ConsoleClient(url).stop(1.0)
     with pytest.raises(ConsoleRefusedError, match="not a console URL"):
         ConsoleClient("ftp://x")
+
+
+def test_clear_stop_says_when_an_armed_plan_starts_with_the_release(
+    served: tuple[ConsoleServer, Any],
+) -> None:
+    """Review A1: releasing the latch starts a plan that waits armed on board (after its
+    guard's STOP, the ground re-planned); the answer says so."""
+    from bridge.ros.rosport.msgs import Empty
+    from firmware_proto.model.downlink import OnboardReport
+
+    server, rover = served
+    statuses = rover.publisher("command_status", String, qos.STATUS)
+    reports = rover.publisher("onboard_report", String, qos.STATUS)
+    armed = OnboardReport(7, "armed", 1.0, 42, "a" * 64, "armed", 0, 3, boot="b" * 32)
+    reports.wait_for_subscribers(1, 5.0)
+    statuses.wait_for_subscribers(1, 5.0)
+    for _ in range(100):  # until the console has heard it
+        reports.publish(String(data=armed.to_json()))
+        if server.console.onboard is not None:
+            break
+        HEARD.wait(0.05)
+    rover.subscribe(
+        "clear_emergency_stop",
+        Empty,
+        lambda _msg: statuses.publish(String(data="cleared")),
+        qos.STOP,
+    )
+    doc = ConsoleClient(server.url, TOKEN).clear_stop(5.0)
+    assert doc["released"] and "plan 42 was armed on board" in doc["armed"]

@@ -192,7 +192,8 @@ def _status(port: int) -> dict[str, Any]:
 def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
     tmp_path: Path, gate_process_url: str, sig: signal.Signals
 ) -> None:
-    env = dict(os.environ)
+    # The uplink token through the environment (rover onboard checks, rover go signs).
+    env = {**os.environ, "ROVER_UPLINK_TOKEN": "interrupted-go-token"}
     device = tmp_path / "rover-motor"
     children: list[Child] = []
     try:

@@ -105,6 +105,24 @@ def test_bad_replayed_and_superseded_uplinks_are_refused_and_drive_nothing() -> 
     assert outcome.counts["onboard_duplicates"] >= 1
 
 
+@pytest.mark.parametrize(
+    "restart_s", [1.0, 2.1, 4.0], ids=["before-it-arrives", "as-it-starts", "mid-plan"]
+)
+def test_a_restart_of_the_onboard_program_runs_no_copy_of_the_plan_again(
+    restart_s: float,
+) -> None:
+    """Review A2: plans lived only in memory and a restart took any signed copy of the
+    last ten minutes again (the ground's resends, a replay). The restarted program has a
+    new boot id, and every copy signed for the old one is refused. (Mid-plan, the
+    rover has also left the plan's start: a copy would be refused ``start_mismatch``
+    too; as it starts, only the boot id tells.)"""
+    outcome = run_mission(_mission(onboard_restart_s=restart_s, uplink_faults=("replay", "dup")))
+    _ok(outcome)  # plan-once: no plan id started twice, across the restart too
+    assert outcome.counts["refused:other_boot"] >= 2
+    if restart_s > 2.0:  # it was running: the ending program stopped it
+        assert outcome.ended == "failed" and outcome.counts["onboard_steps_sent"] >= 1
+
+
 @pytest.mark.slow
 @pytest.mark.virtual
 @pytest.mark.parametrize("kind", ["reboot", "cut"])
@@ -124,8 +142,10 @@ def test_the_invariants_catch_a_guard_that_does_not_guard() -> None:
         def __init__(self, mission: MissionScenario) -> None:
             super().__init__(mission)
             self.onboard = OnboardCore(
-                self.rover, OnboardConfig(token="sim-token", persistence=10**6)
+                self.rover,
+                OnboardConfig(token="sim-token", persistence=10**6, boot=self.ground_boot),
             )
+            self.cores = [self.onboard]
 
     outcome = Blind(_mission(slip=(0, 0.3, "left", 0.03))).play()
     assert [v.rule for v in outcome.violations][:1] == ["guard-bound"]
