@@ -10,10 +10,12 @@ is readable by every user in ``/proc``): without it the program refuses to start
 told ``--insecure`` (then any publisher on the rover's ROS domain can drive it).
 
 It prints ``ONBOARD <namespace> <backend> (uplinks must be signed)`` once its ROS 2 node
-is up, and one line per plan: taken, ended (how and why), the guard's STOP. SIGINT and
+is up and the bridge subscribes to its steps and its STOP (``--bridge-timeout``, exit 1
+when it does not), and one line per plan: taken, ended (how and why), the guard's STOP. SIGINT and
 SIGTERM (or ``--duration``) end it: a plan still running is stopped first (STOP on
 ``emergency_stop``), then the node and the ROS context are closed. Exit status 0, 2 on
-a usage error (no token and no ``--insecure`` among them), 1 when ROS 2 is missing.
+a usage error (no token and no ``--insecure`` among them), 1 when ROS 2 is missing or
+no bridge is there.
 """
 
 from __future__ import annotations
@@ -61,6 +63,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="consecutive estimates past a limit before the guard stops (default 3)",
     )
     p.add_argument(
+        "--bridge-timeout",
+        type=float,
+        default=30.0,
+        help="wait this long, s, for the bridge to subscribe to wheel_instructions and "
+        "emergency_stop before saying ONBOARD; exit 1 if it does not (0: do not wait; "
+        "default 30)",
+    )
+    p.add_argument(
         "--duration", type=float, default=0.0, help="exit after SECONDS; 0 runs until stopped"
     )
     add_runtime_arguments(p, DEFAULT_PRIORITY)
@@ -101,8 +111,12 @@ def run(args: argparse.Namespace) -> int:
         leave_realtime_for_process,
     )
 
-    if not args.time_scale > 0 or args.persistence < 1:
-        print("rover onboard: error: --time-scale must be > 0, --persistence >= 1", file=sys.stderr)
+    if not args.time_scale > 0 or args.persistence < 1 or not args.bridge_timeout >= 0:
+        print(
+            "rover onboard: error: --time-scale must be > 0, --persistence >= 1, "
+            "--bridge-timeout >= 0",
+            file=sys.stderr,
+        )
         return 2
     token = token_from_env(os.environ)
     if token is None and not args.insecure:
@@ -129,6 +143,14 @@ def run(args: argparse.Namespace) -> int:
             print(f"rover onboard: error: {exc}", file=sys.stderr)
             return 1
         with port, OnboardNode(port, rover, config) as node:
+            if args.bridge_timeout > 0 and not node.wait_for_bridge(args.bridge_timeout):
+                print(
+                    f"rover onboard: error: no bridge subscribed to wheel_instructions and "
+                    f"emergency_stop in namespace '{port.namespace}' within "
+                    f"{args.bridge_timeout:g} s: its STOP would reach nobody",
+                    file=sys.stderr,
+                )
+                return 1
             status = apply_realtime_to_process(RealtimeConfig(priority))
             print(f"onboard: {status.line()}", file=sys.stderr)
             print(f"onboard: boot {node.core.boot}", file=sys.stderr)

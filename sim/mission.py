@@ -13,7 +13,8 @@ duplicated, late, or overtaken (a superseded plan, its cancel and the new plan a
 out of order); replays of old or tampered uplinks, malformed ones, a plan whose
 prediction belongs to other steps; a ground STOP at any moment; a controller reboot or a
 cut link mid-plan; a restart of the onboard program (a new boot id: a new core and a
-fresh estimate), after which the ground's copies of its plan arrive again.
+fresh estimate), after which the ground's copies of its plan arrive again; the onboard
+program's first STOPs lost on their way to the bridge.
 :class:`MissionRig` plays it; the ROS hops on the rover take :data:`ROS_HOP_S` each.
 
 The onboard program has been up for a while when a mission starts: the ground holds
@@ -36,6 +37,8 @@ Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``):
 - ``false-stop``: the guard never stops a rover whose true drift is within the limits
   less that margin;
 - ``ground-stop``: once the ground's STOP reaches the rover, no step of the plan goes out;
+- ``stop-reached``: a STOP of the onboard program's lost on the ROS hop to the bridge is
+  followed by one that arrives within :data:`STOP_REACH_S`;
 - ``delivered``: without slip, a ground STOP or a controller fault, the plan completes
   exactly once and the ground hears it;
 - ``rest``: after every end the rover reports its estimate at rest (or that it gave up
@@ -116,6 +119,9 @@ UPLINK_AT_S = 0.5
 """When the ground sends its first uplink, virtual s (the link is up by then)."""
 STOP_REPEAT_S = 0.5
 """The ground repeats STOP this often until it hears ``stopped``, s."""
+STOP_REACH_S = 1.0
+"""A STOP of the onboard program's lost on the way: another reaches the bridge within
+this, virtual s (its copies; ``stop-reached``)."""
 TOKEN = "sim-token"
 REFUSED_FOR_GOOD = frozenset(
     {
@@ -221,6 +227,8 @@ class MissionScenario:
         onboard_restart_s: when the onboard program restarts (``None``: never): a new
             boot id, a fresh core and estimate; the ground's copies of its plan, and with
             ``replay`` the replay, come again after it.
+        lost_stops: the onboard program's first STOPs lost on the ROS hop to the bridge
+            (its copies must stop the rover).
     """
 
     seed: int
@@ -238,6 +246,7 @@ class MissionScenario:
     uplink_faults: tuple[str, ...]
     wire_faults: tuple[ScenarioFault, ...]
     onboard_restart_s: float | None = None
+    lost_stops: int = 0
 
     @property
     def reproducer(self) -> str:
@@ -276,6 +285,8 @@ class MissionScenario:
         lines += ["  fault " + f.text() for f in self.wire_faults]
         if self.onboard_restart_s is not None:
             lines.append(f"  onboard program restarts at {self.onboard_restart_s:.2f}s")
+        if self.lost_stops:
+            lines.append(f"  the onboard program's first {self.lost_stops} STOP(s) lost")
         return lines
 
 
@@ -327,6 +338,7 @@ def make_mission(
             ScenarioFault("cut", arrive + rng.uniform(0.0, duration), rng.uniform(0.4, 1.0))
         )
     restart = arrive + rng.uniform(-1.0, duration) if rng.random() < 0.08 else None
+    lost_stops = rng.choice((1, 2)) if rng.random() < 0.15 else 0
     return MissionScenario(
         seed,
         controller,
@@ -343,6 +355,7 @@ def make_mission(
         uplink,
         tuple(wire),
         restart,
+        lost_stops,
     )
 
 
@@ -472,6 +485,9 @@ class MissionRig(Rig):
         self._clearing = False
         self.refusals: Counter[str] = Counter()
         """The rover's refusals, by reason."""
+        self._stops_to_lose = mission.lost_stops
+        self.bridge_stops: list[float] = []
+        """When a STOP reached the bridge (the onboard program's or the ground's)."""
 
     def _plan_report(self) -> OnboardReport | None:
         """The last report of the mission's plan, from whichever run of the onboard
@@ -552,6 +568,11 @@ class MissionRig(Rig):
                 if action.reason.startswith("drift"):
                     self.guard_stops.append(self.now)
                     self._false_stop_check()
+                if self._stops_to_lose > 0:
+                    self._stops_to_lose -= 1
+                    self._note(f"onboard STOP lost on the way: {action.reason}")
+                    self._at(self.now + STOP_REACH_S, _ACTION, partial(self._stop_due, self.now))
+                    continue
                 self._note(f"onboard STOP: {action.reason}")
                 self._at(self.now + ROS_HOP_S, _ACTION, partial(self._bridge_stop, False))
             elif isinstance(action, SendStep):
@@ -605,8 +626,20 @@ class MissionRig(Rig):
         self.core.submit_step(StepRequest(*action.step), self.now)
         self._host_after()
 
+    def _stop_due(self, lost_s: float) -> None:
+        """A STOP of the onboard program's was lost at ``lost_s``: one must have reached
+        the bridge since."""
+        if self.bridge_stops and self.bridge_stops[-1] >= lost_s:
+            return
+        self.violate(
+            "stop-reached",
+            f"the onboard program's STOP was lost at {lost_s:.3f} s and none reached the "
+            f"bridge by {self.now:.3f} s",
+        )
+
     def _bridge_stop(self, from_ground: bool) -> None:
         """``true`` on ``emergency_stop``: the bridge stops, the onboard program hears it."""
+        self.bridge_stops.append(self.now)
         core = self.core
         core.emergency_stop(StopSource.OPERATOR, self.now)
         for stop in core.take_stops():

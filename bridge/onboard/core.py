@@ -57,6 +57,12 @@ prediction, the drift). The estimate is the filter's, so the guard keeps guardin
 encoders and IMU when POSE goes quiet. No estimate for ``blind_s`` while a step runs:
 STOP (outcome ``blind``).
 
+**Its STOP is confirmed.** Every STOP of the core's (the guard's, a failed step's, a
+cancel's) goes out again every ``stop_repeat_s`` until the bridge answers ``stopped``,
+at most ``stop_repeats`` more copies (a STOP lost on the way must not let a step run to
+its end); ``cleared`` ends the wait. Its copies heard back on ``emergency_stop`` within
+``echo_window_s`` are its own; any other STOP is someone else's.
+
 **After any end** the core waits for the rover to stand (the estimate's twist below
 ``rest_speed_mps`` and ``rest_yaw_rate_rad_s`` for ``rest_hold_s``, at most
 ``rest_timeout_s``) and reports the estimate there with its covariance, how far the
@@ -79,6 +85,7 @@ import enum
 import logging
 import math
 import secrets
+from collections import deque
 from dataclasses import dataclass, field
 
 from bridge.onboard.ekf import Estimate
@@ -174,6 +181,12 @@ class OnboardConfig:
         remember: plan ids kept to answer copies as duplicates.
         fix_fresh_s: a plan starts only when the estimate holds a POSE fix younger than
             this (``no_fix`` otherwise).
+        stop_repeat_s, stop_repeats: the core's STOP goes out again this often, at most
+            this many more times, until the bridge answers ``stopped`` (a STOP lost on
+            the way must not let the step run to its end).
+        echo_window_s: the core's own STOP heard back on ``emergency_stop``, or a
+            ``stopped`` that answers one of its copies, comes within this of the copy
+            (later: someone else's STOP).
     """
 
     token: str | None = None
@@ -191,6 +204,9 @@ class OnboardConfig:
     report_period_s: float = 1.0
     remember: int = 256
     fix_fresh_s: float = 1.0
+    stop_repeat_s: float = 0.25
+    stop_repeats: int = 8
+    echo_window_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.boot and not is_boot_id(self.boot):
@@ -204,12 +220,16 @@ class OnboardConfig:
             "rest_timeout_s",
             "report_period_s",
             "fix_fresh_s",
+            "stop_repeat_s",
+            "echo_window_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value}")
         if self.persistence < 1:
             raise ValueError(f"persistence must be >= 1, got {self.persistence}")
+        if self.stop_repeats < 0:
+            raise ValueError(f"stop_repeats must be >= 0, got {self.stop_repeats}")
 
 
 # -- actions ---------------------------------------------------------------------------------
@@ -298,9 +318,15 @@ class OnboardCore:
         since it was last released): only then does a plan wait armed."""
         self._stop_sent = False
         """The core's own STOP went out and no ``stopped`` answered it yet: the next
-        ``stopped`` is the core's, not the ground's."""
-        self._own_echoes = 0
-        """The core's own STOPs not yet heard back on ``emergency_stop``."""
+        ``stopped`` is the core's, not the ground's; it goes out again until then."""
+        self._stop_reason = ""
+        self._stop_copies = 0
+        """Copies of the unanswered STOP sent so far."""
+        self._stop_last_s = -math.inf
+        """When the core's latest STOP copy went out."""
+        self._own_echoes: deque[float] = deque()
+        """When each of the core's STOP copies not yet heard back on ``emergency_stop``
+        went out (a copy's echo is due within ``echo_window_s``; one lost expires)."""
         self._estimate: Estimate | None = None
         self._last_estimate_s = -math.inf
         self._seq = 0
@@ -318,6 +344,7 @@ class OnboardCore:
             "guard_stops": 0,
             "ground_stops": 0,
             "bad_estimates": 0,
+            "stop_repeats": 0,
         }
         """What the core has seen and done, by name (the program's diagnostics)."""
 
@@ -362,6 +389,8 @@ class OnboardCore:
             due = min(due, self._step_deadline(plan), self._last_estimate_s + cfg.blind_s)
         if self._settling is not None:
             due = min(due, self._settling.ended_s + cfg.rest_timeout_s)
+        if self._stop_sent and self._stop_copies <= cfg.stop_repeats:
+            due = min(due, self._stop_last_s + cfg.stop_repeat_s)
         return max(due, now) if due < math.inf else due
 
     # -- events ------------------------------------------------------------------------------
@@ -537,13 +566,21 @@ class OnboardCore:
         kind, reason = parse_status(text)
         plan = self._plan
         if text == STOPPED:
-            if self._stop_sent:
+            if self._stop_sent or now - self._stop_last_s <= self.config.echo_window_s:
+                # The core's own (or the answer to a copy that crossed the first answer).
                 self._stop_sent = False
                 self._latched = True
             else:
                 self._foreign_stop("the ground's STOP (stopped)", now)
             return
         if text == CLEARED:
+            if self._stop_sent:
+                logger.warning(
+                    "the latch was released before the bridge answered the core's STOP "
+                    "(%s): no more copies",
+                    self._stop_reason,
+                )
+            self._stop_sent = False
             self._latched = False
             self._latch_own = False
             if plan is not None and plan.state is PlanState.ARMED:
@@ -588,8 +625,11 @@ class OnboardCore:
     def on_ground_stop(self, now: float) -> None:
         """``true`` heard on ``emergency_stop``: the core's own STOP heard back (one per
         STOP it sent), else a STOP of someone else's (the ground's, an operator's)."""
-        if self._own_echoes > 0:
-            self._own_echoes -= 1
+        echoes = self._own_echoes
+        while echoes and now - echoes[0] > self.config.echo_window_s:
+            echoes.popleft()  # an echo that never came (a copy lost on the way)
+        if echoes:
+            echoes.popleft()
             self._latched = True
             return
         self._foreign_stop("the ground's STOP (emergency_stop)", now)
@@ -663,6 +703,8 @@ class OnboardCore:
                 self._end(plan, "failed", f"step {plan.step + 1}/{n}: no 'completed' in time", now)
             elif now >= self._last_estimate_s + cfg.blind_s:
                 self._blind(plan, f"no pose estimate for {cfg.blind_s:g} s", now)
+        if self._stop_sent and now >= self._stop_last_s + cfg.stop_repeat_s:
+            self._repeat_stop(now)
         settling = self._settling
         if settling is not None and now >= settling.ended_s + cfg.rest_timeout_s:
             self._rest(settling, self._estimate, now, at_rest=False)
@@ -710,9 +752,31 @@ class OnboardCore:
         if not self._latched:
             self._latch_own = True  # a latch of someone else's stays theirs
         self._stop_sent = True
+        self._stop_reason = reason
+        self._stop_copies = 0
         self._latched = True
-        self._own_echoes += 1
+        self._send_stop(reason, now)
+
+    def _send_stop(self, reason: str, now: float) -> None:
+        self._stop_copies += 1
+        self._stop_last_s = now
+        self._own_echoes.append(now)
         self._actions.append(SendStop(reason))
+
+    def _repeat_stop(self, now: float) -> None:
+        """The core's STOP is still unanswered: again, up to ``stop_repeats`` times."""
+        cfg = self.config
+        if self._stop_copies > cfg.stop_repeats:
+            return
+        self.counts["stop_repeats"] += 1
+        reason = f"{self._stop_reason} (again: no 'stopped' yet)"
+        self._send_stop(reason, now)
+        if self._stop_copies > cfg.stop_repeats:
+            logger.error(
+                "the bridge has not answered the core's STOP after %d copies (%s)",
+                self._stop_copies,
+                self._stop_reason,
+            )
 
     def _end(self, plan: _Plan, outcome: str, reason: str, now: float) -> None:
         plan.state = _ENDS[outcome]

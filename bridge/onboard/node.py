@@ -139,11 +139,13 @@ class OnboardNode:
         return self
 
     def wait_for_bridge(self, timeout_s: float = 10.0) -> bool:
-        """Wait until the steps and the STOP reach a subscriber (the bridge)."""
+        """Wait until the steps and the STOP reach the bridge: ``wheel_instructions``
+        one subscriber, ``emergency_stop`` two (the program hears its own STOP too).
+        ``False``: not within ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         return all(
-            pub.wait_for_subscribers(1, max(0.0, deadline - time.monotonic()))
-            for pub in (self._steps, self._stop)
+            pub.wait_for_subscribers(count, max(0.0, deadline - time.monotonic()))
+            for pub, count in ((self._steps, 1), (self._stop, 2))
         )
 
     # -- inputs (the port's lanes) -------------------------------------------------------------

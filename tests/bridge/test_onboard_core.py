@@ -360,6 +360,106 @@ def test_the_guard_stops_at_the_limit_and_reports_where_and_at_rest() -> None:
     assert rest.time_to_rest_s == pytest.approx(0.1, abs=1e-6)
 
 
+def _stops(out: list[Any]) -> list[SendStop]:
+    return [a for a in out if isinstance(a, SendStop)]
+
+
+def _guard_stop_unanswered(r: Rover) -> float:
+    """Run plan 10 until the guard stops it; no answer yet. Returns when it stopped."""
+    r.uplink(_plan(10))
+    r.status("accepted")
+    for i in range(1, 8):
+        r.at(0.1 * i)
+        if _stops(r.do("on_estimate", _est(r.t, 0.05 * i, 0.1 * i))):
+            return r.t
+    raise AssertionError("the guard did not stop")
+
+
+def test_the_guards_stop_goes_out_again_until_the_bridge_answers_stopped() -> None:
+    """Review A7: the STOP was published once; lost, the step ran to its end (1.3 m)."""
+    r = Rover(stop_repeat_s=0.25, stop_repeats=8, report_period_s=60.0, rest_timeout_s=60.0)
+    t0 = _guard_stop_unanswered(r)
+    assert r.core.next_deadline(t0) == pytest.approx(t0 + 0.25)
+    r.at(t0 + 0.2)
+    assert _stops(r.do("tick")) == []  # not yet
+    r.at(t0 + 0.25)
+    again = _stops(r.do("tick"))
+    assert len(again) == 1 and "again: no 'stopped' yet" in again[0].reason
+    r.at(t0 + 0.5)
+    assert len(_stops(r.do("tick"))) == 1
+    r.status("stopped")  # the bridge answers: no more copies
+    r.at(t0 + 0.75)
+    assert _stops(r.do("tick")) == []
+    assert r.core.next_deadline(r.t) > t0 + 10.0
+    assert len(_stops(r.actions)) == 3 and r.core.counts["stop_repeats"] == 2
+
+
+def test_the_copies_are_bounded_when_no_answer_ever_comes() -> None:
+    r = Rover(stop_repeat_s=0.25, stop_repeats=4, report_period_s=60.0, rest_timeout_s=60.0)
+    t0 = _guard_stop_unanswered(r)
+    for k in range(1, 41):  # ten seconds of ticks
+        r.at(t0 + 0.25 * k)
+        r.do("tick")
+    assert len(_stops(r.actions)) == 1 + 4
+    assert r.core.next_deadline(r.t) > r.t + 10.0  # nothing more is due
+
+
+def test_answers_and_echoes_of_its_copies_are_its_own() -> None:
+    """A copy that crossed the first ``stopped`` is answered again, and each copy is
+    heard back: none of it is someone else's STOP (which would drop an armed plan)."""
+    r = Rover(stop_repeat_s=0.25, report_period_s=60.0)
+    t0 = _guard_stop_unanswered(r)
+    r.at(t0 + 0.25)
+    r.do("tick")  # a copy goes out as the answer to the first comes in
+    r.at(t0 + 0.26)
+    r.do("on_ground_stop")
+    r.status("stopped")
+    r.at(t0 + 0.3)
+    r.do("on_ground_stop")
+    r.status("stopped")  # the copy's own answer
+    assert r.core.counts["ground_stops"] == 0
+    r.do("on_estimate", _est(r.t, 0.0, v=0.0))  # (back at the plan's start)
+    r.uplink(_plan(11))
+    assert (r.acks()[-1].result, r.acks()[-1].state) == ("accepted", "armed")
+
+
+def test_a_lost_stopped_does_not_make_a_later_stop_look_like_its_own() -> None:
+    """Review A7: with the answer to its STOP lost, the next controller STOP was taken
+    for the core's own and did not end the plan then running."""
+    r = Rover(stop_repeat_s=0.25, stop_repeats=2, report_period_s=60.0)
+    t0 = _guard_stop_unanswered(r)
+    r.do("on_ground_stop")  # its echo; the bridge's 'stopped' is lost, every time
+    for k in range(1, 4):
+        r.at(t0 + 0.25 * k)
+        r.do("tick")
+    r.at(t0 + 5.0)
+    r.status("cleared")  # the operator releases the latch
+    r.do("on_estimate", _est(r.t, 0.0, v=0.0))  # (back at the plan's start)
+    r.uplink(_plan(11))
+    r.status("accepted")
+    assert r.core.running is not None and r.core.running.plan_id == 11
+    r.at(t0 + 6.0)
+    r.status("stopped")  # a STOP of the controller's (its button), nothing of the core's
+    report = r.reports()[-1]
+    assert (report.plan_id, report.outcome) == (11, "ground_stop")
+
+
+def test_an_echo_that_never_came_expires() -> None:
+    """An echo of its STOP that never came (lost) does not hide the next STOP of
+    someone else's."""
+    r = Rover(echo_window_s=1.0, report_period_s=60.0)
+    t0 = _guard_stop_unanswered(r)
+    r.status("stopped")  # answered, but its echo on emergency_stop never comes
+    r.at(t0 + 3.0)
+    r.status("cleared")
+    r.do("on_estimate", _est(r.t, 0.0, v=0.0))  # (back at the plan's start)
+    r.uplink(_plan(11))
+    r.status("accepted")
+    r.at(t0 + 3.5)
+    r.do("on_ground_stop")  # the operator's STOP
+    assert (r.reports()[-1].plan_id, r.reports()[-1].outcome) == (11, "ground_stop")
+
+
 def test_one_estimate_over_the_limit_does_not_stop() -> None:
     r = Rover(persistence=3)
     r.uplink(_plan())

@@ -79,6 +79,32 @@ def test_slip_is_stopped_on_board_within_the_bound_and_reported_at_rest() -> Non
     assert truth["overshoot_m"] < 0.15
 
 
+def test_a_guard_stop_lost_on_the_way_to_the_bridge_is_sent_again() -> None:
+    """Review A7: the guard's STOP went out once; lost, the step ran to its end. Its
+    first two copies lost here, the third stops the rover (``stop-reached``)."""
+    outcome = run_mission(_mission(slip=(0, 0.3, "left", 0.03), lost_stops=2))
+    _ok(outcome)
+    assert outcome.ended == "guard" and outcome.ground_heard
+    assert outcome.counts["onboard_stop_repeats"] >= 2
+    assert outcome.truth["overshoot_m"] < 0.3
+
+
+@pytest.mark.slow
+@pytest.mark.virtual
+def test_the_invariants_catch_a_stop_that_is_never_sent_again() -> None:
+    class Once(MissionRig):
+        def __init__(self, mission: MissionScenario) -> None:
+            super().__init__(mission)
+            self.onboard = OnboardCore(
+                self.rover,
+                OnboardConfig(token="sim-token", stop_repeats=0, boot=self.ground_boot),
+            )
+            self.cores = [self.onboard]
+
+    outcome = Once(_mission(slip=(0, 0.3, "left", 0.03), lost_stops=1)).play()
+    assert "stop-reached" in [v.rule for v in outcome.violations]
+
+
 @pytest.mark.slow
 @pytest.mark.virtual
 def test_telemetry_gaps_do_not_stop_a_healthy_plan() -> None:
