@@ -165,6 +165,12 @@ def run(args: argparse.Namespace) -> int:
                 node.stop_now("the onboard program is ending")
         counts = ", ".join(f"{k} {v}" for k, v in node.core.counts.items())
         print(f"onboard: {counts}", file=sys.stderr)
+        ekf = node.ekf
+        print(
+            f"onboard: estimate: POSE applied {ekf.corrections}, slips {ekf.inflations}, "
+            f"too old {ekf.too_old}, refused {ekf.rejected}, odometry re-based {ekf.rebased}",
+            file=sys.stderr,
+        )
     return 0
 
 

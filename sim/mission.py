@@ -532,6 +532,7 @@ class MissionRig(Rig):
         counts["uplink_copies"] = self.up["plan"].sent
         counts["uplink_lost"] = self.up["plan"].lost
         counts["ekf_inflations"] = self.ekf.inflations
+        counts["ekf_too_old"] = self.ekf.too_old
         counts.update({f"refused:{k}": v for k, v in self.refusals.items()})
         return MissionOutcome(
             sc,

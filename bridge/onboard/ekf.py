@@ -13,6 +13,8 @@ State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
 - **Correct** with every POSE, at the time it was measured (its stamp is older than the
   last ``odom``: the sensor's latency): the filter goes back to its state at that stamp
   (a short history is kept), applies the correction there, and replays the motion since.
+  A POSE older than the history is dropped and counted: applied at the oldest state
+  kept, it would pull the estimate back to where the rover was.
   An innovation far outside its covariance (squared Mahalanobis distance over
   ``gate_chi2``: the rover slipped more than the process noise allows) inflates the
   covariance by the innovation first, so the estimate follows the ground-seeing sensor
@@ -62,7 +64,9 @@ class EkfConfig:
         floor_m, floor_rad: noise added to every prediction (m, rad).
         gate_chi2: squared Mahalanobis distance of a POSE innovation above which the
             covariance is inflated by it first (3 degrees of freedom; 16.3 is 99.9 %).
-        history_s: how far back a POSE may be applied, s.
+        history_s: how far back a POSE may be applied, s: the wire's oldest POSE (its
+            ``age_4ms`` field, at most 1.02 s) plus the bridge's and ROS's delivery,
+            with room. An older POSE is dropped and counted (:attr:`PoseEkf.too_old`).
         max_step_m, max_turn_rad: an ``odom`` motion larger than these between two
             samples is no motion but a new odometry frame (the bridge restarted, its
             odometry reset): the filter re-bases on it (as the bridge's own odometry does
@@ -75,7 +79,7 @@ class EkfConfig:
     floor_m: float = 0.0005
     floor_rad: float = 0.0005
     gate_chi2: float = 16.3
-    history_s: float = 1.0
+    history_s: float = 1.5
     max_step_m: float = 0.5
     max_turn_rad: float = 1.0
 
@@ -163,8 +167,9 @@ class PoseEkf:
         """POSE samples applied."""
         self.inflations = 0
         """POSE samples that inflated the covariance first (a slip)."""
-        self.late = 0
-        """POSE samples older than the history: applied at its oldest entry."""
+        self.too_old = 0
+        """POSE samples older than the history: dropped (applying one at the oldest
+        entry would put the rover where it was, not where it is)."""
         self.rejected = 0
         """Samples refused: not finite, or a POSE covariance not positive definite."""
         self.poisoned = 0
@@ -292,7 +297,8 @@ class PoseEkf:
         while index > 0 and history[index].stamp > stamp_s:
             index -= 1
         if history[index].stamp > stamp_s:
-            self.late += 1
+            self.too_old += 1
+            return
         base = history[index]
         try:
             x, p = self._update(base.x, base.p, z, r)

@@ -162,3 +162,34 @@ def test_an_odometry_jump_is_a_new_frame_not_motion() -> None:
     assert est is not None and est.x_m == pytest.approx(1.10) and ekf.rebased == 1
     ekf.predict(t + 0.06, 0.01, 0.0, 3.0)  # a turn of 3 rad in 20 ms is no turn either
     assert ekf.rebased == 2 and ekf.estimate().yaw_deg == pytest.approx(0.0)  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize("age_s", [1.2, 1.45])
+def test_a_pose_as_old_as_the_wire_allows_is_applied_at_its_own_time(age_s: float) -> None:
+    """The wire's POSE may be 1.02 s old before the bridge and ROS deliver it: the
+    history keeps 1.5 s, and such a fix lands where the rover was then."""
+    ekf = PoseEkf()
+    odom = [0.0]
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    t = _drive(ekf, 0.0, 100, dx=0.006, odom=odom)  # 0.3 m/s for 2 s: x = 0.6
+    stamp = t - age_s
+    ekf.correct(stamp, 0.3 * stamp, 0.0, 0.0, R)  # the truth then: the odometry was right
+    est = ekf.estimate()
+    assert est is not None and est.x_m == pytest.approx(0.6, abs=0.005)
+    assert ekf.too_old == 0 and ekf.corrections == 2
+
+
+@pytest.mark.parametrize("age_s", [1.6, 2.0])
+def test_a_pose_older_than_the_history_is_dropped_and_counted(age_s: float) -> None:
+    """Review A9: a fix older than the history was applied at its oldest entry, as if
+    1 s old: at 0.3 m/s, 2 s old pulled the estimate 0.3 m back."""
+    ekf = PoseEkf()
+    odom = [0.0]
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    t = _drive(ekf, 0.0, 150, dx=0.006, odom=odom)  # 0.3 m/s for 3 s: x = 0.9
+    before = ekf.estimate()
+    stamp = t - age_s
+    ekf.correct(stamp, 0.3 * stamp, 0.0, 0.0, R)  # right for its time, but too old
+    after = ekf.estimate()
+    assert before is not None and after == before  # nothing changed, not even the age
+    assert ekf.too_old == 1 and ekf.corrections == 1
