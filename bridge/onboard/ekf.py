@@ -16,9 +16,13 @@ State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
   A POSE older than the history is dropped and counted: applied at the oldest state
   kept, it would pull the estimate back to where the rover was.
   An innovation far outside its covariance (squared Mahalanobis distance over
-  ``gate_chi2``: the rover slipped more than the process noise allows) inflates the
-  covariance by the innovation first, so the estimate follows the ground-seeing sensor
-  at once instead of creeping towards it.
+  ``gate_chi2``) is either the rover slipping more than the process noise allows or one
+  bad fix: it is held, not applied. The next POSE decides: one that agrees with it (its
+  innovation within ``gate_chi2`` of the held one's) confirms the slip, and the
+  covariance is inflated by the innovation first, so the estimate follows the
+  ground-seeing sensor at once instead of creeping towards it; one that agrees with the
+  filter makes the held fix an outlier, dropped and counted (:attr:`PoseEkf.outliers`).
+  So one bad fix never moves the estimate, and a slip costs one POSE period.
 - Until the first POSE (or :meth:`PoseEkf.reset` with a known pose) the filter has no
   map pose; it only follows ``odom`` to be ready.
 - **Bad input loses nothing.** An ``odom`` sample or a POSE that is not finite, a POSE
@@ -166,7 +170,12 @@ class PoseEkf:
         self.corrections = 0
         """POSE samples applied."""
         self.inflations = 0
-        """POSE samples that inflated the covariance first (a slip)."""
+        """POSE samples that inflated the covariance first (a slip, confirmed by two)."""
+        self.outliers = 0
+        """POSE samples held outside the gate and not confirmed by the next: dropped."""
+        self._held: tuple[Matrix, Matrix] | None = None
+        """A POSE outside the gate waiting for the next to confirm it: its innovation
+        and covariance."""
         self.too_old = 0
         """POSE samples older than the history: dropped (applying one at the oldest
         entry would put the rover where it was, not where it is)."""
@@ -199,6 +208,7 @@ class PoseEkf:
         self._stamp = stamp_s
         self._history.clear()
         self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), (0.0, 0.0, 0.0)))
+        self._held = None
         self._ready = True
 
     # -- predict ---------------------------------------------------------------------------
@@ -301,10 +311,13 @@ class PoseEkf:
             return
         base = history[index]
         try:
-            x, p = self._update(base.x, base.p, z, r)
+            updated = self._update(base.x, base.p, z, r)
         except np.linalg.LinAlgError:
             self.rejected += 1
             return
+        if updated is None:
+            return  # held for the next POSE to confirm
+        x, p = updated
         self._pose_stamp = max(self._pose_stamp, stamp_s)
         history[index] = _Entry(base.stamp, x, p, base.motion)
         for i in range(index + 1, len(history)):
@@ -326,26 +339,47 @@ class PoseEkf:
         self._p = np.eye(3)
         self._history.clear()
 
-    def _update(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix]:
+    def _update(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix] | None:
         with np.errstate(all="ignore"):  # an overflow is caught by _check_state
             return self._update_at(x, p, z, r)
 
-    def _update_at(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix]:
+    def _update_at(
+        self, x: Matrix, p: Matrix, z: Matrix, r: Matrix
+    ) -> tuple[Matrix, Matrix] | None:
+        """The correction by ``z``; ``None`` when ``z`` is held (the module docstring)."""
         y = z - x
         y[2] = wrap_rad(float(y[2]))
         s = p + r
         nis = float(y @ np.linalg.solve(s, y))
-        if nis > self.config.gate_chi2:
-            # The rover moved where the odometry could not see (slip): trust the sensor.
+        gate = self.config.gate_chi2
+        held, self._held = self._held, None
+        if nis > gate:
+            if held is None or not self._agree(held, (y, r), p, gate):
+                self._held = (y, r)  # one fix is no slip yet: wait for the next
+                if held is not None:
+                    self.outliers += 1
+                return None
+            # Two fixes agree the rover moved where the odometry could not see (slip):
+            # trust the sensor.
             self.inflations += 1
             p = p + np.outer(y, y)
             s = p + r
+        elif held is not None:
+            self.outliers += 1  # the fix held was one bad fix
         k = p @ np.linalg.inv(s)
         new = x + k @ y
         new[2] = wrap_rad(float(new[2]))
         i_k = np.eye(3) - k
         p = i_k @ p @ i_k.T + k @ r @ k.T  # Joseph form: stays symmetric, positive
         return new, p
+
+    @staticmethod
+    def _agree(a: tuple[Matrix, Matrix], b: tuple[Matrix, Matrix], p: Matrix, gate: float) -> bool:
+        """Two innovations tell the same story: their difference within ``gate`` of the
+        filter's and both fixes' covariance."""
+        d = b[0] - a[0]
+        d[2] = wrap_rad(float(d[2]))
+        return float(d @ np.linalg.solve(p + a[1] + b[1], d)) <= gate
 
     # -- read ------------------------------------------------------------------------------
     def estimate(self) -> Estimate | None:

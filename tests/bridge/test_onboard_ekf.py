@@ -58,10 +58,33 @@ def test_a_slip_the_odometry_cannot_see_is_followed_at_once() -> None:
     t = _drive(ekf, 0.0, 25, dx=0.01, odom=odom)
     # The wheels turn on; the ground-seeing sensor says the rover slid 0.3 m sideways.
     ekf.correct(t, 0.25, 0.3, 0.0, R)
+    held = ekf.estimate()
+    assert held is not None and held.y_m == pytest.approx(0.0, abs=1e-6)  # one fix: held
+    t = _drive(ekf, t, 5, dx=0.01, odom=odom)
+    ekf.correct(t, 0.3, 0.31, 0.0, R)  # the next fix agrees: a slip
     est = ekf.estimate()
     assert est is not None
-    assert est.y_m == pytest.approx(0.3, abs=0.02)
-    assert ekf.inflations == 1
+    assert est.y_m == pytest.approx(0.31, abs=0.02)
+    assert ekf.inflations == 1 and ekf.outliers == 0
+
+
+def test_one_bad_fix_does_not_move_the_estimate() -> None:
+    """Review A8 (E3): one fix 0.4 m off was taken (the covariance inflated by it), the
+    jump lasted until the next POSE, more estimates than the guard's persistence: the
+    guard stopped a rover on its path at 0.54 s."""
+    ekf = PoseEkf()
+    odom = [0.0]
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    t = 0.0
+    worst = 0.0
+    for k in range(1, 11):  # 10 Hz POSE along the true path, 0.3 m/s; one fix 0.4 m off
+        t = _drive(ekf, t, 5, dx=0.006, odom=odom)
+        ekf.correct(t, 0.3 * t, 0.4 if k == 4 else 0.0, 0.0, R)
+        est = ekf.estimate()
+        assert est is not None
+        worst = max(worst, math.hypot(est.x_m - 0.3 * t, est.y_m))
+    assert worst < 0.01
+    assert ekf.outliers == 1 and ekf.inflations == 0 and ekf.corrections == 10
 
 
 def test_without_pose_the_covariance_grows_with_the_distance() -> None:
@@ -108,6 +131,7 @@ def test_a_pose_that_is_not_finite_is_refused_and_a_later_good_one_still_works()
     est = ekf.estimate()
     assert est is not None and est.finite and est.x_m == pytest.approx(0.01)  # 1 motion
     ekf.correct(t + 0.02, 5.0, 0.0, 0.0, R)
+    ekf.correct(t + 0.02, 5.0, 0.0, 0.0, R)  # (two agreeing fixes: no outlier)
     est = ekf.estimate()
     assert est is not None and est.finite and est.x_m > 4.9
 
