@@ -54,8 +54,11 @@ started; ``time_scale`` turns the rover's seconds into the twin's). ``persistenc
 consecutive estimates beyond the uplink's limits (0.25 m, 12 deg) and the core sends
 STOP at once, drops the rest of the plan and reports where (the step, the estimate, the
 prediction, the drift). The estimate is the filter's, so the guard keeps guarding on
-encoders and IMU when POSE goes quiet. No estimate for ``blind_s`` while a step runs:
-STOP (outcome ``blind``).
+encoders and IMU through a short POSE gap; but drift control needs a sensor that sees
+the ground, so a plan stops (outcome ``blind``) when, since the last POSE fix, the
+estimate moved as far as the plan's linear limit or the wheels moved for ``pose_gap_s``,
+or the estimate's 1-sigma position error reaches the limit. No estimate for ``blind_s``
+while a step runs: STOP (outcome ``blind``).
 
 **Its STOP is confirmed.** Every STOP of the core's (the guard's, a failed step's, a
 cancel's) goes out again every ``stop_repeat_s`` until the bridge answers ``stopped``,
@@ -187,6 +190,10 @@ class OnboardConfig:
         echo_window_s: the core's own STOP heard back on ``emergency_stop``, or a
             ``stopped`` that answers one of its copies, comes within this of the copy
             (later: someone else's STOP).
+        pose_gap_s: while a step runs and the wheels move, the estimate's last POSE fix
+            older than this: STOP (``blind``; drift control needs a sensor that sees
+            the ground). The distance driven since that fix is bounded too: by the
+            plan's linear limit.
     """
 
     token: str | None = None
@@ -207,6 +214,7 @@ class OnboardConfig:
     stop_repeat_s: float = 0.25
     stop_repeats: int = 8
     echo_window_s: float = 1.0
+    pose_gap_s: float = 2.0
 
     def __post_init__(self) -> None:
         if self.boot and not is_boot_id(self.boot):
@@ -222,6 +230,7 @@ class OnboardConfig:
             "fix_fresh_s",
             "stop_repeat_s",
             "echo_window_s",
+            "pose_gap_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -294,6 +303,11 @@ class _Plan:
     worst: tuple[float, float] = (0.0, 0.0)
     over: int = 0
     still_since: float | None = None
+    fix_s: float = -math.inf
+    """The stamp of the last POSE fix the guard saw in an estimate."""
+    unseen_m: float = 0.0
+    """The distance the estimate moved since that fix (encoders and gyro alone), m."""
+    last_xy: tuple[float, float] | None = None
 
 
 class OnboardCore:
@@ -681,6 +695,8 @@ class OnboardCore:
         self._last_estimate_s = now
         if plan is not None and plan.state is PlanState.RUNNING:
             self._guard(plan, estimate, now)
+        if plan is not None and plan.state is PlanState.RUNNING:
+            self._sees_ground(plan, estimate, now)
         settling = self._settling
         if settling is not None:
             self._watch_rest(settling, estimate, now)
@@ -836,6 +852,34 @@ class OnboardCore:
         )
         plan.end_pose = pose
         self._end(plan, "guard", plan.guard.reason, now)
+
+    def _sees_ground(self, plan: _Plan, est: Estimate, now: float) -> None:
+        """Drift control needs a sensor that sees the ground (docs/onboard.md): STOP
+        (``blind``) when, since the last POSE fix, the estimate moved the plan's linear
+        limit (a slip along the track can be that large unseen), or the wheels moved for
+        ``pose_gap_s``, or the estimate's own 1-sigma position error reached the limit."""
+        xy = (est.x_m, est.y_m)
+        if est.pose_stamp_s != plan.fix_s:
+            plan.fix_s = est.pose_stamp_s
+            plan.unseen_m = 0.0
+        elif plan.last_xy is not None:
+            plan.unseen_m += math.hypot(xy[0] - plan.last_xy[0], xy[1] - plan.last_xy[1])
+        plan.last_xy = xy
+        cfg = self.config
+        limit = plan.uplink.limits.linear_m
+        moving = (
+            abs(est.v_mps) >= cfg.rest_speed_mps
+            or abs(est.yaw_rate_rad_s) >= cfg.rest_yaw_rate_rad_s
+        )
+        why = None
+        if plan.unseen_m >= limit:
+            why = f"{plan.unseen_m:.2f} m driven since the last POSE fix"
+        elif moving and est.pose_age_s > cfg.pose_gap_s:
+            why = f"no POSE fix for {est.pose_age_s:.1f} s while moving"
+        elif est.sigma_xy_m >= limit:
+            why = f"the estimate's position error reached {est.sigma_xy_m:.2f} m"
+        if why is not None:
+            self._blind(plan, why, now)
 
     # -- rest --------------------------------------------------------------------------------
     def _watch_rest(self, plan: _Plan, est: Estimate, now: float) -> None:

@@ -520,6 +520,62 @@ def test_a_step_without_completed_times_out_and_no_estimate_is_blind() -> None:
     assert isinstance(out[0], SendStop) and blind.reports()[-1].outcome == "blind"
 
 
+def test_a_plan_stops_blind_when_it_drives_the_linear_limit_without_a_fix() -> None:
+    """Review A6: with POSE lost the plan ran on encoders alone (which cannot see a slip
+    along the track) to its end."""
+    r = Rover(report_period_s=60.0)
+    r.uplink(_plan())
+    r.status("accepted")
+    for i in range(1, 30):  # the last fix at 0.0; 0.5 m/s on the predicted path
+        r.at(0.02 * i)
+        out = r.do("on_estimate", Estimate(r.t, 0.01 * i, 0.0, 0.0, COV, 0.5, 0.0, 0.0))
+        if _stops(out):
+            break
+    report = r.reports()[-1]
+    assert report.outcome == "blind" and "driven since the last POSE fix" in report.reason
+    assert r.t == pytest.approx(0.5, abs=0.021)  # 0.25 m unseen
+
+
+def test_fresh_fixes_keep_it_going_and_a_turn_without_one_stops_in_time() -> None:
+    r = Rover(report_period_s=60.0, pose_gap_s=2.0)
+    r.uplink(_plan())
+    r.status("accepted")
+    for i in range(1, 60):  # 1.2 s with a fix 0.1 s old each time: nothing
+        r.at(0.02 * i)
+        r.do("on_estimate", _est(r.t, 0.01 * i))
+    assert _stops(r.actions) == []
+    turning = Rover(report_period_s=60.0, pose_gap_s=2.0, blind_s=10.0)
+    samples = tuple(PredictedSample(0, 0.1 * i, 0.0, 0.0, 3.0 * i) for i in range(31))
+    spin = PlanUplink(
+        10,
+        ((int(Command.LEFT), 30, 9000),),
+        (3.0,),
+        samples,
+        Pose(0.0, 0.0, 0.0),
+        Pose(0.0, 0.0, 90.0),
+        DriftLimits.of(ROVER),
+        "b" * 64,
+    )
+    turning.uplink(spin)
+    turning.status("accepted")
+    for i in range(1, 150):  # turning in place (no distance), the last fix at 0.0
+        turning.at(0.02 * i)
+        est = Estimate(turning.t, 0.0, 0.0, 30.0 * turning.t, COV, 0.0, 0.52, 0.0)
+        if _stops(turning.do("on_estimate", est)):
+            break
+    assert "no POSE fix for 2.0 s while moving" in turning.reports()[-1].reason
+    assert turning.t == pytest.approx(2.0, abs=0.03)
+
+
+def test_a_plan_stops_blind_when_the_estimate_is_too_uncertain() -> None:
+    r = Rover(report_period_s=60.0)
+    r.uplink(_plan())
+    r.status("accepted")
+    wide = (0.07, 0.0, 0.0, 0.0, 0.07, 0.0, 0.0, 0.0, 1e-4)  # 1-sigma 0.26 m
+    out = r.do("on_estimate", Estimate(0.0, 0.0, 0.0, 0.0, wide, 0.0, 0.0, -0.1))
+    assert _stops(out) and "position error reached 0.26 m" in r.reports()[-1].reason
+
+
 def test_bad_uplinks_are_refused_and_the_status_says_why() -> None:
     r = Rover()
     r.do("on_uplink", "garbage")

@@ -108,9 +108,18 @@ def test_the_invariants_catch_a_stop_that_is_never_sent_again() -> None:
 @pytest.mark.slow
 @pytest.mark.virtual
 def test_telemetry_gaps_do_not_stop_a_healthy_plan() -> None:
-    outcome = run_mission(_mission(pose_silent=(2.5, 6.0), loss=0.3))
+    outcome = run_mission(_mission(pose_silent=(2.5, 0.9), loss=0.3))
     _ok(outcome)
     assert outcome.ended == "completed"
+
+
+def test_a_plan_stops_when_pose_stays_silent_while_it_drives() -> None:
+    """Review A6: with POSE lost the plan ran on encoders alone, which cannot see a slip
+    along the track. Drift control needs a sensor that sees the ground: the rover stops
+    once it has driven the linear limit unseen."""
+    outcome = run_mission(_mission(pose_silent=(2.5, 6.0)))
+    _ok(outcome)
+    assert outcome.ended == "blind" and outcome.ground_heard
 
 
 def test_a_ground_stop_at_30_percent_loss_reaches_the_rover_and_ends_the_plan() -> None:
