@@ -2,8 +2,10 @@
 no I/O (docs/onboard.md): the approved plan comes up once, runs here step after step, and
 drift stops the wheels where they are, not a round trip later.
 
-:class:`OnboardCore` is driven by events, each with the time it happened (the rover's
-clock, the one its poses are stamped on: ROS time, s):
+:class:`OnboardCore` is driven by events, each with the time it happened, s, on one
+clock that the estimates' stamps are on too (the program: the monotonic clock, with the
+stamps moved onto it, so that no step of the system clock moves a deadline;
+bridge/onboard/node.py):
 
 - :meth:`~OnboardCore.on_uplink`: an uplink envelope (a plan or a cancel) as received;
 - :meth:`~OnboardCore.on_status`: a ``/command_status`` string of the bridge;

@@ -19,9 +19,16 @@ Threads (besides the ROS port's own, docs/architecture.md):
   the armed wait, blindness, rest, the periodic report), at least every
   :data:`TICK_MAX_S`, and beats the stall monitor.
 
-The core's clock is ROS time (the system clock, s), the clock the bridge stamps its poses
-with. Not a ROS node class of rclpy: the port is the seam (docs/rosport.md), so the same
-node runs on ``inprocess`` in the tests.
+**Clocks.** The core runs on the monotonic clock: every deadline (a step's timeout,
+blindness, the armed wait, the STOP's copies) is immune to a step of the system clock
+(NTP): one backwards would disable them, one forwards fire them falsely. The bridge
+stamps ``odom`` and ``odom_ground`` with ROS time (the system clock): each estimate's
+stamps are moved into the monotonic clock by the two clocks' offset as it is handed to
+the core, and each report's times back into ROS time as it is published.
+
+Not a ROS node class of rclpy: the port is the seam (docs/rosport.md), so the same node
+runs on ``inprocess`` in the tests (in lockstep: :meth:`OnboardNode.step` instead of the
+timer thread).
 """
 
 from __future__ import annotations
@@ -30,6 +37,8 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import replace
 from types import TracebackType
 from typing import Any
 
@@ -98,6 +107,8 @@ class OnboardNode:
         rover: the rover description (its limits bound the uplink's).
         config: the core's settings (token, time scale, ...).
         map_frame: ``onboard_pose``'s frame id.
+        wall, monotonic: the system clock (ROS time) and the monotonic clock, s (tests
+            step the first).
     """
 
     def __init__(
@@ -108,8 +119,12 @@ class OnboardNode:
         *,
         ekf: EkfConfig | None = None,
         map_frame: str = "map",
+        wall: Callable[[], float] = time.time,
+        monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
         self.port = port
+        self._wall = wall
+        self._mono = monotonic
         self.core = OnboardCore(rover, config)
         self.ekf = PoseEkf(ekf)
         self.map_frame = map_frame
@@ -149,8 +164,12 @@ class OnboardNode:
         )
 
     # -- inputs (the port's lanes) -------------------------------------------------------------
+    def _offset(self) -> float:
+        """ROS time minus the monotonic clock, now, s."""
+        return self._wall() - self._mono()
+
     def _feed(self, fn: str, *args: Any) -> None:
-        now = time.time()
+        now = self._mono()
         with self._lock:
             getattr(self.core, fn)(*args, now)
             actions = self.core.take_actions()
@@ -194,12 +213,18 @@ class OnboardNode:
         self._estimated()
 
     def _estimated(self) -> None:
-        now = time.time()
         with self._lock:
             estimate = self.ekf.estimate()
             if estimate is None:
                 return
-            self.core.on_estimate(estimate, now)
+            now = self._mono()
+            offset = self._offset()
+            on_core_clock = replace(
+                estimate,
+                stamp_s=estimate.stamp_s - offset,
+                pose_stamp_s=estimate.pose_stamp_s - offset,
+            )
+            self.core.on_estimate(on_core_clock, now)
             actions = self.core.take_actions()
             self._wake.notify()
         self._act(actions)
@@ -242,7 +267,8 @@ class OnboardNode:
                 elif isinstance(action, SayStatus):
                     self._status.publish(String(data=action.text))
                 elif isinstance(action, SendReport):
-                    self._report.publish(String(data=action.report.to_json()))
+                    report = action.report.shifted(self._offset())  # into ROS time
+                    self._report.publish(String(data=report.to_json()))
             except Exception:
                 # A port closed while the program ends; anything else is logged and the
                 # program goes on (its next report tells the ground).
@@ -253,25 +279,32 @@ class OnboardNode:
         self._feed("shutdown", reason)
 
     # -- the timer -----------------------------------------------------------------------------
+    def step(self) -> None:
+        """Run the core's :meth:`~OnboardCore.tick` if it is due now (what the timer
+        thread does at each wake; a lockstep test calls it at each tick instead of
+        :meth:`start`)."""
+        with self._lock:
+            now = self._mono()
+            actions: list[Action] = []
+            if now >= self.core.next_deadline(now):
+                self.core.tick(now)
+                actions = self.core.take_actions()
+        self._act(actions)
+
     def _timer(self) -> None:
         beat = stall.watch("onboard-timer")
         try:
             while True:
                 with self._lock:
-                    now = time.time()
+                    now = self._mono()
                     due = self.core.next_deadline(now)
                     wait = min(TICK_MAX_S, max(0.0, due - now))
                     if wait > 0:
                         self._wake.wait(wait)
                     if self._closed:
                         return
-                    now = time.time()
-                    actions: list[Action] = []
-                    if now >= self.core.next_deadline(now):
-                        self.core.tick(now)
-                        actions = self.core.take_actions()
                 beat.tick()
-                self._act(actions)
+                self.step()
         finally:
             stall.forget(beat)
 

@@ -1,0 +1,159 @@
+"""The onboard program's ROS shell (bridge/onboard/node.py) on the in-process port in
+lockstep: virtual time, no thread; the system clock is stepped as NTP would step it.
+The program on real DDS beside a real bridge is tests/bridge/test_onboard_mission.py."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+
+from bridge.onboard.core import OnboardConfig
+from bridge.onboard.node import OnboardNode
+from bridge.ros.rosport import RosPort, open_port, qos
+from bridge.ros.rosport.contract import (
+    EMERGENCY_STOP,
+    ONBOARD_REPORT,
+    PLAN_UPLINK,
+    WHEEL_INSTRUCTIONS,
+)
+from bridge.ros.rosport.msgs import (
+    Bool,
+    Header,
+    Int16MultiArray,
+    Odometry,
+    Point,
+    Pose,
+    PoseWithCovariance,
+    String,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+    quaternion_from_yaw,
+    stamp,
+)
+from firmware_proto.linkio.clock import LockstepClock
+from firmware_proto.model.downlink import OnboardReport, decode_report
+from firmware_proto.model.rover import load_rover
+from sim.mission import predict
+
+ROVER = load_rover(None)
+TOKEN = "node-t0ken"
+COV = [0.0] * 36
+for _i in (0, 7, 35):
+    COV[_i] = 1e-4
+
+
+@dataclass
+class Bench:
+    """The node on lockstep time; a ground and a bridge of plain subscriptions."""
+
+    clock: LockstepClock
+    node: OnboardNode
+    ground: RosPort
+    jump_s: list[float] = field(default_factory=lambda: [0.0])
+    stops: list[float] = field(default_factory=list)
+    steps: list[list[int]] = field(default_factory=list)
+    reports: list[OnboardReport] = field(default_factory=list)
+    x_m: float = 0.0
+
+    def wall(self) -> float:
+        return self.clock.time() + self.jump_s[0]
+
+    def odometry(self, topic: str, v_mps: float) -> None:
+        msg = Odometry(
+            header=Header(stamp=stamp(self.wall()), frame_id="odom"),
+            child_frame_id="base_link",
+            pose=PoseWithCovariance(
+                pose=Pose(
+                    position=Point(x=self.x_m, y=0.0, z=0.0), orientation=quaternion_from_yaw(0.0)
+                ),
+                covariance=COV,
+            ),
+            twist=TwistWithCovariance(twist=Twist(linear=Vector3(x=v_mps), angular=Vector3(z=0.0))),
+        )
+        self.ground_pub[topic].publish(msg)
+
+    ground_pub: dict[str, Any] = field(default_factory=dict)
+
+    def run(self, seconds: float, *, sensors: bool) -> None:
+        """Advance; with ``sensors``, odom at 50 Hz and POSE at 10 Hz from the rover
+        standing at the origin (a plan's step is accepted, nothing moves)."""
+        ticks = round(seconds / self.clock.dt_s)
+        for k in range(ticks):
+            if sensors and k % 2 == 0:
+                self.odometry("odom", 0.0)
+                if k % 10 == 0:
+                    self.odometry("odom_ground", 0.0)
+            self.clock.advance()
+
+
+@pytest.fixture
+def bench() -> Iterator[Bench]:
+    clock = LockstepClock(0.01)
+    port = open_port("inprocess", node_name="rover_onboard", bus="node-clock", clock=clock)
+    ground = open_port("inprocess", node_name="ground", bus="node-clock", clock=clock)
+    holder: list[Bench] = []
+    node = OnboardNode(
+        port,
+        ROVER,
+        OnboardConfig(token=TOKEN, blind_s=0.5, step_margin_s=60.0, report_period_s=0.5),
+        wall=lambda: holder[0].wall(),  # noqa: PLW0108 - the bench is made below
+        monotonic=clock.now,
+    )
+    b = Bench(clock, node, ground)
+    holder.append(b)
+    ground.subscribe(EMERGENCY_STOP, Bool, lambda m: b.stops.append(clock.now()), qos.STOP)
+    ground.subscribe(
+        WHEEL_INSTRUCTIONS, Int16MultiArray, lambda m: b.steps.append(list(m.data)), qos.COMMAND
+    )
+    ground.subscribe(
+        ONBOARD_REPORT, String, lambda m: b.reports.append(decode_report(m.data)), qos.STATUS
+    )
+    b.ground_pub = {
+        "odom": ground.publisher("odom", Odometry, qos.SENSOR),
+        "odom_ground": ground.publisher("odom_ground", Odometry, qos.SENSOR),
+        "uplink": ground.publisher(PLAN_UPLINK, String, qos.COMMAND),
+        "status": ground.publisher("command_status", String, qos.STATUS),
+    }
+    clock.add(node.step)
+    try:
+        yield b
+    finally:
+        node.close()
+        ground.close()
+        port.close()
+
+
+def _start_a_plan(b: Bench) -> None:
+    b.run(0.5, sensors=True)
+    plan = predict(ROVER, 7, ((1, 30, 23000),), boot=b.node.core.boot)
+    b.ground_pub["uplink"].publish(String(data=plan.envelope(TOKEN)))
+    b.run(0.05, sensors=True)
+    b.ground_pub["status"].publish(String(data="accepted"))
+    b.run(0.05, sensors=True)
+    assert b.steps == [[1, 30, 23000]] and b.node.core.running is not None
+
+
+def test_a_step_of_the_system_clock_backwards_does_not_blind_the_blind_check(
+    bench: Bench,
+) -> None:
+    """Review A10: every deadline ran on the wall clock; an NTP step backwards put the
+    blind check and the step timeout an hour away."""
+    _start_a_plan(bench)
+    bench.jump_s[0] = -3600.0
+    stepped = bench.clock.now()
+    bench.run(1.0, sensors=False)  # the sensors fall silent
+    assert bench.stops and bench.stops[0] - stepped == pytest.approx(0.5, abs=0.05)
+    assert bench.reports[-1].outcome == "blind"
+
+
+def test_a_step_forwards_fires_nothing_and_reports_keep_ros_time(bench: Bench) -> None:
+    _start_a_plan(bench)
+    bench.jump_s[0] = 3600.0
+    bench.run(1.0, sensors=True)  # stamps jump with the clock: the same offset
+    assert bench.stops == [] and bench.node.core.running is not None
+    last = bench.reports[-1]
+    assert last.t_s == pytest.approx(bench.wall(), abs=0.6)  # ROS time, stepped
