@@ -17,7 +17,8 @@ Threads (besides the ROS port's own, docs/architecture.md):
   leaves in the callback of the estimate that confirmed it;
 - ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline (step timeouts,
   the armed wait, blindness, rest, the periodic report), at least every
-  :data:`TICK_MAX_S`, and beats the stall monitor.
+  :data:`TICK_MAX_S`, and beats the stall monitor. An exception in a turn is logged
+  and the thread goes on; :data:`TIMER_FAILURES_STOP` in a row stop the rover.
 
 **Clocks.** The core runs on the monotonic clock: every deadline (a step's timeout,
 blindness, the armed wait, the STOP's copies) is immune to a step of the system clock
@@ -85,12 +86,14 @@ from bridge.ros.rosport.msgs import (
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.runtime import stall
 
-__all__ = ["TICK_MAX_S", "OnboardNode"]
+__all__ = ["TICK_MAX_S", "TIMER_FAILURES_STOP", "OnboardNode"]
 
 logger = logging.getLogger(__name__)
 
 TICK_MAX_S = 0.05
 """The timer thread runs the core at least this often, s."""
+TIMER_FAILURES_STOP = 3
+"""Turns of the timer thread that failed in a row before the program stops the rover."""
 
 
 def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:
@@ -292,21 +295,60 @@ class OnboardNode:
         self._act(actions)
 
     def _timer(self) -> None:
+        """The timer thread: one turn after another until :meth:`close`. The stall
+        monitor forgets its beat only then: a thread that died any other way is
+        reported as stalled."""
         beat = stall.watch("onboard-timer")
+        failures = 0
+        while not self._closed:
+            failures = self._timer_turn(beat, failures)
+        stall.forget(beat)
+
+    def _timer_turn(self, beat: stall.Beat, failures: int) -> int:
+        """One wake of the timer: wait for the core's next deadline (at most
+        :data:`TICK_MAX_S`), then :meth:`step`. An exception is logged and the thread
+        goes on; :data:`TIMER_FAILURES_STOP` in a row and the rover is stopped (the
+        timer is the guard's blind check and step timeouts). Returns the failures in a
+        row."""
         try:
-            while True:
-                with self._lock:
-                    now = self._mono()
-                    due = self.core.next_deadline(now)
-                    wait = min(TICK_MAX_S, max(0.0, due - now))
-                    if wait > 0:
-                        self._wake.wait(wait)
-                    if self._closed:
-                        return
-                beat.tick()
-                self.step()
-        finally:
-            stall.forget(beat)
+            with self._lock:
+                now = self._mono()
+                due = self.core.next_deadline(now)
+                wait = min(TICK_MAX_S, max(0.0, due - now))
+                if wait > 0:
+                    self._wake.wait(wait)
+                if self._closed:
+                    return failures
+            beat.tick()
+            self.step()
+            return 0
+        except Exception:
+            failures += 1
+            if failures <= TIMER_FAILURES_STOP or failures % 1000 == 0:
+                logger.exception("onboard timer: turn failed (%d in a row)", failures)
+            if failures == TIMER_FAILURES_STOP:
+                self._fail_safe(f"the onboard timer failed {failures} times in a row")
+            with self._lock:
+                if not self._closed:
+                    self._wake.wait(TICK_MAX_S)  # no busy loop on a lasting fault
+            return failures
+
+    def _fail_safe(self, why: str) -> None:
+        """STOP straight on the STOP topic (the core may be what fails), then end the
+        plan through the core if it still can."""
+        try:
+            self._stop.publish(Bool(data=True))
+            self.published_stops += 1
+            logger.error("STOP: %s", why)
+        except Exception:
+            logger.exception("could not publish STOP (%s)", why)
+        try:
+            with self._lock:
+                self.core.shutdown(why, self._mono())
+                actions = self.core.take_actions()
+            self._act(actions)
+        except Exception:
+            logger.exception("could not end the plan (%s)", why)
 
     def close(self) -> None:
         """Stop the timer and unsubscribe (idempotent). The port is the caller's."""

@@ -37,6 +37,7 @@ from bridge.ros.rosport.msgs import (
 from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.model.downlink import OnboardReport, decode_report
 from firmware_proto.model.rover import load_rover
+from firmware_proto.runtime import stall
 from sim.mission import predict
 
 ROVER = load_rover(None)
@@ -157,3 +158,32 @@ def test_a_step_forwards_fires_nothing_and_reports_keep_ros_time(bench: Bench) -
     assert bench.stops == [] and bench.node.core.running is not None
     last = bench.reports[-1]
     assert last.t_s == pytest.approx(bench.wall(), abs=0.6)  # ROS time, stepped
+
+
+def test_the_timer_survives_a_failing_turn_and_stops_the_rover_after_three(
+    bench: Bench, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review A12: the timer thread died on any exception, silently (the stall monitor
+    forgot it): no more blind checks, step timeouts or reports."""
+    _start_a_plan(bench)
+    node = bench.node
+    bench.clock.remove(node.step)  # the turns below are the timer's
+    beat = stall.Beat("onboard-timer", lambda: 1.0)
+    assert node._timer_turn(beat, 0) == 0 and beat.last == 1.0  # a healthy turn
+
+    def broken(now: float) -> float:
+        raise RuntimeError("a bug in the core")
+
+    monkeypatch.setattr(node.core, "next_deadline", broken)
+    failures = 0
+    for expected in (1, 2):
+        failures = node._timer_turn(beat, failures)
+        assert failures == expected
+    bench.clock.advance()
+    assert bench.stops == []  # two failures: logged, the plan goes on
+    failures = node._timer_turn(beat, failures)
+    bench.clock.advance()
+    assert failures == 3 and bench.stops  # the third: STOP
+    assert bench.reports[-1].outcome == "failed" and node.core.running is None
+    monkeypatch.undo()
+    assert node._timer_turn(beat, failures) == 0  # and it goes on when the fault is gone
