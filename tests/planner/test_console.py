@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shlex
 import socket
 import subprocess
 import sys
@@ -289,8 +290,17 @@ def _the_stacks_console_answers(stack: Child, env: dict[str, str]) -> None:
     export line points them at it; the STOP reaches the controller (latched by ``stop``,
     which only the bridge's STOP lane sets); ``stop`` loads no rclpy; a console that does
     not answer is said, and the command goes on over ROS 2."""
-    export = stack.wait_for("  export ROS_DOMAIN_ID=", 30)
-    names = dict(item.split("=", 1) for item in export.split()[1:])
+    stack.wait_for('  eval "$(rover stack env)"', 30)
+    exported = subprocess.run(
+        [sys.executable, "-m", "firmware_proto.cli", "stack", "env"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        check=False,
+    )
+    assert exported.returncode == 0, exported.stderr
+    names = dict(item.split("=", 1) for item in shlex.split(exported.stdout.strip())[1:])
     url = names["ROVER_STACK_CONSOLE"]
     assert any(x.startswith(f"CONSOLE {url} ") for x in stack.lines)
     env = {**env, **names}
