@@ -1168,9 +1168,20 @@ class LinkCore:
                 self._watchdog_counted = True
             self._faults.add(msg.code)
             self._emit(fault(name))
+            if msg.code in STOPPING_FAULTS:
+                self._stopping_cause_reported()
         else:
             # The condition went away; a latch it set is the heartbeat's to report.
             self._faults.discard(msg.code)
+
+    def _stopping_cause_reported(self) -> None:
+        """A stopping cause was reported now: an operator's clear asked for before this
+        host knew any latch generation (a new bridge, a reboot) was asked for before it,
+        and may not release it by naming the generation learned with it; it is refused
+        (``fault:latch_changed``), and a new clear releases (docs/protocol.md)."""
+        clear = self._pending_clear
+        if clear is not None and not clear.auto and clear.latch_gen is None:
+            self._refuse_operator_clear("latch_changed")
 
     def _stopping_fault_frame(self, code: int) -> None:
         """A stopping fault other than WATCHDOG was raised: remember it, and end an

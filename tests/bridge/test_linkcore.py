@@ -15,7 +15,10 @@ from firmware_proto.wire.messages import (
     Ack,
     AckField,
     AckResult,
+    ClearStop,
     ControllerState,
+    Fault,
+    FaultCode,
     Heartbeat,
     Hello,
     HostHeartbeat,
@@ -135,3 +138,23 @@ def test_hole_6_a_reboot_read_with_the_old_boots_answer_costs_no_lost_frame() ->
     core.on_frame(Heartbeat(0, 0, 0, 0, 0, 0, 0, 0, 0x4321, 0, 0), 0.1, rx_seq=2)
     d = core.diagnostics(0.1, MediumStats(connected=True, rx_lost=gap + 1))
     assert d.lost_frames == 1
+
+
+def test_a_clear_asked_before_the_host_knew_any_generation_does_not_take_a_later_fault() -> None:
+    """A new bridge (or a reboot) knows no latch generation yet; the operator clears at
+    once, and a stopping fault is reported before the first HEARTBEAT: the clear was asked
+    for before that fault, so it is refused, not sent naming the fault's generation
+    (found by the wire simulator's bridge restarts, seed 5005 on CAN)."""
+    core = LinkCore(LinkConfig("sim://x"))
+    _ready(core)
+    core.clear_stop(0.01)
+    assert not [m for m in _written(core, 0.01) if isinstance(m, ClearStop)]  # no gen yet
+    core.on_frame(Fault(FaultCode.ENCODER, 1, 0, 1), 0.02)
+    assert _texts(core) == ["fault:encoder", "fault:latch_changed"]
+    latched = Heartbeat(ControllerState.FAULT, 1, 1, 0, 0, 1, 0, 0, 0x1234, 0, 1)
+    core.on_frame(latched, 0.05)
+    core.tick(0.06)
+    assert not [m for m in _written(core, 0.06) if isinstance(m, ClearStop)]
+    core.clear_stop(0.1)  # asked for now, with the fault reported: it names generation 1
+    core.tick(0.1)
+    assert [m for m in _written(core, 0.1) if isinstance(m, ClearStop)] == [ClearStop(2, 1)]
