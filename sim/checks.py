@@ -18,6 +18,9 @@ Checked as they happen (by :class:`sim.rig.Rig`):
 - ``order``: a step submitted while an operator's clear is out is not refused
   ``stop_latched`` when that clear releases the latch;
 - ``repeat``: copies of one CLEAR_STOP reach the wire at least ``stop_repeat_s`` apart;
+- ``request-id``: a bridge started again on one controller boot repeats no request id
+  (STOP, CLEAR_STOP) of a bridge before it on that boot, unless both drew their first id
+  at random and the draws met (counted: ``id_collisions``);
 - ``odometry``: between two ENCODERS it uses, odometry never moves more than the
   encoders travelled (continuous across reboots; a v2 controller's sample of a boot the
   host could not know yet is excused and counted, see docs/sim.md);
@@ -27,12 +30,18 @@ Checked as they happen (by :class:`sim.rig.Rig`):
 Checked at the end (:func:`final_checks`): every step has its fate, and the host's
 counters (``/diagnostics``) agree with what the simulator saw: ``steps_sent`` and
 ``retries`` with the MOTION frames written, ``steps_completed``, ``steps_rejected`` and
-``steps_aborted`` with the statuses, ``reboots`` with the boot nonces delivered (and no
-more than the controller's reboots), ``reconnects`` with the transport failures caused,
+``steps_aborted`` with the statuses, ``reboots`` with the boots whose HEARTBEAT or IDENT
+reached the host (the simulator knows each frame's boot: a new boot the host could tell,
+by its nonce or because it follows the one the host knew, counts; no more than the
+controller's reboots), ``reconnects`` with the transport failures caused,
 ``watchdog_trips`` no more than the controller's trips (a frame received twice is not
 two trips) and not 0 once a WATCHDOG FAULT frame arrived (a trip whose every trace was
-lost cannot be counted), ``lost_frames`` no more than the frames lost on this connection,
-``stop_repeats`` no more than the STOP copies written beyond the first of each id.
+lost cannot be counted), ``lost_frames`` exactly the gaps in the serial frame counter of
+the frames received on this connection less the gap of each reboot (from the last frame
+known to be of the old boot to the first that shows the new one, docs/protocol.md
+"Serial framing"), and no more than the frames lost on this connection, ``stop_repeats``
+no more than the STOP copies written beyond the first of each id. The counters are
+those of the bridge running at the end (a bridge started again counts anew).
 
 Pure: no I/O, no clock.
 """
@@ -44,6 +53,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from bridge.link.linktypes import LinkDiagnostics, StatusEvent
+from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import Heartbeat, Ident, Status, StepState
 
 __all__ = ["RULES", "Judge", "Ledger", "Violation", "final_checks"]
@@ -58,6 +68,7 @@ RULES = (
     "stopped",
     "order",
     "repeat",
+    "request-id",
     "odometry",
     "never-stuck",
     "counters",
@@ -65,7 +76,9 @@ RULES = (
 )
 """Every invariant by name (docs/sim.md)."""
 
-_FINAL = ("completed", "rejected:", "aborted:", "fault:no_ack")
+_FINAL = ("completed", "rejected:", "aborted:", "fault:no_ack", "lost:")
+"""Final statuses; ``lost:bridge_restart`` is the simulator's own, for the steps of a
+bridge that ended (nobody was left to say their fate)."""
 
 
 class Judge(Protocol):
@@ -99,7 +112,10 @@ class Ledger:
     ended: dict[int, int] = field(default_factory=dict)
     """How the controller ended each seq (StepState)."""
     seq_of: dict[int, int] = field(default_factory=dict)
-    """MOTION seq of each step number, from the frames the host wrote."""
+    """MOTION seq of each step number, from the frames the host wrote (each bridge's
+    seqs apart: see :class:`sim.rig.Rig`)."""
+    host_seqs: set[int] = field(default_factory=set)
+    """The MOTION seqs the bridge now running wrote."""
     motion_copies: int = 0
     motions_handled: int = 0
     fates: dict[int, list[str]] = field(default_factory=dict)
@@ -117,34 +133,92 @@ class Ledger:
     queue_full: int = 0
     excused_jumps: int = 0
     expected_reboots: int = 0
+    id_collisions: int = 0
+    """Request ids of a bridge started again that met a bridge's before by chance (both
+    drawn at random)."""
     _nonce: int | None = None
+    _boot: int | None = None
+    """The boot whose nonce the host knows, as the simulator counts boots."""
+    _last_rx_seq: int | None = None
+    _gaps: int = 0
+    """Gaps in the serial frame counter of the frames received on this connection."""
+    _gaps_mark: int = 0
+    _gaps_forgiven: int = 0
 
     # -- the controller's side -----------------------------------------------------------
-    def controller_status(self, msg: Status, now: float, rig: Judge) -> None:
-        """A STATUS the controller sent."""
+    def controller_status(self, msg: Status, key: int, rig: Judge) -> None:
+        """A STATUS the controller sent; ``key``: its MOTION seq, told apart from the seqs
+        of other bridges (as :meth:`motion_written` was given it)."""
         if msg.state == StepState.STARTED:
-            self.starts[msg.seq] += 1
-            if self.starts[msg.seq] > 1:
+            self.starts[key] += 1
+            if self.starts[key] > 1:
                 rig.violate("once", f"MOTION seq {msg.seq} started a second time")
         else:
-            self.ended[msg.seq] = msg.state
+            self.ended[key] = msg.state
 
     # -- the host's side -------------------------------------------------------------------
     def motion_written(self, seq: int, number: int | None) -> None:
-        """The host wrote a MOTION frame (a first copy or a retransmission)."""
+        """The host wrote a MOTION frame (a first copy or a retransmission): ``seq`` its
+        seq, told apart from other bridges' (:class:`sim.rig.Rig`)."""
         self.motion_copies += 1
+        self.host_seqs.add(seq)
         if number is not None:
             self.seq_of[number] = seq
 
-    def nonce_delivered(self, msg: Heartbeat | Ident) -> None:
-        """A HEARTBEAT or IDENT reached the host: a boot nonce it learns or a reboot it
-        must count (the first nonce is an IDENT's)."""
-        if self._nonce is None:
+    def connected(self) -> None:
+        """The host opened its device: its frame counting starts anew."""
+        self.frames_lost_to_host = 0
+        self._last_rx_seq = None
+        self._gaps = self._gaps_mark = self._gaps_forgiven = 0
+
+    def frame_delivered(self, msg: Message, boot: int, rx_seq: int | None) -> None:
+        """A controller frame of ``boot`` (the simulator's count of boots) reached the host,
+        with its serial frame counter (``None`` on CAN). A HEARTBEAT or IDENT tells a boot:
+        the first known is an IDENT's; a later one is a reboot the host must count when
+        it can tell it: its nonce differs from the one known, or it is the very next
+        boot (whose nonce must differ: docs/protocol.md, Handshake 1). A reboot's
+        restart of the frame counter is no loss, from the last frame known to be of the
+        old boot to the first that shows the new one."""
+        if rx_seq is not None:
+            if self._last_rx_seq is not None:
+                self._gaps += (rx_seq - self._last_rx_seq - 1) & 0xFF
+            self._last_rx_seq = rx_seq
+        if not isinstance(msg, (Heartbeat, Ident)):
+            return
+        if self._boot is None:
             if isinstance(msg, Ident):
-                self._nonce = msg.boot_nonce
-        elif msg.boot_nonce != self._nonce:
-            self._nonce = msg.boot_nonce
+                self._boot, self._nonce = boot, msg.boot_nonce
+            else:
+                self._gaps_mark = self._gaps
+            return
+        if boot != self._boot and (msg.boot_nonce != self._nonce or boot == self._boot + 1):
             self.expected_reboots += 1
+            self._gaps_forgiven += self._gaps - self._gaps_mark
+        self._boot, self._nonce = boot, msg.boot_nonce
+        self._gaps_mark = self._gaps
+
+    @property
+    def expected_lost_frames(self) -> int:
+        """What ``lost_frames`` must say on this connection (see :meth:`frame_delivered`)."""
+        return self._gaps - self._gaps_forgiven
+
+    def new_host(self, last_number: int) -> None:
+        """The bridge process ended and a new one starts: the steps numbered up to
+        ``last_number`` that have no fate end here (``lost:bridge_restart``), and the new
+        bridge's counters start from zero; what the controller did stays."""
+        for number in range(1, last_number + 1):
+            fates = self.fates.setdefault(number, [])
+            if not any(s.startswith(_FINAL) for s in fates):
+                fates.append("lost:bridge_restart")
+        self.host_seqs.clear()
+        self.motion_copies = 0
+        self.statuses = Counter()
+        self.stops_written = []
+        self.transport_failures = 0
+        self.watchdog_fault_frames = 0
+        self.expected_reboots = 0
+        self._nonce = self._boot = None
+        self.connected()
 
     def status(self, event: StatusEvent, rig: Judge) -> None:
         """A status the host reported."""
@@ -182,6 +256,7 @@ class Ledger:
             "watchdog_trips": self.watchdog_trips,
             "queue_full": self.queue_full,
             "excused_jumps": self.excused_jumps,
+            "id_collisions": self.id_collisions,
         }
 
 
@@ -196,7 +271,7 @@ def final_checks(ledger: Ledger, diag: LinkDiagnostics, now: float) -> list[Viol
         fates = ledger.fates.get(number, [])
         if not any(s.startswith(_FINAL) for s in fates):
             bad("fate", f"step {number} has no fate ({fates})")
-    sent = len(set(ledger.seq_of.values()))
+    sent = len(ledger.host_seqs)
     expect = {
         "steps_sent": sent,
         "retries": ledger.motion_copies - sent,
@@ -222,6 +297,12 @@ def final_checks(ledger: Ledger, diag: LinkDiagnostics, now: float) -> list[Viol
         )
     if ledger.watchdog_fault_frames and not diag.watchdog_trips:
         bad("counters", "watchdog_trips 0 although a WATCHDOG FAULT frame was delivered")
+    if diag.lost_frames != ledger.expected_lost_frames:
+        bad(
+            "counters",
+            f"lost_frames {diag.lost_frames}, the frame counter's gaps on this connection "
+            f"less each reboot's say {ledger.expected_lost_frames}",
+        )
     if diag.lost_frames > ledger.frames_lost_to_host:
         bad(
             "counters",

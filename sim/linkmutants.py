@@ -14,7 +14,7 @@ with the named ones (``rover sim --mutant NAME``, repeatable).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from bridge.link.linkcore import LinkCore, _Pending
@@ -23,7 +23,7 @@ from firmware_proto.wire.faults import STOPPING_FAULTS, fault_bit
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import Fault, Heartbeat, Progress
 
-__all__ = ["MUTANTS", "LinkMutant", "make_link_core"]
+__all__ = ["MUTANTS", "DecoderTotalReader", "LinkMutant", "make_link_core"]
 
 
 @dataclass(frozen=True)
@@ -140,6 +140,41 @@ class _ClearCopiesQueue(LinkCore):
         super().tick(now)
 
 
+class DecoderTotalReader(LinkCore):
+    """Protocol v3's bridge: each frame's lost-frame count was the decoder's total as the
+    frame was handed on, which already holds the gaps of every frame read with it; when
+    the old boot's IDENT and the new boot's arrive in one read, the reboot's gap is taken
+    for lost frames (issue #40, hole 6). The rig sets :attr:`decoder_lost` to read its
+    decoder's total, as the old driver read its transport's."""
+
+    decoder_lost: Callable[[], int] | None = None
+
+    def on_frame(self, msg: Message, now: float, *, rx_seq: int | None = None) -> bool:
+        if rx_seq is not None and self.decoder_lost is not None:
+            self._rx_lost = self.decoder_lost()
+            rx_seq = None
+        return super().on_frame(msg, now, rx_seq=rx_seq)
+
+
+class _BlindClearTakesFault(LinkCore):
+    """An operator's clear asked for before the host knew any latch generation names the
+    first it learns, also one a stopping fault reported after the clear was asked for
+    raised (found by the simulator's bridge restarts)."""
+
+    def _stopping_cause_reported(self) -> None:
+        return
+
+
+class _RequestIdsFromOne(LinkCore):
+    """Protocol v3's bridge: request ids from 1 at every start, so a bridge started again
+    repeats the requests of the one before on the same controller boot (issue #40, hole
+    8)."""
+
+    def __init__(self, config: LinkConfig, **options: int) -> None:
+        options["first_request_id"] = 1
+        super().__init__(config, **options)
+
+
 MUTANTS: dict[str, LinkMutant] = {
     m.name: m
     for m in (
@@ -195,6 +230,27 @@ MUTANTS: dict[str, LinkMutant] = {
             _ClearCopiesQueue,
         ),
         LinkMutant(
+            "lost-from-read-total",
+            "each frame's lost-frame count is the decoder's total after the read it came "
+            "in: a reboot's frame-counter restart read with the old boot's last frame is "
+            "counted as lost frames (issue #40, hole 6)",
+            DecoderTotalReader,
+        ),
+        LinkMutant(
+            "request-ids-from-one",
+            "a bridge numbers its STOP and CLEAR_STOP requests from 1 at every start instead "
+            "of from a random id: a bridge started again repeats the ids of the one before "
+            "on the same controller boot (issue #40, hole 8)",
+            _RequestIdsFromOne,
+        ),
+        LinkMutant(
+            "blind-clear-takes-fault",
+            "an operator's clear asked for before the host knew any latch generation (a new "
+            "bridge, a reboot) names the generation of a stopping fault reported after it, "
+            "and releases that fault's latch (found by the simulator)",
+            _BlindClearTakesFault,
+        ),
+        LinkMutant(
             "auto-clear-after-fault-frame",
             "an automatic clear goes on being repeated after a stopping FAULT frame arrived, "
             "until a HEARTBEAT shows the new cause (found by the simulator)",
@@ -205,8 +261,11 @@ MUTANTS: dict[str, LinkMutant] = {
 """Every fix of the host core the simulator can undo, by name."""
 
 
-def make_link_core(config: LinkConfig, mutants: Iterable[str] = ()) -> LinkCore:
-    """A host core with the fixes ``mutants`` undone (none: the product's core).
+def make_link_core(
+    config: LinkConfig, mutants: Iterable[str] = (), *, first_request_id: int = 1
+) -> LinkCore:
+    """A host core with the fixes ``mutants`` undone (none: the product's core), whose
+    first request id is ``first_request_id`` (a real bridge draws it at random).
 
     Raises:
         ValueError: an unknown mutant (the message lists the known ones).
@@ -218,8 +277,8 @@ def make_link_core(config: LinkConfig, mutants: Iterable[str] = ()) -> LinkCore:
             f"unknown link mutant(s) {', '.join(unknown)}; known: {', '.join(sorted(MUTANTS))}"
         )
     if not names:
-        return LinkCore(config)
+        return LinkCore(config, first_request_id=first_request_id)
     bases = tuple(MUTANTS[n].mixin for n in names)
     cls = type("LinkCore_" + "_".join(n.replace("-", "_") for n in names), bases, {})
-    core: LinkCore = cls(config)
+    core: LinkCore = cls(config, first_request_id=first_request_id)
     return core

@@ -27,23 +27,35 @@ What the rig sees on both sides goes to a :class:`~sim.checks.Ledger`; the invar
 
 from __future__ import annotations
 
+import bisect
 import functools
 import hashlib
 import heapq
 import logging
 import math
 import random
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
-from bridge.link.linktypes import SAMPLE_MESSAGES, LinkConfig, LinkState, StatusEvent, StepRequest
+from bridge.link.linkcore import LinkCore
+from bridge.link.linktypes import (
+    SAMPLE_MESSAGES,
+    LinkConfig,
+    LinkDiagnostics,
+    LinkState,
+    MediumStats,
+    StatusEvent,
+    StepRequest,
+)
 from bridge.link.odometry import OdometryEstimator
 from emulator.controller import STOPPING_FAULTS, LatchCause
 from emulator.sensors import count_delta
 from firmware_proto.model.rover import RoverDescription, load_rover
+from firmware_proto.runtime.stall import DEFAULT_STALL_THRESHOLD_S
 from firmware_proto.wire.canmap import CanDecoder, encode_can
-from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
+from firmware_proto.wire.framing import Frame, FrameDecoder, FrameEncoder
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import (
     Ack,
@@ -56,6 +68,7 @@ from firmware_proto.wire.messages import (
     Fault,
     FaultCode,
     Heartbeat,
+    Hello,
     Ident,
     Imu,
     Motion,
@@ -67,7 +80,7 @@ from firmware_proto.wire.messages import (
 )
 from sim.checks import Ledger, Violation, final_checks
 from sim.controllers import SampleLeak, build_controller
-from sim.linkmutants import make_link_core
+from sim.linkmutants import DecoderTotalReader, make_link_core
 from sim.pipe import Delivery, Pipe, Window
 from sim.scenario import Scenario, ScenarioFault
 
@@ -96,6 +109,15 @@ ODOM_TOLERANCE_M = 0.003
 """Odometry may move this much more than the encoders between two samples (rounding)."""
 
 _ACTION, _TO_CTL, _TICK, _TO_HOST, _HOST = range(5)
+
+
+@dataclass(frozen=True)
+class _FrameInfo:
+    """What the simulator knew of a controller frame as it was sent: the boot that sent
+    it (counted from 0) and what the checks need of its kind (``inner``)."""
+
+    boot: int
+    inner: object
 
 
 @dataclass(frozen=True)
@@ -184,7 +206,9 @@ class Rig:
         self._ctl_encoder = FrameEncoder()
         self._ctl_seq = 0
         """The controller's serial frame counter (its encoder's, from 0 at each boot)."""
-        self._meta_by_seq: list[object] = [None] * 256
+        self._meta_by_seq: list[deque[tuple[Message, object]]] = [
+            deque(maxlen=8) for _ in range(256)
+        ]
         """What the simulator knew of each serial frame the controller sent, by its frame
         counter (the last 256)."""
         self._ctl_decoder = FrameDecoder()
@@ -206,7 +230,28 @@ class Rig:
             medium, random.Random(self.rng.random()), _windows(scenario.faults, "to_host", medium)
         )
         # -- the host
-        self.core = make_link_core(LinkConfig(f"sim://{medium}"), scenario.mutants)
+        self._ids = random.Random(scenario.seed * 1_000_003 + 40)
+        """Draws each bridge's first request id, as ControllerLink does (a generator of
+        its own: every other draw plays as before)."""
+        self._epoch = 0
+        """The bridge process now running: 0, then one more at every restart."""
+        self._epoch_starts: list[float] = []
+        """When each bridge after the first was started (its frames are sent after)."""
+        self._first_ids: list[int] = []
+        """The first request id each bridge drew."""
+        self._ctl_epoch = 0
+        """The bridge whose HELLO opened the controller's session (its MOTION seqs)."""
+        self._requests: dict[tuple[int, int], set[int]] = {}
+        """The request ids (STOP, CLEAR_STOP) the controller received, by (boot, bridge)."""
+        self._host_dead = False
+        """The bridge process has ended and the next has not started."""
+        self._numbers_base = 0
+        """Step numbers of the bridges before this one (the ledger numbers on)."""
+        self._numbers = 0
+        """The last step number this bridge gave."""
+        self._hello_reboot = False
+        """The controller reboots right after answering its next HELLO."""
+        self.core = self._new_core()
         self._device_present = True
         self._writer_stalled = False
         """The host's writer is held (a write stuck in the OS): ordinary frames wait, STOP
@@ -222,6 +267,9 @@ class Rig:
         self._steps_after_clear: dict[int, int] = {}
         """Steps submitted while an operator's clear was open: the clear's id, by step."""
         self._host_frozen = False
+        self._frozen_at = 0.0
+        self.host_stalls = 0
+        """Host freezes the bridge's stall monitor would have recorded."""
         self._host_backlog: list[tuple[Message, object, int | None]] = []
         self._deferred: list[Callable[[], None]] = []
         self._connected_at = -math.inf
@@ -243,10 +291,11 @@ class Rig:
         self._probe_done = False
         self._last_clear = -math.inf
         self._last_clear_id = 0
-        self._auto_clears: set[int] = set()
-        self._operator_clears: dict[int, int] = {}
+        self._auto_clears: set[tuple[int, int]] = set()
+        """The hosts' automatic clear requests, by (bridge, request id)."""
+        self._operator_clears: dict[tuple[int, int], int] = {}
         """The operator's clear requests: the latch generation the host had heard of when
-        each was asked for (:class:`_Gen` numbering), by request id."""
+        each was asked for (:class:`_Gen` numbering), by (bridge, request id)."""
         self._gen_wire = self.ctl.latch_gen
         self._gen_abs = 0
         """The controller's latch generation counted over every boot."""
@@ -264,6 +313,44 @@ class Rig:
             for _, speed, distance in action.steps
         )
         self.end_s = scenario.quiet_s + RECOVERY_START_S + RECOVERY_S + work_s
+
+    def _new_core(self) -> LinkCore:
+        """A bridge's core, as ``rover bridge`` starts one: its first request id drawn at
+        random (docs/protocol.md, "Latch and faults")."""
+        first = self._ids.randrange(1, 0x10000)
+        self._first_ids.append(first)
+        core = make_link_core(
+            LinkConfig(f"sim://{self.sc.medium}"), self.sc.mutants, first_request_id=first
+        )
+        if isinstance(core, DecoderTotalReader):
+            core.decoder_lost = lambda: self._host_decoder.counters.lost
+        return core
+
+    def diagnostics(self) -> LinkDiagnostics:
+        """The bridge's ``/diagnostics`` now, as ``ControllerLink`` makes them: the core's
+        with what the transport knows (on serial, the host decoder's counts) and the
+        stalls of the bridge process (each host-freeze longer than the stall monitor's
+        threshold)."""
+        c = self._host_decoder.counters
+        medium = MediumStats(
+            connected=self.core.connected,
+            rx_frames=c.frames,
+            crc_errors=c.crc,
+            resyncs=c.framing + c.oversize,
+            rx_dropped=c.rejected,
+            rx_lost=c.lost,
+        )
+        return self.core.diagnostics(self.now, medium, stalls=self.host_stalls)
+
+    def every(self, period_s: float, fn: Callable[[], None]) -> None:
+        """Call ``fn`` every ``period_s`` of virtual time from now, as the operator's
+        actions are called (a bridge's periodic work outside its link: its narrator)."""
+
+        def again() -> None:
+            fn()
+            self._at(self.now + period_s, _ACTION, again)
+
+        self._at(self.now + period_s, _ACTION, again)
 
     # -- bookkeeping -----------------------------------------------------------------------
     def _at(self, t: float, prio: int, fn: Callable[[], None]) -> None:
@@ -333,7 +420,7 @@ class Rig:
                 "nominal time of the steps before it "
                 f"(link {self.core.state.value}, latch {self.core.latch})",
             )
-        self.violations += final_checks(self.ledger, self.core.diagnostics(self.now), self.now)
+        self.violations += final_checks(self.ledger, self.diagnostics(), self.now)
         self._final_issue_40()
         counts = self.ledger.counts()
         counts["frames_to_controller"] = self.to_ctl.sent
@@ -398,9 +485,60 @@ class Rig:
         elif kind == "writer-stall":
             self._at(f.start_s, _ACTION, lambda: self._writer_stall(f.end_s))
             self._at(f.end_s, _ACTION, self._writer_resume)
+        elif kind == "hello-reboot":
+            self._at(f.start_s, _ACTION, self._arm_hello_reboot)
+        elif kind == "host-restart":
+            self._at(f.start_s, _ACTION, self._bridge_ends)
+            self._at(f.end_s, _ACTION, self._bridge_starts)
 
-    def _reboot(self) -> None:
+    def _arm_hello_reboot(self) -> None:
+        self._note("fault hello-reboot armed")
+        self._hello_reboot = True
+
+    def _bridge_ends(self) -> None:
+        """The bridge process ends: its device closed, nothing of it runs any more; what it
+        owed its operator is checked now, and its steps that have no fate are lost."""
+        if self._host_dead:
+            return
+        self._note("fault bridge ends")
+        self._final_issue_40()
+        self.ledger.new_host(self._numbers_base + self._numbers)
+        self._host_dead = self._host_frozen = True
+        if self.core.connected:
+            self.core.failed(self.now, "sim: the bridge ended")
+        self._host_backlog.clear()
+
+    def _bridge_starts(self) -> None:
+        """A new bridge process starts on the same controller boot: a new core with a first
+        request id of its own, odometry and every host-side record anew."""
+        self._note("fault bridge starts")
+        self._host_dead = self._host_frozen = False
+        self._epoch += 1
+        self._epoch_starts.append(self.now)
+        self._numbers_base += self._numbers
+        self._numbers = 0
+        self.core = self._new_core()
+        self.odometry = OdometryEstimator(self.rover)
+        self._odom_prev = None
+        self._host_at = math.inf
+        self._clear_copies.clear()
+        self._stop_waits = None
+        self.stopped_owed = 0
+        self._clear_answers.clear()
+        self._steps_after_clear.clear()
+        self._probe = None
+        self._heard_gen = 0
+        self._reschedule_host()
+        deferred, self._deferred = self._deferred, []
+        for fn in deferred:
+            fn()
+
+    def _reboot(self, answered: list[Message] | None = None) -> None:
+        """The controller resets now; ``answered``: what it had just sent in answer to a
+        HELLO (the old boot's IDENT), sent with the new boot's first frames in one batch,
+        so that the host reads both in one read."""
         self._note("fault reboot")
+        first = self._ctl_encode(answered) if answered else ([], 0)
         self._account_travel()
         self.ledger.controller_reboots += 1
         self._ctl_backlog.clear()
@@ -412,15 +550,21 @@ class Rig:
         self._ctl_seq = 0
         self._ctl_decoder = FrameDecoder()
         self._ctl_rejected = 0
-        self._ctl_send(out)
+        batch, lost = self._ctl_encode(out)
+        self._ctl_ship(first[0] + batch, first[1] + lost)
 
     def _freeze_host(self) -> None:
         self._note("fault host-freeze")
         self._host_frozen = True
+        self._frozen_at = self.now
 
     def _thaw_host(self) -> None:
+        if self._host_dead:
+            return  # the process ended meanwhile
         self._note("fault host-thaw")
         self._host_frozen = False
+        if self.now - self._frozen_at > DEFAULT_STALL_THRESHOLD_S:
+            self.host_stalls += 1
         backlog, self._host_backlog = self._host_backlog, []
         deferred, self._deferred = self._deferred, []
         # A process resumed: its reader reads what waited, its timer runs; which comes
@@ -524,6 +668,12 @@ class Rig:
             self._gen_cause[self._gen_abs] = cause
 
     def _ctl_send(self, out: list[Message]) -> None:
+        """Send what the controller said in one call (one batch on serial)."""
+        self._ctl_ship(*self._ctl_encode(out))
+
+    def _ctl_encode(self, out: list[Message]) -> tuple[list[tuple[bytes, Message]], int]:
+        """Encode ``out`` with the controller's frame counter, noting what the checks need
+        of each frame: the serial batch, and how many CAN frames were lost on the way."""
         ledger = self.ledger
         ctl = self.ctl
         serial = self.sc.medium == "serial"
@@ -532,25 +682,30 @@ class Rig:
         for msg in out:
             meta: object = None
             if isinstance(msg, Status):
-                ledger.controller_status(msg, self.now, self)
+                ledger.controller_status(msg, self._ctl_epoch << 16 | msg.seq, self)
             elif isinstance(msg, Encoders):
                 meta = (self.true_path_m, ctl.handshake_ok)
             if isinstance(msg, Fault) and msg.active and msg.code == FaultCode.WATCHDOG:
                 ledger.watchdog_trips += 1
             if isinstance(msg, (Heartbeat, StopAck, Fault, ClearAck)):
                 meta = _Gen(self._gen_abs)
+            meta = _FrameInfo(ledger.controller_reboots, meta)
             if serial:
-                self._meta_by_seq[self._ctl_seq & 0xFF] = meta
+                self._meta_by_seq[self._ctl_seq & 0xFF].append((msg, meta))
                 self._ctl_seq += 1
                 batch.append((self._ctl_encoder.encode(msg), msg))
             else:
                 can_id, data = encode_can(msg, CAN_NODE)
                 if not self.to_host.send(self.now, data, msg, can_id=can_id, meta=meta):
                     lost += 1
+        return batch, lost
+
+    def _ctl_ship(self, batch: list[tuple[bytes, Message]], lost: int) -> None:
+        """Hand a serial batch to the line; count what was lost on the way."""
         if batch:
             lost += self.to_host.send_batch(self.now, batch).count(False)
         if lost and self.core.connected:
-            ledger.frames_lost_to_host += lost
+            self.ledger.frames_lost_to_host += lost
 
     def _deliver_to_ctl(self, d: Delivery) -> None:
         if self.sc.medium == "serial":
@@ -572,12 +727,24 @@ class Rig:
 
     def _ctl_handle(self, msg: Message, sent_s: float = math.inf) -> None:
         ctl = self.ctl
+        # The bridge that sent it: every one before had ended when a later one started.
+        epoch = bisect.bisect_right(self._epoch_starts, sent_s)
+        if isinstance(msg, (Stop, ClearStop)):
+            self._request(msg.stop_id, epoch)
         if isinstance(msg, ClearStop):
             before = set(ctl.latch_causes)
             out = ctl.handle(msg)
             if before and not ctl.latch_causes:
-                self._released(msg.stop_id, before)
+                self._released((epoch, msg.stop_id), before)
                 self._latch_base = self._gen_abs
+        elif isinstance(msg, Hello):
+            out = ctl.handle(msg)
+            self._ctl_epoch = epoch
+            if self._hello_reboot:
+                self._hello_reboot = False
+                self._track_gen(out)
+                self._reboot(answered=out)  # both IDENTs in one batch: one read
+                return
         elif isinstance(msg, Stop):
             out = ctl.handle(msg)
             if ctl.wheel_setpoints_mps != (0.0, 0.0):
@@ -595,8 +762,29 @@ class Rig:
         if out:
             self._ctl_send(out)
 
-    def _released(self, clear_id: int, causes: set[LatchCause]) -> None:
-        """CLEAR_STOP ``clear_id`` released a latch held by ``causes``: by the rules of
+    def _request(self, request_id: int, epoch: int) -> None:
+        """The controller received a STOP or CLEAR_STOP ``request_id`` from bridge
+        ``epoch``: ``request-id`` holds if no bridge before it on this boot used that id,
+        unless both drew their first ids at random and the draws met (counted)."""
+        boot = self.ledger.controller_reboots
+        self._requests.setdefault((boot, epoch), set()).add(request_id)
+        for earlier in range(epoch):
+            if request_id not in self._requests.get((boot, earlier), ()):
+                continue
+            if _drawn(request_id, self._first_ids[epoch]) and _drawn(
+                request_id, self._first_ids[earlier]
+            ):
+                self.ledger.id_collisions += 1
+                self._note(f"request id {request_id} met by chance")
+                continue
+            self.violate(
+                "request-id",
+                f"the bridge started again ({epoch}) sent request id {request_id}, which "
+                f"bridge {earlier} used on this controller boot",
+            )
+
+    def _released(self, clear_id: tuple[int, int], causes: set[LatchCause]) -> None:
+        """CLEAR_STOP ``clear_id`` (bridge, id) released a latch held by ``causes``: by the rules of
         docs/protocol.md ("Latch and faults")? An automatic clear only a latch the
         watchdog alone holds; an operator's only one whose stopping faults (and watchdog
         trips) the host had heard of when the operator asked; nothing else at all."""
@@ -605,7 +793,7 @@ class Rig:
             if causes - {LatchCause.WATCHDOG}:
                 self.violate(
                     "auto-clear",
-                    f"the host's automatic CLEAR_STOP {clear_id} released a latch held by "
+                    f"the host's automatic CLEAR_STOP {clear_id[1]} released a latch held by "
                     f"{names} (only a watchdog-only latch is the host's to clear)",
                 )
             return
@@ -613,7 +801,7 @@ class Rig:
         if heard is None:
             self.violate(
                 "release",
-                f"CLEAR_STOP {clear_id}, which no operator asked for, released a latch held "
+                f"CLEAR_STOP {clear_id[1]}, which no operator asked for, released a latch held "
                 f"by {names}",
             )
             return
@@ -625,7 +813,7 @@ class Rig:
         if unheard:
             self.violate(
                 "release",
-                f"the operator's CLEAR_STOP {clear_id}, asked for when the host had heard of "
+                f"the operator's CLEAR_STOP {clear_id[1]}, asked for when the host had heard of "
                 f"latch generation {heard}, released a latch held by {names} whose "
                 f"generation(s) {', '.join(unheard)} it had not heard of then",
             )
@@ -650,13 +838,15 @@ class Rig:
         self._host_tick()
 
     def _host_tick(self) -> None:
+        if self._host_dead:
+            return
         core = self.core
         now = self.now
         if not core.connected and core.connect_due(now):
             if self._device_present:
                 core.on_connected(now)
                 self._connected_at = now
-                self.ledger.frames_lost_to_host = 0
+                self.ledger.connected()
                 self._host_encoder = FrameEncoder()
                 self._host_decoder = FrameDecoder()
                 self._host_can = CanDecoder()
@@ -668,6 +858,8 @@ class Rig:
 
     def _host_after(self) -> None:
         """Write what the core decided (STOP first), take its events, plan its next tick."""
+        if self._host_dead:
+            return
         core = self.core
         while True:
             stops = core.take_stops()
@@ -680,15 +872,22 @@ class Rig:
                 break
             msg = entry.msg
             if isinstance(msg, ClearStop) and entry.auto_clear:
-                self._auto_clears.add(msg.stop_id)
+                self._auto_clears.add((self._epoch, msg.stop_id))
             elif isinstance(msg, Motion):
-                self.ledger.motion_written(msg.seq, entry.step_number)
+                number = entry.step_number
+                self.ledger.motion_written(
+                    self._epoch << 16 | msg.seq,
+                    None if number is None else self._numbers_base + number,
+                )
             self._host_send(msg)
             core.written(entry, self.now, True)
         for event in core.take_events():
             if isinstance(event, StatusEvent):
                 self._note(f"status {event.text} {event.step}")
-                self.ledger.status(event, self)
+                if event.step is not None and self._numbers_base:
+                    self.ledger.status(replace(event, step=self._numbers_base + event.step), self)
+                else:
+                    self.ledger.status(event, self)
                 for listener in self.status_listeners:
                     listener(event)
                 if event.step is not None and event.step == self._probe:
@@ -726,8 +925,8 @@ class Rig:
         if self.sc.medium == "serial":
             # A frame whose closing delimiter was cut is completed by the next delivery's
             # leading one: its frame counter, not the delivery, says which frame it is.
-            meta = self._meta_by_seq
-            got = [(f.message, meta[f.seq], f.seq) for f in self._host_decoder.feed(d.data)]
+            find = self._frame_info
+            got = [(f.message, find(f), f.seq) for f in self._host_decoder.feed(d.data)]
         else:
             assert d.can_id is not None
             frame = self._host_can.decode(d.can_id, d.data)
@@ -744,13 +943,27 @@ class Rig:
             else:
                 self._host_frame(msg, info, seq)
 
-    def _host_frame(self, msg: Message, meta: object, seq: int | None = None) -> None:
+    def _frame_info(self, frame: Frame) -> object:
+        """What the simulator knew of a serial frame the controller sent, found by its frame
+        counter and its content (frames of one counter value arrive in the order sent: a
+        reboot restarts the counter, so two boots' frames may share one)."""
+        sent = self._meta_by_seq[frame.seq]
+        while sent:
+            msg, info = sent.popleft()
+            if msg == frame.message:
+                return info
+        return None
+
+    def _host_frame(self, msg: Message, info: object, seq: int | None = None) -> None:
         core = self.core
         ledger = self.ledger
         state = core.state
-        if isinstance(msg, (Heartbeat, Ident)):
-            ledger.nonce_delivered(msg)
-        elif isinstance(msg, Fault) and msg.code == FaultCode.WATCHDOG and msg.active:
+        meta: object = None
+        boot = ledger.controller_reboots
+        if isinstance(info, _FrameInfo):
+            meta, boot = info.inner, info.boot
+        ledger.frame_delivered(msg, boot, seq)
+        if isinstance(msg, Fault) and msg.code == FaultCode.WATCHDOG and msg.active:
             ledger.watchdog_fault_frames += 1
         elif isinstance(msg, Ack) and msg.result == AckResult.QUEUE_FULL:
             ledger.queue_full += 1
@@ -815,6 +1028,7 @@ class Rig:
             for step in steps:
                 self.ledger.submitted += 1
                 number = core.submit_step(StepRequest(*step), now)
+                self._numbers = max(self._numbers, number)
                 if clear_open:
                     self._steps_after_clear[number] = self._last_clear_id
         elif kind in ("stop", "stop-step"):
@@ -832,7 +1046,7 @@ class Rig:
         """The operator (or the ground) asks the host to clear now: the request id. The
         ``release`` invariant holds every release to what the host had heard of then."""
         clear_id = self.core.clear_stop(self.now)
-        self._operator_clears[clear_id] = self._heard_gen
+        self._operator_clears[self._epoch, clear_id] = self._heard_gen
         return clear_id
 
     def _recover(self) -> None:
@@ -858,8 +1072,19 @@ class Rig:
             return  # the watchdog's latch: the host clears it itself
         self.ledger.submitted += 1
         self._probe = core.submit_step(PROBE, self.now)
+        self._numbers = max(self._numbers, self._probe)
         self._note(f"operator probe {self._probe}")
         self._host_after()
+
+
+DRAWN_IDS = 256
+"""A bridge's requests in one scenario stay within this many ids of its first."""
+
+
+def _drawn(request_id: int, first: int) -> bool:
+    """``request_id`` is one a bridge whose first request id was ``first`` gives (ids
+    count 1..65535 and wrap)."""
+    return (request_id - first) % 0xFFFF < DRAWN_IDS
 
 
 @functools.cache

@@ -16,14 +16,20 @@ process held: no tick, nothing read or written), ``controller-freeze`` (the cont
 held), ``encoder`` (an encoder fault's condition, a stopping fault), ``stall`` (a wheel
 locked while it should turn), ``unplug`` (the host's device gone: a transport error,
 reconnects refused until it is back; on CAN a bus-off), ``writer-stall`` (the host's
-writer held: no ordinary frame written, STOP still is).
+writer held: no ordinary frame written, STOP still is), ``hello-reboot`` (the controller
+answers the next HELLO and reboots at once: both IDENTs reach the host in one read),
+``host-restart`` (the bridge process ends and a new one starts on the same controller
+boot after ``duration_s``).
 
 Issue #40's interleavings come in three scenarios of ten, from a generator of their own
 (so that every other draw, and so every kept seed, plays as before): an encoder glitch
 (an encoder fault of 5 to 40 ms) timed at an operator's clear or at the automatic clear
 after an outage, a stalled writer (0.1 to 0.6 s) while a clear is out, the operator's
 STOP followed by a clear before the STOP_ACK can be back, and a clear followed by a step
-at once.
+at once. One scenario in five (from a third generator) holds one of the wire's own: a
+reboot crossing a HELLO (an outage long enough to lose the link, then the controller
+answers the HELLO after it and reboots at once) or a bridge restarted on one controller
+boot (often just after an operator's STOP, so that both bridges make requests).
 
 Pure: no I/O, no clock; one ``random.Random(seed)``.
 """
@@ -63,6 +69,8 @@ FAULT_KINDS: dict[str, float] = {
     "stall": 0.5,
     "unplug": 0.7,
     "writer-stall": 0.0,
+    "hello-reboot": 0.0,
+    "host-restart": 0.0,
 }
 """ScenarioFault kinds and their relative weights in a draw."""
 
@@ -332,6 +340,27 @@ def _issue_40(
             actions.append(Action(at + rng.uniform(0.0, 0.004), "steps", (step,)))
 
 
+def _wire(
+    rng: random.Random, active: float, faults: list[ScenarioFault], actions: list[Action]
+) -> None:
+    """Add, to one scenario in five, a reboot crossing a HELLO or a bridge restarted on
+    one controller boot (see the module docstring), drawn from ``rng`` alone."""
+    if rng.random() >= 0.2:
+        return
+    at = rng.uniform(0.05, active)
+    if rng.random() < 0.5:
+        # The link lost (the controller's heartbeats miss for 0.35 s), so the host says
+        # HELLO again after the outage: the controller reboots right after answering it.
+        kind = rng.choice(("cut", "cut", "host-freeze", "unplug"))
+        direction = rng.choice(("both", "to_host")) if kind == "cut" else "both"
+        outage = ScenarioFault(kind, at, rng.uniform(0.4, 1.0), direction)
+        faults += [outage, ScenarioFault("hello-reboot", outage.end_s, 0.0)]
+        return
+    if rng.random() < 0.6:
+        actions.append(Action(max(0.0, at - rng.uniform(0.005, 0.2)), "stop"))
+    faults.append(ScenarioFault("host-restart", at, rng.uniform(0.05, 1.5)))
+
+
 def make_scenario(
     seed: int,
     *,
@@ -390,6 +419,7 @@ def make_scenario(
     if rng.random() < 0.35:
         actions.append(Action(rng.uniform(0.0, active + 0.3), "clear"))
     _issue_40(random.Random(seed * 7919 + 40), active, faults, actions)
+    _wire(random.Random(seed * 7919 + 41), active, faults, actions)
     faults.sort(key=lambda f: f.start_s)
     actions.sort(key=lambda a: a.at_s)
     quiet = max([active, *(f.end_s for f in faults), *(a.at_s for a in actions)])

@@ -27,7 +27,7 @@ SEARCH = 1000
 
 ISSUE_22 = [
     pytest.param("auto-clear-survives", "auto-clear", 1, id="auto-clear-survives"),
-    pytest.param("samples-outside-session", "odometry", 22, id="samples-outside-session"),
+    pytest.param("samples-outside-session", "odometry", 26, id="samples-outside-session"),
 ]
 """(mutant, the invariant it breaks, the first seed that finds it against both
 controllers): the fixes of issue #22, undone."""
@@ -35,6 +35,7 @@ controllers): the fixes of issue #22, undone."""
 FOUND = [
     pytest.param("settle-by-guess", 1481, "can", "truthful", id="settle-by-guess"),
     pytest.param("watchdog-frame-twice", 3371, "can", "counters", id="watchdog-frame-twice"),
+    pytest.param("blind-clear-takes-fault", 5005, "can", "release", id="blind-clear-takes-fault"),
 ]
 """(mutant, seed, medium, the invariant it breaks): the bugs the simulator found in
 LinkCore, each now fixed."""
@@ -45,11 +46,16 @@ ISSUE_40 = [
     pytest.param("refused-clear-retried", "", 36, "serial", "release", id="hole-2"),
     pytest.param("clear-drops-stop", "", 24, "serial", "stopped", id="hole-3"),
     pytest.param("step-refused-during-clear", "", 82, "serial", "order", id="hole-4"),
-    pytest.param("clear-copies-queue", "", 1, "can", "repeat", id="hole-7"),
+    pytest.param("", "reboot-keeps-nonce", 20, "serial", "odometry", id="hole-5"),
+    pytest.param("lost-from-read-total", "", 4, "serial", "counters", id="hole-6"),
+    pytest.param("clear-copies-queue", "", 24, "can", "repeat", id="hole-7"),
+    pytest.param("request-ids-from-one", "", 16, "serial", "request-id", id="hole-8"),
 ]
 """(host mutant, controller mutant, seed, medium, the invariant it breaks): the holes of
-issue #40 that the latch generation closes, each with its fix undone, found by seed. A
-controller mutant is the Python model with one rule broken (:mod:`emulator.mutants`)."""
+issue #40, each with its fix undone, found by seed. A controller mutant is the Python
+model with one rule broken (:mod:`emulator.mutants`): hole 5's fix is the controller's (a
+new boot nonce differs from the last; conformance rule ``reboot`` kills the same
+mutant), the bridge relies on it."""
 
 
 MASKED = {"auto-clear-after-fault-frame"}
@@ -139,6 +145,40 @@ def test_each_hole_of_issue_40_is_found_with_its_fix_undone_and_closed_with_it(
         assert rule in {v.rule for v in outcome.violations}, (controller, outcome.violations)
         fixed = run_scenario(dataclasses.replace(broken, mutants=(), controller_mutant=""))
         assert fixed.ok, (controller, fixed.violations)
+
+
+def test_hole_5_a_repeated_nonce_shows_as_the_issue_saw_it() -> None:
+    """A controller whose reboot keeps its boot nonce: /odom jumps, the reboot is not
+    counted and the restarted frame counter is counted as lost frames, each seen against
+    the simulator's knowledge of every frame's boot."""
+    broken = make_scenario(20, medium="serial", controller_mutant="reboot-keeps-nonce")
+    lines = [v.line() for v in run_scenario(broken).violations]
+    assert any("odometry moved" in x for x in lines), lines
+    assert any("reboots is 0, the simulator saw 1" in x for x in lines), lines
+    assert any("lost_frames 172, the frame counter's gaps" in x for x in lines), lines
+
+
+def test_hole_6_is_a_reboot_crossing_a_hello() -> None:
+    """Its seed holds the scenario element made for it: the controller answers the HELLO
+    after an outage and reboots at once, both IDENTs in one read."""
+    scenario = make_scenario(4, medium="serial", mutants=("lost-from-read-total",))
+    assert "hello-reboot" in {f.kind for f in scenario.faults}
+    outcome = run_scenario(scenario, trace=True)
+    assert any("hello-reboot armed" in line for line in outcome.trace)
+    [violation] = [v for v in outcome.violations if "lost_frames" in v.text][:1]
+    assert "less each reboot's say" in violation.text
+
+
+def test_hole_8_is_a_bridge_restarted_on_one_boot() -> None:
+    """Its seed restarts the bridge after an operator's STOP: the new bridge's first
+    request (its clear) took the id of the old bridge's STOP. With ids drawn at random the
+    two bridges' ids do not meet."""
+    scenario = make_scenario(16, medium="serial", mutants=("request-ids-from-one",))
+    assert "host-restart" in {f.kind for f in scenario.faults}
+    [violation] = run_scenario(scenario).violations
+    assert violation.text.endswith("sent request id 1, which bridge 0 used on this controller boot")
+    fixed = run_scenario(dataclasses.replace(scenario, mutants=()))
+    assert fixed.ok and fixed.counts["id_collisions"] == 0
 
 
 @pytest.mark.timeout(120)
