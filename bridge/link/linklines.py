@@ -12,9 +12,13 @@ and returns the lines to print:
   errors, resyncs: **wrong baud suspected**);
 - the handshake is done (firmware, boot nonce, controller state), and later the link
   lost (why) and back;
-- the link flaps: heartbeats missed again and again while frames keep arriving, a link
-  slower than the controller's own telemetry (**wrong baud suspected**: a controller
-  paced at a lower baud, or a saturated line);
+- the link flaps: heartbeats missed again and again while frames keep arriving. Bytes
+  that do not frame (CRC errors, resyncs) among them, at least :data:`GARBAGE_SHARE` of
+  what arrived around the losses, are what a wrong baud looks like (**wrong baud
+  suspected**); without them the link drops out or is slower than the controller's
+  telemetry (a paced controller, a saturated line), and it is said so. A loss during a
+  stall of this process (the bridge itself held up: ``stalls``) says nothing about the
+  link and is not counted; neither does silence (a cut, a frozen controller);
 - a protocol or schema mismatch.
 
 Pure: no I/O, no clock of its own. :attr:`LinkNarrator.reached` tells whether a
@@ -27,7 +31,7 @@ from dataclasses import dataclass, field
 
 from bridge.link.controllerlink import LinkDiagnostics
 
-__all__ = ["FLAP_LOSSES", "SILENT_AFTER_S", "LinkNarrator"]
+__all__ = ["FLAP_LOSSES", "GARBAGE_SHARE", "SILENT_AFTER_S", "LinkNarrator"]
 
 SILENT_AFTER_S = 3.0
 """An open device with no frame from a controller for this long is 'not answering', s."""
@@ -35,6 +39,10 @@ FLAP_LOSSES = 3
 """Heartbeat losses with frames still arriving, within :data:`FLAP_WINDOW_S`, that make
 a too-slow link suspected."""
 FLAP_WINDOW_S = 10.0
+GARBAGE_SHARE = 0.25
+"""Receive errors (CRC, resyncs) at least this share of what arrived in the snapshots of
+the counted losses (frames and errors) make a wrong baud suspected: at a wrong baud
+almost nothing frames, while a cut or a glitch breaks a frame or two among hundreds."""
 
 
 _OPEN_CAUSES = (
@@ -68,9 +76,13 @@ class LinkNarrator:
     _open_since: float | None = None
     _silence_said: bool = False
     _frames_at_open: int = 0
-    _losses: list[float] = field(default_factory=list)
+    _losses: list[tuple[float, int, int]] = field(default_factory=list)
+    """The counted heartbeat losses: (when, frames, receive errors since the snapshot
+    before)."""
     _last_losses: int = 0
     _last_frames: int = 0
+    _last_garbage: int = 0
+    _last_stalls: int = 0
     _flap_said: bool = False
     _reboots: int = 0
 
@@ -79,6 +91,26 @@ class LinkNarrator:
         return (
             f"{what}: controller firmware {diag.firmware or '?'}, boot nonce "
             f"{_nonce(diag.boot_nonce)}"
+        )
+
+    def _flap_line(self) -> str:
+        """What the counted losses say: a wrong baud when bytes that do not frame came with
+        them (:data:`GARBAGE_SHARE`), else a link that drops out or is too slow."""
+        seen = {x[0]: x for x in self._losses}.values()  # one snapshot's losses share it
+        frames = sum(x[1] for x in seen)
+        garbage = sum(x[2] for x in seen)
+        head = (
+            f"the controller's heartbeats come late again and again ({len(self._losses)} "
+            f"link losses in {FLAP_WINDOW_S:g} s) while its frames keep arriving"
+        )
+        if garbage and garbage >= GARBAGE_SHARE * (frames + garbage):
+            return (
+                f"{head}, with bytes that do not frame ({garbage} CRC errors and resyncs "
+                f"beside {frames} frames): wrong baud suspected" + self._baud_hint()
+            )
+        return (
+            f"{head}; its bytes frame (the baud is right): the link drops out or is slower than "
+            "the controller's telemetry"
         )
 
     def _baud_hint(self) -> str:
@@ -119,6 +151,8 @@ class LinkNarrator:
             self._open_since = now
             self._silence_said = False
             self._frames_at_open = diag.rx_frames
+        if state == "ready":
+            self._silence_said = True  # a controller answered since this open
         if (
             state == "handshake"
             and not self._silence_said
@@ -160,23 +194,26 @@ class LinkNarrator:
                 and diag.last_error in self._errors_said
             ):
                 out.append(f"link failed: {diag.last_error}; reconnecting")
-        # A link that loses the controller's heartbeats while its frames keep coming is
-        # slower than what the controller sends: the same state may come and go between
-        # two snapshots, so count the losses, not the states seen.
+        # A link that loses the controller's heartbeats while its frames keep coming drops
+        # out or is slower than what the controller sends: the same state may come and go
+        # between two snapshots, so count the losses, not the states seen.
+        garbage = diag.crc_errors + diag.resyncs
         if diag.heartbeat_losses > self._last_losses:
-            if diag.rx_frames > self._last_frames:
-                self._losses.extend([now] * (diag.heartbeat_losses - self._last_losses))
+            frames = diag.rx_frames - self._last_frames
+            held_up = diag.stalls > self._last_stalls  # the bridge's own stall, not the link
+            if frames > 0 and not held_up:
+                evidence = (now, frames, max(0, garbage - self._last_garbage))
+                self._losses.extend([evidence] * (diag.heartbeat_losses - self._last_losses))
             if state == self._state == "ready" and not self._flap_said:
-                out.append(f"link lost and back: {diag.last_error}")
-        self._losses = [t for t in self._losses if now - t <= FLAP_WINDOW_S]
+                why = " (this process was held up)" if held_up else ""
+                out.append(f"link lost and back{why}: {diag.last_error}")
+        self._losses = [x for x in self._losses if now - x[0] <= FLAP_WINDOW_S]
         if len(self._losses) >= FLAP_LOSSES and not self._flap_said:
             self._flap_said = True
-            out.append(
-                f"the controller's heartbeats come late again and again ({len(self._losses)} "
-                f"link losses in {FLAP_WINDOW_S:g} s) while its frames keep arriving: the link is "
-                "slower than its telemetry, wrong baud suspected" + self._baud_hint()
-            )
+            out.append(self._flap_line())
         self._last_losses = diag.heartbeat_losses
         self._last_frames = diag.rx_frames
+        self._last_garbage = garbage
+        self._last_stalls = diag.stalls
         self._state = state
         return out
