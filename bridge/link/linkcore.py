@@ -948,7 +948,13 @@ class LinkCore:
         )
 
     def _check_reboot(self, nonce: int, now: float) -> bool:
-        if self._boot_nonce is None or nonce == self._boot_nonce:
+        """A HEARTBEAT's or IDENT's boot nonce: the first one known (from either: a new
+        bridge that reads only HEARTBEATs of the old boot before the new boot's IDENT
+        must still tell the reboot), the same boot, or a reboot (handled here)."""
+        if self._boot_nonce is None:
+            self._boot_nonce = nonce
+            return False
+        if nonce == self._boot_nonce:
             return False
         self._boot_nonce = nonce
         self._counters.reboots += 1
@@ -978,9 +984,7 @@ class LinkCore:
 
     def _on_ident(self, ident: Ident, now: float) -> None:
         self._ident = ident
-        if self._boot_nonce is None:
-            self._boot_nonce = ident.boot_nonce
-        elif not self._check_reboot(ident.boot_nonce, now):
+        if not self._check_reboot(ident.boot_nonce, now):
             self._lost_mark = self._rx_lost
         match = (
             ident.protocol_version == self.protocol_version

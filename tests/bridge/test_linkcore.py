@@ -158,3 +158,19 @@ def test_a_clear_asked_before_the_host_knew_any_generation_does_not_take_a_later
     core.clear_stop(0.1)  # asked for now, with the fault reported: it names generation 1
     core.tick(0.1)
     assert [m for m in _written(core, 0.1) if isinstance(m, ClearStop)] == [ClearStop(2, 1)]
+
+
+def test_a_bridge_that_read_only_heartbeats_of_the_old_boot_still_tells_the_reboot() -> None:
+    """A bridge started while its HELLO cannot go out (a stalled writer) reads only the old
+    boot's HEARTBEATs; the new boot's IDENT is a reboot all the same: counted, and the
+    frame counter's restart is no loss (found by the wire simulator's bridge restarts,
+    seed 101284 on serial)."""
+    core = LinkCore(LinkConfig("sim://x"))
+    core.on_connected(0.0)
+    old = Heartbeat(ControllerState.IDLE, 0, 0, 0, 0, 0, 0, 0, 0x1234, 0, 0)
+    core.on_frame(old, 0.01, rx_seq=70)
+    core.on_frame(old, 0.11, rx_seq=80)  # nine frames lost between them
+    core.on_frame(Ident(PROTOCOL_VERSION, 1, 0, 0, SCHEMA_HASH, 0x4321), 0.2, rx_seq=0)
+    gaps = 9 + ((0 - 80 - 1) & 0xFF)  # what the decoder counts
+    d = core.diagnostics(0.2, MediumStats(connected=True, rx_lost=gaps))
+    assert (d.reboots, d.lost_frames, d.boot_nonce) == (1, 9, 0x4321)
