@@ -174,7 +174,7 @@ class Ledger:
     def frame_delivered(self, msg: Message, boot: int, rx_seq: int | None) -> None:
         """A controller frame of ``boot`` (the simulator's count of boots) reached the host,
         with its serial frame counter (``None`` on CAN). A HEARTBEAT or IDENT tells a boot:
-        the first known is an IDENT's; a later one is a reboot the host must count when
+        the first one makes it known; a later one is a reboot the host must count when
         it can tell it: its nonce differs from the one known, or it is the very next
         boot (whose nonce must differ: docs/protocol.md, Handshake 1). A reboot's
         restart of the frame counter is no loss, from the last frame known to be of the
@@ -185,13 +185,12 @@ class Ledger:
             self._last_rx_seq = rx_seq
         if not isinstance(msg, (Heartbeat, Ident)):
             return
-        if self._boot is None:
-            if isinstance(msg, Ident):
-                self._boot, self._nonce = boot, msg.boot_nonce
-            else:
-                self._gaps_mark = self._gaps
-            return
-        if boot != self._boot and (msg.boot_nonce != self._nonce or boot == self._boot + 1):
+        known = self._boot
+        if (
+            known is not None
+            and boot != known
+            and (msg.boot_nonce != self._nonce or boot == known + 1)
+        ):
             self.expected_reboots += 1
             self._gaps_forgiven += self._gaps - self._gaps_mark
         self._boot, self._nonce = boot, msg.boot_nonce

@@ -165,6 +165,19 @@ class _BlindClearTakesFault(LinkCore):
         return
 
 
+class _NonceFromIdentOnly(LinkCore):
+    """Protocol v3's bridge: the first boot nonce was learned from an IDENT only; a
+    bridge that read only HEARTBEATs of the old boot took the new boot's IDENT for the
+    first boot it knew, and counted neither the reboot nor its frame counter's restart
+    as such (found by the simulator's bridge restarts)."""
+
+    def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
+        unknown = self._boot_nonce is None
+        super()._on_heartbeat(hb, t)
+        if unknown:
+            self._boot_nonce = None
+
+
 class _RequestIdsFromOne(LinkCore):
     """Protocol v3's bridge: request ids from 1 at every start, so a bridge started again
     repeats the requests of the one before on the same controller boot (issue #40, hole
@@ -249,6 +262,13 @@ MUTANTS: dict[str, LinkMutant] = {
             "bridge, a reboot) names the generation of a stopping fault reported after it, "
             "and releases that fault's latch (found by the simulator)",
             _BlindClearTakesFault,
+        ),
+        LinkMutant(
+            "nonce-from-ident-only",
+            "the first boot nonce is learned from an IDENT only: a bridge that read only "
+            "HEARTBEATs of the old boot before the new boot's IDENT counts neither the "
+            "reboot nor the restarted frame counter as one (found by the simulator)",
+            _NonceFromIdentOnly,
         ),
         LinkMutant(
             "auto-clear-after-fault-frame",

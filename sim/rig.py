@@ -270,7 +270,8 @@ class Rig:
         self._frozen_at = 0.0
         self.host_stalls = 0
         """Host freezes the bridge's stall monitor would have recorded."""
-        self._host_backlog: list[tuple[Message, object, int | None]] = []
+        self._host_backlog: list[tuple[Message, object, int | None, float]] = []
+        """Frames read while the host was frozen, with when their connection opened."""
         self._deferred: list[Callable[[], None]] = []
         self._connected_at = -math.inf
         self._host_encoder = FrameEncoder()
@@ -572,8 +573,10 @@ class Rig:
         tick_first = self.rng.random() < 0.5
         if tick_first:
             self._host_tick()
-        for msg, meta, seq in backlog:
-            self._host_frame(msg, meta, seq)
+        for msg, meta, seq, opened in backlog:
+            # A frame of a connection that failed meanwhile went with its transport.
+            if self.core.connected and opened == self._connected_at:
+                self._host_frame(msg, meta, seq)
         for fn in deferred:
             fn()
         if not tick_first:
@@ -779,7 +782,7 @@ class Rig:
                 continue
             self.violate(
                 "request-id",
-                f"the bridge started again ({epoch}) sent request id {request_id}, which "
+                f"bridge {epoch} (started again) sent request id {request_id}, which "
                 f"bridge {earlier} used on this controller boot",
             )
 
@@ -939,7 +942,7 @@ class Rig:
             if msg.DIRECTION != "controller_to_host":
                 continue
             if self._host_frozen:
-                self._host_backlog.append((msg, info, seq))
+                self._host_backlog.append((msg, info, seq, self._connected_at))
             else:
                 self._host_frame(msg, info, seq)
 
@@ -1030,7 +1033,7 @@ class Rig:
                 number = core.submit_step(StepRequest(*step), now)
                 self._numbers = max(self._numbers, number)
                 if clear_open:
-                    self._steps_after_clear[number] = self._last_clear_id
+                    self._steps_after_clear[self._numbers_base + number] = self._last_clear_id
         elif kind in ("stop", "stop-step"):
             source = StopSource.OPERATOR if kind == "stop" else StopSource.PLAN_STEP
             self._stop_waits = core.emergency_stop(source, now)

@@ -36,6 +36,7 @@ FOUND = [
     pytest.param("settle-by-guess", 1481, "can", "truthful", id="settle-by-guess"),
     pytest.param("watchdog-frame-twice", 3371, "can", "counters", id="watchdog-frame-twice"),
     pytest.param("blind-clear-takes-fault", 5005, "can", "release", id="blind-clear-takes-fault"),
+    pytest.param("nonce-from-ident-only", 101284, "serial", "counters", id="nonce-from-ident-only"),
 ]
 """(mutant, seed, medium, the invariant it breaks): the bugs the simulator found in
 LinkCore, each now fixed."""
