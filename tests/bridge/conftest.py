@@ -34,6 +34,7 @@ from emulator.firmware import make_controller
 from emulator.frontend import FrontEnd
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import GATE_DT_S, Twin, served_dt_s
+from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.linkio.inbox import Inbox as WaitableLog
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
@@ -149,10 +150,11 @@ _channels = itertools.count()
 
 class Recorder:
     """Collects ``/command_status`` strings (in a waitable
-    :class:`~firmware_proto.linkio.inbox.Inbox`); waits on them with timeouts."""
+    :class:`~firmware_proto.linkio.inbox.Inbox`); waits on them with timeouts, in
+    ``clock`` seconds (a lockstep clock's waits advance it)."""
 
-    def __init__(self) -> None:
-        self.log: WaitableLog[str] = WaitableLog()
+    def __init__(self, clock: Clock = WALL) -> None:
+        self.log: WaitableLog[str] = WaitableLog(clock=clock)
 
     @property
     def items(self) -> list[str]:

@@ -26,6 +26,7 @@ from bridge.ros.rosport import RosPort, open_port, qos
 from bridge.ros.rosport.msgs import Bool, DiagnosticArray, Empty, Int16MultiArray, Odometry, String
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
+from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.model.rover import RoverDescription
 
 from .conftest import BACKEND_PARAMS, Recorder
@@ -34,11 +35,12 @@ Emus = Callable[..., Emulator]
 
 
 class Client:
-    """A ROS client of the bridge: publishes steps and e-stops, records what comes back."""
+    """A ROS client of the bridge: publishes steps and e-stops, records what comes back
+    (its waits go through ``clock``: a lockstep one advances the world)."""
 
-    def __init__(self, port: RosPort) -> None:
+    def __init__(self, port: RosPort, clock: Clock = WALL) -> None:
         self.port = port
-        self.status = Recorder()
+        self.status = Recorder(clock)
         self.odom: list[Odometry] = []
         self.ground: list[Odometry] = []
         self.diagnostics: list[DiagnosticArray] = []
