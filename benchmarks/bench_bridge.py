@@ -5,9 +5,14 @@ Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick] [--ros
 The emulator serves the controller on a real pty in real time, in a process of its own
 as ``rover emulate`` does on a bench (in one process its control thread and the bridge
 would share the interpreter lock, whose 5 ms switch interval adds tails that a real
-controller never sees). The bridge's ControllerLink (and its ROS node) drives it. For
-every trial the rover is moving, then a STOP is requested, and two latencies are taken
-on CLOCK_MONOTONIC, which every process of the machine shares (``time.monotonic()``):
+controller never sees). The bridge's ControllerLink (and its ROS node) drives it. Both
+keep time as the programs do (docs/realtime.md): the emulator's process at
+``EMULATOR_PRIORITY`` as ``rover emulate``, this process (the link, its node, the pty
+round trip) at ``BRIDGE_PRIORITY`` as ``rover bridge``, each where the system permits
+it (the table's note says what was granted); the children start at normal priority and
+ask for theirs once imported. For every trial the rover is moving, then a STOP is
+requested, and two latencies are taken on CLOCK_MONOTONIC, which every process of the
+machine shares (``time.monotonic()``):
 
 - (a) request -> the STOP frame's last byte written to the device by the bridge;
 - (b) request -> the emulator's wheel targets at zero (its control thread handled it;
@@ -23,6 +28,13 @@ ROS 2 also published as ``/odom`` to a subscriber in the observer node). The pty
 trip (15 bytes there and back through pyserial) is measured in the same run: it is the
 floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
 
+A bench reports; it does not die on a lost session. A trial whose step is refused, or
+whose link is lost (the emulator's watchdog tripped, heartbeats missed, the controller
+lost the session) before its STOP is measured, is counted as lost: the bench waits for
+the link's new session, clears any latch left behind and goes on. The lost trials and
+the link's own counts (heartbeat losses, watchdog trips, reconnects) are printed under
+the table; the sustained rate counts the steps completed and says how many were lost.
+
 Run the ROS 2 case inside the namespace::
 
     unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
@@ -32,13 +44,13 @@ Run the ROS 2 case inside the namespace::
 from __future__ import annotations
 
 import argparse
-import functools
 import random
 import select
 import subprocess
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from functools import partial
 from typing import IO
 
@@ -55,7 +67,13 @@ from emulator.twin import Twin
 from firmware_proto.linkio.inbox import Inbox
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.runtime.interpreter import use_short_switch_interval
-from firmware_proto.runtime.realtime import RealtimeConfig, apply_realtime
+from firmware_proto.runtime.realtime import (
+    BRIDGE_PRIORITY,
+    EMULATOR_PRIORITY,
+    RealtimeConfig,
+    apply_realtime,
+    module_command_at_normal_priority,
+)
 from firmware_proto.wire.messages import Command
 
 
@@ -73,15 +91,61 @@ class Statuses:
         if self.log.wait(lambda s: s == text, since=since, timeout_s=timeout) is None:
             raise TimeoutError(f"no {text!r} within {timeout} s")
 
+    def first(self, words: tuple[str, ...], since: int, timeout: float = 10.0) -> str:
+        """The first status from ``since`` on that starts with one of ``words`` ('' when
+        none came within ``timeout`` s)."""
+        found = self.log.wait(lambda s: s.startswith(words), since=since, timeout_s=timeout)
+        return found[1] if found is not None else ""
+
     def mark(self) -> int:
         return self.log.mark()
 
 
-HOPS: list[float] = []
+SETTLED = ("accepted", "rejected", "aborted", "fault")
+"""The first answer to a step: accepted, or why not (a lost link answers ``aborted`` and
+``fault``)."""
+
+SESSION_TIMEOUT_S = 30.0
+"""How long the bench waits for the link's (new) session, s."""
+
+
+def recover(link: ControllerLink, statuses: Statuses) -> None:
+    """Wait for the link's session (a lost one handshakes again by itself) and clear any
+    latch left behind (an operator STOP of a trial cut short; the watchdog's the link
+    clears itself), so the next trial starts moving.
+
+    Raises:
+        TimeoutError: no session, or the latch would not clear, within
+            :data:`SESSION_TIMEOUT_S` (the bench cannot go on).
+    """
+    deadline = time.monotonic() + SESSION_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if link.ready and not link.stop_latched:
+            return
+        if link.ready:
+            mark = statuses.mark()
+            link.clear_stop()
+            statuses.first(("cleared", "fault", "rejected"), mark, timeout=5.0)
+        else:
+            time.sleep(0.01)
+    raise TimeoutError(f"the link had no session, unlatched, within {SESSION_TIMEOUT_S} s")
+
+
+@dataclass
+class Trials:
+    """The STOP trials of one case: latencies (s), and trials lost to the link."""
+
+    written: list[float] = field(default_factory=list)
+    zeroed: list[float] = field(default_factory=list)
+    hops: list[float] = field(default_factory=list)
+    """Request -> the bridge node's STOP callback (with a node), s."""
+    lost: int = 0
+    """Trials not measured: the step was refused or the link lost before the STOP."""
+
+
 #: The bridge's backends in the ROS 2 case: the default (the node in a child process)
 #: beside the node in the bridge's process, so the table shows what the extra hop costs.
 ROS2_BACKENDS = ("rclpy-process", "rclpy")
-"""Request -> the bridge node's STOP callback, per trial of the last ROS case, s."""
 
 Request = Callable[[], float]
 """Asks for a STOP; returns when it was asked (``time.monotonic()``)."""
@@ -118,12 +182,12 @@ class EmulatorProcess:
     """The emulator serving a pty in a child process (``--emulator-child``), driven over
     its stdin and stdout: one command line, one answer line."""
 
-    def __init__(self, seed: int, rt_priority: int = 0) -> None:
+    def __init__(self, seed: int, rt_priority: int = EMULATOR_PRIORITY) -> None:
+        """Start the child: at normal priority until imported, then at ``rt_priority``
+        (0: none) where permitted, as ``rover emulate --rt-priority``."""
         self._child = subprocess.Popen(
             [
-                sys.executable,
-                "-m",
-                "benchmarks.bench_bridge",
+                *module_command_at_normal_priority("benchmarks.bench_bridge"),
                 "--emulator-child",
                 f"--seed={seed}",
                 f"--rt-priority={rt_priority}",
@@ -221,17 +285,20 @@ def _trials(
     load: bool,
     rng: random.Random,
     node: BridgeNode | None = None,
-) -> tuple[list[float], list[float]]:
-    """STOP trials; the two latencies of each (see the module docstring). With ``node``,
-    ``HOPS`` also gets, per trial, request -> the node's STOP callback."""
-    written, zeroed = [], []
-    HOPS.clear()
+) -> Trials:
+    """STOP trials; the two latencies of each (see the module docstring), and with
+    ``node`` request -> the node's STOP callback. A trial the link loses is counted, not
+    measured, and the next one waits for the link's new session (:func:`recover`)."""
+    out = Trials()
     emu.telemetry(100 if load else 50)
     for _ in range(trials):
+        recover(link, statuses)
         mark = statuses.mark()
         for _ in range(8 if load else 1):
             link.submit_step(StepRequest(Command.FWD, 60, 30000))
-        statuses.wait("accepted", mark)
+        if statuses.first(SETTLED, mark) != "accepted":
+            out.lost += 1
+            continue
         time.sleep(rng.uniform(0.05, 0.25))  # STOP at a random moment of the motion
         before, previous = emu.stops(), link.last_stop_written
         t0 = request()
@@ -241,39 +308,88 @@ def _trials(
         while link.last_stop_written == previous and time.monotonic() < deadline:
             time.sleep(0.0005)
         written_at = link.last_stop_written
-        if written_at is not None and written_at != previous and handled is not None:
-            written.append(written_at - t0)
-            zeroed.append(handled - t0)
+        # A trial the link lost (a STOP that reached the controller after a new
+        # handshake, or into a watchdog's latch) measures the outage, not the STOP path.
+        cut = any(s.startswith("fault:") for s in statuses.log.items(mark))
+        if written_at is not None and written_at != previous and handled is not None and not cut:
+            out.written.append(written_at - t0)
+            out.zeroed.append(handled - t0)
             if node is not None and node.last_estop_received is not None:
-                HOPS.append(node.last_estop_received - t0)
+                out.hops.append(node.last_estop_received - t0)
+        else:
+            out.lost += 1
         mark = statuses.mark()
         link.clear_stop()
-        statuses.wait("cleared", mark)
-    return written, zeroed
+        statuses.first(("cleared", "fault", "rejected"), mark)
+    recover(link, statuses)
+    return out
 
 
-def _completed_at_least(n: int, statuses: list[str]) -> bool:
-    return statuses.count("completed") >= n
+def _cut_or_done(n: int, statuses: list[str]) -> bool:
+    """All ``n`` steps completed, or one did not."""
+    return statuses.count("completed") >= n or any(s.startswith(SETTLED[1:]) for s in statuses)
 
 
-def steps_per_second(link: ControllerLink, statuses: Statuses, count: int) -> float:
+def _all_settled(n: int, statuses: list[str]) -> bool:
+    """Each of ``n`` steps has its fate (completed, aborted or rejected)."""
+    return sum(s == "completed" or s.startswith(("aborted", "rejected")) for s in statuses) >= n
+
+
+@dataclass
+class Rate:
+    """Sustained steps: how many completed in how long, and batches cut short."""
+
+    completed: int
+    seconds: float
+    lost_batches: int
+
+    @property
+    def per_second(self) -> float:
+        return self.completed / self.seconds
+
+
+def steps_per_second(link: ControllerLink, statuses: Statuses, count: int) -> Rate:
     """Sustained rate of tiny steps (1 distance unit) completed through the bridge, fed in
-    batches that fit the bridge's lane (more would be refused ``queue_full``)."""
+    batches that fit the bridge's lane (more would be refused ``queue_full``). A batch
+    the link cuts short (a step aborted or refused) counts what completed; the next
+    batch waits for the link's new session.
+
+    Raises:
+        TimeoutError: no step completed within 30 s, or more batches lost than kept.
+    """
     batch = min(count, link.config.lane_limit)
+    recover(link, statuses)
     t0 = time.monotonic()
-    done = 0
+    done = lost = 0
     while done < count:
         mark = statuses.mark()
         n = min(batch, count - done)
         for _ in range(n):
             link.submit_step(StepRequest(Command.FWD, 60, 1))
-        if not statuses.log.until(
-            functools.partial(_completed_at_least, n), since=mark, timeout_s=30.0
-        ):
-            got = statuses.log.items(mark).count("completed")
-            raise TimeoutError(f"only {got}/{n} steps completed")
-        done += n
-    return count / (time.monotonic() - t0)
+        statuses.log.until(partial(_cut_or_done, n), since=mark, timeout_s=30.0)
+        completed = statuses.log.items(mark).count("completed")
+        if completed < n:
+            lost += 1
+            # Every step of the batch has its fate before the next batch (a lost link
+            # aborts them all at once; a refused one leaves the rest to complete).
+            statuses.log.until(partial(_all_settled, n), since=mark, timeout_s=10.0)
+            completed = statuses.log.items(mark).count("completed")
+            done += completed
+            if lost >= max(5, count // 10):
+                break
+            recover(link, statuses)
+            continue
+        done += completed
+    return Rate(done, time.monotonic() - t0, lost)
+
+
+def _link_line(label: str, link: ControllerLink, lost: int, trials: int) -> str:
+    """One line of what the link went through in a case."""
+    d = link.diagnostics()
+    return (
+        f"- {label}: {lost} of {trials} trials lost to the link; heartbeat losses "
+        f"{d.heartbeat_losses}, watchdog trips {d.watchdog_trips}, reconnects {d.reconnects}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -305,27 +421,33 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--trials must be >= 1")
     trials, ros_trials = (3, 3) if args.quick else (args.trials, max(20, args.trials // 2))
     rtt_samples, steps = (200, 30) if args.quick else (2000, 300)
+    # As rover bridge: the link's threads (started from here) keep time where permitted.
+    realtime = apply_realtime(RealtimeConfig(BRIDGE_PRIORITY, lock_memory=False))
     use_short_switch_interval()  # as rover bridge does (firmware_proto/runtime/interpreter.py)
     rng = random.Random(args.seed)
     rover = load_rover()
     rows = [
         ("pty round trip (15 B there and back, pyserial)", summary(pty_round_trip(rtt_samples)))
     ]
+    events: list[str] = []
 
-    with EmulatorProcess(args.seed) as emu:
+    with EmulatorProcess(args.seed, EMULATOR_PRIORITY) as emu:
         statuses = Statuses()
         link = ControllerLink(LinkConfig(emu.device), on_status=statuses)
         with link:
-            statuses.wait("ready", 0)
+            statuses.wait("ready", 0, timeout=SESSION_TIMEOUT_S)
+            lost = 0
             for load in (False, True):
-                written, zeroed = _trials(emu, link, statuses, _api(link), trials, load, rng)
+                got = _trials(emu, link, statuses, _api(link), trials, load, rng)
+                lost += got.lost
                 label = "load: queue full, telemetry 100 Hz" if load else "idle"
-                rows.append((f"API call -> STOP written ({label})", summary(written)))
-                rows.append((f"API call -> wheel targets zero ({label})", summary(zeroed)))
+                rows.append((f"API call -> STOP written ({label})", summary(got.written)))
+                rows.append((f"API call -> wheel targets zero ({label})", summary(got.zeroed)))
             rate = steps_per_second(link, statuses, steps)
+            events.append(_link_line("API call", link, lost, 2 * trials))
 
     # The ROS path: another node publishes on emergency_stop; the bridge node relays.
-    with EmulatorProcess(args.seed) as emu:
+    with EmulatorProcess(args.seed, EMULATOR_PRIORITY) as emu:
         params = load_params({"device": emu.device, "ros_backend": "inprocess"}, env={})
         with (
             open_port("inprocess", node_name="bridge", bus="bench") as bport,
@@ -337,9 +459,10 @@ def main(argv: list[str] | None = None) -> int:
                 oport.subscribe("command_status", String, lambda m: statuses(m.data), qos.STATUS)
                 estop = oport.publisher("emergency_stop", Bool, qos.STOP)
                 oport.publisher("wheel_instructions", Int16MultiArray)
-                statuses.wait("ready", 0)
+                statuses.wait("ready", 0, timeout=SESSION_TIMEOUT_S)
+                lost = 0
                 for load in (False, True):
-                    written, zeroed = _trials(
+                    got = _trials(
                         emu,
                         node.link,
                         statuses,
@@ -348,16 +471,23 @@ def main(argv: list[str] | None = None) -> int:
                         load,
                         rng,
                     )
+                    lost += got.lost
                     label = "load" if load else "idle"
                     rows.append(
-                        (f"ROS message (in-process) -> STOP written ({label})", summary(written))
+                        (
+                            f"ROS message (in-process) -> STOP written ({label})",
+                            summary(got.written),
+                        )
                     )
                     rows.append(
                         (
                             f"ROS message (in-process) -> wheel targets zero ({label})",
-                            summary(zeroed),
+                            summary(got.zeroed),
                         )
                     )
+                events.append(
+                    _link_line("ROS message (in-process)", node.link, lost, 2 * ros_trials)
+                )
 
     ros2_note = ""
     if args.ros2:
@@ -366,7 +496,7 @@ def main(argv: list[str] | None = None) -> int:
         private, why = in_private_loopback_namespace()
         if private:
             for backend in ROS2_BACKENDS:
-                rows += _ros2_rows(rover, args.seed, ros_trials, rng, backend)
+                rows += _ros2_rows(rover, args.seed, ros_trials, rng, backend, events)
         else:
             ros2_note = f" ROS 2 case not run: not in a private loopback namespace ({why})."
     else:
@@ -378,12 +508,19 @@ def main(argv: list[str] | None = None) -> int:
             rows,
             note=(
                 "Thesis figure: 8.4 +/- 1.2 ms detection to activation. Target: p99 < 1 ms end to end "
-                "over a pty. ROS 2 message latency alone: benchmarks/bench_rosport.py." + ros2_note
+                "over a pty. ROS 2 message latency alone: benchmarks/bench_rosport.py."
+                + ros2_note
+                + f" This process: {realtime.line()}; the emulator's process asks for "
+                f"priority {EMULATOR_PRIORITY}."
             ),
         )
     )
+    print("\nThe link during the run (a lost trial is counted, not measured):")
+    print("\n".join(events))
     print(
-        f"\nSustained steps through the bridge: {rate:,.0f} steps/s (tiny FWD steps, ack + completion each)"
+        f"\nSustained steps through the bridge: {rate.per_second:,.0f} steps/s (tiny FWD steps, "
+        f"ack + completion each; {rate.completed} completed, {rate.lost_batches} batches cut "
+        "short by the link)"
     )
     return 0
 
@@ -423,12 +560,18 @@ def stop_publisher() -> int:
 
 
 def _ros2_rows(
-    rover: RoverDescription, seed: int, trials: int, rng: random.Random, backend: str
+    rover: RoverDescription,
+    seed: int,
+    trials: int,
+    rng: random.Random,
+    backend: str,
+    events: list[str],
 ) -> list[tuple[str, dict[str, float]]]:
     """The bridge on ``backend`` (its STOP lane included); the STOP from a plain rclpy
-    node in another process; an observer subscribing to /odom."""
+    node in another process (at normal priority: an operator's); an observer subscribing
+    to /odom. What the link went through is added to ``events``."""
     rows: list[tuple[str, dict[str, float]]] = []
-    with EmulatorProcess(seed) as emu:
+    with EmulatorProcess(seed, EMULATOR_PRIORITY) as emu:
         params = load_params({"device": emu.device, "ros_backend": backend}, env={})
         with (
             open_port(backend, node_name="rover_bridge") as bport,
@@ -439,7 +582,7 @@ def _ros2_rows(
             oport.subscribe("command_status", String, lambda m: statuses(m.data), qos.STATUS)
             oport.subscribe("odom", Odometry, lambda _m: None, qos.SENSOR)
             child = subprocess.Popen(
-                [sys.executable, "-m", "benchmarks.bench_bridge", "--stop-publisher"],
+                [*module_command_at_normal_priority("benchmarks.bench_bridge"), "--stop-publisher"],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 text=True,
@@ -459,29 +602,30 @@ def _ros2_rows(
                     stdin.flush()
                     return float(_readline(stdout, 10.0, "the ROS 2 STOP publisher"))
 
+                lost = 0
                 for load in (False, True):
-                    written, zeroed = _trials(
-                        emu, node.link, statuses, request, trials, load, rng, node
-                    )
+                    got = _trials(emu, node.link, statuses, request, trials, load, rng, node)
+                    lost += got.lost
                     label = "load" if load else "idle"
                     rows.append(
                         (
                             f"ROS 2 STOP -> bridge on {backend}: STOP callback ({label})",
-                            summary(list(HOPS)),
+                            summary(got.hops),
                         )
                     )
                     rows.append(
                         (
                             f"ROS 2 STOP -> bridge on {backend}: STOP written ({label})",
-                            summary(written),
+                            summary(got.written),
                         )
                     )
                     rows.append(
                         (
                             f"ROS 2 STOP -> bridge on {backend}: wheel targets zero ({label})",
-                            summary(zeroed),
+                            summary(got.zeroed),
                         )
                     )
+                events.append(_link_line(f"ROS 2 on {backend}", node.link, lost, 2 * trials))
             finally:
                 if child.stdin is not None:
                     child.stdin.close()

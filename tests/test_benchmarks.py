@@ -104,6 +104,7 @@ def test_bench_bridge_quick_prints_its_table() -> None:
     assert "STOP latency through the bridge" in out
     assert "| case | n | p50 ms | p95 ms | p99 ms | max ms |" in out
     assert "ROS message (in-process) -> wheel targets zero (load)" in out
+    assert "- API call: " in out and " trials lost to the link; heartbeat losses " in out
     assert "Sustained steps through the bridge" in out
 
 
