@@ -15,7 +15,7 @@ tests/bridge/test_transport_threads.py.
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -27,9 +27,11 @@ from firmware_proto.model.rover import RoverDescription
 
 from .lockstep_bridge import LockstepBridge
 
+Rigs = Callable[..., LockstepBridge]
+
 
 @pytest.fixture
-def rigs(rover: RoverDescription) -> Iterator[Any]:
+def rigs(rover: RoverDescription) -> Iterator[Rigs]:
     """``rigs(**params)``: a :class:`LockstepBridge` with these bridge parameters, its
     link ready; closed after the test."""
     made: list[LockstepBridge] = []
@@ -74,9 +76,9 @@ STEPS = 9
     ],
 )
 def test_every_dropped_step_gets_one_fate_in_order(
-    rigs: Any, cause: str, fate: str, event: str
+    rigs: Rigs, cause: str, fate: str, event: str
 ) -> None:
-    rig: LockstepBridge = rigs(reconnect_min_s=0.05, reconnect_max_s=0.2)
+    rig = rigs(reconnect_min_s=0.05, reconnect_max_s=0.2)
     node, client = rig.node, rig.client
     mark = client.status.mark()
     base = node.port.stats().delivered
@@ -123,10 +125,10 @@ def test_every_dropped_step_gets_one_fate_in_order(
 # -- 2. heartbeat loss: fault:link_lost and /diagnostics ERROR within 3 missed beats -------
 
 
-def test_heartbeat_loss_publishes_error_diagnostics_at_once(rigs: Any) -> None:
+def test_heartbeat_loss_publishes_error_diagnostics_at_once(rigs: Rigs) -> None:
     # 0.1 Hz: the periodic sample is 10 s away, i.e. some 100 heartbeat periods; every
     # sample below comes from a state change.
-    rig: LockstepBridge = rigs(diagnostics_hz=0.1)
+    rig = rigs(diagnostics_hz=0.1)
     node, client, diags = rig.node, rig.client, rig.diagnostics
     diags.wait(lambda m: level(m, "link") == OK)  # READY, published on that change
     period_s = node.link.config.controller_heartbeat_s
@@ -159,8 +161,8 @@ def test_heartbeat_loss_publishes_error_diagnostics_at_once(rigs: Any) -> None:
 # -- 3. refusals counted on /diagnostics ----------------------------------------------------
 
 
-def test_rejected_steps_are_counted_on_diagnostics(rigs: Any) -> None:
-    rig: LockstepBridge = rigs(diagnostics_hz=5.0)
+def test_rejected_steps_are_counted_on_diagnostics(rigs: Rigs) -> None:
+    rig = rigs(diagnostics_hz=5.0)
     node, client, diags = rig.node, rig.client, rig.diagnostics
     first = diags.wait(lambda m: True)
     assert values(first, "input")["rejected_total"] == "0"
