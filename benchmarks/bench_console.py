@@ -35,6 +35,7 @@ import argparse
 import ctypes
 import http.client
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -93,7 +94,8 @@ def _end_with_parent() -> None:
 
 
 class _Stack:
-    """``rover stack up --speed 4`` until closed; its export line as an environment."""
+    """``rover stack up --speed 4`` until closed; ``rover stack env``'s export line as an
+    environment."""
 
     def __init__(self, directory: Path) -> None:
         # The stack claims its ROS domain where the caller's stacks do (the test run's
@@ -115,8 +117,20 @@ class _Stack:
                 raise RuntimeError(f"the stack did not come up: {text[-2000:]}")
             time.sleep(0.5)
             text = (directory / "stack.out").read_text()
-        line = next(x for x in text.splitlines() if x.strip().startswith("export "))
-        for item in line.strip()[len("export ") :].split():
+        # eval "$(rover stack env)", as the stack says
+        domain = text.split("STACK UP domain ", 1)[1].split()[0]
+        exported = subprocess.run(
+            [sys.executable, "-m", "firmware_proto.cli", "stack", "env", "--domain", domain],
+            capture_output=True,
+            text=True,
+            timeout=_CALL_TIMEOUT_S,
+            env=self.env,
+            check=False,
+        )
+        if exported.returncode != 0:
+            self.close()
+            raise RuntimeError(f"rover stack env: {exported.stderr.strip()}")
+        for item in shlex.split(exported.stdout)[1:]:
             name, _, value = item.partition("=")
             self.env[name] = value
 
