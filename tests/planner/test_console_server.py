@@ -393,15 +393,15 @@ def test_a_console_that_is_not_there_is_unavailable() -> None:
 
 
 def test_clear_stop_says_when_an_armed_plan_starts_with_the_release(
-    served: tuple[ConsoleServer, Any],
+    served: tuple[ConsoleServer, Rover],
 ) -> None:
     """Review A1: releasing the latch starts a plan that waits armed on board (after its
     guard's STOP, the ground re-planned); the answer says so."""
-    from bridge.ros.rosport.msgs import Empty
     from firmware_proto.model.downlink import OnboardReport
 
-    server, rover = served
-    statuses = rover.publisher("command_status", String, qos.STATUS)
+    server, side = served
+    rover = side.port
+    statuses = side.statuses
     reports = rover.publisher("onboard_report", String, qos.STATUS)
     armed = OnboardReport(7, "armed", 1.0, 42, "a" * 64, "armed", 0, 3, boot="b" * 32)
     reports.wait_for_subscribers(1, 5.0)
