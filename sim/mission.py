@@ -14,7 +14,8 @@ out of order); replays of old or tampered uplinks, malformed ones, a plan whose
 prediction belongs to other steps; a ground STOP at any moment; a controller reboot or a
 cut link mid-plan; a restart of the onboard program (a new boot id: a new core and a
 fresh estimate), after which the ground's copies of its plan arrive again; the onboard
-program's first STOPs lost on their way to the bridge.
+program's first STOPs lost on their way to the bridge; the rover's ROS hops up to 0.3 s
+late (a busy computer).
 :class:`MissionRig` plays it; the ROS hops on the rover take :data:`ROS_HOP_S` each.
 
 The onboard program has been up for a while when a mission starts: the ground holds
@@ -31,9 +32,10 @@ Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``):
 - ``genuine``: every step sent is the step the ground signed, at its index;
 - ``refused-inert``: nothing is driven for a plan the rover refused or the ground never
   sent;
-- ``guard-bound``: when the rover's true drift (the twin against the prediction, aligned
-  as the guard aligns) is past the limits by :data:`TRUTH_MARGIN_M` or
-  :data:`TRUTH_MARGIN_DEG` with POSE live, a STOP follows within :data:`GUARD_BOUND_S`;
+- ``guard-bound``: when the rover's true drift (the twin against the prediction,
+  aligned on the step's true start: the controller taking it) is past the limits by
+  :data:`TRUTH_MARGIN_M` or :data:`TRUTH_MARGIN_DEG` with POSE live, a STOP follows
+  within :data:`GUARD_BOUND_S`;
 - ``false-stop``: the guard never stops a rover whose true drift is within the limits
   less that margin;
 - ``ground-stop``: once the ground's STOP reaches the rover, no step of the plan goes out;
@@ -67,7 +69,7 @@ from bridge.onboard.core import (
     SendStop,
 )
 from bridge.onboard.ekf import PoseEkf
-from bridge.ros.rosport.contract import CLEARED, STOPPED
+from bridge.ros.rosport.contract import ACCEPTED, CLEARED, STOPPED
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import PlaybackResult, play
 from emulator.twin import Pose2D, Twin
@@ -232,6 +234,9 @@ class MissionScenario:
             ``replay`` the replay, come again after it.
         lost_stops: the onboard program's first STOPs lost on the ROS hop to the bridge
             (its copies must stop the rover).
+        ros_jitter_s: each ROS hop between the onboard program and the bridge (steps,
+            STOPs, statuses) takes up to this much longer, in order per direction (a
+            busy rover computer runs a callback late).
     """
 
     seed: int
@@ -250,6 +255,7 @@ class MissionScenario:
     wire_faults: tuple[ScenarioFault, ...]
     onboard_restart_s: float | None = None
     lost_stops: int = 0
+    ros_jitter_s: float = 0.0
 
     @property
     def reproducer(self) -> str:
@@ -293,6 +299,8 @@ class MissionScenario:
             lines.append(f"  onboard program restarts at {self.onboard_restart_s:.2f}s")
         if self.lost_stops:
             lines.append(f"  the onboard program's first {self.lost_stops} STOP(s) lost")
+        if self.ros_jitter_s:
+            lines.append(f"  ROS hops on the rover up to {self.ros_jitter_s:g} s late")
         return lines
 
 
@@ -345,6 +353,7 @@ def make_mission(
         )
     restart = arrive + rng.uniform(-1.0, duration) if rng.random() < 0.08 else None
     lost_stops = rng.choice((1, 2)) if rng.random() < 0.15 else 0
+    ros_jitter = 0.3 if rng.random() < 0.2 else 0.0
     return MissionScenario(
         seed,
         controller,
@@ -362,6 +371,7 @@ def make_mission(
         tuple(wire),
         restart,
         lost_stops,
+        ros_jitter,
     )
 
 
@@ -492,6 +502,13 @@ class MissionRig(Rig):
         self.refusals: Counter[str] = Counter()
         """The rover's refusals, by reason."""
         self._stops_to_lose = mission.lost_stops
+        self._ending = False
+        self._hop_rng = random.Random(f"{mission.seed}:ros-hops")
+        self._hop_due: dict[str, float] = {}
+        self._submitted: tuple[int, int] | None = None
+        self.true_starts: dict[tuple[int, int], float] = {}
+        """When the controller took each step (the bridge's ``accepted``), by plan id
+        and index: the truth's alignment, whatever the onboard program makes of it."""
         self.bridge_stops: list[float] = []
         """When a STOP reached the bridge (the onboard program's or the ground's)."""
 
@@ -572,20 +589,20 @@ class MissionRig(Rig):
         for action in self.onboard.take_actions():
             if isinstance(action, SendStop):
                 self.stops.append(self.now)
-                if action.reason.startswith("drift"):
+                if action.reason.startswith("drift") and "(again" not in action.reason:
                     self.guard_stops.append(self.now)
                     self._false_stop_check()
-                if self._stops_to_lose > 0:
+                if self._stops_to_lose > 0 and not self._ending:
                     self._stops_to_lose -= 1
                     self._note(f"onboard STOP lost on the way: {action.reason}")
                     self._at(self.now + STOP_REACH_S, _ACTION, partial(self._stop_due, self.now))
                     continue
                 self._note(f"onboard STOP: {action.reason}")
-                self._at(self.now + ROS_HOP_S, _ACTION, partial(self._bridge_stop, False))
+                self._at(self._hop("down"), _ACTION, partial(self._bridge_stop, False))
             elif isinstance(action, SendStep):
                 self._note(f"onboard step {action.plan_id}/{action.index} {action.step}")
                 self._check_step(action)
-                self._at(self.now + ROS_HOP_S, _ACTION, partial(self._bridge_step, action))
+                self._at(self._hop("down"), _ACTION, partial(self._bridge_step, action))
             elif isinstance(action, SendAck):
                 ack = action.ack
                 self._note(f"onboard ack {ack.plan_id} {ack.result} {ack.reason}")
@@ -629,6 +646,7 @@ class MissionRig(Rig):
             self._at(at, _ACTION, partial(self._slip, side, scale))
 
     def _bridge_step(self, action: SendStep) -> None:
+        self._submitted = (action.plan_id, action.index)
         self.ledger.submitted += 1
         self.core.submit_step(StepRequest(*action.step), self.now)
         self._host_after()
@@ -661,9 +679,21 @@ class MissionRig(Rig):
         self.onboard.on_ground_stop(self.now)
         self._core_after()
 
+    def _hop(self, direction: str) -> float:
+        """When a message published now on the rover's ROS hop ``direction`` (``down``:
+        onboard program to bridge; ``up``: back) arrives: :data:`ROS_HOP_S`, plus the
+        scenario's jitter, in order."""
+        jitter = self.mission.ros_jitter_s
+        due = self.now + ROS_HOP_S + (self._hop_rng.uniform(0.0, jitter) if jitter else 0.0)
+        due = max(due, self._hop_due.get(direction, 0.0))
+        self._hop_due[direction] = due
+        return due
+
     def _on_link_status(self, event: StatusEvent) -> None:
         text = event.text
-        self._at(self.now + ROS_HOP_S, _ACTION, partial(self._onboard_status, text))
+        if text == ACCEPTED and self._submitted is not None:
+            self.true_starts[self._submitted] = self.now  # the controller took it
+        self._at(self._hop("up"), _ACTION, partial(self._onboard_status, text))
         self.down["status"].send(partial(self._ground_status, text))
 
     def _onboard_status(self, text: str) -> None:
@@ -706,7 +736,11 @@ class MissionRig(Rig):
         come again (a replay across the restart)."""
         self._note("onboard program restarts")
         self.onboard.shutdown("the onboard program is ending", self.now)
+        # (not lost: the ending program repeats it until answered, at most 1 s:
+        # OnboardNode.stop_now; the rig drops the old core at once)
+        self._ending = True
         self._core_after()
+        self._ending = False
         token = self.token
         self.onboard = OnboardCore(self.rover, OnboardConfig(token=token, boot=self._new_boot()))
         self.cores.append(self.onboard)
@@ -744,7 +778,12 @@ class MissionRig(Rig):
         aligned = self.onboard.predicted_at(self.now)
         if aligned is None:
             return
-        _, _, predicted = aligned
+        pid, step, predicted = aligned
+        started = self.true_starts.get((pid, step))
+        if started is not None and pid == self.uplink.plan_id:
+            # The prediction at the step's true start (the guard's own alignment may be
+            # wrong: that is what false-stop is to catch).
+            predicted = self.uplink.pose_at(step, self.now - started)
         pose = self.ctl.twin.pose
         linear = math.hypot(pose.x_m - predicted.x, pose.y_m - predicted.y)
         angular = abs(math.degrees(math.remainder(pose.yaw_rad - predicted.yaw_rad, math.tau)))

@@ -45,10 +45,13 @@ the newest id taken, so nothing taken before that STOP ever starts after it.
 
 A running plan's steps go out one at a time, each as soon as the one before it is
 ``completed``: no round trip between them, and every status is the fate of the one step
-outstanding (``/command_status`` names no step). A step is started when its
-``accepted`` comes (its publication until then). Any other end of a step (``rejected:``,
-``aborted:``, a fault but a lost sensor's, no ``completed`` within 1.5 times its
-predicted duration plus ``step_margin_s``) ends the plan with STOP.
+outstanding (``/command_status`` names no step). A step starts, for the guard's
+prediction, when its wheels begin to move (the stamp of the last estimate at rest
+before the first in motion, or its publication if later; its prediction waits at its
+start until then): not when its ``accepted`` callback runs, which a busy computer runs
+late, and a late start turned a correct turn into a heading error. Any other end of a
+step (``rejected:``, ``aborted:``, a fault but a lost sensor's, no ``completed`` within
+1.5 times its predicted duration plus ``step_margin_s``) ends the plan with STOP.
 
 **The guard.** Each estimate is compared with the prediction for the same moment of the
 same step (the uplink's samples are tagged with their step and the twin time since it
@@ -118,6 +121,7 @@ from firmware_proto.model.uplink import (
     open_envelope,
     peek_body,
 )
+from firmware_proto.wire.messages import Command
 
 __all__ = [
     "Action",
@@ -141,6 +145,15 @@ REFUSAL_LOG_PERIOD_S = 1.0
 REPORTING_FAULTS = frozenset({"pose", "imu"})
 """``fault:<reason>`` of a lost sensor: the controller keeps driving, and so does the
 plan (the guard's estimate copes)."""
+
+
+_DIRECTION: dict[int, float] = {
+    Command.FWD: 1.0,
+    Command.REV: -1.0,
+    Command.LEFT: 1.0,
+    Command.RIGHT: -1.0,
+}
+"""The sign of the speed (drives) or turn rate (turns) each command moves with."""
 
 
 class PlanState(str, enum.Enum):
@@ -196,6 +209,10 @@ class OnboardConfig:
             older than this: STOP (``blind``; drift control needs a sensor that sees
             the ground). The distance driven since that fix is bounded too: by the
             plan's linear limit.
+        start_speed_mps, start_yaw_rate_rad_s: a step has started (for the guard's
+            prediction) when the estimate's speed or turn rate first exceeds these after
+            it went out (above the rest thresholds: a rover settling after a slip is
+            not starting).
     """
 
     token: str | None = None
@@ -217,6 +234,8 @@ class OnboardConfig:
     stop_repeats: int = 8
     echo_window_s: float = 1.0
     pose_gap_s: float = 2.0
+    start_speed_mps: float = 0.02
+    start_yaw_rate_rad_s: float = 0.05
 
     def __post_init__(self) -> None:
         if self.boot and not is_boot_id(self.boot):
@@ -305,6 +324,10 @@ class _Plan:
     worst: tuple[float, float] = (0.0, 0.0)
     over: int = 0
     still_since: float | None = None
+    moved: bool = False
+    """The step out was seen to start (an estimate in motion stamped after it went out)."""
+    still_s: float = -math.inf
+    """The stamp of the last estimate since the step went out not moving its way."""
     fix_s: float = -math.inf
     """The stamp of the last POSE fix the guard saw in an estimate."""
     unseen_m: float = 0.0
@@ -374,6 +397,12 @@ class OnboardCore:
     def active(self) -> bool:
         """A plan is armed or running."""
         return self._plan is not None and self._plan.state in (PlanState.ARMED, PlanState.RUNNING)
+
+    @property
+    def stop_unanswered(self) -> bool:
+        """A STOP of the core's went out and the bridge has not answered ``stopped``
+        (nor was the latch released) yet."""
+        return self._stop_sent
 
     @property
     def running(self) -> PlanUplink | None:
@@ -613,9 +642,10 @@ class OnboardCore:
             return
         if text == ACCEPTED:
             if not plan.accepted:
+                # Its start stays as it is (its publication, or the motion seen since):
+                # the callback's time is that plus however late this computer runs it.
                 plan.accepted = True
                 plan.status = text
-                plan.started[plan.step] = now  # the controller starts it as it takes it
                 self._report("step", now)
             return
         if text == COMPLETED:
@@ -696,6 +726,7 @@ class OnboardCore:
         self._estimate = estimate
         self._last_estimate_s = now
         if plan is not None and plan.state is PlanState.RUNNING:
+            self._seen_start(plan, estimate)
             self._guard(plan, estimate, now)
         if plan is not None and plan.state is PlanState.RUNNING:
             self._sees_ground(plan, estimate, now)
@@ -750,7 +781,9 @@ class OnboardCore:
         plan.accepted = False
         plan.status = "published"
         plan.published_s = now
-        plan.started[index] = now  # until its 'accepted' says better
+        plan.started[index] = now  # until the wheels are seen to move
+        plan.moved = False
+        plan.still_s = now
         plan.over = 0
         self.counts["steps_sent"] += 1
         self._actions.append(SendStep(plan.uplink.plan_id, index, plan.uplink.steps[index]))
@@ -829,9 +862,46 @@ class OnboardCore:
         while step > 0 and stamp_s < plan.started[step]:
             step -= 1
         start = plan.started[step]
-        if math.isnan(start) or stamp_s < start:
+        if math.isnan(start) or stamp_s < start or (step == plan.step and not plan.moved):
+            # Before the wheels are seen to move, the step waits at its start (a step
+            # the bridge holds for a moment must not look like a rover left behind).
             return step, plan.uplink.pose_at(step, 0.0)
         return step, plan.uplink.pose_at(step, (stamp_s - start) * self.config.time_scale)
+
+    def _moving(self, est: Estimate) -> bool:
+        cfg = self.config
+        return (
+            abs(est.v_mps) >= cfg.rest_speed_mps
+            or abs(est.yaw_rate_rad_s) >= cfg.rest_yaw_rate_rad_s
+        )
+
+    def _starting(self, plan: _Plan, est: Estimate) -> bool:
+        """The estimate moves the way the step out drives, above the start thresholds."""
+        cfg = self.config
+        command = plan.uplink.steps[plan.step][0]
+        sign = _DIRECTION.get(command)
+        if sign is None:
+            return False
+        rate, threshold = (
+            (est.yaw_rate_rad_s, cfg.start_yaw_rate_rad_s)
+            if command in (Command.LEFT, Command.RIGHT)
+            else (est.v_mps, cfg.start_speed_mps)
+        )
+        return sign * rate >= threshold
+
+    def _seen_start(self, plan: _Plan, est: Estimate) -> None:
+        """The step's start is when its wheels began to move after it went out: the
+        stamp of the last estimate not moving its way (above ``start_speed_mps`` or
+        ``start_yaw_rate_rad_s`` in its direction: a rover still settling after a slip
+        is not starting) before the first that does, or its publication if later; not
+        the time a callback ran."""
+        if plan.moved or est.stamp_s < plan.published_s:
+            return
+        if not self._starting(plan, est):
+            plan.still_s = max(plan.still_s, est.stamp_s)
+            return
+        plan.moved = True
+        plan.started[plan.step] = max(plan.published_s, plan.still_s)
 
     def _guard(self, plan: _Plan, est: Estimate, now: float) -> None:
         step, predicted = self._predicted(plan, est.stamp_s)
@@ -869,10 +939,7 @@ class OnboardCore:
         plan.last_xy = xy
         cfg = self.config
         limit = plan.uplink.limits.linear_m
-        moving = (
-            abs(est.v_mps) >= cfg.rest_speed_mps
-            or abs(est.yaw_rate_rad_s) >= cfg.rest_yaw_rate_rad_s
-        )
+        moving = self._moving(est)
         why = None
         if plan.unseen_m >= limit:
             why = f"{plan.unseen_m:.2f} m driven since the last POSE fix"

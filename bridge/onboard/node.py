@@ -277,9 +277,20 @@ class OnboardNode:
                 # program goes on (its next report tells the ground).
                 logger.exception("could not publish %s", type(action).__name__)
 
-    def stop_now(self, reason: str) -> None:
-        """End the plan armed or running (STOP when it runs): the program is ending."""
+    def stop_now(self, reason: str, answer_s: float = 1.0) -> bool:
+        """End the plan armed or running (STOP when it runs): the program is ending.
+        Waits at most ``answer_s`` for the bridge to answer its STOP (the timer thread
+        sends copies meanwhile). ``False``: a STOP went unanswered."""
         self._feed("shutdown", reason)
+        deadline = self._mono() + answer_s
+        with self._lock:
+            while self.core.stop_unanswered and not self._closed:
+                left = deadline - self._mono()
+                if left <= 0:
+                    logger.error("the bridge did not answer the STOP of %s", reason)
+                    return False
+                self._wake.wait(min(left, TICK_MAX_S))
+        return True
 
     # -- the timer -----------------------------------------------------------------------------
     def step(self) -> None:

@@ -608,19 +608,40 @@ def test_the_latest_report_goes_out_again_every_period() -> None:
     assert r.reports()[-1].seq > r.reports()[-2].seq
 
 
-def test_the_guard_aligns_each_step_on_its_own_start() -> None:
+def test_the_guard_aligns_each_step_on_when_its_wheels_began_to_move() -> None:
     r = Rover()
     plan = _plan()
     r.uplink(plan)
     r.status("accepted")
     r.at(2.0)
-    r.status("completed")
-    r.at(2.7)  # step 1 accepted late: its prediction starts then, not at 2.0
-    r.status("accepted")
+    r.status("completed")  # step 1 goes out at 2.0; the bridge holds it until 2.7
+    for i in range(36):
+        r.at(2.0 + 0.02 * i)
+        r.do("on_estimate", _est(r.t, 1.0, v=0.0))
+    r.at(2.72)
+    r.do("on_estimate", _est(r.t, 1.01))  # the first estimate in motion
     aligned = r.core.predicted_at(3.7)
     assert aligned is not None
     assert aligned[1] == 1 and aligned[2].x == pytest.approx(1.5)
     assert r.core.predicted_at(1.0) is not None and r.core.predicted_at(1.0)[1] == 0  # type: ignore[index]
+
+
+def test_a_late_accepted_callback_does_not_shift_the_prediction() -> None:
+    """Review A5: the step's start was the time the program ran its ``accepted``
+    callback; on a busy computer 250-350 ms late, and a turn exactly as predicted was
+    stopped for 14 deg of heading error."""
+    r = Rover()
+    plan = _plan()
+    r.uplink(plan)  # published at 0.0; the wheels move from 0.02
+    for i in range(1, 30):
+        r.at(0.02 * i)
+        if i == 18:
+            r.status("accepted")  # 0.36 s late
+        r.do("on_estimate", _est(r.t, 0.01 * i))  # 0.5 m/s, exactly as predicted
+    aligned = r.core.predicted_at(0.5)
+    assert aligned is not None and aligned[2].x == pytest.approx(0.25)
+    assert _stops(r.actions) == [] and r.core.counts["guard_stops"] == 0
+    assert r.core._plan is not None and r.core._plan.worst[0] < 0.02
 
 
 def test_the_package_exports_are_pinned() -> None:

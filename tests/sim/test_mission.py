@@ -79,6 +79,21 @@ def test_slip_is_stopped_on_board_within_the_bound_and_reported_at_rest() -> Non
     assert truth["overshoot_m"] < 0.15
 
 
+@pytest.mark.parametrize("controller", CONTROLLERS)
+def test_late_callbacks_on_a_busy_rover_computer_stop_nothing(controller: str) -> None:
+    """Review A5: the guard's prediction started each step when the program ran its
+    ``accepted`` callback; on a busy computer hundreds of milliseconds late, and a turn
+    exactly as predicted was stopped for its heading. Every ROS hop on the rover here
+    is up to 0.35 s late (fast turns: the old alignment stopped this seed at 12.1 deg,
+    the rover truly 3.3 deg off); the truth is aligned on when the controller took each
+    step."""
+    turns = ((RIGHT, 60, 15000), (LEFT, 60, 12000))
+    outcome = run_mission(_mission(seed=6, controller=controller, steps=turns, ros_jitter_s=0.35))
+    _ok(outcome)  # false-stop and delivered
+    assert outcome.ended == "completed"
+    assert outcome.truth["worst_angular_deg"] < 2.0
+
+
 def test_a_guard_stop_lost_on_the_way_to_the_bridge_is_sent_again() -> None:
     """Review A7: the guard's STOP went out once; lost, the step ran to its end. Its
     first two copies lost here, the third stops the rover (``stop-reached``)."""
@@ -224,7 +239,8 @@ def test_seeded_missions_keep_every_invariant(controller: str) -> None:
             failures.append(f"{outcome.scenario.reproducer}: {outcome.violations[0].line()}")
     assert failures == []
     # the faults happened: plans completed, were guarded, stopped by the ground, failed
-    assert ended.get("completed", 0) > 25 and ended.get("guard", 0) >= 1, ended
+    # (a POSE silence over 1 s while driving may end a plan blind: review A6)
+    assert ended.get("completed", 0) > 20 and ended.get("guard", 0) >= 1, ended
     assert ended.get("ground_stop", 0) >= 1 and ended.get("failed", 0) >= 1, ended
 
 
