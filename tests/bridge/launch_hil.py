@@ -13,6 +13,8 @@ checks that it compiles and that the executables it starts are declared.
 
 from __future__ import annotations
 
+import os
+import secrets
 import time
 import unittest
 from typing import Any
@@ -29,13 +31,16 @@ from std_msgs.msg import Int16MultiArray, String
 
 LAUNCH_FILE = ("rover_hil", "launch", "hil_launch.py")
 LAUNCH_ARGUMENTS = {"with_gate": "false", "with_link": "false"}
-"""The emulator and the bridge only (no goal: no executor): the smallest set that drives
-a step end to end."""
+"""The emulator, the bridge and the onboard program only (no goal: no executor): the
+smallest set that drives a step end to end."""
 STEP = [1, 30, 2300]
 """FWD at speed 30 for 0.1 m of wheel travel."""
 
 
 def generate_test_description() -> launch.LaunchDescription:
+    # rover_onboard refuses to start without the uplink token: the launched processes
+    # take it from this environment (as from an operator's shell).
+    os.environ.setdefault("ROVER_UPLINK_TOKEN", secrets.token_hex(32))
     hil = IncludeLaunchDescription(
         PythonLaunchDescriptionSource(
             PathJoinSubstitution([FindPackageShare(LAUNCH_FILE[0]), *LAUNCH_FILE[1:]])
@@ -48,6 +53,7 @@ def generate_test_description() -> launch.LaunchDescription:
 class TestHilLaunch(unittest.TestCase):
     def test_a_step_completes_through_ros(self, proc_output: Any) -> None:
         proc_output.assertWaitFor("BRIDGE ", timeout=60)
+        proc_output.assertWaitFor("ONBOARD ", timeout=60)  # beside the bridge (review D2)
         rclpy.init()
         try:
             node = rclpy.create_node("hil_launch_test")

@@ -29,6 +29,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
+from bridge.cli_onboard import add_arguments as onboard_arguments
 from bridge.ros.params import BridgeParams
 from emulator.cli_emulate import add_arguments as emulator_arguments
 from gate.cli_gate import add_arguments as gate_arguments
@@ -425,6 +426,7 @@ def test_the_hil_launch_starts_the_whole_set(monkeypatch: pytest.MonkeyPatch) ->
         == {
             "rover_emulator",
             "rover_bridge",
+            "rover_onboard",
             "rover_gate",
             "rover_link",
             "rover_executor",
@@ -469,6 +471,7 @@ OPTIONS: dict[str, Callable[[argparse.ArgumentParser], None]] = {
     "rover_gate": gate_arguments,
     "rover_link": link_arguments,
     "rover_executor": executor_arguments,
+    "rover_onboard": onboard_arguments,
 }
 """The nodes that are not ROS nodes: their options, which their parameters stand for."""
 

@@ -77,3 +77,44 @@ def test_systemd_analyze_verify_accepts_the_unit(tmp_path: Path) -> None:
         [verify, "verify", str(broken)], capture_output=True, text=True, timeout=60, check=False
     )
     assert "Failed to parse service restart specifier" in bad.stderr
+
+
+ONBOARD_UNIT = ROOT / "bridge" / "ros" / "systemd" / "rover-onboard.service"
+
+
+def test_the_onboard_unit_runs_beside_the_bridge_with_its_token_from_a_file() -> None:
+    """Review D2: nothing started rover onboard on a rover, and rover go runs its plans
+    on board by default: a real rover never answered the uplink."""
+    parser = configparser.ConfigParser(interpolation=None, strict=False)
+    parser.optionxform = str  # type: ignore[assignment,method-assign]
+    parser.read_string(ONBOARD_UNIT.read_text())
+    service, section = parser["Service"], parser["Unit"]
+    assert section["BindsTo"] == section["After"] == UNIT.name  # with the bridge
+    assert parser["Install"]["WantedBy"] == UNIT.name
+    assert service["ExecStart"] == f"{SHIPPED_ROVER} onboard"  # no token on argv
+    assert service["EnvironmentFile"] == "/etc/rover/uplink.env"
+    assert service["Restart"] == "on-failure" and service["RestartPreventExitStatus"] == "2"
+    # it promotes itself after a start at normal priority (docs/realtime.md)
+    assert "CPUSchedulingPolicy" not in service
+    assert int(service["LimitRTPRIO"]) > BRIDGE_PRIORITY
+    assert service["KillSignal"] == "SIGTERM"
+    assert "bridge/ros/systemd/rover-onboard.service" in (ROOT / "docs" / "ros2.md").read_text()
+
+
+def test_systemd_analyze_verify_accepts_the_onboard_unit(tmp_path: Path) -> None:
+    verify = shutil.which("systemd-analyze")
+    if verify is None:
+        pytest.skip("systemd-analyze is not installed (systemd)")
+    rover = str(Path(sys.executable).parent / "rover")
+    for unit in (UNIT, ONBOARD_UNIT):  # the bridge's beside it: BindsTo= names it
+        (tmp_path / unit.name).write_text(unit.read_text().replace(SHIPPED_ROVER, rover))
+    done = subprocess.run(
+        [verify, "verify", str(tmp_path / ONBOARD_UNIT.name)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "" and done.stderr.strip() == "", done.stderr

@@ -5,7 +5,11 @@
     ros2 launch rover_hil hil_launch.py params_file:=/path/to/my_hil.yaml rtt:=0.5
 
 Starts the controller emulator on a pty (``rover_emulator``), the rover-side bridge on
-that pty (``rover_bridge``, rclpy backend), the simulation gate (``rover_gate``), the
+that pty (``rover_bridge``, rclpy backend), the rover's onboard sequencer and drift
+guard beside it (``rover_onboard``: the executor runs its plans on board; both take
+``$ROVER_UPLINK_TOKEN`` from the launching shell's environment, and without it the
+onboard program refuses to start unless its section says ``insecure: true``), the
+simulation gate (``rover_gate``), the
 emulated Earth-Moon link between the ground namespace and the rover's (``rover_link``)
 and, given a ``goal``, the executor that plans, validates and drives one mission to it
 (``rover_executor``; it exits when the mission ends).
@@ -34,6 +38,7 @@ PACKAGE = "rover_hil"
 NODES: tuple[str, ...] = (
     "rover_emulator",
     "rover_bridge",
+    "rover_onboard",
     "rover_gate",
     "rover_link",
     "rover_executor",
@@ -100,6 +105,11 @@ def generate_launch_description() -> LaunchDescription:
             namespace=rover_ns,
             arguments=["--ros-backend", "rclpy-process"],
             parameters=[params],
+        ),
+        _node(
+            "rover_onboard",
+            parameters=[params],
+            arguments=["--ros-backend", "rclpy", "--namespace", rover_ns],
         ),
         _node(
             "rover_gate",
