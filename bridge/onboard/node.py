@@ -54,6 +54,8 @@ from bridge.onboard.core import (
     SendReport,
     SendStep,
     SendStop,
+    decode_screened,
+    screen_uplink,
 )
 from bridge.onboard.ekf import EkfConfig, Estimate, PoseEkf
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
@@ -184,7 +186,23 @@ class OnboardNode:
             self._feed("on_ground_stop")
 
     def _on_uplink(self, msg: String) -> None:
-        self._feed("on_uplink", msg.data)
+        """An uplink: its envelope and tag checked and its id read (cheap), and a copy
+        of a plan already taken answered, before the full decode; the two pure steps run
+        outside the lock, so that a large plan (tens of milliseconds to decode), or a
+        flood of junk, never holds up the estimates, the timer or a STOP."""
+        screened = screen_uplink(msg.data, self.core.config.token)
+        with self._lock:
+            answered = self.core.on_screened(screened, self._mono())
+            actions = self.core.take_actions()
+        self._act(actions)
+        if answered:
+            return
+        decoded = decode_screened(screened, self.core.rover)
+        with self._lock:
+            self.core.on_decoded(screened, decoded, self._mono())
+            actions = self.core.take_actions()
+            self._wake.notify()
+        self._act(actions)
 
     def _on_status(self, msg: String) -> None:
         self._feed("on_status", msg.data)

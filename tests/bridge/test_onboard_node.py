@@ -4,13 +4,14 @@ The program on real DDS beside a real bridge is tests/bridge/test_onboard_missio
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
 
-from bridge.onboard.core import OnboardConfig
+from bridge.onboard.core import OnboardConfig, decode_screened
 from bridge.onboard.node import OnboardNode
 from bridge.ros.rosport import RosPort, open_port, qos
 from bridge.ros.rosport.contract import (
@@ -187,3 +188,34 @@ def test_the_timer_survives_a_failing_turn_and_stops_the_rover_after_three(
     assert bench.reports[-1].outcome == "failed" and node.core.running is None
     monkeypatch.undo()
     assert node._timer_turn(beat, failures) == 0  # and it goes on when the fault is gone
+
+
+def test_copies_and_forgeries_are_answered_without_a_full_decode(
+    bench: Bench, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review A11: every uplink was decoded in full (tens of milliseconds for a large
+    plan) under the lock the estimates, the timer and STOP wait for, before the check
+    for a copy; the ground resends until it hears an answer, and junk costs the same.
+    Now the tag and the id are checked first, and only a new, authentic plan is
+    decoded, outside the lock."""
+    import bridge.onboard.node as node_module
+
+    decoded: list[int] = []
+    real = decode_screened
+
+    def counting(screened: Any, rover: Any) -> Any:
+        assert not bench.node._lock.locked()  # outside the lock
+        decoded.append(screened.plan_id)
+        return real(screened, rover)
+
+    monkeypatch.setattr(node_module, "decode_screened", counting)
+    acks: list[str] = []
+    bench.ground.subscribe("plan_ack", String, lambda m: acks.append(m.data), qos.STATUS)
+    bench.run(0.5, sensors=True)
+    plan = predict(ROVER, 7, ((1, 30, 23000),), boot=bench.node.core.boot)
+    for text in (plan.envelope(TOKEN), plan.envelope(TOKEN), plan.envelope("forged")):
+        bench.ground_pub["uplink"].publish(String(data=text))
+        bench.run(0.05, sensors=True)
+    assert decoded == [7]  # the copy and the forgery were answered from the first look
+    results = [(a["result"], a["reason"]) for a in map(json.loads, acks)]
+    assert results == [("accepted", ""), ("duplicate", ""), ("refused", "bad_tag")]
