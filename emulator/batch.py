@@ -100,11 +100,16 @@ class BatchDraw:
             keep the map's scale).
         slip_left, slip_right: factors on the friction of each side's wheels (> 0;
             1 is nominal, below 1 slips more).
+        start_dx_m, start_dy_m, start_dyaw_rad: where it starts relative to the start
+            pose given (map frame): the start pose's error.
     """
 
     ground: Ground
     slip_left: float = 1.0
     slip_right: float = 1.0
+    start_dx_m: float = 0.0
+    start_dy_m: float = 0.0
+    start_dyaw_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -283,8 +288,9 @@ class _World:
         for i in range(n):
             ox, oy = (float(v) for v in self.offsets[i])
             body = pymunk.Body(mass, pymunk.moment_for_box(mass, size))
-            body.position = (start.x_m + ox, start.y_m + oy)
-            body.angle = start.yaw_rad
+            d = draws[i]
+            body.position = (start.x_m + d.start_dx_m + ox, start.y_m + d.start_dy_m + oy)
+            body.angle = start.yaw_rad + d.start_dyaw_rad
             chassis = pymunk.Poly(body, box)
             chassis.friction = CONTACT_FRICTION
             chassis.elasticity = 0.0
@@ -447,9 +453,16 @@ class _Forces:
         self._update_limits()
 
     def step(
-        self, vx: np.ndarray, vy: np.ndarray, w: np.ndarray, ul: float, ur: float, dt_s: float
+        self,
+        vx: np.ndarray,
+        vy: np.ndarray,
+        w: np.ndarray,
+        ul: float | np.ndarray,
+        ur: float | np.ndarray,
+        dt_s: float,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Body-frame force and torque of one step (``TractionModel.step_wrench``)."""
+        """Body-frame force and torque of one step (``TractionModel.step_wrench``); the
+        wheel speeds ``ul``, ``ur`` shared by every twin or one per twin."""
         hx, hy = self.hx, self.hy
         inv_sl = 1.0 / (self.s0 + self.kappa * abs(ul))
         inv_sr = 1.0 / (self.s0 + self.kappa * abs(ur))

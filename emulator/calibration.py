@@ -20,13 +20,33 @@ import numpy as np
 
 from emulator.ground import REGION_SCALE_MAX, Ground
 
-__all__ = ["FIT_PARAMETERS", "Calibration", "Residuals"]
+__all__ = [
+    "BAND_LEVEL",
+    "FIT_PARAMETERS",
+    "Calibration",
+    "Check",
+    "Noise",
+    "Residuals",
+    "band_half_width",
+    "mirrored",
+]
 
-FIT_PARAMETERS = ("mu_longitudinal", "mu_lateral", "slip_saturation_ratio", "rolling_resistance")
+BAND_LEVEL = 0.90
+"""Probability held by each held-out check's band (:class:`Check`)."""
+_Z90 = 1.6448536269514722  # the standard normal's 95th percentile
+
+FIT_PARAMETERS = (
+    "mu_longitudinal",
+    "mu_lateral",
+    "slip_saturation_mps",
+    "slip_saturation_ratio",
+    "rolling_resistance",
+)
 """The ground parameters a calibration fits (plus the scale of each map region the
-recordings drove on). ``slip_saturation_mps``, the slip floor near standstill, is kept
-from the rover description: it only shows below about 0.15 m/s of wheel speed, where a
-recording holds too little to tell it from the slip ratio."""
+recordings drove on): every traction parameter of the force model
+(:mod:`emulator.traction`). ``slip_saturation_mps``, the slip floor near standstill,
+shows in slow steps (speeds 10-25: below about 0.15 m/s it outweighs the slip ratio);
+docs/twin.md lists what the twin takes from elsewhere, and why."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +82,77 @@ class Residuals:
 
 
 @dataclass(frozen=True)
+class Noise:
+    """What the twin cannot predict, estimated by the calibration from its data.
+
+    Attributes:
+        slip_sigma: 1-sigma of the logarithm of each side's friction factor (the gate's
+            slip spread, :mod:`gate.ensemble`): the process noise the fit's residuals
+            hold beyond their measurement errors, estimated by maximum likelihood.
+        pose_sigma_m: 1-sigma error of a position averaged at rest (per axis), m: the
+            rover's start pose as the ground station measures it.
+        heading_sigma_rad: 1-sigma error of a heading averaged at rest.
+    """
+
+    slip_sigma: float
+    pose_sigma_m: float
+    heading_sigma_rad: float
+
+
+@dataclass(frozen=True)
+class Check:
+    """One measured step left out of the fit (leave-one-out, linearised) and predicted
+    with its :data:`BAND_LEVEL` band: the calibration's report.
+
+    Attributes:
+        source, index: the recording and the step's index in it.
+        step: ``(command, speed, distance)``.
+        measured: ``(forward_m, lateral_m, yaw_rad)`` of the step, in its start frame.
+        predicted: the same, by the fit made without this step.
+        half_width: of each axis's band around ``predicted`` (parameters, process noise
+            and the step's measurement errors).
+    """
+
+    source: str
+    index: int
+    step: tuple[int, int, int]
+    measured: tuple[float, float, float]
+    predicted: tuple[float, float, float]
+    half_width: tuple[float, float, float]
+
+    @property
+    def inside(self) -> tuple[bool, bool, bool]:
+        """Whether each axis's outcome fell inside its band."""
+        return tuple(  # type: ignore[return-value]
+            abs(m - p) <= h
+            for m, p, h in zip(self.measured, self.predicted, self.half_width, strict=True)
+        )
+
+    def line(self) -> str:
+        """``step 3 FWD 60 23000: forward 0.9912 m in 0.9905 +/- 0.0031 (in), ...``."""
+        f = lambda v: f"{v * 1e3:.1f} mm"  # noqa: E731
+        d = lambda v: f"{math.degrees(v):.2f} deg"  # noqa: E731
+        parts = []
+        for name, fmt, m, p, h, ok in zip(
+            ("forward", "lateral", "yaw"),
+            (f, f, d),
+            self.measured,
+            self.predicted,
+            self.half_width,
+            self.inside,
+            strict=True,
+        ):
+            parts.append(f"{name} {fmt(m - p)} off, band +/-{fmt(h)} ({'in' if ok else 'OUT'})")
+        c, sp, dist = self.step
+        return f"step {self.index} [{c}, {sp}, {dist}]: " + "; ".join(parts)
+
+
+def band_half_width(variance: float) -> float:
+    """Half-width of the :data:`BAND_LEVEL` band of a normal with ``variance``."""
+    return _Z90 * math.sqrt(max(0.0, variance))
+
+
+@dataclass(frozen=True)
 class Calibration:
     """A ground fitted to recorded missions.
 
@@ -81,6 +172,11 @@ class Calibration:
         turn_efficiency: the fitted ground's calibration spin (docs/twin.md), for the
             planner's turn model.
         fixed_regions: regions of the map not driven on, kept at the map's scale.
+        noise: the process and pose noise estimated from the data (``None``: a twin
+            file written before they were).
+        targets: each parameter's target relative 1-sigma (``parameters`` order;
+            :func:`emulator.design.targets`; a region's is its prior's), or empty.
+        checks: the held-out checks (:class:`Check`), in the steps' order.
     """
 
     ground: Ground
@@ -95,6 +191,9 @@ class Calibration:
     dt_s: float
     turn_efficiency: float
     fixed_regions: tuple[str, ...] = ()
+    noise: Noise | None = None
+    targets: tuple[float, ...] = ()
+    checks: tuple[Check, ...] = ()
 
     def value(self, name: str) -> float:
         """A fitted parameter's value (``region.ID`` for a region's scale).
@@ -122,7 +221,30 @@ class Calibration:
             raise KeyError(name)
         return math.sqrt(max(0.0, self.covariance[i][i]))
 
-    def sample(self, rng: np.random.Generator | int, n: int) -> list[Ground]:
+    def interval(self, name: str, level: float = 0.95) -> tuple[float, float]:
+        """The ``level`` interval of a fitted parameter (log-normal: ``value`` times
+        ``exp(+/- z sigma)``).
+
+        Raises:
+            KeyError: not a fitted parameter.
+        """
+        z = {0.9: _Z90, 0.95: 1.959963984540054, 0.68: 0.994457883209753}.get(level)
+        if z is None:
+            raise ValueError(f"level must be 0.68, 0.9 or 0.95, got {level}")
+        value, sigma = self.value(name), self.relative_sigma(name)
+        return value * math.exp(-z * sigma), value * math.exp(z * sigma)
+
+    @property
+    def start_sigma(self) -> tuple[float, float]:
+        """``(position_m, heading_rad)`` 1-sigma of a start pose measured at rest (the
+        :class:`Noise`'s; zero without one)."""
+        if self.noise is None:
+            return 0.0, 0.0
+        return self.noise.pose_sigma_m, self.noise.heading_sigma_rad
+
+    def sample(
+        self, rng: np.random.Generator | int, n: int, *, antithetic: bool = False
+    ) -> list[Ground]:
         """``n`` grounds drawn from the calibration's uncertainty: ``log(values)``
         normal with :attr:`covariance` around the fitted ones; region scales clipped to
         the map format's ``(0, 2]``.
@@ -130,13 +252,22 @@ class Calibration:
         Args:
             rng: a numpy generator, or a seed for a new one (same seed, same grounds).
             n: how many (>= 0).
+            antithetic: draw in pairs mirrored about the fitted values (``+d``, ``-d``
+                in log space): the draws' spread is then centred on the fitted ground,
+                and a prediction that is linear in them on the nominal one.
         """
         gen = np.random.default_rng(rng) if isinstance(rng, int) else rng
         if not self.parameters or n <= 0:
             return [self.ground] * max(0, n)
         mean = np.log([self.value(p) for p in self.parameters])
         cov = np.array(self.covariance, dtype=np.float64)
-        draws = gen.multivariate_normal(mean, cov, size=n, method="eigh")
+        if antithetic:
+            half = gen.multivariate_normal(
+                np.zeros(len(mean)), cov, size=(n + 1) // 2, method="eigh"
+            )
+            draws = mean + mirrored(half)[:n]
+        else:
+            draws = gen.multivariate_normal(mean, cov, size=n, method="eigh")
         out = []
         for row in np.exp(draws):
             values = {
@@ -145,3 +276,12 @@ class Calibration:
             }
             out.append(self.ground.with_values(**values))
         return out
+
+
+def mirrored(half: np.ndarray) -> np.ndarray:
+    """Antithetic pairs: the rows of ``half`` interleaved with their negatives
+    (``d0, -d0, d1, -d1, ...``), so that any prefix of even length is centred."""
+    out = np.empty((2 * len(half), *half.shape[1:]))
+    out[0::2] = half
+    out[1::2] = -half
+    return out

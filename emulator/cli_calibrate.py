@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from typing import Any
@@ -119,9 +120,18 @@ def _run(args: argparse.Namespace) -> int:
                 {
                     "output": args.output,
                     "parameters": {
-                        p: {"value": cal.value(p), "relative_sigma": cal.relative_sigma(p)}
-                        for p in cal.parameters
+                        p: {
+                            "value": cal.value(p),
+                            "relative_sigma": cal.relative_sigma(p),
+                            "interval_95": list(cal.interval(p)),
+                            "target_sigma": t,
+                        }
+                        for p, t in zip(cal.parameters, cal.targets, strict=True)
                     },
+                    "noise": dataclasses.asdict(cal.noise) if cal.noise else None,
+                    "checks": [
+                        {**dataclasses.asdict(c), "inside": list(c.inside)} for c in cal.checks
+                    ],
                     "turn_efficiency": cal.turn_efficiency,
                     "steps": cal.after.steps,
                     "skipped": len(observed.skipped) + len(report.outliers),
@@ -137,24 +147,59 @@ def _run(args: argparse.Namespace) -> int:
     print(
         f"{cal.after.steps} steps fitted ({cal.driving_s:.1f} s of driving), "
         f"{len(observed.skipped) + len(report.outliers)} left out; {report.evaluations} "
-        f"replays of them in {report.wall_s:.1f} s"
+        f"replay batches in {report.wall_s:.1f} s"
     )
     for source, index, why in observed.skipped + report.outliers:
         print(f"  left out: {source} step {index}: {why}")
-    print(f"{'parameter':<24} {'description':>11} {'fitted':>9} {'1 sigma':>8}")
-    for p in cal.parameters:
+    print_calibration(cal, rover, world)
+    print(f"twin written to {args.output} (rover gate --twin {args.output})")
+    return EXIT_OK
+
+
+def print_calibration(cal: Any, rover: Any, world: Any) -> None:
+    """Each parameter with its 95 % interval and target, the noise, the residuals and
+    the held-out checks against their bands: the calibration's report."""
+    import math
+
+    print(
+        f"{'parameter':<24} {'description':>11} {'fitted':>9} {'95 % interval':>19} "
+        f"{'1 sigma':>8} {'target':>7}"
+    )
+    for p, target in zip(
+        cal.parameters, cal.targets or [math.nan] * len(cal.parameters), strict=True
+    ):
         if p.startswith("region."):
             before = next(
                 (r.mu_scale for r in world.traction_regions if r.id == p[len("region.") :]), 1.0
             )
         else:
             before = float(getattr(rover.traction, p))
-        print(f"{p:<24} {before:>11.4g} {cal.value(p):>9.4g} {cal.relative_sigma(p):>7.0%}")
+        lo, hi = cal.interval(p)
+        sigma = cal.relative_sigma(p)
+        mark = "" if sigma <= target else "  (above its target)"
+        print(
+            f"{p:<24} {before:>11.4g} {cal.value(p):>9.4g} {f'{lo:.4g}..{hi:.4g}':>19} "
+            f"{sigma:>7.1%} {target:>7.1%}{mark}"
+        )
     print(
         f"{'turn_efficiency':<24} {rover.traction.turn_efficiency:>11.4g} "
         f"{cal.turn_efficiency:>9.4g}"
     )
+    if cal.noise is not None:
+        n = cal.noise
+        print(
+            f"noise: slip spread {n.slip_sigma:.3g} (1 sigma of each side's log friction), a "
+            f"pose at rest to {n.pose_sigma_m * 1e3:.1f} mm and "
+            f"{math.degrees(n.heading_sigma_rad):.3f} deg"
+        )
     print(f"residuals before: {cal.before.line()}")
     print(f"residuals after:  {cal.after.line()}")
-    print(f"twin written to {args.output} (rover gate --twin {args.output})")
-    return EXIT_OK
+    if cal.checks:
+        inside = [sum(c.inside[a] for c in cal.checks) for a in range(3)]
+        k = len(cal.checks)
+        print(
+            f"held-out checks (each step left out of the fit, predicted with its 90 % band): "
+            f"inside {inside[0]}/{k} forward, {inside[1]}/{k} lateral, {inside[2]}/{k} yaw"
+        )
+        for check in cal.checks:
+            print(f"  {check.line()}")

@@ -83,11 +83,19 @@ class UnidentifiableError(CalibrationError):
     Attributes:
         parameter: the parameter that cannot be identified (``""``: the recording as a
             whole is too short).
+        advice: ``(command, speed, distance)`` steps that would identify it, in the
+            order to drive them (empty: the message says what to drive).
     """
 
-    def __init__(self, message: str, parameter: str = "") -> None:
+    def __init__(
+        self,
+        message: str,
+        parameter: str = "",
+        advice: tuple[tuple[int, int, int], ...] = (),
+    ) -> None:
         super().__init__(message)
         self.parameter = parameter
+        self.advice = advice
 
 
 class UnknownMutantError(EmulatorError, ValueError):

@@ -1,41 +1,50 @@
-"""Fitting the twin's ground to recorded missions: ``scipy.optimize.least_squares``.
+"""Fitting the twin's ground to measured steps: ``scipy.optimize.least_squares``.
 
-Each measured step (:class:`~emulator.observations.StepObservation`) is replayed on a
+Each measured step (:class:`~emulator.observations.StepObservation`) is replayed on the
 twin from its recorded start pose, at rest, with the candidate ground: its command
-played as the controller plays it (:func:`emulator.playback.play`), then
-:data:`SETTLE_S` with the wheels stopped. Three residuals per step compare the twin's
-move with the recorded one, each divided by its measurement error: the position after
-the step in the frame of its start pose (forward, lateral; the POSE averaged at rest)
-and the yaw change (the gyro's). The parameters (:data:`~emulator.calibration.
-FIT_PARAMETERS`, and the friction scale of each map region the steps drove on) are
-fitted as logarithms within :data:`BOUNDS`, with a trust-region reflective solver and
-a finite-difference Jacobian.
+played as the controller plays it, then :data:`SETTLE_S` with the wheels stopped
+(:func:`emulator.moves.play_moves`: every step, and every ground a Jacobian needs, in
+one replay batch). Three residuals per step compare the twin's move with the recorded
+one: the position after the step in the frame of its start pose (forward, lateral; the
+POSE averaged at rest) and the yaw change (the gyro's), whitened by the step's error
+covariance (:meth:`~emulator.observations.StepObservation.covariance`: the positions',
+the yaw change's and the start heading's). The parameters (:data:`~emulator.
+calibration.FIT_PARAMETERS`, every traction parameter of the force model, and the
+friction scale of each map region the steps drove on) are fitted as logarithms within
+:data:`BOUNDS`, with a trust-region reflective solver.
 
-Outliers: a first fit with a robust (soft-L1) loss finds the steps that no ground
-explains (an injected fault, a bump into something: more than :data:`OUTLIER_SIGMA`
-measurement errors off after it); they are left out and listed, and the plain fit runs
-on the rest from there.
+Each parameter has a weak prior: normal in ``log(value)`` around the rover description's
+value with :data:`PRIOR_SIGMA` (a factor of two at one sigma), appended as one residual
+per parameter, so that a parameter the steps say little about stays near the
+description instead of wandering to a bound.
 
-Uncertainty: the covariance of the log-parameters is ``s^2 (J^T J)^-1`` at the
-solution, ``J`` the Jacobian of the normalised residuals and ``s^2`` the reduced
-chi-square when it exceeds 1 (the measurement errors were then too optimistic, or the
-model is not the ground's: either way the spread is wider).
+Outliers: a step still more than :data:`OUTLIER_SIGMA` errors off after the fit (an
+injected fault, a bump into something) is found with a robust (soft-L1) fit, left out
+and listed, and the plain fit runs on the rest.
 
-Each parameter also has a weak prior: normal in ``log(value)`` around the rover
-description's value with :data:`PRIOR_SIGMA` (a factor of two at one sigma), appended
-as one residual per parameter. A parameter the recordings say little about (on a grippy
-ground the slip ratio barely shows) then stays near the description instead of
-wandering to a bound, and its reported uncertainty stays about the prior's.
+**Noise** (:class:`~emulator.calibration.Noise`). The residuals hold what the
+measurements' errors explain and what the twin cannot predict: process noise, modelled
+as the gate models it, a friction factor per side, log-normal with ``slip_sigma``. Its
+sensitivities ``G`` (per step, by each side's log factor) come with the last Jacobian;
+``slip_sigma`` is the maximum-likelihood value of the residuals under ``C_i = M_i +
+slip_sigma^2 G_i G_i^T`` (``M_i`` the measurement's covariance); the fit then runs once
+more weighted by ``C_i``. The start pose's noise (a position and heading averaged at
+rest) is what the rests measured.
 
-What cannot be identified is refused (:class:`~emulator.errors.UnidentifiableError`),
-never guessed: before fitting, recordings without a turn measured (``mu_lateral``), or
-without a straight step (the slip ratio and rolling resistance), or too short
-(:data:`MIN_STEPS`, :data:`MIN_DRIVING_S`); after fitting, a parameter the recordings
-did not inform (its uncertainty is still more than :data:`UNINFORMED_RATIO` of the
-prior's) *and* that matters: changing it by its prior's sigma moves one of
-:data:`PROBE_STEPS` by more than :data:`RELEVANT_POSITION_M` or
-:data:`RELEVANT_YAW_DEG`. A parameter that is not informed and does not matter is kept
-near the description, its uncertainty reported.
+**Uncertainty**: the covariance of the log-parameters is ``s^2 (J^T J + P)^-1`` at the
+solution, ``J`` the Jacobian of the whitened residuals, ``P`` the priors' precision and
+``s^2`` the reduced chi-square when it exceeds 1 (a misfit the noise terms do not
+explain widens it). **Checks**: each step left out in turn, linearised (the fit's
+hat matrix), predicted with its 90 % band (parameters, process noise, its measurement
+errors): the report (:class:`~emulator.calibration.Check`).
+
+**Refusals** (:class:`~emulator.errors.UnidentifiableError`), never guesses: before
+fitting, steps without a turn measured, without a straight step, or too few
+(:data:`MIN_STEPS`, :data:`MIN_DRIVING_S`); after fitting, a region barely driven on, or
+a covariance that leaves a probe (:func:`emulator.design.probes`: the steps plans are
+made of) uncertain by more than :data:`REFUSE_FACTOR` times its bar. The message names
+the parameter that weighs most in that spread and the steps that would fix it
+(:func:`emulator.design.advice`), which the error carries (``advice``).
 
 Deterministic: the twin is, and the solver has no randomness.
 """
@@ -45,17 +54,28 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from emulator.calibration import FIT_PARAMETERS, Calibration, Residuals
+from emulator import design
+from emulator.batch import BatchDraw
+from emulator.calibration import (
+    FIT_PARAMETERS,
+    Calibration,
+    Check,
+    Noise,
+    Residuals,
+    band_half_width,
+)
 from emulator.errors import CalibrationError, RecordingError, UnidentifiableError
 from emulator.ground import Ground
+from emulator.moves import MoveJob, play_moves
 from emulator.observations import ObservedSteps, StepObservation
-from emulator.playback import measure_turn_efficiency, play
-from emulator.twin import GATE_DT_S, Pose2D, Twin
+from emulator.playback import measure_turn_efficiency
+from emulator.twin import GATE_DT_S, Pose2D
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.model.worldmap import WorldMap
 from firmware_proto.wire.messages import Command
@@ -66,9 +86,7 @@ __all__ = [
     "MIN_STEPS",
     "OUTLIER_SIGMA",
     "PRIOR_SIGMA",
-    "PROBE_STEPS",
-    "RELEVANT_POSITION_M",
-    "RELEVANT_YAW_DEG",
+    "REFUSE_FACTOR",
     "SETTLE_S",
     "UNINFORMED_RATIO",
     "FitReport",
@@ -78,7 +96,7 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-SETTLE_S = 1.0
+SETTLE_S = design.SETTLE_S
 """Twin time played with the wheels stopped after each replayed step, s."""
 
 MIN_STEPS = 6
@@ -91,46 +109,34 @@ PRIOR_SIGMA = math.log(2.0)
 """1-sigma of each parameter's prior, in ``log(value)``: a factor of two."""
 
 OUTLIER_SIGMA = 20.0
-"""A step whose residual (in its own measurement errors) is still above this after the
-robust fit is left out: no ground the twin can model explains it."""
+"""A step whose residual (in its own errors) is still above this after the fit is left
+out: no ground the twin can model explains it."""
 
 OUTLIER_F_SCALE = 3.0
 """Where the robust fit's soft-L1 loss turns from quadratic to linear, in sigmas."""
 
 UNINFORMED_RATIO = 0.9
-"""A parameter whose fitted 1-sigma error is above this fraction of its prior's was not
-informed by the recordings."""
+"""A region scale whose fitted 1-sigma error is above this fraction of its prior's was
+not informed by the steps."""
 
-PROBE_STEPS: tuple[tuple[int, int, int], ...] = (
-    (int(Command.FWD), 15, 23000),
-    (int(Command.FWD), 60, 23000),
-    (int(Command.REV), 30, 23000),
-    (int(Command.LEFT), 20, 15484),
-    (int(Command.RIGHT), 45, 15484),
-)
-"""Steps that say whether an uninformed parameter matters: 1 m straight at low, high
-and reverse speed; 90 degree turns (by the description's model) both ways."""
-
-RELEVANT_POSITION_M = 0.01
-"""An uninformed parameter that moves a probe step's end by more than this matters."""
-RELEVANT_YAW_DEG = 0.5
-"""An uninformed parameter that turns a probe step's end by more than this matters."""
+REFUSE_FACTOR = 5.0
+"""A fit that leaves a probe more than this many times its bar uncertain
+(:data:`emulator.design.PROBE_POSITION_M`, :data:`~emulator.design.PROBE_YAW_RAD`: 1 cm
+and 0.5 degree at one sigma) is refused."""
 
 BOUNDS: dict[str, tuple[float, float]] = {
     "mu_longitudinal": (0.05, 3.0),
     "mu_lateral": (0.02, 5.0),
+    "slip_saturation_mps": (1e-4, 0.05),
     "slip_saturation_ratio": (0.001, 0.5),
     "rolling_resistance": (0.001, 0.5),
     "region": (0.02, 2.0),
 }
 """Where each parameter is searched (``region`` for every region scale)."""
 
-_HINTS = {
-    "mu_longitudinal": "drive straight steps at several speeds, both ways",
-    "mu_lateral": "turn on the spot, both ways, at more than one speed",
-    "slip_saturation_ratio": "drive straight steps at high and low speed",
-    "rolling_resistance": "drive straight steps at high and low speed",
-}
+_TOLERANCE = 1e-6
+"""The solver's ``ftol`` and ``xtol``: a thousandth of the smallest uncertainty a fit
+reaches."""
 
 
 @dataclass(frozen=True)
@@ -138,7 +144,8 @@ class FitReport:
     """How the fit went, beside its :class:`Calibration`.
 
     Attributes:
-        evaluations: residual evaluations (each replays every step once).
+        evaluations: replay batches (each replays every step on every ground a
+            Jacobian needs).
         wall_s: time the fit took (wall clock), s.
         status: the solver's message.
         outliers: steps the robust fit found off every ground it can fit.
@@ -151,8 +158,55 @@ class FitReport:
     """Steps left out as outliers: ``(source, step index, why)``."""
 
 
+class _Replays:
+    """The measured steps replayed on any grounds, one batch per call. On a map without
+    traction regions a step's move does not depend on where it starts, so each
+    distinct step is replayed once, from the origin."""
+
+    def __init__(
+        self,
+        observations: Sequence[StepObservation],
+        rover: RoverDescription,
+        world: WorldMap | None,
+        dt_s: float,
+    ) -> None:
+        self.rover = rover
+        self.world = world
+        self.dt_s = dt_s
+        self.batches = 0
+        self.invariant = world is None or not world.traction_regions
+        self.set(observations)
+
+    def set(self, observations: Sequence[StepObservation]) -> None:
+        """Replay these observations from now on."""
+        self.observations = list(observations)
+        steps = sorted({o.step for o in self.observations})
+        self._unique = steps
+        index = {s: i for i, s in enumerate(steps)}
+        self._of = np.array([index[o.step] for o in self.observations], dtype=np.int64)
+
+    def moves(self, draws: Sequence[BatchDraw]) -> np.ndarray:
+        """``(len(draws), n, 3)``: each observation's move (start frame) on each draw."""
+        self.batches += 1
+        obs = self.observations
+        if self.invariant:
+            origin = Pose2D(0.0, 0.0, 0.0)
+            jobs = [MoveJob(origin, (s,), d) for d in draws for s in self._unique]
+            ends = play_moves(self.rover, None, jobs, dt_s=self.dt_s, settle_s=SETTLE_S)
+            table = ends.reshape(len(draws), len(self._unique), 3)
+            return np.asarray(table[:, self._of, :])
+        jobs = [MoveJob(o.start, (o.step,), d) for d in draws for o in obs]
+        ends = play_moves(self.rover, self.world, jobs, dt_s=self.dt_s, settle_s=SETTLE_S)
+        ends = ends.reshape(len(draws), len(obs), 3)
+        start = np.array([(o.start.x_m, o.start.y_m, o.start.yaw_rad) for o in obs])
+        dx = ends[..., 0] - start[:, 0]
+        dy = ends[..., 1] - start[:, 1]
+        c, s = np.cos(start[:, 2]), np.sin(start[:, 2])
+        return np.stack((c * dx + s * dy, -s * dx + c * dy, ends[..., 2] - start[:, 2]), axis=-1)
+
+
 def predict_moves(
-    observations: tuple[StepObservation, ...] | list[StepObservation],
+    observations: Sequence[StepObservation],
     rover: RoverDescription,
     world: WorldMap | None,
     ground: Ground,
@@ -161,18 +215,8 @@ def predict_moves(
 ) -> np.ndarray:
     """Each step replayed on a twin on ``ground`` from its recorded start pose: an
     ``(n, 3)`` array of ``(forward_m, left_m, yaw_rad)`` moves in the start frame."""
-    twin_rover = ground.rover(rover)
-    twin_world = ground.world(world, strict=False)
-    out = np.empty((len(observations), 3))
-    for i, obs in enumerate(observations):
-        twin = Twin(twin_rover, twin_world, dt_s=dt_s, start=obs.start)
-        play(twin, [obs.step], settle_s=0.0)
-        twin.advance(SETTLE_S)
-        pose = twin.pose
-        dx, dy = pose.x_m - obs.start.x_m, pose.y_m - obs.start.y_m
-        c, s = math.cos(obs.start.yaw_rad), math.sin(obs.start.yaw_rad)
-        out[i] = (c * dx + s * dy, -s * dx + c * dy, twin.yaw_unwrapped_rad - obs.start.yaw_rad)
-    return out
+    moves: np.ndarray = _Replays(observations, rover, world, dt_s).moves([BatchDraw(ground)])[0]
+    return moves
 
 
 def _structure(observed: ObservedSteps) -> None:
@@ -189,13 +233,16 @@ def _structure(observed: ObservedSteps) -> None:
     if turns == 0:
         raise UnidentifiableError(
             "cannot identify mu_lateral: the recordings have no turn on the spot (LEFT or "
-            "RIGHT) measured at rest; drive turns both ways",
+            "RIGHT) measured at rest; drive turns both ways, e.g. LEFT and RIGHT at speed "
+            "25 by about 90 degrees",
             "mu_lateral",
         )
     if straights == 0:
         raise UnidentifiableError(
-            "cannot identify slip_saturation_ratio and rolling_resistance: the recordings "
-            "have no straight step (FWD or REV) measured at rest",
+            "cannot identify rolling_resistance, slip_saturation_ratio and "
+            "slip_saturation_mps: the recordings have no straight step (FWD or REV) "
+            "measured at rest; drive straight steps at low and high speed, e.g. FWD at "
+            "speed 10 and at speed 60 over 1 m",
             "rolling_resistance",
         )
     if len(obs) < MIN_STEPS or observed.driving_s < MIN_DRIVING_S:
@@ -214,6 +261,114 @@ def _bounds(names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo), np.array(hi)
 
 
+def _value(ground: Ground, name: str) -> float:
+    if name.startswith("region."):
+        return ground.region_scale(name[len("region.") :]) or 1.0
+    return float(getattr(ground, name))
+
+
+def _whitener(covariances: np.ndarray) -> np.ndarray:
+    """``L_i^-1`` of each ``(3, 3)`` covariance's Cholesky factor ``L_i``."""
+    chol = np.linalg.cholesky(covariances)
+    return np.asarray(np.linalg.inv(chol))
+
+
+class _Problem:
+    """The least-squares problem: whitened residuals and priors, and their Jacobian by
+    forward differences, from one replay batch per point (the last one is kept, so the
+    solver's Jacobian at a point it has just evaluated costs nothing)."""
+
+    def __init__(
+        self,
+        replays: _Replays,
+        base: Ground,
+        names: list[str],
+        prior: np.ndarray,
+        measured: np.ndarray,
+        whiten: np.ndarray,
+    ) -> None:
+        self.replays = replays
+        self.base = base
+        self.names = names
+        self.prior = prior
+        self.measured = measured
+        self.whiten = whiten
+        self._key: bytes | None = None
+        self._value: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def ground(self, x: np.ndarray) -> Ground:
+        return self.base.with_values(**{n: math.exp(v) for n, v in zip(self.names, x, strict=True)})
+
+    def evaluate(self, x: np.ndarray, *, sides: bool = False) -> tuple[np.ndarray, ...]:
+        """``(f, J, moves, J_moves, G)`` at ``x``: whitened residuals with the priors'
+        rows, their Jacobian, the raw moves ``(n, 3)``, their Jacobian ``(n, 3, p)``,
+        and with ``sides`` their sensitivity to each side's log friction ``(n, 3, 2)``."""
+        key = x.tobytes() + bytes([sides])
+        if self._key == key and self._value is not None:
+            return self._value
+        h = design.DIFF_STEP
+        draws = [BatchDraw(self.ground(x))]
+        for j in range(len(x)):
+            step = x.copy()
+            step[j] += h
+            draws.append(BatchDraw(self.ground(step)))
+        if sides:
+            factor = math.exp(h)
+            draws += [
+                BatchDraw(draws[0].ground, factor, 1.0),
+                BatchDraw(draws[0].ground, 1.0, factor),
+            ]
+        table = self.replays.moves(draws)
+        p = len(x)
+        moves = table[0]
+        jac_moves = np.transpose((table[1 : 1 + p] - moves) / h, (1, 2, 0))
+        side = np.transpose((table[1 + p :] - moves) / h, (1, 2, 0)) if sides else None
+        r = np.einsum("nab,nb->na", self.whiten, moves - self.measured).ravel()
+        jw = np.einsum("nab,nbp->nap", self.whiten, jac_moves).reshape(-1, p)
+        f = np.concatenate((r, (x - self.prior) / PRIOR_SIGMA))
+        jac = np.vstack((jw, np.eye(p) / PRIOR_SIGMA))
+        value = (f, jac, moves, jac_moves, side)
+        self._key, self._value = key, value  # type: ignore[assignment]
+        return value  # type: ignore[return-value]
+
+    def solve(self, x0: np.ndarray, loss: str, max_nfev: int) -> Any:
+        from scipy.optimize import least_squares  # noqa: PLC0415 - only a fit needs it
+
+        lo, hi = _bounds(self.names)
+        return least_squares(
+            lambda x: self.evaluate(x)[0],
+            np.clip(x0, lo + 1e-9, hi - 1e-9),
+            jac=lambda x: self.evaluate(x)[1],
+            bounds=(lo, hi),
+            method="trf",
+            loss=loss,
+            f_scale=OUTLIER_F_SCALE,
+            x_scale="jac",
+            ftol=_TOLERANCE,
+            xtol=_TOLERANCE,
+            max_nfev=max_nfev,
+        )
+
+
+def _slip_sigma(residuals: np.ndarray, measurement: np.ndarray, side: np.ndarray) -> float:
+    """The maximum-likelihood slip spread of ``residuals`` ``(n, 3)`` under
+    ``M_i + s^2 G_i G_i^T`` (see the module docstring); 0 when the measurements explain
+    them."""
+    from scipy.optimize import minimize_scalar  # noqa: PLC0415 - only a fit needs it
+
+    gg = np.einsum("nap,nbp->nab", side, side)
+
+    def nll(s: float) -> float:
+        cov = measurement + (s * s) * gg
+        _sign, logdet = np.linalg.slogdet(cov)
+        quad = np.einsum("na,na->n", residuals, np.linalg.solve(cov, residuals[..., None])[..., 0])
+        return float(np.sum(logdet) + np.sum(quad))
+
+    best = minimize_scalar(nll, bounds=(0.0, 1.0), method="bounded", options={"xatol": 1e-5})
+    s = float(best.x)
+    return s if nll(s) < nll(0.0) else 0.0
+
+
 def fit_ground(
     observed: ObservedSteps,
     rover: RoverDescription,
@@ -222,19 +377,19 @@ def fit_ground(
     start: Ground | None = None,
     dt_s: float = GATE_DT_S,
     sources: tuple[str, ...] = (),
-    max_evaluations: int = 200,
+    max_evaluations: int = 100,
 ) -> tuple[Calibration, FitReport]:
     """Fit the ground to measured steps (module docstring).
 
     Args:
         observed: the measured steps (:func:`emulator.observations.observe_steps`).
-        rover: the rover description (its traction is the starting point).
+        rover: the rover description (its traction is the prior).
         world: the map the steps were driven on (its regions; ``None``: open plane).
-        start: the starting ground (default: the description's, with the map's
-            region scales).
+        start: where the solver starts (default: the description's ground, with the
+            map's region scales); the priors stay the description's.
         dt_s: the twin's step (default the gate's, so the fit is what the gate plays).
         sources: the recordings' names, for the report.
-        max_evaluations: the solver's budget of residual evaluations.
+        max_evaluations: the solver's budget of evaluations per pass.
 
     Raises:
         RecordingError: no step could be measured.
@@ -242,69 +397,55 @@ def fit_ground(
         CalibrationError: scipy is not installed.
     """
     try:
-        from scipy.optimize import least_squares  # noqa: PLC0415 - only a fit needs it
+        import scipy.optimize  # noqa: F401, PLC0415 - only a fit needs it
     except ImportError as exc:
         raise CalibrationError("rover calibrate needs scipy: install rover-hil[calibrate]") from exc
     t0 = time.perf_counter()
     _structure(observed)
     obs = list(observed.observations)
-    base = start if start is not None else Ground.of_rover(rover, world)
-    measured = np.array([o.displacement() for o in obs])
-    sigma = np.array([(o.sigma_xy_m, o.sigma_xy_m, o.sigma_yaw_rad) for o in obs])
-    evaluations = [0]
-
-    def residuals_of(ground: Ground) -> np.ndarray:
-        evaluations[0] += 1
-        moves = predict_moves(obs, rover, world, ground, dt_s=dt_s)
-        out: np.ndarray = ((moves - measured) / sigma).ravel()
-        return out
+    described = Ground.of_rover(rover, world)
+    base = start if start is not None else described
+    replays = _Replays(obs, rover, world, dt_s)
 
     names = list(FIT_PARAMETERS)
     fixed_regions: list[str] = []
-    r0 = residuals_of(base)
-    for rid, scale in base.regions:
-        probe = residuals_of(base.with_values(**{f"region.{rid}": scale * 0.5}))
-        if np.any(np.abs(probe - r0) > 1e-6):
-            names.append(f"region.{rid}")
-        else:
-            fixed_regions.append(rid)
-
-    def ground_at(x: np.ndarray) -> Ground:
-        return base.with_values(**{n: math.exp(v) for n, v in zip(names, x, strict=True)})
-
+    if base.regions:
+        probes = [BatchDraw(base)]
+        probes += [
+            BatchDraw(base.with_values(**{f"region.{rid}": s * 0.5})) for rid, s in base.regions
+        ]
+        moved = replays.moves(probes)
+        for k, (rid, _scale) in enumerate(base.regions):
+            if np.any(np.abs(moved[k + 1] - moved[0]) > 1e-9):
+                names.append(f"region.{rid}")
+            else:
+                fixed_regions.append(rid)
     lo, hi = _bounds(names)
-    prior = np.clip(np.log([_value(base, n) for n in names]), lo + 1e-9, hi - 1e-9)
+    prior = np.clip(np.log([_value(described, n) for n in names]), lo + 1e-9, hi - 1e-9)
+    x0 = np.clip(np.log([_value(base, n) for n in names]), lo + 1e-9, hi - 1e-9)
 
-    def fun(x: np.ndarray) -> np.ndarray:
-        return np.concatenate((residuals_of(ground_at(x)), (x - prior) / PRIOR_SIGMA))
+    def problem_for(steps: list[StepObservation], covariances: np.ndarray) -> _Problem:
+        measured = np.array([o.displacement() for o in steps])
+        return _Problem(replays, base, names, prior, measured, _whitener(covariances))
 
-    def solve(x0: np.ndarray, loss: str) -> Any:
-        return least_squares(
-            fun,
-            x0,
-            bounds=(lo, hi),
-            method="trf",
-            loss=loss,
-            f_scale=OUTLIER_F_SCALE,
-            x_scale="jac",
-            diff_step=1e-4,
-            max_nfev=max_evaluations,
+    measurement = np.array([o.covariance() for o in obs])
+    problem = problem_for(obs, measurement)
+    result = problem.solve(x0, "linear", max_evaluations)
+    outliers: tuple[tuple[str, int, str], ...] = ()
+    worst = np.max(np.abs(problem.evaluate(result.x)[0][: 3 * len(obs)].reshape(-1, 3)), axis=1)
+    if np.any(worst > OUTLIER_SIGMA):
+        # A step the twin cannot explain on any ground (a fault injected, a bump into
+        # something) pulls a plain fit toward it: find it with a robust loss.
+        robust = problem.solve(x0, "soft_l1", max_evaluations)
+        worst = np.max(np.abs(problem.evaluate(robust.x)[0][: 3 * len(obs)].reshape(-1, 3)), axis=1)
+        outliers = tuple(
+            (o.source, o.index, f"off every ground the twin fits: {w:.0f} sigma after the fit")
+            for o, w in zip(obs, worst, strict=True)
+            if w > OUTLIER_SIGMA
         )
-
-    # A robust fit first, so that a step the twin cannot explain on any ground (a fault
-    # injected, a bump into something) is found, not averaged in; then the plain fit
-    # on the others, whose Jacobian gives the covariance.
-    robust = solve(prior, "soft_l1")
-    worst = np.max(np.abs(residuals_of(ground_at(robust.x)).reshape(-1, 3)), axis=1)
-    outliers = tuple(
-        (o.source, o.index, f"off every ground the twin fits: {w:.0f} sigma after the fit")
-        for o, w in zip(obs, worst, strict=True)
-        if w > OUTLIER_SIGMA
-    )
-    if outliers:
         keep = worst <= OUTLIER_SIGMA
         obs = [o for o, k in zip(obs, keep, strict=True) if k]
-        measured, sigma = measured[keep], sigma[keep]
+        measurement = measurement[keep]
         observed = ObservedSteps(
             tuple(obs),
             observed.skipped + outliers,
@@ -313,15 +454,34 @@ def fit_ground(
         for source, index, why in outliers:
             logger.info("%s step %d left out: %s", source, index, why)
         _structure(observed)
-    result = solve(robust.x, "linear")
-    fitted = replace(ground_at(result.x), name="calibrated")
-    jac = np.asarray(result.jac)
-    data = np.asarray(result.fun)[: len(obs) * 3]
-    chi2 = float(np.sum(data * data) / max(1, data.size - len(names)))
+        replays.set(obs)
+        problem = problem_for(obs, measurement)
+        result = problem.solve(robust.x, "linear", max_evaluations)
+
+    # The process noise the residuals hold beyond the measurements', then the fit once
+    # more with it in the weights.
+    _f, _j, moves, _jm, side = problem.evaluate(result.x, sides=True)
+    measured = problem.measured
+    slip = _slip_sigma(moves - measured, measurement, side)
+    total = measurement + slip * slip * np.einsum("nap,nbp->nab", side, side)
+    if slip > 0.0:
+        problem = problem_for(obs, total)
+        result = problem.solve(result.x, "linear", max_evaluations)
+    f, jac, moves, _jac_moves, side = problem.evaluate(result.x, sides=True)
+    p = len(names)
+    data = f[: 3 * len(obs)]
+    chi2 = float(np.sum(data * data) / max(1, data.size - p))
     covariance = _covariance(jac, max(1.0, chi2), names)
-    _refuse_uninformed(names, covariance, fitted, rover, observed)
-    before = Residuals.of(predict_moves(obs, rover, world, base, dt_s=dt_s) - measured)
-    after = Residuals.of(predict_moves(obs, rover, world, fitted, dt_s=dt_s) - measured)
+    fitted = replace(problem.ground(result.x), name="calibrated")
+    noise = Noise(
+        slip_sigma=slip,
+        pose_sigma_m=float(np.median([o.sigma_xy_m for o in obs])) / math.sqrt(2.0),
+        heading_sigma_rad=float(np.median([o.sigma_heading_rad for o in obs])),
+    )
+    checks = _checks(obs, measured, moves, jac, total, covariance)
+    targets = _refuse_uninformed(names, covariance, fitted, rover, observed, noise, dt_s)
+    before = Residuals.of(replays.moves([BatchDraw(described)])[0] - measured)
+    after = Residuals.of(moves - measured)
     efficiency = measure_turn_efficiency(
         fitted.rover(rover), distance=rover.turn_units_for_yaw(math.pi / 2.0)
     )
@@ -338,22 +498,70 @@ def fit_ground(
         dt_s=dt_s,
         turn_efficiency=efficiency,
         fixed_regions=tuple(fixed_regions),
+        noise=noise,
+        targets=targets,
+        checks=checks,
     )
-    report = FitReport(evaluations[0], time.perf_counter() - t0, str(result.message), outliers)
+    report = FitReport(replays.batches, time.perf_counter() - t0, str(result.message), outliers)
     logger.info(
-        "fit: %s after %d evaluations in %.1f s; %s",
+        "fit: %s after %d replay batches in %.1f s; %s; slip_sigma %.4f",
         ", ".join(f"{n}={calibration.value(n):.4g}" for n in names),
         report.evaluations,
         report.wall_s,
         after.line(),
+        slip,
     )
     return calibration, report
 
 
-def _value(ground: Ground, name: str) -> float:
-    if name.startswith("region."):
-        return ground.region_scale(name[len("region.") :]) or 1.0
-    return float(getattr(ground, name))
+def _checks(
+    obs: list[StepObservation],
+    measured: np.ndarray,
+    moves: np.ndarray,
+    jac_whitened: np.ndarray,
+    total: np.ndarray,
+    covariance: np.ndarray,
+) -> tuple[Check, ...]:
+    """Each step left out of the fit in turn, linearised: its prediction error
+    ``(I - H_ii)^-1 r_i`` in whitened units (``H`` the hat matrix of the whitened
+    Jacobian with the priors), its variance ``(I - H_ii)^-1``, back in metres and
+    radians through the step's noise factor."""
+    n = len(obs)
+    jw = jac_whitened[: 3 * n].reshape(n, 3, -1)
+    chol = np.linalg.cholesky(total)
+    out = []
+    for i, o in enumerate(obs):
+        h = jw[i] @ covariance @ jw[i].T
+        keep = np.linalg.inv(np.eye(3) - h)
+        white = np.linalg.solve(chol[i], moves[i] - measured[i])
+        error = chol[i] @ (keep @ white)  # left-out prediction minus measurement
+        band = chol[i] @ keep @ chol[i].T
+        out.append(
+            Check(
+                source=o.source,
+                index=o.index,
+                step=o.step,
+                measured=tuple(float(v) for v in measured[i]),  # type: ignore[arg-type]
+                predicted=tuple(float(v) for v in measured[i] + error),  # type: ignore[arg-type]
+                half_width=tuple(band_half_width(float(band[a, a])) for a in range(3)),  # type: ignore[arg-type]
+            )
+        )
+    return tuple(out)
+
+
+def _design_noise(
+    obs: Sequence[StepObservation], moves: np.ndarray, side: np.ndarray, noise: Noise
+) -> np.ndarray:
+    """``(k, 3, 3)``: the noise of steps with ``moves`` and side sensitivities ``side``
+    measured as the calibration's steps were (their median errors)."""
+    xy = float(np.median([o.sigma_xy_m for o in obs]))
+    yaw = float(np.median([o.sigma_yaw_rad for o in obs]))
+    heading = noise.heading_sigma_rad
+    turn = np.stack((moves[:, 1], -moves[:, 0], np.zeros(len(moves))), axis=1)
+    cov = np.diag([xy * xy, xy * xy, yaw * yaw])[None] + heading**2 * np.einsum(
+        "ka,kb->kab", turn, turn
+    )
+    return np.asarray(cov + noise.slip_sigma**2 * np.einsum("kap,kbp->kab", side, side))
 
 
 def _refuse_uninformed(
@@ -362,57 +570,70 @@ def _refuse_uninformed(
     fitted: Ground,
     rover: RoverDescription,
     observed: ObservedSteps,
-) -> None:
-    """Raise for the first parameter that the recordings did not inform and that
-    matters (module docstring)."""
-    probes: list[StepObservation] = [
-        StepObservation(
-            "probe", i, c, sp, d, Pose2D(0.0, 0.0, 0.0), Pose2D(0.0, 0.0, 0.0), 0.0, 1.0, 1.0
-        )
-        for i, (c, sp, d) in enumerate(PROBE_STEPS)
-    ]
-    reference: np.ndarray | None = None
+    noise: Noise,
+    dt_s: float,
+) -> tuple[float, ...]:
+    """Raise for a region the steps did not inform, or for a covariance that leaves a
+    probe too uncertain (module docstring); else each parameter's target 1-sigma."""
     for i, name in enumerate(names):
         sigma = math.sqrt(max(0.0, covariance[i, i]))
-        if sigma <= UNINFORMED_RATIO * PRIOR_SIGMA:
-            continue
-        if name.startswith("region."):
-            what = f"the friction of region {name[len('region.') :]}"
+        if name.startswith("region.") and sigma > UNINFORMED_RATIO * PRIOR_SIGMA:
             raise UnidentifiableError(
-                f"cannot identify {what}: the recordings drove too little on it "
-                f"(+/-{sigma * 100:.0f}% at 1 sigma); drive more steps inside it",
+                f"cannot identify the friction of region {name[len('region.') :]}: the "
+                f"recordings drove too little on it (+/-{sigma * 100:.0f}% at 1 sigma); "
+                "drive more steps inside it",
                 name,
             )
-        if reference is None:
-            reference = predict_moves(probes, rover, None, fitted)
-        moved = predict_moves(
-            probes,
-            rover,
-            None,
-            fitted.with_values(**{name: _value(fitted, name) * math.exp(PRIOR_SIGMA)}),
-        )
-        delta = np.abs(moved - reference)
-        position = float(np.max(np.hypot(delta[:, 0], delta[:, 1])))
-        yaw = math.degrees(float(np.max(delta[:, 2])))
-        if position > RELEVANT_POSITION_M or yaw > RELEVANT_YAW_DEG:
-            raise UnidentifiableError(
-                f"cannot identify {name}: the recordings ({len(observed.observations)} "
-                f"steps, {observed.driving_s:.0f} s of driving) hardly inform it, yet it "
-                f"moves a probe step by {position * 1e3:.0f} mm, {yaw:.1f} deg; "
-                f"{_HINTS.get(name, 'drive more')}",
-                name,
-            )
-        logger.info(
-            "%s: not informed by the recordings, and it does not matter here "
-            "(%.1f mm, %.2f deg on the probe steps): kept near the description",
-            name,
-            position * 1e3,
-            yaw,
-        )
+    ground_names = [n for n in names if not n.startswith("region.")]
+    index = [names.index(n) for n in ground_names]
+    cov = covariance[np.ix_(index, index)]
+    probes = design.probes(rover)
+    _moves, probe_jac, _ = design.sensitivities(rover, fitted, ground_names, probes, dt_s=dt_s)
+    goals = design.targets(probe_jac, cov)
+    targets = [
+        float(goals[ground_names.index(n)]) if n in ground_names else PRIOR_SIGMA for n in names
+    ]
+    spread = design.probe_spread(probe_jac, cov)
+    excess = design.excess(spread)
+    worst = int(np.argmax(excess))
+    if excess[worst] <= REFUSE_FACTOR:
+        return tuple(targets)
+    # The parameter whose uncertainty weighs most in the worst probe's spread: the one
+    # that, known, would shrink it most.
+    name = ground_names[int(np.argmax(design.shares(probe_jac[worst : worst + 1], cov)))]
+    candidates = design.candidates(rover)
+    cand_moves, cand_jac, cand_side = design.sensitivities(
+        rover, fitted, ground_names, candidates, dt_s=dt_s, sides=True
+    )
+    assert cand_side is not None
+    cand_noise = _design_noise(observed.observations, cand_moves, cand_side, noise)
+    durations = np.array([rover.step_duration_s(s, d) for _c, s, d in candidates])
+    precision = np.linalg.inv(cov)
+    # Enough to bring every probe under the refusal's bar, not the stricter target's.
+    scaled = probe_jac / REFUSE_FACTOR
+    chosen = design.advice(precision, scaled, cand_jac, cand_noise, durations)
+    advised = tuple(candidates[i] for i in chosen)
+    counts: dict[tuple[int, int, int], int] = {}
+    for step in advised:
+        counts[step] = counts.get(step, 0) + 1
+    what = ", ".join(
+        design.describe_step(rover, step) + (f" (x{k})" if k > 1 else "")
+        for step, k in counts.items()
+    )
+    probe = design.describe_step(rover, probes[worst])
+    position = math.hypot(spread[worst, 0], spread[worst, 1])
+    raise UnidentifiableError(
+        f"cannot identify {name}: the recordings ({len(observed.observations)} steps, "
+        f"{observed.driving_s:.0f} s of driving) leave {probe} uncertain by "
+        f"{position * 1e3:.0f} mm and {math.degrees(spread[worst, 2]):.2f} deg (1 sigma), "
+        f"mostly through {name}; drive {what or 'more steps like it'}",
+        name,
+        advised,
+    )
 
 
 def _covariance(jac: np.ndarray, scale: float, names: list[str]) -> np.ndarray:
-    """``scale * (J^T J)^-1`` through the SVD of ``J``.
+    """``scale * (J^T J)^-1`` through the SVD of ``J`` (the priors' rows included).
 
     Raises:
         UnidentifiableError: ``J`` is rank-deficient: the parameter that weighs most in
@@ -422,9 +643,7 @@ def _covariance(jac: np.ndarray, scale: float, names: list[str]) -> np.ndarray:
     if s.size == 0 or s[-1] <= s[0] * 1e-9:
         weakest = names[int(np.argmax(np.abs(vt[-1])))]
         raise UnidentifiableError(
-            f"cannot identify {weakest}: the recordings do not depend on it "
-            f"({_HINTS.get(weakest, 'drive more on it')})",
-            weakest,
+            f"cannot identify {weakest}: the recordings do not depend on it", weakest
         )
     inv = (vt.T / (s * s)) @ vt
     return np.asarray(scale * inv)

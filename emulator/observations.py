@@ -65,6 +65,9 @@ MIN_REST_SAMPLES = 3
 POSITION_SIGMA_FLOOR_M = 0.002
 """Smallest 1-sigma error taken for an averaged position (the sensor's own bias, the
 twin's step size)."""
+HEADING_SIGMA_FLOOR_RAD = 0.0005
+"""Smallest 1-sigma error taken for a heading averaged at rest (the POSE's yaw): about
+0.03 degree."""
 YAW_SIGMA_FLOOR_RAD = 0.002
 """Smallest 1-sigma error taken for a measured yaw change (gyro noise and bias over a
 step, the twin's step size): about 0.1 degree."""
@@ -86,6 +89,8 @@ class StepObservation:
             recording has no odometry), unwrapped.
         sigma_xy_m: 1-sigma error of the measured displacement, per axis, m.
         sigma_yaw_rad: 1-sigma error of ``yaw_change_rad``.
+        sigma_heading_rad: 1-sigma error of the start pose's yaw (the POSE averaged at
+            rest), which turns the measured displacement's frame (:meth:`covariance`).
     """
 
     source: str
@@ -98,6 +103,7 @@ class StepObservation:
     yaw_change_rad: float
     sigma_xy_m: float
     sigma_yaw_rad: float
+    sigma_heading_rad: float = 0.0
 
     @property
     def step(self) -> tuple[int, int, int]:
@@ -110,6 +116,15 @@ class StepObservation:
         dy = self.end.y_m - self.start.y_m
         c, s = math.cos(self.start.yaw_rad), math.sin(self.start.yaw_rad)
         return (c * dx + s * dy, -s * dx + c * dy, self.yaw_change_rad)
+
+    def covariance(self) -> np.ndarray:
+        """The ``3 x 3`` covariance of :meth:`displacement`'s errors: the positions'
+        (per axis), the yaw change's, and the start heading's, which turns a move of
+        ``(f, l)`` by ``(l, -f)`` per radian."""
+        f, left, _ = self.displacement()
+        turn = np.array([left, -f, 0.0])
+        cov = np.diag([self.sigma_xy_m**2, self.sigma_xy_m**2, self.sigma_yaw_rad**2])
+        return cov + self.sigma_heading_rad**2 * np.outer(turn, turn)
 
 
 @dataclass(frozen=True)
@@ -129,6 +144,7 @@ class _Rest:
     y: float
     yaw: float
     sigma: float
+    yaw_sigma: float
     odom_xy: tuple[float, float] | None
     odom_yaw: float | None
     odom_sigma: float
@@ -154,6 +170,7 @@ def _rest(
     if spread > 3.0 * sigma + 0.01:
         return f"not at rest (POSE spread {spread * 1000:.0f} mm)"
     yaw = float(np.mean(yaw_unwrapped[i:j]))
+    yaw_sigma = float(np.std(yaw_unwrapped[i:j], ddof=1)) / math.sqrt(n)
     odom_xy: tuple[float, float] | None = None
     odom_mean: float | None = None
     odom_sigma = 0.0
@@ -168,6 +185,7 @@ def _rest(
         float(np.mean(xy[:, 1])),
         yaw,
         sigma / math.sqrt(n),
+        max(HEADING_SIGMA_FLOOR_RAD, yaw_sigma),
         odom_xy,
         odom_mean,
         odom_sigma,
@@ -248,6 +266,7 @@ def observe_steps(
                     yaw_change_rad=dyaw,
                     sigma_xy_m=max(POSITION_SIGMA_FLOOR_M, math.hypot(before.sigma, after.sigma)),
                     sigma_yaw_rad=max(YAW_SIGMA_FLOOR_RAD, sigma_yaw),
+                    sigma_heading_rad=before.yaw_sigma,
                 )
             )
             driving += rover.step_duration_s(step.speed, step.distance)

@@ -9,8 +9,11 @@
 - a ``[calibration]`` table: the recordings, the map, the twin's step, the residuals
   before and after, and for every fitted parameter its value and relative 1-sigma error,
   with the covariance matrix of the logarithms (:class:`~emulator.calibration.
-  Calibration`); ``[calibration.regions]`` holds the fitted friction scale of each map
-  region driven on.
+  Calibration`), each parameter's target 1-sigma, the noise the fit estimated
+  (``slip_sigma``, ``pose_sigma_m``, ``heading_sigma_deg``: the gate's slip spread and
+  start-pose spread) and how many held-out checks fell inside their bands;
+  ``[calibration.regions]`` holds the fitted friction scale of each map region driven
+  on.
 
 :func:`load_twin` reads it back as a :class:`TwinDescription`: the rover description,
 the calibration, and the ground to build twins with (:meth:`TwinDescription.world`
@@ -27,7 +30,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from emulator.calibration import Calibration, Residuals
+from emulator.calibration import Calibration, Noise, Residuals
 from emulator.errors import GroundError
 from emulator.ground import Ground
 from firmware_proto.errors import DescriptionError
@@ -122,11 +125,27 @@ def twin_toml(base: RoverDescription, calibration: Calibration) -> str:
             "fixed_regions": list(cal.fixed_regions),
             "residuals_before": _residuals(cal.before),
             "residuals_after": _residuals(cal.after),
+            **_noise(cal),
         },
     )
     if cal.ground.regions:
         lines += _table(f"{CALIBRATION_TABLE}.regions", dict(cal.ground.regions))
     return "\n".join(lines)
+
+
+def _noise(cal: Calibration) -> dict[str, Any]:
+    """The noise terms, the targets and the checks' outcome (when the fit made them)."""
+    out: dict[str, Any] = {}
+    if cal.noise is not None:
+        out["slip_sigma"] = round(cal.noise.slip_sigma, 6)
+        out["pose_sigma_m"] = round(cal.noise.pose_sigma_m, 6)
+        out["heading_sigma_deg"] = round(math.degrees(cal.noise.heading_sigma_rad), 6)
+    if cal.targets:
+        out["target_sigma"] = [round(t, 6) for t in cal.targets]
+    if cal.checks:
+        inside = [sum(c.inside[a] for c in cal.checks) for a in range(3)]
+        out["checks"] = {"steps": len(cal.checks), "inside_forward_lateral_yaw": inside}
+    return out
 
 
 def _residuals(r: Residuals) -> dict[str, Any]:
@@ -202,6 +221,22 @@ def _calibration(table: dict[str, Any], rover: RoverDescription) -> Calibration:
             float(r["forward_m"]), float(r["lateral_m"]), float(r["yaw_deg"]), int(r["steps"])
         )
 
+    noise = None
+    if "slip_sigma" in table:
+        noise = Noise(
+            slip_sigma=float(table["slip_sigma"]),
+            pose_sigma_m=float(table.get("pose_sigma_m", 0.0)),
+            heading_sigma_rad=math.radians(float(table.get("heading_sigma_deg", 0.0))),
+        )
+        if (
+            not (0.0 <= noise.slip_sigma <= 1.0)
+            or noise.pose_sigma_m < 0
+            or noise.heading_sigma_rad < 0
+        ):
+            raise ValueError("slip_sigma must be in [0, 1] and the pose sigmas >= 0")
+    targets = tuple(float(t) for t in table.get("target_sigma", []))
+    if targets and len(targets) != len(names):
+        raise ValueError("target_sigma and parameters disagree in size")
     return Calibration(
         ground=ground,
         parameters=names,
@@ -215,4 +250,6 @@ def _calibration(table: dict[str, Any], rover: RoverDescription) -> Calibration:
         dt_s=float(table["dt_s"]),
         turn_efficiency=float(rover.traction.turn_efficiency),
         fixed_regions=tuple(str(r) for r in table.get("fixed_regions", [])),
+        noise=noise,
+        targets=targets,
     )

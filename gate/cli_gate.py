@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
@@ -221,9 +222,13 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
     maps, default = load_maps(default_map)
     served = {name: twin.world(world) or world for name, world in maps.items()}
     cal = twin.calibration
+    noise = ""
+    if cal.noise is not None:
+        settings = replace(settings, slip_sigma=cal.noise.slip_sigma)
+        noise = f"; slip spread {cal.noise.slip_sigma:.3g} (the calibration's estimate)"
     print(
         f"gate: twin {twin_path}: calibrated on {cal.map_name or 'an open plane'} from "
-        f"{cal.after.steps} steps; turn efficiency {cal.turn_efficiency:.3f}",
+        f"{cal.after.steps} steps; turn efficiency {cal.turn_efficiency:.3f}{noise}",
         file=sys.stderr,
         flush=True,
     )
@@ -263,7 +268,7 @@ def _check(args: argparse.Namespace) -> int:
         else:
             maps, default = load_maps(args.check_map or "lab")
             validator = Validator(load_rover(rover_path), maps, settings, default)
-        job = validator.prepare(plan, options.resolve(settings, default))
+        job = validator.prepare(plan, options.resolve(validator.settings, default))
         verdict = validator.validate_uncertain(job)
     except OSError as exc:
         print(f"rover gate check: cannot read {args.plan}: {exc}", file=sys.stderr)

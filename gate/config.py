@@ -51,6 +51,7 @@ __all__ = [
     "DEFAULT_REQUEST_TIMEOUT_S",
     "DEFAULT_SAFETY_MARGIN_M",
     "DEFAULT_SAMPLE_HZ",
+    "DEFAULT_SLIP_SIGMA",
     "DEFAULT_YAW_TOLERANCE_DEG",
     "ENV_PREFIX",
     "KEYS",
@@ -88,6 +89,10 @@ spare and keeps the thesis's 0.9 m passages (SCN-03) open to the 0.5 m wide rove
 DEFAULT_POSITION_TOLERANCE_M = 0.10
 """Largest accepted distance between the predicted final position and the goal."""
 DEFAULT_YAW_TOLERANCE_DEG = 3.0
+DEFAULT_SLIP_SIGMA = 0.1
+"""1-sigma of each side's friction factor (log-normal) in a verdict with uncertainty,
+unless the request or a calibrated twin says otherwise: one side gripping about 10 %
+more or less than the other, which turns a 5 m leg by a few degrees (docs/gate.md)."""
 """Largest accepted final yaw error."""
 MAX_TRAJECTORY_SAMPLES = 10_000
 """Most fixed-rate samples in a verdict's predicted trajectory: a slower rate is used when
@@ -122,6 +127,8 @@ class PlaybackSettings:
         safety_margin_m: footprint inflation for collision checks, m.
         position_tolerance_m: accepted final distance from the goal, m.
         yaw_tolerance_deg: accepted final yaw error, degrees.
+        slip_sigma: the slip spread of a verdict with uncertainty (a calibrated twin's
+            own estimate, ``rover gate --twin``; else :data:`DEFAULT_SLIP_SIGMA`).
     """
 
     dt_s: float = DEFAULT_DT_S
@@ -129,6 +136,7 @@ class PlaybackSettings:
     safety_margin_m: float = DEFAULT_SAFETY_MARGIN_M
     position_tolerance_m: float = DEFAULT_POSITION_TOLERANCE_M
     yaw_tolerance_deg: float = DEFAULT_YAW_TOLERANCE_DEG
+    slip_sigma: float = DEFAULT_SLIP_SIGMA
 
     def __post_init__(self) -> None:
         _check_range("dt_s", self.dt_s, 0.0, _MAX_DT_S, open_low=True)
@@ -136,6 +144,7 @@ class PlaybackSettings:
         _check_range("safety_margin_m", self.safety_margin_m, 0.0, 1.0, open_low=False)
         _check_range("position_tolerance_m", self.position_tolerance_m, 0.0, 10.0, open_low=True)
         _check_range("yaw_tolerance_deg", self.yaw_tolerance_deg, 0.0, 180.0, open_low=True)
+        _check_range("slip_sigma", self.slip_sigma, 0.0, 1.0, open_low=False)
 
 
 @dataclass(frozen=True)

@@ -4,15 +4,18 @@ know about the ground.
 A request with ``samples=N`` (N > 1) and ``seed=S`` is played on N twins. Each twin's
 ground is drawn, with ``numpy.random.default_rng(S)``, from the parameter spread (a
 calibrated twin's covariance, ``rover gate --twin FILE``, else :data:`DEFAULT_SPREAD`:
-each of the four fitted parameters log-normal with a relative 1-sigma of 20 %), then
-each side's friction factor from the slip distribution (log-normal, 1-sigma
-``slip_sigma``). The draws happen here, once, in the server; the twins are played in
-chunks of fixed size (:func:`chunk_sizes`, a function of N alone) by
-:func:`run_chunk`, which needs nothing but its :class:`ChunkJob`: on the gate's process
-pool, or on a Dask cluster (:mod:`gate.cluster`). :func:`summarise` turns the chunks'
-results, concatenated in chunk order, into the verdict's
-:class:`~firmware_proto.model.verdict.Uncertainty`: the same request and seed give the same
-bytes wherever the chunks ran.
+each of the fitted parameters log-normal with a relative 1-sigma of 20 %), then each
+side's friction factor from the slip distribution (log-normal, 1-sigma ``slip_sigma``:
+the request's, else the server's default, a calibrated twin's own estimate), then,
+with a calibrated twin, the start pose's error (the rest-averaged pose's noise the
+calibration measured). Every draw comes in antithetic pairs, mirrored about the
+nominal twin, so the bands are centred on the point prediction. The draws happen here,
+once, in the server; the twins are played in chunks of fixed size (:func:`chunk_sizes`,
+a function of N alone) by :func:`run_chunk`, which needs nothing but its
+:class:`ChunkJob`: on the gate's process pool, or on a Dask cluster
+(:mod:`gate.cluster`). :func:`summarise` turns the chunks' results, concatenated in
+chunk order, into the verdict's :class:`~firmware_proto.model.verdict.Uncertainty`: the
+same request and seed give the same bytes wherever the chunks ran.
 
 Each twin is judged as the nominal one is (collision, stall, goal and yaw tolerances),
 so ``approved_probability`` is the fraction the verdict's own rules approve.
@@ -29,7 +32,7 @@ from typing import Protocol
 import numpy as np
 
 from emulator.batch import BatchDraw, BatchResult, play_batch
-from emulator.calibration import FIT_PARAMETERS
+from emulator.calibration import FIT_PARAMETERS, mirrored
 from emulator.ground import Ground
 from emulator.twin import Pose2D
 from firmware_proto.model.plan import Plan
@@ -86,8 +89,15 @@ class Spread(Protocol):
     """Where grounds are drawn from: :class:`emulator.calibration.Calibration` or
     :class:`DefaultSpread`."""
 
-    def sample(self, rng: np.random.Generator | int, n: int) -> list[Ground]:
-        """``n`` grounds drawn with ``rng``."""
+    def sample(
+        self, rng: np.random.Generator | int, n: int, *, antithetic: bool = False
+    ) -> list[Ground]:
+        """``n`` grounds drawn with ``rng`` (in mirrored pairs with ``antithetic``)."""
+        ...
+
+    @property
+    def start_sigma(self) -> tuple[float, float]:
+        """``(position_m, heading_rad)``: 1-sigma error of a start pose."""
         ...
 
 
@@ -99,10 +109,22 @@ class DefaultSpread:
     ground: Ground
     sigma: float = DEFAULT_SPREAD
 
-    def sample(self, rng: np.random.Generator | int, n: int) -> list[Ground]:
-        """``n`` grounds drawn with ``rng`` (a generator, or a seed for a new one)."""
+    @property
+    def start_sigma(self) -> tuple[float, float]:
+        """No start-pose error: the gate knows nothing of the rover's sensors."""
+        return 0.0, 0.0
+
+    def sample(
+        self, rng: np.random.Generator | int, n: int, *, antithetic: bool = False
+    ) -> list[Ground]:
+        """``n`` grounds drawn with ``rng`` (a generator, or a seed for a new one); with
+        ``antithetic`` in mirrored pairs (``exp(+d)``, ``exp(-d)``)."""
         gen = np.random.default_rng(rng) if isinstance(rng, int) else rng
-        factors = np.exp(gen.normal(0.0, self.sigma, size=(n, len(FIT_PARAMETERS))))
+        if antithetic:
+            half = gen.normal(0.0, self.sigma, size=((n + 1) // 2, len(FIT_PARAMETERS)))
+            factors = np.exp(mirrored(half)[:n])
+        else:
+            factors = np.exp(gen.normal(0.0, self.sigma, size=(n, len(FIT_PARAMETERS))))
         base = self.ground.values()
         return [
             self.ground.with_values(
@@ -114,11 +136,21 @@ class DefaultSpread:
 
 def draw(spread: Spread, n: int, seed: int, slip_sigma: float) -> list[BatchDraw]:
     """The ``n`` twins of a request: grounds from ``spread``, then each side's slip
-    factor, all from ``numpy.random.default_rng(seed)``."""
+    factor, then the start pose's offset (``spread.start_sigma``), all from
+    ``numpy.random.default_rng(seed)``, each in antithetic pairs: twins ``2k`` and
+    ``2k + 1`` are mirror images about the nominal one (``+d`` and ``-d`` in log
+    friction, in slip, in the start's offset), so that the samples' spread is centred
+    on the nominal prediction wherever it is linear in them (docs/gate.md)."""
     rng = np.random.default_rng(seed)
-    grounds = spread.sample(rng, n)
-    slips = np.exp(rng.normal(0.0, slip_sigma, size=(n, 2)))
-    return [BatchDraw(g, float(s[0]), float(s[1])) for g, s in zip(grounds, slips, strict=True)]
+    half = (n + 1) // 2
+    grounds = spread.sample(rng, n, antithetic=True)
+    slips = np.exp(mirrored(rng.normal(0.0, slip_sigma, size=(half, 2)))[:n])
+    position, heading = spread.start_sigma
+    offsets = mirrored(rng.normal(0.0, 1.0, size=(half, 3)))[:n] * (position, position, heading)
+    return [
+        BatchDraw(g, float(s[0]), float(s[1]), float(o[0]), float(o[1]), float(o[2]))
+        for g, s, o in zip(grounds, slips, offsets, strict=True)
+    ]
 
 
 def chunk_sizes(n: int) -> list[int]:

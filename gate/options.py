@@ -16,7 +16,7 @@ parameter       meaning                                     default / range
 ``samples``     twins to play (> 1: a verdict with its      1, 1..2000
                 uncertainty, :mod:`gate.ensemble`)
 ``seed``        seed of those twins' draws                  0, 0..4294967295
-``slip_sigma``  1-sigma of each side's friction factor      0.1, 0..1
+``slip_sigma``  1-sigma of each side's friction factor      server default, 0..1
 ==============  ==========================================  ==========================
 
 Parsing is strict, like the body: an unknown or repeated parameter, an empty value, or
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from urllib.parse import parse_qsl, quote
 
 from firmware_proto.model.pose import Pose
-from gate.config import PlaybackSettings
+from gate.config import DEFAULT_SLIP_SIGMA, PlaybackSettings
 from gate.errors import OptionError
 
 __all__ = [
@@ -72,10 +72,6 @@ OPTION_LIMITS: dict[str, tuple[float, float]] = {
 DEFAULT_SAMPLES = 1
 """One playback on the nominal twin unless a request asks for more."""
 DEFAULT_SEED = 0
-DEFAULT_SLIP_SIGMA = 0.1
-"""1-sigma of each side's friction factor (log-normal) in a verdict with uncertainty:
-one side gripping about 10 % more or less than the other, which turns a 5 m leg by a
-few degrees (docs/gate.md)."""
 
 _INTEGER = re.compile(r"\d+")
 _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
@@ -248,7 +244,7 @@ class ValidateOptions:
             sample_hz=sample_hz,
             samples=DEFAULT_SAMPLES if self.samples is None else self.samples,
             seed=DEFAULT_SEED if self.seed is None else self.seed,
-            slip_sigma=DEFAULT_SLIP_SIGMA if self.slip_sigma is None else self.slip_sigma,
+            slip_sigma=defaults.slip_sigma if self.slip_sigma is None else self.slip_sigma,
         )
 
 

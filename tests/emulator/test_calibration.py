@@ -116,11 +116,14 @@ def test_the_fit_finds_the_ground_the_gate_did_not_know(fitted: Calibration) -> 
     assert fitted.parameters == (
         "mu_longitudinal",
         "mu_lateral",
+        "slip_saturation_mps",
         "slip_saturation_ratio",
         "rolling_resistance",
     )
     for name in fitted.parameters:
         assert 0.0 < fitted.relative_sigma(name) < 0.7
+        lo, hi = fitted.interval(name)
+        assert lo < fitted.value(name) < hi
 
 
 def test_the_twin_file_round_trips_and_loads_as_a_rover(
