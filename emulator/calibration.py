@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -101,21 +102,25 @@ class Noise:
 
 @dataclass(frozen=True)
 class Check:
-    """One measured step left out of the fit (leave-one-out, linearised) and predicted
-    with its :data:`BAND_LEVEL` band: the calibration's report.
+    """One outcome predicted with its :data:`BAND_LEVEL` band: the calibration's report.
+    A step check is one measured step left out of the fit (leave-one-out, linearised);
+    a plan check is a whole recorded plan, its steps' predicted moves chained from the
+    rest before the first (as it ran: each step from rest), against the rest after its
+    last.
 
     Attributes:
-        source, index: the recording and the step's index in it.
-        step: ``(command, speed, distance)``.
-        measured: ``(forward_m, lateral_m, yaw_rad)`` of the step, in its start frame.
-        predicted: the same, by the fit made without this step.
-        half_width: of each axis's band around ``predicted`` (parameters, process noise
-            and the step's measurement errors).
+        source, index: the recording and the (first) step's index in it.
+        steps: ``(command, speed, distance)`` of each step (one for a step check).
+        measured: ``(forward_m, lateral_m, yaw_rad)``: a step's move in its start frame;
+            a plan's final pose in the frame of the predicted final pose.
+        predicted: the same, by the fit (made without the step, for a step check).
+        half_width: of each axis's band around ``predicted`` (parameters, process noise,
+            the start's and the measurements' errors).
     """
 
     source: str
     index: int
-    step: tuple[int, int, int]
+    steps: tuple[tuple[int, int, int], ...]
     measured: tuple[float, float, float]
     predicted: tuple[float, float, float]
     half_width: tuple[float, float, float]
@@ -143,8 +148,13 @@ class Check:
             strict=True,
         ):
             parts.append(f"{name} {fmt(m - p)} off, band +/-{fmt(h)} ({'in' if ok else 'OUT'})")
-        c, sp, dist = self.step
-        return f"step {self.index} [{c}, {sp}, {dist}]: " + "; ".join(parts)
+        where = Path(self.source).name
+        if len(self.steps) == 1:
+            c, sp, dist = self.steps[0]
+            what = f"{where} step {self.index} [{c}, {sp}, {dist}]"
+        else:
+            what = f"{where} plan of {len(self.steps)} steps"
+        return f"{what}: " + "; ".join(parts)
 
 
 def band_half_width(variance: float) -> float:
@@ -176,7 +186,12 @@ class Calibration:
             file written before they were).
         targets: each parameter's target relative 1-sigma (``parameters`` order;
             :func:`emulator.design.targets`; a region's is its prior's), or empty.
-        checks: the held-out checks (:class:`Check`), in the steps' order.
+        checks: the held-out checks (:class:`Check`), each step's in the steps' order,
+            then each plan's.
+        draws: draws from the fit's posterior, ``log(value)`` of each parameter
+            (``parameters`` order): the Gaussian's draws weighed by how well each
+            explains the measured steps and resampled (:mod:`emulator.fit`); what
+            :meth:`sample` and :meth:`interval` use when present.
     """
 
     ground: Ground
@@ -194,6 +209,7 @@ class Calibration:
     noise: Noise | None = None
     targets: tuple[float, ...] = ()
     checks: tuple[Check, ...] = ()
+    draws: tuple[tuple[float, ...], ...] = ()
 
     def value(self, name: str) -> float:
         """A fitted parameter's value (``region.ID`` for a region's scale).
@@ -232,6 +248,11 @@ class Calibration:
         if z is None:
             raise ValueError(f"level must be 0.68, 0.9 or 0.95, got {level}")
         value, sigma = self.value(name), self.relative_sigma(name)
+        if self.draws:
+            column = np.exp(np.array(self.draws)[:, self.parameters.index(name)])
+            tail = (1.0 - level) / 2.0 * 100.0
+            lo, hi = np.percentile(column, [tail, 100.0 - tail])
+            return float(lo), float(hi)
         return value * math.exp(-z * sigma), value * math.exp(z * sigma)
 
     @property
@@ -245,23 +266,28 @@ class Calibration:
     def sample(
         self, rng: np.random.Generator | int, n: int, *, antithetic: bool = False
     ) -> list[Ground]:
-        """``n`` grounds drawn from the calibration's uncertainty: ``log(values)``
-        normal with :attr:`covariance` around the fitted ones; region scales clipped to
-        the map format's ``(0, 2]``.
+        """``n`` grounds drawn from the calibration's uncertainty: from its posterior
+        :attr:`draws` (with replacement) when it has them, else ``log(values)`` normal
+        with :attr:`covariance` around the fitted ones; region scales clipped to the
+        map format's ``(0, 2]``.
 
         Args:
             rng: a numpy generator, or a seed for a new one (same seed, same grounds).
             n: how many (>= 0).
-            antithetic: draw in pairs mirrored about the fitted values (``+d``, ``-d``
-                in log space): the draws' spread is then centred on the fitted ground,
-                and a prediction that is linear in them on the nominal one.
+            antithetic: for the normal's draws, in pairs mirrored about the fitted
+                values (``+d``, ``-d`` in log space): their spread is then centred on the
+                fitted ground. Posterior draws are not mirrored (the posterior need not
+                be symmetric: a mirrored draw may be one the steps rule out).
         """
         gen = np.random.default_rng(rng) if isinstance(rng, int) else rng
         if not self.parameters or n <= 0:
             return [self.ground] * max(0, n)
         mean = np.log([self.value(p) for p in self.parameters])
         cov = np.array(self.covariance, dtype=np.float64)
-        if antithetic:
+        if self.draws:
+            table = np.array(self.draws, dtype=np.float64)
+            draws = table[gen.integers(0, len(table), size=n)]
+        elif antithetic:
             half = gen.multivariate_normal(
                 np.zeros(len(mean)), cov, size=(n + 1) // 2, method="eigh"
             )

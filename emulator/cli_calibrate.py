@@ -15,24 +15,32 @@ EXIT_USAGE = 2
 EXIT_UNIDENTIFIABLE = 3
 
 _DESCRIPTION = (
-    "Fit the twin's ground (friction along and across the wheels, slip ratio, rolling "
-    "resistance, and the friction of each map region driven on) to missions recorded "
-    "with --record by 'rover go' or 'rover demo': every completed step is replayed on "
-    "the twin from the pose recorded at rest before it and compared with the pose "
-    "(POSE) and the yaw change (IMU) recorded at rest after it, the encoders checking "
-    "that the step was whole; scipy's least squares. Writes a twin description (a rover "
-    "description with the fitted traction and a [calibration] table: each parameter's "
-    "value and uncertainty, the residuals) for 'rover gate --twin FILE' (docs/twin.md)."
+    "Fit the twin's ground (every traction parameter of the force model, and the friction "
+    "of each map region driven on) to steps measured at rest: every completed step is "
+    "replayed on the twin from the pose recorded at rest before it and compared with the "
+    "pose (POSE) and the yaw change (IMU) recorded at rest after it, the encoders checking "
+    "that the step was whole; scipy's least squares; the noise the twin cannot predict "
+    "estimated from the residuals, the posterior drawn, each step and each plan checked "
+    "against its 90 % band. The steps come from missions recorded with --record by "
+    "'rover go' or 'rover demo', or, with --drive, from steps it designs and drives itself "
+    "on the running stack (through the ground station: 'rover go --plan', each plan "
+    "validated on the stack's gate first) within --budget seconds of driving, until every "
+    "parameter is under its target. Writes a twin description (a rover description with "
+    "the fitted traction and a [calibration] table) for 'rover gate --twin FILE' and "
+    "'rover stack up --twin FILE' (docs/twin.md)."
 )
 
 _EPILOG = (
     "exit status:\n"
     f"  {EXIT_OK}  the twin file was written\n"
-    f"  {EXIT_USAGE}  bad usage, or a recording that cannot be read or has no step\n"
-    "     measured at rest before and after it\n"
-    f"  {EXIT_UNIDENTIFIABLE}  the recordings cannot identify a parameter (no turns, too short, a\n"
-    "     region barely driven on): one line says which; nothing is written\n\n"
+    f"  {EXIT_USAGE}  bad usage, a recording that cannot be read or has no step measured at\n"
+    "     rest before and after it, or (--drive) a stack that cannot be driven\n"
+    f"  {EXIT_UNIDENTIFIABLE}  the steps cannot identify a parameter: one line says which, and\n"
+    "     which steps would; nothing is written\n\n"
     "examples:\n"
+    "  rover stack up --ground loose            # then, in another shell:\n"
+    '  eval "$(rover stack env)"\n'
+    "  rover calibrate --drive --map lab -o twin.toml\n"
     "  rover demo --ground loose --record day1.mcap\n"
     "  rover calibrate day1.mcap --map lab -o twin.toml\n"
     "  rover gate --map lab --twin twin.toml"
@@ -48,7 +56,47 @@ def register(subparsers: Any) -> None:
         description=_DESCRIPTION,
         epilog=_EPILOG,
     )
-    p.add_argument("missions", nargs="+", metavar="MISSION.mcap", help="recorded missions")
+    p.add_argument(
+        "missions",
+        nargs="*",
+        metavar="MISSION.mcap",
+        help="recorded missions (with --drive: fitted first, their driving not counted)",
+    )
+    drive = p.add_argument_group(
+        "a designed calibration (--drive): drives a running stack through the ground station"
+    )
+    drive.add_argument(
+        "--drive",
+        action="store_true",
+        help="design and drive the identifying steps (rover go --plan on the stack that "
+        "rover stack up exports), until every parameter is under its target or the budget "
+        "is spent",
+    )
+    drive.add_argument(
+        "--budget",
+        type=_positive,
+        default=60.0,
+        metavar="S",
+        help="seconds of driving it may use (nominal step durations; default 60)",
+    )
+    drive.add_argument(
+        "--keep",
+        metavar="DIR",
+        help="where each round's plan and recording go (default OUTPUT's name + .rounds)",
+    )
+    drive.add_argument("--gate", metavar="URL", help="the stack's gate (default $ROVER_GATE_URL)")
+    drive.add_argument(
+        "--domain", type=int, metavar="N", help="the stack's ROS 2 domain (default $ROS_DOMAIN_ID)"
+    )
+    drive.add_argument(
+        "--rtt", type=_positive, metavar="S", help="the link's round trip, wall s ($ROVER_LINK_RTT)"
+    )
+    drive.add_argument(
+        "--time-scale",
+        type=_positive,
+        metavar="S",
+        help="mission seconds per wall second of the stack ($ROVER_TIME_SCALE, else 1)",
+    )
     p.add_argument(
         "--map", default="lab", metavar="NAME|FILE", help="the map driven on (default lab)"
     )
@@ -71,7 +119,22 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_run)
 
 
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0.0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.drive:
+        return _drive(args)
+    if not args.missions:
+        print("rover calibrate: give recorded missions, or --drive", file=sys.stderr)
+        return EXIT_USAGE
     from emulator.errors import (
         CalibrationError,
         EmulatorError,
@@ -198,8 +261,78 @@ def print_calibration(cal: Any, rover: Any, world: Any) -> None:
         inside = [sum(c.inside[a] for c in cal.checks) for a in range(3)]
         k = len(cal.checks)
         print(
-            f"held-out checks (each step left out of the fit, predicted with its 90 % band): "
-            f"inside {inside[0]}/{k} forward, {inside[1]}/{k} lateral, {inside[2]}/{k} yaw"
+            "held-out checks (each step left out of the fit, and each plan as the gate plays "
+            f"it, predicted with its 90 % band): inside {inside[0]}/{k} forward, "
+            f"{inside[1]}/{k} lateral, {inside[2]}/{k} yaw"
         )
         for check in cal.checks:
             print(f"  {check.line()}")
+
+
+def _drive(args: argparse.Namespace) -> int:
+    """``rover calibrate --drive``: a designed calibration on the running stack."""
+    import time
+    from pathlib import Path
+
+    from emulator.campaign import run_campaign
+    from emulator.errors import CalibrationError, EmulatorError
+    from emulator.stackdriver import StackDriver
+    from emulator.twin import GATE_DT_S
+    from emulator.twinfile import write_twin
+    from firmware_proto.errors import DescriptionError
+    from firmware_proto.model.rover import load_rover
+    from firmware_proto.model.worldmap import load_map
+
+    t0 = time.monotonic()
+
+    def say(line: str) -> None:
+        print(f"[{time.monotonic() - t0:6.1f} s] {line}", flush=True)
+
+    try:
+        rover = load_rover(args.rover)
+        world = load_map(args.map)
+        keep = Path(args.keep) if args.keep else Path(args.output).with_suffix(".rounds")
+        driver = StackDriver(
+            rover,
+            world.name,
+            gate=args.gate,
+            domain=args.domain,
+            time_scale=args.time_scale,
+            rtt_s=args.rtt,
+        )
+        campaign = run_campaign(
+            driver,
+            rover,
+            world,
+            keep,
+            budget_s=args.budget,
+            recordings=[Path(m) for m in args.missions],
+            dt_s=args.dt if args.dt is not None else GATE_DT_S,
+            on_event=say,
+        )
+    except (DescriptionError, ValueError) as exc:
+        print(f"rover calibrate: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except (CalibrationError, EmulatorError) as exc:
+        print(f"rover calibrate: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    say(
+        f"{campaign.driving_s:.1f} s of driving of {args.budget:g} in {len(campaign.rounds)} "
+        f"plan(s); stopped: {campaign.stopped}; recordings in {keep}"
+    )
+    if campaign.refusal is not None or campaign.calibration is None:
+        print(f"rover calibrate: {campaign.refusal}", file=sys.stderr)
+        return EXIT_UNIDENTIFIABLE
+    try:
+        write_twin(args.output, rover, campaign.calibration)
+    except OSError as exc:
+        print(f"rover calibrate: cannot write {args.output}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    print_calibration(campaign.calibration, rover, world)
+    scale = f" --speed-factor {driver.speed_factor:g}" if driver.speed_factor != 1.0 else ""
+    print(
+        f"calibrated in {campaign.wall_s:.1f} s of wall time (fits {campaign.fit_wall_s:.1f} s); "
+        f"twin written to {args.output} (rover gate --twin {args.output}; rover calibrate "
+        f"{keep}/round-*.mcap --map {args.map}{scale} fits the same recordings again)"
+    )
+    return EXIT_OK

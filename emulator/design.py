@@ -43,6 +43,7 @@ from firmware_proto.wire.messages import Command
 
 __all__ = [
     "DIFF_STEP",
+    "NEAR_BEST",
     "PROBE_POSITION_M",
     "PROBE_YAW_RAD",
     "SETTLE_S",
@@ -56,6 +57,7 @@ __all__ = [
     "probes",
     "sensitivities",
     "shares",
+    "step_noise",
     "targets",
 ]
 
@@ -68,17 +70,21 @@ DIFF_STEP = 1e-3
 
 PROBE_POSITION_M = 0.002
 """A calibration is good enough when no probe's position is uncertain by more than this
-(1 sigma): a twelfth of the drift guard's 0.25 m over a 12-step plan, and about the
-measurement error of one step."""
-PROBE_YAW_RAD = math.radians(0.1)
-"""... and no probe's yaw by more than this (1 sigma)."""
+(1 sigma): about the measurement error of one step; twelve of them, adding up, stay a
+tenth of the drift guard's 0.25 m."""
+NEAR_BEST = 0.05
+"""Candidates whose gain is within this fraction of the best are as good (a design's
+information is an estimate): a tie-breaker chooses among them."""
+PROBE_YAW_RAD = math.radians(0.05)
+"""... and no probe's yaw by more than this (1 sigma): six turns of a 12-step plan, adding
+up, turn its last metres by 0.3 degree, 5 mm at 1 m."""
 
 
 def _straights(rover: RoverDescription) -> list[tuple[int, int, int]]:
     out = []
     for command in (Command.FWD, Command.REV):
         for speed in (10, 25, 45, 60):
-            for metres in (0.5, 1.0):
+            for metres in (0.5,) if speed == 10 else (0.5, 1.0):
                 out.append((int(command), speed, rover.m_to_units(metres)))
     return out
 
@@ -87,29 +93,35 @@ def _turns(rover: RoverDescription) -> list[tuple[int, int, int]]:
     out = []
     for command in (Command.LEFT, Command.RIGHT):
         for speed in (10, 25, 45, 60):
-            for degrees in (45.0, 90.0, 180.0):
+            for degrees in (45.0,) if speed == 10 else (45.0, 90.0, 180.0):
                 units = min(rover.turn_units_for_yaw(math.radians(degrees)), 30000)
                 out.append((int(command), speed, units))
     return out
 
 
 def candidates(rover: RoverDescription) -> tuple[tuple[int, int, int], ...]:
-    """The steps a designed calibration chooses from: FWD and REV at speeds 10, 25, 45
-    and 60 over 0.5 and 1 m; LEFT and RIGHT at the same speeds over 45, 90 and 180
-    degrees (by ``rover``'s turn model)."""
+    """The steps a designed calibration chooses from: FWD and REV at speeds 10 (over
+    0.5 m), 25, 45 and 60 (over 0.5 and 1 m); LEFT and RIGHT at speed 10 (by 45
+    degrees), 25, 45 and 60 (by 45, 90 and 180 degrees, by ``rover``'s turn model). The
+    slowest steps are short: at speed 10 a metre takes 20 s of the budget."""
     return tuple(_straights(rover) + _turns(rover))
 
 
 def probes(rover: RoverDescription) -> tuple[tuple[int, int, int], ...]:
-    """The steps plans are made of (the planner's defaults): FWD 1 m at its drive speed
-    60 and 0.5 m at its approach speed 30, REV 0.5 m at 30, 90 degree turns both ways
-    at its turn speed 20, a 15 degree turn at its fine-turn speed 10."""
+    """The steps a calibrated twin must predict, across what plans are made of: FWD over
+    1 m at speeds 15, 35 and 60 (the planner drives at 60 and approaches at 30), REV
+    over 0.5 m at 35 (repairs back up), 90 degree turns at 15, 30 and 45 and the other
+    way at 20 (the planner's turn speed), a 15 degree turn at 10 (its fine turns)."""
     quarter = rover.turn_units_for_yaw(math.pi / 2.0)
+    metre = rover.m_to_units(1.0)
     return (
-        (int(Command.FWD), 60, rover.m_to_units(1.0)),
-        (int(Command.FWD), 30, rover.m_to_units(0.5)),
-        (int(Command.REV), 30, rover.m_to_units(0.5)),
-        (int(Command.LEFT), 20, quarter),
+        (int(Command.FWD), 15, metre),
+        (int(Command.FWD), 35, metre),
+        (int(Command.FWD), 60, metre),
+        (int(Command.REV), 35, metre // 2),
+        (int(Command.LEFT), 15, quarter),
+        (int(Command.LEFT), 30, quarter),
+        (int(Command.LEFT), 45, quarter),
         (int(Command.RIGHT), 20, quarter),
         (int(Command.LEFT), 10, rover.turn_units_for_yaw(math.radians(15.0))),
     )
@@ -168,6 +180,26 @@ def sensitivities(
     return moves, jac, side
 
 
+def step_noise(
+    moves: np.ndarray,
+    side: np.ndarray,
+    *,
+    sigma_xy_m: float,
+    sigma_yaw_rad: float,
+    sigma_heading_rad: float,
+    slip_sigma: float,
+) -> np.ndarray:
+    """``(k, 3, 3)``: the noise of steps with start-frame ``moves`` ``(k, 3)`` and side
+    sensitivities ``side`` ``(k, 3, 2)``, measured as calibration steps are: the
+    positions' and the yaw change's errors, the start heading's (which turns a move of
+    ``(f, l)`` by ``(l, -f)`` per radian), and the process noise ``slip_sigma`` on each
+    side's log friction (:class:`~emulator.observations.StepObservation.covariance`)."""
+    turn = np.stack((moves[:, 1], -moves[:, 0], np.zeros(len(moves))), axis=1)
+    measured = np.diag([sigma_xy_m**2, sigma_xy_m**2, sigma_yaw_rad**2])[None]
+    cov = measured + sigma_heading_rad**2 * np.einsum("ka,kb->kab", turn, turn)
+    return np.asarray(cov + slip_sigma**2 * np.einsum("kap,kbp->kab", side, side))
+
+
 def information(jac: np.ndarray, noise: np.ndarray) -> np.ndarray:
     """Fisher information ``sum_i J_i^T C_i^-1 J_i`` of steps with sensitivities ``jac``
     ``(k, 3, p)`` and noise covariances ``noise`` ``(k, 3, 3)``."""
@@ -219,9 +251,12 @@ def best_step(
     durations_s: np.ndarray,
     *,
     allowed: np.ndarray | None = None,
+    preference: np.ndarray | None = None,
 ) -> tuple[int, float]:
     """The candidate that lowers the worst probe's spread most per second of driving
-    (a sequential, cost-weighted minimax design).
+    (a sequential, cost-weighted minimax design); among those within
+    :data:`NEAR_BEST` of the best, the one ``preference`` ranks first (where there is
+    room, which way to turn).
 
     Args:
         precision: the information so far (with the prior's), ``(p, p)``.
@@ -229,24 +264,30 @@ def best_step(
         candidate_jac, candidate_noise: ``(k, 3, p)`` and ``(k, 3, 3)``.
         durations_s: ``(k,)`` each candidate's driving time.
         allowed: ``(k,)`` which candidates may be chosen (room to drive them).
+        preference: ``(k,)`` a tie-breaker, higher preferred.
 
     Returns:
         ``(index, worst excess after it)``: the worst probe's spread over its bar if
         that candidate were measured next; ``(-1, inf)`` if none is allowed.
     """
     now = float(np.max(excess(probe_spread(probe_jac, np.linalg.inv(precision)))))
-    best, best_gain, best_after = -1, -math.inf, math.inf
     inv = np.linalg.inv(candidate_noise)
+    gains = np.full(len(candidate_jac), -math.inf)
+    afters = np.full(len(candidate_jac), math.inf)
     for i in range(len(candidate_jac)):
         if allowed is not None and not allowed[i]:
             continue
         j = candidate_jac[i]
         after_cov = np.linalg.inv(precision + j.T @ inv[i] @ j)
-        after = float(np.max(excess(probe_spread(probe_jac, after_cov))))
-        gain = (math.log(now) - math.log(max(after, 1e-12))) / max(durations_s[i], 0.1)
-        if gain > best_gain:
-            best, best_gain, best_after = i, gain, after
-    return best, best_after
+        afters[i] = float(np.max(excess(probe_spread(probe_jac, after_cov))))
+        gains[i] = (math.log(now) - math.log(max(afters[i], 1e-12))) / max(durations_s[i], 0.1)
+    top = float(np.max(gains)) if len(gains) else -math.inf
+    if not math.isfinite(top):
+        return -1, math.inf
+    near = gains >= top - NEAR_BEST * abs(top)
+    order = preference if preference is not None else np.zeros(len(gains))
+    best = int(np.argmax(np.where(near, order, -math.inf) + np.where(near, gains * 1e-9, 0.0)))
+    return best, float(afters[best])
 
 
 def advice(

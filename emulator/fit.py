@@ -34,9 +34,13 @@ rest) is what the rests measured.
 **Uncertainty**: the covariance of the log-parameters is ``s^2 (J^T J + P)^-1`` at the
 solution, ``J`` the Jacobian of the whitened residuals, ``P`` the priors' precision and
 ``s^2`` the reduced chi-square when it exceeds 1 (a misfit the noise terms do not
-explain widens it). **Checks**: each step left out in turn, linearised (the fit's
-hat matrix), predicted with its 90 % band (parameters, process noise, its measurement
-errors): the report (:class:`~emulator.calibration.Check`).
+explain widens it). That Gaussian is the design's and the refusals' (linearised);
+what the gate samples grounds from is the posterior itself, drawn by
+sampling-importance-resampling around it (:func:`_posterior`): a draw the measured steps
+rule out is not kept, however far the Gaussian's tails reach. **Checks**: each step left
+out in turn, linearised (the fit's hat matrix), predicted with its 90 % band
+(parameters, process noise, its measurement errors): the report
+(:class:`~emulator.calibration.Check`).
 
 **Refusals** (:class:`~emulator.errors.UnidentifiableError`), never guesses: before
 fitting, steps without a turn measured, without a straight step, or too few
@@ -69,6 +73,7 @@ from emulator.calibration import (
     Noise,
     Residuals,
     band_half_width,
+    mirrored,
 )
 from emulator.errors import CalibrationError, RecordingError, UnidentifiableError
 from emulator.ground import Ground
@@ -76,6 +81,7 @@ from emulator.moves import MoveJob, play_moves
 from emulator.observations import ObservedSteps, StepObservation
 from emulator.playback import measure_turn_efficiency
 from emulator.twin import GATE_DT_S, Pose2D
+from firmware_proto.model.geometry import wrap_rad
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.model.worldmap import WorldMap
 from firmware_proto.wire.messages import Command
@@ -122,7 +128,7 @@ not informed by the steps."""
 REFUSE_FACTOR = 5.0
 """A fit that leaves a probe more than this many times its bar uncertain
 (:data:`emulator.design.PROBE_POSITION_M`, :data:`~emulator.design.PROBE_YAW_RAD`: 1 cm
-and 0.5 degree at one sigma) is refused."""
+and 0.25 degree at one sigma) is refused."""
 
 BOUNDS: dict[str, tuple[float, float]] = {
     "mu_longitudinal": (0.05, 3.0),
@@ -133,6 +139,15 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "region": (0.02, 2.0),
 }
 """Where each parameter is searched (``region`` for every region scale)."""
+
+POSTERIOR_PROPOSALS = 256
+"""Proposals of the posterior's sampling-importance-resampling."""
+POSTERIOR_DRAWS = 100
+"""Draws kept from the posterior (what the gate samples grounds from)."""
+PROPOSAL_SCALE = 1.5
+"""The proposal's spread over the Gaussian's: wider, so it covers the posterior."""
+POSTERIOR_SEED = 44
+"""Seed of the posterior's draws (a calibration is deterministic)."""
 
 _TOLERANCE = 1e-6
 """The solver's ``ftol`` and ``xtol``: a thousandth of the smallest uncertainty a fit
@@ -378,6 +393,8 @@ def fit_ground(
     dt_s: float = GATE_DT_S,
     sources: tuple[str, ...] = (),
     max_evaluations: int = 100,
+    refuse: bool = True,
+    posterior: bool = True,
 ) -> tuple[Calibration, FitReport]:
     """Fit the ground to measured steps (module docstring).
 
@@ -390,6 +407,11 @@ def fit_ground(
         dt_s: the twin's step (default the gate's, so the fit is what the gate plays).
         sources: the recordings' names, for the report.
         max_evaluations: the solver's budget of evaluations per pass.
+        refuse: raise for a covariance that leaves a probe too uncertain (``False``:
+            return the fit, as a designed calibration does between its rounds; the
+            structural refusals stay).
+        posterior: draw from the posterior (:func:`_posterior`; ``False``: the
+            calibration has no draws, as a designed calibration's fits between rounds).
 
     Raises:
         RecordingError: no step could be measured.
@@ -467,7 +489,7 @@ def fit_ground(
     if slip > 0.0:
         problem = problem_for(obs, total)
         result = problem.solve(result.x, "linear", max_evaluations)
-    f, jac, moves, _jac_moves, side = problem.evaluate(result.x, sides=True)
+    f, jac, moves, jac_moves, side = problem.evaluate(result.x, sides=True)
     p = len(names)
     data = f[: 3 * len(obs)]
     chi2 = float(np.sum(data * data) / max(1, data.size - p))
@@ -479,7 +501,27 @@ def fit_ground(
         heading_sigma_rad=float(np.median([o.sigma_heading_rad for o in obs])),
     )
     checks = _checks(obs, measured, moves, jac, total, covariance)
-    targets = _refuse_uninformed(names, covariance, fitted, rover, observed, noise, dt_s)
+    plans = _plans(obs, moves, jac_moves, side, covariance, noise)
+    plan_slip = _slip_sigma(
+        np.array([pl.residual for pl in plans]).reshape(-1, 3),
+        np.array([pl.fixed for pl in plans]).reshape(-1, 3, 3),
+        np.array([pl.side for pl in plans]).reshape(-1, 3, 2),
+    )
+    if plan_slip > slip:
+        # A bias too small to see in one step adds up over a plan's; the gate draws one
+        # friction factor per side for a whole plan, so its slip spread is the plans'.
+        noise = replace(noise, slip_sigma=plan_slip)
+        logger.info(
+            "slip spread %.4f from %d plans (%.4f from the steps)", plan_slip, len(plans), slip
+        )
+    checks += tuple(pl.check(noise.slip_sigma) for pl in plans)
+    draws: tuple[tuple[float, ...], ...] = ()
+    if posterior:
+        draws, ess = _posterior(problem, result.x, covariance, max(1.0, chi2))
+        logger.info("posterior: %d draws resampled, effective sample size %.0f", len(draws), ess)
+    targets = _refuse_uninformed(
+        names, covariance, fitted, rover, observed, noise, dt_s, refuse=refuse
+    )
     before = Residuals.of(replays.moves([BatchDraw(described)])[0] - measured)
     after = Residuals.of(moves - measured)
     efficiency = measure_turn_efficiency(
@@ -501,6 +543,7 @@ def fit_ground(
         noise=noise,
         targets=targets,
         checks=checks,
+        draws=draws,
     )
     report = FitReport(replays.batches, time.perf_counter() - t0, str(result.message), outliers)
     logger.info(
@@ -512,6 +555,157 @@ def fit_ground(
         slip,
     )
     return calibration, report
+
+
+def _posterior(
+    problem: _Problem, x_hat: np.ndarray, covariance: np.ndarray, temper: float
+) -> tuple[tuple[tuple[float, ...], ...], float]:
+    """Draws from the fit's posterior by sampling-importance-resampling: proposals from
+    the Gaussian (its covariance widened by :data:`PROPOSAL_SCALE`, antithetic pairs,
+    seeded), each replayed on every measured step in one batch and weighed by its
+    likelihood (the whitened residuals, tempered by the reduced chi-square when above
+    1) times its prior over its proposal density; :data:`POSTERIOR_DRAWS` resampled
+    systematically. Where the Gaussian is poor (the slip ratio, the slip floor and the
+    rolling resistance trade off along a curved valley, and a straight-line draw far
+    along it predicts what the steps rule out) the weights say so. With few effective
+    draws the proposal is fitted to the weighted ones and drawn once more.
+
+    Returns:
+        The draws (log-values, ``problem.names`` order) and the effective sample size
+        of the last weighing.
+    """
+    rng = np.random.default_rng(POSTERIOR_SEED)
+    lo, hi = _bounds(problem.names)
+    mean, cov = x_hat, covariance * PROPOSAL_SCALE**2
+    ess = 0.0
+    weights = np.ones(1)
+    points = x_hat[None, :]
+    for _attempt in range(2):
+        half = rng.multivariate_normal(np.zeros(len(mean)), cov, size=POSTERIOR_PROPOSALS // 2)
+        points = np.clip(mean + mirrored(half), lo, hi)
+        table = problem.replays.moves([BatchDraw(problem.ground(x)) for x in points])
+        white = np.einsum("nab,knb->kna", problem.whiten, table - problem.measured)
+        loglik = -0.5 * np.sum(white * white, axis=(1, 2)) / temper
+        logprior = -0.5 * np.sum(((points - problem.prior) / PRIOR_SIGMA) ** 2, axis=1)
+        delta = points - mean
+        logq = -0.5 * np.einsum("ka,ab,kb->k", delta, np.linalg.inv(cov), delta)
+        logw = loglik + logprior - logq
+        weights = np.exp(logw - np.max(logw))
+        weights /= np.sum(weights)
+        ess = float(1.0 / np.sum(weights * weights))
+        if ess >= POSTERIOR_PROPOSALS / 10:
+            break
+        mean = np.sum(weights[:, None] * points, axis=0)
+        centred = points - mean
+        cov = (weights[:, None] * centred).T @ centred * PROPOSAL_SCALE**2
+        cov += np.eye(len(mean)) * 1e-10
+    positions = (rng.random() + np.arange(POSTERIOR_DRAWS)) / POSTERIOR_DRAWS
+    chosen = np.minimum(np.searchsorted(np.cumsum(weights), positions), len(points) - 1)
+    rows = tuple(tuple(float(v) for v in points[i]) for i in chosen)
+    return rows, ess
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """A recorded plan, every step of it measured: its prediction's residual and the
+    parts of its spread (see :func:`_plans`)."""
+
+    source: str
+    index: int
+    steps: tuple[tuple[int, int, int], ...]
+    residual: np.ndarray  # (3,) measured minus predicted, in the predicted final frame
+    fixed: np.ndarray  # (3, 3) parameters, start and end measurement
+    side: np.ndarray  # (3, 2) per log side factor
+
+    def check(self, slip_sigma: float) -> Check:
+        cov = self.fixed + slip_sigma**2 * self.side @ self.side.T
+        return Check(
+            source=self.source,
+            index=self.index,
+            steps=self.steps,
+            measured=tuple(float(v) for v in self.residual),  # type: ignore[arg-type]
+            predicted=(0.0, 0.0, 0.0),
+            half_width=tuple(band_half_width(float(cov[a, a])) for a in range(3)),  # type: ignore[arg-type]
+        )
+
+
+def _compose(start: Pose2D, moves: np.ndarray) -> Pose2D:
+    """``start`` moved by each ``(forward, left, yaw)`` move in turn, each in the frame
+    of the pose before it."""
+    x, y, yaw = start.x_m, start.y_m, start.yaw_rad
+    for f, left, dyaw in moves:
+        c, s = math.cos(yaw), math.sin(yaw)
+        x, y, yaw = x + c * f - s * left, y + s * f + c * left, yaw + dyaw
+    return Pose2D(x, y, yaw)
+
+
+def _plans(
+    obs: list[StepObservation],
+    moves: np.ndarray,
+    jac_moves: np.ndarray,
+    side: np.ndarray,
+    covariance: np.ndarray,
+    noise: Noise,
+) -> list[_Plan]:
+    """Each recording whose steps (two or more) were all measured, one after the other:
+    the fit's moves of its steps chained from the rest before the first (as the plan
+    ran, each step from rest), against the rest after the last (its heading the start's
+    plus the gyro's yaw changes). What the steps alone cannot show, a plan does: a bias
+    too small to see in one step adds up over the steps of a plan. Its spread: the
+    parameters' covariance carried through the chain, the start's noise
+    (:class:`Noise`), the end's measurement, and each side's friction factor shared by
+    every step of the plan (the gate draws one per side per plan)."""
+    index = {id(o): i for i, o in enumerate(obs)}
+    by_source: dict[str, list[StepObservation]] = {}
+    for o in obs:
+        by_source.setdefault(o.source, []).append(o)
+    out: list[_Plan] = []
+    h = design.DIFF_STEP
+    for source, group in by_source.items():
+        group.sort(key=lambda o: o.index)
+        if len(group) < 2 or group[-1].index - group[0].index != len(group) - 1:
+            continue
+        rows = [index[id(o)] for o in group]
+        chain = moves[rows]
+        start, last = group[0].start, group[-1]
+        nominal = _compose(start, chain)
+        # How the final pose (in its own frame) follows each step's move.
+        through = np.zeros((len(rows), 3, 3))
+        for k in range(len(rows)):
+            for a in range(3):
+                moved = chain.copy()
+                moved[k, a] += h
+                through[k, :, a] = np.array(_in_frame(_compose(start, moved), nominal)) / h
+        jac = np.einsum("kab,kbp->ap", through, jac_moves[rows])
+        coherent = np.einsum("kab,kbp->ap", through, side[rows])
+        jstart = np.zeros((3, 3))
+        for a, offset in enumerate(((h, 0.0, 0.0), (0.0, h, 0.0), (0.0, 0.0, h))):
+            shifted = Pose2D(
+                start.x_m + offset[0], start.y_m + offset[1], start.yaw_rad + offset[2]
+            )
+            jstart[:, a] = np.array(_in_frame(_compose(shifted, chain), nominal)) / h
+        # The end's heading is the start's plus the gyro's yaw changes, so the start
+        # heading's error turns the prediction and the measurement alike: it leaves the
+        # yaw, and moves only the predicted position.
+        jstart[2, :] = 0.0
+        measured_yaw = start.yaw_rad + sum(o.yaw_change_rad for o in group)
+        end = Pose2D(last.end.x_m, last.end.y_m, measured_yaw)
+        residual = np.array(_in_frame(end, nominal))
+        start_cov = np.diag([noise.pose_sigma_m**2] * 2 + [noise.heading_sigma_rad**2])
+        yaw_var = sum(o.sigma_yaw_rad**2 for o in group)
+        end_cov = np.diag([last.sigma_xy_m**2 / 2.0] * 2 + [yaw_var])
+        fixed = jac @ covariance @ jac.T + jstart @ start_cov @ jstart.T + end_cov
+        out.append(
+            _Plan(source, group[0].index, tuple(o.step for o in group), residual, fixed, coherent)
+        )
+    return out
+
+
+def _in_frame(pose: Pose2D, origin: Pose2D) -> tuple[float, float, float]:
+    """``pose`` in ``origin``'s frame: along, across (m), yaw difference (rad, wrapped)."""
+    dx, dy = pose.x_m - origin.x_m, pose.y_m - origin.y_m
+    c, s = math.cos(origin.yaw_rad), math.sin(origin.yaw_rad)
+    return c * dx + s * dy, -s * dx + c * dy, wrap_rad(pose.yaw_rad - origin.yaw_rad)
 
 
 def _checks(
@@ -540,7 +734,7 @@ def _checks(
             Check(
                 source=o.source,
                 index=o.index,
-                step=o.step,
+                steps=(o.step,),
                 measured=tuple(float(v) for v in measured[i]),  # type: ignore[arg-type]
                 predicted=tuple(float(v) for v in measured[i] + error),  # type: ignore[arg-type]
                 half_width=tuple(band_half_width(float(band[a, a])) for a in range(3)),  # type: ignore[arg-type]
@@ -554,14 +748,14 @@ def _design_noise(
 ) -> np.ndarray:
     """``(k, 3, 3)``: the noise of steps with ``moves`` and side sensitivities ``side``
     measured as the calibration's steps were (their median errors)."""
-    xy = float(np.median([o.sigma_xy_m for o in obs]))
-    yaw = float(np.median([o.sigma_yaw_rad for o in obs]))
-    heading = noise.heading_sigma_rad
-    turn = np.stack((moves[:, 1], -moves[:, 0], np.zeros(len(moves))), axis=1)
-    cov = np.diag([xy * xy, xy * xy, yaw * yaw])[None] + heading**2 * np.einsum(
-        "ka,kb->kab", turn, turn
+    return design.step_noise(
+        moves,
+        side,
+        sigma_xy_m=float(np.median([o.sigma_xy_m for o in obs])),
+        sigma_yaw_rad=float(np.median([o.sigma_yaw_rad for o in obs])),
+        sigma_heading_rad=noise.heading_sigma_rad,
+        slip_sigma=noise.slip_sigma,
     )
-    return np.asarray(cov + noise.slip_sigma**2 * np.einsum("kap,kbp->kab", side, side))
 
 
 def _refuse_uninformed(
@@ -572,12 +766,15 @@ def _refuse_uninformed(
     observed: ObservedSteps,
     noise: Noise,
     dt_s: float,
+    *,
+    refuse: bool = True,
 ) -> tuple[float, ...]:
     """Raise for a region the steps did not inform, or for a covariance that leaves a
-    probe too uncertain (module docstring); else each parameter's target 1-sigma."""
+    probe too uncertain (module docstring; not without ``refuse``); return each
+    parameter's target 1-sigma."""
     for i, name in enumerate(names):
         sigma = math.sqrt(max(0.0, covariance[i, i]))
-        if name.startswith("region.") and sigma > UNINFORMED_RATIO * PRIOR_SIGMA:
+        if refuse and name.startswith("region.") and sigma > UNINFORMED_RATIO * PRIOR_SIGMA:
             raise UnidentifiableError(
                 f"cannot identify the friction of region {name[len('region.') :]}: the "
                 f"recordings drove too little on it (+/-{sigma * 100:.0f}% at 1 sigma); "
@@ -596,7 +793,7 @@ def _refuse_uninformed(
     spread = design.probe_spread(probe_jac, cov)
     excess = design.excess(spread)
     worst = int(np.argmax(excess))
-    if excess[worst] <= REFUSE_FACTOR:
+    if excess[worst] <= REFUSE_FACTOR or not refuse:
         return tuple(targets)
     # The parameter whose uncertainty weighs most in the worst probe's spread: the one
     # that, known, would shrink it most.
@@ -622,10 +819,14 @@ def _refuse_uninformed(
     )
     probe = design.describe_step(rover, probes[worst])
     position = math.hypot(spread[worst, 0], spread[worst, 1])
+    by = (
+        f"{math.degrees(spread[worst, 2]):.2f} deg"
+        if probes[worst][0] in (Command.LEFT, Command.RIGHT)
+        else f"{position * 1e3:.0f} mm"
+    )
     raise UnidentifiableError(
         f"cannot identify {name}: the recordings ({len(observed.observations)} steps, "
-        f"{observed.driving_s:.0f} s of driving) leave {probe} uncertain by "
-        f"{position * 1e3:.0f} mm and {math.degrees(spread[worst, 2]):.2f} deg (1 sigma), "
+        f"{observed.driving_s:.0f} s of driving) leave {probe} uncertain by {by} (1 sigma), "
         f"mostly through {name}; drive {what or 'more steps like it'}",
         name,
         advised,

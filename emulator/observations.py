@@ -9,7 +9,9 @@ step, so the rover rests a round trip between steps; over such a rest:
   the rover's pose before and after the step, to a few millimetres;
 - the odometry's yaw (the gyro, integrated by the bridge) barely moves, and its change
   from the rest before to the rest after is the step's yaw change, to a small fraction of
-  a degree, independent of the POSE's noise;
+  a degree, independent of the POSE's noise; its error is the two rests' and the gyro's
+  random walk between them, whose rate the rests measure (the integrated yaw wanders
+  at rest as it does moving);
 - the odometry's position (the encoders) must have moved by the step's distance: the
   check that the boundaries found are a whole step (a step whose encoders disagree is
   skipped, never fitted).
@@ -68,9 +70,9 @@ twin's step size)."""
 HEADING_SIGMA_FLOOR_RAD = 0.0005
 """Smallest 1-sigma error taken for a heading averaged at rest (the POSE's yaw): about
 0.03 degree."""
-YAW_SIGMA_FLOOR_RAD = 0.002
-"""Smallest 1-sigma error taken for a measured yaw change (gyro noise and bias over a
-step, the twin's step size): about 0.1 degree."""
+YAW_SIGMA_FLOOR_RAD = 0.0003
+"""Smallest 1-sigma error taken for a measured yaw change: about 0.02 degree (a gyro
+quantised to 1 mrad/s; the noise itself is measured at rest, its random walk)."""
 ENCODER_TOLERANCE = 0.01
 """Relative disagreement of the encoders' travel with a straight step's distance (plus
 5 mm) beyond which the step is skipped."""
@@ -148,6 +150,10 @@ class _Rest:
     odom_xy: tuple[float, float] | None
     odom_yaw: float | None
     odom_sigma: float
+    odom_t: float = 0.0
+    """Mean time of the odometry samples averaged (rover clock)."""
+    odom_walk: float = 0.0
+    """How fast the gyro-integrated yaw wanders at rest, rad^2/s (its random walk)."""
 
 
 def _window(t: FloatArray, lo: float, hi: float) -> tuple[int, int]:
@@ -174,12 +180,18 @@ def _rest(
     odom_xy: tuple[float, float] | None = None
     odom_mean: float | None = None
     odom_sigma = 0.0
+    odom_t = 0.0
+    walk = 0.0
     k, m = _window(rec.odom_t_s, lo, hi)
     if m - k >= MIN_REST_SAMPLES:
         mean_xy = np.mean(rec.odom_xy_m[k:m], axis=0)
         odom_xy = (float(mean_xy[0]), float(mean_xy[1]))
         odom_mean = float(np.mean(odom_yaw[k:m]))
         odom_sigma = float(np.std(odom_yaw[k:m])) / math.sqrt(m - k)
+        odom_t = float(np.mean(rec.odom_t_s[k:m]))
+        gaps = np.diff(rec.odom_t_s[k:m])
+        if len(gaps) and float(np.median(gaps)) > 0.0:
+            walk = float(np.var(np.diff(odom_yaw[k:m]))) / float(np.median(gaps))
     return _Rest(
         float(np.mean(xy[:, 0])),
         float(np.mean(xy[:, 1])),
@@ -189,6 +201,8 @@ def _rest(
         odom_xy,
         odom_mean,
         odom_sigma,
+        odom_t,
+        walk,
     )
 
 
@@ -250,7 +264,11 @@ def observe_steps(
             assert isinstance(after, _Rest)
             if before.odom_yaw is not None and after.odom_yaw is not None:
                 dyaw = after.odom_yaw - before.odom_yaw
-                sigma_yaw = math.hypot(before.odom_sigma, after.odom_sigma)
+                # The rests' averages, and the gyro's random walk between them (its rate
+                # measured at rest: the same white noise integrated while it moved).
+                walk = (before.odom_walk + after.odom_walk) / 2.0
+                span = max(0.0, after.odom_t - before.odom_t)
+                sigma_yaw = math.sqrt(before.odom_sigma**2 + after.odom_sigma**2 + walk * span)
             else:
                 dyaw = after.yaw - before.yaw
                 sigma_yaw = math.hypot(before.sigma, after.sigma) / 0.5  # POSE yaw: ~sigma/0.5 m

@@ -11,7 +11,8 @@
   with the covariance matrix of the logarithms (:class:`~emulator.calibration.
   Calibration`), each parameter's target 1-sigma, the noise the fit estimated
   (``slip_sigma``, ``pose_sigma_m``, ``heading_sigma_deg``: the gate's slip spread and
-  start-pose spread) and how many held-out checks fell inside their bands;
+  start-pose spread), how many held-out checks fell inside their bands, and the
+  posterior's draws (``posterior_log``, what the gate samples grounds from);
   ``[calibration.regions]`` holds the fitted friction scale of each map region driven
   on.
 
@@ -145,6 +146,8 @@ def _noise(cal: Calibration) -> dict[str, Any]:
     if cal.checks:
         inside = [sum(c.inside[a] for c in cal.checks) for a in range(3)]
         out["checks"] = {"steps": len(cal.checks), "inside_forward_lateral_yaw": inside}
+    if cal.draws:
+        out["posterior_log"] = [[round(v, 7) for v in row] for row in cal.draws]
     return out
 
 
@@ -237,6 +240,9 @@ def _calibration(table: dict[str, Any], rover: RoverDescription) -> Calibration:
     targets = tuple(float(t) for t in table.get("target_sigma", []))
     if targets and len(targets) != len(names):
         raise ValueError("target_sigma and parameters disagree in size")
+    draws = tuple(tuple(float(v) for v in row) for row in table.get("posterior_log", []))
+    if any(len(row) != len(names) or not all(map(math.isfinite, row)) for row in draws):
+        raise ValueError("posterior_log rows must be finite and one value per parameter")
     return Calibration(
         ground=ground,
         parameters=names,
@@ -252,4 +258,5 @@ def _calibration(table: dict[str, Any], rover: RoverDescription) -> Calibration:
         fixed_regions=tuple(str(r) for r in table.get("fixed_regions", [])),
         noise=noise,
         targets=targets,
+        draws=draws,
     )

@@ -42,6 +42,7 @@ SLOW_MODULES = (
     "tests/bridge/test_transport_threads.py",
     "tests/bridge/test_transports.py",
     "tests/emulator/test_calibration.py",
+    "tests/emulator/test_campaign.py",
     "tests/emulator/test_emulator_main.py",
     "tests/emulator/test_firmware.py",
     "tests/emulator/test_late.py",
@@ -84,6 +85,7 @@ SLOW_MODULES = (
 
 VIRTUAL_MODULES = (
     "tests/emulator/test_calibration.py",  # lockstep recordings; a gate on port 0
+    "tests/emulator/test_campaign.py",  # designed calibrations in lockstep
     "tests/firmware_proto/test_c_codec.py",  # compilers, then vectors
     "tests/emulator/test_pil_images.py",  # cross builds of the PIL images, a layout check
     "tests/emulator/test_pil_lockstep.py",  # the ATmega2560 and its twin on a lockstep clock
@@ -140,8 +142,9 @@ _LOCKSTEP = _CONF + "test_both_controllers_pass_every_rule_in_lockstep (both med
 EXTENDED: dict[str, str] = {
     # Benchmarks: figures, not behaviour; the quick runs of the others stay.
     "tests/test_benchmarks.py::test_bench_calibration_quick_cuts_the_error_on_every_ground": (
-        "the fit on every ground: tests/emulator/test_calibration.py (lockstep) and "
-        "tests/planner/test_calibrate_real.py (a real run)"
+        "the fit and the designed calibration: tests/emulator/test_calibration.py and "
+        "tests/emulator/test_campaign.py (lockstep), tests/planner/test_calibrate_real.py "
+        "(a real stack)"
     ),
     "tests/test_benchmarks.py::test_bench_rosport_small_counts_print_its_tables": (
         "the port's contract on both backends: tests/bridge/test_port.py"

@@ -188,24 +188,20 @@ def test_bench_firmware_quick_prints_the_c_core_beside_the_python_model() -> Non
     assert "Instructions per fw_tick (callgrind, x86-64 -O2, driving): " in out
 
 
-@pytest.mark.timeout(400)  # 68 to 77 s seen under load
+@pytest.mark.timeout(900)
 def test_bench_calibration_quick_cuts_the_error_on_every_ground() -> None:
     out = run_benchmark("bench_calibration", "--quick")
-    header = "| ground | fit steps |"
+    header = "| ground | driving s |"
     assert header in out
     lines = out.splitlines()
     at = next(i for i, line in enumerate(lines) if line.startswith(header))
     columns = [c.strip() for c in lines[at].strip("|").split("|")]
-    rows = [
-        dict(zip(columns, (c.strip() for c in line.strip("|").split("|")), strict=True))
-        for line in lines[at + 2 : at + 5]
-    ]
-    assert [r["ground"] for r in rows] == ["compacted", "dusty", "loose"]
-    for row in rows:
-        # Deterministic (seeded lockstep missions), so the bar itself is asserted.
-        assert row["pass"].startswith("yes"), row
-        assert float(row["fit driving s"]) <= 60.0
-    assert "| loose | turn_efficiency |" in out
+    row = dict(zip(columns, (c.strip() for c in lines[at + 2].strip("|").split("|")), strict=True))
+    assert row["ground"] == "loose"
+    # Deterministic (seeded grounds, lockstep missions), so the bar itself is asserted.
+    assert float(row["driving s"]) <= 30.0
+    assert float(row["after/floor"]) <= 1.5, row
+    assert "| loose | turn_efficiency |" in out and "coverage " in out
 
 
 def test_bench_uncertain_quick_prints_both_tables() -> None:

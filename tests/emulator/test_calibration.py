@@ -14,6 +14,7 @@ import os
 import random
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -144,10 +145,27 @@ def test_sampling_the_uncertainty_is_seeded(fitted: Calibration) -> None:
     first = fitted.sample(7, 200)
     assert first == fitted.sample(7, 200)
     assert first != fitted.sample(8, 200)
-    logs = np.log([[g.values()[p] for p in fitted.parameters] for g in first])
+    assert fitted.sample(1, 0) == []
+    # Grounds come from the posterior's draws (docs/twin.md: not the Gaussian's tails).
+    assert len(fitted.draws) == 100
+    drawn = {tuple(round(v, 5) for v in row) for row in fitted.draws}
+    for ground in first:
+        row = tuple(round(math.log(ground.values()[p]), 5) for p in fitted.parameters)
+        assert row in drawn
+    for name in fitted.parameters:
+        lo, hi = fitted.interval(name)
+        column = [math.exp(r[fitted.parameters.index(name)]) for r in fitted.draws]
+        assert min(column) <= lo <= hi <= max(column)
+    # Without draws, the Gaussian of the covariance, in mirrored pairs on request.
+    gaussian = replace(fitted, draws=())
+    logs = np.log([[g.values()[p] for p in fitted.parameters] for g in gaussian.sample(7, 400)])
     for i, name in enumerate(fitted.parameters):
         assert np.std(logs[:, i]) == pytest.approx(fitted.relative_sigma(name), rel=0.25)
-    assert fitted.sample(1, 0) == []
+    pairs = np.log(
+        [[g.values()[p] for p in fitted.parameters] for g in gaussian.sample(7, 4, antithetic=True)]
+    )
+    centre = np.log([fitted.value(p) for p in fitted.parameters])
+    assert np.allclose(pairs[0] + pairs[1], 2 * centre)
 
 
 @pytest.fixture(scope="module")
@@ -277,7 +295,7 @@ def test_a_region_driven_on_is_fitted(
     record_messages(path, mission.messages)
     observed = observe_steps([read_recording(path)], rover)
     assert len(observed.observations) == len(steps)
-    calibration, _ = fit_ground(observed, rover, lab)
+    calibration, _ = fit_ground(observed, rover, lab, posterior=False)
     assert "region.sandbox" in calibration.parameters
     assert calibration.value("region.sandbox") == pytest.approx(0.35, rel=0.3)
 
@@ -293,7 +311,7 @@ def test_a_region_not_driven_on_keeps_the_maps_scale(
     observed = observe_steps([read_recording(loose_recording)], rover)
     # Which regions are fitted is decided before the solver runs: a small budget of its
     # own (the fit's quality is test_the_fit_finds_the_ground_the_gate_did_not_know's).
-    calibration, _ = fit_ground(observed, rover, world, max_evaluations=8)
+    calibration, _ = fit_ground(observed, rover, world, max_evaluations=8, posterior=False)
     assert "region.far" not in calibration.parameters
     assert calibration.fixed_regions == ("far",)
     assert calibration.ground.region_scale("far") == 0.6

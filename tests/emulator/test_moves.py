@@ -1,0 +1,101 @@
+"""The replay batch a calibration fits with (emulator/moves.py) plays each step as the
+twin does, and the design's measures (emulator/design.py) say what they promise."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from emulator import design
+from emulator.batch import BatchDraw
+from emulator.calibration import FIT_PARAMETERS, mirrored
+from emulator.errors import TwinConfigError
+from emulator.ground import load_ground
+from emulator.moves import MoveJob, play_moves
+from emulator.playback import play
+from emulator.twin import Pose2D, Twin
+from firmware_proto.model.rover import RoverDescription
+from firmware_proto.model.worldmap import WorldMap
+
+LEFT, FWD, REV, RIGHT = 3, 1, 2, 4
+
+
+def test_a_replay_in_the_batch_is_the_twins(rover: RoverDescription, lab: WorldMap) -> None:
+    ground = load_ground("loose", rover).with_values(**{"region.sandbox": 0.35})
+    cases = [
+        ((LEFT, 30, 15484), Pose2D(1.1, 4.9, math.pi / 2)),  # on the sandbox's edge
+        ((FWD, 40, 23000), Pose2D(1.0, 5.0, 0.3)),  # across it
+        ((REV, 20, 11500), Pose2D(6.0, 1.0, 2.0)),
+        ((RIGHT, 60, 30000), Pose2D(2.0, 2.0, -1.0)),
+    ]
+    draws = [BatchDraw(ground), BatchDraw(ground, 0.8, 0.9, 0.01, -0.02, 0.03)]
+    jobs = [MoveJob(start, (step,), d) for d in draws for step, start in cases]
+    ends = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=1.0)
+    for job, end in zip(jobs, ends, strict=True):
+        d = job.draw
+        start = Pose2D(
+            job.start.x_m + d.start_dx_m,
+            job.start.y_m + d.start_dy_m,
+            job.start.yaw_rad + d.start_dyaw_rad,
+        )
+        twin = Twin(ground.rover(rover), ground.world(lab), dt_s=0.01, start=start)
+        twin.set_traction_scale(d.slip_left, d.slip_right)
+        play(twin, list(job.steps), settle_s=0.0)
+        twin.advance(1.0)  # the rest it is measured at
+        assert end == pytest.approx(
+            (twin.pose.x_m, twin.pose.y_m, twin.yaw_unwrapped_rad), abs=1e-9
+        )
+    with pytest.raises(TwinConfigError):
+        play_moves(rover, None, jobs, dt_s=0.05, settle_s=1.0)
+
+
+def test_antithetic_draws_are_centred_pairs() -> None:
+    half = np.random.default_rng(3).normal(size=(4, 2))
+    pairs = mirrored(half)
+    assert np.array_equal(pairs[0::2], half) and np.array_equal(pairs[1::2], -half)
+    assert np.allclose(pairs.sum(axis=0), 0.0)
+
+
+# Seconds of CPU (the candidates replayed, up to 20 s of twin time each): out of the
+# fast lane, in the test command's background part.
+@pytest.mark.slow
+@pytest.mark.virtual
+def test_the_design_measures_hang_together(rover: RoverDescription) -> None:
+    ground = load_ground("dusty", rover)
+    names = list(FIT_PARAMETERS)
+    probes = design.probes(rover)
+    moves, jac, side = design.sensitivities(rover, ground, names, probes, sides=True)
+    assert side is not None and jac.shape == (len(probes), 3, len(names))
+    # A turn on the spot turns, a straight step goes straight.
+    assert moves[0, 0] > 0.9 and abs(moves[4, 2]) > 1.0
+    # Less lateral friction turns more (docs/twin.md).
+    assert jac[4, 2, names.index("mu_lateral")] < 0.0
+    cov = np.diag([0.05, 0.02, 0.5, 0.5, 0.3]) ** 2
+    cov[3, 4] = cov[4, 3] = 0.9 * 0.5 * 0.3  # the slip ratio and the rolling resistance
+    worst = float(np.max(design.excess(design.probe_spread(jac, cov))))
+    shares = design.shares(jac, cov)
+    assert np.all(shares <= worst + 1e-9)  # a share never exceeds the spread
+    targets = design.targets(jac, cov)
+    sigma = np.sqrt(np.diag(cov))
+    assert np.allclose(sigma / targets, shares)
+    # With only the prior, the advice leads every probe under its bar.
+    candidates = design.candidates(rover)
+    cmoves, cjac, cside = design.sensitivities(rover, ground, names, candidates, sides=True)
+    assert cside is not None
+    noise = design.step_noise(
+        cmoves,
+        cside,
+        sigma_xy_m=0.003,
+        sigma_yaw_rad=0.002,
+        sigma_heading_rad=0.002,
+        slip_sigma=0.0,
+    )
+    durations = np.array([rover.step_duration_s(s, d) for _c, s, d in candidates])
+    prior = np.eye(len(names)) / math.log(2.0) ** 2
+    chosen = design.advice(prior, jac, cjac, noise, durations, max_steps=40)
+    info = prior + design.information(cjac[chosen], noise[chosen])
+    assert float(np.max(design.excess(design.probe_spread(jac, np.linalg.inv(info))))) <= 1.0
+    kinds = {candidates[i][0] for i in chosen}
+    assert kinds & {LEFT, RIGHT} and kinds & {FWD, REV}
