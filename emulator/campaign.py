@@ -22,8 +22,10 @@ seconds (the steps' nominal durations; the rests between them do not count):
    measured so far.
 
 It stops when every probe's spread is under its bar (then every parameter is under its
-target: :func:`emulator.design.targets`), when the budget cannot hold another step, or
-when no candidate fits in the room left; the last fit is then made with its refusals
+target: :func:`emulator.design.targets`) and the probes' predictions have moved less
+than their bars since the fit before (the covariance is a linearisation: a fit is
+trusted once it stands still), when the budget cannot hold another step, or when no
+candidate fits in the room left; the last fit is then made with its refusals
 (:class:`~emulator.errors.UnidentifiableError`, naming the parameter and the steps that
 would identify it).
 
@@ -292,6 +294,7 @@ class _Design:
     noise: np.ndarray
     probe_jac: np.ndarray
     precision: np.ndarray
+    probe_moves: np.ndarray
 
 
 def _design(
@@ -305,7 +308,9 @@ def _design(
     names = list(GROUND_NAMES)
     candidates = design.candidates(rover)
     moves, jac, side = design.sensitivities(rover, ground, names, candidates, dt_s=dt_s, sides=True)
-    _m, probe_jac, _ = design.sensitivities(rover, ground, names, design.probes(rover), dt_s=dt_s)
+    probe_moves, probe_jac, _ = design.sensitivities(
+        rover, ground, names, design.probes(rover), dt_s=dt_s
+    )
     assert side is not None
     noise = calibration.noise if calibration is not None else None
 
@@ -322,7 +327,7 @@ def _design(
         sigma_heading_rad=noise.heading_sigma_rad if noise else _DEFAULT_HEADING_RAD,
         slip_sigma=noise.slip_sigma if noise else 0.0,
     )
-    return _Design(moves, jac, cand_noise, probe_jac, np.linalg.inv(covariance))
+    return _Design(moves, jac, cand_noise, probe_jac, np.linalg.inv(covariance), probe_moves)
 
 
 def _choose(
@@ -437,6 +442,7 @@ def run_campaign(
     pose = home = driver.pose()
     ruled_out: set[tuple[tuple[float, float], int, int]] = set()
     rejections = 0
+    previous: np.ndarray | None = None
 
     def fit(refuse: bool) -> tuple[Calibration, FitReport]:
         driving = sum(rover.step_duration_s(o.speed, o.distance) for o in observations)
@@ -464,17 +470,27 @@ def run_campaign(
             cov = _ground_covariance(calibration)
             d = _design(rover, calibration.ground, cov, observations, calibration, dt_s)
             excess = float(np.max(design.excess(design.probe_spread(d.probe_jac, cov))))
+            # The covariance is a linearisation: the fit is trusted once the probes it
+            # predicts stand still from one plan to the next, as well as spread little.
+            shift = math.inf
+            if previous is not None:
+                shift = float(np.max(design.excess(np.abs(d.probe_moves - previous))))
+            previous = d.probe_moves
             if out.rounds:
                 last = out.rounds[-1]
                 out.rounds[-1] = Round(
                     last.steps, last.driven, last.measured, excess, out.report.wall_s
                 )
+            moved = f", moved {shift:.2f} of it since the last fit" if math.isfinite(shift) else ""
             on_event(
                 f"fit of {len(observations)} steps: the worst probe's spread is {excess:.2f} "
-                f"of its bar (fit {out.report.wall_s:.1f} s)"
+                f"of its bar{moved} (fit {out.report.wall_s:.1f} s)"
             )
-            if excess <= 1.0:
-                out.stopped = "every probe under its bar: every parameter under its target"
+            if excess <= 1.0 and shift <= 1.0:
+                out.stopped = (
+                    "every probe under its bar, and still since the last fit: every parameter "
+                    "under its target"
+                )
                 break
         else:
             cov = np.eye(len(GROUND_NAMES)) * PRIOR_SIGMA**2
