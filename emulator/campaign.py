@@ -30,9 +30,9 @@ candidate fits in the room left; the last fit is then made with its refusals
 would identify it).
 
 The driver is the seam: :class:`~emulator.stackdriver.StackDriver` drives a real stack
-through the ground station (``rover go --plan FILE --record``); the lockstep rover of
-``sim/calibration_runs.py``'s ``LockstepRover`` drives the controller model in virtual time (the tests and the
-benchmark).
+through the ground station (``rover go --plan FILE --record``);
+``sim.calibration_runs.LockstepRover`` drives the controller model in virtual time (the
+tests and the benchmark).
 """
 
 from __future__ import annotations
