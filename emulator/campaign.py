@@ -346,6 +346,7 @@ def _choose(
     fit predicts before each and after the last."""
     candidates = design.candidates(rover)
     durations = np.array([rover.step_duration_s(s, dist) for _c, s, dist in candidates])
+    shortest = float(durations.min())
     is_turn = np.array([c in (Command.LEFT, Command.RIGHT) for c, _, _ in candidates])
     inv_noise = np.linalg.inv(d.noise)
     precision = d.precision.copy()
@@ -379,6 +380,11 @@ def _choose(
         )
         if first and len(chosen) >= count - 1 and len({bool(is_turn[i]) for i in chosen}) == 1:
             allowed &= is_turn != is_turn[chosen[0]]  # a first fit needs both kinds
+        if first and left_s >= MIN_DRIVING_S:
+            # Never strand a first round short of a first fit's driving with no budget
+            # left for another step: a step either reaches it or leaves room to.
+            total = spent + durations
+            allowed &= (total >= MIN_DRIVING_S) | (left_s - total >= shortest - 1e-9)
         index, _after_excess = design.best_step(
             precision,
             d.probe_jac,

@@ -16,7 +16,7 @@ import pytest
 
 from emulator.campaign import Campaign, run_campaign
 from emulator.errors import UnidentifiableError
-from emulator.fit import fit_ground
+from emulator.fit import MIN_DRIVING_S, MIN_STEPS, fit_ground
 from emulator.ground import Ground, load_ground
 from emulator.observations import observe_steps
 from emulator.playback import measure_turn_efficiency
@@ -160,3 +160,20 @@ def test_a_refusal_names_the_parameter_and_the_steps_that_fix_it(
     calibration, _ = fit_ground(observe_steps(recordings, rover), rover, world, posterior=False)
     truth = measure_turn_efficiency(loose.rover(rover), distance=quarter)
     assert calibration.turn_efficiency == pytest.approx(truth, abs=0.01)
+
+
+def test_a_tight_budget_still_buys_a_first_fits_driving(
+    rover: RoverDescription, lab: WorldMap, loose: Ground, tmp_path: Path
+) -> None:
+    # 16 s of budget from the lab's start (what tests/planner/test_calibrate_real.py
+    # gives a real stack): the first plan must reach a first fit's 15 s, not stop at
+    # 14.8 s with no step short enough for the 1.2 s left. A gate that wants 5 m around
+    # the footprint rejects every plan, so only the designs are made.
+    gate = Gate(lab, rover, margin_m=5.0)
+    driver = LockstepRover(rover, lab, loose, seed=23, validator=gate, recorder=record_messages)
+    result = run_campaign(driver, rover, lab, tmp_path, budget_s=16.0)
+    assert result.rounds and not any(r.driven.approved for r in result.rounds)
+    for r in result.rounds:
+        assert len(r.steps) >= MIN_STEPS
+        assert MIN_DRIVING_S <= sum(rover.step_duration_s(s, d) for _c, s, d in r.steps) <= 16.0
+    assert driver.driving_s == 0.0 and result.refusal is not None
