@@ -138,7 +138,7 @@ def calibration_map() -> WorldMap:
 
 
 @dataclass
-class Outcome:
+class HeldOutResult:
     """One held-out mission: errors (m, deg) of each twin, and the band check."""
 
     errors_m: dict[str, float]
@@ -163,7 +163,7 @@ class GroundResult:
     fitted: dict[str, tuple[float, float, float]]
     turn_efficiency: tuple[float, float, float]
     slip_sigma: float
-    outcomes: list[Outcome] = field(default_factory=list)
+    outcomes: list[HeldOutResult] = field(default_factory=list)
     refusal: str = ""
     rested_m: dict[str, list[float]] = field(default_factory=dict)
 
@@ -328,7 +328,7 @@ def run_ground(
         inside, widths, centring = band_check(
             rover, field_world, cal, start, steps, finals["after"], mission.final, seed + k
         )
-        result.outcomes.append(Outcome(errors_m, errors_deg, inside, widths, centring))
+        result.outcomes.append(HeldOutResult(errors_m, errors_deg, inside, widths, centring))
     return result
 
 
@@ -350,10 +350,12 @@ def report(results: list[GroundResult], missions: int, budget_s: float) -> str:
 
         outcomes = r.outcomes
 
-        def mean(key: str, metric: str = "m", of: list[Outcome] = outcomes) -> float:
+        def mean(key: str, metric: str = "m", of: list[HeldOutResult] = outcomes) -> float:
             return float(np.mean([getattr(o, f"errors_{metric}")[key] for o in of]))
 
-        def cell(key: str, digits: int, metric: str = "m", of: list[Outcome] = outcomes) -> str:
+        def cell(
+            key: str, digits: int, metric: str = "m", of: list[HeldOutResult] = outcomes
+        ) -> str:
             values = [getattr(o, f"errors_{metric}")[key] for o in of]
             return f"{np.mean(values):.{digits}f} ({max(values):.{digits}f})"
 
@@ -375,7 +377,7 @@ def report(results: list[GroundResult], missions: int, budget_s: float) -> str:
         "| median lateral width m | median error m | width / error | centring |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    every: list[Outcome] = []
+    every: list[HeldOutResult] = []
     for r in results:
         if r.outcomes:
             lines.append(_band_row(r.name, r.outcomes))
@@ -432,7 +434,7 @@ def report(results: list[GroundResult], missions: int, budget_s: float) -> str:
     return "\n".join(lines)
 
 
-def _band_row(name: str, outcomes: list[Outcome]) -> str:
+def _band_row(name: str, outcomes: list[HeldOutResult]) -> str:
     n = len(outcomes)
     inside = [sum(o.inside[a] for o in outcomes) / n for a in range(3)]
     width = statistics.median(o.widths[1] for o in outcomes)
