@@ -708,7 +708,7 @@ class Stopped(Message, _StoppedFields):
     at rest (then distance 0); a repeat of a stop_id seen since the latch was last cleared
     gets none.
 
-    Sent: once per stop_id (until CLEARED), when both wheels have come to rest.
+    Sent: once per stop_id new to the latch (a repeat gets none), when both wheels have come to rest; one owed is sent after CLEARED too.
 
     Attributes:
         stop_id: u16. the STOP being reported; 0 for watchdog and fault stops.

@@ -495,8 +495,8 @@ int rp_status_unpack(rp_status_t *msg, const uint8_t *payload, size_t len);
  * a STOP (or a stop the controller started itself, stop_id 0: MOTION with command STOP,
  * watchdog, stopping fault). Every new stop_id gets its own STOPPED, also while already
  * latched and at rest (then distance 0); a repeat of a stop_id seen since the latch was
- * last cleared gets none. Sent: once per stop_id (until CLEARED), when both wheels have
- * come to rest.
+ * last cleared gets none. Sent: once per stop_id new to the latch (a repeat gets none),
+ * when both wheels have come to rest; one owed is sent after CLEARED too.
  */
 typedef struct {
     /** u16: the STOP being reported; 0 for watchdog and fault stops. */
