@@ -37,6 +37,7 @@ from planner.stack.stackenv import add_domain_argument
 __all__ = [
     "ECHO_TOPICS",
     "describe",
+    "namespace_hint",
     "register_clear_stop",
     "register_echo",
     "register_status",
@@ -207,6 +208,18 @@ def _open(args: argparse.Namespace, node: str) -> tuple[Any, int | None]:
     return open_port("rclpy", namespace=namespace, node_name=node), domain
 
 
+def namespace_hint(namespace: str | None) -> str:
+    """What to add to "nothing from a bridge" over ROS 2: with the default namespace
+    (``namespace`` ``None``: ``ground``, the ground side of a stack's link), a bridge
+    started alone is not there but at the root; ``""`` when ``--namespace`` was given."""
+    if namespace is not None:
+        return ""
+    return (
+        "; a bridge started alone (no stack, no link relay) has its topics at the root: "
+        "add --namespace /"
+    )
+
+
 def _console(args: argparse.Namespace) -> Any:
     """The stack's console client to use, or ``None`` (ROS 2: ``--ros``,
     ``--namespace``, or no console known)."""
@@ -278,7 +291,8 @@ def _status(args: argparse.Namespace) -> int:
                 print(
                     f"rover status: error: no /diagnostics from a bridge on "
                     f"{console.topic('diagnostics')} (ROS domain {domain or 0}) within "
-                    f"{args.timeout:g} s: is the stack up, and this the domain it printed?",
+                    f"{args.timeout:g} s: is the stack up, and this the domain it printed?"
+                    f"{namespace_hint(args.namespace)}",
                     file=sys.stderr,
                 )
                 return 1
@@ -458,7 +472,9 @@ def _clear_stop(args: argparse.Namespace) -> int:
     elif report.outcome is ClearOutcome.NOT_LATCHED:
         print("not latched: there was nothing to release; the rover takes steps")
     else:
-        print(f"rover clear-stop: NOT released: {report.why}", file=sys.stderr)
+        unheard = report.outcome is ClearOutcome.NO_ANSWER and report.before is None
+        hint = namespace_hint(args.namespace) if unheard and report.after is None else ""
+        print(f"rover clear-stop: NOT released: {report.why}{hint}", file=sys.stderr)
     if report.armed and not args.json:
         print(f"note: {report.armed}")
     if report.after is not None and report.released and report.after.stopping_faults:

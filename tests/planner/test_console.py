@@ -122,9 +122,13 @@ def test_nobody_answering_is_one_line_and_exit_1() -> None:
     assert out.returncode == 1 and out.stdout == ""
     [line] = out.stderr.splitlines()
     assert line.startswith("rover status: error: no /diagnostics from a bridge on /ground/")
+    assert line.endswith("add --namespace /")  # a bridge started alone is at the root
     out = _rover("clear-stop", "--timeout", "2")
     assert out.returncode == 1
     assert "NOT released: no answer" in out.stderr and "is a bridge running" in out.stderr
+    assert "add --namespace /" in out.stderr
+    out = _rover("status", "--namespace", "/", "--timeout", "2")
+    assert out.returncode == 1 and "--namespace /" not in out.stderr
 
 
 _LOGS: list[list[str]] = []
