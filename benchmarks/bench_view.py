@@ -115,7 +115,7 @@ class _SseClient:
     def __init__(self, url: str) -> None:
         host, port = url.split("//")[1].split("/", maxsplit=1)[0].rsplit(":", 1)
         self.sock = socket.create_connection((host, int(port)), timeout=10)
-        self.sock.sendall(b"GET /events HTTP/1.1\r\nHost: bench\r\n\r\n")
+        self.sock.sendall(f"GET /events HTTP/1.1\r\nHost: {host}:{port}\r\n\r\n".encode())
         self.latencies: list[float] = []
         self._thread = threading.Thread(target=self._read, name="bench-sse", daemon=True)
         self._thread.start()

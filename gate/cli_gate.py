@@ -97,8 +97,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=values.tcp_port, help="port (default 8080; 0 picks a free one)")
-    p.add_argument("--token", help="bearer token required on every request")
-    p.add_argument("--token-file", metavar="PATH", help="read the token from this file")
+    p.add_argument(
+        "--token-file",
+        metavar="PATH",
+        help="bearer token required on every request, read from this file (or set "
+        "ROVER_GATE_TOKEN); a non-loopback --host needs one",
+    )
+    p.add_argument("--token", help=argparse.SUPPRESS)  # refused: see _serve
     p.add_argument(
         "--workers", type=int, metavar="N", help="validations in parallel (default: CPU count)"
     )
@@ -159,16 +164,18 @@ def _playback_args(args: argparse.Namespace, prefix: str = "") -> dict[str, Any]
 
 
 def _serve(args: argparse.Namespace) -> int:
+    from firmware_proto.errors import BindPolicyError
+    from firmware_proto.http.tokenfile import read_token_file, refuse_token_argument
     from gate.config import load_config
     from gate.errors import GateConfigError
     from gate.server import GateServer
 
-    token = args.token
-    if args.token_file:
-        try:
-            token = Path(args.token_file).read_text(encoding="utf-8").strip()
-        except OSError as exc:
-            raise GateConfigError(f"cannot read --token-file: {exc}") from exc
+    try:
+        if args.token is not None:
+            raise refuse_token_argument("--token", "--token-file", "ROVER_GATE_TOKEN")
+        token = read_token_file(args.token_file) if args.token_file else None
+    except BindPolicyError as exc:
+        raise GateConfigError(str(exc)) from exc
     config = load_config(
         {
             "default_map": args.default_map,

@@ -201,7 +201,7 @@ class GateConfig:
         if not 0 <= self.port <= 65535:
             raise GateConfigError(f"port must be in 0..65535, got {self.port}")
         try:
-            check_bind(self.host, self.token, hint="--token (or ROVER_GATE_TOKEN)")
+            check_bind(self.host, self.token, hint="--token-file (or ROVER_GATE_TOKEN)")
         except BindPolicyError as exc:
             raise GateConfigError(str(exc)) from exc
         if self.pool not in POOL_KINDS:

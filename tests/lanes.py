@@ -74,6 +74,7 @@ SLOW_MODULES = (
     "tests/planner/test_relay_ros2.py",
     "tests/planner/test_view.py",
     "tests/planner/test_view_browser.py",
+    "tests/planner/test_view_hostile.py",
     "tests/planner/test_walkthrough.py",
     "tests/test_benchmarks.py",
     "tests/test_lanes.py",

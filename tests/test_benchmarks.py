@@ -7,7 +7,8 @@ noisy), except counts that do not depend on speed: the codec's recovery run must
 deliver no altered frame and recover every intact one.
 
 ``bench_view --quick`` runs its synthetic feed with the Python client only (its
-``--browser`` and ``--demo`` parts are left out).
+``--browser`` and ``--demo`` parts are left out). ``bench_hostile --view --quick``
+probes the view's STOP 20 times idle and beside a small flood.
 
 ``bench_calibration --quick`` asserts the issue's bar (a 5x cut of the prediction error, or
 within 1.5x of the floor) on every ground: its missions are seeded and driven in lockstep,
@@ -162,6 +163,13 @@ def test_bench_view_quick_prints_push_latency_beside_its_limit() -> None:
 
 
 @pytest.mark.firmware
+def test_bench_hostile_quick_times_the_views_stop_beside_a_flood() -> None:
+    out = run_benchmark("bench_hostile", "--view", "--quick")
+    assert "View: POST /stop on a fresh connection, every 20 ms" in out
+    row = table_row(out, "| case |")
+    assert row["case"].startswith("this tree: answer, idle") and float(row["p99 ms"]) > 0
+
+
 def test_bench_load_quick_measures_stop_latency_beside_busy_processes() -> None:
     out = run_benchmark("bench_load", "--quick")
     assert "The controller link beside load (bench_load)" in out

@@ -11,6 +11,8 @@ why this stack and what it costs.
 - :mod:`~firmware_proto.http.protocol`: the guarded h11 connection;
 - :mod:`~firmware_proto.http.service`: :class:`HttpService`, an ASGI app served on
   a thread of its own;
+- :mod:`~firmware_proto.http.app`: the application layer both servers share
+  (Starlette's router, the guard middleware, errors worded by the server);
 - :mod:`~firmware_proto.http.body`: :func:`read_body`, a body under a size limit
   and a deadline;
 - :mod:`~firmware_proto.http.errors`: the exceptions.
@@ -26,7 +28,12 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from firmware_proto.http.errors import ClientGoneError, HttpServeError, RequestBodyError
+from firmware_proto.http.errors import (
+    ClientGoneError,
+    HttpError,
+    HttpServeError,
+    RequestBodyError,
+)
 from firmware_proto.http.limits import ErrorRenderer, ServeLimits
 
 if TYPE_CHECKING:
@@ -36,6 +43,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ClientGoneError",
     "ErrorRenderer",
+    "HttpError",
     "HttpServeError",
     "HttpService",
     "RequestBodyError",

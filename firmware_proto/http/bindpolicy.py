@@ -1,11 +1,15 @@
-"""Who may reach an HTTP server of this project: the bind and token policy that the
-simulation gate and the live view share (docs/gate.md, "Binding and the token").
+"""Who may reach an HTTP server of this project: the bind, token and host policy that
+the simulation gate and the live view share (docs/gate.md, "Binding and the token").
 
 - A server binds a loopback address unless told otherwise; a non-loopback address needs
   a token (:func:`check_bind`), so that nothing on the network can drive the rover or
-  read its state by accident.
+  read its state by accident; that token must be strong (:data:`MIN_TOKEN_CHARS`
+  characters, :data:`MIN_TOKEN_DISTINCT` of them different).
 - With a token, every request must present it (``Authorization: Bearer <token>``,
   :func:`bearer_token`); it is compared in constant time (:func:`token_matches`).
+- Every request's ``Host`` must name this server (:class:`HostPolicy`): a page of
+  another site whose name a DNS rebinding points at 127.0.0.1 sends its own name there,
+  and is refused.
 
 Pure functions over strings, no I/O: the lowest place both the gate and the planner's
 live view may import (the planner may not import the gate).
@@ -15,10 +19,30 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+from collections.abc import Iterable
+from dataclasses import dataclass
 
 from firmware_proto.errors import BindPolicyError
 
-__all__ = ["bearer_token", "check_bind", "check_token", "is_loopback", "token_matches"]
+__all__ = [
+    "MIN_TOKEN_CHARS",
+    "MIN_TOKEN_DISTINCT",
+    "HostPolicy",
+    "bearer_token",
+    "check_bind",
+    "check_token",
+    "host_name",
+    "is_loopback",
+    "is_wildcard",
+    "token_matches",
+]
+
+MIN_TOKEN_CHARS = 16
+"""Shortest token accepted for a non-loopback address (a random URL-safe token of 16
+characters carries 96 bits)."""
+MIN_TOKEN_DISTINCT = 8
+"""Fewest different characters in such a token (refuses ``aaaaaaaaaaaaaaaa``)."""
+_TOKEN_ADVICE = "python3 -c 'import secrets; print(secrets.token_urlsafe(24))'"
 
 
 def is_loopback(host: str) -> bool:
@@ -35,30 +59,53 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def check_token(token: str | None, *, what: str = "token") -> None:
-    """Refuse a malformed token (``None`` means no token and passes).
+def is_wildcard(host: str) -> bool:
+    """Whether ``host`` binds every interface (``0.0.0.0``, ``::``, ``""``)."""
+    if host == "":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_unspecified
+    except ValueError:
+        return False
+
+
+def check_token(token: str | None, *, what: str = "token", strong: bool = False) -> None:
+    """Refuse a malformed token (``None`` means no token and passes); with ``strong``,
+    also a weak one.
 
     Raises:
-        BindPolicyError: ``token`` is empty or has characters that cannot go in a header.
+        BindPolicyError: ``token`` is empty or has characters that cannot go in a header;
+            with ``strong``, it is shorter than :data:`MIN_TOKEN_CHARS` or has fewer
+            than :data:`MIN_TOKEN_DISTINCT` different characters.
     """
-    if token is not None and (not token or not token.isprintable()):
+    if token is None:
+        return
+    if not token or not token.isprintable() or token != token.strip():
         raise BindPolicyError(f"{what} must be a non-empty printable string")
+    if strong and (len(token) < MIN_TOKEN_CHARS or len(set(token)) < MIN_TOKEN_DISTINCT):
+        raise BindPolicyError(
+            f"{what} is too weak for a non-loopback address: at least {MIN_TOKEN_CHARS} "
+            f"characters, {MIN_TOKEN_DISTINCT} of them different (make one with "
+            f"{_TOKEN_ADVICE})"
+        )
 
 
 def check_bind(host: str, token: str | None, *, what: str = "token", hint: str = "") -> None:
-    """The bind policy: a non-loopback ``host`` needs a token.
+    """The bind policy: a non-loopback ``host`` needs a strong token.
 
     Args:
         host: the address to listen on.
         token: the bearer token, or ``None``.
         what: the token's name in messages (``"token"``, ``"view token"``).
-        hint: how to give one, for the message (``"--token (or ROVER_GATE_TOKEN)"``).
+        hint: how to give one, for the message (``"--token-file (or ROVER_GATE_TOKEN)"``).
 
     Raises:
-        BindPolicyError: a malformed token, or a non-loopback address without one.
+        BindPolicyError: a malformed token, a non-loopback address without one, or with
+            a weak one (:func:`check_token`).
     """
-    check_token(token, what=what)
-    if token is None and not is_loopback(host):
+    loopback = is_loopback(host)
+    check_token(token, what=what, strong=not loopback)
+    if token is None and not loopback:
         give = f"give {hint}, or " if hint else ""
         raise BindPolicyError(
             f"refusing to listen on {host!r} without a token: {give}bind a loopback address"
@@ -81,3 +128,72 @@ def token_matches(given: str | None, token: str) -> bool:
     if given is None:
         return False
     return hmac.compare_digest(given.encode("utf-8", "surrogateescape"), token.encode())
+
+
+def host_name(header: str | None) -> str | None:
+    """The name or address of a ``Host`` header value, lower case, without the port,
+    the brackets of an IPv6 literal or a trailing dot; ``None`` when it is missing or
+    malformed."""
+    if not header:
+        return None
+    text = header.strip().lower()
+    if text.startswith("["):
+        literal, sep, rest = text[1:].partition("]")
+        if not sep or (rest and not (rest.startswith(":") and rest[1:].isdigit())):
+            return None
+        return literal if _is_ip(literal) else None
+    name, _, port = text.partition(":")
+    if port and not (port.isascii() and port.isdigit()):
+        return None
+    name = name.rstrip(".")
+    if not name or not all(c.isascii() and (c.isalnum() or c in "-._") for c in name):
+        return None
+    return name
+
+
+def _is_ip(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text)
+    except ValueError:
+        return False
+    return True
+
+
+@dataclass(frozen=True)
+class HostPolicy:
+    """Which ``Host`` values name this server.
+
+    Attributes:
+        names: names and address literals accepted (lower case, no port).
+        any_address: any IP address literal is accepted too (a wildcard bind: a DNS
+            rebinding always sends a name, never an address).
+    """
+
+    names: frozenset[str]
+    any_address: bool = False
+
+    @classmethod
+    def for_bind(cls, host: str, extra: Iterable[str] = ()) -> HostPolicy:
+        """The names a server bound to ``host`` answers to: a loopback bind, every
+        loopback address and ``localhost``; a wildcard bind, any address literal;
+        another address, that one; plus ``extra`` (configured names, and for a wildcard
+        bind the machine's own name, which the caller looks up)."""
+        names = {n.strip().lower().rstrip(".") for n in extra if n.strip()}
+        if is_loopback(host):
+            return cls(frozenset(names | {"localhost", "127.0.0.1", "::1", host.lower()}))
+        if is_wildcard(host):
+            return cls(frozenset(names), any_address=True)
+        return cls(frozenset(names | {host.lower()}))
+
+    def allows(self, header: str | None) -> bool:
+        """Whether a request's ``Host`` header names this server."""
+        name = host_name(header)
+        if name is None:
+            return False
+        if name in self.names:
+            return True
+        if _is_ip(name):
+            return self.any_address or (
+                "127.0.0.1" in self.names and ipaddress.ip_address(name).is_loopback
+            )
+        return False

@@ -4,13 +4,20 @@
      +-- RequestBodyError    a request body cannot be taken: too large (413) or too slow
      |                       (408); ``status`` and ``code`` say which
      +-- ClientGoneError     the client closed the connection before its body ended
+     +-- HttpError           a request answered with an error status: what the shared
+                             application layer (:mod:`~firmware_proto.http.app`) raises
+                             (404, 405, 401, 403, 421, 501...) and the base of each
+                             server's own errors; each server words it in its own body
 
 Each server turns a :class:`RequestBodyError` into its own error body.
 """
 
 from __future__ import annotations
 
-__all__ = ["ClientGoneError", "HttpServeError", "RequestBodyError"]
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["ClientGoneError", "HttpError", "HttpServeError", "RequestBodyError"]
 
 
 class HttpServeError(Exception):
@@ -36,3 +43,45 @@ class RequestBodyError(HttpServeError):
 class ClientGoneError(HttpServeError):
     """The client closed the connection before its request body ended (nobody is left
     to answer)."""
+
+
+class HttpError(HttpServeError):
+    """A request that gets an error answer.
+
+    A subclass fixes ``status`` and ``default_code``; an instance may override both
+    (the application layer raises this class itself for the statuses it decides).
+
+    Attributes:
+        status: the HTTP status.
+        code: a short machine-readable name (``not_found``, ``cross_origin``...).
+        message: one sentence for people.
+        headers: extra response headers (``Allow``, ``Retry-After``,
+            ``WWW-Authenticate``...).
+        extra: further fields of the JSON body (``allow``, ``parameter``...): see
+            :meth:`fields`.
+    """
+
+    status = 500
+    default_code = "internal_error"
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        code: str | None = None,
+        headers: Mapping[str, str] | None = None,
+        status: int | None = None,
+        extra: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.message = message
+        self.code = code or self.default_code
+        self.headers = dict(headers or {})
+        if status is not None:
+            self.status = status
+        self.extra = dict(extra or {})
+
+    def fields(self) -> dict[str, Any]:
+        """The JSON body's fields beyond ``error``, ``status`` and ``message`` (a
+        subclass adds its own to :attr:`extra`'s)."""
+        return dict(self.extra)

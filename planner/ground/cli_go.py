@@ -189,7 +189,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="URL",
         help="gate URL (default $ROVER_GATE_URL or http://127.0.0.1:8080)",
     )
-    p.add_argument("--token", default=None, help="gate bearer token (default $ROVER_GATE_TOKEN)")
+    p.add_argument(
+        "--token-file",
+        default=None,
+        metavar="PATH",
+        help="gate bearer token, read from this file (default $ROVER_GATE_TOKEN)",
+    )
+    p.add_argument("--token", default=None, help=argparse.SUPPRESS)  # refused: ps shows it
     p.add_argument(
         "--ros-backend",
         choices=("rclpy", "inprocess"),
@@ -425,6 +431,20 @@ def _read_plan(path: Path) -> Any:
         raise ValueError(f"--plan {path}: not a valid plan: {pointer or '/'}: {message}") from None
 
 
+def _gate_token(args: argparse.Namespace) -> str | None:
+    """The gate's token from ``--token-file``, else ``None`` (the client then reads
+    ``ROVER_GATE_TOKEN``); ``--token`` is refused (``ps`` would show it).
+
+    Raises:
+        ValueError: ``--token`` given, or the file cannot be used.
+    """
+    from firmware_proto.http.tokenfile import read_token_file, refuse_token_argument
+
+    if args.token is not None:
+        raise refuse_token_argument("--token", "--token-file", "ROVER_GATE_TOKEN")
+    return read_token_file(args.token_file, what="gate token") if args.token_file else None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run one mission; returns the exit status (0 reached, 128 + the signal number when
     cancelled by a signal, 1 otherwise)."""
@@ -522,7 +542,7 @@ def _mission(args: argparse.Namespace) -> int:
             f"{signal.Signals(signum).name}: cancelling the mission (a running step ends with STOP)"
         )
 
-    with GateClient(args.gate, token=args.token) as gate:
+    with GateClient(args.gate, token=_gate_token(args)) as gate:
         gated = True
         try:
             world = gate.get_map(args.map)

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 __all__ = ["TOKEN_ENV", "add_view_arguments", "view_config"]
 
 TOKEN_ENV = "ROVER_VIEW_TOKEN"
-"""Environment variable holding the view's token when ``--view-token`` is not given."""
+"""Environment variable holding the view's token when ``--view-token-file`` is not given."""
 
 
 def add_view_arguments(p: argparse.ArgumentParser, *, record_default: str | None) -> None:
@@ -34,7 +34,21 @@ def add_view_arguments(p: argparse.ArgumentParser, *, record_default: str | None
     p.add_argument(
         "--view-port", type=values.tcp_port, default=0, help="view port (default: a free one)"
     )
-    p.add_argument("--view-token", default=None, help=f"view bearer token (default ${TOKEN_ENV})")
+    p.add_argument(
+        "--view-token-file",
+        default=None,
+        metavar="PATH",
+        help=f"view bearer token, read from this file (or set ${TOKEN_ENV}); a "
+        "non-loopback --view-host needs one",
+    )
+    p.add_argument("--view-token", default=None, help=argparse.SUPPRESS)  # refused
+    p.add_argument(
+        "--view-allowed-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a further name browsers reach the view by (the Host header; repeatable)",
+    )
     p.add_argument(
         "--view-hold",
         type=float,
@@ -88,13 +102,20 @@ def view_config(args: argparse.Namespace) -> ViewConfig | None:
     """
     if not args.view:
         return None
-    token = args.view_token if args.view_token is not None else os.environ.get(TOKEN_ENV)
+    from firmware_proto.http.tokenfile import read_token_file, refuse_token_argument
     from planner.view.server import ViewConfig
 
+    if args.view_token is not None:
+        raise refuse_token_argument("--view-token", "--view-token-file", TOKEN_ENV)
+    if args.view_token_file:
+        token: str | None = read_token_file(args.view_token_file, what="view token")
+    else:
+        token = os.environ.get(TOKEN_ENV) or None
     return ViewConfig(
         host=args.view_host,
         port=args.view_port,
-        token=token or None,
+        token=token,
+        allowed_hosts=tuple(args.view_allowed_host),
         hold_s=args.view_hold,
         wait_s=args.view_wait,
     )

@@ -63,6 +63,8 @@ from planner.plan.orchestrator import MissionResult
 
 __all__ = [
     "INBOX_LEN",
+    "PATH_STEP_M",
+    "PLANS_KEPT",
     "QUEUE_LEN",
     "TICK_S",
     "TRAIL_LEN",
@@ -81,6 +83,12 @@ INBOX_LEN = 10_000
 """Inputs the hub may have waiting before its oldest are dropped."""
 TRAIL_LEN = 5000
 """Points of each pose's trail kept for a page that opens later (1 cm apart)."""
+PLANS_KEPT = 64
+"""Attempts kept for a page that opens later (the oldest are dropped first): with
+:data:`TRAIL_LEN` and :data:`PATH_STEP_M`, what bounds the state's size."""
+PATH_STEP_M = 0.01
+"""A plan's path as the page draws it: samples at least this far apart (and the last),
+so that a path's length in centimetres bounds its points, whatever the sample rate."""
 _ENDS_BADLY = ("fault:", "aborted:", "rejected:")
 
 
@@ -128,8 +136,26 @@ class ViewLimits:
     drift_angular_deg: float = 12.0
 
 
+def _json(data: Any) -> str:
+    return json.dumps(data, separators=(",", ":"))
+
+
 def _record(name: str, data: dict[str, Any]) -> bytes:
-    return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+    return f"event: {name}\ndata: {_json(data)}\n\n".encode()
+
+
+def _thin(points: list[list[float]], step_m: float) -> list[list[float]]:
+    """``points`` without those closer than ``step_m`` to the last one kept (the last
+    point is always kept)."""
+    kept: list[list[float]] = []
+    for i, p in enumerate(points):
+        if (
+            not kept
+            or i == len(points) - 1
+            or math.hypot(p[0] - kept[-1][0], p[1] - kept[-1][1]) >= step_m
+        ):
+            kept.append(p)
+    return kept
 
 
 def _map_json(world: WorldMap) -> dict[str, Any]:
@@ -157,7 +183,10 @@ def _plan_json(planning: int, index: int, repair: str, verdict: Verdict) -> dict
         "repair": repair,
         "approved": verdict.approved,
         "summary": verdict.summary(),
-        "path": [[round(s.pose.x, 4), round(s.pose.y, 4)] for s in verdict.trajectory.samples],
+        "path": _thin(
+            [[round(s.pose.x, 4), round(s.pose.y, 4)] for s in verdict.trajectory.samples],
+            PATH_STEP_M,
+        ),
         "collision": None if c is None else [c.contact[0], c.contact[1]],
         # With the gate's uncertainty: where the samples are (the level's ellipses along
         # each step: x, y, semi-axes m, angle deg) and how many of them collided.
@@ -222,7 +251,8 @@ class ViewHub:
         self._thread: threading.Thread | None = None
         self._closed = False
         # State, touched by the hub thread only (the snapshot under the lock).
-        self._plans: list[dict[str, Any]] = []
+        self._plans: deque[dict[str, Any]] = deque(maxlen=PLANS_KEPT)
+        self._plans_json: deque[str] = deque(maxlen=PLANS_KEPT)  # each encoded once
         self._plannings = 0
         self._ghosts: list[Verdict] = []  # approved, in order of execution
         self._following: Verdict | None = None
@@ -248,6 +278,13 @@ class ViewHub:
             "reported": deque(maxlen=TRAIL_LEN),
             "odom": deque(maxlen=TRAIL_LEN),
         }
+        self._trails_json: dict[str, deque[str]] = {  # each point encoded once
+            "reported": deque(maxlen=TRAIL_LEN),
+            "odom": deque(maxlen=TRAIL_LEN),
+        }
+        self._map_json = _json(_map_json(world))
+        self._version = 0  # bumped under the lock with every event
+        self._state_json: tuple[int, float, bytes] | None = None  # version, time, bytes
         self._stops: list[dict[str, Any]] = []
         self._onboard: dict[str, Any] | None = None
         """The latest report of the plan on board (docs/onboard.md)."""
@@ -299,7 +336,7 @@ class ViewHub:
         """A new client's queue, the state first (``hello``)."""
         client = ClientQueue(self._queue_len)
         with self._lock:
-            client.put(_record("hello", self._snapshot()))
+            client.put(b"event: hello\ndata: " + self._encoded_state(0.0) + b"\n\n")
             self._clients.add(client)
             self._joined.notify_all()
         return client
@@ -337,11 +374,38 @@ class ViewHub:
         with self._lock:
             return self._snapshot()
 
-    def _snapshot(self) -> dict[str, Any]:
-        """The state a new client starts from (lock held)."""
-        return {
-            "map": _map_json(self.world),
-            "plans": list(self._plans),
+    def state_json(self, max_age_s: float = 0.0) -> bytes:
+        """:meth:`state` as JSON bytes, encoded once per change and shared by every
+        caller: what was encoded last is returned again while nothing changed, or while
+        it is younger than ``max_age_s`` (so that a flood of requests costs at most one
+        encoding per ``max_age_s``). Its size is bounded: :data:`TRAIL_LEN` points per
+        trail, :data:`PLANS_KEPT` attempts, paths thinned to :data:`PATH_STEP_M`. Any
+        thread; the encoding is made of pieces each encoded once (the map, each plan,
+        each trail point), so it costs little more than joining them."""
+        with self._lock:
+            return self._encoded_state(max_age_s)
+
+    def _encoded_state(self, max_age_s: float) -> bytes:
+        """The state's JSON (lock held); see :meth:`state_json`."""
+        now = time.monotonic()
+        cached = self._state_json
+        if cached is not None and (cached[0] == self._version or now - cached[1] < max_age_s):
+            return cached[2]
+        small = self._snapshot(pieces=False)
+        trails = ",".join(
+            f'"{name}":[{",".join(points)}]' for name, points in self._trails_json.items()
+        )
+        body = (
+            f'{{"map":{self._map_json},"plans":[{",".join(self._plans_json)}],'
+            f'"trails":{{{trails}}},{_json(small)[1:]}'
+        ).encode()
+        self._state_json = (self._version, now, body)
+        return body
+
+    def _snapshot(self, *, pieces: bool = True) -> dict[str, Any]:
+        """The state a new client starts from (lock held); without ``pieces``, without
+        the map, the plans and the trails (:meth:`state_json` has them encoded)."""
+        small = {
             "poses": dict(self._poses),
             "progress": dict(self._progress),
             "status": self._status,
@@ -350,18 +414,26 @@ class ViewHub:
             "limits": [self.limits.drift_linear_m, self.limits.drift_angular_deg],
             "rtt_s": self.rtt_s,
             "log": list(self._log),
-            "trails": {k: list(v) for k, v in self._trails.items()},
             "stops": list(self._stops),
             "onboard": self._onboard,
             "goal": self._goal,
             "result": self._result,
             "halted": self._halted is not None,
         }
+        if not pieces:
+            return small
+        return {
+            "map": _map_json(self.world),
+            "plans": list(self._plans),
+            "trails": {k: list(v) for k, v in self._trails.items()},
+            **small,
+        }
 
     def _broadcast(self, name: str, data: dict[str, Any]) -> None:
         record = _record(name, data)
         self.records += 1
         with self._lock:
+            self._version += 1
             for client in self._clients:
                 client.put(record)
 
@@ -466,7 +538,9 @@ class ViewHub:
             self._poses[src] = data
             trail = self._trails[src]
             if not trail or math.hypot(pose.x - trail[-1][0], pose.y - trail[-1][1]) > 0.01:
-                trail.append([round(pose.x, 4), round(pose.y, 4)])
+                point = [round(pose.x, 4), round(pose.y, 4)]
+                trail.append(point)
+                self._trails_json[src].append(_json(point))
         self._broadcast("pose", data)
 
     def _topic_command_status(self, rx: float, msg: Any) -> None:
@@ -601,6 +675,7 @@ class ViewHub:
         ]
         with self._lock:
             self._plans.extend(plans)
+            self._plans_json.extend(_json(p) for p in plans)
             if mission.approved and self._latched:
                 self._replan_approved = True
         self._ghosts = list(mission.verdicts)

@@ -1,11 +1,11 @@
 """The live view's HTTP server: one static page, a Server-Sent Events stream, STOP.
 
-An ASGI application (Starlette's request and response types) on the project's one HTTP
-stack, the gate's (:mod:`firmware_proto.http`: uvicorn with h11, one event loop in
-a thread of its own, every connection bounded by deadlines). The page is one file
-shipped with the package (no build step, nothing fetched from elsewhere) and the push
-channel is Server-Sent Events, which a browser's ``EventSource`` reads and reconnects by
-itself.
+A Starlette application on the project's one HTTP stack and application layer, the
+gate's (:mod:`firmware_proto.http`: uvicorn with h11, one event loop in a thread of its
+own, every connection bounded by deadlines; :mod:`firmware_proto.http.app`: routes,
+the shared guard, errors in JSON). The page is one file shipped with the package (no
+build step, nothing fetched from elsewhere) and the push channel is Server-Sent
+Events, which a browser's ``EventSource`` reads and reconnects by itself.
 
 ======================  ========================================================
 ``GET /``               the page
@@ -13,22 +13,42 @@ itself.
 ``GET /state``          the state a new client starts from, as JSON
 ``POST /stop``          emergency stop, exactly as Ctrl-C (202)
 ``POST /clear_stop``    release the latch: 409 unless a re-plan was approved since
-                        the STOP; needs the header ``X-Rover-View: 1`` (a form of
-                        another site cannot send it)
+                        the STOP
 ======================  ========================================================
 
-Anything else gets a JSON error (400, 404, 405, 408, 413) and the server goes on.
+Anything else gets a JSON error and the server goes on.
 
-Binding and auth, as the gate does it (:mod:`firmware_proto.http.bindpolicy`): loopback by
-default; a non-loopback address is refused without a token; with a token every request
-needs ``Authorization: Bearer <token>`` or ``?token=<token>`` (the page passes its own
-on; ``EventSource`` cannot set headers), compared in constant time, else 401.
+**STOP never waits.** ``POST /stop`` skips the lane that every other request shares
+(at most :data:`LANE_PER_TURN` of them started per turn of the event loop), and its action runs on a
+thread of its own (``view-stop``), so neither a flood of requests nor a slow
+clear-STOP can queue ahead of it. ``GET /state`` costs little: the hub encodes the
+state once per change (at most every :data:`STATE_MAX_AGE_S` under a flood) and shares
+the bytes.
 
-Never in the mission's way: each browser has a bounded queue (drop-oldest) filled by the
-hub; a browser that takes nothing of the stream for ``client_timeout_s`` (its socket
-full) is cut off by the connection layer, and a closed one only ends its own stream.
-Waiting on a browser's queue happens on a thread of a small pool (``view-events``), one
-per open stream at most, never on the event loop.
+**Other origins are refused.** STOP and clear-STOP need the header ``X-Rover-View: 1``
+(:data:`ACTION_HEADER`: a form or a ``no-cors`` fetch of another origin cannot send
+it), and are refused when the browser says the request comes from another origin
+(``Origin``, ``Sec-Fetch-Site``), whatever the token. ``Host`` must name this server
+(DNS rebinding). No page may frame the view (``X-Frame-Options: DENY``,
+``frame-ancestors 'none'``).
+
+Binding and auth, as the gate does it (:mod:`firmware_proto.http.bindpolicy`): loopback
+by default; a non-loopback address is refused without a strong token; with a token
+every request needs ``Authorization: Bearer <token>`` or ``?token=<token>`` (the page
+passes its own on; ``EventSource`` cannot set headers), compared in constant time, else
+401. Without a configured token the server makes one for the operator (the printed URL
+carries it): a request without it is served, but as anonymous.
+
+**The operator always gets a view.** The push channel holds at most ``max_clients``
+browsers, ``max_clients_per_address`` from one address. When full, a new browser
+takes the place of the worst one it outranks (anonymous before the token's holders;
+then one whose writes stall, then one that fell behind and lost records, then the
+oldest); only when it outranks none is it refused, with a ``200`` stream that says
+``busy`` and when to retry (``EventSource`` gives up for good on a 503). Each browser
+has a bounded queue (drop-oldest) filled by the hub; a browser that takes nothing of
+the stream for ``client_timeout_s`` (its socket full) is cut off by the connection
+layer. Waiting on a browser's queue happens on a thread of a small pool
+(``view-events``), one per open stream at most, never on the event loop.
 """
 
 from __future__ import annotations
@@ -36,8 +56,11 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import secrets
+import socket
 import threading
-from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
+import time
+from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from importlib import resources
@@ -46,30 +69,64 @@ from urllib.parse import quote
 
 from starlette.requests import Request
 from starlette.responses import Response, StreamingResponse
+from starlette.routing import Route
+from starlette.types import Scope
 
 from firmware_proto.http import (
-    ClientGoneError,
     HttpService,
     RequestBodyError,
     ServeLimits,
     read_body,
 )
-from firmware_proto.http.bindpolicy import bearer_token, check_bind, token_matches
+from firmware_proto.http.app import (
+    DEFAULT_SECURITY_HEADERS,
+    AccessPolicy,
+    build_app,
+    require_same_origin,
+)
+from firmware_proto.http.bindpolicy import HostPolicy, check_bind, is_wildcard
+from firmware_proto.http.errors import HttpError
 from planner.view.hub import ClientQueue, ViewHub
 
-__all__ = ["CLEAR_HEADER", "ViewConfig", "ViewServer"]
+__all__ = [
+    "ACTION_HEADER",
+    "CLEAR_HEADER",
+    "LANE_PER_TURN",
+    "STATE_MAX_AGE_S",
+    "ViewConfig",
+    "ViewServer",
+]
 
 logger = logging.getLogger(__name__)
 
-CLEAR_HEADER = "X-Rover-View"
-"""Header a clear-STOP request must carry (value ``1``)."""
+ACTION_HEADER = "X-Rover-View"
+"""Header STOP and clear-STOP must carry (value ``1``): a form or a ``no-cors`` fetch of
+another origin cannot send it."""
+CLEAR_HEADER = ACTION_HEADER
+"""The same header, under the name it had when only clear-STOP needed it."""
+LANE_PER_TURN = 4
+"""Requests other than STOP and clear-STOP started per turn of the event loop (the
+others wait their turn, costing nothing): what keeps each turn short, and STOP a few
+short turns from its answer, whatever the flood."""
+STATE_MAX_AGE_S = 0.1
+"""``GET /state`` may answer a state this old (the ``tick`` period): under a flood the
+hub encodes it at most this often."""
+RETRY_MS = 1000
+"""The push channel's reconnect hint to a browser (``retry:``)."""
+STALLED_S = 2.0
+"""A stream whose last write has not completed for this long counts as stalled."""
 _MAX_BODY = 4096
 _KEEPALIVE_S = 1.0
-_ALLOW = {"Allow": "GET, POST"}
-
-_Scope = MutableMapping[str, Any]
-_Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
-_Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
+PAGE_HEADERS: tuple[tuple[str, str], ...] = (
+    (
+        "Content-Security-Policy",
+        "default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
+        "connect-src 'self'; img-src 'self' data:; base-uri 'none'; form-action 'none'; "
+        "frame-ancestors 'none'",
+    ),
+)
+"""The page's own policy: its inline script and style, connections to this server only,
+no frames around it."""
 
 
 @dataclass(frozen=True)
@@ -79,24 +136,33 @@ class ViewConfig:
     Attributes:
         host: address to bind (default loopback).
         port: TCP port; 0 picks a free one.
-        token: bearer token; required when ``host`` is not loopback.
+        token: bearer token; required when ``host`` is not loopback (and then strong).
+        allowed_hosts: further names the server answers to in ``Host`` (beside its
+            address, ``localhost`` on loopback, and the machine's name on a wildcard
+            bind).
         client_timeout_s: a browser that takes nothing of its stream for this long is
             dropped.
-        max_clients: connections to the push channel at once (503 beyond).
+        max_clients: connections to the push channel at once.
+        max_clients_per_address: of those, from one address.
+        busy_retry_s: when a browser refused or evicted on the push channel should try
+            again (its ``retry:`` hint).
         hold_s: how long ``rover demo``/``rover go`` keep the view up after the mission.
         wait_s: how long they wait for a browser to connect before the mission starts
             (0: they do not wait).
 
     Raises:
-        ValueError: a bad port, token or timeout; a non-loopback host without a token
-            (:class:`firmware_proto.errors.BindPolicyError`, a ``ValueError``).
+        ValueError: a bad port, token or timeout; a non-loopback host without a strong
+            token (:class:`firmware_proto.errors.BindPolicyError`, a ``ValueError``).
     """
 
     host: str = "127.0.0.1"
     port: int = 0
     token: str | None = field(default=None, repr=False)
+    allowed_hosts: tuple[str, ...] = ()
     client_timeout_s: float = 5.0
     max_clients: int = 16
+    max_clients_per_address: int = 8
+    busy_retry_s: float = 5.0
     hold_s: float = 0.0
     wait_s: float = 0.0
 
@@ -104,16 +170,22 @@ class ViewConfig:
         if not 0 <= self.port <= 65535:
             raise ValueError(f"view port must be 0..65535, got {self.port}")
         check_bind(
-            self.host, self.token, what="view token", hint="--view-token (or ROVER_VIEW_TOKEN)"
+            self.host,
+            self.token,
+            what="view token",
+            hint="--view-token-file (or ROVER_VIEW_TOKEN)",
         )
         if not (
             self.client_timeout_s > 0
             and self.max_clients >= 1
+            and self.max_clients_per_address >= 1
+            and self.busy_retry_s > 0
             and self.hold_s >= 0
             and self.wait_s >= 0
         ):
             raise ValueError(
-                "client_timeout_s must be > 0, max_clients >= 1, hold_s and wait_s >= 0"
+                "client_timeout_s and busy_retry_s must be > 0, max_clients and "
+                "max_clients_per_address >= 1, hold_s and wait_s >= 0"
             )
 
 
@@ -125,19 +197,36 @@ def _error_bytes(message: str) -> bytes:
     return json.dumps({"error": message}).encode()
 
 
+def _error_body(error: HttpError) -> tuple[str, bytes]:
+    """The view's wording of an error: ``{"error": message}`` (what the page shows)."""
+    return "application/json", _error_bytes(error.message)
+
+
 def _render_connection_error(status: int, code: str, message: str) -> tuple[str, bytes]:
     """The view's wording of the errors its connection layer answers itself."""
     return "application/json", _error_bytes(message)
 
 
-class _AnswerError(Exception):
-    """An error answer: status, message, extra headers."""
+@dataclass(eq=False)
+class _Viewer:
+    """One browser on the push channel, as the server ranks it."""
 
-    def __init__(self, status: int, message: str, headers: dict[str, str] | None = None) -> None:
-        super().__init__(message)
-        self.status = status
-        self.message = message
-        self.headers = dict(headers or {})
+    queue: ClientQueue
+    peer: tuple[str, int]
+    trusted: bool
+    since: float
+    written: float
+    """When its last write completed (monotonic s)."""
+    evicted: bool = False
+
+    @property
+    def address(self) -> str:
+        return self.peer[0]
+
+    def rank(self, now: float) -> tuple[bool, bool, bool, float]:
+        """Sorts the first to evict first: anonymous, stalled, fell behind, oldest."""
+        stalled = now - self.written > STALLED_S
+        return (self.trusted, not stalled, self.queue.dropped == 0, self.since)
 
 
 class ViewServer:
@@ -147,9 +236,10 @@ class ViewServer:
         hub: the state and its events (started and closed by the caller).
         config: where and how to listen.
         on_stop: sends the emergency stop (what Ctrl-C does) and says what it did;
-            called on a worker thread of the server, so it must not block for long (set
-            the cancel event).
-        on_clear: releases the STOP latch; returns whether the rover confirmed it.
+            called on the server's STOP thread (``view-stop``), so it must not block for
+            long (set the cancel event).
+        on_clear: releases the STOP latch; returns whether the rover confirmed it
+            (called on the ``view-action`` thread; it may wait for the rover).
     """
 
     def __init__(
@@ -166,14 +256,47 @@ class ViewServer:
         self._on_stop = on_stop
         self._on_clear = on_clear
         self._lock = threading.Lock()
-        self._clients: set[ClientQueue] = set()
+        self._viewers: list[_Viewer] = []
         self.closing = False
         self.stops = 0
         """STOP requests served."""
         self.rejected = 0
         """Requests answered with an error (each is logged)."""
+        self.evicted = 0
+        """Push-channel browsers evicted for a new one."""
+        self.refused = 0
+        """Push-channel browsers refused (nobody they outrank to evict)."""
+        self.token = config.token if config.token is not None else secrets.token_urlsafe(18)
+        """The token the printed URL carries: the configured one, or one made for the
+        operator (then requests without it are served as anonymous)."""
+        extra = list(config.allowed_hosts)
+        if is_wildcard(config.host):
+            extra.append(socket.gethostname())
+        policy = AccessPolicy(
+            hosts=HostPolicy.for_bind(config.host, extra),
+            token=self.token,
+            token_required=config.token is not None,
+            query_token=True,
+            realm="rover-view",
+        )
+        self.app = build_app(
+            [
+                Route("/", self._page_endpoint, methods=["GET"]),
+                Route("/index.html", self._page_endpoint, methods=["GET"]),
+                Route("/events", self._events, methods=["GET"]),
+                Route("/state", self._state, methods=["GET"]),
+                Route("/stop", self._stop, methods=["POST"]),
+                Route("/clear_stop", self._clear, methods=["POST"]),
+            ],
+            policy=policy,
+            error_body=_error_body,
+            on_error=self._count_error,
+            headers=DEFAULT_SECURITY_HEADERS,
+            priority=("/stop", "/clear_stop"),
+            lane_per_turn=LANE_PER_TURN,
+        )
         self._service = HttpService(
-            self._asgi,
+            self.app,
             host=config.host,
             port=config.port,
             limits=ServeLimits(write_timeout_s=config.client_timeout_s),
@@ -182,14 +305,18 @@ class ViewServer:
             thread_name="view-http",
         )
         self._takers = ThreadPoolExecutor(config.max_clients, thread_name_prefix="view-events")
-        self._actions = ThreadPoolExecutor(2, thread_name_prefix="view-action")
+        self._stopper = ThreadPoolExecutor(1, thread_name_prefix="view-stop")
+        self._actions = ThreadPoolExecutor(1, thread_name_prefix="view-action")
 
     @property
     def url(self) -> str:
-        """The page's address (with ``?token=`` when there is a token); after
-        :meth:`start`."""
-        url = self._service.url + "/"
-        return url + (f"?token={quote(self.config.token)}" if self.config.token else "")
+        """The page's address with ``?token=`` (the operator's); after :meth:`start`."""
+        return self._service.url + "/" + f"?token={quote(self.token)}"
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """``(host, port)`` bound; after :meth:`start`."""
+        return self._service.address
 
     def start(self) -> ViewServer:
         """Bind and serve on a thread of its own.
@@ -200,8 +327,8 @@ class ViewServer:
         try:
             self._service.start()
         except BaseException:
-            self._takers.shutdown(wait=False)
-            self._actions.shutdown(wait=False)
+            for pool in (self._takers, self._stopper, self._actions):
+                pool.shutdown(wait=False)
             raise
         return self
 
@@ -217,20 +344,79 @@ class ViewServer:
         """The clear-STOP control (the hub has allowed it)."""
         return self._on_clear() if self._on_clear is not None else False
 
-    def join(self) -> ClientQueue | None:
-        """A push-channel client, or ``None`` when full or closing."""
+    @property
+    def viewers(self) -> int:
+        """Browsers on the push channel now."""
         with self._lock:
-            if self.closing or len(self._clients) >= self.config.max_clients:
+            return len(self._viewers)
+
+    @property
+    def peers(self) -> list[tuple[str, int]]:
+        """``(address, port)`` of each browser on the push channel, oldest first."""
+        with self._lock:
+            return [v.peer for v in self._viewers]
+
+    def viewer_state(self, peer: tuple[str, int]) -> dict[str, Any]:
+        """How the server sees one browser: ``trusted``, ``dropped`` (records its queue
+        dropped), ``stalled`` (its writes have not completed for :data:`STALLED_S`).
+
+        Raises:
+            KeyError: no such browser on the push channel.
+        """
+        now = time.monotonic()
+        with self._lock:
+            for v in self._viewers:
+                if v.peer == peer:
+                    return {
+                        "trusted": v.trusted,
+                        "dropped": v.queue.dropped,
+                        "stalled": now - v.written > STALLED_S,
+                    }
+        raise KeyError(peer)
+
+    def join(self, peer: tuple[str, int] = ("", 0), *, trusted: bool = False) -> ClientQueue | None:
+        """A push-channel client, or ``None`` when closing or when every place is held
+        by one it does not outrank (module docstring); a browser evicted for it has its
+        queue closed."""
+        viewer = self._join(peer, trusted)
+        return None if viewer is None else viewer.queue
+
+    def _join(self, peer: tuple[str, int], trusted: bool) -> _Viewer | None:
+        now = time.monotonic()
+        address = peer[0]
+        with self._lock:
+            if self.closing:
                 return None
-            client = self.hub.subscribe()
-            self._clients.add(client)
-            return client
+            same = [v for v in self._viewers if v.address == address]
+            crowd = None
+            if len(same) >= self.config.max_clients_per_address:
+                crowd = same
+            elif len(self._viewers) >= self.config.max_clients:
+                crowd = self._viewers
+            if crowd is not None:
+                victims = [v for v in crowd if trusted or not v.trusted]
+                if not victims:
+                    self.refused += 1
+                    return None
+                victim = min(victims, key=lambda v: v.rank(now))
+                victim.evicted = True
+                self._viewers.remove(victim)
+                self.evicted += 1
+                logger.info(
+                    "view: evicting a viewer at %s for a new one at %s",
+                    victim.address or "?",
+                    address or "?",
+                )
+                self.hub.unsubscribe(victim.queue)
+            viewer = _Viewer(self.hub.subscribe(), peer, trusted, now, now)
+            self._viewers.append(viewer)
+            return viewer
 
     def leave(self, client: ClientQueue) -> None:
         """A push-channel client is gone."""
         self.hub.unsubscribe(client)
         with self._lock:
-            self._clients.discard(client)
+            self._viewers = [v for v in self._viewers if v.queue is not client]
 
     def close(self) -> None:
         """Stop serving; end every push-channel connection (idempotent)."""
@@ -238,12 +424,12 @@ class ViewServer:
             if self.closing:
                 return
             self.closing = True
-            clients = list(self._clients)
+            clients = [v.queue for v in self._viewers]
         for client in clients:
             client.close()
         self._service.close()
-        self._takers.shutdown(wait=True, cancel_futures=True)
-        self._actions.shutdown(wait=True, cancel_futures=True)
+        for pool in (self._takers, self._stopper, self._actions):
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> ViewServer:
         return self
@@ -251,130 +437,105 @@ class ViewServer:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- the ASGI application ------------------------------------------------------------
-    async def _asgi(self, scope: _Scope, receive: _Receive, send: _Send) -> None:
-        if scope["type"] != "http":
-            return
-        request = Request(scope, receive)
-        try:
-            response = await self._dispatch(request)
-        except ClientGoneError:
-            return
-        except _AnswerError as exc:
-            with self._lock:
-                self.rejected += 1
-            logger.info("view: %s %s: %d %s", request.method, scope["path"], exc.status, exc)
-            headers = exc.headers | {"Cache-Control": "no-store"}
-            if exc.status in (408, 413):
-                headers["Connection"] = "close"
-            response = Response(_error_bytes(exc.message), exc.status, headers, "application/json")
-        await response(scope, receive, send)
+    # -- the application ------------------------------------------------------------------
+    def _count_error(self, scope: Scope, error: HttpError) -> None:
+        with self._lock:
+            self.rejected += 1
+        logger.info(
+            "view: %s %s: %d %s", scope.get("method"), scope.get("path"), error.status, error
+        )
 
-    async def _dispatch(self, request: Request) -> Response:
-        path = request.url.path
-        if request.method == "GET":
-            self._authorise(request)
-            if path in ("/", "/index.html"):
-                return self._reply(200, self.page, "text/html; charset=utf-8")
-            if path == "/events":
-                return self._events()
-            if path == "/state":
-                return self._json(200, self.hub.state())
-            raise _AnswerError(404, f"no such page: {path}; try / or /events")
-        if request.method == "POST":
-            await self._read_body(request)
-            self._authorise(request)
-            if path == "/stop":
-                return await self._stop()
-            if path == "/clear_stop":
-                return await self._clear(request)
-            raise _AnswerError(404, f"no such action: {path}; try /stop or /clear_stop")
-        raise _AnswerError(405, f"{request.method} is not served here", _ALLOW)
+    async def _page_endpoint(self, request: Request) -> Response:
+        return Response(self.page, 200, dict(PAGE_HEADERS), media_type="text/html; charset=utf-8")
 
-    # -- checks -----------------------------------------------------------------------------
-    def _authorise(self, request: Request) -> None:
-        token = self.config.token
-        if token is None:
-            return
-        given = bearer_token(request.headers.get("authorization"))
-        if given is None:
-            given = request.query_params.get("token")
-        if token_matches(given, token):
-            return
-        challenge = {"WWW-Authenticate": 'Bearer realm="rover-view"'}
-        if not given:
-            raise _AnswerError(
-                401, "this view needs 'Authorization: Bearer <token>' or ?token=<token>", challenge
-            )
-        raise _AnswerError(401, "wrong token", challenge)
+    async def _state(self, request: Request) -> Response:
+        return Response(self.hub.state_json(STATE_MAX_AGE_S), media_type="application/json")
 
     async def _read_body(self, request: Request) -> None:
         declared = request.headers.get("content-length")
         if declared is not None and int(declared) > _MAX_BODY:  # h11 checked the digits
-            raise _AnswerError(413, f"body over {_MAX_BODY} bytes")
+            raise HttpError(f"body over {_MAX_BODY} bytes", status=413, code="payload_too_large")
         try:
             await read_body(request.receive, limit_bytes=_MAX_BODY, timeout_s=10.0)
         except RequestBodyError as exc:
-            raise _AnswerError(exc.status, exc.message) from exc
+            raise HttpError(exc.message, status=exc.status, code=exc.code) from exc
 
-    # -- answers ----------------------------------------------------------------------------
-    @staticmethod
-    def _reply(status: int, body: bytes, content_type: str) -> Response:
-        return Response(body, status, {"Cache-Control": "no-store"}, content_type)
-
-    def _json(self, status: int, obj: dict[str, Any]) -> Response:
-        return self._reply(status, json.dumps(obj).encode(), "application/json")
-
-    async def _in_thread(self, action: Callable[[], Any]) -> Any:
-        return await asyncio.get_running_loop().run_in_executor(self._actions, action)
-
-    async def _stop(self) -> Response:
+    async def _stop(self, request: Request) -> Response:
+        require_same_origin(request, header=ACTION_HEADER)
+        await self._read_body(request)
         try:
-            done = await self._in_thread(self.stop)
+            done = await asyncio.get_running_loop().run_in_executor(self._stopper, self.stop)
         except Exception as exc:
             logger.exception("view: STOP failed")
-            raise _AnswerError(
-                500, f"STOP failed on the ground station: {exc}; use Ctrl-C"
-            ) from exc
-        return self._json(202, {"stop": done})
+            raise HttpError(f"STOP failed on the ground station: {exc}; use Ctrl-C") from exc
+        return _json_response(202, {"stop": done})
 
     async def _clear(self, request: Request) -> Response:
-        if request.headers.get(CLEAR_HEADER) != "1":
-            raise _AnswerError(403, f"clear-STOP needs the header {CLEAR_HEADER}: 1")
+        require_same_origin(request, header=ACTION_HEADER)
+        await self._read_body(request)
         allowed, why = self.hub.clear_allowed()
         if not allowed:
-            raise _AnswerError(409, f"STOP stays latched: {why}")
+            raise HttpError(f"STOP stays latched: {why}", status=409, code="conflict")
         try:
-            cleared = await self._in_thread(self.clear)
+            cleared = await asyncio.get_running_loop().run_in_executor(self._actions, self.clear)
         except Exception as exc:  # the mission has ended: its ROS port is closed
             logger.warning("view: clear-STOP failed: %s", exc)
-            raise _AnswerError(
-                503, f"the ground station cannot release the latch now: {exc}"
+            raise HttpError(
+                f"the ground station cannot release the latch now: {exc}",
+                status=503,
+                code="unavailable",
             ) from exc
         if not cleared:
-            raise _AnswerError(504, "the rover did not confirm CLEAR_STOP")
-        return self._json(200, {"cleared": True})
+            raise HttpError("the rover did not confirm CLEAR_STOP", status=504, code="timeout")
+        return _json_response(200, {"cleared": True})
 
-    def _events(self) -> Response:
-        client = self.join()
-        if client is None:
-            raise _AnswerError(503, f"already {self.config.max_clients} viewers")
+    async def _events(self, request: Request) -> Response:
+        peer = (request.client.host, request.client.port) if request.client else ("", 0)
+        viewer = self._join(peer, bool(request.state.trusted))
+        if viewer is None:
+            return StreamingResponse(
+                self._busy(), media_type="text/event-stream", headers={"Cache-Control": "no-store"}
+            )
         return StreamingResponse(
-            self._stream(client),
+            self._stream(viewer),
             media_type="text/event-stream",
             headers={"Cache-Control": "no-store"},
         )
 
-    async def _stream(self, client: ClientQueue) -> AsyncIterator[bytes]:
-        """The push channel of one browser, until it leaves or the view closes."""
+    async def _busy(self) -> AsyncIterator[bytes]:
+        """The answer to a browser refused a place: come back later."""
+        reason = f"all {self.config.max_clients} places are held by viewers that outrank you"
+        logger.info("view: refused a viewer: %s", reason)
+        retry_ms = round(self.config.busy_retry_s * 1000)
+        yield f"retry: {retry_ms}\nevent: busy\ndata: {json.dumps({'reason': reason})}\n\n".encode()
+
+    async def _stream(self, viewer: _Viewer) -> AsyncIterator[bytes]:
+        """The push channel of one browser, until it leaves, is evicted or the view
+        closes."""
         loop = asyncio.get_running_loop()
+        client = viewer.queue
         try:
-            yield b"retry: 1000\n\n"
+            yield f"retry: {RETRY_MS}\n\n".encode()
             while not self.closing:
+                viewer.written = time.monotonic()
                 records = await loop.run_in_executor(self._takers, client.take, _KEEPALIVE_S)
+                if records:
+                    yield b"".join(records)
                 if client.closed:
+                    if viewer.evicted:
+                        why = {"reason": "evicted for a new viewer"}
+                        retry_ms = round(self.config.busy_retry_s * 1000)
+                        yield (
+                            f"retry: {retry_ms}\nevent: evicted\n"
+                            f"data: {json.dumps(why)}\n\n".encode()
+                        )
                     break
-                yield b"".join(records) if records else b": keepalive\n\n"
+                if not records:
+                    yield b": keepalive\n\n"
         finally:
             logger.info("view: a viewer left")
             self.leave(client)
+
+
+def _json_response(status: int, obj: dict[str, Any]) -> Response:
+    return Response(json.dumps(obj).encode(), status, media_type="application/json")

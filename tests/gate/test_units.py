@@ -119,7 +119,9 @@ def test_bind_policy_and_ranges() -> None:
     assert not is_loopback("gate.example")
     with pytest.raises(GateConfigError, match="without a token"):
         GateConfig(host="0.0.0.0")
-    assert GateConfig(host="0.0.0.0", token="t").host == "0.0.0.0"
+    assert GateConfig(host="0.0.0.0", token="k3Jf9-xQ2mPz8vLw").host == "0.0.0.0"
+    with pytest.raises(GateConfigError, match="too weak"):
+        GateConfig(host="0.0.0.0", token="t")
     for bad in ({"workers": 0}, {"queue_depth": -1}, {"pool": "fibres"}, {"port": 70000}):
         with pytest.raises(GateConfigError):
             GateConfig(**bad)

@@ -21,6 +21,8 @@ from firmware_proto.model.worldmap import load_map
 from planner.view import ClientQueue, ViewConfig, ViewHub, ViewServer
 
 WORLD = load_map("lab")
+ACT = {"X-Rover-View": "1"}
+"""What the page sends with STOP and clear-STOP (a page of another origin cannot)."""
 
 
 def _odom(x: float, y: float) -> Odometry:
@@ -89,7 +91,7 @@ class _Stream:
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         self.sock.settimeout(5)
         self.sock.connect((host, int(port)))
-        self.sock.sendall(f"GET /events{query} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+        self.sock.sendall(f"GET /events{query} HTTP/1.1\r\nHost: {host}:{port}\r\n\r\n".encode())
         self.file = self.sock.makefile("rb")
         self.status_line = self.file.readline().decode()
 
@@ -125,9 +127,10 @@ def test_page_state_and_bad_requests(view: tuple[ViewServer, _Actions]) -> None:
         ("POST", "/nope", b"", {}, 404),
         ("PUT", "/stop", b"", {}, 405),
         ("DELETE", "/", None, {}, 405),
-        ("POST", "/stop", b"x", {"Content-Length": "99999"}, 413),
+        ("POST", "/stop", b"x", {"Content-Length": "99999"} | ACT, 413),
         ("POST", "/stop", b"x", {"Content-Length": "many"}, 400),
-        ("POST", "/clear_stop", b"", {}, 403),  # no X-Rover-View: a form of another site
+        ("POST", "/stop", b"", {}, 403),  # no X-Rover-View: a form of another site
+        ("POST", "/clear_stop", b"", {}, 403),
     ):
         got, answer = _request(server, method, path, body, headers)
         assert got == code, (method, path, answer)
@@ -139,13 +142,13 @@ def test_page_state_and_bad_requests(view: tuple[ViewServer, _Actions]) -> None:
 def test_stop_and_clear_stop(view: tuple[ViewServer, _Actions]) -> None:
     server, actions = view
     hub = server.hub
-    clear = {"X-Rover-View": "1"}
+    clear = ACT
     status, answer = _request(server, "POST", "/clear_stop", b"", clear)
     assert status == 409 and "not latched" in answer["error"]
     stream = _Stream(server)
     try:
         stream.next_event("hello")
-        status, answer = _request(server, "POST", "/stop", b"")
+        status, answer = _request(server, "POST", "/stop", b"", ACT)
         assert status == 202 and answer == {"stop": "sent"}
         assert actions.stopped.is_set() and server.stops == 1
         assert stream.next_event("stop")["source"] == "view"
@@ -249,12 +252,14 @@ def test_tokens_and_binding() -> None:
     try:
         assert server.url.endswith("/?token=s3cret")
         assert _request(server, "GET", "/")[0] == 401
-        status, answer = _request(server, "POST", "/stop", b"", {"Authorization": "Bearer nope"})
-        assert status == 401 and answer["error"] == "wrong token"
+        status, answer = _request(
+            server, "POST", "/stop", b"", {"Authorization": "Bearer nope"} | ACT
+        )
+        assert status == 401 and answer["error"] == "wrong bearer token"
         assert actions.stops == 0
         assert _request(server, "GET", "/state?token=nope")[0] == 401
         assert _request(server, "GET", "/?token=s3cret")[0] == 200
-        ok = {"Authorization": "Bearer s3cret"}
+        ok = {"Authorization": "Bearer s3cret"} | ACT
         assert _request(server, "POST", "/stop", b"", ok)[0] == 202 and actions.stops == 1
         stream = _Stream(server, "?token=s3cret")
         try:
@@ -271,7 +276,7 @@ def test_clear_stop_works_once_a_replan_is_approved_after_the_stop(
 ) -> None:
     server, actions = view
     hub = server.hub
-    clear = {"X-Rover-View": "1"}
+    clear = ACT
     # The table is in the way: the first attempt collides, the repaired one is approved.
     mission = orchestrator("lab").plan_mission(Pose(6.2, 3.0, 0.0), start=Pose(1.2, 3.0, 0.0))
     assert mission.approved and len(mission.attempts) >= 2
@@ -291,7 +296,7 @@ def test_clear_stop_works_once_a_replan_is_approved_after_the_stop(
         # A STOP from the page voids an approval made before it.
         hub.tap("sent", "/ground/emergency_stop", Bool(data=True))
         hub.planned(mission)
-        assert _request(server, "POST", "/stop", b"")[0] == 202
+        assert _request(server, "POST", "/stop", b"", ACT)[0] == 202
         # The tap's STOP is announced too: wait for the page's own, which voids the approval.
         while stream.next_event("stop")["source"] != "view":
             pass
@@ -311,7 +316,7 @@ def test_slow_clients_lock_nobody_out_of_the_view(view: tuple[ViewServer, _Actio
         for sock in slow:
             sock.sendall(b"GET /st")  # and never the rest
         assert _request(server, "GET", "/state")[0] == 200
-        assert _request(server, "POST", "/stop", b"")[0] == 202 and actions.stops == 1
+        assert _request(server, "POST", "/stop", b"", ACT)[0] == 202 and actions.stops == 1
         stream = _Stream(server)
         try:
             assert stream.next_event("hello")["map"]["name"] == "lab"

@@ -1,0 +1,264 @@
+"""Hostile clients against the live view and the gate, timed (issue 43's figures).
+
+Each table sets a figure beside load against the same figure unloaded, measured in the
+same run on the same machine; ``--before DIR`` adds the rows of another tree (``git
+archive <commit> | tar -x -C DIR``), its servers started with ``PYTHONPATH=DIR``.
+
+1. **The view's STOP beside a flood of ``GET /state``** (``--view``): a view server in
+   a subprocess, its hub holding full trails (5,000 points each) and fed odometry at
+   50 Hz as a mission would; a flood subprocess keeps ``N`` keep-alive connections
+   each sending ``GET /state`` in rounds of 5; this process sends ``POST /stop`` on a
+   fresh connection every 20 ms and times (a) the answer, (b) the moment the STOP
+   reached the mission (``on_stop``'s call, on the same monotonic clock): what stops
+   the wheels. Idle, 100 x 5 and 300 x 5.
+``--busy N`` repeats each table beside ``N`` busy processes (``benchmarks.load``).
+
+Run::
+
+    .venv/bin/python -m benchmarks.bench_hostile --view
+    .venv/bin/python -m benchmarks.bench_hostile --view --before /tmp/tree-main --busy 4
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from benchmarks.common import summary, table
+from benchmarks.load import BusyLoad
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PROBE_PERIOD_S = 0.02
+TRAIL_POINTS = 5000
+
+
+# -- subprocess roles ---------------------------------------------------------------------
+def _serve_view(trail_points: int) -> int:
+    """A view whose hub holds full trails and is fed as a mission feeds it; prints
+    ``VIEW <host> <port>`` and serves until stdin closes. STOP answers the monotonic
+    time it reached ``on_stop``."""
+    from bridge.ros.rosport.msgs import Odometry
+    from firmware_proto.model.worldmap import load_map
+    from planner.view import ViewConfig, ViewHub, ViewServer
+
+    def odom(x: float, y: float) -> Odometry:
+        msg = Odometry()
+        msg.pose.pose.position.x = x
+        msg.pose.pose.position.y = y
+        msg.pose.pose.orientation.w = 1.0
+        return msg
+
+    hub = ViewHub(load_map("lab")).start()
+    for i in range(trail_points + 10):  # 2 cm apart: every point kept
+        hub.tap("received", "/ground/odom_ground", odom(1.0 + 0.02 * (i % 300), 1.0 + i // 300))
+        hub.tap("received", "/ground/odom", odom(0.02 * (i % 300), i // 300))
+        if i % 500 == 0:
+            time.sleep(0.01)  # let the hub keep up (its inbox drops the oldest)
+    server = ViewServer(hub, ViewConfig(), on_stop=lambda: f"{time.monotonic():.6f}").start()
+    done = threading.Event()
+
+    def feed() -> None:
+        i = 0
+        while not done.wait(0.02):
+            i += 1
+            hub.tap("received", "/ground/odom", odom(0.001 * i, 0.0))
+            if i % 5 == 0:
+                hub.tap("received", "/ground/odom_ground", odom(1.0 + 0.001 * i, 3.0))
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    host, port = server.url.split("//")[1].split("/")[0].rsplit(":", 1)
+    print(f"VIEW {host} {port}", flush=True)
+    sys.stdin.read()
+    done.set()
+    feeder.join(5)
+    server.close()
+    hub.close()
+    return 0
+
+
+async def _flood(host: str, port: int, conns: int, per_conn: int) -> None:
+    """``conns`` keep-alive connections, each sending ``GET /state`` ``per_conn`` times
+    in a row, in rounds until stdin closes; prints ``FLOOD`` once the first round is
+    under way."""
+    request = f"GET /state HTTP/1.1\r\nHost: {host}:{port}\r\n\r\n".encode()
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    loop.add_reader(sys.stdin.fileno(), stop.set)
+
+    async def one() -> None:
+        while not stop.is_set():
+            try:
+                reader, writer = await asyncio.open_connection(host, port)
+            except OSError:
+                await asyncio.sleep(0.05)
+                continue
+            try:
+                for _ in range(per_conn):
+                    writer.write(request)
+                    head = await reader.readuntil(b"\r\n\r\n")
+                    length = 0
+                    for line in head.split(b"\r\n"):
+                        if line.lower().startswith(b"content-length:"):
+                            length = int(line.split(b":", 1)[1])
+                    await reader.readexactly(length)
+            except (OSError, asyncio.IncompleteReadError):
+                pass
+            finally:
+                writer.close()
+
+    tasks = [asyncio.create_task(one()) for _ in range(conns)]
+    print("FLOOD", flush=True)
+    await stop.wait()
+    for t in tasks:
+        t.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+
+
+# -- helpers ------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _child(
+    argv: list[str], tree: Path | None, ready: str
+) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+    """A subprocess of this module (``tree`` first on its path); yields it and the words
+    of its first line once that line starts with ``ready``."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(str(p) for p in (tree, REPO_ROOT) if p is not None)
+    proc = subprocess.Popen(
+        [sys.executable, str(Path(__file__).resolve()), *argv],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stdout is not None
+        words = proc.stdout.readline().split()
+        if not words or words[0] != ready:
+            raise RuntimeError(f"{argv[0]} did not start")
+        yield proc, words
+    finally:
+        if proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                proc.stdin.close()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(10)
+
+
+def _post_stop(host: str, port: int) -> tuple[float, float | None]:
+    """One STOP on a fresh connection: (seconds to the whole answer, seconds to
+    ``on_stop``'s call or ``None``)."""
+    body = (
+        f"POST /stop HTTP/1.1\r\nHost: {host}:{port}\r\nX-Rover-View: 1\r\n"
+        "Content-Length: 0\r\nConnection: close\r\n\r\n"
+    ).encode()
+    t0 = time.monotonic()
+    with socket.create_connection((host, port), timeout=120) as sock:
+        sock.sendall(body)
+        chunks = []
+        while chunk := sock.recv(65536):
+            chunks.append(chunk)
+    t1 = time.monotonic()
+    answer = b"".join(chunks)
+    head, _, rest = answer.partition(b"\r\n\r\n")
+    reached = None
+    if b" 202 " in head.split(b"\r\n", 1)[0]:
+        with contextlib.suppress(ValueError, KeyError, TypeError):
+            reached = float(json.loads(rest)["stop"]) - t0
+    return t1 - t0, reached
+
+
+def _probe_stops(host: str, port: int, count: int) -> tuple[list[float], list[float]]:
+    answers: list[float] = []
+    reached: list[float] = []
+    for _ in range(count):
+        answer, at = _post_stop(host, port)
+        answers.append(answer)
+        if at is not None:
+            reached.append(at)
+        time.sleep(PROBE_PERIOD_S)
+    return answers, reached
+
+
+def view_table(
+    trees: list[tuple[str, Path | None]],
+    probes: int,
+    floods: list[tuple[int, int]],
+    trail_points: int = TRAIL_POINTS,
+) -> str:
+    """Table 1 (module docstring)."""
+    rows: list[tuple[str, dict[str, float]]] = []
+    for label, tree in trees:
+        with _child(["--serve-view", str(trail_points)], tree, "VIEW") as (_, words):
+            host, port = words[1], int(words[2])
+            _probe_stops(host, port, 3)  # warm up
+            for conns, per_conn in [(0, 0), *floods]:
+                case = "idle" if conns == 0 else f"beside {conns} x {per_conn} GET /state"
+                if conns == 0:
+                    answers, reached = _probe_stops(host, port, probes)
+                else:
+                    flood = ["--flood", host, str(port), str(conns), str(per_conn)]
+                    with _child(flood, None, "FLOOD"):
+                        answers, reached = _probe_stops(host, port, probes)
+                rows.append((f"{label}: answer, {case}", summary(answers)))
+                if reached:
+                    rows.append((f"{label}: STOP reached the mission, {case}", summary(reached)))
+    return table(
+        "View: POST /stop on a fresh connection, every 20 ms",
+        rows,
+        "answer: from sending the request to the whole answer; reached: from sending to "
+        "on_stop's call (what sets the mission's cancel event). Done when p99 < 100 ms "
+        "beside 300 x 5.",
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--view", action="store_true", help="table 1: the view's STOP")
+    parser.add_argument("--before", type=Path, help="a tree to measure beside this one")
+    parser.add_argument("--busy", type=int, default=0, help="also beside N busy processes")
+    parser.add_argument("--probes", type=int, default=200, help="STOPs per case")
+    parser.add_argument("--quick", action="store_true", help="a few probes, a small flood")
+    parser.add_argument("--serve-view", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--flood", nargs=4, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.serve_view is not None:
+        return _serve_view(args.serve_view)
+    if args.flood:
+        host, port, conns, per_conn = args.flood
+        asyncio.run(_flood(host, int(port), int(conns), int(per_conn)))
+        return 0
+    trees: list[tuple[str, Path | None]] = [("this tree", None)]
+    if args.before is not None:
+        trees.insert(0, (f"before ({args.before.name})", args.before))
+    probes = 10 if args.quick else args.probes
+    floods = [(20, 2)] if args.quick else [(100, 5), (300, 5)]
+    trail = 500 if args.quick else TRAIL_POINTS
+    loads = [0] + ([args.busy] if args.busy else [])
+    for busy in loads:
+        with BusyLoad(busy):
+            suffix = f" (beside {busy} busy processes)" if busy else " (no other load)"
+            if args.view:
+                text = view_table(trees, probes, floods, trail)
+                print(text.replace("\n", suffix + "\n", 1))
+                print()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
