@@ -408,7 +408,7 @@ def test_a_plain_headless_screenshot_of_the_view_finishes(
     if path is None:
         pytest.skip("no chromium: apt-get install chromium (bash .ci/bootstrap --test does)")
     server, _ = view
-    url = f"{server.url}?snapshot"
+    url = f"{server.url}&snapshot"  # the URL carries the operator's token
     common = ["nice", "-n", "10", path, "--headless", *CHROMIUM_ARGS]
     common += ["--window-size=1200,700", "--virtual-time-budget=3000"]
     dom = subprocess.run(
