@@ -157,7 +157,7 @@ def _with_browser(url: str, ready: threading.Event, done: threading.Event) -> di
         try:
             page = browser.new_page(viewport={"width": 1200, "height": 700})
             page.goto(url)
-            page.wait_for_function("window.roverView.connected", timeout=30_000)
+            page.wait_for_function("() => window.roverView.connected", timeout=30_000)
             ready.set()
             while not done.wait(0.5):
                 page.evaluate("0")  # keep the driver's loop turning

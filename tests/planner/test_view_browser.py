@@ -42,7 +42,8 @@ def _wait(page: Any, demo: Child, expression: str, timeout_s: float) -> None:
     from playwright.sync_api import TimeoutError as PageTimeout
 
     try:
-        page.wait_for_function(expression, timeout=timeout_s * 1000)
+        # A function, not a string: the page's policy lets no string be evaluated.
+        page.wait_for_function(f"() => ({expression})", timeout=timeout_s * 1000)
     except PageTimeout:
         seen = page.evaluate(
             "JSON.stringify({counts: roverView.counts, ghost: roverView.ghost,"
