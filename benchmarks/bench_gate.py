@@ -26,6 +26,9 @@ in tables 1, 4 and 5. Prints five tables:
 5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads
    (and the server before), with the CPU the gate used per wall second: real plans'
    throughput, and why the gate runs playback in processes.
+6. *A call's hand-off to a worker process* from an event loop, the gate's pool beside
+   ``concurrent.futures.ProcessPoolExecutor`` (spawn, an initializer), 1 and 4 at a
+   time; and stopping a running call (which the executor cannot do).
 
 Timings are wall clock (``time.perf_counter``) on a shared VM; rates vary between runs.
 """
@@ -33,6 +36,7 @@ Timings are wall clock (``time.perf_counter``) on a shared VM; rates vary betwee
 from __future__ import annotations
 
 import argparse
+import contextlib
 import http.client
 import json
 import math
@@ -663,6 +667,102 @@ def bench_pools(
     )
 
 
+def _echo(value: int) -> int:
+    """A call that costs nothing: what a hand-off between processes costs alone."""
+    return value
+
+
+def _spin(seconds: float) -> float:
+    """A call that runs ``seconds`` in the interpreter (interruptible)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+    return seconds
+
+
+def _nothing() -> None:
+    """The initializer of the executor (what the gate's pool does at a worker's start)."""
+
+
+def bench_handoff(rover: RoverDescription, calls: int) -> None:
+    """Table 6. One call's round trip from an event loop through the gate's pool
+    (:class:`gate.pool.ProcessWorkerPool`) and through ``concurrent.futures``'
+    ``ProcessPoolExecutor`` (spawn, an initializer), 1 and 4 calls at a time; and what
+    stopping a running call costs: the gate's pool interrupts it, the executor cannot
+    (``Future.cancel`` is refused once a call runs; killing a worker breaks the whole
+    executor, every call under way failing)."""
+    import asyncio
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from gate.pool import ProcessWorkerPool
+
+    maps = {"lab": load_map("lab")}
+    validator = Validator(rover, maps, GateConfig().playback, "lab")
+
+    async def round_trips(submit: Callable[[int], Any], width: int) -> list[float]:
+        out: list[float] = []
+
+        async def one(i: int) -> None:
+            t0 = time.perf_counter()
+            await asyncio.wrap_future(submit(i))
+            out.append(time.perf_counter() - t0)
+
+        for i in range(0, calls, width):
+            await asyncio.gather(*(one(i + k) for k in range(width)))
+        return out
+
+    rows: list[tuple[str, int, list[float]]] = []
+    with ProcessWorkerPool(validator, 2) as pool:
+        for width in (1, 4):
+            asyncio.run(round_trips(lambda i: pool.submit_call(_echo, i), 4))  # warm
+            rows.append(
+                (
+                    "gate pool (ProcessWorkerPool)",
+                    width,
+                    asyncio.run(round_trips(lambda i: pool.submit_call(_echo, i), width)),
+                )
+            )
+        stop_s = []
+        for _ in range(10):
+            future = pool.submit_call(_spin, 30.0)
+            deadline = time.monotonic() + 30
+            while not future.running() and time.monotonic() < deadline:
+                time.sleep(0.001)
+            time.sleep(0.05)
+            t0 = time.perf_counter()
+            pool.cancel(future)
+            with contextlib.suppress(Exception):
+                future.result(60)
+            stop_s.append(time.perf_counter() - t0)
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(2, mp_context=context, initializer=_nothing) as executor:
+        for width in (1, 4):
+            asyncio.run(round_trips(lambda i: executor.submit(_echo, i), 4))
+            rows.append(
+                (
+                    "peer: ProcessPoolExecutor (spawn)",
+                    width,
+                    asyncio.run(round_trips(lambda i: executor.submit(_echo, i), width)),
+                )
+            )
+    print(
+        f"{'a trivial call from an event loop, 2 workers':<46} {'at once':>8} {'n':>6} "
+        f"{'p50 us':>8} {'p99 us':>8}"
+    )
+    print("-" * 80)
+    for name, width, values in rows:
+        print(
+            f"{name:<46} {width:>8} {len(values):>6} {statistics.median(values) * 1e6:>8.0f} "
+            f"{percentile(values, 0.99) * 1e6:>8.0f}"
+        )
+    print(
+        f"stopping a running call: gate pool {statistics.median(stop_s) * 1e3:.1f} ms p50, "
+        f"{max(stop_s) * 1e3:.1f} ms max (interrupted; the worker kept); "
+        "ProcessPoolExecutor: not possible (Future.cancel refuses a running call)."
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--repeat", type=int, default=30, help="plan repetitions (default 30)")
@@ -674,7 +774,7 @@ def main(argv: list[str] | None = None) -> None:
         help=f"a source tree of the hand-rolled server ({BEFORE_COMMIT}) to measure beside "
         f"this one, e.g. from `git archive {BEFORE_COMMIT} | tar -x -C DIR`",
     )
-    parser.add_argument("--http-only", action="store_true", help="only the HTTP tables (4, 5)")
+    parser.add_argument("--http-only", action="store_true", help="only the HTTP tables (4-6)")
     parser.add_argument(
         "--rounds", type=int, default=4, help="interleaved rounds of tables 4 and 5 (default 4)"
     )
@@ -702,6 +802,8 @@ def main(argv: list[str] | None = None) -> None:
     bench_http(args.seconds, args.before, rounds)
     print()
     bench_pools(rover, 2 * args.seconds, args.before, rounds)  # slow requests: longer
+    print()
+    bench_handoff(rover, 400)
 
 
 if __name__ == "__main__":

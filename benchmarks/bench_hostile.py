@@ -11,12 +11,24 @@ archive <commit> | tar -x -C DIR``), its servers started with ``PYTHONPATH=DIR``
    fresh connection every 20 ms and times (a) the answer, (b) the moment the STOP
    reached the mission (``on_stop``'s call, on the same monotonic clock): what stops
    the wheels. Idle, 100 x 5 and 300 x 5.
+2. **An ordinary plan beside a costly one** (``--gate``): a gate with two worker
+   processes; client A (source address 127.0.0.2) asks for ``samples=2000`` on the
+   slowest valid plan (refused at once: over what one request may take), then keeps
+   asking for the most samples the gate admits for that plan; client B (127.0.0.3)
+   posts bench_gate's 12-step plan one after the other. B's latency beside A, against
+   B alone.
+3. **``/health`` beside bad bodies** (``--gate``): four clients post 63 kB bodies with
+   1,250 schema violations in a loop; a fifth asks ``GET /health`` every 20 ms.
+
 ``--busy N`` repeats each table beside ``N`` busy processes (``benchmarks.load``).
 
 Run::
 
-    .venv/bin/python -m benchmarks.bench_hostile --view
-    .venv/bin/python -m benchmarks.bench_hostile --view --before /tmp/tree-main --busy 4
+    .venv/bin/python -m benchmarks.bench_hostile --view --gate
+    .venv/bin/python -m benchmarks.bench_hostile --view --gate --before /tmp/tree-main --busy 4
+
+(``--before`` adds rows of the other tree to tables 1 and 3; table 2's costly request
+would hold the old gate's workers for minutes, as the issue measured.)
 """
 
 from __future__ import annotations
@@ -227,15 +239,175 @@ def view_table(
     )
 
 
+# -- the gate ------------------------------------------------------------------------------
+SLOWEST = {
+    "goal": {"x": 1.2, "y": 3.0, "yaw_deg": 0.0},
+    "commands": [{"command": "FWD", "speed": 1, "distance": 30000}] * 12,
+}
+SQUARE = {
+    "goal": {"x": 1.0, "y": 4.0, "yaw_deg": 0.0},
+    "commands": [
+        {"command": c, "speed": v, "distance": d}
+        for c, v, d in [("FWD", 60, 28750), ("FWD", 60, 28750), ("LEFT", 30, 15484)] * 4
+    ],
+}
+SQUARE_QUERY = "map=scn01&start=1.0,4.0,0"
+
+
+def _bad_body() -> bytes:
+    step = {"command": "JUMP", "speed": 99, "distance": -1}
+    return json.dumps({"goal": {"x": 1, "y": 1, "yaw_deg": 0}, "commands": [step] * 1250}).encode()
+
+
+def _post(
+    address: tuple[str, int], body: bytes, query: str = "", source: str | None = None
+) -> tuple[int, bytes, float]:
+    """One POST /validate_plan on a fresh connection: status, body, seconds."""
+    import http.client
+
+    conn = http.client.HTTPConnection(
+        *address, timeout=600, source_address=(source, 0) if source else None
+    )
+    t0 = time.monotonic()
+    try:
+        conn.request(
+            "POST",
+            "/validate_plan" + (f"?{query}" if query else ""),
+            body,
+            {"Content-Type": "application/json"},
+        )
+        response = conn.getresponse()
+        data = response.read()
+        return response.status, data, time.monotonic() - t0
+    finally:
+        conn.close()
+
+
+def _get(address: tuple[str, int], path: str) -> float:
+    import http.client
+
+    conn = http.client.HTTPConnection(*address, timeout=600)
+    t0 = time.monotonic()
+    try:
+        conn.request("GET", path)
+        conn.getresponse().read()
+        return time.monotonic() - t0
+    finally:
+        conn.close()
+
+
+@contextlib.contextmanager
+def _gate(tree: Path | None, workers: int = 2) -> Iterator[tuple[str, int]]:
+    """``rover gate`` of ``tree`` (this one when ``None``) on a free port."""
+    from benchmarks.common import server_process
+
+    env = {"PYTHONPATH": str(tree)} if tree is not None else {}
+    # python -m firmware_proto.cli: the rover command of whichever tree is first on the path
+    argv = [sys.executable, "-m", "firmware_proto.cli", "gate", "--port", "0"]
+    argv += ["--workers", str(workers)]
+    with server_process(argv, env) as served:
+        yield served.address
+
+
+def _bad_bodies(host: str, port: int, clients: int) -> int:
+    """``clients`` threads posting bad 63 kB bodies until stdin closes; prints ``BAD``."""
+    body = _bad_body()
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.is_set():
+            with contextlib.suppress(OSError):
+                _post((host, port), body)
+
+    threads = [threading.Thread(target=loop, daemon=True) for _ in range(clients)]
+    for t in threads:
+        t.start()
+    print("BAD", flush=True)
+    sys.stdin.read()
+    stop.set()
+    for t in threads:
+        t.join(60)
+    return 0
+
+
+def health_table(trees: list[tuple[str, Path | None]], probes: int) -> str:
+    """Table 3 (module docstring)."""
+    rows: list[tuple[str, dict[str, float]]] = []
+    for label, tree in trees:
+        with _gate(tree) as address:
+            host, port = address
+            _get(address, "/health")
+            alone = []
+            for _ in range(probes):
+                alone.append(_get(address, "/health"))
+                time.sleep(PROBE_PERIOD_S)
+            rows.append((f"{label}: GET /health, alone", summary(alone)))
+            beside = []
+            with _child(["--bad-bodies", host, str(port), "4"], None, "BAD"):
+                time.sleep(0.5)  # the four clients under way
+                for _ in range(probes):
+                    beside.append(_get(address, "/health"))
+                    time.sleep(PROBE_PERIOD_S)
+            rows.append((f"{label}: GET /health, beside 4 x bad 63 kB bodies", summary(beside)))
+    return table(
+        "Gate: GET /health every 20 ms, alone and beside four clients of bad bodies",
+        rows,
+        "Bad bodies: 1,250 schema violations in 63 kB, posted in a loop. Done when p99 < "
+        "50 ms beside them.",
+    )
+
+
+def fairness_table(rounds: int) -> str:
+    """Table 2 (module docstring), this tree only."""
+    with _gate(None) as address:
+        square = json.dumps(SQUARE).encode()
+        _post(address, square, SQUARE_QUERY)  # warm
+        alone = [_post(address, square, SQUARE_QUERY, "127.0.0.3")[2] for _ in range(rounds)]
+        status, data, _ = _post(address, json.dumps(SLOWEST).encode(), "samples=2000", "127.0.0.2")
+        refused = f"samples=2000 on the slowest plan: {status} {json.loads(data).get('error')}"
+        most = int(json.loads(data)["message"].split("at most ")[1].split()[0])
+        stop = threading.Event()
+        costly: list[float] = []
+
+        def a_loop() -> None:
+            body = json.dumps(SLOWEST).encode()
+            while not stop.is_set():
+                code, _, took = _post(address, body, f"samples={most}", "127.0.0.2")
+                if code == 200:
+                    costly.append(took)
+
+        a = threading.Thread(target=a_loop, daemon=True)
+        a.start()
+        time.sleep(1.0)  # A's chunks on the workers
+        beside = [_post(address, square, SQUARE_QUERY, "127.0.0.3")[2] for _ in range(rounds)]
+        stop.set()
+        a.join(600)
+    rows = [
+        ("B: bench_gate's 12-step plan, alone", summary(alone)),
+        (f"B: the same, beside A's samples={most} on the slowest plan", summary(beside)),
+    ]
+    ratio = summary(beside)["p50"] / summary(alone)["p50"]
+    return table(
+        "Gate (2 worker processes): an ordinary plan from client B beside a costly request "
+        "from client A",
+        rows,
+        f"{refused} (at once, nothing queued); then A asks for samples={most}, the most the "
+        f"gate admits for that plan, in a loop ({len(costly)} answered). B's p50 beside A is "
+        f"{ratio:.2f}x its p50 alone. Done when within 2x.",
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--view", action="store_true", help="table 1: the view's STOP")
+    parser.add_argument("--gate", action="store_true", help="tables 2 and 3: the gate")
     parser.add_argument("--before", type=Path, help="a tree to measure beside this one")
     parser.add_argument("--busy", type=int, default=0, help="also beside N busy processes")
     parser.add_argument("--probes", type=int, default=200, help="STOPs per case")
     parser.add_argument("--quick", action="store_true", help="a few probes, a small flood")
     parser.add_argument("--serve-view", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--flood", nargs=4, help=argparse.SUPPRESS)
+    parser.add_argument("--bad-bodies", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.serve_view is not None:
         return _serve_view(args.serve_view)
@@ -243,6 +415,9 @@ def main(argv: list[str] | None = None) -> int:
         host, port, conns, per_conn = args.flood
         asyncio.run(_flood(host, int(port), int(conns), int(per_conn)))
         return 0
+    if args.bad_bodies:
+        host, port, clients = args.bad_bodies
+        return _bad_bodies(host, int(port), int(clients))
     trees: list[tuple[str, Path | None]] = [("this tree", None)]
     if args.before is not None:
         trees.insert(0, (f"before ({args.before.name})", args.before))
@@ -257,6 +432,13 @@ def main(argv: list[str] | None = None) -> int:
                 text = view_table(trees, probes, floods, trail)
                 print(text.replace("\n", suffix + "\n", 1))
                 print()
+            if args.gate:
+                for text in (
+                    fairness_table(5 if args.quick else 40),
+                    health_table(trees, probes),
+                ):
+                    print(text.replace("\n", suffix + "\n", 1))
+                    print()
     return 0
 
 

@@ -105,6 +105,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--token", help=argparse.SUPPRESS)  # refused: see _serve
     p.add_argument(
+        "--allowed-host",
+        dest="allowed_hosts",
+        action="append",
+        metavar="NAME",
+        help="a further name clients reach the gate by (the Host header; repeatable)",
+    )
+    p.add_argument(
         "--workers", type=int, metavar="N", help="validations in parallel (default: CPU count)"
     )
     p.add_argument("--pool", choices=("process", "thread"), help="worker kind (process)")
@@ -187,6 +194,7 @@ def _serve(args: argparse.Namespace) -> int:
             "queue_depth": args.queue_depth,
             "max_body_bytes": args.max_body_bytes,
             "cluster": args.cluster,
+            "allowed_hosts": tuple(args.allowed_hosts) if args.allowed_hosts else None,
             **{k: v for k, v in _playback_args(args).items() if k != "twin_path"},
         },
         config_path=args.config,

@@ -174,6 +174,9 @@ class GateConfig:
         playback: defaults of the playback and verdict.
         cluster: address of a Dask scheduler (``tcp://host:port``) that plays the
             chunks of verdicts with uncertainty; ``None``: the local pool does.
+        allowed_hosts: further names the gate answers to in ``Host`` (beside its
+            address, ``localhost`` on loopback, the machine's name on a wildcard bind):
+            any other is 421 (DNS rebinding).
 
     Raises:
         GateConfigError: a value is out of range, or a non-loopback host has no token.
@@ -196,6 +199,7 @@ class GateConfig:
     drain_timeout_s: float = DEFAULT_DRAIN_TIMEOUT_S
     playback: PlaybackSettings = field(default_factory=PlaybackSettings)
     cluster: str | None = None
+    allowed_hosts: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -229,6 +233,11 @@ class GateConfig:
         return self.workers + self.queue_depth
 
 
+def _names(text: str) -> tuple[str, ...]:
+    """A comma-separated list of names."""
+    return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
 _PLAYBACK_KEYS = (
     "dt_s",
     "sample_hz",
@@ -259,6 +268,7 @@ KEYS: dict[str, Callable[[str], Any]] = {
     "position_tolerance_m": float,
     "yaw_tolerance_deg": float,
     "cluster": str,
+    "allowed_hosts": _names,
 }
 """Every settable key and how its text form (environment) is parsed."""
 
@@ -279,7 +289,9 @@ def _from_file(path: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in table.items():
         parse = KEYS[key]
-        if parse is float:
+        if parse is _names:
+            ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
+        elif parse is float:
             ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         elif parse is int:
             ok = isinstance(value, int) and not isinstance(value, bool)
@@ -289,7 +301,10 @@ def _from_file(path: Path) -> dict[str, Any]:
             raise GateConfigError(
                 f"{path}: [gate] {key} has the wrong type ({type(value).__name__})"
             )
-        out[key] = float(value) if parse is float else value
+        if parse is _names:
+            out[key] = tuple(value)
+        else:
+            out[key] = float(value) if parse is float else value
     return out
 
 

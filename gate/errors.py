@@ -3,12 +3,14 @@
 Everything this package raises on purpose derives from :class:`GateError`::
 
     GateError
+     +-- CallCancelledError     a worker pool's call was stopped before its end
      +-- GateConfigError        a gate setting is out of range, or the bind policy refuses
      |                          it (non-loopback address without a token); also ValueError
      +-- OptionError            a request option (query parameter) is unknown, repeated or
      |                          out of range; also ValueError. ``parameter`` names it.
      +-- HttpError              a request cannot be served; carries the HTTP status, a
           |                     machine-readable ``code`` and extra response headers
+          |                     (also :class:`firmware_proto.http.errors.HttpError`)
           +-- BadRequestError        400: not JSON, bad option, malformed framing
           |    +-- PlanSchemaError   400: the plan fails Listing 1; ``violations`` lists
           |         |                ``(json_pointer, message)`` pairs
@@ -22,19 +24,28 @@ Everything this package raises on purpose derives from :class:`GateError`::
           +-- LengthRequiredError    411: a body without Content-Length or chunked framing
           +-- PayloadTooLargeError   413: the body exceeds the documented limit
           +-- UnsupportedMediaError  415: the body is not ``application/json``
+          +-- TooManyRequestsError   429: this client holds its share of the gate
+          |                          already; ``retry_after_s`` says when to try again
           +-- OverloadedError        503: every worker and queue slot is taken, or the
                                      server is shutting down; ``retry_after_s`` says when
                                      to try again
 
-Errors from the twin (:mod:`emulator.errors`) and the plan schema
+The shared application layer (:mod:`firmware_proto.http.app`) answers 401, 404, 405,
+421 and 501 itself with :class:`firmware_proto.http.errors.HttpError`, which the gate
+words as its own. Errors from the twin (:mod:`emulator.errors`) and the plan schema
 (:class:`firmware_proto.errors.PlanError`) are translated at the boundary, chained with
 ``raise ... from``.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
+from firmware_proto.http.errors import HttpError as SharedHttpError
+
 __all__ = [
     "BadRequestError",
+    "CallCancelledError",
     "GateConfigError",
     "GateError",
     "GoalRangeError",
@@ -48,6 +59,7 @@ __all__ = [
     "PayloadTooLargeError",
     "PlanSchemaError",
     "RequestTimeoutError",
+    "TooManyRequestsError",
     "UnauthorizedError",
     "UnsupportedMediaError",
 ]
@@ -59,6 +71,11 @@ class GateError(Exception):
 
 class GateConfigError(GateError, ValueError):
     """A gate setting is out of range or refused by the bind policy."""
+
+
+class CallCancelledError(GateError):
+    """A call to the worker pool was stopped before its end (cancelled past its
+    deadline, or because its client left); its future raises this."""
 
 
 class OptionError(GateError, ValueError):
@@ -78,7 +95,7 @@ class OptionError(GateError, ValueError):
         return (type(self), (self.parameter, self.reason))
 
 
-class HttpError(GateError):
+class HttpError(GateError, SharedHttpError):
     """A request that gets an error response instead of a verdict.
 
     Attributes:
@@ -94,10 +111,7 @@ class HttpError(GateError):
     def __init__(
         self, message: str, *, code: str | None = None, headers: dict[str, str] | None = None
     ) -> None:
-        super().__init__(message)
-        self.message = message
-        self.code = code or self.default_code
-        self.headers = dict(headers or {})
+        SharedHttpError.__init__(self, message, code=code, headers=headers)
 
 
 class BadRequestError(HttpError):
@@ -121,20 +135,38 @@ class BadRequestError(HttpError):
         super().__init__(message, code=code, headers=headers)
         self.parameter = parameter
 
+    def fields(self) -> dict[str, Any]:
+        """``parameter`` for a bad option."""
+        return super().fields() | ({"parameter": self.parameter} if self.parameter else {})
+
 
 class PlanSchemaError(BadRequestError):
     """400: the plan fails the Listing 1 schema.
 
     Attributes:
         violations: ``(json_pointer, message)`` pairs, sorted by pointer.
+        complete: whether ``violations`` are all of them (``False``: the first ones
+            found; the gate stops looking after a few, so that a large bad body costs
+            little).
     """
 
     default_code = "plan_schema"
 
-    def __init__(self, violations: list[tuple[str, str]]) -> None:
+    def __init__(self, violations: list[tuple[str, str]], *, complete: bool = True) -> None:
         self.violations = list(violations)
+        self.complete = complete
         text = "; ".join(f"{ptr or '/'}: {msg}" for ptr, msg in self.violations)
-        super().__init__(f"plan fails the schema: {text}")
+        more = "" if complete else "; and more, not listed"
+        super().__init__(f"plan fails the schema: {text}{more}")
+
+    def fields(self) -> dict[str, Any]:
+        """``violations`` (and ``truncated`` when they are not all)."""
+        out = super().fields() | {
+            "violations": [{"pointer": p, "message": m} for p, m in self.violations]
+        }
+        if not self.complete:
+            out["truncated"] = True
+        return out
 
 
 class GoalRangeError(PlanSchemaError):
@@ -178,6 +210,10 @@ class MethodNotAllowedError(HttpError):
         self.allow = sorted(allow)
         super().__init__(message, headers={"Allow": ", ".join(self.allow)})
 
+    def fields(self) -> dict[str, Any]:
+        """``allow``: the methods the path takes."""
+        return super().fields() | {"allow": self.allow}
+
 
 class RequestTimeoutError(HttpError):
     """408: the request's body did not arrive whole within the body timeout."""
@@ -212,6 +248,22 @@ class MethodNotImplementedError(HttpError):
 
     status = 501
     default_code = "not_implemented"
+
+
+class TooManyRequestsError(HttpError):
+    """429: this client already holds its share of the gate (validations or their
+    estimated work); others' requests are served meanwhile.
+
+    Attributes:
+        retry_after_s: whole seconds the client should wait before retrying.
+    """
+
+    status = 429
+    default_code = "too_many_requests"
+
+    def __init__(self, message: str, *, code: str | None = None, retry_after_s: int = 1) -> None:
+        self.retry_after_s = retry_after_s
+        super().__init__(message, code=code, headers={"Retry-After": str(retry_after_s)})
 
 
 class OverloadedError(HttpError):

@@ -105,10 +105,11 @@ def _schemas() -> dict[str, Any]:
                 "status": _INT,
                 "message": _STR,
                 "violations": {"type": "array", "items": _ref("Violation")},
+                "truncated": {"const": True},
                 "parameter": _STR,
                 "allow": {"type": "array", "items": _STR},
             },
-            optional=("violations", "parameter", "allow"),
+            optional=("violations", "truncated", "parameter", "allow"),
         ),
         "Health": _obj(
             {
@@ -122,6 +123,9 @@ def _schemas() -> dict[str, Any]:
                 "workers": _INT,
                 "queue_depth": _INT,
                 "in_flight": _INT,
+                "admitted_work_s": _NUM
+                | {"description": "Estimated worker-seconds of the validations admitted."},
+                "clients": _INT | {"description": "Clients with validations admitted."},
                 "dt_s": _NUM,
                 "max_body_bytes": _INT,
                 "uptime_s": _NUM,
@@ -270,10 +274,13 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
             ),
             "400": _error(
                 "Not JSON, or nested deeper than 32 levels (error 'not_json'); the plan "
-                "fails the schema ('plan_schema', with the JSON pointer of each violation); "
+                "fails the schema ('plan_schema', with the JSON pointer of each violation: "
+                "at most 20, and 'truncated' when there are more); "
                 "a goal coordinate beyond +/-1e6 m ('goal_out_of_range', violations at "
                 "/goal/x, /goal/y); a bad query option ('invalid_option', naming the "
-                "parameter); malformed framing ('bad_framing', e.g. both Content-Length and "
+                "parameter; also 'samples' when the request would take more of the workers than "
+                "one request may, saying how many this plan may ask for); malformed framing "
+                "('bad_framing', e.g. both Content-Length and "
                 "Transfer-Encoding); the connection ended inside the body ('truncated_body')."
             ),
             "408": _error(
@@ -281,6 +288,11 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
                 "('request_timeout'); the connection is closed."
             ),
             "411": _error("A body without Content-Length or chunked Transfer-Encoding."),
+            "429": _error(
+                "This client already holds its share of the gate: validations admitted, or "
+                "their estimated work ('too_many_requests'). Retry after the given seconds.",
+                {"Retry-After": {"schema": {"type": "integer", "minimum": 0}}},
+            ),
             "413": _error(f"Body over {config.max_body_bytes} bytes."),
             "415": _error("Content-Type is not application/json (UTF-8)."),
         },
@@ -320,7 +332,8 @@ def build_openapi(config: GateConfig, maps: list[str], default_map: str) -> dict
                 "verdict and the predicted trajectory (docs/gate.md). Every error body is "
                 "JSON (schema Error). Beyond the responses listed per operation, any path "
                 "may answer 404 (unknown path), 405 with an Allow header (method not "
-                "allowed on a known path), 501 (unknown method), 400 (malformed request), "
+                "allowed on a known path), 421 (a Host that does not name this server), "
+                "501 (unknown method), 400 (malformed request), "
                 f"408 (a request's head not whole within {config.head_timeout_s:g} s of its "
                 "first byte: the connection is closed), 431 (request head over 16 kB) or "
                 "505 (HTTP version). HEAD is answered wherever GET is."

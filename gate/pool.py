@@ -10,11 +10,22 @@ implementation fills; :meth:`~WorkerPool._close` releases its resources. A job i
   is pure Python and CPU-bound, so processes are what runs plans in parallel on several
   cores. All workers start at construction and prove ready (:meth:`warm_up`) before the
   server says it listens; a worker that dies is replaced at once. Each worker is fed
-  through a pipe of its own and one thread reads the answers (see the class).
+  through a pipe of its own and one thread reads the answers (see the class). Calls
+  can be **cancelled while they run** (the worker is interrupted; one that does not
+  stop within :data:`CANCEL_GRACE_S` is killed and replaced), and the workers are
+  **shared fairly** between clients (each call names its client).
 - :class:`ThreadWorkerPool`: threads in this process sharing one validator: no start-up
-  cost, but the GIL runs one playback at a time. For tests and small machines.
+  cost, but the GIL runs one playback at a time, and a call that has started cannot be
+  cancelled. For tests and small machines.
 
-Admission (how many jobs may wait) is the server's business, not the pool's.
+Admission (how many jobs may wait) is the server's business (:mod:`gate.admission`),
+not the pool's.
+
+Why not ``concurrent.futures.ProcessPoolExecutor`` (docs/gate.md, "Worker pool"): it
+cannot stop a call that has started (``Future.cancel`` only drops a waiting one), a
+worker killed to stop one breaks the whole executor (every call under way and waiting
+fails with ``BrokenProcessPool``), it has one queue for everyone, and each call
+crosses three of its threads.
 """
 
 from __future__ import annotations
@@ -27,20 +38,22 @@ import pickle
 import signal
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from itertools import count
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from typing import Any, TypeVar
 
 from gate.config import GateConfig
-from gate.errors import GateConfigError
+from gate.errors import CallCancelledError, GateConfigError
 from gate.validator import Job, Validator
 
 __all__ = [
+    "CANCEL_GRACE_S",
     "ProcessWorkerPool",
     "ThreadWorkerPool",
     "WorkerPool",
@@ -54,20 +67,51 @@ _T = TypeVar("_T")
 
 WARM_UP_TIMEOUT_S = 60.0
 """Longest wait for every worker process to start and load the maps."""
+CANCEL_GRACE_S = 5.0
+"""How long an interrupted worker may take to stop its call before it is killed (and
+replaced). Playback returns to the interpreter every twin step (microseconds); only a
+call stuck in native code (or a worker starved of CPU for seconds) needs the kill."""
+INTERRUPT = signal.SIGUSR1
+"""The signal that asks a worker to stop the call it runs."""
 
 _validator: Validator | None = None  # the worker process's own validator
+_running = 0  # the worker process's call under way (its id), 0 between calls
+_control: Connection | None = None  # where the pool writes the id of the call to stop
+_target = 0  # the last id read from there
 
 
-def _worker_main(conn: Connection, validator: Validator) -> None:
-    """A worker process: say ready, then run ``(fn, arg)`` calls from ``conn`` one at a
-    time, answering ``("ok", result)`` or ``("err", exception)``, until ``None`` or the
-    pool's end of the pipe closes."""
-    global _validator  # noqa: PLW0603 - per-process state of a pool worker
+class _Interrupted(BaseException):
+    """Raised in a worker by :data:`INTERRUPT` into the call the pool wants stopped
+    (a ``BaseException``: no ``except Exception`` of the call swallows it)."""
+
+
+def _read_target() -> None:
+    """The last call id the pool asked to stop (from the control pipe)."""
+    global _target  # noqa: PLW0603 - per-process state of a pool worker
+    if _control is not None:
+        with contextlib.suppress(EOFError, OSError):
+            while _control.poll():
+                _target = int.from_bytes(_control.recv_bytes(), "little")
+
+
+def _on_interrupt(signum: int, frame: object) -> None:
+    _read_target()
+    if _running and _target == _running:
+        raise _Interrupted
+
+
+def _worker_main(conn: Connection, validator: Validator, control: Connection) -> None:
+    """A worker process: say ready, then run ``(id, fn, arg)`` calls from ``conn`` one at
+    a time, answering ``("ok", result)``, ``("err", exception)`` or ``("cancelled",
+    None)`` when interrupted, until ``None`` or the pool's end of the pipe closes."""
+    global _validator, _running, _control  # noqa: PLW0603 - per-process state of a pool worker
     # The server process owns shutdown: a Ctrl-C or SIGTERM sent to the whole process
     # group must not kill workers under in-flight requests (they exit when it says so).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _validator = validator
+    _control = control
+    signal.signal(INTERRUPT, _on_interrupt)
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -76,9 +120,22 @@ def _worker_main(conn: Connection, validator: Validator) -> None:
             return
         if call is None:
             return
-        fn, arg = call
+        ident, fn, arg = call
+        answer: tuple[str, Any]
         try:
-            answer: tuple[str, Any] = ("ok", fn(arg))
+            _running = ident  # from here to the "finally", the call may be interrupted
+            try:
+                # Asked to stop before it began (while the call was read or its module
+                # imported): the signal came when there was nothing to interrupt.
+                _read_target()
+                if _target == ident:
+                    raise _Interrupted
+                result = fn(arg)
+            finally:
+                _running = 0
+            answer = ("ok", result)
+        except _Interrupted:
+            answer = ("cancelled", None)
         except BaseException as exc:  # every failure goes back to the caller
             answer = ("err", exc)
         try:
@@ -95,7 +152,9 @@ def run_job(job: Job) -> bytes:
 
 
 class WorkerPool:
-    """Base of the pools. Implementations fill :meth:`_submit` and may fill :meth:`_close`.
+    """Base of the pools. Implementations fill :meth:`_submit_call` and may fill
+    :meth:`_submit` (a job, by default :func:`run_job` as a call), :meth:`_cancel` and
+    :meth:`_close`.
 
     Thread-safe; :meth:`close` is idempotent.
     """
@@ -110,9 +169,10 @@ class WorkerPool:
         self._closed = False
         self._lock = threading.Lock()
 
-    def submit(self, job: Job) -> Future[bytes]:
-        """Start ``job``; the future gives the verdict JSON bytes, or raises what
-        validation raised.
+    def submit(self, job: Job, *, client: str = "") -> Future[bytes]:
+        """Start ``job`` for ``client``; the future gives the verdict JSON bytes, or
+        raises what validation raised (:class:`~gate.errors.CallCancelledError` once
+        :meth:`cancel` stopped it).
 
         Raises:
             RuntimeError: the pool is closed.
@@ -120,14 +180,23 @@ class WorkerPool:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"{self.kind} pool is closed")
-        return self._submit(job)
+        return self._submit(job, client)
 
-    def _submit(self, job: Job) -> Future[bytes]:
-        raise NotImplementedError
+    def _submit(self, job: Job, client: str) -> Future[bytes]:
+        return self._submit_call(run_job, job, client, False)
 
-    def submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+    def submit_call(
+        self,
+        fn: Callable[[Any], _T],
+        arg: Any,
+        *,
+        client: str = "",
+        preemptible: bool = False,
+    ) -> Future[_T]:
         """Run ``fn(arg)`` on a worker (``fn`` a module-level function, ``arg``
-        picklable: a chunk of an uncertain verdict, :func:`gate.ensemble.run_chunk`).
+        picklable: a chunk of an uncertain verdict, :func:`gate.ensemble.run_chunk`) for
+        ``client``. A ``preemptible`` call may be stopped and put back in line to make
+        room for another client's (its work is lost, its result is not).
 
         Raises:
             RuntimeError: the pool is closed.
@@ -135,10 +204,21 @@ class WorkerPool:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"{self.kind} pool is closed")
-        return self._submit_call(fn, arg)
+        return self._submit_call(fn, arg, client, preemptible)
 
-    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+    def _submit_call(
+        self, fn: Callable[[Any], _T], arg: Any, client: str, preemptible: bool
+    ) -> Future[_T]:
         raise NotImplementedError
+
+    def cancel(self, future: Future[Any]) -> bool:
+        """Stop the call of ``future``: a waiting one is dropped (the future is
+        cancelled), a running one interrupted where the pool can (the future then raises
+        :class:`~gate.errors.CallCancelledError`). Whether it will stop."""
+        return self._cancel(future)
+
+    def _cancel(self, future: Future[Any]) -> bool:
+        return future.cancel()
 
     def close(self, *, wait: bool = True) -> None:
         """Stop taking jobs; with ``wait``, let the running ones finish first. Queued jobs
@@ -161,7 +241,8 @@ class WorkerPool:
 
 
 class ThreadWorkerPool(WorkerPool):
-    """Threads sharing this process's validator (one playback at a time under the GIL)."""
+    """Threads sharing this process's validator (one playback at a time under the GIL;
+    a call that has started runs to its end: :meth:`cancel` drops only waiting ones)."""
 
     kind = "thread"
 
@@ -176,29 +257,22 @@ class ThreadWorkerPool(WorkerPool):
         ]:
             future.result(timeout=WARM_UP_TIMEOUT_S)
 
-    def _submit(self, job: Job) -> Future[bytes]:
-        return self._executor.submit(self._run, job)
-
     def _run(self, job: Job) -> bytes:
         return self.validator.run(job).to_json().encode()
 
-    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
+    def _submit_call(
+        self, fn: Callable[[Any], _T], arg: Any, client: str, preemptible: bool
+    ) -> Future[_T]:
+        if fn is run_job:  # this process has no worker validator: use the pool's
+            job: Future[Any] = self._executor.submit(self._run, arg)
+            return job
         return self._executor.submit(fn, arg)
 
     def _close(self, wait: bool) -> None:
         self._executor.shutdown(wait=wait, cancel_futures=True)
 
 
-@dataclass(eq=False)
-class _Worker:
-    """One worker process as the pool sees it."""
-
-    process: BaseProcess
-    conn: Connection
-    pid: int = 0
-    ready: bool = False
-    dead: bool = False
-    call: _Call | None = None
+_ids = count(1)
 
 
 @dataclass(eq=False)
@@ -208,8 +282,30 @@ class _Call:
     future: Future[Any]
     fn: Callable[[Any], Any]
     arg: Any
+    client: str
+    preemptible: bool
+    ident: int = field(default_factory=lambda: next(_ids))
     started: bool = False
     """Its future was set running (it went to a worker, which may have died first)."""
+    stopping: str = ""
+    """Why the pool asked its worker to stop it: ``"cancel"`` (for good) or ``"preempt"``
+    (to make room: back in line)."""
+
+
+@dataclass(eq=False)
+class _Worker:
+    """One worker process as the pool sees it."""
+
+    process: BaseProcess
+    conn: Connection
+    control: Connection
+    """Where the pool writes the id of the call to stop, before :data:`INTERRUPT`."""
+    pid: int = 0
+    ready: bool = False
+    dead: bool = False
+    call: _Call | None = None
+    kill_at: float | None = None
+    """When an interrupted worker that has not stopped its call is killed (monotonic)."""
 
 
 class ProcessWorkerPool(WorkerPool):
@@ -223,8 +319,22 @@ class ProcessWorkerPool(WorkerPool):
     (its manager thread, its queue's feeder thread, then the manager again): about 60
     against 160 us per call from an event loop here (docs/gate.md, Performance).
 
-    A worker that dies fails its call with ``BrokenProcessPool`` (the gate retries it
-    once) and is replaced at once; calls wait for the replacement meanwhile.
+    **Fair.** Waiting calls are queued per client; a free worker takes the next call of
+    the client with the fewest calls running (round robin among equals). When a client
+    with nothing running waits and no worker is free, a preemptible call of a client
+    running more than its share (``workers`` over the clients with work, at least one)
+    is stopped and put back first in its client's line: a costly request cannot hold
+    every worker while others wait.
+
+    **Cancellable.** :meth:`cancel` drops a waiting call, and interrupts a running one:
+    the pool writes the call's id to the worker's control pipe and sends it
+    :data:`INTERRUPT`, whose handler raises into the call if it is still that one; a
+    worker that has not answered within :data:`CANCEL_GRACE_S` is killed, and, like any
+    worker that dies, replaced at once (its call fails with
+    :class:`~gate.errors.CallCancelledError`, or goes back in line when preempted).
+
+    A worker that dies on its own fails its call with ``BrokenProcessPool`` (the gate
+    retries it once); calls wait for the replacement meanwhile.
     """
 
     kind = "process"
@@ -235,8 +345,16 @@ class ProcessWorkerPool(WorkerPool):
         self._state = threading.Condition()
         self._workers: list[_Worker] = []
         self._idle: deque[_Worker] = deque()
-        self._pending: deque[_Call] = deque()
+        self._queues: dict[str, deque[_Call]] = {}
+        self._running: Counter[str] = Counter()
+        self._served: dict[str, int] = {}  # when each client's last call started
+        self._serial = 0
+        self._calls: dict[Future[Any], _Call] = {}
         self._stopping = False
+        self.interrupted = 0
+        """Calls interrupted (cancelled or preempted) so far."""
+        self.killed = 0
+        """Workers killed because they did not stop a call in time."""
         self._wake_r, self._wake_w = self._context.Pipe(duplex=False)
         try:
             self._workers = [self._spawn() for _ in range(workers)]
@@ -258,14 +376,30 @@ class ProcessWorkerPool(WorkerPool):
         with self._state:
             return sorted(w.pid for w in self._workers if w.ready)
 
+    @property
+    def waiting(self) -> int:
+        """Calls waiting for a worker."""
+        with self._state:
+            return sum(len(q) for q in self._queues.values())
+
+    def running(self, client: str) -> int:
+        """Calls of ``client`` running on a worker now."""
+        with self._state:
+            return self._running[client]
+
     def _spawn(self) -> _Worker:
         ours, theirs = self._context.Pipe()
+        control_r, control_w = self._context.Pipe(duplex=False)
         process = self._context.Process(
-            target=_worker_main, args=(theirs, self.validator), name="gate-worker", daemon=True
+            target=_worker_main,
+            args=(theirs, self.validator, control_r),
+            name="gate-worker",
+            daemon=True,
         )
         process.start()
         theirs.close()
-        return _Worker(process, ours)
+        control_r.close()
+        return _Worker(process, ours, control_w)
 
     def warm_up(self) -> None:
         """Wait until every worker has loaded the validator (before the server says it
@@ -287,33 +421,123 @@ class ProcessWorkerPool(WorkerPool):
             self._idle.append(worker)
 
     # -- calls ------------------------------------------------------------------------------
-    def _submit(self, job: Job) -> Future[bytes]:
-        return self._submit_call(run_job, job)
-
-    def _submit_call(self, fn: Callable[[Any], _T], arg: Any) -> Future[_T]:
-        call = _Call(Future(), fn, arg)
+    def _submit_call(
+        self, fn: Callable[[Any], _T], arg: Any, client: str, preemptible: bool
+    ) -> Future[_T]:
+        call = _Call(Future(), fn, arg, client, preemptible)
         with self._state:
             if self._stopping:
                 raise RuntimeError("process pool is closed")
-            self._pending.append(call)
+            self._calls[call.future] = call
+            self._queues.setdefault(client, deque()).append(call)
             sends = self._pair_locked()
+            if not sends:
+                self._preempt_locked(client)
+        call.future.add_done_callback(self._forget)
         self._send(sends)
         return call.future
 
+    def _forget(self, future: Future[Any]) -> None:
+        with self._state:
+            self._calls.pop(future, None)
+
+    def _next_locked(self) -> _Call | None:
+        """The next call to run: the first waiting call of the client with the fewest
+        calls running, and among those the one served longest ago (round robin)."""
+        best: str | None = None
+        for client, queue in self._queues.items():
+            if queue and (
+                best is None
+                or (self._running[client], self._served.get(client, 0))
+                < (self._running[best], self._served.get(best, 0))
+            ):
+                best = client
+        if best is None:
+            return None
+        queue = self._queues[best]
+        call = queue.popleft()
+        if not queue:
+            del self._queues[best]
+        self._serial += 1
+        self._served[best] = self._serial
+        return call
+
     def _pair_locked(self) -> list[_Worker]:
-        """Give pending calls to idle workers (the caller holds ``_state``); the workers
+        """Give waiting calls to idle workers (the caller holds ``_state``); the workers
         whose call is to be written."""
         sends = []
-        while self._idle and self._pending:
-            call = self._pending.popleft()
+        while self._idle:
+            call = self._next_locked()
+            if call is None:
+                break
             if not call.started:
                 if not call.future.set_running_or_notify_cancel():
                     continue  # cancelled while it waited
                 call.started = True
             worker = self._idle.popleft()
             worker.call = call
+            self._running[call.client] += 1
             sends.append(worker)
         return sends
+
+    def _preempt_locked(self, client: str) -> None:
+        """``client`` waits with no worker free: when it has nothing running, stop a
+        preemptible call of a client over its share (class docstring)."""
+        if self._running[client] > 0:
+            return
+        busy = {w.call.client for w in self._workers if w.call is not None}
+        share = max(1, self.workers // max(1, len(busy | {client})))
+        over = [
+            w
+            for w in self._workers
+            if w.call is not None
+            and w.call.preemptible
+            and not w.call.stopping
+            and self._running[w.call.client] > share
+        ]
+        if over:
+            self._interrupt_locked(over[-1], "preempt")
+
+    def _interrupt_locked(self, worker: _Worker, why: str) -> None:
+        call = worker.call
+        if call is None or call.stopping:
+            return
+        call.stopping = why
+        self.interrupted += 1
+        worker.kill_at = time.monotonic() + CANCEL_GRACE_S
+        with contextlib.suppress(OSError, ValueError):  # gone: its death is seen anyway
+            worker.control.send_bytes(call.ident.to_bytes(8, "little"))
+            os.kill(worker.pid, INTERRUPT)
+        logger.info("%s a call of %r on worker %d", why, call.client, worker.pid)
+        self._wake()
+
+    def _requeue_locked(self, call: _Call) -> None:
+        """A preempted call, first in its client's line again, under a new id (the old
+        one may still be in a worker's control pipe)."""
+        call.stopping = ""
+        call.ident = next(_ids)
+        self._queues.setdefault(call.client, deque()).appendleft(call)
+
+    def _cancel(self, future: Future[Any]) -> bool:
+        with self._state:
+            call = self._calls.get(future)
+            if call is None:
+                return future.cancel()
+            if not call.started:
+                queue = self._queues.get(call.client)
+                if queue is not None and call in queue:
+                    queue.remove(call)
+                return future.cancel()
+            worker = next((w for w in self._workers if w.call is call), None)
+            if worker is None:  # between a worker and the line (a preempted call)
+                queue = self._queues.get(call.client)
+                if queue is not None and call in queue:
+                    queue.remove(call)
+                    call.future.set_exception(CallCancelledError("cancelled while waiting"))
+                    return True
+                return False
+            self._interrupt_locked(worker, "cancel")
+            return True
 
     def _send(self, workers: list[_Worker]) -> None:
         """Write each worker's call to its pipe (outside ``_state``)."""
@@ -323,22 +547,28 @@ class ProcessWorkerPool(WorkerPool):
             if call is None:
                 continue
             try:
-                worker.conn.send((call.fn, call.arg))
+                worker.conn.send((call.ident, call.fn, call.arg))
             except (OSError, ValueError):
                 # Died while idle: the reader replaces it; the call, not run, goes back
                 # first in line, to another worker if one is idle.
                 with self._state:
                     if worker.call is call:
                         worker.call = None
-                        self._pending.appendleft(call)
+                        self._running[call.client] -= 1
+                        self._queues.setdefault(call.client, deque()).appendleft(call)
                     workers.extend(self._pair_locked())
             except Exception as exc:  # e.g. an argument that cannot be pickled
                 with self._state:
                     worker.call = None
+                    self._running[call.client] -= 1
                     if worker in self._workers:
                         self._idle.append(worker)
                     workers.extend(self._pair_locked())
                 call.future.set_exception(exc)
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            self._wake_w.send_bytes(b"x")
 
     # -- the reader thread ------------------------------------------------------------------
     def _read_answers(self) -> None:
@@ -348,7 +578,9 @@ class ProcessWorkerPool(WorkerPool):
                     return
                 by_conn = {w.conn: w for w in self._workers}
                 by_sentinel = {w.process.sentinel: w for w in self._workers}
-            ready = wait([self._wake_r, *by_conn, *by_sentinel])
+                kills = [w.kill_at for w in self._workers if w.kill_at is not None]
+            timeout = None if not kills else max(0.0, min(kills) - time.monotonic())
+            ready = wait([self._wake_r, *by_conn, *by_sentinel], timeout)
             if self._wake_r in ready:
                 while self._wake_r.poll():
                     self._wake_r.recv_bytes()
@@ -362,6 +594,24 @@ class ProcessWorkerPool(WorkerPool):
                     if worker.conn.poll():  # its last answer first
                         self._on_answer(worker)
                     self._on_death(worker)
+            self._kill_stuck()
+
+    def _kill_stuck(self) -> None:
+        """Kill the workers that did not stop an interrupted call in time (their death
+        is then seen, and they are replaced, like any other)."""
+        now = time.monotonic()
+        with self._state:
+            stuck = [w for w in self._workers if w.kill_at is not None and w.kill_at <= now]
+            for worker in stuck:
+                worker.kill_at = None
+        for worker in stuck:
+            logger.warning(
+                "worker %d did not stop its call within %g s; killing it",
+                worker.pid,
+                CANCEL_GRACE_S,
+            )
+            self.killed += 1
+            worker.process.kill()
 
     def _on_answer(self, worker: _Worker) -> None:
         if worker.dead:
@@ -373,8 +623,15 @@ class ProcessWorkerPool(WorkerPool):
             return
         except Exception as exc:  # read whole, but it cannot be unpickled here
             word, value = "err", RuntimeError(f"a worker's answer could not be read: {exc!r}")
+        requeue = None
         with self._state:
             call, worker.call = worker.call, None
+            worker.kill_at = None
+            if call is not None:
+                self._running[call.client] -= 1
+                if word == "cancelled" and call.stopping == "preempt":
+                    self._requeue_locked(call)
+                    requeue = call
             if word == "ready":
                 worker.pid, worker.ready = value, True
             if worker in self._workers:
@@ -382,13 +639,17 @@ class ProcessWorkerPool(WorkerPool):
             sends = self._pair_locked()
             self._state.notify_all()
         self._send(sends)
-        if call is not None and word != "ready":
-            if word == "ok":
-                call.future.set_result(value)
-            else:
-                call.future.set_exception(value)
+        if call is None or word == "ready" or requeue is not None:
+            return
+        if word == "ok":
+            call.future.set_result(value)
+        elif word == "cancelled":
+            call.future.set_exception(CallCancelledError("the call was stopped"))
+        else:
+            call.future.set_exception(value)
 
     def _on_death(self, worker: _Worker) -> None:
+        failure: BaseException | None = None
         with self._state:
             if worker.dead:
                 return  # seen already
@@ -398,14 +659,22 @@ class ProcessWorkerPool(WorkerPool):
             if worker in self._idle:
                 self._idle.remove(worker)
             call, worker.call = worker.call, None
+            if call is not None:
+                self._running[call.client] -= 1
+                if call.stopping == "preempt":
+                    self._requeue_locked(call)
+                elif call.stopping == "cancel":
+                    failure = CallCancelledError("the call did not stop; its worker was killed")
+                else:
+                    failure = BrokenProcessPool("a worker process died during a job")
             replace_it = not self._stopping
             self._state.notify_all()
         if replace_it:
             _release(worker)
         else:
             worker.conn.close()  # its process is released by close(), once this thread ends
-        if call is not None:
-            call.future.set_exception(BrokenProcessPool("a worker process died during a job"))
+        if call is not None and failure is not None:
+            call.future.set_exception(failure)
         if replace_it:
             logger.warning("worker process %d died; starting another", worker.pid)
             try:
@@ -425,8 +694,8 @@ class ProcessWorkerPool(WorkerPool):
         with self._state:
             self._stopping = True
             workers = list(self._workers)  # no worker is added from now on
-            cancelled = list(self._pending)
-            self._pending.clear()
+            cancelled = [c for q in self._queues.values() for c in q]
+            self._queues.clear()
             if wait:
                 self._state.wait_for(
                     lambda: not any(w.call for w in self._workers), WARM_UP_TIMEOUT_S
@@ -435,7 +704,7 @@ class ProcessWorkerPool(WorkerPool):
             if not call.future.cancel():  # it had gone to a worker that died
                 call.future.set_exception(RuntimeError("process pool is closed"))
         self._stop_workers(workers, 5.0)
-        self._wake_w.send_bytes(b"x")  # the reader sees every death, then ends
+        self._wake()  # the reader sees every death, then ends
         self._reader.join(5.0)
         if not self._reader.is_alive():  # else it may still wait on their sentinels
             for worker in workers:
@@ -466,6 +735,7 @@ def _release(worker: _Worker) -> None:
     the pool runs, or :meth:`ProcessWorkerPool.close` once the reader has ended, calls
     this: the reader waits on the process's sentinel."""
     worker.conn.close()
+    worker.control.close()
     process = worker.process
     process.join(5.0)
     if process.is_alive():

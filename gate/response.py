@@ -1,8 +1,9 @@
 """The JSON bodies of the gate's answers, errors included.
 
-Every body the gate sends is JSON: verdicts and documents, the errors its handlers
-raise (:func:`error_body`), and the errors its connection layer answers by itself
-(malformed request, slow head, too many connections: :func:`render_connection_error`).
+Every body the gate sends is JSON: verdicts and documents, the errors its handlers and
+the shared application layer raise (:func:`error_json`), and the errors its connection
+layer answers by itself (malformed request, slow head, too many connections:
+:func:`render_connection_error`).
 """
 
 from __future__ import annotations
@@ -10,12 +11,12 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from gate.errors import BadRequestError, HttpError, MethodNotAllowedError, PlanSchemaError
+from firmware_proto.http.errors import HttpError
 
 __all__ = [
     "JSON_CONTENT_TYPE",
     "SERVER_NAME",
-    "error_body",
+    "error_json",
     "json_bytes",
     "render_connection_error",
 ]
@@ -29,21 +30,17 @@ def json_bytes(obj: Any) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
 
 
-def error_body(error: HttpError) -> bytes:
+def error_json(error: HttpError) -> bytes:
     """The JSON body of an error response.
 
-    ``{"error": code, "status": n, "message": text}``, plus ``violations`` (a list of
-    ``{"pointer", "message"}``) for a plan that fails the schema, ``parameter`` for a bad
-    option, ``allow`` for a method not allowed.
+    ``{"error": code, "status": n, "message": text}``, plus the error's own fields
+    (:meth:`~firmware_proto.http.errors.HttpError.fields`): ``violations`` (a list of
+    ``{"pointer", "message"}``, and ``truncated`` when they are not all) for a plan
+    that fails the schema, ``parameter`` for a bad option, ``allow`` for a method not
+    allowed.
     """
     body: dict[str, Any] = {"error": error.code, "status": error.status, "message": error.message}
-    if isinstance(error, PlanSchemaError):
-        body["violations"] = [{"pointer": p, "message": m} for p, m in error.violations]
-    elif isinstance(error, BadRequestError) and error.parameter:
-        body["parameter"] = error.parameter
-    if isinstance(error, MethodNotAllowedError):
-        body["allow"] = error.allow
-    return json_bytes(body)
+    return json_bytes(body | error.fields())
 
 
 def render_connection_error(status: int, code: str, message: str) -> tuple[str, bytes]:

@@ -1,13 +1,25 @@
 """The HTTP gate: ``POST /validate_plan`` and friends, served by uvicorn.
 
-:class:`GateServer` is an ASGI application (Starlette's request and response types) on
-the project's one HTTP stack (:mod:`firmware_proto.http`: uvicorn with h11, one
-event loop in a thread of its own, every connection bounded by deadlines), in front of
-a bounded :mod:`worker pool <gate.pool>`:
+:class:`GateServer` is a Starlette application on the project's one HTTP stack
+(:mod:`firmware_proto.http`: uvicorn with h11, one event loop in a thread of its own,
+every connection bounded by deadlines) and application layer
+(:mod:`firmware_proto.http.app`: the routes of :data:`gate.routes.ROUTES`, the shared
+guard, errors worded as the gate's JSON), in front of a :mod:`worker pool <gate.pool>`:
 
-- *Admission*: at most ``workers + queue_depth`` validations are admitted at once; the
-  next one gets 503 with ``Retry-After`` at once instead of waiting in a queue that
-  grows without bound. ``GET`` requests need no worker.
+- *Admission by cost* (:mod:`gate.admission`): a validation's whole cost (its nominal
+  playback and its samples) is admitted or refused before any of it is queued: 400
+  when it is over what one request may take, 429 with ``Retry-After`` when its client
+  already holds its share, 503 with ``Retry-After`` when the gate holds all it takes.
+  ``GET`` requests need no worker.
+- *Deadlines and cancellation*: a validation gets no more than ``request_timeout_s``;
+  past it, or when its client leaves (closes its connection, or its end of it), its
+  calls are cancelled in the pool (a running
+  one is interrupted, its worker killed and replaced if it does not stop) and its
+  admission released. The pool shares its workers fairly between clients.
+- *Bad bodies are cheap*: whether a plan is valid is decided by the compiled check on
+  the event loop; the wording of a refused one runs on a thread of its own and stops
+  at the first :data:`MAX_VIOLATIONS`, and the error answer is bounded by the request's
+  size (:data:`ERROR_ROOM_BYTES` beyond it).
 - *Clients*: a connection waits ``idle_timeout_s`` for a request, whose head must then
   arrive within ``head_timeout_s`` (408 otherwise: slowloris) and its body within
   ``body_timeout_s`` (408); slow clients cost no thread, so they cannot lock others out.
@@ -17,8 +29,9 @@ a bounded :mod:`worker pool <gate.pool>`:
   body without framing gets 411; every error body is JSON, those the connection layer
   answers itself too (:func:`gate.response.render_connection_error`).
 - *Auth and binding* (:mod:`firmware_proto.http.bindpolicy`): with a token, every request
-  needs ``Authorization: Bearer <token>`` (constant-time comparison; 401 otherwise). The
-  configuration refuses a non-loopback address without a token.
+  needs ``Authorization: Bearer <token>`` (constant-time comparison; 401 otherwise);
+  ``Host`` must name the gate (421). The configuration refuses a non-loopback address
+  without a strong token.
 - *Shutdown* (:meth:`GateServer.close`, idempotent): new requests get 503; the listener
   closes; idle connections are closed; requests under way finish (up to
   ``drain_timeout_s``) with ``Connection: close``; then the workers stop.
@@ -30,18 +43,23 @@ one ``_op_<name>`` coroutine named by :data:`gate.routes.ROUTES`.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
+import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Awaitable, Callable, MutableMapping
+from collections.abc import Awaitable, Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 from typing import Any
+from urllib.parse import unquote
 
 from starlette.requests import Request
 from starlette.responses import Response
+from starlette.routing import Route
+from starlette.types import Scope
 
 from firmware_proto.errors import PlanError
 from firmware_proto.http import (
@@ -51,25 +69,27 @@ from firmware_proto.http import (
     ServeLimits,
     read_body,
 )
-from firmware_proto.http.bindpolicy import bearer_token, token_matches
+from firmware_proto.http.app import DEFAULT_SECURITY_HEADERS, AccessPolicy, build_app
+from firmware_proto.http.bindpolicy import HostPolicy, is_wildcard
+from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
+from firmware_proto.http.errors import HttpError as SharedHttpError
 from firmware_proto.http.limits import DEFAULT_MAX_DRAIN_BYTES
-from firmware_proto.model.plan import Plan
+from firmware_proto.model.plan import Plan, plan_is_valid, validate_plan
 from firmware_proto.model.verdict import Verdict
 from gate import routes
+from gate.admission import Admission, Cost, Limits, Ticket
 from gate.config import GateConfig
-from gate.ensemble import run_chunk
+from gate.ensemble import ChunkJob, chunk_sizes, run_chunk
 from gate.errors import (
     BadRequestError,
+    CallCancelledError,
     HttpError,
-    MethodNotAllowedError,
-    MethodNotImplementedError,
     NotFoundError,
     OptionError,
     OverloadedError,
     PayloadTooLargeError,
     PlanSchemaError,
     RequestTimeoutError,
-    UnauthorizedError,
 )
 from gate.openapi import build_openapi
 from gate.options import ValidateOptions
@@ -78,25 +98,27 @@ from gate.request import check_declared_length, check_json_media_type, parse_jso
 from gate.response import (
     JSON_CONTENT_TYPE,
     SERVER_NAME,
-    error_body,
+    error_json,
     json_bytes,
     render_connection_error,
 )
 from gate.validator import Job, Validator, gate_version
 
-__all__ = ["GateServer"]
+__all__ = ["ERROR_ROOM_BYTES", "MAX_VIOLATIONS", "GateServer"]
 
 logger = logging.getLogger(__name__)
 
 RETRY_AFTER_S = 1
-"""``Retry-After`` of a 503: one typical validation is well under a second."""
-METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
-"""Methods the gate understands (405 where a path does not take one); others are 501."""
+"""``Retry-After`` of a 503 that does not estimate it: a validation is well under a second."""
+MAX_VIOLATIONS = 20
+"""Violations of a refused plan worded at most (the wording stops there)."""
+MAX_VIOLATION_CHARS = 200
+"""Longest pointer or message of a violation in an answer (a message may quote the
+offending value)."""
+ERROR_ROOM_BYTES = 2048
+"""An error answer is at most this much larger than the request's body."""
 
 _Reply = tuple[int, bytes, dict[str, str]]
-_Scope = MutableMapping[str, Any]
-_Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
-_Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
 
 
 class GateServer:
@@ -125,23 +147,50 @@ class GateServer:
         self._pool = pool
         self._cluster: Any = None  # gate.cluster.ClusterEngine, with --cluster
         self._service: HttpService | None = None
-        self._submitter: ThreadPoolExecutor | None = None
+        self._wording: ThreadPoolExecutor | None = None
         self._draining = threading.Event()
         self.stopped_accepting = threading.Event()
         """Set once :meth:`close` has closed the listener (new connections refused)."""
         self._closed = False
         self._close_lock = threading.Lock()
-        self._slots = threading.BoundedSemaphore(config.capacity)
-        self._in_flight = 0
+        self.admission = Admission(
+            Limits.for_gate(
+                pool.workers if pool is not None else config.workers,
+                config.queue_depth,
+                config.request_timeout_s,
+            )
+        )
+        """What is admitted now (:mod:`gate.admission`)."""
         self._count_lock = threading.Lock()
         self.rejected: Counter[str] = Counter()
         """Requests answered with an error, by error code (bad input is counted here
         and logged; the connection layer logs what it refuses itself)."""
+        self.cancelled = 0
+        """Validations cancelled: past their deadline, or their client left."""
         self._started = time.monotonic()
         names = sorted(self.validator.maps)
         self._map_bodies = {n: json_bytes(self.validator.maps[n].to_dict()) for n in names}
         self._maps_body = json_bytes(self._map_list())
         self._openapi_body = json_bytes(build_openapi(config, names, self.validator.default_map))
+        extra = list(config.allowed_hosts)
+        if is_wildcard(config.host):
+            extra.append(socket.gethostname())
+        self.app = build_app(
+            [
+                Route(r.template, self._endpoint(r.operation), methods=list(r.methods))
+                for r in routes.ROUTES
+            ],
+            policy=AccessPolicy(
+                hosts=HostPolicy.for_bind(config.host, extra),
+                token=config.token,
+                token_required=config.token is not None,
+                realm="rover-gate",
+            ),
+            error_body=_error_body,
+            on_error=self._on_error,
+            headers=DEFAULT_SECURITY_HEADERS,
+            closing=self._draining.is_set,
+        )
 
     # -- life cycle ---------------------------------------------------------------------
     def start(self) -> GateServer:
@@ -172,13 +221,12 @@ class GateServer:
             max_connections=config.max_connections,
             drain_timeout_s=config.drain_timeout_s,
         )
-        # The retry after a worker died goes through this thread: replacing the worker
-        # takes a second, during which other requests go on being served. It starts
-        # now, not with the first retry.
-        self._submitter = ThreadPoolExecutor(1, thread_name_prefix="gate-submit")
-        self._submitter.submit(int).result()
+        # The wording of refused plans: off the event loop, one at a time. It starts
+        # now, not with the first bad plan.
+        self._wording = ThreadPoolExecutor(1, thread_name_prefix="gate-wording")
+        self._wording.submit(int).result()
         service = HttpService(
-            self._asgi,
+            self.app,
             host=config.host,
             port=config.port,
             limits=limits,
@@ -189,7 +237,7 @@ class GateServer:
         try:
             self._service = service.start()
         except BaseException:
-            self._submitter.shutdown(wait=False)
+            self._wording.shutdown(wait=False)
             self._pool.close()
             raise
         logger.info(
@@ -246,8 +294,8 @@ class GateServer:
             self._service.stop_accepting()
             self.stopped_accepting.set()
             self._service.close()
-        if self._submitter is not None:
-            self._submitter.shutdown(wait=True)
+        if self._wording is not None:
+            self._wording.shutdown(wait=True)
         if self._cluster is not None:
             self._cluster.close()
         if self._pool is not None:
@@ -262,84 +310,35 @@ class GateServer:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- the ASGI application -------------------------------------------------------------
-    async def _asgi(self, scope: _Scope, receive: _Receive, send: _Send) -> None:
-        if scope["type"] != "http":  # lifespan is off and websockets are not served
-            return
-        request = Request(scope, receive)
-        close = self.draining
-        try:
-            status, body, headers = await self._dispatch(request)
-        except ClientGoneError:
-            return  # nobody to answer
-        except HttpError as exc:
-            status, body, headers = exc.status, error_body(exc), dict(exc.headers)
-            close = close or self._close_after(exc, request)
-            with self._count_lock:
-                self.rejected[exc.code] += 1
-            log = logger.warning if exc.status >= 500 and exc.status != 503 else logger.info
-            log("%s %s: %d %s: %s", scope["method"], scope["path"], status, exc.code, exc.message)
-        except Exception:
-            logger.exception("internal error serving %s %s", scope["method"], scope["path"])
-            error = HttpError("internal error; see the gate's log")
-            status, body, headers, close = error.status, error_body(error), {}, True
-        headers["Cache-Control"] = "no-store"
-        if close or self.draining:
-            headers["Connection"] = "close"
-        await Response(body, status, headers, media_type=JSON_CONTENT_TYPE)(scope, receive, send)
-
-    def _close_after(self, error: HttpError, request: Request) -> bool:
-        """Whether an error ends the connection: a server fault, a body that stalled
-        (408), or a declared body too large to be worth reading and dropping."""
-        if error.status == 408 or (error.status >= 500 and error.status != 503):
-            return True
-        if isinstance(error, PayloadTooLargeError):
-            length = request.headers.get("content-length")
-            return length is None or int(length) > DEFAULT_MAX_DRAIN_BYTES
-        return False
-
-    async def _dispatch(self, request: Request) -> _Reply:
-        method = request.method
-        if method not in METHODS:
-            raise MethodNotImplementedError(f"method {method} is not implemented here")
-        self._authorise(request.headers.get("authorization"))
-        if self.draining:
-            raise OverloadedError(
-                "the gate is shutting down", code="shutting_down", retry_after_s=RETRY_AFTER_S
-            )
-        path = bytes(request.scope["raw_path"]).decode("latin-1")
-        try:
-            found = routes.match(path)
-        except UnicodeDecodeError:
-            found = None
-        if found is None:
-            raise NotFoundError(f"no such path {path!r}")
-        route, params = found
-        if method not in route.allowed:
-            raise MethodNotAllowedError(
-                f"{method} is not allowed on {route.template}", list(route.allowed)
-            )
-        operation: Callable[[Request, dict[str, str]], Awaitable[_Reply]] = getattr(
-            self, "_op_" + route.operation
+    # -- the application ----------------------------------------------------------------
+    def _endpoint(self, name: str) -> Callable[[Request], Awaitable[Response]]:
+        """The route's endpoint: refuses while draining, runs ``_op_<name>``."""
+        operation: Callable[[Request, dict[str, Any]], Awaitable[_Reply]] = getattr(
+            self, "_op_" + name
         )
-        return await operation(request, params)
 
-    def _authorise(self, header: str | None) -> None:
-        token = self.config.token
-        if token is None:
-            return
-        challenge = 'Bearer realm="rover-gate"'
-        if not header:
-            raise UnauthorizedError(
-                "this gate needs 'Authorization: Bearer <token>'",
-                headers={"WWW-Authenticate": challenge},
-            )
-        if not token_matches(bearer_token(header), token):
-            raise UnauthorizedError(
-                "wrong bearer token",
-                code="invalid_token",
-                headers={"WWW-Authenticate": challenge + ', error="invalid_token"'},
-            )
+        async def endpoint(request: Request) -> Response:
+            if self.draining:
+                raise OverloadedError(
+                    "the gate is shutting down", code="shutting_down", retry_after_s=RETRY_AFTER_S
+                )
+            status, body, headers = await operation(request, dict(request.path_params))
+            return Response(body, status, headers, media_type=JSON_CONTENT_TYPE)
+
+        return endpoint
+
+    def _on_error(self, scope: Scope, error: SharedHttpError) -> None:
+        with self._count_lock:
+            self.rejected[error.code] += 1
+        log = logger.warning if error.status >= 500 and error.status != 503 else logger.info
+        log(
+            "%s %s: %d %s: %s",
+            scope.get("method"),
+            scope.get("path"),
+            error.status,
+            error.code,
+            error.message,
+        )
 
     # -- operations ------------------------------------------------------------------------
     async def _op_health(self, request: Request, params: dict[str, str]) -> _Reply:
@@ -349,6 +348,11 @@ class GateServer:
         return 200, self._maps_body, {}
 
     async def _op_get_map(self, request: Request, params: dict[str, str]) -> _Reply:
+        raw = bytes(request.scope["raw_path"]).decode("latin-1").rsplit("/", 1)[-1]
+        try:
+            unquote(raw, errors="strict")
+        except UnicodeDecodeError:
+            raise NotFoundError(f"no such path {request.url.path!r}") from None
         body = self._map_bodies.get(params["name"])
         if body is None:
             known = ", ".join(sorted(self._map_bodies))
@@ -359,10 +363,13 @@ class GateServer:
         return 200, self._openapi_body, {}
 
     async def _op_validate_plan(self, request: Request, params: dict[str, str]) -> _Reply:
-        document = await self._read_json(request)
+        body = await self._read_body(request)
+        document = parse_json(body)
+        if not plan_is_valid(document):  # decided by the compiled check, on the loop
+            raise await self._schema_error(document, len(body))
         try:
             plan = Plan.from_dict(document)
-        except PlanError as exc:
+        except PlanError as exc:  # pragma: no cover - the fast check agrees (tested)
             raise PlanSchemaError(exc.violations) from exc
         query = bytes(request.scope["query_string"]).decode("latin-1")
         try:
@@ -370,116 +377,103 @@ class GateServer:
             job = self.validator.prepare(
                 plan, options.resolve(self.validator.settings, self.validator.default_map)
             )
+            cost = self._cost(job)
+            self.admission.check_request(cost, self.validator.settings.dt_s)
         except OptionError as exc:
             raise BadRequestError(str(exc), code="invalid_option", parameter=exc.parameter) from exc
-        if job.options.samples > 1:
-            return 200, await self._run_uncertain(job), {}
-        return 200, await self._run(job), {}
+        client = request.client.host if request.client is not None else ""
+        ticket = self.admission.admit(client, cost)
+        return 200, await self._validate(job, ticket, request), {}
 
-    async def _read_json(self, request: Request) -> Any:
-        """The request's body as strict JSON (media type, length, deadline checked)."""
+    async def _read_body(self, request: Request) -> bytes:
+        """The request's body (media type, length, deadline checked)."""
         check_json_media_type(request.headers.get("content-type"))
         limit = self.config.max_body_bytes
-        check_declared_length(request.headers, limit)
         try:
-            body = await read_body(
+            check_declared_length(request.headers, limit)
+        except PayloadTooLargeError as exc:
+            length = request.headers.get("content-length")
+            if length is None or int(length) > DEFAULT_MAX_DRAIN_BYTES:
+                exc.headers["Connection"] = "close"  # not worth reading and dropping
+            raise
+        try:
+            return await read_body(
                 request.receive, limit_bytes=limit, timeout_s=self.config.body_timeout_s
             )
         except RequestBodyError as exc:
             if exc.status == 408:
                 raise RequestTimeoutError(exc.message) from exc
-            raise PayloadTooLargeError(exc.message) from exc
-        return parse_json(body)
+            raise PayloadTooLargeError(exc.message, headers={"Connection": "close"}) from exc
+
+    async def _schema_error(self, document: Any, body_bytes: int) -> PlanSchemaError:
+        """The error of a refused plan: its first violations, worded off the event loop,
+        bounded by the request's size."""
+        assert self._wording is not None
+        loop = asyncio.get_running_loop()
+        found = await loop.run_in_executor(
+            self._wording, lambda: validate_plan(document, limit=MAX_VIOLATIONS + 1)
+        )
+        complete = len(found) <= MAX_VIOLATIONS
+        violations = [
+            (_clip(pointer), _clip(message)) for pointer, message in found[:MAX_VIOLATIONS]
+        ]
+        if not violations:  # pragma: no cover - the fast check and the wording agree
+            violations = [("", "the plan fails the schema")]
+        room = body_bytes + ERROR_ROOM_BYTES
+        error = PlanSchemaError(violations, complete=complete)
+        while len(violations) > 1 and len(error_json(error)) > room:
+            violations = violations[: len(violations) // 2]
+            error = PlanSchemaError(violations, complete=False)
+        return error
+
+    def _cost(self, job: Job) -> Cost:
+        """What ``job`` will take of the workers (:mod:`gate.admission`)."""
+        samples = job.options.samples
+        chunks = len(chunk_sizes(samples)) if samples > 1 else 0
+        return Cost.of(
+            self.validator.twin_seconds(job), self.validator.settings.dt_s, samples, chunks
+        )
 
     # -- the pool ----------------------------------------------------------------------------
-    async def _run(self, job: Job) -> bytes:
-        """Admit ``job`` (or 503), run it in the pool, wait for its verdict bytes.
+    async def _validate(self, job: Job, ticket: Ticket, request: Request) -> bytes:
+        """Run an admitted ``job`` (its nominal playback and, with samples, its chunks),
+        within ``request_timeout_s``; cancel what is left when the deadline passes or the
+        client leaves. ``ticket`` is released once every call has ended.
 
-        The admission slot is held until the job has finished in its worker, even when
-        the wait times out, so no more than ``capacity`` validations ever run or wait. A
-        job whose worker process died is retried once on a fresh worker (playback is
-        pure, so a retry is safe); a second death is a 500. The first hand-off is made
-        on the event loop (a write to an idle worker's pipe, or a place in the pool's
-        queue); the process pool replaces a dead worker from its own thread, and the
-        job waits for it (the retry after a death during a job is handed off from the
-        ``gate-submit`` thread).
+        A nominal playback whose worker process died is retried once on a fresh worker
+        (playback is pure, so a retry is safe); a second death is a 500.
         """
-        if not self._slots.acquire(blocking=False):
-            raise OverloadedError(
-                f"all {self.pool.workers} workers busy and {self.config.queue_depth} "
-                "validations queued",
-                retry_after_s=RETRY_AFTER_S,
-            )
-        with self._count_lock:
-            self._in_flight += 1
-        release_now = True
-        loop = asyncio.get_running_loop()
-        try:
-            for attempt in (1, 2):
-                try:
-                    if attempt == 1:  # on the loop: a hand-off to a thread costs a wake-up
-                        future: Future[bytes] = self.pool.submit(job)
-                    else:  # after a worker died: off the loop
-                        future = await loop.run_in_executor(self._submitter, self.pool.submit, job)
-                    waiter = asyncio.wrap_future(future)
-                    done, _ = await asyncio.wait({waiter}, timeout=self.config.request_timeout_s)
-                    if not done:
-                        release_now = False
-                        future.add_done_callback(lambda _f: self._release())
-                        waiter.cancel()  # a job still queued is dropped; a running one ends
-                        raise OverloadedError(
-                            f"no verdict within {self.config.request_timeout_s:g} s",
-                            code="timeout",
-                            retry_after_s=RETRY_AFTER_S,
-                        )
-                    if waiter.cancelled():
-                        raise RuntimeError("the pool cancelled the job")
-                    return waiter.result()
-                except BrokenProcessPool as exc:
-                    if attempt == 2:
-                        raise HttpError(
-                            "a worker process died twice on this plan", code="worker_lost"
-                        ) from exc
-                    logger.warning("a worker process died during a validation; retrying once")
-                except RuntimeError as exc:  # the pool is closed or cancelled the job
-                    if not self.draining:
-                        raise
-                    raise OverloadedError(
-                        "the gate is shutting down",
-                        code="shutting_down",
-                        retry_after_s=RETRY_AFTER_S,
-                    ) from exc
-            raise AssertionError("unreachable")  # pragma: no cover
-        finally:
-            if release_now:
-                self._release()
-
-    async def _run_uncertain(self, job: Job) -> bytes:
-        """A verdict with its uncertainty: the nominal playback (:meth:`_run`, which
-        admits the request) and, meanwhile, the chunks of its twins on the cluster or
-        the local pool; then the summary (:mod:`gate.ensemble`). A chunk that fails or
-        a wait past ``request_timeout_s`` fails the request (its chunks are cancelled)."""
         t0 = time.perf_counter()
-        engine = self._cluster if self._cluster is not None else self.pool
-        futures = [engine.submit_call(run_chunk, c) for c in self.validator.chunk_jobs(job)]
-        waiters = [asyncio.wrap_future(f) for f in futures]
+        deadline = time.monotonic() + self.config.request_timeout_s
+        calls = _Calls(self, ticket)
         try:
-            nominal = await self._run(job)
-            done, _ = await asyncio.wait(waiters, timeout=self.config.request_timeout_s)
-            if len(done) < len(waiters):
-                raise OverloadedError(
-                    f"no verdict for {job.options.samples} samples within "
-                    f"{self.config.request_timeout_s:g} s",
-                    code="timeout",
-                    retry_after_s=RETRY_AFTER_S,
-                )
-            results = [w.result() for w in waiters]
-        except BrokenProcessPool as exc:
-            raise HttpError("a worker process died playing samples", code="worker_lost") from exc
+            nominal = calls.submit(lambda: self.pool.submit(job, client=ticket.client))
+            chunks = [
+                calls.submit(functools.partial(self._submit_chunk, chunk, ticket.client))
+                for chunk in (self.validator.chunk_jobs(job) if job.options.samples > 1 else [])
+            ]
+            try:
+                verdict_bytes = await calls.wait_one(nominal, deadline, request)
+            except BrokenProcessPool:
+                logger.warning("a worker process died during a validation; retrying once")
+                nominal = calls.submit(lambda: self.pool.submit(job, client=ticket.client))
+                try:
+                    verdict_bytes = await calls.wait_one(nominal, deadline, request)
+                except BrokenProcessPool as exc:
+                    raise HttpError(
+                        "a worker process died twice on this plan", code="worker_lost"
+                    ) from exc
+            if not chunks:
+                return bytes(verdict_bytes)
+            try:
+                results = [await calls.wait_one(f, deadline, request) for f in chunks]
+            except BrokenProcessPool as exc:
+                raise HttpError(
+                    "a worker process died playing samples", code="worker_lost"
+                ) from exc
         finally:
-            for w in waiters:
-                w.cancel()
-        verdict = self.validator.with_uncertainty(Verdict.from_json(nominal), job, results)
+            calls.cancel_rest()
+        verdict = self.validator.with_uncertainty(Verdict.from_json(verdict_bytes), job, results)
         logger.debug(
             "plan %s: %d samples, collision probability %.3f",
             verdict.replay.plan_sha256[:12],
@@ -489,15 +483,21 @@ class GateServer:
         wall = round(time.perf_counter() - t0, 6)
         return replace(verdict, wall_time_s=wall).to_json().encode()
 
-    def _release(self) -> None:
-        with self._count_lock:
-            self._in_flight -= 1
-        self._slots.release()
+    def _submit_chunk(self, chunk: ChunkJob, client: str) -> Future[Any]:
+        """One chunk of samples: on the cluster with ``--cluster``, else on the pool, where
+        it may be preempted for another client (:mod:`gate.pool`)."""
+        if self._cluster is not None:
+            future: Future[Any] = self._cluster.submit_call(run_chunk, chunk)
+            return future
+        return self.pool.submit_call(run_chunk, chunk, client=client, preemptible=True)
+
+    def _cancel(self, future: Future[Any]) -> None:
+        """Stop a call: in the pool (a running one interrupted), or on the cluster."""
+        if self._pool is not None:
+            self._pool.cancel(future)
 
     def health(self) -> dict[str, Any]:
         """The body of ``GET /health``."""
-        with self._count_lock:
-            in_flight = self._in_flight
         return {
             "status": "draining" if self.draining else "ok",
             "version": gate_version(),
@@ -507,7 +507,9 @@ class GateServer:
             "cluster": self.config.cluster,
             "workers": self.pool.workers,
             "queue_depth": self.config.queue_depth,
-            "in_flight": in_flight,
+            "in_flight": self.admission.in_flight,
+            "admitted_work_s": round(self.admission.work_s, 3),
+            "clients": self.admission.clients,
             "dt_s": self.validator.settings.dt_s,
             "max_body_bytes": self.config.max_body_bytes,
             "uptime_s": round(time.monotonic() - self._started, 3),
@@ -542,3 +544,123 @@ class GateServer:
                 }
             )
         return {"default": self.validator.default_map, "maps": out}
+
+
+class _Calls:
+    """The calls of one admitted validation: submitted, waited for against its deadline
+    and its client's presence, and the rest cancelled at the end; the admission ticket
+    is released once the last of them has ended. On the event loop."""
+
+    def __init__(self, server: GateServer, ticket: Ticket) -> None:
+        self.server = server
+        self.ticket = ticket
+        self.futures: list[Future[Any]] = []
+        self._open = 1  # the validation itself, until cancel_rest
+        self._lock = threading.Lock()
+        self._gone: asyncio.Task[None] | None = None
+
+    def submit(self, make: Callable[[], Future[Any]]) -> Future[Any]:
+        """Submit one call (``make`` submits it).
+
+        Raises:
+            OverloadedError: the pool is closed (shutting down).
+        """
+        try:
+            future = make()
+        except RuntimeError as exc:  # the pool is closed
+            raise OverloadedError(
+                "the gate is shutting down", code="shutting_down", retry_after_s=RETRY_AFTER_S
+            ) from exc
+        with self._lock:
+            self._open += 1
+        self.futures.append(future)
+        future.add_done_callback(self._ended)
+        return future
+
+    def _ended(self, _future: Future[Any] | None) -> None:
+        with self._lock:
+            self._open -= 1
+            done = self._open == 0
+        if done:
+            self.server.admission.release(self.ticket)
+
+    async def wait_one(self, future: Future[Any], deadline: float, request: Request) -> Any:
+        """``future``'s result, or an error once ``deadline`` passes (503 ``timeout``)
+        or the client leaves (:class:`ClientGoneError`)."""
+        if self._gone is None:
+            self._gone = asyncio.ensure_future(_client_gone(request))
+        waiter = asyncio.wrap_future(future)
+        done, _ = await asyncio.wait(
+            {waiter, self._gone},
+            timeout=max(0.0, deadline - time.monotonic()),
+            return_when=asyncio.FIRST_COMPLETED,
+        )
+        if waiter in done:
+            try:
+                return waiter.result()
+            except (asyncio.CancelledError, CallCancelledError) as exc:
+                if self.server.draining:
+                    raise OverloadedError(
+                        "the gate is shutting down",
+                        code="shutting_down",
+                        retry_after_s=RETRY_AFTER_S,
+                    ) from exc
+                raise HttpError("the validation was cancelled", code="cancelled") from exc
+            except BrokenProcessPool:
+                raise  # a worker died: the caller decides (a RuntimeError too)
+            except RuntimeError as exc:  # the pool closed under it, or the job's own
+                if not self.server.draining:
+                    raise
+                raise OverloadedError(
+                    "the gate is shutting down", code="shutting_down", retry_after_s=RETRY_AFTER_S
+                ) from exc
+        waiter.cancel()
+        with self.server._count_lock:
+            self.server.cancelled += 1
+        if self._gone in done:
+            logger.info("client left: cancelling its validation")
+            raise ClientGoneError("the client left before its verdict")
+        raise OverloadedError(
+            f"no verdict within {self.server.config.request_timeout_s:g} s",
+            code="timeout",
+            retry_after_s=RETRY_AFTER_S,
+        )
+
+    def cancel_rest(self) -> None:
+        """Cancel every call not ended (each ends once its worker has stopped it), and
+        stop watching the client."""
+        if self._gone is not None:
+            self._gone.cancel()
+        for future in self.futures:
+            if not future.done():
+                self.server._cancel(future)
+        self._ended(None)  # the validation's own share of the count
+
+
+async def _client_gone(request: Request) -> None:
+    """Return once the client has closed its connection, or its end of it (its body
+    has been read): an HTTP client that waits for an answer does not close its end, so
+    the validation it asked for is left."""
+    mark = request.scope.get("extensions", {}).get(CONNECTION_EXTENSION)
+
+    async def disconnected() -> None:
+        while (await request.receive())["type"] != "http.disconnect":
+            pass
+
+    waits: list[asyncio.Future[Any]] = [asyncio.ensure_future(disconnected())]
+    if isinstance(mark, ConnectionMark):
+        waits.append(asyncio.ensure_future(mark.closed.wait()))
+    try:
+        await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for wait in waits:
+            wait.cancel()
+
+
+def _clip(text: str) -> str:
+    return text if len(text) <= MAX_VIOLATION_CHARS else text[: MAX_VIOLATION_CHARS - 3] + "..."
+
+
+def _error_body(error: SharedHttpError) -> tuple[str, bytes]:
+    """The gate's wording of every error: ``{"error": code, "status", "message", ...}``."""
+    return JSON_CONTENT_TYPE, error_json(error)

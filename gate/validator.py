@@ -296,6 +296,14 @@ class Validator:
         verdict = self.with_uncertainty(nominal, job, results)
         return replace(verdict, wall_time_s=_r(time.perf_counter() - t0))
 
+    def twin_seconds(self, job: Job) -> float:
+        """Twin seconds ``job``'s playback is expected to take: each step's nominal
+        duration, then settling (what :mod:`gate.admission` costs it by; a stall may
+        make it longer, up to the steps' time limits)."""
+        return DEFAULT_SETTLE_S + sum(
+            nominal_step_duration_s(self.rover, s.speed, s.distance) for s in job.plan.commands
+        )
+
     def sample_period_s(self, job: Job) -> float:
         """The trajectory's sample period for ``job``: the requested one, or, when the
         plan's longest possible playback (every step to its time limit, then settling)

@@ -18,7 +18,7 @@ Everything this package raises on purpose derives from :class:`PlannerError`::
      |    +-- GateStatusError     the gate answered with an error status (4xx, 5xx):
      |    |    |                  ``status``, ``body``, ``code``, ``message``, and for a
      |    |    |                  plan that fails the schema its ``violations`` (pointers)
-     |    |    +-- GateOverloadedError  503 for longer than the call's time budget;
+     |    |    +-- GateOverloadedError  503 or 429 for longer than the call's time budget;
      |    |                       ``retry_after_s`` is the gate's last advice
      |    +-- GateUnavailableError  no answer at all from the gate at ``url`` after the
      |    |    |                  allowed retries (refused, reset, unreachable); also
@@ -207,7 +207,8 @@ class GateStatusError(GateCallError):
 
 
 class GateOverloadedError(GateStatusError):
-    """The gate kept answering 503 (busy or shutting down) past the time budget.
+    """The gate kept answering 503 (busy or shutting down) or 429 (this client holds
+    its share) past the time budget.
 
     Attributes:
         retry_after_s: the gate's last ``Retry-After`` advice, s.

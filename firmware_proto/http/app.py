@@ -52,14 +52,13 @@ from starlette.routing import BaseRoute
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from firmware_proto.http.bindpolicy import HostPolicy, bearer_token, token_matches
+from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
 from firmware_proto.http.errors import ClientGoneError, HttpError
 
 __all__ = [
-    "CONNECTION_EXTENSION",
     "DEFAULT_SECURITY_HEADERS",
     "KNOWN_METHODS",
     "AccessPolicy",
-    "ConnectionMark",
     "ErrorBody",
     "Guard",
     "Lane",
@@ -86,21 +85,9 @@ DEFAULT_SECURITY_HEADERS: tuple[tuple[str, str], ...] = (
 """Added to every answer that does not set the header itself: no page of another
 origin may frame it, sniff it or read it."""
 
-CONNECTION_EXTENSION = "rover.connection"
-"""Key of the ASGI scope's ``extensions`` under which the connection layer puts the
-connection's :class:`ConnectionMark`."""
 
 ErrorBody = Callable[[HttpError], tuple[str, bytes]]
 """``error -> (content_type, body)``: how a server words an error answer."""
-
-
-@dataclass
-class ConnectionMark:
-    """What the application tells the connection layer about a connection: whether a
-    request on it presented the token (trusted connections are never evicted for
-    anonymous ones). Set on the event loop only."""
-
-    trusted: bool = False
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,9 @@ open, this protocol bounds (the numbers are :class:`~.limits.ServeLimits`):
   than a reset), within the same deadlines.
 - *Connections.* Beyond ``max_connections`` open at once, a new one is answered 503.
 - *A client that half-closes* after its request still gets its answer; one that closes
-  mid-body gets 400 ``truncated_body``.
+  mid-body gets 400 ``truncated_body``. Either way the request's
+  :class:`~firmware_proto.http.connection.ConnectionMark` (in the scope's
+  ``extensions``) says the peer has closed, so that long work for it can stop.
 - *Ambiguous framing* (both ``Content-Length`` and ``Transfer-Encoding``) is refused
   with 400 and the connection closed, rather than read by one of them (smuggling); an
   HTTP version other than 1.0 or 1.1 with 505.
@@ -42,6 +44,7 @@ import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 from uvicorn.server import ServerState
 
+from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
 from firmware_proto.http.limits import ErrorRenderer, ServeLimits
 
 __all__ = ["GuardedH11Protocol", "ServeConfig", "classify_protocol_error"]
@@ -140,10 +143,12 @@ class GuardedH11Protocol(H11Protocol):
         self._write_timer: asyncio.TimerHandle | None = None
         self._drained = 0
         self._peer_eof = False
+        self._mark = ConnectionMark()
 
     # -- the connection ----------------------------------------------------------------
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
+        self._mark.address = self.client[0] if self.client else ""
         if len(self.connections) > self._limits.max_connections:
             logger.warning("refusing a connection: %d open", len(self.connections) - 1)
             self._answer_and_close(503, "too_many_connections", "too many open connections")
@@ -151,6 +156,7 @@ class GuardedH11Protocol(H11Protocol):
         self._wait("idle", self._limits.idle_timeout_s)
 
     def connection_lost(self, exc: Exception | None) -> None:
+        self._mark.closed.set()
         self._cancel_deadline()
         if self._write_timer is not None:
             self._write_timer.cancel()
@@ -178,6 +184,11 @@ class GuardedH11Protocol(H11Protocol):
         if cycle is not before and cycle is not None:  # a request's head arrived whole
             self._cancel_deadline()
             self._drained = 0
+            # The application's task exists but has not run: it sees the mark.
+            extensions: dict[str, Any] = cast(dict[str, Any], self.scope).setdefault(
+                "extensions", {}
+            )
+            extensions[CONNECTION_EXTENSION] = self._mark
             refusal = _refusal(self.scope["http_version"], {name for name, _ in self.headers})
             if refusal is not None:
                 self._answer_and_close(*refusal)
@@ -191,6 +202,7 @@ class GuardedH11Protocol(H11Protocol):
             self.transport.close()  # the client said it sends nothing more
 
     def eof_received(self) -> bool | None:  # type: ignore[override]  # asyncio allows a bool
+        self._mark.closed.set()
         cycle = self.cycle
         if cycle is None or cycle.response_complete:
             return None  # nothing under way: close

@@ -19,6 +19,7 @@ plans, valid and not. Only the plan check asks for it
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -26,7 +27,7 @@ from typing import Any
 import fastjsonschema
 from jsonschema import Draft202012Validator
 
-__all__ = ["MAX_DEPTH", "json_depth", "json_pointer", "schema_violations"]
+__all__ = ["MAX_DEPTH", "is_valid", "json_depth", "json_pointer", "schema_violations"]
 
 MAX_DEPTH = 32
 """Deepest nesting of arrays and objects a checked document may have (a plan has 3)."""
@@ -58,10 +59,35 @@ def _fast_check(validator: Draft202012Validator) -> Callable[[Any], Any] | None:
     return entry[1]
 
 
+def is_valid(validator: Draft202012Validator, obj: Any) -> bool:
+    """Whether ``obj`` has no violation at all, decided as fast as it can be: the
+    compiled check where the schema has one (module docstring), and no wording. What
+    :func:`schema_violations` with ``fast`` finds empty, this finds true."""
+    check = _fast_check(validator)
+    if check is not None:
+        # First, since it stops at the first violation: a large bad document costs no
+        # walk of its own (the schema bounds what it descends into).
+        try:
+            check(obj)
+        except (fastjsonschema.JsonSchemaValueException, RecursionError):
+            return False
+    depth, has_non_finite = _scan(obj, MAX_DEPTH + 1)
+    if depth > MAX_DEPTH or has_non_finite:
+        return False
+    return check is not None or not any(True for _ in validator.iter_errors(obj))
+
+
 def schema_violations(
-    validator: Draft202012Validator, obj: Any, *, fast: bool = False
+    validator: Draft202012Validator,
+    obj: Any,
+    *,
+    fast: bool = False,
+    limit: int | None = None,
 ) -> list[tuple[str, str]]:
-    """Every violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer.
+    """Every violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer; with
+    ``limit``, the walk stops once that many are found (the first ones in document
+    order, sorted), so that wording a large bad document costs no more than a few
+    violations.
 
     A document nested deeper than :data:`MAX_DEPTH` gives one violation at ``""``. With
     ``fast``, the compiled check decides first (module docstring): only for a schema
@@ -70,9 +96,11 @@ def schema_violations(
     depth, has_non_finite = _scan(obj, MAX_DEPTH + 1)
     if depth > MAX_DEPTH:
         return [("", f"nested deeper than {MAX_DEPTH} levels")]
+    room = math.inf if limit is None else limit
     found: list[tuple[str, str]] = []
     if has_non_finite:
         found += [(ptr, "must be a finite number") for ptr in _non_finite(obj)]
+        del found[int(min(room, len(found))) :]
     check = _fast_check(validator) if fast else None
     if check is not None:
         try:
@@ -82,10 +110,13 @@ def schema_violations(
         else:
             return sorted(set(found))
     for error in validator.iter_errors(obj):
+        if len(found) >= room:
+            break
         base = json_pointer(error.absolute_path)
         if error.validator == "additionalProperties" and isinstance(error.instance, dict):
             allowed = set(error.schema.get("properties", {}))
-            for key in sorted(k for k in error.instance if k not in allowed):
+            extra = (k for k in error.instance if k not in allowed)
+            for key in sorted(itertools.islice(extra, int(min(room - len(found), 1e9)))):
                 found.append((base + json_pointer([key]), f"unexpected property {key!r}"))
             continue
         found.append((base, error.message))

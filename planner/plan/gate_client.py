@@ -16,8 +16,9 @@ Failure behaviour, per call (docs/planner.md):
   A keep-alive connection the gate closed while idle is reopened at once, uncounted.
   Validation is a pure function of the request, so repeating a POST is safe;
 - no answer within the budget: :class:`~planner.errors.GateTimeoutError`;
-- 503 (busy, shutting down): wait ``Retry-After`` and try again while the budget
-  allows, then :class:`~planner.errors.GateOverloadedError`;
+- 503 (busy, shutting down) and 429 (this client holds its share of the gate): wait
+  ``Retry-After`` and try again while the budget allows, then
+  :class:`~planner.errors.GateOverloadedError`;
 - any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried,
   with the gate's error code, message and, for a plan that fails the schema, the JSON
   pointer of every violation.
@@ -348,14 +349,14 @@ class GateClient:
                     raise GateUnavailableError(self.url, failures, _describe(exc)) from exc
                 continue
             self.requests += 1
-            if status == 503:
+            if status in (429, 503):  # this client's share taken, or the gate full
                 wait_s = _retry_after_s(headers.get("retry-after"))
                 text = data.decode("utf-8", "replace")
                 if self._clock() + wait_s >= deadline:
                     raise GateOverloadedError(
                         status, text, url=self.url + path, retry_after_s=wait_s
                     )
-                logger.info("gate busy (503); retrying in %.1f s", wait_s)
+                logger.info("gate busy (%d); retrying in %.1f s", status, wait_s)
                 self._sleep(wait_s)
                 continue
             if status >= 400:

@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_proto.model import plan, schemacheck
-from firmware_proto.model.plan import _validator, plan_schema, validate_plan
+from firmware_proto.model.plan import _validator, plan_is_valid, plan_schema, validate_plan
 from firmware_proto.model.schemacheck import schema_violations
 
 # Values of every JSON kind, near and at the schema's limits, and of the wrong kinds.
@@ -107,6 +107,9 @@ def _agrees(doc: Any) -> None:
     assert (not list(_validator().iter_errors(doc))) == (
         not [v for v in slow if v[1] != "must be a finite number"]
     )
+    assert plan_is_valid(doc) == (slow == [])  # the gate's check on its event loop
+    first = validate_plan(doc, limit=2)  # the gate's wording: the first ones only
+    assert len(first) <= 2 and set(first) <= set(slow) and bool(first) == bool(slow)
 
 
 @settings(max_examples=1500, deadline=None, derandomize=True)

@@ -38,8 +38,16 @@ def _reply(response: http.client.HTTPResponse) -> Reply:
 class Client:
     """One keep-alive connection (a context manager)."""
 
-    def __init__(self, address: tuple[str, int], token: str | None = None) -> None:
-        self.conn = http.client.HTTPConnection(*address, timeout=TIMEOUT_S)
+    def __init__(
+        self,
+        address: tuple[str, int],
+        token: str | None = None,
+        source: str | None = None,
+        timeout_s: float = TIMEOUT_S,
+    ) -> None:
+        self.conn = http.client.HTTPConnection(
+            *address, timeout=timeout_s, source_address=(source, 0) if source else None
+        )
         self.token = token
 
     def request(
@@ -78,17 +86,24 @@ def call(
     *,
     headers: dict[str, str] | None = None,
     token: str | None = None,
+    source: str | None = None,
 ) -> Reply:
-    """One request on a fresh connection, closed afterwards."""
-    with Client(address, token) as client:
+    """One request on a fresh connection (from ``source``, another loopback address such
+    as 127.0.0.2: another client), closed afterwards."""
+    with Client(address, token, source) as client:
         return client.request(method, path, body, headers)
 
 
 def post_plan(
-    address: tuple[str, int], plan: Any, query: str = "", token: str | None = None
+    address: tuple[str, int],
+    plan: Any,
+    query: str = "",
+    token: str | None = None,
+    source: str | None = None,
+    timeout_s: float = TIMEOUT_S,
 ) -> Reply:
-    """POST a plan to /validate_plan on a fresh connection."""
-    with Client(address, token) as client:
+    """POST a plan to /validate_plan on a fresh connection (from ``source``)."""
+    with Client(address, token, source, timeout_s) as client:
         return client.post_plan(plan, query)
 
 

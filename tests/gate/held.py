@@ -25,12 +25,18 @@ class HeldPool(ThreadWorkerPool):
         self._submitted = 0
         self._cond = threading.Condition()
 
+    @property
+    def submitted(self) -> int:
+        """Jobs handed to the pool so far."""
+        with self._cond:
+            return self._submitted
+
     def wait_submitted(self, count: int) -> bool:
         """Wait until ``count`` jobs have been admitted and handed to the pool."""
         with self._cond:
             return self._cond.wait_for(lambda: self._submitted >= count, WAIT_S)
 
-    def _submit(self, job: Job) -> Future[bytes]:
+    def _submit(self, job: Job, client: str) -> Future[bytes]:
         with self._cond:
             self._submitted += 1
             self._cond.notify_all()

@@ -106,6 +106,53 @@ def test_rover_gate_refuses_a_public_address_without_a_token() -> None:
     assert "without a token" in done.stderr
 
 
+def test_the_token_comes_from_a_file_never_the_command_line(tmp_path: Path) -> None:
+    """``--token`` would show the token in ``ps``: refused, saying what to do; a weak
+    token for a public address is refused; ``--token-file`` serves."""
+
+    def gate(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [ROVER, "gate", "--port", "0", *args],
+            capture_output=True,
+            text=True,
+            timeout=WAIT_S,
+            check=False,
+        )
+
+    done = gate("--token", "s3cret-token-0123456789")
+    assert done.returncode == 1
+    assert "ps" in done.stderr and "--token-file" in done.stderr
+    weak = tmp_path / "weak"
+    weak.write_text("s3cret\n")
+    done = gate("--host", "0.0.0.0", "--token-file", str(weak))
+    assert done.returncode == 1 and "too weak" in done.stderr
+    done = gate("--host", "0.0.0.0", "--token-file", str(tmp_path / "missing"))
+    assert done.returncode == 1 and "cannot read" in done.stderr
+    strong = tmp_path / "token"
+    strong.write_text("k3Jf9-xQ2mPz8vLw\n")
+    strong.chmod(0o600)
+    proc = subprocess.Popen(
+        [ROVER, "gate", "--port", "0", "--pool", "thread", "--token-file", str(strong)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline().split()
+        assert first and first[0] == "GATE"
+        host, port = first[1].removeprefix("http://").split(":")
+        address = (host, int(port))
+        assert call(address, "GET", "/health").status == 401
+        assert call(address, "GET", "/health", token="k3Jf9-xQ2mPz8vLw").status == 200
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=WAIT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=WAIT_S)
+
+
 def _check(tmp_path: Path, body: object, *args: str) -> tuple[int, str, str]:
     plan_file = tmp_path / "plan.json"
     plan_file.write_text(json.dumps(body) if not isinstance(body, str) else body)

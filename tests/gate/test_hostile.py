@@ -1,6 +1,8 @@
 """Hostile clients against a real gate on 127.0.0.1 (issue 25): slow headers beside
 normal requests, bodies that stall, nest deep, overflow the arithmetic or ask for a huge
-answer. No answer is a 5xx for bad input, and none of them locks anyone out.
+answer. No answer is a 5xx for bad input, and none of them locks anyone out. Issue 43's:
+a request over its cap, a client over its share, a costly request beside an ordinary
+one, a validation past its deadline or left by its client, bad bodies of 63 kB.
 
 No timed asserts: the tests wait on what the server does (an answer, a close), each
 wait bounded by a socket timeout, and the deadlines they rely on are made short."""
@@ -149,7 +151,7 @@ def test_a_body_that_stalls_gets_408(make_gate: Callable[..., GateServer], chunk
     framing = (
         b"Transfer-Encoding: chunked\r\n\r\na\r\n" if chunked else b"Content-Length: 100\r\n\r\n"
     )
-    head = b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+    head = b"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
     with socket.create_connection(gate.address, timeout=TIMEOUT_S) as sock:
         sock.sendall(head + framing + b'{"goal": {')  # then stalls, connection kept open
         reply = parse_raw(_read_until_closed(sock))
@@ -264,3 +266,209 @@ def test_no_bad_input_gets_a_5xx(http_gate: GateServer, body: Any, query: str) -
     reply = post_plan(http_gate.address, text, query)
     assert reply.status < 500, reply.body[:300]
     assert reply.headers["content-type"] == "application/json"
+
+
+# -- issue 43: one request cannot lock the gate; bad bodies are cheap --------------------------
+SLOWEST = plan((1.2, 3.0, 0.0), *[step("FWD", 1, 30000)] * 12)
+"""The slowest valid plan: 12 steps of 30000 units at speed 1, 3,131 s of twin time."""
+QUARTER = 15484
+SQUARE = {
+    "goal": {"x": 1.0, "y": 4.0, "yaw_deg": 0.0},
+    "commands": [
+        step(c, s, d)
+        for c, s, d in [("FWD", 60, 28750), ("FWD", 60, 28750), ("LEFT", 30, QUARTER)] * 4
+    ],
+}
+"""bench_gate's 12-step plan (scn01): an ordinary plan."""
+
+
+def _wait(condition: Callable[[], bool], what: str) -> None:
+    """Wait (bounded) until the server's state says ``condition``."""
+    done = threading.Event()
+    for _ in range(int(TIMEOUT_S / 0.01)):
+        if condition():
+            return
+        done.wait(0.01)
+    raise AssertionError(f"never: {what}")
+
+
+def test_a_request_over_its_cap_is_refused_before_anything_is_queued(
+    http_gate: GateServer,
+) -> None:
+    """The issue's reproducer: samples=2000 on the slowest plan put 20 chunks in the
+    pool before the request was admitted. Its whole cost is now weighed first: 400,
+    naming samples and how many this plan may ask for; nothing queued."""
+    reply = post_plan(http_gate.address, SLOWEST, "samples=2000")
+    assert reply.status == 400, reply.body[:300]
+    error = reply.json()
+    assert error["error"] == "invalid_option" and error["parameter"] == "samples"
+    assert "at most" in error["message"] and "samples for this plan" in error["message"]
+    health = call(http_gate.address, "GET", "/health").json()
+    assert health["in_flight"] == 0 and health["admitted_work_s"] == 0.0
+    # An ordinary plan may still ask for the most samples.
+    checked = http_gate.admission
+    assert checked.in_flight == 0
+
+
+def test_a_client_over_its_share_gets_429_while_another_is_served(
+    make_gate: Callable[..., GateServer], validator: Any
+) -> None:
+    """A client may hold at most half of what the workers can do within the deadline:
+    one more slow plan from it is 429 with Retry-After, and another client is admitted
+    meanwhile."""
+    from .held import HeldPool
+
+    pool = HeldPool(validator)
+    try:
+        gate = make_gate(worker_pool=pool, workers=1, queue_depth=2, request_timeout_s=10.0)
+        replies: list[Any] = []
+        first = threading.Thread(
+            target=lambda: replies.append(post_plan(gate.address, SLOWEST, source="127.0.0.2"))
+        )
+        first.start()
+        assert pool.entered.wait(TIMEOUT_S)
+        again = post_plan(gate.address, SLOWEST, source="127.0.0.2")
+        assert again.status == 429, again.body[:300]
+        assert again.json()["error"] == "too_many_requests"
+        assert int(again.headers["retry-after"]) >= 1
+        other: list[Any] = []
+        second = threading.Thread(
+            target=lambda: other.append(
+                post_plan(gate.address, STOP_AT_LAB_START, source="127.0.0.3")
+            )
+        )
+        second.start()
+        assert pool.wait_submitted(2)  # admitted, behind the held one
+        pool.release.set()
+        first.join(TIMEOUT_S)
+        second.join(TIMEOUT_S)
+        assert replies[0].status == 200 and other[0].status == 200
+    finally:
+        pool.release.set()
+        pool.close()
+
+
+def test_a_costly_request_makes_room_for_another_clients_plan(
+    make_gate: Callable[..., GateServer],
+) -> None:
+    """Client A's samples hold both worker processes; client B's ordinary plan is not
+    kept waiting for them: one of A's chunks is stopped and put back in line, B is
+    answered while A's request is still under way, and A's verdict still comes whole."""
+    gate = make_gate(pool="process", workers=2, request_timeout_s=300.0)
+    pool = gate.pool
+    assert post_plan(gate.address, STOP_AT_LAB_START).status == 200  # workers warm
+    costly: list[Any] = []
+    query = "map=scn01&start=1.0,4.0,0&samples=40&seed=3"
+    a = threading.Thread(  # a long wait allowed: seconds of samples on a loaded machine
+        target=lambda: costly.append(
+            post_plan(gate.address, SQUARE, query, source="127.0.0.2", timeout_s=300.0)
+        )
+    )
+    a.start()
+    _wait(lambda: pool.running("127.0.0.2") == 2, "A's chunks on both workers")  # type: ignore[attr-defined]
+    ordinary = post_plan(gate.address, SQUARE, "map=scn01&start=1.0,4.0,0", source="127.0.0.3")
+    assert ordinary.status == 200 and ordinary.json()["approved"] is not None
+    assert a.is_alive(), "B was answered only after A's request"
+    assert pool.interrupted >= 1 and pool.killed == 0  # type: ignore[attr-defined]
+    a.join(300.0)
+    assert costly[0].status == 200, costly[0].body[:300]
+    assert costly[0].json()["uncertainty"]["samples"] == 40
+
+
+def test_a_validation_past_its_deadline_or_left_by_its_client_is_cancelled(
+    make_gate: Callable[..., GateServer],
+) -> None:
+    """The slowest plan with a 0.5 s deadline: 503 timeout, and its worker stops it at
+    once (not killed: the same process serves the next plan); a client that leaves
+    mid-validation has its validation stopped too. Either way the admission is given
+    back."""
+    gate = make_gate(pool="process", workers=1, request_timeout_s=0.5)
+    pool = gate.pool
+    assert post_plan(gate.address, STOP_AT_LAB_START).status == 200
+    pids = pool.pids  # type: ignore[attr-defined]
+    late = post_plan(gate.address, SLOWEST)
+    assert late.status == 503 and late.json()["error"] == "timeout"
+    _wait(lambda: gate.admission.in_flight == 0, "the admission given back")
+    assert pool.interrupted == 1 and pool.killed == 0  # type: ignore[attr-defined]
+    assert post_plan(gate.address, STOP_AT_LAB_START).status == 200
+    assert pool.pids == pids  # type: ignore[attr-defined]
+    # A client that leaves (with a longer deadline, so that leaving comes first).
+    gate2 = make_gate(pool="process", workers=1, request_timeout_s=60.0)
+    pool2 = gate2.pool
+    assert post_plan(gate2.address, STOP_AT_LAB_START).status == 200
+    body = json.dumps(SLOWEST).encode()
+    head = (
+        "POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+        f"Content-Length: {len(body)}\r\n\r\n"
+    ).encode()
+    with socket.create_connection(gate2.address, timeout=TIMEOUT_S) as sock:
+        sock.sendall(head + body)
+        _wait(lambda: pool2.running("127.0.0.1") == 1, "the slow plan running")  # type: ignore[attr-defined]
+    _wait(lambda: gate2.admission.in_flight == 0, "the admission given back")
+    assert pool2.interrupted == 1 and gate2.cancelled == 1  # type: ignore[attr-defined]
+
+
+def _bad_steps(count: int) -> str:
+    return json.dumps(
+        {"goal": {"x": 1, "y": 1, "yaw_deg": 0}, "commands": [step("JUMP", 99, -1)] * count}
+    )
+
+
+def test_bad_bodies_are_cheap_and_their_answers_bounded(
+    http_gate: GateServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The issue's reproducers: 1,150 bad steps in 63 kB (1.25 s of wording on the
+    event loop, a 782 kB answer) and 6,000 extra keys (584 kB). Validity is decided by
+    the compiled check; the wording runs on the gate's wording thread and stops at the
+    first violations; the answer is no larger than the request plus 2 kB."""
+    import gate.server as served
+    from firmware_proto.model.plan import validate_plan
+
+    threads: list[str] = []
+
+    def spy(document: Any, *, limit: int | None = None) -> list[tuple[str, str]]:
+        threads.append(threading.current_thread().name)
+        return validate_plan(document, limit=limit)
+
+    monkeypatch.setattr("gate.server.validate_plan", spy)
+    steps = _bad_steps(1250)
+    assert 60_000 < len(steps) <= 65536
+    keys = json.dumps(STOP_AT_LAB_START | {f"k{i}": 0 for i in range(6000)}, separators=(",", ":"))
+    long_value = json.dumps(
+        {"goal": {"x": 1, "y": 1, "yaw_deg": 0}, "commands": [step("J" * 60_000, 1, 1)]}
+    )
+    for body in (steps, keys, long_value):
+        reply = post_plan(http_gate.address, body)
+        assert reply.status == 400
+        error = reply.json()
+        assert error["error"] == "plan_schema"
+        assert 1 <= len(error["violations"]) <= served.MAX_VIOLATIONS
+        assert len(reply.body) <= len(body) + served.ERROR_ROOM_BYTES, len(reply.body)
+        assert all(len(v["message"]) <= served.MAX_VIOLATION_CHARS for v in error["violations"])
+    assert error.get("truncated") is None  # the long value: one violation, whole
+    for body in (steps, keys):
+        error = post_plan(http_gate.address, body).json()
+        assert error["truncated"] is True and "not listed" in error["message"]
+    assert threads and set(threads) == {"gate-wording_0"}
+    # A small bad plan is worded whole, as before.
+    small = post_plan(http_gate.address, plan((0, 0, 0), step("FWD", 61, 1)))
+    assert small.json()["violations"] == [
+        {"pointer": "/commands/0/speed", "message": "61 is greater than the maximum of 60"}
+    ]
+
+
+def test_a_host_that_does_not_name_the_gate_is_421(make_gate: Callable[..., GateServer]) -> None:
+    """DNS rebinding: a page whose name points at 127.0.0.1 sends its own name."""
+    gate = make_gate(allowed_hosts=("gate.lab",))
+    for host, status in (
+        ("rebind.example", 421),
+        (f"rebind.example:{gate.address[1]}", 421),
+        ("gate.lab:8080", 200),
+        ("localhost", 200),
+        ("127.0.0.1", 200),
+    ):
+        reply = call(gate.address, "GET", "/health", headers={"Host": host})
+        assert reply.status == status, host
+        if status == 421:
+            assert reply.json()["error"] == "misdirected_request"
+    assert post_plan(gate.address, STOP_AT_LAB_START).status == 200

@@ -155,7 +155,7 @@ def test_oversize_body_is_refused_by_its_declared_length_before_reading(
 ) -> None:
     # Headers only: the gate must answer without waiting for the 10 MB it announced.
     head = (
-        b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         b"Content-Length: 10000000\r\n\r\n"
     )
     reply = parse_raw(raw_exchange(http_gate.address, head))
@@ -188,7 +188,7 @@ def _chunked(payload: bytes, size: int = 7) -> bytes:
 def test_chunked_bodies_are_read(http_gate: GateServer) -> None:
     payload = json.dumps(STOP_AT_LAB_START).encode()
     head = (
-        b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
     )
     reply = parse_raw(raw_exchange(http_gate.address, head + _chunked(payload)))
@@ -198,7 +198,7 @@ def test_chunked_bodies_are_read(http_gate: GateServer) -> None:
 
 def test_oversize_chunked_body_is_413(http_gate: GateServer) -> None:
     head = (
-        b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         b"Transfer-Encoding: chunked\r\n\r\n"
     )
     chunk = b"x" * 40_000
@@ -219,7 +219,7 @@ def test_oversize_chunked_body_is_413(http_gate: GateServer) -> None:
 )
 def test_bad_framing(http_gate: GateServer, headers: str, status: int, code: str) -> None:
     head = (
-        "POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        "POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         f"{headers}\r\n"
     ).encode()
     reply = parse_raw(raw_exchange(http_gate.address, head, half_close=True))
@@ -229,7 +229,7 @@ def test_bad_framing(http_gate: GateServer, headers: str, status: int, code: str
 
 def test_truncated_body_is_400(http_gate: GateServer) -> None:
     head = (
-        b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         b"Content-Length: 100\r\n\r\n{"
     )
     reply = parse_raw(raw_exchange(http_gate.address, head, half_close=True))
@@ -240,13 +240,13 @@ def test_truncated_body_is_400(http_gate: GateServer) -> None:
 def test_expect_100_continue(http_gate: GateServer) -> None:
     payload = json.dumps(STOP_AT_LAB_START).encode()
     too_big = (
-        b"POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         b"Expect: 100-continue\r\nContent-Length: 999999\r\n\r\n"
     )
     reply = parse_raw(raw_exchange(http_gate.address, too_big))
     assert reply.status == 413  # refused before the client sends the body
     ok = (
-        "POST /validate_plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        "POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         f"Expect: 100-continue\r\nConnection: close\r\nContent-Length: {len(payload)}\r\n\r\n"
     ).encode()
     data = raw_exchange(http_gate.address, ok + payload)

@@ -48,7 +48,7 @@ def secured(
     make_gate: Callable[..., GateServer], validator: Validator
 ) -> Iterator[tuple[GateServer, HeldPool]]:
     pool = HeldPool(validator, hold=False)
-    gate = make_gate(worker_pool=pool, workers=1, queue_depth=0, token=TOKEN, body_timeout_s=0.5)
+    gate = make_gate(worker_pool=pool, workers=1, queue_depth=1, token=TOKEN, body_timeout_s=0.5)
     yield gate, pool
     pool.release.set()
 
@@ -92,7 +92,11 @@ def test_every_documented_status_happens_and_matches_its_schema(
         return call(address, "GET", path, token=kw.get("token", TOKEN), headers=kw.get("headers"))
 
     def post(
-        body: Any, query: str = "", headers: dict[str, str] | None = None, token: str | None = TOKEN
+        body: Any,
+        query: str = "",
+        headers: dict[str, str] | None = None,
+        token: str | None = TOKEN,
+        source: str | None = None,
     ) -> Reply:
         text = body if isinstance(body, (str, bytes)) else json.dumps(body)
         return call(
@@ -102,11 +106,12 @@ def test_every_documented_status_happens_and_matches_its_schema(
             text,
             headers=json_type | (headers or {}),
             token=token,
+            source=source,
         )
 
     def post_raw(headers: str, body: bytes = b"", *, half_close: bool = True) -> Reply:
         head = (
-            f"POST /validate_plan HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {TOKEN}\r\n"
+            f"POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nAuthorization: Bearer {TOKEN}\r\n"
             f"Content-Type: application/json\r\n{headers}\r\n"
         ).encode()
         return parse_raw(raw_exchange(address, head + body, half_close=half_close))
@@ -144,15 +149,25 @@ def test_every_documented_status_happens_and_matches_its_schema(
     )
     record("/validate_plan", "POST", post(STOP_AT_LAB_START, headers={"Content-Type": "text/csv"}))
 
-    # 503 from overload (a held worker), then from draining, on every operation.
+    # With the worker held and the queue's place taken by another client (127.0.0.2):
+    # 429 to the first client (it holds its share while another waits), 503 to a third
+    # (the gate is full); then 503 from draining, on every operation.
     import threading
 
     pool.hold.set()
+    before = pool.submitted
     first: list[Reply] = []
     holder = threading.Thread(target=lambda: first.append(post(STOP_AT_LAB_START)))
     holder.start()
     assert pool.entered.wait(30)
+    queued: list[Reply] = []
+    waiter = threading.Thread(
+        target=lambda: queued.append(post(STOP_AT_LAB_START, source="127.0.0.2"))
+    )
+    waiter.start()
+    assert pool.wait_submitted(before + 2)
     record("/validate_plan", "POST", post(STOP_AT_LAB_START))
+    record("/validate_plan", "POST", post(STOP_AT_LAB_START, source="127.0.0.3"))
     gate.begin_drain()
     for path, concrete in (
         ("/health", "/health"),
@@ -163,7 +178,9 @@ def test_every_documented_status_happens_and_matches_its_schema(
         record(path, "GET", get(concrete))
     pool.release.set()
     holder.join(30)
+    waiter.join(30)
     record("/validate_plan", "POST", first[0])
+    assert queued[0].status == 200
 
     documented = {
         (path, method.upper(), int(status))

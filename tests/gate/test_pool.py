@@ -5,6 +5,7 @@ this module's, imported by each worker."""
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import time
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from gate.errors import CallCancelledError
 from gate.pool import ProcessWorkerPool
 from gate.validator import Validator
 
@@ -59,8 +61,12 @@ def _unloadable(_: object) -> _Unloadable:
 
 @pytest.fixture
 def pool(validator: Validator) -> Iterator[ProcessWorkerPool]:
+    """Two workers that have imported this module (a call's first use of its module
+    imports it in the worker: seconds on a loaded machine)."""
     with ProcessWorkerPool(validator, 2) as made:
         assert isinstance(made, ProcessWorkerPool)
+        warm = [made.submit_call(_pid_after, 0.2) for _ in range(2)]
+        assert {f.result(WAIT_S) for f in warm} == set(made.pids)
         yield made
 
 
@@ -128,3 +134,120 @@ def test_close_waits_for_calls_under_way_and_cancels_the_waiting(
     for pid in pids:  # the workers are gone
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+def _stubborn(path: str) -> int:
+    """A call that cannot be interrupted (it ignores the pool's signal), until ``path``
+    exists: what native code that never returns to the interpreter looks like to the
+    pool. It says it has started by creating ``path + ".started"``."""
+    signal.signal(signal.SIGUSR1, signal.SIG_IGN)
+    Path(path + ".started").touch()
+    return _hang_until(path)
+
+
+def _started(path: str) -> int:
+    """:func:`_hang_until`, saying it has started by creating ``path + ".started"``."""
+    Path(path + ".started").touch()
+    return _hang_until(path)
+
+
+def _wait_file(path: Path) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not path.exists():
+        assert time.monotonic() < deadline, f"{path} never appeared"
+        time.sleep(0.01)
+
+
+def _record(order: list[str], name: str, _future: object) -> None:
+    order.append(name)
+
+
+def _wait_running(pool: ProcessWorkerPool, client: str, count: int) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while pool.running(client) < count:
+        assert time.monotonic() < deadline, f"{client!r} never had {count} calls running"
+        time.sleep(0.01)
+
+
+def test_a_running_call_is_cancelled_and_its_worker_kept(
+    pool: ProcessWorkerPool, tmp_path: Path
+) -> None:
+    running = pool.submit_call(_hang_until, str(tmp_path / "never"), client="a")
+    waiting = pool.submit_call(_hang_until, str(tmp_path / "never"), client="a")
+    third = pool.submit_call(_pid_after, 0, client="a")
+    _wait_running(pool, "a", 2)
+    before = pool.pids
+    assert pool.cancel(running) and pool.cancel(waiting)
+    for future in (running, waiting):
+        with pytest.raises(CallCancelledError):
+            future.result(WAIT_S)
+    assert third.result(WAIT_S) in before
+    assert pool.pids == before and pool.killed == 0 and pool.interrupted == 2
+    queued = pool.submit_call(_hang_until, str(tmp_path / "never"), client="a")
+    blocker = pool.submit_call(_hang_until, str(tmp_path / "never"), client="a")
+    late = pool.submit_call(_pid_after, 0, client="a")  # waits: both workers hang
+    assert pool.cancel(late)  # dropped from the line, never run
+    with pytest.raises(CancelledError):
+        late.result(WAIT_S)
+    for future in (queued, blocker):
+        pool.cancel(future)
+        with pytest.raises(CallCancelledError):
+            future.result(WAIT_S)
+
+
+def test_a_worker_that_cannot_stop_its_call_is_killed_and_replaced(
+    pool: ProcessWorkerPool, tmp_path: Path
+) -> None:
+    stuck = pool.submit_call(_stubborn, str(tmp_path / "never"), client="a")
+    _wait_file(tmp_path / "never.started")
+    before = set(pool.pids)
+    assert pool.cancel(stuck)
+    with pytest.raises(CallCancelledError, match="killed"):
+        stuck.result(WAIT_S)
+    assert pool.killed == 1
+    deadline = time.monotonic() + WAIT_S  # the replacement starts in about a second
+    while (len(pool.pids) < 2 or set(pool.pids) == before) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(pool.pids) == 2 and set(pool.pids) != before
+    assert {pool.submit_call(_pid_after, 0.05).result(WAIT_S) for _ in range(4)} <= set(pool.pids)
+
+
+def test_a_client_over_its_share_makes_room_for_another(
+    pool: ProcessWorkerPool, tmp_path: Path
+) -> None:
+    """Client a's two preemptible calls hold both workers; client b's call is not kept
+    waiting: one of a's is stopped, b's runs, and a's goes back first in a's line and
+    still gives its result."""
+    gate_file = tmp_path / "go"
+    a = [pool.submit_call(_started, str(gate_file), client="a", preemptible=True) for _ in range(2)]
+    _wait_running(pool, "a", 2)
+    _wait_file(tmp_path / "go.started")
+    b = pool.submit_call(_pid_after, 0, client="b")
+    assert b.result(WAIT_S) in pool.pids
+    assert not any(f.done() for f in a)  # b did not wait for a
+    assert pool.interrupted == 1 and pool.killed == 0
+    gate_file.touch()
+    assert {f.result(WAIT_S) for f in a} <= set(pool.pids)
+
+
+def test_a_free_worker_takes_the_client_with_fewest_calls_running(
+    validator: Validator, tmp_path: Path
+) -> None:
+    gate_file = tmp_path / "go"
+    order: list[str] = []
+    with ProcessWorkerPool(validator, 1) as pool:
+        first = pool.submit_call(_hang_until, str(gate_file), client="a")
+        assert isinstance(pool, ProcessWorkerPool)
+        _wait_running(pool, "a", 1)
+        calls = [
+            (name, pool.submit_call(_pid_after, 0, client=name))
+            for name in ("a", "a", "a", "b", "c", "b")
+        ]
+        for name, future in calls:
+            future.add_done_callback(functools.partial(_record, order, name))
+        gate_file.touch()
+        first.result(WAIT_S)
+        for _, future in calls:
+            future.result(WAIT_S)
+    # a had one running when the others came: b and c go first, then round robin.
+    assert order == ["b", "c", "a", "b", "a", "a"], order

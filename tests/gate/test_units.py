@@ -110,7 +110,14 @@ def test_config_precedence_arguments_environment_file_defaults(tmp_path: Path) -
     toml.write_text("[gate]\nport = true\n")
     with pytest.raises(GateConfigError, match="wrong type"):
         load_config({}, {}, toml)
-    assert set(KEYS) >= {"host", "port", "token", "dt_s"}
+    assert set(KEYS) >= {"host", "port", "token", "dt_s", "allowed_hosts"}
+    names = {"ROVER_GATE_ALLOWED_HOSTS": " gate.lab, rover-ground ,"}
+    assert load_config({}, names).allowed_hosts == ("gate.lab", "rover-ground")
+    toml.write_text('[gate]\nallowed_hosts = ["gate.lab"]\n')
+    assert load_config({}, {}, toml).allowed_hosts == ("gate.lab",)
+    toml.write_text('[gate]\nallowed_hosts = "gate.lab"\n')
+    with pytest.raises(GateConfigError, match="wrong type"):
+        load_config({}, {}, toml)
 
 
 def test_bind_policy_and_ranges() -> None:

@@ -1,0 +1,35 @@
+"""What the connection layer and the application share about one connection: a
+:class:`ConnectionMark`, put in each request's ASGI scope under
+``extensions[CONNECTION_EXTENSION]`` by :class:`~firmware_proto.http.protocol.GuardedH11Protocol`.
+
+Plain data and an :class:`asyncio.Event`; touched on the server's event loop only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+
+__all__ = ["CONNECTION_EXTENSION", "ConnectionMark"]
+
+CONNECTION_EXTENSION = "rover.connection"
+"""Key of the ASGI scope's ``extensions`` under which a request finds its connection's
+:class:`ConnectionMark`."""
+
+
+@dataclass(eq=False)
+class ConnectionMark:
+    """One connection as both layers see it.
+
+    Attributes:
+        address: the peer's address.
+        trusted: a request on it presented the token (the application sets it; the
+            connection layer never evicts a trusted connection for an anonymous one).
+        closed: set once the peer has closed its end (or the connection is lost): a
+            request still waiting for its answer then has nobody, or only a half-closed
+            client, to answer; the application may stop its work (the gate does).
+    """
+
+    address: str = ""
+    trusted: bool = False
+    closed: asyncio.Event = field(default_factory=asyncio.Event)
