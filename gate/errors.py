@@ -10,7 +10,7 @@ Everything this package raises on purpose derives from :class:`GateError`::
      |                          out of range; also ValueError. ``parameter`` names it.
      +-- HttpError              a request cannot be served; carries the HTTP status, a
           |                     machine-readable ``code`` and extra response headers
-          |                     (also :class:`firmware_proto.http.errors.HttpError`)
+          |                     (also :class:`firmware_proto.http.errors.StatusError`)
           +-- BadRequestError        400: not JSON, bad option, malformed framing
           |    +-- PlanSchemaError   400: the plan fails Listing 1; ``violations`` lists
           |         |                ``(json_pointer, message)`` pairs
@@ -31,7 +31,7 @@ Everything this package raises on purpose derives from :class:`GateError`::
                                      to try again
 
 The shared application layer (:mod:`firmware_proto.http.app`) answers 401, 404, 405,
-421 and 501 itself with :class:`firmware_proto.http.errors.HttpError`, which the gate
+421 and 501 itself with :class:`firmware_proto.http.errors.StatusError`, which the gate
 words as its own. Errors from the twin (:mod:`emulator.errors`) and the plan schema
 (:class:`firmware_proto.errors.PlanError`) are translated at the boundary, chained with
 ``raise ... from``.
@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from firmware_proto.http.errors import HttpError as SharedHttpError
+from firmware_proto.http.errors import StatusError
 
 __all__ = [
     "BadRequestError",
@@ -95,7 +95,7 @@ class OptionError(GateError, ValueError):
         return (type(self), (self.parameter, self.reason))
 
 
-class HttpError(GateError, SharedHttpError):
+class HttpError(GateError, StatusError):
     """A request that gets an error response instead of a verdict.
 
     Attributes:
@@ -111,7 +111,7 @@ class HttpError(GateError, SharedHttpError):
     def __init__(
         self, message: str, *, code: str | None = None, headers: dict[str, str] | None = None
     ) -> None:
-        SharedHttpError.__init__(self, message, code=code, headers=headers)
+        StatusError.__init__(self, message, code=code, headers=headers)
 
 
 class BadRequestError(HttpError):

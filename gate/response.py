@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from firmware_proto.http.errors import HttpError
+from firmware_proto.http.errors import StatusError
 
 __all__ = [
     "JSON_CONTENT_TYPE",
@@ -30,11 +30,11 @@ def json_bytes(obj: Any) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
 
 
-def error_json(error: HttpError) -> bytes:
+def error_json(error: StatusError) -> bytes:
     """The JSON body of an error response.
 
     ``{"error": code, "status": n, "message": text}``, plus the error's own fields
-    (:meth:`~firmware_proto.http.errors.HttpError.fields`): ``violations`` (a list of
+    (:meth:`~firmware_proto.http.errors.StatusError.fields`): ``violations`` (a list of
     ``{"pointer", "message"}``, and ``truncated`` when they are not all) for a plan
     that fails the schema, ``parameter`` for a bad option, ``allow`` for a method not
     allowed.

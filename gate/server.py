@@ -72,7 +72,7 @@ from firmware_proto.http import (
 from firmware_proto.http.app import DEFAULT_SECURITY_HEADERS, AccessPolicy, build_app
 from firmware_proto.http.bindpolicy import HostPolicy, is_wildcard
 from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
-from firmware_proto.http.errors import HttpError as SharedHttpError
+from firmware_proto.http.errors import StatusError
 from firmware_proto.http.limits import DEFAULT_MAX_DRAIN_BYTES
 from firmware_proto.model.plan import Plan, plan_is_valid, validate_plan
 from firmware_proto.model.verdict import Verdict
@@ -327,7 +327,7 @@ class GateServer:
 
         return endpoint
 
-    def _on_error(self, scope: Scope, error: SharedHttpError) -> None:
+    def _on_error(self, scope: Scope, error: StatusError) -> None:
         with self._count_lock:
             self.rejected[error.code] += 1
         log = logger.warning if error.status >= 500 and error.status != 503 else logger.info
@@ -661,6 +661,6 @@ def _clip(text: str) -> str:
     return text if len(text) <= MAX_VIOLATION_CHARS else text[: MAX_VIOLATION_CHARS - 3] + "..."
 
 
-def _error_body(error: SharedHttpError) -> tuple[str, bytes]:
+def _error_body(error: StatusError) -> tuple[str, bytes]:
     """The gate's wording of every error: ``{"error": code, "status", "message", ...}``."""
     return JSON_CONTENT_TYPE, error_json(error)

@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING, Any
 
 from firmware_proto.http.errors import (
     ClientGoneError,
-    HttpError,
     HttpServeError,
     RequestBodyError,
+    StatusError,
 )
 from firmware_proto.http.limits import ErrorRenderer, ServeLimits
 
@@ -43,11 +43,11 @@ if TYPE_CHECKING:
 __all__ = [
     "ClientGoneError",
     "ErrorRenderer",
-    "HttpError",
     "HttpServeError",
     "HttpService",
     "RequestBodyError",
     "ServeLimits",
+    "StatusError",
     "read_body",
 ]
 

@@ -25,7 +25,7 @@ middleware of ours, and exception handlers that word every error in the server's
      'none'``, ``nosniff``, ``no-store``...), and ``Connection: close`` after an error
      that leaves the connection in doubt (408, 5xx but 503) or while draining;
    - an unexpected exception is logged and answered 500.
-2. Starlette's exception middleware: :class:`~.errors.HttpError` and the router's own
+2. Starlette's exception middleware: :class:`~.errors.StatusError` and the router's own
    404/405 are worded by the server's :data:`ErrorBody` (JSON for both servers).
 3. Starlette's :class:`~starlette.routing.Router` (no slash redirects).
 
@@ -53,7 +53,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from firmware_proto.http.bindpolicy import HostPolicy, bearer_token, token_matches
 from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
-from firmware_proto.http.errors import ClientGoneError, HttpError
+from firmware_proto.http.errors import ClientGoneError, StatusError
 
 __all__ = [
     "DEFAULT_SECURITY_HEADERS",
@@ -86,7 +86,7 @@ DEFAULT_SECURITY_HEADERS: tuple[tuple[str, str], ...] = (
 origin may frame it, sniff it or read it."""
 
 
-ErrorBody = Callable[[HttpError], tuple[str, bytes]]
+ErrorBody = Callable[[StatusError], tuple[str, bytes]]
 """``error -> (content_type, body)``: how a server words an error answer."""
 
 
@@ -197,7 +197,7 @@ class Guard:
         *,
         policy: AccessPolicy,
         error_body: ErrorBody,
-        on_error: Callable[[Scope, HttpError], None] | None = None,
+        on_error: Callable[[Scope, StatusError], None] | None = None,
         headers: Sequence[tuple[str, str]] = DEFAULT_SECURITY_HEADERS,
         priority: Collection[str] = (),
         lane_per_turn: int | None = None,
@@ -232,7 +232,7 @@ class Guard:
             await self.app(scope, receive, guarded_send)
         except ClientGoneError:
             return  # nobody to answer
-        except HttpError as error:
+        except StatusError as error:
             if started:
                 raise
             await self._answer(scope, receive, guarded_send, error)
@@ -240,19 +240,19 @@ class Guard:
             logger.exception("internal error serving %s %s", scope["method"], scope["path"])
             if started:
                 raise
-            internal = HttpError("internal error; see the server's log")
+            internal = StatusError("internal error; see the server's log")
             await self._answer(scope, receive, guarded_send, internal)
 
     def _admit(self, scope: Scope) -> None:
-        """Refuse what no route may take (raises :class:`HttpError`); mark trust."""
+        """Refuse what no route may take (raises :class:`StatusError`); mark trust."""
         method = scope["method"]
         if method not in KNOWN_METHODS:
-            raise HttpError(
+            raise StatusError(
                 f"method {method} is not implemented here", status=501, code="not_implemented"
             )
         host = _header(scope, b"host")
         if not self.policy.hosts.allows(host):
-            raise HttpError(
+            raise StatusError(
                 f"this server does not answer to the host {host!r}",
                 status=421,
                 code="misdirected_request",
@@ -267,7 +267,7 @@ class Guard:
         if self.policy.token_required and not trusted:
             challenge = f'Bearer realm="{self.policy.realm}"'
             if self.policy.presented(scope):
-                raise HttpError(
+                raise StatusError(
                     "wrong bearer token",
                     status=401,
                     code="invalid_token",
@@ -276,7 +276,7 @@ class Guard:
             how = "'Authorization: Bearer <token>'" + (
                 " or ?token=<token>" if self.policy.query_token else ""
             )
-            raise HttpError(
+            raise StatusError(
                 f"this server needs {how}",
                 status=401,
                 code="unauthorized",
@@ -291,15 +291,15 @@ class Guard:
             headers.append((b"connection", b"close"))
         return {**message, "headers": headers}
 
-    async def _answer(self, scope: Scope, receive: Receive, send: Send, error: HttpError) -> None:
+    async def _answer(self, scope: Scope, receive: Receive, send: Send, error: StatusError) -> None:
         await error_response(error, self.error_body, scope, self.on_error)(scope, receive, send)
 
 
 def error_response(
-    error: HttpError,
+    error: StatusError,
     error_body: ErrorBody,
     scope: Scope,
-    on_error: Callable[[Scope, HttpError], None] | None,
+    on_error: Callable[[Scope, StatusError], None] | None,
 ) -> Response:
     """The answer to ``error``, worded by ``error_body``; ``on_error`` is told first."""
     if on_error is not None:
@@ -311,12 +311,12 @@ def error_response(
     return Response(body, error.status, headers, media_type=content_type)
 
 
-def _as_http_error(scope: Scope, exc: Exception) -> HttpError:
-    if isinstance(exc, HttpError):
+def _as_http_error(scope: Scope, exc: Exception) -> StatusError:
+    if isinstance(exc, StatusError):
         return exc
     if isinstance(exc, HTTPException) and exc.status_code == 405:
         allow = sorted(m.strip() for m in (exc.headers or {}).get("Allow", "").split(",") if m)
-        return HttpError(
+        return StatusError(
             f"{scope['method']} is not allowed on {scope['path']}",
             status=405,
             code="method_not_allowed",
@@ -324,9 +324,9 @@ def _as_http_error(scope: Scope, exc: Exception) -> HttpError:
             extra={"allow": allow},
         )
     if isinstance(exc, HTTPException) and exc.status_code == 404:
-        return HttpError(f"no such path {scope['path']!r}", status=404, code="not_found")
+        return StatusError(f"no such path {scope['path']!r}", status=404, code="not_found")
     status = exc.status_code if isinstance(exc, HTTPException) else 500
-    return HttpError(str(exc), status=status, code="http_error")
+    return StatusError(str(exc), status=status, code="http_error")
 
 
 def build_app(
@@ -334,7 +334,7 @@ def build_app(
     *,
     policy: AccessPolicy,
     error_body: ErrorBody,
-    on_error: Callable[[Scope, HttpError], None] | None = None,
+    on_error: Callable[[Scope, StatusError], None] | None = None,
     headers: Sequence[tuple[str, str]] = DEFAULT_SECURITY_HEADERS,
     priority: Collection[str] = (),
     lane_per_turn: int | None = None,
@@ -361,7 +361,7 @@ def build_app(
 
     app = Starlette(
         routes=list(routes),
-        exception_handlers={HttpError: handle, HTTPException: handle},
+        exception_handlers={StatusError: handle, HTTPException: handle},
     )
     app.router.redirect_slashes = False
     app.add_middleware(
@@ -386,7 +386,7 @@ def require_same_origin(request: Request, *, header: str, value: str = "1") -> N
     sent, ``same-origin`` or ``none`` (typed by the user).
 
     Raises:
-        HttpError: 403 ``cross_origin``.
+        StatusError: 403 ``cross_origin``.
     """
     headers = request.headers
     origin = headers.get("origin")
@@ -400,4 +400,4 @@ def require_same_origin(request: Request, *, header: str, value: str = "1") -> N
     elif headers.get(header) != value:
         why = f"it needs the header {header}: {value}"
     if why:
-        raise HttpError(f"refused: {why}", status=403, code="cross_origin")
+        raise StatusError(f"refused: {why}", status=403, code="cross_origin")

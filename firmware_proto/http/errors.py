@@ -4,7 +4,7 @@
      +-- RequestBodyError    a request body cannot be taken: too large (413) or too slow
      |                       (408); ``status`` and ``code`` say which
      +-- ClientGoneError     the client closed the connection before its body ended
-     +-- HttpError           a request answered with an error status: what the shared
+     +-- StatusError         a request answered with an error status: what the shared
                              application layer (:mod:`~firmware_proto.http.app`) raises
                              (404, 405, 401, 403, 421, 501...) and the base of each
                              server's own errors; each server words it in its own body
@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["ClientGoneError", "HttpError", "HttpServeError", "RequestBodyError"]
+__all__ = ["ClientGoneError", "HttpServeError", "RequestBodyError", "StatusError"]
 
 
 class HttpServeError(Exception):
@@ -45,7 +45,7 @@ class ClientGoneError(HttpServeError):
     to answer)."""
 
 
-class HttpError(HttpServeError):
+class StatusError(HttpServeError):
     """A request that gets an error answer.
 
     A subclass fixes ``status`` and ``default_code``; an instance may override both

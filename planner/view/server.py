@@ -85,7 +85,7 @@ from firmware_proto.http.app import (
     require_same_origin,
 )
 from firmware_proto.http.bindpolicy import HostPolicy, check_bind, is_wildcard
-from firmware_proto.http.errors import HttpError
+from firmware_proto.http.errors import StatusError
 from planner.view.hub import ClientQueue, ViewHub
 
 __all__ = [
@@ -197,7 +197,7 @@ def _error_bytes(message: str) -> bytes:
     return json.dumps({"error": message}).encode()
 
 
-def _error_body(error: HttpError) -> tuple[str, bytes]:
+def _error_body(error: StatusError) -> tuple[str, bytes]:
     """The view's wording of an error: ``{"error": message}`` (what the page shows)."""
     return "application/json", _error_bytes(error.message)
 
@@ -438,7 +438,7 @@ class ViewServer:
         self.close()
 
     # -- the application ------------------------------------------------------------------
-    def _count_error(self, scope: Scope, error: HttpError) -> None:
+    def _count_error(self, scope: Scope, error: StatusError) -> None:
         with self._lock:
             self.rejected += 1
         logger.info(
@@ -454,11 +454,11 @@ class ViewServer:
     async def _read_body(self, request: Request) -> None:
         declared = request.headers.get("content-length")
         if declared is not None and int(declared) > _MAX_BODY:  # h11 checked the digits
-            raise HttpError(f"body over {_MAX_BODY} bytes", status=413, code="payload_too_large")
+            raise StatusError(f"body over {_MAX_BODY} bytes", status=413, code="payload_too_large")
         try:
             await read_body(request.receive, limit_bytes=_MAX_BODY, timeout_s=10.0)
         except RequestBodyError as exc:
-            raise HttpError(exc.message, status=exc.status, code=exc.code) from exc
+            raise StatusError(exc.message, status=exc.status, code=exc.code) from exc
 
     async def _stop(self, request: Request) -> Response:
         require_same_origin(request, header=ACTION_HEADER)
@@ -467,7 +467,7 @@ class ViewServer:
             done = await asyncio.get_running_loop().run_in_executor(self._stopper, self.stop)
         except Exception as exc:
             logger.exception("view: STOP failed")
-            raise HttpError(f"STOP failed on the ground station: {exc}; use Ctrl-C") from exc
+            raise StatusError(f"STOP failed on the ground station: {exc}; use Ctrl-C") from exc
         return _json_response(202, {"stop": done})
 
     async def _clear(self, request: Request) -> Response:
@@ -475,18 +475,18 @@ class ViewServer:
         await self._read_body(request)
         allowed, why = self.hub.clear_allowed()
         if not allowed:
-            raise HttpError(f"STOP stays latched: {why}", status=409, code="conflict")
+            raise StatusError(f"STOP stays latched: {why}", status=409, code="conflict")
         try:
             cleared = await asyncio.get_running_loop().run_in_executor(self._actions, self.clear)
         except Exception as exc:  # the mission has ended: its ROS port is closed
             logger.warning("view: clear-STOP failed: %s", exc)
-            raise HttpError(
+            raise StatusError(
                 f"the ground station cannot release the latch now: {exc}",
                 status=503,
                 code="unavailable",
             ) from exc
         if not cleared:
-            raise HttpError("the rover did not confirm CLEAR_STOP", status=504, code="timeout")
+            raise StatusError("the rover did not confirm CLEAR_STOP", status=504, code="timeout")
         return _json_response(200, {"cleared": True})
 
     async def _events(self, request: Request) -> Response:

@@ -12,7 +12,7 @@ from starlette.requests import Request
 
 from firmware_proto.http.app import AccessPolicy, Lane, require_same_origin
 from firmware_proto.http.bindpolicy import HostPolicy
-from firmware_proto.http.errors import HttpError
+from firmware_proto.http.errors import StatusError
 
 
 def test_the_lane_starts_a_few_requests_per_turn_of_the_loop_in_order() -> None:
@@ -100,7 +100,7 @@ def test_same_origin_needs_the_header_and_no_other_origin() -> None:
         own | {"Sec-Fetch-Site": "same-site"},
         own | {"Sec-Fetch-Site": "cross-site"},
     ):
-        with pytest.raises(HttpError) as info:
+        with pytest.raises(StatusError) as info:
             require_same_origin(_request(bad), header="X-Rover-View")
         assert info.value.status == 403 and info.value.code == "cross_origin"
 
