@@ -26,6 +26,7 @@ from firmware_proto.http.limits import (
     DEFAULT_HEAD_TIMEOUT_S,
     DEFAULT_IDLE_TIMEOUT_S,
     DEFAULT_MAX_CONNECTIONS,
+    DEFAULT_MAX_CONNECTIONS_PER_ADDRESS,
 )
 from gate.errors import GateConfigError
 
@@ -44,6 +45,7 @@ __all__ = [
     "DEFAULT_MAP",
     "DEFAULT_MAX_BODY_BYTES",
     "DEFAULT_MAX_CONNECTIONS",
+    "DEFAULT_MAX_CONNECTIONS_PER_ADDRESS",
     "DEFAULT_POOL",
     "DEFAULT_PORT",
     "DEFAULT_POSITION_TOLERANCE_M",
@@ -163,7 +165,11 @@ class GateConfig:
             GIL serialises playback, but there is no start-up cost).
         queue_depth: validations admitted to wait beyond the running ones.
         max_body_bytes: largest accepted request body.
-        max_connections: open connections at once; the next is answered 503.
+        max_connections: open connections at once; the next one takes the place of the
+            oldest idle one that has not shown the token, or is answered 503. With a
+            token, a quarter of them (at most 64) are kept for connections that have
+            shown it.
+        max_connections_per_address: of those, from one address.
         idle_timeout_s: a connection waiting this long for a request to start (a new
             one or a kept-alive one) is closed.
         head_timeout_s: from a request's first byte to the end of its headers; a slower
@@ -192,6 +198,7 @@ class GateConfig:
     queue_depth: int = DEFAULT_QUEUE_DEPTH
     max_body_bytes: int = DEFAULT_MAX_BODY_BYTES
     max_connections: int = DEFAULT_MAX_CONNECTIONS
+    max_connections_per_address: int = DEFAULT_MAX_CONNECTIONS_PER_ADDRESS
     idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S
     head_timeout_s: float = DEFAULT_HEAD_TIMEOUT_S
     body_timeout_s: float = DEFAULT_BODY_TIMEOUT_S
@@ -215,6 +222,7 @@ class GateConfig:
             ("queue_depth", self.queue_depth, 0),
             ("max_body_bytes", self.max_body_bytes, 1024),
             ("max_connections", self.max_connections, 1),
+            ("max_connections_per_address", self.max_connections_per_address, 1),
         ):
             if value < low:
                 raise GateConfigError(f"{name} must be >= {low}, got {value}")
@@ -226,6 +234,12 @@ class GateConfig:
             ("drain_timeout_s", self.drain_timeout_s),
         ):
             _check_range(name, seconds, 0.0, 3600.0, open_low=True)
+
+    @property
+    def reserved_connections(self) -> int:
+        """Connections kept for those that have shown the token: a quarter of
+        ``max_connections``, at most 64; none without a token."""
+        return 0 if self.token is None else min(64, self.max_connections // 4)
 
     @property
     def capacity(self) -> int:
@@ -257,6 +271,7 @@ KEYS: dict[str, Callable[[str], Any]] = {
     "queue_depth": int,
     "max_body_bytes": int,
     "max_connections": int,
+    "max_connections_per_address": int,
     "idle_timeout_s": float,
     "head_timeout_s": float,
     "body_timeout_s": float,

@@ -73,8 +73,10 @@ DEFAULT_SAMPLES = 1
 """One playback on the nominal twin unless a request asks for more."""
 DEFAULT_SEED = 0
 
-_INTEGER = re.compile(r"\d+")
-_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+# ASCII digits only: Python's \d and float() also take other scripts' digits (an
+# Arabic-Indic three, a fullwidth five), which the documented plain decimal excludes.
+_INTEGER = re.compile(r"[0-9]+")
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _TRUE = ("1", "true")
 _FALSE = ("0", "false")
 

@@ -219,6 +219,8 @@ class GateServer:
             body_timeout_s=config.body_timeout_s,
             write_timeout_s=config.idle_timeout_s,
             max_connections=config.max_connections,
+            max_connections_per_address=config.max_connections_per_address,
+            reserved_connections=config.reserved_connections,
             drain_timeout_s=config.drain_timeout_s,
         )
         # The wording of refused plans: off the event loop, one at a time. It starts

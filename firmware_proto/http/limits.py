@@ -15,8 +15,10 @@ __all__ = [
     "DEFAULT_HEAD_TIMEOUT_S",
     "DEFAULT_IDLE_TIMEOUT_S",
     "DEFAULT_MAX_CONNECTIONS",
+    "DEFAULT_MAX_CONNECTIONS_PER_ADDRESS",
     "DEFAULT_MAX_DRAIN_BYTES",
     "DEFAULT_MAX_HEAD_BYTES",
+    "DEFAULT_RESERVED_CONNECTIONS",
     "ErrorRenderer",
     "ServeLimits",
 ]
@@ -32,6 +34,12 @@ DEFAULT_BODY_TIMEOUT_S = 10.0
 DEFAULT_MAX_CONNECTIONS = 1024
 """Open connections at once; the next one is answered 503 and closed. Each costs a few
 kB and a file descriptor, not a thread."""
+DEFAULT_MAX_CONNECTIONS_PER_ADDRESS = 256
+"""Open connections from one address at once; beyond, the address's oldest idle one
+makes room, or the new one is answered 503."""
+DEFAULT_RESERVED_CONNECTIONS = 64
+"""Of :data:`DEFAULT_MAX_CONNECTIONS`, kept for connections that have shown the token
+(where the server has one)."""
 DEFAULT_MAX_HEAD_BYTES = 16 * 1024
 """Largest request head (h11's limit): beyond it, 431."""
 DEFAULT_MAX_DRAIN_BYTES = 1 << 20
@@ -61,7 +69,11 @@ class ServeLimits:
         write_timeout_s: a client that has not taken any of the answer for this long
             (the socket's buffers full) is cut off.
         max_connections: see :data:`DEFAULT_MAX_CONNECTIONS`.
-        max_head_bytes: see :data:`DEFAULT_MAX_HEAD_BYTES`.
+        max_connections_per_address: see :data:`DEFAULT_MAX_CONNECTIONS_PER_ADDRESS`.
+        reserved_connections: of ``max_connections``, kept for connections that have
+            shown the token; 0 where there is no token (``< max_connections``).
+        max_head_bytes: see :data:`DEFAULT_MAX_HEAD_BYTES` (a head over it is 431,
+            however it arrives).
         max_drain_bytes: see :data:`DEFAULT_MAX_DRAIN_BYTES`.
         drain_timeout_s: on shutdown, how long requests under way may take.
 
@@ -74,6 +86,8 @@ class ServeLimits:
     body_timeout_s: float = DEFAULT_BODY_TIMEOUT_S
     write_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S
     max_connections: int = DEFAULT_MAX_CONNECTIONS
+    max_connections_per_address: int = DEFAULT_MAX_CONNECTIONS_PER_ADDRESS
+    reserved_connections: int = 0
     max_head_bytes: int = DEFAULT_MAX_HEAD_BYTES
     max_drain_bytes: int = DEFAULT_MAX_DRAIN_BYTES
     drain_timeout_s: float = 30.0
@@ -87,6 +101,16 @@ class ServeLimits:
             "drain_timeout_s",
         ):
             _positive(name, getattr(self, name))
-        for name in ("max_connections", "max_head_bytes", "max_drain_bytes"):
+        for name in (
+            "max_connections",
+            "max_connections_per_address",
+            "max_head_bytes",
+            "max_drain_bytes",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.reserved_connections < self.max_connections:
+            raise ValueError(
+                f"reserved_connections must be in [0, max_connections), got "
+                f"{self.reserved_connections}"
+            )

@@ -14,7 +14,19 @@ open, this protocol bounds (the numbers are :class:`~.limits.ServeLimits`):
 - *Unread bodies.* After an answer given without reading the body (413, 415...), at most
   ``max_drain_bytes`` of it are read and dropped (so the client reads the answer rather
   than a reset), within the same deadlines.
-- *Connections.* Beyond ``max_connections`` open at once, a new one is answered 503.
+- *Connections.* At most ``max_connections`` open at once, ``max_connections_per_address``
+  from one address, and of them at most ``max_connections - reserved_connections`` not
+  yet shown to hold the token (a request on it presented it: the application marks
+  it). A new connection over a limit takes the place of the oldest *idle* connection
+  under that limit that has never completed a request (one that sent nothing, or a
+  slow head), then of the oldest idle one; a connection that holds the token is never
+  evicted for one that has not shown it; with nothing to evict, the new connection is
+  answered 503. One let in over the anonymous limit is served one request and closed,
+  unless that request showed the token. (A slow client that reconnects cannot lock
+  the token's holders out: the token is read only after a head, so the room is kept
+  by evicting, not by refusing.)
+- *Heads.* A request head over ``max_head_bytes`` is 431, whether it arrives in pieces
+  (h11's limit) or whole (counted here).
 - *A client that half-closes* after its request still gets its answer; one that closes
   mid-body gets 400 ``truncated_body``. Either way the request's
   :class:`~firmware_proto.http.connection.ConnectionMark` (in the scope's
@@ -77,6 +89,29 @@ def _refusal(version: str, names: set[bytes]) -> tuple[int, str, str] | None:
         # and must close: a mismatch between the two is how requests are smuggled.
         return 400, "bad_framing", "both Transfer-Encoding and Content-Length given"
     return None
+
+
+def _head_bytes(scope: Any) -> int:
+    """The size of a request's head as sent (request line and header lines)."""
+    line = len(scope["method"]) + len(scope["raw_path"]) + len(scope["query_string"]) + 12
+    return line + sum(len(name) + len(value) + 4 for name, value in scope["headers"])
+
+
+def _evict(candidates: list[GuardedH11Protocol]) -> bool:
+    """Close the first to go among ``candidates``: idle, anonymous, never served before
+    served, oldest first. Whether one was closed."""
+    idle = [c for c in candidates if c._evictable()]
+    if not idle:
+        return False
+    victim = min(idle, key=lambda c: (c._served, c._since))
+    logger.info(
+        "evicting an idle connection from %s (%s) for a new one",
+        victim._mark.address,
+        "served before" if victim._served else "never a whole request",
+    )
+    victim.transport.close()
+    victim.connections.discard(victim)  # its place is free now, before its callbacks run
+    return True
 
 
 class ServeConfig(uvicorn.Config):
@@ -144,16 +179,46 @@ class GuardedH11Protocol(H11Protocol):
         self._drained = 0
         self._peer_eof = False
         self._mark = ConnectionMark()
+        self._since = 0.0
+        self._served = False  # a request on it has been answered
+        self._provisional = False  # let in over the anonymous limit: one request
 
     # -- the connection ----------------------------------------------------------------
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         self._mark.address = self.client[0] if self.client else ""
-        if len(self.connections) > self._limits.max_connections:
-            logger.warning("refusing a connection: %d open", len(self.connections) - 1)
+        self._since = self.loop.time()
+        if not self._make_room():
             self._answer_and_close(503, "too_many_connections", "too many open connections")
             return
         self._wait("idle", self._limits.idle_timeout_s)
+
+    def _make_room(self) -> bool:
+        """Apply the connection limits to this new connection (module docstring):
+        evict what must go; ``False`` when it cannot be let in."""
+        limits = self._limits
+        others = [
+            c for c in self.connections if c is not self and isinstance(c, GuardedH11Protocol)
+        ]
+        address = self._mark.address
+        mine = [c for c in others if c._mark.address == address]
+        if len(mine) >= limits.max_connections_per_address and not _evict(mine):
+            logger.warning("refusing a connection from %s: %d open from it", address, len(mine))
+            return False
+        if len(self.connections) > limits.max_connections and not _evict(others):
+            logger.warning("refusing a connection: %d open", len(self.connections) - 1)
+            return False
+        if limits.reserved_connections:
+            anonymous = [c for c in others if not c._mark.trusted]
+            if len(anonymous) >= limits.max_connections - limits.reserved_connections:
+                self._provisional = not _evict(anonymous)
+        return True
+
+    def _evictable(self) -> bool:
+        """Idle (no request under way), not holding the token, not closing."""
+        cycle = self.cycle
+        idle = cycle is None or cycle.response_complete
+        return idle and not self._mark.trusted and not self.transport.is_closing()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._mark.closed.set()
@@ -190,13 +255,23 @@ class GuardedH11Protocol(H11Protocol):
             )
             extensions[CONNECTION_EXTENSION] = self._mark
             refusal = _refusal(self.scope["http_version"], {name for name, _ in self.headers})
+            if refusal is None and _head_bytes(self.scope) > self._limits.max_head_bytes:
+                refusal = (
+                    431,
+                    "request_header_fields_too_large",
+                    f"request head over {self._limits.max_head_bytes} bytes",
+                )
             if refusal is not None:
                 self._answer_and_close(*refusal)
                 cycle.disconnected = True  # the application's answer, if any, is dropped
                 cycle.message_event.set()
 
     def on_response_complete(self) -> None:
-        self._wait("idle", self._limits.idle_timeout_s)
+        self._served = True
+        if self._provisional and not self._mark.trusted:
+            self.transport.close()  # one request, then its place is given back
+        else:
+            self._wait("idle", self._limits.idle_timeout_s)
         super().on_response_complete()
         if self._peer_eof and not self.transport.is_closing():
             self.transport.close()  # the client said it sends nothing more

@@ -86,6 +86,7 @@ from firmware_proto.http.app import (
 )
 from firmware_proto.http.bindpolicy import HostPolicy, check_bind, is_wildcard
 from firmware_proto.http.errors import StatusError
+from firmware_proto.http.limits import DEFAULT_MAX_CONNECTIONS
 from planner.view.hub import ClientQueue, ViewHub
 
 __all__ = [
@@ -299,7 +300,11 @@ class ViewServer:
             self.app,
             host=config.host,
             port=config.port,
-            limits=ServeLimits(write_timeout_s=config.client_timeout_s),
+            # The operator's token always exists here: room is kept for it.
+            limits=ServeLimits(
+                write_timeout_s=config.client_timeout_s,
+                reserved_connections=min(64, DEFAULT_MAX_CONNECTIONS // 4),
+            ),
             render_error=_render_connection_error,
             server_name="rover-view",
             thread_name="view-http",

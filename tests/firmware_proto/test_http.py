@@ -12,7 +12,13 @@ from typing import Any
 
 import pytest
 
-from firmware_proto.http import HttpService, RequestBodyError, ServeLimits, read_body
+from firmware_proto.http import (
+    ClientGoneError,
+    HttpService,
+    RequestBodyError,
+    ServeLimits,
+    read_body,
+)
 from firmware_proto.http.protocol import classify_protocol_error
 from firmware_proto.model.schemacheck import MAX_DEPTH, json_depth, schema_violations
 
@@ -131,13 +137,52 @@ def test_bodies_heads_and_framing(service: HttpService) -> None:
     assert _exchange(address, b"") == b""  # silent: closed after the idle timeout
 
 
-def test_the_connection_cap_answers_503(service: HttpService) -> None:
-    with (
-        socket.create_connection(service.address, timeout=TIMEOUT_S),
-        socket.create_connection(service.address, timeout=TIMEOUT_S),
-    ):
-        third = _exchange(service.address, b"")
-    assert third.startswith(b"HTTP/1.1 503 ") and b'"too_many_connections"' in third
+async def _patient(scope: Any, receive: Any, send: Any) -> None:
+    """Reads the body with a long deadline: a connection mid-body is busy."""
+    if scope["type"] != "http":
+        return
+    try:
+        body = await read_body(receive, limit_bytes=10, timeout_s=TIMEOUT_S)
+    except ClientGoneError:
+        return
+    await send({"type": "http.response.start", "status": 200, "headers": []})
+    await send({"type": "http.response.body", "body": body})
+
+
+def test_the_connection_cap_evicts_an_idle_connection_else_answers_503() -> None:
+    limits = ServeLimits(idle_timeout_s=5.0, max_connections=2, max_connections_per_address=2)
+    with HttpService(
+        _patient,
+        host="127.0.0.1",
+        port=0,
+        limits=limits,
+        render_error=_render,
+        server_name="probe",
+        thread_name="probe-http",
+    ) as served:
+        address = served.address
+        # Two idle connections: a third takes the oldest one's place.
+        with (
+            socket.create_connection(address, timeout=TIMEOUT_S) as oldest,
+            socket.create_connection(address, timeout=TIMEOUT_S),
+        ):
+            third = _exchange(address, b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 1\r\n\r\nz")
+            assert third.startswith(b"HTTP/1.1 200 ")
+            assert oldest.recv(1) == b""  # closed for it
+        # Two connections whose requests wait in the application for their bodies (the
+        # 100 Continue says so): nothing to evict, 503.
+        head = b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\nExpect: 100-continue\r\n\r\n"
+        with (
+            socket.create_connection(address, timeout=TIMEOUT_S) as one,
+            socket.create_connection(address, timeout=TIMEOUT_S) as two,
+        ):
+            for busy in (one, two):
+                busy.sendall(head)
+                assert busy.recv(64).startswith(b"HTTP/1.1 100 ")
+            with socket.create_connection(address, timeout=TIMEOUT_S) as probe:
+                probe.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
+                answer = probe.recv(65536)
+        assert answer.startswith(b"HTTP/1.1 503 ") and b'"too_many_connections"' in answer
 
 
 def test_close_is_idempotent_and_refuses_new_connections() -> None:

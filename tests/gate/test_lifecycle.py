@@ -103,14 +103,24 @@ def test_draining_answers_503_then_close_refuses_new_connections(
     gate.close()  # idempotent
 
 
-def test_connection_limit(make_gate: Callable[..., GateServer]) -> None:
-    gate = make_gate(max_connections=1)
+def test_connection_limit(make_gate: Callable[..., GateServer], held: HeldPool) -> None:
+    """At the limit, a new connection takes the place of an idle one; with none idle
+    (the one open is waiting for its verdict), it is answered 503."""
+    gate = make_gate(max_connections=1, worker_pool=held, workers=1)
     with Client(gate.address) as first:
-        assert first.request("GET", "/health").status == 200
-        second = call(gate.address, "GET", "/health")
-        assert second.status == 503
-        assert second.json()["error"] == "too_many_connections"
-        assert first.request("GET", "/health").status == 200
+        assert first.request("GET", "/health").status == 200  # then idle
+        assert call(gate.address, "GET", "/health").status == 200  # in its place
+        assert first.conn.sock is not None
+        first.conn.sock.settimeout(WAIT_S)
+        assert first.conn.sock.recv(1) == b""  # closed by the server
+    thread, busy = _post_in_thread(gate.address)
+    assert held.entered.wait(WAIT_S)
+    second = call(gate.address, "GET", "/health")
+    assert second.status == 503
+    assert second.json()["error"] == "too_many_connections"
+    held.release.set()
+    thread.join(WAIT_S)
+    assert busy[0].status == 200
 
 
 def test_a_dead_worker_process_is_replaced(make_gate: Callable[..., GateServer]) -> None:

@@ -119,12 +119,16 @@ def _latch_with_replan(server: ViewServer, orchestrator: Any) -> None:
 # -- STOP never waits ---------------------------------------------------------------------
 class _Flood:
     """``conns`` connections, each with ``per_conn`` ``GET /state`` pipelined, and a
-    thread that reads their answers and counts the whole ones."""
+    thread that reads their answers and counts the whole ones. They come from three
+    addresses (127.0.0.2-4), each under the server's limit of connections from one."""
 
     def __init__(self, server: ViewServer, conns: int, per_conn: int) -> None:
         host, port = server.address
         self.socks = [
-            socket.create_connection((host, port), timeout=TIMEOUT_S) for _ in range(conns)
+            socket.create_connection(
+                (host, port), timeout=TIMEOUT_S, source_address=(f"127.0.0.{2 + i % 3}", 0)
+            )
+            for i in range(conns)
         ]
         self.expected = conns * per_conn
         self.answered = 0
