@@ -16,11 +16,8 @@ Everything this package raises on purpose derives from :class:`GateError`::
           |         |                ``(json_pointer, message)`` pairs
           |         +-- GoalRangeError  400: a goal coordinate beyond what the twin can
           |                             measure (code ``goal_out_of_range``)
-          +-- UnauthorizedError      401: missing or wrong bearer token
           +-- NotFoundError          404: unknown path or map
-          +-- MethodNotAllowedError  405: ``allow`` lists the methods the path takes
           +-- RequestTimeoutError    408: the body did not arrive whole in time
-          +-- MethodNotImplementedError  501: a method the gate does not know
           +-- LengthRequiredError    411: a body without Content-Length or chunked framing
           +-- PayloadTooLargeError   413: the body exceeds the documented limit
           +-- UnsupportedMediaError  415: the body is not ``application/json``
@@ -30,8 +27,9 @@ Everything this package raises on purpose derives from :class:`GateError`::
                                      server is shutting down; ``retry_after_s`` says when
                                      to try again
 
-The shared application layer (:mod:`firmware_proto.http.app`) answers 401, 404, 405,
-421 and 501 itself with :class:`firmware_proto.http.errors.StatusError`, which the gate
+The shared application layer (:mod:`firmware_proto.http.app`) answers 401 (token), 404
+(path), 405 (method; ``allow`` lists the path's), 421 (Host) and 501 (a method HTTP does
+not define) itself with :class:`firmware_proto.http.errors.StatusError`, which the gate
 words as its own. Errors from the twin (:mod:`emulator.errors`) and the plan schema
 (:class:`firmware_proto.errors.PlanError`) are translated at the boundary, chained with
 ``raise ... from``.
@@ -51,8 +49,6 @@ __all__ = [
     "GoalRangeError",
     "HttpError",
     "LengthRequiredError",
-    "MethodNotAllowedError",
-    "MethodNotImplementedError",
     "NotFoundError",
     "OptionError",
     "OverloadedError",
@@ -60,7 +56,6 @@ __all__ = [
     "PlanSchemaError",
     "RequestTimeoutError",
     "TooManyRequestsError",
-    "UnauthorizedError",
     "UnsupportedMediaError",
 ]
 
@@ -182,37 +177,11 @@ class GoalRangeError(PlanSchemaError):
         self.args = (self.message,)
 
 
-class UnauthorizedError(HttpError):
-    """401: the bearer token is missing or wrong."""
-
-    status = 401
-    default_code = "unauthorized"
-
-
 class NotFoundError(HttpError):
     """404: no such path or map."""
 
     status = 404
     default_code = "not_found"
-
-
-class MethodNotAllowedError(HttpError):
-    """405: the path exists but does not take this method.
-
-    Attributes:
-        allow: the methods the path takes, sorted.
-    """
-
-    status = 405
-    default_code = "method_not_allowed"
-
-    def __init__(self, message: str, allow: list[str]) -> None:
-        self.allow = sorted(allow)
-        super().__init__(message, headers={"Allow": ", ".join(self.allow)})
-
-    def fields(self) -> dict[str, Any]:
-        """``allow``: the methods the path takes."""
-        return super().fields() | {"allow": self.allow}
 
 
 class RequestTimeoutError(HttpError):
@@ -241,13 +210,6 @@ class UnsupportedMediaError(HttpError):
 
     status = 415
     default_code = "unsupported_media_type"
-
-
-class MethodNotImplementedError(HttpError):
-    """501: a request method the gate does not know (``BREW``, ``TRACE``...)."""
-
-    status = 501
-    default_code = "not_implemented"
 
 
 class TooManyRequestsError(HttpError):

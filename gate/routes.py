@@ -1,18 +1,15 @@
 """The gate's URL space: one table read by the server (dispatch) and by the OpenAPI
 builder (documentation), so that the two cannot drift apart.
 
-A route is a path template (``/maps/{name}``: one segment per ``{param}``), the methods
-it takes, and the name of the operation. :func:`match` finds the route of a path or
-says which methods it would take.
+A route is a path template (``/maps/{name}``: one segment per ``{param}``, as
+Starlette's router reads it), the methods it takes, and the name of the operation.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
-from urllib.parse import unquote
 
-__all__ = ["ROUTES", "Route", "match"]
+__all__ = ["ROUTES", "Route"]
 
 
 @dataclass(frozen=True)
@@ -32,15 +29,6 @@ class Route:
     summary: str
 
     @property
-    def pattern(self) -> re.Pattern[str]:
-        """The template as an anchored regular expression."""
-        parts = re.split(r"(\{[a-z_]+\})", self.template)
-        regex = "".join(
-            f"(?P<{p[1:-1]}>[^/]+)" if p.startswith("{") else re.escape(p) for p in parts
-        )
-        return re.compile(f"^{regex}$")
-
-    @property
     def allowed(self) -> tuple[str, ...]:
         """Methods answered on this path, sorted (``GET`` brings ``HEAD``)."""
         extra = ("HEAD",) if "GET" in self.methods else ()
@@ -55,14 +43,3 @@ ROUTES: tuple[Route, ...] = (
     Route("/validate_plan", ("POST",), "validate_plan", "Play a plan on the twin; a verdict"),
 )
 """Every route the gate serves."""
-
-_COMPILED = tuple((route, route.pattern) for route in ROUTES)
-
-
-def match(path: str) -> tuple[Route, dict[str, str]] | None:
-    """The route of ``path`` (no query string) and its decoded parameters, or ``None``."""
-    for route, pattern in _COMPILED:
-        m = pattern.match(path)
-        if m is not None:
-            return route, {k: unquote(v, errors="strict") for k, v in m.groupdict().items()}
-    return None
