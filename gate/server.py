@@ -61,7 +61,6 @@ from starlette.responses import Response
 from starlette.routing import Route
 from starlette.types import Scope
 
-from firmware_proto.errors import PlanError
 from firmware_proto.http import (
     ClientGoneError,
     HttpService,
@@ -69,7 +68,7 @@ from firmware_proto.http import (
     ServeLimits,
     read_body,
 )
-from firmware_proto.http.app import DEFAULT_SECURITY_HEADERS, AccessPolicy, build_app
+from firmware_proto.http.app import API_HEADERS, AccessPolicy, build_app
 from firmware_proto.http.bindpolicy import HostPolicy, is_wildcard
 from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
 from firmware_proto.http.errors import StatusError
@@ -176,9 +175,9 @@ class GateServer:
         if is_wildcard(config.host):
             extra.append(socket.gethostname())
         self.app = build_app(
-            [
+            [  # validate_plan first: the router tries the routes in order
                 Route(r.template, self._endpoint(r.operation), methods=list(r.methods))
-                for r in routes.ROUTES
+                for r in sorted(routes.ROUTES, key=lambda r: r.operation != "validate_plan")
             ],
             policy=AccessPolicy(
                 hosts=HostPolicy.for_bind(config.host, extra),
@@ -188,7 +187,7 @@ class GateServer:
             ),
             error_body=_error_body,
             on_error=self._on_error,
-            headers=DEFAULT_SECURITY_HEADERS,
+            headers=API_HEADERS,
             closing=self._draining.is_set,
         )
 
@@ -369,10 +368,7 @@ class GateServer:
         document = parse_json(body)
         if not plan_is_valid(document):  # decided by the compiled check, on the loop
             raise await self._schema_error(document, len(body))
-        try:
-            plan = Plan.from_dict(document)
-        except PlanError as exc:  # pragma: no cover - the fast check agrees (tested)
-            raise PlanSchemaError(exc.violations) from exc
+        plan = Plan.from_dict(document, checked=True)
         query = bytes(request.scope["query_string"]).decode("latin-1")
         try:
             options = ValidateOptions.from_query(query)
@@ -383,7 +379,8 @@ class GateServer:
             self.admission.check_request(cost, self.validator.settings.dt_s)
         except OptionError as exc:
             raise BadRequestError(str(exc), code="invalid_option", parameter=exc.parameter) from exc
-        client = request.client.host if request.client is not None else ""
+        peer = request.scope.get("client")
+        client = peer[0] if peer else ""
         ticket = self.admission.admit(client, cost)
         return 200, await self._validate(job, ticket, request), {}
 
@@ -559,7 +556,6 @@ class _Calls:
         self.futures: list[Future[Any]] = []
         self._open = 1  # the validation itself, until cancel_rest
         self._lock = threading.Lock()
-        self._gone: asyncio.Task[None] | None = None
 
     def submit(self, make: Callable[[], Future[Any]]) -> Future[Any]:
         """Submit one call (``make`` submits it).
@@ -588,12 +584,17 @@ class _Calls:
 
     async def wait_one(self, future: Future[Any], deadline: float, request: Request) -> Any:
         """``future``'s result, or an error once ``deadline`` passes (503 ``timeout``)
-        or the client leaves (:class:`ClientGoneError`)."""
-        if self._gone is None:
-            self._gone = asyncio.ensure_future(_client_gone(request))
+        or the client leaves (:class:`ClientGoneError`): it has closed its connection,
+        or its end of it (the connection layer's mark says so; an HTTP client that
+        waits for an answer does not close its end)."""
         waiter = asyncio.wrap_future(future)
+        waits: set[asyncio.Future[Any]] = {waiter}
+        mark = request.scope.get("extensions", {}).get(CONNECTION_EXTENSION)
+        gone = mark.when_closed() if isinstance(mark, ConnectionMark) else None
+        if gone is not None:
+            waits.add(gone)
         done, _ = await asyncio.wait(
-            {waiter, self._gone},
+            waits,
             timeout=max(0.0, deadline - time.monotonic()),
             return_when=asyncio.FIRST_COMPLETED,
         )
@@ -619,7 +620,7 @@ class _Calls:
         waiter.cancel()
         with self.server._count_lock:
             self.server.cancelled += 1
-        if self._gone in done:
+        if gone is not None and gone in done:
             logger.info("client left: cancelling its validation")
             raise ClientGoneError("the client left before its verdict")
         raise OverloadedError(
@@ -629,34 +630,11 @@ class _Calls:
         )
 
     def cancel_rest(self) -> None:
-        """Cancel every call not ended (each ends once its worker has stopped it), and
-        stop watching the client."""
-        if self._gone is not None:
-            self._gone.cancel()
+        """Cancel every call not ended (each ends once its worker has stopped it)."""
         for future in self.futures:
             if not future.done():
                 self.server._cancel(future)
         self._ended(None)  # the validation's own share of the count
-
-
-async def _client_gone(request: Request) -> None:
-    """Return once the client has closed its connection, or its end of it (its body
-    has been read): an HTTP client that waits for an answer does not close its end, so
-    the validation it asked for is left."""
-    mark = request.scope.get("extensions", {}).get(CONNECTION_EXTENSION)
-
-    async def disconnected() -> None:
-        while (await request.receive())["type"] != "http.disconnect":
-            pass
-
-    waits: list[asyncio.Future[Any]] = [asyncio.ensure_future(disconnected())]
-    if isinstance(mark, ConnectionMark):
-        waits.append(asyncio.ensure_future(mark.closed.wait()))
-    try:
-        await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for wait in waits:
-            wait.cancel()
 
 
 def _clip(text: str) -> str:

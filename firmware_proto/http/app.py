@@ -56,6 +56,7 @@ from firmware_proto.http.connection import CONNECTION_EXTENSION, ConnectionMark
 from firmware_proto.http.errors import ClientGoneError, StatusError
 
 __all__ = [
+    "API_HEADERS",
     "DEFAULT_SECURITY_HEADERS",
     "KNOWN_METHODS",
     "AccessPolicy",
@@ -84,6 +85,14 @@ DEFAULT_SECURITY_HEADERS: tuple[tuple[str, str], ...] = (
 )
 """Added to every answer that does not set the header itself: no page of another
 origin may frame it, sniff it or read it."""
+
+API_HEADERS: tuple[tuple[str, str], ...] = (
+    ("Content-Security-Policy", "default-src 'none'; frame-ancestors 'none'"),
+    ("X-Content-Type-Options", "nosniff"),
+    ("Cache-Control", "no-store"),
+)
+"""The same, shorter, for a JSON API that no browser renders (each header costs h11's
+checks on every answer)."""
 
 
 ErrorBody = Callable[[StatusError], tuple[str, bytes]]

@@ -17,8 +17,10 @@ live view may import (the planner may not import the gate).
 
 from __future__ import annotations
 
+import functools
 import hmac
 import ipaddress
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -130,6 +132,10 @@ def token_matches(given: str | None, token: str) -> bool:
     return hmac.compare_digest(given.encode("utf-8", "surrogateescape"), token.encode())
 
 
+_NAME = re.compile(r"[a-z0-9._-]+")
+
+
+@functools.lru_cache(maxsize=256)
 def host_name(header: str | None) -> str | None:
     """The name or address of a ``Host`` header value, lower case, without the port,
     the brackets of an IPv6 literal or a trailing dot; ``None`` when it is missing or
@@ -146,7 +152,7 @@ def host_name(header: str | None) -> str | None:
     if port and not (port.isascii() and port.isdigit()):
         return None
     name = name.rstrip(".")
-    if not name or not all(c.isascii() and (c.isalnum() or c in "-._") for c in name):
+    if not name or not _NAME.fullmatch(name):
         return None
     return name
 
@@ -186,7 +192,12 @@ class HostPolicy:
         return cls(frozenset(names | {host.lower()}))
 
     def allows(self, header: str | None) -> bool:
-        """Whether a request's ``Host`` header names this server."""
+        """Whether a request's ``Host`` header names this server (the answers to the
+        headers seen last are kept: a server sees few different ones)."""
+        return _allows(self, header)
+
+    def decide(self, header: str | None) -> bool:
+        """:meth:`allows`, worked out."""
         name = host_name(header)
         if name is None:
             return False
@@ -197,3 +208,8 @@ class HostPolicy:
                 "127.0.0.1" in self.names and ipaddress.ip_address(name).is_loopback
             )
         return False
+
+
+@functools.lru_cache(maxsize=256)
+def _allows(policy: HostPolicy, header: str | None) -> bool:
+    return policy.decide(header)

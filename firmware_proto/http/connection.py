@@ -25,11 +25,28 @@ class ConnectionMark:
         address: the peer's address.
         trusted: a request on it presented the token (the application sets it; the
             connection layer never evicts a trusted connection for an anonymous one).
-        closed: set once the peer has closed its end (or the connection is lost): a
-            request still waiting for its answer then has nobody, or only a half-closed
-            client, to answer; the application may stop its work (the gate does).
+        closed: the peer has closed its end (or the connection is lost): a request still
+            waiting for its answer then has nobody, or only a half-closed client, to
+            answer; the application may stop its work (the gate does:
+            :meth:`when_closed`).
     """
 
     address: str = ""
     trusted: bool = False
-    closed: asyncio.Event = field(default_factory=asyncio.Event)
+    closed: bool = False
+    _waiter: asyncio.Future[None] | None = field(default=None, repr=False)
+
+    def close(self) -> None:
+        """The connection layer: the peer has closed (idempotent)."""
+        self.closed = True
+        if self._waiter is not None and not self._waiter.done():
+            self._waiter.set_result(None)
+
+    def when_closed(self) -> asyncio.Future[None]:
+        """A future done once the peer has closed (for :func:`asyncio.wait`: no task to
+        start, nothing to cancel). On the event loop."""
+        if self._waiter is None:
+            self._waiter = asyncio.get_running_loop().create_future()
+            if self.closed:
+                self._waiter.set_result(None)
+        return self._waiter

@@ -221,7 +221,7 @@ class GuardedH11Protocol(H11Protocol):
         return idle and not self._mark.trusted and not self.transport.is_closing()
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._mark.closed.set()
+        self._mark.close()
         self._cancel_deadline()
         if self._write_timer is not None:
             self._write_timer.cancel()
@@ -277,7 +277,7 @@ class GuardedH11Protocol(H11Protocol):
             self.transport.close()  # the client said it sends nothing more
 
     def eof_received(self) -> bool | None:  # type: ignore[override]  # asyncio allows a bool
-        self._mark.closed.set()
+        self._mark.close()
         cycle = self.cycle
         if cycle is None or cycle.response_complete:
             return None  # nothing under way: close
