@@ -1,8 +1,9 @@
 """Simulation gate: validation speed, collision checks, step-size accuracy, HTTP rates.
 
 Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S] [--before DIR]``.
-``--before DIR`` also measures the gate of a source tree of commit b4a351e (the last with
-the hand-rolled HTTP server; ``git archive b4a351e | tar -x -C DIR``) in the same run,
+``--before DIR`` also measures the gate of another source tree (``git archive COMMIT | tar
+-x -C DIR``; the rows are named after DIR's name: b4a351e was the last commit with the
+hand-rolled HTTP server) in the same run,
 in tables 1, 4 and 5. Prints five tables:
 
 1. *12-step plan, 10 m of driving and four turns* on scn01 (through a traction region):
@@ -160,7 +161,7 @@ def bench_plan(rover: RoverDescription, repeat: int, before: str | None = None) 
     if before:
         with before_gate(before) as served:
             sim, walls = _http_walls(served, payload, repeat)
-        rows.append((f"over HTTP before ({BEFORE_COMMIT})", DEFAULT_DT_S, sim, walls))
+        rows.append((f"over HTTP before ({Path(before).name})", DEFAULT_DT_S, sim, walls))
     with gate_process({}) as served:
         sim, walls = _http_walls(served, payload, repeat)
     rows.append(("gate over HTTP, worker processes", DEFAULT_DT_S, sim, walls))
@@ -537,14 +538,12 @@ def bench_http(seconds: float, before: str | None, rounds: int = 4) -> None:
     shared machine falls on all of them alike."""
     cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
     if before:
-        cases.append(
-            (f"gate before ({BEFORE_COMMIT}: stdlib, threads)", lambda: before_gate(before))
-        )
+        cases.append((f"gate before ({Path(before).name})", lambda: before_gate(before)))
     cases.append(("gate after (uvicorn + h11), processes", lambda: gate_process({})))
     if before:
         cases.append(
             (
-                f"gate before ({BEFORE_COMMIT}), worker threads",
+                f"gate before ({Path(before).name}), worker threads",
                 lambda: before_gate(before, "thread"),
             )
         )
@@ -625,7 +624,7 @@ def bench_pools(
     query = "?map=scn01"
     cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
     if before:
-        cases.append((f"before ({BEFORE_COMMIT}), processes", lambda: before_gate(before)))
+        cases.append((f"before ({Path(before).name}), processes", lambda: before_gate(before)))
     cases += [
         ("worker processes (as shipped)", lambda: gate_process({})),
         ("worker threads", lambda: gate_process({}, pool="thread")),
