@@ -4,7 +4,7 @@ Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S] [--before DIR]
 ``--before DIR`` also measures the gate of another source tree (``git archive COMMIT | tar
 -x -C DIR``; the rows are named after DIR's name: b4a351e was the last commit with the
 hand-rolled HTTP server) in the same run,
-in tables 1, 4 and 5. Prints five tables:
+in tables 1, 4 and 5. Prints six tables (``--table N``, repeatable: only those):
 
 1. *12-step plan, 10 m of driving and four turns* on scn01 (through a traction region):
    wall time p50/p99 and the factor over real time, for the twin alone
@@ -775,6 +775,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--http-only", action="store_true", help="only the HTTP tables (4-6)")
     parser.add_argument(
+        "--table",
+        type=int,
+        action="append",
+        choices=range(1, 7),
+        metavar="N",
+        help="only table N (1-6; repeatable; default all)",
+    )
+    parser.add_argument(
         "--rounds", type=int, default=4, help="interleaved rounds of tables 4 and 5 (default 4)"
     )
     parser.add_argument(
@@ -790,19 +798,24 @@ def main(argv: list[str] | None = None) -> None:
         f"{platform.machine()}, {os.cpu_count()} CPUs"
     )
     print()
-    if not args.http_only:
-        bench_plan(rover, max(3, args.repeat), args.before)
-        print()
-        bench_collision(rover)
-        print()
-        bench_step_size(rover, max(1, args.plans))
-        print()
+    tables = set(args.table or ((4, 5, 6) if args.http_only else range(1, 7)))
     rounds = max(1, args.rounds)
-    bench_http(args.seconds, args.before, rounds)
-    print()
-    bench_pools(rover, 2 * args.seconds, args.before, rounds)  # slow requests: longer
-    print()
-    bench_handoff(rover, 400)
+    benches: list[tuple[int, Callable[[], None]]] = [
+        (1, lambda: bench_plan(rover, max(3, args.repeat), args.before)),
+        (2, lambda: bench_collision(rover)),
+        (3, lambda: bench_step_size(rover, max(1, args.plans))),
+        (4, lambda: bench_http(args.seconds, args.before, rounds)),
+        # slow requests: longer
+        (5, lambda: bench_pools(rover, 2 * args.seconds, args.before, rounds)),
+        (6, lambda: bench_handoff(rover, 400)),
+    ]
+    printed = False
+    for number, bench in benches:
+        if number in tables:
+            if printed:
+                print()
+            bench()
+            printed = True
 
 
 if __name__ == "__main__":
