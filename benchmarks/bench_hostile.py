@@ -7,10 +7,12 @@ archive <commit> | tar -x -C DIR``), its servers started with ``PYTHONPATH=DIR``
 1. **The view's STOP beside a flood of ``GET /state``** (``--view``): a view server in
    a subprocess, its hub holding full trails (5,000 points each) and fed odometry at
    50 Hz as a mission would; a flood subprocess keeps ``N`` keep-alive connections
-   each sending ``GET /state`` in rounds of 5; this process sends ``POST /stop`` on a
-   fresh connection every 20 ms and times (a) the answer, (b) the moment the STOP
-   reached the mission (``on_stop``'s call, on the same monotonic clock): what stops
-   the wheels. Idle, 100 x 5 and 300 x 5.
+   from 127.0.0.2 each sending ``GET /state`` in rounds of 5; this process sends
+   ``POST /stop`` from 127.0.0.1 on a fresh connection every 20 ms and times (a) the
+   answer, (b) the moment the STOP reached the mission (``on_stop``'s call, on the
+   same monotonic clock): what stops the wheels. Idle, 100 x 5 and 300 x 5 (over the
+   per-address limit, 256: the flood's own newcomers wait or are refused). A STOP
+   refused (503, or reset) counts in the ``refused`` column.
 2. **An ordinary plan beside a costly one** (``--gate``): a gate with two worker
    processes; client A (source address 127.0.0.2) asks for ``samples=2000`` on the
    slowest valid plan (refused at once: over what one request may take), then keeps
@@ -53,6 +55,8 @@ from benchmarks.load import BusyLoad
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PROBE_PERIOD_S = 0.02
+FLOOD_SOURCE = "127.0.0.2"
+"""The flood's source address (the STOPs come from 127.0.0.1)."""
 TRAIL_POINTS = 5000
 
 
@@ -102,8 +106,8 @@ def _serve_view(trail_points: int) -> int:
 
 
 async def _flood(host: str, port: int, conns: int, per_conn: int) -> None:
-    """``conns`` keep-alive connections, each sending ``GET /state`` ``per_conn`` times
-    in a row, in rounds until stdin closes; prints ``FLOOD`` once the first round is
+    """``conns`` keep-alive connections from :data:`FLOOD_SOURCE`, each sending ``GET
+    /state`` ``per_conn`` times in a row, in rounds until stdin closes; prints ``FLOOD`` once the first round is
     under way."""
     request = f"GET /state HTTP/1.1\r\nHost: {host}:{port}\r\n\r\n".encode()
     stop = asyncio.Event()
@@ -113,7 +117,9 @@ async def _flood(host: str, port: int, conns: int, per_conn: int) -> None:
     async def one() -> None:
         while not stop.is_set():
             try:
-                reader, writer = await asyncio.open_connection(host, port)
+                reader, writer = await asyncio.open_connection(
+                    host, port, local_addr=(FLOOD_SOURCE, 0)
+                )
             except OSError:
                 await asyncio.sleep(0.05)
                 continue
@@ -173,26 +179,30 @@ def _child(
             proc.wait(10)
 
 
-def _post_stop(host: str, port: int) -> tuple[float, float | None]:
+def _post_stop(host: str, port: int) -> tuple[float, float | None] | None:
     """One STOP on a fresh connection: (seconds to the whole answer, seconds to
-    ``on_stop``'s call or ``None``)."""
+    ``on_stop``'s call or ``None``); ``None`` when it was refused (not 202, or reset)."""
     body = (
         f"POST /stop HTTP/1.1\r\nHost: {host}:{port}\r\nX-Rover-View: 1\r\n"
         "Content-Length: 0\r\nConnection: close\r\n\r\n"
     ).encode()
     t0 = time.monotonic()
-    with socket.create_connection((host, port), timeout=120) as sock:
-        sock.sendall(body)
-        chunks = []
-        while chunk := sock.recv(65536):
-            chunks.append(chunk)
+    chunks = []
+    try:
+        with socket.create_connection((host, port), timeout=120) as sock:
+            sock.sendall(body)
+            while chunk := sock.recv(65536):
+                chunks.append(chunk)
+    except ConnectionResetError:
+        return None
     t1 = time.monotonic()
     answer = b"".join(chunks)
     head, _, rest = answer.partition(b"\r\n\r\n")
+    if b" 202 " not in head.split(b"\r\n", 1)[0]:
+        return None
     reached = None
-    if b" 202 " in head.split(b"\r\n", 1)[0]:
-        with contextlib.suppress(ValueError, KeyError, TypeError):
-            reached = float(json.loads(rest)["stop"]) - t0
+    with contextlib.suppress(ValueError, KeyError, TypeError):
+        reached = float(json.loads(rest)["stop"]) - t0
     return t1 - t0, reached
 
 
@@ -200,19 +210,25 @@ CASE_S = 60.0
 """Longest a case probes (a tree where STOP waits seconds gives fewer probes)."""
 
 
-def _probe_stops(host: str, port: int, count: int) -> tuple[list[float], list[float]]:
+def _probe_stops(host: str, port: int, count: int) -> tuple[list[float], list[float], int]:
+    """``count`` STOPs (at most :data:`CASE_S`): the answers' and the arrivals'
+    seconds, and how many were refused."""
     answers: list[float] = []
     reached: list[float] = []
+    refused = 0
     end = time.monotonic() + CASE_S
     for _ in range(count):
         if time.monotonic() > end:
             break
-        answer, at = _post_stop(host, port)
-        answers.append(answer)
-        if at is not None:
-            reached.append(at)
+        timed = _post_stop(host, port)
+        if timed is None:
+            refused += 1
+        else:
+            answers.append(timed[0])
+            if timed[1] is not None:
+                reached.append(timed[1])
         time.sleep(PROBE_PERIOD_S)
-    return answers, reached
+    return answers, reached, refused
 
 
 def view_table(
@@ -230,12 +246,12 @@ def view_table(
             for conns, per_conn in [(0, 0), *floods]:
                 case = "idle" if conns == 0 else f"beside {conns} x {per_conn} GET /state"
                 if conns == 0:
-                    answers, reached = _probe_stops(host, port, probes)
+                    answers, reached, refused = _probe_stops(host, port, probes)
                 else:
                     flood = ["--flood", host, str(port), str(conns), str(per_conn)]
                     with _child(flood, None, "FLOOD"):
-                        answers, reached = _probe_stops(host, port, probes)
-                rows.append((f"{label}: answer, {case}", summary(answers)))
+                        answers, reached, refused = _probe_stops(host, port, probes)
+                rows.append((f"{label}: answer, {case}, {refused} refused", summary(answers)))
                 if reached:
                     rows.append((f"{label}: STOP reached the mission, {case}", summary(reached)))
     return table(

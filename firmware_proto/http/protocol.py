@@ -19,7 +19,8 @@ open, this protocol bounds (the numbers are :class:`~.limits.ServeLimits`):
   yet shown to hold the token (a request on it presented it: the application marks
   it). A new connection over a limit takes the place of the oldest *idle* connection
   under that limit that has never completed a request (one that sent nothing, or a
-  slow head), then of the oldest idle one; a connection that holds the token is never
+  slow head), then of the oldest idle one; a connection whose request waits unread
+  (accepted while the event loop was busy) is not idle; a connection that holds the token is never
   evicted for one that has not shown it; with nothing to evict, the new connection is
   answered 503. One let in over the anonymous limit is served one request and closed,
   unless that request showed the token. (A slow client that reconnects cannot lock
@@ -44,10 +45,13 @@ it a protocol class. The version range in ``pyproject.toml`` is the one tested.
 
 from __future__ import annotations
 
+import array
 import asyncio
+import fcntl
 import logging
 import math
 import sys
+import termios
 from http import HTTPStatus
 from typing import Any, cast
 
@@ -95,6 +99,21 @@ def _head_bytes(scope: Any) -> int:
     """The size of a request's head as sent (request line and header lines)."""
     line = len(scope["method"]) + len(scope["raw_path"]) + len(scope["query_string"]) + 12
     return line + sum(len(name) + len(value) + 4 for name, value in scope["headers"])
+
+
+def _unread_bytes(transport: asyncio.BaseTransport) -> int:
+    """Bytes the client sent that the server has not read yet (``FIONREAD``): a
+    connection accepted while the event loop was busy may hold a whole request that
+    no callback has seen. 0 where the socket cannot say."""
+    sock = transport.get_extra_info("socket")
+    if sock is None:
+        return 0
+    count = array.array("i", [0])
+    try:
+        fcntl.ioctl(sock.fileno(), termios.FIONREAD, count)
+    except OSError:
+        return 0
+    return count[0]
 
 
 def _evict(candidates: list[GuardedH11Protocol]) -> bool:
@@ -197,28 +216,41 @@ class GuardedH11Protocol(H11Protocol):
         """Apply the connection limits to this new connection (module docstring):
         evict what must go; ``False`` when it cannot be let in."""
         limits = self._limits
-        others = [
-            c for c in self.connections if c is not self and isinstance(c, GuardedH11Protocol)
-        ]
         address = self._mark.address
-        mine = [c for c in others if c._mark.address == address]
+        mine = [c for c in self._others() if c._mark.address == address]
         if len(mine) >= limits.max_connections_per_address and not _evict(mine):
             logger.warning("refusing a connection from %s: %d open from it", address, len(mine))
             return False
-        if len(self.connections) > limits.max_connections and not _evict(others):
-            logger.warning("refusing a connection: %d open", len(self.connections) - 1)
+        others = self._others()  # without the one evicted above
+        if len(others) >= limits.max_connections and not _evict(others):
+            logger.warning("refusing a connection: %d open", len(others))
             return False
         if limits.reserved_connections:
-            anonymous = [c for c in others if not c._mark.trusted]
+            anonymous = [c for c in self._others() if not c._mark.trusted]
             if len(anonymous) >= limits.max_connections - limits.reserved_connections:
                 self._provisional = not _evict(anonymous)
         return True
 
+    def _others(self) -> list[GuardedH11Protocol]:
+        """The server's other open connections (one closed already waits only for its
+        callback: it holds no place)."""
+        return [
+            c
+            for c in self.connections
+            if c is not self and isinstance(c, GuardedH11Protocol) and not c.transport.is_closing()
+        ]
+
     def _evictable(self) -> bool:
-        """Idle (no request under way), not holding the token, not closing."""
+        """Idle (no request under way, and none waiting unread), not holding the token,
+        not closing."""
         cycle = self.cycle
         idle = cycle is None or cycle.response_complete
-        return idle and not self._mark.trusted and not self.transport.is_closing()
+        return (
+            idle
+            and not self._mark.trusted
+            and not self.transport.is_closing()
+            and not _unread_bytes(self.transport)
+        )
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._mark.close()

@@ -7,6 +7,7 @@ import json
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -183,6 +184,72 @@ def test_the_connection_cap_evicts_an_idle_connection_else_answers_503() -> None
                 probe.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
                 answer = probe.recv(65536)
         assert answer.startswith(b"HTTP/1.1 503 ") and b'"too_many_connections"' in answer
+
+
+def _read_answer(sock: socket.socket) -> bytes:
+    """One answer with a Content-Length body (b"" when the server closed first)."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        chunk = sock.recv(65536)
+        if not chunk:
+            return data
+        data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    length = next(
+        int(line.split(b":", 1)[1])
+        for line in head.split(b"\r\n")
+        if line.lower().startswith(b"content-length:")
+    )
+    while len(body) < length and (chunk := sock.recv(65536)):
+        body += chunk
+    return head + b"\r\n\r\n" + body
+
+
+def test_a_request_waiting_unread_is_not_evicted() -> None:
+    """A connection accepted while the event loop was busy holds a whole request no
+    callback has read yet: it is not idle, and a newcomer over the address's limit
+    takes the place of an idle connection (or is refused), never its."""
+    entered = threading.Event()
+    release = threading.Event()
+
+    async def app(scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            return
+        if scope["path"] == "/hold":
+            entered.set()
+            release.wait(TIMEOUT_S)  # holds the event loop: nothing else is read
+        headers = [(b"content-length", b"2")]
+        await send({"type": "http.response.start", "status": 200, "headers": headers})
+        await send({"type": "http.response.body", "body": b"ok"})
+
+    limits = ServeLimits(idle_timeout_s=5.0, max_connections=8, max_connections_per_address=2)
+    with HttpService(
+        app,
+        host="127.0.0.1",
+        port=0,
+        limits=limits,
+        render_error=_render,
+        server_name="probe",
+        thread_name="probe-http",
+    ) as served:
+        address = served.address
+        with socket.create_connection(address, timeout=TIMEOUT_S) as holder:
+            holder.sendall(b"GET /hold HTTP/1.1\r\nHost: x\r\n\r\n")
+            assert entered.wait(TIMEOUT_S)
+            with (
+                socket.create_connection(address, timeout=TIMEOUT_S) as waiting,
+                socket.create_connection(address, timeout=TIMEOUT_S) as newcomer,
+            ):
+                waiting.sendall(b"GET /w HTTP/1.1\r\nHost: x\r\n\r\n")
+                release.set()
+                assert _read_answer(waiting).startswith(b"HTTP/1.1 200 ")
+                newcomer.sendall(b"GET /n HTTP/1.1\r\nHost: x\r\n\r\n")
+                answer = _read_answer(newcomer)
+                # The holder, answered and idle, made room; or nothing could, and 503.
+                assert answer.startswith((b"HTTP/1.1 200 ", b"HTTP/1.1 503 ")), answer
+                if answer.startswith(b"HTTP/1.1 200 "):
+                    assert _read_answer(holder).startswith(b"HTTP/1.1 200 ")
+                    assert holder.recv(1) == b""  # evicted after its answer
 
 
 def test_close_is_idempotent_and_refuses_new_connections() -> None:
