@@ -153,7 +153,9 @@ def _ready_diagnostics() -> DiagnosticArray:
 def test_the_bind_policy_is_the_gates_and_a_token_is_always_made() -> None:
     with pytest.raises(ValueError, match=r"refusing to listen on '0\.0\.0\.0' without a token"):
         ConsoleConfig("0.0.0.0")
-    assert ConsoleConfig("0.0.0.0", token="t").host == "0.0.0.0"
+    with pytest.raises(ValueError, match="too weak"):  # the gate's policy (#43)
+        ConsoleConfig("0.0.0.0", token="t")
+    assert ConsoleConfig("0.0.0.0", token="k3Jf9-xQ2mPz8vLw").host == "0.0.0.0"
     with pytest.raises(ValueError, match="console port"):
         ConsoleConfig(port=70000)
     one, two = ConsoleConfig(), ConsoleConfig()
