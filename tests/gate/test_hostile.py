@@ -272,7 +272,11 @@ def test_no_bad_input_gets_a_5xx(http_gate: GateServer, body: Any, query: str) -
 
 # -- issue 43: one request cannot lock the gate; bad bodies are cheap --------------------------
 SLOWEST = plan((1.2, 3.0, 0.0), *[step("FWD", 1, 30000)] * 12)
-"""The slowest valid plan: 12 steps of 30000 units at speed 1, 3,131 s of twin time."""
+"""The slowest valid plan: 12 steps of 30000 units at speed 1, 3,131 s of twin time
+(its playback ends early, at the lab's wall: about 0.4 s of a worker)."""
+SPIN = plan((1.2, 3.0, 0.0), *[step("LEFT", 1, 30000)] * 12)
+"""Twelve slowest turns on the spot: nothing to hit, the whole playback (2-3 s of a
+worker; the deadline tests' plan)."""
 QUARTER = 15484
 SQUARE = {
     "goal": {"x": 1.0, "y": 4.0, "yaw_deg": 0.0},
@@ -380,15 +384,15 @@ def test_a_costly_request_makes_room_for_another_clients_plan(
 def test_a_validation_past_its_deadline_or_left_by_its_client_is_cancelled(
     make_gate: Callable[..., GateServer],
 ) -> None:
-    """The slowest plan with a 0.5 s deadline: 503 timeout, and its worker stops it at
-    once (not killed: the same process serves the next plan); a client that leaves
-    mid-validation has its validation stopped too. Either way the admission is given
-    back."""
+    """A plan of 2-3 s of playback with a 0.5 s deadline: 503 timeout, and its worker
+    stops it at once (not killed: the same process serves the next plan); a client that
+    leaves mid-validation has its validation stopped too. Either way the admission is
+    given back."""
     gate = make_gate(pool="process", workers=1, request_timeout_s=0.5)
     pool = gate.pool
     assert post_plan(gate.address, STOP_AT_LAB_START).status == 200
     pids = pool.pids  # type: ignore[attr-defined]
-    late = post_plan(gate.address, SLOWEST)
+    late = post_plan(gate.address, SPIN)
     assert late.status == 503 and late.json()["error"] == "timeout"
     _wait(lambda: gate.admission.in_flight == 0, "the admission given back")
     assert pool.interrupted == 1 and pool.killed == 0  # type: ignore[attr-defined]
@@ -398,7 +402,7 @@ def test_a_validation_past_its_deadline_or_left_by_its_client_is_cancelled(
     gate2 = make_gate(pool="process", workers=1, request_timeout_s=60.0)
     pool2 = gate2.pool
     assert post_plan(gate2.address, STOP_AT_LAB_START).status == 200
-    body = json.dumps(SLOWEST).encode()
+    body = json.dumps(SPIN).encode()
     head = (
         "POST /validate_plan HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         f"Content-Length: {len(body)}\r\n\r\n"
