@@ -3,10 +3,12 @@ Playwright downloads): what the ``browser`` tests use."""
 
 from __future__ import annotations
 
+import http.server
 import os
 import shlex
 import shutil
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,6 +27,48 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
+
+REBIND = "rebind.test"
+"""A name the browser resolves to 127.0.0.1 (``--host-resolver-rules``): a DNS
+rebinding, as a page of the web would make it."""
+WITHOUT_PRIVATE_NETWORK_ACCESS = (
+    "--disable-features=BlockInsecurePrivateNetworkRequests,"
+    "PrivateNetworkAccessSendPreflights,PrivateNetworkAccessRespectPreflightResults,"
+    "LocalNetworkAccessChecks"
+)
+"""Chromium refuses some pages' requests to loopback by itself (Private Network
+Access); other browsers do not, and our servers must not count on it: the hostile-page
+tests turn it off, so that every request of their pages does reach the server."""
+
+
+class OtherSite:
+    """Another origin: a plain HTTP server on another port of 127.0.0.1 serving fixed
+    pages (``{path: html}``); :meth:`close` ends it (its thread joined within
+    ``timeout_s``)."""
+
+    def __init__(self, pages: dict[str, str], timeout_s: float = 30.0) -> None:
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                body = pages.get(self.path, "").encode()
+                self.send_response(200 if body else 404)
+                self.send_header("Content-Type", "text/html")
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args: Any) -> None:
+                pass
+
+        self.timeout_s = timeout_s
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        self.thread.start()
+        self.origin = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+
+    def close(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()
+        self.thread.join(self.timeout_s)
 
 
 BROWSER_NICE = 10

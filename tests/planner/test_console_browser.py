@@ -9,7 +9,6 @@ see it)."""
 
 from __future__ import annotations
 
-import http.server
 import threading
 import uuid
 from collections.abc import Iterator
@@ -26,45 +25,6 @@ from planner.stack.console_server import ConsoleConfig, ConsoleServer
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 WAIT_S = 30.0
-REBIND = "rebind.test"
-"""A name the browser resolves to 127.0.0.1 (``--host-resolver-rules``): a DNS
-rebinding, as a page of the web would make it."""
-WITHOUT_PRIVATE_NETWORK_ACCESS = (
-    "--disable-features=BlockInsecurePrivateNetworkRequests,"
-    "PrivateNetworkAccessSendPreflights,PrivateNetworkAccessRespectPreflightResults,"
-    "LocalNetworkAccessChecks"
-)
-"""Chromium refuses some pages' requests to loopback by itself (Private Network
-Access); other browsers do not, and the console must not count on it: the test turns it
-off, so that every request of the pages does reach the console."""
-
-
-class _OtherSite:
-    """Another origin: a plain HTTP server on another port of 127.0.0.1 serving fixed
-    pages (``{path: html}``)."""
-
-    def __init__(self, pages: dict[str, str]) -> None:
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_GET(self) -> None:
-                body = pages.get(self.path, "").encode()
-                self.send_response(200 if body else 404)
-                self.send_header("Content-Type", "text/html")
-                self.send_header("Content-Length", str(len(body)))
-                self.end_headers()
-                self.wfile.write(body)
-
-            def log_message(self, *args: Any) -> None:
-                pass
-
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-        self.thread.start()
-        self.origin = f"http://127.0.0.1:{self.httpd.server_address[1]}"
-
-    def close(self) -> None:
-        self.httpd.shutdown()
-        self.httpd.server_close()
-        self.thread.join(WAIT_S)
 
 
 def _attacks(console: str) -> dict[str, str]:
@@ -122,12 +82,12 @@ def served() -> Iterator[tuple[ConsoleServer, _Rover]]:
 def test_pages_of_another_origin_cannot_stop_clear_or_read_the_console(
     served: tuple[ConsoleServer, _Rover],
 ) -> None:
-    from tests.browser import chromium
+    from tests.browser import REBIND, WITHOUT_PRIVATE_NETWORK_ACCESS, OtherSite, chromium
 
     server, rover = served
     console = server.url
     port = console.rsplit(":", 1)[1]
-    other = _OtherSite(_attacks(console))
+    other = OtherSite(_attacks(console), WAIT_S)
     try:
         resolve = f"--host-resolver-rules=MAP {REBIND} 127.0.0.1"
         with chromium((resolve, WITHOUT_PRIVATE_NETWORK_ACCESS)) as browser:

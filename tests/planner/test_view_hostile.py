@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import http.client
-import http.server
 import itertools
 import json
 import socket
@@ -482,45 +481,6 @@ def test_a_stalled_reader_is_evicted_before_a_healthy_one(
 
 
 # -- in Chromium -----------------------------------------------------------------------------
-REBIND = "rebind.test"
-"""A name the browser resolves to 127.0.0.1 (``--host-resolver-rules``): a DNS
-rebinding, as a page of the web would make it."""
-WITHOUT_PRIVATE_NETWORK_ACCESS = (
-    "--disable-features=BlockInsecurePrivateNetworkRequests,"
-    "PrivateNetworkAccessSendPreflights,PrivateNetworkAccessRespectPreflightResults,"
-    "LocalNetworkAccessChecks"
-)
-"""Chromium refuses a public page's requests to loopback by itself (Private Network
-Access); other browsers do not, and the view must not count on it: the test turns it
-off, so that the rebinding page's requests do reach the view."""
-
-
-class _OtherSite:
-    """Another origin: a plain HTTP server on another port of 127.0.0.1 serving fixed
-    pages (``{path: html}``)."""
-
-    def __init__(self, pages: dict[str, str]) -> None:
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_GET(self) -> None:
-                body = pages.get(self.path, "").encode()
-                self.send_response(200 if body else 404)
-                self.send_header("Content-Type", "text/html")
-                self.send_header("Content-Length", str(len(body)))
-                self.end_headers()
-                self.wfile.write(body)
-
-            def log_message(self, *args: Any) -> None:
-                pass
-
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-        self.thread.start()
-        self.origin = f"http://127.0.0.1:{self.httpd.server_address[1]}"
-
-    def close(self) -> None:
-        self.httpd.shutdown()
-        self.httpd.server_close()
-        self.thread.join(TIMEOUT_S)
 
 
 def _attacks(view: str) -> dict[str, str]:
@@ -548,13 +508,13 @@ def _attacks(view: str) -> dict[str, str]:
 def test_pages_of_another_origin_cannot_stop_clear_or_frame_the_view(
     make_view: Callable[..., tuple[ViewServer, _Actions]], orchestrator: Any
 ) -> None:
-    from tests.browser import chromium
+    from tests.browser import REBIND, WITHOUT_PRIVATE_NETWORK_ACCESS, OtherSite, chromium
 
     server, actions = make_view()
     _latch_with_replan(server, orchestrator)
     host, port = server.address
     view = f"http://{host}:{port}"
-    other = _OtherSite(_attacks(view))
+    other = OtherSite(_attacks(view), TIMEOUT_S)
     try:
         resolve = f"--host-resolver-rules=MAP {REBIND} 127.0.0.1"
         with chromium((resolve, WITHOUT_PRIVATE_NETWORK_ACCESS)) as browser:
