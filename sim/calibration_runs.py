@@ -34,18 +34,10 @@ from pathlib import Path
 from typing import Any
 
 from bridge.link.odometry import OdometryEstimator, ground_pose
+from bridge.ros.odommsg import ground_odometry, wheel_odometry
 from bridge.ros.rosport.msgs import (
-    Header,
     Int16MultiArray,
-    Odometry,
-    Point,
-    Pose,
-    PoseWithCovariance,
     String,
-    Twist,
-    TwistWithCovariance,
-    Vector3,
-    quaternion_from_yaw,
     stamp,
 )
 from emulator.campaign import Driven
@@ -163,14 +155,6 @@ class LockstepMission:
     completed: int
 
 
-def _cov(var_xy: float, var_yaw: float) -> list[float]:
-    cov = [0.0] * 36
-    cov[0] = cov[7] = var_xy
-    cov[14] = cov[21] = cov[28] = 1e6
-    cov[35] = var_yaw
-    return cov
-
-
 class _Host:
     """The bridge's telemetry side and the link's delay, in process."""
 
@@ -196,27 +180,8 @@ class _Host:
         for msg in messages:
             if isinstance(msg, Encoders):
                 est = self.odometry.update_encoders(msg)
-                self._down(
-                    t_s,
-                    "/odom",
-                    Odometry(
-                        header=Header(stamp=stamp(EPOCH_S + t_s), frame_id="odom"),
-                        child_frame_id="base_link",
-                        pose=PoseWithCovariance(
-                            pose=Pose(
-                                position=Point(x=est.x_m, y=est.y_m, z=0.0),
-                                orientation=quaternion_from_yaw(est.yaw_rad),
-                            ),
-                            covariance=_cov(est.var_xy_m2, est.var_yaw_rad2),
-                        ),
-                        twist=TwistWithCovariance(
-                            twist=Twist(
-                                linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)
-                            ),
-                            covariance=_cov(1e-4, 1e-4),
-                        ),
-                    ),
-                )
+                when = stamp(EPOCH_S + t_s)
+                self._down(t_s, "/odom", wheel_odometry(est, when, "odom", "base_link"))
             elif isinstance(msg, Imu):
                 self.odometry.update_imu(msg)
             elif isinstance(msg, WheelSpeeds):
@@ -225,22 +190,8 @@ class _Host:
                 pose = ground_pose(msg)
                 if pose is None:
                     continue
-                var = pose.sigma_m**2
-                self._down(
-                    t_s,
-                    "/odom_ground",
-                    Odometry(
-                        header=Header(stamp=stamp(EPOCH_S + t_s - pose.age_s), frame_id="map"),
-                        child_frame_id="base_link",
-                        pose=PoseWithCovariance(
-                            pose=Pose(
-                                position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
-                                orientation=quaternion_from_yaw(pose.yaw_rad),
-                            ),
-                            covariance=_cov(var, var / 0.25 if var else 1e-4),
-                        ),
-                    ),
-                )
+                when = stamp(EPOCH_S + t_s - pose.age_s)
+                self._down(t_s, "/odom_ground", ground_odometry(pose, when, "map", "base_link"))
             elif isinstance(msg, Ack):
                 if msg.result == AckResult.ACCEPTED:
                     self.status(t_s, "accepted")

@@ -58,13 +58,12 @@ from dataclasses import replace
 from types import TracebackType
 from typing import Any
 
-import numpy
-
 from bridge.errors import ParameterError
 from bridge.link.controllerlink import ControllerLink, LinkDiagnostics, LinkState, StepRequest
 from bridge.link.odometry import OdometryEstimator, ground_pose
 from bridge.link.transport import Transport, open_transport
 from bridge.ros.diagnostics import RECENT_STATUSES, diagnostic_array
+from bridge.ros.odommsg import ground_odometry, wheel_odometry
 from bridge.ros.params import BridgeParams, check_params, parameter_specs
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
 from bridge.ros.rosport.contract import rejected
@@ -75,13 +74,7 @@ from bridge.ros.rosport.msgs import (
     Header,
     Int16MultiArray,
     Odometry,
-    Point,
-    Pose,
-    PoseWithCovariance,
     String,
-    Twist,
-    TwistWithCovariance,
-    Vector3,
     quaternion_from_yaw,
     stamp,
 )
@@ -123,16 +116,6 @@ def validate_step(data: object, rover: RoverDescription) -> StepRequest | str:
     if not 0 <= distance <= rover.drive.max_distance:
         return "distance_out_of_range"
     return StepRequest(command, speed, distance)
-
-
-def _covariance(var_xy: float, var_yaw: float) -> numpy.ndarray[Any, Any]:
-    # A float64 array of 36: the generated setter takes it as it is (a list is checked
-    # value by value, a third of the cost of building an Odometry).
-    cov = numpy.zeros(36)
-    cov[0] = cov[7] = var_xy
-    cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane
-    cov[35] = var_yaw
-    return cov
 
 
 TF_TOPIC = "/tf"
@@ -368,23 +351,7 @@ class BridgeNode:
             now = stamp(self.clock.time())
             self._publish_tf(now, est.x_m, est.y_m, est.yaw_rad)
             self._odom_pub.publish(
-                Odometry(
-                    header=Header(stamp=now, frame_id=self.params.odom_frame),
-                    child_frame_id=self.params.base_frame,
-                    pose=PoseWithCovariance(
-                        pose=Pose(
-                            position=Point(x=est.x_m, y=est.y_m, z=0.0),
-                            orientation=quaternion_from_yaw(est.yaw_rad),
-                        ),
-                        covariance=_covariance(est.var_xy_m2, est.var_yaw_rad2),
-                    ),
-                    twist=TwistWithCovariance(
-                        twist=Twist(
-                            linear=Vector3(x=est.v_mps), angular=Vector3(z=est.yaw_rate_rad_s)
-                        ),
-                        covariance=_covariance(1e-4, 1e-4),
-                    ),
-                )
+                wheel_odometry(est, now, self.params.odom_frame, self.params.base_frame)
             )
         elif isinstance(msg, (Heartbeat, Ident)):
             with self._odom_lock:
@@ -407,21 +374,12 @@ class BridgeNode:
                 self._map_to_odom = frame_in(
                     PlanarPose(pose.x_m, pose.y_m, math.degrees(pose.yaw_rad)), odom_now
                 )
-            var = pose.sigma_m**2
             self._ground_pub.publish(
-                Odometry(
-                    header=Header(
-                        stamp=stamp(self.clock.time() - pose.age_s),
-                        frame_id=self.params.map_frame,
-                    ),
-                    child_frame_id=self.params.base_frame,
-                    pose=PoseWithCovariance(
-                        pose=Pose(
-                            position=Point(x=pose.x_m, y=pose.y_m, z=0.0),
-                            orientation=quaternion_from_yaw(pose.yaw_rad),
-                        ),
-                        covariance=_covariance(var, (var / 0.25) if var else 1e-4),
-                    ),
+                ground_odometry(
+                    pose,
+                    stamp(self.clock.time() - pose.age_s),
+                    self.params.map_frame,
+                    self.params.base_frame,
                 )
             )
 
