@@ -171,11 +171,21 @@ class _NonceFromIdentOnly(LinkCore):
     first boot it knew, and counted neither the reboot nor its frame counter's restart
     as such (found by the simulator's bridge restarts)."""
 
-    def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
+    def _on_heartbeat(self, hb: Heartbeat, t: float, *, serial: bool = False) -> None:
         unknown = self._boot_nonce is None
-        super()._on_heartbeat(hb, t)
+        super()._on_heartbeat(hb, t, serial=serial)
         if unknown:
             self._boot_nonce = None
+
+
+class _BootIdentIgnored(LinkCore):
+    """Protocol v4's first bridge: a reboot is told by its boot nonce only; a boot IDENT
+    or a lost session that repeats the nonce of the boot before (a controller that
+    breaks the nonce rule) passes for an answer or a session ended, and /odom takes the
+    restarted counts for motion (issue #40, hole 5)."""
+
+    def _check_reboot(self, nonce: int, now: float, *, sign: str = "") -> bool:
+        return super()._check_reboot(nonce, now)
 
 
 class _RequestIdsFromOne(LinkCore):
@@ -248,6 +258,14 @@ MUTANTS: dict[str, LinkMutant] = {
             "in: a reboot's frame-counter restart read with the old boot's last frame is "
             "counted as lost frames (issue #40, hole 6)",
             DecoderTotalReader,
+        ),
+        LinkMutant(
+            "boot-ident-ignored",
+            "a reboot is told by a changed boot nonce only: a boot IDENT (the serial frame "
+            "counter restarted at 0) that repeats the nonce of the boot before is taken for "
+            "an answer, so /odom jumps back to the restarted counts, the reboot is not "
+            "counted and the counter's restart is counted as lost frames (issue #40, hole 5)",
+            _BootIdentIgnored,
         ),
         LinkMutant(
             "request-ids-from-one",

@@ -206,11 +206,15 @@ class Rig:
         self._ctl_encoder = FrameEncoder()
         self._ctl_seq = 0
         """The controller's serial frame counter (its encoder's, from 0 at each boot)."""
-        self._meta_by_seq: list[deque[tuple[Message, object]]] = [
+        self._meta_by_seq: list[deque[tuple[int, Message, object]]] = [
             deque(maxlen=8) for _ in range(256)
         ]
         """What the simulator knew of each serial frame the controller sent, by its frame
-        counter (the last 256)."""
+        counter (the last 256), each with its place in the order sent."""
+        self._frames_sent = 0
+        """Serial frames the controller sent, all boots."""
+        self._frame_read = -1
+        """The place of the last serial frame the host read (the wire keeps the order)."""
         self._ctl_decoder = FrameDecoder()
         self._ctl_can = CanDecoder()
         self._ctl_rejected = 0
@@ -694,7 +698,8 @@ class Rig:
                 meta = _Gen(self._gen_abs)
             meta = _FrameInfo(ledger.controller_reboots, meta)
             if serial:
-                self._meta_by_seq[self._ctl_seq & 0xFF].append((msg, meta))
+                self._meta_by_seq[self._ctl_seq & 0xFF].append((self._frames_sent, msg, meta))
+                self._frames_sent += 1
                 self._ctl_seq += 1
                 batch.append((self._ctl_encoder.encode(msg), msg))
             else:
@@ -949,11 +954,14 @@ class Rig:
     def _frame_info(self, frame: Frame) -> object:
         """What the simulator knew of a serial frame the controller sent, found by its frame
         counter and its content (frames of one counter value arrive in the order sent: a
-        reboot restarts the counter, so two boots' frames may share one)."""
+        reboot restarts the counter, so two boots' frames may share one, even their
+        content: a controller that repeats its nonce repeats its boot IDENT). A frame sent
+        before the last one read was lost: never the one read now."""
         sent = self._meta_by_seq[frame.seq]
         while sent:
-            msg, info = sent.popleft()
-            if msg == frame.message:
+            place, msg, info = sent.popleft()
+            if place > self._frame_read and msg == frame.message:
+                self._frame_read = place
                 return info
         return None
 
@@ -1012,7 +1020,7 @@ class Rig:
                 f"travelled {path - prev[2]:.3f} m (link {state.value} when it arrived)",
             )
         elif isinstance(msg, (Heartbeat, Ident)):
-            odo.observe_boot(msg.boot_nonce)
+            odo.observe_boot(self.core.reboots)  # as the bridge node does
         elif isinstance(msg, Imu):
             odo.update_imu(msg)
         elif isinstance(msg, WheelSpeeds):

@@ -232,6 +232,12 @@ class ControllerLink:
         return self._core.ready
 
     @property
+    def reboots(self) -> int:
+        """Reboots of the controller seen so far (:attr:`LinkCore.reboots`); read on the
+        telemetry callback's thread, it already counts the frame being delivered."""
+        return self._core.reboots
+
+    @property
     def stop_latched(self) -> bool:
         """An emergency stop is requested, or the controller's motion is latched (STOP or
         fault) as its last STOP_ACK, CLEAR_ACK or HEARTBEAT said."""

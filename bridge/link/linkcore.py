@@ -342,6 +342,8 @@ class LinkCore:
         self._rx_lost = 0
         """Frames lost before the last frame received, from the gaps in the counter."""
         self._last_rx_seq: int | None = None
+        self._session_confirmed = False
+        """A HEARTBEAT of this session showed ``handshake_ok``: the controller has it."""
         self._lost_mark = 0
         """The lost-frame count at the last frame of the current boot."""
         self._lost_forgiven = 0
@@ -391,6 +393,12 @@ class LinkCore:
     def boot_nonce(self) -> int | None:
         """The controller's boot nonce as last seen (``None`` before any)."""
         return self._boot_nonce
+
+    @property
+    def reboots(self) -> int:
+        """Reboots of the controller seen so far (a changed boot nonce, a boot IDENT):
+        odometry re-bases whenever it grows."""
+        return self._counters.reboots
 
     @property
     def pending_writes(self) -> bool:
@@ -730,12 +738,21 @@ class LinkCore:
         the gap a reboot makes be forgiven exactly (docs/protocol.md, Serial framing).
         Returns whether it is telemetry to forward (every message but a sensor sample
         outside a session)."""
+        boot_frame = False
         if rx_seq is not None:
             last = self._last_rx_seq
             if last is not None:
-                self._rx_lost += (rx_seq - last - 1) & 0xFF
+                gap = (rx_seq - last - 1) & 0xFF
+                self._rx_lost += gap
+                # An IDENT numbered 0 that does not follow frame 255: the counter
+                # restarted, a boot's first frame (docs/protocol.md, Serial framing).
+                boot_frame = isinstance(msg, Ident) and rx_seq == 0 and gap != 0
             self._last_rx_seq = rx_seq
-        self._dispatch(msg, now)
+        if boot_frame:
+            assert isinstance(msg, Ident)
+            self._on_ident(msg, now, sign="its boot IDENT restarted the frame counter")
+        else:
+            self._dispatch(msg, now, serial=rx_seq is not None)
         forward = self._forwards(msg)
         if not forward:
             self._counters.samples_outside_session += 1
@@ -747,9 +764,9 @@ class LinkCore:
         Handshake 2)."""
         return self._state is LinkState.READY or not isinstance(msg, SAMPLE_MESSAGES)
 
-    def _dispatch(self, msg: Message, t: float) -> None:
+    def _dispatch(self, msg: Message, t: float, *, serial: bool = False) -> None:
         if isinstance(msg, Heartbeat):
-            self._on_heartbeat(msg, t)
+            self._on_heartbeat(msg, t, serial=serial)
         elif isinstance(msg, Ident):
             self._on_ident(msg, t)
         elif isinstance(msg, StopAck):
@@ -801,7 +818,9 @@ class LinkCore:
             else:
                 clear.latch_gen = (base + 1) & 0xFF
 
-    def _on_heartbeat(self, hb: Heartbeat, t: float) -> None:
+    def _on_heartbeat(self, hb: Heartbeat, t: float, *, serial: bool = False) -> None:
+        """``serial``: it came over a serial link, where no other host can end the
+        controller's session with a HELLO of its own."""
         previous = self._last_hb_rx
         if (
             self._state is LinkState.READY
@@ -815,9 +834,15 @@ class LinkCore:
         self._last_hb_rx = t
         self._hb_rx_gaps.event(t)
         self._heartbeat = hb
-        if self._check_reboot(hb.boot_nonce, t):
+        # On a serial link only a reboot ends a session the controller had confirmed (its
+        # HEARTBEATs showed handshake_ok): no other host shares the line.
+        lost = serial and self._state is LinkState.READY and self._session_confirmed
+        sign = "it lost the session it had confirmed" if lost and not hb.handshake_ok else ""
+        if self._check_reboot(hb.boot_nonce, t, sign=sign):
             self._heartbeat = hb
             return
+        if self._state is LinkState.READY and hb.handshake_ok:
+            self._session_confirmed = True
         stale = bool(hb.stop_latched) and hb.latch_gen == self._released_gen
         # A HEARTBEAT sent before our CLEAR_STOP arrived still shows the latch it released.
         self._ctrl_latched = bool(hb.stop_latched) and not stale
@@ -947,15 +972,26 @@ class LinkCore:
             causes,
         )
 
-    def _check_reboot(self, nonce: int, now: float) -> bool:
+    def _check_reboot(self, nonce: int, now: float, *, sign: str = "") -> bool:
         """A HEARTBEAT's or IDENT's boot nonce: the first one known (from either: a new
         bridge that reads only HEARTBEATs of the old boot before the new boot's IDENT
-        must still tell the reboot), the same boot, or a reboot (handled here)."""
+        must still tell the reboot), the same boot, or a reboot (handled here).
+        ``sign``: another sign of a reboot that frame showed, on a serial link (an IDENT
+        that restarted the frame counter: a boot's first frame; a HEARTBEAT without the
+        session it had confirmed): a reboot whatever the nonce. A controller that repeats
+        its nonce breaks docs/protocol.md (Handshake 1); its host still tells the reboot."""
         if self._boot_nonce is None:
             self._boot_nonce = nonce
             return False
-        if nonce == self._boot_nonce:
+        if nonce == self._boot_nonce and not sign:
             return False
+        if nonce == self._boot_nonce:
+            logger.warning(
+                "controller rebooted with the boot nonce 0x%04X of the boot before (%s): a "
+                "new boot's nonce must differ (docs/protocol.md, Handshake 1)",
+                nonce,
+                sign,
+            )
         self._boot_nonce = nonce
         self._counters.reboots += 1
         # The controller's frame counter restarted with it (docs/protocol.md, Serial
@@ -982,9 +1018,9 @@ class LinkCore:
             self._pending_stop = _Pending(self._stop_counter, now, 0.0, 0)  # re-latch at once
         return True
 
-    def _on_ident(self, ident: Ident, now: float) -> None:
+    def _on_ident(self, ident: Ident, now: float, *, sign: str = "") -> None:
         self._ident = ident
-        if not self._check_reboot(ident.boot_nonce, now):
+        if not self._check_reboot(ident.boot_nonce, now, sign=sign):
             self._lost_mark = self._rx_lost
         match = (
             ident.protocol_version == self.protocol_version
@@ -1011,6 +1047,7 @@ class LinkCore:
             return  # unsolicited (a boot IDENT): the session starts with our HELLO's answer
         if self._state in (LinkState.HANDSHAKE, LinkState.MISMATCH, LinkState.LOST):
             self._set_state(LinkState.READY)
+            self._session_confirmed = False
             self._backoff = self.config.reconnect_min_s
             self._ended_seen = 0  # the controller counts per session
             self._last_hb_rx = now

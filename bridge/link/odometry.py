@@ -7,11 +7,13 @@ differencing over-reads yaw; the gyro does not. Without IMU samples for
 ``imu_timeout_s``, heading falls back to the encoder difference scaled by the rover
 description's calibrated turn efficiency. Covariances grow with distance and time.
 
-Across a controller reboot the pose is continuous: the encoder counts restart at 0 with
-a new boot nonce, and :meth:`OdometryEstimator.observe_boot` re-bases on the first
-reading of the new boot instead of counting the jump as motion (docs/protocol.md,
-Telemetry). A jump larger than :data:`MAX_PLAUSIBLE_STEP_M` between two readings is
-taken for a counter reset too (a reboot whose nonce has not been seen yet).
+Across a controller reboot the pose is continuous: the encoder counts restart at 0, and
+:meth:`OdometryEstimator.observe_boot`, told the link's count of reboots
+(:attr:`bridge.link.linkcore.LinkCore.reboots`: a new boot nonce, or a sign of a reboot
+that repeats the nonce), re-bases on the first reading of the new boot instead of
+counting the jump as motion (docs/protocol.md, Telemetry). A jump larger than
+:data:`MAX_PLAUSIBLE_STEP_M` between two readings is taken for a counter reset too (a
+reboot the link has not told yet).
 
 Encoders cannot see slip: ``/odom`` says the rover went as far as its wheels turned.
 The controller's POSE (visual odometry or lab tracking) does see it;
@@ -108,12 +110,14 @@ class OdometryEstimator:
         self._enc_t_ms = None
         self._imu_yaw_delta = 0.0
 
-    def observe_boot(self, boot_nonce: int) -> bool:
-        """The controller's boot nonce, from every IDENT and HEARTBEAT. A new one (not
-        the first seen) means its counts and clock restarted: re-base on the next
-        reading, keeping the pose. Returns whether it re-based."""
-        previous, self._boot_nonce = self._boot_nonce, boot_nonce
-        if previous is None or previous == boot_nonce:
+    def observe_boot(self, boot: int) -> bool:
+        """Which boot of the controller the telemetry is from, after every IDENT and
+        HEARTBEAT: the link's count of reboots (or its boot nonce, for a controller that
+        never repeats one). A change (not the first seen) means its counts and clock
+        restarted: re-base on the next reading, keeping the pose. Returns whether it
+        re-based."""
+        previous, self._boot_nonce = self._boot_nonce, boot
+        if previous is None or previous == boot:
             return False
         self.reboots += 1
         self.rereference()

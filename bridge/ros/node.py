@@ -355,7 +355,7 @@ class BridgeNode:
             )
         elif isinstance(msg, (Heartbeat, Ident)):
             with self._odom_lock:
-                if self.odometry.observe_boot(msg.boot_nonce):
+                if self.odometry.observe_boot(self.link.reboots):
                     logger.info("controller rebooted: odometry re-based, pose kept")
         elif isinstance(msg, Imu):
             with self._odom_lock:

@@ -32,6 +32,7 @@ from emulator.controller import ControllerConfig
 from emulator.engine import Emulator, EmulatorStatus
 from emulator.firmware import make_controller
 from emulator.frontend import FrontEnd
+from emulator.mutants import mutant as find_mutant
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import GATE_DT_S, Twin, served_dt_s
 from firmware_proto.linkio.clock import WALL, Clock
@@ -193,8 +194,8 @@ def rover() -> RoverDescription:
 def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
     """Factory of running emulators; ``kind`` "pty" or "can", ``firmware`` "python" (the
     model) or "c" (the C core, emulator/firmware.py), ``watchdog_ms`` and
-    ``telemetry_hz`` the controller's (its defaults unless given); all closed after the
-    test."""
+    ``telemetry_hz`` the controller's (its defaults unless given), ``mutant`` a Python
+    model with one rule broken (emulator.mutants); all closed after the test."""
     started: list[Emulator] = []
 
     def make(
@@ -209,20 +210,22 @@ def emulators(rover: RoverDescription) -> Iterator[Callable[..., Emulator]]:
         firmware: str = "python",
         watchdog_ms: int | None = None,
         telemetry_hz: int | None = None,
+        mutant: str = "",
     ) -> Emulator:
         config = ControllerConfig(timeout_scale=SPEED)
         if watchdog_ms is not None:
             config = dataclasses.replace(config, watchdog_ms=watchdog_ms)
         if telemetry_hz is not None:
             config = dataclasses.replace(config, telemetry_hz=telemetry_hz)
-        model = make_controller(
-            firmware,
-            rover,
-            Twin(rover, dt_s=TWIN_DT_S),
-            config,
-            seed=seed,
-            schema_hash=schema_hash,
-        )
+        twin = Twin(rover, dt_s=TWIN_DT_S)
+        if mutant:  # the Python model with one rule broken (emulator.mutants)
+            model = find_mutant(mutant).model(
+                rover, twin, config, seed=seed, schema_hash=schema_hash
+            )
+        else:
+            model = make_controller(
+                firmware, rover, twin, config, seed=seed, schema_hash=schema_hash
+            )
         frontend: FrontEnd
         if kind == "pty":
             frontend = SerialFrontEnd(link=link, seed=seed)

@@ -174,3 +174,75 @@ def test_a_bridge_that_read_only_heartbeats_of_the_old_boot_still_tells_the_rebo
     gaps = 9 + ((0 - 80 - 1) & 0xFF)  # what the decoder counts
     d = core.diagnostics(0.2, MediumStats(connected=True, rx_lost=gaps))
     assert (d.reboots, d.lost_frames, d.boot_nonce) == (1, 9, 0x4321)
+
+
+def test_hole_5_a_boot_ident_that_repeats_the_nonce_is_a_reboot_all_the_same() -> None:
+    """Issue #40, hole 5: a controller that breaks the nonce rule (an RNG without entropy)
+    reboots with the nonce of the boot before. Its boot IDENT restarts the serial frame
+    counter (seq 0, not after frame 255): the host takes it for the reboot it is, counts
+    it, drops the steps in flight and handshakes again, and the restart's gap is no loss;
+    an IDENT numbered 0 that follows frame 255 is the counter wrapping, no reboot."""
+    core = LinkCore(LinkConfig("sim://x"))
+    core.on_connected(0.0)
+    core.tick(0.0)
+    _written(core, 0.0)
+    ident = Ident(PROTOCOL_VERSION, 1, 0, 0, SCHEMA_HASH, 0x1234)
+    core.on_frame(ident, 0.002, rx_seq=254)
+    core.on_frame(
+        Heartbeat(ControllerState.IDLE, 0, 1, 0, 0, 0, 0, 0, 0x1234, 0, 0), 0.01, rx_seq=255
+    )
+    core.tick(0.02)
+    _written(core, 0.02)  # as if a HELLO had been answered again: the counter wraps to 0
+    core.on_frame(ident, 0.03, rx_seq=0)
+    assert (core.reboots, core.state) == (0, LinkState.READY)
+    number = core.submit_step(FWD, 0.04)
+    _written(core, 0.04)
+    core.take_events()
+    core.on_frame(
+        Heartbeat(ControllerState.IDLE, 0, 1, 0, 0, 0, 0, 0, 0x1234, 0, 0), 0.05, rx_seq=40
+    )
+    core.on_frame(ident, 0.3, rx_seq=0)  # the reboot: same nonce, the counter restarted
+    assert (core.reboots, core.state) == (1, LinkState.HANDSHAKE)
+    assert _texts(core) == ["aborted:controller_reboot", "fault:controller_reboot"]
+    gaps = 39 + ((0 - 40 - 1) & 0xFF)  # what the decoder counts
+    d = core.diagnostics(0.3, MediumStats(connected=True, rx_lost=gaps))
+    assert (d.reboots, d.lost_frames) == (1, 39)
+    assert number is not None
+
+
+@pytest.mark.parametrize("serial", [True, False], ids=["serial", "can"])
+def test_hole_5_a_session_lost_on_a_serial_link_is_a_reboot_whatever_the_nonce(
+    serial: bool,
+) -> None:
+    """The boot IDENT of a reboot that repeats the nonce was lost: the next HEARTBEAT has
+    no session, which the controller had confirmed. On a serial link no other host can
+    have ended it: a reboot. On CAN another host's mismatched HELLO may have: the host
+    handshakes again and counts no reboot (docs/protocol.md, "Boot IDENT or reply?")."""
+    seq = iter(range(10, 20))
+
+    def frame(msg: Message, t: float) -> None:
+        core.on_frame(msg, t, rx_seq=next(seq) if serial else None)
+
+    core = LinkCore(LinkConfig("sim://x"))
+    core.on_connected(0.0)
+    core.tick(0.0)
+    _written(core, 0.0)
+    frame(Ident(PROTOCOL_VERSION, 1, 0, 0, SCHEMA_HASH, 0x1234), 0.002)
+    session = Heartbeat(ControllerState.IDLE, 0, 1, 0, 0, 0, 0, 0, 0x1234, 0, 0)
+    none = Heartbeat(ControllerState.BOOT, 0, 0, 0, 0, 0, 0, 0, 0x1234, 0, 0)
+    frame(session, 0.1)
+    core.take_events()
+    frame(none, 0.2)
+    assert (core.reboots, core.state) == (
+        (1, LinkState.HANDSHAKE) if serial else (0, LinkState.HANDSHAKE)
+    )
+    texts = _texts(core)
+    assert ("fault:controller_reboot" in texts) is serial
+    # A session never confirmed (the IDENT taken for a reply was a boot IDENT that
+    # crossed the HELLO): its end is no new reboot.
+    core.tick(0.3)
+    _written(core, 0.3)
+    frame(Ident(PROTOCOL_VERSION, 1, 0, 0, SCHEMA_HASH, 0x1234), 0.31)
+    assert core.state is LinkState.READY
+    frame(none, 0.4)
+    assert core.reboots == (1 if serial else 0)

@@ -87,12 +87,26 @@ def bridged(
         yield parts
 
 
+@pytest.fixture(params=[*BRIDGE_BACKENDS, pytest.param("inprocess", id="repeated-nonce")])
+def rebooting(
+    request: pytest.FixtureRequest, emulators: Emus, make_port: Callable[..., RosPort]
+) -> Iterator[tuple[Emulator, BridgeNode, Client, bool]]:
+    """As :func:`bridged`, and once with a controller that reboots with the boot nonce of
+    the boot before (against docs/protocol.md, Handshake 1; issue #40, hole 5); the last
+    item says which."""
+    repeats = request.node.callspec.id == "repeated-nonce"
+    mutant = "reboot-keeps-nonce" if repeats else ""
+    with bridge_on(request.param, emulators, make_port, mutant=mutant) as parts:
+        yield (*parts, repeats)
+
+
 @contextlib.contextmanager
 def bridge_on(
-    backend: str, emulators: Emus, make_port: Callable[..., RosPort]
+    backend: str, emulators: Emus, make_port: Callable[..., RosPort], **emulator: Any
 ) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
-    """An emulator on a pty, the bridge node on ``backend`` and a client, the link ready."""
-    emu = emulators()
+    """An emulator on a pty (``emulator``: the factory's options), the bridge node on
+    ``backend`` and a client, the link ready."""
+    emu = emulators(**emulator)
     assert isinstance(emu.frontend, SerialFrontEnd)
     params = load_params(
         {"device": emu.frontend.device, "ros_backend": backend, "diagnostics_hz": 5.0}, env={}
@@ -274,10 +288,13 @@ def test_bridge_process_over_ros2(emulators: Emus) -> None:
     assert emu.status().x_m == pytest.approx(0.5, abs=0.01)
 
 
-def test_odom_is_continuous_across_a_controller_reboot(bridged: Any) -> None:
+def test_odom_is_continuous_across_a_controller_reboot(rebooting: Any) -> None:
     """#16 bug 2: encoders restart at 0 after a reboot; /odom must not count that as
-    motion (docs/protocol.md, Telemetry: re-base on the new boot nonce)."""
-    emu, node, client = bridged
+    motion (docs/protocol.md, Telemetry: re-base on the new boot nonce). Issue #40, hole
+    5: nor when the controller repeats its nonce (its boot IDENT restarted the frame
+    counter): before, /odom jumped back 0.3 m and the reboot went uncounted."""
+    emu, node, client, repeats = rebooting
+    nonce = node.link.diagnostics().boot_nonce
     client.step(1, 60, 6900)  # 0.3 m: less than the 0.5 m 'counter reset' heuristic
     client.status.wait_count("completed", 1)
     deadline = time.monotonic() + 10.0
@@ -303,6 +320,9 @@ def test_odom_is_continuous_across_a_controller_reboot(bridged: Any) -> None:
         assert time.monotonic() < deadline, client.odom[-1].pose.pose.position
         time.sleep(0.01)
     assert node.odometry.resets == 0  # re-based on the nonce, not caught by the heuristic
+    diag = node.link.diagnostics()
+    assert diag.reboots == 1 and node.odometry.reboots == 1
+    assert (diag.boot_nonce == nonce) is repeats
 
 
 def test_tf_where_tf2_msgs_is_installed_else_said_once(bridged: Any) -> None:

@@ -6,9 +6,14 @@ for each plan, validated by the stack's gate), then ``rover calibrate`` on the
 recordings it kept: the recorded path from a real run.
 
 Four times faster than real time (the stack's speed factor, the link's delay and the
-executor's timeouts scaled alike), with a budget of 16 s of driving: the first plan of
-the design only (its behaviour, round after round, is tests/emulator/test_campaign.py's,
-in virtual time)."""
+executor's timeouts scaled alike), with a budget of 26 s of driving: the first plan of
+the design and the one its first fit asks for (its behaviour, round after round, is
+tests/emulator/test_campaign.py's, in virtual time). With 16 s, the first plan alone,
+the worst probe's spread after its fit was 2.1-4.7 of its bar over 9 runs here (idle
+and beside 2 and 4 busy processes: the POSE's noise over one 0.5 m forward step) and
+once, in CI, 5.5: past the refusal's 5, the command rightly exited 3 asking for a
+forward step at speed 25. The budget must leave the design room to answer its own
+fit."""
 
 from __future__ import annotations
 
@@ -31,6 +36,9 @@ from tests.child import Child
 # serial: a mission across four processes; alone, no other worker's load can starve the
 # link past the controller's watchdog (as for the demo tests).
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow, pytest.mark.serial, pytest.mark.timeout(600)]
+
+BUDGET_S = 26.0
+"""Seconds of driving: the first plan (15.1 s) and the second (8.2 s) hold in it."""
 
 
 def _rover(
@@ -66,7 +74,7 @@ def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate
             "calibrate",
             "--drive",
             "--budget",
-            "16",
+            str(BUDGET_S),
             "--map",
             "lab",
             "-o",
@@ -87,7 +95,8 @@ def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate
     )
     calibration = load_twin(twin).calibration
     assert calibration.turn_efficiency == pytest.approx(truth, abs=0.02)
-    assert calibration.driving_s <= 16.0
+    assert calibration.driving_s <= BUDGET_S
+    assert "round 2: " in out  # the second plan, chosen from the first fit
     assert calibration.noise is not None and calibration.draws
     # Each plan went through rover go --plan, the stack's gate first.
     plans = sorted(rounds.glob("round-*.json"))

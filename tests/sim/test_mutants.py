@@ -47,16 +47,18 @@ ISSUE_40 = [
     pytest.param("refused-clear-retried", "", 36, "serial", "release", id="hole-2"),
     pytest.param("clear-drops-stop", "", 24, "serial", "stopped", id="hole-3"),
     pytest.param("step-refused-during-clear", "", 82, "serial", "order", id="hole-4"),
-    pytest.param("", "reboot-keeps-nonce", 20, "serial", "odometry", id="hole-5"),
+    pytest.param("boot-ident-ignored", "reboot-keeps-nonce", 20, "serial", "odometry", id="hole-5"),
     pytest.param("lost-from-read-total", "", 4, "serial", "counters", id="hole-6"),
     pytest.param("clear-copies-queue", "", 24, "can", "repeat", id="hole-7"),
     pytest.param("request-ids-from-one", "", 16, "serial", "request-id", id="hole-8"),
 ]
 """(host mutant, controller mutant, seed, medium, the invariant it breaks): the holes of
 issue #40, each with its fix undone, found by seed. A controller mutant is the Python
-model with one rule broken (:mod:`emulator.mutants`): hole 5's fix is the controller's (a
-new boot nonce differs from the last; conformance rule ``reboot`` kills the same
-mutant), the bridge relies on it."""
+model with one rule broken (:mod:`emulator.mutants`): hole 5 has two fixes, the
+controller's (a new boot nonce differs from the last; conformance rule ``reboot`` kills
+the same mutant) and the bridge's (a boot IDENT is a reboot whatever its nonce): it is
+found with both undone, and each alone closes it
+(:func:`test_hole_5_either_fix_alone_closes_it`)."""
 
 
 MASKED = {"auto-clear-after-fault-frame"}
@@ -152,11 +154,31 @@ def test_hole_5_a_repeated_nonce_shows_as_the_issue_saw_it() -> None:
     """A controller whose reboot keeps its boot nonce: /odom jumps, the reboot is not
     counted and the restarted frame counter is counted as lost frames, each seen against
     the simulator's knowledge of every frame's boot."""
-    broken = make_scenario(20, medium="serial", controller_mutant="reboot-keeps-nonce")
+    broken = make_scenario(
+        20, medium="serial", mutants=("boot-ident-ignored",), controller_mutant="reboot-keeps-nonce"
+    )
     lines = [v.line() for v in run_scenario(broken).violations]
     assert any("odometry moved" in x for x in lines), lines
     assert any("reboots is 0, the simulator saw 1" in x for x in lines), lines
     assert any("lost_frames 172, the frame counter's gaps" in x for x in lines), lines
+
+
+@pytest.mark.parametrize("seed", [7, 9, 20, 26, 41, 87])
+def test_hole_5_either_fix_alone_closes_it(seed: int) -> None:
+    """A controller that repeats its nonce, against the bridge as it is: the boot IDENT,
+    or a session lost on the serial link, tells the reboot (odometry re-based, the
+    reboot counted, the counter's restart no loss); and a conforming controller against
+    the bridge that relies on the nonce. The seeds reboot the controller on a live link
+    (20), during an unplug (7, 26), a cut (9) and right after answering a HELLO (41,
+    87): a reboot that repeats the nonce while the link is down shows no sign, and the
+    simulator lets the host count it or not (sim.checks)."""
+    keeps = make_scenario(seed, medium="serial", controller_mutant="reboot-keeps-nonce")
+    assert {"reboot", "hello-reboot"} & {f.kind for f in keeps.faults}, keeps.faults
+    outcome = run_scenario(keeps)
+    assert outcome.ok, outcome.violations
+    relies = make_scenario(seed, medium="serial", mutants=("boot-ident-ignored",))
+    outcome = run_scenario(relies)
+    assert outcome.ok, outcome.violations
 
 
 def test_hole_6_is_a_reboot_crossing_a_hello() -> None:
