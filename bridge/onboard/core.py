@@ -51,7 +51,11 @@ before the first in motion, or its publication if later; its prediction waits at
 start until then): not when its ``accepted`` callback runs, which a busy computer runs
 late, and a late start turned a correct turn into a heading error. Any other end of a
 step (``rejected:``, ``aborted:``, a fault but a lost sensor's, no ``completed`` within
-1.5 times its predicted duration plus ``step_margin_s``) ends the plan with STOP.
+1.5 times its predicted duration plus ``step_margin_s``) ends the plan with STOP; so
+does a status that cannot be the fate of the step outstanding, a second ``accepted`` or
+a ``completed`` before its ``accepted`` (a step someone else published while the plan
+runs, which would otherwise advance the plan past a step that never ran:
+``foreign_step``).
 
 **The guard.** Each estimate is compared with the prediction for the same moment of the
 same step (the uplink's samples are tagged with their step and the twin time since it
@@ -641,14 +645,25 @@ class OnboardCore:
                 self._latch_unknown()
             return
         if text == ACCEPTED:
-            if not plan.accepted:
-                # Its start stays as it is (its publication, or the motion seen since):
-                # the callback's time is that plus however late this computer runs it.
-                plan.accepted = True
-                plan.status = text
-                self._report("step", now)
+            if plan.accepted:
+                # One step outstanding, one ``accepted``: a second is a step someone
+                # else published, and the statuses that follow can no longer be told
+                # apart from this plan's.
+                self._foreign_step(plan, "a second 'accepted' for one step", now)
+                return
+            # Its start stays as it is (its publication, or the motion seen since): the
+            # callback's time is that plus however late this computer runs it.
+            plan.accepted = True
+            plan.status = text
+            self._report("step", now)
             return
         if text == COMPLETED:
+            if not plan.accepted:
+                # Its own step is accepted before it completes: this one is another's
+                # (or a copy of the last), and would advance the plan past a step that
+                # never ran.
+                self._foreign_step(plan, "'completed' before the step was accepted", now)
+                return
             plan.status = text
             self._next_step(plan, now)
             return
@@ -667,6 +682,16 @@ class OnboardCore:
         n = len(plan.uplink.steps)
         self._stop(f"step {plan.step + 1}/{n}: {text}", now)
         self._end(plan, "failed", f"step {plan.step + 1}/{n}: {text}", now)
+
+    def _foreign_step(self, plan: _Plan, what: str, now: float) -> None:
+        """A status that is no fate of the plan's step outstanding: a step someone else
+        published on ``/wheel_instructions`` while the plan runs (or a repeated status).
+        The plan cannot tell its steps' fates apart any more: STOP, and it ends."""
+        n = len(plan.uplink.steps)
+        why = f"step {plan.step + 1}/{n}: {what}: a step the plan did not send (foreign_step)"
+        plan.status = f"foreign_step: {what}"
+        self._stop(why, now)
+        self._end(plan, "failed", why, now)
 
     def on_ground_stop(self, now: float) -> None:
         """``true`` heard on ``emergency_stop``: the core's own STOP heard back (one per

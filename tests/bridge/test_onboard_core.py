@@ -496,6 +496,35 @@ def test_a_failed_step_ends_the_plan_with_stop(status: str) -> None:
     assert len(r.steps()) == 1
 
 
+@pytest.mark.parametrize(
+    ("statuses", "what"),
+    [
+        (["accepted", "accepted"], "a second 'accepted' for one step"),
+        (["accepted", "completed", "completed"], "'completed' before the step was accepted"),
+    ],
+    ids=["foreign-accepted", "repeated-completed"],
+)
+def test_a_foreign_step_ends_the_plan_with_stop_instead_of_advancing_it(
+    statuses: list[str], what: str
+) -> None:
+    """Review A13: a step someone else publishes while a plan runs gets an ``accepted``
+    and a ``completed`` of its own, which the plan took for its step's and ran on: a
+    step skipped. A status that cannot be the fate of the step outstanding ends the plan
+    with STOP, and no further step goes out."""
+    r = Rover()
+    r.uplink(_plan())
+    for text in statuses[:-1]:
+        r.status(text)
+    sent = len(r.steps())
+    out = r.status(statuses[-1])
+    assert isinstance(out[0], SendStop)
+    last = r.reports()[-1]
+    assert last.outcome == "failed" and what in last.reason and "foreign_step" in last.reason
+    assert len(r.steps()) == sent
+    r.status("completed")  # what follows changes nothing
+    assert len(r.steps()) == sent
+
+
 def test_a_lost_sensor_does_not_end_the_plan() -> None:
     r = Rover()
     plan = _plan()
