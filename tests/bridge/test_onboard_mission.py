@@ -61,6 +61,9 @@ class Ground:
         self.node.create_subscription(String, "/onboard_report", self._report, 100)
         self.node.create_subscription(String, "/command_status", self._status, 100)
         self.node.create_subscription(Odometry, "/odom_ground", self._pose, 10)
+        from std_msgs.msg import Int16MultiArray
+
+        self.steps = self.node.create_publisher(Int16MultiArray, "/wheel_instructions", 10)
         self._executor = SingleThreadedExecutor(context=self.context)
         self._executor.add_node(self.node)
         self._stop = threading.Event()
@@ -243,3 +246,37 @@ def test_a_plan_runs_on_board_bad_uplinks_are_refused_and_the_guard_stops_a_slip
     status = json.loads(_control(control, "status"))["status"]
     assert status["stop_latched"] is True
     assert any("STOP: drift" in line for line in onboard.errors)
+
+
+def test_a_step_someone_else_publishes_while_a_plan_runs_ends_the_plan_with_stop(
+    rover: tuple[int, Child], ground: Ground
+) -> None:
+    """Review A13: a step published on ``/wheel_instructions`` by another node while a
+    plan runs gets an ``accepted`` of its own; the plan took it (and its ``completed``)
+    for its own step's and ran on. Now it ends ``failed`` (``foreign_step``) with STOP."""
+    from std_msgs.msg import Int16MultiArray
+
+    control, onboard = rover
+    plan_id = int(time.time() * 1000)
+    here = ground.where()
+    steps = ((FWD, 30, 9200), (FWD, 30, 9200))
+    uplink = predict(
+        load_rover(None),
+        plan_id,
+        steps,
+        0.001,
+        world=load_map("lab"),
+        start=here,
+        boot=ground.boot(),
+    )
+    mark = ground.statuses.mark()
+    assert ground.send(uplink.envelope(TOKEN), plan_id).result == "accepted"
+    # The plan's first step is out (0.4 m at speed 30: over a second of driving).
+    assert ground.statuses.until(lambda xs: "accepted" in xs, since=mark, timeout_s=10.0)
+    ground.steps.publish(Int16MultiArray(data=[FWD, 20, 2300]))
+    done = ground.ended(plan_id)
+    why = [done.line(), *onboard.errors[-5:], *ground.statuses.items()[-8:]]
+    assert done.outcome == "failed" and "foreign_step" in done.reason, why
+    assert done.step == 0, why  # it ran on to no second step
+    status = json.loads(_control(control, "status"))["status"]
+    assert status["stop_latched"] is True
