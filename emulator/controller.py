@@ -449,10 +449,15 @@ class ControllerModel:
         # whether it comes before or after it. The controller's own stops (0) each get one.
         if stop_id != 0 and stop_id in self._reported_stops:
             return
-        if all(p.stop_id != stop_id for p in self._pending_stops):
-            self._pending_stops.append(
-                _PendingStop(stop_id, self.now_s, self.encoders.travel(), self._clears)
-            )
+        for pending in self._pending_stops:
+            if pending.stop_id == stop_id:
+                # Owed from a latch a CLEARED released: this latch shares it, and a copy
+                # after this one is a repeat of this latch.
+                pending.clears = self._clears
+                return
+        self._pending_stops.append(
+            _PendingStop(stop_id, self.now_s, self.encoders.travel(), self._clears)
+        )
 
     def _ended_status(self, seq: int, state: int, reason: int, travel: int) -> Status:
         """STATUS for a step that ended, remembered for PROGRESS."""
@@ -482,10 +487,12 @@ class ControllerModel:
 
     def _stop_is_repeat(self, stop_id: int) -> bool:
         """A host STOP with this id was seen in this latch (its STOPPED is owed or sent): a
-        repeat, which raises no latch generation and gets no STOPPED of its own."""
+        repeat, which raises no latch generation and gets no STOPPED of its own. One whose
+        STOPPED is owed from a latch a CLEARED released since is new: it latches again,
+        and that is a new cause."""
         return stop_id != 0 and (
             stop_id in self._reported_stops
-            or any(p.stop_id == stop_id for p in self._pending_stops)
+            or any(p.stop_id == stop_id and p.clears == self._clears for p in self._pending_stops)
         )
 
     def _raise_latch_gen(self) -> None:

@@ -422,6 +422,21 @@ class _PredatedIdRemembered(ControllerModel):
 
 
 @_mutant(
+    "relatch-keeps-generation",
+    "stop-after-clear",
+    "A copy of a STOP that arrives after the CLEARED that released its latch, while its "
+    "STOPPED is owed, latches again with a new latch generation (the issue #40 clean-room "
+    "check: both controllers latched again with the released one).",
+)
+class _RelatchKeepsGeneration(ControllerModel):
+    def _stop_is_repeat(self, stop_id: int) -> bool:
+        return stop_id != 0 and (
+            stop_id in self._reported_stops
+            or any(p.stop_id == stop_id for p in self._pending_stops)
+        )
+
+
+@_mutant(
     "own-stops-as-repeats",
     "own-stops",
     "The controller's own stops (stop_id 0) are never taken for repeats: each gets a "

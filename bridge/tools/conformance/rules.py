@@ -889,6 +889,46 @@ def stopped_owed(ctx: Context) -> str:
     return f"STOPPED {stop_id} after CLEARED ({stopped.distance_mm} mm), then the step"
 
 
+@rule("stop-after-clear", "STOP semantics")
+def stop_after_clear(ctx: Context) -> str:
+    """A copy of a STOP that arrives after the CLEARED that released its latch, while its
+    STOPPED is still owed, is a new cause of a new latch: its STOP_ACK names a new latch
+    generation (so a clear naming the released one is answered LATCH_CHANGED and releases
+    nothing) and it shares the STOPPED owed; a further copy is a repeat of that latch."""
+    host = ctx.host
+    _, start = _running_step(ctx)
+    _cruising(ctx, start, 60)
+    stop_id = ctx.stop_id()
+    clear_id = ctx.stop_id()
+    # Back to back, as in stopped-owed: the CLEAR_STOP is answered long before rest.
+    mark = host.send(Stop(stop_id, StopSource.BENCH))
+    host.send(host.clear_stop_for(clear_id, ahead=1))
+    first = host.expect(StopAck, _acks(stop_id), since=mark, what="STOP_ACK")
+    cleared = host.expect(
+        ClearAck, lambda a: a.stop_id == clear_id, since=mark, what=f"CLEAR_ACK {clear_id}"
+    )
+    check(cleared.result == ClearResult.CLEARED, f"CLEAR_STOP answered {cleared.describe()}")
+    gens = []
+    for _copy in range(2):  # a copy that crossed the CLEAR_ACK, then a repeat of it
+        sent = host.send(Stop(stop_id, StopSource.BENCH))
+        gens.append(host.expect(StopAck, _acks(stop_id), since=sent, what="STOP_ACK").latch_gen)
+    want = [(first.latch_gen + 1) & 0xFF] * 2
+    check(
+        gens == want,
+        f"after CLEARED (generation {first.latch_gen}) the STOP's copies were acknowledged "
+        f"with generations {gens}, expected {want}: the copy latches again, a new cause",
+    )
+    stale = ctx.clear_ack(ctx.stop_id(), latch_gen=first.latch_gen)
+    check(
+        stale.result == ClearResult.LATCH_CHANGED,
+        f"a CLEAR_STOP naming the released generation {first.latch_gen} answered "
+        f"{_name(ClearResult, stale.result)}, expected LATCH_CHANGED",
+    )
+    _stopped(ctx, stop_id, mark)
+    ctx.clear()
+    return f"the copy after CLEARED latched at generation {gens[0]}; a stale clear refused"
+
+
 @rule("own-stops", "STOP semantics")
 def own_stops(ctx: Context) -> str:
     """The controller's own stops (stop_id 0) are never taken for repeats: each MOTION

@@ -408,22 +408,39 @@ static bool reported(const fw_t *c, uint16_t stop_id)
     return false;
 }
 
-/** A host STOP with this id was seen in this latch (its STOPPED is owed or sent): a
- * repeat, which raises no latch generation and gets no STOPPED of its own. */
-static bool stop_is_repeat(const fw_t *c, uint16_t stop_id)
+/** The STOPPED owed for ``stop_id``, or NULL. */
+static fw_pending_stop_t *pending_of(fw_t *c, uint16_t stop_id)
 {
     uint8_t i;
+    for (i = 0u; i < c->n_pending; i++) {
+        if (c->pending[i].stop_id == stop_id) {
+            return &c->pending[i];
+        }
+    }
+    return NULL;
+}
+
+/** A host STOP with this id was seen in this latch (its STOPPED is owed or sent): a
+ * repeat, which raises no latch generation and gets no STOPPED of its own. One whose
+ * STOPPED is owed from a latch a CLEARED released since is new (it latches again, a new
+ * cause); the new latch takes that STOPPED owed over, so a copy after it is a repeat. */
+static bool stop_is_repeat(fw_t *c, uint16_t stop_id)
+{
+    fw_pending_stop_t *p;
     if (stop_id == 0u) {
         return false; /* the controller's own stops are never repeats */
     }
     if (reported(c, stop_id)) {
         return true;
     }
-    for (i = 0u; i < c->n_pending; i++) {
-        if (c->pending[i].stop_id == stop_id) {
-            return true;
-        }
+    p = pending_of(c, stop_id);
+    if (p == NULL) {
+        return false;
     }
+    if (p->clears == c->clears) {
+        return true;
+    }
+    p->clears = c->clears; /* owed from a released latch: this one takes it over */
     return false;
 }
 
@@ -435,7 +452,6 @@ static void raise_latch_gen(fw_t *c) { c->latch_gen = (uint8_t)(c->latch_gen + 1
  * The caller has raised the latch generation if the stop is new. */
 static void do_stop(fw_t *c, uint16_t stop_id, uint8_t reason, uint8_t cause)
 {
-    uint8_t i;
     c->setpoint[0] = c->setpoint[1] = 0;
     abort_all(c, reason);
     c->latch = (uint8_t)(c->latch | cause);
@@ -448,10 +464,8 @@ static void do_stop(fw_t *c, uint16_t stop_id, uint8_t reason, uint8_t cause)
     if (stop_id != 0u && reported(c, stop_id)) {
         return;
     }
-    for (i = 0u; i < c->n_pending; i++) {
-        if (c->pending[i].stop_id == stop_id) {
-            return;
-        }
+    if (pending_of(c, stop_id) != NULL) {
+        return;
     }
     if (c->n_pending < FW_PENDING_STOPS) {
         fw_pending_stop_t *p = &c->pending[c->n_pending++];
@@ -715,9 +729,9 @@ void fw_handle(fw_t *c, uint64_t now_us, const rp_msg_t *msg)
     if (msg->id == RP_MSG_STOP) {
         /* The acknowledgement goes first (it is what the host is timing); the state and
          * generation it names are the ones after the stop: FAULT stays FAULT, all else
-         * latches. */
+         * latches. do_stop, below in this call, zeroes the targets: no control tick
+         * comes between. */
         rp_msg_t ack;
-        c->setpoint[0] = c->setpoint[1] = 0;
         if (!stop_is_repeat(c, msg->body.stop.stop_id)) {
             raise_latch_gen(c);
         }

@@ -156,11 +156,11 @@ typedef struct {
     /* wheels, rover frame, um/s */
     int32_t setpoint[2], commanded[2];
     /* stops */
-    fw_pending_stop_t pending[FW_PENDING_STOPS];
+    uint16_t clears;          /**< CLEAR_STOPs answered CLEARED since boot (wraps) */
     uint8_t n_pending;
+    fw_pending_stop_t pending[FW_PENDING_STOPS];
     uint16_t reported[FW_REPORTED_STOPS];
     uint8_t n_reported, reported_head;
-    uint16_t clears;          /**< CLEAR_STOPs answered CLEARED since boot (wraps) */
     uint8_t latch_gen;        /**< HEARTBEAT latch_gen: raised by every new latch cause */
     bool have_last_clear;     /**< a CLEAR_STOP was answered since boot */
     uint16_t last_clear_id;   /**< stop_id of the last CLEAR_STOP answered */
