@@ -847,24 +847,32 @@ def stopped_distance(ctx: Context) -> str:
     return f"spin stopped in {stopped.distance_mm} mm"
 
 
+def _stop_then_clear_at_cruise(ctx: Context) -> tuple[int, int, StopAck, ClearAck]:
+    """A step at cruise (speed 60), then a STOP and a CLEAR_STOP back to back, so that the
+    CLEAR_STOP reaches the controller long before rest (a quarter of a second of braking)
+    however slow the host is: ``(stop_id, mark before the STOP, its STOP_ACK, the
+    CLEAR_ACK)``, whatever they say."""
+    host = ctx.host
+    _, start = _running_step(ctx)
+    _cruising(ctx, start, 60)
+    stop_id = ctx.stop_id()
+    clear_id = ctx.stop_id()
+    mark = host.send(Stop(stop_id, StopSource.BENCH))
+    host.send(host.clear_stop_for(clear_id, ahead=1))  # after the STOP just sent
+    ack = host.expect(StopAck, _acks(stop_id), since=mark, what="STOP_ACK")
+    cleared = host.expect(
+        ClearAck, lambda a: a.stop_id == clear_id, since=mark, what=f"CLEAR_ACK {clear_id}"
+    )
+    return stop_id, mark, ack, cleared
+
+
 @rule("stopped-owed", "STOP semantics")
 def stopped_owed(ctx: Context) -> str:
     """A STOPPED still owed survives a CLEAR_STOP that comes before rest: it comes, and a
     step sent meanwhile starts only after it; its stop_id, reported after the CLEARED it
     predates, is not remembered (a STOP with it is a new stop, with its own STOPPED)."""
     host = ctx.host
-    _, start = _running_step(ctx)
-    _cruising(ctx, start, 60)
-    stop_id = ctx.stop_id()
-    clear_id = ctx.stop_id()
-    # Back to back, so that the CLEAR_STOP reaches the controller long before rest (a
-    # quarter of a second of braking) however slow the host is.
-    mark = host.send(Stop(stop_id, StopSource.BENCH))
-    host.send(host.clear_stop_for(clear_id, ahead=1))  # after the STOP just sent
-    host.expect(StopAck, lambda a: a.stop_id == stop_id, since=mark, what="STOP_ACK")
-    ack = host.expect(
-        ClearAck, lambda a: a.stop_id == clear_id, since=mark, what=f"CLEAR_ACK {clear_id}"
-    )
+    stop_id, mark, _first, ack = _stop_then_clear_at_cruise(ctx)
     early = [m for m in host.received(mark) if isinstance(m, Stopped)]
     check(
         not early,
@@ -896,17 +904,7 @@ def stop_after_clear(ctx: Context) -> str:
     generation (so a clear naming the released one is answered LATCH_CHANGED and releases
     nothing) and it shares the STOPPED owed; a further copy is a repeat of that latch."""
     host = ctx.host
-    _, start = _running_step(ctx)
-    _cruising(ctx, start, 60)
-    stop_id = ctx.stop_id()
-    clear_id = ctx.stop_id()
-    # Back to back, as in stopped-owed: the CLEAR_STOP is answered long before rest.
-    mark = host.send(Stop(stop_id, StopSource.BENCH))
-    host.send(host.clear_stop_for(clear_id, ahead=1))
-    first = host.expect(StopAck, _acks(stop_id), since=mark, what="STOP_ACK")
-    cleared = host.expect(
-        ClearAck, lambda a: a.stop_id == clear_id, since=mark, what=f"CLEAR_ACK {clear_id}"
-    )
+    stop_id, mark, first, cleared = _stop_then_clear_at_cruise(ctx)
     check(cleared.result == ClearResult.CLEARED, f"CLEAR_STOP answered {cleared.describe()}")
     gens = []
     for _copy in range(2):  # a copy that crossed the CLEAR_ACK, then a repeat of it
