@@ -277,6 +277,8 @@ def test_a_step_someone_else_publishes_while_a_plan_runs_ends_the_plan_with_stop
     done = ground.ended(plan_id)
     why = [done.line(), *onboard.errors[-5:], *ground.statuses.items()[-8:]]
     assert done.outcome == "failed" and "foreign_step" in done.reason, why
-    assert done.step == 0, why  # it ran on to no second step
+    # Its own step was out when the foreign one came (the second, had this computer been
+    # slow enough to hear the first one's end before): no step after it.
+    assert done.step <= 1, why
     status = json.loads(_control(control, "status"))["status"]
     assert status["stop_latched"] is True
