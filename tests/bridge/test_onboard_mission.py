@@ -259,7 +259,7 @@ def test_a_step_someone_else_publishes_while_a_plan_runs_ends_the_plan_with_stop
     control, onboard = rover
     plan_id = int(time.time() * 1000)
     here = ground.where()
-    steps = ((FWD, 30, 9200), (FWD, 30, 9200))
+    steps = ((FWD, 30, 9200), (FWD, 30, 9200), (FWD, 30, 9200))
     uplink = predict(
         load_rover(None),
         plan_id,
@@ -277,8 +277,9 @@ def test_a_step_someone_else_publishes_while_a_plan_runs_ends_the_plan_with_stop
     done = ground.ended(plan_id)
     why = [done.line(), *onboard.errors[-5:], *ground.statuses.items()[-8:]]
     assert done.outcome == "failed" and "foreign_step" in done.reason, why
-    # Its own step was out when the foreign one came (the second, had this computer been
-    # slow enough to hear the first one's end before): no step after it.
+    # It ended in the step that was out when the foreign one came (the first; the second,
+    # had this computer been slow enough to hear the first one's end before): the third
+    # never went out.
     assert done.step <= 1, why
     status = json.loads(_control(control, "status"))["status"]
     assert status["stop_latched"] is True
