@@ -33,6 +33,7 @@ suffixes python-can knows are refused: ``.asc`` and ``.trc`` round times to 0.1 
 from __future__ import annotations
 
 import io
+import logging
 import struct
 import threading
 from abc import ABC, abstractmethod
@@ -65,11 +66,14 @@ __all__ = [
     "LogWriter",
     "SerialLogWriter",
     "can_record",
+    "keep_previous",
     "open_recorder",
     "parse_log",
     "read_log",
     "writer_for",
 ]
+
+logger = logging.getLogger(__name__)
 
 
 class LogWriter(ABC):
@@ -383,12 +387,36 @@ def open_recorder(
     path: str | Path, medium: str, *, channel: str = "", metadata: Mapping[str, str] | None = None
 ) -> LogWriter:
     """A recorder for either end of the link: a new log of ``medium`` (``"serial"``,
-    ``"can"``) at ``path``, created or truncated, in the format its suffix calls for
-    (:func:`writer_for`, whose ValueError comes before the file is made; OSError: it
-    cannot be made). ``metadata`` heads a serial log, where ``rover replay`` finds the
-    emulator's seed, speed factor and map."""
-    start = writer_for(medium, Path(path).suffix, channel=channel, metadata=metadata)
-    return start(Path(path).open("wb"))
+    ``"can"``) at ``path``, in the format its suffix calls for (:func:`writer_for`, whose
+    ValueError comes before the file is made; OSError: it cannot be made). A log already
+    there is kept, renamed by :func:`keep_previous` (a bridge restarted by its service
+    with the same ``--record`` once truncated the recording of the run that failed).
+    ``metadata`` heads a serial log, where ``rover replay`` finds the emulator's seed,
+    speed factor and map."""
+    target = Path(path)
+    start = writer_for(medium, target.suffix, channel=channel, metadata=metadata)
+    keep_previous(target)
+    return start(target.open("xb"))
+
+
+def keep_previous(path: Path) -> Path | None:
+    """Rename a non-empty file at ``path`` to ``<stem>.<n><suffix>`` beside it, ``n``
+    the first free from 1 (the suffix kept, so its format is still known), and return
+    the new name; an empty one is removed. ``None`` when there was nothing to keep."""
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        return None
+    if size == 0:
+        path.unlink()
+        return None
+    for n in range(1, 100_000):
+        kept = path.with_name(f"{path.stem}.{n}{path.suffix}")
+        if not kept.exists():
+            path.rename(kept)
+            logger.info("kept the previous recording %s as %s", path, kept)
+            return kept
+    raise FileExistsError(f"{path}: 99,999 earlier recordings beside it; move them away")
 
 
 def read_log(path: str | Path) -> LogFile:

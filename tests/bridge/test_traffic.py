@@ -428,3 +428,32 @@ def test_a_controller_of_another_schema_makes_the_bridge_refuse(
     assert "rejected:schema_mismatch" in result.statuses
     missing = [d.expected for d in result.differences if d.actual is None]
     assert "MOTION seq=1 command=FWD speed=60 distance=3000" in missing
+
+
+@pytest.mark.parametrize(("name", "medium"), [("link.rlog", "serial"), ("link.log", "can")])
+def test_a_recording_already_there_is_kept_not_truncated(
+    tmp_path: Path, name: str, medium: str
+) -> None:
+    """A bridge restarted by its service with the same ``--record`` truncated the
+    recording of the run that failed (the #40 clean-room check). The log already there is
+    kept beside it, its suffix (its format) kept; an empty one is not."""
+
+    def record(stamp: float) -> None:
+        with open_recorder(tmp_path / name, medium) as writer:
+            if medium == "serial":
+                writer.record(SerialRecord(stamp, "C>H", encode_frame(Ident(4, 1, 0, 0, 1, 2))))
+            else:
+                data = encode_can(Ident(4, 1, 0, 0, 1, 2), 1)
+                writer.record(CanRecord(stamp, "c", data[0], data[1], is_rx=True))
+
+    record(1.0)
+    record(2.0)
+    record(3.0)
+    stem, suffix = name.split(".")
+    first, second = tmp_path / f"{stem}.1.{suffix}", tmp_path / f"{stem}.2.{suffix}"
+    stamps = [read_log(p).records[0].time_s for p in (first, second, tmp_path / name)]
+    assert stamps == pytest.approx([1.0, 2.0, 3.0])
+    (tmp_path / "empty.rlog").touch()
+    with open_recorder(tmp_path / "empty.rlog", "serial"):
+        pass
+    assert not (tmp_path / "empty.1.rlog").exists()
