@@ -6,7 +6,24 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from typing import IO
+
+
+def run_rover(
+    *args: str, env: Mapping[str, str] | None = None, timeout_s: float = 120.0
+) -> subprocess.CompletedProcess[str]:
+    """``rover ARGS`` run to its end (``python -m firmware_proto.cli``), its output
+    captured as text, whatever its exit status; in ``env`` (default: this process's),
+    killed after ``timeout_s`` (``subprocess.TimeoutExpired``)."""
+    return subprocess.run(
+        [sys.executable, "-m", "firmware_proto.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=None if env is None else dict(env),
+        check=False,
+    )
 
 
 class Child:

@@ -41,21 +41,12 @@ from emulator.mutants import make_mutant
 from emulator.serial_frontend import SerialFrontEnd
 from emulator.twin import Twin
 from firmware_proto.model.rover import RoverDescription
+from tests.child import run_rover
 from tests.firmware_proto.c_harness import compiler
 
 from .lockstep_suite import make, run_lockstep
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _rover(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
 
 
 FIRMWARES = [
@@ -192,7 +183,7 @@ def test_the_emulator_passes_the_smoke_rules_over_a_pty_in_real_time(
     emulate_process: tuple[str, str],
 ) -> None:
     device, control = emulate_process
-    out = _rover(
+    out = run_rover(
         "conformance", "--device", device, "--control", control, "--json",
         "--rule", SMOKE + ",seq-restart",
     )  # fmt: skip
@@ -210,7 +201,9 @@ def test_without_a_control_port_those_rules_are_not_run_never_passed(
     emulate_process: tuple[str, str],
 ) -> None:
     device, _ = emulate_process
-    out = _rover("conformance", "--device", device, "--rule", "handshake,reboot", "--rule", "stall")
+    out = run_rover(
+        "conformance", "--device", device, "--rule", "handshake,reboot", "--rule", "stall"
+    )
     assert out.returncode == 3, out.stdout + out.stderr
     rows = {line.split()[0]: line for line in out.stdout.splitlines()[3:6]}
     assert rows["handshake"].split()[1] == "PASS"
@@ -290,7 +283,7 @@ def test_rover_emulate_serves_a_mutant_and_the_suite_names_its_rule(tmp_path: Pa
     """Issue #22's first miss, in real time: a controller that sends STOPPED the moment
     STOP arrives (0 mm, 0 ms, the wheels still turning)."""
     with _emulate(tmp_path, "python", None, "--mutant", "stopped-at-once") as (device, _):
-        out = _rover("conformance", "--device", device, "--rule", "stop,stopped-at-rest")
+        out = run_rover("conformance", "--device", device, "--rule", "stop,stopped-at-rest")
     assert out.returncode == 1, out.stdout + out.stderr
     rows = {line.split()[0]: line for line in out.stdout.splitlines()[3:5]}
     assert rows["stop"].split()[1] == "PASS"
@@ -301,7 +294,7 @@ def test_rover_emulate_serves_a_mutant_and_the_suite_names_its_rule(tmp_path: Pa
 
 
 def test_rover_emulate_refuses_an_unknown_mutant() -> None:
-    out = _rover("emulate", "--serial", "--mutant", "warp", "--duration", "1")
+    out = run_rover("emulate", "--serial", "--mutant", "warp", "--duration", "1")
     assert out.returncode != 0
     assert "unknown mutant 'warp'; known: hello-delays-heartbeat" in out.stderr
 

@@ -8,6 +8,7 @@ by the real stack is calibrated in ``tests/planner/test_calibrate_real.py``.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -33,18 +34,12 @@ from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.model.worldmap import WorldMap
 from planner.record.mcaprec import record_messages
 from sim.calibration_runs import drive_lockstep, field_map, random_mission
+from tests.child import run_rover
 
 LEFT, RIGHT, FWD = 3, 4, 1
 
 
-def rover_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
+rover_cli = functools.partial(run_rover, timeout_s=300.0)
 
 
 @pytest.fixture(scope="module")

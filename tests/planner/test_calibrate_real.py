@@ -21,8 +21,6 @@ import json
 import math
 import os
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -31,7 +29,7 @@ from emulator.ground import load_ground
 from emulator.playback import measure_turn_efficiency
 from emulator.twinfile import load_twin
 from firmware_proto.model.rover import load_rover
-from tests.child import Child
+from tests.child import Child, run_rover
 
 # serial: a mission across four processes; alone, no other worker's load can starve the
 # link past the controller's watchdog (as for the demo tests).
@@ -39,19 +37,6 @@ pytestmark = [pytest.mark.rclpy, pytest.mark.slow, pytest.mark.serial, pytest.ma
 
 BUDGET_S = 26.0
 """Seconds of driving: the first plan (15.1 s) and the second (8.2 s) hold in it."""
-
-
-def _rover(
-    env: dict[str, str], *args: str, timeout_s: float = 300.0
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        env=env,
-        check=False,
-    )
 
 
 def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate(
@@ -63,14 +48,13 @@ def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate
     stack = Child(["stack", "up", "--ground", "loose", "--speed", "4"], env)
     try:
         stack.wait_for("STACK UP domain ", timeout_s=120)
-        exported = _rover(env, "stack", "env")
+        exported = run_rover("stack", "env", env=env, timeout_s=300.0)
         assert exported.returncode == 0, exported.stderr
         shell = dict(item.split("=", 1) for item in shlex.split(exported.stdout.strip())[1:])
         user = {**env, **shell}
         twin = tmp_path / "twin.toml"
         rounds = tmp_path / "rounds"
-        done = _rover(
-            user,
+        done = run_rover(
             "calibrate",
             "--drive",
             "--budget",
@@ -81,6 +65,8 @@ def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate
             str(twin),
             "--keep",
             str(rounds),
+            env=user,
+            timeout_s=300.0,
         )
     finally:
         stack.stop()
@@ -104,8 +90,7 @@ def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate
     assert plans and len(recordings) == len(plans)
     # The recordings calibrate again as recorded missions.
     again = tmp_path / "again.toml"
-    refit = _rover(
-        env,
+    refit = run_rover(
         "calibrate",
         *map(str, recordings),
         "--map",
@@ -115,6 +100,8 @@ def test_a_designed_calibration_drives_a_real_stack_and_its_recordings_calibrate
         "-o",
         str(again),
         "--json",
+        env=env,
+        timeout_s=300.0,
     )
     assert refit.returncode == 0, refit.stderr
     report = json.loads(refit.stdout)

@@ -5,6 +5,7 @@ readable status from the bridge's own diagnostics; the stacks' domains."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import shlex
@@ -21,7 +22,7 @@ from bridge.ros.diagnostics import diagnostic_array
 from bridge.ros.rosport.msgs import stamp
 from planner.ground.roverstatus import from_diagnostics
 from planner.stack import domains
-from tests.child import Child
+from tests.child import Child, run_rover
 
 BASE = LinkDiagnostics(
     state="ready", url="/dev/x", connected=True, missed_beats=0, lost_after_beats=None,
@@ -105,15 +106,7 @@ def test_each_stack_holds_a_domain_of_its_own(
     assert domains.running() == []  # released with the stacks
 
 
-def _rover(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        env=dict(os.environ),
-        check=False,
-    )
+_rover = functools.partial(run_rover, timeout_s=60.0)
 
 
 @pytest.mark.rclpy

@@ -9,13 +9,11 @@ import json
 import os
 import re
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from tests.child import Child
+from tests.child import Child, run_rover
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.serial, pytest.mark.timeout(300)]
 
@@ -27,19 +25,6 @@ def _walkthrough_commands() -> list[str]:
     section = text.split("## Missions against a stack: a walkthrough", 1)[1]
     blocks = re.findall(r"```\n(.*?)```", section, flags=re.S)
     return [line for block in blocks[:2] for line in block.splitlines() if line.strip()]
-
-
-def _rover(
-    env: dict[str, str], *args: str, timeout_s: float = 120.0
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "firmware_proto.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        env=env,
-        check=False,
-    )
 
 
 def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
@@ -66,7 +51,7 @@ def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
             line.startswith("health: rover status") and "READY" in line for line in stack.lines
         )
         # eval "$(rover stack env)"
-        exported = _rover(env, "stack", "env")
+        exported = run_rover("stack", "env", env=env)
         assert exported.returncode == 0, exported.stderr
         line = exported.stdout.strip()
         assert line.startswith("export ")
@@ -76,7 +61,7 @@ def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
         user = {**env, **shell}
         picture = ["--picture", str(tmp_path / "mission.png")]
 
-        first = _rover(user, "go", "--goal", "behind_table", *picture)
+        first = run_rover("go", "--goal", "behind_table", *picture, env=user)
         assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-2000:]
         assert "REACHED" in first.stdout and "NOT REACHED" not in first.stdout
         assert "fell back to odom" not in first.stdout + first.stderr  # no false alarm
@@ -84,7 +69,7 @@ def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
         second = Child(["go", "--goal", "by_the_pillar", *picture], user)
         try:
             second.wait_for(" running, ETA ", timeout_s=60)  # it drives
-            injected = _rover(user, "stack", "inject", "encoder-dropout:left")
+            injected = run_rover("stack", "inject", "encoder-dropout:left", env=user)
             assert injected.returncode == 0, injected.stderr
             assert injected.stdout.startswith("injected encoder-dropout:left")
             assert second.wait(120) == 1
@@ -93,26 +78,26 @@ def test_the_walkthrough_two_missions_a_fault_status_clear_stop_and_a_third(
         ended = next(x for x in second.lines if "NOT REACHED" in x)
         assert re.search(r"NOT REACHED \(step \d+/\d+: fault:encoder", ended), ended
 
-        status = _rover(user, "status")
+        status = run_rover("status", env=user)
         assert status.returncode == 3, status.stdout + status.stderr  # held
         text = status.stdout
         assert "HELD: steps are refused" in text
         assert "FAULT" in text and "faults      ENCODER" in text
         assert "latched by a fault (ENCODER)" in text
         assert "fault:encoder" in text.split("statuses", 1)[1].splitlines()[0]
-        as_json = json.loads(_rover(user, "status", "--json").stdout)
+        as_json = json.loads(run_rover("status", "--json", env=user).stdout)
         assert as_json["faults"] == ["ENCODER"] and "fault" in as_json["latch"]
 
-        fixed = _rover(user, "stack", "inject", "clear:encoder-dropout:left")
+        fixed = run_rover("stack", "inject", "clear:encoder-dropout:left", env=user)
         assert fixed.returncode == 0, fixed.stderr
-        cleared = _rover(user, "clear-stop")
+        cleared = run_rover("clear-stop", env=user)
         assert cleared.returncode == 0, cleared.stdout + cleared.stderr
         assert cleared.stdout.startswith("released: the latch is off (it was held by fault")
 
-        third = _rover(user, "go", "--goal", "by_the_pillar", *picture)
+        third = run_rover("go", "--goal", "by_the_pillar", *picture, env=user)
         assert third.returncode == 0, third.stdout[-2000:] + third.stderr[-2000:]
         assert "REACHED" in third.stdout and "NOT REACHED" not in third.stdout
-        assert _rover(user, "status").returncode == 0  # ready for a fourth
+        assert run_rover("status", env=user).returncode == 0  # ready for a fourth
     finally:
         stack.proc.send_signal(2)
         assert stack.wait(60) == 0, stack.errors[-10:]
