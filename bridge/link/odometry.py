@@ -97,7 +97,8 @@ class OdometryEstimator:
         self._elapsed_s = 0.0
         self._enc_t_ms: int | None = None
         self._source = "imu"
-        self._boot_nonce: int | None = None
+        self._boot: int | None = None
+        """Which boot the counts are of, as :meth:`observe_boot` was last told."""
         self.resets = 0
         """Jumps taken for a counter reset by the plausibility check."""
         self.reboots = 0
@@ -116,7 +117,7 @@ class OdometryEstimator:
         never repeats one). A change (not the first seen) means its counts and clock
         restarted: re-base on the next reading, keeping the pose. Returns whether it
         re-based."""
-        previous, self._boot_nonce = self._boot_nonce, boot
+        previous, self._boot = self._boot, boot
         if previous is None or previous == boot:
             return False
         self.reboots += 1
