@@ -66,8 +66,11 @@ prediction, the drift). The estimate is the filter's, so the guard keeps guardin
 encoders and IMU through a short POSE gap; but drift control needs a sensor that sees
 the ground, so a plan stops (outcome ``blind``) when, since the last POSE fix, the
 estimate moved as far as the plan's linear limit or the wheels moved for ``pose_gap_s``,
-or the estimate's 1-sigma position error reaches the limit. No estimate for ``blind_s``
-while a step runs: STOP (outcome ``blind``).
+or the estimate's 1-sigma position error reaches the limit. The distance is the
+filter's, by the samples' own stamps, not the order they were read in, and it stops the
+plan when no POSE brought it back below the limit within ``unseen_grace_s`` (after a
+stall of the program the POSE that covers the motion may be queued behind the
+odometry). No estimate for ``blind_s`` while a step runs: STOP (outcome ``blind``).
 
 **Its STOP is confirmed.** Every STOP of the core's (the guard's, a failed step's, a
 cancel's) goes out again every ``stop_repeat_s`` until the bridge answers ``stopped``,
@@ -212,7 +215,10 @@ class OnboardConfig:
         pose_gap_s: while a step runs and the wheels move, the estimate's last POSE fix
             older than this: STOP (``blind``; drift control needs a sensor that sees
             the ground). The distance driven since that fix is bounded too: by the
-            plan's linear limit.
+            plan's linear limit, by the filter's stamps (:attr:`Estimate.unseen_m`).
+        unseen_grace_s: the linear limit driven unseen stops the plan when no POSE has
+            brought it back below within this, s (after a stall of the program, the
+            POSE that covers the motion may be read just behind the odometry).
         start_speed_mps, start_yaw_rate_rad_s: a step has started (for the guard's
             prediction) when the estimate's speed or turn rate first exceeds these after
             it went out (above the rest thresholds: a rover settling after a slip is
@@ -238,6 +244,7 @@ class OnboardConfig:
     stop_repeats: int = 8
     echo_window_s: float = 1.0
     pose_gap_s: float = 2.0
+    unseen_grace_s: float = 0.1
     start_speed_mps: float = 0.02
     start_yaw_rate_rad_s: float = 0.05
 
@@ -256,6 +263,7 @@ class OnboardConfig:
             "stop_repeat_s",
             "echo_window_s",
             "pose_gap_s",
+            "unseen_grace_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -332,11 +340,8 @@ class _Plan:
     """The step out was seen to start (an estimate in motion stamped after it went out)."""
     still_s: float = -math.inf
     """The stamp of the last estimate since the step went out not moving its way."""
-    fix_s: float = -math.inf
-    """The stamp of the last POSE fix the guard saw in an estimate."""
-    unseen_m: float = 0.0
-    """The distance the estimate moved since that fix (encoders and gyro alone), m."""
-    last_xy: tuple[float, float] | None = None
+    unseen_since: float | None = None
+    """Since when the estimates have the linear limit driven unseen (core clock)."""
 
 
 class OnboardCore:
@@ -954,21 +959,19 @@ class OnboardCore:
         """Drift control needs a sensor that sees the ground (docs/onboard.md): STOP
         (``blind``) when, since the last POSE fix, the estimate moved the plan's linear
         limit (a slip along the track can be that large unseen), or the wheels moved for
-        ``pose_gap_s``, or the estimate's own 1-sigma position error reached the limit."""
-        xy = (est.x_m, est.y_m)
-        if est.pose_stamp_s != plan.fix_s:
-            plan.fix_s = est.pose_stamp_s
-            plan.unseen_m = 0.0
-        elif plan.last_xy is not None:
-            plan.unseen_m += math.hypot(xy[0] - plan.last_xy[0], xy[1] - plan.last_xy[1])
-        plan.last_xy = xy
+        ``pose_gap_s``, or the estimate's own 1-sigma position error reached the limit.
+        The distance is the filter's, by the samples' stamps, and it has
+        ``unseen_grace_s`` of grace."""
         cfg = self.config
         limit = plan.uplink.limits.linear_m
-        moving = self._moving(est)
+        if est.unseen_m < limit:
+            plan.unseen_since = None
+        elif plan.unseen_since is None:
+            plan.unseen_since = now
         why = None
-        if plan.unseen_m >= limit:
-            why = f"{plan.unseen_m:.2f} m driven since the last POSE fix"
-        elif moving and est.pose_age_s > cfg.pose_gap_s:
+        if plan.unseen_since is not None and now - plan.unseen_since >= cfg.unseen_grace_s:
+            why = f"{est.unseen_m:.2f} m driven since the last POSE fix"
+        elif self._moving(est) and est.pose_age_s > cfg.pose_gap_s:
             why = f"no POSE fix for {est.pose_age_s:.1f} s while moving"
         elif est.sigma_xy_m >= limit:
             why = f"the estimate's position error reached {est.sigma_xy_m:.2f} m"

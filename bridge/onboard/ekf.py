@@ -13,6 +13,14 @@ State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
 - **Correct** with every POSE, at the time it was measured (its stamp is older than the
   last ``odom``: the sensor's latency): the filter goes back to its state at that stamp
   (a short history is kept), applies the correction there, and replays the motion since.
+  A POSE that falls between two ``odom`` samples splits the motion between them at its
+  stamp (in proportion to the time), so a sparse odometry (a backlog the bridge's queue
+  thinned) is not applied twice. A POSE newer than the newest ``odom`` waits for the
+  odometry to pass its stamp (a backlog read after a stall of the program may hand the
+  POSE over before the ``odom`` samples that lead up to it: applied at once, it would
+  have the motion it already holds added again); when the POSE runs ``future_hold_s``
+  ahead of the odometry, the odometry is silent, and the waiting POSEs are applied at
+  the newest state.
   A POSE older than the history is dropped and counted: applied at the oldest state
   kept, it would pull the estimate back to where the rover was.
   An innovation far outside its covariance (squared Mahalanobis distance over
@@ -75,6 +83,11 @@ class EkfConfig:
             samples is no motion but a new odometry frame (the bridge restarted, its
             odometry reset): the filter re-bases on it (as the bridge's own odometry does
             with ``MAX_PLAUSIBLE_STEP_M``).
+        future_hold_s: how far a POSE may run ahead of the newest ``odom`` while it
+            waits for the odometry to pass its stamp, s; further, the odometry is taken
+            for silent and the waiting POSEs are applied at the newest state.
+        max_waiting: at most this many POSEs wait (more: the oldest is applied at the
+            newest state).
     """
 
     forward_sigma_per_m: float = 0.25
@@ -86,6 +99,8 @@ class EkfConfig:
     history_s: float = 1.5
     max_step_m: float = 0.5
     max_turn_rad: float = 1.0
+    future_hold_s: float = 1.0
+    max_waiting: int = 32
 
 
 @dataclass(frozen=True)
@@ -99,6 +114,10 @@ class Estimate:
         v_mps, yaw_rate_rad_s: the rover's motion from ``odom``'s twist (encoder speed,
             gyro rate): zero means the wheels stand.
         pose_stamp_s: the stamp of the last POSE taken (``-inf``: none yet).
+        unseen_m: the distance the odometry moved after ``pose_stamp_s`` by the
+            samples' own stamps (not the order they were read in), m: the motion no
+            ground-seeing sensor has checked yet. A lower bound when that POSE is older
+            than the history (the history's whole distance).
     """
 
     stamp_s: float
@@ -109,12 +128,14 @@ class Estimate:
     v_mps: float = 0.0
     yaw_rate_rad_s: float = 0.0
     pose_stamp_s: float = -math.inf
+    unseen_m: float = 0.0
 
     @property
     def finite(self) -> bool:
         """Every number of the pose, its covariance and its twist is finite."""
-        values = (self.stamp_s, self.x_m, self.y_m, self.yaw_deg, self.v_mps, self.yaw_rate_rad_s)
-        return all(math.isfinite(v) for v in (*values, *self.covariance))
+        pose = (self.stamp_s, self.x_m, self.y_m, self.yaw_deg, self.unseen_m)
+        values = (*pose, self.v_mps, self.yaw_rate_rad_s, *self.covariance)
+        return all(math.isfinite(v) for v in values)
 
     @property
     def pose_age_s(self) -> float:
@@ -167,6 +188,9 @@ class PoseEkf:
         self._history: deque[_Entry] = deque()
         self._motion = (0.0, 0.0)
         self._pose_stamp = -math.inf
+        self._waiting: list[tuple[float, Matrix, Matrix]] = []
+        """POSEs newer than the newest ``odom``: (stamp, measurement, covariance),
+        oldest first."""
         self.corrections = 0
         """POSE samples applied."""
         self.inflations = 0
@@ -209,6 +233,7 @@ class PoseEkf:
         self._history.clear()
         self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), (0.0, 0.0, 0.0)))
         self._held = None
+        self._waiting.clear()
         self._ready = True
 
     # -- predict ---------------------------------------------------------------------------
@@ -250,6 +275,8 @@ class PoseEkf:
         self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), motion))
         self._trim()
         self._check_state()
+        while self._ready and self._waiting and self._waiting[0][0] <= stamp_s:
+            self._take(*self._waiting.pop(0))  # the odometry has passed it
 
     def _apply(
         self, x: Matrix, p: Matrix, motion: tuple[float, float, float]
@@ -301,6 +328,25 @@ class PoseEkf:
             self._pose_stamp = max(self._pose_stamp, stamp_s)
             self.corrections += 1
             return
+        if stamp_s > self._history[-1].stamp:
+            self._wait(stamp_s, z, r)
+        else:
+            self._take(stamp_s, z, r)
+
+    def _wait(self, stamp_s: float, z: Matrix, r: Matrix) -> None:
+        """A POSE newer than the newest ``odom``: it waits for the odometry to pass it,
+        unless it runs ``future_hold_s`` ahead (the odometry is silent: all waiting are
+        applied at the newest state) or too many wait (the oldest is)."""
+        waiting = self._waiting
+        waiting.append((stamp_s, z, r))
+        waiting.sort(key=lambda w: w[0])
+        cfg = self.config
+        silent = waiting[-1][0] - self._history[-1].stamp > cfg.future_hold_s
+        while self._ready and waiting and (silent or len(waiting) > cfg.max_waiting):
+            self._take(*waiting.pop(0))
+
+    def _take(self, stamp_s: float, z: Matrix, r: Matrix) -> None:
+        """Apply one POSE at its stamp (at the newest state when it is newer still)."""
         history = self._history
         # The last entry at or before the measurement; the motions after it are replayed.
         index = len(history) - 1
@@ -309,6 +355,8 @@ class PoseEkf:
         if history[index].stamp > stamp_s:
             self.too_old += 1
             return
+        if index + 1 < len(history) and history[index].stamp < stamp_s:
+            index = self._split(index, stamp_s)
         base = history[index]
         try:
             updated = self._update(base.x, base.p, z, r)
@@ -329,6 +377,23 @@ class PoseEkf:
         self.corrections += 1
         self._check_state()
 
+    def _split(self, index: int, stamp_s: float) -> int:
+        """Split the motion of the entry after ``index`` at ``stamp_s`` (in proportion to
+        the time); returns the index of the new entry, at ``stamp_s``."""
+        history = self._history
+        before, after = history[index], history[index + 1]
+        share = (stamp_s - before.stamp) / (after.stamp - before.stamp)
+        first = (
+            after.motion[0] * share,
+            after.motion[1] * share,
+            after.motion[2] * share,
+        )
+        rest = (after.motion[0] - first[0], after.motion[1] - first[1], after.motion[2] - first[2])
+        x, p = self._apply(before.x, before.p, first)
+        history[index + 1] = _Entry(after.stamp, after.x, after.p, rest)
+        history.insert(index + 1, _Entry(stamp_s, x, p, first))
+        return index + 1
+
     def _check_state(self) -> None:
         """A state that is not finite is forgotten: no map pose until the next POSE."""
         if np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._p)):
@@ -338,6 +403,7 @@ class PoseEkf:
         self._x = np.zeros(3)
         self._p = np.eye(3)
         self._history.clear()
+        self._waiting.clear()
 
     def _update(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix] | None:
         with np.errstate(all="ignore"):  # an overflow is caught by _check_state
@@ -396,4 +462,14 @@ class PoseEkf:
             self._motion[0],
             self._motion[1],
             self._pose_stamp,
+            self._unseen_m(),
         )
+
+    def _unseen_m(self) -> float:
+        """The distance of the motions stamped after the last POSE's stamp, m."""
+        total = 0.0
+        for entry in reversed(self._history):
+            if entry.stamp <= self._pose_stamp:
+                break
+            total += math.hypot(entry.motion[0], entry.motion[1])
+        return total

@@ -555,14 +555,38 @@ def test_a_plan_stops_blind_when_it_drives_the_linear_limit_without_a_fix() -> N
     r = Rover(report_period_s=60.0)
     r.uplink(_plan())
     r.status("accepted")
-    for i in range(1, 30):  # the last fix at 0.0; 0.5 m/s on the predicted path
+    for i in range(1, 40):  # the last fix at 0.0; 0.5 m/s on the predicted path
         r.at(0.02 * i)
-        out = r.do("on_estimate", Estimate(r.t, 0.01 * i, 0.0, 0.0, COV, 0.5, 0.0, 0.0))
+        x = 0.01 * i
+        out = r.do("on_estimate", Estimate(r.t, x, 0.0, 0.0, COV, 0.5, 0.0, 0.0, x))
         if _stops(out):
             break
     report = r.reports()[-1]
     assert report.outcome == "blind" and "driven since the last POSE fix" in report.reason
-    assert r.t == pytest.approx(0.5, abs=0.021)  # 0.25 m unseen
+    assert r.t == pytest.approx(0.5 + 0.1, abs=0.021)  # 0.25 m unseen, then the grace
+
+
+def test_a_pose_read_just_behind_the_odometry_is_no_blindness() -> None:
+    """CI (the walkthrough): after a 0.37 s stall of the onboard program the backlog's
+    odometry was read before the POSE that covered it, and the plan stopped ``blind``
+    with the fix in the queue. A POSE within ``unseen_grace_s`` keeps it going; the
+    linear limit unseen for the grace stops it."""
+    r = Rover(report_period_s=60.0)
+    r.uplink(_plan())
+    r.status("accepted")
+    r.at(0.4)  # the backlog: odometry 0.3 m past the last fix, read late
+    r.do("on_estimate", Estimate(0.35, 0.175, 0.0, 0.0, COV, 0.5, 0.0, 0.0, 0.3))
+    r.at(0.45)  # the POSE behind it
+    r.do("on_estimate", Estimate(0.35, 0.175, 0.0, 0.0, COV, 0.5, 0.0, 0.3, 0.03))
+    r.at(0.5)
+    r.do("on_estimate", Estimate(0.5, 0.25, 0.0, 0.0, COV, 0.5, 0.0, 0.4, 0.05))
+    assert _stops(r.actions) == [] and r.core.running is not None
+    r.at(0.55)  # no POSE since: the limit unseen again, and for the grace
+    r.do("on_estimate", Estimate(0.55, 0.275, 0.0, 0.0, COV, 0.5, 0.0, 0.3, 0.26))
+    assert _stops(r.actions) == []
+    r.at(0.66)
+    r.do("on_estimate", Estimate(0.66, 0.33, 0.0, 0.0, COV, 0.5, 0.0, 0.3, 0.32))
+    assert len(_stops(r.actions)) == 1 and r.reports()[-1].outcome == "blind"
 
 
 def test_fresh_fixes_keep_it_going_and_a_turn_without_one_stops_in_time() -> None:

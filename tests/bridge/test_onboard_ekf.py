@@ -130,8 +130,8 @@ def test_a_pose_that_is_not_finite_is_refused_and_a_later_good_one_still_works()
     assert ekf.rejected == 3
     est = ekf.estimate()
     assert est is not None and est.finite and est.x_m == pytest.approx(0.01)  # 1 motion
-    ekf.correct(t + 0.02, 5.0, 0.0, 0.0, R)
-    ekf.correct(t + 0.02, 5.0, 0.0, 0.0, R)  # (two agreeing fixes: no outlier)
+    ekf.correct(t, 5.0, 0.0, 0.0, R)
+    ekf.correct(t, 5.0, 0.0, 0.0, R)  # (two agreeing fixes: no outlier)
     est = ekf.estimate()
     assert est is not None and est.finite and est.x_m > 4.9
 
@@ -217,3 +217,74 @@ def test_a_pose_older_than_the_history_is_dropped_and_counted(age_s: float) -> N
     after = ekf.estimate()
     assert before is not None and after == before  # nothing changed, not even the age
     assert ekf.too_old == 1 and ekf.corrections == 1
+
+
+def test_a_pose_between_sparse_odometry_lands_at_its_own_time() -> None:
+    """A backlog thinned by the queue's depth leaves one ``odom`` sample for 0.4 s of
+    motion: a POSE inside it splits that motion at its stamp, the estimate stays on the
+    truth, and the motion after the POSE is what went unseen."""
+    ekf = PoseEkf()
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    ekf.predict(0.0, 0.0, 0.0, 0.0)
+    ekf.predict(0.4, 0.48, 0.0, 0.0, 1.2)  # 1.2 m/s
+    ekf.correct(0.1, 0.12, 0.0, 0.0, R)  # the truth at 0.1
+    est = ekf.estimate()
+    assert est is not None and est.x_m == pytest.approx(0.48, abs=1e-6)
+    assert est.pose_stamp_s == 0.1 and est.unseen_m == pytest.approx(0.36)
+    ekf.correct(0.3, 0.36, 0.0, 0.0, R)
+    assert ekf.estimate().unseen_m == pytest.approx(0.12)  # type: ignore[union-attr]
+    assert ekf.corrections == 3
+
+
+def test_a_backlog_read_pose_first_applies_no_motion_twice_and_sees_by_stamps() -> None:
+    """CI (the walkthrough): after a stall of the onboard program its queues hand over
+    a backlog, the POSE samples ahead of the ``odom`` samples they follow (and the
+    ``odom`` queue, five deep, thinned). A POSE newer than the newest ``odom`` waits for
+    the odometry to pass it: applied at once, the motion up to it was added again."""
+    ekf = PoseEkf()
+    odom = [0.0]
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    t = 0.0
+    for _ in range(5):  # 1.2 m/s, POSE at 10 Hz, in step: x = 1.2 t
+        t = _drive(ekf, t, 5, dx=0.024, odom=odom)
+        ekf.correct(t, 1.2 * t, 0.0, 0.0, R)
+    t0 = t
+    # The stall: 0.4 s of samples, read after it as rclpy's executor takes them, one
+    # per queue per turn, odom_ground first; only the last five odom were kept.
+    poses = [t0 + 0.1 * k for k in range(1, 5)]
+    odoms = [t0 + 0.02 * k for k in range(16, 21)]
+    order: list[tuple[str, float]] = []
+    for i in range(5):
+        if i < len(poses):
+            order.append(("pose", poses[i]))
+        order.append(("odom", odoms[i]))
+    worst_error = worst_unseen = 0.0
+    for kind, stamp in order:
+        if kind == "pose":
+            ekf.correct(stamp, 1.2 * stamp, 0.0, 0.0, R)
+        else:
+            ekf.predict(stamp, 1.2 * stamp, 0.0, 0.0, 1.2)
+        est = ekf.estimate()
+        assert est is not None
+        worst_error = max(worst_error, abs(est.x_m - 1.2 * est.stamp_s))
+        worst_unseen = max(worst_unseen, est.unseen_m)
+    assert worst_error < 0.01  # applied before the odometry up to it: 0.047 m off
+    # by stamps: from the first POSE to the first odom kept, until the next POSE is read
+    # (the core's unseen_grace_s); in the reading order it was all 0.48 m
+    assert worst_unseen == pytest.approx(1.2 * 0.22)
+    est = ekf.estimate()
+    assert est is not None and est.pose_stamp_s == pytest.approx(t0 + 0.4)
+    assert est.unseen_m == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_pose_ahead_of_silent_odometry_is_applied_after_the_hold() -> None:
+    ekf = PoseEkf()
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    ekf.predict(0.0, 0.0, 0.0, 0.0)  # then the odometry falls silent
+    ekf.correct(0.5, 0.01, 0.0, 0.0, R)  # waits: the odometry may be behind
+    assert ekf.estimate().pose_stamp_s == 0.0  # type: ignore[union-attr]
+    ekf.correct(1.1, 0.02, 0.0, 0.0, R)  # 1.1 s ahead of it: silent, both applied
+    est = ekf.estimate()
+    assert est is not None and est.pose_stamp_s == 1.1
+    assert est.x_m == pytest.approx(0.01, abs=1e-3)  # the mean of the three fixes
+    assert ekf.corrections == 3

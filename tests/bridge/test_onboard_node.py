@@ -4,6 +4,7 @@ The program on real DDS beside a real bridge is tests/bridge/test_onboard_missio
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -64,14 +65,17 @@ class Bench:
     def wall(self) -> float:
         return self.clock.time() + self.jump_s[0]
 
-    def odometry(self, topic: str, v_mps: float) -> None:
+    def odometry(
+        self, topic: str, v_mps: float, *, at: float | None = None, x_m: float | None = None
+    ) -> None:
+        """Publish an ``odom`` or ``odom_ground`` sample stamped ``at`` (now) and at
+        ``x_m`` (the bench's)."""
+        x = self.x_m if x_m is None else x_m
         msg = Odometry(
-            header=Header(stamp=stamp(self.wall()), frame_id="odom"),
+            header=Header(stamp=stamp(self.wall() if at is None else at), frame_id="odom"),
             child_frame_id="base_link",
             pose=PoseWithCovariance(
-                pose=Pose(
-                    position=Point(x=self.x_m, y=0.0, z=0.0), orientation=quaternion_from_yaw(0.0)
-                ),
+                pose=Pose(position=Point(x=x, y=0.0, z=0.0), orientation=quaternion_from_yaw(0.0)),
                 covariance=COV,
             ),
             twist=TwistWithCovariance(twist=Twist(linear=Vector3(x=v_mps), angular=Vector3(z=0.0))),
@@ -94,6 +98,12 @@ class Bench:
 
 @pytest.fixture
 def bench() -> Iterator[Bench]:
+    with _bench() as b:
+        yield b
+
+
+@contextlib.contextmanager
+def _bench(time_scale: float = 1.0) -> Iterator[Bench]:
     clock = LockstepClock(0.01)
     port = open_port("inprocess", node_name="rover_onboard", bus="node-clock", clock=clock)
     ground = open_port("inprocess", node_name="ground", bus="node-clock", clock=clock)
@@ -101,7 +111,13 @@ def bench() -> Iterator[Bench]:
     node = OnboardNode(
         port,
         ROVER,
-        OnboardConfig(token=TOKEN, blind_s=0.5, step_margin_s=60.0, report_period_s=0.5),
+        OnboardConfig(
+            token=TOKEN,
+            blind_s=0.5,
+            step_margin_s=60.0,
+            report_period_s=0.5,
+            time_scale=time_scale,
+        ),
         wall=lambda: holder[0].wall(),  # noqa: PLW0108 - the bench is made below
         monotonic=clock.now,
     )
@@ -219,3 +235,58 @@ def test_copies_and_forgeries_are_answered_without_a_full_decode(
     assert decoded == [7]  # the copy and the forgery were answered from the first look
     results = [(a["result"], a["reason"]) for a in map(json.loads, acks)]
     assert results == [("accepted", ""), ("duplicate", ""), ("refused", "bad_tag")]
+
+
+def _drive_through_a_stall(b: Bench, *, poses_kept: bool) -> None:
+    """The plan's step at 8x (1.2 m/s on the rover's clock), odom at 50 Hz and POSE at
+    10 Hz on the prediction, then a 0.4 s stall of the program (the clock runs, nothing is
+    read), then its queues' backlog as rclpy's executor hands it over (one message per
+    queue per turn, ``odom_ground`` first; only the last five ``odom`` kept), then 0.3 s
+    more. Without ``poses_kept`` the POSE falls silent as the stall begins."""
+    plan = predict(ROVER, 7, ((1, 30, 23000),), boot=b.node.core.boot)
+    b.run(0.5, sensors=True)
+    b.ground_pub["uplink"].publish(String(data=plan.envelope(TOKEN)))
+    b.run(0.05, sensors=True)
+    b.ground_pub["status"].publish(String(data="accepted"))
+    t_start = b.wall()
+
+    def x_at(t: float) -> float:
+        return plan.pose_at(0, 8.0 * max(0.0, t - t_start)).x
+
+    def drive(seconds: float, *, poses: bool = True) -> None:
+        for k in range(round(seconds / b.clock.dt_s)):
+            now = b.wall()
+            b.x_m = x_at(now)
+            if k % 2 == 0:
+                b.odometry("odom", 1.2)
+                if k % 10 == 0 and poses:
+                    b.odometry("odom_ground", 0.0)
+            b.clock.advance()
+
+    drive(0.6)
+    t0 = b.wall()
+    for _ in range(40):  # the stall
+        b.clock.advance()
+    poses = [t0 + 0.1 * k for k in range(1, 5)] if poses_kept else []
+    odoms = [t0 + 0.02 * k for k in range(16, 21)]
+    for i, at in enumerate(odoms):
+        if i < len(poses):
+            b.odometry("odom_ground", 0.0, at=poses[i], x_m=x_at(poses[i]))
+        b.odometry("odom", 1.2, at=at, x_m=x_at(at))
+    drive(0.3, poses=poses_kept)
+
+
+def test_a_backlog_after_a_stall_reads_late_and_sees_no_blindness() -> None:
+    """CI (the walkthrough at --speed 4): a 0.37 s stall of the onboard program, and the
+    plan ended ``blind`` ("0.39 m driven since the last POSE fix") with the POSE samples
+    that covered the motion read in the same backlog. The driven distance is now the
+    filter's by stamps, a POSE ahead of the odometry waits for it, and the verdict has a
+    grace; with the POSEs lost in the stall, the plan still stops blind."""
+    with _bench(time_scale=8.0) as b:
+        _drive_through_a_stall(b, poses_kept=True)
+        assert b.stops == [] and b.node.core.running is not None
+        assert all(r.outcome != "blind" for r in b.reports)
+    with _bench(time_scale=8.0) as b:
+        _drive_through_a_stall(b, poses_kept=False)
+        assert b.stops and b.reports[-1].outcome == "blind"
+        assert "driven since the last POSE fix" in b.reports[-1].reason
