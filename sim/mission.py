@@ -716,7 +716,7 @@ class MissionRig(Rig):
             ekf.correct(stamp, fix.x_m, fix.y_m, fix.yaw_rad, cov)  # type: ignore[arg-type]
         else:
             return
-        estimate = ekf.estimate()
+        estimate = ekf.take_estimate()
         if estimate is not None:
             self._at(self.now + ROS_HOP_S, _ACTION, partial(self._onboard_estimate, estimate))
 

@@ -191,6 +191,7 @@ class PoseEkf:
         self._waiting: list[tuple[float, Matrix, Matrix]] = []
         """POSEs newer than the newest ``odom``: (stamp, measurement, covariance),
         oldest first."""
+        self._taken: Estimate | None = None
         self.corrections = 0
         """POSE samples applied."""
         self.inflations = 0
@@ -464,6 +465,16 @@ class PoseEkf:
             self._pose_stamp,
             self._unseen_m(),
         )
+
+    def take_estimate(self) -> Estimate | None:
+        """The estimate when it changed since the last one taken, else ``None``: a POSE
+        that waits, is held or is refused changes nothing, and a guard that counts
+        estimates towards its persistence must not count one twice."""
+        estimate = self.estimate()
+        if estimate is None or estimate == self._taken:
+            return None
+        self._taken = estimate
+        return estimate
 
     def _unseen_m(self) -> float:
         """The distance of the motions stamped after the last POSE's stamp, m."""

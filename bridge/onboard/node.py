@@ -14,7 +14,10 @@ Threads (besides the ROS port's own, docs/architecture.md):
   ``odom`` and ``odom_ground``; its STOP lane the ``emergency_stop`` callback, so the
   ground's STOP never waits behind a pose. Each callback feeds the core under one lock
   and publishes what the core decided, STOP first, from the same thread: a drift STOP
-  leaves in the callback of the estimate that confirmed it;
+  leaves in the callback of the estimate that confirmed it. A sample that leaves the
+  estimate as it was (a POSE that waits for the odometry, is held or is refused) feeds
+  and publishes nothing (:meth:`PoseEkf.take_estimate`): the guard's persistence counts
+  estimates, each once;
 - ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline (step timeouts,
   the armed wait, blindness, rest, the periodic report), at least every
   :data:`TICK_MAX_S`, and beats the stall monitor. An exception in a turn is logged
@@ -235,7 +238,7 @@ class OnboardNode:
 
     def _estimated(self) -> None:
         with self._lock:
-            estimate = self.ekf.estimate()
+            estimate = self.ekf.take_estimate()
             if estimate is None:
                 return
             now = self._mono()

@@ -288,3 +288,23 @@ def test_a_pose_ahead_of_silent_odometry_is_applied_after_the_hold() -> None:
     assert est is not None and est.pose_stamp_s == 1.1
     assert est.x_m == pytest.approx(0.01, abs=1e-3)  # the mean of the three fixes
     assert ekf.corrections == 3
+
+
+def test_an_estimate_is_taken_once_and_a_pose_that_changes_nothing_gives_none() -> None:
+    """The guard counts estimates towards its persistence: a POSE that waits for the
+    odometry, or is held outside the gate, must not hand it the same estimate again."""
+    ekf = PoseEkf()
+    assert ekf.take_estimate() is None  # no map pose yet
+    ekf.correct(0.0, 0.0, 0.0, 0.0, R)
+    ekf.predict(0.0, 0.0, 0.0, 0.0)
+    first = ekf.take_estimate()
+    assert first is not None and ekf.take_estimate() is None
+    ekf.predict(0.02, 0.01, 0.0, 0.0, 0.5)
+    assert ekf.take_estimate() is not None
+    ekf.correct(0.05, 0.025, 0.0, 0.0, R)  # ahead of the odometry: waits
+    assert ekf.take_estimate() is None
+    ekf.correct(0.02, 0.5, 0.0, 0.0, R)  # 0.49 m off: held for the next to confirm
+    assert ekf.take_estimate() is None
+    ekf.predict(0.06, 0.03, 0.0, 0.0, 0.5)  # passes the waiting POSE: one change
+    taken = ekf.take_estimate()
+    assert taken is not None and taken.pose_stamp_s == 0.05
