@@ -102,6 +102,10 @@ class BatchDraw:
             1 is nominal, below 1 slips more).
         start_dx_m, start_dy_m, start_dyaw_rad: where it starts relative to the start
             pose given (map frame): the start pose's error.
+        step_error: how much of the plan's step error (the gate's model discrepancy,
+            :func:`gate.ensemble.step_error`) is added to its final pose, in units of
+            that error (0: none). :func:`play_batch` ignores it; the gate's
+            :func:`gate.ensemble.run_chunk` applies it.
     """
 
     ground: Ground
@@ -110,6 +114,7 @@ class BatchDraw:
     start_dx_m: float = 0.0
     start_dy_m: float = 0.0
     start_dyaw_rad: float = 0.0
+    step_error: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from emulator.ground import REGION_SCALE_MAX, Ground
 __all__ = [
     "BAND_LEVEL",
     "FIT_PARAMETERS",
+    "STEP_ERROR_SCALE",
     "Calibration",
     "Check",
     "Noise",
@@ -48,6 +49,14 @@ recordings drove on): every traction parameter of the force model
 (:mod:`emulator.traction`). ``slip_saturation_mps``, the slip floor near standstill,
 shows in slow steps (speeds 10-25: below about 0.15 m/s it outweighs the slip ratio);
 docs/twin.md lists what the twin takes from elsewhere, and why."""
+STEP_ERROR_SCALE = 1.0
+"""1-sigma of the gate's model discrepancy a calibration states, in units of each plan's
+step error (:func:`gate.ensemble.step_error`: the nominal twin's final pose at a finer
+step minus at the gate's). The fit, made at the gate's step, absorbs that step's bias
+for steps from rest, the only ones it measures; how much of it remains in a plan run
+back to back (a step starting while the one before brakes) its data cannot say: about
+half of it on grounds of every kind in development (docs/twin.md), so the whole of it
+at one sigma."""
 
 
 @dataclass(frozen=True)
@@ -192,6 +201,10 @@ class Calibration:
             (``parameters`` order): the Gaussian's draws weighed by how well each
             explains the measured steps and resampled (:mod:`emulator.fit`); what
             :meth:`sample` and :meth:`interval` use when present.
+        step_error_scale: 1-sigma of the model discrepancy the gate adds to each
+            twin's final pose, in units of the plan's step error
+            (:data:`STEP_ERROR_SCALE` for a fit; 0, none, for a twin file written
+            before it was stated).
     """
 
     ground: Ground
@@ -210,6 +223,7 @@ class Calibration:
     targets: tuple[float, ...] = ()
     checks: tuple[Check, ...] = ()
     draws: tuple[tuple[float, ...], ...] = ()
+    step_error_scale: float = 0.0
 
     def value(self, name: str) -> float:
         """A fitted parameter's value (``region.ID`` for a region's scale).

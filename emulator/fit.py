@@ -29,7 +29,10 @@ sensitivities ``G`` (per step, by each side's log factor) come with the last Jac
 ``slip_sigma`` is the maximum-likelihood value of the residuals under ``C_i = M_i +
 slip_sigma^2 G_i G_i^T`` (``M_i`` the measurement's covariance); the fit then runs once
 more weighted by ``C_i``. The start pose's noise (a position and heading averaged at
-rest) is what the rests measured.
+rest) is what the rests measured. The gate's step error (a plan's final pose at a finer
+step than the gate's, less at the gate's) is stated, not estimated: the steps, all from
+rest, cannot show what of it remains in a plan run back to back
+(:data:`~emulator.calibration.STEP_ERROR_SCALE`).
 
 **Uncertainty**: the covariance of the log-parameters is ``s^2 (J^T J + P)^-1`` at the
 solution, ``J`` the Jacobian of the whitened residuals, ``P`` the priors' precision and
@@ -68,6 +71,7 @@ from emulator import design
 from emulator.batch import BatchDraw
 from emulator.calibration import (
     FIT_PARAMETERS,
+    STEP_ERROR_SCALE,
     Calibration,
     Check,
     Noise,
@@ -544,6 +548,7 @@ def fit_ground(
         targets=targets,
         checks=checks,
         draws=draws,
+        step_error_scale=STEP_ERROR_SCALE,
     )
     report = FitReport(replays.batches, time.perf_counter() - t0, str(result.message), outliers)
     logger.info(

@@ -11,8 +11,10 @@
   with the covariance matrix of the logarithms (:class:`~emulator.calibration.
   Calibration`), each parameter's target 1-sigma, the noise the fit estimated
   (``slip_sigma``, ``pose_sigma_m``, ``heading_sigma_deg``: the gate's slip spread and
-  start-pose spread), how many held-out checks fell inside their bands, and the
-  posterior's draws (``posterior_log``, what the gate samples grounds from);
+  start-pose spread), the gate's model discrepancy (``step_error_scale``: its 1-sigma in
+  units of a plan's step error, :func:`gate.ensemble.step_error`; a file without it
+  has none), how many held-out checks fell inside their bands, and the posterior's
+  draws (``posterior_log``, what the gate samples grounds from);
   ``[calibration.regions]`` holds the fitted friction scale of each map region driven
   on.
 
@@ -141,6 +143,8 @@ def _noise(cal: Calibration) -> dict[str, Any]:
         out["slip_sigma"] = round(cal.noise.slip_sigma, 6)
         out["pose_sigma_m"] = round(cal.noise.pose_sigma_m, 6)
         out["heading_sigma_deg"] = round(math.degrees(cal.noise.heading_sigma_rad), 6)
+    if cal.step_error_scale > 0.0:
+        out["step_error_scale"] = round(cal.step_error_scale, 6)
     if cal.targets:
         out["target_sigma"] = [round(t, 6) for t in cal.targets]
     if cal.checks:
@@ -240,6 +244,9 @@ def _calibration(table: dict[str, Any], rover: RoverDescription) -> Calibration:
     targets = tuple(float(t) for t in table.get("target_sigma", []))
     if targets and len(targets) != len(names):
         raise ValueError("target_sigma and parameters disagree in size")
+    step_error_scale = float(table.get("step_error_scale", 0.0))
+    if not (0.0 <= step_error_scale <= 10.0):
+        raise ValueError("step_error_scale must be in [0, 10]")
     draws = tuple(tuple(float(v) for v in row) for row in table.get("posterior_log", []))
     if any(len(row) != len(names) or not all(map(math.isfinite, row)) for row in draws):
         raise ValueError("posterior_log rows must be finite and one value per parameter")
@@ -259,4 +266,5 @@ def _calibration(table: dict[str, Any], rover: RoverDescription) -> Calibration:
         noise=noise,
         targets=targets,
         draws=draws,
+        step_error_scale=step_error_scale,
     )
