@@ -255,8 +255,10 @@ class Validator:
         drawn (seeded) and split (:mod:`gate.ensemble`), each ready for any worker."""
         opts = job.options
         draws = draw(self.spread, opts.samples, opts.seed, opts.slip_sigma)
+        nominal = self.spread.ground
         if opts.map != self.spread_map:
             draws = [replace(d, ground=replace(d.ground, regions=())) for d in draws]
+            nominal = replace(nominal, regions=())
         return chunk_jobs(
             self.rover,
             self.maps[opts.map],
@@ -265,6 +267,7 @@ class Validator:
             dt_s=self.settings.dt_s,
             safety_margin_m=opts.safety_margin_m,
             start=job.start,
+            nominal=nominal if self.spread.step_error_scale > 0.0 else None,
         )
 
     def with_uncertainty(
