@@ -23,8 +23,8 @@ loose, a packed and an anisotropic range: :func:`generated_ground`):
    first missions are also driven by the step-by-step executor (a round trip of rest
    between steps), which the gate's back-to-back playback does not model;
 3. the gate's uncertainty for the calibrated twin (:func:`gate.ensemble.draw`: the fit's
-   covariance, its slip spread, its start-pose noise, antithetic pairs; 200 twins in one
-   batch) gives 90 % bands of the final pose's longitudinal and lateral offset (in the
+   covariance, its slip spread, its start-pose noise, its step error, antithetic pairs;
+   200 twins in one :func:`gate.ensemble.run_chunk`) gives 90 % bands of the final pose's longitudinal and lateral offset (in the
    frame of the predicted final pose) and of its yaw; coverage is the share of outcomes
    inside their band, width the band's, centring how far the band's middle is from the
    point prediction (in half-widths).
@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from emulator.batch import play_batch
+from emulator.calibration import Calibration
 from emulator.campaign import run_campaign
 from emulator.ground import Ground
 from emulator.observations import MAX_REST_S, SETTLE_S, START_GUARD_S
@@ -59,10 +59,11 @@ from emulator.recording import Recording, read_recording
 from emulator.twin import GATE_DT_S, Pose2D, Twin
 from emulator.twinfile import write_twin
 from firmware_proto.model.geometry import wrap_rad
+from firmware_proto.model.pose import Pose
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.model.worldmap import WorldMap, load_map
 from gate.config import PlaybackSettings
-from gate.ensemble import draw
+from gate.ensemble import ChunkJob, draw, run_chunk
 from gate.validator import Validator
 from planner.record.mcaprec import record_messages
 from sim.calibration_runs import (
@@ -208,7 +209,7 @@ def _in_frame(pose: Pose2D, origin: Pose2D) -> tuple[float, float, float]:
 def band_check(
     rover: RoverDescription,
     world: WorldMap,
-    calibration: object,
+    calibration: Calibration,
     start: Pose2D,
     steps: list[tuple[int, int, int]],
     nominal: Pose2D,
@@ -217,19 +218,21 @@ def band_check(
 ) -> tuple[tuple[bool, bool, bool], tuple[float, float, float], tuple[float, float, float]]:
     """The gate's 90 % bands of the final pose (see the module docstring): whether the
     true outcome is inside each, each width (m, m, rad), each centring."""
-    noise = getattr(calibration, "noise", None)
+    noise = calibration.noise
     slip = noise.slip_sigma if noise is not None else 0.1
-    draws = draw(calibration, BAND_SAMPLES, seed, slip)  # type: ignore[arg-type]
-    result = play_batch(
+    draws = draw(calibration, BAND_SAMPLES, seed, slip)
+    # The gate's own chunk (its step error too), all the twins in one.
+    job = ChunkJob(
         rover,
         world,
-        draws,
-        steps,
-        dt_s=GATE_DT_S,
-        safety_margin_m=0.0,
-        start=start,
-        record_every_s=1000.0,
+        tuple(draws),
+        tuple(steps),
+        GATE_DT_S,
+        0.0,
+        Pose(start.x_m, start.y_m, math.degrees(start.yaw_rad)),
+        calibration.ground if calibration.step_error_scale > 0.0 else None,
     )
+    result = run_chunk(job)
     samples = np.array([_in_frame(Pose2D(*row), nominal) for row in result.final])
     outcome = _in_frame(truth, nominal)
     inside, widths, centring = [], [], []
