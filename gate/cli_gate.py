@@ -241,6 +241,8 @@ def _twin_validator(twin_path: str, default_map: str, settings: Any, rover_path:
     if cal.noise is not None:
         settings = replace(settings, slip_sigma=cal.noise.slip_sigma)
         noise = f"; slip spread {cal.noise.slip_sigma:.3g} (the calibration's estimate)"
+    if cal.step_error_scale > 0.0:
+        noise += f"; step error {cal.step_error_scale:g} sigma"
     print(
         f"gate: twin {twin_path}: calibrated on {cal.map_name or 'an open plane'} from "
         f"{cal.after.steps} steps; turn efficiency {cal.turn_efficiency:.3f}{noise}",
