@@ -54,9 +54,9 @@ STEP_ERROR_SCALE = 1.0
 step error (:func:`gate.ensemble.step_error`: the nominal twin's final pose at a finer
 step minus at the gate's). The fit, made at the gate's step, absorbs that step's bias
 for steps from rest, the only ones it measures; how much of it remains in a plan run
-back to back (a step starting while the one before brakes) its data cannot say: about
-half of it on grounds of every kind in development (docs/twin.md), so the whole of it
-at one sigma."""
+back to back (a step starting while the one before brakes) its data cannot say: 0.36-0.67
+of it (by coordinate) on the development grounds (docs/twin.md), so the whole of it at
+one sigma."""
 
 
 @dataclass(frozen=True)
