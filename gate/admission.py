@@ -69,28 +69,45 @@ class Cost:
         samples: twins of the uncertainty (0 without).
         calls: calls it makes to the workers (the nominal playback and the chunks).
         work_s: the whole of it, in worker-seconds.
+        chunk_extra_s: what each chunk does beyond its twins, worker-seconds: a
+            calibrated twin's step error, the nominal twin played again at the gate's
+            step and at a finer one (:func:`gate.ensemble.step_error`); 0 without.
     """
 
     twin_s: float
     samples: int
     calls: int
     work_s: float
+    chunk_extra_s: float = 0.0
 
     @classmethod
-    def of(cls, twin_s: float, dt_s: float, samples: int, chunks: int) -> Cost:
+    def of(
+        cls,
+        twin_s: float,
+        dt_s: float,
+        samples: int,
+        chunks: int,
+        *,
+        fine_dt_s: float | None = None,
+    ) -> Cost:
         """The cost of a playback of ``twin_s`` at ``dt_s`` and, when ``samples`` > 1,
-        of ``samples`` more in ``chunks`` calls."""
+        of ``samples`` more in ``chunks`` calls; with ``fine_dt_s`` each chunk also
+        computes the step error (two single playbacks, at ``dt_s`` and ``fine_dt_s``)."""
         steps = math.ceil(twin_s / dt_s)
         extra = samples if samples > 1 else 0
         calls = 1 + (chunks if extra else 0)
+        chunk_extra = 0.0
+        if fine_dt_s is not None:
+            chunk_extra = (steps + math.ceil(twin_s / fine_dt_s)) * STEP_WORK_S
         work = steps * STEP_WORK_S + extra * steps * SAMPLE_STEP_WORK_S + calls * CALL_WORK_S
-        return cls(twin_s, extra, calls, work)
+        work += (calls - 1) * chunk_extra
+        return cls(twin_s, extra, calls, work, chunk_extra)
 
     def most_samples(self, cap_s: float, dt_s: float) -> int:
         """The most samples a request of this plan may ask for under ``cap_s``."""
         steps = math.ceil(self.twin_s / dt_s)
-        room = cap_s - steps * STEP_WORK_S - 2 * CALL_WORK_S
-        per_sample = steps * SAMPLE_STEP_WORK_S + CALL_WORK_S / 100
+        room = cap_s - steps * STEP_WORK_S - 2 * (CALL_WORK_S + self.chunk_extra_s)
+        per_sample = steps * SAMPLE_STEP_WORK_S + (CALL_WORK_S + self.chunk_extra_s) / 100
         return max(0, math.floor(room / per_sample))
 
 

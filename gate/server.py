@@ -78,7 +78,7 @@ from firmware_proto.model.verdict import Verdict
 from gate import routes
 from gate.admission import Admission, Cost, Limits, Ticket
 from gate.config import GateConfig
-from gate.ensemble import ChunkJob, chunk_sizes, run_chunk
+from gate.ensemble import STEP_ERROR_DT_S, ChunkJob, chunk_sizes, run_chunk
 from gate.errors import (
     BadRequestError,
     CallCancelledError,
@@ -429,8 +429,13 @@ class GateServer:
         """What ``job`` will take of the workers (:mod:`gate.admission`)."""
         samples = job.options.samples
         chunks = len(chunk_sizes(samples)) if samples > 1 else 0
+        fine = STEP_ERROR_DT_S if self.validator.spread.step_error_scale > 0.0 else None
         return Cost.of(
-            self.validator.twin_seconds(job), self.validator.settings.dt_s, samples, chunks
+            self.validator.twin_seconds(job),
+            self.validator.settings.dt_s,
+            samples,
+            chunks,
+            fine_dt_s=fine,
         )
 
     # -- the pool ----------------------------------------------------------------------------

@@ -3,6 +3,8 @@ request, a client's share, the gate's whole budget; what is released."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from gate.admission import (
@@ -83,3 +85,21 @@ def test_a_client_alone_may_fill_the_queue_and_the_budget_bounds_everyone() -> N
     with pytest.raises(OverloadedError, match="within the deadline") as info:
         admission.admit("c", half)  # 5.7 s of work over the 4 s budget
     assert info.value.status == 503 and int(info.value.headers["Retry-After"]) >= 1
+
+
+def test_a_calibrated_twins_step_error_is_weighed_on_every_chunk() -> None:
+    """Each chunk of a calibrated twin's uncertainty plays the nominal twin twice more
+    (at the gate's step and at the step error's finer one): admission weighs it, and
+    the most samples a plan may ask for shrinks with it."""
+    plain = Cost.of(55.0, DT_S, 200, 2)
+    calibrated = Cost.of(55.0, DT_S, 200, 2, fine_dt_s=0.002)
+    steps = math.ceil(55.0 / DT_S)
+    per_chunk = (steps + math.ceil(55.0 / 0.002)) * STEP_WORK_S
+    assert calibrated.chunk_extra_s == pytest.approx(per_chunk)
+    assert calibrated.work_s == pytest.approx(plain.work_s + 2 * per_chunk)
+    assert Cost.of(55.0, DT_S, 1, 0, fine_dt_s=0.002).work_s == Cost.of(55.0, DT_S, 1, 0).work_s
+    cap = 10.0
+    most = calibrated.most_samples(cap, DT_S)
+    assert 0 < most < plain.most_samples(cap, DT_S)
+    chunks = math.ceil(most / 100)
+    assert Cost.of(55.0, DT_S, most, max(2, chunks), fine_dt_s=0.002).work_s <= cap
