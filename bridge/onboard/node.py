@@ -20,7 +20,10 @@ Threads (besides the ROS port's own, docs/architecture.md):
   estimates, each once;
 - ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline (step timeouts,
   the armed wait, blindness, rest, the periodic report), at least every
-  :data:`TICK_MAX_S`, and beats the stall monitor. An exception in a turn is logged
+  :data:`TICK_MAX_S`, and beats the stall monitor. A turn that comes
+  :data:`LATE_TURN_S` after the last (the program stalled as a whole) holds the
+  deadlines :data:`BACKLOG_GRACE_S` more, so that the samples queued in the stall are
+  read before the blind check judges their absence. An exception in a turn is logged
   and the thread goes on; :data:`TIMER_FAILURES_STOP` in a row stop the rover.
 
 **Clocks.** The core runs on the monotonic clock: every deadline (a step's timeout,
@@ -99,6 +102,13 @@ TICK_MAX_S = 0.05
 """The timer thread runs the core at least this often, s."""
 TIMER_FAILURES_STOP = 3
 """Turns of the timer thread that failed in a row before the program stops the rover."""
+LATE_TURN_S = 0.25
+"""A turn of the timer this long after the one before (they come at least every
+:data:`TICK_MAX_S`): the program itself stalled, s."""
+BACKLOG_GRACE_S = 0.05
+"""After such a stall the core's deadlines wait this long, s, so that the samples queued
+during it are read first: its blind check judges silent sensors, not the program's own
+stall (docs/onboard.md)."""
 
 
 def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:
@@ -140,6 +150,10 @@ class OnboardNode:
         self._wake = threading.Condition(self._lock)
         self._closed = False
         self.published_stops = 0
+        self.late_turns = 0
+        """Turns of the timer that found the program had stalled (:data:`LATE_TURN_S`)."""
+        self._last_turn_s = monotonic()
+        self._backlog_until = -math.inf
         self._steps = port.publisher(WHEEL_INSTRUCTIONS, Int16MultiArray, qos.COMMAND)
         self._stop = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
         self._ack = port.publisher(PLAN_ACK, String, qos.STATUS)
@@ -158,6 +172,8 @@ class OnboardNode:
 
     def start(self) -> OnboardNode:
         """Start the timer thread."""
+        with self._lock:
+            self._last_turn_s = self._mono()
         self._thread.start()
         return self
 
@@ -320,8 +336,19 @@ class OnboardNode:
         :meth:`start`)."""
         with self._lock:
             now = self._mono()
+            if now - self._last_turn_s > LATE_TURN_S:
+                # The program stalled: what queued up meanwhile is read before a deadline.
+                self.late_turns += 1
+                self._backlog_until = now + BACKLOG_GRACE_S
+                logger.warning(
+                    "onboard timer: %.3f s since its last turn; deadlines wait %.2f s for "
+                    "the queued samples",
+                    now - self._last_turn_s,
+                    BACKLOG_GRACE_S,
+                )
+            self._last_turn_s = now
             actions: list[Action] = []
-            if now >= self.core.next_deadline(now):
+            if now >= self._backlog_until and now >= self.core.next_deadline(now):
                 self.core.tick(now)
                 actions = self.core.take_actions()
         self._act(actions)
@@ -345,7 +372,7 @@ class OnboardNode:
         try:
             with self._lock:
                 now = self._mono()
-                due = self.core.next_deadline(now)
+                due = max(self.core.next_deadline(now), self._backlog_until)
                 wait = min(TICK_MAX_S, max(0.0, due - now))
                 if wait > 0:
                     self._wake.wait(wait)

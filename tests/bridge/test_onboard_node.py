@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from bridge.onboard.core import OnboardConfig, decode_screened
-from bridge.onboard.node import OnboardNode
+from bridge.onboard.node import BACKLOG_GRACE_S, OnboardNode
 from bridge.ros.rosport import RosPort, open_port, qos
 from bridge.ros.rosport.contract import (
     EMERGENCY_STOP,
@@ -290,3 +290,47 @@ def test_a_backlog_after_a_stall_reads_late_and_sees_no_blindness() -> None:
         _drive_through_a_stall(b, poses_kept=False)
         assert b.stops and b.reports[-1].outcome == "blind"
         assert "driven since the last POSE fix" in b.reports[-1].reason
+
+
+def _stall_whole_program(b: Bench, seconds: float, *, backlog: bool) -> float:
+    """The program stalls as a whole for ``seconds`` while a plan's step runs (the rover
+    standing on the prediction's first instants): neither its timer nor its callbacks
+    run. Then its timer's turn comes before the queues are read (the race it may lose),
+    and the backlog (the last five ``odom``, a POSE) is read on the next tick. Returns
+    when the stall ended (the monotonic clock)."""
+    plan = predict(ROVER, 7, ((1, 30, 23000),), boot=b.node.core.boot)
+    b.run(0.5, sensors=True)
+    b.ground_pub["uplink"].publish(String(data=plan.envelope(TOKEN)))
+    b.run(0.05, sensors=True)
+    b.ground_pub["status"].publish(String(data="accepted"))
+    b.run(0.1, sensors=True)
+    b.clock.remove(b.node.step)
+    for _ in range(round(seconds / b.clock.dt_s)):
+        b.clock.advance()  # the timer does not run, and nothing is published
+    end, wall = b.clock.now(), b.wall()
+    b.node.step()  # the timer first
+    if backlog:
+        for k in range(1, 6):
+            b.odometry("odom", 0.0, at=wall - 0.02 * (5 - k))
+        b.odometry("odom_ground", 0.0, at=wall - 0.05)
+    b.clock.add(b.node.step)
+    return end
+
+
+def test_a_stall_of_the_whole_program_waits_for_its_backlog_before_the_blind_check() -> None:
+    """A stall of the onboard program longer than blind_s (0.5 s): its timer may run
+    before the samples queued in the stall are read, and the blind check judged their
+    absence. A late turn holds the deadlines for BACKLOG_GRACE_S; the backlog is read,
+    and the plan runs on. With nothing queued, the plan stops blind after the grace."""
+    with _bench() as b:
+        _stall_whole_program(b, 0.6, backlog=True)
+        b.run(0.2, sensors=True)
+        assert b.stops == [] and b.node.core.running is not None
+        assert all(r.outcome != "blind" for r in b.reports)
+        assert b.node.late_turns == 1
+    with _bench() as b:
+        end = _stall_whole_program(b, 0.6, backlog=False)
+        b.run(0.2, sensors=False)
+        assert b.node.late_turns == 1
+        assert b.reports[-1].outcome == "blind" and b.stops
+        assert b.stops[0] - end == pytest.approx(BACKLOG_GRACE_S, abs=0.015)
