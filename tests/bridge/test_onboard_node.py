@@ -39,6 +39,7 @@ from bridge.ros.rosport.msgs import (
 from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.model.downlink import OnboardReport, decode_report
 from firmware_proto.model.rover import load_rover
+from firmware_proto.model.uplink import PlanUplink
 from firmware_proto.runtime import stall
 from sim.mission import predict
 
@@ -145,12 +146,19 @@ def _bench(time_scale: float = 1.0) -> Iterator[Bench]:
         port.close()
 
 
-def _start_a_plan(b: Bench) -> None:
+def _uplink_and_accept(b: Bench) -> PlanUplink:
+    """After 0.5 s of sensors, uplink a one-step plan and, 0.05 s later, the bridge's
+    ``accepted`` for its step; returns the plan."""
     b.run(0.5, sensors=True)
     plan = predict(ROVER, 7, ((1, 30, 23000),), boot=b.node.core.boot)
     b.ground_pub["uplink"].publish(String(data=plan.envelope(TOKEN)))
     b.run(0.05, sensors=True)
     b.ground_pub["status"].publish(String(data="accepted"))
+    return plan
+
+
+def _start_a_plan(b: Bench) -> None:
+    _uplink_and_accept(b)
     b.run(0.05, sensors=True)
     assert b.steps == [[1, 30, 23000]] and b.node.core.running is not None
 
@@ -243,11 +251,7 @@ def _drive_through_a_stall(b: Bench, *, poses_kept: bool) -> None:
     read), then its queues' backlog as rclpy's executor hands it over (one message per
     queue per turn, ``odom_ground`` first; only the last five ``odom`` kept), then 0.3 s
     more. Without ``poses_kept`` the POSE falls silent as the stall begins."""
-    plan = predict(ROVER, 7, ((1, 30, 23000),), boot=b.node.core.boot)
-    b.run(0.5, sensors=True)
-    b.ground_pub["uplink"].publish(String(data=plan.envelope(TOKEN)))
-    b.run(0.05, sensors=True)
-    b.ground_pub["status"].publish(String(data="accepted"))
+    plan = _uplink_and_accept(b)
     t_start = b.wall()
 
     def x_at(t: float) -> float:
@@ -298,11 +302,7 @@ def _stall_whole_program(b: Bench, seconds: float, *, backlog: bool) -> float:
     run. Then its timer's turn comes before the queues are read (the race it may lose),
     and the backlog (the last five ``odom``, a POSE) is read on the next tick. Returns
     when the stall ended (the monotonic clock)."""
-    plan = predict(ROVER, 7, ((1, 30, 23000),), boot=b.node.core.boot)
-    b.run(0.5, sensors=True)
-    b.ground_pub["uplink"].publish(String(data=plan.envelope(TOKEN)))
-    b.run(0.05, sensors=True)
-    b.ground_pub["status"].publish(String(data="accepted"))
+    _uplink_and_accept(b)
     b.run(0.1, sensors=True)
     b.clock.remove(b.node.step)
     for _ in range(round(seconds / b.clock.dt_s)):
