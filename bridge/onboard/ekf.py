@@ -51,6 +51,7 @@ Pure: no I/O, no clock (stamps come with the samples), no thread; not thread-saf
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -339,8 +340,7 @@ class PoseEkf:
         unless it runs ``future_hold_s`` ahead (the odometry is silent: all waiting are
         applied at the newest state) or too many wait (the oldest is)."""
         waiting = self._waiting
-        waiting.append((stamp_s, z, r))
-        waiting.sort(key=lambda w: w[0])
+        bisect.insort(waiting, (stamp_s, z, r), key=lambda w: w[0])
         cfg = self.config
         silent = waiting[-1][0] - self._history[-1].stamp > cfg.future_hold_s
         while self._ready and waiting and (silent or len(waiting) > cfg.max_waiting):
