@@ -1,48 +1,29 @@
-"""Exceptions raised by :mod:`planner`.
+"""Exceptions raised by :mod:`planner`; each class says when it is raised.
 
 Everything this package raises on purpose derives from :class:`PlannerError`::
 
     PlannerError
-     +-- InvalidPoseError         a start, goal or waypoint has a non-finite coordinate;
-     |    |                       also ValueError. ``name`` says which pose.
-     |    +-- OutOfBoundsError    it lies outside the map's bounds
-     |    +-- GoalInObstacleError it lies inside an obstacle, or so close to one that the
-     |                            rover's body cannot stand there (``obstacle_id``)
-     +-- PlanTooLongError         one plan cannot hold the route (more than 12 steps);
-     |                            plan it leg by leg instead. Also ValueError.
-     +-- RepairError              a repair has nothing to offer for this rejection (the
-     |                            orchestrator then gives up with this reason)
-     +-- UnreachableGoalError     the orchestrator gave up; ``result`` holds every
-     |                            attempt, its plan and its verdict, and the reason
-     +-- GateCallError            reaching the gate failed: one of the three below
-     |    +-- GateStatusError     the gate answered with an error status (4xx, 5xx):
-     |    |    |                  ``status``, ``body``, ``code``, ``message``, and for a
-     |    |    |                  plan that fails the schema its ``violations`` (pointers)
-     |    |    +-- GateOverloadedError  503 or 429 for longer than the call's time budget;
-     |    |                       ``retry_after_s`` is the gate's last advice
-     |    +-- GateUnavailableError  no answer at all from the gate at ``url`` after the
-     |    |    |                  allowed retries (refused, reset, unreachable); also
-     |    |    |                  ConnectionError
-     |    |    +-- GateTimeoutError  connected, but no complete answer within the time
-     |    |                       budget; also TimeoutError
-     |    +-- GateProtocolError   a success answer that is not the documented JSON
-     +-- DomainBusyError          the ROS domain a stack asked for is held by another
-     |                            stack on this machine, or none is free; also
-     |                            RuntimeError
-     +-- StackRegistryError       the directory of the stacks' registry is not this
-     |                            user's alone (another owner, writable by others, a
-     |                            link); also PermissionError
-     +-- ConsoleUnavailableError  a stack's console socket did not answer (nothing
-     |                            listens there, the connection broke); also OSError
-     +-- ConsoleRefusedError      it answered with an error (``status``: a bad token,
-                                  no bridge within the wait); also ValueError
+     +-- InvalidPoseError (ValueError)        a non-finite start, goal or waypoint
+     |    +-- OutOfBoundsError                outside the map's bounds
+     |    +-- GoalInObstacleError             in or too close to an obstacle
+     +-- PlanTooLongError (ValueError)        one plan cannot hold the route
+     +-- RepairError                          a repair has nothing to offer
+     +-- UnreachableGoalError                 the orchestrator gave up (``result``)
+     +-- GateCallError                        reaching the gate failed
+     |    +-- GateStatusError                 an error status (4xx, 5xx)
+     |    |    +-- GateOverloadedError        503 or 429 past the time budget
+     |    +-- GateUnavailableError (ConnectionError)  no answer after the retries
+     |    |    +-- GateTimeoutError (TimeoutError)    no complete answer in time
+     |    +-- GateProtocolError               a success answer not the documented JSON
+     +-- DomainBusyError (RuntimeError)       the ROS domain is held, or none is free
+     +-- StackRegistryError (PermissionError) the stacks' registry is not this user's
+     +-- ConsoleUnavailableError (OSError)    a stack's console socket did not answer
+     +-- ConsoleRefusedError (ValueError)     it answered with an error
 
-(The gate's own tree, :mod:`gate.errors`, is rooted at ``gate.errors.GateError``: what
-the server raises. These are what a client of it meets.)
-
-Programming errors (wrong types, a closed client) raise the usual built-ins. Errors from
-:mod:`firmware_proto` (a plan that fails its own schema) are translated where they
-cross into this package, chained with ``raise ... from``.
+The gate's own tree (:mod:`gate.errors`) is what the server raises; these are what a
+client of it meets. Programming errors raise the usual built-ins; errors from
+:mod:`firmware_proto` are translated where they cross into this package, chained with
+``raise ... from``.
 """
 
 from __future__ import annotations
@@ -128,9 +109,8 @@ class RepairError(PlannerError):
 
 class GaveUp(Protocol):
     """What :class:`UnreachableGoalError` holds: an outcome that says why it failed
-    (:class:`~planner.plan.orchestrator.PlanResult` and
-    :class:`~planner.plan.orchestrator.MissionResult` are two; this module imports neither,
-    so that nothing in the planner imports back into its errors)."""
+    (:class:`~planner.plan.orchestrator.PlanResult`,
+    :class:`~planner.plan.orchestrator.MissionResult`; not imported, to avoid a cycle)."""
 
     @property
     def approved(self) -> bool:

@@ -1,43 +1,25 @@
 """The event-driven executor (thesis Listing 4), with timeouts and drift-control STOP.
 
 :class:`PlanExecutor` publishes a plan one step at a time on ``wheel_instructions`` and
-waits on ``command_status`` with a ``threading.Event`` until ``completed`` — never
-forever: each step's timeout is its predicted duration (the gate's, else the nominal
-profile) scaled to wall time, plus the link's round trip, plus a margin. ``rejected:``,
-``aborted:``, ``fault:`` or a timeout ends the plan: the executor publishes STOP on
-``emergency_stop`` (repeated until ``stopped`` comes back) and reports why. So does
-anything else that ends :meth:`PlanExecutor.execute` early: the ``cancel`` event, and
-any exception (an ``on_progress`` callback that raises, ``KeyboardInterrupt``), which
-is re-raised once STOP went out (its confirmation awaited for a bounded time).
+waits on ``command_status`` until ``completed``, each wait bounded by the step's
+predicted duration scaled to wall time, plus the round trip, plus a margin. Whatever
+ends :meth:`PlanExecutor.execute` early (``rejected:``, ``aborted:``, ``fault:``, a
+timeout, drift, blindness, ``cancel``, an exception) publishes STOP on
+``emergency_stop`` first, repeated until ``stopped`` comes back (bounded); an exception
+is then re-raised.
 
-The time rules of a step in flight (its timeout, drift control gone blind, when
-``accepted`` and ``running`` are reported, when the rover started it) are a pure
-:class:`~planner.ground.stepwatch.StepWatch` that takes the time as an argument, tested in
-virtual time; this class keeps the threads, the ROS port and the waiting. Every time and
-every wait goes through its clock (``clock=``): the wall clock, or a lockstep clock whose
-waits advance a whole mission in virtual time (docs/sim.md), the executor's thread then
-running the world.
+The time rules of a step in flight are the pure
+:class:`~planner.ground.stepwatch.StepWatch`; this class keeps the threads, the ROS port
+and the waiting. Every time and wait goes through ``clock=``: the wall clock, or a
+lockstep clock that runs a whole mission in virtual time (docs/sim.md).
 
-While steps run, a :class:`~planner.ground.drift.DriftMonitor` compares the rover's best pose
-with the gate's prediction. With ``pose_source="auto"`` (the default) that is the
-ground-seeing POSE (``odom_ground``) while it is fresh, and ``odom`` (encoders + IMU,
-blind to slip) once POSE has been silent for ``pose_stale_s``; the fall-back is logged
-once and noted in the result. Silence is read from the two topics' own stamps (the
-rover's clock): an ``odom`` stamped more than ``pose_stale_s`` after the last
-``odom_ground``, and still so :data:`SILENCE_CONFIRM_S` later. A ground station that
-fell behind (its process not scheduled for a while, both topics' messages waiting) then
-reads a backlog, not a silence; before the first ``odom_ground``, the wall clock since
-the executor began counts. A persistent violation purges the rest of the plan and
-publishes STOP at once, from the pose callback itself, the shortest path there is; the
-detection-to-STOP latency is measured from the sample that confirmed the violation to
-the STOP being handed to the ROS port. When no pose at all reaches drift control for the
-link's round trip plus ``blind_margin_s`` while a step runs, drift control is blind: the
-plan ends with STOP (outcome ``blind``).
-
-After a drift STOP the operator can re-plan from :attr:`PlanExecutor.reported_pose`
-(the rover's last reported pose; :meth:`PlanExecutor.wait_for_rest` says when it has
-stopped moving) and, once the cause is understood, resume with
-:meth:`PlanExecutor.clear_stop`.
+A :class:`~planner.ground.drift.DriftMonitor`, fed from the pose callbacks, compares the
+rover's pose with the gate's prediction: ``odom_ground`` while fresh, ``odom`` once POSE
+is silent for ``pose_stale_s`` by the topics' own stamps (so a backlog read late is no
+silence). A persistent violation publishes STOP from the pose callback itself and purges
+the rest of the plan; no pose at all for a round trip plus ``blind_margin_s`` while a
+step runs ends the plan (outcome ``blind``). Details: docs/ground.md "Executor" and
+"Drift control".
 """
 
 from __future__ import annotations
@@ -199,15 +181,13 @@ class StepOutcome:
 class ExecutionProgress:
     """What the operator sees while a plan runs.
 
-    ``status`` is ``published`` and ``accepted`` as the step goes out and is
-    acknowledged, ``published`` again about every ``progress_period_s`` until it is
-    acknowledged, ``running`` as often while it runs, then its final status
-    (``completed``, ``rejected:...``, ``drift``...). ``eta_s`` is the expected wall time
-    to the end of the plan; the drift figures are the latest sample. ``verdict`` is the
-    gate's verdict of the plan this step belongs to (``None`` for a plan run without
-    one): what the step is predicted to do, and the key by which a viewer tells one plan
-    from the next (the live view's ghost follows it). ``unit`` names what is counted
-    (``step``; move-and-wait counts its ``increment`` s).
+    ``status``: ``published`` (again every ``progress_period_s`` until acknowledged),
+    ``accepted``, ``running`` (every ``progress_period_s``), then the final status
+    (``completed``, ``rejected:...``, ``drift``...). ``eta_s``: expected wall time to
+    the end of the plan, s; drift figures: the latest sample. ``verdict``: the gate's
+    verdict of this step's plan (``None`` without one), by which a viewer tells one plan
+    from the next. ``unit``: what is counted (``step``, or move-and-wait's
+    ``increment``).
     """
 
     step: int
@@ -280,11 +260,11 @@ def _stamp_s(msg: Odometry) -> float:
 
 
 class PlanExecutor:
-    """Runs approved plans on the rover over a ROS port; see the module docstring.
+    """Runs approved plans on the rover over a ROS port.
 
     One plan at a time; :meth:`execute` blocks the calling thread until it ends.
-    Subscribes to ``command_status`` and to the pose topics of ``pose_source`` (and to
-    ``odom`` in any case, whose twist says when the rover is at rest).
+    Subscribes to ``command_status``, the pose topics of ``pose_source``, and ``odom``
+    (whose twist says when the rover is at rest).
     """
 
     def __init__(
@@ -332,9 +312,7 @@ class PlanExecutor:
         self._trace: list[tuple[float, float, float]] = []
         self._notes: list[str] = []
         created = self.clock.now()
-        self._ground_rx = created  # "never heard" counts from here ...
-        # ... but only once a plan runs: before, odom (which the bridge publishes first)
-        # arriving ahead of the first odom_ground through the link is no silence.
+        self._ground_rx = created  # "never heard" counts from here, once a plan runs
         self._ground_heard = False
         self._ground_stamp = -math.inf  # the last odom_ground's stamp (the rover's clock, s)
         self._silence_seen: float | None = None  # when an odom first found it silent (wall)
@@ -347,9 +325,8 @@ class PlanExecutor:
         self._subs: list[Subscription[Any]] = [
             port.subscribe(COMMAND_STATUS, String, self._on_status, qos.STATUS)
         ]
-        # odom_ground before odom: an executor that finds both waiting takes them in the
-        # order they were subscribed (rclpy's does), so a POSE is read before the odom
-        # beside it, which would otherwise find it silent (SILENCE_CONFIRM_S).
+        # odom_ground first: rclpy takes waiting messages in subscription order, so a
+        # POSE is read before the odom beside it (which would find it silent).
         if self.config.pose_source != "odom":
             self._subs.append(port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR))
         self._subs.append(port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR))
@@ -386,10 +363,9 @@ class PlanExecutor:
             return "odom" if self._on_odom_source else "odom_ground"
 
     def settled_pose(self, timeout_s: float | None = None, *, after_s: float = 0.0) -> Pose | None:
-        """The rover's pose measured after it reported its last status: waits (at most a
-        round trip plus a second, plus ``after_s``) for a pose stamped ``after_s`` (wall
-        s) or more after the moment the rover must have sent what came back last;
-        returns the latest reported pose either way."""
+        """The latest reported pose, after waiting (at most a round trip + 1 s +
+        ``after_s``) for one stamped ``after_s`` s or more after the rover sent its last
+        status."""
         cfg = self.config
         wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + 1.0 + after_s
         # Rover time of the last status we heard, and after_s more.
@@ -493,12 +469,9 @@ class PlanExecutor:
 
     def _ground_silent(self, odom_stamp: float) -> bool:
         """Whether ``odom_ground`` has been silent for ``pose_stale_s`` as of an ``odom``
-        stamped ``odom_stamp`` (lock held). Once heard: that ``odom`` is stamped more than
-        ``pose_stale_s`` after the last ``odom_ground`` (both the rover's clock, so a
-        backlog read late is no silence), and an ``odom`` read :data:`SILENCE_CONFIRM_S`
-        (wall) before it found the same, with no ``odom_ground`` read in between. Before
-        the first: a plan runs and ``pose_stale_s`` of wall time has passed since the
-        executor began."""
+        stamped ``odom_stamp`` (lock held): by the rover's stamps, confirmed by an
+        ``odom`` read :data:`SILENCE_CONFIRM_S` (wall) earlier with no ``odom_ground``
+        since; before the first ``odom_ground``, by wall time since the executor began."""
         stale = self.config.pose_stale_s
         now = self.clock.now()
         if not self._ground_heard:
@@ -654,10 +627,9 @@ class PlanExecutor:
     ) -> ExecutionResult:
         """Run ``plan`` step by step; blocks until it completes or ends early.
 
-        Whatever ends it early (a status, a timeout, drift, blindness, ``cancel``, an
-        exception) sends STOP first. An exception (from ``on_progress``, or
-        ``KeyboardInterrupt``) is re-raised after STOP was published and its
-        confirmation awaited for at most a round trip plus ``step_margin_s``.
+        Whatever ends it early sends STOP first; an exception (from ``on_progress``,
+        ``KeyboardInterrupt``) is re-raised after STOP's confirmation was awaited for at
+        most a round trip plus ``step_margin_s``.
 
         Args:
             plan: the approved plan.

@@ -2,18 +2,15 @@
 move-and-wait operator the thesis compares against.
 
 :class:`MissionRunner` is what ``rover go`` and ``rover demo`` run: the orchestrator
-plans and validates the whole mission on the gate (repairing rejected plans), the
-executor drives each approved leg against its prediction, and when drift control stops
-the rover the runner (if allowed) waits for it to come to rest, re-plans from where it
-settled and releases the STOP latch only once the new plan is approved: the thesis's
-future-work item 3, kept simple. A re-plan that fails leaves the rover latched.
+plans the whole mission on the gate, the executor drives each approved leg against its
+prediction, and after a drift STOP the runner (if allowed) waits for rest, re-plans from
+there and releases the latch only once the new plan is approved (the thesis's
+future-work item 3). A re-plan that fails leaves the rover latched.
 
-:class:`MoveAndWait` is the baseline of the thesis's comparison: no gate and no twin.
-The operator sends one short command, waits for its confirmation through the whole round
-trip, looks at the delayed picture (``decision_s``), and sends the next. Lacking a
-prediction to trust, drives are cut into increments the operator can check
-(``increment_m``). It drives the same route as the gated mission, so the comparison
-measures the cost of moving and waiting, not of getting lost.
+:class:`MoveAndWait` is the thesis's baseline: no gate, no twin; drives cut into
+``increment_m`` pieces, each confirmed through the round trip, then ``decision_s`` to
+decide. It drives the gated mission's route, so the comparison measures moving and
+waiting, not getting lost. Details: docs/ground.md "Missions".
 """
 
 from __future__ import annotations
@@ -185,7 +182,7 @@ class MissionReport:
 
 @dataclass
 class MissionRunner:
-    """Runs missions: see the module docstring.
+    """Runs missions (docs/ground.md "Missions").
 
     Attributes:
         orchestrator: plans and validates (its gate client and map).
@@ -289,9 +286,7 @@ class MissionRunner:
                     latched = True
                     if self.on_drift is not None:
                         self.on_drift(result)
-                    # The STOP took half a round trip to reach the rover, which braked
-                    # after that: re-plan from where it came to rest, not from where it
-                    # was when the drift was seen.
+                    # Re-plan from where the rover came to rest, not where it drifted.
                     if not self.executor.wait_for_rest():
                         return end("the rover did not report coming to rest after the drift STOP")
                     where = self.executor.settled_pose() or result.reported_pose
@@ -435,7 +430,7 @@ def split_for_move_and_wait(plan: Plan, increment_units: int) -> list[PlanStep]:
 
 @dataclass
 class MoveAndWait:
-    """The move-and-wait operator (see the module docstring).
+    """The move-and-wait operator.
 
     Attributes:
         executor: sends each command and waits for its confirmation (drift control off:
@@ -469,8 +464,7 @@ class MoveAndWait:
         gate, and how long it took, wall s) for the report.
 
         Progress is reported per increment (``increment 3/14``), with the ETA of the
-        whole drive: the rest of this increment, then each later one's nominal duration,
-        round trip and decision time."""
+        whole drive."""
         clock = self.executor.clock
         t0 = clock.now() - planning_s
         units = self.executor.rover.m_to_units(self.increment_m)

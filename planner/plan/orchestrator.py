@@ -1,23 +1,16 @@
 """The orchestrator: plan, validate on the gate, repair, at most N attempts per plan.
 
 :class:`PlannerOrchestrator` is the thesis's retry loop (section 5.5, Figure 6). For one
-leg: the planner makes a plan, the gate plays it; if rejected, the rejection is added
-to ``previous_failures``, the repair for its ``failure_type`` (:data:`REPAIRS`) makes the
-next plan, and so on, until the gate approves or ``max_attempts`` plans (4, the rover
-description's ``safety.max_repair_attempts``) have been rejected, or a repair has
-nothing to offer. The result keeps every attempt: its plan, its verdict and the repair
-that produced it, and, when it gives up, one sentence saying why.
+leg: the planner makes a plan, the gate plays it; a rejection goes into
+``previous_failures`` and the repair for its ``failure_type`` (:data:`REPAIRS`) makes the
+next plan, until the gate approves, ``max_attempts`` plans were rejected, or a repair has
+nothing to offer. The result keeps every attempt (plan, verdict, repair) and, when it
+gives up, one sentence saying why. :meth:`plan_mission` plans a route longer than one
+plan leg by leg, each from the pose the gate predicts at the end of the previous one.
 
-A route longer than one plan (12 steps) is a *mission*: :meth:`plan_mission` plans it
-leg by leg, each leg from the pose the gate predicts at the end of the previous
-approved one, each with its own attempts. :meth:`plan` is one leg; its result says
-whether it reaches the goal.
-
-The orchestrator talks to the gate through a :class:`~planner.plan.gate_client.GateClient`
-(HTTP) and learns the map from it (``GET /maps/{name}``) for the start pose, the goal
-checks and the map-aware repairs. Gate errors (down, 4xx) propagate as the client
-raises them; a plan the gate refuses is not an error but a result with
-``approved=False``.
+The map comes from the gate (``GET /maps/{name}``). Gate errors propagate as the
+:class:`~planner.plan.gate_client.GateClient` raises them; a rejected plan is a result
+with ``approved=False``, not an error. Details: docs/planner.md "The orchestrator".
 """
 
 from __future__ import annotations

@@ -1,36 +1,19 @@
 """The heuristic low-level planner: a route of points -> turn and drive steps.
 
 :class:`HeuristicLowLevelPlanner` is the thesis's planner (section 5.5): from a start
-pose, through optional waypoints, to a goal pose ``(x, y, yaw_deg)``, each segment is
-*turn on the spot to its bearing* (LEFT or RIGHT, the shorter way), then *drive*
-(FWD); at the goal, *turn to the goal yaw*. Turn distances come from the rover
-description's calibrated turn model (:meth:`RoverDescription.turn_units_for_yaw`),
-drive distances from its 23000 units per metre.
+pose, through optional waypoints, to a goal pose, each segment is a turn on the spot to
+its bearing (the shorter way), then FWD; at the goal, a turn to the goal yaw. Turns
+come from the rover description's turn model
+(:meth:`RoverDescription.turn_units_for_yaw`), drives from its units per metre.
 
-Contract of every plan it makes:
-
-- it validates against the plan schema (Listing 1): 1..12 steps, speeds 0..60,
-  distances 0..30000 (and within the rover description's ``max_speed`` and
-  ``max_distance``);
-- no step exceeds ``max_step_units``: longer drives and turns are split into equal
-  parts;
-- turns below ``min_turn_deg`` and drives below ``min_drive_m`` are skipped (a turn
-  toward a target only when the drive still passes within ``lateral_tolerance_m`` of
-  it);
-- speeds: drives at ``drive_speed`` (top speed by default: on the twin the slip is
-  smallest there, and missions are shortest), the last drive into the goal at
-  ``approach_speed``; turns at ``turn_speed``, small ones (below ``fine_turn_deg``) at
-  ``fine_turn_speed``, where the calibrated turn model agrees best with the twin;
-- a route that needs more than 12 steps becomes several *legs*
-  (:meth:`HeuristicLowLevelPlanner.plan_mission`): each leg is the longest prefix that
-  fits, cut after a drive, and ends at an intermediate goal (the pose the planner
-  predicts there); the next leg is planned from where the previous one is predicted to
-  end, through the rest of the route.
-
-Each step carries what the repairs need (:class:`PlannedStep`): which route segment it
-belongs to, what it is for, its intended yaw change or travel, and the pose the planner
-predicts after it (ideal kinematics: the turn model, no slip). Units: metres, degrees
-(``_deg``) or radians (``_rad``), distance units and speed units of the protocol.
+Every plan it makes validates against the plan schema (Listing 1) and the description's
+limits, has no step over ``max_step_units`` (longer ones are split equally), skips
+negligible turns and drives, and holds at most ``max_steps`` steps: a longer route
+becomes *legs* (:meth:`HeuristicLowLevelPlanner.plan_mission`), each cut after a drive
+and ending at the pose the planner predicts there. Each :class:`PlannedStep` carries
+what the repairs need (segment, purpose, intent, predicted pose: the turn model, no
+slip). Rules and speeds: docs/planner.md "The heuristic planner". Units: metres,
+degrees (``_deg``) or radians (``_rad``), distance and speed units of the protocol.
 """
 
 from __future__ import annotations

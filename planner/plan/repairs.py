@@ -1,41 +1,21 @@
 """Repairs of a rejected plan, one per failure type of the gate (thesis section 5.5).
 
-A repair reads the rejection in a :class:`PlannerContext` (the rejected leg, the
-verdict, every earlier failure and repair of this leg, the map when known) and returns a
-:class:`Repair`: a new leg to validate, what was done, and why. It raises
+A repair reads the rejection in a :class:`PlannerContext` and returns a :class:`Repair`
+(a new leg to validate, what was done and why), or raises
 :class:`~planner.errors.RepairError` when it has nothing to offer; the orchestrator then
-gives up with that reason. :data:`REPAIRS` maps failure types to repairs (a registry,
-not an if-chain); the orchestrator takes another mapping to add or replace some.
+gives up with that reason. :data:`REPAIRS` maps failure types to repairs; the
+orchestrator takes another mapping to add or replace some.
 
-- ``collision`` -> :func:`dogleg_repair`: the thesis's lateral deviation. On the route
-  segment that collided (found from ``failed_step``), a waypoint
-  ``x_wp = x_mid + side * delta * sin(bearing)``, ``y_wp = y_mid - side * delta *
-  cos(bearing)`` (``side`` +1: right of the heading), decomposed into turns and
-  drives by the planner. Without a map (or with ``map_aware=False``), exactly the
-  thesis: the midpoint of the segment, ``side`` first away from the contact point,
-  then alternating, ``delta`` growing by ``dogleg_growth`` on every repeat around the
-  same obstacle. With the map, the same formula generates candidates (both sides, a
-  grid of offsets, anchored at the obstacle's middle, at the contact and at the
-  segment's midpoint, and two-waypoint "box" detours that pass the obstacle parallel
-  to the segment or to its edges), screened for clearance against every obstacle of
-  the map; a best-first search applies doglegs to the first blocked segment of the
-  most promising route until one is clear (:func:`_search`). A collision on a way the
-  map shows clear first rescales the steps before it to what the twin did. A
-  collision while turning at a goal with no room to turn (or driving into it at an
-  angle) becomes an *approach* waypoint on the goal's yaw axis, so that the rover
-  arrives already aligned.
-- ``goal_not_reached`` -> :func:`goal_repair`: the thesis's goal repair. The
-  longitudinal error (``position_error_m``, projected on the approach heading) becomes
-  a FWD appended after the last linear step (undershoot) or a shorter last linear step
-  (overshoot), at 23000 units per metre. Turns whose predicted yaw change missed their
-  intent are rescaled first (the twin's turn efficiency varies a little with angle and
-  speed), and a lateral miss with no turn to blame re-aims the last drive.
-- ``yaw_not_reached`` -> :func:`yaw_repair`: rescale the final turn to the yaw the twin
-  predicts, or append a corrective turn.
-- ``stalled`` -> :func:`stall_repair`: a stalled turn is retried slower; a stalled drive
-  is bypassed like an obstacle at the point where it stalled.
-- ``start_in_collision`` -> :func:`start_repair`: nothing to repair; it says so.
+- ``collision`` -> :func:`dogleg_repair`: the thesis's lateral dogleg, blind or screened
+  against the map by a best-first search (:func:`_search`); approach waypoints for a
+  goal with no room to turn.
+- ``goal_not_reached`` -> :func:`goal_repair`: a FWD added or the last drive shortened
+  by the longitudinal error; missed turns rescaled first.
+- ``yaw_not_reached`` -> :func:`yaw_repair`: rescale the final turn or append one.
+- ``stalled`` -> :func:`stall_repair`: a turn retried slower; a drive bypassed.
+- ``start_in_collision`` -> :func:`start_repair`: not repairable.
 
+Each repair, its formulas and its parameters: docs/planner.md "The repairs".
 Units: metres, degrees (``_deg``), distance units of the protocol.
 """
 
@@ -89,49 +69,40 @@ def _grid(first: float, last: float, step: float) -> tuple[float, ...]:
 
 @dataclass(frozen=True)
 class RepairSettings:
-    """Parameters of the repairs (docs/planner.md explains each default).
+    """Parameters of the repairs (docs/planner.md "Parameters" explains each default).
 
     Attributes:
         map_aware: screen dogleg candidates against the map when one is known.
-        dogleg_offset_m: ``delta`` of the first blind dogleg: a little more than the
-            rover's turning radius plus the gate's margin, about the size of a rock.
+        dogleg_offset_m: ``delta`` of the first blind dogleg, m.
         dogleg_growth: factor on ``delta`` at each repeat around the same obstacle.
         offsets_m: lateral offsets tried by the map-aware search, m.
-        turn_cost_m: extra cost of each added waypoint when ranking candidates, m
-            (a waypoint costs two turns and some time).
-        search_expansions: routes the map-aware search may expand (it applies
-            doglegs to the first blocked segment of the most promising route, best
-            first, until a route is clear).
-        search_width: doglegs it keeps per expansion (the cheapest that clear the
-            blocking obstacle).
+        turn_cost_m: ranking cost of each added waypoint, m.
+        search_expansions: routes the map-aware search may expand.
+        search_width: doglegs it keeps per expansion.
         max_waypoints: most waypoints one repair may add.
-        min_spacing_m: least distance between an added waypoint and the points
-            already on the route, m (no doubling back through the same spot).
+        min_spacing_m: least distance between an added waypoint and the route's
+            points, m.
         blocked_cost_m: priority penalty of a segment the map shows blocked, m.
-        centring_weight: priority penalty per metre of room to spare that a dogleg
-            lacks (short of ``comfort_m``): routes through the middle of gaps.
+        centring_weight: priority penalty per metre of spare room a dogleg lacks
+            (short of ``comfort_m``).
         edge_offset_step_m, edge_offset_reach_m: lateral spacing and reach beyond the
-            obstacle of the detours parallel to its edges, m (fine: gaps are narrow).
+            obstacle of the detours parallel to its edges, m.
         comfort_m: room to spare beyond which more does not matter, m.
         clearance_slack_m: clearance a drive asks beyond half the chassis width and
-            the gate's safety margin, m, plus ``slack_per_m`` per metre of the drive:
-            room for the position and heading errors of the turns before it (the
-            twin's turns land within about half a degree of the turn model).
+            the gate's margin, m, plus ``slack_per_m`` per metre of the drive.
         turn_slack_m: the same for turning on the spot, beyond the footprint's
-            circumradius and the margin (the disc already over-covers the turn).
-        slack_growth_m: added to both at each repeat around the same obstacle.
-        approach_offsets_m: distances before the goal tried for an approach waypoint.
-        approach_offset_m: the blind approach distance (grown like ``delta``).
+            circumradius and the margin, m.
+        slack_growth_m: added to both at each repeat around the same obstacle, m.
+        approach_offsets_m: distances before the goal tried for an approach waypoint, m.
+        approach_offset_m: the blind approach distance (grown like ``delta``), m.
         approach_angle_deg: a final turn larger than this makes a collision near the
             goal an approach problem rather than a dogleg one.
         near_goal_m: "near the goal": within this distance of it, m.
         min_correction_m: longitudinal errors below this are left alone, m.
-        turn_calibration_deg: a turn whose predicted yaw change differs from its
-            intent by more than this is rescaled (goal repair; a collision on a
-            segment the map shows clear).
-        drive_calibration_m: likewise for the ground a drive covers, m (collision
-            on a segment the map shows clear only: the goal repair corrects the
-            distance itself).
+        turn_calibration_deg: a turn whose predicted yaw change misses its intent by
+            more than this is rescaled.
+        drive_calibration_m: likewise for a drive's ground covered, m (only for a
+            collision on a segment the map shows clear).
     """
 
     map_aware: bool = True
@@ -883,7 +854,7 @@ def _shift(ctx: PlannerContext, index: int, contact: Point, obstacle_id: str) ->
 
 
 def dogleg_repair(ctx: PlannerContext) -> Repair:
-    """Repair a collision (see the module docstring).
+    """Repair a collision (docs/planner.md "Collision: the dogleg").
 
     Raises:
         RepairError: the verdict names no step of this leg, or the rover touches
@@ -1057,7 +1028,7 @@ def _recalibrate(
 
 
 def goal_repair(ctx: PlannerContext) -> Repair:
-    """Repair a goal miss (see the module docstring).
+    """Repair a goal miss (docs/planner.md "Goal not reached").
 
     Raises:
         RepairError: the plan has no linear step to lengthen or shorten, no room for a

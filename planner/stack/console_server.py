@@ -1,52 +1,37 @@
 """The stack's console socket: ``rover status``, ``stop``, ``clear-stop`` and ``echo``
-answered by the running stack in well under a second, with no ROS 2 discovery in the
-command (docs/commands.md, "The stack's console").
+answered by the running stack with no ROS 2 discovery in the command (docs/commands.md,
+"The stack's console").
 
-Each of those commands started rclpy and waited for DDS discovery before it could say
-anything: 4-5 s idle, 13 s for ``rover stop`` at a load of 15. ``rover stack up`` has
-discovered the bridge long before: :class:`ConsoleServer` serves what its
-:class:`~planner.ground.console.RoverConsole` (an rclpy port in the bridge's own
-namespace, matched at start) already knows and does, over HTTP on the project's one
-HTTP stack (:mod:`firmware_proto.http`, the gate's and the view's). The commands' client
-is the standard library's (:mod:`planner.ground.console_client`).
+:class:`ConsoleServer` serves what its :class:`~planner.ground.console.RoverConsole` (an
+rclpy port in the bridge's namespace, matched at start) already knows and does, over
+HTTP on the project's one HTTP stack (:mod:`firmware_proto.http`). It talks to the
+bridge's own topics, not through the emulated link. The client is
+:mod:`planner.ground.console_client`.
 
 ======================================  ===================================================
-``GET /status``                         the bridge's latest ``/diagnostics`` (kept as it
-                                        comes, 1 Hz) and how old it is; ``plan``: the
-                                        plan on board, ``rover onboard``'s latest report
+``GET /status``                         the bridge's latest ``/diagnostics``, its age, and
+                                        ``plan``: ``rover onboard``'s latest report
                                         (``null``: none; docs/onboard.md)
 ``POST /stop?timeout=S``                ``true`` on ``emergency_stop`` at once, again
-                                        every 0.5 s until the bridge says ``stopped``:
-                                        the bridge takes it on its STOP lane, as any STOP
+                                        every 0.5 s until the bridge says ``stopped``
 ``POST /clear_stop?timeout=S``          ``clear_emergency_stop``; the controller's
                                         answer. One at a time: 409 while one waits
 ``GET /echo?topic=T&count=N&timeout=S``  one JSON line per message of ``T`` (its last
                                         value first, where one is kept), streamed
 ======================================  ===================================================
 
-This is the rover side, the bench's console: it talks to the bridge's own topics
-directly, not through the emulated Earth-Moon link (``rover status --ros`` goes through
-it, as ``rover go`` does).
+Who it answers: :mod:`planner.stack.consoleaccess`, every check on the request's head,
+before anything is read or done.
 
-**Who it answers** (:mod:`planner.stack.consoleaccess`): its own ``Host`` only, no web
-page (``Origin``, ``Sec-Fetch-Site``), the stack's token always (a random one unless
-given; the gate's bind policy, :mod:`firmware_proto.http.bindpolicy`, for the address),
-and on ``POST`` the header ``X-Rover-Console: 1`` or a JSON content type. Every check
-is made on the request's head, before anything is read or done.
-
-**STOP never waits.** Everything but a clear-STOP runs on the server's event loop and
-never blocks it: ``POST /stop`` publishes the STOP the moment its request is admitted
-(publishing hands the message to the middleware and returns), then waits for
-``stopped`` without holding a thread, as ``/status`` waits for a first
-``/diagnostics`` and ``/echo`` for its messages: each wakes on the
-:class:`~planner.ground.console.RoverConsole`'s listener. The one blocking call, a
-clear-STOP waiting for the controller (up to 60 s when it is silent), runs on a thread
-of its own (``console-clear``), one at a time, so that no number of pending clears,
-STOPs or echoes can hold a STOP back. Every wait is bounded and ends when the server
+**STOP never waits.** Everything but a clear-STOP runs on the event loop without
+blocking it: ``POST /stop`` publishes the moment its request is admitted, then waits for
+``stopped`` on the console's listener, as ``/status`` and ``/echo`` wait for theirs. A
+clear-STOP (up to 60 s against a silent controller) runs on its own thread, one at a
+time, so nothing can hold a STOP back. Every wait is bounded and ends when the server
 closes.
 
-Threads: the HTTP service's (``console-http``: the event loop); ``console-clear``; the
-listener runs on the ROS port's thread and only schedules a wake-up on the loop.
+Threads: ``console-http`` (the event loop); ``console-clear``; the listener runs on the
+ROS port's thread and only schedules a wake-up on the loop.
 """
 
 from __future__ import annotations
@@ -224,7 +209,7 @@ def _call_soon(loop: asyncio.AbstractEventLoop | None, fn: Callable[..., None], 
 
 
 class ConsoleServer:
-    """Serves a :class:`RoverConsole` (see the module docstring); a context manager.
+    """Serves a :class:`RoverConsole`; a context manager.
 
     Args:
         console: the reads and writes of the bridge's topics (its port stays the

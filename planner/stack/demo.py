@@ -1,26 +1,19 @@
 """The end-to-end demo: every part of the stack, on one machine, driving a mission.
 
-:class:`Demo` starts the parts as the launch file's HIL set does, each its own process
-(:class:`planner.stack.processes.Stack`, as ``rover stack up`` does):
-the gate (``rover gate``), the motor-controller emulator on a pty with the lab map
-(``rover emulate``), the rover-side bridge on that pty (``rover bridge``) and the
-Earth-Moon link relay (``rover link``, 3 s round trip). ROS topics travel over real
-ROS 2 (rclpy, the middleware it prints), with discovery kept on this host
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), so nothing leaves the machine. The
-ground station (planner, orchestrator, executor with drift control) runs in this
-process.
+:class:`Demo` starts each part as its own process, as ``rover stack up`` does
+(:class:`planner.stack.processes.Stack`): the gate, the controller emulator on a pty
+with the lab map, the bridge on that pty and the Earth-Moon link relay, over real ROS 2
+with discovery kept on this host. The ground station (planner, orchestrator, executor)
+runs in this process.
 
-The mission: from the lab's start pose to the goal straight behind the table. The direct
-plan collides with the table; the orchestrator repairs it into a detour; the rover
-drives it. Slip is injected on one leg (one side's traction drops) when a chosen step is
-done; drift control sees the rover leave the predicted trajectory and stops it. The
-operator re-plans from the rover's reported pose (the slip is cleared first: out of the
-sand), and the rover finishes. The demo prints a summary and writes a picture of the
-predicted against the actual trajectory.
+The mission: from the lab's start to the goal behind the table. The direct plan
+collides and is repaired into a detour; slip injected after a chosen step makes drift
+control stop the rover; the operator re-plans from its reported pose (slip cleared) and
+the rover finishes. The demo prints a summary and writes a picture of predicted against
+actual trajectory.
 
-:meth:`Demo.cancel` (``rover demo`` calls it on SIGINT or SIGTERM) ends the mission
-through the executor's cancel path: the rover is sent STOP and the summary says
-``cancelled``. Before the mission runs there is nothing to stop; the caller then
+:meth:`Demo.cancel` (SIGINT, SIGTERM) ends the mission through the executor's cancel
+path (STOP; the summary says ``cancelled``); before the mission runs the caller
 interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
 """
 
@@ -220,8 +213,7 @@ class Demo:
         self.config = config or DemoConfig()
         self._say = say
         self._t0 = time.monotonic()
-        # Every process of the demo, this one included, discovers ROS 2 peers on this
-        # host only (ROS 2 Jazzy's discovery range), so nothing leaves the machine.
+        # Every process of the demo discovers ROS 2 peers on this host only.
         self.logs = Path(tempfile.mkdtemp(prefix="rover-demo-logs-"))
         """Where each process's stderr and the stack's stall log are kept (not removed)."""
         self.stall_log = self.logs / "stalls.jsonl"
@@ -427,9 +419,8 @@ class Demo:
 
         def planned(mission: MissionResult) -> None:
             if cfg.slip and mission.approved and not slipped.is_set():
-                # Where the slip starts is the rover's, not the ground's: once the rover has
-                # travelled to the end of the step after which it slips (the emulator's
-                # distance trigger), however the steps reach it (step by step, on board).
+                # The slip starts by distance travelled (the emulator's trigger), however
+                # the steps reach it (step by step, on board).
                 slipped.set()
                 at_m = slip_distance_m(mission.verdicts[0], cfg.slip_after_step)
                 answer = _control(control_port, f"inject {cfg.slip}@d={at_m:.3f}")

@@ -1,43 +1,22 @@
 """The live view's state and its fan-out to browsers.
 
-:class:`ViewHub` is fed by the ground station: :meth:`ViewHub.tap` is a tap of its ROS
-port (poses, statuses, the steps and STOPs it sends), :meth:`ViewHub.planned` gets each
-planning (every attempt's verdict and predicted trajectory), :meth:`ViewHub.progress`
-the executor's progress, :meth:`ViewHub.event` the mission's log lines. Feeding it never
-blocks and costs an append to a bounded queue (:data:`INBOX_LEN`, drop-oldest): one
-thread of the hub (``view-hub``) turns what came in into events, keeps the state, and
-every :data:`TICK_S` adds a ``tick`` (the ghost's pose now, the drift against its
-limits, the link's round trip), so that a page gets at least 10 updates a second while
-a plan runs.
+:class:`ViewHub` is fed by the ground station: :meth:`ViewHub.tap` taps its ROS port,
+:meth:`ViewHub.planned` gets each planning, :meth:`ViewHub.progress` the executor's
+progress, :meth:`ViewHub.event` the mission's log lines. Feeding it never blocks: an
+append to a bounded, drop-oldest queue (:data:`INBOX_LEN`). One hub thread
+(``view-hub``) turns inputs into events, keeps the state, and adds a ``tick`` every
+:data:`TICK_S`.
 
-Each event is encoded once, as a Server-Sent Events record, and put on every client's
-:class:`ClientQueue`: bounded, dropping its oldest record when full (and counting the
-drops), so a slow or dead browser costs memory of at most ``queue_len`` records and
-never holds up the hub, let alone the mission. A client that connects gets the state
-first (``hello``: the map, the plannings so far, the latest poses).
+Each event is encoded once as a Server-Sent Events record and put on every client's
+:class:`ClientQueue` (bounded, drop-oldest, drops counted), so a slow or dead browser
+never holds up the hub or the mission. A client that connects gets the state first
+(``hello``). The events and their fields: docs/view.md "The push channel".
 
-Events (``data`` is JSON): ``hello``, ``plans`` (with the mission's ``goal``),
-``pose`` (``src`` ``reported`` or ``odom``, the latter with its speed ``v`` m/s and yaw
-rate ``w`` rad/s; ``tap_s``: wall time it reached the ground station), ``status``,
-``progress``, ``tick``, ``log``, ``stop`` (the latch, who asked, and ``at``: where the
-rover was), ``result`` (the banner: ``ok``, ``text``).
-
-A page opened mid-mission starts from ``hello``: the map, the goal, the plannings, the
-trails of both poses so far (1 cm apart, at most :data:`TRAIL_LEN` points each), the
-STOPs with where they happened, the progress, the ghost's state and the result.
-
-The ghost follows the plan its step belongs to: each progress report names the gate's
-verdict of its plan (:attr:`~planner.ground.executor.ExecutionProgress.verdict`), and the ghost
-moves along that verdict's prediction, whatever else came before (a step's
-``published`` is reported again every second until the rover acknowledges it, so
-counting reports cannot tell one plan from the next). The leg shown is that verdict's
-place among the plannings' approved plans.
-
-The ghost stops where it is when the step it follows ends other than ``completed``
-(``fault:``, ``aborted:``, ``rejected:``) or a STOP is sent, until the next step is
-published: the prediction of a step the rover no longer drives is not where it is.
-A step ended that way shows the banner at once (``fault:encoder at step 3/9``);
-:meth:`ViewHub.result` replaces it with the mission's outcome.
+The ghost follows the prediction of the verdict each progress report names
+(:attr:`~planner.ground.executor.ExecutionProgress.verdict`), not a count of reports
+(``published`` repeats until acknowledged). It halts when its step ends other than
+``completed`` or a STOP is sent, until the next step is published; such an end shows the
+banner at once, and :meth:`ViewHub.result` replaces it with the mission's outcome.
 """
 
 from __future__ import annotations
@@ -207,8 +186,8 @@ def _pose_of(msg: Any) -> tuple[Pose, float]:
 
 
 class ViewHub:
-    """The view's state and its clients; see the module docstring. :meth:`start` the
-    hub thread, :meth:`close` it (idempotent).
+    """The view's state and its clients. :meth:`start` the hub thread, :meth:`close`
+    it (idempotent).
 
     Args:
         world: the map to draw.
@@ -375,13 +354,11 @@ class ViewHub:
             return self._snapshot()
 
     def state_json(self, max_age_s: float = 0.0) -> bytes:
-        """:meth:`state` as JSON bytes, encoded once per change and shared by every
-        caller: what was encoded last is returned again while nothing changed, or while
-        it is younger than ``max_age_s`` (so that a flood of requests costs at most one
-        encoding per ``max_age_s``). Its size is bounded: :data:`TRAIL_LEN` points per
+        """:meth:`state` as JSON bytes, shared by every caller: the last encoding is
+        returned again while nothing changed or while it is younger than ``max_age_s``
+        (at most one encoding per ``max_age_s``). Bounded: :data:`TRAIL_LEN` points per
         trail, :data:`PLANS_KEPT` attempts, paths thinned to :data:`PATH_STEP_M`. Any
-        thread; the encoding is made of pieces each encoded once (the map, each plan,
-        each trail point), so it costs little more than joining them."""
+        thread; joins pieces each encoded once."""
         with self._lock:
             return self._encoded_state(max_age_s)
 
