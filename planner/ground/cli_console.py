@@ -1,22 +1,17 @@
 """``rover status``, ``rover stop``, ``rover clear-stop`` and ``rover echo``: the
-operator's console, no ros2cli needed.
+operator's console, no ros2cli needed (docs/commands.md, "The stack's console").
 
 Two paths:
 
 - **A stack's console socket** where one is known (``--console URL``, or
-  ``$ROVER_STACK_CONSOLE``, which ``rover stack env`` exports): the running stack
-  answers what its own ROS port already knows (:mod:`planner.stack.console_server`,
-  through :mod:`planner.ground.console_client`, the standard library only): no rclpy,
-  no discovery, well under a second. It is the rover side (the bridge's own topics, as
-  ``--namespace /``), not the emulated link. Its token comes from
-  ``$ROVER_CONSOLE_TOKEN``, else from the stacks' registry (the stack wrote it there,
-  readable by this user only). A console that does not answer is said on stderr, and
-  the command goes on over ROS 2; so does ``rover stop`` when the console refuses it.
+  ``$ROVER_STACK_CONSOLE``): the running stack answers from its own ROS port
+  (:mod:`planner.stack.console_server` through :mod:`planner.ground.console_client`): no
+  rclpy, no discovery. It is the rover side, not the emulated link. Its token:
+  ``$ROVER_CONSOLE_TOKEN``, else the stacks' registry. A console that does not answer is
+  said on stderr and the command goes on over ROS 2; so does ``rover stop`` when refused.
 - **ROS 2** (:mod:`planner.ground.console`) otherwise, or with ``--ros`` or
-  ``--namespace``: the bridge's topics in ``--namespace`` (default ``ground``: through
-  the link relay, as ``rover go`` does; ``/`` for the bridge's own) on the ROS 2 domain
-  of ``--domain`` or ``$ROS_DOMAIN_ID`` (what ``rover stack up`` prints). What a bridge
-  started alone answers to.
+  ``--namespace``: the bridge's topics in ``--namespace`` (default ``ground``, through
+  the link relay; ``/`` for the bridge's own) on ``--domain`` or ``$ROS_DOMAIN_ID``.
 """
 
 from __future__ import annotations

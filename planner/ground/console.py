@@ -86,7 +86,7 @@ class ClearReport:
 
 
 class RoverConsole:
-    """The operator's reads and writes of the bridge's topics (see the module docstring).
+    """The operator's reads and writes of the bridge's topics.
 
     Args:
         port: an open ROS port in the namespace of the topics (not closed here).
@@ -301,11 +301,10 @@ class RoverConsole:
     ) -> ClearReport:
         """Ask the bridge to release the controller's latch and say what became of it.
 
-        Waits for the bridge's state first (at most a third of ``timeout_s``), publishes
-        on ``clear_emergency_stop``, then waits for ``cleared`` or
-        ``fault:fault_persists`` until ``timeout_s`` has passed, and for the next
-        ``/diagnostics`` after the answer (at most ``after_wait_s``; 1 Hz) to report the
-        state after it (``None`` when it did not come in time).
+        Waits for the bridge's state (at most a third of ``timeout_s``), publishes on
+        ``clear_emergency_stop``, waits for ``cleared`` or ``fault:fault_persists`` until
+        ``timeout_s``, then up to ``after_wait_s`` for the next ``/diagnostics`` (the
+        state after; ``None`` when late).
         """
         start = time.monotonic()
         deadline = start + timeout_s

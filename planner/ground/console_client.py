@@ -1,11 +1,9 @@
 """The client of a stack's console socket (:mod:`planner.stack.console_server`): what
 ``rover status``, ``stop``, ``clear-stop`` and ``echo`` use when a stack is up.
 
-The standard library's ``http.client`` only: no rclpy, no DDS, no discovery, so that a
-``rover stop`` typed at a console answers in well under a second however long DDS would
-take to find the bridge. Every call has a timeout; a console that does not answer (the
-stack is gone) raises :class:`ConsoleUnavailableError`, and the commands then say so and
-use ROS 2 instead.
+The standard library's ``http.client`` only: no rclpy, no DDS discovery in the command.
+Every call has a timeout; a console that does not answer (the stack is gone) raises
+:class:`ConsoleUnavailableError`, and the commands then use ROS 2 instead.
 """
 
 from __future__ import annotations

@@ -1,22 +1,16 @@
 """Drift control: the rover's pose against the twin's prediction, time-aligned per step.
 
-The gate predicts, for every step of an approved plan, where the rover will be at each
-moment since that step started (``trajectory.samples`` with ``step`` and ``step_t_s``).
-The executor runs steps with pauses between them (each one waits a link round trip for
-``completed``), so the prediction is aligned on each step's own start, not on one clock.
+The gate predicts each step's poses by the time since that step started
+(``trajectory.samples`` with ``step`` and ``step_t_s``), since the executor pauses a round
+trip between steps. The rover started step *k* at about ``(t_pub + t_acc) / 2``
+(publishing and hearing ``accepted``); until ``accepted`` arrives the configured one-way
+delay stands in. Pose stamps are measurement times on the same clock.
 
-When did the rover start step *k*? The executor publishes it at ``t_pub`` and hears
-``accepted`` back at ``t_acc``; the bridge accepts as soon as it sees the step, so the
-rover started at about ``(t_pub + t_acc) / 2`` (one one-way delay after publishing). Until
-``accepted`` arrives the configured one-way delay stands in. Pose stamps are the time the
-pose was measured (the bridge subtracts the sensor's latency), on the same clock.
-
-:class:`DriftMonitor` compares each pose with the predicted pose at the same step time:
-linear error (metres) and heading error (degrees). Only a violation that persists over
-``persistence`` consecutive samples counts (one noisy fix does not stop the rover);
-then :meth:`DriftMonitor.update` returns a :class:`DriftEvent` (once). Pure: no I/O, no
-threads; times are seconds on the wall clock, ``time_scale`` converts them to twin time
-when the rover runs faster than real time.
+:class:`DriftMonitor` compares each pose with the predicted pose at the same step time
+(linear error m, heading error deg); a violation over ``persistence`` consecutive samples
+makes :meth:`DriftMonitor.update` return a :class:`DriftEvent` (once). Pure: no I/O, no
+threads; times are wall seconds, ``time_scale`` converts them to twin time. Details:
+docs/ground.md "Drift control".
 """
 
 from __future__ import annotations
@@ -80,7 +74,7 @@ class DriftEvent:
 
 
 class DriftMonitor:
-    """Compares reported poses with the gate's prediction; see the module docstring."""
+    """Compares reported poses with the gate's prediction, time-aligned per step."""
 
     def __init__(
         self,

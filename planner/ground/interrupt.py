@@ -1,21 +1,16 @@
 """Ending a mission from the keyboard or the system: SIGINT and SIGTERM as a cancel.
 
 A mission must not die mid-step with the rover still driving. :class:`CancelOnSignal`
-turns the first SIGINT (Ctrl-C) or SIGTERM into a call of ``on_signal``, which normally
-sets the ``cancel`` event the mission runner and the executor watch: the running plan
-ends with STOP and the mission reports ``cancelled``. A second signal raises
-``KeyboardInterrupt`` in the main thread, for an operator who cannot wait; the executor
-sends STOP on that path too before the exception goes on.
+turns the first SIGINT or SIGTERM into a call of ``on_signal`` (normally: set the
+``cancel`` event, so the plan ends with STOP and the mission reports ``cancelled``); a
+second signal raises ``KeyboardInterrupt`` in the main thread, and the executor sends
+STOP on that path too.
 
-``on_signal`` runs on a thread of its own (``signal-dispatch``), not in the handler:
-Python runs a handler in the main thread between two bytecodes, and one that set an
-event while the main thread was inside that event's ``wait`` (the mission loop waits on
-``cancel``; ``rover go`` waits on the end of its hold) would wait for ever for a lock its
-own thread holds (firmware_proto/runtime/signals.py says how ``rover gate`` hung so).
-The handler only stores the signal and writes its number to a pipe.
-
-Signal handlers can only be installed from the main thread; elsewhere the context
-manager does nothing (say so in the log) and signals keep their handlers.
+``on_signal`` runs on its own thread (``signal-dispatch``), not in the handler: a handler
+that set an event while the main thread was inside that event's ``wait`` would deadlock
+on a lock its own thread holds (firmware_proto/runtime/signals.py). The handler only
+stores the signal and writes its number to a pipe. Outside the main thread the context
+manager does nothing (and logs so).
 """
 
 from __future__ import annotations

@@ -1,27 +1,20 @@
 """Plans run on board: the ground's side of the uplink (docs/onboard.md, docs/ground.md).
 
-:class:`OnboardExecutor` is what ``rover go`` and ``rover demo`` run by default. Given an
-approved plan and its verdict it sends the rover one uplink (the steps, the gate's
-prediction, the drift limits, a plan id, the verdict's identity and the boot id of the
-rover's onboard program, from its latest report, tagged with the uplink token), resends
-it every ``resend_s`` until the rover answers it (``accepted`` or ``duplicate``: every
-copy after the first is harmless; a refusal for now, ``busy``, ``latched`` or
-``no_fix``, is resent too until the plan's budget runs out), and then only listens: the
-rover runs the steps back to back and guards them itself. Its reports (``onboard_report``,
-a snapshot at each event and every second) say where the plan is; the executor turns
-them into :class:`~planner.ground.executor.ExecutionProgress` and, once the plan has ended and the
-rover reported its rest, into an :class:`~planner.ground.executor.ExecutionResult` of the
-same shape as the step-by-step executor's: a guard stop is outcome ``drift`` (with the
-rover's own detection), so :class:`~planner.ground.mission.MissionRunner` re-plans after
-it as it did after a drift STOP from the ground, from the rover's estimate at rest
-(:meth:`OnboardExecutor.settled_pose`).
+:class:`OnboardExecutor` is what ``rover go`` and ``rover demo`` run by default. It sends
+an approved plan and its verdict as one uplink (steps, prediction, drift limits, plan
+id, verdict identity, the onboard program's boot id; tagged with the uplink token),
+resends it every ``resend_s`` until the rover answers (``accepted`` or ``duplicate``;
+``busy``, ``latched`` or ``no_fix`` are resent too, within the plan's budget), then only
+listens: the rover runs and guards the steps itself. Its reports (``onboard_report``)
+become :class:`~planner.ground.executor.ExecutionProgress` and, at the end, an
+:class:`~planner.ground.executor.ExecutionResult` of the step-by-step executor's shape:
+a guard stop is outcome ``drift``, so :class:`~planner.ground.mission.MissionRunner`
+re-plans from the rover's estimate at rest (:meth:`OnboardExecutor.settled_pose`).
 
-The ground keeps STOP authority: ``cancel`` (Ctrl-C, the view's STOP button) or a plan
-that outlives its time publishes STOP on ``emergency_stop`` every ``stop_repeat_s`` until
-the rover answers ``stopped`` (through loss: every copy is a chance), and a cancel of the
-plan id on the uplink, resent until acknowledged, so that a copy of the plan still on
-its way can never run after it. A plan without a verdict (move-and-wait's increments)
-has no prediction to guard with: it runs step by step, as the thesis's executor.
+The ground keeps STOP authority: ``cancel`` or a plan that outlives its time publishes
+STOP every ``stop_repeat_s`` until ``stopped``, and a cancel of the plan id resent until
+acknowledged, so a copy still on its way never runs after it. A plan without a verdict
+runs step by step.
 
 Threads: :meth:`OnboardExecutor.execute` blocks its caller (the mission's thread); the
 port's lane thread runs the callbacks, which only store what came and wake it.
@@ -99,8 +92,8 @@ class UplinkOptions:
 
 
 class OnboardExecutor(PlanExecutor):
-    """Runs approved plans on board; see the module docstring. The step-by-step
-    executor's interface (it is one, for plans without a verdict)."""
+    """Runs approved plans on board, behind the step-by-step executor's interface (and
+    as one, for plans without a verdict)."""
 
     def __init__(
         self,
@@ -252,9 +245,9 @@ class OnboardExecutor(PlanExecutor):
         on_progress: Callable[[ExecutionProgress], None] | None = None,
         cancel: threading.Event | None = None,
     ) -> ExecutionResult:
-        """Run ``plan`` on board (see the module docstring); without a verdict, step by
-        step. Blocks until the rover reports the end and its rest, the plan times out, or
-        ``cancel`` is set (STOP and a cancel are sent, outcome ``cancelled``)."""
+        """Run ``plan`` on board; without a verdict, step by step. Blocks until the rover
+        reports the end and its rest, the plan times out, or ``cancel`` is set (STOP and
+        a cancel are sent, outcome ``cancelled``)."""
         if verdict is None:
             return super().execute(plan, verdict, on_progress=on_progress, cancel=cancel)
         cfg = self.config

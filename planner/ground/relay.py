@@ -10,16 +10,12 @@ it. Routes (relative names, so each side's namespace applies):
 - rover -> ground: ``command_status``, ``odom``, ``odom_ground``, ``diagnostics``,
   ``plan_ack``, ``onboard_report``, ``onboard_pose``
 
-Every message of every route takes the delay and jitter and the loss draw: the uplink,
-its answers and reports, STOP and clear, statuses and telemetry.
-
-Messages on one topic keep their order (a space link is a stream; jitter stretches
-gaps, it never reorders). Each route draws delay and loss from its own generator seeded
-from ``seed`` and the topic name, so a run is reproducible whatever the interleaving of
-topics. One scheduler thread releases messages when due; ``close()`` drops what is in
-flight (the link went down) and joins it. Given a lockstep clock (a whole mission in
-virtual time, docs/sim.md) there is no thread: each tick of the clock releases what is
-due by then.
+Every message of every route takes the delay, jitter and loss. One topic's messages keep
+their order (jitter stretches gaps, never reorders). Each route draws from its own
+generator seeded from ``seed`` and the topic name, so a run is reproducible whatever the
+interleaving. One scheduler thread releases messages when due; ``close()`` drops what is
+in flight and joins it. With a lockstep clock (docs/sim.md) there is no thread: each
+tick releases what is due.
 """
 
 from __future__ import annotations

@@ -2,10 +2,9 @@
 timed out, when drift control has gone blind, when the operator hears ``accepted`` and
 ``running``, and when the rover started it.
 
-:class:`StepWatch` is what :meth:`planner.ground.executor.PlanExecutor.execute` consults while a
-step runs; it takes the time as an argument (any one clock, seconds), so the same rules
-are tested in virtual time (tests/planner/test_stepwatch.py). The executor keeps the
-threads, the ROS port and the waiting.
+:class:`StepWatch` is what :meth:`planner.ground.executor.PlanExecutor.execute` consults
+while a step runs; it takes the time as an argument (any one clock, seconds), so its
+rules are tested in virtual time.
 """
 
 from __future__ import annotations
@@ -39,7 +38,7 @@ class Watched:
 
 @dataclass
 class StepWatch:
-    """One step's deadlines (see the module docstring). Times in seconds on one clock.
+    """One step's deadlines. Times in seconds on one clock.
 
     Attributes:
         published_s: when the step was published.

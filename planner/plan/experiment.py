@@ -1,23 +1,16 @@
 """The planning part of the thesis's experiment (section 6.2), on one scenario map.
 
-For each of N goals, from the map's start pose: plan the straight route (turn, drive,
-turn), validate it on the gate, and repair until approved or given up
+For each of N goals, from the map's start pose: plan the straight route, validate it on
+the gate, and repair until approved or given up
 (:meth:`PlannerOrchestrator.plan_mission`). Per goal it records whether the straight
 plan collides, whether the gate intercepted it, and how many repair cycles it took.
 
-"Collides" is judged twice, independently: by the gate (the twin, footprint inflated
-by its safety margin) and by plain geometry (the chassis footprint, no margin, swept
-along the planner's ideal path against the map's obstacles, :func:`footprint_hits`).
-A straight plan that the geometry shows hitting something and that the gate did not
-reject as a collision would be a miss; the thesis reports 100 % interception.
-
-Goals: the map's suggested goals first, then seeded random ones (:func:`trial_goals`):
-free space where the rover fits and can turn, at least ``min_distance_m`` from the
-start, a random yaw. Deterministic: the same seed gives the same goals and, the gate
-being deterministic, the same numbers (wall times aside).
-
-The thesis's figures to compare with: collision rates 40 / 70 / 90 % and mean repair
-cycles 1.2 / 2.4 / 3.8 on SCN-01 / 02 / 03, all colliding plans intercepted.
+"Collides" is judged twice, independently: by the gate (footprint inflated by its
+margin) and by plain geometry (the bare chassis footprint swept along the planner's
+ideal path, :func:`footprint_hits`); a geometric hit the gate did not reject as a
+collision is a miss. Goals: the map's suggested ones, then seeded random ones
+(:func:`trial_goals`); the same seed gives the same numbers (wall times aside). The
+thesis's figures and ours: docs/planner.md "The experiment".
 """
 
 from __future__ import annotations

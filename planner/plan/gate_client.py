@@ -1,30 +1,20 @@
 """HTTP client of the simulation gate (the thesis's ``HttpPlanValidator``).
 
 :class:`GateClient` posts plans to ``POST /validate_plan`` and reads the verdict into
-:class:`~firmware_proto.model.verdict.Verdict` (the model the gate serialises); it also reads
-``/health``, ``/maps`` and one map (:class:`~firmware_proto.model.worldmap.WorldMap`).
-Standard library only (``http.client``), one keep-alive connection, thread-safe (calls
-are serialised on it).
+:class:`~firmware_proto.model.verdict.Verdict`; it also reads ``/health``, ``/maps`` and
+one map (:class:`~firmware_proto.model.worldmap.WorldMap`). Standard library only
+(``http.client``), one keep-alive connection, thread-safe (calls are serialised on it).
 
-Failure behaviour, per call (docs/planner.md):
+Failures, per call (table: docs/planner.md "The gate client"): one time budget,
+``timeout_s``, covers connecting, waiting, retrying and ``Retry-After``. Connection
+errors are retried ``retries`` times with doubling backoff, then
+:class:`~planner.errors.GateUnavailableError`; a keep-alive connection closed while idle
+is reopened at once, uncounted (validation is pure, so repeating a POST is safe). No
+answer in the budget: :class:`~planner.errors.GateTimeoutError`. 503 and 429: wait
+``Retry-After`` while the budget allows, then :class:`~planner.errors.GateOverloadedError`.
+Any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried.
 
-- every call has one time budget, ``timeout_s``: connecting, waiting, retrying and
-  honouring ``Retry-After`` all come out of it;
-- connection errors (refused, reset, closed mid-answer) are retried up to ``retries``
-  times with exponential backoff (``backoff_s``, doubled each time, capped at
-  ``max_backoff_s``), then :class:`~planner.errors.GateUnavailableError` names the URL.
-  A keep-alive connection the gate closed while idle is reopened at once, uncounted.
-  Validation is a pure function of the request, so repeating a POST is safe;
-- no answer within the budget: :class:`~planner.errors.GateTimeoutError`;
-- 503 (busy, shutting down) and 429 (this client holds its share of the gate): wait
-  ``Retry-After`` and try again while the budget allows, then
-  :class:`~planner.errors.GateOverloadedError`;
-- any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried,
-  with the gate's error code, message and, for a plan that fails the schema, the JSON
-  pointer of every violation.
-
-Settings come from :func:`resolve_gate_settings`: arguments, then the environment
-(``ROVER_GATE_URL``, ``ROVER_GATE_TOKEN``), then :data:`DEFAULT_GATE_URL`.
+Settings: :func:`resolve_gate_settings`.
 """
 
 from __future__ import annotations
@@ -246,7 +236,8 @@ class GateClient:
             GateStatusError: the gate refused the request (400 with the violations' pointers
                 for a plan that fails the schema; 400 naming the option for an unknown
                 map or a start outside it; 401...).
-            GateOverloadedError, GateUnavailableError, GateTimeoutError: see the module.
+            GateOverloadedError, GateUnavailableError, GateTimeoutError: see the module
+                docstring.
             GateProtocolError: the answer is not a verdict.
         """
         if isinstance(plan, Plan):

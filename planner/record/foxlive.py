@@ -1,12 +1,10 @@
-"""A live Foxglove connection: the ground station's ROS traffic, as it happens, on a
-Foxglove WebSocket server (``foxglove-sdk``), so Foxglove's app shows the mission live
-with the same topics, types and CDR bytes as the MCAP recording (:mod:`planner.record.mcaprec`).
+"""A live Foxglove connection: the ground station's ROS traffic on a Foxglove WebSocket
+server (``foxglove-sdk``), with the same topics, types and CDR bytes as the MCAP
+recording (:mod:`planner.record.mcaprec`).
 
-:class:`FoxgloveLive` is a tap of the ground station's port and takes each planning
-(the gate's predicted trajectories as ``nav_msgs/msg/Path``), as the recorder does. The
-tap only queues; a thread of its own encodes and logs, so the mission never waits on a
-viewer. The server binds loopback only: it has no token of its own (unlike the live
-view), so it is refused on any other address.
+:class:`FoxgloveLive` is a tap of the ground station's port and takes each planning, as
+the recorder does. The tap only queues; its own thread encodes and logs, so the mission
+never waits on a viewer. Loopback only: the server has no token of its own.
 """
 
 from __future__ import annotations
@@ -27,7 +25,7 @@ logger = logging.getLogger(__name__)
 
 
 class FoxgloveLive:
-    """A Foxglove WebSocket server fed by the ground station (see the module docstring).
+    """A Foxglove WebSocket server fed by the ground station.
 
     Args:
         host: a loopback address.

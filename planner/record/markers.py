@@ -92,7 +92,7 @@ def _arrow(ns: str, ident: int, stamp: Any, pose: Pose, colour: Any) -> Any:
 
 
 def map_markers(world: WorldMap, goal: Pose | None, stamp: Any) -> Any:
-    """The map (see the module docstring) as a ``MarkerArray`` stamped ``stamp``."""
+    """The map as a ``MarkerArray`` stamped ``stamp``."""
     b = world.bounds
     out: list[Any] = [
         _strip(
@@ -133,7 +133,7 @@ def map_markers(world: WorldMap, goal: Pose | None, stamp: Any) -> Any:
 
 def plan_markers(mission: MissionResult, planning: int, stamp: Any) -> Any:
     """Each attempt of one planning (numbered ``planning`` from 1) as markers: its
-    predicted trajectory, and where it collided (see the module docstring)."""
+    predicted trajectory, and where it collided."""
     geo = _geometry()
     out: list[Any] = []
     ns = f"{PLAN_NS}-{planning}"

@@ -1,33 +1,19 @@
 """Recording a mission as ROS 2 MCAP, and reading one back (``rover decode x.mcap``).
 
 :class:`McapRecorder` is a tap of the ground station's ROS port
-(:meth:`bridge.ros.rosport.RosPort.add_tap`): every message the ground station sends
-(``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``) and receives
-(``odom``, ``odom_ground``, ``command_status``) is written with its topic as the port
-resolved it, CDR-encoded against the message's ROS 2 definition (schema encoding
-``ros2msg``, profile ``ros2``), so the file opens in Foxglove and in ``ros2 bag`` (mcap
-storage). The gate's predicted trajectories go beside them as ``nav_msgs/msg/Path``:
-:data:`PREDICTED_TOPIC` for each approved plan, :data:`REJECTED_TOPIC` for each
-rejected attempt, and the verdict itself as JSON on :data:`VERDICT_TOPIC`.
+(:meth:`bridge.ros.rosport.RosPort.add_tap`): every message it sends and receives is
+written under the topic the port resolved, CDR-encoded against its ROS 2 definition
+(profile ``ros2``), so the file opens in Foxglove and ``ros2 bag``. Beside them: the
+gate's predictions (:data:`PREDICTED_TOPIC`, :data:`REJECTED_TOPIC`) and verdicts
+(:data:`VERDICT_TOPIC`), ``/tf`` (``map -> odom -> base_link``), the map and plan markers
+(:mod:`planner.record.markers`), the bridge's ``/diagnostics`` (:meth:`attach`
+subscribes to them) and metadata records. Topics and records: docs/view.md
+"Recordings".
 
-What a lab's viewer needs besides (:meth:`McapRecorder.attach` hangs the recorder on a
-port and subscribes it to ``diagnostics``):
-
-- ``/tf`` (``tf2_msgs/msg/TFMessage``, :data:`TF_TOPIC`): ``odom -> base_link`` from
-  each ``odom`` and ``map -> odom`` from the latest ``odom_ground`` against it, so the
-  tree ``map -> odom -> base_link`` holds;
-- the map and the plans as ``visualization_msgs/msg/MarkerArray``
-  (:data:`MAP_MARKERS_TOPIC`, :data:`PLAN_MARKERS_TOPIC`; :mod:`planner.record.markers`);
-- the bridge's ``/diagnostics`` as the ground station hears them;
-- metadata records: ``map`` (name, bounds, obstacles, start, goal), ``planning-<n>``
-  for each planning (its plans and verdicts as JSON) and ``mission`` (how many).
-
-The tap only puts the message on a queue; a writer thread encodes and writes, so the
-mission thread never waits on the disk. :meth:`McapRecorder.close` drains the queue and
-finishes the file (idempotent).
-
-Message definitions are made from the generated classes' own field lists (no ``.msg``
-files needed), dependencies appended after ``=`` separator lines as ROS 2 writes them.
+The tap only queues; a writer thread encodes and writes, so the mission thread never
+waits on the disk. :meth:`McapRecorder.close` drains the queue and finishes the file
+(idempotent). Message definitions are made from the generated classes' field lists (no
+``.msg`` files needed).
 """
 
 from __future__ import annotations
@@ -304,8 +290,8 @@ def recording_unavailable() -> str:
 
 
 class McapRecorder:
-    """Writes a ROS 2 MCAP file of what the ground station's port sees (see the module
-    docstring). A context manager; :meth:`close` is idempotent.
+    """Writes a ROS 2 MCAP file of what the ground station's port sees. A context
+    manager; :meth:`close` is idempotent.
 
     Args:
         path: the file to write (replaced if it exists).
@@ -410,8 +396,7 @@ class McapRecorder:
             try:  # a sourced ROS 2 has tf2_msgs: its definition made from its class
                 text = msgdef(_class_of(_TF_TYPE))
             except ImportError:
-                # The PyPI wheels have no tf2_msgs: its one field is tf2_msgs's own
-                # TFMessage.msg, the rest made from the generated geometry_msgs class.
+                # No tf2_msgs (PyPI wheels): its one-line TFMessage.msg over geometry_msgs.
                 transform = _class_of("geometry_msgs/TransformStamped")
                 text = (
                     "geometry_msgs/TransformStamped[] transforms\n"

@@ -1,10 +1,9 @@
 """A top-down picture of a mission: the map with its obstacles' names, each plan's
-predicted trajectory (the ghost), the rover's reported trajectory, where drift control
-stopped it (a red octagon, a stop sign), where the gate's rejected plans collided (a
-black X), the goal, a legend and a scale bar.
+predicted trajectory (the ghost), the rover's reported trajectory, drift stops (a red
+octagon), where rejected plans collided (a black X), the goal, a legend and a scale bar.
 
-Drawn with Pillow from the planner's own map data (:class:`~firmware_proto.model.worldmap.WorldMap`,
-as the gate serves it), so the ground station needs neither the twin nor the gate's
+Drawn with Pillow from the planner's own map data
+(:class:`~firmware_proto.model.worldmap.WorldMap`), without the twin or the gate's
 renderer. Pure apart from :func:`save`.
 """
 
@@ -159,11 +158,10 @@ def _edge_distance(p: Point, polygon: Sequence[Point]) -> float:
 
 
 def label_point(polygon: Sequence[Point], grid: int = 24) -> Point:
-    """Where a polygon's name goes: the point of a ``grid`` x ``grid`` sampling of its
-    bounding box that is inside it and farthest from its edges (the mean of the
-    vertices lies outside a concave shape, such as the lab's L-shaped workbench, whose
-    name was drawn on the floor beside it), the one nearest the middle among those as
-    deep; the mean where no sample is inside."""
+    """Where a polygon's name goes: of a ``grid`` x ``grid`` sampling of its bounding
+    box, the point inside it farthest from its edges (the vertices' mean may lie outside
+    a concave shape), nearest the middle among those as deep; the mean where no sample
+    is inside."""
     xs, ys = [p[0] for p in polygon], [p[1] for p in polygon]
     centre = _mean(polygon)
     best, best_score = centre, -math.inf
@@ -258,8 +256,7 @@ def save(picture: MissionPicture, path: str | Path) -> Path:
 
 def fresh_path(stem: str, directory: Path, wall_s: float) -> Path:
     """``<directory>/<stem>-YYYYmmdd-HHMMSS.png`` for the local time ``wall_s``, with
-    ``-2``, ``-3``, ... where that file exists: a mission's picture never overwrites
-    another's (``rover go`` wrote ``mission.png`` over the last one on every run)."""
+    ``-2``, ``-3``, ... where that file exists: never overwrites another mission's."""
     name = f"{stem}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(wall_s))}"
     path = directory / f"{name}.png"
     n = 2

@@ -293,8 +293,8 @@ def _up(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:
                 _say("rover stack: interrupted while starting; stopping what started")
                 return 0
-            # The console: a port of this process on the bridge's own topics, matched now,
-            # so that rover status / stop / clear-stop / echo need no discovery later.
+            # The console: a port on the bridge's own topics, matched now, so the
+            # commands need no discovery later.
             rover_port = stack_ports.enter_context(
                 open_port("rclpy", namespace="", node_name="rover_stack_console")
             )

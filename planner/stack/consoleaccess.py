@@ -1,26 +1,18 @@
 """Who the stack's console answers (:mod:`planner.stack.console_server`): the checks a
-request passes before anything is read or done, as a pure function of its method and
-headers (no I/O, no clock).
+request passes before anything is read or done, a pure function of its method and
+headers (no I/O, no clock). The console answers the operator's commands only, never a
+web page or another user (docs/commands.md, "The stack's console"):
 
-The console stops and releases the rover, so it answers the operator's commands only,
-never a web page and never another user of the machine (docs/commands.md, "The stack's
-console"):
-
-1. ``Host`` must name the console exactly as its URL does: ``127.0.0.1:PORT`` or
-   ``localhost:PORT`` for a loopback bind (``[::1]:PORT`` for ``::1``), the address and
-   port for another bind, any address literal and the port for a wildcard bind. A page
-   whose name a DNS rebinding points at 127.0.0.1 sends its own name, and is refused
-   (421), so that it cannot read ``/status`` or ``/echo`` as its own origin.
-2. No ``Origin`` header, and no ``Sec-Fetch-Site`` other than ``none``: browsers send
-   them with a page's requests, the commands' client never does (403). The console has
-   no page of its own, so no origin is its own.
-3. The stack's token (``Authorization: Bearer``), always: a random one per stack unless
-   the operator gives one (401). The commands find it in the environment
-   (``ROVER_CONSOLE_TOKEN``) or in the stack's registry file, readable by its user only
-   (:mod:`planner.stack.domains`); it is never on a command line.
+1. ``Host`` names the console exactly as its URL does (loopback: ``127.0.0.1:PORT``,
+   ``localhost:PORT`` or ``[::1]:PORT``; another bind: its address and port; a wildcard
+   bind: any address literal and the port), else 421: a DNS-rebinding page sends its
+   own name.
+2. No ``Origin`` and no ``Sec-Fetch-Site`` other than ``none`` (403): browsers send them,
+   the commands' client never does.
+3. The stack's token (``Authorization: Bearer``), always (401); never on a command line
+   (:mod:`planner.stack.domains`).
 4. A ``POST`` carries ``X-Rover-Console: 1`` or ``Content-Type: application/json``
-   (403): a form or a ``no-cors`` fetch of another origin can send neither without a
-   CORS preflight, which the console never grants.
+   (403): another origin cannot send either without a CORS preflight, never granted.
 """
 
 from __future__ import annotations
@@ -62,7 +54,7 @@ def _is_ip(text: str) -> bool:
 
 @dataclass(frozen=True)
 class ConsoleAccess:
-    """The checks of the module docstring for one console.
+    """The checks above, for one console.
 
     Attributes:
         hosts: the ``Host`` values accepted, lower case, each with its port.

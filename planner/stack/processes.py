@@ -2,27 +2,22 @@
 device), the bridge and the link relay, started in order, each ready when it prints its
 ready line, and ended last started first.
 
-:class:`Stack` is what ``rover stack up`` keeps running and what ``rover demo``
-(:mod:`planner.stack.demo`) starts before its mission: one way to start the parts. Each part
-is a :class:`ChildProcess`, ``python -m firmware_proto.cli <command>`` with the
-environment the stack gives it (its ROS 2 domain, discovery on this host).
+:class:`Stack` is what ``rover stack up`` keeps running and ``rover demo`` starts. Each
+part is a :class:`ChildProcess`, ``python -m firmware_proto.cli <command>`` with the
+stack's environment (its ROS 2 domain, discovery on this host).
 
-The stack makes a random uplink token (:attr:`Stack.uplink_token`) and gives it to the
-onboard program, and to nothing else, through its environment (``ROVER_UPLINK_TOKEN``;
-never on a command line, which every user can read): the ground signs its plans with it
-(``rover stack up`` exports it to ``rover go``, ``rover demo`` uses it in-process). It is
-not the gate's token.
+The stack makes a random uplink token (:attr:`Stack.uplink_token`) for the onboard
+program, passed only through its environment (``ROVER_UPLINK_TOKEN``; a command line is
+readable by every user); it is not the gate's token.
 
-Every part's stderr is kept whole in ``<logs>/<name>.log`` when the stack is given a
-logs directory, and every part logs its stalls to ``<logs>/stalls.jsonl``
-(docs/realtime.md): the emulator and the bridge run real time unless told not to, the
-gate and the relay at nice :data:`NICE`.
+With a logs directory, each part's stderr goes to ``<logs>/<name>.log`` and its stalls
+to ``<logs>/stalls.jsonl`` (docs/realtime.md). The emulator and the bridge run real time
+unless told not to, the gate and the relay at nice :data:`NICE`.
 
-Ready lines: the gate ``GATE <url>``, the emulator ``CONTROL 127.0.0.1:<port>`` (it
-prints ``DEVICE`` first), the bridge ``BRIDGE <url> <backend>``, the onboard
-program ``ONBOARD`` (``rover onboard``, beside the bridge), the relay ``LINK``.
-A part that does not come up in ``startup_timeout_s`` fails :meth:`Stack.start` with
-its last lines of stderr; a part that exits later is seen by :meth:`Stack.failed`.
+Ready lines: ``GATE <url>``, ``CONTROL 127.0.0.1:<port>`` (after ``DEVICE``),
+``BRIDGE <url> <backend>``, ``ONBOARD``, ``LINK``. A part not up within
+``startup_timeout_s`` fails :meth:`Stack.start` with its last lines of stderr; one that
+exits later is seen by :meth:`Stack.failed`.
 """
 
 from __future__ import annotations
@@ -82,9 +77,8 @@ class ChildProcess:
         self.args = args
         self.log = log
         """Where its stderr is kept whole (``None``: only its tail, in memory)."""
-        # Its standard input is a pipe this process never writes to: when this process
-        # ends, however it ends, the part reads end-of-file and ends too
-        # (firmware_proto/runtime/parentwatch.py).
+        # stdin is a pipe never written to: when this process ends, however it ends,
+        # the part reads end-of-file and ends too (firmware_proto/runtime/parentwatch.py).
         read_fd, self._lifeline, watch_env = pipe_for_child()
         try:
             self.proc = subprocess.Popen(

@@ -1,12 +1,11 @@
 """What a stack (``rover stack up``) tells the commands that talk to it, and how they
 take it: environment variables and the ``--domain`` option.
 
-A stack runs its processes on a ROS 2 domain of its own (:data:`DOMAIN_ENV`), with
-discovery kept on this host (:data:`RANGE_ENV` = ``LOCALHOST``), so two stacks on one
-machine never hear each other. It prints, and ``rover stack env`` prints again, one
-``export`` line (:func:`export_line`); ``rover go``, ``rover status``, ``rover stop``,
-``rover clear-stop`` and ``rover echo`` read those variables, or take ``--domain N``
-(:func:`add_domain_argument`, applied by :func:`apply_domain`).
+A stack runs on a ROS 2 domain of its own (:data:`DOMAIN_ENV`) with discovery kept on
+this host (:data:`RANGE_ENV`), so two stacks never hear each other. It prints (and
+``rover stack env`` prints again) one ``export`` line (:func:`export_line`); the
+operator's commands read those variables, or take ``--domain N``
+(:func:`add_domain_argument`, :func:`apply_domain`).
 """
 
 from __future__ import annotations
@@ -98,13 +97,11 @@ def stack_environment(
     console: str = "",
     uplink_token: str = "",
 ) -> dict[str, str]:
-    """The variables a stack exports (see the module docstring); ``rtt_s`` in mission
-    seconds, ``speed`` mission seconds per wall second; ``stall_log`` the stall log its
-    parts write (``rover go`` names a stalled part from it: docs/realtime.md); ``twin``
-    the calibrated twin its gate plays on; ``console`` its console socket's URL
-    (``rover status``, ``stop``, ``clear-stop``, ``echo`` answer there:
-    :mod:`planner.stack.console_server`); ``uplink_token`` the key its onboard program
-    checks plans with (``ROVER_UPLINK_TOKEN``: ``rover go`` signs with it)."""
+    """The variables a stack exports: ``rtt_s`` in mission seconds, ``speed`` mission
+    seconds per wall second; ``stall_log`` its parts' stall log (docs/realtime.md);
+    ``twin`` its gate's calibrated twin; ``console`` its console socket's URL
+    (:mod:`planner.stack.console_server`); ``uplink_token`` the key its onboard program
+    checks plans with (``ROVER_UPLINK_TOKEN``)."""
     variables = {
         DOMAIN_ENV: str(domain),
         RANGE_ENV: "LOCALHOST",

@@ -1,11 +1,10 @@
 """What the operator is told when a mission ends because the link to the controller
 failed: which process of the stack stalled, and for how long (docs/realtime.md).
 
-A mission that ends on ``fault:watchdog`` (the controller heard nothing from the bridge
-for 250 ms), ``fault:link_lost`` (the bridge heard no controller heartbeat) or
-``fault:no_ack`` most often means a process was starved of the CPU. Every program of
-the stack logs its stalls to a shared stall log (:mod:`firmware_proto.runtime.stall`);
-:func:`stall_report` reads the ones during the mission.
+A mission that ends on ``fault:watchdog``, ``fault:link_lost`` or ``fault:no_ack`` most
+often means a process was starved of the CPU. Every program of the stack logs its stalls
+to a shared stall log (:mod:`firmware_proto.runtime.stall`); :func:`stall_report` reads
+the ones during the mission.
 """
 
 from __future__ import annotations

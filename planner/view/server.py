@@ -1,11 +1,9 @@
 """The live view's HTTP server: one static page, a Server-Sent Events stream, STOP.
 
 A Starlette application on the project's one HTTP stack and application layer, the
-gate's (:mod:`firmware_proto.http`: uvicorn with h11, one event loop in a thread of its
-own, every connection bounded by deadlines; :mod:`firmware_proto.http.app`: routes,
-the shared guard, errors in JSON). The page is one file shipped with the package (no
-build step, nothing fetched from elsewhere) and the push channel is Server-Sent
-Events, which a browser's ``EventSource`` reads and reconnects by itself.
+gate's (:mod:`firmware_proto.http`, :mod:`firmware_proto.http.app`). The page is one
+file shipped with the package (nothing fetched from elsewhere); the push channel is
+Server-Sent Events.
 
 ======================  ========================================================
 ``GET /``               the page
@@ -18,37 +16,24 @@ Events, which a browser's ``EventSource`` reads and reconnects by itself.
 
 Anything else gets a JSON error and the server goes on.
 
-**STOP never waits.** ``POST /stop`` skips the lane that every other request shares
-(at most :data:`LANE_PER_TURN` of them started per turn of the event loop), and its action runs on a
-thread of its own (``view-stop``), so neither a flood of requests nor a slow
-clear-STOP can queue ahead of it. ``GET /state`` costs little: the hub encodes the
-state once per change (at most every :data:`STATE_MAX_AGE_S` under a flood) and shares
-the bytes.
+**STOP never waits.** ``POST /stop`` skips the lane every other request shares (at most
+:data:`LANE_PER_TURN` started per turn of the event loop) and runs on its own thread
+(``view-stop``). ``GET /state`` shares the hub's encoding (at most one per
+:data:`STATE_MAX_AGE_S`).
 
-**Other origins are refused.** STOP and clear-STOP need the header ``X-Rover-View: 1``
-(:data:`ACTION_HEADER`: a form or a ``no-cors`` fetch of another origin cannot send
-it), and are refused when the browser says the request comes from another origin
-(``Origin``, ``Sec-Fetch-Site``), whatever the token. ``Host`` must name this server
-(DNS rebinding). No page may frame the view (``X-Frame-Options: DENY``,
-``frame-ancestors 'none'``).
+**Other origins are refused.** STOP and clear-STOP need :data:`ACTION_HEADER` and are
+refused from another origin (``Origin``, ``Sec-Fetch-Site``) whatever the token;
+``Host`` must name this server; no page may frame the view. Binding and tokens follow
+:mod:`firmware_proto.http.bindpolicy`; without a configured token the server makes one
+for the operator, and a request without it is served as anonymous.
 
-Binding and auth, as the gate does it (:mod:`firmware_proto.http.bindpolicy`): loopback
-by default; a non-loopback address is refused without a strong token; with a token
-every request needs ``Authorization: Bearer <token>`` or ``?token=<token>`` (the page
-passes its own on; ``EventSource`` cannot set headers), compared in constant time, else
-401. Without a configured token the server makes one for the operator (the printed URL
-carries it): a request without it is served, but as anonymous.
-
-**The operator always gets a view.** The push channel holds at most ``max_clients``
-browsers, ``max_clients_per_address`` from one address. When full, a new browser
-takes the place of the worst one it outranks (anonymous before the token's holders;
-then one whose writes stall, then one that fell behind and lost records, then the
-oldest); only when it outranks none is it refused, with a ``200`` stream that says
-``busy`` and when to retry (``EventSource`` gives up for good on a 503). Each browser
-has a bounded queue (drop-oldest) filled by the hub; a browser that takes nothing of
-the stream for ``client_timeout_s`` (its socket full) is cut off by the connection
-layer. Waiting on a browser's queue happens on a thread of a small pool
-(``view-events``), one per open stream at most, never on the event loop.
+**The operator always gets a view.** At most ``max_clients`` browsers
+(``max_clients_per_address`` from one address); when full, a newcomer evicts the worst
+one it outranks (:meth:`_Viewer.rank`), else gets a ``200`` stream saying ``busy``
+(``EventSource`` gives up on a 503). A browser that takes nothing for
+``client_timeout_s`` is cut off. Streams wait on their queues on a small pool
+(``view-events``), never on the event loop. Details: docs/view.md "Never in the
+mission's way", "Binding and tokens".
 """
 
 from __future__ import annotations
@@ -231,7 +216,7 @@ class _Viewer:
 
 
 class ViewServer:
-    """Serves a :class:`~planner.view.hub.ViewHub` (see the module docstring).
+    """Serves a :class:`~planner.view.hub.ViewHub`.
 
     Args:
         hub: the state and its events (started and closed by the caller).
