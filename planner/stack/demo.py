@@ -73,41 +73,34 @@ class DemoConfig:
     """What the demo runs.
 
     Attributes:
-        rtt_s: the link's round trip, s of mission time.
-        jitter_s, loss: the link's jitter (s of mission time, each way) and the share of
-            messages it loses each way (``rover link --jitter``, ``--loss``).
-        speed: mission seconds per wall second (the emulator and the link run this much
-            faster; 1 is real time).
+        rtt_s, jitter_s, loss: the link's round trip and jitter (each way), s of mission
+            time, and the share of messages it loses each way.
+        speed: mission seconds per wall second (1 is real time).
         map_name, goal_name: the lab map and its goal behind the table.
-        slip: the fault injected on one leg, and ``slip_after_step``: once that step
-            (0-based) has completed. ``None`` drives without slip.
-        seed: seeds the emulator (sensor noise, boot nonce) and the link.
+        slip: the fault injected once step ``slip_after_step`` (0-based) has completed;
+            ``None`` drives without slip.
+        seed: seeds the emulator and the link.
         picture: where to write the PNG.
-        startup_timeout_s: how long each process may take to come up.
-        progress_every_s: while a step runs, print a progress line at most this often,
-            mission seconds (the ends of steps are always printed).
-        record: the ROS 2 MCAP file to record the mission in (``None``: no recording).
-        view: serve the live view so (``None``: no view); its URL is printed as
-            ``VIEW <url>``.
-        foxglove_port: serve the mission live to Foxglove on this port of 127.0.0.1
-            (0: a free one; ``None``: not); printed as ``FOXGLOVE <url>``.
-        firmware: the emulator's controller, ``python`` (the model) or ``c`` (the C
-            firmware core in the loop; ``rover emulate --firmware``).
-        controller: ``emulator``, or ``pil:microbit`` / ``pil:atmega2560``: the firmware
-            image in an emulated MCU (``rover pil``), in real time.
-        realtime: the emulator and the bridge ask for real-time scheduling (their
-            default; docs/realtime.md); ``False`` runs them with ``--no-realtime``.
-        ground: the ground the emulator drives on (``rover emulate --ground``: a
-            shipped ground's name or a file), unknown to the gate; ``None``: the
-            description's.
-        twin: a calibrated twin file (``rover calibrate``): the gate plays plans on it
-            (``rover gate --twin``) and the planner turns by its turn efficiency.
+        startup_timeout_s: how long each process may take to come up, s.
+        progress_every_s: most frequent progress line while a step runs, mission s.
+        record: the MCAP file to record the mission in (``None``: none).
+        view: serve the live view so (``None``: no view); prints ``VIEW <url>``.
+        foxglove_port: serve Foxglove live on this loopback port (0: a free one;
+            ``None``: not); prints ``FOXGLOVE <url>``.
+        firmware: the emulator's controller, ``python`` or ``c`` (``rover emulate
+            --firmware``).
+        controller: ``emulator``, or ``pil:microbit`` / ``pil:atmega2560`` (``rover
+            pil``, real time only).
+        realtime: the emulator and the bridge ask for real-time scheduling
+            (docs/realtime.md).
+        ground: the emulator's ground (``rover emulate --ground``), unknown to the
+            gate; ``None``: the description's.
+        twin: a calibrated twin file the gate plays plans on and the planner turns by.
         replans: drift STOPs after which the mission is re-planned.
-        step_by_step: run the plans with the thesis's step-by-step executor (drift
-            control on the ground) instead of on board (the default; docs/onboard.md).
+        step_by_step: the thesis's step-by-step executor instead of on board.
         samples, max_collision_p: approve a plan only if at most ``max_collision_p`` of
-            ``samples`` twins drawn from the gate's uncertainty collide (``None``: the
-            nominal verdict decides).
+            ``samples`` twins from the gate's uncertainty collide (``None``: the nominal
+            verdict decides).
     """
 
     rtt_s: float = 3.0

@@ -1,10 +1,8 @@
 """Whole lines on standard output from any thread: what ``rover stack up`` and ``rover
 demo`` print while their parts' readers print too.
 
-``print(line)`` is two writes (the text, then the newline), and another thread's line can
-come between them: ``rover stack up`` once printed ``[bridge] BRIDGE ...
-rclpy-processstarting link: ...`` on one line. :func:`say` writes the line and its
-newline at once, under one lock, and flushes.
+``print(line)`` is two writes, and another thread's line can come between them;
+:func:`say` writes the line and its newline at once, under one lock, and flushes.
 """
 
 from __future__ import annotations

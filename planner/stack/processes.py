@@ -193,32 +193,26 @@ class StackConfig:
     Attributes:
         map_name: the gate's default map and the emulator's world (name or JSON file).
         firmware: the emulator's controller, ``python`` or ``c``.
-        controller: ``emulator`` (``rover emulate`` with ``firmware``), or
-            ``pil:TARGET``: the firmware image in an emulated MCU (``rover pil --target
-            TARGET``: ``microbit`` or ``atmega2560``), real time only (``speed`` 1), on the
-            description's ground.
-        device: a real controller's serial device (or pyserial URL): no emulator is
-            started and the bridge opens this; ``None``: the emulator on a pty.
+        controller: ``emulator``, or ``pil:TARGET`` (``microbit``, ``atmega2560``): the
+            firmware in an emulated MCU, real time only (``speed`` 1).
+        device: a real controller's serial device (or pyserial URL) the bridge opens
+            instead of an emulator; ``None``: the emulator on a pty.
         baud: with ``device``, its baud rate (``None``: the bridge's default).
-        rtt_s: the link relay's round trip, s of mission time.
-        jitter_s: the relay's jitter, s of mission time: each message's one-way delay is
-            half the round trip plus a uniform draw in ``[0, jitter_s]``.
+        rtt_s: the relay's round trip, s of mission time.
+        jitter_s: the relay's jitter, s of mission time, uniform in ``[0, jitter_s]``
+            added to each one-way delay.
         loss: the share of messages the relay drops, each way, in [0, 1).
-        speed: mission seconds per wall second (the emulator and the relay run this much
-            faster).
+        speed: mission seconds per wall second.
         seed: seeds the emulator and the relay.
         gate_port: the gate's port on 127.0.0.1 (0: a free one).
         ground_namespace: the relay's ground namespace (the operator's topics).
-        startup_timeout_s: how long each part may take to print its ready line.
-        inject: faults scheduled on the emulator from its start (``rover emulate
-            --inject``).
-        realtime: the emulator and the bridge ask for real-time scheduling (their
-            default); ``False`` runs them with ``--no-realtime`` (docs/realtime.md).
-        ground: the emulator's ground (``rover emulate --ground``), unknown to the gate.
-        twin: a calibrated twin the gate plays plans on (``rover gate --twin``).
-        onboard: start the rover's onboard sequencer and guard beside the bridge
-            (``rover onboard``, docs/onboard.md), which ``rover go`` and ``rover demo``
-            run plans on by default.
+        startup_timeout_s: how long each part may take to print its ready line, s.
+        inject: faults scheduled on the emulator from its start.
+        realtime: the emulator and the bridge ask for real-time scheduling
+            (docs/realtime.md).
+        ground: the emulator's ground, unknown to the gate.
+        twin: a calibrated twin the gate plays plans on.
+        onboard: start ``rover onboard`` beside the bridge (docs/onboard.md).
     """
 
     map_name: str = "lab"
@@ -241,9 +235,7 @@ class StackConfig:
     onboard: bool = True
 
     def link_line(self) -> str:
-        """The link the relay emulates, in one line (mission seconds):
-        ``link: round trip 3 s, jitter up to 0.2 s each way, 30 % of messages lost each
-        way (seed 1)``."""
+        """The link the relay emulates, in one line (mission seconds)."""
         jitter = f"jitter up to {self.jitter_s:g} s each way" if self.jitter_s else "no jitter"
         loss = f"{self.loss * 100:g} % of messages lost each way" if self.loss else "no loss"
         return f"link: round trip {self.rtt_s:g} s, {jitter}, {loss} (seed {self.seed})"

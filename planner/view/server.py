@@ -123,18 +123,15 @@ class ViewConfig:
         host: address to bind (default loopback).
         port: TCP port; 0 picks a free one.
         token: bearer token; required when ``host`` is not loopback (and then strong).
-        allowed_hosts: further names the server answers to in ``Host`` (beside its
-            address, ``localhost`` on loopback, and the machine's name on a wildcard
-            bind).
+        allowed_hosts: further names accepted in ``Host`` (beside its address,
+            ``localhost`` on loopback, the machine's name on a wildcard bind).
         client_timeout_s: a browser that takes nothing of its stream for this long is
-            dropped.
+            dropped, s.
         max_clients: connections to the push channel at once.
         max_clients_per_address: of those, from one address.
-        busy_retry_s: when a browser refused or evicted on the push channel should try
-            again (its ``retry:`` hint).
-        hold_s: how long ``rover demo``/``rover go`` keep the view up after the mission.
-        wait_s: how long they wait for a browser to connect before the mission starts
-            (0: they do not wait).
+        busy_retry_s: the ``retry:`` hint to a browser refused or evicted, s.
+        hold_s: how long ``rover demo``/``rover go`` keep the view up after the mission, s.
+        wait_s: how long they wait for a browser before the mission starts, s (0: not).
 
     Raises:
         ValueError: a bad port, token or timeout; a non-loopback host without a strong
@@ -366,7 +363,7 @@ class ViewServer:
 
     def join(self, peer: tuple[str, int] = ("", 0), *, trusted: bool = False) -> ClientQueue | None:
         """A push-channel client, or ``None`` when closing or when every place is held
-        by one it does not outrank (module docstring); a browser evicted for it has its
+        by one it does not outrank (:meth:`_Viewer.rank`); a browser evicted for it has its
         queue closed."""
         viewer = self._join(peer, trusted)
         return None if viewer is None else viewer.queue
