@@ -1,13 +1,11 @@
-"""The physical figures of a drift stop, measured from the rover's own stamped poses
-(``odom_ground``, the ground-seeing POSE, stamped by the rover at measurement time) and
-the approved plan's predicted path (docs/onboard.md, "Measured").
+"""The physical figures of a drift stop, from the rover's own stamped poses
+(``odom_ground``, stamped at measurement) and the approved plan's predicted path
+(docs/onboard.md, "Measured").
 
-:func:`overshoot` finds the first pose more than ``limit_m`` off the predicted path (the
-distance to the path's polyline), the pose where the rover then came to rest (it moved
-less than :data:`REST_MOVE_M` over the next :data:`REST_HOLD_S`), the distance it drove
-in between (along its own poses) and how long that took; and how far off the path it
-rested. Pure: the poses in, the figures out; the demo feeds it what it heard, the
-benchmark what the recording holds.
+:func:`overshoot` finds the first pose more than ``limit_m`` off the predicted path's
+polyline, the pose where the rover then came to rest (moved less than
+:data:`REST_MOVE_M` over :data:`REST_HOLD_S`), the distance driven in between and its
+duration, and how far off the path it rested. Pure: poses in, figures out.
 """
 
 from __future__ import annotations
@@ -95,17 +93,14 @@ def overshoot(
     ``None`` without poses or a path.
 
     Args:
-        crossing_s: the moment the drift crossed the limit as drift control measures it
-            (against the prediction for the same moment, which reaches the limit no
-            later than the distance to the path does): the figures start at the first
-            pose stamped then or after. ``None``: at the first pose ``limit_m`` off the
-            path.
-        time_scale: mission seconds per second of the stamps (an emulator run faster):
-            the rest's hold is :data:`REST_HOLD_S` of mission time.
+        crossing_s: when drift control found the limit crossed: the figures start at
+            the first pose stamped then or after (``None``: the first pose ``limit_m``
+            off the path).
+        time_scale: mission seconds per second of the stamps; the rest's hold is
+            :data:`REST_HOLD_S` of mission time.
         rest_move_m: at rest when no pose of the hold is further than this from its
-            first: :data:`REST_MOVE_M` for POSE's noise; less for noiseless poses (the
-            twin's). A rover that brakes in less than this is at rest at once: the
-            figures' resolution.
+            first (the figures' resolution): :data:`REST_MOVE_M` for POSE's noise, less
+            for noiseless poses.
     """
     if not poses or not path:
         return None

@@ -75,8 +75,7 @@ def resolve_gate_settings(
     environ: Mapping[str, str] | None = None,
 ) -> tuple[str, str | None]:
     """The gate URL and bearer token: arguments, then ``ROVER_GATE_URL`` /
-    ``ROVER_GATE_TOKEN``, then :data:`DEFAULT_GATE_URL` and no token. Empty values
-    count as not given."""
+    ``ROVER_GATE_TOKEN``, then :data:`DEFAULT_GATE_URL` and no token (empty: not given)."""
     env = os.environ if environ is None else environ
     final_url = url or env.get(ENV_URL) or DEFAULT_GATE_URL
     final_token = token or env.get(ENV_TOKEN) or None
@@ -153,8 +152,7 @@ class GateClient:
         retries: retries after a connection error (so ``retries + 1`` attempts).
         backoff_s, max_backoff_s: first retry delay and its cap, s (doubling).
         environ: environment for the settings (default ``os.environ``).
-        sleep, clock: how to wait between retries and to read the time budget's clock,
-            s (tests may pass a fake pair).
+        sleep, clock: waits between retries and the time budget's clock, s.
 
     Raises:
         ValueError: the URL is not ``http://host[:port][/path]``, or a number is out of
@@ -233,11 +231,9 @@ class GateClient:
             options: overrides of the gate's tolerances and margin.
 
         Raises:
-            GateStatusError: the gate refused the request (400 with the violations' pointers
-                for a plan that fails the schema; 400 naming the option for an unknown
-                map or a start outside it; 401...).
-            GateOverloadedError, GateUnavailableError, GateTimeoutError: see the module
-                docstring.
+            GateStatusError: the gate refused the request (a plan failing the schema, an
+                unknown map, a start outside it, 401...).
+            GateOverloadedError, GateUnavailableError, GateTimeoutError: see above.
             GateProtocolError: the answer is not a verdict.
         """
         if isinstance(plan, Plan):

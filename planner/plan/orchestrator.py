@@ -191,24 +191,23 @@ class MissionResult:
 
 
 class PlannerOrchestrator:
-    """Plan, validate and repair (see the module docstring).
+    """Plan, validate and repair; not thread-safe (one per thread).
 
     Args:
         planner: the heuristic planner (its rover description gives the attempt budget).
         gate: the gate client.
         map_name: the map to validate on; ``None`` for the gate's default.
         max_attempts: plans per leg, the first included; default the rover
-            description's ``safety.max_repair_attempts`` (4).
+            description's ``safety.max_repair_attempts``.
         max_legs: legs per mission.
         world: the map, if already known; else read from the gate when first needed.
         options: overrides of the gate's tolerances and margin, for every request.
         repair_settings: parameters of the repairs.
         repairs: replacements or additions to :data:`REPAIRS`, by failure type
             (``None`` removes one: that failure type then ends the loop).
-        max_collision_p: the highest collision probability accepted: a plan the gate
-            approves on its nominal twin is rejected as a ``collision`` (on the obstacle
-            its samples hit most, at that step) when more of its samples collide.
-            Needs ``options.samples`` > 1; ``None``: the nominal verdict decides.
+        max_collision_p: the highest share of the gate's sampled twins that may
+            collide; more, and an approved plan counts as a ``collision`` on the obstacle
+            hit most. Needs ``options.samples`` > 1; ``None``: the nominal verdict decides.
 
     Raises:
         ValueError: ``max_attempts`` or ``max_legs`` below 1, or ``max_collision_p``
@@ -280,17 +279,9 @@ class PlannerOrchestrator:
     def plan(
         self, goal: Pose, *, start: Pose | None = None, via: Sequence[Point] = ()
     ) -> PlanResult:
-        """Plan, validate and repair one leg toward ``goal``.
-
-        Args:
-            goal: the goal pose.
-            start: the start pose; ``None`` for the map's.
-            via: waypoints to pass through first.
-
-        Returns:
-            The result: approved or not, every attempt, and why it gave up. When the
-            route needs more than one plan, the approved plan ends on the way
-            (``reaches_goal`` false); use :meth:`plan_mission` to go all the way.
+        """Plan, validate and repair one leg toward ``goal`` from ``start`` (``None``:
+        the map's) through ``via``. When the route needs more than one plan, the approved
+        plan ends on the way (``reaches_goal`` false; see :meth:`plan_mission`).
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal, start or
@@ -304,8 +295,7 @@ class PlannerOrchestrator:
         return self.run_leg(self.planner.plan_leg(route))
 
     def run_leg(self, leg: LegPlan) -> PlanResult:
-        """Validate a leg and repair it until the gate approves it or the orchestrator
-        gives up: the loop behind :meth:`plan`, for a leg made (or edited) by hand.
+        """The loop behind :meth:`plan`, for a leg made or edited by hand.
 
         Raises:
             GateCallError: the gate failed.
@@ -372,9 +362,8 @@ class PlannerOrchestrator:
             leg = repair.leg
 
     def check_plan(self, plan: Plan, *, start: Pose | None = None) -> MissionResult:
-        """Validate a plan made elsewhere (``rover go --plan FILE``) once, as it is: no
-        repair (a rejected plan is the result, with the gate's reason), the confidence
-        check applied as to every plan.
+        """Validate a plan made elsewhere (``rover go --plan FILE``) once, without repair;
+        the confidence check applies.
 
         Raises:
             InvalidPoseError, OutOfBoundsError: a start pose off the map.
@@ -457,12 +446,8 @@ class PlannerOrchestrator:
         self, goal: Pose, *, start: Pose | None = None, via: Sequence[Point] = ()
     ) -> MissionResult:
         """Plan and validate a whole mission, leg by leg: each leg is :meth:`plan` from
-        the pose the gate predicts at the end of the previous approved leg, through
-        the waypoints still ahead.
-
-        Returns:
-            The result, with every leg's attempts; it stops at the first leg that is
-            not approved, or after ``max_legs`` legs.
+        the pose the gate predicts at the end of the previous approved leg. Stops at the
+        first leg not approved, or after ``max_legs`` legs.
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad input.

@@ -232,7 +232,7 @@ def check_pose(
 
 
 class HeuristicLowLevelPlanner:
-    """Turn-drive-turn plans for a skid-steer rover (see the module docstring).
+    """Turn-drive-turn plans for a skid-steer rover.
 
     Args:
         rover: the rover description (units, speed scale, limits, turn model).
@@ -243,9 +243,7 @@ class HeuristicLowLevelPlanner:
         turn_speed, fine_turn_speed: speed units of turns, and of turns smaller than
             ``fine_turn_deg``.
         min_turn_deg, min_drive_m: smaller turns and drives are skipped (a turn toward
-            a segment's target only if skipping it still passes within
-            ``lateral_tolerance_m`` of the target).
-        lateral_tolerance_m: see ``min_turn_deg``, m.
+            a target only if the drive still passes within ``lateral_tolerance_m``, m).
         max_step_units: the longest step, distance units (at most the description's
             ``max_distance``).
         max_steps: steps per plan (at most 12, the schema's limit).
@@ -313,12 +311,11 @@ class HeuristicLowLevelPlanner:
     def route(
         self, start: Pose, goal: Pose, via: Sequence[Point] = (), *, world: WorldMap | None = None
     ) -> Itinerary:
-        """A checked route.
+        """A checked route (:func:`check_pose`, against ``world`` or the planner's map;
+        the start need only be finite and in bounds, the goal must hold the rover).
 
         Raises:
-            InvalidPoseError, OutOfBoundsError, GoalInObstacleError: see
-                :func:`check_pose` (with ``world`` or the planner's map; the start only
-                needs to be finite and inside the bounds, the goal must hold the rover).
+            InvalidPoseError, OutOfBoundsError, GoalInObstacleError: a bad pose.
         """
         world = world if world is not None else self.world
         check_pose("start", start, world=world)
@@ -453,9 +450,8 @@ class HeuristicLowLevelPlanner:
         remaining: Sequence[Point] = (),
         goal: Pose | None = None,
     ) -> LegPlan:
-        """Wrap steps into a :class:`LegPlan`. The plan's goal is ``goal`` when given,
-        else the route's goal when ``reaches_goal``, else the predicted end pose (a
-        repair keeps the goal of the leg it repairs).
+        """Wrap steps into a :class:`LegPlan` whose goal is ``goal``, else the route's
+        when ``reaches_goal``, else the predicted end pose.
 
         Raises:
             PlanTooLongError: more than ``max_steps`` steps.
@@ -486,8 +482,7 @@ class HeuristicLowLevelPlanner:
 
     def leg_of(self, start: Pose, plan: Plan) -> LegPlan:
         """A plan made elsewhere (``rover go --plan FILE``) as a leg from ``start``: its
-        steps as they are, each with the pose the planner's kinematics predict after it
-        (:meth:`predict`), the route straight from ``start`` to the plan's goal."""
+        steps unchanged with predicted poses, the route straight to the plan's goal."""
         route = Itinerary(start, (), Pose(plan.goal.x, plan.goal.y, plan.goal.yaw_deg))
         poses = self.predict(start, plan.commands)
         steps: list[PlannedStep] = []

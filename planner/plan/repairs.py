@@ -134,16 +134,9 @@ class RepairSettings:
 
 @dataclass(frozen=True)
 class FailureRecord:
-    """One rejection, as kept in ``previous_failures``.
-
-    Attributes:
-        attempt: 0-based index of the rejected attempt.
-        failure_type, failed_step, reason: from the verdict.
-        segment: the route segment of the failed step (``None`` when unknown).
-        obstacle_id, contact: for a collision, what was hit and where.
-        final_pose: where the twin stopped.
-        position_error_m, lateral_error_m, yaw_error_deg: the verdict's signed errors.
-    """
+    """One rejection, as kept in ``previous_failures``: the verdict's fields, the
+    0-based ``attempt``, and the route ``segment`` of the failed step (``None`` when
+    unknown); ``obstacle_id`` and ``contact`` for a collision."""
 
     attempt: int
     failure_type: str
@@ -221,13 +214,11 @@ class PlannerContext:
     """Everything a repair may read (the thesis's ``PlannerContext``).
 
     Attributes:
-        planner: the planner, to rebuild legs.
-        leg: the rejected leg; ``verdict``: its verdict.
+        leg, verdict: the rejected leg and its verdict.
         attempt: 0-based index of the rejected attempt.
         previous_failures: every rejection of this leg so far, this one last.
         history: the repairs that produced the leg's earlier attempts, in order.
         world: the map, when known.
-        settings: the repair parameters.
         earlier: the leg's earlier attempts as ``(leg, verdict)``, oldest first (this
             one excluded).
     """
@@ -255,9 +246,8 @@ class PlannerContext:
         return self.planner.body_half_width_m + self.margin_m + slack
 
     def turn_radius_m(self, tries: int) -> float:
-        """Clearance a point needs for the rover to turn on the spot there after
-        ``tries`` repeats: the footprint's circumradius, the gate's margin and the
-        slack, m."""
+        """Clearance a point needs for turning on the spot after ``tries`` repeats: the
+        footprint's circumradius, the gate's margin and the slack, m."""
         s = self.settings
         slack = s.turn_slack_m + tries * s.slack_growth_m
         return self.planner.rover.footprint_radius_m + self.margin_m + slack
@@ -331,8 +321,7 @@ def _away_side(a: Point, b: Point, contact: Point | None) -> int:
 
 def _dogleg_point(a: Point, b: Point, anchor_m: float, side: int, delta_m: float) -> Point:
     """The thesis's waypoint: ``anchor_m`` along ``a``->``b``, then ``side * delta_m``
-    to the right of its bearing (``x + side*delta*sin(bearing)``, ``y -
-    side*delta*cos(bearing)``)."""
+    to the right of its bearing."""
     bearing = math.atan2(b[1] - a[1], b[0] - a[0])
     x = a[0] + anchor_m * math.cos(bearing) + side * delta_m * math.sin(bearing)
     y = a[1] + anchor_m * math.sin(bearing) - side * delta_m * math.cos(bearing)
@@ -362,9 +351,8 @@ def _prior_detour(
         if run is None:
             continue
         i, j = run
-        # Segment ``k`` joins route points ``k`` and ``k + 1``; waypoint ``w`` is route
-        # point ``w + 1``. The detour's segments are ``i..j``; its turns are at the
-        # start of segments ``i + 1..j``.
+        # Waypoint ``w`` is route point ``w + 1``: the detour's segments are ``i..j``,
+        # its turns at the start of segments ``i + 1..j``.
         inside = i <= step.segment <= j if step.kind != TURN else i < step.segment <= j
         # A screened detour that still collides needs more room; one the map already
         # showed blocked elsewhere gets a nested dogleg instead. An approach is only
@@ -586,16 +574,13 @@ def _search(
     tries: int,
     avoid: Sequence[tuple[Point, ...]] = (),
 ) -> tuple[_Candidate, bool] | None:
-    """Doglegs on the map, best first: ``(candidate, True)`` for the cheapest route
-    from ``a`` to ``b`` that the map shows clear, built by applying doglegs (the
-    thesis's formula and the box variants) to the first blocked segment, again and
-    again, at most ``search_expansions`` times; else ``(best partial route, False)``;
-    ``None`` when no dogleg even clears ``obstacle_id``.
+    """Doglegs on the map, best first, applied to the first blocked segment at most
+    ``search_expansions`` times: ``(candidate, True)`` for the cheapest route from ``a``
+    to ``b`` the map shows clear, else ``(best partial route, False)``; ``None`` when no
+    dogleg even clears ``obstacle_id``.
 
-    A route's priority is its length, plus ``turn_cost_m`` per waypoint and
-    ``blocked_cost_m`` per segment the map shows blocked, plus ``centring_weight`` times
-    how much room to spare each dogleg lacks (short of ``comfort_m``): cheap, clear, and
-    in the middle of the gaps it uses."""
+    Priority: length, plus ``turn_cost_m`` per waypoint, ``blocked_cost_m`` per blocked
+    segment and ``centring_weight`` times the spare room each dogleg lacks."""
     world = ctx.world
     assert world is not None
     s = ctx.settings
@@ -953,11 +938,9 @@ def _turn_key(steps: Sequence[PlannedStep], index: int) -> tuple[str, str, int, 
 def _secant_factor(
     ctx: PlannerContext, index: int, steps: Sequence[PlannedStep], intended_deg: float
 ) -> float | None:
-    """When an earlier attempt ran the same turn (same kind, segment and rank among
-    them) with another distance, the factor on this turn's distance that the line
-    through both outcomes gives for ``intended_deg``: the turn's response is not quite
-    proportional (soft ground, short turns), and a plain ratio can overshoot back and
-    forth."""
+    """When an earlier attempt ran the same turn (:func:`_turn_key`) with another
+    distance, the factor on its distance that the line through both outcomes gives for
+    ``intended_deg`` (the response is not quite proportional; a ratio can oscillate)."""
     ps = steps[index]
     u1 = ps.step.distance
     a1 = ctx.verdict.steps[index].yaw_change_deg
@@ -983,10 +966,9 @@ def _recalibrate(
     before: int | None = None,
     drives: bool = False,
 ) -> list[str]:
-    """Rescale the steps (before step ``before``) whose predicted outcome missed their
-    intent: turns by the yaw the twin turned, and with ``drives`` drives by the ground
-    they covered. The twin is deterministic, so the next plan then follows the intended
-    lines closely. What changed, one phrase per step."""
+    """Rescale the steps before step ``before`` whose predicted outcome missed their
+    intent (turns by yaw, with ``drives`` drives by ground covered); returns what
+    changed, one phrase per step."""
     changed: list[str] = []
     s = ctx.settings
     predictions = ctx.verdict.steps

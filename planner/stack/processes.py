@@ -404,7 +404,6 @@ class Stack:
                 bridge_args += ["--baud", str(cfg.baud)]
         self._start("bridge", bridge_args, "BRIDGE ")
         if cfg.onboard:
-            # The rover's sequencer and guard, beside the bridge (docs/onboard.md).
             self._start(
                 "onboard",
                 ["onboard", "--time-scale", f"{cfg.speed:g}", *realtime],

@@ -197,8 +197,7 @@ class ViewHub:
             (``PlanExecutor.latest_drift``), or ``None``.
         limits: the drift thresholds shown.
         queue_len: see :class:`ClientQueue`.
-        clock: wall seconds (``time.time``; a test passes its own, and drives the hub
-            with :meth:`pump` instead of :meth:`start`).
+        clock: wall seconds (``time.time``; with its own, a test drives :meth:`pump`).
     """
 
     def __init__(
@@ -339,8 +338,7 @@ class ViewHub:
 
     def clear_allowed(self) -> tuple[bool, str]:
         """Whether releasing the STOP latch is allowed now, and why not: only while
-        latched and after a re-plan was approved since the last STOP (sent by the
-        ground station, or asked for on the page)."""
+        latched and after a re-plan was approved since the last STOP."""
         with self._lock:
             if not self._latched:
                 return False, "the rover is not latched"
@@ -438,9 +436,8 @@ class ViewHub:
             client.close()
 
     def pump(self) -> None:
-        """Turn every input waiting into events, then send one ``tick``: what the hub
-        thread does, for a caller that drives the hub itself (a test in virtual time,
-        with its own ``clock``); never beside :meth:`start`."""
+        """Turn every waiting input into events, then send one ``tick``: the hub thread's
+        work, for a caller that drives the hub itself (never beside :meth:`start`)."""
         with self._inbox_cond:
             items = list(self._inbox)
             self._inbox.clear()
