@@ -70,10 +70,8 @@ class MissionReport:
         reason: why it stopped short (``""`` when reached).
         final_pose: the rover's last reported pose.
         position_error_m, yaw_error_deg: final pose against the goal.
-        elapsed_s: the executor's clock's time from the first plan to the end (wall
-            time, or virtual time in a mission in virtual time).
-        planning_s: wall time spent planning and validating (none of the clock's: in
-            virtual time, planning takes no virtual time).
+        elapsed_s: the executor's clock's time from the first plan to the end, s.
+        planning_s: wall time spent planning and validating, s (not the clock's).
         cancelled: the operator cancelled the mission (the rover was sent STOP).
         move_and_wait: the runs are move-and-wait's increments (:class:`MoveAndWait`):
             no prediction was driven against, so no drift was measured; ``decision_s``
@@ -185,17 +183,12 @@ class MissionRunner:
     """Runs missions (docs/ground.md "Missions").
 
     Attributes:
-        orchestrator: plans and validates (its gate client and map).
-        executor: drives plans over ROS.
         replans: drift STOPs after which the runner re-plans (0: stop there).
-        on_progress: called with the executor's progress (see
-            :class:`~planner.ground.executor.ExecutionProgress`: during steps and when each ends).
-        on_drift: called after a drift STOP, before the rover is re-planned for and its
-            latch released (the demo uses it to take the rover out of the sand; an
-            operator would look first).
+        on_progress: called with the executor's progress, on the executing thread.
+        on_drift: called after a drift STOP, before the re-plan and the latch release.
         on_event: called with one line for each notable event.
-        on_planned: called with each planning (the first, then each re-plan) as soon as
-            the gate has judged it, approved or not (a recorder, the live view).
+        on_planned: called with each planning as soon as the gate has judged it,
+            approved or not.
         cancel: set it (from a signal handler, another thread) to end the mission: the
             running plan is stopped (STOP) and nothing more is planned or sent.
     """
@@ -212,11 +205,10 @@ class MissionRunner:
     def run(self, goal: Pose, *, start: Pose | None = None) -> MissionReport:
         """Plan and drive to ``goal`` from ``start`` (default: the map's start).
 
-        After a drift STOP (at most ``replans`` times): ``on_drift``, wait for the rover
-        to come to rest, re-plan from where it settled, and only when the gate approved
-        the new mission release the latch (CLEAR_STOP) and drive on. If the rover does
-        not report rest, or the re-plan is not approved or fails (the gate down), the
-        mission ends there with the rover still latched, and the reason says so.
+        After a drift STOP (at most ``replans`` times): ``on_drift``, wait for rest,
+        re-plan from there, and release the latch only once the gate approved. No rest
+        reported, or a re-plan not approved or failed: the mission ends with the rover
+        latched, and the reason says so.
 
         Raises:
             InvalidPoseError, OutOfBoundsError, GoalInObstacleError: bad goal or start.
@@ -301,10 +293,10 @@ class MissionRunner:
                 return end("", reached=True)
 
     def run_plan(self, plan: Plan, *, start: Pose | None = None) -> MissionReport:
-        """Validate a given plan once (no repair: :meth:`PlannerOrchestrator.check_plan`)
-        and drive it from ``start`` (default: the map's start): ``rover go --plan FILE``.
-        A drift STOP ends it there (a given plan is not re-planned); ``reached`` means
-        every step completed, the gate having judged the plan's goal.
+        """``rover go --plan FILE``: validate a given plan once, without repair
+        (:meth:`PlannerOrchestrator.check_plan`), and drive it from ``start`` (default:
+        the map's start); a drift STOP ends it (no re-plan); ``reached``: every step
+        completed.
 
         Raises:
             InvalidPoseError, OutOfBoundsError: a start off the map.
@@ -433,12 +425,10 @@ class MoveAndWait:
     """The move-and-wait operator.
 
     Attributes:
-        executor: sends each command and waits for its confirmation (drift control off:
-            there is no prediction to compare with).
+        executor: sends each command and waits for its confirmation (no drift control).
         increment_m: longest drive the operator sends without looking, m.
-        decision_s: the operator's time to look at the delayed picture and decide, per
-            command, in mission (twin) seconds.
-        time_scale: twin seconds per wall second (the benchmark runs sped up).
+        decision_s: the operator's time to decide, per command, mission (twin) s.
+        time_scale: twin seconds per wall second.
         on_progress: called with the executor's progress.
         cancel: set it to end the drive (STOP is sent).
     """
@@ -459,12 +449,9 @@ class MoveAndWait:
         plannings: tuple[MissionResult, ...] = (),
         planning_s: float = 0.0,
     ) -> MissionReport:
-        """Drive ``plans`` (the same route as the gated mission) one confirmed command at a
-        time; ``plannings`` and ``planning_s`` say how the route was planned (on the
-        gate, and how long it took, wall s) for the report.
-
-        Progress is reported per increment (``increment 3/14``), with the ETA of the
-        whole drive."""
+        """Drive ``plans`` one confirmed command at a time, progress per increment;
+        ``plannings`` and ``planning_s`` (wall s) say how the route was planned, for the
+        report."""
         clock = self.executor.clock
         t0 = clock.now() - planning_s
         units = self.executor.rover.m_to_units(self.increment_m)
