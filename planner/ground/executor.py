@@ -233,8 +233,7 @@ class ExecutionResult:
         reported_pose: the rover's last reported pose (map frame), if any.
         worst_drift: largest linear (m) and angular (deg) errors seen.
         trace: every pose drift control used, ``(stamp_s, x_m, y_m)``.
-        notes: what the operator should know although the plan went on (a fall-back
-            to ``odom``, a sensor fault the controller reported).
+        notes: what the operator should know although the plan went on.
     """
 
     completed: bool
@@ -278,7 +277,6 @@ class PlanExecutor:
         """Args:
         port: the ground's ROS port.
         rover: the rover description (nominal step durations).
-        config: the settings.
         clock: every time and wait (``WALL``, or a lockstep clock: virtual time).
         """
         self.port = port
@@ -332,12 +330,8 @@ class PlanExecutor:
         self._subs.append(port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR))
 
     def wait_for_rover(self, timeout_s: float = 10.0) -> bool:
-        """Wait until what the executor publishes (steps, STOP, clear) reaches a
-        subscriber: the bridge, or the link relay in front of it.
-
-        Returns:
-            True when matched, False when ``timeout_s`` passed first.
-        """
+        """Wait until the executor's publishers reach a subscriber (the bridge or the
+        relay); False when ``timeout_s`` passed first."""
         deadline = self.clock.now() + timeout_s
         return all(
             pub.wait_for_subscribers(1, max(0.0, deadline - self.clock.now()))
@@ -368,17 +362,15 @@ class PlanExecutor:
         status."""
         cfg = self.config
         wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + 1.0 + after_s
-        # Rover time of the last status we heard, and after_s more.
         since = self.clock.time() - cfg.link_rtt_s / 2.0 + after_s
         with self._pose_cond:
             self.clock.wait_for(self._pose_cond, lambda: self._reported_stamp >= since, wait_s)
             return self.reported_pose
 
     def wait_for_rest(self, timeout_s: float | None = None) -> bool:
-        """Wait until an ``odom`` sample measured after now minus half the round trip
-        (so: after what came back last was sent) says the rover is at rest (wheel speed
-        under 1 cm/s, yaw rate under 0.01 rad/s). Returns False after ``timeout_s``
-        (default: round trip + ``step_margin_s``) without one."""
+        """Wait for an ``odom`` sample measured after now minus half the round trip that
+        says the rover is at rest (under 1 cm/s and 0.01 rad/s); False after
+        ``timeout_s`` (default: round trip + ``step_margin_s``) without one."""
         cfg = self.config
         wait_s = timeout_s if timeout_s is not None else cfg.link_rtt_s + cfg.step_margin_s
         since = self.clock.time() - cfg.link_rtt_s / 2.0
@@ -509,10 +501,9 @@ class PlanExecutor:
             self._on_drift(event)
 
     def _anchor_odom(self, ground: Pose, stamp: float) -> None:
-        """Tie ``odom`` to the map with the ``odom`` pose at a POSE's measurement time,
-        interpolated between the two samples around it (caller holds the lock), so that
-        a fall-back continues where POSE left off. No ``odom`` within
-        :data:`ANCHOR_GAP_S` of that time: the anchor stays as it was."""
+        """Tie ``odom`` to the map at a POSE's measurement time (``odom`` interpolated
+        there; lock held), so a fall-back continues where POSE left off; unchanged
+        without an ``odom`` within :data:`ANCHOR_GAP_S`."""
         history = self._odom_history
         after = next((i for i, (t, _) in enumerate(history) if t >= stamp), None)
         if after is None:  # odom has not caught up with this POSE yet
