@@ -106,9 +106,8 @@ class ConsoleConfig:
     Attributes:
         host: address to bind (default loopback).
         port: TCP port; 0 picks a free one.
-        token: the bearer token every request must present. Made at random when not
-            given, which only a loopback bind allows: elsewhere the operator must know
-            it to give it to the commands.
+        token: the bearer token every request must present; made at random when not
+            given, which only a loopback bind allows.
 
     Raises:
         ValueError: a bad port or token; a non-loopback host without a token.

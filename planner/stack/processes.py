@@ -256,12 +256,10 @@ class Stack:
     stops them all (:meth:`close`, idempotent). A context manager.
 
     Args:
-        config: what to run.
-        env: the environment of every part (the caller puts its ROS 2 domain and
-            discovery range in it).
-        say: prints one line of progress (``starting gate: rover gate ...``).
+        env: the environment of every part (with its ROS 2 domain and discovery range).
+        say: prints one line of progress.
         on_line: every stdout line of every part after its ready line, with the part's
-            name (``rover stack up`` shows the bridge's link lines this way).
+            name.
         logs: a directory for each part's stderr and the stall log (``None``: none).
     """
 
