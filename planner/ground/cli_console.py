@@ -216,8 +216,8 @@ def namespace_hint(namespace: str | None) -> str:
 
 
 def _console(args: argparse.Namespace) -> Any:
-    """The stack's console client to use, or ``None`` (ROS 2: ``--ros``,
-    ``--namespace``, or no console known)."""
+    """The stack's console client, or ``None`` for ROS 2 (``--ros``, ``--namespace``,
+    or no console known)."""
     import os
 
     if args.ros or args.namespace is not None:
@@ -231,9 +231,8 @@ def _console(args: argparse.Namespace) -> Any:
 
 
 def _console_token(url: str) -> str | None:
-    """The console's token: ``$ROVER_CONSOLE_TOKEN``, else the one its stack wrote in
-    the stacks' registry, readable by this user only (never an argument: ``ps`` shows
-    those to every user)."""
+    """The console's token: ``$ROVER_CONSOLE_TOKEN``, else its stack's in the registry
+    (never an argument: ``ps`` shows those to every user)."""
     import os
 
     from planner.errors import StackRegistryError

@@ -163,8 +163,7 @@ class MissionReport:
         return "\n".join(lines)
 
     def _increments(self, time_scale: float) -> list[str]:
-        """Move-and-wait's runs as what they are: increments, each confirmed through the
-        round trip; no drift figures (there was no prediction to drift from)."""
+        """Move-and-wait's runs as increments, without drift figures (no prediction)."""
         done = sum(1 for r in self.runs if r.execution.completed)
         took = sum(r.execution.elapsed_s for r in self.runs) * time_scale
         lines = [

@@ -558,8 +558,7 @@ class HeuristicLowLevelPlanner:
 
 
 def _split(units: int, max_units: int) -> list[int]:
-    """``units`` as the fewest parts of at most ``max_units``, as equal as possible
-    (larger parts first)."""
+    """``units`` as the fewest, most equal parts of at most ``max_units``, larger first."""
     n = -(-units // max_units)
     base, extra = divmod(units, n)
     return [base + 1] * extra + [base] * (n - extra)

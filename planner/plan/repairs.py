@@ -365,8 +365,7 @@ def _prior_detour(
 
 
 def _step_span(route: Itinerary, step: PlannedStep) -> tuple[Point, Point]:
-    """Where a step happens: its segment for a drive, the point it turns at for a
-    turn (as a degenerate segment)."""
+    """Where a step happens: its segment for a drive, ``(a, a)`` for a turn at ``a``."""
     a, b = route.segment(step.segment)
     return (a, a) if step.kind == TURN else (a, b)
 
@@ -425,8 +424,7 @@ def _dogleg_candidates(
     contact: Point | None,
     turn_r: float,
 ) -> list[_Candidate]:
-    """Every dogleg of ``a``->``b`` around ``obstacle`` that the search considers,
-    cheapest (least added length) first."""
+    """Every dogleg of ``a``->``b`` around ``obstacle`` the search considers, cheapest first."""
     length = math.dist(a, b)
     if length < 1e-6:
         return []

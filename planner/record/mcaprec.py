@@ -185,8 +185,7 @@ def _stamp(t_s: float) -> dict[str, int]:
 
 
 def _path_msg(verdict: Verdict, t_s: float) -> dict[str, Any]:
-    """The verdict's predicted trajectory as a ``nav_msgs/Path`` (a dict), stamped with
-    the twin's time from ``t_s``."""
+    """The verdict's prediction as a ``nav_msgs/Path`` dict, twin time from ``t_s``."""
     poses = []
     for sample in verdict.trajectory.samples:
         half = math.radians(sample.pose.yaw_deg) / 2.0

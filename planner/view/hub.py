@@ -124,8 +124,7 @@ def _record(name: str, data: dict[str, Any]) -> bytes:
 
 
 def _thin(points: list[list[float]], step_m: float) -> list[list[float]]:
-    """``points`` without those closer than ``step_m`` to the last one kept (the last
-    point is always kept)."""
+    """``points`` without those closer than ``step_m`` to the last one kept (last kept)."""
     kept: list[list[float]] = []
     for i, p in enumerate(points):
         if (

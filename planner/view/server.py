@@ -497,8 +497,7 @@ class ViewServer:
         yield f"retry: {retry_ms}\nevent: busy\ndata: {json.dumps({'reason': reason})}\n\n".encode()
 
     async def _stream(self, viewer: _Viewer) -> AsyncIterator[bytes]:
-        """The push channel of one browser, until it leaves, is evicted or the view
-        closes."""
+        """The push channel of one browser, until it leaves, is evicted or the view closes."""
         loop = asyncio.get_running_loop()
         client = viewer.queue
         try:
