@@ -493,8 +493,7 @@ class PlanExecutor:
             monitor = self._monitor if self._running else None
         if monitor is None or not self.config.drift_control:
             return
-        # Pose stamps are wall clock (the rover's measurement time), as are the step
-        # times the executor gives the monitor.
+        # Pose stamps (measurement time) and the monitor's step times are both wall clock.
         with self._monitor_lock:
             event = monitor.update(pose.x, pose.y, pose.yaw_deg, stamp)
         if event is not None:

@@ -106,9 +106,8 @@ class CancelOnSignal:
     ) -> None:
         if self._dispatcher is None:
             return
-        # The dispatch thread ends first (after any signal written before the end), while
-        # the handler is still ours: a KeyboardInterrupt of on_signal is raised here, not
-        # turned into the signal's default action by the handler put back.
+        # The dispatch thread ends first, while the handler is still ours: a
+        # KeyboardInterrupt of on_signal is raised here, not by the handler put back.
         os.write(self._write_fd, bytes([_END]))
         self._dispatcher.join(timeout=10.0)
         restore_handlers(self._previous)

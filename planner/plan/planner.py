@@ -398,8 +398,7 @@ class HeuristicLowLevelPlanner:
                 continue
             bearing = math.atan2(target[1] - pose.y, target[0] - pose.x)
             dyaw = wrap_rad(bearing - pose.yaw_rad)
-            # A small turn is skipped only if driving without it still passes within
-            # ``lateral_tolerance_m`` of the target.
+            # Skip a small turn only if the drive still passes within lateral_tolerance_m.
             must = dist * abs(math.sin(dyaw)) > self.lateral_tolerance_m
             turn = self.turn_steps(dyaw, pose, kind=TURN, segment=seg, force=must)
             if turn:

@@ -518,8 +518,7 @@ class ConsoleServer:
             raise _AnswerError(400, f"count must be an integer >= 0, got {count_text!r}")
         if self._streams >= _MAX_ECHOES:
             raise _AnswerError(503, f"already {_MAX_ECHOES} echo streams")
-        # The slot is held by this coroutine, and given back in its finally, however
-        # the stream ends: refused, failed, left by its client, or never started.
+        # The slot is given back in the finally, however the stream ends.
         self._streams += 1
         try:
             echo = self._echo_of(topic)

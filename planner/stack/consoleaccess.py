@@ -1,18 +1,14 @@
 """Who the stack's console answers (:mod:`planner.stack.console_server`): the checks a
 request passes before anything is read or done, a pure function of its method and
-headers (no I/O, no clock). The console answers the operator's commands only, never a
-web page or another user (docs/commands.md, "The stack's console"):
+headers (no I/O, no clock). Only the operator's commands, never a web page or another
+user (docs/commands.md, "The stack's console"). In order:
 
-1. ``Host`` names the console exactly as its URL does (loopback: ``127.0.0.1:PORT``,
-   ``localhost:PORT`` or ``[::1]:PORT``; another bind: its address and port; a wildcard
-   bind: any address literal and the port), else 421: a DNS-rebinding page sends its
-   own name.
-2. No ``Origin`` and no ``Sec-Fetch-Site`` other than ``none`` (403): browsers send them,
-   the commands' client never does.
-3. The stack's token (``Authorization: Bearer``), always (401); never on a command line
-   (:mod:`planner.stack.domains`).
-4. A ``POST`` carries ``X-Rover-Console: 1`` or ``Content-Type: application/json``
-   (403): another origin cannot send either without a CORS preflight, never granted.
+1. ``Host`` names the console as its URL does (a wildcard bind: any address literal),
+   else 421 (DNS rebinding sends a name).
+2. No ``Origin``, no ``Sec-Fetch-Site`` other than ``none``, else 403 (a browser's).
+3. The stack's bearer token, always, else 401.
+4. A ``POST`` carries ``X-Rover-Console: 1`` or a JSON content type, else 403 (neither
+   passes another origin without a CORS preflight, never granted).
 """
 
 from __future__ import annotations

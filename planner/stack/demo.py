@@ -307,8 +307,7 @@ class Demo:
             twin=cfg.twin,
         )
         if not os.environ.get(DOMAIN_ENV, "").strip():
-            # No domain chosen: one of its own, as a stack takes, so that two demos (or
-            # a demo and a stack) on one machine never hear each other.
+            # No domain chosen: one of its own, so two demos or stacks never hear each other.
             domain = self._domains.enter_context(claim()).domain
             self._domains.callback(os.environ.pop, DOMAIN_ENV, None)
             os.environ[DOMAIN_ENV] = self._env[DOMAIN_ENV] = str(domain)

@@ -1,19 +1,15 @@
 """Which ROS 2 domains the stacks on this machine hold, and where their parts are.
 
 A running ``rover stack up`` holds an exclusive ``flock`` on ``domain-<N>.lock`` in
-:func:`registry_dir` for as long as it lives (the kernel drops it when the process
-ends, however it ends) and writes its endpoints beside it, ``domain-<N>.json``.
-:func:`claim` takes the first free domain of :data:`STACK_DOMAINS` (or the one asked
-for, refusing one that another stack holds); :func:`running` lists the stacks alive.
-Domains 0..99 are left to the test workers and to whoever runs ROS 2 by hand.
+:func:`registry_dir` while it lives (the kernel drops it however the process ends) and
+writes its endpoints beside it, ``domain-<N>.json``. :func:`claim` takes the first free
+domain of :data:`STACK_DOMAINS` (or the one asked for, if free); :func:`running` lists
+the stacks alive. Domains 0..99 are left to the tests and to ROS 2 by hand.
 
-The registry is this user's alone: the endpoints file holds the stack's console token
-(:func:`console_token`), and a file planted by another user would point ``rover stop``
-at a console of theirs. :func:`registry_dir` creates the directory with mode 0700 and
-refuses one that is a symbolic link, belongs to another user or that others may write
-(:class:`~planner.errors.StackRegistryError`); one of this user's that others may only
-read is made 0700. Every file in it is created 0600, never through a link; an endpoints
-file of another owner is ignored, a lock file of another owner refused.
+The registry is this user's alone (the endpoints hold the console token): the directory
+is made 0700 and refused (:class:`~planner.errors.StackRegistryError`) when it is a
+link, another user's, or writable by others; its files are created 0600, never through
+a link; an endpoints file of another owner is ignored, a lock file refused.
 """
 
 from __future__ import annotations
@@ -66,8 +62,7 @@ _MAX_FILE_BYTES = 65536
 
 def registry_dir() -> Path:
     """``$ROVER_STACK_DIR``, else ``rover-stacks`` in ``$XDG_RUNTIME_DIR``, else
-    ``rover-stacks-<uid>`` in the temporary directory; created 0700, checked (module
-    docstring).
+    ``rover-stacks-<uid>`` in the temporary directory; created 0700, checked.
 
     Raises:
         StackRegistryError: the directory is not this user's alone.
@@ -131,7 +126,7 @@ def _open_private(path: Path, flags: int) -> int:
 
 @dataclass
 class DomainClaim:
-    """A domain held by this process (see the module docstring)."""
+    """A domain held by this process (its lock file's ``flock``)."""
 
     domain: int
     _fd: int

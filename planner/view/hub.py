@@ -668,9 +668,8 @@ class ViewHub:
             # (a plan run on board has no wheel_instructions to say so).
             self._halted = None
             if self._step_sent_for is None or self._step_sent_for < self._moved_at:
-                # No step was sent from here since the last move: the rover runs the
-                # plan on board and its report of the step, half a round trip old, is
-                # the first the ground hears of it.
+                # No step sent from here: the plan runs on board, and this report (half
+                # a round trip old) is the first the ground hears of the step.
                 self._step_started = rx - self.rtt_s / 2.0 if p.status == "running" else None
             self._moved_at = rx
         self._following = p.verdict
