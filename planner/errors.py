@@ -125,9 +125,8 @@ class UnreachableGoalError(PlannerError):
     """The orchestrator gave up on a goal.
 
     Attributes:
-        result: the :class:`~planner.plan.orchestrator.PlanResult` or
-            :class:`~planner.plan.orchestrator.MissionResult`, with every attempt and verdict
-            (narrow it with ``isinstance`` to reach them).
+        result: the :class:`GaveUp` outcome, with every attempt and verdict (narrow it
+            with ``isinstance`` to reach them).
     """
 
     def __init__(self, result: GaveUp) -> None:
@@ -144,9 +143,7 @@ def _json_or_none(body: str) -> dict[str, Any] | None:
 
 
 class GateCallError(PlannerError):
-    """Reaching the gate failed: it answered an error status
-    (:class:`GateStatusError`), did not answer (:class:`GateUnavailableError`), or
-    answered something other than the documented JSON (:class:`GateProtocolError`)."""
+    """Reaching the gate failed (one of the three subclasses)."""
 
 
 class GateStatusError(GateCallError):

@@ -2,24 +2,17 @@
 
 :class:`PlanExecutor` publishes a plan one step at a time on ``wheel_instructions`` and
 waits on ``command_status`` until ``completed``, each wait bounded by the step's
-predicted duration scaled to wall time, plus the round trip, plus a margin. Whatever
-ends :meth:`PlanExecutor.execute` early (``rejected:``, ``aborted:``, ``fault:``, a
-timeout, drift, blindness, ``cancel``, an exception) publishes STOP on
-``emergency_stop`` first, repeated until ``stopped`` comes back (bounded); an exception
-is then re-raised.
+predicted duration, the round trip and a margin. Whatever ends
+:meth:`PlanExecutor.execute` early (a failure status, a timeout, drift, blindness,
+``cancel``, an exception) publishes STOP first, repeated until ``stopped`` (bounded).
 
-The time rules of a step in flight are the pure
-:class:`~planner.ground.stepwatch.StepWatch`; this class keeps the threads, the ROS port
-and the waiting. Every time and wait goes through ``clock=``: the wall clock, or a
-lockstep clock that runs a whole mission in virtual time (docs/sim.md).
-
-A :class:`~planner.ground.drift.DriftMonitor`, fed from the pose callbacks, compares the
-rover's pose with the gate's prediction: ``odom_ground`` while fresh, ``odom`` once POSE
-is silent for ``pose_stale_s`` by the topics' own stamps (so a backlog read late is no
-silence). A persistent violation publishes STOP from the pose callback itself and purges
-the rest of the plan; no pose at all for a round trip plus ``blind_margin_s`` while a
-step runs ends the plan (outcome ``blind``). Details: docs/ground.md "Executor" and
-"Drift control".
+A :class:`~planner.ground.drift.DriftMonitor`, fed from the pose callbacks, compares
+``odom_ground`` (or ``odom`` once POSE is silent, by the topics' own stamps) with the
+gate's prediction; a persistent violation publishes STOP from the callback itself. No
+pose for a round trip plus ``blind_margin_s`` ends the plan (``blind``). The step's time
+rules are the pure :class:`~planner.ground.stepwatch.StepWatch`; every time and wait
+goes through ``clock=`` (wall, or lockstep: docs/sim.md). Details: docs/ground.md
+"Executor" and "Drift control".
 """
 
 from __future__ import annotations

@@ -2,19 +2,14 @@
 
 :class:`GateClient` posts plans to ``POST /validate_plan`` and reads the verdict into
 :class:`~firmware_proto.model.verdict.Verdict`; it also reads ``/health``, ``/maps`` and
-one map (:class:`~firmware_proto.model.worldmap.WorldMap`). Standard library only
-(``http.client``), one keep-alive connection, thread-safe (calls are serialised on it).
+one map. Standard library only (``http.client``), one keep-alive connection, thread-safe
+(calls are serialised on it).
 
-Failures, per call (table: docs/planner.md "The gate client"): one time budget,
-``timeout_s``, covers connecting, waiting, retrying and ``Retry-After``. Connection
-errors are retried ``retries`` times with doubling backoff, then
-:class:`~planner.errors.GateUnavailableError`; a keep-alive connection closed while idle
-is reopened at once, uncounted (validation is pure, so repeating a POST is safe). No
-answer in the budget: :class:`~planner.errors.GateTimeoutError`. 503 and 429: wait
-``Retry-After`` while the budget allows, then :class:`~planner.errors.GateOverloadedError`.
-Any other 4xx or 5xx: :class:`~planner.errors.GateStatusError` at once, never retried.
-
-Settings: :func:`resolve_gate_settings`.
+Each call has one time budget, ``timeout_s``, for connecting, waiting, retrying and
+``Retry-After``. Connection errors are retried with doubling backoff (a keep-alive
+closed while idle is reopened, uncounted: validation is pure); 503 and 429 wait
+``Retry-After``; other error statuses raise at once. The table: docs/planner.md "The gate
+client". Settings: :func:`resolve_gate_settings`.
 """
 
 from __future__ import annotations
@@ -233,7 +228,9 @@ class GateClient:
         Raises:
             GateStatusError: the gate refused the request (a plan failing the schema, an
                 unknown map, a start outside it, 401...).
-            GateOverloadedError, GateUnavailableError, GateTimeoutError: see above.
+            GateOverloadedError: 503 or 429 past the time budget.
+            GateUnavailableError: no answer after the retries (GateTimeoutError: none
+                within the budget).
             GateProtocolError: the answer is not a verdict.
         """
         if isinstance(plan, Plan):

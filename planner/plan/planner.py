@@ -1,19 +1,14 @@
 """The heuristic low-level planner: a route of points -> turn and drive steps.
 
-:class:`HeuristicLowLevelPlanner` is the thesis's planner (section 5.5): from a start
-pose, through optional waypoints, to a goal pose, each segment is a turn on the spot to
-its bearing (the shorter way), then FWD; at the goal, a turn to the goal yaw. Turns
-come from the rover description's turn model
-(:meth:`RoverDescription.turn_units_for_yaw`), drives from its units per metre.
-
-Every plan it makes validates against the plan schema (Listing 1) and the description's
-limits, has no step over ``max_step_units`` (longer ones are split equally), skips
-negligible turns and drives, and holds at most ``max_steps`` steps: a longer route
-becomes *legs* (:meth:`HeuristicLowLevelPlanner.plan_mission`), each cut after a drive
-and ending at the pose the planner predicts there. Each :class:`PlannedStep` carries
-what the repairs need (segment, purpose, intent, predicted pose: the turn model, no
-slip). Rules and speeds: docs/planner.md "The heuristic planner". Units: metres,
-degrees (``_deg``) or radians (``_rad``), distance and speed units of the protocol.
+:class:`HeuristicLowLevelPlanner` is the thesis's planner (section 5.5): each segment of
+start, waypoints and goal is a turn on the spot to its bearing (the shorter way), then
+FWD; at the goal, a turn to the goal yaw, by the rover description's turn model. Every
+plan validates against the plan schema and the description's limits, splits steps over
+``max_step_units``, skips negligible ones, and holds at most ``max_steps``; a longer
+route becomes legs (:meth:`HeuristicLowLevelPlanner.plan_mission`), each ending at its
+predicted pose. Each :class:`PlannedStep` carries what the repairs need. Rules and
+speeds: docs/planner.md "The heuristic planner". Units: metres, degrees (``_deg``) or
+radians (``_rad``), distance and speed units of the protocol.
 """
 
 from __future__ import annotations

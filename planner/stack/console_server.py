@@ -20,15 +20,10 @@ bridge's own topics, not through the emulated link. The client is
                                         value first, where one is kept), streamed
 ======================================  ===================================================
 
-Who it answers: :mod:`planner.stack.consoleaccess`, every check on the request's head,
-before anything is read or done.
-
-**STOP never waits.** Everything but a clear-STOP runs on the event loop without
-blocking it: ``POST /stop`` publishes the moment its request is admitted, then waits for
-``stopped`` on the console's listener, as ``/status`` and ``/echo`` wait for theirs. A
-clear-STOP (up to 60 s against a silent controller) runs on its own thread, one at a
-time, so nothing can hold a STOP back. Every wait is bounded and ends when the server
-closes.
+Who it answers: :mod:`planner.stack.consoleaccess`. STOP never waits: everything but a
+clear-STOP runs on the event loop without blocking it (``POST /stop`` publishes the
+moment it is admitted); a clear-STOP runs on its own thread, one at a time. Every wait
+is bounded and ends when the server closes.
 
 Threads: ``console-http`` (the event loop); ``console-clear``; the listener runs on the
 ROS port's thread and only schedules a wake-up on the loop.

@@ -16,24 +16,14 @@ Server-Sent Events.
 
 Anything else gets a JSON error and the server goes on.
 
-**STOP never waits.** ``POST /stop`` skips the lane every other request shares (at most
-:data:`LANE_PER_TURN` started per turn of the event loop) and runs on its own thread
-(``view-stop``). ``GET /state`` shares the hub's encoding (at most one per
-:data:`STATE_MAX_AGE_S`).
-
-**Other origins are refused.** STOP and clear-STOP need :data:`ACTION_HEADER` and are
-refused from another origin (``Origin``, ``Sec-Fetch-Site``) whatever the token;
-``Host`` must name this server; no page may frame the view. Binding and tokens follow
-:mod:`firmware_proto.http.bindpolicy`; without a configured token the server makes one
-for the operator, and a request without it is served as anonymous.
-
-**The operator always gets a view.** At most ``max_clients`` browsers
-(``max_clients_per_address`` from one address); when full, a newcomer evicts the worst
-one it outranks (:meth:`_Viewer.rank`), else gets a ``200`` stream saying ``busy``
-(``EventSource`` gives up on a 503). A browser that takes nothing for
-``client_timeout_s`` is cut off. Streams wait on their queues on a small pool
-(``view-events``), never on the event loop. Details: docs/view.md "Never in the
-mission's way", "Binding and tokens".
+STOP skips the lane every other request shares (:data:`LANE_PER_TURN` per turn of the
+event loop) and runs on its own thread (``view-stop``). STOP and clear-STOP need
+:data:`ACTION_HEADER` and are refused from another origin whatever the token; ``Host``
+must name this server; binding and tokens follow :mod:`firmware_proto.http.bindpolicy`.
+At most ``max_clients`` browsers: a newcomer evicts the worst one it outranks
+(:meth:`_Viewer.rank`), else gets a ``busy`` stream. Streams wait on their queues on a
+small pool (``view-events``), never on the event loop. Details: docs/view.md "Never in
+the mission's way", "Binding and tokens".
 """
 
 from __future__ import annotations
