@@ -1,20 +1,17 @@
 """Plans run on board: the ground's side of the uplink (docs/onboard.md, docs/ground.md).
 
-:class:`OnboardExecutor` is what ``rover go`` and ``rover demo`` run by default. It sends
-an approved plan and its verdict as one uplink (steps, prediction, drift limits, plan
-id, verdict identity, the onboard program's boot id; tagged with the uplink token),
-resends it every ``resend_s`` until the rover answers (``accepted`` or ``duplicate``;
-``busy``, ``latched`` or ``no_fix`` are resent too, within the plan's budget), then only
-listens: the rover runs and guards the steps itself. Its reports (``onboard_report``)
-become :class:`~planner.ground.executor.ExecutionProgress` and, at the end, an
-:class:`~planner.ground.executor.ExecutionResult` of the step-by-step executor's shape:
-a guard stop is outcome ``drift``, so :class:`~planner.ground.mission.MissionRunner`
-re-plans from the rover's estimate at rest (:meth:`OnboardExecutor.settled_pose`).
+:class:`OnboardExecutor` (the default of ``rover go`` and ``rover demo``) sends an
+approved plan and its verdict as one uplink tagged with the uplink token, resends it
+every ``resend_s`` until the rover answers (``busy``, ``latched`` and ``no_fix`` too,
+within the plan's budget), then only listens: the rover runs and guards the steps. Its
+reports become the step-by-step executor's progress and result (a guard stop is outcome
+``drift``, so :class:`~planner.ground.mission.MissionRunner` re-plans from
+:meth:`OnboardExecutor.settled_pose`).
 
 The ground keeps STOP authority: ``cancel`` or a plan that outlives its time publishes
-STOP every ``stop_repeat_s`` until ``stopped``, and a cancel of the plan id resent until
-acknowledged, so a copy still on its way never runs after it. A plan without a verdict
-runs step by step.
+STOP every ``stop_repeat_s`` until ``stopped``, and a cancel of the plan id until
+acknowledged, so a copy still on its way never runs. A plan without a verdict runs step
+by step.
 
 Threads: :meth:`OnboardExecutor.execute` blocks its caller (the mission's thread); the
 port's lane thread runs the callbacks, which only store what came and wake it.

@@ -1,19 +1,12 @@
 """Recording a mission as ROS 2 MCAP, and reading one back (``rover decode x.mcap``).
 
-:class:`McapRecorder` is a tap of the ground station's ROS port
-(:meth:`bridge.ros.rosport.RosPort.add_tap`): every message it sends and receives is
-written under the topic the port resolved, CDR-encoded against its ROS 2 definition
-(profile ``ros2``), so the file opens in Foxglove and ``ros2 bag``. Beside them: the
-gate's predictions (:data:`PREDICTED_TOPIC`, :data:`REJECTED_TOPIC`) and verdicts
-(:data:`VERDICT_TOPIC`), ``/tf`` (``map -> odom -> base_link``), the map and plan markers
-(:mod:`planner.record.markers`), the bridge's ``/diagnostics`` (:meth:`attach`
-subscribes to them) and metadata records. Topics and records: docs/view.md
-"Recordings".
-
-The tap only queues; a writer thread encodes and writes, so the mission thread never
-waits on the disk. :meth:`McapRecorder.close` drains the queue and finishes the file
-(idempotent). Message definitions are made from the generated classes' field lists (no
-``.msg`` files needed).
+:class:`McapRecorder` is a tap of the ground station's ROS port: every message it sends
+and receives, under the topic the port resolved, CDR-encoded (profile ``ros2``, so
+Foxglove and ``ros2 bag`` open it); beside them the gate's predictions and verdicts,
+``/tf``, map and plan markers, ``/diagnostics`` (:meth:`attach`) and metadata records
+(docs/view.md "Recordings"). The tap only queues; a writer thread encodes and writes, so
+the mission never waits on the disk; :meth:`McapRecorder.close` drains and finishes the
+file (idempotent). Message definitions come from the generated classes' field lists.
 """
 
 from __future__ import annotations

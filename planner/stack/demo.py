@@ -1,20 +1,14 @@
 """The end-to-end demo: every part of the stack, on one machine, driving a mission.
 
-:class:`Demo` starts each part as its own process, as ``rover stack up`` does
-(:class:`planner.stack.processes.Stack`): the gate, the controller emulator on a pty
-with the lab map, the bridge on that pty and the Earth-Moon link relay, over real ROS 2
-with discovery kept on this host. The ground station (planner, orchestrator, executor)
-runs in this process.
-
-The mission: from the lab's start to the goal behind the table. The direct plan
-collides and is repaired into a detour; slip injected after a chosen step makes drift
-control stop the rover; the operator re-plans from its reported pose (slip cleared) and
-the rover finishes. The demo prints a summary and writes a picture of predicted against
-actual trajectory.
+:class:`Demo` starts the parts as ``rover stack up`` does
+(:class:`planner.stack.processes.Stack`: gate, emulator on a pty, bridge, link relay,
+real ROS 2 kept on this host) and runs the ground station in this process. The mission
+(docs/ground.md): a plan around the lab's table, slip after a chosen step, a drift STOP,
+a re-plan from the reported pose, the goal; then a summary and a picture.
 
 :meth:`Demo.cancel` (SIGINT, SIGTERM) ends the mission through the executor's cancel
-path (STOP; the summary says ``cancelled``); before the mission runs the caller
-interrupts the start-up instead, and :meth:`Demo.close` stops what was started.
+path (STOP; ``cancelled``); before the mission runs the caller interrupts the start-up
+instead, and :meth:`Demo.close` stops what was started.
 """
 
 from __future__ import annotations

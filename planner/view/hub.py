@@ -1,22 +1,16 @@
 """The live view's state and its fan-out to browsers.
 
-:class:`ViewHub` is fed by the ground station: :meth:`ViewHub.tap` taps its ROS port,
-:meth:`ViewHub.planned` gets each planning, :meth:`ViewHub.progress` the executor's
-progress, :meth:`ViewHub.event` the mission's log lines. Feeding it never blocks: an
-append to a bounded, drop-oldest queue (:data:`INBOX_LEN`). One hub thread
-(``view-hub``) turns inputs into events, keeps the state, and adds a ``tick`` every
-:data:`TICK_S`.
-
-Each event is encoded once as a Server-Sent Events record and put on every client's
-:class:`ClientQueue` (bounded, drop-oldest, drops counted), so a slow or dead browser
-never holds up the hub or the mission. A client that connects gets the state first
-(``hello``). The events and their fields: docs/view.md "The push channel".
+:class:`ViewHub` is fed by the ground station (``tap``, ``planned``, ``progress``,
+``event``, any thread); feeding never blocks: an append to a bounded,
+drop-oldest queue (:data:`INBOX_LEN`). One hub thread (``view-hub``) turns inputs into
+events, keeps the state, and adds a ``tick`` every :data:`TICK_S`. Each event is encoded
+once and put on every client's :class:`ClientQueue` (bounded, drop-oldest), so a slow
+browser never holds up the hub or the mission; a new client gets ``hello`` (the state)
+first. Events: docs/view.md "The push channel".
 
 The ghost follows the prediction of the verdict each progress report names
-(:attr:`~planner.ground.executor.ExecutionProgress.verdict`), not a count of reports
-(``published`` repeats until acknowledged). It halts when its step ends other than
-``completed`` or a STOP is sent, until the next step is published; such an end shows the
-banner at once, and :meth:`ViewHub.result` replaces it with the mission's outcome.
+(:attr:`~planner.ground.executor.ExecutionProgress.verdict`), and halts when its step
+ends other than ``completed`` or a STOP is sent, until the next step is published.
 """
 
 from __future__ import annotations
