@@ -1,18 +1,12 @@
 """Link emulation: a relay between the ground's topics and the rover's, with the
-Earth-Moon link's delay, jitter and loss (the thesis's latency injection).
+Earth-Moon link's delay, jitter and loss (the thesis's latency injection;
+docs/ground.md "Link emulation").
 
-:class:`LinkRelay` subscribes to each route's topic on one side and republishes every
-message on the other after ``one_way_delay_s`` plus jitter, unless the loss draw drops
-it. Routes (relative names, so each side's namespace applies):
-
-- ground -> rover: ``wheel_instructions``, ``emergency_stop``, ``clear_emergency_stop``,
-  ``plan_uplink``
-- rover -> ground: ``command_status``, ``odom``, ``odom_ground``, ``diagnostics``,
-  ``plan_ack``, ``onboard_report``, ``onboard_pose``
-
-Every message of every route takes the delay, jitter and loss. One topic's messages keep
-their order (jitter stretches gaps, never reorders). Each route draws from its own
-generator seeded from ``seed`` and the topic name, so a run is reproducible whatever the
+:class:`LinkRelay` republishes every message of each route (:data:`DEFAULT_ROUTES`:
+commands, STOP, clear and the uplink down; statuses, telemetry and onboard reports up;
+relative names) on the other side after ``one_way_delay_s`` plus jitter, unless the loss
+draw drops it. One topic's messages keep their order. Each route draws from a generator
+seeded from ``seed`` and the topic name, so a run is reproducible whatever the
 interleaving. One scheduler thread releases messages when due; ``close()`` drops what is
 in flight and joins it. With a lockstep clock (docs/sim.md) there is no thread: each
 tick releases what is due.

@@ -1,23 +1,16 @@
 """The parts of the stack as child processes: the gate, the emulator (or a real
-device), the bridge and the link relay, started in order, each ready when it prints its
-ready line, and ended last started first.
+device), the bridge, the onboard program and the link relay, started in order, each
+ready when it prints its ready line (``GATE``, ``CONTROL``, ``BRIDGE``, ``ONBOARD``,
+``LINK``), ended last started first.
 
-:class:`Stack` is what ``rover stack up`` keeps running and ``rover demo`` starts. Each
-part is a :class:`ChildProcess`, ``python -m firmware_proto.cli <command>`` with the
-stack's environment (its ROS 2 domain, discovery on this host).
-
-The stack makes a random uplink token (:attr:`Stack.uplink_token`) for the onboard
-program, passed only through its environment (``ROVER_UPLINK_TOKEN``; a command line is
-readable by every user); it is not the gate's token.
-
-With a logs directory, each part's stderr goes to ``<logs>/<name>.log`` and its stalls
-to ``<logs>/stalls.jsonl`` (docs/realtime.md). The emulator and the bridge run real time
-unless told not to, the gate and the relay at nice :data:`NICE`.
-
-Ready lines: ``GATE <url>``, ``CONTROL 127.0.0.1:<port>`` (after ``DEVICE``),
-``BRIDGE <url> <backend>``, ``ONBOARD``, ``LINK``. A part not up within
-``startup_timeout_s`` fails :meth:`Stack.start` with its last lines of stderr; one that
-exits later is seen by :meth:`Stack.failed`.
+:class:`Stack` is what ``rover stack up`` keeps running and ``rover demo`` starts; each
+part is a :class:`ChildProcess` (``python -m firmware_proto.cli <command>``) with the
+stack's environment. The stack's random uplink token (:attr:`Stack.uplink_token`) goes
+to the onboard program through its environment only, never a command line. With a logs
+directory, each part's stderr goes to ``<logs>/<name>.log`` and its stalls to
+``<logs>/stalls.jsonl`` (docs/realtime.md); the gate and the relay run at nice
+:data:`NICE`. A part not up within ``startup_timeout_s`` fails :meth:`Stack.start` with
+its last lines of stderr; one that exits later is seen by :meth:`Stack.failed`.
 """
 
 from __future__ import annotations
