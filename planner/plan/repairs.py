@@ -69,40 +69,21 @@ def _grid(first: float, last: float, step: float) -> tuple[float, ...]:
 
 @dataclass(frozen=True)
 class RepairSettings:
-    """Parameters of the repairs (docs/planner.md "Parameters" explains each default).
+    """Parameters of the repairs; each and its default: docs/planner.md "Parameters".
 
-    Attributes:
-        map_aware: screen dogleg candidates against the map when one is known.
-        dogleg_offset_m: ``delta`` of the first blind dogleg, m.
-        dogleg_growth: factor on ``delta`` at each repeat around the same obstacle.
-        offsets_m: lateral offsets tried by the map-aware search, m.
-        turn_cost_m: ranking cost of each added waypoint, m.
-        search_expansions: routes the map-aware search may expand.
-        search_width: doglegs it keeps per expansion.
-        max_waypoints: most waypoints one repair may add.
-        min_spacing_m: least distance between an added waypoint and the route's
-            points, m.
-        blocked_cost_m: priority penalty of a segment the map shows blocked, m.
-        centring_weight: priority penalty per metre of spare room a dogleg lacks
-            (short of ``comfort_m``).
-        edge_offset_step_m, edge_offset_reach_m: lateral spacing and reach beyond the
-            obstacle of the detours parallel to its edges, m.
-        comfort_m: room to spare beyond which more does not matter, m.
-        clearance_slack_m: clearance a drive asks beyond half the chassis width and
-            the gate's margin, m, plus ``slack_per_m`` per metre of the drive.
-        turn_slack_m: the same for turning on the spot, beyond the footprint's
-            circumradius and the margin, m.
-        slack_growth_m: added to both at each repeat around the same obstacle, m.
-        approach_offsets_m: distances before the goal tried for an approach waypoint, m.
-        approach_offset_m: the blind approach distance (grown like ``delta``), m.
-        approach_angle_deg: a final turn larger than this makes a collision near the
-            goal an approach problem rather than a dogleg one.
-        near_goal_m: "near the goal": within this distance of it, m.
-        min_correction_m: longitudinal errors below this are left alone, m.
-        turn_calibration_deg: a turn whose predicted yaw change misses its intent by
-            more than this is rescaled.
-        drive_calibration_m: likewise for a drive's ground covered, m (only for a
-            collision on a segment the map shows clear).
+    Distances in m (``_m``), angles in degrees (``_deg``). Blind doglegs:
+    ``dogleg_offset_m`` grown by ``dogleg_growth`` per repeat. The map-aware search
+    (``map_aware``): candidate ``offsets_m`` and edge detours
+    (``edge_offset_step_m``, ``edge_offset_reach_m``); budget ``search_expansions`` x
+    ``search_width``, ``max_waypoints`` per repair, ``min_spacing_m`` from the route's
+    points; priority costs ``turn_cost_m`` per waypoint, ``blocked_cost_m`` per blocked
+    segment, ``centring_weight`` per metre of room short of ``comfort_m``. Clearance
+    beyond footprint and margin: ``clearance_slack_m`` + ``slack_per_m`` per metre of
+    drive, ``turn_slack_m`` for turns, both + ``slack_growth_m`` per repeat. Approach
+    waypoints: ``approach_offsets_m`` (map), ``approach_offset_m`` (blind), when the
+    final turn exceeds ``approach_angle_deg`` within ``near_goal_m``. Goal repair and
+    recalibration thresholds: ``min_correction_m``, ``turn_calibration_deg``,
+    ``drive_calibration_m``.
     """
 
     map_aware: bool = True
