@@ -66,30 +66,20 @@ LOCALHOST_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 class DemoConfig:
     """What the demo runs.
 
+    ``rtt_s``, ``jitter_s``, ``loss``, ``speed``, ``seed``, ``firmware``,
+    ``controller``, ``realtime``, ``ground``, ``twin`` and ``startup_timeout_s`` are
+    :class:`~planner.stack.processes.StackConfig`'s (the planner also turns by ``twin``).
+
     Attributes:
-        rtt_s, jitter_s, loss: the link's round trip and jitter (each way), s of mission
-            time, and the share of messages it loses each way.
-        speed: mission seconds per wall second (1 is real time).
         map_name, goal_name: the lab map and its goal behind the table.
         slip: the fault injected once step ``slip_after_step`` (0-based) has completed;
             ``None`` drives without slip.
-        seed: seeds the emulator and the link.
         picture: where to write the PNG.
-        startup_timeout_s: how long each process may take to come up, s.
         progress_every_s: most frequent progress line while a step runs, mission s.
         record: the MCAP file to record the mission in (``None``: none).
         view: serve the live view so (``None``: no view); prints ``VIEW <url>``.
         foxglove_port: serve Foxglove live on this loopback port (0: a free one;
             ``None``: not); prints ``FOXGLOVE <url>``.
-        firmware: the emulator's controller, ``python`` or ``c`` (``rover emulate
-            --firmware``).
-        controller: ``emulator``, or ``pil:microbit`` / ``pil:atmega2560`` (``rover
-            pil``, real time only).
-        realtime: the emulator and the bridge ask for real-time scheduling
-            (docs/realtime.md).
-        ground: the emulator's ground (``rover emulate --ground``), unknown to the
-            gate; ``None``: the description's.
-        twin: a calibrated twin file the gate plays plans on and the planner turns by.
         replans: drift STOPs after which the mission is re-planned.
         step_by_step: the thesis's step-by-step executor instead of on board.
         samples, max_collision_p: approve a plan only if at most ``max_collision_p`` of
