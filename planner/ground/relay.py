@@ -114,9 +114,6 @@ class LinkRelay:
     ) -> None:
         """Args:
         ground: the operator side's port (its namespace applies to ground topics).
-        rover: the rover side's port.
-        profile: delay, jitter, loss, seed.
-        routes: the topics to relay.
         clock: what the delays run on; a lockstep clock releases messages on its ticks
             (no thread).
         """
@@ -208,14 +205,9 @@ class LinkRelay:
             self._publish(publisher, msg, key)
 
     def wait_until_matched(self, timeout_s: float = 10.0, topics: set[str] | None = None) -> bool:
-        """Wait until each route (of ``topics``, default all) is matched both ways on both
-        sides: its subscription hears at least one publisher, and its republisher reaches
-        at least one subscription, each seen from its own end (over DDS each end discovers
-        the other on its own, and a sample sent before both did is lost).
-
-        Returns:
-            True when all matched, False when ``timeout_s`` passed first.
-        """
+        """Wait until each route (of ``topics``, default all) is matched both ways, each
+        seen from its own end (a sample sent before both ends discovered each other is
+        lost); False when ``timeout_s`` passed first."""
         clock = self.clock
         deadline = clock.now() + timeout_s
 

@@ -50,7 +50,6 @@ class Trial:
 
     Attributes:
         name: the goal's name (the map's, or ``random_<i>``).
-        goal: the goal pose.
         geometric_collision: the map shows the straight plan's footprint (no margin)
             hitting something; ``hit``: what it hits first (``""`` if nothing).
         first_failure: the gate's verdict on the straight plan (``None``: approved).

@@ -208,7 +208,6 @@ class ConsoleServer:
     Args:
         console: the reads and writes of the bridge's topics (its port stays the
             caller's; neither is closed here).
-        config: where to listen, and the token.
     """
 
     def __init__(self, console: RoverConsole, config: ConsoleConfig | None = None) -> None:

@@ -207,7 +207,6 @@ class ViewServer:
 
     Args:
         hub: the state and its events (started and closed by the caller).
-        config: where and how to listen.
         on_stop: sends the emergency stop (what Ctrl-C does) and says what it did;
             called on the server's STOP thread (``view-stop``), so it must not block for
             long (set the cancel event).
