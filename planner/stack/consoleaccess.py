@@ -3,8 +3,9 @@ request passes before anything is read or done, a pure function of its method an
 headers (no I/O, no clock). Only the operator's commands, never a web page or another
 user (docs/commands.md, "The stack's console"). In order:
 
-1. ``Host`` names the console as its URL does (a wildcard bind: any address literal),
-   else 421 (DNS rebinding sends a name).
+1. ``Host`` names the console as its URL does (loopback: ``127.0.0.1``, ``localhost``
+   or ``[::1]``; a wildcard bind: any address literal; with the port), else 421 (DNS
+   rebinding sends a name).
 2. No ``Origin``, no ``Sec-Fetch-Site`` other than ``none``, else 403 (a browser's).
 3. The stack's bearer token, always, else 401.
 4. A ``POST`` carries ``X-Rover-Console: 1`` or a JSON content type, else 403 (neither

@@ -1,12 +1,12 @@
 """The live view's state and its fan-out to browsers.
 
 :class:`ViewHub` is fed by the ground station (``tap``, ``planned``, ``progress``,
-``event``, any thread); feeding never blocks: an append to a bounded,
-drop-oldest queue (:data:`INBOX_LEN`). One hub thread (``view-hub``) turns inputs into
-events, keeps the state, and adds a ``tick`` every :data:`TICK_S`. Each event is encoded
-once and put on every client's :class:`ClientQueue` (bounded, drop-oldest), so a slow
-browser never holds up the hub or the mission; a new client gets ``hello`` (the state)
-first. Events: docs/view.md "The push channel".
+``event``, any thread); feeding never blocks: an append to a bounded, drop-oldest queue
+(:data:`INBOX_LEN`). One hub thread (``view-hub``) turns inputs into events, keeps the
+state, and adds a ``tick`` every :data:`TICK_S`. Each event is encoded once and put on
+every client's :class:`ClientQueue` (bounded, drop-oldest), so a slow browser never
+holds up the hub or the mission; a new client gets ``hello`` (the state) first. Events:
+docs/view.md "The push channel".
 
 The ghost follows the prediction of the verdict each progress report names
 (:attr:`~planner.ground.executor.ExecutionProgress.verdict`), and halts when its step
@@ -118,7 +118,7 @@ def _record(name: str, data: dict[str, Any]) -> bytes:
 
 
 def _thin(points: list[list[float]], step_m: float) -> list[list[float]]:
-    """``points`` without those closer than ``step_m`` to the last one kept (last kept)."""
+    """``points`` without those closer than ``step_m`` to the last one kept (always the last)."""
     kept: list[list[float]] = []
     for i, p in enumerate(points):
         if (
