@@ -118,7 +118,7 @@ def _record(name: str, data: dict[str, Any]) -> bytes:
 
 
 def _thin(points: list[list[float]], step_m: float) -> list[list[float]]:
-    """``points`` without those closer than ``step_m`` to the last one kept (always the last)."""
+    """``points`` less those within ``step_m`` of the last one kept (the last always kept)."""
     kept: list[list[float]] = []
     for i, p in enumerate(points):
         if (
