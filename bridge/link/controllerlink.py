@@ -1,11 +1,9 @@
 """The host side of the controller protocol in real time: :class:`ControllerLink`, a thin
 threaded shell around the pure :class:`~bridge.link.linkcore.LinkCore` (docs/protocol.md).
 
-Every rule of the protocol's host side (handshake, the two send lanes, acknowledgements
-and retries, STOP and its repeats, the latch and its automatic clear, supervision,
-reconnect decisions, counters) is the core's and documented there; the same core runs
-in virtual time in the wire simulator (docs/sim.md). This module adds what only real
-time has: the transport, the threads, the clock (``self._clock.now()``) and the callbacks.
+Every rule of the protocol's host side is the core's and documented there. This module
+adds what only real time has: the transport, the threads, the clock
+(``self._clock.now()``) and the callbacks.
 
 Given a lockstep clock (:class:`~firmware_proto.linkio.clock.LockstepClock`: a whole
 mission in virtual time, docs/sim.md) the same shell starts no thread: once per tick of
@@ -22,13 +20,11 @@ only reads and decodes, :mod:`bridge.link.transport`); one timer thread runs the
 periodic work every 5 ms and (re)connects; one writer thread (``link-tx``) writes every
 frame but STOP, in the order the core queued them; any thread may call the API. The
 core is guarded by one lock, and no write to the transport ever happens with it held: a
-write stuck in the OS (a full buffer, a stalled USB-serial adapter) holds up neither
-the API, nor the dispatcher, nor a STOP. STOP is written by the thread that decided it
-(the caller of :meth:`ControllerLink.emergency_stop`, the timer for repeats, the writer
-for the STOP that follows a CLEAR_STOP it was writing) through the transport's STOP
-path, which waits for no other write; a MOTION not yet written when its step is dropped
-(a STOP, a lost link, a reboot) is dropped with it, and its ACK timeout runs from when
-it was written. Callbacks run outside the lock, one at a time, in the order their
+write stuck in the OS holds up neither the API, nor the dispatcher, nor a STOP. STOP is
+written by the thread that decided it (the caller of
+:meth:`ControllerLink.emergency_stop`, the timer for repeats, the writer for the STOP
+that follows a CLEAR_STOP it was writing) through the transport's STOP path, which waits
+for no other write. Callbacks run outside the lock, one at a time, in the order their
 events happened.
 """
 
@@ -109,8 +105,7 @@ class ControllerLink:
             a lockstep clock runs the link on its ticks, without threads (module
             docstring).
         first_request_id: the id of the first STOP or CLEAR_STOP, 1..65535; ``None``
-            (the default, and what a bridge must use) draws it at random, so a bridge
-            started again never repeats the last request of the one before. A replay
+            (the default, and what a bridge must use) draws it at random. A replay
             gives the recorded one, to send the recorded bytes again.
 
         Raises:
@@ -118,8 +113,7 @@ class ControllerLink:
                 reconnect could fix it (a transport is built to check it, not opened).
         """
         transport_factory(config.url)
-        # Request ids start at random: a bridge started again must not repeat the last
-        # request of the one before (docs/protocol.md, "Latch and faults").
+        # A bridge started again must not repeat the last request of the one before.
         self._core = LinkCore(
             config,
             protocol_version=protocol_version,
@@ -261,11 +255,8 @@ class ControllerLink:
 
     def emergency_stop(self, source: int = StopSource.OPERATOR) -> int:
         """Send STOP now, on this thread, ahead of anything queued (repeated until
-        acknowledged), and purge every pending step.
-
-        Returns the stop id. Works in any link state: if the link is down the STOP goes
-        out first thing after the next handshake.
-        """
+        acknowledged), and purge every pending step; returns the stop id. Works in any
+        link state (:meth:`LinkCore.emergency_stop`)."""
         with self._lock:
             stop_id = self._core.emergency_stop(source, self._clock.now())
             stops, transport = self._core.take_stops(), self._transport
@@ -376,8 +367,7 @@ class ControllerLink:
             transport = self._factory(self.config.url)
             opening = transport
             with self._lock:
-                # A failure reported while open() is still running (the reader may fail
-                # before open() returns) is kept, not ignored: see _report_failure.
+                # A failure reported while open() still runs is kept: see _report_failure.
                 self._opening = opening
 
             def on_error(exc: Exception) -> None:

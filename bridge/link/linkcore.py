@@ -35,25 +35,15 @@ CLEAR_ACK) releases it. No CLEAR_STOP reaches the wire after a later STOP: a que
 is dropped, and one being written when STOP is asked for is followed by the STOP once
 more.
 
-**Latch** (docs/protocol.md, "Latch and faults"). The controller's HEARTBEAT says what
-holds its latch (``latch_stop``, ``latch_watchdog``, ``latch_fault``), which fault
-conditions are active (``fault_bits``) and the latch generation (``latch_gen``, raised by
-every new cause; STOP_ACK, FAULT and CLEAR_ACK carry it too). Every CLEAR_STOP names
-the generation it releases, and the controller releases nothing if the latch gained a
-cause since (``LATCH_CHANGED``): a request made before a fault can never release it.
-An operator's clear names the last generation this core learned, and every stopping
-cause it learns it reports first (``fault:<name>``; also when only a HEARTBEAT told it,
-its FAULT frame lost); a clear asked for while this host's own STOP awaits its
-STOP_ACK waits for it (so ``stopped`` comes, then the clear, naming the STOP's
-generation). An operator's clear is one request: answered FAULT_PERSISTS or
-LATCH_CHANGED it ends (``fault:fault_persists``, ``fault:latch_changed``), and only a
-new one releases. Steps submitted while an operator's clear is out wait for its answer:
-sent after CLEARED, refused with the latch's reason otherwise. With
-``auto_clear_watchdog`` the core sends CLEAR_STOP itself, naming the generation of the
-HEARTBEAT that showed it, when the watchdog alone holds the latch, its condition is
-gone, the session is ours and no emergency stop is requested: a link outage does not
-leave the rover stuck; a refusal, a stopping FAULT frame or a HEARTBEAT with another
-cause ends it for good. A copy of a CLEAR_STOP is repeated every ``stop_repeat_s`` from
+**Latch.** The core follows the host's rules of docs/protocol.md, "Latch and faults":
+every CLEAR_STOP names the latch generation it releases, so a request made before a
+fault can never release it. An operator's clear names the last generation this core
+learned, after every stopping cause it learned was reported (``fault:<name>``, also when
+only a HEARTBEAT told it); it waits for the STOP_ACK of this host's own STOP still out;
+refused (``fault:fault_persists``, ``fault:latch_changed``) it is over. Steps submitted
+while it is out wait for its answer. With ``auto_clear_watchdog`` the core clears a
+latch the watchdog alone holds, once its condition is gone, in a session of ours and with
+no emergency stop requested. A CLEAR_STOP copy is repeated every ``stop_repeat_s`` from
 when the previous copy was written, never queued behind an unwritten one.
 
 **MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
@@ -68,29 +58,22 @@ when its step is dropped (a STOP, a lost link, a reboot) is dropped with it.
 refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
 ``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``,
 by :meth:`~LinkCore.tick` or, when the host itself was held up, by the first heartbeat
-that arrives after a longer gap (the controller's watchdog has stopped the rover
-meanwhile). Sensor samples (ENCODERS, WHEEL_SPEEDS, IMU, POSE) are forwarded only while
-the link is ready, that is in a session whose IDENT told the boot nonce: a conforming
-controller sends none before a HELLO, so the first count of a new boot can never be
-taken for motion of the old one (counted in ``samples_outside_session``). A changed
-boot nonce -> ``fault:controller_reboot``. A transport error -> reconnect with
-exponential backoff, which only a completed handshake resets. In every one of these
-cases every step not yet settled (in the controller, in flight, waiting in the lane) is
-dropped and gets its own fate, oldest first, each counted in ``steps_aborted``:
-``aborted:link_lost``, ``aborted:controller_reboot`` or ``aborted:schema_mismatch``;
-then one ``fault:<reason>`` reports the link event itself. No stale motion is ever
-replayed.
+that arrives after a longer gap. Sensor samples are forwarded only in a session whose
+IDENT told the boot nonce, so the first count of a new boot can never be taken for
+motion of the old one (others counted in ``samples_outside_session``). A changed boot
+nonce -> ``fault:controller_reboot``. A transport error -> reconnect with exponential
+backoff, which only a completed handshake resets. In every one of these cases every
+step not yet settled is dropped with its own fate, oldest first, each counted in
+``steps_aborted`` (``aborted:link_lost``, ``aborted:controller_reboot``,
+``aborted:schema_mismatch``); then one ``fault:<reason>`` reports the link event. No
+stale motion is ever replayed.
 
 **Seams.** A few rules sit in methods of their own so that the wire simulator can
-undo exactly one fix in a subclass (``sim/linkmutants.py``, docs/sim.md "Mutants"), as
-:mod:`emulator.mutants` does for the controller: which frames are forwarded
-(:meth:`LinkCore._forwards`), which open steps a PROGRESS settles
-(:meth:`LinkCore._ended_by_progress`), what a released latch settles
-(:meth:`LinkCore._settle_latched`), whether a WATCHDOG FAULT is a new trip
-(:meth:`LinkCore._new_watchdog_trip`), and how an automatic clear ends when the latch
-gains a cause (:meth:`LinkCore._stopping_fault_frame`,
-:meth:`LinkCore._auto_clear_refused`, :meth:`LinkCore._auto_clear_outlived`). The core
-itself holds no test switch.
+undo exactly one fix in a subclass (``sim/linkmutants.py``, docs/sim.md "Mutants"):
+:meth:`LinkCore._forwards`, :meth:`LinkCore._ended_by_progress`,
+:meth:`LinkCore._settle_latched`, :meth:`LinkCore._new_watchdog_trip`,
+:meth:`LinkCore._stopping_fault_frame`, :meth:`LinkCore._auto_clear_refused`,
+:meth:`LinkCore._auto_clear_outlived`. The core itself holds no test switch.
 
 Not thread-safe: one caller at a time (the shell holds its lock around every call).
 """
@@ -431,10 +414,8 @@ class LinkCore:
         """``entry`` (from :meth:`take_write`) went out at ``now`` (``ok``) or its write
         failed (report the failure with :meth:`failed`)."""
         if isinstance(entry.msg, ClearStop):
-            # A STOP asked for while this clear was being written may have reached the
-            # wire first (STOP waits for no other write): it goes out once more, so the
-            # last word the controller hears is STOP (docs/protocol.md, "Latch and
-            # faults": no CLEAR_STOP may reach the wire after a later STOP).
+            # A STOP asked for during this write may have reached the wire first: it
+            # goes out once more, so the last word the controller hears is STOP.
             self._clear_in_write = False
             again, self._stop_after_clear = self._stop_after_clear, None
             if again is not None and entry.conn == self._conn:
@@ -450,8 +431,7 @@ class LinkCore:
         if step is not None:
             step.unwritten -= 1
             if ok:
-                # Counted as they reach the wire: a copy dropped unwritten (a STOP, a lost
-                # link behind a stalled writer) was never sent (found by the simulator).
+                # Counted as they reach the wire: a copy dropped unwritten was never sent.
                 if step.written:
                     self._counters.retries += 1
                 else:
@@ -475,7 +455,7 @@ class LinkCore:
 
     def stop_written(self, stop_id: int, now: float, ok: bool) -> None:
         """The first copy of emergency stop ``stop_id`` (claimed by :meth:`emergency_stop`)
-        was handed to the medium whole at ``now``, or its write failed."""
+        was handed to the medium whole at ``now`` (``ok``), or its write failed."""
         stop = self._pending_stop
         if stop is None or stop.stop_id != stop_id:
             return
@@ -556,9 +536,8 @@ class LinkCore:
         self._counters.reconnects += 1
         self._set_state(LinkState.DISCONNECTED)
         self._heartbeat = None
-        # The backoff is reset by a completed handshake only: a medium that opens and
-        # fails again at once (a CAN bus going bus-off repeatedly, a flapping socket)
-        # backs off like one that cannot be opened.
+        # Only a completed handshake resets the backoff: a medium that opens and fails
+        # at once (bus-off, a flapping socket) backs off like one that cannot open.
         self._reconnect_at = now + self._backoff
         self._drop_all(aborted("link_lost"))
         self._emit(fault("link_lost"))
@@ -616,8 +595,7 @@ class LinkCore:
         self._estop_requested = True
         self._estop_source = source
         self._end_clear(None)
-        # A CLEAR_STOP queued before this STOP must never follow it onto the wire; one
-        # being written now is answered by this STOP once more, after it.
+        # No CLEAR_STOP may follow this STOP onto the wire (see written()).
         self._unqueue(ClearStop)
         if self._clear_in_write:
             self._stop_after_clear = Stop(stop_id, source)
@@ -733,11 +711,9 @@ class LinkCore:
     # -- frames received ------------------------------------------------------------------------
     def on_frame(self, msg: Message, now: float, *, rx_seq: int | None = None) -> bool:
         """A message from the controller, arrived at ``now``. ``rx_seq``: its serial frame
-        counter (``None`` on CAN): the gaps before each frame, counted here frame by frame
-        (not from the decoder's total, which already holds the frames read with it), let
-        the gap a reboot makes be forgiven exactly (docs/protocol.md, Serial framing).
-        Returns whether it is telemetry to forward (every message but a sensor sample
-        outside a session)."""
+        counter (``None`` on CAN), counted frame by frame so that the gap a reboot makes
+        is forgiven exactly (docs/protocol.md, Serial framing). Returns whether it is
+        telemetry to forward (every message but a sensor sample outside a session)."""
         boot_frame = False
         if rx_seq is not None:
             last = self._last_rx_seq
@@ -803,10 +779,8 @@ class LinkCore:
         self._emit(STOPPED)
         clear = self._pending_clear
         if clear is not None and clear.after_stop:
-            # The operator cleared after this STOP: the clear names the STOP's generation,
-            # if the STOP alone raised it since the operator's view (anything else that
-            # joined meanwhile was not reported to them: the clear then names the older
-            # one, and the controller answers LATCH_CHANGED).
+            # The clear names the STOP's generation if the STOP alone raised it since the
+            # operator's view; else the older one (the controller answers LATCH_CHANGED).
             clear.after_stop = False
             base = clear.latch_gen if clear.latch_gen is not None else known
             if base is None and msg.state == ControllerState.FAULT:
@@ -827,9 +801,8 @@ class LinkCore:
             and previous is not None
             and t - previous > self._lost_after_s()
         ):
-            # The timer did not see the silence first (this process was held up, and
-            # the heartbeats queued meanwhile arrive now): the controller's watchdog
-            # has stopped the rover all the same, so the link was lost.
+            # This process was held up: the controller's watchdog has stopped the rover
+            # all the same, so the link was lost.
             self._declare_silence(t - previous)
         self._last_hb_rx = t
         self._hb_rx_gaps.event(t)
@@ -973,13 +946,10 @@ class LinkCore:
         )
 
     def _check_reboot(self, nonce: int, now: float, *, sign: str = "") -> bool:
-        """A HEARTBEAT's or IDENT's boot nonce: the first one known (from either: a new
-        bridge that reads only HEARTBEATs of the old boot before the new boot's IDENT
-        must still tell the reboot), the same boot, or a reboot (handled here).
-        ``sign``: another sign of a reboot that frame showed, on a serial link (an IDENT
-        that restarted the frame counter: a boot's first frame; a HEARTBEAT without the
-        session it had confirmed): a reboot whatever the nonce. A controller that repeats
-        its nonce breaks docs/protocol.md (Handshake 1); its host still tells the reboot."""
+        """A HEARTBEAT's or IDENT's boot nonce: the first one known (from either), the
+        same boot, or a reboot (handled here). ``sign``: another sign of a reboot on a
+        serial link (an IDENT that restarted the frame counter; a HEARTBEAT without the
+        session it had confirmed): a reboot whatever the nonce."""
         if self._boot_nonce is None:
             self._boot_nonce = nonce
             return False
@@ -1165,10 +1135,8 @@ class LinkCore:
 
     def _settle_latched(self) -> None:
         """The controller's latch was released: every step still open here ended when it
-        was set (a latch purges the queue, and no step is accepted while it holds), its
-        STATUS lost. Its outcome is not known: it is reported aborted, with the latch's
-        cause, never completed (a step ahead of it that completes could otherwise be
-        taken for its own completion, docs/sim.md)."""
+        was set (a latch purges the queue), its STATUS lost. It is reported aborted, with
+        the latch's cause, never completed (its outcome is not known)."""
         if not self._in_controller:
             return
         causes = self.latch
@@ -1203,8 +1171,7 @@ class LinkCore:
             if msg.code == FaultCode.WATCHDOG:
                 self._reported.add("watchdog")
                 if self._new_watchdog_trip(msg):
-                    # A trip; the same frame received twice (a CAN frame whose
-                    # acknowledgement the controller missed is sent again) is not two.
+                    # A trip (see _new_watchdog_trip).
                     self._counters.watchdog_trips += 1
                 self._watchdog_counted = True
             self._faults.add(msg.code)
@@ -1217,8 +1184,7 @@ class LinkCore:
 
     def _stopping_cause_reported(self) -> None:
         """A stopping cause was reported now: an operator's clear asked for before this
-        host knew any latch generation (a new bridge, a reboot) was asked for before it,
-        and may not release it by naming the generation learned with it; it is refused
+        host knew any latch generation may not release it; it is refused
         (``fault:latch_changed``), and a new clear releases (docs/protocol.md)."""
         clear = self._pending_clear
         if clear is not None and not clear.auto and clear.latch_gen is None:
@@ -1226,8 +1192,7 @@ class LinkCore:
 
     def _stopping_fault_frame(self, code: int) -> None:
         """A stopping fault other than WATCHDOG was raised: remember it, and end an
-        automatic clear that is out (no copy of it may follow; the next heartbeat would
-        say so 100 ms later, ten copies later)."""
+        automatic clear that is out at once (no copy of it may follow)."""
         self._last_stopping_fault = code
         self._abandon_auto_clear(None)
 

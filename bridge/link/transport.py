@@ -1,15 +1,10 @@
 """Transports to the motor controller: the host's end of the link, with its threads.
 
 ``open_transport(url)`` builds the transport a link URL names
-(:mod:`firmware_proto.linkio.urls`):
-
-- ``can://INTERFACE/CHANNEL[?node=N&bitrate=B]``: any python-can bus, e.g.
-  ``can://socketcan/vcan0?node=1`` or ``can://virtual/rover``
-  (:class:`~bridge.link.can_transport.CanTransport`);
-- anything else goes to pyserial's ``serial_for_url``: a device path (``/dev/ttyACM0``,
-  ``/dev/serial/by-id/...``, ``/dev/rover-motor``, a pty path), ``socket://host:port``,
-  ``rfc2217://...``, ``loop://``; query ``?baud=B`` sets the baud rate (default 115200)
-  (:class:`~bridge.link.serial_transport.SerialTransport`).
+(:mod:`firmware_proto.linkio.urls`; the URLs: docs/bridge.md, "Transports"):
+``can://...`` a :class:`~bridge.link.can_transport.CanTransport`, anything else a
+:class:`~bridge.link.serial_transport.SerialTransport` through pyserial's
+``serial_for_url``.
 
 A transport moves protocol messages, not bytes, through an
 :class:`~firmware_proto.linkio.endpoint.Endpoint` of the link-I/O layer on the host's
@@ -37,13 +32,10 @@ reconnects).
 **Writes** happen on the caller's thread. Ordinary messages are written one at a time, in
 the order their callers got the write lock. STOP has a lock of its own (one STOP at a
 time): it never waits for another message's write, even one stuck in the OS for the
-serial write timeout (a full buffer, a stalled adapter, flow control). On a serial line
-a STOP written while another frame is half-way out cuts that frame: the controller drops
-it as damaged and resynchronises at STOP's leading delimiter, so STOP itself arrives
-whole (docs/protocol.md, Framing); what was cut is sent again by its own rule (a MOTION
-by its retransmission, a heartbeat by the next period) or is moot under the latch. On
-CAN every frame is whole by construction and STOP goes to the bus ahead of any frame of
-ours still waiting for the write lock.
+serial write timeout. On a serial line a STOP may cut a frame half-way out; the
+controller drops that frame and resynchronises at STOP's leading delimiter, so STOP
+arrives whole (docs/bridge.md, "What only shows on the wire"). On CAN STOP goes to the
+bus ahead of any frame of ours still waiting for the write lock.
 
 **In lockstep** (a whole mission in virtual time, docs/sim.md) a transport is opened with
 ``threads=False``: nothing reads until its owner calls :meth:`Transport.pump` once per

@@ -3,14 +3,13 @@ no I/O (docs/onboard.md): the approved plan comes up once, runs here step after 
 drift stops the wheels where they are, not a round trip later.
 
 :class:`OnboardCore` is driven by events, each with the time it happened, s, on one
-clock that the estimates' stamps are on too (the program: the monotonic clock, with the
-stamps moved onto it, so that no step of the system clock moves a deadline;
-bridge/onboard/node.py):
+clock that the estimates' stamps are on too (the program's monotonic clock, so that no
+step of the system clock moves a deadline; bridge/onboard/node.py):
 
 - :meth:`~OnboardCore.on_uplink`: an uplink envelope (a plan or a cancel) as received;
 - :meth:`~OnboardCore.on_status`: a ``/command_status`` string of the bridge;
-- :meth:`~OnboardCore.on_estimate`: the pose estimate (:class:`~bridge.onboard.ekf.Estimate`,
-  the EKF of encoders, IMU and POSE), at every ``odom`` and POSE;
+- :meth:`~OnboardCore.on_estimate`: the pose estimate (:class:`~bridge.onboard.ekf.Estimate`),
+  at every ``odom`` and POSE;
 - :meth:`~OnboardCore.on_ground_stop`: an emergency stop heard on ``emergency_stop``
   (the ground's; the core's own comes back too and finds nothing to stop);
 - :meth:`~OnboardCore.tick`: the passing of time, due at :meth:`~OnboardCore.next_deadline`.
@@ -19,72 +18,44 @@ What it decides comes out of :meth:`~OnboardCore.take_actions`, in order:
 :class:`SendStop` (always first of a batch: a STOP waits for nothing), :class:`SendStep`,
 :class:`SendAck`, :class:`SayStatus` and :class:`SendReport`.
 
-**Uplinks.** A plan is refused, with its reason on the ack and ``plan_refused:<reason>``
-on ``/command_status``, and nothing driven, when it is malformed, out of range,
-unauthenticated or its prediction does not fit its steps
-(:func:`firmware_proto.model.uplink.decode_uplink`); when it was signed for another boot
-of the onboard program (``other_boot``: :attr:`OnboardCore.boot` is random at each start
-and named in every report, so nothing signed before a restart runs after it); when its
-id is not newer than the last plan taken or older than ``min_plan_id`` (``stale``: a
-replay); when the ground cancelled every plan up to its id (``cancelled``); when another
-plan is armed or running (``busy``); when the latch is held by a STOP the core did not
-send (``latched``: the ground's, an operator's, a STOP step); when no ground-seeing
-POSE fix is younger than ``fix_fresh_s`` (``no_fix``: drift control needs one,
-docs/onboard.md); and when the plan's start is further than its drift limits from that
-estimate (``start_mismatch``). ``busy``, ``latched`` and ``no_fix`` hold for now (the
-ground resends); the others for good. A copy of a plan already taken is answered
-``duplicate`` with where it is, and runs nothing again: the ground retransmits until it
-hears an answer, so copies are normal. Each id runs at most once.
+**Uplinks** (the refusal reasons: docs/onboard.md, "The uplink"). A refused plan is
+answered on the ack and as ``plan_refused:<reason>`` on ``/command_status``, and nothing
+is driven. ``busy``, ``latched`` and ``no_fix`` hold for now (the ground resends); the
+others for good. :attr:`OnboardCore.boot` is random at each start and a plan must be
+signed for it, so nothing signed before a restart runs after it. A copy of a plan
+already taken is answered ``duplicate`` and runs nothing again: each id runs at most
+once.
 
-**Running.** A plan taken while the latch is held by the core's own STOP (the guard's, a
-cancel's, a failed step's) waits ``armed`` until ``cleared`` (the ground releases the
-latch; the guard never does), at most ``arm_timeout_s``. Any STOP the core did not send
-(heard on ``emergency_stop``, or a ``stopped`` / ``aborted:stop`` that no STOP of its
-own explains) ends a running plan, drops an armed one, and raises the cancel floor to
-the newest id taken, so nothing taken before that STOP ever starts after it.
+**Running.** A plan taken while the latch is held by the core's own STOP waits ``armed``
+until ``cleared`` (the guard never releases the latch), at most ``arm_timeout_s``. Any
+STOP the core did not send (heard on ``emergency_stop``, or a ``stopped`` /
+``aborted:stop`` no STOP of its own explains) ends a running plan, drops an armed one,
+and raises the cancel floor to the newest id taken, so nothing taken before that STOP
+ever starts after it.
 
-A running plan's steps go out one at a time, each as soon as the one before it is
-``completed``: no round trip between them, and every status is the fate of the one step
-outstanding (``/command_status`` names no step). A step starts, for the guard's
-prediction, when its wheels begin to move (the stamp of the last estimate at rest
-before the first in motion, or its publication if later; its prediction waits at its
-start until then): not when its ``accepted`` callback runs, which a busy computer runs
-late, and a late start turned a correct turn into a heading error. Any other end of a
-step (``rejected:``, ``aborted:``, a fault but a lost sensor's, no ``completed`` within
-1.5 times its predicted duration plus ``step_margin_s``) ends the plan with STOP; so
-does a status that cannot be the fate of the step outstanding, a second ``accepted`` or
-a ``completed`` before its ``accepted`` (a step someone else published while the plan
-runs, which would otherwise advance the plan past a step that never ran:
-``foreign_step``).
+Steps go out one at a time, each as soon as the one before it is ``completed``: every
+status is the fate of the one step outstanding (``/command_status`` names no step). For
+the guard's prediction a step starts when its wheels begin to move, not when its
+``accepted`` callback runs (a busy computer runs it late). Any other end of a step
+(``rejected:``, ``aborted:``, a fault but a lost sensor's, no ``completed`` within 1.5
+times its predicted duration plus ``step_margin_s``) ends the plan with STOP; so does a
+status that cannot be the fate of the step outstanding (``foreign_step``).
 
 **The guard.** Each estimate is compared with the prediction for the same moment of the
-same step (the uplink's samples are tagged with their step and the twin time since it
-started; ``time_scale`` turns the rover's seconds into the twin's). ``persistence``
-consecutive estimates beyond the uplink's limits (0.25 m, 12 deg) and the core sends
-STOP at once, drops the rest of the plan and reports where (the step, the estimate, the
-prediction, the drift). The estimate is the filter's, so the guard keeps guarding on
-encoders and IMU through a short POSE gap; but drift control needs a sensor that sees
-the ground, so a plan stops (outcome ``blind``) when, since the last POSE fix, the
-estimate moved as far as the plan's linear limit or the wheels moved for ``pose_gap_s``,
-or the estimate's 1-sigma position error reaches the limit. The distance is the
-filter's, by the samples' own stamps, not the order they were read in, and it stops the
-plan when no POSE brought it back below the limit within ``unseen_grace_s`` (after a
-stall of the program the POSE that covers the motion may be queued behind the
-odometry). No estimate for ``blind_s`` while a step runs: STOP (outcome ``blind``).
+same step; ``persistence`` consecutive estimates beyond the uplink's limits and the core
+sends STOP at once, drops the rest of the plan and reports where. Drift control needs a
+sensor that sees the ground, so a plan also stops (outcome ``blind``) when the POSE fix
+is too old for the motion since it (:meth:`OnboardCore._sees_ground`), when no estimate
+came for ``blind_s`` while a step runs, or when an estimate is not finite.
 
-**Its STOP is confirmed.** Every STOP of the core's (the guard's, a failed step's, a
-cancel's) goes out again every ``stop_repeat_s`` until the bridge answers ``stopped``,
-at most ``stop_repeats`` more copies (a STOP lost on the way must not let a step run to
-its end); ``cleared`` ends the wait. Its copies heard back on ``emergency_stop`` within
+**Its STOP is confirmed.** Every STOP of the core's goes out again every
+``stop_repeat_s`` until the bridge answers ``stopped`` (at most ``stop_repeats`` more
+copies); ``cleared`` ends the wait. Its copies heard back on ``emergency_stop`` within
 ``echo_window_s`` are its own; any other STOP is someone else's.
 
-**After any end** the core waits for the rover to stand (the estimate's twist below
-``rest_speed_mps`` and ``rest_yaw_rate_rad_s`` for ``rest_hold_s``, at most
-``rest_timeout_s``) and reports the estimate there with its covariance, how far the
-rover moved from where the plan ended and how long it took. A ground STOP
-(``emergency_stop``, or ``stopped`` / ``aborted:stop`` that the core did not cause)
-ends a running plan at once; a cancel stops it and ends it. An estimate that is not
-finite while a step runs stops it at once (outcome ``blind``).
+**After any end** the core waits for the rover to stand (at most ``rest_timeout_s``) and
+reports the estimate there with its covariance, how far the rover moved from where the
+plan ended and how long it took.
 
 Every event ends with a snapshot report of the plan
 (:class:`~firmware_proto.model.downlink.OnboardReport`), and the latest goes out again every
@@ -207,18 +178,15 @@ class OnboardConfig:
         fix_fresh_s: a plan starts only when the estimate holds a POSE fix younger than
             this (``no_fix`` otherwise).
         stop_repeat_s, stop_repeats: the core's STOP goes out again this often, at most
-            this many more times, until the bridge answers ``stopped`` (a STOP lost on
-            the way must not let the step run to its end).
+            this many more times, until the bridge answers ``stopped``.
         echo_window_s: the core's own STOP heard back on ``emergency_stop``, or a
             ``stopped`` that answers one of its copies, comes within this of the copy
             (later: someone else's STOP).
         pose_gap_s: while a step runs and the wheels move, the estimate's last POSE fix
-            older than this: STOP (``blind``; drift control needs a sensor that sees
-            the ground). The distance driven since that fix is bounded too: by the
-            plan's linear limit, by the filter's stamps (:attr:`Estimate.unseen_m`).
-        unseen_grace_s: the linear limit driven unseen stops the plan when no POSE has
-            brought it back below within this, s (after a stall of the program, the
-            POSE that covers the motion may be read just behind the odometry).
+            older than this: STOP (``blind``).
+        unseen_grace_s: the linear limit driven unseen (:attr:`Estimate.unseen_m`) stops
+            the plan when no POSE has brought it back below within this, s (after a
+            stall, the POSE that covers the motion may be read just behind the odometry).
         start_speed_mps, start_yaw_rate_rad_s: a step has started (for the guard's
             prediction) when the estimate's speed or turn rate first exceeds these after
             it went out (above the rest thresholds: a rover settling after a slip is
@@ -451,8 +419,7 @@ class OnboardCore:
     def on_uplink(self, text: str | bytes, now: float) -> None:
         """An uplink envelope arrived (a plan or a cancel): :func:`screen_uplink`, then
         :meth:`on_screened` and, unless that answered it, :func:`decode_screened` and
-        :meth:`on_decoded`. The program runs the two pure steps outside its lock (a full
-        decode of a large plan takes tens of milliseconds)."""
+        :meth:`on_decoded`. The program runs the two pure steps outside its lock."""
         screened = screen_uplink(text, self.config.token)
         if self.on_screened(screened, now):
             return
@@ -651,22 +618,18 @@ class OnboardCore:
             return
         if text == ACCEPTED:
             if plan.accepted:
-                # One step outstanding, one ``accepted``: a second is a step someone
-                # else published, and the statuses that follow can no longer be told
-                # apart from this plan's.
+                # A second ``accepted`` for the one step outstanding is another's step.
                 self._foreign_step(plan, "a second 'accepted' for one step", now)
                 return
-            # Its start stays as it is (its publication, or the motion seen since): the
-            # callback's time is that plus however late this computer runs it.
+            # The callback's time is the start plus however late this computer runs it.
             plan.accepted = True
             plan.status = text
             self._report("step", now)
             return
         if text == COMPLETED:
             if not plan.accepted:
-                # Its own step is accepted before it completes: this one is another's
-                # (or a copy of the last), and would advance the plan past a step that
-                # never ran.
+                # Another's step (or a repeated status): it would advance the plan past
+                # a step that never ran.
                 self._foreign_step(plan, "'completed' before the step was accepted", now)
                 return
             plan.status = text
@@ -700,7 +663,7 @@ class OnboardCore:
 
     def on_ground_stop(self, now: float) -> None:
         """``true`` heard on ``emergency_stop``: the core's own STOP heard back (one per
-        STOP it sent), else a STOP of someone else's (the ground's, an operator's)."""
+        STOP it sent), else someone else's (the ground's, an operator's)."""
         echoes = self._own_echoes
         while echoes and now - echoes[0] > self.config.echo_window_s:
             echoes.popleft()  # an echo that never came (a copy lost on the way)
@@ -920,11 +883,9 @@ class OnboardCore:
         return sign * rate >= threshold
 
     def _seen_start(self, plan: _Plan, est: Estimate) -> None:
-        """The step's start is when its wheels began to move after it went out: the
-        stamp of the last estimate not moving its way (above ``start_speed_mps`` or
-        ``start_yaw_rate_rad_s`` in its direction: a rover still settling after a slip
-        is not starting) before the first that does, or its publication if later; not
-        the time a callback ran."""
+        """The step's start: the stamp of the last estimate not moving its way (above
+        ``start_speed_mps`` or ``start_yaw_rate_rad_s`` in its direction) before the first
+        that does, or its publication if later."""
         if plan.moved or est.stamp_s < plan.published_s:
             return
         if not self._starting(plan, est):
@@ -1092,7 +1053,7 @@ def screen_uplink(text: str | bytes, token: str | None) -> Screened:
 def decode_screened(
     screened: Screened, rover: RoverDescription
 ) -> PlanUplink | CancelUplink | UplinkError:
-    """The full check of a screened body (pure; tens of milliseconds for a large plan)."""
+    """The full check of a screened body (pure; the slow step for a large plan)."""
     try:
         return decode_body(screened.body, rover=rover)
     except UplinkError as exc:

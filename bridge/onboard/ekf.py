@@ -8,43 +8,28 @@ State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
   the rover's own frame (forward, left, turn), applied at the estimate's heading.
   Process noise grows with the motion (``forward_sigma_per_m``, ``lateral_sigma_per_m``
   of the distance, ``yaw_sigma_per_rad`` of the turn, plus floors): encoders cannot see
-  slip, so the filter must not trust them more than slip allows, or the guard would see
-  a slip late.
-- **Correct** with every POSE, at the time it was measured (its stamp is older than the
-  last ``odom``: the sensor's latency): the filter goes back to its state at that stamp
-  (a short history is kept), applies the correction there, and replays the motion since.
-  A POSE that falls between two ``odom`` samples splits the motion between them at its
-  stamp (in proportion to the time), so a sparse odometry (a backlog the bridge's queue
-  thinned) is not applied twice. A POSE newer than the newest ``odom`` waits for the
-  odometry to pass its stamp (a backlog read after a stall of the program may hand the
-  POSE over before the ``odom`` samples that lead up to it: applied at once, it would
-  have the motion it already holds added again); when the POSE runs ``future_hold_s``
-  ahead of the odometry, the odometry is silent, and the waiting POSEs are applied at
-  the newest state.
-  A POSE older than the history is dropped and counted: applied at the oldest state
-  kept, it would pull the estimate back to where the rover was.
-  An innovation far outside its covariance (squared Mahalanobis distance over
-  ``gate_chi2``) is either the rover slipping more than the process noise allows or one
-  bad fix: it is held, not applied. The next POSE decides: one that agrees with it (its
-  innovation within ``gate_chi2`` of the held one's) confirms the slip, and the
-  covariance is inflated by the innovation first, so the estimate follows the
-  ground-seeing sensor at once instead of creeping towards it; one that agrees with the
-  filter makes the held fix an outlier, dropped and counted (:attr:`PoseEkf.outliers`).
-  So one bad fix never moves the estimate, and a slip costs one POSE period.
+  slip.
+- **Correct** with every POSE at its own stamp (older than the last ``odom``: the
+  sensor's latency): the filter goes back to its state at that stamp (a short history
+  is kept), applies the correction there, and replays the motion since. A POSE between
+  two ``odom`` samples splits the motion at its stamp; one newer than the newest
+  ``odom`` waits for the odometry to pass its stamp (:meth:`PoseEkf._wait`); one older
+  than the history is dropped and counted.
+  An innovation over ``gate_chi2`` (squared Mahalanobis distance) is a slip or one bad
+  fix: it is held, and the next POSE decides. One that agrees with it confirms the slip
+  (the covariance is inflated by the innovation first, so the estimate goes to the
+  sensor at once); one that agrees with the filter makes the held fix an outlier,
+  dropped and counted (:attr:`PoseEkf.outliers`). So one bad fix never moves the
+  estimate, and a slip costs one POSE period.
 - Until the first POSE (or :meth:`PoseEkf.reset` with a known pose) the filter has no
   map pose; it only follows ``odom`` to be ready.
 - **Bad input loses nothing.** An ``odom`` sample or a POSE that is not finite, a POSE
   covariance that is not symmetric positive definite, is refused and counted
   (:attr:`PoseEkf.rejected`) and changes nothing (not even the POSE's age). Should the
   state itself ever stop being finite, the filter forgets its map pose
-  (:attr:`PoseEkf.poisoned`): no estimate is better than a wrong one, and the guard
-  stops a plan that has none.
+  (:attr:`PoseEkf.poisoned`): no estimate is better than a wrong one.
 
-Numpy, not filterpy: a 3-state filter is a dozen lines of matrix algebra; what it needs
-beyond them (the delayed measurement replayed through a history, heading residuals
-wrapped to +-pi, the innovation-driven inflation) filterpy's ``ExtendedKalmanFilter``
-does not do, and filterpy (unmaintained since 2018) would bring scipy and matplotlib to
-the rover's computer for nothing. numpy is already the project's dependency.
+Numpy, not filterpy: docs/onboard.md, "The estimate", says why.
 
 Pure: no I/O, no clock (stamps come with the samples), no thread; not thread-safe.
 """
@@ -77,13 +62,12 @@ class EkfConfig:
         floor_m, floor_rad: noise added to every prediction (m, rad).
         gate_chi2: squared Mahalanobis distance of a POSE innovation above which the
             covariance is inflated by it first (3 degrees of freedom; 16.3 is 99.9 %).
-        history_s: how far back a POSE may be applied, s: the wire's oldest POSE (its
-            ``age_4ms`` field, at most 1.02 s) plus the bridge's and ROS's delivery,
-            with room. An older POSE is dropped and counted (:attr:`PoseEkf.too_old`).
+        history_s: how far back a POSE may be applied, s: at least the wire's oldest
+            POSE (``age_4ms`` field) plus the delivery. An older POSE is dropped and
+            counted (:attr:`PoseEkf.too_old`).
         max_step_m, max_turn_rad: an ``odom`` motion larger than these between two
-            samples is no motion but a new odometry frame (the bridge restarted, its
-            odometry reset): the filter re-bases on it (as the bridge's own odometry does
-            with ``MAX_PLAUSIBLE_STEP_M``).
+            samples is no motion but a new odometry frame (the bridge restarted): the
+            filter re-bases on it.
         future_hold_s: how far a POSE may run ahead of the newest ``odom`` while it
             waits for the odometry to pass its stamp, s; further, the odometry is taken
             for silent and the waiting POSEs are applied at the newest state.
@@ -336,7 +320,8 @@ class PoseEkf:
             self._take(stamp_s, z, r)
 
     def _wait(self, stamp_s: float, z: Matrix, r: Matrix) -> None:
-        """A POSE newer than the newest ``odom``: it waits for the odometry to pass it,
+        """A POSE newer than the newest ``odom``: it waits for the odometry to pass it
+        (a backlog may hand the POSE over before the ``odom`` that leads up to it),
         unless it runs ``future_hold_s`` ahead (the odometry is silent: all waiting are
         applied at the newest state) or too many wait (the oldest is)."""
         waiting = self._waiting

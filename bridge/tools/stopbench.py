@@ -22,16 +22,11 @@ controller or the emulator. Per trial it
    step, so the rover does not move).
 
 The link is loaded throughout: the motion queue is full and telemetry runs at
-``telemetry_hz`` (100 Hz by default, set with SET_PARAM and put back to the protocol's
-default at the end); on CAN a second sender floods the bus with frames of lower
-priority than every frame of the protocol (see :class:`FloodConfig`), so that STOP must
-win arbitration. python-can's ``virtual`` bus and SocketCAN's ``vcan`` have no
-arbitration (frames are queued in send order); only a real bus with the flood coming
-from a second adapter makes it contention. The report says which it was.
-
-Timing is measured on the host: it includes the host's write and the reader thread's
-wake-up, as any host would see it. The controller's own account of each stop (STOPPED
-``duration_ms`` and ``distance_mm``) is kept beside it.
+``telemetry_hz`` (set with SET_PARAM, put back to the protocol's default at the end); on
+CAN a second sender floods the bus with frames of lower priority than every frame of
+the protocol (:class:`FloodConfig`; only a real bus makes that contention,
+docs/bench.md). Timing is on the host clock; the controller's own account of each stop
+(STOPPED ``duration_ms`` and ``distance_mm``) is kept beside it.
 """
 
 from __future__ import annotations
@@ -636,9 +631,8 @@ class StopBench:
         out["stopped_ms"] = (stopped_received.arrived - t0) * 1e3
         out["controller_duration_ms"] = stopped.duration_ms
         out["controller_distance_mm"] = stopped.distance_mm
-        # Wheel speeds reported after STOP_ACK, in arrival order: they describe the
-        # controller after the STOP (on CAN the first may have waited in the controller's
-        # transmit queue behind the higher-priority STOP_ACK, so it is not judged).
+        # Wheel speeds after STOP_ACK, in arrival order (on CAN the first may have been
+        # queued before the STOP, so it is not judged).
         _, zero = self._expect(
             WheelSpeeds,
             lambda w: w.left_mm_s == 0 and w.right_mm_s == 0,
