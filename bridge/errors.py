@@ -19,8 +19,6 @@ Everything this package raises derives from :class:`BridgeError`::
           +-- RuleNotRunError   a rule needs what the device does not offer (a control
                                 port, a serial line): reported "not run", never passed
 
-Parts of the bridge add their own subclasses of :class:`BridgeError` beside
-:class:`RosPortError`; this root stays the one thing callers need to catch.
 """
 
 from __future__ import annotations
@@ -55,9 +53,7 @@ class TransportError(BridgeError, LinkError):
 class TransportUrlError(TransportError, LinkUrlError):
     """A transport URL is malformed (unknown scheme, missing host or port, bad option).
 
-    Permanent: raised when the transport is built, before anything is opened, and no
-    reconnect can fix it. Everything that can change by itself (a device not there yet,
-    a refused connection, a bus that is down) is a plain :class:`TransportError`.
+    Permanent: raised when the transport is built, before anything is opened.
     """
 
 

@@ -1,32 +1,20 @@
 """CAN transport: protocol frames on any python-can bus, through the link-I/O layer's CAN
 endpoint on the host's side (:class:`~firmware_proto.linkio.can_endpoint.CanEndpoint`).
 
-``can://INTERFACE/CHANNEL?node=N``: ``socketcan`` on Linux (``vcan0`` in CI, a real
-adapter such as ``rovercan0`` on the rover), ``virtual`` in-process, any other python-can
-interface by name. Other query options go to ``can.Bus`` (e.g. ``bitrate=500000``).
-Frames of other nodes and our own frames echoed back are ignored.
+``can://INTERFACE/CHANNEL?node=N``: ``socketcan``, ``virtual`` or any other python-can
+interface by name; other query options go to ``can.Bus``. Frames of other nodes and our
+own frames echoed back are ignored.
 
-**Bus health.** A CAN controller counts transmit and receive errors and moves between
-the fault-confinement states *error-active*, *error-warning* (96 errors or more),
-*error-passive* (128 or more) and *bus-off* (256 transmit errors: it leaves the bus).
-SocketCAN reports these as error frames (``linux/can/error.h``: the ``CAN_ERR_FLAG`` id
-flag, class bits in the id, details in the payload), which python-can delivers with
-``is_error_frame`` set; a few other interfaces report ``bus.state`` instead. Both are read
-(:func:`~firmware_proto.linkio.can_endpoint.decode_error_frame` is pure):
+**Bus health** (docs/bridge.md, "Transports"), from SocketCAN error frames or
+``bus.state`` (:func:`~firmware_proto.linkio.can_endpoint.decode_error_frame` is pure):
+error-warning and error-passive change :attr:`CanTransport.medium_state`, are logged
+once and counted, and the link stays up; bus-off and a failed send are a transport
+error (the link reconnects); other error frames are counted in
+:attr:`CanTransport.error_frames` and logged at DEBUG.
 
-- warning, passive, and the return to active: :attr:`CanTransport.medium_state` changes,
-  the transition is logged once and counted, and the link stays up (``/diagnostics``
-  shows WARN while the bus is not error-active);
-- bus-off (an error frame with ``CAN_ERR_BUSOFF``, or ``bus.state`` ERROR), and a send
-  that fails: a transport error, so the link reports ``fault:link_lost``, reconnects with
-  backoff and shakes hands again;
-- other error frames (lost arbitration, protocol violations, no ACK, transceiver,
-  controller overflows): counted in :attr:`CanTransport.error_frames`, logged at DEBUG.
-
-Errors, and which are retried: a malformed URL, a node id outside 1..15 and an
-interface python-can does not know are :class:`~bridge.errors.TransportUrlError` from
-the constructor (permanent); a bus that cannot be opened (adapter absent, interface down,
-no SocketCAN in the kernel), bus-off and failed sends are retried by the link.
+A malformed URL, a node id outside 1..15 and an interface python-can does not know are
+:class:`~bridge.errors.TransportUrlError` from the constructor (permanent); a bus that
+cannot be opened, bus-off and failed sends are retried by the link.
 """
 
 from __future__ import annotations

@@ -12,13 +12,10 @@ and returns the lines to print:
   errors, resyncs: **wrong baud suspected**);
 - the handshake is done (firmware, boot nonce, controller state), and later the link
   lost (why) and back;
-- the link flaps: heartbeats missed again and again while frames keep arriving. Bytes
-  that do not frame (CRC errors, resyncs) among them, at least :data:`GARBAGE_SHARE` of
-  what arrived around the losses, are what a wrong baud looks like (**wrong baud
-  suspected**); without them the link drops out or is slower than the controller's
-  telemetry (a paced controller, a saturated line), and it is said so. A loss during a
-  stall of this process (the bridge itself held up: ``stalls``) says nothing about the
-  link and is not counted; neither does silence (a cut, a frozen controller);
+- the link flaps: heartbeats missed again and again while frames keep arriving; with
+  at least :data:`GARBAGE_SHARE` of bytes that do not frame around the losses, **wrong
+  baud suspected**, else a link that drops out or is too slow. A loss during a stall of
+  this process, or in silence, is not counted;
 - a protocol or schema mismatch.
 
 Pure: no I/O, no clock of its own. :attr:`LinkNarrator.reached` tells whether a
@@ -194,9 +191,8 @@ class LinkNarrator:
                 and diag.last_error in self._errors_said
             ):
                 out.append(f"link failed: {diag.last_error}; reconnecting")
-        # A link that loses the controller's heartbeats while its frames keep coming drops
-        # out or is slower than what the controller sends: the same state may come and go
-        # between two snapshots, so count the losses, not the states seen.
+        # The same state may come and go between two snapshots: count the losses, not
+        # the states seen.
         garbage = diag.crc_errors + diag.resyncs
         if diag.heartbeat_losses > self._last_losses:
             frames = diag.rx_frames - self._last_frames

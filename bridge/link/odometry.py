@@ -7,18 +7,15 @@ differencing over-reads yaw; the gyro does not. Without IMU samples for
 ``imu_timeout_s``, heading falls back to the encoder difference scaled by the rover
 description's calibrated turn efficiency. Covariances grow with distance and time.
 
-Across a controller reboot the pose is continuous: the encoder counts restart at 0, and
+Across a controller reboot the pose is continuous:
 :meth:`OdometryEstimator.observe_boot`, told the link's count of reboots
-(:attr:`bridge.link.linkcore.LinkCore.reboots`: a new boot nonce, or a sign of a reboot
-that repeats the nonce), re-bases on the first reading of the new boot instead of
-counting the jump as motion (docs/protocol.md, Telemetry). A jump larger than
-:data:`MAX_PLAUSIBLE_STEP_M` between two readings is taken for a counter reset too (a
-reboot the link has not told yet).
+(:attr:`bridge.link.linkcore.LinkCore.reboots`), re-bases on the first reading of the
+new boot instead of counting the jump as motion. A jump larger than
+:data:`MAX_PLAUSIBLE_STEP_M` between two readings is taken for a counter reset too.
 
-Encoders cannot see slip: ``/odom`` says the rover went as far as its wheels turned.
-The controller's POSE (visual odometry or lab tracking) does see it;
-:func:`ground_pose` turns it into a pose in the map frame with its own covariance.
-That second topic is what drift control must use (docs/architecture.md, Contracts 7).
+Encoders cannot see slip; the controller's POSE does: :func:`ground_pose` turns it into
+a pose in the map frame with its own covariance, what drift control must use
+(docs/architecture.md, Contracts 7).
 
 Pure: no I/O, no threads, no ROS. Times are the controller's clock (``t_ms``) for
 integration and the host's for stamps.
@@ -112,10 +109,9 @@ class OdometryEstimator:
         self._imu_yaw_delta = 0.0
 
     def observe_boot(self, boot: int) -> bool:
-        """Which boot of the controller the telemetry is from, after every IDENT and
-        HEARTBEAT: the link's count of reboots (or its boot nonce, for a controller that
-        never repeats one). A change (not the first seen) means its counts and clock
-        restarted: re-base on the next reading, keeping the pose. Returns whether it
+        """Which boot of the controller the telemetry is from (the link's count of
+        reboots, or its boot nonce), after every IDENT and HEARTBEAT. A change (not the
+        first seen): re-base on the next reading, keeping the pose. Returns whether it
         re-based."""
         previous, self._boot = self._boot, boot
         if previous is None or previous == boot:

@@ -2,25 +2,15 @@
 link-I/O layer's serial endpoint on the host's side
 (:class:`~firmware_proto.linkio.serial_endpoint.SerialEndpoint`).
 
-Opens a real device (``/dev/ttyACM0``, ``/dev/serial/by-id/...``, ``/dev/rover-motor``),
-a pty path, or any pyserial URL (``socket://HOST:PORT``, ``rfc2217://HOST:PORT``,
-``loop://``, ``spy://DEVICE``, ``alt://``, ``hwgrep://``, ``cp2110://``). ``?baud=N`` in
-the URL sets the rate (default 115200; a pty or a socket ignores it); it is our own
-parameter and is stripped before the URL goes to pyserial, which gets the rest verbatim
-(``loop://`` stays ``loop://``, ``spy:///dev/x?raw`` stays ``spy:///dev/x?raw``). Devices
-are opened exclusively where the platform allows, so two bridges cannot share a
-controller.
+Opens a device path, a pty path, or any pyserial URL. ``?baud=N`` in the URL sets the
+rate (default 115200); it is our own parameter and is stripped before the URL goes to
+pyserial, which gets the rest verbatim. Devices are opened exclusively where the
+platform allows, so two bridges cannot share a controller.
 
-Errors, and which are retried:
-
-- **permanent**, :class:`~bridge.errors.TransportUrlError` from the constructor (so from
-  :func:`~bridge.link.transport.open_transport`, before anything is opened): a scheme pyserial
-  does not know, ``socket://`` or ``rfc2217://`` without ``HOST:PORT``, ``spy://``
-  without a device, an option the scheme does not take, a baud rate that is not a
-  positive integer. No reconnect can fix these; the link refuses to start with them.
-- **retryable**, :class:`~bridge.errors.TransportError` from ``open``, ``send`` or the
-  reader: the device is not there (yet), busy or not permitted, the connection is
-  refused or drops, the device disappears. The link reconnects with backoff.
+Errors (docs/bridge.md, "Which errors are retried"): a malformed URL is a permanent
+:class:`~bridge.errors.TransportUrlError` from the constructor, before anything is
+opened; everything else is a :class:`~bridge.errors.TransportError` from ``open``,
+``send`` or the reader, and the link reconnects with backoff.
 """
 
 from __future__ import annotations

@@ -15,9 +15,7 @@ Threads (besides the ROS port's own, docs/architecture.md):
   ground's STOP never waits behind a pose. Each callback feeds the core under one lock
   and publishes what the core decided, STOP first, from the same thread: a drift STOP
   leaves in the callback of the estimate that confirmed it. A sample that leaves the
-  estimate as it was (a POSE that waits for the odometry, is held or is refused) feeds
-  and publishes nothing (:meth:`PoseEkf.take_estimate`): the guard's persistence counts
-  estimates, each once;
+  estimate as it was feeds nothing (:meth:`PoseEkf.take_estimate`);
 - ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline (step timeouts,
   the armed wait, blindness, rest, the periodic report), at least every
   :data:`TICK_MAX_S`, and beats the stall monitor. A turn that comes
@@ -26,12 +24,11 @@ Threads (besides the ROS port's own, docs/architecture.md):
   read before the blind check judges their absence. An exception in a turn is logged
   and the thread goes on; :data:`TIMER_FAILURES_STOP` in a row stop the rover.
 
-**Clocks.** The core runs on the monotonic clock: every deadline (a step's timeout,
-blindness, the armed wait, the STOP's copies) is immune to a step of the system clock
-(NTP): one backwards would disable them, one forwards fire them falsely. The bridge
-stamps ``odom`` and ``odom_ground`` with ROS time (the system clock): each estimate's
-stamps are moved into the monotonic clock by the two clocks' offset as it is handed to
-the core, and each report's times back into ROS time as it is published.
+**Clocks.** The core runs on the monotonic clock, so that no step of the system clock
+(NTP) disables or fires a deadline. The bridge stamps ``odom`` and ``odom_ground`` with
+ROS time (the system clock): each estimate's stamps are moved into the monotonic clock
+by the two clocks' offset as it is handed to the core, and each report's times back
+into ROS time as it is published.
 
 Not a ROS node class of rclpy: the port is the seam (docs/rosport.md), so the same node
 runs on ``inprocess`` in the tests (in lockstep: :meth:`OnboardNode.step` instead of the
@@ -205,10 +202,9 @@ class OnboardNode:
             self._feed("on_ground_stop")
 
     def _on_uplink(self, msg: String) -> None:
-        """An uplink: its envelope and tag checked and its id read (cheap), and a copy
-        of a plan already taken answered, before the full decode; the two pure steps run
-        outside the lock, so that a large plan (tens of milliseconds to decode), or a
-        flood of junk, never holds up the estimates, the timer or a STOP."""
+        """An uplink: screened (cheap), then decoded; the two pure steps run outside the
+        lock, so that a large plan or a flood of junk never holds up the estimates, the
+        timer or a STOP."""
         screened = screen_uplink(msg.data, self.core.config.token)
         with self._lock:
             answered = self.core.on_screened(screened, self._mono())

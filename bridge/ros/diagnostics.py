@@ -4,23 +4,13 @@
 snapshot into a
 ``diagnostic_msgs/DiagnosticArray`` with three statuses:
 
-- ``rover_bridge: link``: state, device, round-trip time, CRC/resync/drop/retry counts,
-  heartbeat age and missed beats, reconnects, receive-queue overflow, last STOP latency
-  (sent -> acknowledged), the medium's own state and error count (a CAN bus's
-  ``error_active`` ... ``bus_off``), the longest and 99th-percentile gaps between
-  heartbeats received and sent, and this process's stalls (docs/realtime.md). ERROR
-  when the link is down, lost or mismatched; WARN while handshaking, while the medium
-  reports trouble (a CAN bus error-warning or error-passive) or after no-ack faults.
-- ``rover_bridge: controller``: controller state, latch and what holds it, the fault
-  conditions active now, watchdog trips, queue, firmware, schema hashes, boot nonce,
-  stopping distance. ERROR while a stopping fault's condition is active or a fault holds
-  the latch; WARN while latched by a STOP or the watchdog, or on a reporting fault.
-- ``rover_bridge: input``: steps refused, ``rejected_total`` and one
-  ``rejected_<reason>`` per reason seen (the node's checks of ``wheel_instructions`` and
-  the link's and controller's refusals), counts since start; ``last_statuses``: the
-  last :data:`RECENT_STATUSES` ``/command_status`` strings, oldest first, comma-separated
-  (what ``rover status`` shows a reader who was not listening). Always OK: a refusal is
-  the answer to bad input, not a fault of the bridge.
+- ``rover_bridge: link`` and ``rover_bridge: controller``: their values and levels are
+  docs/bridge.md, "Diagnostics";
+- ``rover_bridge: input``: ``rejected_total`` and one ``rejected_<reason>`` per reason
+  seen (the node's, the link's and the controller's refusals), counts since start;
+  ``last_statuses``: the last :data:`RECENT_STATUSES` ``/command_status`` strings, oldest
+  first, comma-separated. Always OK: a refusal is the answer to bad input, not a fault
+  of the bridge.
 
 Pure: builds messages, publishes nothing.
 """

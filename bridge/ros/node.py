@@ -27,16 +27,12 @@ Publishes:
   time; what drift control must use, because encoders cannot see slip.
 - ``/tf`` ``tf2_msgs/TFMessage`` with ``publish_tf`` (the default), on every ENCODERS
   frame: ``odom -> base_link`` from the odometry, and ``map -> odom`` once a POSE has
-  placed the odometry in the map (held between POSEs, REP 105), so that RViz and tf2
-  see ``map -> odom -> base_link`` live. Only where ``tf2_msgs`` is installed: a sourced
-  ROS 2 has it; the ROS 2 wheels on PyPI have no ``tf2_msgs`` for Jazzy, and rclpy can
-  publish no type whose support is not built, so there the node says once that it
-  publishes no ``/tf`` (:attr:`BridgeNode.tf_note`). Recordings and the live Foxglove
-  connection carry ``/tf`` everywhere (docs/view.md).
-- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz`` (1 Hz), and
-  at once whenever the link changes state (lost, disconnected, handshaking, ready,
-  mismatch): the link, the controller and the steps rejected by reason
-  (:mod:`bridge.ros.diagnostics`).
+  placed the odometry in the map (held between POSEs, REP 105). Only where
+  ``tf2_msgs`` is installed; elsewhere the node says once that it publishes no ``/tf``
+  (:attr:`BridgeNode.tf_note`; docs/bridge.md).
+- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz``, and at
+  once whenever the link changes state: the link, the controller and the steps rejected
+  by reason (:mod:`bridge.ros.diagnostics`).
 
 Threads: the ROS port's threads run the input callbacks; the transport's dispatcher
 thread runs the telemetry and status outputs; one diagnostics thread publishes
@@ -181,7 +177,7 @@ class BridgeNode:
 
         Raises:
             TransportUrlError: ``params.url`` is malformed (checked before the traffic
-                log is created, so a refused URL leaves no file behind).
+                log is created).
         """
         self.params = params
         self.port = port

@@ -5,23 +5,17 @@
     ros2 launch rover_hil hil_launch.py params_file:=/path/to/my_hil.yaml rtt:=0.5
 
 Starts the controller emulator on a pty (``rover_emulator``), the rover-side bridge on
-that pty (``rover_bridge``, rclpy backend), the rover's onboard sequencer and drift
-guard beside it (``rover_onboard``: the executor runs its plans on board; both take
-``$ROVER_UPLINK_TOKEN`` from the launching shell's environment, and without it the
-onboard program refuses to start unless its section says ``insecure: true``), the
-simulation gate (``rover_gate``), the
-emulated Earth-Moon link between the ground namespace and the rover's (``rover_link``)
-and, given a ``goal``, the executor that plans, validates and drives one mission to it
-(``rover_executor``; it exits when the mission ends).
+that pty (``rover_bridge``), the onboard sequencer and drift guard (``rover_onboard``;
+it and the executor take ``$ROVER_UPLINK_TOKEN`` from the environment), the simulation
+gate (``rover_gate``), the emulated Earth-Moon link (``rover_link``) and, given a
+``goal``, the executor that drives one mission to it (``rover_executor``).
 
 Every node reads its section of one parameters YAML
-(``share/rover_hil/config/hil.yaml`` by default; sections keyed ``/**/<node name>`` so a
-namespace does not hide them). The emulator, the gate, the link relay and the executor
-are not ROS nodes: they map their section to their command-line options
-(firmware_proto.cli.rosargs), ``speed_factor: 2.0`` being ``--speed-factor 2.0``. The launch
-arguments below (``rtt``, the namespaces, ``goal``) are passed to the link relay and the
-executor as options, which win over the file. The emulator's ``link`` and the bridge's ``device``
-must name the same path; the bridge reconnects until the emulator has created it.
+(``share/rover_hil/config/hil.yaml`` by default; sections keyed ``/**/<node name>``).
+The nodes that are not ROS nodes map their section to their command-line options
+(firmware_proto.cli.rosargs). The launch arguments (``rtt``, the namespaces, ``goal``)
+win over the file. The emulator's ``link`` and the bridge's ``device`` must name the
+same path.
 """
 
 from __future__ import annotations

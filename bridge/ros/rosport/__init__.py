@@ -1,17 +1,9 @@
 """The ROS port: one small publish/subscribe seam over real ROS 2 (rclpy), used by the
-rover-side bridge and the ground-side executor and link relay.
-
-    from bridge.ros.rosport import open_port, qos
-    from bridge.ros.rosport.msgs import Int16MultiArray, String
-
-    with open_port("rclpy", namespace="rover1", node_name="executor") as port:
-        port.subscribe("command_status", String, on_status, qos.STATUS)
-        steps = port.publisher("wheel_instructions", Int16MultiArray, qos.COMMAND)
-        steps.publish(Int16MultiArray(data=[1, 30, 23000]))
+rover-side bridge and the ground-side executor and link relay (docs/rosport.md).
 
 Messages are the generated ROS 2 classes (:mod:`bridge.ros.rosport.msgs`, which needs ROS 2
 installed). Importing this package does not: backends are imported when opened (see
-:mod:`bridge.ros.rosport.registry`). See docs/rosport.md.
+:mod:`bridge.ros.rosport.registry`).
 """
 
 from bridge.ros.rosport import qos

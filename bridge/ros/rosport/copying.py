@@ -1,18 +1,15 @@
 """Copies of generated ROS 2 messages, as a trip through DDS would give each receiver,
-in microseconds: :func:`copy_message`; and their values, flat (:func:`message_values`),
-for a digest of what crossed a link.
+cheaply: :func:`copy_message`; and their values, flat (:func:`message_values`), for a
+digest of what crossed a link.
 
-``copy.deepcopy`` of a ``nav_msgs/Odometry`` takes about 0.2 ms (its two covariance
-arrays go through numpy's pickling); the in-process port copies every message once per
-subscription, so that cost bounded a whole mission in virtual time (docs/sim.md). A
-generated message keeps its fields in ``__slots__``, and each field keeps one kind of
-value (the generated setters check it): a plain value (a number, a string), a nested
-message, or a container (a numpy array, an ``array.array``, a list). The first message
-of a class seen gives those kinds, and a small function is compiled for the class that
-copies (or walks) exactly those slots: nested messages by their own function, containers
-copied, plain values shared. A slot that later holds another kind of value is copied the
-generic way; the copy never runs the field checks again (the original's values were
-checked when it was built).
+The in-process port copies every message once per subscription, and ``copy.deepcopy``
+is slow for messages with numpy arrays. A generated message keeps its fields in
+``__slots__``, each holding one kind of value (the generated setters check it): a plain
+value, a nested message, or a container. The first message of a class seen gives those
+kinds, and a small function is compiled for the class that copies (or walks) exactly
+those slots: nested messages by their own function, containers copied, plain values
+shared. A slot that later holds another kind of value is copied the generic way; the
+copy never runs the field checks again.
 """
 
 from __future__ import annotations

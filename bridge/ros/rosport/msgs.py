@@ -1,19 +1,10 @@
 """The ROS 2 message types the product uses: the real generated classes of ROS 2 Jazzy.
 
-The bridge, the executor and the link relay build and read ``std_msgs``,
-``geometry_msgs``, ``nav_msgs``, ``diagnostic_msgs`` and ``builtin_interfaces`` messages
-exactly as any rclpy node does: these names are those classes, re-exported from one place
-so that a missing ROS 2 installation fails here, once, with a message that says how to get
-it (``pip install 'rover-hil[ros]'`` or source ``/opt/ros/jazzy/setup.bash``).
-
-The generated classes check each field on assignment (type, range, array length) and
-raise ``AssertionError`` or ``TypeError`` naming the field; :func:`checked` turns that into
-:class:`~bridge.ros.rosport.errors.MessageError`.
-
-Helpers for the conversions every node here repeats: :func:`stamp` (wall seconds to a
-``builtin_interfaces/Time``), :func:`stamp_s` (and back), :func:`quaternion_from_yaw`,
-:func:`yaw_rad` (planar rotation of a ``geometry_msgs/Quaternion``), and
-:func:`ros_type_name` (``"nav_msgs/msg/Odometry"``).
+The classes are re-exported from one place so that a missing ROS 2 installation fails
+here, once, with a message that says how to get it. The generated classes check each
+field on assignment; :func:`checked` turns their errors into
+:class:`~bridge.ros.rosport.errors.MessageError`. Also the conversions every node here
+repeats (stamps, planar quaternions, interface names).
 """
 
 from __future__ import annotations

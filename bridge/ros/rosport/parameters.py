@@ -2,14 +2,10 @@
 settable at run time where the node can apply them, refused with a reason otherwise.
 
 A node gives :meth:`RosPort.declare_parameters <bridge.ros.rosport.port.RosPort.declare_parameters>`
-its :class:`ParameterSpec` list and one ``on_set`` callback. On the ``rclpy`` backend the
-parameters are real ROS 2 parameters (``ros2 param list/get/set``, the
-``~/set_parameters`` service, ``-p name:=value`` and ``--params-file`` at start), each
-with a ``ParameterDescriptor`` (description, ``read_only``, ``IntegerRange`` or
-``FloatingPointRange``); rclpy refuses a value of the wrong type or outside its range
-itself, and ``on_set`` decides the rest. The ``inprocess`` backend keeps them in a
-dictionary and applies the same checks (:func:`check_value`) in the same order, so a
-node's parameter behaviour is testable without ROS and tested on both.
+its :class:`ParameterSpec` list and one ``on_set`` callback. On ``rclpy`` they are real
+ROS 2 parameters with a ``ParameterDescriptor``, and rclpy refuses a wrong type or range
+itself; ``inprocess`` applies the same checks (:func:`check_value`) in the same order
+(docs/rosport.md, "Parameters").
 
 ``on_set(changes)`` gets the new values by name, after the type, range and read-only
 checks passed; it returns ``None`` to accept them (and must then have applied them) or

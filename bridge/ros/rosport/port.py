@@ -6,22 +6,12 @@ A :class:`RosPort` is one ROS node's worth of topics. ``publisher(topic, type)``
 are the generated ROS 2 classes (:mod:`bridge.ros.rosport.msgs` re-exports the ones the
 product uses).
 
-Contract shared by every backend (the base class enforces what it can):
-
-- Topic names resolve as ROS 2 does (see :mod:`bridge.ros.rosport.names`): relative names get
-  the port's namespace, absolute ones do not; invalid names raise :class:`RosNameError`.
-- QoS is given per endpoint (:class:`~bridge.ros.rosport.qos.Qos`; default ROS 2's:
-  reliable, volatile, keep-last :data:`HISTORY_DEPTH`); a reliable subscription does not
-  receive from a best-effort publisher, as in DDS.
-- Callbacks run on a thread of the backend, never on the thread that called
-  ``publish``. Each subscription belongs to a *lane*: :data:`DEFAULT_LANE`, or
-  :data:`STOP_LANE` for what must never wait behind other callbacks (an emergency stop).
-  Each lane delivers on its own thread, so callbacks of one lane never run concurrently
-  with each other, and a STOP callback never queues behind telemetry. A callback that
-  raises is logged and counted (:meth:`RosPort.stats`, :attr:`Subscription.errors`) and
-  delivery goes on.
-- After ``Subscription.close()`` or ``RosPort.close()`` returns, no new callback starts
-  for it (one already running on the backend thread may finish).
+The contract shared by every backend (names, types, QoS, lanes, taps, callbacks that
+raise) is docs/rosport.md, "The interface"; the base class enforces what it can. In
+short: callbacks run on a thread of the backend, never on the publisher's; each lane
+(:data:`DEFAULT_LANE`, :data:`STOP_LANE`) delivers on its own thread, so callbacks of one
+lane never overlap and a STOP callback never queues behind telemetry; after
+``Subscription.close()`` or ``RosPort.close()`` returns, no new callback starts for it.
 
 Implementing a backend: subclass :class:`RosPort`, set ``backend``, and fill the hooks
 
@@ -38,11 +28,7 @@ Implementing a backend: subclass :class:`RosPort`, set ``backend``, and fill the
   every lane's ``_run`` has returned.
 
 Call :meth:`RosPort._start` at the end of the subclass's ``__init__``. Everything else
-(names, type checks, counting, logging, closing) is done here.
-
-Taps (:meth:`RosPort.add_tap`) see every message the port sends (after the backend took
-it) and receives (before the subscription's callback), on the thread that sent or
-delivered it: a recorder or a live view hangs off the port without another endpoint.
+(names, type checks, counting, logging, closing, taps) is done here.
 """
 
 from __future__ import annotations
@@ -266,11 +252,11 @@ class Subscription(Generic[M]):
         return reader.matched_count()
 
     def wait_for_publishers(self, count: int = 1, timeout_s: float = 5.0) -> bool:
-        """Wait until at least ``count`` publishers are matched.
+        """Wait until at least ``count`` publishers are matched; ``False`` when
+        ``timeout_s`` passed first.
 
-        Over DDS each side discovers the other on its own: a publisher may count this
-        subscription before this subscription accepts its samples, and with volatile QoS
-        what it sends in between is lost. Waiting on both sides closes that window.
+        Over DDS each side discovers the other on its own, so a sender's wait alone
+        leaves a window in which volatile samples are lost; waiting on both sides closes it.
         """
         clock = self.port.clock
         deadline = clock.now() + timeout_s
@@ -437,11 +423,10 @@ class RosPort:
         return sub
 
     def add_tap(self, tap: Tap) -> Callable[[], None]:
-        """Show ``tap`` every message sent and received from now on (see :data:`Tap`).
-
-        A tap that raises is logged and does not stop the message. Returns a function
-        that removes the tap (idempotent).
-        """
+        """Show ``tap`` every message sent (after the backend took it) and received
+        (before the callback) from now on, on that thread (see :data:`Tap`). A tap that
+        raises is logged and does not stop the message. Returns a function that removes
+        the tap (idempotent)."""
         with self._lock:
             self._taps = (*self._taps, tap)
 
@@ -464,9 +449,8 @@ class RosPort:
                 resolved from its command line, environment and files).
 
         Returns:
-            The values in effect, by name: ``initial``, else the defaults. ROS arguments
-            (``-p``, ``--params-file``) are not applied again here: the node resolves them
-            with its other sources, in its own order of precedence, into ``initial``.
+            The values in effect, by name: ``initial``, else the defaults (ROS arguments
+            are not applied again here: the node resolved them into ``initial``).
 
         Raises:
             ParameterError: a value given at start is of the wrong type or out of range.
@@ -599,8 +583,8 @@ class RosPort:
             sub.errors += 1
             with self._lock:
                 self._callback_errors += 1
-            # The first failure with its traceback, then at 2, 4, 8, ... so a callback
-            # that fails on every message cannot flood the log.
+            # Traceback at failures 1, 2, 4, 8, ...: a callback failing on every message
+            # must not flood the log.
             if sub.errors & (sub.errors - 1) == 0:
                 logger.error(
                     "%s: callback on %s raised (failure %d of this subscription)",

@@ -1,23 +1,17 @@
 """The ``rclpy-process`` backend: real ROS 2 nodes in child processes of their own.
 
-Why: rclpy calls into the middleware (``Publisher.publish`` into Fast DDS) while holding
-Python's interpreter lock, and Fast DDS publishes on the caller's thread (Jazzy's
-default, synchronous). When such a call blocks, every thread of the process stops with
-it. In the bridge that was the controller link: heartbeats, STOP, the reader. A publish of
-``/odom`` was caught blocking for 340 ms and then 354 ms inside the demo, and the motor
-controller's 250 ms watchdog stopped the rover (CHANGELOG.md, Fixed).
-Here the nodes live in other processes, so no middleware call can stop the link's threads.
+Why: rclpy calls into the middleware (``Publisher.publish`` into Fast DDS, synchronous on
+the caller's thread) while holding Python's interpreter lock, so a blocked call stops
+every thread of the process, the controller link's included, long enough for the
+controller's watchdog to trip. Here the nodes live in other processes, so no middleware
+call can stop the link's threads.
 
 What the caller sees is a :class:`~bridge.ros.rosport.port.RosPort` like any other: the same
 names, QoS, lanes, taps, parameters and counters. Underneath:
 
-- the parent spawns ``python -m bridge.ros.rosport.process_child`` twice: the node
-  ``node_name``, which publishes, holds the parameters and takes the default lane's
-  subscriptions; and ``<node_name>_stop``, which takes only the STOP lane's and never
-  publishes, so a STOP waits neither behind telemetry nor for an interpreter stuck in a
-  publish (the rclpy backend's STOP lane is likewise a node of its own);
-- each child has two socket pairs: requests and publishes (parent to child, in order)
-  with the replies, and deliveries (child to parent);
+- the parent spawns ``python -m bridge.ros.rosport.process_child`` twice (see
+  :class:`ProcessPort`); each child has two socket pairs: requests and publishes (parent
+  to child, in order) with the replies, and deliveries (child to parent);
 - messages cross as their CDR bytes (``rclpy.serialization``: no middleware, no context);
   the parent never initialises rclpy;
 - ``publish`` serializes and queues, and returns: it never waits for the child. A writer
@@ -34,8 +28,8 @@ names, QoS, lanes, taps, parameters and counters. Underneath:
   says so and every later request to it raises; publishes into a dead publishing node
   are dropped and counted.
 
-The CPU cost is a serialization per message on each side and a socket hop: measured in
-``benchmarks/bench_rosport.py`` beside the in-process ``rclpy`` backend.
+The cost is a serialization per message on each side and a socket hop
+(``benchmarks/bench_rosport.py``).
 """
 
 from __future__ import annotations
@@ -377,8 +371,8 @@ class ProcessPort(RosPort):
 
     Two children: the node ``node_name``, which publishes, owns the parameters and takes
     the default lane's subscriptions; and the node ``<node_name>_stop``, which takes only
-    the STOP lane's. A STOP so never waits for the interpreter of a process that is
-    publishing (as the rclpy backend's STOP node is a node of its own, in one process).
+    the STOP lane's and never publishes, so a STOP never waits for the interpreter of a
+    process that is publishing.
 
     Args:
         namespace: see :class:`RosPort` (also the nodes' namespace).
@@ -406,7 +400,7 @@ class ProcessPort(RosPort):
         self._ser = _serialization()
         self._readers: dict[tuple[str, int], Subscription[Any]] = {}
         self._readers_lock = threading.Lock()
-        # Both start at once (about a second each to import rclpy and make a node).
+        # Both start at once (each imports rclpy and makes a node).
         children: dict[str, _Child] = {}
         try:
             for lane, name in ((DEFAULT_LANE, node_name), (STOP_LANE, node_name + "_stop")):

@@ -127,9 +127,8 @@ class Child:
                     except (OSError, EOFError):
                         break  # the parent is gone
             finally:
-                # The node's end (a DDS participant destroyed, rclpy's shutdown) and the
-                # interpreter's, at normal priority, as its start: at the STOP lane's, two
-                # ending at once held both cores (docs/realtime.md).
+                # The node's end and the interpreter's at normal priority, as its start
+                # (docs/realtime.md).
                 leave_realtime_for_process()
         return 0
 
@@ -230,15 +229,11 @@ class Child:
 
 
 def _schedule(stop_only: bool) -> None:
-    """The child starts at normal priority (its parent launches it so, lest its imports
-    hold a core at the link's priority) and, once its node has started, takes its own
-    (docs/realtime.md): where the parent keeps real time, the STOP child does too, every
-    thread of it (the middleware's among them), below the link it feeds; the publishing
-    child, whose middleware calls may block, stays at normal scheduling, so it never
-    competes with the link. The node's start (``rclpy.init``, a DDS participant: about
-    half a second of CPU on two threads) at real-time priority held both cores above the
-    kernel worker that moves a pty's bytes, and a link over a pty went silent for
-    200-400 ms."""
+    """Take this child's priority once its node has started (docs/realtime.md): where
+    the parent keeps real time, the STOP child does too, every thread of it, below the
+    link it feeds; the publishing child, whose middleware calls may block, stays at
+    normal scheduling. The start itself runs at normal priority: at real-time priority
+    it would hold the cores above the kernel worker that moves a pty's bytes."""
     parent_realtime = os.environ.get(PARENT_REALTIME_ENV) == "1"
     priority = STOP_CHILD_PRIORITY if stop_only and parent_realtime else 0
     apply_realtime_to_process(RealtimeConfig(priority, lock_memory=False))

@@ -6,23 +6,10 @@ keep-last depth and durability (history is always keep-last). Backends translate
 same matching rule as DDS: a *reliable* subscription receives nothing from a
 *best-effort* publisher, every other combination matches.
 
-Profiles, by what travels on them (docs/ros2.md, QoS):
-
-=================  ============  =====  ==========================================================
-profile            reliability   depth  topics
-=================  ============  =====  ==========================================================
-:data:`COMMAND`    reliable      10     ``wheel_instructions``: a step must not be lost
-:data:`STOP`       reliable      10     ``emergency_stop``, ``clear_emergency_stop``
-:data:`STATUS`     reliable      100    ``command_status``: every ``completed`` counts
-:data:`TELEMETRY`  reliable      5      ``odom``, ``odom_ground`` published by the bridge
-:data:`SENSOR`     best effort   5      ``odom``, ``odom_ground`` as the ground subscribes them
-:data:`DIAGNOSTICS`  reliable    10     ``/diagnostics`` (what diagnostic_aggregator expects)
-=================  ============  =====  ==========================================================
-
-Telemetry is *published* reliable and *subscribed* best effort: a reliable writer matches
-every reader (RViz, Foxglove and ``ros2 topic echo`` subscribe reliable by default),
-while our own readers never ask for a retransmission of a pose that the next sample
-supersedes. A STOP and a status are never best effort.
+The profiles, by topic, are tabled in docs/rosport.md ("The product's QoS, per topic").
+Telemetry is *published* reliable (so that every reader matches) and *subscribed* best
+effort (a pose the next sample supersedes is never retransmitted); a STOP and a status
+are never best effort.
 """
 
 from __future__ import annotations

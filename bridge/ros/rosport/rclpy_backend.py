@@ -13,13 +13,11 @@ thread:
 - the default lane is the node itself, spun by a ``SingleThreadedExecutor`` (its
   parameter services run there too);
 - the STOP lane, created on first use, is a second node ``<node_name>_stop`` in the same
-  context (one DDS participant). rclpy cannot hand one callback group of a node to another
-  executor, so the lane is a node of its own, and no executor spins it: its thread waits
-  on an rcl wait set that holds only the STOP subscriptions and a guard condition, takes
-  each message and runs the callback. An emergency stop so waits for no other callback,
-  and skips the general executor's per-wake bookkeeping (docs/rosport.md gives the
-  figure). This uses rclpy's binding of rcl
-  (``rclpy.impl.implementation_singleton``), as rclpy's own executor does.
+  context (rclpy cannot hand one callback group of a node to another executor), and no
+  executor spins it: its thread waits on an rcl wait set that holds only the STOP
+  subscriptions and a guard condition, takes each message and runs the callback, through
+  rclpy's binding of rcl (``rclpy.impl.implementation_singleton``), as rclpy's own
+  executor does. An emergency stop so waits for no other callback.
 
 Messages are the generated classes; they are published and delivered as they are.
 """
@@ -342,11 +340,8 @@ class RclpyPort(RosPort):
                     destroyed = 0
                 except rcl.InvalidHandle:
                     # A subscription of this lane closed on another thread while the
-                    # executor put it (or its QoS events) into its wait set: rclpy raises
-                    # "destruction was requested", and the next spin builds the set
-                    # without it. Seen as `rover demo` ended (the executor's subscriptions
-                    # closed while its lane spun). An entity that stays invalid is a
-                    # failure of the lane, as before.
+                    # executor built its wait set: the next spin builds the set without
+                    # it. An entity that stays invalid is a failure of the lane.
                     destroyed += 1
                     if destroyed > _MAX_DESTROYED_SPINS:
                         raise

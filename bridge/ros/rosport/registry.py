@@ -1,14 +1,6 @@
-"""Backends of the ROS port by name, imported only when opened.
-
-- ``rclpy``: :class:`bridge.ros.rosport.rclpy_backend.RclpyPort`, a real ROS 2 node; needs
-  ROS 2 Jazzy (the ``ros`` extra, or a sourced ``/opt/ros/jazzy``);
-- ``rclpy-process``: :class:`bridge.ros.rosport.process_backend.ProcessPort`, the same node
-  in a child process, so that no middleware call can stall the caller's threads (the
-  bridge's default: its controller link must never wait for DDS);
-- ``inprocess``: :class:`bridge.ros.rosport.inprocess.InProcessPort`, ports of one process
-  (unit tests); needs the ROS 2 message packages only.
-
-:data:`DEFAULT_BACKEND` (``rclpy``) is what every entry point uses unless told otherwise.
+"""Backends of the ROS port by name (``rclpy``, ``rclpy-process``, ``inprocess``;
+docs/rosport.md, "Backends"), imported only when opened. :data:`DEFAULT_BACKEND` is
+what every entry point uses unless told otherwise.
 """
 
 from __future__ import annotations
@@ -66,8 +58,7 @@ def open_port(
         namespace: the node's namespace; relative topic names resolve in it.
         node_name: the node's name.
         **options: backend options: ``rclpy`` and ``rclpy-process``: ``domain_id``,
-            ``args``; ``inprocess``:
-            ``bus``.
+            ``args``; ``inprocess``: ``bus``.
 
     Raises:
         UnknownBackendError: unknown ``backend`` (the message lists the known ones).
