@@ -89,9 +89,8 @@ class ControllerLink:
     ) -> None:
         """Args:
         config: link parameters.
-        on_status: every ``/command_status`` string, in order, one at a time (a status
-            may be handed out by a link thread still delivering earlier ones, after the
-            call that caused it returned).
+        on_status: every ``/command_status`` string, in order, one at a time (possibly
+            after the call that caused it returned, by a link thread).
         on_telemetry: every message from the controller with its arrival time
             (``self._clock.now()``), on the transport's dispatcher thread; sensor samples
             only in a session (:mod:`bridge.link.linkcore`).
@@ -100,17 +99,14 @@ class ControllerLink:
             still delivering earlier events; it must not block.
         transport_factory: builds the (unopened) transport for a URL.
         protocol_version, schema_hash: what this host speaks (tests change them).
-        clock: what tells the time (arrival times, ``last_stop_written`` and every
-            time the core is given are its :meth:`~firmware_proto.linkio.clock.Clock.now`);
-            a lockstep clock runs the link on its ticks, without threads (module
-            docstring).
+        clock: what tells every time the link uses; a lockstep clock runs the link on
+            its ticks, without threads (module docstring).
         first_request_id: the id of the first STOP or CLEAR_STOP, 1..65535; ``None``
             (the default, and what a bridge must use) draws it at random. A replay
             gives the recorded one, to send the recorded bytes again.
 
         Raises:
-            TransportUrlError: ``config.url`` is malformed; found here, once, because no
-                reconnect could fix it (a transport is built to check it, not opened).
+            TransportUrlError: ``config.url`` is malformed (checked here, not opened).
         """
         transport_factory(config.url)
         # A bridge started again must not repeat the last request of the one before.
@@ -189,8 +185,7 @@ class ControllerLink:
         self._tx_wake.set()
         for thread in (self._thread, self._writer):
             if thread is not None and thread is not threading.current_thread():
-                # The writer may be in a write stuck in the OS: that ends with the
-                # transport's write timeout (serial 1 s, CAN 0.1 s).
+                # A write stuck in the OS ends with the transport's write timeout.
                 thread.join(timeout=5.0)
                 if thread.is_alive():
                     logger.error("link thread %s did not stop within 5 s", thread.name)
@@ -227,21 +222,19 @@ class ControllerLink:
 
     @property
     def reboots(self) -> int:
-        """Reboots of the controller seen so far (:attr:`LinkCore.reboots`); read on the
-        telemetry callback's thread, it already counts the frame being delivered."""
+        """Reboots of the controller seen so far (:attr:`LinkCore.reboots`), counting the
+        frame being delivered to the telemetry callback."""
         return self._core.reboots
 
     @property
     def stop_latched(self) -> bool:
-        """An emergency stop is requested, or the controller's motion is latched (STOP or
-        fault) as its last STOP_ACK, CLEAR_ACK or HEARTBEAT said."""
+        """See :attr:`LinkCore.stop_latched`."""
         return self._core.stop_latched
 
     # -- API ------------------------------------------------------------------------------
     def submit_step(self, step: StepRequest) -> None:
-        """Queue a validated motion step. Its fate comes through ``on_status``:
-        ``accepted`` then ``completed``, or ``rejected:<reason>``, ``aborted:<reason>``,
-        ``fault:<reason>``. A STOP command is an emergency stop."""
+        """Queue a validated motion step (:meth:`LinkCore.submit_step`); its fate comes
+        through ``on_status``."""
         if step.command == Command.STOP:
             self.emergency_stop(StopSource.PLAN_STEP)
             return
@@ -281,8 +274,8 @@ class ControllerLink:
             self._core.stop_written(stop.stop_id, written, True)
 
     def clear_stop(self) -> int:
-        """Ask the controller to release its latch (CLEAR_STOP, repeated until CLEAR_ACK).
-        Returns the request id; the answer comes as ``cleared`` or ``fault:<reason>``."""
+        """Ask the controller to release its latch (:meth:`LinkCore.clear_stop`); returns
+        the request id."""
         with self._lock:
             clear_id = self._core.clear_stop(self._clock.now())
         self._wake.set()
@@ -477,8 +470,7 @@ class ControllerLink:
         """Deliver the statuses and state changes the core decided, in order.
 
         One thread delivers at a time, outside the lock: a thread that finds another
-        delivering leaves its items to it (they are later than the ones being delivered),
-        so two threads never hand out their statuses interleaved."""
+        delivering leaves its (later) items to it, so statuses are never interleaved."""
         with self._lock:
             if self._delivering:
                 return

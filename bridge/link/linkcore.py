@@ -23,8 +23,7 @@ at :meth:`~LinkCore.next_deadline` at the latest). What it decides comes out thr
 - :meth:`~LinkCore.on_frame`'s result: whether the frame is telemetry to forward.
 
 The same core runs in real time inside :class:`~bridge.link.controllerlink.ControllerLink`
-(threads, a transport, ``time.monotonic()``) and in virtual time inside the wire simulator
-(``rover sim``, docs/sim.md).
+and in virtual time inside the wire simulator (``rover sim``, docs/sim.md).
 
 **STOP lane.** :meth:`LinkCore.emergency_stop` claims the first STOP copy at once (it
 comes out of :meth:`~LinkCore.take_stops` before anything else is decided), then
@@ -255,9 +254,8 @@ class LinkCore:
         config: link parameters (:attr:`config` may be replaced while running: each
             value is read when next needed).
         protocol_version, schema_hash: what this host speaks (tests change them).
-        first_request_id: the id of the first STOP or CLEAR_STOP request, 1..65535; a
-            real host picks it at random (docs/protocol.md, "Latch and faults"), so that
-            a new host's first request does not repeat the last one of the host before.
+        first_request_id: the id of the first STOP or CLEAR_STOP request, 1..65535 (a
+            real host picks it at random, docs/protocol.md, "Latch and faults").
         """
         self.config = config
         self.protocol_version = protocol_version
@@ -550,9 +548,8 @@ class LinkCore:
     def submit_step(self, step: StepRequest, now: float) -> int:
         """Queue a validated motion step; returns its number (every
         :class:`~bridge.link.linktypes.StatusEvent` about it carries it). Its fate comes as
-        ``accepted`` then ``completed``, or ``rejected:<reason>``, ``aborted:<reason>``,
-        ``fault:<reason>``. A STOP command is an emergency stop (:meth:`emergency_stop`
-        with source PLAN_STEP; no step events)."""
+        ``accepted`` then ``completed``, or ``rejected:``, ``aborted:``, ``fault:``. A STOP
+        command is an emergency stop (source PLAN_STEP; no step events)."""
         self._numbers += 1
         number = self._numbers
         if step.command == Command.STOP:
@@ -585,10 +582,8 @@ class LinkCore:
         return None
 
     def emergency_stop(self, source: int, now: float) -> int:
-        """STOP now (its first copy comes out of :meth:`take_stops` at once when a
-        transport is open, and is repeated until acknowledged) and purge every step not
-        yet in the controller. Works in any link state: if the link is down the STOP
-        goes out first thing after the next handshake. Returns the stop id."""
+        """STOP now (module docstring, "STOP lane") and purge every step not yet in the
+        controller; works in any link state. Returns the stop id."""
         self._stop_counter = self._stop_counter % 0xFFFF + 1
         stop_id = self._stop_counter
         self._last_stop_id = stop_id
@@ -610,9 +605,8 @@ class LinkCore:
         return stop_id
 
     def clear_stop(self, now: float) -> int:
-        """Ask the controller to release its latch (CLEAR_STOP, repeated until
-        CLEAR_ACK). Returns the request id; the answer comes as ``cleared`` or
-        ``fault:<reason>``."""
+        """Ask the controller to release its latch (CLEAR_STOP, repeated until CLEAR_ACK);
+        returns the request id. The answer comes as ``cleared`` or ``fault:<reason>``."""
         self._stop_counter = self._stop_counter % 0xFFFF + 1
         clear_id = self._stop_counter
         self._estop_requested = False
@@ -735,9 +729,8 @@ class LinkCore:
         return forward
 
     def _forwards(self, msg: Message) -> bool:
-        """Whether a received message is telemetry to hand on: every message but a sensor
-        sample outside a session whose IDENT told the boot nonce (docs/protocol.md,
-        Handshake 2)."""
+        """Whether a received message is telemetry to hand on (module docstring,
+        "Supervision"; docs/protocol.md, Handshake 2)."""
         return self._state is LinkState.READY or not isinstance(msg, SAMPLE_MESSAGES)
 
     def _dispatch(self, msg: Message, t: float, *, serial: bool = False) -> None:
@@ -784,8 +777,7 @@ class LinkCore:
             clear.after_stop = False
             base = clear.latch_gen if clear.latch_gen is not None else known
             if base is None and msg.state == ControllerState.FAULT:
-                # A watchdog or fault latch this host never knew of: not the operator's
-                # to release with a clear asked for before it was reported.
+                # A latch cause never reported: not the operator's to release with this clear.
                 self._refuse_operator_clear("latch_changed")
             elif base is None or (msg.latch_gen - base) & 0xFF <= 1:
                 clear.latch_gen = msg.latch_gen
@@ -845,9 +837,8 @@ class LinkCore:
         self._maybe_clear(hb, t)
 
     def _learn_gen(self, hb: Heartbeat) -> None:
-        """A HEARTBEAT of this boot: its latch generation, and every stopping cause it
-        shows that no FAULT frame reported (lost on the way) reported now, before any
-        clear may name that generation (docs/protocol.md, "Latch and faults")."""
+        """A HEARTBEAT of this boot: learn its latch generation, after reporting every
+        stopping cause it shows that no FAULT frame reported."""
         self._latch_gen = hb.latch_gen
         reported_now = False
         if self._ctrl_latched:
@@ -864,8 +855,7 @@ class LinkCore:
         clear = self._pending_clear
         if clear is not None and clear.latch_gen is None and not clear.after_stop:
             if reported_now:
-                # Asked for before this host knew the latch: what it holds was reported
-                # only now, so that clear may not release it.
+                # Asked for before this cause was reported: it may not release it.
                 self._refuse_operator_clear("latch_changed")
             else:
                 clear.latch_gen = hb.latch_gen
@@ -882,7 +872,7 @@ class LinkCore:
     def _refuse_operator_clear(self, why: str) -> None:
         """The operator's clear released nothing (``why``: ``fault_persists``,
         ``latch_changed``): said once; the request is over, and the steps that waited for
-        it are refused. Only a new clear releases (docs/protocol.md)."""
+        it are refused."""
         self._emit(fault(why))
         self._end_clear(
             "fault_active" if self._ctrl_state == ControllerState.FAULT else "stop_latched"
@@ -894,9 +884,8 @@ class LinkCore:
         return bool(hb.latch_watchdog and not hb.latch_stop and not hb.latch_fault)
 
     def _maybe_clear(self, hb: Heartbeat, now: float) -> None:
-        """Start the automatic clear of a watchdog-only latch when docs/protocol.md
-        ("Latch and faults") allows the host to, naming this HEARTBEAT's generation; end
-        one the latch has outgrown."""
+        """Start the automatic clear of a watchdog-only latch, naming this HEARTBEAT's
+        generation; end one the latch has outgrown."""
         if self._state is not LinkState.READY or not hb.handshake_ok:
             return
         clear = self._pending_clear
@@ -914,8 +903,8 @@ class LinkCore:
             return
         if not (self.config.auto_clear_watchdog and self._auto_clear_may_start(hb)):
             return
-        # At most one new request per controller heartbeat period after the last one: a
-        # heartbeat sent before our CLEAR_STOP arrived still shows the latch.
+        # At most one new request per controller heartbeat period (a heartbeat sent
+        # before our CLEAR_STOP arrived still shows the latch).
         if now - self._last_auto_clear < self.config.controller_heartbeat_s:
             return
         self._last_auto_clear = now
@@ -1040,8 +1029,7 @@ class LinkCore:
         self._pending_clear = None
         if ack.result in (ClearResult.FAULT_PERSISTS, ClearResult.LATCH_CHANGED):
             if clear.auto:
-                # A stopping fault or a new cause joined the watchdog in the latch: not
-                # for the host to clear.
+                # Not the host's to clear any more.
                 self._pending_clear = clear
                 self._auto_clear_refused()
                 return
@@ -1061,9 +1049,8 @@ class LinkCore:
         self._pump(t)
 
     def _auto_clear_refused(self) -> bool:
-        """The automatic clear was answered FAULT_PERSISTS or LATCH_CHANGED: a stopping
-        fault or a new cause joined the watchdog in the latch, which is not the host's to
-        clear; the request ends. Returns whether it ended."""
+        """The automatic clear was answered FAULT_PERSISTS or LATCH_CHANGED: the latch is
+        not the host's to clear any more; the request ends. Returns whether it ended."""
         self._abandon_auto_clear(self._heartbeat)
         return True
 
@@ -1109,10 +1096,9 @@ class LinkCore:
                 return
 
     def _on_progress(self, progress: Progress, t: float) -> None:
-        """Settle steps whose STATUS was lost (docs/protocol.md, MOTION): steps end in the
-        order they were sent, so every open step sent up to ``ended_seq`` has ended, also
-        when ``ended_seq`` itself is no longer open (its ACK was lost and its step purged
-        here, or it was settled)."""
+        """Settle steps whose STATUS was lost (docs/protocol.md, MOTION): every open step
+        sent up to ``ended_seq`` has ended, also when ``ended_seq`` itself is no longer
+        open."""
         missed = (progress.ended_count - self._ended_seen) & 0xFFFF
         if missed == 0 or missed >= 0x8000 or self._state is not LinkState.READY:
             return
@@ -1204,8 +1190,7 @@ class LinkCore:
 
     # -- the lanes ----------------------------------------------------------------------------
     def _queue(self, msg: Message, step: _Step | None = None, *, auto_clear: bool = False) -> None:
-        """Queue a frame for the writer, with the step a MOTION carries; dropped if no
-        transport is open."""
+        """Queue a frame for the writer; dropped if no transport is open."""
         if self._connected:
             self._tx.append(Outgoing(msg, self._conn, step, auto_clear))
             if step is not None:
