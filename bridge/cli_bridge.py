@@ -2,18 +2,14 @@
 
 Also the ``rover_bridge`` console script that ``ros2 run`` and launch files start
 (:func:`main`), which accepts ``--ros-args ...``. Every bridge parameter
-(:class:`~bridge.ros.params.BridgeParams`) can be set on the command line, by a named option
-or by ``--param NAME=VALUE``, and as a ROS parameter from the ROS arguments (the node's
-sections of each ``--params-file``, then ``-p name:=value``; ``-r __node:=`` and
-``-r __ns:=`` name and place the node). Precedence and validation are those of
-:func:`bridge.ros.params.load_params`, on every backend: an unknown parameter, a bad value or
-a malformed ROS argument is a usage error (exit status 2), never ignored. The node then
-declares every parameter with its resolved value (read-only where it cannot change while
-running; ``ros2 param set`` changes the others, a bad value refused with the reason).
+(:class:`~bridge.ros.params.BridgeParams`) can be set by a named option, by ``--param
+NAME=VALUE``, and as a ROS parameter from the ROS arguments (:class:`RosLayer`).
+Precedence and validation are those of :func:`bridge.ros.params.load_params`: an unknown
+parameter, a bad value or a malformed ROS argument is a usage error (exit status 2),
+never ignored. The node then declares every parameter with its resolved value.
 
 At the default verbosity it says, on stdout, one line per event of its link that an
-operator must know (:mod:`bridge.link.linklines`): the device cannot be opened, no controller
-answers, wrong baud suspected, handshake done, link lost and back.
+operator must know (:mod:`bridge.link.linklines`).
 
 SIGINT and SIGTERM (or ``--duration``) end it cleanly: the node, the link and the ROS
 context are closed; the exit status is 0 when it reached a controller, 3 when it never
@@ -278,10 +274,9 @@ def resolve_params(
 def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
     0, or :data:`EXIT_NEVER_REACHED` when no controller was ever reached, 2 for a bad
-    parameter, a malformed device URL or a bad ROS argument (reported
-    on stderr as ``prog: error:``), 1 when ROS 2 is not installed or the ROS 2 node's
-    process died (``rclpy-process``: the bridge cannot work without it, so it exits and
-    its supervisor restarts it).
+    parameter, a malformed device URL or a bad ROS argument (reported on stderr as
+    ``prog: error:``), 1 when ROS 2 is not installed or the ROS 2 node's process died
+    (for its supervisor to restart it).
 
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
     (:func:`firmware_proto.cli.rosargs.split_ros_args`).
@@ -336,8 +331,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
             return 1
         end = time.monotonic() + args.duration if args.duration > 0 else math.inf
         if getattr(args, "verbose", 1) == 0:
-            # The link's own warnings (each loss, each retry) are said once, in words, by
-            # the narrator below; -v brings them back.
+            # The narrator below says the link's warnings once, in words; -v brings them.
             for name in ("bridge.link.controllerlink", "bridge.link.linkcore"):
                 logging.getLogger(name).setLevel(logging.ERROR)
         narrator = LinkNarrator(

@@ -188,9 +188,8 @@ class OnboardConfig:
             the plan when no POSE has brought it back below within this, s (after a
             stall, the POSE that covers the motion may be read just behind the odometry).
         start_speed_mps, start_yaw_rate_rad_s: a step has started (for the guard's
-            prediction) when the estimate's speed or turn rate first exceeds these after
-            it went out (above the rest thresholds: a rover settling after a slip is
-            not starting).
+            prediction) when the estimate's speed or turn rate in its direction first
+            exceeds these after it went out (above the rest thresholds).
     """
 
     token: str | None = None
@@ -534,9 +533,8 @@ class OnboardCore:
         self._start(plan, now)
 
     def _unfit_start(self, uplink: PlanUplink, now: float) -> tuple[str, str] | None:
-        """``(reason, detail)`` when the plan may not start from where the rover is: no
-        recent ground-seeing fix (drift control needs one), or its start further than
-        its limits from the estimate (planned from elsewhere). ``None``: it may."""
+        """``(reason, detail)`` when the plan may not start from where the rover is
+        (``no_fix``, ``start_mismatch``); ``None``: it may."""
         est = self._estimate
         fresh = self.config.fix_fresh_s
         if est is None or not now - est.pose_stamp_s <= fresh:
@@ -652,9 +650,8 @@ class OnboardCore:
         self._end(plan, "failed", f"step {plan.step + 1}/{n}: {text}", now)
 
     def _foreign_step(self, plan: _Plan, what: str, now: float) -> None:
-        """A status that is no fate of the plan's step outstanding: a step someone else
-        published on ``/wheel_instructions`` while the plan runs (or a repeated status).
-        The plan cannot tell its steps' fates apart any more: STOP, and it ends."""
+        """A status that is no fate of the plan's step outstanding: STOP, and the plan
+        ends (``foreign_step``)."""
         n = len(plan.uplink.steps)
         why = f"step {plan.step + 1}/{n}: {what}: a step the plan did not send (foreign_step)"
         plan.status = f"foreign_step: {what}"
@@ -680,8 +677,7 @@ class OnboardCore:
         self._latched = True
 
     def _foreign_stop(self, reason: str, now: float) -> None:
-        """A STOP the core did not send: a running plan ends, an armed one is dropped,
-        and nothing taken before it may start after it (the cancel floor)."""
+        """A STOP the core did not send (module docstring, "Running")."""
         self._latched = True
         self._latch_own = False
         self._cancel_floor = max(self._cancel_floor, self._max_taken)
@@ -856,8 +852,7 @@ class OnboardCore:
             step -= 1
         start = plan.started[step]
         if math.isnan(start) or stamp_s < start or (step == plan.step and not plan.moved):
-            # Before the wheels are seen to move, the step waits at its start (a step
-            # the bridge holds for a moment must not look like a rover left behind).
+            # Until the wheels are seen to move, the step's prediction waits at its start.
             return step, plan.uplink.pose_at(step, 0.0)
         return step, plan.uplink.pose_at(step, (stamp_s - start) * self.config.time_scale)
 
@@ -919,10 +914,8 @@ class OnboardCore:
     def _sees_ground(self, plan: _Plan, est: Estimate, now: float) -> None:
         """Drift control needs a sensor that sees the ground (docs/onboard.md): STOP
         (``blind``) when, since the last POSE fix, the estimate moved the plan's linear
-        limit (a slip along the track can be that large unseen), or the wheels moved for
-        ``pose_gap_s``, or the estimate's own 1-sigma position error reached the limit.
-        The distance is the filter's, by the samples' stamps, and it has
-        ``unseen_grace_s`` of grace."""
+        limit (by the samples' stamps, after ``unseen_grace_s``), or the wheels moved for
+        ``pose_gap_s``, or the estimate's own 1-sigma position error reached the limit."""
         cfg = self.config
         limit = plan.uplink.limits.linear_m
         if est.unseen_m < limit:
@@ -1040,8 +1033,7 @@ class Screened:
 
 
 def screen_uplink(text: str | bytes, token: str | None) -> Screened:
-    """Open an envelope and check its tag; read the body's id and type (pure, cheap: one
-    parse of the envelope, one HMAC, one parse of the body)."""
+    """Open an envelope and check its tag; read the body's id and type (pure, cheap)."""
     try:
         body = open_envelope(text, token)
     except UplinkError as exc:

@@ -3,36 +3,18 @@
 :class:`BridgeNode` joins a ROS port (:mod:`bridge.ros.rosport`: rclpy in production, or
 in-process for fast unit tests) to a :class:`~bridge.link.controllerlink.ControllerLink`.
 
-Subscribes (names relative to the namespace unless absolute):
+The topics, their types and meaning are docs/bridge.md, "Topics" (names relative to
+the namespace unless absolute). The node's own part of that contract:
 
-- ``wheel_instructions`` ``std_msgs/Int16MultiArray`` ``[command, speed, distance]``:
-  each valid step is queued on the link; a STOP step (command 0) is an emergency stop.
-  Invalid input is answered ``rejected:<reason>`` and never sent: ``bad_length``,
-  ``unknown_command``, ``speed_out_of_range``, ``distance_out_of_range``; the link adds
-  ``stop_latched``, ``link_down``, ``schema_mismatch``, ``fault_active``, ``queue_full``.
-- ``emergency_stop`` ``std_msgs/Bool``: ``true`` sends STOP on the STOP lane; ``false``
-  does nothing (a pressed-then-released button must not resume the rover).
-- ``clear_emergency_stop`` ``std_msgs/Empty``: the only way to resume after a STOP.
-
-Publishes:
-
-- ``command_status`` ``std_msgs/String``: exactly ``completed`` when the controller
-  finished a step; otherwise ``accepted``, ``rejected:<reason>``, ``aborted:<reason>``,
-  ``fault:<reason>``, and ``ready``, ``stopped``, ``cleared`` for the link and latch.
-- ``odom`` ``nav_msgs/Odometry`` (frame ``odom`` -> ``base_link``): encoders fused with
-  the IMU yaw rate, with covariance, on every ENCODERS frame; continuous across a
-  controller reboot (re-based on the new boot nonce).
-- ``odom_ground`` ``nav_msgs/Odometry`` (frame ``map`` -> ``base_link``): the
-  controller's POSE from a sensor that sees the ground, stamped with the measurement's
-  time; what drift control must use, because encoders cannot see slip.
-- ``/tf`` ``tf2_msgs/TFMessage`` with ``publish_tf`` (the default), on every ENCODERS
-  frame: ``odom -> base_link`` from the odometry, and ``map -> odom`` once a POSE has
-  placed the odometry in the map (held between POSEs, REP 105). Only where
-  ``tf2_msgs`` is installed; elsewhere the node says once that it publishes no ``/tf``
-  (:attr:`BridgeNode.tf_note`; docs/bridge.md).
-- ``/diagnostics`` ``diagnostic_msgs/DiagnosticArray`` at ``diagnostics_hz``, and at
-  once whenever the link changes state: the link, the controller and the steps rejected
-  by reason (:mod:`bridge.ros.diagnostics`).
+- ``wheel_instructions``: each valid step is queued on the link; invalid input is
+  answered ``rejected:<reason>`` and never sent (:func:`validate_step`);
+- ``emergency_stop`` ``true`` sends STOP on the STOP lane; ``false`` does nothing;
+- ``odom`` on every ENCODERS frame, continuous across a controller reboot;
+  ``odom_ground`` stamped with the measurement's time;
+- ``/tf`` only where ``tf2_msgs`` is installed; elsewhere the node says once that it
+  publishes none (:attr:`BridgeNode.tf_note`);
+- ``/diagnostics`` at ``diagnostics_hz`` and at once whenever the link changes state
+  (:mod:`bridge.ros.diagnostics`).
 
 Threads: the ROS port's threads run the input callbacks; the transport's dispatcher
 thread runs the telemetry and status outputs; one diagnostics thread publishes

@@ -4,23 +4,16 @@ bridge's requests (docs/traffic-logs.md).
 The counterpart of :mod:`emulator.emulator_replay`: a regression test of the host side.
 :func:`replay_into_bridge` plays the controller on a new pty (serial logs) or a
 python-can bus (CAN logs) and drives a fresh
-:class:`~bridge.link.controllerlink.ControllerLink` with
-the operator's inputs recovered from the recorded host frames: a step for each new
-MOTION seq, an emergency stop for each new STOP id, a clear for each new CLEAR_STOP id,
-each at its recorded time. The recorded controller frames go back to it at their
-recorded times, each not before the fresh link has sent the requests (counted by type)
-that preceded it in the recording, waiting at most ``gate_s`` longer; controller
-telemetry (heartbeats included) keeps its own time, except PROGRESS, which stays in order
-with the STATUS frames it sums up.
+:class:`~bridge.link.controllerlink.ControllerLink` with the operator's inputs recovered
+from the recorded host frames (a step per new MOTION seq, a stop per new STOP id, a
+clear per new CLEAR_STOP id), each at its recorded time. Each recorded controller frame
+goes back at its recorded time, not before the fresh link has sent the requests that
+preceded it in the recording (at most ``gate_s`` longer); periodic telemetry keeps its
+own time, except PROGRESS, which stays in order with the STATUS frames it sums up.
 
-What the link sends is compared with what the recorded host sent: requests (everything
-host-to-controller but HOST_HEARTBEAT), in time order, with consecutive repeats of one
-request (HELLO until IDENT, STOP until STOP_ACK, MOTION retransmissions) counted once, so
-that a millisecond more or less of latency does not show as a difference. The
-``/command_status`` strings the link reported are returned for reading.
-
-The log should come from a bridge (``rover bridge --record``): another host (the STOP
-bench, a test script) speaks the protocol differently, and the differences will say so.
+The link's requests (everything host-to-controller but HOST_HEARTBEAT) are compared
+with the recorded host's in time order, consecutive repeats of one request counted
+once. The log should come from a bridge (``rover bridge --record``).
 """
 
 from __future__ import annotations

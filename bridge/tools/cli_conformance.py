@@ -39,8 +39,7 @@ PACE_WINDOW_S = 1.0
 def probe(host: Any, url: str) -> tuple[str | None, str | None]:
     """Listen to the controller before playing any rule: nothing is sent until a frame
     has come (a host must not talk to a device it has not heard). Then HELLO opens a
-    session, as every rule's preparation does, so that the controller's telemetry flows
-    (protocol v3: no sensor samples before a session), and its heartbeats are counted.
+    session, so that the controller's telemetry flows, and its heartbeats are counted.
 
     Args:
         host: the open :class:`~bridge.tools.conformance.WireHost`.

@@ -3,30 +3,10 @@ latches (docs/bench.md).
 
 :class:`StopBench` speaks the protocol directly through the scripted protocol host of the
 link layer (:class:`~firmware_proto.linkio.host.ProtocolHost` on the endpoint its URL
-names: message-level I/O with arrival times on ``time.monotonic()``), against a real
-controller or the emulator. Per trial it
-
-1. fills the controller's motion queue with long FWD steps until it answers QUEUE_FULL,
-2. waits until the wheels move (a WHEEL_SPEEDS of at least 10 mm/s), then a random
-   (seeded) delay, so that STOP lands anywhere in the acceleration or the cruise,
-3. sends STOP (repeated every ``STOP_REPEAT_MS`` until acknowledged, as the protocol
-   says) and times, from the write of the first STOP:
-
-   - ``ack_ms``: STOP_ACK with its stop id arrives,
-   - ``stopped_ms``: STOPPED with its stop id arrives (the controller reports rest),
-   - ``zero_ms``: the first WHEEL_SPEEDS with both measured speeds zero arrives;
-
-4. checks that every queued step was aborted (reason STOP), that the wheel targets
-   reported between STOP_ACK and STOPPED are zero, that MOTION is now refused STOP_LATCHED, that
-   CLEAR_STOP is answered CLEARED, and that MOTION is accepted again (a zero-distance
-   step, so the rover does not move).
-
-The link is loaded throughout: the motion queue is full and telemetry runs at
-``telemetry_hz`` (set with SET_PARAM, put back to the protocol's default at the end); on
-CAN a second sender floods the bus with frames of lower priority than every frame of
-the protocol (:class:`FloodConfig`; only a real bus makes that contention,
-docs/bench.md). Timing is on the host clock; the controller's own account of each stop
-(STOPPED ``duration_ms`` and ``distance_mm``) is kept beside it.
+names, arrival times on ``time.monotonic()``), against a real controller or the
+emulator. What one trial does, measures (``ack_ms``, ``stopped_ms``, ``zero_ms``, from
+the write of the first STOP) and checks, and the load it runs under (a full motion
+queue, ``telemetry_hz``, on CAN a flood, :class:`FloodConfig`), is docs/bench.md.
 """
 
 from __future__ import annotations

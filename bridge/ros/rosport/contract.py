@@ -15,18 +15,10 @@ Topic names are relative: a node's namespace prefixes them (``rover1/command_sta
 
 Readers take a string apart with :func:`parse_status` rather than matching prefixes.
 
-The rover's onboard sequencer (``rover onboard``, docs/onboard.md) adds its own topics
-beside the bridge's, and one status: ``plan_refused:<reason>:<plan id>`` when it refuses
-an uplink (a kind of its own, not a step's fate: :func:`ends_step` is false for it).
-
-- :data:`PLAN_UPLINK`, ``std_msgs/String``, ground -> rover: an uplink envelope, a plan
-  or a cancel (JSON, ``firmware_proto/model/uplink.py``);
-- :data:`PLAN_ACK`, ``std_msgs/String``, rover -> ground: the answer to each uplink
-  message (JSON);
-- :data:`ONBOARD_REPORT`, ``std_msgs/String``, rover -> ground: the plan's snapshot at each
-  event and every second (JSON, ``firmware_proto/model/downlink.py``);
-- :data:`ONBOARD_POSE`, ``nav_msgs/Odometry``, rover -> ground: the onboard estimate (EKF)
-  in the map frame, with its covariance.
+The rover's onboard sequencer adds its own topics beside the bridge's
+(:data:`PLAN_UPLINK`, :data:`PLAN_ACK`, :data:`ONBOARD_REPORT`, :data:`ONBOARD_POSE`;
+docs/onboard.md, "Topics"), and one status: ``plan_refused:<reason>:<plan id>`` when it
+refuses an uplink (not a step's fate: :func:`ends_step` is false for it).
 """
 
 from __future__ import annotations

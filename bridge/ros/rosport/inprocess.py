@@ -11,13 +11,11 @@ reliable subscription does not receive from a best-effort publisher:
 ones are dropped and counted in ``stats().dropped``), and each lane of a port delivers on
 its own thread, so callbacks never run on the publisher's thread.
 
-**In lockstep** (``clock=`` a :class:`~firmware_proto.linkio.clock.LockstepClock`: a whole
-mission in virtual time, docs/sim.md) a port has no thread: on each tick of the clock it
-delivers what is queued, the STOP lane's first, then the default lane's, in the order
-published, and what those callbacks publish in turn, until nothing is left; so a message
-crosses a port within the tick it was published in, never inside ``publish``. Every subscription
-receives its own copy of the message (as after a trip through DDS), so a subscriber that
-modifies what it received changes nothing for the others or the publisher.
+**In lockstep** (``clock=`` a :class:`~firmware_proto.linkio.clock.LockstepClock`,
+docs/sim.md) a port has no thread: on each tick of the clock it delivers what is queued,
+the STOP lane's first, then the default lane's, in the order published, and what those
+callbacks publish in turn, until nothing is left: within the tick, never inside
+``publish``. Every subscription receives its own copy of the message, as after DDS.
 """
 
 from __future__ import annotations

@@ -6,27 +6,18 @@ every thread of the process, the controller link's included, long enough for the
 controller's watchdog to trip. Here the nodes live in other processes, so no middleware
 call can stop the link's threads.
 
-What the caller sees is a :class:`~bridge.ros.rosport.port.RosPort` like any other: the same
-names, QoS, lanes, taps, parameters and counters. Underneath:
+What the caller sees is a :class:`~bridge.ros.rosport.port.RosPort` like any other; how it
+works underneath is docs/rosport.md, "``rclpy-process``". The contracts:
 
-- the parent spawns ``python -m bridge.ros.rosport.process_child`` twice (see
-  :class:`ProcessPort`); each child has two socket pairs: requests and publishes (parent
-  to child, in order) with the replies, and deliveries (child to parent);
-- messages cross as their CDR bytes (``rclpy.serialization``: no middleware, no context);
-  the parent never initialises rclpy;
-- ``publish`` serializes and queues, and returns: it never waits for the child. A writer
-  holds at most its QoS ``depth`` messages that the child has not taken (the keep-last
-  rule DDS applies anyway); older ones are dropped and counted in
-  :attr:`~bridge.ros.rosport.port.PortStats.dropped`, so a stalled middleware costs telemetry
-  samples, never memory or the caller's time;
+- messages cross as their CDR bytes; the parent never initialises rclpy;
+- ``publish`` serializes, queues and returns: it never waits for the child. A writer
+  holds at most its QoS ``depth`` messages that the child has not taken; older ones are
+  dropped and counted in :attr:`~bridge.ros.rosport.port.PortStats.dropped`;
 - requests (endpoints, parameters, matched counts) wait for the child's answer at most
   :data:`REQUEST_TIMEOUT_S` and raise :class:`RosPortError` after that;
-- a parameter change made from outside (``ros2 param set``) reaches the node's
-  ``on_set`` in this process through the child, and its answer goes back;
-- a child ends when the parent closes the port, and by itself when the parent dies (its
-  request socket reaches end of file). If either dies, :attr:`ProcessPort.failure`
-  says so and every later request to it raises; publishes into a dead publishing node
-  are dropped and counted.
+- a child ends when the parent closes the port, and by itself when the parent dies. If
+  either dies, :attr:`ProcessPort.failure` says so and every later request to it
+  raises; publishes into a dead publishing node are dropped and counted.
 
 The cost is a serialization per message on each side and a socket hop
 (``benchmarks/bench_rosport.py``).
