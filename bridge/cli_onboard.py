@@ -10,12 +10,11 @@ is readable by every user in ``/proc``): without it the program refuses to start
 told ``--insecure`` (then any publisher on the rover's ROS domain can drive it).
 
 It prints ``ONBOARD <namespace> <backend> (uplinks must be signed)`` once its ROS 2 node
-is up and the bridge subscribes to its steps and its STOP (``--bridge-timeout``, exit 1
-when it does not), and one line per plan: taken, ended (how and why), the guard's STOP. SIGINT and
-SIGTERM (or ``--duration``) end it: a plan still running is stopped first (STOP on
-``emergency_stop``), then the node and the ROS context are closed. Exit status 0, 2 on
-a usage error (no token and no ``--insecure`` among them), 1 when ROS 2 is missing or
-no bridge is there.
+is up and the bridge subscribes to its steps and its STOP (``--bridge-timeout``), and
+one line per plan. SIGINT and SIGTERM (or ``--duration``) end it: a plan still running
+is stopped first, then the node and the ROS context are closed. Exit status 0, 2 on a
+usage error (no token and no ``--insecure`` among them), 1 when ROS 2 is missing or no
+bridge is there.
 """
 
 from __future__ import annotations
@@ -134,8 +133,8 @@ def run(args: argparse.Namespace) -> int:
     )
     options = runtime_options(args, "onboard", DEFAULT_PRIORITY)
     priority = options.priority
-    # The node starts at normal priority (rclpy's and DDS's start is heavy CPU work that
-    # must not hold a core above the kernel's workers), then every thread is promoted.
+    # Start at normal priority (the heavy start must not hold a core above the kernel's
+    # workers), then every thread is promoted.
     with ShutdownSignals() as done, ProcessRuntime(_normal(options)) as runtime:
         try:
             port = open_port(args.ros_backend, namespace=args.namespace, node_name="rover_onboard")

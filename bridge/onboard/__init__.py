@@ -1,10 +1,6 @@
 """The rover's onboard sequencer and drift guard (docs/onboard.md): the approved plan is
-uplinked once and runs on the rover, and drift stops the wheels there.
-
-- :mod:`bridge.onboard.core`: the sequencer and guard as a pure state machine (events and
-  the time in, actions out), :class:`OnboardCore`;
-- :mod:`bridge.onboard.ekf`: the pose estimate of encoders, IMU and POSE, :class:`PoseEkf`;
-- :mod:`bridge.onboard.node`: the ROS 2 program around them (``rover onboard``).
+uplinked once and runs on the rover, and drift stops the wheels there. ``core`` (pure),
+``ekf`` (the pose estimate) and ``node`` (the ROS 2 program, ``rover onboard``).
 """
 
 from __future__ import annotations

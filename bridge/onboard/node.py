@@ -2,11 +2,7 @@
 :class:`~bridge.onboard.ekf.PoseEkf` (``rover onboard``, docs/onboard.md).
 
 It runs beside the bridge on the rover's computer and talks to it through the bridge's
-unchanged contract: steps out on ``wheel_instructions``, the guard's STOP on
-``emergency_stop`` (the bridge's STOP lane), the steps' fates in on ``command_status``,
-the rover's motion in on ``odom`` and ``odom_ground``. To the ground: ``plan_uplink`` in,
-``plan_ack``, ``onboard_report`` and ``onboard_pose`` out (topic names in
-:mod:`bridge.ros.rosport.contract`).
+unchanged contract (the topics: docs/onboard.md, "Topics").
 
 Threads (besides the ROS port's own, docs/architecture.md):
 
@@ -16,13 +12,11 @@ Threads (besides the ROS port's own, docs/architecture.md):
   and publishes what the core decided, STOP first, from the same thread: a drift STOP
   leaves in the callback of the estimate that confirmed it. A sample that leaves the
   estimate as it was feeds nothing (:meth:`PoseEkf.take_estimate`);
-- ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline (step timeouts,
-  the armed wait, blindness, rest, the periodic report), at least every
+- ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline, at least every
   :data:`TICK_MAX_S`, and beats the stall monitor. A turn that comes
   :data:`LATE_TURN_S` after the last (the program stalled as a whole) holds the
   deadlines :data:`BACKLOG_GRACE_S` more, so that the samples queued in the stall are
-  read before the blind check judges their absence. An exception in a turn is logged
-  and the thread goes on; :data:`TIMER_FAILURES_STOP` in a row stop the rover.
+  read before the blind check judges their absence (:meth:`OnboardNode._timer_turn`).
 
 **Clocks.** The core runs on the monotonic clock, so that no step of the system clock
 (NTP) disables or fires a deadline. The bridge stamps ``odom`` and ``odom_ground`` with
@@ -30,9 +24,8 @@ ROS time (the system clock): each estimate's stamps are moved into the monotonic
 by the two clocks' offset as it is handed to the core, and each report's times back
 into ROS time as it is published.
 
-Not a ROS node class of rclpy: the port is the seam (docs/rosport.md), so the same node
-runs on ``inprocess`` in the tests (in lockstep: :meth:`OnboardNode.step` instead of the
-timer thread).
+Not a ROS node class of rclpy: the port is the seam (docs/rosport.md); in lockstep
+:meth:`OnboardNode.step` replaces the timer thread.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ __all__ = ["ground_odometry", "wheel_odometry"]
 
 def _covariance(var_xy: float, var_yaw: float) -> numpy.ndarray[Any, Any]:
     # A float64 array of 36: the generated setter takes it as it is (a list is checked
-    # value by value, a third of the cost of building an Odometry).
+    # value by value).
     cov = numpy.zeros(36)
     cov[0] = cov[7] = var_xy
     cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane

@@ -1,9 +1,8 @@
 """ROS 2 names: validation and expansion against a namespace and node; interface names.
 
-The rules are those of rcl and rmw (``rcl_validate_topic_name``,
-``rcl_expand_topic_name``, ``rmw_validate_full_topic_name``, ``rmw_validate_namespace``,
-``rmw_validate_node_name``), so a name accepted here is accepted by a ROS 2 node and
-resolves to the same fully qualified name:
+The rules are those of rcl and rmw (``rcl_expand_topic_name`` and the ``*_validate_*``
+functions), so a name accepted here is accepted by a ROS 2 node and resolves to the same
+fully qualified name:
 
 - ``"odom"`` in namespace ``"/rover1"`` -> ``"/rover1/odom"`` (relative names get the namespace);
 - ``"/odom"`` -> ``"/odom"`` (absolute names do not);
@@ -70,8 +69,6 @@ def validate_node_name(name: str) -> str:
 
 def normalize_namespace(namespace: str) -> str:
     """Return the absolute form of a node namespace (``""`` -> ``"/"``, ``"r1"`` -> ``"/r1"``).
-
-    A relative namespace is made absolute, as rcl does for a node's namespace.
 
     Raises:
         RosNameError: the namespace breaks a naming rule (see the module docstring).

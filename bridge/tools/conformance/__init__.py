@@ -1,13 +1,6 @@
 """The protocol conformance suite: the host side of every rule of docs/protocol.md,
-played on the wire against any controller (``rover conformance``).
-
-- :mod:`bridge.tools.conformance.wirehost`: :class:`WireHost`, a protocol host on one transport;
-- :mod:`bridge.tools.conformance.control`: :class:`ControlClient`, for a device's control port
-  (a reboot or a fault the host cannot cause);
-- :mod:`bridge.tools.conformance.context`: :class:`Context`, what a rule works with;
-- :mod:`bridge.tools.conformance.rules`: the rules, :data:`RULES`;
-- :mod:`bridge.tools.conformance.suite`: :func:`run_suite` and the verdicts;
-- :mod:`bridge.tools.conformance.report`: table and JSON.
+played on the wire against any controller (``rover conformance``; docs/protocol.md,
+"Conformance suite").
 """
 
 from __future__ import annotations

@@ -137,11 +137,9 @@ class Context:
         """CLEAR_STOP ``clear_id`` naming ``latch_gen``; its CLEAR_ACK, whatever it says.
 
         Without ``latch_gen`` it names the generation the last frame told
-        (:attr:`ProtocolHost.latch_gen`), and a LATCH_CHANGED answer (a cause no answer
-        tells of, such as a MOTION STOP, raised it since) is followed by one new request
-        naming the generation that answer gives: the suite tests a controller, not an
-        operator (docs/protocol.md, "Latch and faults"). :attr:`last_clear` is the request
-        answered."""
+        (:attr:`ProtocolHost.latch_gen`), and a LATCH_CHANGED answer is followed by one
+        new request naming the generation that answer gives (the suite tests a
+        controller, not an operator). :attr:`last_clear` is the request answered."""
         msg = ClearStop(clear_id, self.host.latch_gen if latch_gen is None else latch_gen)
         ack = self.send_clear(msg)
         if latch_gen is None and ack.result == ClearResult.LATCH_CHANGED:

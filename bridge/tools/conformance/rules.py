@@ -6,17 +6,14 @@ sends frames, checks every answer, and returns a short note on success. It fails
 raising :class:`~bridge.errors.RuleFailedError` (through ``check``) or
 :class:`~firmware_proto.linkio.errors.ExpectationError` (through the host's ``expect``
 and ``absent``), and declines by raising :class:`~bridge.errors.RuleNotRunError` when
-the device does not offer what it needs. :data:`RULES` holds them by id, in the order
-they run; the order goes from the basics (handshake) to the disruptive (watchdog,
-faults, reboot).
+the device does not offer what it needs. :data:`RULES` holds them by id, in running
+order, from the basics (handshake) to the disruptive (watchdog, faults, reboot).
 
-Timeouts are generous (a rule waits for an answer up to a second, for a stop up to
-three): conformance is about what a controller answers and in which order, not how fast.
-Where a rule judges motion (the acceleration ramp, braking, rest) it reads the
-controller's own reports (WHEEL_SPEEDS with their ``t_ms``, ENCODERS, STOPPED) against
-the rover description's limits, with margins for the plant and for sampling; the host's
-clock judges only what the protocol times in periods (the first HEARTBEAT after a boot).
-Every wait goes through the host's clock, so the rules run in real time and in lockstep.
+Timeouts are generous: conformance is about what a controller answers and in which
+order, not how fast. Motion (the ramp, braking, rest) is judged from the controller's
+own reports against the rover description's limits, with margins for the plant and for
+sampling. Every wait goes through the host's clock, so the rules run in real time and
+in lockstep.
 """
 
 from __future__ import annotations
