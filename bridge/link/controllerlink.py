@@ -233,8 +233,7 @@ class ControllerLink:
 
     # -- API ------------------------------------------------------------------------------
     def submit_step(self, step: StepRequest) -> None:
-        """Queue a validated motion step (:meth:`LinkCore.submit_step`); its fate comes
-        through ``on_status``."""
+        """Queue a validated step (:meth:`LinkCore.submit_step`); its fate: ``on_status``."""
         if step.command == Command.STOP:
             self.emergency_stop(StopSource.PLAN_STEP)
             return
@@ -274,8 +273,7 @@ class ControllerLink:
             self._core.stop_written(stop.stop_id, written, True)
 
     def clear_stop(self) -> int:
-        """Ask the controller to release its latch (:meth:`LinkCore.clear_stop`); returns
-        the request id."""
+        """Ask the controller to release its latch (:meth:`LinkCore.clear_stop`); the request id."""
         with self._lock:
             clear_id = self._core.clear_stop(self._clock.now())
         self._wake.set()
@@ -309,8 +307,7 @@ class ControllerLink:
         self._write_now(transport)
 
     def _write_now(self, transport: Transport) -> None:
-        """Lockstep: write every frame the core queued, in order, as the writer thread
-        would at once."""
+        """Lockstep: write every frame the core queued, in order, as the writer thread would."""
         while not self._stopping.is_set():
             with self._lock:
                 entry = self._core.take_write() if self._transport is transport else None
@@ -396,8 +393,7 @@ class ControllerLink:
         self._wake.set()
 
     def _handle_failure(self) -> None:
-        """Timer thread: close the failed transport, tell the core, which schedules the
-        reconnect."""
+        """Timer thread: close the failed transport; the core schedules the reconnect."""
         with self._lock:
             failure, self._failure = self._failure, None
             if failure is None or self._transport is not failure[0]:

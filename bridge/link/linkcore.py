@@ -25,47 +25,36 @@ at :meth:`~LinkCore.next_deadline` at the latest). What it decides comes out thr
 The same core runs in real time inside :class:`~bridge.link.controllerlink.ControllerLink`
 and in virtual time inside the wire simulator (``rover sim``, docs/sim.md).
 
-**STOP lane.** :meth:`LinkCore.emergency_stop` claims the first STOP copy at once (it
-comes out of :meth:`~LinkCore.take_stops` before anything else is decided), then
-repeats it every ``stop_repeat_s`` until STOP_ACK with its id. The operator's intent is
-remembered: if the controller reboots or the link comes back, STOP is sent again right
-after the handshake. Only :meth:`~LinkCore.clear_stop` (CLEAR_STOP, repeated until
-CLEAR_ACK) releases it. No CLEAR_STOP reaches the wire after a later STOP: a queued one
-is dropped, and one being written when STOP is asked for is followed by the STOP once
-more.
+The rules (docs/protocol.md, "Latch and faults", "STOP semantics", "MOTION,
+acknowledgement and deduplication", "Watchdog and heartbeats"; with the bridge's
+defaults, docs/bridge.md, "The link to the controller"), as the core keeps them:
 
-**Latch.** The core follows the host's rules of docs/protocol.md, "Latch and faults":
-every CLEAR_STOP names the latch generation it releases, so a request made before a
-fault can never release it. An operator's clear names the last generation this core
-learned, after every stopping cause it learned was reported (``fault:<name>``, also when
-only a HEARTBEAT told it); it waits for the STOP_ACK of this host's own STOP still out;
-refused (``fault:fault_persists``, ``fault:latch_changed``) it is over. Steps submitted
-while it is out wait for its answer. With ``auto_clear_watchdog`` the core clears a
-latch the watchdog alone holds, once its condition is gone, in a session of ours and with
-no emergency stop requested. A CLEAR_STOP copy is repeated every ``stop_repeat_s`` from
-when the previous copy was written, never queued behind an unwritten one.
+**STOP lane.** :meth:`LinkCore.emergency_stop` claims the first STOP copy at once, then
+repeats it every ``stop_repeat_s`` until STOP_ACK with its id; the request survives a
+reboot or a lost link (sent again right after the handshake) until
+:meth:`~LinkCore.clear_stop`. No CLEAR_STOP reaches the wire after a later STOP.
 
-**MOTION lane.** Steps go out in order, one frame at a time: a MOTION is retransmitted
-``ack_timeout_s`` after it was written without ACK, at most ``motion_retries`` times,
-and the next is sent only after its ACK, so the controller can never receive them out
-of order. The controller deduplicates retransmissions, so no step runs twice. At most
-``controller_queue`` steps are outstanding in the controller. Retries exhausted:
-``fault:no_ack`` and the link is declared lost. A MOTION not yet taken by the writer
-when its step is dropped (a STOP, a lost link, a reboot) is dropped with it.
+**Latch.** Every CLEAR_STOP names the latch generation it releases. An operator's clear
+names the last generation this core learned, after every stopping cause it learned was
+reported (``fault:<name>``); it waits for the STOP_ACK of this host's own STOP still
+out; refused, it is over. Steps submitted while it is out wait for its answer. With
+``auto_clear_watchdog`` the core clears a latch the watchdog alone holds. A CLEAR_STOP
+copy is repeated every ``stop_repeat_s`` after the previous copy was written.
 
-**Supervision.** HELLO is repeated until IDENT; a protocol or schema-hash mismatch
-refuses every step (``rejected:schema_mismatch``). HOST_HEARTBEAT every
-``heartbeat_s``; ``link_lost_beats`` controller heartbeats missed -> ``fault:link_lost``,
-by :meth:`~LinkCore.tick` or, when the host itself was held up, by the first heartbeat
-that arrives after a longer gap. Sensor samples are forwarded only in a session whose
-IDENT told the boot nonce, so the first count of a new boot can never be taken for
-motion of the old one (others counted in ``samples_outside_session``). A changed boot
-nonce -> ``fault:controller_reboot``. A transport error -> reconnect with exponential
-backoff, which only a completed handshake resets. In every one of these cases every
-step not yet settled is dropped with its own fate, oldest first, each counted in
-``steps_aborted`` (``aborted:link_lost``, ``aborted:controller_reboot``,
-``aborted:schema_mismatch``); then one ``fault:<reason>`` reports the link event. No
-stale motion is ever replayed.
+**MOTION lane.** One MOTION at a time, in order, the next only after its ACK: a MOTION is
+retransmitted ``ack_timeout_s`` after it was written, at most ``motion_retries`` times
+(then ``fault:no_ack`` and the link is lost); at most ``controller_queue`` steps are
+outstanding in the controller.
+
+**Supervision.** HELLO is repeated until IDENT; a mismatch refuses every step
+(``rejected:schema_mismatch``). ``link_lost_beats`` controller heartbeats missed ->
+``fault:link_lost`` (by :meth:`~LinkCore.tick`, or by the first heartbeat after a longer
+gap when the host was held up). Sensor samples are forwarded only in a session whose
+IDENT told the boot nonce. A changed boot nonce -> ``fault:controller_reboot``; a
+transport error -> reconnect with exponential backoff, reset only by a completed
+handshake. In each case every step not yet settled is dropped with its own fate, oldest
+first (``aborted:<reason>``, counted in ``steps_aborted``), then one ``fault:<reason>``;
+no stale motion is ever replayed.
 
 **Seams.** A few rules sit in methods of their own so that the wire simulator can
 undo exactly one fix in a subclass (``sim/linkmutants.py``, docs/sim.md "Mutants"):

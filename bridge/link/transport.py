@@ -170,8 +170,7 @@ class Transport:
         return self.endpoint.medium_errors
 
     def _write(self, message: Message) -> None:
-        """Send one message (the hook a test overrides to watch or stall writes). Raises
-        OSError on failure."""
+        """Send one message; raises OSError on failure (a test overrides it to stall writes)."""
         self.endpoint.write(message)
 
     # -- API ----------------------------------------------------------------------------

@@ -376,8 +376,7 @@ class OnboardCore:
 
     @property
     def stop_unanswered(self) -> bool:
-        """A STOP of the core's went out and the bridge has not answered ``stopped``
-        (nor was the latch released) yet."""
+        """A STOP of the core's is out, neither answered ``stopped`` nor ended by ``cleared``."""
         return self._stop_sent
 
     @property
@@ -580,8 +579,7 @@ class OnboardCore:
         self._ack(UplinkAck(upto, "cancelled", "", detail, state))
 
     def on_status(self, text: str, now: float) -> None:
-        """One ``/command_status`` string of the bridge (the core's own refusals come
-        back too and are ignored)."""
+        """One ``/command_status`` string of the bridge (the core's own refusals are ignored)."""
         kind, reason = parse_status(text)
         plan = self._plan
         if text == STOPPED:
@@ -650,8 +648,7 @@ class OnboardCore:
         self._end(plan, "failed", f"step {plan.step + 1}/{n}: {text}", now)
 
     def _foreign_step(self, plan: _Plan, what: str, now: float) -> None:
-        """A status that is no fate of the plan's step outstanding: STOP, and the plan
-        ends (``foreign_step``)."""
+        """A status that is no fate of the step outstanding: STOP; the plan ends (foreign_step)."""
         n = len(plan.uplink.steps)
         why = f"step {plan.step + 1}/{n}: {what}: a step the plan did not send (foreign_step)"
         plan.status = f"foreign_step: {what}"

@@ -107,8 +107,7 @@ NO_TF2_MSGS = (
 
 
 def tf_message_type() -> type[Any] | None:
-    """``tf2_msgs/msg/TFMessage``'s generated class, or ``None`` where it is not
-    installed."""
+    """``tf2_msgs/msg/TFMessage``'s generated class, or ``None`` where it is not installed."""
     try:
         found: type[Any] = importlib.import_module("tf2_msgs.msg").TFMessage
     except (ImportError, AttributeError):
@@ -117,8 +116,7 @@ def tf_message_type() -> type[Any] | None:
 
 
 def _transform(when: Any, parent: str, child: str, x: float, y: float, yaw: float) -> Any:
-    """A planar ``geometry_msgs/TransformStamped``: ``child`` at (x, y, yaw rad) in
-    ``parent``."""
+    """A planar ``geometry_msgs/TransformStamped``: ``child`` at (x, y, yaw rad) in ``parent``."""
     geometry = importlib.import_module("geometry_msgs.msg")
     return geometry.TransformStamped(
         header=Header(stamp=when, frame_id=parent),

@@ -59,8 +59,7 @@ def wheel_odometry(est: OdometryEstimate, when: Any, frame: str, child: str) -> 
 
 
 def ground_odometry(pose: GroundPose, when: Any, frame: str, child: str) -> Odometry:
-    """``/odom_ground`` for one POSE fix, stamped ``when`` (the fix's own time) in
-    ``frame``."""
+    """``/odom_ground`` for one POSE fix, stamped ``when`` (the fix's own time) in ``frame``."""
     var = pose.sigma_m**2
     return Odometry(
         header=Header(stamp=when, frame_id=frame),

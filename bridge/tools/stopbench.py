@@ -263,8 +263,7 @@ UNUSED_MSG_ID = 120
 
 
 class _Flood:
-    """A second CAN sender: lowest-priority frames (or malformed ones) at a fixed rate,
-    on its own thread."""
+    """A second CAN sender: lowest-priority (or malformed) frames at a fixed rate, own thread."""
 
     def __init__(self, config: FloodConfig, node: int) -> None:
         self.config = config

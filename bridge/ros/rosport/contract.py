@@ -91,8 +91,7 @@ class Outcome(str, enum.Enum):
 
 
 class CommandStatus(NamedTuple):
-    """A ``/command_status`` string taken apart: its kind and its reason (``""`` for a
-    status without one)."""
+    """A ``/command_status`` string taken apart: its kind and its reason (``""``: none)."""
 
     kind: str
     reason: str = ""
