@@ -5,7 +5,7 @@ All derive from :class:`bridge.errors.RosPortError` (itself a
 
     RosPortError
      +-- UnknownBackendError       no backend has that name (lists the known ones); also ValueError
-     +-- BackendUnavailableError   the backend's dependency (rclpy, cyclonedds) is not installed
+     +-- BackendUnavailableError   the backend's dependency (rclpy) is not installed
      +-- RosNameError              a topic name, namespace or node name breaks the ROS 2 rules;
      |                             also ValueError
      +-- MessageError              a message does not fit its ROS type (field type, range,
