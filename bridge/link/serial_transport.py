@@ -7,7 +7,7 @@ rate (default 115200); it is our own parameter and is stripped before the URL go
 pyserial, which gets the rest verbatim. Devices are opened exclusively where the
 platform allows, so two bridges cannot share a controller.
 
-Errors (docs/bridge.md, "Which errors are retried"): a malformed URL is a permanent
+Errors (docs/bridge.md, "Transports"): a malformed URL is a permanent
 :class:`~bridge.errors.TransportUrlError` from the constructor, before anything is
 opened; everything else is a :class:`~bridge.errors.TransportError` from ``open``,
 ``send`` or the reader, and the link reconnects with backoff.

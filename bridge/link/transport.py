@@ -34,7 +34,7 @@ the order their callers got the write lock. STOP has a lock of its own (one STOP
 time): it never waits for another message's write, even one stuck in the OS for the
 serial write timeout. On a serial line a STOP may cut a frame half-way out; the
 controller drops that frame and resynchronises at STOP's leading delimiter, so STOP
-arrives whole (docs/bridge.md, "What only shows on the wire"). On CAN STOP goes to the
+arrives whole (docs/bridge.md, "The link to the controller"). On CAN STOP goes to the
 bus ahead of any frame of ours still waiting for the write lock.
 
 **In lockstep** (a whole mission in virtual time, docs/sim.md) a transport is opened with

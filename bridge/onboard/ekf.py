@@ -1,6 +1,6 @@
 """The rover's pose on board: an extended Kalman filter of its map pose, fed by the
 bridge's odometry (encoder travel along the integrated IMU heading, ``odom``) and
-corrected by the ground-seeing POSE (``odom_ground``) (docs/onboard.md, "Estimate").
+corrected by the ground-seeing POSE (``odom_ground``) (docs/onboard.md, "The estimate").
 
 State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
 
