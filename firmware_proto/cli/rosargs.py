@@ -1,17 +1,15 @@
 """The ROS 2 part of a command line, for programs that ``ros2 run`` and launch files start.
 
-launch_ros starts every node as ``EXE [arguments...] --ros-args -r __node:=NAME
-[-r __ns:=/NS] [--params-file FILE]... [-p name:=value]...``. The programs of this
-project that are not ROS nodes themselves (the emulator, the gate, the link relay) take
-their settings from their own long options; these pure helpers turn the ROS arguments
-into those options, so that one parameters YAML configures the whole HIL set
-(docs/ros2.md). Everything here is pure: the parameters-file loader is passed in. The
-command-line edge, which reads the YAML files and turns bad arguments into usage errors
-for a program's ``main()``, is :mod:`firmware_proto.cli.rosparams`.
+launch_ros starts every node as ``EXE [arguments...] --ros-args -r __node:=NAME [-r
+__ns:=/NS] [--params-file FILE]... [-p name:=value]...``. The programs that are not ROS
+nodes themselves (emulator, gate, link relay) take their own long options; these pure
+helpers turn the ROS arguments into those options, so that one parameters YAML
+configures the whole HIL set (docs/ros2.md). The YAML loader is passed in; the
+command-line edge is :mod:`firmware_proto.cli.rosparams`.
 
-Mapping: the parameter ``speed_factor: 4.0`` becomes ``--speed-factor 4.0``; ``true``
-becomes the bare flag, ``false`` and empty values are left out, a list repeats the
-option. Options given on the command line come after, so they win.
+Mapping: ``speed_factor: 4.0`` becomes ``--speed-factor 4.0``; ``true`` the bare flag;
+``false`` and empty values are left out; a list repeats the option. Options given on the
+command line come after, so they win.
 """
 
 from __future__ import annotations
@@ -238,11 +236,10 @@ def ros_node_parameters(
 ) -> dict[str, Any]:
     """One node's parameters from parsed ROS arguments, merged as rcl merges them.
 
-    rcl keeps one table of sections: each ``--params-file`` and each ``-p`` (section
-    ``/**`` unless the name carries a node) updates it in command-line order, and the
-    node's parameters are its sections applied in the order they first appeared. So a
-    ``-p`` wins over an earlier file's ``/**`` section but not over its ``/**/NAME``
-    section, exactly as for any ROS 2 node (docs/ros2.md).
+    Each ``--params-file`` and each ``-p`` (section ``/**`` unless the name carries a node)
+    updates one table of sections in command-line order; the node's parameters are its
+    sections applied in the order they first appeared. So a ``-p`` wins over an earlier
+    file's ``/**`` section but not over its ``/**/NAME`` section, as for any ROS 2 node.
 
     Args:
         parsed: the parsed ROS arguments (:func:`parse_ros_args`).

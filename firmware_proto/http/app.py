@@ -6,32 +6,24 @@ middleware of ours, and exception handlers that word every error in the server's
 
 1. :class:`Guard` (pure ASGI middleware):
 
-   - a method nobody defines (``BREW``) is 501; a method of HTTP's registry that the
-     path does not take (``TRACE``, ``QUERY``) falls through to the router's 405;
-   - ``Host`` must name this server (:class:`~firmware_proto.http.bindpolicy.HostPolicy`;
-     421 ``misdirected_request``): against DNS rebinding;
-   - the token: with one required, a request without it is 401; a request that
-     presents it is *trusted* (``request.state.trusted``), which outranks anonymous
-     clients where the server ranks them (the view's push channel; the connection
-     layer keeps room for trusted connections);
-   - the *lane* (:class:`Lane`): at most ``lane_per_turn`` ordinary requests start
-     per turn of the event loop, the others wait their turn in order; the paths in
-     ``priority`` (the view's STOP) skip it. A request that never waits runs from
-     routing to its last byte in one go, so a limit on how many run *at once* limits
-     nothing: a flood of cheap requests would take whole turns of the loop, and STOP,
-     which needs several turns (accept, read, its thread, its answer), would wait
-     behind each (docs/view.md, "STOP never waits");
-   - security headers on every answer (``X-Frame-Options: DENY``, ``frame-ancestors
-     'none'``, ``nosniff``, ``no-store``...), and ``Connection: close`` after an error
-     that leaves the connection in doubt (408, 5xx but 503) or while draining;
+   - a method nobody defines is 501; a known one the path does not take falls through
+     to the router's 405;
+   - ``Host`` must name this server (421 ``misdirected_request``): against DNS rebinding;
+   - the token: with one required, a request without it is 401; one that presents it is
+     *trusted* (``request.state.trusted``), which outranks anonymous clients where the
+     server ranks them;
+   - the *lane* (:class:`Lane`): at most ``lane_per_turn`` ordinary requests start per
+     turn of the event loop, the rest wait in order; ``priority`` paths skip it. A limit
+     on requests *at once* would limit nothing (a request that never waits runs in one
+     go), so STOP would wait behind a flood (docs/view.md, "STOP never waits");
+   - security headers on every answer, and ``Connection: close`` after an error that
+     leaves the connection in doubt (408, 5xx but 503) or while draining;
    - an unexpected exception is logged and answered 500.
 2. Starlette's exception middleware: :class:`~.errors.StatusError` and the router's own
-   404/405 are worded by the server's :data:`ErrorBody` (JSON for both servers).
+   404/405 are worded by the server's :data:`ErrorBody`.
 3. Starlette's :class:`~starlette.routing.Router` (no slash redirects).
 
-:func:`require_same_origin` is the check of a request that changes the world (STOP,
-clear-STOP): from a page of this server only, and with a header that neither a form nor
-a ``no-cors`` fetch of another origin can send.
+:func:`require_same_origin` guards a request that changes the world (STOP, clear-STOP).
 
 Threads: everything here runs on the server's event loop; ``on_error`` is called there.
 """
@@ -387,12 +379,10 @@ def build_app(
 
 
 def require_same_origin(request: Request, *, header: str, value: str = "1") -> None:
-    """Refuse (403 ``cross_origin``) a request that a page of another origin could have
-    made: it must carry ``header: value`` (a simple form cannot set a header, and a
-    fetch of another origin that sets one must first pass a CORS preflight, which these
-    servers never grant), its ``Origin``, when sent, must be this server's (the
-    scheme, and the ``Host`` the request was sent to), and its ``Sec-Fetch-Site``, when
-    sent, ``same-origin`` or ``none`` (typed by the user).
+    """Refuse a request that a page of another origin could have made: it must carry
+    ``header: value`` (a form cannot set a header, and a cross-origin fetch that sets one
+    needs a CORS preflight, never granted here); ``Origin``, when sent, must be this server's
+    (scheme and ``Host``); ``Sec-Fetch-Site``, when sent, ``same-origin`` or ``none``.
 
     Raises:
         StatusError: 403 ``cross_origin``.

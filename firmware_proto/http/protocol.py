@@ -1,46 +1,36 @@
 """uvicorn's h11 connection with this project's limits: :class:`GuardedH11Protocol`.
 
-uvicorn serves the ASGI apps and h11 parses HTTP/1.1 strictly (framing, chunked bodies,
-``Expect: 100-continue``, keep-alive, pipelining, flow control). What uvicorn leaves
-open, this protocol bounds (the numbers are :class:`~.limits.ServeLimits`):
+uvicorn serves the ASGI apps and h11 parses HTTP/1.1 strictly. What uvicorn leaves open,
+this protocol bounds (the numbers are :class:`~.limits.ServeLimits`; docs/gate.md says
+why a subclass):
 
-- *Silent and slow clients.* uvicorn times out only an idle kept-alive connection, and
-  only until its first byte. Here a connection waits at most ``idle_timeout_s`` for a
-  request to start (new connections too), and the request's head must then arrive whole
-  within ``head_timeout_s``: a client sending its headers a byte a second (slowloris) is
-  answered 408 and closed, and costs no thread meanwhile.
-- *Readers that stop reading.* A response the client has not taken for
-  ``write_timeout_s`` (the socket's buffers full) ends the connection.
-- *Unread bodies.* After an answer given without reading the body (413, 415...), at most
-  ``max_drain_bytes`` of it are read and dropped (so the client reads the answer rather
-  than a reset), within the same deadlines.
-- *Connections.* At most ``max_connections`` open at once, ``max_connections_per_address``
-  from one address, and of them at most ``max_connections - reserved_connections`` not
-  yet shown to hold the token (a request on it presented it: the application marks
-  it). A new connection over a limit takes the place of the oldest *idle* connection
-  under that limit that has never completed a request (one that sent nothing, or a
-  slow head), then of the oldest idle one; a connection whose request waits unread
-  (accepted while the event loop was busy) is not idle; a connection that holds the token is never
-  evicted for one that has not shown it; with nothing to evict, the new connection is
-  answered 503. One let in over the anonymous limit is served one request and closed,
-  unless that request showed the token. (A slow client that reconnects cannot lock
-  the token's holders out: the token is read only after a head, so the room is kept
-  by evicting, not by refusing.)
-- *Heads.* A request head over ``max_head_bytes`` is 431, whether it arrives in pieces
-  (h11's limit) or whole (counted here).
+- *Silent and slow clients.* A connection waits at most ``idle_timeout_s`` for a request
+  to start (new connections too), and the head must then arrive whole within
+  ``head_timeout_s`` (else 408 and closed; a slowloris costs no thread meanwhile).
+- *Readers that stop reading.* A response not taken for ``write_timeout_s`` ends the
+  connection.
+- *Unread bodies.* After an answer given without reading the body, at most
+  ``max_drain_bytes`` of it are read and dropped, so the client reads the answer.
+- *Connections.* At most ``max_connections`` open, ``max_connections_per_address`` from
+  one address, and ``max_connections - reserved_connections`` not yet shown to hold the
+  token (the application marks it). A new connection over a limit takes the place of
+  the oldest *idle* connection under that limit, never-served ones first; a connection
+  with a request waiting unread is not idle, and a token holder is never evicted for an
+  anonymous one. With nothing to evict: 503. One let in over the anonymous limit is
+  served one request and closed, unless that request showed the token.
+- *Heads* over ``max_head_bytes``: 431, in pieces or whole.
 - *A client that half-closes* after its request still gets its answer; one that closes
   mid-body gets 400 ``truncated_body``. Either way the request's
   :class:`~firmware_proto.http.connection.ConnectionMark` (in the scope's
-  ``extensions``) says the peer has closed, so that long work for it can stop.
-- *Ambiguous framing* (both ``Content-Length`` and ``Transfer-Encoding``) is refused
-  with 400 and the connection closed, rather than read by one of them (smuggling); an
-  HTTP version other than 1.0 or 1.1 with 505.
-- *Errors the connection answers itself* (malformed request 400, 408, 431, 503) are
-  worded by the server's :data:`~.limits.ErrorRenderer`, so that a JSON API stays JSON.
+  ``extensions``) says the peer has closed.
+- *Ambiguous framing* (both ``Content-Length`` and ``Transfer-Encoding``): 400 and
+  closed (smuggling); an HTTP version other than 1.0 or 1.1: 505.
+- *Errors the connection answers itself* (400, 408, 431, 503) are worded by the server's
+  :data:`~.limits.ErrorRenderer`, so that a JSON API stays JSON.
 
 The hooks overridden are uvicorn's ``asyncio.Protocol`` callbacks and its
-``send_400_response``; ``uvicorn.Config(http=...)`` is uvicorn's documented way to give
-it a protocol class. The version range in ``pyproject.toml`` is the one tested.
+``send_400_response``, given through ``uvicorn.Config(http=...)``; ``pyproject.toml``
+pins the uvicorn versions tested.
 """
 
 from __future__ import annotations
@@ -71,11 +61,10 @@ _FRAMING_WORDS = ("content-length", "transfer-encoding", "chunk")
 
 
 def classify_protocol_error(hint: int, text: str) -> tuple[int, str]:
-    """The status and code of a request h11 refused: ``(431,
-    "request_header_fields_too_large")`` for a head over the limit, ``(400,
-    "bad_framing")`` for a malformed ``Content-Length``/``Transfer-Encoding`` or chunk
-    (h11 hints 501 for an unknown transfer coding; it is a malformed request here too),
-    else ``(400, "bad_request")``."""
+    """The status and code of a request h11 refused: 431
+    ``request_header_fields_too_large`` for a head over the limit, 400 ``bad_framing`` for a
+    malformed ``Content-Length``/``Transfer-Encoding`` or chunk (h11's 501 hint for an
+    unknown coding included), else 400 ``bad_request``."""
     if hint == 431:
         return 431, "request_header_fields_too_large"
     lowered = text.lower()
@@ -102,9 +91,8 @@ def _head_bytes(scope: Any) -> int:
 
 
 def _unread_bytes(transport: asyncio.BaseTransport) -> int:
-    """Bytes the client sent that the server has not read yet (``FIONREAD``): a
-    connection accepted while the event loop was busy may hold a whole request that
-    no callback has seen. 0 where the socket cannot say."""
+    """Bytes the client sent that the server has not read yet (``FIONREAD``; 0 where the
+    socket cannot say): a connection accepted while the loop was busy may hold a request."""
     sock = transport.get_extra_info("socket")
     if sock is None:
         return 0

@@ -1,26 +1,21 @@
 """CAN endpoint: frames of docs/protocol.md on any python-can bus, for either side.
 
-``socketcan`` on Linux (``vcan0`` in CI, a real adapter such as ``rovercan0`` on the
-rover), ``virtual`` in-process, any other python-can interface by name. Identifiers and
-payloads are those of docs/protocol.md (:mod:`firmware_proto.wire.canmap`); the bus
-arbitrates by identifier, so the STOP lane wins by itself.
+``socketcan`` on Linux, ``virtual`` in-process, any other python-can interface by name.
+Identifiers and payloads are :mod:`firmware_proto.wire.canmap`'s; the bus arbitrates by
+identifier, so the STOP lane wins by itself.
 
-**Which frames a side takes.** A host takes its controller node's frames sent towards
-hosts; a controller takes frames sent towards controllers for its node or for all
-(broadcast, node 0). Everything else decoded (another node's traffic, our own kind
-echoed back) is counted in :attr:`~firmware_proto.linkio.endpoint.Endpoint.foreign`;
-frames that do not decode are counted by the decoder and dropped.
+**Which frames a side takes.** A host takes its controller node's frames towards hosts;
+a controller takes frames towards controllers for its node or broadcast (node 0).
+Anything else decoded is counted in
+:attr:`~firmware_proto.linkio.endpoint.Endpoint.foreign`; frames that do not decode are
+counted by the decoder and dropped.
 
-**Bus health.** A CAN controller counts transmit and receive errors and moves between
-the fault-confinement states *error-active*, *error-warning* (96 errors or more),
-*error-passive* (128 or more) and *bus-off* (256 transmit errors: it leaves the bus).
-SocketCAN reports these as error frames (``linux/can/error.h``: the ``CAN_ERR_FLAG`` id
-flag, class bits in the id, details in the payload), which python-can delivers with
-``is_error_frame`` set; a few other interfaces report ``bus.state`` instead. Both are read
-(:func:`decode_error_frame` is pure): every error frame is counted
+**Bus health.** The fault-confinement state (error-active, error-warning, error-passive,
+bus-off) is read from SocketCAN error frames (:func:`decode_error_frame`, pure) and from
+``bus.state`` where an interface reports it. Every error frame is counted
 (:attr:`CanEndpoint.error_frames`), a change of state is logged once and counted
-(:attr:`CanEndpoint.state_changes`) and shows in :attr:`CanEndpoint.medium_state`. On the
-host side bus-off is a failure of the medium (``read`` raises OSError: the link
+(:attr:`CanEndpoint.state_changes`) and shows in :attr:`CanEndpoint.medium_state`. On
+the host side bus-off is a failure of the medium (``read`` raises OSError: the link
 reconnects); the emulated controller counts it and carries on.
 """
 
@@ -175,12 +170,10 @@ class CanEndpoint(Endpoint):
     ) -> None:
         """Args:
         side: which end of the link this is.
-        interface, channel: the python-can interface and channel (``socketcan``,
-            ``vcan0``); ``interface`` is checked against python-can's list unless ``bus``
-            is given.
+        interface, channel: the python-can interface and channel (``socketcan``, ``vcan0``);
+            ``interface`` is checked against python-can's list unless ``bus`` is given.
         node: the controller's node id, 1..15 (a host's peer, or the controller itself).
-        bus: an already open bus to use (the caller keeps ownership; never shut down
-            here).
+        bus: an already open bus to use (the caller keeps ownership).
         send_timeout_s: longest wait for room in the transmit queue, s.
         recorder: a first listener; as a bus monitor it sees other nodes' frames too.
         bus_options: passed to ``can.Bus`` (e.g. ``bitrate``).
@@ -354,9 +347,8 @@ class CanEndpoint(Endpoint):
         )
 
     def _poll_state(self, bus: can.BusABC) -> None:
-        """Follow ``bus.state`` where the interface reports it. Interfaces that do not
-        always say ACTIVE, so only a change of what it says counts (an error frame's
-        state is not overridden by a constant ACTIVE).
+        """Follow ``bus.state`` where the interface reports it; only a change counts, since
+        interfaces that do not report always say ACTIVE.
 
         Raises:
             OSError: host side, the interface says bus-off (BusState.ERROR).

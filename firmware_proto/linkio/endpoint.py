@@ -1,26 +1,20 @@
-"""One end of the wire: protocol messages over a medium, for either side of the link.
+"""One end of the wire: protocol messages over a medium, for either side of the link
+(docs/linkio.md).
 
-An :class:`Endpoint` turns messages into frames on a medium and frames back into
-messages, the same way at both ends of the link: the bridge's transports wrap one with
-``side=HOST``, the emulator's front ends with ``side=CONTROLLER``, the two replays with
-the side they play. The side decides what is taken in (a host takes what the controller
-sends; a controller takes what hosts send, and on CAN its own node's frames and
-broadcasts) and which way a frame written is logged.
+An :class:`Endpoint` turns messages into frames on a medium and back, the same way at
+both ends: the bridge's transports use ``side=HOST``, the emulator's front ends
+``side=CONTROLLER``. The side decides what is taken in (on CAN, a controller takes its
+own node's frames and broadcasts) and which way a written frame is logged.
 
-An endpoint is synchronous and owns no thread: :meth:`Endpoint.read` waits a little and
-returns what arrived, :meth:`Endpoint.write` sends one message now. Threads and queues
-are the owner's policy (the bridge's reader and dispatcher, :mod:`bridge.link.transport`;
-the emulator's reader with injected link faults, :mod:`emulator.frontend`), as in
-python-can, where a ``Bus`` does the I/O and a ``Notifier`` runs the thread.
+An endpoint is synchronous and owns no thread: threads and queues are the owner's
+policy, as with python-can's ``Bus`` and ``Notifier``.
 
-**Listeners.** Every frame written (just before it goes to the medium, so that an
-answer cannot be logged ahead of it) and every frame received goes to each listener
-(:meth:`Endpoint.add_listener`): a traffic log (:mod:`firmware_proto.linkio.trafficio`),
-a bus monitor. A listener that raises is logged once and called again with the next
-frame (a full disk may free up); the link never fails because its log did.
+**Listeners** get every frame written (just before it goes out, so an answer cannot be
+logged ahead of it) and every frame received. A listener that raises is logged once and
+called again with the next frame: the link never fails because its log did.
 
-Implementing a medium: subclass :class:`Endpoint`, fill ``_open``, ``_close``, ``read``,
-``write`` and, where the medium can, ``write_raw`` and ``write_record``; hand frames to
+A medium subclasses :class:`Endpoint`, fills ``_open``, ``_close``, ``read``, ``write``
+and, where it can, ``write_raw`` and ``write_record``, and hands frames to
 :meth:`Endpoint._emit`.
 """
 
@@ -178,9 +172,9 @@ class Endpoint(ABC):
         return [(message, None) for message in self.read(timeout_s)]
 
     def read_ready(self) -> list[tuple[Message, int | None]]:
-        """Everything that has arrived, without waiting (:meth:`read_numbered` with no
-        timeout until the endpoint counts nothing new: a CAN read takes one frame at a
-        time, and a frame that is not for us returns nothing but still counts).
+        """Everything that has arrived, without waiting: :meth:`read_numbered` with no timeout
+        until the counters stop moving (a CAN read takes one frame at a time, and a frame not
+        for us returns nothing but still counts).
 
         Raises:
             OSError: the medium is gone.

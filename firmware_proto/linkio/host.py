@@ -1,27 +1,20 @@
 """A scripted protocol host: the host side of docs/protocol.md, driven by a script.
 
-:class:`ProtocolHost` is what a test, the conformance suite (``rover conformance``) and
-the STOP bench (``rover bench stop``) talk to a controller with. It owns one
-:class:`~firmware_proto.linkio.endpoint.Endpoint` on the host's side (a serial device, a
-pty, a CAN bus, an in-memory line), keeps every message received in an
-:class:`~firmware_proto.linkio.inbox.Inbox` with its arrival time and, on serial, its
-frame counter (:class:`Received`), sends messages (checked, unchecked, raw frames, raw
-bytes), and answers a script's questions with timeouts: :meth:`ProtocolHost.expect` (the
-first matching message after a mark, or
-:class:`~firmware_proto.linkio.errors.NotReceivedError` saying what was awaited),
-:meth:`ProtocolHost.find` (the same, ``None`` on timeout), :meth:`ProtocolHost.absent`
-(no matching message during a window). It sends HOST_HEARTBEAT every period unless a
-script keeps it quiet (:meth:`ProtocolHost.silent`).
+What tests, ``rover conformance`` and ``rover bench stop`` talk to a controller with.
+:class:`ProtocolHost` owns one host-side
+:class:`~firmware_proto.linkio.endpoint.Endpoint`, keeps every message received
+(:class:`Received`) in an :class:`~firmware_proto.linkio.inbox.Inbox`, sends messages
+(checked, unchecked, raw frames, raw bytes) and answers a script's questions with
+timeouts (:meth:`~ProtocolHost.expect`, :meth:`~ProtocolHost.find`,
+:meth:`~ProtocolHost.absent`). It sends HOST_HEARTBEAT every period unless
+:meth:`~ProtocolHost.silent`.
 
-**Two ways to run.** With the :data:`~firmware_proto.linkio.clock.WALL` clock (the
-default) :meth:`ProtocolHost.open` starts a reader thread (it only reads and appends)
-and a heartbeat thread, and waits sleep on the inbox's condition. With a
-:class:`~firmware_proto.linkio.clock.LockstepClock` there are no threads: ``open``
-registers the host's pump (read what arrived, append it) and heartbeat timer with the
-clock, and every wait advances the clock, which ticks the in-process controller too.
-A script is the same code either way.
-
-Writes happen on the caller's thread (and the heartbeat thread's), one at a time.
+**Threads.** With the :data:`~firmware_proto.linkio.clock.WALL` clock, :meth:`open`
+starts a reader thread (it only reads and appends) and a heartbeat thread, and waits
+sleep on the inbox's condition. With a :class:`~firmware_proto.linkio.clock.LockstepClock`
+there are no threads: the host's pump and heartbeat run on the clock's ticks, and every
+wait advances the clock. Writes happen on the caller's (and heartbeat) thread, one at a
+time under a lock.
 """
 
 from __future__ import annotations
@@ -198,9 +191,8 @@ class ProtocolHost:
         self.inbox.append(item)
 
     def clear_stop_for(self, stop_id: int, *, ahead: int = 0) -> ClearStop:
-        """A CLEAR_STOP ``stop_id`` naming the latch generation this host last heard of,
-        plus ``ahead`` (new latch causes this host sent that no answer told it of yet: a
-        STOP just written raises the generation by one)."""
+        """A CLEAR_STOP ``stop_id`` naming the latch generation last heard of plus ``ahead``
+        (latch causes this host sent that no answer reported yet: a STOP just written adds one)."""
         return ClearStop(stop_id, (self.latch_gen + ahead) & 0xFF)
 
     def _reader(self) -> None:
@@ -336,10 +328,9 @@ class ProtocolHost:
         )
 
     def handshake(self, *, timeout_s: float = 5.0, every_s: float | None = None) -> Ident:
-        """HELLO with this protocol's version and schema hash; the first IDENT after it
-        (which may be a boot IDENT that crossed it: :meth:`matches` tells). With
-        ``every_s``, HELLO is sent again every ``every_s`` until an IDENT comes (a
-        controller still booting, or one that lost the first).
+        """HELLO with this protocol's version and schema hash; the first IDENT after it (maybe a
+        boot IDENT that crossed it: :meth:`matches` tells). With ``every_s``, HELLO is repeated
+        every ``every_s`` until an IDENT comes.
 
         Raises:
             NotReceivedError: no IDENT within ``timeout_s`` (scaled).
@@ -505,8 +496,7 @@ class ProtocolHost:
     # -- heartbeats -----------------------------------------------------------------------
     @contextlib.contextmanager
     def silent(self) -> Iterator[None]:
-        """No HOST_HEARTBEAT while inside: the host goes quiet, as a cut cable or a frozen
-        host would (a script that sends nothing meanwhile lets the watchdog trip)."""
+        """No HOST_HEARTBEAT while inside: the host goes quiet, as a cut cable would."""
         with self.inbox.cond:
             self._quiet += 1
         try:

@@ -1,33 +1,19 @@
 """Traffic log writers and reader, on streams or by path (docs/traffic-logs.md).
 
-The record types, the serial frame-log format and the decoding are pure and live in
-:mod:`firmware_proto.linkio.trafficlog`; this module of the link-I/O layer turns records into
-log files and back, for both ends of the link (the bridge's transports, the emulator's
-front ends, their replays, ``rover decode``).
+The records, the serial frame-log format and the decoding are pure and live in
+:mod:`firmware_proto.linkio.trafficlog`; this module turns records into log files and
+back, for both ends of the link.
 
-- :class:`LogWriter`: the recorder base (thread-safe :meth:`~LogWriter.record`,
-  idempotent :meth:`~LogWriter.close`); :class:`SerialLogWriter` writes the serial frame
-  log to a text stream, :class:`CanLogWriter` feeds one of python-can's log writers.
-  A writer is a listener of an endpoint
-  (:meth:`~firmware_proto.linkio.endpoint.Endpoint.add_listener`).
-- :data:`CAN_LOG_FORMATS`: the python-can formats recorded and read, by file suffix.
-- :func:`writer_for`: the writer that a medium and a file suffix call for, checked before
-  anything is opened; it is then given the binary stream to write to.
-- :func:`parse_log`: a serial frame log or a CAN log back from a binary stream.
-- :func:`open_recorder` and :func:`read_log`: the same, by path.
+- :class:`LogWriter`: the recorder base; :class:`SerialLogWriter` (the serial frame log
+  on a text stream) and :class:`CanLogWriter` (one of python-can's log writers). A writer
+  is an endpoint's listener.
+- :data:`CAN_LOG_FORMATS`: the python-can formats recorded and read, by file suffix:
+  ``.log`` (candump ``-L``, flushed per frame) and ``.blf`` (buffered until closed); the
+  other suffixes are refused (docs/traffic-logs.md says why).
+- :func:`writer_for`, :func:`parse_log`: a writer for a medium and suffix, checked before
+  anything is opened; a log read back. :func:`open_recorder`, :func:`read_log`: by path.
 
-**Streams.** Writers and the reader own the streams they are given, as python-can's
-do: :meth:`LogWriter.close` finishes the log and closes its stream, :func:`parse_log`
-closes its stream once read (or on error).
-
-**CAN formats.** ``.log`` (candump ``-L``) keeps everything a frame carries and is
-flushed per frame: the one to use, read by can-utils and cantools too. ``.blf`` (Vector
-BLF) keeps times to the microsecond, identifiers, data and direction, but numbers its
-channels and holds up to 128 KiB in python-can's buffer until it is closed. The other
-suffixes python-can knows are refused: ``.asc`` and ``.trc`` round times to 0.1 ms and
-1 ms (an answer could then sort ahead of its request), ``.csv`` drops the direction,
-``.txt`` cannot be read back, ``.db`` and ``.mf4`` need a path or another library.
-``python -m can.logconvert`` converts a ``.log`` to any of them.
+Writers and the reader own the streams they are given, as python-can's do.
 """
 
 from __future__ import annotations
@@ -79,11 +65,9 @@ logger = logging.getLogger(__name__)
 class LogWriter(ABC):
     """A recorder writing one log (a :class:`~firmware_proto.linkio.trafficlog.TrafficRecorder`).
 
-    :meth:`record` is thread-safe (transports record from their reader threads and their
-    callers' threads) and checks the record type. Times never go back in a log: a record
-    stamped earlier than the one written before it (two threads that stamped their frames
-    and then raced to the log) takes that record's time, so the file's order, which a
-    replay by ``canplayer`` follows, is also its time order; an implementation fills :meth:`_write`
+    :meth:`record` is thread-safe and checks the record type. Times never go back in a log:
+    a record stamped earlier than the one before it (two threads racing to the log) takes
+    that one's time, so file order is time order. An implementation fills :meth:`_write`
     (one record, under the lock) and :meth:`_close` (finish the log, close the stream,
     called once). It owns the stream it was given.
 
@@ -101,13 +85,11 @@ class LogWriter(ABC):
         self.frames = 0
 
     def record(self, entry: TrafficRecord) -> None:
-        """Append one frame; after :meth:`close`, drop it (a reader thread may still hand
-        one over while its owner shuts down).
+        """Append one frame; after :meth:`close`, drop it.
 
         Raises:
             TypeError: a record of the other medium.
-            OSError: the stream failed (disk full); the transports and front ends log it
-                once and keep the link running.
+            OSError: the stream failed (disk full); callers log it once and keep the link running.
         """
         if not isinstance(entry, self.record_type):
             raise TypeError(f"a {self.record_type.__name__} log cannot hold {entry!r}")
@@ -148,8 +130,7 @@ class LogWriter(ABC):
 
 
 class SerialLogWriter(LogWriter):
-    """Writes a serial frame log to a text stream, one line per frame, each flushed as it
-    is written, so that a log survives a crash up to its last frame."""
+    """Writes a serial frame log to a text stream, one line per frame, each flushed."""
 
     record_type = SerialRecord
 
@@ -346,20 +327,18 @@ def _logged_can_record(msg: can.Message) -> CanRecord:
 
 def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
     """Read a serial frame log or a CAN log of :data:`CAN_LOG_FORMATS`, told apart by
-    content (the serial log's first line) and then by the suffix of ``path``. Records
-    come in time order, sorted (stably) by time: our recorders write them so already
-    (:class:`LogWriter`), a log from elsewhere may not be.
+    content (the serial log's first line), then by the suffix of ``path``. Records come
+    sorted (stably) by time.
 
     Args:
-        stream: a readable, seekable binary stream at the log's start. Like the writers,
-            the reader owns it: it is closed on return, and on error (python-can's
-            readers close theirs when they are done).
+        stream: a readable, seekable binary stream at the log's start; closed on return and
+            on error.
         path: the log's name, for its suffix and for messages (not opened).
 
     Raises:
         OSError: the stream cannot be read.
         ValueError: neither a serial frame log nor a CAN log of a known suffix, or a
-            malformed line or record (DecodeError, a ValueError, names it).
+            malformed line or record.
     """
     path = PurePath(path)
     with stream:
@@ -386,13 +365,14 @@ def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
 def open_recorder(
     path: str | Path, medium: str, *, channel: str = "", metadata: Mapping[str, str] | None = None
 ) -> LogWriter:
-    """A recorder for either end of the link: a new log of ``medium`` (``"serial"``,
-    ``"can"``) at ``path``, in the format its suffix calls for (:func:`writer_for`, whose
-    ValueError comes before the file is made; OSError: it cannot be made). A log already
-    there is kept, renamed by :func:`keep_previous` (a bridge restarted by its service
-    with the same ``--record`` once truncated the recording of the run that failed).
-    ``metadata`` heads a serial log, where ``rover replay`` finds the emulator's seed,
-    speed factor and map."""
+    """A new log of ``medium`` (``"serial"``, ``"can"``) at ``path``, in the format its
+    suffix calls for; a log already there is kept (:func:`keep_previous`). ``metadata`` heads
+    a serial log (where ``rover replay`` finds the emulator's seed, speed factor and map).
+
+    Raises:
+        ValueError: as :func:`writer_for`, before the file is made.
+        OSError: the file cannot be made.
+    """
     target = Path(path)
     start = writer_for(medium, target.suffix, channel=channel, metadata=metadata)
     keep_previous(target)

@@ -1,31 +1,16 @@
 """Traffic logs of the controller link: records, the serial frame-log format, decoding,
 and the comparison of a replayed session with a recorded one (docs/traffic-logs.md).
 
-Everything here is pure: no files, no clocks, no buses. The endpoints of the link-I/O
-layer (:mod:`firmware_proto.linkio`) hand every frame to their listeners through the
-:class:`TrafficRecorder` interface; its log writers and reader
-(:mod:`firmware_proto.linkio.trafficio`) turn the records defined here into files and
-back.
+Pure: no files, no clocks, no buses. Endpoints hand every frame to a
+:class:`TrafficRecorder`; :mod:`firmware_proto.linkio.trafficio` turns the records into
+files and back.
 
-**Serial frame log** (text, ASCII), one frame per line::
-
-    # rover-hil serial frame log v1
-    # role: bridge
-    # device: /dev/rover-motor
-    1731000000.123456 H>C 0006600124f9..00
-
-- a first line exactly :data:`SERIAL_LOG_MAGIC`; then optional ``# key: value``
-  metadata lines; blank lines and other ``#`` lines are ignored;
-- ``time``: seconds since the epoch with microseconds, when the frame crossed the
-  recorder's edge (written, or read and decoded);
-- ``direction``: ``H>C`` host to controller, ``C>H`` controller to host;
-- the frame's wire bytes in lower-case hex, both ``0x00`` delimiters included, exactly
-  as they went over the line (a frame the recorder itself damaged on purpose, e.g. an
-  injected link fault, is logged damaged).
-
-**CAN logs** are candump ``-L`` logs written by python-can's ``CanutilsLogWriter``
-(``(time) channel ID#DATA R|T``). :class:`CanRecord` is one such line; the protocol
-direction of a frame follows from its identifier, so CAN logs need no direction column.
+The **serial frame log** is ASCII text: :data:`SERIAL_LOG_MAGIC`, optional ``# key:
+value`` metadata lines, then one frame per line, ``time_s direction wire_hex`` (time
+since the epoch with microseconds; ``H>C`` or ``C>H``; the frame's bytes exactly as they
+went over the line, both delimiters included, damaged if the recorder damaged it on
+purpose). **CAN logs** are candump ``-L`` logs (:class:`CanRecord` is one line); a CAN
+frame's direction follows from its identifier.
 """
 
 from __future__ import annotations
@@ -146,11 +131,9 @@ TrafficRecord = SerialRecord | CanRecord
 class TrafficRecorder(Protocol):
     """Where a transport or a front end hands every frame it sends or receives.
 
-    ``record`` is called on I/O threads (the caller's thread for sends, the reader
-    thread for receives), so an implementation must be thread-safe and quick; it must
-    not raise for I/O trouble of its own (log it instead), since the link must not fail
-    because its log did. A serial medium hands :class:`SerialRecord`, a CAN medium
-    :class:`CanRecord`.
+    ``record`` is called on I/O threads, so it must be thread-safe and quick, and must not
+    raise for I/O trouble of its own (log it: the link must not fail because its log did). A
+    serial medium hands :class:`SerialRecord`, a CAN medium :class:`CanRecord`.
     """
 
     def record(self, entry: TrafficRecord) -> None:
@@ -391,12 +374,11 @@ class Difference:
 def compare_answers(
     expected: Sequence[Message], actual: Sequence[Message], *, strict: bool = False
 ) -> list[Difference]:
-    """Compare the controller's answers of two sessions, type by type.
+    """Compare the controller's answers (:func:`is_answer`) of two sessions, type by type.
 
-    Only answers count (:func:`is_answer`); each type's answers are compared in order,
-    with their volatile fields left out unless ``strict``. Types are compared apart
-    because answers of different types may interleave differently from run to run (a
-    STATUS and an ACK sent in the same millisecond) without any change in behaviour.
+    Each type's answers are compared in order, volatile fields left out unless ``strict``.
+    Types are compared apart because answers of different types may interleave differently
+    from run to run without any change in behaviour.
 
     Returns:
         The differences, ordered by type name then position; empty when the sessions

@@ -1,52 +1,28 @@
 """The plan uplink: what the ground sends the rover once a plan is approved, and what the
-rover answers (docs/onboard.md).
+rover answers. The fields, the tokens and the refusals are in docs/onboard.md.
 
-One message carries everything the rover needs to run the plan by itself and guard it:
+A plan (:class:`PlanUplink`) carries everything the rover needs to run and guard it: its
+id (positive, growing across ground restarts; the rover runs an id at most once and
+refuses one not newer than the last it took), the steps as ``/wheel_instructions``
+carries them, the twin's durations (twin s) and predicted trajectory (map frame, m and
+deg), the start and goal, the drift limits (never looser than the rover's ``[safety]``),
+the approved verdict's identity (:func:`verdict_digest`), and the boot id of the onboard
+program it is for (a plan signed for one run of the program is refused by any other).
 
-- ``plan_id``: the ground's id for this plan, a positive integer that grows with every
-  plan the ground issues (the ground uses its clock's milliseconds since the epoch, so
-  ids keep growing across ground restarts); the rover runs an id at most once and
-  refuses one not newer than the last it took (a stale duplicate, a replay);
-- ``steps``: the plan's steps as ``/wheel_instructions`` carries them, ``[command,
-  speed, distance]`` (docs/architecture.md, Contracts 1, 2);
-- ``durations_s``: each step's duration as the twin predicted it, twin s;
-- ``prediction``: the gate's predicted trajectory, ``[step, step_t_s, x, y, yaw_deg]``
-  per sample (the step it belongs to and the twin time since that step started, as the
-  verdict tags them), map frame, metres and degrees;
-- ``start`` and ``goal``: the pose the twin started from and the plan's goal;
-- ``limits``: the drift limits the rover must stop at, never looser than its own
-  description's ``[safety]`` (0.25 m, 12 deg; Contracts 6);
-- ``verdict``: the identity of the verdict the gate approved, :func:`verdict_digest`
-  (SHA-256 of its JSON without the wall time), so that the rover's reports, the
-  recording and the view name exactly which approval the rover ran;
-- ``boot``: the boot id of the rover's onboard program the plan is for (32 lower-case
-  hex digits, random at each start of ``rover onboard`` and announced in every report):
-  a plan signed for one run of the program is refused by any other (``other_boot``),
-  so no recording or late copy of it can run after a restart or on another rover.
+**Authentication.** On the wire: ``{"body": "<the uplink as JSON text>", "tag": "<hex>"
+| null}``. The tag is HMAC-SHA256 of the body's exact bytes under the uplink token
+(:data:`TOKEN_ENV`, never the gate's), checked before the body is parsed. A rover with a
+token refuses an untagged envelope; ``rover onboard`` runs without one only when told
+``--insecure``.
 
-**Authentication.** The message on the wire is an envelope ``{"body": "<the uplink as
-JSON text>", "tag": "<hex>" | null}``. The tag is HMAC-SHA256 of the body's exact bytes
-under the uplink token (``ROVER_UPLINK_TOKEN``, never the gate's), checked before the
-body is parsed (:func:`open_envelope`), so any change to a plan, its prediction, its
-limits, its verdict id or its boot id after the ground signed it is refused
-(``bad_tag``; a tag that is not 64 lower-case hex digits too). A rover with a token
-refuses an envelope without a tag (``unauthenticated``); ``rover onboard`` runs without
-one only when told ``--insecure``.
+A **cancel** (:class:`CancelUplink`, same envelope) drops every plan with an id up to
+``upto``, running or still to come. **The answer** (:class:`UplinkAck`) is ``accepted``,
+``duplicate``, ``refused`` (a reason from :data:`REFUSALS`) or ``cancelled``.
 
-A **cancel** (``{"type": "cancel", "upto": ID}``, in the same envelope) drops every plan
-with an id up to ``upto``: the one running (it is stopped) and any that arrives later.
-
-**The rover's answer** (:class:`UplinkAck`) names the plan id and a result:
-``accepted``, ``duplicate`` (that id was taken before: nothing runs again; ``state``
-says where it is), ``refused`` (with a reason from :data:`REFUSALS` and a sentence), or
-``cancelled`` (for a cancel).
-
-Everything here is pure: the codec (:func:`decode_uplink`, :meth:`PlanUplink.envelope`)
-validates strictly and refuses with a specific reason (:class:`UplinkError`), never a
-traceback. It comes in two parts so that the rover answers copies cheaply: the
-envelope and its tag (:func:`open_envelope`, then :func:`peek_body`), and the body's
-full check (:func:`decode_body`). :func:`check_fit` says whether a prediction belongs
-to its steps; :meth:`PlanUplink.pose_at` interpolates the prediction. No I/O, no clock.
+Pure, no I/O, no clock. The codec validates strictly and refuses with a specific reason
+(:class:`UplinkError`), never a traceback. It comes in two parts so that the rover answers
+copies cheaply: :func:`open_envelope` and :func:`peek_body`, then the full check
+:func:`decode_body`.
 """
 
 from __future__ import annotations
@@ -263,8 +239,7 @@ class PlanUplink:
         limits: DriftLimits,
         boot: str = "",
     ) -> PlanUplink:
-        """The uplink of an approved plan: its steps, the verdict's prediction and
-        durations, its identity (:func:`verdict_digest`).
+        """The uplink of an approved plan, with the verdict's prediction, durations and digest.
 
         Args:
             plan_id: the ground's id for it (see the module docstring).
@@ -512,8 +487,7 @@ def _number(value: Any, path: str) -> float:
 def open_envelope(text: str | bytes, token: str | None = None) -> str:
     """Read one uplink envelope and authenticate it: the body's text, not yet parsed.
 
-    Cheap (one JSON parse of the envelope and one HMAC), so the rover does this before
-    anything else: a forged or tampered copy costs it no more than this.
+    Cheap (one JSON parse and one HMAC), so the rover does it before anything else.
 
     Args:
         text: the envelope as received.
@@ -685,15 +659,13 @@ def _sample(value: Any, path: str) -> PredictedSample:
 def check_fit(uplink: PlanUplink, rover: RoverDescription | None = None) -> list[str]:
     """What makes the prediction not fit the steps (empty: it fits).
 
-    Structure: one duration per step; samples in order, every step from the first to
-    the last with a sample at its start (``step_t_s`` 0) and its samples' times
-    non-decreasing; the first at the start pose; one step's end where the next starts.
-    With ``rover``, motion too: each step's predicted duration within the playback's
-    time limit (1.5 x nominal + 2 s, a little more for rounding); a drive moves at most
-    its wheel travel (plus :data:`_DRIVE_SLACK_M`) and in its direction; a spin turns
-    the way its command says and at most as far as an ideal spin in place would, moving
-    the centre little; a STOP step does not move. A gate's prediction of these steps
-    passes; one of other steps, or edited after the fact, does not.
+    Structure: one duration per step; samples in step order, each step with a sample at
+    ``step_t_s`` 0 and non-decreasing times; the first at the start pose; one step's end
+    where the next starts. With ``rover``, motion too: each step's duration within the
+    playback's limit (1.5 x nominal + 2 s); a drive moves at most its wheel travel, in its
+    direction; a spin turns its way, at most an ideal spin's turn, moving the centre little;
+    a STOP step does not move. A gate's prediction of these steps passes; one of other
+    steps, or edited after the fact, does not.
     """
     problems: list[str] = []
     n = len(uplink.steps)

@@ -1,29 +1,15 @@
-"""Maps: walls, obstacles, traction regions, start pose and goals; the one map model.
+"""Maps: walls, obstacles, traction regions, start pose and goals; the one map model that
+the twin, the gate and the planner all read (docs/twin.md, Maps).
 
-The twin (emulator) plays plans on a map, the gate serves maps at ``GET /maps/{name}``,
-the planner plans around them: all three read this model, so a map means the same to
-each (docs/twin.md, Maps).
-
-A map is a JSON document checked against ``firmware_proto/model/data/maps/map.schema.json``
-(JSON Schema 2020-12, ``additionalProperties: false`` everywhere) and then for what a
-schema cannot say (ids unique, polygons simple, bounds non-empty, start and goals inside
-the bounds). Every violation is reported with its JSON pointer; :func:`load_map` and
-:meth:`WorldMap.from_dict` raise :class:`~firmware_proto.errors.MapError` carrying them
-all.
+A map is a JSON document checked against ``data/maps/map.schema.json`` (JSON Schema
+2020-12), then for what a schema cannot say (:func:`validate_map`); every violation is
+reported with its JSON pointer in one :class:`~firmware_proto.errors.MapError`.
 
 Coordinates are metres in the map frame (x east, y north), yaw in degrees
-counter-clockwise from +x. The bounds are walls; obstacles are polygons (simple, convex
-or not), circles, or segments with an optional radius (half the wall thickness). Every
-obstacle answers the same questions (:class:`Obstacle`): its outline (``kind``,
-``points``, ``radius_m``), its distance to a point or a segment, its bounding box.
-
-Shipped maps live in ``firmware_proto/model/data/maps/<name>.json``: :func:`list_maps` names
-them and :func:`load_map` takes a bare name (``"lab"``) or a path.
-:meth:`WorldMap.digest` hashes the canonical content so that a verdict can name the
-exact map it was computed on. The clearance queries (:meth:`WorldMap.clearance`,
-:meth:`~WorldMap.segment_clearance`, :meth:`~WorldMap.point_blocked`,
-:meth:`~WorldMap.segment_blocked`) are planning aids, linear in the number of
-obstacles: the gate, which plays a plan on the twin, stays the judge.
+counter-clockwise from +x. The bounds are walls; obstacles (:data:`Obstacle`) are simple
+polygons, circles, or segments with a half thickness. :meth:`WorldMap.digest` hashes the
+canonical content so that a verdict names the exact map. The clearance queries are
+planning aids, linear in the number of obstacles: the gate's playback stays the judge.
 """
 
 from __future__ import annotations
@@ -118,9 +104,9 @@ class Bounds:
 
 
 class _Outline:
-    """What every obstacle answers from its outline (``points``, ``radius_m``): its
-    bounding box and its shadow on a line. An obstacle class provides ``kind``,
-    ``points``, ``radius_m``, ``distance`` and ``segment_distance``."""
+    """The bounding box and the shadow on a line, from an obstacle's ``points`` and
+    ``radius_m``; an obstacle class provides those, ``kind``, ``distance`` and
+    ``segment_distance``."""
 
     if TYPE_CHECKING:
 
@@ -490,10 +476,9 @@ def load_map(name_or_path: str | Path) -> WorldMap:
 def validate_map(obj: Any) -> list[tuple[str, str]]:
     """Every violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer.
 
-    First the schema; when that passes, the checks a schema cannot express: numbers
-    finite, bounds non-empty, ids and goal names unique (``"bounds"`` is reserved),
-    polygons simple with non-zero area, segments of non-zero length, the start and the
-    goals strictly inside the bounds.
+    First the schema; when that passes, what a schema cannot express: bounds non-empty,
+    ids and goal names unique (``"bounds"`` reserved), polygons simple with non-zero area,
+    segments of non-zero length, the start and the goals strictly inside the bounds.
     """
     from firmware_proto.model.schemacheck import schema_violations  # noqa: PLC0415 - jsonschema
 

@@ -1,42 +1,23 @@
 """Real-time scheduling for the processes that must keep time (docs/realtime.md).
 
-The controller's 250 ms watchdog stops the rover when the host falls silent, and a
-Python process at the default priority can be starved that long on a busy computer.
-The processes that hold the controller link (``rover bridge``) or stand in for the
-controller (``rover emulate``) therefore ask the kernel for a real-time policy, as
-ros2_control's controller manager does (``realtime_tools::configure_sched_fifo``,
-``lock_memory``):
+A Python process at the default priority can be starved past the controller's watchdog
+on a busy computer, so ``rover bridge`` and ``rover emulate`` ask the kernel for a
+real-time policy, as ros2_control's controller manager does:
 
-- :func:`apply_realtime` puts the **calling thread** under ``SCHED_RR`` (or
-  ``SCHED_FIFO``) at the configured priority; threads it starts afterwards inherit the
-  policy, so a program calls it first thing in ``main()`` and every thread of the
-  process keeps time (no thread of normal priority can hold the interpreter lock while
-  a busy computer keeps it off the CPU). Child processes inherit it too, and a Python
-  child's imports would then hold a core at that priority: a real-time program starts
-  its children with :func:`module_command_at_normal_priority`, and a child that must
-  keep time asks for it once imported.
-- With ``lock_memory`` it locks the process's memory (``mlockall``), so a page fault
-  never waits for the disk; only where the memory-lock limit allows it (root, or an
-  unlimited ``RLIMIT_MEMLOCK``), because with a small limit later allocations would fail.
-  Threads started after it get a smaller stack (:data:`LOCKED_THREAD_STACK_BYTES`), as
-  each locked stack is resident in full.
-- Where the policy is not permitted (neither root nor ``CAP_SYS_NICE`` nor an
-  ``rtprio`` limit), it falls back to a lower nice value if that is permitted, else
-  runs as it was; :class:`RealtimeStatus` says which, in one line the program prints
-  once. Nothing fails for want of permission.
-- :func:`apply_realtime_to_process` also promotes the threads the process already has: a
-  process whose start is heavy work that starts threads (a DDS participant) does it at
-  normal priority, then takes real time, every thread of it.
-- :func:`leave_realtime_for_process` is its reverse, for a program that is ending: its
-  end (threads joined, a DDS participant destroyed, the interpreter's finalisation) is
-  CPU-bound work of no urgency, done at normal priority as its start is.
-- :func:`realtime_threads` does the same for a stretch of code inside a process that
-  must not keep real time for the rest of its life (a test, a library call such as a
-  replay): the calling thread is put back as it was at the end, and only the threads
-  started inside keep the policy.
+- :func:`apply_realtime`: the **calling thread** (and the threads it starts later) under
+  ``SCHED_RR`` or ``SCHED_FIFO``; a program calls it first thing in ``main()``. With
+  ``lock_memory``, ``mlockall`` where the memory-lock limit allows it (root, or an
+  unlimited ``RLIMIT_MEMLOCK``), and smaller stacks for later threads
+  (:data:`LOCKED_THREAD_STACK_BYTES`). Where not permitted, a lower nice value if that
+  is, else nothing; :class:`RealtimeStatus` says which. Nothing fails for want of
+  permission.
+- :func:`apply_realtime_to_process` / :func:`leave_realtime_for_process`: every thread of
+  the process, after a heavy start or before a heavy end.
+- :func:`realtime_threads`: only the threads started inside a stretch of code.
+- :func:`module_command_at_normal_priority`: a child started out of the parent's policy.
 
-The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by
-default) keeps a runaway real-time thread from locking up the machine.
+The kernel's real-time throttling (``sched_rt_runtime_us``) keeps a runaway real-time
+thread from locking up the machine.
 """
 
 from __future__ import annotations
@@ -203,8 +184,8 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
         if os.sched_getscheduler(0) != os.SCHED_OTHER:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         return RealtimeStatus("SCHED_OTHER", 0, os.getpriority(os.PRIO_PROCESS, 0), False, False)
-    # Memory first, at the old priority: locking populates every page, which takes a
-    # real-time thread's CPU from everyone else for as long (100-200 ms seen here).
+    # Memory first, at the old priority: locking populates every page, which at real-time
+    # priority would take the CPU from everyone else meanwhile.
     lock_note = _lock_memory() if config.lock_memory else ""
     locked = config.lock_memory and not lock_note
     try:
@@ -234,19 +215,15 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
 
 
 def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
-    """:func:`apply_realtime` for the calling thread, then, where that granted a
-    real-time policy, the same for every other thread the process has already started (a
-    middleware's receive and discovery threads, say). Normal scheduling (priority 0, or
-    real time not permitted) changes the calling thread only. A thread that a thread of
-    normal priority starts while the others are promoted may be missed: call it once the
-    threads it should reach exist.
+    """:func:`apply_realtime` for the calling thread, then, where that granted a real-time
+    policy, for every thread the process already has (a middleware's receive and discovery
+    threads). Normal scheduling changes the calling thread only. Call it once the threads
+    it should reach exist; threads that end meanwhile, or cannot be given the policy, are
+    skipped.
 
-    For a process whose start is heavy, CPU-bound work that creates threads (the STOP
-    lane's ROS 2 child: ``rclpy.init`` and a DDS participant, about half a second of
-    CPU on two threads): done at normal priority first and promoted after, that work
-    never holds both cores above the kernel's own workers (a pty's receive path runs in
-    one), which it did at real-time priority (docs/realtime.md). Threads that end while
-    they are promoted are skipped; a thread the policy cannot be given to keeps its own.
+    For a process whose start is heavy CPU-bound work that creates threads (a DDS
+    participant): done at normal priority and promoted after, that work never holds the
+    cores above the kernel's workers (a pty's receive path runs in one; docs/realtime.md).
     """
     status = apply_realtime(config)
     if not hasattr(os, "sched_setscheduler") or status.policy == "SCHED_OTHER":
@@ -264,15 +241,12 @@ def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
 
 
 def leave_realtime_for_process() -> int:
-    """Every thread of the calling process under ``SCHED_RR`` or ``SCHED_FIFO`` goes
-    back to normal scheduling (``SCHED_OTHER``, its nice kept); returns how many did.
+    """Every thread of the calling process under ``SCHED_RR`` or ``SCHED_FIFO`` goes back
+    to ``SCHED_OTHER`` (nice kept); returns how many did. Memory stays locked.
 
-    For a program that has begun to end: its teardown (threads joined, a DDS participant
-    destroyed, the interpreter's finalisation: 50-300 ms of CPU) at real-time priority
-    held a core above every program of normal priority and the kernel's workers (a
-    pty's receive path runs in one), and two ending at once held both, so that another
-    link on the machine fell silent past its watchdog (docs/realtime.md). Threads that
-    end meanwhile are skipped. Nothing else changes: memory stays locked.
+    For a program that has begun to end: its teardown is CPU-bound work of no urgency that
+    at real-time priority holds a core above the kernel's workers and can starve another
+    link on the machine (docs/realtime.md). Threads that end meanwhile are skipped.
     """
     if not hasattr(os, "sched_setscheduler"):
         return 0
@@ -307,11 +281,9 @@ def module_command_at_normal_priority(module: str) -> list[str]:
     """The command that runs ``python -m module`` (append its arguments) under normal
     scheduling from its first line, whatever its parent's.
 
-    A child inherits its parent's policy, and a Python program's imports are CPU-bound:
-    children importing at a real-time priority can hold every core, and the pty's kernel
-    worker (normal priority) with them, so that a link over a pty falls silent
-    (docs/realtime.md). A child that must keep time asks for it after its imports. Only
-    the interpreter's start-up runs at the parent's priority.
+    A child inherits its parent's policy, and a Python program's imports are CPU-bound: at
+    real-time priority they can hold every core, the pty's kernel worker starved with them
+    (docs/realtime.md). A child that must keep time asks for it after its imports.
     """
     return [sys.executable, "-c", _NORMAL_PRIORITY_LAUNCH, module]
 

@@ -4,32 +4,21 @@
 :class:`StallMonitor` runs one thread that wakes every ``period_s``:
 
 - **The process.** When the monitor itself wakes more than ``threshold_s`` late, the
-  whole process was held up: not scheduled (a busy computer), or one thread held the
-  interpreter lock inside a C call (a middleware publish). The record carries every
-  thread's stack as the monitor finds them when it runs again.
-- **Its loops.** A loop that must keep going registers a :class:`Beat` and ticks it
-  every iteration; a beat older than ``threshold_s`` is a stalled thread, recorded
-  with that thread's stack. A thread held inside a C call shows here by name, with
-  how long its loop did not turn.
+  whole process was held up (not scheduled, or one thread held the interpreter lock in a
+  C call); the record carries every thread's stack as found when it runs again.
+- **Its loops.** A loop registers a :class:`Beat` and ticks it every iteration; a beat
+  older than ``threshold_s`` is a stalled thread, recorded with that thread's stack.
 
-It does not use :func:`faulthandler.dump_traceback_later`, which would catch a C call
-in the act: its watchdog thread reads the other threads' frames without the
-interpreter lock, and when a process that was not scheduled resumes, every thread runs
-again while it reads: that crashed the bridge (SIGSEGV) in one freeze of four here.
-``kill -USR1 <pid>`` still dumps every thread on demand
-(:class:`~firmware_proto.runtime.process.ProcessRuntime`).
+Not :func:`faulthandler.dump_traceback_later`: its watchdog reads other threads' frames
+without the interpreter lock, which can crash a process resuming from a freeze.
+``kill -USR1 <pid>`` still dumps every thread on demand.
 
-Every stall is logged as one line (WARNING: the process, the thread, how long, and
-where its stacks are) and, when a stall log is configured, appended to it as one JSON
-line with the stacks (:class:`StallRecord`), where ``rover demo`` and ``rover go`` read
-which process stalled when a mission ends on ``fault:watchdog`` or ``fault:link_lost``
-(:func:`read_stalls`). The stacks go to the console too only when asked
-(``stacks_on_console``: a program's ``-v``): a busy machine's stalls must not bury the
-mission's own lines. All processes of a stack on one host share the log
-(:func:`stall_log_path`); each line is one ``write`` to a file opened for appending, so
-lines from several processes never interleave. A loop found stalled while it still is
-(a thread that may never come back) is said at INFO when it is found, its stack with
-it; the WARNING line comes when it runs again.
+Every stall is one WARNING line (rate-limited by :data:`CONSOLE_QUIET_S`) and, with a
+stall log, one JSON line with the stacks (:class:`StallRecord`), read back by
+:func:`read_stalls` when a mission ends on a watchdog or link fault. All processes of a
+stack on one host share the log (:func:`stall_log_path`); each line is one ``write`` in
+append mode, so lines never interleave. A loop found stalled while it still is gets an
+INFO line with its stack at once; the WARNING comes when it runs again.
 """
 
 from __future__ import annotations
@@ -281,9 +270,8 @@ class StallMonitor:
         if self.stacks_on_console:
             logger.warning("stall: %s\n%s", record.line(), record.stack)
             return
-        # One line per CONSOLE_QUIET_S at most: a machine that holds the process up
-        # again and again (a load of 30 held a demo up 60 times in a minute) gets one
-        # line naming how many more there were, not a screen of them. All are logged.
+        # One line per CONSOLE_QUIET_S at most, naming how many more there were; the
+        # stall log has all of them.
         now = self._clock()
         if self._said_at is not None and now - self._said_at < CONSOLE_QUIET_S:
             self._held_back += 1
