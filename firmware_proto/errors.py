@@ -1,28 +1,19 @@
-"""Exceptions raised by :mod:`firmware_proto`.
-
-Everything this package raises derives from :class:`ProtoError`::
+"""Exceptions raised by :mod:`firmware_proto`; all but ``ProtoError`` and ``SpecError``
+are also ValueError::
 
     ProtoError
-     +-- SpecError          the declarative message spec is malformed (a build-time error)
-     +-- EncodeError        a field value cannot be encoded (names the field); also ValueError
-     +-- DecodeError        a payload or frame cannot be decoded (strict APIs only); also ValueError
-     +-- DescriptionError   the rover description file is missing or invalid; also ValueError
-     +-- PlanError          a command plan fails its JSON schema; also ValueError
-     +-- MapError           a map is unknown, unreadable, not JSON, or invalid
-     |                      (firmware_proto.model.worldmap); ``violations`` lists
-     |                      ``(json_pointer, message)`` pairs. Also ValueError
-     +-- VerdictError       a document is not the gate's verdict JSON (names the JSON
-     |                      pointers; firmware_proto.model.verdict); also ValueError
-     +-- UplinkError        a plan uplink or a cancel cannot be taken: malformed, out of
-     |                      range, unauthenticated or a prediction that does not fit its
-     |                      steps; ``reason`` is the short code the rover answers with
-     |                      (firmware_proto.model.uplink); also ValueError
-     +-- BindPolicyError    an HTTP server may not listen there without a token, or the
-                            token is malformed (firmware_proto.http.bindpolicy); also ValueError
-     +-- ValueArgumentError a value on a command line breaks its rule (cli/values.py);
-                            also ValueError and argparse.ArgumentTypeError
+     +-- SpecError          the declarative message spec is malformed (build time)
+     +-- EncodeError        a field value cannot be encoded (names the field)
+     +-- DecodeError        a payload or frame cannot be decoded (strict APIs only)
+     +-- DescriptionError   the rover description file is missing or invalid
+     +-- PlanError          a command plan fails its JSON schema
+     +-- MapError           a map is unknown, unreadable, not JSON or invalid (``violations``)
+     +-- VerdictError       a document is not the gate's verdict JSON
+     +-- UplinkError        a plan uplink or cancel is refused; ``reason`` is the rover's code
+     +-- BindPolicyError    an HTTP server may not listen there without a (valid) token
+     +-- ValueArgumentError a command-line value breaks its rule; also ArgumentTypeError
 
-Stream decoders never raise on bad input: they count it (see ``framing.FrameDecoder``).
+Stream decoders never raise on bad input: they count it (``framing.FrameDecoder``).
 """
 
 from __future__ import annotations
@@ -116,9 +107,8 @@ class UplinkError(ProtoError, ValueError):
     """A plan uplink (or a cancel) is refused by :mod:`firmware_proto.model.uplink`.
 
     Attributes:
-        reason: the short code the rover answers with (``malformed``, ``out_of_range``,
-            ``unauthenticated``, ``bad_tag``, ``prediction_mismatch``, ``too_large``,
-            ``unsupported_version``), see :data:`firmware_proto.model.uplink.REFUSALS`.
+        reason: the short code the rover answers with, one of
+            :data:`firmware_proto.model.uplink.REFUSALS`.
         detail: one sentence saying what exactly is wrong (names the field).
     """
 

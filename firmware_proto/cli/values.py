@@ -1,25 +1,11 @@
 """One check per kind of value that command lines take, shared by every ``rover`` command.
 
-Each function is an ``argparse`` type: it takes the text of the option and returns the
-value, or raises :class:`ValueArgumentError` (an ``argparse.ArgumentTypeError``, so
-argparse reports it as a usage error, exit status 2, and a ``ValueError`` elsewhere)
-with the same words whichever command refused it: ``rover bridge --baud 0``, ``rover
-bench stop --baud 0`` and ``rover emulate --baud 0`` all say ``baud must be an integer
-in 50..4000000 (bit/s), got '0'``. :func:`check` applies one to a value that did not
-come from a command line (a launch file's parameter, a stack's configuration).
-
-Limits:
-
-- baud: 50..4,000,000 bit/s (what a USB-serial adapter can be set to);
-- CAN node id of a controller: 1..15 (0 is broadcast, for ``rover frame`` only:
-  :func:`can_node_or_broadcast`);
-- TCP port: 0..65535 where 0 lets the system pick one (:func:`tcp_port`), 1..65535
-  where a port to connect to is named (:func:`host_port`);
-- ROS domain id: 0..232 (the range ROS 2 documents for Fast DDS on Linux);
-- real-time priority: 0..99 (0: none; Linux's SCHED_RR/SCHED_FIFO range);
-- nice: 0..19 (a program may always lower its own priority);
-- durations and rates: finite numbers, positive or non-negative as the option says;
-- a share of messages lost: a number in [0, 1) (:func:`loss_ratio`).
+Each function is an ``argparse`` type: it takes the option's text and returns the value,
+or raises :class:`ValueArgumentError` (a usage error, exit status 2) with the same words
+whichever command refused it, e.g. ``baud must be an integer in 50..4000000 (bit/s), got
+'0'``. :func:`check` applies one to a value from elsewhere (a launch file's parameter, a
+stack's configuration). Each function's docstring and the ``*_RANGE`` constants state
+its limits.
 """
 
 from __future__ import annotations

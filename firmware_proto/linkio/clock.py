@@ -1,23 +1,16 @@
 """Time for a scripted host: the wall clock, or virtual time that runs in lockstep.
 
 A :class:`Clock` tells the time and waits for a condition. Everything that waits on the
-link (:class:`~firmware_proto.linkio.inbox.Inbox`,
-:class:`~firmware_proto.linkio.host.ProtocolHost`) waits through one, so the same script
-runs against a controller in real time (:class:`WallClock`: threads deliver, a waiter
-sleeps on a condition variable) and in lockstep with an in-process controller
-(:class:`LockstepClock`: no threads; a wait *advances the world* one tick at a time
-until the condition holds or its virtual timeout passes).
+link waits through one, so the same script runs in real time (:class:`WallClock`:
+threads deliver, a waiter sleeps on a condition variable) and in lockstep with an
+in-process controller (:class:`LockstepClock`: no threads; a wait *advances the world*
+one tick at a time until the condition holds or its virtual timeout passes).
 
-The lockstep clock knows nothing of controllers: it calls, once per tick and in the
-order added, the steps it was given (:meth:`LockstepClock.add`): a controller's tick,
-a host's pump of its endpoint, a host's heartbeat timer, and, in a whole mission in
-virtual time (``sim/world.py``), the bridge's link and node, the ROS port's deliveries
-and the link relay, each taking the clock as an argument where it would otherwise start
-a thread (docs/sim.md, "Missions in virtual time").
-
-Both clocks also tell the time of day (:meth:`Clock.time`, seconds since the epoch): what
-stamps ROS messages. The lockstep clock's starts at a fixed :data:`EPOCH_S`, so a run in
-virtual time stamps the same on every machine.
+The lockstep clock calls, once per tick and in the order added, the steps it was given
+(:meth:`LockstepClock.add`): a controller's tick, a host's pump and heartbeat, and in a
+whole mission the bridge, the ROS port and the relay (docs/sim.md, "Missions in virtual
+time"). Its time of day (:meth:`Clock.time`, what stamps ROS messages) starts at a fixed
+:data:`EPOCH_S`, so a run stamps the same on every machine.
 """
 
 from __future__ import annotations

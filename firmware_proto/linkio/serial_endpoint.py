@@ -1,23 +1,16 @@
 """Serial endpoint: frames of docs/protocol.md over a byte stream, for either side.
 
-:class:`SerialEndpoint` does the framing (the pure
-:class:`~firmware_proto.wire.framing.FrameEncoder` and
-:class:`~firmware_proto.wire.framing.FrameDecoder`), the listeners and the counting; a
-:class:`BytePort` moves the bytes. Two ports:
+:class:`SerialEndpoint` does the framing (pure, :mod:`firmware_proto.wire.framing`), the
+listeners and the counting; a :class:`BytePort` moves the bytes:
 
-- :class:`PyserialPort`: anything pyserial's ``serial_for_url`` opens (a device, a pty
-  path, ``socket://``, ``rfc2217://``, ``loop://``; :mod:`firmware_proto.linkio.urls`),
-  exclusively where the platform allows, so two hosts cannot share a controller. The
-  bridge's end, and a replaying host's.
-- :class:`PtyPort`: the controller's end of a new pty pair
-  (:class:`~firmware_proto.linkio.ptypair.PtyPair`), whose other end a host opens by
-  path. The emulator's end, and a replaying controller's. A pty has no baud rate; while
-  nobody has the device open, frames written are dropped (``write`` returns False) as on
-  a UART line nobody listens to.
+- :class:`PyserialPort`: anything pyserial's ``serial_for_url`` opens, exclusively where
+  the platform allows (two hosts cannot share a controller). The host's end.
+- :class:`PtyPort`: the controller's end of a new pty pair, whose other end a host opens
+  by path. While nobody has the device open, frames written are dropped (``write``
+  returns False), as on a UART line nobody listens to.
 
-A serial line carries every frame whole or damaged: a damaged frame is counted by the
-decoder (:attr:`~firmware_proto.linkio.endpoint.Endpoint.counters`) and dropped, and the
-decoder resynchronises at the next delimiter (docs/protocol.md, Framing).
+A damaged frame is counted by the decoder and dropped; the decoder resynchronises at the
+next delimiter (docs/protocol.md, Framing).
 """
 
 from __future__ import annotations
@@ -72,12 +65,8 @@ class BytePort(Protocol):
 
 
 def _release(port: serial.SerialBase) -> None:
-    """Close ``port`` and whatever it holds, never raising.
-
-    pyserial 3.5's ``socket://`` close shuts the socket down and closes it in one
-    ``try``: after a connection reset the shutdown fails, the close is skipped and the
-    descriptor stays open until garbage collection. Close that socket ourselves.
-    """
+    """Close ``port`` and whatever it holds, never raising (pyserial's ``socket://`` close
+    leaks the socket after a connection reset: close it ourselves)."""
     sock = getattr(port, "_socket", None)
     try:
         port.close()

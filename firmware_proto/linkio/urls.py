@@ -1,18 +1,15 @@
 """Link URLs: one parser for every tool that names a controller link.
 
-- a **serial** link is a device path (``/dev/ttyACM0``, ``/dev/serial/by-id/...``,
-  ``/dev/rover-motor``, a pty path) or a pyserial URL (``socket://HOST:PORT``,
-  ``rfc2217://HOST:PORT``, ``loop://``, ``spy://DEVICE``, ``alt://``, ``hwgrep://``,
-  ``cp2110://``). ``?baud=N`` sets the rate (default 115200; a pty or a socket ignores
-  it); it is our own option and is stripped before the URL goes to pyserial, which gets
-  the rest verbatim (:func:`split_serial_url`).
-- a **CAN** link is ``can://INTERFACE/CHANNEL[?node=N&OPTION=VALUE...]``: any python-can
-  interface; options other than ``node`` go to ``can.Bus`` (:func:`parse_can_url`).
-  Command lines write the bus as ``INTERFACE:CHANNEL`` (:func:`parse_can_spec`).
+- a **serial** link is a device path or a pyserial URL (``socket://HOST:PORT``,
+  ``rfc2217://``, ``loop://``, ``spy://DEVICE``...). ``?baud=N`` (default 115200; a pty
+  or a socket ignores it) is our own option, stripped before pyserial gets the rest
+  verbatim (:func:`split_serial_url`).
+- a **CAN** link is ``can://INTERFACE/CHANNEL[?node=N&OPTION=VALUE...]``; options other
+  than ``node`` go to ``can.Bus`` (:func:`parse_can_url`). Command lines write the bus as
+  ``INTERFACE:CHANNEL`` (:func:`parse_can_spec`).
 
-Everything here is pure but :func:`refuse_if_in_use`, which looks at the device. A
-malformed URL is a :class:`~firmware_proto.linkio.errors.LinkUrlError` that says what is
-wrong and what is expected.
+Pure but :func:`refuse_if_in_use`. A malformed URL is a
+:class:`~firmware_proto.linkio.errors.LinkUrlError` saying what is wrong and expected.
 """
 
 from __future__ import annotations
@@ -122,10 +119,9 @@ def split_serial_url(url: str, baud: int | None = None) -> tuple[str, int, bool]
 
 
 def refuse_if_in_use(url: str) -> None:
-    """Fail when another process holds the device of ``url`` exclusively (as pyserial's
-    ``exclusive=True`` does: ``flock(LOCK_EX | LOCK_NB)``), e.g. a bridge already running
-    on it. A device that is absent, or a URL that is not a local device, passes: the link
-    waits for those.
+    """Fail when another process holds the device of ``url`` exclusively (pyserial's
+    ``flock(LOCK_EX | LOCK_NB)``), e.g. a bridge already on it. An absent device, or a URL
+    that is not a local device, passes: the link waits for those.
 
     Raises:
         LinkBusyError: the device is locked by another process.

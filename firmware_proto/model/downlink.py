@@ -1,14 +1,10 @@
 """What the rover reports about the plan it runs on board (docs/onboard.md, "Reports").
 
-Every report is a whole snapshot of one plan's record (:class:`OnboardReport`): its id
-and verdict, where it is (``state``, ``step``), the last step status, the latest drift,
-how it ended and why, where the guard stopped it and where the rover came to rest with
-the estimate's covariance. The rover sends one at each event (``event`` says which) and
-the latest again every second, so a ground station that lost some over a lossy link
-still learns the end; it keeps the one with the highest ``seq``. Every report names the
-``boot`` id of the onboard program that sent it (random at each start, 32 hex digits):
-the ground signs its plans for that boot, and ``seq`` counts within one boot. Times are
-the rover's clock (ROS time, s), the clock its poses are stamped on.
+Every report is a whole snapshot of one plan's record (:class:`OnboardReport`). The rover
+sends one at each event and the latest again every second, so a ground that lost some
+over a lossy link still learns the end; it keeps the one with the highest ``seq``, which
+counts within one ``boot`` (the sending onboard program's boot id, which the ground
+signs its plans for). Times are the rover's clock (ROS time, s), as its poses' stamps.
 
 Pure: no I/O, no clock.
 """
@@ -219,10 +215,8 @@ class OnboardReport:
         return replace(self, **changes)
 
     def shifted(self, offset_s: float) -> OnboardReport:
-        """A copy with every time moved by ``offset_s`` (``t_s``, the guard's and the
-        rest's stamps): from the clock the sequencer runs on to the one the report is
-        sent in (``rover onboard`` runs on the monotonic clock and reports in ROS
-        time)."""
+        """A copy with every time (``t_s``, the guard's and the rest's stamps) moved by
+        ``offset_s``: from the sequencer's (monotonic) clock to the one reports are sent in."""
         guard = self.guard
         if guard is not None:
             guard = replace(guard, stamp_s=guard.stamp_s + offset_s, stop_s=guard.stop_s + offset_s)

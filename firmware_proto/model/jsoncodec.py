@@ -1,22 +1,21 @@
 """One JSON codec for frozen model dataclasses: the JSON-ready data of a value, the value
 back from parsed JSON, and the JSON Schema (2020-12) of both, all from the class's fields.
 
-A field's type says its JSON: ``float`` a number (an integer is read as one), ``int`` an
-integer, ``bool``, ``str``; ``tuple[X, ...]`` an array; ``X | None`` the value or
-``null`` (read ``None`` when absent too); a nested dataclass or named tuple an object
-(a ``$ref`` to its own schema). :func:`spec` in a field's metadata adds to that:
+A field's type says its JSON: ``float`` a number (an integer is read as one), ``int``,
+``bool``, ``str``; ``tuple[X, ...]`` an array; ``X | None`` the value or ``null`` (``None``
+when absent too); a nested dataclass or named tuple an object (a ``$ref``). :func:`spec`
+in a field's metadata adds:
 
 - ``doc``: the field's meaning, the schema's ``description``;
 - ``schema``: further keywords of its schema (``minimum``, ``enum``, ``pattern``...);
-- ``inline``: the nested object's fields stand in the outer object (a trajectory
-  sample's ``x``, ``y``, ``yaw_deg``), and each key may add schema keywords;
-- ``omit_none``: the key is left out when ``None`` (and is optional in the schema).
+- ``inline``: the nested object's fields stand in the outer object, each key may add
+  schema keywords;
+- ``omit_none``: the key is left out when ``None`` (optional in the schema).
 
 A field with a default may be absent when read. Keys keep the fields' order; reading
-ignores keys it does not know and raises ``error(message, (pointer,))`` naming the JSON
-pointer of the first missing or mistyped field. Encoders are compiled once per class
-into one expression (a dict literal), so encoding costs what a hand-written ``to_dict``
-does. Pure: standard library only.
+ignores unknown keys and raises ``error(message, (pointer,))`` at the first missing or
+mistyped field. Encoders are compiled once per class into one dict expression. Pure:
+standard library only.
 """
 
 from __future__ import annotations

@@ -1,13 +1,9 @@
 """The rover description: geometry, mass, drive units, traction and safety thresholds.
 
-One TOML file (``firmware_proto/model/data/rover.toml`` by default) is read by the emulator,
-the gate, the planner and the bridge, so that every part agrees on what a distance unit
-or a speed unit means. Load it with :func:`load_rover`; values are immutable.
-
-A calibrated twin (``rover calibrate``) is a description with one more table,
-``[calibration]`` (the fit's report: uncertainties, residuals, region scales; read by
-``emulator.twinfile``). :func:`load_rover` accepts and ignores it, so that the planner
-and the bridge can load the calibrated file as a plain description.
+One TOML file (``data/rover.toml`` by default) is read by every part, so that all agree
+on what a distance or speed unit means. Load it with :func:`load_rover`; values are
+immutable. A calibrated twin is a description with one more table, ``[calibration]``
+(read by ``emulator.twinfile``), which :func:`load_rover` accepts and ignores.
 
 Units are in the field names: ``_m`` metres, ``_mps`` m/s, ``_rad_s`` rad/s, ``_kg``.
 """
@@ -272,9 +268,8 @@ def load_rover(path: str | Path | None = None) -> RoverDescription:
         path: TOML file; ``None`` reads the packaged default (:data:`DEFAULT_ROVER_PATH`).
 
     Raises:
-        DescriptionError: the file is missing, not TOML, or a value is absent, unknown,
-            of the wrong type or out of range. The message names the key. A
-            ``[calibration]`` table is not checked here (see the module docstring).
+        DescriptionError: the file is missing, not TOML, or a value is absent, unknown, of
+            the wrong type or out of range (names the key). ``[calibration]`` is not checked.
     """
     source = Path(path) if path is not None else DEFAULT_ROVER_PATH
     try:

@@ -1,19 +1,16 @@
 """JSON documents checked against a JSON Schema, every violation at its JSON pointer:
-what the plan schema (:mod:`firmware_proto.model.plan`) and the map schema
-(:mod:`firmware_proto.model.worldmap`) report through.
+what the plan and map schemas report through.
 
-Beyond the schema, numbers must be finite: JSON has no NaN or infinity, but Python's
-parser accepts them. An extra property is reported at its own pointer, not its parent's.
-A document nested deeper than :data:`MAX_DEPTH` is one violation at the root and is not
-walked further: every walk here is iterative, and no schema of ours nests that deep.
+Beyond the schema, numbers must be finite (Python's parser accepts NaN and infinity). An
+extra property is reported at its own pointer. A document nested deeper than
+:data:`MAX_DEPTH` is one violation at the root and is not walked further; every walk
+here is iterative.
 
-Fast path: the schema compiled to Python by fastjsonschema decides whether a document is
-valid, several times faster than jsonschema (docs/gate.md, "Performance"); only a document it
-refuses is walked by jsonschema, which alone words the violations. The gate checks
-every plan on its event loop, so this is on every request's path. Both read the same
-schema; ``tests/firmware_proto/test_schemacheck.py`` checks that they agree on generated
-plans, valid and not. Only the plan check asks for it
-(``fast=True``): a schema whose agreement is not tested keeps jsonschema alone.
+Fast path (``fast=True``, the plan check only, which runs on every gate request): the
+schema compiled by fastjsonschema decides validity; only a refused document is walked by
+jsonschema, which alone words the violations. Their agreement is tested
+(``tests/firmware_proto/test_schemacheck.py``); a schema whose agreement is not tested
+keeps jsonschema alone.
 """
 
 from __future__ import annotations
@@ -42,9 +39,9 @@ _compiled: dict[int, tuple[Draft202012Validator, Callable[[Any], Any] | None]] =
 
 
 def _fast_check(validator: Draft202012Validator) -> Callable[[Any], Any] | None:
-    """``validator``'s schema compiled by fastjsonschema (once per validator; the
-    validator is kept, so its id is never reused); ``None`` where it cannot compile it.
-    Two threads that ask at once may both compile it: the same result, no harm."""
+    """``validator``'s schema compiled by fastjsonschema (once per validator, which is kept,
+    so its id is never reused); ``None`` where it cannot compile. A race compiles it twice,
+    harmlessly."""
     entry = _compiled.get(id(validator))
     if entry is None:
         try:
@@ -85,13 +82,10 @@ def schema_violations(
     limit: int | None = None,
 ) -> list[tuple[str, str]]:
     """Every violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer; with
-    ``limit``, the walk stops once that many are found (the first ones in document
-    order, sorted), so that wording a large bad document costs no more than a few
-    violations.
+    ``limit``, the walk stops once that many are found (the first in document order).
 
     A document nested deeper than :data:`MAX_DEPTH` gives one violation at ``""``. With
-    ``fast``, the compiled check decides first (module docstring): only for a schema
-    whose agreement with jsonschema is tested (the plan's).
+    ``fast``, the compiled check decides first (module docstring).
     """
     depth, has_non_finite = _scan(obj, MAX_DEPTH + 1)
     if depth > MAX_DEPTH:

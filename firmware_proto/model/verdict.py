@@ -1,29 +1,24 @@
-"""The gate's answer to ``POST /validate_plan``, as plain frozen dataclasses: the one
-definition that the gate (which builds and serialises verdicts) and the planner (which
-reads them over HTTP and may not import the gate) share.
+"""The gate's answer to ``POST /validate_plan`` as frozen dataclasses: the one definition
+the gate (which builds verdicts) and the planner (which reads them over HTTP and may not
+import the gate) share.
 
-These mirror the JSON one to one, written, read and described by one codec
-(:mod:`firmware_proto.model.jsoncodec`): each field's ``spec`` is its meaning in the
-schema that :func:`verdict_schemas` generates and the gate's ``GET /openapi.json``
-serves. Reading is strict about what it uses and lenient about the rest: a missing or
+They mirror the JSON one to one through one codec (:mod:`firmware_proto.model.jsoncodec`);
+each field's ``spec`` is its meaning in the generated schema (:func:`verdict_schemas`,
+the gate's ``GET /openapi.json``). Reading is strict about what it uses (a missing or
 mistyped field raises :class:`~firmware_proto.errors.VerdictError` naming its JSON
-pointer; a field it does not know is ignored (a newer gate may add some). Pure:
-standard library only.
+pointer) and ignores fields it does not know. Pure: standard library only.
 
 Units: metres in the map frame (x east, y north), yaw in degrees counter-clockwise from
-+x, times in seconds of twin time unless a name says ``wall``. Errors are signed and
-computed as *goal minus predicted*:
++x, seconds of twin time unless a name says ``wall``. Errors are *goal minus predicted*:
 
-- ``position_error_m``: along the goal-approach heading (the heading of the last FWD or
-  REV step, reversed for REV; the start-to-goal bearing when the plan never drives).
-  Positive: the rover stops short of the goal (undershoot); negative: it overshoots.
+- ``position_error_m``: along the goal-approach heading (of the last FWD or REV step,
+  reversed for REV; the start-to-goal bearing when the plan never drives); positive:
+  undershoot.
 - ``lateral_error_m``: across that heading, positive when the goal lies to the left.
 - ``yaw_error_deg``: goal yaw minus final yaw, wrapped to ``[-180, 180)``.
 
-What an executor's drift monitor needs is here: :attr:`Verdict.trajectory` (poses tagged
-with the step index and the time since that step started, because the executor pauses
-between steps for the link's round trip) and :attr:`Verdict.steps`. A verdict played on
-several twins (``samples`` > 1) carries :class:`Uncertainty` as well.
+Trajectory samples are tagged with the step and the time since it started (an executor
+pauses between steps); a verdict played on several twins carries :class:`Uncertainty`.
 """
 
 from __future__ import annotations
@@ -99,14 +94,11 @@ class TrajectorySample:
 
 @dataclass(frozen=True)
 class Trajectory:
-    """The predicted trajectory.
+    """The predicted trajectory, in time order.
 
-    Each step contributes a sample at its start (``step_t_s == 0``), the samples of the
-    fixed-rate grid that fall inside it (every ``sample_period_s`` of plan time), and one
-    at its end; after the last step, samples of the settling phase (wheels stopped, the
-    body coming to rest) carry the last step's index with ``step_t_s`` beyond its
-    duration. Samples are in time order; a boundary time appears twice (end of one step,
-    start of the next).
+    Each step has a sample at its start (``step_t_s == 0``), the fixed-rate grid's samples
+    inside it, and one at its end (a boundary time appears twice); after the last step,
+    settling samples carry its index with ``step_t_s`` beyond its duration.
     """
 
     sample_period_s: float = field(

@@ -1,11 +1,9 @@
 """One long-running program of the stack: its scheduling and its stall monitor.
 
-Every program that runs for the length of a mission (``rover bridge``, ``rover emulate``,
-``rover gate``, ``rover link``, ``rover go``, ``rover demo``) enters a
-:class:`ProcessRuntime` first thing in its ``main``: the programs that must keep time ask
-for real-time scheduling (:mod:`firmware_proto.runtime.realtime`), and every one
-watches itself for stalls (:mod:`firmware_proto.runtime.stall`). The command-line
-options are the same everywhere (:mod:`firmware_proto.cli.runtimeargs`).
+Every program that runs for the length of a mission enters a :class:`ProcessRuntime`
+first thing in its ``main``: those that must keep time ask for real-time scheduling
+(:mod:`~firmware_proto.runtime.realtime`), and every one watches itself for stalls
+(:mod:`~firmware_proto.runtime.stall`). Options: :mod:`firmware_proto.cli.runtimeargs`.
 """
 
 from __future__ import annotations
@@ -49,15 +47,12 @@ class RuntimeOptions:
         priority: real-time priority 1..99, or 0 for normal scheduling.
         stall_threshold_s: stalls longer than this are logged, s.
         stall_log: the stall log shared by the stack's processes (``None``: none).
-        short_switch: hand the interpreter lock over every 0.5 ms instead of 5 ms
+        short_switch: a short interpreter switch interval
             (:mod:`firmware_proto.runtime.interpreter`): for the programs that keep time.
-        nice: a nice value to run at (>= 0 needs no permission): the programs that need
-            not keep time can yield to those that must (``rover demo`` starts the gate
-            and the link relay at 5).
-        lock_memory: lock the process's memory when real time is granted (a tool that
-            runs for one test, such as ``rover replay``, need not).
-        stall_stacks_on_console: log each stall's stacks on the console too (``-v``);
-            otherwise a stall is one line naming where its stacks are (the stall log).
+        nice: a nice value to run at (>= 0 needs no permission), for programs that yield
+            to those that keep time.
+        lock_memory: lock the process's memory when real time is granted.
+        stall_stacks_on_console: log each stall's stacks on the console too (``-v``).
     """
 
     name: str
@@ -78,9 +73,8 @@ class ProcessRuntime:
     """Scheduling and stall monitoring for the calling program (a context manager).
 
     Enter it from the main thread before any other thread starts, so that every thread
-    inherits the scheduling asked for. On exit the calling thread's scheduling and the
-    interpreter's switch interval are put back as they were, so that a program run
-    in-process (a test calling ``rover replay``) leaves its caller as it found it.
+    inherits the scheduling. On exit the calling thread's scheduling and the switch interval
+    are put back, so a program run in-process leaves its caller as it found it.
     """
 
     def __init__(self, options: RuntimeOptions) -> None:
@@ -116,11 +110,9 @@ class ProcessRuntime:
         return self
 
     def wind_down(self) -> None:
-        """The program has begun to end: every thread of it leaves real time
-        (:func:`~firmware_proto.runtime.realtime.leave_realtime_for_process`), so that
-        its teardown never holds a core above the programs still keeping time. Call it
-        once the work that must keep time is over (a signal came, the loop ended);
-        leaving the runtime does it too."""
+        """The program has begun to end: every thread leaves real time
+        (:func:`~firmware_proto.runtime.realtime.leave_realtime_for_process`). Call it once the
+        work that must keep time is over; leaving the runtime does it too."""
         if self.realtime is not None and self.realtime.granted:
             leave_realtime_for_process()
 

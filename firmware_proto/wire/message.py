@@ -1,20 +1,14 @@
 """The base class of every protocol message.
 
 Concrete classes are generated into :mod:`firmware_proto.wire.messages` from
-``protocol.toml``. They are immutable named tuples of raw integers (units in the field
-names, e.g. ``yaw_rate_mrad_s``); enum-typed fields hold plain ``int`` values that
-compare equal to the generated ``IntEnum`` members.
+``protocol.toml``: immutable named tuples of raw integers (units in the field names,
+e.g. ``yaw_rate_mrad_s``); enum-typed fields hold plain ``int`` values that compare equal
+to the generated ``IntEnum`` members. Tuples, not frozen dataclasses, because the
+decoder builds one per received frame straight from ``struct.unpack`` (the hot path).
+Unlike plain named tuples, messages compare equal only to messages of the same type.
 
-Why tuples and not frozen dataclasses, our usual value type: one message is built per
-received frame, and the decoder builds a tuple subclass straight from
-``struct.unpack``'s result in a third of the time a frozen dataclass takes, which is
-what keeps decoding well ahead of pymavlink (benchmarks/bench_codec.py). Unlike plain
-named tuples, messages compare equal only to messages of the same type:
-``Motion(1, 1, 1, 1) != Ack(1, 1, 1, 1)``.
-
-A subclass provides :meth:`Message.pack` (payload bytes, checked) and
-:meth:`Message.unpack` (strict decode). Framing lives in :mod:`firmware_proto.wire.framing`
-(serial) and :mod:`firmware_proto.wire.canmap` (CAN).
+Framing lives in :mod:`firmware_proto.wire.framing` (serial) and
+:mod:`firmware_proto.wire.canmap` (CAN).
 """
 
 from __future__ import annotations
@@ -32,9 +26,8 @@ M = TypeVar("M", bound="Message")
 class Message:
     """A protocol message. Subclasses are generated; do not subclass by hand.
 
-    Each generated class derives from ``Message`` first and from a ``NamedTuple`` of its
-    fields second, so that the equality and hashing below take precedence over the
-    tuple's.
+    Each generated class derives from ``Message`` first and a ``NamedTuple`` of its fields
+    second, so that the equality and hashing below take precedence over the tuple's.
 
     Class attributes:
         MSG_ID: message id (serial frame id; CAN identifier ``MSG_ID << 4 | node``).
