@@ -1,23 +1,17 @@
 """The ``rover`` command line: one entry point, subcommands plugged in by each package.
 
 Each package registers its subcommands under the entry-point group ``rover.commands``
-(see ``pyproject.toml``). An entry point names a function ``register(subparsers)`` that
-adds one ``argparse`` subparser and sets ``func`` on it; ``func(args)`` returns the exit
-status. Register functions must import nothing heavy at module level, so that
-``rover --help`` stays fast; the handler imports what it needs.
+(``pyproject.toml``): a function ``register(subparsers)`` adds one ``argparse``
+subparser and sets ``func`` on it; ``func(args)`` returns the exit status. Register
+functions import nothing heavy at module level, so ``rover --help`` stays fast.
 
-The command host and the command-line helpers every program shares (``rover frame``,
-``rover replay``, the ROS 2 tail of a command line: :mod:`firmware_proto.cli.rosargs`,
-:mod:`firmware_proto.cli.rosparams`; the ``main()`` of every program ``ros2 run``
-starts: :mod:`firmware_proto.cli.program`) form this sub-package of
-:mod:`firmware_proto`, apart from the pure protocol: it is the one place below the
-emulator, the bridge, the gate and the planner, which all plug into it (the
-repository's top-level layout is fixed). It discovers them by entry point and never
-imports them; nothing in ``firmware_proto`` outside it imports it
+This sub-package (the command host and the helpers every program shares) is the one
+place below the emulator, the bridge, the gate and the planner: it discovers them by
+entry point and never imports them, and nothing else in ``firmware_proto`` imports it
 (docs/architecture.md, Parts and layers).
 
-A subcommand whose positional arguments may also follow its options sets
-``intermixed`` to their destination (``rover frame encode MOTION --can 1 seq=1``).
+A subcommand whose positionals may follow its options sets ``intermixed`` to their
+destination (``rover frame encode MOTION --can 1 seq=1``).
 
 Exit status: 0 success, 1 the command failed (one line on stderr; ``-vv`` adds the
 traceback), 2 usage error, 130 interrupted.
@@ -49,8 +43,7 @@ def _load_registrations(only: str | None = None) -> list[tuple[str, RegisterFn]]
     found = []
     points = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)
     if only is not None and any(ep.name == only for ep in points):
-        # One command named: load its entry point alone (the others import their
-        # packages: a second of a loaded machine's CPU before `rover stop` even starts).
+        # One command named: load its entry point alone (the others import their packages).
         points = [ep for ep in points if ep.name == only]
     for ep in points:
         try:
@@ -100,9 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     given = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(_command_named(given))
     args, extra = parser.parse_known_args(given)
-    # A command whose positionals may follow its options (``rover frame encode MOTION
-    # --can 1 seq=1 ...``) names them in ``intermixed``; anything else left over is the
-    # usual usage error.
+    # ``intermixed`` (module docstring); anything else left over is a usage error.
     into = getattr(args, "intermixed", None)
     if extra and into is not None and not any(x.startswith("-") for x in extra):
         getattr(args, into).extend(extra)

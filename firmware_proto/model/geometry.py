@@ -1,14 +1,10 @@
-"""Planar geometry of the map frame: angles, segments and polygons.
+"""Planar geometry of the map frame: angles, segments and polygons; the one set of
+geometry helpers of the project.
 
-The one set of geometry helpers of the project: the map model
-(:mod:`firmware_proto.model.worldmap`) checks and measures maps with them, the twin builds its
-shapes with them, the gate and the planner measure headings and clearances with them.
-
-Frames and units: metres in the map frame, x east, y north; angles counter-clockwise
-from +x, in degrees where a name says ``_deg`` and radians where it says ``_rad``.
-Points are plain ``(x, y)`` tuples, so that the inner loops of clearance checks stay
-cheap. Polygons are simple (no edge crosses another), either winding, not closed (the
-last vertex joins the first). Pure functions, no I/O.
+Metres in the map frame, x east, y north; angles counter-clockwise from +x, in degrees
+where a name says ``_deg`` and radians where it says ``_rad``. Points are plain ``(x,
+y)`` tuples (cheap in the inner loops of clearance checks). Polygons are simple, either
+winding, not closed (the last vertex joins the first). Pure functions, no I/O.
 """
 
 from __future__ import annotations

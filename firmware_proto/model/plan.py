@@ -1,11 +1,10 @@
 """Command plans: the thesis's Listing 1 schema, validation and the wire form.
 
 A plan is ``{"goal": {x, y, yaw_deg}, "commands": [{command, speed, distance}, ...]}``
-(docs/architecture.md, Contracts 1), checked against ``data/command_plan.schema.json`` (JSON Schema
-2020-12, the one copy every part uses). :func:`validate_plan` lists every violation with
-its JSON pointer; :meth:`Plan.from_dict` raises :class:`PlanError` carrying them.
+(docs/architecture.md, Contracts 1), checked against ``data/command_plan.schema.json``
+(the one copy every part uses); violations come with their JSON pointers.
 :meth:`PlanStep.to_wire` gives the ``[command, speed, distance]`` integers of
-``/wheel_instructions`` (command codes: Contracts 2).
+``/wheel_instructions`` (Contracts 2).
 """
 
 from __future__ import annotations
@@ -56,20 +55,15 @@ def _validator() -> Draft202012Validator:
 
 def validate_plan(obj: Any, *, limit: int | None = None) -> list[tuple[str, str]]:
     """Every schema violation of ``obj`` as ``(json_pointer, message)``, sorted by pointer
-    (with ``limit``, the first that many found: the walk stops there).
-
-    Beyond the schema, numbers must be finite (JSON has no NaN or infinity; Python's
-    parser accepts them). An extra property is reported at its own pointer.
-    """
+    (with ``limit``, the first that many found); non-finite numbers are violations too."""
     from firmware_proto.model.schemacheck import schema_violations  # noqa: PLC0415 - jsonschema
 
     return schema_violations(_validator(), obj, fast=True, limit=limit)
 
 
 def plan_is_valid(obj: Any) -> bool:
-    """Whether ``obj`` is a valid plan (:func:`validate_plan` would find nothing),
-    decided by the compiled check alone: microseconds, however large ``obj`` is, as it
-    stops at the first violation."""
+    """Whether ``obj`` is a valid plan (:func:`validate_plan` would find nothing), decided by
+    the compiled check alone, which stops at the first violation."""
     from firmware_proto.model.schemacheck import is_valid  # noqa: PLC0415 - jsonschema
 
     return is_valid(_validator(), obj)
