@@ -1,14 +1,9 @@
 """How a program of ours starts and ends: the ``main()`` that ``ros2 run`` and the launch
-files start (``rover_bridge``, ``rover_emulator``, ``rover_gate``, ``rover_link``,
-``rover_executor``; docs/ros2.md), its logging, and the one line an error gets.
-
-:func:`ros_main` does for each of them what the ``rover`` command host
-(:func:`firmware_proto.cli.main`) does for a subcommand: read the command line, set up
-logging, run, and turn what went wrong into an exit status and one line on stderr.
+files start (docs/ros2.md), its logging, and the one line an error gets.
 
 Exit status: what ``run`` returns; 1 when it raised (``PROG: error: ...``); 2 for a
 usage error (a bad option or ROS argument, an unreadable ``--params-file``); 130 when
-interrupted (Ctrl-C, ``PROG: interrupted``).
+interrupted.
 """
 
 from __future__ import annotations
@@ -53,21 +48,18 @@ def ros_main(
     ``--ros-args``.
 
     Args:
-        parser: the program's parser; its ``prog`` names the program in messages and is
-            the node name that ``--params-file`` sections and ``-p`` address.
+        parser: the program's parser; its ``prog`` names the program in messages and is the
+            node name that ``--params-file`` sections and ``-p`` address.
         run: the program; its return value is the exit status.
         argv: the arguments (default ``sys.argv[1:]``).
-        node: the program runs a ROS node of its own (the bridge): the ``--ros-args``
-            tail goes to it whole, as ``args.ros_args``. Otherwise the node's
-            parameters become long options placed before the program's own, which
-            therefore win (``map:=lab`` -> ``--map lab``).
-        with_rclpy: the program loads rclpy anyway (the link relay, the executor):
-            rcl's own parser reads the ROS arguments where rclpy is installed
+        node: the program runs a ROS node of its own: the ``--ros-args`` tail goes to it
+            whole, as ``args.ros_args``. Otherwise the node's parameters become long
+            options placed before the program's own, which therefore win.
+        with_rclpy: read the ROS arguments with rcl's parser where rclpy is installed
             (:mod:`firmware_proto.cli.rclargs`).
 
     Returns:
-        The exit status (see the module docstring). A usage error exits through
-        ``parser.error`` (``SystemExit(2)``), before anything runs.
+        The exit status (module docstring); a usage error exits through ``parser.error``.
     """
     given = list(sys.argv[1:] if argv is None else argv)
     prog = parser.prog

@@ -1,20 +1,16 @@
 """The ROS 2 tail of a command line read by rclpy itself, for the programs that load rclpy
-anyway (``rover_bridge``, ``rover_link``, ``rover_executor``; docs/ros2.md).
+anyway (docs/ros2.md).
 
-:mod:`firmware_proto.cli.rosargs` reads ``--ros-args`` by hand, so that a program that
-never loads rclpy (the emulator, the gate) takes its section of a launch file's
-parameters without it. Where rclpy is there, rcl's own parser decides instead, exactly
-as for any ROS 2 node: :func:`rclpy_node_parameters` initialises a private rclpy context
-with the arguments (rcl checks them: a malformed one is refused with rcl's words),
-creates the node they name (``-r __node:=``, ``-r __ns:=`` applied by rcl) and reads the
-parameter overrides rcl resolved for it: each ``--params-file`` section that matches
-the node (``/**``, wildcards, its fully qualified name, in rcl's order), then ``-p``.
+:mod:`firmware_proto.cli.rosargs` reads ``--ros-args`` by hand for programs that never
+load rclpy. Where rclpy is there, rcl's own parser decides, as for any ROS 2 node:
+:func:`rclpy_node_parameters` initialises a private rclpy context with the arguments
+(a malformed one is refused with rcl's words), creates the node they name and reads the
+parameter overrides rcl resolved for it.
 
-It costs a node's start (a few hundred ms), once, before the program opens its own
-ports; the node discovers nothing (``ROS_AUTOMATIC_DISCOVERY_RANGE=OFF`` for its
-context alone) and is gone before the program's own nodes start. rcl's YAML parser reads
-the files, so PyYAML is not needed. Call it before the program starts threads (it sets
-that variable for the moment the context starts).
+It costs one node's start, before the program opens its own ports; the node discovers
+nothing (``ROS_AUTOMATIC_DISCOVERY_RANGE=OFF`` for its context alone) and is gone before
+the program's own nodes start. Call it before the program starts threads (it sets that
+variable while the context starts).
 """
 
 from __future__ import annotations

@@ -92,8 +92,8 @@ class HttpService:
         if self._thread is not None:
             raise RuntimeError("already started")
         family = socket.AF_INET6 if ":" in self._host else socket.AF_INET
-        # proto named: asyncio sets TCP_NODELAY only on sockets that say they are TCP,
-        # and without it every keep-alive response waits ~40 ms (Nagle + delayed ACK).
+        # proto named: asyncio sets TCP_NODELAY only on sockets that say they are TCP
+        # (else Nagle and the client's delayed ACK hold every keep-alive response).
         sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

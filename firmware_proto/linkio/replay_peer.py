@@ -1,12 +1,9 @@
 """The replaying peer: one end of a recorded session, played into the other end.
 
-Both replays (docs/traffic-logs.md) use it: ``rover replay --emulator`` plays the
-recorded host into a fresh emulator (a :data:`~firmware_proto.linkio.endpoint.HOST`
-peer), ``rover replay --bridge`` plays the recorded controller into a fresh bridge link
-(a :data:`~firmware_proto.linkio.endpoint.CONTROLLER` peer). A :class:`ReplayPeer` puts
-recorded frames on its endpoint exactly as recorded (:meth:`ReplayPeer.play`) and
-collects, on a reader thread, every message the other end sends, with its arrival time;
-the replay waits on counts of those (:meth:`ReplayPeer.wait_counts`).
+Both replays (docs/traffic-logs.md) use it: a HOST peer plays the recorded host into a
+fresh emulator, a CONTROLLER peer the recorded controller into a fresh bridge link. A
+:class:`ReplayPeer` puts recorded frames on its endpoint exactly as recorded and
+collects, on a reader thread, every message the other end sends, with its arrival time.
 """
 
 from __future__ import annotations

@@ -1,16 +1,11 @@
 """The interpreter setting of the processes that keep time, for STOP latency.
 
 CPython lets a thread hold the interpreter lock for up to ``sys.getswitchinterval()``
-(5 ms by default) before another thread that wants it gets it. In the bridge a STOP
-arrives on one thread (a ROS callback) while others (the transport's dispatcher with
-odometry, the link's timer, the ROS port's own threads) run Python too, so the default
-lets a STOP wait up to 5 ms for a turn; in the emulator a frame's reader waits likewise
-for the control loop. Those processes therefore ask for slices of
-:data:`SWITCH_INTERVAL_S` (:class:`~firmware_proto.runtime.process.ProcessRuntime`).
-Measured with ``benchmarks/bench_bridge.py``, one run of each on a 2-core machine (100
-trials, a ROS message on the in-process port, the motion queue full and telemetry at
-100 Hz): STOP -> wheel targets zero p95 2.0 -> 0.55 ms, p99 3.7 -> 0.69 ms. The bridge
-is not CPU-bound, so the extra switching costs it little.
+(5 ms by default) before another thread that wants it gets it. A STOP arriving on one
+thread of the bridge (or a frame on the emulator's reader) would wait that long behind
+the others, so those processes ask for slices of :data:`SWITCH_INTERVAL_S`
+(:class:`~firmware_proto.runtime.process.ProcessRuntime`); they are not CPU-bound, so the
+extra switching costs little.
 
 Process-wide: only the entry points that keep time (and the benchmark that stands for
 the bridge) call :func:`use_short_switch_interval`; importing this module changes nothing.

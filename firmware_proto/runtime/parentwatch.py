@@ -1,21 +1,14 @@
 """A part of a stack ends when the process that started it ends, however that ends.
 
-``rover stack up`` and ``rover demo`` start their parts (gate, emulator, bridge, onboard
-program, link relay) as child processes and stop them on the way out. A parent killed
-outright (SIGKILL, a test's time limit, the out-of-memory killer) runs no way out: its
-parts went on, an emulator and a relay each holding a core, until someone found them.
-
-The parent makes a pipe for each part's standard input and names it in the part's
-environment (:data:`EXIT_WITH_PARENT_ENV`: the pipe's inode, :func:`pipe_for_child`); it
-never writes to it. The kernel closes the pipe when the parent ends, whatever the cause,
-and the part's :func:`watch_parent` thread reads end-of-file: it sends the part SIGTERM,
-so that the part ends as it does at Ctrl-C (its STOP, its cleanup), and ends it outright
-if it is still there :data:`GRACE_S` later. The pipe is named, not the parent: a part
-whose parent died before it started still reads end-of-file, and a process that
-inherited the variable with another standard input watches nothing. The parts never
-read their standard input otherwise; when a parent goes, all its parts get SIGTERM at
-once, so the controller's watchdog (250 ms) is what stops the wheels if the bridge ends
-before a STOP went out.
+``rover stack up`` and ``rover demo`` start their parts as child processes; a parent
+killed outright (SIGKILL, the out-of-memory killer) runs no way out. So the parent makes
+a pipe for each part's standard input, names it in the part's environment
+(:data:`EXIT_WITH_PARENT_ENV`, the pipe's inode: :func:`pipe_for_child`) and never writes
+to it. The kernel closes it when the parent ends; the part's :func:`watch_parent` thread
+reads end-of-file and sends the part SIGTERM (it ends as at Ctrl-C, with its STOP), then
+ends it outright if it is still there :data:`GRACE_S` later. The pipe is named, not the
+parent: a part whose parent died before it started still reads end-of-file, and a
+process that inherited the variable with another standard input watches nothing.
 """
 
 from __future__ import annotations

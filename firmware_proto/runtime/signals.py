@@ -1,13 +1,10 @@
 """SIGINT and SIGTERM for a program's main loop, received without a lock.
 
-A handler that calls ``threading.Event.set()`` can hang its own process for ever. Python
-runs a signal's handler in the main thread, between two bytecodes; when that falls inside
-``Event.wait()`` on the same event (after ``wait`` took the event's lock, before it
-released it to sleep), ``set()`` waits for a lock its own thread holds. ``rover gate``
-hung so after a SIGTERM in the test command (2026-11-27): it never said it was shutting
-down. Here the handler only stores the signal's number, and the interpreter's wake-up
-file descriptor (:func:`signal.set_wakeup_fd`, written by its C-level handler in
-whichever thread the signal lands) wakes :meth:`ShutdownSignals.wait`.
+A handler that calls ``threading.Event.set()`` can hang its own process: Python runs it
+in the main thread between two bytecodes, which may fall inside ``Event.wait()`` on the
+same event, so ``set()`` waits for a lock its own thread holds. Here the handler only
+stores the signal's number, and the interpreter's wake-up file descriptor
+(:func:`signal.set_wakeup_fd`) wakes :meth:`ShutdownSignals.wait`.
 """
 
 from __future__ import annotations
@@ -45,13 +42,11 @@ def restore_handlers(previous: dict[int, Any]) -> None:
 
 class ShutdownSignals:
     """While entered (in the main thread), SIGINT and SIGTERM end :meth:`wait`; the first
-    one received is :attr:`signum`. On exit the previous handlers and wake-up descriptor
-    are put back. Entered in another thread it changes nothing and :meth:`wait` only
-    times out (signals are the main thread's).
+    one received is :attr:`signum`. On exit the previous handlers and wake-up descriptor are
+    put back. Entered in another thread it changes nothing and :meth:`wait` only times out.
 
-    ``interrupt``: while it is true (an attribute the program may change, e.g. while it
-    starts up), a signal raises :class:`KeyboardInterrupt` in the main thread instead,
-    as Python's own SIGINT handler does.
+    ``interrupt``: while true (the program may change it, e.g. during start-up), a signal
+    raises :class:`KeyboardInterrupt` in the main thread instead.
     """
 
     def __init__(self, *, interrupt: bool = False) -> None:
