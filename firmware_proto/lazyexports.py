@@ -1,11 +1,8 @@
 """Names a package exports but imports on first use (PEP 562), so that importing the
-package, or any module in it, costs only what that module needs.
+package, or any module in it, costs only what that module needs (every program of the
+stack is a Python process, started hundreds of times by a test run).
 
-Every program of the stack is a Python process, and a test run starts hundreds of them
-(``rover`` commands, ROS 2 node processes): a package ``__init__`` that imported its
-heavy names eagerly (the plan schema's jsonschema, ROS 2 messages and numpy, pymunk) made
-each start pay for all of them. A package lists its lazy names here, and imports them
-under ``TYPE_CHECKING`` for the type checker::
+A package lists its lazy names here, and imports them under ``TYPE_CHECKING``::
 
     if TYPE_CHECKING:
         from planner.ground.executor import PlanExecutor

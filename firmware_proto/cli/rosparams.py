@@ -1,11 +1,6 @@
-"""The ROS 2 tail of a program's command line, read: the edge of
-:mod:`firmware_proto.cli.rosargs` for the ``main()`` of every program that ``ros2 run`` and
-the launch files start but that is not a ROS node itself (``rover_emulator``,
-``rover_gate``, ``rover_link``, ``rover_executor``; docs/ros2.md).
-
-It sits in :mod:`firmware_proto.cli`, the command-line layer that does I/O, because the
-emulator, the gate and the planner all use it and share no other package;
-:mod:`firmware_proto.cli.rosargs` itself is pure.
+"""The ROS 2 tail of a program's command line, read: the I/O edge of
+:mod:`firmware_proto.cli.rosargs` for the programs that ``ros2 run`` starts but that are
+not ROS nodes themselves (docs/ros2.md).
 """
 
 from __future__ import annotations
@@ -45,14 +40,10 @@ def parse_args_with_ros_args(
     *,
     with_rclpy: bool = False,
 ) -> argparse.Namespace:
-    """Parse a command line that may end in ``--ros-args``: the node's parameters (its
-    sections of each ``--params-file``, then ``-p``) become long options placed before
-    the program's own, which therefore win. A bad ROS argument or an unreadable file is
-    a usage error (``parser.error``: exit status 2).
-
-    ``with_rclpy``: the program loads rclpy anyway; where rclpy is installed, rcl's own
-    parser reads the arguments (:mod:`firmware_proto.cli.rclargs`), else the pure one
-    (:mod:`firmware_proto.cli.rosargs`)."""
+    """Parse a command line that may end in ``--ros-args``: the node's parameters become long
+    options placed before the program's own, which therefore win. A bad ROS argument or an
+    unreadable file is a usage error (``parser.error``: exit status 2). ``with_rclpy``: where
+    rclpy is installed, rcl's own parser reads the arguments (:mod:`~.rclargs`)."""
     own, ros_args = split_ros_args(argv)
     try:
         if not ros_args:

@@ -1,26 +1,14 @@
-"""The HTTP serving layer of the gate and the live view: one stack for both.
+"""The HTTP serving layer of the gate and the live view: one stack for both
+(docs/gate.md says why this stack and what it costs).
 
-Starlette's request and response types for the applications, uvicorn with h11 for
-the connections, and what this project adds to bound every client
-(:class:`~firmware_proto.http.protocol.GuardedH11Protocol`): a deadline for a
-request's head (slowloris), for its body, for a reader that stops reading, a cap on
-connections and on drained bodies, and errors worded by the server. docs/gate.md says
-why this stack and what it costs.
+Starlette's request and response types for the applications, uvicorn with h11 for the
+connections, and what this project adds to bound every client: :mod:`~.limits` (the
+bounds), :mod:`~.protocol` (the guarded h11 connection), :mod:`~.service` (an ASGI app
+served on a thread of its own), :mod:`~.app` (the application layer both servers
+share), :mod:`~.body` (a body under a size limit and a deadline), :mod:`~.errors`.
 
-- :mod:`~firmware_proto.http.limits`: :class:`ServeLimits`, the bounds;
-- :mod:`~firmware_proto.http.protocol`: the guarded h11 connection;
-- :mod:`~firmware_proto.http.service`: :class:`HttpService`, an ASGI app served on
-  a thread of its own;
-- :mod:`~firmware_proto.http.app`: the application layer both servers share
-  (Starlette's router, the guard middleware, errors worded by the server);
-- :mod:`~firmware_proto.http.body`: :func:`read_body`, a body under a size limit
-  and a deadline;
-- :mod:`~firmware_proto.http.errors`: the exceptions.
-
-Importing the package loads neither uvicorn nor Starlette (the limits and errors are
-plain data). Like :mod:`firmware_proto.linkio` it is a layer beside the pure protocol modules, which
-never import it; the bind and token policy both servers share is pure and lives below
-it (:mod:`firmware_proto.http.bindpolicy`).
+Importing the package loads neither uvicorn nor Starlette. The pure protocol modules
+never import it; the bind and token policy (:mod:`~.bindpolicy`) is pure.
 """
 
 from __future__ import annotations

@@ -23,12 +23,10 @@ class ConnectionMark:
 
     Attributes:
         address: the peer's address.
-        trusted: a request on it presented the token (the application sets it; the
-            connection layer never evicts a trusted connection for an anonymous one).
-        closed: the peer has closed its end (or the connection is lost): a request still
-            waiting for its answer then has nobody, or only a half-closed client, to
-            answer; the application may stop its work (the gate does:
-            :meth:`when_closed`).
+        trusted: a request on it presented the token (set by the application; a trusted
+            connection is never evicted for an anonymous one).
+        closed: the peer has closed its end (or the connection is lost); the application
+            may stop work for it (:meth:`when_closed`).
     """
 
     address: str = ""

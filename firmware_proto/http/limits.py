@@ -59,22 +59,16 @@ def _positive(name: str, value: float) -> None:
 
 @dataclass(frozen=True)
 class ServeLimits:
-    """The bounds of one server's connections.
+    """The bounds of one server's connections (each default's constant says what it bounds).
 
     Attributes:
-        idle_timeout_s: see :data:`DEFAULT_IDLE_TIMEOUT_S`.
-        head_timeout_s: see :data:`DEFAULT_HEAD_TIMEOUT_S`.
+        idle_timeout_s, head_timeout_s, max_connections, max_connections_per_address,
+            max_head_bytes, max_drain_bytes: see the ``DEFAULT_*`` constants.
         body_timeout_s: see :data:`DEFAULT_BODY_TIMEOUT_S` (applied by
             :func:`~firmware_proto.http.body.read_body`).
-        write_timeout_s: a client that has not taken any of the answer for this long
-            (the socket's buffers full) is cut off.
-        max_connections: see :data:`DEFAULT_MAX_CONNECTIONS`.
-        max_connections_per_address: see :data:`DEFAULT_MAX_CONNECTIONS_PER_ADDRESS`.
-        reserved_connections: of ``max_connections``, kept for connections that have
-            shown the token; 0 where there is no token (``< max_connections``).
-        max_head_bytes: see :data:`DEFAULT_MAX_HEAD_BYTES` (a head over it is 431,
-            however it arrives).
-        max_drain_bytes: see :data:`DEFAULT_MAX_DRAIN_BYTES`.
+        write_timeout_s: a client that has taken none of the answer for this long is cut off.
+        reserved_connections: of ``max_connections``, kept for connections that have shown
+            the token; 0 where there is no token (``< max_connections``).
         drain_timeout_s: on shutdown, how long requests under way may take.
 
     Raises:

@@ -1,20 +1,16 @@
 """A scripted protocol host: the host side of docs/protocol.md, driven by a script.
 
-What tests, ``rover conformance`` and ``rover bench stop`` talk to a controller with.
-:class:`ProtocolHost` owns one host-side
-:class:`~firmware_proto.linkio.endpoint.Endpoint`, keeps every message received
-(:class:`Received`) in an :class:`~firmware_proto.linkio.inbox.Inbox`, sends messages
-(checked, unchecked, raw frames, raw bytes) and answers a script's questions with
-timeouts (:meth:`~ProtocolHost.expect`, :meth:`~ProtocolHost.find`,
-:meth:`~ProtocolHost.absent`). It sends HOST_HEARTBEAT every period unless
-:meth:`~ProtocolHost.silent`.
+What tests, ``rover conformance`` and ``rover bench stop`` talk to a controller with:
+:class:`ProtocolHost` owns one host-side endpoint, keeps every message received in an
+:class:`~firmware_proto.linkio.inbox.Inbox`, sends messages (checked, unchecked, raw
+frames, raw bytes), answers a script's questions with timeouts, and sends HOST_HEARTBEAT
+every period unless :meth:`~ProtocolHost.silent`.
 
-**Threads.** With the :data:`~firmware_proto.linkio.clock.WALL` clock, :meth:`open`
-starts a reader thread (it only reads and appends) and a heartbeat thread, and waits
-sleep on the inbox's condition. With a :class:`~firmware_proto.linkio.clock.LockstepClock`
-there are no threads: the host's pump and heartbeat run on the clock's ticks, and every
-wait advances the clock. Writes happen on the caller's (and heartbeat) thread, one at a
-time under a lock.
+**Threads.** With the :data:`~firmware_proto.linkio.clock.WALL` clock, ``open`` starts a
+reader thread (it only reads and appends) and a heartbeat thread. With a
+:class:`~firmware_proto.linkio.clock.LockstepClock` there are none: the pump and the
+heartbeat run on the clock's ticks, and every wait advances the clock. Writes happen on
+the caller's (and heartbeat) thread, one at a time under a lock.
 """
 
 from __future__ import annotations
@@ -75,14 +71,17 @@ def _any(_message: Message) -> bool:
 class ProtocolHost:
     """A scripted host on one endpoint (see the module docstring).
 
+    Positions (``since``) come from :meth:`mark` or a send, which returns the mark taken
+    just before it. Every timeout and window is in seconds, scaled by :attr:`timeout_scale`
+    (a repeat period ``every_s`` is not). Every wait raises :class:`LinkError` when the link
+    failed meanwhile; every send raises it when the write failed or the host is not open.
+
     Args:
         endpoint: the host's end of the link, not yet open (``side`` must be host).
         clock: :data:`~firmware_proto.linkio.clock.WALL`, or a
-            :class:`~firmware_proto.linkio.clock.LockstepClock` that also ticks the
-            controller.
+            :class:`~firmware_proto.linkio.clock.LockstepClock` that also ticks the controller.
         heartbeat_s: HOST_HEARTBEAT period, s; ``None``: never send one.
-        timeout_scale: multiplies every timeout and window a script asks for (a slow
-            controller or a loaded machine; at least 1).
+        timeout_scale: multiplies every timeout and window (at least 1).
         keep: received messages kept (``None``: all); marks stay valid when trimmed.
     """
 
@@ -131,11 +130,8 @@ class ProtocolHost:
 
     # -- lifecycle ------------------------------------------------------------------------
     def open(self: H) -> H:
-        """Open the endpoint and start receiving (and sending heartbeats).
-
-        Raises:
-            OSError: the medium cannot be opened (:class:`LinkError` and its kin).
-        """
+        """Open the endpoint and start receiving (and sending heartbeats); OSError (a
+        :class:`LinkError` and its kin) when the medium cannot be opened."""
         if self._opened:
             raise RuntimeError("protocol host already open")
         self.endpoint.open()
@@ -192,7 +188,7 @@ class ProtocolHost:
 
     def clear_stop_for(self, stop_id: int, *, ahead: int = 0) -> ClearStop:
         """A CLEAR_STOP ``stop_id`` naming the latch generation last heard of plus ``ahead``
-        (latch causes this host sent that no answer reported yet: a STOP just written adds one)."""
+        (latch causes sent that no answer reported yet: a STOP just written adds one)."""
         return ClearStop(stop_id, (self.latch_gen + ahead) & 0xFF)
 
     def _reader(self) -> None:
@@ -208,8 +204,7 @@ class ProtocolHost:
                 self._take(got)
 
     def pump(self) -> None:
-        """Take in everything that has arrived, without waiting (what the lockstep clock
-        calls every tick)."""
+        """Take in everything that has arrived, without waiting (each lockstep tick)."""
         got = self.endpoint.read_ready()
         if got:
             self._take(got)
@@ -244,12 +239,8 @@ class ProtocolHost:
         since: int = 0,
         timeout_s: float = 1.0,
     ) -> tuple[int, Received] | None:
-        """The first ``kind`` message from position ``since`` on for which ``where``
-        holds, with its position, waiting up to ``timeout_s`` (scaled); ``None`` if none.
-
-        Raises:
-            LinkError: the link failed meanwhile.
-        """
+        """The first ``kind`` message from ``since`` on for which ``where`` holds, with its
+        position, waiting up to ``timeout_s``; ``None`` if none came."""
 
         def accept(item: Received) -> bool:
             return isinstance(item.message, kind) and where(item.message)
@@ -265,12 +256,8 @@ class ProtocolHost:
         timeout_s: float = 1.0,
         what: str = "",
     ) -> M:
-        """Like :meth:`find`, the message itself.
-
-        Raises:
-            NotReceivedError: none came: "expected <what> within <t> s".
-            LinkError: the link failed meanwhile.
-        """
+        """Like :meth:`find`, the message itself; :class:`NotReceivedError` ("expected <what>
+        within <t> s") when none came."""
         found = self.find(kind, where, since=since, timeout_s=timeout_s)
         if found is None:
             raise NotReceivedError(
@@ -289,13 +276,8 @@ class ProtocolHost:
         window_s: float = 0.3,
         what: str = "",
     ) -> None:
-        """Let ``window_s`` (scaled) pass from now and check that no such message came
-        from position ``since`` on.
-
-        Raises:
-            UnexpectedMessageError: one came: "unexpected <what>: <message>".
-            LinkError: the link failed meanwhile.
-        """
+        """Let ``window_s`` pass and check that no such message came from ``since`` on;
+        :class:`UnexpectedMessageError` ("unexpected <what>: <message>") when one did."""
         found = self.find(kind, where, since=since, timeout_s=window_s)
         if found is not None:
             message = found[1].message
@@ -329,13 +311,8 @@ class ProtocolHost:
 
     def handshake(self, *, timeout_s: float = 5.0, every_s: float | None = None) -> Ident:
         """HELLO with this protocol's version and schema hash; the first IDENT after it (maybe a
-        boot IDENT that crossed it: :meth:`matches` tells). With ``every_s``, HELLO is repeated
-        every ``every_s`` until an IDENT comes.
-
-        Raises:
-            NotReceivedError: no IDENT within ``timeout_s`` (scaled).
-            LinkError: the link failed.
-        """
+        boot IDENT that crossed it: :meth:`matches` tells), HELLO repeated every ``every_s`` if
+        given. :class:`NotReceivedError` when no IDENT came within ``timeout_s``."""
         hello = Hello(PROTOCOL_VERSION, SCHEMA_HASH)
         _, (_, got), _ = self.request(
             hello, Ident, every_s=every_s, timeout_s=timeout_s, what="IDENT"
@@ -364,14 +341,9 @@ class ProtocolHost:
         every_s: float | None = None,
         timeout_s: float = 1.0,
     ) -> ClearAck:
-        """CLEAR_STOP ``clear_id`` naming ``latch_gen`` (default: the generation the last
-        frame told, :attr:`latch_gen`), sent again every ``every_s``, if given, until
-        answered; its CLEAR_ACK, whatever it says.
-
-        Raises:
-            NotReceivedError: no CLEAR_ACK for ``clear_id`` within ``timeout_s`` (scaled).
-            LinkError: the link failed.
-        """
+        """CLEAR_STOP ``clear_id`` naming ``latch_gen`` (default :attr:`latch_gen`), repeated
+        every ``every_s`` if given; its CLEAR_ACK, whatever it says. :class:`NotReceivedError`
+        when none came within ``timeout_s``."""
         gen = self.latch_gen if latch_gen is None else latch_gen
         _, (_, got), _ = self.request(
             ClearStop(clear_id, gen),
@@ -394,18 +366,15 @@ class ProtocolHost:
         timeout_s: float = 1.0,
         what: str = "",
     ) -> tuple[float, tuple[int, Received], int]:
-        """Send ``message`` and await its answer: the first ``kind`` message after the
-        send for which ``where`` holds. With ``every_s``, the message is sent again every
-        ``every_s`` (not scaled: the protocol's repeat period, STOP_REPEAT_MS for STOP
-        and CLEAR_STOP) until the answer comes.
+        """Send ``message`` and await the first ``kind`` message after it for which ``where``
+        holds, sending it again every ``every_s`` if given (the protocol's repeat period).
 
         Returns:
-            the host clock just before the first write, s; the answer with its position;
-            how many times the message was repeated.
+            the host clock just before the first write, s; the answer with its position; how
+            many times the message was repeated.
 
         Raises:
-            NotReceivedError: no answer within ``timeout_s`` (scaled) of the first send.
-            LinkError: a write failed, or the link failed meanwhile.
+            NotReceivedError: no answer within ``timeout_s`` of the first send.
         """
 
         def accept(item: Received) -> bool:
@@ -429,19 +398,13 @@ class ProtocolHost:
             repeats += 1
 
     def indexed(self, kind: type[M], since: int = 0) -> list[tuple[int, Received]]:
-        """Every ``kind`` message received from position ``since`` on, with its position
-        (those still kept)."""
+        """Every ``kind`` message still kept from ``since`` on, with its position."""
         return [(i, r) for i, r in self.inbox.indexed(since) if isinstance(r.message, kind)]
 
     # -- send -----------------------------------------------------------------------------
     def send(self, message: Message, *, strict: bool = True) -> int:
-        """Send one message (its semantic limits checked unless ``strict`` is False: a
-        MOTION with speed 61); returns :meth:`mark` taken just before, so an answer can
-        be awaited from there.
-
-        Raises:
-            LinkError: the write failed, or the host is not open.
-        """
+        """Send one message, its semantic limits checked unless ``strict`` is False (a MOTION
+        with speed 61)."""
         mark = self.mark()
         if strict:
             self._write(lambda: self.endpoint.write(message), message.describe())
@@ -454,24 +417,16 @@ class ProtocolHost:
         return mark
 
     def send_raw(self, msg_id: int, payload: bytes, *, bad_crc: bool = False) -> int:
-        """Send an unchecked frame (an unknown id, a wrong length, a bad CRC); returns
-        the mark taken before. Not written to the endpoint's traffic log.
-
-        Raises:
-            LinkError: the write failed, or the medium cannot carry it (a bad CRC on CAN).
-        """
+        """Send an unchecked frame (an unknown id, a wrong length, a bad CRC; not traffic-logged);
+        :class:`LinkError` also when the medium cannot carry it (a bad CRC on CAN)."""
         mark = self.mark()
         note = f"RAW id={msg_id} payload={payload.hex() or '-'}" + (" bad-crc" if bad_crc else "")
         self._write(lambda: self.endpoint.write_raw(msg_id, payload, bad_crc=bad_crc), note)
         return mark
 
     def write_bytes(self, data: bytes) -> int:
-        """Serial only: put ``data`` on the line as it is (garbage, a cut frame); returns
-        the mark taken before.
-
-        Raises:
-            LinkError: not a serial link, or the write failed.
-        """
+        """Serial only (else :class:`LinkError`): put ``data`` on the line as it is (garbage, a
+        cut frame)."""
         write_wire = getattr(self.endpoint, "write_wire", None)
         if write_wire is None:
             raise LinkError(f"{self.endpoint.name}: raw bytes need a serial link")

@@ -1,11 +1,8 @@
 """The one registry from a link URL to its medium, and the endpoint of each medium.
 
-A link URL's scheme names its medium (:data:`SCHEMES`): ``can://INTERFACE/CHANNEL``
-is CAN; a device path (no scheme) or a pyserial URL (``socket://``, ``rfc2217://``,
-``loop://``...) is serial (:mod:`firmware_proto.linkio.urls` parses both). Each medium
-has an endpoint class here (:data:`ENDPOINTS`), imported only when it is used, so a serial
-link never loads python-can; the bridge keys its transports by the same media
-(``bridge.link.transport.TRANSPORTS``). An unknown scheme is an
+A link URL's scheme names its medium (:data:`SCHEMES`): ``can://`` is CAN; a device path
+or a pyserial URL is serial. Each medium's endpoint class (:data:`ENDPOINTS`) is imported
+only when used, so a serial link never loads python-can. An unknown scheme is an
 :class:`~firmware_proto.linkio.errors.UnknownSchemeError` listing the known ones.
 """
 

@@ -1,12 +1,9 @@
 """An in-memory serial line: two byte ports, each reading what the other wrote.
 
-:func:`memory_line` gives the two ends as :class:`MemoryPort` objects, the
-:class:`~firmware_proto.linkio.serial_endpoint.BytePort` a
-:class:`~firmware_proto.linkio.serial_endpoint.SerialEndpoint` frames: the bytes go
-through the real codec (COBS, CRC, frame counter, the decoder's counting) with nothing
-between but a buffer. A lockstep run (:class:`~firmware_proto.linkio.clock.LockstepClock`)
-reads with timeout 0, which never blocks; a thread may also wait in :meth:`MemoryPort.read`
-for bytes written by another.
+:func:`memory_line` gives the two ends as :class:`MemoryPort` objects, byte ports for a
+:class:`~firmware_proto.linkio.serial_endpoint.SerialEndpoint`: the bytes go through the
+real codec with nothing between but a buffer. A lockstep run reads with timeout 0, which
+never blocks; a thread may also wait in :meth:`MemoryPort.read` for another's writes.
 """
 
 from __future__ import annotations

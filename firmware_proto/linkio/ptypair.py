@@ -1,9 +1,8 @@
 """A pseudo-terminal pair: the emulator holds the controller end, hosts open the device.
 
-A pty moves bytes at memory speed and has no baud rate (docs/architecture.md, Facts of
-this machine); wire timing, where it matters, is paced by the emulator. :class:`PtyPair`
-opens the pair in raw mode, exposes the host-side device path (``/dev/pts/N``) and
-optionally a stable symlink to it.
+A pty has no baud rate; wire timing, where it matters, is paced by the emulator.
+:class:`PtyPair` opens the pair in raw mode, exposes the host-side device path
+(``/dev/pts/N``) and optionally a stable symlink to it.
 """
 
 from __future__ import annotations

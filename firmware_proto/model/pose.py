@@ -1,12 +1,7 @@
 """The planar pose every part shares: a plan's goal, a map's start, the gate's poses, the
-planner's.
-
-Units are those of the maps and plans: metres in the map frame (x east, y north), yaw in
-degrees counter-clockwise from +x. Two other pose types exist, each for a reason:
-:class:`emulator.twin.Pose2D` is the physics twin's own state in the units of pymunk and
-of the wire's POSE message (yaw in radians, read every physics step), converted to this
-one at the gate's boundary; :class:`emulator.playback.TimedPose` is a pose with its twin
-time (a trajectory sample, not a pose). Pure: no I/O.
+planner's. Metres in the map frame (x east, y north), yaw in degrees counter-clockwise
+from +x. (The twin's ``Pose2D`` uses radians, as pymunk and the wire's POSE do; it is
+converted at the gate's boundary.) Pure: no I/O.
 """
 
 from __future__ import annotations
@@ -67,10 +62,9 @@ class Pose:
 
 
 def frame_in(body_in_parent: Pose, body_in_frame: Pose) -> Pose:
-    """Where a frame lies in a parent frame, given one body's pose in each: ``map ->
-    odom`` from the rover's pose in the map (a ground-seeing POSE) and in ``odom`` (its
-    odometry), the transform ROS's ``/tf`` carries as ``map -> odom`` (REP 105), so that
-    composed with ``odom -> base_link`` it gives the map pose. Planar: metres, degrees."""
+    """Where a frame lies in a parent frame, given one body's pose in each: ``map -> odom``
+    (REP 105) from the rover's pose in the map (a ground-seeing POSE) and in ``odom``, so
+    that composed with ``odom -> base_link`` it gives the map pose. Metres, degrees."""
     yaw = math.radians(body_in_parent.yaw_deg - body_in_frame.yaw_deg)
     c, s = math.cos(yaw), math.sin(yaw)
     return Pose(

@@ -239,15 +239,9 @@ class PlanUplink:
         limits: DriftLimits,
         boot: str = "",
     ) -> PlanUplink:
-        """The uplink of an approved plan, with the verdict's prediction, durations and digest.
-
-        Args:
-            plan_id: the ground's id for it (see the module docstring).
-            steps: ``Plan.to_wire()``.
-            verdict: the gate's :class:`~firmware_proto.model.verdict.Verdict` on it.
-            limits: the drift limits to stop at.
-            boot: the boot id of the rover's onboard program (its latest report's).
-        """
+        """The uplink of an approved plan: ``plan_id`` (the ground's id), ``steps``
+        (``Plan.to_wire()``), the gate's ``verdict`` on it (prediction, durations, digest), the
+        drift ``limits`` and the ``boot`` id of the rover's onboard program (its latest report's)."""
         prediction = tuple(
             PredictedSample(s.step, s.step_t_s, s.pose.x, s.pose.y, s.pose.yaw_deg)
             for s in verdict.trajectory.samples
@@ -392,11 +386,7 @@ class UplinkAck:
 
 
 def decode_ack(text: str) -> UplinkAck:
-    """Read an :class:`UplinkAck` (ground side).
-
-    Raises:
-        UplinkError: ``malformed``.
-    """
+    """Read an :class:`UplinkAck` (ground side); UplinkError ``malformed`` if it is not one."""
     obj = _json_object(text, "ack")
     r = _Fields(obj, "ack")
     ack = UplinkAck(
@@ -532,14 +522,13 @@ def peek_body(body: str) -> tuple[int, str]:
 def decode_uplink(
     text: str | bytes, *, token: str | None = None, rover: RoverDescription | None = None
 ) -> PlanUplink | CancelUplink:
-    """Read one uplink envelope: authenticate it (:func:`open_envelope`), then parse and
-    check its body (:func:`decode_body`).
+    """Read one uplink envelope: :func:`open_envelope`, then :func:`decode_body`.
 
     Args:
         text: the envelope as received.
         token: the rover's token; ``None``: tags are not checked.
-        rover: the rover description (ranges of the limits, the fit check); ``None``
-            checks the schema's ranges only and skips the fit.
+        rover: the rover description (ranges of the limits, the fit check); ``None`` checks
+            the schema's ranges only and skips the fit.
 
     Raises:
         UplinkError: refused, with its reason (:data:`REFUSALS`) and one sentence.

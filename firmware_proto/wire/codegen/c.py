@@ -1,16 +1,12 @@
 """Render the C message codec (``firmware_proto/wire/c/rover_msgs.h`` and ``rover_msgs.c``).
 
-The generated code is C99 for the firmware: fixed-width integers, no floats, no heap, no
-stdio, no libc calls. Each message becomes a struct of raw integer fields (the smallest
-``stdint`` type that holds the wire type; reserved padding is not exposed), a ``pack``
-function that checks the wire range (and, with ``strict``, the semantic limit) of every
-field in wire order and names the first bad one in its error code, and an ``unpack``
-function that checks the length, unpacks the bits (sign-extending signed fields) and
-refuses values outside the wire range. A table by id gives length, name, direction and
-field metadata; ``rp_msg_pack`` / ``rp_msg_unpack`` dispatch on it.
-
-The framing, COBS, CRC, stream decoder and CAN helpers are hand-written
-(``firmware_proto/wire/c/rover_proto.[ch]``) on top of these.
+C99 for the firmware: fixed-width integers, no floats, no heap, no stdio, no libc. Each
+message becomes a struct of raw integer fields, a ``pack`` that checks the wire range
+(and, with ``strict``, the semantic limit) of every field in wire order and names the
+first bad one in its error code, and an ``unpack`` that checks the length, unpacks the
+bits (sign-extending) and refuses values outside the wire range. A table by id drives
+``rp_msg_pack`` / ``rp_msg_unpack``. Framing, COBS, CRC and CAN helpers are hand-written
+(``wire/c/rover_proto.[ch]``) on top.
 """
 
 from __future__ import annotations
