@@ -58,14 +58,12 @@ class RosArgs:
     """What the ROS arguments say about a node.
 
     Attributes:
-        node_name: from ``-r __node:=NAME`` (``None`` if not remapped).
-        namespace: from ``-r __ns:=/NS`` (``None`` if not set).
+        node_name, namespace: from ``-r __node:=NAME`` and ``-r __ns:=/NS`` (``None``: not set).
         params_files: every ``--params-file``, in order.
-        params: every ``-p name:=value``, later ones winning; values typed as ROS types
-            them (``true``/``false``, integers, floats, else text).
-        sources: the parameter sources in command-line order, as rcl reads them:
-            ``("file", path)`` for a ``--params-file``, ``("param", section, name,
-            value)`` for a ``-p`` (section ``/**``, or the node named before the name).
+        params: every ``-p name:=value``, later ones winning, typed as ROS types them
+            (``true``/``false``, integers, floats, else text).
+        sources: the parameter sources in command-line order: ``("file", path)`` or
+            ``("param", section, name, value)`` (section ``/**``, or the node named).
     """
 
     node_name: str | None = None
@@ -217,17 +215,9 @@ def argv_from_ros_args(
     default_node: str,
     load: Callable[[str], Any],
 ) -> list[str]:
-    """The long options that the ROS arguments of a command line stand for.
-
-    Args:
-        ros_args: the ROS arguments (see :func:`split_ros_args`).
-        default_node: the node name when the arguments do not remap ``__node``.
-        load: reads one parameters file into a document (e.g. ``yaml.safe_load`` of
-            the file's text); called once per ``--params-file``.
-
-    Raises:
-        ValueError: malformed ROS arguments or parameters file.
-    """
+    """The long options that the ROS arguments (:func:`split_ros_args`) stand for;
+    ``default_node`` and ``load`` (e.g. ``yaml.safe_load`` of a file's text) as for
+    :func:`ros_node_parameters`. ValueError for malformed arguments or parameters files."""
     return parameters_to_argv(ros_node_parameters(parse_ros_args(ros_args), default_node, load))
 
 

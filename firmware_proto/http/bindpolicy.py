@@ -1,18 +1,10 @@
-"""Who may reach an HTTP server of this project: the bind, token and host policy that
-the simulation gate and the live view share (docs/gate.md, "Binding and the token").
+"""Who may reach an HTTP server of this project: the bind, token and host policy that the
+gate and the live view share (docs/gate.md, "Binding and the token").
 
-- A server binds a loopback address unless told otherwise; a non-loopback address needs
-  a token (:func:`check_bind`), so that nothing on the network can drive the rover or
-  read its state by accident; that token must be strong (:data:`MIN_TOKEN_CHARS`
-  characters, :data:`MIN_TOKEN_DISTINCT` of them different).
-- With a token, every request must present it (``Authorization: Bearer <token>``,
-  :func:`bearer_token`); it is compared in constant time (:func:`token_matches`).
-- Every request's ``Host`` must name this server (:class:`HostPolicy`): a page of
-  another site whose name a DNS rebinding points at 127.0.0.1 sends its own name there,
-  and is refused.
-
-Pure functions over strings, no I/O: the lowest place both the gate and the planner's
-live view may import (the planner may not import the gate).
+A non-loopback bind needs a strong token (:func:`check_bind`); with a token every
+request must present it, compared in constant time; every request's ``Host`` must name
+this server (:class:`HostPolicy`), against DNS rebinding. Pure functions over strings:
+the lowest place both the gate and the planner's live view may import.
 """
 
 from __future__ import annotations
@@ -48,11 +40,8 @@ _TOKEN_ADVICE = "python3 -c 'import secrets; print(secrets.token_urlsafe(24))'"
 
 
 def is_loopback(host: str) -> bool:
-    """Whether ``host`` is a loopback address (``127.0.0.0/8``, ``::1``, ``localhost``).
-
-    Host names other than ``localhost`` count as not loopback (they could resolve to
-    anything).
-    """
+    """Whether ``host`` is a loopback address (``127.0.0.0/8``, ``::1``, ``localhost``); other
+    host names count as not loopback (they could resolve to anything)."""
     if host == "localhost":
         return True
     try:
@@ -93,17 +82,13 @@ def check_token(token: str | None, *, what: str = "token", strong: bool = False)
 
 
 def check_bind(host: str, token: str | None, *, what: str = "token", hint: str = "") -> None:
-    """The bind policy: a non-loopback ``host`` needs a strong token.
-
-    Args:
-        host: the address to listen on.
-        token: the bearer token, or ``None``.
-        what: the token's name in messages (``"token"``, ``"view token"``).
-        hint: how to give one, for the message (``"--token-file (or ROVER_GATE_TOKEN)"``).
+    """The bind policy: a non-loopback ``host`` needs a strong token. ``what`` names the
+    token in messages (``"view token"``), ``hint`` says how to give one
+    (``"--token-file (or ROVER_GATE_TOKEN)"``).
 
     Raises:
-        BindPolicyError: a malformed token, a non-loopback address without one, or with
-            a weak one (:func:`check_token`).
+        BindPolicyError: a malformed token, a non-loopback address without one, or with a
+            weak one (:func:`check_token`).
     """
     loopback = is_loopback(host)
     check_token(token, what=what, strong=not loopback)

@@ -1,15 +1,13 @@
 """Exceptions raised by the HTTP serving layer (:mod:`firmware_proto.http`)::
 
     HttpServeError           the root
-     +-- RequestBodyError    a request body cannot be taken: too large (413) or too slow
-     |                       (408); ``status`` and ``code`` say which
+     +-- RequestBodyError    a request body is too large (413) or too slow (408)
      +-- ClientGoneError     the client closed the connection before its body ended
-     +-- StatusError         a request answered with an error status: what the shared
-                             application layer (:mod:`~firmware_proto.http.app`) raises
-                             (404, 405, 401, 403, 421, 501...) and the base of each
-                             server's own errors; each server words it in its own body
+     +-- StatusError         a request answered with an error status: raised by the
+                             application layer (:mod:`~.app`) and the base of each
+                             server's own errors
 
-Each server turns a :class:`RequestBodyError` into its own error body.
+Each server words these in its own error body.
 """
 
 from __future__ import annotations

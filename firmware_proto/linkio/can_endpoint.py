@@ -95,12 +95,11 @@ class CanErrorFrame:
     """What one SocketCAN error frame says.
 
     Attributes:
-        classes: the error class bits (``CAN_ERR_*`` of linux/can/error.h), flag removed.
-        controller: ``data[1]``, the controller detail bits (``CAN_ERR_CRTL_*``); 0 when
-            the frame has no ``CAN_ERR_CRTL`` class or no such byte.
-        state: the fault-confinement state it reports (one of :data:`CAN_STATES`), or
-            ``None`` when it reports no state (lost arbitration, a protocol error, an
-            overflow).
+        classes: the error class bits (``CAN_ERR_*``), flag removed.
+        controller: ``data[1]``, the controller detail bits (``CAN_ERR_CRTL_*``); 0 without
+            a ``CAN_ERR_CRTL`` class or such a byte.
+        state: the fault-confinement state it reports (:data:`CAN_STATES`), or ``None``
+            (lost arbitration, a protocol error, an overflow).
     """
 
     classes: int
@@ -134,12 +133,8 @@ _BUS_STATES = {can.BusState.ACTIVE: ERROR_ACTIVE, can.BusState.PASSIVE: ERROR_PA
 
 
 def open_bus(interface: str, channel: str, **options: Any) -> can.BusABC:
-    """Open a python-can bus, with an error that says which interface failed and why.
-
-    Raises:
-        OSError: the interface is unknown or the channel cannot be opened (for example
-            ``socketcan`` on a kernel without SocketCAN).
-    """
+    """Open a python-can bus; OSError naming the interface when it is unknown or the channel
+    cannot be opened (``socketcan`` on a kernel without SocketCAN)."""
     try:
         return can.Bus(interface=interface, channel=channel, **options)
     except (can.CanError, OSError, ImportError, ValueError, NotImplementedError) as exc:
@@ -317,8 +312,7 @@ class CanEndpoint(Endpoint):
             raise ValueError("a CAN frame's CRC is the bus's: it cannot be sent damaged")
         arbitration_id, data = encode_can(message, self.node)
         if self.recording:
-            # Before the send: the other end may answer as soon as the frame is out, and
-            # the log must keep the wire's order.
+            # Logged before the send, so the log keeps the wire's order.
             self._emit(CanRecord(time.time(), self.channel, arbitration_id, data, is_rx=False))
         self._send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
         return True
@@ -369,11 +363,8 @@ class CanEndpoint(Endpoint):
             self._enter(_BUS_STATES[state], f"interface bus state {state.name}")
 
     def _on_error_frame(self, frame: can.Message) -> None:
-        """Reader thread: count and act on one error frame (see the module docstring).
-
-        Raises:
-            OSError: host side, the frame reports bus-off.
-        """
+        """Reader thread: count and act on one error frame; OSError on the host side when it
+        reports bus-off."""
         self.error_frames += 1
         report = decode_error_frame(frame.arbitration_id, bytes(frame.data))
         logger.debug(

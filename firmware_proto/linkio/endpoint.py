@@ -65,11 +65,8 @@ class Endpoint(ABC):
 
     def __init__(self, side: Side, *, recorder: TrafficRecorder | None = None) -> None:
         """Args:
-        side: which end of the link this is.
+        side: which end of the link this is (ValueError if not one of :data:`SIDES`).
         recorder: a first listener (a traffic log); the caller keeps ownership.
-
-        Raises:
-            ValueError: ``side`` is not one of :data:`SIDES`.
         """
         if side not in SIDES:
             raise ValueError(f"side must be one of {', '.join(SIDES)}, got {side!r}")
@@ -194,16 +191,11 @@ class Endpoint(ABC):
 
     @abstractmethod
     def write(self, message: Message, *, corrupt: random.Random | None = None) -> bool:
-        """Send one message now, on the calling thread.
-
-        Args:
-            message: what to send.
-            corrupt: damage the frame with this generator (a link-fault injection; only
-                where :attr:`can_corrupt`).
+        """Send one message now, on the calling thread; ``corrupt`` damages the frame with that
+        generator (link-fault injection, only where :attr:`can_corrupt`).
 
         Returns:
-            False when the medium dropped the frame without failing (a pty nobody has
-            open), True when it went out.
+            False when the medium dropped the frame without failing (a pty nobody has open).
 
         Raises:
             OSError: the write failed (device gone, bus off, send timeout).

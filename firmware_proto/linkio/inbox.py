@@ -2,12 +2,10 @@
 
 :class:`Inbox` is the one collector of the stack's scripted hosts and tests: items are
 appended under a condition variable, :meth:`Inbox.mark` names a position ("what arrives
-after now"), :meth:`Inbox.wait` returns the first item from a mark on that a predicate
-accepts, waiting with a timeout, and :meth:`Inbox.until` waits for a condition on all
-of them (a count, an order). The waiting goes through a
-:class:`~firmware_proto.linkio.clock.Clock`, so the same code waits in real time or
-advances a lockstep world. A reader thread that fails hands its error to
-:meth:`Inbox.fail`: every wait then raises it.
+after now"), and waits take the items from a position on, with a timeout. Waiting goes
+through a :class:`~firmware_proto.linkio.clock.Clock`, so the same code waits in real
+time or advances a lockstep world. A reader thread that fails hands its error to
+:meth:`Inbox.fail`: every wait from then on raises :class:`LinkError` from it.
 
 Marks are absolute: when the log is bounded (``keep``), the oldest half is dropped once
 it holds twice ``keep`` items, and a mark taken before still means the same position.
@@ -82,12 +80,8 @@ class Inbox(Generic[T]):
     def wait(
         self, accept: Callable[[T], bool], *, since: int, timeout_s: float
     ) -> tuple[int, T] | None:
-        """The first item from ``since`` on that ``accept`` takes, with its position,
-        waiting up to ``timeout_s`` (clock seconds); ``None`` when none came.
-
-        Raises:
-            LinkError: the source failed (:meth:`fail`) before one came.
-        """
+        """The first item from ``since`` on that ``accept`` takes, with its position, waiting up
+        to ``timeout_s`` (clock seconds); ``None`` when none came."""
         found: list[tuple[int, T]] = []
         start = since
 
@@ -110,12 +104,8 @@ class Inbox(Generic[T]):
         return None
 
     def until(self, condition: Callable[[list[T]], bool], *, since: int, timeout_s: float) -> bool:
-        """Wait up to ``timeout_s`` until ``condition`` holds of the items from ``since``
-        on (a count, a sequence); whether it did.
-
-        Raises:
-            LinkError: the source failed before it held.
-        """
+        """Wait up to ``timeout_s`` until ``condition`` holds of the items from ``since`` on (a
+        count, a sequence); whether it did."""
         held: list[bool] = []
 
         def ready() -> bool:
@@ -132,11 +122,7 @@ class Inbox(Generic[T]):
         return False
 
     def settle(self, seconds: float) -> None:
-        """Let ``seconds`` of clock time pass (items arrive meanwhile).
-
-        Raises:
-            LinkError: the source failed meanwhile.
-        """
+        """Let ``seconds`` of clock time pass (items arrive meanwhile)."""
         with self.cond:
             self.clock.wait_for(self.cond, lambda: self._failure is not None, seconds)
             self._raise_if_failed()

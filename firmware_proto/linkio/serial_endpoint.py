@@ -136,13 +136,8 @@ class PtyPort:
     """The controller's end of a new raw pty pair; :attr:`device` is the host's end."""
 
     def __init__(self, link: str | Path | None = None) -> None:
-        """Args:
-        link: a stable symlink to make to the device (see
-            :class:`~firmware_proto.linkio.ptypair.PtyPair`).
-
-        Raises:
-            OSError: no pty available, or ``link`` exists and is not a symlink.
-        """
+        """Make the pair, with an optional stable symlink ``link`` to the device; OSError when no
+        pty is available or ``link`` exists and is not a symlink."""
         self._pair = PtyPair(link)
         os.set_blocking(self._pair.master_fd, False)
         self.device = self._pair.device
@@ -184,11 +179,8 @@ class PtyPort:
 
 
 class SerialEndpoint(Endpoint):
-    """Frames of docs/protocol.md over a :class:`BytePort` (see the module docstring).
-
-    The port is made by ``open_port`` on every :meth:`open`, so an endpoint can be closed
-    and opened again (a device unplugged and plugged in, a reconnect).
-    """
+    """Frames of docs/protocol.md over a :class:`BytePort` (see the module docstring); it can
+    be closed and opened again (a device unplugged and plugged in, a reconnect)."""
 
     medium = "serial"
 
@@ -203,11 +195,11 @@ class SerialEndpoint(Endpoint):
     ) -> None:
         """Args:
         side: which end of the link this is.
-        open_port: makes and opens the byte port (raises OSError when it cannot).
-        name: what the endpoint is on before it is open (a URL); the port's own name
-            once it is.
+        open_port: makes and opens the byte port (raises OSError when it cannot); called on
+            every :meth:`open`.
+        name: what the endpoint is on until open (a URL); then the port's own name.
         baud: the line's rate in bit/s, where the port has one (``None``: a pty).
-        recorder: a first listener (see :class:`~firmware_proto.linkio.endpoint.Endpoint`).
+        recorder: a first listener.
         """
         super().__init__(side, recorder=recorder)
         self._open_port = open_port
@@ -309,8 +301,7 @@ class SerialEndpoint(Endpoint):
         if port is None:
             return False
         if log and self.recording:
-            # Before the write: the other end may answer as soon as the frame is out, and
-            # the log must keep the wire's order.
+            # Logged before the write, so the log keeps the wire's order.
             self._emit(SerialRecord(time.time(), self.sends, wire))
         return port.write(wire)
 

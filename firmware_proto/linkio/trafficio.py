@@ -1,19 +1,12 @@
 """Traffic log writers and reader, on streams or by path (docs/traffic-logs.md).
 
-The records, the serial frame-log format and the decoding are pure and live in
-:mod:`firmware_proto.linkio.trafficlog`; this module turns records into log files and
-back, for both ends of the link.
-
-- :class:`LogWriter`: the recorder base; :class:`SerialLogWriter` (the serial frame log
-  on a text stream) and :class:`CanLogWriter` (one of python-can's log writers). A writer
-  is an endpoint's listener.
-- :data:`CAN_LOG_FORMATS`: the python-can formats recorded and read, by file suffix:
-  ``.log`` (candump ``-L``, flushed per frame) and ``.blf`` (buffered until closed); the
-  other suffixes are refused (docs/traffic-logs.md says why).
-- :func:`writer_for`, :func:`parse_log`: a writer for a medium and suffix, checked before
-  anything is opened; a log read back. :func:`open_recorder`, :func:`read_log`: by path.
-
-Writers and the reader own the streams they are given, as python-can's do.
+The records, the serial frame-log format and the decoding are pure
+(:mod:`firmware_proto.linkio.trafficlog`); this module turns records into log files and
+back, for both ends of the link. A writer (:class:`LogWriter`) is an endpoint's
+listener. CAN logs are python-can's formats by suffix (:data:`CAN_LOG_FORMATS`): ``.log``
+(candump ``-L``, flushed per frame) and ``.blf`` (buffered until closed); other suffixes
+are refused (docs/traffic-logs.md says why). Writers and the reader own the streams they
+are given, as python-can's do.
 """
 
 from __future__ import annotations
@@ -89,7 +82,7 @@ class LogWriter(ABC):
 
         Raises:
             TypeError: a record of the other medium.
-            OSError: the stream failed (disk full); callers log it once and keep the link running.
+            OSError: the stream failed (disk full); callers log it once and carry on.
         """
         if not isinstance(entry, self.record_type):
             raise TypeError(f"a {self.record_type.__name__} log cannot hold {entry!r}")
@@ -135,13 +128,9 @@ class SerialLogWriter(LogWriter):
     record_type = SerialRecord
 
     def __init__(self, stream: TextIO, metadata: Mapping[str, str] | None = None) -> None:
-        """Args:
-        stream: a writable text stream, at its start; the writer owns it from here on.
-        metadata: ``# key: value`` lines for the header (role, device, ...).
-
-        Raises:
-            OSError: the header cannot be written.
-        """
+        """Write the header (``# key: value`` lines of ``metadata``: role, device...) to
+        ``stream``, a writable text stream at its start, which the writer owns from here on;
+        OSError if it cannot."""
         super().__init__()
         self._stream = stream
         stream.write(serial_log_header(metadata))
@@ -163,10 +152,8 @@ class CanLogWriter(LogWriter):
     record_type = CanRecord
 
     def __init__(self, writer: can.Listener) -> None:
-        """Args:
-        writer: a python-can message writer (``can.io`` classes); this one owns it, and
-            closing this one stops it, which closes its file.
-        """
+        """Own ``writer`` (a python-can ``can.io`` writer): closing this one stops it, which
+        closes its file."""
         super().__init__()
         self._writer = writer
 
@@ -197,10 +184,10 @@ class CanLogFormat:
 
     Attributes:
         name: what the format is called.
-        binary: its stream is bytes; otherwise ASCII text.
-        writer: python-can's writer on a stream of that kind (:meth:`stream`), given the
-            channel name for frames that carry none.
-        reader: python-can's reader on a stream of that kind.
+        binary: its stream is bytes; otherwise ASCII text (:meth:`stream`).
+        writer: python-can's writer on such a stream, given the channel name for frames
+            that carry none.
+        reader: python-can's reader on such a stream.
     """
 
     # The stream is Any: BinaryIO or TextIO as ``binary`` says, which no type can say.
@@ -252,15 +239,13 @@ def writer_for(
     binary stream to write to (which it then owns, closing it if it fails to start).
 
     Args:
-        medium: ``"serial"`` (any suffix; ``.rlog`` by custom) or ``"can"`` (a suffix of
-            :data:`CAN_LOG_FORMATS`).
+        medium: ``"serial"`` (any suffix; ``.rlog`` by custom) or ``"can"``.
         suffix: the file's suffix, dot included.
         channel: CAN: the channel name written for frames that carry none (``can0``).
-        metadata: serial: the header's ``# key: value`` lines; CAN logs have no header.
+        metadata: serial: the header's ``# key: value`` lines.
 
     Raises:
-        ValueError: an unknown medium, or a suffix no CAN format here has; raised before
-            the caller opens anything.
+        ValueError: an unknown medium, or a suffix no CAN format has; before anything opens.
     """
     if medium == "serial":
 
@@ -326,14 +311,10 @@ def _logged_can_record(msg: can.Message) -> CanRecord:
 
 
 def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
-    """Read a serial frame log or a CAN log of :data:`CAN_LOG_FORMATS`, told apart by
-    content (the serial log's first line), then by the suffix of ``path``. Records come
+    """Read a serial frame log or a CAN log, told apart by content (the serial log's first
+    line), then by the suffix of ``path`` (named for messages, not opened). ``stream`` is a
+    seekable binary stream at the log's start, closed on return and on error. Records come
     sorted (stably) by time.
-
-    Args:
-        stream: a readable, seekable binary stream at the log's start; closed on return and
-            on error.
-        path: the log's name, for its suffix and for messages (not opened).
 
     Raises:
         OSError: the stream cannot be read.
@@ -365,14 +346,10 @@ def parse_log(stream: BinaryIO, path: str | PurePath) -> LogFile:
 def open_recorder(
     path: str | Path, medium: str, *, channel: str = "", metadata: Mapping[str, str] | None = None
 ) -> LogWriter:
-    """A new log of ``medium`` (``"serial"``, ``"can"``) at ``path``, in the format its
-    suffix calls for; a log already there is kept (:func:`keep_previous`). ``metadata`` heads
-    a serial log (where ``rover replay`` finds the emulator's seed, speed factor and map).
-
-    Raises:
-        ValueError: as :func:`writer_for`, before the file is made.
-        OSError: the file cannot be made.
-    """
+    """A new log of ``medium`` at ``path``, in the format its suffix calls for; a log
+    already there is kept (:func:`keep_previous`). ``metadata`` heads a serial log (where
+    ``rover replay`` finds the emulator's seed, speed factor and map). Raises as
+    :func:`writer_for` (before the file is made), and OSError when it cannot be made."""
     target = Path(path)
     start = writer_for(medium, target.suffix, channel=channel, metadata=metadata)
     keep_previous(target)

@@ -1,16 +1,12 @@
 """Traffic logs of the controller link: records, the serial frame-log format, decoding,
 and the comparison of a replayed session with a recorded one (docs/traffic-logs.md).
 
-Pure: no files, no clocks, no buses. Endpoints hand every frame to a
-:class:`TrafficRecorder`; :mod:`firmware_proto.linkio.trafficio` turns the records into
-files and back.
-
-The **serial frame log** is ASCII text: :data:`SERIAL_LOG_MAGIC`, optional ``# key:
-value`` metadata lines, then one frame per line, ``time_s direction wire_hex`` (time
-since the epoch with microseconds; ``H>C`` or ``C>H``; the frame's bytes exactly as they
-went over the line, both delimiters included, damaged if the recorder damaged it on
-purpose). **CAN logs** are candump ``-L`` logs (:class:`CanRecord` is one line); a CAN
-frame's direction follows from its identifier.
+Pure: no files, no clocks, no buses. The **serial frame log** is ASCII text:
+:data:`SERIAL_LOG_MAGIC`, optional ``# key: value`` lines, then one frame per line,
+``time_s direction wire_hex`` (``H>C`` or ``C>H``; the frame's bytes exactly as they
+went over the line, delimiters included, a frame damaged on purpose too). **CAN logs**
+are candump ``-L`` logs (:class:`CanRecord` is one line); a CAN frame's direction
+follows from its identifier.
 """
 
 from __future__ import annotations
@@ -99,11 +95,10 @@ class CanRecord:
 
     Attributes:
         time_s: wall-clock time, s since the epoch.
-        channel: the bus channel name (``vcan0``, a virtual channel name).
+        channel: the bus channel name (``vcan0``).
         arbitration_id: the identifier (11-bit for this protocol).
-        data: the payload bytes.
         is_rx: the recorder received the frame (False: it sent it).
-        is_extended_id, is_remote_frame, is_error_frame: as in python-can.
+        data, is_extended_id, is_remote_frame, is_error_frame: as in python-can.
     """
 
     time_s: float
@@ -162,11 +157,8 @@ def message_direction(message: Message) -> str:
 
 
 def serial_log_header(metadata: Mapping[str, str] | None = None) -> str:
-    """The first lines of a serial frame log: the magic line and ``# key: value`` lines.
-
-    Raises:
-        ValueError: a key or value contains a newline, or a key contains ``:``.
-    """
+    """The magic line and ``# key: value`` lines that start a serial frame log; ValueError
+    when a key or value holds a newline, or a key a ``:``."""
     lines = [SERIAL_LOG_MAGIC]
     for key, value in (metadata or {}).items():
         if "\n" in key or "\n" in value or ":" in key:
@@ -195,11 +187,8 @@ class SerialLog:
 
 
 def parse_serial_log(lines: Iterable[str]) -> SerialLog:
-    """Parse a serial frame log.
-
-    Raises:
-        DecodeError: no magic line, or a malformed line (names its line number).
-    """
+    """Parse a serial frame log; DecodeError when the magic line is missing or a line is
+    malformed (names its line number)."""
     metadata: dict[str, str] = {}
     records: list[SerialRecord] = []
     it = iter(lines)
@@ -241,8 +230,7 @@ class DecodedRecord:
         time_s: the record's time, s since the epoch.
         direction: ``H>C``, ``C>H``, or ``None`` (CAN frame of no protocol message).
         message: the decoded message, or ``None`` when the frame is not a valid one.
-        node: CAN node id (``None`` on serial).
-        seq: serial frame counter (``None`` on CAN).
+        node, seq: CAN node id, serial frame counter (``None`` on the other medium).
         raw: the frame as text: wire hex (serial) or ``ID#DATA`` (CAN).
         error: why ``message`` is ``None`` (the decoder's counter name), else ``""``.
         is_rx: CAN only: the recorder received the frame (``None`` on serial).
@@ -374,15 +362,11 @@ class Difference:
 def compare_answers(
     expected: Sequence[Message], actual: Sequence[Message], *, strict: bool = False
 ) -> list[Difference]:
-    """Compare the controller's answers (:func:`is_answer`) of two sessions, type by type.
+    """The differences between the controller's answers (:func:`is_answer`) of two sessions,
+    ordered by type name then position; empty when they answered alike.
 
-    Each type's answers are compared in order, volatile fields left out unless ``strict``.
-    Types are compared apart because answers of different types may interleave differently
-    from run to run without any change in behaviour.
-
-    Returns:
-        The differences, ordered by type name then position; empty when the sessions
-        answered alike.
+    Each type's answers are compared in order, volatile fields left out unless ``strict``;
+    types apart, since answers of different types may interleave differently from run to run.
     """
     by_type_expected: dict[str, list[str]] = {}
     by_type_actual: dict[str, list[str]] = {}

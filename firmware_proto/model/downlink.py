@@ -272,12 +272,8 @@ def _boot(value: Any) -> str:
 
 
 def decode_report(text: str) -> OnboardReport:
-    """Read an :class:`OnboardReport` (ground side).
-
-    Raises:
-        UplinkError: ``malformed`` (not a report: not JSON, a field missing or of the
-            wrong type, an unknown state or outcome).
-    """
+    """Read an :class:`OnboardReport` (ground side); UplinkError ``malformed`` when it is not
+    one (not JSON, a field missing or mistyped, an unknown state or outcome)."""
     try:
         obj = json.loads(text)
         if not isinstance(obj, dict):

@@ -262,10 +262,8 @@ def _check(rover: RoverDescription, source: str) -> None:
 
 
 def load_rover(path: str | Path | None = None) -> RoverDescription:
-    """Read and validate a rover description.
-
-    Args:
-        path: TOML file; ``None`` reads the packaged default (:data:`DEFAULT_ROVER_PATH`).
+    """Read and validate a rover description from ``path`` (``None``: the packaged
+    :data:`DEFAULT_ROVER_PATH`).
 
     Raises:
         DescriptionError: the file is missing, not TOML, or a value is absent, unknown, of

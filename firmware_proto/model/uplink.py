@@ -1,28 +1,18 @@
 """The plan uplink: what the ground sends the rover once a plan is approved, and what the
 rover answers. The fields, the tokens and the refusals are in docs/onboard.md.
 
-A plan (:class:`PlanUplink`) carries everything the rover needs to run and guard it: its
-id (positive, growing across ground restarts; the rover runs an id at most once and
-refuses one not newer than the last it took), the steps as ``/wheel_instructions``
-carries them, the twin's durations (twin s) and predicted trajectory (map frame, m and
-deg), the start and goal, the drift limits (never looser than the rover's ``[safety]``),
-the approved verdict's identity (:func:`verdict_digest`), and the boot id of the onboard
-program it is for (a plan signed for one run of the program is refused by any other).
-
-**Authentication.** On the wire: ``{"body": "<the uplink as JSON text>", "tag": "<hex>"
-| null}``. The tag is HMAC-SHA256 of the body's exact bytes under the uplink token
-(:data:`TOKEN_ENV`, never the gate's), checked before the body is parsed. A rover with a
-token refuses an untagged envelope; ``rover onboard`` runs without one only when told
-``--insecure``.
-
-A **cancel** (:class:`CancelUplink`, same envelope) drops every plan with an id up to
-``upto``, running or still to come. **The answer** (:class:`UplinkAck`) is ``accepted``,
-``duplicate``, ``refused`` (a reason from :data:`REFUSALS`) or ``cancelled``.
+A plan (:class:`PlanUplink`) carries what the rover needs to run and guard it by itself:
+its id (positive, growing across ground restarts; the rover runs an id at most once and
+refuses one not newer than the last it took), the steps, the twin's durations and
+predicted trajectory, the drift limits (never looser than the rover's ``[safety]``), the
+approved verdict's identity and the boot id of the onboard program it is for. A cancel
+(:class:`CancelUplink`) drops every plan with an id up to ``upto``. Both travel in an
+envelope ``{"body": "<JSON text>", "tag": "<hex>" | null}``, the tag HMAC-SHA256 of the
+body's bytes under the uplink token (:data:`TOKEN_ENV`, never the gate's).
 
 Pure, no I/O, no clock. The codec validates strictly and refuses with a specific reason
-(:class:`UplinkError`), never a traceback. It comes in two parts so that the rover answers
-copies cheaply: :func:`open_envelope` and :func:`peek_body`, then the full check
-:func:`decode_body`.
+(:class:`UplinkError`), never a traceback, in two parts so that the rover answers copies
+cheaply: :func:`open_envelope` and :func:`peek_body`, then :func:`decode_body`.
 """
 
 from __future__ import annotations
@@ -166,12 +156,9 @@ def _is_hex(text: str, digits: int) -> bool:
 
 
 def verdict_digest(verdict: Mapping[str, Any] | Any) -> str:
-    """The identity of a verdict: SHA-256 (hex) of its JSON with sorted keys, without
-    ``wall_time_s`` (the one field that differs between two playbacks of one plan).
-
-    Args:
-        verdict: a :class:`~firmware_proto.model.verdict.Verdict` or its ``to_dict()``.
-    """
+    """The identity of a verdict (a :class:`~firmware_proto.model.verdict.Verdict` or its
+    ``to_dict()``): SHA-256 (hex) of its JSON with sorted keys, without ``wall_time_s`` (the
+    one field that differs between two playbacks of one plan)."""
     data = verdict if isinstance(verdict, Mapping) else verdict.to_dict()
     data = {k: v for k, v in data.items() if k != "wall_time_s"}
     return hashlib.sha256(_canonical(data)).hexdigest()
@@ -240,8 +227,9 @@ class PlanUplink:
         boot: str = "",
     ) -> PlanUplink:
         """The uplink of an approved plan: ``plan_id`` (the ground's id), ``steps``
-        (``Plan.to_wire()``), the gate's ``verdict`` on it (prediction, durations, digest), the
-        drift ``limits`` and the ``boot`` id of the rover's onboard program (its latest report's)."""
+        (``Plan.to_wire()``), the gate's ``verdict`` on it (prediction, durations, digest),
+        the drift ``limits`` and the ``boot`` id of the rover's onboard program (its latest
+        report's)."""
         prediction = tuple(
             PredictedSample(s.step, s.step_t_s, s.pose.x, s.pose.y, s.pose.yaw_deg)
             for s in verdict.trajectory.samples
@@ -294,12 +282,9 @@ class PlanUplink:
         return cached
 
     def pose_at(self, step: int, step_t_s: float) -> Pose:
-        """The predicted pose ``step_t_s`` twin seconds into ``step`` (interpolated, yaw
-        along the shorter arc; held at a step's ends); before step 0 the start pose.
-
-        Raises:
-            IndexError: ``step`` has no samples (:func:`check_fit` refuses such plans).
-        """
+        """The predicted pose ``step_t_s`` twin seconds into ``step`` (interpolated, yaw along
+        the shorter arc; held at a step's ends); before step 0 the start pose. IndexError when
+        ``step`` has no samples (:func:`check_fit` refuses such plans)."""
         if step < 0:
             return self.start
         times, samples = self._step_samples(step)
@@ -347,17 +332,16 @@ def _envelope(body: dict[str, Any], token: str | None) -> str:
 
 @dataclass(frozen=True)
 class UplinkAck:
-    """The rover's answer to one uplink message (see the module docstring).
+    """The rover's answer to one uplink message.
 
     Attributes:
-        plan_id: the plan answered (for a cancel, its ``upto``; 0 when the message was
-            too broken to name one).
+        plan_id: the plan answered (a cancel's ``upto``; 0 when the message was too broken
+            to name one).
         result: one of :data:`ACK_RESULTS`.
         reason: a code of :data:`REFUSALS` when refused, else ``""``.
         detail: one sentence for the operator.
-        state: where the plan is on board: ``armed`` (waiting for the latch to be
-            released), ``running``, ``completed``, ``stopped``, ``failed``,
-            ``cancelled`` or ``""``.
+        state: where the plan is on board: ``armed`` (waiting for the latch's release),
+            ``running``, ``completed``, ``stopped``, ``failed``, ``cancelled`` or ``""``.
     """
 
     plan_id: int
@@ -475,13 +459,9 @@ def _number(value: Any, path: str) -> float:
 
 
 def open_envelope(text: str | bytes, token: str | None = None) -> str:
-    """Read one uplink envelope and authenticate it: the body's text, not yet parsed.
-
-    Cheap (one JSON parse and one HMAC), so the rover does it before anything else.
-
-    Args:
-        text: the envelope as received.
-        token: the rover's token; ``None``: tags are not checked (``--insecure``).
+    """Read one uplink envelope and authenticate it under ``token`` (``None``: tags are not
+    checked, ``--insecure``): the body's text, not yet parsed. Cheap (one JSON parse and one
+    HMAC), so the rover does it before anything else.
 
     Raises:
         UplinkError: ``too_large``, ``malformed``, ``unauthenticated`` or ``bad_tag``.

@@ -117,10 +117,8 @@ class Trajectory:
         return tuple(s for s in self.samples if s.step == step)
 
     def pose_at(self, step: int, step_t_s: float) -> Pose | None:
-        """The predicted pose ``step_t_s`` into ``step``, linearly interpolated between
-        its samples (held at the ends); ``None`` when the step has no samples.
-
-        Yaw is interpolated along the shorter arc."""
+        """The predicted pose ``step_t_s`` into ``step``, interpolated between its samples (yaw
+        along the shorter arc; held at the ends); ``None`` when the step has no samples."""
         samples = self.for_step(step)
         if not samples:
             return None
@@ -456,22 +454,15 @@ class Verdict:
 
     @classmethod
     def from_dict(cls, obj: Any) -> Verdict:
-        """Read the response JSON of ``POST /validate_plan`` (parsed).
-
-        Raises:
-            VerdictError: a field is missing or of the wrong type (its pointer is in the
-                message and in ``pointers``).
-        """
+        """Read the parsed response JSON of ``POST /validate_plan``; VerdictError when a field
+        is missing or mistyped (its pointer in the message and in ``pointers``)."""
         verdict: Verdict = _CODEC.decode(cls, obj)
         return verdict
 
     @classmethod
     def from_json(cls, text: str | bytes) -> Verdict:
-        """Parse and read verdict JSON.
-
-        Raises:
-            VerdictError: not JSON (pointer ``""``), or see :meth:`from_dict`.
-        """
+        """Parse and read verdict JSON; VerdictError as :meth:`from_dict`, or not JSON (pointer
+        ``""``)."""
         try:
             obj = json.loads(text)
         except (ValueError, RecursionError) as exc:

@@ -240,12 +240,9 @@ class MapGoal:
 
 
 class Clearance(NamedTuple):
-    """Distance from a point (or a segment) to the nearest obstacle surface or wall, m.
-
-    Negative inside an obstacle (or outside the walls). ``obstacle_id`` names it
-    (:data:`BOUNDS_ID` for the walls; ``""`` when a query's ``max_m`` found nothing that
-    close). A named tuple: ``distance_m, obstacle_id = world.clearance(p)``.
-    """
+    """Distance from a point (or a segment) to the nearest obstacle surface or wall, m,
+    negative inside an obstacle (or outside the walls), and that obstacle's id
+    (:data:`BOUNDS_ID` for the walls; ``""`` when a query's ``max_m`` found nothing closer)."""
 
     distance_m: float
     obstacle_id: str
@@ -316,11 +313,7 @@ class WorldMap:
         return hashlib.sha256(self.to_json().encode()).hexdigest()
 
     def goal(self, name: str) -> MapGoal:
-        """The suggested goal called ``name``.
-
-        Raises:
-            KeyError: no such goal (the message lists the known ones).
-        """
+        """The suggested goal called ``name``; KeyError listing the known ones if none is."""
         for g in self.goals:
             if g.name == name:
                 return g

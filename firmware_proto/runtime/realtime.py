@@ -216,14 +216,13 @@ def apply_realtime(config: RealtimeConfig) -> RealtimeStatus:
 
 def apply_realtime_to_process(config: RealtimeConfig) -> RealtimeStatus:
     """:func:`apply_realtime` for the calling thread, then, where that granted a real-time
-    policy, for every thread the process already has (a middleware's receive and discovery
-    threads). Normal scheduling changes the calling thread only. Call it once the threads
-    it should reach exist; threads that end meanwhile, or cannot be given the policy, are
-    skipped.
+    policy, for every thread the process already has; call it once they exist (threads that
+    end meanwhile, or cannot be given the policy, are skipped). Normal scheduling changes
+    the calling thread only.
 
     For a process whose start is heavy CPU-bound work that creates threads (a DDS
-    participant): done at normal priority and promoted after, that work never holds the
-    cores above the kernel's workers (a pty's receive path runs in one; docs/realtime.md).
+    participant): done at normal priority and promoted after, it never holds the cores above
+    the kernel's workers (a pty's receive path runs in one; docs/realtime.md).
     """
     status = apply_realtime(config)
     if not hasattr(os, "sched_setscheduler") or status.policy == "SCHED_OTHER":

@@ -63,15 +63,9 @@ _CODE = [bytes((n + 1,)) for n in range(254)]
 
 
 def encode_raw_frame(msg_id: int, seq: int, payload: bytes, *, bad_crc: bool = False) -> bytes:
-    """Frame arbitrary payload bytes (no field checks): for tests, fuzzing, replay and
-    conformance checks.
-
-    Args:
-        msg_id: message id byte, 0..255.
-        seq: frame counter; only its low 8 bits are sent.
-        payload: payload bytes, sent as given.
-        bad_crc: send the CRC inverted, so that a receiver must drop the frame (*crc*).
-    """
+    """Frame arbitrary payload bytes (no field checks), for tests, fuzzing, replay and
+    conformance: ``msg_id`` 0..255, the low 8 bits of ``seq``, ``payload`` as given; with
+    ``bad_crc`` the CRC is inverted, so a receiver must drop the frame (*crc*)."""
     raw = bytes((msg_id, seq & 0xFF)) + payload
     crc = crc_hqx(raw, 0xFFFF) ^ (0xFFFF if bad_crc else 0)
     raw += crc.to_bytes(2, "big")
@@ -117,13 +111,10 @@ class FrameEncoder:
 
 
 class FrameDecoder:
-    """Incremental decoder of a serial byte stream.
-
-    Feed it whatever the port returned; it keeps the partial frame between calls. Bad
-    frames are dropped and counted in :attr:`counters`, per-frame detail is logged at
-    DEBUG. Memory is bounded: a run without delimiter longer than any frame is discarded
-    up to the next delimiter.
-    """
+    """Incremental decoder of a serial byte stream: feed it whatever the port returned; it
+    keeps the partial frame between calls. Bad frames are dropped and counted in
+    :attr:`counters` (detail at DEBUG). Memory is bounded: a run without delimiter longer
+    than any frame is discarded up to the next delimiter."""
 
     def __init__(self) -> None:
         self.counters = RxCounters()

@@ -1,12 +1,9 @@
 """Gaps between periodic events: how regularly a heartbeat was sent or received.
 
-A link that keeps time sends and receives its heartbeats every period; a process that
-was starved of the CPU shows it as one long gap. :class:`GapStats` is fed the time of
-each event and keeps the longest gap since it started and the recent ones, for
-``/diagnostics`` (the bridge), the emulator's status and the load benchmark
-(docs/realtime.md).
-
-Pure: the caller says when each event happened (any monotonic clock, seconds).
+A process starved of the CPU shows it as one long gap. :class:`GapStats` is fed the time
+of each event and keeps the longest gap since it started and the recent ones, for the
+bridge's ``/diagnostics``, the emulator's status and the load benchmark
+(docs/realtime.md). Pure: the caller says when each event happened (monotonic s).
 """
 
 from __future__ import annotations
@@ -31,8 +28,6 @@ class GapSummary:
         p99_ms: the 99th percentile of the last :data:`GAP_WINDOW` gaps (nearest rank).
         last_ms: the last gap.
         period_ms: the events' nominal period (0: none given).
-        late_max_ms, late_p99_ms: the same two less the period, at least 0: how late
-            the most delayed event came.
     """
 
     count: int
@@ -59,10 +54,8 @@ class GapSummary:
 
 
 class GapStats:
-    """Gaps between the events it is told of (see the module docstring).
-
-    Not thread-safe: one owner feeds and reads it (or the owner's lock guards it).
-    """
+    """Gaps between the events it is told of. Not thread-safe: one owner feeds and reads it
+    (or the owner's lock guards it)."""
 
     def __init__(self, period_s: float = 0.0, window: int = GAP_WINDOW) -> None:
         """Args:

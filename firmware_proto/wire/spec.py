@@ -1,14 +1,10 @@
 """Parse the declarative protocol source (``protocol.toml``) into a small, checked model.
 
-The model is what the code generators render (see :mod:`firmware_proto.wire.codegen`); the
-running codec never reads the TOML. :func:`load_spec` raises :class:`SpecError` naming
-the message and field for anything malformed: duplicate names or ids, an id outside its
-priority class, a payload over 8 bytes, a range the type cannot hold.
-
-The schema hash (:attr:`ProtocolSpec.schema_hash`) is a CRC-16 over the canonical form
-of everything that decides the bytes on the wire or their meaning (ids, field layout,
-ranges, limits, enum values), not over documentation. Host and controller compare it
-at HELLO, so mismatched definitions are refused instead of decoded as garbage.
+The model is what the code generators render (:mod:`firmware_proto.wire.codegen`); the
+running codec never reads the TOML. The schema hash (:attr:`ProtocolSpec.schema_hash`) is
+a CRC-16 over the canonical form of everything that decides the bytes on the wire or
+their meaning, not over documentation; host and controller compare it at HELLO, so
+mismatched definitions are refused instead of decoded as garbage.
 """
 
 from __future__ import annotations
@@ -350,14 +346,10 @@ def _parse_messages(
 
 
 def load_spec(path: str | Path | None = None) -> ProtocolSpec:
-    """Read and check the protocol source.
-
-    Args:
-        path: the TOML file; ``None`` reads the packaged ``protocol.toml``.
-
-    Raises:
-        SpecError: the source is unreadable or violates a rule named in the message.
-    """
+    """Read and check the protocol source (``path``; ``None``: the packaged
+    ``protocol.toml``). SpecError, naming the message and field, when it is unreadable or
+    breaks a rule: duplicate names or ids, an id outside its priority class, a payload over
+    8 bytes, a range the type cannot hold."""
     source = Path(path) if path is not None else DEFAULT_SPEC_PATH
     try:
         text = source.read_text(encoding="utf-8")
