@@ -1,11 +1,8 @@
 """``rover replay``: replay a recorded traffic log for regression tests.
 
-The replay targets live in the packages that own them and are plugged in by entry point
-(group :data:`REPLAY_GROUP` in ``pyproject.toml``), as the subcommands of ``rover`` are:
-``emulator`` (the host's frames into a fresh emulator, comparing the controller's
-answers) and whatever else is installed. An entry point names a function
-``run(args: argparse.Namespace) -> int`` that reads the options below; this module
-never imports the targets, so it stays at the bottom of the dependency graph.
+The replay targets are plugged in by entry point (group :data:`REPLAY_GROUP`), as the
+``rover`` subcommands are: a function ``run(args: argparse.Namespace) -> int`` that reads
+the options below. This module never imports the targets.
 
 Exit status: 0 the replay matched the recording, 1 it differed (or failed), 2 usage.
 """

@@ -1,9 +1,7 @@
-"""The scheduling options every long-running ``rover`` program takes (docs/realtime.md).
-
-``--rt-priority N`` and ``--no-realtime`` on the programs that keep time (``rover
-emulate``; ``rover bridge`` has them as its parameter ``rt_priority``), ``--nice N`` on
-those that need not (``rover gate``, ``rover link``, ``rover go``, ``rover demo``), and
-``--stall-ms MS`` on all. Values are checked by :mod:`firmware_proto.cli.values`.
+"""The scheduling options every long-running ``rover`` program takes (docs/realtime.md):
+``--rt-priority N`` and ``--no-realtime`` on the programs that keep time, ``--nice N`` on
+those that need not, and ``--stall-ms MS`` on all; values checked by
+:mod:`firmware_proto.cli.values`.
 """
 
 from __future__ import annotations
@@ -65,10 +63,9 @@ def add_runtime_arguments(
 def runtime_options(
     args: argparse.Namespace, name: str, default_priority: int = 0, *, lock_memory: bool = True
 ) -> RuntimeOptions:
-    """The options :func:`add_runtime_arguments` parsed; a program with a default
-    priority keeps time (short interpreter switch interval too; its memory locked with
-    ``lock_memory``). The ``rover`` command's ``-v`` brings stalls' stacks back to the
-    console (otherwise they are in the stall log only)."""
+    """The options :func:`add_runtime_arguments` parsed; a program with a default priority
+    keeps time (short switch interval too; memory locked with ``lock_memory``). The ``rover``
+    command's ``-v`` brings stalls' stacks back to the console."""
     priority = getattr(args, "rt_priority", None)
     if priority is None:
         priority = default_priority

@@ -341,17 +341,17 @@ def build_app(
     lane_per_turn: int | None = None,
     closing: Callable[[], bool] | None = None,
 ) -> Starlette:
-    """A Starlette application serving ``routes`` behind :class:`Guard`.
+    """A Starlette application serving ``routes`` (``GET`` brings ``HEAD``) behind
+    :class:`Guard`.
 
     Args:
-        routes: Starlette routes (``GET`` brings ``HEAD``).
         policy: hosts and token.
-        error_body: how the server words an error (every error answer goes through it).
+        error_body: how the server words every error answer.
         on_error: told of every error answered (count, log); on the event loop.
         headers: added to every answer that does not set them.
         priority: paths that skip the lane.
-        lane_per_turn: ordinary requests started per turn of the event loop (``None``:
-            no lane).
+        lane_per_turn: ordinary requests started per turn of the event loop (``None``: no
+            lane).
         closing: when it returns true, every answer closes its connection (draining).
     """
 

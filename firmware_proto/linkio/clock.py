@@ -79,11 +79,8 @@ class LockstepClock:
 
     def __init__(self, dt_s: float = 0.001, *, epoch_s: float = EPOCH_S) -> None:
         """Args:
-        dt_s: one tick, s (> 0): the controller's control period.
+        dt_s: one tick, s (> 0, else ValueError): the controller's control period.
         epoch_s: the time of day at tick 0, s since the epoch.
-
-        Raises:
-            ValueError: ``dt_s`` is not positive.
         """
         if not dt_s > 0:
             raise ValueError(f"a tick must be > 0 s, got {dt_s}")
@@ -118,9 +115,8 @@ class LockstepClock:
 
     def wait_for(self, cond: threading.Condition, ready: Ready, timeout_s: float) -> bool:
         """Advance tick by tick until ``ready()`` or ``timeout_s`` of virtual time passed
-        (rounded to whole ticks, at least one when positive).
-        The steps run with ``cond`` held (it must be re-entrant, as
-        ``threading.Condition()``'s default lock is)."""
+        (rounded to whole ticks, at least one when positive). The steps run with ``cond`` held
+        (it must be re-entrant, as ``threading.Condition()``'s default lock is)."""
         deadline = self.ticks + self._ticks_in(timeout_s)
         while not ready():
             if self.ticks >= deadline:

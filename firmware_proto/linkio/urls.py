@@ -5,11 +5,12 @@
   or a socket ignores it) is our own option, stripped before pyserial gets the rest
   verbatim (:func:`split_serial_url`).
 - a **CAN** link is ``can://INTERFACE/CHANNEL[?node=N&OPTION=VALUE...]``; options other
-  than ``node`` go to ``can.Bus`` (:func:`parse_can_url`). Command lines write the bus as
-  ``INTERFACE:CHANNEL`` (:func:`parse_can_spec`).
+  than ``node`` go to ``can.Bus``, numbers converted (:func:`parse_can_url`). Command
+  lines write the bus as ``INTERFACE:CHANNEL`` (:func:`parse_can_spec`).
 
-Pure but :func:`refuse_if_in_use`. A malformed URL is a
-:class:`~firmware_proto.linkio.errors.LinkUrlError` saying what is wrong and expected.
+Pure but :func:`refuse_if_in_use`. A malformed URL raises
+:class:`~firmware_proto.linkio.errors.LinkUrlError`, saying what is wrong and what is
+expected.
 """
 
 from __future__ import annotations
@@ -70,19 +71,12 @@ SERIAL_SCHEMES: dict[str, _Scheme] = {
 
 
 def split_serial_url(url: str, baud: int | None = None) -> tuple[str, int, bool]:
-    """Check a serial URL and take our ``baud`` option out of it; pure.
-
-    Args:
-        url: a device path or pyserial URL, with optional ``?baud=N`` (see the module
-            docstring).
-        baud: overrides the URL's ``baud`` when given.
+    """Check a serial URL (a device path or pyserial URL, with optional ``?baud=N``) and
+    take our ``baud`` option out of it; ``baud`` given here overrides the URL's.
 
     Returns:
         (what to hand to pyserial, verbatim but for ``baud``; the baud rate in bit/s;
         whether to open it exclusively).
-
-    Raises:
-        LinkUrlError: the URL is malformed; says what is wrong and what is expected.
     """
     head, sep, query = url.partition("?")
     scheme = head.split("://", 1)[0].lower() if "://" in head else ""
@@ -119,14 +113,9 @@ def split_serial_url(url: str, baud: int | None = None) -> tuple[str, int, bool]
 
 
 def refuse_if_in_use(url: str) -> None:
-    """Fail when another process holds the device of ``url`` exclusively (pyserial's
-    ``flock(LOCK_EX | LOCK_NB)``), e.g. a bridge already on it. An absent device, or a URL
-    that is not a local device, passes: the link waits for those.
-
-    Raises:
-        LinkBusyError: the device is locked by another process.
-        LinkUrlError: the URL is malformed.
-    """
+    """Fail with LinkBusyError when another process holds the device of ``url`` exclusively
+    (pyserial's ``flock(LOCK_EX | LOCK_NB)``), e.g. a bridge already on it. An absent device,
+    or a URL that is not a local device, passes: the link waits for those."""
     device, _, exclusive = split_serial_url(url)
     if not exclusive or "://" in device:
         return
@@ -146,13 +135,7 @@ def refuse_if_in_use(url: str) -> None:
 
 
 def parse_can_url(url: str) -> tuple[str, str, dict[str, Any]]:
-    """``can://INTERFACE/CHANNEL?node=N&...`` -> (interface, channel, options).
-
-    Options other than ``node`` are passed to ``can.Bus`` (numbers converted).
-
-    Raises:
-        LinkUrlError: malformed URL.
-    """
+    """``can://INTERFACE/CHANNEL?node=N&...`` -> (interface, channel, options)."""
     parts = urlsplit(url)
     interface, channel = parts.netloc, parts.path.lstrip("/")
     if parts.scheme != "can" or not interface or not channel:
@@ -170,11 +153,7 @@ def is_can_url(url: str) -> bool:
 
 
 def parse_can_spec(text: str) -> tuple[str, str]:
-    """``INTERFACE:CHANNEL`` (a command line's ``--can``) -> ``(interface, channel)``.
-
-    Raises:
-        LinkUrlError: not of that form.
-    """
+    """``INTERFACE:CHANNEL`` (a command line's ``--can``) -> ``(interface, channel)``."""
     interface, sep, channel = text.partition(":")
     if not sep or not interface or not channel:
         raise LinkUrlError(

@@ -1,9 +1,6 @@
 """How the stack's programs run: real-time scheduling where they must keep time, and
-stall detection everywhere (docs/realtime.md).
-
-A layer beside the pure protocol, like :mod:`firmware_proto.linkio` and
-:mod:`firmware_proto.cli`: it makes system calls and starts a thread, so the pure
-modules never import it; every part above may.
+stall detection everywhere (docs/realtime.md). It makes system calls and starts a
+thread, so the pure folders never import it; every part above may.
 """
 
 from firmware_proto.runtime.process import ProcessRuntime, RuntimeOptions

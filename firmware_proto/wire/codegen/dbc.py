@@ -1,10 +1,7 @@
-"""Render the CAN database (``firmware_proto/wire/rover.dbc``) from the spec model.
-
-The DBC describes the frames of one controller node (default node id from the spec);
-``rover frame generate`` writes it for the default node and ``render_dbc(spec, node)``
-for any other controller node (1..15; node 0 is broadcast). Reserved padding is not a
-signal. Signal ranges are physical values (raw * scale); enum fields carry ``VAL_``
-tables.
+"""Render the CAN database (``firmware_proto/wire/rover.dbc``) from the spec model: the
+frames of one controller node (``render_dbc(spec, node)``; the file holds the spec's
+default node). Reserved padding is not a signal; ranges are physical values (raw *
+scale); enum fields carry ``VAL_`` tables.
 """
 
 from __future__ import annotations
@@ -28,9 +25,8 @@ def _frame_id(spec: ProtocolSpec, msg: MessageSpec, node: int) -> int:
 
 
 def _controller_nodes(spec: ProtocolSpec) -> range:
-    """Node ids a controller may have (docs/protocol.md, "CAN mapping"): every value of
-    the identifier's node bits above the broadcast node (0). Broadcast is host to
-    controller only, so a database for it would list controller frames never sent."""
+    """Node ids a controller may have: the identifier's node values above broadcast (0),
+    which is host to controller only."""
     broadcast = int(spec.framing["broadcast_node"])
     return range(broadcast + 1, 1 << int(spec.framing["can_node_bits"]))
 

@@ -2,27 +2,20 @@
 
 The vectors are the contract between the Python codec and the C reference codec: both
 must produce and accept exactly these bytes and count exactly these drops. They are
-derived from the spec with a seeded generator (:data:`SEED`), so they are reproducible
-and stale-checked like every other generated file.
+derived from the spec with a seeded generator (:data:`SEED`), reproducible and
+stale-checked like every generated file. To stay independent of the codec under test,
+nothing here imports the generated ``messages.py`` or the decoders: payloads are packed
+by :func:`pack_fields` from the field layout, and the expected frames and counters come
+from :class:`ReferenceDecoder`, a plain model of docs/protocol.md ("Serial framing").
+Only the hand-written COBS and the standard library's CRC are shared.
 
-To stay independent of the codec under test, nothing here imports the generated
-``messages.py`` or the decoders: payloads are packed by :func:`pack_fields` straight from
-the field layout, and the expected frames and counters of corrupted streams come from
-:class:`ReferenceDecoder`, a plain model of the decoding rules of docs/protocol.md
-("Serial framing"). Only the hand-written COBS of :mod:`firmware_proto.wire.cobs` and the
-standard library's CRC are shared.
-
-Files:
-
-- ``messages.json``: valid instances of every message (range and limit extremes of every
-  field, both signs, zero, seeded random values) with payload, serial frame and CAN
-  identifier and data for node 1, another node and (host to controller) broadcast; and
-  encode errors (a field outside its range or limit, a bad CAN node) naming the field.
-- ``serial_streams.json``: byte streams in given chunks (clean, truncated, bit-flipped,
-  oversize, garbage, bad length, unknown id, out of range with a valid CRC, seq gaps,
-  seeded random mixes) with the frames and the counters a decoder must report.
-- ``can_frames.json``: CAN frames (valid, unknown id, bad length, extended, remote, out
-  of range) with the decoded frames and counters.
+- ``messages.json``: valid instances of every message (range and limit extremes, both
+  signs, zero, seeded random values) with payload, serial frame and CAN identifier and
+  data for several nodes, and encode errors naming the field.
+- ``serial_streams.json``: byte streams in given chunks (clean, truncated, corrupted,
+  oversize, garbage, seq gaps, seeded mixes) with the frames and counters to report.
+- ``can_frames.json``: CAN frames (valid and each kind of bad) with the decoded frames
+  and counters.
 """
 
 from __future__ import annotations
