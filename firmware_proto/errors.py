@@ -63,11 +63,8 @@ class DescriptionError(ProtoError, ValueError):
 
 
 class PlanError(ProtoError, ValueError):
-    """A command plan fails the plan schema.
-
-    Attributes:
-        violations: ``(json_pointer, message)`` pairs, one per schema violation.
-    """
+    """A command plan fails the plan schema; ``violations``: ``(json_pointer, message)``
+    pairs, one per schema violation."""
 
     def __init__(self, violations: list[tuple[str, str]]) -> None:
         self.violations = violations
@@ -92,11 +89,8 @@ class MapError(ProtoError, ValueError):
 
 
 class VerdictError(ProtoError, ValueError):
-    """A document is not the gate's verdict JSON (:mod:`firmware_proto.model.verdict`).
-
-    Attributes:
-        pointers: the JSON pointers where the document departs from the shape.
-    """
+    """A document is not the gate's verdict JSON (:mod:`firmware_proto.model.verdict`);
+    ``pointers``: where it departs from the shape."""
 
     def __init__(self, message: str, pointers: tuple[str, ...] = ()) -> None:
         self.pointers = pointers

@@ -61,13 +61,13 @@ def is_wildcard(host: str) -> bool:
 
 
 def check_token(token: str | None, *, what: str = "token", strong: bool = False) -> None:
-    """Refuse a malformed token (``None`` means no token and passes); with ``strong``,
-    also a weak one.
+    """Refuse a malformed token (``None``, no token, passes); with ``strong``, a weak one
+    too.
 
     Raises:
         BindPolicyError: ``token`` is empty or has characters that cannot go in a header;
-            with ``strong``, it is shorter than :data:`MIN_TOKEN_CHARS` or has fewer
-            than :data:`MIN_TOKEN_DISTINCT` different characters.
+            with ``strong``, it has fewer than :data:`MIN_TOKEN_CHARS` characters or fewer
+            than :data:`MIN_TOKEN_DISTINCT` different ones.
     """
     if token is None:
         return

@@ -16,15 +16,13 @@ Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
 
 
 async def read_body(receive: Receive, *, limit_bytes: int, timeout_s: float) -> bytes:
-    """The whole request body, at most ``limit_bytes``, within ``timeout_s`` seconds.
-
-    The connection layer (h11) has already checked the framing (``Content-Length`` or
-    chunked); a declared length over the limit is best refused before calling this,
+    """The whole request body, at most ``limit_bytes``, within ``timeout_s`` seconds. h11
+    has checked the framing; refuse a declared length over the limit before calling this,
     so that the client is not asked to send it (``Expect: 100-continue``).
 
     Raises:
-        RequestBodyError: 413 ``payload_too_large`` once the running size passes the
-            limit; 408 ``request_timeout`` when the body has not ended in time.
+        RequestBodyError: 413 ``payload_too_large`` once the running size passes the limit;
+            408 ``request_timeout`` when the body has not ended in time.
         ClientGoneError: the client closed the connection first.
     """
 

@@ -122,16 +122,9 @@ def _evict(candidates: list[GuardedH11Protocol]) -> bool:
 
 
 class ServeConfig(uvicorn.Config):
-    """uvicorn's settings for one of our servers, carrying the limits and the error
-    renderer to each connection.
-
-    Args:
-        app: the ASGI application.
-        host: the address, for uvicorn's messages (the socket is bound by the caller).
-        limits: the connection limits.
-        render_error: how connection-level errors are worded.
-        server_name: the ``Server`` header.
-    """
+    """uvicorn's settings for one of our servers, carrying ``limits`` and ``render_error``
+    to each connection (as :class:`~.service.HttpService` takes them); ``host`` is for
+    uvicorn's messages only (the caller binds the socket)."""
 
     def __init__(
         self,
@@ -163,11 +156,8 @@ class ServeConfig(uvicorn.Config):
 
 
 class GuardedH11Protocol(H11Protocol):
-    """One connection: uvicorn's h11 protocol bounded as the module docstring says.
-
-    Only :class:`ServeConfig` configures it (it reads ``limits`` and ``render_error``
-    from there).
-    """
+    """One connection: uvicorn's h11 protocol bounded as the module docstring says; only
+    :class:`ServeConfig` configures it."""
 
     def __init__(
         self,

@@ -1,10 +1,9 @@
 """An ASGI application served by uvicorn on a thread of its own: :class:`HttpService`.
 
-The caller's threads stay free: the server runs an asyncio event loop in one thread
-(named by the caller, so CPU accounts can find it) and every connection is a protocol
-object on that loop, not a thread, so that slow clients cost memory, never threads.
-The socket is bound in :meth:`HttpService.start`, so a bad address raises there and
-port 0 is known at once.
+The server runs an asyncio event loop in one thread (named by the caller) and every
+connection is a protocol object on that loop, so slow clients cost memory, never
+threads. The socket is bound in :meth:`HttpService.start`, so a bad address raises there
+and port 0 is known at once.
 """
 
 from __future__ import annotations

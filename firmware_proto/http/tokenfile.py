@@ -21,13 +21,9 @@ _MAX_TOKEN_FILE_BYTES = 4096
 
 
 def read_token_file(path: str | Path, *, what: str = "token") -> str:
-    """The token in ``path``: its text without surrounding whitespace (one line). A
-    file that others may read is used, with a warning.
-
-    Raises:
-        BindPolicyError: the file cannot be read, is empty, longer than 4 kB, or holds
-            more than one line.
-    """
+    """The token in ``path``: its one line without surrounding whitespace; a file that others
+    may read is used, with a warning. BindPolicyError when the file cannot be read, is
+    empty, longer than 4 kB, or holds more than one line."""
     file = Path(path)
     try:
         mode = file.stat().st_mode

@@ -51,13 +51,8 @@ HEARTBEAT_S = HOST_HEARTBEAT_PERIOD_MS / 1000.0
 
 
 class Received(NamedTuple):
-    """One message received.
-
-    Attributes:
-        arrived: the host clock when it was read, s.
-        message: the message.
-        seq: the serial frame counter it came with; ``None`` on CAN.
-    """
+    """One message received, with the host clock when it was read (``arrived``, s) and the
+    serial frame counter it came with (``seq``; ``None`` on CAN)."""
 
     arrived: float
     message: Message

@@ -75,12 +75,9 @@ class ReplayPeer:
                     self._cond.notify_all()
 
     def play(self, record: TrafficRecord) -> None:
-        """Put one recorded frame on the medium, as recorded (thread-safe). A frame the
-        medium cannot take is logged at DEBUG and dropped: the comparison will show it.
-
-        Raises:
-            TypeError: the record is of another medium.
-        """
+        """Put one recorded frame on the medium, as recorded (thread-safe; TypeError for a
+        record of another medium). A frame the medium cannot take is logged at DEBUG and
+        dropped: the comparison will show it."""
         with self._write_lock:
             try:
                 self.endpoint.write_record(record)

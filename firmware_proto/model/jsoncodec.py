@@ -169,11 +169,8 @@ class JsonCodec:
     # -- decoding ---------------------------------------------------------------------
 
     def decode(self, cls: type[Any], obj: Any, pointer: str = "") -> Any:
-        """An instance of ``cls`` read from parsed JSON ``obj`` found at ``pointer``.
-
-        Raises:
-            the codec's ``error``: a field is missing or of the wrong type.
-        """
+        """An instance of ``cls`` read from parsed JSON ``obj`` found at ``pointer``; the
+        codec's ``error`` when a field is missing or of the wrong type."""
         return self._object_reader(cls)(obj, pointer)
 
     def _fail(self, message: str, pointer: str) -> Exception:

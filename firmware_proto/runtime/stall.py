@@ -1,24 +1,20 @@
 """Stall detection: a process that watches its own loops and says where time went
 (docs/realtime.md, "Stalls").
 
-:class:`StallMonitor` runs one thread that wakes every ``period_s``:
-
-- **The process.** When the monitor itself wakes more than ``threshold_s`` late, the
-  whole process was held up (not scheduled, or one thread held the interpreter lock in a
-  C call); the record carries every thread's stack as found when it runs again.
-- **Its loops.** A loop registers a :class:`Beat` and ticks it every iteration; a beat
-  older than ``threshold_s`` is a stalled thread, recorded with that thread's stack.
+:class:`StallMonitor` runs one thread that wakes every ``period_s``. When it wakes more
+than ``threshold_s`` late, the whole process was held up (not scheduled, or one thread
+held the interpreter lock in a C call): recorded with every thread's stack. A loop that
+registers a :class:`Beat` and ticks it every iteration is stalled when its beat is older
+than ``threshold_s``: recorded with that thread's stack (an INFO line with it at once,
+the record when the loop runs again).
 
 Not :func:`faulthandler.dump_traceback_later`: its watchdog reads other threads' frames
 without the interpreter lock, which can crash a process resuming from a freeze.
-``kill -USR1 <pid>`` still dumps every thread on demand.
 
 Every stall is one WARNING line (rate-limited by :data:`CONSOLE_QUIET_S`) and, with a
-stall log, one JSON line with the stacks (:class:`StallRecord`), read back by
-:func:`read_stalls` when a mission ends on a watchdog or link fault. All processes of a
-stack on one host share the log (:func:`stall_log_path`); each line is one ``write`` in
-append mode, so lines never interleave. A loop found stalled while it still is gets an
-INFO line with its stack at once; the WARNING comes when it runs again.
+stall log, one JSON line with the stacks (:class:`StallRecord`, :func:`read_stalls`).
+All processes of a stack on one host share the log (:func:`stall_log_path`); each line
+is one ``write`` in append mode, so lines never interleave.
 """
 
 from __future__ import annotations
@@ -145,9 +141,8 @@ class StallMonitor:
         """Args:
         process: the program's name in the records.
         threshold_s: a stall is longer than this, s (> 0).
-        period_s: how often the monitor looks, s; default half the threshold.
-        log_path: the stall log to append records to, stacks included (``None``: the
-            stacks are kept nowhere unless ``stacks_on_console``).
+        period_s: how often the monitor looks, s (> 0); default half the threshold.
+        log_path: the stall log to append records to, stacks included (``None``: none).
         clock: monotonic seconds (tests may pass their own).
         stacks_on_console: log each stall's stacks with its line (a program's ``-v``);
             otherwise the line says where they are.

@@ -2,9 +2,8 @@
 
 ``identifier = msg_id << CAN_NODE_BITS | node`` (docs/protocol.md, "CAN mapping"): the
 message id in the high bits makes identifier order the priority order, so every STOP
-wins arbitration whatever the node ids. Node 0 is broadcast (host to controllers).
-Pure functions and a stateless-but-counting decoder; the bus I/O lives in the
-transports of the emulator and the bridge.
+wins arbitration whatever the node ids. Node 0 is broadcast (host to controllers). Pure
+functions and a counting decoder; the bus I/O lives in :mod:`firmware_proto.linkio`.
 """
 
 from __future__ import annotations
@@ -42,11 +41,8 @@ class CanFrame:
 
 
 def can_id(msg_id: int, node: int) -> int:
-    """11-bit identifier of message ``msg_id`` for ``node``.
-
-    Raises:
-        EncodeError: node outside 0..15 or msg_id outside 0..127.
-    """
+    """11-bit identifier of message ``msg_id`` for ``node``; EncodeError for a node outside
+    0..15 or a msg_id outside 0..127."""
     if not 0 <= node <= MAX_NODE:
         raise EncodeError(f"CAN node id {node} outside 0..{MAX_NODE}", field="node")
     if not 0 <= msg_id <= 0x7FF >> CAN_NODE_BITS:
@@ -60,11 +56,8 @@ def split_can_id(arbitration_id: int) -> tuple[int, int]:
 
 
 def encode_can(message: Message, node: int, strict: bool = True) -> tuple[int, bytes]:
-    """``(arbitration_id, data)`` of one message for ``node``.
-
-    Raises:
-        EncodeError: a field or the node id is out of range; the error names it.
-    """
+    """``(arbitration_id, data)`` of one message for ``node``; EncodeError naming a field or
+    the node id out of range."""
     if node == BROADCAST_NODE and message.DIRECTION != "host_to_controller":
         raise EncodeError(
             f"{message.NAME} cannot be broadcast (node 0 is host to controller only)",

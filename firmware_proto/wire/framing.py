@@ -80,16 +80,9 @@ def encode_raw_frame(msg_id: int, seq: int, payload: bytes, *, bad_crc: bool = F
 
 
 def encode_frame(message: Message, seq: int = 0, strict: bool = True) -> bytes:
-    """Wire bytes of one message, delimiters included.
-
-    Args:
-        message: the message to send.
-        seq: the sender's frame counter (low 8 bits sent).
-        strict: enforce semantic limits too (see :meth:`Message.pack`).
-
-    Raises:
-        EncodeError: a field is out of range; the error names it.
-    """
+    """Wire bytes of one message, delimiters included, with the low 8 bits of the sender's
+    frame counter ``seq``; ``strict``: semantic limits too (:meth:`Message.pack`).
+    EncodeError, naming the field, for a value out of range."""
     return encode_raw_frame(message.MSG_ID, seq, message.pack(strict))
 
 

@@ -50,25 +50,15 @@ class Message:
     ENUMS: ClassVar[dict[str, type[IntEnum]]]
 
     def pack(self, strict: bool = True) -> bytes:
-        """Encode the payload.
-
-        Args:
-            strict: also enforce semantic limits (e.g. MOTION speed 0..60); with
-                ``False`` only the wire range is enforced, so a test host can send a
-                value the controller must refuse.
-
-        Raises:
-            EncodeError: a field is not an int or is out of range; names the field.
-        """
+        """Encode the payload; with ``strict`` also the semantic limits (e.g. MOTION speed
+        0..60), else only the wire range (so a test host can send a value the controller must
+        refuse). EncodeError, naming the field, for a value not an int or out of range."""
         raise NotImplementedError
 
     @classmethod
     def unpack(cls: type[M], payload: bytes) -> M:
-        """Strict decode of one payload.
-
-        Raises:
-            DecodeError: wrong length, or a value outside the wire range.
-        """
+        """Strict decode of one payload; DecodeError for a wrong length or a value outside the
+        wire range."""
         raise NotImplementedError
 
     def __eq__(self, other: object) -> bool:
