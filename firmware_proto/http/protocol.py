@@ -10,14 +10,16 @@ why a subclass):
 - *Readers that stop reading.* A response not taken for ``write_timeout_s`` ends the
   connection.
 - *Unread bodies.* After an answer given without reading the body, at most
-  ``max_drain_bytes`` of it are read and dropped, so the client reads the answer.
+  ``max_drain_bytes`` of it are read and dropped within the same deadlines, so the
+  client reads the answer.
 - *Connections.* At most ``max_connections`` open, ``max_connections_per_address`` from
   one address, and ``max_connections - reserved_connections`` not yet shown to hold the
   token (the application marks it). A new connection over a limit takes the place of
   the oldest *idle* connection under that limit, never-served ones first; a connection
   with a request waiting unread is not idle, and a token holder is never evicted for an
   anonymous one. With nothing to evict: 503. One let in over the anonymous limit is
-  served one request and closed, unless that request showed the token.
+  served one request and closed, unless that request showed the token. (Room is kept by
+  evicting, not refusing: the token is read only after a head.)
 - *Heads* over ``max_head_bytes``: 431, in pieces or whole.
 - *A client that half-closes* after its request still gets its answer; one that closes
   mid-body gets 400 ``truncated_body``. Either way the request's

@@ -5,7 +5,7 @@ It sits on the pure folders and below both users of the wire, the bridge (the ho
 end) and the emulator (the controller's end), which never import each other: the
 :class:`~.endpoint.Endpoint` and its serial and CAN implementations, the link-URL parser,
 traffic logs, the replaying peer, a raw pty pair. Nothing else in ``firmware_proto``
-but ``cli`` imports it. Importing the package loads neither pyserial nor python-can.
+imports it. Importing the package loads neither pyserial nor python-can.
 """
 
 from __future__ import annotations

@@ -362,7 +362,8 @@ class ProtocolHost:
         what: str = "",
     ) -> tuple[float, tuple[int, Received], int]:
         """Send ``message`` and await the first ``kind`` message after it for which ``where``
-        holds, sending it again every ``every_s`` if given (the protocol's repeat period).
+        holds, sending it again every ``every_s`` if given (the protocol's repeat period,
+        STOP_REPEAT_MS for STOP and CLEAR_STOP).
 
         Returns:
             the host clock just before the first write, s; the answer with its position; how
@@ -446,7 +447,8 @@ class ProtocolHost:
     # -- heartbeats -----------------------------------------------------------------------
     @contextlib.contextmanager
     def silent(self) -> Iterator[None]:
-        """No HOST_HEARTBEAT while inside: the host goes quiet, as a cut cable would."""
+        """No HOST_HEARTBEAT while inside: the host goes quiet, as a cut cable would (if the
+        script sends nothing meanwhile, the controller's watchdog trips)."""
         with self.inbox.cond:
             self._quiet += 1
         try:

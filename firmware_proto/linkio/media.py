@@ -2,7 +2,8 @@
 
 A link URL's scheme names its medium (:data:`SCHEMES`): ``can://`` is CAN; a device path
 or a pyserial URL is serial. Each medium's endpoint class (:data:`ENDPOINTS`) is imported
-only when used, so a serial link never loads python-can. An unknown scheme is an
+only when used, so a serial link never loads python-can; the bridge keys its transports
+by the same media (``bridge.link.transport.TRANSPORTS``). An unknown scheme is an
 :class:`~firmware_proto.linkio.errors.UnknownSchemeError` listing the known ones.
 """
 

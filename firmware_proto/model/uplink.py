@@ -6,9 +6,10 @@ its id (positive, growing across ground restarts; the rover runs an id at most o
 refuses one not newer than the last it took), the steps, the twin's durations and
 predicted trajectory, the drift limits (never looser than the rover's ``[safety]``), the
 approved verdict's identity and the boot id of the onboard program it is for. A cancel
-(:class:`CancelUplink`) drops every plan with an id up to ``upto``. Both travel in an
-envelope ``{"body": "<JSON text>", "tag": "<hex>" | null}``, the tag HMAC-SHA256 of the
-body's bytes under the uplink token (:data:`TOKEN_ENV`, never the gate's).
+(:class:`CancelUplink`) drops every plan with an id up to ``upto`` (the one running is
+stopped). Both travel in an envelope ``{"body": "<JSON text>", "tag": "<hex>" | null}``,
+the tag HMAC-SHA256 of the body's bytes under the uplink token (:data:`TOKEN_ENV`, never
+the gate's), checked before the body is parsed.
 
 Pure, no I/O, no clock. The codec validates strictly and refuses with a specific reason
 (:class:`UplinkError`), never a traceback, in two parts so that the rover answers copies

@@ -8,7 +8,9 @@ to it. The kernel closes it when the parent ends; the part's :func:`watch_parent
 reads end-of-file and sends the part SIGTERM (it ends as at Ctrl-C, with its STOP), then
 ends it outright if it is still there :data:`GRACE_S` later. The pipe is named, not the
 parent: a part whose parent died before it started still reads end-of-file, and a
-process that inherited the variable with another standard input watches nothing.
+process that inherited the variable with another standard input watches nothing. Parts
+never read their standard input otherwise. All parts get SIGTERM at once, so if the
+bridge ends before its STOP went out, the controller's watchdog stops the wheels.
 """
 
 from __future__ import annotations

@@ -6,11 +6,12 @@ real-time policy, as ros2_control's controller manager does:
 
 - :func:`apply_realtime`: the **calling thread** (and the threads it starts later) under
   ``SCHED_RR`` or ``SCHED_FIFO``; a program calls it first thing in ``main()``. With
-  ``lock_memory``, ``mlockall`` where the memory-lock limit allows it (root, or an
-  unlimited ``RLIMIT_MEMLOCK``), and smaller stacks for later threads
-  (:data:`LOCKED_THREAD_STACK_BYTES`). Where not permitted, a lower nice value if that
-  is, else nothing; :class:`RealtimeStatus` says which. Nothing fails for want of
-  permission.
+  ``lock_memory``, ``mlockall`` (no page fault waits for the disk), only where the
+  memory-lock limit allows it (root, or an unlimited ``RLIMIT_MEMLOCK``: with a small
+  limit later allocations would fail), and smaller stacks for later threads
+  (:data:`LOCKED_THREAD_STACK_BYTES`). Where the policy is not permitted (no root,
+  ``CAP_SYS_NICE`` or ``rtprio`` limit), a lower nice value if that is, else nothing;
+  :class:`RealtimeStatus` says which. Nothing fails for want of permission.
 - :func:`apply_realtime_to_process` / :func:`leave_realtime_for_process`: every thread of
   the process, after a heavy start or before a heavy end.
 - :func:`realtime_threads`: only the threads started inside a stretch of code.
