@@ -1,12 +1,9 @@
 """The base of the stack, which every other part may import, and which imports none of
 them (docs/architecture.md, Parts and layers). Six folders, by what they hold:
 
-- ``wire/`` (pure): the motor controller's wire protocol generated from
-  ``wire/protocol.toml`` (messages, serial framing, COBS, CAN mapping, faults, counters;
-  docs/protocol.md), its code generators, test vectors, and the C codec and firmware
-  core (``wire/c/``, docs/firmware.md);
-- ``model/`` (pure): the plan, the verdict, the pose, the rover description, the map
-  model and the geometry helpers every part shares;
+- ``wire/`` (pure): the wire protocol generated from ``wire/protocol.toml``
+  (docs/protocol.md), its code generators, test vectors, the C codec and firmware core;
+- ``model/`` (pure): plan, verdict, pose, rover description, map model, geometry;
 - ``linkio/``: both ends of the wire, serial and CAN (docs/linkio.md);
 - ``http/``: the HTTP stack of the gate and the live view, and its bind and token policy;
 - ``runtime/``: real-time scheduling, stall detection (docs/realtime.md);

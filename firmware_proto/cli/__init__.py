@@ -3,15 +3,13 @@
 Each package registers its subcommands under the entry-point group ``rover.commands``
 (``pyproject.toml``): a function ``register(subparsers)`` adds one ``argparse``
 subparser and sets ``func`` on it; ``func(args)`` returns the exit status. Register
-functions import nothing heavy at module level, so ``rover --help`` stays fast.
-
-This sub-package (the command host and the helpers every program shares) is the one
-place below the emulator, the bridge, the gate and the planner: it discovers them by
-entry point and never imports them, and nothing else in ``firmware_proto`` imports it
-(docs/architecture.md, Parts and layers).
-
-A subcommand whose positionals may follow its options sets ``intermixed`` to their
+functions import nothing heavy at module level, so ``rover --help`` stays fast. A
+subcommand whose positionals may follow its options sets ``intermixed`` to their
 destination (``rover frame encode MOTION --can 1 seq=1``).
+
+This sub-package is the one place below every other part: it discovers them by entry
+point and never imports them, and nothing else in ``firmware_proto`` imports it
+(docs/architecture.md, Parts and layers).
 
 Exit status: 0 success, 1 the command failed (one line on stderr; ``-vv`` adds the
 traceback), 2 usage error, 130 interrupted.
@@ -54,8 +52,7 @@ def _load_registrations(only: str | None = None) -> list[tuple[str, RegisterFn]]
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The ``rover`` parser with every installed subcommand, or, when ``command`` names
-    one, with that one alone."""
+    """The ``rover`` parser with every installed subcommand, or only ``command`` if given."""
     parser = argparse.ArgumentParser(
         prog="rover",
         description=(

@@ -13,17 +13,14 @@ middleware of ours, and exception handlers that word every error in the server's
      *trusted* (``request.state.trusted``), which outranks anonymous clients where the
      server ranks them;
    - the *lane* (:class:`Lane`): at most ``lane_per_turn`` ordinary requests start per
-     turn of the event loop, the rest wait in order; ``priority`` paths skip it. A limit
-     on requests *at once* would limit nothing (a request that never waits runs in one
-     go), so STOP would wait behind a flood (docs/view.md, "STOP never waits");
+     turn of the event loop, the rest wait in order; ``priority`` paths (STOP) skip it,
+     so a flood never delays them (docs/view.md, "STOP never waits");
    - security headers on every answer, and ``Connection: close`` after an error that
      leaves the connection in doubt (408, 5xx but 503) or while draining;
    - an unexpected exception is logged and answered 500.
 2. Starlette's exception middleware: :class:`~.errors.StatusError` and the router's own
    404/405 are worded by the server's :data:`ErrorBody`.
 3. Starlette's :class:`~starlette.routing.Router` (no slash redirects).
-
-:func:`require_same_origin` guards a request that changes the world (STOP, clear-STOP).
 
 Threads: everything here runs on the server's event loop; ``on_error`` is called there.
 """
@@ -146,8 +143,7 @@ class Lane:
         return len(self._waiting)
 
     async def enter(self) -> None:
-        """Return once this request may start (at once while the turn's budget lasts
-        and nobody waits)."""
+        """Return once this request may start (at once while the budget lasts, nobody waiting)."""
         loop = asyncio.get_running_loop()
         self._arm(loop)
         if self._budget > 0 and not self._waiting:
@@ -168,8 +164,7 @@ class Lane:
             loop.call_soon(self._turn, loop)
 
     def _turn(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Once per turn while there is traffic: a new budget, spent on those waiting
-        first (they start next turn)."""
+        """Each turn with traffic: a new budget, spent first on those waiting (start next turn)."""
         self._armed = False
         self._budget = self.per_turn
         while self._budget > 0 and self._waiting:

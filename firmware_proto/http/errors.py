@@ -39,24 +39,19 @@ class RequestBodyError(HttpServeError):
 
 
 class ClientGoneError(HttpServeError):
-    """The client closed the connection before its request body ended (nobody is left
-    to answer)."""
+    """The client closed the connection before its request body ended: nobody to answer."""
 
 
 class StatusError(HttpServeError):
-    """A request that gets an error answer.
-
-    A subclass fixes ``status`` and ``default_code``; an instance may override both
-    (the application layer raises this class itself for the statuses it decides).
+    """A request that gets an error answer. A subclass fixes ``status`` and
+    ``default_code``; an instance may override both.
 
     Attributes:
         status: the HTTP status.
         code: a short machine-readable name (``not_found``, ``cross_origin``...).
         message: one sentence for people.
-        headers: extra response headers (``Allow``, ``Retry-After``,
-            ``WWW-Authenticate``...).
-        extra: further fields of the JSON body (``allow``, ``parameter``...): see
-            :meth:`fields`.
+        headers: extra response headers (``Allow``, ``Retry-After``...).
+        extra: further fields of the JSON body (``allow``, ``parameter``...): :meth:`fields`.
     """
 
     status = 500

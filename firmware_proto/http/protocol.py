@@ -212,8 +212,7 @@ class GuardedH11Protocol(H11Protocol):
         return True
 
     def _others(self) -> list[GuardedH11Protocol]:
-        """The server's other open connections (one closed already waits only for its
-        callback: it holds no place)."""
+        """The server's other open connections (one already closing holds no place)."""
         return [
             c
             for c in self.connections
@@ -221,8 +220,7 @@ class GuardedH11Protocol(H11Protocol):
         ]
 
     def _evictable(self) -> bool:
-        """Idle (no request under way, and none waiting unread), not holding the token,
-        not closing."""
+        """Idle (no request under way or waiting unread), not holding the token, not closing."""
         cycle = self.cycle
         idle = cycle is None or cycle.response_complete
         return (
@@ -338,8 +336,7 @@ class GuardedH11Protocol(H11Protocol):
         self._answer_and_close(status, code, f"malformed request: {text}")
 
     def _answer_and_close(self, status: int, code: str, message: str) -> None:
-        """Write an error response by hand (h11 may be in no state to frame one) and
-        close the connection."""
+        """Write an error answer by hand (h11 may be in no state to frame one) and close."""
         if self.transport.is_closing():
             return
         content_type, body = self._render(status, code, message)

@@ -45,8 +45,7 @@ def read_token_file(path: str | Path, *, what: str = "token") -> str:
 
 
 def refuse_token_argument(option: str, file_option: str, env: str) -> BindPolicyError:
-    """The error for a token given on the command line (``option``): what to use
-    instead."""
+    """The error for a token given on the command line (``option``): what to use instead."""
     return BindPolicyError(
         f"{option} is no longer accepted: a token on the command line is shown to every "
         f"user of this machine (ps, /proc/PID/cmdline); put it in a file readable by you "

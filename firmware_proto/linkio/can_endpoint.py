@@ -363,8 +363,7 @@ class CanEndpoint(Endpoint):
             self._enter(_BUS_STATES[state], f"interface bus state {state.name}")
 
     def _on_error_frame(self, frame: can.Message) -> None:
-        """Reader thread: count and act on one error frame; OSError on the host side when it
-        reports bus-off."""
+        """Reader thread: count and act on one error frame; OSError on the host at bus-off."""
         self.error_frames += 1
         report = decode_error_frame(frame.arbitration_id, bytes(frame.data))
         logger.debug(

@@ -399,8 +399,7 @@ class ProtocolHost:
 
     # -- send -----------------------------------------------------------------------------
     def send(self, message: Message, *, strict: bool = True) -> int:
-        """Send one message, its semantic limits checked unless ``strict`` is False (a MOTION
-        with speed 61)."""
+        """Send one message; ``strict=False`` skips its semantic limits (a MOTION at speed 61)."""
         mark = self.mark()
         if strict:
             self._write(lambda: self.endpoint.write(message), message.describe())
@@ -421,8 +420,7 @@ class ProtocolHost:
         return mark
 
     def write_bytes(self, data: bytes) -> int:
-        """Serial only (else :class:`LinkError`): put ``data`` on the line as it is (garbage, a
-        cut frame)."""
+        """Serial only (else LinkError): put raw ``data`` on the line (garbage, a cut frame)."""
         write_wire = getattr(self.endpoint, "write_wire", None)
         if write_wire is None:
             raise LinkError(f"{self.endpoint.name}: raw bytes need a serial link")

@@ -77,8 +77,7 @@ def _release(port: serial.SerialBase) -> None:
 
 
 class PyserialPort:
-    """A pyserial port (see the module docstring): reads wait at most 50 ms, writes at
-    most ``write_timeout_s``."""
+    """A pyserial port: reads wait at most 50 ms, writes at most ``write_timeout_s``."""
 
     def __init__(
         self, device: str, baud: int, *, exclusive: bool = False, write_timeout_s: float = 1.0

@@ -264,8 +264,7 @@ class PlanUplink:
         }
 
     def envelope(self, token: str | None = None) -> str:
-        """The message to send: the body as JSON text, tagged under ``token`` (``None``:
-        no tag)."""
+        """The message to send: the body as JSON text, tagged under ``token`` (``None``: no tag)."""
         return _envelope(self.to_dict(), token)
 
     # -- the prediction -----------------------------------------------------------------

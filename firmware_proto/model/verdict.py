@@ -461,8 +461,7 @@ class Verdict:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> Verdict:
-        """Parse and read verdict JSON; VerdictError as :meth:`from_dict`, or not JSON (pointer
-        ``""``)."""
+        """Parse and read verdict JSON; VerdictError as :meth:`from_dict`, or not JSON (``""``)."""
         try:
             obj = json.loads(text)
         except (ValueError, RecursionError) as exc:

@@ -155,8 +155,7 @@ class PolygonObstacle(_Outline):
         return -edge if point_in_polygon(p, pts) else edge
 
     def segment_distance(self, a: Point, b: Point) -> float:
-        """Distance from segment ``a``-``b`` to the surface, m (0 when it touches or
-        enters it)."""
+        """Distance from segment ``a``-``b`` to the surface, m (0 when it touches or enters it)."""
         return segment_polygon_distance(a, b, self.points)
 
 
@@ -179,8 +178,7 @@ class CircleObstacle(_Outline):
         return math.hypot(p[0] - self.center[0], p[1] - self.center[1]) - self.radius_m
 
     def segment_distance(self, a: Point, b: Point) -> float:
-        """Distance from segment ``a``-``b`` to the surface, m (<= 0 when it touches or
-        enters it)."""
+        """Distance from segment ``a``-``b`` to the surface, m (<= 0 when touching or inside)."""
         return point_segment_distance(self.center, a, b) - self.radius_m
 
 
@@ -204,8 +202,7 @@ class SegmentObstacle(_Outline):
         return point_segment_distance(p, self.a, self.b) - self.radius_m
 
     def segment_distance(self, a: Point, b: Point) -> float:
-        """Distance from segment ``a``-``b`` to the surface, m (<= 0 when it touches or
-        enters it)."""
+        """Distance from segment ``a``-``b`` to the surface, m (<= 0 when touching or inside)."""
         return segment_segment_distance(a, b, self.a, self.b) - self.radius_m
 
 
@@ -321,8 +318,7 @@ class WorldMap:
         raise KeyError(f"map {self.name!r} has no goal {name!r} (known: {known})")
 
     def obstacle(self, obstacle_id: str) -> Obstacle | None:
-        """The obstacle with this id; ``None`` for the walls (:data:`BOUNDS_ID`) or an
-        id the map lacks."""
+        """The obstacle with this id; ``None`` for the walls (:data:`BOUNDS_ID`) or no such id."""
         for o in self.obstacles:
             if o.id == obstacle_id:
                 return o
@@ -400,8 +396,7 @@ class WorldMap:
         return None
 
     def region_scale_at(self, x: float, y: float) -> float:
-        """Friction scale of the ground at ``(x, y)``: the last region containing it,
-        else 1.0."""
+        """Friction scale of the ground at ``(x, y)``: the last region containing it, else 1.0."""
         scale = 1.0
         for r in self.traction_regions:
             if point_in_polygon((x, y), r.polygon):
@@ -432,12 +427,9 @@ def list_maps() -> tuple[str, ...]:
 
 
 def load_map(name_or_path: str | Path) -> WorldMap:
-    """Read and validate a map.
-
-    Args:
-        name_or_path: a shipped map's bare name (``"lab"``: ``lab.json`` in
-            :data:`MAPS_DIR`) or the path of a JSON file (a :class:`~pathlib.Path`, or a
-            string containing a path separator or ending in ``.json``).
+    """Read and validate a map: a shipped map's bare name (``"lab"``: ``lab.json`` in
+    :data:`MAPS_DIR`) or the path of a JSON file (a :class:`~pathlib.Path`, or a string with
+    a path separator or ending in ``.json``).
 
     Raises:
         MapError: unknown name (listing the shipped ones), unreadable file, not JSON, or

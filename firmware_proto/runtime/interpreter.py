@@ -25,8 +25,7 @@ SWITCH_INTERVAL_S = 0.0005
 
 
 def use_short_switch_interval(interval_s: float = SWITCH_INTERVAL_S) -> float:
-    """Set the interpreter's thread switch interval (s) for this process; returns the
-    previous one."""
+    """Set this process's thread switch interval (s); returns the previous one."""
     previous = sys.getswitchinterval()
     sys.setswitchinterval(interval_s)
     logger.info("thread switch interval %.4f s (was %.4f s)", interval_s, previous)

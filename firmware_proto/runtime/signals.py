@@ -94,8 +94,7 @@ class ShutdownSignals:
         self._read_fd = self._write_fd = -1
 
     def wait(self, timeout_s: float | None) -> bool:
-        """Wait up to ``timeout_s`` seconds (``None``: for ever) for a signal; whether one
-        came (now or before)."""
+        """Wait up to ``timeout_s`` (``None``: for ever) for a signal; whether one has come."""
         deadline = None if timeout_s is None else time.monotonic() + max(0.0, timeout_s)
         while self.signum is None:
             remaining = None if deadline is None else deadline - time.monotonic()

@@ -98,8 +98,7 @@ class FrameEncoder:
         return encode_raw_frame(message.MSG_ID, next(self._counter), message.pack(strict))
 
     def encode_raw(self, msg_id: int, payload: bytes, *, bad_crc: bool = False) -> bytes:
-        """Wire bytes of an unchecked frame with the next frame counter value (see
-        :func:`encode_raw_frame`)."""
+        """Wire bytes of an unchecked frame (:func:`encode_raw_frame`), next frame counter."""
         return encode_raw_frame(msg_id, next(self._counter), payload, bad_crc=bad_crc)
 
 
@@ -116,8 +115,7 @@ class FrameDecoder:
         self._last_seq: int | None = None
 
     def reset(self) -> None:
-        """Forget the partial frame and the frame counter (e.g. after a reconnect);
-        counters keep their values."""
+        """Forget the partial frame and the frame counter (a reconnect); counters are kept."""
         self._buf = b""
         self._discarding = False
         self._last_seq = None

@@ -57,8 +57,7 @@ class Message:
 
     @classmethod
     def unpack(cls: type[M], payload: bytes) -> M:
-        """Strict decode of one payload; DecodeError for a wrong length or a value outside the
-        wire range."""
+        """Strict decode of one payload; DecodeError for a wrong length or a value out of range."""
         raise NotImplementedError
 
     def __eq__(self, other: object) -> bool:

@@ -127,8 +127,7 @@ class MessageSpec:
 
     @property
     def class_name(self) -> str:
-        """The Python class: the spec's ``class``, else the CamelCase name (``STOP_ACK``
-        -> ``StopAck``)."""
+        """The Python class: the spec's ``class``, else CamelCase (``STOP_ACK`` -> ``StopAck``)."""
         return self.python_class or "".join(part.capitalize() for part in self.name.split("_"))
 
     @property

@@ -104,12 +104,11 @@ class ReferenceDecoder:
     """The serial decoding rules, modelled byte by byte from the spec.
 
     Between delimiters a run of at most ``max_run`` bytes is a frame candidate, checked in
-    this order: COBS and at least 4 bytes (framing), CRC, known id, length, field ranges;
-    a rejected candidate drops its bytes and its closing delimiter. A run that grows
-    beyond ``max_run`` inside one chunk is rejected as oversize when its delimiter
-    arrives; one still open at the end of a chunk is dropped there (oversize, counted
-    once) and the rest of it, up to and including its delimiter, is discarded.
-    Empty runs are ignored. Gaps in seq count as lost.
+    order: COBS and at least 4 bytes (framing), CRC, known id, length, field ranges; a
+    rejected candidate drops its bytes and its closing delimiter. A run that grows beyond
+    ``max_run`` is oversize: rejected when its delimiter arrives in the same chunk, else
+    dropped (counted once) at the chunk's end with the rest of it, delimiter included.
+    Empty runs are ignored; gaps in seq count as lost.
     """
 
     def __init__(self, spec: ProtocolSpec) -> None:
