@@ -115,8 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return 0
     except Exception as exc:
-        # Every package raises its own error tree (planner, gate, emulator, bridge); the
-        # operator gets one clean line, and the traceback with -vv.
+        # Whatever the package's error tree: one clean line, the traceback with -vv.
         if args.verbose >= 2:
             logger.exception("rover %s failed", args.command)
         hint = "" if args.verbose >= 2 else " (run with -vv for details)"

@@ -197,8 +197,7 @@ def _cmd_decode(args: argparse.Namespace) -> int:
         print(f"dropped: {dropped}")
     if decoder.counters.frames:
         return 0
-    # Say why nothing came out, rather than print nothing: the bytes were dropped (the
-    # line above), or they are waiting for a frame's end that never came.
+    # Say why nothing came out: the bytes were dropped, or await a frame's end.
     held = len(data) - sum(v for k, v in dropped.items() if k == "dropped_bytes")
     why = (
         f"{held} byte(s) without a frame delimiter (0x00): a truncated frame, or not a frame"

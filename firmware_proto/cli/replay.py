@@ -104,8 +104,7 @@ def register(subparsers: Any) -> None:
         ),
     )
     p.add_argument("--record", metavar="FILE", help="record the replay session too")
-    # A replay plays one side of the link on its recorded clock (the host's heartbeats
-    # against the controller's 250 ms watchdog): it keeps time as `rover emulate` does.
+    # It plays one side of the link on its recorded clock: it keeps time like the emulator.
     add_runtime_arguments(p, EMULATOR_PRIORITY, lock_memory=False)
     p.set_defaults(func=_run, into=None)
 

@@ -194,8 +194,7 @@ def node_parameters(doc: Any, node_name: str, namespace: str = "") -> dict[str, 
 
 
 def parameters_to_argv(params: Mapping[str, Any]) -> list[str]:
-    """Long options for parameters: ``name_x: v`` -> ``--name-x v`` (see the module
-    docstring for booleans, empty values and lists)."""
+    """Long options for parameters, ``name_x: v`` -> ``--name-x v`` (module docstring)."""
     argv: list[str] = []
     for name, value in params.items():
         option = "--" + name.replace("_", "-").replace(".", "-")

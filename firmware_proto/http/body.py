@@ -45,8 +45,7 @@ async def read_body(receive: Receive, *, limit_bytes: int, timeout_s: float) -> 
             if not message.get("more_body", False):
                 return b"".join(parts)
 
-    # A deadline on this task rather than asyncio.wait_for, which would run collect()
-    # as a task of its own: one more task and loop turn for every request.
+    # A deadline on this task: asyncio.wait_for would cost a task and a loop turn more.
     task = asyncio.current_task()
     assert task is not None
     expired = False

@@ -158,8 +158,7 @@ class ServeConfig(uvicorn.Config):
 
 
 class GuardedH11Protocol(H11Protocol):
-    """One connection: uvicorn's h11 protocol bounded as the module docstring says; only
-    :class:`ServeConfig` configures it."""
+    """One connection, bounded as the module docstring says; set up by :class:`ServeConfig` only."""
 
     def __init__(
         self,

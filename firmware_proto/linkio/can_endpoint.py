@@ -2,13 +2,9 @@
 
 ``socketcan`` on Linux, ``virtual`` in-process, any other python-can interface by name.
 Identifiers and payloads are :mod:`firmware_proto.wire.canmap`'s; the bus arbitrates by
-identifier, so the STOP lane wins by itself.
-
-**Which frames a side takes.** A host takes its controller node's frames towards hosts;
-a controller takes frames towards controllers for its node or broadcast (node 0).
-Anything else decoded is counted in
-:attr:`~firmware_proto.linkio.endpoint.Endpoint.foreign`; frames that do not decode are
-counted by the decoder and dropped.
+identifier, so the STOP lane wins by itself. A host takes its controller node's frames;
+a controller its own node's and broadcasts (node 0); other frames decoded count as
+:attr:`~firmware_proto.linkio.endpoint.Endpoint.foreign`.
 
 **Bus health.** The fault-confinement state (error-active, error-warning, error-passive,
 bus-off) is read from SocketCAN error frames (:func:`decode_error_frame`, pure) and from

@@ -102,8 +102,7 @@ class PyserialPort:
             _release(port)
             if exc.errno is None:
                 raise OSError(str(exc)) from exc
-            # pyserial's text already holds "[Errno N] ..." twice over; OSError(errno, ...)
-            # adds its own: say the cause once ("[Errno 2] No such file or directory: 'X'").
+            # pyserial's text holds "[Errno N] ..." twice over: say the cause once.
             raise OSError(exc.errno, os.strerror(exc.errno), device) from exc
         self._port = port
         self._name = device

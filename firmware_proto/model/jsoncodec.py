@@ -43,8 +43,7 @@ def spec(
     inline: bool | Mapping[str, Mapping[str, Any]] = False,
     omit_none: bool = False,
 ) -> dict[str, Any]:
-    """Field metadata for :class:`JsonCodec` (``field(metadata=spec(...))``); see the
-    module docstring for what each argument does."""
+    """Field metadata for :class:`JsonCodec`: ``field(metadata=spec(...))`` (module docstring)."""
     return {"json": {"doc": doc, "schema": dict(schema or {}), "inline": inline, "omit": omit_none}}
 
 

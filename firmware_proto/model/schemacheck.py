@@ -45,8 +45,7 @@ def _fast_check(validator: Draft202012Validator) -> Callable[[Any], Any] | None:
     entry = _compiled.get(id(validator))
     if entry is None:
         try:
-            # A copy: fastjsonschema rewrites each "$ref" of the schema it is given in
-            # place, which would break every later user of the shared schema.
+            # A copy: fastjsonschema rewrites the "$ref"s of the shared schema in place.
             fast: Callable[[Any], Any] | None = fastjsonschema.compile(
                 copy.deepcopy(validator.schema)
             )
@@ -62,8 +61,7 @@ def is_valid(validator: Draft202012Validator, obj: Any) -> bool:
     :func:`schema_violations` with ``fast`` finds empty, this finds true."""
     check = _fast_check(validator)
     if check is not None:
-        # First, since it stops at the first violation: a large bad document costs no
-        # walk of its own (the schema bounds what it descends into).
+        # First: it stops at the first violation, so a large bad document costs no walk.
         try:
             check(obj)
         except (fastjsonschema.JsonSchemaValueException, RecursionError):

@@ -16,9 +16,6 @@ Units: metres in the map frame (x east, y north), yaw in degrees counter-clockwi
   undershoot.
 - ``lateral_error_m``: across that heading, positive when the goal lies to the left.
 - ``yaw_error_deg``: goal yaw minus final yaw, wrapped to ``[-180, 180)``.
-
-Trajectory samples are tagged with the step and the time since it started (an executor
-pauses between steps); a verdict played on several twins carries :class:`Uncertainty`.
 """
 
 from __future__ import annotations

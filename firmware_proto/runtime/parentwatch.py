@@ -44,14 +44,9 @@ def watch_parent(
 ) -> threading.Thread | None:
     """Start the watch if this process is a part whose parent asked for it; returns the
     thread (daemon, ``parent-watch``), or ``None`` when there is nothing to watch.
-
-    Args:
-        environ: the environment (default ``os.environ``).
-        stdin: the pipe from the parent (default the process's standard input, fd 0);
-            read through its descriptor only.
-        on_orphaned: what to do when the parent is gone (default: SIGTERM to this
-            process, then ``os._exit(1)`` if it is still running ``grace_s`` later).
-    """
+    ``environ`` defaults to ``os.environ``; ``stdin``, the pipe from the parent, to fd 0
+    (read through its descriptor only); ``on_orphaned`` to SIGTERM to this process, then
+    ``os._exit(1)`` if it is still running ``grace_s`` later."""
     env = os.environ if environ is None else environ
     wanted = env.get(EXIT_WITH_PARENT_ENV, "")
     try:
@@ -64,9 +59,8 @@ def watch_parent(
     act = on_orphaned if on_orphaned is not None else (lambda: _end_self(grace_s))
 
     def watch() -> None:
-        # os.read on the descriptor, not sys.stdin: a thread blocked inside the buffered
-        # reader holds its lock, and the interpreter aborts at exit when it cannot take
-        # it ("could not acquire lock for <stdin> at interpreter shutdown").
+        # os.read on the descriptor, not sys.stdin: a thread blocked in the buffered reader
+        # holds its lock, and the interpreter aborts at exit when it cannot take it.
         try:
             while os.read(fd, 4096):  # the parent never writes: only end-of-file comes
                 pass

@@ -103,9 +103,8 @@ class ProcessRuntime:
         )
         self.monitor.start()
         install(self.monitor)
-        # `kill -USR1 <pid>` logs every thread's stack (docs/realtime.md, Stalls). A
-        # Python handler, run with the interpreter lock: faulthandler's C one reads the
-        # threads' frames while they run.
+        # `kill -USR1 <pid>` logs every thread's stack (docs/realtime.md, Stalls), from a
+        # Python handler under the interpreter lock (faulthandler's C one is not).
         self._previous_usr1 = signal.signal(signal.SIGUSR1, _dump_stacks)
         return self
 

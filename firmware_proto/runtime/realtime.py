@@ -69,9 +69,8 @@ LOCKED_THREAD_STACK_BYTES = 1 << 20
 
 _MCL_CURRENT, _MCL_FUTURE = 1, 2  # linux/mman.h on x86 and arm
 
-# Runs as ``python -c _NORMAL_PRIORITY_LAUNCH MODULE ARGS...``: out of a real-time policy
-# first (a batch or idle policy and the nice are kept), then ``python -m MODULE ARGS...``
-# as if started so.
+# ``python -c _NORMAL_PRIORITY_LAUNCH MODULE ARGS...``: out of a real-time policy (a batch
+# or idle policy and the nice are kept), then ``python -m MODULE ARGS...`` as if so started.
 _NORMAL_PRIORITY_LAUNCH = (
     "import os, runpy, sys\n"
     "if hasattr(os, 'sched_setscheduler') and os.sched_getscheduler(0) in (\n"

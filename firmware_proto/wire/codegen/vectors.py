@@ -9,13 +9,10 @@ by :func:`pack_fields` from the field layout, and the expected frames and counte
 from :class:`ReferenceDecoder`, a plain model of docs/protocol.md ("Serial framing").
 Only the hand-written COBS and the standard library's CRC are shared.
 
-- ``messages.json``: valid instances of every message (range and limit extremes, both
-  signs, zero, seeded random values) with payload, serial frame and CAN identifier and
-  data for several nodes, and encode errors naming the field.
-- ``serial_streams.json``: byte streams in given chunks (clean, truncated, corrupted,
-  oversize, garbage, seq gaps, seeded mixes) with the frames and counters to report.
-- ``can_frames.json``: CAN frames (valid and each kind of bad) with the decoded frames
-  and counters.
+Files: ``messages.json`` (valid instances at every field's extremes and seeded values,
+with their serial frames and CAN frames for several nodes; encode errors naming the
+field), ``serial_streams.json`` (chunked streams, clean and damaged every way, with the
+frames and counters a decoder must report), ``can_frames.json`` (the same for CAN).
 """
 
 from __future__ import annotations
