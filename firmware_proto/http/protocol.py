@@ -13,18 +13,16 @@ why a subclass):
   ``max_drain_bytes`` of it are read and dropped within the same deadlines, so the
   client reads the answer.
 - *Connections.* At most ``max_connections`` open, ``max_connections_per_address`` from
-  one address, and ``max_connections - reserved_connections`` not yet shown to hold the
-  token (the application marks it). A new connection over a limit takes the place of
-  the oldest *idle* connection under that limit, never-served ones first; a connection
-  with a request waiting unread is not idle, and a token holder is never evicted for an
-  anonymous one. With nothing to evict: 503. One let in over the anonymous limit is
-  served one request and closed, unless that request showed the token. (Room is kept by
-  evicting, not refusing: the token is read only after a head.)
+  one address, ``max_connections - reserved_connections`` not shown to hold the token.
+  A new connection over a limit evicts the oldest *idle* one under it, never-served ones
+  first (one with a request waiting unread is not idle; a token holder is never evicted
+  for an anonymous one), else gets 503. One let in over the anonymous limit is served
+  one request, then closed unless it showed the token. (Room is kept by evicting, not
+  refusing: the token is read only after a head.)
 - *Heads* over ``max_head_bytes``: 431, in pieces or whole.
 - *A client that half-closes* after its request still gets its answer; one that closes
   mid-body gets 400 ``truncated_body``. Either way the request's
-  :class:`~firmware_proto.http.connection.ConnectionMark` (in the scope's
-  ``extensions``) says the peer has closed.
+  :class:`~firmware_proto.http.connection.ConnectionMark` says the peer has closed.
 - *Ambiguous framing* (both ``Content-Length`` and ``Transfer-Encoding``): 400 and
   closed (smuggling); an HTTP version other than 1.0 or 1.1: 505.
 - *Errors the connection answers itself* (400, 408, 431, 503) are worded by the server's

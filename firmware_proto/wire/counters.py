@@ -13,16 +13,16 @@ class RxCounters:
 
     Attributes:
         frames: valid frames delivered.
-        bytes: bytes fed (serial only).
-        dropped_bytes: bytes discarded in rejected frames or garbage (serial only).
-        framing: COBS structure broken, or too short to be a frame (serial only).
-        oversize: more bytes between delimiters than any frame has (serial only).
-        crc: CRC mismatch (serial only).
+        bytes, dropped_bytes: bytes fed, and discarded in rejected frames or garbage.
+        framing: COBS structure broken, or too short to be a frame.
+        oversize: more bytes between delimiters than any frame has.
+        crc: CRC mismatch.
         unknown_id: message id not in the protocol.
         bad_length: payload length differs from the message's.
         out_of_range: a field value outside its wire range.
-        lost: gaps in the sender's frame counter (serial only).
-        not_classic: extended-id or remote CAN frames (CAN only).
+        lost: gaps in the sender's frame counter.
+        not_classic: extended-id or remote CAN frames. (This one is CAN only; ``bytes``
+            to ``crc`` and ``lost`` are serial only.)
     """
 
     frames: int = 0
