@@ -45,7 +45,8 @@ def ros_main(
     with_rclpy: bool = False,
 ) -> int:
     """Run a program that ``ros2 run`` starts: its own options, then optionally
-    ``--ros-args``.
+    ``--ros-args``; returns the exit status (module docstring); a usage error exits through
+    ``parser.error``.
 
     Args:
         parser: the program's parser; its ``prog`` names the program in messages and is the
@@ -55,11 +56,7 @@ def ros_main(
         node: the program runs a ROS node of its own: the ``--ros-args`` tail goes to it
             whole, as ``args.ros_args``. Otherwise the node's parameters become long
             options placed before the program's own, which therefore win.
-        with_rclpy: read the ROS arguments with rcl's parser where rclpy is installed
-            (:mod:`firmware_proto.cli.rclargs`).
-
-    Returns:
-        The exit status (module docstring); a usage error exits through ``parser.error``.
+        with_rclpy: read the ROS arguments with rcl's parser where rclpy is installed.
     """
     given = list(sys.argv[1:] if argv is None else argv)
     prog = parser.prog

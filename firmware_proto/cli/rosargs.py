@@ -223,20 +223,15 @@ def argv_from_ros_args(
 def ros_node_parameters(
     parsed: RosArgs, default_node: str, load: Callable[[str], Any]
 ) -> dict[str, Any]:
-    """One node's parameters from parsed ROS arguments, merged as rcl merges them.
+    """One node's parameters from parsed ROS arguments (:func:`parse_ros_args`), merged as
+    rcl merges them; the node is ``default_node`` unless ``__node`` is remapped, and
+    ``load`` reads one parameters file into a document (once per file; ValueError when one
+    is malformed).
 
     Each ``--params-file`` and each ``-p`` (section ``/**`` unless the name carries a node)
     updates one table of sections in command-line order; the node's parameters are its
     sections applied in the order they first appeared. So a ``-p`` wins over an earlier
     file's ``/**`` section but not over its ``/**/NAME`` section, as for any ROS 2 node.
-
-    Args:
-        parsed: the parsed ROS arguments (:func:`parse_ros_args`).
-        default_node: the node name when the arguments do not remap ``__node``.
-        load: reads one parameters file into a document; called once per file.
-
-    Raises:
-        ValueError: a malformed parameters file.
     """
     node = parsed.node_name or default_node
     sections: dict[str, dict[str, Any]] = {}

@@ -122,9 +122,10 @@ def _evict(candidates: list[GuardedH11Protocol]) -> bool:
 
 
 class ServeConfig(uvicorn.Config):
-    """uvicorn's settings for one of our servers, carrying ``limits`` and ``render_error``
-    to each connection (as :class:`~.service.HttpService` takes them); ``host`` is for
-    uvicorn's messages only (the caller binds the socket)."""
+    """uvicorn's settings for one of our servers, carrying ``limits`` (the connection bounds)
+    and ``render_error`` (how connection-level errors are worded) to each connection;
+    ``server_name`` is the ``Server`` header, ``host`` only for uvicorn's messages (the
+    caller binds the socket)."""
 
     def __init__(
         self,

@@ -43,16 +43,9 @@ class _Server(uvicorn.Server):
 
 
 class HttpService:
-    """Serve ``app`` on ``host:port`` in a background thread (a context manager).
-
-    Args:
-        app: the ASGI 3 application.
-        host, port: where to listen (port 0 picks a free one).
-        limits: the connection limits.
-        render_error: how connection-level errors are worded.
-        server_name: the ``Server`` header.
-        thread_name: the serving thread's name.
-    """
+    """Serve ``app`` (ASGI 3) on ``host:port`` (port 0 picks a free one) in a background
+    thread named ``thread_name`` (a context manager); ``limits``, ``render_error`` and
+    ``server_name`` (the ``Server`` header) as :class:`~.protocol.ServeConfig` takes them."""
 
     def __init__(
         self,

@@ -26,13 +26,9 @@ class PtyPair:
     """
 
     def __init__(self, link: str | Path | None = None) -> None:
-        """Args:
-        link: optional path of a symlink to create to the device (replaced if it is a
-            symlink already; refused if it is anything else).
-
-        Raises:
-            OSError: no pty available, or ``link`` exists and is not a symlink.
-        """
+        """Open the pair, with an optional symlink ``link`` to the device (one already there is
+        replaced if it is a symlink); OSError when no pty is available or ``link`` exists and is
+        not a symlink."""
         self.master_fd, self._slave_fd = pty.openpty()
         tty.setraw(self._slave_fd)
         attrs = termios.tcgetattr(self._slave_fd)

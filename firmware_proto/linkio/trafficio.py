@@ -235,14 +235,10 @@ def writer_for(
     channel: str = "",
     metadata: Mapping[str, str] | None = None,
 ) -> Callable[[BinaryIO], LogWriter]:
-    """The writer for a log of ``medium`` in a file with ``suffix``, as a function of the
-    binary stream to write to (which it then owns, closing it if it fails to start).
-
-    Args:
-        medium: ``"serial"`` (any suffix; ``.rlog`` by custom) or ``"can"``.
-        suffix: the file's suffix, dot included.
-        channel: CAN: the channel name written for frames that carry none (``can0``).
-        metadata: serial: the header's ``# key: value`` lines.
+    """The writer for a log of ``medium`` (``"serial"``, any suffix, ``.rlog`` by custom; or
+    ``"can"``) in a file with ``suffix`` (dot included), as a function of the binary stream
+    to write to (which it then owns, closing it if it fails to start). ``channel``: CAN, the
+    channel name for frames that carry none; ``metadata``: serial, the header's lines.
 
     Raises:
         ValueError: an unknown medium, or a suffix no CAN format has; before anything opens.

@@ -385,14 +385,10 @@ def compare_answers(
 def diff_texts(
     expected: Sequence[str], actual: Sequence[str], *, name: str | None = None
 ) -> list[Difference]:
-    """The differences between two sequences of message texts, in order, paired where
-    they were replaced (:class:`difflib.SequenceMatcher` without autojunk).
-
-    Args:
-        expected, actual: the recorded and the replayed texts.
-        name: the message type of every text; ``None``: each difference is named by
-            the first word of its text (``Message.describe`` starts with the name).
-    """
+    """The differences between the recorded (``expected``) and replayed (``actual``) message
+    texts, in order, paired where replaced (:class:`difflib.SequenceMatcher`, no autojunk).
+    ``name`` is the message type of every text; ``None``: each difference is named by the
+    first word of its text (``Message.describe`` starts with the name)."""
     differences: list[Difference] = []
     matcher = difflib.SequenceMatcher(a=expected, b=actual, autojunk=False)
     for tag, i1, i2, j1, j2 in matcher.get_opcodes():

@@ -89,12 +89,8 @@ def _items(tp: Any) -> Any | None:
 
 class JsonCodec:
     """The codec of one family of model classes: encoders, decoders and schemas, built on
-    first use and cached (thread-safe: a race builds the same function twice).
-
-    Args:
-        error: the exception raised on bad input, called as ``error(message, pointers)``.
-        what: the word that starts each error message (``"verdict"``).
-    """
+    first use and cached (thread-safe: a race builds the same function twice). Bad input
+    raises ``error(message, pointers)``, each message starting with ``what`` (``"verdict"``)."""
 
     def __init__(self, error: Callable[[str, tuple[str, ...]], Exception], what: str) -> None:
         self._error = error

@@ -502,13 +502,9 @@ def peek_body(body: str) -> tuple[int, str]:
 def decode_uplink(
     text: str | bytes, *, token: str | None = None, rover: RoverDescription | None = None
 ) -> PlanUplink | CancelUplink:
-    """Read one uplink envelope: :func:`open_envelope`, then :func:`decode_body`.
-
-    Args:
-        text: the envelope as received.
-        token: the rover's token; ``None``: tags are not checked.
-        rover: the rover description (ranges of the limits, the fit check); ``None`` checks
-            the schema's ranges only and skips the fit.
+    """Read one uplink envelope: :func:`open_envelope` (``text``, ``token``), then
+    :func:`decode_body` (``rover``: the ranges of the limits and the fit check; ``None``
+    checks the schema's ranges only and skips the fit).
 
     Raises:
         UplinkError: refused, with its reason (:data:`REFUSALS`) and one sentence.

@@ -140,15 +140,12 @@ class StallMonitor:
     ) -> None:
         """Args:
         process: the program's name in the records.
-        threshold_s: a stall is longer than this, s (> 0).
+        threshold_s: a stall is longer than this, s (> 0, else ValueError).
         period_s: how often the monitor looks, s (> 0); default half the threshold.
         log_path: the stall log to append records to, stacks included (``None``: none).
         clock: monotonic seconds (tests may pass their own).
         stacks_on_console: log each stall's stacks with its line (a program's ``-v``);
             otherwise the line says where they are.
-
-        Raises:
-            ValueError: a threshold or period not positive.
         """
         if not threshold_s > 0:
             raise ValueError(f"stall threshold must be > 0, got {threshold_s}")

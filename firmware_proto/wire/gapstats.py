@@ -60,7 +60,7 @@ class GapStats:
     def __init__(self, period_s: float = 0.0, window: int = GAP_WINDOW) -> None:
         """Args:
         period_s: the events' nominal period, s (0: none), for the lateness figures.
-        window: how many recent gaps the percentile is taken over.
+        window: how many recent gaps the percentile is taken over (>= 1).
 
         Raises:
             ValueError: ``window`` < 1 or a negative period.
