@@ -138,12 +138,8 @@ def open_bus(interface: str, channel: str, **options: Any) -> can.BusABC:
 
 
 class CanEndpoint(Endpoint):
-    """One node's end of the link on a CAN bus (see the module docstring).
-
-    Counters (per connection; they only grow): :attr:`error_frames` (every error frame
-    received), :attr:`state_changes` (fault-confinement transitions, by the state
-    entered), :attr:`~firmware_proto.linkio.endpoint.Endpoint.foreign`.
-    """
+    """One node's end of the link on a CAN bus (see the module docstring); its counters are
+    per connection and only grow."""
 
     medium = "can"
 

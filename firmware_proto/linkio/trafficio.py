@@ -62,10 +62,7 @@ class LogWriter(ABC):
     a record stamped earlier than the one before it (two threads racing to the log) takes
     that one's time, so file order is time order. An implementation fills :meth:`_write`
     (one record, under the lock) and :meth:`_close` (finish the log, close the stream,
-    called once). It owns the stream it was given.
-
-    Attributes:
-        frames: records written so far.
+    called once). :attr:`frames` counts the records written.
     """
 
     record_type: type[SerialRecord] | type[CanRecord]
