@@ -75,7 +75,8 @@ class LogWriter(ABC):
         self.frames = 0
 
     def record(self, entry: TrafficRecord) -> None:
-        """Append one frame; after :meth:`close`, drop it.
+        """Append one frame; after :meth:`close`, drop it (a reader thread may still hand one
+        over while its owner shuts down).
 
         Raises:
             TypeError: a record of the other medium.
@@ -120,7 +121,8 @@ class LogWriter(ABC):
 
 
 class SerialLogWriter(LogWriter):
-    """Writes a serial frame log to a text stream, one line per frame, each flushed."""
+    """Writes a serial frame log to a text stream, one line per frame, each flushed as it
+    is written, so that a log survives a crash up to its last frame."""
 
     record_type = SerialRecord
 
