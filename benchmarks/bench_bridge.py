@@ -3,37 +3,28 @@
 Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick] [--ros2]``
 
 The emulator serves the controller on a real pty in real time, in a process of its own
-as ``rover emulate`` does on a bench (in one process its control thread and the bridge
-would share the interpreter lock, whose 5 ms switch interval adds tails that a real
-controller never sees). The bridge's ControllerLink (and its ROS node) drives it. Both
-keep time as the programs do (docs/realtime.md): the emulator's process at
-``EMULATOR_PRIORITY`` as ``rover emulate``, this process (the link, its node, the pty
-round trip) at ``BRIDGE_PRIORITY`` as ``rover bridge``, each where the system permits
-it (the table's note says what was granted); the children start at normal priority and
-ask for theirs once imported. For every trial the rover is moving, then a STOP is
-requested, and two latencies are taken on CLOCK_MONOTONIC, which every process of the
-machine shares (``time.monotonic()``):
+as ``rover emulate`` does (in one process it would share the interpreter lock with the
+bridge); the bridge's ControllerLink (and its ROS node) drives it. Both take the
+real-time priority their programs ask for where the system permits it
+(docs/realtime.md; the table's note says what was granted). For every trial the rover
+is moving, then a STOP is requested, and two latencies are taken on CLOCK_MONOTONIC,
+which every process shares:
 
 - (a) request -> the STOP frame's last byte written to the device by the bridge;
-- (b) request -> the emulator's wheel targets at zero (its control thread handled it;
-  the emulator process reports when).
+- (b) request -> the emulator's wheel targets at zero (its control thread handled it).
 
 The request is an API call (``ControllerLink.emergency_stop``) or a ROS message on
-``emergency_stop`` published by another node: on the in-process port (same process), or
-over real ROS 2 from another process's plain rclpy node (``--ros2``: the bridge node on
-the ``rclpy-process`` backend, its default, and on ``rclpy`` in this process, Fast DDS
-between the two; it needs the private loopback network namespace of the tests; the publisher stamps its request on the same clock). Idle means
-one long step running; load means the motion queue full and telemetry at 100 Hz (over
-ROS 2 also published as ``/odom`` to a subscriber in the observer node). The pty round
-trip (15 bytes there and back through pyserial) is measured in the same run: it is the
-floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
+``emergency_stop`` from another node: on the in-process port, or over real ROS 2 from
+another process's plain rclpy node (``--ros2``: the bridge node on ``rclpy-process``
+and on ``rclpy``; it needs the private loopback network namespace of the tests). Idle
+means one long step running; load means the motion queue full and telemetry at 100 Hz.
+The pty round trip (15 bytes there and back through pyserial), measured in the same run,
+is the floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
 
-A bench reports; it does not die on a lost session. A trial whose step is refused, or
-whose link is lost (the emulator's watchdog tripped, heartbeats missed, the controller
-lost the session) before its STOP is measured, is counted as lost: the bench waits for
-the link's new session, clears any latch left behind and goes on. The lost trials and
-the link's own counts (heartbeat losses, watchdog trips, reconnects) are printed under
-the table; the sustained rate counts the steps completed and says how many were lost.
+A trial whose step is refused or whose link is lost before its STOP is measured is
+counted as lost, not measured: the bench waits for the link's new session, clears any
+latch left behind and goes on. Lost trials and the link's own counts are printed under
+the table.
 
 Run the ROS 2 case inside the namespace::
 
@@ -308,8 +299,7 @@ def _trials(
         while link.last_stop_written == previous and time.monotonic() < deadline:
             time.sleep(0.0005)
         written_at = link.last_stop_written
-        # A trial the link lost (a STOP that reached the controller after a new
-        # handshake, or into a watchdog's latch) measures the outage, not the STOP path.
+        # A trial the link lost measures the outage, not the STOP path.
         cut = any(s.startswith("fault:") for s in statuses.log.items(mark))
         if written_at is not None and written_at != previous and handled is not None and not cut:
             out.written.append(written_at - t0)

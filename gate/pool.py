@@ -5,27 +5,16 @@
 implementation fills; :meth:`~WorkerPool._close` releases its resources. A job is a
 :class:`gate.validator.Job`; its result is the verdict's JSON bytes.
 
-- :class:`ProcessWorkerPool` (default): one process per worker, started with ``spawn``
-  (never ``fork`` from a threaded server), each holding its own validator. The playback
-  is pure Python and CPU-bound, so processes are what runs plans in parallel on several
-  cores. All workers start at construction and prove ready (:meth:`warm_up`) before the
-  server says it listens; a worker that dies is replaced at once. Each worker is fed
-  through a pipe of its own and one thread reads the answers (see the class). Calls
-  can be **cancelled while they run** (the worker is interrupted; one that does not
-  stop within :data:`CANCEL_GRACE_S` is killed and replaced), and the workers are
-  **shared fairly** between clients (each call names its client).
-- :class:`ThreadWorkerPool`: threads in this process sharing one validator: no start-up
-  cost, but the GIL runs one playback at a time, and a call that has started cannot be
-  cancelled. For tests and small machines.
+- :class:`ProcessWorkerPool` (default): one ``spawn``-ed process per worker (never
+  ``fork`` from a threaded server), each with its own validator; playback is CPU-bound
+  pure Python, so processes are what runs plans in parallel. All start and prove ready
+  at construction; a dead one is replaced at once. Calls are cancellable while they run
+  and shared fairly between clients (see the class).
+- :class:`ThreadWorkerPool`: threads sharing one validator (one playback at a time under
+  the GIL; a started call cannot be cancelled). For tests and small machines.
 
-Admission (how many jobs may wait) is the server's business (:mod:`gate.admission`),
-not the pool's.
-
-Why not ``concurrent.futures.ProcessPoolExecutor`` (docs/gate.md, "Worker pool"): it
-cannot stop a call that has started (``Future.cancel`` only drops a waiting one), a
-worker killed to stop one breaks the whole executor (every call under way and waiting
-fails with ``BrokenProcessPool``), it has one queue for everyone, and each call
-crosses three of its threads.
+Admission (how many jobs may wait) is the server's business (:mod:`gate.admission`).
+Why not ``concurrent.futures.ProcessPoolExecutor``: docs/gate.md, "Worker pool".
 """
 
 from __future__ import annotations
@@ -105,8 +94,7 @@ def _worker_main(conn: Connection, validator: Validator, control: Connection) ->
     a time, answering ``("ok", result)``, ``("err", exception)`` or ``("cancelled",
     None)`` when interrupted, until ``None`` or the pool's end of the pipe closes."""
     global _validator, _running, _control  # noqa: PLW0603 - per-process state of a pool worker
-    # The server process owns shutdown: a Ctrl-C or SIGTERM sent to the whole process
-    # group must not kill workers under in-flight requests (they exit when it says so).
+    # The server owns shutdown: a Ctrl-C to the process group must not kill in-flight work.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _validator = validator
@@ -125,8 +113,7 @@ def _worker_main(conn: Connection, validator: Validator, control: Connection) ->
         try:
             _running = ident  # from here to the "finally", the call may be interrupted
             try:
-                # Asked to stop before it began (while the call was read or its module
-                # imported): the signal came when there was nothing to interrupt.
+                # Asked to stop before it began: the signal found nothing to interrupt.
                 _read_target()
                 if _target == ident:
                     raise _Interrupted
@@ -249,8 +236,7 @@ class ThreadWorkerPool(WorkerPool):
     def __init__(self, validator: Validator, workers: int) -> None:
         super().__init__(validator, workers)
         self._executor = ThreadPoolExecutor(workers, thread_name_prefix="gate-worker")
-        # Start every thread now (the executor would add them one job at a time): no
-        # thread can pass the barrier before all exist, so each submit adds one.
+        # Start every thread now: none passes the barrier before all exist.
         barrier = threading.Barrier(workers)
         for future in [
             self._executor.submit(barrier.wait, WARM_UP_TIMEOUT_S) for _ in range(workers)
@@ -314,10 +300,8 @@ class ProcessWorkerPool(WorkerPool):
 
     A call is written to an idle worker's pipe by the thread that submits it (the event
     loop, for the gate), or queued until a worker is free; one thread
-    (``gate-pool-results``) reads every answer and sets its future. That is one thread
-    hand-off per call, where ``concurrent.futures.ProcessPoolExecutor`` makes three
-    (its manager thread, its queue's feeder thread, then the manager again): about 60
-    against 160 us per call from an event loop here (docs/gate.md, Performance).
+    (``gate-pool-results``) reads every answer and sets its future: one thread hand-off
+    per call.
 
     **Fair.** Waiting calls are queued per client; a free worker takes the next call of
     the client with the fewest calls running (round robin among equals). When a client

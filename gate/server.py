@@ -4,37 +4,27 @@
 (:mod:`firmware_proto.http`: uvicorn with h11, one event loop in a thread of its own,
 every connection bounded by deadlines) and application layer
 (:mod:`firmware_proto.http.app`: the routes of :data:`gate.routes.ROUTES`, the shared
-guard, errors worded as the gate's JSON), in front of a :mod:`worker pool <gate.pool>`:
+guard, errors worded as the gate's JSON), in front of a :mod:`worker pool <gate.pool>`.
+The contracts (docs/gate.md, "Capacity, keep-alive and shutdown"):
 
-- *Admission by cost* (:mod:`gate.admission`): a validation's whole cost (its nominal
-  playback and its samples) is admitted or refused before any of it is queued: 400
-  when it is over what one request may take, 429 with ``Retry-After`` when its client
-  already holds its share, 503 with ``Retry-After`` when the gate holds all it takes.
-  ``GET`` requests need no worker.
-- *Deadlines and cancellation*: a validation gets no more than ``request_timeout_s``;
-  past it, or when its client leaves (closes its connection, or its end of it), its
-  calls are cancelled in the pool (a running
-  one is interrupted, its worker killed and replaced if it does not stop) and its
-  admission released. The pool shares its workers fairly between clients.
-- *Bad bodies are cheap*: whether a plan is valid is decided by the compiled check on
-  the event loop; the wording of a refused one runs on a thread of its own and stops
-  at the first :data:`MAX_VIOLATIONS`, and the error answer is bounded by the request's
-  size (:data:`ERROR_ROOM_BYTES` beyond it).
-- *Clients*: a connection waits ``idle_timeout_s`` for a request, whose head must then
-  arrive within ``head_timeout_s`` (408 otherwise: slowloris) and its body within
-  ``body_timeout_s`` (408); slow clients cost no thread, so they cannot lock others out.
-  Beyond ``max_connections`` open at once, a new one is answered 503.
-- *Bodies*: a declared length over ``max_body_bytes`` is refused (413) before a byte of
-  it is read (and before ``100 Continue``); chunked bodies are counted as they come; a
-  body without framing gets 411; every error body is JSON, those the connection layer
-  answers itself too (:func:`gate.response.render_connection_error`).
+- *Admission by cost* (:mod:`gate.admission`) before anything is queued: 400 over what
+  one request may take, 429 with ``Retry-After`` past the client's share, 503 with
+  ``Retry-After`` when the gate is full. ``GET`` requests need no worker.
+- *Deadlines*: past ``request_timeout_s``, or when its client leaves, a validation's
+  calls are cancelled in the pool and its admission released.
+- *Bad bodies are cheap*: validity is decided by the compiled check on the event loop;
+  a refusal is worded on a thread of its own, at most :data:`MAX_VIOLATIONS` of it,
+  and the error answer is at most :data:`ERROR_ROOM_BYTES` beyond the request's size.
+- *Clients and bodies*: ``idle_timeout_s``, ``head_timeout_s`` and ``body_timeout_s``
+  (408) bound a connection; beyond ``max_connections`` a new one gets 503; a declared
+  length over ``max_body_bytes`` is refused (413) before any of it is read; a body
+  without framing gets 411; every error body is JSON
+  (:func:`gate.response.render_connection_error`).
 - *Auth and binding* (:mod:`firmware_proto.http.bindpolicy`): with a token, every request
-  needs ``Authorization: Bearer <token>`` (constant-time comparison; 401 otherwise);
-  ``Host`` must name the gate (421). The configuration refuses a non-loopback address
-  without a strong token.
-- *Shutdown* (:meth:`GateServer.close`, idempotent): new requests get 503; the listener
-  closes; idle connections are closed; requests under way finish (up to
-  ``drain_timeout_s``) with ``Connection: close``; then the workers stop.
+  needs ``Authorization: Bearer <token>`` (401); ``Host`` must name the gate (421).
+- *Shutdown* (:meth:`GateServer.close`, idempotent): new requests get 503, the listener
+  and idle connections close, requests under way finish (up to ``drain_timeout_s``)
+  with ``Connection: close``, then the workers stop.
 
 The event loop does I/O and parsing only; playback runs in the pool. Each operation is
 one ``_op_<name>`` coroutine named by :data:`gate.routes.ROUTES`.

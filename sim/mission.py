@@ -5,42 +5,28 @@ controller model or C core over its twin, the serial line or CAN bus), and a gro
 station across a delayed, jittery, lossy link that uplinks an approved plan, retransmits
 it until acknowledged, and keeps STOP authority (docs/sim.md, "Missions").
 
-:func:`make_mission` draws a :class:`MissionScenario` from one seed: a plan of one to five
-steps and its prediction (played on a twin of the same description, as the gate plays
-it), the link (one-way delay 1.5 s, jitter, loss 0 / 0.1 / 0.3 each way), and faults:
-slip on one side from any moment of any step; POSE going silent; the uplink lost (loss),
-duplicated, late, or overtaken (a superseded plan, its cancel and the new plan arriving
-out of order); replays of old or tampered uplinks, malformed ones, a plan whose
-prediction belongs to other steps; a ground STOP at any moment; a controller reboot or a
-cut link mid-plan; a restart of the onboard program (a new boot id: a new core and a
-fresh estimate), after which the ground's copies of its plan arrive again; the onboard
-program's first STOPs lost on their way to the bridge; the rover's ROS hops up to 0.3 s
-late (a busy computer).
-:class:`MissionRig` plays it; the ROS hops on the rover take :data:`ROS_HOP_S` each.
-
-The onboard program has been up for a while when a mission starts: the ground holds
-its boot id (from an earlier report) and signs its plan for it; after a restart it
-learns the new one from the reports, as ``rover go`` does.
+:func:`make_mission` draws a :class:`MissionScenario` (a plan of one to five steps, its
+prediction, the link and the faults its attributes list) from one seed;
+:class:`MissionRig` plays it; the ROS hops on the rover take :data:`ROS_HOP_S` each. The
+onboard program has been up for a while when a mission starts: the ground holds its boot
+id and signs for it; after a restart it learns the new one from the reports.
 
 Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``):
 
-- ``once`` and the wire's rules: the wire simulator's own (no MOTION started twice, every
-  step's fate once, ...);
+- ``once`` and the wire's rules: the wire simulator's own;
 - ``step-once``: the sequencer sends each step of a plan at most once;
-- ``plan-once``: a plan id starts at most once, across restarts of the onboard program
-  too;
+- ``plan-once``: a plan id starts at most once, across restarts of the onboard program;
 - ``genuine``: every step sent is the step the ground signed, at its index;
 - ``refused-inert``: nothing is driven for a plan the rover refused or the ground never
   sent;
-- ``guard-bound``: when the rover's true drift (the twin against the prediction,
-  aligned on the step's true start: the controller taking it) is past the limits by
-  :data:`TRUTH_MARGIN_M` or :data:`TRUTH_MARGIN_DEG` with POSE live, a STOP follows
-  within :data:`GUARD_BOUND_S`;
+- ``guard-bound``: when the true drift (the twin against the prediction, aligned on the
+  step's true start) is past the limits by :data:`TRUTH_MARGIN_M` or
+  :data:`TRUTH_MARGIN_DEG` with POSE live, a STOP follows within :data:`GUARD_BOUND_S`;
 - ``false-stop``: the guard never stops a rover whose true drift is within the limits
   less that margin;
 - ``ground-stop``: once the ground's STOP reaches the rover, no step of the plan goes out;
-- ``stop-reached``: a STOP of the onboard program's lost on the ROS hop to the bridge is
-  followed by one that arrives within :data:`STOP_REACH_S`;
+- ``stop-reached``: a lost STOP of the onboard program's is followed by one that arrives
+  within :data:`STOP_REACH_S`;
 - ``delivered``: without slip, a ground STOP, a controller fault or a POSE silence over
   :data:`POSE_GAP_HARMLESS_S`, the plan completes exactly once and the ground hears it;
 - ``rest``: after every end the rover reports its estimate at rest (or that it gave up

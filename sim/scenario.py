@@ -21,15 +21,11 @@ answers the next HELLO and reboots at once: both IDENTs reach the host in one re
 ``host-restart`` (the bridge process ends and a new one starts on the same controller
 boot after ``duration_s``).
 
-Issue #40's interleavings come in three scenarios of ten, from a generator of their own
-(so that every other draw, and so every kept seed, plays as before): an encoder glitch
-(an encoder fault of 5 to 40 ms) timed at an operator's clear or at the automatic clear
-after an outage, a stalled writer (0.1 to 0.6 s) while a clear is out, the operator's
-STOP followed by a clear before the STOP_ACK can be back, and a clear followed by a step
-at once. One scenario in five (from a third generator) holds one of the wire's own: a
-reboot crossing a HELLO (an outage long enough to lose the link, then the controller
-answers the HELLO after it and reboots at once) or a bridge restarted on one controller
-boot (often just after an operator's STOP, so that both bridges make requests).
+Three scenarios in ten add interleavings of a clear with a fault (an encoder glitch at
+a clear, a stalled writer while a clear is out, a clear before the STOP_ACK is back, a
+step right after a clear); one in five adds a reboot crossing a HELLO or a bridge
+restarted on one controller boot. Each comes from a generator of its own, so every other
+draw, and so every kept seed, plays as before.
 
 Pure: no I/O, no clock; one ``random.Random(seed)``.
 """
@@ -311,8 +307,8 @@ def _pattern(rng: random.Random, active: float) -> list[ScenarioFault]:
 def _issue_40(
     rng: random.Random, active: float, faults: list[ScenarioFault], actions: list[Action]
 ) -> None:
-    """Add, to three scenarios in ten, one or two of issue #40's interleavings (see the
-    module docstring), drawn from ``rng`` alone."""
+    """Add, to three scenarios in ten, one or two clear interleavings (see the module
+    docstring), drawn from ``rng`` alone."""
     if rng.random() >= 0.3:
         return
     for _ in range(rng.choice((1, 1, 2))):

@@ -1,45 +1,27 @@
 """A whole mission in one process, in virtual time: :class:`World` (docs/sim.md,
-"Missions in virtual time").
+"Whole missions in virtual time").
 
 The parts are the product's own, each given one
 :class:`~firmware_proto.linkio.clock.LockstepClock` instead of the wall clock, and so
-none of them starts a thread:
+none of them starts a thread: the controller (:class:`~emulator.controller.ControllerModel`
+or :class:`~emulator.firmware.FirmwareController` over a :class:`~emulator.twin.Twin` of
+the map, served by a :class:`~emulator.lockstep.LockstepController`); the medium (an
+in-memory serial line or a python-can ``virtual`` bus); the bridge
+(:class:`~bridge.ros.node.BridgeNode` and its
+:class:`~bridge.link.controllerlink.ControllerLink`); four
+:class:`~bridge.ros.rosport.inprocess.InProcessPort` nodes on a bus of their own; the
+link (:class:`~planner.ground.relay.LinkRelay`); the ground
+(:class:`~planner.ground.executor.PlanExecutor`, and a
+:class:`~planner.ground.mission.MissionRunner` with the gate). The gate is a real HTTP
+server (:class:`~gate.server.GateServer`, one worker thread) on 127.0.0.1: a validation
+takes no virtual time, as nothing on the clock runs while the executor waits for it.
 
-- **controller**: :class:`~emulator.controller.ControllerModel` or the C core
-  (:class:`~emulator.firmware.FirmwareController`) over a :class:`~emulator.twin.Twin`
-  of the map, served by a :class:`~emulator.lockstep.LockstepController`: on each tick,
-  what arrived, one control period, what it sends;
-- **medium**: an in-memory serial line (bytes through the real codec) or a python-can
-  ``virtual`` bus (frames through the CAN map);
-- **bridge**: :class:`~bridge.ros.node.BridgeNode` and its
-  :class:`~bridge.link.controllerlink.ControllerLink` over a
-  :class:`~bridge.link.transport.Transport` on the host's end: on each tick the link
-  reads, runs its timer's work and writes; the node keeps its diagnostics schedule;
-- **ROS**: four :class:`~bridge.ros.rosport.inprocess.InProcessPort` nodes on a bus of
-  their own (the bridge, the relay's two sides, the executor): each delivers on each
-  tick what was published to it;
-- **link**: :class:`~planner.ground.relay.LinkRelay` with the profile's delay, jitter
-  and loss: each tick releases what is due;
-- **ground**: :class:`~planner.ground.executor.PlanExecutor` (and a
-  :class:`~planner.ground.mission.MissionRunner` with the gate): its waits advance the
-  clock.
-
-The gate is a real HTTP server (:class:`~gate.server.GateServer`, one worker thread) on
-127.0.0.1: a validation takes no virtual time, as nothing on the clock runs while the
-executor's thread waits for the answer.
-
-One thread runs everything: the caller's. A wait of the executor (a step's
-``completed``, a STOP's confirmation, the rover at rest) advances the clock tick by tick,
-and each tick runs, in this fixed order, the controller, the bridge's link, the ROS
-ports (the rover's side first) with the relay between them, and the bridge's
-diagnostics. Every random draw comes from generators seeded by :attr:`WorldConfig.seed`
-(sensor noise, the boot nonce, the relay's delay and loss), so a seed plays the same way
-on every run and machine, which :meth:`World.digest` shows: a hash of every message
-that crossed the link, in order, with its virtual time. A run of about a minute of
-rover time takes about a second of CPU.
-
-:attr:`WorldConfig.reproducer` is the one command line that plays a configuration
-again (``rover sim --world NAME ...``).
+One thread runs everything: the caller's. A wait of the executor advances the clock tick
+by tick, and each tick runs, in this fixed order, the controller, the bridge's link, the
+ROS ports (the rover's side first) with the relay between them, and the bridge's
+diagnostics. Every random draw comes from generators seeded by :attr:`WorldConfig.seed`,
+so a seed plays the same way on every run and machine (:meth:`World.digest`).
+:attr:`WorldConfig.reproducer` is the one command line that plays a configuration again.
 """
 
 from __future__ import annotations
@@ -296,9 +278,8 @@ class World:
         self._stack.append(self.executor)
         if not self.run_until(lambda: self.bridge.link.ready, 5.0):
             raise TimeoutError("the bridge did not reach the controller in 5 virtual s")
-        # As an operator would: the ground hears the rover's telemetry before it plans
-        # (an executor that starts a plan before the first POSE crossed the link takes
-        # the silence for a lost POSE and falls back to odom).
+        # The ground hears the rover's telemetry before it plans (else it takes the
+        # silence for a lost POSE and falls back to odom).
         self.run_for(cfg.rtt_s + TELEMETRY_SETTLE_S)
 
     def _transport(self, url: str) -> Transport:
