@@ -12,12 +12,12 @@ in the same run, so the ratios are comparable even when the absolute numbers are
 - pymavlink: MAVLink 2 COMMAND_LONG and MANUAL_CONTROL ``pack`` and ``parse_buffer``;
 - cantools: our generated DBC, ``encode_message`` and ``decode_message``.
 
-The target of the protocol issue is at least 3x pymavlink's rates.
+The target is at least 3x pymavlink's rates.
 
 Then recovery: a stream of 200,000 distinct MOTION frames (20,000 with ``--quick``) in
 which 1 % of the frames have one flipped bit, decoded in 4 KiB feeds: the intact frames
 recovered (all, the target), altered frames delivered (none, the target) and what the
-decoder dropped, by reason and in bytes. The default run takes about 15 s here.
+decoder dropped, by reason and in bytes.
 """
 
 from __future__ import annotations

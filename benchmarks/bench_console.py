@@ -11,12 +11,11 @@ Run (in the private network namespace, as the tests run)::
 
 One ``rover stack up --speed 4`` serves every case. Each command is a fresh process of
 the ``rover`` command line, as typed at a console; ``stop`` and ``clear-stop`` alternate,
-so that each STOP finds the rover released. The limit is issue #41's: 1 s p99.
+so that each STOP finds the rover released. The limit: 1 s p99.
 ``--quick`` (the smoke test) runs 2 of each through the console only, idle.
 
-**A STOP beside pending clear-STOPs** (the review's B1: four ``/clear_stop?timeout=20``
-waiting on a silent controller once held every thread that served STOP, and the STOP
-went out 19.5 s late). A silent controller cannot be had from the stack (its emulator
+**A STOP beside pending clear-STOPs** (B1: clear-STOPs waiting on a silent controller
+must not hold up a STOP). A silent controller cannot be had from the stack (its emulator
 answers every clear at once), so this part runs the stack's own
 :class:`~planner.stack.console_server.ConsoleServer` and
 :class:`~planner.ground.console.RoverConsole` on the ``inprocess`` ROS port, with the
@@ -98,8 +97,7 @@ class _Stack:
     environment."""
 
     def __init__(self, directory: Path) -> None:
-        # The stack claims its ROS domain where the caller's stacks do (the test run's
-        # directory), so that it never shares one with another stack.
+        # Claim the ROS domain where the caller's stacks do: never shared with another.
         self.env = {"ROVER_STACK_DIR": str(directory), **os.environ}
         self._log = (directory / "stack.out").open("w")
         self.proc = subprocess.Popen(

@@ -8,9 +8,9 @@ Run: ``.venv/bin/python -m benchmarks.bench_emulator [--quick]``
   emulator's default 1 ms step; the target is >= 50x real time on one core.
 - CPU share: ``rover emulate --serial`` serving a host that heartbeats and drives, in
   real time, measured from the process's own CPU counters over a window.
-- STOP reaction: a host on the pty sends STOP while the rover drives; the emulator
-  timestamps the frame's arrival (reader thread) and the moment its control thread has
-  zeroed the wheel targets. The pty round trip is the floor for a host's view of it.
+- STOP reaction: STOP sent on the pty while the rover drives, from the frame's arrival
+  (reader thread) to the wheel targets zeroed (control thread); the pty round trip is
+  the floor.
 - Stopping distance: the STOPPED report after STOP at full speed, beside v^2 / 2a.
 """
 

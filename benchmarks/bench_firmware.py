@@ -4,19 +4,17 @@
 Run: ``.venv/bin/python -m benchmarks.bench_firmware [--quick]``
 
 - STOP: each trial drives a step at cruise speed (40 speed units, 0.2 m/s) with seven
-  more queued, then hands the controller one STOP; the time is from the call to its
-  return, and the wheel targets are checked zero when it returns (the STOP_ACK and the
-  eight aborted STATUS are written inside it). Rows: the C core measured in C
-  (``fw_on_bytes`` of the STOP frame, ``firmware_proto/wire/c/fw/tests/bench_fw.c``, -O2,
-  CLOCK_MONOTONIC around the call); the same core in the emulator
-  (:meth:`FirmwareController.handle`: frame encoding, the ctypes call, decoding the
-  answers); the Python model (:meth:`ControllerModel.handle`).
+  more queued, then hands the controller one STOP, timed from the call to its return
+  (wheel targets checked zero then). Rows: the C core in C (``fw_on_bytes``,
+  ``firmware_proto/wire/c/fw/tests/bench_fw.c``, -O2); the same core in the emulator
+  (:meth:`FirmwareController.handle`, ctypes and codecs included); the Python model
+  (:meth:`ControllerModel.handle`).
 - Ticks/s: lockstep control ticks with the twin at the 1 ms step, telemetry on, for both
   controllers (the twin's physics is in both figures).
 - Instructions per ``fw_tick``: ``valgrind --tool=callgrind --toggle-collect=fw_tick``
   over 20,000 ticks of driving with telemetry at the default rates, host x86-64 -O2
-  build, an ideal plant behind the HAL. An estimate for an MCU: a Cortex-M0+ needs more
-  instructions for the 64-bit arithmetic (time, the braking law).
+  build, an ideal plant behind the HAL: an estimate for an MCU (a Cortex-M0+ needs more
+  for the 64-bit arithmetic).
 """
 
 from __future__ import annotations

@@ -2,31 +2,27 @@
 
 Run: ``python -m benchmarks.bench_gate [--repeat N] [--seconds S] [--before DIR]``.
 ``--before DIR`` also measures the gate of another source tree (``git archive COMMIT | tar
--x -C DIR``; the rows are named after DIR's name: b4a351e was the last commit with the
-hand-rolled HTTP server) in the same run,
-in tables 1, 4 and 5. Prints six tables (``--table N``, repeatable: only those):
+-x -C DIR``; rows named after DIR) in the same run, in tables 1, 4 and 5. Prints six
+tables (``--table N``, repeatable: only those):
 
 1. *12-step plan, 10 m of driving and four turns* on scn01 (through a traction region):
    wall time p50/p99 and the factor over real time, for the twin alone
    (:func:`emulator.playback.play`), the gate's whole validation in one process
    (playback, verdict, trajectory tagging, JSON) and end to end over HTTP (a ``rover
-   gate`` subprocess with worker processes; before and after), beside the thesis's 60 Hz,
-   about real time.
-2. *Collision checks per physics step* on each scenario map, beside the thesis's
-   12.4 / 18.6 / 24.1 ms per frame: the cost pymunk's contact detection adds to a twin
-   step (the map minus an open plane, same motion), and an explicit overlap query of the
-   margin-inflated footprint against the whole map (pymunk ``shape_query``, what the
-   thesis's ``overlap_mesh`` did).
+   gate`` subprocess with worker processes), beside the thesis's Isaac Sim at 60 Hz.
+2. *Collision checks per physics step* on each scenario map, beside the thesis's per-frame
+   query: the cost pymunk's contact detection adds to a twin step (the map minus an open
+   plane, same motion), and an explicit overlap query of the margin-inflated footprint
+   against the whole map (pymunk ``shape_query``, the thesis's ``overlap_mesh``).
 3. *Step size against the 1 ms reference* over random 12-step plans: the largest final
    position and yaw difference, and the factor over real time.
 4. *Requests/s and p50/p99 latency for a trivial plan* (the HTTP path's own cost) with
    1 and 4 keep-alive clients: the gate before and after (processes and threads), the
    HTTP stack alone with a trivial handler (Starlette on uvicorn, as the gate serves;
-   aiohttp, the other stack weighed, when it is installed) and a plain ``http.server``
-   handler (the ~40 ms Nagle stall), all up at once and measured in interleaved rounds.
+   aiohttp, when it is installed) and a plain ``http.server`` handler (its Nagle stall),
+   all up at once and measured in interleaved rounds.
 5. *The 12-step plan from 1 and 4 clients*, worker processes against worker threads
-   (and the server before), with the CPU the gate used per wall second: real plans'
-   throughput, and why the gate runs playback in processes.
+   (and the server before), with the CPU the gate used per wall second.
 6. *A call's hand-off to a worker process* from an event loop, the gate's pool beside
    ``concurrent.futures.ProcessPoolExecutor`` (spawn, an initializer), 1 and 4 at a
    time; and stopping a running call (which the executor cannot do).
@@ -617,9 +613,9 @@ def tree_cpu_s(pid: int) -> float:
 def bench_pools(
     rover: RoverDescription, seconds: float, before: str | None, rounds: int = 3
 ) -> None:
-    """Table 5. Real plans: the 12-step plan from 1 and 4 clients, worker processes
-    against threads (and the hand-rolled server's, with ``--before``), with the CPU the
-    gate used (its process and its workers) per wall second. Interleaved as table 4."""
+    """Table 5. The 12-step plan from 1 and 4 clients, worker processes against threads
+    (and ``--before``'s), with the CPU the gate and its workers used per wall second.
+    Interleaved as table 4."""
     payload = json.dumps(as_plan_json(square_plan(rover), (1.0, 4.0, 0.0))).encode()
     query = "?map=scn01"
     cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
@@ -687,9 +683,7 @@ def bench_handoff(rover: RoverDescription, calls: int) -> None:
     """Table 6. One call's round trip from an event loop through the gate's pool
     (:class:`gate.pool.ProcessWorkerPool`) and through ``concurrent.futures``'
     ``ProcessPoolExecutor`` (spawn, an initializer), 1 and 4 calls at a time; and what
-    stopping a running call costs: the gate's pool interrupts it, the executor cannot
-    (``Future.cancel`` is refused once a call runs; killing a worker breaks the whole
-    executor, every call under way failing)."""
+    stopping a running call costs through the gate's pool (the executor cannot)."""
     import asyncio
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor

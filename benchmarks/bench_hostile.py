@@ -1,4 +1,4 @@
-"""Hostile clients against the live view and the gate, timed (issue 43's figures).
+"""Hostile clients against the live view and the gate, timed.
 
 Each table sets a figure beside load against the same figure unloaded, measured in the
 same run on the same machine; ``--before DIR`` adds the rows of another tree (``git
@@ -30,8 +30,7 @@ Run::
     .venv/bin/python -m benchmarks.bench_hostile --view --gate
     .venv/bin/python -m benchmarks.bench_hostile --view --gate --before /tmp/tree-main --busy 4
 
-(``--before`` adds rows of the other tree to tables 1 and 3; table 2's costly request
-would hold the old gate's workers for minutes, as the issue measured.)
+(``--before`` adds rows of the other tree to tables 1 and 3 only.)
 """
 
 from __future__ import annotations

@@ -1,31 +1,26 @@
-"""Plans run on board against the step-by-step executor and move-and-wait (#39),
-in the wire simulator's virtual time, in one run, side by side (docs/performance.md).
+"""Plans run on board beside the step-by-step executor and move-and-wait, in virtual time.
+
+All three in the wire simulator, in one run, side by side (docs/performance.md).
 
 Run: ``.venv/bin/python -m benchmarks.bench_onboard [--trials N] [--goals N]``.
 
 Every mission runs the bridge's ``LinkCore``, the Python controller model over its twin
-and a serial line, a 3 s round trip to the ground with the given jitter and loss on every
-message (``sim/mission.py``); only the ground differs: the plan uplinked once and run by
-the rover's sequencer and guard (``bridge/onboard``), the thesis's step-by-step executor
-(drift control on the ground), or the move-and-wait operator
-(``benchmarks/onboard_sim.py``). Plans: the heuristic planner's routes on the lab map
-and scenes scn01-03 (``planner.plan.planner``), played on the twin for their prediction
-as the gate plays them, each leg driven from where its prediction starts on an open
-plane (the plans go around the obstacles; the ground truth needs no walls).
+and a serial line, a 3 s round trip with jitter and loss on every message
+(``sim/mission.py``); only the ground differs: the plan uplinked once and run by the
+rover's sequencer and guard (``bridge/onboard``), the step-by-step executor, or
+move-and-wait (``benchmarks/onboard_sim.py``). Plans: the planner's routes on the lab
+map and scn01-03, predicted on the twin as the gate plays them, each leg on an open
+plane.
 
-1. **Overshoot** (the demo's slip, and each scene): slip on the left side (traction 3 %)
-   from 30 % into the first drive of at least 0.5 m. From the rover's own stamped
-   ``odom_ground``: the distance driven from the pose when drift control confirmed the
-   drift (its stamp, the rover's clock) to the pose at rest, and the time between; the
-   same from the first pose 0.25 m off the approved path; the distance off the path at
-   rest. Medians over ``--trials`` seeds (sensor noise).
-2. **Mission time** at a 3 s round trip, per scene, ``--goals`` goals (suggested, then
-   random; ``planner.plan.experiment.trial_goals``): the sum over its legs of the time
-   from the first send to the ground knowing the leg completed.
-3. **Loss** 0, 0.1, 0.3 each way, jitter 0.2 s: 10 missions per mode (the lab plan):
-   reached, plans or steps run more than once, and ground-STOP delivery (first STOP sent
-   to the rover's bridge taking it; STOP repeated every 0.5 s until ``stopped``) p50/p99
-   over 10 missions with a STOP at a random moment.
+1. **Overshoot** (slip on the left side, traction 3 %, from 30 % into the first drive of
+   at least 0.5 m), from the rover's stamped ``odom_ground``: distance and time from
+   drift confirmed to rest; the same from the first pose 0.25 m off the approved path;
+   the distance off the path at rest. Medians over ``--trials`` seeds.
+2. **Mission time** at a 3 s round trip, per scene, ``--goals`` goals: the sum over its
+   legs of first send to the ground knowing the leg completed.
+3. **Loss** 0, 0.1, 0.3 each way, jitter 0.2 s, 10 missions per mode: reached, plans or
+   steps run more than once, and ground-STOP delivery p50/p99 (first STOP sent to the
+   rover's bridge taking it).
 """
 
 from __future__ import annotations

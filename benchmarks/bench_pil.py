@@ -3,15 +3,13 @@ the nRF51 image under qemu and the ATmega2560 image under simavr.
 
 Run: ``.venv/bin/python -m benchmarks.bench_pil [--trials N] [--quick] [--busy K]``
 
-1. **In the silicon** (emulated cycles, from the port's own counters, ``pil_stats``): from
-   the last byte of a STOP frame received by the UART to STOP_ACK queued (the wheel
-   targets are zero then), and from the last byte of a HELLO to IDENT queued, with a step
-   at cruise, seven more queued and telemetry at 100 Hz; the host build's STOP inside
-   ``fw_on_bytes`` (``bench_fw.c``, CLOCK_MONOTONIC) beside them. The ATmega2560 runs in
-   lockstep (exact cycles at 16 MHz); the nRF51 runs under ``-icount shift=6`` (64 ns per
-   instruction: its 16 MHz TIMER2 counts 1.024 per instruction, so the figure is an
-   instruction count, not an M0's cycles). The frame's own time on a 115200 line (1.3 ms
-   for 15 bytes) comes before it on a real wire.
+1. **In the silicon** (emulated cycles, from the port's ``pil_stats``): a STOP frame's
+   last byte at the UART to STOP_ACK queued (wheel targets zero), and a HELLO's to IDENT
+   queued, with a step at cruise, seven more queued and telemetry at 100 Hz; the host
+   build's STOP inside ``fw_on_bytes`` (``bench_fw.c``) beside them. The ATmega2560 runs
+   in lockstep (exact cycles at 16 MHz); the nRF51 under ``-icount shift=6``, so its
+   figure is an instruction count, not an M0's cycles. On a real wire the frame's own
+   time on the 115200 line comes first.
 2. **Over the pty, in real time** (wall): ``rover bench stop`` (STOP written -> STOP_ACK
    read, p50 and p99) and HELLO -> IDENT through a ``ProtocolHost``, against ``rover
    emulate --firmware c`` (the host build in the loop), ``rover pil --target microbit``

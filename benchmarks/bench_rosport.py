@@ -8,24 +8,19 @@ Run it in a private network namespace with only loopback (as the tests run)::
 Cases, three of them between two processes (the publisher here, the subscriber in a child
 process), all real ROS 2 Jazzy (rclpy, rmw_fastrtps_cpp):
 
-- ``rosport rclpy``: our ``rclpy`` backend on both sides (callback on the port's default
-  lane, whose executor also serves the node's parameter services);
-- ``rosport rclpy, STOP lane``: the same, the subscription on the STOP lane (a node and
-  an executor of its own, as the bridge's ``emergency_stop``);
+- ``rosport rclpy``: our ``rclpy`` backend on both sides (the port's default lane);
+- ``rosport rclpy, STOP lane``: the same on the STOP lane (a node and executor of its
+  own, as the bridge's ``emergency_stop``);
 - ``rosport rclpy-process`` and its STOP lane: the bridge's backend, the node in a child
-  process of each side (messages cross a socket pair as CDR bytes), so that no middleware
-  call can stall the caller (docs/rosport.md);
-- ``raw rclpy``: a plain rclpy node on each side, spun by a ``SingleThreadedExecutor``
-  on a thread, with the same QoS and topic: the peer, none of our code, so the table
-  shows what our wrapper costs;
+  process of each side (docs/rosport.md);
+- ``raw rclpy``: a plain rclpy node on each side with a ``SingleThreadedExecutor``, same
+  QoS and topic: the peer, none of our code;
 - ``rosport inprocess``: our in-process backend (one process, nothing serialised).
 
-Latency is one way, from just before ``publish`` to the subscriber's callback (or
-take); ``call`` is the time the caller spends inside ``publish`` (what a thread of the
-bridge gives up per message); both on CLOCK_MONOTONIC, which all processes of a machine share; messages are paced
-at 500/s so it measures latency, not queueing. The sustained rate is messages/s with
-nothing lost: the subscriber acknowledges every 5th message and the publisher keeps at
-most 10 (the keep-last depth) unacknowledged, as fast as that goes.
+Latency is one way, from just before ``publish`` to the subscriber's callback, and
+``call`` the time spent inside ``publish``, both on CLOCK_MONOTONIC; messages are paced
+at 500/s (latency, not queueing). The sustained rate is messages/s with nothing lost:
+acknowledged every 5th, at most 10 (the keep-last depth) unacknowledged.
 """
 
 from __future__ import annotations

@@ -6,18 +6,15 @@ Run where ``vcan0`` is up (on this machine: inside the micro-VM)::
 
     .ci/vcan-vm -- .venv/bin/python -m benchmarks.bench_socketcan [--trials N] [--quick]
 
-``rover emulate --can socketcan:vcan0`` runs as a process of its own (as on a bench);
-the STOP bench (:mod:`bridge.tools.stopbench`, the engine of ``rover bench stop``) drives it
-over python-can's ``socketcan`` interface: per trial the motion queue is full and the
-rover moving, STOP comes at a seeded random moment. Cases: *idle* (no flood), *flood*
-(PARAM_VALUE of another node, the protocol's lowest priority, from a second socket) and
-*malformed* (wrong length, unknown id, extended id, RTR and error frames aimed at the
-controller, which must ignore every one). The floor beside them: a classic frame sent
-on one socket and read back on another (vcan's loopback, through python-can), the
-fastest any answer can come. vcan has no arbitration, so a flood adds queueing, not
-contention. Inside the VM without KVM the guest CPU is emulated (TCG, several times
-slower than the host): compare the cases with each other and with the floor, not with
-the pty figures of bench_bridge.
+``rover emulate --can socketcan:vcan0`` runs as a process of its own; the STOP bench
+(:mod:`bridge.tools.stopbench`) drives it over python-can's ``socketcan`` interface:
+per trial the motion queue is full and the rover moving, STOP comes at a seeded random
+moment. Cases: *idle*, *flood* (PARAM_VALUE of another node, the lowest priority, from a
+second socket) and *malformed* (wrong length, unknown id, extended id, RTR and error
+frames, which the controller must ignore). The floor: a frame sent on one socket and
+read back on another. vcan has no arbitration (a flood adds queueing, not contention),
+and the VM's CPU may be emulated: compare the cases with each other and the floor, not
+with bench_bridge's pty figures.
 """
 
 from __future__ import annotations

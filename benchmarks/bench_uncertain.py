@@ -1,9 +1,10 @@
-"""Verdicts with their uncertainty: playbacks per second and the N-sample verdict's
-latency against N and against workers, beside the single playback, in one run.
+"""Verdicts with their uncertainty: playbacks/s and latency against samples and workers.
+
+The N-sample verdict beside the single playback, in one run.
 
 Run: ``python -m benchmarks.bench_uncertain [--quick] [--no-cluster] [--repeat R]``.
 The plan is bench_gate's 12-step plan (10 m and four turns on scn01, through its
-traction region, 55 s of twin time at the gate's 10 ms step). Prints two tables:
+traction region). Prints two tables:
 
 1. *Playbacks per second, one process*: the single playback (``emulator.playback.play``
    on a :class:`~emulator.twin.Twin`, the peer) against one batch
@@ -16,9 +17,8 @@ traction region, 55 s of twin time at the gate's 10 ms step). Prints two tables:
    leaves it out); p50 and max of ``--repeat`` requests, after one that warms the
    workers, and samples per second at p50.
 
-``--quick`` (the smoke test's): N in 1 and 20, one repeat. Timings are wall clock on a
-shared machine: other sessions' load moves them by up to 2x; rows of one table are
-measured in the same run.
+``--quick`` (the smoke test's): N in 1 and 20, one repeat. Timings are wall clock; rows
+of one table are measured in the same run.
 """
 
 from __future__ import annotations

@@ -1,23 +1,15 @@
-"""Live view benchmark: push latency to a browser, and what the view costs in CPU beside
-the mission's own cost.
-
-Two parts:
+"""Live view benchmark: push latency to a browser, and the view's CPU beside the mission's.
 
 1. **Push latency, synthetic feed** (always): a :class:`~planner.view.ViewHub` and its
-   server on 127.0.0.1 are fed poses as the ground station's port tap would be (odometry
-   at ``--odom-hz``, the reported pose at a fifth of that) for ``--seconds``. Latency is
-   from the tap (the pose reaching the ground station) to the client parsing the
-   event, on the wall clock both share. The client is headless Chromium (Debian's,
-   through Playwright; the page's own ``EventSource``) with ``--browser``, and always a
-   plain Python client on a socket: the server's path without a browser, the peer. The
-   limit beside them: the view's 10 Hz update period.
-2. **The demo with the view** (``--demo``; needs ROS 2 and the private network
-   namespace, as the tests): ``rover demo --view`` in this process, with Chromium on
-   the page. CPU per wall second of mission, from the ``mission:`` line to the end:
-   the view's threads (hub, HTTP, one per connection; their own CPU clocks) beside the
-   rest of the ground station's process (the mission's own: planner, executor, ROS 2),
-   and the browser's processes. The page's latencies of the mission's real poses are
-   reported too.
+   server on 127.0.0.1 fed poses as the ground station's port tap feeds them (odometry
+   at ``--odom-hz``, the reported pose at a fifth of that) for ``--seconds``; latency
+   from the tap to the client parsing the event, on the shared wall clock. Clients:
+   headless Chromium through Playwright (``--browser``) and a plain Python client on a
+   socket (the peer); the limit is the view's 10 Hz update period.
+2. **The demo with the view** (``--demo``; ROS 2 in the private network namespace):
+   ``rover demo --view`` with Chromium on the page; CPU per wall second of mission of
+   the view's threads beside the rest of the ground station's process and the
+   browser's, and the page's latencies of the mission's real poses.
 
 Run it (the demo part as the tests run, in a private network namespace)::
 

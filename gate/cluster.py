@@ -119,10 +119,9 @@ def local_cluster(directory: Path, workers: int = 2, timeout_s: float = 60.0) ->
     """A Dask scheduler and ``workers`` single-threaded workers, each its own process
     (this interpreter, ``python -m distributed.cli...``), listening on 127.0.0.1 only;
     yields the scheduler's address once every worker has joined. Every process is ended
-    on exit (terminate, then kill after 3 s: a worker that ran tasks can hang in its own
-    close once the scheduler is gone, 20 s in a test, and none holds state worth waiting
-    for). For tests, benchmarks and a first try; their output goes to
-    ``directory/cluster.log``.
+    on exit (terminate, then kill after 3 s: a worker can hang in its own close once the
+    scheduler is gone, and none holds state). For tests, benchmarks and a first try;
+    their output goes to ``directory/cluster.log``.
 
     Raises:
         RuntimeError: a process exited early, or the cluster was not up in ``timeout_s``.

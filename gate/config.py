@@ -161,19 +161,14 @@ class GateConfig:
             JSON file (which is then served too, under its own name).
         rover_path: rover description TOML; ``None`` for the packaged one.
         workers: validations run in parallel.
-        pool: ``"process"`` (parallel on every core) or ``"thread"`` (one process; the
-            GIL serialises playback, but there is no start-up cost).
+        pool: ``"process"`` or ``"thread"`` (:mod:`gate.pool`).
         queue_depth: validations admitted to wait beyond the running ones.
         max_body_bytes: largest accepted request body.
-        max_connections: open connections at once; the next one takes the place of the
-            oldest idle one that has not shown the token, or is answered 503. With a
-            token, a quarter of them (at most 64) are kept for connections that have
-            shown it.
+        max_connections: open connections at once (beyond it, docs/gate.md
+            "Connections"; :attr:`reserved_connections` are kept for the token).
         max_connections_per_address: of those, from one address.
-        idle_timeout_s: a connection waiting this long for a request to start (a new
-            one or a kept-alive one) is closed.
-        head_timeout_s: from a request's first byte to the end of its headers; a slower
-            client (slowloris) is answered 408 and closed.
+        idle_timeout_s: a connection waiting this long for a request to start is closed.
+        head_timeout_s: from a request's first byte to the end of its headers (408).
         body_timeout_s: from the end of the headers to the end of the body (408).
         request_timeout_s: longest wait for a worker's answer.
         drain_timeout_s: on shutdown, longest wait for in-flight requests.
@@ -181,8 +176,8 @@ class GateConfig:
         cluster: address of a Dask scheduler (``tcp://host:port``) that plays the
             chunks of verdicts with uncertainty; ``None``: the local pool does.
         allowed_hosts: further names the gate answers to in ``Host`` (beside its
-            address, ``localhost`` on loopback, the machine's name on a wildcard bind):
-            any other is 421 (DNS rebinding).
+            address, ``localhost`` on loopback, the machine's name on a wildcard bind);
+            any other is 421.
 
     Raises:
         GateConfigError: a value is out of range, or a non-loopback host has no token.

@@ -1,49 +1,36 @@
 """The invariants of the wire simulator, and the ledger of what it saw on both sides.
 
-Checked as they happen (by :class:`sim.rig.Rig`):
+docs/sim.md, "Invariants", states each rule in full. Checked as they happen (by
+:class:`sim.rig.Rig`):
 
 - ``once``: no step runs twice (the controller starts each MOTION seq at most once);
-- ``fate``: every step the host took ends exactly once, with one final status
-  (``completed``, ``rejected:...``, ``aborted:...``, ``fault:no_ack``), ``accepted`` at
-  most once before it and nothing after it;
+- ``fate``: every step the host took ends exactly once, with one final status,
+  ``accepted`` at most once before it and nothing after it;
 - ``truthful``: a step the host reports ``completed`` was completed by the controller;
 - ``stop-zeroes``: a STOP that reaches the controller has its wheel targets at zero when
   it has been handled (the same tick);
-- ``auto-clear``: an automatic CLEAR_STOP of the host never releases a latch that holds
-  anything but the watchdog (docs/protocol.md, "Latch and faults");
+- ``auto-clear``: an automatic CLEAR_STOP never releases a latch that holds anything but
+  the watchdog (docs/protocol.md, "Latch and faults");
 - ``release``: a latch is released only by a clear someone asked for, and a watchdog trip
   or a stopping fault in it only by an operator's clear asked for after the host had
-  heard of it (issue #40: no request made before the fault releases it);
+  heard of it;
 - ``stopped``: every operator STOP whose STOP_ACK reached the host is said ``stopped``;
 - ``order``: a step submitted while an operator's clear is out is not refused
   ``stop_latched`` when that clear releases the latch;
 - ``repeat``: copies of one CLEAR_STOP reach the wire at least ``stop_repeat_s`` apart;
 - ``request-id``: a bridge started again on one controller boot repeats no request id
-  (STOP, CLEAR_STOP) of a bridge before it on that boot, unless both drew their first id
-  at random and the draws met (counted: ``id_collisions``);
+  of a bridge before it on that boot, unless both random first ids met (counted:
+  ``id_collisions``);
 - ``odometry``: between two ENCODERS it uses, odometry never moves more than the
-  encoders travelled (continuous across reboots; a v2 controller's sample of a boot the
-  host could not know yet is excused and counted, see docs/sim.md);
+  encoders travelled (a v2 controller's sample of a boot the host could not know yet is
+  excused and counted);
 - ``never-stuck``: after the last fault ends, a new step completes within
   :data:`sim.rig.RECOVERY_S`.
 
-Checked at the end (:func:`final_checks`): every step has its fate, and the host's
-counters (``/diagnostics``) agree with what the simulator saw: ``steps_sent`` and
-``retries`` with the MOTION frames written, ``steps_completed``, ``steps_rejected`` and
-``steps_aborted`` with the statuses, ``reboots`` with the boots whose HEARTBEAT or IDENT
-reached the host (the simulator knows each frame's boot: a new boot the host could tell,
-by its nonce or by its boot IDENT, counts; one that repeated the nonce, against the
-protocol, and whose boot IDENT was lost may count or not; no more than the controller's
-reboots), ``reconnects`` with the transport failures caused,
-``watchdog_trips`` no more than the controller's trips (a frame received twice is not
-two trips) and not 0 once a WATCHDOG FAULT frame arrived (a trip whose every trace was
-lost cannot be counted), ``lost_frames`` exactly the gaps in the serial frame counter of
-the frames received on this connection less the gap of each reboot (from the last frame
-known to be of the old boot to the first that shows the new one, docs/protocol.md
-"Serial framing"; less that of a reboot that may count where it did), and no more
-than the frames lost on this connection (and those gaps), ``stop_repeats`` no more than
-the STOP copies written beyond the first of each id. The counters are
-those of the bridge running at the end (a bridge started again counts anew).
+Checked at the end (:func:`final_checks`): every step has its fate, and the counters of
+the bridge running at the end (``/diagnostics``) agree with what the simulator saw
+(``counters``: steps, retries, reboots, reconnects, watchdog trips, lost frames, STOP
+repeats; docs/sim.md's ``counters`` row gives each bound).
 
 Pure: no I/O, no clock.
 """
@@ -203,10 +190,8 @@ class Ledger:
                 self.expected_reboots += 1
                 self._gaps_forgiven += self._gaps - self._gaps_mark
             else:
-                # The nonce repeated (a controller that breaks Handshake 1) and its boot
-                # IDENT did not reach the host: the host may tell the reboot by a session
-                # lost on a serial link, or not at all (it happened while the link was
-                # down).
+                # A repeated nonce and a lost boot IDENT: the host may tell the reboot
+                # by a lost session, or not at all.
                 self.untold_reboots += 1
                 self._gaps_untold += self._gaps - self._gaps_mark
         self._boot, self._nonce = boot, msg.boot_nonce

@@ -8,24 +8,10 @@ simulator checks that the link recovers (docs/sim.md). The same seed and options
 give the same scenario, and :attr:`Scenario.reproducer` is the one command line that
 plays it again.
 
-ScenarioFault kinds (:data:`FAULT_KINDS`): ``cut`` (both directions or one, any length),
-``drop``, ``corrupt`` (serial; on CAN the bus drops a damaged frame), ``delay``,
-``kind-loss`` (frames of one kind lost: an ACK, a STATUS, an IDENT...), ``dup`` (CAN:
-a frame received twice), ``reboot`` (the controller resets), ``host-freeze`` (the host
-process held: no tick, nothing read or written), ``controller-freeze`` (the controller
-held), ``encoder`` (an encoder fault's condition, a stopping fault), ``stall`` (a wheel
-locked while it should turn), ``unplug`` (the host's device gone: a transport error,
-reconnects refused until it is back; on CAN a bus-off), ``writer-stall`` (the host's
-writer held: no ordinary frame written, STOP still is), ``hello-reboot`` (the controller
-answers the next HELLO and reboots at once: both IDENTs reach the host in one read),
-``host-restart`` (the bridge process ends and a new one starts on the same controller
-boot after ``duration_s``).
-
-Three scenarios in ten add interleavings of a clear with a fault (an encoder glitch at
-a clear, a stalled writer while a clear is out, a clear before the STOP_ACK is back, a
-step right after a clear); one in five adds a reboot crossing a HELLO or a bridge
-restarted on one controller boot. Each comes from a generator of its own, so every other
-draw, and so every kept seed, plays as before.
+The fault kinds are :data:`FAULT_KINDS` (docs/sim.md, "Faults", says what each does).
+Three scenarios in ten add interleavings of a clear with a fault; one in five adds a
+reboot crossing a HELLO or a bridge restarted on one controller boot. Each comes from a
+generator of its own, so every other draw, and so every kept seed, plays as before.
 
 Pure: no I/O, no clock; one ``random.Random(seed)``.
 """

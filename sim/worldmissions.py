@@ -9,26 +9,8 @@ failed checks, the virtual time, a digest of everything that crossed the link, a
 one command line that plays it again (``rover sim --world NAME --seed N ...``), which
 a test prints when it fails.
 
-- ``approved``: a plan the gate approved reaches its goal: every step completed, the
-  rover within 0.10 m and 3 deg of the goal, inside drift control's threshold all the way;
-- ``slip``: both sides slip from the start: drift control stops the rover (STOP
-  confirmed, latched, at rest near where the twin predicted); the rest of the plan is
-  never sent;
-- ``rejected``: a step sent while STOP is latched is refused by the bridge
-  (``rejected:stop_latched``) and the plan ends with STOP;
-- ``dark``: the link goes dark: no status comes back, the step times out after its
-  whole budget, and the STOP is reported unconfirmed;
-- ``dead``: the controller dies: the plan ends with a fault, a refusal or a timeout,
-  within the step's budget;
-- ``replan``: the demo's recovery: slip, a drift STOP, the runner waits for rest and
-  re-plans from the reported pose with the STOP latched, releases it only once the gate
-  approved the re-plan, and arrives;
-- ``replan-fails``: the gate is gone when the rover needs a re-plan: the mission ends and
-  the rover stays latched;
-- ``cancel``: the operator cancels while the rover moves: STOP, confirmed, latched;
-- ``demo``: ``rover demo``'s mission: the direct plan collides with the table and is
-  repaired into a detour; slip on one side once the first step is done trips drift
-  control; re-plan from the reported pose; arrival.
+The missions are :data:`MISSIONS`; docs/sim.md's table says what each shows, and each
+mission's :meth:`Checks.expect` calls say what it must do.
 """
 
 from __future__ import annotations
