@@ -1,8 +1,9 @@
-"""The operator's commands against a running stack: ``rover status``, ``stop``,
-``clear-stop`` and ``echo``, each timed from its start to its exit (what the operator
-waits for), through the stack's console socket and over ROS 2 (``--ros --namespace /``:
-the bridge's own topics, the same side as the console, so that the difference is the
-path, not the emulated link), in the same run, idle and beside busy processes.
+"""The operator's commands against a running stack, console socket beside ROS 2.
+
+``rover status``, ``stop``, ``clear-stop`` and ``echo``, each timed from its start to
+its exit, through the stack's console socket and over ROS 2 (``--ros --namespace /``:
+the bridge's own topics, so that the difference is the path), in the same run, idle
+and beside busy processes.
 
 Run (in the private network namespace, as the tests run)::
 
@@ -20,11 +21,10 @@ answers every clear at once), so this part runs the stack's own
 :class:`~planner.stack.console_server.ConsoleServer` and
 :class:`~planner.ground.console.RoverConsole` on the ``inprocess`` ROS port, with the
 rover's side of the bus answering each STOP with ``stopped`` (as the bridge does once
-its controller acknowledged it) and never a clear. Timed from the request's start:
-the STOP heard on the rover's side (published) and the answer (``stopped``), with no
-clear pending and right after 4 clear-STOPs were sent (one admitted and waiting, three
-refused, 409). The peer, from the same run: ``rover stop --ros --namespace /`` against
-the stack (what the commands fall back to, discovery in each), and the limit (1 s).
+its controller acknowledged it) and never a clear. Timed from the request's start: the
+STOP published on the rover's side and the answer (``stopped``), with no clear pending
+and right after 4 clear-STOPs (one admitted and waiting, three refused, 409). The peer:
+``rover stop --ros --namespace /`` against the stack, from the same run; the limit 1 s.
 ``--pending-runs`` sets how many (0: not run).
 """
 

@@ -4,21 +4,17 @@ Each table sets a figure beside load against the same figure unloaded, measured 
 same run on the same machine; ``--before DIR`` adds the rows of another tree (``git
 archive <commit> | tar -x -C DIR``), its servers started with ``PYTHONPATH=DIR``.
 
-1. **The view's STOP beside a flood of ``GET /state``** (``--view``): a view server in
-   a subprocess, its hub holding full trails (5,000 points each) and fed odometry at
-   50 Hz as a mission would; a flood subprocess keeps ``N`` keep-alive connections
-   from 127.0.0.2 each sending ``GET /state`` in rounds of 5; this process sends
-   ``POST /stop`` from 127.0.0.1 on a fresh connection every 20 ms and times (a) the
-   answer, (b) the moment the STOP reached the mission (``on_stop``'s call, on the
-   same monotonic clock): what stops the wheels. Idle, 100 x 5 and 300 x 5 (over the
-   per-address limit, 256: the flood's own newcomers wait or are refused). A STOP
-   refused (503, or reset) counts in the ``refused`` column.
-2. **An ordinary plan beside a costly one** (``--gate``): a gate with two worker
-   processes; client A (source address 127.0.0.2) asks for ``samples=2000`` on the
-   slowest valid plan (refused at once: over what one request may take), then keeps
-   asking for the most samples the gate admits for that plan; client B (127.0.0.3)
-   posts bench_gate's 12-step plan one after the other. B's latency beside A, against
-   B alone.
+1. **The view's STOP beside a flood of ``GET /state``** (``--view``): a view server
+   whose hub holds full trails (5,000 points each) and is fed odometry at 50 Hz; a
+   flood of ``N`` keep-alive connections from 127.0.0.2 sending ``GET /state`` in
+   rounds of 5; ``POST /stop`` from 127.0.0.1 on a fresh connection every 20 ms, timed
+   to (a) the answer, (b) ``on_stop``'s call (what stops the wheels). Idle, 100 x 5 and
+   300 x 5 (over the per-address limit). A refused STOP (503, reset) counts as
+   ``refused``.
+2. **An ordinary plan beside a costly one** (``--gate``, two worker processes): client
+   A (127.0.0.2) asks for ``samples=2000`` on the slowest valid plan (refused), then
+   keeps asking for the most the gate admits; client B (127.0.0.3) posts bench_gate's
+   12-step plan in a row. B's latency beside A, against B alone.
 3. **``/health`` beside bad bodies** (``--gate``): four clients post 63 kB bodies with
    1,250 schema violations in a loop; a fifth asks ``GET /health`` every 20 ms.
 

@@ -6,23 +6,19 @@ Run (in the private network namespace, as the demo tests run)::
     unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
         exec .venv/bin/python -m benchmarks.bench_load --busy 0,2,4,8 --runs 10'
 
-For each number of busy processes (:mod:`benchmarks.load`: ``while True: pass`` at
-normal priority, what a rover's perception stack or another user's build does to its
-computer) and for real time off and on (``rover demo --no-realtime``, and the default):
+For each number of busy processes (:mod:`benchmarks.load`) and for real time off and on
+(``rover demo --no-realtime``, and the default):
 
-- ``rover demo --speed 4``, ``--runs`` times: how many reached
-  the goal; the longest and the 99th-percentile gaps between heartbeats at each end of
-  the controller link, worst over the runs (the bridge's from its ``/diagnostics``, the
-  emulator's from its control port; the heartbeat period is 100 ms, and the controller
-  stops the rover after 250 ms without a frame); the emulator's catch-ups (its control
-  loop woke late); the stalls over 100 ms every process of the stack logged;
-- STOP: an API call on the bridge's ``ControllerLink`` in this process -> the wheel
-  targets at zero in an emulator process over a pty (``bench_bridge``'s trials), both
-  at real-time priority or both not, ``--stop-trials`` times.
+- ``rover demo --speed 4``, ``--runs`` times: how many reached the goal; the longest and
+  p99 heartbeat gaps at each end of the controller link, worst over the runs (the
+  bridge's ``/diagnostics``, the emulator's control port); the emulator's catch-ups;
+  the stalls over 100 ms the stack's processes logged;
+- STOP: ``ControllerLink.emergency_stop`` in this process -> wheel targets zero in an
+  emulator process over a pty (``bench_bridge``'s trials), ``--stop-trials`` times.
 
-``--quick`` (the smoke test) runs the STOP trials only, 3 of them, beside 2 busy
-processes. The table puts each figure beside the same load without real time, measured
-in the same run, and beside the limits (250 ms watchdog, 100 ms heartbeat period).
+``--quick`` (the smoke test): 3 STOP trials beside 2 busy processes. Each figure stands
+beside the same load without real time, from the same run, and beside the limits
+(250 ms watchdog, 100 ms heartbeat period).
 """
 
 from __future__ import annotations

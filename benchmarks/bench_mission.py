@@ -5,33 +5,28 @@ Run: ``.venv/bin/python -m benchmarks.bench_mission [--goals N] [--speed X] [--q
 Everything real: a ``rover gate`` subprocess over HTTP on 127.0.0.1 validates; each
 mission drives the emulator (controller model and twin) on a real pty through the bridge
 node, the link relay (3 s round trip by default) and the executor (:mod:`tests.rig`).
-The rover runs ``--speed`` times faster than real time (the twin, the controller's
-timers, the link delay and the executor's timeouts all scale), so the whole experiment
-takes minutes; mission times are reported in mission seconds (wall x speed). Planning
-runs at its real speed and counts one to one.
+The rover runs ``--speed`` times faster than real time (every timer scales); mission
+times are in mission seconds (wall x speed), planning counts at its real speed.
 
 Three tables:
 
-1. *Planning* (thesis 6.2): ``--goals`` goals per scenario map (seed 0: the maps'
-   suggested goals, then random ones, :func:`planner.plan.experiment.trial_goals`; with
-   ``--colliding``, only goals whose straight route's bare footprint hits something on
-   the map, as the thesis's trials "designed to collide"), from the map's start. The share of straight plans that collide (gate / bare-footprint
-   geometry), the share of geometric collisions the gate intercepted, the share
-   approved, and mean repair cycles, beside the thesis's 40 / 70 / 90 % and
-   1.2 / 2.4 / 3.8.
+1. *Planning* (thesis 6.2): ``--goals`` goals per scenario map from its start
+   (:func:`planner.plan.experiment.trial_goals`; ``--colliding``: only goals whose
+   straight route's bare footprint hits something, the thesis's "designed to
+   collide"). The share of straight plans that collide (gate / bare geometry), of
+   geometric collisions the gate intercepted, approved, and mean repair cycles, beside
+   the thesis's figures.
 2. *Missions* (thesis 6.2, last paragraph): each approved goal driven twice from the
    start on a fresh rig: gated (:class:`~planner.ground.mission.MissionRunner`: plan,
    validate, repair, then the event-driven executor with drift control) and
-   move-and-wait (:class:`~planner.ground.mission.MoveAndWait`: the same route, drives cut to
-   0.5 m, each command confirmed through the round trip, then 2 s for the operator to
-   look and decide; no gate, no drift control). The share completed, the mean mission
-   time of each and the reduction, beside the thesis's -42.5 % at high density.
+   move-and-wait (:class:`~planner.ground.mission.MoveAndWait`: drives cut to 0.5 m,
+   each confirmed through the round trip, then 2 s to decide; no gate, no drift
+   control). The share completed, the mean mission time of each and the reduction,
+   beside the thesis's.
 3. *Drift STOP* (thesis 6.3): ``--drift-trials`` missions on the lab map with slip on
-   both wheels (traction 10 %; the encoders still report the full travel): drift
-   detection (the sample that confirmed the violation) to STOP handed to the ROS port,
-   on the ground; and STOP frame's arrival at the controller to wheel targets at zero,
-   on the rover; p50/p99 beside the thesis's 8.4 ms and the pty round trip measured in
-   the same run.
+   both wheels (traction 10 %): drift detected to STOP handed to the ROS port (ground),
+   and STOP frame in to wheel targets zero (rover); p50/p99 beside the thesis's and the
+   pty round trip of the same run.
 """
 
 from __future__ import annotations

@@ -4,10 +4,10 @@ Run beside anything that must keep time::
 
     .venv/bin/python -m benchmarks.load --busy 4 --duration 600
 
-Each process spins ``while True: pass`` at normal priority (what a perception stack, a
-logger or another user's build does to a rover's computer or a shared CI runner) and
-ends by itself after ``--duration`` seconds, so a load left behind by a crash cannot
-outlive it. :class:`BusyLoad` is the same as a context manager for the benchmarks.
+Each process spins ``while True: pass`` at normal priority (a perception stack or a
+build on the rover's computer) and ends by itself after ``--duration`` seconds, so a
+load left behind by a crash cannot outlive it. :class:`BusyLoad` is the same as a
+context manager for the benchmarks.
 """
 
 from __future__ import annotations
@@ -22,10 +22,8 @@ from types import TracebackType
 
 __all__ = ["BusyLoad"]
 
-# A child inherits its parent's scheduling: a busy loop started by a real-time process
-# would be real-time too, so it asks for normal scheduling first.
-# It also ends when its parent goes (a benchmark killed by a signal or a CI runner's
-# timeout must not leave the next job running beside busy loops).
+# A child asks for normal scheduling (it inherits a real-time parent's) and ends when
+# its parent goes (a killed benchmark must not leave busy loops behind).
 _SPIN = (
     "import os, sys, time\n"
     "os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))\n"

@@ -2,14 +2,13 @@
 run on board (:class:`sim.mission.MissionRig`), for ``benchmarks/bench_onboard.py``.
 
 :class:`GroundRig` is a :class:`~sim.mission.MissionRig` whose ground does not uplink:
-it runs the thesis's step-by-step executor (publish a step across the link, wait for its
-``completed`` to come back, then the next; drift control on the ground with
-:class:`planner.ground.drift.DriftMonitor` on the POSE that comes down the link, its
-STOP sent back up, repeated until ``stopped``) or the move-and-wait operator (drives cut
-into 0.5 m increments, each confirmed through the round trip, then 2 s to decide; no
-drift control). The rover side is the same: the bridge's ``LinkCore``, the controller and
-its twin, the link's delay, jitter and loss on every message. Only the ground's logic is
-the executor's, re-stated here in virtual time (the real one waits on threads).
+it runs the step-by-step executor (a step across the link, wait for its ``completed``,
+then the next; drift control on the ground with
+:class:`planner.ground.drift.DriftMonitor` on the POSE that comes down, its STOP
+repeated until ``stopped``) or the move-and-wait operator (0.5 m drives, each confirmed
+through the round trip, then 2 s to decide; no drift control). The rover side is the
+same. The ground's logic is the executor's, re-stated here in virtual time (the real
+one waits on threads).
 """
 
 from __future__ import annotations

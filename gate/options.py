@@ -3,21 +3,10 @@
 The body is exactly a Listing 1 plan (``additionalProperties: false``), so everything
 else rides in the query: ``/validate_plan?map=scn02&start=1.0,2.0,90&render=1``.
 
-==============  ==========================================  ==========================
-parameter       meaning                                     default / range
-==============  ==========================================  ==========================
-``map``         map name (``GET /maps``)                    the server's default map
-``start``       start pose ``x,y,yaw_deg`` (m, m, deg)      the map's start pose
-``render``      ``1``/``true``: add a PNG of the top view   ``0``
-``margin_m``    footprint inflation for collisions, m       server default, 0..1
-``pos_tol_m``   accepted final distance to the goal, m      server default, 0.001..10
-``yaw_tol_deg`` accepted final yaw error, degrees           server default, 0.01..180
-``sample_hz``   predicted trajectory rate, Hz               server default, 0.1..1/dt
-``samples``     twins to play (> 1: a verdict with its      1, 1..2000
-                uncertainty, :mod:`gate.ensemble`)
-``seed``        seed of those twins' draws                  0, 0..4294967295
-``slip_sigma``  1-sigma of each side's friction factor      server default, 0..1
-==============  ==========================================  ==========================
+The parameters (``map``, ``start`` as ``x,y,yaw_deg``, ``render``, ``margin_m``,
+``pos_tol_m``, ``yaw_tol_deg``, ``sample_hz``, ``samples``, ``seed``, ``slip_sigma``),
+with their units, defaults and ranges: docs/gate.md's table under "POST /validate_plan",
+and this server's ``/openapi.json``.
 
 Parsing is strict, like the body: an unknown or repeated parameter, an empty value, or
 a number that is not a plain finite decimal is an :class:`~gate.errors.OptionError`.

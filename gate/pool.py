@@ -295,30 +295,25 @@ class _Worker:
 
 
 class ProcessWorkerPool(WorkerPool):
-    """Worker processes started with ``spawn``, each with its own validator, each fed
-    through a pipe of its own.
+    """Worker processes started with ``spawn``, each with its own validator and pipe.
 
-    A call is written to an idle worker's pipe by the thread that submits it (the event
-    loop, for the gate), or queued until a worker is free; one thread
-    (``gate-pool-results``) reads every answer and sets its future: one thread hand-off
-    per call.
+    A call is written to an idle worker's pipe by the submitting thread (the event loop,
+    for the gate), or queued until one is free; one thread (``gate-pool-results``) reads
+    every answer and sets its future.
 
-    **Fair.** Waiting calls are queued per client; a free worker takes the next call of
-    the client with the fewest calls running (round robin among equals). When a client
-    with nothing running waits and no worker is free, a preemptible call of a client
-    running more than its share (``workers`` over the clients with work, at least one)
-    is stopped and put back first in its client's line: a costly request cannot hold
-    every worker while others wait.
+    **Fair.** Waiting calls queue per client; a free worker takes the next call of the
+    client with the fewest calls running (round robin among equals). When a client with
+    nothing running waits and no worker is free, a preemptible call of a client over its
+    share (``workers`` over the clients with work, at least one) is stopped and put back
+    first in its client's line.
 
-    **Cancellable.** :meth:`cancel` drops a waiting call, and interrupts a running one:
-    the pool writes the call's id to the worker's control pipe and sends it
-    :data:`INTERRUPT`, whose handler raises into the call if it is still that one; a
-    worker that has not answered within :data:`CANCEL_GRACE_S` is killed, and, like any
-    worker that dies, replaced at once (its call fails with
-    :class:`~gate.errors.CallCancelledError`, or goes back in line when preempted).
-
-    A worker that dies on its own fails its call with ``BrokenProcessPool`` (the gate
-    retries it once); calls wait for the replacement meanwhile.
+    **Cancellable.** :meth:`cancel` drops a waiting call and interrupts a running one
+    (its id on the worker's control pipe, then :data:`INTERRUPT`, whose handler raises
+    into the call if it is still that one); a worker that has not answered within
+    :data:`CANCEL_GRACE_S` is killed. A dead worker is replaced at once; its call fails
+    with :class:`~gate.errors.CallCancelledError` (cancelled), goes back in line
+    (preempted) or fails with ``BrokenProcessPool`` (died on its own; the gate retries
+    once).
     """
 
     kind = "process"
@@ -386,8 +381,7 @@ class ProcessWorkerPool(WorkerPool):
         return _Worker(process, ours, control_w)
 
     def warm_up(self) -> None:
-        """Wait until every worker has loaded the validator (before the server says it
-        listens).
+        """Wait until every worker has loaded the validator.
 
         Raises:
             RuntimeError: a worker did not come up within ``WARM_UP_TIMEOUT_S``.

@@ -5,26 +5,22 @@
 every connection bounded by deadlines) and application layer
 (:mod:`firmware_proto.http.app`: the routes of :data:`gate.routes.ROUTES`, the shared
 guard, errors worded as the gate's JSON), in front of a :mod:`worker pool <gate.pool>`.
-The contracts (docs/gate.md, "Capacity, keep-alive and shutdown"):
+What it promises, in full in docs/gate.md ("Capacity, keep-alive and shutdown"):
 
-- *Admission by cost* (:mod:`gate.admission`) before anything is queued: 400 over what
-  one request may take, 429 with ``Retry-After`` past the client's share, 503 with
-  ``Retry-After`` when the gate is full. ``GET`` requests need no worker.
-- *Deadlines*: past ``request_timeout_s``, or when its client leaves, a validation's
-  calls are cancelled in the pool and its admission released.
-- *Bad bodies are cheap*: validity is decided by the compiled check on the event loop;
-  a refusal is worded on a thread of its own, at most :data:`MAX_VIOLATIONS` of it,
-  and the error answer is at most :data:`ERROR_ROOM_BYTES` beyond the request's size.
-- *Clients and bodies*: ``idle_timeout_s``, ``head_timeout_s`` and ``body_timeout_s``
-  (408) bound a connection; beyond ``max_connections`` a new one gets 503; a declared
-  length over ``max_body_bytes`` is refused (413) before any of it is read; a body
-  without framing gets 411; every error body is JSON
-  (:func:`gate.response.render_connection_error`).
-- *Auth and binding* (:mod:`firmware_proto.http.bindpolicy`): with a token, every request
-  needs ``Authorization: Bearer <token>`` (401); ``Host`` must name the gate (421).
-- *Shutdown* (:meth:`GateServer.close`, idempotent): new requests get 503, the listener
-  and idle connections close, requests under way finish (up to ``drain_timeout_s``)
-  with ``Connection: close``, then the workers stop.
+- admission by cost before anything is queued (:mod:`gate.admission`: 400, 429 or 503
+  with ``Retry-After``); ``GET`` requests need no worker;
+- a validation past ``request_timeout_s``, or whose client left, is cancelled in the
+  pool and its admission released;
+- validity is decided by the compiled check on the event loop; a refusal is worded off
+  it, at most :data:`MAX_VIOLATIONS`, within :data:`ERROR_ROOM_BYTES` of the body's size;
+- connections are bounded by ``idle_timeout_s``, ``head_timeout_s``, ``body_timeout_s``
+  (408) and ``max_connections`` (503); bodies by ``max_body_bytes`` (413, before any of
+  it is read) and framing (411); every error body is JSON;
+- with a token, every request needs ``Authorization: Bearer`` (401); ``Host`` must name
+  the gate (421; :mod:`firmware_proto.http.bindpolicy`);
+- :meth:`GateServer.close` (idempotent) drains: 503 to new requests, listener and idle
+  connections closed, requests under way finished (up to ``drain_timeout_s``), then the
+  workers stopped.
 
 The event loop does I/O and parsing only; playback runs in the pool. Each operation is
 one ``_op_<name>`` coroutine named by :data:`gate.routes.ROUTES`.

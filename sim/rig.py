@@ -1,28 +1,21 @@
 """One scenario played in virtual time: the host's :class:`~bridge.link.linkcore.LinkCore`, a
 controller (the Python model or the C core) over its twin, and the two directions of a
-serial line or a CAN bus between them, with the scenario's faults (docs/sim.md).
+serial line or a CAN bus between them, with the scenario's faults (docs/sim.md, "What
+is simulated").
 
-:class:`Rig` is an event loop over virtual time. Nothing waits: the next event is the
-earliest of the controller's next tick, the next frame arriving at either end, the host
-core's next deadline (:meth:`LinkCore.next_deadline <bridge.link.linkcore.LinkCore.next_deadline>`),
-a fault starting or ending and the operator's next action; time jumps to it, so idle time
-costs nothing. Ties are broken in one fixed order (operator and faults, frames to the
-controller, its tick, frames to the host, the host's tick), so a seed plays the same way
-every time.
+:class:`Rig` is an event loop over virtual time: the next event is the earliest of the
+controller's next tick, the next frame arriving at either end, the host core's next
+deadline, a fault starting or ending and the operator's next action; time jumps to it.
+Ties are broken in one fixed order (operator and faults, frames to the controller, its
+tick, frames to the host, the host's tick), so a seed plays the same way every time.
 
-The host side is driven as :class:`bridge.link.controllerlink.ControllerLink` drives the core: every
-STOP copy is written first and at once, the ordinary frames in the order the core
-queued them, each reported written; frames are encoded with the real codecs
-(:class:`~firmware_proto.wire.framing.FrameEncoder` /
-:class:`~firmware_proto.wire.framing.FrameDecoder`,
-:mod:`firmware_proto.wire.canmap`) and decoded back from the bytes that arrive. The
-controller side is driven as the emulator's front ends drive the model: every message
-handled as soon as it arrives, its bad frames counted in ``rx_errors``, a tick every
-``tick_s``. Odometry is :class:`bridge.link.odometry.OdometryEstimator` fed as the bridge
-node feeds it.
-
-What the rig sees on both sides goes to a :class:`~sim.checks.Ledger`; the invariants
-(:mod:`sim.checks`) are checked as events happen and once more at the end.
+Each side is driven as the product drives it: the host as
+:class:`bridge.link.controllerlink.ControllerLink` drives the core (STOP copies first and
+at once, ordinary frames in order, real codecs both ways, odometry fed as the bridge node
+feeds it); the controller as the emulator's front ends drive the model (every message on
+arrival, a tick every ``tick_s``). What the rig sees goes to a
+:class:`~sim.checks.Ledger`; the invariants (:mod:`sim.checks`) are checked as events
+happen and once more at the end.
 """
 
 from __future__ import annotations
