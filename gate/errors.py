@@ -4,28 +4,22 @@ Everything this package raises on purpose derives from :class:`GateError`::
 
     GateError
      +-- CallCancelledError     a worker pool's call was stopped before its end
-     +-- GateConfigError        a gate setting is out of range, or the bind policy refuses
-     |                          it (non-loopback address without a token); also ValueError
-     +-- OptionError            a request option (query parameter) is unknown, repeated or
-     |                          out of range; also ValueError. ``parameter`` names it.
-     +-- HttpError              a request cannot be served; carries the HTTP status, a
-          |                     machine-readable ``code`` and extra response headers
-          |                     (also :class:`firmware_proto.http.errors.StatusError`)
+     +-- GateConfigError        a setting out of range or refused by the bind policy;
+     |                          also ValueError
+     +-- OptionError            a query parameter unknown, repeated or out of range
+     |                          (``parameter``); also ValueError
+     +-- HttpError              cannot be served: ``status``, ``code``, ``headers``;
+          |                     also :class:`firmware_proto.http.errors.StatusError`
           +-- BadRequestError        400: not JSON, bad option, malformed framing
-          |    +-- PlanSchemaError   400: the plan fails Listing 1; ``violations`` lists
-          |         |                ``(json_pointer, message)`` pairs
-          |         +-- GoalRangeError  400: a goal coordinate beyond what the twin can
-          |                             measure (code ``goal_out_of_range``)
+          |    +-- PlanSchemaError   400: fails Listing 1; ``violations``
+          |         +-- GoalRangeError  400: a goal beyond the twin's arithmetic
           +-- NotFoundError          404: unknown path or map
           +-- RequestTimeoutError    408: the body did not arrive whole in time
-          +-- LengthRequiredError    411: a body without Content-Length or chunked framing
-          +-- PayloadTooLargeError   413: the body exceeds the documented limit
+          +-- LengthRequiredError    411: a body without length or chunked framing
+          +-- PayloadTooLargeError   413: the body exceeds the limit
           +-- UnsupportedMediaError  415: the body is not ``application/json``
-          +-- TooManyRequestsError   429: this client holds its share of the gate
-          |                          already; ``retry_after_s`` says when to try again
-          +-- OverloadedError        503: every worker and queue slot is taken, or the
-                                     server is shutting down; ``retry_after_s`` says when
-                                     to try again
+          +-- TooManyRequestsError   429: the client holds its share; ``retry_after_s``
+          +-- OverloadedError        503: full or shutting down; ``retry_after_s``
 
 The shared application layer (:mod:`firmware_proto.http.app`) answers 401 (token), 404
 (path), 405 (method; ``allow`` lists the path's), 421 (Host) and 501 (a method HTTP does

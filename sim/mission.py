@@ -11,26 +11,24 @@ prediction, the link and the faults its attributes list) from one seed;
 onboard program has been up for a while when a mission starts: the ground holds its boot
 id and signs for it; after a restart it learns the new one from the reports.
 
-Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``):
+Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``; docs/sim.md,
+"Missions", states each):
 
 - ``once`` and the wire's rules: the wire simulator's own;
-- ``step-once``: the sequencer sends each step of a plan at most once;
-- ``plan-once``: a plan id starts at most once, across restarts of the onboard program;
+- ``step-once``, ``plan-once``: each step of a plan is sent at most once; a plan id
+  starts at most once, across restarts of the onboard program;
 - ``genuine``: every step sent is the step the ground signed, at its index;
-- ``refused-inert``: nothing is driven for a plan the rover refused or the ground never
-  sent;
-- ``guard-bound``: when the true drift (the twin against the prediction, aligned on the
-  step's true start) is past the limits by :data:`TRUTH_MARGIN_M` or
-  :data:`TRUTH_MARGIN_DEG` with POSE live, a STOP follows within :data:`GUARD_BOUND_S`;
-- ``false-stop``: the guard never stops a rover whose true drift is within the limits
-  less that margin;
-- ``ground-stop``: once the ground's STOP reaches the rover, no step of the plan goes out;
-- ``stop-reached``: a lost STOP of the onboard program's is followed by one that arrives
-  within :data:`STOP_REACH_S`;
-- ``delivered``: without slip, a ground STOP, a controller fault or a POSE silence over
+- ``refused-inert``: nothing is driven for a plan refused or never sent;
+- ``guard-bound``: true drift past the limits by :data:`TRUTH_MARGIN_M` or
+  :data:`TRUTH_MARGIN_DEG`, POSE live: a STOP within :data:`GUARD_BOUND_S`;
+- ``false-stop``: no guard STOP while the true drift is that margin inside the limits;
+- ``ground-stop``: no step goes out once the ground's STOP reached the rover;
+- ``stop-reached``: a lost onboard STOP is followed by one that arrives within
+  :data:`STOP_REACH_S`;
+- ``delivered``: without slip, ground STOP, controller fault or a POSE silence over
   :data:`POSE_GAP_HARMLESS_S`, the plan completes exactly once and the ground hears it;
-- ``rest``: after every end the rover reports its estimate at rest (or that it gave up
-  waiting), and the report reaches the ground.
+- ``rest``: every end is followed by a rest report (or that it gave up waiting) that
+  reaches the ground.
 """
 
 from __future__ import annotations
