@@ -9,8 +9,6 @@ dispatches on). The request body is the plan schema itself
 parameters and their ranges come from :mod:`gate.options`; limits and defaults from the
 server's configuration, so the document states the values this server uses. The 401
 responses and the bearer security scheme appear only when the server has a token.
-OpenAPI 3.1 schemas are JSON Schema 2020-12, so tests validate real responses against
-``components.schemas`` directly.
 """
 
 from __future__ import annotations

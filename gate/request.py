@@ -1,14 +1,9 @@
 """Reading a request: its declared body length, media type and strict JSON.
 
-h11 (under uvicorn, :mod:`firmware_proto.http`) has already checked the framing
-(``Content-Length`` or chunked, never both); what is left is the gate's own policy:
-
-- a ``POST`` must say how long its body is (411 otherwise, rather than an empty plan);
-- a declared length over the limit is refused (413) before a byte of it is read, and
-  before ``100 Continue`` invites the client to send it;
-- the body must be ``application/json`` in UTF-8, strict JSON (no NaN, no duplicate
-  keys, no byte-order mark), nested at most :data:`~firmware_proto.model.schemacheck.MAX_DEPTH`
-  levels (400 ``not_json`` otherwise; a plan nests 3).
+h11 (under uvicorn, :mod:`firmware_proto.http`) has already checked the framing; what is
+left is the gate's own policy: a ``POST`` must declare its body's length (411, rather
+than an empty plan), a length over the limit is refused (413) before any of it is read
+or ``100 Continue`` sent, and the body must be strict ``application/json`` (415, 400).
 """
 
 from __future__ import annotations

@@ -2,11 +2,9 @@
 
 They measure the wire simulator (docs/sim.md, "Mutants"): a simulator that cannot find a
 bug we know of cannot be trusted to find the ones we do not. Each mutant is a small
-mixin that overrides one of the core's seams (the core keeps those rules in methods of
-their own for that, as :class:`~emulator.controller.ControllerModel` does for
-:mod:`emulator.mutants`); the product holds no switch. ``tests/sim/test_mutants.py``
-shows that the simulator finds each by itself, by seed, and that the same scenario
-passes with the fix in place.
+mixin that overrides one of the core's seams; the product holds no switch.
+``tests/sim/test_mutants.py`` shows that the simulator finds each by itself, and that
+the same scenario passes with the fix in place.
 
 :data:`MUTANTS` maps each name to what it undoes; :func:`make_link_core` builds a core
 with the named ones (``rover sim --mutant NAME``, repeatable).
@@ -159,7 +157,7 @@ class DecoderTotalReader(LinkCore):
 class _BlindClearTakesFault(LinkCore):
     """An operator's clear asked for before the host knew any latch generation names the
     first it learns, also one a stopping fault reported after the clear was asked for
-    raised (found by the simulator's bridge restarts)."""
+    raised."""
 
     def _stopping_cause_reported(self) -> None:
         return
@@ -169,7 +167,7 @@ class _NonceFromIdentOnly(LinkCore):
     """Protocol v3's bridge: the first boot nonce was learned from an IDENT only; a
     bridge that read only HEARTBEATs of the old boot took the new boot's IDENT for the
     first boot it knew, and counted neither the reboot nor its frame counter's restart
-    as such (found by the simulator's bridge restarts)."""
+    as such."""
 
     def _on_heartbeat(self, hb: Heartbeat, t: float, *, serial: bool = False) -> None:
         unknown = self._boot_nonce is None
