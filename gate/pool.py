@@ -420,8 +420,7 @@ class ProcessWorkerPool(WorkerPool):
             self._calls.pop(future, None)
 
     def _next_locked(self) -> _Call | None:
-        """The next call to run: the first waiting call of the client with the fewest
-        calls running, and among those the one served longest ago (round robin)."""
+        """The next call to run, by the class docstring's fairness rule."""
         best: str | None = None
         for client, queue in self._queues.items():
             if queue and (
@@ -441,8 +440,7 @@ class ProcessWorkerPool(WorkerPool):
         return call
 
     def _pair_locked(self) -> list[_Worker]:
-        """Give waiting calls to idle workers (the caller holds ``_state``); the workers
-        whose call is to be written."""
+        """Give waiting calls to idle workers (under ``_state``); the workers to write to."""
         sends = []
         while self._idle:
             call = self._next_locked()
@@ -459,8 +457,7 @@ class ProcessWorkerPool(WorkerPool):
         return sends
 
     def _preempt_locked(self, client: str) -> None:
-        """``client`` waits with no worker free: when it has nothing running, stop a
-        preemptible call of a client over its share (class docstring)."""
+        """Preempt a call for ``client``, which waits with no worker free (class docstring)."""
         if self._running[client] > 0:
             return
         busy = {w.call.client for w in self._workers if w.call is not None}
@@ -575,8 +572,7 @@ class ProcessWorkerPool(WorkerPool):
             self._kill_stuck()
 
     def _kill_stuck(self) -> None:
-        """Kill the workers that did not stop an interrupted call in time (their death
-        is then seen, and they are replaced, like any other)."""
+        """Kill the workers past their ``kill_at`` (then replaced like any dead worker)."""
         now = time.monotonic()
         with self._state:
             stuck = [w for w in self._workers if w.kill_at is not None and w.kill_at <= now]
