@@ -3,13 +3,8 @@
 Only imported when a request asks for a picture (``render=1``), so Pillow costs nothing
 otherwise. The picture is deterministic (same verdict, same bytes).
 
-Drawn, north up: the walls and obstacles (grey; segments at their thickness), traction
-regions (sand), the *planned path* (blue: the plan dead-reckoned with ideal kinematics,
-turns by the rover's calibrated ``turn_efficiency``), the *predicted trajectory* (orange:
-the twin), the start footprint (green), the goal with its position tolerance and heading
-(purple), and the footprint at the end: green when approved, red at the first contact
-(with the margin-inflated outline and the contact point marked), orange otherwise.
-Below the map, a legend of those colours and a scale bar (1 m).
+What is drawn, north up, and in which colours: docs/gate.md (the paragraph on
+``render=1``); below the map, a legend of those colours and a 1 m scale bar.
 """
 
 from __future__ import annotations

@@ -3,15 +3,11 @@
 :class:`Validator` holds the rover description and the maps (immutable) and builds a
 fresh :class:`emulator.twin.Twin` per plan, so one validator may serve many threads.
 Playback is :func:`emulator.playback.play` (the controller's step semantics, the map's
-traction, no injected faults, no noise); the judgement is:
-
-1. a contact of the footprint inflated by the safety margin -> ``collision`` (or
-   ``start_in_collision`` when the start pose already touches), at the first contact;
-2. a step without progress or past its time limit -> ``stalled``;
-3. final position farther than the position tolerance from the goal ->
-   ``goal_not_reached``;
-4. final yaw off by more than the yaw tolerance -> ``yaw_not_reached``;
-5. otherwise approved.
+traction, no injected faults, no noise); the judgement, in this precedence (docs/gate.md
+lists the failure types): ``collision`` (``start_in_collision`` when the start pose
+touches) at the first contact of the margin-inflated footprint, ``stalled`` (no
+progress, or past a step's time limit), ``goal_not_reached`` (position tolerance),
+``yaw_not_reached`` (yaw tolerance), else approved.
 
 The same plan and options give the same verdict bit for bit, in any thread or process
 (the twin is deterministic; values are rounded to fixed decimals before encoding), apart
