@@ -79,8 +79,7 @@ class _End:
 
 
 class GroundRig(MissionRig):
-    """One plan run by the ground step by step, or by move-and-wait (see the module
-    docstring)."""
+    """One plan run by the ground step by step, or by move-and-wait (see the module docstring)."""
 
     def __init__(
         self,
