@@ -1,5 +1,5 @@
 """Named missions played in a :class:`~sim.world.World` (virtual time), each with the
-checks that say it went as it must (docs/sim.md, "Missions in virtual time").
+checks that say it went as it must (docs/sim.md, "Whole missions in virtual time").
 
 A mission is a function of a world and a gate client that drives the world's executor
 (a plan, a :class:`~planner.ground.mission.MissionRunner`, faults injected into the
