@@ -1,37 +1,18 @@
 """Many twins played in one physics world: the same plan on N grounds at once.
 
 :func:`play_batch` plays one plan, as :func:`emulator.playback.play` does, on N twins
-that differ only in their ground (traction parameters, region scales) and in a friction
-factor per side (slip). It exists for speed: a single playback spends most of its time
-in Python per physics step (force code, pymunk calls), so N playbacks one after the
-other cost N times that. Here the N bodies share one pymunk space, their state is read
-and their forces written in one call each (:mod:`pymunk.batch`), and the force model of
-:mod:`emulator.traction` is evaluated for all of them at once with numpy: a step costs
-about as much for 100 twins as for one.
+that differ only in their ground and a friction factor per side. The N bodies share one
+pymunk space, each with its own copy of the map placed far enough apart that no two
+twins meet; state and forces go through :mod:`pymunk.batch`, and the force model of
+:mod:`emulator.traction` runs for all of them at once in numpy.
 
-What stays exactly as in a single playback:
-
-- the time step, the step semantics and the wheel commands. Motors are ideal velocity
-  sources, so every twin's encoders count the same and :class:`~emulator.drive.
-  StepProfile` commands the same wheel speeds on every ground: the schedule (wheel
-  speeds per tick, step boundaries, a stall) is computed once and shared;
-- collision checking: each twin has its own copy of the map's walls and obstacles and
-  the same chassis and margin-inflated sensor shapes, checked by pymunk every step. The
-  copies sit side by side, far enough apart that no shape of one twin can reach
-  another's (bodies never meet), so each body sees only its own world;
-- traction regions: a wheel takes the region it is on (the last in map order), as in
-  the twin, whose wheel probes are circles of 1 mm: here a point test against each
-  region's convex parts grown by 1 mm, made every step on the pose after it (near a
-  region's corner the two may disagree by a step);
-- settling after the last step, per twin, until it is at rest (at most ``settle_s``).
-
-What differs: the positions are offset by the copy's place (hundreds of metres at
-most), and numpy's transcendental functions may differ from ``math``'s in the last bit,
-so a batch twin agrees with :class:`~emulator.twin.Twin` to about 1e-9 m, not bit for
-bit; a twin's result depends only on its parameters and its index in the batch. The
-batch is deterministic: the same call gives the same arrays.
-
-Locked wheels and other injected faults are not supported (the gate plays none).
+Kept from a single playback: the time step, step semantics and wheel commands (ideal
+motors, so the schedule is computed once and shared), collision checking, settling
+(at most ``settle_s``), and traction regions (a point test against each region grown by
+1 mm, which may differ from the twin's probes by a step near a corner). A batch twin
+agrees with :class:`~emulator.twin.Twin` to about 1e-9 m, not bit for bit; its result
+depends only on its parameters and its index; the batch is deterministic. Injected
+faults (locked wheels) are not supported. More in docs/gate.md.
 """
 
 from __future__ import annotations
@@ -150,8 +131,7 @@ def schedule(
     time_limit_factor: float = 1.5,
     time_limit_margin_s: float = 2.0,
 ) -> Schedule:
-    """The wheel speeds :func:`emulator.playback.play` commands for ``steps``, tick by
-    tick, with the same arithmetic (motor rates, encoder angles, stall checks).
+    """The wheel speeds :func:`emulator.playback.play` commands for ``steps``, per tick.
 
     Raises:
         CommandError: a step is invalid.
@@ -433,9 +413,8 @@ class _Forces:
         np.multiply(self.mu_lat_n, scale, out=self.ly)
 
     def place(self, x: np.ndarray, y: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
-        """Update which region each wheel is on, from the bodies' poses (map frame):
-        the last region in map order within :data:`_WHEEL_PROBE_RADIUS_M` of the wheel's
-        contact point gives its scale, else 1 (the twin's probes, as a point test)."""
+        """Update each wheel's region scale from the poses (map frame): the last region
+        in map order within :data:`_WHEEL_PROBE_RADIUS_M` of its contact point, else 1."""
         if not self._parts:
             return
         wx = x + c * self.wheel_x - s * self.wheel_y  # (4, N)
@@ -544,16 +523,14 @@ def play_batch(
     """Play ``steps`` on one twin per draw (see the module docstring).
 
     Args:
-        rover: the rover description (geometry, mass, drive; its traction is replaced
-            by each draw's ground).
-        world: the map (its regions' scales replaced by each ground's), or ``None``.
+        rover: the rover description; its traction is replaced by each draw's ground.
+        world: the map (region scales replaced by each ground's), or ``None``.
         draws: one per twin (at least one).
         steps: ``(command, speed, distance)`` triples.
         dt_s: physics step, s, in ``(0, MAX_DT_S]``.
         safety_margin_m: inflation of the collision sensor, m (>= 0).
         start: the start pose of every twin.
-        record_every_s: poses are recorded every this much twin time (rounded to whole
-            ticks) and at each step's end.
+        record_every_s: record period, s (rounded to ticks); each step's end too.
         settle_s: longest settling after the last step, s.
 
     Raises:

@@ -1,38 +1,22 @@
 """A calibration that designs and drives its own steps: ``rover calibrate --drive``.
 
-A campaign alternates designing, driving and fitting, within a budget of driving
-seconds (the steps' nominal durations; the rests between them do not count):
+Within a budget of driving seconds (nominal step durations, rests not counted), a
+campaign repeats:
 
-1. **Design** (:mod:`emulator.design`): from the current fit (before the first, the
-   rover description's ground and the priors), each candidate step's Fisher
-   information (its sensitivities on the open plane, its noise as the calibration's
-   steps were measured); the next steps are chosen one at a time, each the one that
-   cuts the worst probe's spread most per second of driving, among those that fit in
-   the free space around the rover (:func:`room_for`: the map's clearance along the
-   step's swept footprint, from the pose the fit predicts before it, with a margin
-   for what the fit does not know yet) and in the budget left. The first round takes
-   :data:`FIRST_ROUND` steps (what a first fit needs); later rounds
-   :data:`ROUND_STEPS`.
-2. **Drive** (a :class:`Driver`): the round's steps as one plan, validated on the gate
-   before it runs, then executed and recorded (the rover rests between steps, so each
-   is measured at rest before and after). A plan the gate rejects is not driven: the
-   step it found at fault is ruled out where it would have started (any turn there, or
-   a straight step that way at least as long), and the round is designed again.
-3. **Fit** (:func:`emulator.fit.fit_ground`, from the last fit's ground) on every step
-   measured so far.
+1. **Design** (:mod:`emulator.design`): from the current fit, steps chosen one at a
+   time, each the one that cuts the worst probe's spread most per second of driving,
+   among those with room around the rover (:func:`room_for`) and in the budget left;
+   :data:`FIRST_ROUND` steps first, :data:`ROUND_STEPS` after.
+2. **Drive** (a :class:`Driver`): the round as one plan, validated on the gate, then
+   executed and recorded with rests between steps. A rejected plan is not driven: the
+   step at fault is ruled out where it would have started and the round designed again.
+3. **Fit** (:func:`emulator.fit.fit_ground`) on every step measured so far.
 
-It stops when every probe's spread is under its bar (then every parameter is under its
-target: :func:`emulator.design.targets`) and the probes' predictions have moved less
-than their bars since the fit before, at :data:`STILL_FITS` fits in a row (the
-covariance is a linearisation: a fit is trusted once it stands still), when the budget
-cannot hold another step, or when no candidate fits in the room left; the last fit is
-then made with its refusals (:class:`~emulator.errors.UnidentifiableError`, naming the
-parameter and the steps that would identify it).
-
-The driver is the seam: :class:`~emulator.stackdriver.StackDriver` drives a real stack
-through the ground station (``rover go --plan FILE --record``);
-``sim.calibration_runs.LockstepRover`` drives the controller model in virtual time (the
-tests and the benchmark).
+It stops when every probe is under its bar and has stood still for :data:`STILL_FITS`
+fits, when the budget cannot hold another step, or when no candidate has room; the last
+fit is then made with its refusals. Drivers: :class:`~emulator.stackdriver.StackDriver`
+(a real stack) and ``sim.calibration_runs.LockstepRover`` (virtual time). More in
+docs/twin.md, "A designed calibration".
 """
 
 from __future__ import annotations
@@ -200,11 +184,10 @@ def room_for(
     heading_unknown_rad: float = 0.0,
     margin_m: float = MARGIN_M,
 ) -> bool:
-    """Whether ``step`` from ``pose`` keeps the rover's footprint (its circumscribed
-    circle) ``margin_m`` clear of every obstacle and wall, and of every traction region
-    it is not in already (a step half on other ground measures neither): a turn where it
-    stands, a straight step along its swept segment (to 10 % past its predicted end);
-    with ``heading_unknown_rad`` the segment may point that far either way."""
+    """Whether ``step`` from ``pose`` keeps the footprint's circumscribed circle
+    ``margin_m`` clear of every obstacle, wall and traction region it is not in already:
+    where it turns, or along its swept segment (to 10 % past ``move``'s end, within
+    ``heading_unknown_rad`` either way) where it drives."""
     if world is None:
         return True
     radius = rover.footprint_radius_m + margin_m
@@ -268,9 +251,8 @@ def _preference(
     candidates: Sequence[tuple[int, int, int]],
     moves: np.ndarray,
 ) -> np.ndarray:
-    """The tie-breaker among equally informative steps: stay near where the campaign
-    began, facing as it began (so straight steps go both ways and turns both ways), with
-    room around."""
+    """Tie-breaker among equally informative steps: near ``home``, facing as it did,
+    with room around."""
     out = np.empty(len(candidates))
     for i, step in enumerate(candidates):
         end = _after(at, moves[i])
@@ -420,8 +402,7 @@ def run_campaign(
     dt_s: float = GATE_DT_S,
     on_event: Callable[[str], None] = lambda line: None,
 ) -> Campaign:
-    """Design, drive and fit until the probes are under their bars or the budget or the
-    room is spent (module docstring).
+    """Design, drive and fit until done (module docstring).
 
     Args:
         driver: reaches the rover.

@@ -6,27 +6,18 @@ acknowledgement and deduplication, STOP that zeroes the wheel targets in the cal
 receives it and latches until CLEAR_STOP, the watchdog, stall detection, and telemetry
 (ENCODERS, WHEEL_SPEEDS, IMU, POSE, HEARTBEAT) at configurable rates.
 
-The latch and the faults follow docs/protocol.md, "Latch and faults": one latch that
-remembers what set it (:attr:`ControllerModel.latch_causes`: a STOP, the watchdog, a
-stopping fault), apart from the fault *conditions* active now
-(:attr:`ControllerModel.faults`, HEARTBEAT ``fault_bits``). CLEAR_STOP releases the
-latch unless a stopping fault's condition is active.
+The latch (:attr:`ControllerModel.latch_causes`) is kept apart from the fault
+conditions active now (:attr:`ControllerModel.faults`), as docs/protocol.md, "Latch and
+faults" specifies.
 
-It is pure logic over the twin: no I/O, no threads, no wall clock. Time is the twin's.
-A front end feeds it with :meth:`ControllerModel.handle` (each received message, answered
-at once) and :meth:`ControllerModel.tick` (one control period: step logic, one physics
-step, telemetry due), and sends whatever messages they return. The same model runs in
-real time behind a pty or a CAN bus (:mod:`emulator.engine`) and in lockstep in tests.
+Pure logic over the twin: no I/O, no threads, no wall clock; time is the twin's. A front
+end calls :meth:`ControllerModel.handle` per received message and
+:meth:`ControllerModel.tick` per control period, and sends what they return
+(:mod:`emulator.engine` in real time, lockstep in tests).
 
-Time-outs (watchdog, stall) are in twin seconds multiplied by ``timeout_scale``: when
-the twin runs ``k`` times faster than the host's clock, ``timeout_scale = k`` keeps them
-right in the host's time.
-
-Counters that wrap are compared modulo their width, as the C core does: the encoder
-counts are a signed 32-bit counter (:func:`emulator.sensors.count_delta` gives a step's
-travel, a stall's progress and a STOPPED distance right across a wrap); the frame
-counters, ``ended_count``, ``rx_errors`` and ``t_ms`` wrap on the wire at their field
-width.
+Time-outs (watchdog, stall) are twin seconds times ``timeout_scale``: a twin running
+``k`` times faster than the host sets ``k``. Wrapping counters are compared modulo their
+width, as the C core does (:func:`emulator.sensors.count_delta` for encoder counts).
 """
 
 from __future__ import annotations
@@ -188,8 +179,8 @@ class ControllerModel:
         twin: the plant; the model steps it once per :meth:`tick`.
         config: firmware settings.
         seed: seeds the boot nonces and every sensor's noise.
-        protocol_version, schema_hash: what this firmware was built from (change them
-            to impersonate a mismatched firmware).
+        protocol_version, schema_hash: what this firmware claims (change to impersonate
+            a mismatched one).
         """
         self.rover = rover
         self.twin = twin

@@ -1,29 +1,17 @@
 """The C firmware core in the loop: :class:`FirmwareController` runs the motor
-controller of ``firmware_proto/wire/c/fw/`` (compiled for the host as a shared library)
-instead of the Python :class:`~emulator.controller.ControllerModel`, with the same twin
-as its plant and the same interface, so that the engine, the front ends, fault
-injection, the bridge and the conformance suite run against it unchanged.
+controller of ``firmware_proto/wire/c/fw/`` (a host shared library) behind the
+:class:`~emulator.controller.ControllerModel` interface, over the same twin.
 
-What is firmware and what is plant:
+The C core owns the controller logic (state machine, queue, latch, watchdog, faults,
+SET_PARAM, integer step profile, stall and rest detection, every frame's content);
+Python owns the plant (twin, sensor models and their noise, fault injection into them).
+Both directions go through the C codec as serial frames. A tick is ``fw_control`` at
+twin time ``t``, one twin step, then ``fw_sense`` at ``t + dt``.
 
-- firmware (C): the state machine, the MOTION queue, ACK/NACK and deduplication, the
-  STOP latch and purge, CLEAR_STOP, the watchdog, faults, SET_PARAM, the step profile
-  (integer um/s) and step completion by encoder counts, stall and rest detection, the
-  telemetry schedule and every frame's content;
-- plant (Python): the twin's physics, the encoder, IMU and pose sensor models with their
-  noise, and fault injection into them.
-
-Every host message reaches the core as the serial frame a UART would deliver
-(``fw_on_bytes``), and every frame the core writes is decoded back into a message:
-both directions go through the C codec. A tick is ``fw_control`` at twin time ``t``,
-one twin step, then ``fw_sense`` at ``t + dt``, the order of
-:meth:`ControllerModel.tick <emulator.controller.ControllerModel.tick>`.
-
-:func:`build_library` compiles the library once per content hash into a cache directory
-(``$ROVER_FIRMWARE_CACHE``, else ``$XDG_CACHE_HOME/rover/firmware``, else
-``~/.cache/rover/firmware``). ``ROVER_FIRMWARE_SANITIZE=1`` builds it with
-AddressSanitizer and UBSan instead; the process must then have ``libasan`` preloaded
-(:func:`sanitizer_env` gives the environment for a child process).
+:func:`build_library` caches the library by content hash in ``$ROVER_FIRMWARE_CACHE``,
+else ``$XDG_CACHE_HOME/rover/firmware``, else ``~/.cache/rover/firmware``.
+``ROVER_FIRMWARE_SANITIZE=1`` builds with ASan and UBSan, which needs ``libasan``
+preloaded (:func:`sanitizer_env`).
 """
 
 from __future__ import annotations
@@ -151,8 +139,8 @@ def build_library(*, sanitize: bool | None = None, timeout_s: float = 120.0) -> 
 
 def sanitizer_env(base: dict[str, str] | None = None) -> dict[str, str]:
     """The environment for a child Python process that loads the sanitizer build:
-    ``libasan`` preloaded, leak detection off (the interpreter's own allocations are not
-    ours), any error fatal."""
+    ``libasan`` preloaded, leak detection off (the interpreter's leaks are not ours),
+    any error fatal."""
     cc = _compiler()
     asan = subprocess.run(
         [cc, "-print-file-name=libasan.so"], capture_output=True, text=True, check=True
@@ -339,10 +327,8 @@ class FirmwareController(ControllerModel):
 
         Raises:
             FirmwareBuildError: no compiler, a failed build, or a rover or time step the
-                integer core cannot represent (speed scale and acceleration must be whole
-                um/s and um/s^2, the time step a whole number of microseconds) or that
-                ``fw_init`` refuses (its ``fw_error_t`` named: a top wheel speed above
-                3 m/s, a speed change per tick of 0 or above 3 m/s, ...).
+                integer core cannot represent (whole um/s, um/s^2 and us) or that
+                ``fw_init`` refuses (its ``fw_error_t`` named).
         """
         self._lib = _load(library or build_library())
         self._h: int | None = None

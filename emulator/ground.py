@@ -1,18 +1,12 @@
 """The ground a twin drives on: its traction parameters and per-region friction.
 
-The rover description's ``[traction]`` table is what the gate *assumes* about the
-ground. A :class:`Ground` is what the ground *is*: the same five wheel-ground parameters
-of :mod:`emulator.traction` (friction along and across the wheel, the slip saturation
-floor and ratio, rolling resistance) plus a friction scale per map traction region
-(replacing the map's own ``mu_scale``). The emulator takes one of its own
-(``rover emulate --ground NAME|FILE``, ``--ground-set KEY=VALUE``), so that the gate's
-predictions meet a rover they do not know; ``rover calibrate`` fits one to recorded
-missions (:mod:`emulator.calibration`).
-
-Applying a ground changes nothing in the twin itself: :meth:`Ground.rover` returns the
-description with its traction replaced and :meth:`Ground.world` the map with its region
-scales replaced, and the :class:`~emulator.twin.Twin` is built from those. Without a
-ground the emulator and the gate build exactly the twin they always did.
+The rover description's ``[traction]`` is what the gate *assumes*; a :class:`Ground` is
+what the ground *is*: the five wheel-ground parameters of :mod:`emulator.traction` plus
+a friction scale per map traction region (replacing the map's ``mu_scale``). The
+emulator takes one (``rover emulate --ground NAME|FILE``, ``--ground-set KEY=VALUE``);
+``rover calibrate`` fits one. A ground changes only the inputs of the twin:
+:meth:`Ground.rover` and :meth:`Ground.world`. More in docs/twin.md, "A ground the gate
+does not know".
 
 A ground file is TOML (shipped ones in ``emulator/grounds/``, loaded by bare name)::
 
@@ -27,16 +21,9 @@ A ground file is TOML (shipped ones in ``emulator/grounds/``, loaded by bare nam
     [regions]                  # friction scale per map traction region, (0, 2]
     sandbox = 0.35
 
-``turn_efficiency`` (body yaw over the ideal yaw of wheel arc travel in the calibration
-spin, docs/twin.md) is what a lab measures first; given instead of ``mu_lateral``, the
-lateral friction is solved by bisection so that
-:func:`~emulator.playback.measure_turn_efficiency` returns it (to 1e-4). A file may state
-both, the measured efficiency beside the friction it was fitted to, when they agree
-(within :data:`TURN_EFFICIENCY_AGREEMENT`); otherwise it is refused, naming the
-efficiency the friction gives.
-
-Per region only the friction scales (as in the map format); rolling resistance and the
-slip saturation are the ground's as a whole.
+Given ``turn_efficiency`` instead of ``mu_lateral``, the lateral friction is solved
+(:func:`solve_mu_lateral`); a file stating both is refused unless they agree within
+:data:`TURN_EFFICIENCY_AGREEMENT`. Per region only the friction scales.
 """
 
 from __future__ import annotations
@@ -107,9 +94,8 @@ class Ground:
         slip_saturation_mps: floor of the saturation slip speed, m/s.
         slip_saturation_ratio: saturation slip speed per m/s of wheel speed.
         rolling_resistance: rolling resistance force / wheel load.
-        regions: ``(region_id, mu_scale)`` pairs, sorted by id: the friction scale of
-            each named map region, replacing the map's. Regions not named keep the
-            map's scale.
+        regions: ``(region_id, mu_scale)`` pairs, sorted by id, replacing the map's
+            scale of each named region.
         description: free text.
     """
 
@@ -301,9 +287,8 @@ def ground_from_dict(doc: dict[str, Any], rover: RoverDescription, source: str) 
 def _check_turn_efficiency(
     rover: RoverDescription, ground: Ground, stated: float, source: str
 ) -> None:
-    """A file that states both ``mu_lateral`` and a measured ``turn_efficiency``: they
-    must agree (the calibration spin on ``ground`` within
-    :data:`TURN_EFFICIENCY_AGREEMENT` of ``stated``).
+    """Check a stated ``turn_efficiency`` against ``ground``'s ``mu_lateral`` (within
+    :data:`TURN_EFFICIENCY_AGREEMENT`).
 
     Raises:
         GroundError: they do not (the message gives what ``mu_lateral`` turns at).
@@ -327,9 +312,8 @@ def load_ground(name_or_path: str | Path, rover: RoverDescription) -> Ground:
     """Read a ground file.
 
     Args:
-        name_or_path: a shipped ground's bare name (``"loose"`` ->
-            ``emulator/grounds/loose.toml``) or a TOML file's path (a string containing a
-            path separator or ending in ``.toml``).
+        name_or_path: a shipped ground's bare name (``"loose"``) or a TOML path (one
+            containing ``/`` or ending in ``.toml``).
         rover: the rover description that supplies the parameters the file leaves out.
 
     Raises:
@@ -374,12 +358,9 @@ def parse_ground_setting(text: str) -> tuple[str, float]:
 
 
 def solve_mu_lateral(rover: RoverDescription, ground: Ground, turn_efficiency: float) -> float:
-    """The lateral friction that gives ``ground`` (its other parameters as they are)
-    the turn efficiency ``turn_efficiency`` in the calibration spin (LEFT, speed 30,
-    90 degrees by the description's model, 1 ms steps; docs/twin.md).
-
-    Turn efficiency falls as ``mu_lateral`` rises (the wheels scrub harder), so a
-    bisection on ``log(mu_lateral)`` in ``[0.02, 5] * mu_longitudinal`` finds it.
+    """The ``mu_lateral`` that gives ``ground`` ``turn_efficiency`` in the calibration
+    spin (docs/twin.md), to 1e-4: a bisection on ``log(mu_lateral)`` in
+    ``[0.02, 5] * mu_longitudinal`` (efficiency falls as it rises).
 
     Raises:
         GroundError: ``turn_efficiency`` is outside what that range reaches.

@@ -22,13 +22,9 @@ interface or in code::
     @d=1.5                 after 1.5 m of ground travel
     @region=sand           when the rover's centre enters map region "sand"
 
-:func:`parse_fault` checks the text. :meth:`Injector.check` decides whether a parsed
-fault can apply to this emulator (value ranges, what the link can carry, the map's
-regions) without changing anything; :meth:`Injector.apply` checks, then applies it to a
-controller, its twin and its link, and logs it at WARNING with its twin time, trigger and
-source. A fault is checked when it is scheduled (:class:`FaultSchedule`), so a bad one is
-refused up front rather than when its trigger fires. :meth:`Injector.in_force` lists the
-faults in force. Everything random (link faults) draws from a seeded generator.
+:func:`parse_fault` checks the text, :meth:`Injector.check` whether it can apply here,
+:meth:`Injector.apply` applies it; :class:`FaultSchedule` holds triggered ones. Link
+faults draw from a seeded generator. More in docs/emulator.md, "Fault injection".
 """
 
 from __future__ import annotations
@@ -332,10 +328,8 @@ class Injector:
     # -- applying -----------------------------------------------------------------------
     def apply(self, spec: FaultSpec, source: str = "api") -> list[Message]:
         """Check ``spec`` and apply it now (its trigger is the caller's business);
-        returns messages the controller sends because of it (FAULT, IDENT).
-
-        The injection is recorded in :attr:`log`, logged at WARNING with its twin time,
-        trigger and source, and handed to every listener.
+        returns messages the controller sends because of it (FAULT, IDENT). Recorded in
+        :attr:`log`, logged at WARNING and handed to every listener.
 
         Raises:
             InjectionError: the fault cannot be applied here (see :meth:`check`).
@@ -489,9 +483,8 @@ _LINK_KEYS = {"link-drop": "drop", "link-corrupt": "corrupt", "link-delay": "del
 class FaultSchedule:
     """Faults waiting for their trigger; :meth:`poll` fires the due ones, in order.
 
-    Every fault is checked (:meth:`Injector.check`) when it is scheduled, so one that
-    could never apply is refused then, not when its trigger fires. Ground distance is
-    integrated from the twin's pose at every poll, from the schedule's creation.
+    A fault is checked (:meth:`Injector.check`) when scheduled, not when it fires.
+    Ground distance is integrated from the twin's pose at every poll.
     """
 
     def __init__(
@@ -524,9 +517,8 @@ class FaultSchedule:
         return [spec for spec, _ in self._pending]
 
     def add(self, spec: FaultSpec, source: str = "schedule") -> ScheduledFault:
-        """Schedule ``spec``; a spec without trigger fires at the next poll. Call from
-        the thread that owns the model. ``source`` says who asked (recorded with the
-        injection).
+        """Schedule ``spec`` (no trigger: at the next poll); ``source`` is recorded. Call
+        from the thread that owns the model.
 
         Returns:
             when it was scheduled and, in words, when it will fire.

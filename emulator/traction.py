@@ -1,42 +1,19 @@
 """Wheel-ground force model of the twin: pure functions, no physics engine.
 
-Each of the four wheels touches the ground at a point fixed in the body frame
-(``x`` forward, ``y`` left, origin at the centre of mass). With body velocity
-``(vx, vy)`` and yaw rate ``w``, the ground velocity of the contact point of a wheel at
-``(x_i, y_i)`` is ``g = (vx - w*y_i, vy + w*x_i)``. The wheel's surface moves at ``u``
-(forward, m/s, set by its motor), so the *slip velocity* is::
+Body frame: ``x`` forward, ``y`` left, origin at the centre of mass. A wheel at
+``(x_i, y_i)`` with surface speed ``u`` (m/s) on a body moving at ``(vx, vy, w)``::
 
-    s_long = u - g_x            (wheel surface faster than the ground: positive)
-    s_lat  = -g_y               (a wheel does not roll sideways)
-
-The ground's force on the wheel follows the slip and saturates at the friction limit,
-as a combined-slip friction ellipse with a smooth ``tanh`` saturation::
-
+    g      = (vx - w*y_i, vy + w*x_i)               ground velocity of the contact
+    s      = (u - g_x, -g_y)                        slip velocity, m/s
     S      = s0 + kappa * |u|                       saturation slip speed, m/s
-    sigma  = hypot(s_long, s_lat) / S
+    sigma  = |s| / S
     F_long = mu_long * N * tanh(sigma) / sigma * s_long / S  -  Crr * N * tanh(g_x / v_rr)
     F_lat  = mu_lat  * N * tanh(sigma) / sigma * s_lat  / S
 
-``N = m * g / 4`` (lunar gravity, load shared equally). ``S`` grows with the wheel
-speed: at speed the force follows the slip *ratio* (as terramechanics has it, so the
-steady slip is a fixed fraction of the speed), near standstill the floor ``s0`` keeps it
-finite. ``Crr`` is the rolling (terrain) resistance, faded out below ``v_rr`` so that it
-vanishes at rest: the wheels must push against it, so the weaker the friction, the
-larger the steady slip, down to a stall when ``mu <= Crr``.
-
-Because the slip *vector* saturates, not each component alone, a wheel sliding sideways
-in a skid-steer spin still drives along its rolling direction. This is what lets the
-model turn; per-axis clamping (the naive model) barely turns.
-
-The force is stiff near zero slip (about 2000 N per m/s per wheel at rest), so a plain
-explicit step would ring at coarse time steps. :meth:`TractionModel.step_wrench`
-integrates it linearly-implicitly on the diagonal: each body-frame component of the
-force is divided by ``1 + dt * C / M`` where ``C = -dF/dv`` is the exact diagonal of the
-model's Jacobian along that component and ``M`` the mass or inertia. Steady states are
-unchanged (a zero force stays zero), any step up to the twin's limit is stable, and the
-result barely depends on the step (docs/twin.md).
-
-docs/twin.md gives the parameter values and the calibration.
+with ``N = m * g / 4``. The slip *vector* saturates (a friction ellipse), which is what
+lets a skid-steer spin turn. :meth:`TractionModel.step_wrench` integrates the stiff
+force linearly-implicitly on the diagonal, so steady states do not depend on the step.
+docs/twin.md ("Wheel forces", "Integration") explains the model and its parameters.
 """
 
 from __future__ import annotations
@@ -106,8 +83,7 @@ def wheel_force(
         rolling_resistance: rolling resistance coefficient ``Crr`` (force / load).
         rolling_speed_scale_mps: speed below which rolling resistance fades out.
 
-    This is the reference form of the model; :meth:`TractionModel.wrench` evaluates the
-    same equations for the four wheels at once (a test holds them equal).
+    The reference form; :meth:`TractionModel.wrench` must give the same for four wheels.
     """
     sx = slip_long_mps / saturation_mps
     sy = slip_lat_mps / saturation_mps
@@ -123,11 +99,8 @@ def ideal_spin_yaw_rad(arc_travel_m: float, track_width_m: float) -> float:
 
 
 def steady_slip_mps(mu: float, rolling_resistance: float, saturation_mps: float) -> float:
-    """Steady longitudinal slip speed, m/s, when cruising straight on level ground.
-
-    Each wheel's traction balances its rolling resistance,
-    ``mu * N * tanh(s / S) = Crr * N``, so ``s = S * atanh(Crr / mu)``. Returns ``inf``
-    when ``mu <= Crr``: the wheels cannot overcome the resistance and just spin.
+    """Steady longitudinal slip speed, m/s, cruising straight on level ground:
+    ``S * atanh(Crr / mu)``; ``inf`` when ``mu <= Crr`` (the wheels just spin).
     """
     ratio = rolling_resistance / mu
     if ratio >= 1.0:
@@ -146,10 +119,8 @@ def _wheel(
         inv_s: ``1 / S``.
 
     Returns:
-        ``(Fx, Fy, dFx/dsx, dFy/dsy, dFx/dsy + dFy/dsx, a/S)`` with ``s`` in m/s. With
-        ``a = tanh(sigma)/sigma`` (secant) and ``b = sech(sigma)^2`` (tangent along the
-        slip), the derivative along an axis blends them by the slip direction;
-        ``mu*N * a/S`` is the secant stiffness ``F/s`` of either axis.
+        ``(Fx, Fy, dFx/dsx, dFy/dsy, dFx/dsy + dFy/dsx, a/S)`` with ``s`` in m/s and
+        ``a = tanh(sigma)/sigma``; ``mu*N * a/S`` is the secant stiffness ``F/s``.
     """
     sig2 = nx * nx + ny * ny
     if sig2 > _TINY_SIGMA * _TINY_SIGMA:
@@ -250,10 +221,8 @@ class TractionModel:
 
         Returns:
             ``(Fx, Fy, Tz, Cx, Cy, Cz, Kx, Ky, Kz)``: force (N), torque (N*m); the
-            damping each exerts, ``C = -dF/dv`` along its own velocity component
-            (N per m/s, N*m per rad/s: the diagonal of the model's Jacobian); and the
-            secant stiffness ``K`` (force per unit slip, summed over the wheels), used
-            by :meth:`step_wrench` to keep a step from overshooting the zero-slip point.
+            Jacobian's diagonal ``C = -dF/dv`` (N per m/s, N*m per rad/s); and the
+            secant stiffness ``K`` summed over the wheels (for :meth:`step_wrench`).
         """
         hx = self.half_wheelbase_m
         hy = self.half_track_m
@@ -320,11 +289,9 @@ class TractionModel:
         """Force and torque to apply for one step of ``dt_s``, body frame (N, N, N*m).
 
         :meth:`wrench` made linearly implicit on the diagonal: each component divided by
-        ``1 + dt * C / M`` (``M`` = mass, mass, yaw inertia). Where an explicit step
-        with the secant stiffness would carry the slip past zero (``dt * K > M``, a
-        wheel leaving saturation within one step), ``C`` is raised to ``K - M/dt``,
-        which lands the slip on zero instead. Exact in steady state; stable and
-        monotone at any step the twin accepts.
+        ``1 + dt * C / M`` (``M`` = mass, mass, yaw inertia), with ``C`` raised to
+        ``K - M/dt`` where an explicit step would carry the slip past zero. Exact in
+        steady state; stable and monotone at any step the twin accepts.
         """
         fx, fy, tz, cx, cy, cz, kx, ky, kz = self.wrench(
             vx_mps, vy_mps, yaw_rate_rad_s, left_mps, right_mps, limits_n
