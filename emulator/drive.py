@@ -1,25 +1,14 @@
 """Step execution semantics shared by the controller model and the gate.
 
-One implementation of what the motor controller does with a MOTION step
-``(command, speed, distance)`` (docs/architecture.md, Contracts 2 and 4):
-
-- FWD drives both sides forward, REV both backward; LEFT turns counter-clockwise on the
-  spot (left side backward, right side forward), RIGHT the opposite; STOP brakes.
-- Each side's wheel surface speed ramps toward ``speed`` (speed units ->
-  ``speed * k * wheel_radius`` m/s) at ``drive.wheel_accel_limit_mps2``, and brakes at
-  the same limit so that its encoder travel since the step started lands on
-  ``distance`` units (23000 units = 1 m of wheel travel; for LEFT/RIGHT, the travel of
-  each side along its arc). The sides are independent: each one stops on its own count.
-- The step is done when both sides have reached their distance and are at rest. Slip is
-  invisible to this logic, as it is to encoders: with slip the ground travel falls short
-  while the step still completes.
-
-:class:`StepProfile` is fed each side's encoder travel every tick and returns the wheel
-surface speed targets for the next tick. Braking is computed on the discrete tick, so
-that travel lands on the distance exactly (to float precision) at any tick length.
+What the motor controller does with a MOTION step ``(command, speed, distance)``
+(docs/architecture.md, Contracts 2 and 4; docs/twin.md, "Step semantics"): FWD and REV
+drive both sides, LEFT turns counter-clockwise on the spot, RIGHT the opposite, STOP
+brakes. Each side ramps toward ``speed`` at ``drive.wheel_accel_limit_mps2`` and brakes
+so that its own encoder travel lands on ``distance`` units; the step is done when both
+sides arrived and are at rest. Slip is invisible here, as it is to encoders.
 
 Conversions between surface speeds, motor rates (with the mounting polarity) and
-encoder distance units are here too, so that no caller re-derives the signs.
+encoder distance units live here too, so that no caller re-derives the signs.
 """
 
 from __future__ import annotations
@@ -91,11 +80,8 @@ def brake(
 
 
 def stopping_distance_m(rover: RoverDescription, speed_mps: float, dt_s: float = 0.0) -> float:
-    """Wheel travel, m, while braking from ``speed_mps`` to rest at the accel limit.
-
-    With ``dt_s > 0``, the discrete sum for speeds held for one tick each (what
-    :func:`brake` does, counting the current tick): ``v^2 / (2a) + v*dt/2`` when ``v``
-    is a whole number of ``a*dt``.
+    """Wheel travel, m, while braking from ``speed_mps`` to rest at the accel limit;
+    with ``dt_s > 0``, the discrete sum :func:`brake` travels (current tick counted).
     """
     a = rover.drive.wheel_accel_limit_mps2
     v = abs(speed_mps)
@@ -110,8 +96,7 @@ def stopping_distance_m(rover: RoverDescription, speed_mps: float, dt_s: float =
 
 def motor_omegas(rover: RoverDescription, left_mps: float, right_mps: float) -> tuple[float, float]:
     """Motor rates, rad/s in the motor frame, for wheel surface speeds (rover frame,
-    forward positive): ``omega = sign * v / wheel_radius``. At speed ``s`` forward this
-    is ``sign * s * k``."""
+    forward positive): ``omega = sign * v / wheel_radius``."""
     r = rover.geometry.wheel_radius_m
     d = rover.drive
     return d.left_wheel_sign * left_mps / r, d.right_wheel_sign * right_mps / r
@@ -147,14 +132,8 @@ def nominal_step_duration_s(rover: RoverDescription, speed: int, distance: int) 
 
 def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:
     """Largest speed ``v`` for this tick from which braking tick by tick
-    (``v, v - a*dt, v - 2*a*dt, ..., 0``, each held for one tick) covers exactly
-    ``rem_m`` or less.
-
-    That travel is ``D(v) = dt * ((m+1)*v - a*dt*m*(m+1)/2)`` for ``v`` in
-    ``[m*a*dt, (m+1)*a*dt)``: piecewise linear in ``v``. ``m`` is the number of whole
-    braking ticks that fit (``a*dt^2*m*(m+1)/2 <= rem``); solving ``D(v) = rem`` then
-    gives a speed from which the next tick's answer is exactly ``v - a*dt``, and the
-    last tick travels exactly what is left (``v = rem/dt`` when ``m = 0``).
+    (``v, v - a*dt, ..., 0``) covers at most ``rem_m``: the piecewise linear
+    ``D(v) = dt * ((m+1)*v - a*dt*m*(m+1)/2)`` of docs/twin.md solved for ``rem_m``.
     """
     unit = a_dt * dt_s  # travel of one tick at speed a*dt
     m = math.floor((math.sqrt(1.0 + 8.0 * rem_m / unit) - 1.0) / 2.0)
@@ -168,15 +147,10 @@ def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:
 class StepProfile:
     """Wheel speed targets of one MOTION step, fed by encoder travel.
 
-    Call :meth:`update` once per control tick with each side's encoder travel since the
-    step started (distance units, rover frame, forward positive); it returns the wheel
-    surface speed targets (m/s, rover frame, forward positive) to apply until the next
-    tick, ramped at ``drive.wheel_accel_limit_mps2``. :attr:`done` turns true once both
-    sides have travelled ``distance`` and their targets are zero; from then on every
-    update returns ``(0.0, 0.0)``.
-
-    A step with speed 0 or distance 0 has nothing to do: it is done at once if it starts
-    at rest, else it brakes from the initial speeds to rest, as a STOP step does.
+    Call :meth:`update` once per control tick; :attr:`done` turns true once both sides
+    have travelled ``distance`` and their targets are zero, and every update returns
+    ``(0.0, 0.0)`` after. A step with speed 0 or distance 0 is done at once from rest,
+    else it brakes to rest as a STOP step does.
     """
 
     def __init__(
@@ -224,9 +198,8 @@ class StepProfile:
         dl, dr = self.directions
         # Current target of each side along its direction of travel (m/s, may be < 0).
         self._u = [initial_left_mps * dl if dl else 0.0, initial_right_mps * dr if dr else 0.0]
-        # STOP, and a step with nothing to do started while a wheel still turns (after a
-        # new session or a clear before rest), brake whatever the direction: track the
-        # speeds themselves. Along a direction, a zero step could never arrive.
+        # A step with nothing to do brakes the speeds themselves: along a direction, a
+        # zero step could never arrive.
         self._brakes = not moving
         if self._brakes:
             self._u = [initial_left_mps, initial_right_mps]
@@ -257,11 +230,9 @@ class StepProfile:
     def update(
         self, left_travel_units: float, right_travel_units: float, dt_s: float
     ) -> tuple[float, float]:
-        """Targets for the next ``dt_s`` given the encoder travel since the step started.
-
-        Returns:
-            ``(left_mps, right_mps)``: wheel surface speed targets, rover frame.
-        """
+        """Wheel surface speed targets ``(left_mps, right_mps)`` (rover frame) for the
+        next ``dt_s``, given each side's encoder travel since the step started (distance
+        units, forward positive)."""
         if self._done:
             return (0.0, 0.0)
         a_dt = self._accel * dt_s

@@ -1,35 +1,21 @@
 """Replay a recorded session's host frames into a fresh emulator and compare its answers.
 
-Regression testing of the controller behaviour from traffic logs (docs/traffic-logs.md):
-:func:`replay_into_emulator` starts a seeded emulator on a new pty (serial logs) or a
-python-can bus (CAN logs), re-sends every host-to-controller frame of the log with its
-recorded timing (serial frames byte for byte), collects what the controller answers, and
-compares those answers with the recorded ones through
-:func:`firmware_proto.linkio.trafficlog.compare_answers`: type by type, in order, leaving out
-fields that measure continuous time (:data:`~firmware_proto.linkio.trafficlog.VOLATILE_FIELDS`)
-unless strict. Periodic telemetry is counted, not compared.
+Regression testing of the controller from traffic logs (docs/traffic-logs.md):
+:func:`replay_into_emulator` starts a seeded emulator on a new pty or python-can bus,
+re-sends every host frame with its recorded timing (serial byte for byte), and compares
+the answers with the recorded ones (:func:`firmware_proto.linkio.trafficlog.compare_answers`,
+volatile fields left out unless strict). Telemetry is counted, not compared.
 
-The recorded host reacted to the controller: it sent a step after an ACK, a STOP after a
-STATUS. So the replay keeps causality as well as timing: a host frame goes out at its
-recorded time, and not before the replayed controller has given every answer (counted by
-type) that came before it in the recording, waiting at most ``gate_s`` longer (0.1 s:
-well inside the controller's 250 ms watchdog, since the recorded heartbeats, which keep
-their own time, end where the recording ended). Without
-that, a step sent 0.2 ms after the previous one completed could reach the fresh
-controller just before it completes, and be refused QUEUE_FULL instead of accepted.
+Causality is kept as well as timing: a host frame goes out at its recorded time and not
+before the controller has given every answer that preceded it in the recording, waiting
+at most ``gate_s`` longer (well inside the watchdog; heartbeats keep their own time).
 
-Both sides are cut alike. Answers before the first host frame (a boot IDENT) are left
-out. The recording's window ends with its last controller frame (at most
-:data:`MAX_SETTLE_S` after the last host frame); the replay's window is as long after
-its own last host frame (as sent). An answer sent within ``edge_s`` of the end of either window
-may fall on either side of the cut by chance (the recording stopped mid-answer, or the
-replay ran a millisecond ahead), so such answers count only where they pair up: for
-each message type the longest agreeing run is kept, and nothing inside the windows is
-ever dropped. Behaviour that hangs on sub-millisecond timing that no answer marks (a
-STOP sent in the same millisecond as a queued step starts) can still replay differently.
-
-The emulator must run as it did when the log was recorded: same seed, speed factor,
-map and rover description (an emulator-recorded serial log names them in its header).
+Both windows are cut alike: answers before the first host frame are left out, and each
+window ends as long after its last host frame (at most :data:`MAX_SETTLE_S`). Answers
+within ``edge_s`` of a window's end count only where they pair up; nothing inside the
+windows is dropped. Behaviour that hangs on sub-millisecond timing no answer marks can
+still replay differently. The emulator must run as recorded: same seed, speed factor,
+map and rover description.
 """
 
 from __future__ import annotations
@@ -101,10 +87,9 @@ class ReplayOptions:
         node: CAN node id of the controller (``None``: the node the log's host addressed).
         can_interface, can_channel: the python-can bus for a CAN log.
         strict: compare volatile fields too.
-        edge_s: answers this close to the end of a window may fall on either side of it,
-            s (see the module docstring).
-        gate_s: longest wait, past a host frame's recorded time, for the answers that
-            came before it in the recording, s (see the module docstring).
+        edge_s: answers this close to a window's end may fall on either side, s.
+        gate_s: longest wait past a host frame's recorded time for the answers that
+            preceded it, s.
     """
 
     seed: int = 0
@@ -259,8 +244,7 @@ def replay_into_emulator(
     ]
     tail = max((d.time_s for d in ours), default=t_last) - t_last
     window = min(MAX_SETTLE_S, max(0.0, tail))
-    # For each host frame, the recorded answers (by type) that came before it: what the
-    # replay waits for before sending it.
+    # Per host frame, the recorded answers (by type) the replay waits for.
     needs = counts_before(
         (
             (d.time_s, d.message.NAME)
@@ -301,9 +285,7 @@ def replay_into_emulator(
             seed=opts.seed,
             recorder=recorder,
         )
-    # The answers are compared in twin time: a loop held up (up to REPLAY_MAX_BACKLOG_S)
-    # runs the ticks it owes, each frame in the tick it arrived in, rather than letting
-    # twin time slip past the recorded timing.
+    # Answers are compared in twin time: catch up rather than let twin time slip.
     emulator = Emulator(
         model, frontend, speed_factor=opts.speed_factor, max_backlog_s=REPLAY_MAX_BACKLOG_S
     )

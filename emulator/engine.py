@@ -1,37 +1,22 @@
 """The emulator: a controller model served over a front end, in real time.
 
-:class:`Emulator` owns one control thread that alone touches the model: it runs one
-:meth:`~emulator.controller.ControllerModel.tick` per twin step, paced so that twin
-time runs ``speed_factor`` times as fast as the wall clock. It waits on the inbox
-between turns, :data:`WAKE_QUANTUM_S` at least unless a message arrives; a message
-wakes it at once, it runs the ticks owed until the message's arrival (a burst of a few
-ticks, tens of microseconds) and handles it in its own tick. A STOP preempts even that,
-as a firmware's receive interrupt does: it has zeroed the wheel targets within tens of
-microseconds of its frame's arrival (:attr:`Emulator.stop_reactions`), at most one wake
-quantum of twin time early.
+:class:`Emulator` owns one control thread, the only one that touches the model: one
+:meth:`~emulator.controller.ControllerModel.tick` per twin step, twin time running
+``speed_factor`` times the wall clock. Between turns it waits on the inbox (at least
+:data:`WAKE_QUANTUM_S` unless a message arrives). A STOP preempts the ticks owed, as a
+receive interrupt does (:attr:`Emulator.stop_reactions`), at most one wake quantum of
+twin time early.
 
-**Faithful when late.** A microcontroller is never descheduled; the emulator's process
-is. When the control thread wakes late it runs the ticks it owes in a burst, and plays
-each message from the host into twin time in order with them: a message is handled
-before the first tick that ends after it arrived (its arrival is stamped by the front
-end's reader), not at the start of the burst. So the watchdog, stall detection and a
-STOP's place in the twin see the host's timing, not the emulator's: a late emulator
-invents no watchdog trip, and a host that really fell silent trips it as before. A
-control loop more than :data:`MAX_BACKLOG_S` behind lets twin time slip instead of
-bursting. Every catch-up is counted, with how late it was (:class:`EmulatorStatus`),
-and so are the gaps between the host's heartbeats and the emulator's own, on the wall
-clock. The programs that serve the emulator (``rover emulate``) give all its threads
-real-time priority where permitted (docs/realtime.md).
+**Faithful when late.** Woken late, the loop runs the ticks it owes in a burst and
+handles each message before the first tick that ends after its arrival (stamped by the
+front end's reader), so the watchdog, stall detection and a STOP see the host's timing,
+not the emulator's. Beyond :data:`MAX_BACKLOG_S` behind, twin time slips instead.
+Catch-ups and heartbeat gaps are counted (:class:`EmulatorStatus`).
 
-Commands from other threads (fault injection, status, unplug) go through
-:meth:`Emulator.call`, which runs a function on the control thread and returns its
-result. :meth:`Emulator.close` is idempotent and joins every thread it started.
-
-Faults are checked when they are given (:meth:`Emulator.inject`, the ``faults`` of the
-constructor), so one that cannot apply is refused there with an
-:class:`~emulator.errors.InjectionError`, never accepted and refused when it fires.
-
-Lockstep runs (tests, the gate) use the model directly without this class.
+Other threads go through :meth:`Emulator.call`, which runs a function on the control
+thread. Faults are checked when given, never refused when they fire.
+:meth:`Emulator.close` is idempotent and joins every thread it started. Lockstep runs
+use the model directly. More in docs/emulator.md and docs/realtime.md.
 """
 
 from __future__ import annotations
@@ -181,12 +166,9 @@ class Emulator:
             trigger at the first tick).
         on_injection: told of every injection applied, on the control thread; it
             must be quick and must not call back into the emulator.
-        fault_source: who asked for ``faults`` (``cli`` from the command line),
-            recorded with each injection.
-        max_backlog_s: wall seconds the control loop may fall behind and still run
-            the ticks it owes in a burst (each message in the tick it arrived in);
-            further behind, twin time slips. A replay, which compares answers in twin
-            time, allows more than a live emulator.
+        fault_source: who asked for ``faults`` (``cli``), recorded with each injection.
+        max_backlog_s: wall seconds the loop may fall behind and still catch up in a
+            burst; further behind, twin time slips (a replay allows more).
 
         Raises:
             ValueError: speed factor not positive and finite.
@@ -278,8 +260,7 @@ class Emulator:
     def inject(
         self, fault: str | FaultSpec, source: str = "api"
     ) -> InjectionRecord | ScheduledFault:
-        """Apply a fault now, or schedule it if it has a trigger. Either way it is checked
-        first: a fault that cannot apply is refused now, not when its trigger fires.
+        """Apply a fault now, or schedule it if it has a trigger; checked first either way.
 
         Returns:
             the injection applied (with its twin time), or, for a triggered fault, when
@@ -421,9 +402,8 @@ class Emulator:
                     item = None
                 woke: float = time.monotonic()
                 if woke - planned > tick_wall:
-                    # Held up past its plan, whatever woke it (a call or a message that
-                    # came meanwhile too): counted before that is handled, so that a
-                    # status asked for after a stall shows it.
+                    # Counted before what woke it is handled: a status asked for after
+                    # a stall shows it.
                     self._catch_up(woke - planned)
                     planned = None
                 if isinstance(item, _Call):
@@ -432,12 +412,10 @@ class Emulator:
                 elif item is not None:
                     planned = None
                     if isinstance(item.message, Stop) and not self._held:
-                        # STOP preempts, as the firmware's receive interrupt does: now,
-                        # ahead of the ticks owed (at most a wake quantum of twin time).
+                        # STOP preempts the ticks owed, as a receive interrupt does.
                         self._handle(item)
                     else:
-                        # The ticks owed until it arrived run first (next turn of the
-                        # loop, at once), then it is handled in its own tick.
+                        # Handled in its own tick, after the ticks owed.
                         self._held.append(item)
         except Exception:
             logger.exception("control loop crashed; the controller stops")

@@ -1,23 +1,13 @@
 """Lockstep playback of a list of steps on a twin, as fast as the machine allows.
 
-:func:`play` executes ``(command, speed, distance)`` steps one after the other with the
-controller's step semantics (:class:`emulator.drive.StepProfile`, fed by the twin's
-encoders each physics step) and records what happened:
-
-- the pose every ``sample_period_s`` of twin time (default 0.1 s; the actual period is
-  a whole number of physics steps and is returned), starting with the pose at time 0,
-  plus the final pose;
-- each step's start and end time, end pose and encoder travel (distance units per side,
-  forward positive);
-- the first collision of the margin-inflated footprint, which ends playback;
-- a stall, which also ends playback: a side that should move but whose encoder has not
-  advanced by a whole unit within ``stall_window_s`` (a locked side), or a step that
-  exceeds its time limit (1.5 x its nominal duration + 2 s by default), so that
-  playback always terminates;
-- after the last step, the twin keeps running with the wheels stopped until the body
-  is at rest (at most ``settle_s``), so the final pose is where the rover comes to rest.
-
-Verdicts (approved or not, tolerances) are not made here; that is the gate's business.
+:func:`play` executes ``(command, speed, distance)`` steps with the controller's step
+semantics (:class:`emulator.drive.StepProfile`) and records the pose every
+``sample_period_s`` (whole physics steps) from time 0 plus the final pose, each step's
+times, end pose and encoder travel, and the first collision or stall, either of which
+ends playback (a stall: no whole unit of encoder progress within ``stall_window_s``, or
+a step past its time limit, so playback always terminates). After the last step the
+twin settles, wheels stopped, until at rest (at most ``settle_s``). Verdicts are the
+gate's business. More in docs/twin.md, "Playback".
 """
 
 from __future__ import annotations
@@ -130,8 +120,7 @@ class PlaybackResult:
 
     Attributes:
         samples: poses every ``sample_period_s`` from time 0, and the final pose.
-        steps: one :class:`StepResult` per step started (fewer than given when
-            playback ended early).
+        steps: one :class:`StepResult` per step started.
         collision: the first collision, or ``None``.
         collision_step: index of the step during which it happened (0 if the start pose
             already collides), or ``None``.
@@ -187,8 +176,7 @@ def play(
             ``factor * nominal duration + margin``.
 
     Raises:
-        CommandError: a step is invalid (unknown command, value out of range); nothing
-            is played then.
+        CommandError: a step is invalid; nothing is played then.
         TwinConfigError: a period or window is not positive.
     """
     for name, value in (("sample_period_s", sample_period_s), ("stall_window_s", stall_window_s)):
@@ -327,19 +315,12 @@ def measure_turn_efficiency(
     distance: int | None = None,
     dt_s: float = 0.001,
 ) -> float:
-    """Body yaw achieved / ideal yaw from wheel arc travel, for one in-place spin from
-    rest on an open plane at nominal traction: how ``traction.turn_efficiency`` is
-    calibrated (docs/twin.md).
+    """Body yaw achieved / ideal yaw from wheel arc travel, for one in-place spin
+    (``command`` LEFT or RIGHT) from rest on an open plane, read after settling: how
+    ``traction.turn_efficiency`` is calibrated (docs/twin.md).
 
-    Args:
-        rover: the rover description.
-        command: LEFT or RIGHT.
-        speed: speed units.
-        distance: distance units; default: what the description's current
-            ``turn_efficiency`` predicts for a 90 degree turn.
-        dt_s: physics step.
-
-    The twin settles before the yaw is read.
+    ``distance`` defaults to what the description predicts for 90 degrees; ``dt_s`` is
+    the physics step, s.
     """
     if distance is None:
         distance = turn_units_for_yaw(rover, math.pi / 2.0)

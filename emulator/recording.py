@@ -1,28 +1,21 @@
 """A recorded mission read back for calibration: the steps sent and what the rover said.
 
-``rover go --record`` and ``rover demo`` write the ground station's view of a mission as
-ROS 2 MCAP (docs/view.md, Recordings): the steps it published on ``wheel_instructions``,
-and what came back over the link on ``command_status``, ``odom`` (encoders and the IMU's
-yaw rate, dead-reckoned by the bridge) and ``odom_ground`` (the controller's
-ground-seeing POSE). :func:`read_recording` reads those four topics with the mcap reader
-(CDR decoded against the schemas in the file: no ROS installation needed) into a
-:class:`Recording`:
+:func:`read_recording` reads the ground station's ROS 2 MCAP (``rover go --record``,
+``rover demo``; docs/view.md, Recordings) with the mcap reader (no ROS installation
+needed) into a :class:`Recording`:
 
-- the steps in the order sent, each with its fate from ``command_status``, matched
-  first in, first out as the controller's queue works: ``accepted`` or ``rejected:*``
-  answers the oldest step not yet answered; ``completed`` or ``aborted:*`` ends the
-  oldest accepted step still running (``fault:*`` is noted on it: the executor lets
-  some faults pass). A STOP step (command 0) is an emergency stop, not a step;
-- the POSE and odometry samples with their header stamps (the rover's clock: the
-  measurement time for POSE, the bridge's publication for odometry);
-- the STOPs the ground station sent on ``emergency_stop`` (a step they may have cut
-  short, or that drift control saw go wrong, is not measured);
-- the downlink delay: the median of log time minus header stamp over ``odom``, which
-  maps the log times of statuses (which carry no stamp) onto the rover's clock.
+- the steps in the order sent (``wheel_instructions``), each with its fate from
+  ``command_status``, matched first in, first out as the controller's queue works:
+  ``accepted``/``rejected:*`` answer the oldest unanswered step, ``completed``/
+  ``aborted:*`` end the oldest running one, ``fault:*`` is noted on it. A STOP step
+  (command 0) is an emergency stop, not a step;
+- POSE (``odom_ground``) and odometry (``odom``) samples with their header stamps;
+- the ``emergency_stop`` times (a step they may have cut short is not measured);
+- the downlink delay: median of log time minus stamp over ``odom``, which maps the
+  statuses' log times onto the rover's clock.
 
-Times are seconds relative to :attr:`Recording.origin_ns` (float precision). Topics are
-found by their last name component, whatever the namespace (the demo records
-``/ground/odom``); a file with several namespaces needs ``namespace``.
+Times are seconds relative to :attr:`Recording.origin_ns`. Topics are found by their
+last name component; a file with several namespaces needs ``namespace``.
 """
 
 from __future__ import annotations

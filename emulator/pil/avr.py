@@ -1,23 +1,15 @@
 """The ATmega2560 image under simavr with the pymunk twin as its plant.
 
-The harness (``simavr_harness.c``, built for the host against libsimavr and loaded with
-ctypes) owns the simulated MCU; this module owns its time. One step is one plant step
-(1 ms of simulated time by default, 16,000 cycles at 16 MHz): the host's bytes go into
-USART0 (paced by simavr at the baud rate in simulated time), the MCU runs to the end of
-the step, its transmitted bytes come out, the motor outputs it set (Timer4's PWM duty and
-the direction pins) drive the twin one step, and the sensors (encoder counts, wheel
-speeds, IMU, the pose fix) are posted into the image's ``pil_sensors``.
+The harness (``simavr_harness.c``, loaded with ctypes) owns the simulated MCU; this
+module owns its time. One step is one plant step (1 ms by default): host bytes into
+USART0 (paced at the baud rate in simulated time), the MCU run to the end of the step,
+its transmitted bytes out, its motor outputs (Timer4 PWM duty, direction pins) drive the
+twin one step, and the sensors are posted into the image's ``pil_sensors``.
 
-Two clocks drive the same :class:`AvrSystem`:
-
-- real time (:class:`AvrTarget`, ``rover pil --target atmega2560``): a thread runs one
-  step per millisecond of wall time, with UART0 on a pty;
-- lockstep (:class:`AvrLockstep`): one step per tick of a
-  :class:`~firmware_proto.linkio.clock.LockstepClock`, the UART on an in-memory line, so
-  that a :class:`~firmware_proto.linkio.host.ProtocolHost` on the same clock runs a
-  script in simulated time: the twin's steps and the MCU's cycles advance together, and
-  a run repeats exactly from its seed (PX4's SITL lockstep does the same with its
-  simulator).
+Two clocks drive the same :class:`AvrSystem`: real time (:class:`AvrTarget`, one step
+per wall millisecond, UART0 on a pty) and lockstep (:class:`AvrLockstep`, one step per
+tick of a :class:`~firmware_proto.linkio.clock.LockstepClock`, the UART on an in-memory
+line), in which a run repeats exactly from its seed.
 """
 
 from __future__ import annotations
@@ -432,9 +424,8 @@ class AvrLockstep:
         self.ticks = 0
 
     def open(self, boot_s: float = 0.05) -> AvrLockstep:
-        """Tick from now on, and run ``boot_s`` of it: the MCU has booted (its USART takes
-        bytes, its IDENT is out) when the host starts, as the emulator's controller has
-        (a USART whose receiver is not yet enabled drops what arrives, as on silicon)."""
+        """Tick from now on, and run ``boot_s`` of it, so the MCU has booted (USART
+        receiving, IDENT out) before the host starts."""
         self._opened = True
         self.clock.add(self.tick)
         self.clock.advance(max(0, round(boot_s / self.clock.dt_s)))
@@ -464,8 +455,7 @@ class AvrLockstep:
         apply_fault(self.system, spec)
         kind = spec.target if spec.kind == "clear" else spec.kind
         if kind == "encoder-dropout":
-            # Answer once the firmware has taken it (its next tick), as the real-time
-            # target does (PilTarget._settle).
+            # Answer once the firmware has taken it, as PilTarget._settle does.
             want = any(self.system.plant.encoders.dropout)
             bit = 1 << (FaultCode.ENCODER.value - 1)
             for _ in range(1000):
