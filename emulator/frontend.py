@@ -1,18 +1,12 @@
 """Front ends carry protocol messages between the controller model and a host.
 
-A front end serves the controller's end of the link through an
-:class:`~firmware_proto.linkio.endpoint.Endpoint` on the controller's side, the same
-serial and CAN endpoints the bridge's transports use on the host's side
-(:mod:`firmware_proto.linkio`): the endpoint frames, decodes, filters by node and hands
-every frame to the traffic log (:attr:`FrontEnd.recorder`, docs/traffic-logs.md).
-:class:`FrontEnd` adds what only an emulated controller does: link faults (drop,
-corrupt, delay) drawn from a seeded generator, wrapped around the endpoint; delayed
-delivery; counters; the reader thread and a write lock. :mod:`emulator.serial_frontend`
-(a pty, paced, unplugged on demand) and :mod:`emulator.can_frontend` (a node on a bus)
-choose the endpoint.
-
-The reader thread does I/O only: it hands each received message, with the monotonic
-time it arrived, to the ``deliver`` callback given to :meth:`FrontEnd.start`.
+A front end serves the controller's end of the link through a controller-side
+:class:`~firmware_proto.linkio.endpoint.Endpoint` (framing, decoding, node filtering,
+the traffic log: docs/traffic-logs.md). :class:`FrontEnd` adds what only an emulated
+controller does: seeded link faults (drop, corrupt, delay), counters, the reader thread
+and a write lock. :mod:`emulator.serial_frontend` and :mod:`emulator.can_frontend`
+choose the endpoint. The reader thread does I/O only: it hands each message and its
+``time.monotonic()`` arrival to the ``deliver`` callback of :meth:`FrontEnd.start`.
 """
 
 from __future__ import annotations
@@ -74,8 +68,7 @@ class FrontEnd:
         """Args:
         endpoint: the controller's end of the link on its medium, not yet open.
         seed: seeds the link-fault generators.
-        recorder: where every frame sent and received goes (a traffic log); the caller
-            keeps ownership and closes it after the front end.
+        recorder: the traffic log for every frame; the caller closes it after this.
         """
         self.endpoint = endpoint
         self.stats = FrontEndStats()
@@ -136,9 +129,8 @@ class FrontEnd:
         self.endpoint.close()
 
     def restart(self) -> None:
-        """The controller rebooted: what it had queued for the host is gone and its frame
-        counter starts again at 0, as a reset MCU's would (on the control thread, before
-        the new boot's first frame)."""
+        """The controller rebooted: its queued output is gone and its frame counter
+        restarts at 0 (control thread, before the new boot's first frame)."""
         with self._write_lock:
             self.endpoint.restart_counter()
 
@@ -191,8 +183,7 @@ class FrontEnd:
         corrupt: float | None = None,
         delay_s: float | None = None,
     ) -> None:
-        """Whether these link fault levels can apply; changes nothing. ``None`` is not
-        checked.
+        """Whether these link fault levels can apply (``None``: unchecked); changes nothing.
 
         Raises:
             InjectionError: a ratio outside 0..1, a delay outside
@@ -240,10 +231,8 @@ class FrontEnd:
 
     # -- transmit -----------------------------------------------------------------------
     def send(self, messages: Sequence[Message]) -> None:
-        """Send messages to the host in order, through the injected link faults.
-
-        Called from the control thread. Delayed messages go out from :meth:`flush_due`.
-        """
+        """Send messages to the host in order, through the injected link faults (control
+        thread); delayed ones go out from :meth:`flush_due`."""
         for msg in messages:
             drop, corrupt = self._fate(self._rng_tx)
             if drop:

@@ -1,25 +1,16 @@
 """A controller served in lockstep: one model tick per tick of a virtual clock.
 
-:class:`LockstepController` puts a :class:`~emulator.controller.ControllerModel` (or the
-C core, or a mutant) behind an endpoint on the controller's side, as
-:class:`~emulator.engine.Emulator` does in real time, but without threads or a wall
-clock: it registers its :meth:`~LockstepController.tick` with a
-:class:`~firmware_proto.linkio.clock.LockstepClock`, and on each tick it handles every
-message that arrived (in order, as the engine does before a tick), runs one control
-period and writes what the model sent. A
-:class:`~firmware_proto.linkio.host.ProtocolHost` on the same clock is then in lockstep
-with it: a host's wait advances both, and a script (the conformance suite, a test) runs
-in virtual time, as fast as the machine computes it and exactly the same every run.
+:class:`LockstepController` puts a :class:`~emulator.controller.ControllerModel` (or
+the C core, or a mutant) behind a controller-side endpoint without threads or a wall
+clock: on each tick of a :class:`~firmware_proto.linkio.clock.LockstepClock` it handles
+every message that arrived, in order, runs one control period and writes what the model
+sent. A :class:`~firmware_proto.linkio.host.ProtocolHost` on the same clock then runs a
+script in virtual time, the same every run. :func:`lockstep_pair` builds both ends on an
+in-memory serial line or a python-can ``virtual`` bus.
 
-:func:`lockstep_pair` builds both ends on a real medium that needs no I/O: an in-memory
-serial line (:func:`~firmware_proto.linkio.memory.memory_line`: bytes through the serial
-codec) or a python-can ``virtual`` bus (frames through the CAN map).
-
-:meth:`LockstepController.inject` is the control port's ``inject`` (docs/emulator.md):
-what the conformance suite calls to reboot the controller or raise a fault. A fault with
-a trigger (``@t=``, ``@d=``, ``@region=``) waits in a
-:class:`~emulator.injection.FaultSchedule` polled after every control period, as the
-served emulator's. Link faults need a served emulator; they are refused here.
+:meth:`LockstepController.inject` is the control port's ``inject`` (docs/emulator.md);
+triggered faults wait in a :class:`~emulator.injection.FaultSchedule` polled after
+every control period. Link faults need a served emulator and are refused.
 """
 
 from __future__ import annotations
@@ -109,9 +100,8 @@ class LockstepController:
         self._send(out)
 
     def inject(self, fault: str) -> dict[str, Any]:
-        """Apply a fault now (``reboot``, ``encoder-dropout:left``, ``clear:stall`` ...),
-        or schedule it when it has a trigger (``stall:left@d=1.2``), as the control
-        port's ``inject`` does; its answer.
+        """Apply a fault now, or schedule it when it has a trigger, as the control port's
+        ``inject`` does; returns its answer.
 
         Raises:
             InjectionError: malformed, inapplicable, or a link fault.

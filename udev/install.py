@@ -2,25 +2,18 @@
 
 The source directory holds udev rules (``*.rules``, to ``/etc/udev/rules.d``) and
 systemd-networkd files (``*.network``, ``*.link``, ``*.netdev``, to
-``/etc/systemd/network``). A rules file named ``X-bench.rules`` is the bench variant of
-``X.rules``: exactly one of the two is installed (the pinned one unless ``bench``), and
-installing one while the other is in the target directory is refused, because both
-would claim ``/dev/rover-motor``.
-
-The pinned rules carry placeholders (:data:`PLACEHOLDER_SERIAL`,
-:data:`PLACEHOLDER_USB_PORT`) that the lab edits in the source, or that ``--serial`` and
+``/etc/systemd/network``). ``X-bench.rules`` is the bench variant of ``X.rules``:
+exactly one of the two is installed, and installing one beside the other is refused
+(both would claim ``/dev/rover-motor``). The pinned rules carry placeholders
+(:data:`PLACEHOLDER_SERIAL`, :data:`PLACEHOLDER_USB_PORT`) that ``--serial`` and
 ``--usb-port`` fill in the installed copy.
 
-Installing is all or nothing: :func:`plan_install` checks everything first (udev itself
-finds nothing wrong with the rules as they would be installed, placeholders filled:
-:mod:`udev.verify`; the target directories are writable, udevadm is there and we are
-root when a reload is wanted) and lists the problems;
-:func:`execute` refuses a plan with problems, stages every file next to its target, then
-renames them into place, and on any failure removes what it wrote and restores what it
-replaced. Reloading comes after the files are in place; if it fails the files stay (they
-are valid) and :class:`InstallError` says what to run by hand. Without udevadm (a
-container, a CI runner, an image being built) the install fails before writing anything
-unless ``reload=False`` (``--no-reload``), which installs and reports the reload skipped.
+Installing is all or nothing: :func:`plan_install` checks everything first (udev's own
+check of the filled rules, writable targets, udevadm and root for a reload) and lists
+the problems; :func:`execute` refuses a plan with problems, stages every file beside its
+target, renames them into place, and on failure restores what it replaced. A failed
+reload leaves the (valid) files and says what to run. Without udevadm the install fails
+before writing unless ``reload=False`` (``--no-reload``).
 """
 
 from __future__ import annotations
@@ -101,10 +94,9 @@ class SourceFile:
 
 
 def _installed_dirs(module_file: Path) -> list[tuple[str, Path]]:
-    """Where an install put ``share/rover_hil/udev`` (setup.py's data files): the ament
-    index's share directory of the package when ROS 2 is sourced, then the nearest
-    ancestor of the installed module that holds one (``<prefix>/lib/pythonX.Y/
-    site-packages/udev`` -> ``<prefix>/share``: colcon, pip and venv layouts alike)."""
+    """Where an install put ``share/rover_hil/udev``: the ament index's share directory
+    when ROS 2 is sourced, then the nearest ancestor of the module holding
+    ``share/rover_hil/udev`` (colcon, pip and venv layouts alike)."""
     found: list[tuple[str, Path]] = []
     try:
         packages = importlib.import_module("ament_index_python.packages")
@@ -128,9 +120,8 @@ def _holds_rules(directory: Path) -> bool:
 
 def source_dir(explicit: str | Path | None = None) -> Path:
     """The ``udev/`` source directory: ``explicit`` (``--source``), else
-    ``$ROVER_UDEV_DIR``, else the first that exists of the ``udev/`` of the checkout this
-    package runs from (colcon ``--symlink-install`` resolves to it too), and the installed
-    ``share/rover_hil/udev`` (see :func:`_installed_dirs`).
+    ``$ROVER_UDEV_DIR``, else the first that exists of the checkout's ``udev/`` and the
+    installed ``share/rover_hil/udev`` (:func:`_installed_dirs`).
 
     Raises:
         InstallError: the directory named, or every default, does not exist.
@@ -141,8 +132,7 @@ def source_dir(explicit: str | Path | None = None) -> Path:
         candidates = [(f"${ENV_SOURCE_DIR}", Path(os.environ[ENV_SOURCE_DIR]))]
     else:
         here = Path(__file__).resolve()
-        # In a checkout (or colcon's symlink install) this module sits in udev/ beside
-        # the rules; an installed package holds only the code.
+        # An installed package holds only the code, a checkout the rules too.
         candidates = [("the checkout", here.parent), *_installed_dirs(here)]
         candidates = [(o, p) for o, p in candidates if o != "the checkout" or _holds_rules(p)]
     for _origin, path in candidates:
@@ -257,9 +247,8 @@ def _nearest_existing(path: Path) -> Path:
 def _udev_check(
     rules: Sequence[tuple[SourceFile, str]], udevadm: str | None, notes: list[str]
 ) -> list[str]:
-    """What udev finds wrong with ``rules`` as they would be installed (their text with
-    the placeholders filled), one ``FILE:LINE: message`` each, named by the source file.
-    Where udev cannot check them here, a note says so and nothing is a problem."""
+    """What udev finds wrong with ``rules`` as they would be installed, one
+    ``FILE:LINE: message`` each (source file names); a note where udev cannot check."""
     if not rules:
         return []
     if udevadm is None:
@@ -291,11 +280,10 @@ def plan_install(
     which: Callable[[str], str | None] = shutil.which,
     euid: Callable[[], int] = os.geteuid,
 ) -> InstallPlan:
-    """Work out an install without changing anything. See the module docstring.
+    """Work out an install without changing anything (module docstring).
 
     Raises InstallError only when there is nothing to plan (no source directory, no
-    files, bad ``serial``/``usb_port``); everything else that would stop the install is
-    in :attr:`InstallPlan.problems`.
+    files, bad ``serial``/``usb_port``); all else is in :attr:`InstallPlan.problems`.
     """
     directory = source_dir(source)
     if bench and (serial is not None or usb_port is not None):

@@ -1,26 +1,16 @@
 """udev rules files, read and replayed: which of our rules would name a device.
 
 :func:`parse_rules` reads a rules file the way ``systemd-udevd`` splits it (udev(7)):
-
-- a line whose first non-blank character is ``#`` is a comment, even inside a
-  continuation; a line ending in a backslash continues on the next one (whose leading
-  blanks are dropped); blank lines separate nothing;
-- a rule is comma-separated ``KEY[{attribute}] OP "value"`` tokens; the operators are
-  ``==`` and ``!=`` (match) and ``=``, ``+=``, ``-=``, ``:=`` (assignment);
-- values are double-quoted; ``\\"`` is the only escape of a plain value, an ``e"..."``
-  value takes C escapes, an ``i"..."`` value matches case-insensitively.
-
-It judges nothing: whether udev accepts a rule is udev's to say (:mod:`udev.verify`
-runs ``udevadm verify``, or udev's own parser in a sandbox). A rule it cannot split, or
-that names a key udev does not know, it leaves out and lists in
+``#`` comment lines (even inside a continuation), backslash continuations, rules of
+comma-separated ``KEY[{attribute}] OP "value"`` tokens (``==``, ``!=``, ``=``, ``+=``,
+``-=``, ``:=``), double-quoted values with ``e"..."`` (C escapes) and ``i"..."``
+(case-insensitive) prefixes. It judges nothing (:mod:`udev.verify` asks udev): a rule
+it cannot split, or with a key udev does not know, is left out and listed in
 :attr:`RulesFile.issues`, as udev leaves it out.
 
-The evaluator (:func:`evaluate`) replays an ``add`` event through parsed rules to tell
-which rule would name a device, for ``rover devices``: something ``udevadm test`` can
-do only for a device that is plugged in, with the rules installed. It evaluates the keys
-that a description of the device can answer (``ACTION``, ``KERNEL``, ``SUBSYSTEM``,
-``DRIVER``, ``ATTR``, ``ENV``, ``NAME``, ``SYMLINK`` and the parent keys ``KERNELS``,
-``SUBSYSTEMS``, ``DRIVERS``, ``ATTRS``) and assumes the others true, listing them in
+:func:`evaluate` replays an ``add`` event through parsed rules to tell which rule would
+name a device (``rover devices``), without the device plugged in or the rules
+installed. Keys a device description cannot answer are assumed true and listed in
 :attr:`UdevOutcome.assumed`.
 """
 
@@ -453,9 +443,8 @@ def _apply(rule: UdevRule, event: UdevEvent, state: _State) -> tuple[str, ...]:
 def evaluate(files: Sequence[RulesFile], event: UdevEvent) -> UdevOutcome:
     """Replay ``event`` through ``files`` (in the order given, as udev orders them).
 
-    Rules the reader could not read are absent from the files. Keys
-    the event cannot answer (``PROGRAM``, ``TEST``, ``IMPORT``, ...) are assumed to
-    match and are listed in :attr:`UdevOutcome.assumed`. ``GOTO`` jumps within a file.
+    Keys the event cannot answer (``PROGRAM``, ``TEST``, ...) are assumed to match and
+    listed in :attr:`UdevOutcome.assumed`. ``GOTO`` jumps within a file.
     """
     if not event.chain:
         raise ValueError("an event needs at least the device itself in its chain")

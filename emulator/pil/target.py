@@ -1,15 +1,11 @@
 """A processor-in-the-loop target: the firmware image running in an emulated MCU, served
 as ``rover emulate`` serves a controller (a device path and the same control port).
 
-:class:`PilTarget` does the shared work: parses and checks every fault with the
-emulator's own parser (``emulator.injection``), keeps the injection log, builds the
-status the control port's ``status`` answers (``EmulatorStatus``) from the port's
-``pil_view`` and ``pil_stats``. A target fills four hooks: :meth:`_start_emulator`,
-:meth:`_apply` (a fault into the plant or the image's hooks), :meth:`_read_port` and
-:meth:`_close_emulator`; it may override :meth:`_check` to refuse faults it cannot apply.
-
-Threads: :meth:`inject` and :meth:`status` may be called from any thread (the control
-port's); a lock serialises them.
+:class:`PilTarget` parses and checks faults (``emulator.injection``), keeps the
+injection log and builds the ``status`` answer from the image's ``pil_view`` and
+``pil_stats``. A target fills :meth:`_start_emulator`, :meth:`_apply`, :meth:`_read_port`
+and :meth:`_close_emulator`, and may override :meth:`_check`. :meth:`inject` and
+:meth:`status` may be called from any thread; a lock serialises them.
 """
 
 from __future__ import annotations
@@ -144,9 +140,8 @@ class PilTarget(ABC):
     def inject(
         self, fault: str | FaultSpec, source: str = "api"
     ) -> InjectionRecord | ScheduledFault:
-        """Apply a fault now (``reboot`` resets the MCU; the others go to the plant or the
-        image's hooks), or keep it until its ``@t=`` (target time) or ``@d=`` (ground
-        travel) trigger is met.
+        """Apply a fault now, or keep it until its ``@t=`` (target time) or ``@d=``
+        (ground travel) trigger is met.
 
         Raises:
             InjectionError: malformed, not applicable on this target, or ``@region=`` (the
@@ -254,10 +249,8 @@ class PilTarget(ABC):
             raise InjectionError(f"{spec}: slip scale must be in (0, 1]")
 
     def _settle(self, spec: FaultSpec) -> None:
-        """Return once the firmware has taken an encoder dropout or its end (its ENCODER
-        fault bit follows the error line at its next tick), as the emulator's ``inject``
-        returns once the controller has acted: a host that sends CLEAR_STOP right after
-        ``inject clear:encoder-dropout`` is then judged on the condition gone.
+        """Return once the firmware's ENCODER fault bit follows an encoder dropout or its
+        end, as the emulator's ``inject`` returns once the controller has acted.
 
         Raises:
             PilError: the firmware did not follow within 2 s of wall time.
