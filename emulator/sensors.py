@@ -1,11 +1,9 @@
 """Sensor models of the controller: wheel encoders, IMU, and a ground-seeing pose sensor.
 
-Encoders count wheel rotation and cannot see slip; the IMU's yaw rate and the POSE
-sensor (visual odometry or lab tracking) see the ground, which is what lets a host
-detect slip (docs/architecture.md, Contracts 7). All three read the twin's ground truth and add
-seeded noise, bias, latency and dropout, each injectable. Pure: no I/O, no threads, no
-wall clock; every random draw comes from a ``random.Random`` seeded by the caller, so a
-run is reproducible from its seed.
+Encoders cannot see slip; the IMU's yaw rate and the POSE sensor see the ground
+(docs/architecture.md, Contracts 7). All three read the twin's ground truth and add
+injectable noise, bias, latency and dropout. Pure: no I/O, threads or wall clock; every
+draw comes from a ``random.Random`` the caller seeds.
 """
 
 from __future__ import annotations
@@ -77,11 +75,9 @@ class SensorConfig:
 
 
 class EncoderModel:
-    """Absolute wheel counts since boot, polarity applied (forward positive), in distance
-    units, from the twin's motor angles, as a signed 32-bit counter that wraps (a
-    reading's difference from an earlier one is :func:`count_delta`, not ``-``).
-    Injectable per side: extra noise and dropout (the encoder stops counting and flags a
-    signal error)."""
+    """Wheel counts since boot, forward positive, distance units, as a wrapping signed
+    32-bit counter (differences via :func:`count_delta`). Per side: injectable noise and
+    dropout (the count holds)."""
 
     def __init__(
         self, rover: RoverDescription, twin: Twin, rng: random.Random, noise_units: float
@@ -100,8 +96,7 @@ class EncoderModel:
         self._held = [0.0, 0.0]
 
     def set_counts(self, left_units: float, right_units: float) -> None:
-        """The counters read these values now and count on from them (rover frame): where
-        a long drive would have left them; a test sets them just short of the wrap."""
+        """The counters read these values now and count on from them (rover frame)."""
         left, right = travel_units(self._rover, *self._twin.motor_angles_rad)
         self._offset = (left - left_units, right - right_units)
         self._held = [wrap_count(left_units), wrap_count(right_units)]

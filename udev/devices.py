@@ -2,23 +2,17 @@
 
 :func:`inventory` gathers, for ``rover devices``:
 
-- serial ports from pyserial's ``list_ports`` (vid:pid, serial number, manufacturer,
-  product, USB port path, ``/dev/serial/by-id`` links). Built-in UARTs without hardware
-  are hidden: kernels from 6.5 on report them on the ``serial-base`` bus, which pyserial
-  no longer filters (pyserial issue #763), so a port whose ``/sys/class/tty/NAME/type``
-  is 0 (no UART) is left out and counted;
-- CAN interfaces from ``/sys/class/net`` (ARPHRD type 280), with driver and operstate
-  from sysfs and kind, controller state and bitrate from ``ip -details -json`` where
-  iproute2 can tell;
-- for each device, which of our rules files (``udev/``) would name it, by replaying an
-  ``add`` event through the parsed rules (:func:`udev.rules.evaluate`), and
-  whether a pinned rule would match once its placeholder holds this unit's serial
-  number or USB port;
-- whether ``/dev/rover-motor`` exists and where it points, whether the kernel has
-  SocketCAN, and whether our files are installed.
+- serial ports from pyserial's ``list_ports``; built-in UARTs without hardware (type 0
+  in ``/sys/class/tty/NAME/type``, which pyserial no longer filters) are hidden and
+  counted;
+- CAN interfaces from ``/sys/class/net`` (ARPHRD 280), with ``ip -details -json``
+  details where iproute2 can tell;
+- per device, which of our rules files would name it (:func:`udev.rules.evaluate`),
+  and whether a pinned rule would once its placeholder holds this unit's serial or port;
+- ``/dev/rover-motor``, SocketCAN support, and whether our files are installed.
 
-Every source is a parameter with the real one as default, so tests feed synthetic
-ports (pyserial ``ListPortInfo`` objects) and a fake sysfs tree.
+Every source is a parameter with the real one as default (tests feed synthetic ports
+and a fake sysfs tree).
 """
 
 from __future__ import annotations

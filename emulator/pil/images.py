@@ -3,17 +3,14 @@ build, with a port for an MCU, cross-compiled and cached by content hash.
 
 Targets (:data:`IMAGES`):
 
-- ``microbit``: nRF51822 (Cortex-M0, the BBC micro:bit) with ``port_microbit/main.c``;
-  with the PIL flag (``-DFW_PIL``), the kinematic wheel and encoder model of
-  ``port_pil/pil_plant.c`` (the packaged rover's track width and turn efficiency) and the
-  runner's fault hooks inside the image.
-- ``atmega2560``: with ``port_avr/main.c``; its plant is outside, in the simavr harness
-  (the twin behind its pins and counters), so the flag only adds the fault hooks.
+- ``microbit``: nRF51822 (Cortex-M0) with ``port_microbit/main.c``; the PIL flag
+  (``-DFW_PIL``) puts the kinematic plant of ``port_pil/pil_plant.c`` and the fault
+  hooks inside the image.
+- ``atmega2560``: ``port_avr/main.c``; its plant is the twin in the simavr harness, so
+  the flag only adds the fault hooks.
 
-:func:`build_image` compiles one (warnings as errors) into the cache directory
-(``$ROVER_FIRMWARE_CACHE``, else ``$XDG_CACHE_HOME/rover/firmware``, else
-``~/.cache/rover/firmware``; never the checkout), reports ``size`` and finds the port's
-symbols (``pil_stats``, ``pil_view``, ``pil_hooks``) with ``nm``.
+:func:`build_image` compiles one (warnings as errors) into :func:`cache_dir` (never the
+checkout), reports ``size`` and finds the port's symbols with ``nm``.
 """
 
 from __future__ import annotations
