@@ -3,27 +3,18 @@
 Everything this package raises on purpose derives from :class:`EmulatorError`::
 
     EmulatorError
-     +-- CommandError     a motion command cannot be executed (unknown command, speed or
-     |                    distance out of range, non-finite motor rate); also ValueError
-     +-- InjectionError   a fault or traction change the twin cannot apply is refused;
-     |                    also ValueError (never silently accepted)
-     +-- TwinConfigError  a twin or playback parameter is out of range (time step,
-     |                    safety margin, sample period); also ValueError
-     +-- FirmwareBuildError  the C firmware core cannot be built or loaded here (no
-     |                    compiler, a failed build, a rover it cannot represent);
-     |                    also RuntimeError
-     +-- GroundError      a ground file or ground setting is invalid, or names a region
-     |                    the map lacks; also ValueError
-     +-- UnknownMutantError  no mutant controller has this name (the message lists
-     |                    the known ones); also ValueError
-     +-- CalibrationError fitting the twin to recorded missions failed; also ValueError
-          +-- RecordingError   a recording cannot be read or holds no usable step
-          +-- UnidentifiableError  the recordings cannot identify a parameter (no
-                               turns, too short); ``parameter`` names it
+     +-- CommandError         a motion command cannot be executed; also ValueError
+     +-- InjectionError       a fault or traction change is refused; also ValueError
+     +-- TwinConfigError      a twin or playback parameter out of range; also ValueError
+     +-- FirmwareBuildError   the C firmware core cannot be built here; also RuntimeError
+     +-- GroundError          a ground file or setting is invalid; also ValueError
+     +-- UnknownMutantError   no mutant controller has this name; also ValueError
+     +-- CalibrationError     fitting the twin to recordings failed; also ValueError
+          +-- RecordingError        a recording cannot be read or holds no usable step
+          +-- UnidentifiableError   the recordings cannot identify a parameter
 
-A map that cannot be used raises :class:`firmware_proto.errors.MapError`: the map model
-is the protocol's (:mod:`firmware_proto.model.worldmap`). Programming errors (wrong types,
-calling a closed object) raise the usual built-ins.
+An unusable map raises :class:`firmware_proto.errors.MapError`; programming errors
+raise the usual built-ins.
 """
 
 from __future__ import annotations

@@ -1,24 +1,14 @@
 """Many steps replayed from rest on many grounds at once: what a calibration fits and
 designs with.
 
-A calibration compares each measured step with the same step replayed on the twin from
-the pose measured before it (:mod:`emulator.fit`), over and over: once per ground the
-solver tries, and once more per parameter for each Jacobian. One replay at a time, as
-:func:`emulator.playback.play` plays it, costs a few microseconds of Python per physics
-step and twin; :func:`play_moves` replays every ``(start, steps, ground)`` job in one
-loop over the physics steps, with the force model of :mod:`emulator.traction`
-evaluated for all of them at once with numpy (``emulator.batch``'s force code): a tick
-costs about the same for one job as for a few hundred.
-
-No physics engine: a replay here never meets an obstacle (a calibration step that did
-is an outlier, not a measurement), so each body is a free rigid body, integrated as
-pymunk integrates one (positions with the velocities of the step's start, then the
-velocities with the forces: Chipmunk's ``cpSpaceStep``), with the twin's wheel
-commands (:func:`emulator.batch.schedule`: the controller's step semantics, ideal
-motors), the map's traction regions under each wheel (the batch's point test), and
-after the steps ``settle_s`` with the wheels stopped. A job agrees with
-:class:`~emulator.twin.Twin` played the same way to about 1e-9 m (a test holds it).
-Deterministic: the same call gives the same array.
+:func:`play_moves` replays every ``(start, steps, ground)`` job in one loop over the
+physics steps, with :mod:`emulator.traction`'s force model evaluated for all jobs at
+once in numpy (``emulator.batch``'s force code). No physics engine: a calibration step
+that met an obstacle is an outlier, so each body is a free rigid body integrated as
+pymunk integrates one, with the twin's wheel commands (:func:`emulator.batch.schedule`),
+the map's traction regions under each wheel, and ``settle_s`` with the wheels stopped
+after the steps. A job agrees with :class:`~emulator.twin.Twin` to about 1e-9 m;
+deterministic.
 """
 
 from __future__ import annotations
@@ -65,13 +55,11 @@ def play_moves(
     """Replay every job (see the module docstring).
 
     Args:
-        rover: the rover description (geometry, mass, drive; each job's ground replaces
-            its traction).
+        rover: the rover description; each job's ground replaces its traction.
         world: the map, for its traction regions (``None``: an open plane).
         jobs: the replays.
         dt_s: physics step, s, in ``(0, MAX_DT_S]``.
-        settle_s: played with the wheels stopped after each job's steps, s (rounded to
-            whole steps).
+        settle_s: wheels stopped after each job's steps, s (rounded to whole steps).
 
     Returns:
         ``(len(jobs), 3)``: each job's pose at its end, ``(x_m, y_m, yaw_rad)`` in the

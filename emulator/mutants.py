@@ -1,18 +1,14 @@
 """Mutant controllers: the Python model with exactly one rule of docs/protocol.md broken.
 
-They measure the conformance suite (``rover conformance``): a suite that passes a
-controller which breaks a rule cannot be trusted to find that break in a lab's firmware.
-Each :class:`Mutant` names the rule it breaks, in the words of docs/protocol.md, and the
-conformance rule that must catch it; ``tests/bridge/test_mutants.py`` runs the whole
-suite against every one in lockstep and requires that rule to fail, and the table of
+They measure the conformance suite (``rover conformance``): each :class:`Mutant` names
+the rule it breaks and the conformance rule that must catch it;
+``tests/bridge/test_mutants.py`` requires that rule to fail on every one, and
 docs/protocol.md ("Conformance suite") gives the score. ``rover emulate --mutant NAME``
-serves one in real time (a test aid: never a controller to drive a rover with).
+serves one (a test aid, never a controller to drive a rover with).
 
 A mutant is a small subclass of :class:`~emulator.controller.ControllerModel` that
-overrides one method (the model keeps its rules in methods of their own for that), and
-at most one change to the link (:attr:`Mutant.link`: the frame counter the front end
-keeps). :data:`MUTANTS` maps each name to its mutant; :func:`make_mutant` builds one,
-:func:`mutant` looks one up and names the known ones when the name is unknown.
+overrides one method, with at most one change to the link (:attr:`Mutant.link`).
+:data:`MUTANTS` maps names to mutants; :func:`mutant` looks one up.
 """
 
 from __future__ import annotations

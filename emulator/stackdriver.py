@@ -1,21 +1,14 @@
 """The driver of ``rover calibrate --drive`` on a real stack: the ground station's
 commands, as an operator runs them.
 
-A designed calibration (:mod:`emulator.campaign`) reaches the rover the way every plan
-does, through the ground station: each round is one plan, written to a file and driven
-with ``rover go --plan FILE --record FILE.mcap`` against the stack (the one ``rover
-stack up`` exports, or ``--gate``/``--domain``): the stack's gate validates it (a
-rejected plan is not sent), the step-by-step executor (``--step-by-step`` where ``rover
-go`` runs plans on board by default) sends its steps one at a time over ROS 2 through
-the link relay to the bridge, waits for each ``completed`` (the rover rests a round trip
-between steps) with drift control on, and the recording goes on until the rover has
-rested after the last step. The rover's pose before the first round comes
-from ``rover echo odom_ground`` (the POSE averaged over :data:`POSE_SAMPLES` samples);
-after a round, from the rest its recording ends with.
-
+Each round of a campaign (:mod:`emulator.campaign`) is one plan, written to a file and
+driven with ``rover go --plan FILE --record FILE.mcap`` against the stack: its gate
+validates it, the step-by-step executor sends each step and waits for ``completed``
+(the rover rests between steps) with drift control on, and the recording runs until the
+rover has rested. The pose before the first round is ``rover echo odom_ground``
+averaged over :data:`POSE_SAMPLES`; after a round, the rest its recording ends with.
 The emulator package never imports the ground station (docs/architecture.md): it runs
-its commands, which also makes every plan of a calibration an ordinary mission in the
-stack's logs. Each command is bounded by a timeout (:meth:`StackDriver.drive`).
+its commands, each bounded by a timeout. More in docs/twin.md, "A designed calibration".
 """
 
 from __future__ import annotations
@@ -101,9 +94,8 @@ class StackDriver:
         self._step_by_step: bool | None = None
 
     def _executor(self) -> list[str]:
-        """``--step-by-step`` where ``rover go`` has it: a plan run on board goes step
-        after step without a rest between them, and a calibration measures each step at
-        rest; the step-by-step executor waits a round trip before each next step."""
+        """``--step-by-step`` where ``rover go`` has it: a calibration measures each step
+        at rest, and only that executor rests between steps."""
         if self._step_by_step is None:
             done = self._rover(["go", "--help"], 60.0)
             self._step_by_step = "--step-by-step" in done.stdout
@@ -153,9 +145,8 @@ class StackDriver:
 
     def drive(self, steps: Sequence[tuple[int, int, int]], *, goal: Pose2D, path: Path) -> Driven:
         """``rover go --plan`` on the plan of ``steps`` ending at ``goal``, recorded to
-        ``path`` (its plan beside it, ``.json``; its picture, ``.png``). The gate judges
-        collisions and stalls (its goal tolerances at their widest: its twin does not
-        know this ground yet).
+        ``path`` (plan and picture beside it, ``.json`` and ``.png``), the goal tolerances
+        at their widest (the gate's twin does not know this ground yet).
 
         Raises:
             CalibrationError: ``rover go`` failed otherwise than by a rejection or a
