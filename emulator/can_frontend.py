@@ -2,11 +2,9 @@
 layer's CAN endpoint on the controller's side
 (:class:`~firmware_proto.linkio.can_endpoint.CanEndpoint`).
 
-Works with every python-can interface: ``socketcan`` on ``vcan0`` or a real adapter on
-Linux, ``virtual`` in-process here and in CI, others by name. The node id (1..15) is
-configurable so several controllers can share a bus; frames for other nodes are ignored,
-broadcast frames (node 0) are taken. Identifiers and payloads are those of
-docs/protocol.md; the bus arbitrates by identifier, so the STOP lane wins by itself.
+Any python-can interface (``socketcan``, ``virtual``, ...). The node id (1..15) lets
+controllers share a bus: other nodes' frames are ignored, broadcast (node 0) is taken.
+Identifiers and payloads are docs/protocol.md's; arbitration lets the STOP lane win.
 """
 
 from __future__ import annotations

@@ -204,8 +204,7 @@ def _shipped_grounds() -> tuple[str, ...]:
 
 
 def ground_of(args: argparse.Namespace, rover: RoverDescription) -> Ground | None:
-    """The ground ``--ground`` and ``--ground-set`` ask for; ``None`` for neither (the
-    twin then drives on what the rover description and the map say).
+    """The ground ``--ground`` and ``--ground-set`` ask for; ``None`` for neither.
 
     Raises:
         GroundError: an unknown ground, an invalid file or setting.
@@ -286,8 +285,7 @@ def _run(args: argparse.Namespace) -> int:
     ground = ground_of(args, rover)
     dt_s = served_dt_s(args.speed_factor) if args.dt is None else args.dt
     if ground is not None:
-        # The plant drives on this ground; the controller keeps the description (its
-        # units and limits), as real firmware knows nothing of the ground.
+        # Only the plant drives on this ground: firmware knows nothing of it.
         twin = Twin(ground.rover(rover), ground.world(world), dt_s=dt_s)
         values = ", ".join(f"{k}={v:g}" for k, v in ground.values().items())
         regions = ", ".join(f"{k}={v:g}" for k, v in ground.regions)
@@ -320,8 +318,7 @@ def _run(args: argparse.Namespace) -> int:
     frontend = _frontend(args, interface, channel)
     if mutant is not None and mutant.link is not None:
         mutant.link(frontend.endpoint)
-    # Refuse what cannot apply before anything is served or written: a fault refused
-    # only when its trigger fires would be a fault silently accepted at start-up.
+    # Refuse what cannot apply before anything is served or written.
     checker = Injector(model, frontend)
     for text, spec in zip(args.inject, faults, strict=True):
         try:
@@ -429,8 +426,7 @@ def _serve_emulator(
                 if deadline is not None and waited >= deadline:
                     break
         finally:
-            # Ending (the control loop joined, the interpreter's finalisation) is no
-            # work that must keep time.
+            # Shutting down need not keep time.
             leave_realtime_for_process()
             if control is not None:
                 control.close()

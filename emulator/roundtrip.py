@@ -1,8 +1,7 @@
 """Codec round trip over a real pty: pyserial writes frames, the decoder reads them back.
 
-A smoke test of the whole serial path that needs no controller model: it proves that
-frames survive a real tty, that corrupted frames are dropped and counted, and that
-every intact frame after a corrupted one is recovered.
+A smoke test of the serial path without a controller model: frames survive a real tty,
+corrupted ones are dropped and counted, and every intact frame after one is recovered.
 """
 
 from __future__ import annotations

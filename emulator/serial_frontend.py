@@ -1,20 +1,16 @@
 """Serial front end: the controller on a pty, as a host sees a USB-serial device.
 
-The emulator holds the pty's controller end (the link-I/O layer's serial endpoint on the
-controller's side over a :class:`~firmware_proto.linkio.serial_endpoint.PtyPort`); a
-host opens :attr:`SerialFrontEnd.device`
-(``/dev/pts/N``, or the stable symlink given as ``link``) with pyserial or any terminal
-program. Frames are those of docs/protocol.md, byte for byte.
+The emulator holds the pty's controller end; a host opens
+:attr:`SerialFrontEnd.device` (``/dev/pts/N``, or the symlink ``link``). Frames are
+those of docs/protocol.md, byte for byte.
 
-- A pty has no baud rate. With ``baud`` set, frames to the host leave at that rate
-  (10 bits per byte) from a transmit thread that sends the STOP lane first, then motion,
-  then everything else in order, dropping telemetry that went stale in the queue (a
-  newer sample is coming), as firmware with a prioritised UART queue would.
+- With ``baud`` set, frames to the host leave at that rate (10 bits per byte) from a
+  transmit thread, in :data:`PRIORITY_ORDER`, dropping stale telemetry, as firmware
+  with a prioritised UART queue would.
 - The host may close and reopen the device at any time; while nobody reads, frames to
   the host are dropped (counted), never blocking the controller.
-- :meth:`SerialFrontEnd.unplug` makes the device disappear (pty closed, symlink gone) and
-  :meth:`SerialFrontEnd.replug` brings a new one back under the same link, like a USB
-  cable pulled and plugged in again.
+- :meth:`SerialFrontEnd.unplug` and :meth:`SerialFrontEnd.replug` pull and replug the
+  device under the same link, like a USB cable.
 """
 
 from __future__ import annotations
@@ -101,12 +97,8 @@ class SerialFrontEnd(FrontEnd):
             self._tx_thread.start()
 
     def close(self) -> None:
-        """Stop the transmit thread, then as :meth:`FrontEnd.close` (idempotent).
-
-        The transmit thread takes the write lock for each frame, and the base class
-        releases the medium under that lock: it must be gone before, or closing would
-        wait on it for the join timeout.
-        """
+        """Stop the transmit thread (it holds the write lock per frame), then as
+        :meth:`FrontEnd.close` (idempotent)."""
         self._stop.set()
         with self._tx_ready:
             self._tx_ready.notify_all()
@@ -167,9 +159,8 @@ class SerialFrontEnd(FrontEnd):
 
     def _write(self, message: Message, corrupt: bool) -> bool:
         if self.baud is not None:
-            # The frame counter follows the wire's order, not the queue's: the frame is
-            # numbered (and damaged, by draws taken here on the control thread so that a
-            # seed replays) when the paced writer puts it on the line.
+            # Numbered in the wire's order by the paced writer; damage is drawn here, on
+            # the control thread, so that a seed replays.
             draws = (self._rng_tx.random(), self._rng_tx.randrange(8)) if corrupt else None
             with self._tx_ready:
                 telemetry = message.PRIORITY == "telemetry"

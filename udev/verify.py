@@ -1,22 +1,16 @@
 """udev rules checked by udev itself: ``udevadm verify``, or udev's parser in a sandbox.
 
 ``udevadm verify FILE...`` (systemd 254 and later) checks rules files with udev's own
-parser and style rules. Debian 12 ships systemd 252, whose ``udevadm`` has no
-``verify``; its ``udevadm test DEVPATH`` loads every rules file of the rules directories
-with the same parser (``src/udev/udev-rules.c``) and logs each problem as ``FILE:LINE
-message``, but it reads only the system's rules directories, needs a device to replay,
-and writes: it creates the ``/dev`` links the rules name and udev's database under
-``/run/udev``. So there it runs in a sandbox: a private mount namespace (``unshare
---mount``, with ``--map-root-user`` when not root) where the rules directories hold only
-the files under check and ``/dev`` and ``/run`` are empty tmpfs, so that nothing it
-writes outlives it and no rule of the system's runs. User and group names are not
-looked up (``--resolve-names=never`` for verify, ``late`` for test): that is udevd's to
-do on the rover, where the groups exist.
+parser. Where it is missing (Debian 12 ships 252), ``udevadm test DEVPATH`` loads the
+rules directories with the same parser and logs ``FILE:LINE message``, but it writes
+``/dev`` links and ``/run/udev``; so it runs in a private mount namespace (``unshare
+--mount``, ``--map-root-user`` when not root) where the rules directories hold only the
+files under check and ``/dev`` and ``/run`` are empty tmpfs. User and group names are
+not resolved (udevd's job on the rover).
 
-:func:`verify_rules` picks the first of the two that this machine has, and says which
-in :attr:`Verification.checker`; where neither can run it raises
-:class:`CheckUnavailableError` saying why. What udev's parser does not report (systemd
-252 has no style checks: a missing comma, an unused ``LABEL``), nothing here reports.
+:func:`verify_rules` uses the first of the two this machine has
+(:attr:`Verification.checker`), else raises :class:`CheckUnavailableError`. What udev's
+parser does not report (252 has no style checks), nothing here reports.
 """
 
 from __future__ import annotations

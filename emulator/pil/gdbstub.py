@@ -2,10 +2,9 @@
 emulated MCU's RAM while it runs (qemu's ``-gdb``): the nRF51 runner's way into the
 image's counters (``pil_stats``, ``pil_view``) and fault hooks (``pil_hooks``).
 
-Only what the runner needs: connect (qemu stops the machine when a debugger attaches),
-``continue``, and, while running, :meth:`GdbStub.read` / :meth:`GdbStub.write`, each of
-which interrupts the machine (Ctrl-C), does the memory access and continues it. Threads:
-any, one at a time (a lock). Every wait has a timeout.
+Only connect (which stops the machine), ``continue``, and :meth:`GdbStub.read` /
+:meth:`GdbStub.write`, each of which interrupts the machine, accesses memory and
+continues it. Threads: any, one at a time (a lock). Every wait has a timeout.
 """
 
 from __future__ import annotations

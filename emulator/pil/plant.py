@@ -1,12 +1,9 @@
 """The pymunk twin as the plant of an emulated MCU: motor outputs in, sensors out.
 
-The same twin and sensor models as ``rover emulate`` (``emulator.twin.Twin``,
-``emulator.sensors``): the wheels turn at the surface speed the PWM duty and direction
-pins command, the encoders count the wheels' rotation (so they cannot see slip), the
-IMU and the ground-seeing pose see the body, with their seeded noise, pose latency and
-dropouts. Faults: slip and stall go into the twin; an encoder dropout holds that side's
-count and raises the decoder's error line. Pure: no I/O, no threads, no clock (the
-caller steps it, in real time or in lockstep).
+The twin and sensor models of ``rover emulate``; the wheels turn at the surface speed
+the PWM duty and direction pins command. Slip and stall go into the twin; an encoder
+dropout holds that side's count and raises the decoder's error line. Pure: no I/O,
+threads or clock (the caller steps it).
 """
 
 from __future__ import annotations

@@ -1,14 +1,11 @@
 """The nRF51 image under qemu-system-arm ``-M microbit``: the controller's UART on a pty,
 its plant inside the image (``-DFW_PIL``: ``port_pil/pil_plant.c``).
 
-qemu runs with ``-serial pty`` (its UART moves bytes as fast as the host takes them, so
-the line is about 5.6x a 115200 line, and loses nothing), a QMP socket for
-``system_reset`` (``reboot`` is a real reset: the image starts again from its reset
-vector, RAM and peripherals lost), and a GDB stub through which the runner reads
-``pil_view``/``pil_stats`` and writes ``pil_hooks`` (each access stops the machine for
-well under a millisecond). No ``-icount``: the emulated timers follow the host clock,
-and at real-time priority the controller's clock keeps wall time; with ``-icount``, or at
-normal priority beside load, its watchdog rules failed spuriously.
+qemu runs with ``-serial pty`` (unpaced, lossless), a QMP socket for
+``system_reset`` (``reboot`` is a real reset from the reset vector), and a GDB stub
+through which the runner reads ``pil_view``/``pil_stats`` and writes ``pil_hooks``
+(each access stops the machine briefly). No ``-icount``: the emulated timers follow the
+host clock, which at real-time priority keeps the watchdog in wall time.
 """
 
 from __future__ import annotations
@@ -45,9 +42,8 @@ _SIDES = {"left": (0,), "right": (1,), "both": (0, 1), None: (0, 1)}
 
 def qemu_command(elf: Path, qmp: Path, gdb: Path, icount: int | None = None) -> list[str]:
     """qemu-system-arm's command line for ``elf``, halted until the GDB stub continues it;
-    ``icount``: ``-icount shift=N`` (each instruction 2^N ns of emulated time: the
-    benchmark's instruction counts; never for conformance, whose watchdog rules then fail
-    spuriously)."""
+    ``icount``: ``-icount shift=N`` (2^N ns per instruction; benchmarks only, never
+    conformance: its watchdog rules would fail)."""
     extra = ["-icount", f"shift={icount}"] if icount is not None else []
     return [
         require_tool("qemu-system-arm", "qemu-system-arm"),
