@@ -110,11 +110,8 @@ class Driven:
 
 
 class Driver(Protocol):
-    """How a campaign reaches the rover.
-
-    ``speed_factor``: mission seconds per second of the recordings' clock (a stack run
-    faster than real time); 1 in lockstep.
-    """
+    """How a campaign reaches the rover; ``speed_factor``: mission seconds per second of
+    the recordings' clock (1 in lockstep)."""
 
     speed_factor: float
 
@@ -123,9 +120,8 @@ class Driver(Protocol):
         ...
 
     def drive(self, steps: Sequence[tuple[int, int, int]], *, goal: Pose2D, path: Path) -> Driven:
-        """Validate ``steps`` on the gate as one plan ending at ``goal`` (the fit's
-        prediction), and if approved execute it with rests between the steps,
-        recording the mission to ``path`` until the rover has rested after the last."""
+        """Validate ``steps`` on the gate as one plan ending at ``goal``; if approved,
+        execute it with rests between steps, recorded to ``path`` until at rest."""
         ...
 
 
@@ -273,8 +269,7 @@ def _structure_met(steps: Sequence[tuple[int, int, int]], rover: RoverDescriptio
 
 @dataclass(frozen=True)
 class _Design:
-    """What a round is chosen from: the candidates' and probes' sensitivities at the
-    current fit, the candidates' noise, the precision so far."""
+    """What a round is chosen from: sensitivities, noise and precision at the current fit."""
 
     moves: np.ndarray
     jac: np.ndarray
@@ -368,8 +363,7 @@ def _choose(
         if first and len(chosen) >= count - 1 and len({bool(is_turn[i]) for i in chosen}) == 1:
             allowed &= is_turn != is_turn[chosen[0]]  # a first fit needs both kinds
         if first and left_s >= MIN_DRIVING_S:
-            # Never strand a first round short of a first fit's driving with no budget
-            # left for another step: a step either reaches it or leaves room to.
+            # A step either reaches a first fit's driving or leaves budget for another.
             total = spent + durations
             allowed &= (total >= MIN_DRIVING_S) | (left_s - total >= shortest - 1e-9)
         index, _after_excess = design.best_step(
@@ -410,8 +404,7 @@ def run_campaign(
         world: the map driven on (free space, regions).
         workdir: where each round's recording is written.
         budget_s: driving seconds allowed (nominal step durations), > 0.
-        recordings: missions already recorded, fitted first (their driving does not
-            count against the budget).
+        recordings: missions already recorded, fitted first (not counted in the budget).
         dt_s: the twin's step (the gate's).
         on_event: one line per plan, rejection and fit.
 
@@ -463,8 +456,7 @@ def run_campaign(
             cov = _ground_covariance(calibration)
             d = _design(rover, calibration.ground, cov, observations, calibration, dt_s)
             excess = float(np.max(design.excess(design.probe_spread(d.probe_jac, cov))))
-            # The covariance is a linearisation: the fit is trusted once the probes it
-            # predicts stand still from one plan to the next, as well as spread little.
+            # Trusted once the probes stand still between fits (STILL_FITS).
             shift = math.inf
             if previous is not None:
                 shift = float(np.max(design.excess(np.abs(d.probe_moves - previous))))

@@ -16,10 +16,9 @@ time whatever the speed factor."""
 
 
 def recorded_dt_s(metadata: Mapping[str, str]) -> float | None:
-    """The twin step (s) a traffic log was recorded at, from its metadata: ``dt_s``; an
-    emulator's log without it (one with ``speed_factor``) is older than that field, when
-    the step was :data:`LEGACY_EMULATE_DT_S` unless ``--dt`` said otherwise; ``None``
-    for a log that does not say (another recorder's): ``rover emulate``'s default."""
+    """The twin step (s) a traffic log was recorded at: its ``dt_s``; for an older
+    emulator log (``speed_factor`` only) :data:`LEGACY_EMULATE_DT_S`; ``None`` for
+    another recorder's log (``rover emulate``'s default applies)."""
     if metadata.get("dt_s"):
         return float(metadata["dt_s"])
     if "speed_factor" in metadata:

@@ -3,14 +3,10 @@
 Everything the device tooling raises on purpose derives from :class:`UdevError`::
 
     UdevError (RuntimeError)
-     +-- udev.install.InstallError       an install was refused or failed; the
-     |                                   message says why and what to do
-     +-- udev.verify.CheckUnavailableError  neither ``udevadm verify`` nor udev's
-                                         parser in a sandbox can check rules here
+     +-- udev.install.InstallError          an install was refused or failed
+     +-- udev.verify.CheckUnavailableError  no way to check rules with udev here
 
-Rules that udev rejects are no exception: they are issues (:class:`udev.rules.Issue`,
-in :attr:`udev.verify.Verification.findings`), and the rules reader skips what it cannot
-read (:attr:`udev.rules.RulesFile.issues`).
+Rules udev rejects are no exception but issues (:class:`udev.rules.Issue`).
 """
 
 from __future__ import annotations

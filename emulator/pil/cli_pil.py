@@ -1,12 +1,10 @@
 """``rover pil``: the firmware image in an emulated MCU, served as ``rover emulate``
 serves a controller (docs/firmware.md, "Processor in the loop").
 
-It builds the image (or takes ``--image``), starts the emulator (at real-time priority
+It builds the image (or takes ``--image``), starts the emulator (real-time priority
 where permitted), prints ``DEVICE <pty> [LINK path]`` and, with ``--control-port``,
-``CONTROL 127.0.0.1:<port>`` as its first lines on stdout (the image's size and the
-plant on stderr), serves the control port of ``rover emulate`` (``status``, ``inject``,
-``injections``; ``reboot`` is a real reset), and on Ctrl-C or SIGTERM ends everything it
-started.
+``CONTROL 127.0.0.1:<port>`` first on stdout, serves ``rover emulate``'s control port
+(``reboot`` is a real reset), and on Ctrl-C or SIGTERM ends everything it started.
 """
 
 from __future__ import annotations
