@@ -1,23 +1,12 @@
 """The emulator's local control interface: one command per line over TCP, JSON answers.
 
-Listens on 127.0.0.1 only. Commands (``help`` lists them)::
+Listens on 127.0.0.1 only. Commands: ``status``, ``stats`` (a PIL target's
+counters), ``inject FAULT`` (refused at once if it cannot apply), ``injections``,
+``unplug [SECONDS]``, ``replug``, ``help`` (docs/emulator.md, "Control interface").
 
-    status                  the emulator's state, pose, wheels, faults, counters
-    stats                   a PIL target's port counters (rover pil: pil_stats)
-    inject FAULT            apply or schedule a fault (see emulator.injection), e.g.
-                            inject slip:left=0.3   inject reboot   inject stall:right@t=4
-                            A fault that cannot apply here is refused at once.
-    injections              every injection applied so far
-    unplug [SECONDS]        the serial device disappears (and returns after SECONDS)
-    replug                  the serial device returns
-    help
-
-Each answer is one JSON line: ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``.
-Bad commands get an error answer; the connection and the emulator carry on.
-
-``inject`` answers when the fault applies: at once, ``{"ok": true, "fault": "reboot",
-"applied_s": 12.345}`` (twin time); with a trigger, ``{"ok": true, "fault":
-"stall:right@t=4", "scheduled_s": 1.2, "fires": "at twin time t=4 s"}``.
+Each answer is one JSON line: ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``;
+bad commands get an error answer and the connection carries on. ``inject`` answers
+``applied_s`` (twin time) when applied at once, else ``scheduled_s`` and ``fires``.
 """
 
 from __future__ import annotations

@@ -1,14 +1,11 @@
 """The motor controller's firmware behaviour, driving the physics twin.
 
 :class:`ControllerModel` implements the controller side of docs/protocol.md: the state
-machine (BOOT, IDLE, EXECUTING, STOP_LATCHED, FAULT), the bounded MOTION queue with
-acknowledgement and deduplication, STOP that zeroes the wheel targets in the call that
-receives it and latches until CLEAR_STOP, the watchdog, stall detection, and telemetry
-(ENCODERS, WHEEL_SPEEDS, IMU, POSE, HEARTBEAT) at configurable rates.
-
-The latch (:attr:`ControllerModel.latch_causes`) is kept apart from the fault
-conditions active now (:attr:`ControllerModel.faults`), as docs/protocol.md, "Latch and
-faults" specifies.
+machine, the bounded MOTION queue with acknowledgement and deduplication, STOP that
+zeroes the wheel targets in the call that receives it and latches until CLEAR_STOP,
+the watchdog, stall detection, and telemetry at configurable rates. The latch
+(:attr:`ControllerModel.latch_causes`) is kept apart from the fault conditions active
+now (:attr:`ControllerModel.faults`).
 
 Pure logic over the twin: no I/O, no threads, no wall clock; time is the twin's. A front
 end calls :meth:`ControllerModel.handle` per received message and
@@ -150,14 +147,10 @@ class _PendingStop:
 class ControllerModel:
     """Firmware behaviour of the motor controller over a :class:`Twin`.
 
-    Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
-
-    A few rules sit in methods of their own so that a subclass can break exactly one
-    (:mod:`emulator.mutants`, the conformance suite's mutation test): which samples go
-    out (:meth:`_sends_samples`), a step's profile (:meth:`_profile`), the ramp of the
-    motor commands (:meth:`_ramp_commands`), when a queued step may start
-    (:meth:`_may_start_next`), a STOPPED's distance (:meth:`_stopped_distance_units`) and
-    the stall threshold (:attr:`stall_min_command_mps`).
+    Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`. Some rules sit in
+    methods of their own (:meth:`_sends_samples`, :meth:`_profile`,
+    :meth:`_ramp_commands`, :meth:`_may_start_next`, :meth:`_stopped_distance_units`) so
+    that a mutant (:mod:`emulator.mutants`) can break exactly one.
     """
 
     stall_min_command_mps = 0.0025
@@ -477,10 +470,8 @@ class ControllerModel:
         return min(0xFFFF, round((abs(count_delta(left, l0)) + abs(count_delta(right, r0))) / 2.0))
 
     def _stop_is_repeat(self, stop_id: int) -> bool:
-        """A host STOP with this id was seen in this latch (its STOPPED is owed or sent): a
-        repeat, which raises no latch generation and gets no STOPPED of its own. One whose
-        STOPPED is owed from a latch a CLEARED released since is new: it latches again,
-        and that is a new cause."""
+        """A host STOP with this id was seen in this latch (STOPPED owed or sent): a repeat,
+        which raises no latch generation and gets no STOPPED of its own."""
         return stop_id != 0 and (
             stop_id in self._reported_stops
             or any(p.stop_id == stop_id and p.clears == self._clears for p in self._pending_stops)
@@ -540,10 +531,9 @@ class ControllerModel:
         Args:
             code: a :class:`FaultCode`.
             detail: code-specific detail for the FAULT message.
-            condition: the condition persists until :meth:`clear_fault_condition` (CLEAR_STOP
-                answers FAULT_PERSISTS meanwhile, for a stopping fault). Without it the
-                fault is an event (a stall): its condition ends once the wheels are at
-                rest, with FAULT active = 0 after STOPPED.
+            condition: the condition persists until :meth:`clear_fault_condition`;
+                without it the fault is an event (a stall) that ends at rest, with
+                FAULT active = 0 after STOPPED.
         """
         out: list[Message] = []
         if code in self.faults:

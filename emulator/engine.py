@@ -162,8 +162,7 @@ class Emulator:
         frontend: the pty or CAN front end (the engine starts and closes it).
         speed_factor: twin seconds per wall second (> 0). Set the model's
             ``timeout_scale`` to the same value so its watchdog keeps host time.
-        faults: faults to schedule (each fires when its trigger is met; one without a
-            trigger at the first tick).
+        faults: faults to schedule (no trigger: at the first tick).
         on_injection: told of every injection applied, on the control thread; it
             must be quick and must not call back into the emulator.
         fault_source: who asked for ``faults`` (``cli``), recorded with each injection.
@@ -172,8 +171,7 @@ class Emulator:
 
         Raises:
             ValueError: speed factor not positive and finite.
-            InjectionError: one of ``faults`` cannot apply here (a value out of range,
-                a link fault the front end cannot carry, a region the map lacks).
+            InjectionError: one of ``faults`` cannot apply here.
         """
         if not (math.isfinite(speed_factor) and speed_factor > 0):
             raise ValueError(f"speed factor must be > 0, got {speed_factor}")

@@ -305,10 +305,9 @@ def _clamp16(value: float) -> int:
 class FirmwareController(ControllerModel):
     """The C firmware core behind the :class:`ControllerModel` interface.
 
-    The sensor models (:attr:`encoders`, :attr:`imu`, :attr:`pose_sensor`), the twin and
-    the configuration are the base class's, so fault injection works unchanged; the
-    controller state lives in C and the properties read it from there. Not thread-safe:
-    one thread calls :meth:`handle` and :meth:`tick`, as for the Python model.
+    Sensor models, twin and configuration are the base class's (so fault injection works
+    unchanged); the controller state lives in C and the properties read it. Not
+    thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
     """
 
     def __init__(

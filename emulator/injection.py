@@ -1,30 +1,11 @@
 """Fault injection: what can go wrong, when, and applying it to the emulator.
 
-A fault is written as text, on the command line (``--inject``), on the control
-interface or in code::
-
-    KIND[:ARGS][@TRIGGER]
-
-    slip:left=0.3          scale the friction of one side (left|right|both) to 30 %
-    stall:right            lock the right side's wheels
-    encoder-noise:left=40  add 40 distance units of 1-sigma noise to the left count
-    encoder-dropout:left   the left encoder stops counting and flags an error
-    imu-bias=0.05          add 0.05 rad/s to the yaw rate
-    imu-dropout            the IMU goes silent
-    pose-dropout           the pose sensor loses its fix
-    reboot                 the controller resets (new boot nonce)
-    link-drop=0.05         drop 5 % of frames, both directions
-    link-corrupt=0.01      flip a bit in 1 % of frames (serial only)
-    link-delay=0.2         delay every frame by 0.2 s
-    clear:slip             undo a fault kind (clear:stall:right for one side)
-
-    @t=5                   at twin time 5 s
-    @d=1.5                 after 1.5 m of ground travel
-    @region=sand           when the rover's centre enters map region "sand"
-
-:func:`parse_fault` checks the text, :meth:`Injector.check` whether it can apply here,
+A fault is written ``KIND[:SIDE][=VALUE][@TRIGGER]`` (``slip:left=0.3@t=5``,
+``clear:stall:right``), kinds in :data:`FAULT_KINDS`, triggers ``@t=`` (twin time, s),
+``@d=`` (ground travel, m) or ``@region=`` (a map traction region); docs/emulator.md,
+"Fault injection", has the table and what is refused. :func:`parse_fault` checks the text, :meth:`Injector.check` whether it can apply here,
 :meth:`Injector.apply` applies it; :class:`FaultSchedule` holds triggered ones. Link
-faults draw from a seeded generator. More in docs/emulator.md, "Fault injection".
+faults draw from a seeded generator.
 """
 
 from __future__ import annotations
@@ -286,11 +267,10 @@ class Injector:
         """Whether ``spec`` can apply here; changes nothing.
 
         Raises:
-            InjectionError: a value out of range (slip scale in (0, 1], encoder noise in
-                0..:data:`ENCODER_NOISE_MAX_UNITS` units, IMU bias within
-                +/-:data:`IMU_BIAS_MAX_RAD_S` rad/s, link ratios 0..1, link delay as the
-                link allows), a link fault without a link or one the link cannot carry
-                (corruption on CAN), or a trigger region the map lacks.
+            InjectionError: a value out of range (slip in (0, 1],
+                :data:`ENCODER_NOISE_MAX_UNITS`, :data:`IMU_BIAS_MAX_RAD_S`, link levels
+                as the link allows), a link fault the link cannot carry, or a trigger
+                region the map lacks.
         """
         region = spec.trigger.region
         if region is not None and region not in self.regions:
@@ -362,9 +342,8 @@ class Injector:
         return out
 
     def in_force(self) -> tuple[str, ...]:
-        """The injected faults in force now, as fault texts without triggers, sorted
-        (``slip:both=0.1``, ``imu-dropout``...). A reboot is momentary and never in force;
-        a level set back to neutral (slip 1, link ratio or delay 0) is not in force."""
+        """The injected faults in force now, as fault texts without triggers, sorted; a
+        reboot or a neutral level (slip 1, link level 0) is never in force."""
         texts: list[str] = []
         kinds = sorted({kind for kind, _ in self._in_force})
         for kind in kinds:
