@@ -13,8 +13,7 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
           +-- RecordingError        a recording cannot be read or holds no usable step
           +-- UnidentifiableError   the recordings cannot identify a parameter
 
-An unusable map raises :class:`firmware_proto.errors.MapError`; programming errors
-raise the usual built-ins.
+An unusable map raises :class:`firmware_proto.errors.MapError`.
 """
 
 from __future__ import annotations

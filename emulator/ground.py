@@ -8,20 +8,9 @@ emulator takes one (``rover emulate --ground NAME|FILE``, ``--ground-set KEY=VAL
 :meth:`Ground.rover` and :meth:`Ground.world`. More in docs/twin.md, "A ground the gate
 does not know".
 
-A ground file is TOML (shipped ones in ``emulator/grounds/``, loaded by bare name)::
-
-    schema_version = 1
-    name = "loose"
-    description = "loose regolith: less grip, more slip"
-    [traction]                 # any subset; the rest comes from the rover description
-    mu_longitudinal = 0.45
-    mu_lateral = 0.55          # or turn_efficiency = 0.411 (mu_lateral is then solved)
-    slip_saturation_ratio = 0.04
-    rolling_resistance = 0.08
-    [regions]                  # friction scale per map traction region, (0, 2]
-    sandbox = 0.35
-
-Given ``turn_efficiency`` instead of ``mu_lateral``, the lateral friction is solved
+A ground file is TOML: ``schema_version = 1``, ``name``, ``description``, a
+``[traction]`` subset (the rest from the rover description) and ``[regions]`` scales in
+(0, 2]; shipped ones in ``emulator/grounds/`` load by bare name. Given ``turn_efficiency`` instead of ``mu_lateral``, the lateral friction is solved
 (:func:`solve_mu_lateral`); a file stating both is refused unless they agree within
 :data:`TURN_EFFICIENCY_AGREEMENT`. Per region only the friction scales.
 """
