@@ -1,11 +1,9 @@
 """Rover motor-controller emulator: the pymunk twin, the controller model, fault
 injection, and front ends serving it over a pty or a python-can bus.
 
-The twin part (what the gate imports): :class:`Twin` (physics), :class:`StepProfile`
-(step semantics) and :func:`play` (lockstep playback); :class:`Ground` and
-:func:`load_ground` (a ground of the emulator's own, or a fitted one). The maps it
-plays on are the protocol's (:mod:`firmware_proto.model.worldmap`: ``load_map``), shared
-with the gate and the planner. See docs/twin.md.
+The twin part (what the gate imports): :class:`Twin`, :class:`StepProfile`,
+:func:`play`, :class:`Ground` and :func:`load_ground`; maps are
+:mod:`firmware_proto.model.worldmap`'s. See docs/twin.md.
 """
 
 from __future__ import annotations

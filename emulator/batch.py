@@ -77,16 +77,13 @@ class BatchDraw:
     """What one twin of a batch drives on.
 
     Attributes:
-        ground: its traction parameters and region scales (regions it does not name
-            keep the map's scale).
-        slip_left, slip_right: factors on the friction of each side's wheels (> 0;
-            1 is nominal, below 1 slips more).
-        start_dx_m, start_dy_m, start_dyaw_rad: where it starts relative to the start
-            pose given (map frame): the start pose's error.
-        step_error: how much of the plan's step error (the gate's model discrepancy,
-            :func:`gate.ensemble.step_error`) is added to its final pose, in units of
-            that error (0: none). :func:`play_batch` ignores it; the gate's
-            :func:`gate.ensemble.run_chunk` applies it.
+        ground: its traction parameters and region scales (unnamed regions keep the
+            map's scale).
+        slip_left, slip_right: factors on each side's wheel friction (> 0; 1 nominal).
+        start_dx_m, start_dy_m, start_dyaw_rad: the start pose's error (map frame).
+        step_error: the plan's step error (:func:`gate.ensemble.step_error`) added to
+            its final pose, in units of that error; applied by
+            :func:`gate.ensemble.run_chunk`, not by :func:`play_batch`.
     """
 
     ground: Ground

@@ -43,13 +43,12 @@ class CanFrontEnd(FrontEnd):
         **bus_options: Any,
     ) -> None:
         """Args:
-        interface, channel: python-can interface name and channel (e.g. ``socketcan``,
+        interface, channel: python-can interface and channel (``socketcan``,
             ``vcan0``); ignored when ``bus`` is given.
         node: this controller's node id, 1..15.
         bus: an already open bus to use (the caller keeps ownership).
         seed: seeds the link-fault generators.
-        recorder: traffic log for every frame sent and received (see FrontEnd); as a
-            bus monitor it sees other nodes' frames too.
+        recorder: traffic log (see FrontEnd); it sees other nodes' frames too.
         bus_options: passed to ``can.Bus`` (e.g. ``bitrate``).
 
         Raises:

@@ -1,20 +1,17 @@
 """The motor controller's firmware behaviour, driving the physics twin.
 
-:class:`ControllerModel` implements the controller side of docs/protocol.md: the state
-machine, the bounded MOTION queue with acknowledgement and deduplication, STOP that
-zeroes the wheel targets in the call that receives it and latches until CLEAR_STOP,
-the watchdog, stall detection, and telemetry at configurable rates. The latch
+:class:`ControllerModel` implements the controller side of docs/protocol.md (states,
+MOTION queue, STOP and its latch, CLEAR_STOP, watchdog, stall, telemetry);
+docs/emulator.md, "The controller model", summarises it. The latch
 (:attr:`ControllerModel.latch_causes`) is kept apart from the fault conditions active
 now (:attr:`ControllerModel.faults`).
 
 Pure logic over the twin: no I/O, no threads, no wall clock; time is the twin's. A front
 end calls :meth:`ControllerModel.handle` per received message and
-:meth:`ControllerModel.tick` per control period, and sends what they return
-(:mod:`emulator.engine` in real time, lockstep in tests).
-
-Time-outs (watchdog, stall) are twin seconds times ``timeout_scale``: a twin running
-``k`` times faster than the host sets ``k``. Wrapping counters are compared modulo their
-width, as the C core does (:func:`emulator.sensors.count_delta` for encoder counts).
+:meth:`ControllerModel.tick` per control period, and sends what they return.
+Time-outs (watchdog, stall) are twin seconds times ``timeout_scale`` (``k`` for a twin
+``k`` times faster than the host). Wrapping counters are compared modulo their width,
+as the C core does (:func:`emulator.sensors.count_delta`).
 """
 
 from __future__ import annotations

@@ -1,21 +1,13 @@
 """Replay a recorded session's host frames into a fresh emulator and compare its answers.
 
-Regression testing of the controller from traffic logs (docs/traffic-logs.md):
 :func:`replay_into_emulator` starts a seeded emulator on a new pty or python-can bus,
-re-sends every host frame with its recorded timing (serial byte for byte), and compares
-the answers with the recorded ones (:func:`firmware_proto.linkio.trafficlog.compare_answers`,
-volatile fields left out unless strict). Telemetry is counted, not compared.
-
-Causality is kept as well as timing: a host frame goes out at its recorded time and not
-before the controller has given every answer that preceded it in the recording, waiting
-at most ``gate_s`` longer (well inside the watchdog; heartbeats keep their own time).
-
-Both windows are cut alike: answers before the first host frame are left out, and each
-window ends as long after its last host frame (at most :data:`MAX_SETTLE_S`). Answers
-within ``edge_s`` of a window's end count only where they pair up; nothing inside the
-windows is dropped. Behaviour that hangs on sub-millisecond timing no answer marks can
-still replay differently. The emulator must run as recorded: same seed, speed factor,
-map and rover description.
+re-sends every host frame at its recorded time (serial byte for byte), but not before
+the answers that preceded it in the recording (waiting at most ``gate_s`` longer; host
+heartbeats keep their own time), and compares the answers type by type
+(:func:`firmware_proto.linkio.trafficlog.compare_answers`). Both windows are cut alike
+(:data:`MAX_SETTLE_S`, ``edge_s``); telemetry is counted, not compared. The emulator
+must run as recorded (seed, speed factor, map, rover). docs/traffic-logs.md, "Into the
+emulator", says why each rule is there.
 """
 
 from __future__ import annotations

@@ -2,21 +2,15 @@
 
 :class:`Emulator` owns one control thread, the only one that touches the model: one
 :meth:`~emulator.controller.ControllerModel.tick` per twin step, twin time running
-``speed_factor`` times the wall clock. Between turns it waits on the inbox (at least
-:data:`WAKE_QUANTUM_S` unless a message arrives). A STOP preempts the ticks owed, as a
-receive interrupt does (:attr:`Emulator.stop_reactions`), at most one wake quantum of
-twin time early.
-
-**Faithful when late.** Woken late, the loop runs the ticks it owes in a burst and
-handles each message before the first tick that ends after its arrival (stamped by the
-front end's reader), so the watchdog, stall detection and a STOP see the host's timing,
-not the emulator's. Beyond :data:`MAX_BACKLOG_S` behind, twin time slips instead.
-Catch-ups and heartbeat gaps are counted (:class:`EmulatorStatus`).
+``speed_factor`` times the wall clock, waking at least :data:`WAKE_QUANTUM_S` apart
+unless a message arrives. A STOP preempts the ticks owed, as a receive interrupt does.
+Woken late, the loop runs the ticks it owes in a burst, each message in the tick it
+arrived in, so timing rules see the host's timing; beyond :data:`MAX_BACKLOG_S` behind,
+twin time slips (docs/realtime.md, "The emulator is faithful when it is late").
 
 Other threads go through :meth:`Emulator.call`, which runs a function on the control
 thread. Faults are checked when given, never refused when they fire.
-:meth:`Emulator.close` is idempotent and joins every thread it started. Lockstep runs
-use the model directly. More in docs/emulator.md and docs/realtime.md.
+:meth:`Emulator.close` is idempotent and joins every thread it started.
 """
 
 from __future__ import annotations

@@ -2,14 +2,10 @@
 controller of ``firmware_proto/wire/c/fw/`` (a host shared library) behind the
 :class:`~emulator.controller.ControllerModel` interface, over the same twin.
 
-The C core owns the controller logic (state machine, queue, latch, watchdog, faults,
-SET_PARAM, integer step profile, stall and rest detection, every frame's content);
-Python owns the plant (twin, sensor models and their noise, fault injection into them).
 Both directions go through the C codec as serial frames. A tick is ``fw_control`` at
-twin time ``t``, one twin step, then ``fw_sense`` at ``t + dt``.
-
-:func:`build_library` caches the library by content hash in ``$ROVER_FIRMWARE_CACHE``,
-else ``$XDG_CACHE_HOME/rover/firmware``, else ``~/.cache/rover/firmware``.
+twin time ``t``, one twin step, then ``fw_sense`` at ``t + dt``. :func:`build_library`
+caches the library by content hash in ``$ROVER_FIRMWARE_CACHE``, else
+``$XDG_CACHE_HOME/rover/firmware``, else ``~/.cache/rover/firmware``;
 ``ROVER_FIRMWARE_SANITIZE=1`` builds with ASan and UBSan, which needs ``libasan``
 preloaded (:func:`sanitizer_env`).
 """
@@ -305,9 +301,9 @@ def _clamp16(value: float) -> int:
 class FirmwareController(ControllerModel):
     """The C firmware core behind the :class:`ControllerModel` interface.
 
-    Sensor models, twin and configuration are the base class's (so fault injection works
-    unchanged); the controller state lives in C and the properties read it. Not
-    thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
+    The controller logic and state live in C (the properties read it); the plant, sensor
+    models and configuration are the base class's, so fault injection works unchanged.
+    Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`.
     """
 
     def __init__(

@@ -10,9 +10,10 @@ does not know".
 
 A ground file is TOML: ``schema_version = 1``, ``name``, ``description``, a
 ``[traction]`` subset (the rest from the rover description) and ``[regions]`` scales in
-(0, 2]; shipped ones in ``emulator/grounds/`` load by bare name. Given ``turn_efficiency`` instead of ``mu_lateral``, the lateral friction is solved
+(0, 2]; shipped ones in ``emulator/grounds/`` load by bare name. Given
+``turn_efficiency`` instead of ``mu_lateral``, the lateral friction is solved
 (:func:`solve_mu_lateral`); a file stating both is refused unless they agree within
-:data:`TURN_EFFICIENCY_AGREEMENT`. Per region only the friction scales.
+:data:`TURN_EFFICIENCY_AGREEMENT`.
 """
 
 from __future__ import annotations

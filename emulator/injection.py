@@ -3,7 +3,9 @@
 A fault is written ``KIND[:SIDE][=VALUE][@TRIGGER]`` (``slip:left=0.3@t=5``,
 ``clear:stall:right``), kinds in :data:`FAULT_KINDS`, triggers ``@t=`` (twin time, s),
 ``@d=`` (ground travel, m) or ``@region=`` (a map traction region); docs/emulator.md,
-"Fault injection", has the table and what is refused. :func:`parse_fault` checks the text, :meth:`Injector.check` whether it can apply here,
+"Fault injection", has the table and what is refused.
+
+:func:`parse_fault` checks the text, :meth:`Injector.check` whether it can apply here,
 :meth:`Injector.apply` applies it; :class:`FaultSchedule` holds triggered ones. Link
 faults draw from a seeded generator.
 """

@@ -1,16 +1,12 @@
 """A controller served in lockstep: one model tick per tick of a virtual clock.
 
-:class:`LockstepController` puts a :class:`~emulator.controller.ControllerModel` (or
-the C core, or a mutant) behind a controller-side endpoint without threads or a wall
-clock: on each tick of a :class:`~firmware_proto.linkio.clock.LockstepClock` it handles
-every message that arrived, in order, runs one control period and writes what the model
-sent. A :class:`~firmware_proto.linkio.host.ProtocolHost` on the same clock then runs a
-script in virtual time, the same every run. :func:`lockstep_pair` builds both ends on an
-in-memory serial line or a python-can ``virtual`` bus.
-
-:meth:`LockstepController.inject` is the control port's ``inject`` (docs/emulator.md);
-triggered faults wait in a :class:`~emulator.injection.FaultSchedule` polled after
-every control period. Link faults need a served emulator and are refused.
+:class:`LockstepController` serves a controller (model, C core or mutant) without
+threads or a wall clock: on each tick of a :class:`~firmware_proto.linkio.clock.LockstepClock`
+it handles what arrived, in order, runs one control period and writes what the model
+sent, so a :class:`~firmware_proto.linkio.host.ProtocolHost` on the same clock runs a
+script in virtual time, the same every run. Triggered faults wait in a
+:class:`~emulator.injection.FaultSchedule`; link faults are refused. docs/emulator.md,
+"In lockstep".
 """
 
 from __future__ import annotations
@@ -151,18 +147,11 @@ def lockstep_pair(
     node: int = 1,
     clock: LockstepClock | None = None,
 ) -> tuple[LockstepController, Endpoint, LockstepClock]:
-    """A controller in lockstep on ``medium`` and the host's end of its link.
-
-    Args:
-        model: the controller, not yet booted.
-        medium: ``serial`` (an in-memory line) or ``can`` (a fresh python-can ``virtual``
-            channel, the controller at ``node``).
-        node: the CAN node id.
-        clock: the clock to tick on (default: a new one at the twin's time step).
-
-    Returns:
-        ``(controller, host endpoint, clock)``: open the controller (it boots), then a
-        :class:`~firmware_proto.linkio.host.ProtocolHost` on the endpoint and the clock.
+    """``(controller, host endpoint, clock)`` for ``model`` (not yet booted) in lockstep
+    on ``medium``: ``serial`` (an in-memory line) or ``can`` (a fresh python-can
+    ``virtual`` channel, the controller at ``node``). ``clock`` defaults to a new one at
+    the twin's step. Open the controller (it boots), then a
+    :class:`~firmware_proto.linkio.host.ProtocolHost` on the endpoint and the clock.
 
     Raises:
         ValueError: an unknown medium (the message lists the known ones).

@@ -1,13 +1,11 @@
 """Lockstep playback of a list of steps on a twin, as fast as the machine allows.
 
 :func:`play` executes ``(command, speed, distance)`` steps with the controller's step
-semantics (:class:`emulator.drive.StepProfile`) and records the pose every
-``sample_period_s`` (whole physics steps) from time 0 plus the final pose, each step's
-times, end pose and encoder travel, and the first collision or stall, either of which
-ends playback (a stall: no whole unit of encoder progress within ``stall_window_s``, or
-a step past its time limit, so playback always terminates). After the last step the
-twin settles, wheels stopped, until at rest (at most ``settle_s``). Verdicts are the
-gate's business. More in docs/twin.md, "Playback".
+semantics (:class:`emulator.drive.StepProfile`) and returns what it observed
+(:class:`PlaybackResult`). The first collision or stall ends playback (a step past its
+time limit is a stall, so playback always terminates); after the last step the twin
+settles, wheels stopped, for at most ``settle_s``. Verdicts are the gate's business.
+docs/twin.md, "Playback".
 """
 
 from __future__ import annotations

@@ -1,21 +1,11 @@
 """A recorded mission read back for calibration: the steps sent and what the rover said.
 
 :func:`read_recording` reads the ground station's ROS 2 MCAP (``rover go --record``,
-``rover demo``; docs/view.md, Recordings) with the mcap reader (no ROS installation
-needed) into a :class:`Recording`:
-
-- the steps in the order sent (``wheel_instructions``), each with its fate from
-  ``command_status``, matched first in, first out as the controller's queue works:
-  ``accepted``/``rejected:*`` answer the oldest unanswered step, ``completed``/
-  ``aborted:*`` end the oldest running one, ``fault:*`` is noted on it. A STOP step
-  (command 0) is an emergency stop, not a step;
-- POSE (``odom_ground``) and odometry (``odom``) samples with their header stamps;
-- the ``emergency_stop`` times (a step they may have cut short is not measured);
-- the downlink delay: median of log time minus stamp over ``odom``, which maps the
-  statuses' log times onto the rover's clock.
-
-Times are seconds relative to :attr:`Recording.origin_ns`. Topics are found by their
-last name component; a file with several namespaces needs ``namespace``.
+``rover demo``) with the mcap reader (no ROS installation needed) into a
+:class:`Recording`. Statuses are matched to steps first in, first out, as the
+controller's queue works; a STOP step is an emergency stop, not a step. Times are
+seconds relative to :attr:`Recording.origin_ns`; topics are found by their last name
+component (several namespaces need ``namespace``). docs/twin.md, "What is measured".
 """
 
 from __future__ import annotations

@@ -1,16 +1,11 @@
 """Serial front end: the controller on a pty, as a host sees a USB-serial device.
 
-The emulator holds the pty's controller end; a host opens
-:attr:`SerialFrontEnd.device` (``/dev/pts/N``, or the symlink ``link``). Frames are
-those of docs/protocol.md, byte for byte.
-
-- With ``baud`` set, frames to the host leave at that rate (10 bits per byte) from a
-  transmit thread, in :data:`PRIORITY_ORDER`, dropping stale telemetry, as firmware
-  with a prioritised UART queue would.
-- The host may close and reopen the device at any time; while nobody reads, frames to
-  the host are dropped (counted), never blocking the controller.
-- :meth:`SerialFrontEnd.unplug` and :meth:`SerialFrontEnd.replug` pull and replug the
-  device under the same link, like a USB cable.
+A host opens :attr:`SerialFrontEnd.device` (``/dev/pts/N``, or the symlink ``link``);
+frames are docs/protocol.md's, byte for byte. With ``baud``, frames to the host are
+paced by a transmit thread in :data:`PRIORITY_ORDER`, stale telemetry dropped. While
+nobody reads, frames to the host are dropped (counted), never blocking the controller;
+:meth:`SerialFrontEnd.unplug` and :meth:`SerialFrontEnd.replug` pull and replug the
+device under the same link. docs/emulator.md, "Front ends".
 """
 
 from __future__ import annotations

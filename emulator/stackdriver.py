@@ -50,11 +50,11 @@ class StackDriver:
 
     Args:
         rover: the rover description (step durations, for the commands' timeouts).
-        map_name: the map the stack's gate validates on (a name it serves).
-        gate: the gate's URL (``None``: ``$ROVER_GATE_URL``, as ``rover go`` takes it).
+        map_name: the map the stack's gate validates on.
+        gate: the gate's URL (``None``: ``$ROVER_GATE_URL``).
         domain: the ROS 2 domain (``None``: ``$ROS_DOMAIN_ID``).
-        time_scale: mission seconds per wall second of the stack (``None``:
-            ``$ROVER_TIME_SCALE``, else 1).
+        time_scale: mission seconds per wall second (``None``: ``$ROVER_TIME_SCALE``,
+            else 1).
         rtt_s: the link's round trip, wall s (``None``: ``rover go``'s default).
         env: the environment of the commands (default this process's).
 

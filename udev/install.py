@@ -1,19 +1,16 @@
 """Our ``udev/`` files and how ``rover udev install`` puts them in place.
 
-The source directory holds udev rules (``*.rules``, to ``/etc/udev/rules.d``) and
-systemd-networkd files (``*.network``, ``*.link``, ``*.netdev``, to
-``/etc/systemd/network``). ``X-bench.rules`` is the bench variant of ``X.rules``:
-exactly one of the two is installed, and installing one beside the other is refused
-(both would claim ``/dev/rover-motor``). The pinned rules carry placeholders
-(:data:`PLACEHOLDER_SERIAL`, :data:`PLACEHOLDER_USB_PORT`) that ``--serial`` and
-``--usb-port`` fill in the installed copy.
+Rules (``*.rules``) go to ``/etc/udev/rules.d``, systemd-networkd files (``*.network``,
+``*.link``, ``*.netdev``) to ``/etc/systemd/network``. ``X-bench.rules`` is the bench
+variant of ``X.rules``: exactly one is installed, never both (both would claim
+``/dev/rover-motor``). ``--serial`` and ``--usb-port`` fill the pinned rules'
+placeholders (:data:`PLACEHOLDER_SERIAL`, :data:`PLACEHOLDER_USB_PORT`).
 
-Installing is all or nothing: :func:`plan_install` checks everything first (udev's own
-check of the filled rules, writable targets, udevadm and root for a reload) and lists
-the problems; :func:`execute` refuses a plan with problems, stages every file beside its
-target, renames them into place, and on failure restores what it replaced. A failed
-reload leaves the (valid) files and says what to run. Without udevadm the install fails
-before writing unless ``reload=False`` (``--no-reload``).
+All or nothing: :func:`plan_install` checks everything first and lists the problems;
+:func:`execute` refuses a plan with problems, stages every file beside its target,
+renames them into place and on failure restores what it replaced; a failed reload
+leaves the (valid) files. Without udevadm it refuses unless ``reload=False``
+(``--no-reload``). udev/README.md, "Install".
 """
 
 from __future__ import annotations

@@ -114,8 +114,8 @@ def verify_rules(
     """Check rules files with udev's own parser (see the module docstring).
 
     Args:
-        paths: the files (their names must end in ``.rules``, as udev reads no other).
-        style: report style issues too (``udevadm verify`` only; 252 has none).
+        paths: the files (names ending in ``.rules``, as udev reads no other).
+        style: report style issues too (``udevadm verify`` only).
         udevadm: the program (default: ``udevadm`` on ``PATH``, then ``/sbin``).
 
     Raises:

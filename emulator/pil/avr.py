@@ -4,12 +4,9 @@ The harness (``simavr_harness.c``, loaded with ctypes) owns the simulated MCU; t
 module owns its time. One step is one plant step (1 ms by default): host bytes into
 USART0 (paced at the baud rate in simulated time), the MCU run to the end of the step,
 its transmitted bytes out, its motor outputs (Timer4 PWM duty, direction pins) drive the
-twin one step, and the sensors are posted into the image's ``pil_sensors``.
-
-Two clocks drive the same :class:`AvrSystem`: real time (:class:`AvrTarget`, one step
-per wall millisecond, UART0 on a pty) and lockstep (:class:`AvrLockstep`, one step per
-tick of a :class:`~firmware_proto.linkio.clock.LockstepClock`, the UART on an in-memory
-line), in which a run repeats exactly from its seed.
+twin one step, and the sensors are posted into the image's ``pil_sensors``. The same
+:class:`AvrSystem` runs in real time (:class:`AvrTarget`) or lockstep
+(:class:`AvrLockstep`).
 """
 
 from __future__ import annotations

@@ -177,13 +177,11 @@ def build_image(target: str, *, pil: bool = True, timeout_s: float = 300.0) -> I
 
     Args:
         target: a name of :data:`IMAGES`.
-        pil: with the PIL flag (in-image plant and fault hooks); ``False``: the port as
-            a lab flashes it.
+        pil: with the PIL flag; ``False``: the port as a lab flashes it.
         timeout_s: compiler time limit, s.
 
     Raises:
-        PilError: an unknown target (the known ones listed), or the build failed (its
-            output in the message).
+        PilError: an unknown target (the known ones listed), or the build failed.
         PilToolMissingError: the cross compiler is not installed.
     """
     spec = IMAGES.get(target)
