@@ -359,8 +359,7 @@ class _World:
 
 
 class _Forces:
-    """The force model of :class:`emulator.traction.TractionModel` for N twins at once:
-    the same equations, in the same order, on arrays (wheels along the first axis)."""
+    """:class:`emulator.traction.TractionModel`'s equations, in order, for N twins at once."""
 
     def __init__(
         self, rover: RoverDescription, world: WorldMap | None, draws: Sequence[BatchDraw]

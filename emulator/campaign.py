@@ -247,8 +247,7 @@ def _preference(
     candidates: Sequence[tuple[int, int, int]],
     moves: np.ndarray,
 ) -> np.ndarray:
-    """Tie-breaker among equally informative steps: near ``home``, facing as it did,
-    with room around."""
+    """Tie-breaker among equally informative steps: near ``home``, facing as it did."""
     out = np.empty(len(candidates))
     for i, step in enumerate(candidates):
         end = _after(at, moves[i])
@@ -324,8 +323,7 @@ def _choose(
     ruled_out: set[tuple[tuple[float, float], int, int]],
     home: Pose2D,
 ) -> tuple[list[int], list[Pose2D]]:
-    """Up to ``count`` candidates, one at a time (module docstring), and the poses the
-    fit predicts before each and after the last."""
+    """Up to ``count`` candidates, and the fit's predicted poses before each and after."""
     candidates = design.candidates(rover)
     durations = np.array([rover.step_duration_s(s, dist) for _c, s, dist in candidates])
     shortest = float(durations.min())

@@ -27,8 +27,7 @@ def recorded_dt_s(metadata: Mapping[str, str]) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Replay ``args.log`` into a fresh emulator; print the report; 0 if the answers
-    match, 1 if they differ."""
+    """Replay ``args.log`` into a fresh emulator and print the report; 0 if alike, else 1."""
     from emulator.emulator_replay import ReplayOptions, replay_into_emulator
     from firmware_proto.linkio.trafficio import open_recorder, read_log
 

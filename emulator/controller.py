@@ -204,8 +204,7 @@ class ControllerModel:
         previous: int | None = getattr(self, "boot_nonce", None)
         nonce = self._rng.randrange(1 << 16)
         if nonce == previous:
-            # A boot's nonce differs from the one before (docs/protocol.md, Handshake 1):
-            # the host tells a reboot by it. As the C core does.
+            # Differs from the last boot's: the host tells a reboot by it (as the C core).
             nonce = (nonce + 1) & 0xFFFF
         self.boot_nonce = nonce
         self.boot_s = self.twin.time_s
@@ -323,8 +322,7 @@ class ControllerModel:
             return []
         out: list[Message] = []
         if isinstance(msg, Stop) and not self._stop_is_repeat(msg.stop_id):
-            # Raised before anything is answered: every frame after the STOP (its STOP_ACK,
-            # a FAULT WATCHDOG active 0) names the generation it made.
+            # Raised first: every frame after the STOP names the generation it made.
             self._raise_latch_gen()
         self._feed_watchdog(out)
         if isinstance(msg, Stop):
@@ -426,14 +424,12 @@ class ControllerModel:
             self.state = ControllerState.FAULT
         elif self.state != ControllerState.FAULT:
             self.state = ControllerState.STOP_LATCHED
-        # One STOPPED per host stop_id until the latch is cleared: a repeat shares it,
-        # whether it comes before or after it. The controller's own stops (0) each get one.
+        # One STOPPED per host stop_id per latch (a repeat shares it); own stops (0) get one each.
         if stop_id != 0 and stop_id in self._reported_stops:
             return
         for pending in self._pending_stops:
             if pending.stop_id == stop_id:
-                # Owed from a latch a CLEARED released: this latch shares it, and a copy
-                # after this one is a repeat of this latch.
+                # Owed from a latch a CLEARED released: this latch shares it.
                 pending.clears = self._clears
                 return
         self._pending_stops.append(
@@ -475,8 +471,7 @@ class ControllerModel:
         )
 
     def _raise_latch_gen(self) -> None:
-        """A new latch cause: the generation moves on (docs/protocol.md, "Latch and
-        faults")."""
+        """A new latch cause: the generation moves on, wrapping at 256."""
         self.latch_gen = (self.latch_gen + 1) & 0xFF
 
     def _clear(self, stop_id: int, latch_gen: int) -> int:
@@ -600,9 +595,8 @@ class ControllerModel:
         return out
 
     def _may_start_next(self) -> bool:
-        """Whether a queued step may start now (the running one has ended): not while
-        latched, nor while a STOPPED is still owed (a clear came before rest): every
-        STOPPED measures a real stop, and the next step starts from rest."""
+        """Whether a queued step may start now: not while latched, nor while a STOPPED is
+        owed (so every STOPPED measures a real stop, and the next step starts from rest)."""
         return not self.stop_latched and not self._pending_stops
 
     def _ramp_commands(self, dt: float) -> None:
@@ -692,8 +686,7 @@ class ControllerModel:
                 )
             )
             if pending.stop_id != 0 and pending.clears == self._clears:
-                # Remembered only within its latch: after a CLEARED it predates, the id
-                # is a new stop again.
+                # Remembered only within its latch (after a CLEARED the id is new again).
                 self._reported_stops.add(pending.stop_id)
         self._pending_stops.clear()
 
@@ -724,8 +717,7 @@ class ControllerModel:
         for m in self.pose_sensor.due():
             if not self._sends_samples():
                 continue
-            # The age is in the host's time, like the timeouts: the host subtracts it
-            # from its own clock to stamp the measurement.
+            # The age is in host time, like the timeouts: the host stamps with it.
             age_s = (now - m.taken_s) / self.config.timeout_scale
             out.append(self._pose_message(m.pose.x_m, m.pose.y_m, m.pose.yaw_rad, m.sigma_m, age_s))
         if now + eps >= self._next_heartbeat:

@@ -113,20 +113,17 @@ def travel_units(
 
 
 def turn_units_for_yaw(rover: RoverDescription, yaw_rad: float) -> int:
-    """Distance units of a LEFT/RIGHT step to turn the body by ``|yaw_rad|`` on the spot
-    (see :meth:`RoverDescription.turn_units_for_yaw`, which every part shares)."""
+    """Distance units of a LEFT/RIGHT step turning ``|yaw_rad|`` (the rover's model)."""
     return rover.turn_units_for_yaw(yaw_rad)
 
 
 def yaw_for_turn_units(rover: RoverDescription, distance_units: float) -> float:
-    """Predicted body yaw, rad (unsigned), of a LEFT/RIGHT step of ``distance_units``
-    (see :meth:`RoverDescription.yaw_for_turn_units`)."""
+    """Predicted yaw, rad (unsigned), of a LEFT/RIGHT step of ``distance_units``."""
     return rover.yaw_for_turn_units(distance_units)
 
 
 def nominal_step_duration_s(rover: RoverDescription, speed: int, distance: int) -> float:
-    """Time, s, of a step's speed profile without slip, rest to rest (see
-    :meth:`RoverDescription.step_duration_s`)."""
+    """Time, s, of a step's speed profile without slip, rest to rest."""
     return rover.step_duration_s(speed, distance)
 
 
@@ -219,8 +216,7 @@ class StepProfile:
     def remaining_units(
         self, left_travel_units: float, right_travel_units: float
     ) -> tuple[float, float]:
-        """Distance units each side still has to go along its direction (negative when
-        it went past)."""
+        """Distance units each side still has to go (negative: past it)."""
         dl, dr = self.directions
         return (
             self._goal_units - dl * left_travel_units,

@@ -298,8 +298,7 @@ def replay_into_emulator(
                 raise TimeoutError("the fresh emulator sent nothing within 5 s")
             t0 = time.monotonic()
             host.count_from(t0)
-            # Heartbeats keep their own time: held behind a gated request, they would
-            # starve the controller's watchdog.
+            # Heartbeats keep their own time: gated, they would starve the watchdog.
             heartbeats = [r for r, beat in zip(host_records, is_beat, strict=True) if beat]
             pacer = threading.Thread(
                 target=host.play_on_time,

@@ -123,8 +123,7 @@ class EmulatorStatus:
     """Gaps between this controller's HEARTBEATs as they were sent (wall)."""
 
     def line(self) -> str:
-        """One status line for a terminal: controller faults (``faults=``) and the
-        injected faults in force (``injected=``) side by side."""
+        """One status line: controller faults (``faults=``) beside injected ones."""
         faults = ",".join(self.faults) or "none"
         injected = ",".join(self.injected) or "none"
         hit = f" HIT {self.collision}" if self.collision else ""
@@ -369,8 +368,7 @@ class Emulator:
                     t0 += (due - 1) * tick_wall
                     due = 1
                 for _ in range(due):
-                    # The tick stands for wall time up to its end: what arrived by then
-                    # comes first, in order; later arrivals wait for their own tick.
+                    # What arrived by the tick's end (wall) is handled first, in order.
                     self._drain(None, until=t0 + (ticks + 1) * tick_wall)
                     out = model.tick()
                     out += self.schedule.poll()
@@ -394,8 +392,7 @@ class Emulator:
                     item = None
                 woke: float = time.monotonic()
                 if woke - planned > tick_wall:
-                    # Counted before what woke it is handled: a status asked for after
-                    # a stall shows it.
+                    # Counted before what woke it runs, so a status call shows it.
                     self._catch_up(woke - planned)
                     planned = None
                 if isinstance(item, _Call):
@@ -460,6 +457,5 @@ class Emulator:
 
     @property
     def last_status(self) -> EmulatorStatus | None:
-        """The snapshot taken most recently by the control loop (every ~50 ms twin
-        time), without a round trip to the control thread."""
+        """The control loop's latest snapshot (every ~50 ms twin time), without a call."""
         return self._status

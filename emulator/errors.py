@@ -37,8 +37,7 @@ class EmulatorError(Exception):
 
 
 class CommandError(EmulatorError, ValueError):
-    """A motion command cannot be executed as given (unknown command, speed or distance
-    out of range, non-finite motor rate)."""
+    """A motion command cannot be executed (unknown command, value out of range, ...)."""
 
 
 class InjectionError(EmulatorError, ValueError):
@@ -50,13 +49,11 @@ class TwinConfigError(EmulatorError, ValueError):
 
 
 class FirmwareBuildError(EmulatorError, RuntimeError):
-    """The C firmware core cannot be built or loaded here (no compiler, a failed build,
-    or a rover description or time step its integer arithmetic cannot represent)."""
+    """The C firmware core cannot be built, loaded or configured here."""
 
 
 class GroundError(EmulatorError, ValueError):
-    """A ground file or setting cannot be used (unreadable, unknown key, value out of
-    range), or it names a traction region the map lacks."""
+    """A ground file or setting cannot be used, or names a region the map lacks."""
 
 
 class CalibrationError(EmulatorError, ValueError):
@@ -89,5 +86,4 @@ class UnidentifiableError(CalibrationError):
 
 
 class UnknownMutantError(EmulatorError, ValueError):
-    """No mutant controller (:mod:`emulator.mutants`) has this name; the message lists
-    the known ones."""
+    """No mutant controller has this name; the message lists the known ones."""

@@ -660,17 +660,15 @@ class FirmwareController(ControllerModel):
         return self._drain()
 
     def tick(self) -> list[Message]:
-        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``;
-        the sensors are pushed before each (what the HAL reads is the plant's now, also
-        after an injection or :meth:`EncoderModel.set_counts` between two ticks)."""
+        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``; the
+        sensors are pushed before each, so the HAL always reads the plant as it is now."""
         lib, h = self._lib, self._h
         self._push_sensors()
         lib.fw_host_control(h, self._now_us())
         wheels = _I32x2()
         lib.fw_host_wheels(h, wheels)
         d = self.rover.drive
-        # The core applied the polarity; undone here (exactly: integers) so that the
-        # twin gets its rates through the one conversion the Python model uses too.
+        # Polarity undone (exactly) so the twin gets the Python model's conversion.
         left_mps = d.left_wheel_sign * wheels[0] / 1e6
         right_mps = d.right_wheel_sign * wheels[1] / 1e6
         self.twin.set_motor_omegas(*motor_omegas(self.rover, left_mps, right_mps))

@@ -92,8 +92,7 @@ class FrontEnd:
 
     @property
     def recorder(self) -> TrafficRecorder | None:
-        """The traffic log every frame sent and received goes to (a listener of the
-        endpoint); set it before :meth:`start`, or ``None``."""
+        """The traffic log of every frame (an endpoint listener); set before :meth:`start`."""
         return self._recorder
 
     @recorder.setter

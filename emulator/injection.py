@@ -202,8 +202,7 @@ class LinkFaultTarget(Protocol):
         corrupt: float | None = None,
         delay_s: float | None = None,
     ) -> None:
-        """Raise InjectionError if a level is out of range or the medium cannot carry it;
-        change nothing."""
+        """Raise InjectionError if a level cannot apply; change nothing."""
 
     def set_link_faults(
         self,

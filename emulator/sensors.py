@@ -102,9 +102,8 @@ class EncoderModel:
         self._held = [wrap_count(left_units), wrap_count(right_units)]
 
     def travel(self) -> tuple[float, float]:
-        """Counts since boot as floats in the counter's range (:func:`wrap_count`),
-        without noise (what the step logic integrates); a side in dropout holds its last
-        value."""
+        """Noise-free counts since boot in the counter's range (what the step logic
+        integrates); a side in dropout holds its last value."""
         left, right = travel_units(self._rover, *self._twin.motor_angles_rad)
         raw = [wrap_count(left - self._offset[0]), wrap_count(right - self._offset[1])]
         for side in (0, 1):

@@ -154,8 +154,7 @@ class SerialFrontEnd(FrontEnd):
 
     def _write(self, message: Message, corrupt: bool) -> bool:
         if self.baud is not None:
-            # Numbered in the wire's order by the paced writer; damage is drawn here, on
-            # the control thread, so that a seed replays.
+            # Numbered by the paced writer; damage drawn here so that a seed replays.
             draws = (self._rng_tx.random(), self._rng_tx.randrange(8)) if corrupt else None
             with self._tx_ready:
                 telemetry = message.PRIORITY == "telemetry"

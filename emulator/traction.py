@@ -167,9 +167,7 @@ class TractionModel:
 
     @classmethod
     def from_rover(cls, rover: RoverDescription) -> TractionModel:
-        """Parameters from the rover description (geometry, mass, gravity, traction).
-
-        The yaw inertia is that of a uniform box with the chassis footprint."""
+        """Parameters from the rover description; yaw inertia of a uniform chassis box."""
         g, t, m = rover.geometry, rover.traction, rover.mass.mass_kg
         return cls(
             normal_n=wheel_load_n(m, rover.environment.gravity_mps2),
@@ -253,8 +251,7 @@ class TractionModel:
         rr_slope = 2.0 * rr * inv_vrr
         cx = fl[2] + bl[2] + fr[2] + br[2] + rr_slope * ((1.0 - tl * tl) + (1.0 - tr * tr))
         cy = fl[3] + bl[3] + fr[3] + br[3]
-        # Wheel (x_i, y_i): dT/dw = -(y_i^2 kx + x_i^2 ky) + x_i*y_i*kxy; the cross terms
-        # have the sign of x_i*y_i: + for FL and RR, - for RL and FR.
+        # dT/dw = -(y_i^2 kx + x_i^2 ky) + x_i*y_i*kxy; cross terms: + FL, RR; - RL, FR.
         cross = fl[4] + br[4] - bl[4] - fr[4]
         cz = hy * hy * cx + hx * hx * cy - hx * hy * cross
         # Secant stiffness F/v (what an explicit step would apply), for the overshoot guard.

@@ -204,8 +204,7 @@ def _run(argv: list[str], env: dict[str, str] | None = None) -> subprocess.Compl
 
 
 def _findings(output: str, paths: dict[str, str]) -> list[Issue]:
-    """The lines of ``output`` about a file of ``paths`` (as udev names it -> as the
-    caller does), in order, each once."""
+    """The lines of ``output`` about ``paths`` (udev's name -> caller's), in order, once."""
     found: list[Issue] = []
     for line in output.splitlines():
         at = _AT_LINE.match(line.strip())

@@ -285,8 +285,7 @@ def make_system(
     dt_s: float = 0.001,
     start: Pose2D | None = None,
 ) -> AvrSystem:
-    """An :class:`AvrSystem` on the twin ``rover emulate`` builds for ``map_name`` (``None``:
-    an open plane)."""
+    """An :class:`AvrSystem` on ``rover emulate``'s twin for ``map_name`` (``None``: open)."""
     rover = rover or load_rover()
     world = load_map(map_name) if map_name is not None else None
     twin = Twin(rover, world, dt_s=dt_s, start=start)
@@ -472,9 +471,8 @@ class AvrLockstep:
 def avr_lockstep_pair(
     system: AvrSystem,
 ) -> tuple[AvrLockstep, Endpoint, LockstepClock]:
-    """``system`` in lockstep on an in-memory serial line: ``(the MCU's side, the host's
-    endpoint, the clock)``. Open the first, then a ``ProtocolHost`` on the endpoint and
-    the clock."""
+    """``system`` in lockstep on an in-memory serial line: ``(MCU side, host endpoint,
+    clock)``; open the first, then a ``ProtocolHost`` on the endpoint and the clock."""
     clock = LockstepClock(system.plant.twin.dt_s)
     host_port, mcu_port = memory_line(f"pil-avr-{next(_lines)}")
     host_end = SerialEndpoint(HOST, lambda: host_port, name=host_port.name)

@@ -68,8 +68,7 @@ def qemu_command(elf: Path, qmp: Path, gdb: Path, icount: int | None = None) -> 
 
 
 def _set_scheduling(priority: int) -> None:
-    """In the child before exec: real-time round robin where permitted, else nothing
-    (the parent reports which)."""
+    """In the child before exec: real-time round robin where permitted, else nothing."""
     if priority > 0:
         with contextlib.suppress(OSError):
             os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
@@ -196,8 +195,7 @@ class MicrobitTarget(PilTarget):
         runner and are written again once the image has cleared its RAM."""
         before = self._ticks()
         self._qmp("system_reset")
-        # The image zeroes .bss (pil_hooks included) as it starts again; the faults in
-        # force are written back once it ticks (its tick count restarts from 0).
+        # The restart zeroes pil_hooks; faults in force are rewritten once it ticks.
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             time.sleep(0.005)

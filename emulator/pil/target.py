@@ -178,8 +178,7 @@ class PilTarget(ABC):
             return self._read_port()[0].travel_mm / 1000.0
 
     def _schedule(self, spec: FaultSpec, source: str) -> ScheduledFault:
-        """Keep a triggered fault; a thread applies it when its trigger is met (checked
-        every 5 ms of wall time)."""
+        """Keep a triggered fault; a thread applies it once met (polled every 5 ms, wall)."""
         trig = spec.trigger
         value = (
             f" (now {self.ground_travel_m():.3f} m)"
