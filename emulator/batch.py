@@ -6,13 +6,11 @@ pymunk space, each with its own copy of the map placed far enough apart that no 
 twins meet; state and forces go through :mod:`pymunk.batch`, and the force model of
 :mod:`emulator.traction` runs for all of them at once in numpy.
 
-Kept from a single playback: the time step, step semantics and wheel commands (ideal
-motors, so the schedule is computed once and shared), collision checking, settling
-(at most ``settle_s``), and traction regions (a point test against each region grown by
-1 mm, which may differ from the twin's probes by a step near a corner). A batch twin
-agrees with :class:`~emulator.twin.Twin` to about 1e-9 m, not bit for bit; its result
-depends only on its parameters and its index; the batch is deterministic. Injected
-faults (locked wheels) are not supported. More in docs/gate.md.
+The time step, step semantics, wheel commands (computed once: ideal motors), collision
+checking and settling are a single playback's; traction regions are a point test that
+may differ from the twin's probes by a step near a corner. A batch twin agrees with
+:class:`~emulator.twin.Twin` to about 1e-9 m; its result depends only on its parameters
+and index; deterministic. No injected faults. More in docs/gate.md.
 """
 
 from __future__ import annotations

@@ -169,8 +169,7 @@ class ControllerModel:
         twin: the plant; the model steps it once per :meth:`tick`.
         config: firmware settings.
         seed: seeds the boot nonces and every sensor's noise.
-        protocol_version, schema_hash: what this firmware claims (change to impersonate
-            a mismatched one).
+        protocol_version, schema_hash: what this firmware claims (to impersonate another).
         """
         self.rover = rover
         self.twin = twin
@@ -312,9 +311,9 @@ class ControllerModel:
     def handle(self, msg: Message) -> list[Message]:
         """Process one message from the host; returns the immediate answers.
 
-        A STOP has zeroed the wheel targets and purged the queue when this returns.
-        A controller-to-host message (wrong direction: an echo on a serial line) is
-        ignored and counted in ``rx_errors``; it does not feed the watchdog.
+        A STOP has zeroed the wheel targets and purged the queue when this returns. A
+        controller-to-host message (an echo) is counted in ``rx_errors`` and ignored; it
+        does not feed the watchdog.
         """
         if msg.DIRECTION != "host_to_controller":
             self.rx_errors += 1

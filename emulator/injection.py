@@ -155,8 +155,7 @@ def parse_fault(text: str) -> FaultSpec:
     """Parse ``KIND[:SIDE][=VALUE][@TRIGGER]`` (see the module doc).
 
     Raises:
-        InjectionError: unknown kind, missing or bad side or value; names the problem
-            and lists the kinds.
+        InjectionError: unknown kind, missing or bad side or value (the kinds listed).
     """
     body, _, trig = text.strip().partition("@")
     trigger = _parse_trigger(trig) if trig else Trigger()
@@ -313,8 +312,7 @@ class Injector:
         :attr:`log`, logged at WARNING and handed to every listener.
 
         Raises:
-            InjectionError: the fault cannot be applied here (see :meth:`check`).
-                Nothing is changed then.
+            InjectionError: it cannot apply here (:meth:`check`); nothing changed.
         """
         self.check(spec)
         out = self._apply(spec)
@@ -479,8 +477,7 @@ class FaultSchedule:
         source: who asked for ``faults`` (recorded with each injection).
 
         Raises:
-            InjectionError: one of ``faults`` cannot apply (see :meth:`Injector.check`);
-                nothing is scheduled then.
+            InjectionError: one of ``faults`` cannot apply; nothing is scheduled.
         """
         self.injector = injector
         for spec in faults or []:

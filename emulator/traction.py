@@ -1,19 +1,14 @@
 """Wheel-ground force model of the twin: pure functions, no physics engine.
 
-Body frame: ``x`` forward, ``y`` left, origin at the centre of mass. A wheel at
-``(x_i, y_i)`` with surface speed ``u`` (m/s) on a body moving at ``(vx, vy, w)``::
-
-    g      = (vx - w*y_i, vy + w*x_i)               ground velocity of the contact
-    s      = (u - g_x, -g_y)                        slip velocity, m/s
-    S      = s0 + kappa * |u|                       saturation slip speed, m/s
-    sigma  = |s| / S
-    F_long = mu_long * N * tanh(sigma) / sigma * s_long / S  -  Crr * N * tanh(g_x / v_rr)
-    F_lat  = mu_lat  * N * tanh(sigma) / sigma * s_lat  / S
-
-with ``N = m * g / 4``. The slip *vector* saturates (a friction ellipse), which is what
-lets a skid-steer spin turn. :meth:`TractionModel.step_wrench` integrates the stiff
-force linearly-implicitly on the diagonal, so steady states do not depend on the step.
-docs/twin.md ("Wheel forces", "Integration") explains the model and its parameters.
+Body frame: ``x`` forward, ``y`` left, origin at the centre of mass. Per wheel, the slip
+velocity ``s = (u - g_x, -g_y)`` (surface speed ``u`` against the contact's ground
+velocity ``g``) gives a force that saturates as a friction ellipse,
+``(mu_long, mu_lat) N tanh(sigma) / sigma * s / S`` with ``sigma = |s| / S`` and
+``S = s0 + kappa |u|``, less rolling resistance ``Crr N tanh(g_x / v_rr)`` along the
+wheel; ``N = m g / 4``.
+:meth:`TractionModel.step_wrench` integrates it linearly-implicitly on the diagonal, so
+steady states do not depend on the step. docs/twin.md ("Wheel forces", "Integration")
+has the equations, why they are so, and the parameters.
 """
 
 from __future__ import annotations

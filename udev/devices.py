@@ -1,18 +1,12 @@
 """What is plugged in: serial ports, CAN interfaces, and what our udev rules do to them.
 
-:func:`inventory` gathers, for ``rover devices``:
-
-- serial ports from pyserial's ``list_ports``; built-in UARTs without hardware (type 0
-  in ``/sys/class/tty/NAME/type``, which pyserial no longer filters) are hidden and
-  counted;
-- CAN interfaces from ``/sys/class/net`` (ARPHRD 280), with ``ip -details -json``
-  details where iproute2 can tell;
-- per device, which of our rules files would name it (:func:`udev.rules.evaluate`),
-  and whether a pinned rule would once its placeholder holds this unit's serial or port;
-- ``/dev/rover-motor``, SocketCAN support, and whether our files are installed.
-
-Every source is a parameter with the real one as default (tests feed synthetic ports
-and a fake sysfs tree).
+:func:`inventory` gathers, for ``rover devices``: serial ports from pyserial (built-in
+UARTs without hardware hidden and counted), CAN interfaces from ``/sys/class/net`` with
+``ip -details -json`` where it can tell, which of our rules files would name each
+device (:func:`udev.rules.evaluate`) or would once a pinned placeholder holds its
+serial or port, ``/dev/rover-motor``, SocketCAN support, and whether our files are
+installed. Every source is a parameter with the real one as default (tests feed
+synthetic ports and a fake sysfs tree).
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 """udev rules files, read and replayed: which of our rules would name a device.
 
-:func:`parse_rules` reads a rules file the way ``systemd-udevd`` splits it (udev(7)):
-``#`` comment lines (even inside a continuation), backslash continuations, rules of
-comma-separated ``KEY[{attribute}] OP "value"`` tokens (``==``, ``!=``, ``=``, ``+=``,
-``-=``, ``:=``), double-quoted values with ``e"..."`` (C escapes) and ``i"..."``
-(case-insensitive) prefixes. It judges nothing (:mod:`udev.verify` asks udev): a rule
-it cannot split, or with a key udev does not know, is left out and listed in
+:func:`parse_rules` reads a rules file the way ``systemd-udevd`` splits it (udev(7):
+comments, continuations, ``KEY[{attribute}] OP "value"`` tokens, ``e"..."`` and
+``i"..."`` values). It judges nothing (:mod:`udev.verify` asks udev): a rule it cannot
+split, or with a key udev does not know, is left out and listed in
 :attr:`RulesFile.issues`, as udev leaves it out.
 
 :func:`evaluate` replays an ``add`` event through parsed rules to tell which rule would

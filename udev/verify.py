@@ -1,16 +1,12 @@
 """udev rules checked by udev itself: ``udevadm verify``, or udev's parser in a sandbox.
 
-``udevadm verify FILE...`` (systemd 254 and later) checks rules files with udev's own
-parser. Where it is missing (Debian 12 ships 252), ``udevadm test DEVPATH`` loads the
-rules directories with the same parser and logs ``FILE:LINE message``, but it writes
-``/dev`` links and ``/run/udev``; so it runs in a private mount namespace (``unshare
---mount``, ``--map-root-user`` when not root) where the rules directories hold only the
-files under check and ``/dev`` and ``/run`` are empty tmpfs. User and group names are
-not resolved (udevd's job on the rover).
-
-:func:`verify_rules` uses the first of the two this machine has
-(:attr:`Verification.checker`), else raises :class:`CheckUnavailableError`. What udev's
-parser does not report (252 has no style checks), nothing here reports.
+:func:`verify_rules` runs ``udevadm verify`` (systemd 254 and later) or, where it is
+missing (Debian 12 ships 252), ``udevadm test``, which loads the rules directories with
+the same parser but writes ``/dev`` and ``/run/udev``: so it runs in a private mount
+namespace (``unshare --mount``, ``--map-root-user`` when not root) where the rules
+directories hold only the files under check and ``/dev`` and ``/run`` are empty tmpfs.
+Names are not resolved (udevd's job on the rover). :attr:`Verification.checker` says
+which ran; where neither can, :class:`CheckUnavailableError`.
 """
 
 from __future__ import annotations

@@ -1,16 +1,11 @@
 """The firmware images of processor-in-the-loop runs: the same ``fw.c`` as the host
 build, with a port for an MCU, cross-compiled and cached by content hash.
 
-Targets (:data:`IMAGES`):
-
-- ``microbit``: nRF51822 (Cortex-M0) with ``port_microbit/main.c``; the PIL flag
-  (``-DFW_PIL``) puts the kinematic plant of ``port_pil/pil_plant.c`` and the fault
-  hooks inside the image.
-- ``atmega2560``: ``port_avr/main.c``; its plant is the twin in the simavr harness, so
-  the flag only adds the fault hooks.
-
-:func:`build_image` compiles one (warnings as errors) into :func:`cache_dir` (never the
-checkout), reports ``size`` and finds the port's symbols with ``nm``.
+Targets (:data:`IMAGES`): ``microbit`` (nRF51822, ``port_microbit/main.c``; the PIL flag
+``-DFW_PIL`` puts the kinematic plant and the fault hooks inside the image) and
+``atmega2560`` (``port_avr/main.c``; its plant is the twin in the simavr harness, so the
+flag only adds the hooks). :func:`build_image` compiles one (warnings as errors) into
+:func:`cache_dir` (never the checkout), reports ``size`` and finds the port's symbols.
 """
 
 from __future__ import annotations
