@@ -1,14 +1,14 @@
 """Wheel-ground force model of the twin: pure functions, no physics engine.
 
-Body frame: ``x`` forward, ``y`` left, origin at the centre of mass. Per wheel, the slip
-velocity ``s = (u - g_x, -g_y)`` (surface speed ``u`` against the contact's ground
-velocity ``g``) gives a force that saturates as a friction ellipse,
-``(mu_long, mu_lat) N tanh(sigma) / sigma * s / S`` with ``sigma = |s| / S`` and
-``S = s0 + kappa |u|``, less rolling resistance ``Crr N tanh(g_x / v_rr)`` along the
-wheel; ``N = m g / 4``.
+Body frame: ``x`` forward, ``y`` left, origin at the centre of mass. A wheel at
+``(x_i, y_i)`` with surface speed ``u`` on a body moving at ``(vx, vy, w)`` has contact
+ground velocity ``g = (vx - w*y_i, vy + w*x_i)`` and slip ``s = (u - g_x, -g_y)``; its
+force ``(mu_long, mu_lat) * N * tanh(sigma) / sigma * s / S`` (``sigma = |s| / S``,
+``S = s0 + kappa * |u|``, ``N = m * g / 4``) saturates as a friction ellipse, less the
+rolling resistance ``Crr * N * tanh(g_x / v_rr)`` along the wheel.
 :meth:`TractionModel.step_wrench` integrates it linearly-implicitly on the diagonal, so
 steady states do not depend on the step. docs/twin.md ("Wheel forces", "Integration")
-has the equations, why they are so, and the parameters.
+explains the model and its parameters.
 """
 
 from __future__ import annotations
