@@ -180,10 +180,9 @@ def room_for(
     heading_unknown_rad: float = 0.0,
     margin_m: float = MARGIN_M,
 ) -> bool:
-    """Whether ``step`` from ``pose`` keeps the footprint's circumscribed circle
-    ``margin_m`` clear of every obstacle, wall and traction region it is not in already:
-    where it turns, or along its swept segment (to 10 % past ``move``'s end, within
-    ``heading_unknown_rad`` either way) where it drives."""
+    """Whether ``step`` from ``pose`` keeps the footprint's circle ``margin_m`` clear of
+    every obstacle, wall and traction region it is not in: where it turns, or along its
+    swept segment (10 % past ``move``, +-``heading_unknown_rad``) where it drives."""
     if world is None:
         return True
     radius = rover.footprint_radius_m + margin_m
@@ -541,7 +540,6 @@ def run_campaign(
         out.rounds.append(Round(steps, driven, measured, math.nan, 0.0))
         if driven.reason:
             on_event(f"round {n}: {driven.reason}")
-    # The last fit, with its refusals.
     try:
         if len(observations) == 0:
             raise UnidentifiableError("nothing could be driven and measured")

@@ -1,9 +1,8 @@
 """``rover emulate``: serve the controller emulator over a pty or a CAN bus.
 
-Also the ``rover_emulator`` console script that ``ros2 run`` and the HIL launch file
-start (:func:`main`): the same options, then optionally ``--ros-args``, whose
-``--params-file`` section for the node (default name ``rover_emulator``) and ``-p``
-values stand for long options (docs/ros2.md).
+Also :func:`main`, the ``rover_emulator`` console script of ``ros2 run`` and launch
+files: the same options, then optionally ``--ros-args`` (``--params-file`` section and
+``-p`` values stand for long options; docs/ros2.md).
 """
 
 from __future__ import annotations
@@ -437,8 +436,7 @@ def _serve_emulator(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``rover_emulator`` (for ``ros2 run`` and launch files): the options of
-    ``rover emulate``, then optionally ``--ros-args`` (see the module docstring)."""
+    """``rover_emulator``: ``rover emulate``'s options, then ``--ros-args`` (module doc)."""
     from firmware_proto.cli.program import ros_main
 
     parser = argparse.ArgumentParser(

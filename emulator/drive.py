@@ -165,8 +165,7 @@ class StepProfile:
         command: command code (``firmware_proto.wire.messages.Command``).
         speed: speed units, ``0..drive.max_speed``.
         distance: distance units, ``0..drive.max_distance``.
-        initial_left_mps, initial_right_mps: wheel speeds when the step starts (rover
-            frame); steps normally start at rest.
+        initial_left_mps, initial_right_mps: wheel speeds at the start (rover frame).
 
         Raises:
             CommandError: unknown command, or speed or distance out of range.

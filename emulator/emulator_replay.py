@@ -72,8 +72,7 @@ class ReplayOptions:
     Attributes:
         seed: the emulator's seed (boot nonce, sensor noise).
         speed_factor: twin seconds per wall second, as when recorded.
-        dt_s: the twin's step, s, as when recorded (``None``: as ``rover emulate`` takes
-            it at that speed factor, :func:`~emulator.twin.served_dt_s`).
+        dt_s: the twin's step, s, as recorded (``None``: :func:`~emulator.twin.served_dt_s`).
         map_name: map name or JSON file.
         rover_path: rover description TOML ("" for the packaged one).
         node: CAN node id of the controller (``None``: the node the log's host addressed).

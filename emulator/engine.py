@@ -153,8 +153,8 @@ class Emulator:
         """Args:
         model: the controller over its twin (the engine steps it).
         frontend: the pty or CAN front end (the engine starts and closes it).
-        speed_factor: twin seconds per wall second (> 0). Set the model's
-            ``timeout_scale`` to the same value so its watchdog keeps host time.
+        speed_factor: twin seconds per wall second (> 0); the model's ``timeout_scale``
+            should match.
         faults: faults to schedule (no trigger: at the first tick).
         on_injection: told of every injection applied, on the control thread; it
             must be quick and must not call back into the emulator.
@@ -254,8 +254,7 @@ class Emulator:
         """Apply a fault now, or schedule it if it has a trigger; checked first either way.
 
         Returns:
-            the injection applied (with its twin time), or, for a triggered fault, when
-            it was scheduled and when it will fire.
+            the injection applied, or, for a triggered fault, when it will fire.
 
         Raises:
             InjectionError: the fault is malformed or cannot be applied here; counted in
@@ -298,9 +297,8 @@ class Emulator:
             self.frontend.send(messages)
 
     def _drain(self, first: _Received | _Call | None, until: float = math.inf) -> None:
-        """Take everything from the inbox: run each call at once; handle each message
-        that arrived by ``until`` (wall, ``time.monotonic()``) in arrival order, and hold
-        the later ones for the ticks they arrived in."""
+        """Empty the inbox: run each call at once; handle messages that arrived by
+        ``until`` (``time.monotonic()``) in order, hold later ones for their ticks."""
         item = first
         while True:
             if item is None:

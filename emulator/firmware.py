@@ -91,8 +91,7 @@ def _compiler() -> str:
 
 
 def build_library(*, sanitize: bool | None = None, timeout_s: float = 120.0) -> Path:
-    """The host build of the firmware core as a shared library, compiled if its sources,
-    flags or compiler changed (cached by content hash).
+    """The host build of the firmware core as a shared library (cached by content hash).
 
     Args:
         sanitize: build with ASan and UBSan; ``None``: ``$ROVER_FIRMWARE_SANITIZE == "1"``.

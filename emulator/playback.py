@@ -100,10 +100,8 @@ class Stall:
     Attributes:
         step_index: the step that stalled.
         time_s: twin time of the detection.
-        reason: ``"no_encoder_progress"`` (a side that should move does not turn) or
-            ``"time_limit"`` (the step took longer than its limit).
-        side: ``"left"``, ``"right"`` or ``"both"`` for no progress; ``""`` for a time
-            limit.
+        reason: ``"no_encoder_progress"`` or ``"time_limit"``.
+        side: ``"left"``, ``"right"`` or ``"both"`` for no progress, else ``""``.
     """
 
     step_index: int
@@ -120,8 +118,7 @@ class PlaybackResult:
         samples: poses every ``sample_period_s`` from time 0, and the final pose.
         steps: one :class:`StepResult` per step started.
         collision: the first collision, or ``None``.
-        collision_step: index of the step during which it happened (0 if the start pose
-            already collides), or ``None``.
+        collision_step: the step during which it happened (0: at the start), or ``None``.
         stall: why playback stopped for lack of progress, or ``None``.
         sim_time_s: twin time spent (including settling).
         final_pose: the pose at the end.
@@ -315,10 +312,8 @@ def measure_turn_efficiency(
 ) -> float:
     """Body yaw achieved / ideal yaw from wheel arc travel, for one in-place spin
     (``command`` LEFT or RIGHT) from rest on an open plane, read after settling: how
-    ``traction.turn_efficiency`` is calibrated (docs/twin.md).
-
-    ``distance`` defaults to what the description predicts for 90 degrees; ``dt_s`` is
-    the physics step, s.
+    ``traction.turn_efficiency`` is calibrated (docs/twin.md). ``distance`` defaults to
+    the description's 90 degrees; ``dt_s`` is the physics step, s.
     """
     if distance is None:
         distance = turn_units_for_yaw(rover, math.pi / 2.0)

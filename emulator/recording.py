@@ -80,8 +80,7 @@ class Recording:
             ``odom_yaw_rate_rad_s`` the gyro.
         downlink_delay_s: median of log time minus header stamp over odometry (``nan``
             without odometry).
-        stops_s: log times (ground clock) of every ``emergency_stop`` sent (drift
-            control's STOP, the operator's).
+        stops_s: log times (ground clock) of every ``emergency_stop`` sent.
     """
 
     path: str

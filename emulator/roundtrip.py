@@ -100,13 +100,9 @@ class RoundtripResult:
 def pty_roundtrip(
     count: int = 20000, seed: int = 1, corrupt_ratio: float = 0.01, timeout_s: float = 30.0
 ) -> RoundtripResult:
-    """Write ``count`` frames into a pty through pyserial, decode them from the other end.
-
-    Args:
-        count: frames to send.
-        seed: seeds the message values and which frames get a flipped bit.
-        corrupt_ratio: share of frames with one random bit flipped.
-        timeout_s: give up waiting for the reader after this long.
+    """Write ``count`` frames into a pty through pyserial, decode them from the other end;
+    ``corrupt_ratio`` of them get one random bit flipped (chosen by ``seed``, as the
+    values are); the reader is given up after ``timeout_s``.
     """
     rng = random.Random(seed)
     messages = sample_messages(count, rng)

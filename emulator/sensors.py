@@ -170,11 +170,9 @@ class PoseMeasurement:
 
 
 class PoseSensor:
-    """Ground-truth pose with noise, reported ``latency_s`` after it was taken.
-
-    :meth:`sample` takes a measurement now; :meth:`due` returns the measurements whose
-    latency has elapsed, oldest first. During a dropout, samples carry ``sigma_m = 0``
-    (no fix) and the pose of the last fix.
+    """Ground-truth pose with noise, reported ``latency_s`` after :meth:`sample` took
+    it (:meth:`due`, oldest first). During a dropout samples carry ``sigma_m = 0`` (no
+    fix) and the last fix's pose.
     """
 
     def __init__(self, twin: Twin, rng: random.Random, config: SensorConfig) -> None:

@@ -37,8 +37,8 @@ class PilTarget(ABC):
     Args:
         image: the built image (:func:`emulator.pil.images.build_image`).
         link: a symlink to create to the device (``None``: none).
-        realtime_priority: the emulator's real-time priority (0: normal scheduling);
-            refused where not permitted, which :attr:`realtime_note` then says.
+        realtime_priority: the emulator's real-time priority (0: none); where refused,
+            :attr:`realtime_note` says so.
         seed: seeds whatever the target draws at random (the twin's sensor noise).
         say: one line of progress (stderr in ``rover pil``).
     """
@@ -144,8 +144,7 @@ class PilTarget(ABC):
         (ground travel) trigger is met.
 
         Raises:
-            InjectionError: malformed, not applicable on this target, or ``@region=`` (the
-                reason said).
+            InjectionError: malformed, not applicable here, or ``@region=``.
         """
         spec = parse_fault(fault) if isinstance(fault, str) else fault
         if spec.trigger.region is not None:
