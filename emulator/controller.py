@@ -146,8 +146,9 @@ class ControllerModel:
 
     Not thread-safe: one thread calls :meth:`handle` and :meth:`tick`. Some rules sit in
     methods of their own (:meth:`_sends_samples`, :meth:`_profile`,
-    :meth:`_ramp_commands`, :meth:`_may_start_next`, :meth:`_stopped_distance_units`) so
-    that a mutant (:mod:`emulator.mutants`) can break exactly one.
+    :meth:`_ramp_commands`, :meth:`_may_start_next`, :meth:`_stopped_distance_units`,
+    :attr:`stall_min_command_mps`) so that a mutant (:mod:`emulator.mutants`) can break
+    exactly one.
     """
 
     stall_min_command_mps = 0.0025

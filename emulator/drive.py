@@ -129,7 +129,7 @@ def nominal_step_duration_s(rover: RoverDescription, speed: int, distance: int) 
 
 def _braking_speed(rem_m: float, a_dt: float, dt_s: float) -> float:
     """Largest speed ``v`` for this tick from which braking tick by tick
-    (``v, v - a*dt, ..., 0``) covers at most ``rem_m``: the piecewise linear
+    (``v, v - a*dt, ..., 0``) covers exactly ``rem_m`` or less: the piecewise linear
     ``D(v) = dt * ((m+1)*v - a*dt*m*(m+1)/2)`` of docs/twin.md solved for ``rem_m``.
     """
     unit = a_dt * dt_s  # travel of one tick at speed a*dt

@@ -3,10 +3,11 @@
 :class:`Emulator` owns one control thread, the only one that touches the model: one
 :meth:`~emulator.controller.ControllerModel.tick` per twin step, twin time running
 ``speed_factor`` times the wall clock, waking at least :data:`WAKE_QUANTUM_S` apart
-unless a message arrives. A STOP preempts the ticks owed, as a receive interrupt does.
-Woken late, the loop runs the ticks it owes in a burst, each message in the tick it
-arrived in, so timing rules see the host's timing; beyond :data:`MAX_BACKLOG_S` behind,
-twin time slips (docs/realtime.md, "The emulator is faithful when it is late").
+unless a message arrives. A STOP preempts the ticks owed (at most one wake quantum of
+twin time early), as a receive interrupt does. Woken late, the loop runs the ticks it
+owes in a burst, each message in the tick it arrived in, so timing rules see the host's
+timing; beyond :data:`MAX_BACKLOG_S` behind, twin time slips. Catch-ups are counted in
+:class:`EmulatorStatus` (docs/realtime.md, "The emulator is faithful when it is late").
 
 Other threads go through :meth:`Emulator.call`, which runs a function on the control
 thread. Faults are checked when given, never refused when they fire.
