@@ -1,16 +1,12 @@
 """A calibration that designs and drives its own steps: ``rover calibrate --drive``.
 
 Within a budget of driving seconds (nominal step durations, rests not counted), a
-campaign repeats:
-
-1. **Design** (:mod:`emulator.design`): from the current fit, steps chosen one at a
-   time, each the one that cuts the worst probe's spread most per second of driving,
-   among those with room around the rover (:func:`room_for`) and in the budget left;
-   :data:`FIRST_ROUND` steps first, :data:`ROUND_STEPS` after.
-2. **Drive** (a :class:`Driver`): the round as one plan, validated on the gate, then
-   executed and recorded with rests between steps. A rejected plan is not driven: the
-   step at fault is ruled out where it would have started and the round designed again.
-3. **Fit** (:func:`emulator.fit.fit_ground`) on every step measured so far.
+campaign repeats: **design** a round (:mod:`emulator.design`: steps chosen one at a
+time, each cutting the worst probe's spread most per second of driving, among those with
+room around the rover, :func:`room_for`, and in the budget); **drive** it as one plan (a
+:class:`Driver`: validated on the gate, executed and recorded with rests between steps;
+a rejected plan's faulty step is ruled out where it would have started and the round
+designed again); **fit** every step measured so far (:func:`emulator.fit.fit_ground`).
 
 It stops when every probe is under its bar and has stood still for :data:`STILL_FITS`
 fits, when the budget cannot hold another step, or when no candidate has room; the last

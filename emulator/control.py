@@ -73,10 +73,7 @@ class ControlServer:
     """Serves the control interface of one :class:`ControlTarget` on 127.0.0.1."""
 
     def __init__(self, emulator: ControlTarget, port: int = 0) -> None:
-        """Args:
-        emulator: the running emulator to control.
-        port: TCP port on 127.0.0.1; 0 picks a free one (see :attr:`port`).
-        """
+        """Serve ``emulator`` on ``port`` of 127.0.0.1 (0: a free one, see :attr:`port`)."""
         self.emulator = emulator
         self._server = _Server(("127.0.0.1", port), _Handler)
         self._server.control = self

@@ -2,7 +2,7 @@
 controller of ``firmware_proto/wire/c/fw/`` (a host shared library) behind the
 :class:`~emulator.controller.ControllerModel` interface, over the same twin.
 
-Both directions go through the C codec as serial frames. A tick is ``fw_control`` at
+Both directions go through the C codec as serial frames; a tick is ``fw_control`` at
 twin time ``t``, one twin step, then ``fw_sense`` at ``t + dt``. :func:`build_library`
 caches the library by content hash in ``$ROVER_FIRMWARE_CACHE``, else
 ``$XDG_CACHE_HOME/rover/firmware``, else ``~/.cache/rover/firmware``;

@@ -186,8 +186,7 @@ class FrontEnd:
 
         Raises:
             InjectionError: a ratio outside 0..1, a delay outside
-                0..:data:`MAX_LINK_DELAY_S` s, or corruption on a medium that cannot
-                deliver damaged frames (CAN).
+                0..:data:`MAX_LINK_DELAY_S` s, or corruption on CAN.
         """
         for kind, ratio in (("link-drop", drop), ("link-corrupt", corrupt)):
             if ratio is not None and not 0.0 <= ratio <= 1.0:

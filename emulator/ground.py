@@ -2,18 +2,16 @@
 
 The rover description's ``[traction]`` is what the gate *assumes*; a :class:`Ground` is
 what the ground *is*: the five wheel-ground parameters of :mod:`emulator.traction` plus
-a friction scale per map traction region (replacing the map's ``mu_scale``). The
-emulator takes one (``rover emulate --ground NAME|FILE``, ``--ground-set KEY=VALUE``);
-``rover calibrate`` fits one. A ground changes only the inputs of the twin:
-:meth:`Ground.rover` and :meth:`Ground.world`. More in docs/twin.md, "A ground the gate
-does not know".
+a friction scale per map traction region (replacing the map's ``mu_scale``), applied
+through :meth:`Ground.rover` and :meth:`Ground.world` (the twin itself is unchanged).
+``rover emulate --ground NAME|FILE`` drives on one; ``rover calibrate`` fits one.
 
 A ground file is TOML: ``schema_version = 1``, ``name``, ``description``, a
 ``[traction]`` subset (the rest from the rover description) and ``[regions]`` scales in
-(0, 2]; shipped ones in ``emulator/grounds/`` load by bare name. Given
-``turn_efficiency`` instead of ``mu_lateral``, the lateral friction is solved
-(:func:`solve_mu_lateral`); a file stating both is refused unless they agree within
-:data:`TURN_EFFICIENCY_AGREEMENT`.
+(0, 2]; shipped ones in ``emulator/grounds/`` load by bare name. ``turn_efficiency``
+may stand for ``mu_lateral`` (:func:`solve_mu_lateral`); a file stating both is refused
+unless they agree within :data:`TURN_EFFICIENCY_AGREEMENT`. docs/twin.md, "A ground the
+gate does not know".
 """
 
 from __future__ import annotations

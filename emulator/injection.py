@@ -267,10 +267,8 @@ class Injector:
         """Whether ``spec`` can apply here; changes nothing.
 
         Raises:
-            InjectionError: a value out of range (slip in (0, 1],
-                :data:`ENCODER_NOISE_MAX_UNITS`, :data:`IMU_BIAS_MAX_RAD_S`, link levels
-                as the link allows), a link fault the link cannot carry, or a trigger
-                region the map lacks.
+            InjectionError: a value out of range (docs/emulator.md), a link fault the
+                link cannot carry, or a trigger region the map lacks.
         """
         region = spec.trigger.region
         if region is not None and region not in self.regions:

@@ -1,14 +1,11 @@
 """Mutant controllers: the Python model with exactly one rule of docs/protocol.md broken.
 
-They measure the conformance suite (``rover conformance``): each :class:`Mutant` names
-the rule it breaks and the conformance rule that must catch it;
-``tests/bridge/test_mutants.py`` requires that rule to fail on every one, and
-docs/protocol.md ("Conformance suite") gives the score. ``rover emulate --mutant NAME``
-serves one (a test aid, never a controller to drive a rover with).
-
-A mutant is a small subclass of :class:`~emulator.controller.ControllerModel` that
-overrides one method, with at most one change to the link (:attr:`Mutant.link`).
-:data:`MUTANTS` maps names to mutants; :func:`mutant` looks one up.
+They measure the conformance suite: each :class:`Mutant` names the rule it breaks and
+the conformance rule that must catch it (``tests/bridge/test_mutants.py``; the score in
+docs/protocol.md, "Conformance suite"). A mutant is a small subclass of
+:class:`~emulator.controller.ControllerModel` overriding one method, with at most one
+change to the link (:attr:`Mutant.link`). ``rover emulate --mutant NAME`` serves one: a
+test aid, never a controller to drive a rover with.
 """
 
 from __future__ import annotations

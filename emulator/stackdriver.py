@@ -1,14 +1,12 @@
 """The driver of ``rover calibrate --drive`` on a real stack: the ground station's
 commands, as an operator runs them.
 
-Each round of a campaign (:mod:`emulator.campaign`) is one plan, written to a file and
-driven with ``rover go --plan FILE --record FILE.mcap`` against the stack: its gate
-validates it, the step-by-step executor sends each step and waits for ``completed``
-(the rover rests between steps) with drift control on, and the recording runs until the
-rover has rested. The pose before the first round is ``rover echo odom_ground``
-averaged over :data:`POSE_SAMPLES`; after a round, the rest its recording ends with.
-The emulator package never imports the ground station (docs/architecture.md): it runs
-its commands, each bounded by a timeout. More in docs/twin.md, "A designed calibration".
+Each round of a campaign (:mod:`emulator.campaign`) is one plan driven with ``rover go
+--plan FILE --record FILE.mcap`` against the stack (gate, step-by-step executor, drift
+control); the pose before the first round is ``rover echo odom_ground`` averaged over
+:data:`POSE_SAMPLES`, after a round the rest its recording ends with. The emulator
+package never imports the ground station (docs/architecture.md): it runs its commands,
+each bounded by a timeout. docs/twin.md, "A designed calibration".
 """
 
 from __future__ import annotations

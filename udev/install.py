@@ -172,10 +172,8 @@ _USB_PORT_RE = re.compile(r"[0-9]+-[0-9]+(\.[0-9]+)*")
 
 
 def fill_placeholders(text: str, serial: str | None = None, usb_port: str | None = None) -> str:
-    """``text`` with the serial and USB-port placeholders replaced where given.
-
-    Raises ValueError for a serial number or port path udev could not match literally
-    (quotes, globs, blanks) or that does not look like one.
+    """``text`` with the serial and USB-port placeholders replaced where given; raises
+    ValueError for a value udev could not match literally or that does not look right.
     """
     if serial is not None:
         if not _SERIAL_RE.fullmatch(serial):

@@ -48,13 +48,9 @@ def _clamp16(value: float) -> int:
 
 
 class TwinPlant:
-    """One twin with its sensors, stepped by the caller.
-
-    Args:
-        rover: the rover description (the twin's and the firmware's).
-        twin: the twin (its ``dt_s`` is the step).
-        seed: seeds the sensor noise.
-        sensors: noise and timing of the sensors.
+    """One twin (its ``dt_s`` is the step) with its sensors (``sensors``, noise seeded
+    by ``seed``, POSE fixes at ``pose_hz``), stepped by the caller; ``rover`` is the
+    twin's and the firmware's.
     """
 
     def __init__(
