@@ -1,16 +1,14 @@
 """Many twins played in one physics world: the same plan on N grounds at once.
 
 :func:`play_batch` plays one plan, as :func:`emulator.playback.play` does, on N twins
-that differ only in their ground and a friction factor per side. The N bodies share one
-pymunk space, each with its own copy of the map placed far enough apart that no two
-twins meet; state and forces go through :mod:`pymunk.batch`, and the force model of
-:mod:`emulator.traction` runs for all of them at once in numpy.
-
-The time step, step semantics, wheel commands (computed once: ideal motors), collision
-checking and settling are a single playback's; traction regions are a point test that
-may differ from the twin's probes by a step near a corner. A batch twin agrees with
-:class:`~emulator.twin.Twin` to about 1e-9 m; its result depends only on its parameters
-and index; deterministic. No injected faults. More in docs/gate.md.
+that differ only in their ground and a friction factor per side: one pymunk space, each
+twin with its own copy of the map far enough apart that none meet, state and forces
+through :mod:`pymunk.batch`, the :mod:`emulator.traction` forces in numpy. Time step,
+step semantics, wheel commands (computed once: ideal motors), collisions and settling
+are a single playback's; traction regions are a point test that may differ from the
+twin's probes by a step near a corner. A batch twin agrees with
+:class:`~emulator.twin.Twin` to about 1e-9 m and depends only on its parameters and
+index; deterministic; no injected faults. docs/gate.md has more.
 """
 
 from __future__ import annotations

@@ -1,6 +1,5 @@
-"""``rover replay --emulator``: the emulator's replay target (see
-:mod:`firmware_proto.cli.replay` for the options and :mod:`emulator.emulator_replay` for what it
-does)."""
+"""``rover replay --emulator``: the emulator's replay target (options:
+:mod:`firmware_proto.cli.replay`; what it does: :mod:`emulator.emulator_replay`)."""
 
 from __future__ import annotations
 

@@ -225,9 +225,8 @@ class StepProfile:
     def update(
         self, left_travel_units: float, right_travel_units: float, dt_s: float
     ) -> tuple[float, float]:
-        """Wheel surface speed targets ``(left_mps, right_mps)`` (rover frame) for the
-        next ``dt_s``, given each side's encoder travel since the step started (distance
-        units, forward positive)."""
+        """Wheel surface speed targets ``(left_mps, right_mps)`` for the next ``dt_s``, from
+        each side's encoder travel since the step started (units; rover frame, forward +)."""
         if self._done:
             return (0.0, 0.0)
         a_dt = self._accel * dt_s

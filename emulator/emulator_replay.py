@@ -174,8 +174,7 @@ def _pair_at_the_edges(
     edge_s: float,
     strict: bool,
 ) -> tuple[list[Message], list[Message]]:
-    """The answers to compare on each side: per type, every answer inside its window's
-    core, and edge answers (within ``edge_s`` of the end) as far as both sides agree."""
+    """Answers to compare, per type: all in a window's core, edge ones where both agree."""
     rec_end, rep_end = ends
     out_recorded: list[Message] = []
     out_replayed: list[Message] = []

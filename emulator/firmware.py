@@ -133,9 +133,8 @@ def build_library(*, sanitize: bool | None = None, timeout_s: float = 120.0) -> 
 
 
 def sanitizer_env(base: dict[str, str] | None = None) -> dict[str, str]:
-    """The environment for a child Python process that loads the sanitizer build:
-    ``libasan`` preloaded, leak detection off (the interpreter's leaks are not ours),
-    any error fatal."""
+    """The environment for a child Python process that loads the sanitizer build: libasan
+    preloaded, leak detection off (the interpreter's leaks are not ours), errors fatal."""
     cc = _compiler()
     asan = subprocess.run(
         [cc, "-print-file-name=libasan.so"], capture_output=True, text=True, check=True
@@ -659,8 +658,8 @@ class FirmwareController(ControllerModel):
         return self._drain()
 
     def tick(self) -> list[Message]:
-        """``fw_control``, one twin step with the core's wheel commands, ``fw_sense``; the
-        sensors are pushed before each, so the HAL always reads the plant as it is now."""
+        """``fw_control``, a twin step on the core's commands, ``fw_sense``: sensors pushed
+        before each, so the HAL reads the plant as it is now."""
         lib, h = self._lib, self._h
         self._push_sensors()
         lib.fw_host_control(h, self._now_us())

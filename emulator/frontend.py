@@ -116,8 +116,7 @@ class FrontEnd:
         return self.endpoint.read(timeout_s)
 
     def _write(self, message: Message, corrupt: bool) -> bool:
-        """Send one message (damaged if ``corrupt``); False if the medium dropped it or
-        failed (a full bus: logged at DEBUG)."""
+        """Send one message (damaged if ``corrupt``); False if the medium dropped it or failed."""
         try:
             return self.endpoint.write(message, corrupt=self._rng_tx if corrupt else None)
         except OSError as exc:

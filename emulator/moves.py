@@ -2,11 +2,10 @@
 designs with.
 
 :func:`play_moves` replays every ``(start, steps, ground)`` job in one loop over the
-physics steps, with :mod:`emulator.traction`'s force model evaluated for all jobs at
-once in numpy (``emulator.batch``'s force code). No physics engine: a calibration step
-that met an obstacle is an outlier, so each body is a free rigid body integrated as
-pymunk integrates one, with the twin's wheel commands (:func:`emulator.batch.schedule`),
-the map's traction regions under each wheel, and ``settle_s`` with the wheels stopped
+physics steps, ``emulator.batch``'s numpy forces for all jobs at once. No physics
+engine (a calibration step that met an obstacle is an outlier): each body is a free
+rigid body integrated as pymunk integrates one, with the twin's wheel commands
+(:func:`emulator.batch.schedule`), traction regions, and ``settle_s`` wheels stopped
 after the steps. A job agrees with :class:`~emulator.twin.Twin` to about 1e-9 m;
 deterministic.
 """

@@ -46,8 +46,7 @@ def wrap_count(units: float) -> float:
 
 def count_delta(after: float, before: float) -> float:
     """Travel between two readings of a wrapping counter, distance units: the difference
-    taken modulo ``2**32`` into ``[-2**31, 2**31)``, right across a wrap as long as the
-    counter moved less than ``2**31`` units (93 km at 23000 units/m) in between."""
+    modulo ``2**32`` in ``[-2**31, 2**31)``, right across a wrap below ``2**31`` of travel."""
     return wrap_count(after - before)
 
 

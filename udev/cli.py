@@ -1,8 +1,7 @@
 """``rover devices`` and ``rover udev``: what is plugged in, and our udev files.
 
-Two entry points of the ``rover.commands`` group: :func:`register` adds ``devices``,
-:func:`register_udev` adds ``udev`` (``check``, ``install``). Handlers import their
-modules, so ``rover --help`` stays fast.
+Two ``rover.commands`` entry points (:func:`register`, :func:`register_udev`); handlers
+import their modules, so ``rover --help`` stays fast.
 """
 
 from __future__ import annotations

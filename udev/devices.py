@@ -288,8 +288,8 @@ class RulesVerdict:
 
 @dataclass(frozen=True)
 class UdevFileStatus:
-    """One of our files and its installed copy: ``not installed``, ``installed``,
-    ``installed (placeholders filled)`` or ``installed, differs from source``."""
+    """One of our files and its installed copy (``status``: ``not installed``,
+    ``installed``, ``installed (placeholders filled)``, ``installed, differs from source``)."""
 
     name: str
     source: str
@@ -337,8 +337,7 @@ def _read(path: Path) -> str | None:
 
 
 def _sysfs_chain(device_dir: Path) -> list[DeviceNode]:
-    """The parents of a sysfs device directory, nearest first, with the attributes our
-    rules match (see :data:`_CHAIN_ATTRS`)."""
+    """The parents of a sysfs device directory, nearest first, with :data:`_CHAIN_ATTRS`."""
     nodes: list[DeviceNode] = []
     path = device_dir.parent
     while path != path.parent and path.name not in ("devices", "sys"):
@@ -707,8 +706,7 @@ def inventory(
     network_dir: Path = DEFAULT_NETWORK_DIR,
     socketcan: Callable[[], SocketCan] = socketcan_support,
 ) -> Inventory:
-    """Gather everything ``rover devices`` shows; ``source`` is our ``udev/`` directory
-    (None: report devices without rule verdicts)."""
+    """Gather what ``rover devices`` shows; ``source``: our ``udev/`` (None: no verdicts)."""
     sources = _load_sources(source)
     problems = tuple(str(i) for s in sources for i in s.parsed.issues)
     ports, hidden = list_serial_ports(comports, by_id_dir=by_id_dir, sys_class_tty=sys_class_tty)

@@ -91,9 +91,8 @@ class SourceFile:
 
 
 def _installed_dirs(module_file: Path) -> list[tuple[str, Path]]:
-    """Where an install put ``share/rover_hil/udev``: the ament index's share directory
-    when ROS 2 is sourced, then the nearest ancestor of the module holding
-    ``share/rover_hil/udev`` (colcon, pip and venv layouts alike)."""
+    """Where an install put ``share/rover_hil/udev``: the ament index's (ROS 2 sourced),
+    then the nearest ancestor of the module holding one (colcon, pip, venv alike)."""
     found: list[tuple[str, Path]] = []
     try:
         packages = importlib.import_module("ament_index_python.packages")

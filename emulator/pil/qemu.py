@@ -42,8 +42,7 @@ _SIDES = {"left": (0,), "right": (1,), "both": (0, 1), None: (0, 1)}
 
 def qemu_command(elf: Path, qmp: Path, gdb: Path, icount: int | None = None) -> list[str]:
     """qemu-system-arm's command line for ``elf``, halted until the GDB stub continues it;
-    ``icount``: ``-icount shift=N`` (2^N ns per instruction; benchmarks only, never
-    conformance: its watchdog rules would fail)."""
+    ``icount``: ``-icount shift=N`` (benchmarks only: conformance's watchdog would fail)."""
     extra = ["-icount", f"shift={icount}"] if icount is not None else []
     return [
         require_tool("qemu-system-arm", "qemu-system-arm"),
@@ -75,8 +74,7 @@ def _set_scheduling(priority: int) -> None:
 
 
 class MicrobitTarget(PilTarget):
-    """The nRF51 image in qemu; its plant is the in-image kinematic model, started at the
-    map's start pose (``map_name``; no obstacles: the image knows no map)."""
+    """The nRF51 image in qemu; its in-image plant starts at ``map_name``'s start pose."""
 
     name = "microbit"
     plant_name = "the in-image kinematic wheel and encoder model (FW_PIL)"
@@ -191,11 +189,10 @@ class MicrobitTarget(PilTarget):
             return answer
 
     def reset(self) -> None:
-        """A hardware reset of the MCU (qemu's ``system_reset``); the hooks survive in the
-        runner and are written again once the image has cleared its RAM."""
+        """A hardware reset of the MCU (qemu's ``system_reset``); the hooks in force are
+        written again once the restarted image ticks (its start-up zeroes them)."""
         before = self._ticks()
         self._qmp("system_reset")
-        # The restart zeroes pil_hooks; faults in force are rewritten once it ticks.
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             time.sleep(0.005)

@@ -1,11 +1,11 @@
 """A processor-in-the-loop target: the firmware image running in an emulated MCU, served
 as ``rover emulate`` serves a controller (a device path and the same control port).
 
-:class:`PilTarget` parses and checks faults (``emulator.injection``), keeps the
-injection log and builds the ``status`` answer from the image's ``pil_view`` and
-``pil_stats``. A target fills :meth:`_start_emulator`, :meth:`_apply`, :meth:`_read_port`
-and :meth:`_close_emulator`, and may override :meth:`_check`. :meth:`inject` and
-:meth:`status` may be called from any thread; a lock serialises them.
+:class:`PilTarget` checks faults, keeps the injection log and answers ``status`` from
+the image's ``pil_view`` and ``pil_stats``. A target fills :meth:`_start_emulator`,
+:meth:`_apply`, :meth:`_read_port` and :meth:`_close_emulator`, and may override
+:meth:`_check`. :meth:`inject` and :meth:`status` may be called from any thread; a lock
+serialises them.
 """
 
 from __future__ import annotations
@@ -171,8 +171,7 @@ class PilTarget(ABC):
 
     # -- triggers ----------------------------------------------------------------------------
     def ground_travel_m(self) -> float:
-        """Ground travel of the rover's centre since the target started, m (the ``@d=``
-        trigger's): the in-image plant's odometer by default."""
+        """Ground travel since the target started, m (``@d=``); default: in-image odometer."""
         with self._lock:
             return self._read_port()[0].travel_mm / 1000.0
 
