@@ -129,8 +129,7 @@ class Round:
         steps: what was asked.
         driven: what the driver did.
         measured: how many of its steps were measured at rest.
-        excess: the worst probe's spread over its bar after the fit that followed
-            (``nan`` before a first fit could be made).
+        excess: the worst probe's spread over its bar after the next fit (``nan``: none).
         fit_wall_s: wall time of that fit, s.
     """
 

@@ -4,8 +4,9 @@ What the motor controller does with a MOTION step ``(command, speed, distance)``
 (docs/architecture.md, Contracts 2 and 4; docs/twin.md, "Step semantics"): FWD and REV
 drive both sides, LEFT turns counter-clockwise on the spot, RIGHT the opposite, STOP
 brakes. Each side ramps toward ``speed`` at ``drive.wheel_accel_limit_mps2`` and brakes
-so that its own encoder travel lands on ``distance`` units; the step is done when both
-sides arrived and are at rest. Slip is invisible here, as it is to encoders.
+so that its own encoder travel (for LEFT/RIGHT, along its arc) lands on ``distance``
+units; the step is done when both sides arrived and are at rest. Slip is invisible
+here, as it is to encoders.
 
 Conversions between surface speeds, motor rates (with the mounting polarity) and
 encoder distance units live here too, so that no caller re-derives the signs.

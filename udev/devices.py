@@ -1,12 +1,13 @@
 """What is plugged in: serial ports, CAN interfaces, and what our udev rules do to them.
 
 :func:`inventory` gathers, for ``rover devices``: serial ports from pyserial (built-in
-UARTs without hardware hidden and counted), CAN interfaces from ``/sys/class/net`` with
-``ip -details -json`` where it can tell, which of our rules files would name each
-device (:func:`udev.rules.evaluate`) or would once a pinned placeholder holds its
-serial or port, ``/dev/rover-motor``, SocketCAN support, and whether our files are
-installed. Every source is a parameter with the real one as default (tests feed
-synthetic ports and a fake sysfs tree).
+UARTs without hardware, which kernels from 6.5 report and pyserial no longer filters,
+are hidden and counted), CAN interfaces from ``/sys/class/net`` with ``ip -details
+-json`` where it can tell, which of our rules files would name each device
+(:func:`udev.rules.evaluate`) or would once a pinned placeholder holds its serial or
+port, ``/dev/rover-motor``, SocketCAN support, and whether our files are installed.
+Every source is a parameter with the real one as default (tests feed synthetic ports
+and a fake sysfs tree).
 """
 
 from __future__ import annotations
