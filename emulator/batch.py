@@ -59,8 +59,7 @@ logger = logging.getLogger(__name__)
 _CAT_CHASSIS, _CAT_SENSOR, _CAT_OBSTACLE = 1, 2, 4
 _CT_SENSOR, _CT_OBSTACLE = 2, 3
 _WHEEL_PROBE_RADIUS_M = 0.001
-"""A wheel is on a region when its contact point is within this of the region (the
-twin's wheel probes are circles of this radius)."""
+"""A wheel is on a region when its contact is within this of it, m: the twin's probe radius."""
 _GAP_M = 2.0 * (WALL_THICKNESS_M + 1.0) + 2.0
 """Space between two copies of the map: twice the walls and the largest margin (1 m),
 and 2 m more, so that no shape of one twin ever overlaps another's."""

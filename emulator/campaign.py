@@ -70,13 +70,10 @@ the description's model puts it: what the next straight step's room allows for."
 MAX_ROUND_STEPS = 12
 """A plan's limit (the plan schema's)."""
 GATE_RETRIES = 5
-"""Plans the gate may reject in a row before the campaign stops (each rules out what
-it found at fault where it found it, so the next is designed without it)."""
+"""Plans the gate may reject in a row before the campaign stops; each rules out its faulty step."""
 STILL_FITS = 2
-"""The campaign stops early once this many fits in a row leave every probe's spread
-under its bar and moved it less than its bar since the fit before (one was not enough:
-the covariance is a linearisation, and on bench_calibration's packed ground a fit that
-stood still once, after 25 s of driving, was 1.53x the floor on held-out plans)."""
+"""Fits in a row that must leave every probe's spread under its bar, and move it less than
+its bar, for the campaign to stop early (one is not enough: the covariance is linearised)."""
 
 GROUND_NAMES = FIT_PARAMETERS
 """What the design identifies: the ground's parameters (a region's friction is fitted

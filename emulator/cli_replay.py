@@ -10,8 +10,7 @@ from collections.abc import Mapping
 __all__ = ["LEGACY_EMULATE_DT_S", "recorded_dt_s", "run"]
 
 LEGACY_EMULATE_DT_S = 0.001
-"""``rover emulate``'s step, s, before its logs recorded it (``dt_s``): 1 ms of twin
-time whatever the speed factor."""
+"""The step of ``rover emulate`` logs older than ``dt_s``, s of twin time (any speed factor)."""
 
 
 def recorded_dt_s(metadata: Mapping[str, str]) -> float | None:

@@ -105,9 +105,8 @@ _REST_MPS = 1e-4
 """Wheel speed below which a side counts as at rest, m/s."""
 _STALL_MIN_PROGRESS_UNITS = 1.0
 _TIME_EPS_S = 1e-9
-"""Float tolerance on twin-time comparisons: twin time is ``steps * dt``, so a silence of
-exactly 60 ms can compute as 60.000000000000005 ms and trip a 60 ms watchdog a tick
-early (found by the differential test against the C core, whose clock is integer)."""
+"""Float tolerance on twin-time comparisons, s: twin time is ``steps * dt``, so a silence of
+exactly a timeout can compute a hair longer and trip it a tick early."""
 
 
 @dataclass(frozen=True)

@@ -195,8 +195,7 @@ class StepProfile:
         dl, dr = self.directions
         # Current target of each side along its direction of travel (m/s, may be < 0).
         self._u = [initial_left_mps * dl if dl else 0.0, initial_right_mps * dr if dr else 0.0]
-        # A step with nothing to do brakes the speeds themselves: along a direction, a
-        # zero step could never arrive.
+        # A zero step brakes the speeds themselves: along a direction it could never arrive.
         self._brakes = not moving
         if self._brakes:
             self._u = [initial_left_mps, initial_right_mps]

@@ -60,8 +60,7 @@ MAX_SETTLE_S = 10.0
 """Longest wait for answers after the last host frame, s (wall)."""
 REPLAY_MAX_BACKLOG_S = 2.0
 """How far behind the replay's emulator may fall and still catch up in a burst, wall s
-(a live one lets twin time slip past 0.1 s: :data:`emulator.engine.MAX_BACKLOG_S`): a
-slip would move the recorded frames to other ticks and change the answers."""
+(live: :data:`emulator.engine.MAX_BACKLOG_S`): a slip moves recorded frames to other ticks."""
 _FIRST_FRAME_TIMEOUT_S = 5.0
 
 

@@ -60,14 +60,10 @@ logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
 MAX_BACKLOG_S = 0.1
-"""When the control loop falls this far behind the wall clock (CPU starved), it drops
-the backlog and lets twin time slip rather than running in a burst."""
+"""Wall seconds the control loop may lag and still catch up in a burst; beyond, twin time slips."""
 WAKE_QUANTUM_S = 0.002
-"""The control thread wakes at least this long apart unless a message arrives, and runs
-the ticks owed since (each message still played into the tick it arrived in). Waking
-for every tick (4,000 times a second at ``--speed-factor 4``) cost a real-time process
-a third of a core, CPU that the kernel's own work (a pty's receive path runs in a
-kernel worker of normal priority) then lacked on a busy machine."""
+"""Least wall time between the control thread's wakes unless a message arrives, s: waking
+every tick, this real-time thread would starve the kernel's pty receive path (normal priority)."""
 
 
 @dataclass(frozen=True)
@@ -185,8 +181,7 @@ class Emulator:
         self.stop_handled: list[float] = []
         """``time.monotonic()`` when each STOP had zeroed the targets."""
         self.overruns = 0
-        """Times the control loop fell more than ``max_backlog_s`` behind and let twin
-        time slip."""
+        """Times the loop fell more than ``max_backlog_s`` behind and let twin time slip."""
         self.catchups = 0
         self._late_max_s = 0.0
         self._late: deque[float] = deque(maxlen=1000)

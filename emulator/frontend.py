@@ -34,8 +34,7 @@ MAX_LINK_DELAY_S = 10.0
 """Longest injected link delay, s."""
 
 Deliver = Callable[[Message, float], None]
-"""Called by the reader thread with each received message and its arrival time
-(``time.monotonic()``)."""
+"""Called by the reader thread with each received message and its ``time.monotonic()``."""
 
 
 @dataclass

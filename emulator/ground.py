@@ -57,9 +57,8 @@ GROUND_PARAMETERS = (
     "slip_saturation_ratio",
     "rolling_resistance",
 )
-"""The traction parameters a ground sets (the rover description's ``[traction]`` keys
-less ``turn_efficiency``, which is a property of the rover on a ground, not an input
-of the force model)."""
+"""The traction parameters a ground sets: the rover description's ``[traction]`` keys less
+``turn_efficiency`` (a property of the rover on a ground, not a force-model input)."""
 
 REGION_SCALE_MAX = 2.0
 """Largest region friction scale (the map format's bound)."""
@@ -67,9 +66,8 @@ REGION_SCALE_MAX = 2.0
 _TURN_EFFICIENCY_TOLERANCE = 1e-4
 
 TURN_EFFICIENCY_AGREEMENT = 0.005
-"""How closely a ground file's measured ``turn_efficiency`` and its ``mu_lateral`` must
-agree when it states both (the tolerance the rover description's own turn efficiency is
-held to: docs/twin.md, Recalibrating)."""
+"""Largest gap between a ground file's stated ``turn_efficiency`` and what its ``mu_lateral``
+turns at (the rover description's own tolerance: docs/twin.md, Recalibrating)."""
 
 
 @dataclass(frozen=True)

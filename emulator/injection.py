@@ -62,8 +62,7 @@ ENCODER_NOISE_MAX_UNITS = 100_000.0
 """Largest ``encoder-noise`` accepted, distance units (about 4.3 m of travel, 1 sigma)."""
 
 IMU_BIAS_MAX_RAD_S = 32.767
-"""Largest ``imu-bias`` magnitude accepted, rad/s: what the IMU message can carry
-(yaw rate in mrad/s, int16)."""
+"""Largest ``imu-bias`` magnitude accepted, rad/s: the IMU message's int16 of mrad/s."""
 
 _SIDED = {"slip", "stall", "encoder-noise", "encoder-dropout"}
 _VALUED = {"slip", "encoder-noise", "imu-bias", "link-drop", "link-corrupt", "link-delay"}

@@ -31,8 +31,7 @@ __all__ = [
 ]
 
 COUNTER_MODULUS = 1 << 32
-"""An encoder counter is a signed 32-bit register: it reads ``-2**31 .. 2**31 - 1`` and
-wraps modulo ``2**32`` (firmware_proto/wire/c/fw/fw_hal.h)."""
+"""An encoder counter is an int32, wrapping modulo this (firmware_proto/wire/c/fw/fw_hal.h)."""
 _HALF = COUNTER_MODULUS // 2
 
 

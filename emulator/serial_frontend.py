@@ -29,9 +29,8 @@ __all__ = ["PRIORITY_ORDER", "SerialFrontEnd"]
 logger = logging.getLogger(__name__)
 
 PRIORITY_ORDER = {"emergency": 0, "motion": 1, "status": 2, "telemetry": 2, "config": 2}
-"""Transmit order on a paced line: the STOP lane first, then motion, then status,
-telemetry and configuration in the order they were queued. Strict priority for the
-last three would starve configuration (IDENT) behind telemetry on a saturated line."""
+"""Transmit order on a paced line: STOP, motion, then the rest as queued (strict priority
+among those would starve IDENT behind telemetry on a saturated line)."""
 
 STALE_TELEMETRY_S = 0.1
 """A telemetry frame that waited this long for the paced line is dropped (a newer one is

@@ -35,10 +35,9 @@ logger = logging.getLogger(__name__)
 POSE_SAMPLES = 10
 """POSE samples averaged for the rover's pose before the first round."""
 DRIFT_LINEAR_M = 0.5
-"""Drift control's position limit for a calibration plan, m: the stack's gate predicts
-with a twin that does not know this ground yet (its turns may be a third off), so the
-limit is what the design's room allows, not the 0.25 m of a mission; the heading is not
-limited (a turn on the spot that turns less than predicted is what is being measured)."""
+"""Drift control's position limit for a calibration plan, m: what the design's room allows,
+as the gate's twin does not know this ground yet; the heading is not limited (a turn
+falling short of its prediction is what is measured)."""
 _SCALE_ENV = "ROVER_TIME_SCALE"
 _NAMES = {int(c): c.name for c in Command}
 

@@ -33,10 +33,8 @@ WHEEL_COUNT = 4
 """Wheels on the ground, in the order front-left, rear-left, front-right, rear-right."""
 
 ROLLING_SPEED_SCALE_MPS = 0.005
-"""Ground speed below which rolling resistance fades out (``tanh(g_x / v_rr)``), m/s.
-
-Speed unit 1 is 0.005 m/s: this only removes the discontinuity at rest, which would
-make the force chatter."""
+"""Ground speed below which rolling resistance fades out (``tanh(g_x / v_rr)``), m/s: one
+speed unit: it only removes the discontinuity at rest, which would make the force chatter."""
 
 _TINY_SIGMA = 1e-9
 

@@ -63,12 +63,10 @@ KEYS = frozenset(
         "SECLABEL", "RUN", "GOTO", "LABEL",
     }
 )  # fmt: skip
-"""Every key udev knows (systemd-udevd's ``parse_token()``); a rule naming another one
-is left out."""
+"""Every key udev knows (systemd-udevd's ``parse_token()``); a rule naming another is left out."""
 
 PARENT_KEYS = frozenset({"KERNELS", "SUBSYSTEMS", "DRIVERS", "TAGS", "ATTRS"})
-"""Match keys evaluated on the device or one of its parents, all such keys of a rule on
-the same one."""
+"""Match keys evaluated on the device or one of its parents: the same one for all of a rule's."""
 
 _AS_MATCH = frozenset({"PROGRAM", "IMPORT"})
 """Keys that udev takes as a match whatever their operator (``IMPORT{builtin}="x"``)."""

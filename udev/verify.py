@@ -45,8 +45,7 @@ VERIFY_SINCE = 254
 """The first systemd release whose ``udevadm`` has ``verify``."""
 
 _DEVICES = ("/sys/class/tty/tty", "/sys/class/tty/console", "/sys/class/mem/null")
-"""Devices the sandboxed ``udevadm test`` may replay (any will do: the rules are parsed
-before the event)."""
+"""Devices the sandboxed ``udevadm test`` may replay (any: rules parse before the event)."""
 
 _TIMEOUT_S = 60.0
 
