@@ -35,9 +35,8 @@ logger = logging.getLogger(__name__)
 POSE_SAMPLES = 10
 """POSE samples averaged for the rover's pose before the first round."""
 DRIFT_LINEAR_M = 0.5
-"""Drift control's position limit for a calibration plan, m: what the design's room allows,
-as the gate's twin does not know this ground yet; the heading is not limited (a turn
-falling short of its prediction is what is measured)."""
+"""Drift control's position limit for a calibration plan, m: the design's room, as the gate's
+twin does not know this ground yet; the heading is unlimited (its error is what is measured)."""
 _SCALE_ENV = "ROVER_TIME_SCALE"
 _NAMES = {int(c): c.name for c in Command}
 
