@@ -23,8 +23,9 @@ import subprocess
 import tempfile
 import threading
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar, overload
 
 from emulator.controller import ControllerConfig, ControllerModel, LatchCause
 from emulator.drive import motor_omegas
@@ -295,6 +296,38 @@ def _clamp16(value: float) -> int:
     return max(-32768, min(32767, round(value)))
 
 
+_V = TypeVar("_V")
+
+_LATCH_BITS = ((1, LatchCause.STOP), (2, LatchCause.WATCHDOG), (4, LatchCause.FAULT))
+"""The ``latch`` bits of ``fw_status_t`` and the causes they stand for."""
+
+
+class _CoreField(Generic[_V]):
+    """A :class:`FirmwareController` attribute read from the C core's status at each read;
+    an assignment is ignored (the base class's code assigns what the core holds).
+
+    ``before_init``: the value read before the core exists (``None``: read it anyway).
+    """
+
+    def __init__(self, read: Callable[[_Status], _V], before_init: _V | None = None) -> None:
+        self._read = read
+        self._before_init = before_init
+
+    @overload
+    def __get__(self, obj: None, owner: type) -> _CoreField[_V]: ...
+    @overload
+    def __get__(self, obj: FirmwareController, owner: type) -> _V: ...
+    def __get__(self, obj: FirmwareController | None, owner: type) -> _CoreField[_V] | _V:
+        if obj is None:
+            return self
+        if self._before_init is not None and obj._h is None:
+            return self._before_init
+        return self._read(obj._st())
+
+    def __set__(self, obj: FirmwareController, value: _V) -> None:
+        pass
+
+
 # -- the controller -----------------------------------------------------------------------
 class FirmwareController(ControllerModel):
     """The C firmware core behind the :class:`ControllerModel` interface.
@@ -477,114 +510,30 @@ class FirmwareController(ControllerModel):
         return self._status
 
     # -- the ControllerModel interface --------------------------------------------------------
-    @property
-    def state(self) -> int:
-        """The :class:`ControllerState` code."""
-        return int(self._st().state)
-
-    @state.setter
-    def state(self, value: int) -> None:  # the base class's __init__ assigns it
-        pass
-
-    @property
-    def handshake_ok(self) -> bool:
-        """A matching HELLO opened the session."""
-        return bool(self._st().handshake_ok)
-
-    @handshake_ok.setter
-    def handshake_ok(self, value: bool) -> None:
-        pass
-
-    @property
-    def boot_nonce(self) -> int:
-        """The nonce of this boot (IDENT, HEARTBEAT)."""
-        return int(self._st().boot_nonce)
-
-    @boot_nonce.setter
-    def boot_nonce(self, value: int) -> None:
-        pass
-
-    @property
-    def latch_gen(self) -> int:
-        """The latch generation (HEARTBEAT ``latch_gen``)."""
-        return int(self._st().latch_gen)
-
-    @latch_gen.setter
-    def latch_gen(self, value: int) -> None:
-        pass
-
-    @property
-    def latch_causes(self) -> set[LatchCause]:
-        """What set the latch since the last CLEARED (empty: not latched)."""
-        bits = self._st().latch
-        return {
-            cause
-            for bit, cause in (
-                (1, LatchCause.STOP),
-                (2, LatchCause.WATCHDOG),
-                (4, LatchCause.FAULT),
-            )
-            if bits & bit
-        }
-
-    @latch_causes.setter
-    def latch_causes(self, value: set[LatchCause]) -> None:
-        pass
-
-    @property
-    def faults(self) -> set[int]:
-        """Fault codes whose condition is active now."""
-        bits = self._st().faults
-        return {code for code in range(1, 9) if bits & (1 << (code - 1))}
-
-    @faults.setter
-    def faults(self, value: set[int]) -> None:
-        pass
-
-    @property
-    def rx_errors(self) -> int:
-        """Bad frames counted (HEARTBEAT ``rx_errors`` before its 16-bit wrap)."""
-        return int(self._st().rx_errors) if self._h is not None else 0
-
-    @rx_errors.setter
-    def rx_errors(self, value: int) -> None:
-        pass
-
-    @property
-    def watchdog_ms(self) -> int:
-        """The WATCHDOG_MS parameter in force."""
-        return int(self._st().watchdog_ms)
-
-    @watchdog_ms.setter
-    def watchdog_ms(self, value: int) -> None:
-        pass
-
-    @property
-    def telemetry_hz(self) -> int:
-        """The TELEMETRY_HZ parameter in force."""
-        return int(self._st().telemetry_hz)
-
-    @telemetry_hz.setter
-    def telemetry_hz(self, value: int) -> None:
-        pass
-
-    @property
-    def pose_hz(self) -> int:
-        """The POSE_HZ parameter in force."""
-        return int(self._st().pose_hz)
-
-    @pose_hz.setter
-    def pose_hz(self, value: int) -> None:
-        pass
-
-    @property
-    def heartbeat_hz(self) -> int:
-        """The HEARTBEAT_HZ parameter in force."""
-        return int(self._st().heartbeat_hz)
-
-    @heartbeat_hz.setter
-    def heartbeat_hz(self, value: int) -> None:
-        pass
+    # The base class's state, read from the C core's status; the base class's own
+    # assignments to them (its __init__, a reboot) are ignored: the core holds the state.
+    state = _CoreField(lambda s: int(s.state))
+    """The :class:`ControllerState` code."""
+    handshake_ok = _CoreField(lambda s: bool(s.handshake_ok))
+    """A matching HELLO opened the session."""
+    boot_nonce = _CoreField(lambda s: int(s.boot_nonce))
+    """The nonce of this boot (IDENT, HEARTBEAT)."""
+    latch_gen = _CoreField(lambda s: int(s.latch_gen))
+    """The latch generation (HEARTBEAT ``latch_gen``)."""
+    latch_causes = _CoreField(lambda s: {cause for bit, cause in _LATCH_BITS if s.latch & bit})
+    """What set the latch since the last CLEARED (empty: not latched)."""
+    faults = _CoreField(lambda s: {code for code in range(1, 9) if s.faults & (1 << (code - 1))})
+    """Fault codes whose condition is active now."""
+    rx_errors = _CoreField(lambda s: int(s.rx_errors), before_init=0)
+    """Bad frames counted (HEARTBEAT ``rx_errors`` before its 16-bit wrap)."""
+    watchdog_ms = _CoreField(lambda s: int(s.watchdog_ms))
+    """The WATCHDOG_MS parameter in force."""
+    telemetry_hz = _CoreField(lambda s: int(s.telemetry_hz))
+    """The TELEMETRY_HZ parameter in force."""
+    pose_hz = _CoreField(lambda s: int(s.pose_hz))
+    """The POSE_HZ parameter in force."""
+    heartbeat_hz = _CoreField(lambda s: int(s.heartbeat_hz))
+    """The HEARTBEAT_HZ parameter in force."""
 
     @property
     def queue_depth(self) -> int:
