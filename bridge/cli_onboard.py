@@ -1,20 +1,18 @@
 """``rover onboard``: the rover's onboard sequencer and drift guard, beside the bridge
-(docs/onboard.md).
+(docs/onboard.md, "The program").
 
-Also the ``rover_onboard`` console script that ``ros2 run`` and launch files start
-(:func:`main`), which accepts ``--ros-args ...`` (its ``-p name:=value`` stand for the
-long options: ``time_scale`` -> ``--time-scale``).
+Also the ``rover_onboard`` console script (:func:`main`), which accepts ``--ros-args ...``
+(its ``-p name:=value`` stand for the long options: ``time_scale`` -> ``--time-scale``).
 
 The uplink token comes from the environment only (``ROVER_UPLINK_TOKEN``; a command line
 is readable by every user in ``/proc``): without it the program refuses to start unless
 told ``--insecure`` (then any publisher on the rover's ROS domain can drive it).
 
-It prints ``ONBOARD <namespace> <backend> (uplinks must be signed)`` once its ROS 2 node
-is up and the bridge subscribes to its steps and its STOP (``--bridge-timeout``), and
-one line per plan. SIGINT and SIGTERM (or ``--duration``) end it: a plan still running
-is stopped first, then the node and the ROS context are closed. Exit status 0, 2 on a
-usage error (no token and no ``--insecure`` among them), 1 when ROS 2 is missing or no
-bridge is there.
+It prints ``ONBOARD <namespace> <backend> (uplinks must be signed)`` once its node is up
+and the bridge subscribes to its steps and its STOP, and one line per plan. SIGINT and
+SIGTERM (or ``--duration``) stop a running plan first, then close the node and the ROS
+context. Exit status 0, 2 on a usage error, 1 when ROS 2 is missing or no bridge came
+within ``--bridge-timeout``.
 """
 
 from __future__ import annotations

@@ -3,22 +3,14 @@
 Everything this package raises derives from :class:`BridgeError`::
 
     BridgeError
-     +-- RosPortError       the ROS port (bridge.ros.rosport) failed; its subclasses are drawn
-     |                      in bridge/ros/rosport/errors.py
-     +-- TransportError     a device or bus cannot be opened, read or written; also
-     |    |                 OSError (firmware_proto.linkio.errors.LinkError)
-     |    +-- TransportUrlError   the URL itself is malformed: permanent, never retried;
-     |    |                       also ValueError
-     |    +-- DeviceBusyError     another process holds the device exclusively (a second
-     |                            bridge on one controller)
+     +-- RosPortError       the ROS port failed (subclasses: bridge/ros/rosport/errors.py)
+     +-- TransportError     a device or bus cannot be opened, read or written; also OSError
+     |    +-- TransportUrlError   the URL is malformed: permanent; also ValueError
+     |    +-- DeviceBusyError     another process holds the device exclusively
      +-- ParameterError     a bridge parameter is missing or out of range; also ValueError
-     +-- ConformanceError   the conformance suite cannot run (no link, a control port
-          |                 that does not answer)
-          +-- RuleFailedError   a controller broke a rule of docs/protocol.md (one
-          |                     rule's verdict, reported, never raised out of the suite)
-          +-- RuleNotRunError   a rule needs what the device does not offer (a control
-                                port, a serial line): reported "not run", never passed
-
+     +-- ConformanceError   the conformance suite cannot run (no link, a silent control port)
+          +-- RuleFailedError   a controller broke a rule (reported, never raised out of the suite)
+          +-- RuleNotRunError   a rule needs what the device lacks: "not run", never passed
 """
 
 from __future__ import annotations

@@ -1,28 +1,19 @@
 """The onboard program's ROS 2 shell around :class:`~bridge.onboard.core.OnboardCore` and
 :class:`~bridge.onboard.ekf.PoseEkf` (``rover onboard``, docs/onboard.md).
 
-It runs beside the bridge on the rover's computer and talks to it through the bridge's
-unchanged contract (the topics: docs/onboard.md, "Topics").
-
-Threads (besides the ROS port's own, docs/architecture.md):
+It runs beside the bridge, on the bridge's unchanged topics (docs/onboard.md, "The
+program", says more of its threads and clocks):
 
 - the port's default lane runs the callbacks of ``plan_uplink``, ``command_status``,
-  ``odom`` and ``odom_ground``; its STOP lane the ``emergency_stop`` callback, so the
-  ground's STOP never waits behind a pose. Each callback feeds the core under one lock
-  and publishes what the core decided, STOP first, from the same thread: a drift STOP
-  leaves in the callback of the estimate that confirmed it. A sample that leaves the
-  estimate as it was feeds nothing (:meth:`PoseEkf.take_estimate`);
+  ``odom`` and ``odom_ground``, its STOP lane ``emergency_stop``'s; each feeds the core
+  under one lock and publishes what it decided, STOP first, from the same thread (a
+  sample that leaves the estimate as it was feeds nothing: :meth:`PoseEkf.take_estimate`);
 - ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline, at least every
-  :data:`TICK_MAX_S`, and beats the stall monitor. A turn that comes
-  :data:`LATE_TURN_S` after the last (the program stalled as a whole) holds the
-  deadlines :data:`BACKLOG_GRACE_S` more, so that the samples queued in the stall are
-  read before the blind check judges their absence (:meth:`OnboardNode._timer_turn`).
-
-**Clocks.** The core runs on the monotonic clock, so that no step of the system clock
-(NTP) disables or fires a deadline. The bridge stamps ``odom`` and ``odom_ground`` with
-ROS time (the system clock): each estimate's stamps are moved into the monotonic clock
-by the two clocks' offset as it is handed to the core, and each report's times back
-into ROS time as it is published.
+  :data:`TICK_MAX_S`; a turn :data:`LATE_TURN_S` after the last holds the deadlines
+  :data:`BACKLOG_GRACE_S` more (:meth:`OnboardNode._timer_turn`);
+- the core runs on the monotonic clock (no step of the system clock moves a deadline):
+  estimates' stamps (ROS time) are moved into it, and reports' times back, by the two
+  clocks' offset.
 
 Not a ROS node class of rclpy: the port is the seam (docs/rosport.md); in lockstep
 :meth:`OnboardNode.step` replaces the timer thread.

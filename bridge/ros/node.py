@@ -3,18 +3,12 @@
 :class:`BridgeNode` joins a ROS port (:mod:`bridge.ros.rosport`: rclpy in production, or
 in-process for fast unit tests) to a :class:`~bridge.link.controllerlink.ControllerLink`.
 
-The topics, their types and meaning are docs/bridge.md, "Topics" (names relative to
-the namespace unless absolute). The node's own part of that contract:
-
-- ``wheel_instructions``: each valid step is queued on the link; invalid input is
-  answered ``rejected:<reason>`` and never sent (:func:`validate_step`);
-- ``emergency_stop`` ``true`` sends STOP on the STOP lane; ``false`` does nothing;
-- ``odom`` on every ENCODERS frame, continuous across a controller reboot;
-  ``odom_ground`` stamped with the measurement's time;
-- ``/tf`` only where ``tf2_msgs`` is installed; elsewhere the node says once that it
-  publishes none (:attr:`BridgeNode.tf_note`);
-- ``/diagnostics`` at ``diagnostics_hz`` and at once whenever the link changes state
-  (:mod:`bridge.ros.diagnostics`).
+The topics, their types and meaning are docs/bridge.md, "Topics". Invalid
+``wheel_instructions`` are answered ``rejected:<reason>`` and never sent
+(:func:`validate_step`); ``emergency_stop`` ``true`` sends STOP on the STOP lane, ``false``
+does nothing; ``/tf`` is published only where ``tf2_msgs`` is installed
+(:attr:`BridgeNode.tf_note`); ``/diagnostics`` at ``diagnostics_hz`` and at once whenever
+the link changes state (:mod:`bridge.ros.diagnostics`).
 
 Threads: the ROS port's threads run the input callbacks; the transport's dispatcher
 thread runs the telemetry and status outputs; one diagnostics thread publishes

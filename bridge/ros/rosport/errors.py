@@ -6,12 +6,10 @@ All derive from :class:`bridge.errors.RosPortError` (itself a
     RosPortError
      +-- UnknownBackendError       no backend has that name (lists the known ones); also ValueError
      +-- BackendUnavailableError   the backend's dependency (rclpy) is not installed
-     +-- RosNameError              a topic name, namespace or node name breaks the ROS 2 rules;
-     |                             also ValueError
-     +-- MessageError              a message does not fit its ROS type (field type, range,
-     |                             array length); also ValueError
-     +-- TopicTypeError            a publisher got a message of another type, or one port used
-     |                             two types on one topic; also TypeError
+     +-- RosNameError              a name breaks the ROS 2 naming rules; also ValueError
+     +-- MessageError              a message does not fit its ROS type; also ValueError
+     +-- TopicTypeError            a message of another type, or two types on one topic;
+     |                             also TypeError
      +-- PortClosedError           the port (or the publisher) is closed
 
 Backend failures that fit none of these (a DDS entity cannot be created, a config is

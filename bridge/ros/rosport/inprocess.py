@@ -1,15 +1,11 @@
 """The ``inprocess`` backend: publish/subscribe between ports of one Python process.
 
 Ports opened with the same ``bus`` name (default ``"default"``) see each other's topics,
-as nodes of one ROS domain would; ports on different buses do not. A publisher reaches
-the subscriptions on its bus with the same fully qualified topic, the same message type
-(a different type on the same name never matches, as in DDS) and compatible QoS (a
-reliable subscription does not receive from a best-effort publisher:
-:func:`~bridge.ros.rosport.qos.compatible`).
-
-``publish`` only queues: each subscription keeps the last ``qos.depth`` messages (older
-ones are dropped and counted in ``stats().dropped``), and each lane of a port delivers on
-its own thread, so callbacks never run on the publisher's thread.
+as nodes of one ROS domain would: a publisher reaches the subscriptions on its bus with
+the same fully qualified topic, the same message type and compatible QoS
+(:func:`~bridge.ros.rosport.qos.compatible`). ``publish`` only queues: each subscription
+keeps the last ``qos.depth`` messages (older ones dropped and counted in
+``stats().dropped``), and each lane of a port delivers on its own thread.
 
 **In lockstep** (``clock=`` a :class:`~firmware_proto.linkio.clock.LockstepClock`,
 docs/sim.md) a port has no thread: on each tick of the clock it delivers what is queued,
@@ -153,8 +149,7 @@ class InProcessPort(RosPort):
     """A port on an in-process bus (``open_port("inprocess", bus=...)``).
 
     Args:
-        namespace: see :class:`RosPort`.
-        node_name: see :class:`RosPort`.
+        namespace, node_name: see :class:`RosPort`.
         bus: name of the in-process bus to join; ports on one bus see each other.
         clock: the wall clock (lane threads), or a lockstep clock whose ticks deliver
             (see the module docstring).

@@ -30,7 +30,6 @@ class ParameterSpec:
     """One parameter as a node declares it.
 
     Attributes:
-        name: the parameter's name.
         default: its value unless set at start; its type is the parameter's type
             (``bool``, ``int``, ``float`` or ``str``).
         description: what it is, with its unit.

@@ -1,13 +1,10 @@
 """The ``rclpy-process`` backend: real ROS 2 nodes in child processes of their own.
 
-Why: rclpy calls into the middleware (``Publisher.publish`` into Fast DDS, synchronous on
-the caller's thread) while holding Python's interpreter lock, so a blocked call stops
-every thread of the process, the controller link's included, long enough for the
-controller's watchdog to trip. Here the nodes live in other processes, so no middleware
-call can stop the link's threads.
-
-What the caller sees is a :class:`~bridge.ros.rosport.port.RosPort` like any other; how it
-works underneath is docs/rosport.md, "``rclpy-process``". The contracts:
+Why: rclpy calls into the middleware holding Python's interpreter lock, so a blocked
+publish would stop every thread of the process, the controller link's included; here no
+middleware call runs in the caller's process. What the caller sees is a
+:class:`~bridge.ros.rosport.port.RosPort` like any other; how it works underneath is
+docs/rosport.md, "``rclpy-process``". The contracts:
 
 - messages cross as their CDR bytes; the parent never initialises rclpy;
 - ``publish`` serializes, queues and returns: it never waits for the child. A writer
@@ -366,8 +363,7 @@ class ProcessPort(RosPort):
     process that is publishing.
 
     Args:
-        namespace: see :class:`RosPort` (also the nodes' namespace).
-        node_name: see :class:`RosPort` (also the node's name).
+        namespace, node_name: see :class:`RosPort` (also the nodes').
         domain_id: ROS domain; default ``$ROS_DOMAIN_ID``, else 0.
         args: ROS command-line arguments for both nodes (``["--ros-args", ...]``).
 

@@ -1,15 +1,10 @@
 """Quality of service of the product's topics, stated once.
 
-A :class:`Qos` is the part of a ROS 2 QoS profile the product chooses: reliability,
-keep-last depth and durability (history is always keep-last). Backends translate it (the
-``rclpy`` backend into ``rclpy.qos.QoSProfile``); the ``inprocess`` backend follows the
-same matching rule as DDS: a *reliable* subscription receives nothing from a
-*best-effort* publisher, every other combination matches.
-
-The profiles, by topic, are tabled in docs/rosport.md ("The product's QoS, per topic").
-Telemetry is *published* reliable (so that every reader matches) and *subscribed* best
-effort (a pose the next sample supersedes is never retransmitted); a STOP and a status
-are never best effort.
+A :class:`Qos` is the part of a ROS 2 QoS profile the product chooses (history is always
+keep-last); backends translate it, and ``inprocess`` matches as DDS does
+(:func:`compatible`). The profiles by topic, and why telemetry is published reliable but
+subscribed best effort: docs/rosport.md, "The product's QoS, per topic". A STOP and a
+status are never best effort.
 """
 
 from __future__ import annotations

@@ -5,21 +5,12 @@ without it gets :class:`BackendUnavailableError` saying how to install it. This 
 only module of the project that imports rclpy itself (message classes come from
 :mod:`bridge.ros.rosport.msgs`).
 
-A port is one rclpy node (``node_name``) in its own context: ``rclpy.init`` with the
-port's domain and ROS arguments, without rclpy's signal handlers (the application keeps
-its own and closes the port). Each lane of the port has its own executor on its own
-thread:
-
-- the default lane is the node itself, spun by a ``SingleThreadedExecutor`` (its
-  parameter services run there too);
-- the STOP lane, created on first use, is a second node ``<node_name>_stop`` in the same
-  context (rclpy cannot hand one callback group of a node to another executor), and no
-  executor spins it: its thread waits on an rcl wait set that holds only the STOP
-  subscriptions and a guard condition, takes each message and runs the callback, through
-  rclpy's binding of rcl (``rclpy.impl.implementation_singleton``), as rclpy's own
-  executor does. An emergency stop so waits for no other callback.
-
-Messages are the generated classes; they are published and delivered as they are.
+A port is one rclpy node in its own context, without rclpy's signal handlers; its
+default lane is spun by a ``SingleThreadedExecutor``, its STOP lane is a second node
+``<node_name>_stop`` whose thread waits on an rcl wait set of the STOP subscriptions
+alone (through ``rclpy.impl.implementation_singleton``), so an emergency stop waits for no
+other callback (docs/rosport.md, "``rclpy``"). Messages are published and delivered as
+they are.
 """
 
 from __future__ import annotations
@@ -139,8 +130,7 @@ class RclpyPort(RosPort):
     """A port that is an rclpy node (``open_port("rclpy", ...)``).
 
     Args:
-        namespace: see :class:`RosPort` (also the node's namespace).
-        node_name: see :class:`RosPort` (also the node's name).
+        namespace, node_name: see :class:`RosPort` (also the node's).
         domain_id: ROS domain; default ``$ROS_DOMAIN_ID``, else 0.
         args: ROS command-line arguments for this context (``["--ros-args", ...]``):
             remappings, ``-p`` parameters, ``--params-file``, log levels.
