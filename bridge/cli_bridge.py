@@ -12,8 +12,7 @@ At the default verbosity it says, on stdout, one line per event of its link that
 operator must know (:mod:`bridge.link.linklines`).
 
 SIGINT and SIGTERM (or ``--duration``) end it cleanly: the node, the link and the ROS
-context are closed; the exit status is 0 when it reached a controller, 3 when it never
-did (one line on stderr says so).
+context are closed (the exit statuses: :func:`run`).
 """
 
 from __future__ import annotations
@@ -273,10 +272,10 @@ def resolve_params(
 
 def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rover bridge") -> int:
     """Run the bridge until SIGINT/SIGTERM (or ``--duration``); returns the exit status:
-    0, or :data:`EXIT_NEVER_REACHED` when no controller was ever reached, 2 for a bad
-    parameter, a malformed device URL or a bad ROS argument (reported on stderr as
-    ``prog: error:``), 1 when ROS 2 is not installed or the ROS 2 node's process died
-    (for its supervisor to restart it).
+    0, or :data:`EXIT_NEVER_REACHED` when no controller was ever reached (one line on
+    stderr says so), 2 for a bad parameter, a malformed device URL or a bad ROS argument
+    (reported on stderr as ``prog: error:``), 1 when ROS 2 is not installed or the ROS 2
+    node's process died (for its supervisor to restart it).
 
     ``ros_args`` are the ROS arguments without the ``--ros-args`` marker
     (:func:`firmware_proto.cli.rosargs.split_ros_args`).

@@ -6,15 +6,10 @@ interface by name; other query options go to ``can.Bus``. Frames of other nodes 
 own frames echoed back are ignored.
 
 **Bus health** (docs/bridge.md, "Transports"), from SocketCAN error frames or
-``bus.state`` (:func:`~firmware_proto.linkio.can_endpoint.decode_error_frame` is pure):
-error-warning and error-passive change :attr:`CanTransport.medium_state`, are logged
-once and counted, and the link stays up; bus-off and a failed send are a transport
-error (the link reconnects); other error frames are counted in
+``bus.state``: error-warning and error-passive change :attr:`CanTransport.medium_state`,
+are logged once and counted, and the link stays up; bus-off and a failed send are a
+transport error (the link reconnects); other error frames are counted in
 :attr:`CanTransport.error_frames` and logged at DEBUG.
-
-A malformed URL, a node id outside 1..15 and an interface python-can does not know are
-:class:`~bridge.errors.TransportUrlError` from the constructor (permanent); a bus that
-cannot be opened, bus-off and failed sends are retried by the link.
 """
 
 from __future__ import annotations
@@ -55,7 +50,7 @@ class CanTransport(Transport):
 
         Raises:
             TransportUrlError: malformed URL, node id outside 1..15, or an interface
-                python-can does not know (permanent; see the module docstring).
+                python-can does not know (permanent: never retried).
         """
         with url_errors(url):
             endpoint = CanEndpoint.for_url(HOST, url, node=node, recorder=recorder, **bus_options)

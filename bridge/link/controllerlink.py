@@ -10,10 +10,8 @@ mission in virtual time, docs/sim.md) the same shell starts no thread: once per 
 the clock it reads the transport (:meth:`~bridge.link.transport.Transport.pump`), runs
 the timer's work and writes what the core queued, in that order, on the clock's thread.
 
-:class:`ControllerLink` is what the bridge node drives; it knows nothing of ROS. It
-reports every step's fate as a ``/command_status`` string through ``on_status``, hands
-telemetry to ``on_telemetry`` and tells ``on_state`` of every change of
-:class:`LinkState` (the node publishes ``/diagnostics`` at once on it).
+:class:`ControllerLink` is what the bridge node drives, through the callbacks its
+constructor takes; it knows nothing of ROS.
 
 Threads: the transport's dispatcher thread calls in with messages (its reader thread
 only reads and decodes, :mod:`bridge.link.transport`); one timer thread runs the core's
@@ -281,8 +279,7 @@ class ControllerLink:
 
     # -- lockstep --------------------------------------------------------------------------
     def _lockstep_tick(self) -> None:
-        """One tick of a lockstep clock: what arrived, the timer's work (a reconnect, the
-        core's periodic work), then every frame the core queued, as the writer would."""
+        """One tick of a lockstep clock, in the module docstring's order."""
         if self._stopping.is_set():
             return
         transport = self._transport

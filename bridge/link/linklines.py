@@ -3,19 +3,15 @@ something an operator must know happens, never one per retry.
 
 :class:`LinkNarrator` is fed snapshots of the link
 (:class:`~bridge.link.controllerlink.LinkDiagnostics`) with the time they were taken
-and returns the lines to print:
+and returns the lines to print (examples: docs/bridge.md):
 
-- the device cannot be opened (missing, not a serial port, busy), once per distinct
-  error: ``cannot open /dev/ttyUSB7: ...; retrying``;
+- the device cannot be opened (missing, not a serial port, busy), once per distinct error;
 - the device is open but no controller answers within :data:`SILENT_AFTER_S`: nothing
-  arrives (not powered, not this device), or bytes arrive that are no frames (CRC
-  errors, resyncs: **wrong baud suspected**);
-- the handshake is done (firmware, boot nonce, controller state), and later the link
-  lost (why) and back;
-- the link flaps: heartbeats missed again and again while frames keep arriving; with
-  at least :data:`GARBAGE_SHARE` of bytes that do not frame around the losses, **wrong
-  baud suspected**, else a link that drops out or is too slow. A loss during a stall of
-  this process, or in silence, is not counted;
+  arrives, or bytes that are no frames (**wrong baud suspected**);
+- the handshake is done, and later the link lost (why) and back;
+- the link flaps: heartbeats missed again and again while frames keep arriving
+  (:meth:`LinkNarrator._flap_line` says why); a loss during a stall of this process, or
+  in silence, is not counted;
 - a protocol or schema mismatch.
 
 Pure: no I/O, no clock of its own. :attr:`LinkNarrator.reached` tells whether a

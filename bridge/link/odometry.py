@@ -1,16 +1,10 @@
 """Odometry from the controller's telemetry, for ``/odom`` and the ground-pose topic.
 
-:class:`OdometryEstimator` fuses the wheel encoders with the IMU yaw rate: distance from
-the mean of both sides' encoder travel (24-bit counts unwrapped), heading from the
-integrated gyro. A skid-steer rover's wheels slip sideways in every turn, so encoder
-differencing over-reads yaw; the gyro does not. Without IMU samples for
-``imu_timeout_s``, heading falls back to the encoder difference scaled by the rover
-description's calibrated turn efficiency. Covariances grow with distance and time.
-
-Across a controller reboot the pose is continuous:
-:meth:`OdometryEstimator.observe_boot`, told the link's count of reboots
-(:attr:`bridge.link.linkcore.LinkCore.reboots`), re-bases on the first reading of the
-new boot instead of counting the jump as motion. A jump larger than
+:class:`OdometryEstimator` takes distance from the encoders and heading from the
+integrated gyro (a skid-steer rover's turns make encoder differencing over-read yaw),
+falling back to the encoders without IMU samples for ``imu_timeout_s``; covariances grow
+with distance and time (docs/bridge.md, "Odometry"). Across a controller reboot the pose
+is continuous (:meth:`OdometryEstimator.observe_boot`); a jump larger than
 :data:`MAX_PLAUSIBLE_STEP_M` between two readings is taken for a counter reset too.
 
 Encoders cannot see slip; the controller's POSE does: :func:`ground_pose` turns it into
@@ -195,7 +189,6 @@ class GroundPose:
     """The controller's ground-seeing pose in the map frame.
 
     Attributes:
-        x_m, y_m, yaw_rad: the pose.
         sigma_m: its 1-sigma position error (from POSE ``sigma_cm``).
         age_s: how old the measurement was when the controller sent it.
     """

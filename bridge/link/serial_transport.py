@@ -2,15 +2,11 @@
 link-I/O layer's serial endpoint on the host's side
 (:class:`~firmware_proto.linkio.serial_endpoint.SerialEndpoint`).
 
-Opens a device path, a pty path, or any pyserial URL. ``?baud=N`` in the URL sets the
-rate (default 115200); it is our own parameter and is stripped before the URL goes to
-pyserial, which gets the rest verbatim. Devices are opened exclusively where the
-platform allows, so two bridges cannot share a controller.
-
-Errors (docs/bridge.md, "Transports"): a malformed URL is a permanent
-:class:`~bridge.errors.TransportUrlError` from the constructor, before anything is
-opened; everything else is a :class:`~bridge.errors.TransportError` from ``open``,
-``send`` or the reader, and the link reconnects with backoff.
+Opens a device path, a pty path, or any pyserial URL; ``?baud=N`` (default 115200) is
+our own option, stripped before the rest goes to pyserial verbatim (docs/bridge.md,
+"Transports"). Devices are opened exclusively where the platform allows, so two bridges
+cannot share a controller. Only a malformed URL is permanent (from the constructor);
+every other error is a :class:`~bridge.errors.TransportError`, and the link reconnects.
 """
 
 from __future__ import annotations

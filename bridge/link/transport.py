@@ -38,8 +38,7 @@ arrives whole (docs/bridge.md, "The link to the controller"). On CAN STOP goes t
 bus ahead of any frame of ours still waiting for the write lock.
 
 **In lockstep** (a whole mission in virtual time, docs/sim.md) a transport is opened with
-``threads=False``: nothing reads until its owner calls :meth:`Transport.pump` once per
-tick, which reads what has arrived and dispatches it on the calling thread.
+``threads=False`` and read by :meth:`Transport.pump` once per tick.
 
 A new medium is a new :class:`~firmware_proto.linkio.endpoint.Endpoint`; a test that
 must see or stall the writes overrides ``_write`` (one message, on the writing thread).
@@ -267,7 +266,6 @@ class Transport:
 
         Args:
             msg_id: the message id, 0..127 (CAN: identifier ``msg_id << 4 | node``).
-            payload: the payload bytes, as given.
             bad_crc: serial only: invert the frame's CRC.
 
         Raw frames are not written to the traffic log.

@@ -1,16 +1,10 @@
 """``/diagnostics`` for the bridge: the link and the controller, as ROS 2 expects them.
 
 :func:`diagnostic_array` turns a :class:`~bridge.link.controllerlink.LinkDiagnostics`
-snapshot into a
-``diagnostic_msgs/DiagnosticArray`` with three statuses:
-
-- ``rover_bridge: link`` and ``rover_bridge: controller``: their values and levels are
-  docs/bridge.md, "Diagnostics";
-- ``rover_bridge: input``: ``rejected_total`` and one ``rejected_<reason>`` per reason
-  seen (the node's, the link's and the controller's refusals), counts since start;
-  ``last_statuses``: the last :data:`RECENT_STATUSES` ``/command_status`` strings, oldest
-  first, comma-separated. Always OK: a refusal is the answer to bad input, not a fault
-  of the bridge.
+snapshot into a ``diagnostic_msgs/DiagnosticArray`` with three statuses, ``rover_bridge:
+link``, ``rover_bridge: controller`` and ``rover_bridge: input`` (their values and levels:
+docs/bridge.md, "Diagnostics"). The input status is always OK: a refusal is the answer to
+bad input, not a fault of the bridge.
 
 Pure: builds messages, publishes nothing.
 """
@@ -57,8 +51,6 @@ def diagnostic_array(
     """The DiagnosticArray for one snapshot.
 
     Args:
-        diag: the link's snapshot.
-        stamp: the header stamp.
         hardware_id: what the statuses name as their hardware.
         rejected: steps refused by reason, beside those the link counted
             (``diag.rejected``); counts of the same reason add up.

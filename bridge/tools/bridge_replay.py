@@ -2,18 +2,11 @@
 bridge's requests (docs/traffic-logs.md).
 
 The counterpart of :mod:`emulator.emulator_replay`: a regression test of the host side.
-:func:`replay_into_bridge` plays the controller on a new pty (serial logs) or a
-python-can bus (CAN logs) and drives a fresh
-:class:`~bridge.link.controllerlink.ControllerLink` with the operator's inputs recovered
-from the recorded host frames (a step per new MOTION seq, a stop per new STOP id, a
-clear per new CLEAR_STOP id), each at its recorded time. Each recorded controller frame
-goes back at its recorded time, not before the fresh link has sent the requests that
-preceded it in the recording (at most ``gate_s`` longer); periodic telemetry keeps its
-own time, except PROGRESS, which stays in order with the STATUS frames it sums up.
-
-The link's requests (everything host-to-controller but HOST_HEARTBEAT) are compared
-with the recorded host's in time order, consecutive repeats of one request counted
-once. The log should come from a bridge (``rover bridge --record``).
+:func:`replay_into_bridge` plays the controller on a new pty or a python-can bus to a
+fresh :class:`~bridge.link.controllerlink.ControllerLink`, gives it the operator's inputs
+recovered from the recorded host frames, and compares the link's requests with the
+recorded ones; the timing and causality rules are docs/traffic-logs.md, "Into the
+bridge". The log should come from a bridge (``rover bridge --record``).
 """
 
 from __future__ import annotations
@@ -176,8 +169,7 @@ def _own_time(message: Message) -> bool:
 def replay_into_bridge(
     log: LogFile, options: BridgeReplayOptions | None = None
 ) -> BridgeReplayResult:
-    """Replay ``log``'s controller side into a fresh bridge link; see the module
-    docstring.
+    """Replay ``log``'s controller side into a fresh bridge link (module docstring).
 
     Raises:
         ValueError: the log holds no controller frame or no host request.

@@ -1,7 +1,6 @@
 """Launch the rover-side bridge alone, on the real rover (docs/ros2.md).
 
     ros2 launch rover_hil bridge_launch.py                          # USB-serial
-    ros2 launch rover_hil bridge_launch.py device:=/dev/ttyACM0
     ros2 launch rover_hil bridge_launch.py can_interface:=socketcan can_channel:=rovercan0
 
 The link to the controller comes from the launch arguments below (``device`` and

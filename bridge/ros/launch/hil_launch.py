@@ -1,14 +1,11 @@
-"""Launch the whole hardware-in-the-loop set on one machine (docs/ros2.md).
+"""Launch the whole hardware-in-the-loop set on one machine (docs/ros2.md, "The HIL set").
 
     ros2 launch rover_hil hil_launch.py                          # rover side, gate, link
     ros2 launch rover_hil hil_launch.py goal:=2.0,3.0,90         # ... and run a mission
-    ros2 launch rover_hil hil_launch.py params_file:=/path/to/my_hil.yaml rtt:=0.5
 
-Starts the controller emulator on a pty (``rover_emulator``), the rover-side bridge on
-that pty (``rover_bridge``), the onboard sequencer and drift guard (``rover_onboard``;
-it and the executor take ``$ROVER_UPLINK_TOKEN`` from the environment), the simulation
-gate (``rover_gate``), the emulated Earth-Moon link (``rover_link``) and, given a
-``goal``, the executor that drives one mission to it (``rover_executor``).
+Starts ``rover_emulator`` on a pty, ``rover_bridge`` on that pty, ``rover_onboard``,
+``rover_gate``, ``rover_link`` and, given a ``goal``, ``rover_executor``; the onboard
+program and the executor take ``$ROVER_UPLINK_TOKEN`` from the environment.
 
 Every node reads its section of one parameters YAML
 (``share/rover_hil/config/hil.yaml`` by default; sections keyed ``/**/<node name>``).

@@ -4,16 +4,11 @@ link relay and demo (which listen). Pure: no ROS import, no I/O.
 
 Topic names are relative: a node's namespace prefixes them (``rover1/command_status``).
 
-``/command_status`` carries one string per event (docs/bridge.md, ROS contract):
-
-- a step's fate: :data:`ACCEPTED`, then :data:`COMPLETED` or one of
-  ``rejected:<reason>``, ``aborted:<reason>``, ``fault:<reason>``
-  (:func:`rejected`, :func:`aborted`, :func:`fault`);
-- the link and the latch: :data:`READY` (handshake done), :data:`STOPPED` (the
-  controller acknowledged an emergency stop), :data:`CLEARED` (the latch released);
-  ``fault:<reason>`` also reports link events and controller faults.
-
-Readers take a string apart with :func:`parse_status` rather than matching prefixes.
+``/command_status`` carries one string per event (docs/bridge.md, "``/command_status``"):
+a step's fate (:data:`ACCEPTED`, then :data:`COMPLETED` or ``rejected:``, ``aborted:``,
+``fault:<reason>``: :func:`rejected`, :func:`aborted`, :func:`fault`), or a link or latch
+event (:data:`READY`, :data:`STOPPED`, :data:`CLEARED`, ``fault:<reason>``). Readers take
+a string apart with :func:`parse_status` rather than matching prefixes.
 
 The rover's onboard sequencer adds its own topics beside the bridge's
 (:data:`PLAN_UPLINK`, :data:`PLAN_ACK`, :data:`ONBOARD_REPORT`, :data:`ONBOARD_POSE`;
