@@ -1,13 +1,11 @@
 """Bridge parameters: defaults, validation, and one place that decides precedence.
 
-:func:`load_params` merges, highest first: the command line (named options and
-``--param NAME=VALUE``), ROS parameters (``--ros-args``: ``-p name:=value`` over the
-node's sections of ``--params-file``, or the declared parameters of the rclpy node),
-environment variables ``ROVER_BRIDGE_<NAME>`` (upper case), a parameters file (TOML or
-JSON, flat ``name = value``; a ROS-style ``[rover_bridge.ros__parameters]`` table is
-accepted too), then the defaults held in :class:`BridgeParams`. Every value is checked;
-an unknown name or a bad value raises :class:`~bridge.errors.ParameterError` naming the
-parameter, where it came from and what it must be.
+:func:`load_params` merges, highest first: the command line, ROS parameters
+(``--ros-args``, or the declared parameters of the rclpy node), environment variables
+``ROVER_BRIDGE_<NAME>``, a parameters file (TOML or JSON, flat or under
+``[rover_bridge.ros__parameters]``), then the defaults of :class:`BridgeParams`
+(docs/bridge.md, "Parameters"). An unknown name or a bad value raises
+:class:`~bridge.errors.ParameterError` naming the parameter, its source and what it must be.
 
 The link goes to CAN when ``can_interface`` is set (``can://<interface>/<channel>`` with
 ``node_id``), else to ``device`` (a device path or any pyserial URL).

@@ -152,7 +152,6 @@ class TrialResult:
 
     Attributes:
         trial: 1-based trial number.
-        stop_id: the STOP's id.
         delay_s: wait between the first step's start and the STOP, s.
         speed_mm_s: mean measured wheel speed in the last WHEEL_SPEEDS before STOP, mm/s.
         queued: steps in the controller when STOP was sent (the queue was full).
@@ -328,7 +327,6 @@ class StopBench:
 
     def __init__(self, config: BenchConfig, *, recorder: TrafficRecorder | None = None) -> None:
         """Args:
-        config: what to bench.
         recorder: traffic log of the bench's link (optional).
 
         Raises:

@@ -1,10 +1,8 @@
 """The ROS port: one small publish/subscribe interface over several backends.
 
-A :class:`RosPort` is one ROS node's worth of topics. ``publisher(topic, type)`` gives a
-:class:`Publisher`; ``subscribe(topic, type, callback)`` gives a :class:`Subscription`;
-``close()`` ends everything (idempotent; the port is also a context manager). Messages
-are the generated ROS 2 classes (:mod:`bridge.ros.rosport.msgs` re-exports the ones the
-product uses).
+A :class:`RosPort` is one ROS node's worth of topics, its :class:`Publisher` and
+:class:`Subscription` objects; messages are the generated ROS 2 classes
+(:mod:`bridge.ros.rosport.msgs` re-exports the ones the product uses).
 
 The contract shared by every backend (names, types, QoS, lanes, taps, callbacks that
 raise) is docs/rosport.md, "The interface"; the base class enforces what it can. In
@@ -21,11 +19,7 @@ Implementing a backend: subclass :class:`RosPort`, set ``backend``, and fill the
   :class:`Reader`;
 - :meth:`RosPort._run` (must): one lane's loop, on that lane's thread; return once
   :attr:`RosPort._stopping` is set;
-- :meth:`RosPort._open_lane` (may): prepare a lane before its thread starts (called
-  once per lane, :data:`DEFAULT_LANE` from :meth:`RosPort._start`, others on first use);
-- :meth:`RosPort._wake` (may): make every ``_run`` notice ``_stopping`` at once;
-- :meth:`RosPort._release` (may): free what the backend holds; called once, after
-  every lane's ``_run`` has returned.
+- :meth:`RosPort._open_lane`, :meth:`RosPort._wake`, :meth:`RosPort._release` (may).
 
 Call :meth:`RosPort._start` at the end of the subclass's ``__init__``. Everything else
 (names, type checks, counting, logging, closing, taps) is done here.
@@ -252,8 +246,7 @@ class Subscription(Generic[M]):
         return reader.matched_count()
 
     def wait_for_publishers(self, count: int = 1, timeout_s: float = 5.0) -> bool:
-        """Wait until at least ``count`` publishers are matched; ``False`` when
-        ``timeout_s`` passed first.
+        """Wait until at least ``count`` publishers are matched; ``False`` after ``timeout_s``.
 
         Over DDS each side discovers the other on its own, so a sender's wait alone
         leaves a window in which volatile samples are lost; waiting on both sides closes it.
@@ -442,7 +435,6 @@ class RosPort:
         """Declare this node's parameters (:mod:`bridge.ros.rosport.parameters`).
 
         Args:
-            specs: the parameters.
             on_set: called with every later change that passed the checks; returns
                 ``None`` when applied, or the reason to refuse it.
             initial: values to start with instead of the specs' defaults (what the node
@@ -650,7 +642,8 @@ class RosPort:
         raise NotImplementedError
 
     def _open_lane(self, lane: str) -> None:
-        """Prepare ``lane`` before its thread starts (default: nothing; lock held)."""
+        """Prepare ``lane`` before its thread starts (default: nothing; lock held): once
+        per lane, :data:`DEFAULT_LANE` from :meth:`_start`, the others on first use."""
 
     def _run(self, lane: str) -> None:
         raise NotImplementedError
@@ -659,7 +652,8 @@ class RosPort:
         """Make every :meth:`_run` see :attr:`_stopping` promptly (default: nothing)."""
 
     def _release(self) -> None:
-        """Free the backend's resources (default: nothing). Called once, after ``_run``."""
+        """Free the backend's resources (default: nothing). Called once, after every
+        lane's ``_run`` has returned."""
 
     # -- internals --------------------------------------------------------------------
 

@@ -55,8 +55,7 @@ def open_port(
 
     Args:
         backend: ``"rclpy"``, ``"rclpy-process"`` or ``"inprocess"`` (see :data:`BACKENDS`).
-        namespace: the node's namespace; relative topic names resolve in it.
-        node_name: the node's name.
+        namespace, node_name: see :class:`~bridge.ros.rosport.port.RosPort`.
         **options: backend options: ``rclpy`` and ``rclpy-process``: ``domain_id``,
             ``args``; ``inprocess``: ``bus``.
 
