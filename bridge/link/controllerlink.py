@@ -161,8 +161,7 @@ class ControllerLink:
 
     def start(self) -> None:
         """Start the timer thread, which connects (and reconnects) on its own, and the
-        writer thread (in lockstep: run their work on every tick of the clock from now
-        on)."""
+        writer thread (in lockstep: run their work on every tick of the clock)."""
         if self._thread is not None or self._started:
             raise RuntimeError("link already started")
         self._started = True

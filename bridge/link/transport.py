@@ -1,10 +1,8 @@
 """Transports to the motor controller: the host's end of the link, with its threads.
 
-``open_transport(url)`` builds the transport a link URL names
-(:mod:`firmware_proto.linkio.urls`; the URLs: docs/bridge.md, "Transports"):
-``can://...`` a :class:`~bridge.link.can_transport.CanTransport`, anything else a
-:class:`~bridge.link.serial_transport.SerialTransport` through pyserial's
-``serial_for_url``.
+:func:`open_transport` builds the transport a link URL names (docs/bridge.md,
+"Transports"): ``can://...`` a :class:`~bridge.link.can_transport.CanTransport`, anything
+else a :class:`~bridge.link.serial_transport.SerialTransport`.
 
 A transport moves protocol messages, not bytes, through an
 :class:`~firmware_proto.linkio.endpoint.Endpoint` of the link-I/O layer on the host's
@@ -23,19 +21,17 @@ Two threads per open transport:
 When the queue is full (the dispatcher fell behind), a sensor sample (ENCODERS,
 WHEEL_SPEEDS, IMU, POSE: the next one supersedes it) is dropped, counted in
 :attr:`Transport.rx_overflow` and logged (the first and every 100th at WARNING); any other
-message (HEARTBEAT, PROGRESS, STATUS, ACK, IDENT, STOP_ACK, CLEAR_ACK, FAULT, ...) is
-never dropped: the reader waits for room, which also stops it reading, so the OS buffers
-the device's bytes meanwhile. An I/O error ends the reader; it is reported once through
+message is never dropped: the reader waits for room, and the OS buffers the device's
+bytes meanwhile. An I/O error ends the reader; it is reported once through
 ``on_error``, on the dispatcher thread after every message received before it (the link
 reconnects).
 
 **Writes** happen on the caller's thread. Ordinary messages are written one at a time, in
 the order their callers got the write lock. STOP has a lock of its own (one STOP at a
 time): it never waits for another message's write, even one stuck in the OS for the
-serial write timeout. On a serial line a STOP may cut a frame half-way out; the
-controller drops that frame and resynchronises at STOP's leading delimiter, so STOP
-arrives whole (docs/bridge.md, "The link to the controller"). On CAN STOP goes to the
-bus ahead of any frame of ours still waiting for the write lock.
+serial write timeout. On a serial line a STOP may cut a frame half-way out and still
+arrives whole (docs/bridge.md, "The link to the controller"); on CAN it goes to the bus
+ahead of any frame of ours still waiting for the write lock.
 
 **In lockstep** (a whole mission in virtual time, docs/sim.md) a transport is opened with
 ``threads=False`` and read by :meth:`Transport.pump` once per tick.

@@ -2,9 +2,8 @@
 no I/O (docs/onboard.md): the approved plan comes up once, runs here step after step, and
 drift stops the wheels where they are, not a round trip later.
 
-:class:`OnboardCore` is driven by events, each with the time it happened, s, on one
-clock that the estimates' stamps are on too (the program's monotonic clock, so that no
-step of the system clock moves a deadline; bridge/onboard/node.py):
+:class:`OnboardCore` is driven by events, each with the time it happened, s, on the
+clock the estimates' stamps are on too (the program's monotonic clock: bridge/onboard/node.py):
 
 - :meth:`~OnboardCore.on_uplink`: an uplink envelope (a plan or a cancel) as received;
 - :meth:`~OnboardCore.on_status`: a ``/command_status`` string of the bridge;

@@ -320,10 +320,8 @@ class PoseEkf:
             self._take(stamp_s, z, r)
 
     def _wait(self, stamp_s: float, z: Matrix, r: Matrix) -> None:
-        """A POSE newer than the newest ``odom``: it waits for the odometry to pass it
-        (a backlog may hand the POSE over before the ``odom`` that leads up to it),
-        unless it runs ``future_hold_s`` ahead (the odometry is silent: all waiting are
-        applied at the newest state) or too many wait (the oldest is)."""
+        """A POSE newer than the newest ``odom`` waits for the odometry to pass it (a
+        backlog may hand it over first), within ``future_hold_s`` and ``max_waiting``."""
         waiting = self._waiting
         bisect.insort(waiting, (stamp_s, z, r), key=lambda w: w[0])
         cfg = self.config

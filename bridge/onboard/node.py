@@ -311,9 +311,8 @@ class OnboardNode:
 
     # -- the timer -----------------------------------------------------------------------------
     def step(self) -> None:
-        """Run the core's :meth:`~OnboardCore.tick` if it is due now (what the timer
-        thread does at each wake; a lockstep test calls it at each tick instead of
-        :meth:`start`)."""
+        """Run the core's :meth:`~OnboardCore.tick` if it is due now: the timer thread's
+        work at each wake, or a lockstep test's at each tick (instead of :meth:`start`)."""
         with self._lock:
             now = self._mono()
             if now - self._last_turn_s > LATE_TURN_S:

@@ -1,6 +1,5 @@
-"""``rover replay --bridge``: the bridge's replay target (see
-:mod:`firmware_proto.cli.replay` for the options and :mod:`bridge.tools.bridge_replay` for what it
-does)."""
+"""``rover replay --bridge``: the bridge's replay target (the options:
+:mod:`firmware_proto.cli.replay`; what it does: :mod:`bridge.tools.bridge_replay`)."""
 
 from __future__ import annotations
 

@@ -210,9 +210,8 @@ class Context:
         )
 
     def watchdog_ms(self) -> int:
-        """The controller's watchdog in force, asked without changing it (a value out of
-        range is refused with the value in force); the protocol's default if it does not
-        say."""
+        """The controller's watchdog in force, asked without changing it (an out-of-range
+        SET_PARAM answers with the value in force); else the protocol's default."""
         if self._watchdog_ms is None:
             answer = self.param(Param.WATCHDOG_MS, 0)
             good = answer.result == ParamResult.OUT_OF_RANGE and answer.value > 0

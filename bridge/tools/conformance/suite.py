@@ -1,10 +1,9 @@
 """Run rules against a controller and collect one verdict per rule.
 
 :func:`run_suite` prepares a fresh session before each rule (``Context.prepare``), runs
-it, and turns what happened into a :class:`RuleResult`: ``pass`` with a note, ``fail``
-with what was expected and what came, ``not run`` with what the rule needs (never a
-pass), each with the frames exchanged. A rule that leaves the controller in a state the
-next cannot start from makes the next one fail in its preparation, saying so.
+it, and turns what happened into a :class:`RuleResult` (``not run`` is never a pass). A
+rule that leaves the controller in a state the next cannot start from makes the next one
+fail in its preparation, saying so.
 """
 
 from __future__ import annotations
