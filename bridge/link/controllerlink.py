@@ -86,7 +86,6 @@ class ControllerLink:
         first_request_id: int | None = None,
     ) -> None:
         """Args:
-        config: link parameters.
         on_status: every ``/command_status`` string, in order, one at a time (possibly
             after the call that caused it returned, by a link thread).
         on_telemetry: every message from the controller with its arrival time

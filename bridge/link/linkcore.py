@@ -179,7 +179,6 @@ class Outgoing:
     """One ordinary frame for the writer (see :meth:`LinkCore.take_write`).
 
     Attributes:
-        msg: the frame.
         conn: the connection it was queued for (a write for an older one is moot).
         auto_clear: a CLEAR_STOP the core decided by itself (``auto_clear_watchdog``),
             not the operator's.

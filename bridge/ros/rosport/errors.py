@@ -37,7 +37,6 @@ class UnknownBackendError(RosPortError, ValueError):
     """No ROS port backend is registered under that name.
 
     Attributes:
-        name: the name asked for.
         known: the registered backend names, sorted.
     """
 

@@ -78,7 +78,6 @@ class Rule:
         section: the section of docs/protocol.md that states it.
         statement: what a conforming controller does, one sentence.
         needs: what the rule needs beyond a link (``control``, ``serial``), for ``--list``.
-        run: the check itself.
     """
 
     id: str

@@ -38,7 +38,6 @@ class RuleResult:
     """What one rule found.
 
     Attributes:
-        rule: the rule.
         outcome: pass, fail or not run.
         detail: on pass a note, on fail what went wrong, when not run what it needs.
         frames: the frames exchanged while it ran (sensor samples only counted).

@@ -1,12 +1,10 @@
 """The conformance suite's host: the scripted protocol host with a log per rule.
 
 :class:`WireHost` is a :class:`~firmware_proto.linkio.host.ProtocolHost` (any endpoint
-on the host's side: a serial device, a pty, a CAN bus, an in-memory line; the wall clock
-or a lockstep clock) that also keeps, for the report, every frame sent and received
-while a rule runs (:class:`FrameRecord`); periodic sensor samples (ENCODERS,
-WHEEL_SPEEDS, IMU, POSE) are counted there rather than listed. What it awaits and how
-is the protocol host's (``expect``, ``absent``, ``heartbeat_where``, ``silent``...);
-nothing here knows a rule: see :mod:`bridge.tools.conformance.rules`.
+on the host's side, the wall clock or a lockstep clock) that also keeps, for the report,
+every frame sent and received while a rule runs (:class:`FrameRecord`), sensor samples
+counted rather than listed. How it awaits is the protocol host's (``expect``,
+``absent``...); nothing here knows a rule (:mod:`bridge.tools.conformance.rules`).
 """
 
 from __future__ import annotations
