@@ -144,10 +144,8 @@ class BridgeNode:
         clock: the time (stamps, the diagnostics schedule) and, when it is a lockstep
             clock, what runs the node and its link instead of threads.
         transport_factory: builds the link's transport for ``params.url`` (default: the
-            one the URL names, recording to ``params.record``).
-
-        With ``params.record`` set (and no ``link`` given), every frame of the link goes to
-        that traffic log, which the node closes with itself.
+            one the URL names, recording to the traffic log ``params.record``, if set,
+            which the node closes with itself).
 
         Raises:
             TransportUrlError: ``params.url`` is malformed (checked before the traffic

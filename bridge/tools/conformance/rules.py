@@ -12,8 +12,7 @@ order, from the basics (handshake) to the disruptive (watchdog, faults, reboot).
 Timeouts are generous: conformance is about what a controller answers and in which
 order, not how fast. Motion (the ramp, braking, rest) is judged from the controller's
 own reports against the rover description's limits, with margins for the plant and for
-sampling. Every wait goes through the host's clock, so the rules run in real time and
-in lockstep.
+sampling. Every wait goes through the host's clock (:mod:`~bridge.tools.conformance.context`).
 """
 
 from __future__ import annotations
