@@ -30,7 +30,7 @@ reconnects).
 the order their callers got the write lock. STOP has a lock of its own (one STOP at a
 time): it never waits for another message's write, even one stuck in the OS for the
 serial write timeout. On a serial line a STOP may cut a frame half-way out and still
-arrives whole (docs/bridge.md, "The link to the controller"); on CAN it goes to the bus
+arrive whole (docs/bridge.md, "The link to the controller"); on CAN it goes to the bus
 ahead of any frame of ours still waiting for the write lock.
 
 **In lockstep** (a whole mission in virtual time, docs/sim.md) a transport is opened with

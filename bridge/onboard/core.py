@@ -186,9 +186,9 @@ class OnboardConfig:
         unseen_grace_s: the linear limit driven unseen (:attr:`Estimate.unseen_m`) stops
             the plan when no POSE has brought it back below within this, s (after a
             stall, the POSE that covers the motion may be read just behind the odometry).
-        start_speed_mps, start_yaw_rate_rad_s: a step has started (for the guard's
-            prediction) when the estimate's speed or turn rate in its direction first
-            exceeds these after it went out (above the rest thresholds).
+        start_speed_mps, start_yaw_rate_rad_s: a step has started, for the guard's
+            prediction, once the estimate moves its way above these (above the rest
+            thresholds; :meth:`OnboardCore._seen_start`).
     """
 
     token: str | None = None

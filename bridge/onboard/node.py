@@ -5,12 +5,14 @@ It runs beside the bridge, on the bridge's unchanged topics (docs/onboard.md, "T
 program", says more of its threads and clocks):
 
 - the port's default lane runs the callbacks of ``plan_uplink``, ``command_status``,
-  ``odom`` and ``odom_ground``, its STOP lane ``emergency_stop``'s; each feeds the core
-  under one lock and publishes what it decided, STOP first, from the same thread (a
-  sample that leaves the estimate as it was feeds nothing: :meth:`PoseEkf.take_estimate`);
+  ``odom`` and ``odom_ground``, its STOP lane ``emergency_stop``'s (the ground's STOP
+  never waits behind a pose); each feeds the core under one lock and publishes what it
+  decided, STOP first, from the same thread (a sample that leaves the estimate as it was
+  feeds nothing: :meth:`PoseEkf.take_estimate`);
 - ``onboard-timer`` runs :meth:`OnboardCore.tick` at its next deadline, at least every
-  :data:`TICK_MAX_S`; a turn :data:`LATE_TURN_S` after the last holds the deadlines
-  :data:`BACKLOG_GRACE_S` more (:meth:`OnboardNode._timer_turn`);
+  :data:`TICK_MAX_S`, and beats the stall monitor; a turn :data:`LATE_TURN_S` after the
+  last (the program stalled) holds the deadlines :data:`BACKLOG_GRACE_S` more, so that
+  what queued meanwhile is read first (:meth:`OnboardNode.step`);
 - the core runs on the monotonic clock (no step of the system clock moves a deadline):
   estimates' stamps (ROS time) are moved into it, and reports' times back, by the two
   clocks' offset.

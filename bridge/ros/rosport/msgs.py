@@ -109,7 +109,8 @@ MESSAGE_TYPES: Final[Mapping[str, type[Any]]] = {
 
 
 def checked(build: Callable[[], T], what: str) -> T:
-    """Run ``build`` (which makes a message), the field checks' errors as :class:`MessageError`.
+    """Run ``build`` (which makes a message) and turn the generated classes' field checks
+    into :class:`MessageError`.
 
     Raises:
         MessageError: a field value does not fit its ROS type; names ``what`` and the field.
