@@ -58,11 +58,7 @@ class PlannerError(Exception):
 
 
 class InvalidPoseError(PlannerError, ValueError):
-    """A pose cannot be planned for.
-
-    Attributes:
-        name: which pose (``"goal"``, ``"start"``, ``"via[1]"``...).
-    """
+    """A pose cannot be planned for; ``name`` says which (``"goal"``, ``"via[1]"``...)."""
 
     def __init__(self, name: str, message: str) -> None:
         self.name = name
@@ -88,11 +84,7 @@ class GoalInObstacleError(InvalidPoseError):
 
 
 class PlanTooLongError(PlannerError, ValueError):
-    """The route needs more steps than one plan may hold.
-
-    Attributes:
-        steps: the steps it needs; ``limit``: the most a plan may hold.
-    """
+    """The route needs ``steps`` steps, more than the ``limit`` one plan may hold."""
 
     def __init__(self, steps: int, limit: int) -> None:
         self.steps = steps
@@ -122,12 +114,8 @@ class GaveUp(Protocol):
 
 
 class UnreachableGoalError(PlannerError):
-    """The orchestrator gave up on a goal.
-
-    Attributes:
-        result: the :class:`GaveUp` outcome, with every attempt and verdict (narrow it
-            with ``isinstance`` to reach them).
-    """
+    """The orchestrator gave up on a goal; ``result`` is the :class:`GaveUp` outcome, with
+    every attempt and verdict (narrow it with ``isinstance`` to reach them)."""
 
     def __init__(self, result: GaveUp) -> None:
         self.result = result
@@ -185,11 +173,7 @@ class GateStatusError(GateCallError):
 
 class GateOverloadedError(GateStatusError):
     """The gate kept answering 503 (busy or shutting down) or 429 (this client holds
-    its share) past the time budget.
-
-    Attributes:
-        retry_after_s: the gate's last ``Retry-After`` advice, s.
-    """
+    its share) past the time budget; ``retry_after_s``: its last ``Retry-After``, s."""
 
     def __init__(self, status: int, body: str, *, url: str = "", retry_after_s: float) -> None:
         self.retry_after_s = retry_after_s
@@ -217,11 +201,7 @@ class GateUnavailableError(GateCallError, ConnectionError):
 
 
 class GateTimeoutError(GateUnavailableError, TimeoutError):
-    """The gate accepted the connection but did not answer in time.
-
-    Attributes:
-        timeout_s: the budget that ran out, s.
-    """
+    """The gate accepted the connection but did not answer within ``timeout_s`` (s)."""
 
     def __init__(self, url: str, attempts: int, timeout_s: float) -> None:
         self.timeout_s = timeout_s
@@ -244,11 +224,8 @@ class ConsoleUnavailableError(PlannerError, OSError):
 
 
 class ConsoleRefusedError(PlannerError, ValueError):
-    """A stack's console answered with an error.
-
-    Attributes:
-        status: its HTTP status (0: the URL itself was refused before any call).
-    """
+    """A stack's console answered with an error; ``status``: its HTTP status (0: the URL
+    itself was refused before any call)."""
 
     def __init__(self, status: int, message: str) -> None:
         super().__init__(message)
@@ -256,11 +233,8 @@ class ConsoleRefusedError(PlannerError, ValueError):
 
 
 class GateProtocolError(GateCallError):
-    """A success answer that is not the documented JSON.
-
-    Attributes:
-        pointers: where the document departs from the expected shape.
-    """
+    """A success answer that is not the documented JSON; ``pointers``: where it departs
+    from the expected shape."""
 
     def __init__(self, message: str, pointers: Sequence[str] = ()) -> None:
         self.pointers = tuple(pointers)

@@ -57,11 +57,7 @@ class PoseArgumentError(ValueError, argparse.ArgumentTypeError):
 
 def parse_pose(text: str) -> Any:
     """``X,Y,YAW_DEG`` -> :class:`firmware_proto.model.pose.Pose` (metres, metres, degrees); an
-    ``argparse`` type.
-
-    Raises:
-        PoseArgumentError: not three finite numbers (a ``ValueError``).
-    """
+    ``argparse`` type (:class:`PoseArgumentError`, a ``ValueError``: not three finite numbers)."""
     import math
 
     from firmware_proto.model.pose import Pose
@@ -79,11 +75,7 @@ def parse_pose(text: str) -> Any:
 def parse_goal(text: str) -> Any:
     """``--goal``: a pose ``X,Y,YAW_DEG`` (:func:`parse_pose`), or the name of one of the
     map's goals (a word without commas: ``behind_table``), resolved once the map is
-    known (:func:`resolve_goal`).
-
-    Raises:
-        PoseArgumentError: neither (a ``ValueError``).
-    """
+    known (:func:`resolve_goal`); :class:`PoseArgumentError` (a ``ValueError``) for neither."""
     name = text.strip()
     if "," not in name and name.replace("_", "").replace("-", "").isalnum():
         return name
@@ -91,11 +83,8 @@ def parse_goal(text: str) -> Any:
 
 
 def resolve_goal(goal: Any, world: Any) -> Any:
-    """The pose of ``goal``: itself if a pose, else the map's goal of that name.
-
-    Raises:
-        ValueError: the map has no goal of that name (the message lists its goals).
-    """
+    """The pose of ``goal``: itself if a pose, else the map's goal of that name
+    (``ValueError``: there is none; the message lists the map's goals)."""
     if not isinstance(goal, str):
         return goal
     for named in world.goals:
@@ -390,12 +379,9 @@ def _wait_for_pose(executor: Any, timeout_s: float, cancel: threading.Event) -> 
 
 
 def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event) -> Any:
-    """The pose the rover reports (map frame); ``None`` if cancelled meanwhile.
-
-    Raises:
-        RuntimeError: it reported none in time (or cannot: ``odom`` is not in the map
-            frame).
-    """
+    """The pose the rover reports (map frame); ``None`` if cancelled meanwhile;
+    ``RuntimeError`` when it reported none in time (or cannot: ``odom`` is not in the map
+    frame)."""
     if args.pose_source == "odom":
         raise RuntimeError(
             "with --pose-source odom the rover's pose on the map is unknown (odom starts "
@@ -413,12 +399,8 @@ def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event
 
 
 def _read_plan(path: Path) -> Any:
-    """The plan of ``--plan FILE``.
-
-    Raises:
-        ValueError: the file cannot be read, or is not a valid plan (the message names the
-            first violation's JSON pointer).
-    """
+    """The plan of ``--plan FILE`` (``ValueError``: the file cannot be read, or is not a
+    valid plan; the message names the first violation's JSON pointer)."""
     from firmware_proto.errors import PlanError
     from firmware_proto.model.plan import Plan
 
@@ -433,11 +415,8 @@ def _read_plan(path: Path) -> Any:
 
 def _gate_token(args: argparse.Namespace) -> str | None:
     """The gate's token from ``--token-file``, else ``None`` (the client then reads
-    ``ROVER_GATE_TOKEN``); ``--token`` is refused (``ps`` would show it).
-
-    Raises:
-        ValueError: ``--token`` given, or the file cannot be used.
-    """
+    ``ROVER_GATE_TOKEN``); ``ValueError`` for ``--token`` (``ps`` would show it) or a file
+    that cannot be used."""
     from firmware_proto.http.tokenfile import read_token_file, refuse_token_argument
 
     if args.token is not None:

@@ -221,8 +221,7 @@ class RoverConsole:
             return self._diagnostics
 
     def mark(self) -> int:
-        """How many ``command_status`` were heard so far: what :meth:`heard_since`
-        counts from."""
+        """How many ``command_status`` were heard so far: what :meth:`heard_since` counts from."""
         with self._lock:
             return self._status_count
 

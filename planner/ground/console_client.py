@@ -97,12 +97,9 @@ class ConsoleClient:
         return status_of(doc), doc
 
     def stop(self, wait_s: float) -> bool:
-        """Emergency stop until ``stopped`` (at most ``wait_s``); whether it came.
-
-        Raises:
-            ConsoleUnavailableError: the console did not answer (nothing was sent, or it
-                is not known whether it was).
-        """
+        """Emergency stop until ``stopped`` (at most ``wait_s``); whether it came. Raises
+        :class:`ConsoleUnavailableError` when the console did not answer (nothing was sent,
+        or it is not known whether it was)."""
         try:
             return bool(self._call("POST", "/stop", wait_s).get("stopped"))
         except ConsoleRefusedError as exc:

@@ -1,16 +1,12 @@
 """Drift control: the rover's pose against the twin's prediction, time-aligned per step.
 
-The gate predicts each step's poses by the time since that step started
-(``trajectory.samples`` with ``step`` and ``step_t_s``), since the executor pauses a round
-trip between steps. The rover started step *k* at about ``(t_pub + t_acc) / 2``
-(publishing and hearing ``accepted``); until ``accepted`` arrives the configured one-way
-delay stands in. Pose stamps are measurement times on the same clock.
-
-:class:`DriftMonitor` compares each pose with the predicted pose at the same step time
-(linear error m, heading error deg); a violation over ``persistence`` consecutive samples
-makes :meth:`DriftMonitor.update` return a :class:`DriftEvent` (once). Pure: no I/O, no
-threads; times are wall seconds, ``time_scale`` converts them to twin time. Details:
-docs/ground.md "Drift control".
+:class:`DriftMonitor` compares each pose (stamped at measurement) with the gate's
+predicted pose at the same time into the same step (linear error m, heading error deg);
+the rover started step *k* at about ``(t_pub + t_acc) / 2`` (publishing and hearing
+``accepted``), the one-way delay standing in until ``accepted``. A violation over
+``persistence`` consecutive samples makes :meth:`DriftMonitor.update` return a
+:class:`DriftEvent` (once). Pure: no I/O, no threads; times are wall seconds,
+``time_scale`` converts them to twin time. Details: docs/ground.md "Drift control".
 """
 
 from __future__ import annotations

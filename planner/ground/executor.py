@@ -267,11 +267,8 @@ class PlanExecutor:
         *,
         clock: Clock = WALL,
     ) -> None:
-        """Args:
-        port: the ground's ROS port.
-        rover: the rover description (nominal step durations).
-        clock: every time and wait (``WALL``, or a lockstep clock: virtual time).
-        """
+        """``port``: the ground's ROS port; ``rover``: the description (nominal step
+        durations); ``clock``: every time and wait (``WALL``, or lockstep: virtual time)."""
         self.port = port
         self.rover = rover
         self.config = config or ExecutorConfig()

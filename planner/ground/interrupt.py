@@ -1,10 +1,8 @@
 """Ending a mission from the keyboard or the system: SIGINT and SIGTERM as a cancel.
 
-A mission must not die mid-step with the rover still driving. :class:`CancelOnSignal`
-turns the first SIGINT or SIGTERM into a call of ``on_signal`` (normally: set the
-``cancel`` event, so the plan ends with STOP and the mission reports ``cancelled``); a
-second signal raises ``KeyboardInterrupt`` in the main thread, and the executor sends
-STOP on that path too.
+A mission must not die mid-step with the rover still driving: the first signal cancels
+it (STOP, outcome ``cancelled``), a second raises ``KeyboardInterrupt``, on which the
+executor sends STOP too.
 
 ``on_signal`` runs on its own thread (``signal-dispatch``), not in the handler: a handler
 that set an event while the main thread was inside that event's ``wait`` would deadlock
@@ -39,9 +37,8 @@ class CancelOnSignal:
 
     Args:
         on_signal: called on the ``signal-dispatch`` thread, soon after the signal: keep
-            it short (set an event, print a line). It may raise ``KeyboardInterrupt``
-            (e.g. while nothing is running yet that needs a STOP): the main thread then
-            gets one.
+            it short (set an event, print a line). If it raises ``KeyboardInterrupt``,
+            the main thread gets one.
 
     Attributes:
         signum: the first signal received, or ``None``.

@@ -1,16 +1,13 @@
 """Missions: plan, validate, execute leg by leg, and re-plan after a drift STOP; and the
-move-and-wait operator the thesis compares against.
+move-and-wait operator the thesis compares against (docs/ground.md "Missions").
 
-:class:`MissionRunner` is what ``rover go`` and ``rover demo`` run: the orchestrator
-plans the whole mission on the gate, the executor drives each approved leg against its
-prediction, and after a drift STOP the runner (if allowed) waits for rest, re-plans from
-there and releases the latch only once the new plan is approved (the thesis's
-future-work item 3). A re-plan that fails leaves the rover latched.
-
-:class:`MoveAndWait` is the thesis's baseline: no gate, no twin; drives cut into
-``increment_m`` pieces, each confirmed through the round trip, then ``decision_s`` to
-decide. It drives the gated mission's route, so the comparison measures moving and
-waiting, not getting lost. Details: docs/ground.md "Missions".
+:class:`MissionRunner` is what ``rover go`` and ``rover demo`` run: the whole mission is
+planned on the gate and each approved leg driven against its prediction; after a drift
+STOP it re-plans from where the rover rested and releases the latch only once the new
+plan is approved (the thesis's future-work item 3). :class:`MoveAndWait` is the thesis's
+baseline: no gate, no twin, drives cut into increments each confirmed through the round
+trip. It drives the gated mission's route, so the comparison measures moving and
+waiting, not getting lost.
 """
 
 from __future__ import annotations

@@ -3,15 +3,13 @@
 :class:`OnboardExecutor` (the default of ``rover go`` and ``rover demo``) sends an
 approved plan and its verdict as one uplink tagged with the uplink token, resends it
 every ``resend_s`` until the rover answers (``busy``, ``latched`` and ``no_fix`` too,
-within the plan's budget), then only listens: the rover runs and guards the steps. Its
-reports become the step-by-step executor's progress and result (a guard stop is outcome
-``drift``, so :class:`~planner.ground.mission.MissionRunner` re-plans from
-:meth:`OnboardExecutor.settled_pose`).
+within the plan's budget), then only listens: the rover runs and guards the steps, and
+its reports become the step-by-step executor's progress and result (a guard stop is
+outcome ``drift``). A plan without a verdict runs step by step.
 
 The ground keeps STOP authority: ``cancel`` or a plan that outlives its time publishes
 STOP every ``stop_repeat_s`` until ``stopped``, and a cancel of the plan id until
-acknowledged, so a copy still on its way never runs. A plan without a verdict runs step
-by step.
+acknowledged, so a copy still on its way never runs.
 
 Threads: :meth:`OnboardExecutor.execute` blocks its caller (the mission's thread); the
 port's lane thread runs the callbacks, which only store what came and wake it.

@@ -112,11 +112,8 @@ class LinkRelay:
         *,
         clock: Clock = WALL,
     ) -> None:
-        """Args:
-        ground: the operator side's port (its namespace applies to ground topics).
-        clock: what the delays run on; a lockstep clock releases messages on its ticks
-            (no thread).
-        """
+        """``ground``: the operator side's port (its namespace applies to ground topics);
+        ``clock``: what the delays run on (lockstep: released on its ticks, no thread)."""
         self.profile = profile or LinkProfile()
         self.clock = clock
         self._stepping = clock if isinstance(clock, LockstepClock) else None

@@ -144,8 +144,7 @@ class RoverStatus:
         return out
 
     def text(self, where: str = "") -> str:
-        """The readable report ``rover status`` prints (several lines, no newline at
-        the end)."""
+        """The readable report ``rover status`` prints (several lines, no newline at the end)."""
         link, ctl = self.values.get("link", {}), self.values.get("controller", {})
         inputs = self.values.get("input", {})
         verdict = "READY: steps are accepted" if self.ready else "HELD: steps are refused"
@@ -216,11 +215,8 @@ class RoverStatus:
 
 
 def from_diagnostics(msg: Any) -> RoverStatus:
-    """The bridge's statuses of one ``DiagnosticArray``.
-
-    Raises:
-        ValueError: the message holds none of the bridge's statuses (another node's).
-    """
+    """The bridge's statuses of one ``DiagnosticArray`` (``ValueError``: it holds none,
+    being another node's)."""
     values: dict[str, dict[str, str]] = {}
     levels: dict[str, int] = {}
     messages: dict[str, str] = {}

@@ -34,11 +34,8 @@ def add_confidence_arguments(p: Any) -> None:
 
 
 def confidence_options(args: Any) -> tuple[GateOptions, float | None]:
-    """The gate options and the collision threshold ``add_confidence_arguments`` gave.
-
-    Raises:
-        ValueError: ``--samples`` without ``--max-collision-p``, or out of range.
-    """
+    """The gate options and the collision threshold ``add_confidence_arguments`` gave
+    (``ValueError``: ``--samples`` without ``--max-collision-p``, or out of range)."""
     from planner.plan.gate_client import GateOptions  # the client: not needed to build a parser
 
     limit: float | None = args.max_collision_p

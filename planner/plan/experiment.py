@@ -318,14 +318,9 @@ def run_planning_experiment(
     seed: int = 0,
     min_distance_m: float = 3.0,
 ) -> ExperimentResult:
-    """Run the planning experiment on the orchestrator's map.
-
-    Args:
-        orchestrator: plans and validates (its ``map_name`` is the scenario).
-        n_goals: goals to try when ``goals`` is not given (see :func:`trial_goals`).
-        goals: ``(name, pose)`` pairs to use instead.
-        seed: seed of the random goals.
-        min_distance_m: least distance of a random goal from the start.
+    """Run the planning experiment on the orchestrator's map (its ``map_name`` is the
+    scenario): on ``goals``, ``(name, pose)`` pairs, else on ``n_goals`` goals of
+    :func:`trial_goals` drawn with ``seed``, at least ``min_distance_m`` (m) from the start.
 
     Raises:
         GateCallError: the gate failed.

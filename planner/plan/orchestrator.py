@@ -122,11 +122,8 @@ class PlanResult:
         return max(0, len(self.attempts) - 1)
 
     def raise_for_status(self) -> PlanResult:
-        """This result if approved.
-
-        Raises:
-            UnreachableGoalError: it was not (``result`` and ``reason`` attached).
-        """
+        """This result if approved, else raises :class:`UnreachableGoalError` (``result``
+        and ``reason`` attached)."""
         if not self.approved:
             raise UnreachableGoalError(self)
         return self
@@ -180,11 +177,7 @@ class MissionResult:
         return approved[-1].verdict.final_pose if approved else None
 
     def raise_for_status(self) -> MissionResult:
-        """This result if approved.
-
-        Raises:
-            UnreachableGoalError: it was not.
-        """
+        """This result if approved, else raises :class:`UnreachableGoalError`."""
         if not self.approved:
             raise UnreachableGoalError(self)
         return self
@@ -257,11 +250,8 @@ class PlannerOrchestrator:
     # -- the map ------------------------------------------------------------------------
     @property
     def world(self) -> WorldMap:
-        """The map validated on, read from the gate on first use.
-
-        Raises:
-            GateCallError: the gate cannot say.
-        """
+        """The map validated on, read from the gate on first use (:class:`GateCallError`:
+        the gate cannot say)."""
         if self._world is None:
             self._world = self.gate.get_map(self.map_name)
             logger.debug(
@@ -295,11 +285,8 @@ class PlannerOrchestrator:
         return self.run_leg(self.planner.plan_leg(route))
 
     def run_leg(self, leg: LegPlan) -> PlanResult:
-        """The loop behind :meth:`plan`, for a leg made or edited by hand.
-
-        Raises:
-            GateCallError: the gate failed.
-        """
+        """The loop behind :meth:`plan`, for a leg made or edited by hand (raises
+        :class:`GateCallError` when the gate fails)."""
         attempts: list[Attempt] = []
         failures: list[FailureRecord] = []
         history: list[Repair] = []

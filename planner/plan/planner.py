@@ -415,8 +415,7 @@ class HeuristicLowLevelPlanner:
         return tuple(steps)
 
     def predict(self, start: Pose, steps: Sequence[PlanStep]) -> list[Pose]:
-        """The pose after each step by the planner's ideal kinematics (the turn model,
-        no slip)."""
+        """The pose after each step by the planner's ideal kinematics (the turn model, no slip)."""
         pose = start
         out: list[Pose] = []
         for st in steps:

@@ -71,19 +71,8 @@ def _grid(first: float, last: float, step: float) -> tuple[float, ...]:
 class RepairSettings:
     """Parameters of the repairs; each and its default: docs/planner.md "Parameters".
 
-    Distances in m (``_m``), angles in degrees (``_deg``). Blind doglegs:
-    ``dogleg_offset_m`` grown by ``dogleg_growth`` per repeat. The map-aware search
-    (``map_aware``): candidate ``offsets_m`` and edge detours
-    (``edge_offset_step_m``, ``edge_offset_reach_m``); budget ``search_expansions`` x
-    ``search_width``, ``max_waypoints`` per repair, ``min_spacing_m`` from the route's
-    points; priority costs ``turn_cost_m`` per waypoint, ``blocked_cost_m`` per blocked
-    segment, ``centring_weight`` per metre of room short of ``comfort_m``. Clearance
-    beyond footprint and margin: ``clearance_slack_m`` + ``slack_per_m`` per metre of
-    drive, ``turn_slack_m`` for turns, both + ``slack_growth_m`` per repeat. Approach
-    waypoints: ``approach_offsets_m`` (map), ``approach_offset_m`` (blind), when the
-    final turn exceeds ``approach_angle_deg`` within ``near_goal_m``. Goal repair and
-    recalibration thresholds: ``min_correction_m``, ``turn_calibration_deg``,
-    ``drive_calibration_m``.
+    Distances in m (``_m``), angles in degrees (``_deg``); ``dogleg_growth`` multiplies
+    the blind offset per repeat, ``slack_per_m`` adds m of clearance per metre of drive.
     """
 
     map_aware: bool = True
@@ -1157,11 +1146,8 @@ def stall_repair(ctx: PlannerContext) -> Repair:
 
 
 def start_repair(ctx: PlannerContext) -> Repair:
-    """A start pose in collision cannot be repaired by changing the plan.
-
-    Raises:
-        RepairError: always.
-    """
+    """A start pose in collision cannot be repaired by changing the plan: always raises
+    :class:`~planner.errors.RepairError`."""
     raise RepairError(
         "the start pose already touches an obstacle "
         f"({ctx.verdict.failure_reason}); no plan from it can be approved"

@@ -203,12 +203,8 @@ def _call_soon(loop: asyncio.AbstractEventLoop | None, fn: Callable[..., None], 
 
 
 class ConsoleServer:
-    """Serves a :class:`RoverConsole`; a context manager.
-
-    Args:
-        console: the reads and writes of the bridge's topics (its port stays the
-            caller's; neither is closed here).
-    """
+    """Serves ``console``, a :class:`RoverConsole` (neither it nor its port is closed
+    here); a context manager."""
 
     def __init__(self, console: RoverConsole, config: ConsoleConfig | None = None) -> None:
         self.console = console
@@ -258,11 +254,7 @@ class ConsoleServer:
         return self._streams
 
     def start(self) -> ConsoleServer:
-        """Bind and serve on a thread of its own.
-
-        Raises:
-            OSError: the address cannot be bound.
-        """
+        """Bind and serve on a thread of its own (``OSError``: the address cannot be bound)."""
         try:
             self._service.start()
         except BaseException:

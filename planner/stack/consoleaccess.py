@@ -88,13 +88,8 @@ class ConsoleAccess:
         return bool(sep) and port == str(self.port) and _is_ip(name)
 
     def refusal(self, method: str, headers: Mapping[str, str]) -> Refusal | None:
-        """Why the request is refused, or ``None`` when it may be served.
-
-        Args:
-            method: the request's method.
-            headers: its headers, looked up by lower-case name (Starlette's
-                ``Headers``, or a ``dict`` with lower-case keys).
-        """
+        """Why the request is refused, or ``None`` when it may be served; ``headers`` are
+        looked up by lower-case name (Starlette's ``Headers``, or a lower-case ``dict``)."""
         host = headers.get("host")
         if not self._host_ok(host):
             return Refusal(

@@ -13,11 +13,8 @@ CONTROLLERS = ("emulator", *(f"pil:{t}" for t in PIL_TARGETS))
 
 
 def pil_target_of(controller: str) -> str | None:
-    """The PIL target of ``pil:TARGET``; ``None`` for ``emulator``.
-
-    Raises:
-        ValueError: neither (the message lists the known ones).
-    """
+    """The PIL target of ``pil:TARGET``; ``None`` for ``emulator``; ``ValueError`` for
+    anything else (the message lists the known ones)."""
     if controller == "emulator":
         return None
     target = controller.removeprefix("pil:")

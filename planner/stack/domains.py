@@ -214,11 +214,8 @@ def _read(path: Path) -> dict[str, object] | None:
 
 
 def running() -> list[dict[str, object]]:
-    """The stacks alive on this machine (their published endpoints), by domain.
-
-    Raises:
-        StackRegistryError: the registry is not this user's alone.
-    """
+    """The stacks alive on this machine (their published endpoints), by domain
+    (:class:`StackRegistryError`: the registry is not this user's alone)."""
     directory = registry_dir()
     found = []
     for path in sorted(directory.glob("domain-*.json")):

@@ -145,11 +145,8 @@ class ChildProcess:
         return " | ".join(x.strip() for x in self._stderr[-lines:] if x.strip())
 
     def line(self, prefix: str) -> str:
-        """The first stdout line starting with ``prefix``.
-
-        Raises:
-            RuntimeError: there is none (the part exited before printing it).
-        """
+        """The first stdout line starting with ``prefix`` (``RuntimeError``: there is none,
+        the part exited before printing it)."""
         hit = next((x for x in self.lines if x.startswith(prefix)), None)
         if hit is None:
             raise RuntimeError(f"{self.name} exited before printing {prefix.strip()!r}")

@@ -95,11 +95,8 @@ def add_view_arguments(p: argparse.ArgumentParser, *, record_default: str | None
 
 
 def view_config(args: argparse.Namespace) -> ViewConfig | None:
-    """The view's configuration from the options, ``None`` without ``--view``.
-
-    Raises:
-        ValueError: a bad option (a non-loopback address without a token...).
-    """
+    """The view's configuration from the options, ``None`` without ``--view``
+    (``ValueError``: a bad option, such as a non-loopback address without a token)."""
     if not args.view:
         return None
     from firmware_proto.http.tokenfile import read_token_file, refuse_token_argument

@@ -295,11 +295,7 @@ class ViewServer:
         return self._service.address
 
     def start(self) -> ViewServer:
-        """Bind and serve on a thread of its own.
-
-        Raises:
-            OSError: the address cannot be bound.
-        """
+        """Bind and serve on a thread of its own (``OSError``: the address cannot be bound)."""
         try:
             self._service.start()
         except BaseException:
