@@ -70,12 +70,9 @@ class OutOfBoundsError(InvalidPoseError):
 
 
 class GoalInObstacleError(InvalidPoseError):
-    """A pose lies inside an obstacle, or too close to one for the rover to stand there.
-
-    Attributes:
-        obstacle_id: the obstacle (``"bounds"`` for the walls).
-        clearance_m: distance from the pose to its surface, m (negative inside).
-    """
+    """A pose lies inside an obstacle, or too close to one for the rover to stand there:
+    ``clearance_m`` (m, negative inside) from the surface of ``obstacle_id`` (``"bounds"``
+    for the walls)."""
 
     def __init__(self, name: str, message: str, obstacle_id: str, clearance_m: float) -> None:
         self.obstacle_id = obstacle_id
@@ -138,8 +135,7 @@ class GateStatusError(GateCallError):
     """The gate answered with an error status.
 
     Attributes:
-        status: the HTTP status code.
-        body: the response body as text.
+        status, body: the HTTP status code and the response body as text.
         code: the gate's machine-readable error name (``"plan_schema"``,
             ``"invalid_option"``...), ``""`` when the body is not the gate's error JSON.
         message: its human-readable sentence (else the body, shortened).
@@ -181,13 +177,8 @@ class GateOverloadedError(GateStatusError):
 
 
 class GateUnavailableError(GateCallError, ConnectionError):
-    """No answer from the gate.
-
-    Attributes:
-        url: the gate's URL.
-        attempts: connection attempts made.
-        reason: the last low-level error, as text.
-    """
+    """No answer from the gate at ``url`` after ``attempts`` connection attempts;
+    ``reason``: the last low-level error, as text."""
 
     def __init__(self, url: str, attempts: int, reason: str) -> None:
         self.url = url

@@ -1,17 +1,14 @@
 """``rover status``, ``rover stop``, ``rover clear-stop`` and ``rover echo``: the
 operator's console, no ros2cli needed (docs/commands.md, "The stack's console").
 
-Two paths:
-
-- **A stack's console socket** where one is known (``--console URL``, or
-  ``$ROVER_STACK_CONSOLE``): the running stack answers from its own ROS port
-  (:mod:`planner.stack.console_server` through :mod:`planner.ground.console_client`): no
-  rclpy, no discovery. It is the rover side, not the emulated link. Its token:
-  ``$ROVER_CONSOLE_TOKEN``, else the stacks' registry. A console that does not answer is
-  said on stderr and the command goes on over ROS 2; so does ``rover stop`` when refused.
-- **ROS 2** (:mod:`planner.ground.console`) otherwise, or with ``--ros`` or
-  ``--namespace``: the bridge's topics in ``--namespace`` (default ``ground``, through
-  the link relay; ``/`` for the bridge's own) on ``--domain`` or ``$ROS_DOMAIN_ID``.
+Through a stack's console socket where one is known (``--console URL``, or
+``$ROVER_STACK_CONSOLE``; its token ``$ROVER_CONSOLE_TOKEN``, else the stacks' registry):
+the running stack answers from its own ROS port, on the rover side, with no rclpy and no
+discovery (:mod:`planner.ground.console_client`). Otherwise, with ``--ros`` or
+``--namespace``, or when the console does not answer (said on stderr; for ``rover stop``
+also when refused): ROS 2 (:mod:`planner.ground.console`) on the bridge's topics in
+``--namespace`` (default ``ground``, through the link relay; ``/`` for the bridge's own)
+on ``--domain`` or ``$ROS_DOMAIN_ID``.
 """
 
 from __future__ import annotations

@@ -86,13 +86,9 @@ class ClearReport:
 
 
 class RoverConsole:
-    """The operator's reads and writes of the bridge's topics.
-
-    Args:
-        port: an open ROS port in the namespace of the topics (not closed here).
-        on_status: called with each ``command_status`` string heard (on the port's
-            thread).
-    """
+    """The operator's reads and writes of the bridge's topics, on ``port`` (open, in the
+    topics' namespace; not closed here); ``on_status`` is called with each
+    ``command_status`` string heard, on the port's thread."""
 
     def __init__(self, port: RosPort, on_status: Callable[[str], None] | None = None) -> None:
         self.port = port

@@ -1,11 +1,8 @@
-"""The physical figures of a drift stop, from the rover's own stamped poses
-(``odom_ground``, stamped at measurement) and the approved plan's predicted path
-(docs/onboard.md, "Measured").
-
-:func:`overshoot` finds the first pose more than ``limit_m`` off the predicted path's
-polyline, the pose where the rover then came to rest (moved less than
-:data:`REST_MOVE_M` over :data:`REST_HOLD_S`), the distance driven in between and its
-duration, and how far off the path it rested. Pure: poses in, figures out.
+"""The physical figures of a drift stop (:class:`Overshoot`), from the rover's own stamped
+poses (``odom_ground``, stamped at measurement) and the approved plan's predicted path
+(docs/onboard.md, "Measured"): where the rover crossed the limit, where it came to rest
+(moved less than :data:`REST_MOVE_M` over :data:`REST_HOLD_S`), and in between. Pure:
+poses in, figures out.
 """
 
 from __future__ import annotations

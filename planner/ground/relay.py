@@ -46,11 +46,8 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class LinkProfile:
-    """The link: one-way delay and jitter (wall seconds), loss ratio, seed.
-
-    A 3 s round trip is ``one_way_delay_s = 1.5``. Jitter is uniform in
-    ``[0, jitter_s]`` added to the delay.
-    """
+    """The link: one-way delay and jitter (wall seconds; jitter uniform in ``[0, jitter_s]``
+    added to the delay), loss ratio, seed. A 3 s round trip is ``one_way_delay_s = 1.5``."""
 
     one_way_delay_s: float = 1.5
     jitter_s: float = 0.0

@@ -1,10 +1,8 @@
-"""The time rules of one plan step in flight, with no thread and no clock: when it has
-timed out, when drift control has gone blind, when the operator hears ``accepted`` and
-``running``, and when the rover started it.
-
-:class:`StepWatch` is what :meth:`planner.ground.executor.PlanExecutor.execute` consults
-while a step runs; it takes the time as an argument (any one clock, seconds), so its
-rules are tested in virtual time.
+"""The time rules of one plan step in flight: when it has timed out, when drift control
+has gone blind, when the operator hears ``accepted`` and ``running``, and when the rover
+started it. :class:`StepWatch` is what :meth:`planner.ground.executor.PlanExecutor.execute`
+consults while a step runs; no thread, no clock: it takes the time as an argument (any
+one clock, seconds), so its rules are tested in virtual time.
 """
 
 from __future__ import annotations

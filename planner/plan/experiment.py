@@ -2,8 +2,7 @@
 
 For each of N goals, from the map's start pose: plan the straight route, validate it on
 the gate, and repair until approved or given up
-(:meth:`PlannerOrchestrator.plan_mission`). Per goal it records whether the straight
-plan collides, whether the gate intercepted it, and how many repair cycles it took.
+(:meth:`PlannerOrchestrator.plan_mission`); each goal's outcome is a :class:`Trial`.
 
 "Collides" is judged twice, independently: by the gate (footprint inflated by its
 margin) and by plain geometry (the bare chassis footprint swept along the planner's

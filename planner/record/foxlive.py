@@ -25,11 +25,8 @@ logger = logging.getLogger(__name__)
 
 
 class FoxgloveLive:
-    """A Foxglove WebSocket server fed by the ground station.
-
-    Args:
-        host: a loopback address.
-        port: TCP port; 0 picks a free one.
+    """A Foxglove WebSocket server fed by the ground station, on a loopback ``host`` and
+    TCP ``port`` (0: a free one).
 
     Raises:
         ValueError: ``host`` is not loopback.

@@ -143,8 +143,7 @@ def msgdef(cls: type[Any]) -> str:
 
 def plain_message(value: Any) -> Any:
     """A generated message as dicts and lists (what the CDR encoder reads): numpy and
-    ``array.array`` fields become lists, and a ROS ``byte`` (rclpy: one-byte ``bytes``,
-    e.g. a diagnostic status's level) its number."""
+    ``array.array`` fields become lists, a ROS ``byte`` its number (:func:`_octets`)."""
     fields = getattr(value, "get_fields_and_field_types", None)
     if fields is not None:
         return {

@@ -2,10 +2,8 @@
 relay as child processes that stay up, so that ``rover go`` runs mission after mission
 against them; ``rover stack env`` and ``rover stack inject`` for the running stack.
 
-Each stack runs on a ROS 2 domain of its own (:mod:`planner.stack.domains`) with discovery
-kept on this host; it prints the ``export`` line that points ``rover go``, ``rover
-status``, ``rover stop``, ``rover clear-stop`` and ``rover echo`` at it
-(:mod:`planner.stack.stackenv`).
+Its ROS 2 domain and the ``export`` line that points the operator's commands at it:
+:mod:`planner.stack.domains`, :mod:`planner.stack.stackenv`.
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
-"""The stack's console socket: ``rover status``, ``stop``, ``clear-stop`` and ``echo``
-answered by the running stack with no ROS 2 discovery in the command (docs/commands.md,
-"The stack's console").
+"""The stack's console: ``rover status``, ``stop``, ``clear-stop`` and ``echo`` answered
+by the running stack with no ROS 2 discovery in the command (docs/commands.md, "The
+stack's console").
 
 :class:`ConsoleServer` serves what its :class:`~planner.ground.console.RoverConsole` (an
-rclpy port in the bridge's namespace, matched at start) already knows and does, over
-HTTP on the project's one HTTP stack (:mod:`firmware_proto.http`). It talks to the
-bridge's own topics, not through the emulated link. The client is
-:mod:`planner.ground.console_client`.
+rclpy port on the bridge's own topics, not through the emulated link) knows and does,
+over :mod:`firmware_proto.http`. The client: :mod:`planner.ground.console_client`; who
+it answers: :mod:`planner.stack.consoleaccess`.
 
 ======================================  ===================================================
 ``GET /status``                         the bridge's latest ``/diagnostics``, its age, and
@@ -20,13 +19,11 @@ bridge's own topics, not through the emulated link. The client is
                                         value first, where one is kept), streamed
 ======================================  ===================================================
 
-Who it answers: :mod:`planner.stack.consoleaccess`. STOP never waits: everything but a
-clear-STOP runs on the event loop without blocking it (``POST /stop`` publishes the
-moment it is admitted); a clear-STOP runs on its own thread, one at a time. Every wait
-is bounded and ends when the server closes.
-
-Threads: ``console-http`` (the event loop); ``console-clear``; the listener runs on the
-ROS port's thread and only schedules a wake-up on the loop.
+STOP never waits: everything but a clear-STOP runs on the event loop (``console-http``)
+without blocking it, and ``POST /stop`` publishes the moment it is admitted; a
+clear-STOP runs on its own thread (``console-clear``), one at a time. The listener runs
+on the ROS port's thread and only schedules a wake-up on the loop. Every wait is bounded
+and ends when the server closes.
 """
 
 from __future__ import annotations

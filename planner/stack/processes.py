@@ -9,8 +9,7 @@ stack's environment. The stack's random uplink token (:attr:`Stack.uplink_token`
 to the onboard program through its environment only, never a command line. With a logs
 directory, each part's stderr goes to ``<logs>/<name>.log`` and its stalls to
 ``<logs>/stalls.jsonl`` (docs/realtime.md); the gate and the relay run at nice
-:data:`NICE`. A part not up within ``startup_timeout_s`` fails :meth:`Stack.start` with
-its last lines of stderr; one that exits later is seen by :meth:`Stack.failed`.
+:data:`NICE`.
 """
 
 from __future__ import annotations
