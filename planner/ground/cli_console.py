@@ -3,12 +3,12 @@ operator's console, no ros2cli needed (docs/commands.md, "The stack's console").
 
 Through a stack's console socket where one is known (``--console URL``, or
 ``$ROVER_STACK_CONSOLE``; its token ``$ROVER_CONSOLE_TOKEN``, else the stacks' registry):
-the running stack answers from its own ROS port, on the rover side, with no rclpy and no
-discovery (:mod:`planner.ground.console_client`). Otherwise, with ``--ros`` or
-``--namespace``, or when the console does not answer (said on stderr; for ``rover stop``
-also when refused): ROS 2 (:mod:`planner.ground.console`) on the bridge's topics in
-``--namespace`` (default ``ground``, through the link relay; ``/`` for the bridge's own)
-on ``--domain`` or ``$ROS_DOMAIN_ID``.
+the running stack answers from its own ROS port on the bridge's topics (not through the
+emulated link), with no rclpy and no discovery (:mod:`planner.ground.console_client`).
+Otherwise, with ``--ros`` or ``--namespace``, or when the console does not answer (said
+on stderr; for ``rover stop`` also when refused): ROS 2 (:mod:`planner.ground.console`)
+on the bridge's topics in ``--namespace`` (default ``ground``, through the link relay;
+``/`` for the bridge's own) on ``--domain`` or ``$ROS_DOMAIN_ID``.
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@ by the running stack with no ROS 2 discovery in the command (docs/commands.md, "
 stack's console").
 
 :class:`ConsoleServer` serves what its :class:`~planner.ground.console.RoverConsole` (an
-rclpy port on the bridge's own topics, not through the emulated link) knows and does,
-over :mod:`firmware_proto.http`. The client: :mod:`planner.ground.console_client`; who
-it answers: :mod:`planner.stack.consoleaccess`.
+rclpy port on the bridge's own topics, not through the emulated link, matched at start)
+knows and does, over :mod:`firmware_proto.http`. The client:
+:mod:`planner.ground.console_client`; who it answers: :mod:`planner.stack.consoleaccess`.
 
 ======================================  ===================================================
 ``GET /status``                         the bridge's latest ``/diagnostics``, its age, and

@@ -17,11 +17,12 @@ Anything else gets a JSON error and the server goes on.
 
 STOP skips the lane every other request shares (:data:`LANE_PER_TURN` per turn of the
 event loop) and runs on its own thread (``view-stop``). STOP and clear-STOP need
-:data:`ACTION_HEADER` and are refused from another origin whatever the token. At most
-``max_clients`` browsers: a newcomer evicts the worst one it outranks
+:data:`ACTION_HEADER` and are refused from another origin whatever the token; ``Host``
+must name this server; binding and tokens follow :mod:`firmware_proto.http.bindpolicy`.
+At most ``max_clients`` browsers: a newcomer evicts the worst one it outranks
 (:meth:`_Viewer.rank`), else gets a ``busy`` stream. Streams wait on their queues on a
-small pool (``view-events``), never on the event loop. ``Host``, binding and tokens:
-docs/view.md "Binding and tokens"; the rest, "Never in the mission's way".
+small pool (``view-events``), never on the event loop. Details: docs/view.md "Never in
+the mission's way", "Binding and tokens".
 """
 
 from __future__ import annotations
