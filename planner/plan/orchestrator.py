@@ -4,9 +4,7 @@
 leg: the planner makes a plan, the gate plays it; a rejection goes into
 ``previous_failures`` and the repair for its ``failure_type`` (:data:`REPAIRS`) makes the
 next plan, until the gate approves, ``max_attempts`` plans were rejected, or a repair has
-nothing to offer. The result keeps every attempt (plan, verdict, repair) and, when it
-gives up, one sentence saying why. :meth:`plan_mission` plans a route longer than one
-plan leg by leg, each from the pose the gate predicts at the end of the previous one.
+nothing to offer. A route longer than one plan goes leg by leg (:meth:`plan_mission`).
 
 The map comes from the gate (``GET /maps/{name}``). Gate errors propagate as the
 :class:`~planner.plan.gate_client.GateClient` raises them; a rejected plan is a result

@@ -3,12 +3,10 @@
 :class:`HeuristicLowLevelPlanner` is the thesis's planner (section 5.5): each segment of
 start, waypoints and goal is a turn on the spot to its bearing (the shorter way), then
 FWD; at the goal, a turn to the goal yaw, by the rover description's turn model. Every
-plan validates against the plan schema and the description's limits, splits steps over
-``max_step_units``, skips negligible ones, and holds at most ``max_steps``; a longer
-route becomes legs (:meth:`HeuristicLowLevelPlanner.plan_mission`), each ending at its
-predicted pose. Each :class:`PlannedStep` carries what the repairs need. Rules and
-speeds: docs/planner.md "The heuristic planner". Units: metres, degrees (``_deg``) or
-radians (``_rad``), distance and speed units of the protocol.
+plan is schema-valid and within the description's limits; a route longer than one plan
+becomes legs (:meth:`HeuristicLowLevelPlanner.plan_mission`), each ending at its
+predicted pose. Rules and speeds: docs/planner.md "The heuristic planner". Units:
+metres, degrees (``_deg``) or radians (``_rad``), distance and speed units of the protocol.
 """
 
 from __future__ import annotations
