@@ -23,8 +23,7 @@ from typing import Any
 __all__ = ["RclArgs", "rclpy_available", "rclpy_node_parameters"]
 
 _NODE_DEFAULTS = {"use_sim_time": False, "start_type_description_service": True}
-"""Parameters rclpy declares on every node, with their defaults: left out unless the
-arguments set another value."""
+"""Parameters rclpy declares on every node, with defaults: left out unless set to another value."""
 _RANGE_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 
 

@@ -43,8 +43,7 @@ _LAZY = {
     "HttpService": "firmware_proto.http.service",
     "read_body": "firmware_proto.http.body",
 }
-"""Names whose modules load uvicorn or asyncio: imported on first use, so that a
-configuration module can import the limits without loading a server."""
+"""Names whose modules load uvicorn or asyncio: imported on first use (limits need no server)."""
 
 
 def __getattr__(name: str) -> Any:

@@ -61,8 +61,7 @@ logger = logging.getLogger(__name__)
 KNOWN_METHODS = frozenset(
     ("CONNECT", "DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT", "QUERY", "TRACE")
 )
-"""Methods HTTP defines (RFC 9110 and the QUERY method): on a known path, one the route
-does not take is 405; any other method is 501."""
+"""Methods HTTP defines (RFC 9110, QUERY): one a known path does not take is 405, others 501."""
 
 DEFAULT_SECURITY_HEADERS: tuple[tuple[str, str], ...] = (
     ("X-Frame-Options", "DENY"),
@@ -72,16 +71,14 @@ DEFAULT_SECURITY_HEADERS: tuple[tuple[str, str], ...] = (
     ("Cross-Origin-Resource-Policy", "same-origin"),
     ("Cache-Control", "no-store"),
 )
-"""Added to every answer that does not set the header itself: no page of another
-origin may frame it, sniff it or read it."""
+"""Added to every answer lacking the header: no other origin's page may frame, sniff or read it."""
 
 API_HEADERS: tuple[tuple[str, str], ...] = (
     ("Content-Security-Policy", "default-src 'none'; frame-ancestors 'none'"),
     ("X-Content-Type-Options", "nosniff"),
     ("Cache-Control", "no-store"),
 )
-"""The same, shorter, for a JSON API that no browser renders (each header costs h11's
-checks on every answer)."""
+"""The same, shorter, for a JSON API no browser renders (each header costs h11 checks)."""
 
 
 ErrorBody = Callable[[StatusError], tuple[str, bytes]]

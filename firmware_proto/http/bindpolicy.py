@@ -32,8 +32,7 @@ __all__ = [
 ]
 
 MIN_TOKEN_CHARS = 16
-"""Shortest token accepted for a non-loopback address (a random URL-safe token of 16
-characters carries 96 bits)."""
+"""Shortest token accepted for a non-loopback address, chars (16 URL-safe chars carry 96 bits)."""
 MIN_TOKEN_DISTINCT = 8
 """Fewest different characters in such a token (refuses ``aaaaaaaaaaaaaaaa``)."""
 _TOKEN_ADVICE = "python3 -c 'import secrets; print(secrets.token_urlsafe(24))'"

@@ -13,8 +13,7 @@ from dataclasses import dataclass, field
 __all__ = ["CONNECTION_EXTENSION", "ConnectionMark"]
 
 CONNECTION_EXTENSION = "rover.connection"
-"""Key of the ASGI scope's ``extensions`` under which a request finds its connection's
-:class:`ConnectionMark`."""
+"""Key in the ASGI scope's ``extensions`` holding the connection's :class:`ConnectionMark`."""
 
 
 @dataclass(eq=False)

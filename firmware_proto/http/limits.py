@@ -24,28 +24,22 @@ __all__ = [
 ]
 
 DEFAULT_IDLE_TIMEOUT_S = 15.0
-"""A connection with no request under way and no byte of the next one is closed after
-this long (a new connection as much as a kept-alive one)."""
+"""A connection idle this long, s (no request under way, none begun), is closed."""
 DEFAULT_HEAD_TIMEOUT_S = 10.0
-"""From the first byte of a request to the end of its head (request line and headers):
-a client sending its headers a byte at a time (slowloris) is answered 408 and closed."""
+"""From a request's first byte to the end of its head, s; a slowloris is answered 408 and closed."""
 DEFAULT_BODY_TIMEOUT_S = 10.0
 """From the end of a request's head to the end of its body (408 past it)."""
 DEFAULT_MAX_CONNECTIONS = 1024
-"""Open connections at once; the next one is answered 503 and closed. Each costs a few
-kB and a file descriptor, not a thread."""
+"""Open connections at once; the next is answered 503 and closed (each: a few kB and an fd)."""
 DEFAULT_MAX_CONNECTIONS_PER_ADDRESS = 256
-"""Open connections from one address at once; beyond, the address's oldest idle one
-makes room, or the new one is answered 503."""
+"""Open connections from one address; beyond, its oldest idle one makes room, else 503."""
 DEFAULT_RESERVED_CONNECTIONS = 64
-"""Of :data:`DEFAULT_MAX_CONNECTIONS`, kept for connections that have shown the token
-(where the server has one)."""
+"""Of :data:`DEFAULT_MAX_CONNECTIONS`, kept for connections that showed the token (if any)."""
 DEFAULT_MAX_HEAD_BYTES = 16 * 1024
 """Largest request head (h11's limit): beyond it, 431."""
 DEFAULT_MAX_DRAIN_BYTES = 1 << 20
-"""After answering a request without reading its body (413, 415...), this much of the
-body is read and dropped, so that the client gets the answer instead of a reset; past
-it the connection is closed."""
+"""Bytes of an unread body (413, 415...) read and dropped after the answer, so that the client gets
+it instead of a reset; past it the connection is closed."""
 
 ErrorRenderer = Callable[[int, str, str], tuple[str, bytes]]
 """``(status, code, message) -> (content_type, body)``: how a server words the errors

@@ -82,8 +82,7 @@ ERROR_ACTIVE, ERROR_WARNING, ERROR_PASSIVE, BUS_OFF = (
     "bus_off",
 )
 CAN_STATES = (ERROR_ACTIVE, ERROR_WARNING, ERROR_PASSIVE, BUS_OFF)
-"""The fault-confinement states :attr:`CanTransport.medium_state` takes, in order of
-severity."""
+"""Fault-confinement states of :attr:`CanTransport.medium_state`, in order of severity."""
 
 
 @dataclass(frozen=True)

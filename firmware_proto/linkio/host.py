@@ -105,9 +105,8 @@ class ProtocolHost:
         self._opened = False
         self._closed = False
         self.latch_gen = 0
-        """The controller's latch generation as the last frame that carries one said
-        (HEARTBEAT, STOP_ACK, CLEAR_ACK, FAULT; docs/protocol.md, "Latch and faults"): what
-        a CLEAR_STOP of this host names (:meth:`clear_stop_for`)."""
+        """The controller's latch generation per the last frame carrying one (docs/protocol.md,
+        "Latch and faults"): what this host's CLEAR_STOP names (:meth:`clear_stop_for`)."""
 
     @property
     def kind(self) -> str:

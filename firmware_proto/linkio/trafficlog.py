@@ -69,9 +69,8 @@ VOLATILE_FIELDS: dict[str, tuple[str, ...]] = {
     "FAULT": ("detail",),
     "IDENT": ("boot_nonce",),
 }
-"""Answer fields that measure continuous time or motion, or differ per boot: a replay
-with the same inputs cannot reproduce them exactly, so they are left out of the
-comparison unless it is strict."""
+"""Answer fields measuring continuous time or motion, or differing per boot: a replay cannot
+reproduce them exactly, so only a strict comparison includes them."""
 
 
 @dataclass(frozen=True)

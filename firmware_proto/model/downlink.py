@@ -29,13 +29,11 @@ __all__ = [
 ]
 
 STATES: Final = ("idle", "armed", "running", "completed", "stopped", "failed", "cancelled")
-"""Where a plan is on board: ``armed`` waits for the STOP latch to be released before its
-first step; the last four are ends."""
+"""Where a plan is on board (``armed``: waits for the latch's release; the last four are ends)."""
 
 OUTCOMES: Final = ("", "completed", "guard", "ground_stop", "cancelled", "failed", "blind")
-"""How a plan ended: every step completed; the guard stopped it (drift); the ground's
-STOP; the ground cancelled it; a step failed (its status says why: rejected, aborted, a
-fault, a timeout, the latch not released); the guard had no pose. ``""``: not ended."""
+"""How a plan ended: all steps done; the guard stopped it (drift); the ground's STOP; the ground
+cancelled it; a step failed (its status says why); the guard had no pose. ``""``: not ended."""
 
 
 def _pose(p: Pose) -> dict[str, float]:

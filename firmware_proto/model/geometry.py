@@ -32,8 +32,7 @@ Point = tuple[float, float]
 """A point in the map frame, ``(x, y)`` in metres."""
 
 _EPS = 1e-12
-"""Cross products this close to zero count as collinear (map coordinates are decimal
-fractions, which binary floating point cannot hold exactly)."""
+"""Cross products this close to zero count as collinear (decimal map coordinates are inexact)."""
 
 
 def wrap_deg(angle_deg: float) -> float:

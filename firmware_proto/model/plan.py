@@ -70,8 +70,7 @@ def plan_is_valid(obj: Any) -> bool:
 
 
 Goal = Pose
-"""A plan's goal: a :class:`~firmware_proto.model.pose.Pose` (metres in the map frame, yaw in
-degrees counter-clockwise from +x)."""
+"""A plan's goal: a :class:`~firmware_proto.model.pose.Pose` (map frame, m; yaw deg CCW of +x)."""
 
 
 @dataclass(frozen=True)

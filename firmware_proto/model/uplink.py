@@ -62,8 +62,7 @@ __all__ = [
 ]
 
 UPLINK_VERSION: Final = 2
-"""The uplink's format version; another is refused (``unsupported_version``). Version 2
-binds a plan to the boot id of the onboard program it is for (``boot``)."""
+"""Uplink format version (2: a plan names its ``boot``); another is ``unsupported_version``."""
 BOOT_HEX_DIGITS: Final = 32
 """A boot id: this many lower-case hex digits (128 random bits)."""
 _TAG_HEX_DIGITS: Final = 64
@@ -93,9 +92,8 @@ REFUSALS: Final[dict[str, str]] = {
 """Why the rover refuses an uplink: each reason's code and meaning (the first seven come
 from this module, the rest from the rover's sequencer, ``bridge/onboard/core.py``)."""
 REFUSED_FOR_NOW: Final = frozenset({"busy", "latched", "no_fix"})
-"""Refusals that hold only for now: the ground resends the same uplink (within its
-budget) and the rover takes it once the cause is gone; every other refusal is for good
-(the ground re-plans or gives up)."""
+"""Refusals that hold only for now: the ground resends the same uplink (within its budget); every
+other refusal is for good (the ground re-plans or gives up)."""
 
 ACK_RESULTS: Final = ("accepted", "duplicate", "refused", "cancelled")
 """The results an :class:`UplinkAck` can carry."""
@@ -116,8 +114,7 @@ _PLAN_KEYS: Final = {
 }
 _CANCEL_KEYS: Final = {"type", "version", "upto"}
 _POSE_TOL_M: Final = 0.01
-"""Consecutive steps' boundary samples (the end of one, the start of the next) agree
-within this, m (the gate writes the same pose twice)."""
+"""Consecutive steps' boundary samples agree within this, m (the gate writes the pose twice)."""
 _START_TOL_M: Final = 0.01
 _START_TOL_DEG: Final = 0.5
 _DRIVE_SLACK_M: Final = 0.05
@@ -136,10 +133,9 @@ def _canonical(obj: Any) -> bytes:
 
 
 TOKEN_ENV: Final = "ROVER_UPLINK_TOKEN"
-"""The uplink token's variable. It is given to programs through the environment only
-(never a command line, which every user can read in ``/proc``), and it is not the gate's
-token (``ROVER_GATE_TOKEN`` travels as a bearer token over plain HTTP): ``rover stack
-up`` and ``rover demo`` make a random one for each stack (docs/onboard.md)."""
+"""The uplink token's variable: passed in the environment only (a command line is readable in
+``/proc``); not the gate's token, which travels over plain HTTP. ``rover stack up`` and
+``rover demo`` make a random one per stack (docs/onboard.md)."""
 
 
 def token_from_env(env: Mapping[str, str]) -> str | None:

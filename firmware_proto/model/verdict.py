@@ -54,19 +54,12 @@ FAILURE_TYPES: Final = (
     "goal_not_reached",
     "yaw_not_reached",
 )
-"""Values of a verdict's ``failure_type`` when a plan is rejected, in order of
-precedence:
-
-- ``collision``: the margin-inflated footprint touched an obstacle or a wall; playback
-  stopped at the first contact (``collision`` says where and with what);
-- ``start_in_collision``: the start pose already touches something; no plan from this
-  pose can be approved, so repairing the plan will not help;
-- ``stalled``: a step made no progress (a side that should turn did not) or ran past
-  its time limit (``stall`` says which and why);
-- ``goal_not_reached``: the plan ran to the end but the final position is farther from
-  the goal than the position tolerance;
-- ``yaw_not_reached``: the position is within tolerance but the final yaw is not.
-"""
+"""Values of a verdict's ``failure_type`` when a plan is rejected, in order of precedence
+(docs/gate.md, ``POST /validate_plan``): ``collision`` (the margin-inflated footprint touched
+something; ``collision`` says what), ``start_in_collision`` (the start pose already does: re-plan,
+do not repair), ``stalled`` (a side made no progress or a step overran; ``stall`` says which),
+``goal_not_reached`` (the final position is beyond the tolerance), ``yaw_not_reached`` (the
+position is within it, the yaw is not)."""
 
 _STEP: Final = {"minimum": 0, "maximum": MAX_PLAN_STEPS - 1}
 _SHA: Final = {"pattern": "^[0-9a-f]{64}$"}

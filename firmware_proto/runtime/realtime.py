@@ -55,11 +55,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 EMULATOR_PRIORITY = 30
-"""The emulator's priority: it stands in for a microcontroller, which is never
-descheduled, so it ranks above the host's link."""
+"""The emulator's priority, above the host link's: it plays a microcontroller, never descheduled."""
 BRIDGE_PRIORITY = 20
-"""The bridge's (the controller link's) priority: below the kernel's interrupt threads
-(50) and the emulator."""
+"""The bridge's (controller link's) priority: below kernel IRQ threads (50) and the emulator."""
 STOP_CHILD_PRIORITY = 15
 """The bridge's STOP-lane ROS 2 child: real time, below the link it feeds."""
 FALLBACK_NICE = -10

@@ -61,8 +61,7 @@ STALL_LOG_MAX_BYTES = 4 << 20
 """A stall log longer than this is renamed ``.1`` (one generation kept) before a write."""
 _STACK_CHARS = 4000
 CONSOLE_QUIET_S = 10.0
-"""After a stall's console line, further stalls within this long (s) are only counted,
-and said with the next line; the stall log has every one."""
+"""Stalls within this long, s, after a console line are only counted and said with the next one."""
 
 
 def stall_log_path(env: dict[str, str] | None = None) -> Path | None:

@@ -115,9 +115,8 @@ class MessageSpec:
     doc: str
     fields: tuple[FieldSpec, ...]
     python_class: str = ""
-    """The Python class's name where the spec gives one (``class``): a message whose
-    CamelCase name would be another public class of ours (``POSE``: ``PoseMsg``, beside
-    the map pose ``firmware_proto.model.pose.Pose``)."""
+    """The Python class name where the spec gives one (``class``): where the CamelCase name
+    would clash with another class of ours (``POSE``: ``PoseMsg``, not the map's ``Pose``)."""
 
     @property
     def length(self) -> int:
