@@ -65,8 +65,7 @@ OnTelemetry = Callable[[Message, float], None]
 OnState = Callable[["LinkState"], None]
 
 TIMER_PERIOD_S = 0.005
-"""How often the timer thread runs the core's periodic work, s (at most: a request or a
-failure wakes it at once)."""
+"""Period of the timer thread's periodic work, s (at most: a request or failure wakes it early)."""
 
 
 class ControllerLink:
@@ -137,8 +136,7 @@ class ControllerLink:
         self._failure: tuple[Transport, Exception] | None = None
         self._opening: Transport | None = None  # being opened by _connect
         self.last_stop_written: float | None = None
-        """The clock's time (``self._clock.now()``) when the last STOP frame was handed to
-        the OS, whole."""
+        """``self._clock.now()`` when the last STOP frame was handed whole to the OS."""
 
     # -- lifecycle ----------------------------------------------------------------------
     @property

@@ -137,9 +137,8 @@ _ACK_REASONS = {
 }
 
 _TIME_EPS_S = 1e-9
-"""A deadline that a strict ``>`` guards is due this long after it (float times). Every
-deadline is compared as ``now >= last + period``, the very sum :meth:`LinkCore.next_deadline`
-returns, so that a tick at the deadline finds it due."""
+"""Float slack for deadlines, s: each is compared as ``now >= last + period``, the very sum
+:meth:`LinkCore.next_deadline` returns, so that a tick at the deadline finds it due."""
 
 
 @dataclass(eq=False)
@@ -152,8 +151,7 @@ class _Step:
     first_sent: float = 0.0
     last_sent: float = 0.0
     unwritten: int = 0
-    """Copies queued for the writer and not yet written: the ACK timeout runs from
-    when a copy is on the wire, not from when it was queued."""
+    """Copies queued for the writer, not yet written: the ACK timeout runs from the write."""
     written: bool = False
     """A copy of it reached the wire (``steps_sent`` counts it then)."""
 
@@ -276,8 +274,7 @@ class LinkCore:
         self._latch_gen: int | None = None
         """The controller's latch generation, as the last frame of this boot said."""
         self._released_gen: int | None = None
-        """The generation this host's last CLEARED released: a HEARTBEAT sent before that
-        CLEAR_STOP arrived still shows it latched, and is stale."""
+        """Generation our last CLEARED released: a HEARTBEAT still showing it latched is stale."""
         self._last_stop_id: int | None = None
         """The id of this host's last emergency stop."""
         self._stopped_said: int | None = None

@@ -29,13 +29,11 @@ __all__ = ["FLAP_LOSSES", "GARBAGE_SHARE", "SILENT_AFTER_S", "LinkNarrator"]
 SILENT_AFTER_S = 3.0
 """An open device with no frame from a controller for this long is 'not answering', s."""
 FLAP_LOSSES = 3
-"""Heartbeat losses with frames still arriving, within :data:`FLAP_WINDOW_S`, that make
-a too-slow link suspected."""
+"""Heartbeat losses, frames still arriving, within :data:`FLAP_WINDOW_S` that suspect slowness."""
 FLAP_WINDOW_S = 10.0
 GARBAGE_SHARE = 0.25
-"""Receive errors (CRC, resyncs) at least this share of what arrived in the snapshots of
-the counted losses (frames and errors) make a wrong baud suspected: at a wrong baud
-almost nothing frames, while a cut or a glitch breaks a frame or two among hundreds."""
+"""Least share of receive errors (CRC, resyncs) among frames and errors over the counted losses
+that suspects a wrong baud: then almost nothing frames; a cut breaks one or two of hundreds."""
 
 
 _OPEN_CAUSES = (
@@ -70,8 +68,7 @@ class LinkNarrator:
     _silence_said: bool = False
     _frames_at_open: int = 0
     _losses: list[tuple[float, int, int]] = field(default_factory=list)
-    """The counted heartbeat losses: (when, frames, receive errors since the snapshot
-    before)."""
+    """The counted heartbeat losses: (when, frames, receive errors since the snapshot before)."""
     _last_losses: int = 0
     _last_frames: int = 0
     _last_garbage: int = 0

@@ -38,8 +38,7 @@ __all__ = [
 
 
 SAMPLE_MESSAGES: tuple[type[Message], ...] = (Encoders, WheelSpeeds, Imu, PoseMsg)
-"""Periodic sensor samples: the link forwards them only in a session, and a full receive
-queue drops only them (:mod:`bridge.link.transport`; the next one supersedes it)."""
+"""Periodic sensor samples: forwarded only in a session; a full receive queue drops only them."""
 
 
 class LinkState(enum.Enum):
@@ -193,25 +192,20 @@ class LinkDiagnostics:
     medium_state: str = "ok"
     medium_errors: int = 0
     latch: tuple[str, ...] = ()
-    """What holds the controller's latch (``stop``, ``watchdog``, ``fault``), from its
-    last HEARTBEAT; empty when it is not latched."""
+    """What holds the controller's latch (``stop``, ``watchdog``, ``fault``), per its HEARTBEAT."""
     latch_fault: str = ""
-    """The last stopping fault other than WATCHDOG the controller raised (what
-    ``latch_fault`` most likely stands for), ``""`` if none since the link started."""
+    """Last stopping fault but WATCHDOG raised since the link began (``""``: none)."""
     heartbeat_rx_gap_max_ms: float | None = None
-    """Longest gap between two controller HEARTBEATs received on one connection, ms
-    (their period is 100 ms; a gap longer than the link-lost limit loses the link)."""
+    """Longest gap between two controller HEARTBEATs on one connection, ms (their period: 100)."""
     heartbeat_rx_gap_p99_ms: float | None = None
     """99th percentile of the last 1,000 such gaps, ms."""
     heartbeat_tx_gap_max_ms: float | None = None
-    """Longest gap between two HOST_HEARTBEATs written, ms (their period is
-    ``heartbeat_s``; the controller's watchdog stops the rover after 250 ms without a
-    frame)."""
+    """Longest gap between two HOST_HEARTBEATs written, ms (their period is ``heartbeat_s``; the
+    controller's watchdog stops the rover after 250 ms without a frame)."""
     heartbeat_tx_gap_p99_ms: float | None = None
     """99th percentile of the last 1,000 such gaps, ms."""
     samples_outside_session: int = 0
-    """Sensor samples received while the link was not ready, ignored (a conforming
-    controller sends none before a HELLO)."""
+    """Sensor samples received outside a session, ignored (a conforming controller sends none)."""
     stalls: int = 0
     """Stalls of this process or its loops over the stall threshold (docs/realtime.md)."""
     stall_max_ms: float = 0.0

@@ -77,16 +77,13 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 OnMessage = Callable[[Message, float], None]
-"""Called on the dispatcher thread with each message, in the order received, and its
-arrival (``time.monotonic()`` when the reader got it)."""
+"""Called on the dispatcher thread with each message in order and its arrival (monotonic s)."""
 OnError = Callable[[Exception], None]
-"""Called once, on the dispatcher thread, when the transport fails (after every message
-received before the failure)."""
+"""Called once, on the dispatcher thread, when the transport fails (after every earlier message)."""
 
 RX_QUEUE_DEPTH = 2048
-"""Messages the reader may hold for the dispatcher by default: about 11 s of everything
-the controller sends at the protocol's rates (180 messages/s, docs/protocol.md), 2.8 s
-with the emulator at 4x or telemetry at 100 Hz: only a stalled dispatcher fills it."""
+"""Messages the reader may hold for the dispatcher by default: about 11 s at the protocol's rates
+(docs/protocol.md), so that only a stalled dispatcher fills it."""
 
 _POLL_S = 0.05
 """How often the reader and the dispatcher look at the stop flag while they wait, s."""
@@ -95,8 +92,7 @@ TRANSPORTS: dict[str, tuple[str, str]] = {
     "serial": ("bridge.link.serial_transport", "SerialTransport"),
     "can": ("bridge.link.can_transport", "CanTransport"),
 }
-"""Medium (:func:`firmware_proto.linkio.media.medium_of`, the one registry from a URL to
-its medium) -> (module, transport class), imported when first used."""
+"""Medium (:func:`firmware_proto.linkio.media.medium_of`) -> (module, transport class), lazily."""
 
 
 @contextmanager
@@ -139,10 +135,8 @@ class Transport:
         self._dispatcher: threading.Thread | None = None
         self._rx: queue.Queue[tuple[Message, float, int | None] | Exception] = queue.Queue(1)
         self.dispatch_seq: int | None = None
-        """The sender's serial frame counter of the message being handed to
-        ``on_message`` (``None`` on CAN): read it from ``on_message``, on the dispatcher
-        thread, for the frame's place in the counter (the link's lost-frame forgiveness
-        at a reboot)."""
+        """Serial frame counter of the message handed to ``on_message`` (``None`` on CAN); read it
+        there, on the dispatcher thread (the link's lost-frame forgiveness at a reboot)."""
         self._callbacks: tuple[OnMessage, OnError] | None = None
         self._opened = False
 

@@ -120,8 +120,7 @@ logger = logging.getLogger(__name__)
 REFUSAL_LOG_PERIOD_S = 1.0
 """Refusals of one reason are logged at most this often (the rest are counted)."""
 REPORTING_FAULTS = frozenset({"pose", "imu"})
-"""``fault:<reason>`` of a lost sensor: the controller keeps driving, and so does the
-plan (the guard's estimate copes)."""
+"""``fault:<reason>`` of a lost sensor: the controller and the plan keep going (the guard copes)."""
 
 
 _DIRECTION: dict[int, float] = {
@@ -328,19 +327,16 @@ class OnboardCore:
         self._cancel_floor = 0
         self._latched = False
         self._latch_own = False
-        """The latch is held by the core's own STOPs only (nothing else stopped the rover
-        since it was last released): only then does a plan wait armed."""
+        """The latch is held by the core's own STOPs only: only then does a plan wait armed."""
         self._stop_sent = False
-        """The core's own STOP went out and no ``stopped`` answered it yet: the next
-        ``stopped`` is the core's, not the ground's; it goes out again until then."""
+        """The core's STOP is unanswered (resent until then): the next ``stopped`` is the core's."""
         self._stop_reason = ""
         self._stop_copies = 0
         """Copies of the unanswered STOP sent so far."""
         self._stop_last_s = -math.inf
         """When the core's latest STOP copy went out."""
         self._own_echoes: deque[float] = deque()
-        """When each of the core's STOP copies not yet heard back on ``emergency_stop``
-        went out (a copy's echo is due within ``echo_window_s``; one lost expires)."""
+        """When each unechoed STOP copy went out (due within ``echo_window_s``, else expires)."""
         self._estimate: Estimate | None = None
         self._last_estimate_s = -math.inf
         self._seq = 0

@@ -174,8 +174,7 @@ class PoseEkf:
         self._motion = (0.0, 0.0)
         self._pose_stamp = -math.inf
         self._waiting: list[tuple[float, Matrix, Matrix]] = []
-        """POSEs newer than the newest ``odom``: (stamp, measurement, covariance),
-        oldest first."""
+        """POSEs newer than the newest ``odom``: (stamp, measurement, covariance), oldest first."""
         self._taken: Estimate | None = None
         self.corrections = 0
         """POSE samples applied."""
@@ -184,11 +183,9 @@ class PoseEkf:
         self.outliers = 0
         """POSE samples held outside the gate and not confirmed by the next: dropped."""
         self._held: tuple[Matrix, Matrix] | None = None
-        """A POSE outside the gate waiting for the next to confirm it: its innovation
-        and covariance."""
+        """A POSE outside the gate awaiting the next to confirm it: (innovation, covariance)."""
         self.too_old = 0
-        """POSE samples older than the history: dropped (applying one at the oldest
-        entry would put the rover where it was, not where it is)."""
+        """POSE samples older than the history, dropped (applied late, they move the rover back)."""
         self.rejected = 0
         """Samples refused: not finite, or a POSE covariance not positive definite."""
         self.poisoned = 0

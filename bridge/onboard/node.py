@@ -86,12 +86,10 @@ TICK_MAX_S = 0.05
 TIMER_FAILURES_STOP = 3
 """Turns of the timer thread that failed in a row before the program stops the rover."""
 LATE_TURN_S = 0.25
-"""A turn of the timer this long after the one before (they come at least every
-:data:`TICK_MAX_S`): the program itself stalled, s."""
+"""A timer turn this late after the one before (due within :data:`TICK_MAX_S`): a stall, s."""
 BACKLOG_GRACE_S = 0.05
-"""After such a stall the core's deadlines wait this long, s, so that the samples queued
-during it are read first: its blind check judges silent sensors, not the program's own
-stall (docs/onboard.md)."""
+"""After such a stall the core's deadlines wait this long, s, for the samples queued meanwhile:
+the blind check judges silent sensors, not the program's stall (docs/onboard.md)."""
 
 
 def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:

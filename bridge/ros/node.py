@@ -155,8 +155,7 @@ class BridgeNode:
         self.port = port
         self.rover = rover or load_rover(params.rover_description or None)
         self.rejected: Counter[str] = Counter()
-        """``wheel_instructions`` refused by this node's checks, by reason (the link
-        counts its own refusals); read it through :meth:`rejected_counts`."""
+        """``wheel_instructions`` this node refused, by reason (see :meth:`rejected_counts`)."""
         self._rejected_lock = threading.Lock()
         self._recent: deque[str] = deque(maxlen=RECENT_STATUSES)
         """The last ``command_status`` strings, for ``/diagnostics`` (append is atomic)."""
@@ -226,9 +225,8 @@ class BridgeNode:
         ]
         self._started = False
         self.last_estop_received: float | None = None
-        """The clock's time (``time.monotonic()``) when the last ``emergency_stop`` true
-        reached this node (its STOP lane callback): where the ROS hop ends and the link's
-        begins."""
+        """``time.monotonic()`` when the last true ``emergency_stop`` reached this node's STOP lane
+        callback: where the ROS hop ends and the link's begins."""
         port.declare_parameters(parameter_specs(params), self._on_parameters, params.to_dict())
 
     # -- lifecycle ----------------------------------------------------------------------

@@ -72,16 +72,14 @@ logger = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
 
 FLOOD_MSG_ID = ParamValue.MSG_ID
-"""The flood sends PARAM_VALUE frames of another node: the lowest-priority message of the
-protocol, which every controller ignores (a controller-to-host type, another node)."""
+"""The flood's frames: PARAM_VALUE of another node, lowest priority, ignored by every controller."""
 _LONG_STEP = 30000
 """Distance units of the queued steps: the longest the protocol allows (1.3 m)."""
 _MAX_FILL = 64
 _REPEAT_S = STOP_REPEAT_MS / 1000.0
 """STOP and CLEAR_STOP are sent again this often until answered (the protocol's rule), s."""
 _MOVING_MM_S = 10.0
-"""The STOP's random moment is counted from the first wheel-speed report at least this
-fast (mean of both sides), so that every STOP stops a moving rover."""
+"""A STOP's random moment counts from the first wheel speed this fast: it meets a moving rover."""
 
 
 class BenchError(BridgeError, RuntimeError):

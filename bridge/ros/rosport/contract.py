@@ -56,8 +56,7 @@ CLEAR_EMERGENCY_STOP: Final = "clear_emergency_stop"
 """Release the STOP latch: ``std_msgs/Empty``."""
 
 PLAN_UPLINK: Final = "plan_uplink"
-"""Plans and cancels up to the rover's onboard sequencer: ``std_msgs/String``, an uplink
-envelope."""
+"""Plans and cancels up to the onboard sequencer: ``std_msgs/String``, an uplink envelope."""
 PLAN_ACK: Final = "plan_ack"
 """The onboard sequencer's answer to each uplink message: ``std_msgs/String`` JSON."""
 ONBOARD_REPORT: Final = "onboard_report"

@@ -83,9 +83,8 @@ TAP_SENT: Final = "sent"
 TAP_RECEIVED: Final = "received"
 
 Tap = Callable[[str, str, Any], object]
-"""``tap(direction, topic, msg)``: :data:`TAP_SENT` or :data:`TAP_RECEIVED`, the fully
-qualified topic, the message. Called on the sending or delivering thread: it must be
-quick and must not block (hand the message to a queue)."""
+"""``tap(direction, topic, msg)``: :data:`TAP_SENT` or :data:`TAP_RECEIVED`, the full topic, the
+message; called on the sending or delivering thread, so it must be quick and never block."""
 
 
 class Writer(Protocol):

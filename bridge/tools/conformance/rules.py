@@ -110,8 +110,8 @@ FWD = Command.FWD
 _LONG = 30000
 """A step long enough to still be running when the rule interrupts it (1.3 m)."""
 _GRACE_S = 0.05
-"""Frames a controller queued before the event a rule judges may still cross it on the
-wire (a paced serial line sends answers ahead of telemetry): this long after it."""
+"""Frames queued before a judged event may still cross it on the wire this long after it, s (a
+paced serial line sends answers ahead of telemetry)."""
 _REST_MM_S = 2
 """A measured wheel speed at or below this (mm/s, WHEEL_SPEEDS resolution 1) is rest."""
 

@@ -23,8 +23,7 @@ SAMPLES = (Encoders, WheelSpeeds, Imu, PoseMsg)
 """Sensor samples: counted in a rule's log, not listed."""
 
 KEEP = 100_000
-"""Received messages kept for the rules' questions: about 9 minutes of everything a
-controller sends at the protocol's rates (trimmed by halves beyond twice that)."""
+"""Received messages kept for the rules: about 9 min at protocol rates (halved past twice that)."""
 
 
 @dataclass(frozen=True)
