@@ -525,8 +525,7 @@ def describe(topic: str, msg: Any) -> str:
 
 
 _LAST_WAIT_S = 3.0
-"""``rover echo command_status`` waits this long for the bridge's ``/diagnostics``, to
-print the last status before it listened (s)."""
+"""How long ``rover echo command_status`` waits for ``/diagnostics``' last status, s."""
 _LAST_NOTE = "(the last before this echo, from /diagnostics)"
 
 

@@ -41,13 +41,11 @@ __all__ = [
 ]
 
 POSE_WAIT_MARGIN_S = 10.0
-"""Without ``--start``, the rover has the round trip plus this long to report its pose
-(default of ``--pose-wait``: a launch starts the bridge and the link alongside)."""
+"""Without ``--start``, s past the round trip the rover has to report its pose (``--pose-wait``)."""
 
 RECORD_REST_S = 1.5
-"""With ``--record``, the recording goes on after the mission until a pose stamped this
-long (mission seconds) after the rover's last status has come: the rest after the last
-step, where ``rover calibrate`` measures it (docs/twin.md)."""
+"""With ``--record``, recording goes on until a pose stamped this long (mission s) after the last
+status: the rest after the last step, which ``rover calibrate`` measures (docs/twin.md)."""
 
 
 class PoseArgumentError(ValueError, argparse.ArgumentTypeError):

@@ -39,8 +39,7 @@ __all__ = ["DIAGNOSTICS", "STOP_REPEAT_S", "ClearOutcome", "ClearReport", "Rover
 logger = logging.getLogger(__name__)
 
 DIAGNOSTICS = "diagnostics"
-"""Relative: ``/diagnostics`` at the root (the bridge's), ``/ground/diagnostics`` as the
-link relays it."""
+"""Relative: ``/diagnostics`` at the root (the bridge's), ``/ground/diagnostics`` as relayed."""
 _FAULT_PERSISTS = fault("fault_persists")
 _LATCH_CHANGED = fault("latch_changed")
 STOP_REPEAT_S = 0.5
@@ -57,11 +56,9 @@ class ClearOutcome(str, enum.Enum):
     NOT_LATCHED = "not_latched"
     """Nothing held the rover; the controller said so (``cleared``)."""
     FAULT_PERSISTS = "fault_persists"
-    """A stopping fault's condition is still active: the latch holds, and this clear is
-    over (clear again once the condition is gone; docs/protocol.md, protocol v4)."""
+    """A stopping fault's condition is still active: the latch holds; clear again once it ends."""
     LATCH_CHANGED = "latch_changed"
-    """The latch gained a cause (a fault, a stop) after the bridge last reported it: the
-    latch holds; look at what holds it and clear again."""
+    """The latch gained a cause since the bridge last reported it: it holds; check, clear again."""
     NO_ANSWER = "no_answer"
     """Nothing came back in time (see :attr:`ClearReport.why`)."""
 
@@ -76,8 +73,7 @@ class ClearReport:
     after: RoverStatus | None
     why: str = ""
     armed: str = ""
-    """When a plan was waiting armed on board (after its guard's STOP) as the latch was
-    released: a sentence saying that it starts now (``""``: none was)."""
+    """A sentence saying that the plan waiting armed on board starts now (``""``: none was)."""
 
     @property
     def released(self) -> bool:

@@ -31,8 +31,7 @@ __all__ = [
 CONSOLE_ENV = "ROVER_STACK_CONSOLE"
 """The stack's console, ``http://HOST:PORT`` (``rover stack env`` exports it)."""
 TOKEN_ENV = "ROVER_CONSOLE_TOKEN"
-"""Its bearer token; without it, the commands take the token of the stack that serves
-the console from the stacks' registry (:func:`planner.stack.domains.console_token`)."""
+"""Its bearer token (default: the serving stack's, :func:`planner.stack.domains.console_token`)."""
 CONSOLE_HEADER = "X-Rover-Console"
 """The header (value ``1``) every request carries (:mod:`planner.stack.consoleaccess`)."""
 _SLACK_S = 2.0

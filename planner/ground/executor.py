@@ -64,21 +64,17 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 POSE_SOURCES = ("auto", "odom_ground", "odom")
-"""What drift control may compare: ``auto`` (POSE while fresh, else ``odom``), the
-ground-seeing POSE only, or encoders + IMU only."""
+"""What drift control compares: ``auto`` (POSE while fresh, else ``odom``), POSE, or ``odom``."""
 
 REPORTING_FAULTS = frozenset({fault("pose"), fault("imu")})
-"""Statuses of faults the controller only reports (it keeps driving): a lost sensor.
-They do not end a plan; drift control copes with the lost pose (fall-back or blind)."""
+"""Statuses of faults the controller only reports (a lost sensor): they do not end a plan."""
 
 ANCHOR_GAP_S = 0.05
 """``odom`` samples further than this from a POSE's time do not tie ``odom`` to the map."""
 
 SILENCE_CONFIRM_S = 0.1
-"""A silence of ``odom_ground`` seen in the stamps must still be there this much later
-(wall s) before drift control falls back: a ground station that fell behind reads its
-backlog in a burst, ``odom`` and ``odom_ground`` in whatever order its executor takes
-them, so the POSE that ends the silence may still wait behind an ``odom`` or two."""
+"""A silence of ``odom_ground`` must persist this long (wall s) before drift control falls back: a
+lagging ground station reads its backlog in a burst, ``odom`` and POSE in any order."""
 
 REST_SPEED_MPS = 0.01
 REST_YAW_RATE_RAD_S = 0.01
@@ -288,8 +284,7 @@ class PlanExecutor:
         self._cleared = threading.Event()
         self._stopped = threading.Event()
         self._pose_cond = threading.Condition(self._lock)
-        """Notified whenever a pose, an ``odom``, a step's end, ``stopped`` or ``cleared``
-        arrives: every wait of the executor waits on it, through the clock."""
+        """Notified on a pose, ``odom``, step end, ``stopped``, ``cleared``; every wait uses it."""
         self._reported_stamp = -math.inf
         self._monitor: DriftMonitor | None = None
         self._drift: DriftEvent | None = None

@@ -61,12 +61,10 @@ __all__ = ["EXECUTION_MODES", "OnboardExecutor", "UplinkOptions"]
 logger = logging.getLogger(__name__)
 
 EXECUTION_MODES = ("onboard", "step-by-step", "move-and-wait")
-"""How ``rover go`` and ``rover demo`` run an approved mission: on board (the default),
-the thesis's step-by-step executor, or the move-and-wait operator (the baseline)."""
+"""How ``rover go``/``demo`` run a mission: on board (default), step-by-step, or move-and-wait."""
 
 REST_WAIT_S = 6.0
-"""After a plan's end the rover reports its rest within 5 s (docs/onboard.md); the ground
-waits this much longer than the round trip for it."""
+"""How long beyond the round trip the ground waits for a plan's rest report, s (due within 5 s)."""
 
 
 @dataclass(frozen=True)
@@ -103,8 +101,7 @@ class OnboardExecutor(PlanExecutor):
         self._answer = threading.Condition()
         self._acks: dict[int, UplinkAck] = {}
         self._reports: dict[int, OnboardReport] = {}
-        """The answers and the latest report of the plan in hand only (:attr:`_current`):
-        one session runs many plans, and nothing of an old one is needed."""
+        """The answers and latest report of the plan in hand (:attr:`_current`) only."""
         self._current = 0
         self._boot = ""
         """The boot id of the rover's onboard program, from its latest report."""

@@ -18,8 +18,7 @@ from firmware_proto.model.pose import Point
 __all__ = ["REST_HOLD_S", "REST_MOVE_M", "Overshoot", "off_path_m", "overshoot"]
 
 REST_MOVE_M = 0.03
-"""At rest: no pose is further than this from the first (three sigmas of a POSE's 1 cm
-noise) ..."""
+"""At rest: no pose further than this from the first, m (three sigmas of POSE noise) ..."""
 REST_HOLD_S = 0.3
 """... over this long, s of mission time."""
 

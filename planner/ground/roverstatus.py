@@ -21,8 +21,7 @@ LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 STOPPING_FAULT_NAMES = frozenset(
     {"WATCHDOG", "STALL_LEFT", "STALL_RIGHT", "ENCODER", "DRIVER", "INTERNAL"}
 )
-"""The controller's fault conditions that stop the rover and hold its latch
-(docs/protocol.md, Latch and faults); IMU and POSE only report."""
+"""Controller faults that stop the rover and hold its latch (docs/protocol.md); IMU, POSE report."""
 
 _PARTS = {"rover_bridge: link": "link", "rover_bridge: controller": "controller"}
 _PARTS["rover_bridge: input"] = "input"

@@ -55,8 +55,7 @@ ENV_URL = "ROVER_GATE_URL"
 ENV_TOKEN = "ROVER_GATE_TOKEN"
 
 DEFAULT_TIMEOUT_S = 30.0
-"""Budget of one call: the slowest valid plan takes about 10 s to validate on a busy
-machine; 30 s leaves room for a few 503 rounds."""
+"""Budget of one call, s: the slowest valid plan's validation on a busy host, and 503 rounds."""
 DEFAULT_RETRIES = 3
 DEFAULT_BACKOFF_S = 0.1
 DEFAULT_MAX_BACKOFF_S = 2.0

@@ -17,8 +17,7 @@ from planner.view.cli_view import add_view_arguments
 __all__ = ["DEMO_RECORDING", "register"]
 
 DEMO_RECORDING = "demo.mcap"
-"""Where the demo records its mission unless told otherwise (when the ``record`` extra is
-installed: without it the demo says so and records nothing)."""
+"""Where the demo records its mission by default (with the ``record`` extra; else nowhere)."""
 
 
 def register(subparsers: Any) -> None:

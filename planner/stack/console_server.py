@@ -207,9 +207,8 @@ class ConsoleServer:
         self.console = console
         self.config = config or ConsoleConfig()
         self._acted_seen = 0
-        """The bridge's /diagnostics seen when a STOP or a clear was last answered: a
-        status asked after it waits for a newer one (1 Hz), so that ``rover status`` right
-        after ``rover stop`` shows the latch, not the state from before."""
+        """The bridge's /diagnostics seen when a STOP or clear was last answered: a later status
+        waits for a newer one, so that ``rover status`` after ``rover stop`` shows the latch."""
         self._echoes: dict[str, _Echo] = {}
         self._echo_lock = threading.Lock()
         self._closing = False

@@ -124,10 +124,8 @@ class DemoResult:
     recording: Path | None = None
     timing: LinkTiming | None = None
     physical: tuple[tuple[Overshoot, Overshoot], ...] = ()
-    """For each drift stop, how far and how long the rover went on after the drift
-    crossed the limit (as drift control measured it), and after it first strayed the
-    limit off the approved path, from its own stamped ``odom_ground``
-    (:mod:`planner.ground.overshoot`)."""
+    """Per drift stop, how far and long the rover went on past the limit, as drift control saw
+    it and from its own ``odom_ground`` off the approved path (:mod:`planner.ground.overshoot`)."""
 
 
 @dataclass(frozen=True)

@@ -51,8 +51,7 @@ DIR_ENV = "ROVER_STACK_DIR"
 RUNTIME_ENV = "XDG_RUNTIME_DIR"
 """The user's runtime directory (systemd makes it, 0700): the registry's home where set."""
 STACK_DOMAINS = range(101, 233)
-"""The domains ``rover stack up`` picks from, lowest free first (ROS 2 documents 0..232
-for Fast DDS on Linux)."""
+"""Domains ``rover stack up`` picks from, lowest free first (Fast DDS on Linux takes 0..232)."""
 TOKEN_KEY = "console_token"
 """The endpoints file's key of the stack's console token."""
 _PRIVATE = 0o700

@@ -41,8 +41,7 @@ _STOP_TIMEOUT_S = 10.0
 _STDERR_KEPT = 200
 """Lines of a part's stderr kept for its failure message."""
 NICE = 5
-"""Nice value of the gate and the link relay, which need not keep time: they yield the
-CPU to the emulator and the bridge."""
+"""Nice value of the gate and link relay, which need not keep time: emulator and bridge go first."""
 
 
 class ChildProcess:

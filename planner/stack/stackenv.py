@@ -50,9 +50,8 @@ RTT_ENV = "ROVER_LINK_RTT"
 SCALE_ENV = "ROVER_TIME_SCALE"
 """The stack's mission seconds per wall second; ``rover go --time-scale`` defaults to it."""
 TWIN_ENV = "ROVER_TWIN"
-"""The calibrated twin file the stack's gate plays plans on (``rover stack up --twin``);
-``rover go --rover`` defaults to it, so that the planner turns by the twin's turn
-efficiency."""
+"""The calibrated twin file the stack's gate plays plans on (``rover stack up --twin``); ``rover go
+--rover`` defaults to it, so that the planner turns by the twin's turn efficiency."""
 
 
 def add_domain_argument(p: argparse.ArgumentParser) -> None:

@@ -57,11 +57,9 @@ INBOX_LEN = 10_000
 TRAIL_LEN = 5000
 """Points of each pose's trail kept for a page that opens later (1 cm apart)."""
 PLANS_KEPT = 64
-"""Attempts kept for a page that opens later (the oldest are dropped first): with
-:data:`TRAIL_LEN` and :data:`PATH_STEP_M`, what bounds the state's size."""
+"""Attempts kept for a page that opens later, oldest out first: a bound of the state's size."""
 PATH_STEP_M = 0.01
-"""A plan's path as the page draws it: samples at least this far apart (and the last),
-so that a path's length in centimetres bounds its points, whatever the sample rate."""
+"""Least spacing of a plan's drawn path, m (and the last sample): its length bounds its points."""
 _ENDS_BADLY = ("fault:", "aborted:", "rejected:")
 
 

@@ -75,17 +75,14 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 ACTION_HEADER = "X-Rover-View"
-"""Header STOP and clear-STOP must carry (value ``1``): a form or a ``no-cors`` fetch of
-another origin cannot send it."""
+"""Header (value ``1``) STOP and clear-STOP must carry: no form or ``no-cors`` fetch can send it."""
 CLEAR_HEADER = ACTION_HEADER
 """The same header, under the name it had when only clear-STOP needed it."""
 LANE_PER_TURN = 4
-"""Requests other than STOP and clear-STOP started per turn of the event loop (the
-others wait their turn, costing nothing): what keeps each turn short, and STOP a few
-short turns from its answer, whatever the flood."""
+"""Requests other than STOP and clear-STOP started per event-loop turn (the rest wait): keeps each
+turn short and STOP a few short turns from its answer, whatever the flood."""
 STATE_MAX_AGE_S = 0.1
-"""``GET /state`` may answer a state this old (the ``tick`` period): under a flood the
-hub encodes it at most this often."""
+"""``GET /state`` may answer a state this old, s (the ``tick`` period): encoded at most so often."""
 RETRY_MS = 1000
 """The push channel's reconnect hint to a browser (``retry:``)."""
 STALLED_S = 2.0
@@ -100,8 +97,7 @@ PAGE_HEADERS: tuple[tuple[str, str], ...] = (
         "frame-ancestors 'none'",
     ),
 )
-"""The page's own policy: its inline script and style, connections to this server only,
-no frames around it."""
+"""The page's own policy: inline script and style, connections to this server only, no frames."""
 
 
 @dataclass(frozen=True)
@@ -238,8 +234,7 @@ class ViewServer:
         self.refused = 0
         """Push-channel browsers refused (nobody they outrank to evict)."""
         self.token = config.token if config.token is not None else secrets.token_urlsafe(18)
-        """The token the printed URL carries: the configured one, or one made for the
-        operator (then requests without it are served as anonymous)."""
+        """The printed URL's token: configured or new (then tokenless requests are anonymous)."""
         extra = list(config.allowed_hosts)
         if is_wildcard(config.host):
             extra.append(socket.gethostname())
