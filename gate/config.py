@@ -75,32 +75,28 @@ DEFAULT_QUEUE_DEPTH = 16
 DEFAULT_MAX_BODY_BYTES = 64 * 1024
 """A maximal Listing 1 plan is under 1 KiB; 64 KiB leaves room for any formatting."""
 DEFAULT_REQUEST_TIMEOUT_S = 60.0
-"""Longest wait for a worker's answer; the slowest valid plan takes about 10 s here."""
+"""Longest wait for a worker's answer, s (well beyond the slowest valid plan's validation)."""
 DEFAULT_DRAIN_TIMEOUT_S = 30.0
 """On shutdown, how long in-flight requests may take to finish."""
 
 DEFAULT_DT_S = 0.01
-"""The twin's fixed step for validation (``emulator.twin.GATE_DT_S``): long 12-step plans
-end within about 1 cm and 0.4 degree of the 1 ms reference, a tenth of the tolerances,
-at over 1000x real time (docs/gate.md has the measurements)."""
+"""The twin's fixed step for validation, s (``emulator.twin.GATE_DT_S``): plans end within a tenth
+of the tolerances of the 1 ms reference, far faster (docs/gate.md has the measurements)."""
 DEFAULT_SAMPLE_HZ = 10.0
 """Predicted trajectory rate: at top speed 3 cm and about 4 degrees between samples."""
 DEFAULT_SAFETY_MARGIN_M = 0.10
-"""Footprint inflation for collisions: covers the twin's prediction error with room to
-spare and keeps the thesis's 0.9 m passages (SCN-03) open to the 0.5 m wide rover."""
+"""Footprint inflation for collisions, m: covers the twin's error and keeps the 0.9 m passages
+(SCN-03) open to the 0.5 m wide rover."""
 DEFAULT_POSITION_TOLERANCE_M = 0.10
 """Largest accepted distance between the predicted final position and the goal."""
 DEFAULT_YAW_TOLERANCE_DEG = 3.0
 DEFAULT_SLIP_SIGMA = 0.1
-"""1-sigma of each side's friction factor (log-normal) in a verdict with uncertainty,
-unless the request or a calibrated twin says otherwise: one side gripping about 10 %
-more or less than the other, which turns a 5 m leg by a few degrees (docs/gate.md)."""
-"""Largest accepted final yaw error."""
+"""1-sigma of each side's log-normal friction factor in a verdict with uncertainty, unless the
+request or a calibrated twin says otherwise: a side grips about 10 % more or less (docs/gate.md)."""
+"""``DEFAULT_YAW_TOLERANCE_DEG``, above: the largest accepted final yaw error, deg."""
 MAX_TRAJECTORY_SAMPLES = 10_000
-"""Most fixed-rate samples in a verdict's predicted trajectory: a slower rate is used when
-the plan's longest possible playback at the requested one would give more, so that a
-response stays under about 1 MB whatever the plan (docs/gate.md, "The predicted
-trajectory"). A constant, not a setting: verdicts stay the same bytes everywhere."""
+"""Most samples in a verdict's trajectory, a constant so verdicts match everywhere: a slower rate
+keeps a response under about 1 MB when the requested one would give more (docs/gate.md)."""
 
 ENV_PREFIX = "ROVER_GATE_"
 

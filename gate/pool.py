@@ -57,9 +57,8 @@ _T = TypeVar("_T")
 WARM_UP_TIMEOUT_S = 60.0
 """Longest wait for every worker process to start and load the maps."""
 CANCEL_GRACE_S = 5.0
-"""How long an interrupted worker may take to stop its call before it is killed (and
-replaced). Playback returns to the interpreter every twin step (microseconds); only a
-call stuck in native code (or a worker starved of CPU for seconds) needs the kill."""
+"""How long an interrupted worker may take to stop its call before it is killed and replaced, s:
+playback yields every twin step, so only a call stuck in native code needs the kill."""
 INTERRUPT = signal.SIGUSR1
 """The signal that asks a worker to stop the call it runs."""
 
@@ -274,8 +273,7 @@ class _Call:
     started: bool = False
     """Its future was set running (it went to a worker, which may have died first)."""
     stopping: str = ""
-    """Why the pool asked its worker to stop it: ``"cancel"`` (for good) or ``"preempt"``
-    (to make room: back in line)."""
+    """Why the pool asked its worker to stop: ``"cancel"`` (for good), ``"preempt"`` (requeued)."""
 
 
 @dataclass(eq=False)

@@ -98,8 +98,7 @@ RETRY_AFTER_S = 1
 MAX_VIOLATIONS = 20
 """Violations of a refused plan worded at most (the wording stops there)."""
 MAX_VIOLATION_CHARS = 200
-"""Longest pointer or message of a violation in an answer (a message may quote the
-offending value)."""
+"""Longest pointer or message of a violation in an answer, chars (a message may quote the value)."""
 ERROR_ROOM_BYTES = 2048
 """An error answer is at most this much larger than the request's body."""
 
@@ -148,8 +147,7 @@ class GateServer:
         """What is admitted now (:mod:`gate.admission`)."""
         self._count_lock = threading.Lock()
         self.rejected: Counter[str] = Counter()
-        """Requests answered with an error, by error code (bad input is counted here
-        and logged; the connection layer logs what it refuses itself)."""
+        """Requests answered with an error, by code (the connection layer logs its own)."""
         self.cancelled = 0
         """Validations cancelled: past their deadline, or their client left."""
         self._started = time.monotonic()

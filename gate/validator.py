@@ -60,11 +60,9 @@ __all__ = ["GATE_SEED", "MAX_GOAL_ABS_M", "Job", "Validator", "gate_version", "l
 logger = logging.getLogger(__name__)
 
 MAX_GOAL_ABS_M = 1.0e6
-"""Largest goal coordinate accepted, m (1000 km: beyond any map; the schema allows any
-finite number, but the error arithmetic overflows near 1e308)."""
+"""Largest goal coordinate accepted, m: beyond any map (error arithmetic overflows near 1e308)."""
 GATE_SEED = 0
-"""A single playback has no randomness; its verdict records the seed as 0 (a verdict
-with uncertainty records the request's)."""
+"""Seed a plain verdict records (one playback has no randomness; uncertainty: the request's)."""
 
 _DIGITS = 6  # metres (1 um), degrees, seconds (1 us) in the verdict
 _UNIT_DIGITS = 3  # encoder travel, distance units
