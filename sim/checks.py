@@ -66,8 +66,7 @@ RULES = (
 """Every invariant by name (docs/sim.md)."""
 
 _FINAL = ("completed", "rejected:", "aborted:", "fault:no_ack", "lost:")
-"""Final statuses; ``lost:bridge_restart`` is the simulator's own, for the steps of a
-bridge that ended (nobody was left to say their fate)."""
+"""Final statuses; ``lost:bridge_restart`` is the simulator's, for steps of a bridge that ended."""
 
 
 class Judge(Protocol):
@@ -101,8 +100,7 @@ class Ledger:
     ended: dict[int, int] = field(default_factory=dict)
     """How the controller ended each seq (StepState)."""
     seq_of: dict[int, int] = field(default_factory=dict)
-    """MOTION seq of each step number, from the frames the host wrote (each bridge's
-    seqs apart: see :class:`sim.rig.Rig`)."""
+    """MOTION seq of each step number, from the frames the host wrote (see :class:`sim.rig.Rig`)."""
     host_seqs: set[int] = field(default_factory=set)
     """The MOTION seqs the bridge now running wrote."""
     motion_copies: int = 0
@@ -126,8 +124,7 @@ class Ledger:
     """Reboots that repeated the nonce and whose boot IDENT the host did not read: it may
     count them (a session lost on a serial link) or not."""
     id_collisions: int = 0
-    """Request ids of a bridge started again that met a bridge's before by chance (both
-    drawn at random)."""
+    """Request ids of a restarted bridge that met an earlier bridge's by chance (both random)."""
     _nonce: int | None = None
     _boot: int | None = None
     """The boot whose nonce the host knows, as the simulator counts boots."""

@@ -96,9 +96,8 @@ GUARD_BOUND_S = 0.5
 its latency (0.1 s each), the filter's and the guard's persistence, with room."""
 TRUTH_MARGIN_M = 0.05
 TRUTH_MARGIN_DEG = 3.0
-"""How far past (or short of) the limits the true drift must be before ``guard-bound``
-(or ``false-stop``) holds the guard to it: the estimate is a POSE of 1 cm noise and the
-filter, not the truth."""
+"""How far past (or short of) the limits the true drift must be, deg, for ``guard-bound`` (or
+``false-stop``) to hold: the guard sees a noisy, filtered POSE, not the truth."""
 POSE_GAP_HARMLESS_S = 1.0
 """A POSE silence this short never stops a plan: the rover drives less than the linear
 limit (0.25 m) in it at the plan's top speed (0.21 m/s), and the time bound is 2 s."""
@@ -109,8 +108,7 @@ UPLINK_AT_S = 0.5
 STOP_REPEAT_S = 0.5
 """The ground repeats STOP this often until it hears ``stopped``, s."""
 STOP_REACH_S = 1.0
-"""A STOP of the onboard program's lost on the way: another reaches the bridge within
-this, virtual s (its copies; ``stop-reached``)."""
+"""A lost STOP of the onboard program: another copy reaches the bridge within this, virtual s."""
 TOKEN = "sim-token"
 REFUSED_FOR_GOOD = frozenset(
     {
@@ -122,9 +120,8 @@ REFUSED_FOR_GOOD = frozenset(
         "start_mismatch",
     }
 )
-"""Refusals of a plan id for good (``refused-inert``, for the core that refused it); the
-others refuse one message (a tampered or malformed copy) or refuse for now
-(:data:`~firmware_proto.model.uplink.REFUSED_FOR_NOW`)."""
+"""Refusals of a plan id for good (``refused-inert``); the others refuse one tampered or malformed
+copy or refuse for now (:data:`~firmware_proto.model.uplink.REFUSED_FOR_NOW`)."""
 
 
 def _tagged(result: PlaybackResult) -> list[PredictedSample]:
@@ -479,8 +476,7 @@ class MissionRig(Rig):
         self._true_drift = (0.0, 0.0)
         self.worst_true = (0.0, 0.0)
         self.first_over: tuple[float, float, float] | None = None
-        """When the true drift first went past the limits, and where (the physical
-        figures start there)."""
+        """When and where the true drift first passed the limits (start of the physical figures)."""
         self._replayed = False
         self._clearing = False
         self.refusals: Counter[str] = Counter()
@@ -491,8 +487,7 @@ class MissionRig(Rig):
         self._hop_due: dict[str, float] = {}
         self._submitted: tuple[int, int] | None = None
         self.true_starts: dict[tuple[int, int], float] = {}
-        """When the controller took each step (the bridge's ``accepted``), by plan id
-        and index: the truth's alignment, whatever the onboard program makes of it."""
+        """When the controller took each step (``accepted``), by (plan, index): true alignment."""
         self.bridge_stops: list[float] = []
         """When a STOP reached the bridge (the onboard program's or the ground's)."""
 

@@ -82,14 +82,12 @@ __all__ = ["RECOVERY_S", "Rig", "ScenarioOutcome", "run_scenario"]
 logger = logging.getLogger(__name__)
 
 RECOVERY_S = 8.0
-"""After the last fault ends, a new step must complete within this, virtual s: the
-longest reconnect backoff (2 s), a link loss noticed (0.35 s), a handshake, a clear and
-a short step, with room to spare."""
+"""After the last fault ends, a new step must complete within this, virtual s: the longest
+reconnect backoff (2 s), loss detection, a handshake, a clear and a short step, with room."""
 STEP_OVERHEAD_S = 0.1
-"""Added to each step's nominal duration in the recovery bound: its start and end ticks,
-its STATUS and the next MOTION's round trip, s."""
+"""Added to each step's nominal duration in the recovery bound, s: its ticks, STATUS, round trip."""
 RECOVERY_START_S = 0.15
-"""The operator starts recovering this long after the last fault ended (a latch the
+"""The operator starts recovering this long after the last fault ended, s (a latch the
 watchdog alone holds is the host's to clear first)."""
 POLL_S = 0.05
 """How often the operator looks at the link while recovering, s."""
@@ -214,8 +212,7 @@ class Rig:
         self._units_per_m = float(self.rover.drive.distance_units_per_m)
         self._travel_ref = self.ctl.encoders.travel()
         self.true_path_m = 0.0
-        """The mean of both sides' encoder travel, in absolute value, summed tick by tick
-        over every boot, m: what odometry may have seen at most."""
+        """Both sides' mean absolute encoder travel over ticks and boots, m: odometry's bound."""
         # -- the medium
         medium = scenario.medium
         self.to_ctl = Pipe(
@@ -228,8 +225,7 @@ class Rig:
         )
         # -- the host
         self._ids = random.Random(scenario.seed * 1_000_003 + 40)
-        """Draws each bridge's first request id, as ControllerLink does (a generator of
-        its own: every other draw plays as before)."""
+        """Draws each bridge's first request id, as ControllerLink does (other draws unchanged)."""
         self._epoch = 0
         """The bridge process now running: 0, then one more at every restart."""
         self._epoch_starts: list[float] = []
@@ -251,8 +247,7 @@ class Rig:
         self.core = self._new_core()
         self._device_present = True
         self._writer_stalled = False
-        """The host's writer is held (a write stuck in the OS): ordinary frames wait, STOP
-        still goes (its own write path)."""
+        """The host's writer is held (a write stuck in the OS): frames wait, STOP still goes."""
         self._clear_copies: dict[int, float] = {}
         """When the last copy of each CLEAR_STOP id went on the wire."""
         self._stop_waits: int | None = None
@@ -277,11 +272,9 @@ class Rig:
         self._host_at = math.inf
         self.odometry = OdometryEstimator(self.rover)
         self.status_listeners: list[Callable[[StatusEvent], None]] = []
-        """Called with every status the host core says, as the bridge node publishes it
-        on ``/command_status`` (the onboard mission, :mod:`sim.mission`, listens)."""
+        """Called with each status the host core says, as on ``/command_status``."""
         self.sample_listeners: list[Callable[[Message], None]] = []
-        """Called with every sensor sample the host core forwards, after odometry took
-        it (the onboard mission's estimate)."""
+        """Called with every sensor sample the host core forwards, after odometry took it."""
         self._odom_prev: tuple[float, float, float] | None = None
         """(x, y, true path at the sample's making) of the last ENCODERS applied."""
         # -- the operator
@@ -300,8 +293,7 @@ class Rig:
         self._gen_cause: dict[int, str] = {}
         """What raised each generation: ``stop``, ``watchdog`` or ``fault``."""
         self._latch_base = 0
-        """The generation when the latch was last empty (released, or a reboot): the
-        latch holds only the causes of the generations after it."""
+        """Generation when the latch was last empty (released, rebooted): it holds later causes."""
         self._heard_gen = 0
         """The newest generation a frame that reached the host named."""
         # The steps queued before the probe run first: their nominal time counts too.

@@ -197,9 +197,8 @@ class Scenario:
 
 
 DEFAULT_TICK_S = 0.01
-"""The controller's control period in the simulator, s: coarser than the firmware's 1 ms
-(the braking ramp, the watchdog and stall timeouts, the telemetry rates are all whole
-ticks of it), so that an hour of a rover costs seconds (docs/sim.md, Fidelity)."""
+"""The controller's control period in the simulator, s: coarser than the firmware's 1 ms so that an
+hour of rover costs seconds; timeouts and rates are whole ticks (docs/sim.md, Fidelity)."""
 
 
 def _duration(rng: random.Random) -> float:

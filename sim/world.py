@@ -60,8 +60,7 @@ CONTROLLERS = ("python", "c")
 _buses = itertools.count()
 
 TELEMETRY_SETTLE_S = 0.5
-"""After the handshake and a round trip, this much more virtual time passes before a
-world is ready: the ground has heard the rover's POSE by then."""
+"""Virtual s after the handshake and a round trip before a world is ready (POSE heard)."""
 
 
 @dataclass(frozen=True)
