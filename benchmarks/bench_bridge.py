@@ -93,8 +93,7 @@ class Statuses:
 
 
 SETTLED = ("accepted", "rejected", "aborted", "fault")
-"""The first answer to a step: accepted, or why not (a lost link answers ``aborted`` and
-``fault``)."""
+"""The first answer to a step: accepted, or why not (a lost link answers ``aborted``, ``fault``)."""
 
 SESSION_TIMEOUT_S = 30.0
 """How long the bench waits for the link's (new) session, s."""
