@@ -29,7 +29,7 @@ __all__ = ["FLAP_LOSSES", "GARBAGE_SHARE", "SILENT_AFTER_S", "LinkNarrator"]
 SILENT_AFTER_S = 3.0
 """An open device with no frame from a controller for this long is 'not answering', s."""
 FLAP_LOSSES = 3
-"""Heartbeat losses, frames still arriving, within :data:`FLAP_WINDOW_S` that suspect slowness."""
+"""Heartbeat losses (frames still arriving) in :data:`FLAP_WINDOW_S` that suspect a slow link."""
 FLAP_WINDOW_S = 10.0
 GARBAGE_SHARE = 0.25
 """Least share of receive errors (CRC, resyncs) among frames and errors over the counted losses

@@ -316,9 +316,8 @@ class RosPort:
         self._on_set: OnSet | None = None
         self._param_lock = threading.Lock()
         self._taps: tuple[Tap, ...] = ()
-        #: What the port's waits go through; a backend that runs in lockstep with a
-        #: virtual clock sets it before :meth:`_start` (then no lane has a thread: the
-        #: backend delivers on the clock's ticks).
+        #: What the port's waits go through; a lockstep backend sets a virtual clock before
+        #: :meth:`_start` (then no lane has a thread: it delivers on the clock's ticks).
         self.clock: Clock = WALL
 
     # -- public API -------------------------------------------------------------------
