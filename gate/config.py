@@ -90,10 +90,10 @@ DEFAULT_SAFETY_MARGIN_M = 0.10
 DEFAULT_POSITION_TOLERANCE_M = 0.10
 """Largest accepted distance between the predicted final position and the goal."""
 DEFAULT_YAW_TOLERANCE_DEG = 3.0
+"""Largest accepted final yaw error, deg."""
 DEFAULT_SLIP_SIGMA = 0.1
 """1-sigma of each side's log-normal friction factor in a verdict with uncertainty, unless the
 request or a calibrated twin says otherwise: a side grips about 10 % more or less (docs/gate.md)."""
-"""``DEFAULT_YAW_TOLERANCE_DEG``, above: the largest accepted final yaw error, deg."""
 MAX_TRAJECTORY_SAMPLES = 10_000
 """Most samples in a verdict's trajectory, a constant so verdicts match everywhere: a slower rate
 keeps a response under about 1 MB when the requested one would give more (docs/gate.md)."""
