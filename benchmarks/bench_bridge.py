@@ -1,6 +1,10 @@
 """STOP latency through the bridge, beside the pty round trip; sustained steps/s.
 
-Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick] [--ros2]``
+Run: ``.venv/bin/python -m benchmarks.bench_bridge [--trials N] [--quick]``; the ROS 2
+case in the tests' private loopback network namespace::
+
+    unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
+        exec .venv/bin/python -m benchmarks.bench_bridge --ros2'
 
 The emulator serves the controller on a real pty in real time, in a process of its own
 as ``rover emulate`` does (in one process it would share the interpreter lock with the
@@ -16,20 +20,14 @@ which every process shares:
 The request is an API call (``ControllerLink.emergency_stop``) or a ROS message on
 ``emergency_stop`` from another node: on the in-process port, or over real ROS 2 from
 another process's plain rclpy node (``--ros2``: the bridge node on ``rclpy-process``
-and on ``rclpy``; it needs the private loopback network namespace of the tests). Idle
-means one long step running; load means the motion queue full and telemetry at 100 Hz.
+and on ``rclpy``). Idle means one long step running; load means the motion queue full
+and telemetry at 100 Hz.
 The pty round trip (15 bytes there and back through pyserial), measured in the same run,
 is the floor for (b). The thesis reports 8.4 +/- 1.2 ms; the target is p99 < 1 ms.
 
-A trial whose step is refused or whose link is lost before its STOP is measured is
-counted as lost, not measured: the bench waits for the link's new session, clears any
-latch left behind and goes on. Lost trials and the link's own counts are printed under
-the table.
-
-Run the ROS 2 case inside the namespace::
-
-    unshare -n -- bash -c 'ip link set lo up && ip link set lo multicast on &&
-        exec .venv/bin/python -m benchmarks.bench_bridge --ros2'
+A trial whose step is refused or whose link is lost before its STOP is measured counts
+as lost: the bench waits for the new session, clears any latch left and goes on (lost
+trials and the link's counts are printed under the table).
 """
 
 from __future__ import annotations

@@ -93,8 +93,7 @@ def _end_with_parent() -> None:
 
 
 class _Stack:
-    """``rover stack up --speed 4`` until closed; ``rover stack env``'s export line as an
-    environment."""
+    """``rover stack up --speed 4`` until closed; ``rover stack env``'s exports as environ."""
 
     def __init__(self, directory: Path) -> None:
         # Claim the ROS domain where the caller's stacks do: never shared with another.

@@ -69,8 +69,7 @@ def best(fn: Callable[[], float], repeat: int) -> float:
 
 
 def square_plan(rover: RoverDescription) -> list[tuple[int, int, int]]:
-    """12 steps: four sides of 2 x 1.25 m (10 m of driving), each followed by a 90 degree
-    LEFT turn."""
+    """12 steps: four sides of 2 x 1.25 m (10 m of driving), each then a 90 degree LEFT turn."""
     quarter = turn_units_for_yaw(rover, math.pi / 2)
     side: list[tuple[int, int, int]] = [
         (Command.FWD, 60, 28750),

@@ -107,8 +107,7 @@ class Served:
 
 @contextmanager
 def server_process(argv: list[str], env: dict[str, str]) -> Iterator[Served]:
-    """Start a server that prints ``GATE http://host:port`` when it listens; stop it
-    (SIGTERM) on exit."""
+    """Start a server that prints ``GATE http://host:port`` once listening; SIGTERM on exit."""
     proc = subprocess.Popen(
         argv,
         stdout=subprocess.PIPE,

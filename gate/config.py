@@ -322,10 +322,8 @@ def load_config(
     """Build the configuration: arguments, then environment, then file, then defaults.
 
     Args:
-        args: values from the command line; ``None`` values count as not given. Keys
-            are those of :data:`KEYS`.
-        environ: the environment (default ``os.environ``); ``ROVER_GATE_<KEY>`` in upper
-            case, and ``ROVER_GATE_CONFIG`` for the file.
+        args: command-line values by :data:`KEYS`; ``None`` counts as not given.
+        environ: default ``os.environ`` (names: the module docstring).
         config_path: a TOML file with a ``[gate]`` table; beats ``ROVER_GATE_CONFIG``.
 
     Raises:

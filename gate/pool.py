@@ -1,9 +1,7 @@
 """Worker pools that run validations off the HTTP threads.
 
-:class:`WorkerPool` does the shared work (refusing jobs after close, logging) in
-:meth:`~WorkerPool.submit` and calls one hook, :meth:`~WorkerPool._submit`, that each
-implementation fills; :meth:`~WorkerPool._close` releases its resources. A job is a
-:class:`gate.validator.Job`; its result is the verdict's JSON bytes.
+A job is a :class:`gate.validator.Job`; its result is the verdict's JSON bytes. The
+pools, on the base :class:`WorkerPool`:
 
 - :class:`ProcessWorkerPool` (default): one ``spawn``-ed process per worker (never
   ``fork`` from a threaded server), each with its own validator; playback is CPU-bound

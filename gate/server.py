@@ -106,17 +106,12 @@ _Reply = tuple[int, bytes, dict[str, str]]
 
 
 class GateServer:
-    """The simulation gate's HTTP server. See the module docstring.
-
-    Use as a context manager, or call :meth:`start` and :meth:`close`::
-
-        with GateServer(GateConfig(port=0)) as gate:
-            print(gate.url)
+    """The simulation gate's HTTP server (see the module docstring); a context manager,
+    or call :meth:`start` and :meth:`close`.
 
     Args:
-        config: the settings.
-        validator: the validator (default: loaded from ``config``).
-        pool: the worker pool (default: made from ``config``); the server closes it.
+        validator: default: loaded from ``config``.
+        pool: default: made from ``config``; the server closes it.
     """
 
     def __init__(

@@ -25,16 +25,10 @@ __all__ = ["tag_samples"]
 def tag_samples(
     result: PlaybackResult, pose: Callable[[Pose2D], Pose], seconds: Callable[[float], float]
 ) -> list[TrajectorySample]:
-    """Trajectory samples of ``result`` tagged with their step (see the module doc).
-
-    Args:
-        result: the playback.
-        pose: converts the twin's pose to the verdict's (units, rounding).
-        seconds: rounds a time for the verdict.
-
-    With no step played (the start pose already collides), the one sample at time 0
-    belongs to step 0.
-    """
+    """Trajectory samples of the playback ``result`` tagged with their step (see the
+    module docstring); ``pose`` converts the twin's pose to the verdict's (units,
+    rounding), ``seconds`` rounds a time for the verdict. With no step played (the start
+    pose already collides), the one sample at time 0 belongs to step 0."""
 
     def sample(t_s: float, step: int, step_t_s: float, p: Pose2D) -> TrajectorySample:
         return TrajectorySample(seconds(t_s), step, seconds(step_t_s), pose(p))

@@ -131,8 +131,6 @@ class Validator:
         spread_map: str | None = None,
     ) -> None:
         """Args:
-        rover: the rover description.
-        maps: maps by name.
         settings: playback defaults (``dt_s`` is used for every plan).
         default_map: name of the map used when a request names none.
         spread: where the twins of a verdict with uncertainty are drawn from: a

@@ -181,8 +181,7 @@ def _world_names() -> list[str]:
 
 
 def _setting(text: str) -> tuple[str, Any]:
-    """``NAME=VALUE`` of ``--executor``: the value as Python reads it (a number, a
-    boolean), else the text."""
+    """``NAME=VALUE`` of ``--executor``: the value as a Python literal, else the text."""
     import ast
 
     name, _, value = text.partition("=")

@@ -74,8 +74,7 @@ class SampleLeak:
         """Samples this adds (none while the controller sends its own)."""
 
     def after_tick(self, out: list[Message]) -> None:
-        """Add an ENCODERS to one tick's output when none is in it, no session is open
-        and one is due."""
+        """Add an ENCODERS to a tick's output lacking one: no session open and one due."""
         c = self.controller
         now = c.twin.time_s
         if c.handshake_ok or now + 1e-9 < self._next_s:

@@ -75,8 +75,7 @@ class _AutoClearSurvives(LinkCore):
 
 
 class _RefusedClearRetried(LinkCore):
-    """Protocol v3's rule: an operator's clear answered FAULT_PERSISTS is kept, and a new
-    request goes out once a HEARTBEAT shows no stopping condition (issue #40, hole 2)."""
+    """``refused-clear-retried`` (:data:`MUTANTS`): protocol v3's rule."""
 
     _retry = False
 
@@ -102,8 +101,7 @@ class _RefusedClearRetried(LinkCore):
 
 
 class _ClearDropsStop(LinkCore):
-    """Protocol v3's host: a clear asked for before the STOP_ACK forgot the STOP, so
-    ``stopped`` was never said (issue #40, hole 3)."""
+    """``clear-drops-stop`` (:data:`MUTANTS`): protocol v3's host."""
 
     def clear_stop(self, now: float) -> int:
         clear_id = super().clear_stop(now)
@@ -117,8 +115,7 @@ class _ClearDropsStop(LinkCore):
 
 
 class _StepRefusedDuringClear(LinkCore):
-    """Protocol v3's host: a step submitted while the operator's clear is out is refused
-    ``stop_latched`` (issue #40, hole 4)."""
+    """``step-refused-during-clear`` (:data:`MUTANTS`): protocol v3's host."""
 
     def _refusal(self) -> str | None:
         if self._operator_clear_out() and self.stop_latched:
@@ -127,9 +124,7 @@ class _StepRefusedDuringClear(LinkCore):
 
 
 class _ClearCopiesQueue(LinkCore):
-    """Protocol v3's host: a CLEAR_STOP copy is queued every repeat interval whether the
-    last one was written or not, so a stalled writer puts them back to back on the wire
-    (issue #40, hole 7)."""
+    """``clear-copies-queue`` (:data:`MUTANTS`): protocol v3's host."""
 
     def tick(self, now: float) -> None:
         clear = self._pending_clear
@@ -139,11 +134,9 @@ class _ClearCopiesQueue(LinkCore):
 
 
 class DecoderTotalReader(LinkCore):
-    """Protocol v3's bridge: each frame's lost-frame count was the decoder's total as the
-    frame was handed on, which already holds the gaps of every frame read with it; when
-    the old boot's IDENT and the new boot's arrive in one read, the reboot's gap is taken
-    for lost frames (issue #40, hole 6). The rig sets :attr:`decoder_lost` to read its
-    decoder's total, as the old driver read its transport's."""
+    """``lost-from-read-total`` (:data:`MUTANTS`): protocol v3's bridge. The rig sets
+    :attr:`decoder_lost` to read its decoder's total, as the old driver read its
+    transport's."""
 
     decoder_lost: Callable[[], int] | None = None
 
@@ -155,19 +148,14 @@ class DecoderTotalReader(LinkCore):
 
 
 class _BlindClearTakesFault(LinkCore):
-    """An operator's clear asked for before the host knew any latch generation names the
-    first it learns, also one a stopping fault reported after the clear was asked for
-    raised."""
+    """``blind-clear-takes-fault`` (:data:`MUTANTS`)."""
 
     def _stopping_cause_reported(self) -> None:
         return
 
 
 class _NonceFromIdentOnly(LinkCore):
-    """Protocol v3's bridge: the first boot nonce was learned from an IDENT only; a
-    bridge that read only HEARTBEATs of the old boot took the new boot's IDENT for the
-    first boot it knew, and counted neither the reboot nor its frame counter's restart
-    as such."""
+    """``nonce-from-ident-only`` (:data:`MUTANTS`): protocol v3's bridge."""
 
     def _on_heartbeat(self, hb: Heartbeat, t: float, *, serial: bool = False) -> None:
         unknown = self._boot_nonce is None
@@ -177,19 +165,14 @@ class _NonceFromIdentOnly(LinkCore):
 
 
 class _BootIdentIgnored(LinkCore):
-    """Protocol v4's first bridge: a reboot is told by its boot nonce only; a boot IDENT
-    or a lost session that repeats the nonce of the boot before (a controller that
-    breaks the nonce rule) passes for an answer or a session ended, and /odom takes the
-    restarted counts for motion (issue #40, hole 5)."""
+    """``boot-ident-ignored`` (:data:`MUTANTS`): protocol v4's first bridge."""
 
     def _check_reboot(self, nonce: int, now: float, *, sign: str = "") -> bool:
         return super()._check_reboot(nonce, now)
 
 
 class _RequestIdsFromOne(LinkCore):
-    """Protocol v3's bridge: request ids from 1 at every start, so a bridge started again
-    repeats the requests of the one before on the same controller boot (issue #40, hole
-    8)."""
+    """``request-ids-from-one`` (:data:`MUTANTS`): protocol v3's bridge."""
 
     def __init__(self, config: LinkConfig, **options: int) -> None:
         options["first_request_id"] = 1

@@ -631,8 +631,7 @@ class MissionRig(Rig):
         self._host_after()
 
     def _stop_due(self, lost_s: float) -> None:
-        """A STOP of the onboard program's was lost at ``lost_s``: one must have reached
-        the bridge since."""
+        """An onboard STOP was lost at ``lost_s``: one must have reached the bridge since."""
         if self.bridge_stops and self.bridge_stops[-1] >= lost_s:
             return
         self.violate(

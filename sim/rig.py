@@ -165,8 +165,7 @@ class Rig:
         self, scenario: Scenario, rover: RoverDescription | None = None, *, trace: bool = False
     ) -> None:
         """Args:
-        scenario: what to play.
-        rover: the rover description (default: the packaged one).
+        rover: default: the packaged description.
         trace: keep every event in words (:attr:`ScenarioOutcome.trace`).
 
         Raises:

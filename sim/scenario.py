@@ -1,5 +1,4 @@
-"""A scenario of the wire simulator: everything that will happen to the link, drawn from
-one seed.
+"""A wire simulator scenario: everything that will happen to the link, drawn from one seed.
 
 :func:`make_scenario` turns a seed into a :class:`Scenario`: the faults (when each
 starts, how long it lasts, how strong it is) and what the operator does (steps, STOP,

@@ -2,19 +2,13 @@
 "Whole missions in virtual time").
 
 The parts are the product's own, each given one
-:class:`~firmware_proto.linkio.clock.LockstepClock` instead of the wall clock, and so
-none of them starts a thread: the controller (:class:`~emulator.controller.ControllerModel`
-or :class:`~emulator.firmware.FirmwareController` over a :class:`~emulator.twin.Twin` of
-the map, served by a :class:`~emulator.lockstep.LockstepController`); the medium (an
-in-memory serial line or a python-can ``virtual`` bus); the bridge
-(:class:`~bridge.ros.node.BridgeNode` and its
-:class:`~bridge.link.controllerlink.ControllerLink`); four
-:class:`~bridge.ros.rosport.inprocess.InProcessPort` nodes on a bus of their own; the
-link (:class:`~planner.ground.relay.LinkRelay`); the ground
-(:class:`~planner.ground.executor.PlanExecutor`, and a
-:class:`~planner.ground.mission.MissionRunner` with the gate). The gate is a real HTTP
-server (:class:`~gate.server.GateServer`, one worker thread) on 127.0.0.1: a validation
-takes no virtual time, as nothing on the clock runs while the executor waits for it.
+:class:`~firmware_proto.linkio.clock.LockstepClock` instead of the wall clock, so none
+of them starts a thread: the controller model or C core over a twin of the map (served
+by :class:`~emulator.lockstep.LockstepController`), an in-memory serial line or a
+python-can ``virtual`` bus, the bridge node and its link, four in-process ROS port nodes
+on a bus of their own, the link relay, the ground's executor and mission runner. The
+gate is a real HTTP server (one worker thread) on 127.0.0.1: a validation takes no
+virtual time, as nothing on the clock runs while the executor waits for it.
 
 One thread runs everything: the caller's. A wait of the executor advances the clock tick
 by tick, and each tick runs, in this fixed order, the controller, the bridge's link, the
@@ -190,8 +184,7 @@ class World:
     """
 
     def __init__(self, config: WorldConfig | None = None) -> None:
-        """Build every part and connect the bridge to the controller (its handshake runs
-        in virtual time).
+        """Build every part and connect the bridge to the controller in virtual time.
 
         Raises:
             ValueError: a bad configuration.
@@ -287,8 +280,7 @@ class World:
 
     # -- running -------------------------------------------------------------------------
     def run_until(self, ready: Any, timeout_s: float) -> bool:
-        """Advance the clock until ``ready()`` or ``timeout_s`` virtual seconds passed;
-        whether it became true."""
+        """Advance the clock until ``ready()`` or ``timeout_s`` virtual s; whether it came true."""
         deadline = self.clock.ticks + round(timeout_s / self.clock.dt_s)
         while not ready():
             if self.clock.ticks >= deadline:
