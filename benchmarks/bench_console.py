@@ -16,16 +16,14 @@ so that each STOP finds the rover released. The limit: 1 s p99.
 ``--quick`` (the smoke test) runs 2 of each through the console only, idle.
 
 **A STOP beside pending clear-STOPs** (B1: clear-STOPs waiting on a silent controller
-must not hold up a STOP). A silent controller cannot be had from the stack (its emulator
-answers every clear at once), so this part runs the stack's own
-:class:`~planner.stack.console_server.ConsoleServer` and
-:class:`~planner.ground.console.RoverConsole` on the ``inprocess`` ROS port, with the
-rover's side of the bus answering each STOP with ``stopped`` (as the bridge does once
-its controller acknowledged it) and never a clear. Timed from the request's start: the
-STOP published on the rover's side and the answer (``stopped``), with no clear pending
-and right after 4 clear-STOPs (one admitted and waiting, three refused, 409). The peer:
-``rover stop --ros --namespace /`` against the stack, from the same run; the limit 1 s.
-``--pending-runs`` sets how many (0: not run).
+must not hold up a STOP). The stack's emulator answers every clear at once, so this part
+runs the stack's own :class:`~planner.stack.console_server.ConsoleServer` and
+:class:`~planner.ground.console.RoverConsole` on the ``inprocess`` ROS port against a
+:class:`_SilentController`. Timed from the request's start: the STOP published on the
+rover's side and the answer (``stopped``), with no clear pending and right after 4
+clear-STOPs (one admitted and waiting, three refused, 409). The peer: ``rover stop --ros
+--namespace /`` against the stack, from the same run; the limit 1 s. ``--pending-runs``
+sets how many (0: not run).
 """
 
 from __future__ import annotations

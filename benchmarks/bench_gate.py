@@ -613,9 +613,7 @@ def tree_cpu_s(pid: int) -> float:
 def bench_pools(
     rover: RoverDescription, seconds: float, before: str | None, rounds: int = 3
 ) -> None:
-    """Table 5. The 12-step plan from 1 and 4 clients, worker processes against threads
-    (and ``--before``'s), with the CPU the gate and its workers used per wall second.
-    Interleaved as table 4."""
+    """Table 5 (module docstring), interleaved as table 4."""
     payload = json.dumps(as_plan_json(square_plan(rover), (1.0, 4.0, 0.0))).encode()
     query = "?map=scn01"
     cases: list[tuple[str, Callable[[], AbstractContextManager[Served]]]] = []
@@ -680,10 +678,7 @@ def _nothing() -> None:
 
 
 def bench_handoff(rover: RoverDescription, calls: int) -> None:
-    """Table 6. One call's round trip from an event loop through the gate's pool
-    (:class:`gate.pool.ProcessWorkerPool`) and through ``concurrent.futures``'
-    ``ProcessPoolExecutor`` (spawn, an initializer), 1 and 4 calls at a time; and what
-    stopping a running call costs through the gate's pool (the executor cannot)."""
+    """Table 6 (module docstring)."""
     import asyncio
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor

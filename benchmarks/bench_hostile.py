@@ -1,8 +1,8 @@
 """Hostile clients against the live view and the gate, timed.
 
 Each table sets a figure beside load against the same figure unloaded, measured in the
-same run on the same machine; ``--before DIR`` adds the rows of another tree (``git
-archive <commit> | tar -x -C DIR``), its servers started with ``PYTHONPATH=DIR``.
+same run on the same machine; ``--before DIR`` adds to tables 1 and 3 the rows of
+another tree (``git archive <commit> | tar -x -C DIR``), served with ``PYTHONPATH=DIR``.
 
 1. **The view's STOP beside a flood of ``GET /state``** (``--view``): a view server
    whose hub holds full trails (5,000 points each) and is fed odometry at 50 Hz; a
@@ -25,8 +25,6 @@ Run::
 
     .venv/bin/python -m benchmarks.bench_hostile --view --gate
     .venv/bin/python -m benchmarks.bench_hostile --view --gate --before /tmp/tree-main --busy 4
-
-(``--before`` adds rows of the other tree to tables 1 and 3 only.)
 """
 
 from __future__ import annotations

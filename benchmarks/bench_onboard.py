@@ -1,16 +1,14 @@
 """Plans run on board beside the step-by-step executor and move-and-wait, in virtual time.
 
-All three in the wire simulator, in one run, side by side (docs/performance.md).
-
 Run: ``.venv/bin/python -m benchmarks.bench_onboard [--trials N] [--goals N]``.
 
-Every mission runs the bridge's ``LinkCore``, the Python controller model over its twin
-and a serial line, a 3 s round trip with jitter and loss on every message
-(``sim/mission.py``); only the ground differs: the plan uplinked once and run by the
-rover's sequencer and guard (``bridge/onboard``), the step-by-step executor, or
-move-and-wait (``benchmarks/onboard_sim.py``). Plans: the planner's routes on the lab
-map and scn01-03, predicted on the twin as the gate plays them, each leg on an open
-plane.
+All three in one run on the wire simulator's mission rig (``sim/mission.py``: the
+bridge's ``LinkCore``, the Python controller model over its twin and a serial line, a 3 s
+round trip with jitter and loss on every message); only the ground differs: the plan
+uplinked once to the rover's sequencer and guard (``bridge/onboard``), the step-by-step
+executor, or move-and-wait (``benchmarks/onboard_sim.py``). Plans: the planner's routes
+on the lab map and scn01-03, predicted as the gate plays them, each leg on an open plane
+(docs/performance.md).
 
 1. **Overshoot** (slip on the left side, traction 3 %, from 30 % into the first drive of
    at least 0.5 m), from the rover's stamped ``odom_ground``: distance and time from

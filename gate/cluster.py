@@ -46,11 +46,8 @@ _ONE_THREAD = ("--nthreads", "1", "--no-nanny", "--memory-limit", "0")
 
 
 class ClusterEngine:
-    """A client of one Dask scheduler; :meth:`close` is idempotent.
-
-    Args:
-        address: the scheduler's address, ``tcp://host:port``.
-        timeout_s: how long to wait for it.
+    """A client of the Dask scheduler at ``address`` (``tcp://host:port``), waited for up
+    to ``timeout_s``; :meth:`close` is idempotent.
 
     Raises:
         GateConfigError: ``distributed`` is not installed, or the scheduler does not answer.

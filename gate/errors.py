@@ -4,10 +4,8 @@ Everything this package raises on purpose derives from :class:`GateError`::
 
     GateError
      +-- CallCancelledError     a worker pool's call was stopped before its end
-     +-- GateConfigError        a setting out of range or refused by the bind policy;
-     |                          also ValueError
-     +-- OptionError            a query parameter unknown, repeated or out of range
-     |                          (``parameter``); also ValueError
+     +-- GateConfigError        a setting out of range or refused by the bind policy (ValueError)
+     +-- OptionError            a query parameter unknown, repeated or out of range (ValueError)
      +-- HttpError              cannot be served: ``status``, ``code``, ``headers``;
           |                     also :class:`firmware_proto.http.errors.StatusError`
           +-- BadRequestError        400: not JSON, bad option, malformed framing
@@ -208,11 +206,8 @@ class UnsupportedMediaError(HttpError):
 
 class TooManyRequestsError(HttpError):
     """429: this client already holds its share of the gate (validations or their
-    estimated work); others' requests are served meanwhile.
-
-    Attributes:
-        retry_after_s: whole seconds the client should wait before retrying.
-    """
+    estimated work); others' requests are served meanwhile. The client may retry after
+    ``retry_after_s`` whole seconds."""
 
     status = 429
     default_code = "too_many_requests"
@@ -223,11 +218,8 @@ class TooManyRequestsError(HttpError):
 
 
 class OverloadedError(HttpError):
-    """503: no capacity now (all workers and queue slots busy) or shutting down.
-
-    Attributes:
-        retry_after_s: whole seconds the client should wait before retrying.
-    """
+    """503: no capacity now (all workers and queue slots busy) or shutting down; the
+    client may retry after ``retry_after_s`` whole seconds."""
 
     status = 503
     default_code = "overloaded"

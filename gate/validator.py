@@ -107,10 +107,8 @@ def load_maps(default_map: str) -> tuple[dict[str, WorldMap], str]:
 
 @dataclass(frozen=True)
 class Job:
-    """One validation, ready to play: a schema-valid plan and concrete options.
-
-    Picklable, so that it can cross into a worker process.
-    """
+    """One validation, ready to play: a schema-valid plan and concrete options; picklable
+    (it crosses into worker processes)."""
 
     plan: Plan
     options: ResolvedOptions

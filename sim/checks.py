@@ -7,10 +7,9 @@ docs/sim.md, "Invariants", states each rule in full. Checked as they happen (by
 - ``fate``: every step the host took ends exactly once, with one final status,
   ``accepted`` at most once before it and nothing after it;
 - ``truthful``: a step the host reports ``completed`` was completed by the controller;
-- ``stop-zeroes``: a STOP that reaches the controller has its wheel targets at zero when
-  it has been handled (the same tick);
-- ``auto-clear``: an automatic CLEAR_STOP never releases a latch that holds anything but
-  the watchdog (docs/protocol.md, "Latch and faults");
+- ``stop-zeroes``: a STOP that reaches the controller zeroes its wheel targets that tick;
+- ``auto-clear``: an automatic CLEAR_STOP releases only a latch the watchdog alone holds
+  (docs/protocol.md, "Latch and faults");
 - ``release``: a latch is released only by a clear someone asked for, and a watchdog trip
   or a stopping fault in it only by an operator's clear asked for after the host had
   heard of it;
@@ -19,11 +18,9 @@ docs/sim.md, "Invariants", states each rule in full. Checked as they happen (by
   ``stop_latched`` when that clear releases the latch;
 - ``repeat``: copies of one CLEAR_STOP reach the wire at least ``stop_repeat_s`` apart;
 - ``request-id``: a bridge started again on one controller boot repeats no request id
-  of a bridge before it on that boot, unless both random first ids met (counted:
-  ``id_collisions``);
-- ``odometry``: between two ENCODERS it uses, odometry never moves more than the
-  encoders travelled (a v2 controller's sample of a boot the host could not know yet is
-  excused and counted);
+  of one before it on that boot, unless both random first ids met (``id_collisions``);
+- ``odometry``: between two ENCODERS it uses, odometry moves no more than the encoders
+  did (a v2 controller's sample of a boot the host cannot know yet is excused, counted);
 - ``never-stuck``: after the last fault ends, a new step completes within
   :data:`sim.rig.RECOVERY_S`.
 

@@ -125,9 +125,7 @@ copy or refuse for now (:data:`~firmware_proto.model.uplink.REFUSED_FOR_NOW`).""
 
 
 def _tagged(result: PlaybackResult) -> list[PredictedSample]:
-    """The playback's samples tagged with their step, as the gate tags a verdict's
-    (``gate/trajectory.py``): each step's start, the samples inside it, its end; then the
-    settling under the last step."""
+    """The playback's samples tagged with their step, as :mod:`gate.trajectory` tags them."""
     dt = result.dt_s
 
     def tick(t: float) -> int:

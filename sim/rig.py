@@ -428,9 +428,7 @@ class Rig:
         )
 
     def _final_issue_40(self) -> None:
-        """``stopped``: every operator stop whose STOP_ACK reached the host was said
-        ``stopped``; ``order``: no step submitted while an operator's clear was open was
-        refused ``stop_latched`` when that clear released the latch."""
+        """The ``stopped`` and ``order`` invariants (:mod:`sim.checks`)."""
         said = self.ledger.statuses["stopped"]
         if said < self.stopped_owed:
             self.violate(

@@ -178,10 +178,8 @@ class _Ledger:
 
 
 class World:
-    """The parts of a mission on one lockstep clock; see the module docstring.
-
-    Close it (or use ``with``) to close every part.
-    """
+    """The parts of a mission on one lockstep clock (module docstring); closing it (or
+    ``with``) closes every part."""
 
     def __init__(self, config: WorldConfig | None = None) -> None:
         """Build every part and connect the bridge to the controller in virtual time.
