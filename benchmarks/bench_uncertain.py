@@ -1,10 +1,8 @@
 """Verdicts with their uncertainty: playbacks/s and latency against samples and workers.
 
-The N-sample verdict beside the single playback, in one run.
-
 Run: ``python -m benchmarks.bench_uncertain [--quick] [--no-cluster] [--repeat R]``.
 The plan is bench_gate's 12-step plan (10 m and four turns on scn01, through its
-traction region). Prints two tables:
+traction region). Two tables, the N-sample verdict beside the single playback:
 
 1. *Playbacks per second, one process*: the single playback (``emulator.playback.play``
    on a :class:`~emulator.twin.Twin`, the peer) against one batch

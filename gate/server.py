@@ -18,9 +18,8 @@ What it promises, in full in docs/gate.md ("Capacity, keep-alive and shutdown"):
   it is read) and framing (411); every error body is JSON;
 - with a token, every request needs ``Authorization: Bearer`` (401); ``Host`` must name
   the gate (421; :mod:`firmware_proto.http.bindpolicy`);
-- :meth:`GateServer.close` (idempotent) drains: 503 to new requests, listener and idle
-  connections closed, requests under way finished (up to ``drain_timeout_s``), then the
-  workers stopped.
+- :meth:`GateServer.close` drains: 503 to new requests, requests under way finished
+  (up to ``drain_timeout_s``).
 
 The event loop does I/O and parsing only; playback runs in the pool. Each operation is
 one ``_op_<name>`` coroutine named by :data:`gate.routes.ROUTES`.

@@ -1,9 +1,9 @@
-"""The onboard mission in virtual time: the rover's sequencer and guard
-(:class:`bridge.onboard.core.OnboardCore`) with its estimate (:class:`bridge.onboard.ekf.PoseEkf`)
-on top of the wire simulator's rig (:class:`sim.rig.Rig`: the bridge's ``LinkCore``, the
-controller model or C core over its twin, the serial line or CAN bus), and a ground
-station across a delayed, jittery, lossy link that uplinks an approved plan, retransmits
-it until acknowledged, and keeps STOP authority (docs/sim.md, "Missions").
+"""The onboard mission in virtual time (docs/sim.md, "Missions").
+
+The rover's sequencer and guard (:class:`bridge.onboard.core.OnboardCore`) with its
+estimate (:class:`bridge.onboard.ekf.PoseEkf`) on the wire simulator's rig
+(:class:`sim.rig.Rig`), and a ground station across a delayed, jittery, lossy link that
+uplinks an approved plan, retransmits it until acknowledged, and keeps STOP authority.
 
 :func:`make_mission` draws a :class:`MissionScenario` (a plan of one to five steps, its
 prediction, the link and the faults its attributes list) from one seed;
