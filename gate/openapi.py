@@ -1,14 +1,12 @@
 """The OpenAPI 3.1 document served at ``/openapi.json``, built from what the server does.
 
-The paths and methods come from :data:`gate.routes.ROUTES` (the table the server
-dispatches on). The request body is the plan schema itself
+Paths and methods come from :data:`gate.routes.ROUTES` (the table the server dispatches
+on). The request body is the plan schema itself
 (:func:`firmware_proto.model.plan.plan_schema`, the one copy of Listing 1) and ``GET
-/maps/{name}`` answers with documents of the map schema
-(:func:`firmware_proto.model.worldmap.map_schema`), each with its ``$defs`` hoisted into
-``components.schemas`` (``CommandPlan_command_step``, ``Map_polygon``...). The query
-parameters and their ranges come from :mod:`gate.options`; limits and defaults from the
-server's configuration, so the document states the values this server uses. The 401
-responses and the bearer security scheme appear only when the server has a token.
+/maps/{name}`` answers with the map schema (:func:`firmware_proto.model.worldmap.map_schema`),
+each hoisted into ``components.schemas`` (:func:`_hoist`). Query parameters and their
+ranges come from :mod:`gate.options`, limits and defaults from this server's
+configuration. The 401 responses and the bearer scheme appear only with a token.
 """
 
 from __future__ import annotations
@@ -83,8 +81,7 @@ def _hoist(schema: dict[str, Any], name: str) -> dict[str, Any]:
 
 
 def _verdict_schemas() -> dict[str, Any]:
-    """The verdict's schemas, generated from its dataclasses, with this gate's bound on
-    the trajectory's length stated."""
+    """The verdict's schemas, from its dataclasses, with this gate's bound on trajectories."""
     schemas = verdict_schemas()
     trajectory = schemas["Trajectory"]["properties"]
     trajectory["samples"]["description"] += f" At most {MAX_TRAJECTORY_SAMPLES} fixed-rate samples."

@@ -6,13 +6,12 @@ pools, on the base :class:`WorkerPool`:
 - :class:`ProcessWorkerPool` (default): one ``spawn``-ed process per worker (never
   ``fork`` from a threaded server), each with its own validator; playback is CPU-bound
   pure Python, so processes are what runs plans in parallel. All start and prove ready
-  at construction; a dead one is replaced at once. Calls are cancellable while they run
-  and shared fairly between clients (see the class).
+  at construction; calls are cancellable and shared fairly between clients (see the class).
 - :class:`ThreadWorkerPool`: threads sharing one validator (one playback at a time under
   the GIL; a started call cannot be cancelled). For tests and small machines.
 
 Admission (how many jobs may wait) is the server's business (:mod:`gate.admission`).
-Why not ``concurrent.futures.ProcessPoolExecutor``: docs/gate.md, "Worker pool".
+Why not ``concurrent.futures.ProcessPoolExecutor``: docs/gate.md, under that heading.
 """
 
 from __future__ import annotations

@@ -490,8 +490,7 @@ class MissionRig(Rig):
         """When a STOP reached the bridge (the onboard program's or the ground's)."""
 
     def _plan_report(self) -> OnboardReport | None:
-        """The last report of the mission's plan, from whichever run of the onboard
-        program took it (the latest such run)."""
+        """The last report of the mission's plan, from the latest onboard run that took it."""
         plan = self.uplink.plan_id
         for core in reversed(self.cores):
             last = core.last_report

@@ -1075,8 +1075,7 @@ DRAWN_IDS = 256
 
 
 def _drawn(request_id: int, first: int) -> bool:
-    """``request_id`` is one a bridge whose first request id was ``first`` gives (ids
-    count 1..65535 and wrap)."""
+    """Whether a bridge whose first request id was ``first`` gives ``request_id`` (ids wrap)."""
     return (request_id - first) % 0xFFFF < DRAWN_IDS
 
 

@@ -126,8 +126,7 @@ class WorldOutcome:
 
 
 def start_gate() -> GateServer:
-    """A gate on a free port of 127.0.0.1 with one worker thread (no process to start),
-    the shipped maps; close it after."""
+    """A gate on 127.0.0.1 (free port, one worker thread, the shipped maps); close it after."""
     return GateServer(GateConfig(port=0, pool="thread", workers=1, queue_depth=4)).start()
 
 
