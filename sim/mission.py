@@ -23,12 +23,10 @@ Invariants (:class:`MissionOutcome` lists the violations, ``rule: text``; docs/s
   :data:`TRUTH_MARGIN_DEG`, POSE live: a STOP within :data:`GUARD_BOUND_S`;
 - ``false-stop``: no guard STOP while the true drift is that margin inside the limits;
 - ``ground-stop``: no step goes out once the ground's STOP reached the rover;
-- ``stop-reached``: a lost onboard STOP is followed by one that arrives within
-  :data:`STOP_REACH_S`;
+- ``stop-reached``: a lost onboard STOP is followed by one arriving within :data:`STOP_REACH_S`;
 - ``delivered``: without slip, ground STOP, controller fault or a POSE silence over
   :data:`POSE_GAP_HARMLESS_S`, the plan completes exactly once and the ground hears it;
-- ``rest``: every end is followed by a rest report (or that it gave up waiting) that
-  reaches the ground.
+- ``rest``: after every end a rest report (or that it gave up waiting) reaches the ground.
 """
 
 from __future__ import annotations
