@@ -91,7 +91,7 @@ def _end_with_parent() -> None:
 
 
 class _Stack:
-    """``rover stack up --speed 4`` until closed; ``rover stack env``'s exports as environ."""
+    """``rover stack up --speed 4`` until closed; ``rover stack env``'s exports, an environment."""
 
     def __init__(self, directory: Path) -> None:
         # Claim the ROS domain where the caller's stacks do: never shared with another.

@@ -243,7 +243,7 @@ class RawLink(Link):
 
 
 def make_link(backend: str, kind: str, role: str, on_message: Callable[[Any], None]) -> Any:
-    """``raw``, ``rclpy``, ``rclpy-process``, each with ``-stop`` (STOP lane), or ``inprocess``."""
+    """``raw``, ``rclpy``, ``rclpy-process`` (each also ``-stop``: STOP lane), ``inprocess``."""
     if backend == "raw":
         return RawLink(kind, role, on_message)
     if backend.endswith("-stop"):

@@ -1,7 +1,7 @@
 """Worker pools that run validations off the HTTP threads.
 
 A job is a :class:`gate.validator.Job`; its result is the verdict's JSON bytes. The
-pools, on the base :class:`WorkerPool`:
+pools (their base: :class:`WorkerPool`):
 
 - :class:`ProcessWorkerPool` (default): one ``spawn``-ed process per worker (never
   ``fork`` from a threaded server), each with its own validator; playback is CPU-bound
