@@ -1,6 +1,7 @@
 """The C firmware core in the loop: :class:`FirmwareController` runs the motor
 controller of ``firmware_proto/wire/c/fw/`` (a host shared library) behind the
-:class:`~emulator.controller.ControllerModel` interface, over the same twin.
+:class:`~emulator.controller.ControllerModel` interface, over the same twin (what is
+firmware and what is plant: docs/firmware.md, "Firmware in the loop").
 
 Both directions go through the C codec as serial frames; a tick is ``fw_control`` at
 twin time ``t``, one twin step, then ``fw_sense`` at ``t + dt``. :func:`build_library`

@@ -5,19 +5,21 @@
 every connection bounded by deadlines) and application layer
 (:mod:`firmware_proto.http.app`: the routes of :data:`gate.routes.ROUTES`, the shared
 guard, errors worded as the gate's JSON), in front of a :mod:`worker pool <gate.pool>`.
-What it promises, in full in docs/gate.md ("Capacity, keep-alive and shutdown"):
+What it promises, in full in docs/gate.md ("Capacity, keep-alive and shutdown", "Errors",
+"Binding and the token"):
 
 - admission by cost before anything is queued (:mod:`gate.admission`: 400, 429 or 503
   with ``Retry-After``); ``GET`` requests need no worker;
 - a validation past ``request_timeout_s``, or whose client left, is cancelled in the
   pool and its admission released;
-- validity is decided by the compiled check on the event loop; a refusal is worded off
-  it, at most :data:`MAX_VIOLATIONS`, within :data:`ERROR_ROOM_BYTES` of the body's size;
+- validity is decided by the compiled check on the event loop; a refusal is worded on a
+  thread of its own, at most :data:`MAX_VIOLATIONS`, within :data:`ERROR_ROOM_BYTES` of
+  the body's size;
 - connections are bounded by ``idle_timeout_s``, ``head_timeout_s``, ``body_timeout_s``
   (408) and ``max_connections`` (503); bodies by ``max_body_bytes`` (413, before any of
   it is read) and framing (411); every error body is JSON;
-- with a token, every request needs ``Authorization: Bearer`` (401); ``Host`` must name
-  the gate (421; :mod:`firmware_proto.http.bindpolicy`);
+- with a token, every request needs ``Authorization: Bearer`` (compared in constant time;
+  401); ``Host`` must name the gate (421; :mod:`firmware_proto.http.bindpolicy`);
 - :meth:`GateServer.close` drains: 503 to new requests, requests under way finished
   (up to ``drain_timeout_s``).
 

@@ -181,7 +181,8 @@ class DriftLimits:
 
 @dataclass(frozen=True)
 class PredictedSample:
-    """One predicted pose: its step, the twin time since that step started, the pose."""
+    """One predicted pose: its step, the twin time since that step started (s), the pose
+    (map frame, m and deg)."""
 
     step: int
     step_t_s: float
@@ -197,7 +198,9 @@ class PredictedSample:
 
 @dataclass(frozen=True)
 class PlanUplink:
-    """An approved plan as the rover takes it (see the module docstring)."""
+    """An approved plan as the rover takes it (see the module docstring): ``steps`` as
+    ``wheel_instructions`` carries them, ``[command, speed, distance]``; ``durations_s``
+    in twin seconds."""
 
     plan_id: int
     steps: tuple[tuple[int, int, int], ...]
