@@ -5,7 +5,8 @@
 :class:`Recording`. Statuses are matched to steps first in, first out, as the
 controller's queue works; a STOP step is an emergency stop, not a step. Times are
 seconds relative to :attr:`Recording.origin_ns`; topics are found by their last name
-component (several namespaces need ``namespace``). docs/twin.md, "What is measured".
+component (several namespaces need ``namespace``). docs/twin.md, "Calibration": What
+is measured.
 """
 
 from __future__ import annotations

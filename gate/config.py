@@ -161,7 +161,8 @@ class GateConfig:
         queue_depth: validations admitted to wait beyond the running ones.
         max_body_bytes: largest accepted request body.
         max_connections: open connections at once (beyond it, docs/gate.md
-            "Connections"; :attr:`reserved_connections` are kept for the token).
+            "Capacity, keep-alive and shutdown"; :attr:`reserved_connections` are kept
+            for the token).
         max_connections_per_address: of those, from one address.
         idle_timeout_s: a connection waiting this long for a request to start is closed.
         head_timeout_s: from a request's first byte to the end of its headers (408).

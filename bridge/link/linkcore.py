@@ -352,7 +352,7 @@ class LinkCore:
     @property
     def clear_open(self) -> bool:
         """An operator's clear is out and not yet answered: steps submitted now wait for
-        its answer (docs/protocol.md, "Host: a clear, then a step")."""
+        its answer (docs/protocol.md, "Latch and faults": Host: a clear, then a step)."""
         return self._operator_clear_out()
 
     @property
@@ -865,7 +865,7 @@ class LinkCore:
 
     def _auto_clear_may_start(self, hb: Heartbeat) -> bool:
         """The latch ``hb`` shows is the host's to clear on its own: the watchdog alone
-        holds it (docs/protocol.md, "Host: automatic clear")."""
+        holds it (docs/protocol.md, "Latch and faults": Host: automatic clear)."""
         return bool(hb.latch_watchdog and not hb.latch_stop and not hb.latch_fault)
 
     def _maybe_clear(self, hb: Heartbeat, now: float) -> None:

@@ -8,8 +8,8 @@ one tick at a time until the condition holds or its virtual timeout passes).
 
 The lockstep clock calls, once per tick and in the order added, the steps it was given
 (:meth:`LockstepClock.add`): a controller's tick, a host's pump and heartbeat, and in a
-whole mission the bridge, the ROS port and the relay (docs/sim.md, "Missions in virtual
-time"). Its time of day (:meth:`Clock.time`, what stamps ROS messages) starts at a fixed
+whole mission the bridge, the ROS port and the relay (docs/sim.md, "Whole missions in
+virtual time"). Its time of day (:meth:`Clock.time`, what stamps ROS messages) starts at a fixed
 :data:`EPOCH_S`, so a run stamps the same on every machine.
 """
 

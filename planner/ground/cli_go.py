@@ -561,7 +561,7 @@ def _mission(args: argparse.Namespace) -> int:
                     port,
                     rover,
                     config,
-                    # The uplink's token, never the gate's (docs/onboard.md, "Tokens").
+                    # The uplink's token, never the gate's (docs/onboard.md, "The uplink": Tokens).
                     UplinkOptions(token=token_from_env(os.environ)),
                 )
             )
