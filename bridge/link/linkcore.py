@@ -39,7 +39,8 @@ names the last generation this core learned, after every stopping cause it learn
 reported (``fault:<name>``); it waits for the STOP_ACK of this host's own STOP still
 out; refused, it is over. Steps submitted while it is out wait for its answer. With
 ``auto_clear_watchdog`` the core clears a latch the watchdog alone holds. A CLEAR_STOP
-copy is repeated every ``stop_repeat_s`` after the previous copy was written.
+copy is repeated every ``stop_repeat_s`` after the previous copy was written, never queued
+behind an unwritten one.
 
 **MOTION lane.** One MOTION at a time, in order, the next only after its ACK: a MOTION is
 retransmitted ``ack_timeout_s`` after it was written, at most ``motion_retries`` times

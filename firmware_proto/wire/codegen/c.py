@@ -6,7 +6,7 @@ message becomes a struct of raw integer fields, a ``pack`` that checks the wire 
 first bad one in its error code, and an ``unpack`` that checks the length, unpacks the
 bits (sign-extending) and refuses values outside the wire range. A table by id drives
 ``rp_msg_pack`` / ``rp_msg_unpack``. Framing, COBS, CRC and CAN helpers are hand-written
-(``wire/c/rover_proto.[ch]``) on top.
+(``wire/c/rover_proto.[ch]``) on top (docs/protocol.md, "C reference codec").
 """
 
 from __future__ import annotations
