@@ -49,14 +49,17 @@ recordings drove on): every traction parameter of the force model
 (:mod:`emulator.traction`). ``slip_saturation_mps``, the slip floor near standstill,
 shows in slow steps (speeds 10-25: below about 0.15 m/s it outweighs the slip ratio);
 docs/twin.md lists what the twin takes from elsewhere, and why."""
-STEP_ERROR_SCALE = 1.0
+STEP_ERROR_SCALE = 0.5
 """1-sigma of the gate's model discrepancy a calibration states, in units of each plan's
 step error (:func:`gate.ensemble.step_error`: the nominal twin's final pose at a finer
 step minus at the gate's). The fit, made at the gate's step, absorbs that step's bias
 for steps from rest, the only ones it measures; how much of it remains in a plan run
-back to back (a step starting while the one before brakes) its data cannot say: 0.36-0.67
-of it (by coordinate) on the development grounds (docs/twin.md), so the whole of it at
-one sigma."""
+back to back (a step starting while the one before brakes) its data cannot say, so the
+scale is estimated once, on development grounds: the maximum-likelihood share under the
+gate's own model of a final pose (its twins' spread plus this share of the step error,
+normal), over held-out back-to-back plans on the lockstep rover, 0.49 +/- 0.11
+(docs/twin.md). It is the lockstep rover's; a real rover's is to be estimated the same
+way from its own held-out plans."""
 
 
 @dataclass(frozen=True)

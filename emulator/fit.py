@@ -29,10 +29,10 @@ sensitivities ``G`` (per step, by each side's log factor) come with the last Jac
 ``slip_sigma`` is the maximum-likelihood value of the residuals under ``C_i = M_i +
 slip_sigma^2 G_i G_i^T`` (``M_i`` the measurement's covariance); the fit then runs once
 more weighted by ``C_i``. The start pose's noise (a position and heading averaged at
-rest) is what the rests measured. The gate's step error (a plan's final pose at a finer
-step than the gate's, less at the gate's) is stated, not estimated: the steps, all from
-rest, cannot show what of it remains in a plan run back to back
-(:data:`~emulator.calibration.STEP_ERROR_SCALE`).
+rest) is what the rests measured. The share of the gate's step error (a plan's final
+pose at a finer step than the gate's, less at the gate's) is not estimated here: the
+steps, all from rest, cannot show what of it remains in a plan run back to back; it was
+estimated once, on development grounds (:data:`~emulator.calibration.STEP_ERROR_SCALE`).
 
 **Uncertainty**: the covariance of the log-parameters is ``s^2 (J^T J + P)^-1`` at the
 solution, ``J`` the Jacobian of the whitened residuals, ``P`` the priors' precision and

@@ -171,7 +171,11 @@ def test_the_verdicts_bands_carry_the_step_error(rover: RoverDescription, field:
     assert (
         uncertain(
             Validator(
-                rover, {"field": field}, PlaybackSettings(), "field", spread=calibration(rover, 1.0)
+                rover,
+                {"field": field},
+                PlaybackSettings(),
+                "field",
+                spread=calibration(rover, STEP_ERROR_SCALE),
             ),
             PLAN,
             "samples=40&seed=3&slip_sigma=0",
@@ -186,6 +190,10 @@ def test_the_twin_file_carries_the_scale_and_an_old_one_has_none(
     path = tmp_path / "twin.toml"
     write_twin(path, rover, calibration(rover, STEP_ERROR_SCALE, position=0.002))
     assert load_twin(path).calibration.step_error_scale == STEP_ERROR_SCALE
+    # A file written when a calibration stated the whole step error keeps its scale.
+    path = tmp_path / "stated-one.toml"
+    write_twin(path, rover, calibration(rover, 1.0, position=0.002))
+    assert load_twin(path).calibration.step_error_scale == 1.0
     old = tmp_path / "old.toml"
     text = path.read_text(encoding="utf-8")
     assert "step_error_scale = 1.0\n" in text
