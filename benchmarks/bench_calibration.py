@@ -27,7 +27,11 @@ loose, a packed and an anisotropic range: :func:`generated_ground`):
    200 twins in one :func:`gate.ensemble.run_chunk`) gives 90 % bands of the final pose's longitudinal and lateral offset (in the
    frame of the predicted final pose) and of its yaw; coverage is the share of outcomes
    inside their band, width the band's, centring how far the band's middle is from the
-   point prediction (in half-widths).
+   point prediction (in half-widths). Beside the width over the median error, the width
+   over the median error the bands themselves expect (:func:`width_over_error`): bands
+   that hold their outcomes exactly give about that ratio on these plans, so a ratio far
+   above 3 with the bands' own near it is the plans' geometry (errors more across the
+   path than along it), not bands too wide.
 
 The issue's bars: after within 1.5x of the floor on every ground with at most 60 s of
 driving; 90 % bands holding 85-95 % of outcomes; median lateral width at most 3x the
@@ -35,6 +39,11 @@ median final-position error. Deterministic: every ground, mission and noise draw
 seeded (the wall times are not).
 
     python -m benchmarks.bench_calibration [--quick] [--missions N] [--budget S]
+        [--ground KIND] [--seed KIND=SEED] [--keep DIR]
+
+The held-out grounds (:data:`GROUND_SEEDS`) are for the final run of a method fixed
+beforehand; development runs name their own grounds (``--seed``), and ``--quick`` is a
+development ground.
 """
 
 from __future__ import annotations
@@ -82,8 +91,14 @@ BAND_SAMPLES = 200
 STEP_BY_STEP_MISSIONS = 2
 """Held-out missions also driven by the step-by-step executor (rests between steps)."""
 
-GROUND_SEEDS = {"loose": 90417, "packed": 90533, "anisotropic": 90671}
-"""Seeds of the benchmark's grounds: used nowhere else (the tests use others)."""
+GROUND_SEEDS = {"loose": 923476, "packed": 625244, "anisotropic": 869543}
+"""Seeds of the benchmark's held-out grounds: used nowhere else (``--quick`` and the tests
+use :data:`QUICK_SEED`; development uses its own, ``--seed``)."""
+SEEN_SEEDS = {"loose": 90417, "packed": 90533, "anisotropic": 90671}
+"""The held-out seeds before :data:`GROUND_SEEDS`, looked at twice while the bands were
+developed: no longer held out (``--seed loose=90417`` runs one)."""
+QUICK_SEED = 1000
+"""The loose ground of ``--quick`` (a development seed, not a held-out one)."""
 
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "loose": {
@@ -147,6 +162,9 @@ class HeldOutResult:
     inside: tuple[bool, bool, bool]
     widths: tuple[float, float, float]
     centring: tuple[float, float, float]
+    band_errors_m: tuple[float, ...] = ()
+    """How far each of the band's samples ends from the point prediction (m): the errors
+    the band itself expects."""
 
 
 @dataclass
@@ -215,9 +233,12 @@ def band_check(
     nominal: Pose2D,
     truth: Pose2D,
     seed: int,
-) -> tuple[tuple[bool, bool, bool], tuple[float, float, float], tuple[float, float, float]]:
+) -> tuple[
+    tuple[bool, bool, bool], tuple[float, float, float], tuple[float, float, float], np.ndarray
+]:
     """The gate's 90 % bands of the final pose (see the module docstring): whether the
-    true outcome is inside each, each width (m, m, rad), each centring."""
+    true outcome is inside each, each width (m, m, rad), each centring, and each
+    sample's distance from the point prediction (m)."""
     noise = calibration.noise
     slip = noise.slip_sigma if noise is not None else 0.1
     draws = draw(calibration, BAND_SAMPLES, seed, slip)
@@ -242,7 +263,21 @@ def band_check(
         widths.append(float(hi - lo))
         half = max((hi - lo) / 2.0, 1e-12)
         centring.append(float(abs((hi + lo) / 2.0) / half))
-    return tuple(inside), tuple(widths), tuple(centring)  # type: ignore[return-value]
+    distances = np.hypot(samples[:, 0], samples[:, 1])
+    return tuple(inside), tuple(widths), tuple(centring), distances  # type: ignore[return-value]
+
+
+def width_over_error(outcomes: list[HeldOutResult]) -> tuple[float, float]:
+    """The issue's width statistic: the median lateral width of the outcomes' bands over
+    their median final-position error; and the same over the median error the bands
+    themselves expect (every outcome's samples pooled, each outcome weighing the same:
+    what the statistic would be if each outcome were a draw from its band). The second
+    is what bands that hold their outcomes exactly give on these plans: a first far
+    above 3 with a second near it is the plans' geometry, not bands too wide."""
+    width = statistics.median(o.widths[1] for o in outcomes)
+    error = statistics.median(o.errors_m["after"] for o in outcomes)
+    own = float(np.median(np.concatenate([o.band_errors_m for o in outcomes])))
+    return width / error, width / own
 
 
 def _recorded(mission: LockstepMission, path: Path) -> Recording:
@@ -253,9 +288,17 @@ def _recorded(mission: LockstepMission, path: Path) -> Recording:
 
 
 def run_ground(
-    kind: str, rover: RoverDescription, missions: int, budget_s: float, work: Path
+    kind: str,
+    rover: RoverDescription,
+    missions: int,
+    budget_s: float,
+    work: Path,
+    seed: int | None = None,
 ) -> GroundResult:
-    seed = GROUND_SEEDS[kind]
+    """Calibrate on ``kind``'s ground of ``seed`` (default :data:`GROUND_SEEDS`'s) and
+    check ``missions`` held-out plans (module docstring)."""
+    name = kind if seed is None else f"{kind}-{seed}"
+    seed = GROUND_SEEDS[kind] if seed is None else seed
     truth = generated_ground(kind, seed, rover)
     lab = calibration_map()
     validator = Validator(rover, {lab.name: lab}, PlaybackSettings(), lab.name)
@@ -268,11 +311,11 @@ def run_ground(
         recorder=record_messages,
     )
     t0, c0 = time.perf_counter(), time.process_time()
-    campaign = run_campaign(driver, rover, lab, work / kind, budget_s=budget_s)
+    campaign = run_campaign(driver, rover, lab, work / name, budget_s=budget_s)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     cal = campaign.calibration
     result = GroundResult(
-        name=kind,
+        name=name,
         truth=truth,
         driving_s=driver.driving_s,
         steps=cal.after.steps if cal is not None else 0,
@@ -289,7 +332,7 @@ def run_ground(
     if cal is None:
         result.refusal = str(campaign.refusal)
         return result
-    write_twin(work / f"{kind}-twin.toml", rover, cal)
+    write_twin(work / f"{name}-twin.toml", rover, cal)
     quarter = rover.turn_units_for_yaw(math.pi / 2.0)
     result.fitted = {
         p: (cal.value(p), cal.relative_sigma(p), t)
@@ -313,12 +356,12 @@ def run_ground(
             rested = LockstepRover(rover, field_world, truth, seed=seed + 1000 + k).drive_steps(
                 steps
             )
-            start = mission_start(_recorded(rested, work / f"{kind}-rested{k}.mcap"))
+            start = mission_start(_recorded(rested, work / f"{name}-rested{k}.mcap"))
             for key in ("after", "floor"):
                 final = predict_final(rover, field_world, twins[key], start, steps)
                 gap = math.dist((final.x_m, final.y_m), (rested.final.x_m, rested.final.y_m))
                 result.rested_m.setdefault(key, []).append(gap)
-        start = mission_start(_recorded(mission, work / f"{kind}-test{k}.mcap"))
+        start = mission_start(_recorded(mission, work / f"{name}-test{k}.mcap"))
         errors_m, errors_deg = {}, {}
         finals = {}
         for key, ground in twins.items():
@@ -328,17 +371,25 @@ def run_ground(
                 (final.x_m, final.y_m), (mission.final.x_m, mission.final.y_m)
             )
             errors_deg[key] = abs(math.degrees(wrap_rad(final.yaw_rad - mission.final.yaw_rad)))
-        inside, widths, centring = band_check(
+        inside, widths, centring, distances = band_check(
             rover, field_world, cal, start, steps, finals["after"], mission.final, seed + k
         )
-        result.outcomes.append(HeldOutResult(errors_m, errors_deg, inside, widths, centring))
+        result.outcomes.append(
+            HeldOutResult(
+                errors_m, errors_deg, inside, widths, centring, tuple(float(d) for d in distances)
+            )
+        )
     return result
 
 
-def report(results: list[GroundResult], missions: int, budget_s: float) -> str:
+def report(
+    results: list[GroundResult], missions: int, budget_s: float, *, held_out: bool = True
+) -> str:
+    """The tables (``held_out``: the grounds are :data:`GROUND_SEEDS`', else named)."""
+    grounds = "grounds from held-out seeds" if held_out else "grounds from the seeds named"
     lines = [
-        f"Designed calibration (budget {budget_s:g} s of driving) on grounds from unseen "
-        f"seeds; {missions} held-out 12-step missions per ground; final-pose error against "
+        f"Designed calibration (budget {budget_s:g} s of driving) on {grounds}; "
+        f"{missions} held-out 12-step missions per ground; final-pose error against "
         "where the rover truly came to rest, mean (max); twins at the gate's 10 ms step",
         "",
         "| ground | driving s | steps | rounds | before m | after m | floor m | cut "
@@ -374,11 +425,13 @@ def report(results: list[GroundResult], missions: int, budget_s: float) -> str:
         "",
         "90 % bands of the gate's uncertainty for the calibrated twin (200 samples): share of "
         "outcomes inside; median width; centring (the band's middle off the point "
-        "prediction, in half-widths, median)",
+        "prediction, in half-widths, median); the bands' own error: the median error they "
+        "expect (width_over_error)",
         "",
         "| ground | outcomes | inside longitudinal | inside lateral | inside yaw "
-        "| median lateral width m | median error m | width / error | centring |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| median lateral width m | median error m | width / error | width / the bands' "
+        "own error | centring |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     every: list[HeldOutResult] = []
     for r in results:
@@ -388,15 +441,15 @@ def report(results: list[GroundResult], missions: int, budget_s: float) -> str:
     if every:
         lines.append(_band_row("all", every))
         inside = sum(sum(o.inside) for o in every) / (3 * len(every))
-        width = statistics.median(o.widths[1] for o in every)
-        error = statistics.median(o.errors_m["after"] for o in every)
+        ratio, own = width_over_error(every)
         lines += [
             "",
             f"coverage {inside:.1%} of {3 * len(every)} outcomes (bar "
             f"{COVERAGE[0]:.0%}-{COVERAGE[1]:.0%}: "
             f"{'holds' if COVERAGE[0] <= inside <= COVERAGE[1] else 'does NOT hold'}); "
-            f"median lateral width {width / error:.2f}x the median error (bar {WIDTH_BAR:g}x: "
-            f"{'holds' if width <= WIDTH_BAR * error else 'does NOT hold'})",
+            f"median lateral width {ratio:.2f}x the median error (bar {WIDTH_BAR:g}x: "
+            f"{'holds' if ratio <= WIDTH_BAR else 'does NOT hold'}); {own:.2f}x the median "
+            "error the bands themselves expect",
         ]
     rested = [r for r in results if r.rested_m]
     if rested:
@@ -442,11 +495,26 @@ def _band_row(name: str, outcomes: list[HeldOutResult]) -> str:
     inside = [sum(o.inside[a] for o in outcomes) / n for a in range(3)]
     width = statistics.median(o.widths[1] for o in outcomes)
     error = statistics.median(o.errors_m["after"] for o in outcomes)
+    ratio, own = width_over_error(outcomes)
     centring = statistics.median(max(o.centring) for o in outcomes)
     return (
         f"| {name} | {3 * n} | {inside[0]:.0%} | {inside[1]:.0%} | {inside[2]:.0%} "
-        f"| {width:.4f} | {error:.4f} | {width / error:.2f} | {centring:.2f} |"
+        f"| {width:.4f} | {error:.4f} | {ratio:.2f} | {own:.2f} | {centring:.2f} |"
     )
+
+
+def parse_seed(text: str) -> tuple[str, int]:
+    """``KIND=SEED`` (``--seed``): a ground kind of :data:`RANGES` and a seed.
+
+    Raises:
+        argparse.ArgumentTypeError: not of that form.
+    """
+    kind, sep, seed = text.partition("=")
+    if not sep or kind not in RANGES or not seed.strip().isdigit():
+        raise argparse.ArgumentTypeError(
+            f"expected KIND=SEED with KIND one of {', '.join(RANGES)}, got {text!r}"
+        )
+    return kind, int(seed)
 
 
 def main() -> None:
@@ -457,16 +525,30 @@ def main() -> None:
     parser.add_argument("--missions", type=int, help="held-out missions per ground (default 10)")
     parser.add_argument("--budget", type=float, help=f"driving seconds (default {BUDGET_S:g})")
     parser.add_argument("--ground", choices=list(GROUND_SEEDS), action="append", help="only these")
+    parser.add_argument(
+        "--seed",
+        type=parse_seed,
+        action="append",
+        metavar="KIND=SEED",
+        help="a ground of KIND's range from SEED instead of the held-out ones (repeatable; "
+        "development, or the seen-before SEEN_SEEDS)",
+    )
     parser.add_argument("--keep", type=Path, help="keep the recordings and twins here")
     args = parser.parse_args()
     missions = args.missions or (1 if args.quick else 10)
     budget = args.budget or (30.0 if args.quick else BUDGET_S)
-    kinds = args.ground or (["loose"] if args.quick else list(GROUND_SEEDS))
+    grounds: list[tuple[str, int | None]]
+    if args.seed:
+        grounds = list(args.seed)
+    elif args.quick:
+        grounds = [("loose", QUICK_SEED)]
+    else:
+        grounds = [(kind, None) for kind in args.ground or GROUND_SEEDS]
     rover = load_rover()
     with tempfile.TemporaryDirectory(prefix="bench-calibration-") as tmp:
         work = args.keep or Path(tmp)
-        results = [run_ground(kind, rover, missions, budget, work) for kind in kinds]
-    print(report(results, missions, budget))
+        results = [run_ground(kind, rover, missions, budget, work, seed) for kind, seed in grounds]
+    print(report(results, missions, budget, held_out=all(seed is None for _k, seed in grounds)))
 
 
 if __name__ == "__main__":
