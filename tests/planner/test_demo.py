@@ -251,7 +251,10 @@ def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
         assert go.wait(60) == 128 + sig, go.errors
         go.wait_for("NOT REACHED (cancelled by the operator)", timeout_s=0)
         assert not any("Traceback" in line for line in go.errors), go.errors
-        assert go.errors[-1] == "rover go: cancelled by the operator; the rover was sent STOP"
+        # Its last word is the cancellation (its stall monitor may still log a stall of its
+        # end, on a busy machine: a log record, not something it says).
+        said = [line for line in go.errors if " firmware_proto.runtime.stall: " not in line]
+        assert said[-1] == "rover go: cancelled by the operator; the rover was sent STOP", said
         deadline = time.monotonic() + 10
         while _status(control)["wheel_mps"] != [0.0, 0.0]:
             assert time.monotonic() < deadline, "the rover did not come to rest"
