@@ -16,7 +16,7 @@ tests/conftest.py.
 
 from __future__ import annotations
 
-__all__ = ["EXTENDED", "HEAVY", "SLOW_MODULES", "VIRTUAL_MODULES", "lane_marks"]
+__all__ = ["EXTENDED", "HEAVY", "SLOW_MODULES", "VIRTUAL_MODULES", "VIRTUAL_TESTS", "lane_marks"]
 
 SLOW_MODULES = (
     "tests/bridge/test_cli_bridge.py",
@@ -100,6 +100,22 @@ VIRTUAL_MODULES = (
 generous timeout): marked ``virtual``, so that ``.ci/test`` runs them beside the
 real-time tests, at a lower priority."""
 
+VIRTUAL_TESTS = (
+    # Benchmarks' quick runs that keep no wall clock: CPU work, figures not asserted.
+    "tests/test_benchmarks.py::test_bench_codec_quick",
+    "tests/test_benchmarks.py::test_bench_twin_quick",
+    "tests/test_benchmarks.py::test_bench_firmware_quick",
+    "tests/test_benchmarks.py::test_bench_uncertain_quick",
+    "tests/test_benchmarks.py::test_bench_onboard_quick",  # missions in virtual time
+    # Lockstep runs of the controllers (virtual time) in modules of real-time tests.
+    "tests/bridge/test_conformance.py::test_both_controllers_pass_every_rule_in_lockstep",
+    "tests/bridge/test_conformance.py::test_the_c_firmware_passes_every_rule_under_asan",
+    "tests/emulator/test_firmware.py::test_both_implementations_send_the_same_frames",
+)
+"""Node-id prefixes of tests in :data:`SLOW_MODULES` that need no wall clock: marked
+``virtual``, so that they run in the test command's no-wall-clock part, not beside the
+real-time tests."""
+
 HEAVY: dict[str, str] = {
     # Node-id prefix -> what the fast lane keeps of it. Each costs seconds of CPU and no
     # wall clock: out of the fast lane (30 s), in the test command's no-wall-clock part.
@@ -142,6 +158,11 @@ _LOCKSTEP = _CONF + "test_both_controllers_pass_every_rule_in_lockstep (both med
 
 EXTENDED: dict[str, str] = {
     # Benchmarks: figures, not behaviour; the quick runs of the others stay.
+    "tests/test_benchmarks.py::test_bench_console_quick_prints_its_table": (
+        "the four console commands through a stack's console socket: tests/planner/"
+        "test_console.py::test_a_stack_on_a_real_device_starts_no_emulator; rover stack up "
+        "--speed 4 with its emulator: tests/planner/test_walkthrough.py"
+    ),
     "tests/test_benchmarks.py::test_bench_calibration_quick_cuts_the_error_on_every_ground": (
         "the fit and the designed calibration: tests/emulator/test_calibration.py and "
         "tests/emulator/test_campaign.py (lockstep), tests/planner/test_calibrate_real.py "
@@ -168,6 +189,31 @@ EXTENDED: dict[str, str] = {
     ),
     "tests/bridge/test_node.py::test_odom_is_continuous_across_a_controller_reboot"
     "[rclpy-process]": "in-process backend; the odometry invariant of " + _SIM,
+    # The port over a ROS 2 process: these checks are the base class's, before any call
+    # to the child, or the child's RclpyPort, which [rclpy] runs in process; the
+    # child's own operations (round trips, STOP lane, parameters, QoS, matched
+    # publishers, closing readers and writers) stay in their [rclpy-process] tests.
+    **{
+        f"tests/bridge/test_port.py::{name}[rclpy-process]": "[inprocess] and [rclpy]"
+        for name in (
+            "test_callbacks_run_on_the_backend_thread",
+            "test_a_raising_callback_is_logged_counted_and_survived",
+            "test_relative_names_get_the_namespace_absolute_ones_do_not",
+            "test_invalid_names_are_refused",
+            "test_wrong_types_are_refused",
+            "test_closed_things_refuse_work_and_close_is_idempotent",
+            "test_subscriptions_closed_while_the_lane_waits_leave_it_delivering",
+            "test_waiting_for_subscribers_times_out",
+        )
+    },
+    # The onboard program's rule, in its core; the process's wiring stays in the other
+    # onboard mission (its STOP latching the controller).
+    "tests/bridge/test_onboard_mission.py::test_a_step_someone_else_publishes_while_a_plan"
+    "_runs_ends_the_plan_with_stop": (
+        "tests/bridge/test_onboard_core.py::test_a_foreign_step_ends_the_plan_with_stop_instead"
+        "_of_advancing_it; tests/bridge/test_onboard_mission.py::test_a_plan_runs_on_board_bad"
+        "_uplinks_are_refused_and_the_guard_stops_a_slip"
+    ),
     # The link's latch recovery in real time, in process: the invariants auto-clear and
     # never-stuck of the simulator, against both controllers; the bridge process frozen
     # with SIGSTOP stays in the command (only real time shows it).
@@ -236,6 +282,14 @@ EXTENDED: dict[str, str] = {
         "tests/emulator/test_pil.py (conformance and STOP bench on the nRF51 image) and "
         "test_pil_demo.py's [atmega2560] mission"
     ),
+    # The ATmega2560 image's every rule: in lockstep on the same image and plant; its
+    # real-time loop over a pty stays (the STOP bench, the control port, the demo), and
+    # the nRF51's every rule in real time (the PIL runner's control port).
+    "tests/emulator/test_pil.py::test_the_image_passes_every_conformance_rule_over_its_uart"
+    "[atmega2560]": (
+        "tests/emulator/test_pil_lockstep.py::test_every_conformance_rule_passes_in_lockstep; "
+        "test_pil.py's [microbit] run and [atmega2560] STOP bench and control port"
+    ),
     # Whole missions: the demo on the Python model stays; the C core's run of every rule
     # and scenario is tests/bridge/test_conformance.py and tests/sim.
     "tests/planner/test_demo.py::test_rover_demo_plans_detours_stops_on_drift_replans_and"
@@ -252,5 +306,5 @@ def lane_marks(nodeid: str) -> tuple[bool, bool, bool]:
     path = nodeid.split("::", 1)[0]
     extended = any(nodeid.startswith(prefix) for prefix in EXTENDED)
     heavy = any(nodeid.startswith(prefix) for prefix in HEAVY)
-    virtual = path in VIRTUAL_MODULES or heavy
+    virtual = path in VIRTUAL_MODULES or heavy or any(nodeid.startswith(p) for p in VIRTUAL_TESTS)
     return path in SLOW_MODULES or extended or heavy, extended, virtual

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from _pytest.mark.expression import Expression
 
-from tests.lanes import EXTENDED, HEAVY, SLOW_MODULES, VIRTUAL_MODULES
+from tests.lanes import EXTENDED, HEAVY, SLOW_MODULES, VIRTUAL_MODULES, VIRTUAL_TESTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -110,3 +110,15 @@ def test_every_heavy_entry_names_collected_tests_none_of_them_real_time(
         assert named and kept.strip(), prefix
         assert all({"slow", "virtual"} <= marks[n] for n in named), prefix
         assert prefix.split("::", 1)[0] not in SLOW_MODULES, prefix
+
+
+def test_every_virtual_test_entry_names_collected_tests_of_a_slow_module(
+    marks: dict[str, frozenset[str]],
+) -> None:
+    """Each :data:`tests.lanes.VIRTUAL_TESTS` prefix names tests of a real-time module that
+    the no-wall-clock part runs instead of the real-time one."""
+    for prefix in VIRTUAL_TESTS:
+        named = [n for n in marks if n.startswith(prefix)]
+        assert named, prefix
+        assert prefix.split("::", 1)[0] in SLOW_MODULES, prefix
+        assert all({"slow", "virtual"} <= marks[n] for n in named), prefix
