@@ -165,8 +165,10 @@ class LinkRelay:
                     return
                 due = max(self.clock.now() + delay, self._last_due.get(key, 0.0))  # in order
                 self._last_due[key] = due
-                heapq.heappush(self._heap, (due, next(self._order), publisher, msg, key))
-                self._cond.notify()
+                entry = (due, next(self._order), publisher, msg, key)
+                heapq.heappush(self._heap, entry)
+                if self._heap[0] is entry:  # due first: the thread's wait must end sooner
+                    self._cond.notify()
 
         return forward
 

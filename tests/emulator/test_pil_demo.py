@@ -35,6 +35,11 @@ def test_rover_demo_on_the_image_stops_on_drift_and_reaches_its_goal(
             "demo",
             "--controller",
             f"pil:{target}",
+            # The link's round trip as the Python model's demo has it at --speed 4: the
+            # image's loop runs at 1x only, the link need not (the 3 s round trip is
+            # the browser's mission's, tests/planner/test_view_browser.py).
+            "--rtt",
+            "0.75",
             "--picture",
             str(tmp_path / "demo.png"),
             "--no-record",
