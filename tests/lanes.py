@@ -88,6 +88,7 @@ VIRTUAL_MODULES = (
     "tests/emulator/test_calibration.py",  # lockstep recordings; a gate on port 0
     "tests/emulator/test_campaign.py",  # designed calibrations in lockstep
     "tests/firmware_proto/test_c_codec.py",  # compilers, then vectors
+    "tests/emulator/test_firmware.py",  # the C core's build, then lockstep against the model
     "tests/emulator/test_pil_images.py",  # cross builds of the PIL images, a layout check
     "tests/emulator/test_pil_lockstep.py",  # the ATmega2560 and its twin on a lockstep clock
     "tests/firmware_proto/test_fw.py",  # cross builds, simavr and qemu-arm run to the end
@@ -110,7 +111,6 @@ VIRTUAL_TESTS = (
     # Lockstep runs of the controllers (virtual time) in modules of real-time tests.
     "tests/bridge/test_conformance.py::test_both_controllers_pass_every_rule_in_lockstep",
     "tests/bridge/test_conformance.py::test_the_c_firmware_passes_every_rule_under_asan",
-    "tests/emulator/test_firmware.py::test_both_implementations_send_the_same_frames",
 )
 """Node-id prefixes of tests in :data:`SLOW_MODULES` that need no wall clock: marked
 ``virtual``, so that they run in the test command's no-wall-clock part, not beside the
