@@ -42,7 +42,7 @@ def _sections(page: Path) -> set[str]:
     return found
 
 
-def _names(page: Path, section: str, sections: set[str]) -> bool:
+def _names(section: str, sections: set[str]) -> bool:
     want = _norm(section)
     return any(s == want or re.match(re.escape(want) + r"\s*[:(,\-\u2014]", s) for s in sections)
 
@@ -70,6 +70,7 @@ def _texts() -> dict[str, str]:
         ["git", "-C", str(ROOT), "ls-files", "*.py", "docs/*.md"],
         capture_output=True,
         text=True,
+        timeout=60,
         check=True,
     ).stdout.split()
     texts = {}
@@ -81,12 +82,16 @@ def _texts() -> dict[str, str]:
     return texts
 
 
+def _flat(text: str) -> str:
+    """``text`` on one line: line breaks and comment leaders folded into spaces."""
+    return re.sub(r"\s*\n\s*#?\s*", " ", text)
+
+
 def _pointers() -> list[tuple[str, str, str]]:
     """(file, page, section) of every pointer, comment leaders and line breaks folded."""
     found = []
     for name, text in _texts().items():
-        flat = re.sub(r"\s*\n\s*#?\s*", " ", text)
-        for m in POINTER.finditer(flat):
+        for m in POINTER.finditer(_flat(text)):
             for section in [m.group(2), *re.findall(_QUOTED, m.group(3))]:
                 found.append((name, m.group(1), section))
     return found
@@ -99,7 +104,7 @@ def test_every_pointer_names_a_section_that_exists() -> None:
     broken = [
         f'{name}: {page}, "{section}"'
         for name, page, section in pointers
-        if page in pages and not _names(DOCS / page, section, pages[page])
+        if page in pages and not _names(section, pages[page])
     ]
     assert broken == []
 
@@ -107,13 +112,12 @@ def test_every_pointer_names_a_section_that_exists() -> None:
 def test_the_scan_finds_a_pointer_in_a_wrapped_docstring(tmp_path: Path) -> None:
     module = tmp_path / "m.py"
     module.write_text('"""Says so (docs/protocol.md,\n"Latch and faults", "Nowhere")."""\n')
-    flat = re.sub(r"\s*\n\s*#?\s*", " ", _prose(module))
-    (m,) = POINTER.finditer(flat)
+    (m,) = POINTER.finditer(_flat(_prose(module)))
     assert (m.group(1), m.group(2), re.findall(_QUOTED, m.group(3))) == (
         "protocol.md",
         "Latch and faults",
         ["Nowhere"],
     )
     sections = _sections(DOCS / "protocol.md")
-    assert _names(DOCS / "protocol.md", "Latch and faults", sections)
-    assert not _names(DOCS / "protocol.md", "Nowhere", sections)
+    assert _names("Latch and faults", sections)
+    assert not _names("Nowhere", sections)

@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 
 from firmware_proto.model.worldmap import MAPS_DIR
+from firmware_proto.runtime import stall
 from tests.child import Child
 
 pytestmark = pytest.mark.rclpy
@@ -253,7 +254,7 @@ def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
         assert not any("Traceback" in line for line in go.errors), go.errors
         # Its last word is the cancellation (its stall monitor may still log a stall of its
         # end, on a busy machine: a log record, not something it says).
-        said = [line for line in go.errors if " firmware_proto.runtime.stall: " not in line]
+        said = [line for line in go.errors if f" {stall.logger.name}: " not in line]
         assert said[-1] == "rover go: cancelled by the operator; the rover was sent STOP", said
         deadline = time.monotonic() + 10
         while _status(control)["wheel_mps"] != [0.0, 0.0]:
