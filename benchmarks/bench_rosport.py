@@ -9,7 +9,7 @@ Cases, three of them between two processes (the publisher here, the subscriber i
 process), all real ROS 2 Jazzy (rclpy, rmw_fastrtps_cpp):
 
 - ``rosport rclpy``: our ``rclpy`` backend on both sides (the port's default lane);
-- ``rosport rclpy, STOP lane``: the same on the STOP lane (a node and executor of its
+- ``rosport rclpy, STOP lane``: the same on the STOP lane (a node and wait set of its
   own, as the bridge's ``emergency_stop``);
 - ``rosport rclpy-process`` and its STOP lane: the bridge's backend, the node in a child
   process of each side (docs/rosport.md);
@@ -18,7 +18,9 @@ process), all real ROS 2 Jazzy (rclpy, rmw_fastrtps_cpp):
 - ``rosport inprocess``: our in-process backend (one process, nothing serialised).
 
 Latency is one way, from just before ``publish`` to the subscriber's callback, and
-``call`` the time spent inside ``publish``, both on CLOCK_MONOTONIC; messages are paced
+``call`` the time spent inside ``publish``, both on CLOCK_MONOTONIC; ``sub CPU us/msg`` is
+the subscriber process's CPU time (every thread, the middleware's too) per message, where
+that process holds the node (not for ``rclpy-process`` or in process); messages are paced
 at 500/s (latency, not queueing). The sustained rate is messages/s with nothing lost:
 acknowledged every 5th, at most 10 (the keep-last depth) unacknowledged.
 """
@@ -42,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.ros.rosport import DEFAULT_LANE, STOP_LANE, open_port
-from bridge.ros.rosport.msgs import Int16MultiArray, String
+from bridge.ros.rosport.msgs import Header, Int16MultiArray, Odometry, String
 
 REPO = Path(__file__).resolve().parents[1]
 LATENCY_COUNT = 2000
@@ -101,6 +103,12 @@ KINDS: dict[str, tuple[type[Any], Callable[[int], Any], Callable[[Any], int]]] =
         String,
         lambda seq: String(data=f"accepted:{seq}"),
         lambda msg: int(msg.data.rsplit(":", 1)[1]),
+    ),
+    # The stack's busiest topic (/odom, 200/s at --speed 4): 700-odd bytes, covariances.
+    "Odometry": (
+        Odometry,
+        lambda seq: Odometry(header=Header(frame_id=str(seq))),
+        lambda msg: int(msg.header.frame_id),
     ),
 }
 
@@ -278,14 +286,17 @@ def child(backend: str, kind: str, count: int, acks: bool) -> int:
     """The subscriber process: print ``ready``; on ``go`` (the sender's publisher exists)
     wait until the subscription hears it and print ``matched``; then record until every
     message came, or ``GRACE_S`` after the sender says ``end``; print the arrival times
-    as JSON."""
+    as JSON, with the CPU time this process used meanwhile (every thread: the port's and
+    the middleware's; ``None`` for ``rclpy-process``, whose node is a process of its own)."""
     receiver = Receiver(backend, kind, count, acks)
     ended = threading.Event()
+    cpu_s: float | None = None
     try:
         print("ready", flush=True)
         if sys.stdin.readline().strip() != "go":
             return 1
         print("matched" if receiver.link.wait_heard() else "unheard", flush=True)
+        cpu0 = time.process_time()
 
         def wait_end() -> None:
             sys.stdin.readline()
@@ -297,9 +308,11 @@ def child(backend: str, kind: str, count: int, acks: bool) -> int:
             if ended.is_set():
                 receiver.done.wait(GRACE_S)  # stragglers; what is missing then was lost
                 break
+        if not backend.startswith("rclpy-process"):
+            cpu_s = time.process_time() - cpu0
     finally:
         receiver.link.close()
-    print(json.dumps(receiver.times), flush=True)
+    print(json.dumps({"times": receiver.times, "cpu_s": cpu_s}), flush=True)
     return 0
 
 
@@ -348,9 +361,11 @@ class Sender:
 
 def run_case(
     backend: str, kind: str, count: int, rate_hz: float | None
-) -> tuple[dict[int, int], dict[int, int], dict[int, int]]:
+) -> tuple[dict[int, int], dict[int, int], dict[int, int], float | None]:
     """Send and receive one case; return send and arrival times, and the ``publish``
-    calls' durations, by sequence number (ns)."""
+    calls' durations, by sequence number (ns), and the subscriber process's CPU seconds
+    from the match to the last message (``None`` where the subscriber's node is not
+    that process: in process, and ``rclpy-process``)."""
     acks = rate_hz is None
     if backend == "inprocess":
         receiver = Receiver(backend, kind, count, acks)
@@ -361,7 +376,7 @@ def run_case(
         finally:
             sender.link.close()
             receiver.link.close()
-        return sent, receiver.times, sender.calls
+        return sent, receiver.times, sender.calls, None
     proc = subprocess.Popen(
         [
             sys.executable, "-m", "benchmarks.bench_rosport",
@@ -396,8 +411,10 @@ def run_case(
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    arrived = {int(k): v for k, v in json.loads(out.strip().splitlines()[-1]).items()}
-    return sent, arrived, sender.calls
+    report = json.loads(out.strip().splitlines()[-1])
+    arrived = {int(k): v for k, v in report["times"].items()}
+    cpu_s = report["cpu_s"]
+    return sent, arrived, sender.calls, None if cpu_s is None else float(cpu_s)
 
 
 # -- report ----------------------------------------------------------------------------------
@@ -449,19 +466,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     header = (
         f"{'case':35} {'message':19} {'p50 us':>7} {'p99 us':>7} {'max us':>7} {'lost':>5}"
-        f" {'call p50':>8} {'call p99':>8}"
+        f" {'call p50':>8} {'call p99':>8} {'sub CPU us/msg':>14}"
     )
     print(header)
     print("-" * len(header))
     for kind in kinds:
         for label, backend in CASES:
-            sent, arrived, calls = run_case(backend, kind, args.latency_count, LATENCY_RATE_HZ)
+            sent, arrived, calls, cpu_s = run_case(
+                backend, kind, args.latency_count, LATENCY_RATE_HZ
+            )
             lat = [(arrived[s] - sent[s]) / 1000 for s in sent if s in arrived]
             call = [ns / 1000 for ns in calls.values()]
+            per_msg = "-" if cpu_s is None else f"{cpu_s / max(1, len(lat)) * 1e6:.0f}"
             print(
                 f"{label:35} {kind:19} {statistics.median(lat):7.0f} "
                 f"{percentile(lat, 0.99):7.0f} {max(lat):7.0f} {len(sent) - len(lat):5d}"
-                f" {statistics.median(call):8.0f} {percentile(call, 0.99):8.0f}"
+                f" {statistics.median(call):8.0f} {percentile(call, 0.99):8.0f} {per_msg:>14}"
             )
     print()
     print(
@@ -473,7 +493,7 @@ def main(argv: list[str] | None = None) -> int:
     print("-" * len(header))
     for kind in kinds:
         for label, backend in CASES:
-            sent, arrived, _ = run_case(backend, kind, args.rate_count, None)
+            sent, arrived, _, _ = run_case(backend, kind, args.rate_count, None)
             seconds = (max(arrived.values()) - min(sent.values())) / 1e9
             print(
                 f"{label:35} {kind:19} {len(arrived) / seconds:8.0f} {len(sent) - len(arrived):5d}"

@@ -121,6 +121,7 @@ def test_bench_rosport_small_counts_print_its_tables() -> None:
     assert "raw rclpy (2 processes)" in out
     assert "rosport rclpy, STOP lane (2 proc.)" in out
     assert "rosport rclpy-process (2 processes)" in out and "call p99" in out
+    assert "sub CPU us/msg" in out
 
 
 @pytest.mark.rclpy

@@ -59,3 +59,47 @@ def test_middleware_names_the_rmw_and_rclpy() -> None:
     from bridge.ros.rosport.rclpy_backend import middleware
 
     assert middleware().startswith("rmw_fastrtps_cpp (rclpy 7.")
+
+
+@pytest.mark.rclpy
+def test_the_nodes_own_timers_and_services_run_on_the_default_lane_thread() -> None:
+    """The default lane waits on the node's timers and services besides its subscriptions
+    and runs their callbacks on its own thread, between messages, never beside them."""
+    import threading
+
+    from bridge.ros.rosport.msgs import String
+
+    rcl_interfaces = importlib.import_module("rcl_interfaces.srv")
+    with open_port("rclpy", namespace="lanes", node_name="bridge") as port:
+        threads: dict[str, threading.Thread] = {}
+        heard = {name: threading.Event() for name in ("message", "timer", "service")}
+
+        def mark(name: str) -> None:
+            threads[name] = threading.current_thread()
+            heard[name].set()
+
+        port.subscribe("chatter", String, lambda _msg: mark("message"))
+        publisher = port.publisher("chatter", String)
+        node = port.node  # type: ignore[attr-defined]
+        timer = node.create_timer(0.05, lambda: mark("timer"))
+
+        def on_list(request: object, response: object) -> object:
+            mark("service")
+            return response
+
+        node.create_service(rcl_interfaces.ListParameters, "probe", on_list)
+        client = node.create_client(rcl_interfaces.ListParameters, "probe")
+        assert client.wait_for_service(timeout_sec=10.0)
+        future = client.call_async(rcl_interfaces.ListParameters.Request())
+        deadline = time.monotonic() + 10.0
+        while not heard["message"].is_set() and time.monotonic() < deadline:
+            publisher.publish(String(data="hello"))
+            heard["message"].wait(0.05)
+        assert heard["timer"].wait(10.0) and heard["service"].wait(10.0)
+        assert heard["message"].is_set()
+        done = threading.Event()
+        future.add_done_callback(lambda _f: done.set())
+        assert done.wait(10.0)  # the client's response, taken by the same lane
+        timer.cancel()
+        assert threads["timer"] is threads["message"] is threads["service"]
+        assert threads["message"] is not threading.current_thread()

@@ -20,7 +20,8 @@ middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
 
 Each message a reader takes goes to the parent on ``msg`` as ``("msg", reader, cdr)``;
 the STOP child (``stop_only``) takes every reader on its node's rcl wait set, as the
-rclpy backend's STOP lane does; the other on its default lane (its executor).
+rclpy backend's STOP lane does; the other on its default lane's wait set, which also
+holds the node's parameter services.
 
 SIGINT and SIGTERM are ignored: the parent decides when this process ends (a Ctrl-C
 reaches the whole process group, and the parent must close the node itself).

@@ -5,12 +5,14 @@ without it gets :class:`BackendUnavailableError` saying how to install it. This 
 only module of the project that imports rclpy itself (message classes come from
 :mod:`bridge.ros.rosport.msgs`).
 
-A port is one rclpy node in its own context, without rclpy's signal handlers; its
-default lane is spun by a ``SingleThreadedExecutor``, its STOP lane is a second node
-``<node_name>_stop`` whose thread waits on an rcl wait set of the STOP subscriptions
-alone (through ``rclpy.impl.implementation_singleton``), so an emergency stop waits for no
-other callback (docs/rosport.md, "``rclpy``"). Messages are published and delivered as
-they are.
+A port is one rclpy node in its own context, without rclpy's signal handlers. Each lane's
+thread waits on an rcl wait set of its own (through
+``rclpy.impl.implementation_singleton``) and takes its messages itself. The default lane's
+set also holds the node's services, timers, clients and waitables, whose callbacks a
+``SingleThreadedExecutor`` runs on that same thread. The STOP lane is a second node
+``<node_name>_stop`` whose set holds the STOP subscriptions alone, so an emergency stop
+waits for no other callback (docs/rosport.md, "``rclpy``"). Messages are published and
+delivered as they are.
 """
 
 from __future__ import annotations
@@ -115,8 +117,9 @@ class _Reader:
 
 
 class _Lane:
-    """One lane: a node, its executor (``None``: the wait-set loop of the STOP lane), a
-    guard condition that wakes it, and the subscriptions the loop takes from."""
+    """One lane: a node, the executor of its node's other entities (``None`` on the STOP
+    lane, which waits on its subscriptions alone), a guard condition that wakes it, and
+    the subscriptions the loop takes from."""
 
     def __init__(self, node: Any, executor: Any) -> None:
         self.node = node
@@ -124,6 +127,142 @@ class _Lane:
         self.guard = node.create_guard_condition(lambda: None)
         self.lock = threading.Lock()
         self.readers: list[tuple[Any, Subscription[Any]]] = []
+
+
+class _NodeEntities:
+    """The node's entities other than subscriptions that a default lane waits on."""
+
+    __slots__ = ("clients", "key", "services", "timers", "waitables")
+
+    def __init__(
+        self,
+        services: tuple[Any, ...],
+        timers: tuple[Any, ...],
+        clients: tuple[Any, ...],
+        waitables: tuple[Any, ...],
+    ) -> None:
+        self.services = services
+        self.timers = timers
+        self.clients = clients
+        self.waitables = waitables
+        self.key = tuple(map(id, (*services, *timers, *clients, *waitables)))
+
+    @classmethod
+    def of(cls, node: Any) -> _NodeEntities:
+        """The node's entities now (none for ``None``: the STOP lane waits on none)."""
+        if node is None:
+            return _NO_ENTITIES
+        return cls(
+            tuple(node.services), tuple(node.timers), tuple(node.clients), tuple(node.waitables)
+        )
+
+
+_NO_ENTITIES: Final = _NodeEntities((), (), (), ())
+
+
+class _LaneWait:
+    """An rcl wait set for one lane, and the rcl handles it holds while it exists.
+
+    Held handles cannot be destroyed under the wait: an entity closed on another thread is
+    destroyed when :meth:`close` lets go of it (the lane's guard wakes the lane to build
+    a new wait set without it).
+
+    Raises:
+        InvalidHandle: (rclpy's) an entity was destroyed before it could be held.
+    """
+
+    def __init__(
+        self,
+        rcl: Any,
+        context: Any,
+        lane: _Lane,
+        readers: tuple[tuple[Any, Subscription[Any]], ...],
+        entities: _NodeEntities,
+    ) -> None:
+        self._readers = readers
+        self._entities = entities
+        self._reader_ids = tuple(id(r[0]) for r in readers)
+        self._guard = lane.guard
+        self._held = contextlib.ExitStack()
+        try:
+            self._held.enter_context(context.handle)
+            self._held.enter_context(lane.guard.handle)
+            for entity in (
+                *(r[0] for r in readers),
+                *entities.services,
+                *entities.timers,
+                *entities.clients,
+            ):
+                self._held.enter_context(entity.handle)
+            counts = [len(readers), 1, len(entities.timers), len(entities.clients)]
+            counts += [len(entities.services), 0]
+            for waitable in entities.waitables:  # a waitable may hold entities of every kind
+                self._held.enter_context(waitable)
+                n = waitable.get_num_entities()
+                extra = (
+                    n.num_subscriptions,
+                    n.num_guard_conditions,
+                    n.num_timers,
+                    n.num_clients,
+                    n.num_services,
+                    n.num_events,
+                )
+                counts = [a + b for a, b in zip(counts, extra, strict=True)]
+            self._wait_set = rcl.WaitSet(*counts, context.handle)
+        except BaseException:
+            self._held.close()
+            raise
+
+    def holds(
+        self, readers: tuple[tuple[Any, Subscription[Any]], ...], entities: _NodeEntities
+    ) -> bool:
+        """True while the lane's entities are the ones this wait set was built for."""
+        return (
+            entities.key == self._entities.key
+            and tuple(id(r[0]) for r in readers) == self._reader_ids
+        )
+
+    def wait(self, timeout_ns: int) -> tuple[list[tuple[Subscription[Any], Any]], int]:
+        """Wait at most ``timeout_ns`` for any entity, then take the ready messages.
+
+        Returns:
+            The messages taken from ready subscriptions, in reader order, and how many of
+            the node's other entities are ready (their callbacks are the executor's).
+        """
+        ws = self._wait_set
+        e = self._entities
+        ws.clear_entities()  # rcl_wait leaves only the ready entities in the set
+        for subscription, _ in self._readers:
+            ws.add_subscription(subscription.handle)
+        ws.add_guard_condition(self._guard.handle)
+        for timer in e.timers:
+            ws.add_timer(timer.handle)
+        for client in e.clients:
+            ws.add_client(client.handle)
+        for service in e.services:
+            ws.add_service(service.handle)
+        for waitable in e.waitables:
+            waitable.add_to_wait_set(ws)
+        ws.wait(timeout_ns)
+        taken: list[tuple[Subscription[Any], Any]] = []
+        for index, (subscription, sub) in enumerate(self._readers):
+            if ws.is_ready("subscription", index):
+                message = subscription.handle.take_message(sub.msg_type, False)
+                if message is not None:
+                    taken.append((sub, message[0]))
+        others = 0
+        for kind, count in (
+            ("timer", len(e.timers)),
+            ("client", len(e.clients)),
+            ("service", len(e.services)),
+        ):
+            others += sum(1 for index in range(count) if ws.is_ready(kind, index))
+        others += sum(1 for waitable in e.waitables if waitable.is_ready(ws))
+        return taken, others
+
+    def close(self) -> None:
+        """Let go of the held handles (entities closed meanwhile are destroyed now)."""
+        self._held.close()
 
 
 class RclpyPort(RosPort):
@@ -320,44 +459,54 @@ class RclpyPort(RosPort):
         return _Reader(lane, subscription)
 
     def _run(self, lane_name: str) -> None:
+        """One lane's loop: an rcl wait set of the lane's subscriptions and its guard.
+
+        Each ready subscription's message is taken here and delivered on this thread. The
+        default lane's wait set also holds the node's services, timers, clients and
+        waitables (parameter services, QoS events); when one of those is ready the lane's
+        executor runs the ready callbacks on this same thread. The wait set and the rcl
+        handles it holds are kept from one wait to the next and built again only when the
+        entities change. rclpy's own executor rebuilds its whole wait set, with a fresh
+        timeout timer, for every message: at 200 ``/odom`` messages a second that cost
+        about twice the CPU of this loop (docs/rosport.md, "``rclpy``").
+        """
         lane = self._lane(lane_name)
         rcl = importlib.import_module("rclpy.impl.implementation_singleton").rclpy_implementation
-        if lane.executor is not None:
-            destroyed = 0  # spins in a row that met an entity being destroyed
-            while not self._stopping.is_set() and self._context.ok():
-                try:
-                    lane.executor.spin_once(timeout_sec=_SPIN_S)
-                    destroyed = 0
-                except rcl.InvalidHandle:
-                    # A subscription of this lane closed on another thread while the
-                    # executor built its wait set: the next spin builds the set without
-                    # it. An entity that stays invalid is a failure of the lane.
-                    destroyed += 1
-                    if destroyed > _MAX_DESTROYED_SPINS:
-                        raise
-                    logger.debug("%s: lane %s met an entity being destroyed", self, lane_name)
-            return
         timeout_ns = int(_SPIN_S * 1e9)
-        while not self._stopping.is_set() and self._context.ok():
-            with lane.lock:
-                readers = list(lane.readers)
-            with contextlib.ExitStack() as held:  # rcl handles stay valid while waited on
-                held.enter_context(self._context.handle)
-                held.enter_context(lane.guard.handle)
-                for subscription, _ in readers:
-                    held.enter_context(subscription.handle)
-                wait_set = rcl.WaitSet(len(readers), 1, 0, 0, 0, 0, self._context.handle)
-                wait_set.clear_entities()
-                for subscription, _ in readers:
-                    wait_set.add_subscription(subscription.handle)
-                wait_set.add_guard_condition(lane.guard.handle)
-                wait_set.wait(timeout_ns)
-                for index, (subscription, sub) in enumerate(readers):
-                    if not wait_set.is_ready("subscription", index):
+        destroyed = 0  # builds in a row that met an entity being destroyed
+        node = self._node if lane.executor is not None else None
+        wait: _LaneWait | None = None
+        try:
+            while not self._stopping.is_set() and self._context.ok():
+                with lane.lock:
+                    readers = tuple(lane.readers)
+                entities = _NodeEntities.of(node)
+                if wait is None or not wait.holds(readers, entities):
+                    if wait is not None:
+                        wait.close()
+                        wait = None
+                    try:
+                        wait = _LaneWait(rcl, self._context, lane, readers, entities)
+                        destroyed = 0
+                    except rcl.InvalidHandle:
+                        # An entity of this lane closed on another thread while the wait
+                        # set was built: the next build is without it. An entity that
+                        # stays invalid is a failure of the lane.
+                        destroyed += 1
+                        if destroyed > _MAX_DESTROYED_SPINS:
+                            raise
+                        logger.debug("%s: lane %s met an entity being destroyed", self, lane_name)
                         continue
-                    taken = subscription.handle.take_message(sub.msg_type, False)
-                    if taken is not None:
-                        self._deliver(sub, taken[0])
+                taken, others_ready = wait.wait(timeout_ns)
+                for sub, msg in taken:
+                    self._deliver(sub, msg)
+                if others_ready and lane.executor is not None:
+                    # Each spin runs one ready callback; a spin that finds none returns.
+                    for _ in range(others_ready):
+                        lane.executor.spin_once(timeout_sec=0)
+        finally:
+            if wait is not None:
+                wait.close()
 
     def _wake(self) -> None:
         with self._lanes_lock:
