@@ -90,6 +90,11 @@ LATE_TURN_S = 0.25
 BACKLOG_GRACE_S = 0.05
 """After such a stall the core's deadlines wait this long, s, for the samples queued meanwhile:
 the blind check judges silent sensors, not the program's stall (docs/onboard.md)."""
+ONBOARD_POSE_PERIOD_S = 0.1
+"""``onboard_pose`` goes out for each estimate that took a new POSE fix, and for an
+odometry-only estimate once this much later (estimate stamps, s) than the one before:
+10 Hz, not the odometry's 50 (200 a second at ``--speed 4``), for the link and the ground.
+The guard itself acts on every estimate."""
 
 
 def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:
@@ -141,6 +146,9 @@ class OnboardNode:
         self._report = port.publisher(ONBOARD_REPORT, String, qos.STATUS)
         self._status = port.publisher(COMMAND_STATUS, String, qos.STATUS)
         self._pose = port.publisher(ONBOARD_POSE, Odometry, qos.TELEMETRY)
+        #: ``(stamp_s, pose_stamp_s)`` of the last estimate published on ``onboard_pose``.
+        self._published: tuple[float, float] | None = None
+        self.poses_published = 0
         self._subs: list[Subscription[Any]] = [
             port.subscribe(EMERGENCY_STOP, Bool, self._on_stop, qos.STOP, lane=STOP_LANE),
             port.subscribe(PLAN_UPLINK, String, self._on_uplink, qos.COMMAND),
@@ -248,7 +256,22 @@ class OnboardNode:
             actions = self.core.take_actions()
             self._wake.notify()
         self._act(actions)
-        self._pose.publish(self._odometry(estimate))
+        if self._pose_due(estimate):
+            self._pose.publish(self._odometry(estimate))
+
+    def _pose_due(self, est: Estimate) -> bool:
+        """Whether ``est`` goes out on ``onboard_pose`` (:data:`ONBOARD_POSE_PERIOD_S`)."""
+        with self._lock:
+            last = self._published
+            due = (
+                last is None
+                or est.pose_stamp_s != last[1]  # a new POSE fix
+                or not last[0] <= est.stamp_s < last[0] + ONBOARD_POSE_PERIOD_S
+            )
+            if due:
+                self._published = (est.stamp_s, est.pose_stamp_s)
+                self.poses_published += 1
+        return due
 
     def _odometry(self, est: Estimate) -> Odometry:
         c = est.covariance

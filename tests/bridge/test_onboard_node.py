@@ -5,6 +5,7 @@ The program on real DDS beside a real bridge is tests/bridge/test_onboard_missio
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -13,10 +14,11 @@ from typing import Any
 import pytest
 
 from bridge.onboard.core import OnboardConfig, decode_screened
-from bridge.onboard.node import BACKLOG_GRACE_S, OnboardNode
+from bridge.onboard.node import BACKLOG_GRACE_S, ONBOARD_POSE_PERIOD_S, OnboardNode
 from bridge.ros.rosport import RosPort, open_port, qos
 from bridge.ros.rosport.contract import (
     EMERGENCY_STOP,
+    ONBOARD_POSE,
     ONBOARD_REPORT,
     PLAN_UPLINK,
     WHEEL_INSTRUCTIONS,
@@ -35,6 +37,7 @@ from bridge.ros.rosport.msgs import (
     Vector3,
     quaternion_from_yaw,
     stamp,
+    stamp_s,
 )
 from firmware_proto.linkio.clock import LockstepClock
 from firmware_proto.model.downlink import OnboardReport, decode_report
@@ -334,3 +337,32 @@ def test_a_stall_of_the_whole_program_waits_for_its_backlog_before_the_blind_che
         assert b.node.late_turns == 1
         assert b.reports[-1].outcome == "blind" and b.stops
         assert b.stops[0] - end == pytest.approx(BACKLOG_GRACE_S, abs=0.015)
+
+
+def test_onboard_pose_goes_out_for_each_fix_and_at_10_hz_between_fixes(bench: Bench) -> None:
+    """``onboard_pose`` carries every estimate that took a POSE fix, and odometry-only
+    estimates at most every ``ONBOARD_POSE_PERIOD_S`` of their stamps (the guard acts on
+    all of them): 10 Hz for the link, not the odometry's 50."""
+    got: list[float] = []
+    bench.ground.subscribe(
+        ONBOARD_POSE, Odometry, lambda m: got.append(stamp_s(m.header.stamp)), qos.SENSOR
+    )
+    bench.odometry("odom_ground", 0.0)  # the first fix: the filter starts
+    bench.clock.advance()
+    assert len(got) == 1
+    t0 = bench.wall()
+    for k in range(1, 51):  # 1 s of odometry at 50 Hz, moving, no fix
+        bench.clock.advance()
+        bench.clock.advance()
+        bench.x_m = 0.01 * k
+        bench.odometry("odom", 0.5)
+    odometry_only = [t for t in got[1:] if t > t0]
+    assert len(odometry_only) == pytest.approx(1.0 / ONBOARD_POSE_PERIOD_S, abs=1)
+    gaps = [b - a for a, b in itertools.pairwise(odometry_only)]
+    assert min(gaps) >= ONBOARD_POSE_PERIOD_S - 1e-6
+    before = len(got)
+    bench.clock.advance()
+    bench.odometry("odom_ground", 0.0, x_m=0.5)  # a fix 0.01 s after the last odometry
+    bench.clock.advance()
+    assert len(got) == before + 1
+    assert bench.node.poses_published == len(got)
