@@ -274,6 +274,15 @@ EXTENDED: dict[str, str] = {
         "test_socketcan.py (VM); candump logs recorded and decoded: "
         "tests/bridge/test_traffic.py (host)"
     ),
+    # The page at the real 3 s round trip through a whole demo (about 60 s of wall in the
+    # serial part): issue #41's ghost (a step's ``published`` reported three times
+    # before the rover acknowledges it) is the view hub's, checked in virtual time through
+    # a mission, a STOP and a re-plan; the page over a real stack stays in the STOP test.
+    "tests/planner/test_view_browser.py::test_the_ghost_stays_on_the_plan_at_speed_1": (
+        "tests/planner/test_view_hub.py::test_the_ghost_stays_on_the_plan_through_a_mission"
+        "_a_stop_and_a_replan (virtual time); tests/planner/test_view_browser.py::"
+        "test_stop_on_the_page_stops_the_emulated_rover (the page, the ghost, a real stack)"
+    ),
     # The nRF51's whole mission (about 110 s of wall in the serial part): its image passes
     # every conformance rule and the STOP bench over its UART in the command, and the
     # ATmega2560's demo (the issue's "done when") stays.

@@ -26,6 +26,7 @@ function), so a lazy import counts as much as a top-level one:
 from __future__ import annotations
 
 import ast
+import functools
 import subprocess
 import sys
 from pathlib import Path
@@ -48,9 +49,11 @@ def _modules(package: str) -> dict[str, Path]:
     return found
 
 
-def _imports(path: Path) -> set[str]:
+@functools.cache
+def _imports(path: Path) -> frozenset[str]:
     """Every module name an import statement in ``path`` names (absolute imports only:
-    the project uses no relative ones outside tests)."""
+    the project uses no relative ones outside tests). Read once per run (the tests below
+    ask of the same files many times)."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
@@ -58,7 +61,7 @@ def _imports(path: Path) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
             names.add(node.module)
             names.update(f"{node.module}.{alias.name}" for alias in node.names)
-    return names
+    return frozenset(names)
 
 
 def _under(name: str, prefix: str) -> bool:
@@ -203,10 +206,12 @@ def test_the_planner_uses_only_the_bridges_ros_port() -> None:
 PACKAGES = ("firmware_proto", "emulator", "bridge", "gate", "planner", "udev", "sim")
 
 
-def _targets(path: Path) -> set[str]:
+@functools.cache
+def _targets(path: Path) -> frozenset[str]:
     """The modules an import statement in ``path`` loads: ``from a.b import c`` loads
     module ``a.b.c`` where there is one, else ``a.b`` (its package is loaded either
-    way, but importing from a package is no import of the package's own name)."""
+    way, but importing from a package is no import of the package's own name). Read once
+    per run."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
@@ -217,7 +222,7 @@ def _targets(path: Path) -> set[str]:
                 where = ROOT / full.replace(".", "/")
                 is_module = where.is_dir() or where.with_suffix(".py").is_file()
                 names.add(full if is_module else node.module)
-    return names
+    return frozenset(names)
 
 
 def _circles() -> list[list[str]]:
@@ -264,7 +269,7 @@ def test_no_import_circle() -> None:
 def test_the_circle_check_sees_a_circle(monkeypatch: pytest.MonkeyPatch) -> None:
     real = _targets
 
-    def with_a_circle(path: Path) -> set[str]:
+    def with_a_circle(path: Path) -> frozenset[str]:
         extra = {"planner.plan.orchestrator"} if path == ROOT / "planner" / "errors.py" else set()
         return real(path) | extra
 
