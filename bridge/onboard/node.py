@@ -148,6 +148,7 @@ class OnboardNode:
         self._pose = port.publisher(ONBOARD_POSE, Odometry, qos.TELEMETRY)
         #: ``(stamp_s, pose_stamp_s)`` of the last estimate published on ``onboard_pose``.
         self._published: tuple[float, float] | None = None
+        #: Estimates sent on ``onboard_pose`` (:data:`ONBOARD_POSE_PERIOD_S`).
         self.poses_published = 0
         self._subs: list[Subscription[Any]] = [
             port.subscribe(EMERGENCY_STOP, Bool, self._on_stop, qos.STOP, lane=STOP_LANE),
