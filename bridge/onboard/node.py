@@ -256,22 +256,23 @@ class OnboardNode:
             self.core.on_estimate(on_core_clock, now)
             actions = self.core.take_actions()
             self._wake.notify()
+            pose_due = self._pose_due(estimate)
         self._act(actions)
-        if self._pose_due(estimate):
+        if pose_due:
             self._pose.publish(self._odometry(estimate))
 
     def _pose_due(self, est: Estimate) -> bool:
-        """Whether ``est`` goes out on ``onboard_pose`` (:data:`ONBOARD_POSE_PERIOD_S`)."""
-        with self._lock:
-            last = self._published
-            due = (
-                last is None
-                or est.pose_stamp_s != last[1]  # a new POSE fix
-                or not last[0] <= est.stamp_s < last[0] + ONBOARD_POSE_PERIOD_S
-            )
-            if due:
-                self._published = (est.stamp_s, est.pose_stamp_s)
-                self.poses_published += 1
+        """Whether ``est`` goes out on ``onboard_pose`` (:data:`ONBOARD_POSE_PERIOD_S`),
+        counted as sent if so; the caller holds the lock."""
+        last = self._published
+        due = (
+            last is None
+            or est.pose_stamp_s != last[1]  # a new POSE fix
+            or not last[0] <= est.stamp_s < last[0] + ONBOARD_POSE_PERIOD_S
+        )
+        if due:
+            self._published = (est.stamp_s, est.pose_stamp_s)
+            self.poses_published += 1
         return due
 
     def _odometry(self, est: Estimate) -> Odometry:

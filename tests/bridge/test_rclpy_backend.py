@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import threading
 import time
 
 import pytest
@@ -65,8 +66,6 @@ def test_middleware_names_the_rmw_and_rclpy() -> None:
 def test_the_nodes_own_timers_and_services_run_on_the_default_lane_thread() -> None:
     """The default lane waits on the node's timers and services besides its subscriptions
     and runs their callbacks on its own thread, between messages, never beside them."""
-    import threading
-
     from bridge.ros.rosport.msgs import String
 
     rcl_interfaces = importlib.import_module("rcl_interfaces.srv")
