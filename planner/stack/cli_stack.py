@@ -158,6 +158,14 @@ def register(subparsers: Any) -> None:
         metavar="S",
         help="how long each part may take to come up, and the rover to report (default 60)",
     )
+    up.add_argument(
+        "--link-timeout",
+        type=values.positive,
+        default=20.0,
+        metavar="S",
+        help="once the rover reports, how long its link to the controller may take to "
+        "come up before the stack says why not and ends, exit 1 (default 20)",
+    )
     up.set_defaults(func=_up)
 
     env = sub.add_parser(
@@ -194,9 +202,10 @@ def _say(line: str) -> None:
     say(line)
 
 
-def _health(console: Any, timeout_s: float) -> Any:
+def _health(console: Any, timeout_s: float, link_timeout_s: float) -> Any:
     """The first state heard through the link in which the rover takes steps, else the
-    last one heard (``None``: none at all) within ``timeout_s``."""
+    last one heard (``None``: none at all): the first state within ``timeout_s``, and
+    one that takes steps within ``link_timeout_s`` of it (both in s)."""
     deadline = time.monotonic() + timeout_s
     last = None
     seen = 0
@@ -204,6 +213,8 @@ def _health(console: Any, timeout_s: float) -> Any:
         status = console.status(max(0.0, deadline - time.monotonic()), newer_than=seen)
         if status is None:
             break
+        if last is None:  # the rover reports: its link now has link_timeout_s to come up
+            deadline = min(deadline, time.monotonic() + link_timeout_s)
         seen = console.diagnostics_seen
         last = status
         if status.ready:
@@ -321,12 +332,14 @@ def _up(args: argparse.Namespace) -> int:
                 f"CONSOLE {server.url} (rover status / stop / clear-stop / echo answer here, "
                 "rover side, at once)"
             )
+            # Through the link, each state comes a one-way delay late.
             wait_s = config.startup_timeout_s + config.rtt_s / config.speed
+            link_wait_s = args.link_timeout + config.rtt_s / config.speed
             with (
                 open_port("rclpy", namespace="ground", node_name="rover_stack") as port,
                 RoverConsole(port) as through_link,
             ):
-                health = _health(through_link, wait_s)
+                health = _health(through_link, wait_s, link_wait_s)
             if not console.wait_matched(config.startup_timeout_s):
                 _say("rover stack: the console has not matched the bridge's topics yet")
             if health is None:
@@ -347,7 +360,8 @@ def _up(args: argparse.Namespace) -> int:
                 for line in health.text(f"domain {domain}, through the link").splitlines():
                     _say("health: " + line.strip())
                 print(
-                    f"rover stack: error: no link to the controller within {wait_s:g} s: "
+                    f"rover stack: error: no link to the controller within {link_wait_s:g} s "
+                    f"of the rover's first report: "
                     f"{health.why_held()[0]}",
                     file=sys.stderr,
                 )

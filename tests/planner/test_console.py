@@ -260,11 +260,13 @@ def test_a_stack_whose_device_never_answers_does_not_stay_up(
     tmp_path: Path, one_stack: None
 ) -> None:
     """``rover stack up --device`` on a device with no controller behind it ends with the
-    bridge's reason (exit 1) instead of staying up with the link in ERROR."""
+    bridge's reason (exit 1) instead of staying up with the link in ERROR: within
+    ``--link-timeout`` (plus the round trip) of the rover's first report, however long
+    ``--startup-timeout`` would let the parts take."""
     stack = Child(
         [
             *("stack", "up", "--device", str(tmp_path / "nothing-here"), "--rtt", "0.2"),
-            *("--startup-timeout", "45"),
+            *("--startup-timeout", "45", "--link-timeout", "2"),
         ],
         dict(os.environ),
     )
@@ -275,6 +277,7 @@ def test_a_stack_whose_device_never_answers_does_not_stay_up(
     assert not any(line.startswith("STACK UP") for line in stack.lines), stack.lines
     error = next(line for line in stack.errors if line.startswith("rover stack: error:"))
     assert "no link to the controller" in error and "nothing-here" in error, stack.errors
+    assert "within 2.2 s of the rover's first report" in error, error
     assert (
         "rover stack: stopping the link, the onboard program, the bridge and the gate"
         in stack.lines
