@@ -109,18 +109,21 @@ def rclpy_required() -> bool:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``, ``virtual``); skip,
+    """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``, ``virtual``,
+    ``soak``); skip,
     saying why, the ROS 2 tests whose environment is missing: ROS 2 itself, or the private
     network namespace."""
     ros = _ros_available()
     for item in items:
-        slow, extended, virtual = lane_marks(item.nodeid)
+        slow, extended, virtual, idle = lane_marks(item.nodeid)
         if slow:
             item.add_marker(pytest.mark.slow)
         if extended:
             item.add_marker(pytest.mark.extended)
         if virtual:
             item.add_marker(pytest.mark.virtual)
+        if idle:
+            item.add_marker(pytest.mark.soak)
         if item.get_closest_marker("rclpy"):
             if not ros:
                 item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))

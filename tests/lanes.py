@@ -16,7 +16,15 @@ tests/conftest.py.
 
 from __future__ import annotations
 
-__all__ = ["EXTENDED", "HEAVY", "SLOW_MODULES", "VIRTUAL_MODULES", "VIRTUAL_TESTS", "lane_marks"]
+__all__ = [
+    "EXTENDED",
+    "HEAVY",
+    "IDLE",
+    "SLOW_MODULES",
+    "VIRTUAL_MODULES",
+    "VIRTUAL_TESTS",
+    "lane_marks",
+]
 
 SLOW_MODULES = (
     "tests/bridge/test_cli_bridge.py",
@@ -310,10 +318,26 @@ EXTENDED: dict[str, str] = {
 checked in it."""
 
 
-def lane_marks(nodeid: str) -> tuple[bool, bool, bool]:
-    """``(slow, extended, virtual)`` for a test's node id."""
+IDLE = (
+    # The mutation score: the conformance suite in lockstep against each mutant (about
+    # 50 CPU-seconds in all).
+    "tests/bridge/test_mutants.py::test_the_suite_fails_the_mutant_on_the_rule_it_breaks",
+    # Whole simulated rover sides on both controllers and media (about 13 CPU-seconds).
+    "tests/sim/test_world.py::test_the_mission_goes_as_it_must",
+)
+"""Node-id prefixes of tests that, beside the wire simulator's soak, keep no clock, start
+no program and take seconds of CPU in all: marked ``soak``, so that the test command
+runs them in its soak part, under ``SCHED_IDLE``, on the CPU the others leave, instead
+of in its no-wall-clock part, one process that would otherwise end last (docs/testing.md).
+The fast lane keeps what it ran of them."""
+
+
+def lane_marks(nodeid: str) -> tuple[bool, bool, bool, bool]:
+    """``(slow, extended, virtual, soak)`` for a test's node id (``soak``: one of
+    :data:`IDLE`; the soak's own tests are marked where they are written)."""
     path = nodeid.split("::", 1)[0]
     extended = any(nodeid.startswith(prefix) for prefix in EXTENDED)
     heavy = any(nodeid.startswith(prefix) for prefix in HEAVY)
     virtual = path in VIRTUAL_MODULES or heavy or any(nodeid.startswith(p) for p in VIRTUAL_TESTS)
-    return path in SLOW_MODULES or extended or heavy, extended, virtual
+    idle = any(nodeid.startswith(prefix) for prefix in IDLE)
+    return path in SLOW_MODULES or extended or heavy, extended, virtual, idle

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from _pytest.mark.expression import Expression
 
-from tests.lanes import EXTENDED, HEAVY, SLOW_MODULES, VIRTUAL_MODULES, VIRTUAL_TESTS
+from tests.lanes import EXTENDED, HEAVY, IDLE, SLOW_MODULES, VIRTUAL_MODULES, VIRTUAL_TESTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -122,3 +122,15 @@ def test_every_virtual_test_entry_names_collected_tests_of_a_slow_module(
         assert named, prefix
         assert prefix.split("::", 1)[0] in SLOW_MODULES, prefix
         assert all({"slow", "virtual"} <= marks[n] for n in named), prefix
+
+
+def test_every_idle_entry_names_collected_tests_that_keep_no_clock(
+    marks: dict[str, frozenset[str]],
+) -> None:
+    """Each :data:`tests.lanes.IDLE` prefix names tests, all marked ``soak`` (the test
+    command's part under ``SCHED_IDLE``), none of a real-time module, none serial."""
+    for prefix in IDLE:
+        named = [n for n in marks if n.startswith(prefix)]
+        assert len(named) > 1, prefix
+        assert all("soak" in marks[n] and "serial" not in marks[n] for n in named), prefix
+        assert prefix.split("::", 1)[0] not in SLOW_MODULES, prefix
