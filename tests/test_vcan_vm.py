@@ -65,3 +65,16 @@ def test_check_answers_0_or_125_with_the_reason() -> None:
     assert done.returncode in (0, 125), done
     if done.returncode == 125:
         assert "vcan-vm:" in done.stdout + done.stderr
+
+
+def test_a_live_directory_is_shared_uncached_at_its_own_path(vm: ModuleType) -> None:
+    """``--live DIR``: qemu shares DIR as a second 9p tag, and the guest mounts it at DIR
+    with no cache before the command runs (so that a file the host makes there is seen)."""
+    live = Path("/tmp/go dir")
+    script = vm.guest_script(["true"], Path("/src"), {}, "@T@", "tcg", live)
+    mount = script.index(f"cache=none {vm.LIVE_TAG} '/tmp/go dir'")
+    assert "mkdir -p '/tmp/go dir'" in script and mount < script.index("true </dev/null")
+    argv = vm.qemu_command(Path("/k"), Path("/i"), "tcg", 512, 1, live)
+    assert f"local,path={live},mount_tag={vm.LIVE_TAG},security_model=none,readonly=on" in argv
+    assert vm.LIVE_TAG not in vm.guest_script(["true"], Path("/src"), {}, "@T@", "tcg")
+    assert not any(vm.LIVE_TAG in a for a in vm.qemu_command(Path("/k"), Path("/i"), "tcg", 512, 1))
