@@ -48,8 +48,8 @@ def _quiet() -> Iterator[None]:
 FAST = ("stopped-at-once", "no-accel-ramp", "no-brake-ramp")
 """The controllers issue #22 found the suite passing. The fast lane (``-m "not slow"``)
 runs the first (tests/lanes.py HEAVY takes the other two out of it); every mutant runs
-in the test command's no-wall-clock part (marker ``virtual``): the whole score costs
-about half a minute of CPU."""
+in the test command's soak part (tests/lanes.py IDLE, marker ``soak``): the whole score
+costs about 50 CPU-seconds here."""
 
 
 @pytest.mark.parametrize(
