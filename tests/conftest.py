@@ -110,9 +110,8 @@ def rclpy_required() -> bool:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``, ``virtual``,
-    ``soak``); skip,
-    saying why, the ROS 2 tests whose environment is missing: ROS 2 itself, or the private
-    network namespace."""
+    ``soak``); skip, saying why, the ROS 2 tests whose environment is missing: ROS 2
+    itself, or the private network namespace."""
     ros = _ros_available()
     for item in items:
         slow, extended, virtual, idle = lane_marks(item.nodeid)

@@ -332,7 +332,7 @@ def _up(args: argparse.Namespace) -> int:
                 f"CONSOLE {server.url} (rover status / stop / clear-stop / echo answer here, "
                 "rover side, at once)"
             )
-            # Through the link, each state comes a one-way delay late.
+            # Through the link each state comes late: a round trip more is allowed.
             wait_s = config.startup_timeout_s + config.rtt_s / config.speed
             link_wait_s = args.link_timeout + config.rtt_s / config.speed
             with (
