@@ -294,6 +294,9 @@ class LinkCore:
         self._tx: deque[Outgoing] = deque()
         """Ordinary frames for the writer, in order."""
         self._ctrl_latched = False
+        self._stop_acked_gen: int | None = None
+        """The latch generation of a STOP_ACK no HEARTBEAT of that generation or later has
+        followed yet (a HEARTBEAT sent before the STOP does not show it)."""
         self._ctrl_state: int | None = None
         self._ended_seen = 0
         self._last_auto_clear = -math.inf
@@ -346,9 +349,15 @@ class LinkCore:
     @property
     def latch(self) -> tuple[str, ...]:
         """What holds the controller's latch (``fault``, ``stop``, ``watchdog``) as its
-        last HEARTBEAT said; empty when it is not latched."""
+        last HEARTBEAT said, with ``stop`` from a STOP_ACK of a later latch generation than
+        that HEARTBEAT's (the next one shows it); empty when it is not latched."""
+        if not self._ctrl_latched:
+            return ()
         hb = self._heartbeat
-        return latch_causes(hb) if hb is not None and self._ctrl_latched else ()
+        causes = latch_causes(hb) if hb is not None else ()
+        if self._stop_acked_gen is not None and "stop" not in causes:
+            causes = tuple(sorted((*causes, "stop")))
+        return causes
 
     @property
     def clear_open(self) -> bool:
@@ -744,6 +753,7 @@ class LinkCore:
         known = self._latch_gen
         self._latch_gen = msg.latch_gen
         self._ctrl_latched = True
+        self._stop_acked_gen = msg.latch_gen
         self._ctrl_state = msg.state
         if stop is None or msg.stop_id != stop.stop_id:
             if msg.stop_id == self._last_stop_id and self._stopped_said != msg.stop_id:
@@ -795,10 +805,16 @@ class LinkCore:
         if self._state is LinkState.READY and hb.handshake_ok:
             self._session_confirmed = True
         stale = bool(hb.stop_latched) and hb.latch_gen == self._released_gen
-        # A HEARTBEAT sent before our CLEAR_STOP arrived still shows the latch it released.
-        self._ctrl_latched = bool(hb.stop_latched) and not stale
-        self._ctrl_state = hb.state if not stale else ControllerState.IDLE
-        self._learn_gen(hb)
+        # A HEARTBEAT sent before a STOP that was acknowledged first does not show the
+        # STOP's latch: of an older generation, it leaves the latch as the STOP_ACK said.
+        acked = self._stop_acked_gen
+        before_stop = acked is not None and (hb.latch_gen - acked) & 0xFF >= 0x80
+        if not before_stop:
+            self._stop_acked_gen = None
+            # A HEARTBEAT sent before our CLEAR_STOP arrived still shows the latch it released.
+            self._ctrl_latched = bool(hb.stop_latched) and not stale
+            self._ctrl_state = hb.state if not stale else ControllerState.IDLE
+            self._learn_gen(hb)
         self._lost_mark = self._rx_lost  # a frame of this boot: loss up to here is real
         if hb.latch_watchdog and not stale and not self._watchdog_counted:
             # A trip whose FAULT frame was lost: the latch still tells.
@@ -953,6 +969,7 @@ class LinkCore:
         self._last_hello = -math.inf
         self._faults.clear()
         self._ctrl_latched = False
+        self._stop_acked_gen = None
         self._ctrl_state = ControllerState.BOOT
         # The latch went with the reboot, and every request about it.
         self._pending_clear = None
@@ -1029,6 +1046,7 @@ class LinkCore:
             self._reported.clear()
             self._settle_latched()
         self._ctrl_latched = False
+        self._stop_acked_gen = None
         self._ctrl_state = ControllerState.IDLE
         if ack.result == ClearResult.CLEARED or not clear.auto:
             self._emit(CLEARED)

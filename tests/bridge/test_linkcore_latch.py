@@ -230,3 +230,56 @@ def test_9_a_watchdog_latch_whose_fault_frame_was_lost_is_reported_before_any_cl
     texts = _texts(core)
     assert texts[0] == "fault:watchdog"
     assert core.diagnostics(0.1).watchdog_trips == 1
+
+
+def _stopped(core: LinkCore, t: float, gen: int) -> int:
+    """The operator's STOP at ``t``, written and acknowledged (generation ``gen``) 3 ms later."""
+    stop_id = core.emergency_stop(0, t)
+    core.take_stops()
+    core.stop_written(stop_id, t, True)
+    core.on_frame(StopAck(stop_id, LATCHED, gen), t + 0.003)
+    return stop_id
+
+
+def test_a_stop_acknowledged_shows_in_the_latch_before_the_next_heartbeat() -> None:
+    """The latch's causes come from HEARTBEATs, and the bridge's /diagnostics may be
+    composed between a STOP_ACK and the next one: they showed the controller latched by
+    nothing (a console's ``rover status`` right after ``rover stop``, a loaded CI run).
+    Now ``stop`` is a cause from its STOP_ACK on, until a HEARTBEAT of its generation."""
+    core = _ready()
+    _beat(core, _hb(), 0.1)
+    _stopped(core, 0.15, gen=1)
+    assert _texts(core) == ["stopped"]
+    assert core.latch == ("stop",) and core.diagnostics(0.16).latch == ("stop",)
+    _beat(core, _hb(LATCHED, stop=1, gen=1), 0.2)
+    assert core.latch == ("stop",)
+    # A watchdog latch already held: the STOP adds its cause, sorted as HEARTBEATs give.
+    held = _ready()
+    _beat(held, _hb(FAULT, watchdog=1, gen=1), 0.1)
+    _stopped(held, 0.15, gen=2)
+    assert held.latch == ("stop", "watchdog")
+
+
+def test_a_heartbeat_sent_before_the_stop_does_not_unlatch_it() -> None:
+    """A HEARTBEAT of the generation before the STOP's, arriving after its STOP_ACK,
+    leaves the latch as the STOP_ACK said; one of the STOP's generation decides again,
+    and a clear, or a reboot, ends what the STOP_ACK said."""
+    core = _ready()
+    _stopped(core, 0.15, gen=1)
+    _beat(core, _hb(gen=0), 0.16)  # sent before the STOP reached the controller
+    assert core.stop_latched and core.latch == ("stop",)
+    core.clear_stop(0.2)
+    core.tick(0.2)
+    (clear,) = _clears(_written(core, 0.2))
+    assert clear.latch_gen == 1  # not the older HEARTBEAT's generation
+    core.on_frame(ClearAck(clear.stop_id, ClearResult.CLEARED, 1), 0.21)
+    assert not core.stop_latched and core.latch == ()
+    _beat(core, _hb(gen=1), 0.3)
+    assert core.latch == ()
+    rebooted = _ready()
+    _stopped(rebooted, 0.15, gen=7)
+    # A new boot (its nonce) latched by its watchdog at generation 1: the old boot's
+    # STOP (generation 7) is no cause of it.
+    rebooted.on_frame(Heartbeat(FAULT, 1, 0, 0, 1, 0, 0, 0, NONCE + 1, 0, 1), 0.3)
+    rebooted.on_frame(Heartbeat(FAULT, 1, 0, 0, 1, 0, 0, 0, NONCE + 1, 0, 1), 0.4)
+    assert _texts(rebooted)[-1:] != ["stopped"] and rebooted.latch == ("watchdog",)
