@@ -429,11 +429,28 @@ class Twin:
 
     # -- stepping -------------------------------------------------------------------------
     def step(self) -> None:
-        """Advance one fixed step of ``dt_s``: wheel forces, integration, contacts."""
+        """Advance one fixed step of ``dt_s``: wheel forces, integration, contacts.
+
+        At exact rest (no velocity, no wheel surface speed, no contact with an obstacle)
+        the ground's force is zero (every slip is) and a physics step would move nothing
+        and change no contact: it is not taken, only counted (37 % of the wire soak's
+        steps; the same digests, 5-10 % less CPU: docs/twin.md)."""
         body = self._body
         vxw, vyw = body.velocity
-        c, s = body.rotation_vector
         w = body.angular_velocity
+        if (
+            vxw == 0.0
+            and vyw == 0.0
+            and w == 0.0
+            and self._u_left == 0.0
+            and self._u_right == 0.0
+            and self._first_collision is None
+            and self._pending is None
+        ):
+            self._v_prev = (0.0, 0.0, 0.0)
+            self._steps += 1
+            return
+        c, s = body.rotation_vector
         fx, fy, tz = self._model.step_wrench(
             c * vxw + s * vyw,
             c * vyw - s * vxw,

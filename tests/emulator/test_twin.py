@@ -344,6 +344,42 @@ def test_imu_outputs_follow_the_motion(rover: RoverDescription) -> None:
     assert twin.body_acceleration.yaw_accel_rad_s2 == pytest.approx(0.0, abs=0.05)
 
 
+def test_at_exact_rest_nothing_moves_and_driving_on_is_as_after_no_rest(
+    rover: RoverDescription,
+) -> None:
+    """A twin standing still (never driven, its wheels stopped, on a traction region's
+    edge) keeps its pose, wheel friction and encoders bit for bit however long it
+    stands, and what it does once driven does not depend on how long that was (its steps
+    at exact rest are counted, not simulated: docs/twin.md). A body that was driven is
+    not at exact rest once its wheels stop: it still moves, by ever less, and is
+    stepped in full."""
+    region = {"id": "ice", "polygon": [[-1, -1], [0.1, -1], [0.1, 1], [-1, 1]], "mu_scale": 0.4}
+
+    def drive(twin: Twin, left: float, right: float, steps: int) -> list[tuple[float, ...]]:
+        twin.set_motor_omegas(left, right)
+        out: list[tuple[float, ...]] = []
+        for _ in range(steps):
+            twin.step()
+            p = twin.pose
+            out.append((p.x_m, p.y_m, p.yaw_rad, *twin.motor_angles_rad, *twin.wheel_mu_scales))
+        return out
+
+    def mission(rest_steps: int) -> tuple[list[tuple[float, ...]], Twin]:
+        twin = Twin(rover, make_map(regions=[region]), dt_s=0.001)
+        stood = drive(twin, 0.0, 0.0, rest_steps)
+        assert len(set(stood)) <= 1  # not a bit changed
+        return drive(twin, 4.0, -3.0, 700) + drive(twin, 0.0, 0.0, 600), twin
+
+    moved, _ = mission(0)
+    assert math.hypot(*moved[699][:2]) > 0.05  # it drove
+    assert moved[1298][:3] != moved[1299][:3]  # and still creeps 0.6 s after its wheels stopped
+    for rest in (1, 2500):
+        trace, twin = mission(rest)
+        assert trace == moved
+        assert twin.steps == rest + 1300
+        assert twin.time_s == pytest.approx((rest + 1300) * 0.001)
+
+
 def test_time_is_steps_times_dt(rover: RoverDescription) -> None:
     twin = Twin(rover, dt_s=0.003)
     assert twin.advance(1.0) == 333
