@@ -6,6 +6,9 @@ tables. No figure is compared with a limit (a shared 2-core machine makes timing
 noisy), except counts that do not depend on speed: the codec's recovery run must
 deliver no altered frame and recover every intact one.
 
+``bench_emulator``'s STOP trials survive a stall of their own process (the controller's
+watchdog fires, the trial is run again): one in-process test stalls it on purpose.
+
 ``bench_view --quick`` runs its synthetic feed with the Python client only (its
 ``--browser`` and ``--demo`` parts are left out). ``bench_hostile --view --quick``
 probes the view's STOP 20 times idle and beside a small flood.
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import os
 import subprocess
 import sys
@@ -39,6 +43,15 @@ import time
 from pathlib import Path
 
 import pytest
+
+from benchmarks.bench_emulator import _full_speed_or_latched, _release
+from emulator.controller import ControllerConfig, ControllerModel
+from emulator.engine import Emulator
+from emulator.serial_frontend import SerialFrontEnd
+from emulator.twin import Twin
+from firmware_proto.model.rover import load_rover
+from firmware_proto.wire.messages import Command, Fault, FaultCode, Motion
+from tests.emulator.host import serial_host
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 180.0
@@ -93,6 +106,28 @@ def test_bench_emulator_quick_prints_its_tables() -> None:
     assert "CPU share serving a driving host" in out
     assert "STOP reaction in the emulator" in out
     assert "Stopping distance from full speed" in out
+    assert "Trials lost and run again" in out
+
+
+def test_the_stop_bench_runs_a_trial_again_after_a_stall_fires_the_watchdog() -> None:
+    """A stall of the bench's own process past the controller's 250 ms watchdog (beside
+    load: a fresh-clone run beside four busy processes failed there) latches the
+    controller: the trial is known lost at once, the latch is cleared, and the next
+    trial drives to full speed."""
+    rover = load_rover()
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
+    ids = itertools.count(1)
+    with Emulator(model, SerialFrontEnd(seed=2)) as emu, serial_host(emu.frontend.device) as host:
+        host.handshake()
+        mark = host.mark()
+        with host.silent():  # the stall: no frame from the host after this MOTION
+            host.send(Motion(next(ids), Command.FWD, 60, 30000))
+            assert not _full_speed_or_latched(host, mark)
+        assert host.find(Fault, lambda f: f.code == FaultCode.WATCHDOG, since=mark) is not None
+        _release(host, ids)
+        mark = host.mark()
+        host.send(Motion(next(ids), Command.REV, 60, 30000))
+        assert _full_speed_or_latched(host, mark)
 
 
 def test_bench_twin_quick_prints_its_table() -> None:
