@@ -166,8 +166,9 @@ def stop_trials(
                 host.send(Stop(n & 0xFFFF, 4))
                 stopped = host.find(Stopped, since=at_stop, timeout_s=10)
             fired = host.find(Fault, lambda f: bool(f.active), since=mark, timeout_s=0.0)
-            if stopped is not None and fired is None:
-                distances.append(stopped[1].message.distance_mm)  # type: ignore[attr-defined]
+            report = stopped[1].message if stopped is not None else None
+            if isinstance(report, Stopped) and fired is None:
+                distances.append(report.distance_mm)
             else:
                 lost += 1
             _release(host, ids)

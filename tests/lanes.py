@@ -116,6 +116,7 @@ VIRTUAL_TESTS = (
     "tests/test_benchmarks.py::test_bench_firmware_quick",
     "tests/test_benchmarks.py::test_bench_uncertain_quick",
     "tests/test_benchmarks.py::test_bench_onboard_quick",  # missions in virtual time
+    "tests/test_benchmarks.py::test_the_stop_bench_runs_a_trial_again",  # lockstep
     # Lockstep runs of the controllers (virtual time) in modules of real-time tests.
     "tests/bridge/test_conformance.py::test_both_controllers_pass_every_rule_in_lockstep",
     "tests/bridge/test_conformance.py::test_the_c_firmware_passes_every_rule_under_asan",

@@ -7,7 +7,8 @@ noisy), except counts that do not depend on speed: the codec's recovery run must
 deliver no altered frame and recover every intact one.
 
 ``bench_emulator``'s STOP trials survive a stall of their own process (the controller's
-watchdog fires, the trial is run again): one in-process test stalls it on purpose.
+watchdog fires, the trial is run again): one test stalls it on purpose, in virtual
+time (a lockstep controller).
 
 ``bench_view --quick`` runs its synthetic feed with the Python client only (its
 ``--browser`` and ``--demo`` parts are left out). ``bench_hostile --view --quick``
@@ -46,12 +47,11 @@ import pytest
 
 from benchmarks.bench_emulator import _full_speed_or_latched, _release
 from emulator.controller import ControllerConfig, ControllerModel
-from emulator.engine import Emulator
-from emulator.serial_frontend import SerialFrontEnd
+from emulator.lockstep import lockstep_pair
 from emulator.twin import Twin
+from firmware_proto.linkio.host import ProtocolHost
 from firmware_proto.model.rover import load_rover
 from firmware_proto.wire.messages import Command, Fault, FaultCode, Motion
-from tests.emulator.host import serial_host
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 180.0
@@ -113,11 +113,15 @@ def test_the_stop_bench_runs_a_trial_again_after_a_stall_fires_the_watchdog() ->
     """A stall of the bench's own process past the controller's 250 ms watchdog (beside
     load: a fresh-clone run beside four busy processes failed there) latches the
     controller: the trial is known lost at once, the latch is cleared, and the next
-    trial drives to full speed."""
+    trial drives to full speed. In virtual time: the controller model on a lockstep
+    clock (emulator/lockstep.py), the same host."""
     rover = load_rover()
-    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
+    controller, endpoint, clock = lockstep_pair(
+        ControllerModel(rover, Twin(rover), ControllerConfig(), seed=2)
+    )
     ids = itertools.count(1)
-    with Emulator(model, SerialFrontEnd(seed=2)) as emu, serial_host(emu.frontend.device) as host:
+    controller.open()
+    with contextlib.closing(controller), ProtocolHost(endpoint, clock=clock) as host:
         host.handshake()
         mark = host.mark()
         with host.silent():  # the stall: no frame from the host after this MOTION
