@@ -8,6 +8,11 @@ registers a :class:`Beat` and ticks it every iteration is stalled when its beat 
 than ``threshold_s``: recorded with that thread's stack (an INFO line with it at once,
 the record when the loop runs again).
 
+The garbage collector's collections are timed (:data:`gc.callbacks`) while a monitor
+runs, so that a stall says how much of it was spent collecting garbage: a collection
+holds the interpreter lock, and so the whole process, while it runs, and leaves no
+trace in any thread's stack.
+
 Not :func:`faulthandler.dump_traceback_later`: its watchdog reads other threads' frames
 without the interpreter lock, which can crash a process resuming from a freeze.
 
@@ -20,6 +25,7 @@ is one ``write`` in append mode, so lines never interleave.
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import logging
 import os
@@ -28,6 +34,7 @@ import tempfile
 import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -36,9 +43,11 @@ from types import TracebackType
 __all__ = [
     "CONSOLE_QUIET_S",
     "DEFAULT_STALL_THRESHOLD_S",
+    "GC_PAUSE_MIN_S",
     "STALL_LOG_ENV",
     "STALL_LOG_MAX_BYTES",
     "Beat",
+    "GcPauses",
     "StallMonitor",
     "StallRecord",
     "all_stacks",
@@ -85,6 +94,8 @@ class StallRecord:
         ms: how long, ms.
         wall_s: when it ended (``time.time()``).
         stack: where it was (the stalled thread's stack, or every thread's).
+        gc_ms: how much of it the garbage collector ran, ms (collections of 1 ms or
+            more; a log written before this field reads 0).
     """
 
     process: str
@@ -93,12 +104,15 @@ class StallRecord:
     ms: float
     wall_s: float
     stack: str = ""
+    gc_ms: float = 0.0
 
     def line(self) -> str:
-        """``bridge (pid 12) link-timer stalled 312 ms at 12:00:01``."""
+        """``bridge (pid 12): thread link-timer stalled 312 ms at 12:00:01``, and
+        ``(150 ms of it collecting garbage)`` when a collection ran in it."""
         when = time.strftime("%H:%M:%S", time.localtime(self.wall_s))
         who = "the whole process" if self.thread == "*" else f"thread {self.thread}"
-        return f"{self.process} (pid {self.pid}): {who} stalled {self.ms:.0f} ms at {when}"
+        gc_part = f" ({self.gc_ms:.0f} ms of it collecting garbage)" if self.gc_ms >= 1 else ""
+        return f"{self.process} (pid {self.pid}): {who} stalled {self.ms:.0f} ms at {when}{gc_part}"
 
 
 class Beat:
@@ -116,6 +130,47 @@ class Beat:
     def tick(self) -> None:
         """The loop is alive now (call it every iteration, from the loop's thread)."""
         self.last = self._clock()
+
+
+GC_PAUSE_MIN_S = 0.001
+"""Collections shorter than this, s, are not kept (the many young ones)."""
+_GC_PAUSES_KEPT = 64
+
+
+class GcPauses:
+    """The garbage collector's collections, timed: a :data:`gc.callbacks` entry while
+    :meth:`attach`-ed. Each collection of :data:`GC_PAUSE_MIN_S` or more is kept (the
+    last 64) as ``(start, end, generation)`` on ``clock``."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        """Args: clock: monotonic seconds, the stall monitor's."""
+        self._clock = clock
+        self._started: float | None = None
+        self.pauses: deque[tuple[float, float, int]] = deque(maxlen=_GC_PAUSES_KEPT)
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        """The callback (runs inside the collector, on whichever thread triggered it)."""
+        now = self._clock()
+        if phase == "start":
+            self._started = now
+        elif self._started is not None:
+            if now - self._started >= GC_PAUSE_MIN_S:
+                self.pauses.append((self._started, now, info.get("generation", -1)))
+            self._started = None
+
+    def attach(self) -> None:
+        """Start timing collections (idempotent)."""
+        if self not in gc.callbacks:
+            gc.callbacks.append(self)
+
+    def detach(self) -> None:
+        """Stop timing collections (idempotent)."""
+        with contextlib.suppress(ValueError):
+            gc.callbacks.remove(self)
+
+    def within(self, lo: float, hi: float) -> float:
+        """Seconds the collector ran between ``lo`` and ``hi`` (clock seconds)."""
+        return sum(max(0.0, min(end, hi) - max(start, lo)) for start, end, _ in list(self.pauses))
 
 
 @dataclass
@@ -168,18 +223,22 @@ class StallMonitor:
         """Every stall so far (also logged, and appended to the stall log)."""
         self.longest_ms = 0.0
         """The longest stall so far, ms (0: none)."""
+        self.gc = GcPauses(clock)
+        """The collections timed while the monitor runs."""
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
         """Start the monitor thread."""
         if self._thread is not None:
             raise RuntimeError("stall monitor already started")
+        self.gc.attach()
         self._thread = threading.Thread(target=self._run, name="stall-monitor", daemon=True)
         self._thread.start()
 
     def close(self) -> None:
         """Stop the thread (idempotent)."""
         self._stop.set()
+        self.gc.detach()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
         self._thread = None
@@ -219,7 +278,7 @@ class StallMonitor:
             now = self._clock()
             late = now - expected
             if late > self.threshold_s:
-                self._record("*", late + self.period_s, all_stacks())
+                self._record("*", late + self.period_s, all_stacks(), now)
             self.check(now)
             expected = max(expected + self.period_s, now)
 
@@ -243,9 +302,11 @@ class StallMonitor:
                 )
             elif age <= self.threshold_s and episode is not None:
                 del self._episodes[key]
-                self._record(beat.name, (beat.last - episode.started), episode.stack)
+                self._record(beat.name, (beat.last - episode.started), episode.stack, beat.last)
 
-    def _record(self, thread: str, duration_s: float, stack: str) -> None:
+    def _record(self, thread: str, duration_s: float, stack: str, ended: float) -> None:
+        """``ended``: when the stall ended, on the monitor's clock."""
+        gc_s = self.gc.within(ended - duration_s, ended)
         record = StallRecord(
             process=self.process,
             pid=os.getpid(),
@@ -253,6 +314,7 @@ class StallMonitor:
             ms=round(duration_s * 1e3, 1),
             wall_s=time.time(),
             stack=stack[-_STACK_CHARS:],
+            gc_ms=round(gc_s * 1e3, 1),
         )
         self.records.append(record)
         self.longest_ms = max(self.longest_ms, record.ms)

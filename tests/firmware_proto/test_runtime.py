@@ -3,6 +3,7 @@ and said where they were, heartbeat gaps (docs/realtime.md)."""
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import re
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from firmware_proto.runtime import stall
 from firmware_proto.runtime.realtime import RealtimeConfig, RealtimeStatus
 from firmware_proto.runtime.stall import (
     StallMonitor,
@@ -382,6 +384,44 @@ def test_a_process_held_up_in_c_is_caught_with_every_thread_stack(tmp_path: Path
     assert any("test_a_process_held_up_in_c" in r.stack for r in whole), whole[0].stack
 
 
+def test_a_stall_says_how_much_of_it_the_garbage_collector_ran() -> None:
+    """A collection holds the whole process and shows in no stack: the record says how
+    much of the stall it took (here on the monitor's own clock, by hand)."""
+    now = [0.0]
+    monitor = StallMonitor("tester", threshold_s=0.1, clock=lambda: now[0])
+    beat = monitor.watch("loop")
+    now[0] = 0.05
+    monitor.gc("start", {"generation": 2})
+    now[0] = 0.20
+    monitor.check(now[0])  # the loop is 200 ms old: a stall begins
+    now[0] = 0.25
+    monitor.gc("stop", {"generation": 2})
+    now[0] = 0.30
+    beat.tick()
+    monitor.check(now[0])
+    now[0] = 0.70
+    monitor.gc("start", {"generation": 0})  # a collection after the stall is not in it
+    now[0] = 0.80
+    monitor.gc("stop", {"generation": 0})
+    (record,) = monitor.records
+    assert record.thread == "loop" and record.ms == 300.0 and record.gc_ms == 200.0
+    assert record.line().endswith("(200 ms of it collecting garbage)")
+    assert monitor.gc.within(0.6, 0.9) == pytest.approx(0.1)
+
+
+def test_the_monitor_times_real_collections_while_it_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(stall, "GC_PAUSE_MIN_S", 0.0)
+    monitor = StallMonitor("tester", threshold_s=0.1)
+    with monitor:
+        assert monitor.gc in gc.callbacks
+        gc.collect()
+    assert monitor.gc not in gc.callbacks
+    assert any(generation == 2 for _, _, generation in monitor.gc.pauses), monitor.gc.pauses
+    count = len(monitor.gc.pauses)
+    gc.collect()  # detached: not timed
+    assert len(monitor.gc.pauses) == count
+
+
 def test_the_stall_log_reads_back_skips_bad_lines_and_describes(tmp_path: Path) -> None:
     log = tmp_path / "stalls.jsonl"
     records = [
@@ -390,7 +430,12 @@ def test_the_stall_log_reads_back_skips_bad_lines_and_describes(tmp_path: Path) 
         StallRecord("emulator", 11, "emulator-control", 120.0, 999.0),
     ]
     log.write_text(
-        "\n".join(json.dumps(r.__dict__) for r in records) + "\nnot json\n{}\n", encoding="utf-8"
+        # As written before records had gc_ms: such a log still reads.
+        "\n".join(
+            json.dumps({k: v for k, v in r.__dict__.items() if k != "gc_ms"}) for r in records
+        )
+        + "\nnot json\n{}\n",
+        encoding="utf-8",
     )
     back = read_stalls(log)
     assert [r.wall_s for r in back] == [999.0, 1000.0, 1001.0]
@@ -403,6 +448,7 @@ def test_the_stall_log_reads_back_skips_bad_lines_and_describes(tmp_path: Path) 
         "no process of the stack on this host stalled longer than 100 ms"
     ]
     assert read_stalls(tmp_path / "missing.jsonl") == []
+    assert all(r.gc_ms == 0.0 for r in back)
 
 
 def test_the_stall_log_path_comes_from_the_environment() -> None:
