@@ -91,12 +91,19 @@ BAND_SAMPLES = 200
 STEP_BY_STEP_MISSIONS = 2
 """Held-out missions also driven by the step-by-step executor (rests between steps)."""
 
-GROUND_SEEDS = {"loose": 923476, "packed": 625244, "anisotropic": 869543}
+HELD_OUT_MISSIONS = 30
+"""Held-out missions per ground (``--missions``). One mission's error is mostly its start
+pose's noise (1-16 mm on one ground), so the mean of ten scatters: the second held-out
+loose ground gave 1.54x the floor over its first ten and 1.09x over thirty (0.90x over
+the twenty after the ten)."""
+GROUND_SEEDS = {"loose": 579788, "packed": 195140, "anisotropic": 997701}
 """Seeds of the benchmark's held-out grounds: used nowhere else (``--quick`` and the tests
 use :data:`QUICK_SEED`; development uses its own, ``--seed``)."""
-SEEN_SEEDS = {"loose": 90417, "packed": 90533, "anisotropic": 90671}
-"""The held-out seeds before :data:`GROUND_SEEDS`, looked at twice while the bands were
-developed: no longer held out (``--seed loose=90417`` runs one)."""
+SEEN_SEEDS = {"loose": (90417, 923476), "packed": (90533, 625244), "anisotropic": (90671, 869543)}
+"""The held-out seeds before :data:`GROUND_SEEDS`, oldest first: the first looked at twice
+while the bands were developed, the second run once with ten missions a ground (and its
+loose ground again with thirty, to see why it missed the floor's bar). No longer held
+out: ``--seed loose=923476`` runs one."""
 QUICK_SEED = 1000
 """The loose ground of ``--quick`` (a development seed, not a held-out one)."""
 
@@ -522,7 +529,9 @@ def main() -> None:
     parser.add_argument(
         "--quick", action="store_true", help="the loose ground only, 1 mission, 30 s budget"
     )
-    parser.add_argument("--missions", type=int, help="held-out missions per ground (default 10)")
+    parser.add_argument(
+        "--missions", type=int, help=f"held-out missions per ground (default {HELD_OUT_MISSIONS})"
+    )
     parser.add_argument("--budget", type=float, help=f"driving seconds (default {BUDGET_S:g})")
     parser.add_argument("--ground", choices=list(GROUND_SEEDS), action="append", help="only these")
     parser.add_argument(
@@ -535,7 +544,7 @@ def main() -> None:
     )
     parser.add_argument("--keep", type=Path, help="keep the recordings and twins here")
     args = parser.parse_args()
-    missions = args.missions or (1 if args.quick else 10)
+    missions = args.missions or (1 if args.quick else HELD_OUT_MISSIONS)
     budget = args.budget or (30.0 if args.quick else BUDGET_S)
     grounds: list[tuple[str, int | None]]
     if args.seed:
