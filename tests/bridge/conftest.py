@@ -135,6 +135,14 @@ inside .ci/vcan-vm unless a test sets its own, instead of the protocol's 3 (the 
 may be kept off it for longer than three of them, and a link lost in a test of
 something else is a false failure."""
 
+WIDE_WATCHDOG_MS = 1000
+"""The controller's watchdog, ms, for a real-time test of something else that runs the
+emulator and the bridge on this host: a stall of the whole machine of about 200 ms is
+enough for the protocol's 250 ms to fire (an idle CI run saw both of the bridge's
+children stall 165-177 ms within 4 ms and the test's emulator fall 214 ms behind:
+docs/testing.md), while a fault that such a test looks for, a link held up for a
+second or more, still trips 1 s."""
+
 
 def vm_slack(config: dict[str, Any]) -> dict[str, Any]:
     """``config`` (a link's or bridge's settings) with the VM's defaults added inside

@@ -29,7 +29,7 @@ from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.model.rover import RoverDescription
 
-from .conftest import BACKEND_PARAMS, Recorder
+from .conftest import BACKEND_PARAMS, WIDE_WATCHDOG_MS, Recorder
 
 Emus = Callable[..., Emulator]
 
@@ -105,10 +105,14 @@ def rebooting(
 ) -> Iterator[tuple[Emulator, BridgeNode, Client, bool]]:
     """As :func:`bridged`, and once with a controller that reboots with the boot nonce of
     the boot before (against docs/protocol.md, Handshake 1; issue #40, hole 5); the last
-    item says which."""
+    item says which. The controller's watchdog is :data:`WIDE_WATCHDOG_MS`: these tests
+    check odometry across a reboot, and an idle CI run saw the 250 ms one fire on a
+    190 ms stall of the test's process."""
     repeats = request.node.callspec.id == "repeated-nonce"
     mutant = "reboot-keeps-nonce" if repeats else ""
-    with bridge_on(request.param, emulators, make_port, mutant=mutant) as parts:
+    with bridge_on(
+        request.param, emulators, make_port, mutant=mutant, watchdog_ms=WIDE_WATCHDOG_MS
+    ) as parts:
         yield (*parts, repeats)
 
 
