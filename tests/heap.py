@@ -5,8 +5,9 @@ A test that runs an emulator's control loop, a link or a bridge in the pytest pr
 shares that process's heap with the collected suite: about 150,000 objects, which one
 full (generation 2) collection scans in about 110 ms here, holding the interpreter lock
 all the while (a product process's whole heap takes 5-7 ms). On a busy host that is
-enough for a controller's 250 ms watchdog to see a gap in the heartbeats: an idle CI run
-failed on a 171 ms stall of its whole test process.
+enough for a controller's 250 ms watchdog to see a gap in the heartbeats (idle CI runs
+failed on stalls of 171 and 190 ms of a whole test process, which such a collection
+fits; a stall of the whole machine fits them too).
 
 So once the suite is collected, its garbage is collected and what is left frozen
 (:func:`gc.freeze`: moved where no collection looks again; the collected suite lives as
