@@ -136,12 +136,12 @@ may be kept off it for longer than three of them, and a link lost in a test of
 something else is a false failure."""
 
 WIDE_WATCHDOG_MS = 1000
-"""The controller's watchdog, ms, for a real-time test of something else that runs the
-emulator and the bridge on this host: a stall of the whole machine of about 200 ms is
-enough for the protocol's 250 ms to fire (an idle CI run saw both of the bridge's
-children stall 165-177 ms within 4 ms and the test's emulator fall 214 ms behind:
-docs/testing.md), while a fault that such a test looks for, a link held up for a
-second or more, still trips 1 s."""
+"""The controller's watchdog, ms, where a real-time test is about something else: in
+.ci/vcan-vm's software CPU, beside a load of many times the cores, and on this host for
+the frozen-node and reboot tests. A stall of about 200 ms is enough for the protocol's
+250 ms to fire (an idle CI run saw both of the bridge's children stall 165-177 ms within
+4 ms and the test's emulator fall 214 ms behind: docs/testing.md), while a fault that
+such a test looks for, a link held up for a second or more, still trips 1 s."""
 
 
 def vm_slack(config: dict[str, Any]) -> dict[str, Any]:

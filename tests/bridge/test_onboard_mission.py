@@ -30,6 +30,7 @@ from firmware_proto.model.uplink import TOKEN_ENV, UplinkAck, decode_ack
 from firmware_proto.model.worldmap import load_map
 from firmware_proto.wire.messages import Command
 from sim.mission import predict
+from tests.bridge.conftest import WIDE_WATCHDOG_MS
 from tests.child import Child
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
@@ -140,7 +141,10 @@ def _control(port: int, command: str) -> str:
         return sock.makefile().readline().strip()
 
 
-SLACK = {"emulator": ["--watchdog-ms", "1000"], "bridge": ["--param", "link_lost_beats=10"]}
+SLACK = {
+    "emulator": ["--watchdog-ms", str(WIDE_WATCHDOG_MS)],
+    "bridge": ["--param", "link_lost_beats=10"],
+}
 """The controller's watchdog and the bridge's link loss are not what this test checks:
 beside a load of many times the machine's cores, a pty falls silent for longer than the
 protocol's 250 ms (docs/realtime.md, "Known limits"; seen here at a load average of 31

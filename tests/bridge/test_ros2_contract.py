@@ -26,7 +26,13 @@ import pytest
 from bridge.ros.rosport.contract import Outcome, ends_step, parse_status
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.inbox import Inbox
-from tests.bridge.conftest import IN_VCAN_VM, TWIN_DT_S, VM_ACK_TIMEOUT_S, VM_LINK_LOST_BEATS
+from tests.bridge.conftest import (
+    IN_VCAN_VM,
+    TWIN_DT_S,
+    VM_ACK_TIMEOUT_S,
+    VM_LINK_LOST_BEATS,
+    WIDE_WATCHDOG_MS,
+)
 from tests.child import Child
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
@@ -326,7 +332,7 @@ def test_a_mission_over_real_socketcan_recorded_and_replayed_by_can_utils(
         # what this test is about (the link tests' and the wire simulator's), so in the
         # VM each is given a second, as test_socketcan.py's two controllers are, and the
         # ACK a quarter of one. (Even so it failed 3 runs of 4 there: tests/lanes.py.)
-        slack_emu = ["--watchdog-ms", "1000"] if IN_VCAN_VM else []
+        slack_emu = ["--watchdog-ms", str(WIDE_WATCHDOG_MS)] if IN_VCAN_VM else []
         slack_bridge = (
             ["--param", f"link_lost_beats={VM_LINK_LOST_BEATS}",
              "--ack-timeout", str(VM_ACK_TIMEOUT_S)]

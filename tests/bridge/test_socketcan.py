@@ -29,6 +29,7 @@ from .conftest import (
     HAVE_VCAN0,
     IN_VCAN_VM,
     NO_VCAN0,
+    WIDE_WATCHDOG_MS,
     Links,
     can_channel_for,
     link_url,
@@ -100,8 +101,10 @@ def test_two_controllers_on_one_bus_each_run_only_their_own_steps(
     # telemetry: in the VM it comes at 10 Hz, not 50 (on a host whose Python loop ran the
     # VM's 20 times slower, not 6, the MOTION went unacknowledged for a second there).
     telemetry = {"telemetry_hz": 10} if IN_VCAN_VM else {}
-    first = serve(emulators, kind, can_channel, node=1, watchdog_ms=1000, **telemetry)
-    second = serve(emulators, kind, can_channel, node=2, seed=2, watchdog_ms=1000, **telemetry)
+    first = serve(emulators, kind, can_channel, node=1, watchdog_ms=WIDE_WATCHDOG_MS, **telemetry)
+    second = serve(
+        emulators, kind, can_channel, node=2, seed=2, watchdog_ms=WIDE_WATCHDOG_MS, **telemetry
+    )
     link1, rec1 = links(link_url(first), link_lost_beats=10, ack_timeout_s=0.25)
     link2, rec2 = links(link_url(second), link_lost_beats=10, ack_timeout_s=0.25)
     rec1.wait_count("ready", 1)
