@@ -118,15 +118,25 @@ def rebooting(
 
 @contextlib.contextmanager
 def bridge_on(
-    backend: str, emulators: Emus, make_port: Callable[..., RosPort], **emulator: Any
+    backend: str,
+    emulators: Emus,
+    make_port: Callable[..., RosPort],
+    *,
+    link_lost_beats: int | None = None,
+    **emulator: Any,
 ) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
     """An emulator on a pty (``emulator``: the factory's options), the bridge node on
-    ``backend`` and a client, the link ready."""
+    ``backend`` (its ``link_lost_beats`` when given) and a client, the link ready."""
     emu = emulators(**emulator)
     assert isinstance(emu.frontend, SerialFrontEnd)
-    params = load_params(
-        {"device": emu.frontend.device, "ros_backend": backend, "diagnostics_hz": 5.0}, env={}
-    )
+    settings: dict[str, Any] = {
+        "device": emu.frontend.device,
+        "ros_backend": backend,
+        "diagnostics_hz": 5.0,
+    }
+    if link_lost_beats is not None:
+        settings["link_lost_beats"] = link_lost_beats
+    params = load_params(settings, env={})
     # The client subscribes first: the bridge publishes "ready" once, as soon as it has
     # shaken hands, which over a pty can be before a later subscriber exists. Over DDS the
     # two must also have discovered each other first: the link starts only then.

@@ -31,7 +31,7 @@ from firmware_proto.runtime.realtime import (
     module_command_at_normal_priority,
     realtime_threads,
 )
-from tests.bridge.conftest import WIDE_WATCHDOG_MS, Inbox
+from tests.bridge.conftest import VM_LINK_LOST_BEATS, WIDE_WATCHDOG_MS, Inbox
 from tests.bridge.test_node import bridge_on
 from tests.child import Child
 from tests.procs import children
@@ -72,12 +72,18 @@ def test_a_frozen_ros_node_does_not_stall_the_controller_link(
     heartbeats, the controller's watchdog never fires, the step completes, and its
     ``completed``, held while the node was frozen, arrives.
 
-    The watchdog is 1 s here, not the controller's 250 ms: a link that waited on the
-    frozen node would still miss it by half a second, but a stall of the whole machine
-    does not (an idle CI run saw both of the bridge's children stall 165-177 ms within
-    4 ms and the emulator in this process fall 214 ms behind, and the 250 ms watchdog
-    fired: docs/testing.md)."""
-    with bridge_on("rclpy-process", emulators, make_port, watchdog_ms=WIDE_WATCHDOG_MS) as (
+    The watchdog is 1 s here, not the controller's 250 ms, and the bridge's link loss 10
+    controller beats, not 3: a link that waited on the frozen node would still miss both,
+    but a stall of about 200 ms does not (idle CI runs saw both of the bridge's children
+    stall 165-177 ms within 4 ms, then the 250 ms watchdog or the 3-beat loss fire:
+    docs/testing.md)."""
+    with bridge_on(
+        "rclpy-process",
+        emulators,
+        make_port,
+        watchdog_ms=WIDE_WATCHDOG_MS,
+        link_lost_beats=VM_LINK_LOST_BEATS,
+    ) as (
         emu,
         node,
         client,

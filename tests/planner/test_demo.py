@@ -247,7 +247,12 @@ def test_rover_go_interrupted_mid_step_stops_the_rover_and_says_cancelled(
         x, y, _ = (float(v) for v in line.split("start (", 1)[1].split(" deg")[0].split(","))
         assert abs(x - 1.2) < 0.05 and abs(y - 3.0) < 0.05, line
         go.wait_for(" running, ETA ")  # progress during a step
-        assert any(abs(v) > 0.01 for v in _status(control)["wheel_mps"])  # it is driving
+        # It is driving: the wheels ramp up from rest at the step's start, so the speed is
+        # waited for (one sample taken right after the line once read zero).
+        deadline = time.monotonic() + 10.0
+        while not any(abs(v) > 0.01 for v in _status(control)["wheel_mps"]):
+            assert time.monotonic() < deadline, _status(control)
+            time.sleep(0.02)
         go.proc.send_signal(sig)
         assert go.wait(60) == 128 + sig, go.errors
         go.wait_for("NOT REACHED (cancelled by the operator)", timeout_s=0)
