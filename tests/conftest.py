@@ -39,7 +39,7 @@ from tests.procs import children as children_of
 
 # Every test's time limit (a test past it fails with every thread's stack; pytest goes on),
 # and a garbage collector that does not hold up the real-time parts a test runs in process.
-pytest_plugins = ("tests.timeouts", "tests.heap")
+pytest_plugins = ("tests.timeouts", "tests.heap", "tests.stalls")
 
 # Seeded and reproducible: the same examples on every run and every machine.
 settings.register_profile(
