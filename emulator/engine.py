@@ -292,10 +292,15 @@ class Emulator:
                 self.heartbeat_gaps.event(time.monotonic())
             self.frontend.send(messages)
 
-    def _drain(self, first: _Received | _Call | None, until: float = math.inf) -> None:
+    def _drain(self, first: _Received | _Call | None, until: float = math.inf) -> float:
         """Empty the inbox: run each call at once; handle messages that arrived by
-        ``until`` (``time.monotonic()``) in order, hold later ones for their ticks."""
+        ``until`` (``time.monotonic()``) in order, hold later ones for their ticks.
+
+        Returns:
+            The wall time the calls took, s (what they held the loop up).
+        """
         item = first
+        in_calls = 0.0
         while True:
             if item is None:
                 try:
@@ -304,16 +309,19 @@ class Emulator:
                     break
             if isinstance(item, _Call):
                 if item.future.set_running_or_notify_cancel():
+                    started = time.monotonic()
                     try:
                         item.future.set_result(item.fn())
                     except BaseException as exc:
                         item.future.set_exception(exc)
+                    in_calls += time.monotonic() - started
             else:
                 self._held.append(item)
             item = None
         held = self._held
         while held and held[0].arrived <= until:
             self._handle(held.popleft())
+        return in_calls
 
     def _handle(self, item: _Received) -> None:
         if isinstance(item.message, HostHeartbeat):
@@ -363,7 +371,10 @@ class Emulator:
                     due = 1
                 for _ in range(due):
                     # What arrived by the tick's end (wall) is handled first, in order.
-                    self._drain(None, until=t0 + (ticks + 1) * tick_wall)
+                    held_up = self._drain(None, until=t0 + (ticks + 1) * tick_wall)
+                    if held_up > tick_wall:
+                        # A call taken between owed ticks held the loop up: late too.
+                        self._catch_up(held_up)
                     out = model.tick()
                     out += self.schedule.poll()
                     ticks += 1
@@ -373,7 +384,9 @@ class Emulator:
                         self._rx_errors_seen = errors
                     self._send(out)
                 if self._held:  # arrived during the last owed tick: now is their time
-                    self._drain(None)
+                    held_up = self._drain(None)
+                    if held_up > tick_wall:
+                        self._catch_up(held_up)
                 if ticks >= next_status:
                     self._status = self._snapshot()
                     next_status = ticks + max(1, round(0.05 / model.twin.dt_s))

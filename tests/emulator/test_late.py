@@ -126,6 +126,47 @@ def test_a_late_control_loop_is_counted_as_a_catch_up(freeze_s: float) -> None:
         assert status.late_max_ms >= freeze_s * 1e3 * 0.8
 
 
+def test_a_call_taken_between_owed_ticks_that_holds_the_loop_up_is_counted() -> None:
+    """A call the loop takes while it runs the ticks it owes (drained between two of
+    them) and that holds it up is a catch-up too. It went uncounted: a CI run beside load
+    saw the test above's freeze taken so, and the loop looked never late."""
+    from concurrent.futures import Future
+
+    from emulator.controller import ControllerConfig, ControllerModel
+    from emulator.engine import Emulator
+    from emulator.serial_frontend import SerialFrontEnd
+    from emulator.twin import Twin
+    from firmware_proto.model.rover import load_rover
+
+    hold_s = 0.09
+    rover = load_rover()
+    model = ControllerModel(rover, Twin(rover), ControllerConfig(), seed=1)
+    with Emulator(model, SerialFrontEnd(seed=1)) as emu:
+        held: Future[None] = Future()
+
+        def queue_the_hold_at_the_next_tick() -> None:
+            # On the control thread. Its next tick queues the hold, and the loop then
+            # owes ten ticks: the hold is drained before the second of them.
+            tick = model.tick
+
+            def first_tick() -> Any:
+                del model.tick  # the class's own again
+                emu._inbox.put(_Call(lambda: time.sleep(hold_s), held))
+                return tick()
+
+            model.tick = first_tick  # type: ignore[method-assign]
+            time.sleep(0.01)
+
+        emu.call(queue_the_hold_at_the_next_tick)
+        held.result(timeout=5.0)
+        deadline = time.monotonic() + 5.0
+        status = emu.status()
+        while status.late_max_ms < hold_s * 1e3 * 0.8 and time.monotonic() < deadline:
+            status = emu.status()
+        assert status.late_max_ms >= hold_s * 1e3 * 0.8, status
+        assert status.catchups >= 2, status  # the turn after the 10 ms, and the hold
+
+
 class _HeldUpInbox:
     """The control loop's inbox, whose wait for the next call returns ``hold_s`` late once:
     the loop's thread descheduled by its computer just as a call woke it."""
