@@ -87,6 +87,10 @@ class EncoderModel:
         self.dropout = [False, False]
         self._offset = travel_units(rover, *twin.motor_angles_rad)
         self._held = [0.0, 0.0]
+        d = rover.drive
+        # travel_units's factors, for travel() on the hot path (the rover is immutable).
+        self._scale = rover.geometry.wheel_radius_m * d.distance_units_per_m
+        self._signs = (d.left_wheel_sign, d.right_wheel_sign)
 
     def reset(self) -> None:
         """Counts restart from zero (a reboot)."""
@@ -102,25 +106,39 @@ class EncoderModel:
     def travel(self) -> tuple[float, float]:
         """Noise-free counts since boot in the counter's range (what the step logic
         integrates); a side in dropout holds its last value."""
-        left, right = travel_units(self._rover, *self._twin.motor_angles_rad)
-        raw = [wrap_count(left - self._offset[0]), wrap_count(right - self._offset[1])]
-        for side in (0, 1):
-            if self.dropout[side]:
-                raw[side] = self._held[side]
-            else:
-                self._held[side] = raw[side]
-        return raw[0], raw[1]
+        # travel_units and wrap_count inlined (the same arithmetic): this runs a few times
+        # every control tick.
+        angle_l, angle_r = self._twin.motor_angles_rad
+        sign_l, sign_r = self._signs
+        scale = self._scale
+        offset = self._offset
+        left = sign_l * angle_l * scale - offset[0]
+        right = sign_r * angle_r * scale - offset[1]
+        if not -_HALF <= left < _HALF:
+            left = (left + _HALF) % COUNTER_MODULUS - _HALF
+        if not -_HALF <= right < _HALF:
+            right = (right + _HALF) % COUNTER_MODULUS - _HALF
+        dropout, held = self.dropout, self._held
+        if dropout[0]:
+            left = held[0]
+        else:
+            held[0] = left
+        if dropout[1]:
+            right = held[1]
+        else:
+            held[1] = right
+        return left, right
 
     def counts(self) -> tuple[int, int]:
         """Reported counts: travel plus noise, rounded, in the 32-bit counter's range (not
         yet wrapped to the 24 bits of ENCODERS)."""
         left, right = self.travel()
-        out = []
-        for side, value in enumerate((left, right)):
-            sigma = self.noise_units[side]
-            noise = self._rng.gauss(0.0, sigma) if sigma > 0.0 and not self.dropout[side] else 0.0
-            out.append(int(wrap_count(round(value + noise))))
-        return out[0], out[1]
+        sigma_l, sigma_r = self.noise_units
+        dropout = self.dropout
+        # Left's draw first, then right's.
+        noise_l = self._rng.gauss(0.0, sigma_l) if sigma_l > 0.0 and not dropout[0] else 0.0
+        noise_r = self._rng.gauss(0.0, sigma_r) if sigma_r > 0.0 and not dropout[1] else 0.0
+        return int(wrap_count(round(left + noise_l))), int(wrap_count(round(right + noise_r)))
 
 
 @dataclass(frozen=True)
@@ -147,13 +165,12 @@ class ImuModel:
         """A sample, or ``None`` while the IMU is dropped out."""
         if self.dropout:
             return None
-        vel = self._twin.body_velocity
-        acc = self._twin.body_acceleration
+        yaw_rate, ax, ay = self._twin.imu_truth()
         gauss = self._rng.gauss
         return ImuReading(
-            vel.yaw_rate_rad_s + self.bias_rad_s + gauss(0.0, self.noise_rad_s),
-            acc.ax_mps2 + gauss(0.0, self.accel_noise_mps2),
-            acc.ay_mps2 + gauss(0.0, self.accel_noise_mps2),
+            yaw_rate + self.bias_rad_s + gauss(0.0, self.noise_rad_s),
+            ax + gauss(0.0, self.accel_noise_mps2),
+            ay + gauss(0.0, self.accel_noise_mps2),
         )
 
 

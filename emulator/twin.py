@@ -526,6 +526,20 @@ class Twin:
             c * axw + s * ayw, c * ayw - s * axw, (body.angular_velocity - pw) / self.dt_s
         )
 
+    def imu_truth(self) -> tuple[float, float, float]:
+        """``(yaw rate, ax, ay)``: :attr:`body_velocity`'s yaw rate and
+        :attr:`body_acceleration`'s two linear components, the same values, read together
+        (what the IMU samples at the telemetry rate)."""
+        body = self._body
+        w = body.angular_velocity
+        if self._steps == 0:
+            return w, 0.0, 0.0
+        vxw, vyw = body.velocity
+        px, py, _ = self._v_prev
+        axw, ayw = (vxw - px) / self.dt_s, (vyw - py) / self.dt_s
+        c, s = body.rotation_vector
+        return w, c * axw + s * ayw, c * ayw - s * axw
+
     @property
     def motor_angles_rad(self) -> tuple[float, float]:
         """Cumulative motor angles (left, right), rad, motor frame: what encoders count."""
