@@ -363,6 +363,11 @@ class FirmwareController(ControllerModel):
         self._encoder = FrameEncoder()
         self._decoder = FrameDecoder()
         self._buf = ctypes.create_string_buffer(_OUT_CAP)
+        self._wheels = _I32x2()
+        """What ``fw_host_wheels`` writes each tick (read at once)."""
+        self._enc = _I32x2()
+        self._speed = _I32x2()
+        """What :meth:`_push_sensors` hands the core (it copies them)."""
         self._pose_due: deque[PoseMeasurement] = deque()
         self._status = _Status()
         self.frame_seqs: list[int] = []
@@ -447,20 +452,29 @@ class FirmwareController(ControllerModel):
     def _now_us(self) -> int:
         return self.twin.steps * self._tick_us
 
-    def _sensors(self) -> tuple[Any, Any]:
-        """Encoder counts and wheel speeds (um/s, truncated), motor frame."""
+    def _sensor_values(self) -> tuple[int, int, int, int]:
+        """Encoder counts and wheel speeds (um/s, truncated), motor frame: left and right
+        counts, left and right speeds."""
         d = self.rover.drive
         left, right = self.encoders.counts()
         vl, vr = self.twin.wheel_surface_speeds_mps
         # The motor frame's counter wraps like the rover frame's (-(-2**31) is -2**31).
-        enc = _I32x2(
-            int(wrap_count(d.left_wheel_sign * left)), int(wrap_count(d.right_wheel_sign * right))
+        return (
+            int(wrap_count(d.left_wheel_sign * left)),
+            int(wrap_count(d.right_wheel_sign * right)),
+            int(d.left_wheel_sign * vl * 1e6),
+            int(d.right_wheel_sign * vr * 1e6),
         )
-        speed = _I32x2(int(d.left_wheel_sign * vl * 1e6), int(d.right_wheel_sign * vr * 1e6))
-        return enc, speed
+
+    def _sensors(self) -> tuple[Any, Any]:
+        """:meth:`_sensor_values` as the two arrays the core takes (counts, speeds)."""
+        enc_l, enc_r, speed_l, speed_r = self._sensor_values()
+        return _I32x2(enc_l, enc_r), _I32x2(speed_l, speed_r)
 
     def _push_sensors(self) -> None:
-        enc, speed = self._sensors()
+        # Twice a tick: into arrays kept for it (fw_host_set_sensors copies the values).
+        enc, speed = self._enc, self._speed
+        enc[0], enc[1], speed[0], speed[1] = self._sensor_values()
         self._lib.fw_host_set_sensors(self._h, enc, speed)
 
     def _read_imu(self, out: Any) -> int:
@@ -498,7 +512,8 @@ class FirmwareController(ControllerModel):
             n = self._lib.fw_host_take(self._h, self._buf, _OUT_CAP)
             if not n:
                 break
-            for frame in self._decoder.feed(self._buf.raw[:n]):
+            # string_at copies the n bytes written (``raw`` would copy the whole buffer).
+            for frame in self._decoder.feed(ctypes.string_at(self._buf, n)):
                 out.append(frame.message)
                 seqs.append(frame.seq)
         self.frame_seqs = seqs
@@ -613,7 +628,7 @@ class FirmwareController(ControllerModel):
         lib, h = self._lib, self._h
         self._push_sensors()
         lib.fw_host_control(h, self._now_us())
-        wheels = _I32x2()
+        wheels = self._wheels
         lib.fw_host_wheels(h, wheels)
         d = self.rover.drive
         # Polarity undone (exactly) so the twin gets the Python model's conversion.
