@@ -91,7 +91,7 @@ class Pipe:
     medium: str
     rng: random.Random
     windows: tuple[Window, ...] = ()
-    _queue: deque[Delivery] = field(default_factory=deque)
+    _queue: deque[Delivery] = field(default_factory=deque)  # never replaced: Rig.run reads it
     _free_at: float = 0.0
     _last_at: float = 0.0
     sent: int = 0

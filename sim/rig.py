@@ -31,6 +31,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
+from typing import NamedTuple
 
 from bridge.link.linkcore import LinkCore
 from bridge.link.linktypes import (
@@ -102,10 +103,10 @@ ODOM_TOLERANCE_M = 0.003
 _ACTION, _TO_CTL, _TICK, _TO_HOST, _HOST = range(5)
 
 
-@dataclass(frozen=True)
-class _FrameInfo:
+class _FrameInfo(NamedTuple):
     """What the simulator knew of a controller frame as it was sent: the boot that sent
-    it (counted from 0) and what the checks need of its kind (``inner``)."""
+    it (counted from 0) and what the checks need of its kind (``inner``). A named tuple:
+    one is made for every frame the controller sends."""
 
     boot: int
     inner: object
@@ -196,11 +197,10 @@ class Rig:
         self._ctl_encoder = FrameEncoder()
         self._ctl_seq = 0
         """The controller's serial frame counter (its encoder's, from 0 at each boot)."""
-        self._meta_by_seq: list[deque[tuple[int, Message, object]]] = [
-            deque(maxlen=8) for _ in range(256)
-        ]
+        self._meta_by_seq: list[deque[tuple[int, Message, object]] | None] = [None] * 256
         """What the simulator knew of each serial frame the controller sent, by its frame
-        counter (the last 256), each with its place in the order sent."""
+        counter (the last 256), each with its place in the order sent (a counter's deque
+        made when it is first used: most scenarios use few)."""
         self._frames_sent = 0
         """Serial frames the controller sent, all boots."""
         self._frame_read = -1
@@ -371,11 +371,15 @@ class Rig:
         self._reschedule_host()
         heap = self._heap
         to_ctl, to_host = self.to_ctl, self.to_host
+        # Pipe.due inlined (the loop's hottest call): the pipes keep their queues.
+        queue_a, queue_b = to_ctl._queue, to_host._queue
+        inf = math.inf
         end = self.end_s
         last_t, same = -1.0, 0
         while not self._probe_done:
-            t_heap, p_heap = (heap[0][0], heap[0][1]) if heap else (math.inf, 9)
-            t_a, t_b = to_ctl.due(), to_host.due()
+            t_heap, p_heap = (heap[0][0], heap[0][1]) if heap else (inf, 9)
+            t_a = queue_a[0].at_s if queue_a else inf
+            t_b = queue_b[0].at_s if queue_b else inf
             if t_a < t_heap or (t_a == t_heap and p_heap > _TO_CTL):
                 if t_b < t_a:
                     t, which = t_b, _TO_HOST
@@ -680,7 +684,10 @@ class Rig:
                 meta = _Gen(self._gen_abs)
             meta = _FrameInfo(ledger.controller_reboots, meta)
             if serial:
-                self._meta_by_seq[self._ctl_seq & 0xFF].append((self._frames_sent, msg, meta))
+                sent = self._meta_by_seq[self._ctl_seq & 0xFF]
+                if sent is None:
+                    sent = self._meta_by_seq[self._ctl_seq & 0xFF] = deque(maxlen=8)
+                sent.append((self._frames_sent, msg, meta))
                 self._frames_sent += 1
                 self._ctl_seq += 1
                 batch.append((self._ctl_encoder.encode(msg), msg))
@@ -940,7 +947,7 @@ class Rig:
         content: a controller that repeats its nonce repeats its boot IDENT). A frame sent
         before the last one read was lost: never the one read now."""
         sent = self._meta_by_seq[frame.seq]
-        while sent:
+        while sent:  # None: no frame of this counter was sent
             place, msg, info = sent.popleft()
             if place > self._frame_read and msg == frame.message:
                 self._frame_read = place
