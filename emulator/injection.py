@@ -515,15 +515,15 @@ class FaultSchedule:
     def poll(self) -> list[Message]:
         """Fire every fault whose trigger is met; returns the controller's messages."""
         twin = self.injector.model.twin
-        pose = twin.pose
-        self.ground_m += math.hypot(pose.x_m - self._last_xy[0], pose.y_m - self._last_xy[1])
-        self._last_xy = (pose.x_m, pose.y_m)
+        x, y = twin.position_m  # every tick: the pose's x and y, without its yaw
+        self.ground_m += math.hypot(x - self._last_xy[0], y - self._last_xy[1])
+        self._last_xy = (x, y)
         if not self._pending:
             return []
         out: list[Message] = []
         keep = []
         for spec, source in self._pending:
-            if self._due(spec, twin.time_s, pose.x_m, pose.y_m):
+            if self._due(spec, twin.time_s, x, y):
                 try:
                     out += self.injector.apply(spec, source=source)
                 except InjectionError as exc:  # pragma: no cover - checked when scheduled

@@ -499,6 +499,12 @@ class Twin:
         return Pose2D(x, y, wrap_rad(self._body.angle))
 
     @property
+    def position_m(self) -> tuple[float, float]:
+        """:attr:`pose`'s ``(x, y)``, without the yaw (cheaper: no wrap, no Pose2D)."""
+        x, y = self._body.position
+        return x, y
+
+    @property
     def yaw_unwrapped_rad(self) -> float:
         """Yaw without wrapping (counts whole turns), rad."""
         return float(self._body.angle)
