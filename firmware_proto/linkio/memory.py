@@ -41,6 +41,12 @@ class MemoryPort:
         """What the other end wrote since the last read, waiting up to ``timeout_s`` for
         some (0: never waits). Raises OSError once closed."""
         rx = self._rx
+        if not rx.buf and not timeout_s > 0:
+            # Nothing written and no wait (a lockstep tick's poll): the answer the locked
+            # path would give, without taking the lock.
+            if self._closed:
+                raise OSError(f"{self._name} is closed")
+            return b""
         with rx.cond:
             if self._closed:
                 raise OSError(f"{self._name} is closed")
