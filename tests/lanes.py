@@ -321,7 +321,7 @@ checked in it."""
 
 IDLE = (
     # The mutation score: the conformance suite in lockstep against each mutant (about
-    # 50 CPU-seconds in all).
+    # 40 CPU-seconds in all; 50 before the speed-ups of 2026-11-30).
     "tests/bridge/test_mutants.py::test_the_suite_fails_the_mutant_on_the_rule_it_breaks",
     # Whole simulated rover sides on both controllers and media (about 13 CPU-seconds).
     "tests/sim/test_world.py::test_the_mission_goes_as_it_must",
