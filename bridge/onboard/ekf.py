@@ -29,7 +29,9 @@ State ``[x, y, yaw]`` (map frame: metres, radians) and its 3x3 covariance.
   state itself ever stop being finite, the filter forgets its map pose
   (:attr:`PoseEkf.poisoned`): no estimate is better than a wrong one.
 
-Numpy, not filterpy: docs/onboard.md, "The estimate", says why.
+Plain float arithmetic on 3-vectors and row-major 3x3 tuples, not numpy or filterpy:
+docs/onboard.md, "The estimate", says why. Numpy arrays are taken as input (POSE and
+reset covariances).
 
 Pure: no I/O, no clock (stamps come with the samples), no thread; not thread-safe.
 """
@@ -49,6 +51,10 @@ from firmware_proto.model.geometry import wrap_rad
 __all__ = ["EkfConfig", "Estimate", "PoseEkf"]
 
 Matrix = npt.NDArray[np.float64]
+Vec = tuple[float, float, float]
+"""A state ``(x, y, yaw)`` or an innovation."""
+Mat = tuple[float, float, float, float, float, float, float, float, float]
+"""A 3x3 matrix, row-major."""
 
 
 @dataclass(frozen=True)
@@ -135,18 +141,135 @@ class Estimate:
         return math.sqrt(max(0.0, (a + c) / 2.0 + math.sqrt(((a - c) / 2.0) ** 2 + b * b)))
 
 
-def _covariance(value: Matrix | object) -> Matrix | None:
-    """A 3x3 covariance as a matrix, ``None`` when it is not one: not 3x3 numbers, not
-    finite, not symmetric, or not positive definite."""
+_EYE: Mat = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+_ZERO: Vec = (0.0, 0.0, 0.0)
+
+
+class _SingularError(ArithmeticError):
+    """A 3x3 matrix that has no inverse (as numpy's ``LinAlgError``)."""
+
+
+def _mul(a: Mat, b: Mat) -> Mat:
+    """``a @ b``."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (
+        a0 * b0 + a1 * b3 + a2 * b6,
+        a0 * b1 + a1 * b4 + a2 * b7,
+        a0 * b2 + a1 * b5 + a2 * b8,
+        a3 * b0 + a4 * b3 + a5 * b6,
+        a3 * b1 + a4 * b4 + a5 * b7,
+        a3 * b2 + a4 * b5 + a5 * b8,
+        a6 * b0 + a7 * b3 + a8 * b6,
+        a6 * b1 + a7 * b4 + a8 * b7,
+        a6 * b2 + a7 * b5 + a8 * b8,
+    )
+
+
+def _mul_t(a: Mat, b: Mat) -> Mat:
+    """``a @ b.T``."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (
+        a0 * b0 + a1 * b1 + a2 * b2,
+        a0 * b3 + a1 * b4 + a2 * b5,
+        a0 * b6 + a1 * b7 + a2 * b8,
+        a3 * b0 + a4 * b1 + a5 * b2,
+        a3 * b3 + a4 * b4 + a5 * b5,
+        a3 * b6 + a4 * b7 + a5 * b8,
+        a6 * b0 + a7 * b1 + a8 * b2,
+        a6 * b3 + a7 * b4 + a8 * b5,
+        a6 * b6 + a7 * b7 + a8 * b8,
+    )
+
+
+def _add(a: Mat, b: Mat) -> Mat:
+    """``a + b``."""
+    return (
+        a[0] + b[0],
+        a[1] + b[1],
+        a[2] + b[2],
+        a[3] + b[3],
+        a[4] + b[4],
+        a[5] + b[5],
+        a[6] + b[6],
+        a[7] + b[7],
+        a[8] + b[8],
+    )
+
+
+def _inv(m: Mat) -> Mat:
+    """The inverse of ``m`` (the adjugate over the determinant).
+
+    Raises:
+        _SingularError: the determinant is zero.
+    """
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+    c0 = m4 * m8 - m5 * m7
+    c1 = m5 * m6 - m3 * m8
+    c2 = m3 * m7 - m4 * m6
+    det = m0 * c0 + m1 * c1 + m2 * c2
+    if det == 0.0:
+        raise _SingularError("a singular matrix")
+    d = 1.0 / det
+    return (
+        c0 * d,
+        (m2 * m7 - m1 * m8) * d,
+        (m1 * m5 - m2 * m4) * d,
+        c1 * d,
+        (m0 * m8 - m2 * m6) * d,
+        (m2 * m3 - m0 * m5) * d,
+        c2 * d,
+        (m1 * m6 - m0 * m7) * d,
+        (m0 * m4 - m1 * m3) * d,
+    )
+
+
+def _quadratic(v: Vec, m: Mat) -> float:
+    """``v @ inv(m) @ v``.
+
+    Raises:
+        _SingularError: ``m`` has no inverse.
+    """
+    i = _inv(m)
+    a, b, c = v
+    return (
+        a * (i[0] * a + i[1] * b + i[2] * c)
+        + b * (i[3] * a + i[4] * b + i[5] * c)
+        + c * (i[6] * a + i[7] * b + i[8] * c)
+    )
+
+
+def _finite(values: tuple[float, ...]) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _close(a: float, b: float) -> bool:
+    """numpy's ``isclose(a, b, rtol=1e-6, atol=1e-12)`` for finite numbers."""
+    return abs(a - b) <= 1e-12 + 1e-6 * abs(b)
+
+
+def _covariance(value: Matrix | object) -> Mat | None:
+    """A 3x3 covariance as a row-major tuple, ``None`` when it is not one: not 3x3
+    numbers, not finite, not symmetric, or not positive definite (no Cholesky factor)."""
     try:
-        p = np.array(value, dtype=float).reshape(3, 3)
+        flat = np.asarray(value, dtype=float).reshape(9).tolist()
     except (TypeError, ValueError):
         return None
-    if not np.all(np.isfinite(p)) or not np.allclose(p, p.T, rtol=1e-6, atol=1e-12):
+    p: Mat = tuple(flat)
+    if not _finite(p) or not (_close(p[1], p[3]) and _close(p[2], p[6]) and _close(p[5], p[7])):
         return None
-    try:
-        np.linalg.cholesky(p)
-    except np.linalg.LinAlgError:
+    # The Cholesky factor of the lower triangle (numpy's), pivot by pivot.
+    d0 = p[0]
+    if not d0 > 0.0:
+        return None
+    l00 = math.sqrt(d0)
+    l10, l20 = p[3] / l00, p[6] / l00
+    d1 = p[4] - l10 * l10
+    if not d1 > 0.0:
+        return None
+    l21 = (p[7] - l20 * l10) / math.sqrt(d1)
+    if not p[8] - l20 * l20 - l21 * l21 > 0.0:
         return None
     return p
 
@@ -154,8 +277,8 @@ def _covariance(value: Matrix | object) -> Matrix | None:
 @dataclass
 class _Entry:
     stamp: float
-    x: Matrix
-    p: Matrix
+    x: Vec
+    p: Mat
     motion: tuple[float, float, float]
     """The motion applied to reach this entry (forward, left, turn)."""
 
@@ -165,15 +288,15 @@ class PoseEkf:
 
     def __init__(self, config: EkfConfig | None = None) -> None:
         self.config = config or EkfConfig()
-        self._x: Matrix = np.zeros(3)
-        self._p: Matrix = np.eye(3)
+        self._x: Vec = _ZERO
+        self._p: Mat = _EYE
         self._ready = False
         self._stamp = -math.inf
         self._odom: tuple[float, float, float] | None = None
         self._history: deque[_Entry] = deque()
         self._motion = (0.0, 0.0)
         self._pose_stamp = -math.inf
-        self._waiting: list[tuple[float, Matrix, Matrix]] = []
+        self._waiting: list[tuple[float, Vec, Mat]] = []
         """POSEs newer than the newest ``odom``: (stamp, measurement, covariance), oldest first."""
         self._taken: Estimate | None = None
         self.corrections = 0
@@ -182,7 +305,7 @@ class PoseEkf:
         """POSE samples that inflated the covariance first (a slip, confirmed by two)."""
         self.outliers = 0
         """POSE samples held outside the gate and not confirmed by the next: dropped."""
-        self._held: tuple[Matrix, Matrix] | None = None
+        self._held: tuple[Vec, Mat] | None = None
         """A POSE outside the gate awaiting the next to confirm it: (innovation, covariance)."""
         self.too_old = 0
         """POSE samples older than the history, dropped (applied late, they move the rover back)."""
@@ -199,7 +322,7 @@ class PoseEkf:
         return self._ready
 
     def reset(
-        self, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix, stamp_s: float
+        self, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix | Mat, stamp_s: float
     ) -> None:
         """Start at a known pose with its covariance.
 
@@ -210,11 +333,11 @@ class PoseEkf:
         p = _covariance(covariance)
         if p is None or not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad, stamp_s)):
             raise ValueError("reset: a pose, stamp or covariance that is not usable")
-        self._x = np.array([x_m, y_m, wrap_rad(yaw_rad)])
+        self._x = (float(x_m), float(y_m), wrap_rad(yaw_rad))
         self._p = p
         self._stamp = stamp_s
         self._history.clear()
-        self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), (0.0, 0.0, 0.0)))
+        self._history.append(_Entry(stamp_s, self._x, self._p, (0.0, 0.0, 0.0)))
         self._held = None
         self._waiting.clear()
         self._ready = True
@@ -255,39 +378,41 @@ class PoseEkf:
             return
         self._x, self._p = self._apply(self._x, self._p, motion)
         self._stamp = max(self._stamp, stamp_s)
-        self._history.append(_Entry(stamp_s, self._x.copy(), self._p.copy(), motion))
+        self._history.append(_Entry(stamp_s, self._x, self._p, motion))
         self._trim()
         self._check_state()
         while self._ready and self._waiting and self._waiting[0][0] <= stamp_s:
             self._take(*self._waiting.pop(0))  # the odometry has passed it
 
-    def _apply(
-        self, x: Matrix, p: Matrix, motion: tuple[float, float, float]
-    ) -> tuple[Matrix, Matrix]:
-        with np.errstate(all="ignore"):  # an overflow is caught by _check_state
-            return self._apply_motion(x, p, motion)
-
-    def _apply_motion(
-        self, x: Matrix, p: Matrix, motion: tuple[float, float, float]
-    ) -> tuple[Matrix, Matrix]:
+    def _apply(self, x: Vec, p: Mat, motion: tuple[float, float, float]) -> tuple[Vec, Mat]:
+        """The state and covariance after ``motion`` (an overflow is caught by
+        :meth:`_check_state`)."""
         cfg = self.config
         fwd, left, turn = motion
-        yaw = float(x[2])
+        yaw = x[2]
         c, s = math.cos(yaw), math.sin(yaw)
-        new = np.array([x[0] + c * fwd - s * left, x[1] + s * fwd + c * left, wrap_rad(yaw + turn)])
-        f = np.array(
-            [[1.0, 0.0, -s * fwd - c * left], [0.0, 1.0, c * fwd - s * left], [0.0, 0.0, 1.0]]
-        )
-        g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        new = (x[0] + c * fwd - s * left, x[1] + s * fwd + c * left, wrap_rad(yaw + turn))
+        # F = [[1, 0, f02], [0, 1, f12], [0, 0, 1]]: the motion's Jacobian in the state.
+        f: Mat = (1.0, 0.0, -s * fwd - c * left, 0.0, 1.0, c * fwd - s * left, 0.0, 0.0, 1.0)
         dist = math.hypot(fwd, left)
-        q_body = np.diag(
-            [
-                (cfg.forward_sigma_per_m * dist + cfg.floor_m) ** 2,
-                (cfg.lateral_sigma_per_m * dist + cfg.floor_m) ** 2,
-                (cfg.yaw_sigma_per_rad * abs(turn) + cfg.floor_rad) ** 2,
-            ]
+        q0 = cfg.forward_sigma_per_m * dist + cfg.floor_m
+        q1 = cfg.lateral_sigma_per_m * dist + cfg.floor_m
+        q2 = cfg.yaw_sigma_per_rad * abs(turn) + cfg.floor_rad
+        q0, q1, q2 = q0 * q0, q1 * q1, q2 * q2
+        # G Q G.T, G the rotation of the body frame into the map's, Q = diag(q0, q1, q2).
+        q01 = c * q0 * s - s * q1 * c
+        q: Mat = (
+            c * q0 * c + s * q1 * s,
+            q01,
+            0.0,
+            q01,
+            s * q0 * s + c * q1 * c,
+            0.0,
+            0.0,
+            0.0,
+            q2,
         )
-        return new, f @ p @ f.T + g @ q_body @ g.T
+        return new, _add(_mul_t(_mul(f, p), f), q)
 
     def _trim(self) -> None:
         horizon = self._stamp - self.config.history_s
@@ -305,7 +430,7 @@ class PoseEkf:
         if r is None or not all(math.isfinite(v) for v in (stamp_s, x_m, y_m, yaw_rad)):
             self.rejected += 1
             return
-        z = np.array([x_m, y_m, wrap_rad(yaw_rad)])
+        z = (float(x_m), float(y_m), wrap_rad(yaw_rad))
         if not self._ready:
             self.reset(x_m, y_m, yaw_rad, r, max(stamp_s, self._stamp))
             self._pose_stamp = max(self._pose_stamp, stamp_s)
@@ -316,7 +441,7 @@ class PoseEkf:
         else:
             self._take(stamp_s, z, r)
 
-    def _wait(self, stamp_s: float, z: Matrix, r: Matrix) -> None:
+    def _wait(self, stamp_s: float, z: Vec, r: Mat) -> None:
         """A POSE newer than the newest ``odom`` waits for the odometry to pass it (a
         backlog may hand it over first), within ``future_hold_s`` and ``max_waiting``."""
         waiting = self._waiting
@@ -326,7 +451,7 @@ class PoseEkf:
         while self._ready and waiting and (silent or len(waiting) > cfg.max_waiting):
             self._take(*waiting.pop(0))
 
-    def _take(self, stamp_s: float, z: Matrix, r: Matrix) -> None:
+    def _take(self, stamp_s: float, z: Vec, r: Mat) -> None:
         """Apply one POSE at its stamp (at the newest state when it is newer still)."""
         history = self._history
         # The last entry at or before the measurement; the motions after it are replayed.
@@ -341,7 +466,7 @@ class PoseEkf:
         base = history[index]
         try:
             updated = self._update(base.x, base.p, z, r)
-        except np.linalg.LinAlgError:
+        except _SingularError:
             self.rejected += 1
             return
         if updated is None:
@@ -377,27 +502,25 @@ class PoseEkf:
 
     def _check_state(self) -> None:
         """A state that is not finite is forgotten: no map pose until the next POSE."""
-        if np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._p)):
+        if _finite(self._x) and _finite(self._p):
             return
         self.poisoned += 1
         self._ready = False
-        self._x = np.zeros(3)
-        self._p = np.eye(3)
+        self._x = _ZERO
+        self._p = _EYE
         self._history.clear()
         self._waiting.clear()
 
-    def _update(self, x: Matrix, p: Matrix, z: Matrix, r: Matrix) -> tuple[Matrix, Matrix] | None:
-        with np.errstate(all="ignore"):  # an overflow is caught by _check_state
-            return self._update_at(x, p, z, r)
+    def _update(self, x: Vec, p: Mat, z: Vec, r: Mat) -> tuple[Vec, Mat] | None:
+        """The correction by ``z``; ``None`` when ``z`` is held (the module docstring).
+        An overflow is caught by :meth:`_check_state`.
 
-    def _update_at(
-        self, x: Matrix, p: Matrix, z: Matrix, r: Matrix
-    ) -> tuple[Matrix, Matrix] | None:
-        """The correction by ``z``; ``None`` when ``z`` is held (the module docstring)."""
-        y = z - x
-        y[2] = wrap_rad(float(y[2]))
-        s = p + r
-        nis = float(y @ np.linalg.solve(s, y))
+        Raises:
+            _SingularError: the innovation's covariance has no inverse.
+        """
+        y = (z[0] - x[0], z[1] - x[1], wrap_rad(z[2] - x[2]))
+        s = _add(p, r)
+        nis = _quadratic(y, s)
         gate = self.config.gate_chi2
         held, self._held = self._held, None
         if nis > gate:
@@ -409,24 +532,44 @@ class PoseEkf:
             # Two fixes agree the rover moved where the odometry could not see (slip):
             # trust the sensor.
             self.inflations += 1
-            p = p + np.outer(y, y)
-            s = p + r
+            y0, y1, y2 = y
+            p = _add(
+                p, (y0 * y0, y0 * y1, y0 * y2, y1 * y0, y1 * y1, y1 * y2, y2 * y0, y2 * y1, y2 * y2)
+            )
+            s = _add(p, r)
         elif held is not None:
             self.outliers += 1  # the fix held was one bad fix
-        k = p @ np.linalg.inv(s)
-        new = x + k @ y
-        new[2] = wrap_rad(float(new[2]))
-        i_k = np.eye(3) - k
-        p = i_k @ p @ i_k.T + k @ r @ k.T  # Joseph form: stays symmetric, positive
+        k = _mul(p, _inv(s))
+        new = (
+            x[0] + (k[0] * y[0] + k[1] * y[1] + k[2] * y[2]),
+            x[1] + (k[3] * y[0] + k[4] * y[1] + k[5] * y[2]),
+            wrap_rad(x[2] + (k[6] * y[0] + k[7] * y[1] + k[8] * y[2])),
+        )
+        i_k: Mat = (
+            1.0 - k[0],
+            -k[1],
+            -k[2],
+            -k[3],
+            1.0 - k[4],
+            -k[5],
+            -k[6],
+            -k[7],
+            1.0 - k[8],
+        )
+        # Joseph form: stays symmetric, positive.
+        p = _add(_mul_t(_mul(i_k, p), i_k), _mul_t(_mul(k, r), k))
         return new, p
 
     @staticmethod
-    def _agree(a: tuple[Matrix, Matrix], b: tuple[Matrix, Matrix], p: Matrix, gate: float) -> bool:
+    def _agree(a: tuple[Vec, Mat], b: tuple[Vec, Mat], p: Mat, gate: float) -> bool:
         """Two innovations tell the same story: their difference within ``gate`` of the
-        filter's and both fixes' covariance."""
-        d = b[0] - a[0]
-        d[2] = wrap_rad(float(d[2]))
-        return float(d @ np.linalg.solve(p + a[1] + b[1], d)) <= gate
+        filter's and both fixes' covariance.
+
+        Raises:
+            _SingularError: the summed covariance has no inverse.
+        """
+        d = (b[0][0] - a[0][0], b[0][1] - a[0][1], wrap_rad(b[0][2] - a[0][2]))
+        return _quadratic(d, _add(_add(p, a[1]), b[1])) <= gate
 
     # -- read ------------------------------------------------------------------------------
     def estimate(self) -> Estimate | None:
@@ -436,10 +579,10 @@ class PoseEkf:
         x, p = self._x, self._p
         return Estimate(
             self._stamp,
-            float(x[0]),
-            float(x[1]),
-            math.degrees(float(x[2])),
-            tuple(float(v) for v in p.reshape(9)),
+            x[0],
+            x[1],
+            math.degrees(x[2]),
+            p,
             self._motion[0],
             self._motion[1],
             self._pose_stamp,
