@@ -102,3 +102,44 @@ def test_the_nodes_own_timers_and_services_run_on_the_default_lane_thread() -> N
         timer.cancel()
         assert threads["timer"] is threads["message"] is threads["service"]
         assert threads["message"] is not threading.current_thread()
+
+
+@pytest.mark.rclpy
+def test_a_serialized_message_is_published_as_it_is() -> None:
+    """``publish_serialized`` (the process child's publish) delivers the very message
+    whose CDR it was given, counts it, and refuses another port's publisher or a closed one."""
+    from rclpy.serialization import serialize_message
+
+    from bridge.ros.rosport import PortClosedError, RosPortError
+    from bridge.ros.rosport.msgs import Odometry
+    from bridge.ros.rosport.rclpy_backend import RclpyPort
+
+    sent = Odometry()
+    sent.header.frame_id = "odom"
+    sent.pose.pose.position.x = 1.25
+    sent.pose.covariance[35] = 0.5
+    got: list[Odometry] = []
+    arrived = threading.Event()
+    with (
+        RclpyPort(namespace="raw", node_name="pub") as pub_port,
+        RclpyPort(namespace="raw", node_name="sub") as sub_port,
+        RclpyPort(namespace="other", node_name="other") as other,
+    ):
+
+        def take(msg: Odometry) -> None:
+            got.append(msg)
+            arrived.set()
+
+        sub_port.subscribe("odom", Odometry, take)
+        pub = pub_port.publisher("odom", Odometry)
+        assert pub.wait_for_subscribers(1, timeout_s=10.0)
+        before = pub_port.stats().published
+        pub_port.publish_serialized(pub, serialize_message(sent))
+        assert arrived.wait(10.0)
+        assert got[0] == sent
+        assert pub_port.stats().published == before + 1
+        with pytest.raises(RosPortError):
+            other.publish_serialized(pub, serialize_message(sent))
+        pub.close()
+        with pytest.raises(PortClosedError):
+            pub_port.publish_serialized(pub, serialize_message(sent))

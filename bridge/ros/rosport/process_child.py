@@ -12,7 +12,8 @@ middleware)`` or ``("error", reason)``. After that, on ``ctl``, in order:
   ``("declare", id, specs, values)``, ``("set", id, values)``, ``("get", id)``: each
   answered ``("reply", id, status, value)``, status ``"ok"``,
   ``"parameter"`` (a refused parameter) or ``"error"``;
-- ``("pub", writer, cdr)``: publish (no answer; a failure is logged and counted);
+- ``("pub", writer, cdr)``: publish the serialized message as it is
+  (:meth:`RclpyPort.publish_serialized`; no answer; a failure is logged and counted);
 - ``("close_writer", writer)``, ``("close_reader", reader)``: no answer;
 - ``("on_set_reply", id, reason)``: the parent's answer to this child's
   ``("on_set", id, values)``, sent when a parameter change reaches the node;
@@ -157,7 +158,9 @@ class Child:
             if pub is None:
                 return
             try:
-                pub.publish(self._ser.deserialize_message(cdr, pub.msg_type))
+                # The parent serialized it: published as it is, not turned into a
+                # message and serialized again.
+                port.publish_serialized(pub, cdr)
             except Exception:
                 self.publish_errors += 1
                 if self.publish_errors & (self.publish_errors - 1) == 0:

@@ -25,12 +25,13 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from bridge.errors import ParameterError
-from bridge.ros.rosport.errors import BackendUnavailableError, RosPortError
+from bridge.ros.rosport.errors import BackendUnavailableError, PortClosedError, RosPortError
 from bridge.ros.rosport.parameters import ParameterSpec, ParameterValue
 from bridge.ros.rosport.port import (
     DEFAULT_LANE,
     DEFAULT_NODE_NAME,
     Message,
+    Publisher,
     RosPort,
     Subscription,
 )
@@ -93,6 +94,9 @@ class _Writer:
 
     def write(self, msg: Message) -> None:
         self._publisher.publish(msg)
+
+    def write_serialized(self, cdr: bytes) -> None:
+        self._publisher.publish(cdr)  # rclpy publishes bytes as they are (publish_raw)
 
     def matched_count(self) -> int:
         return int(self._publisher.get_subscription_count())
@@ -449,6 +453,32 @@ class RclpyPort(RosPort):
     def _open_writer(self, topic: str, msg_type: type[Any], qos: Qos) -> _Writer:
         publisher = self._node.create_publisher(msg_type, topic, self._profile(qos))
         return _Writer(self._node, publisher)
+
+    def publish_serialized(self, publisher: Publisher[Any], cdr: bytes) -> None:
+        """Publish ``cdr``, a message of ``publisher``'s type already serialized (CDR, as
+        ``rclpy.serialization.serialize_message`` makes it), as it is: rclpy's raw publish,
+        without turning it into a Python message and back (the ``rclpy-process`` child,
+        which gets its parent's messages serialized). Counted as published like
+        :meth:`Publisher.publish`; taps are not shown it (they are shown messages, not
+        bytes).
+
+        Raises:
+            PortClosedError: the publisher or this port is closed.
+            RosPortError: ``publisher`` is not this port's, or rclpy failed to send
+                (chained to its exception).
+        """
+        writer = publisher._writer
+        if publisher.port is not self or not isinstance(writer, _Writer):
+            raise RosPortError(f"publisher on {publisher.topic} is not one of {self!r}")
+        if publisher.closed or self.closed:
+            raise PortClosedError(f"publisher on {publisher.topic} is closed")
+        try:
+            writer.write_serialized(cdr)
+        except Exception as exc:
+            if publisher.closed or self.closed:
+                raise PortClosedError(f"publisher on {publisher.topic} is closed") from exc
+            raise RosPortError(f"publishing on {publisher.topic} failed: {exc}") from exc
+        self._count_published()
 
     def _open_reader(self, sub: Subscription[Any]) -> _Reader:
         lane = self._lane(sub.lane)
