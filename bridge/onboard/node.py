@@ -140,6 +140,9 @@ class OnboardNode:
         """Turns of the timer that found the program had stalled (:data:`LATE_TURN_S`)."""
         self._last_turn_s = monotonic()
         self._backlog_until = -math.inf
+        self._timer_due = -math.inf
+        """When the waiting timer thread wakes by itself (monotonic clock, s); ``-inf``
+        while it is not waiting (it reads the core's deadline afresh before it waits)."""
         self._steps = port.publisher(WHEEL_INSTRUCTIONS, Int16MultiArray, qos.COMMAND)
         self._stop = port.publisher(EMERGENCY_STOP, Bool, qos.STOP)
         self._ack = port.publisher(PLAN_ACK, String, qos.STATUS)
@@ -255,7 +258,12 @@ class OnboardNode:
             )
             self.core.on_estimate(on_core_clock, now)
             actions = self.core.take_actions()
-            self._wake.notify()
+            # Wake the timer only when it must run sooner than it would by itself: a
+            # deadline due now or earlier than its wake (200 estimates a second at
+            # --speed 4 would otherwise wake it for nothing).
+            due = max(self.core.next_deadline(now), self._backlog_until)
+            if due <= now or due < self._timer_due:
+                self._wake.notify()
             pose_due = self._pose_due(estimate)
         self._act(actions)
         if pose_due:
@@ -379,7 +387,11 @@ class OnboardNode:
                 due = max(self.core.next_deadline(now), self._backlog_until)
                 wait = min(TICK_MAX_S, max(0.0, due - now))
                 if wait > 0:
-                    self._wake.wait(wait)
+                    self._timer_due = now + wait
+                    try:
+                        self._wake.wait(wait)
+                    finally:
+                        self._timer_due = -math.inf
                 if self._closed:
                     return failures
             beat.tick()
