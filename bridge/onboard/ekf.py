@@ -253,10 +253,13 @@ def _covariance(value: Matrix | object) -> Mat | None:
     """A 3x3 covariance as a row-major tuple, ``None`` when it is not one: not 3x3
     numbers, not finite, not symmetric, or not positive definite (no Cholesky factor)."""
     try:
-        flat = np.asarray(value, dtype=float).reshape(9).tolist()
+        if type(value) is tuple and len(value) == 9:  # a Mat: no numpy on the way
+            flat = [float(v) for v in value]
+        else:
+            flat = np.asarray(value, dtype=float).reshape(9).tolist()
     except (TypeError, ValueError):
         return None
-    p: Mat = tuple(flat)
+    p: Mat = tuple(flat)  # type: ignore[assignment]
     if not _finite(p) or not (_close(p[1], p[3]) and _close(p[2], p[6]) and _close(p[5], p[7])):
         return None
     # The Cholesky factor of the lower triangle (numpy's), pivot by pivot.
@@ -421,7 +424,7 @@ class PoseEkf:
 
     # -- correct ---------------------------------------------------------------------------
     def correct(
-        self, stamp_s: float, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix
+        self, stamp_s: float, x_m: float, y_m: float, yaw_rad: float, covariance: Matrix | Mat
     ) -> None:
         """One POSE, measured at ``stamp_s``, with its 3x3 covariance (x, y, yaw);
         refused (counted, nothing changes) when it is not finite or its covariance is

@@ -32,8 +32,6 @@ from dataclasses import replace
 from types import TracebackType
 from typing import Any
 
-import numpy as np
-
 from bridge.onboard.core import (
     Action,
     OnboardConfig,
@@ -46,7 +44,7 @@ from bridge.onboard.core import (
     decode_screened,
     screen_uplink,
 )
-from bridge.onboard.ekf import EkfConfig, Estimate, PoseEkf
+from bridge.onboard.ekf import EkfConfig, Estimate, Mat, PoseEkf
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
 from bridge.ros.rosport.contract import (
     COMMAND_STATUS,
@@ -97,10 +95,15 @@ odometry-only estimate once this much later (estimate stamps, s) than the one be
 The guard itself acts on every estimate."""
 
 
-def _cov3(msg: Odometry) -> np.ndarray[Any, np.dtype[np.float64]]:
-    """x, y, yaw of a 6x6 pose covariance (row-major), as a 3x3."""
+_COV3 = (0, 1, 5, 6, 7, 11, 30, 31, 35)
+"""The places of x, y and yaw's 3x3 in a row-major 6x6 covariance."""
+
+
+def _cov3(msg: Odometry) -> Mat:
+    """x, y, yaw of a 6x6 pose covariance (row-major), as a row-major 3x3."""
     c = msg.pose.covariance
-    return np.array([[c[0], c[1], c[5]], [c[6], c[7], c[11]], [c[30], c[31], c[35]]], dtype=float)
+    a, b, d, e, f, g, h, i, j = (float(c[k]) for k in _COV3)
+    return (a, b, d, e, f, g, h, i, j)
 
 
 class OnboardNode:
