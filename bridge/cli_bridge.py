@@ -285,7 +285,7 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     from bridge.link.serial_transport import refuse_if_in_use
     from bridge.link.transport import open_transport
     from bridge.ros.node import BridgeNode
-    from bridge.ros.rosport import BackendUnavailableError, open_port
+    from bridge.ros.rosport import BackendUnavailableError, open_port, preload
     from firmware_proto.runtime import (
         ProcessRuntime,
         RuntimeOptions,
@@ -308,6 +308,13 @@ def run(args: argparse.Namespace, ros_args: Sequence[str] = (), prog: str = "rov
     options: dict[str, Any] = {}
     if params.ros_backend in ("rclpy", "rclpy-process") and ros_args:
         options["args"] = ["--ros-args", *ros_args]
+    try:
+        # Its modules (rclpy and its messages: 100-300 ms of CPU) are imported here, at
+        # normal priority: at real-time priority they held a core from everything else.
+        preload(params.ros_backend)
+    except BackendUnavailableError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
     # First, before any thread starts: every thread of the link inherits the policy.
     runtime = ProcessRuntime(
         RuntimeOptions(

@@ -12,6 +12,9 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import subprocess
+import sys
+import textwrap
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -19,7 +22,15 @@ from pathlib import Path
 
 import pytest
 
-from bridge.ros.rosport import DEFAULT_LANE, STOP_LANE, RosPort, RosPortError, qos
+from bridge.ros.rosport import (
+    DEFAULT_LANE,
+    STOP_LANE,
+    RosPort,
+    RosPortError,
+    UnknownBackendError,
+    preload,
+    qos,
+)
 from bridge.ros.rosport.msgs import Bool, Odometry, String
 from bridge.ros.rosport.process_backend import CHILD_MODULE, ProcessPort
 from emulator.engine import Emulator
@@ -271,3 +282,39 @@ def test_the_node_processes_take_their_own_scheduling_after_their_imports(
     threads = [int(tid) for tid in os.listdir(f"/proc/{port.stop_pid}/task")]
     assert len(threads) > 3  # the middleware's threads, this test's point
     assert {_scheduling(port.stop_pid, tid) for tid in threads} == {expected}
+
+
+def test_preload_imports_what_opening_the_port_imports() -> None:
+    """A real-time program preloads its backend before it takes real time (imports are
+    CPU-bound: at real-time priority they hold a core from everything else;
+    docs/realtime.md): opening an ``rclpy-process`` port, a publisher and a subscription
+    after it import no module more."""
+    code = textwrap.dedent(
+        """
+        import sys
+        from bridge.ros.rosport import open_port, preload, qos
+        from bridge.ros.rosport.msgs import String
+
+        preload("rclpy-process")
+        before = set(sys.modules)
+        with open_port("rclpy-process", node_name="preload_probe") as port:
+            port.publisher("/preload_probe", String, qos.STATUS)
+            port.subscribe("/preload_probe", String, lambda message: None, qos.STATUS)
+        print(sorted(set(sys.modules) - before))
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=Path(__file__).resolve().parents[2],
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout
+
+
+def test_preload_refuses_an_unknown_backend_by_name() -> None:
+    with pytest.raises(UnknownBackendError, match="no-such"):
+        preload("no-such")

@@ -32,7 +32,13 @@ from bridge.ros.rosport.port import (
     Tap,
 )
 from bridge.ros.rosport.qos import Qos
-from bridge.ros.rosport.registry import BACKENDS, DEFAULT_BACKEND, backend_class, open_port
+from bridge.ros.rosport.registry import (
+    BACKENDS,
+    DEFAULT_BACKEND,
+    backend_class,
+    open_port,
+    preload,
+)
 
 __all__ = [
     "BACKENDS",
@@ -59,6 +65,7 @@ __all__ = [
     "UnknownBackendError",
     "backend_class",
     "open_port",
+    "preload",
     "qos",
     "resolve_topic",
 ]

@@ -12,7 +12,7 @@ from typing import Any, Final
 from bridge.ros.rosport.errors import BackendUnavailableError, UnknownBackendError
 from bridge.ros.rosport.port import DEFAULT_NODE_NAME, RosPort
 
-__all__ = ["BACKENDS", "DEFAULT_BACKEND", "backend_class", "open_port"]
+__all__ = ["BACKENDS", "DEFAULT_BACKEND", "backend_class", "open_port", "preload"]
 
 #: Backend name -> (module, class). Modules are imported on first use only.
 BACKENDS: Final[Mapping[str, tuple[str, str]]] = {
@@ -22,6 +22,23 @@ BACKENDS: Final[Mapping[str, tuple[str, str]]] = {
 }
 #: The production backend: a real ROS 2 node.
 DEFAULT_BACKEND: Final = "rclpy"
+#: What each backend imports only once it opens (inside its methods): :func:`preload`.
+_OPENED_MODULES: Final[Mapping[str, tuple[str, ...]]] = {
+    "inprocess": (),
+    "rclpy": (
+        "rclpy",
+        "rclpy.context",
+        "rclpy.exceptions",
+        "rclpy.executors",
+        "rclpy.node",
+        "rclpy.parameter",
+        "rclpy.qos",
+        "rclpy.serialization",
+        "rclpy.signals",
+        "rcl_interfaces.msg",
+    ),
+    "rclpy-process": ("rclpy.serialization", "rclpy.parameter", "rcl_interfaces.msg"),
+}
 
 
 def backend_class(backend: str) -> type[RosPort]:
@@ -67,3 +84,23 @@ def open_port(
         RosPortError: the backend failed to start.
     """
     return backend_class(backend)(namespace=namespace, node_name=node_name, **options)
+
+
+def preload(backend: str) -> type[RosPort]:
+    """:func:`backend_class`, and the modules the backend imports only once it opens
+    (rclpy and its messages: 100-300 ms of CPU): a real-time program calls it before it
+    takes real time, so that these imports do not hold a core from everything else
+    (docs/realtime.md).
+
+    Raises:
+        UnknownBackendError, BackendUnavailableError: as :func:`backend_class`.
+    """
+    cls = backend_class(backend)
+    for name in _OPENED_MODULES.get(backend, ()):
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            raise BackendUnavailableError(
+                f"the {backend!r} ROS port backend cannot import {name}: {exc}"
+            ) from exc
+    return cls
