@@ -523,28 +523,28 @@ class Twin:
         before the first step). Includes contact forces."""
         if self._steps == 0:
             return BodyAcceleration(0.0, 0.0, 0.0)
-        body = self._body
-        vxw, vyw = body.velocity
-        px, py, pw = self._v_prev
-        axw, ayw = (vxw - px) / self.dt_s, (vyw - py) / self.dt_s
-        c, s = body.rotation_vector
-        return BodyAcceleration(
-            c * axw + s * ayw, c * ayw - s * axw, (body.angular_velocity - pw) / self.dt_s
-        )
+        ax, ay = self._linear_acceleration()
+        return BodyAcceleration(ax, ay, (self._body.angular_velocity - self._v_prev[2]) / self.dt_s)
 
     def imu_truth(self) -> tuple[float, float, float]:
         """``(yaw rate, ax, ay)``: :attr:`body_velocity`'s yaw rate and
         :attr:`body_acceleration`'s two linear components, the same values, read together
         (what the IMU samples at the telemetry rate)."""
-        body = self._body
-        w = body.angular_velocity
+        w = self._body.angular_velocity
         if self._steps == 0:
             return w, 0.0, 0.0
+        ax, ay = self._linear_acceleration()
+        return w, ax, ay
+
+    def _linear_acceleration(self) -> tuple[float, float]:
+        """The mean linear acceleration over the last step, body frame at its end (after
+        the first step)."""
+        body = self._body
         vxw, vyw = body.velocity
         px, py, _ = self._v_prev
         axw, ayw = (vxw - px) / self.dt_s, (vyw - py) / self.dt_s
         c, s = body.rotation_vector
-        return w, c * axw + s * ayw, c * ayw - s * axw
+        return c * axw + s * ayw, c * ayw - s * axw
 
     @property
     def motor_angles_rad(self) -> tuple[float, float]:
