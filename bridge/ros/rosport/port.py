@@ -157,10 +157,21 @@ class Publisher(Generic[M]):
                 f"publisher on {self.topic} sends {self.msg_type.__name__}, "
                 f"got {type(msg).__name__}"
             )
+        self._send(self._writer.write, msg)
+        self.port._tap(TAP_SENT, self.topic, msg)
+
+    def _send(self, write: Callable[[Any], None], payload: Any) -> None:
+        """``write(payload)`` to the backend, counted as published (:meth:`publish`, and
+        a backend's publish of serialized bytes).
+
+        Raises:
+            PortClosedError: the publisher or its port is closed.
+            RosPortError: the backend failed to send (chained to its exception).
+        """
         if self._closed or self.port.closed:
             raise PortClosedError(f"publisher on {self.topic} is closed")
         try:
-            self._writer.write(msg)
+            write(payload)
         except RosPortError:
             raise
         except Exception as exc:
@@ -168,7 +179,6 @@ class Publisher(Generic[M]):
                 raise PortClosedError(f"publisher on {self.topic} is closed") from exc
             raise RosPortError(f"publishing on {self.topic} failed: {exc}") from exc
         self.port._count_published()
-        self.port._tap(TAP_SENT, self.topic, msg)
 
     def matched_count(self) -> int:
         """How many subscriptions (in any process) currently receive from this publisher."""

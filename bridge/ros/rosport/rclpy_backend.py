@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from bridge.errors import ParameterError
-from bridge.ros.rosport.errors import BackendUnavailableError, PortClosedError, RosPortError
+from bridge.ros.rosport.errors import BackendUnavailableError, RosPortError
 from bridge.ros.rosport.parameters import ParameterSpec, ParameterValue
 from bridge.ros.rosport.port import (
     DEFAULT_LANE,
@@ -470,15 +470,7 @@ class RclpyPort(RosPort):
         writer = publisher._writer
         if publisher.port is not self or not isinstance(writer, _Writer):
             raise RosPortError(f"publisher on {publisher.topic} is not one of {self!r}")
-        if publisher.closed or self.closed:
-            raise PortClosedError(f"publisher on {publisher.topic} is closed")
-        try:
-            writer.write_serialized(cdr)
-        except Exception as exc:
-            if publisher.closed or self.closed:
-                raise PortClosedError(f"publisher on {publisher.topic} is closed") from exc
-            raise RosPortError(f"publishing on {publisher.topic} failed: {exc}") from exc
-        self._count_published()
+        publisher._send(writer.write_serialized, cdr)
 
     def _open_reader(self, sub: Subscription[Any]) -> _Reader:
         lane = self._lane(sub.lane)
