@@ -15,6 +15,10 @@ long as the session does), and before each test that is not marked ``virtual`` (
 parts need no wall clock) the objects made since are collected: a full collection
 during the test then scans only what the test and its fixtures made. Frozen objects are
 never freed, so only what lives for the whole session is frozen.
+
+Only before a test that keeps wall time (:func:`tests.lanes.keeps_wall_time`: marked
+``slow``, not ``virtual``): before every test of the fast lane, whose tests keep none,
+the collections took about 6 ms each, 7.5 of its 45 CPU-seconds.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from __future__ import annotations
 import gc
 
 import pytest
+
+from tests.lanes import keeps_wall_time
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
@@ -34,5 +40,5 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 def pytest_runtest_setup(item: pytest.Item) -> None:
     """Before a test that keeps wall time, collect what earlier tests left, so that no
     full collection falls due in it for want of one."""
-    if item.get_closest_marker("virtual") is None:
+    if keeps_wall_time(item):
         gc.collect()

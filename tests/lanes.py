@@ -16,6 +16,8 @@ tests/conftest.py.
 
 from __future__ import annotations
 
+import pytest
+
 __all__ = [
     "EXTENDED",
     "HEAVY",
@@ -23,6 +25,7 @@ __all__ = [
     "SLOW_MODULES",
     "VIRTUAL_MODULES",
     "VIRTUAL_TESTS",
+    "keeps_wall_time",
     "lane_marks",
 ]
 
@@ -342,3 +345,11 @@ def lane_marks(nodeid: str) -> tuple[bool, bool, bool, bool]:
     virtual = path in VIRTUAL_MODULES or heavy or any(nodeid.startswith(p) for p in VIRTUAL_TESTS)
     idle = any(nodeid.startswith(prefix) for prefix in IDLE)
     return path in SLOW_MODULES or extended or heavy, extended, virtual, idle
+
+
+def keeps_wall_time(item: pytest.Item) -> bool:
+    """Whether a collected test keeps wall time: marked ``slow`` and not ``virtual``
+    (the test command's host, serial and VM parts; the fast lane has none)."""
+    return item.get_closest_marker("slow") is not None and (
+        item.get_closest_marker("virtual") is None
+    )

@@ -38,6 +38,7 @@ from firmware_proto.runtime.stall import (
     StallRecord,
     read_stalls,
 )
+from tests.lanes import keeps_wall_time
 
 __all__ = ["TestSpan", "at_once", "read_spans", "summary_lines"]
 
@@ -67,12 +68,6 @@ def _log_path() -> Path | None:
     return Path(value) if value else None
 
 
-def _real_time(item: pytest.Item) -> bool:
-    return item.get_closest_marker("slow") is not None and (
-        item.get_closest_marker("virtual") is None
-    )
-
-
 def _process_name() -> str:
     worker = os.environ.get("PYTEST_XDIST_WORKER", "")
     return f"pytest {worker}" if worker else "pytest"
@@ -82,7 +77,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     """Start this process's monitor when it will run a real-time test."""
     global _monitor  # noqa: PLW0603 (one per pytest process)
     path = _log_path()
-    if _monitor is None and path is not None and any(map(_real_time, session.items)):
+    if _monitor is None and path is not None and any(map(keeps_wall_time, session.items)):
         _monitor = StallMonitor(_process_name(), log_path=path.with_name(OWN_LOG))
         _monitor.start()
 
@@ -101,7 +96,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     start = time.time()
     yield
     path = _log_path()
-    if path is None or not _real_time(item):
+    if path is None or not keeps_wall_time(item):
         return
     line = json.dumps({"nodeid": item.nodeid, "start_s": start, "end_s": time.time()})
     with contextlib.suppress(OSError), open(path.with_name(TESTS_LOG), "a") as out:
