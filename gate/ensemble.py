@@ -7,8 +7,9 @@ calibrated twin's covariance, ``rover gate --twin FILE``, else :data:`DEFAULT_SP
 each of the fitted parameters log-normal with a relative 1-sigma of 20 %), then each
 side's friction factor from the slip distribution (log-normal, 1-sigma ``slip_sigma``:
 the request's, else the server's default, a calibrated twin's own estimate), then,
-with a calibrated twin, the start pose's error (the rest-averaged pose's noise the
-calibration measured), then each twin's share of the plan's step error (the model
+the start pose's error (the request's own, ``start_sigma_m`` and ``start_sigma_deg``,
+else, with a calibrated twin, the rest-averaged pose's noise the calibration measured),
+then each twin's share of the plan's step error (the model
 discrepancy a calibrated twin states: below). Every draw comes in antithetic pairs,
 mirrored about the nominal twin, so the bands are centred on the point prediction.
 
@@ -170,9 +171,17 @@ class DefaultSpread:
         ]
 
 
-def draw(spread: Spread, n: int, seed: int, slip_sigma: float) -> list[BatchDraw]:
+def draw(
+    spread: Spread,
+    n: int,
+    seed: int,
+    slip_sigma: float,
+    start_sigma: tuple[float | None, float | None] = (None, None),
+) -> list[BatchDraw]:
     """The ``n`` twins of a request: grounds from ``spread``, then each side's slip
-    factor, then the start pose's offset (``spread.start_sigma``), then each twin's
+    factor, then the start pose's offset (``start_sigma``, ``(position_m,
+    heading_rad)`` 1-sigma: the start's own noise, as measured with the plan; each
+    ``None`` is ``spread.start_sigma``'s, a calibrated twin's rests'), then each twin's
     share of the plan's step error (normal, 1-sigma ``spread.step_error_scale``), all
     from ``numpy.random.default_rng(seed)``, each in antithetic pairs: twins ``2k`` and
     ``2k + 1`` are mirror images about the nominal one (``+d`` and ``-d`` in log
@@ -184,7 +193,10 @@ def draw(spread: Spread, n: int, seed: int, slip_sigma: float) -> list[BatchDraw
     half = (n + 1) // 2
     grounds = spread.sample(rng, n, antithetic=True)
     slips = np.exp(mirrored(rng.normal(0.0, slip_sigma, size=(half, 2)))[:n])
-    position, heading = spread.start_sigma
+    position, heading = (
+        given if given is not None else default
+        for given, default in zip(start_sigma, spread.start_sigma, strict=True)
+    )
     offsets = mirrored(rng.normal(0.0, 1.0, size=(half, 3)))[:n] * (position, position, heading)
     shares = mirrored(rng.normal(0.0, 1.0, size=half))[:n] * spread.step_error_scale
     return [

@@ -213,6 +213,17 @@ def _parameters(config: GateConfig, maps: list[str], default_map: str) -> list[d
             "1-sigma of each side's friction factor (log-normal) in the draws.",
             {"default": DEFAULT_SLIP_SIGMA},
         ),
+        "start_sigma_m": (
+            "1-sigma error of the start pose's position as measured (per axis, m), e.g. "
+            "a rest's own: each twin's start is offset by it. Default: a calibrated "
+            "twin's pose_sigma_m (its rests'), else 0.",
+            {},
+        ),
+        "start_sigma_deg": (
+            "1-sigma error of the start pose's heading as measured (deg). Default: a "
+            "calibrated twin's heading_sigma_deg, else 0.",
+            {},
+        ),
     }
     out = []
     for name in QUERY_PARAMETERS:

@@ -4,7 +4,8 @@ The body is exactly a Listing 1 plan (``additionalProperties: false``), so every
 else rides in the query: ``/validate_plan?map=scn02&start=1.0,2.0,90&render=1``.
 
 The parameters (``map``, ``start`` as ``x,y,yaw_deg``, ``render``, ``margin_m``,
-``pos_tol_m``, ``yaw_tol_deg``, ``sample_hz``, ``samples``, ``seed``, ``slip_sigma``),
+``pos_tol_m``, ``yaw_tol_deg``, ``sample_hz``, ``samples``, ``seed``, ``slip_sigma``,
+``start_sigma_m``, ``start_sigma_deg``),
 with their units, defaults and ranges: docs/gate.md's table under "POST /validate_plan",
 and this server's ``/openapi.json``.
 
@@ -44,6 +45,8 @@ QUERY_PARAMETERS = (
     "samples",
     "seed",
     "slip_sigma",
+    "start_sigma_m",
+    "start_sigma_deg",
 )
 """Every query parameter ``/validate_plan`` accepts, in canonical order."""
 
@@ -55,6 +58,8 @@ OPTION_LIMITS: dict[str, tuple[float, float]] = {
     "samples": (1, 2000),
     "seed": (0, 2**32 - 1),
     "slip_sigma": (0.0, 1.0),
+    "start_sigma_m": (0.0, 1.0),
+    "start_sigma_deg": (0.0, 45.0),
 }
 """Inclusive ranges of the numeric options (``sample_hz`` is further capped at 1/dt)."""
 
@@ -121,6 +126,9 @@ class ValidateOptions:
             of the server's playback defaults.
         samples: twins to play (``None``: one); ``seed``: the seed of their draws;
             ``slip_sigma``: the spread of each side's friction factor.
+        start_sigma_m, start_sigma_deg: 1-sigma error of the start pose as measured
+            (per position axis, m; heading, deg), e.g. the rest's own noise; each
+            ``None``: the calibrated twin's (its rests').
     """
 
     map: str | None = None
@@ -133,6 +141,8 @@ class ValidateOptions:
     samples: int | None = None
     seed: int | None = None
     slip_sigma: float | None = None
+    start_sigma_m: float | None = None
+    start_sigma_deg: float | None = None
 
     @classmethod
     def from_query(cls, query: str) -> ValidateOptions:
@@ -176,6 +186,14 @@ class ValidateOptions:
             slip_sigma=(
                 _ranged("slip_sigma", seen["slip_sigma"]) if "slip_sigma" in seen else None
             ),
+            start_sigma_m=(
+                _ranged("start_sigma_m", seen["start_sigma_m"]) if "start_sigma_m" in seen else None
+            ),
+            start_sigma_deg=(
+                _ranged("start_sigma_deg", seen["start_sigma_deg"])
+                if "start_sigma_deg" in seen
+                else None
+            ),
         )
 
     def to_query(self) -> str:
@@ -200,8 +218,13 @@ class ValidateOptions:
         for name, count in (("samples", self.samples), ("seed", self.seed)):
             if count is not None:
                 parts.append(f"{name}={count}")
-        if self.slip_sigma is not None:
-            parts.append(f"slip_sigma={_fmt(self.slip_sigma)}")
+        for name, value in (
+            ("slip_sigma", self.slip_sigma),
+            ("start_sigma_m", self.start_sigma_m),
+            ("start_sigma_deg", self.start_sigma_deg),
+        ):
+            if value is not None:
+                parts.append(f"{name}={_fmt(value)}")
         return "&".join(parts)
 
     def resolve(self, defaults: PlaybackSettings, default_map: str) -> ResolvedOptions:
@@ -236,13 +259,16 @@ class ValidateOptions:
             samples=DEFAULT_SAMPLES if self.samples is None else self.samples,
             seed=DEFAULT_SEED if self.seed is None else self.seed,
             slip_sigma=defaults.slip_sigma if self.slip_sigma is None else self.slip_sigma,
+            start_sigma_m=self.start_sigma_m,
+            start_sigma_deg=self.start_sigma_deg,
         )
 
 
 @dataclass(frozen=True)
 class ResolvedOptions:
     """Options with every default filled in (``start`` may still be ``None``: the map's
-    start pose, resolved by the validator once the map is known). ``samples`` > 1 asks
+    start pose, resolved by the validator once the map is known; ``start_sigma_m`` and
+    ``start_sigma_deg`` may be ``None``: the calibrated twin's). ``samples`` > 1 asks
     for a verdict with its uncertainty (:mod:`gate.ensemble`)."""
 
     map: str
@@ -255,6 +281,8 @@ class ResolvedOptions:
     samples: int = DEFAULT_SAMPLES
     seed: int = DEFAULT_SEED
     slip_sigma: float = DEFAULT_SLIP_SIGMA
+    start_sigma_m: float | None = None
+    start_sigma_deg: float | None = None
 
     def to_query(self, start: Pose) -> str:
         """A query string that pins every option (with ``start`` made explicit), so that
@@ -272,4 +300,6 @@ class ResolvedOptions:
             samples=self.samples if many else None,
             seed=self.seed if many else None,
             slip_sigma=self.slip_sigma if many else None,
+            start_sigma_m=self.start_sigma_m if many else None,
+            start_sigma_deg=self.start_sigma_deg if many else None,
         ).to_query()

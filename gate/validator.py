@@ -244,7 +244,14 @@ class Validator:
         """The chunks of ``job``'s verdict with uncertainty (``samples`` > 1): its twins
         drawn (seeded) and split (:mod:`gate.ensemble`), each ready for any worker."""
         opts = job.options
-        draws = draw(self.spread, opts.samples, opts.seed, opts.slip_sigma)
+        heading = None if opts.start_sigma_deg is None else math.radians(opts.start_sigma_deg)
+        draws = draw(
+            self.spread,
+            opts.samples,
+            opts.seed,
+            opts.slip_sigma,
+            (opts.start_sigma_m, heading),
+        )
         nominal = self.spread.ground
         if opts.map != self.spread_map:
             draws = [replace(d, ground=replace(d.ground, regions=())) for d in draws]

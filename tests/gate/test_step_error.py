@@ -112,6 +112,15 @@ def test_a_plan_that_collides_has_no_step_error(rover: RoverDescription) -> None
 
 
 def test_the_shares_are_drawn_last_antithetic_and_scaled(rover: RoverDescription) -> None:
+    # The start's own noise, given with the plan, replaces the calibration's rests'.
+    spread = calibration(rover, 0.5, position=0.002, heading=0.002)
+    own = draw(spread, 200, 5, 0.05, (0.001, 0.0005))
+    kept = draw(spread, 200, 5, 0.05, (None, 0.0005))
+    default = draw(spread, 200, 5, 0.05)
+    for a, b, c in zip(own, kept, default, strict=True):
+        assert a.start_dx_m == pytest.approx(b.start_dx_m / 2.0)
+        assert a.start_dyaw_rad == b.start_dyaw_rad == pytest.approx(c.start_dyaw_rad / 4.0)
+        assert b.start_dx_m == c.start_dx_m and a.step_error == c.step_error
     without = draw(calibration(rover, 0.0, position=0.002, heading=0.002), 200, 5, 0.05)
     with_it = draw(calibration(rover, 1.0, position=0.002, heading=0.002), 200, 5, 0.05)
     doubled = draw(calibration(rover, 2.0, position=0.002, heading=0.002), 200, 5, 0.05)

@@ -206,6 +206,8 @@ def test_the_gate_answers_with_the_documented_uncertainty(gate: GateServer) -> N
         ("seed=99999999999", "seed"),
         ("slip_sigma=2", "slip_sigma"),
         ("slip_sigma=nan", "slip_sigma"),
+        ("start_sigma_m=-0.001", "start_sigma_m"),
+        ("start_sigma_deg=90", "start_sigma_deg"),
     ],
 )
 def test_bad_sample_options_are_400s(gate: GateServer, query: str, parameter: str) -> None:

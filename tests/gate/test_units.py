@@ -12,6 +12,7 @@ import pytest
 
 from emulator.twin import GATE_DT_S
 from firmware_proto.http.bindpolicy import is_loopback
+from firmware_proto.model.pose import Pose
 from firmware_proto.model.verdict import Verdict
 from gate.config import (
     DEFAULT_DT_S,
@@ -72,6 +73,11 @@ def test_options_round_trip_through_the_query() -> None:
     assert options.render and options.safety_margin_m == 0.05
     assert ValidateOptions.from_query(options.to_query()) == options
     assert ValidateOptions.from_query("") == ValidateOptions()
+    measured = ValidateOptions.from_query("samples=8&start_sigma_m=0.001&start_sigma_deg=0.05")
+    assert (measured.start_sigma_m, measured.start_sigma_deg) == (0.001, 0.05)
+    assert ValidateOptions.from_query(measured.to_query()) == measured
+    pinned = measured.resolve(PlaybackSettings(), "lab").to_query(Pose(0.0, 0.0, 0.0))
+    assert "start_sigma_m=0.001&start_sigma_deg=0.05" in pinned
     resolved = ValidateOptions(map="scn01").resolve(PlaybackSettings(), "lab")
     assert resolved.map == "scn01"
     assert resolved.safety_margin_m == PlaybackSettings().safety_margin_m
