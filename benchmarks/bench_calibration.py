@@ -15,15 +15,18 @@ loose, a packed and an anisotropic range: :func:`generated_ground`):
 2. held-out 12-step missions (seeded random steps, never used to fit) are driven on the
    same ground on an open field, back to back as a plan runs on board (each step queued
    in the controller while the one before runs: what the gate's playback plays), and
-   recorded; each one's final pose is predicted as the gate predicts it (the whole plan
-   from the start pose measured at rest, at the gate's 10 ms step) by the rover
+   recorded (each after :data:`REST_S` at rest, ``--rest``); each one's final pose is
+   predicted as the gate predicts it (the whole plan from the start pose measured at
+   rest, at the gate's 10 ms step) by the rover
    description's twin (before), the calibrated one (after) and one given the ground's
    true parameters (the floor: what sensor noise, the step size and timing leave), and
    compared with where the rover truly came to rest (the lockstep twin's pose). The
    first missions are also driven by the step-by-step executor (a round trip of rest
    between steps), which the gate's back-to-back playback does not model;
 3. the gate's uncertainty for the calibrated twin (:func:`gate.ensemble.draw`: the fit's
-   covariance, its slip spread, its start-pose noise, its step error, antithetic pairs;
+   covariance, its slip spread, the start's own noise as its rest measured it, given
+   with the plan as ``start_sigma_m`` and ``start_sigma_deg`` are, its step error,
+   antithetic pairs;
    200 twins in one :func:`gate.ensemble.run_chunk`) gives 90 % bands of the final pose's longitudinal and lateral offset (in the
    frame of the predicted final pose) and of its yaw; coverage is the share of outcomes
    inside their band, width the band's, centring how far the band's middle is from the
@@ -39,7 +42,7 @@ median final-position error. Deterministic: every ground, mission and noise draw
 seeded (the wall times are not).
 
     python -m benchmarks.bench_calibration [--quick] [--missions N] [--budget S]
-        [--ground KIND] [--seed KIND=SEED] [--keep DIR]
+        [--ground KIND] [--seed KIND=SEED] [--rest S] [--keep DIR]
 
 The held-out grounds (:data:`GROUND_SEEDS`) are for the final run of a method fixed
 beforehand; development runs name their own grounds (``--seed``), and ``--quick`` is a
@@ -62,7 +65,7 @@ import numpy as np
 from emulator.calibration import Calibration
 from emulator.campaign import run_campaign
 from emulator.ground import Ground
-from emulator.observations import MAX_REST_S, SETTLE_S, START_GUARD_S
+from emulator.observations import HEADING_SIGMA_FLOOR_RAD, MAX_REST_S, SETTLE_S, START_GUARD_S
 from emulator.playback import measure_turn_efficiency, play
 from emulator.recording import Recording, read_recording
 from emulator.twin import GATE_DT_S, Pose2D, Twin
@@ -88,6 +91,10 @@ FLOOR_BAR = 1.5
 COVERAGE = (0.85, 0.95)
 WIDTH_BAR = 3.0
 BAND_SAMPLES = 200
+REST_S = 3.0
+"""Rest before each held-out plan (``--rest``), s: a round trip, what the executor
+leaves between plans; the start is averaged over it (at most its last 2.5 s by default,
+all of it but the guard with ``--rest``)."""
 STEP_BY_STEP_MISSIONS = 2
 """Held-out missions also driven by the step-by-step executor (rests between steps)."""
 
@@ -195,16 +202,32 @@ class GroundResult:
 
 
 def _rest_pose(rec: Recording, lo: float, hi: float) -> Pose2D:
+    return _rest_measured(rec, lo, hi)[0]
+
+
+def _rest_measured(rec: Recording, lo: float, hi: float) -> tuple[Pose2D, float, float]:
+    """The POSE averaged over ``[lo, hi]`` (rover clock) and its own 1-sigma errors:
+    position per axis (the samples' stated noise over the root of their number, m) and
+    heading (their spread over the root of their number, at least
+    :data:`~emulator.observations.HEADING_SIGMA_FLOOR_RAD`), as a calibration's rests."""
     sel = (rec.pose_t_s >= lo) & (rec.pose_t_s <= hi)
+    n = int(np.count_nonzero(sel))
     xy = rec.pose_xy_m[sel].mean(axis=0)
-    yaw = float(np.angle(np.exp(1j * rec.pose_yaw_rad[sel]).mean()))
-    return Pose2D(float(xy[0]), float(xy[1]), yaw)
+    unit = np.exp(1j * rec.pose_yaw_rad[sel])
+    yaw = float(np.angle(unit.mean()))
+    spread = np.angle(unit * np.exp(-1j * yaw))
+    position = float(np.mean(rec.pose_sigma_m[sel])) / math.sqrt(n)
+    heading = max(HEADING_SIGMA_FLOOR_RAD, float(np.std(spread, ddof=1)) / math.sqrt(n))
+    return Pose2D(float(xy[0]), float(xy[1]), yaw), position, heading
 
 
-def mission_start(rec: Recording) -> Pose2D:
-    """The recorded pose at rest before the first step (the POSE averaged)."""
+def mission_start(rec: Recording, rest_s: float = MAX_REST_S) -> tuple[Pose2D, float, float]:
+    """The recorded pose at rest before the first step (the POSE averaged over the last
+    ``rest_s`` s before it) and its own 1-sigma errors (m per axis, rad): what the
+    ground station gives the gate with the plan (``start``, ``start_sigma_m``,
+    ``start_sigma_deg``)."""
     first = rec.to_rover_clock(rec.steps[0].accepted_s or 0.0)
-    return _rest_pose(rec, first - START_GUARD_S - MAX_REST_S, first - START_GUARD_S)
+    return _rest_measured(rec, first - START_GUARD_S - rest_s, first - START_GUARD_S)
 
 
 def mission_end(rec: Recording) -> Pose2D:
@@ -240,15 +263,17 @@ def band_check(
     nominal: Pose2D,
     truth: Pose2D,
     seed: int,
+    start_sigma: tuple[float | None, float | None] = (None, None),
 ) -> tuple[
     tuple[bool, bool, bool], tuple[float, float, float], tuple[float, float, float], np.ndarray
 ]:
     """The gate's 90 % bands of the final pose (see the module docstring): whether the
     true outcome is inside each, each width (m, m, rad), each centring, and each
-    sample's distance from the point prediction (m)."""
+    sample's distance from the point prediction (m). ``start_sigma``: the start's own
+    1-sigma errors (m, rad) given with the plan (``None``: the calibration's)."""
     noise = calibration.noise
     slip = noise.slip_sigma if noise is not None else 0.1
-    draws = draw(calibration, BAND_SAMPLES, seed, slip)
+    draws = draw(calibration, BAND_SAMPLES, seed, slip, start_sigma)
     # The gate's own chunk (its step error too), all the twins in one.
     job = ChunkJob(
         rover,
@@ -301,9 +326,12 @@ def run_ground(
     budget_s: float,
     work: Path,
     seed: int | None = None,
+    rest_s: float = REST_S,
 ) -> GroundResult:
     """Calibrate on ``kind``'s ground of ``seed`` (default :data:`GROUND_SEEDS`'s) and
-    check ``missions`` held-out plans (module docstring)."""
+    check ``missions`` held-out plans (module docstring), each after ``rest_s`` s at
+    rest, its start averaged over that rest (at most :data:`~emulator.observations.
+    MAX_REST_S` at the default rest) and given to the gate with its own noise."""
     name = kind if seed is None else f"{kind}-{seed}"
     seed = GROUND_SEEDS[kind] if seed is None else seed
     truth = generated_ground(kind, seed, rover)
@@ -355,7 +383,7 @@ def run_ground(
     twins = {"before": Ground.of_rover(rover), "after": cal.ground, "floor": truth}
     for k in range(missions):
         steps = random_mission(rover, random.Random(seed * 10 + k), 12)
-        lockstep = LockstepRover(rover, field_world, truth, seed=seed + 1000 + k)
+        lockstep = LockstepRover(rover, field_world, truth, seed=seed + 1000 + k, rest_s=rest_s)
         mission = lockstep.drive_steps(steps, back_to_back=True)
         if k < STEP_BY_STEP_MISSIONS:
             # The same mission by the step-by-step executor (a round trip of rest
@@ -363,12 +391,15 @@ def run_ground(
             rested = LockstepRover(rover, field_world, truth, seed=seed + 1000 + k).drive_steps(
                 steps
             )
-            start = mission_start(_recorded(rested, work / f"{name}-rested{k}.mcap"))
+            start = mission_start(_recorded(rested, work / f"{name}-rested{k}.mcap"))[0]
             for key in ("after", "floor"):
                 final = predict_final(rover, field_world, twins[key], start, steps)
                 gap = math.dist((final.x_m, final.y_m), (rested.final.x_m, rested.final.y_m))
                 result.rested_m.setdefault(key, []).append(gap)
-        start = mission_start(_recorded(mission, work / f"{name}-test{k}.mcap"))
+        averaged = MAX_REST_S if rest_s == REST_S else rest_s - SETTLE_S
+        start, sigma_m, sigma_rad = mission_start(
+            _recorded(mission, work / f"{name}-test{k}.mcap"), averaged
+        )
         errors_m, errors_deg = {}, {}
         finals = {}
         for key, ground in twins.items():
@@ -379,7 +410,15 @@ def run_ground(
             )
             errors_deg[key] = abs(math.degrees(wrap_rad(final.yaw_rad - mission.final.yaw_rad)))
         inside, widths, centring, distances = band_check(
-            rover, field_world, cal, start, steps, finals["after"], mission.final, seed + k
+            rover,
+            field_world,
+            cal,
+            start,
+            steps,
+            finals["after"],
+            mission.final,
+            seed + k,
+            (sigma_m, sigma_rad),
         )
         result.outcomes.append(
             HeldOutResult(
@@ -542,6 +581,13 @@ def main() -> None:
         help="a ground of KIND's range from SEED instead of the held-out ones (repeatable; "
         "development, or the seen-before SEEN_SEEDS)",
     )
+    parser.add_argument(
+        "--rest",
+        type=float,
+        default=REST_S,
+        help=f"seconds at rest before each held-out plan, its start averaged over it "
+        f"(default {REST_S:g}: a round trip)",
+    )
     parser.add_argument("--keep", type=Path, help="keep the recordings and twins here")
     args = parser.parse_args()
     missions = args.missions or (1 if args.quick else HELD_OUT_MISSIONS)
@@ -556,7 +602,10 @@ def main() -> None:
     rover = load_rover()
     with tempfile.TemporaryDirectory(prefix="bench-calibration-") as tmp:
         work = args.keep or Path(tmp)
-        results = [run_ground(kind, rover, missions, budget, work, seed) for kind, seed in grounds]
+        results = [
+            run_ground(kind, rover, missions, budget, work, seed, args.rest)
+            for kind, seed in grounds
+        ]
     print(report(results, missions, budget, held_out=all(seed is None for _k, seed in grounds)))
 
 
