@@ -88,6 +88,9 @@ class GateOptions:
         render: ask for a PNG of the top-down view (``Verdict.image_png_base64``).
         samples: also play this many twins drawn from the gate's uncertainty (> 1: the
             verdict carries ``uncertainty``); ``seed`` seeds their draws.
+        start_sigma_m, start_sigma_deg: the start pose's own 1-sigma error as measured
+            (per position axis, m; heading, deg), which the twins' starts are drawn
+            with (``None``: the gate's twin's, a calibration's rests').
     """
 
     margin_m: float | None = None
@@ -97,6 +100,8 @@ class GateOptions:
     render: bool = False
     samples: int | None = None
     seed: int | None = None
+    start_sigma_m: float | None = None
+    start_sigma_deg: float | None = None
 
     def query_items(self) -> list[tuple[str, str]]:
         """The query parameters these options set."""
@@ -114,6 +119,12 @@ class GateOptions:
         for name, count in (("samples", self.samples), ("seed", self.seed)):
             if count is not None:
                 items.append((name, str(int(count))))
+        for name, value in (
+            ("start_sigma_m", self.start_sigma_m),
+            ("start_sigma_deg", self.start_sigma_deg),
+        ):
+            if value is not None:
+                items.append((name, repr(float(value))))
         return items
 
 

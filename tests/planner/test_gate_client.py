@@ -110,6 +110,10 @@ def test_options_reach_the_gate(client: GateClient, planner: HeuristicLowLevelPl
     assert verdict.tolerances.position_m == 0.05
     assert verdict.tolerances.yaw_deg == 1.5
     assert verdict.trajectory.sample_period_s == pytest.approx(0.05)
+    measured = GateOptions(samples=4, start_sigma_m=0.001, start_sigma_deg=0.05)
+    assert ("start_sigma_m", "0.001") in measured.query_items()
+    uncertain = client.validate(open_field_plan(planner), map_name="scn01", options=measured)
+    assert uncertain.uncertainty is not None and uncertain.uncertainty.samples == 4
 
 
 def test_schema_violations_give_gate_error_with_pointers(client: GateClient) -> None:
