@@ -158,6 +158,18 @@ def _add_check(p: argparse.ArgumentParser) -> None:
     )
     c.add_argument("--seed", dest="check_seed", metavar="S", help="seed of those draws (0)")
     c.add_argument("--slip-sigma", dest="check_slip_sigma", metavar="X", help="slip spread (0.1)")
+    c.add_argument(
+        "--start-sigma-m",
+        dest="check_start_sigma_m",
+        metavar="M",
+        help="the start's own position error as measured, 1 sigma per axis, m (the twin's)",
+    )
+    c.add_argument(
+        "--start-sigma-deg",
+        dest="check_start_sigma_deg",
+        metavar="D",
+        help="the start's own heading error as measured, 1 sigma, deg (the twin's)",
+    )
     _add_playback_options(c, "check_")
     c.set_defaults(func=_check)
 
@@ -268,7 +280,7 @@ def _check(args: argparse.Namespace) -> int:
         text = sys.stdin.read() if args.plan == "-" else Path(args.plan).read_text(encoding="utf-8")
         plan = Plan.from_json(text)
         query = {"start": args.check_start} if args.check_start else {}
-        for key in ("samples", "seed", "slip_sigma"):
+        for key in ("samples", "seed", "slip_sigma", "start_sigma_m", "start_sigma_deg"):
             value = getattr(args, "check_" + key)
             if value is not None:
                 query[key] = value

@@ -239,3 +239,29 @@ def test_ctrl_c_to_the_process_group_drains_cleanly() -> None:
         if proc.poll() is None:
             proc.kill()
             proc.communicate(timeout=WAIT_S)
+
+
+def test_check_draws_the_start_with_its_own_noise(tmp_path: Path) -> None:
+    body = plan((3.0, 2.0, 0.0), fwd(1.0))
+    spreads = []
+    for sigma in ("0", "0.05"):
+        code, out, err = _check(
+            tmp_path,
+            body,
+            "--start",
+            "2,2,0",
+            "--samples",
+            "20",
+            "--start-sigma-m",
+            sigma,
+            "--start-sigma-deg",
+            "0",
+            "--json",
+        )
+        assert code in (0, 1), err
+        low, _mid, high = json.loads(out)["uncertainty"]["goal_error"]["lateral_m"]
+        spreads.append(high - low)
+    # A start known to 5 cm lands the twins centimetres apart across the path.
+    assert spreads[1] > spreads[0] + 0.05
+    code, _, err = _check(tmp_path, body, "--samples", "4", "--start-sigma-deg", "90")
+    assert code == 2 and "start_sigma_deg" in err
