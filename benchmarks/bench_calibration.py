@@ -93,8 +93,8 @@ WIDTH_BAR = 3.0
 BAND_SAMPLES = 200
 REST_S = 3.0
 """Rest before each held-out plan (``--rest``), s: a round trip, what the executor
-leaves between plans; the start is averaged over it (at most its last 2.5 s by default,
-all of it but the guard with ``--rest``)."""
+leaves between plans; the start is averaged over it (its last 2.5 s by default; with
+another ``--rest``, all of it but its first half second, the body settling)."""
 STEP_BY_STEP_MISSIONS = 2
 """Held-out missions also driven by the step-by-step executor (rests between steps)."""
 
