@@ -93,8 +93,9 @@ WIDTH_BAR = 3.0
 BAND_SAMPLES = 200
 REST_S = 3.0
 """Rest before each held-out plan (``--rest``), s: a round trip, what the executor
-leaves between plans; the start is averaged over it (its last 2.5 s by default; with
-another ``--rest``, all of it but its first half second, the body settling)."""
+leaves between plans; the start is averaged over all of it but its first
+:data:`~emulator.observations.SETTLE_S` (the body settling): 2.5 s by default, what a
+calibration's rests average (:data:`~emulator.observations.MAX_REST_S`)."""
 STEP_BY_STEP_MISSIONS = 2
 """Held-out missions also driven by the step-by-step executor (rests between steps)."""
 
@@ -330,8 +331,8 @@ def run_ground(
 ) -> GroundResult:
     """Calibrate on ``kind``'s ground of ``seed`` (default :data:`GROUND_SEEDS`'s) and
     check ``missions`` held-out plans (module docstring), each after ``rest_s`` s at
-    rest, its start averaged over that rest (at most :data:`~emulator.observations.
-    MAX_REST_S` at the default rest) and given to the gate with its own noise."""
+    rest, its start averaged over that rest but its first
+    :data:`~emulator.observations.SETTLE_S` and given to the gate with its own noise."""
     name = kind if seed is None else f"{kind}-{seed}"
     seed = GROUND_SEEDS[kind] if seed is None else seed
     truth = generated_ground(kind, seed, rover)
@@ -396,9 +397,8 @@ def run_ground(
                 final = predict_final(rover, field_world, twins[key], start, steps)
                 gap = math.dist((final.x_m, final.y_m), (rested.final.x_m, rested.final.y_m))
                 result.rested_m.setdefault(key, []).append(gap)
-        averaged = MAX_REST_S if rest_s == REST_S else rest_s - SETTLE_S
         start, sigma_m, sigma_rad = mission_start(
-            _recorded(mission, work / f"{name}-test{k}.mcap"), averaged
+            _recorded(mission, work / f"{name}-test{k}.mcap"), rest_s - SETTLE_S
         )
         errors_m, errors_deg = {}, {}
         finals = {}
