@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from firmware_proto.cli.runtimeargs import add_runtime_arguments, runtime_options
 from firmware_proto.runtime import ProcessRuntime
@@ -29,6 +29,9 @@ from planner.stack.stackenv import (
 )
 from planner.view.cli_view import add_view_arguments
 
+if TYPE_CHECKING:
+    from planner.plan.gate_client import GateOptions
+
 __all__ = [
     "PoseArgumentError",
     "add_arguments",
@@ -38,6 +41,7 @@ __all__ = [
     "register",
     "resolve_goal",
     "run",
+    "start_noise",
 ]
 
 POSE_WAIT_MARGIN_S = 10.0
@@ -376,6 +380,17 @@ def _wait_for_pose(executor: Any, timeout_s: float, cancel: threading.Event) -> 
     return None
 
 
+def start_noise(options: GateOptions, sigma: tuple[float, float] | None) -> GateOptions:
+    """``options`` with the start's own
+    1-sigma errors, ``sigma`` (m per position axis, deg), as the rover stated them with
+    the pose it reported: the gate draws its twins' starts with them (``start_sigma_m``,
+    ``start_sigma_deg``; docs/gate.md) instead of a calibration's rests', which a single
+    reading does not have. Unchanged when the rover stated none."""
+    if sigma is None:
+        return options
+    return replace(options, start_sigma_m=sigma[0], start_sigma_deg=sigma[1])
+
+
 def _rover_pose(executor: Any, args: argparse.Namespace, cancel: threading.Event) -> Any:
     """The pose the rover reports (map frame); ``None`` if cancelled meanwhile;
     ``RuntimeError`` when it reported none in time (or cannot: ``odom`` is not in the map
@@ -593,6 +608,10 @@ def _mission(args: argparse.Namespace) -> int:
             try:
                 if start is None:
                     start = _rover_pose(executor, args, cancel)
+                    # The gate's twins start as far off as the rover said this pose may be.
+                    orchestrator.options = start_noise(
+                        orchestrator.options, executor.reported_sigma
+                    )
                 if cancel.is_set() or start is None:
                     print("rover go: cancelled; nothing was sent to the rover", file=sys.stderr)
                     return signals.exit_status

@@ -247,6 +247,17 @@ def _stamp_s(msg: Odometry) -> float:
     return stamp_s(msg.header.stamp)
 
 
+def _stated_sigma(msg: Odometry) -> tuple[float, float] | None:
+    """The 1-sigma errors an ``odom_ground`` message states in its pose covariance (row
+    major 6x6, m^2 and rad^2): the larger of x's and y's, m, and the heading's, deg;
+    ``None`` where it states none (zero, or not a finite number)."""
+    cov = msg.pose.covariance
+    var_xy, var_yaw = max(float(cov[0]), float(cov[7])), float(cov[35])
+    if not (0.0 < var_xy < math.inf and 0.0 < var_yaw < math.inf):
+        return None
+    return math.sqrt(var_xy), math.degrees(math.sqrt(var_yaw))
+
+
 class PlanExecutor:
     """Runs approved plans on the rover over a ROS port.
 
@@ -292,6 +303,10 @@ class PlanExecutor:
         self._stop_published: float | None = None
         self._running = False
         self.reported_pose: Pose | None = None
+        self.reported_sigma: tuple[float, float] | None = None
+        """The 1-sigma errors the rover stated with :attr:`reported_pose` (its
+        ``odom_ground`` covariance: m per position axis, the larger; heading, deg);
+        ``None`` for a pose from ``odom`` or one stated with no error (a dropout's)."""
         self._trace: list[tuple[float, float, float]] = []
         self._notes: list[str] = []
         created = self.clock.now()
@@ -417,7 +432,7 @@ class PlanExecutor:
                     self._on_odom_source = False
                     # As loud as the fall-back was: whoever saw one must see the other.
                     self._note("odom_ground came back: drift control uses it again")
-        self._use_pose(pose, stamp)
+        self._use_pose(pose, stamp, _stated_sigma(msg))
 
     def _on_odom(self, msg: Odometry) -> None:
         raw = Pose(msg.pose.pose.position.x, msg.pose.pose.position.y, _yaw_deg(msg))
@@ -467,10 +482,12 @@ class PlanExecutor:
         if self._running:
             self._notes.append(text)
 
-    def _use_pose(self, pose: Pose, stamp: float) -> None:
-        """A pose (map frame) for the operator and drift control."""
+    def _use_pose(self, pose: Pose, stamp: float, sigma: tuple[float, float] | None = None) -> None:
+        """A pose (map frame) for the operator and drift control, with the errors the
+        rover stated for it (:attr:`reported_sigma`), if any."""
         with self._lock:
             self.reported_pose = pose
+            self.reported_sigma = sigma
             self._reported_stamp = stamp
             self._pose_rx = self.clock.now()
             self._trace.append((stamp, pose.x, pose.y))

@@ -17,11 +17,13 @@ from typing import Any
 
 import pytest
 
+from emulator.sensors import SensorConfig
 from firmware_proto.model.plan import Plan
 from firmware_proto.model.verdict import Verdict
 from gate.server import GateServer
+from planner.ground.cli_go import start_noise
 from planner.ground.executor import ExecutionProgress, ExecutorConfig
-from planner.plan.gate_client import GateClient
+from planner.plan.gate_client import GateClient, GateOptions
 from sim.world import World, WorldConfig
 
 START = (1.2, 3.0)  # the lab map's start, facing +x
@@ -192,6 +194,22 @@ def test_drift_control_falls_back_to_odom_when_pose_goes_silent(
     assert result.reported_pose is not None
     truth = w.truth()
     assert math.hypot(result.reported_pose.x - truth.x_m, result.reported_pose.y - truth.y_m) < 0.1
+    # A pose from odom states no error of its own.
+    assert w.executor.reported_sigma is None
+
+
+def test_the_reported_pose_carries_the_error_the_rover_stated_with_it(world: Any) -> None:
+    """A pose from ``odom_ground`` comes with the 1-sigma errors of its covariance: the
+    POSE sensor's noise per axis, and the heading's as the bridge states it; what ``rover
+    go`` gives the gate with a start it did not average (planner/ground/cli_go.py)."""
+    w: World = world()
+    assert w.executor.settled_pose(5.0) is not None
+    sigma = w.executor.reported_sigma
+    noise_m = SensorConfig().pose_noise_m
+    assert sigma == pytest.approx((noise_m, math.degrees(math.sqrt(noise_m**2 / 0.25))))
+    options = start_noise(GateOptions(samples=20), sigma)
+    assert dict(options.query_items())["start_sigma_m"] == repr(noise_m)
+    assert start_noise(options, None) == options
 
 
 def test_drift_control_blind_without_pose_stops_the_rover(
