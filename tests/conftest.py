@@ -51,12 +51,15 @@ settings.register_profile(
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
+IN_VCAN_VM = os.environ.get("ROVER_IN_VCAN_VM") == "1"
+"""Whether this runs inside .ci/vcan-vm (its software CPU: the tests' slack there)."""
+
 #: How long (s) a test's threads, children and file descriptors get to end after it
 #: before they are a leak. Inside .ci/vcan-vm (``ROVER_IN_VCAN_VM=1``) Python runs about
 #: 6x slower on a software CPU that the host can stall for seconds, and a thread that ends
 #: a moment after its test had been reported leaked (a teardown took 3.1 s there): the
 #: grace is longer, a bound on a hang, not a timing check.
-LEAK_GRACE_S = 15.0 if os.environ.get("ROVER_IN_VCAN_VM") == "1" else 3.0
+LEAK_GRACE_S = 15.0 if IN_VCAN_VM else 3.0
 REQUIRE_SOCKETCAN_ENV = "ROVER_REQUIRE_SOCKETCAN"
 REQUIRE_RCLPY_ENV = "ROVER_REQUIRE_RCLPY"
 REQUIRE_BROWSER_ENV = "ROVER_REQUIRE_BROWSER"

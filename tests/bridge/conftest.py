@@ -40,6 +40,7 @@ from firmware_proto.linkio.inbox import Inbox as WaitableLog
 from firmware_proto.model.rover import RoverDescription, load_rover
 from firmware_proto.runtime.realtime import BRIDGE_PRIORITY, EMULATOR_PRIORITY
 from firmware_proto.wire.messages import SCHEMA_HASH
+from tests.conftest import IN_VCAN_VM
 from tests.scheduling import threads_at
 
 #: Every backend, with the marks it needs.
@@ -114,7 +115,6 @@ class Inbox:
 
 # -- emulators and status recording (link and node tests) -------------------------------
 
-IN_VCAN_VM = os.environ.get("ROVER_IN_VCAN_VM") == "1"
 SPEED = 1.0 if IN_VCAN_VM else 4.0
 """Twin seconds per wall second for served emulators (timeouts scaled to match). Real
 time inside .ci/vcan-vm, whose CPU may be emulated (TCG): two emulators at four times

@@ -27,13 +27,13 @@ from bridge.ros.rosport.contract import Outcome, ends_step, parse_status
 from firmware_proto.cli import main as rover_cli
 from firmware_proto.linkio.inbox import Inbox
 from tests.bridge.conftest import (
-    IN_VCAN_VM,
     TWIN_DT_S,
     VM_ACK_TIMEOUT_S,
     VM_LINK_LOST_BEATS,
     WIDE_WATCHDOG_MS,
 )
 from tests.child import Child
+from tests.conftest import IN_VCAN_VM
 
 pytestmark = [pytest.mark.rclpy, pytest.mark.slow]
 

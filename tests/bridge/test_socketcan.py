@@ -23,11 +23,11 @@ from emulator.engine import Emulator
 from firmware_proto.wire.canmap import can_id
 from firmware_proto.wire.messages import Ack, Command, Heartbeat, Status
 from tests.child import Child
+from tests.conftest import IN_VCAN_VM
 
 from .conftest import (
     CAN_MEDIA,
     HAVE_VCAN0,
-    IN_VCAN_VM,
     NO_VCAN0,
     WIDE_WATCHDOG_MS,
     Links,

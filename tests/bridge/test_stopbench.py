@@ -34,10 +34,11 @@ from firmware_proto.linkio.trafficio import read_log
 from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
 from firmware_proto.wire.messages import SCHEMA_HASH, Param
+from tests.conftest import IN_VCAN_VM
 from tests.firmware_proto.c_harness import compiler
 from tests.scheduling import threads_at
 
-from .conftest import IN_VCAN_VM, SPEED
+from .conftest import SPEED
 
 Emus = Callable[..., Emulator]
 HAVE_VCAN0 = os.path.exists("/sys/class/net/vcan0")
