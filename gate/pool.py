@@ -34,6 +34,7 @@ from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from typing import Any, TypeVar
 
+from firmware_proto.runtime.procname import set_process_name
 from gate.config import GateConfig
 from gate.errors import CallCancelledError, GateConfigError
 from gate.validator import Job, Validator
@@ -90,6 +91,7 @@ def _worker_main(conn: Connection, validator: Validator, control: Connection) ->
     a time, answering ``("ok", result)``, ``("err", exception)`` or ``("cancelled",
     None)`` when interrupted, until ``None`` or the pool's end of the pipe closes."""
     global _validator, _running, _control  # noqa: PLW0603 - per-process state of a pool worker
+    set_process_name("rover-gate-work")
     # The server owns shutdown: a Ctrl-C to the process group must not kill in-flight work.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)

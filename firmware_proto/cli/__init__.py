@@ -27,6 +27,7 @@ from typing import Any
 
 from firmware_proto.cli.program import configure_logging, error_text
 from firmware_proto.runtime.parentwatch import watch_parent
+from firmware_proto.runtime.procname import set_process_name
 
 __all__ = ["ENTRY_POINT_GROUP", "build_parser", "main"]
 
@@ -86,7 +87,10 @@ def _command_named(argv: Sequence[str]) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``rover`` command line; returns the process exit status."""
+    """Run the ``rover`` command line; returns the process exit status. Run as the
+    program (``argv`` ``None``: ``sys.argv``), it names its process ``rover-COMMAND``
+    (docs/realtime.md, "Which process is which"); a caller's in-process run keeps its
+    name."""
     given = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(_command_named(given))
     args, extra = parser.parse_known_args(given)
@@ -101,6 +105,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         logging.WARNING if verbosity <= 0 else logging.INFO if verbosity == 1 else logging.DEBUG
     )
     func: Callable[[argparse.Namespace], int] = args.func
+    if argv is None:  # the program (not a caller's in-process run): named for top and
+        set_process_name(f"rover-{args.command}")  # pgrep (runtime/procname.py)
     # A part of a stack ends with the process that started it (runtime/parentwatch.py).
     watch_parent()
     try:

@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -28,6 +29,7 @@ from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
 from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.model.rover import RoverDescription
+from firmware_proto.runtime.procname import process_name
 
 from .conftest import BACKEND_PARAMS, WIDE_WATCHDOG_MS, Recorder
 
@@ -307,6 +309,11 @@ def test_bridge_process_over_ros2(emulators: Emus) -> None:
             got = client.status.wait_count("completed", 1, timeout=20)
             assert "accepted" in got and "rejected:speed_out_of_range" in got
             assert client.odom and client.diagnostics
+            # Named for top and pgrep: the bridge and its two ROS 2 children.
+            assert process_name(proc.pid) == "rover-bridge"
+            tasks = Path(f"/proc/{proc.pid}/task").iterdir()  # a child is its starter thread's
+            children = [c for task in tasks for c in (task / "children").read_text().split()]
+            assert sorted(map(process_name, children)) == ["rover-ros-node", "rover-stop-lane"]
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err

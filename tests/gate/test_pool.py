@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from firmware_proto.runtime.procname import process_name
 from gate.errors import CallCancelledError
 from gate.pool import ProcessWorkerPool
 from gate.validator import Validator
@@ -74,6 +75,8 @@ def test_calls_run_on_both_workers_each_once(pool: ProcessWorkerPool) -> None:
     futures = [pool.submit_call(_pid_after, 0.05) for _ in range(8)]
     pids = [f.result(WAIT_S) for f in futures]
     assert set(pids) == set(pool.pids) and len(pool.pids) == 2
+    # Named for top and pgrep (firmware_proto/runtime/procname.py).
+    assert [process_name(pid) for pid in pool.pids] == ["rover-gate-work"] * 2
 
 
 def test_a_failure_in_a_worker_is_the_callers_exception(pool: ProcessWorkerPool) -> None:

@@ -46,6 +46,7 @@ from bridge.errors import ParameterError
 from bridge.ros.rosport.port import DEFAULT_LANE, STOP_LANE, Publisher, Subscription
 from bridge.ros.rosport.process_backend import PARENT_REALTIME_ENV, REQUEST_TIMEOUT_S
 from bridge.ros.rosport.rclpy_backend import RclpyPort, middleware
+from firmware_proto.runtime.procname import set_process_name
 from firmware_proto.runtime.realtime import (
     STOP_CHILD_PRIORITY,
     RealtimeConfig,
@@ -238,6 +239,7 @@ def _schedule(stop_only: bool) -> None:
     link it feeds; the publishing child, whose middleware calls may block, stays at
     normal scheduling. The start itself runs at normal priority: at real-time priority
     it would hold the cores above the kernel worker that moves a pty's bytes."""
+    set_process_name("rover-stop-lane" if stop_only else "rover-ros-node")
     parent_realtime = os.environ.get(PARENT_REALTIME_ENV) == "1"
     priority = STOP_CHILD_PRIORITY if stop_only and parent_realtime else 0
     apply_realtime_to_process(RealtimeConfig(priority, lock_memory=False))
