@@ -34,6 +34,7 @@ from collections.abc import Generator, Iterator
 import pytest
 from hypothesis import HealthCheck, settings
 
+from firmware_proto.runtime.procname import set_process_name
 from tests.lanes import lane_marks
 from tests.procs import children as children_of
 
@@ -158,10 +159,19 @@ def pytest_make_collect_report(
     return report
 
 
+TEST_PART_ENV = "ROVER_TEST_PART"
+"""The part of ``.ci/test`` a pytest process runs (``host``, ``soak``...), in its name."""
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", "allow_leaks: the test may leave process-wide resources (named in a comment)"
     )
+    # Named for top and process accounting (docs/testing.md, "Where the CPU goes"):
+    # pytest, pytest-gw0, or with .ci/test's part pytest-host-gw0, pytest-serial...
+    part = os.environ.get(TEST_PART_ENV, "")
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    set_process_name("-".join(n for n in ("pytest", part, worker) if n))
 
 
 def socketcan_required() -> bool:
