@@ -13,8 +13,10 @@ machine's busy CPU from ``/proc/stat`` and the limit, the cores times the wall t
 
 What it cannot see: a process still running when the command ends (none of a test
 run's), and it counts every process on the machine that ended meanwhile, ours or not.
-Accounting is one switch for the whole machine: two runs at once take it from each
-other (the second to start writes the file; the first to end turns it off).
+Accounting is one switch per PID namespace: two maps at once in the same namespace take
+it from each other (the second to start writes the file; the first to end turns it off).
+A map inside a mapped run runs in a namespace of its own (``unshare --pid --fork``): the
+kernel writes each ended process to its namespace's file and to every one above.
 """
 
 from __future__ import annotations
