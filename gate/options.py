@@ -169,31 +169,26 @@ class ValidateOptions:
         render_text = seen.get("render", "0").lower()
         if render_text not in _TRUE + _FALSE:
             raise OptionError("render", f"expected 0, 1, true or false, got {render_text!r}")
+
+        def ranged(name: str) -> float | None:
+            return _ranged(name, seen[name]) if name in seen else None
+
+        def integer(name: str) -> int | None:
+            return _integer(name, seen[name]) if name in seen else None
+
         return cls(
             map=seen.get("map"),
             start=_pose("start", seen["start"]) if "start" in seen else None,
             render=render_text in _TRUE,
-            safety_margin_m=_ranged("margin_m", seen["margin_m"]) if "margin_m" in seen else None,
-            position_tolerance_m=(
-                _ranged("pos_tol_m", seen["pos_tol_m"]) if "pos_tol_m" in seen else None
-            ),
-            yaw_tolerance_deg=(
-                _ranged("yaw_tol_deg", seen["yaw_tol_deg"]) if "yaw_tol_deg" in seen else None
-            ),
-            sample_hz=_ranged("sample_hz", seen["sample_hz"]) if "sample_hz" in seen else None,
-            samples=_integer("samples", seen["samples"]) if "samples" in seen else None,
-            seed=_integer("seed", seen["seed"]) if "seed" in seen else None,
-            slip_sigma=(
-                _ranged("slip_sigma", seen["slip_sigma"]) if "slip_sigma" in seen else None
-            ),
-            start_sigma_m=(
-                _ranged("start_sigma_m", seen["start_sigma_m"]) if "start_sigma_m" in seen else None
-            ),
-            start_sigma_deg=(
-                _ranged("start_sigma_deg", seen["start_sigma_deg"])
-                if "start_sigma_deg" in seen
-                else None
-            ),
+            safety_margin_m=ranged("margin_m"),
+            position_tolerance_m=ranged("pos_tol_m"),
+            yaw_tolerance_deg=ranged("yaw_tol_deg"),
+            sample_hz=ranged("sample_hz"),
+            samples=integer("samples"),
+            seed=integer("seed"),
+            slip_sigma=ranged("slip_sigma"),
+            start_sigma_m=ranged("start_sigma_m"),
+            start_sigma_deg=ranged("start_sigma_deg"),
         )
 
     def to_query(self) -> str:

@@ -381,11 +381,11 @@ def _wait_for_pose(executor: Any, timeout_s: float, cancel: threading.Event) -> 
 
 
 def start_noise(options: GateOptions, sigma: tuple[float, float] | None) -> GateOptions:
-    """``options`` with the start's own
-    1-sigma errors, ``sigma`` (m per position axis, deg), as the rover stated them with
-    the pose it reported: the gate draws its twins' starts with them (``start_sigma_m``,
-    ``start_sigma_deg``; docs/gate.md) instead of a calibration's rests', which a single
-    reading does not have. Unchanged when the rover stated none."""
+    """``options`` with the start's own 1-sigma errors, ``sigma`` (m per position axis,
+    deg), as the rover stated them with the pose it reported: the gate draws its twins'
+    starts with them (``start_sigma_m``, ``start_sigma_deg``; docs/gate.md) instead of a
+    calibration's rests', which a single reading does not have. Unchanged when the rover
+    stated none."""
     if sigma is None:
         return options
     return replace(options, start_sigma_m=sigma[0], start_sigma_deg=sigma[1])
