@@ -9,11 +9,10 @@ one failure's lines.
 So, in a session that runs real-time tests (marked ``slow`` and not ``virtual``):
 
 - each pytest process watches itself with a :class:`StallMonitor` (its own stalls:
-  in-process emulators, links and bridges run there), named as the process is
-  (``pytest-host-gw0``: tests/conftest.py), writing to ``pytest-stalls.jsonl`` beside
-  the log (not into it: a test may read the log, as ``rover stack status`` does); it is
-  not installed as the process's monitor, so the loops of in-process parts are not
-  watched through it;
+  in-process emulators, links and bridges run there), named ``pytest`` or ``pytest gw0``,
+  writing to ``pytest-stalls.jsonl`` beside the log (not into it: a test may read the
+  log, as ``rover stack status`` does); it is not installed as the process's monitor, so
+  the loops of in-process parts are not watched through it;
 - each real-time test's span (wall clock) goes to ``tests.jsonl`` beside the log;
 - at the end the controlling process prints the stalls: how many, how many were the
   machine's (two or more processes held up over the same span), those with the tests
@@ -33,7 +32,6 @@ from pathlib import Path
 
 import pytest
 
-from firmware_proto.runtime.procname import process_name
 from firmware_proto.runtime.stall import (
     DEFAULT_STALL_THRESHOLD_S,
     StallMonitor,
@@ -70,12 +68,17 @@ def _log_path() -> Path | None:
     return Path(value) if value else None
 
 
+def _process_name() -> str:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    return f"pytest {worker}" if worker else "pytest"
+
+
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Start this process's monitor when it will run a real-time test."""
     global _monitor  # noqa: PLW0603 (one per pytest process)
     path = _log_path()
     if _monitor is None and path is not None and any(map(keeps_wall_time, session.items)):
-        _monitor = StallMonitor(process_name() or "pytest", log_path=path.with_name(OWN_LOG))
+        _monitor = StallMonitor(_process_name(), log_path=path.with_name(OWN_LOG))
         _monitor.start()
 
 
