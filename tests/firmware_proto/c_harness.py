@@ -19,6 +19,7 @@ from typing import Any
 
 from firmware_proto.wire.codegen import REPO_ROOT
 from firmware_proto.wire.framing import Frame, FrameDecoder
+from tests.cbuild import compile_cached
 
 C_DIR = REPO_ROOT / "firmware_proto" / "wire" / "c"
 LIBRARY_SOURCES = (C_DIR / "rover_msgs.c", C_DIR / "rover_proto.c")
@@ -59,12 +60,14 @@ def compiler() -> str | None:
 
 
 def compile_c(args: Iterable[str | Path], timeout_s: float = TIMEOUT_S) -> None:
-    """Run the compiler; raises :class:`HarnessError` with its output on failure."""
+    """Run the compiler (or take its program from the test builds' cache:
+    tests/cbuild.py); raises :class:`HarnessError` with its output on failure or on any
+    output at all (a warning)."""
     cc = compiler()
     if cc is None:
         raise HarnessError("no C compiler")
     cmd = [cc, *map(str, args)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+    done = compile_cached(cmd, timeout_s=timeout_s)
     if done.returncode != 0 or done.stderr.strip():
         raise HarnessError(f"{' '.join(cmd)}\n{done.stdout}{done.stderr}")
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.cbuild import compile_cached
 from tests.firmware_proto.c_harness import C_DIR, SANITIZER_ENV, SANITIZERS, WARNINGS, compiler
 from tests.firmware_proto.fuzz_seeds import CORPORA, fw_traffic
 
@@ -52,13 +53,20 @@ def _run(cmd: list[str], **kw: object) -> subprocess.CompletedProcess[str]:
     return done  # type: ignore[no-any-return]
 
 
+def _build(cmd: list[str]) -> None:
+    """A compiler command, from the test builds' cache when its inputs are unchanged
+    (tests/cbuild.py): it must succeed and print nothing."""
+    done = compile_cached(cmd, timeout_s=300)
+    assert done.returncode == 0 and not done.stderr.strip(), f"{cmd}\n{done.stdout}{done.stderr}"
+
+
 def test_the_core_builds_freestanding_without_libc_or_floating_point(tmp_path: Path) -> None:
     cc = _cc()
     objects = []
     for src in CORE:
         obj = tmp_path / (src.stem + ".o")
         # -mgeneral-regs-only: any float or double in the code is a compile error.
-        _run(
+        _build(
             [
                 cc,
                 *WARNINGS,
@@ -97,7 +105,7 @@ def test_fuzzing_fw_on_bytes_and_fw_on_can_under_asan_and_ubsan_finds_nothing(
 ) -> None:
     cc = _cc()
     exe = tmp_path / "fuzz_fw"
-    _run(
+    _build(
         [
             cc,
             *WARNINGS,
@@ -131,7 +139,7 @@ def test_the_varied_plant_harness_over_its_seeds_under_asan_and_ubsan(tmp_path: 
     Its invariants abort it; the seeds reach refusals, completed and watched steps."""
     cc = _cc()
     exe = tmp_path / "fuzz_fw_plant"
-    _run(
+    _build(
         [
             cc,
             *WARNINGS,
@@ -170,7 +178,7 @@ def cases_fw(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """fw/tests/cases_fw.c built with ASan and UBSan (any error aborts it)."""
     cc = _cc()
     exe = tmp_path_factory.mktemp("cases") / "cases_fw"
-    _run(
+    _build(
         [
             cc,
             *WARNINGS,
@@ -241,7 +249,7 @@ def cross_build(target: str, out_dir: Path) -> dict[str, int]:
     _require(gcc, packages)
     _require(size, packages)
     elf = out_dir / f"fw-{target}.elf"
-    _run(
+    _build(
         [
             gcc,
             "-std=c99",
@@ -280,7 +288,9 @@ def _require(tool: str, packages: str) -> str:
 def test_the_self_test_passes_on_the_host(tmp_path: Path) -> None:
     cc = _cc()
     exe = tmp_path / "selftest"
-    _run([cc, *WARNINGS, *SANITIZERS, f"-I{C_DIR}", *map(str, CORE), str(SELFTEST), "-o", str(exe)])
+    _build(
+        [cc, *WARNINGS, *SANITIZERS, f"-I{C_DIR}", *map(str, CORE), str(SELFTEST), "-o", str(exe)]
+    )
     out = _run([str(exe)], env={**os.environ, **SANITIZER_ENV}).stdout
     assert "FAIL" not in out and out.splitlines()[-1] == "selftest: ok", out
 
@@ -291,7 +301,7 @@ def test_the_self_test_passes_on_an_atmega2560_under_simavr(tmp_path: Path) -> N
     gcc = _require("avr-gcc", "gcc-avr avr-libc binutils-avr")
     simavr = _require("simavr", "simavr")
     elf = tmp_path / "selftest-avr.elf"
-    _run(
+    _build(
         [
             gcc,
             "-std=c99",
@@ -338,7 +348,7 @@ def test_the_self_test_passes_on_a_cortex_m0_under_qemu(tmp_path: Path) -> None:
     gcc = _require("arm-none-eabi-gcc", "gcc-arm-none-eabi libnewlib-arm-none-eabi")
     qemu = _require("qemu-system-arm", "qemu-system-arm")
     elf = tmp_path / "selftest-m0.elf"
-    _run(
+    _build(
         [
             gcc,
             "-std=c99",

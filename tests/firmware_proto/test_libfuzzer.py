@@ -29,6 +29,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.cbuild import compile_cached
 from tests.firmware_proto.c_harness import C_DIR, LIBRARY_SOURCES
 from tests.firmware_proto.fuzz_seeds import CORPORA, generate
 
@@ -72,12 +73,9 @@ def _missing(reason: str) -> None:
 
 
 def _compile(clang: str, sources: list[str], out: Path, flags: tuple[str, ...] = FLAGS) -> None:
-    done = subprocess.run(
-        [clang, *flags, f"-I{C_DIR}", *sources, "-o", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-        check=False,
+    # From the test builds' cache when nothing it reads changed (tests/cbuild.py).
+    done = compile_cached(
+        [clang, *flags, f"-I{C_DIR}", *sources, "-o", str(out)], timeout_s=TIMEOUT_S
     )
     assert done.returncode == 0, done.stdout + done.stderr
 
