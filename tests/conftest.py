@@ -34,6 +34,7 @@ from collections.abc import Generator, Iterator
 import pytest
 from hypothesis import HealthCheck, settings
 
+from bridge.ros.rosport.discovery import use_fast_discovery
 from firmware_proto.runtime.procname import set_process_name
 from tests.lanes import lane_marks
 from tests.procs import children as children_of
@@ -72,6 +73,11 @@ _WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if _WORKER.startswith("gw"):
     _base = int(os.environ.get("ROS_DOMAIN_ID") or "0")
     os.environ["ROS_DOMAIN_ID"] = str((_base + int(_WORKER[2:])) % 100)
+
+
+#: The tests' own rclpy nodes, and every process a test starts, find each other as the
+#: product's do (docs/rosport.md, "Discovery"); a profile file of the user's own wins.
+use_fast_discovery()
 
 
 def _run_dir(variable: str, prefix: str, leaf: str = "") -> None:

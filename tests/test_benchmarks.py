@@ -26,8 +26,8 @@ gates with one and two worker processes (its Dask rows are left out).
 twice through its console (the ``rclpy`` marker: the stack talks DDS).
 
 Left out: ``bench_gate`` (about 20 s even at its smallest settings, most of it CPU)
-and ``bench_mission`` (minutes). ``bench_rosport`` and the ROS 2 case of
-``bench_bridge`` talk DDS, so they run only in the private network namespace of
+and ``bench_mission`` (minutes). ``bench_rosport``, ``bench_discovery`` and the ROS 2 case
+of ``bench_bridge`` talk DDS, so they run only in the private network namespace of
 ``.ci/test`` (the ``rclpy`` marker; tests/conftest.py); ``bench_socketcan`` needs vcan0
 (marker ``socketcan``: in ``.ci/vcan-vm`` here).
 """
@@ -161,6 +161,13 @@ def test_bench_rosport_small_counts_print_its_tables() -> None:
     assert "rosport rclpy, STOP lane (2 proc.)" in out
     assert "rosport rclpy-process (2 processes)" in out and "call p99" in out
     assert "sub CPU us/msg" in out
+
+
+@pytest.mark.rclpy
+def test_bench_discovery_quick_prints_both_profiles() -> None:
+    out = run_benchmark("bench_discovery", "--quick")
+    assert "| profile | n | p50 ms | p99 ms | max ms | idle CPU, % of a core |" in out
+    assert "| Fast DDS default (3 s) | 2 |" in out and "| our profile (0.5 s) | 2 |" in out
 
 
 @pytest.mark.rclpy

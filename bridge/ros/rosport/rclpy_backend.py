@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from bridge.errors import ParameterError
+from bridge.ros.rosport.discovery import use_fast_discovery
 from bridge.ros.rosport.errors import BackendUnavailableError, RosPortError
 from bridge.ros.rosport.parameters import ParameterSpec, ParameterValue
 from bridge.ros.rosport.port import (
@@ -306,6 +307,7 @@ class RclpyPort(RosPort):
     ) -> None:
         super().__init__(namespace=namespace, node_name=node_name)
         self._stop_only = stop_only
+        use_fast_discovery()  # before the process's first participant (discovery.py)
         rclpy = _import_rclpy()
         # Imported here, not at the top: this module must import where ROS is absent.
         self._qos_mod = importlib.import_module("rclpy.qos")
