@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
 
+from bridge.ros.rosport import discovery
 from bridge.ros.rosport.discovery import (
     ANNOUNCEMENT_PERIOD_S,
     PROFILE,
@@ -41,6 +43,14 @@ def test_it_names_the_profile_for_both_fast_dds_versions_unless_one_is_set() -> 
         assert use_fast_discovery(mine) is False and mine == {name: "/etc/my_profile.xml"}
     empty = dict.fromkeys(PROFILE_ENVS, "")  # set but empty: as unset
     assert use_fast_discovery(empty) is True and empty[PROFILE_ENVS[0]] == str(PROFILE)
+
+
+def test_an_installation_without_the_profile_keeps_fast_dds_defaults(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setattr(discovery, "PROFILE", tmp_path / "missing.xml")
+    env: dict[str, str] = {}
+    assert discovery.use_fast_discovery(env) is False and env == {}
 
 
 @pytest.mark.rclpy

@@ -29,13 +29,15 @@ PROFILE_ENVS: Final = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFIL
 
 def use_fast_discovery(environ: MutableMapping[str, str] | None = None) -> bool:
     """Point Fast DDS at :data:`PROFILE` in ``environ`` (default ``os.environ``), unless
-    either of :data:`PROFILE_ENVS` is set already (the user's own profile wins).
+    either of :data:`PROFILE_ENVS` is set already (the user's own profile wins) or the
+    profile is missing from this installation (Fast DDS's defaults then, not an error
+    from it in every program's output).
 
     Returns:
         True when this call set them.
     """
     env = os.environ if environ is None else environ
-    if any(env.get(name) for name in PROFILE_ENVS):
+    if any(env.get(name) for name in PROFILE_ENVS) or not PROFILE.is_file():
         return False
     for name in PROFILE_ENVS:
         env[name] = str(PROFILE)
