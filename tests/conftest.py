@@ -36,7 +36,7 @@ from hypothesis import HealthCheck, settings
 
 from bridge.ros.rosport.discovery import use_fast_discovery
 from firmware_proto.runtime.procname import set_process_name
-from tests.lanes import first_rank, lane_marks
+from tests.lanes import lane_marks
 from tests.procs import children as children_of
 
 # Every test's time limit (a test past it fails with every thread's stack; pytest goes on),
@@ -126,9 +126,8 @@ def rclpy_required() -> bool:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``, ``virtual``,
-    ``soak``) and put the longest first (``FIRST``); skip, saying why, the ROS 2 tests
-    whose environment is missing: ROS 2 itself, or the private network namespace."""
-    items.sort(key=lambda item: first_rank(item.nodeid))
+    ``soak``); skip, saying why, the ROS 2 tests whose environment is missing: ROS 2
+    itself, or the private network namespace."""
     ros = _ros_available()
     for item in items:
         slow, extended, virtual, idle = lane_marks(item.nodeid)

@@ -336,23 +336,6 @@ of in its no-wall-clock part, one process that would otherwise end last (docs/te
 The fast lane keeps what it ran of them."""
 
 
-FIRST = (
-    # The soak part's longest tests (about 60-80 s of wall time each beside the others):
-    # started last, one of them ran alone on one worker after the VM's tests, the other
-    # core idle (2026-11-30: the run's last 8 s).
-    "tests/sim/test_mission.py::test_seeded_missions_keep_every_invariant",
-    "tests/sim/test_soak.py::test_thousands_of_seeded_scenarios_keep_every_invariant",
-)
-"""Node-id prefixes of tests that are collected first, in this order (tests/conftest.py),
-so that a part's workers start its longest tests first and end on short ones."""
-
-
-def first_rank(nodeid: str) -> int:
-    """Where a test goes in the collection: the index of its :data:`FIRST` prefix, else
-    after them all (a stable sort keeps every other order)."""
-    return next((i for i, prefix in enumerate(FIRST) if nodeid.startswith(prefix)), len(FIRST))
-
-
 def lane_marks(nodeid: str) -> tuple[bool, bool, bool, bool]:
     """``(slow, extended, virtual, soak)`` for a test's node id (``soak``: one of
     :data:`IDLE`; the soak's own tests are marked where they are written)."""

@@ -12,15 +12,7 @@ from pathlib import Path
 import pytest
 from _pytest.mark.expression import Expression
 
-from tests.lanes import (
-    EXTENDED,
-    FIRST,
-    HEAVY,
-    IDLE,
-    SLOW_MODULES,
-    VIRTUAL_MODULES,
-    VIRTUAL_TESTS,
-)
+from tests.lanes import EXTENDED, HEAVY, IDLE, SLOW_MODULES, VIRTUAL_MODULES, VIRTUAL_TESTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -142,17 +134,3 @@ def test_every_idle_entry_names_collected_tests_that_keep_no_clock(
         assert len(named) > 1, prefix
         assert all("soak" in marks[n] and "serial" not in marks[n] for n in named), prefix
         assert prefix.split("::", 1)[0] not in SLOW_MODULES, prefix
-
-
-def test_the_first_entries_name_collected_soak_tests_and_come_first(
-    marks: dict[str, frozenset[str]],
-) -> None:
-    """Each :data:`tests.lanes.FIRST` prefix names tests of the soak part, and the
-    collection puts them first, in that order."""
-    order = list(marks)
-    for rank, prefix in enumerate(FIRST):
-        named = [n for n in order if n.startswith(prefix)]
-        assert len(named) > 1 and all("soak" in marks[n] for n in named), prefix
-        assert all(
-            any(n.startswith(p) for p in FIRST[: rank + 1]) for n in order[: order.index(named[-1])]
-        ), prefix
