@@ -71,6 +71,9 @@ MAX_ROUND_STEPS = 12
 """A plan's limit (the plan schema's)."""
 GATE_RETRIES = 5
 """Plans the gate may reject in a row before the campaign stops; each rules out its faulty step."""
+IDLE_ROUNDS = 3
+"""Approved plans in a row of which no step ran before the campaign stops: nothing changed
+for the design, which would ask for the same plan again, round after round."""
 STILL_FITS = 2
 """Fits in a row that must leave every probe's spread under its bar, and move it less than
 its bar, for the campaign to stop early (one is not enough: the covariance is linearised)."""
@@ -416,6 +419,7 @@ def run_campaign(
     pose = home = driver.pose()
     ruled_out: set[tuple[tuple[float, float], int, int]] = set()
     rejections = 0
+    idle = 0  # approved plans in a row that ran no step (IDLE_ROUNDS)
     previous: np.ndarray | None = None
     still = 0
 
@@ -515,6 +519,7 @@ def run_campaign(
             continue
         rejections = 0
         measured = 0
+        ran_none = True
         moved_to: Pose2D | None = None
         if driven.recording is not None:
             out.recordings.append(driven.recording)
@@ -524,6 +529,7 @@ def run_campaign(
             skipped += round_seen.skipped
             measured = len(round_seen.observations)
             ran = [s for s in rec.steps if s.accepted_s is not None]
+            ran_none = not ran
             out.driving_s += sum(rover.step_duration_s(s.speed, s.distance) for s in ran)
             final = round_seen.observations[-1] if round_seen.observations else None
             if final is not None and final.index == len(rec.steps) - 1:
@@ -532,6 +538,12 @@ def run_campaign(
         out.rounds.append(Round(steps, driven, measured, math.nan, 0.0))
         if driven.reason:
             on_event(f"round {n}: {driven.reason}")
+        idle = idle + 1 if ran_none else 0
+        if idle >= IDLE_ROUNDS:
+            out.stopped = f"{idle} approved plans in a row ran no step" + (
+                f" (the last: {driven.reason})" if driven.reason else ""
+            )
+            break
     try:
         if len(observations) == 0:
             raise UnidentifiableError("nothing could be driven and measured")

@@ -9,12 +9,13 @@ Lockstep and fits: CPU, no wall clock (a ``virtual`` module, tests/lanes.py)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from emulator.campaign import Campaign, run_campaign
+from emulator.campaign import IDLE_ROUNDS, Campaign, Driven, run_campaign
 from emulator.errors import UnidentifiableError
 from emulator.fit import MIN_DRIVING_S, MIN_STEPS, fit_ground
 from emulator.ground import Ground, load_ground
@@ -135,6 +136,43 @@ def test_a_plan_the_gate_rejects_is_not_driven_and_another_is_designed(
     assert all("touches" in r.driven.reason for r in rejected)
     assert any(r.driven.approved for r in result.rounds)  # it went on with other steps
     assert driver.twin.first_collision is None
+
+
+class _RoverThatNeverRuns:
+    """A lockstep rover whose plans the gate approves but of which no step ever runs (the
+    rover never answers): the driver's failure that is neither a rejection nor an error."""
+
+    def __init__(self, rover: LockstepRover) -> None:
+        self.rover = rover
+        self.speed_factor = rover.speed_factor
+        self.plans: list[Sequence[tuple[int, int, int]]] = []
+
+    def pose(self) -> Pose2D:
+        return self.rover.pose()
+
+    def drive(self, steps: Sequence[tuple[int, int, int]], *, goal: Pose2D, path: Path) -> Driven:
+        self.plans.append(tuple(steps))
+        return Driven(True, None, "NOT REACHED: the rover never answered")
+
+
+def test_plans_that_run_no_step_end_the_campaign_after_a_few_rounds(
+    rover: RoverDescription, lab: WorldMap, loose: Ground, tmp_path: Path
+) -> None:
+    """Nothing driven leaves the design where it was: it would ask for the same plan
+    round after round until the budget, which no round spends, ran out (2026-11-30, a
+    real stack: 57 rounds of one plan in 5 minutes)."""
+    world = _lab(lab)
+    driver = _RoverThatNeverRuns(LockstepRover(rover, world, loose, seed=23))
+    events: list[str] = []
+    result = run_campaign(driver, rover, world, tmp_path, budget_s=20.0, on_event=events.append)
+    assert len(driver.plans) == len(result.rounds) == IDLE_ROUNDS
+    assert result.stopped == (
+        f"{IDLE_ROUNDS} approved plans in a row ran no step "
+        "(the last: NOT REACHED: the rover never answered)"
+    )
+    assert result.driving_s == 0.0 and result.calibration is None
+    assert isinstance(result.refusal, UnidentifiableError)
+    assert "nothing could be driven and measured" in str(result.refusal)
 
 
 def test_a_refusal_names_the_parameter_and_the_steps_that_fix_it(
