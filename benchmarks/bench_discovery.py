@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.common import summary
+from benchmarks.common import summary, tree_cpu_s
 from bridge.ros.rosport.discovery import PROFILE, PROFILE_ENVS
 
 TOPIC = "bench_discovery"
@@ -64,12 +64,6 @@ print(f"{time.monotonic() - t0:.6f} {pub.get_subscription_count()}", flush=True)
 node.destroy_node()
 rclpy.try_shutdown()
 """
-
-
-def _cpu_s(pid: int) -> float:
-    """A process's CPU time (user and system, every thread), s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def measure(
@@ -107,10 +101,10 @@ def measure(
             if int(matched) < running:
                 raise RuntimeError(f"a newcomer matched {matched} of {running} in time")
             times.append(float(elapsed))
-        before = sum(_cpu_s(p.pid) for p in procs)
+        before = sum(tree_cpu_s(p.pid) for p in procs)
         t0 = time.monotonic()
         time.sleep(idle_s)
-        cores = (sum(_cpu_s(p.pid) for p in procs) - before) / (time.monotonic() - t0)
+        cores = (sum(tree_cpu_s(p.pid) for p in procs) - before) / (time.monotonic() - t0)
         return times, cores
     finally:
         for proc in procs:

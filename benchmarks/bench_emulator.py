@@ -20,14 +20,13 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import os
 import random
 import subprocess
 import sys
 import time
 
 from benchmarks.bench_twin import twin_rate
-from benchmarks.common import pty_round_trip, summary, table
+from benchmarks.common import pty_round_trip, summary, table, tree_cpu_s
 from emulator.controller import ControllerConfig, ControllerModel
 from emulator.engine import Emulator
 from emulator.serial_frontend import SerialFrontEnd
@@ -69,12 +68,6 @@ def controller_rate(rover: RoverDescription, seconds: float) -> float:
     return ticks / (time.perf_counter() - t0)
 
 
-def _cpu_seconds(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as stat:
-        fields = stat.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def cpu_share(window_s: float) -> float:
     """Share of one core used by ``rover emulate --serial`` serving a driving host."""
     proc = subprocess.Popen(
@@ -91,9 +84,9 @@ def cpu_share(window_s: float) -> float:
             for seq in range(1, 9):
                 host.send(Motion(seq, Command.FWD if seq % 2 else Command.REV, 40, 30000))
             time.sleep(1.0)  # warm up
-            c0, t0 = _cpu_seconds(proc.pid), time.monotonic()
+            c0, t0 = tree_cpu_s(proc.pid), time.monotonic()
             time.sleep(window_s)
-            return (_cpu_seconds(proc.pid) - c0) / (time.monotonic() - t0)
+            return (tree_cpu_s(proc.pid) - c0) / (time.monotonic() - t0)
     finally:
         proc.terminate()
         proc.communicate(timeout=10)

@@ -52,7 +52,7 @@ from typing import Any
 
 import pymunk
 
-from benchmarks.common import Served, gate_process, server_process
+from benchmarks.common import Served, gate_process, server_process, tree_cpu_s
 from emulator.drive import turn_units_for_yaw
 from emulator.playback import play
 from emulator.twin import Twin
@@ -591,23 +591,6 @@ def bench_http(seconds: float, before: str | None, rounds: int = 4) -> None:
         f"all servers up at once, {rounds} interleaved rounds; clients are threads of this "
         "process on the same 2 cores; the servers are subprocesses."
     )
-
-
-def tree_cpu_s(pid: int) -> float:
-    """CPU time (user + system, s) of a process and all its descendants, from /proc."""
-    tick = os.sysconf("SC_CLK_TCK")
-    total = 0.0
-    todo = [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / tick
-            for task in Path(f"/proc/{p}/task").iterdir():
-                todo += [int(c) for c in (task / "children").read_text().split()]
-        except OSError:
-            continue
-    return total
 
 
 def bench_pools(

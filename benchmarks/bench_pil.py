@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -35,7 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from benchmarks.bench_firmware import build_bench, c_stop_ns
-from benchmarks.common import percentile
+from benchmarks.common import percentile, tree_cpu_s
 from benchmarks.load import BusyLoad
 from emulator.pil.avr import avr_lockstep_pair, make_system
 from emulator.pil.images import build_image
@@ -162,24 +161,6 @@ def in_silicon(trials: int) -> list[str]:
     return rows
 
 
-def _tree_cpu_s(pid: int) -> float:
-    """User+system CPU seconds of ``pid`` and its live descendants."""
-    total = 0.0
-    tick = os.sysconf("SC_CLK_TCK")
-    todo = [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / tick
-            for task in Path(f"/proc/{p}/task").iterdir():
-                kids = (task / "children").read_text().split()
-                todo += [int(k) for k in kids]
-        except (OSError, IndexError, ValueError):
-            continue
-    return total
-
-
 def _serve(args: list[str], tmp: Path) -> tuple[subprocess.Popen[str], str]:
     link = tmp / "motor"
     proc = subprocess.Popen(
@@ -224,7 +205,7 @@ def over_the_pty(trials: int) -> list[str]:
             tmp = Path(tmp_name)
             proc, link = _serve(args, tmp)
             try:
-                cpu0, wall0 = _tree_cpu_s(proc.pid), time.monotonic()
+                cpu0, wall0 = tree_cpu_s(proc.pid), time.monotonic()
                 hellos = []
                 with ProtocolHost(open_endpoint(link, HOST)) as host:
                     host.handshake(every_s=0.2)
@@ -258,7 +239,7 @@ def over_the_pty(trials: int) -> list[str]:
                     timeout=600,
                     check=False,
                 )
-                cpu = (_tree_cpu_s(proc.pid) - cpu0) / (time.monotonic() - wall0)
+                cpu = (tree_cpu_s(proc.pid) - cpu0) / (time.monotonic() - wall0)
                 doc = json.loads((tmp / "b" / "stop_trials.json").read_text())
                 acks = [t["ack_ms"] for t in doc["trials"] if t["ack_ms"] is not None]
                 lost = trials - sum(1 for t in doc["trials"] if t["ok"])
