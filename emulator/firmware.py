@@ -34,6 +34,7 @@ from emulator.errors import FirmwareBuildError
 from emulator.sensors import PoseMeasurement, wrap_count
 from emulator.twin import Twin
 from firmware_proto.model.rover import RoverDescription
+from firmware_proto.runtime.cachedir import rover_cache_dir
 from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import PROTOCOL_VERSION, SCHEMA_HASH
@@ -74,11 +75,7 @@ _LIBS: dict[Path, ctypes.CDLL] = {}
 
 # -- build --------------------------------------------------------------------------------
 def _cache_dir() -> Path:
-    env = os.environ.get("ROVER_FIRMWARE_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "rover" / "firmware"
+    return rover_cache_dir("firmware", "ROVER_FIRMWARE_CACHE")
 
 
 def _compiler() -> str:

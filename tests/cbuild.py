@@ -31,6 +31,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from firmware_proto.runtime.cachedir import rover_cache_dir
+
 __all__ = ["CACHE_ENV", "MAX_ENTRIES", "Compiled", "cache_dir", "compile_cached"]
 
 CACHE_ENV = "ROVER_TEST_BUILD_CACHE"
@@ -44,7 +46,6 @@ _C_SUFFIXES = frozenset({".c", ".h", ".S", ".ld"})
 class Compiled:
     """The outcome of one compiler command; ``cached``: copied from the cache, not run."""
 
-    args: tuple[str, ...]
     returncode: int
     stdout: str
     stderr: str
@@ -53,13 +54,9 @@ class Compiled:
 
 def cache_dir() -> Path | None:
     """Where the programs are kept, or ``None`` when ``ROVER_TEST_BUILD_CACHE=off``."""
-    env = os.environ.get(CACHE_ENV)
-    if env == "off":
+    if os.environ.get(CACHE_ENV) == "off":
         return None
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "rover" / "test-builds"
+    return rover_cache_dir("test-builds", CACHE_ENV)
 
 
 def _hash_file(digest: hashlib._Hash, path: Path) -> None:
@@ -138,13 +135,13 @@ def compile_cached(
             said = json.loads(program.with_suffix(".json").read_text())
             shutil.copy2(program, out)
             os.utime(program)  # used last: kept by _prune
-            return Compiled(args, 0, said["stdout"], said["stderr"], cached=True)
+            return Compiled(0, said["stdout"], said["stderr"], cached=True)
         except (OSError, ValueError, KeyError):
             pass  # not built before (or half pruned): build it
     done = subprocess.run(
         args, capture_output=True, text=True, timeout=timeout_s, check=False, env=env
     )
-    compiled = Compiled(args, done.returncode, done.stdout, done.stderr, cached=False)
+    compiled = Compiled(done.returncode, done.stdout, done.stderr, cached=False)
     if directory is None or done.returncode != 0 or not out.is_file():
         return compiled
     # A cache that cannot be written costs the next run a build, nothing more.

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from emulator.pil.errors import PilError, PilToolMissingError
 from firmware_proto.model.rover import load_rover
+from firmware_proto.runtime.cachedir import rover_cache_dir
 
 __all__ = ["IMAGES", "Image", "ImageSpec", "build_image", "cache_dir", "require_tool"]
 
@@ -137,11 +138,7 @@ class Image:
 
 def cache_dir() -> Path:
     """Where built images are kept (the host build's cache, emulator/firmware.py)."""
-    env = os.environ.get("ROVER_FIRMWARE_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "rover" / "firmware"
+    return rover_cache_dir("firmware", "ROVER_FIRMWARE_CACHE")
 
 
 def require_tool(tool: str, packages: str) -> str:
