@@ -16,7 +16,7 @@ import logging
 import random
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from types import TracebackType
 from typing import Any, TypeVar
@@ -157,8 +157,9 @@ class TrialResult:
         controller_duration_ms, controller_distance_mm: from STOPPED.
         stop_repeats: STOP frames repeated before STOP_ACK.
         purged: queued steps reported ABORTED (reason STOP).
-        targets_zero: every WHEEL_SPEEDS between STOP_ACK and STOPPED reports zero
-            targets (on CAN the first is not judged: it may have been queued before).
+        targets_zero: every WHEEL_SPEEDS from STOP_ACK to STOPPED, or to the first at
+            zero speed if that came later, reports zero targets (on CAN the first is
+            not judged unless it is that one: it may have been queued before the STOP).
         latch_held: MOTION after the stop was refused STOP_LATCHED.
         clear_result: CLEAR_ACK result name.
         resumed: MOTION after CLEAR_STOP was accepted.
@@ -606,22 +607,19 @@ class StopBench:
         out["stopped_ms"] = (stopped_received.arrived - t0) * 1e3
         out["controller_duration_ms"] = stopped.duration_ms
         out["controller_distance_mm"] = stopped.distance_mm
-        # Wheel speeds after STOP_ACK, in arrival order (on CAN the first may have been
-        # queued before the STOP, so it is not judged).
-        _, zero = self._expect(
+        i_zero, zero = self._expect(
             WheelSpeeds,
             lambda w: w.left_mm_s == 0 and w.right_mm_s == 0,
             since=i_ack + 1,
             what="WHEEL_SPEEDS at zero",
         )
         out["zero_ms"] = (zero.arrived - t0) * 1e3
-        grace = 1 if self.medium == "can" else 0
-        after = [
-            w
-            for i, r in self._host.indexed(WheelSpeeds, i_ack + 1)
-            if i < i_stopped and isinstance(w := r.message, WheelSpeeds)
-        ]
-        judged = after[grace:] if len(after) > grace else after[-1:]
+        judged = judged_wheel_speeds(
+            self._host.indexed(WheelSpeeds, i_ack + 1),
+            stopped_at=i_stopped,
+            zero_at=i_zero,
+            grace=1 if self.medium == "can" else 0,
+        )
         out["targets_zero"] = bool(judged) and all(
             w.left_target_mm_s == 0 and w.right_target_mm_s == 0 for w in judged
         )
@@ -645,6 +643,31 @@ class StopBench:
                 what="the end of the zero-distance step",
             )
         return stop_id
+
+
+def judged_wheel_speeds(
+    after_ack: Iterable[tuple[int, Received]], *, stopped_at: int, zero_at: int, grace: int
+) -> list[WheelSpeeds]:
+    """The WHEEL_SPEEDS a trial judges for zero targets after its STOP.
+
+    Args:
+        after_ack: (position, message) of what arrived after STOP_ACK, in arrival order;
+            only WHEEL_SPEEDS count.
+        stopped_at: STOPPED's position.
+        zero_at: the position of the first WHEEL_SPEEDS after STOP_ACK at zero speed.
+        grace: how many of the first are not judged: 1 on CAN, where the first may have
+            been queued before the STOP; 0 on a serial line.
+
+    Returns:
+        Those up to STOPPED or the one at zero speed, whichever came later, so that at
+        least one sent after the STOP is judged however slow the telemetry (at 20 Hz,
+        as in the VM, none may fall between STOP_ACK and STOPPED), less the first
+        ``grace``; when only the one at zero speed is left, that one (the wheels were
+        moving before the STOP, so it was sent after it).
+    """
+    end = max(stopped_at, zero_at + 1)
+    speeds = [m for i, r in after_ack if i < end and isinstance(m := r.message, WheelSpeeds)]
+    return speeds[grace:] or speeds[-1:]
 
 
 def _arbitration_note(medium: str, cfg: BenchConfig) -> str:

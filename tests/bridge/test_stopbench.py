@@ -25,15 +25,18 @@ from bridge.tools.stopbench import (
     FloodConfig,
     StopBench,
     TrialResult,
+    judged_wheel_speeds,
 )
 from emulator.can_frontend import CanFrontEnd
 from emulator.emulator_replay import ReplayOptions, replay_into_emulator
 from emulator.engine import Emulator
 from firmware_proto.cli import main as rover_cli
+from firmware_proto.linkio.host import Received
 from firmware_proto.linkio.trafficio import read_log
 from firmware_proto.linkio.trafficlog import decode_records
 from firmware_proto.runtime.realtime import EMULATOR_PRIORITY
-from firmware_proto.wire.messages import SCHEMA_HASH, Param
+from firmware_proto.wire.message import Message
+from firmware_proto.wire.messages import SCHEMA_HASH, Param, Stopped, WheelSpeeds
 from tests.conftest import IN_VCAN_VM
 from tests.firmware_proto.c_harness import compiler
 from tests.scheduling import threads_at
@@ -196,6 +199,35 @@ def test_reports_table_csv_json_and_histogram(emulators: Emus, tmp_path: Path) -
     with Image.open(png_path) as image:
         assert image.format == "PNG"
         assert image.size == (900, 40 + 3 * 230)
+
+
+def _speeds(speed: int, target: int) -> WheelSpeeds:
+    return WheelSpeeds(
+        t_ms=0, left_mm_s=speed, right_mm_s=speed, left_target_mm_s=target, right_target_mm_s=target
+    )
+
+
+def test_a_trial_judges_a_wheel_speeds_sent_after_the_stop_however_slow_the_telemetry() -> None:
+    """At 20 Hz (the VM's) none may come between STOP_ACK and STOPPED: the one at zero
+    speed after STOPPED is judged, never the first on CAN alone (queued before the STOP)."""
+    queued_before = _speeds(120, 150)  # moving, its targets set before the STOP
+    at_zero = _speeds(0, 0)
+    stopped = Stopped(stop_id=1, duration_ms=60, distance_mm=2)
+    arrived: list[tuple[int, Message]] = [(4, queued_before), (5, stopped), (6, at_zero)]
+    after_ack = [(i, Received(0.0, m, None)) for i, m in arrived]
+    judged = judged_wheel_speeds(after_ack, stopped_at=5, zero_at=6, grace=1)
+    assert judged == [at_zero]
+    # On a serial line nothing was queued before: every one is judged.
+    assert judged_wheel_speeds(after_ack, stopped_at=5, zero_at=6, grace=0) == [
+        queued_before,
+        at_zero,
+    ]
+    # The only one after STOP_ACK is the one at zero speed: that one.
+    only = [(6, Received(0.0, at_zero, None))]
+    assert judged_wheel_speeds(only, stopped_at=5, zero_at=6, grace=1) == [at_zero]
+    # Those after both STOPPED and the one at zero speed are not judged.
+    later = [*after_ack, (7, Received(0.0, _speeds(0, 90), None))]
+    assert judged_wheel_speeds(later, stopped_at=5, zero_at=6, grace=1) == [at_zero]
 
 
 def test_summary_percentiles_and_missing_measures() -> None:
