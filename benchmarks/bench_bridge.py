@@ -34,16 +34,14 @@ from __future__ import annotations
 
 import argparse
 import random
-import select
 import subprocess
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
-from typing import IO
 
-from benchmarks.common import pty_round_trip, summary, table
+from benchmarks.common import pty_round_trip, readline_within, summary, table
 from bridge.link.controllerlink import ControllerLink, LinkConfig, StepRequest
 from bridge.ros.node import BridgeNode
 from bridge.ros.params import load_params
@@ -157,15 +155,6 @@ def _published(publish: Callable[[Bool], None]) -> Request:
     return request
 
 
-def _readline(stream: IO[str], timeout_s: float, what: str) -> str:
-    """One line from a child process's stdout (each of our children answers one line per
-    request, so nothing waits in the reader's buffer), or TimeoutError."""
-    ready, _, _ = select.select([stream], [], [], timeout_s)
-    if not ready:
-        raise TimeoutError(f"no answer from {what} within {timeout_s} s")
-    return stream.readline()
-
-
 class EmulatorProcess:
     """The emulator serving a pty in a child process (``--emulator-child``), driven over
     its stdin and stdout: one command line, one answer line."""
@@ -188,7 +177,7 @@ class EmulatorProcess:
         assert self._child.stdout is not None
         self._stdin, self._stdout = self._child.stdin, self._child.stdout
         try:
-            first = _readline(self._stdout, 30.0, "the emulator process")
+            first = readline_within(self._stdout, 30.0, "the emulator process")
         except TimeoutError:
             self.close()
             raise
@@ -201,7 +190,7 @@ class EmulatorProcess:
     def _ask(self, line: str) -> str:
         self._stdin.write(line + "\n")
         self._stdin.flush()
-        answer = _readline(self._stdout, 30.0, "the emulator process").strip()
+        answer = readline_within(self._stdout, 30.0, "the emulator process").strip()
         if not answer:
             raise RuntimeError(f"the emulator process ended (asked {line!r})")
         return answer
@@ -578,7 +567,7 @@ def _ros2_rows(
                 assert child.stdin is not None
                 assert child.stdout is not None
                 stdin, stdout = child.stdin, child.stdout
-                if _readline(stdout, 60.0, "the ROS 2 STOP publisher").strip() != "READY":
+                if readline_within(stdout, 60.0, "the ROS 2 STOP publisher").strip() != "READY":
                     raise RuntimeError("the ROS 2 STOP publisher did not match the bridge")
                 deadline = time.monotonic() + 10.0
                 while not node.link.ready and time.monotonic() < deadline:
@@ -587,7 +576,7 @@ def _ros2_rows(
                 def request() -> float:
                     stdin.write("go\n")
                     stdin.flush()
-                    return float(_readline(stdout, 10.0, "the ROS 2 STOP publisher"))
+                    return float(readline_within(stdout, 10.0, "the ROS 2 STOP publisher"))
 
                 lost = 0
                 for load in (False, True):

@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.common import summary, tree_cpu_s
+from benchmarks.common import readline_within, summary, tree_cpu_s
 from bridge.ros.rosport.discovery import PROFILE, PROFILE_ENVS
 
 TOPIC = "bench_discovery"
@@ -37,7 +37,7 @@ MATCH_TIMEOUT_S = 20.0
 CHILD_TIMEOUT_S = 60.0
 
 _RUNNING = """
-import sys, time, rclpy
+import sys, rclpy
 from rclpy.node import Node
 from std_msgs.msg import Bool
 rclpy.init()
@@ -84,7 +84,7 @@ def measure(
     try:
         for proc in procs:
             assert proc.stdout is not None
-            if proc.stdout.readline().strip() != "up":
+            if readline_within(proc.stdout, CHILD_TIMEOUT_S, "a running process").strip() != "up":
                 raise RuntimeError("a running process did not start")
         time.sleep(1.0)  # past their own start's announcements
         times = []
@@ -136,11 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         # The peer: our profile with Fast DDS's default period written in (3 s).
         default = Path(tmp) / "default.xml"
-        default.write_text(
-            PROFILE.read_text()
-            .replace("<sec>0</sec>", "<sec>3</sec>")
-            .replace("<nanosec>500000000</nanosec>", "<nanosec>0</nanosec>")
+        ours = PROFILE.read_text()
+        written = ours.replace("<sec>0</sec>", "<sec>3</sec>").replace(
+            "<nanosec>500000000</nanosec>", "<nanosec>0</nanosec>"
         )
+        if written.count("<sec>3</sec>") != 1 or "500000000" in written:
+            raise RuntimeError(f"{PROFILE}: its announcement period is not where it was")
+        default.write_text(written)
         cases = [
             ("Fast DDS default (3 s)", default),
             ("our profile (0.5 s)", PROFILE),

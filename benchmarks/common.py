@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import serial
 
@@ -24,6 +25,7 @@ __all__ = [
     "gate_process",
     "percentile",
     "pty_round_trip",
+    "readline_within",
     "server_process",
     "summary",
     "table",
@@ -47,6 +49,15 @@ def tree_cpu_s(pid: int) -> float:
         except (OSError, IndexError, ValueError):
             continue
     return total
+
+
+def readline_within(stream: IO[str], timeout_s: float, what: str) -> str:
+    """One line from a child process's stdout (each of our children answers one line per
+    request, so nothing waits in the reader's buffer), or TimeoutError."""
+    ready, _, _ = select.select([stream], [], [], timeout_s)
+    if not ready:
+        raise TimeoutError(f"no answer from {what} within {timeout_s} s")
+    return stream.readline()
 
 
 def percentile(values: list[float], q: float) -> float:
