@@ -17,8 +17,12 @@ import pytest
 
 WAIT_GO_ENV = "ROVER_WAIT_GO"
 WAIT_GO_TIMEOUT_ENV = "ROVER_WAIT_GO_TIMEOUT"
-POLL_S = 0.1
-"""How often the file is looked for, s."""
+POLL_S = 0.5
+"""How often the file is looked for, s. In the VM each look (a wake-up and a lookup over
+the uncached 9p share) costs qemu's software CPU about 6 ms of the host's: every 0.1 s
+that was 3.7 CPU-seconds a minute, 9 or so in a run's wait beside the serial part, where
+the idle guest costs nothing measurable (docs/vcan-vm.md); every 0.5 s, a fifth of it
+for at most 0.5 s later a start."""
 
 
 def wait_for_go(path: str, timeout_s: float) -> bool:
