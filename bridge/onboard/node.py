@@ -45,6 +45,7 @@ from bridge.onboard.core import (
     screen_uplink,
 )
 from bridge.onboard.ekf import EkfConfig, Estimate, Mat, PoseEkf
+from bridge.ros.odomcdr import OdometryFields, read_odometry
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
 from bridge.ros.rosport.contract import (
     COMMAND_STATUS,
@@ -99,11 +100,27 @@ _COV3 = (0, 1, 5, 6, 7, 11, 30, 31, 35)
 """The places of x, y and yaw's 3x3 in a row-major 6x6 covariance."""
 
 
-def _cov3(msg: Odometry) -> Mat:
+def _cov3(c: tuple[float, ...]) -> Mat:
     """x, y, yaw of a 6x6 pose covariance (row-major), as a row-major 3x3."""
-    c = msg.pose.covariance
     a, b, d, e, f, g, h, i, j = (float(c[k]) for k in _COV3)
     return (a, b, d, e, f, g, h, i, j)
+
+
+def _fields(msg: Odometry | bytes) -> OdometryFields:
+    """What the estimator takes of an odometry message, serialized or not."""
+    if isinstance(msg, bytes):
+        return read_odometry(msg)
+    p = msg.pose.pose
+    t = msg.twist.twist
+    return OdometryFields(
+        stamp_s(msg.header.stamp),
+        p.position.x,
+        p.position.y,
+        yaw_rad(p.orientation),
+        t.linear.x,
+        t.angular.z,
+        tuple(msg.pose.covariance),
+    )
 
 
 class OnboardNode:
@@ -156,13 +173,19 @@ class OnboardNode:
         self._published: tuple[float, float] | None = None
         #: Estimates sent on ``onboard_pose`` (:data:`ONBOARD_POSE_PERIOD_S`).
         self.poses_published = 0
+        # Over DDS odometry is read in place from its bytes (bridge/ros/odomcdr.py):
+        # /odom comes with every encoder sample, and building each nested message cost
+        # more than the estimator's own step.
+        serialized = port.carries_serialized
         self._subs: list[Subscription[Any]] = [
             port.subscribe(EMERGENCY_STOP, Bool, self._on_stop, qos.STOP, lane=STOP_LANE),
             port.subscribe(PLAN_UPLINK, String, self._on_uplink, qos.COMMAND),
             port.subscribe(COMMAND_STATUS, String, self._on_status, qos.STATUS),
             # odom_ground before odom: a backlog read late takes the POSE first
-            port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR),
-            port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR),
+            port.subscribe(
+                "odom_ground", Odometry, self._on_ground, qos.SENSOR, serialized=serialized
+            ),
+            port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR, serialized=serialized),
         ]
         self._thread = threading.Thread(target=self._timer, name="onboard-timer", daemon=True)
 
@@ -221,30 +244,16 @@ class OnboardNode:
     def _on_status(self, msg: String) -> None:
         self._feed("on_status", msg.data)
 
-    def _on_odom(self, msg: Odometry) -> None:
-        p = msg.pose.pose
-        t = msg.twist.twist
+    def _on_odom(self, msg: Odometry | bytes) -> None:
+        f = _fields(msg)
         with self._lock:
-            self.ekf.predict(
-                stamp_s(msg.header.stamp),
-                p.position.x,
-                p.position.y,
-                yaw_rad(p.orientation),
-                t.linear.x,
-                t.angular.z,
-            )
+            self.ekf.predict(f.stamp_s, f.x_m, f.y_m, f.yaw_rad, f.v_mps, f.yaw_rate_rad_s)
         self._estimated()
 
-    def _on_ground(self, msg: Odometry) -> None:
-        p = msg.pose.pose
+    def _on_ground(self, msg: Odometry | bytes) -> None:
+        f = _fields(msg)
         with self._lock:
-            self.ekf.correct(
-                stamp_s(msg.header.stamp),
-                p.position.x,
-                p.position.y,
-                yaw_rad(p.orientation),
-                _cov3(msg),
-            )
+            self.ekf.correct(f.stamp_s, f.x_m, f.y_m, f.yaw_rad, _cov3(f.covariance))
         self._estimated()
 
     def _estimated(self) -> None:

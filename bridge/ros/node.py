@@ -35,7 +35,7 @@ from bridge.link.controllerlink import ControllerLink, LinkDiagnostics, LinkStat
 from bridge.link.odometry import OdometryEstimator, ground_pose
 from bridge.link.transport import Transport, open_transport
 from bridge.ros.diagnostics import RECENT_STATUSES, diagnostic_array
-from bridge.ros.odommsg import ground_odometry, wheel_odometry
+from bridge.ros.odomcdr import ground_odometry_cdr, stamp_parts, wheel_odometry_cdr
 from bridge.ros.params import BridgeParams, check_params, parameter_specs
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
 from bridge.ros.rosport.contract import rejected
@@ -314,10 +314,14 @@ class BridgeNode:
             with self._odom_lock:
                 est = self.odometry.update_encoders(msg)
                 self._odom_now = PlanarPose(est.x_m, est.y_m, math.degrees(est.yaw_rad))
-            now = stamp(self.clock.time())
-            self._publish_tf(now, est.x_m, est.y_m, est.yaw_rad)
-            self._odom_pub.publish(
-                wheel_odometry(est, now, self.params.odom_frame, self.params.base_frame)
+            t_s = self.clock.time()
+            if self._tf_pub is not None:
+                self._publish_tf(stamp(t_s), est.x_m, est.y_m, est.yaw_rad)
+            # Packed directly (bridge/ros/odomcdr.py): the message every encoder sample.
+            self._odom_pub.publish_serialized(
+                wheel_odometry_cdr(
+                    est, stamp_parts(t_s), self.params.odom_frame, self.params.base_frame
+                )
             )
         elif isinstance(msg, (Heartbeat, Ident)):
             with self._odom_lock:
@@ -340,10 +344,10 @@ class BridgeNode:
                 self._map_to_odom = frame_in(
                     PlanarPose(pose.x_m, pose.y_m, math.degrees(pose.yaw_rad)), odom_now
                 )
-            self._ground_pub.publish(
-                ground_odometry(
+            self._ground_pub.publish_serialized(
+                ground_odometry_cdr(
                     pose,
-                    stamp(self.clock.time() - pose.age_s),
+                    stamp_parts(self.clock.time() - pose.age_s),
                     self.params.map_frame,
                     self.params.base_frame,
                 )

@@ -9,7 +9,8 @@ draw drops it. One topic's messages keep their order. Each route draws from a ge
 seeded from ``seed`` and the topic name, so a run is reproducible whatever the
 interleaving. One scheduler thread releases messages when due; ``close()`` drops what is
 in flight and joins it. With a lockstep clock (docs/sim.md) there is no thread: each
-tick releases what is due.
+tick releases what is due. Between two DDS ports the messages pass as the bytes they
+came as, never turned into Python messages and back (:attr:`LinkRelay.serialized`).
 """
 
 from __future__ import annotations
@@ -125,6 +126,9 @@ class LinkRelay:
         self._last_due: dict[str, float] = {}
         self._subs: list[Subscription[Any]] = []
         self._publishers: list[Publisher[Any]] = []
+        # Over DDS both ways, the bytes pass as they came (no Python message in between:
+        # docs/rosport.md, "Serialized messages"); the in-process backend carries messages.
+        self.serialized = ground.carries_serialized and rover.carries_serialized
         for route in routes:
             src, dst = (ground, rover) if route.uplink else (rover, ground)
             publisher = dst.publisher(route.topic, route.msg_type, route.qos)
@@ -137,6 +141,7 @@ class LinkRelay:
                     self._make_forward(route, publisher, rng),
                     route.subscribe_qos or route.qos,
                     lane=route.lane,
+                    serialized=self.serialized,
                 )
             )
         self._thread: threading.Thread | None = None
@@ -184,7 +189,10 @@ class LinkRelay:
 
     def _publish(self, publisher: Publisher[Any], msg: Any, key: str) -> None:
         try:
-            publisher.publish(msg)
+            if self.serialized:
+                publisher.publish_serialized(msg)
+            else:
+                publisher.publish(msg)
             self.forwarded[key] += 1
         except Exception:
             logger.exception("relay could not forward %s", key)

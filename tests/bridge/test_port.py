@@ -351,3 +351,38 @@ def test_parameters_are_declared_checked_and_set(make_port: PortFactory, backend
     other = make_port(backend, node_name="params2")
     with pytest.raises(ParameterError, match="retries"):
         other.declare_parameters(specs, on_set, {"retries": 99})
+
+
+def test_serialized_messages_pass_both_ways_and_taps_see_messages(
+    make_port: PortFactory, backend: str
+) -> None:
+    """``publish_serialized`` and ``subscribe(..., serialized=True)`` (docs/rosport.md,
+    "Serialized messages"): a serialized subscription gets the bytes of every message,
+    published either way; a plain one gets messages; taps are shown messages."""
+    serialization = pytest.importorskip("rclpy.serialization")
+    sender = make_port(backend, node_name="sender")
+    receiver = make_port(backend, node_name="receiver")
+    assert sender.carries_serialized == (backend != "inprocess")
+    sent: list[object] = []
+    received: list[object] = []
+    sender.add_tap(lambda _d, _t, msg: sent.append(msg))
+    receiver.add_tap(lambda _d, _t, msg: received.append(msg))
+    as_bytes, as_messages = Inbox(), Inbox()
+    receiver.subscribe("/odom", Odometry, as_bytes, serialized=True)
+    receiver.subscribe("/odom", Odometry, as_messages)
+    pub = sender.publisher("/odom", Odometry)
+    assert pub.wait_for_subscribers(2, timeout_s=10.0)
+    messages = [sample(Odometry, seed) for seed in range(4)]
+    for i, msg in enumerate(messages):
+        if i % 2:
+            pub.publish(msg)
+        else:
+            pub.publish_serialized(serialization.serialize_message(msg))
+    assert as_messages.wait_for(4) == messages
+    got = as_bytes.wait_for(4)
+    assert all(type(cdr) is bytes for cdr in got)
+    assert [serialization.deserialize_message(cdr, Odometry) for cdr in got] == messages
+    assert sent == messages and sender.stats().published == 4
+    assert len(received) == 8 and all(msg in messages for msg in received)
+    with pytest.raises(TypeError, match="must be bytes"):
+        pub.publish_serialized(bytearray(serialization.serialize_message(messages[0])))  # type: ignore[arg-type]

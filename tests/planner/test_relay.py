@@ -56,6 +56,7 @@ def test_uplink_and_downlink_are_delayed_by_their_delay_and_jitter_and_keep_orde
     op.subscribe("command_status", String, lambda m: down.append((clock.now(), m.data)))
     profile = LinkProfile(one_way_delay_s=0.2, jitter_s=0.05, seed=3)
     with LinkRelay(rg, rr, profile, clock=clock) as relay:
+        assert not relay.serialized  # the in-process port carries messages
         steps = op.publisher("wheel_instructions", Int16MultiArray)
         status = br.publisher("command_status", String)
         sent: list[float] = []

@@ -100,6 +100,7 @@ def test_uplink_and_downlink_are_delayed_and_keep_order(ports: list[RosPort]) ->
         got_up = up.wait(20)
         got_down = down.wait(20)
         assert relay.forwarded["up:wheel_instructions"] == 20
+        assert relay.serialized  # over DDS the bytes pass as they came
     assert [m.data[2] for _, m in got_up] == list(range(20))  # type: ignore[attr-defined]
     assert [m.data for _, m in got_down] == [f"s{i}" for i in range(20)]  # type: ignore[attr-defined]
     assert min(t for t, _ in got_up + got_down) - sent >= 0.2  # never early

@@ -16,6 +16,7 @@ callbacks publish in turn, until nothing is left: within the tick, never inside
 
 from __future__ import annotations
 
+import importlib
 import threading
 from collections import deque
 from typing import Any, Final
@@ -121,8 +122,14 @@ class _Writer:
         port._bus.add_writer(self)
 
     def write(self, msg: Message) -> None:
+        cdr = None
         for slot in self._port._bus.matching(self.topic, self.msg_type, self.qos):
-            slot.port._enqueue(slot, copy_message(msg))
+            if slot.sub.serialized:  # what DDS would hand it (serialized once per message)
+                if cdr is None:
+                    cdr = importlib.import_module("rclpy.serialization").serialize_message(msg)
+                slot.port._enqueue(slot, cdr)
+            else:
+                slot.port._enqueue(slot, copy_message(msg))
 
     def matched_count(self) -> int:
         return len(self._port._bus.matching(self.topic, self.msg_type, self.qos))

@@ -27,6 +27,7 @@ Call :meth:`RosPort._start` at the end of the subclass's ``__init__``. Everythin
 
 from __future__ import annotations
 
+import importlib
 import logging
 import threading
 import time
@@ -37,7 +38,12 @@ from typing import Any, ClassVar, Final, Generic, Protocol, TypeVar
 
 from bridge.errors import ParameterError
 from bridge.ros.rosport import names
-from bridge.ros.rosport.errors import PortClosedError, RosPortError, TopicTypeError
+from bridge.ros.rosport.errors import (
+    MessageError,
+    PortClosedError,
+    RosPortError,
+    TopicTypeError,
+)
 from bridge.ros.rosport.names import is_message_type, ros_type_name
 from bridge.ros.rosport.parameters import OnSet, ParameterSpec, ParameterValue, check_value
 from bridge.ros.rosport.qos import DEFAULT, Qos
@@ -57,6 +63,7 @@ __all__ = [
     "Subscription",
     "Tap",
     "Writer",
+    "deserialized",
 ]
 
 logger = logging.getLogger(__name__)
@@ -85,6 +92,23 @@ TAP_RECEIVED: Final = "received"
 Tap = Callable[[str, str, Any], object]
 """``tap(direction, topic, msg)``: :data:`TAP_SENT` or :data:`TAP_RECEIVED`, the full topic, the
 message; called on the sending or delivering thread, so it must be quick and never block."""
+
+
+def deserialized(cdr: bytes, msg_type: type[M]) -> M:
+    """``cdr`` (serialized as :meth:`Publisher.publish_serialized` takes it) as a message of
+    ``msg_type``.
+
+    Raises:
+        MessageError: the bytes are not such a message (rclpy's error chained).
+    """
+    try:
+        # rclpy's, installed with the message packages; imported only where it is used.
+        msg: M = importlib.import_module("rclpy.serialization").deserialize_message(cdr, msg_type)
+    except Exception as exc:
+        raise MessageError(
+            f"{len(cdr)} bytes are not a serialized {ros_type_name(msg_type)}: {exc}"
+        ) from exc
+    return msg
 
 
 class Writer(Protocol):
@@ -160,6 +184,34 @@ class Publisher(Generic[M]):
         self._send(self._writer.write, msg)
         self.port._tap(TAP_SENT, self.topic, msg)
 
+    def publish_serialized(self, cdr: bytes) -> None:
+        """Send ``cdr``, one message of this publisher's type already serialized (CDR with
+        its encapsulation header, as ``rclpy.serialization.serialize_message`` makes it),
+        without a Python message in between where the backend can: rclpy and the process
+        backend send the bytes as they are (unchecked: a subscriber that cannot read them
+        drops them), the in-process backend delivers them deserialized. Taps, when the
+        port has any, are shown the message deserialized. Built for a hot topic whose
+        bytes are packed directly (:mod:`bridge.ros.odomcdr`; docs/rosport.md,
+        "Serialized messages").
+
+        Raises:
+            TypeError: ``cdr`` is not ``bytes``.
+            MessageError: the in-process backend, or a tap, could not deserialize ``cdr``.
+            PortClosedError: the publisher or its port is closed.
+            RosPortError: the backend failed to send (chained to its exception).
+        """
+        if type(cdr) is not bytes:
+            raise TypeError(f"serialized message must be bytes, got {type(cdr).__name__}")
+        write = getattr(self._writer, "write_serialized", None)
+        if write is None:
+            msg = deserialized(cdr, self.msg_type)
+            self._send(self._writer.write, msg)
+            self.port._tap(TAP_SENT, self.topic, msg)
+            return
+        self._send(write, cdr)
+        if self.port._taps:
+            self.port._tap(TAP_SENT, self.topic, deserialized(cdr, self.msg_type))
+
     def _send(self, write: Callable[[Any], None], payload: Any) -> None:
         """``write(payload)`` to the backend, counted as published (:meth:`publish`, and
         a backend's publish of serialized bytes).
@@ -230,6 +282,7 @@ class Subscription(Generic[M]):
         callback: Callable[[M], object],
         qos: Qos = DEFAULT,
         lane: str = DEFAULT_LANE,
+        serialized: bool = False,
     ) -> None:
         self.port = port
         #: The fully qualified topic name.
@@ -239,6 +292,9 @@ class Subscription(Generic[M]):
         self.qos = qos
         #: The lane (delivery thread) its callbacks run on.
         self.lane = lane
+        #: Whether the callback gets each message serialized (CDR ``bytes``), not a
+        #: message (:meth:`RosPort.subscribe`).
+        self.serialized = serialized
         #: Callbacks that returned normally.
         self.delivered = 0
         #: Callbacks that raised.
@@ -301,6 +357,10 @@ class RosPort:
 
     #: Registry name of the backend (``open_port(backend=...)``).
     backend: ClassVar[str] = ""
+    #: Whether serialized messages (:meth:`Publisher.publish_serialized`, ``subscribe(...,
+    #: serialized=True)``) pass without a Python message in between: over DDS, yes; the
+    #: in-process backend carries messages and converts.
+    carries_serialized: ClassVar[bool] = False
 
     def __init__(self, *, namespace: str = "", node_name: str = DEFAULT_NODE_NAME) -> None:
         self.namespace = names.normalize_namespace(namespace)
@@ -376,8 +436,15 @@ class RosPort:
         qos: Qos = DEFAULT,
         *,
         lane: str = DEFAULT_LANE,
+        serialized: bool = False,
     ) -> Subscription[M]:
         """Call ``callback(msg)`` on ``lane``'s thread for each ``msg_type`` on ``topic``.
+
+        With ``serialized``, ``callback`` gets each message as CDR ``bytes`` (as
+        :meth:`Publisher.publish_serialized` takes them) instead: where
+        :attr:`carries_serialized`, without a Python message in between (a relay, or a
+        reader of a few fields of a hot topic: docs/rosport.md, "Serialized messages");
+        elsewhere the backend serializes what it delivers. Taps are shown the message.
 
         Raises:
             RosNameError: invalid topic name.
@@ -393,7 +460,7 @@ class RosPort:
             raise ValueError(f"unknown lane {lane!r}; lanes: {', '.join(LANES)}")
         full = self._claim(topic, msg_type)
         self._ensure_lane(lane)
-        sub = Subscription(self, full, msg_type, callback, qos, lane)
+        sub = Subscription(self, full, msg_type, callback, qos, lane, serialized)
         with self._lock:
             if self._closed:
                 raise PortClosedError(f"{self!r} is closed")
@@ -576,7 +643,15 @@ class RosPort:
         """Run ``sub``'s callback with ``msg`` (from a lane thread); log and count errors."""
         if sub._closed:
             return
-        self._tap(TAP_RECEIVED, sub.topic, msg)
+        if self._taps and not sub.serialized:
+            self._tap(TAP_RECEIVED, sub.topic, msg)
+        elif self._taps:
+            try:
+                shown = deserialized(msg, sub.msg_type)
+            except MessageError:
+                logger.warning("%s: taps not shown undecodable bytes on %s", self, sub.topic)
+            else:
+                self._tap(TAP_RECEIVED, sub.topic, shown)
         try:
             sub.callback(msg)
         except Exception:

@@ -332,6 +332,9 @@ class _Writer:
     def write(self, msg: Message) -> None:
         self._port._publish(self._id, self._depth, msg)
 
+    def write_serialized(self, cdr: bytes) -> None:
+        self._port._publish_serialized(self._id, self._depth, cdr)
+
     def matched_count(self) -> int:
         return int(self._port._main.call("matched", self._id))
 
@@ -374,6 +377,7 @@ class ProcessPort(RosPort):
     """
 
     backend = "rclpy-process"
+    carries_serialized = True
 
     def __init__(
         self,
@@ -465,6 +469,13 @@ class ProcessPort(RosPort):
             return
         outbox.publish(writer_id, depth, self._ser.serialize_message(msg))
 
+    def _publish_serialized(self, writer_id: int, depth: int, cdr: bytes) -> None:
+        outbox = self._main.outbox
+        if self._main.failure is not None or outbox is None:
+            self._count_dropped()
+            return
+        outbox.publish(writer_id, depth, cdr)  # the child publishes it as it is
+
     def _open_reader(self, sub: Subscription[Any]) -> _Reader:
         child = self._children[sub.lane]
         reader_id = child.call("reader", sub.topic, ros_type_name(sub.msg_type), sub.qos)
@@ -486,6 +497,9 @@ class ProcessPort(RosPort):
                 sub = self._readers.get((child.label, reader_id))
             if sub is None:
                 continue  # closed while the message was on its way
+            if sub.serialized:
+                self._deliver(sub, cdr)  # as the child took it
+                continue
             try:
                 msg = self._ser.deserialize_message(cdr, sub.msg_type)
             except Exception:

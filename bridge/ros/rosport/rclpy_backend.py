@@ -258,7 +258,7 @@ class _LaneWait:
         taken: list[tuple[Subscription[Any], Any]] = []
         for index, (subscription, sub) in enumerate(self._readers):
             if ws.is_ready("subscription", index):
-                message = subscription.handle.take_message(sub.msg_type, False)
+                message = subscription.handle.take_message(sub.msg_type, sub.serialized)
                 if message is not None:
                     taken.append((sub, message[0]))
         others = 0
@@ -295,6 +295,7 @@ class RclpyPort(RosPort):
     """
 
     backend = "rclpy"
+    carries_serialized = True
 
     def __init__(
         self,
@@ -481,7 +482,7 @@ class RclpyPort(RosPort):
             self._deliver(sub, msg)
 
         subscription = lane.node.create_subscription(
-            sub.msg_type, sub.topic, on_message, self._profile(sub.qos)
+            sub.msg_type, sub.topic, on_message, self._profile(sub.qos), raw=sub.serialized
         )
         with lane.lock:
             lane.readers.append((subscription, sub))
