@@ -134,6 +134,13 @@ def test_the_stop_bench_runs_a_trial_again_after_a_stall_fires_the_watchdog() ->
         assert _full_speed_or_latched(host, mark)
 
 
+def test_bench_odomcdr_quick_puts_packing_and_reading_beside_rclpy() -> None:
+    out = run_benchmark("bench_odomcdr", "--quick")
+    assert "| case | us/msg p50 | us/msg worst |" in out
+    for case in ("build + serialize (rclpy", "pack (odomcdr)", "deserialize (rclpy", "read in"):
+        assert f"| {case}" in out, case
+
+
 def test_bench_twin_quick_prints_its_table() -> None:
     out = run_benchmark("bench_twin", "--quick")
     assert "steps/s" in out and "x real time" in out
