@@ -1,5 +1,5 @@
 """Odometry as bytes: the bridge's packing and the onboard reading of ``nav_msgs/Odometry``
-(bridge/ros/odomcdr.py) beside rclpy's own serialization of the message, in one run.
+(bridge/ros/rosport/cdr.py, bridge/ros/odommsg.py) beside rclpy's own serialization of the message, in one run.
 
 Run: ``python -m benchmarks.bench_odomcdr [--count N] [--repeat R] [--quick]``. Prints one
 table, microseconds of CPU per message (``time.process_time``), the median and the worst
@@ -25,8 +25,8 @@ import time
 from collections.abc import Callable
 
 from bridge.link.odometry import OdometryEstimate
-from bridge.ros.odomcdr import read_odometry, stamp_parts, wheel_odometry_cdr
-from bridge.ros.odommsg import wheel_odometry
+from bridge.ros.odommsg import wheel_odometry, wheel_odometry_cdr
+from bridge.ros.rosport.cdr import read_odometry, stamp_parts
 from bridge.ros.rosport.msgs import Odometry, stamp
 
 COUNT = 20_000

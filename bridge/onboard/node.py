@@ -45,8 +45,8 @@ from bridge.onboard.core import (
     screen_uplink,
 )
 from bridge.onboard.ekf import EkfConfig, Estimate, Mat, PoseEkf
-from bridge.ros.odomcdr import OdometryFields, read_odometry
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
+from bridge.ros.rosport.cdr import odometry_fields
 from bridge.ros.rosport.contract import (
     COMMAND_STATUS,
     EMERGENCY_STOP,
@@ -70,8 +70,6 @@ from bridge.ros.rosport.msgs import (
     Vector3,
     quaternion_from_yaw,
     stamp,
-    stamp_s,
-    yaw_rad,
 )
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.runtime import stall
@@ -104,23 +102,6 @@ def _cov3(c: tuple[float, ...]) -> Mat:
     """x, y, yaw of a 6x6 pose covariance (row-major), as a row-major 3x3."""
     a, b, d, e, f, g, h, i, j = (float(c[k]) for k in _COV3)
     return (a, b, d, e, f, g, h, i, j)
-
-
-def _fields(msg: Odometry | bytes) -> OdometryFields:
-    """What the estimator takes of an odometry message, serialized or not."""
-    if isinstance(msg, bytes):
-        return read_odometry(msg)
-    p = msg.pose.pose
-    t = msg.twist.twist
-    return OdometryFields(
-        stamp_s(msg.header.stamp),
-        p.position.x,
-        p.position.y,
-        yaw_rad(p.orientation),
-        t.linear.x,
-        t.angular.z,
-        tuple(msg.pose.covariance),
-    )
 
 
 class OnboardNode:
@@ -173,7 +154,7 @@ class OnboardNode:
         self._published: tuple[float, float] | None = None
         #: Estimates sent on ``onboard_pose`` (:data:`ONBOARD_POSE_PERIOD_S`).
         self.poses_published = 0
-        # Over DDS odometry is read in place from its bytes (bridge/ros/odomcdr.py):
+        # Over DDS odometry is read in place from its bytes (bridge/ros/rosport/cdr.py):
         # /odom comes with every encoder sample, and building each nested message cost
         # more than the estimator's own step.
         serialized = port.carries_serialized
@@ -245,13 +226,13 @@ class OnboardNode:
         self._feed("on_status", msg.data)
 
     def _on_odom(self, msg: Odometry | bytes) -> None:
-        f = _fields(msg)
+        f = odometry_fields(msg)
         with self._lock:
             self.ekf.predict(f.stamp_s, f.x_m, f.y_m, f.yaw_rad, f.v_mps, f.yaw_rate_rad_s)
         self._estimated()
 
     def _on_ground(self, msg: Odometry | bytes) -> None:
-        f = _fields(msg)
+        f = odometry_fields(msg)
         with self._lock:
             self.ekf.correct(f.stamp_s, f.x_m, f.y_m, f.yaw_rad, _cov3(f.covariance))
         self._estimated()

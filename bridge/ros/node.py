@@ -35,9 +35,10 @@ from bridge.link.controllerlink import ControllerLink, LinkDiagnostics, LinkStat
 from bridge.link.odometry import OdometryEstimator, ground_pose
 from bridge.link.transport import Transport, open_transport
 from bridge.ros.diagnostics import RECENT_STATUSES, diagnostic_array
-from bridge.ros.odomcdr import ground_odometry_cdr, stamp_parts, wheel_odometry_cdr
+from bridge.ros.odommsg import ground_odometry_cdr, wheel_odometry_cdr
 from bridge.ros.params import BridgeParams, check_params, parameter_specs
 from bridge.ros.rosport import STOP_LANE, RosPort, Subscription, qos
+from bridge.ros.rosport.cdr import stamp_parts
 from bridge.ros.rosport.contract import rejected
 from bridge.ros.rosport.msgs import (
     Bool,
@@ -317,7 +318,7 @@ class BridgeNode:
             t_s = self.clock.time()
             if self._tf_pub is not None:
                 self._publish_tf(stamp(t_s), est.x_m, est.y_m, est.yaw_rad)
-            # Packed directly (bridge/ros/odomcdr.py): the message every encoder sample.
+            # Packed directly (bridge/ros/odommsg.py): the message every encoder sample.
             self._odom_pub.publish_serialized(
                 wheel_odometry_cdr(
                     est, stamp_parts(t_s), self.params.odom_frame, self.params.base_frame

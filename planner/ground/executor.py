@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.ros.rosport import RosPort, Subscription, qos
+from bridge.ros.rosport.cdr import odometry_fields
 from bridge.ros.rosport.contract import (
     ACCEPTED,
     CLEAR_EMERGENCY_STOP,
@@ -38,7 +39,7 @@ from bridge.ros.rosport.contract import (
     ends_step,
     fault,
 )
-from bridge.ros.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String, stamp_s, yaw_rad
+from bridge.ros.rosport.msgs import Bool, Empty, Int16MultiArray, Odometry, String
 from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.model.geometry import wrap_deg
 from firmware_proto.model.plan import Plan
@@ -239,19 +240,10 @@ class ExecutionResult:
     notes: tuple[str, ...] = field(default=())
 
 
-def _yaw_deg(msg: Odometry) -> float:
-    return math.degrees(yaw_rad(msg.pose.pose.orientation))
-
-
-def _stamp_s(msg: Odometry) -> float:
-    return stamp_s(msg.header.stamp)
-
-
-def _stated_sigma(msg: Odometry) -> tuple[float, float] | None:
-    """The 1-sigma errors an ``odom_ground`` message states in its pose covariance (row
-    major 6x6, m^2 and rad^2): the larger of x's and y's, m, and the heading's, deg;
+def _stated_sigma(cov: tuple[float, ...]) -> tuple[float, float] | None:
+    """The 1-sigma errors an ``odom_ground`` message states in its pose covariance ``cov``
+    (row major 6x6, m^2 and rad^2): the larger of x's and y's, m, and the heading's, deg;
     ``None`` where it states none (zero, or not a finite number)."""
-    cov = msg.pose.covariance
     var_xy, var_yaw = max(float(cov[0]), float(cov[7])), float(cov[35])
     if not (0.0 < var_xy < math.inf and 0.0 < var_yaw < math.inf):
         return None
@@ -325,9 +317,16 @@ class PlanExecutor:
         ]
         # odom_ground first: rclpy takes waiting messages in subscription order, so a
         # POSE is read before the odom beside it (which would find it silent).
+        # Over DDS read in place from the bytes (bridge/ros/rosport/cdr.py: /odom comes with
+        # every encoder sample; docs/rosport.md, "Serialized messages").
+        raw = port.carries_serialized
         if self.config.pose_source != "odom":
-            self._subs.append(port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR))
-        self._subs.append(port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR))
+            self._subs.append(
+                port.subscribe("odom_ground", Odometry, self._on_ground, qos.SENSOR, serialized=raw)
+            )
+        self._subs.append(
+            port.subscribe("odom", Odometry, self._on_odom, qos.SENSOR, serialized=raw)
+        )
 
     def wait_for_rover(self, timeout_s: float = 10.0) -> bool:
         """Wait until the executor's publishers reach a subscriber (the bridge or the
@@ -418,9 +417,10 @@ class PlanExecutor:
                 self._event.set()
                 self._pose_cond.notify_all()
 
-    def _on_ground(self, msg: Odometry) -> None:
-        pose = Pose(msg.pose.pose.position.x, msg.pose.pose.position.y, _yaw_deg(msg))
-        stamp = _stamp_s(msg)
+    def _on_ground(self, msg: Odometry | bytes) -> None:
+        f = odometry_fields(msg)
+        pose = Pose(f.x_m, f.y_m, math.degrees(f.yaw_rad))
+        stamp = f.stamp_s
         with self._lock:
             self._ground_rx = self.clock.now()
             self._ground_heard = True
@@ -432,16 +432,16 @@ class PlanExecutor:
                     self._on_odom_source = False
                     # As loud as the fall-back was: whoever saw one must see the other.
                     self._note("odom_ground came back: drift control uses it again")
-        self._use_pose(pose, stamp, _stated_sigma(msg))
+        self._use_pose(pose, stamp, _stated_sigma(f.covariance))
 
-    def _on_odom(self, msg: Odometry) -> None:
-        raw = Pose(msg.pose.pose.position.x, msg.pose.pose.position.y, _yaw_deg(msg))
-        stamp = _stamp_s(msg)
-        twist = msg.twist.twist
+    def _on_odom(self, msg: Odometry | bytes) -> None:
+        f = odometry_fields(msg)
+        raw = Pose(f.x_m, f.y_m, math.degrees(f.yaw_rad))
+        stamp = f.stamp_s
         cfg = self.config
         with self._lock:
             self._odom_history.append((stamp, raw))
-            self._motion = (stamp, twist.linear.x, twist.angular.z)
+            self._motion = (stamp, f.v_mps, f.yaw_rate_rad_s)
             self._pose_cond.notify_all()
             auto = cfg.pose_source == "auto"
             if auto and not self._on_odom_source and self._ground_silent(stamp):

@@ -191,7 +191,7 @@ class Publisher(Generic[M]):
         backend send the bytes as they are (unchecked: a subscriber that cannot read them
         drops them), the in-process backend delivers them deserialized. Taps, when the
         port has any, are shown the message deserialized. Built for a hot topic whose
-        bytes are packed directly (:mod:`bridge.ros.odomcdr`; docs/rosport.md,
+        bytes are packed directly (:mod:`bridge.ros.rosport.cdr`; docs/rosport.md,
         "Serialized messages").
 
         Raises:

@@ -1,20 +1,17 @@
-"""The bridge's two odometry messages packed straight into CDR bytes, for
-:meth:`bridge.ros.rosport.Publisher.publish_serialized`: what rclpy reads from them is
-exactly the message :func:`bridge.ros.odommsg.wheel_odometry` or
-:func:`bridge.ros.odommsg.ground_odometry` builds (the tests check every field). The bytes
-are those ``rclpy.serialization.serialize_message`` makes of that message but for the
-alignment padding, zero here, whatever happened to be in Fast CDR's buffer there.
+"""``nav_msgs/Odometry`` as CDR bytes, packed and read in place: for a hot topic passed
+serialized (:meth:`~bridge.ros.rosport.Publisher.publish_serialized`, ``subscribe(...,
+serialized=True)``; docs/rosport.md, "Serialized messages"). Building the nested Python
+message (a dozen objects, two covariance arrays) and converting it for rclpy cost about
+34 us a message either way; packing or reading here takes about 2.
 
-``/odom`` goes out with every encoder sample (50 Hz at 1x, 200 Hz in a stack at
-``--speed 4``): building its nested Python message (a dozen objects, two covariance
-arrays) and converting that for rclpy took about half of the bridge's CPU on an idle
-stack. Packed here it is one ``struct`` call (docs/rosport.md, "Serialized messages").
-
-The layout is ``nav_msgs/msg/Odometry`` in plain CDR, little-endian (XCDR1, the
-encapsulation header ``00 01 00 00``), alignment counted from after that header:
-``header.stamp`` (int32 s, uint32 ns), ``header.frame_id`` and ``child_frame_id``
-(each a uint32 byte length with its NUL, the UTF-8 bytes, the NUL, padded to 4), padding
-to 8, then 7 + 36 doubles of the pose with its covariance and 6 + 36 of the twist.
+The layout is ``nav_msgs/msg/Odometry`` in plain CDR, little-endian when packed (XCDR1,
+the encapsulation header ``00 01 00 00``; either byte order is read), alignment counted
+from after that header: ``header.stamp`` (int32 s, uint32 ns), ``header.frame_id`` and
+``child_frame_id`` (each a uint32 byte length with its NUL, the UTF-8 bytes, the NUL,
+padded to 4), padding to 8, then 7 + 36 doubles of the pose with its covariance and
+6 + 36 of the twist. The bytes are those ``rclpy.serialization.serialize_message``
+makes of the same message but for the alignment padding: zero here, whatever happened to
+be in Fast CDR's buffer there.
 """
 
 from __future__ import annotations
@@ -22,25 +19,16 @@ from __future__ import annotations
 import functools
 import math
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from bridge.link.odometry import GroundPose, OdometryEstimate
 from bridge.ros.rosport.errors import MessageError
 
-__all__ = [
-    "OdometryFields",
-    "ground_odometry_cdr",
-    "read_odometry",
-    "stamp_parts",
-    "wheel_odometry_cdr",
-]
+__all__ = ["OdometryFields", "odometry_fields", "pack_odometry", "read_odometry", "stamp_parts"]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR_LE: plain CDR, little-endian (what rmw_fastrtps_cpp writes)."""
-_UNOBSERVED = 1e6
-"""Variance of z, roll and pitch: not observed in the plane (as bridge.ros.odommsg)."""
-_TWIST_VARIANCE = 1e-4
-"""The wheel odometry's fixed twist variance (as bridge.ros.odommsg)."""
 
 
 @functools.lru_cache(maxsize=8)
@@ -67,48 +55,36 @@ def stamp_parts(t_s: float) -> tuple[int, int]:
     return sec, min(999_999_999, round((t_s - sec) * 1e9))
 
 
-def _pose_covariance(var_xy: float, var_yaw: float) -> tuple[float, ...]:
-    return (
-        var_xy, 0.0, 0.0, 0.0, 0.0, 0.0,
-        0.0, var_xy, 0.0, 0.0, 0.0, 0.0,
-        0.0, 0.0, _UNOBSERVED, 0.0, 0.0, 0.0,
-        0.0, 0.0, 0.0, _UNOBSERVED, 0.0, 0.0,
-        0.0, 0.0, 0.0, 0.0, _UNOBSERVED, 0.0,
-        0.0, 0.0, 0.0, 0.0, 0.0, var_yaw,
-    )  # fmt: skip
-
-
-_TWIST_COVARIANCE = _pose_covariance(_TWIST_VARIANCE, _TWIST_VARIANCE)
-_NO_TWIST = (0.0,) * 42  # a fix carries no twist: zeros and a zero covariance
-
-
-def wheel_odometry_cdr(
-    est: OdometryEstimate, stamp: tuple[int, int], frame: str, child: str
+def pack_odometry(
+    stamp: tuple[int, int],
+    frame: str,
+    child: str,
+    pose: tuple[float, float, float],
+    pose_covariance: Sequence[float],
+    twist: tuple[float, float] = (0.0, 0.0),
+    twist_covariance: Sequence[float] = (0.0,) * 36,
 ) -> bytes:
-    """``/odom`` for one estimate, stamped ``stamp`` (:func:`stamp_parts`) in ``frame``:
-    ``wheel_odometry(est, stamp, frame, child)`` serialized."""
+    """One ``nav_msgs/Odometry`` in the plane as CDR bytes.
+
+    Args:
+        stamp: ``header.stamp`` as ``(sec, nanosec)`` (:func:`stamp_parts`).
+        frame, child: ``header.frame_id`` and ``child_frame_id``.
+        pose: ``(x_m, y_m, yaw_rad)``; z is 0 and the orientation the rotation by yaw
+            about +z, as ``msgs.quaternion_from_yaw`` makes it.
+        pose_covariance, twist_covariance: 36 values each, row-major.
+        twist: ``(linear.x m/s, angular.z rad/s)``; the other components are 0.
+
+    Raises:
+        struct.error: a covariance of another length, or a stamp out of int32/uint32.
+    """
     layout, f, c = _layout(frame, child)
-    half = est.yaw_rad / 2.0
+    half = pose[2] / 2.0
     return layout.pack(
         _ENCAPSULATION, stamp[0], stamp[1], len(f) + 1, f, len(c) + 1, c,
-        est.x_m, est.y_m, 0.0, 0.0, 0.0, math.sin(half), math.cos(half),
-        *_pose_covariance(est.var_xy_m2, est.var_yaw_rad2),
-        est.v_mps, 0.0, 0.0, 0.0, 0.0, est.yaw_rate_rad_s,
-        *_TWIST_COVARIANCE,
-    )  # fmt: skip
-
-
-def ground_odometry_cdr(pose: GroundPose, stamp: tuple[int, int], frame: str, child: str) -> bytes:
-    """``/odom_ground`` for one POSE fix, stamped ``stamp`` (the fix's own time) in
-    ``frame``: ``ground_odometry(pose, stamp, frame, child)`` serialized."""
-    layout, f, c = _layout(frame, child)
-    var = pose.sigma_m**2
-    half = pose.yaw_rad / 2.0
-    return layout.pack(
-        _ENCAPSULATION, stamp[0], stamp[1], len(f) + 1, f, len(c) + 1, c,
-        pose.x_m, pose.y_m, 0.0, 0.0, 0.0, math.sin(half), math.cos(half),
-        *_pose_covariance(var, (var / 0.25) if var else 1e-4),
-        *_NO_TWIST,
+        pose[0], pose[1], 0.0, 0.0, 0.0, math.sin(half), math.cos(half),
+        *pose_covariance,
+        twist[0], 0.0, 0.0, 0.0, 0.0, twist[1],
+        *twist_covariance,
     )  # fmt: skip
 
 
@@ -172,4 +148,27 @@ def read_odometry(cdr: bytes) -> OdometryFields:
         v_mps=v[43],
         yaw_rate_rad_s=v[48],
         covariance=v[7:43],
+    )
+
+
+def odometry_fields(msg: Any) -> OdometryFields:
+    """:class:`OdometryFields` of an ``Odometry`` as a subscription delivers it: its bytes
+    (``serialized=True``, read in place) or the message.
+
+    Raises:
+        MessageError: bytes that are not such a message.
+    """
+    if isinstance(msg, bytes):
+        return read_odometry(msg)
+    p = msg.pose.pose
+    q = p.orientation
+    t = msg.twist.twist
+    return OdometryFields(
+        stamp_s=float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9,
+        x_m=p.position.x,
+        y_m=p.position.y,
+        yaw_rad=math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)),
+        v_mps=t.linear.x,
+        yaw_rate_rad_s=t.angular.z,
+        covariance=tuple(float(c) for c in msg.pose.covariance),
     )

@@ -1,5 +1,6 @@
-"""bridge/ros/odomcdr.py: odometry packed into CDR and read from it in place, against
-rclpy's own serialization of the messages bridge/ros/odommsg.py builds."""
+"""bridge/ros/rosport/cdr.py and bridge/ros/odommsg.py's packed messages: odometry
+packed into CDR and read from it in place, against rclpy's own serialization of the
+messages bridge/ros/odommsg.py builds."""
 
 from __future__ import annotations
 
@@ -11,9 +12,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from bridge.link.odometry import GroundPose, OdometryEstimate
-from bridge.ros.odomcdr import ground_odometry_cdr, read_odometry, stamp_parts, wheel_odometry_cdr
-from bridge.ros.odommsg import ground_odometry, wheel_odometry
+from bridge.ros.odommsg import (
+    ground_odometry,
+    ground_odometry_cdr,
+    wheel_odometry,
+    wheel_odometry_cdr,
+)
 from bridge.ros.rosport import MessageError
+from bridge.ros.rosport.cdr import odometry_fields, read_odometry, stamp_parts
 from bridge.ros.rosport.msgs import Odometry, stamp, stamp_s, yaw_rad
 from tests.bridge.samples import sample
 
@@ -82,6 +88,7 @@ def _same(a: object, b: object) -> bool:
 def test_reading_in_place_gives_the_fields_of_any_odometry(seed: int) -> None:
     msg = sample(Odometry, seed)  # every field drawn, frame names of any length
     fields = read_odometry(serialization.serialize_message(msg))
+    from_message = odometry_fields(msg)  # what a subscription of messages takes the same way
     pose = msg.pose.pose
     expected = [
         stamp_s(msg.header.stamp),
@@ -103,6 +110,16 @@ def test_reading_in_place_gives_the_fields_of_any_odometry(seed: int) -> None:
     ]
     assert len(got) == len(expected) == 42
     assert all(_same(a, float(b)) for a, b in zip(got, expected, strict=True)), (got, expected)
+    again = [
+        from_message.stamp_s,
+        from_message.x_m,
+        from_message.y_m,
+        from_message.yaw_rad,
+        from_message.v_mps,
+        from_message.yaw_rate_rad_s,
+        *from_message.covariance,
+    ]
+    assert all(_same(a, b) for a, b in zip(again, got, strict=True)), (again, got)
 
 
 def test_big_endian_cdr_is_read_too() -> None:
