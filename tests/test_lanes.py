@@ -61,14 +61,15 @@ def _select(marks: dict[str, frozenset[str]], expression: str) -> set[str]:
 def test_the_parts_of_the_test_command_run_every_test_once(
     marks: dict[str, frozenset[str]],
 ) -> None:
-    """.ci/test's parts (background, soak, host, serial, vm; SocketCAN in the VM) select
-    each test of the command exactly once, whatever its marks."""
+    """.ci/test's parts (background, soak, host, serial and the serial tests beside it,
+    vm; SocketCAN in the VM) select each test of the command exactly once, whatever its
+    marks."""
     script = (ROOT / ".ci" / "test").read_text()
     expressions = [
         e.replace("${not_can}", " and not socketcan") for e in re.findall(r'-m "([^"]+)"', script)
     ]
     parts = list(dict.fromkeys(e for e in expressions if "not extended" in e))
-    assert len(parts) == 5, expressions  # background, soak, host, serial, and the VM's
+    assert len(parts) == 6, expressions  # background, soak, host, serial, beside, VM
     selected = [_select(marks, e) for e in parts]
     every = _select(marks, "not extended")
     assert sum(len(s) for s in selected) == len(every) > 1000

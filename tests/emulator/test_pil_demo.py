@@ -3,7 +3,9 @@ emulated UART, link, ground station) against the ATmega2560 image under simavr w
 twin as its plant, and the nRF51 image under qemu with its in-image plant: around the
 table, a drift STOP on slip, a re-plan, the goal. Real
 ROS 2 (marker ``rclpy``), one whole mission (marker ``serial``), in real time (the PIL
-controller runs at 1x only)."""
+controller runs at 1x only). Mostly waiting (about 45 s of wall, under half a core), so
+the test command runs it beside its other whole missions, not after them (marker
+``beside``)."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ pytestmark = pytest.mark.rclpy
 
 
 @pytest.mark.serial
+@pytest.mark.beside
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("target", ["atmega2560", "microbit"])
 def test_rover_demo_on_the_image_stops_on_drift_and_reaches_its_goal(
