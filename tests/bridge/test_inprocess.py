@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import threading
 
-from bridge.ros.rosport import HISTORY_DEPTH
+import pytest
+
+from bridge.ros.rosport import HISTORY_DEPTH, MessageError
 from bridge.ros.rosport.msgs import Int16MultiArray, String
 from tests.bridge.conftest import Inbox, PortFactory
 
@@ -52,3 +54,17 @@ def test_a_slow_subscriber_keeps_the_last_ten(make_port: PortFactory) -> None:
     # Message 0 was in the callback; of the 29 queued behind it, the last ten survive.
     assert got == [0, *range(total - HISTORY_DEPTH, total)]
     assert receiver.stats().dropped == total - 1 - HISTORY_DEPTH
+
+
+def test_serialized_bytes_that_are_no_message_are_refused_and_nothing_is_delivered(
+    make_port: PortFactory,
+) -> None:
+    port = make_port("inprocess")
+    inbox = Inbox()
+    port.subscribe("/chatter", String, inbox)
+    pub = port.publisher("/chatter", String)
+    with pytest.raises(MessageError, match="not a serialized std_msgs/msg/String"):
+        pub.publish_serialized(b"\x00\x01\x00\x00\xff\xff\xff\x7f")  # a length past the end
+    pub.publish(String(data="after"))
+    assert inbox.wait_for(1) == [String(data="after")]
+    assert port.stats().published == 1

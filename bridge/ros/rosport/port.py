@@ -196,7 +196,8 @@ class Publisher(Generic[M]):
 
         Raises:
             TypeError: ``cdr`` is not ``bytes``.
-            MessageError: the in-process backend, or a tap, could not deserialize ``cdr``.
+            MessageError: the in-process backend could not deserialize ``cdr`` (nothing
+                was sent; elsewhere bytes the taps cannot read are sent, and logged).
             PortClosedError: the publisher or its port is closed.
             RosPortError: the backend failed to send (chained to its exception).
         """
@@ -210,7 +211,12 @@ class Publisher(Generic[M]):
             return
         self._send(write, cdr)
         if self.port._taps:
-            self.port._tap(TAP_SENT, self.topic, deserialized(cdr, self.msg_type))
+            try:
+                shown = deserialized(cdr, self.msg_type)
+            except MessageError:  # sent: the taps alone miss it
+                logger.warning("%s: taps not shown undecodable bytes on %s", self.port, self.topic)
+            else:
+                self.port._tap(TAP_SENT, self.topic, shown)
 
     def _send(self, write: Callable[[Any], None], payload: Any) -> None:
         """``write(payload)`` to the backend, counted as published (:meth:`publish`, and
