@@ -33,11 +33,7 @@ __all__ = ["ground_odometry", "ground_odometry_cdr", "wheel_odometry", "wheel_od
 def _covariance(var_xy: float, var_yaw: float) -> numpy.ndarray[Any, Any]:
     # A float64 array of 36: the generated setter takes it as it is (a list is checked
     # value by value).
-    cov = numpy.zeros(36)
-    cov[0] = cov[7] = var_xy
-    cov[14] = cov[21] = cov[28] = 1e6  # z, roll, pitch: not observed in the plane
-    cov[35] = var_yaw
-    return cov
+    return numpy.array(_covariance_values(var_xy, var_yaw))
 
 
 def wheel_odometry(est: OdometryEstimate, when: Any, frame: str, child: str) -> Odometry:
@@ -83,7 +79,8 @@ def ground_odometry(pose: GroundPose, when: Any, frame: str, child: str) -> Odom
 
 
 def _covariance_values(var_xy: float, var_yaw: float) -> tuple[float, ...]:
-    """:func:`_covariance` as a tuple."""
+    """A pose's 6x6 covariance, row-major: x and y ``var_xy``, yaw ``var_yaw``; z, roll and
+    pitch 1e6, not observed in the plane."""
     return (
         var_xy, 0.0, 0.0, 0.0, 0.0, 0.0,
         0.0, var_xy, 0.0, 0.0, 0.0, 0.0,
