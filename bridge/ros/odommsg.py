@@ -30,6 +30,19 @@ from bridge.ros.rosport.msgs import (
 __all__ = ["ground_odometry", "ground_odometry_cdr", "wheel_odometry", "wheel_odometry_cdr"]
 
 
+def _covariance_values(var_xy: float, var_yaw: float) -> tuple[float, ...]:
+    """A pose's 6x6 covariance, row-major: x and y ``var_xy``, yaw ``var_yaw``; z, roll and
+    pitch 1e6, not observed in the plane."""
+    return (
+        var_xy, 0.0, 0.0, 0.0, 0.0, 0.0,
+        0.0, var_xy, 0.0, 0.0, 0.0, 0.0,
+        0.0, 0.0, 1e6, 0.0, 0.0, 0.0,
+        0.0, 0.0, 0.0, 1e6, 0.0, 0.0,
+        0.0, 0.0, 0.0, 0.0, 1e6, 0.0,
+        0.0, 0.0, 0.0, 0.0, 0.0, var_yaw,
+    )  # fmt: skip
+
+
 def _covariance(var_xy: float, var_yaw: float) -> numpy.ndarray[Any, Any]:
     # A float64 array of 36: the generated setter takes it as it is (a list is checked
     # value by value).
@@ -76,19 +89,6 @@ def ground_odometry(pose: GroundPose, when: Any, frame: str, child: str) -> Odom
 # sample (200 a second in a stack at --speed 4), and building the message above and
 # converting it for rclpy took most of the bridge's CPU on an idle stack. What rclpy
 # reads from these bytes is exactly the message the functions above build (tested).
-
-
-def _covariance_values(var_xy: float, var_yaw: float) -> tuple[float, ...]:
-    """A pose's 6x6 covariance, row-major: x and y ``var_xy``, yaw ``var_yaw``; z, roll and
-    pitch 1e6, not observed in the plane."""
-    return (
-        var_xy, 0.0, 0.0, 0.0, 0.0, 0.0,
-        0.0, var_xy, 0.0, 0.0, 0.0, 0.0,
-        0.0, 0.0, 1e6, 0.0, 0.0, 0.0,
-        0.0, 0.0, 0.0, 1e6, 0.0, 0.0,
-        0.0, 0.0, 0.0, 0.0, 1e6, 0.0,
-        0.0, 0.0, 0.0, 0.0, 0.0, var_yaw,
-    )  # fmt: skip
 
 
 _TWIST_COVARIANCE = _covariance_values(1e-4, 1e-4)

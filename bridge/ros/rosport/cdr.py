@@ -25,7 +25,15 @@ from typing import Any
 
 from bridge.ros.rosport.errors import MessageError
 
-__all__ = ["OdometryFields", "odometry_fields", "pack_odometry", "read_odometry", "stamp_parts"]
+__all__ = [
+    "OdometryFields",
+    "odometry_fields",
+    "pack_odometry",
+    "planar_yaw",
+    "read_odometry",
+    "stamp_parts",
+    "stamp_seconds",
+]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR_LE: plain CDR, little-endian (what rmw_fastrtps_cpp writes)."""
@@ -49,10 +57,20 @@ def _layout(frame: str, child: str) -> tuple[struct.Struct, bytes, bytes]:
 
 
 def stamp_parts(t_s: float) -> tuple[int, int]:
-    """Seconds as ``builtin_interfaces/Time``'s ``(sec, nanosec)``, rounded as
-    :func:`bridge.ros.rosport.msgs.stamp` rounds them."""
+    """Seconds as ``builtin_interfaces/Time``'s ``(sec, nanosec)`` (what
+    :func:`bridge.ros.rosport.msgs.stamp` builds its message from)."""
     sec = math.floor(t_s)
     return sec, min(999_999_999, round((t_s - sec) * 1e9))
+
+
+def stamp_seconds(sec: int, nanosec: int) -> float:
+    """``builtin_interfaces/Time``'s ``(sec, nanosec)`` as seconds."""
+    return float(sec) + float(nanosec) * 1e-9
+
+
+def planar_yaw(x: float, y: float, z: float, w: float) -> float:
+    """The rotation about +z of a planar quaternion ``(x, y, z, w)``, radians in (-pi, pi]."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def pack_odometry(
@@ -139,12 +157,11 @@ def read_odometry(cdr: bytes) -> OdometryFields:
         raise MessageError(
             f"{len(cdr)} bytes are not a serialized nav_msgs/Odometry: {exc}"
         ) from exc
-    qx, qy, qz, qw = v[3:7]
     return OdometryFields(
-        stamp_s=float(sec) + float(nanosec) * 1e-9,
+        stamp_s=stamp_seconds(sec, nanosec),
         x_m=v[0],
         y_m=v[1],
-        yaw_rad=math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)),
+        yaw_rad=planar_yaw(v[3], v[4], v[5], v[6]),
         v_mps=v[43],
         yaw_rate_rad_s=v[48],
         covariance=v[7:43],
@@ -164,10 +181,10 @@ def odometry_fields(msg: Any) -> OdometryFields:
     q = p.orientation
     t = msg.twist.twist
     return OdometryFields(
-        stamp_s=float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9,
+        stamp_s=stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec),
         x_m=p.position.x,
         y_m=p.position.y,
-        yaw_rad=math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)),
+        yaw_rad=planar_yaw(q.x, q.y, q.z, q.w),
         v_mps=t.linear.x,
         yaw_rate_rad_s=t.angular.z,
         covariance=tuple(float(c) for c in msg.pose.covariance),

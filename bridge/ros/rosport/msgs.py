@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, Final, TypeVar
 
+from bridge.ros.rosport.cdr import planar_yaw, stamp_parts, stamp_seconds
 from bridge.ros.rosport.errors import BackendUnavailableError, MessageError
 from bridge.ros.rosport.names import is_message_type, ros_type_name
 
@@ -123,14 +124,13 @@ def checked(build: Callable[[], T], what: str) -> T:
 
 def stamp(t_s: float | None = None) -> Time:
     """Wall-clock seconds (default: now) as a ``builtin_interfaces/Time``."""
-    t_s = time.time() if t_s is None else t_s
-    sec = math.floor(t_s)
-    return Time(sec=sec, nanosec=min(999_999_999, round((t_s - sec) * 1e9)))
+    sec, nanosec = stamp_parts(time.time() if t_s is None else t_s)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def stamp_s(t: Time) -> float:
     """A ``builtin_interfaces/Time`` as seconds."""
-    return float(t.sec) + float(t.nanosec) * 1e-9
+    return stamp_seconds(t.sec, t.nanosec)
 
 
 def quaternion_from_yaw(yaw: float) -> Quaternion:
@@ -140,4 +140,4 @@ def quaternion_from_yaw(yaw: float) -> Quaternion:
 
 def yaw_rad(q: Quaternion) -> float:
     """The rotation about +z of a planar quaternion, radians in (-pi, pi]."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return planar_yaw(q.x, q.y, q.z, q.w)
