@@ -40,12 +40,14 @@ def test_steps_complete_once_each_in_order(
     emu = serve(emulators, kind, can_channel, node=3)
     link, rec = links(link_url(emu))
     rec.wait_count("ready", 1)
+    # 0.1 m each: the order and the count are the test, not the distance (at 0.25 m each
+    # it took 4-5 s in the VM, whose software CPU plays the emulator; 3 s now).
     for _ in range(4):
-        link.submit_step(StepRequest(FWD, 60, 5750))
+        link.submit_step(StepRequest(FWD, 60, 2300))
     got = rec.wait_count("completed", 4)
     assert got[0] == "ready"
     assert (got.count("accepted"), got.count("completed"), len(got)) == (4, 4, 9)
-    assert emu.status().x_m == pytest.approx(1.0, abs=0.015)
+    assert emu.status().x_m == pytest.approx(0.4, abs=0.015)
     diag = link.diagnostics()
     assert (diag.steps_sent, diag.steps_completed, diag.retries) == (4, 4, 0)
     assert diag.rtt_median_ms is not None
