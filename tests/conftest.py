@@ -36,7 +36,7 @@ from hypothesis import HealthCheck, settings
 
 from bridge.ros.rosport.discovery import use_fast_discovery
 from firmware_proto.runtime.procname import set_process_name
-from tests.lanes import lane_marks
+from tests.lanes import lane_marks, soak_rank
 from tests.procs import children as children_of
 
 # Every test's time limit (a test past it fails with every thread's stack; pytest goes on),
@@ -127,7 +127,8 @@ def rclpy_required() -> bool:
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Mark each test's lanes (tests/lanes.py: ``slow``, ``extended``, ``virtual``,
     ``soak``); skip, saying why, the ROS 2 tests whose environment is missing: ROS 2
-    itself, or the private network namespace."""
+    itself, or the private network namespace. In the test command's soak part, the
+    longest tests first."""
     ros = _ros_available()
     for item in items:
         slow, extended, virtual, idle = lane_marks(item.nodeid)
@@ -144,6 +145,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
                 item.add_marker(pytest.mark.skip(reason=SKIP_RCLPY_REASON))
             elif not (IN_PRIVATE_NETNS or LOCALHOST_DISCOVERY):
                 item.add_marker(pytest.mark.skip(reason=SKIP_NETNS_REASON))
+    if os.environ.get(TEST_PART_ENV) == "soak":
+        # The longest first (tests/lanes.py SOAK_LONGEST_FIRST); a stable sort.
+        items.sort(key=lambda item: soak_rank(item.nodeid))
 
 
 @pytest.hookimpl(wrapper=True)

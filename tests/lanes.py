@@ -23,10 +23,12 @@ __all__ = [
     "HEAVY",
     "IDLE",
     "SLOW_MODULES",
+    "SOAK_LONGEST_FIRST",
     "VIRTUAL_MODULES",
     "VIRTUAL_TESTS",
     "keeps_wall_time",
     "lane_marks",
+    "soak_rank",
 ]
 
 SLOW_MODULES = (
@@ -334,6 +336,31 @@ no program and take seconds of CPU in all: marked ``soak``, so that the test com
 runs them in its soak part, under ``SCHED_IDLE``, on the CPU the others leave, instead
 of in its no-wall-clock part, one process that would otherwise end last (docs/testing.md).
 The fast lane keeps what it ran of them."""
+
+
+SOAK_LONGEST_FIRST = (
+    # About 10 CPU-seconds each.
+    "tests/sim/test_mission.py::test_seeded_missions_keep_every_invariant",
+    "tests/sim/test_soak.py::test_thousands_of_seeded_scenarios_keep_every_invariant",
+    # 1-1.5 s each.
+    "tests/sim/test_world.py::test_the_mission_goes_as_it_must[demo-",
+    # About 0.6 s each.
+    "tests/bridge/test_mutants.py::test_the_suite_fails_the_mutant_on_the_rule_it_breaks",
+)
+"""The test command's soak part runs its tests in this order (node-id prefixes, the
+longest first; the rest after them, in collection order), handed to its two workers one
+or two at a time (``.ci/test``), so that it ends on tests of a second or less: one
+worker no longer waits for the other's last long test at the end of the run
+(docs/testing.md, "The end of a run")."""
+
+
+def soak_rank(nodeid: str) -> int:
+    """A test's place in the soak part's order (:data:`SOAK_LONGEST_FIRST`): the index of
+    the first prefix it starts with, else one past the last."""
+    for rank, prefix in enumerate(SOAK_LONGEST_FIRST):
+        if nodeid.startswith(prefix):
+            return rank
+    return len(SOAK_LONGEST_FIRST)
 
 
 def lane_marks(nodeid: str) -> tuple[bool, bool, bool, bool]:

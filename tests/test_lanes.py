@@ -12,7 +12,16 @@ from pathlib import Path
 import pytest
 from _pytest.mark.expression import Expression
 
-from tests.lanes import EXTENDED, HEAVY, IDLE, SLOW_MODULES, VIRTUAL_MODULES, VIRTUAL_TESTS
+from tests.lanes import (
+    EXTENDED,
+    HEAVY,
+    IDLE,
+    SLOW_MODULES,
+    SOAK_LONGEST_FIRST,
+    VIRTUAL_MODULES,
+    VIRTUAL_TESTS,
+    soak_rank,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -137,3 +146,39 @@ def test_every_idle_entry_names_collected_tests_that_keep_no_clock(
         assert len(named) > 1, prefix
         assert all("soak" in marks[n] and "serial" not in marks[n] for n in named), prefix
         assert prefix.split("::", 1)[0] not in SLOW_MODULES, prefix
+
+
+def test_every_soak_order_entry_names_soak_tests_of_its_own(
+    marks: dict[str, frozenset[str]],
+) -> None:
+    """Each :data:`tests.lanes.SOAK_LONGEST_FIRST` prefix names tests of the soak part,
+    none of them named by an earlier prefix; the soak part's other tests rank after."""
+    soak = [n for n, names in marks.items() if "soak" in names]
+    for rank, prefix in enumerate(SOAK_LONGEST_FIRST):
+        named = [n for n in soak if n.startswith(prefix)]
+        assert named and all(soak_rank(n) == rank for n in named), prefix
+    rest = [n for n in soak if not n.startswith(SOAK_LONGEST_FIRST)]
+    assert rest and {soak_rank(n) for n in rest} == {len(SOAK_LONGEST_FIRST)}
+
+
+def test_the_soak_part_collects_its_longest_tests_first() -> None:
+    """With ``ROVER_TEST_PART=soak`` (the test command's soak part) the collection comes
+    in :func:`tests.lanes.soak_rank` order, each rank in collection order; elsewhere in
+    collection order."""
+
+    def collect(part: str) -> list[str]:
+        done = subprocess.run(
+            [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+             "-m", "soak", "tests/bridge/test_mutants.py", "tests/sim/test_mission.py",
+             "tests/sim/test_soak.py", "tests/sim/test_world.py"],
+            capture_output=True, text=True, cwd=ROOT, timeout=110, check=False,
+            env={**os.environ, "ROVER_TEST_PART": part},
+        )  # fmt: skip
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+        return [line for line in done.stdout.splitlines() if line.startswith("tests/")]
+
+    plain, soak = collect(""), collect("soak")
+    assert sorted(plain) == sorted(soak) and len(soak) > 50
+    assert soak == sorted(plain, key=soak_rank)
+    assert soak[0].startswith(SOAK_LONGEST_FIRST[0]) and soak_rank(soak[-1]) > 0
+    assert plain[0].startswith("tests/bridge/test_mutants.py::")
