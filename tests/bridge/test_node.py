@@ -97,7 +97,12 @@ BRIDGE_BACKENDS = [param for param in BACKEND_PARAMS if param.id != "rclpy"]
 def bridged(
     request: pytest.FixtureRequest, emulators: Emus, make_port: Callable[..., RosPort]
 ) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
-    with bridge_on(request.param, emulators, make_port) as parts:
+    """An emulator and the bridge node on it. The controller's watchdog is
+    :data:`WIDE_WATCHDOG_MS`: these tests are about steps, odometry, STOP and
+    diagnostics, and with the in-process backend the emulator, the bridge and the test
+    share one process, whose stall of 213 ms fired the 250 ms watchdog in a CI run
+    (2026-11-30; the link's own loss, from missed heartbeats, is unchanged)."""
+    with bridge_on(request.param, emulators, make_port, watchdog_ms=WIDE_WATCHDOG_MS) as parts:
         yield parts
 
 
