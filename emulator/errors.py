@@ -6,7 +6,8 @@ Everything this package raises on purpose derives from :class:`EmulatorError`::
      +-- CommandError         a motion command cannot be executed; also ValueError
      +-- InjectionError       a fault or traction change is refused; also ValueError
      +-- TwinConfigError      a twin or playback parameter out of range; also ValueError
-     +-- FirmwareBuildError   the C firmware core cannot be built here; also RuntimeError
+     +-- NativeBuildError     host C cannot be built or loaded here; also RuntimeError
+     |    +-- FirmwareBuildError   the C firmware core cannot be built here
      +-- GroundError          a ground file or setting is invalid; also ValueError
      +-- UnknownMutantError   no mutant controller has this name; also ValueError
      +-- CalibrationError     fitting the twin to recordings failed; also ValueError
@@ -25,6 +26,7 @@ __all__ = [
     "FirmwareBuildError",
     "GroundError",
     "InjectionError",
+    "NativeBuildError",
     "RecordingError",
     "TwinConfigError",
     "UnidentifiableError",
@@ -48,7 +50,11 @@ class TwinConfigError(EmulatorError, ValueError):
     """A twin or playback parameter is out of range (time step, margin, period)."""
 
 
-class FirmwareBuildError(EmulatorError, RuntimeError):
+class NativeBuildError(EmulatorError, RuntimeError):
+    """Host C (:mod:`emulator.sharedlib`) cannot be built or loaded here."""
+
+
+class FirmwareBuildError(NativeBuildError):
     """The C firmware core cannot be built, loaded or configured here."""
 
 

@@ -15,13 +15,10 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import hashlib
 import logging
 import math
 import os
-import shutil
 import subprocess
-import tempfile
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -32,9 +29,9 @@ from emulator.controller import ControllerConfig, ControllerModel, LatchCause
 from emulator.drive import motor_omegas
 from emulator.errors import FirmwareBuildError
 from emulator.sensors import PoseMeasurement, wrap_count
+from emulator.sharedlib import build_shared_library, compiler
 from emulator.twin import Twin
 from firmware_proto.model.rover import RoverDescription
-from firmware_proto.runtime.cachedir import rover_cache_dir
 from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
 from firmware_proto.wire.message import Message
 from firmware_proto.wire.messages import PROTOCOL_VERSION, SCHEMA_HASH
@@ -74,23 +71,17 @@ _LIBS: dict[Path, ctypes.CDLL] = {}
 
 
 # -- build --------------------------------------------------------------------------------
-def _cache_dir() -> Path:
-    return rover_cache_dir("firmware", "ROVER_FIRMWARE_CACHE")
-
-
 def _compiler() -> str:
-    name = os.environ.get("CC", "gcc")
-    path = shutil.which(name) or shutil.which("cc")
-    if path is None:
-        raise FirmwareBuildError(
-            f"no C compiler ({name!r} or cc) on PATH: the C firmware needs one to build "
-            "(apt-get install gcc libc6-dev), or run with --firmware python"
-        )
-    return path
+    return compiler(
+        error=FirmwareBuildError,
+        hint="the C firmware needs one to build (apt-get install gcc libc6-dev), "
+        "or run with --firmware python",
+    )
 
 
 def build_library(*, sanitize: bool | None = None, timeout_s: float = 120.0) -> Path:
-    """The host build of the firmware core as a shared library (cached by content hash).
+    """The host build of the firmware core as a shared library (cached by content hash:
+    :mod:`emulator.sharedlib`).
 
     Args:
         sanitize: build with ASan and UBSan; ``None``: ``$ROVER_FIRMWARE_SANITIZE == "1"``.
@@ -101,33 +92,18 @@ def build_library(*, sanitize: bool | None = None, timeout_s: float = 120.0) -> 
     """
     if sanitize is None:
         sanitize = os.environ.get(SANITIZE_ENV) == "1"
-    cc = _compiler()
-    flags = [*WARNINGS, *(SANITIZE if sanitize else OPTIMISE), "-fPIC", "-shared"]
-    digest = hashlib.sha256()
-    digest.update(cc.encode())
-    digest.update(" ".join(flags).encode())
-    for name in (*SOURCES, *HEADERS):
-        digest.update(name.encode())
-        digest.update((C_DIR / name).read_bytes())
-    out_dir = _cache_dir()
-    target = out_dir / f"librover_fw-{digest.hexdigest()[:16]}{'-san' if sanitize else ''}.so"
-    if target.exists():
-        return target
-    out_dir.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(suffix=".so", dir=out_dir)
-    os.close(fd)
-    cmd = [cc, *flags, f"-I{C_DIR}", *(str(C_DIR / s) for s in SOURCES), "-o", tmp_name]
-    try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
-        if done.returncode != 0:
-            raise FirmwareBuildError(f"{' '.join(cmd)}\n{done.stdout}{done.stderr}")
-        os.replace(tmp_name, target)
-    except subprocess.TimeoutExpired as exc:
-        raise FirmwareBuildError(f"compiler timed out after {timeout_s} s") from exc
-    finally:
-        if os.path.exists(tmp_name):
-            os.unlink(tmp_name)
-    logger.info("built the C firmware core: %s", target)
+    target = build_shared_library(
+        "rover_fw",
+        C_DIR,
+        SOURCES,
+        HEADERS,
+        [*WARNINGS, *(SANITIZE if sanitize else OPTIMISE)],
+        cc=_compiler(),
+        error=FirmwareBuildError,
+        suffix="-san" if sanitize else "",
+        timeout_s=timeout_s,
+    )
+    logger.debug("the C firmware core: %s", target)
     return target
 
 

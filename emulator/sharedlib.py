@@ -1,0 +1,96 @@
+"""Host C built on demand into shared libraries, cached by content hash: the C firmware
+core (:mod:`emulator.firmware`) and the replay kernel (:mod:`emulator.moves_kernel`).
+
+A library is named after its stem and the hash of the compiler's path, the flags and
+every source and header, and kept in ``$ROVER_FIRMWARE_CACHE``, else
+``$XDG_CACHE_HOME/rover/firmware``, else ``~/.cache/rover/firmware``: the same C is
+compiled once per machine, and processes that build it at once each write their own
+temporary file and rename it into place (the last one wins, with the same bytes).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+from emulator.errors import NativeBuildError
+from firmware_proto.runtime.cachedir import rover_cache_dir
+
+__all__ = ["build_shared_library", "cache_dir", "compiler"]
+
+logger = logging.getLogger(__name__)
+
+
+def cache_dir() -> Path:
+    """Where built libraries are kept (not created here)."""
+    return rover_cache_dir("firmware", "ROVER_FIRMWARE_CACHE")
+
+
+def compiler(*, error: type[NativeBuildError], hint: str) -> str:
+    """The C compiler: ``$CC`` (default ``gcc``), else ``cc``, resolved on ``PATH``.
+
+    Raises:
+        error: neither is on ``PATH``; the message ends with ``hint``.
+    """
+    name = os.environ.get("CC", "gcc")
+    path = shutil.which(name) or shutil.which("cc")
+    if path is None:
+        raise error(f"no C compiler ({name!r} or cc) on PATH: {hint}")
+    return path
+
+
+def build_shared_library(
+    stem: str,
+    c_dir: Path,
+    sources: Sequence[str],
+    headers: Sequence[str],
+    flags: Sequence[str],
+    *,
+    cc: str,
+    error: type[NativeBuildError],
+    libs: Sequence[str] = (),
+    suffix: str = "",
+    timeout_s: float = 120.0,
+) -> Path:
+    """``sources`` (paths relative to ``c_dir``, which is also on the include path)
+    compiled with ``cc`` and ``flags`` (plus ``-fPIC -shared``), linked with ``libs``
+    (such as ``-lm``), into
+    ``lib{stem}-{hash}{suffix}.so`` in :func:`cache_dir`, or that file if it is there.
+
+    Raises:
+        error: the build failed (the command and its output are in the message), or the
+            compiler ran past ``timeout_s`` seconds.
+    """
+    flags = [*flags, "-fPIC", "-shared"]
+    digest = hashlib.sha256()
+    digest.update(cc.encode())
+    digest.update(" ".join([*flags, *libs]).encode())
+    for name in (*sources, *headers):
+        digest.update(name.encode())
+        digest.update((c_dir / name).read_bytes())
+    out_dir = cache_dir()
+    target = out_dir / f"lib{stem}-{digest.hexdigest()[:16]}{suffix}.so"
+    if target.exists():
+        return target
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(suffix=".so", dir=out_dir)
+    os.close(fd)
+    cmd = [cc, *flags, f"-I{c_dir}", *(str(c_dir / s) for s in sources), *libs, "-o", tmp_name]
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+        if done.returncode != 0:
+            raise error(f"{' '.join(cmd)}\n{done.stdout}{done.stderr}")
+        os.replace(tmp_name, target)
+    except subprocess.TimeoutExpired as exc:
+        raise error(f"compiler timed out after {timeout_s} s") from exc
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+    logger.info("built %s", target)
+    return target
