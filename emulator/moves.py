@@ -2,7 +2,8 @@
 designs with.
 
 :func:`play_moves` replays every ``(start, steps, ground)`` job in one loop over the
-physics steps, ``emulator.batch``'s numpy forces for all jobs at once. No physics
+physics steps: in C (:mod:`emulator.moves_kernel`) where it builds, else with
+``emulator.batch``'s numpy forces for all jobs at once. No physics
 engine (a calibration step that met an obstacle is an outlier): each body is a free
 rigid body integrated as pymunk integrates one, with the twin's wheel commands
 (:func:`emulator.batch.schedule`), traction regions, and ``settle_s`` wheels stopped
@@ -12,6 +13,8 @@ deterministic.
 
 from __future__ import annotations
 
+import functools
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -19,13 +22,17 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
+from emulator import moves_kernel
 from emulator.batch import BatchDraw, Schedule, _Forces, schedule
-from emulator.errors import TwinConfigError
+from emulator.errors import NativeBuildError, TwinConfigError
 from emulator.twin import MAX_DT_S, Pose2D
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.model.worldmap import WorldMap
 
 __all__ = ["MoveJob", "play_moves"]
+
+logger = logging.getLogger(__name__)
+_said_numpy: list[str] = []
 
 
 @dataclass(frozen=True)
@@ -50,6 +57,7 @@ def play_moves(
     *,
     dt_s: float,
     settle_s: float,
+    kernel: str = "auto",
 ) -> np.ndarray:
     """Replay every job (see the module docstring).
 
@@ -59,6 +67,8 @@ def play_moves(
         jobs: the replays.
         dt_s: physics step, s, in ``(0, MAX_DT_S]``.
         settle_s: wheels stopped after each job's steps, s (rounded to whole steps).
+        kernel: one of :data:`emulator.moves_kernel.KERNELS`: ``auto`` replays in C
+            where the kernel builds, else with numpy (said once in the log).
 
     Returns:
         ``(len(jobs), 3)``: each job's pose at its end, ``(x_m, y_m, yaw_rad)`` in the
@@ -66,38 +76,94 @@ def play_moves(
 
     Raises:
         CommandError: a step is invalid.
-        TwinConfigError: ``dt_s`` or ``settle_s`` out of range.
+        TwinConfigError: ``dt_s``, ``settle_s`` or ``kernel`` out of range.
+        NativeBuildError: ``kernel="c"`` and the C kernel cannot be built here.
     """
     if not (math.isfinite(dt_s) and 0.0 < dt_s <= MAX_DT_S):
         raise TwinConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
     if not (math.isfinite(settle_s) and settle_s >= 0.0):
         raise TwinConfigError(f"settle_s must be >= 0, got {settle_s}")
+    if kernel not in moves_kernel.KERNELS:
+        raise TwinConfigError(f"kernel must be one of {moves_kernel.KERNELS}, got {kernel!r}")
     n = len(jobs)
-    out = np.empty((n, 3))
     if n == 0:
-        return out
+        return np.empty((0, 3))
     plans: dict[tuple[tuple[int, int, int], ...], Schedule] = {}
     for job in jobs:
         if job.steps not in plans:
-            plans[job.steps] = schedule(rover, job.steps, dt_s)
+            plans[job.steps] = _schedule(rover, job.steps, dt_s)
     settle = round(settle_s / dt_s)
-    ends = np.array([plans[job.steps].ticks + settle for job in jobs], dtype=np.int64)
-    last = int(ends.max())
-    surface = np.zeros((max(1, last), n, 2))
-    for i, job in enumerate(jobs):
-        speeds = plans[job.steps].surface_mps
-        surface[: len(speeds), i, :] = speeds
-    finishing: dict[int, list[int]] = {}
-    for i, end in enumerate(ends):
-        finishing.setdefault(int(end), []).append(i)
     forces = _Forces(rover, world, [job.draw for job in jobs])
     g = rover.geometry
     mass = rover.mass.mass_kg
     inv_mass = 1.0 / mass
     inv_inertia = 1.0 / pymunk.moment_for_box(mass, (g.chassis_length_m, g.chassis_width_m))
-    x = np.array([job.start.x_m + job.draw.start_dx_m for job in jobs])
-    y = np.array([job.start.y_m + job.draw.start_dy_m for job in jobs])
-    a = np.array([job.start.yaw_rad + job.draw.start_dyaw_rad for job in jobs])
+    start = np.array(
+        [
+            (
+                job.start.x_m + job.draw.start_dx_m,
+                job.start.y_m + job.draw.start_dy_m,
+                job.start.yaw_rad + job.draw.start_dyaw_rad,
+            )
+            for job in jobs
+        ]
+    ).reshape(n, 3)
+    job_plans = [plans[job.steps] for job in jobs]
+    if kernel != "numpy":
+        try:
+            lib = moves_kernel.load()
+        except NativeBuildError as exc:
+            if kernel == "c":
+                raise
+            if not _said_numpy:
+                _said_numpy.append(str(exc))
+                logger.warning("replaying with numpy, not the C kernel: %s", exc)
+        else:
+            return moves_kernel.play(
+                lib,
+                forces,
+                inv_mass=inv_mass,
+                inv_inertia=inv_inertia,
+                dt_s=dt_s,
+                start=start,
+                plans=job_plans,
+                settle_ticks=settle,
+            )
+    return _play_numpy(forces, inv_mass, inv_inertia, dt_s, start, job_plans, settle)
+
+
+@functools.lru_cache(maxsize=512)
+def _schedule(
+    rover: RoverDescription, steps: tuple[tuple[int, int, int], ...], dt_s: float
+) -> Schedule:
+    """:func:`emulator.batch.schedule`, kept: a fit replays the same steps on every
+    ground it tries (its wheel speeds read-only, shared by every caller)."""
+    plan = schedule(rover, steps, dt_s)
+    plan.surface_mps.setflags(write=False)
+    return plan
+
+
+def _play_numpy(
+    forces: _Forces,
+    inv_mass: float,
+    inv_inertia: float,
+    dt_s: float,
+    start: np.ndarray,
+    plans: Sequence[Schedule],
+    settle: int,
+) -> np.ndarray:
+    """:func:`play_moves` for every job at once, numpy's operations per physics step."""
+    n = len(plans)
+    out = np.empty((n, 3))
+    ends = np.array([plan.ticks + settle for plan in plans], dtype=np.int64)
+    last = int(ends.max())
+    surface = np.zeros((max(1, last), n, 2))
+    for i, plan in enumerate(plans):
+        surface[: plan.ticks, i, :] = plan.surface_mps
+    finishing: dict[int, list[int]] = {}
+    for i, end in enumerate(ends):
+        finishing.setdefault(int(end), []).append(i)
+    x, y, a = start[:, 0].copy(), start[:, 1].copy(), start[:, 2].copy()
     vx = np.zeros(n)
     vy = np.zeros(n)
     w = np.zeros(n)

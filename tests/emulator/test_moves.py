@@ -3,15 +3,17 @@ twin does, and the design's measures (emulator/design.py) say what they promise.
 
 from __future__ import annotations
 
+import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from emulator import design
+from emulator import design, moves, moves_kernel
 from emulator.batch import BatchDraw
 from emulator.calibration import FIT_PARAMETERS, mirrored
-from emulator.errors import TwinConfigError
+from emulator.errors import NativeBuildError, TwinConfigError
 from emulator.ground import load_ground
 from emulator.moves import MoveJob, play_moves
 from emulator.playback import play
@@ -22,7 +24,10 @@ from firmware_proto.model.worldmap import WorldMap
 LEFT, FWD, REV, RIGHT = 3, 1, 2, 4
 
 
-def test_a_replay_in_the_batch_is_the_twins(rover: RoverDescription, lab: WorldMap) -> None:
+@pytest.mark.parametrize("kernel", ["c", "numpy"])
+def test_a_replay_in_the_batch_is_the_twins(
+    rover: RoverDescription, lab: WorldMap, kernel: str
+) -> None:
     ground = load_ground("loose", rover).with_values(**{"region.sandbox": 0.35})
     cases = [
         ((LEFT, 30, 15484), Pose2D(1.1, 4.9, math.pi / 2)),  # on the sandbox's edge
@@ -32,7 +37,7 @@ def test_a_replay_in_the_batch_is_the_twins(rover: RoverDescription, lab: WorldM
     ]
     draws = [BatchDraw(ground), BatchDraw(ground, 0.8, 0.9, 0.01, -0.02, 0.03)]
     jobs = [MoveJob(start, (step,), d) for d in draws for step, start in cases]
-    ends = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=1.0)
+    ends = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=1.0, kernel=kernel)
     for job, end in zip(jobs, ends, strict=True):
         d = job.draw
         start = Pose2D(
@@ -48,7 +53,80 @@ def test_a_replay_in_the_batch_is_the_twins(rover: RoverDescription, lab: WorldM
             (twin.pose.x_m, twin.pose.y_m, twin.yaw_unwrapped_rad), abs=1e-9
         )
     with pytest.raises(TwinConfigError):
-        play_moves(rover, None, jobs, dt_s=0.05, settle_s=1.0)
+        play_moves(rover, None, jobs, dt_s=0.05, settle_s=1.0, kernel=kernel)
+
+
+def _varied_jobs(rover: RoverDescription, seed: int) -> list[MoveJob]:
+    """Jobs of one to three steps (some alike, one with none: it rests where it starts)
+    on varied grounds, sides and starts."""
+    rng = np.random.default_rng(seed)
+    base = load_ground("loose", rover)
+    jobs: list[MoveJob] = []
+    for i in range(40):
+        steps = tuple(
+            (int(rng.integers(1, 5)), int(rng.integers(5, 61)), int(rng.integers(500, 20000)))
+            for _ in range(int(rng.integers(1, 4)))
+        )
+        if i % 5 == 0:
+            steps = jobs[-1].steps if jobs else ()
+        ground = base.with_values(
+            **{"region.sandbox": float(rng.uniform(0.2, 1.0)), "mu_lateral": 0.3 + 0.4 * i / 40}
+        )
+        draw = BatchDraw(
+            ground,
+            float(rng.uniform(0.6, 1.2)),
+            float(rng.uniform(0.6, 1.2)),
+            float(rng.normal(0.0, 0.02)),
+            float(rng.normal(0.0, 0.02)),
+            float(rng.normal(0.0, 0.05)),
+        )
+        start = Pose2D(float(rng.uniform(0.5, 7.5)), float(rng.uniform(0.5, 7.5)), 3.0 - i * 0.15)
+        jobs.append(MoveJob(start, steps, draw))
+    return jobs
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_c_kernel_replays_what_numpy_does(
+    rover: RoverDescription, lab: WorldMap, seed: int
+) -> None:
+    jobs = _varied_jobs(rover, seed)
+    assert any(not job.steps for job in jobs)
+    for world in (lab, None):
+        c = play_moves(rover, world, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+        plain = play_moves(rover, world, jobs, dt_s=0.01, settle_s=0.5, kernel="numpy")
+        # The same operations in the same order: libm's last bits apart.
+        assert np.allclose(c, plain, rtol=0.0, atol=1e-12)
+    # Where the sandbox is (the map's regions), the ends differ from an open plane's.
+    on_map = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+    open_plane = play_moves(rover, None, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+    assert not np.allclose(on_map, open_plane, atol=1e-6)
+    with pytest.raises(TwinConfigError, match="kernel must be one of"):
+        play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="fortran")
+
+
+def test_without_a_compiler_the_replay_says_so_once_and_uses_numpy(
+    rover: RoverDescription,
+    lab: WorldMap,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    jobs = _varied_jobs(rover, 3)[:6]
+    plain = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="numpy")
+    monkeypatch.setattr(moves_kernel, "_LIB", [])  # not loaded yet in this process
+    monkeypatch.setattr(moves, "_said_numpy", [])
+    monkeypatch.setenv("ROVER_FIRMWARE_CACHE", str(tmp_path))  # nothing built there
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setenv("CC", "no-such-cc")
+    with pytest.raises(NativeBuildError, match="no C compiler"):
+        play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+    with caplog.at_level(logging.WARNING, logger="emulator.moves"):
+        first = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5)
+        second = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5)
+    assert np.array_equal(first, plain) and np.array_equal(second, plain)
+    said = [r.getMessage() for r in caplog.records if r.name == "emulator.moves"]
+    assert len(said) == 1 and "replaying with numpy, not the C kernel: no C compiler" in said[0]
+    assert not list(tmp_path.iterdir())
 
 
 def test_antithetic_draws_are_centred_pairs() -> None:
