@@ -3,7 +3,8 @@
 :func:`play_batch` plays one plan, as :func:`emulator.playback.play` does, on N twins
 that differ only in their ground and a friction factor per side: one pymunk space, each
 twin with its own copy of the map far enough apart that none meet, state and forces
-through :mod:`pymunk.batch`, the :mod:`emulator.traction` forces in numpy. Time step,
+through :mod:`pymunk.batch`, the :mod:`emulator.traction` forces in C
+(:mod:`emulator.batch_kernel`) or numpy. Time step,
 step semantics, wheel commands (computed once: ideal motors), collisions and settling
 are a single playback's; traction regions are a point test that may differ from the
 twin's probes by a step near a corner. A batch twin agrees with
@@ -23,6 +24,7 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
+from emulator import batch_kernel
 from emulator.drive import StepProfile, motor_omegas, nominal_step_duration_s, travel_units
 from emulator.errors import TwinConfigError
 from emulator.ground import Ground
@@ -350,6 +352,11 @@ class _World:
         f[0 : 3 * n : 3] = fx
         f[1 : 3 * n : 3] = fy
         f[2 : 3 * n : 3] = tz
+        self.push()
+
+    def push(self) -> None:
+        """Give the bodies the forces and torques in :attr:`force` (``3 * (N + 1)``:
+        ``fx, fy, tz`` per body, the static body last) for the next step."""
         pymunk.batch.set_space_bodies(self.space, _BODY.FORCE | _BODY.TORQUE, self.force_buffer)
 
 
@@ -387,7 +394,7 @@ class _Forces:
         self.wheel_x = np.array([[p[0]] for p in model.wheel_positions_m])
         self.wheel_y = np.array([[p[1]] for p in model.wheel_positions_m])
         # Each region's convex parts as edges: start points and unit directions (CCW).
-        self._parts: list[list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = []
+        self.parts: list[list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = []
         for region in regions:
             parts = []
             for part in convex_parts(region.polygon):
@@ -395,7 +402,7 @@ class _Forces:
                 d = np.roll(pts, -1, axis=0) - pts
                 d /= np.hypot(d[:, 0], d[:, 1])[:, None]
                 parts.append((pts[:, 0:1], pts[:, 1:2], d[:, 0:1], d[:, 1:2]))
-            self._parts.append(parts)
+            self.parts.append(parts)
         self._on: np.ndarray | None = None
         # Each wheel's (FL, RL, FR, RR) inverse saturation and normalised slips, written row
         # by row each step (np.stack's cost per call was a fifth of a small batch's step).
@@ -411,12 +418,12 @@ class _Forces:
     def place(self, x: np.ndarray, y: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
         """Update each wheel's region scale from the poses (map frame): the last region
         in map order within :data:`_WHEEL_PROBE_RADIUS_M` of its contact point, else 1."""
-        if not self._parts:
+        if not self.parts:
             return
         wx = x + c * self.wheel_x - s * self.wheel_y  # (4, N)
         wy = y + s * self.wheel_x + c * self.wheel_y
-        on = np.zeros((len(self._parts), *wx.shape), dtype=bool)
-        for r_index, parts in enumerate(self._parts):
+        on = np.zeros((len(self.parts), *wx.shape), dtype=bool)
+        for r_index, parts in enumerate(self.parts):
             for px, py, dx, dy in parts:
                 # Left of every edge (CCW), within the probe's radius: (E, 4, N) -> (4, N).
                 cross = dx[:, :, None] * (wy[None] - py[:, :, None]) - dy[:, :, None] * (
@@ -427,7 +434,7 @@ class _Forces:
             return
         self._on = on
         scale = np.ones_like(wx)
-        for r_index in range(len(self._parts)):
+        for r_index in range(len(self.parts)):
             scale = np.where(on[r_index], self.region_scales[:, r_index][None, :], scale)
         self.wheel_region = scale
         self._update_limits()
@@ -520,6 +527,7 @@ def play_batch(
     start: Pose2D,
     record_every_s: float,
     settle_s: float = DEFAULT_SETTLE_S,
+    kernel: str = "auto",
 ) -> BatchResult:
     """Play ``steps`` on one twin per draw (see the module docstring).
 
@@ -533,10 +541,13 @@ def play_batch(
         start: the start pose of every twin.
         record_every_s: record period, s (rounded to ticks); each step's end too.
         settle_s: longest settling after the last step, s.
+        kernel: one of :data:`emulator.batch_kernel.KERNELS`: ``auto`` computes the
+            forces in C where the kernel builds, else with numpy (said once in the log).
 
     Raises:
         CommandError: a step is invalid (nothing is played).
-        TwinConfigError: no draw, or a step, margin or period out of range.
+        TwinConfigError: no draw, or a step, margin, period or kernel out of range.
+        NativeBuildError: ``kernel="c"`` and the C kernel cannot be built here.
     """
     if not draws:
         raise TwinConfigError("a batch needs at least one draw")
@@ -546,6 +557,8 @@ def play_batch(
         raise TwinConfigError(f"safety_margin_m must be in [0, 1], got {safety_margin_m}")
     if not (math.isfinite(record_every_s) and record_every_s > 0.0):
         raise TwinConfigError(f"record_every_s must be > 0, got {record_every_s}")
+    if kernel not in batch_kernel.KERNELS:
+        raise TwinConfigError(f"kernel must be one of {batch_kernel.KERNELS}, got {kernel!r}")
     plan = schedule(rover, steps, dt_s)
     n = len(draws)
     space = _World(rover, world, draws, dt_s, safety_margin_m, start)
@@ -571,8 +584,10 @@ def play_batch(
         step_of_tick[a + 1 : b + 1] = index
     step_of_tick[plan.ticks + 1 :] = max(0, len(plan.step_ticks) - 1)
 
-    def map_state() -> np.ndarray:
-        state: np.ndarray = space.state().copy()
+    def map_state(raw: np.ndarray | None = None) -> np.ndarray:
+        """The twins' state in the map frame: ``raw`` (this step's, from
+        :meth:`_World.state`) or the space's now."""
+        state: np.ndarray = (space.state() if raw is None else raw).copy()
         state[:, 0:2] -= offsets
         state[:, 2] = _wrap(state[:, 2])
         return state
@@ -601,20 +616,26 @@ def play_batch(
     else:
         space.pending.clear()
     surface = plan.surface_mps
+    native: batch_kernel.Forces | None = None
+    lib = batch_kernel.choose(kernel)
+    if lib is not None:
+        prepared = batch_kernel.Prepared(forces, dt_s=dt_s, probe_m=_WHEEL_PROBE_RADIUS_M)
+        native = batch_kernel.Forces(lib, prepared, offsets, space.force)
     for tick in range(1, last_tick + 1):
         if not active.any():
             break
         raw = space.state()
-        angle, vxw, vyw, w = raw[:, 2], raw[:, 3], raw[:, 4], raw[:, 5]
-        c, s = np.cos(angle), np.sin(angle)
-        forces.place(raw[:, 0] - offsets[:, 0], raw[:, 1] - offsets[:, 1], c, s)
-        vx = c * vxw + s * vyw
-        vy = c * vyw - s * vxw
-        if tick > plan.ticks:  # settling: stop the twins already at rest
+        settling = tick > plan.ticks
+        if settling or native is None:
+            angle, vxw, vyw, w = raw[:, 2], raw[:, 3], raw[:, 4], raw[:, 5]
+            c, s = np.cos(angle), np.sin(angle)
+            vx = c * vxw + s * vyw
+            vy = c * vyw - s * vxw
+        if settling:  # stop the twins already at rest
             rest = (np.abs(w) < REST_YAW_RATE_RAD_S) & (np.hypot(vx, vy) < REST_SPEED_MPS)
             resting = np.flatnonzero(rest & active)
             if len(resting):
-                state = map_state()
+                state = map_state(raw)  # raw stays valid: the space's buffer is not read again
                 final[resting] = state[resting, 0:3]
                 final_tick[resting] = tick - 1
                 active[resting] = False
@@ -623,8 +644,13 @@ def play_batch(
             ul = ur = 0.0
         else:
             ul, ur = float(surface[tick - 1, 0]), float(surface[tick - 1, 1])
-        fx, fy, tz = forces.step(vx, vy, w, ul, ur, dt_s)
-        space.apply(c * fx - s * fy, s * fx + c * fy, tz)
+        if native is not None:
+            native(raw, ul, ur)
+            space.push()
+        else:
+            forces.place(raw[:, 0] - offsets[:, 0], raw[:, 1] - offsets[:, 1], c, s)
+            fx, fy, tz = forces.step(vx, vy, w, ul, ur, dt_s)
+            space.apply(c * fx - s * fy, s * fx + c * fy, tz)
         space.space.step(dt_s)
         row = row_of.get(tick)
         if row is not None or space.pending:

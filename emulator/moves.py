@@ -2,7 +2,7 @@
 designs with.
 
 :func:`play_moves` replays every ``(start, steps, ground)`` job in one loop over the
-physics steps: in C (:mod:`emulator.moves_kernel`) where it builds, else with
+physics steps: in C (:mod:`emulator.batch_kernel`) where it builds, else with
 ``emulator.batch``'s numpy forces for all jobs at once. No physics
 engine (a calibration step that met an obstacle is an outlier): each body is a free
 rigid body integrated as pymunk integrates one, with the twin's wheel commands
@@ -14,7 +14,6 @@ deterministic.
 from __future__ import annotations
 
 import functools
-import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -22,17 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
-from emulator import moves_kernel
-from emulator.batch import BatchDraw, Schedule, _Forces, schedule
-from emulator.errors import NativeBuildError, TwinConfigError
+from emulator import batch_kernel
+from emulator.batch import _WHEEL_PROBE_RADIUS_M, BatchDraw, Schedule, _Forces, schedule
+from emulator.errors import TwinConfigError
 from emulator.twin import MAX_DT_S, Pose2D
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.model.worldmap import WorldMap
 
 __all__ = ["MoveJob", "play_moves"]
-
-logger = logging.getLogger(__name__)
-_said_numpy: list[str] = []
 
 
 @dataclass(frozen=True)
@@ -67,7 +63,7 @@ def play_moves(
         jobs: the replays.
         dt_s: physics step, s, in ``(0, MAX_DT_S]``.
         settle_s: wheels stopped after each job's steps, s (rounded to whole steps).
-        kernel: one of :data:`emulator.moves_kernel.KERNELS`: ``auto`` replays in C
+        kernel: one of :data:`emulator.batch_kernel.KERNELS`: ``auto`` replays in C
             where the kernel builds, else with numpy (said once in the log).
 
     Returns:
@@ -83,8 +79,8 @@ def play_moves(
         raise TwinConfigError(f"dt_s must be in (0, {MAX_DT_S}], got {dt_s}")
     if not (math.isfinite(settle_s) and settle_s >= 0.0):
         raise TwinConfigError(f"settle_s must be >= 0, got {settle_s}")
-    if kernel not in moves_kernel.KERNELS:
-        raise TwinConfigError(f"kernel must be one of {moves_kernel.KERNELS}, got {kernel!r}")
+    if kernel not in batch_kernel.KERNELS:
+        raise TwinConfigError(f"kernel must be one of {batch_kernel.KERNELS}, got {kernel!r}")
     n = len(jobs)
     if n == 0:
         return np.empty((0, 3))
@@ -109,26 +105,17 @@ def play_moves(
         ]
     ).reshape(n, 3)
     job_plans = [plans[job.steps] for job in jobs]
-    if kernel != "numpy":
-        try:
-            lib = moves_kernel.load()
-        except NativeBuildError as exc:
-            if kernel == "c":
-                raise
-            if not _said_numpy:
-                _said_numpy.append(str(exc))
-                logger.warning("replaying with numpy, not the C kernel: %s", exc)
-        else:
-            return moves_kernel.play(
-                lib,
-                forces,
-                inv_mass=inv_mass,
-                inv_inertia=inv_inertia,
-                dt_s=dt_s,
-                start=start,
-                plans=job_plans,
-                settle_ticks=settle,
-            )
+    lib = batch_kernel.choose(kernel)
+    if lib is not None:
+        prepared = batch_kernel.Prepared(
+            forces,
+            inv_mass=inv_mass,
+            inv_inertia=inv_inertia,
+            dt_s=dt_s,
+            probe_m=_WHEEL_PROBE_RADIUS_M,
+        )
+        surfaces = [plan.surface_mps for plan in job_plans]  # (ticks, 2), shared by jobs
+        return batch_kernel.play(lib, prepared, start=start, surfaces=surfaces, settle_ticks=settle)
     return _play_numpy(forces, inv_mass, inv_inertia, dt_s, start, job_plans, settle)
 
 

@@ -1,5 +1,5 @@
 """Host C built on demand into shared libraries, cached by content hash: the C firmware
-core (:mod:`emulator.firmware`) and the replay kernel (:mod:`emulator.moves_kernel`).
+core (:mod:`emulator.firmware`) and the batch twins' kernel (:mod:`emulator.batch_kernel`).
 
 A library is named after its stem and the hash of the compiler's path, the flags and
 every source and header, and kept in ``$ROVER_FIRMWARE_CACHE``, else

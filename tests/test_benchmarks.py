@@ -148,11 +148,13 @@ def test_bench_twin_quick_prints_its_table() -> None:
     assert "playback (gate step)" in out
 
 
-def test_bench_moves_quick_puts_the_c_kernel_beside_numpy() -> None:
-    out = run_benchmark("bench_moves", "--quick")
-    assert "| jobs | job-steps | numpy p50 ms |" in out and "librover_moves-" in out
-    rows = [line.split("|") for line in out.splitlines() if line.startswith("| 8 ")]
-    assert len(rows) == 1 and float(rows[0][-2]) <= 1e-12  # the largest difference
+def test_bench_batch_quick_puts_the_c_kernel_beside_numpy() -> None:
+    out = run_benchmark("bench_batch", "--quick")
+    assert "librover_batch-" in out
+    for first in ("jobs", "twins"):
+        assert f"| {first} | twin-steps | numpy p50 ms |" in out
+    rows = [line.split("|") for line in out.splitlines() if line.startswith(("| 8 ", "| 4 "))]
+    assert len(rows) == 2 and all(float(row[-2]) <= 1e-9 for row in rows)  # the difference
 
 
 def test_bench_bridge_quick_prints_its_table() -> None:

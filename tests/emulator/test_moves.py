@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emulator import design, moves, moves_kernel
+from emulator import batch_kernel, design
 from emulator.batch import BatchDraw
 from emulator.calibration import FIT_PARAMETERS, mirrored
 from emulator.errors import NativeBuildError, TwinConfigError
@@ -113,19 +113,19 @@ def test_without_a_compiler_the_replay_says_so_once_and_uses_numpy(
 ) -> None:
     jobs = _varied_jobs(rover, 3)[:6]
     plain = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="numpy")
-    monkeypatch.setattr(moves_kernel, "_LIB", [])  # not loaded yet in this process
-    monkeypatch.setattr(moves, "_said_numpy", [])
+    monkeypatch.setattr(batch_kernel, "_LIB", [])  # not loaded yet in this process
+    monkeypatch.setattr(batch_kernel, "_said_numpy", [])
     monkeypatch.setenv("ROVER_FIRMWARE_CACHE", str(tmp_path))  # nothing built there
     monkeypatch.setenv("PATH", str(tmp_path))
     monkeypatch.setenv("CC", "no-such-cc")
     with pytest.raises(NativeBuildError, match="no C compiler"):
         play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
-    with caplog.at_level(logging.WARNING, logger="emulator.moves"):
+    with caplog.at_level(logging.WARNING, logger="emulator.batch_kernel"):
         first = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5)
         second = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5)
     assert np.array_equal(first, plain) and np.array_equal(second, plain)
-    said = [r.getMessage() for r in caplog.records if r.name == "emulator.moves"]
-    assert len(said) == 1 and "replaying with numpy, not the C kernel: no C compiler" in said[0]
+    said = [r.getMessage() for r in caplog.records if r.name == "emulator.batch_kernel"]
+    assert len(said) == 1 and "batch twins in numpy, not the C kernel: no C compiler" in said[0]
     assert not list(tmp_path.iterdir())
 
 

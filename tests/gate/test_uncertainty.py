@@ -64,7 +64,8 @@ def rover() -> RoverDescription:
     return load_rover()
 
 
-def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription) -> None:
+@pytest.mark.parametrize("kernel", ["c", "numpy"])
+def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription, kernel: str) -> None:
     world = load_map("scn01")
     plan = Plan.from_dict(SQUARE)
     start = Pose2D.from_deg(1.0, 4.0, 0.0)
@@ -72,7 +73,7 @@ def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription) -> None:
     nominal = BatchDraw(Ground.of_rover(rover, world))
     batch = play_batch(
         rover, world, [nominal] * 3, plan.to_wire(),
-        dt_s=0.01, safety_margin_m=0.1, start=start, record_every_s=1.0,
+        dt_s=0.01, safety_margin_m=0.1, start=start, record_every_s=1.0, kernel=kernel,
     )  # fmt: skip
     assert [(round(s.start_time_s / 0.01), round(s.end_time_s / 0.01)) for s in single.steps] == (
         list(batch.schedule.step_ticks)
@@ -87,7 +88,10 @@ def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription) -> None:
         assert math.hypot(x - step.end_pose.x_m, y - step.end_pose.y_m) < 1e-7
 
 
-def test_a_batch_twin_collides_where_the_single_twin_does(rover: RoverDescription) -> None:
+@pytest.mark.parametrize("kernel", ["c", "numpy"])
+def test_a_batch_twin_collides_where_the_single_twin_does(
+    rover: RoverDescription, kernel: str
+) -> None:
     world = load_map("lab")
     steps = [(1, 60, 30000), (1, 60, 30000)]  # straight into the table
     single = play(Twin(rover, world, dt_s=0.01, safety_margin_m=0.1), steps)
@@ -95,7 +99,7 @@ def test_a_batch_twin_collides_where_the_single_twin_does(rover: RoverDescriptio
     start = Pose2D.from_deg(world.start.x, world.start.y, world.start.yaw_deg)
     batch = play_batch(
         rover, world, draws * 2, steps, dt_s=0.01, safety_margin_m=0.1, start=start,
-        record_every_s=1.0,
+        record_every_s=1.0, kernel=kernel,
     )  # fmt: skip
     assert single.collision is not None
     assert batch.collision_obstacle == (single.collision.obstacle_id,) * 2

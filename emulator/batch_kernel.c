@@ -1,10 +1,10 @@
 /*
- * The replay loop of emulator/moves.py in C: each job a free rigid body on four wheels,
- * integrated as pymunk integrates one, with the traction forces of emulator/batch.py's
- * _Forces (TractionModel.step_wrench). Jobs do not interact: each is played alone, from
- * its start to its end tick. Same operations in the same order as the numpy code (no
- * fused multiply-adds: built with -ffp-contract=off), so the two agree to the last bits
- * of libm's tanh, sin and cos. Units: m, s, rad, N, kg. Loaded by emulator/moves_kernel.py.
+ * The batch twins' traction forces in C (emulator/batch_kernel.py loads this): the forces
+ * of emulator/batch.py's _Forces (TractionModel.step_wrench) for play_batch's twins, one
+ * physics step at a time, and emulator/moves.py's whole replay loop (each job a free rigid
+ * body on four wheels, integrated as pymunk integrates one). Same operations in the same
+ * order as the numpy code (no fused multiply-adds: built with -ffp-contract=off), so the
+ * two agree to the last bits of libm's tanh, sin and cos. Units: m, s, rad, N, kg.
  */
 #include <math.h>
 #include <stdint.h>
@@ -61,6 +61,21 @@ static void place(const moves_model_t *m, const moves_regions_t *g, const double
             if (inside) found = r;
         }
         if (found >= 0) out[k] = scales[found];
+    }
+}
+
+/* Twin i's friction limits per wheel at this pose, N: its side factor times its region
+ * scale, times mu N (_Forces._update_limits). */
+static void limits(const moves_model_t *m, const moves_grounds_t *g, const moves_regions_t *r,
+                   int64_t i, double x, double y, double c, double s, double lx[4],
+                   double ly[4]) {
+    int32_t nr = r->regions > 0 ? r->regions : 1;
+    double region[4];
+    place(m, r, g->region_scales + (int64_t)nr * i, x, y, c, s, region);
+    for (int k = 0; k < 4; k++) {
+        double scale = g->side[2 * i + (k >= 2)] * region[k];
+        lx[k] = g->mu_long_n[i] * scale;
+        ly[k] = g->mu_lat_n[i] * scale;
     }
 }
 
@@ -132,25 +147,15 @@ int rover_play_moves(const moves_model_t *m, const moves_grounds_t *grounds,
                      const moves_regions_t *regions, int64_t n, const double *start,
                      const double *surface, const int64_t *offset, const int64_t *ticks,
                      const int64_t *end, double *out) {
-    int32_t nr = regions->regions > 0 ? regions->regions : 1;
     for (int64_t i = 0; i < n; i++) {
         double x = start[3 * i], y = start[3 * i + 1], a = start[3 * i + 2];
         double vx = 0.0, vy = 0.0, w = 0.0;
         double s0 = grounds->s0[i], kappa = grounds->kappa[i], rr = grounds->rr[i];
-        double mul = grounds->mu_long_n[i], mut = grounds->mu_lat_n[i];
-        double side[4] = {grounds->side[2 * i], grounds->side[2 * i],
-                          grounds->side[2 * i + 1], grounds->side[2 * i + 1]};
-        const double *scales = grounds->region_scales + (int64_t)nr * i;
         const double *speeds = surface + 2 * offset[i];
-        double lx[4], ly[4], region[4];
+        double lx[4], ly[4];
         for (int64_t tick = 1; tick <= end[i]; tick++) {
             double c = cos(a), s = sin(a);
-            place(m, regions, scales, x, y, c, s, region);
-            for (int k = 0; k < 4; k++) {
-                double scale = side[k] * region[k];
-                lx[k] = mul * scale;
-                ly[k] = mut * scale;
-            }
+            limits(m, grounds, regions, i, x, y, c, s, lx, ly);
             double ul = 0.0, ur = 0.0;
             if (tick <= ticks[i]) {
                 ul = speeds[2 * (tick - 1)];
@@ -170,4 +175,28 @@ int rover_play_moves(const moves_model_t *m, const moves_grounds_t *grounds,
         out[3 * i + 2] = a;
     }
     return 0;
+}
+
+/*
+ * One physics step's forces for emulator/batch.py's play_batch: n twins in one pymunk
+ * space, state[6i..6i+5] each one's (x, y, angle, vx, vy in the world frame, angular
+ * velocity) as pymunk.batch gives it, offsets[2i..2i+1] where its copy of the map is, the
+ * wheel surface speeds ul, ur shared by every twin. Writes twin i's world-frame force and
+ * torque to force[3i..3i+2] (the layout pymunk.batch sets them from).
+ */
+void rover_batch_forces(const moves_model_t *m, const moves_grounds_t *grounds,
+                        const moves_regions_t *regions, int64_t n, const double *state,
+                        const double *offsets, double ul, double ur, double *force) {
+    for (int64_t i = 0; i < n; i++) {
+        const double *st = state + 6 * i;
+        double c = cos(st[2]), s = sin(st[2]);
+        double lx[4], ly[4], f[3];
+        limits(m, grounds, regions, i, st[0] - offsets[2 * i], st[1] - offsets[2 * i + 1], c, s,
+               lx, ly);
+        wrench(m, lx, ly, grounds->s0[i], grounds->kappa[i], grounds->rr[i],
+               c * st[3] + s * st[4], c * st[4] - s * st[3], st[5], ul, ur, f);
+        force[3 * i] = c * f[0] - s * f[1];
+        force[3 * i + 1] = s * f[0] + c * f[1];
+        force[3 * i + 2] = f[2];
+    }
 }
