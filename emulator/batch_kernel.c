@@ -20,12 +20,12 @@ typedef struct {
     double dt;                  /* physics step, s */
     double probe;               /* region probe radius, m */
     double wheel_x[4], wheel_y[4]; /* contact points, body frame: FL, RL, FR, RR */
-} moves_model_t;
+} batch_model_t;
 
 /* Each job's ground: arrays of n (side: n x 2, left then right; scales: n x regions). */
 typedef struct {
     const double *s0, *kappa, *rr, *mu_long_n, *mu_lat_n, *side, *region_scales;
-} moves_grounds_t;
+} batch_grounds_t;
 
 /* The traction regions' convex parts: part p belongs to region part_region[p] and has the
  * edges part_edge[p] .. part_edge[p + 1] - 1 of edges (px, py, dx, dy each, CCW, unit). */
@@ -33,7 +33,7 @@ typedef struct {
     int32_t regions, parts;
     const int32_t *part_region, *part_edge;
     const double *edges;
-} moves_regions_t;
+} batch_regions_t;
 
 static double max_nan(double a, double b) { /* np.maximum: NaN wins */
     return (a > b || a != a) ? a : b;
@@ -41,7 +41,7 @@ static double max_nan(double a, double b) { /* np.maximum: NaN wins */
 
 /* Each wheel's region scale at this pose: the last region (map order) within the probe of
  * its contact, else 1 (_Forces.place). */
-static void place(const moves_model_t *m, const moves_regions_t *g, const double *scales,
+static void place(const batch_model_t *m, const batch_regions_t *g, const double *scales,
                   double x, double y, double c, double s, double out[4]) {
     for (int k = 0; k < 4; k++) {
         out[k] = 1.0;
@@ -66,7 +66,7 @@ static void place(const moves_model_t *m, const moves_regions_t *g, const double
 
 /* Twin i's friction limits per wheel at this pose, N: its side factor times its region
  * scale, times mu N (_Forces._update_limits). */
-static void limits(const moves_model_t *m, const moves_grounds_t *g, const moves_regions_t *r,
+static void limits(const batch_model_t *m, const batch_grounds_t *g, const batch_regions_t *r,
                    int64_t i, double x, double y, double c, double s, double lx[4],
                    double ly[4]) {
     int32_t nr = r->regions > 0 ? r->regions : 1;
@@ -80,7 +80,7 @@ static void limits(const moves_model_t *m, const moves_grounds_t *g, const moves
 }
 
 /* Body-frame force and torque of one step (_Forces.step, for one job). */
-static void wrench(const moves_model_t *m, const double lx[4], const double ly[4], double s0,
+static void wrench(const batch_model_t *m, const double lx[4], const double ly[4], double s0,
                    double kappa, double rr, double vx, double vy, double w, double ul,
                    double ur, double out[3]) {
     double hx = m->hx, hy = m->hy, dt = m->dt;
@@ -143,8 +143,8 @@ static void wrench(const moves_model_t *m, const double lx[4], const double ly[4
  * stopped wheels until tick end[i], and leaves its pose at that tick in out[3i..3i+2]
  * (yaw unwrapped). Returns 0.
  */
-int rover_play_moves(const moves_model_t *m, const moves_grounds_t *grounds,
-                     const moves_regions_t *regions, int64_t n, const double *start,
+int rover_play_moves(const batch_model_t *m, const batch_grounds_t *grounds,
+                     const batch_regions_t *regions, int64_t n, const double *start,
                      const double *surface, const int64_t *offset, const int64_t *ticks,
                      const int64_t *end, double *out) {
     for (int64_t i = 0; i < n; i++) {
@@ -184,8 +184,8 @@ int rover_play_moves(const moves_model_t *m, const moves_grounds_t *grounds,
  * wheel surface speeds ul, ur shared by every twin. Writes twin i's world-frame force and
  * torque to force[3i..3i+2] (the layout pymunk.batch sets them from).
  */
-void rover_batch_forces(const moves_model_t *m, const moves_grounds_t *grounds,
-                        const moves_regions_t *regions, int64_t n, const double *state,
+void rover_batch_forces(const batch_model_t *m, const batch_grounds_t *grounds,
+                        const batch_regions_t *regions, int64_t n, const double *state,
                         const double *offsets, double ul, double ur, double *force) {
     for (int64_t i = 0; i < n; i++) {
         const double *st = state + 6 * i;

@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from emulator.errors import NativeBuildError
-from emulator.sharedlib import build_shared_library, compiler
+from emulator.sharedlib import WARNINGS, build_shared_library, compiler
 
 _Edges = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -63,13 +63,7 @@ builds, else numpy), ``c`` (the kernel, or :class:`NativeBuildError`), ``numpy``
 _C_DIR = Path(__file__).resolve().parent
 _SOURCES = ("batch_kernel.c",)
 _FLAGS = (
-    "-std=c99",
-    "-Wall",
-    "-Wextra",
-    "-Werror",
-    "-pedantic",
-    "-Wconversion",
-    "-Wshadow",
+    *WARNINGS,
     "-O2",
     "-ffp-contract=off",  # no fused multiply-adds: numpy's roundings, step by step
 )
@@ -83,7 +77,7 @@ _I64 = ctypes.POINTER(ctypes.c_int64)
 
 
 class _Model(ctypes.Structure):
-    """``moves_model_t``, field for field."""
+    """``batch_model_t``, field for field."""
 
     _fields_ = [
         ("hx", ctypes.c_double),
@@ -101,7 +95,7 @@ class _Model(ctypes.Structure):
 
 
 class _Grounds(ctypes.Structure):
-    """``moves_grounds_t``."""
+    """``batch_grounds_t``."""
 
     _fields_ = [
         (name, _D)
@@ -110,7 +104,7 @@ class _Grounds(ctypes.Structure):
 
 
 class _Regions(ctypes.Structure):
-    """``moves_regions_t``."""
+    """``batch_regions_t``."""
 
     _fields_ = [
         ("regions", ctypes.c_int32),

@@ -29,7 +29,7 @@ from emulator.controller import ControllerConfig, ControllerModel, LatchCause
 from emulator.drive import motor_omegas
 from emulator.errors import FirmwareBuildError
 from emulator.sensors import PoseMeasurement, wrap_count
-from emulator.sharedlib import build_shared_library, compiler
+from emulator.sharedlib import WARNINGS, build_shared_library, compiler
 from emulator.twin import Twin
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.wire.framing import FrameDecoder, FrameEncoder
@@ -52,7 +52,6 @@ C_DIR = Path(__file__).resolve().parents[1] / "firmware_proto" / "wire" / "c"
 """The C codec; the firmware core is in its ``fw/`` folder."""
 SOURCES = ("fw/fw.c", "fw/port_host.c", "rover_msgs.c", "rover_proto.c")
 HEADERS = ("fw/fw.h", "fw/fw_hal.h", "rover_msgs.h", "rover_proto.h")
-WARNINGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wconversion", "-Wshadow")
 OPTIMISE = ("-O2",)
 SANITIZE = (
     "-g",

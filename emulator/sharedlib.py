@@ -22,9 +22,12 @@ from pathlib import Path
 from emulator.errors import NativeBuildError
 from firmware_proto.runtime.cachedir import rover_cache_dir
 
-__all__ = ["build_shared_library", "cache_dir", "compiler"]
+__all__ = ["WARNINGS", "build_shared_library", "cache_dir", "compiler"]
 
 logger = logging.getLogger(__name__)
+
+WARNINGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wconversion", "-Wshadow")
+"""Warnings the project's C compiles clean with (as errors)."""
 
 
 def cache_dir() -> Path:
