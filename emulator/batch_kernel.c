@@ -4,7 +4,8 @@
  * physics step at a time, and emulator/moves.py's whole replay loop (each job a free rigid
  * body on four wheels, integrated as pymunk integrates one). Same operations in the same
  * order as the numpy code (no fused multiply-adds: built with -ffp-contract=off), so the
- * two agree to the last bits of libm's tanh, sin and cos. Units: m, s, rad, N, kg.
+ * two agree to the last bits of tanh, sin and cos (numpy's tanh is its own, not libm's).
+ * Units: m, s, rad, N, kg.
  */
 #include <math.h>
 #include <stdint.h>

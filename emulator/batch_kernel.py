@@ -6,10 +6,12 @@ numpy pays its call overhead about 150 times a physics step whatever the number 
 a calibration replays a few dozen at once and the gate's uncertainty a few hundred, so
 that overhead was most of their time. The kernel computes each twin alone, with the same
 operations in the same order as ``emulator.batch._Forces``, so the two agree to the
-last bits of libm's ``tanh``, ``sin`` and ``cos`` (``tests/emulator/test_moves.py``,
+last bits of ``tanh``, ``sin`` and ``cos`` (numpy's ``tanh`` is its own, not libm's), to
+1e-12 m and 1e-9 m with the same collision and rest ticks (``tests/emulator/test_moves.py``,
 ``tests/emulator/test_batch_kernel.py``; figures in docs/twin.md, "Batch replays"). Built
 on first use with the host's C compiler and cached (:mod:`emulator.sharedlib`);
-:func:`choose` falls back to numpy, said once in the log, where it cannot be.
+:func:`choose` falls back to numpy, said once in the log, where it cannot be (no
+compiler, no writable cache, a failed build: kept, not tried again).
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ _FLAGS = (
 )
 _LOCK = threading.Lock()
 _LIB: list[ctypes.CDLL] = []
+_FAILED: list[NativeBuildError] = []
 _said_numpy: list[str] = []
 
 _D = ctypes.POINTER(ctypes.c_double)
@@ -139,18 +142,25 @@ def build(timeout_s: float = 120.0) -> Path:
 
 
 def load() -> ctypes.CDLL:
-    """The kernel, built and loaded once per process.
+    """The kernel, built and loaded once per process; a failure is kept and raised again
+    (no second build).
 
     Raises:
         NativeBuildError: it cannot be built or loaded here.
     """
     with _LOCK:
+        if _FAILED:
+            raise _FAILED[0]
         if not _LIB:
-            path = build()
             try:
-                lib = ctypes.CDLL(str(path))
-            except OSError as exc:
-                raise NativeBuildError(f"cannot load {path}: {exc}") from exc
+                path = build()
+                try:
+                    lib = ctypes.CDLL(str(path))
+                except OSError as exc:
+                    raise NativeBuildError(f"cannot load {path}: {exc}") from exc
+            except NativeBuildError as exc:
+                _FAILED.append(exc)
+                raise
             fn = lib.rover_play_moves
             fn.restype = ctypes.c_int
             fn.argtypes = [
@@ -201,7 +211,10 @@ def choose(kernel: str) -> ctypes.CDLL | None:
             raise
         if not _said_numpy:
             _said_numpy.append(str(exc))
-            logger.warning("batch twins in numpy, not the C kernel: %s", exc)
+            first, _, rest = str(exc).partition("\n")
+            logger.warning("batch twins in numpy, not the C kernel: %s", first)
+            if rest:
+                logger.debug("the kernel's build said:\n%s", rest)
         return None
 
 

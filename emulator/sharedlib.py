@@ -1,8 +1,8 @@
 """Host C built on demand into shared libraries, cached by content hash: the C firmware
 core (:mod:`emulator.firmware`) and the batch twins' kernel (:mod:`emulator.batch_kernel`).
 
-A library is named after its stem and the hash of the compiler's path, the flags and
-every source and header, and kept in ``$ROVER_FIRMWARE_CACHE``, else
+A library is named after its stem and the hash of the compiler's path, the machine's
+architecture, the flags and every source and header, and kept in ``$ROVER_FIRMWARE_CACHE``, else
 ``$XDG_CACHE_HOME/rover/firmware``, else ``~/.cache/rover/firmware``: the same C is
 compiled once per machine, and processes that build it at once each write their own
 temporary file and rename it into place (the last one wins, with the same bytes).
@@ -10,9 +10,11 @@ temporary file and rename it into place (the last one wins, with the same bytes)
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -67,12 +69,13 @@ def build_shared_library(
     ``lib{stem}-{hash}{suffix}.so`` in :func:`cache_dir`, or that file if it is there.
 
     Raises:
-        error: the build failed (the command and its output are in the message), or the
-            compiler ran past ``timeout_s`` seconds.
+        error: the build failed (the command and its output are in the message), the
+            compiler ran past ``timeout_s`` seconds, or it or the cache directory could
+            not be used (the ``OSError`` in the message).
     """
     flags = [*flags, "-fPIC", "-shared"]
     digest = hashlib.sha256()
-    digest.update(cc.encode())
+    digest.update(f"{cc}\0{platform.machine()}\0".encode())
     digest.update(" ".join([*flags, *libs]).encode())
     for name in (*sources, *headers):
         digest.update(name.encode())
@@ -81,8 +84,11 @@ def build_shared_library(
     target = out_dir / f"lib{stem}-{digest.hexdigest()[:16]}{suffix}.so"
     if target.exists():
         return target
-    out_dir.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(suffix=".so", dir=out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(suffix=".so", dir=out_dir)
+    except OSError as exc:
+        raise error(f"cannot write the library to {out_dir}: {exc}") from exc
     os.close(fd)
     cmd = [cc, *flags, f"-I{c_dir}", *(str(c_dir / s) for s in sources), *libs, "-o", tmp_name]
     try:
@@ -92,8 +98,10 @@ def build_shared_library(
         os.replace(tmp_name, target)
     except subprocess.TimeoutExpired as exc:
         raise error(f"compiler timed out after {timeout_s} s") from exc
+    except OSError as exc:
+        raise error(f"cannot run {cc} or keep its library: {exc}") from exc
     finally:
-        if os.path.exists(tmp_name):
+        with contextlib.suppress(OSError):
             os.unlink(tmp_name)
     logger.info("built %s", target)
     return target

@@ -241,6 +241,14 @@ def still_open(fds: set[int]) -> dict[int, str]:
     return {fd: target for fd in sorted(fds) if (target := _fd_target(fd)) is not None}
 
 
+@pytest.fixture
+def c_compiler() -> None:
+    """Skip where there is no C compiler (``$CC`` or gcc): the batch twins' C kernel, like
+    the C firmware core, is built with it (.ci/bootstrap installs gcc)."""
+    if shutil.which(os.environ.get("CC", "gcc")) is None:
+        pytest.skip("gcc not found (set CC): the C kernel cannot be built here")
+
+
 @pytest.fixture(autouse=True)
 def _no_leaks(request: pytest.FixtureRequest) -> Iterator[None]:
     if request.node.get_closest_marker("allow_leaks"):

@@ -148,6 +148,7 @@ def test_bench_twin_quick_prints_its_table() -> None:
     assert "playback (gate step)" in out
 
 
+@pytest.mark.usefixtures("c_compiler")
 def test_bench_batch_quick_puts_the_c_kernel_beside_numpy() -> None:
     out = run_benchmark("bench_batch", "--quick")
     assert "librover_batch-" in out

@@ -5,6 +5,7 @@ tests/emulator/test_moves.py)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,9 +15,12 @@ from emulator import batch_kernel
 from emulator.batch import _WHEEL_PROBE_RADIUS_M, BatchDraw, BatchResult, _Forces, play_batch
 from emulator.errors import TwinConfigError
 from emulator.ground import load_ground
+from emulator.moves import MoveJob, play_moves
 from emulator.twin import Pose2D
 from firmware_proto.model.rover import RoverDescription
-from firmware_proto.model.worldmap import WorldMap, load_map
+from firmware_proto.model.worldmap import TractionRegion, WorldMap, load_map
+
+pytestmark = pytest.mark.usefixtures("c_compiler")
 
 QUARTER = 15484
 SQUARE = [(1, 60, 28750), (1, 60, 28750), (3, 30, QUARTER)] * 4
@@ -81,6 +85,48 @@ def test_the_c_kernel_plays_the_batch_as_numpy_does(
         assert 0 < collided.sum() < len(draws) and len(set(c.final_tick[~collided])) > 1
     with pytest.raises(TwinConfigError, match="kernel must be one of"):
         run("cuda")
+
+
+def test_overlapping_and_concave_regions_scale_the_wheels_alike(
+    rover: RoverDescription,
+) -> None:
+    lab = load_map("lab")
+    ell = TractionRegion(  # concave, over the sandbox's right half
+        "ell", ((1.0, 4.0), (3.0, 4.0), (3.0, 5.0), (2.0, 5.0), (2.0, 6.0), (1.0, 6.0)), 0.3
+    )
+    patch = TractionRegion("patch", ((1.5, 4.6), (2.5, 4.6), (2.5, 5.4), (1.5, 5.4)), 1.6)
+    world = dataclasses.replace(lab, traction_regions=(*lab.traction_regions, ell, patch))
+    draws = _draws(rover, lab, 12, seed=7)  # the ground leaves the new regions the map's
+    jobs = [
+        MoveJob(Pose2D(0.8 + 0.2 * (i % 4), 4.4 + 0.3 * (i // 4), 0.5 * i), steps, d)
+        for i, (d, steps) in enumerate(
+            zip(draws, [((1, 40, 20000),), ((3, 30, 15484), (1, 50, 15000))] * 6, strict=True)
+        )
+    ]
+    c = play_moves(rover, world, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+    plain = play_moves(rover, world, jobs, dt_s=0.01, settle_s=0.5, kernel="numpy")
+    assert np.allclose(c, plain, rtol=0.0, atol=1e-12)
+    # The two regions matter: the same jobs end elsewhere on the lab as it is.
+    on_lab = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+    assert np.abs(c - on_lab).max() > 1e-3
+    start = Pose2D(0.8, 5.0, 0.0)
+    steps = [(1, 60, 28750), (3, 30, 15484), (1, 40, 20000)]
+    batch_c, batch_plain = (
+        play_batch(
+            rover,
+            world,
+            draws,
+            steps,
+            dt_s=0.01,
+            safety_margin_m=0.1,
+            start=start,
+            record_every_s=0.5,
+            kernel=kernel,
+        )
+        for kernel in ("c", "numpy")
+    )
+    assert np.array_equal(batch_c.final_tick, batch_plain.final_tick)
+    assert np.allclose(batch_c.poses, batch_plain.poses, atol=1e-9, equal_nan=True)
 
 
 def test_the_forces_refuse_arrays_of_the_wrong_shape(rover: RoverDescription) -> None:

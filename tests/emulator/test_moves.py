@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +28,10 @@ LEFT, FWD, REV, RIGHT = 3, 1, 2, 4
 
 @pytest.mark.parametrize("kernel", ["c", "numpy"])
 def test_a_replay_in_the_batch_is_the_twins(
-    rover: RoverDescription, lab: WorldMap, kernel: str
+    rover: RoverDescription, lab: WorldMap, kernel: str, request: pytest.FixtureRequest
 ) -> None:
+    if kernel == "c":
+        request.getfixturevalue("c_compiler")
     ground = load_ground("loose", rover).with_values(**{"region.sandbox": 0.35})
     cases = [
         ((LEFT, 30, 15484), Pose2D(1.1, 4.9, math.pi / 2)),  # on the sandbox's edge
@@ -85,6 +89,7 @@ def _varied_jobs(rover: RoverDescription, seed: int) -> list[MoveJob]:
     return jobs
 
 
+@pytest.mark.usefixtures("c_compiler")
 @pytest.mark.parametrize("seed", [1, 2])
 def test_the_c_kernel_replays_what_numpy_does(
     rover: RoverDescription, lab: WorldMap, seed: int
@@ -104,29 +109,44 @@ def test_the_c_kernel_replays_what_numpy_does(
         play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="fortran")
 
 
-def test_without_a_compiler_the_replay_says_so_once_and_uses_numpy(
+@pytest.mark.parametrize("cause", ["no compiler", "no cache"])
+def test_where_the_kernel_cannot_build_the_replay_says_so_once_and_uses_numpy(
     rover: RoverDescription,
     lab: WorldMap,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     caplog: pytest.LogCaptureFixture,
+    cause: str,
 ) -> None:
     jobs = _varied_jobs(rover, 3)[:6]
     plain = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="numpy")
+    path = os.environ["PATH"]
     monkeypatch.setattr(batch_kernel, "_LIB", [])  # not loaded yet in this process
+    monkeypatch.setattr(batch_kernel, "_FAILED", [])
     monkeypatch.setattr(batch_kernel, "_said_numpy", [])
-    monkeypatch.setenv("ROVER_FIRMWARE_CACHE", str(tmp_path))  # nothing built there
-    monkeypatch.setenv("PATH", str(tmp_path))
-    monkeypatch.setenv("CC", "no-such-cc")
-    with pytest.raises(NativeBuildError, match="no C compiler"):
+    if cause == "no compiler":
+        monkeypatch.setenv("ROVER_FIRMWARE_CACHE", str(tmp_path))  # nothing built there
+        monkeypatch.setenv("PATH", str(tmp_path))
+        monkeypatch.setenv("CC", "no-such-cc")
+        why = "no C compiler ('no-such-cc' or cc) on PATH"
+    else:  # a file where the cache directory would be: it cannot be made
+        (tmp_path / "file").write_text("")
+        monkeypatch.setenv("ROVER_FIRMWARE_CACHE", str(tmp_path / "file" / "cache"))
+        why = f"cannot write the library to {tmp_path / 'file' / 'cache'}"
+    with pytest.raises(NativeBuildError, match=re.escape(why)):
         play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
     with caplog.at_level(logging.WARNING, logger="emulator.batch_kernel"):
         first = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5)
         second = play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5)
     assert np.array_equal(first, plain) and np.array_equal(second, plain)
     said = [r.getMessage() for r in caplog.records if r.name == "emulator.batch_kernel"]
-    assert len(said) == 1 and "batch twins in numpy, not the C kernel: no C compiler" in said[0]
-    assert not list(tmp_path.iterdir())
+    assert len(said) == 1 and said[0].startswith(f"batch twins in numpy, not the C kernel: {why}")
+    # The failure is kept: with the compiler back, this process builds nothing again.
+    monkeypatch.setenv("PATH", path)
+    monkeypatch.delenv("CC", raising=False)
+    with pytest.raises(NativeBuildError, match=re.escape(why)):
+        play_moves(rover, lab, jobs, dt_s=0.01, settle_s=0.5, kernel="c")
+    assert [p.name for p in tmp_path.iterdir()] == ([] if cause == "no compiler" else ["file"])
 
 
 def test_antithetic_draws_are_centred_pairs() -> None:

@@ -65,7 +65,11 @@ def rover() -> RoverDescription:
 
 
 @pytest.mark.parametrize("kernel", ["c", "numpy"])
-def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription, kernel: str) -> None:
+def test_a_batch_twin_plays_as_the_single_twin(
+    rover: RoverDescription, kernel: str, request: pytest.FixtureRequest
+) -> None:
+    if kernel == "c":
+        request.getfixturevalue("c_compiler")
     world = load_map("scn01")
     plan = Plan.from_dict(SQUARE)
     start = Pose2D.from_deg(1.0, 4.0, 0.0)
@@ -90,8 +94,10 @@ def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription, kernel: 
 
 @pytest.mark.parametrize("kernel", ["c", "numpy"])
 def test_a_batch_twin_collides_where_the_single_twin_does(
-    rover: RoverDescription, kernel: str
+    rover: RoverDescription, kernel: str, request: pytest.FixtureRequest
 ) -> None:
+    if kernel == "c":
+        request.getfixturevalue("c_compiler")
     world = load_map("lab")
     steps = [(1, 60, 30000), (1, 60, 30000)]  # straight into the table
     single = play(Twin(rover, world, dt_s=0.01, safety_margin_m=0.1), steps)
