@@ -60,7 +60,7 @@ def test_the_c_kernel_plays_the_batch_as_numpy_does(
     world = load_map(map_name)
     if start is None:
         start = Pose2D(world.start.x, world.start.y, math.radians(world.start.yaw_deg))
-    draws = _draws(rover, world, 24, seed=len(map_name))
+    draws = _draws(rover, world, 12, seed=len(map_name))
 
     def run(kernel: str) -> BatchResult:
         return play_batch(
