@@ -31,7 +31,7 @@ from firmware_proto.linkio.clock import WALL, Clock
 from firmware_proto.model.rover import RoverDescription
 from firmware_proto.runtime.procname import process_name
 
-from .conftest import BACKEND_PARAMS, WIDE_WATCHDOG_MS, Recorder
+from .conftest import BACKEND_PARAMS, WIDE_LINK_LOST_BEATS, WIDE_WATCHDOG_MS, Recorder
 
 Emus = Callable[..., Emulator]
 
@@ -98,11 +98,19 @@ def bridged(
     request: pytest.FixtureRequest, emulators: Emus, make_port: Callable[..., RosPort]
 ) -> Iterator[tuple[Emulator, BridgeNode, Client]]:
     """An emulator and the bridge node on it. The controller's watchdog is
-    :data:`WIDE_WATCHDOG_MS`: these tests are about steps, odometry, STOP and
-    diagnostics, and with the in-process backend the emulator, the bridge and the test
-    share one process, whose stall of 213 ms fired the 250 ms watchdog in a CI run
-    (2026-11-30; the link's own loss, from missed heartbeats, is unchanged)."""
-    with bridge_on(request.param, emulators, make_port, watchdog_ms=WIDE_WATCHDOG_MS) as parts:
+    :data:`WIDE_WATCHDOG_MS` and the bridge's link lost after :data:`WIDE_LINK_LOST_BEATS`
+    missed heartbeats: these tests are about steps, odometry, STOP and diagnostics, and
+    with the in-process backend the emulator, the bridge and the test share one process,
+    whose stall of 213 ms fired the 250 ms watchdog in a CI run, and of 409 ms beside
+    four busy processes the link's loss after three beats (2026-11-30). A link dropped
+    for good is still lost (``test_diagnostics_report_link_and_controller``)."""
+    with bridge_on(
+        request.param,
+        emulators,
+        make_port,
+        link_lost_beats=WIDE_LINK_LOST_BEATS,
+        watchdog_ms=WIDE_WATCHDOG_MS,
+    ) as parts:
         yield parts
 
 
@@ -112,13 +120,19 @@ def rebooting(
 ) -> Iterator[tuple[Emulator, BridgeNode, Client, bool]]:
     """As :func:`bridged`, and once with a controller that reboots with the boot nonce of
     the boot before (against docs/protocol.md, Handshake 1; issue #40, hole 5); the last
-    item says which. The controller's watchdog is :data:`WIDE_WATCHDOG_MS`: these tests
-    check odometry across a reboot, and an idle CI run saw the 250 ms one fire on a
-    190 ms stall of the test's process."""
+    item says which. The controller's watchdog and the bridge's heartbeats are wide, as
+    :func:`bridged`'s: these tests check odometry across a reboot, and CI runs saw the
+    250 ms watchdog fire on a 190 ms stall of the test's process (idle), and the link
+    called lost on one of 409 ms (beside four busy processes)."""
     repeats = request.node.callspec.id == "repeated-nonce"
     mutant = "reboot-keeps-nonce" if repeats else ""
     with bridge_on(
-        request.param, emulators, make_port, mutant=mutant, watchdog_ms=WIDE_WATCHDOG_MS
+        request.param,
+        emulators,
+        make_port,
+        link_lost_beats=WIDE_LINK_LOST_BEATS,
+        mutant=mutant,
+        watchdog_ms=WIDE_WATCHDOG_MS,
     ) as parts:
         yield (*parts, repeats)
 
