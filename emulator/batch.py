@@ -557,8 +557,7 @@ def play_batch(
         raise TwinConfigError(f"safety_margin_m must be in [0, 1], got {safety_margin_m}")
     if not (math.isfinite(record_every_s) and record_every_s > 0.0):
         raise TwinConfigError(f"record_every_s must be > 0, got {record_every_s}")
-    if kernel not in batch_kernel.KERNELS:
-        raise TwinConfigError(f"kernel must be one of {batch_kernel.KERNELS}, got {kernel!r}")
+    lib = batch_kernel.choose(kernel)
     plan = schedule(rover, steps, dt_s)
     n = len(draws)
     space = _World(rover, world, draws, dt_s, safety_margin_m, start)
@@ -617,7 +616,6 @@ def play_batch(
         space.pending.clear()
     surface = plan.surface_mps
     native: batch_kernel.Forces | None = None
-    lib = batch_kernel.choose(kernel)
     if lib is not None:
         prepared = batch_kernel.Prepared(forces, dt_s=dt_s, probe_m=_WHEEL_PROBE_RADIUS_M)
         native = batch_kernel.Forces(lib, prepared, offsets, space.force)

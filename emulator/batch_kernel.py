@@ -25,8 +25,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from emulator.errors import NativeBuildError
+from emulator.errors import NativeBuildError, TwinConfigError
 from emulator.sharedlib import WARNINGS, build_shared_library, compiler
+
+__all__ = ["KERNELS", "ForceParameters", "Forces", "Prepared", "build", "choose", "load", "play"]
 
 _Edges = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -53,8 +55,6 @@ class ForceParameters(Protocol):
     region_scales: np.ndarray
     parts: list[list[_Edges]]
 
-
-__all__ = ["KERNELS", "ForceParameters", "Forces", "Prepared", "build", "choose", "load", "play"]
 
 logger = logging.getLogger(__name__)
 
@@ -197,11 +197,11 @@ def choose(kernel: str) -> ctypes.CDLL | None:
     ``auto``, where it cannot be built or loaded (said once per process in the log).
 
     Raises:
-        ValueError: ``kernel`` is not one of :data:`KERNELS`.
+        TwinConfigError: ``kernel`` is not one of :data:`KERNELS`.
         NativeBuildError: ``kernel == "c"`` and it cannot be built or loaded here.
     """
     if kernel not in KERNELS:
-        raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+        raise TwinConfigError(f"kernel must be one of {KERNELS}, got {kernel!r}")
     if kernel == "numpy":
         return None
     try:

@@ -245,8 +245,19 @@ def still_open(fds: set[int]) -> dict[int, str]:
 def c_compiler() -> None:
     """Skip where there is no C compiler (``$CC`` or gcc): the batch twins' C kernel, like
     the C firmware core, is built with it (.ci/bootstrap installs gcc)."""
-    if shutil.which(os.environ.get("CC", "gcc")) is None:
+    from tests.firmware_proto.c_harness import compiler  # only where a test asks
+
+    if compiler() is None:
         pytest.skip("gcc not found (set CC): the C kernel cannot be built here")
+
+
+@pytest.fixture(params=["c", "numpy"])
+def kernel(request: pytest.FixtureRequest) -> str:
+    """Each way the batch twins' forces are computed (``emulator.batch_kernel.KERNELS``
+    but ``auto``); ``c`` skips where there is no C compiler."""
+    if request.param == "c":
+        request.getfixturevalue("c_compiler")
+    return str(request.param)
 
 
 @pytest.fixture(autouse=True)

@@ -26,12 +26,9 @@ from firmware_proto.model.worldmap import WorldMap
 LEFT, FWD, REV, RIGHT = 3, 1, 2, 4
 
 
-@pytest.mark.parametrize("kernel", ["c", "numpy"])
 def test_a_replay_in_the_batch_is_the_twins(
-    rover: RoverDescription, lab: WorldMap, kernel: str, request: pytest.FixtureRequest
+    rover: RoverDescription, lab: WorldMap, kernel: str
 ) -> None:
-    if kernel == "c":
-        request.getfixturevalue("c_compiler")
     ground = load_ground("loose", rover).with_values(**{"region.sandbox": 0.35})
     cases = [
         ((LEFT, 30, 15484), Pose2D(1.1, 4.9, math.pi / 2)),  # on the sandbox's edge

@@ -64,12 +64,7 @@ def rover() -> RoverDescription:
     return load_rover()
 
 
-@pytest.mark.parametrize("kernel", ["c", "numpy"])
-def test_a_batch_twin_plays_as_the_single_twin(
-    rover: RoverDescription, kernel: str, request: pytest.FixtureRequest
-) -> None:
-    if kernel == "c":
-        request.getfixturevalue("c_compiler")
+def test_a_batch_twin_plays_as_the_single_twin(rover: RoverDescription, kernel: str) -> None:
     world = load_map("scn01")
     plan = Plan.from_dict(SQUARE)
     start = Pose2D.from_deg(1.0, 4.0, 0.0)
@@ -92,12 +87,9 @@ def test_a_batch_twin_plays_as_the_single_twin(
         assert math.hypot(x - step.end_pose.x_m, y - step.end_pose.y_m) < 1e-7
 
 
-@pytest.mark.parametrize("kernel", ["c", "numpy"])
 def test_a_batch_twin_collides_where_the_single_twin_does(
-    rover: RoverDescription, kernel: str, request: pytest.FixtureRequest
+    rover: RoverDescription, kernel: str
 ) -> None:
-    if kernel == "c":
-        request.getfixturevalue("c_compiler")
     world = load_map("lab")
     steps = [(1, 60, 30000), (1, 60, 30000)]  # straight into the table
     single = play(Twin(rover, world, dt_s=0.01, safety_margin_m=0.1), steps)
