@@ -18,9 +18,9 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from emulator import sharedlib
 from emulator.pil.errors import PilError, PilToolMissingError
 from firmware_proto.model.rover import load_rover
-from firmware_proto.runtime.cachedir import rover_cache_dir
 
 __all__ = ["IMAGES", "Image", "ImageSpec", "build_image", "cache_dir", "require_tool"]
 
@@ -137,8 +137,8 @@ class Image:
 
 
 def cache_dir() -> Path:
-    """Where built images are kept (the host build's cache, emulator/firmware.py)."""
-    return rover_cache_dir("firmware", "ROVER_FIRMWARE_CACHE")
+    """Where built images are kept: the host libraries' cache (:mod:`emulator.sharedlib`)."""
+    return sharedlib.cache_dir()
 
 
 def require_tool(tool: str, packages: str) -> str:
